@@ -1,0 +1,33 @@
+"""Numeric tolerances and hard limits, in one place (after trimesh's ``tol``).
+
+Each value carries the reason it is what it is.  Geometry is float64 throughout ``core``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True, slots=True)
+class Tolerances:
+    # Relative tolerance for "touching": a distance below rel_touch * (scene extent) counts as zero.
+    # float64 has ~16 significant digits; 1e-9 leaves room for a few hundred rounding steps.
+    rel_touch: float = 1e-9
+    # Largest coordinate magnitude a scene may have, in scene units.  Beyond 1e12 float64 keeps
+    # fewer than 4 significant digits of millimetre detail at continental scale, and float32 GL
+    # upload (7 digits) is meaningless; such files are corrupt or in the wrong units.
+    max_coordinate: float = 1e12
+    # Smallest positive extent (scene units) of a scene or view cell: below this the float64
+    # relative error of differences of coordinates near max_coordinate exceeds the extent.
+    min_extent: float = 1e-12
+    # Relative slack before rounding a real number of texels up to an integer, so that values that
+    # are integers in exact arithmetic do not round up to the next one after a rescaling (1 ulp).
+    rel_round: float = 1e-12
+    # Largest number of layers a plan may produce before it is refused as absurd (memory: every
+    # layer is at least one texture page).
+    max_layers: int = 100_000
+    # Largest texture resolution (texels per side) a layer plan may ask for.
+    max_texture_resolution: int = 65_536
+
+
+TOL = Tolerances()

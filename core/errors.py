@@ -1,0 +1,82 @@
+"""The farfield error hierarchy: one root, typed subclasses, and one table of how edges report them.
+
+Every error raised on purpose by ``core`` derives from :class:`FarfieldError`.  Messages name the
+offending values.  The HTTP API and the CLI map an error to a status or exit code through
+:data:`ERROR_KINDS`, so the mapping lives in exactly one place.
+"""
+
+from __future__ import annotations
+
+import enum
+
+
+class ErrorKind(enum.Enum):
+    """How an edge (HTTP, CLI) should report an error: (HTTP status, CLI exit code)."""
+
+    BAD_INPUT = (422, 2)
+    MISSING = (404, 3)
+    CONFLICT = (409, 4)
+    RENDERER_UNAVAILABLE = (503, 5)
+
+    @property
+    def http_status(self) -> int:
+        return self.value[0]
+
+    @property
+    def exit_code(self) -> int:
+        return self.value[1]
+
+
+class FarfieldError(Exception):
+    """Root of every error farfield raises on purpose."""
+
+    kind: ErrorKind = ErrorKind.BAD_INPUT
+
+
+class SceneLoadError(FarfieldError):
+    """A scene file could not be read, parsed or validated."""
+
+
+class SceneNotFoundError(SceneLoadError):
+    """A scene file does not exist."""
+
+    kind = ErrorKind.MISSING
+
+
+class DegenerateGeometryError(FarfieldError):
+    """Geometry with no extent, no triangles, or non-finite coordinates."""
+
+
+class ViewCellError(FarfieldError):
+    """A view cell that is malformed or that does not fit the represented part."""
+
+
+class LayerPlanError(FarfieldError):
+    """Layer mathematics asked for a configuration that has no valid answer."""
+
+
+class AtlasOverflowError(FarfieldError):
+    """Texels do not fit the allowed atlas pages."""
+
+
+class BundleFormatError(FarfieldError):
+    """An impostor bundle on disk is malformed or of an unknown version."""
+
+
+class RenderBackendError(FarfieldError):
+    """No usable rendering backend (EGL) in this process."""
+
+    kind = ErrorKind.RENDERER_UNAVAILABLE
+
+
+def error_kind(error: BaseException) -> ErrorKind:
+    """The reporting kind of ``error``.
+
+    >>> error_kind(LayerPlanError("x")).http_status
+    422
+    >>> error_kind(SceneNotFoundError("x")).exit_code
+    3
+    """
+    if isinstance(error, FarfieldError):
+        return error.kind
+    raise TypeError(f"not a farfield error: {type(error).__name__}")
