@@ -1,0 +1,319 @@
+"""View cells: axis-aligned boxes ``(2, 3)`` float64 and square shafts, with (n, 3) float64 viewpoint queries.
+
+A view cell is the region a viewer may be in while an impostor is valid (seed 000 §1.3, Fig. 1.2):
+
+* :class:`BoxCell` — an axis-aligned box ``[lo, hi]`` in world units.
+* :class:`ShaftCell` — a shaft whose apex lies in the represented part.  It opens along
+  ``direction`` (from the part towards the viewer) with full apex angle ``apex_angle`` and starts at
+  ``min_distance`` from the apex.  In 3D farfield uses a *square* cross-section (a pyramid with the
+  apex angle on both image axes), so the 2D shaft of the thesis holds on each axis independently,
+  exactly as the layer spacing of §3.3.1 treats the x and y axes.  ``max_distance`` may be infinite.
+
+All geometry is float64; points are ``(n, 3)`` arrays in world units.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from core.constants import TOL
+from core.errors import ViewCellError
+
+
+def _vec3(value, what: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    if arr.shape != (3,):
+        raise ViewCellError(f"{what} must have 3 components, got {np.asarray(value).tolist()!r}")
+    if not np.all(np.isfinite(arr)):
+        raise ViewCellError(f"{what} must be finite, got {arr.tolist()!r}")
+    return arr
+
+
+def _points(points) -> np.ndarray:
+    arr = np.asarray(points, dtype=np.float64)
+    return arr.reshape(-1, 3)
+
+
+def box_distance(lo_a: np.ndarray, hi_a: np.ndarray, lo_b: np.ndarray, hi_b: np.ndarray) -> float:
+    """Euclidean distance between two axis-aligned boxes; 0 where they touch or overlap.
+
+    >>> box_distance(np.zeros(3), np.ones(3), np.array([4., 1., 1.]), np.array([5., 2., 2.]))
+    3.0
+    """
+    gap = np.maximum(0.0, np.maximum(lo_a - hi_b, lo_b - hi_a))
+    return float(math.hypot(*gap))
+
+
+@dataclass(frozen=True, slots=True)
+class BoxCell:
+    """An axis-aligned box view cell.
+
+    Parameters
+    ----------
+    lo, hi : (3,) float64, world units
+        Opposite corners with ``lo < hi`` on every axis.
+    """
+
+    lo: np.ndarray  # (3,) float64
+    hi: np.ndarray  # (3,) float64
+    kind: str = field(default="box", init=False)
+
+    def __post_init__(self) -> None:
+        lo = _vec3(self.lo, "box view cell lo")
+        hi = _vec3(self.hi, "box view cell hi")
+        size = hi - lo
+        scale = max(float(np.max(np.abs(np.concatenate([lo, hi])))), 1.0)
+        if np.any(size <= max(TOL.min_extent, scale * 1e-15)):
+            raise ViewCellError(
+                f"box view cell needs lo < hi on every axis with a positive size, got lo={lo.tolist()}, hi={hi.tolist()}"
+            )
+        object.__setattr__(self, "lo", lo)
+        object.__setattr__(self, "hi", hi)
+
+    @classmethod
+    def from_center(cls, center, size) -> "BoxCell":
+        """A box of ``size`` (scalar or (3,)) around ``center`` (3,)."""
+        c = _vec3(center, "box view cell centre")
+        s = np.broadcast_to(np.asarray(size, dtype=np.float64), (3,))
+        return cls(c - 0.5 * s, c + 0.5 * s)
+
+    @property
+    def center(self) -> np.ndarray:
+        """(3,) float64 centre."""
+        return 0.5 * (self.lo + self.hi)
+
+    @property
+    def size(self) -> np.ndarray:
+        """(3,) float64 edge lengths."""
+        return self.hi - self.lo
+
+    def corners(self) -> np.ndarray:
+        """(8, 3) float64 corners, x varying fastest then y then z."""
+        idx = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=bool)
+        return np.where(idx, self.hi, self.lo)
+
+    def contains(self, points, tol: float = 0.0) -> np.ndarray:
+        """(n,) bool: which ``points`` (n, 3) lie inside the box grown by ``tol`` on each side."""
+        p = _points(points)
+        return np.all((p >= self.lo - tol) & (p <= self.hi + tol), axis=1)
+
+    def distance_to_box(self, bounds) -> float:
+        """Distance from the cell to an axis-aligned ``bounds`` (2, 3); 0 when they touch or overlap."""
+        b = np.asarray(bounds, dtype=np.float64).reshape(2, 3)
+        return box_distance(self.lo, self.hi, b[0], b[1])
+
+    def sample_random(self, count: int, seed: int) -> np.ndarray:
+        """(count, 3) float64 points drawn uniformly inside, deterministic for ``seed``."""
+        rng = np.random.default_rng(seed)
+        return self.lo + rng.random((int(count), 3)) * self.size
+
+    def to_dict(self) -> dict:
+        """JSON-ready description."""
+        return {"kind": "box", "lo": self.lo.tolist(), "hi": self.hi.tolist()}
+
+
+def _orthonormal_frame(direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors (3,) perpendicular to unit ``direction`` and to each other, deterministic.
+
+    The first is horizontal (perpendicular to world z) unless ``direction`` is vertical.
+    """
+    helper = np.array([0.0, 0.0, 1.0]) if abs(direction[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    u = np.cross(helper, direction)
+    u /= np.linalg.norm(u)
+    v = np.cross(direction, u)
+    return u, v
+
+
+@dataclass(frozen=True, slots=True)
+class ShaftCell:
+    """A square shaft view cell (seed 000 §1.3, Fig. 1.2).
+
+    Parameters
+    ----------
+    apex : (3,) float64, world units
+        Apex, in the centre of the represented part.
+    direction : (3,) float64
+        Axis from the apex towards the viewer; normalised on construction.
+    apex_angle : float
+        Full apex angle in radians, in (0, π).
+    min_distance : float
+        Distance (world units) from the apex to the near end of the shaft, > 0.
+    max_distance : float
+        Distance to the far end; ``inf`` for an unbounded shaft.
+    """
+
+    apex: np.ndarray  # (3,) float64
+    direction: np.ndarray  # (3,) float64 unit
+    apex_angle: float
+    min_distance: float
+    max_distance: float = math.inf
+    kind: str = field(default="shaft", init=False)
+
+    def __post_init__(self) -> None:
+        apex = _vec3(self.apex, "shaft apex")
+        d = _vec3(self.direction, "shaft direction")
+        norm = float(np.linalg.norm(d))
+        if norm == 0.0:
+            raise ViewCellError("shaft direction must be non-zero")
+        if not (math.isfinite(self.apex_angle) and 0.0 < self.apex_angle < math.pi):
+            raise ViewCellError(
+                f"shaft apex angle must lie in (0°, 180°), got {math.degrees(self.apex_angle)!r}°"
+            )
+        if not (math.isfinite(self.min_distance) and self.min_distance > 0.0):
+            raise ViewCellError(f"shaft min_distance must be finite and > 0, got {self.min_distance!r}")
+        if not self.max_distance > self.min_distance:
+            raise ViewCellError(
+                f"shaft max_distance ({self.max_distance!r}) must exceed min_distance ({self.min_distance!r})"
+            )
+        object.__setattr__(self, "apex", apex)
+        object.__setattr__(self, "direction", d / norm)
+        object.__setattr__(self, "apex_angle", float(self.apex_angle))
+        object.__setattr__(self, "min_distance", float(self.min_distance))
+        object.__setattr__(self, "max_distance", float(self.max_distance))
+
+    @property
+    def bounded(self) -> bool:
+        return math.isfinite(self.max_distance)
+
+    @property
+    def half_tan(self) -> float:
+        """tan(apex_angle / 2)."""
+        return math.tan(0.5 * self.apex_angle)
+
+    def frame(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(u, v, direction): the shaft's orthonormal frame, each (3,) float64."""
+        u, v = _orthonormal_frame(self.direction)
+        return u, v, self.direction
+
+    def half_width(self, distance: float) -> float:
+        """Half the side of the square cross-section at ``distance`` from the apex."""
+        return float(distance) * self.half_tan
+
+    @property
+    def center(self) -> np.ndarray:
+        """(3,) float64 centre of the near cap (the nearest point of the shaft's axis to the part)."""
+        return self.apex + self.min_distance * self.direction
+
+    def corners(self) -> np.ndarray:
+        """(4, 3) or (8, 3) float64 corners: the near cap's four, then the far cap's if bounded."""
+        u, v, d = self.frame()
+        signs = np.array([[-1, -1], [1, -1], [-1, 1], [1, 1]], dtype=np.float64)
+        caps = [self.min_distance] + ([self.max_distance] if self.bounded else [])
+        out = []
+        for dist in caps:
+            h = self.half_width(dist)
+            out.append(self.apex + dist * d + h * (signs[:, :1] * u + signs[:, 1:] * v))
+        return np.concatenate(out, axis=0)
+
+    def contains(self, points, tol: float = 0.0) -> np.ndarray:
+        """(n,) bool: which ``points`` (n, 3) lie in the shaft (grown by ``tol`` along each bound)."""
+        p = _points(points) - self.apex
+        u, v, d = self.frame()
+        along = p @ d
+        lateral = np.maximum(np.abs(p @ u), np.abs(p @ v))
+        return (
+            (along >= self.min_distance - tol)
+            & (along <= self.max_distance + tol)
+            & (lateral <= along * self.half_tan + tol)
+        )
+
+    def distance_to_box(self, bounds) -> float:
+        """Distance from the shaft's near cap to an axis-aligned ``bounds`` (2, 3).
+
+        The part a shaft serves lies around its apex, behind the near cap, so the near cap is the
+        nearest the viewer comes; this is the distance from the cap (a square) to the box.
+        """
+        from scipy.optimize import minimize
+
+        b = np.asarray(bounds, dtype=np.float64).reshape(2, 3)
+        u, v, d = self.frame()
+        h = self.half_width(self.min_distance)
+        c = self.center
+
+        def dist2(x):
+            p = c + h * (x[0] * u + x[1] * v)
+            q = np.clip(p, b[0], b[1])
+            return float(np.sum((p - q) ** 2))
+
+        # The squared distance from an affine image of the square to a box is convex: one local
+        # minimisation from the cap's centre finds the global minimum.
+        best = minimize(dist2, np.zeros(2), bounds=[(-1, 1), (-1, 1)], method="L-BFGS-B").fun
+        return math.sqrt(max(best, 0.0))
+
+    def sample_random(self, count: int, seed: int, depth: float | None = None) -> np.ndarray:
+        """(count, 3) float64 points in the shaft, deterministic for ``seed``.
+
+        Distances are drawn uniformly in ``[min_distance, far]`` with ``far = max_distance``, or
+        ``min_distance + depth`` for an unbounded shaft (``depth`` then required).
+        """
+        if self.bounded:
+            far = self.max_distance
+        elif depth is not None and depth > 0.0:
+            far = self.min_distance + float(depth)
+        else:
+            raise ViewCellError("sampling an unbounded shaft needs a positive depth")
+        rng = np.random.default_rng(seed)
+        u, v, d = self.frame()
+        r = rng.random((int(count), 3))
+        dist = self.min_distance + r[:, 0] * (far - self.min_distance)
+        h = dist * self.half_tan
+        lat_u = (2.0 * r[:, 1] - 1.0) * h
+        lat_v = (2.0 * r[:, 2] - 1.0) * h
+        return self.apex + dist[:, None] * d + lat_u[:, None] * u + lat_v[:, None] * v
+
+    def to_dict(self) -> dict:
+        """JSON-ready description."""
+        return {
+            "kind": "shaft",
+            "apex": self.apex.tolist(),
+            "direction": self.direction.tolist(),
+            "apex_angle_deg": math.degrees(self.apex_angle),
+            "min_distance": self.min_distance,
+            "max_distance": self.max_distance if self.bounded else None,
+        }
+
+
+ViewCell = BoxCell | ShaftCell
+
+
+def sample_viewpoints(cell: ViewCell, random_count: int = 0, seed: int = 0, depth: float | None = None) -> np.ndarray:
+    """(k, 3) float64 evaluation viewpoints: the cell's corners, its centre, then ``random_count`` random points.
+
+    Deterministic for ``seed``; every returned point satisfies ``cell.contains``.
+    """
+    corners = cell.corners()
+    if isinstance(cell, ShaftCell):
+        random = cell.sample_random(random_count, seed, depth) if random_count else np.empty((0, 3))
+    else:
+        random = cell.sample_random(random_count, seed)
+    return np.concatenate([corners, cell.center[None, :], random], axis=0)
+
+
+def parse_viewcell(spec: str) -> ViewCell:
+    """Parse a CLI view-cell spec.
+
+    * ``box:x0,y0,z0,x1,y1,z1`` — corners;
+    * ``box-center:cx,cy,cz,size`` — a cube;
+    * ``shaft:ax,ay,az,dx,dy,dz,apex_deg,min_distance[,max_distance]``.
+
+    >>> parse_viewcell("box-center:0,0,0,10").size.tolist()
+    [10.0, 10.0, 10.0]
+    """
+    kind, _, rest = spec.partition(":")
+    try:
+        nums = [float(x) for x in rest.split(",")] if rest else []
+    except ValueError:
+        raise ViewCellError(f"view cell {spec!r}: numbers expected after '{kind}:'") from None
+    if kind == "box" and len(nums) == 6:
+        return BoxCell(nums[:3], nums[3:])
+    if kind == "box-center" and len(nums) == 4:
+        return BoxCell.from_center(nums[:3], nums[3])
+    if kind == "shaft" and len(nums) in (8, 9):
+        return ShaftCell(nums[:3], nums[3:6], math.radians(nums[6]), nums[7], nums[8] if len(nums) == 9 else math.inf)
+    raise ViewCellError(
+        f"view cell {spec!r} not understood; use box:x0,y0,z0,x1,y1,z1 | box-center:cx,cy,cz,size | "
+        "shaft:ax,ay,az,dx,dy,dz,apex_deg,min_distance[,max_distance]"
+    )
