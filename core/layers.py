@@ -1,0 +1,415 @@
+"""Layer mathematics of layered impostors: scalar or (n,) float64 distances in scene units, angles in radians.
+
+Everything here follows seed 000 (Jeschke's dissertation) §3.3.1, Fig. 3.3, in its own variables:
+
+``t``   distance of a layer plane from the view cell's near border, measured along the view axis;
+``t0``  distance from that border to the represented part's near plane;
+``s``   distance from the reference viewpoint back to the near border (s >= 0);
+``n``   view-cell width across the axis; ``m`` its depth along the axis (boxes);
+``beta`` the apex angle (shafts);
+``w``   width of the recording frustum at the part's near plane (distance ``t0 + s`` from the
+        reference viewpoint);
+``res`` impostor texture resolution (texels across ``w``);
+``r``   lateral distance from the reference viewpoint to the view-cell corner nearest the part
+        (the 3D corner of Fig. 3.7);
+``alpha`` the parallax angle, one output pixel.
+
+The free functions accept numpy arrays and broadcast; :func:`plan_layers` turns a view cell and the
+bounds of a part into a :class:`LayerPlan`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from core.constants import TOL
+from core.errors import LayerPlanError
+from core.frustum import PixelModel, check_fov, check_resolution, pixel_angle, texture_resolution
+from core.viewcells import BoxCell, ShaftCell, ViewCell, _orthonormal_frame
+
+# ---------------------------------------------------------------------------------------------
+# The equations
+# ---------------------------------------------------------------------------------------------
+
+
+def texel_size(t, s, w, t0, res):
+    """Texel size p at layer distance ``t`` (seed 000 §3.3.1): ``p = w (t + s) / (res (t0 + s))``."""
+    return w * (t + s) / (res * (t0 + s))
+
+
+def _spacing(a, denominator):
+    """``a / denominator`` where a non-positive denominator means "the boundary line never meets
+    the view cell", i.e. unbounded spacing (the texel is wider than what it could uncover)."""
+    a = np.asarray(a, dtype=np.float64)
+    den = np.asarray(denominator, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.where(den > 0.0, a / np.where(den > 0.0, den, 1.0), np.inf)
+    return out[()] if out.ndim == 0 else out
+
+
+def spacing_right(t, s, n, w, t0, res):
+    """Distance c_r to the next layer from the right boundary line (seed 000 Eq. 3.2).
+
+    Holds for box and shaft view cells alike.
+
+    >>> round(float(spacing_right(95, 0, 100, 30, 90, 300)), 5)
+    0.20098
+    """
+    return _spacing(t, res / (2.0 * (t + s)) * (n * (t0 + s) / w + s) - 1.0)
+
+
+def spacing_left_lower(t, s, n, m, w, t0, res):
+    """c_l: left boundary line touching the *far* (lower) view-cell corner (seed 000 Eq. 3.3).
+
+    Applies when the layer reaches beyond the view cell's side (Fig. 3.3 (b)).
+    """
+    return _spacing(t + m, res / (2.0 * (t + s)) * (n * (t0 + s) / w + (m - s) * (1.0 - 2.0 / res)) - 1.0)
+
+
+def spacing_left_upper(t, s, n, w, t0, res):
+    """c_h: left boundary line touching the *near* (upper) view-cell corner (seed 000 Eq. 3.4).
+
+    Equal to :func:`spacing_right` at ``s = 0``.
+    """
+    return _spacing(t, res / (2.0 * (t + s)) * (n * (t0 + s) / w + s * (2.0 / res - 1.0)) - 1.0)
+
+
+def spacing_shaft(t, s, w, t0, res, beta):
+    """c_s: left boundary line parallel to the shaft's side (seed 000 Eq. 3.5)."""
+    return _spacing(t + s, res * (0.5 + (t0 + s) / w * np.tan(0.5 * beta)) - 1.0)
+
+
+def border_offset(t_near, t_far, s):
+    """Distance d from the near layer to the border between two layers (seed 000 Eq. 3.6).
+
+    The printed form ``(-tn² - tn s + sqrt(tf tn (tf+s)(tn+s))) / (tn + tf + s)`` subtracts two
+    nearly equal numbers of size ``tn²``; at continental distances in float32 it loses every digit.
+    Multiplying by the conjugate and cancelling ``(tf + tn + s)`` gives the equivalent, cancellation
+    free form used here::
+
+        d = sqrt(tn (tn+s)) (tf - tn) / (sqrt(tf (tf+s)) + sqrt(tn (tn+s)))
+
+    >>> round(float(border_offset(100, 110, 0)), 5), round(float(border_offset(100, 110, 50)), 5)
+    (4.7619, 4.8003)
+    """
+    g_near = np.sqrt(t_near * (t_near + s))
+    g_far = np.sqrt(t_far * (t_far + s))
+    return g_near * (t_far - t_near) / (g_far + g_near)
+
+
+def depth_range(t, s, r, alpha, phi):
+    """Depth range e behind a plane at ``t`` for view direction ``phi`` (seed 000 Eq. 3.7).
+
+    Non-positive denominators (the two rays never meet) give ``inf``.
+    """
+    den = r * (np.cos(2.0 * phi) + np.cos(alpha)) + s * (np.sin(2.0 * phi) - np.sin(alpha)) - 2.0 * t * np.sin(alpha)
+    return _spacing(2.0 * t * np.sin(alpha) * (t + s), den)
+
+
+def depth_range_min(t, s, r, alpha):
+    """e_min: the smallest depth range behind (or in front of) a plane at ``t`` (seed 000 §3.3.1).
+
+    Eq. 3.7 at ``phi_min = atan(s / r) / 2``.  Past the pole :func:`single_layer_distance` the
+    denominator is no longer positive: every point behind the plane is seen within ``alpha``, so the
+    range is unbounded (``inf``), never negative.
+
+    >>> round(float(depth_range_min(1000, 50, 70.71, 1.618e-3)), 4)
+    22.0643
+    """
+    den = r * np.cos(alpha) - (2.0 * t + s) * np.sin(alpha) + np.hypot(r, s)
+    return _spacing(2.0 * t * np.sin(alpha) * (t + s), den)
+
+
+def single_layer_distance(s, r, alpha):
+    """Pole t* of e_min: from this distance on one layer represents everything behind it.
+
+    ``t* = (r cos α + sqrt(r² + s²)) / (2 sin α) - s / 2`` (the zero of e_min's denominator).
+    """
+    return (r * np.cos(alpha) + np.hypot(r, s)) / (2.0 * np.sin(alpha)) - 0.5 * s
+
+
+# ---------------------------------------------------------------------------------------------
+# The geometry of a part seen from a view cell
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class PartView:
+    """The per-axis quantities of seed 000 Fig. 3.3 for one part seen from one view cell.
+
+    Lengths are scene units; ``axis``, ``u``, ``v`` are (3,) float64 unit vectors, ``near_center``
+    (3,) float64 the centre of the view cell's near border on the axis.
+    """
+
+    kind: str  # "box" or "shaft"
+    axis: np.ndarray  # (3,) from the view cell towards the part
+    u: np.ndarray  # (3,) image x
+    v: np.ndarray  # (3,) image y
+    near_center: np.ndarray  # (3,)
+    cell_width: np.ndarray  # (2,) n along u and v
+    cell_depth: float  # m (box); max - min distance for a shaft (inf if unbounded)
+    apex_angle: float  # beta (shaft); nan for a box
+    t0: float
+    depth: float
+    corners_rel: np.ndarray  # (8, 3) part bounding-box corners relative to near_center, in (u, v, axis)
+
+
+def part_view(cell: ViewCell, bounds) -> PartView:
+    """Describe the part with axis-aligned ``bounds`` (2, 3) as seen from ``cell``.
+
+    A box cell looks along the line from its centre to the part's centre; the cell is replaced by
+    its bounding box in that frame (exact when the axis is a coordinate axis, conservative
+    otherwise).  A shaft looks along ``-direction``.  Raises LayerPlanError when the part touches
+    or overlaps the view cell along the axis (the layer mathematics has no answer there).
+    """
+    b = np.asarray(bounds, dtype=np.float64).reshape(2, 3)
+    if not np.all(np.isfinite(b)) or np.any(b[1] < b[0]):
+        raise LayerPlanError(f"part bounds must be finite with lo <= hi, got {b.tolist()}")
+    idx = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=bool)
+    part_corners = np.where(idx, b[1], b[0])
+    scale = float(np.max(np.abs(np.concatenate([b.ravel(), cell.corners().ravel()]))))
+    touch = TOL.rel_touch * max(scale, TOL.min_extent)
+    if isinstance(cell, BoxCell):
+        towards = 0.5 * (b[0] + b[1]) - cell.center
+        dist = float(np.linalg.norm(towards))
+        if dist <= touch:
+            raise LayerPlanError("the part is centred inside the view cell; a layered impostor needs it in front")
+        axis = towards / dist
+        u, v = _orthonormal_frame(axis)
+        frame = np.stack([u, v, axis])
+        rel = (cell.corners() - cell.center) @ frame.T
+        lo, hi = rel.min(axis=0), rel.max(axis=0)
+        near_center = cell.center + hi[2] * axis
+        cell_width = hi[:2] - lo[:2]
+        cell_depth, apex = float(hi[2] - lo[2]), math.nan
+    elif isinstance(cell, ShaftCell):
+        axis = -cell.direction
+        u, v = _orthonormal_frame(axis)
+        frame = np.stack([u, v, axis])
+        near_center = cell.center
+        width = 2.0 * cell.half_width(cell.min_distance)
+        cell_width = np.array([width, width])
+        cell_depth, apex = cell.max_distance - cell.min_distance, cell.apex_angle
+    else:  # pragma: no cover - typing guard
+        raise LayerPlanError(f"unknown view cell {cell!r}")
+    corners_rel = (part_corners - near_center) @ frame.T
+    t0 = float(corners_rel[:, 2].min())
+    depth = float(corners_rel[:, 2].max()) - t0
+    if t0 <= touch:
+        raise LayerPlanError(
+            f"the part touches or overlaps the view cell along the view axis (distance {t0:.6g}); "
+            "layered impostors need the part strictly in front of the cell"
+        )
+    return PartView(cell.kind, axis, u, v, near_center, cell_width, cell_depth, apex, t0, depth, corners_rel)
+
+
+def reference_offset_candidates(view: PartView) -> tuple[float, ...]:
+    """Candidate distances s of the reference viewpoint behind the near border (seed 000 §3.3.1).
+
+    Box: ``s = 0`` is optimal while no layer is wider than the view cell (Fig. 3.4 (d)); otherwise
+    "no general optimum can be found" and the thesis used ``s = m / 2`` in practice.  Both are
+    offered and :func:`plan_layers` keeps the one needing fewer layers (ties: ``s = 0``), which
+    also keeps the layer count monotone in view-cell size and distance, where switching by the
+    width rule alone would not be.  Shaft: ``s = n / 2`` (the thesis's choice).
+    """
+    if view.kind == "shaft":
+        return (min(0.5 * float(view.cell_width[0]), view.cell_depth),)
+    return (0.0, 0.5 * view.cell_depth)
+
+
+def _half_tangents(view: PartView, s: float) -> np.ndarray:
+    """(2,) tangents of the half-angles of the symmetric frustum from the reference viewpoint that
+    encloses the part's bounding box (the "tight" frustum of seed 000 Fig. 3.1 (a))."""
+    z = view.corners_rel[:, 2] + s
+    return np.max(np.abs(view.corners_rel[:, :2]) / z[:, None], axis=0)
+
+
+# ---------------------------------------------------------------------------------------------
+# The plan
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class LayerPlan:
+    """Where the layers of one layered impostor lie and what depth each represents.
+
+    Distances are scene units along ``axis`` from the view cell's near border (the thesis's t); add
+    ``reference_offset`` for the distance from the reference viewpoint.
+    """
+
+    distances: np.ndarray  # (k,) float64 layer planes, ascending
+    borders: np.ndarray  # (k + 1,) float64; layer i represents [borders[i], borders[i+1]]
+    reference_viewpoint: np.ndarray  # (3,) float64 world
+    axis: np.ndarray  # (3,) float64 world, towards the part
+    u: np.ndarray  # (3,) float64 world, image x
+    v: np.ndarray  # (3,) float64 world, image y
+    reference_offset: float  # s
+    frustum_half_tangents: np.ndarray  # (2,) float64, along u and v
+    texture_resolution: np.ndarray  # (2,) int64 texels along u and v
+    alpha: float  # parallax angle, radians
+    pixel_model: str
+    t0: float
+    depth: float
+    cell_width: np.ndarray  # (2,) float64
+    cell_depth: float  # m; for shafts max - min distance (inf if unbounded)
+    corner_offset: float  # r
+    front_range: float  # e_min in front of the first layer's plane (may be inf)
+    back_limit: float  # last layer plane + e_min behind it (inf past the pole)
+    single_layer_distance: float  # t*, beyond which one layer represents everything behind it
+
+    @property
+    def count(self) -> int:
+        return int(self.distances.shape[0])
+
+    def to_dict(self) -> dict:
+        """JSON-ready form (``inf`` becomes ``None``)."""
+
+        def num(x):
+            return None if not math.isfinite(x) else float(x)
+
+        return {
+            "arrangement": "part",
+            "layers": self.count,
+            "distances": self.distances.tolist(),
+            "borders": self.borders.tolist(),
+            "depth_ranges": [[float(a), float(b)] for a, b in zip(self.borders[:-1], self.borders[1:])],
+            "reference_viewpoint": self.reference_viewpoint.tolist(),
+            "axis": self.axis.tolist(),
+            "reference_offset": self.reference_offset,
+            "texture_resolution": self.texture_resolution.tolist(),
+            "alpha_rad": self.alpha,
+            "pixel_model": self.pixel_model,
+            "part_distance": self.t0,
+            "part_depth": self.depth,
+            "cell_width": self.cell_width.tolist(),
+            "cell_depth": num(self.cell_depth),
+            "front_range": num(self.front_range),
+            "back_limit": num(self.back_limit),
+            "single_layer_distance": num(self.single_layer_distance),
+        }
+
+
+def layer_spacing(t, s, view: PartView, half_tan: np.ndarray, res: np.ndarray):
+    """Smallest one-texel spacing c(t) over both image axes and both boundary lines (seed 000 §3.3.1).
+
+    ``t`` may be an array; returns float64 of the same shape, ``inf`` where unconstrained.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    best = np.full(t.shape, np.inf)
+    for axis in range(2):
+        n = float(view.cell_width[axis])
+        w = 2.0 * float(half_tan[axis]) * (view.t0 + s)
+        rs = float(res[axis])
+        c = spacing_right(t, s, n, w, view.t0, rs)
+        if view.kind == "shaft":
+            c_left = spacing_shaft(t, s, w, view.t0, rs, view.apex_angle)
+        else:
+            # Fig. 3.3 (b) vs (c): does the layer end beyond the view cell's side?
+            wider = half_tan[axis] * (t + s) > 0.5 * n
+            c_left = np.where(
+                wider,
+                spacing_left_lower(t, s, n, view.cell_depth, w, view.t0, rs),
+                spacing_left_upper(t, s, n, w, view.t0, rs),
+            )
+        best = np.minimum(best, np.minimum(c, c_left))
+    return best[()] if best.ndim == 0 else best
+
+
+def plan_layers(
+    cell: ViewCell,
+    bounds,
+    fov: float,
+    resolution: int,
+    pixel_model: PixelModel = "min",
+    reference_offset: float | None = None,
+) -> LayerPlan:
+    """Plan the layers of a layered impostor for the part in ``bounds`` seen from ``cell``.
+
+    Parameters
+    ----------
+    cell : BoxCell or ShaftCell
+    bounds : (2, 3) float64, world units
+        Axis-aligned bounds of the represented part.
+    fov : float
+        Output field of view, radians, in (0, π).
+    resolution : int
+        Output image resolution (pixels per side), >= 1.
+    pixel_model : {"min", "center"}
+        Which pixel angle bounds the error (see :mod:`core.frustum`); ``"center"`` is the thesis's.
+    reference_offset : float, optional
+        s; by default the candidate of :func:`reference_offset_candidates` with fewest layers.
+
+    Layers start at ``t0 + e_min(t0)`` (clamped into the part) and follow at the one-texel spacing
+    of Eqs. 3.2–3.5 until a layer's back range ``e_min`` reaches the far end of the part; borders
+    between layers come from Eq. 3.6.  Work is O(layers).
+    """
+    fov = check_fov(float(fov))
+    resolution = check_resolution(resolution)
+    view = part_view(cell, bounds)
+    alpha = pixel_angle(fov, resolution, pixel_model)
+    if reference_offset is not None:
+        s = float(reference_offset)
+        if not (math.isfinite(s) and 0.0 <= s <= view.cell_depth):
+            raise LayerPlanError(f"reference offset s must lie in [0, cell depth {view.cell_depth:.6g}], got {s!r}")
+        return _plan_at_offset(view, s, alpha, pixel_model)
+    best = None
+    for s in reference_offset_candidates(view):
+        plan = _plan_at_offset(view, s, alpha, pixel_model)
+        if best is None or plan.count < best.count:
+            best = plan
+    return best
+
+
+def _plan_at_offset(view: PartView, s: float, alpha: float, pixel_model: str) -> LayerPlan:
+    """The layer plan of ``view`` with the reference viewpoint ``s`` behind the near border."""
+    half_tan = _half_tangents(view, s)
+    # A flat part seen edge-on has no lateral extent: give it a pixel's worth of frustum so the
+    # spacing stays finite (a one-texel-wide layer).
+    half_tan = np.maximum(half_tan, 0.5 * alpha)
+    widths = 2.0 * half_tan * (view.t0 + s)
+    res = np.array([texture_resolution(float(wd), view.t0, alpha) for wd in widths], dtype=np.int64)
+    r = float(np.hypot(*(0.5 * view.cell_width)))
+
+    t0, t_end = view.t0, view.t0 + view.depth
+    front = float(depth_range_min(t0, s, r, alpha))
+    t = t0 + min(front, view.depth)
+    distances = [t]
+    while t + float(depth_range_min(t, s, r, alpha)) < t_end:
+        c = float(layer_spacing(t, s, view, half_tan, res))
+        if not c > 0.0:
+            raise LayerPlanError(f"layer spacing collapsed to {c!r} at distance {t:.6g}")
+        t = min(t + c, t_end)
+        distances.append(t)
+        if len(distances) > TOL.max_layers:
+            raise LayerPlanError(
+                f"more than {TOL.max_layers} layers needed for a part {view.depth:.6g} deep at "
+                f"distance {t0:.6g}; use a smaller view cell or a lower resolution"
+            )
+    d = np.asarray(distances, dtype=np.float64)
+    inner = d[:-1] + border_offset(d[:-1], d[1:], s)
+    borders = np.concatenate([[t0], inner, [t_end]])
+    back = float(d[-1] + depth_range_min(d[-1], s, r, alpha))
+    return LayerPlan(
+        distances=d,
+        borders=borders,
+        reference_viewpoint=view.near_center - s * view.axis,
+        axis=view.axis,
+        u=view.u,
+        v=view.v,
+        reference_offset=s,
+        frustum_half_tangents=half_tan,
+        texture_resolution=res,
+        alpha=alpha,
+        pixel_model=pixel_model,
+        t0=t0,
+        depth=view.depth,
+        cell_width=view.cell_width,
+        cell_depth=view.cell_depth,
+        corner_offset=r,
+        front_range=front,
+        back_limit=back,
+        single_layer_distance=float(single_layer_distance(s, r, alpha)),
+    )
