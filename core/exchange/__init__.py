@@ -1,0 +1,140 @@
+"""Scene files -> :class:`core.scene.Scene`: a registry of loaders keyed by lower-case extension.
+
+One module per format family (``gltf``, ``obj``, ``ply``, ``stl``), each with ``EXTENSIONS`` and
+``load(data, extension, name, resolver) -> (objects, warnings)``, after trimesh's ``exchange``.
+:func:`load_scene` reads a file (referenced MTL and texture files from its folder);
+:func:`load_scene_bytes` reads uploaded bytes (referenced files from ``assets``).  Objects come
+sorted by name (trimesh's node order is an implementation detail).
+
+Every failure is a typed :class:`core.errors.FarfieldError` whose message starts with the file's
+name; recoverable problems (a missing texture) are warnings: emitted as :class:`SceneWarning`
+and kept in ``Scene.warnings``.
+"""
+
+from __future__ import annotations
+
+import warnings as _warnings
+from collections.abc import Callable, Mapping
+from pathlib import Path
+
+from trimesh.resolvers import Resolver
+
+from core.errors import FarfieldError, SceneLoadError, SceneNotFoundError
+from core.exchange import gltf, obj, ply, stl
+from core.exchange.trimesh_scene import asset_resolver
+from core.scene import Scene, SceneObject, SceneWarning
+
+Loader = Callable[[bytes, str, str, Resolver], tuple[tuple[SceneObject, ...], tuple[str, ...]]]
+
+# Lower-case extension without the dot -> loader.
+LOADERS: dict[str, Loader] = {
+    extension: module.load for module in (gltf, obj, ply, stl) for extension in module.EXTENSIONS
+}
+
+__all__ = ["LOADERS", "load_scene", "load_scene_bytes", "supported_extensions"]
+
+
+def supported_extensions() -> tuple[str, ...]:
+    """The extensions :func:`load_scene` reads, sorted, without dots."""
+    return tuple(sorted(LOADERS))
+
+
+def _extension(extension: str, name: str) -> str:
+    """``extension`` lower case without the dot, checked against the registry."""
+    key = extension.lower().lstrip(".")
+    if key not in LOADERS:
+        shown = f"'.{key}'" if key else "no extension"
+        raise SceneLoadError(
+            f"{name}: unsupported scene format {shown}; supported: "
+            + ", ".join("." + e for e in supported_extensions())
+        )
+    return key
+
+
+def _load(data: bytes, extension: str, name: str, resolver: Resolver) -> Scene:
+    """Run the loader for ``extension``; prefix errors with ``name``; emit the warnings."""
+    if not data:
+        raise SceneLoadError(f"{name}: file is empty (0 bytes)")
+    try:
+        objects, warnings = LOADERS[extension](data, extension, name, resolver)
+        # trimesh's node order is an implementation detail (it reverses OBJ and glTF order); name
+        # order is stable across versions and readable.
+        objects = sorted(objects, key=lambda obj: obj.name)
+        scene = Scene.from_objects(objects, source=name, warnings=warnings)
+    except FarfieldError as error:
+        # Messages from inside a loader name objects, not the file: name it once, here.
+        raise type(error)(f"{name}: {error}") from error
+    for message in scene.warnings:
+        _warnings.warn(f"{name}: {message}", SceneWarning, stacklevel=3)
+    return scene
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Load the scene file at ``path``; files it refers to are looked up beside it.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        A ``.glb``, ``.gltf``, ``.obj``, ``.ply`` or ``.stl`` file.
+
+    Returns
+    -------
+    Scene
+        Objects sorted by name.  ``source`` is the file's name (not its folder).
+
+    Raises
+    ------
+    SceneNotFoundError
+        No file at ``path``.
+    SceneLoadError
+        Unsupported extension, unreadable or corrupt file, absurd coordinates.
+    DegenerateGeometryError
+        No triangles, non-finite coordinates, or zero extent.
+
+    Warns
+    -----
+    SceneWarning
+        For each recoverable problem (also in ``Scene.warnings``).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise SceneNotFoundError(f"{path}: no such file")
+    if path.is_dir():
+        raise SceneLoadError(f"{path}: is a directory, not a scene file")
+    extension = _extension(path.suffix, str(path))
+    try:
+        data = path.read_bytes()
+    except OSError as error:
+        raise SceneLoadError(f"{path}: cannot read: {error.strerror or error}") from error
+    return _load(data, extension, path.name, asset_resolver(path.name, directory=str(path.parent)))
+
+
+def load_scene_bytes(
+    data: bytes, extension: str, name: str, assets: Mapping[str, bytes] | None = None
+) -> Scene:
+    """Load a scene from the bytes of its file (an upload).
+
+    Parameters
+    ----------
+    data : bytes
+        The scene file's content.
+    extension : str
+        Its format: ``"glb"``, ``".obj"``, ... (case and leading dot do not matter).
+    name : str
+        The file's name, used in messages, as ``Scene.source``, and (OBJ) for an unnamed object.
+    assets : mapping of str to bytes, or None
+        Files the scene refers to (MTL, textures, glTF buffers) by the name it uses for them.
+        Without them, such references are reported as missing (a warning for textures).
+
+    Returns
+    -------
+    Scene
+        Equal to ``load_scene`` of the same file and its referenced files (same content hash).
+
+    Raises
+    ------
+    SceneLoadError, DegenerateGeometryError
+        As :func:`load_scene`.
+    """
+    key = _extension(extension, name)
+    return _load(bytes(data), key, name, asset_resolver(name, assets=assets))

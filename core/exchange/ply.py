@@ -1,0 +1,44 @@
+"""Stanford PLY (ASCII or binary) -> (1,) SceneObject named after the file, with vertex or face colours if any.
+
+A PLY file holds one mesh.  ``red, green, blue[, alpha]`` vertex properties become vertex colours;
+face colours become the material colour when uniform, else per-corner vertex colours.  A file with
+vertices but no faces is a point cloud and has no triangles.
+"""
+
+from __future__ import annotations
+
+from pathlib import PurePath
+
+from trimesh.resolvers import Resolver
+
+from core.exchange.trimesh_scene import objects_from_trimesh, parse
+from core.scene import SceneObject
+
+EXTENSIONS = ("ply",)
+
+
+def load(
+    data: bytes, extension: str, name: str, resolver: Resolver
+) -> tuple[tuple[SceneObject, ...], tuple[str, ...]]:
+    """Objects and warnings of a PLY file.
+
+    Parameters
+    ----------
+    data : bytes
+        The PLY file.
+    extension : str
+        ``"ply"``.
+    name : str
+        The file's name; its stem names the object.
+    resolver : trimesh.resolvers.Resolver
+        Finds a texture named by a ``comment TextureFile`` header line.
+
+    Raises
+    ------
+    SceneLoadError
+        Not a PLY file, or a header that does not match the data.
+    """
+    scene = parse(data, extension, resolver)
+    nodes = list(scene.graph.nodes_geometry)
+    rename = {nodes[0]: PurePath(name).stem or name} if len(nodes) == 1 else None
+    return objects_from_trimesh(scene, rename=rename)

@@ -1,0 +1,299 @@
+"""trimesh.Scene -> (k,) SceneObject: node transforms applied in float64, colour sources taken from trimesh visuals.
+
+Shared by the format modules in :mod:`core.exchange`.  Each of them parses with trimesh through
+:func:`parse` (the one place that turns trimesh's parse exceptions into :class:`SceneLoadError`)
+and converts with :func:`objects_from_trimesh`.
+
+Colour rules (see :mod:`core.scene` for the colour model):
+
+* ``PBRMaterial`` (glTF): ``texture = baseColorTexture``, ``base_color = baseColorFactor``;
+  ``alphaMode`` ``MASK`` gives ``alpha_cutoff = alphaCutoff`` (default 0.5), ``BLEND`` is
+  approximated as a mask at 0.5 (with a warning: impostors have no blending).
+* ``SimpleMaterial`` (OBJ/MTL, textured PLY): ``texture = image`` (``map_Kd``).  With a texture
+  the RGB factor is white (``map_Kd`` replaces ``Kd``, as Blender and most viewers draw it; the
+  exporters' ``Kd`` of 0.64 or 0.588 would only darken the image), else ``Kd``.  Alpha is ``d``
+  (or ``1 - Tr``).  A texture with any alpha below 255 is alpha-cut at 0.5.
+* ``ColorVisuals``: vertex colours as they are; face colours become the material colour when
+  uniform, else the faces are unshared so that each corner carries its face's colour.
+* A texture of a single colour is folded into ``base_color`` (trimesh invents a 2 x 2 grey one
+  for uv without a material).  ``uv`` is kept only for textured objects.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import struct
+import zlib
+from collections.abc import Mapping
+
+import numpy as np
+import PIL.Image
+import trimesh
+from trimesh.resolvers import FilePathResolver, Resolver, ZipResolver
+from trimesh.visual.material import PBRMaterial, SimpleMaterial
+
+from core.errors import SceneLoadError
+from core.scene import SceneObject
+
+# What trimesh's parsers raise on malformed input (measured: IndexError for an empty GLB,
+# ValueError for a bad GLB header or PLY, KeyError for a PLY without x, TypeError for non-JSON
+# glTF, struct.error for truncated binary, NotImplementedError for a GLB whose version is not 2).
+# Caught around the parse call only.
+PARSE_ERRORS = (
+    ValueError,
+    TypeError,
+    KeyError,
+    IndexError,
+    AttributeError,
+    NotImplementedError,
+    UnboundLocalError,  # trimesh's glTF and PLY readers on some truncated files (found by fuzzing)
+    struct.error,
+    EOFError,
+    OSError,
+    UnicodeError,
+)
+
+# What PIL raises while decoding a broken image (SyntaxError: "broken PNG file").
+IMAGE_ERRORS = (OSError, ValueError, SyntaxError, zlib.error, PIL.Image.DecompressionBombError)
+
+# Alpha-mask threshold for textures with an alpha channel in formats that do not state one (OBJ):
+# the glTF 2.0 default alphaCutoff, so both formats cut at the same level.
+DEFAULT_ALPHA_CUTOFF = 0.5
+
+
+class _NamedZipResolver(ZipResolver):
+    """A ZipResolver over an in-memory ``{name: bytes}`` mapping that knows the main file's name."""
+
+    def __init__(self, archive: dict, file_name: str):
+        super().__init__(archive=archive)
+        self.file_name = file_name
+
+
+def asset_resolver(name: str, directory: str | None = None, assets: Mapping[str, bytes] | None = None) -> Resolver:
+    """A trimesh resolver for the files a scene refers to (MTL, textures, glTF buffers).
+
+    Parameters
+    ----------
+    name : str
+        The scene file's name; trimesh uses it to name unnamed OBJ objects.
+    directory : str or None
+        Folder of a scene read from disk; referenced files are looked up there.
+    assets : mapping of str to bytes, or None
+        Referenced files by relative name, for scenes uploaded as bytes.
+    """
+    if directory is not None:
+        return FilePathResolver(os.path.join(directory, name))
+    return _NamedZipResolver(dict(assets or {}), name)
+
+
+def fetch(resolver: Resolver, name: str) -> bytes | None:
+    """The bytes of the referenced file ``name``, or None if the resolver cannot find it."""
+    try:
+        data = resolver.get(name)
+    except (OSError, KeyError, ValueError):
+        return None
+    return data.encode() if isinstance(data, str) else data
+
+
+def parse(data: bytes, file_type: str, resolver: Resolver, **kwargs) -> trimesh.Scene:
+    """Parse ``data`` with trimesh into a scene graph (no vertex merging: ``process=False``).
+
+    Raises
+    ------
+    SceneLoadError
+        trimesh could not parse the data; the message names the exception.
+    """
+    try:
+        return trimesh.load_scene(io.BytesIO(data), file_type=file_type, resolver=resolver, process=False, **kwargs)
+    except PARSE_ERRORS as error:
+        raise SceneLoadError(f"could not parse {file_type.upper()} data: {type(error).__name__}: {error}") from error
+
+
+def texture_rgba(image: PIL.Image.Image) -> np.ndarray:
+    """(h, w, 4) uint8 RGBA array of a PIL image, top row first.
+
+    Raises
+    ------
+    OSError, ValueError, SyntaxError, zlib.error, PIL.Image.DecompressionBombError
+        The image data is broken (PIL decodes lazily, here).
+    """
+    if image.mode != "RGBA":
+        image = image.convert("RGBA")
+    return np.asarray(image, dtype=np.uint8)
+
+
+def _rgba_unit(color: np.ndarray | None) -> np.ndarray:
+    """(4,) float64 in 0..1 from trimesh's (4,) uint8 colour; white when None."""
+    if color is None:
+        return np.ones(4)
+    return np.asarray(color, dtype=np.float64) / 255.0
+
+
+def _mtl_alpha(material: SimpleMaterial) -> float:
+    """Opacity from MTL ``d`` (or ``1 - Tr``), 1.0 when absent or unreadable."""
+    extra = material.kwargs
+    for key, flip in (("d", False), ("tr", True)):
+        if key in extra:
+            try:
+                value = float(np.ravel(extra[key])[0])
+            except (TypeError, ValueError, IndexError):
+                continue
+            return float(np.clip(1.0 - value if flip else value, 0.0, 1.0))
+    return 1.0
+
+
+class _Colours:
+    """Colour sources of one object while they are being gathered."""
+
+    __slots__ = ("uv", "vertex_colors", "base_color", "texture", "alpha_cutoff")
+
+    def __init__(self) -> None:
+        self.uv: np.ndarray | None = None  # (v, 2) float64
+        self.vertex_colors: np.ndarray | None = None  # (v, 4) uint8
+        self.base_color: np.ndarray = np.ones(4)  # (4,) float64
+        self.texture: np.ndarray | None = None  # (h, w, 4) uint8
+        self.alpha_cutoff: float | None = None
+
+
+def _texture_colours(
+    mesh: trimesh.Trimesh, name: str, textures: dict, warnings: list[str]
+) -> _Colours:
+    """Colour sources of a mesh with ``TextureVisuals`` (a material, maybe uv and a texture)."""
+    visual = mesh.visual
+    material = visual.material
+    out = _Colours()
+    image = None
+    if isinstance(material, PBRMaterial):
+        image = material.baseColorTexture
+        out.base_color = _rgba_unit(material.baseColorFactor)
+        mode = material.alphaMode
+        if mode == "MASK":
+            cutoff = material.alphaCutoff
+            out.alpha_cutoff = DEFAULT_ALPHA_CUTOFF if cutoff is None else float(cutoff)
+        elif mode == "BLEND":
+            out.alpha_cutoff = DEFAULT_ALPHA_CUTOFF
+            warnings.append(
+                f"object {name!r}: alphaMode BLEND is approximated as an alpha mask at {DEFAULT_ALPHA_CUTOFF}"
+            )
+    elif isinstance(material, SimpleMaterial):
+        image = material.image
+        out.base_color = _rgba_unit(material.diffuse)
+        if image is not None:
+            out.base_color[:3] = 1.0
+        out.base_color[3] = _mtl_alpha(material)
+    elif material is not None:
+        out.base_color = _rgba_unit(material.main_color)
+
+    colors = getattr(visual, "vertex_attributes", {}).get("color")
+    if colors is not None and len(colors) == len(mesh.vertices):
+        out.vertex_colors = trimesh.visual.color.to_rgba(colors)
+
+    if image is None:
+        return out
+    uv = visual.uv
+    if uv is None or len(uv) != len(mesh.vertices):
+        warnings.append(f"object {name!r}: has a texture but no per-vertex uv; using the material colour")
+        return out
+    key = id(image)
+    if key not in textures:
+        try:
+            textures[key] = texture_rgba(image)
+        except IMAGE_ERRORS as error:
+            textures[key] = None
+            warnings.append(f"object {name!r}: texture could not be decoded ({type(error).__name__}: {error}); "
+                            "using the material colour")
+    texture = textures[key]
+    if texture is None:
+        return out
+    if out.alpha_cutoff is None and not isinstance(material, PBRMaterial) and texture[..., 3].min() < 255:
+        out.alpha_cutoff = DEFAULT_ALPHA_CUTOFF
+    texels = texture.reshape(-1, 4)
+    if (texels == texels[0]).all():
+        # One colour (e.g. the 2 x 2 placeholder trimesh gives uv without a material): the same
+        # as a material colour, which is cheaper and names the colour source truthfully.
+        out.base_color = out.base_color * (texels[0] / 255.0)
+        return out
+    out.texture = texture
+    out.uv = np.asarray(uv, dtype=np.float64)
+    return out
+
+
+def _mesh_colours(mesh: trimesh.Trimesh, name: str, textures: dict, warnings: list[str]):
+    """(vertices, faces, colours) of a mesh in its own frame; face colours may unshare vertices."""
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    visual = mesh.visual
+    if isinstance(visual, trimesh.visual.TextureVisuals):
+        return vertices, faces, _texture_colours(mesh, name, textures, warnings)
+    out = _Colours()
+    kind = getattr(visual, "kind", None)
+    if kind == "vertex":
+        out.vertex_colors = np.asarray(visual.vertex_colors, dtype=np.uint8)
+    elif kind == "face":
+        face_colors = np.asarray(visual.face_colors, dtype=np.uint8)
+        if (face_colors == face_colors[0]).all():
+            out.base_color = _rgba_unit(face_colors[0])
+        else:
+            # The model has no face colours: give every face its own three corners.
+            vertices = vertices[faces].reshape(-1, 3)
+            faces = np.arange(len(vertices), dtype=np.int64).reshape(-1, 3)
+            out.vertex_colors = np.repeat(face_colors, 3, axis=0)
+    return vertices, faces, out
+
+
+def objects_from_trimesh(
+    scene: trimesh.Scene, rename: Mapping[str, str] | None = None
+) -> tuple[tuple[SceneObject, ...], tuple[str, ...]]:
+    """World-space :class:`SceneObject` s, one per geometry node of ``scene``, and warnings.
+
+    Parameters
+    ----------
+    scene : trimesh.Scene
+        As parsed; its geometry is not modified.
+    rename : mapping of str to str, or None
+        Object name for a node name; nodes not in it keep their node name.
+
+    Returns
+    -------
+    objects : tuple of SceneObject
+        In the scene graph's node order.  Non-triangle geometry (points, lines) and meshes
+        without faces are skipped, each with a warning.
+    warnings : tuple of str
+    """
+    rename = rename or {}
+    objects: list[SceneObject] = []
+    warnings: list[str] = []
+    textures: dict = {}  # id(PIL image) -> (h, w, 4) uint8 or None, shared materials decode once
+    for node in scene.graph.nodes_geometry:
+        transform, geometry_name = scene.graph[node]
+        name = rename.get(node, str(node))
+        mesh = scene.geometry[geometry_name]
+        if not isinstance(mesh, trimesh.Trimesh):
+            warnings.append(f"node {name!r}: skipped {type(mesh).__name__} geometry (not triangles)")
+            continue
+        if len(mesh.faces) == 0:
+            warnings.append(f"node {name!r}: skipped a mesh without triangles")
+            continue
+        vertices, faces, colours = _mesh_colours(mesh, name, textures, warnings)
+        if vertices.ndim != 2 or vertices.shape[1] != 3:
+            # trimesh keeps OBJ ``v`` lines of two numbers as (v, 2) vertices.
+            raise SceneLoadError(f"object {name!r}: vertices have shape {vertices.shape}, expected (v, 3)")
+        matrix = np.asarray(transform, dtype=np.float64)
+        vertices = trimesh.transformations.transform_points(vertices, matrix)
+        if np.linalg.det(matrix[:3, :3]) < 0.0:
+            # A mirroring transform turns counter-clockwise faces clockwise; restore the winding.
+            faces = faces[:, ::-1]
+        objects.append(
+            SceneObject(
+                name=name,
+                vertices=vertices,
+                faces=faces,
+                uv=colours.uv,
+                vertex_colors=colours.vertex_colors,
+                base_color=colours.base_color,
+                texture=colours.texture,
+                alpha_cutoff=colours.alpha_cutoff,
+            )
+        )
+    return tuple(objects), tuple(warnings)

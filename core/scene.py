@@ -1,0 +1,384 @@
+"""A scene: named objects of (f, 3) int64 triangles over (v, 3) float64 world-space vertices, with colour sources.
+
+A :class:`Scene` is what every later stage (placement, layer recording, evaluation) reads.  It is
+immutable (frozen dataclasses over read-only arrays), validated on construction, and identified by
+a content hash of its arrays.
+
+Conventions
+-----------
+* Geometry is float64, in the scene file's units, in world space: node transforms are already
+  applied.  Triangles are counter-clockwise seen from their front side (a mirroring node transform
+  has its faces reversed on load so that this stays true).
+* ``uv`` has its origin at the **bottom-left** corner of the texture image, u to the right and v
+  up (the OpenGL / Wavefront OBJ convention; glTF's top-left ``v`` is flipped to ``1 - v`` on load).
+* ``texture`` rows are stored **top row first**, as in the image file (PIL / PNG order).  The texel
+  for ``(u, v)`` is therefore ``texture[floor((1 - v) * h), floor(u * w)]``; coordinates outside
+  ``[0, 1)`` wrap (repeat), the default of glTF samplers and of OBJ viewers.  See
+  :func:`sample_texture`.  To upload to GL (whose first row is ``t = 0``) flip the rows,
+  ``texture[::-1]``, and use ``uv`` unchanged.
+* Colour of a surface point = texture (if any) x vertex colour (if any) x ``base_color``, each
+  RGBA in 0..1 (the glTF 2.0 base-colour rule).  The summary names the *dominant* source:
+  ``"texture"`` if there is a texture, else ``"vertex"`` if there are vertex colours, else
+  ``"material"``.
+* ``alpha_cutoff`` is ``None`` for opaque objects (alpha is ignored).  Otherwise a fragment whose
+  alpha is below the cutoff is discarded and the rest is opaque (glTF ``alphaMode: MASK``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from core.constants import TOL
+from core.errors import DegenerateGeometryError, SceneLoadError
+
+# Version of the content-hash recipe; bump it when the recipe changes so old hashes never collide
+# with new ones.
+HASH_VERSION = b"farfield-scene-hash-v1"
+
+# glTF's default baseColorFactor (glTF 2.0, material.pbrMetallicRoughness): opaque white.
+DEFAULT_BASE_COLOR = (1.0, 1.0, 1.0, 1.0)
+
+
+class SceneWarning(UserWarning):
+    """A scene loaded, but with a recoverable problem (e.g. a missing texture file)."""
+
+
+def _frozen(array: np.ndarray, dtype: type, name: str, obj: str, shape: tuple) -> np.ndarray:
+    """A read-only C-contiguous copy of ``array`` as ``dtype``, checked against ``shape``.
+
+    ``shape`` holds ints for fixed sizes and ``None`` for free ones.
+    """
+    try:
+        out = np.array(array, dtype=dtype, copy=True, order="C")
+    except (TypeError, ValueError) as error:
+        raise SceneLoadError(f"object {obj!r}: {name} is not a {np.dtype(dtype).name} array: {error}") from error
+    if out.ndim != len(shape) or any(want is not None and got != want for got, want in zip(out.shape, shape)):
+        pretty = "(" + ", ".join("n" if s is None else str(s) for s in shape) + ")"
+        raise SceneLoadError(f"object {obj!r}: {name} has shape {out.shape}, expected {pretty}")
+    out.flags.writeable = False
+    return out
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class SceneObject:
+    """One named triangle mesh in world space with its colour sources.
+
+    Arrays are copied, converted and made read-only on construction; the object is validated
+    (finite, in range, at least one triangle) so that an invalid one cannot exist.
+
+    Parameters
+    ----------
+    name : str
+        Unique within its scene.
+    vertices : (v, 3) float64
+        World-space positions, scene units.
+    faces : (f, 3) int64
+        Indices into ``vertices``, counter-clockwise front faces; ``f >= 1``.
+    uv : (v, 2) float64 or None
+        Texture coordinates, origin bottom-left, v up (see the module docstring).
+    vertex_colors : (v, 4) uint8 or None
+        Per-vertex RGBA.
+    base_color : (4,) float64
+        Material RGBA factor in 0..1 (glTF ``baseColorFactor``, OBJ ``Kd`` and ``d``).
+    texture : (h, w, 4) uint8 or None
+        Base-colour RGBA image, top row first.  Requires ``uv``.
+    alpha_cutoff : float or None
+        Alpha-mask threshold in 0..1, or None for opaque.
+
+    Raises
+    ------
+    DegenerateGeometryError
+        No triangles, or non-finite coordinates.
+    SceneLoadError
+        Wrong shapes, face indices out of range, or coordinates beyond ``TOL.max_coordinate``.
+    """
+
+    name: str
+    vertices: np.ndarray  # (v, 3) float64, world units
+    faces: np.ndarray  # (f, 3) int64
+    uv: np.ndarray | None = None  # (v, 2) float64, origin bottom-left
+    vertex_colors: np.ndarray | None = None  # (v, 4) uint8 RGBA
+    base_color: np.ndarray = DEFAULT_BASE_COLOR  # (4,) float64 RGBA in 0..1
+    texture: np.ndarray | None = None  # (h, w, 4) uint8 RGBA, top row first
+    alpha_cutoff: float | None = None
+    bounds: np.ndarray = field(init=False, repr=False)  # (2, 3) float64: min, max corner
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise SceneLoadError(f"object name must be a non-empty string, got {self.name!r}")
+        name = self.name
+        set_ = object.__setattr__
+        vertices = _frozen(self.vertices, np.float64, "vertices", name, (None, 3))
+        faces = _frozen(self.faces, np.int64, "faces", name, (None, 3))
+        n = len(vertices)
+        set_(self, "vertices", vertices)
+        set_(self, "faces", faces)
+        if self.uv is not None:
+            set_(self, "uv", _frozen(self.uv, np.float64, "uv", name, (n, 2)))
+        if self.vertex_colors is not None:
+            set_(self, "vertex_colors", _frozen(self.vertex_colors, np.uint8, "vertex_colors", name, (n, 4)))
+        set_(self, "base_color", _frozen(self.base_color, np.float64, "base_color", name, (4,)))
+        if self.texture is not None:
+            texture = _frozen(self.texture, np.uint8, "texture", name, (None, None, 4))
+            if texture.shape[0] == 0 or texture.shape[1] == 0:
+                raise SceneLoadError(f"object {name!r}: texture has shape {texture.shape}")
+            if self.uv is None:
+                raise SceneLoadError(f"object {name!r}: has a texture but no uv coordinates")
+            set_(self, "texture", texture)
+        if self.alpha_cutoff is not None:
+            set_(self, "alpha_cutoff", float(self.alpha_cutoff))
+        _check_geometry(name, vertices, faces)
+        _check_colour(name, self.base_color, self.uv, self.alpha_cutoff)
+        bounds = np.stack([vertices.min(axis=0), vertices.max(axis=0)])
+        bounds.flags.writeable = False
+        set_(self, "bounds", bounds)
+
+    @property
+    def triangle_count(self) -> int:
+        """Number of triangles, ``f``."""
+        return len(self.faces)
+
+    @property
+    def colour_source(self) -> str:
+        """The dominant colour source: ``"texture"``, ``"vertex"`` or ``"material"``."""
+        if self.texture is not None:
+            return "texture"
+        if self.vertex_colors is not None:
+            return "vertex"
+        return "material"
+
+    def summary(self) -> dict:
+        """JSON-ready description: name, counts, bounds, colour source, alpha cutoff."""
+        return {
+            "name": self.name,
+            "triangles": self.triangle_count,
+            "vertices": len(self.vertices),
+            "bounds": self.bounds.tolist(),
+            "colour_source": self.colour_source,
+            "base_color": self.base_color.tolist(),
+            "texture_size": None if self.texture is None else [self.texture.shape[1], self.texture.shape[0]],
+            "alpha_cutoff": self.alpha_cutoff,
+        }
+
+
+def _check_geometry(name: str, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Raise unless ``faces`` index ``vertices`` and all coordinates are finite and not absurd."""
+    if len(faces) == 0:
+        raise DegenerateGeometryError(f"object {name!r} has no triangles")
+    low, high = int(faces.min()), int(faces.max())
+    if low < 0 or high >= len(vertices):
+        raise SceneLoadError(
+            f"object {name!r}: face index {low if low < 0 else high} out of range for {len(vertices)} vertices"
+        )
+    bad = ~np.isfinite(vertices).all(axis=1)
+    if bad.any():
+        raise DegenerateGeometryError(
+            f"object {name!r}: {int(bad.sum())} of {len(vertices)} vertices have non-finite (NaN/Inf) coordinates"
+        )
+    largest = float(np.abs(vertices).max())
+    if largest > TOL.max_coordinate:
+        raise SceneLoadError(
+            f"object {name!r}: coordinate magnitude {largest:.6g} exceeds the limit {TOL.max_coordinate:.6g} "
+            "(corrupt file or wrong units?)"
+        )
+
+
+def _check_colour(name: str, base_color: np.ndarray, uv: np.ndarray | None, alpha_cutoff: float | None) -> None:
+    """Raise unless colour factors lie in 0..1 and the uv are finite."""
+    if not (np.isfinite(base_color).all() and base_color.min() >= 0.0 and base_color.max() <= 1.0):
+        raise SceneLoadError(f"object {name!r}: base_color {base_color.tolist()} is not RGBA in 0..1")
+    if uv is not None and not np.isfinite(uv).all():
+        raise SceneLoadError(f"object {name!r}: {int((~np.isfinite(uv)).any(axis=1).sum())} non-finite uv coordinates")
+    if alpha_cutoff is not None and not 0.0 <= alpha_cutoff <= 1.0:
+        raise SceneLoadError(f"object {name!r}: alpha_cutoff {alpha_cutoff} is not in 0..1")
+
+
+def _update_hash(digest: "hashlib._Hash", tag: bytes, array: np.ndarray | None) -> None:
+    """Feed a tagged array into ``digest``: tag, dtype, shape, then little-endian bytes."""
+    digest.update(tag)
+    if array is None:
+        digest.update(b":none;")
+        return
+    little = array.astype(array.dtype.newbyteorder("<"), copy=False)
+    digest.update(f":{little.dtype.str}:{little.shape};".encode())
+    digest.update(np.ascontiguousarray(little).tobytes())
+
+
+def object_hash(obj: SceneObject) -> bytes:
+    """SHA-256 digest (32 bytes) of one object's geometry and colour arrays, name left out."""
+    digest = hashlib.sha256(HASH_VERSION)
+    # Adding 0.0 maps -0.0 to +0.0, so equal coordinates give equal bytes.
+    _update_hash(digest, b"vertices", obj.vertices + 0.0)
+    _update_hash(digest, b"faces", obj.faces)
+    _update_hash(digest, b"uv", None if obj.uv is None else obj.uv + 0.0)
+    _update_hash(digest, b"vertex_colors", obj.vertex_colors)
+    _update_hash(digest, b"base_color", obj.base_color + 0.0)
+    _update_hash(digest, b"texture", obj.texture)
+    cutoff = None if obj.alpha_cutoff is None else np.array([obj.alpha_cutoff], dtype=np.float64)
+    _update_hash(digest, b"alpha_cutoff", cutoff)
+    return digest.digest()
+
+
+def content_hash(objects: Iterable[SceneObject]) -> str:
+    """SHA-256 hex digest of the objects' geometry and colour arrays, independent of order and names.
+
+    The digest is taken over the sorted per-object digests (:func:`object_hash`).  Names, object
+    order and the source file name are left out, so the same content read from another path, from
+    uploaded bytes, or through another version of the parser's node order has the same hash.
+    ``-0.0`` is hashed as ``0.0``.
+
+    Parameters
+    ----------
+    objects : iterable of SceneObject
+
+    Returns
+    -------
+    str
+        64 hex digits.
+    """
+    digest = hashlib.sha256(HASH_VERSION + b":scene;")
+    for part in sorted(object_hash(obj) for obj in objects):
+        digest.update(part)
+    return digest.hexdigest()
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Scene:
+    """Named objects in world space, validated, with bounds and a content hash.
+
+    Build one with ``Scene(objects, source)`` or :meth:`from_objects`; the derived fields
+    (``content_hash``, ``bounds``, ``triangle_count``) are computed on construction.  Compare
+    scenes by ``content_hash`` (geometry and colour only: not names, order or source).
+
+    Parameters
+    ----------
+    objects : tuple of SceneObject
+        At least one; names unique.
+    source : str
+        Where the scene came from (a file name), for messages only; not part of the hash.
+    warnings : tuple of str
+        Recoverable problems met while loading (missing textures, skipped geometry).
+
+    Raises
+    ------
+    DegenerateGeometryError
+        No objects, or the scene's largest extent is below ``TOL.min_extent``.
+    SceneLoadError
+        Duplicate object names.
+    """
+
+    objects: tuple[SceneObject, ...]
+    source: str
+    warnings: tuple[str, ...] = ()
+    content_hash: str = field(init=False)  # 64 hex digits, see content_hash()
+    bounds: np.ndarray = field(init=False, repr=False)  # (2, 3) float64: min, max corner
+    triangle_count: int = field(init=False)
+
+    def __post_init__(self) -> None:
+        objects = tuple(self.objects)
+        object.__setattr__(self, "objects", objects)
+        object.__setattr__(self, "warnings", tuple(str(w) for w in self.warnings))
+        if not objects:
+            raise DegenerateGeometryError("scene has no triangles (no objects)")
+        names = [obj.name for obj in objects]
+        if len(set(names)) != len(names):
+            duplicates = sorted({n for n in names if names.count(n) > 1})
+            raise SceneLoadError(f"duplicate object names: {', '.join(map(repr, duplicates))}")
+        corners = np.stack([obj.bounds for obj in objects])  # (k, 2, 3)
+        bounds = np.stack([corners[:, 0].min(axis=0), corners[:, 1].max(axis=0)])
+        bounds.flags.writeable = False
+        extent = float((bounds[1] - bounds[0]).max())
+        if extent <= TOL.min_extent:
+            raise DegenerateGeometryError(
+                f"scene has zero extent: largest side {extent:.6g} <= {TOL.min_extent:.6g} "
+                f"(all vertices at {bounds[0].tolist()})"
+            )
+        object.__setattr__(self, "bounds", bounds)
+        object.__setattr__(self, "triangle_count", sum(obj.triangle_count for obj in objects))
+        object.__setattr__(self, "content_hash", content_hash(objects))
+
+    @classmethod
+    def from_objects(cls, objects: Iterable[SceneObject], source: str, warnings: Iterable[str] = ()) -> Scene:
+        """A validated scene of ``objects`` (any iterable) named ``source``."""
+        return cls(tuple(objects), source, tuple(warnings))
+
+    @property
+    def object_count(self) -> int:
+        """Number of objects."""
+        return len(self.objects)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Object names, in scene order."""
+        return tuple(obj.name for obj in self.objects)
+
+    @property
+    def extents(self) -> np.ndarray:
+        """(3,) float64 size of the bounding box, scene units."""
+        return self.bounds[1] - self.bounds[0]
+
+    def subset(self, names: Iterable[str]) -> Scene:
+        """The scene restricted to the objects called ``names`` (kept in scene order).
+
+        Raises
+        ------
+        SceneLoadError
+            If ``names`` is empty or names an object the scene does not have.
+        """
+        wanted = list(dict.fromkeys(names))
+        if not wanted:
+            raise SceneLoadError(f"{self.source}: no object names given to select")
+        known = set(self.names)
+        unknown = [n for n in wanted if n not in known]
+        if unknown:
+            raise SceneLoadError(
+                f"{self.source}: no object named {', '.join(map(repr, unknown))} "
+                f"(the scene has {self.object_count} objects, e.g. {', '.join(map(repr, self.names[:5]))})"
+            )
+        chosen = set(wanted)
+        return Scene(tuple(obj for obj in self.objects if obj.name in chosen), self.source, self.warnings)
+
+    def summary(self) -> dict:
+        """JSON-ready description of the scene and each object (see ``farfield inspect --json``)."""
+        return {
+            "source": self.source,
+            "content_hash": self.content_hash,
+            "object_count": self.object_count,
+            "triangle_count": self.triangle_count,
+            "bounds": self.bounds.tolist(),
+            "extents": self.extents.tolist(),
+            "objects": [obj.summary() for obj in self.objects],
+            "warnings": list(self.warnings),
+        }
+
+
+def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Nearest texel of ``texture`` at each ``uv``, with repeat wrapping: the uv convention, executable.
+
+    Parameters
+    ----------
+    texture : (h, w, c) array
+        Image, top row first.
+    uv : (n, 2) float64
+        Texture coordinates, origin bottom-left, v up.
+
+    Returns
+    -------
+    (n, c) array of ``texture.dtype``
+
+    Examples
+    --------
+    >>> tex = np.array([[[1], [2]], [[3], [4]]])  # top row 1 2, bottom row 3 4
+    >>> sample_texture(tex, np.array([[0.25, 0.25], [0.75, 0.75], [1.75, -0.75]])).ravel().tolist()
+    [3, 2, 4]
+    """
+    uv = np.asarray(uv, dtype=np.float64)
+    h, w = texture.shape[:2]
+    wrapped = uv - np.floor(uv)  # repeat: into [0, 1)
+    col = np.minimum((wrapped[:, 0] * w).astype(np.int64), w - 1)
+    row = np.minimum(((1.0 - wrapped[:, 1]) * h).astype(np.int64), h - 1)
+    return texture[row, col]

@@ -1,0 +1,327 @@
+"""Canonical test scenes: procedural :class:`core.scene.Scene` s from a seeded ``np.random.default_rng``, bad inputs, and file writers.
+
+Good scenes (``city``, ``forest``, ``sphere_field``, ``dense_mesh``, ``textured_quad``) are
+returned as validated ``Scene`` s; the bad ones cannot be ``Scene`` s, so they come as raw arrays
+(``bad_arrays``) or as file text (``bad_obj``) for the loader tests.  ``write_scene`` writes a
+``Scene`` as .glb / .obj / .ply / .stl with trimesh (OBJ with a small writer of our own, so that
+objects, materials and textures are under test control).  ``SHARED_SCENES`` is the folder of
+third-party scenes beside the checkout; ``REAL_SCENES`` is its README table.
+"""
+
+from __future__ import annotations
+
+import functools
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import PIL.Image
+import trimesh
+from trimesh.visual.material import PBRMaterial
+
+from core.exchange import load_scene
+from core.scene import Scene, SceneObject
+
+SHARED_SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
+
+
+@dataclass(frozen=True, slots=True)
+class RealScene:
+    """A row of ``SHARED_SCENES/README.md``: path, triangle count, size, and the size's tolerance."""
+
+    path: str  # relative to SHARED_SCENES
+    triangles: int
+    size: tuple[float, float, float]  # x, y, z extents as the README prints them, scene units
+    atol: float  # half a unit in the last digit the README prints
+
+
+REAL_SCENES = (
+    RealScene("scrub_pine/scrubPine.obj", 527, (716.0, 931.0, 702.0), 0.5),
+    RealScene("stanford_bunny/bun_zipper.ply", 69_451, (0.156, 0.154, 0.121), 0.0005),
+    RealScene("damaged_helmet/DamagedHelmet.glb", 15_452, (1.9, 1.8, 2.0), 0.05),
+    RealScene("duck/duck.obj", 4_212, (1.7, 1.5, 1.2), 0.05),
+)
+
+
+@functools.lru_cache(maxsize=None)
+def real_scene(path: str) -> Scene:
+    """The shared scene at ``SHARED_SCENES / path``, loaded once per test session (scenes are immutable)."""
+    return load_scene(SHARED_SCENES / path)
+
+
+# ---------------------------------------------------------------------------------- primitives
+
+
+def _unit_box() -> tuple[np.ndarray, np.ndarray]:
+    """(8, 3) float64 corners of the unit cube [0, 1]^3 and (12, 3) int64 outward faces."""
+    box = trimesh.creation.box(bounds=[[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
+    return np.asarray(box.vertices, dtype=np.float64), np.asarray(box.faces, dtype=np.int64)
+
+
+def box_object(name: str, low, high, base_color=(0.8, 0.8, 0.8, 1.0)) -> SceneObject:
+    """An axis-aligned box from corner ``low`` to ``high`` ((3,) float64), material-coloured."""
+    vertices, faces = _unit_box()
+    low, high = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
+    return SceneObject(name, low + vertices * (high - low), faces, base_color=base_color)
+
+
+def checker(size: int = 8, squares: int = 2) -> np.ndarray:
+    """(size, size, 4) uint8 RGBA checkerboard of dark and light squares, opaque."""
+    index = (np.arange(size) * squares // size)
+    light = (index[:, None] + index[None, :]) % 2 == 0
+    texture = np.empty((size, size, 4), dtype=np.uint8)
+    texture[...] = (40, 40, 160, 255)
+    texture[light] = (230, 200, 60, 255)
+    return texture
+
+
+# ---------------------------------------------------------------------------------- good scenes
+
+
+def city(buildings: int = 300, seed: int = 0) -> Scene:
+    """A city of ``buildings`` boxes on a square grid of lots plus a ground plane, material colours.
+
+    Lots are 20 units apart; footprints 6..16 units, heights log-normal around 15 units.
+    """
+    rng = np.random.default_rng(seed)
+    side = int(np.ceil(np.sqrt(buildings)))
+    lots = np.stack(np.meshgrid(np.arange(side), np.arange(side), indexing="ij"), axis=-1).reshape(-1, 2)[:buildings]
+    footprint = rng.uniform(6.0, 16.0, size=(buildings, 2))
+    height = rng.lognormal(np.log(15.0), 0.6, size=buildings)
+    grey = rng.uniform(0.35, 0.9, size=buildings)
+    objects = []
+    for i in range(buildings):
+        centre = lots[i] * 20.0
+        low = (centre[0] - footprint[i, 0] / 2, 0.0, centre[1] - footprint[i, 1] / 2)
+        high = (centre[0] + footprint[i, 0] / 2, height[i], centre[1] + footprint[i, 1] / 2)
+        objects.append(box_object(f"building_{i:03d}", low, high, (grey[i], grey[i], grey[i] * 0.95, 1.0)))
+    extent = side * 20.0
+    ground = SceneObject(
+        "ground",
+        np.array([[-10.0, 0.0, -10.0], [-10.0, 0.0, extent], [extent, 0.0, extent], [extent, 0.0, -10.0]]),
+        np.array([[0, 1, 2], [0, 2, 3]]),  # counter-clockwise seen from +y
+        base_color=(0.3, 0.5, 0.25, 1.0),
+    )
+    return Scene.from_objects([ground, *objects], source=f"city-{buildings}-{seed}")
+
+
+def forest(trees: int = 200, seed: int = 1) -> Scene:
+    """A forest of ``trees`` thin vertical cylinders (trunks) with brown-to-green vertex colours.
+
+    Radii 0.05..0.2, heights 4..12 units, scattered over a 100 x 100 square.
+    """
+    rng = np.random.default_rng(seed)
+    unit = trimesh.creation.cylinder(radius=1.0, height=1.0, sections=8)  # z in -0.5..0.5
+    vertices = np.asarray(unit.vertices, dtype=np.float64)
+    faces = np.asarray(unit.faces, dtype=np.int64)
+    up = vertices[:, 2] + 0.5  # 0 at the foot, 1 at the top
+    colours = np.empty((len(vertices), 4), dtype=np.uint8)
+    colours[:, :3] = np.round((1 - up)[:, None] * (100, 70, 40) + up[:, None] * (40, 140, 50))
+    colours[:, 3] = 255
+    radius = rng.uniform(0.05, 0.2, size=trees)
+    height = rng.uniform(4.0, 12.0, size=trees)
+    where = rng.uniform(0.0, 100.0, size=(trees, 2))
+    objects = []
+    for i in range(trees):
+        scaled = vertices * (radius[i], radius[i], height[i])
+        # z-up cylinder to y-up world: (x, y, z) -> (x, z + h/2, -y), a proper rotation.
+        world = np.column_stack([scaled[:, 0] + where[i, 0], scaled[:, 2] + height[i] / 2, -scaled[:, 1] + where[i, 1]])
+        objects.append(SceneObject(f"tree_{i:03d}", world, faces, vertex_colors=colours))
+    return Scene.from_objects(objects, source=f"forest-{trees}-{seed}")
+
+
+def sphere_field(spheres: int = 100, seed: int = 2) -> Scene:
+    """A field of ``spheres`` icospheres (320 triangles each); even ones textured, odd ones material-coloured.
+
+    Radii 0.5..3 units in a 200 x 50 x 200 box; texture coordinates are longitude / latitude.
+    """
+    rng = np.random.default_rng(seed)
+    unit = trimesh.creation.icosphere(subdivisions=2)
+    vertices = np.asarray(unit.vertices, dtype=np.float64)
+    faces = np.asarray(unit.faces, dtype=np.int64)
+    uv = np.column_stack([
+        np.arctan2(vertices[:, 1], vertices[:, 0]) / (2 * np.pi) + 0.5,
+        np.arcsin(np.clip(vertices[:, 2], -1.0, 1.0)) / np.pi + 0.5,
+    ])
+    texture = checker()
+    radius = rng.uniform(0.5, 3.0, size=spheres)
+    centre = rng.uniform((0.0, 0.0, 0.0), (200.0, 50.0, 200.0), size=(spheres, 3))
+    colour = rng.uniform(0.2, 1.0, size=(spheres, 3))
+    objects = []
+    for i in range(spheres):
+        world = centre[i] + vertices * radius[i]
+        if i % 2 == 0:
+            objects.append(SceneObject(f"sphere_{i:03d}", world, faces, uv=uv, texture=texture))
+        else:
+            objects.append(SceneObject(f"sphere_{i:03d}", world, faces, base_color=(*colour[i], 1.0)))
+    return Scene.from_objects(objects, source=f"spheres-{spheres}-{seed}")
+
+
+def dense_mesh(subdivisions: int = 6, seed: int = 3) -> Scene:
+    """One bumpy icosphere: ``20 * 4**subdivisions`` triangles (81,920 at 6), radius 1 +- 2 %."""
+    rng = np.random.default_rng(seed)
+    sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
+    vertices = np.asarray(sphere.vertices, dtype=np.float64)
+    vertices = vertices * rng.uniform(0.98, 1.02, size=(len(vertices), 1))
+    return Scene.from_objects([SceneObject("dense", vertices, np.asarray(sphere.faces, dtype=np.int64))], "dense")
+
+
+# A 2 x 2 texture with four distinct texels (top row first): red, green / blue, yellow; the
+# yellow texel is half transparent and the green one fully, for alpha tests.
+QUAD_TEXTURE = np.array(
+    [[[255, 0, 0, 255], [0, 255, 0, 0]], [[0, 0, 255, 255], [255, 255, 0, 128]]], dtype=np.uint8
+)
+
+
+def textured_quad(alpha_cutoff: float | None = None, texture: np.ndarray = QUAD_TEXTURE) -> Scene:
+    """A unit quad in the z = 0 plane facing +z, uv = (x, y), with ``texture`` (default ``QUAD_TEXTURE``).
+
+    Under the uv convention the corner (0, 1) shows the top-left texel, (0, 0) the bottom-left.
+    """
+    vertices = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    quad = SceneObject("quad", vertices, faces, uv=vertices[:, :2], texture=texture, alpha_cutoff=alpha_cutoff)
+    return Scene.from_objects([quad], "quad")
+
+
+# ---------------------------------------------------------------------------------- bad inputs
+
+
+def bad_arrays(kind: str) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices (v, 3) float64, faces (f, 3) int64) that no valid scene may hold.
+
+    ``kind`` is one of ``"nan"``, ``"inf"`` (one bad vertex), ``"point"`` (zero extent: every
+    vertex at the same place), ``"huge"`` (a coordinate of 1e13, beyond ``TOL.max_coordinate``),
+    ``"no_faces"`` and ``"bad_index"`` (a face refers to vertex 9 of 3).
+    """
+    vertices = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    faces = np.array([[0, 1, 2]])
+    if kind == "nan":
+        vertices[1, 0] = np.nan
+    elif kind == "inf":
+        vertices[2, 1] = np.inf
+    elif kind == "point":
+        vertices[:] = (5.0, 5.0, 5.0)
+    elif kind == "huge":
+        vertices[1, 0] = 1e13
+    elif kind == "no_faces":
+        faces = np.zeros((0, 3), dtype=np.int64)
+    elif kind == "bad_index":
+        faces = np.array([[0, 1, 9]])
+    else:
+        raise ValueError(f"unknown bad-array kind {kind!r}")
+    return vertices, faces
+
+
+def obj_text(vertices: np.ndarray, faces: np.ndarray, name: str = "thing") -> str:
+    """Minimal OBJ text of one object (``o name``, ``v`` and ``f`` lines; non-finite values as nan/inf)."""
+    lines = [f"o {name}"]
+    lines += [f"v {x!r} {y!r} {z!r}" for x, y, z in vertices.tolist()]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces.tolist()]
+    return "\n".join(lines) + "\n"
+
+
+def bad_obj(kind: str) -> str:
+    """OBJ text of :func:`bad_arrays` ``(kind)``, object named ``thing``."""
+    return obj_text(*bad_arrays(kind))
+
+
+# ---------------------------------------------------------------------------------- writers
+
+
+def _image(texture: np.ndarray) -> PIL.Image.Image:
+    """PIL RGBA image of a (h, w, 4) uint8 texture, top row first."""
+    return PIL.Image.fromarray(np.ascontiguousarray(texture), "RGBA")
+
+
+def to_trimesh(scene: Scene) -> trimesh.Scene:
+    """A trimesh.Scene with one node per object, named after it, identity transforms.
+
+    Textured objects get a glTF material with ``baseColorTexture`` (and ``alphaMode: MASK`` when
+    ``alpha_cutoff`` is set), vertex-coloured ones vertex colours, the rest a ``baseColorFactor``.
+    """
+    out = trimesh.Scene()
+    for obj in scene.objects:
+        if obj.texture is not None or obj.vertex_colors is None:
+            material = PBRMaterial(
+                name=f"{obj.name}_material",
+                baseColorFactor=np.array(obj.base_color),  # trimesh writes into its inputs
+                baseColorTexture=None if obj.texture is None else _image(obj.texture),
+                alphaMode=None if obj.alpha_cutoff is None else "MASK",
+                alphaCutoff=obj.alpha_cutoff,
+            )
+            visual = trimesh.visual.TextureVisuals(uv=None if obj.uv is None else np.array(obj.uv), material=material)
+        else:
+            visual = trimesh.visual.ColorVisuals(vertex_colors=np.array(obj.vertex_colors))
+        mesh = trimesh.Trimesh(np.array(obj.vertices), np.array(obj.faces), visual=visual, process=False)
+        out.add_geometry(mesh, geom_name=obj.name, node_name=obj.name)
+    return out
+
+
+def write_obj(scene: Scene, path: Path, texture_names: dict[str, str] | None = None, skip_textures: bool = False) -> Path:
+    """Write ``scene`` as ``path`` (OBJ) + an MTL beside it + one PNG per textured object.
+
+    One ``o`` per object with its own material ``<name>_mat`` (``Kd``, ``d``, ``map_Kd``).
+    ``texture_names`` maps object name to the PNG file name to reference; ``skip_textures``
+    references the PNGs without writing them (the missing-texture case).
+    """
+    path = Path(path)
+    mtl_name = path.with_suffix(".mtl").name
+    obj_lines, mtl_lines = [f"mtllib {mtl_name}"], []
+    offset = uv_offset = 1  # OBJ indices are 1-based and count v and vt lines separately
+    for obj in scene.objects:
+        material = f"{obj.name}_mat"
+        obj_lines += [f"o {obj.name}", f"usemtl {material}"]
+        obj_lines += ["v {:.17g} {:.17g} {:.17g}".format(*v) for v in obj.vertices.tolist()]
+        r, g, b, a = obj.base_color.tolist()
+        mtl_lines += [f"newmtl {material}", f"Kd {r:.17g} {g:.17g} {b:.17g}", f"d {a:.17g}"]
+        if obj.uv is not None:
+            obj_lines += ["vt {:.17g} {:.17g}".format(*t) for t in obj.uv.tolist()]
+            obj_lines += [
+                f"f {a}/{a - offset + uv_offset} {b}/{b - offset + uv_offset} {c}/{c - offset + uv_offset}"
+                for a, b, c in (obj.faces + offset).tolist()
+            ]
+            uv_offset += len(obj.uv)
+        else:
+            obj_lines += ["f {} {} {}".format(*f) for f in (obj.faces + offset).tolist()]
+        if obj.texture is not None:
+            png = (texture_names or {}).get(obj.name, f"{obj.name}.png")
+            mtl_lines.append(f"map_Kd {png}")
+            if not skip_textures:
+                _image(obj.texture).save(path.parent / png)
+        offset += len(obj.vertices)
+    path.write_text("\n".join(obj_lines) + "\n")
+    (path.parent / mtl_name).write_text("\n".join(mtl_lines) + "\n")
+    return path
+
+
+def write_scene(scene: Scene, directory: Path, extension: str, stem: str = "scene") -> Path:
+    """Write ``scene`` to ``directory / f"{stem}.{extension}"`` and return the path.
+
+    ``glb`` keeps objects, names and colours; ``obj`` see :func:`write_obj`; ``ply`` and ``stl``
+    hold a single mesh, so the objects are concatenated (``ply`` keeps vertex colours).
+    """
+    path = Path(directory) / f"{stem}.{extension}"
+    if extension == "obj":
+        return write_obj(scene, path)
+    if extension in ("ply", "stl"):
+        parts = []
+        for obj in scene.objects:
+            mesh = trimesh.Trimesh(np.array(obj.vertices), np.array(obj.faces), process=False)
+            if obj.vertex_colors is not None:
+                mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.array(obj.vertex_colors))
+            parts.append(mesh)
+        mesh = parts[0] if len(parts) == 1 else trimesh.util.concatenate(parts)
+        path.write_bytes(mesh.export(file_type=extension))
+        return path
+    data = to_trimesh(scene).export(file_type=extension)
+    path.write_bytes(data if isinstance(data, bytes) else data.encode())
+    return path
+
+
+def png_bytes(texture: np.ndarray) -> bytes:
+    """PNG file bytes of a (h, w, 4) uint8 RGBA texture."""
+    buffer = io.BytesIO()
+    _image(texture).save(buffer, format="PNG")
+    return buffer.getvalue()

@@ -1,0 +1,486 @@
+"""Scene model and loaders: real scenes, procedural round trips, colour sources, and every bad input."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import warnings
+
+import numpy as np
+import PIL.Image
+import pytest
+import trimesh
+
+from core.errors import DegenerateGeometryError, ErrorKind, SceneLoadError, SceneNotFoundError
+from core.exchange import load_scene, load_scene_bytes, supported_extensions
+from core.scene import Scene, SceneObject, SceneWarning, sample_texture
+import scenes  # tests/ is on sys.path under pytest's default (prepend) import mode
+
+# --------------------------------------------------------------------------- real scenes
+
+
+@pytest.mark.parametrize("real", scenes.REAL_SCENES, ids=lambda r: r.path.split("/")[-1])
+def test_real_scene_triangles_and_size(real):
+    scene = scenes.real_scene(real.path)
+    assert scene.triangle_count == real.triangles
+    assert sum(obj.triangle_count for obj in scene.objects) == real.triangles
+    np.testing.assert_allclose(scene.extents, real.size, atol=real.atol)
+    assert scene.warnings == ()
+    assert scene.source == real.path.split("/")[-1]
+
+
+@pytest.mark.parametrize(
+    ("path", "sources", "texture_shape"),
+    [
+        ("duck/duck.obj", {"LOD3sp_LOD3spShape": "texture"}, (512, 512, 4)),
+        ("damaged_helmet/DamagedHelmet.glb", {"node_damagedHelmet_-6514": "texture"}, (2048, 2048, 4)),
+        ("stanford_bunny/bun_zipper.ply", {"bun_zipper": "material"}, None),
+        ("scrub_pine/scrubPine.obj", {"SoftPine2": "texture", "SoftPineBark": "texture"}, None),
+    ],
+)
+def test_real_scene_objects_and_colour_sources(path, sources, texture_shape):
+    scene = scenes.real_scene(path)
+    assert {obj.name: obj.colour_source for obj in scene.objects} == sources
+    for obj in scene.objects:
+        if texture_shape is not None:
+            assert obj.texture.shape == texture_shape
+        if obj.texture is not None:
+            assert obj.uv.shape == (len(obj.vertices), 2)
+
+
+def test_scrub_pine_leaf_cards_are_alpha_cut_and_bark_is_opaque():
+    scene = scenes.real_scene("scrub_pine/scrubPine.obj")
+    leaves, bark = scene.subset(["SoftPine2"]).objects[0], scene.subset(["SoftPineBark"]).objects[0]
+    assert leaves.alpha_cutoff == 0.5
+    assert leaves.texture[..., 3].min() < 128  # transparent texels around the needles
+    assert bark.alpha_cutoff is None
+    assert leaves.triangle_count + bark.triangle_count == 527
+
+
+def test_duck_textured_obj_replaces_kd_with_texture():
+    duck = scenes.real_scene("duck/duck.obj").objects[0]
+    # The MTL says Kd 0.64 and map_Kd: the texture is drawn as is (white factor).
+    np.testing.assert_array_equal(duck.base_color, [1.0, 1.0, 1.0, 1.0])
+    assert duck.alpha_cutoff is None
+    # The yellow duck: the texels its uv land on are mostly yellow (red and green over blue).
+    texels = sample_texture(duck.texture, duck.uv).astype(float)
+    assert np.median(texels[:, 0]) > np.median(texels[:, 2]) and np.median(texels[:, 1]) > np.median(texels[:, 2])
+
+
+def test_same_file_twice_and_from_bytes_give_the_same_hash():
+    path = scenes.SHARED_SCENES / "duck" / "duck.obj"
+    first, second = load_scene(path), load_scene(str(path))
+    assert first.content_hash == second.content_hash
+    assets = {name: (path.parent / name).read_bytes() for name in ("duck.mtl", "duckCM.png")}
+    uploaded = load_scene_bytes(path.read_bytes(), ".OBJ", "duck.obj", assets=assets)
+    assert uploaded.content_hash == first.content_hash
+    assert uploaded.names == first.names
+
+
+def test_same_content_at_another_path_has_the_same_hash(tmp_path):
+    original = scenes.SHARED_SCENES / "stanford_bunny" / "bun_zipper.ply"
+    copy = tmp_path / "renamed.ply"
+    copy.write_bytes(original.read_bytes())
+    moved = load_scene(copy)
+    assert moved.content_hash == scenes.real_scene("stanford_bunny/bun_zipper.ply").content_hash
+    assert moved.names == ("renamed",)
+
+
+def test_obj_bytes_without_their_assets_warn_and_lose_the_texture():
+    path = scenes.SHARED_SCENES / "duck" / "duck.obj"
+    with pytest.warns(SceneWarning, match="duck.mtl"):
+        scene = load_scene_bytes(path.read_bytes(), "obj", "duck.obj")
+    assert scene.objects[0].colour_source == "material"
+    assert any("duck.mtl" in message for message in scene.warnings)
+    assert scene.content_hash != scenes.real_scene("duck/duck.obj").content_hash
+
+
+# --------------------------------------------------------------------------- procedural scenes
+
+
+@pytest.mark.parametrize(
+    ("make", "objects", "triangles", "colours"),
+    [
+        (scenes.city, 301, 301 * 12 - 10, {"material"}),
+        (scenes.forest, 200, 200 * 32, {"vertex"}),
+        (scenes.sphere_field, 100, 100 * 320, {"texture", "material"}),
+        (scenes.dense_mesh, 1, 81_920, {"material"}),
+    ],
+    ids=["city", "forest", "spheres", "dense"],
+)
+def test_procedural_scenes_are_deterministic(make, objects, triangles, colours):
+    scene = make()
+    assert scene.object_count == objects
+    assert scene.triangle_count == triangles
+    assert {obj.colour_source for obj in scene.objects} == colours
+    assert make().content_hash == scene.content_hash
+    assert make(seed=99).content_hash != scene.content_hash
+
+
+def test_multi_object_glb_keeps_names_triangles_and_colours(tmp_path):
+    city = scenes.city(buildings=40)
+    loaded = load_scene(scenes.write_scene(city, tmp_path, "glb"))
+    assert sorted(loaded.names) == sorted(city.names)
+    by_name = {obj.name: obj for obj in loaded.objects}
+    for original in city.objects:
+        obj = by_name[original.name]
+        assert obj.triangle_count == original.triangle_count
+        np.testing.assert_allclose(obj.vertices, original.vertices, rtol=1e-6)  # GLB stores float32
+        assert obj.colour_source == "material"
+        np.testing.assert_allclose(obj.base_color, original.base_color, atol=1 / 255)  # trimesh: uint8
+
+
+def test_glb_vertex_colours_survive(tmp_path):
+    forest = scenes.forest(trees=5)
+    loaded = load_scene(scenes.write_scene(forest, tmp_path, "glb"))
+    for original, obj in zip(forest.objects, loaded.objects):
+        assert obj.name == original.name and obj.colour_source == "vertex"
+        np.testing.assert_array_equal(obj.vertex_colors, original.vertex_colors)
+
+
+def test_multi_object_obj_keeps_names_and_triangles(tmp_path):
+    spheres = scenes.sphere_field(spheres=6)
+    loaded = load_scene(scenes.write_scene(spheres, tmp_path, "obj"))
+    assert loaded.names == spheres.names
+    for original, obj in zip(spheres.objects, loaded.objects):
+        assert obj.triangle_count == original.triangle_count
+        assert obj.colour_source == original.colour_source
+        np.testing.assert_allclose(obj.bounds, original.bounds, rtol=1e-12)
+
+
+@pytest.mark.parametrize("extension", ["ply", "stl"])
+def test_single_mesh_formats_name_the_object_after_the_file(tmp_path, extension):
+    dense = scenes.dense_mesh(subdivisions=4)
+    loaded = load_scene(scenes.write_scene(dense, tmp_path, extension, stem="blob"))
+    assert loaded.names == ("blob",)
+    assert loaded.triangle_count == dense.triangle_count == 5120
+    np.testing.assert_allclose(loaded.bounds, dense.bounds, rtol=1e-6)
+
+
+def test_ply_vertex_colours(tmp_path):
+    tree = scenes.forest(trees=1)
+    loaded = load_scene(scenes.write_scene(tree, tmp_path, "ply"))
+    assert loaded.objects[0].colour_source == "vertex"
+    np.testing.assert_array_equal(loaded.objects[0].vertex_colors, tree.objects[0].vertex_colors)
+
+
+def _box_mesh() -> trimesh.Trimesh:
+    return trimesh.creation.box(extents=(1.0, 2.0, 4.0))
+
+
+def _signed_volume(obj: SceneObject) -> float:
+    corners = obj.vertices[obj.faces]
+    return float(np.linalg.det(corners).sum() / 6.0)
+
+
+def test_node_transforms_are_applied_in_world_space(tmp_path):
+    rotation = trimesh.transformations.rotation_matrix(np.pi / 3, [0.0, 1.0, 0.0])
+    moved = trimesh.transformations.translation_matrix([10.0, -5.0, 3.0]) @ rotation @ np.diag([2.0, 3.0, 0.5, 1.0])
+    mirrored = trimesh.transformations.translation_matrix([-20.0, 0.0, 0.0]) @ np.diag([-1.0, 1.0, 1.0, 1.0])
+    source = trimesh.Scene()
+    source.add_geometry(_box_mesh(), geom_name="box", node_name="plain")
+    source.add_geometry(_box_mesh(), geom_name="box", node_name="moved", transform=moved)  # an instance
+    source.add_geometry(_box_mesh(), geom_name="box", node_name="mirrored", transform=mirrored)
+    path = tmp_path / "transforms.glb"
+    path.write_bytes(source.export(file_type="glb"))
+    # The GLB must really carry the transform (not pre-baked vertices) for this test to mean anything.
+    parsed = trimesh.load_scene(path)
+    assert not np.allclose(parsed.graph["moved"][0], np.eye(4))
+
+    scene = load_scene(path)
+    assert scene.names == ("mirrored", "moved", "plain")
+    local = np.asarray(_box_mesh().vertices)
+    for name, matrix in [("plain", np.eye(4)), ("moved", moved), ("mirrored", mirrored)]:
+        obj = scene.subset([name]).objects[0]
+        np.testing.assert_allclose(obj.vertices, trimesh.transformations.transform_points(local, matrix), atol=1e-9)
+        # Faces stay outward (positive volume) even under the mirroring transform.
+        assert _signed_volume(obj) == pytest.approx(abs(np.linalg.det(matrix[:3, :3])) * 8.0)
+    np.testing.assert_allclose(scene.bounds[0][0], -20.5)
+
+
+# --------------------------------------------------------------------------- uv and texture convention
+
+
+@pytest.mark.parametrize("extension", ["glb", "obj"])
+def test_uv_convention_is_the_same_for_every_format(tmp_path, extension):
+    quad = scenes.textured_quad(alpha_cutoff=0.5)
+    loaded = load_scene(scenes.write_scene(quad, tmp_path, extension)).objects[0]
+    np.testing.assert_array_equal(loaded.texture, scenes.QUAD_TEXTURE)
+    np.testing.assert_allclose(loaded.uv, quad.objects[0].uv)
+    corner_colours = sample_texture(loaded.texture, loaded.uv * 0.98 + 0.01)  # inside each corner texel
+    # Vertex (0, 1, 0) with uv (0, 1) shows the top-left texel (red); (0, 0) the bottom-left (blue).
+    np.testing.assert_array_equal(corner_colours[3], [255, 0, 0, 255])
+    np.testing.assert_array_equal(corner_colours[0], [0, 0, 255, 255])
+    np.testing.assert_array_equal(corner_colours[2], [0, 255, 0, 0])
+    assert loaded.alpha_cutoff == 0.5
+
+
+def test_gltf_alpha_mask_cutoff_is_kept(tmp_path):
+    loaded = load_scene(scenes.write_scene(scenes.textured_quad(alpha_cutoff=0.3), tmp_path, "glb"))
+    assert loaded.objects[0].alpha_cutoff == pytest.approx(0.3)
+    opaque = load_scene(scenes.write_scene(scenes.textured_quad(), tmp_path, "glb", stem="opaque"))
+    assert opaque.objects[0].alpha_cutoff is None  # glTF OPAQUE: texture alpha ignored
+
+
+def test_obj_texture_with_alpha_is_cut_at_half_and_opaque_one_is_not(tmp_path):
+    translucent = load_scene(scenes.write_scene(scenes.textured_quad(), tmp_path, "obj", stem="a"))
+    assert translucent.objects[0].alpha_cutoff == 0.5
+    opaque_texture = scenes.QUAD_TEXTURE.copy()
+    opaque_texture[..., 3] = 255
+    opaque = load_scene(scenes.write_scene(scenes.textured_quad(texture=opaque_texture), tmp_path, "obj", stem="b"))
+    assert opaque.objects[0].alpha_cutoff is None
+
+
+def test_obj_map_d_becomes_texture_alpha(tmp_path):
+    opaque_texture = scenes.QUAD_TEXTURE.copy()
+    opaque_texture[..., 3] = 255
+    path = scenes.write_scene(scenes.textured_quad(texture=opaque_texture), tmp_path, "obj")
+    mask = np.array([[255, 0], [255, 40]], dtype=np.uint8)
+    PIL.Image.fromarray(mask, "L").save(tmp_path / "mask.png")
+    with path.with_suffix(".mtl").open("a") as mtl:
+        mtl.write("map_d mask.png\n")
+    obj = load_scene(path).objects[0]
+    assert obj.alpha_cutoff == 0.5
+    np.testing.assert_array_equal(obj.texture[..., 3], mask)
+    np.testing.assert_array_equal(obj.texture[..., :3], opaque_texture[..., :3])
+
+
+# --------------------------------------------------------------------------- missing referenced files
+
+
+def test_missing_obj_texture_warns_and_falls_back_to_material_colour(tmp_path):
+    quad = scenes.textured_quad()
+    coloured = dataclasses.replace(quad.objects[0], base_color=np.array([0.2, 0.4, 0.6, 1.0]))
+    path = scenes.write_obj(Scene.from_objects([coloured], "quad"), tmp_path / "quad.obj", skip_textures=True)
+    assert not (tmp_path / "quad.png").exists()
+    with pytest.warns(SceneWarning, match=r"quad\.png"):
+        scene = load_scene(path)
+    obj = scene.objects[0]
+    assert obj.colour_source == "material" and obj.texture is None and obj.alpha_cutoff is None
+    np.testing.assert_allclose(obj.base_color, [0.2, 0.4, 0.6, 1.0], atol=1 / 255)
+    assert len(scene.warnings) == 1 and "quad.png" in scene.warnings[0]
+    assert scene.summary()["warnings"] == list(scene.warnings)
+
+
+def test_missing_material_library_warns(tmp_path):
+    path = scenes.write_scene(scenes.textured_quad(), tmp_path, "obj")
+    path.with_suffix(".mtl").unlink()
+    with pytest.warns(SceneWarning, match=r"scene\.mtl"):
+        scene = load_scene(path)
+    assert scene.objects[0].colour_source == "material"
+
+
+def _external_image_gltf(tmp_path, write_image: bool):
+    files = scenes.to_trimesh(scenes.textured_quad()).export(file_type="gltf")
+    document = json.loads(files.pop("model.gltf"))
+    document["images"] = [{"uri": "quad.png"}]
+    for name, data in files.items():
+        (tmp_path / name).write_bytes(data)
+    if write_image:
+        (tmp_path / "quad.png").write_bytes(scenes.png_bytes(scenes.QUAD_TEXTURE))
+    path = tmp_path / "quad.gltf"
+    path.write_text(json.dumps(document))
+    return path, files
+
+
+def test_gltf_with_external_image(tmp_path):
+    path, files = _external_image_gltf(tmp_path, write_image=True)
+    scene = load_scene(path)
+    np.testing.assert_array_equal(scene.objects[0].texture, scenes.QUAD_TEXTURE)
+    assets = {**files, "quad.png": (tmp_path / "quad.png").read_bytes()}
+    uploaded = load_scene_bytes(path.read_bytes(), "gltf", "quad.gltf", assets=assets)
+    assert uploaded.content_hash == scene.content_hash
+
+
+def test_gltf_missing_external_image_warns(tmp_path):
+    path, _ = _external_image_gltf(tmp_path, write_image=False)
+    with pytest.warns(SceneWarning, match=r"quad\.png"):
+        scene = load_scene(path)
+    assert scene.objects[0].colour_source == "material"
+
+
+# --------------------------------------------------------------------------- bad input
+
+
+def test_missing_file_is_not_found(tmp_path):
+    with pytest.raises(SceneNotFoundError, match="nothing.glb") as caught:
+        load_scene(tmp_path / "nothing.glb")
+    assert caught.value.kind is ErrorKind.MISSING
+
+
+@pytest.mark.parametrize("suffix", [".fbx", ".mtl", ""])
+def test_unknown_extension_lists_the_supported_ones(tmp_path, suffix):
+    path = tmp_path / f"model{suffix}"
+    path.write_bytes(b"whatever")
+    with pytest.raises(SceneLoadError, match="supported: .glb, .gltf, .obj, .ply, .stl") as caught:
+        load_scene(path)
+    assert caught.value.kind is ErrorKind.BAD_INPUT
+    with pytest.raises(SceneLoadError, match="supported"):
+        load_scene_bytes(b"whatever", suffix or "dae", "model")
+
+
+def test_directory_is_refused(tmp_path):
+    folder = tmp_path / "folder.obj"
+    folder.mkdir()
+    with pytest.raises(SceneLoadError, match="directory"):
+        load_scene(folder)
+
+
+def _glb() -> bytes:
+    return scenes.to_trimesh(scenes.textured_quad()).export(file_type="glb")
+
+
+@pytest.mark.parametrize(
+    ("extension", "data"),
+    [
+        (ext, b"") for ext in ("glb", "gltf", "obj", "ply", "stl")
+    ]
+    + [
+        (ext, np.random.default_rng(7).bytes(600)) for ext in ("glb", "gltf", "obj", "ply", "stl")
+    ]
+    + [
+        ("glb", _glb()[:100]),  # truncated
+        ("glb", b"glTF" + _glb()[4:60]),
+        ("glb", b"glTF" + bytes(40)),  # version 0
+        ("gltf", b"{not json"),
+        ("ply", b"ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2\n"),
+        ("stl", b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0\n"),
+        ("obj", scenes.bad_obj("bad_index").encode()),
+    ],
+    ids=[f"empty-{e}" for e in ("glb", "gltf", "obj", "ply", "stl")]
+    + [f"random-{e}" for e in ("glb", "gltf", "obj", "ply", "stl")]
+    + ["truncated-glb", "short-glb", "version0-glb", "not-json-gltf", "short-ply", "short-stl", "bad-index-obj"],
+)
+def test_corrupt_bytes_are_one_scene_load_error_naming_the_file(tmp_path, extension, data):
+    path = tmp_path / f"broken.{extension}"
+    path.write_bytes(data)
+    with pytest.raises(SceneLoadError, match=rf"broken\.{extension}") as caught:
+        load_scene(path)
+    assert type(caught.value) is SceneLoadError
+    with pytest.raises(SceneLoadError, match="upload.bin"):
+        load_scene_bytes(data, extension, "upload.bin")
+
+
+@pytest.mark.parametrize(
+    ("extension", "data"),
+    [
+        ("obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\n"),  # a point cloud
+        ("obj", b"# nothing but a comment\n"),
+        ("gltf", b'{"asset": {"version": "2.0"}}'),
+        ("stl", b"solid empty\nendsolid empty\n"),
+        ("ply", b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
+                b"property float z\nend_header\n0 0 0\n1 1 1\n"),
+    ],
+)
+def test_no_triangles_is_degenerate(tmp_path, extension, data):
+    path = tmp_path / f"empty.{extension}"
+    path.write_bytes(data)
+    with pytest.raises(DegenerateGeometryError, match="no triangles"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SceneWarning)  # "skipped PointCloud geometry"
+            load_scene(path)
+
+
+@pytest.mark.parametrize(
+    ("kind", "error", "match"),
+    [
+        ("nan", DegenerateGeometryError, r"object 'thing': 1 of 3 vertices have non-finite"),
+        ("inf", DegenerateGeometryError, r"object 'thing': 1 of 3 vertices have non-finite"),
+        ("point", DegenerateGeometryError, r"zero extent"),
+        ("huge", SceneLoadError, r"object 'thing': coordinate magnitude 1e\+13 exceeds the limit 1e\+12"),
+        ("bad_index", SceneLoadError, r"index"),
+    ],
+)
+def test_bad_geometry_in_a_file(tmp_path, kind, error, match):
+    path = tmp_path / f"{kind}.obj"
+    path.write_text(scenes.bad_obj(kind))
+    with pytest.raises(error, match=match) as caught:
+        load_scene(path)
+    assert str(caught.value).startswith(f"{kind}.obj: ")
+
+
+@pytest.mark.parametrize(
+    ("kind", "error"),
+    [
+        ("nan", DegenerateGeometryError),
+        ("inf", DegenerateGeometryError),
+        ("huge", SceneLoadError),
+        ("no_faces", DegenerateGeometryError),
+        ("bad_index", SceneLoadError),
+    ],
+)
+def test_bad_arrays_make_no_scene_object(kind, error):
+    with pytest.raises(error, match="'thing'"):
+        SceneObject("thing", *scenes.bad_arrays(kind))
+
+
+def test_bad_scenes_in_memory():
+    with pytest.raises(DegenerateGeometryError, match="no triangles"):
+        Scene.from_objects((), "empty")
+    with pytest.raises(DegenerateGeometryError, match="zero extent"):
+        Scene.from_objects([SceneObject("dot", *scenes.bad_arrays("point"))], "dot")
+    box = scenes.box_object("same", (0, 0, 0), (1, 1, 1))
+    with pytest.raises(SceneLoadError, match="duplicate object names: 'same'"):
+        Scene.from_objects([box, box], "twins")
+    with pytest.raises(SceneLoadError, match="shape"):
+        SceneObject("flat", np.zeros((3, 2)), [[0, 1, 2]])
+    with pytest.raises(SceneLoadError, match="no uv"):
+        SceneObject("tex", box.vertices, box.faces, texture=scenes.checker())
+    with pytest.raises(SceneLoadError, match="base_color"):
+        SceneObject("bright", box.vertices, box.faces, base_color=(2.0, 0.0, 0.0, 1.0))
+
+
+# --------------------------------------------------------------------------- model behaviour
+
+
+def test_scene_is_immutable():
+    scene = scenes.city(buildings=3)
+    obj = scene.objects[1]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        obj.name = "other"
+    with pytest.raises(ValueError, match="read-only"):
+        obj.vertices[0, 0] = 1.0
+    with pytest.raises(ValueError, match="read-only"):
+        scene.bounds[0, 0] = 1.0
+
+
+def test_content_hash_follows_geometry_and_colour_not_names_or_order():
+    city = scenes.city(buildings=5)
+    reordered = Scene.from_objects(reversed(city.objects), "elsewhere")
+    assert reordered.content_hash == city.content_hash
+    renamed = Scene.from_objects([dataclasses.replace(o, name=o.name + "_x") for o in city.objects], "c")
+    assert renamed.content_hash == city.content_hash
+    first = city.objects[1]
+    moved = dataclasses.replace(first, vertices=first.vertices + np.array([0.0, 0.0, 1e-9]))
+    assert Scene.from_objects([moved, *city.objects[2:]], "c").content_hash != city.subset(city.names[1:]).content_hash
+    recoloured = dataclasses.replace(first, base_color=np.array([0.1, 0.2, 0.3, 1.0]))
+    assert Scene.from_objects([recoloured], "c").content_hash != Scene.from_objects([first], "c").content_hash
+    negative_zero = dataclasses.replace(first, vertices=np.where(first.vertices == 0.0, -0.0, first.vertices))
+    assert Scene.from_objects([negative_zero], "c").content_hash == Scene.from_objects([first], "c").content_hash
+
+
+def test_subset_selects_by_name_and_names_unknown_ones():
+    city = scenes.city(buildings=10)
+    part = city.subset(["building_003", "ground", "building_003"])
+    assert part.names == ("ground", "building_003")
+    assert part.triangle_count == 2 + 12
+    np.testing.assert_array_equal(part.bounds[1][1], part.objects[1].bounds[1][1])
+    with pytest.raises(SceneLoadError, match="'tower', 'castle'"):
+        city.subset(["ground", "tower", "castle"])
+    with pytest.raises(SceneLoadError, match="no object names"):
+        city.subset([])
+
+
+def test_summary_is_json_ready():
+    summary = json.loads(json.dumps(scenes.sphere_field(spheres=4).summary()))
+    assert summary["object_count"] == 4 and summary["triangle_count"] == 4 * 320
+    assert len(summary["content_hash"]) == 64
+    first, second = summary["objects"][:2]
+    assert first["colour_source"] == "texture" and first["texture_size"] == [8, 8]
+    assert second["colour_source"] == "material" and second["texture_size"] is None
+    assert set(first) >= {"name", "triangles", "bounds", "colour_source", "alpha_cutoff"}
+    assert summary["warnings"] == []
+
+
+def test_supported_extensions():
+    assert supported_extensions() == ("glb", "gltf", "obj", "ply", "stl")
