@@ -1,0 +1,48 @@
+"""Entry point of the ``farfield`` command: a click group whose subcommands live in sibling modules.
+
+Every :class:`core.errors.FarfieldError` (and a few well-known user mistakes) becomes one line on
+stderr and the exit code from :data:`core.errors.ErrorKind`; a traceback means a bug in farfield.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from core import __version__
+from core.errors import FarfieldError
+
+
+class FarfieldGroup(click.Group):
+    """A click group that reports farfield errors as one line and a non-zero exit code."""
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except FarfieldError as error:
+            click.echo(f"farfield: error: {error}", err=True)
+            sys.exit(error.kind.exit_code)
+
+
+@click.group(cls=FarfieldGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="farfield")
+def cli() -> None:
+    """farfield: bake impostors (image-based stand-ins) for distant 3D geometry."""
+
+
+def _register() -> None:
+    from cli import inspect_cmd, layers_cmd
+
+    cli.add_command(inspect_cmd.inspect)
+    cli.add_command(layers_cmd.layers)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Run the CLI (the ``farfield`` console script)."""
+    _register()
+    cli.main(args=argv, prog_name="farfield")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,81 @@
+"""``farfield layers`` end to end through the installed command line (a real subprocess)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+SHARED_SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
+
+
+def farfield(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "cli.main", *args], capture_output=True, text=True, timeout=120)
+
+
+def test_envmap_json_reproduces_the_paper():
+    out = farfield("layers", "envmap", "--cell-size", "10", "--resolution", "512", "--layers", "64", "--alpha", "2.2661e-3", "--json")
+    assert out.returncode == 0, out.stderr
+    data = json.loads(out.stdout)
+    assert data["layers"] == 64 and len(data["distances"]) == 64 and len(data["borders"]) == 65
+    assert 41.5 <= data["near_field"] <= 42.5
+    assert data["borders"][-1] is None  # the outermost layer reaches infinity
+    one = json.loads(farfield("layers", "envmap", "--cell-size", "10", "--layers", "1", "--alpha", "2.2661e-3", "--json").stdout)
+    assert one["near_field"] == pytest.approx(1738.0, abs=1.0)
+
+
+def test_envmap_near_field_round_trip():
+    data = json.loads(farfield("layers", "envmap", "--cell-size", "10", "--near-field", "42.5", "--alpha", "2.2661e-3", "--json").stdout)
+    assert data["layers"] == 64 and data["near_field"] <= 42.5
+
+
+def test_part_with_bounds_json():
+    out = farfield("layers", "part", "--bounds", "140,-15,-10,185,15,10", "--viewcell", "box-center:0,0,0,100",
+                   "--fov", "45", "--resolution", "512", "--pixel-model", "center", "--json")
+    assert out.returncode == 0, out.stderr
+    data = json.loads(out.stdout)
+    assert abs(data["layers"] - 110) <= 11  # seed 000 Table 4.1 at 90 m
+    assert data["borders"][0] == 90.0 and data["borders"][-1] == 135.0
+    assert len(data["depth_ranges"]) == data["layers"]
+
+
+@pytest.mark.parametrize("scene", ["stanford_bunny/bun_zipper.ply", "duck/duck.obj", "damaged_helmet/DamagedHelmet.glb", "scrub_pine/scrubPine.obj"])
+def test_part_on_shared_scenes(scene):
+    path = SHARED_SCENES / scene
+    if not path.exists():
+        pytest.skip(f"{path} not present (shared/scenes is beside the checkout in CI)")
+    # A cubic cell ten scene-diameters in front of the model along -x.
+    inspect = json.loads(farfield("inspect", str(path), "--json").stdout)
+    (x0, y0, z0), (x1, y1, z1) = inspect["bounds"]
+    size = max(x1 - x0, y1 - y0, z1 - z0)
+    cx, cy, cz = x0 - 10 * size, (y0 + y1) / 2, (z0 + z1) / 2
+    out = farfield("layers", "part", str(path), "--viewcell", f"box-center:{cx},{cy},{cz},{size}", "--json")
+    assert out.returncode == 0, out.stderr
+    data = json.loads(out.stdout)
+    assert data["layers"] >= 1
+    assert np.allclose(data["part_bounds"], inspect["bounds"])
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["layers", "part", "--bounds", "1,0,0,2,1,1", "--viewcell", "box-center:0,0,0,10"], "touches or overlaps"),
+        (["layers", "part", "--bounds", "50,0,0,60,1,1", "--viewcell", "box-center:0,0,0,10", "--fov", "180"], "field of view"),
+        (["layers", "part", "--bounds", "50,0,0,60,1,1", "--viewcell", "box-center:0,0,0,10", "--resolution", "0"], "resolution"),
+        (["layers", "part", "--bounds", "50,0,0", "--viewcell", "box-center:0,0,0,10"], "--bounds"),
+        (["layers", "part", "--bounds", "50,0,0,60,1,1", "--viewcell", "box-center:0,0,0,-10"], "view cell"),
+        (["layers", "envmap", "--cell-size", "10", "--layers", "4", "--alpha", "0"], "alpha"),
+        (["layers", "envmap", "--cell-size", "10", "--near-field", "3"], "outside the view cell"),
+        (["layers", "envmap", "--cell-size", "10"], "--layers or --near-field"),
+    ],
+)
+def test_bad_configurations_print_one_line_and_exit_non_zero(args, needle):
+    out = farfield(*args)
+    assert out.returncode != 0
+    assert "Traceback" not in out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and needle in lines[0]
