@@ -32,10 +32,12 @@ def cli() -> None:
 
 
 def _register() -> None:
-    from cli import inspect_cmd, layers_cmd
+    from cli import bake_cmd, evaluate_cmd, inspect_cmd, layers_cmd
 
     cli.add_command(inspect_cmd.inspect)
     cli.add_command(layers_cmd.layers)
+    cli.add_command(bake_cmd.bake)
+    cli.add_command(evaluate_cmd.evaluate)
 
 
 def main(argv: list[str] | None = None) -> None:

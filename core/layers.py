@@ -28,7 +28,7 @@ import numpy as np
 from core.constants import TOL
 from core.errors import LayerPlanError
 from core.frustum import PixelModel, check_fov, check_resolution, pixel_angle, texture_resolution
-from core.viewcells import BoxCell, ShaftCell, ViewCell, _orthonormal_frame
+from core.viewcells import BoxCell, ShaftCell, ViewCell, _orthonormal_frame, box_corners
 
 # ---------------------------------------------------------------------------------------------
 # The equations
@@ -168,8 +168,7 @@ def part_view(cell: ViewCell, bounds) -> PartView:
     b = np.asarray(bounds, dtype=np.float64).reshape(2, 3)
     if not np.all(np.isfinite(b)) or np.any(b[1] < b[0]):
         raise LayerPlanError(f"part bounds must be finite with lo <= hi, got {b.tolist()}")
-    idx = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=bool)
-    part_corners = np.where(idx, b[1], b[0])
+    part_corners = box_corners(b)
     scale = float(np.max(np.abs(np.concatenate([b.ravel(), cell.corners().ravel()]))))
     touch = TOL.rel_touch * max(scale, TOL.min_extent)
     if isinstance(cell, BoxCell):

@@ -37,6 +37,15 @@ def _points(points) -> np.ndarray:
     return arr.reshape(-1, 3)
 
 
+_CORNER_PICK = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=bool)
+
+
+def box_corners(bounds) -> np.ndarray:
+    """(8, 3) float64 corners of axis-aligned ``bounds`` (2, 3), x varying fastest then y then z."""
+    b = np.asarray(bounds, dtype=np.float64).reshape(2, 3)
+    return np.where(_CORNER_PICK, b[1], b[0])
+
+
 def box_distance(lo_a: np.ndarray, hi_a: np.ndarray, lo_b: np.ndarray, hi_b: np.ndarray) -> float:
     """Euclidean distance between two axis-aligned boxes; 0 where they touch or overlap.
 
@@ -92,8 +101,7 @@ class BoxCell:
 
     def corners(self) -> np.ndarray:
         """(8, 3) float64 corners, x varying fastest then y then z."""
-        idx = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=bool)
-        return np.where(idx, self.hi, self.lo)
+        return box_corners(np.stack([self.lo, self.hi]))
 
     def contains(self, points, tol: float = 0.0) -> np.ndarray:
         """(n,) bool: which ``points`` (n, 3) lie inside the box grown by ``tol`` on each side."""
@@ -317,3 +325,20 @@ def parse_viewcell(spec: str) -> ViewCell:
         f"view cell {spec!r} not understood; use box:x0,y0,z0,x1,y1,z1 | box-center:cx,cy,cz,size | "
         "shaft:ax,ay,az,dx,dy,dz,apex_deg,min_distance[,max_distance]"
     )
+
+
+def viewcell_from_dict(data: dict) -> ViewCell:
+    """Inverse of ``BoxCell.to_dict`` / ``ShaftCell.to_dict`` (bundle manifests, API payloads)."""
+    try:
+        kind = data["kind"]
+        if kind == "box":
+            return BoxCell(data["lo"], data["hi"])
+        if kind == "shaft":
+            far = data.get("max_distance")
+            return ShaftCell(
+                data["apex"], data["direction"], math.radians(float(data["apex_angle_deg"])),
+                float(data["min_distance"]), math.inf if far is None else float(far),
+            )
+    except (KeyError, TypeError, ValueError) as error:
+        raise ViewCellError(f"view cell description {data!r} is incomplete: {error}") from None
+    raise ViewCellError(f"unknown view cell kind {data.get('kind')!r}")

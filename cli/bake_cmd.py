@@ -1,0 +1,77 @@
+"""``farfield bake``: bake one layered impostor and write its bundle (manifest, atlas PNGs, GLB)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+from tqdm import tqdm
+
+from core.bake import BakeOptions, bake_layered
+from core.bundle import write_bundle
+from core.culling import CULLING_MODES
+from core.exchange import load_scene
+from core.frustum import PIXEL_MODELS
+from core.viewcells import parse_viewcell
+
+
+class _Bar:
+    """A tqdm bar per pipeline stage, on stderr."""
+
+    def __init__(self, enabled: bool):
+        self.enabled, self.bar, self.stage = enabled, None, None
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if not self.enabled:
+            return
+        if stage != self.stage:
+            self.close()
+            # disable=None: no bar unless stderr is a terminal (scripts and logs stay clean).
+            self.bar = tqdm(total=total, desc=f"{stage:>6}", unit="step", leave=False, disable=None)
+            self.stage = stage
+        self.bar.update(done - self.bar.n)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+@click.command("bake")
+@click.argument("scene", type=click.Path(dir_okay=False))
+@click.option("--viewcell", required=True, help="box:x0,y0,z0,x1,y1,z1 | box-center:cx,cy,cz,size | shaft:...")
+@click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Bundle directory to write (replaced whole).")
+@click.option("--objects", default=None, help="Comma-separated object names forming the part (default: all).")
+@click.option("--resolution", default=512, show_default=True, type=int, help="Output image pixels per side.")
+@click.option("--fov", default=45.0, show_default=True, type=float, help="Output field of view, degrees.")
+@click.option("--grid-cell", default=8, show_default=True, type=int, help="Box-growing grid cell, texels.")
+@click.option("--fill-threshold", default=0.8, show_default=True, type=float, help="Box-growing fill ratio.")
+@click.option("--culling", type=click.Choice(CULLING_MODES), default="penumbra", show_default=True)
+@click.option("--pixel-model", type=click.Choice(PIXEL_MODELS), default="min", show_default=True)
+@click.option("--json", "as_json", is_flag=True, help="Print the bundle's statistics as JSON.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+def bake(scene, viewcell, out, objects, resolution, fov, grid_cell, fill_threshold, culling, pixel_model, as_json, quiet):
+    """Bake the layered impostor of SCENE for a view cell and write its bundle to --out."""
+    cell = parse_viewcell(viewcell)
+    options = BakeOptions(resolution, fov, grid_cell, fill_threshold, culling, pixel_model)
+    loaded = load_scene(scene)
+    names = [n.strip() for n in objects.split(",") if n.strip()] if objects else None
+    bar = _Bar(not quiet and not as_json)
+    try:
+        impostor = bake_layered(loaded, cell, options, names, progress=bar)
+    finally:
+        bar.close()
+    write_bundle(impostor, Path(out))
+    stats = impostor.stats
+    if as_json:
+        click.echo(json.dumps({"bundle": str(out), "stats": stats}, indent=2))
+        return
+    seconds = stats["seconds"]
+    click.echo(
+        f"bundle: {out}\n"
+        f"layers: {stats['layers']} (planned {stats['layers_planned']})  quads: {stats['quads']}  "
+        f"atlas pages: {stats['atlas_pages']}  texture: {stats['texture_bytes'] / 1024:.1f} KiB "
+        f"(one quad per layer: {stats['texture_bytes_one_quad_per_layer'] / 1024:.1f} KiB)\n"
+        f"texels: {stats['texels_covered']} covered, {stats['texels_culled']} culled\n"
+        "seconds: " + "  ".join(f"{k} {v:.3f}" for k, v in seconds.items())
+    )

@@ -1,0 +1,310 @@
+"""glTF 2.0 binary (GLB) bytes of one impostor: (q, 4, 3) float64 world quads -> float32 triangles.
+
+The file is deterministic: the same impostor gives byte-identical bytes (fixed JSON key order, no
+timestamps, PNG pages encoded with fixed settings by :func:`page_png`).  Layout (glTF 2.0 spec,
+"GLB File Format Specification" and "Properties Reference"):
+
+* 12-byte header: magic ``glTF``, version 2, total length (little-endian uint32).
+* JSON chunk (type ``JSON``), padded with spaces (0x20) to a multiple of 4 bytes.
+* BIN chunk (type ``BIN\\0``), padded with zeros; every bufferView inside starts on a 4-byte
+  boundary.  For each page with quads, in page order: indices, POSITION, TEXCOORD_0; then every
+  page's PNG image.
+* One scene, one node, one mesh.  The node's ``translation`` is the impostor's reference viewpoint
+  as float64 JSON numbers, and POSITION holds float32 corners *relative to it*: float32 keeps ~7
+  significant digits, which at continental coordinates (1e6 m) is ~0.1 m absolute, but relative
+  to a viewpoint a few hundred metres away it is well below a millimetre.
+* One primitive per atlas page that has quads: four vertices per quad, two triangles per quad,
+  counter-clockwise as seen from the reference viewpoint (TL, BL, BR and TL, BR, TR).  Indices
+  are uint16 when the page has fewer than 65,535 vertices (0xFFFF is the primitive-restart value,
+  which glTF forbids), else uint32.
+* One material per page, whether or not the page has quads: ``baseColorTexture`` of that page,
+  ``KHR_materials_unlit``, ``alphaMode`` ``MASK`` with cutoff 0.5 and ``doubleSided`` (the
+  impostor is only seen from inside its view cell, so a viewer must not cull it if it disagrees
+  about winding).  Samplers are linear / linear-mipmap-linear, clamp-to-edge.
+
+Texture coordinates are stored as given: :class:`core.impostor.Impostor` already uses glTF's
+convention (0, 0 is the top-left of the page).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import struct
+
+import numpy as np
+from PIL import Image
+
+from core.errors import BundleFormatError
+from core.impostor import Impostor
+
+__all__ = ["check_impostor", "impostor_glb", "page_png"]
+
+_MAGIC = 0x46546C67  # "glTF"
+_VERSION = 2
+_CHUNK_JSON = 0x4E4F534A  # "JSON"
+_CHUNK_BIN = 0x004E4942  # "BIN\0"
+
+# glTF enums (spec, "accessor.componentType", "bufferView.target", "sampler").
+_UNSIGNED_SHORT = 5123
+_UNSIGNED_INT = 5125
+_FLOAT = 5126
+_ARRAY_BUFFER = 34962
+_ELEMENT_ARRAY_BUFFER = 34963
+_LINEAR = 9729
+_LINEAR_MIPMAP_LINEAR = 9987
+_CLAMP_TO_EDGE = 33071
+_TRIANGLES = 4
+
+_UNLIT = "KHR_materials_unlit"
+
+# Corner order TL, TR, BR, BL (0..3) seen from the reference viewpoint: TL-BL-BR and TL-BR-TR are
+# counter-clockwise there.
+_QUAD_TRIANGLES = np.array([0, 3, 2, 0, 2, 1], dtype=np.int64)
+# 0xFFFF is reserved as primitive restart, so uint16 indices address at most 65,535 vertices.
+_MAX_UINT16_VERTICES = 0xFFFF
+
+# Fixed PNG settings: zlib level 6 without the optimiser's search, no metadata chunks.
+_PNG_COMPRESS_LEVEL = 6
+
+
+def check_impostor(impostor: Impostor) -> None:
+    """Raise unless the impostor's arrays have the shapes and dtypes every writer relies on.
+
+    Parameters
+    ----------
+    impostor : Impostor
+        ``reference_viewpoint`` (3,) finite, ``quad_corners`` (q, 4, 3) finite, ``quad_uv``
+        (q, 4, 2) finite, ``quad_page`` and ``quad_layer`` (q,) integers, every ``quad_page`` an
+        index into ``pages``, every page (H, W, 4) uint8 with H, W >= 1.
+
+    Raises
+    ------
+    BundleFormatError
+        Naming the first field that does not fit.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> bad = Impostor("layered", {}, np.zeros(3), 64, 60.0, np.zeros((1, 4, 3)),
+    ...                np.zeros((1, 4, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64),
+    ...                (np.zeros((2, 2, 4), np.float32),))
+    >>> check_impostor(bad)
+    Traceback (most recent call last):
+    ...
+    core.errors.BundleFormatError: page 0 is (2, 2, 4) float32, expected (H, W, 4) uint8
+    """
+    viewpoint = np.asarray(impostor.reference_viewpoint)
+    if viewpoint.shape != (3,) or not np.all(np.isfinite(viewpoint)):
+        raise BundleFormatError(f"reference_viewpoint must be 3 finite numbers, got {viewpoint!r}")
+    corners = np.asarray(impostor.quad_corners)
+    q = corners.shape[0] if corners.ndim == 3 else -1
+    expected = {
+        "quad_corners": (q, 4, 3),
+        "quad_uv": (q, 4, 2),
+        "quad_page": (q,),
+        "quad_layer": (q,),
+    }
+    for name, shape in expected.items():
+        array = np.asarray(getattr(impostor, name))
+        if q < 0 or array.shape != shape:
+            raise BundleFormatError(f"{name} has shape {array.shape}, expected {shape}")
+        if name in ("quad_corners", "quad_uv"):
+            if not np.issubdtype(array.dtype, np.floating) or not np.all(np.isfinite(array)):
+                raise BundleFormatError(f"{name} must be finite floats, got dtype {array.dtype}")
+        elif not np.issubdtype(array.dtype, np.integer):
+            raise BundleFormatError(f"{name} must be integers, got dtype {array.dtype}")
+    for index, page in enumerate(impostor.pages):
+        if not isinstance(page, np.ndarray) or page.dtype != np.uint8 or page.ndim != 3 or page.shape[2] != 4:
+            shape = getattr(page, "shape", None)
+            raise BundleFormatError(
+                f"page {index} is {shape} {getattr(page, 'dtype', type(page).__name__)}, "
+                "expected (H, W, 4) uint8"
+            )
+        if page.shape[0] < 1 or page.shape[1] < 1:
+            raise BundleFormatError(f"page {index} is empty: {page.shape}")
+    page_of_quad = np.asarray(impostor.quad_page)
+    if q > 0 and (page_of_quad.min() < 0 or page_of_quad.max() >= len(impostor.pages)):
+        raise BundleFormatError(
+            f"quad_page spans [{page_of_quad.min()}, {page_of_quad.max()}] "
+            f"but there are {len(impostor.pages)} pages"
+        )
+
+
+def page_png(page: np.ndarray) -> bytes:
+    """Deterministic PNG bytes of one (H, W, 4) uint8 RGBA page, top row first.
+
+    The same array gives the same bytes with the same zlib: fixed compression level, no optimiser
+    search, no text or time chunks.
+
+    >>> data = page_png(np.zeros((2, 3, 4), np.uint8))
+    >>> data[:8] == b"\\x89PNG\\r\\n\\x1a\\n", data == page_png(np.zeros((2, 3, 4), np.uint8))
+    (True, True)
+    """
+    buffer = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(page), mode="RGBA").save(
+        buffer, "PNG", optimize=False, compress_level=_PNG_COMPRESS_LEVEL
+    )
+    return buffer.getvalue()
+
+
+def _pad(data: bytes, fill: bytes) -> bytes:
+    return data + fill * (-len(data) % 4)
+
+
+class _Bin:
+    """The growing BIN chunk: appends 4-byte-aligned bufferViews and returns their indices."""
+
+    def __init__(self) -> None:
+        self.parts: list[bytes] = []
+        self.length = 0
+        self.views: list[dict] = []
+
+    def add(self, data: bytes, target: int | None = None) -> int:
+        view = {"buffer": 0, "byteOffset": self.length, "byteLength": len(data)}
+        if target is not None:
+            view["target"] = target
+        padded = _pad(data, b"\x00")
+        self.parts.append(padded)
+        self.length += len(padded)
+        self.views.append(view)
+        return len(self.views) - 1
+
+    def bytes(self) -> bytes:
+        return b"".join(self.parts)
+
+
+def impostor_glb(impostor: Impostor) -> bytes:
+    """GLB bytes of ``impostor``: one node at the reference viewpoint, one primitive per page.
+
+    Parameters
+    ----------
+    impostor : Impostor
+        Quads (q, 4, 3) float64 world metres, TL, TR, BR, BL seen from the reference viewpoint;
+        UVs (q, 4, 2) in glTF convention; pages (H, W, 4) uint8 RGBA top row first.
+
+    Returns
+    -------
+    bytes
+        A glTF 2.0 binary file, byte-identical for equal impostors.
+
+    Raises
+    ------
+    BundleFormatError
+        The impostor's arrays do not fit (see :func:`check_impostor`).
+
+    Examples
+    --------
+    >>> quad = np.array([[[-1, 5, 1], [1, 5, 1], [1, 5, -1], [-1, 5, -1]]], dtype=np.float64)
+    >>> uv = np.array([[[0, 0], [1, 0], [1, 1], [0, 1]]], dtype=np.float64)
+    >>> one = Impostor("billboard", {}, np.zeros(3), 64, 60.0, quad, uv, np.zeros(1, np.int64),
+    ...                np.zeros(1, np.int64), (np.full((4, 4, 4), 255, np.uint8),))
+    >>> data = impostor_glb(one)
+    >>> data[:4], struct.unpack_from("<I", data, 4)[0], len(data) % 4
+    (b'glTF', 2, 0)
+    >>> impostor_glb(one) == data
+    True
+    """
+    check_impostor(impostor)
+    viewpoint = np.asarray(impostor.reference_viewpoint, dtype=np.float64)
+    # Narrowed to float32 here, after the float64 subtraction, so only the local offset is rounded.
+    relative = (np.asarray(impostor.quad_corners, dtype=np.float64) - viewpoint).astype("<f4")
+    uv = np.asarray(impostor.quad_uv, dtype=np.float64).astype("<f4")
+    quad_page = np.asarray(impostor.quad_page, dtype=np.int64)
+
+    binary = _Bin()
+    accessors: list[dict] = []
+    primitives: list[dict] = []
+    for page in range(len(impostor.pages)):
+        quads = np.flatnonzero(quad_page == page)
+        if quads.size == 0:
+            continue  # glTF accessors need count >= 1; the page keeps its material and image
+        positions = relative[quads].reshape(-1, 3)
+        vertex_count = positions.shape[0]
+        index_dtype, component = (
+            ("<u2", _UNSIGNED_SHORT) if vertex_count < _MAX_UINT16_VERTICES else ("<u4", _UNSIGNED_INT)
+        )
+        indices = (np.arange(quads.size, dtype=np.int64)[:, None] * 4 + _QUAD_TRIANGLES).ravel()
+        base = len(accessors)
+        accessors.append({
+            "bufferView": binary.add(indices.astype(index_dtype).tobytes(), _ELEMENT_ARRAY_BUFFER),
+            "componentType": component,
+            "count": int(indices.size),
+            "type": "SCALAR",
+        })
+        accessors.append({
+            "bufferView": binary.add(positions.tobytes(), _ARRAY_BUFFER),
+            "componentType": _FLOAT,
+            "count": int(vertex_count),
+            "type": "VEC3",
+            # float32 values widened exactly to float64, so min/max equal the stored data.
+            "min": [float(x) for x in positions.min(axis=0)],
+            "max": [float(x) for x in positions.max(axis=0)],
+        })
+        accessors.append({
+            "bufferView": binary.add(uv[quads].reshape(-1, 2).tobytes(), _ARRAY_BUFFER),
+            "componentType": _FLOAT,
+            "count": int(vertex_count),
+            "type": "VEC2",
+        })
+        primitives.append({
+            "attributes": {"POSITION": base + 1, "TEXCOORD_0": base + 2},
+            "indices": base,
+            "material": page,
+            "mode": _TRIANGLES,
+        })
+
+    images = [
+        {"bufferView": binary.add(page_png(page)), "mimeType": "image/png", "name": f"atlas-{index:03d}"}
+        for index, page in enumerate(impostor.pages)
+    ]
+    materials = [
+        {
+            "name": f"atlas-{index:03d}",
+            "pbrMetallicRoughness": {
+                "baseColorFactor": [1.0, 1.0, 1.0, 1.0],
+                "baseColorTexture": {"index": index, "texCoord": 0},
+                "metallicFactor": 0.0,
+                "roughnessFactor": 1.0,
+            },
+            "alphaMode": "MASK",
+            "alphaCutoff": 0.5,
+            "doubleSided": True,
+            "extensions": {_UNLIT: {}},
+        }
+        for index in range(len(impostor.pages))
+    ]
+    node: dict = {"name": "impostor", "translation": [float(x) for x in viewpoint]}
+    document: dict = {
+        "asset": {"version": "2.0", "generator": f"farfield {impostor.code_version}".rstrip()},
+        "extensionsUsed": [_UNLIT],
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [node],
+    }
+    if primitives:
+        node["mesh"] = 0
+        document["meshes"] = [{"name": f"impostor-{impostor.technique}", "primitives": primitives}]
+    if accessors:
+        document["accessors"] = accessors
+    if materials:
+        document["materials"] = materials
+        document["images"] = images
+        document["samplers"] = [{
+            "magFilter": _LINEAR,
+            "minFilter": _LINEAR_MIPMAP_LINEAR,
+            "wrapS": _CLAMP_TO_EDGE,
+            "wrapT": _CLAMP_TO_EDGE,
+        }]
+        document["textures"] = [{"sampler": 0, "source": index} for index in range(len(materials))]
+    blob = binary.bytes()
+    if blob:
+        document["buffers"] = [{"byteLength": len(blob)}]
+        document["bufferViews"] = binary.views
+
+    text = json.dumps(document, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False)
+    json_chunk = _pad(text.encode("ascii"), b" ")
+    chunks = struct.pack("<II", len(json_chunk), _CHUNK_JSON) + json_chunk
+    if blob:
+        chunks += struct.pack("<II", len(blob), _CHUNK_BIN) + blob
+    return struct.pack("<III", _MAGIC, _VERSION, 12 + len(chunks)) + chunks

@@ -1,0 +1,155 @@
+"""Plain rasterisation of unlit textured meshes: SceneObjects in, (h, w, 4) uint8 images (top row first) out.
+
+Evaluation and the reference runtime draw the original geometry and the impostor through this same
+renderer (same camera, same shading), so differences come from the impostor alone.  Objects are
+uploaded once (:class:`MeshRenderer`) and drawn from many cameras; every position is stored
+relative to its object's own centre and moved into the camera frame by a float64-built matrix.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+import moderngl
+import numpy as np
+
+from core.errors import RenderBackendError, ViewCellError
+from core.render.context import gl_context
+from core.render.programs import park_framebuffer, program
+from core.scene import SceneObject
+
+@dataclass(frozen=True, slots=True)
+class Camera:
+    """A square perspective camera: eye (3,) float64 world; right/up/forward (3,) float64 unit."""
+
+    eye: np.ndarray
+    right: np.ndarray
+    up: np.ndarray
+    forward: np.ndarray
+    fov: float  # radians, full angle on both axes
+    resolution: int
+    near: float
+    far: float
+
+    @classmethod
+    def look_at(cls, eye, target, fov: float, resolution: int, near: float, far: float) -> "Camera":
+        """A camera at ``eye`` looking at ``target``; world +z is up unless the view is vertical."""
+        eye = np.asarray(eye, dtype=np.float64)
+        forward = np.asarray(target, dtype=np.float64) - eye
+        norm = float(np.linalg.norm(forward))
+        if norm == 0.0:
+            raise ViewCellError("camera eye and target coincide")
+        forward /= norm
+        hint = np.array([0.0, 0.0, 1.0]) if abs(forward[2]) < 0.99 else np.array([0.0, 1.0, 0.0])
+        right = np.cross(forward, hint)
+        right /= np.linalg.norm(right)
+        up = np.cross(right, forward)
+        if not 0.0 < near < far:
+            raise ViewCellError(f"camera needs 0 < near < far, got near={near!r}, far={far!r}")
+        return cls(eye, right, up, forward, float(fov), int(resolution), float(near), float(far))
+
+    def eye_matrix(self, origin: np.ndarray) -> np.ndarray:
+        """(4, 4) float32 column-major matrix from coordinates relative to ``origin`` to the eye frame."""
+        rot = np.stack([self.right, self.up, self.forward])
+        m = np.eye(4)
+        m[:3, :3] = rot
+        m[:3, 3] = rot @ (np.asarray(origin, dtype=np.float64) - self.eye)
+        return m.T.astype("<f4")
+
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """(n, 2) float64 pixel coordinates (x right, y down from the top row) of world ``points`` (n, 3)."""
+        e = (np.asarray(points, dtype=np.float64) - self.eye) @ np.stack([self.right, self.up, self.forward]).T
+        t = math.tan(0.5 * self.fov)
+        x = (e[:, 0] / (e[:, 2] * t) * 0.5 + 0.5) * self.resolution
+        y = (0.5 - e[:, 1] / (e[:, 2] * t) * 0.5) * self.resolution
+        return np.stack([x, y], axis=1)
+
+
+def depth_bounds(eye: np.ndarray, forward: np.ndarray, points: np.ndarray) -> tuple[float, float]:
+    """A (near, far) pair enclosing ``points`` (n, 3) in front of the camera, with margins."""
+    z = (np.asarray(points, dtype=np.float64) - eye) @ forward
+    far = float(z.max()) * 1.01
+    near = max(float(z.min()) * 0.99, far * 1e-6)
+    if not far > 0.0:
+        raise ViewCellError("everything to draw lies behind the camera")
+    return near, far
+
+
+class MeshRenderer:
+    """Objects uploaded once to the process's context, drawn from any :class:`Camera`.
+
+    Use as a context manager; ``release()`` frees every GL resource it made.
+    """
+
+    def __init__(self, objects: list[SceneObject] | tuple[SceneObject, ...]):
+        self.ctx = gl_context()
+        ctx = self.ctx
+        self.program = program(ctx, "mesh.vert", "mesh.frag")
+        self._owned: list = []
+        self._draws = []
+        for obj in objects:
+            origin = 0.5 * (obj.bounds[0] + obj.bounds[1])
+            n = obj.vertices.shape[0]
+            uv = obj.uv if obj.uv is not None else np.zeros((n, 2))
+            colour = obj.vertex_colors / 255.0 if obj.vertex_colors is not None else np.ones((n, 4))
+            data = np.concatenate([obj.vertices - origin, uv, colour], axis=1).astype("<f4")
+            vbo = ctx.buffer(np.ascontiguousarray(data).tobytes())
+            ibo = ctx.buffer(obj.faces.astype("<u4").tobytes())
+            vao = ctx.vertex_array(self.program, [(vbo, "3f 2f 4f", "in_position", "in_uv", "in_color")], ibo)
+            texture = None
+            if obj.texture is not None:
+                image = np.ascontiguousarray(obj.texture[::-1])
+                texture = ctx.texture((image.shape[1], image.shape[0]), 4, image.tobytes())
+                texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            self._owned += [vbo, ibo, vao] + ([texture] if texture is not None else [])
+            self._draws.append((obj, origin, vao, texture))
+        self._targets: dict[int, tuple] = {}
+
+    def _target(self, resolution: int):
+        if resolution not in self._targets:
+            colour = self.ctx.texture((resolution, resolution), 4)
+            depth = self.ctx.depth_texture((resolution, resolution))
+            fbo = self.ctx.framebuffer([colour], depth)
+            self._targets[resolution] = (colour, depth, fbo)
+            self._owned += [colour, depth, fbo]
+        return self._targets[resolution]
+
+    def render(self, camera: Camera) -> np.ndarray:
+        """(h, w, 4) uint8 image, top row first; alpha 255 where something was drawn."""
+        colour, _, fbo = self._target(camera.resolution)
+        ctx, prog = self.ctx, self.program
+        fbo.use()
+        ctx.viewport = (0, 0, camera.resolution, camera.resolution)
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+        t = math.tan(0.5 * camera.fov)
+        prog["half_tan"].value = (t, t)
+        prog["depth_range"].value = (camera.near, camera.far)
+        for obj, origin, vao, texture in self._draws:
+            prog["eye_from_local"].write(camera.eye_matrix(origin).tobytes())
+            prog["base_color"].value = tuple(float(c) for c in obj.base_color)
+            prog["alpha_cutoff"].value = float(obj.alpha_cutoff) if obj.alpha_cutoff is not None else -1.0
+            prog["has_texture"].value = texture is not None
+            if texture is not None:
+                texture.use(0)
+                prog["base_texture"].value = 0
+            vao.render(moderngl.TRIANGLES)
+        image = np.frombuffer(colour.read(), dtype=np.uint8).reshape(camera.resolution, camera.resolution, 4)
+        if ctx.error != "GL_NO_ERROR":
+            raise RenderBackendError(f"OpenGL error while rendering: {ctx.error}")
+        return image[::-1].copy()
+
+    def release(self) -> None:
+        park_framebuffer(self.ctx)
+        for resource in self._owned:
+            resource.release()
+        self._owned.clear()
+        self._draws.clear()
+        self._targets.clear()
+
+    def __enter__(self) -> "MeshRenderer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()

@@ -1,0 +1,18 @@
+#version 330
+// Standard perspective rasterisation of object-local positions: eye_from_local is built in float64
+// on the CPU (camera-relative), so large world offsets cancel before the float32 narrowing.
+uniform mat4 eye_from_local;  // eye frame: x right, y up, z forward (depth)
+uniform vec2 half_tan;
+uniform vec2 depth_range;     // near, far eye depth
+in vec3 in_position;
+in vec2 in_uv;
+in vec4 in_color;
+out vec2 v_uv;
+out vec4 v_color;
+void main() {
+    vec3 e = (eye_from_local * vec4(in_position, 1.0)).xyz;
+    float n = depth_range.x, f = depth_range.y;
+    gl_Position = vec4(e.x / half_tan.x, e.y / half_tan.y, (f + n) / (f - n) * e.z - 2.0 * f * n / (f - n), e.z);
+    v_uv = in_uv;
+    v_color = in_color;
+}

@@ -1,0 +1,148 @@
+#version 330
+// Exact coverage of one texel by the clipped polygon: conservative (the closed texel square meets
+// the polygon, separating-axis test) or standard (the texel centre lies inside), then colour and
+// depth from the triangle at the polygon point nearest the texel centre.
+flat in vec2 g_poly[5];
+flat in int g_count;
+flat in vec3 g_tri[3];
+flat in vec2 g_uv[3];
+flat in vec4 g_color[3];
+
+uniform bool conservative;
+uniform vec2 slab;
+uniform sampler2D base_texture;
+uniform bool has_texture;
+uniform vec4 base_color;
+uniform float alpha_cutoff;  // < 0: no alpha mask
+// Max-alpha mip chain of the texture (core/render/alpha_mips.py): power-of-two level 0 of
+// alpha_mip_size texels, alpha_mip_levels levels; texture_size is the original texture's size.
+uniform sampler2D alpha_mip;
+uniform bool has_alpha_mip;
+uniform vec2 alpha_mip_size;
+uniform int alpha_mip_levels;
+uniform vec2 texture_size;
+
+out vec4 frag_color;
+
+const float EPS = 1e-4;  // texels; errs towards covering
+
+float cross2(vec2 a, vec2 b) { return a.x * b.y - a.y * b.x; }
+
+bool square_meets_polygon(vec2 c) {
+    vec2 lo = vec2(1e30), hi = vec2(-1e30);
+    for (int i = 0; i < g_count; ++i) { lo = min(lo, g_poly[i]); hi = max(hi, g_poly[i]); }
+    if (any(greaterThan(lo, c + 0.5 + EPS)) || any(lessThan(hi, c - 0.5 - EPS))) { return false; }
+    for (int i = 0; i < g_count; ++i) {
+        vec2 e = g_poly[(i + 1) % g_count] - g_poly[i];
+        vec2 n = vec2(-e.y, e.x);
+        float len = length(n);
+        if (len < 1e-12) { continue; }
+        n /= len;
+        float pmin = 1e30, pmax = -1e30;
+        for (int j = 0; j < g_count; ++j) { float d = dot(n, g_poly[j]); pmin = min(pmin, d); pmax = max(pmax, d); }
+        float r = 0.5 * (abs(n.x) + abs(n.y)) + EPS;
+        float cd = dot(n, c);
+        if (cd - r > pmax || cd + r < pmin) { return false; }
+    }
+    return true;
+}
+
+bool centre_inside(vec2 c) {
+    if (g_count < 3) { return false; }
+    float sgn = 0.0;
+    for (int i = 0; i < g_count; ++i) {
+        float s = cross2(g_poly[(i + 1) % g_count] - g_poly[i], c - g_poly[i]);
+        if (s != 0.0) {
+            if (sgn == 0.0) { sgn = sign(s); } else if (sign(s) != sgn) { return false; }
+        }
+    }
+    return sgn != 0.0;
+}
+
+vec2 nearest_polygon_point(vec2 c) {
+    if (g_count >= 3 && centre_inside(c)) { return c; }
+    vec2 best = g_poly[0];
+    float bd = 1e30;
+    for (int i = 0; i < g_count; ++i) {
+        vec2 p = g_poly[i], q = g_poly[(i + 1) % g_count];
+        vec2 e = q - p;
+        float t = dot(e, e) > 0.0 ? clamp(dot(c - p, e) / dot(e, e), 0.0, 1.0) : 0.0;
+        vec2 x = p + t * e;
+        float d = dot(x - c, x - c);
+        if (d < bd) { bd = d; best = x; }
+    }
+    return best;
+}
+
+// Perspective-correct barycentrics of texel-space point x on the triangle's plane (extrapolated
+// outside the triangle); w <= 0 means the point is not in front of the eye on that plane.
+vec4 barycentric(vec2 x) {
+    vec2 a = g_tri[0].xy, b = g_tri[1].xy, d = g_tri[2].xy;
+    float area = cross2(b - a, d - a);
+    vec3 bary = vec3(cross2(b - x, d - x), cross2(d - x, a - x), cross2(a - x, b - x)) / area;
+    vec3 w = bary * vec3(g_tri[0].z, g_tri[1].z, g_tri[2].z);
+    float wsum = w.x + w.y + w.z;
+    return vec4(w / wsum, wsum);
+}
+
+// The largest texture alpha anywhere under the texel square centred at c, plus one texture texel
+// for bilinear filtering: read at most 2x2 texels of the max-alpha level whose texels are at
+// least as wide as that footprint.  Returns 1 where the footprint cannot be bounded.
+float footprint_alpha(vec2 c) {
+    vec2 a = g_tri[0].xy, b = g_tri[1].xy, d = g_tri[2].xy;
+    if (abs(cross2(b - a, d - a)) <= 1e-9) { return 1.0; }
+    vec2 lo = vec2(1e30), hi = vec2(-1e30);
+    for (int k = 0; k < 4; ++k) {
+        vec4 bw = barycentric(c + vec2((k & 1) == 0 ? -0.5 : 0.5, (k & 2) == 0 ? -0.5 : 0.5));
+        if (!(bw.w > 0.0)) { return 1.0; }
+        vec2 uv = bw.x * g_uv[0] + bw.y * g_uv[1] + bw.z * g_uv[2];
+        lo = min(lo, uv);
+        hi = max(hi, uv);
+    }
+    lo -= 1.0 / texture_size;
+    hi += 1.0 / texture_size;
+    vec2 extent = (hi - lo) * alpha_mip_size;
+    int level = int(clamp(ceil(log2(max(max(extent.x, extent.y), 1.0))), 0.0, float(alpha_mip_levels - 1)));
+    ivec2 size = max(ivec2(alpha_mip_size) >> level, ivec2(1));
+    ivec2 i0 = ivec2(floor(lo * vec2(size)));
+    ivec2 i1 = ivec2(floor(hi * vec2(size)));
+    float best = 0.0;
+    for (int y = i0.y; y <= min(i1.y, i0.y + 1); ++y) {
+        for (int x = i0.x; x <= min(i1.x, i0.x + 1); ++x) {
+            ivec2 at = ivec2(((x % size.x) + size.x) % size.x, ((y % size.y) + size.y) % size.y);
+            best = max(best, texelFetch(alpha_mip, at, level).r);
+        }
+    }
+    return best;
+}
+
+void main() {
+    vec2 c = gl_FragCoord.xy;
+    if (conservative ? !square_meets_polygon(c) : !centre_inside(c)) { discard; }
+    vec2 x = nearest_polygon_point(c);
+    // Perspective-correct barycentrics of x in the projected triangle.
+    vec2 a = g_tri[0].xy, b = g_tri[1].xy, d = g_tri[2].xy;
+    float area = cross2(b - a, d - a);
+    vec3 bary;
+    if (abs(area) > 1e-9) {
+        bary = vec3(cross2(b - x, d - x), cross2(d - x, a - x), cross2(a - x, b - x)) / area;
+    } else {  // edge-on triangle: take the vertex nearest x
+        vec3 dist = vec3(distance(a, x), distance(b, x), distance(d, x));
+        bary = vec3(dist.x <= dist.y && dist.x <= dist.z, dist.y < dist.x && dist.y <= dist.z, dist.z < dist.x && dist.z < dist.y);
+    }
+    vec3 w = bary * vec3(g_tri[0].z, g_tri[1].z, g_tri[2].z);
+    float wsum = w.x + w.y + w.z;
+    vec3 pb = abs(wsum) > 0.0 ? w / wsum : vec3(1.0, 0.0, 0.0);
+    float depth = clamp(1.0 / max(wsum, 1e-30), slab.x, slab.y);
+    vec2 uv = pb.x * g_uv[0] + pb.y * g_uv[1] + pb.z * g_uv[2];
+    vec4 colour = base_color * (pb.x * g_color[0] + pb.y * g_color[1] + pb.z * g_color[2]);
+    if (has_texture) { colour *= textureLod(base_texture, uv, 0.0); }
+    if (alpha_cutoff >= 0.0) {
+        // Conservative alpha cut: keep the texel if any point under it may be opaque.
+        float most = base_color.a * max(g_color[0].a, max(g_color[1].a, g_color[2].a));
+        if (has_alpha_mip) { most *= footprint_alpha(c); }
+        if (most < alpha_cutoff) { discard; }
+    }
+    gl_FragDepth = (depth - slab.x) / max(slab.y - slab.x, 1e-30);
+    frag_color = vec4(colour.rgb, 1.0);
+}

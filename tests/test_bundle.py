@@ -1,0 +1,373 @@
+"""Impostor bundles and GLB: round trip, byte-identical output, glTF validity, bad bundles, atomic writes."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import struct
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+import core.bundle
+from core.bundle import (
+    GLB_NAME,
+    MANIFEST_NAME,
+    bundle_zip,
+    page_file_name,
+    read_bundle,
+    write_bundle,
+)
+from core.errors import BundleFormatError
+from core.glb import impostor_glb, page_png
+from core.impostor import Impostor
+
+ORIGIN = (0.0, 0.0, 0.0)
+CONTINENTAL = (4.2e6, -1.3e6, 250.0)
+
+# (layer, distance along the view axis in metres, page, texel rect [x0, y0, x1, y1) on that page)
+QUADS = (
+    (0, 20.0, 0, (0, 0, 5, 4)),
+    (0, 20.0, 1, (1, 2, 6, 5)),
+    (1, 45.0, 1, (0, 0, 3, 2)),
+)
+PAGE_SHAPES = ((6, 8, 4), (5, 7, 4))  # (H, W, 4): not square, so a swapped W/H shows
+
+
+def make_impostor(viewpoint=ORIGIN, seed: int = 7, quads=QUADS, page_shapes=PAGE_SHAPES) -> Impostor:
+    """3 quads on 2 layers over 2 random RGBA pages, seen from ``viewpoint`` looking along +y.
+
+    Image x runs along +x and image y (top row first) along -z, so corners TL, TR, BR, BL are
+    as seen from the viewpoint.
+    """
+    rng = np.random.default_rng(seed)
+    vp = np.asarray(viewpoint, dtype=np.float64)
+    right, forward, up = np.eye(3)
+    corners, uvs = [], []
+    for _layer, distance, page, (x0, y0, x1, y1) in quads:
+        centre = vp + distance * forward + rng.normal(scale=3.0) * right + rng.normal(scale=2.0) * up
+        half_w, half_h = rng.uniform(0.5, 2.0, size=2)
+        corners.append([
+            centre - half_w * right + half_h * up,
+            centre + half_w * right + half_h * up,
+            centre + half_w * right - half_h * up,
+            centre - half_w * right - half_h * up,
+        ])
+        h, w = page_shapes[page][:2]
+        u0, u1, v0, v1 = x0 / w, x1 / w, y0 / h, y1 / h
+        uvs.append([[u0, v0], [u1, v0], [u1, v1], [u0, v1]])
+    pages = []
+    for shape in page_shapes:
+        page = rng.integers(0, 256, size=shape, dtype=np.uint8)
+        page[: shape[0] // 2, : shape[1] // 2, 3] = 0  # alpha-cut texels
+        pages.append(page)
+    return Impostor(
+        technique="layered",
+        viewcell={"kind": "box", "lo": (vp - 1.5).tolist(), "hi": (vp + 0.25).tolist()},
+        reference_viewpoint=vp,
+        resolution=512,
+        fov_deg=60.0,
+        quad_corners=np.array(corners, dtype=np.float64).reshape(-1, 4, 3),
+        quad_uv=np.array(uvs, dtype=np.float64).reshape(-1, 4, 2),
+        quad_page=np.array([q[2] for q in quads], dtype=np.int64),
+        quad_layer=np.array([q[0] for q in quads], dtype=np.int64),
+        pages=tuple(pages),
+        layers=[
+            {"distance": 20.0, "depth_range": [14.9, 31.3], "texels": 35},
+            {"distance": 45.0, "depth_range": [31.3, 80.0], "texels": 6},
+        ],
+        stats={"quads": len(quads), "seconds": {"record": 0.0123, "pack": 1e-4}},
+        parameters={"conservative": True, "max_layers": 4, "texel_ratio": 0.1},
+        code_version="0.1.0+test",
+    )
+
+
+def assert_impostors_equal(a: Impostor, b: Impostor) -> None:
+    for name in ("reference_viewpoint", "quad_corners", "quad_uv", "quad_page", "quad_layer"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert x.dtype == y.dtype and x.shape == y.shape, name
+        assert np.array_equal(x, y), name  # bit-exact, not approximately
+    assert len(a.pages) == len(b.pages)
+    for x, y in zip(a.pages, b.pages):
+        assert x.dtype == y.dtype == np.uint8 and np.array_equal(x, y)
+    for name in ("technique", "viewcell", "resolution", "fov_deg", "layers", "stats", "parameters", "code_version"):
+        assert getattr(a, name) == getattr(b, name), name
+
+
+def parse_glb(data: bytes) -> tuple[dict, bytes]:
+    """The JSON document and BIN chunk of a GLB, checking the container as the spec states it."""
+    magic, version, length = struct.unpack_from("<III", data, 0)
+    assert magic == 0x46546C67 and data[:4] == b"glTF"
+    assert version == 2
+    assert length == len(data) and length % 4 == 0
+    json_length, json_type = struct.unpack_from("<II", data, 12)
+    assert json_type == 0x4E4F534A and json_length % 4 == 0
+    text = data[20 : 20 + json_length]
+    assert text.rstrip(b" ") == text.rstrip()  # padded with spaces only
+    document = json.loads(text)
+    offset = 20 + json_length
+    binary = b""
+    if offset < length:
+        bin_length, bin_type = struct.unpack_from("<II", data, offset)
+        assert bin_type == 0x004E4942 and bin_length % 4 == 0
+        binary = data[offset + 8 : offset + 8 + bin_length]
+        assert offset + 8 + bin_length == length
+        assert document["buffers"][0]["byteLength"] <= bin_length
+    return document, binary
+
+
+def accessor_array(document: dict, binary: bytes, index: int) -> np.ndarray:
+    accessor = document["accessors"][index]
+    view = document["bufferViews"][accessor["bufferView"]]
+    dtype = {5123: "<u2", 5125: "<u4", 5126: "<f4"}[accessor["componentType"]]
+    width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3}[accessor["type"]]
+    start = view["byteOffset"] + accessor.get("byteOffset", 0)
+    assert start % np.dtype(dtype).itemsize == 0
+    count = accessor["count"]
+    assert count * width * np.dtype(dtype).itemsize <= view["byteLength"]
+    return np.frombuffer(binary, dtype=dtype, count=count * width, offset=start).reshape(count, width)
+
+
+@pytest.mark.parametrize("viewpoint", [ORIGIN, CONTINENTAL], ids=["origin", "continental"])
+def test_round_trip_is_exact(tmp_path, viewpoint):
+    impostor = make_impostor(viewpoint)
+    paths = write_bundle(impostor, tmp_path / "cell-0")
+    assert sorted(p.name for p in paths.directory.iterdir()) == [
+        "atlas-000.png", "atlas-001.png", "impostor.glb", "manifest.json",
+    ]
+    assert paths.manifest.is_file() and paths.glb.is_file() and all(p.is_file() for p in paths.pages)
+    assert_impostors_equal(read_bundle(paths.directory), impostor)
+
+
+def test_manifest_schema(tmp_path):
+    impostor = make_impostor(CONTINENTAL)
+    manifest = json.loads(write_bundle(impostor, tmp_path / "b").manifest.read_text("utf-8"))
+    assert manifest["format"] == "farfield-impostor" and manifest["format_version"] == 1
+    assert set(manifest) == {
+        "format", "format_version", "code_version", "technique", "viewcell", "reference_viewpoint",
+        "resolution", "fov_deg", "layers", "quads", "pages", "glb", "stats", "parameters",
+    }
+    assert set(manifest["quads"]) == {"count", "corners", "uv", "page", "layer"}
+    assert manifest["pages"] == [
+        {"file": "atlas-000.png", "width": 8, "height": 6},
+        {"file": "atlas-001.png", "width": 7, "height": 5},
+    ]
+    assert manifest["glb"] == GLB_NAME
+
+
+def test_empty_impostor_round_trips(tmp_path):
+    impostor = make_impostor(CONTINENTAL, quads=(), page_shapes=((2, 3, 4),))
+    assert_impostors_equal(read_bundle(write_bundle(impostor, tmp_path / "b").directory), impostor)
+    document, _ = parse_glb(impostor_glb(impostor))
+    assert "meshes" not in document and len(document["materials"]) == 1
+
+
+def test_writes_are_byte_identical(tmp_path):
+    first = write_bundle(make_impostor(CONTINENTAL), tmp_path / "a")
+    second = write_bundle(make_impostor(CONTINENTAL), tmp_path / "b")
+    names = sorted(p.name for p in first.directory.iterdir())
+    assert names == sorted(p.name for p in second.directory.iterdir())
+    for name in names:
+        assert (first.directory / name).read_bytes() == (second.directory / name).read_bytes(), name
+    assert bundle_zip(first.directory) == bundle_zip(second.directory)
+    # A different impostor changes the bytes (the comparison above is not vacuous).
+    other = write_bundle(make_impostor(CONTINENTAL, seed=8), tmp_path / "c")
+    assert other.glb.read_bytes() != first.glb.read_bytes()
+
+
+def test_bundle_zip_is_the_bundle(tmp_path):
+    paths = write_bundle(make_impostor(), tmp_path / "b")
+    (paths.directory / "stray.txt").write_text("not part of the bundle")
+    with zipfile.ZipFile(io.BytesIO(bundle_zip(paths.directory))) as archive:
+        infos = archive.infolist()
+        assert [i.filename for i in infos] == sorted([MANIFEST_NAME, GLB_NAME, "atlas-000.png", "atlas-001.png"])
+        for info in infos:
+            assert info.date_time == (1980, 1, 1, 0, 0, 0)
+            assert archive.read(info) == (paths.directory / info.filename).read_bytes()
+
+
+@pytest.mark.parametrize("viewpoint", [ORIGIN, CONTINENTAL], ids=["origin", "continental"])
+def test_glb_structure(viewpoint):
+    impostor = make_impostor(viewpoint)
+    document, binary = parse_glb(impostor_glb(impostor))
+    assert document["asset"] == {"version": "2.0", "generator": "farfield 0.1.0+test"}
+    assert document["extensionsUsed"] == ["KHR_materials_unlit"]
+    (node,) = document["nodes"]
+    assert node["translation"] == list(viewpoint)  # float64 JSON numbers, exact
+    (mesh,) = document["meshes"]
+    assert len(mesh["primitives"]) == len(impostor.pages)
+    for view in document["bufferViews"]:
+        assert view["byteOffset"] % 4 == 0
+        assert view["byteOffset"] + view["byteLength"] <= document["buffers"][0]["byteLength"]
+    sampler = document["samplers"][0]
+    assert (sampler["magFilter"], sampler["minFilter"], sampler["wrapS"], sampler["wrapT"]) == (9729, 9987, 33071, 33071)
+    for page_index, primitive in enumerate(mesh["primitives"]):
+        assert primitive["material"] == page_index
+        material = document["materials"][page_index]
+        assert material["alphaMode"] == "MASK" and material["alphaCutoff"] == 0.5
+        assert material["doubleSided"] is True and material["extensions"] == {"KHR_materials_unlit": {}}
+        pbr = material["pbrMetallicRoughness"]
+        assert pbr["baseColorFactor"] == [1.0, 1.0, 1.0, 1.0]
+        assert (pbr["metallicFactor"], pbr["roughnessFactor"]) == (0.0, 1.0)
+        texture = document["textures"][pbr["baseColorTexture"]["index"]]
+        image = document["images"][texture["source"]]
+        assert image["mimeType"] == "image/png"
+        view = document["bufferViews"][image["bufferView"]]
+        png = binary[view["byteOffset"] : view["byteOffset"] + view["byteLength"]]
+        assert png == page_png(impostor.pages[page_index])
+        assert np.array_equal(np.asarray(Image.open(io.BytesIO(png))), impostor.pages[page_index])
+
+        quads = np.flatnonzero(impostor.quad_page == page_index)
+        position_accessor = document["accessors"][primitive["attributes"]["POSITION"]]
+        positions = accessor_array(document, binary, primitive["attributes"]["POSITION"])
+        assert position_accessor["min"] == positions.min(axis=0).tolist()
+        assert position_accessor["max"] == positions.max(axis=0).tolist()
+        relative = (impostor.quad_corners[quads] - impostor.reference_viewpoint).reshape(-1, 3)
+        assert np.array_equal(positions, relative.astype(np.float32))
+        uv = accessor_array(document, binary, primitive["attributes"]["TEXCOORD_0"])
+        assert np.array_equal(uv, impostor.quad_uv[quads].reshape(-1, 2).astype(np.float32))
+        indices = accessor_array(document, binary, primitive["indices"]).reshape(-1, 3)
+        assert indices.shape == (2 * quads.size, 3) and indices.max() < positions.shape[0]
+        # Counter-clockwise seen from the reference viewpoint (the local origin): normals face it.
+        tri = positions.astype(np.float64)[indices]
+        normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        assert np.all(np.einsum("ij,ij->i", normals, -tri.mean(axis=1)) > 0)
+
+
+@pytest.mark.parametrize("viewpoint", [ORIGIN, CONTINENTAL], ids=["origin", "continental"])
+def test_glb_loads_in_trimesh_at_world_position(tmp_path, viewpoint):
+    impostor = make_impostor(viewpoint)
+    path = write_bundle(impostor, tmp_path / "b").glb
+    scene = trimesh.load(path, force="scene")
+    meshes = scene.dump()  # scene-graph transforms applied
+    assert len(meshes) == len(impostor.pages)
+    # float32 relative to the viewpoint: error scales with the distance from it, not with 4e6 m.
+    # Storing world float32 would be off by up to 0.25 m here.
+    reach = np.abs(impostor.quad_corners - impostor.reference_viewpoint).max()
+    atol = 1e-6 * reach + 1e-9
+    seen_pages = set()
+    for mesh in meshes:
+        texture = np.asarray(mesh.visual.material.baseColorTexture.convert("RGBA"))
+        (page_index,) = [i for i, p in enumerate(impostor.pages) if p.shape == texture.shape and np.array_equal(p, texture)]
+        seen_pages.add(page_index)
+        quads = np.flatnonzero(impostor.quad_page == page_index)
+        world = impostor.quad_corners[quads].reshape(-1, 3)
+        assert mesh.vertices.shape == world.shape
+        assert np.allclose(mesh.vertices, world, rtol=0, atol=atol)
+        uv = impostor.quad_uv[quads].reshape(-1, 2)
+        # trimesh flips glTF's top-left V origin to bottom-left on import.
+        assert np.allclose(mesh.visual.uv, np.column_stack([uv[:, 0], 1.0 - uv[:, 1]]), atol=1e-6)
+        assert mesh.visual.material.alphaMode == "MASK"
+    assert seen_pages == set(range(len(impostor.pages)))
+
+
+def _rewrite_manifest(directory: Path, change) -> None:
+    path = directory / MANIFEST_NAME
+    manifest = json.loads(path.read_text("utf-8"))
+    change(manifest)
+    path.write_text(json.dumps(manifest), "utf-8")
+
+
+def _truncate(path: Path) -> None:
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+
+
+BAD_BUNDLES = {
+    "missing manifest": (lambda d: (d / MANIFEST_NAME).unlink(), MANIFEST_NAME),
+    "manifest not JSON": (lambda d: (d / MANIFEST_NAME).write_text('{"format": '), MANIFEST_NAME),
+    "manifest not an object": (lambda d: (d / MANIFEST_NAME).write_text("[1, 2]"), MANIFEST_NAME),
+    "wrong format": (lambda d: _rewrite_manifest(d, lambda m: m.update(format="gltf")), MANIFEST_NAME),
+    "wrong format_version": (lambda d: _rewrite_manifest(d, lambda m: m.update(format_version=2)), MANIFEST_NAME),
+    "missing key": (lambda d: _rewrite_manifest(d, lambda m: m.pop("technique")), MANIFEST_NAME),
+    "quad count mismatch": (lambda d: _rewrite_manifest(d, lambda m: m["quads"]["corners"].pop()), MANIFEST_NAME),
+    "ragged corners": (lambda d: _rewrite_manifest(d, lambda m: m["quads"]["uv"][0].pop()), MANIFEST_NAME),
+    "page out of range": (lambda d: _rewrite_manifest(d, lambda m: m["quads"]["page"].__setitem__(0, 5)), MANIFEST_NAME),
+    "page size mismatch": (lambda d: _rewrite_manifest(d, lambda m: m["pages"][1].update(width=9)), "atlas-001.png"),
+    "page file renamed": (lambda d: _rewrite_manifest(d, lambda m: m["pages"][0].update(file="../x.png")), MANIFEST_NAME),
+    "truncated PNG": (lambda d: _truncate(d / "atlas-001.png"), "atlas-001.png"),
+    "not a PNG": (lambda d: (d / "atlas-000.png").write_bytes(b"hello"), "atlas-000.png"),
+    "missing page file": (lambda d: (d / "atlas-000.png").unlink(), "atlas-000.png"),
+    "grey page": (lambda d: Image.new("L", (8, 6)).save(d / "atlas-000.png"), "atlas-000.png"),
+    "missing GLB": (lambda d: (d / GLB_NAME).unlink(), GLB_NAME),
+}
+
+
+@pytest.mark.parametrize("name", list(BAD_BUNDLES))
+def test_bad_bundle_raises_naming_the_file(tmp_path, name):
+    spoil, culprit = BAD_BUNDLES[name]
+    directory = write_bundle(make_impostor(), tmp_path / "b").directory
+    spoil(directory)
+    with pytest.raises(BundleFormatError, match=culprit.replace(".", r"\.")):
+        read_bundle(directory)
+
+
+def test_bundle_zip_refuses_a_non_bundle(tmp_path):
+    with pytest.raises(BundleFormatError, match="manifest"):
+        bundle_zip(tmp_path)
+
+
+def _bad_page_impostor() -> Impostor:
+    good = make_impostor()
+    return Impostor(**{
+        name: getattr(good, name) for name in Impostor.__dataclass_fields__
+    } | {"pages": (good.pages[0], good.pages[1].astype(np.float32))})
+
+
+def _siblings(path: Path) -> list[str]:
+    return sorted(p.name for p in path.parent.iterdir())
+
+
+def test_failed_write_leaves_nothing(tmp_path):
+    destination = tmp_path / "out" / "cell-0"
+    with pytest.raises(BundleFormatError, match="page 1"):
+        write_bundle(_bad_page_impostor(), destination)
+    assert not os.path.lexists(destination)
+    assert not (tmp_path / "out").exists() or _siblings(destination) == []
+
+
+def test_failed_write_keeps_the_old_bundle(tmp_path, monkeypatch):
+    impostor = make_impostor()
+    paths = write_bundle(impostor, tmp_path / "cell-0")
+    before = {p.name: p.read_bytes() for p in paths.directory.iterdir()}
+    with pytest.raises(BundleFormatError):
+        write_bundle(_bad_page_impostor(), paths.directory)
+
+    # A failure after some files are on disk (disk full) removes the staging directory too.
+    real_write = core.bundle._write_file
+    calls = []
+
+    def failing_write(path, data):
+        calls.append(path)
+        if len(calls) == 3:
+            raise OSError(28, "No space left on device", str(path))
+        real_write(path, data)
+
+    monkeypatch.setattr(core.bundle, "_write_file", failing_write)
+    with pytest.raises(OSError, match="No space"):
+        write_bundle(make_impostor(seed=9), paths.directory)
+    assert len(calls) == 3
+    assert _siblings(paths.directory) == ["cell-0"]
+    assert {p.name: p.read_bytes() for p in paths.directory.iterdir()} == before
+    assert_impostors_equal(read_bundle(paths.directory), impostor)
+
+
+def test_rewrite_replaces_the_whole_directory(tmp_path):
+    destination = tmp_path / "cell-0"
+    write_bundle(make_impostor(), destination)
+    (destination / "stray.txt").write_text("left over")
+    smaller = make_impostor(quads=QUADS[:1], page_shapes=PAGE_SHAPES[:1])
+    paths = write_bundle(smaller, destination)
+    assert sorted(p.name for p in destination.iterdir()) == [page_file_name(0), GLB_NAME, MANIFEST_NAME]
+    assert paths.pages == (destination / page_file_name(0),)
+    assert _siblings(destination) == ["cell-0"]
+    assert_impostors_equal(read_bundle(destination), smaller)
+    # A plain file in the way is replaced too.
+    blocked = tmp_path / "blocked"
+    blocked.write_text("a file")
+    write_bundle(smaller, blocked)
+    assert_impostors_equal(read_bundle(blocked), smaller)
