@@ -292,6 +292,28 @@ def bleed_rgb(tile: np.ndarray, iterations: int) -> np.ndarray:
     return out
 
 
+def fill_nearest_rgb(image: np.ndarray) -> np.ndarray:
+    """(h, w, 4) uint8 copy of ``image`` whose transparent texels take the RGB of the nearest opaque texel.
+
+    The whole-layer form of :func:`bleed_rgb` (one Euclidean distance transform instead of
+    iterations), so bilinear filtering and every mip level see opaque colours around content.
+    Ties between equally near texels are broken by scipy's deterministic scan order.
+
+    >>> t = np.zeros((1, 3, 4), dtype=np.uint8); t[0, 0] = (200, 100, 50, 255)
+    >>> fill_nearest_rgb(t)[0].tolist()
+    [[200, 100, 50, 255], [200, 100, 50, 0], [200, 100, 50, 0]]
+    """
+    from scipy.ndimage import distance_transform_edt
+
+    out = np.array(image, dtype=np.uint8, copy=True)
+    opaque = out[..., 3] > 0
+    if opaque.all() or not opaque.any():
+        return out
+    iy, ix = distance_transform_edt(~opaque, return_distances=False, return_indices=True)
+    out[..., :3] = out[iy, ix, :3]
+    return out
+
+
 def compose(layout: AtlasLayout, tiles, padding: int | None = None, bleed: int = 4) -> tuple[np.ndarray, ...]:
     """Paint the atlas pages: a tuple of p (H, W, 4) uint8 arrays, top row first (seed 000 §3.6).
 

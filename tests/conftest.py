@@ -1,4 +1,4 @@
-"""Shared pytest configuration: a report header that says where the suite ran."""
+"""Shared pytest configuration: a report header that says where the suite ran (machine, libraries, GL renderer)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,17 @@ import trimesh
 
 
 def pytest_report_header(config):
-    return [
+    lines = [
         f"farfield on {platform.platform()} ({platform.machine()}), Python {sys.version.split()[0]}",
         f"numpy {numpy.__version__}, scipy {scipy.__version__}, trimesh {trimesh.__version__}",
     ]
+    # Asking for the renderer creates this process's EGL context; pytest does not fork afterwards.
+    from core.errors import RenderBackendError
+    from core.render.context import renderer_info
+
+    try:
+        info = renderer_info()
+        lines.append(f"OpenGL: {info.renderer} | {info.version} | {info.vendor}")
+    except RenderBackendError as error:
+        lines.append(f"OpenGL: unavailable ({error})")
+    return lines
