@@ -7,7 +7,8 @@ Usage: ``.venv/bin/python benchmarks/bench_layered.py [--quick] [--json]``
    error, generation time per stage.
 2. Memory: one quad per layer vs box-grown quads vs box-grown after culling (the thesis went
    6.15 MB -> 2.1 MB -> 0.45 MB on its dragon).
-3. Speed: the bake of a ~100k-triangle object at 512 with about 30 layers against a lower bound
+3. Knobs: grid cell, fill threshold, culling, pixel model, one at a time.
+4. Speed: the bake of a ~100k-triangle object at 512 with about 30 layers against a lower bound
    measured in the same run: one full render of the part at the impostor resolution plus the
    readback of all layer texels.
 
@@ -95,6 +96,27 @@ def memory(scene: Scene, distance: float, size: float, resolution: int) -> dict:
     }
 
 
+def knobs(scene: Scene, distance: float, size: float, random_count: int) -> list[dict]:
+    """Each knob varied alone around the defaults: its effect on quads, memory, time and error."""
+    cell = cell_before(scene, distance, size)
+    variants = [("defaults", {})]
+    variants += [(f"grid_cell={g}", {"grid_cell": g}) for g in (2, 4, 16, 32)]
+    variants += [(f"fill_threshold={f}", {"fill_threshold": f}) for f in (0.5, 0.95)]
+    variants += [(f"culling={c}", {"culling": c}) for c in ("umbra", "off")]
+    variants += [("pixel_model=center", {"pixel_model": "center"})]
+    rows = []
+    for name, change in variants:
+        imp = bake_layered(scene, cell, BakeOptions(resolution=512, **change))
+        ev = evaluate(scene, imp, cell, random_count=random_count, seed=1)
+        s = imp.stats
+        rows.append({
+            "knob": name, "layers": s["layers"], "quads": s["quads"], "texture_kib": s["texture_bytes"] / 1024,
+            "tile_kib": s["texture_bytes_tile_area"] / 1024, "geometry_kib": s["geometry_bytes"] / 1024,
+            "seconds": s["seconds"]["total"], "holes": ev.totals["hole_pixels"], "colour_err": ev.totals["colour_error_mean"],
+        })
+    return rows
+
+
 def speed(scene: Scene, distance: float, size: float, resolution: int, repeats: int) -> dict:
     cell = cell_before(scene, distance, size)
     bake_layered(scene, cell, BakeOptions(resolution=resolution))  # warm: context, shaders
@@ -148,6 +170,7 @@ def main() -> None:
         "object_triangles": scene.triangle_count,
         "table": table(scene, distances, resolutions, size, random_count=4 if args.quick else 8),
         "memory": memory(scene, 0.5 * diameter, size, 512),
+        "knobs": knobs(scene, 1.0 * diameter, size, random_count=4 if args.quick else 8),
         "speed": speed(scene, 1.3 * diameter, size, 512, repeats=2 if args.quick else 3),
     }
     if args.json:
@@ -164,9 +187,14 @@ def main() -> None:
     print(f"\n2. texture memory at 512, {m['layers']} layers: one quad per layer {m['one_quad_per_layer_kib']:.0f} KiB -> box-grown "
           f"{m['box_grown_kib']:.0f} KiB -> box-grown after culling {m['box_grown_culled_kib']:.0f} KiB "
           f"(ratios {m['ratio_one_to_grown']:.1f}x, {m['ratio_one_to_culled']:.1f}x; thesis 2.9x, 13.7x); atlas pages {m['atlas_pages_culled_kib']:.0f} KiB")
+    print("\n3. knobs at 512, one at a time (distance 1 diameter)")
+    print(f"{'knob':<22} {'layers':>6} {'quads':>6} {'atlas KiB':>10} {'tiles KiB':>10} {'geom KiB':>9} {'seconds':>8} {'holes':>6} {'col err':>8}")
+    for r in result["knobs"]:
+        print(f"{r['knob']:<22} {r['layers']:>6} {r['quads']:>6} {r['texture_kib']:>10.1f} {r['tile_kib']:>10.1f} {r['geometry_kib']:>9.1f} "
+              f"{r['seconds']:>8.3f} {r['holes']:>6} {r['colour_err']:>8.2f}")
     s = result["speed"]
     stages = "  ".join(f"{k} {v:.3f}" for k, v in s["stages"].items())
-    print(f"\n3. speed: {s['triangles']} triangles, {s['layers']} layers, texture {s['texture'][0]}x{s['texture'][1]}: bake {s['bake_s']:.3f} s "
+    print(f"\n4. speed: {s['triangles']} triangles, {s['layers']} layers, texture {s['texture'][0]}x{s['texture'][1]}: bake {s['bake_s']:.3f} s "
           f"vs lower bound {s['lower_bound_s']:.3f} s = {s['ratio']:.1f}x\n   stages: {stages}")
 
 

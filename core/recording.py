@@ -5,12 +5,20 @@ tightly encloses the part, clipped to the layer's closed depth slab.  Coverage i
 texel is written when its closed square meets the clipped triangle, not only when its centre is
 covered, so sub-texel geometry is never lost and a clipping edge on a border is written into both
 adjacent layers with the same texels (the closed slabs share it), diagonals included.  The thesis
-did this with explicit clipping, outlines, points and a 2x2 fix-up pass; farfield clips in a
-geometry shader and tests the texel square against the clipped polygon exactly in the fragment
-shader (shaders/slab.*), which gives the same guarantee in one pass.
+did this with explicit clipping, outlines, points and a 2x2 fix-up pass; farfield clips every
+(triangle, layer) pair on the CPU in float64 (:func:`slab_instances`), draws each pair as one
+instanced texel-aligned rectangle, and tests the texel square against the clipped polygon exactly
+in the fragment shader (shaders/slab_instanced.vert, slab.frag), which gives the same guarantee in
+one pass.
 
 Each layer draws only the triangles whose depth range meets its slab: triangles are bucketed once
 by layer (cost O(triangles + layers + spans)), never drawn for every layer.
+
+Deviation from an earlier farfield: the clipping ran in a geometry shader on float32 eye
+coordinates.  Clipping on the CPU in float64 keeps the polygons exact at any world offset and makes
+them testable without GL.  It does not make recording much faster on llvmpipe, whose cost is the
+fragment shader's exact per-texel test (about 80% of the time on a 100k-triangle part; the
+geometry shader took about 0.1 s of the rest).
 """
 
 from __future__ import annotations
@@ -26,13 +34,30 @@ from core.render.context import gl_context
 from core.render.programs import park_framebuffer, program
 from core.scene import Scene, SceneObject
 
+# Most vertices a triangle keeps after clipping to a slab: each of the two planes adds at most one.
+MAX_POLYGON = 5
+
+# Per-instance record of shaders/slab_instanced.vert, float32: rect 4, polygon 10 + count + 1 unused,
+# triangle 3 x (texel x, texel y, 1 / depth), uv 3 x 2, colour 3 x 4.
+INSTANCE_FORMAT = "4f 4f 4f 4f 3f 3f 3f 4f 2f 4f 4f 4f /i"
+INSTANCE_ATTRIBUTES = (
+    "i_rect", "i_poly01", "i_poly23", "i_poly4", "i_tri0", "i_tri1", "i_tri2",
+    "i_uv01", "i_uv2", "i_color0", "i_color1", "i_color2",
+)  # fmt: skip
+INSTANCE_FLOATS = 43
+
+# Pairs clipped per numpy pass: small enough that the temporaries stay in cache and are reused
+# rather than freshly paged in (about twice as fast here as one pass over 155k pairs).
+CHUNK_PAIRS = 8192
+
+
 @dataclass(frozen=True, slots=True)
 class RecordedLayers:
     """The recorded layers of one plan, nearest first."""
 
     rgba: np.ndarray  # (k, h, w, 4) uint8; row 0 is the bottom image row (GL order), alpha 255 = covered
     eye_borders: np.ndarray  # (k + 1,) float64 slab borders, eye depth from the reference viewpoint
-    drawn_triangles: np.ndarray  # (k,) int64 triangles drawn per layer
+    drawn_triangles: np.ndarray  # (k,) int64 triangles drawn per layer (clipped pairs with a rectangle)
 
     @property
     def coverage(self) -> np.ndarray:
@@ -40,15 +65,31 @@ class RecordedLayers:
         return self.rgba[..., 3] > 0
 
 
-def eye_matrix(plan: LayerPlan, origin: np.ndarray) -> np.ndarray:
-    """(4, 4) float32 column-major matrix from object-local coordinates (relative to ``origin``,
-    (3,) float64 world) to the plan's eye frame.  Built in float64 so that continental offsets
-    cancel before the narrowing."""
-    rot = np.stack([plan.u, plan.v, plan.axis])  # (3, 3) float64
-    m = np.eye(4)
-    m[:3, :3] = rot
-    m[:3, 3] = rot @ (origin - plan.reference_viewpoint)
-    return m.T.astype("<f4")  # GL expects column-major
+@dataclass(frozen=True, slots=True)
+class SlabInstances:
+    """The n (triangle, layer) pairs of one object to draw, grouped by layer, in texel coordinates.
+
+    Point arrays are coordinate-first, (coordinate, vertex, pair), like everything the clipping
+    touches: numpy then loops along the long pair axis; reducing over a trailing axis of 3 or 5 runs
+    ~30x slower.
+    """
+
+    triangle: np.ndarray  # (n,) int64 face index of each pair
+    offsets: np.ndarray  # (k + 1,) int64; layer i draws pairs offsets[i]:offsets[i+1]
+    rect: np.ndarray  # (4, n) int64 texel rectangle x0, y0, x1, y1 (exclusive ends), inside the image
+    polygon: np.ndarray  # (2, 5, n) float64 clipped polygon, texel coordinates; unused slots repeat vertex 0
+    count: np.ndarray  # (n,) int64 polygon vertices, 1..5
+    vertices: np.ndarray  # (3, 3, n) float64 unclipped triangle: texel x, texel y, 1 / eye depth
+
+
+def eye_coordinates(plan: LayerPlan, points: np.ndarray) -> np.ndarray:
+    """(n, 3) float64 eye-frame coordinates (along u, v, axis; z = eye depth) of world ``points`` (n, 3).
+
+    Differences to the reference viewpoint are taken first, in float64, so that continental
+    offsets cancel before anything is rotated (or, later, narrowed).
+    """
+    frame = np.stack([plan.u, plan.v, plan.axis])  # (3, 3) rows u, v, axis
+    return (np.asarray(points, dtype=np.float64) - plan.reference_viewpoint) @ frame.T
 
 
 def layer_buckets(eye_depth: np.ndarray, faces: np.ndarray, eye_borders: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -66,8 +107,8 @@ def layer_buckets(eye_depth: np.ndarray, faces: np.ndarray, eye_borders: np.ndar
     offsets : (k + 1,) int64; layer i draws ``order[offsets[i]:offsets[i+1]]``.
     """
     k = eye_borders.shape[0] - 1
-    z = eye_depth[faces]
-    zmin, zmax = z.min(axis=1), z.max(axis=1)
+    z = eye_depth[faces.T]  # (3, f): reducing over the leading axis is ~10x faster than the trailing one
+    zmin, zmax = z.min(axis=0), z.max(axis=0)
     first = np.searchsorted(eye_borders[1:], zmin, side="left")
     last = np.searchsorted(eye_borders[:-1], zmax, side="right") - 1
     first, last = np.clip(first, 0, k - 1), np.clip(last, 0, k - 1)
@@ -82,15 +123,190 @@ def layer_buckets(eye_depth: np.ndarray, faces: np.ndarray, eye_borders: np.ndar
     return repeated[order].astype(np.int64), offsets.astype(np.int64)
 
 
-def _object_buffers(ctx: moderngl.Context, obj: SceneObject, origin: np.ndarray):
-    local = (obj.vertices - origin).astype("<f4")
-    uv = (obj.uv if obj.uv is not None else np.zeros((obj.vertices.shape[0], 2))).astype("<f4")
-    if obj.vertex_colors is not None:
-        colour = obj.vertex_colors.astype("<f4") / 255.0
+def _lerp_at(a: np.ndarray, b: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """The points (3, n) where lines a -> b (3, n) reach depth ``plane`` (n,); z is the plane exactly."""
+    t = (plane - a[2]) / (b[2] - a[2])
+    point = a + t * (b - a)
+    # On the plane exactly, so that no rounding moves a crossing out of the closed slab.
+    point[2] = plane
+    return point
+
+
+def clip_to_slab(triangles: np.ndarray, near: np.ndarray, far: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Clip n eye-space triangles (3, 3, n) (coordinate, corner, triangle) to closed depth slabs.
+
+    The polygon is the one Sutherland-Hodgman gives against z >= near, then z <= far: the corners
+    inside the slab and the crossings of the edges with the two planes (an edge crosses a plane where
+    its ends lie on different sides of it), in order around the triangle.  Vectorised without
+    per-edge candidate lists: with the corners sorted by depth, z0 <= z1 <= z2, the boundary is the
+    path v0 -> v1 -> v2 (A) and the edge v2 -> v0 (B), on each of which depth is monotonic, so the
+    polygon is always [lowest point of A, v1 if inside, highest point of A, far crossing of B if
+    z2 > far, near crossing of B if z0 < near]: at most 5 vertices.  Its orientation may be the
+    reverse of the triangle's, which coverage does not depend on.
+
+    Parameters
+    ----------
+    triangles : (3, 3, n) float64 eye-frame corners, coordinate-first (z = eye depth).
+    near, far : (n,) float64 eye depths, near <= far; the slab of each triangle.
+
+    Returns
+    -------
+    polygon : (3, 5, n) float64 convex polygons; slots past ``count`` repeat vertex 0.  Crossings
+        lie on their plane exactly.
+    count : (n,) int64 vertices, 0 where the triangle misses its slab.
+
+    >>> tri = np.array([[[0.0, 0.0, 1.0], [2.0, 0.0, 3.0], [0.0, 2.0, 3.0]]]).T  # one triangle
+    >>> polygon, count = clip_to_slab(tri, np.array([2.0]), np.array([2.5]))
+    >>> int(count[0]), polygon[:, :4, 0].T.tolist()
+    (4, [[1.0, 0.0, 2.0], [1.5, 0.0, 2.5], [0.0, 1.5, 2.5], [0.0, 1.0, 2.0]])
+    >>> int(clip_to_slab(tri, np.array([3.5]), np.array([4.0]))[1][0])  # misses the slab
+    0
+    """
+    near = np.asarray(near, dtype=np.float64)
+    far = np.asarray(far, dtype=np.float64)
+    v = [np.array(corner, dtype=np.float64) for corner in np.moveaxis(np.asarray(triangles), 1, 0)]  # 3 x (3, n)
+    for i, j in ((0, 1), (1, 2), (0, 1)):  # sorting network on depth; keeps the cyclic order or reverses it
+        swap = v[i][2] > v[j][2]
+        v[i], v[j] = np.where(swap, v[j], v[i]), np.where(swap, v[i], v[j])
+    v0, v1, v2 = v
+    z0, z1, z2 = v0[2], v1[2], v2[2]
+    below, above = z0 < near, z2 > far  # v0 in front of the slab, v2 behind it
+    middle = (z1 >= near) & (z1 <= far)
+    with np.errstate(divide="ignore", invalid="ignore"):  # crossings that do not exist are discarded
+        low_a = np.where(below, _lerp_at(np.where(z1 >= near, v0, v1), np.where(z1 >= near, v1, v2), near), v0)
+        high_a = np.where(above, _lerp_at(np.where(z1 <= far, v1, v0), np.where(z1 <= far, v2, v1), far), v2)
+        far_b = _lerp_at(v0, v2, far)
+        near_b = _lerp_at(v0, v2, near)
+    # Compact [low_a, v1?, high_a, far_b?, near_b?] in order; unused slots take vertex 0.
+    tail = np.where(above, far_b, near_b)  # first of B's crossings
+    last = np.where(above & below, near_b, low_a)  # second of B's crossings
+    polygon = np.stack(
+        [
+            low_a,
+            np.where(middle, v1, high_a),
+            np.where(middle, high_a, np.where(above | below, tail, low_a)),
+            np.where(middle, np.where(above | below, tail, low_a), last),
+            np.where(middle & above & below, near_b, low_a),
+        ],
+        axis=1,
+    )
+    count = 2 + middle.astype(np.int64) + above + below
+    count[(z2 < near) | (z0 > far)] = 0
+    return polygon, count
+
+
+def texel_coordinates(eye: np.ndarray, half_tan: np.ndarray, resolution: np.ndarray) -> np.ndarray:
+    """(2, ...) float64 texel coordinates (origin at the image's lower-left corner) of eye points (3, ...).
+
+    Coordinate-first, like :func:`clip_to_slab`; the shader's old ``to_texel``.
+
+    >>> eye = np.array([[0.0, 0.0, 2.0], [2.0, -1.0, 2.0]]).T
+    >>> texel_coordinates(eye, np.array([1.0, 1.0]), np.array([8, 4])).T.tolist()
+    [[4.0, 2.0], [8.0, 1.0]]
+    """
+    scale = np.reshape(np.asarray(half_tan, dtype=np.float64), (2,) + (1,) * (eye.ndim - 1))
+    size = np.reshape(np.asarray(resolution, dtype=np.float64), scale.shape)
+    return (eye[:2] / (eye[2] * scale) * 0.5 + 0.5) * size
+
+
+def texel_rectangles(lo: np.ndarray, hi: np.ndarray, resolution: np.ndarray) -> np.ndarray:
+    """(4, n) int64 rectangles x0, y0, x1, y1 (ends exclusive) of the texels whose closed squares
+    meet the boxes [lo, hi] (2, n) in texel coordinates, clamped to the image.
+
+    A bound exactly on a texel edge takes in the texel on the other side too, so that a polygon
+    that touches a texel only along its edge still reaches the fragment shader there.  An empty
+    rectangle (x0 >= x1 or y0 >= y1) means the box lies outside the image.
+
+    >>> lo = np.array([[2.5, 3.0], [-2.0, 1.5]]).T
+    >>> texel_rectangles(lo, lo, np.array([8, 8])).T.tolist()
+    [[2, 2, 3, 4], [0, 1, 0, 2]]
+    """
+    size = np.asarray(resolution, dtype=np.float64)[:, None]
+    first = np.floor(lo)
+    first -= first == lo
+    last = np.floor(hi) + 1.0
+    return np.concatenate([np.clip(first, 0.0, size), np.clip(last, 0.0, size)]).astype(np.int64)
+
+
+def slab_instances(
+    eye_vertices: np.ndarray,
+    faces: np.ndarray,
+    eye_borders: np.ndarray,
+    half_tan: np.ndarray,
+    resolution: np.ndarray,
+) -> SlabInstances:
+    """Every (triangle, layer) pair of one object, clipped to the layer's closed slab and projected.
+
+    Parameters
+    ----------
+    eye_vertices : (v, 3) float64 eye-frame vertices (:func:`eye_coordinates`).
+    faces : (f, 3) int64.
+    eye_borders : (k + 1,) float64 ascending slab borders, eye depth; the first is > 0.
+    half_tan : (2,) float64 tangents of the frustum's half angles along u and v.
+    resolution : (2,) int64 texels along u and v.
+
+    Pairs whose clipped polygon is empty or whose rectangle misses the image are dropped.
+    """
+    k = eye_borders.shape[0] - 1
+    order, offsets = layer_buckets(eye_vertices[:, 2], faces, eye_borders)
+    layer = np.repeat(np.arange(k), np.diff(offsets))
+    eye = np.ascontiguousarray(eye_vertices.T)  # (3, v)
+    with np.errstate(divide="ignore", invalid="ignore"):  # vertices behind the eye belong to no pair
+        at_vertex = np.concatenate([texel_coordinates(eye, half_tan, resolution), 1.0 / eye[2:]])  # (3, v)
+    pieces = []
+    for start in range(0, order.shape[0], CHUNK_PAIRS):
+        part, part_layer = order[start : start + CHUNK_PAIRS], layer[start : start + CHUNK_PAIRS]
+        corner = faces[part].T  # (3, m) vertex index of each pair's corners
+        # np.take, not fancy indexing on a later axis: numpy returns that transposed (not
+        # C-contiguous), and every later step would run ~10x slower on it.
+        slab = eye_borders[part_layer], eye_borders[part_layer + 1]
+        polygon, count = clip_to_slab(np.take(eye, corner, axis=1), *slab)
+        with np.errstate(divide="ignore", invalid="ignore"):  # pairs that miss their slab are dropped below
+            polygon = texel_coordinates(polygon, half_tan, resolution)
+        rect = texel_rectangles(polygon.min(axis=1), polygon.max(axis=1), resolution)
+        keep = (count > 0) & (rect[0] < rect[2]) & (rect[1] < rect[3])
+        pieces.append(
+            (
+                part[keep],
+                part_layer[keep],
+                np.compress(keep, rect, axis=1),
+                np.compress(keep, polygon, axis=2),
+                count[keep],
+                np.take(at_vertex, np.compress(keep, corner, axis=1), axis=1),
+            )
+        )
+    if not pieces:
+        empty = np.zeros(0, dtype=np.int64)
+        rect, polygon, vertices = np.zeros((4, 0), np.int64), np.zeros((2, MAX_POLYGON, 0)), np.zeros((3, 3, 0))
+        return SlabInstances(empty, offsets, rect, polygon, empty, vertices)
+    triangle, layer, rect, polygon, count, vertices = (np.concatenate(arrays, axis=-1) for arrays in zip(*pieces))
+    offsets = np.concatenate([[0], np.cumsum(np.bincount(layer, minlength=k))]).astype(np.int64)
+    return SlabInstances(triangle, offsets, rect, polygon, count, vertices)
+
+
+def _instance_records(instances: SlabInstances, obj: SceneObject) -> np.ndarray:
+    """(n, 43) float32 records for the GL upload, in the layout of INSTANCE_FORMAT."""
+    n = instances.triangle.shape[0]
+    corners = obj.faces[instances.triangle].T  # (3, n)
+    records = np.empty((INSTANCE_FLOATS, n), dtype="<f4")  # filled row by row, transposed once
+    records[0:4] = instances.rect
+    records[4:14] = instances.polygon.transpose(1, 0, 2).reshape(10, n)  # x0, y0, x1, y1, ...
+    records[14] = instances.count
+    records[15] = 0.0
+    records[16:25] = instances.vertices.transpose(1, 0, 2).reshape(9, n)
+    if obj.uv is not None:
+        records[25:31] = np.take(obj.uv.T, corners, axis=1).transpose(1, 0, 2).reshape(6, n)
     else:
-        colour = np.ones((obj.vertices.shape[0], 4), dtype="<f4")
-    interleaved = np.concatenate([local, uv, colour], axis=1)
-    vbo = ctx.buffer(np.ascontiguousarray(interleaved).tobytes())
+        records[25:31] = 0.0
+    if obj.vertex_colors is not None:
+        records[31:43] = (np.take(obj.vertex_colors.T, corners, axis=1) / 255.0).transpose(1, 0, 2).reshape(12, n)
+    else:
+        records[31:43] = 1.0
+    return np.ascontiguousarray(records.T)
+
+
+def _object_textures(ctx: moderngl.Context, obj: SceneObject):
+    """The object's base-colour texture and max-alpha mip chain (None where it has none)."""
     texture = alpha = None
     if obj.texture is not None:
         image = np.ascontiguousarray(obj.texture[::-1])  # top row first -> GL's bottom row first
@@ -102,7 +318,7 @@ def _object_buffers(ctx: moderngl.Context, obj: SceneObject, origin: np.ndarray)
             for level, data in enumerate(levels):
                 alpha.write(np.ascontiguousarray(data[::-1]).tobytes(), level=level)
             alpha.filter = (moderngl.NEAREST_MIPMAP_NEAREST, moderngl.NEAREST)
-    return vbo, texture, alpha
+    return texture, alpha
 
 
 def record_layers(
@@ -117,46 +333,55 @@ def record_layers(
     (in tests) the holes the conservative rule prevents.  ``on_layer(i)`` is called after layer i.
     """
     ctx = gl_context()
-    prog = program(ctx, "slab.vert", "slab.frag", "slab.geom")
+    prog = program(ctx, "slab_instanced.vert", "slab.frag")
     res_x, res_y = (int(r) for r in plan.texture_resolution)
     k = plan.count
     eye_borders = plan.borders + plan.reference_offset
     slabs = eye_borders.astype("<f4")
-    prog["half_tan"].value = tuple(float(x) for x in plan.frustum_half_tangents)
     prog["resolution"].value = (float(res_x), float(res_y))
     prog["conservative"].value = bool(conservative)
     out = np.zeros((k, res_y, res_x, 4), dtype=np.uint8)
     drawn = np.zeros(k, dtype=np.int64)
+
+    draws = []
+    for obj in scene.objects:
+        eye = eye_coordinates(plan, obj.vertices)
+        instances = slab_instances(eye, obj.faces, eye_borders, plan.frustum_half_tangents, plan.texture_resolution)
+        if instances.triangle.size:
+            draws.append((obj, instances.offsets, _instance_records(instances, obj)))
+    largest = max((int(np.diff(offsets).max()) for _, offsets, _ in draws), default=0)
 
     colour = ctx.texture((res_x, res_y), 4)
     depth = ctx.depth_texture((res_x, res_y))
     fbo = ctx.framebuffer([colour], depth)
     owned = [colour, depth, fbo]
     try:
+        # One buffer for every draw: moderngl has no base instance, so each (object, layer) draw
+        # writes its own instances to the start of a freshly orphaned store.
+        stream = ctx.buffer(reserve=max(largest, 1) * INSTANCE_FLOATS * 4, dynamic=True)
+        owned.append(stream)
+        vao = ctx.vertex_array(prog, [(stream, INSTANCE_FORMAT, *INSTANCE_ATTRIBUTES)])
+        owned.append(vao)
+        textures = []
+        for obj, _, _ in draws:
+            texture, alpha = _object_textures(ctx, obj)
+            owned += [t for t in (texture, alpha) if t is not None]
+            textures.append((texture, alpha))
         fbo.use()
         ctx.viewport = (0, 0, res_x, res_y)
         ctx.enable(moderngl.DEPTH_TEST)
+        # slab.frag clamps depth into the slab, so a texel whose nearest polygon point lies on the far
+        # plane gets depth 1.0, the cleared value: with "<" it would fail the test and the far
+        # clipping edge would lose texels.  Ties keep the last fragment drawn instead of the first.
+        ctx.depth_func = "<="
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
-        draws = []
-        for obj in scene.objects:
-            origin = 0.5 * (obj.bounds[0] + obj.bounds[1])
-            eye_depth = (obj.vertices - plan.reference_viewpoint) @ plan.axis
-            order, offsets = layer_buckets(eye_depth, obj.faces, eye_borders)
-            if order.size == 0:
-                continue
-            vbo, texture, alpha = _object_buffers(ctx, obj, origin)
-            ibo = ctx.buffer(obj.faces[order].astype("<u4").tobytes())
-            vao = ctx.vertex_array(prog, [(vbo, "3f 2f 4f", "in_position", "in_uv", "in_color")], ibo)
-            owned += [vbo, ibo, vao] + [t for t in (texture, alpha) if t is not None]
-            draws.append((obj, eye_matrix(plan, origin), offsets, vao, texture, alpha))
         for i in range(k):
             fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
             prog["slab"].value = (float(slabs[i]), float(slabs[i + 1]))
-            for obj, matrix, offsets, vao, texture, alpha in draws:
+            for (obj, offsets, records), (texture, alpha) in zip(draws, textures):
                 count = int(offsets[i + 1] - offsets[i])
                 if count == 0:
                     continue
-                prog["eye_from_local"].write(matrix.tobytes())
                 prog["base_color"].value = tuple(float(c) for c in obj.base_color)
                 prog["alpha_cutoff"].value = float(obj.alpha_cutoff) if obj.alpha_cutoff is not None else -1.0
                 prog["has_texture"].value = texture is not None
@@ -170,12 +395,15 @@ def record_layers(
                     prog["alpha_mip_size"].value = (float(alpha.width), float(alpha.height))
                     prog["alpha_mip_levels"].value = int(np.log2(max(alpha.width, alpha.height))) + 1
                     prog["texture_size"].value = (float(texture.width), float(texture.height))
-                vao.render(moderngl.TRIANGLES, vertices=3 * count, first=3 * int(offsets[i]))
+                stream.orphan()
+                stream.write(records[offsets[i] : offsets[i + 1]])
+                vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
                 drawn[i] += count
             out[i] = np.frombuffer(colour.read(), dtype=np.uint8).reshape(res_y, res_x, 4)
             if on_layer is not None:
                 on_layer(i)
     finally:
+        ctx.depth_func = "<"  # the GL default, which every other pass on this context assumes
         park_framebuffer(ctx)
         for resource in owned:
             resource.release()

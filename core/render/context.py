@@ -15,7 +15,7 @@ import moderngl
 
 from core.errors import RenderBackendError
 
-# OpenGL 3.3 core is enough for everything farfield draws (geometry shaders included); llvmpipe
+# OpenGL 3.3 core is enough for everything farfield draws (instancing, texelFetch); llvmpipe
 # offers 4.5 and the NVIDIA driver 4.6.
 REQUIRED_GL = 330
 

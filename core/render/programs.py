@@ -20,7 +20,7 @@ def context_cache(ctx: moderngl.Context) -> dict:
 
 
 def program(ctx: moderngl.Context, vertex: str, fragment: str, geometry: str | None = None) -> moderngl.Program:
-    """The program made of the named shader files (e.g. ``"slab.vert"``), compiled once per context."""
+    """The program made of the named shader files (e.g. ``"mesh.vert"``), compiled once per context."""
     key = ("program", vertex, geometry, fragment)
     cache = context_cache(ctx)
     if key not in cache:

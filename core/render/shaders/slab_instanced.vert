@@ -1,0 +1,47 @@
+#version 330
+// One instance per (triangle, layer) pair, already clipped to the layer's closed depth slab and
+// projected to texel coordinates on the CPU in float64 (core/recording.py, slab_instances): expand
+// it into its texel-aligned bounding rectangle (gl_VertexID 0..3, a triangle strip) and hand the
+// clipped polygon and the triangle to slab.frag, which decides coverage exactly.  Seed 000 §3.3.2.
+uniform vec2 resolution;  // texels along u and v
+
+in vec4 i_rect;      // texel rectangle x0, y0, x1, y1 (integers, clamped to the image)
+in vec4 i_poly01;    // clipped polygon, texel coordinates: vertices 0 and 1
+in vec4 i_poly23;    // vertices 2 and 3
+in vec4 i_poly4;     // vertex 4, vertex count, unused
+in vec3 i_tri0;      // triangle vertices: texel x, texel y, 1 / depth
+in vec3 i_tri1;
+in vec3 i_tri2;
+in vec4 i_uv01;
+in vec2 i_uv2;
+in vec4 i_color0;
+in vec4 i_color1;
+in vec4 i_color2;
+
+flat out vec2 g_poly[5];
+flat out int g_count;
+flat out vec3 g_tri[3];
+flat out vec2 g_uv[3];
+flat out vec4 g_color[3];
+
+void main() {
+    // Strip order (x0, y0), (x1, y0), (x0, y1), (x1, y1); mix with a bvec selects exactly.
+    bvec2 upper = bvec2((gl_VertexID & 1) != 0, (gl_VertexID & 2) != 0);
+    vec2 corner = mix(i_rect.xy, i_rect.zw, upper);
+    gl_Position = vec4(corner / resolution * 2.0 - 1.0, 0.0, 1.0);
+    g_poly[0] = i_poly01.xy;
+    g_poly[1] = i_poly01.zw;
+    g_poly[2] = i_poly23.xy;
+    g_poly[3] = i_poly23.zw;
+    g_poly[4] = i_poly4.xy;
+    g_count = int(i_poly4.z);
+    g_tri[0] = i_tri0;
+    g_tri[1] = i_tri1;
+    g_tri[2] = i_tri2;
+    g_uv[0] = i_uv01.xy;
+    g_uv[1] = i_uv01.zw;
+    g_uv[2] = i_uv2;
+    g_color[0] = i_color0;
+    g_color[1] = i_color1;
+    g_color[2] = i_color2;
+}
