@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from core import __version__
-from core.atlas import compose, fill_nearest_rgb, pack, tile_uv
+from core.atlas import compose, fill_nearest_rgb, pack, tile_uvs
 from core.culling import CULLING_MODES, CullingMode, hidden_texels
 from core.errors import LayerPlanError
 from core.frustum import PIXEL_MODELS, PixelModel, check_fov, check_resolution
@@ -103,17 +103,17 @@ def bake_layered(
     for layer, layer_rects in zip(layer_ids, rects):
         image = images[layer].copy()
         image[..., 3] = np.where(kept[layer], image[..., 3], 0)
-        # Transparent texels take the nearest opaque colour, once per layer, so that bilinear
-        # filtering and mipmaps never pull black into the edges of content.
-        image = fill_nearest_rgb(image)
         for x0, y0, x1, y1 in layer_rects:
             tiles.append(image[y0:y1, x0:x1])
         quad_layer.append(np.full(len(layer_rects), layer, dtype=np.int64))
         quad_corners.append(texel_rect_corners(plan, float(plan.distances[layer]), layer_rects))
     sizes = np.array([[t.shape[1], t.shape[0]] for t in tiles], dtype=np.int64)
     layout = pack(sizes, padding=options.padding)
-    pages = compose(layout, tiles, options.padding, bleed=0)
-    quad_uv = np.stack([tile_uv(layout, i) for i in range(len(tiles))])
+    # Transparent texels take the nearest opaque colour (on the pages, which are about the size of
+    # the kept tiles, not of whole layers), so bilinear filtering and mipmaps never pull black
+    # into the edges of content.
+    pages = [fill_nearest_rgb(page) for page in compose(layout, tiles, options.padding, bleed=0)]
+    quad_uv = tile_uvs(layout)
     times["atlas"] = time.perf_counter() - start
     report("atlas", 1, 1)
 

@@ -59,8 +59,8 @@ bool centre_inside(vec2 c) {
     return sgn != 0.0;
 }
 
-vec2 nearest_polygon_point(vec2 c) {
-    if (g_count >= 3 && centre_inside(c)) { return c; }
+// The point of the polygon's boundary nearest c (used when c itself lies outside the polygon).
+vec2 nearest_boundary_point(vec2 c) {
     vec2 best = g_poly[0];
     float bd = 1e30;
     for (int i = 0; i < g_count; ++i) {
@@ -118,8 +118,13 @@ float footprint_alpha(vec2 c) {
 
 void main() {
     vec2 c = gl_FragCoord.xy;
-    if (conservative ? !square_meets_polygon(c) : !centre_inside(c)) { discard; }
-    vec2 x = nearest_polygon_point(c);
+    // Most covered texels have their centre inside the polygon: decide those with the cheap test
+    // and run the separating-axis test and the nearest-point search only at the polygon's rim.
+    vec2 x = c;
+    if (!centre_inside(c)) {
+        if (!conservative || !square_meets_polygon(c)) { discard; }
+        x = nearest_boundary_point(c);
+    }
     // Perspective-correct barycentrics of x in the projected triangle.
     vec2 a = g_tri[0].xy, b = g_tri[1].xy, d = g_tri[2].xy;
     float area = cross2(b - a, d - a);
