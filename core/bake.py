@@ -17,13 +17,13 @@ import numpy as np
 
 from core import __version__
 from core.atlas import compose, fill_nearest_rgb, pack, tile_uvs
-from core.culling import CULLING_MODES, CullingMode, hidden_texels
+from core.culling import CULLING_MODES, CullingMode, LayerCuller
 from core.errors import LayerPlanError
 from core.frustum import PIXEL_MODELS, PixelModel, check_fov, check_resolution
 from core.impostor import Impostor, texel_rect_corners
 from core.layers import plan_layers
-from core.quads import quads_for_layers
-from core.recording import record_layers
+from core.quads import grow_quads
+from core.recording import iter_layers
 from core.scene import Scene
 from core.viewcells import ViewCell
 
@@ -78,59 +78,73 @@ def bake_layered(
     times["plan"] = time.perf_counter() - start
     report("plan", 1, 1)
 
-    start = time.perf_counter()
-    recorded = record_layers(part, plan, options.conservative, on_layer=lambda i: report("record", i + 1, plan.count))
-    images = recorded.rgba[:, ::-1]  # top row first from here on
-    times["record"] = time.perf_counter() - start
-
-    start = time.perf_counter()
-    covered = images[..., 3] > 0
-    hidden = hidden_texels(covered, options.culling)
-    kept = covered & ~hidden
-    times["cull"] = time.perf_counter() - start
-    report("cull", 1, 1)
-
-    start = time.perf_counter()
-    layer_ids = np.flatnonzero(kept.any(axis=(1, 2)))  # layers with no content are dropped
-    if layer_ids.size == 0:
+    # Stream: each layer is recorded, culled against the layers before it, cut into quads and
+    # tiles, and dropped, so memory grows with the kept texels, not with layers x image.
+    res_x, res_y = (int(r) for r in plan.texture_resolution)
+    culler = LayerCuller((res_y, res_x), options.culling)
+    tiles, quad_layer, quad_corners, layer_ids = [], [], [], []
+    counts = {"covered": 0, "culled": 0, "kept": 0, "drawn": 0}
+    kept_per_layer: dict[int, int] = {}
+    for key in ("record", "cull", "quads"):
+        times[key] = 0.0
+    layers = iter_layers(part, plan, options.conservative)
+    while True:
+        start = time.perf_counter()
+        step = next(layers, None)
+        times["record"] += time.perf_counter() - start
+        if step is None:
+            break
+        i, recorded, drawn = step
+        start = time.perf_counter()
+        image = recorded[::-1]  # top row first from here on
+        covered = image[..., 3] > 0
+        hidden = culler.hidden(covered)
+        kept = covered & ~hidden
+        counts["covered"] += int(covered.sum())
+        counts["culled"] += int(hidden.sum())
+        counts["drawn"] += drawn
+        times["cull"] += time.perf_counter() - start
+        report("record", i + 1, plan.count)
+        if not kept.any():  # layers with no visible content are dropped
+            continue
+        start = time.perf_counter()
+        rects = grow_quads(kept, options.grid_cell, options.fill_threshold)
+        texels = image.copy()
+        texels[..., 3] = np.where(kept, texels[..., 3], 0)
+        # Each tile is its own array (not a view that would keep the layer alive), its transparent
+        # texels coloured from the nearest opaque one so that bilinear filtering and mipmaps never
+        # pull black into the edges of content.
+        tiles += [fill_nearest_rgb(texels[y0:y1, x0:x1]) for x0, y0, x1, y1 in rects]
+        quad_layer.append(np.full(len(rects), i, dtype=np.int64))
+        quad_corners.append(texel_rect_corners(plan, float(plan.distances[i]), rects))
+        layer_ids.append(i)
+        kept_per_layer[i] = int(kept.sum())
+        counts["kept"] += kept_per_layer[i]
+        times["quads"] += time.perf_counter() - start
+    if not layer_ids:
         raise LayerPlanError("the part left no visible texel in any layer (is it empty or fully transparent?)")
-    rects = quads_for_layers(kept[layer_ids], options.grid_cell, options.fill_threshold)
-    times["quads"] = time.perf_counter() - start
-    report("quads", 1, 1)
 
     start = time.perf_counter()
-    tiles, quad_layer, quad_corners = [], [], []
-    for layer, layer_rects in zip(layer_ids, rects):
-        image = images[layer].copy()
-        image[..., 3] = np.where(kept[layer], image[..., 3], 0)
-        for x0, y0, x1, y1 in layer_rects:
-            tiles.append(image[y0:y1, x0:x1])
-        quad_layer.append(np.full(len(layer_rects), layer, dtype=np.int64))
-        quad_corners.append(texel_rect_corners(plan, float(plan.distances[layer]), layer_rects))
     sizes = np.array([[t.shape[1], t.shape[0]] for t in tiles], dtype=np.int64)
     layout = pack(sizes, padding=options.padding)
-    # Transparent texels take the nearest opaque colour (on the pages, which are about the size of
-    # the kept tiles, not of whole layers), so bilinear filtering and mipmaps never pull black
-    # into the edges of content.
-    pages = [fill_nearest_rgb(page) for page in compose(layout, tiles, options.padding, bleed=0)]
+    pages = compose(layout, tiles, options.padding, bleed=0)
     quad_uv = tile_uvs(layout)
     times["atlas"] = time.perf_counter() - start
     report("atlas", 1, 1)
 
     quad_count = len(tiles)
     texture_bytes = int(sum(p.shape[0] * p.shape[1] * 4 for p in pages))
-    res_x, res_y = (int(r) for r in plan.texture_resolution)
     stats = {
         "layers_planned": plan.count,
-        "layers": int(layer_ids.size),
+        "layers": len(layer_ids),
         "quads": quad_count,
-        "texels_covered": int(covered.sum()),
-        "texels_culled": int((covered & hidden).sum()),
-        "texels_kept": int(kept.sum()),
-        "triangles_drawn": int(recorded.drawn_triangles.sum()),
+        "texels_covered": counts["covered"],
+        "texels_culled": counts["culled"],
+        "texels_kept": counts["kept"],
+        "triangles_drawn": counts["drawn"],
         "texture_bytes": texture_bytes,
         "texture_bytes_tile_area": int(sizes.prod(axis=1).sum() * 4),
-        "texture_bytes_one_quad_per_layer": int(layer_ids.size * res_x * res_y * 4),
+        "texture_bytes_one_quad_per_layer": int(len(layer_ids) * res_x * res_y * 4),
         "geometry_bytes": quad_count * QUAD_GEOMETRY_BYTES,
         "atlas_pages": len(pages),
         "texture_resolution": [res_x, res_y],
@@ -143,7 +157,7 @@ def bake_layered(
             "distance": float(plan.distances[i]),
             "depth_range": [float(plan.borders[i]), float(plan.borders[i + 1])],
             "eye_depth_range": [float(eye[i]), float(eye[i + 1])],
-            "texels": int(kept[i].sum()),
+            "texels": kept_per_layer[i],
         }
         for i in layer_ids
     ]

@@ -72,19 +72,32 @@ def hidden_texels(opaque: np.ndarray, mode: CullingMode = "penumbra") -> np.ndar
     >>> int(hidden_texels(layers, "umbra")[1].sum())  # the inner 3x3 of the far layer
     9
     """
-    if mode not in CULLING_MODES:
-        raise LayerPlanError(f"culling mode must be one of {CULLING_MODES}, got {mode!r}")
     opaque = np.asarray(opaque, dtype=bool)
-    hidden = np.zeros_like(opaque)
-    if mode == "off" or opaque.shape[0] < 2:
-        return hidden
-    parts = (_UMBRA,) if mode == "umbra" else _QUADRANTS
-    # Per view-cell part: positions of the current layer invisible from that part.
-    umbra = [np.zeros(opaque.shape[1:], dtype=bool) for _ in parts]
-    for i in range(1, opaque.shape[0]):
-        everywhere = np.ones(opaque.shape[1:], dtype=bool)
-        for p, offsets in enumerate(parts):
-            umbra[p] = _blocked_by(opaque[i - 1] | umbra[p], offsets)
-            everywhere &= umbra[p]
-        hidden[i] = everywhere & opaque[i]
-    return hidden
+    culler = LayerCuller(opaque.shape[1:], mode)
+    return np.stack([culler.hidden(layer) for layer in opaque]) if opaque.shape[0] else np.zeros_like(opaque)
+
+
+class LayerCuller:
+    """:func:`hidden_texels` one layer at a time, nearest first, keeping only each view-cell part's
+    umbra ((h, w) bool per part): memory O(h w) whatever the number of layers."""
+
+    def __init__(self, shape: tuple[int, int], mode: CullingMode = "penumbra"):
+        if mode not in CULLING_MODES:
+            raise LayerPlanError(f"culling mode must be one of {CULLING_MODES}, got {mode!r}")
+        self.mode = mode
+        self.parts = () if mode == "off" else ((_UMBRA,) if mode == "umbra" else _QUADRANTS)
+        self.umbra = [np.zeros(shape, dtype=bool) for _ in self.parts]
+        self.previous: np.ndarray | None = None
+
+    def hidden(self, opaque: np.ndarray) -> np.ndarray:
+        """(h, w) bool: covered texels of this layer hidden by the layers given before it."""
+        opaque = np.asarray(opaque, dtype=bool)
+        if self.previous is None or not self.parts:
+            self.previous = opaque
+            return np.zeros_like(opaque)
+        everywhere = np.ones(opaque.shape, dtype=bool)
+        for p, offsets in enumerate(self.parts):
+            self.umbra[p] = _blocked_by(self.previous | self.umbra[p], offsets)
+            everywhere &= self.umbra[p]
+        self.previous = opaque
+        return everywhere & opaque

@@ -23,7 +23,7 @@ geometry shader took about 0.1 s of the rest).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 import moderngl
 import numpy as np
@@ -31,7 +31,7 @@ import numpy as np
 from core.layers import LayerPlan
 from core.render.alpha_mips import max_alpha_levels
 from core.render.context import gl_context
-from core.render.programs import park_framebuffer, program
+from core.render.programs import park_framebuffer, program, set_material
 from core.scene import Scene, SceneObject
 
 # Most vertices a triangle keeps after clipping to a slab: each of the two planes adds at most one.
@@ -321,16 +321,19 @@ def _object_textures(ctx: moderngl.Context, obj: SceneObject):
     return texture, alpha
 
 
-def record_layers(
+def iter_layers(
     scene: Scene,
     plan: LayerPlan,
     conservative: bool = True,
-    on_layer: Callable[[int], None] | None = None,
-) -> RecordedLayers:
-    """Record every layer of ``plan`` from the objects of ``scene`` on the process's EGL context.
+) -> Iterator[tuple[int, np.ndarray, int]]:
+    """Record the layers of ``plan`` one at a time: yields ``(i, rgba, drawn)`` nearest first.
 
-    ``conservative=False`` uses the standard "texel centre inside" rule instead; it exists to show
-    (in tests) the holes the conservative rule prevents.  ``on_layer(i)`` is called after layer i.
+    ``rgba`` is the (h, w, 4) uint8 layer i (row 0 is the bottom image row, GL order; alpha 255 =
+    covered), valid until the next step; ``drawn`` the triangles drawn for it.  Only one layer is
+    held at a time, so a consumer that keeps what it needs runs in memory that grows with the
+    kept texels, not with layers x image.  GL resources are released when the generator finishes
+    or is closed.  ``conservative=False`` uses the standard "texel centre inside" rule instead; it
+    exists to show (in tests) the holes the conservative rule prevents.
     """
     ctx = gl_context()
     prog = program(ctx, "slab_instanced.vert", "slab.frag")
@@ -340,8 +343,6 @@ def record_layers(
     slabs = eye_borders.astype("<f4")
     prog["resolution"].value = (float(res_x), float(res_y))
     prog["conservative"].value = bool(conservative)
-    out = np.zeros((k, res_y, res_x, 4), dtype=np.uint8)
-    drawn = np.zeros(k, dtype=np.int64)
 
     draws = []
     for obj in scene.objects:
@@ -367,27 +368,24 @@ def record_layers(
             texture, alpha = _object_textures(ctx, obj)
             owned += [t for t in (texture, alpha) if t is not None]
             textures.append((texture, alpha))
-        fbo.use()
-        ctx.viewport = (0, 0, res_x, res_y)
-        ctx.enable(moderngl.DEPTH_TEST)
-        # slab.frag clamps depth into the slab, so a texel whose nearest polygon point lies on the far
-        # plane gets depth 1.0, the cleared value: with "<" it would fail the test and the far
-        # clipping edge would lose texels.  Ties keep the last fragment drawn instead of the first.
-        ctx.depth_func = "<="
-        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
         for i in range(k):
+            # Re-established every layer: the consumer may render on this context between layers.
+            fbo.use()
+            ctx.viewport = (0, 0, res_x, res_y)
+            ctx.enable(moderngl.DEPTH_TEST)
+            # slab.frag clamps depth into the slab, so a texel whose nearest polygon point lies on
+            # the far plane gets depth 1.0, the cleared value: with "<" it would fail the test and
+            # the far clipping edge would lose texels.  Ties keep the last fragment drawn.
+            ctx.depth_func = "<="
+            ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
             fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
             prog["slab"].value = (float(slabs[i]), float(slabs[i + 1]))
+            drawn = 0
             for (obj, offsets, records), (texture, alpha) in zip(draws, textures):
                 count = int(offsets[i + 1] - offsets[i])
                 if count == 0:
                     continue
-                prog["base_color"].value = tuple(float(c) for c in obj.base_color)
-                prog["alpha_cutoff"].value = float(obj.alpha_cutoff) if obj.alpha_cutoff is not None else -1.0
-                prog["has_texture"].value = texture is not None
-                if texture is not None:
-                    texture.use(0)
-                    prog["base_texture"].value = 0
+                set_material(prog, obj, texture)
                 prog["has_alpha_mip"].value = alpha is not None
                 if alpha is not None:
                     alpha.use(1)
@@ -398,13 +396,32 @@ def record_layers(
                 stream.orphan()
                 stream.write(records[offsets[i] : offsets[i + 1]])
                 vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
-                drawn[i] += count
-            out[i] = np.frombuffer(colour.read(), dtype=np.uint8).reshape(res_y, res_x, 4)
-            if on_layer is not None:
-                on_layer(i)
+                drawn += count
+            layer = np.frombuffer(colour.read(), dtype=np.uint8).reshape(res_y, res_x, 4)
+            ctx.depth_func = "<"  # the GL default, which every other pass on this context assumes
+            yield i, layer, drawn
     finally:
-        ctx.depth_func = "<"  # the GL default, which every other pass on this context assumes
+        ctx.depth_func = "<"
         park_framebuffer(ctx)
         for resource in owned:
             resource.release()
-    return RecordedLayers(out, eye_borders, drawn)
+
+
+def record_layers(
+    scene: Scene,
+    plan: LayerPlan,
+    conservative: bool = True,
+    on_layer: Callable[[int], None] | None = None,
+) -> RecordedLayers:
+    """Every layer of ``plan`` at once (see :func:`iter_layers`; this holds k x h x w x 4 bytes).
+
+    ``on_layer(i)`` is called after layer i.
+    """
+    res_x, res_y = (int(r) for r in plan.texture_resolution)
+    out = np.zeros((plan.count, res_y, res_x, 4), dtype=np.uint8)
+    drawn = np.zeros(plan.count, dtype=np.int64)
+    for i, layer, count in iter_layers(scene, plan, conservative):
+        out[i], drawn[i] = layer, count
+        if on_layer is not None:
+            on_layer(i)
+    return RecordedLayers(out, plan.borders + plan.reference_offset, drawn)

@@ -42,3 +42,17 @@ def park_framebuffer(ctx: moderngl.Context) -> None:
     if "parking" not in cache:
         cache["parking"] = ctx.framebuffer([ctx.renderbuffer((1, 1), 4)])
     cache["parking"].use()
+
+
+def set_material(prog: moderngl.Program, obj, texture: moderngl.Texture | None) -> None:
+    """Set the unlit-material uniforms every farfield shader shares (glTF's base colour rule):
+    ``base_color``, ``alpha_cutoff`` (-1: opaque), ``has_texture`` and ``base_texture`` on unit 0.
+
+    ``obj`` is a :class:`core.scene.SceneObject`; ``texture`` its uploaded base-colour texture.
+    """
+    prog["base_color"].value = tuple(float(c) for c in obj.base_color)
+    prog["alpha_cutoff"].value = float(obj.alpha_cutoff) if obj.alpha_cutoff is not None else -1.0
+    prog["has_texture"].value = texture is not None
+    if texture is not None:
+        texture.use(0)
+        prog["base_texture"].value = 0

@@ -15,7 +15,7 @@ import numpy as np
 
 from core.errors import RenderBackendError, ViewCellError
 from core.render.context import gl_context
-from core.render.programs import park_framebuffer, program
+from core.render.programs import park_framebuffer, program, set_material
 from core.scene import SceneObject
 
 @dataclass(frozen=True, slots=True)
@@ -128,12 +128,7 @@ class MeshRenderer:
         prog["depth_range"].value = (camera.near, camera.far)
         for obj, origin, vao, texture in self._draws:
             prog["eye_from_local"].write(camera.eye_matrix(origin).tobytes())
-            prog["base_color"].value = tuple(float(c) for c in obj.base_color)
-            prog["alpha_cutoff"].value = float(obj.alpha_cutoff) if obj.alpha_cutoff is not None else -1.0
-            prog["has_texture"].value = texture is not None
-            if texture is not None:
-                texture.use(0)
-                prog["base_texture"].value = 0
+            set_material(prog, obj, texture)
             vao.render(moderngl.TRIANGLES)
         image = np.frombuffer(colour.read(), dtype=np.uint8).reshape(camera.resolution, camera.resolution, 4)
         if ctx.error != "GL_NO_ERROR":
