@@ -93,7 +93,9 @@ def pack(sizes: np.ndarray, padding: int = 2, max_page: int = 8192, min_fill: fl
     remaining tiles would fill less than ``min_fill`` of the rounded-up page, the width is halved
     instead and what does not fit spills onto further, smaller pages.  On a few hundred quads of
     blobby layers this takes page area from 1.3-2.3x the tile area to 1.2-1.4x (padding 2), at
-    the price of more pages (typically 5-10 instead of 1-6).  ``min_fill=0`` is the thesis exactly.
+    the price of more pages (typically 5-10 instead of 1-6).  ``min_fill=0`` is the thesis exactly
+    (as long as the tiles fit one strip of ``max_page`` width: beyond that, pages grow in height
+    rather than multiply, which keeps packing from turning quadratic in the tile count).
 
     Parameters
     ----------
@@ -179,6 +181,11 @@ def pack(sizes: np.ndarray, padding: int = 2, max_page: int = 8192, min_fill: fl
         rem = np.asarray(remaining)
         height = _next_pow2(ph[rem[0]])
         area = int((pw[rem] * ph[rem]).sum())
+        if area > height * max_page:
+            # Deviation: the thesis's strip (as tall as the tallest tile) would need many pages, and
+            # every page pass tests every remaining tile (quadratic in the tile count); let the
+            # page grow towards a square of at most max_page instead.
+            height = min(max_page, _next_pow2(-(-area // max_page)))
         widest = _next_pow2(int(pw[rem].max()))
         width = max(_next_pow2(-(-area // height)), widest)
         if width > widest and area < min_fill * width * height:
@@ -187,7 +194,13 @@ def pack(sizes: np.ndarray, padding: int = 2, max_page: int = 8192, min_fill: fl
         index = len(page_sizes)
         skyline = np.zeros(width, dtype=np.int64)  # filled rows per page column, from the top
         left_over: list[int] = []
-        for i in remaining:
+        shortest = int(ph[remaining[-1]])  # remaining is sorted by decreasing padded height
+        for j, i in enumerate(remaining):
+            if int(skyline.min()) + shortest > height:
+                # Not even the shortest remaining tile fits under the page's lowest column: the page
+                # is full, and testing the rest would only make packing quadratic in the tile count.
+                left_over.extend(remaining[j:])
+                break
             w_i, h_i = int(pw[i]), int(ph[i])
             if w_i > width or int(skyline.min()) + h_i > height:
                 left_over.append(i)
