@@ -65,8 +65,8 @@ import numpy as np
 from PIL import Image
 
 from core.errors import BundleFormatError
-from core.glb import check_impostor, impostor_glb, page_png
-from core.impostor import Impostor
+from core.glb import impostor_glb, page_png
+from core.impostor import Impostor, check_impostor
 
 __all__ = [
     "FORMAT",
@@ -206,7 +206,7 @@ def write_bundle(impostor: Impostor, directory: str | os.PathLike) -> BundlePath
     Parameters
     ----------
     impostor : Impostor
-        The impostor; its arrays must pass :func:`core.glb.check_impostor`.
+        The impostor; its arrays must pass :func:`core.impostor.check_impostor`.
     directory : path
         The bundle directory to create.  Its parent is created if missing.
 

@@ -36,9 +36,9 @@ import numpy as np
 from PIL import Image
 
 from core.errors import BundleFormatError
-from core.impostor import Impostor
+from core.impostor import Impostor, check_impostor
 
-__all__ = ["check_impostor", "impostor_glb", "page_png"]
+__all__ = ["impostor_glb", "page_png"]
 
 _MAGIC = 0x46546C67  # "glTF"
 _VERSION = 2
@@ -66,69 +66,6 @@ _MAX_UINT16_VERTICES = 0xFFFF
 
 # Fixed PNG settings: zlib level 6 without the optimiser's search, no metadata chunks.
 _PNG_COMPRESS_LEVEL = 6
-
-
-def check_impostor(impostor: Impostor) -> None:
-    """Raise unless the impostor's arrays have the shapes and dtypes every writer relies on.
-
-    Parameters
-    ----------
-    impostor : Impostor
-        ``reference_viewpoint`` (3,) finite, ``quad_corners`` (q, 4, 3) finite, ``quad_uv``
-        (q, 4, 2) finite, ``quad_page`` and ``quad_layer`` (q,) integers, every ``quad_page`` an
-        index into ``pages``, every page (H, W, 4) uint8 with H, W >= 1.
-
-    Raises
-    ------
-    BundleFormatError
-        Naming the first field that does not fit.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> bad = Impostor("layered", {}, np.zeros(3), 64, 60.0, np.zeros((1, 4, 3)),
-    ...                np.zeros((1, 4, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64),
-    ...                (np.zeros((2, 2, 4), np.float32),))
-    >>> check_impostor(bad)
-    Traceback (most recent call last):
-    ...
-    core.errors.BundleFormatError: page 0 is (2, 2, 4) float32, expected (H, W, 4) uint8
-    """
-    viewpoint = np.asarray(impostor.reference_viewpoint)
-    if viewpoint.shape != (3,) or not np.all(np.isfinite(viewpoint)):
-        raise BundleFormatError(f"reference_viewpoint must be 3 finite numbers, got {viewpoint!r}")
-    corners = np.asarray(impostor.quad_corners)
-    q = corners.shape[0] if corners.ndim == 3 else -1
-    expected = {
-        "quad_corners": (q, 4, 3),
-        "quad_uv": (q, 4, 2),
-        "quad_page": (q,),
-        "quad_layer": (q,),
-    }
-    for name, shape in expected.items():
-        array = np.asarray(getattr(impostor, name))
-        if q < 0 or array.shape != shape:
-            raise BundleFormatError(f"{name} has shape {array.shape}, expected {shape}")
-        if name in ("quad_corners", "quad_uv"):
-            if not np.issubdtype(array.dtype, np.floating) or not np.all(np.isfinite(array)):
-                raise BundleFormatError(f"{name} must be finite floats, got dtype {array.dtype}")
-        elif not np.issubdtype(array.dtype, np.integer):
-            raise BundleFormatError(f"{name} must be integers, got dtype {array.dtype}")
-    for index, page in enumerate(impostor.pages):
-        if not isinstance(page, np.ndarray) or page.dtype != np.uint8 or page.ndim != 3 or page.shape[2] != 4:
-            shape = getattr(page, "shape", None)
-            raise BundleFormatError(
-                f"page {index} is {shape} {getattr(page, 'dtype', type(page).__name__)}, "
-                "expected (H, W, 4) uint8"
-            )
-        if page.shape[0] < 1 or page.shape[1] < 1:
-            raise BundleFormatError(f"page {index} is empty: {page.shape}")
-    page_of_quad = np.asarray(impostor.quad_page)
-    if q > 0 and (page_of_quad.min() < 0 or page_of_quad.max() >= len(impostor.pages)):
-        raise BundleFormatError(
-            f"quad_page spans [{page_of_quad.min()}, {page_of_quad.max()}] "
-            f"but there are {len(impostor.pages)} pages"
-        )
 
 
 def page_png(page: np.ndarray) -> bytes:
@@ -191,7 +128,7 @@ def impostor_glb(impostor: Impostor) -> bytes:
     Raises
     ------
     BundleFormatError
-        The impostor's arrays do not fit (see :func:`check_impostor`).
+        The impostor's arrays do not fit (see :func:`core.impostor.check_impostor`).
 
     Examples
     --------
