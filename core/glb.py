@@ -35,7 +35,6 @@ import struct
 import numpy as np
 from PIL import Image
 
-from core.errors import BundleFormatError
 from core.impostor import Impostor, check_impostor
 
 __all__ = ["impostor_glb", "page_png"]
