@@ -2,8 +2,10 @@
 // Exact coverage of one texel by the clipped polygon: conservative (the closed texel square meets
 // the polygon, separating-axis test) or standard (the texel centre lies inside), then colour and
 // depth from the triangle at the polygon point nearest the texel centre.
-flat in vec2 g_poly[5];
-flat in int g_count;
+flat in vec2 g_poly[5];   // unused slots repeat vertex 0 (slab_instanced.vert)
+flat in vec3 g_edge[5];   // inward unit edge normals and offsets
+flat in vec4 g_box;       // polygon bounding box
+flat in int g_solid;
 flat in vec3 g_tri[3];
 flat in vec2 g_uv[3];
 flat in vec4 g_color[3];
@@ -28,43 +30,32 @@ const float EPS = 1e-4;  // texels; errs towards covering
 
 float cross2(vec2 a, vec2 b) { return a.x * b.y - a.y * b.x; }
 
+// Separating axes: a convex polygon and a square are disjoint exactly when the square lies wholly
+// outside one of the polygon's edge lines or outside its bounding box on x or y.  Every loop runs
+// over a constant five edges (zero-length ones pass), so the compiler unrolls it.
 bool square_meets_polygon(vec2 c) {
-    vec2 lo = vec2(1e30), hi = vec2(-1e30);
-    for (int i = 0; i < g_count; ++i) { lo = min(lo, g_poly[i]); hi = max(hi, g_poly[i]); }
-    if (any(greaterThan(lo, c + 0.5 + EPS)) || any(lessThan(hi, c - 0.5 - EPS))) { return false; }
-    for (int i = 0; i < g_count; ++i) {
-        vec2 e = g_poly[(i + 1) % g_count] - g_poly[i];
-        vec2 n = vec2(-e.y, e.x);
-        float len = length(n);
-        if (len < 1e-12) { continue; }
-        n /= len;
-        float pmin = 1e30, pmax = -1e30;
-        for (int j = 0; j < g_count; ++j) { float d = dot(n, g_poly[j]); pmin = min(pmin, d); pmax = max(pmax, d); }
-        float r = 0.5 * (abs(n.x) + abs(n.y)) + EPS;
-        float cd = dot(n, c);
-        if (cd - r > pmax || cd + r < pmin) { return false; }
+    if (any(greaterThan(g_box.xy, c + 0.5 + EPS)) || any(lessThan(g_box.zw, c - 0.5 - EPS))) { return false; }
+    for (int i = 0; i < 5; ++i) {
+        vec3 e = g_edge[i];
+        if (dot(e.xy, c) + e.z + 0.5 * (abs(e.x) + abs(e.y)) + EPS < 0.0) { return false; }
     }
     return true;
 }
 
 bool centre_inside(vec2 c) {
-    if (g_count < 3) { return false; }
-    float sgn = 0.0;
-    for (int i = 0; i < g_count; ++i) {
-        float s = cross2(g_poly[(i + 1) % g_count] - g_poly[i], c - g_poly[i]);
-        if (s != 0.0) {
-            if (sgn == 0.0) { sgn = sign(s); } else if (sign(s) != sgn) { return false; }
-        }
+    if (g_solid == 0) { return false; }
+    for (int i = 0; i < 5; ++i) {
+        if (dot(g_edge[i].xy, c) + g_edge[i].z < 0.0) { return false; }
     }
-    return sgn != 0.0;
+    return true;
 }
 
 // The point of the polygon's boundary nearest c (used when c itself lies outside the polygon).
 vec2 nearest_boundary_point(vec2 c) {
     vec2 best = g_poly[0];
     float bd = 1e30;
-    for (int i = 0; i < g_count; ++i) {
-        vec2 p = g_poly[i], q = g_poly[(i + 1) % g_count];
+    for (int i = 0; i < 5; ++i) {
+        vec2 p = g_poly[i], q = g_poly[i == 4 ? 0 : i + 1];
         vec2 e = q - p;
         float t = dot(e, e) > 0.0 ? clamp(dot(c - p, e) / dot(e, e), 0.0, 1.0) : 0.0;
         vec2 x = p + t * e;

@@ -19,7 +19,9 @@ in vec4 i_color1;
 in vec4 i_color2;
 
 flat out vec2 g_poly[5];
-flat out int g_count;
+flat out vec3 g_edge[5];  // inward unit normal n and offset d of each edge: n . x + d >= 0 inside
+flat out vec4 g_box;      // the polygon's bounding box lo.xy, hi.xy
+flat out int g_solid;     // 1 where the polygon has area, so a texel centre can lie inside it
 flat out vec3 g_tri[3];
 flat out vec2 g_uv[3];
 flat out vec4 g_color[3];
@@ -34,7 +36,28 @@ void main() {
     g_poly[2] = i_poly23.xy;
     g_poly[3] = i_poly23.zw;
     g_poly[4] = i_poly4.xy;
-    g_count = int(i_poly4.z);
+    // Unused slots repeat vertex 0, so the five edges p[i] -> p[(i + 1) % 5] are the polygon's
+    // edges plus zero-length ones, and slab.frag can run every loop over a constant five (which
+    // the compiler unrolls) instead of the vertex count.  Edge equations are made here, four times
+    // per instance, rather than for every texel.
+    float area = 0.0;
+    vec2 lo = g_poly[0], hi = g_poly[0];
+    for (int i = 0; i < 5; ++i) {
+        vec2 p = g_poly[i], q = g_poly[i == 4 ? 0 : i + 1];
+        area += p.x * q.y - p.y * q.x;
+        lo = min(lo, p);
+        hi = max(hi, p);
+    }
+    float orientation = area < 0.0 ? -1.0 : 1.0;
+    for (int i = 0; i < 5; ++i) {
+        vec2 p = g_poly[i], e = g_poly[i == 4 ? 0 : i + 1] - p;
+        vec2 n = orientation * vec2(-e.y, e.x);
+        float len = length(n);
+        n = len > 1e-12 ? n / len : vec2(0.0);  // a zero-length edge constrains nothing
+        g_edge[i] = vec3(n, -dot(n, p));
+    }
+    g_box = vec4(lo, hi);
+    g_solid = int(i_poly4.z) >= 3 && abs(area) > 1e-12 ? 1 : 0;
     g_tri[0] = i_tri0;
     g_tri[1] = i_tri1;
     g_tri[2] = i_tri2;
