@@ -1,4 +1,5 @@
-"""HTTP API (FastAPI): routes, request/response schemas, auth and the dashboard.
+"""HTTP API (FastAPI): routes, auth and the dashboard.
 
-Empty until the service issue lands; routes will only validate, authorise and call ``core``.
+Routes only validate, authorise and call ``service`` / ``core``; :func:`api.app.create_app` builds
+the application for one :class:`service.settings.Settings`.
 """

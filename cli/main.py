@@ -32,12 +32,15 @@ def cli() -> None:
 
 
 def _register() -> None:
-    from cli import bake_cmd, evaluate_cmd, inspect_cmd, layers_cmd
+    from cli import bake_cmd, evaluate_cmd, inspect_cmd, layers_cmd, service_cmds
 
     cli.add_command(inspect_cmd.inspect)
     cli.add_command(layers_cmd.layers)
     cli.add_command(bake_cmd.bake)
     cli.add_command(evaluate_cmd.evaluate)
+    cli.add_command(service_cmds.up)
+    cli.add_command(service_cmds.worker)
+    cli.add_command(service_cmds.keys)
 
 
 def main(argv: list[str] | None = None) -> None:

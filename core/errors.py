@@ -16,7 +16,9 @@ class ErrorKind(enum.Enum):
     BAD_INPUT = (422, 2)
     MISSING = (404, 3)
     CONFLICT = (409, 4)
+    TOO_LARGE = (413, 2)
     RENDERER_UNAVAILABLE = (503, 5)
+    UNAUTHORIZED = (401, 6)
 
     @property
     def http_status(self) -> int:
@@ -67,6 +69,34 @@ class RenderBackendError(FarfieldError):
     """No usable rendering backend (EGL) in this process."""
 
     kind = ErrorKind.RENDERER_UNAVAILABLE
+
+
+class NotFoundError(FarfieldError):
+    """A stored scene, job, cell or key that does not exist (or belongs to another tenant)."""
+
+    kind = ErrorKind.MISSING
+
+
+class ConflictError(FarfieldError):
+    """A request that the current state of a job or scene does not allow (e.g. retrying a done job)."""
+
+    kind = ErrorKind.CONFLICT
+
+
+class UploadTooLargeError(FarfieldError):
+    """An upload over the configured size limit."""
+
+    kind = ErrorKind.TOO_LARGE
+
+
+class AuthError(FarfieldError):
+    """A missing, unknown or revoked API key."""
+
+    kind = ErrorKind.UNAUTHORIZED
+
+
+class ServiceConfigError(FarfieldError):
+    """Settings that cannot work (a malformed URL, an unreadable data directory)."""
 
 
 def error_kind(error: BaseException) -> ErrorKind:

@@ -1,0 +1,43 @@
+"""What every route needs: the process's services and the caller's tenant."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from celery import Celery
+from fastapi import Request
+
+from core.errors import AuthError
+from service.blobs import LocalBlobStore
+from service.db import Database
+from service.keys import authenticate
+from service.settings import Settings
+from workers.app import BAKE_CELL, RENDER_QUEUE
+
+RETRY_POLICY = {"max_retries": 30, "interval_start": 0.2, "interval_step": 0.5, "interval_max": 2.0}
+
+
+@dataclass
+class Services:
+    settings: Settings
+    db: Database
+    blobs: LocalBlobStore
+    celery: Celery
+
+    def enqueue(self, cell_ids: list[str]) -> None:
+        """Send one bake task per cell to the render queue (retrying while Redis is away)."""
+        for cell_id in cell_ids:
+            self.celery.send_task(BAKE_CELL, args=[cell_id], queue=RENDER_QUEUE, retry=True, retry_policy=RETRY_POLICY)
+
+
+def services(request: Request) -> Services:
+    return request.app.state.services
+
+
+def tenant(request: Request) -> str:
+    """The tenant id of the request's Bearer key (401 without a valid one)."""
+    header = request.headers.get("authorization", "")
+    scheme, _, key = header.partition(" ")
+    if header and scheme.lower() != "bearer":
+        raise AuthError("use 'Authorization: Bearer <key>'")
+    return authenticate(services(request).db, key.strip() or None)

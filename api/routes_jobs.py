@@ -1,0 +1,49 @@
+"""``/v1/jobs``: create, list, get, cancel, retry."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends
+
+from service.jobs import (
+    JobSpec, cancel_job, cell_counts, create_job, get_job_row, job_cells, job_record, list_job_rows,
+    queued_cell_ids, retry_job,
+)  # fmt: skip
+from service.scenes import get_scene_row
+
+from api.deps import Services, services, tenant
+
+router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
+
+
+@router.post("", status_code=201, summary="Create a job: one impostor per view cell")
+def submit_job(spec: JobSpec, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
+    scene = get_scene_row(svc.db, tenant_id, spec.scene_id)
+    job = create_job(svc.db, tenant_id, scene, spec)
+    svc.enqueue(queued_cell_ids(svc.db, job.id))
+    return job_record(job, job_cells(svc.db, job.id))
+
+
+@router.get("", summary="List jobs (filter by state or scene)")
+def list_jobs(state: str | None = None, scene_id: str | None = None, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> list[dict]:
+    jobs = list_job_rows(svc.db, tenant_id, state, scene_id)
+    cells = cell_counts(svc.db, [job.id for job in jobs])
+    return [job_record(job, cells[job.id], with_cells=False) for job in jobs]
+
+
+@router.get("/{job_id}", summary="One job: state, per-cell progress, counts, timings, errors, ETA")
+def get_job(job_id: str, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
+    job = get_job_row(svc.db, tenant_id, job_id)
+    return job_record(job, job_cells(svc.db, job.id))
+
+
+@router.post("/{job_id}/cancel", summary="Cancel: queued cells never run, running cells stop at the next layer")
+def cancel(job_id: str, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
+    job = cancel_job(svc.db, tenant_id, job_id)
+    return job_record(job, job_cells(svc.db, job.id))
+
+
+@router.post("/{job_id}/retry", summary="Queue a failed job's failed cells again")
+def retry(job_id: str, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
+    svc.enqueue(retry_job(svc.db, tenant_id, job_id))
+    job = get_job_row(svc.db, tenant_id, job_id)
+    return job_record(job, job_cells(svc.db, job.id))

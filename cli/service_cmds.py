@@ -1,0 +1,91 @@
+"""``farfield up``, ``farfield worker`` and ``farfield keys``: run the service and manage API keys."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+import click
+
+from service.db import Database
+from service.keys import create_key, list_keys, revoke_key
+from service.settings import Settings
+
+
+@click.command("up")
+@click.option("--workers", type=int, default=None, help="Render workers to start (default: one per GPU, at least one; FARFIELD_WORKERS).")
+def up(workers):
+    """Start the service with its embedded defaults: Redis, the API and render workers.
+
+    Prints the dashboard URL and the admin API key; Ctrl-C or SIGTERM stops everything.
+    """
+    from service.supervisor import Service, render_devices
+
+    service = Service(Settings.from_env(), workers=workers or render_devices())
+    try:
+        service.start()
+        click.echo(f"farfield is up: dashboard {service.url}/  API {service.url}/v1  docs {service.url}/docs")
+        click.echo(f"admin API key: {service.key}")
+        click.echo(f"data: {service.settings.home}   workers: {service.workers}   broker: {service.settings.redis_url}")
+        click.echo("press Ctrl-C to stop", err=True)
+        sys.stdout.flush()
+        service.watch()
+    finally:
+        service.stop()
+    click.echo("farfield stopped", err=True)
+
+
+@click.command("worker", context_settings={"ignore_unknown_options": True})
+@click.option("--concurrency", "-c", type=int, default=1, show_default=True, help="Cells rendered at once (one per EGL device).")
+@click.option("--name", default="worker", show_default=True)
+def worker(concurrency, name):
+    """Join this machine to a running service as a render worker (needs REDIS_URL and DATABASE_URL)."""
+    from service.supervisor import worker_command
+
+    settings = Settings.from_env()
+    if settings.redis_url is None:
+        raise click.UsageError("set REDIS_URL (and DATABASE_URL, FARFIELD_BLOB_DIR) to the service's shared Redis, database and blobs")
+    Database(settings.database_url).migrate()
+    command = worker_command(name, concurrency)
+    os.execvpe(command[0], command, {**os.environ, **settings.environment()})
+
+
+@click.group("keys")
+def keys():
+    """Create, revoke and list API keys (stored hashed; each belongs to a tenant)."""
+
+
+def _db() -> Database:
+    db = Database(Settings.from_env().database_url)
+    db.migrate()
+    return db
+
+
+@keys.command("create")
+@click.option("--tenant", required=True, help="Tenant name (created if new).")
+@click.option("--json", "as_json", is_flag=True)
+def keys_create(tenant, as_json):
+    """Create a key for TENANT and print it (it is shown only once)."""
+    key, prefix = create_key(_db(), tenant)
+    click.echo(json.dumps({"key": key, "prefix": prefix, "tenant": tenant}) if as_json else key)
+
+
+@keys.command("revoke")
+@click.argument("prefix")
+def keys_revoke(prefix):
+    """Revoke the key whose prefix (the part after ``ff_``) is PREFIX."""
+    revoke_key(_db(), prefix)
+    click.echo(f"revoked {prefix}")
+
+
+@keys.command("list")
+@click.option("--json", "as_json", is_flag=True)
+def keys_list(as_json):
+    """List keys: prefix, tenant, revoked."""
+    rows = list_keys(_db())
+    if as_json:
+        click.echo(json.dumps(rows))
+    else:
+        for row in rows:
+            click.echo(f"{row['prefix']}\t{row['tenant']}\t{'revoked' if row['revoked'] else 'active'}")

@@ -1,0 +1,100 @@
+"""One cell of a job, start to end: claim it, bake its impostor, store the bundle, record the outcome.
+
+This is everything a worker task does (``workers/tasks.py`` is a few lines around it).  The bundle
+is stored under a key derived from everything that determines its bytes
+(:func:`service.jobs.result_key`), manifest last, so a bundle whose manifest exists is complete,
+and a redelivered cell finds it and does not bake again.
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+import time
+from pathlib import Path
+
+from core.bake import bake_layered
+from core.bundle import MANIFEST_NAME, write_bundle
+from core.errors import ErrorKind, FarfieldError
+from core.viewcells import viewcell_from_dict
+from service.blobs import LocalBlobStore
+from service.db import Database, JobRow, SceneRow
+from service.jobs import bake_options, claim_cell, end_cell, finish_job_if_complete, job_cancelled, result_key, set_progress
+from service.scenes import load_stored_scene
+
+# How often a running cell looks at its job's state and reports progress.
+CHECK_EVERY_S = 0.5
+
+
+class CellCancelled(Exception):
+    """The cell's job was cancelled while it ran."""
+
+
+class RetryCell(Exception):
+    """The attempt failed in a way worth retrying, after ``countdown`` seconds."""
+
+    def __init__(self, message: str, countdown: float) -> None:
+        super().__init__(message)
+        self.countdown = countdown
+
+
+def backoff(attempt: int) -> float:
+    """Seconds before attempt ``attempt + 1``: 2, 4, 8, ... capped at 60."""
+    return float(min(2**attempt, 60))
+
+
+def store_bundle(blobs: LocalBlobStore, key: str, directory: Path) -> None:
+    """Put a bundle directory's files under ``key``, the manifest last."""
+    files = sorted(p for p in directory.iterdir() if p.is_file())
+    for file in sorted(files, key=lambda p: p.name == MANIFEST_NAME):
+        blobs.put_bytes(f"{key}/{file.name}", file.read_bytes())
+
+
+def run_cell(db: Database, blobs: LocalBlobStore, cell_id: str, max_attempts: int) -> str:
+    """Run one cell; returns its new state ("done", "failed", "cancelled") or "skipped".
+
+    Raises :class:`RetryCell` when the attempt failed for a reason other than bad input and
+    attempts are left; the cell is queued again and the caller schedules the retry.
+    """
+    cell = claim_cell(db, cell_id)
+    if cell is None:
+        return "skipped"
+    with db.session() as s:
+        job = s.get(JobRow, cell.job_id)
+        scene_row = s.get(SceneRow, job.scene_id)
+    start = time.perf_counter()
+    last_check = [start]
+
+    def progress(stage: str, done: int, total: int) -> None:
+        if stage != "record" or time.perf_counter() - last_check[0] < CHECK_EVERY_S:
+            return
+        last_check[0] = time.perf_counter()
+        if job_cancelled(db, job.id):
+            raise CellCancelled(f"job {job.id} was cancelled")
+        set_progress(db, cell_id, 0.9 * done / max(total, 1))  # recording is most of a cell
+
+    try:
+        key = result_key(scene_row.content_hash, job.job_type, job.params, cell.viewcell)
+        if not blobs.exists(f"{key}/{MANIFEST_NAME}"):
+            scene = load_stored_scene(blobs, scene_row)
+            impostor = bake_layered(scene, viewcell_from_dict(cell.viewcell), bake_options(job.params), job.params["objects"], progress)
+            with tempfile.TemporaryDirectory(prefix="farfield-cell-") as tmp:
+                write_bundle(impostor, Path(tmp) / "bundle")
+                store_bundle(blobs, key, Path(tmp) / "bundle")
+        stats = json.loads(blobs.read_bytes(f"{key}/{MANIFEST_NAME}"))["stats"]
+    except CellCancelled:
+        end_cell(db, cell_id, "cancelled", seconds=time.perf_counter() - start)
+        finish_job_if_complete(db, blobs, job.id)
+        return "cancelled"
+    except Exception as error:  # noqa: BLE001 - every failure is recorded on the cell
+        message = f"{type(error).__name__}: {error}"
+        permanent = isinstance(error, FarfieldError) and error.kind in (ErrorKind.BAD_INPUT, ErrorKind.MISSING)
+        if permanent or cell.attempts >= max_attempts:
+            end_cell(db, cell_id, "failed", error=message, seconds=time.perf_counter() - start)
+            finish_job_if_complete(db, blobs, job.id)
+            return "failed"
+        end_cell(db, cell_id, "queued", error=message)
+        raise RetryCell(message, backoff(cell.attempts)) from error
+    end_cell(db, cell_id, "done", result=key, stats=stats, seconds=time.perf_counter() - start)
+    finish_job_if_complete(db, blobs, job.id)
+    return "done"

@@ -1,0 +1,357 @@
+"""Jobs and their cells: the request schema, the state machine, progress, and the impostor database index.
+
+States (kept in SQL, never in Celery results):
+
+    cell: queued -> running -> done | failed | cancelled;  running -> queued (a failed attempt that
+          will be retried; the attempt is counted)
+    job:  queued -> running -> done | failed | cancelled
+
+A job ends when its last cell does: ``done`` when every cell is done, ``failed`` when some cell
+failed, ``cancelled`` when cancelled.  The worker that ends the last cell builds the job's
+impostor database index (``jobs/<id>/index.json``): every cell's view cell, state and bundle key,
+plus the lookup from a viewpoint to the cells that serve it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import uuid
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+from sqlalchemy import func, select, update
+
+from core import __version__
+from core.bake import BakeOptions
+from core.errors import ConflictError, LayerPlanError, NotFoundError, ViewCellError
+from core.layers import plan_layers
+from core.viewcells import BoxCell, viewcell_from_dict
+from service.blobs import LocalBlobStore
+from service.db import CELL_FINAL, CellRow, Database, JobRow, SceneRow, now
+
+JOB_TYPES = ("layered",)
+MAX_CELLS = 10_000
+OPTION_NAMES = ("grid_cell", "fill_threshold", "culling", "pixel_model", "padding")
+
+
+class GridSpec(BaseModel):
+    """A grid of equal box view cells over a view-space box."""
+
+    model_config = ConfigDict(extra="forbid")
+    lo: tuple[float, float, float]
+    hi: tuple[float, float, float]
+    counts: tuple[int, int, int] = Field(description="cells along x, y, z (each >= 1)")
+
+
+class JobSpec(BaseModel):
+    """A job request (``POST /v1/jobs``): one impostor per view cell of a scene's part."""
+
+    model_config = ConfigDict(extra="forbid")
+    scene_id: str
+    job_type: Literal["layered"] = "layered"
+    viewcells: list[dict] | None = Field(None, description="explicit view cells, e.g. {'kind': 'box', 'lo': [..], 'hi': [..]}")
+    grid: GridSpec | None = Field(None, description="or a grid of box cells over a view-space box")
+    objects: list[str] | None = Field(None, description="the represented objects (default: all)")
+    resolution: int = 512
+    fov_deg: float = 45.0
+    options: dict = Field(default_factory=dict, description=f"technique parameters: {', '.join(OPTION_NAMES)}")
+
+    @model_validator(mode="after")
+    def _one_view_space(self) -> JobSpec:
+        if (self.viewcells is None) == (self.grid is None):
+            raise ValueError("give exactly one of 'viewcells' (a list) or 'grid'")
+        return self
+
+
+def grid_cells(grid: GridSpec) -> list[tuple[tuple[int, int, int], BoxCell]]:
+    """The boxes of ``grid``, x fastest, with their (i, j, k)."""
+    lo, hi = np.asarray(grid.lo, dtype=np.float64), np.asarray(grid.hi, dtype=np.float64)
+    counts = np.asarray(grid.counts)
+    if (counts < 1).any():
+        raise ViewCellError(f"grid counts must be >= 1, got {list(grid.counts)}")
+    if int(np.prod(counts)) > MAX_CELLS:
+        raise ViewCellError(f"grid of {int(np.prod(counts))} cells is over the limit of {MAX_CELLS}")
+    if not (hi > lo).all():
+        raise ViewCellError(f"grid box needs lo < hi on every axis, got lo={list(grid.lo)}, hi={list(grid.hi)}")
+    step = (hi - lo) / counts
+    cells = []
+    for k in range(counts[2]):
+        for j in range(counts[1]):
+            for i in range(counts[0]):
+                index = np.array([i, j, k])
+                # Shared faces computed from the same products, so neighbours meet exactly.
+                cells.append(((i, j, k), BoxCell(lo + step * index, np.where(index + 1 == counts, hi, lo + step * (index + 1)))))
+    return cells
+
+
+def bake_options(params: dict) -> BakeOptions:
+    """The BakeOptions of a job's stored parameters (validates them)."""
+    unknown = sorted(set(params["options"]) - set(OPTION_NAMES))
+    if unknown:
+        raise LayerPlanError(f"unknown technique parameters {unknown}; known: {list(OPTION_NAMES)}")
+    try:
+        return BakeOptions(resolution=params["resolution"], fov_deg=params["fov_deg"], **params["options"])
+    except TypeError as error:
+        raise LayerPlanError(f"bad technique parameters: {error}") from None
+
+
+def part_bounds(scene: SceneRow, objects: list[str] | None) -> np.ndarray:
+    """(2, 3) bounds of the represented objects, from the stored object summaries."""
+    by_name = {obj["name"]: obj for obj in scene.objects}
+    names = objects or list(by_name)
+    missing = [name for name in names if name not in by_name]
+    if missing:
+        raise NotFoundError(f"scene {scene.id!r} has no objects named {missing}; it has {sorted(by_name)}")
+    bounds = np.array([by_name[name]["bounds"] for name in names], dtype=np.float64)
+    return np.array([bounds[:, 0].min(axis=0), bounds[:, 1].max(axis=0)])
+
+
+def create_job(db: Database, tenant_id: str, scene: SceneRow, spec: JobSpec) -> JobRow:
+    """Validate ``spec`` against ``scene`` (every cell gets a layer plan) and store the job and cells."""
+    params = {"resolution": spec.resolution, "fov_deg": spec.fov_deg, "objects": spec.objects, "options": dict(spec.options)}
+    options = bake_options(params)
+    if spec.grid is not None:
+        cells = [(list(ijk), box) for ijk, box in grid_cells(spec.grid)]
+    else:
+        if not spec.viewcells:
+            raise ViewCellError("'viewcells' is empty")
+        if len(spec.viewcells) > MAX_CELLS:
+            raise ViewCellError(f"{len(spec.viewcells)} view cells is over the limit of {MAX_CELLS}")
+        cells = [(None, viewcell_from_dict(cell)) for cell in spec.viewcells]
+    bounds = part_bounds(scene, spec.objects)
+    for n, (_, cell) in enumerate(cells):
+        try:
+            plan_layers(cell, bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model)
+        except (LayerPlanError, ViewCellError) as error:
+            raise type(error)(f"view cell {n} ({cell.to_dict()}): {error}") from None
+    job = JobRow(
+        id=uuid.uuid4().hex, tenant_id=tenant_id, scene_id=scene.id, job_type=spec.job_type, params=params,
+        state="queued", created_at=now(),
+    )  # fmt: skip
+    with db.session() as s:
+        s.add(job)
+        s.flush()
+        for n, (grid, cell) in enumerate(cells):
+            s.add(CellRow(id=uuid.uuid4().hex, job_id=job.id, index=n, grid=grid, viewcell=cell.to_dict(), state="queued", attempts=0, progress=0.0))
+    return job
+
+
+def get_job_row(db: Database, tenant_id: str, job_id: str) -> JobRow:
+    with db.session() as s:
+        job = s.get(JobRow, job_id)
+    if job is None or job.tenant_id != tenant_id:
+        raise NotFoundError(f"job {job_id!r} not found")
+    return job
+
+
+def job_cells(db: Database, job_id: str) -> list[CellRow]:
+    with db.session() as s:
+        return list(s.scalars(select(CellRow).where(CellRow.job_id == job_id).order_by(CellRow.index)))
+
+
+def get_cell_row(db: Database, tenant_id: str, job_id: str, index: int) -> CellRow:
+    get_job_row(db, tenant_id, job_id)
+    with db.session() as s:
+        cell = s.scalar(select(CellRow).where(CellRow.job_id == job_id, CellRow.index == index))
+    if cell is None:
+        raise NotFoundError(f"job {job_id!r} has no cell {index}")
+    return cell
+
+
+def cell_record(cell: CellRow) -> dict:
+    return {
+        "index": cell.index, "grid": cell.grid, "viewcell": cell.viewcell, "state": cell.state,
+        "attempts": cell.attempts, "error": cell.error, "progress": cell.progress, "seconds": cell.seconds,
+        "stats": cell.stats, "has_result": cell.result_key is not None,
+    }  # fmt: skip
+
+
+def job_record(job: JobRow, cells: list[CellRow], with_cells: bool = True) -> dict:
+    """The API's view of a job: state, counts, progress, timings, errors, ETA."""
+    counts = {state: 0 for state in ("queued", "running", "done", "failed", "cancelled")}
+    for cell in cells:
+        counts[cell.state] += 1
+    total = len(cells)
+    finished = counts["done"] + counts["failed"] + counts["cancelled"]
+    progress = (finished + sum(c.progress for c in cells if c.state == "running")) / max(total, 1)
+    times = [c.seconds for c in cells if c.state == "done" and c.seconds is not None]
+    eta = None
+    if job.state in ("queued", "running") and times:
+        remaining = counts["queued"] + sum(1.0 - c.progress for c in cells if c.state == "running")
+        busy = max(counts["running"], 1)  # cells in flight approximates the workers serving the job
+        eta = remaining * float(np.mean(times)) / busy
+    record = {
+        "id": job.id, "scene_id": job.scene_id, "job_type": job.job_type, "state": job.state, "params": job.params,
+        "error": job.error, "cells_total": total, "counts": counts, "progress": progress, "eta_s": eta,
+        "created_at": job.created_at, "started_at": job.started_at, "finished_at": job.finished_at,
+        "seconds": {"cells_total": float(sum(times)), "cell_mean": float(np.mean(times)) if times else None,
+                    "wall": (job.finished_at or now()) - job.started_at if job.started_at else None},
+        "errors": [{"index": c.index, "error": c.error} for c in cells if c.error],
+        "has_index": job.index_key is not None,
+    }  # fmt: skip
+    if with_cells:
+        record["cells"] = [cell_record(c) for c in cells]
+    return record
+
+
+def list_job_rows(db: Database, tenant_id: str, state: str | None = None, scene_id: str | None = None) -> list[JobRow]:
+    query = select(JobRow).where(JobRow.tenant_id == tenant_id)
+    if state:
+        query = query.where(JobRow.state == state)
+    if scene_id:
+        query = query.where(JobRow.scene_id == scene_id)
+    with db.session() as s:
+        return list(s.scalars(query.order_by(JobRow.created_at.desc())))
+
+
+def cell_counts(db: Database, job_ids: list[str]) -> dict[str, list[CellRow]]:
+    with db.session() as s:
+        rows = s.scalars(select(CellRow).where(CellRow.job_id.in_(job_ids))) if job_ids else []
+        out: dict[str, list[CellRow]] = {job_id: [] for job_id in job_ids}
+        for row in rows:
+            out[row.job_id].append(row)
+        return out
+
+
+def queued_cell_ids(db: Database, job_id: str) -> list[str]:
+    with db.session() as s:
+        return list(s.scalars(select(CellRow.id).where(CellRow.job_id == job_id, CellRow.state == "queued").order_by(CellRow.index)))
+
+
+# --- the worker's side -------------------------------------------------------------------------
+
+
+def result_key(scene_hash: str, job_type: str, params: dict, viewcell: dict) -> str:
+    """Blob prefix of a cell's bundle: a digest of everything that determines its bytes.
+
+    Equal inputs (even in another job) give the same key, so a redelivered or repeated cell
+    overwrites identical bytes and never makes a second impostor.
+    """
+    blob = json.dumps(
+        {"scene": scene_hash, "type": job_type, "params": params, "viewcell": viewcell, "code": __version__},
+        sort_keys=True, separators=(",", ":"),
+    )  # fmt: skip
+    return "impostors/" + hashlib.sha256(blob.encode()).hexdigest()
+
+
+def claim_cell(db: Database, cell_id: str) -> CellRow | None:
+    """Mark the cell running and count the attempt; None when it must not run (gone, final, cancelled)."""
+    with db.session() as s:
+        cell = s.get(CellRow, cell_id, with_for_update=True)
+        if cell is None or cell.state in CELL_FINAL:
+            return None
+        job = s.get(JobRow, cell.job_id)
+        if job.state == "cancelled":
+            cell.state, cell.finished_at = "cancelled", now()
+            return None
+        cell.state, cell.attempts, cell.started_at, cell.progress, cell.error = "running", cell.attempts + 1, now(), 0.0, None
+        if job.state == "queued":
+            job.state, job.started_at = "running", now()
+        return cell
+
+
+def job_cancelled(db: Database, job_id: str) -> bool:
+    with db.session() as s:
+        return s.scalar(select(JobRow.state).where(JobRow.id == job_id)) == "cancelled"
+
+
+def set_progress(db: Database, cell_id: str, fraction: float) -> None:
+    with db.session() as s:
+        s.execute(update(CellRow).where(CellRow.id == cell_id, CellRow.state == "running").values(progress=fraction))
+
+
+def end_cell(db: Database, cell_id: str, state: str, *, result: str | None = None, stats: dict | None = None, error: str | None = None, seconds: float | None = None) -> None:
+    """Move a running cell to ``state`` (done, failed, cancelled, or queued for another attempt)."""
+    with db.session() as s:
+        cell = s.get(CellRow, cell_id)
+        cell.state, cell.error = state, error
+        if state == "queued":
+            cell.progress = 0.0
+        else:
+            cell.finished_at, cell.seconds = now(), seconds
+            cell.progress = 1.0 if state == "done" else cell.progress
+        if result is not None:
+            cell.result_key, cell.stats = result, stats
+
+
+def finish_job_if_complete(db: Database, blobs: LocalBlobStore, job_id: str) -> bool:
+    """End the job when no cell is left to run and write its index; True if this call ended it."""
+    with db.session() as s:
+        open_cells = s.scalar(select(func.count()).select_from(CellRow).where(CellRow.job_id == job_id, CellRow.state.in_(("queued", "running"))))
+        if open_cells:
+            return False
+        job = s.get(JobRow, job_id)
+        if job.state == "cancelled":
+            if job.finished_at is None:
+                job.finished_at = now()
+            return False
+        states = set(s.scalars(select(CellRow.state).where(CellRow.job_id == job_id)))
+        final = "failed" if "failed" in states else "done" if states <= {"done"} else "cancelled"
+        # One winner among workers that end cells at once: the conditional update succeeds once.
+        won = s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state.in_(("queued", "running"))).values(state=final, finished_at=now())).rowcount
+    if won:
+        write_index(db, blobs, job_id)
+    return bool(won)
+
+
+def index_document(job: JobRow, cells: list[CellRow]) -> dict:
+    """The impostor database index of a job: its cells, their view cells, states and bundles."""
+    return {
+        "format": "farfield-impostor-database", "format_version": 1, "code_version": __version__,
+        "job": job.id, "scene": job.scene_id, "job_type": job.job_type, "params": job.params,
+        "cells": [
+            {"index": c.index, "grid": c.grid, "viewcell": c.viewcell, "state": c.state,
+             "bundle": f"cells/{c.index:05d}/" if c.result_key else None}
+            for c in cells
+        ],
+    }  # fmt: skip
+
+
+def write_index(db: Database, blobs: LocalBlobStore, job_id: str) -> str:
+    with db.session() as s:
+        job = s.get(JobRow, job_id)
+    cells = job_cells(db, job_id)
+    key = f"jobs/{job_id}/index.json"
+    blobs.put_bytes(key, json.dumps(index_document(job, cells), sort_keys=True, indent=1).encode())
+    with db.session() as s:
+        s.execute(update(JobRow).where(JobRow.id == job_id).values(index_key=key))
+    return key
+
+
+# --- the API's side ----------------------------------------------------------------------------
+
+
+def cancel_job(db: Database, tenant_id: str, job_id: str) -> JobRow:
+    """Cancel: queued cells never run; running cells stop at their next layer."""
+    job = get_job_row(db, tenant_id, job_id)
+    if job.state in ("done", "failed", "cancelled"):
+        raise ConflictError(f"job {job_id!r} is already {job.state}")
+    with db.session() as s:
+        s.execute(update(JobRow).where(JobRow.id == job_id).values(state="cancelled"))
+        s.execute(update(CellRow).where(CellRow.job_id == job_id, CellRow.state == "queued").values(state="cancelled", finished_at=now()))
+    with db.session() as s:
+        running = s.scalar(select(func.count()).select_from(CellRow).where(CellRow.job_id == job_id, CellRow.state == "running"))
+        if not running:
+            s.execute(update(JobRow).where(JobRow.id == job_id).values(finished_at=now()))
+    return get_job_row(db, tenant_id, job_id)
+
+
+def retry_job(db: Database, tenant_id: str, job_id: str) -> list[str]:
+    """Queue the failed cells of a failed job again (attempts reset); returns their ids."""
+    job = get_job_row(db, tenant_id, job_id)
+    if job.state != "failed":
+        raise ConflictError(f"only a failed job can be retried; job {job_id!r} is {job.state}")
+    with db.session() as s:
+        ids = list(s.scalars(select(CellRow.id).where(CellRow.job_id == job_id, CellRow.state == "failed")))
+        s.execute(update(CellRow).where(CellRow.id.in_(ids)).values(state="queued", attempts=0, error=None, progress=0.0, finished_at=None))
+        s.execute(update(JobRow).where(JobRow.id == job_id).values(state="running", finished_at=None, index_key=None))
+    return ids
+
+
+def lookup(cells: list[CellRow], point) -> list[CellRow]:
+    """The cells whose view cell contains ``point`` (the impostors that serve that viewpoint)."""
+    p = np.asarray(point, dtype=np.float64).reshape(1, 3)
+    return [c for c in cells if bool(viewcell_from_dict(c.viewcell).contains(p, tol=1e-9)[0])]

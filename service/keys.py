@@ -1,0 +1,89 @@
+"""API keys: ``ff_<prefix>_<secret>``, stored as a SHA-256 digest; each key belongs to a tenant."""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+import secrets
+import uuid
+
+from sqlalchemy import select
+
+from core.errors import AuthError, NotFoundError
+from service.db import ApiKey, Database, Tenant, now
+
+ADMIN_TENANT = "admin"
+
+
+def _digest(key: str) -> str:
+    return hashlib.sha256(key.encode()).hexdigest()
+
+
+def _prefix_of(key: str) -> str | None:
+    parts = key.split("_")
+    return parts[1] if len(parts) == 3 and parts[0] == "ff" and parts[1] and parts[2] else None
+
+
+def tenant_named(db: Database, name: str, create: bool = True) -> Tenant:
+    """The tenant called ``name`` (created when missing and ``create``)."""
+    with db.session() as s:
+        tenant = s.scalar(select(Tenant).where(Tenant.name == name))
+        if tenant is None:
+            if not create:
+                raise NotFoundError(f"no tenant named {name!r}")
+            tenant = Tenant(id=uuid.uuid4().hex, name=name, created_at=now())
+            s.add(tenant)
+        return tenant
+
+
+def create_key(db: Database, tenant_name: str) -> tuple[str, str]:
+    """A new key for ``tenant_name`` (the tenant is created if new): (key, prefix).  The key is shown once."""
+    tenant = tenant_named(db, tenant_name)
+    prefix = secrets.token_hex(6)
+    key = f"ff_{prefix}_{secrets.token_urlsafe(24).replace('_', '-')}"
+    with db.session() as s:
+        s.add(ApiKey(id=uuid.uuid4().hex, tenant_id=tenant.id, prefix=prefix, digest=_digest(key), created_at=now()))
+    return key, prefix
+
+
+def ensure_admin_key(db: Database, key: str) -> None:
+    """Store ``key`` (FARFIELD_ADMIN_KEY) for the bootstrap tenant, once."""
+    prefix = _prefix_of(key) or "admin-" + _digest(key)[:12]
+    tenant = tenant_named(db, ADMIN_TENANT)
+    with db.session() as s:
+        row = s.scalar(select(ApiKey).where(ApiKey.prefix == prefix))
+        if row is None:
+            s.add(ApiKey(id=uuid.uuid4().hex, tenant_id=tenant.id, prefix=prefix, digest=_digest(key), created_at=now()))
+
+
+def revoke_key(db: Database, prefix: str) -> None:
+    with db.session() as s:
+        row = s.scalar(select(ApiKey).where(ApiKey.prefix == prefix))
+        if row is None:
+            raise NotFoundError(f"no API key with prefix {prefix!r}")
+        if row.revoked_at is None:
+            row.revoked_at = now()
+
+
+def list_keys(db: Database) -> list[dict]:
+    with db.session() as s:
+        rows = s.execute(select(ApiKey, Tenant.name).join(Tenant, Tenant.id == ApiKey.tenant_id).order_by(ApiKey.created_at)).all()
+        return [
+            {"prefix": key.prefix, "tenant": name, "created_at": key.created_at, "revoked": key.revoked_at is not None}
+            for key, name in rows
+        ]
+
+
+def authenticate(db: Database, key: str | None) -> str:
+    """The tenant id of a valid, unrevoked ``key``; :class:`AuthError` otherwise."""
+    if not key:
+        raise AuthError("missing API key: send 'Authorization: Bearer <key>'")
+    digest = _digest(key)
+    prefix = _prefix_of(key) or "admin-" + digest[:12]
+    with db.session() as s:
+        row = s.scalar(select(ApiKey).where(ApiKey.prefix == prefix))
+    if row is None or not hmac.compare_digest(row.digest, digest):
+        raise AuthError("unknown API key")
+    if row.revoked_at is not None:
+        raise AuthError("this API key has been revoked")
+    return row.tenant_id

@@ -1,0 +1,123 @@
+"""Scene uploads: streamed into the blob store, validated by parsing, recorded in the database.
+
+A failed upload (too large, empty, unparsable) leaves neither a row nor a blob behind.
+"""
+
+from __future__ import annotations
+
+import re
+import threading
+import uuid
+from collections import OrderedDict
+from pathlib import PurePath
+from typing import BinaryIO
+
+from sqlalchemy import select
+
+from core.errors import ConflictError, NotFoundError, SceneLoadError
+from core.exchange import load_scene_bytes, supported_extensions
+from core.scene import Scene
+from service.blobs import LocalBlobStore
+from service.db import CELL_FINAL, Database, JobRow, SceneRow, now
+
+
+def safe_file_name(name: str) -> str:
+    """The base name of an uploaded file with anything but letters, digits, ``.-_`` replaced.
+
+    >>> safe_file_name("../x/my scene.GLB")
+    'my_scene.GLB'
+    """
+    base = PurePath((name or "").replace("\\", "/")).name
+    return re.sub(r"[^A-Za-z0-9._-]", "_", base).lstrip(".") or "scene"
+
+
+def scene_record(row: SceneRow) -> dict:
+    """The API's view of a stored scene."""
+    return {
+        "id": row.id, "name": row.name, "size_bytes": row.size_bytes, "content_hash": row.content_hash,
+        "triangles": row.triangles, "bounds": row.bounds, "objects": row.objects, "created_at": row.created_at,
+    }  # fmt: skip
+
+
+def ingest_scene(db: Database, blobs: LocalBlobStore, tenant_id: str, file_name: str, source: BinaryIO, limit: int) -> SceneRow:
+    """Store and validate one uploaded scene file; returns its row.
+
+    Raises :class:`SceneLoadError` (bad format, empty, unparsable), :class:`UploadTooLargeError`.
+    """
+    name = safe_file_name(file_name)
+    extension = PurePath(name).suffix.lower().lstrip(".")
+    if extension not in supported_extensions():
+        shown = f"'.{extension}'" if extension else "no extension"
+        raise SceneLoadError(f"{name}: unsupported scene format {shown}; supported: " + ", ".join("." + e for e in supported_extensions()))
+    scene_id = uuid.uuid4().hex
+    prefix = f"scenes/{scene_id}"
+    key = f"{prefix}/{name}"
+    try:
+        size = blobs.put_stream(key, source, limit)
+        if size == 0:
+            raise SceneLoadError(f"{name}: the file is empty")
+        scene = load_scene_bytes(blobs.read_bytes(key), extension, name)
+        row = SceneRow(
+            id=scene_id, tenant_id=tenant_id, name=name, extension=extension, blob_key=key, size_bytes=size,
+            content_hash=scene.content_hash, triangles=scene.triangle_count, bounds=scene.bounds.tolist(),
+            objects=[obj.summary() for obj in scene.objects], created_at=now(),
+        )  # fmt: skip
+        with db.session() as s:
+            s.add(row)
+    except BaseException:
+        blobs.delete_prefix(prefix)
+        raise
+    _remember(row, scene)
+    return row
+
+
+def get_scene_row(db: Database, tenant_id: str, scene_id: str) -> SceneRow:
+    """The tenant's scene ``scene_id``; another tenant's id is not found."""
+    with db.session() as s:
+        row = s.get(SceneRow, scene_id)
+    if row is None or row.tenant_id != tenant_id:
+        raise NotFoundError(f"scene {scene_id!r} not found")
+    return row
+
+
+def list_scene_rows(db: Database, tenant_id: str) -> list[SceneRow]:
+    with db.session() as s:
+        return list(s.scalars(select(SceneRow).where(SceneRow.tenant_id == tenant_id).order_by(SceneRow.created_at.desc())))
+
+
+def delete_scene(db: Database, blobs: LocalBlobStore, tenant_id: str, scene_id: str) -> None:
+    """Delete a scene and its finished jobs' rows; refused while one of its jobs still runs."""
+    row = get_scene_row(db, tenant_id, scene_id)
+    with db.session() as s:
+        jobs = list(s.scalars(select(JobRow).where(JobRow.scene_id == scene_id)))
+        active = [job.id for job in jobs if job.state not in CELL_FINAL]
+        if active:
+            raise ConflictError(f"scene {scene_id!r} is used by unfinished jobs {active}; cancel them first")
+        for job in jobs:
+            s.delete(job)
+        s.delete(s.get(SceneRow, scene_id))
+    blobs.delete_prefix(row.blob_key.rsplit("/", 1)[0])
+
+
+# Scenes parsed in this process, by content hash: a worker loads each scene once, not once per cell.
+_CACHE: OrderedDict[str, Scene] = OrderedDict()
+_CACHE_LOCK = threading.Lock()
+CACHED_SCENES = 2
+
+
+def _remember(row: SceneRow, scene: Scene) -> None:
+    with _CACHE_LOCK:
+        _CACHE[row.content_hash] = scene
+        _CACHE.move_to_end(row.content_hash)
+        while len(_CACHE) > CACHED_SCENES:
+            _CACHE.popitem(last=False)
+
+
+def load_stored_scene(blobs: LocalBlobStore, row: SceneRow) -> Scene:
+    """The parsed scene of ``row`` (parsed once per process)."""
+    with _CACHE_LOCK:
+        scene = _CACHE.get(row.content_hash)
+    if scene is None:
+        scene = load_scene_bytes(blobs.read_bytes(row.blob_key), row.extension, row.name)
+        _remember(row, scene)
+    return scene

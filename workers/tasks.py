@@ -1,0 +1,31 @@
+"""Celery tasks: each is a few lines around a function of ``service``."""
+
+from __future__ import annotations
+
+import os
+
+from service.blobs import LocalBlobStore
+from service.cell_runner import RetryCell, run_cell
+from service.db import Database
+from service.settings import Settings
+from workers.app import BAKE_CELL, celery_app
+
+_STATE: dict = {}
+
+
+def _services() -> tuple[Settings, Database, LocalBlobStore]:
+    """Settings, database and blob store of this process, made after any fork (never inherited)."""
+    if _STATE.get("pid") != os.getpid():
+        settings = Settings.from_env()
+        _STATE.update(pid=os.getpid(), settings=settings, db=Database(settings.database_url), blobs=LocalBlobStore(settings.blob_dir))
+    return _STATE["settings"], _STATE["db"], _STATE["blobs"]
+
+
+@celery_app.task(bind=True, name=BAKE_CELL, max_retries=None)
+def bake_cell(self, cell_id: str) -> str:
+    """Bake one cell of a job (service.cell_runner.run_cell), retrying with backoff."""
+    settings, db, blobs = _services()
+    try:
+        return run_cell(db, blobs, cell_id, settings.max_attempts)
+    except RetryCell as retry:
+        raise self.retry(countdown=retry.countdown, exc=None) from None
