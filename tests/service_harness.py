@@ -1,0 +1,113 @@
+"""A real farfield service for tests: ``farfield up`` in a subprocess (embedded redis-server, uvicorn,
+real ``celery worker`` processes, SQLite, a blob directory), and a small HTTP client for it."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import httpx
+
+ROOT = Path(__file__).resolve().parents[1]
+ADMIN_KEY = "ff_testadmin_0123456789abcdef"
+BUNNY = ROOT.parent / "shared" / "scenes" / "stanford_bunny" / "bun_zipper.ply"
+# A 2x2x1 grid of cells in front of the bunny (bounds x -0.095..0.061, y 0.033..0.187, z -0.062..0.059).
+BUNNY_GRID = {"lo": [-0.6, 0.05, -0.05], "hi": [-0.4, 0.15, 0.05], "counts": [2, 2, 1]}
+
+
+def _children(pid: int) -> list[int]:
+    out = subprocess.run(["pgrep", "-P", str(pid)], capture_output=True, text=True).stdout
+    return [int(p) for p in out.split()]
+
+
+def cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
+@dataclass
+class RunningService:
+    process: subprocess.Popen
+    home: Path
+    url: str
+    env: dict
+
+    def client(self, key: str | None = ADMIN_KEY) -> httpx.Client:
+        headers = {"Authorization": f"Bearer {key}"} if key else {}
+        return httpx.Client(base_url=self.url, headers=headers, timeout=60)
+
+    def cli(self, *args: str) -> subprocess.CompletedProcess:
+        """Run ``farfield ARGS`` against this service's settings."""
+        return subprocess.run([sys.executable, "-m", "cli.main", *args], cwd=ROOT, env=self.env, capture_output=True, text=True, timeout=120)
+
+    def descendants(self) -> list[int]:
+        found, todo = [], [self.process.pid]
+        while todo:
+            for child in _children(todo.pop()):
+                found.append(child)
+                todo.append(child)
+        return found
+
+    def worker_pool_children(self) -> list[int]:
+        """Pids of the celery pool processes (the ones that render)."""
+        mains = [p for p in _children(self.process.pid) if "celery" in cmdline(p)]
+        return [c for m in mains for c in _children(m)]
+
+    def redis_pid(self) -> int:
+        return next(p for p in _children(self.process.pid) if "redis-server" in cmdline(p))
+
+    def stop(self) -> int:
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+            try:
+                self.process.wait(60)
+            except subprocess.TimeoutExpired:
+                for pid in self.descendants():
+                    os.kill(pid, signal.SIGKILL)
+                self.process.kill()
+        return self.process.wait()
+
+
+def start_service(home: Path, **extra_env: str) -> RunningService:
+    env = {
+        **os.environ, "FARFIELD_HOME": str(home), "FARFIELD_PORT": "0", "FARFIELD_WORKERS": "1",
+        "FARFIELD_ADMIN_KEY": ADMIN_KEY, "FARFIELD_MAX_UPLOAD_MB": "5", **extra_env,
+    }  # fmt: skip
+    env.pop("REDIS_URL", None)
+    env.pop("DATABASE_URL", None)
+    process = subprocess.Popen([sys.executable, "-m", "cli.main", "up"], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    url, lines = None, []
+    deadline = time.monotonic() + 120
+    while url is None and time.monotonic() < deadline:
+        line = process.stdout.readline()
+        if not line:
+            raise RuntimeError("farfield up exited:\n" + "".join(lines))
+        lines.append(line)
+        if line.startswith("farfield is up: dashboard "):
+            url = line.split()[4].rstrip("/")
+    if url is None:
+        process.kill()
+        raise RuntimeError("farfield up did not start:\n" + "".join(lines))
+    return RunningService(process, home, url, env)
+
+
+def wait_for_job(client: httpx.Client, job_id: str, states=("done", "failed", "cancelled"), timeout: float = 300) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        job = client.get(f"/v1/jobs/{job_id}").json()
+        if job["state"] in states:
+            return job
+        time.sleep(0.2)
+    raise AssertionError(f"job {job_id} still {job['state']} after {timeout} s: {job['counts']}")
+
+
+def upload(client: httpx.Client, path: Path, name: str | None = None) -> httpx.Response:
+    with open(path, "rb") as f:
+        return client.post("/v1/scenes", files={"file": (name or path.name, f)})

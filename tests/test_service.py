@@ -1,0 +1,219 @@
+"""The service end to end with real parts: ``farfield up`` (embedded redis-server, uvicorn, a real
+``celery worker``, SQLite, blob directory) driven over HTTP."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import signal
+import time
+from pathlib import Path
+
+import numpy as np
+import PIL.Image
+import pytest
+
+from core.bake import BakeOptions, bake_layered
+from core.bundle import page_file_name, write_bundle
+from core.exchange import load_scene
+from core.viewcells import viewcell_from_dict
+from service_harness import BUNNY, BUNNY_GRID, start_service, upload, wait_for_job
+
+pytestmark = pytest.mark.skipif(not BUNNY.exists(), reason="needs ../shared/scenes")
+
+
+@pytest.fixture(scope="module")
+def service(tmp_path_factory):
+    running = start_service(tmp_path_factory.mktemp("farfield-home"))
+    yield running
+    assert running.stop() == 0
+
+
+@pytest.fixture(scope="module")
+def client(service):
+    with service.client() as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def bunny_id(client):
+    response = upload(client, BUNNY)
+    assert response.status_code == 201, response.text
+    return response.json()["id"]
+
+
+def blob_files(service) -> set[str]:
+    root = service.home / "blobs"
+    return {str(p.relative_to(root)) for p in root.rglob("*") if p.is_file()}
+
+
+def test_upload_reports_the_scene(client, bunny_id):
+    scene = client.get(f"/v1/scenes/{bunny_id}").json()
+    assert scene["triangles"] == 69451
+    assert scene["name"] == "bun_zipper.ply"
+    assert [o["name"] for o in scene["objects"]] and len(scene["bounds"]) == 2
+    assert bunny_id in [s["id"] for s in client.get("/v1/scenes").json()]
+
+
+def test_grid_job_pages_equal_what_core_bakes(client, bunny_id, tmp_path):
+    created = client.post("/v1/jobs", json={"scene_id": bunny_id, "grid": BUNNY_GRID, "resolution": 256})
+    assert created.status_code == 201, created.text
+    job = wait_for_job(client, created.json()["id"])
+    assert job["state"] == "done", job["errors"]
+    assert job["counts"]["done"] == 4 and job["progress"] == 1.0
+    scene = load_scene(BUNNY)
+    for cell in job["cells"]:
+        manifest = client.get(f"/v1/jobs/{job['id']}/cells/{cell['index']}/manifest.json").json()
+        local = write_bundle(bake_layered(scene, viewcell_from_dict(cell["viewcell"]), BakeOptions(resolution=256)), tmp_path / str(cell["index"]))
+        assert len(manifest["pages"]) >= 1
+        for page in range(len(manifest["pages"])):
+            served = client.get(f"/v1/jobs/{job['id']}/cells/{cell['index']}/atlas/{page}.png")
+            assert served.status_code == 200 and served.headers["content-type"] == "image/png"
+            decoded = np.asarray(PIL.Image.open(io.BytesIO(served.content)))
+            expected = np.asarray(PIL.Image.open(tmp_path / str(cell["index"]) / page_file_name(page)))
+            np.testing.assert_array_equal(decoded, expected)
+        zipped = client.get(f"/v1/jobs/{job['id']}/cells/{cell['index']}/bundle.zip")
+        assert zipped.status_code == 200 and zipped.content[:2] == b"PK"
+    database = client.get(f"/v1/jobs/{job['id']}/database.zip")
+    assert database.status_code == 200
+    import zipfile
+
+    names = zipfile.ZipFile(io.BytesIO(database.content)).namelist()
+    assert "index.json" in names and sum(n.endswith("manifest.json") for n in names) == 4
+    centre = np.mean([viewcell_from_dict(job["cells"][0]["viewcell"]).center], axis=0)
+    served = client.get(f"/v1/jobs/{job['id']}/lookup", params=dict(zip("xyz", centre.tolist()))).json()
+    assert [c["index"] for c in served] == [0]
+
+
+@pytest.mark.parametrize(
+    "name, content, status, message",
+    [
+        ("broken.glb", b"glTF\x02\x00\x00\x00garbage" * 10, 422, "broken.glb"),
+        ("empty.ply", b"", 422, "empty"),
+        ("notes.txt", b"hello", 422, "unsupported scene format"),
+        ("big.stl", b"\0" * (6 * 2**20), 413, "limit"),
+    ],
+)
+def test_bad_uploads_leave_nothing_behind(service, client, name, content, status, message, tmp_path):
+    before_rows, before_blobs = client.get("/v1/scenes").json(), blob_files(service)
+    response = client.post("/v1/scenes", files={"file": (name, content)})
+    assert response.status_code == status, response.text
+    assert message in response.json()["detail"]
+    assert client.get("/v1/scenes").json() == before_rows
+    assert blob_files(service) == before_blobs
+    assert client.get("/v1/health").json()["status"] == "ok"
+
+
+@pytest.mark.parametrize(
+    "change, status, message",
+    [
+        ({"resolution": 0}, 422, "resolution"),
+        ({"fov_deg": 200}, 422, "field of view"),
+        ({"grid": None, "viewcells": [{"kind": "box", "lo": [-0.01, 0.1, -0.01], "hi": [0.01, 0.12, 0.01]}]}, 422, "view cell 0"),
+        ({"scene_id": "0" * 32}, 404, "not found"),
+        ({"objects": ["nope"]}, 404, "no objects named"),
+        ({"options": {"grid_cell": 0}}, 422, "grid cell"),
+        ({"grid": {"lo": [0, 0, 0], "hi": [1, 1, 1], "counts": [0, 1, 1]}}, 422, "counts"),
+    ],
+)
+def test_bad_job_parameters_are_refused(client, bunny_id, change, status, message):
+    before = client.get("/v1/jobs").json()
+    spec = {"scene_id": bunny_id, "grid": BUNNY_GRID, "resolution": 256, **change}
+    spec = {k: v for k, v in spec.items() if v is not None}
+    response = client.post("/v1/jobs", json=spec)
+    assert response.status_code == status, response.text
+    assert message in response.text
+    assert client.get("/v1/jobs").json() == before
+
+
+def test_unknown_ids_are_404(client):
+    for path in ("/v1/scenes/nope", "/v1/jobs/nope", "/v1/jobs/nope/cells/0/bundle.zip", "/v1/jobs/nope/database.zip"):
+        assert client.get(path).status_code == 404, path
+
+
+def test_auth(service, client, bunny_id):
+    with service.client(key=None) as anonymous:
+        assert anonymous.get("/v1/scenes").status_code == 401
+        assert anonymous.post("/v1/scenes", files={"file": ("x.ply", b"x")}).status_code == 401
+        assert anonymous.get("/v1/health").status_code == 200
+    with service.client(key="ff_bogus_key") as bogus:
+        assert bogus.get("/v1/scenes").status_code == 401
+    made = service.cli("keys", "create", "--tenant", "other", "--json")
+    assert made.returncode == 0, made.stderr
+    other_key = json.loads(made.stdout)
+    with service.client(key=other_key["key"]) as other:
+        assert other.get("/v1/scenes").json() == []
+        assert other.get(f"/v1/scenes/{bunny_id}").status_code == 404
+        jobs = client.get("/v1/jobs").json()
+        if jobs:
+            assert other.get(f"/v1/jobs/{jobs[0]['id']}").status_code == 404
+        assert other.post("/v1/jobs", json={"scene_id": bunny_id, "grid": BUNNY_GRID}).status_code == 404
+        revoked = service.cli("keys", "revoke", other_key["prefix"])
+        assert revoked.returncode == 0, revoked.stderr
+        assert other.get("/v1/scenes").status_code == 401
+    unknown = service.cli("keys", "revoke", "nosuchprefix")
+    assert unknown.returncode == 3 and unknown.stderr.strip() == "farfield: error: no API key with prefix 'nosuchprefix'"
+
+
+def test_cancel_stops_the_job(client, bunny_id):
+    grid = {"lo": [-0.6, 0.05, -0.05], "hi": [-0.4, 0.15, 0.05], "counts": [4, 4, 1]}
+    job_id = client.post("/v1/jobs", json={"scene_id": bunny_id, "grid": grid, "resolution": 512}).json()["id"]
+    wait_for_job(client, job_id, states=("running",), timeout=120)
+    cancelled = client.post(f"/v1/jobs/{job_id}/cancel")
+    assert cancelled.status_code == 200 and cancelled.json()["state"] == "cancelled"
+    time.sleep(3)  # a running cell stops at its next layer
+    job = client.get(f"/v1/jobs/{job_id}").json()
+    assert job["state"] == "cancelled"
+    assert job["counts"]["queued"] == 0 and job["counts"]["running"] == 0
+    assert job["counts"]["cancelled"] >= 10
+    done = job["counts"]["done"]
+    time.sleep(2)
+    assert client.get(f"/v1/jobs/{job_id}").json()["counts"]["done"] == done  # no cell started after the cancel
+    assert client.post(f"/v1/jobs/{job_id}/cancel").status_code == 409
+
+
+def test_worker_killed_mid_cell_loses_nothing(service, client, bunny_id):
+    """SIGKILL the pool process while it renders: the cell is delivered again, the job completes, and
+    every cell has exactly one impostor."""
+    grid = {"lo": [-0.6, 0.05, -0.05], "hi": [-0.4, 0.15, 0.05], "counts": [3, 1, 1]}
+    job_id = client.post("/v1/jobs", json={"scene_id": bunny_id, "grid": grid, "resolution": 1024}).json()["id"]
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        job = client.get(f"/v1/jobs/{job_id}").json()
+        if any(c["state"] == "running" and c["progress"] > 0 for c in job["cells"]):
+            break
+        time.sleep(0.05)
+    victims = service.worker_pool_children()
+    assert victims, "no celery pool process found"
+    for pid in victims:
+        os.kill(pid, signal.SIGKILL)
+    job = wait_for_job(client, job_id, timeout=300)
+    assert job["state"] == "done", job["errors"]
+    assert job["counts"]["done"] == 3
+    assert max(c["attempts"] for c in job["cells"]) >= 2  # the killed cell ran again
+    served = [client.get(f"/v1/jobs/{job_id}/cells/{c['index']}/manifest.json").json() for c in job["cells"]]
+    assert [m["viewcell"] for m in served] == [c["viewcell"] for c in job["cells"]]
+    # One stored impostor per cell of this job, however often its cell was delivered.
+    stored = [json.loads(m.read_text()) for m in (service.home / "blobs" / "impostors").glob("*/manifest.json")]
+    ours = [m for m in stored if m["resolution"] == 1024]
+    assert sorted(json.dumps(m["viewcell"], sort_keys=True) for m in ours) == sorted(json.dumps(c["viewcell"], sort_keys=True) for c in job["cells"])
+
+
+def test_redis_restart_during_a_job(service, client, bunny_id):
+    grid = {"lo": [-0.6, 0.05, -0.05], "hi": [-0.4, 0.15, 0.05], "counts": [3, 2, 1]}
+    job_id = client.post("/v1/jobs", json={"scene_id": bunny_id, "grid": grid, "resolution": 384}).json()["id"]
+    wait_for_job(client, job_id, states=("running",), timeout=120)
+    old = service.redis_pid()
+    os.kill(old, signal.SIGTERM)  # a clean restart: the append-only file keeps the queue
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:
+        try:
+            if service.redis_pid() != old:
+                break
+        except StopIteration:
+            pass
+        time.sleep(0.1)
+    job = wait_for_job(client, job_id, timeout=300)
+    assert job["state"] == "done", job["errors"]
+    assert job["counts"]["done"] == 6
