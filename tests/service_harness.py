@@ -76,12 +76,11 @@ class RunningService:
 
 
 def start_service(home: Path, **extra_env: str) -> RunningService:
-    env = {
-        **os.environ, "FARFIELD_HOME": str(home), "FARFIELD_PORT": "0", "FARFIELD_WORKERS": "1",
+    env = {k: v for k, v in os.environ.items() if k not in ("REDIS_URL", "DATABASE_URL") and not k.startswith("FARFIELD_")}
+    env.update({
+        "FARFIELD_HOME": str(home), "FARFIELD_PORT": "0", "FARFIELD_WORKERS": "1",
         "FARFIELD_ADMIN_KEY": ADMIN_KEY, "FARFIELD_MAX_UPLOAD_MB": "5", **extra_env,
-    }  # fmt: skip
-    env.pop("REDIS_URL", None)
-    env.pop("DATABASE_URL", None)
+    })  # fmt: skip
     process = subprocess.Popen([sys.executable, "-m", "cli.main", "up"], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     url, lines = None, []
     deadline = time.monotonic() + 120
@@ -111,3 +110,23 @@ def wait_for_job(client: httpx.Client, job_id: str, states=("done", "failed", "c
 def upload(client: httpx.Client, path: Path, name: str | None = None) -> httpx.Response:
     with open(path, "rb") as f:
         return client.post("/v1/scenes", files={"file": (name or path.name, f)})
+
+
+def fresh_postgres_database(admin_url: str) -> tuple[str, callable]:
+    """A new empty database on the server of ``admin_url``: (its URL, a function that drops it)."""
+    import uuid
+
+    import sqlalchemy as sa
+
+    name = f"farfield_test_{uuid.uuid4().hex[:12]}"
+    engine = sa.create_engine(admin_url, isolation_level="AUTOCOMMIT")
+    with engine.connect() as connection:
+        connection.execute(sa.text(f'CREATE DATABASE "{name}"'))
+    url = sa.engine.make_url(admin_url).set(database=name).render_as_string(hide_password=False)
+
+    def drop() -> None:
+        with engine.connect() as connection:
+            connection.execute(sa.text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
+        engine.dispose()
+
+    return url, drop

@@ -18,16 +18,26 @@ from core.bake import BakeOptions, bake_layered
 from core.bundle import page_file_name, write_bundle
 from core.exchange import load_scene
 from core.viewcells import viewcell_from_dict
-from service_harness import BUNNY, BUNNY_GRID, start_service, upload, wait_for_job
+from service_harness import BUNNY, BUNNY_GRID, fresh_postgres_database, start_service, upload, wait_for_job
 
 pytestmark = pytest.mark.skipif(not BUNNY.exists(), reason="needs ../shared/scenes")
 
 
-@pytest.fixture(scope="module")
-def service(tmp_path_factory):
-    running = start_service(tmp_path_factory.mktemp("farfield-home"))
+@pytest.fixture(scope="module", params=["sqlite", "postgresql"])
+def service(request, tmp_path_factory):
+    """The whole suite runs on the embedded SQLite database and, where a server is reachable
+    (FARFIELD_TEST_DATABASE_URL; .ci/run starts one with scripts/postgres-server), on PostgreSQL."""
+    extra, drop = {}, None
+    if request.param == "postgresql":
+        admin_url = os.environ.get("FARFIELD_TEST_DATABASE_URL")
+        if not admin_url:
+            pytest.skip("no PostgreSQL server: set FARFIELD_TEST_DATABASE_URL (CI starts one with scripts/postgres-server)")
+        extra["DATABASE_URL"], drop = fresh_postgres_database(admin_url)
+    running = start_service(tmp_path_factory.mktemp("farfield-home"), **extra)
     yield running
     assert running.stop() == 0
+    if drop is not None:
+        drop()
 
 
 @pytest.fixture(scope="module")
@@ -217,3 +227,23 @@ def test_redis_restart_during_a_job(service, client, bunny_id):
     job = wait_for_job(client, job_id, timeout=300)
     assert job["state"] == "done", job["errors"]
     assert job["counts"]["done"] == 6
+
+
+def test_cli_submit_waits_and_downloads(service, tmp_path):
+    env_args = ("--url", service.url, "--key", service.env["FARFIELD_ADMIN_KEY"])
+    grid = ",".join(str(v) for v in [*BUNNY_GRID["lo"], *BUNNY_GRID["hi"], *BUNNY_GRID["counts"]])
+    done = service.cli("submit", str(BUNNY), "--grid", grid, "--resolution", "256", "--wait", "--download", str(tmp_path / "db"), "--json", *env_args)
+    assert done.returncode == 0, done.stderr
+    job = json.loads(done.stdout)
+    assert job["state"] == "done" and job["counts"]["done"] == 4
+    index = json.loads((tmp_path / "db" / "index.json").read_text())
+    assert [c["state"] for c in index["cells"]] == ["done"] * 4
+    for cell in index["cells"]:
+        assert (tmp_path / "db" / cell["bundle"] / "manifest.json").is_file()
+        assert (tmp_path / "db" / cell["bundle"] / "atlas-000.png").is_file()
+    listed = service.cli("jobs", "--json", *env_args)
+    assert job["id"] in [j["id"] for j in json.loads(listed.stdout)]
+    bad = service.cli("submit", job["scene_id"], "--grid", grid, "--resolution", "0", *env_args)
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "resolution" in bad.stderr
+    nobody = service.cli("jobs", "--url", service.url, "--key", "ff_wrong_key")
+    assert nobody.returncode == 6 and "unknown API key" in nobody.stderr

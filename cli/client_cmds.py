@@ -1,0 +1,197 @@
+"""``farfield submit`` and ``farfield jobs``: the service's client for pipelines and scripts.
+
+The service is found at ``--url`` (``FARFIELD_URL``, default http://127.0.0.1:8000) with the key
+``--key`` (``FARFIELD_API_KEY``, else the admin key ``farfield up`` keeps in
+``$FARFIELD_HOME/admin.key``).  HTTP errors become one line and the exit code of their kind.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import time
+import zipfile
+from pathlib import Path
+
+import click
+from tqdm import tqdm
+
+from core.errors import ErrorKind, FarfieldError
+from core.viewcells import parse_viewcell
+from service.settings import Settings
+
+STATUS_KINDS = {401: ErrorKind.UNAUTHORIZED, 404: ErrorKind.MISSING, 409: ErrorKind.CONFLICT, 413: ErrorKind.TOO_LARGE, 503: ErrorKind.RENDERER_UNAVAILABLE}
+
+
+class ServiceError(FarfieldError):
+    """The service refused a request or could not be reached."""
+
+    def __init__(self, message: str, kind: ErrorKind = ErrorKind.BAD_INPUT) -> None:
+        super().__init__(message)
+        self.kind = kind
+
+
+class JobEndedBadly(FarfieldError):
+    """The submitted job ended failed or cancelled."""
+
+    kind = ErrorKind.CONFLICT
+
+
+def _default_key() -> str | None:
+    if os.environ.get("FARFIELD_API_KEY"):
+        return os.environ["FARFIELD_API_KEY"]
+    path = Settings.from_env().home / "admin.key"
+    return path.read_text().strip() if path.exists() else None
+
+
+class Client:
+    """A thin HTTP client that turns error responses into :class:`ServiceError`."""
+
+    def __init__(self, url: str, key: str | None) -> None:
+        import httpx
+
+        self.url = url.rstrip("/")
+        self.http = httpx.Client(base_url=self.url, headers={"Authorization": f"Bearer {key}"} if key else {}, timeout=300)
+
+    def request(self, method: str, path: str, **kwargs):
+        import httpx
+
+        try:
+            response = self.http.request(method, path, **kwargs)
+        except httpx.TransportError as error:
+            raise ServiceError(f"cannot reach the service at {self.url}: {error}", ErrorKind.RENDERER_UNAVAILABLE) from None
+        if response.status_code >= 400:
+            try:
+                detail = response.json().get("detail")
+            except ValueError:
+                detail = response.text
+            if isinstance(detail, list):  # FastAPI's validation errors
+                detail = "; ".join(f"{'.'.join(str(p) for p in d.get('loc', [])[1:])}: {d.get('msg')}" for d in detail)
+            raise ServiceError(f"{detail} (HTTP {response.status_code})", STATUS_KINDS.get(response.status_code, ErrorKind.BAD_INPUT))
+        return response
+
+
+def _client_options(f):
+    f = click.option("--key", default=None, help="API key (FARFIELD_API_KEY; default: the admin key of a local farfield up).")(f)
+    return click.option("--url", envvar="FARFIELD_URL", default="http://127.0.0.1:8000", show_default=True, help="The service (FARFIELD_URL).")(f)
+
+
+def parse_grid(text: str) -> dict:
+    """``x0,y0,z0,x1,y1,z1,nx,ny,nz`` -> the API's grid.
+
+    >>> parse_grid("0,0,0,2,1,2,2,1,2")
+    {'lo': [0.0, 0.0, 0.0], 'hi': [2.0, 1.0, 2.0], 'counts': [2, 1, 2]}
+    """
+    parts = text.replace(" ", "").split(",")
+    try:
+        if len(parts) != 9:
+            raise ValueError
+        numbers = [float(p) for p in parts[:6]]
+        counts = [int(p) for p in parts[6:]]
+    except ValueError:
+        raise ServiceError(f"--grid {text!r}: expected x0,y0,z0,x1,y1,z1,nx,ny,nz") from None
+    return {"lo": numbers[:3], "hi": numbers[3:], "counts": counts}
+
+
+def wait_for(client: Client, job_id: str, show_bar: bool) -> dict:
+    """Poll the job until it ends, with a progress bar (cells) on a terminal."""
+    bar = tqdm(total=None, desc="cells", unit="cell", disable=None if show_bar else True)
+    try:
+        while True:
+            job = client.request("GET", f"/v1/jobs/{job_id}").json()
+            bar.total = job["cells_total"]
+            bar.update(job["counts"]["done"] + job["counts"]["failed"] + job["counts"]["cancelled"] - bar.n)
+            bar.set_postfix_str(job["state"])
+            if job["state"] in ("done", "failed", "cancelled"):
+                return job
+            time.sleep(0.5)
+    finally:
+        bar.close()
+
+
+def download_database(client: Client, job_id: str, directory: Path) -> Path:
+    """Fetch the job's impostor database and unpack it into ``directory`` (index.json, cells/NNNNN/...)."""
+    data = client.request("GET", f"/v1/jobs/{job_id}/database.zip").content
+    directory.mkdir(parents=True, exist_ok=True)
+    with zipfile.ZipFile(io.BytesIO(data)) as archive:
+        archive.extractall(directory)
+    return directory
+
+
+@click.command("submit")
+@click.argument("scene")
+@click.option("--grid", default=None, help="View cells: a grid x0,y0,z0,x1,y1,z1,nx,ny,nz over a view-space box.")
+@click.option("--viewcell", "viewcells", multiple=True, help="Or explicit cells (repeat): box:x0,y0,z0,x1,y1,z1 | box-center:... | shaft:...")
+@click.option("--objects", default=None, help="Comma-separated represented objects (default: all).")
+@click.option("--resolution", default=512, show_default=True, type=int)
+@click.option("--fov", default=45.0, show_default=True, type=float)
+@click.option("--option", "options", multiple=True, help="Technique parameter NAME=VALUE (grid_cell, fill_threshold, culling, pixel_model, padding).")
+@click.option("--wait", is_flag=True, help="Wait for the job to end (exit code != 0 unless it is done).")
+@click.option("--download", type=click.Path(file_okay=False), default=None, help="After --wait, unpack the impostor database here.")
+@click.option("--json", "as_json", is_flag=True, help="Print the job record as JSON.")
+@_client_options
+def submit(scene, grid, viewcells, objects, resolution, fov, options, wait, download, as_json, url, key):
+    """Submit a job for SCENE (a file to upload, or the id of an uploaded scene)."""
+    client = Client(url, key or _default_key())
+    if (grid is None) == (not viewcells):
+        raise ServiceError("give --grid or one or more --viewcell")
+    if Path(scene).is_file():
+        with open(scene, "rb") as f:
+            scene_id = client.request("POST", "/v1/scenes", files={"file": (Path(scene).name, f)}).json()["id"]
+    else:
+        scene_id = scene
+    parsed = {}
+    for item in options:
+        name, _, value = item.partition("=")
+        try:
+            parsed[name] = json.loads(value)
+        except ValueError:
+            parsed[name] = value
+    spec = {
+        "scene_id": scene_id, "resolution": resolution, "fov_deg": fov, "options": parsed,
+        "objects": [n.strip() for n in objects.split(",") if n.strip()] if objects else None,
+    }  # fmt: skip
+    if grid is not None:
+        spec["grid"] = parse_grid(grid)
+    else:
+        spec["viewcells"] = [parse_viewcell(v).to_dict() for v in viewcells]
+    job = client.request("POST", "/v1/jobs", json=spec).json()
+    if not as_json:
+        click.echo(f"job {job['id']}: {job['cells_total']} cells, {job['state']}")
+    if wait or download:
+        job = wait_for(client, job["id"], show_bar=not as_json)
+        if download and job["state"] == "done":
+            download_database(client, job["id"], Path(download))
+    if as_json:
+        click.echo(json.dumps({k: v for k, v in job.items() if k != "cells"}))
+    elif wait or download:
+        click.echo(f"job {job['id']}: {job['state']} ({job['counts']['done']}/{job['cells_total']} cells done)" + (f", database in {download}" if download and job["state"] == "done" else ""))
+    if (wait or download) and job["state"] != "done":
+        first = job["errors"][0]["error"] if job["errors"] else job["state"]
+        raise JobEndedBadly(f"job {job['id']} ended {job['state']}: {first}")
+
+
+@click.command("jobs")
+@click.argument("job_id", required=False)
+@click.option("--state", default=None, help="Only jobs in this state.")
+@click.option("--json", "as_json", is_flag=True)
+@_client_options
+def jobs(job_id, state, as_json, url, key):
+    """List jobs, or show JOB_ID."""
+    client = Client(url, key or _default_key())
+    if job_id:
+        job = client.request("GET", f"/v1/jobs/{job_id}").json()
+        if as_json:
+            click.echo(json.dumps(job))
+            return
+        click.echo(f"{job['id']}  {job['state']}  {job['counts']}  progress {job['progress']:.0%}")
+        for error in job["errors"]:
+            click.echo(f"  cell {error['index']}: {error['error']}")
+        return
+    rows = client.request("GET", "/v1/jobs", params={"state": state} if state else None).json()
+    if as_json:
+        click.echo(json.dumps(rows))
+        return
+    for job in rows:
+        click.echo(f"{job['id']}  {job['state']:<9}  {job['counts']['done']}/{job['cells_total']} cells  {job['progress']:.0%}")
