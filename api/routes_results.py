@@ -69,10 +69,10 @@ def job_database(job_id: str, tenant_id: str = Depends(tenant), svc: Services = 
         for cell in job_cells(svc.db, job_id):
             if cell.result_key is None:
                 continue
-            source = svc.blobs.path(cell.result_key)
-            for file in sorted(source.iterdir()):
-                if file.is_file() and not file.name.startswith("."):
-                    archive.write(file, f"cells/{cell.index:05d}/{file.name}")
+            for name in svc.blobs.list_files(cell.result_key):
+                with archive.open(f"cells/{cell.index:05d}/{name}", "w") as member:
+                    for chunk in svc.blobs.iter_chunks(f"{cell.result_key}/{name}"):
+                        member.write(chunk)
     return FileResponse(out.name, media_type="application/zip", filename=f"job-{job_id}.zip", background=BackgroundTask(Path(out.name).unlink, missing_ok=True))
 
 

@@ -17,7 +17,7 @@ from core.bake import bake_layered
 from core.bundle import MANIFEST_NAME, write_bundle
 from core.errors import ErrorKind, FarfieldError
 from core.viewcells import viewcell_from_dict
-from service.blobs import LocalBlobStore
+from service.blobs import BlobStore
 from service.db import Database, JobRow, SceneRow
 from service.jobs import bake_options, claim_cell, end_cell, finish_job_if_complete, job_cancelled, result_key, set_progress
 from service.scenes import load_stored_scene
@@ -43,14 +43,14 @@ def backoff(attempt: int) -> float:
     return float(min(2**attempt, 60))
 
 
-def store_bundle(blobs: LocalBlobStore, key: str, directory: Path) -> None:
+def store_bundle(blobs: BlobStore, key: str, directory: Path) -> None:
     """Put a bundle directory's files under ``key``, the manifest last."""
     files = sorted(p for p in directory.iterdir() if p.is_file())
     for file in sorted(files, key=lambda p: p.name == MANIFEST_NAME):
         blobs.put_bytes(f"{key}/{file.name}", file.read_bytes())
 
 
-def run_cell(db: Database, blobs: LocalBlobStore, cell_id: str, max_attempts: int) -> str:
+def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int) -> str:
     """Run one cell; returns its new state ("done", "failed", "cancelled") or "skipped".
 
     Raises :class:`RetryCell` when the attempt failed for a reason other than bad input and

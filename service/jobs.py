@@ -29,7 +29,7 @@ from core.bake import BakeOptions
 from core.errors import ConflictError, LayerPlanError, NotFoundError, ViewCellError
 from core.layers import plan_layers
 from core.viewcells import BoxCell, viewcell_from_dict
-from service.blobs import LocalBlobStore
+from service.blobs import BlobStore
 from service.db import CELL_FINAL, CellRow, Database, JobRow, SceneRow, now
 
 JOB_TYPES = ("layered",)
@@ -277,7 +277,7 @@ def end_cell(db: Database, cell_id: str, state: str, *, result: str | None = Non
             cell.result_key, cell.stats = result, stats
 
 
-def finish_job_if_complete(db: Database, blobs: LocalBlobStore, job_id: str) -> bool:
+def finish_job_if_complete(db: Database, blobs: BlobStore, job_id: str) -> bool:
     """End the job when no cell is left to run and write its index; True if this call ended it."""
     with db.session() as s:
         open_cells = s.scalar(select(func.count()).select_from(CellRow).where(CellRow.job_id == job_id, CellRow.state.in_(("queued", "running"))))
@@ -310,7 +310,7 @@ def index_document(job: JobRow, cells: list[CellRow]) -> dict:
     }  # fmt: skip
 
 
-def write_index(db: Database, blobs: LocalBlobStore, job_id: str) -> str:
+def write_index(db: Database, blobs: BlobStore, job_id: str) -> str:
     with db.session() as s:
         job = s.get(JobRow, job_id)
     cells = job_cells(db, job_id)

@@ -17,7 +17,7 @@ from sqlalchemy import select
 from core.errors import ConflictError, NotFoundError, SceneLoadError
 from core.exchange import load_scene_bytes, supported_extensions
 from core.scene import Scene
-from service.blobs import LocalBlobStore
+from service.blobs import BlobStore
 from service.db import CELL_FINAL, Database, JobRow, SceneRow, now
 
 
@@ -39,7 +39,7 @@ def scene_record(row: SceneRow) -> dict:
     }  # fmt: skip
 
 
-def ingest_scene(db: Database, blobs: LocalBlobStore, tenant_id: str, file_name: str, source: BinaryIO, limit: int) -> SceneRow:
+def ingest_scene(db: Database, blobs: BlobStore, tenant_id: str, file_name: str, source: BinaryIO, limit: int) -> SceneRow:
     """Store and validate one uploaded scene file; returns its row.
 
     Raises :class:`SceneLoadError` (bad format, empty, unparsable), :class:`UploadTooLargeError`.
@@ -85,7 +85,7 @@ def list_scene_rows(db: Database, tenant_id: str) -> list[SceneRow]:
         return list(s.scalars(select(SceneRow).where(SceneRow.tenant_id == tenant_id).order_by(SceneRow.created_at.desc())))
 
 
-def delete_scene(db: Database, blobs: LocalBlobStore, tenant_id: str, scene_id: str) -> None:
+def delete_scene(db: Database, blobs: BlobStore, tenant_id: str, scene_id: str) -> None:
     """Delete a scene and its finished jobs' rows; refused while one of its jobs still runs."""
     row = get_scene_row(db, tenant_id, scene_id)
     with db.session() as s:
@@ -113,7 +113,7 @@ def _remember(row: SceneRow, scene: Scene) -> None:
             _CACHE.popitem(last=False)
 
 
-def load_stored_scene(blobs: LocalBlobStore, row: SceneRow) -> Scene:
+def load_stored_scene(blobs: BlobStore, row: SceneRow) -> Scene:
     """The parsed scene of ``row`` (parsed once per process)."""
     with _CACHE_LOCK:
         scene = _CACHE.get(row.content_hash)

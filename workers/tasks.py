@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 
-from service.blobs import LocalBlobStore
+from service.blobs import BlobStore, blob_store
 from service.cell_runner import RetryCell, run_cell
 from service.db import Database
 from service.settings import Settings
@@ -13,11 +13,11 @@ from workers.app import BAKE_CELL, celery_app
 _STATE: dict = {}
 
 
-def _services() -> tuple[Settings, Database, LocalBlobStore]:
+def _services() -> tuple[Settings, Database, BlobStore]:
     """Settings, database and blob store of this process, made after any fork (never inherited)."""
     if _STATE.get("pid") != os.getpid():
         settings = Settings.from_env()
-        _STATE.update(pid=os.getpid(), settings=settings, db=Database(settings.database_url), blobs=LocalBlobStore(settings.blob_dir))
+        _STATE.update(pid=os.getpid(), settings=settings, db=Database(settings.database_url), blobs=blob_store(settings))
     return _STATE["settings"], _STATE["db"], _STATE["blobs"]
 
 
