@@ -8,7 +8,7 @@ from celery import Celery
 from fastapi import Request
 
 from core.errors import AuthError
-from service.blobs import LocalBlobStore
+from service.blobs import BlobStore
 from service.db import Database
 from service.keys import authenticate
 from service.settings import Settings
@@ -21,7 +21,7 @@ RETRY_POLICY = {"max_retries": 30, "interval_start": 0.2, "interval_step": 0.5, 
 class Services:
     settings: Settings
     db: Database
-    blobs: LocalBlobStore
+    blobs: BlobStore
     celery: Celery
 
     def enqueue(self, cell_ids: list[str]) -> None:

@@ -45,7 +45,7 @@ def worker(concurrency, name):
 
     settings = Settings.from_env()
     if settings.redis_url is None:
-        raise click.UsageError("set REDIS_URL (and DATABASE_URL, FARFIELD_BLOB_DIR) to the service's shared Redis, database and blobs")
+        raise click.UsageError("set REDIS_URL, DATABASE_URL and FARFIELD_S3_* (or a shared FARFIELD_BLOB_DIR) to the service's Redis, database and blob store")
     Database(settings.database_url).migrate()
     command = worker_command(name, concurrency)
     os.execvpe(command[0], command, {**os.environ, **settings.environment()})
