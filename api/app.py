@@ -12,13 +12,13 @@ from fastapi.responses import JSONResponse
 
 from core import __version__
 from core.errors import ErrorKind, FarfieldError
-from service.blobs import LocalBlobStore
+from service.blobs import blob_store
 from service.db import Database
 from service.keys import ensure_admin_key
 from service.settings import Settings
 from workers.app import make_celery
 
-from api import routes_jobs, routes_ops, routes_results, routes_scenes
+from api import routes_dashboard, routes_jobs, routes_ops, routes_results, routes_scenes
 from api.deps import Services
 
 
@@ -30,7 +30,7 @@ def create_app(settings: Settings, celery: Celery | None = None, migrate: bool =
     if settings.admin_key:
         ensure_admin_key(db, settings.admin_key)
     app = FastAPI(title="farfield", version=__version__, description="Impostor baking service: scenes, placement jobs, impostor databases.")
-    app.state.services = Services(settings, db, LocalBlobStore(settings.blob_dir), celery or make_celery(settings))
+    app.state.services = Services(settings, db, blob_store(settings), celery or make_celery(settings))
 
     @app.exception_handler(FarfieldError)
     async def farfield_error(_request: Request, error: FarfieldError) -> JSONResponse:
@@ -50,7 +50,7 @@ def create_app(settings: Settings, celery: Celery | None = None, migrate: bool =
                 return JSONResponse({"detail": "missing API key: send 'Authorization: Bearer <key>'", "error": "AuthError"}, status_code=401, headers={"WWW-Authenticate": "Bearer"})
         return await call_next(request)
 
-    for module in (routes_scenes, routes_jobs, routes_results, routes_ops):
+    for module in (routes_scenes, routes_jobs, routes_results, routes_ops, routes_dashboard):
         app.include_router(module.router)
     return app
 

@@ -1,0 +1,749 @@
+// farfield dashboard: plain JavaScript, no build step, no external resources.
+// Every API call carries the key from localStorage as "Authorization: Bearer <key>".
+"use strict";
+
+const KEY_STORAGE = "farfield.apiKey";
+const POLL_MS = 1000;
+const FINAL = new Set(["done", "failed", "cancelled"]);
+const SVG_NS = "http://www.w3.org/2000/svg";
+
+const $ = (id) => document.getElementById(id);
+
+const state = {
+  key: localStorage.getItem(KEY_STORAGE) || "",
+  view: "home",
+  jobId: null,
+  job: null,
+  jobFetchedAt: 0,
+  scenes: new Map(), // id -> scene record
+  map: null, // {key, rects: Map(index -> {rect, title, bar, w})}
+  level: 0, // y level shown on the map (grid jobs)
+  selected: null, // selected cell index
+  atlas: {key: null, url: null}, // what the thumbnail shows
+  polling: false,
+};
+
+// ---------------------------------------------------------------- API
+
+class ApiError extends Error {
+  constructor(status, message, kind) {
+    super(message);
+    this.status = status;
+    this.kind = kind;
+  }
+}
+
+function errorMessage(status, body) {
+  // {"detail": "...", "error": "Type"} or FastAPI's 422 {"detail": [{loc, msg}, ...]}
+  if (body && Array.isArray(body.detail)) {
+    return body.detail.map((d) => {
+      const loc = (d.loc || []).filter((p) => p !== "body").join(".");
+      return (loc ? loc + ": " : "") + (d.msg || JSON.stringify(d));
+    }).join("\n");
+  }
+  if (body && typeof body.detail === "string") return body.detail;
+  return `HTTP ${status}`;
+}
+
+async function api(path, {method = "GET", json, form, raw = false} = {}) {
+  const headers = {};
+  if (state.key) headers["Authorization"] = "Bearer " + state.key;
+  let body;
+  if (json !== undefined) {
+    headers["Content-Type"] = "application/json";
+    body = JSON.stringify(json);
+  } else if (form !== undefined) {
+    body = form;
+  }
+  let response;
+  try {
+    response = await fetch(path, {method, headers, body});
+  } catch (error) {
+    throw new ApiError(0, `cannot reach the service: ${error.message}`, "NetworkError");
+  }
+  if (!response.ok) {
+    let parsed = null;
+    try { parsed = await response.json(); } catch (_) { /* not JSON */ }
+    const error = new ApiError(response.status, errorMessage(response.status, parsed), parsed && parsed.error);
+    if (response.status === 401) showGlobalError(`API key rejected: ${error.message}`);
+    throw error;
+  }
+  if (raw) return response;
+  if (response.status === 204) return null;
+  return response.json();
+}
+
+async function download(path, filename) {
+  try {
+    const response = await api(path, {raw: true});
+    const url = URL.createObjectURL(await response.blob());
+    const a = document.createElement("a");
+    a.href = url;
+    a.download = filename;
+    document.body.appendChild(a);
+    a.click();
+    a.remove();
+    setTimeout(() => URL.revokeObjectURL(url), 10000);
+  } catch (error) {
+    showBox($("job-action-error"), `download failed: ${error.message}`);
+  }
+}
+
+// ---------------------------------------------------------------- small helpers
+
+function el(tag, attrs = {}, ...children) {
+  const node = document.createElement(tag);
+  for (const [name, value] of Object.entries(attrs)) {
+    if (value === undefined || value === null || value === false) continue;
+    if (name === "class") node.className = value;
+    else if (name === "text") node.textContent = value;
+    else node.setAttribute(name, value === true ? "" : value);
+  }
+  for (const child of children) if (child !== null && child !== undefined) node.append(child);
+  return node;
+}
+
+function svg(tag, attrs = {}) {
+  const node = document.createElementNS(SVG_NS, tag);
+  for (const [name, value] of Object.entries(attrs)) node.setAttribute(name, value);
+  return node;
+}
+
+function showBox(node, message) {
+  node.textContent = message || "";
+  node.hidden = !message;
+}
+
+function showGlobalError(message) { showBox($("global-error"), message); }
+
+function fmtNum(x, digits = 3) {
+  if (x === null || x === undefined) return "—";
+  if (typeof x !== "number") return String(x);
+  if (Number.isInteger(x)) return x.toLocaleString("en-US");
+  return Number(x.toPrecision(digits)).toString();
+}
+function fmtVec(v) { return "(" + v.map((x) => fmtNum(x, 4)).join(", ") + ")"; }
+function fmtBytes(n) {
+  if (n === null || n === undefined) return "—";
+  const units = ["B", "KiB", "MiB", "GiB"];
+  let i = 0;
+  while (n >= 1024 && i < units.length - 1) { n /= 1024; i++; }
+  return (i ? n.toFixed(1) : n) + " " + units[i];
+}
+function fmtSeconds(s) {
+  if (s === null || s === undefined) return "—";
+  if (s < 60) return s.toFixed(s < 10 ? 2 : 0) + " s";
+  const m = Math.floor(s / 60);
+  if (m < 60) return `${m} min ${Math.round(s - 60 * m)} s`;
+  return `${Math.floor(m / 60)} h ${m % 60} min`;
+}
+function fmtTime(epoch) {
+  if (!epoch) return "—";
+  return new Date(epoch * 1000).toLocaleString();
+}
+function pct(p) { return (100 * Math.max(0, Math.min(1, p || 0))).toFixed(0) + "%"; }
+function shortId(id) { return id ? id.slice(0, 8) : ""; }
+
+function setState(node, value) {
+  node.textContent = value;
+  node.className = "state " + value;
+  node.dataset.state = value;
+}
+
+function setBar(fill, job) {
+  fill.style.width = pct(job.progress);
+  fill.className = "fill " + (FINAL.has(job.state) ? job.state : "");
+  fill.dataset.progress = String(job.progress);
+  fill.dataset.state = job.state;
+}
+
+function countsText(counts, total) {
+  const parts = [`${counts.done}/${total} done`];
+  for (const name of ["running", "queued", "failed", "cancelled"]) if (counts[name]) parts.push(`${counts[name]} ${name}`);
+  return parts.join(", ");
+}
+
+function parseVec(text, name, integer = false) {
+  const parts = String(text || "").split(/[\s,;]+/).filter((s) => s !== "");
+  const values = parts.map(Number);
+  if (values.length !== 3 || values.some((v) => !Number.isFinite(v))) {
+    throw new Error(`${name}: give three numbers "x, y, z", got "${text}"`);
+  }
+  if (integer && values.some((v) => !Number.isInteger(v))) throw new Error(`${name}: give three whole numbers, got "${text}"`);
+  return values;
+}
+
+// ---------------------------------------------------------------- key and health
+
+function applyKey(key) {
+  state.key = key.trim();
+  if (state.key) localStorage.setItem(KEY_STORAGE, state.key);
+  else localStorage.removeItem(KEY_STORAGE);
+  $("api-key").value = state.key;
+  $("key-needed").hidden = !!state.key;
+  showGlobalError("");
+}
+
+async function refreshHealth() {
+  const node = $("health");
+  try {
+    const health = await (await fetch("/v1/health")).json();
+    node.textContent = health.status === "ok" ? "service ok" : `degraded (database ${health.database ? "ok" : "down"}, broker ${health.broker ? "ok" : "down"})`;
+    node.className = "health " + health.status;
+  } catch (_) {
+    node.textContent = "service unreachable";
+    node.className = "health degraded";
+  }
+}
+
+// ---------------------------------------------------------------- scenes
+
+async function refreshScenes() {
+  if (!state.key) return;
+  const scenes = await api("/v1/scenes");
+  state.scenes = new Map(scenes.map((s) => [s.id, s]));
+  const body = $("scenes-body");
+  body.replaceChildren(...scenes.map((s) => {
+    const remove = el("button", {type: "button", class: "secondary small", "data-testid": "scene-delete", text: "delete"});
+    remove.addEventListener("click", () => deleteScene(s));
+    return el("tr", {"data-testid": "scene-row", "data-scene-id": s.id},
+      el("td", {title: s.id, text: s.name}), el("td", {text: fmtNum(s.triangles)}), el("td", {text: fmtBytes(s.size_bytes)}), el("td", {}, remove));
+  }));
+  $("scenes-empty").hidden = scenes.length > 0;
+  const select = $("job-scene");
+  const previous = select.value;
+  select.replaceChildren(...scenes.map((s) =>
+    el("option", {value: s.id, text: `${s.name} (${shortId(s.id)}, ${fmtNum(s.triangles)} triangles)`})));
+  if (!scenes.length) select.append(el("option", {value: "", text: "— upload a scene first —"}));
+  if (previous && state.scenes.has(previous)) select.value = previous;
+  showSceneInfo();
+}
+
+function showSceneInfo() {
+  const scene = state.scenes.get($("job-scene").value);
+  const info = $("job-scene-info");
+  if (!scene) { info.textContent = ""; return; }
+  const [lo, hi] = scene.bounds;
+  const names = (scene.objects || []).map((o) => o.name);
+  info.textContent = `bounds ${fmtVec(lo)} – ${fmtVec(hi)}; objects: ${names.slice(0, 8).join(", ")}${names.length > 8 ? ", …" : ""}`;
+}
+
+async function deleteScene(scene) {
+  if (!confirm(`Delete scene ${scene.name} and its finished jobs?`)) return;
+  try {
+    await api(`/v1/scenes/${scene.id}`, {method: "DELETE"});
+    showBox($("upload-error"), "");
+  } catch (error) {
+    showBox($("upload-error"), error.message);
+  }
+  await refreshScenes().catch(() => {});
+}
+
+async function onUpload(event) {
+  event.preventDefault();
+  const input = $("upload-file");
+  showBox($("upload-error"), "");
+  $("upload-result").hidden = true;
+  if (!input.files.length) { showBox($("upload-error"), "choose a scene file first"); return; }
+  const form = new FormData();
+  form.append("file", input.files[0]);
+  $("upload-busy").hidden = false;
+  try {
+    const scene = await api("/v1/scenes", {method: "POST", form});
+    const result = $("upload-result");
+    result.replaceChildren(
+      el("strong", {text: scene.name}), ` uploaded: ${fmtNum(scene.triangles)} triangles, ${scene.objects.length} object(s), `,
+      `bounds ${fmtVec(scene.bounds[0])} – ${fmtVec(scene.bounds[1])}, id `, el("code", {"data-testid": "upload-scene-id", text: scene.id}));
+    result.dataset.sceneId = scene.id;
+    result.hidden = false;
+    input.value = "";
+    await refreshScenes();
+    $("job-scene").value = scene.id;
+    showSceneInfo();
+  } catch (error) {
+    showBox($("upload-error"), (error.kind ? `${error.kind}: ` : "") + error.message);
+  } finally {
+    $("upload-busy").hidden = true;
+  }
+}
+
+// ---------------------------------------------------------------- job form
+
+function jobMode() { return document.querySelector('#job-form input[name="mode"]:checked').value; }
+
+function onModeChange() {
+  const grid = jobMode() === "grid";
+  $("grid-fields").hidden = !grid;
+  $("viewcell-fields").hidden = grid;
+}
+
+function numberOrText(text) {
+  // Numbers go to the server as typed (it validates and explains); anything else as the text.
+  return text !== "" && Number.isFinite(Number(text)) ? Number(text) : text;
+}
+
+function jobRequest() {
+  const scene = $("job-scene").value;
+  if (!scene) throw new Error("scene: upload and choose a scene first");
+  const request = {scene_id: scene};
+  if (jobMode() === "grid") {
+    request.grid = {lo: parseVec($("job-lo").value, "grid lo"), hi: parseVec($("job-hi").value, "grid hi"),
+                    counts: parseVec($("job-counts").value, "cells along x, y, z", true)};
+  } else {
+    let cells;
+    try { cells = JSON.parse($("job-viewcells").value); } catch (error) { throw new Error(`view cells: not JSON (${error.message})`); }
+    request.viewcells = cells;
+  }
+  // Empty fields take the server's defaults.
+  const resolution = $("job-resolution").value.trim();
+  if (resolution !== "") request.resolution = numberOrText(resolution);
+  const fov = $("job-fov").value.trim();
+  if (fov !== "") request.fov_deg = numberOrText(fov);
+  const objects = $("job-objects").value.split(",").map((s) => s.trim()).filter(Boolean);
+  if (objects.length) request.objects = objects;
+  const options = $("job-options").value.trim();
+  if (options) {
+    try { request.options = JSON.parse(options); } catch (error) { throw new Error(`options: not JSON (${error.message})`); }
+  }
+  return request;
+}
+
+async function onSubmitJob(event) {
+  event.preventDefault();
+  const box = $("job-form-error");
+  showBox(box, "");
+  let request;
+  try {
+    request = jobRequest();
+  } catch (error) {
+    showBox(box, error.message);
+    box.dataset.source = "form";
+    return;
+  }
+  $("job-busy").hidden = false;
+  try {
+    const job = await api("/v1/jobs", {method: "POST", json: request});
+    location.hash = `#/jobs/${job.id}`;
+  } catch (error) {
+    showBox(box, (error.kind ? `${error.kind}: ` : "") + error.message);
+    box.dataset.source = "server";
+  } finally {
+    $("job-busy").hidden = true;
+  }
+}
+
+// ---------------------------------------------------------------- job list
+
+async function refreshJobs() {
+  if (!state.key) return;
+  const filter = $("jobs-filter").value;
+  const jobs = await api("/v1/jobs" + (filter ? `?state=${encodeURIComponent(filter)}` : ""));
+  const body = $("jobs-body");
+  const existing = new Map([...body.children].map((row) => [row.dataset.jobId, row]));
+  const rows = jobs.map((job) => {
+    let row = existing.get(job.id);
+    if (!row) {
+      row = el("tr", {"data-testid": "job-row", "data-job-id": job.id},
+        el("td", {}, el("a", {href: `#/jobs/${job.id}`, "data-testid": "job-link"}, el("code", {text: shortId(job.id)}))),
+        el("td", {class: "scene"}),
+        el("td", {}, el("span", {class: "state", "data-testid": "job-row-state"})),
+        el("td", {}, el("div", {class: "bar", "data-testid": "job-row-progress-bar"}, el("div", {class: "fill", "data-testid": "job-row-progress"})),
+          el("span", {class: "bar-label"})),
+        el("td", {class: "cells", "data-testid": "job-row-counts"}),
+        el("td", {class: "created small muted"}));
+    }
+    const cells = row.children;
+    const scene = state.scenes.get(job.scene_id);
+    cells[1].textContent = scene ? scene.name : shortId(job.scene_id);
+    setState(cells[2].firstChild, job.state);
+    setBar(cells[3].querySelector(".fill"), job);
+    cells[3].querySelector(".bar-label").textContent = pct(job.progress) + (job.eta_s != null ? `, ETA ${fmtSeconds(job.eta_s)}` : "");
+    cells[4].replaceChildren(countsText(job.counts, job.cells_total));
+    const message = job.error || (job.errors.length ? `cell ${job.errors[0].index}: ${job.errors[0].error}` : null);
+    if (message) cells[4].append(el("span", {class: "err", title: message, "data-testid": "job-row-error", text: message}));
+    cells[5].textContent = fmtTime(job.created_at);
+    row.dataset.state = job.state;
+    return row;
+  });
+  // Replace the rows only when the set or order changed, so rows under the pointer stay put.
+  const same = rows.length === body.children.length && rows.every((row, i) => body.children[i] === row);
+  if (!same) body.replaceChildren(...rows);
+  $("jobs-empty").hidden = jobs.length > 0;
+}
+
+// ---------------------------------------------------------------- job page
+
+async function refreshJob() {
+  const id = state.jobId;
+  let job;
+  try {
+    job = await api(`/v1/jobs/${encodeURIComponent(id)}`);
+  } catch (error) {
+    if (id !== state.jobId) return;
+    if (error.status === 404 || error.status === 422) {
+      $("job-page").hidden = true;
+      showBox($("job-missing"), error.message);
+      return;
+    }
+    throw error;
+  }
+  if (id !== state.jobId) return; // navigated away meanwhile
+  if (!state.scenes.has(job.scene_id)) await refreshScenes().catch(() => {});
+  state.job = job;
+  state.jobFetchedAt = Date.now();
+  showBox($("job-missing"), "");
+  $("job-page").hidden = false;
+  renderJob(job);
+}
+
+function renderJob(job) {
+  $("job-id").textContent = job.id;
+  setState($("job-state"), job.state);
+  setBar($("job-progress"), job);
+  $("job-progress-text").textContent = pct(job.progress);
+  $("job-counts-text").textContent = countsText(job.counts, job.cells_total);
+  $("job-eta").textContent = FINAL.has(job.state) ? "finished" : (job.eta_s != null ? fmtSeconds(job.eta_s) : "estimating…");
+  const scene = state.scenes.get(job.scene_id);
+  $("job-scene-name").textContent = scene ? `${scene.name} (${shortId(scene.id)})` : job.scene_id;
+  const p = job.params || {};
+  const options = p.options && Object.keys(p.options).length ? `, options ${JSON.stringify(p.options)}` : "";
+  const objects = p.objects ? `, objects ${p.objects.join(", ")}` : "";
+  $("job-params").textContent = `${job.job_type}, ${p.resolution} px, FOV ${p.fov_deg}°${objects}${options}`;
+  const s = job.seconds || {};
+  $("job-times").textContent = `created ${fmtTime(job.created_at)}; wall ${fmtSeconds(s.wall)}; cells ${fmtSeconds(s.cells_total)} in all` +
+    (s.cell_mean != null ? `, ${fmtSeconds(s.cell_mean)} each` : "");
+  $("job-cancel").disabled = FINAL.has(job.state);
+  $("job-retry").disabled = job.state !== "failed";
+  $("job-download").disabled = !job.has_index;
+  showBox($("job-error"), job.error ? `job error: ${job.error}` : "");
+
+  const errors = job.errors || [];
+  $("job-errors-box").hidden = errors.length === 0;
+  $("job-errors-count").textContent = String(errors.length);
+  $("job-errors").replaceChildren(...errors.map((e) => {
+    const link = el("a", {text: `cell ${e.index}`});
+    link.addEventListener("click", () => selectCell(e.index, true));
+    return el("li", {"data-testid": "job-error-item", "data-index": e.index}, link, `: ${e.error}`);
+  }));
+
+  renderMap(job);
+  renderCellPanel();
+}
+
+// The map: grid jobs as an nx x nz board per y level; explicit view cells as their box footprints.
+
+function gridShape(cells) {
+  if (!cells.length || cells.some((c) => !Array.isArray(c.grid))) return null;
+  const n = [0, 0, 0];
+  for (const c of cells) for (let a = 0; a < 3; a++) n[a] = Math.max(n[a], c.grid[a] + 1);
+  return n;
+}
+
+function renderMap(job) {
+  const cells = job.cells || [];
+  const shape = gridShape(cells);
+  const levels = shape ? shape[1] : 1;
+  if (state.level >= levels) state.level = 0;
+  const key = `${job.id}/${state.level}/${cells.length}`;
+  if (!state.map || state.map.key !== key) buildMap(job, shape, key);
+  for (const c of cells) {
+    const entry = state.map.rects.get(c.index);
+    if (!entry) continue;
+    entry.rect.setAttribute("class", `cell ${c.state}${c.index === state.selected ? " selected" : ""}`);
+    entry.rect.setAttribute("stroke-width", c.index === state.selected ? 3 : 1.5);
+    entry.rect.dataset.state = c.state;
+    entry.rect.dataset.progress = String(c.progress);
+    entry.title.textContent = `cell ${c.index}${c.grid ? " " + fmtVec(c.grid) : ""}: ${c.state}` +
+      (c.state === "running" ? ` ${pct(c.progress)}` : "") + (c.error ? ` — ${c.error}` : "");
+    entry.bar.setAttribute("width", String(entry.w * (c.state === "running" ? c.progress : 0)));
+  }
+  const levelSelect = $("map-level");
+  $("map-level-label").hidden = levels <= 1;
+  if (levels > 1 && levelSelect.options.length !== levels) {
+    const byLevel = new Map();
+    for (const c of cells) if (!byLevel.has(c.grid[1])) byLevel.set(c.grid[1], c.viewcell);
+    levelSelect.replaceChildren(...Array.from({length: levels}, (_, j) => {
+      const box = byLevel.get(j);
+      const range = box && box.lo ? ` (y ${fmtNum(box.lo[1], 4)} … ${fmtNum(box.hi[1], 4)})` : "";
+      return el("option", {value: j, text: `${j}${range}`});
+    }));
+  }
+  if (levels > 1) levelSelect.value = String(state.level);
+}
+
+function footprint(viewcell) {
+  // [x0, z0, x1, z1] of a cell's box seen from above (other kinds by their lo/hi or centre/size if present).
+  if (viewcell && viewcell.lo && viewcell.hi) return [viewcell.lo[0], viewcell.lo[2], viewcell.hi[0], viewcell.hi[2]];
+  if (viewcell && viewcell.center && viewcell.size) {
+    const h = viewcell.size / 2;
+    return [viewcell.center[0] - h, viewcell.center[2] - h, viewcell.center[0] + h, viewcell.center[2] + h];
+  }
+  return null;
+}
+
+function buildMap(job, shape, key) {
+  const root = $("job-map");
+  const cells = (job.cells || []).filter((c) => !shape || c.grid[1] === state.level);
+  const boxes = cells.map((c) => ({cell: c, box: footprint(c.viewcell)})).filter((b) => b.box);
+  const scene = state.scenes.get(job.scene_id);
+  const sceneBox = scene ? [scene.bounds[0][0], scene.bounds[0][2], scene.bounds[1][0], scene.bounds[1][2]] : null;
+  const all = boxes.map((b) => b.box).concat(sceneBox ? [sceneBox] : []);
+  root.replaceChildren();
+  state.map = {key, rects: new Map()};
+  if (!all.length) {
+    root.setAttribute("viewBox", "0 0 400 60");
+    const text = svg("text", {x: 10, y: 35, class: "axis-label", "font-size": 14});
+    text.textContent = "no view cells to draw";
+    root.append(text);
+    return;
+  }
+  let [x0, z0, x1, z1] = [Infinity, Infinity, -Infinity, -Infinity];
+  for (const b of all) { x0 = Math.min(x0, b[0]); z0 = Math.min(z0, b[1]); x1 = Math.max(x1, b[2]); z1 = Math.max(z1, b[3]); }
+  const tiny = 1e-6 * Math.max(x1 - x0, z1 - z0, 1e-6);
+  const dx = Math.max(x1 - x0, tiny), dz = Math.max(z1 - z0, tiny);
+  const width = 600, margin = 36;
+  const s = Math.min((width - 2 * margin) / dx, (900 - 2 * margin) / dz);
+  const height = Math.max(180, dz * s + 2 * margin);
+  const ox = margin + (width - 2 * margin - dx * s) / 2;
+  const oz = margin / 2 + (height - 2 * margin - dz * s) / 2;
+  const X = (x) => ox + (x - x0) * s;
+  const Z = (z) => oz + (z - z0) * s; // z grows downwards: looking down the y axis with x to the right
+  root.setAttribute("viewBox", `0 0 ${width} ${height}`);
+
+  if (sceneBox) {
+    root.append(svg("rect", {x: X(sceneBox[0]), y: Z(sceneBox[1]), width: Math.max(1, (sceneBox[2] - sceneBox[0]) * s),
+      height: Math.max(1, (sceneBox[3] - sceneBox[1]) * s), class: "scene-box", "data-testid": "map-scene"}));
+  }
+  // Larger footprints first, so small (overlapping explicit) cells stay clickable on top.
+  const area = (b) => (b[2] - b[0]) * (b[3] - b[1]);
+  boxes.sort((a, b) => area(b.box) - area(a.box));
+  for (const {cell, box} of boxes) {
+    const x = X(box[0]), y = Z(box[1]); // grid cells share faces; the white stroke separates them
+    const w = Math.max(2, (box[2] - box[0]) * s), h = Math.max(2, (box[3] - box[1]) * s);
+    const group = svg("g", {});
+    const rect = svg("rect", {x, y, width: w, height: h, class: `cell ${cell.state}`, "data-testid": "map-cell", "data-index": cell.index,
+      "stroke-width": 1.5, "fill-opacity": shape ? 1 : 0.75});
+    const title = svg("title", {});
+    rect.append(title);
+    rect.addEventListener("click", () => selectCell(cell.index));
+    group.append(rect);
+    const barHeight = Math.min(6, h / 4);
+    const bar = svg("rect", {x, y: y + h - barHeight, width: 0, height: barHeight, class: "cell-progress"});
+    group.append(bar);
+    if (w > 28 && h > 16) {
+      const label = svg("text", {x: x + 4, y: y + Math.min(15, h - 3), class: "cell-label", "font-size": Math.min(12, h / 2)});
+      label.textContent = String(cell.index);
+      group.append(label);
+    }
+    root.append(group);
+    state.map.rects.set(cell.index, {rect, title, bar, w});
+  }
+  // Axes: x to the right, z downwards.
+  const base = height - 12;
+  root.append(svg("path", {d: `M 10 ${base} h 28 m -5 -4 l 5 4 l -5 4 M 10 ${base} v 0`, class: "axis"}));
+  root.append(svg("path", {d: `M 10 ${base - 30} v 22 m -4 -5 l 4 5 l 4 -5`, class: "axis"}));
+  const xl = svg("text", {x: 44, y: base + 4, class: "axis-label", "font-size": 11});
+  xl.textContent = `x ${fmtNum(x0, 4)} … ${fmtNum(x1, 4)}`;
+  const zl = svg("text", {x: 18, y: base - 20, class: "axis-label", "font-size": 11});
+  zl.textContent = `z ${fmtNum(z0, 4)} … ${fmtNum(z1, 4)}`;
+  root.append(xl, zl);
+}
+
+function selectCell(index, switchLevel = false) {
+  state.selected = index;
+  const job = state.job;
+  if (switchLevel && job) {
+    const cell = (job.cells || []).find((c) => c.index === index);
+    if (cell && Array.isArray(cell.grid) && cell.grid[1] !== state.level) state.level = cell.grid[1];
+  }
+  if (job) renderMap(job);
+  renderCellPanel();
+}
+
+function renderCellPanel() {
+  const job = state.job;
+  const cell = job && state.selected !== null ? (job.cells || []).find((c) => c.index === state.selected) : null;
+  $("cell-hint").hidden = !!cell;
+  $("cell-body").hidden = !cell;
+  const panel = $("cell-panel");
+  if (!cell) {
+    $("cell-title").textContent = "—";
+    delete panel.dataset.index;
+    return;
+  }
+  panel.dataset.index = String(cell.index);
+  $("cell-title").textContent = `${cell.index}` + (cell.grid ? ` ${fmtVec(cell.grid)}` : "");
+  setState($("cell-state"), cell.state);
+  if (cell.state === "running") $("cell-state").textContent = `running ${pct(cell.progress)}`;
+  const vc = cell.viewcell || {};
+  $("cell-box").textContent = vc.lo ? `${vc.kind} ${fmtVec(vc.lo)} – ${fmtVec(vc.hi)}` : JSON.stringify(vc);
+  $("cell-attempts").textContent = String(cell.attempts);
+  $("cell-seconds").textContent = fmtSeconds(cell.seconds);
+  showBox($("cell-error"), cell.error ? cell.error : "");
+
+  const pages = cell.stats && cell.stats.atlas_pages ? cell.stats.atlas_pages : (cell.has_result ? 1 : 0);
+  const pageSelect = $("cell-page");
+  if (pageSelect.options.length !== pages || pageSelect.dataset.cell !== String(cell.index)) {
+    pageSelect.replaceChildren(...Array.from({length: pages}, (_, i) => el("option", {value: i, text: String(i)})));
+    pageSelect.dataset.cell = String(cell.index);
+  }
+  pageSelect.disabled = pages <= 1;
+  for (const button of document.querySelectorAll("#cell-panel [data-download]")) button.disabled = !cell.has_result;
+
+  const stats = $("cell-stats");
+  const statsKey = `${job.id}/${cell.index}/${JSON.stringify(cell.stats)}`;
+  if (stats.dataset.key !== statsKey) {
+    const rows = [];
+    const walk = (prefix, value) => {
+      if (value && typeof value === "object" && !Array.isArray(value)) {
+        for (const [k, v] of Object.entries(value)) walk(prefix ? `${prefix}.${k}` : k, v);
+        return;
+      }
+      let text = Array.isArray(value) ? value.map((v) => fmtNum(v, 4)).join(" × ") : fmtNum(value, 4);
+      if (/bytes/.test(prefix) && typeof value === "number") text = fmtBytes(value);
+      if (/^seconds\./.test(prefix) && typeof value === "number") text = fmtSeconds(value);
+      rows.push(el("tr", {"data-stat": prefix}, el("td", {text: prefix}), el("td", {text})));
+    };
+    walk("", cell.stats || {});
+    if (!rows.length) rows.push(el("tr", {}, el("td", {class: "muted", text: "no statistics yet"}), el("td", {})));
+    stats.replaceChildren(...rows);
+    stats.dataset.key = statsKey;
+  }
+  loadAtlas(job, cell, Number(pageSelect.value || 0));
+}
+
+async function loadAtlas(job, cell, page) {
+  const img = $("cell-atlas");
+  const note = $("cell-atlas-note");
+  if (!cell.has_result) {
+    state.atlas.key = null;
+    img.hidden = true;
+    img.removeAttribute("src");
+    note.textContent = cell.state === "failed" || cell.state === "cancelled" ? `no impostor (cell ${cell.state})` : `no impostor yet (cell ${cell.state})`;
+    return;
+  }
+  const key = `${job.id}/${cell.index}/${page}`;
+  if (state.atlas.key === key) return;
+  state.atlas.key = key;
+  img.hidden = true;
+  note.textContent = "loading atlas…";
+  try {
+    const response = await api(`/v1/jobs/${job.id}/cells/${cell.index}/atlas/${page}.png`, {raw: true});
+    const blob = await response.blob();
+    if (state.atlas.key !== key) return; // another cell was clicked meanwhile
+    if (state.atlas.url) URL.revokeObjectURL(state.atlas.url);
+    state.atlas.url = URL.createObjectURL(blob);
+    img.onload = () => {
+      if (state.atlas.key !== key) return;
+      note.textContent = "";
+      img.hidden = false;
+      img.title = `atlas page ${page}: ${img.naturalWidth} × ${img.naturalHeight}`;
+    };
+    img.onerror = () => { if (state.atlas.key === key) note.textContent = "the atlas page did not decode"; };
+    img.dataset.cell = String(cell.index);
+    img.dataset.page = String(page);
+    img.src = state.atlas.url;
+  } catch (error) {
+    if (state.atlas.key === key) {
+      state.atlas.key = null;
+      note.textContent = `atlas: ${error.message}`;
+    }
+  }
+}
+
+async function jobAction(action) {
+  const box = $("job-action-error");
+  showBox(box, "");
+  try {
+    const job = await api(`/v1/jobs/${state.jobId}/${action}`, {method: "POST"});
+    state.job = job;
+    state.jobFetchedAt = Date.now();
+    renderJob(job);
+  } catch (error) {
+    showBox(box, `${action}: ${error.message}`);
+  }
+}
+
+// ---------------------------------------------------------------- routing and polling
+
+function route() {
+  const match = location.hash.match(/^#\/jobs\/([^/?#]+)/);
+  const jobId = match ? decodeURIComponent(match[1]) : null;
+  state.view = jobId ? "job" : "home";
+  $("view-home").hidden = state.view !== "home";
+  $("view-job").hidden = state.view !== "job";
+  if (jobId !== state.jobId) {
+    state.jobId = jobId;
+    state.job = null;
+    state.map = null;
+    state.level = 0;
+    state.selected = null;
+    state.atlas.key = null;
+    $("job-page").hidden = true;
+    showBox($("job-action-error"), "");
+    $("cell-page").replaceChildren();
+    $("map-level").replaceChildren();
+    $("cell-stats").replaceChildren();
+    delete $("cell-stats").dataset.key;
+  }
+  tick(true);
+}
+
+async function tick(force = false) {
+  if (!state.key || (document.hidden && !force)) return; // no polling from a background tab
+  if (state.polling) {
+    if (force) setTimeout(() => tick(true), 100); // a navigation must not be lost behind a poll
+    return;
+  }
+  state.polling = true;
+  try {
+    if (state.view === "home") {
+      await refreshJobs();
+    } else if (state.jobId) {
+      const finished = state.job && FINAL.has(state.job.state);
+      if (force || !finished || Date.now() - state.jobFetchedAt > 5000) await refreshJob();
+    }
+    if ($("global-error").textContent.startsWith("cannot reach")) showGlobalError("");
+  } catch (error) {
+    if (error.status !== 401) showGlobalError(error.message);
+  } finally {
+    state.polling = false;
+  }
+}
+
+function start() {
+  $("api-key").value = state.key;
+  $("key-needed").hidden = !!state.key;
+  $("key-form").addEventListener("submit", async (event) => {
+    event.preventDefault();
+    applyKey($("api-key").value);
+    await refreshScenes().catch((error) => { if (error.status !== 401) showGlobalError(error.message); });
+    tick(true);
+  });
+  $("key-forget").addEventListener("click", () => applyKey(""));
+  $("upload-form").addEventListener("submit", onUpload);
+  $("job-form").addEventListener("submit", onSubmitJob);
+  for (const radio of document.querySelectorAll('#job-form input[name="mode"]')) radio.addEventListener("change", onModeChange);
+  $("job-scene").addEventListener("change", showSceneInfo);
+  $("jobs-filter").addEventListener("change", () => tick(true));
+  $("map-level").addEventListener("change", () => { state.level = Number($("map-level").value); if (state.job) renderMap(state.job); });
+  $("cell-page").addEventListener("change", () => renderCellPanel());
+  $("job-cancel").addEventListener("click", () => jobAction("cancel"));
+  $("job-retry").addEventListener("click", () => jobAction("retry"));
+  $("job-download").addEventListener("click", () => download(`/v1/jobs/${state.jobId}/database.zip`, `job-${state.jobId}.zip`));
+  for (const button of document.querySelectorAll("#cell-panel [data-download]")) {
+    button.addEventListener("click", () => {
+      const name = button.dataset.download;
+      const ext = name.split(".").pop();
+      download(`/v1/jobs/${state.jobId}/cells/${state.selected}/${name}`, `cell-${String(state.selected).padStart(5, "0")}.${ext}`);
+    });
+  }
+  window.addEventListener("hashchange", route);
+  refreshHealth();
+  setInterval(refreshHealth, 10000);
+  if (state.key) refreshScenes().catch((error) => { if (error.status !== 401) showGlobalError(error.message); });
+  route();
+  setInterval(() => tick(false), POLL_MS);
+}
+
+start();

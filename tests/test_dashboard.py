@@ -1,0 +1,204 @@
+"""The dashboard in a real headless browser (Debian's chromium driven by Playwright) against a real
+service (``farfield up``): key, upload, job form errors, submit, live progress, done, the map of the
+view-space grid and a cell's atlas thumbnail.
+
+Needs /usr/bin/chromium (``scripts/install-browser`` installs it where it can); skipped without it.
+Set FARFIELD_DASHBOARD_SCREENSHOT=/path.png to keep a screenshot of the job page.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import pytest
+
+from service_harness import ADMIN_KEY, BUNNY, BUNNY_GRID, start_service, upload
+
+CHROMIUM = Path(os.environ.get("FARFIELD_CHROMIUM", "/usr/bin/chromium"))
+CHROMIUM_ARGS = [
+    "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--disable-background-networking",
+    "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-quic",
+]  # fmt: skip
+
+if not CHROMIUM.exists():
+    pytest.skip(f"needs Debian's chromium at {CHROMIUM} (scripts/install-browser installs it)", allow_module_level=True)
+if not BUNNY.exists():
+    pytest.skip("needs ../shared/scenes", allow_module_level=True)
+sync_api = pytest.importorskip("playwright.sync_api", reason="needs the playwright package (the test extra)")
+
+
+def tid(name: str) -> str:
+    return f'[data-testid="{name}"]'
+
+
+@pytest.fixture(scope="module")
+def service(tmp_path_factory):
+    running = start_service(tmp_path_factory.mktemp("farfield-home"))
+    yield running
+    assert running.stop() == 0
+
+
+@pytest.fixture(scope="module")
+def browser():
+    with sync_api.sync_playwright() as playwright:
+        launched = playwright.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=CHROMIUM_ARGS)
+        yield launched
+        launched.close()
+
+
+@pytest.fixture(scope="module")
+def page(browser, service):
+    context = browser.new_context(viewport={"width": 1400, "height": 1000})
+    page = context.new_page()
+    page.set_default_timeout(30_000)
+    page.js_errors = []
+    page.on("pageerror", lambda error: page.js_errors.append(str(error)))
+    page.goto(service.url + "/")
+    yield page
+    context.close()
+
+
+def test_static_files_need_no_key_and_stay_in_their_folder(service):
+    with service.client(key=None) as anonymous:
+        index = anonymous.get("/")
+        assert index.status_code == 200 and "text/html" in index.headers["content-type"]
+        assert "/dashboard/app.js" in index.text
+        for name, kind in (("app.js", "javascript"), ("style.css", "text/css")):
+            served = anonymous.get(f"/dashboard/{name}")
+            assert served.status_code == 200 and kind in served.headers["content-type"], name
+        assert anonymous.get("/dashboard/nothing.js").status_code == 404
+        assert anonymous.get("/dashboard/%2e%2e/routes_dashboard.py").status_code == 404
+        assert anonymous.get("/v1/jobs").status_code == 401  # the API itself still needs the key
+
+
+def test_key_is_asked_for_and_a_wrong_one_is_reported(page):
+    assert page.locator(tid("key-needed")).is_visible()
+    page.fill(tid("api-key"), "ff_wrong_key")
+    page.click(tid("api-key-save"))
+    page.locator(tid("global-error")).filter(has_text="API key rejected").wait_for()
+    page.fill(tid("api-key"), ADMIN_KEY)
+    page.click(tid("api-key-save"))
+    page.locator(tid("global-error")).wait_for(state="hidden")
+    assert page.locator(tid("key-needed")).is_hidden()
+    assert page.evaluate("localStorage.getItem('farfield.apiKey')") == ADMIN_KEY
+
+
+def test_upload_submit_progress_done_atlas(page, service):
+    started = time.monotonic()
+    page.goto(service.url + "/#/")
+    # Upload the bunny through the form.
+    page.set_input_files(tid("upload-file"), str(BUNNY))
+    page.click(tid("upload-submit"))
+    result = page.locator(tid("upload-result"))
+    result.wait_for()
+    assert "bun_zipper.ply" in result.inner_text() and "69,451 triangles" in result.inner_text()
+    scene_id = result.get_attribute("data-scene-id")
+    assert page.locator(tid("job-scene")).input_value() == scene_id
+
+    # A bad job: the server's message is shown on the form, and no job is made.
+    page.fill(tid("job-lo"), ", ".join(map(str, BUNNY_GRID["lo"])))
+    page.fill(tid("job-hi"), ", ".join(map(str, BUNNY_GRID["hi"])))
+    page.fill(tid("job-counts"), ", ".join(map(str, BUNNY_GRID["counts"])))
+    page.fill(tid("job-resolution"), "0")
+    page.click(tid("job-submit"))
+    error = page.locator(tid("job-form-error"))
+    error.wait_for()
+    assert "resolution must be an integer >= 1, got 0" in error.inner_text()
+    assert error.get_attribute("data-source") == "server"
+    # One the form itself refuses (not three numbers).
+    page.fill(tid("job-resolution"), "256")
+    page.fill(tid("job-counts"), "2, two, 1")
+    page.click(tid("job-submit"))
+    page.locator(tid("job-form-error")).filter(has_text="three numbers").wait_for()
+    assert page.locator(tid("job-form-error")).get_attribute("data-source") == "form"
+    with service.client() as client:
+        assert client.get("/v1/jobs").json() == []
+
+    # Record every update of the job page's progress bar from the moment the job is submitted.
+    page.evaluate(
+        """() => {
+            window.__seen = [];
+            const bar = document.querySelector('[data-testid="job-progress"]');
+            new MutationObserver(() => window.__seen.push([bar.dataset.state, Number(bar.dataset.progress)]))
+                .observe(bar, {attributes: true, attributeFilter: ['data-progress', 'data-state']});
+        }"""
+    )
+    page.fill(tid("job-counts"), ", ".join(map(str, BUNNY_GRID["counts"])))
+    page.click(tid("job-submit"))
+    page.wait_for_url("**/#/jobs/*")
+    job_id = page.url.rsplit("/", 1)[1]
+    page.locator(tid("job-page")).wait_for()
+    assert page.locator(tid("job-id")).inner_text() == job_id
+    page.locator(f'{tid("job-state")}[data-state="done"]').wait_for(timeout=60_000)
+
+    seen = page.evaluate("window.__seen")
+    states = [state for state, _ in seen]
+    progress = [p for _, p in seen]
+    assert states[0] in ("queued", "running") and states[-1] == "done", seen
+    assert progress[-1] == 1.0 and len(set(progress)) >= 2, seen  # the bar moved while we watched
+    assert progress == sorted(progress), seen
+    assert page.locator(tid("job-progress")).evaluate("e => e.style.width") == "100%"
+    assert page.locator(tid("job-counts-text")).inner_text().startswith("4/4 done")
+    assert page.locator(tid("job-eta")).inner_text() == "finished"
+    assert page.locator(tid("job-cancel")).is_disabled() and page.locator(tid("job-retry")).is_disabled()
+    assert page.locator(tid("job-errors-box")).is_hidden()
+
+    # The map: 2x2x1 cells, so two y levels of 2 (x) by 1 (z) cells, all done.
+    assert page.locator(tid("map-level")).is_visible()
+    cells = page.locator(tid("map-cell"))
+    assert cells.count() == 2
+    assert sorted(cells.nth(i).get_attribute("data-index") for i in range(2)) == ["0", "1"]
+    assert all(cells.nth(i).get_attribute("data-state") == "done" for i in range(2))
+    box0, box1 = (cells.nth(i).bounding_box() for i in range(2))
+    by_index = {cells.nth(i).get_attribute("data-index"): cells.nth(i).bounding_box() for i in range(2)}
+    assert by_index["0"]["x"] < by_index["1"]["x"]  # x grows to the right
+    assert abs(box0["y"] - box1["y"]) < 1  # one row: the cells share their z range
+    page.select_option(tid("map-level"), "1")
+    page.locator(f'{tid("map-cell")}[data-index="2"]').wait_for()
+    page.select_option(tid("map-level"), "0")
+
+    # Click a cell: its atlas page 0 and statistics appear.
+    page.locator(f'{tid("map-cell")}[data-index="1"]').click()
+    assert page.locator(tid("cell-panel")).get_attribute("data-index") == "1"
+    atlas = page.locator(tid("cell-atlas"))
+    atlas.wait_for(state="visible")
+    assert atlas.evaluate("img => img.complete && img.naturalWidth > 0 && img.naturalHeight > 0")
+    assert atlas.get_attribute("src").startswith("blob:")
+    assert atlas.get_attribute("data-cell") == "1"
+    assert page.locator(tid("cell-state")).get_attribute("data-state") == "done"
+    stats = page.locator(tid("cell-stats"))
+    assert stats.locator('[data-stat="quads"]').count() == 1 and stats.locator('[data-stat="atlas_pages"]').count() == 1
+    if os.environ.get("FARFIELD_DASHBOARD_SCREENSHOT"):
+        page.screenshot(path=os.environ["FARFIELD_DASHBOARD_SCREENSHOT"], full_page=True)
+
+    # Another cell replaces the thumbnail.
+    page.locator(f'{tid("map-cell")}[data-index="0"]').click()
+    page.locator(f'{tid("cell-atlas")}[data-cell="0"]').wait_for(state="visible")
+    assert atlas.evaluate("img => img.naturalWidth > 0")
+
+    # Back on the list, the job's row shows it done with a full bar.
+    page.click(tid("back-link"))
+    row = page.locator(f'{tid("job-row")}[data-job-id="{job_id}"]')
+    row.locator(f'{tid("job-row-state")}[data-state="done"]').wait_for()
+    assert row.locator(tid("job-row-progress")).evaluate("e => e.style.width") == "100%"
+    assert page.js_errors == []
+    assert time.monotonic() - started < 60
+
+
+def test_retry_is_refused_with_the_message_and_cancel_ends_a_job(page, service):
+    with service.client() as client:
+        scene_id = upload(client, BUNNY).json()["id"]
+        grid = {**BUNNY_GRID, "counts": [4, 2, 1]}
+        job = client.post("/v1/jobs", json={"scene_id": scene_id, "grid": grid, "resolution": 512}).json()
+    page.goto(f"{service.url}/#/jobs/{job['id']}")
+    page.locator(tid("job-page")).wait_for()
+    page.click(tid("job-cancel"))
+    page.locator(f'{tid("job-state")}[data-state="cancelled"]').wait_for()
+    assert page.locator(tid("job-cancel")).is_disabled()
+    # Retry is for failed jobs; the API's refusal is shown (the button is disabled, so call it).
+    page.evaluate("document.querySelector('[data-testid=\"job-retry\"]').disabled = false")
+    page.click(tid("job-retry"))
+    page.locator(tid("job-action-error")).filter(has_text="only a failed job can be retried").wait_for()
+    assert page.js_errors == []
