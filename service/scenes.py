@@ -1,24 +1,29 @@
-"""Scene uploads: streamed into the blob store, validated by parsing, recorded in the database.
+"""Scene uploads: streamed to a local file, validated by parsing (in a child process, so the API's
+memory stays flat), stored in the blob store, recorded in the database.
 
 A failed upload (too large, empty, unparsable) leaves neither a row nor a blob behind.
 """
 
 from __future__ import annotations
 
+import os
 import re
+import shutil
+import tempfile
 import threading
 import uuid
 from collections import OrderedDict
-from pathlib import PurePath
+from pathlib import Path, PurePath
 from typing import BinaryIO
 
 from sqlalchemy import select
 
-from core.errors import ConflictError, NotFoundError, SceneLoadError
+from core.errors import ConflictError, NotFoundError, SceneLoadError, UploadTooLargeError
 from core.exchange import load_scene_bytes, supported_extensions
 from core.scene import Scene
 from service.blobs import BlobStore
 from service.db import CELL_FINAL, Database, JobRow, SceneRow, now
+from service.scene_check import check_scene_file
 
 
 def safe_file_name(name: str) -> str:
@@ -39,8 +44,21 @@ def scene_record(row: SceneRow) -> dict:
     }  # fmt: skip
 
 
+def _spool(source: BinaryIO, limit: int, directory: str) -> tuple[Path, int]:
+    """Copy ``source`` into a temporary file in chunks, stopping past ``limit`` bytes."""
+    fd, name = tempfile.mkstemp(prefix="farfield-upload-", dir=directory)
+    size = 0
+    with os.fdopen(fd, "wb") as out:
+        while chunk := source.read(1 << 20):
+            size += len(chunk)
+            if size > limit:
+                raise UploadTooLargeError(f"upload is larger than the limit of {limit // 2**20} MiB")
+            out.write(chunk)
+    return Path(name), size
+
+
 def ingest_scene(db: Database, blobs: BlobStore, tenant_id: str, file_name: str, source: BinaryIO, limit: int) -> SceneRow:
-    """Store and validate one uploaded scene file; returns its row.
+    """Validate and store one uploaded scene file; returns its row.
 
     Raises :class:`SceneLoadError` (bad format, empty, unparsable), :class:`UploadTooLargeError`.
     """
@@ -52,22 +70,26 @@ def ingest_scene(db: Database, blobs: BlobStore, tenant_id: str, file_name: str,
     scene_id = uuid.uuid4().hex
     prefix = f"scenes/{scene_id}"
     key = f"{prefix}/{name}"
+    work = tempfile.mkdtemp(prefix="farfield-ingest-")
     try:
-        size = blobs.put_stream(key, source, limit)
+        path, size = _spool(source, limit, work)
         if size == 0:
             raise SceneLoadError(f"{name}: the file is empty")
-        scene = load_scene_bytes(blobs.read_bytes(key), extension, name)
+        summary = check_scene_file(path, extension, name)
+        with open(path, "rb") as f:
+            blobs.put_stream(key, f)
         row = SceneRow(
             id=scene_id, tenant_id=tenant_id, name=name, extension=extension, blob_key=key, size_bytes=size,
-            content_hash=scene.content_hash, triangles=scene.triangle_count, bounds=scene.bounds.tolist(),
-            objects=[obj.summary() for obj in scene.objects], created_at=now(),
+            content_hash=summary["content_hash"], triangles=summary["triangles"], bounds=summary["bounds"],
+            objects=summary["objects"], created_at=now(),
         )  # fmt: skip
         with db.session() as s:
             s.add(row)
     except BaseException:
         blobs.delete_prefix(prefix)
         raise
-    _remember(row, scene)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
     return row
 
 
