@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends
+from fastapi import APIRouter, Depends, Query
 
 from service.jobs import (
-    JobSpec, cancel_job, cell_counts, create_job, get_job_row, job_cells, job_record, list_job_rows,
+    JobSpec, cancel_job, create_job, full_job_record, get_job_row, job_record, job_summaries, list_job_rows,
     queued_cell_ids, retry_job,
 )  # fmt: skip
 from service.scenes import get_scene_row
@@ -20,30 +20,33 @@ def submit_job(spec: JobSpec, tenant_id: str = Depends(tenant), svc: Services = 
     scene = get_scene_row(svc.db, tenant_id, spec.scene_id)
     job = create_job(svc.db, tenant_id, scene, spec)
     svc.enqueue(queued_cell_ids(svc.db, job.id))
-    return job_record(job, job_cells(svc.db, job.id))
+    return full_job_record(svc.db, job)
 
 
 @router.get("", summary="List jobs (filter by state or scene)")
-def list_jobs(state: str | None = None, scene_id: str | None = None, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> list[dict]:
-    jobs = list_job_rows(svc.db, tenant_id, state, scene_id)
-    cells = cell_counts(svc.db, [job.id for job in jobs])
-    return [job_record(job, cells[job.id], with_cells=False) for job in jobs]
+def list_jobs(
+    state: str | None = None, scene_id: str | None = None, limit: int = Query(100, ge=1, le=1000), offset: int = Query(0, ge=0),
+    tenant_id: str = Depends(tenant), svc: Services = Depends(services),
+) -> list[dict]:
+    jobs = list_job_rows(svc.db, tenant_id, state, scene_id, limit, offset)
+    summaries = job_summaries(svc.db, [job.id for job in jobs])
+    return [job_record(job, summaries[job.id]) for job in jobs]
 
 
 @router.get("/{job_id}", summary="One job: state, per-cell progress, counts, timings, errors, ETA")
 def get_job(job_id: str, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
     job = get_job_row(svc.db, tenant_id, job_id)
-    return job_record(job, job_cells(svc.db, job.id))
+    return full_job_record(svc.db, job)
 
 
 @router.post("/{job_id}/cancel", summary="Cancel: queued cells never run, running cells stop at the next layer")
 def cancel(job_id: str, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
     job = cancel_job(svc.db, tenant_id, job_id)
-    return job_record(job, job_cells(svc.db, job.id))
+    return full_job_record(svc.db, job)
 
 
 @router.post("/{job_id}/retry", summary="Queue a failed job's failed cells again")
 def retry(job_id: str, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
     svc.enqueue(retry_job(svc.db, tenant_id, job_id))
     job = get_job_row(svc.db, tenant_id, job_id)
-    return job_record(job, job_cells(svc.db, job.id))
+    return full_job_record(svc.db, job)

@@ -30,7 +30,7 @@ from core.errors import ConflictError, LayerPlanError, NotFoundError, ViewCellEr
 from core.layers import plan_layers
 from core.viewcells import BoxCell, viewcell_from_dict
 from service.blobs import BlobStore
-from service.db import CELL_FINAL, CellRow, Database, JobRow, SceneRow, now
+from service.db import CELL_FINAL, JOB_STATES, CellRow, Database, JobRow, SceneRow, now
 
 JOB_TYPES = ("layered",)
 MAX_CELLS = 10_000
@@ -169,51 +169,81 @@ def cell_record(cell: CellRow) -> dict:
     }  # fmt: skip
 
 
-def job_record(job: JobRow, cells: list[CellRow], with_cells: bool = True) -> dict:
-    """The API's view of a job: state, counts, progress, timings, errors, ETA."""
-    counts = {state: 0 for state in ("queued", "running", "done", "failed", "cancelled")}
-    for cell in cells:
-        counts[cell.state] += 1
-    total = len(cells)
+ERRORS_SHOWN = 20  # cell errors listed per job record (errors_total counts them all)
+
+
+def job_summaries(db: Database, job_ids: list[str]) -> dict[str, dict]:
+    """Per job, computed in SQL (no cell rows loaded): counts by state, the running cells' progress,
+    finished cells' seconds, and the first cell errors."""
+    out = {job_id: {"counts": dict.fromkeys(("queued", "running", "done", "failed", "cancelled"), 0), "running_progress": 0.0,
+                    "done_seconds": 0.0, "done_timed": 0, "errors": [], "errors_total": 0} for job_id in job_ids}  # fmt: skip
+    if not job_ids:
+        return out
+    with db.session() as s:
+        rows = s.execute(
+            select(CellRow.job_id, CellRow.state, func.count(), func.sum(CellRow.progress), func.sum(CellRow.seconds), func.count(CellRow.seconds))
+            .where(CellRow.job_id.in_(job_ids)).group_by(CellRow.job_id, CellRow.state)
+        )  # fmt: skip
+        for job_id, state, count, progress, seconds, timed in rows:
+            summary = out[job_id]
+            summary["counts"][state] = count
+            if state == "running":
+                summary["running_progress"] = float(progress or 0.0)
+            if state == "done":
+                summary["done_seconds"], summary["done_timed"] = float(seconds or 0.0), int(timed)
+        errors = s.execute(
+            select(CellRow.job_id, CellRow.index, CellRow.error).where(CellRow.job_id.in_(job_ids), CellRow.error.is_not(None)).order_by(CellRow.job_id, CellRow.index)
+        )  # fmt: skip
+        for job_id, index, error in errors:
+            summary = out[job_id]
+            summary["errors_total"] += 1
+            if len(summary["errors"]) < ERRORS_SHOWN:
+                summary["errors"].append({"index": index, "error": error})
+    return out
+
+
+def job_record(job: JobRow, summary: dict, cells: list[CellRow] | None = None) -> dict:
+    """The API's view of a job: state, counts, progress, timings, errors, ETA (and its cells if given)."""
+    counts = summary["counts"]
+    total = sum(counts.values())
     finished = counts["done"] + counts["failed"] + counts["cancelled"]
-    progress = (finished + sum(c.progress for c in cells if c.state == "running")) / max(total, 1)
-    times = [c.seconds for c in cells if c.state == "done" and c.seconds is not None]
+    progress = (finished + summary["running_progress"]) / max(total, 1)
+    mean = summary["done_seconds"] / summary["done_timed"] if summary["done_timed"] else None
     eta = None
-    if job.state in ("queued", "running") and times:
-        remaining = counts["queued"] + sum(1.0 - c.progress for c in cells if c.state == "running")
+    if job.state in ("queued", "running") and mean is not None:
+        remaining = counts["queued"] + counts["running"] - summary["running_progress"]
         busy = max(counts["running"], 1)  # cells in flight approximates the workers serving the job
-        eta = remaining * float(np.mean(times)) / busy
+        eta = remaining * mean / busy
     record = {
         "id": job.id, "scene_id": job.scene_id, "job_type": job.job_type, "state": job.state, "params": job.params,
         "error": job.error, "cells_total": total, "counts": counts, "progress": progress, "eta_s": eta,
         "created_at": job.created_at, "started_at": job.started_at, "finished_at": job.finished_at,
-        "seconds": {"cells_total": float(sum(times)), "cell_mean": float(np.mean(times)) if times else None,
+        "seconds": {"cells_total": summary["done_seconds"], "cell_mean": mean,
                     "wall": (job.finished_at or now()) - job.started_at if job.started_at else None},
-        "errors": [{"index": c.index, "error": c.error} for c in cells if c.error],
+        "errors": summary["errors"], "errors_total": summary["errors_total"],
         "has_index": job.index_key is not None,
     }  # fmt: skip
-    if with_cells:
+    if cells is not None:
         record["cells"] = [cell_record(c) for c in cells]
     return record
 
 
-def list_job_rows(db: Database, tenant_id: str, state: str | None = None, scene_id: str | None = None) -> list[JobRow]:
+def full_job_record(db: Database, job: JobRow) -> dict:
+    """A job's record with all its cells."""
+    return job_record(job, job_summaries(db, [job.id])[job.id], job_cells(db, job.id))
+
+
+def list_job_rows(db: Database, tenant_id: str, state: str | None = None, scene_id: str | None = None, limit: int = 100, offset: int = 0) -> list[JobRow]:
+    """The tenant's jobs, newest first, ``limit`` from ``offset``."""
+    if state is not None and state not in JOB_STATES:
+        raise LayerPlanError(f"unknown job state {state!r}; one of {list(JOB_STATES)}")
     query = select(JobRow).where(JobRow.tenant_id == tenant_id)
     if state:
         query = query.where(JobRow.state == state)
     if scene_id:
         query = query.where(JobRow.scene_id == scene_id)
     with db.session() as s:
-        return list(s.scalars(query.order_by(JobRow.created_at.desc())))
-
-
-def cell_counts(db: Database, job_ids: list[str]) -> dict[str, list[CellRow]]:
-    with db.session() as s:
-        rows = s.scalars(select(CellRow).where(CellRow.job_id.in_(job_ids))) if job_ids else []
-        out: dict[str, list[CellRow]] = {job_id: [] for job_id in job_ids}
-        for row in rows:
-            out[row.job_id].append(row)
-        return out
+        return list(s.scalars(query.order_by(JobRow.created_at.desc(), JobRow.id).limit(limit).offset(offset)))
 
 
 def queued_cell_ids(db: Database, job_id: str) -> list[str]:
