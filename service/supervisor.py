@@ -24,15 +24,20 @@ from service.settings import Settings
 STOP_GRACE_S = 20.0
 
 
+def gpu_count() -> int:
+    """NVIDIA GPUs on this machine (0 without nvidia-smi)."""
+    try:
+        out = subprocess.run(["nvidia-smi", "-L"], capture_output=True, text=True, timeout=10).stdout
+        return sum(1 for line in out.splitlines() if line.startswith("GPU "))
+    except (OSError, subprocess.SubprocessError):
+        return 0
+
+
 def render_devices() -> int:
     """How many workers to start: FARFIELD_WORKERS, else one per NVIDIA GPU, else one."""
     if os.environ.get("FARFIELD_WORKERS"):
         return max(1, int(os.environ["FARFIELD_WORKERS"]))
-    try:
-        out = subprocess.run(["nvidia-smi", "-L"], capture_output=True, text=True, timeout=10).stdout
-        return max(1, sum(1 for line in out.splitlines() if line.startswith("GPU ")))
-    except (OSError, subprocess.SubprocessError):
-        return 1
+    return max(1, gpu_count())
 
 
 def worker_command(name: str, concurrency: int = 1) -> list[str]:
@@ -85,9 +90,12 @@ class Service:
         env = {**os.environ, **settings.environment(), "FARFIELD_ADMIN_KEY": self.key}
         logs = settings.home / "logs"
         logs.mkdir(exist_ok=True)
+        gpus = gpu_count()
         for i in range(self.workers):
             log = open(logs / f"worker{i}.log", "ab")  # noqa: SIM115 - owned by the child for its life
-            self.worker_processes.append(subprocess.Popen(worker_command(f"worker{i}"), env=env, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL))
+            # With GPUs, worker i renders on EGL device i (round robin when there are more workers).
+            device = {"FARFIELD_EGL_DEVICE": str(i % gpus)} if gpus else {}
+            self.worker_processes.append(subprocess.Popen(worker_command(f"worker{i}"), env={**env, **device}, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL))
         log = open(logs / "api.log", "ab")  # noqa: SIM115
         self.api = subprocess.Popen(
             [sys.executable, "-m", "uvicorn", "api.app:app_from_env", "--factory", "--host", settings.host, "--port", str(port), "--log-level", "warning"],

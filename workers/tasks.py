@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 
+from core.render.context import gl_context
 from service.blobs import BlobStore, blob_store
 from service.cell_runner import RetryCell, run_cell
 from service.db import Database
@@ -18,6 +19,8 @@ def _services() -> tuple[Settings, Database, BlobStore]:
     if _STATE.get("pid") != os.getpid():
         settings = Settings.from_env()
         _STATE.update(pid=os.getpid(), settings=settings, db=Database(settings.database_url), blobs=blob_store(settings))
+        if os.environ.get("FARFIELD_EGL_DEVICE"):  # one worker per GPU: farfield up pins each to its device
+            gl_context(int(os.environ["FARFIELD_EGL_DEVICE"]))
     return _STATE["settings"], _STATE["db"], _STATE["blobs"]
 
 
