@@ -22,8 +22,11 @@ from service.db import Database, JobRow, SceneRow
 from service.jobs import bake_options, claim_cell, end_cell, finish_job_if_complete, job_cancelled, result_key, set_progress
 from service.scenes import load_stored_scene
 
-# How often a running cell reports its progress.
-CHECK_EVERY_S = 0.5
+# A running cell looks at its job's state at the first layer after CANCEL_CHECK_S since its last
+# look (checking at every layer cost ~6% of a cell: ~1.7 ms a query against ~10 ms a layer at
+# 1024 on llvmpipe), and writes its progress every PROGRESS_EVERY_S.
+CANCEL_CHECK_S = 0.1
+PROGRESS_EVERY_S = 0.5
 
 
 class CellCancelled(Exception):
@@ -50,30 +53,33 @@ def store_bundle(blobs: BlobStore, key: str, directory: Path) -> None:
         blobs.put_bytes(f"{key}/{file.name}", file.read_bytes())
 
 
-def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int) -> str:
+def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, worker: str | None = None) -> str:
     """Run one cell; returns its new state ("done", "failed", "cancelled") or "skipped".
 
     Raises :class:`RetryCell` when the attempt failed for a reason other than bad input and
     attempts are left; the cell is queued again and the caller schedules the retry.
     """
-    cell = claim_cell(db, cell_id)
+    cell = claim_cell(db, cell_id, worker)
     if cell is None:
         return "skipped"
     with db.session() as s:
         job = s.get(JobRow, cell.job_id)
         scene_row = s.get(SceneRow, job.scene_id)
     start = time.perf_counter()
-    last_check = [start]
+    last_check, last_progress = [start], [start]
 
     def progress(stage: str, done: int, total: int) -> None:
-        # Every recorded layer: a cancelled job's running cells stop at their next layer (one
-        # indexed SELECT, well under a layer's time); progress is written at most every CHECK_EVERY_S.
+        # Called after each recorded layer: a cancelled job's running cells stop within
+        # CANCEL_CHECK_S and a layer.
         if stage != "record":
             return
-        if job_cancelled(db, job.id):
-            raise CellCancelled(f"job {job.id} was cancelled")
-        if time.perf_counter() - last_check[0] >= CHECK_EVERY_S:
-            last_check[0] = time.perf_counter()
+        clock = time.perf_counter()
+        if clock - last_check[0] >= CANCEL_CHECK_S:
+            last_check[0] = clock
+            if job_cancelled(db, job.id):
+                raise CellCancelled(f"job {job.id} was cancelled")
+        if clock - last_progress[0] >= PROGRESS_EVERY_S:
+            last_progress[0] = clock
             set_progress(db, cell_id, 0.9 * done / max(total, 1))  # recording is most of a cell
 
     try:

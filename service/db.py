@@ -86,6 +86,7 @@ class CellRow(Base):
     viewcell: Mapped[dict] = mapped_column(JSON)  # core BoxCell/ShaftCell.to_dict()
     state: Mapped[str] = mapped_column(String(16), default="queued", index=True)
     attempts: Mapped[int] = mapped_column(Integer, default=0)
+    worker: Mapped[str | None] = mapped_column(String(200), nullable=True)  # who ran the last attempt
     error: Mapped[str | None] = mapped_column(Text, nullable=True)
     result_key: Mapped[str | None] = mapped_column(String(500), nullable=True)
     stats: Mapped[dict | None] = mapped_column(JSON, nullable=True)

@@ -164,7 +164,7 @@ def get_cell_row(db: Database, tenant_id: str, job_id: str, index: int) -> CellR
 def cell_record(cell: CellRow) -> dict:
     return {
         "index": cell.index, "grid": cell.grid, "viewcell": cell.viewcell, "state": cell.state,
-        "attempts": cell.attempts, "error": cell.error, "progress": cell.progress, "seconds": cell.seconds,
+        "attempts": cell.attempts, "worker": cell.worker, "error": cell.error, "progress": cell.progress, "seconds": cell.seconds,
         "stats": cell.stats, "has_result": cell.result_key is not None,
     }  # fmt: skip
 
@@ -267,7 +267,7 @@ def result_key(scene_hash: str, job_type: str, params: dict, viewcell: dict) -> 
     return "impostors/" + hashlib.sha256(blob.encode()).hexdigest()
 
 
-def claim_cell(db: Database, cell_id: str) -> CellRow | None:
+def claim_cell(db: Database, cell_id: str, worker: str | None = None) -> CellRow | None:
     """Mark the cell running and count the attempt; None when it must not run (gone, final, cancelled)."""
     with db.session() as s:
         cell = s.get(CellRow, cell_id, with_for_update=True)
@@ -278,6 +278,7 @@ def claim_cell(db: Database, cell_id: str) -> CellRow | None:
             cell.state, cell.finished_at = "cancelled", now()
             return None
         cell.state, cell.attempts, cell.started_at, cell.progress, cell.error = "running", cell.attempts + 1, now(), 0.0, None
+        cell.worker = worker
         if job.state == "queued":
             job.state, job.started_at = "running", now()
         return cell

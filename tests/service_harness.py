@@ -38,6 +38,7 @@ class RunningService:
     home: Path
     url: str
     env: dict
+    broker: str = ""
 
     def client(self, key: str | None = ADMIN_KEY) -> httpx.Client:
         headers = {"Authorization": f"Bearer {key}"} if key else {}
@@ -59,6 +60,10 @@ class RunningService:
         """Pids of the celery pool processes (the ones that render)."""
         mains = [p for p in _children(self.process.pid) if "celery" in cmdline(p)]
         return [c for m in mains for c in _children(m)]
+
+    def worker_mains(self) -> list[int]:
+        """Pids of the celery worker main processes farfield up started."""
+        return [p for p in _children(self.process.pid) if "celery" in cmdline(p)]
 
     def redis_pid(self) -> int:
         return next(p for p in _children(self.process.pid) if "redis-server" in cmdline(p))
@@ -82,19 +87,21 @@ def start_service(home: Path, **extra_env: str) -> RunningService:
         "FARFIELD_ADMIN_KEY": ADMIN_KEY, "FARFIELD_MAX_UPLOAD_MB": "5", **extra_env,
     })  # fmt: skip
     process = subprocess.Popen([sys.executable, "-m", "cli.main", "up"], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    url, lines = None, []
+    url, broker, lines = None, None, []
     deadline = time.monotonic() + 120
-    while url is None and time.monotonic() < deadline:
+    while broker is None and time.monotonic() < deadline:
         line = process.stdout.readline()
         if not line:
             raise RuntimeError("farfield up exited:\n" + "".join(lines))
         lines.append(line)
         if line.startswith("farfield is up: dashboard "):
             url = line.split()[4].rstrip("/")
-    if url is None:
+        if line.startswith("data: "):
+            broker = line.split("broker: ")[1].strip()
+    if url is None or broker is None:
         process.kill()
         raise RuntimeError("farfield up did not start:\n" + "".join(lines))
-    return RunningService(process, home, url, env)
+    return RunningService(process, home, url, env, broker)
 
 
 def wait_for_job(client: httpx.Client, job_id: str, states=("done", "failed", "cancelled"), timeout: float = 300) -> dict:

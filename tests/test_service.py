@@ -7,18 +7,21 @@ import io
 import json
 import os
 import signal
+import subprocess
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import PIL.Image
 import pytest
+import trimesh
 
 from core.bake import BakeOptions, bake_layered
 from core.bundle import page_file_name, write_bundle
 from core.exchange import load_scene
 from core.viewcells import viewcell_from_dict
-from service_harness import BUNNY, BUNNY_GRID, fresh_postgres_database, start_service, upload, wait_for_job
+from service_harness import BUNNY, BUNNY_GRID, ROOT, fresh_postgres_database, start_service, upload, wait_for_job
 
 pytestmark = pytest.mark.skipif(not BUNNY.exists(), reason="needs ../shared/scenes")
 
@@ -249,3 +252,52 @@ def test_cli_submit_waits_and_downloads(service, tmp_path):
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "resolution" in bad.stderr
     nobody = service.cli("jobs", "--url", service.url, "--key", "ff_wrong_key")
     assert nobody.returncode == 6 and "unknown API key" in nobody.stderr
+
+
+def test_failing_cell_is_retried_then_failed_and_a_retry_completes_it(service, client, tmp_path):
+    """A cell whose scene cannot be read (its blob replaced by a directory: IsADirectoryError, not
+    bad input) is attempted FARFIELD_MAX_ATTEMPTS (3) times with backoff, then failed with its
+    error; POST retry after the blob is back completes the job."""
+    path = tmp_path / "crate.stl"
+    trimesh.creation.box(extents=(1.0, 1.0, 1.0)).export(path)
+    scene = upload(client, path).json()
+    blob = service.home / "blobs" / "scenes" / scene["id"] / "crate.stl"
+    saved = blob.read_bytes()
+    blob.unlink()
+    blob.mkdir()
+    cell = {"kind": "box", "lo": [-4.0, -0.5, -0.5], "hi": [-3.0, 0.5, 0.5]}
+    job_id = client.post("/v1/jobs", json={"scene_id": scene["id"], "viewcells": [cell], "resolution": 64}).json()["id"]
+    job = wait_for_job(client, job_id, timeout=120)
+    assert job["state"] == "failed"
+    assert job["cells"][0]["attempts"] == 3 and "IsADirectoryError" in job["cells"][0]["error"]
+    assert client.post(f"/v1/jobs/{job_id}/cancel").status_code == 409
+    blob.rmdir()
+    blob.write_bytes(saved)
+    retried = client.post(f"/v1/jobs/{job_id}/retry")
+    assert retried.status_code == 200, retried.text
+    job = wait_for_job(client, job_id, timeout=120)
+    assert job["state"] == "done" and job["cells"][0]["attempts"] == 1 and job["has_index"]
+    assert client.post(f"/v1/jobs/{job_id}/retry").status_code == 409
+
+
+def test_farfield_worker_joins_the_service(service, client, bunny_id, tmp_path):
+    """A worker started with `farfield worker` on the service's Redis, database and blobs takes cells
+    (cells record the worker that ran them)."""
+    env = {**service.env, "REDIS_URL": service.broker}
+    log = tmp_path / "joined.log"
+    with open(log, "wb") as out:
+        extra = subprocess.Popen([sys.executable, "-m", "cli.main", "worker", "--name", "joined"], cwd=ROOT, env=env, stdout=out, stderr=subprocess.STDOUT)
+    try:
+        deadline = time.monotonic() + 60
+        while b" ready." not in log.read_bytes():
+            assert extra.poll() is None and time.monotonic() < deadline, log.read_text()
+            time.sleep(0.1)
+        grid = {**BUNNY_GRID, "counts": [4, 2, 1]}
+        job_id = client.post("/v1/jobs", json={"scene_id": bunny_id, "grid": grid, "resolution": 192}).json()["id"]
+        job = wait_for_job(client, job_id, timeout=120)
+        assert job["state"] == "done", job["errors"]
+        workers = {cell["worker"].split("@")[0] for cell in job["cells"]}
+        assert "joined" in workers and "worker0" in workers, workers
+    finally:
+        extra.terminate()
+        extra.wait(60)

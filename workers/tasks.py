@@ -29,6 +29,6 @@ def bake_cell(self, cell_id: str) -> str:
     """Bake one cell of a job (service.cell_runner.run_cell), retrying with backoff."""
     settings, db, blobs = _services()
     try:
-        return run_cell(db, blobs, cell_id, settings.max_attempts)
+        return run_cell(db, blobs, cell_id, settings.max_attempts, worker=self.request.hostname)
     except RetryCell as retry:
         raise self.retry(countdown=retry.countdown, exc=None) from None

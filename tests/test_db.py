@@ -1,0 +1,30 @@
+"""The job database's migrations: a database made by an older revision upgrades in place."""
+
+from __future__ import annotations
+
+import sqlalchemy as sa
+from alembic import command
+from alembic.config import Config
+
+from service.db import MIGRATIONS, Database
+
+
+def _config(connection) -> Config:
+    config = Config()
+    config.set_main_option("script_location", str(MIGRATIONS))
+    config.attributes["connection"] = connection
+    return config
+
+
+def test_upgrade_keeps_rows_and_adds_columns(tmp_path):
+    db = Database(f"sqlite:///{tmp_path / 'old.db'}")
+    with db.engine.begin() as connection:
+        command.upgrade(_config(connection), "0001")
+        connection.execute(sa.text("INSERT INTO tenants (id, name, created_at) VALUES ('t', 'acme', 1.0)"))
+    assert "worker" not in {c["name"] for c in sa.inspect(db.engine).get_columns("cells")}
+    db.migrate()
+    db.migrate()  # idempotent
+    assert "worker" in {c["name"] for c in sa.inspect(db.engine).get_columns("cells")}
+    with db.engine.connect() as connection:
+        assert connection.execute(sa.text("SELECT name FROM tenants")).scalars().all() == ["acme"]
+        assert connection.execute(sa.text("SELECT version_num FROM alembic_version")).scalar() == "0002"
