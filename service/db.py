@@ -135,6 +135,18 @@ class Database:
         self.engine.dispose()
 
 
+def owned_row(db: Database, model: type, tenant_id: str, row_id: str, what: str):
+    """The ``model`` row ``row_id`` of tenant ``tenant_id``.  Another tenant's row is "not found"
+    (404, never 403), so ids do not leak across tenants."""
+    from core.errors import NotFoundError
+
+    with db.session() as s:
+        row = s.get(model, row_id)
+    if row is None or row.tenant_id != tenant_id:
+        raise NotFoundError(f"{what} {row_id!r} not found")
+    return row
+
+
 def migrate(engine: Engine) -> None:
     """Run Alembic's upgrade to head on ``engine``."""
     from alembic import command

@@ -30,7 +30,7 @@ from core.errors import ConflictError, LayerPlanError, NotFoundError, ViewCellEr
 from core.layers import plan_layers
 from core.viewcells import BoxCell, viewcell_from_dict
 from service.blobs import BlobStore
-from service.db import CELL_FINAL, JOB_STATES, CellRow, Database, JobRow, SceneRow, now
+from service.db import CELL_FINAL, JOB_STATES, CellRow, Database, JobRow, SceneRow, now, owned_row
 
 JOB_TYPES = ("layered",)
 MAX_CELLS = 10_000
@@ -140,11 +140,7 @@ def create_job(db: Database, tenant_id: str, scene: SceneRow, spec: JobSpec) -> 
 
 
 def get_job_row(db: Database, tenant_id: str, job_id: str) -> JobRow:
-    with db.session() as s:
-        job = s.get(JobRow, job_id)
-    if job is None or job.tenant_id != tenant_id:
-        raise NotFoundError(f"job {job_id!r} not found")
-    return job
+    return owned_row(db, JobRow, tenant_id, job_id, "job")
 
 
 def job_cells(db: Database, job_id: str) -> list[CellRow]:

@@ -18,11 +18,11 @@ from typing import BinaryIO
 
 from sqlalchemy import select
 
-from core.errors import ConflictError, NotFoundError, SceneLoadError, UploadTooLargeError
+from core.errors import ConflictError, SceneLoadError, UploadTooLargeError
 from core.exchange import load_scene_bytes, supported_extensions
 from core.scene import Scene
 from service.blobs import BlobStore
-from service.db import CELL_FINAL, Database, JobRow, SceneRow, now
+from service.db import CELL_FINAL, Database, JobRow, SceneRow, now, owned_row
 from service.scene_check import check_scene_file
 
 
@@ -95,11 +95,7 @@ def ingest_scene(db: Database, blobs: BlobStore, tenant_id: str, file_name: str,
 
 def get_scene_row(db: Database, tenant_id: str, scene_id: str) -> SceneRow:
     """The tenant's scene ``scene_id``; another tenant's id is not found."""
-    with db.session() as s:
-        row = s.get(SceneRow, scene_id)
-    if row is None or row.tenant_id != tenant_id:
-        raise NotFoundError(f"scene {scene_id!r} not found")
-    return row
+    return owned_row(db, SceneRow, tenant_id, scene_id, "scene")
 
 
 def list_scene_rows(db: Database, tenant_id: str) -> list[SceneRow]:

@@ -14,7 +14,6 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 from service.db import Database
 from service.embedded_redis import EmbeddedRedis, free_port

@@ -10,7 +10,6 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import PIL.Image
@@ -78,7 +77,7 @@ def test_grid_job_pages_equal_what_core_bakes(client, bunny_id, tmp_path):
     scene = load_scene(BUNNY)
     for cell in job["cells"]:
         manifest = client.get(f"/v1/jobs/{job['id']}/cells/{cell['index']}/manifest.json").json()
-        local = write_bundle(bake_layered(scene, viewcell_from_dict(cell["viewcell"]), BakeOptions(resolution=256)), tmp_path / str(cell["index"]))
+        write_bundle(bake_layered(scene, viewcell_from_dict(cell["viewcell"]), BakeOptions(resolution=256)), tmp_path / str(cell["index"]))
         assert len(manifest["pages"]) >= 1
         for page in range(len(manifest["pages"])):
             served = client.get(f"/v1/jobs/{job['id']}/cells/{cell['index']}/atlas/{page}.png")
