@@ -20,6 +20,7 @@ from workers.app import make_celery
 
 from api import routes_dashboard, routes_jobs, routes_ops, routes_results, routes_scenes
 from api.deps import Services
+from api.limits import BodyLimit
 
 
 def create_app(settings: Settings, celery: Celery | None = None, migrate: bool = True) -> FastAPI:
@@ -37,18 +38,7 @@ def create_app(settings: Settings, celery: Celery | None = None, migrate: bool =
         headers = {"WWW-Authenticate": "Bearer"} if error.kind is ErrorKind.UNAUTHORIZED else None
         return JSONResponse({"detail": str(error), "error": type(error).__name__}, status_code=error.kind.http_status, headers=headers)
 
-    @app.middleware("http")
-    async def upload_limit(request: Request, call_next):
-        # Before the multipart body is read: refuse a declared size over the limit, and a request
-        # without a key, so neither is spooled to disk first.
-        if request.method == "POST" and request.url.path == "/v1/scenes":
-            length = request.headers.get("content-length")
-            limit = settings.max_upload_bytes + 64 * 1024  # room for the multipart envelope
-            if length and length.isdigit() and int(length) > limit:
-                return JSONResponse({"detail": f"upload of {int(length)} bytes is larger than the limit of {settings.max_upload_bytes // 2**20} MiB", "error": "UploadTooLargeError"}, status_code=413)
-            if not request.headers.get("authorization"):
-                return JSONResponse({"detail": "missing API key: send 'Authorization: Bearer <key>'", "error": "AuthError"}, status_code=401, headers={"WWW-Authenticate": "Bearer"})
-        return await call_next(request)
+    app.add_middleware(BodyLimit, services=app.state.services)
 
     for module in (routes_scenes, routes_jobs, routes_results, routes_ops, routes_dashboard):
         app.include_router(module.router)

@@ -25,7 +25,7 @@ def submit_job(spec: JobSpec, tenant_id: str = Depends(tenant), svc: Services = 
 
 @router.get("", summary="List jobs (filter by state or scene)")
 def list_jobs(
-    state: str | None = None, scene_id: str | None = None, limit: int = Query(100, ge=1, le=1000), offset: int = Query(0, ge=0),
+    state: str | None = None, scene_id: str | None = None, limit: int = Query(100, ge=1, le=1000), offset: int = Query(0, ge=0, le=2**31 - 1),
     tenant_id: str = Depends(tenant), svc: Services = Depends(services),
 ) -> list[dict]:
     jobs = list_job_rows(svc.db, tenant_id, state, scene_id, limit, offset)
@@ -41,7 +41,7 @@ def get_job(job_id: str, tenant_id: str = Depends(tenant), svc: Services = Depen
 
 @router.post("/{job_id}/cancel", summary="Cancel: queued cells never run, running cells stop at the next layer")
 def cancel(job_id: str, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
-    job = cancel_job(svc.db, tenant_id, job_id)
+    job = cancel_job(svc.db, svc.blobs, tenant_id, job_id)
     return full_job_record(svc.db, job)
 
 

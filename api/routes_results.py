@@ -6,7 +6,7 @@ import tempfile
 import zipfile
 from pathlib import Path
 
-from fastapi import APIRouter, Depends
+from fastapi import APIRouter, Depends, Path as PathParam
 from fastapi.responses import FileResponse, Response
 from starlette.background import BackgroundTask
 
@@ -18,6 +18,9 @@ from api.deps import Services, services, tenant
 
 router = APIRouter(prefix="/v1/jobs/{job_id}", tags=["results"])
 
+CellIndex = PathParam(ge=0, le=2**31 - 1, description="the cell's index in its job")
+PageIndex = PathParam(ge=0, le=2**31 - 1, description="atlas page number")
+
 
 def _result(svc: Services, tenant_id: str, job_id: str, index: int) -> str:
     cell = get_cell_row(svc.db, tenant_id, job_id, index)
@@ -27,7 +30,7 @@ def _result(svc: Services, tenant_id: str, job_id: str, index: int) -> str:
 
 
 @router.get("/cells/{index}/bundle.zip", summary="A cell's impostor bundle as a zip")
-def cell_bundle(job_id: str, index: int, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> Response:
+def cell_bundle(job_id: str, index: int = CellIndex, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> Response:
     key = _result(svc, tenant_id, job_id, index)
     with tempfile.TemporaryDirectory(prefix="farfield-zip-") as tmp:
         data = bundle_zip(svc.blobs.copy_to_directory(key, tmp))
@@ -35,26 +38,24 @@ def cell_bundle(job_id: str, index: int, tenant_id: str = Depends(tenant), svc: 
 
 
 @router.get("/cells/{index}/manifest.json", summary="A cell's bundle manifest")
-def cell_manifest(job_id: str, index: int, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> Response:
+def cell_manifest(job_id: str, index: int = CellIndex, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> Response:
     return Response(svc.blobs.read_bytes(f"{_result(svc, tenant_id, job_id, index)}/{MANIFEST_NAME}"), media_type="application/json")
 
 
 @router.get("/cells/{index}/atlas/{page}.png", summary="One atlas page of a cell (RGBA PNG)")
-def cell_atlas(job_id: str, index: int, page: int, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> Response:
-    if page < 0:
-        raise NotFoundError(f"no atlas page {page}")
+def cell_atlas(job_id: str, index: int = CellIndex, page: int = PageIndex, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> Response:
     key = f"{_result(svc, tenant_id, job_id, index)}/{page_file_name(page)}"
     return Response(svc.blobs.read_bytes(key), media_type="image/png")
 
 
 @router.get("/cells/{index}/impostor.glb", summary="A cell's impostor as GLB")
-def cell_glb(job_id: str, index: int, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> Response:
+def cell_glb(job_id: str, index: int = CellIndex, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> Response:
     key = f"{_result(svc, tenant_id, job_id, index)}/{GLB_NAME}"
     return Response(svc.blobs.read_bytes(key), media_type="model/gltf-binary", headers={"Content-Disposition": f'attachment; filename="cell-{index:05d}.glb"'})
 
 
 @router.get("/cells/{index}", summary="One cell: state, statistics")
-def cell_info(job_id: str, index: int, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
+def cell_info(job_id: str, index: int = CellIndex, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
     return cell_record(get_cell_row(svc.db, tenant_id, job_id, index))
 
 
@@ -64,15 +65,19 @@ def job_database(job_id: str, tenant_id: str = Depends(tenant), svc: Services = 
     if job.index_key is None:
         raise ConflictError(f"job {job_id!r} is {job.state}; its impostor database is written when it ends")
     out = tempfile.NamedTemporaryFile(prefix="farfield-db-", suffix=".zip", delete=False)
-    with out, zipfile.ZipFile(out, "w", zipfile.ZIP_STORED) as archive:  # PNG and GLB are compressed already
-        archive.writestr("index.json", svc.blobs.read_bytes(job.index_key))
-        for cell in job_cells(svc.db, job_id):
-            if cell.result_key is None:
-                continue
-            for name in svc.blobs.list_files(cell.result_key):
-                with archive.open(f"cells/{cell.index:05d}/{name}", "w") as member:
-                    for chunk in svc.blobs.iter_chunks(f"{cell.result_key}/{name}"):
-                        member.write(chunk)
+    try:
+        with out, zipfile.ZipFile(out, "w", zipfile.ZIP_STORED) as archive:  # PNG and GLB are compressed already
+            archive.writestr("index.json", svc.blobs.read_bytes(job.index_key))
+            for cell in job_cells(svc.db, job_id):
+                if cell.result_key is None:
+                    continue
+                for name in svc.blobs.list_files(cell.result_key):
+                    with archive.open(f"cells/{cell.index:05d}/{name}", "w") as member:
+                        for chunk in svc.blobs.iter_chunks(f"{cell.result_key}/{name}"):
+                            member.write(chunk)
+    except BaseException:
+        Path(out.name).unlink(missing_ok=True)
+        raise
     return FileResponse(out.name, media_type="application/zip", filename=f"job-{job_id}.zip", background=BackgroundTask(Path(out.name).unlink, missing_ok=True))
 
 

@@ -23,6 +23,7 @@ def up(workers):
     from service.supervisor import Service, render_devices
 
     service = Service(Settings.from_env(), workers=workers or render_devices())
+    service.handle_signals()  # before any child exists, so none is left behind by an early signal
     try:
         service.start()
         click.echo(f"farfield is up: dashboard {service.url}/  API {service.url}/v1  docs {service.url}/docs")

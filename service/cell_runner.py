@@ -57,16 +57,21 @@ def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, wo
     """Run one cell; returns its new state ("done", "failed", "cancelled") or "skipped".
 
     Raises :class:`RetryCell` when the attempt failed for a reason other than bad input and
-    attempts are left; the cell is queued again and the caller schedules the retry.
+    attempts are left; the cell is queued again and the caller schedules the retry.  Every state
+    change names the attempt it ends, so a stale duplicate delivery changes nothing.
     """
-    cell = claim_cell(db, cell_id, worker)
-    if cell is None:
+    claim = claim_cell(db, cell_id, max_attempts, worker)
+    if claim.ended:
+        finish_job_if_complete(db, blobs, claim.job_id)
+    if claim.cell is None:
         return "skipped"
-    with db.session() as s:
-        job = s.get(JobRow, cell.job_id)
-        scene_row = s.get(SceneRow, job.scene_id)
+    cell, attempt = claim.cell, claim.cell.attempts
     start = time.perf_counter()
     last_check, last_progress = [start], [start]
+
+    def end(state: str, **values) -> None:
+        if end_cell(db, cell_id, attempt, state, seconds=time.perf_counter() - start, **values) and state != "queued":
+            finish_job_if_complete(db, blobs, cell.job_id)
 
     def progress(stage: str, done: int, total: int) -> None:
         # Called after each recorded layer: a cancelled job's running cells stop within
@@ -76,13 +81,16 @@ def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, wo
         clock = time.perf_counter()
         if clock - last_check[0] >= CANCEL_CHECK_S:
             last_check[0] = clock
-            if job_cancelled(db, job.id):
-                raise CellCancelled(f"job {job.id} was cancelled")
+            if job_cancelled(db, cell.job_id):
+                raise CellCancelled(f"job {cell.job_id} was cancelled")
         if clock - last_progress[0] >= PROGRESS_EVERY_S:
             last_progress[0] = clock
             set_progress(db, cell_id, 0.9 * done / max(total, 1))  # recording is most of a cell
 
     try:
+        with db.session() as s:
+            job = s.get(JobRow, cell.job_id)
+            scene_row = s.get(SceneRow, job.scene_id)
         key = result_key(scene_row.content_hash, job.job_type, job.params, cell.viewcell)
         if not blobs.exists(f"{key}/{MANIFEST_NAME}"):
             scene = load_stored_scene(blobs, scene_row)
@@ -92,18 +100,15 @@ def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, wo
                 store_bundle(blobs, key, Path(tmp) / "bundle")
         stats = json.loads(blobs.read_bytes(f"{key}/{MANIFEST_NAME}"))["stats"]
     except CellCancelled:
-        end_cell(db, cell_id, "cancelled", seconds=time.perf_counter() - start)
-        finish_job_if_complete(db, blobs, job.id)
+        end("cancelled")
         return "cancelled"
     except Exception as error:  # noqa: BLE001 - every failure is recorded on the cell
         message = f"{type(error).__name__}: {error}"
         permanent = isinstance(error, FarfieldError) and error.kind in (ErrorKind.BAD_INPUT, ErrorKind.MISSING)
-        if permanent or cell.attempts >= max_attempts:
-            end_cell(db, cell_id, "failed", error=message, seconds=time.perf_counter() - start)
-            finish_job_if_complete(db, blobs, job.id)
+        if permanent or attempt >= max_attempts:
+            end("failed", error=message)
             return "failed"
-        end_cell(db, cell_id, "queued", error=message)
-        raise RetryCell(message, backoff(cell.attempts)) from error
-    end_cell(db, cell_id, "done", result=key, stats=stats, seconds=time.perf_counter() - start)
-    finish_job_if_complete(db, blobs, job.id)
+        end("queued", error=message)
+        raise RetryCell(message, backoff(attempt)) from error
+    end("done", result=key, stats=stats)
     return "done"

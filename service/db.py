@@ -97,11 +97,20 @@ class CellRow(Base):
 
 
 def _sqlite_pragmas(dbapi_connection, _record) -> None:
+    # pysqlite's own transaction handling is switched off (it begins lazily, before the first
+    # write): every transaction begins with BEGIN IMMEDIATE instead (_sqlite_begin), so a
+    # read-then-write such as claiming a cell is atomic, as SELECT ... FOR UPDATE makes it on
+    # PostgreSQL.  SQLAlchemy's documented recipe for serializable SQLite transactions.
+    dbapi_connection.isolation_level = None
     cursor = dbapi_connection.cursor()
     cursor.execute("PRAGMA journal_mode=WAL")  # readers (the API) never block the writer (a worker)
     cursor.execute("PRAGMA busy_timeout=30000")
     cursor.execute("PRAGMA foreign_keys=ON")
     cursor.close()
+
+
+def _sqlite_begin(connection) -> None:
+    connection.exec_driver_sql("BEGIN IMMEDIATE")
 
 
 class Database:
@@ -114,6 +123,7 @@ class Database:
         self.engine: Engine = create_engine(url, pool_pre_ping=True)
         if self.engine.dialect.name == "sqlite":
             event.listen(self.engine, "connect", _sqlite_pragmas)
+            event.listen(self.engine, "begin", _sqlite_begin)
         self.sessions = sessionmaker(self.engine, expire_on_commit=False)
 
     @contextmanager

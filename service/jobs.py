@@ -18,6 +18,7 @@ import hashlib
 import json
 import math
 import uuid
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
@@ -43,7 +44,7 @@ class GridSpec(BaseModel):
     model_config = ConfigDict(extra="forbid")
     lo: tuple[float, float, float]
     hi: tuple[float, float, float]
-    counts: tuple[int, int, int] = Field(description="cells along x, y, z (each >= 1)")
+    counts: tuple[int, int, int] = Field(description=f"cells along x, y, z (each >= 1; {MAX_CELLS} in all at most)")
 
 
 class JobSpec(BaseModel):
@@ -68,12 +69,14 @@ class JobSpec(BaseModel):
 
 def grid_cells(grid: GridSpec) -> list[tuple[tuple[int, int, int], BoxCell]]:
     """The boxes of ``grid``, x fastest, with their (i, j, k)."""
+    # Counts are checked as Python integers first: numpy's int64 product of huge ones would wrap.
+    if min(grid.counts) < 1:
+        raise ViewCellError(f"grid counts must be >= 1, got {list(grid.counts)}")
+    total = math.prod(grid.counts)
+    if total > MAX_CELLS:
+        raise ViewCellError(f"grid of {total} cells is over the limit of {MAX_CELLS}")
     lo, hi = np.asarray(grid.lo, dtype=np.float64), np.asarray(grid.hi, dtype=np.float64)
     counts = np.asarray(grid.counts)
-    if (counts < 1).any():
-        raise ViewCellError(f"grid counts must be >= 1, got {list(grid.counts)}")
-    if int(np.prod(counts)) > MAX_CELLS:
-        raise ViewCellError(f"grid of {int(np.prod(counts))} cells is over the limit of {MAX_CELLS}")
     if not (hi > lo).all():
         raise ViewCellError(f"grid box needs lo < hi on every axis, got lo={list(grid.lo)}, hi={list(grid.hi)}")
     step = (hi - lo) / counts
@@ -94,8 +97,8 @@ def bake_options(params: dict) -> BakeOptions:
         raise LayerPlanError(f"unknown technique parameters {unknown}; known: {list(OPTION_NAMES)}")
     try:
         return BakeOptions(resolution=params["resolution"], fov_deg=params["fov_deg"], **params["options"])
-    except TypeError as error:
-        raise LayerPlanError(f"bad technique parameters: {error}") from None
+    except (TypeError, ValueError, OverflowError) as error:
+        raise LayerPlanError(f"bad technique parameters {params['options']}: {error}") from None
 
 
 def part_bounds(scene: SceneRow, objects: list[str] | None) -> np.ndarray:
@@ -263,21 +266,47 @@ def result_key(scene_hash: str, job_type: str, params: dict, viewcell: dict) -> 
     return "impostors/" + hashlib.sha256(blob.encode()).hexdigest()
 
 
-def claim_cell(db: Database, cell_id: str, worker: str | None = None) -> CellRow | None:
-    """Mark the cell running and count the attempt; None when it must not run (gone, final, cancelled)."""
+@dataclass(frozen=True)
+class Claim:
+    """What :func:`claim_cell` decided: run ``cell`` (attempt ``cell.attempts``), or not; ``ended``
+    when it ended the cell itself (cancelled job, attempts used up), so the job may be complete."""
+
+    cell: CellRow | None
+    job_id: str | None = None
+    ended: bool = False
+
+
+def claim_cell(db: Database, cell_id: str, max_attempts: int, worker: str | None = None) -> Claim:
+    """Mark the cell running and count the attempt, unless it must not run.
+
+    A cell found ``running`` is one whose earlier attempt never reported back: its worker process
+    died (killed, out of memory, a driver crash) and the broker delivered it again.  Such a cell
+    runs again until ``max_attempts``, then is failed here, so a cell that kills its worker cannot
+    loop forever.  Locks the job row before the cell row, as :func:`cancel_job` does.
+    """
     with db.session() as s:
-        cell = s.get(CellRow, cell_id, with_for_update=True)
-        if cell is None or cell.state in CELL_FINAL:
-            return None
-        job = s.get(JobRow, cell.job_id)
+        job_id = s.scalar(select(CellRow.job_id).where(CellRow.id == cell_id))
+        if job_id is None:
+            return Claim(None)
+        job = s.get(JobRow, job_id, with_for_update=True)
+        cell = s.get(CellRow, cell_id, with_for_update=True, populate_existing=True)
+        if cell.state in CELL_FINAL:
+            return Claim(None, job_id)
         if job.state == "cancelled":
             cell.state, cell.finished_at = "cancelled", now()
-            return None
+            return Claim(None, job_id, ended=True)
+        if cell.state == "running" and cell.attempts >= max_attempts:
+            cell.state, cell.finished_at = "failed", now()
+            cell.error = (
+                f"attempt {cell.attempts} of {max_attempts} never reported back (its worker process died: killed, "
+                "out of memory or crashed; or the database or blob store failed around it)"
+            )
+            return Claim(None, job_id, ended=True)
         cell.state, cell.attempts, cell.started_at, cell.progress, cell.error = "running", cell.attempts + 1, now(), 0.0, None
         cell.worker = worker
         if job.state == "queued":
             job.state, job.started_at = "running", now()
-        return cell
+        return Claim(cell, job_id)
 
 
 def job_cancelled(db: Database, job_id: str) -> bool:
@@ -290,22 +319,29 @@ def set_progress(db: Database, cell_id: str, fraction: float) -> None:
         s.execute(update(CellRow).where(CellRow.id == cell_id, CellRow.state == "running").values(progress=fraction))
 
 
-def end_cell(db: Database, cell_id: str, state: str, *, result: str | None = None, stats: dict | None = None, error: str | None = None, seconds: float | None = None) -> None:
-    """Move a running cell to ``state`` (done, failed, cancelled, or queued for another attempt)."""
+def end_cell(db: Database, cell_id: str, attempt: int, state: str, *, result: str | None = None, stats: dict | None = None, error: str | None = None, seconds: float | None = None) -> bool:
+    """Move the cell from running attempt ``attempt`` to ``state`` (done, failed, cancelled, or
+    queued for another attempt).  False, and nothing written, when the cell has moved on since (a
+    stale duplicate delivery of an older attempt, or a cancel)."""
+    values: dict = {"state": state, "error": error}
+    if state == "queued":
+        values["progress"] = 0.0
+    else:
+        values.update(finished_at=now(), seconds=seconds)
+        if state == "done":
+            values["progress"] = 1.0
+    if result is not None:
+        values.update(result_key=result, stats=stats)
     with db.session() as s:
-        cell = s.get(CellRow, cell_id)
-        cell.state, cell.error = state, error
-        if state == "queued":
-            cell.progress = 0.0
-        else:
-            cell.finished_at, cell.seconds = now(), seconds
-            cell.progress = 1.0 if state == "done" else cell.progress
-        if result is not None:
-            cell.result_key, cell.stats = result, stats
+        return s.execute(update(CellRow).where(CellRow.id == cell_id, CellRow.state == "running", CellRow.attempts == attempt).values(**values)).rowcount == 1
 
 
 def finish_job_if_complete(db: Database, blobs: BlobStore, job_id: str) -> bool:
-    """End the job when no cell is left to run and write its index; True if this call ended it."""
+    """End the job when no cell is left to run; True if this call ended it.
+
+    The index is written before the state flips, so a ``done`` job always has one; workers that
+    finish at once may both write it (the same document), and the conditional update lets one win.
+    """
     with db.session() as s:
         open_cells = s.scalar(select(func.count()).select_from(CellRow).where(CellRow.job_id == job_id, CellRow.state.in_(("queued", "running"))))
         if open_cells:
@@ -315,12 +351,13 @@ def finish_job_if_complete(db: Database, blobs: BlobStore, job_id: str) -> bool:
             if job.finished_at is None:
                 job.finished_at = now()
             return False
+        if job.state not in ("queued", "running"):
+            return False
         states = set(s.scalars(select(CellRow.state).where(CellRow.job_id == job_id)))
-        final = "failed" if "failed" in states else "done" if states <= {"done"} else "cancelled"
-        # One winner among workers that end cells at once: the conditional update succeeds once.
-        won = s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state.in_(("queued", "running"))).values(state=final, finished_at=now())).rowcount
-    if won:
-        write_index(db, blobs, job_id)
+    final = "failed" if "failed" in states else "done" if states <= {"done"} else "cancelled"
+    key = write_index(db, blobs, job_id, final)
+    with db.session() as s:
+        won = s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state.in_(("queued", "running"))).values(state=final, finished_at=now(), index_key=key)).rowcount
     return bool(won)
 
 
@@ -337,44 +374,44 @@ def index_document(job: JobRow, cells: list[CellRow]) -> dict:
     }  # fmt: skip
 
 
-def write_index(db: Database, blobs: BlobStore, job_id: str) -> str:
+def write_index(db: Database, blobs: BlobStore, job_id: str, final_state: str) -> str:
+    """Write the job's impostor database index (as it ends in ``final_state``); returns its key."""
     with db.session() as s:
         job = s.get(JobRow, job_id)
-    cells = job_cells(db, job_id)
+    job.state = final_state  # the state the index describes; the row itself changes after the write
     key = f"jobs/{job_id}/index.json"
-    blobs.put_bytes(key, json.dumps(index_document(job, cells), sort_keys=True, indent=1).encode())
-    with db.session() as s:
-        s.execute(update(JobRow).where(JobRow.id == job_id).values(index_key=key))
+    blobs.put_bytes(key, json.dumps(index_document(job, job_cells(db, job_id)), sort_keys=True, indent=1).encode())
     return key
 
 
 # --- the API's side ----------------------------------------------------------------------------
 
 
-def cancel_job(db: Database, tenant_id: str, job_id: str) -> JobRow:
+def cancel_job(db: Database, blobs: BlobStore, tenant_id: str, job_id: str) -> JobRow:
     """Cancel: queued cells never run; running cells stop at their next layer."""
-    job = get_job_row(db, tenant_id, job_id)
-    if job.state in ("done", "failed", "cancelled"):
-        raise ConflictError(f"job {job_id!r} is already {job.state}")
+    get_job_row(db, tenant_id, job_id)
     with db.session() as s:
-        s.execute(update(JobRow).where(JobRow.id == job_id).values(state="cancelled"))
-        s.execute(update(CellRow).where(CellRow.job_id == job_id, CellRow.state == "queued").values(state="cancelled", finished_at=now()))
-    with db.session() as s:
-        running = s.scalar(select(func.count()).select_from(CellRow).where(CellRow.job_id == job_id, CellRow.state == "running"))
-        if not running:
-            s.execute(update(JobRow).where(JobRow.id == job_id).values(finished_at=now()))
+        # Conditional, and the job row first (the lock order of claim_cell): a job that ended
+        # meanwhile stays as it ended.
+        changed = s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state.in_(("queued", "running"))).values(state="cancelled")).rowcount
+        if changed:
+            s.execute(update(CellRow).where(CellRow.job_id == job_id, CellRow.state == "queued").values(state="cancelled", finished_at=now()))
+    if not changed:
+        raise ConflictError(f"job {job_id!r} is already {get_job_row(db, tenant_id, job_id).state}")
+    finish_job_if_complete(db, blobs, job_id)
     return get_job_row(db, tenant_id, job_id)
 
 
 def retry_job(db: Database, tenant_id: str, job_id: str) -> list[str]:
     """Queue the failed cells of a failed job again (attempts reset); returns their ids."""
-    job = get_job_row(db, tenant_id, job_id)
-    if job.state != "failed":
-        raise ConflictError(f"only a failed job can be retried; job {job_id!r} is {job.state}")
+    get_job_row(db, tenant_id, job_id)
     with db.session() as s:
-        ids = list(s.scalars(select(CellRow.id).where(CellRow.job_id == job_id, CellRow.state == "failed")))
-        s.execute(update(CellRow).where(CellRow.id.in_(ids)).values(state="queued", attempts=0, error=None, progress=0.0, finished_at=None))
-        s.execute(update(JobRow).where(JobRow.id == job_id).values(state="running", finished_at=None, index_key=None))
+        changed = s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state == "failed").values(state="running", finished_at=None, index_key=None)).rowcount
+        if changed:
+            ids = list(s.scalars(select(CellRow.id).where(CellRow.job_id == job_id, CellRow.state == "failed")))
+            s.execute(update(CellRow).where(CellRow.id.in_(ids)).values(state="queued", attempts=0, error=None, progress=0.0, finished_at=None))
+    if not changed:
+        raise ConflictError(f"only a failed job can be retried; job {job_id!r} is {get_job_row(db, tenant_id, job_id).state}")
     return ids
 
 

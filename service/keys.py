@@ -46,14 +46,26 @@ def create_key(db: Database, tenant_name: str) -> tuple[str, str]:
     return key, prefix
 
 
+BOOTSTRAP = "bootstrap-"  # prefix of the admin key from the environment, followed by part of its digest
+
+
+def _bootstrap_prefix(key: str) -> str:
+    return BOOTSTRAP + _digest(key)[:16]
+
+
 def ensure_admin_key(db: Database, key: str) -> None:
-    """Store ``key`` (FARFIELD_ADMIN_KEY) for the bootstrap tenant, once."""
-    prefix = _prefix_of(key) or "admin-" + _digest(key)[:12]
+    """Make ``key`` (FARFIELD_ADMIN_KEY, or the one farfield up generates) the bootstrap tenant's
+    admin key, and revoke any earlier one: setting a new admin key rotates it."""
+    prefix = _bootstrap_prefix(key)
     tenant = tenant_named(db, ADMIN_TENANT)
     with db.session() as s:
         row = s.scalar(select(ApiKey).where(ApiKey.prefix == prefix))
         if row is None:
             s.add(ApiKey(id=uuid.uuid4().hex, tenant_id=tenant.id, prefix=prefix, digest=_digest(key), created_at=now()))
+        elif row.revoked_at is not None:
+            row.revoked_at = None  # set again on purpose
+        for old in s.scalars(select(ApiKey).where(ApiKey.prefix.startswith(BOOTSTRAP), ApiKey.prefix != prefix, ApiKey.revoked_at.is_(None))):
+            old.revoked_at = now()
 
 
 def revoke_key(db: Database, prefix: str) -> None:
@@ -79,9 +91,10 @@ def authenticate(db: Database, key: str | None) -> str:
     if not key:
         raise AuthError("missing API key: send 'Authorization: Bearer <key>'")
     digest = _digest(key)
-    prefix = _prefix_of(key) or "admin-" + digest[:12]
     with db.session() as s:
-        row = s.scalar(select(ApiKey).where(ApiKey.prefix == prefix))
+        row = s.scalar(select(ApiKey).where(ApiKey.prefix == _prefix_of(key))) if _prefix_of(key) else None
+        if row is None or not hmac.compare_digest(row.digest, digest):
+            row = s.scalar(select(ApiKey).where(ApiKey.prefix == _bootstrap_prefix(key)))
     if row is None or not hmac.compare_digest(row.digest, digest):
         raise AuthError("unknown API key")
     if row.revoked_at is not None:

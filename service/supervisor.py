@@ -1,8 +1,11 @@
 """``farfield up``: embedded Redis (when no REDIS_URL), the API under uvicorn, and render workers.
 
-Children run as separate processes with the same settings in their environment; the supervisor
-restarts Redis if it dies (its append-only file keeps the queue), and on SIGINT/SIGTERM stops the
-API, then the workers (warm shutdown: a running cell finishes or is redelivered), then Redis.
+Children run as separate processes, each in its own session (so a Ctrl-C on the terminal reaches
+only the supervisor), with the same settings in their environment.  The supervisor restarts Redis
+(its append-only file keeps the queue) and workers that die, and on SIGINT/SIGTERM, which it
+handles from its first moment, stops the API, then the workers (warm shutdown: a running cell
+finishes or is delivered again later), then Redis; a child that does not stop in time is killed
+with its whole process group (a worker's pool processes included).
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from service.db import Database
 from service.embedded_redis import EmbeddedRedis, free_port
@@ -72,8 +76,20 @@ class Service:
     redis: EmbeddedRedis | None = None
     api: subprocess.Popen | None = None
     worker_processes: list[subprocess.Popen] = field(default_factory=list)
+    worker_specs: list[tuple[list[str], dict, Path]] = field(default_factory=list)
     key: str = ""
     url: str = ""
+    stop_requested: list = field(default_factory=list)
+
+    def handle_signals(self) -> None:
+        """From now on SIGINT and SIGTERM ask :meth:`watch` to return (call before :meth:`start`)."""
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            signal.signal(sig, lambda *_: self.stop_requested.append(True))
+
+    @staticmethod
+    def _spawn(command: list[str], env: dict, log_path: Path) -> subprocess.Popen:
+        with open(log_path, "ab") as log:  # the child keeps its own copy of the descriptor
+            return subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
 
     def start(self) -> Service:
         settings = self.settings
@@ -91,15 +107,12 @@ class Service:
         logs.mkdir(exist_ok=True)
         gpus = gpu_count()
         for i in range(self.workers):
-            log = open(logs / f"worker{i}.log", "ab")  # noqa: SIM115 - owned by the child for its life
             # With GPUs, worker i renders on EGL device i (round robin when there are more workers).
             device = {"FARFIELD_EGL_DEVICE": str(i % gpus)} if gpus else {}
-            self.worker_processes.append(subprocess.Popen(worker_command(f"worker{i}"), env={**env, **device}, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL))
-        log = open(logs / "api.log", "ab")  # noqa: SIM115
-        self.api = subprocess.Popen(
-            [sys.executable, "-m", "uvicorn", "api.app:app_from_env", "--factory", "--host", settings.host, "--port", str(port), "--log-level", "warning"],
-            env=env, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-        )  # fmt: skip
+            self.worker_specs.append((worker_command(f"worker{i}"), {**env, **device}, logs / f"worker{i}.log"))
+            self.worker_processes.append(self._spawn(*self.worker_specs[-1]))
+        api = [sys.executable, "-m", "uvicorn", "api.app:app_from_env", "--factory", "--host", settings.host, "--port", str(port), "--log-level", "warning"]
+        self.api = self._spawn(api, env, logs / "api.log")
         self.url = f"http://{settings.host}:{port}"
         self._wait_for_api()
         return self
@@ -112,7 +125,7 @@ class Service:
             if self.api.poll() is not None:
                 raise RuntimeError(f"the API exited with code {self.api.returncode}; see {self.settings.home / 'logs' / 'api.log'}")
             try:
-                if httpx.get(self.url + "/v1/health", timeout=2).status_code == 200:
+                if httpx.get(self.url + "/v1/health", timeout=2, trust_env=False).status_code == 200:
                     return
             except httpx.HTTPError:
                 pass
@@ -120,15 +133,16 @@ class Service:
         raise RuntimeError(f"the API did not answer at {self.url} within {timeout:.0f} s")
 
     def watch(self) -> None:
-        """Keep Redis alive until a signal arrives."""
-        stop = []
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, lambda *_: stop.append(True))
-        while not stop:
+        """Keep Redis and the workers alive until a signal arrives (see :meth:`handle_signals`)."""
+        while not self.stop_requested:
             if self.redis is not None and not self.redis.alive():
                 self.redis.start()
+            for i, process in enumerate(self.worker_processes):
+                if process.poll() is not None:
+                    print(f"farfield: worker{i} exited with code {process.returncode}; starting it again", file=sys.stderr)
+                    self.worker_processes[i] = self._spawn(*self.worker_specs[i])
             if self.api.poll() is not None:
-                raise RuntimeError(f"the API exited with code {self.api.returncode}")
+                raise RuntimeError(f"the API exited with code {self.api.returncode}; see {self.settings.home / 'logs' / 'api.log'}")
             time.sleep(0.5)
 
     def stop(self) -> None:
@@ -143,7 +157,7 @@ class Service:
                 try:
                     p.wait(max(0.1, deadline - time.monotonic()))
                 except subprocess.TimeoutExpired:
-                    p.kill()
+                    os.killpg(p.pid, signal.SIGKILL)  # its own session: the group is it and its children
                     p.wait()
         if self.redis is not None:
             self.redis.stop()

@@ -29,6 +29,7 @@ COMMAND: list[str] = []
 def _compose(*args: str) -> subprocess.CompletedProcess:
     # Without the variables the file interpolates, so that its defaults are what is checked.
     env = {k: v for k, v in os.environ.items() if not k.startswith(("FARFIELD_", "MINIO_", "POSTGRES_", "COMPOSE_"))}
+    env["FARFIELD_ADMIN_KEY"] = "ff_admin_test-secret"  # required: the file has no default admin key
     return subprocess.run([*COMMAND, "-f", str(COMPOSE), *args], cwd=ROOT, env=env, check=False, capture_output=True, text=True, timeout=120)
 
 

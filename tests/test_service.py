@@ -300,3 +300,50 @@ def test_farfield_worker_joins_the_service(service, client, bunny_id, tmp_path):
     finally:
         extra.terminate()
         extra.wait(60)
+
+
+def test_a_cell_that_keeps_killing_its_worker_fails_after_the_attempt_limit(service, client, bunny_id):
+    """Each delivery's pool process is SIGKILLed mid-cell: after FARFIELD_MAX_ATTEMPTS (3) attempts the
+    next delivery fails the cell instead of running it forever, and the job ends."""
+    grid = {**BUNNY_GRID, "counts": [1, 1, 1]}
+    job_id = client.post("/v1/jobs", json={"scene_id": bunny_id, "grid": grid, "resolution": 1536}).json()["id"]
+    for attempt in (1, 2, 3):
+        deadline = time.monotonic() + 120
+        while True:
+            cell = client.get(f"/v1/jobs/{job_id}").json()["cells"][0]
+            if cell["state"] == "running" and cell["attempts"] == attempt and cell["progress"] > 0:
+                break
+            assert cell["state"] in ("queued", "running") and time.monotonic() < deadline, cell
+            time.sleep(0.05)
+        for pid in service.worker_pool_children():
+            os.kill(pid, signal.SIGKILL)
+    job = wait_for_job(client, job_id, timeout=120)
+    assert job["state"] == "failed"
+    assert job["cells"][0]["attempts"] == 3 and "never reported back" in job["cells"][0]["error"]
+
+
+def test_bodies_are_bounded_as_they_arrive(service, client):
+    """A chunked body (no Content-Length) over the limit is cut off with 413, and an upload with a
+    wrong key is refused before it is read."""
+    def chunks(total: int):
+        for _ in range(total // 2**20):
+            yield b"\0" * 2**20
+
+    boundary = "farfieldboundary"
+
+    def multipart(total: int):
+        yield f'--{boundary}\r\nContent-Disposition: form-data; name="file"; filename="big.stl"\r\n\r\n'.encode()
+        yield from chunks(total)
+        yield f"\r\n--{boundary}--\r\n".encode()
+
+    before = blob_files(service)
+    headers = {"content-type": f"multipart/form-data; boundary={boundary}"}
+    response = client.post("/v1/scenes", content=multipart(8 * 2**20), headers=headers)
+    assert response.status_code == 413, response.text
+    with service.client(key="ff_wrong_key") as stranger:
+        response = stranger.post("/v1/scenes", content=multipart(8 * 2**20), headers=headers)
+        assert response.status_code == 401
+    response = client.post("/v1/jobs", content=chunks(16 * 2**20), headers={"content-type": "application/json"})
+    assert response.status_code == 413
+    assert blob_files(service) == before
+    assert client.get("/v1/health").json()["status"] == "ok"

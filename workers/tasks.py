@@ -12,6 +12,7 @@ from service.settings import Settings
 from workers.app import BAKE_CELL, celery_app
 
 _STATE: dict = {}
+INFRASTRUCTURE_RETRY_S = 10  # the cell itself counts attempts; claim_cell fails it past the limit
 
 
 def _services() -> tuple[Settings, Database, BlobStore]:
@@ -32,3 +33,5 @@ def bake_cell(self, cell_id: str) -> str:
         return run_cell(db, blobs, cell_id, settings.max_attempts, worker=self.request.hostname)
     except RetryCell as retry:
         raise self.retry(countdown=retry.countdown, exc=None) from None
+    except Exception as error:  # the database or blob store failed around the cell: try again later
+        raise self.retry(countdown=INFRASTRUCTURE_RETRY_S, exc=error) from error

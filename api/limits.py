@@ -1,0 +1,72 @@
+"""Request bodies are bounded while they arrive, and uploads are authenticated before they are read.
+
+FastAPI reads (and Starlette spools to disk) a request's body before the route's dependencies run,
+so neither a size check in the route nor its key check would stop a multi-gigabyte body from a
+stranger.  :class:`BodyLimit` is plain ASGI middleware in front of everything: it refuses a declared
+``Content-Length`` over the limit at once, counts the bytes of a body without one (chunked) as they
+arrive and aborts past the limit (413), and checks the key of a scene upload before a byte of it
+is read (401).
+"""
+
+from __future__ import annotations
+
+import json
+
+from fastapi import HTTPException
+from starlette.concurrency import run_in_threadpool
+
+from core.errors import AuthError
+from service.keys import authenticate
+
+JSON_BODY_LIMIT = 8 * 2**20  # job specs: 10,000 explicit view cells fit with room to spare
+MULTIPART_ENVELOPE = 64 * 1024
+
+
+class BodyLimit:
+    """ASGI middleware: 413 past the limit of the route, 401 for an upload with a bad key."""
+
+    def __init__(self, app, services) -> None:
+        self.app, self.services = app, services
+
+    def _limit(self, scope) -> int:
+        if scope["method"] == "POST" and scope["path"] == "/v1/scenes":
+            return self.services.settings.max_upload_bytes + MULTIPART_ENVELOPE
+        return JSON_BODY_LIMIT
+
+    async def _reply(self, send, status: int, detail: str, error: str) -> None:
+        headers = [(b"content-type", b"application/json")]
+        if status == 401:
+            headers.append((b"www-authenticate", b"Bearer"))
+        await send({"type": "http.response.start", "status": status, "headers": headers})
+        await send({"type": "http.response.body", "body": json.dumps({"detail": detail, "error": error}).encode()})
+
+    async def __call__(self, scope, receive, send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        limit = self._limit(scope)
+        headers = dict(scope["headers"])
+        length = headers.get(b"content-length", b"").decode()
+        if length.isdigit() and int(length) > limit:
+            await self._reply(send, 413, f"request body of {int(length)} bytes is larger than the limit of {limit} bytes", "UploadTooLargeError")
+            return
+        if scope["method"] == "POST" and scope["path"] == "/v1/scenes":
+            scheme, _, key = headers.get(b"authorization", b"").decode(errors="replace").partition(" ")
+            try:
+                await run_in_threadpool(authenticate, self.services.db, key.strip() if scheme.lower() == "bearer" else None)
+            except AuthError as error:
+                await self._reply(send, 401, str(error), "AuthError")
+                return
+        received = 0
+
+        async def counted():
+            nonlocal received
+            message = await receive()
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+                if received > limit:
+                    # An HTTPException passes through FastAPI's body parsing unchanged.
+                    raise HTTPException(413, f"request body is larger than the limit of {limit} bytes")
+            return message
+
+        await self.app(scope, counted, send)
