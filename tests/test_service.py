@@ -127,6 +127,8 @@ def test_bad_uploads_leave_nothing_behind(service, client, name, content, status
         ({"objects": ["nope"]}, 404, "no objects named"),
         ({"options": {"grid_cell": 0}}, 422, "grid cell"),
         ({"grid": {"lo": [0, 0, 0], "hi": [1, 1, 1], "counts": [0, 1, 1]}}, 422, "counts"),
+        ({"grid": {"lo": [0, 0, 0], "hi": [1, 1, 1], "counts": [2**32, 2**32, 1]}}, 422, "over the limit"),
+        ({"options": {"grid_cell": "abc"}}, 422, "technique parameters"),
     ],
 )
 def test_bad_job_parameters_are_refused(client, bunny_id, change, status, message):
