@@ -6,6 +6,8 @@
 
 from __future__ import annotations
 
+from contextlib import asynccontextmanager
+
 from celery import Celery
 from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
@@ -21,6 +23,7 @@ from workers.app import make_celery
 from api import routes_dashboard, routes_jobs, routes_ops, routes_results, routes_scenes
 from api.deps import Services
 from api.limits import BodyLimit
+from api.sweeper import LostCellSweeper
 
 
 def create_app(settings: Settings, celery: Celery | None = None, migrate: bool = True) -> FastAPI:
@@ -30,8 +33,17 @@ def create_app(settings: Settings, celery: Celery | None = None, migrate: bool =
         db.migrate()
     if settings.admin_key:
         ensure_admin_key(db, settings.admin_key)
-    app = FastAPI(title="farfield", version=__version__, description="Impostor baking service: scenes, placement jobs, impostor databases.")
-    app.state.services = Services(settings, db, blob_store(settings), celery or make_celery(settings))
+    services = Services(settings, db, blob_store(settings), celery or make_celery(settings))
+
+    @asynccontextmanager
+    async def lifespan(_app: FastAPI):
+        sweeper = LostCellSweeper(services)
+        sweeper.start()
+        yield
+        sweeper.stop()
+
+    app = FastAPI(title="farfield", version=__version__, description="Impostor baking service: scenes, placement jobs, impostor databases.", lifespan=lifespan)
+    app.state.services = services
 
     @app.exception_handler(FarfieldError)
     async def farfield_error(_request: Request, error: FarfieldError) -> JSONResponse:

@@ -91,6 +91,7 @@ class CellRow(Base):
     result_key: Mapped[str | None] = mapped_column(String(500), nullable=True)
     stats: Mapped[dict | None] = mapped_column(JSON, nullable=True)
     progress: Mapped[float] = mapped_column(Float, default=0.0)  # 0..1 within the running attempt
+    queued_at: Mapped[float | None] = mapped_column(Float, nullable=True)  # last sent to the queue
     started_at: Mapped[float | None] = mapped_column(Float, nullable=True)
     finished_at: Mapped[float | None] = mapped_column(Float, nullable=True)
     seconds: Mapped[float | None] = mapped_column(Float, nullable=True)

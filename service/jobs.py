@@ -138,7 +138,7 @@ def create_job(db: Database, tenant_id: str, scene: SceneRow, spec: JobSpec) -> 
         s.add(job)
         s.flush()
         for n, (grid, cell) in enumerate(cells):
-            s.add(CellRow(id=uuid.uuid4().hex, job_id=job.id, index=n, grid=grid, viewcell=cell.to_dict(), state="queued", attempts=0, progress=0.0))
+            s.add(CellRow(id=uuid.uuid4().hex, job_id=job.id, index=n, grid=grid, viewcell=cell.to_dict(), state="queued", attempts=0, progress=0.0, queued_at=now()))
     return job
 
 
@@ -325,7 +325,7 @@ def end_cell(db: Database, cell_id: str, attempt: int, state: str, *, result: st
     stale duplicate delivery of an older attempt, or a cancel)."""
     values: dict = {"state": state, "error": error}
     if state == "queued":
-        values["progress"] = 0.0
+        values.update(progress=0.0, queued_at=now())
     else:
         values.update(finished_at=now(), seconds=seconds)
         if state == "done":
@@ -409,10 +409,30 @@ def retry_job(db: Database, tenant_id: str, job_id: str) -> list[str]:
         changed = s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state == "failed").values(state="running", finished_at=None, index_key=None)).rowcount
         if changed:
             ids = list(s.scalars(select(CellRow.id).where(CellRow.job_id == job_id, CellRow.state == "failed")))
-            s.execute(update(CellRow).where(CellRow.id.in_(ids)).values(state="queued", attempts=0, error=None, progress=0.0, finished_at=None))
+            s.execute(update(CellRow).where(CellRow.id.in_(ids)).values(state="queued", attempts=0, error=None, progress=0.0, finished_at=None, queued_at=now()))
     if not changed:
         raise ConflictError(f"only a failed job can be retried; job {job_id!r} is {get_job_row(db, tenant_id, job_id).state}")
     return ids
+
+
+def lost_queued_cells(db: Database, older_than_s: float) -> list[str]:
+    """Cells queued longer than ``older_than_s`` ago, claimed for sending again.
+
+    A queued cell's message can be lost: Redis restarted without writing its last second, or the
+    API died while sending a job's cells.  Such a cell would wait forever; sending it again costs at
+    most a duplicate delivery, which the attempt-keyed state changes make harmless.  Each id is
+    claimed by a conditional update of ``queued_at``, so several API processes sweeping at once send
+    it once.
+    """
+    cutoff = now() - older_than_s
+    with db.session() as s:
+        candidates = list(s.scalars(select(CellRow.id).where(CellRow.state == "queued", CellRow.queued_at < cutoff).limit(MAX_CELLS)))
+    claimed = []
+    for cell_id in candidates:
+        with db.session() as s:
+            if s.execute(update(CellRow).where(CellRow.id == cell_id, CellRow.state == "queued", CellRow.queued_at < cutoff).values(queued_at=now())).rowcount:
+                claimed.append(cell_id)
+    return claimed
 
 
 def lookup(cells: list[CellRow], point) -> list[CellRow]:

@@ -21,6 +21,7 @@ shared services instead, so API and workers can run on several machines.
 | ``FARFIELD_HOST``, ``FARFIELD_PORT`` | ``127.0.0.1``, 8000 | where ``farfield up`` serves the API |
 | ``FARFIELD_MAX_ATTEMPTS`` | 3 | attempts per cell before it is marked failed |
 | ``FARFIELD_VISIBILITY_TIMEOUT`` | 3600 | seconds before Redis redelivers an unacknowledged cell |
+| ``FARFIELD_REQUEUE_AFTER`` | 3600 | seconds a cell may stay queued before the API sends it again (a lost message) |
 """
 
 from __future__ import annotations
@@ -89,6 +90,7 @@ class Settings:
     port: int = 8000
     max_attempts: int = 3
     visibility_timeout: int = 3600
+    requeue_after: int = 3600  # a cell queued this long without starting is sent again
 
     @classmethod
     def from_env(cls, env: Mapping[str, str] | None = None) -> Settings:
@@ -114,6 +116,7 @@ class Settings:
             port=_int(env, "FARFIELD_PORT", 8000, minimum=0),
             max_attempts=_int(env, "FARFIELD_MAX_ATTEMPTS", 3),
             visibility_timeout=_int(env, "FARFIELD_VISIBILITY_TIMEOUT", 3600),
+            requeue_after=_int(env, "FARFIELD_REQUEUE_AFTER", 3600),
         )
 
     def with_redis(self, url: str) -> Settings:
@@ -129,6 +132,7 @@ class Settings:
             "FARFIELD_MAX_UPLOAD_MB": str(self.max_upload_bytes // 2**20),
             "FARFIELD_MAX_ATTEMPTS": str(self.max_attempts),
             "FARFIELD_VISIBILITY_TIMEOUT": str(self.visibility_timeout),
+            "FARFIELD_REQUEUE_AFTER": str(self.requeue_after),
         }
         if self.redis_url:
             env["REDIS_URL"] = self.redis_url

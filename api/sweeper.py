@@ -1,0 +1,38 @@
+"""The API's background sweep: cells queued too long without starting are sent to the queue again."""
+
+from __future__ import annotations
+
+import logging
+import threading
+
+from service.jobs import lost_queued_cells
+
+log = logging.getLogger("farfield.sweeper")
+
+
+class LostCellSweeper:
+    """A daemon thread that every ``every_s`` sends again the cells :func:`lost_queued_cells` finds."""
+
+    def __init__(self, services, every_s: float | None = None) -> None:
+        self.services = services
+        after = services.settings.requeue_after
+        self.every_s = every_s or min(30.0, max(1.0, after / 4))
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="farfield-sweeper", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=10)
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.every_s):
+            try:
+                lost = lost_queued_cells(self.services.db, self.services.settings.requeue_after)
+                if lost:
+                    log.warning("sending %d queued cells again (queued over %d s without starting)", len(lost), self.services.settings.requeue_after)
+                    self.services.enqueue(lost)
+            except Exception:  # noqa: BLE001 - the next sweep tries again (e.g. Redis is restarting)
+                log.exception("sweep failed")
