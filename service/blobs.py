@@ -50,6 +50,8 @@ class BlobStore(Protocol):
 
     def put_directory(self, prefix: str, directory: str | os.PathLike) -> list[str]: ...
 
+    def publish_directory(self, prefix: str, directory: str | os.PathLike, last: str) -> bool: ...
+
     def exists(self, key: str) -> bool: ...
 
     def read_bytes(self, key: str) -> bytes: ...
@@ -138,6 +140,34 @@ class LocalBlobStore:
                 self.put_bytes(key, file.read_bytes())
                 keys.append(key)
         return keys
+
+    def publish_directory(self, prefix: str, directory: str | os.PathLike, last: str) -> bool:
+        """Store the files of ``directory`` under ``prefix/`` all at once, unless a complete set is
+        there already (its ``last`` file exists); True if this call stored them.
+
+        The files go to a hidden staging folder beside ``prefix`` that is renamed into place, so
+        readers see all of them or none, and of two workers publishing the same prefix at once,
+        exactly one set wins whole.
+        """
+        target = self.path(prefix)
+        if (target / last).is_file():
+            return False
+        target.parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.staging-", dir=target.parent))
+        try:
+            for file in Path(directory).iterdir():
+                if file.is_file():
+                    shutil.copyfile(file, staging / file.name)
+            if target.is_dir() and not (target / last).is_file():
+                shutil.rmtree(target, ignore_errors=True)  # an incomplete set from before this scheme
+            os.rename(staging, target)  # fails when another publisher's set is already in place
+            return True
+        except OSError:
+            if (target / last).is_file():
+                return False
+            raise
+        finally:
+            shutil.rmtree(staging, ignore_errors=True)
 
     def exists(self, key: str) -> bool:
         return self.path(key).is_file()
@@ -316,6 +346,19 @@ class S3BlobStore:
                     self.put_stream(key, source)
                 keys.append(key)
         return keys
+
+    def publish_directory(self, prefix: str, directory: str | os.PathLike, last: str) -> bool:
+        """Store the files of ``directory`` under ``prefix/``, the ``last`` one last, unless it exists
+        already; True if this call stored them.  Each object appears whole, and a set is complete
+        once ``last`` exists; S3 has no rename, so two publishers racing on one prefix may both
+        write (their files are the same bytes when their renderers agree)."""
+        if self.exists(f"{prefix}/{last}"):
+            return False
+        files = sorted((p for p in Path(directory).iterdir() if p.is_file()), key=lambda p: (p.name == last, p.name))
+        for file in files:
+            with file.open("rb") as source:
+                self.put_stream(f"{prefix}/{file.name}", source)
+        return True
 
     # -- reading -----------------------------------------------------------------------------
 

@@ -1,9 +1,10 @@
 """One cell of a job, start to end: claim it, bake its impostor, store the bundle, record the outcome.
 
 This is everything a worker task does (``workers/tasks.py`` is a few lines around it).  The bundle
-is stored under a key derived from everything that determines its bytes
-(:func:`service.jobs.result_key`), manifest last, so a bundle whose manifest exists is complete,
-and a redelivered cell finds it and does not bake again.
+is published under a key derived from everything that determines its bytes
+(:func:`service.jobs.result_key`) all at once (the local store renames a staging folder into
+place; S3 writes the manifest last), so a bundle whose manifest exists is complete, a redelivered
+cell finds it and does not bake again, and two workers baking the same key never mix their files.
 """
 
 from __future__ import annotations
@@ -44,13 +45,6 @@ class RetryCell(Exception):
 def backoff(attempt: int) -> float:
     """Seconds before attempt ``attempt + 1``: 2, 4, 8, ... capped at 60."""
     return float(min(2**attempt, 60))
-
-
-def store_bundle(blobs: BlobStore, key: str, directory: Path) -> None:
-    """Put a bundle directory's files under ``key``, the manifest last."""
-    files = sorted(p for p in directory.iterdir() if p.is_file())
-    for file in sorted(files, key=lambda p: p.name == MANIFEST_NAME):
-        blobs.put_bytes(f"{key}/{file.name}", file.read_bytes())
 
 
 def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, worker: str | None = None) -> str:
@@ -97,7 +91,7 @@ def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, wo
             impostor = bake_layered(scene, viewcell_from_dict(cell.viewcell), bake_options(job.params), job.params["objects"], progress)
             with tempfile.TemporaryDirectory(prefix="farfield-cell-") as tmp:
                 write_bundle(impostor, Path(tmp) / "bundle")
-                store_bundle(blobs, key, Path(tmp) / "bundle")
+                blobs.publish_directory(key, Path(tmp) / "bundle", last=MANIFEST_NAME)
         stats = json.loads(blobs.read_bytes(f"{key}/{MANIFEST_NAME}"))["stats"]
     except CellCancelled:
         end("cancelled")

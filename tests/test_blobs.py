@@ -9,6 +9,8 @@ from __future__ import annotations
 import io
 import socket
 import uuid
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import pytest
 
@@ -257,3 +259,30 @@ def test_incomplete_s3_settings_are_refused(tmp_path, env, message):
 def test_local_settings_pass_no_s3_variables(tmp_path):
     env = Settings.from_env({"FARFIELD_HOME": str(tmp_path)}).environment()
     assert not [name for name in env if name.startswith("FARFIELD_S3_")]
+
+
+def _bundle_dir(root: Path, tag: str) -> Path:
+    root.mkdir(parents=True)
+    for name in ("atlas-000.png", "impostor.glb", "manifest.json"):
+        (root / name).write_bytes(f"{tag}:{name}".encode() * 1000)
+    return root
+
+
+def test_publish_directory_stores_a_set_once(store, tmp_path):
+    first, second = _bundle_dir(tmp_path / "a", "a"), _bundle_dir(tmp_path / "b", "b")
+    assert store.publish_directory("impostors/k", first, last="manifest.json")
+    assert not store.publish_directory("impostors/k", second, last="manifest.json")
+    assert store.list_files("impostors/k") == ["atlas-000.png", "impostor.glb", "manifest.json"]
+    assert {store.read_bytes(f"impostors/k/{n}")[:1] for n in store.list_files("impostors/k")} == {b"a"}
+    assert _leftovers(store) == ["impostors/k/atlas-000.png", "impostors/k/impostor.glb", "impostors/k/manifest.json"]
+
+
+def test_local_publishers_racing_never_mix_their_files(tmp_path):
+    store = LocalBlobStore(tmp_path / "blobs")
+    sources = [_bundle_dir(tmp_path / f"s{i}", str(i)) for i in range(8)]
+    with ThreadPoolExecutor(8) as pool:
+        won = list(pool.map(lambda source: store.publish_directory("impostors/k", source, last="manifest.json"), sources))
+    assert sum(won) == 1
+    tags = {store.read_bytes(f"impostors/k/{n}")[:1] for n in store.list_files("impostors/k")}
+    assert len(tags) == 1 and len(store.list_files("impostors/k")) == 3
+    assert [p.name for p in (tmp_path / "blobs" / "impostors").iterdir()] == ["k"]  # no staging left
