@@ -48,8 +48,6 @@ class BlobStore(Protocol):
 
     def put_stream(self, key: str, source: BinaryIO, limit: int | None = None) -> int: ...
 
-    def put_directory(self, prefix: str, directory: str | os.PathLike) -> list[str]: ...
-
     def publish_directory(self, prefix: str, directory: str | os.PathLike, last: str) -> bool: ...
 
     def exists(self, key: str) -> bool: ...
@@ -130,16 +128,6 @@ class LocalBlobStore:
             Path(tmp).unlink(missing_ok=True)
             raise
         return size
-
-    def put_directory(self, prefix: str, directory: str | os.PathLike) -> list[str]:
-        """Store every file directly in ``directory`` under ``prefix/``; returns the keys."""
-        keys = []
-        for file in sorted(Path(directory).iterdir()):
-            if file.is_file():
-                key = f"{prefix}/{file.name}"
-                self.put_bytes(key, file.read_bytes())
-                keys.append(key)
-        return keys
 
     def publish_directory(self, prefix: str, directory: str | os.PathLike, last: str) -> bool:
         """Store the files of ``directory`` under ``prefix/`` all at once, unless a complete set is
@@ -335,17 +323,6 @@ class S3BlobStore:
         number = len(parts) + 1
         etag = self.client.upload_part(Bucket=self.bucket, Key=key, UploadId=upload_id, PartNumber=number, Body=body)["ETag"]
         parts.append({"ETag": etag, "PartNumber": number})
-
-    def put_directory(self, prefix: str, directory: str | os.PathLike) -> list[str]:
-        """Store every file directly in ``directory`` under ``prefix/``; returns the keys."""
-        keys = []
-        for file in sorted(Path(directory).iterdir()):
-            if file.is_file():
-                key = f"{prefix}/{file.name}"
-                with file.open("rb") as source:
-                    self.put_stream(key, source)
-                keys.append(key)
-        return keys
 
     def publish_directory(self, prefix: str, directory: str | os.PathLike, last: str) -> bool:
         """Store the files of ``directory`` under ``prefix/``, the ``last`` one last, unless it exists

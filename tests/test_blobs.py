@@ -172,13 +172,14 @@ def test_list_files(store):
     assert store.list_files("impostors/dd") == ["other.json"]
 
 
-def test_put_directory_and_copy_to_directory(store, tmp_path):
+def test_publish_directory_and_copy_to_directory(store, tmp_path):
     source = tmp_path / "bundle"
     source.mkdir()
     (source / "manifest.json").write_bytes(b'{"a": 1}')
     (source / "page-0000.png").write_bytes(b"\x89PNG" + bytes(1000))
     (source / "nested").mkdir()
-    assert store.put_directory("impostors/b", source) == ["impostors/b/manifest.json", "impostors/b/page-0000.png"]
+    assert store.publish_directory("impostors/b", source, last="manifest.json")
+    assert store.list_files("impostors/b") == ["manifest.json", "page-0000.png"]
     out = store.copy_to_directory("impostors/b", tmp_path / "copy")
     assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "page-0000.png"]
     assert (out / "manifest.json").read_bytes() == b'{"a": 1}'
