@@ -32,7 +32,7 @@ def cli() -> None:
 
 
 def _register() -> None:
-    from cli import bake_cmd, client_cmds, evaluate_cmd, inspect_cmd, layers_cmd, service_cmds
+    from cli import bake_cmd, client_cmds, evaluate_cmd, inspect_cmd, layers_cmd, service_cmds, walkthrough_cmd
 
     cli.add_command(inspect_cmd.inspect)
     cli.add_command(layers_cmd.layers)
@@ -43,6 +43,7 @@ def _register() -> None:
     cli.add_command(service_cmds.keys)
     cli.add_command(client_cmds.submit)
     cli.add_command(client_cmds.jobs)
+    cli.add_command(walkthrough_cmd.walkthrough_cmd)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -328,6 +328,11 @@ def iter_layers(
 ) -> Iterator[tuple[int, np.ndarray, int]]:
     """Record the layers of ``plan`` one at a time: yields ``(i, rgba, drawn)`` nearest first.
 
+    ``plan`` is a :class:`LayerPlan` or anything with its recording fields (``count``, ``borders``,
+    ``reference_offset``, ``reference_viewpoint``, ``axis``, ``u``, ``v``,
+    ``frustum_half_tangents``, ``texture_resolution``), such as a cube face of
+    :class:`core.envmap.FacePlan`.  A layer no triangle meets is yielded without drawing.
+
     ``rgba`` is the (h, w, 4) uint8 layer i (row 0 is the bottom image row, GL order; alpha 255 =
     covered), valid until the next step; ``drawn`` the triangles drawn for it.  Only one layer is
     held at a time, so a consumer that keeps what it needs runs in memory that grows with the
@@ -368,7 +373,15 @@ def iter_layers(
             texture, alpha = _object_textures(ctx, obj)
             owned += [t for t in (texture, alpha) if t is not None]
             textures.append((texture, alpha))
+        per_layer = np.zeros(k, dtype=np.int64)
+        for _, offsets, _ in draws:
+            per_layer += np.diff(offsets)
+        empty = np.zeros((res_y, res_x, 4), dtype=np.uint8)
+        empty.flags.writeable = False
         for i in range(k):
+            if per_layer[i] == 0:  # nothing meets this slab: no draw, no read-back
+                yield i, empty, 0
+                continue
             # Re-established every layer: the consumer may render on this context between layers.
             fbo.use()
             ctx.viewport = (0, 0, res_x, res_y)

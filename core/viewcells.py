@@ -342,3 +342,27 @@ def viewcell_from_dict(data: dict) -> ViewCell:
     except (KeyError, TypeError, ValueError) as error:
         raise ViewCellError(f"view cell description {data!r} is incomplete: {error}") from None
     raise ViewCellError(f"unknown view cell kind {data.get('kind')!r}")
+
+
+def grid_boxes(lo, hi, counts) -> list[tuple[tuple[int, int, int], BoxCell]]:
+    """The equal boxes of a grid of ``counts`` (3,) cells over the box ``lo``..``hi``, x fastest,
+    each with its (i, j, k).  Shared faces come from the same products, so neighbours meet exactly.
+
+    >>> [(ijk, box.lo.tolist()) for ijk, box in grid_boxes([0, 0, 0], [2, 1, 1], [2, 1, 1])]
+    [((0, 0, 0), [0.0, 0.0, 0.0]), ((1, 0, 0), [1.0, 0.0, 0.0])]
+    """
+    lo, hi = _vec3(lo, "grid lo"), _vec3(hi, "grid hi")
+    counts = np.asarray(counts, dtype=np.int64)
+    if counts.shape != (3,) or np.any(counts < 1):
+        raise ViewCellError(f"grid counts must be three integers >= 1, got {np.asarray(counts).tolist()}")
+    if not (hi > lo).all():
+        raise ViewCellError(f"grid box needs lo < hi on every axis, got lo={lo.tolist()}, hi={hi.tolist()}")
+    step = (hi - lo) / counts
+    cells = []
+    for k in range(counts[2]):
+        for j in range(counts[1]):
+            for i in range(counts[0]):
+                index = np.array([i, j, k])
+                upper = np.where(index + 1 == counts, hi, lo + step * (index + 1))
+                cells.append(((i, j, k), BoxCell(lo + step * index, upper)))
+    return cells

@@ -9,6 +9,7 @@ relative to its object's own centre and moved into the camera frame by a float64
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 import moderngl
 import numpy as np
@@ -81,13 +82,16 @@ class MeshRenderer:
     Use as a context manager; ``release()`` frees every GL resource it made.
     """
 
-    def __init__(self, objects: list[SceneObject] | tuple[SceneObject, ...]):
+    def __init__(self, objects: list[SceneObject] | tuple[SceneObject, ...], clips=None):
+        """``clips``: per object None or ``(centre (3,), half_size)``: fragments outside that cube
+        are discarded (the reference runtime clips near-field geometry to its cube this way)."""
         self.ctx = gl_context()
+        clips = list(clips) if clips is not None else [None] * len(objects)
         ctx = self.ctx
         self.program = program(ctx, "mesh.vert", "mesh.frag")
         self._owned: list = []
         self._draws = []
-        for obj in objects:
+        for obj, clip in zip(objects, clips, strict=True):
             origin = 0.5 * (obj.bounds[0] + obj.bounds[1])
             n = obj.vertices.shape[0]
             uv = obj.uv if obj.uv is not None else np.zeros((n, 2))
@@ -102,7 +106,11 @@ class MeshRenderer:
                 texture = ctx.texture((image.shape[1], image.shape[0]), 4, image.tobytes())
                 texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
             self._owned += [vbo, ibo, vao] + ([texture] if texture is not None else [])
-            self._draws.append((obj, origin, vao, texture))
+            if clip is None:
+                clip_offset, clip_half = np.zeros(3), 0.0
+            else:  # the difference in float64, so large world offsets cancel before narrowing
+                clip_offset, clip_half = origin - np.asarray(clip[0], dtype=np.float64), float(clip[1])
+            self._draws.append((obj, origin, vao, texture, tuple(float(c) for c in clip_offset), clip_half))
         self._targets: dict[int, tuple] = {}
 
     def _target(self, resolution: int):
@@ -116,6 +124,26 @@ class MeshRenderer:
 
     def render(self, camera: Camera) -> np.ndarray:
         """(h, w, 4) uint8 image, top row first; alpha 255 where something was drawn."""
+        colour = self._draw(camera)
+        image = np.frombuffer(colour.read(), dtype=np.uint8).reshape(camera.resolution, camera.resolution, 4)
+        if self.ctx.error != "GL_NO_ERROR":
+            raise RenderBackendError(f"OpenGL error while rendering: {self.ctx.error}")
+        return image[::-1].copy()
+
+    def frame_seconds(self, camera: Camera) -> float:
+        """Seconds to draw one frame from ``camera`` and wait for the renderer to finish it (no read-back)."""
+        self.ctx.finish()
+        start = time.perf_counter()
+        self._draw(camera)
+        self.ctx.finish()
+        return time.perf_counter() - start
+
+    @property
+    def triangle_count(self) -> int:
+        """Triangles drawn per frame."""
+        return int(sum(obj.faces.shape[0] for obj, *_ in self._draws))
+
+    def _draw(self, camera: Camera):
         colour, _, fbo = self._target(camera.resolution)
         ctx, prog = self.ctx, self.program
         fbo.use()
@@ -126,14 +154,13 @@ class MeshRenderer:
         t = math.tan(0.5 * camera.fov)
         prog["half_tan"].value = (t, t)
         prog["depth_range"].value = (camera.near, camera.far)
-        for obj, origin, vao, texture in self._draws:
+        for obj, origin, vao, texture, clip_offset, clip_half in self._draws:
             prog["eye_from_local"].write(camera.eye_matrix(origin).tobytes())
+            prog["clip_offset"].value = clip_offset
+            prog["clip_half"].value = clip_half
             set_material(prog, obj, texture)
             vao.render(moderngl.TRIANGLES)
-        image = np.frombuffer(colour.read(), dtype=np.uint8).reshape(camera.resolution, camera.resolution, 4)
-        if ctx.error != "GL_NO_ERROR":
-            raise RenderBackendError(f"OpenGL error while rendering: {ctx.error}")
-        return image[::-1].copy()
+        return colour
 
     def release(self) -> None:
         park_framebuffer(self.ctx)

@@ -4,15 +4,18 @@
 uniform mat4 eye_from_local;  // eye frame: x right, y up, z forward (depth)
 uniform vec2 half_tan;
 uniform vec2 depth_range;     // near, far eye depth
+uniform vec3 clip_offset;     // object origin minus the clip cube's centre (float64-built)
 in vec3 in_position;
 in vec2 in_uv;
 in vec4 in_color;
 out vec2 v_uv;
 out vec4 v_color;
+out vec3 v_clip;              // position relative to the clip cube's centre
 void main() {
     vec3 e = (eye_from_local * vec4(in_position, 1.0)).xyz;
     float n = depth_range.x, f = depth_range.y;
     gl_Position = vec4(e.x / half_tan.x, e.y / half_tan.y, (f + n) / (f - n) * e.z - 2.0 * f * n / (f - n), e.z);
     v_uv = in_uv;
     v_color = in_color;
+    v_clip = in_position + clip_offset;
 }

@@ -1,0 +1,323 @@
+"""Layered environment-map impostors: a scene and a cubic view cell in, an ``envmap`` :class:`~core.impostor.Impostor` out.
+
+Seed 002 (Jeschke, Wimmer, Schumann, GI 2002), per cubic view cell:
+
+1. layer cubes and the near-field cube from Eqs. 1-2 (:func:`core.envmap_layers.envmap_plan`),
+   given the number of layers or the near-field distance (§4.2, §4.3), recorded from the cell's
+   centre (the reference viewpoint, §4.1);
+2. every chosen cube face (six, or a subset such as the four horizontal ones of §6) records its
+   layers with farfield's gap-free slab recording (seed 000 §3.3.2, :mod:`core.recording`): a
+   90-degree frustum through the face, each layer clipped to the depth slab between its two border
+   cubes.  Inside a face's frustum the distance along the face axis *is* the cube distance, so the
+   slab clip is the cube-border clip, and the innermost slab starts exactly at the near-field cube
+   (:mod:`core.near_field` lists the triangles inside it for the runtime);
+3. compression (§5): gap filling (§5.1, :mod:`core.gap_fill`), invisible-texel removal (§5.2 with
+   the penumbra improvement of seed 000 §3.4.1, :mod:`core.culling`), microtextures by greedy
+   rectangle growing on an 8x8 grid (§5.3, :func:`core.quads.grow_quads`), macrotexture packing
+   (§5.4, :func:`core.atlas.pack`) and PNG (§5.4, last paragraph);
+4. the cell's output: quads and atlas pages for all faces, the near-field list, and the three byte
+   counts of seed 002 Table 2 (raw layers, macrotextures, PNG).
+
+Layers are streamed face by face: memory grows with the kept texels, not with faces x layers x
+image.  Macrotexture packing uses farfield's seed 000 §3.6 packer, the thesis's refinement of
+§5.4 (same sort by decreasing height, power-of-two pages, lowest-position placement; it spills
+onto a further page instead of leaving a page half empty).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from core import __version__
+from core.atlas import compose, fill_nearest_rgb, pack, tile_uvs
+from core.culling import CULLING_MODES, CullingMode, LayerCuller
+from core.envmap_layers import EnvmapPlan, envmap_plan, layers_for_near_field
+from core.errors import LayerPlanError, ViewCellError
+from core.frustum import check_fov, check_resolution, pixel_angle
+from core.gap_fill import fill_gaps
+from core.glb import page_png
+from core.impostor import Impostor, texel_rect_corners
+from core.near_field import near_field
+from core.quads import grow_quads
+from core.recording import iter_layers
+from core.scene import Scene
+from core.viewcells import BoxCell
+
+Progress = Callable[[str, int, int], None]  # (stage, done, total)
+
+# Cube faces: name -> (axis index, sign).  Image x and y run along the next two world axes, so a
+# face's frustum square is the cube face itself.
+FACES: dict[str, tuple[int, int]] = {"+x": (0, 1), "-x": (0, -1), "+y": (1, 1), "-y": (1, -1), "+z": (2, 1), "-z": (2, -1)}
+
+# Bytes of one quad's geometry as drawn: 4 vertices x (3 position + 2 uv) float32 + 6 uint32 indices.
+QUAD_GEOMETRY_BYTES = 4 * 5 * 4 + 6 * 4
+
+# A cube may differ from a cube by this relative amount (grids of equal cells, float64 division).
+CUBE_TOLERANCE = 1e-9
+
+
+@dataclass(frozen=True, slots=True)
+class EnvmapOptions:
+    """The knobs of an environment-map bake (all recorded in the impostor's parameters).
+
+    ``layers`` or ``near_field`` (not both) sets the arrangement: the number of layers, or the
+    largest acceptable near-field distance from the cell centre (the fewest layers that reach it).
+    ``face_resolution`` is seed 002's Res, texels per cube-face side; by default the one whose
+    texel at the face centre is as wide as an output pixel at the image centre,
+    ``ceil(resolution / tan(fov / 2))`` (= ``resolution`` at the paper's 90 degrees).
+    """
+
+    resolution: int = 512  # output pixels per side
+    fov_deg: float = 90.0  # output field of view
+    layers: int | None = 64
+    near_field: float | None = None
+    directions: tuple[str, ...] = tuple(FACES)
+    face_resolution: int | None = None
+    gap_fill: bool = False  # §5.1; off by default: the conservative recording leaves no gap to fill (README)
+    culling: CullingMode = "penumbra"  # §5.2 (+ seed 000 §3.4.1), "umbra" (§5.2 as printed) or "off"
+    grid_cell: int = 8  # §5.3 grid, texels
+    fill_threshold: float = 0.8  # §5.3 threshold
+    padding: int = 2  # atlas padding, texels
+    conservative: bool = True  # gap-free recording; False only to demonstrate the holes
+
+    def __post_init__(self) -> None:
+        check_resolution(self.resolution)
+        check_fov(math.radians(self.fov_deg))
+        if (self.layers is None) == (self.near_field is None):
+            raise LayerPlanError("give exactly one of 'layers' or 'near_field' for an envmap impostor")
+        if self.layers is not None and (isinstance(self.layers, bool) or int(self.layers) != self.layers or self.layers < 1):
+            raise LayerPlanError(f"number of layers must be an integer >= 1, got {self.layers!r}")
+        directions = tuple(self.directions)
+        unknown = [d for d in directions if d not in FACES]
+        if not directions or unknown or len(set(directions)) != len(directions):
+            raise LayerPlanError(f"directions must be distinct cube faces out of {list(FACES)}, got {list(directions)}")
+        object.__setattr__(self, "directions", tuple(d for d in FACES if d in directions))  # canonical order
+        if self.face_resolution is not None:
+            check_resolution(self.face_resolution, "face resolution")
+        if self.culling not in CULLING_MODES:
+            raise LayerPlanError(f"culling mode must be one of {CULLING_MODES}, got {self.culling!r}")
+        if isinstance(self.grid_cell, bool) or int(self.grid_cell) != self.grid_cell or self.grid_cell < 1:
+            raise LayerPlanError(f"grid cell size must be an integer >= 1 texel, got {self.grid_cell!r}")
+        if not 0.0 < self.fill_threshold <= 1.0:
+            raise LayerPlanError(f"fill threshold must lie in (0, 1], got {self.fill_threshold!r}")
+        if isinstance(self.padding, bool) or int(self.padding) != self.padding or self.padding < 0:
+            raise LayerPlanError(f"atlas padding must be an integer >= 0, got {self.padding!r}")
+
+    @property
+    def texels_per_face(self) -> int:
+        """Seed 002's Res."""
+        if self.face_resolution is not None:
+            return int(self.face_resolution)
+        return int(math.ceil(self.resolution / math.tan(0.5 * math.radians(self.fov_deg)) - 1e-9))
+
+    @property
+    def alpha(self) -> float:
+        """The parallax angle: the smallest angle of an output pixel (seed 002 §4.3)."""
+        return pixel_angle(math.radians(self.fov_deg), self.resolution, "min")
+
+
+def cubic_cell_size(cell: BoxCell) -> float:
+    """The side of a cubic view cell; raises for a box that is not a cube or a shaft."""
+    if not isinstance(cell, BoxCell):
+        raise ViewCellError("environment-map impostors need a cubic box view cell")
+    size = cell.size
+    if float(size.max() - size.min()) > CUBE_TOLERANCE * float(size.max()):
+        raise ViewCellError(f"environment-map impostors need a cubic view cell, got sides {size.tolist()}")
+    return float(size.mean())
+
+
+def plan_envmap(cell: BoxCell, options: EnvmapOptions) -> EnvmapPlan:
+    """The seed 002 §4.2 arrangement for ``cell`` and ``options``."""
+    size = cubic_cell_size(cell)
+    res = options.texels_per_face
+    layers = options.layers
+    if layers is None:
+        layers = layers_for_near_field(size, res, float(options.near_field), options.alpha)
+    return envmap_plan(size, res, int(layers), options.alpha)
+
+
+@dataclass(frozen=True, slots=True)
+class FacePlan:
+    """One cube face's layers in the form :func:`core.recording.iter_layers` records.
+
+    Distances are eye depths along the face axis from the reference viewpoint (``reference_offset``
+    is 0); the last border is the scene's farthest extent along the axis, standing in for infinity.
+    """
+
+    name: str
+    distances: np.ndarray  # (k,) float64
+    borders: np.ndarray  # (k + 1,) float64, finite, ascending
+    reference_viewpoint: np.ndarray  # (3,) float64 world
+    axis: np.ndarray  # (3,)
+    u: np.ndarray  # (3,) image x
+    v: np.ndarray  # (3,) image y
+    texture_resolution: np.ndarray  # (2,) int64
+    reference_offset: float = 0.0
+    frustum_half_tangents: np.ndarray = field(default_factory=lambda: np.ones(2))
+
+    @property
+    def count(self) -> int:
+        return int(self.distances.shape[0])
+
+
+def face_plan(name: str, plan: EnvmapPlan, centre: np.ndarray, scene_bounds: np.ndarray) -> FacePlan | None:
+    """The recording plan of face ``name``; None when no geometry lies beyond the near field there."""
+    index, sign = FACES[name]
+    eye = np.eye(3)
+    axis = sign * eye[index]
+    u, v = eye[(index + 1) % 3], sign * eye[(index + 2) % 3]
+    reach = float(np.max(sign * (np.asarray(scene_bounds)[:, index] - centre[index])))
+    if not reach >= plan.near_field:
+        return None
+    borders = plan.borders.copy()
+    # The outer border (infinity) becomes the farthest geometry, a little beyond: slab borders must
+    # be finite for the recording, and nothing lies farther.
+    finite = borders[-2]
+    borders[-1] = max(reach, finite) * (1.0 + 1e-6) + 1e-9 * max(abs(reach), 1.0)
+    res = np.array([plan.resolution, plan.resolution], dtype=np.int64)
+    return FacePlan(name, plan.distances.copy(), borders, np.asarray(centre, dtype=np.float64), axis, u, v, res)
+
+
+def bake_envmap(scene: Scene, cell: BoxCell, options: EnvmapOptions = EnvmapOptions(), progress: Progress | None = None) -> Impostor:
+    """Bake the layered environment-map impostor of ``scene`` for the cubic ``cell``."""
+    report = progress or (lambda stage, done, total: None)
+    times = {key: 0.0 for key in ("plan", "record", "gap_fill", "cull", "quads", "atlas", "png")}
+    start = time.perf_counter()
+    plan = plan_envmap(cell, options)
+    centre = cell.center
+    near = near_field(scene, centre, plan.near_field)
+    faces = [face_plan(name, plan, centre, scene.bounds) for name in options.directions]
+    times["plan"] = time.perf_counter() - start
+    report("plan", 1, 1)
+
+    res = plan.resolution
+    total_layers = len(options.directions) * plan.count
+    tiles, quad_layer, quad_corners, layers = [], [], [], []
+    counts = {"covered": 0, "culled": 0, "kept": 0, "drawn": 0, "gap_filled": 0}
+    done = 0
+    for face_index, face in enumerate(faces):
+        if face is None:
+            done += plan.count
+            report("record", done, total_layers)
+            continue
+        culler = LayerCuller((res, res), options.culling)
+        previous = None
+        recorder = iter_layers(scene, face, options.conservative)
+        while True:
+            start = time.perf_counter()
+            step = next(recorder, None)
+            times["record"] += time.perf_counter() - start
+            if step is None:
+                break
+            i, recorded, drawn = step
+            done += 1
+            counts["drawn"] += drawn
+            image = recorded[::-1]  # top row first from here on
+            start = time.perf_counter()
+            closer, previous = previous, image  # fill from the closer layer as recorded, not as filled
+            if options.gap_fill and closer is not None and closer[..., 3].any():
+                image, added = fill_gaps(closer, image)
+                counts["gap_filled"] += added
+            times["gap_fill"] += time.perf_counter() - start
+            start = time.perf_counter()
+            covered = image[..., 3] > 0
+            hidden = culler.hidden(covered)
+            kept = covered & ~hidden
+            counts["covered"] += int(covered.sum())
+            counts["culled"] += int(hidden.sum())
+            times["cull"] += time.perf_counter() - start
+            report("record", done, total_layers)
+            if not kept.any():
+                continue
+            start = time.perf_counter()
+            rects = grow_quads(kept, options.grid_cell, options.fill_threshold)
+            texels = image.copy()
+            texels[..., 3] = np.where(kept, texels[..., 3], 0)
+            tiles += [fill_nearest_rgb(texels[y0:y1, x0:x1]) for x0, y0, x1, y1 in rects]
+            layer_id = face_index * plan.count + i
+            quad_layer.append(np.full(len(rects), layer_id, dtype=np.int64))
+            quad_corners.append(texel_rect_corners(face, float(face.distances[i]), rects))
+            kept_count = int(kept.sum())
+            counts["kept"] += kept_count
+            layers.append(
+                {
+                    "index": layer_id,
+                    "face": face.name,
+                    "layer": int(i),
+                    "distance": float(plan.distances[i]),
+                    "depth_range": [float(plan.borders[i]), float(plan.borders[i + 1]) if math.isfinite(plan.borders[i + 1]) else None],
+                    "texels": kept_count,
+                    "quads": int(len(rects)),
+                }
+            )
+            times["quads"] += time.perf_counter() - start
+    report("record", total_layers, total_layers)
+
+    start = time.perf_counter()
+    if tiles:
+        sizes = np.array([[t.shape[1], t.shape[0]] for t in tiles], dtype=np.int64)
+        layout = pack(sizes, padding=options.padding)
+        pages = compose(layout, tiles, options.padding, bleed=0)
+        quad_uv, quad_page = tile_uvs(layout), layout.page.astype(np.int64)
+        tile_bytes = int(sizes.prod(axis=1).sum() * 4)
+    else:  # everything the cell sees lies in its near field
+        pages, quad_uv, quad_page, tile_bytes = (), np.zeros((0, 4, 2)), np.zeros(0, np.int64), 0
+    times["atlas"] = time.perf_counter() - start
+    start = time.perf_counter()
+    png_bytes = int(sum(len(page_png(page)) for page in pages))
+    times["png"] = time.perf_counter() - start
+    report("atlas", 1, 1)
+
+    quad_count = len(tiles)
+    texture_bytes = int(sum(p.shape[0] * p.shape[1] * 4 for p in pages))
+    stats = {
+        "layers_planned": plan.count,
+        "faces": len(options.directions),
+        "layers": len(layers),
+        "quads": quad_count,
+        "near_field": plan.near_field,
+        "near_field_triangles": near.triangle_count,
+        "texels_covered": counts["covered"],
+        "texels_culled": counts["culled"],
+        "texels_kept": counts["kept"],
+        "texels_gap_filled": counts["gap_filled"],
+        "triangles_drawn": counts["drawn"],
+        # Seed 002 Table 2: raw layers -> macrotextures -> PNG.
+        "raw_layer_bytes": int(len(options.directions) * plan.count * res * res * 4),
+        "texture_bytes_tile_area": tile_bytes,
+        "texture_bytes": texture_bytes,
+        "png_bytes": png_bytes,
+        "geometry_bytes": quad_count * QUAD_GEOMETRY_BYTES,
+        "atlas_pages": len(pages),
+        "texture_resolution": [res, res],
+        "seconds": {**times, "total": sum(times.values())},
+    }
+    parameters = {
+        **asdict(options),
+        "directions": list(options.directions),
+        "face_resolution": res,
+        "scene_hash": scene.content_hash,
+        "plan": plan.to_dict(),
+        "near_field": near.to_dict(),
+    }
+    return Impostor(
+        technique="envmap",
+        viewcell=cell.to_dict(),
+        reference_viewpoint=centre,
+        resolution=options.resolution,
+        fov_deg=options.fov_deg,
+        quad_corners=np.concatenate(quad_corners) if quad_corners else np.zeros((0, 4, 3)),
+        quad_uv=quad_uv,
+        quad_page=quad_page,
+        quad_layer=np.concatenate(quad_layer) if quad_layer else np.zeros(0, np.int64),
+        pages=tuple(pages),
+        layers=layers,
+        stats=stats,
+        parameters=parameters,
+        code_version=__version__,
+    )

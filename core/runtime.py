@@ -1,0 +1,122 @@
+"""The reference runtime of environment-map impostors, and the plain renderer it is compared with.
+
+Seed 002 §3, runtime: for a viewpoint (1) find its view cell, (2) prefetch the neighbours' impostors,
+(3) draw the near-field geometry, (4) draw the cell's impostor quads.  Both this runtime and the
+full-scene renderer draw through the same :class:`core.render.raster.MeshRenderer` (same shader,
+same camera), so frame times and images differ only by what is drawn.  The near-field triangles
+are clipped to their cube in the fragment shader, the layers were clipped to the same cube's faces
+when recorded, so nothing is drawn twice or lost at the border (:mod:`core.near_field`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from core.evaluation import compare_images, impostor_objects
+from core.impostor import Impostor
+from core.near_field import NearField
+from core.render.raster import Camera, MeshRenderer
+from core.scene import Scene
+from core.viewcells import BoxCell, box_corners
+
+
+def camera_at(position, forward, fov_deg: float, resolution: int, near: float, far: float) -> Camera:
+    """A camera at ``position`` looking along ``forward`` (any length > 0)."""
+    position = np.asarray(position, dtype=np.float64)
+    return Camera.look_at(position, position + np.asarray(forward, dtype=np.float64), math.radians(fov_deg), resolution, near, far)
+
+
+class EnvmapCellRenderer:
+    """One cell's near-field geometry (clipped to its cube) and impostor quads, uploaded once."""
+
+    def __init__(self, scene: Scene, impostor: Impostor):
+        if impostor.technique != "envmap":
+            raise ValueError(f"an envmap runtime needs an envmap impostor, got {impostor.technique!r}")
+        self.impostor = impostor
+        self.near = NearField.from_dict(impostor.parameters["near_field"])
+        near_objects = self.near.objects(scene)
+        quads = impostor_objects(impostor)
+        clip = (self.near.centre, self.near.half_size)
+        self.renderer = MeshRenderer(near_objects + quads, [clip] * len(near_objects) + [None] * len(quads))
+        self.near_triangles = sum(obj.faces.shape[0] for obj in near_objects)
+        self.quad_triangles = 2 * impostor.quad_count
+        corners = impostor.quad_corners.reshape(-1, 3)
+        self.reach = float(np.max(np.linalg.norm(corners - self.near.centre, axis=1))) if corners.size else 0.0
+
+    def release(self) -> None:
+        self.renderer.release()
+
+
+def depth_range_for(scene: Scene, cell: BoxCell, position, reach: float = 0.0) -> tuple[float, float]:
+    """(near, far) for cameras in ``cell``: near a hundredth of the cell side, far past the scene
+    and the impostor quads (``reach`` from the cell centre)."""
+    position = np.asarray(position, dtype=np.float64)
+    corners = box_corners(scene.bounds)
+    far = max(float(np.max(np.linalg.norm(corners - position, axis=1))), reach + float(np.linalg.norm(position - cell.center)))
+    near = 0.01 * float(np.min(cell.size))
+    return near, max(far * 1.01, 2.0 * near)
+
+
+def compare_views(scene_renderer: MeshRenderer, cell_renderer: EnvmapCellRenderer, camera: Camera, samples: int = 1) -> dict:
+    """Pixel statistics (:func:`core.evaluation.compare_images`) of the full scene vs the runtime."""
+    if samples > 1:
+        camera = Camera(camera.eye, camera.right, camera.up, camera.forward, camera.fov, camera.resolution * samples, camera.near, camera.far)
+    return compare_images(scene_renderer.render(camera), cell_renderer.renderer.render(camera), samples)
+
+
+def view_directions(directions: list[str] | tuple[str, ...]) -> np.ndarray:
+    """(n, 3) unit view directions for evaluating an envmap cell: every recorded face axis, and the
+    diagonals between neighbouring recorded faces (where a view spans two faces)."""
+    axes = {"+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0), "+z": (0, 0, 1), "-z": (0, 0, -1)}
+    vectors = [np.array(axes[d], dtype=np.float64) for d in directions]
+    out = list(vectors)
+    for a in range(len(vectors)):
+        for b in range(a + 1, len(vectors)):
+            if float(vectors[a] @ vectors[b]) == 0.0:
+                out.append((vectors[a] + vectors[b]) / math.sqrt(2.0))
+    return np.array(out)
+
+
+def evaluate_envmap(
+    scene: Scene,
+    impostor: Impostor,
+    random_count: int = 4,
+    seed: int = 0,
+    samples: int = 2,
+    directions: np.ndarray | None = None,
+) -> dict:
+    """Render the full scene and the runtime's view from viewpoints inside the impostor's cell
+    (its 8 corners, its centre and ``random_count`` seeded random points), each looking along
+    ``directions`` (default :func:`view_directions` of the recorded faces); returns per-view rows and
+    totals (hole pixels, colour error), as :func:`core.evaluation.evaluate` does for one part."""
+    cell = BoxCell(np.asarray(impostor.viewcell["lo"]), np.asarray(impostor.viewcell["hi"]))
+    points = np.concatenate([cell.corners(), cell.center[None, :], cell.sample_random(random_count, seed)])
+    kinds = ["corner"] * 8 + ["centre"] + ["random"] * random_count
+    if directions is None:
+        directions = view_directions(impostor.parameters["directions"])
+    rows = []
+    cell_renderer = EnvmapCellRenderer(scene, impostor)
+    try:
+        with MeshRenderer(scene.objects) as full:
+            for position, kind in zip(points, kinds):
+                near, far = depth_range_for(scene, cell, position, cell_renderer.reach)
+                for forward in directions:
+                    camera = camera_at(position, forward, impostor.fov_deg, impostor.resolution, near, far)
+                    stats = compare_views(full, cell_renderer, camera, samples)
+                    rows.append({"position": position.tolist(), "forward": forward.tolist(), "kind": kind, "stats": stats})
+    finally:
+        cell_renderer.release()
+    stats = [r["stats"] for r in rows]
+    totals = {
+        "views": len(rows),
+        "hole_pixels": sum(s["hole_pixels"] for s in stats),
+        "max_hole_pixels": max(s["hole_pixels"] for s in stats),
+        "geometry_pixels": sum(s["geometry_pixels"] for s in stats),
+        "bloat_beyond_1px": sum(s["bloat_beyond_1px"] for s in stats),
+        "colour_error_mean": float(np.mean([s["colour_error_mean"] for s in stats])),
+        "colour_error_p95": float(np.max([s["colour_error_p95"] for s in stats])),
+        "colour_error_max": max(s["colour_error_max"] for s in stats),
+    }
+    return {"views": rows, "totals": totals}
