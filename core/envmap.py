@@ -190,7 +190,7 @@ def bake_envmap(scene: Scene, cell: BoxCell, options: EnvmapOptions = EnvmapOpti
     start = time.perf_counter()
     plan = plan_envmap(cell, options)
     centre = cell.center
-    near = near_field(scene, centre, plan.near_field)
+    near = near_field(scene, centre, plan.near_field, [f for f in FACES if f not in options.directions])
     faces = [face_plan(name, plan, centre, scene.bounds) for name in options.directions]
     times["plan"] = time.perf_counter() - start
     report("plan", 1, 1)

@@ -38,8 +38,7 @@ class EnvmapCellRenderer:
         self.near = NearField.from_dict(impostor.parameters["near_field"])
         near_objects = self.near.objects(scene)
         quads = impostor_objects(impostor)
-        clip = (self.near.centre, self.near.half_size)
-        self.renderer = MeshRenderer(near_objects + quads, [clip] * len(near_objects) + [None] * len(quads))
+        self.renderer = MeshRenderer(near_objects + quads, [self.near.clip] * len(near_objects) + [None] * len(quads))
         self.near_triangles = sum(obj.faces.shape[0] for obj in near_objects)
         self.quad_triangles = 2 * impostor.quad_count
         corners = impostor.quad_corners.reshape(-1, 3)

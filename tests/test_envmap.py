@@ -24,7 +24,7 @@ from core.gap_fill import fill_gaps
 from core.impostor_database import ImpostorDatabase, write_database
 from core.near_field import NearField, near_field
 from core.render.raster import MeshRenderer
-from core.runtime import camera_at, evaluate_envmap
+from core.runtime import camera_at, evaluate_envmap, view_directions
 from core.scene import Scene, SceneObject
 from core.viewcells import BoxCell, grid_boxes
 from core.walkthrough import generate_path, walkthrough, write_plot
@@ -103,7 +103,7 @@ def test_near_field_border_neither_gap_nor_double_drawn():
     angle = np.arctan2(2.1, near.half_size)
     camera = camera_at(cell.center + [0.0, 0.9, 0.0], [np.cos(angle), -np.sin(angle), 0.0], 30.0, 128, 0.01, 2000.0)
     objects = near.objects(scene)
-    clip = [(near.centre, near.half_size)] * len(objects)
+    clip = [near.clip] * len(objects)
     with MeshRenderer(objects, clip) as clipped, MeshRenderer(objects) as unclipped, MeshRenderer(impostor_objects(impostor)) as quads:
         n_clip, n_all, q = (r.render(camera)[..., 3] > 0 for r in (clipped, unclipped, quads))
     seam = int((n_clip & q).sum())
@@ -119,6 +119,11 @@ def test_directions_subset_records_only_those_faces(town, town_cell):
     assert impostor.parameters["directions"] == ["+x", "-z"]
     assert {layer["face"] for layer in impostor.layers} <= {"+x", "-z"}
     assert impostor.stats["raw_layer_bytes"] == 2 * 6 * 64 * 64 * 4
+    # The other four pyramids are drawn as geometry: no view from the cell, in any direction, has a hole.
+    near = NearField.from_dict(impostor.parameters["near_field"])
+    assert near.open_faces == ("-x", "+y", "-y", "+z")
+    everywhere = view_directions(["+x", "-x", "+y", "-y", "+z", "-z"])
+    _assert_faithful(evaluate_envmap(town, impostor, random_count=1, directions=everywhere))
 
 
 def test_compression_steps_shrink_memory(town_impostor):
@@ -173,6 +178,10 @@ def test_near_field_lists_exactly_the_triangles_meeting_the_cube():
     assert nf.ranges["inside"] == [[0, 12]] and "outside" not in nf.ranges
     assert 0 < nf.ranges["crossing"][0][1] - nf.ranges["crossing"][0][0] <= 12
     assert NearField.from_dict(json.loads(json.dumps(nf.to_dict()))).ranges == nf.ranges
+    # With +x left to geometry, "outside" (beyond the cube, in the +x pyramid) is drawn too.
+    opened = near_field(Scene.from_objects([a, b, c], source="t"), np.zeros(3), 5.0, ["+x"])
+    assert opened.ranges["outside"] == [[0, 12]] and opened.open_faces == ("+x",)
+    assert "outside" not in near_field(Scene.from_objects([a, b, c], source="t"), np.zeros(3), 5.0, ["-x", "-y"]).ranges
 
 
 def test_gap_fill_copies_border_texels_into_the_farther_layer():

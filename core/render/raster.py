@@ -83,8 +83,9 @@ class MeshRenderer:
     """
 
     def __init__(self, objects: list[SceneObject] | tuple[SceneObject, ...], clips=None):
-        """``clips``: per object None or ``(centre (3,), half_size)``: fragments outside that cube
-        are discarded (the reference runtime clips near-field geometry to its cube this way)."""
+        """``clips``: per object None or ``(centre (3,), half_size[, open_faces])``: fragments
+        outside that cube are discarded, except in the face pyramids named in ``open_faces``
+        (e.g. ``("+y",)``) (the reference runtime clips near-field geometry this way)."""
         self.ctx = gl_context()
         clips = list(clips) if clips is not None else [None] * len(objects)
         ctx = self.ctx
@@ -107,10 +108,14 @@ class MeshRenderer:
                 texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
             self._owned += [vbo, ibo, vao] + ([texture] if texture is not None else [])
             if clip is None:
-                clip_offset, clip_half = np.zeros(3), 0.0
+                clip_offset, clip_half, opened = np.zeros(3), 0.0, ()
             else:  # the difference in float64, so large world offsets cancel before narrowing
                 clip_offset, clip_half = origin - np.asarray(clip[0], dtype=np.float64), float(clip[1])
-            self._draws.append((obj, origin, vao, texture, tuple(float(c) for c in clip_offset), clip_half))
+                opened = tuple(clip[2]) if len(clip) > 2 else ()
+            open_pos = tuple(float(f"+{axis}" in opened) for axis in "xyz")
+            open_neg = tuple(float(f"-{axis}" in opened) for axis in "xyz")
+            clip_uniforms = (tuple(float(c) for c in clip_offset), clip_half, open_pos, open_neg)
+            self._draws.append((obj, origin, vao, texture, clip_uniforms))
         self._targets: dict[int, tuple] = {}
 
     def _target(self, resolution: int):
@@ -154,10 +159,12 @@ class MeshRenderer:
         t = math.tan(0.5 * camera.fov)
         prog["half_tan"].value = (t, t)
         prog["depth_range"].value = (camera.near, camera.far)
-        for obj, origin, vao, texture, clip_offset, clip_half in self._draws:
+        for obj, origin, vao, texture, (clip_offset, clip_half, open_pos, open_neg) in self._draws:
             prog["eye_from_local"].write(camera.eye_matrix(origin).tobytes())
             prog["clip_offset"].value = clip_offset
             prog["clip_half"].value = clip_half
+            prog["clip_open_pos"].value = open_pos
+            prog["clip_open_neg"].value = open_neg
             set_material(prog, obj, texture)
             vao.render(moderngl.TRIANGLES)
         return colour

@@ -4,13 +4,22 @@ uniform sampler2D base_texture;
 uniform bool has_texture;
 uniform vec4 base_color;
 uniform float alpha_cutoff;  // < 0: opaque
-uniform float clip_half;     // > 0: discard outside the cube of this half side around the clip centre
+uniform float clip_half;     // > 0: discard outside the cube of this half side around the clip centre,
+uniform vec3 clip_open_pos;  // except (1) beyond the cube in the face pyramids +x, +y, +z
+uniform vec3 clip_open_neg;  // and -x, -y, -z that are drawn as geometry there
 in vec2 v_uv;
 in vec4 v_color;
 in vec3 v_clip;
 out vec4 frag_color;
 void main() {
-    if (clip_half > 0.0 && max(max(abs(v_clip.x), abs(v_clip.y)), abs(v_clip.z)) > clip_half) { discard; }
+    vec3 a = abs(v_clip);
+    float norm = max(max(a.x, a.y), a.z);
+    if (clip_half > 0.0 && norm > clip_half) {
+        // The face pyramid the fragment lies in: its largest coordinate and that one's sign.
+        vec3 open = mix(clip_open_neg, clip_open_pos, step(0.0, v_clip));
+        float here = a.x >= a.y && a.x >= a.z ? open.x : (a.y >= a.z ? open.y : open.z);
+        if (here < 0.5) { discard; }
+    }
     vec4 c = base_color * v_color;
     if (has_texture) { c *= texture(base_texture, v_uv); }
     if (alpha_cutoff >= 0.0 && c.a < alpha_cutoff) { discard; }
