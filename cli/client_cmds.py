@@ -121,17 +121,22 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
 
 @click.command("submit")
 @click.argument("scene")
+@click.option("--job-type", type=click.Choice(["layered", "envmap"]), default="layered", show_default=True,
+              help="layered: impostors of the scene's objects, any view cell; envmap: environment-map impostors of the whole scene, cubic box cells.")
 @click.option("--grid", default=None, help="View cells: a grid x0,y0,z0,x1,y1,z1,nx,ny,nz over a view-space box.")
 @click.option("--viewcell", "viewcells", multiple=True, help="Or explicit cells (repeat): box:x0,y0,z0,x1,y1,z1 | box-center:... | shaft:...")
 @click.option("--objects", default=None, help="Comma-separated represented objects (default: all).")
 @click.option("--resolution", default=512, show_default=True, type=int)
 @click.option("--fov", default=45.0, show_default=True, type=float)
-@click.option("--option", "options", multiple=True, help="Technique parameter NAME=VALUE (grid_cell, fill_threshold, culling, pixel_model, padding).")
+@click.option("--option", "options", multiple=True, metavar="NAME=VALUE",
+              help="Technique parameter (repeat); VALUE is parsed as JSON, else taken as text. layered: grid_cell, fill_threshold, culling, "
+                   "pixel_model, padding; envmap: layers, near_field, directions (e.g. '[\"+x\",\"-x\"]' or +x,-x), face_resolution, gap_fill, "
+                   "culling, grid_cell, fill_threshold, padding.")
 @click.option("--wait", is_flag=True, help="Wait for the job to end (exit code != 0 unless it is done).")
 @click.option("--download", type=click.Path(file_okay=False), default=None, help="After --wait, unpack the impostor database here.")
 @click.option("--json", "as_json", is_flag=True, help="Print the job record as JSON.")
 @_client_options
-def submit(scene, grid, viewcells, objects, resolution, fov, options, wait, download, as_json, url, key):
+def submit(scene, job_type, grid, viewcells, objects, resolution, fov, options, wait, download, as_json, url, key):
     """Submit a job for SCENE (a file to upload, or the id of an uploaded scene)."""
     client = Client(url, key or _default_key())
     if (grid is None) == (not viewcells):
@@ -143,13 +148,16 @@ def submit(scene, grid, viewcells, objects, resolution, fov, options, wait, down
         scene_id = scene
     parsed = {}
     for item in options:
-        name, _, value = item.partition("=")
+        name, sep, value = item.partition("=")
+        if not sep or not name.strip():
+            raise ServiceError(f"--option {item!r}: expected NAME=VALUE")
+        name = name.strip()
         try:
             parsed[name] = json.loads(value)
         except ValueError:
             parsed[name] = value
     spec = {
-        "scene_id": scene_id, "resolution": resolution, "fov_deg": fov, "options": parsed,
+        "scene_id": scene_id, "job_type": job_type, "resolution": resolution, "fov_deg": fov, "options": parsed,
         "objects": [n.strip() for n in objects.split(",") if n.strip()] if objects else None,
     }  # fmt: skip
     if grid is not None:

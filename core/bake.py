@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -61,6 +61,39 @@ class BakeOptions:
             raise LayerPlanError(f"atlas padding must be an integer >= 0, got {self.padding!r}")
 
 
+def timed_layers(scene: Scene, plan, conservative: bool, times: dict) -> Iterator[tuple[int, np.ndarray, int]]:
+    """:func:`core.recording.iter_layers` with images top row first, adding its seconds to ``times["record"]``."""
+    layers = iter_layers(scene, plan, conservative)
+    while True:
+        start = time.perf_counter()
+        step = next(layers, None)
+        times["record"] += time.perf_counter() - start
+        if step is None:
+            return
+        i, recorded, drawn = step
+        yield i, recorded[::-1], drawn
+
+
+def layer_tiles(image: np.ndarray, kept: np.ndarray, grid_cell: int, fill_threshold: float) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Box-grown rectangles (q, 4) of a layer's kept texels (§3.5) and their tiles: each its own
+    array (not a view that would keep the layer alive), transparent texels coloured from the
+    nearest opaque one so that bilinear filtering and mipmaps never pull black into the edges."""
+    rects = grow_quads(kept, grid_cell, fill_threshold)
+    texels = image.copy()
+    texels[..., 3] = np.where(kept, texels[..., 3], 0)
+    return rects, [fill_nearest_rgb(texels[y0:y1, x0:x1]) for x0, y0, x1, y1 in rects]
+
+
+def pack_tiles(tiles: list[np.ndarray], padding: int) -> tuple[tuple[np.ndarray, ...], np.ndarray, np.ndarray, int]:
+    """Atlas pages (§3.6) of ``tiles``: (pages, quad uv (q, 4, 2), quad page (q,), tile bytes)."""
+    if not tiles:
+        return (), np.zeros((0, 4, 2)), np.zeros(0, np.int64), 0
+    sizes = np.array([[t.shape[1], t.shape[0]] for t in tiles], dtype=np.int64)
+    layout = pack(sizes, padding=padding)
+    pages = compose(layout, tiles, padding, bleed=0)
+    return tuple(pages), tile_uvs(layout), layout.page.astype(np.int64), int(sizes.prod(axis=1).sum() * 4)
+
+
 def bake_layered(
     scene: Scene,
     cell: ViewCell,
@@ -87,16 +120,8 @@ def bake_layered(
     kept_per_layer: dict[int, int] = {}
     for key in ("record", "cull", "quads"):
         times[key] = 0.0
-    layers = iter_layers(part, plan, options.conservative)
-    while True:
+    for i, image, drawn in timed_layers(part, plan, options.conservative, times):
         start = time.perf_counter()
-        step = next(layers, None)
-        times["record"] += time.perf_counter() - start
-        if step is None:
-            break
-        i, recorded, drawn = step
-        start = time.perf_counter()
-        image = recorded[::-1]  # top row first from here on
         covered = image[..., 3] > 0
         hidden = culler.hidden(covered)
         kept = covered & ~hidden
@@ -108,13 +133,8 @@ def bake_layered(
         if not kept.any():  # layers with no visible content are dropped
             continue
         start = time.perf_counter()
-        rects = grow_quads(kept, options.grid_cell, options.fill_threshold)
-        texels = image.copy()
-        texels[..., 3] = np.where(kept, texels[..., 3], 0)
-        # Each tile is its own array (not a view that would keep the layer alive), its transparent
-        # texels coloured from the nearest opaque one so that bilinear filtering and mipmaps never
-        # pull black into the edges of content.
-        tiles += [fill_nearest_rgb(texels[y0:y1, x0:x1]) for x0, y0, x1, y1 in rects]
+        rects, new_tiles = layer_tiles(image, kept, options.grid_cell, options.fill_threshold)
+        tiles += new_tiles
         quad_layer.append(np.full(len(rects), i, dtype=np.int64))
         quad_corners.append(texel_rect_corners(plan, float(plan.distances[i]), rects))
         layer_ids.append(i)
@@ -125,10 +145,7 @@ def bake_layered(
         raise LayerPlanError("the part left no visible texel in any layer (is it empty or fully transparent?)")
 
     start = time.perf_counter()
-    sizes = np.array([[t.shape[1], t.shape[0]] for t in tiles], dtype=np.int64)
-    layout = pack(sizes, padding=options.padding)
-    pages = compose(layout, tiles, options.padding, bleed=0)
-    quad_uv = tile_uvs(layout)
+    pages, quad_uv, quad_page, tile_bytes = pack_tiles(tiles, options.padding)
     times["atlas"] = time.perf_counter() - start
     report("atlas", 1, 1)
 
@@ -143,7 +160,7 @@ def bake_layered(
         "texels_kept": counts["kept"],
         "triangles_drawn": counts["drawn"],
         "texture_bytes": texture_bytes,
-        "texture_bytes_tile_area": int(sizes.prod(axis=1).sum() * 4),
+        "texture_bytes_tile_area": tile_bytes,
         "texture_bytes_one_quad_per_layer": int(len(layer_ids) * res_x * res_y * 4),
         "geometry_bytes": quad_count * QUAD_GEOMETRY_BYTES,
         "atlas_pages": len(pages),
@@ -169,7 +186,7 @@ def bake_layered(
         fov_deg=options.fov_deg,
         quad_corners=np.concatenate(quad_corners),
         quad_uv=quad_uv,
-        quad_page=layout.page.astype(np.int64),
+        quad_page=quad_page,
         quad_layer=np.concatenate(quad_layer),
         pages=tuple(pages),
         layers=layers,

@@ -34,7 +34,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from core import __version__
-from core.atlas import compose, fill_nearest_rgb, pack, tile_uvs
+from core.bake import layer_tiles, pack_tiles, timed_layers
 from core.culling import CULLING_MODES, CullingMode, LayerCuller
 from core.envmap_layers import EnvmapPlan, envmap_plan, layers_for_near_field
 from core.errors import LayerPlanError, ViewCellError
@@ -43,8 +43,6 @@ from core.gap_fill import fill_gaps
 from core.glb import page_png
 from core.impostor import Impostor, texel_rect_corners
 from core.near_field import near_field
-from core.quads import grow_quads
-from core.recording import iter_layers
 from core.scene import Scene
 from core.viewcells import BoxCell
 
@@ -207,17 +205,9 @@ def bake_envmap(scene: Scene, cell: BoxCell, options: EnvmapOptions = EnvmapOpti
             continue
         culler = LayerCuller((res, res), options.culling)
         previous = None
-        recorder = iter_layers(scene, face, options.conservative)
-        while True:
-            start = time.perf_counter()
-            step = next(recorder, None)
-            times["record"] += time.perf_counter() - start
-            if step is None:
-                break
-            i, recorded, drawn = step
+        for i, image, drawn in timed_layers(scene, face, options.conservative, times):
             done += 1
             counts["drawn"] += drawn
-            image = recorded[::-1]  # top row first from here on
             start = time.perf_counter()
             closer, previous = previous, image  # fill from the closer layer as recorded, not as filled
             if options.gap_fill and closer is not None and closer[..., 3].any():
@@ -235,10 +225,8 @@ def bake_envmap(scene: Scene, cell: BoxCell, options: EnvmapOptions = EnvmapOpti
             if not kept.any():
                 continue
             start = time.perf_counter()
-            rects = grow_quads(kept, options.grid_cell, options.fill_threshold)
-            texels = image.copy()
-            texels[..., 3] = np.where(kept, texels[..., 3], 0)
-            tiles += [fill_nearest_rgb(texels[y0:y1, x0:x1]) for x0, y0, x1, y1 in rects]
+            rects, face_tiles = layer_tiles(image, kept, options.grid_cell, options.fill_threshold)
+            tiles += face_tiles
             layer_id = face_index * plan.count + i
             quad_layer.append(np.full(len(rects), layer_id, dtype=np.int64))
             quad_corners.append(texel_rect_corners(face, float(face.distances[i]), rects))
@@ -259,14 +247,7 @@ def bake_envmap(scene: Scene, cell: BoxCell, options: EnvmapOptions = EnvmapOpti
     report("record", total_layers, total_layers)
 
     start = time.perf_counter()
-    if tiles:
-        sizes = np.array([[t.shape[1], t.shape[0]] for t in tiles], dtype=np.int64)
-        layout = pack(sizes, padding=options.padding)
-        pages = compose(layout, tiles, options.padding, bleed=0)
-        quad_uv, quad_page = tile_uvs(layout), layout.page.astype(np.int64)
-        tile_bytes = int(sizes.prod(axis=1).sum() * 4)
-    else:  # everything the cell sees lies in its near field
-        pages, quad_uv, quad_page, tile_bytes = (), np.zeros((0, 4, 2)), np.zeros(0, np.int64), 0
+    pages, quad_uv, quad_page, tile_bytes = pack_tiles(tiles, options.padding)  # none: all is near field
     times["atlas"] = time.perf_counter() - start
     start = time.perf_counter()
     png_bytes = int(sum(len(page_png(page)) for page in pages))

@@ -1,5 +1,8 @@
 """One cell of a job, start to end: claim it, bake its impostor, store the bundle, record the outcome.
 
+The job's type picks the bake: ``layered`` -> :func:`core.bake.bake_layered` of the job's objects,
+``envmap`` -> :func:`core.envmap.bake_envmap` of the whole scene.
+
 This is everything a worker task does (``workers/tasks.py`` is a few lines around it).  The bundle
 is published under a key derived from everything that determines its bytes
 (:func:`service.jobs.result_key`) all at once (the local store renames a staging folder into
@@ -16,11 +19,14 @@ from pathlib import Path
 
 from core.bake import bake_layered
 from core.bundle import MANIFEST_NAME, write_bundle
-from core.errors import ErrorKind, FarfieldError
+from core.envmap import bake_envmap
+from core.errors import ErrorKind, FarfieldError, LayerPlanError
+from core.impostor import Impostor
+from core.scene import Scene
 from core.viewcells import viewcell_from_dict
 from service.blobs import BlobStore
 from service.db import Database, JobRow, SceneRow
-from service.jobs import bake_options, claim_cell, end_cell, finish_job_if_complete, job_cancelled, result_key, set_progress
+from service.jobs import bake_options, claim_cell, end_cell, envmap_options, finish_job_if_complete, job_cancelled, result_key, set_progress
 from service.scenes import load_stored_scene
 
 # A running cell looks at its job's state at the first layer after CANCEL_CHECK_S since its last
@@ -45,6 +51,16 @@ class RetryCell(Exception):
 def backoff(attempt: int) -> float:
     """Seconds before attempt ``attempt + 1``: 2, 4, 8, ... capped at 60."""
     return float(min(2**attempt, 60))
+
+
+def bake_cell(job: JobRow, scene: Scene, viewcell: dict, progress) -> Impostor:
+    """The impostor of one cell of ``job`` (its type picks the technique)."""
+    cell = viewcell_from_dict(viewcell)
+    if job.job_type == "layered":
+        return bake_layered(scene, cell, bake_options(job.params), job.params["objects"], progress)
+    if job.job_type == "envmap":
+        return bake_envmap(scene, cell, envmap_options(job.params), progress)
+    raise LayerPlanError(f"job {job.id} has an unknown job type {job.job_type!r}")
 
 
 def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, worker: str | None = None) -> str:
@@ -88,7 +104,7 @@ def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, wo
         key = result_key(scene_row.content_hash, job.job_type, job.params, cell.viewcell)
         if not blobs.exists(f"{key}/{MANIFEST_NAME}"):
             scene = load_stored_scene(blobs, scene_row)
-            impostor = bake_layered(scene, viewcell_from_dict(cell.viewcell), bake_options(job.params), job.params["objects"], progress)
+            impostor = bake_cell(job, scene, cell.viewcell, progress)
             with tempfile.TemporaryDirectory(prefix="farfield-cell-") as tmp:
                 write_bundle(impostor, Path(tmp) / "bundle")
                 blobs.publish_directory(key, Path(tmp) / "bundle", last=MANIFEST_NAME)

@@ -1,5 +1,10 @@
 """Jobs and their cells: the request schema, the state machine, progress, and the impostor database index.
 
+Job types: ``layered`` (seed 000's layered impostors of a scene's objects, any view cell) and
+``envmap`` (seed 002's layered environment-map impostors of the whole scene, cubic box cells); each
+has its own technique parameters (``options``), validated, with every cell's layer plan, when the
+job is created.
+
 States (kept in SQL, never in Celery results):
 
     cell: queued -> running -> done | failed | cancelled;  running -> queued (a failed attempt that
@@ -9,7 +14,8 @@ States (kept in SQL, never in Celery results):
 A job ends when its last cell does: ``done`` when every cell is done, ``failed`` when some cell
 failed, ``cancelled`` when cancelled.  The worker that ends the last cell builds the job's
 impostor database index (``jobs/<id>/index.json``): every cell's view cell, state and bundle key,
-plus the lookup from a viewpoint to the cells that serve it.
+and its neighbours on the grid (what a runtime prefetches), plus the lookup from a viewpoint to the
+cells that serve it.
 """
 
 from __future__ import annotations
@@ -27,15 +33,18 @@ from sqlalchemy import func, select, update
 
 from core import __version__
 from core.bake import BakeOptions
+from core.envmap import FACES, EnvmapOptions, plan_envmap
 from core.errors import ConflictError, LayerPlanError, NotFoundError, ViewCellError
+from core.impostor_database import grid_neighbours
 from core.layers import plan_layers
-from core.viewcells import BoxCell, viewcell_from_dict
+from core.viewcells import BoxCell, ViewCell, grid_boxes, viewcell_from_dict
 from service.blobs import BlobStore
 from service.db import CELL_FINAL, JOB_STATES, CellRow, Database, JobRow, SceneRow, now, owned_row
 
-JOB_TYPES = ("layered",)
+JOB_TYPES = ("layered", "envmap")
 MAX_CELLS = 10_000
-OPTION_NAMES = ("grid_cell", "fill_threshold", "culling", "pixel_model", "padding")
+OPTION_NAMES = ("grid_cell", "fill_threshold", "culling", "pixel_model", "padding")  # layered
+ENVMAP_OPTION_NAMES = ("layers", "near_field", "directions", "face_resolution", "gap_fill", "culling", "grid_cell", "fill_threshold", "padding")
 
 
 class GridSpec(BaseModel):
@@ -52,13 +61,19 @@ class JobSpec(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     scene_id: str
-    job_type: Literal["layered"] = "layered"
+    job_type: Literal["layered", "envmap"] = Field(
+        "layered", description="layered: impostors of the scene's objects for any view cell; envmap: environment-map impostors of the whole scene, cubic box cells"
+    )
     viewcells: list[dict] | None = Field(None, description="explicit view cells, e.g. {'kind': 'box', 'lo': [..], 'hi': [..]}")
     grid: GridSpec | None = Field(None, description="or a grid of box cells over a view-space box")
     objects: list[str] | None = Field(None, description="the represented objects (default: all)")
     resolution: int = 512
     fov_deg: float = 45.0
-    options: dict = Field(default_factory=dict, description=f"technique parameters: {', '.join(OPTION_NAMES)}")
+    options: dict = Field(
+        default_factory=dict,
+        description=f"technique parameters; layered: {', '.join(OPTION_NAMES)}; envmap: {', '.join(ENVMAP_OPTION_NAMES)} "
+        "(give layers or near_field, not both; default 64 layers; directions: cube faces such as ['+x', '-x', '+z', '-z'])",
+    )
 
     @model_validator(mode="after")
     def _one_view_space(self) -> JobSpec:
@@ -75,19 +90,7 @@ def grid_cells(grid: GridSpec) -> list[tuple[tuple[int, int, int], BoxCell]]:
     total = math.prod(grid.counts)
     if total > MAX_CELLS:
         raise ViewCellError(f"grid of {total} cells is over the limit of {MAX_CELLS}")
-    lo, hi = np.asarray(grid.lo, dtype=np.float64), np.asarray(grid.hi, dtype=np.float64)
-    counts = np.asarray(grid.counts)
-    if not (hi > lo).all():
-        raise ViewCellError(f"grid box needs lo < hi on every axis, got lo={list(grid.lo)}, hi={list(grid.hi)}")
-    step = (hi - lo) / counts
-    cells = []
-    for k in range(counts[2]):
-        for j in range(counts[1]):
-            for i in range(counts[0]):
-                index = np.array([i, j, k])
-                # Shared faces computed from the same products, so neighbours meet exactly.
-                cells.append(((i, j, k), BoxCell(lo + step * index, np.where(index + 1 == counts, hi, lo + step * (index + 1)))))
-    return cells
+    return grid_boxes(grid.lo, grid.hi, grid.counts)
 
 
 def bake_options(params: dict) -> BakeOptions:
@@ -101,6 +104,46 @@ def bake_options(params: dict) -> BakeOptions:
         raise LayerPlanError(f"bad technique parameters {params['options']}: {error}") from None
 
 
+def envmap_options(params: dict) -> EnvmapOptions:
+    """The EnvmapOptions of an envmap job's stored parameters (validates them).
+
+    ``near_field`` without ``layers`` gives the fewest layers that reach it; ``directions`` is a list
+    of cube faces (or one comma-separated string of them).
+    """
+    given = dict(params["options"])
+    unknown = sorted(set(given) - set(ENVMAP_OPTION_NAMES))
+    if unknown:
+        raise LayerPlanError(f"unknown technique parameters {unknown} for an envmap job; known: {list(ENVMAP_OPTION_NAMES)}")
+    if given.get("near_field") is not None:
+        near = given["near_field"]
+        if isinstance(near, bool) or not isinstance(near, (int, float)) or not math.isfinite(near) or near <= 0:
+            raise LayerPlanError(f"near_field must be a distance > 0 (scene units), got {near!r}")
+        given["near_field"] = float(near)
+        given.setdefault("layers", None)
+    if "directions" in given:
+        directions = given["directions"]
+        if isinstance(directions, str):
+            directions = [d.strip() for d in directions.split(",") if d.strip()]
+        if not isinstance(directions, (list, tuple)) or not all(isinstance(d, str) for d in directions):
+            raise LayerPlanError(f"directions must be a list of cube faces out of {list(FACES)}, got {given['directions']!r}")
+        given["directions"] = tuple(directions)
+    if "gap_fill" in given and not isinstance(given["gap_fill"], bool):
+        raise LayerPlanError(f"gap_fill must be true or false, got {given['gap_fill']!r}")
+    try:
+        return EnvmapOptions(resolution=params["resolution"], fov_deg=params["fov_deg"], **given)
+    except (TypeError, ValueError, OverflowError) as error:
+        raise LayerPlanError(f"bad technique parameters {params['options']}: {error}") from None
+
+
+def technique_options(job_type: str, params: dict) -> BakeOptions | EnvmapOptions:
+    """The bake options of a job of ``job_type`` from its stored parameters (validates them)."""
+    if job_type == "layered":
+        return bake_options(params)
+    if job_type == "envmap":
+        return envmap_options(params)
+    raise LayerPlanError(f"unknown job type {job_type!r}; one of {list(JOB_TYPES)}")
+
+
 def part_bounds(scene: SceneRow, objects: list[str] | None) -> np.ndarray:
     """(2, 3) bounds of the represented objects, from the stored object summaries."""
     by_name = {obj["name"]: obj for obj in scene.objects}
@@ -112,10 +155,23 @@ def part_bounds(scene: SceneRow, objects: list[str] | None) -> np.ndarray:
     return np.array([bounds[:, 0].min(axis=0), bounds[:, 1].max(axis=0)])
 
 
+def plan_cell(job_type: str, cell: ViewCell, options: BakeOptions | EnvmapOptions, bounds: np.ndarray | None = None) -> None:
+    """Plan ``cell``'s layers as a job of ``job_type`` would (``bounds``: the represented part, for
+    layered jobs); raises LayerPlanError or ViewCellError when the cell cannot have an impostor."""
+    if job_type == "layered":
+        plan_layers(cell, bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model)
+    elif not isinstance(cell, BoxCell):
+        raise ViewCellError(f"an envmap job needs cubic box view cells, got a {cell.to_dict()['kind']!r} cell")
+    else:
+        plan_envmap(cell, options)
+
+
 def create_job(db: Database, tenant_id: str, scene: SceneRow, spec: JobSpec) -> JobRow:
     """Validate ``spec`` against ``scene`` (every cell gets a layer plan) and store the job and cells."""
     params = {"resolution": spec.resolution, "fov_deg": spec.fov_deg, "objects": spec.objects, "options": dict(spec.options)}
-    options = bake_options(params)
+    options = technique_options(spec.job_type, params)
+    if spec.job_type == "envmap" and spec.objects is not None:
+        raise LayerPlanError("an envmap job represents the whole scene: leave out 'objects' (it is for layered jobs)")
     if spec.grid is not None:
         cells = [(list(ijk), box) for ijk, box in grid_cells(spec.grid)]
     else:
@@ -124,10 +180,10 @@ def create_job(db: Database, tenant_id: str, scene: SceneRow, spec: JobSpec) -> 
         if len(spec.viewcells) > MAX_CELLS:
             raise ViewCellError(f"{len(spec.viewcells)} view cells is over the limit of {MAX_CELLS}")
         cells = [(None, viewcell_from_dict(cell)) for cell in spec.viewcells]
-    bounds = part_bounds(scene, spec.objects)
+    bounds = part_bounds(scene, spec.objects) if spec.job_type == "layered" else None
     for n, (_, cell) in enumerate(cells):
         try:
-            plan_layers(cell, bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model)
+            plan_cell(spec.job_type, cell, options, bounds)
         except (LayerPlanError, ViewCellError) as error:
             raise type(error)(f"view cell {n} ({cell.to_dict()}): {error}") from None
     job = JobRow(
@@ -362,14 +418,19 @@ def finish_job_if_complete(db: Database, blobs: BlobStore, job_id: str) -> bool:
 
 
 def index_document(job: JobRow, cells: list[CellRow]) -> dict:
-    """The impostor database index of a job: its cells, their view cells, states and bundles."""
+    """The impostor database index of a job: its cells, their view cells, states and bundles, and
+    each cell's ``neighbours`` (the indices of the cells of its 26-neighbourhood on the grid; [] for
+    explicit cells)."""
+    neighbours = grid_neighbours([c.grid for c in cells])
+    positions = [c.index for c in cells]  # list positions -> cell indices (the same when all cells are there)
     return {
         "format": "farfield-impostor-database", "format_version": 1, "code_version": __version__,
         "job": job.id, "scene": job.scene_id, "job_type": job.job_type, "params": job.params,
         "cells": [
             {"index": c.index, "grid": c.grid, "viewcell": c.viewcell, "state": c.state,
-             "bundle": f"cells/{c.index:05d}/" if c.result_key else None}
-            for c in cells
+             "bundle": f"cells/{c.index:05d}/" if c.result_key else None,
+             "neighbours": [positions[n] for n in near]}
+            for c, near in zip(cells, neighbours)
         ],
     }  # fmt: skip
 

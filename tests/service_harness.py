@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import httpx
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 ADMIN_KEY = "ff_testadmin_0123456789abcdef"
@@ -137,3 +138,28 @@ def fresh_postgres_database(admin_url: str) -> tuple[str, callable]:
         engine.dispose()
 
     return url, drop
+
+
+@pytest.fixture(name="service", scope="module", params=["sqlite", "postgresql"])
+def service_on_each_database(request, tmp_path_factory):
+    """A running service per test module, on the embedded SQLite database and, where a server is
+    reachable (FARFIELD_TEST_DATABASE_URL; .ci/run starts one with scripts/postgres-server), on
+    PostgreSQL.  Import it (and :func:`service_client`) into a test module to use it."""
+    extra, drop = {}, None
+    if request.param == "postgresql":
+        admin_url = os.environ.get("FARFIELD_TEST_DATABASE_URL")
+        if not admin_url:
+            pytest.skip("no PostgreSQL server: set FARFIELD_TEST_DATABASE_URL (CI starts one with scripts/postgres-server)")
+        extra["DATABASE_URL"], drop = fresh_postgres_database(admin_url)
+    running = start_service(tmp_path_factory.mktemp("farfield-home"), **extra)
+    yield running
+    assert running.stop() == 0
+    if drop is not None:
+        drop()
+
+
+@pytest.fixture(name="client", scope="module")
+def service_client(service):
+    """An HTTP client of the module's service, authenticated as its admin."""
+    with service.client() as c:
+        yield c

@@ -20,32 +20,10 @@ from core.bake import BakeOptions, bake_layered
 from core.bundle import page_file_name, write_bundle
 from core.exchange import load_scene
 from core.viewcells import viewcell_from_dict
-from service_harness import BUNNY, BUNNY_GRID, ROOT, fresh_postgres_database, start_service, upload, wait_for_job
+from service_harness import service_client, service_on_each_database  # noqa: F401 - the service and client fixtures
+from service_harness import BUNNY, BUNNY_GRID, ROOT, upload, wait_for_job
 
 pytestmark = pytest.mark.skipif(not BUNNY.exists(), reason="needs ../shared/scenes")
-
-
-@pytest.fixture(scope="module", params=["sqlite", "postgresql"])
-def service(request, tmp_path_factory):
-    """The whole suite runs on the embedded SQLite database and, where a server is reachable
-    (FARFIELD_TEST_DATABASE_URL; .ci/run starts one with scripts/postgres-server), on PostgreSQL."""
-    extra, drop = {}, None
-    if request.param == "postgresql":
-        admin_url = os.environ.get("FARFIELD_TEST_DATABASE_URL")
-        if not admin_url:
-            pytest.skip("no PostgreSQL server: set FARFIELD_TEST_DATABASE_URL (CI starts one with scripts/postgres-server)")
-        extra["DATABASE_URL"], drop = fresh_postgres_database(admin_url)
-    running = start_service(tmp_path_factory.mktemp("farfield-home"), **extra)
-    yield running
-    assert running.stop() == 0
-    if drop is not None:
-        drop()
-
-
-@pytest.fixture(scope="module")
-def client(service):
-    with service.client() as c:
-        yield c
 
 
 @pytest.fixture(scope="module")

@@ -277,6 +277,21 @@ function onModeChange() {
   $("viewcell-fields").hidden = grid;
 }
 
+// Field of view the form proposes per job type (seed 002 records 90-degree cube faces).
+const DEFAULT_FOV = {layered: "45", envmap: "90"};
+
+function jobType() { return $("job-type").value; }
+
+function onJobTypeChange() {
+  const type = jobType();
+  const envmap = type === "envmap";
+  $("envmap-fields").hidden = !envmap;
+  $("objects-field").hidden = envmap; // an envmap represents the whole scene
+  const fov = $("job-fov");
+  if (Object.values(DEFAULT_FOV).includes(fov.value.trim())) fov.value = DEFAULT_FOV[type];
+  $("job-options").placeholder = envmap ? '{} or e.g. {"culling": "umbra", "gap_fill": true}' : "{}";
+}
+
 function numberOrText(text) {
   // Numbers go to the server as typed (it validates and explains); anything else as the text.
   return text !== "" && Number.isFinite(Number(text)) ? Number(text) : text;
@@ -285,7 +300,7 @@ function numberOrText(text) {
 function jobRequest() {
   const scene = $("job-scene").value;
   if (!scene) throw new Error("scene: upload and choose a scene first");
-  const request = {scene_id: scene};
+  const request = {scene_id: scene, job_type: jobType()};
   if (jobMode() === "grid") {
     request.grid = {lo: parseVec($("job-lo").value, "grid lo"), hi: parseVec($("job-hi").value, "grid hi"),
                     counts: parseVec($("job-counts").value, "cells along x, y, z", true)};
@@ -299,11 +314,24 @@ function jobRequest() {
   if (resolution !== "") request.resolution = numberOrText(resolution);
   const fov = $("job-fov").value.trim();
   if (fov !== "") request.fov_deg = numberOrText(fov);
-  const objects = $("job-objects").value.split(",").map((s) => s.trim()).filter(Boolean);
+  const envmap = request.job_type === "envmap";
+  const objects = envmap ? [] : $("job-objects").value.split(",").map((s) => s.trim()).filter(Boolean);
   if (objects.length) request.objects = objects;
   const options = $("job-options").value.trim();
   if (options) {
     try { request.options = JSON.parse(options); } catch (error) { throw new Error(`options: not JSON (${error.message})`); }
+    if (!request.options || typeof request.options !== "object" || Array.isArray(request.options)) {
+      throw new Error(`options: give a JSON object such as {"culling": "umbra"}, got ${options}`);
+    }
+  }
+  if (envmap) {
+    // The envmap fields go in as options (an option given in the JSON as well wins).
+    const extra = {};
+    const layers = $("job-layers").value.trim();
+    if (layers !== "") extra.layers = numberOrText(layers);
+    const directions = $("job-directions").value.split(/[\s,;]+/).filter(Boolean);
+    if (directions.length) extra.directions = directions;
+    if (Object.keys(extra).length) request.options = {...extra, ...(request.options || {})};
   }
   return request;
 }
@@ -345,6 +373,7 @@ async function refreshJobs() {
     if (!row) {
       row = el("tr", {"data-testid": "job-row", "data-job-id": job.id},
         el("td", {}, el("a", {href: `#/jobs/${job.id}`, "data-testid": "job-link"}, el("code", {text: shortId(job.id)}))),
+        el("td", {class: "type small", "data-testid": "job-row-type"}),
         el("td", {class: "scene"}),
         el("td", {}, el("span", {class: "state", "data-testid": "job-row-state"})),
         el("td", {}, el("div", {class: "bar", "data-testid": "job-row-progress-bar"}, el("div", {class: "fill", "data-testid": "job-row-progress"})),
@@ -352,16 +381,18 @@ async function refreshJobs() {
         el("td", {class: "cells", "data-testid": "job-row-counts"}),
         el("td", {class: "created small muted"}));
     }
-    const cells = row.children;
+    const [, typeCell, sceneCell, stateCell, progressCell, countsCell, createdCell] = row.children;
     const scene = state.scenes.get(job.scene_id);
-    cells[1].textContent = scene ? scene.name : shortId(job.scene_id);
-    setState(cells[2].firstChild, job.state);
-    setBar(cells[3].querySelector(".fill"), job);
-    cells[3].querySelector(".bar-label").textContent = pct(job.progress) + (job.eta_s != null ? `, ETA ${fmtSeconds(job.eta_s)}` : "");
-    cells[4].replaceChildren(countsText(job.counts, job.cells_total));
+    typeCell.textContent = job.job_type;
+    typeCell.dataset.jobType = job.job_type;
+    sceneCell.textContent = scene ? scene.name : shortId(job.scene_id);
+    setState(stateCell.firstChild, job.state);
+    setBar(progressCell.querySelector(".fill"), job);
+    progressCell.querySelector(".bar-label").textContent = pct(job.progress) + (job.eta_s != null ? `, ETA ${fmtSeconds(job.eta_s)}` : "");
+    countsCell.replaceChildren(countsText(job.counts, job.cells_total));
     const message = job.error || (job.errors.length ? `cell ${job.errors[0].index}: ${job.errors[0].error}` : null);
-    if (message) cells[4].append(el("span", {class: "err", title: message, "data-testid": "job-row-error", text: message}));
-    cells[5].textContent = fmtTime(job.created_at);
+    if (message) countsCell.append(el("span", {class: "err", title: message, "data-testid": "job-row-error", text: message}));
+    createdCell.textContent = fmtTime(job.created_at);
     row.dataset.state = job.state;
     return row;
   });
@@ -398,6 +429,8 @@ async function refreshJob() {
 
 function renderJob(job) {
   $("job-id").textContent = job.id;
+  $("job-type-text").textContent = job.job_type === "envmap" ? "envmap (environment-map impostors of the whole scene)" : job.job_type;
+  $("job-type-text").dataset.jobType = job.job_type;
   setState($("job-state"), job.state);
   setBar($("job-progress"), job);
   $("job-progress-text").textContent = pct(job.progress);
@@ -581,7 +614,9 @@ function renderCellPanel() {
   $("cell-seconds").textContent = fmtSeconds(cell.seconds);
   showBox($("cell-error"), cell.error ? cell.error : "");
 
-  const pages = cell.stats && cell.stats.atlas_pages ? cell.stats.atlas_pages : (cell.has_result ? 1 : 0);
+  // A finished impostor may have no atlas page at all (an envmap cell that sees nothing beyond its near field).
+  const statPages = cell.stats && typeof cell.stats.atlas_pages === "number" ? cell.stats.atlas_pages : null;
+  const pages = statPages !== null ? statPages : (cell.has_result ? 1 : 0);
   const pageSelect = $("cell-page");
   if (pageSelect.options.length !== pages || pageSelect.dataset.cell !== String(cell.index)) {
     pageSelect.replaceChildren(...Array.from({length: pages}, (_, i) => el("option", {value: i, text: String(i)})));
@@ -609,10 +644,10 @@ function renderCellPanel() {
     stats.replaceChildren(...rows);
     stats.dataset.key = statsKey;
   }
-  loadAtlas(job, cell, Number(pageSelect.value || 0));
+  loadAtlas(job, cell, Number(pageSelect.value || 0), pages);
 }
 
-async function loadAtlas(job, cell, page) {
+async function loadAtlas(job, cell, page, pages) {
   const img = $("cell-atlas");
   const note = $("cell-atlas-note");
   if (!cell.has_result) {
@@ -620,6 +655,15 @@ async function loadAtlas(job, cell, page) {
     img.hidden = true;
     img.removeAttribute("src");
     note.textContent = cell.state === "failed" || cell.state === "cancelled" ? `no impostor (cell ${cell.state})` : `no impostor yet (cell ${cell.state})`;
+    return;
+  }
+  if (pages === 0) {
+    state.atlas.key = null;
+    img.hidden = true;
+    img.removeAttribute("src");
+    note.textContent = job.job_type === "envmap"
+      ? "no atlas pages: everything this cell sees lies in its near field (drawn as polygons)"
+      : "no atlas pages: the impostor kept no texels";
     return;
   }
   const key = `${job.id}/${cell.index}/${page}`;
@@ -723,6 +767,8 @@ function start() {
   $("key-forget").addEventListener("click", () => applyKey(""));
   $("upload-form").addEventListener("submit", onUpload);
   $("job-form").addEventListener("submit", onSubmitJob);
+  $("job-type").addEventListener("change", onJobTypeChange);
+  onJobTypeChange(); // a reload may keep the browser's last choice
   for (const radio of document.querySelectorAll('#job-form input[name="mode"]')) radio.addEventListener("change", onModeChange);
   $("job-scene").addEventListener("change", showSceneInfo);
   $("jobs-filter").addEventListener("change", () => tick(true));
