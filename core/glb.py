@@ -14,7 +14,9 @@ timestamps, PNG pages encoded with fixed settings by :func:`page_png`).  Layout 
   significant digits, which at continental coordinates (1e6 m) is ~0.1 m absolute, but relative
   to a viewpoint a few hundred metres away it is well below a millimetre.
 * One primitive per atlas page that has quads: four vertices per quad, two triangles per quad,
-  counter-clockwise as seen from the reference viewpoint (TL, BL, BR and TL, BR, TR).  Indices
+  counter-clockwise as seen from the reference viewpoint (TL, BL, BR and TL, BR, TR); a triangle
+  with two equal corners is left out, so a textured-depth-mesh triangle (a quad whose fourth corner
+  repeats its third) gives its one real triangle.  Indices
   are uint16 when the page has fewer than 65,535 vertices (0xFFFF is the primitive-restart value,
   which glTF forbids), else uint32.
 * One material per page, whether or not the page has quads: ``baseColorTexture`` of that page,
@@ -160,7 +162,15 @@ def impostor_glb(impostor: Impostor) -> bytes:
         index_dtype, component = (
             ("<u2", _UNSIGNED_SHORT) if vertex_count < _MAX_UINT16_VERTICES else ("<u4", _UNSIGNED_INT)
         )
-        indices = (np.arange(quads.size, dtype=np.int64)[:, None] * 4 + _QUAD_TRIANGLES).ravel()
+        indices = (np.arange(quads.size, dtype=np.int64)[:, None] * 4 + _QUAD_TRIANGLES).reshape(-1, 3)
+        # A triangle stored as a quad (core.tdm: fourth corner = third) has one degenerate half: drop it.
+        corner = positions[indices]
+        degenerate = (
+            np.all(corner[:, 0] == corner[:, 1], axis=1)
+            | np.all(corner[:, 1] == corner[:, 2], axis=1)
+            | np.all(corner[:, 0] == corner[:, 2], axis=1)
+        )
+        indices = indices[~degenerate].ravel()
         base = len(accessors)
         accessors.append({
             "bufferView": binary.add(indices.astype(index_dtype).tobytes(), _ELEMENT_ARRAY_BUFFER),

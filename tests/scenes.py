@@ -325,3 +325,44 @@ def png_bytes(texture: np.ndarray) -> bytes:
     buffer = io.BytesIO()
     _image(texture).save(buffer, format="PNG")
     return buffer.getvalue()
+
+
+def house(seed: int = 4) -> Scene:
+    """A building-like object, 20 x 10 x 12 units under a gable roof, with window frames and a door
+    standing out of its walls, a chimney and a porch roof: ~1,500 triangles, material colours.
+
+    The stand-in for the house model of seed 000 Table 4.1 (that model is not public).
+    """
+    rng = np.random.default_rng(seed)
+    objects = [box_object("body", (0.0, 0.0, 0.0), (20.0, 10.0, 12.0), (0.85, 0.8, 0.7, 1.0))]
+    # Gable roof: a triangular prism along x over the body, overhanging by 0.5.
+    ridge = 15.0
+    roof_v = np.array([
+        [-0.5, 10.0, -0.5], [20.5, 10.0, -0.5], [20.5, ridge, 6.0], [-0.5, ridge, 6.0],
+        [-0.5, 10.0, 12.5], [20.5, 10.0, 12.5],
+    ])  # fmt: skip
+    roof_f = np.array([[0, 2, 1], [0, 3, 2], [4, 5, 2], [4, 2, 3], [0, 4, 3], [1, 2, 5], [0, 1, 5], [0, 5, 4]])
+    objects.append(SceneObject("roof", roof_v, roof_f, base_color=(0.6, 0.2, 0.15, 1.0)))
+    objects.append(box_object("chimney", (14.0, 11.0, 3.0), (15.5, 16.5, 4.5), (0.5, 0.45, 0.45, 1.0)))
+    # Window frames and sills on the front (z = 0) and back (z = 12) walls, two storeys.
+    n = 0
+    for z, out in ((0.0, -1.0), (12.0, 1.0)):
+        for storey, y in enumerate((1.5, 6.0)):
+            for x in np.arange(1.5, 19.0, 3.6):
+                if z == 0.0 and storey == 0 and abs(x - 8.7) < 1.0:
+                    continue  # the door goes here
+                depth = 0.25 * out
+                shade = rng.uniform(0.15, 0.3)
+                for k, (lo, hi) in enumerate((((x, y, z), (x + 1.8, y + 0.2, z + depth)),  # sill
+                                              ((x, y + 2.3, z), (x + 1.8, y + 2.5, z + depth)),  # lintel
+                                              ((x, y, z), (x + 0.2, y + 2.5, z + depth)),
+                                              ((x + 1.6, y, z), (x + 1.8, y + 2.5, z + depth)))):
+                    lo, hi = np.minimum(lo, hi), np.maximum(lo, hi)
+                    objects.append(box_object(f"frame_{n:03d}_{k}", lo, hi, (0.95, 0.95, 0.9, 1.0)))
+                objects.append(box_object(f"glass_{n:03d}", (x + 0.2, y + 0.2, z + 0.05 * out), (x + 1.6, y + 2.3, z + 0.06 * out), (shade, shade, shade + 0.2, 1.0)))
+                n += 1
+    objects.append(box_object("door", (8.2, 0.0, -0.2), (10.0, 3.2, 0.0), (0.35, 0.2, 0.1, 1.0)))
+    objects.append(box_object("porch_roof", (7.2, 3.6, -2.0), (11.0, 3.8, 0.0), (0.3, 0.3, 0.3, 1.0)))
+    for x in (7.3, 10.7):
+        objects.append(box_object(f"porch_post_{x:g}", (x, 0.0, -2.0), (x + 0.2, 3.6, -1.8), (0.9, 0.9, 0.9, 1.0)))
+    return Scene.from_objects(objects, source=f"house-{seed}")

@@ -1,0 +1,221 @@
+"""Textured depth meshes (seed 003; seed 000 ch. 4): a scene part and a view cell in, an
+:class:`~core.impostor.Impostor` of textured triangles out.
+
+plan layers (seed 000 §3.3.1, as for layered impostors) -> record and cull them into a voxel field
+(:mod:`core.voxel_field`, seed 003 §4) -> initial covering mesh (:mod:`core.tdm_mesh`, §5) ->
+voxel-covering simplification (:mod:`core.tdm_kernels`, §6) -> textures resampled per triangle and
+packed into atlas pages (:mod:`core.tdm_texture`, §7) -> vertices reprojected to world space (§8).
+
+**The simplification schedule.**  The enlargement factor f sizes the voxel boxes the mesh must keep
+meeting (seed 003 §6: "increasing the size of a voxel results in more simplified, but slightly less
+accurate meshes").  A single greedy pass at a large f is not monotone: measured on a box building,
+f = 3 left 69 triangles where f = 2 left 28, because long early contractions leave slivers that
+then block each other.  farfield therefore simplifies in a cascade over the factors of
+:data:`SCHEDULE` below f, then f itself: each pass starts from the previous result, which still
+covers every voxel at the larger boxes, and contractions only ever remove triangles.  So for any
+two factors on the schedule, the larger never gives more triangles (the monotone trade the knob
+promises), and a factor between two steps is at least as simple as the step below it.
+
+**Triangles in an Impostor.**  The impostor format holds quads (q, 4, 3); a TDM triangle is stored
+as a quad whose fourth corner repeats its third, so the bundle, the evaluation renderer and the
+runtime read it unchanged, and the GLB writer emits the one real triangle.  ``quad_layer`` holds
+the triangle's mesh (connected component).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from core import __version__
+from core.bake import Progress, pack_tiles
+from core.culling import CULLING_MODES, CullingMode
+from core.errors import LayerPlanError
+from core.frustum import PIXEL_MODELS, PixelModel, check_fov, check_resolution
+from core.impostor import Impostor
+from core.layers import plan_layers
+from core.scene import Scene
+from core.tdm_kernels import covered_by, simplify
+from core.tdm_mesh import TdmMesh, initial_mesh, mesh_labels
+from core.tdm_texture import chart_uvs, resample_tiles, triangle_charts
+from core.viewcells import ViewCell
+from core.voxel_field import VoxelField, record_voxel_field
+
+
+@dataclass(frozen=True, slots=True)
+class TdmOptions:
+    """The knobs of a TDM bake (all recorded in the impostor's parameters)."""
+
+    resolution: int = 512  # output pixels per side
+    fov_deg: float = 45.0  # output field of view
+    enlargement: float = 2.0  # voxel enlargement factor for the covering test (seed 003 §6), >= 1
+    oversampling: int = 1  # n nearest voxels averaged per texel (seed 003 §7), >= 1
+    culling: CullingMode = "penumbra"
+    pixel_model: PixelModel = "min"
+    padding: int = 2  # atlas padding, texels
+    texel_margin: int = 1  # texels around each triangle's chart, for bilinear filtering (seed 003 §7)
+
+    def __post_init__(self) -> None:
+        check_resolution(self.resolution)
+        check_fov(math.radians(self.fov_deg))
+        if not (isinstance(self.enlargement, (int, float)) and not isinstance(self.enlargement, bool)) or not 1.0 <= float(self.enlargement) <= 8.0:
+            raise LayerPlanError(f"voxel enlargement factor must lie in [1, 8], got {self.enlargement!r}")
+        if isinstance(self.oversampling, bool) or int(self.oversampling) != self.oversampling or not 1 <= self.oversampling <= 64:
+            raise LayerPlanError(f"oversampling must be an integer in [1, 64] voxels per texel, got {self.oversampling!r}")
+        if self.culling not in CULLING_MODES:
+            raise LayerPlanError(f"culling mode must be one of {CULLING_MODES}, got {self.culling!r}")
+        if self.pixel_model not in PIXEL_MODELS:
+            raise LayerPlanError(f"pixel model must be one of {PIXEL_MODELS}, got {self.pixel_model!r}")
+        if isinstance(self.padding, bool) or int(self.padding) != self.padding or self.padding < 0:
+            raise LayerPlanError(f"atlas padding must be an integer >= 0, got {self.padding!r}")
+        if isinstance(self.texel_margin, bool) or int(self.texel_margin) != self.texel_margin or not 0 <= self.texel_margin <= 8:
+            raise LayerPlanError(f"texel margin must be an integer in [0, 8], got {self.texel_margin!r}")
+
+
+# The cascade of enlargement factors (see the module docstring).
+SCHEDULE = (1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0, 4.0, 6.0, 8.0)
+
+# Bytes of one TDM triangle as drawn: 3 vertices x (3 position + 2 uv) float32 + 3 uint32 indices
+# (each triangle has its own tile, so vertices are not shared in texture space).
+TRIANGLE_GEOMETRY_BYTES = 3 * 5 * 4 + 3 * 4
+
+
+def schedule(enlargement: float) -> tuple[float, ...]:
+    """The factors the cascade runs for ``enlargement``: the schedule's steps below it, then it.
+
+    >>> schedule(2.0), schedule(1.0), schedule(2.2)
+    ((1.0, 1.25, 1.5, 1.75, 2.0), (1.0,), (1.0, 1.25, 1.5, 1.75, 2.0, 2.2))
+    """
+    steps = tuple(f for f in SCHEDULE if f < enlargement - 1e-12)
+    return steps + (float(enlargement),)
+
+
+def simplify_mesh(mesh: TdmMesh, field: VoxelField, enlargement: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """The cascade of :func:`core.tdm_kernels.simplify` passes for ``enlargement``: (triangles,
+    voxel offsets, voxels, outcome counts summed over the passes)."""
+    triangles, offsets, voxels = mesh.triangles, mesh.voxel_offsets, mesh.voxels
+    centres, keys = field.centres, field.keys
+    totals: dict[str, int] = {}
+    for factor in schedule(enlargement):
+        triangles, offsets, voxels, counts = simplify(mesh.vertices, triangles, offsets, voxels, centres, keys, field.shape, factor)
+        for key, value in counts.items():
+            totals[key] = totals.get(key, 0) + value
+    return triangles, offsets, voxels, totals
+
+
+def uncovered_voxels(vertices: np.ndarray, triangles: np.ndarray, offsets: np.ndarray, voxels: np.ndarray, field: VoxelField, enlargement: float) -> int:
+    """Voxels of ``field`` that no triangle stores, or whose storing triangle misses its box
+    enlarged by ``enlargement`` (0 after a correct simplification)."""
+    owner = np.repeat(np.arange(triangles.shape[0]), np.diff(offsets))
+    hits = covered_by(vertices, triangles, owner, field.centres, voxels, 0.5 * enlargement)
+    stored = np.zeros(field.count, dtype=bool)
+    stored[voxels[hits]] = True
+    return int(field.count - stored.sum())
+
+
+def bake_tdm(
+    scene: Scene,
+    cell: ViewCell,
+    options: TdmOptions = TdmOptions(),
+    objects: list[str] | None = None,
+    progress: Progress | None = None,
+) -> Impostor:
+    """Bake the textured depth mesh of ``scene`` (or of its ``objects``) for ``cell``.
+
+    Same contract as :func:`core.bake.bake_layered`; technique ``"tdm"``.
+    """
+    part = scene.subset(objects) if objects else scene
+    times: dict[str, float] = {}
+    report = progress or (lambda stage, done, total: None)
+
+    start = time.perf_counter()
+    plan = plan_layers(cell, part.bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model)
+    times["plan"] = time.perf_counter() - start
+    report("plan", 1, 1)
+
+    field = record_voxel_field(part, plan, options.culling, times, report)
+
+    start = time.perf_counter()
+    mesh = initial_mesh(field)
+    times["mesh"] = time.perf_counter() - start
+    report("mesh", 1, 1)
+
+    start = time.perf_counter()
+    triangles, offsets, voxels, outcomes = simplify_mesh(mesh, field, options.enlargement)
+    times["simplify"] = time.perf_counter() - start
+    report("simplify", 1, 1)
+    uncovered = uncovered_voxels(mesh.vertices, triangles, offsets, voxels, field, options.enlargement)
+    if uncovered:
+        raise LayerPlanError(f"internal error: {uncovered} voxels left uncovered by the simplified mesh")
+
+    start = time.perf_counter()
+    used, compact = np.unique(triangles, return_inverse=True)
+    triangles = compact.reshape(-1, 3)
+    voxel_space = mesh.vertices[used]
+    world = field.to_world(voxel_space)
+    corners = world[triangles]  # (t, 3, 3)
+    chart, sizes = triangle_charts(voxel_space[triangles], options.texel_margin)
+    tiles = resample_tiles(field, corners, chart, sizes, options.oversampling)
+    times["texture"] = time.perf_counter() - start
+    report("texture", 1, 1)
+
+    start = time.perf_counter()
+    pages, corner_uv, quad_page, tile_bytes = pack_tiles(tiles, options.padding)
+    uv = chart_uvs(chart, sizes, corner_uv)
+    times["atlas"] = time.perf_counter() - start
+    report("atlas", 1, 1)
+
+    meshes = mesh_labels(len(used), triangles)
+    count = triangles.shape[0]
+    texture_bytes = int(sum(p.shape[0] * p.shape[1] * 4 for p in pages))
+    stats = {
+        "layers_planned": plan.count,
+        "layers": field.stats["layers"],
+        "voxels": field.count,
+        "texels_covered": field.stats["texels_covered"],
+        "texels_culled": field.stats["texels_culled"],
+        "triangles_drawn": field.stats["triangles_drawn"],
+        **mesh.stats,
+        "triangles": int(count),
+        "vertices": int(len(used)),
+        "meshes": int(meshes.max(initial=-1) + 1),
+        "quads": int(count),
+        "contractions": outcomes,
+        "voxels_uncovered": uncovered,
+        "texture_bytes": texture_bytes,
+        "texture_bytes_tile_area": tile_bytes,
+        "geometry_bytes": int(count * TRIANGLE_GEOMETRY_BYTES),
+        "atlas_pages": len(pages),
+        "texture_resolution": [int(r) for r in plan.texture_resolution],
+        "seconds": {**times, "total": sum(times.values())},
+    }
+    eye = plan.borders + plan.reference_offset
+    layers = [
+        {
+            "index": int(i),
+            "distance": float(plan.distances[i]),
+            "depth_range": [float(plan.borders[i]), float(plan.borders[i + 1])],
+            "eye_depth_range": [float(eye[i]), float(eye[i + 1])],
+            "texels": int(n),
+        }
+        for i, n in zip(*np.unique(field.layer, return_counts=True))
+    ]
+    return Impostor(
+        technique="tdm",
+        viewcell=cell.to_dict(),
+        reference_viewpoint=plan.reference_viewpoint,
+        resolution=options.resolution,
+        fov_deg=options.fov_deg,
+        quad_corners=corners[:, [0, 1, 2, 2]],
+        quad_uv=uv[:, [0, 1, 2, 2]],
+        quad_page=quad_page,
+        quad_layer=meshes,
+        pages=tuple(pages),
+        layers=layers,
+        stats=stats,
+        parameters={**asdict(options), "schedule": list(schedule(options.enlargement)), "objects": list(part.names), "scene_hash": scene.content_hash, "plan": plan.to_dict()},
+        code_version=__version__,
+    )

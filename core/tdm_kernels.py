@@ -1,0 +1,749 @@
+"""numba kernels of the textured depth mesh: triangle-box tests and the voxel-covering simplification.
+
+Seed 003 §6 (seed 000 §4.5).  All edges go into a priority queue by length in the uniform voxel
+grid; the shortest is taken, and it is contracted (v2 into v1, or, failing that, v1 into v2) only if
+
+1. the mesh stays a mesh: the contraction keeps the link condition (the two vertices share no
+   neighbour but the ones opposite the edge), makes no triangle degenerate and flips none;
+2. the boundary neither shrinks nor grows (Figs. 13-14): a boundary vertex is only contracted into
+   a boundary vertex along a boundary edge ("contractions involving boundary vertices are only
+   allowed towards a boundary vertex"), and the new boundary edge must be covered by the union of
+   its intervals inside the enlarged voxel boxes (no empty edge interval).  farfield adds one rule
+   the figures imply but the text does not state: the removed boundary vertex must not be a convex
+   corner (the angles of its triangles at it sum to at least 180 degrees), since the new straight
+   edge would otherwise cut the corner off inside the voxels, a shrink the interval test cannot see
+   (measured: up to 15 hole pixels per view at f = 3 without it);
+3. every voxel stored with the triangles around the removed vertex meets one of the triangles
+   around the kept vertex afterwards (polygon-box test against the voxel's box enlarged by the
+   factor f around its centre); the voxels are then stored with the triangle that covers them.
+
+After a contraction the edges around the kept vertex are pushed again with their new lengths; an
+edge that failed is only reconsidered when it is pushed again that way.  Every voxel stays stored
+with a triangle that meets its enlarged box, so after the queue empties every voxel of the initial
+field is covered (what ``core.tdm`` checks again directly).
+
+Everything is in float64 voxel units.  The triangle-box test is the separating-axis test of
+Akenine-Möller (2001): the box's three axes, the triangle's normal and the nine edge cross products.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+EPS = 1e-9
+
+# Outcomes of one contraction attempt (codes returned by the kernel, names for reports and tests).
+OK, STALE, NON_MANIFOLD, BOUNDARY_AWAY, BOUNDARY_INTERVAL, FLIP, UNCOVERED = range(7)
+OUTCOMES = ("ok", "stale", "non_manifold", "boundary_away", "boundary_interval", "flip", "uncovered")
+
+
+@njit(cache=True)
+def _axis_separates(p0, p1, p2, ax, ay, az, h):
+    a = p0[0] * ax + p0[1] * ay + p0[2] * az
+    b = p1[0] * ax + p1[1] * ay + p1[2] * az
+    c = p2[0] * ax + p2[1] * ay + p2[2] * az
+    lo = min(a, min(b, c))
+    hi = max(a, max(b, c))
+    r = h * (abs(ax) + abs(ay) + abs(az))
+    return lo > r + EPS or hi < -r - EPS
+
+
+@njit(cache=True)
+def tri_box(v0, v1, v2, cx, cy, cz, h):
+    """Does the triangle (v0, v1, v2) meet the closed cube of half size ``h`` around (cx, cy, cz)?"""
+    p0 = np.empty(3)
+    p1 = np.empty(3)
+    p2 = np.empty(3)
+    p0[0] = v0[0] - cx
+    p0[1] = v0[1] - cy
+    p0[2] = v0[2] - cz
+    p1[0] = v1[0] - cx
+    p1[1] = v1[1] - cy
+    p1[2] = v1[2] - cz
+    p2[0] = v2[0] - cx
+    p2[1] = v2[1] - cy
+    p2[2] = v2[2] - cz
+    for k in range(3):
+        if min(p0[k], min(p1[k], p2[k])) > h + EPS or max(p0[k], max(p1[k], p2[k])) < -h - EPS:
+            return False
+    e0 = p1 - p0
+    e1 = p2 - p1
+    e2 = p0 - p2
+    nx = e0[1] * e1[2] - e0[2] * e1[1]
+    ny = e0[2] * e1[0] - e0[0] * e1[2]
+    nz = e0[0] * e1[1] - e0[1] * e1[0]
+    d = nx * p0[0] + ny * p0[1] + nz * p0[2]
+    r = h * (abs(nx) + abs(ny) + abs(nz))
+    scale = abs(nx) + abs(ny) + abs(nz)
+    if abs(d) > r + EPS * max(scale, 1.0):
+        return False
+    for e in (e0, e1, e2):
+        # cross(unit axis k, e) for k = x, y, z
+        if _axis_separates(p0, p1, p2, 0.0, -e[2], e[1], h):
+            return False
+        if _axis_separates(p0, p1, p2, e[2], 0.0, -e[0], h):
+            return False
+        if _axis_separates(p0, p1, p2, -e[1], e[0], 0.0, h):
+            return False
+    return True
+
+
+@njit(cache=True)
+def assign_voxels(vertices, triangles, centres, pair_voxel, pair_quad, voxel_count):
+    """Per voxel, the first triangle of its (voxel, quad) pairs (quad i = triangles 2i, 2i + 1) that
+    meets its unit box; -1 where none does."""
+    owner = np.full(voxel_count, -1, dtype=np.int64)
+    for p in range(pair_voxel.shape[0]):
+        v = pair_voxel[p]
+        if owner[v] >= 0:
+            continue
+        c = centres[v]
+        for t in (2 * pair_quad[p], 2 * pair_quad[p] + 1):
+            tri = triangles[t]
+            if tri_box(vertices[tri[0]], vertices[tri[1]], vertices[tri[2]], c[0], c[1], c[2], 0.5):
+                owner[v] = t
+                break
+    return owner
+
+
+@njit(cache=True)
+def covered_by(vertices, triangles, tri_index, centres, voxels, h):
+    """(n,) bool: voxel i meets triangle tri_index[i] (boxes of half size ``h``)."""
+    out = np.zeros(voxels.shape[0], dtype=np.bool_)
+    for i in range(voxels.shape[0]):
+        tri = triangles[tri_index[i]]
+        c = centres[voxels[i]]
+        out[i] = tri_box(vertices[tri[0]], vertices[tri[1]], vertices[tri[2]], c[0], c[1], c[2], h)
+    return out
+
+
+@njit(cache=True)
+def covered_by_any(vertices, triangles, centres, h):
+    """(n,) bool: voxel i's cube (half size ``h``) meets some triangle (every pair tested: for
+    checks on small meshes, independent of which triangle stores which voxel)."""
+    out = np.zeros(centres.shape[0], dtype=np.bool_)
+    for i in range(centres.shape[0]):
+        c = centres[i]
+        for t in range(triangles.shape[0]):
+            tri = triangles[t]
+            if tri_box(vertices[tri[0]], vertices[tri[1]], vertices[tri[2]], c[0], c[1], c[2], h):
+                out[i] = True
+                break
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# The simplification state: per-vertex triangle lists and per-triangle voxel lists live in pools
+# that only grow (a rewritten list is appended; the pool is compacted when full).
+# ------------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _compact(start, length, pool, alive_mask):
+    total = 0
+    for i in range(start.shape[0]):
+        if alive_mask[i]:
+            total += length[i]
+    fresh = np.empty(max(2 * total + 1024, pool.shape[0] // 2 + 1024), dtype=np.int64)
+    top = 0
+    for i in range(start.shape[0]):
+        if not alive_mask[i]:
+            length[i] = 0
+            start[i] = 0
+            continue
+        s = start[i]
+        for j in range(length[i]):
+            fresh[top + j] = pool[s + j]
+        start[i] = top
+        top += length[i]
+    return fresh, top
+
+
+@njit(cache=True)
+def _reserve(pool, top, extra, start, length, alive_mask):
+    """A pool with room for ``extra`` more entries after ``top`` (compacting or growing it)."""
+    if top + extra <= pool.shape[0]:
+        return pool, top
+    pool, top = _compact(start, length, pool, alive_mask)
+    if top + extra > pool.shape[0]:
+        bigger = np.empty(2 * (top + extra) + 1024, dtype=np.int64)
+        bigger[:top] = pool[:top]
+        pool = bigger
+    return pool, top
+
+
+@njit(cache=True)
+def _heap_push(keys, items, size, key, a, b, va, vb):
+    if size >= keys.shape[0]:
+        new_keys = np.empty(2 * keys.shape[0] + 16)
+        new_items = np.empty((2 * keys.shape[0] + 16, 4), dtype=np.int64)
+        new_keys[:size] = keys[:size]
+        new_items[:size] = items[:size]
+        keys, items = new_keys, new_items
+    i = size
+    keys[i] = key
+    items[i, 0] = a
+    items[i, 1] = b
+    items[i, 2] = va
+    items[i, 3] = vb
+    while i > 0:
+        parent = (i - 1) // 2
+        if keys[parent] <= keys[i]:
+            break
+        keys[parent], keys[i] = keys[i], keys[parent]
+        for c in range(4):
+            items[parent, c], items[i, c] = items[i, c], items[parent, c]
+        i = parent
+    return keys, items, size + 1
+
+
+@njit(cache=True)
+def _heap_pop(keys, items, size):
+    a, b, va, vb = items[0, 0], items[0, 1], items[0, 2], items[0, 3]
+    size -= 1
+    keys[0] = keys[size]
+    for c in range(4):
+        items[0, c] = items[size, c]
+    i = 0
+    while True:
+        left = 2 * i + 1
+        if left >= size:
+            break
+        child = left
+        if left + 1 < size and keys[left + 1] < keys[left]:
+            child = left + 1
+        if keys[i] <= keys[child]:
+            break
+        keys[child], keys[i] = keys[i], keys[child]
+        for c in range(4):
+            items[child, c], items[i, c] = items[i, c], items[child, c]
+        i = child
+    return a, b, va, vb, size
+
+
+@njit(cache=True)
+def _vertex_tris(v, vt_start, vt_len, vt_pool, tri_alive, out):
+    n = 0
+    s = vt_start[v]
+    for j in range(vt_len[v]):
+        t = vt_pool[s + j]
+        if tri_alive[t]:
+            out[n] = t
+            n += 1
+    return n
+
+
+@njit(cache=True)
+def _neighbours(v, tris, n_tris, triangles, nbr, cnt):
+    """Distinct neighbours of ``v`` over its triangles and how many of them share each edge."""
+    m = 0
+    for i in range(n_tris):
+        tri = triangles[tris[i]]
+        for c in range(3):
+            w = tri[c]
+            if w == v:
+                continue
+            found = -1
+            for j in range(m):
+                if nbr[j] == w:
+                    found = j
+                    break
+            if found < 0:
+                nbr[m] = w
+                cnt[m] = 1
+                m += 1
+            else:
+                cnt[found] += 1
+    return m
+
+
+@njit(cache=True)
+def _is_boundary(m, cnt):
+    for j in range(m):
+        if cnt[j] != 2:
+            return True
+    return False
+
+
+@njit(cache=True)
+def _normal(a, b, c):
+    e0 = b - a
+    e1 = c - a
+    n = np.empty(3)
+    n[0] = e0[1] * e1[2] - e0[2] * e1[1]
+    n[1] = e0[2] * e1[0] - e0[0] * e1[2]
+    n[2] = e0[0] * e1[1] - e0[1] * e1[0]
+    return n
+
+
+@njit(cache=True)
+def _segment_distance(p, a, b):
+    """Distance from point p to the segment a-b."""
+    d = b - a
+    length2 = d[0] ** 2 + d[1] ** 2 + d[2] ** 2
+    t = 0.0
+    if length2 > 0.0:
+        t = min(1.0, max(0.0, ((p[0] - a[0]) * d[0] + (p[1] - a[1]) * d[1] + (p[2] - a[2]) * d[2]) / length2))
+    e = a + t * d - p
+    return np.sqrt(e[0] ** 2 + e[1] ** 2 + e[2] ** 2)
+
+
+@njit(cache=True)
+def _fan_angle(v, tris, n_tris, triangles, vertices):
+    """Sum of the angles at ``v`` of its triangles."""
+    total = 0.0
+    for i in range(n_tris):
+        tri = triangles[tris[i]]
+        k = 0
+        while tri[k] != v:
+            k += 1
+        a = vertices[tri[(k + 1) % 3]] - vertices[v]
+        b = vertices[tri[(k + 2) % 3]] - vertices[v]
+        na = np.sqrt(a[0] ** 2 + a[1] ** 2 + a[2] ** 2)
+        nb = np.sqrt(b[0] ** 2 + b[1] ** 2 + b[2] ** 2)
+        c = (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) / max(na * nb, 1e-300)
+        total += np.arccos(min(1.0, max(-1.0, c)))
+    return total
+
+
+@njit(cache=True)
+def _segment_covered(p, q, centres, voxels, n_vox, h, lo, hi):
+    """Is the segment p -> q inside the union of the cubes (half size h) of voxels[:n_vox]?  The
+    union of the segment's intervals inside each cube must be [0, 1] (seed 003 Fig. 14)."""
+    m = 0
+    d = q - p
+    for i in range(n_vox):
+        c = centres[voxels[i]]
+        t0, t1 = 0.0, 1.0
+        empty = False
+        for k in range(3):
+            a = c[k] - h - EPS
+            b = c[k] + h + EPS
+            if abs(d[k]) < 1e-15:
+                if p[k] < a or p[k] > b:
+                    empty = True
+                    break
+            else:
+                ta = (a - p[k]) / d[k]
+                tb = (b - p[k]) / d[k]
+                if ta > tb:
+                    ta, tb = tb, ta
+                t0 = max(t0, ta)
+                t1 = min(t1, tb)
+                if t0 > t1:
+                    empty = True
+                    break
+        if not empty:
+            lo[m] = t0
+            hi[m] = t1
+            m += 1
+    if m == 0:
+        return False
+    order = np.argsort(lo[:m])
+    reach = 0.0
+    for j in range(m):
+        i = order[j]
+        if lo[i] > reach + 1e-9:
+            return False
+        reach = max(reach, hi[i])
+    return reach >= 1.0 - 1e-9
+
+
+@njit(cache=True)
+def _filled(keys, dims, x, y, l):
+    """Is voxel (x, y, l) in the field?  ``keys`` sorted ``(l * rows + y) * columns + x``, dims
+    (layers, rows, columns)."""
+    if x < 0 or y < 0 or l < 0 or x >= dims[2] or y >= dims[1] or l >= dims[0]:
+        return False
+    key = (l * dims[1] + y) * dims[2] + x
+    i = np.searchsorted(keys, key)
+    return i < keys.shape[0] and keys[i] == key
+
+
+@njit(cache=True)
+def _segment_in_field(p, q, keys, dims, h):
+    """Is the segment p -> q inside the union of the field's voxel cubes of half size h?  Walks the
+    segment: from the current point, jump to the farthest exit of the cubes that contain it."""
+    d = q - p
+    t = 0.0
+    while t < 1.0:
+        c = p + t * d
+        best = -1.0
+        x_lo = int(np.ceil(c[0] - 0.5 - h - EPS))
+        x_hi = int(np.floor(c[0] - 0.5 + h + EPS))
+        y_lo = int(np.ceil(c[1] - 0.5 - h - EPS))
+        y_hi = int(np.floor(c[1] - 0.5 + h + EPS))
+        l_lo = int(np.ceil(c[2] - h - EPS))
+        l_hi = int(np.floor(c[2] + h + EPS))
+        for l in range(l_lo, l_hi + 1):
+            for y in range(y_lo, y_hi + 1):
+                for x in range(x_lo, x_hi + 1):
+                    if not _filled(keys, dims, x, y, l):
+                        continue
+                    # Exit parameter of the ray from c along d out of this cube.
+                    exit_t = 1.0
+                    centre = (x + 0.5, y + 0.5, float(l))
+                    for k in range(3):
+                        if d[k] > 1e-15:
+                            exit_t = min(exit_t, (centre[k] + h + EPS - p[k]) / d[k])
+                        elif d[k] < -1e-15:
+                            exit_t = min(exit_t, (centre[k] - h - EPS - p[k]) / d[k])
+                    if exit_t > best:
+                        best = exit_t
+        if best <= t + 1e-12:
+            return False
+        t = best
+    return True
+
+
+@njit(cache=True)
+def _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, tv_start, tv_len, tv_pool,
+             centres, keys, dims, h, shrink, scratch_t2, scratch_t1, nbr2, cnt2, nbr1, cnt1, vox, assign, cand, lo, hi):
+    """Try to contract v2 into v1 (v1 stays); returns (outcome, number of voxels re-stored)."""
+    n2 = _vertex_tris(v2, vt_start, vt_len, vt_pool, tri_alive, scratch_t2)
+    n1 = _vertex_tris(v1, vt_start, vt_len, vt_pool, tri_alive, scratch_t1)
+    # Triangles on the edge.
+    shared = 0
+    for i in range(n2):
+        tri = triangles[scratch_t2[i]]
+        if tri[0] == v1 or tri[1] == v1 or tri[2] == v1:
+            shared += 1
+    if shared == 0:
+        return STALE, 0
+    if shared > 2:
+        return NON_MANIFOLD, 0
+    m2 = _neighbours(v2, scratch_t2, n2, triangles, nbr2, cnt2)
+    m1 = _neighbours(v1, scratch_t1, n1, triangles, nbr1, cnt1)
+    common = 0
+    for i in range(m2):
+        for j in range(m1):
+            if nbr2[i] == nbr1[j]:
+                common += 1
+    if common != shared:
+        return NON_MANIFOLD, 0
+    b2 = _is_boundary(m2, cnt2)
+    b1 = _is_boundary(m1, cnt1)
+    boundary_edge = shared == 1
+    other = -1  # v2's other boundary neighbour when the edge is a boundary edge
+    if b2:
+        # Seed 003 Fig. 13: a boundary vertex may only go towards a boundary vertex, along the boundary.
+        if not b1 or not boundary_edge:
+            return BOUNDARY_AWAY, 0
+        for j in range(m2):
+            if cnt2[j] > 2:
+                return NON_MANIFOLD, 0
+            if cnt2[j] == 1 and nbr2[j] != v1:
+                if other >= 0:
+                    return NON_MANIFOLD, 0
+                other = nbr2[j]
+        if other < 0:
+            return NON_MANIFOLD, 0
+        # No shrinking at convex corners either: the straight edge (v1, other) would cut the corner
+        # off.  v2 may go only where the boundary runs straight or bends outwards there (the angles
+        # of its triangles at it sum to at least 180 degrees).
+        if _fan_angle(v2, scratch_t2, n2, triangles, vertices) < np.pi * (1.0 - 1e-9):
+            if _segment_distance(vertices[v2], vertices[v1], vertices[other]) > shrink:
+                return BOUNDARY_AWAY, 0
+    # The triangles after the contraction: v2's (not on the edge) moved onto v1, and v1's own.
+    nc = 0
+    for i in range(n2):
+        t = scratch_t2[i]
+        tri = triangles[t]
+        if tri[0] == v1 or tri[1] == v1 or tri[2] == v1:
+            continue
+        a = vertices[tri[0]]
+        b = vertices[tri[1]]
+        c = vertices[tri[2]]
+        before = _normal(a, b, c)
+        p = [a, b, c]
+        for k in range(3):
+            if tri[k] == v2:
+                p[k] = vertices[v1]
+        after = _normal(p[0], p[1], p[2])
+        size_after = np.sqrt(after[0] ** 2 + after[1] ** 2 + after[2] ** 2)
+        if size_after < 1e-12 or before[0] * after[0] + before[1] * after[1] + before[2] * after[2] <= 0.0:
+            return FLIP, 0
+        cand[nc] = t
+        nc += 1
+    moved = nc
+    for i in range(n1):
+        t = scratch_t1[i]
+        tri = triangles[t]
+        if tri[0] == v2 or tri[1] == v2 or tri[2] == v2:
+            continue
+        cand[nc] = t
+        nc += 1
+    # The voxels stored with v2's triangles.
+    nv = 0
+    for i in range(n2):
+        t = scratch_t2[i]
+        s = tv_start[t]
+        for j in range(tv_len[t]):
+            vox[nv] = tv_pool[s + j]
+            nv += 1
+    # Seed 003 Fig. 14: the new boundary edge (v1, other) may not leave the enlarged voxels of the
+    # triangles around it (those of v2, v1 and other).
+    if b2:
+        extra = nv
+        around = np.empty(vt_len[v1] + vt_len[other], dtype=np.int64)
+        for vv in (v1, other):
+            n_extra = _vertex_tris(vv, vt_start, vt_len, vt_pool, tri_alive, around)
+            for i in range(n_extra):
+                t = around[i]
+                s = tv_start[t]
+                for j in range(tv_len[t]):
+                    if extra < vox.shape[0]:
+                        vox[extra] = tv_pool[s + j]
+                        extra += 1
+        if not _segment_covered(vertices[v1], vertices[other], centres, vox, extra, h, lo, hi):
+            return BOUNDARY_INTERVAL, 0
+    # Every voxel must meet a triangle after the contraction (v2 read as v1).
+    last = 0
+    q = np.empty(3)
+    pa = np.empty(3)
+    pb = np.empty(3)
+    pc = np.empty(3)
+    for i in range(nv):
+        c = centres[vox[i]]
+        hit = -1
+        for r in range(nc):
+            j = (last + r) % nc
+            tri = triangles[cand[j]]
+            for k in range(3):
+                idx = v1 if tri[k] == v2 else tri[k]
+                q = vertices[idx]
+                if k == 0:
+                    pa = q
+                elif k == 1:
+                    pb = q
+                else:
+                    pc = q
+            if tri_box(pa, pb, pc, c[0], c[1], c[2], h):
+                hit = j
+                break
+        if hit < 0:
+            return UNCOVERED, 0
+        assign[i] = hit
+        last = hit
+    return OK, nv
+
+
+@njit(cache=True)
+def _simplify(vertices, triangles, edges, tri_voxel_offsets, tri_voxels, centres, keys, dims, h, shrink, max_valence):
+    nv_total = vertices.shape[0]
+    nt = triangles.shape[0]
+    triangles = triangles.copy()
+    tri_alive = np.ones(nt, dtype=np.bool_)
+    vert_alive = np.zeros(nv_total, dtype=np.bool_)
+    version = np.zeros(nv_total, dtype=np.int64)
+    # Vertex -> triangles (CSR into a growable pool).
+    vt_len = np.zeros(nv_total, dtype=np.int64)
+    for t in range(nt):
+        for k in range(3):
+            vt_len[triangles[t, k]] += 1
+            vert_alive[triangles[t, k]] = True
+    vt_start = np.zeros(nv_total, dtype=np.int64)
+    acc = 0
+    for v in range(nv_total):
+        vt_start[v] = acc
+        acc += vt_len[v]
+    vt_pool = np.empty(2 * acc + 1024, dtype=np.int64)
+    fill = vt_start.copy()
+    for t in range(nt):
+        for k in range(3):
+            v = triangles[t, k]
+            vt_pool[fill[v]] = t
+            fill[v] += 1
+    vt_top = acc
+    # Triangle -> voxels.
+    tv_start = tri_voxel_offsets[:-1].copy()
+    tv_len = np.diff(tri_voxel_offsets)
+    tv_pool = np.empty(2 * tri_voxels.shape[0] + 1024, dtype=np.int64)
+    tv_pool[: tri_voxels.shape[0]] = tri_voxels
+    tv_top = tri_voxels.shape[0]
+    n_vox_total = tri_voxels.shape[0]
+
+    # Scratch (valence and voxel lists grow; sized generously and grown on demand).
+    cap_t = max_valence
+    scratch_t2 = np.empty(cap_t, dtype=np.int64)
+    scratch_t1 = np.empty(cap_t, dtype=np.int64)
+    nbr2 = np.empty(2 * cap_t, dtype=np.int64)
+    cnt2 = np.empty(2 * cap_t, dtype=np.int64)
+    nbr1 = np.empty(2 * cap_t, dtype=np.int64)
+    cnt1 = np.empty(2 * cap_t, dtype=np.int64)
+    cand = np.empty(2 * cap_t, dtype=np.int64)
+    vox = np.empty(3 * n_vox_total + 16, dtype=np.int64)
+    assign = np.empty(3 * n_vox_total + 16, dtype=np.int64)
+    lo = np.empty(3 * n_vox_total + 16)
+    hi = np.empty(3 * n_vox_total + 16)
+    counts = np.zeros(7, dtype=np.int64)
+
+    # The queue: every edge once.
+    keys = np.empty(edges.shape[0] + 16)
+    items = np.empty((edges.shape[0] + 16, 4), dtype=np.int64)
+    size = 0
+    for e in range(edges.shape[0]):
+        a = edges[e, 0]
+        b = edges[e, 1]
+        d = vertices[a] - vertices[b]
+        keys, items, size = _heap_push(keys, items, size, np.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2), a, b, 0, 0)
+
+    while size > 0:
+        a, b, va, vb, size = _heap_pop(keys, items, size)
+        if not vert_alive[a] or not vert_alive[b] or version[a] != va or version[b] != vb:
+            continue
+        if vt_len[a] > cap_t // 2 or vt_len[b] > cap_t // 2:
+            cap_t = 2 * max(vt_len[a], vt_len[b]) + 16
+            scratch_t2 = np.empty(cap_t, dtype=np.int64)
+            scratch_t1 = np.empty(cap_t, dtype=np.int64)
+            nbr2 = np.empty(2 * cap_t, dtype=np.int64)
+            cnt2 = np.empty(2 * cap_t, dtype=np.int64)
+            nbr1 = np.empty(2 * cap_t, dtype=np.int64)
+            cnt1 = np.empty(2 * cap_t, dtype=np.int64)
+            cand = np.empty(2 * cap_t, dtype=np.int64)
+        done = False
+        for attempt in range(2):
+            v2, v1 = (b, a) if attempt == 0 else (a, b)
+            outcome, nv = _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, tv_start, tv_len,
+                                   tv_pool, centres, keys, dims, h, shrink, scratch_t2, scratch_t1, nbr2, cnt2, nbr1, cnt1, vox, assign,
+                                   cand, lo, hi)  # fmt: skip
+            counts[outcome] += 1
+            if outcome == STALE:
+                break
+            if outcome != OK:
+                continue
+            # Commit: triangles on the edge die, v2's others move onto v1.
+            n2 = _vertex_tris(v2, vt_start, vt_len, vt_pool, tri_alive, scratch_t2)
+            n1 = _vertex_tris(v1, vt_start, vt_len, vt_pool, tri_alive, scratch_t1)
+            nc = 0
+            for i in range(n2):
+                t = scratch_t2[i]
+                tri = triangles[t]
+                if tri[0] == v1 or tri[1] == v1 or tri[2] == v1:
+                    tri_alive[t] = False
+                    continue
+                cand[nc] = t
+                nc += 1
+            moved = nc
+            for i in range(n1):
+                t = scratch_t1[i]
+                if tri_alive[t]:
+                    cand[nc] = t
+                    nc += 1
+            for i in range(nc):
+                t = cand[i]
+                for k in range(3):
+                    if triangles[t, k] == v2:
+                        triangles[t, k] = v1
+            vert_alive[v2] = False
+            # v1's triangle list.
+            vt_pool, vt_top = _reserve(vt_pool, vt_top, nc, vt_start, vt_len, vert_alive)
+            for i in range(nc):
+                vt_pool[vt_top + i] = cand[i]
+            vt_start[v1] = vt_top
+            vt_len[v1] = nc
+            vt_top += nc
+            # Voxel lists: moved triangles keep exactly the voxels assigned to them; v1's own add theirs.
+            per = np.zeros(nc, dtype=np.int64)
+            for i in range(nv):
+                per[assign[i]] += 1
+            need = nv
+            for i in range(moved, nc):
+                if per[i] > 0:
+                    need += tv_len[cand[i]]
+            tv_pool, tv_top = _reserve(tv_pool, tv_top, need, tv_start, tv_len, tri_alive)
+            for i in range(nc):
+                t = cand[i]
+                is_moved = i < moved  # the moved triangles come first in cand (from v2's list)
+                start = tv_top
+                length = 0
+                if not is_moved:
+                    if per[i] == 0:
+                        continue
+                    s = tv_start[t]
+                    for j in range(tv_len[t]):
+                        tv_pool[tv_top + length] = tv_pool[s + j]
+                        length += 1
+                for j in range(nv):
+                    if assign[j] == i:
+                        tv_pool[tv_top + length] = vox[j]
+                        length += 1
+                tv_start[t] = start
+                tv_len[t] = length
+                tv_top += length
+            version[v1] += 1
+            # Push v1's edges again with their new lengths.
+            m1 = _neighbours(v1, cand, nc, triangles, nbr1, cnt1)
+            for j in range(m1):
+                w = nbr1[j]
+                d = vertices[v1] - vertices[w]
+                keys, items, size = _heap_push(keys, items, size, np.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2), v1, w, version[v1], version[w])
+            done = True
+            break
+        if done:
+            continue
+    # Output: live triangles with their voxels.
+    live = np.flatnonzero(tri_alive)
+    out_offsets = np.zeros(live.shape[0] + 1, dtype=np.int64)
+    for i in range(live.shape[0]):
+        out_offsets[i + 1] = out_offsets[i] + tv_len[live[i]]
+    out_voxels = np.empty(out_offsets[-1], dtype=np.int64)
+    for i in range(live.shape[0]):
+        s = tv_start[live[i]]
+        for j in range(tv_len[live[i]]):
+            out_voxels[out_offsets[i] + j] = tv_pool[s + j]
+    return triangles[live], out_offsets, out_voxels, counts
+
+
+def corner_shrink(enlargement: float) -> float:
+    """How far (voxel units) a convex boundary corner may be cut for the factor: (f - 1) / 2, the
+    distance the enlarged boxes reach beyond a voxel."""
+    return 0.5 * (float(enlargement) - 1.0)
+
+
+def simplify(vertices, triangles, voxel_offsets, voxels, centres, keys, dims, enlargement):
+    """Simplify a covering mesh (see the module docstring).
+
+    Returns (triangles (t, 3) int64 into the same vertices, voxel_offsets, voxels, outcome counts
+    as a dict).
+    """
+    triangles = np.ascontiguousarray(triangles, dtype=np.int64)
+    valence = np.bincount(triangles.ravel(), minlength=len(vertices)).max(initial=1)
+    edges = np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    edges = np.unique(edges, axis=0) if edges.size else edges.reshape(0, 2)
+    tris, offsets, vox, counts = _simplify(
+        np.ascontiguousarray(vertices, dtype=np.float64), triangles, np.ascontiguousarray(edges),
+        np.ascontiguousarray(voxel_offsets, dtype=np.int64), np.ascontiguousarray(voxels, dtype=np.int64),
+        np.ascontiguousarray(centres, dtype=np.float64), np.ascontiguousarray(keys, dtype=np.int64),
+        np.asarray(dims, dtype=np.int64), 0.5 * float(enlargement), corner_shrink(enlargement), int(4 * valence + 64),
+    )  # fmt: skip
+    return tris, offsets, vox, dict(zip(OUTCOMES, (int(c) for c in counts)))
+
+
+def contraction_outcome(vertices, triangles, voxel_offsets, voxels, centres, keys, dims, enlargement, v2, v1) -> str:
+    """The outcome of contracting ``v2`` into ``v1`` in a mesh (without changing it), for tests and
+    inspection: one of :data:`OUTCOMES`."""
+    vertices = np.ascontiguousarray(vertices, dtype=np.float64)
+    triangles = np.ascontiguousarray(triangles, dtype=np.int64)
+    nt = triangles.shape[0]
+    vt = [[] for _ in range(len(vertices))]
+    for t, tri in enumerate(triangles):
+        for v in tri:
+            vt[int(v)].append(t)
+    vt_len = np.array([len(x) for x in vt], dtype=np.int64)
+    vt_start = np.concatenate([[0], np.cumsum(vt_len)[:-1]]).astype(np.int64)
+    vt_pool = np.array([t for x in vt for t in x] + [0], dtype=np.int64)
+    voxel_offsets = np.asarray(voxel_offsets, dtype=np.int64)
+    cap = 4 * int(vt_len.max(initial=1)) + 64
+    n = 3 * len(voxels) + 16
+    outcome, _ = _attempt(
+        int(v2), int(v1), vertices, triangles, np.ones(nt, dtype=np.bool_), vt_start, vt_len, vt_pool,
+        voxel_offsets[:-1].copy(), np.diff(voxel_offsets), np.ascontiguousarray(voxels, dtype=np.int64),
+        np.ascontiguousarray(centres, dtype=np.float64), np.ascontiguousarray(keys, dtype=np.int64),
+        np.asarray(dims, dtype=np.int64), 0.5 * float(enlargement), corner_shrink(enlargement),
+        np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(2 * cap, np.int64), np.empty(2 * cap, np.int64),
+        np.empty(2 * cap, np.int64), np.empty(2 * cap, np.int64), np.empty(n, np.int64), np.empty(n, np.int64),
+        np.empty(2 * cap, np.int64), np.empty(n), np.empty(n),
+    )  # fmt: skip
+    return OUTCOMES[outcome]

@@ -1,0 +1,233 @@
+"""The initial mesh of a textured depth mesh: a voxel field in, a fine triangle mesh covering it out.
+
+Seed 003 §5 (seed 000 §4.4, Fig. 4.4).  Every voxel carries four vertices on its sampling layer, one
+near each corner of its texel, so the vertices of a layer form a grid of two per texel: vertex
+(X, Y) sits at (X // 2 + o(X), Y // 2 + o(Y)) with o = INSET for even and 1 - INSET for odd indices.
+
+Deviation: the paper distributes the four vertices evenly (INSET = 1/4), which leaves the mesh a
+quarter texel inside the texels it covers.  At the edge of the recording frustum, where a part's
+silhouette lies exactly on a texel border, that quarter texel added to the one-pixel parallax error
+showed up as two hole pixels seen from a view-cell corner (box building, 256 pixels).  farfield puts
+the vertices 1/16 texel inside the corners: the same topology and rules, bridges between
+neighbouring voxels 1/8 texel wide (they are the shortest edges and go first), and a mesh that
+covers its texels almost exactly, like the layered impostor's quads.  A *cell* of that grid, (X, Y) to (X + 1, Y + 1), touches one
+voxel (X, Y both even: the voxel's own square), two (a bridge to the right or below neighbour) or
+four (the centre of a 2x2 block); it is *filled* in a layer when all the voxels it touches are.
+The paper's three rule sets then read, per layer l and its previous (nearer) layer l - 1:
+
+(a) connections in the current layer: a cell filled in l but not in l - 1 becomes a quad on layer l
+    ("the current voxel is connected to itself, to the right, to the bottom and to all 3
+    neighbours if those voxels are filled in the current layer but at least one of them is not in
+    the previous one");
+(b, c) sealing off: a cell filled in both l - 1 and l is sealed towards each side whose neighbour
+    cell is not filled in l - 1, by a quad standing on that side between the two layers (rule set
+    (b) for a voxel's own cell, (c) for the bridges of voxel pairs, "if any of the 2 facing voxels
+    in the previous layer is transparent").
+
+A voxel that none of these quads meets (it and its previous-layer twin are filled, and so are
+its previous-layer side neighbours, but a diagonal one is not, so culling kept it) gets the quad
+of its own cell on its layer: counted as ``fallback_quads``.
+
+Each quad is two triangles.  Every voxel is stored with exactly one triangle that meets its box
+(checked with the exact triangle-box test), which is what the simplification keeps covered.  Mesh
+connectivity (the paper's vertex table and mesh merging) is the connected components of the
+triangles through their shared vertices: no more meshes than occlusion and disjoint parts need.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from core.tdm_kernels import assign_voxels
+from core.voxel_field import VoxelField
+
+
+INSET = 1.0 / 16.0  # texels from a voxel's corner to its nearest vertex (the paper: 1/4)
+
+
+@dataclass(frozen=True, slots=True)
+class TdmMesh:
+    """A triangle mesh in voxel space with the voxels each triangle stores."""
+
+    vertices: np.ndarray  # (v, 3) float64 voxel units: x, y (down), layer
+    triangles: np.ndarray  # (t, 3) int64
+    voxel_offsets: np.ndarray  # (t + 1,) int64: triangle i stores voxels[voxel_offsets[i]:voxel_offsets[i+1]]
+    voxels: np.ndarray  # (n,) int64 indices into the VoxelField
+    stats: dict
+
+    @property
+    def triangle_count(self) -> int:
+        return int(self.triangles.shape[0])
+
+
+def cell_grid(filled: np.ndarray) -> np.ndarray:
+    """(2h - 1, 2w - 1) bool filled cells of the half-texel vertex grid of an (h, w) voxel layer.
+
+    >>> cell_grid(np.array([[True, True], [True, False]])).astype(int)
+    array([[1, 1, 1],
+           [1, 0, 0],
+           [1, 0, 0]])
+    """
+    h, w = filled.shape
+    cells = np.zeros((2 * h - 1, 2 * w - 1), dtype=bool)
+    cells[0::2, 0::2] = filled
+    cells[0::2, 1::2] = filled[:, :-1] & filled[:, 1:]
+    cells[1::2, 0::2] = filled[:-1] & filled[1:]
+    cells[1::2, 1::2] = filled[:-1, :-1] & filled[:-1, 1:] & filled[1:, :-1] & filled[1:, 1:]
+    return cells
+
+
+# Sides of a cell: (neighbour offset dY, dX), and the two corners of the shared edge as (dX, dY)
+# from the cell's top-left vertex, in the order the quad walks them.
+_SIDES = (
+    ((0, 1), ((1, 0), (1, 1))),  # right: edge X + 1, Y .. Y + 1
+    ((0, -1), ((0, 1), (0, 0))),  # left: edge X, Y + 1 .. Y
+    ((1, 0), ((1, 1), (0, 1))),  # bottom: edge Y + 1, X + 1 .. X
+    ((-1, 0), ((0, 0), (1, 0))),  # top: edge Y, X .. X + 1
+)
+
+
+def _neighbour_not_filled(cells: np.ndarray, dy: int, dx: int) -> np.ndarray:
+    """(H, W) bool: the cell at (Y + dy, X + dx) is not filled (or lies outside)."""
+    h, w = cells.shape
+    out = np.ones_like(cells)
+    ys, yd = (slice(dy, h), slice(0, h - dy)) if dy >= 0 else (slice(0, h + dy), slice(-dy, h))
+    xs, xd = (slice(dx, w), slice(0, w - dx)) if dx >= 0 else (slice(0, w + dx), slice(-dx, w))
+    out[yd, xd] = ~cells[ys, xs]
+    return out
+
+
+def _cell_voxels(cy: np.ndarray, cx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(c, 4) voxel rows and columns a cell touches (repeats where it touches fewer than four)."""
+    y0, y1 = cy // 2, (cy + 1) // 2
+    x0, x1 = cx // 2, (cx + 1) // 2
+    return np.stack([y0, y0, y1, y1], axis=1), np.stack([x0, x1, x0, x1], axis=1)
+
+
+def initial_mesh(field: VoxelField) -> TdmMesh:
+    """The covering mesh of ``field`` by the rule sets of seed 003 §5 (see the module docstring)."""
+    k = field.plan.count
+    # Work inside the bounding box of the voxels, one grid of layers x rows x columns.
+    x0, y0 = int(field.x.min()), int(field.y.min())
+    w, h = int(field.x.max()) - x0 + 1, int(field.y.max()) - y0 + 1
+    occupied = np.zeros((k, h, w), dtype=bool)
+    occupied[field.layer, field.y - y0, field.x - x0] = True
+    layers_with_voxels = np.flatnonzero(occupied.any(axis=(1, 2)))
+
+    quads = []  # each (q, 4, 3) int64 corner (X, Y, layer) in the half-texel grid
+    touches = []  # each (q, 8, 3) int64 voxel (x, y, layer) per quad (repeats allowed)
+    previous = np.zeros((2 * h - 1, 2 * w - 1), dtype=bool)
+    previous_layer = -2
+    for l in layers_with_voxels:
+        cells = cell_grid(occupied[l])
+        before = previous if previous_layer == l - 1 else np.zeros_like(cells)
+        # (a) quads in the current layer where the previous layer's cell is not filled.
+        cy, cx = np.nonzero(cells & ~before)
+        if cy.size:
+            corner = np.stack([np.stack([cx, cy], 1), np.stack([cx + 1, cy], 1), np.stack([cx + 1, cy + 1], 1), np.stack([cx, cy + 1], 1)], axis=1)
+            quads.append(np.concatenate([corner, np.full(corner.shape[:2] + (1,), l)], axis=2))
+            vy, vx = _cell_voxels(cy, cx)
+            touch = np.stack([vx, vy, np.full(vx.shape, l)], axis=2)
+            touches.append(np.concatenate([touch, touch], axis=1))
+        # (b), (c) sealing off cells filled in both layers towards sides not filled in the previous one.
+        both = cells & before
+        if both.any():
+            for (dy, dx), ((ax, ay), (bx, by)) in _SIDES:
+                cy, cx = np.nonzero(both & _neighbour_not_filled(before, dy, dx))
+                if not cy.size:
+                    continue
+                a = np.stack([cx + ax, cy + ay], 1)
+                b = np.stack([cx + bx, cy + by], 1)
+                lay = np.full((cy.size, 1), l)
+                quads.append(np.stack([
+                    np.concatenate([a, lay - 1], 1), np.concatenate([b, lay - 1], 1),
+                    np.concatenate([b, lay], 1), np.concatenate([a, lay], 1),
+                ], axis=1))  # fmt: skip
+                vy, vx = _cell_voxels(cy, cx)
+                if dx:  # only the voxels on that side of the cell meet the standing quad
+                    vx = np.where(dx > 0, (cx + 1) // 2, cx // 2)[:, None].repeat(4, 1)
+                else:
+                    vy = np.where(dy > 0, (cy + 1) // 2, cy // 2)[:, None].repeat(4, 1)
+                touch = np.stack([vx, vy, np.full(vx.shape, l)], axis=2)
+                touches.append(np.concatenate([touch, touch - [0, 0, 1]], axis=1))
+        previous, previous_layer = cells, l
+
+    quads_arr = np.concatenate(quads) if quads else np.zeros((0, 4, 3), np.int64)
+    touch_arr = np.concatenate(touches) if touches else np.zeros((0, 8, 3), np.int64)
+    # Voxel indices of the touches (crop coordinates back to texels).
+    touch_voxel = field.find(touch_arr[..., 0] + x0, touch_arr[..., 1] + y0, touch_arr[..., 2])
+    centres = field.centres
+    vertices, triangles = _triangles(quads_arr, x0, y0)
+    pair_voxel = touch_voxel.ravel()
+    pair_quad = np.repeat(np.arange(quads_arr.shape[0]), 8)
+    keep = pair_voxel >= 0
+    owner = assign_voxels(vertices, triangles, centres, pair_voxel[keep], pair_quad[keep], field.count)
+
+    # Fallback: voxels no rule covered get the quad of their own cell on their layer.
+    missing = np.flatnonzero(owner < 0)
+    fallback = 0
+    if missing.size:
+        mx, my, ml = field.x[missing] - x0, field.y[missing] - y0, field.layer[missing]
+        cx, cy = 2 * mx, 2 * my
+        extra = np.stack([np.stack([cx, cy, ml], 1), np.stack([cx + 1, cy, ml], 1), np.stack([cx + 1, cy + 1, ml], 1), np.stack([cx, cy + 1, ml], 1)], axis=1)
+        quads_arr = np.concatenate([quads_arr, extra])
+        vertices, triangles = _triangles(quads_arr, x0, y0)
+        first = 2 * (quads_arr.shape[0] - missing.size)
+        owner[missing] = first + 2 * np.arange(missing.size)
+        fallback = int(missing.size)
+
+    order = np.argsort(owner, kind="stable")
+    counts = np.bincount(owner, minlength=triangles.shape[0])
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    stats = {
+        "initial_quads": int(quads_arr.shape[0]),
+        "initial_triangles": int(triangles.shape[0]),
+        "initial_vertices": int(vertices.shape[0]),
+        "fallback_quads": fallback,
+        "initial_meshes": int(mesh_labels(vertices.shape[0], triangles).max(initial=-1) + 1),
+    }
+    return TdmMesh(vertices, triangles, offsets.astype(np.int64), order.astype(np.int64), stats)
+
+
+def _triangles(quads: np.ndarray, x0: int, y0: int) -> tuple[np.ndarray, np.ndarray]:
+    """Shared vertices (v, 3) float64 and triangles (2q, 3) int64 (quad i -> 2i, 2i + 1) of quads
+    given by half-grid corners (X, Y, layer) in the crop."""
+    corners = quads.reshape(-1, 3)
+    span = int(corners[:, :2].max(initial=0)) + 2
+    key = (corners[:, 2] * span + corners[:, 1]) * span + corners[:, 0]
+    unique, inverse = np.unique(key, return_inverse=True)
+    first = np.zeros(unique.size, dtype=np.int64)
+    first[inverse] = np.arange(key.size)
+    grid = corners[first]
+    offset = np.where(grid[:, :2] % 2 == 0, INSET, 1.0 - INSET)
+    xy = grid[:, :2] // 2 + offset + [x0, y0]
+    vertices = np.concatenate([xy, grid[:, 2:3].astype(np.float64)], axis=1)
+    idx = inverse.reshape(-1, 4)
+    triangles = np.empty((2 * idx.shape[0], 3), dtype=np.int64)
+    triangles[0::2] = idx[:, [0, 1, 2]]
+    triangles[1::2] = idx[:, [0, 2, 3]]
+    return vertices, triangles
+
+
+def mesh_labels(vertex_count: int, triangles: np.ndarray) -> np.ndarray:
+    """(t,) int64 mesh of each triangle: its connected component through shared vertices, numbered
+    from 0 in order of first appearance.
+
+    >>> mesh_labels(7, np.array([[4, 5, 6], [0, 1, 2], [1, 2, 3]])).tolist()
+    [0, 1, 1]
+    """
+    if triangles.shape[0] == 0:
+        return np.zeros(0, np.int64)
+    a = np.concatenate([triangles[:, 0], triangles[:, 1]])
+    b = np.concatenate([triangles[:, 1], triangles[:, 2]])
+    graph = coo_matrix((np.ones(a.size), (a, b)), shape=(vertex_count, vertex_count))
+    _, labels = connected_components(graph, directed=False)
+    label = labels[triangles[:, 0]]
+    _, first, inverse = np.unique(label, return_index=True, return_inverse=True)
+    rank = np.empty(first.size, np.int64)
+    rank[np.argsort(first)] = np.arange(first.size)
+    return rank[inverse.reshape(-1)]

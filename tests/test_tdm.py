@@ -1,0 +1,238 @@
+"""Textured depth meshes (seed 003) on real EGL: no holes, a covering mesh, boundary rules, the knob."""
+
+from __future__ import annotations
+
+import json
+import math
+import struct
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import scenes
+from core.bake import BakeOptions, bake_layered
+from core.bundle import read_bundle, write_bundle
+from core.errors import LayerPlanError
+from core.evaluation import evaluate
+from core.glb import impostor_glb
+from core.layers import plan_layers
+from core.scene import Scene, SceneObject
+from core.tdm import SCHEDULE, TdmOptions, bake_tdm, schedule, simplify_mesh
+from core.tdm_kernels import contraction_outcome, covered_by_any, tri_box
+from core.tdm_mesh import initial_mesh
+from core.voxel_field import record_voxel_field
+from test_bake import cell_in_front, city_block, dense, needs_shared
+
+CASES = {
+    # name: (scene factory, cell distance in part diameters, cell size in part diameters, lift)
+    "bunny": (lambda: scenes.real_scene("stanford_bunny/bun_zipper.ply"), 4.0, 0.6, 0.0),
+    "helmet": (lambda: scenes.real_scene("damaged_helmet/DamagedHelmet.glb"), 4.0, 0.5, 0.0),
+    "city_block": (city_block, 1.0, 0.1, 3.0),
+    "dense_mesh": (dense, 3.0, 0.5, 0.0),
+}
+RESOLUTION = 128
+
+
+@pytest.fixture(scope="module")
+def house_bake():
+    """The benchmark's building-like object, a 100-unit cubic cell 250 units away, at 128 pixels."""
+    scene = scenes.house()
+    lo, hi = scene.bounds
+    c = 0.5 * (lo + hi)
+    cell = scenes_cell(c, lo[2] - 250.0)
+    return scene, cell
+
+
+def scenes_cell(centre, near_z):
+    from core.viewcells import BoxCell
+
+    return BoxCell(np.array([centre[0] - 50, centre[1] - 50, near_z - 100]), np.array([centre[0] + 50, centre[1] + 50, near_z]))
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_no_hole_pixels_from_inside_the_view_cell(name):
+    needs_shared(name)
+    factory, distance, size, lift = CASES[name]
+    scene = factory()
+    diameter = float(np.max(scene.bounds[1] - scene.bounds[0]))
+    cell = cell_in_front(scene, distance, size * diameter, lift=lift)
+    impostor = bake_tdm(scene, cell, TdmOptions(resolution=RESOLUTION))
+    assert impostor.technique == "tdm"
+    stats = impostor.stats
+    assert stats["voxels_uncovered"] == 0
+    assert 0 < stats["triangles"] < stats["initial_triangles"]
+    result = evaluate(scene, impostor, cell, random_count=6, seed=11)
+    totals = result.totals
+    assert totals["geometry_pixels"] > 500, "the part should be visible from the cell"
+    assert totals["hole_pixels"] == 0, [r["stats"]["hole_pixels"] for r in result.viewpoints]
+    assert totals["bloat_beyond_1px"] <= 0.02 * totals["geometry_pixels"]
+
+
+def _field_and_mesh(scene: Scene, cell, resolution: int = RESOLUTION):
+    plan = plan_layers(cell, scene.bounds, math.radians(45.0), resolution)
+    field = record_voxel_field(scene, plan, "penumbra", {})
+    return field, initial_mesh(field)
+
+
+@pytest.mark.parametrize("enlargement", [1.0, 2.0, 3.0])
+def test_every_voxel_of_the_initial_field_stays_covered(house_bake, enlargement):
+    scene, cell = house_bake
+    field, mesh = _field_and_mesh(scene, cell)
+    h = 0.5 * enlargement
+    # The initial mesh covers every voxel (at the unenlarged size) ...
+    assert covered_by_any(mesh.vertices, mesh.triangles, field.centres, 0.5).all()
+    triangles, _, voxels, counts = simplify_mesh(mesh, field, enlargement)
+    assert counts["ok"] > 0 and triangles.shape[0] < mesh.triangle_count / 20
+    # ... and the simplified one every voxel of that field, tested against all its triangles.
+    assert covered_by_any(mesh.vertices, triangles, field.centres, h).all()
+    # Each voxel is still stored exactly once.
+    assert np.array_equal(np.sort(voxels), np.arange(field.count))
+
+
+def test_larger_enlargement_never_gives_more_triangles(house_bake):
+    scene, cell = house_bake
+    field, mesh = _field_and_mesh(scene, cell)
+    counts = [simplify_mesh(mesh, field, f)[0].shape[0] for f in (1.0, 1.5, 2.0, 3.0)]
+    assert counts == sorted(counts, reverse=True), counts
+    assert counts[-1] < counts[0]
+    assert set(SCHEDULE) >= {1.0, 1.5, 2.0, 3.0}
+    assert schedule(3.0)[:5] == schedule(2.0)
+
+
+def _grid(n: int):
+    """A flat n x n grid of quads on layer 0 (vertices at voxel-space corners of unit texels) with
+    one voxel per quad, stored with the quad's first triangle."""
+    ys, xs = np.mgrid[0 : n + 1, 0 : n + 1]
+    vertices = np.stack([xs.ravel() + 0.0, ys.ravel() + 0.0, np.zeros(xs.size)], axis=1)
+    idx = lambda x, y: y * (n + 1) + x  # noqa: E731
+    triangles, centres = [], []
+    for y in range(n):
+        for x in range(n):
+            a, b, c, d = idx(x, y), idx(x + 1, y), idx(x + 1, y + 1), idx(x, y + 1)
+            triangles += [[a, b, c], [a, c, d]]
+            centres.append([x + 0.5, y + 0.5, 0.0])
+    triangles = np.array(triangles, np.int64)
+    offsets = np.zeros(len(triangles) + 1, np.int64)
+    offsets[1::2] = np.arange(1, n * n + 1)
+    offsets[2::2] = np.arange(1, n * n + 1)
+    keys = np.array([y * n + x for y in range(n) for x in range(n)], np.int64)
+    return vertices, triangles, offsets, np.arange(n * n, dtype=np.int64), np.array(centres), keys, (1, n, n), idx
+
+
+def test_a_boundary_vertex_is_never_contracted_away_from_the_boundary():
+    vertices, triangles, offsets, voxels, centres, keys, dims, idx = _grid(4)
+    args = (vertices, triangles, offsets, voxels, centres, keys, dims)
+    boundary, inner = idx(2, 0), idx(2, 1)
+    # Towards the interior: forbidden at any enlargement, though the big boxes stay covered (Fig. 13).
+    for f in (1.0, 2.0, 8.0):
+        assert contraction_outcome(*args, f, boundary, inner) == "boundary_away"
+    # The other way round (the interior vertex onto the boundary) and along a straight boundary: allowed.
+    assert contraction_outcome(*args, 2.0, inner, boundary) == "ok"
+    assert contraction_outcome(*args, 1.0, boundary, idx(1, 0)) == "ok"
+    # A convex corner is not cut off at f = 1 (no shrink) ...
+    assert contraction_outcome(*args, 1.0, idx(0, 0), idx(1, 0)) == "boundary_away"
+    # ... and a boundary edge may not leave the voxels (Fig. 14): a 4 x 4 grid minus one corner voxel.
+    keep = np.ones(len(triangles), bool)
+    keep[[6, 7]] = False  # the quad of voxel (3, 0)
+    sub_offsets = np.concatenate([[0], np.cumsum(np.diff(offsets)[keep])])
+    sub_voxels = np.concatenate([voxels[offsets[t] : offsets[t + 1]] for t in np.flatnonzero(keep)])
+    sub_keys = np.delete(keys, 3)
+    # Contracting the reflex corner (3, 1) along the boundary to (2, 1) would run the edge
+    # (2, 1)-(4, 1)... no: the new edge would cross the missing voxel.
+    outcome = contraction_outcome(vertices, triangles[keep], sub_offsets, sub_voxels, centres, sub_keys, dims, 1.0, idx(3, 1), idx(3, 0))
+    assert outcome in ("boundary_interval", "boundary_away")
+
+
+def test_triangle_box_test():
+    tri = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    assert tri_box(tri[0], tri[1], tri[2], 0.2, 0.2, 0.0, 0.1)
+    assert tri_box(tri[0], tri[1], tri[2], 0.2, 0.2, 0.55, 0.55)
+    assert not tri_box(tri[0], tri[1], tri[2], 0.2, 0.2, 0.7, 0.5)
+    assert not tri_box(tri[0], tri[1], tri[2], 0.9, 0.9, 0.0, 0.2)  # beyond the hypotenuse
+    assert tri_box(tri[0], tri[1], tri[2], 0.9, 0.9, 0.0, 0.4)
+
+
+def test_voxel_field_maps_to_the_uniform_grid_and_back(house_bake):
+    scene, cell = house_bake
+    field, mesh = _field_and_mesh(scene, cell)
+    # Seed 003 §4.3: voxel centres are pixel + 0.5 and the layer number.
+    assert np.array_equal(field.centres[:, 2], field.layer)
+    assert np.all(field.find(field.x, field.y, field.layer) == np.arange(field.count))
+    assert np.all(field.find(field.x + field.shape[2], field.y, field.layer) == -1)
+    # Vertices reproject to world (§8) and project back exactly.
+    world = field.to_world(mesh.vertices[:500])
+    assert np.allclose(field.from_world(world), mesh.vertices[:500], atol=1e-9)
+    with pytest.raises(LayerPlanError):
+        field.to_world(np.array([[1.0, 1.0, 0.5]]))
+
+
+def test_disjoint_parts_give_separate_meshes_and_one_part_one_mesh():
+    one = scenes.box_object("a", (0, 0, 0), (2, 2, 2))
+    two = scenes.box_object("b", (5, 0, 0), (7, 2, 2))
+    scene = Scene.from_objects([one, two], "two boxes")
+    from core.viewcells import BoxCell
+
+    cell = BoxCell(np.array([3.0, 0.5, -30.0]), np.array([4.0, 1.5, -29.0]))
+    impostor = bake_tdm(scene, cell, TdmOptions(resolution=96))
+    assert impostor.stats["initial_meshes"] == 2 and impostor.stats["meshes"] == 2
+    assert set(impostor.quad_layer.tolist()) == {0, 1}
+    single = bake_tdm(scene, cell, TdmOptions(resolution=96), objects=["a"])
+    assert single.stats["meshes"] == 1
+    # A flat front face ends as two triangles' worth of geometry, not thousands.
+    assert single.stats["triangles"] <= 12
+
+
+def test_bundle_glb_and_evaluate_cli_read_a_tdm_unchanged(tmp_path, house_bake):
+    scene, cell = house_bake
+    impostor = bake_tdm(scene, cell, TdmOptions(resolution=RESOLUTION))
+    write_bundle(impostor, tmp_path / "tdm")
+    back = read_bundle(tmp_path / "tdm")
+    assert back.technique == "tdm" and back.quad_count == impostor.stats["triangles"]
+    assert np.array_equal(back.quad_corners[:, 3], back.quad_corners[:, 2])
+    # The GLB holds one real triangle per TDM triangle (the degenerate half of each quad is left out).
+    data = impostor_glb(impostor)
+    length = struct.unpack_from("<I", data, 12)[0]
+    gltf = json.loads(data[20 : 20 + length])
+    indices = sum(gltf["accessors"][p["indices"]]["count"] for p in gltf["meshes"][0]["primitives"])
+    assert indices == 3 * impostor.stats["triangles"]
+    # `farfield evaluate` on the bundle, as for a layered one.
+    scene_path = scenes.write_scene(scene, tmp_path, "obj", "house")
+    out = subprocess.run(
+        [sys.executable, "-m", "cli.main", "evaluate", str(tmp_path / "tdm"), str(scene_path), "--random", "2", "--json"],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    report = json.loads(out.stdout)
+    assert report["totals"]["hole_pixels"] == 0
+    assert report["impostor"]["quads"] == impostor.stats["triangles"]
+
+
+def test_tdm_and_layered_of_the_same_part_compare_side_by_side(house_bake):
+    scene, cell = house_bake
+    tdm = bake_tdm(scene, cell, TdmOptions(resolution=RESOLUTION))
+    layered = bake_layered(scene, cell, BakeOptions(resolution=RESOLUTION))
+    assert tdm.stats["layers_planned"] == layered.stats["layers_planned"]
+    for impostor in (tdm, layered):
+        totals = evaluate(scene, impostor, cell, random_count=2).totals
+        assert totals["hole_pixels"] == 0 and totals["colour_error_mean"] < 20
+
+
+@pytest.mark.parametrize("bad", [{"enlargement": 0.5}, {"enlargement": True}, {"oversampling": 0}, {"culling": "most"}, {"texel_margin": -1}])
+def test_bad_options_are_refused(bad):
+    with pytest.raises(LayerPlanError):
+        TdmOptions(**bad)
+
+
+def test_oversampling_smooths_the_texture(house_bake):
+    scene, cell = house_bake
+    sharp = bake_tdm(scene, cell, TdmOptions(resolution=RESOLUTION))
+    smooth = bake_tdm(scene, cell, TdmOptions(resolution=RESOLUTION, oversampling=4))
+    assert sharp.stats["triangles"] == smooth.stats["triangles"]
+
+    def roughness(impostor):
+        page = impostor.pages[0][..., :3].astype(np.float64)
+        return float(np.abs(np.diff(page, axis=1)).mean())
+
+    assert roughness(smooth) < roughness(sharp)
