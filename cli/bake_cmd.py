@@ -1,4 +1,4 @@
-"""``farfield bake``: bake one impostor (layered, or an environment map) and write its bundle (manifest, atlas PNGs, GLB)."""
+"""``farfield bake``: bake one impostor (layered, an environment map, or a textured depth mesh) and write its bundle (manifest, atlas PNGs, GLB)."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from core.envmap import FACES, EnvmapOptions, bake_envmap
 from core.errors import LayerPlanError
 from core.exchange import load_scene
 from core.frustum import PIXEL_MODELS
+from core.tdm import TdmOptions, bake_tdm
 from core.viewcells import parse_viewcell
 
 
@@ -45,20 +46,25 @@ class _Bar:
 @click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Bundle directory to write (replaced whole).")
 @click.option("--objects", default=None, help="Comma-separated object names forming the part (default: all).")
 @click.option("--resolution", default=512, show_default=True, type=int, help="Output image pixels per side.")
-@click.option("--technique", type=click.Choice(["layered", "envmap"]), default="layered", show_default=True,
-              help="layered: one part seen from a view cell; envmap: the whole scene around a cubic view cell (seed 002).")
-@click.option("--fov", default=None, type=float, help="Output field of view, degrees [default: 45 layered, 90 envmap].")
+@click.option("--technique", type=click.Choice(["layered", "envmap", "tdm"]), default="layered", show_default=True,
+              help="layered: one part seen from a view cell; envmap: the whole scene around a cubic view cell (seed 002); "
+                   "tdm: textured depth meshes of one part seen from a view cell (seed 003).")
+@click.option("--fov", default=None, type=float, help="Output field of view, degrees [default: 45 layered and tdm, 90 envmap].")
 @click.option("--layers", default=None, type=int, help="envmap: number of layers [default: 64 unless --near-field].")
 @click.option("--near-field", default=None, type=float, help="envmap: largest near-field distance from the cell centre (instead of --layers).")
 @click.option("--directions", default=",".join(FACES), show_default=True, help="envmap: cube faces to record, e.g. +x,-x,+z,-z.")
 @click.option("--gap-fill/--no-gap-fill", default=False, show_default=True, help="envmap: seed 002 §5.1 gap filling.")
+@click.option("--enlargement", default=2.0, show_default=True, type=float,
+              help="tdm: voxel enlargement factor of the covering test (seed 003 §6): larger, fewer polygons, less accurate.")
+@click.option("--oversampling", default=1, show_default=True, type=int, help="tdm: nearest voxels averaged per texel (seed 003 §7).")
 @click.option("--grid-cell", default=8, show_default=True, type=int, help="Box-growing grid cell, texels.")
 @click.option("--fill-threshold", default=0.8, show_default=True, type=float, help="Box-growing fill ratio.")
 @click.option("--culling", type=click.Choice(CULLING_MODES), default="penumbra", show_default=True)
 @click.option("--pixel-model", type=click.Choice(PIXEL_MODELS), default="min", show_default=True)
 @click.option("--json", "as_json", is_flag=True, help="Print the bundle's statistics as JSON.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
-def bake(scene, viewcell, out, objects, resolution, technique, fov, layers, near_field, directions, gap_fill, grid_cell, fill_threshold, culling, pixel_model, as_json, quiet):
+def bake(scene, viewcell, out, objects, resolution, technique, fov, layers, near_field, directions, gap_fill, enlargement, oversampling, grid_cell,
+         fill_threshold, culling, pixel_model, as_json, quiet):  # fmt: skip
     """Bake the impostor of SCENE for a view cell and write its bundle to --out."""
     cell = parse_viewcell(viewcell)
     if technique == "envmap":
@@ -69,6 +75,8 @@ def bake(scene, viewcell, out, objects, resolution, technique, fov, layers, near
             resolution, 90.0 if fov is None else fov, layers if layers is not None or near_field is not None else 64, near_field,
             faces, gap_fill=gap_fill, culling=culling, grid_cell=grid_cell, fill_threshold=fill_threshold,
         )  # fmt: skip
+    elif technique == "tdm":
+        options = TdmOptions(resolution, 45.0 if fov is None else fov, enlargement, oversampling, culling, pixel_model)
     else:
         options = BakeOptions(resolution, 45.0 if fov is None else fov, grid_cell, fill_threshold, culling, pixel_model)
     loaded = load_scene(scene)
@@ -77,6 +85,8 @@ def bake(scene, viewcell, out, objects, resolution, technique, fov, layers, near
     try:
         if technique == "envmap":
             impostor = bake_envmap(loaded, cell, options, progress=bar)
+        elif technique == "tdm":
+            impostor = bake_tdm(loaded, cell, options, names, progress=bar)
         else:
             impostor = bake_layered(loaded, cell, options, names, progress=bar)
     finally:
@@ -94,6 +104,15 @@ def bake(scene, viewcell, out, objects, resolution, technique, fov, layers, near
             f"near field: {stats['near_field']:.6g} ({stats['near_field_triangles']} triangles)  quads: {stats['quads']}\n"
             f"memory: raw layers {stats['raw_layer_bytes'] / 2**20:.1f} MiB -> macrotextures "
             f"{stats['texture_bytes'] / 2**20:.2f} MiB -> PNG {stats['png_bytes'] / 1024:.1f} KiB\n"
+            "seconds: " + "  ".join(f"{k} {v:.3f}" for k, v in seconds.items())
+        )
+        return
+    if technique == "tdm":
+        click.echo(
+            f"bundle: {out}\n"
+            f"layers: {stats['layers']} (planned {stats['layers_planned']})  voxels: {stats['voxels']}  "
+            f"triangles: {stats['initial_triangles']} -> {stats['triangles']}  meshes: {stats['meshes']}\n"
+            f"texture: {stats['texture_bytes'] / 1024:.1f} KiB  geometry: {stats['geometry_bytes'] / 1024:.1f} KiB  atlas pages: {stats['atlas_pages']}\n"
             "seconds: " + "  ".join(f"{k} {v:.3f}" for k, v in seconds.items())
         )
         return

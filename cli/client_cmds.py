@@ -121,8 +121,9 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
 
 @click.command("submit")
 @click.argument("scene")
-@click.option("--job-type", type=click.Choice(["layered", "envmap"]), default="layered", show_default=True,
-              help="layered: impostors of the scene's objects, any view cell; envmap: environment-map impostors of the whole scene, cubic box cells.")
+@click.option("--job-type", type=click.Choice(["layered", "envmap", "tdm"]), default="layered", show_default=True,
+              help="layered: impostors of the scene's objects, any view cell; envmap: environment-map impostors of the whole scene, cubic box cells; "
+                   "tdm: textured depth meshes of the scene's objects, any view cell.")
 @click.option("--grid", default=None, help="View cells: a grid x0,y0,z0,x1,y1,z1,nx,ny,nz over a view-space box.")
 @click.option("--viewcell", "viewcells", multiple=True, help="Or explicit cells (repeat): box:x0,y0,z0,x1,y1,z1 | box-center:... | shaft:...")
 @click.option("--objects", default=None, help="Comma-separated represented objects (default: all).")
@@ -131,7 +132,7 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
 @click.option("--option", "options", multiple=True, metavar="NAME=VALUE",
               help="Technique parameter (repeat); VALUE is parsed as JSON, else taken as text. layered: grid_cell, fill_threshold, culling, "
                    "pixel_model, padding; envmap: layers, near_field, directions (e.g. '[\"+x\",\"-x\"]' or +x,-x), face_resolution, gap_fill, "
-                   "culling, grid_cell, fill_threshold, padding.")
+                   "culling, grid_cell, fill_threshold, padding; tdm: enlargement, oversampling, culling, pixel_model, padding.")
 @click.option("--wait", is_flag=True, help="Wait for the job to end (exit code != 0 unless it is done).")
 @click.option("--download", type=click.Path(file_okay=False), default=None, help="After --wait, unpack the impostor database here.")
 @click.option("--json", "as_json", is_flag=True, help="Print the job record as JSON.")

@@ -1,7 +1,8 @@
 """One cell of a job, start to end: claim it, bake its impostor, store the bundle, record the outcome.
 
 The job's type picks the bake: ``layered`` -> :func:`core.bake.bake_layered` of the job's objects,
-``envmap`` -> :func:`core.envmap.bake_envmap` of the whole scene.
+``envmap`` -> :func:`core.envmap.bake_envmap` of the whole scene, ``tdm`` -> :func:`core.tdm.bake_tdm`
+of the job's objects.
 
 This is everything a worker task does (``workers/tasks.py`` is a few lines around it).  The bundle
 is published under a key derived from everything that determines its bytes
@@ -23,10 +24,11 @@ from core.envmap import bake_envmap
 from core.errors import ErrorKind, FarfieldError, LayerPlanError
 from core.impostor import Impostor
 from core.scene import Scene
+from core.tdm import bake_tdm
 from core.viewcells import viewcell_from_dict
 from service.blobs import BlobStore
 from service.db import Database, JobRow, SceneRow
-from service.jobs import bake_options, claim_cell, end_cell, envmap_options, finish_job_if_complete, job_cancelled, result_key, set_progress
+from service.jobs import bake_options, claim_cell, end_cell, envmap_options, finish_job_if_complete, job_cancelled, result_key, set_progress, tdm_options
 from service.scenes import load_stored_scene
 
 # A running cell looks at its job's state at the first layer after CANCEL_CHECK_S since its last
@@ -60,6 +62,8 @@ def bake_cell(job: JobRow, scene: Scene, viewcell: dict, progress) -> Impostor:
         return bake_layered(scene, cell, bake_options(job.params), job.params["objects"], progress)
     if job.job_type == "envmap":
         return bake_envmap(scene, cell, envmap_options(job.params), progress)
+    if job.job_type == "tdm":
+        return bake_tdm(scene, cell, tdm_options(job.params), job.params["objects"], progress)
     raise LayerPlanError(f"job {job.id} has an unknown job type {job.job_type!r}")
 
 

@@ -1,9 +1,10 @@
 """Jobs and their cells: the request schema, the state machine, progress, and the impostor database index.
 
-Job types: ``layered`` (seed 000's layered impostors of a scene's objects, any view cell) and
-``envmap`` (seed 002's layered environment-map impostors of the whole scene, cubic box cells); each
-has its own technique parameters (``options``), validated, with every cell's layer plan, when the
-job is created.
+Job types: ``layered`` (seed 000's layered impostors of a scene's objects, any view cell),
+``envmap`` (seed 002's layered environment-map impostors of the whole scene, cubic box cells) and
+``tdm`` (seed 003's textured depth meshes of a scene's objects, any view cell; planned like
+``layered``); each has its own technique parameters (``options``), validated, with every cell's
+layer plan, when the job is created.
 
 States (kept in SQL, never in Celery results):
 
@@ -37,14 +38,16 @@ from core.envmap import FACES, EnvmapOptions, plan_envmap
 from core.errors import ConflictError, LayerPlanError, NotFoundError, ViewCellError
 from core.impostor_database import grid_neighbours
 from core.layers import plan_layers
+from core.tdm import TdmOptions
 from core.viewcells import BoxCell, ViewCell, grid_boxes, viewcell_from_dict
 from service.blobs import BlobStore
 from service.db import CELL_FINAL, JOB_STATES, CellRow, Database, JobRow, SceneRow, now, owned_row
 
-JOB_TYPES = ("layered", "envmap")
+JOB_TYPES = ("layered", "envmap", "tdm")
 MAX_CELLS = 10_000
 OPTION_NAMES = ("grid_cell", "fill_threshold", "culling", "pixel_model", "padding")  # layered
 ENVMAP_OPTION_NAMES = ("layers", "near_field", "directions", "face_resolution", "gap_fill", "culling", "grid_cell", "fill_threshold", "padding")
+TDM_OPTION_NAMES = ("enlargement", "oversampling", "culling", "pixel_model", "padding")
 
 
 class GridSpec(BaseModel):
@@ -61,8 +64,10 @@ class JobSpec(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     scene_id: str
-    job_type: Literal["layered", "envmap"] = Field(
-        "layered", description="layered: impostors of the scene's objects for any view cell; envmap: environment-map impostors of the whole scene, cubic box cells"
+    job_type: Literal["layered", "envmap", "tdm"] = Field(
+        "layered",
+        description="layered: impostors of the scene's objects for any view cell; envmap: environment-map impostors of the whole scene, cubic box cells; "
+        "tdm: textured depth meshes of the scene's objects for any view cell",
     )
     viewcells: list[dict] | None = Field(None, description="explicit view cells, e.g. {'kind': 'box', 'lo': [..], 'hi': [..]}")
     grid: GridSpec | None = Field(None, description="or a grid of box cells over a view-space box")
@@ -72,7 +77,9 @@ class JobSpec(BaseModel):
     options: dict = Field(
         default_factory=dict,
         description=f"technique parameters; layered: {', '.join(OPTION_NAMES)}; envmap: {', '.join(ENVMAP_OPTION_NAMES)} "
-        "(give layers or near_field, not both; default 64 layers; directions: cube faces such as ['+x', '-x', '+z', '-z'])",
+        "(give layers or near_field, not both; default 64 layers; directions: cube faces such as ['+x', '-x', '+z', '-z']); "
+        f"tdm: {', '.join(TDM_OPTION_NAMES)} (enlargement: voxel enlargement factor of the covering test, 1 to 8, default 2; "
+        "oversampling: nearest voxels averaged per texel, default 1)",
     )
 
     @model_validator(mode="after")
@@ -135,12 +142,25 @@ def envmap_options(params: dict) -> EnvmapOptions:
         raise LayerPlanError(f"bad technique parameters {params['options']}: {error}") from None
 
 
-def technique_options(job_type: str, params: dict) -> BakeOptions | EnvmapOptions:
+def tdm_options(params: dict) -> TdmOptions:
+    """The TdmOptions of a tdm job's stored parameters (validates them)."""
+    unknown = sorted(set(params["options"]) - set(TDM_OPTION_NAMES))
+    if unknown:
+        raise LayerPlanError(f"unknown technique parameters {unknown} for a tdm job; known: {list(TDM_OPTION_NAMES)}")
+    try:
+        return TdmOptions(resolution=params["resolution"], fov_deg=params["fov_deg"], **params["options"])
+    except (TypeError, ValueError, OverflowError) as error:
+        raise LayerPlanError(f"bad technique parameters {params['options']}: {error}") from None
+
+
+def technique_options(job_type: str, params: dict) -> BakeOptions | EnvmapOptions | TdmOptions:
     """The bake options of a job of ``job_type`` from its stored parameters (validates them)."""
     if job_type == "layered":
         return bake_options(params)
     if job_type == "envmap":
         return envmap_options(params)
+    if job_type == "tdm":
+        return tdm_options(params)
     raise LayerPlanError(f"unknown job type {job_type!r}; one of {list(JOB_TYPES)}")
 
 
@@ -155,10 +175,11 @@ def part_bounds(scene: SceneRow, objects: list[str] | None) -> np.ndarray:
     return np.array([bounds[:, 0].min(axis=0), bounds[:, 1].max(axis=0)])
 
 
-def plan_cell(job_type: str, cell: ViewCell, options: BakeOptions | EnvmapOptions, bounds: np.ndarray | None = None) -> None:
+def plan_cell(job_type: str, cell: ViewCell, options: BakeOptions | EnvmapOptions | TdmOptions, bounds: np.ndarray | None = None) -> None:
     """Plan ``cell``'s layers as a job of ``job_type`` would (``bounds``: the represented part, for
-    layered jobs); raises LayerPlanError or ViewCellError when the cell cannot have an impostor."""
-    if job_type == "layered":
+    layered and tdm jobs: a textured depth mesh has the layered plan); raises LayerPlanError or
+    ViewCellError when the cell cannot have an impostor."""
+    if job_type in ("layered", "tdm"):
         plan_layers(cell, bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model)
     elif not isinstance(cell, BoxCell):
         raise ViewCellError(f"an envmap job needs cubic box view cells, got a {cell.to_dict()['kind']!r} cell")
@@ -171,7 +192,7 @@ def create_job(db: Database, tenant_id: str, scene: SceneRow, spec: JobSpec) -> 
     params = {"resolution": spec.resolution, "fov_deg": spec.fov_deg, "objects": spec.objects, "options": dict(spec.options)}
     options = technique_options(spec.job_type, params)
     if spec.job_type == "envmap" and spec.objects is not None:
-        raise LayerPlanError("an envmap job represents the whole scene: leave out 'objects' (it is for layered jobs)")
+        raise LayerPlanError("an envmap job represents the whole scene: leave out 'objects' (it is for layered and tdm jobs)")
     if spec.grid is not None:
         cells = [(list(ijk), box) for ijk, box in grid_cells(spec.grid)]
     else:
@@ -180,7 +201,7 @@ def create_job(db: Database, tenant_id: str, scene: SceneRow, spec: JobSpec) -> 
         if len(spec.viewcells) > MAX_CELLS:
             raise ViewCellError(f"{len(spec.viewcells)} view cells is over the limit of {MAX_CELLS}")
         cells = [(None, viewcell_from_dict(cell)) for cell in spec.viewcells]
-    bounds = part_bounds(scene, spec.objects) if spec.job_type == "layered" else None
+    bounds = part_bounds(scene, spec.objects) if spec.job_type in ("layered", "tdm") else None
     for n, (_, cell) in enumerate(cells):
         try:
             plan_cell(spec.job_type, cell, options, bounds)

@@ -278,7 +278,7 @@ function onModeChange() {
 }
 
 // Field of view the form proposes per job type (seed 002 records 90-degree cube faces).
-const DEFAULT_FOV = {layered: "45", envmap: "90"};
+const DEFAULT_FOV = {layered: "45", envmap: "90", tdm: "45"};
 
 function jobType() { return $("job-type").value; }
 
@@ -286,10 +286,12 @@ function onJobTypeChange() {
   const type = jobType();
   const envmap = type === "envmap";
   $("envmap-fields").hidden = !envmap;
+  $("tdm-fields").hidden = type !== "tdm";
   $("objects-field").hidden = envmap; // an envmap represents the whole scene
   const fov = $("job-fov");
   if (Object.values(DEFAULT_FOV).includes(fov.value.trim())) fov.value = DEFAULT_FOV[type];
-  $("job-options").placeholder = envmap ? '{} or e.g. {"culling": "umbra", "gap_fill": true}' : "{}";
+  $("job-options").placeholder = envmap ? '{} or e.g. {"culling": "umbra", "gap_fill": true}'
+    : type === "tdm" ? '{} or e.g. {"culling": "umbra", "padding": 4}' : "{}";
 }
 
 function numberOrText(text) {
@@ -331,6 +333,15 @@ function jobRequest() {
     if (layers !== "") extra.layers = numberOrText(layers);
     const directions = $("job-directions").value.split(/[\s,;]+/).filter(Boolean);
     if (directions.length) extra.directions = directions;
+    if (Object.keys(extra).length) request.options = {...extra, ...(request.options || {})};
+  }
+  if (request.job_type === "tdm") {
+    // So do the tdm fields (an option given in the JSON as well wins).
+    const extra = {};
+    const enlargement = $("job-enlargement").value.trim();
+    if (enlargement !== "") extra.enlargement = numberOrText(enlargement);
+    const oversampling = $("job-oversampling").value.trim();
+    if (oversampling !== "") extra.oversampling = numberOrText(oversampling);
     if (Object.keys(extra).length) request.options = {...extra, ...(request.options || {})};
   }
   return request;
@@ -429,7 +440,8 @@ async function refreshJob() {
 
 function renderJob(job) {
   $("job-id").textContent = job.id;
-  $("job-type-text").textContent = job.job_type === "envmap" ? "envmap (environment-map impostors of the whole scene)" : job.job_type;
+  $("job-type-text").textContent = job.job_type === "envmap" ? "envmap (environment-map impostors of the whole scene)"
+    : job.job_type === "tdm" ? "tdm (textured depth meshes)" : job.job_type;
   $("job-type-text").dataset.jobType = job.job_type;
   setState($("job-state"), job.state);
   setBar($("job-progress"), job);
