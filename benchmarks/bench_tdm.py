@@ -1,0 +1,175 @@
+"""Textured depth meshes (seed 003) and layered impostors of the same part, measured side by side.
+
+Usage: ``.venv/bin/python benchmarks/bench_tdm.py [--quick] [--json] [--out DIR]``
+
+1. Seed 000 Table 4.1 side by side: the building-like object of ``tests/scenes.py::house`` (the
+   thesis's house model is not public), a cubic 100 m view cell, 512 x 512, 45°, distances
+   90-1000 m between cell and model: layers, meshes, initial and final TDM triangles, TDM memory,
+   layered quads and memory, generation time per stage of both, hole pixels and colour error of
+   both (the same ``core.evaluation.evaluate``: the cell's 8 corners, its centre and 4 random
+   points).  Memory = atlas tile texels x 4 bytes + geometry as drawn (TDM 72 B per triangle,
+   layered 104 B per quad).
+2. The trade: the voxel enlargement factor 1.0-3.0 at 140 m against triangles, memory, generation
+   time and image error, as a table and a plot (``tdm_trade.png``).
+
+The renderer (llvmpipe or a GPU) is printed.  numba kernels are compiled (and cached) by a warm-up
+bake first, so their compile time is not in any row.  ``--quick`` uses 256 pixels and fewer rows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
+
+from core.bake import BakeOptions, bake_layered  # noqa: E402
+from core.evaluation import evaluate  # noqa: E402
+from core.render.context import gl_context, renderer_info  # noqa: E402
+from core.tdm import TdmOptions, bake_tdm  # noqa: E402
+from core.viewcells import BoxCell  # noqa: E402
+from scenes import house  # noqa: E402
+
+DISTANCES = (90, 110, 140, 180, 250, 500, 1000)
+FACTORS = (1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0)
+
+
+def cell_before(scene, distance: float, size: float = 100.0) -> BoxCell:
+    """A cubic cell of ``size`` centred on the part's x and y, ``distance`` in front of its z = min face."""
+    lo, hi = scene.bounds
+    c = 0.5 * (lo + hi)
+    return BoxCell(np.array([c[0] - size / 2, c[1] - size / 2, lo[2] - distance - size]), np.array([c[0] + size / 2, c[1] + size / 2, lo[2] - distance]))
+
+
+def tdm_memory(stats: dict) -> int:
+    return int(stats["texture_bytes_tile_area"] + stats["geometry_bytes"])
+
+
+def measure(scene, cell, resolution: int, enlargement: float = 2.0) -> dict:
+    tdm = bake_tdm(scene, cell, TdmOptions(resolution=resolution, enlargement=enlargement))
+    layered = bake_layered(scene, cell, BakeOptions(resolution=resolution))
+    ev_t = evaluate(scene, tdm, cell, random_count=4, seed=3).totals
+    ev_l = evaluate(scene, layered, cell, random_count=4, seed=3).totals
+    s, l = tdm.stats, layered.stats
+    return {
+        "layers": s["layers_planned"],
+        "meshes": s["meshes"],
+        "initial_triangles": s["initial_triangles"],
+        "tdm_triangles": s["triangles"],
+        "tdm_memory": tdm_memory(s),
+        "tdm_texture_atlas_bytes": s["texture_bytes"],
+        "tdm_seconds": s["seconds"],
+        "tdm_holes": ev_t["hole_pixels"],
+        "tdm_colour_error": ev_t["colour_error_mean"],
+        "tdm_bloat_beyond_1px": ev_t["bloat_beyond_1px"],
+        "layered_quads": l["quads"],
+        "layered_memory": int(l["texture_bytes_tile_area"] + l["geometry_bytes"]),
+        "layered_seconds": l["seconds"]["total"],
+        "layered_holes": ev_l["hole_pixels"],
+        "layered_colour_error": ev_l["colour_error_mean"],
+        "geometry_pixels": ev_t["geometry_pixels"],
+    }
+
+
+def print_table(rows: dict) -> None:
+    keys = list(rows)
+    def line(label, fn):
+        print(f"{label:<34}" + "".join(f"{fn(rows[k]):>11}" for k in keys))
+    line("distance view cell to model (m)", lambda r: r["distance"])
+    line("# layers", lambda r: r["layers"])
+    line("# meshes", lambda r: r["meshes"])
+    line("# triangles in initial meshes", lambda r: f"{r['initial_triangles']:,}")
+    line("# triangles of TDM", lambda r: r["tdm_triangles"])
+    line("memory of TDM (kB)", lambda r: f"{r['tdm_memory'] / 1000:.1f}")
+    for stage in ("record", "mesh", "simplify", "texture", "atlas", "total"):
+        line(f"TDM {stage} (s)", lambda r, st=stage: f"{r['tdm_seconds'].get(st, 0.0):.3f}")
+    line("TDM hole pixels", lambda r: r["tdm_holes"])
+    line("TDM colour error (mean, 0-255)", lambda r: f"{r['tdm_colour_error']:.2f}")
+    line("# quads of layered impostor", lambda r: r["layered_quads"])
+    line("memory of layered (kB)", lambda r: f"{r['layered_memory'] / 1000:.1f}")
+    line("layered generation (s)", lambda r: f"{r['layered_seconds']:.3f}")
+    line("layered hole pixels", lambda r: r["layered_holes"])
+    line("layered colour error", lambda r: f"{r['layered_colour_error']:.2f}")
+    line("triangles TDM / quads layered", lambda r: f"{r['tdm_triangles'] / max(r['layered_quads'], 1):.2f}")
+    line("memory TDM / layered", lambda r: f"{r['tdm_memory'] / max(r['layered_memory'], 1):.2f}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="256 pixels, three distances, three factors")
+    parser.add_argument("--json", action="store_true")
+    parser.add_argument("--out", default="benchmarks/out", help="folder for the plot")
+    args = parser.parse_args()
+    resolution = 256 if args.quick else 512
+    distances = (90, 250, 1000) if args.quick else DISTANCES
+    factors = (1.0, 2.0, 3.0) if args.quick else FACTORS
+    gl_context()
+    info = renderer_info()
+    scene = house()
+    if not args.json:
+        print(f"renderer: {info.vendor} / {info.renderer}; part: {scene.triangle_count} triangles; {resolution} px, 45°, 100 m cubic cell")
+    bake_tdm(scene, cell_before(scene, 500.0), TdmOptions(resolution=64))  # compile the numba kernels
+
+    table = {}
+    for d in distances:
+        row = measure(scene, cell_before(scene, float(d)), resolution)
+        row["distance"] = d
+        table[d] = row
+        if not args.json:
+            print(f"  {d} m: TDM {row['tdm_triangles']} triangles in {row['tdm_seconds']['total']:.2f} s", file=sys.stderr)
+    trade = {}
+    cell = cell_before(scene, 140.0)
+    for f in factors:
+        tdm = bake_tdm(scene, cell, TdmOptions(resolution=resolution, enlargement=f))
+        ev = evaluate(scene, tdm, cell, random_count=4, seed=3).totals
+        trade[f] = {
+            "triangles": tdm.stats["triangles"], "memory": tdm_memory(tdm.stats), "seconds": tdm.stats["seconds"]["total"],
+            "holes": ev["hole_pixels"], "colour_error": ev["colour_error_mean"], "bloat_beyond_1px": ev["bloat_beyond_1px"],
+        }  # fmt: skip
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    plot = out / "tdm_trade.png"
+    write_trade_plot(trade, plot)
+    if args.json:
+        print(json.dumps({"renderer": info.renderer, "resolution": resolution, "table": table, "trade": trade}, indent=2))
+        return
+    print("\nTable 4.1 side by side (seed 000), enlargement factor 2:")
+    print_table(table)
+    print("\nThe trade at 140 m (enlargement factor -> triangles, memory, time, image error):")
+    print(f"{'factor':>7}{'triangles':>11}{'memory kB':>11}{'seconds':>9}{'holes':>7}{'colour err':>11}{'bloat>1px':>10}")
+    for f, r in trade.items():
+        print(f"{f:>7.2f}{r['triangles']:>11}{r['memory'] / 1000:>11.1f}{r['seconds']:>9.2f}{r['holes']:>7}{r['colour_error']:>11.2f}{r['bloat_beyond_1px']:>10}")
+    print(f"plot: {plot}")
+
+
+def write_trade_plot(trade: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    factors = list(trade)
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    axes[0].plot(factors, [trade[f]["triangles"] for f in factors], "o-")
+    axes[0].set_ylabel("TDM triangles")
+    axes[1].plot(factors, [trade[f]["memory"] / 1000 for f in factors], "o-", color="tab:green")
+    axes[1].set_ylabel("memory (kB)")
+    axes[2].plot(factors, [trade[f]["colour_error"] for f in factors], "o-", color="tab:red", label="mean colour error")
+    axes[2].plot(factors, [trade[f]["bloat_beyond_1px"] / 100 for f in factors], "s--", color="tab:purple", label="bloat > 1 px / 100")
+    axes[2].legend()
+    for ax in axes:
+        ax.set_xlabel("voxel enlargement factor")
+        ax.grid(alpha=0.3)
+    fig.suptitle("Textured depth mesh: the enlargement factor trade (house at 140 m, 100 m cell)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+
+
+if __name__ == "__main__":
+    main()
