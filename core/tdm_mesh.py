@@ -28,6 +28,27 @@ A voxel that none of these quads meets (it and its previous-layer twin are fille
 its previous-layer side neighbours, but a diagonal one is not, so culling kept it) gets the quad
 of its own cell on its layer: counted as ``fallback_quads``.
 
+**Steep surfaces (farfield's additions).**  A surface seen nearly edge-on from the reference
+viewpoint (the house's side walls, seen from the cell's outer part) records as stacks: each texel
+column holds a run of several layers, and the next column's run starts one or two layers deeper.
+The paper's rules seal every run on both sides into a fin of its own, and runs that do not share a
+layer never connect, so the wall becomes one folded fin per column whose two walls can never be
+contracted onto each other: measured on the house at 90 m, 512 pixels, f = 2, 6,605 triangles, most
+of them fins.  farfield therefore
+
+* fills *step voxels* (:func:`step_voxels`) between side-neighbouring runs one or two layers apart,
+  so neighbouring runs share a layer and the rules join them into one staircase.  Step voxels only
+  shape the initial mesh: they are not in the field, so nothing has to cover them, and the
+  simplification may straighten the staircase into the plane it samples;
+* leaves out the *back wall* of a fin: a run whose first layer joins the neighbour cell on one side
+  but not on the opposite side is sealed only on that opposite side.  Its voxels are covered by the
+  wall that is kept, and the dropped one would hang from the edge where the run meets its neighbour,
+  three triangles on one edge.
+
+Measured (same case): 1,169 triangles, 4 s instead of 12 s, no hole pixels; and a synthetic steep
+plane (``tests/test_tdm.py``) becomes one mesh of 5 triangles at f = 3 where the paper's rules
+leave 8 fins of 42.
+
 Each quad is two triangles.  Every voxel is stored with exactly one triangle that meets its box
 (checked with the exact triangle-box test), which is what the simplification keeps covered.  Mesh
 connectivity (the paper's vertex table and mesh merging) is the connected components of the
@@ -91,6 +112,53 @@ _SIDES = (
 )
 
 
+def step_voxels(occupied: np.ndarray) -> np.ndarray:
+    """(k, h, w) bool: the step voxels that join the stacks of a steep surface (farfield's addition
+    to the rule sets, see the module docstring).
+
+    Two side-neighbouring voxel columns whose stacks end and begin one or two layers apart get the
+    layers between filled so that they share one: with the near column holding l and not l + 1, and
+    the far one holding l + 1 and not l, the near one steps into l + 1; with one empty layer between
+    (near holds l - 1 and l, far holds l + 2 and l + 3, neither holds l + 1), both take l + 1.  The
+    second case asks for stacks of two on both sides, the mark of a steep surface: a lone voxel
+    beside a deeper stack is a silhouette over whatever lies behind, and joining it made skirts.
+
+    >>> occ = np.zeros((6, 1, 3), bool)
+    >>> occ[0:2, 0, 0] = occ[3:5, 0, 1] = occ[5, 0, 2] = True
+    >>> np.argwhere(step_voxels(occ)).tolist()  # columns 0, 1 share layer 2; column 1 steps into 5
+    [[2, 0, 0], [2, 0, 1], [5, 0, 1]]
+    """
+    steps = np.zeros_like(occupied)
+    k = occupied.shape[0]
+    for axis in (1, 2):
+        n = occupied.shape[axis]
+        a = occupied.take(np.arange(n - 1), axis=axis)
+        b = occupied.take(np.arange(1, n), axis=axis)
+        for near, far, into_near, into_far in ((a, b, 0, 1), (b, a, 1, 0)):
+            # One layer apart: the entry at l marks layer l + 1.
+            one = np.zeros_like(a)
+            one[1:] = near[:-1] & ~far[:-1] & far[1:] & ~near[1:]
+            _add_side(steps, one, axis, into_near)
+            # Two layers apart, stacks of two: near holds l - 1, l; far holds l + 2, l + 3;
+            # marked at l + 1, for l = 1 .. k - 4.
+            if k >= 5:
+                marked = np.zeros_like(a)
+                marked[2 : k - 2] = (near[0 : k - 4] & near[1 : k - 3] & ~far[1 : k - 3] & ~near[2 : k - 2] & ~far[2 : k - 2]
+                                     & far[3 : k - 1] & ~near[3 : k - 1] & far[4:k])  # fmt: skip
+                _add_side(steps, marked, axis, into_near)
+                _add_side(steps, marked, axis, into_far)
+    return steps & ~occupied
+
+
+def _add_side(steps: np.ndarray, added: np.ndarray, axis: int, side: int) -> None:
+    """OR ``added`` (one column pair per entry along ``axis``) into the first (side 0) or second
+    (side 1) column of each pair."""
+    n = steps.shape[axis]
+    index = [slice(None)] * 3
+    index[axis] = slice(0, n - 1) if side == 0 else slice(1, n)
+    steps[tuple(index)] |= added
+
+
 def _neighbour_not_filled(cells: np.ndarray, dy: int, dx: int) -> np.ndarray:
     """(H, W) bool: the cell at (Y + dy, X + dx) is not filled (or lies outside)."""
     h, w = cells.shape
@@ -116,15 +184,22 @@ def initial_mesh(field: VoxelField) -> TdmMesh:
     w, h = int(field.x.max()) - x0 + 1, int(field.y.max()) - y0 + 1
     occupied = np.zeros((k, h, w), dtype=bool)
     occupied[field.layer, field.y - y0, field.x - x0] = True
+    steps = step_voxels(occupied)
+    occupied |= steps
     layers_with_voxels = np.flatnonzero(occupied.any(axis=(1, 2)))
 
     quads = []  # each (q, 4, 3) int64 corner (X, Y, layer) in the half-texel grid
     touches = []  # each (q, 8, 3) int64 voxel (x, y, layer) per quad (repeats allowed)
     previous = np.zeros((2 * h - 1, 2 * w - 1), dtype=bool)
     previous_layer = -2
+    # Per side: was the neighbour cell filled in the first layer of the cell's current run?
+    joined_at_top = [np.zeros_like(previous) for _ in _SIDES]
     for l in layers_with_voxels:
         cells = cell_grid(occupied[l])
         before = previous if previous_layer == l - 1 else np.zeros_like(cells)
+        start = cells & ~before
+        for side, ((dy, dx), _) in enumerate(_SIDES):
+            joined_at_top[side] = np.where(start, ~_neighbour_not_filled(cells, dy, dx), joined_at_top[side])
         # (a) quads in the current layer where the previous layer's cell is not filled.
         cy, cx = np.nonzero(cells & ~before)
         if cy.size:
@@ -136,8 +211,11 @@ def initial_mesh(field: VoxelField) -> TdmMesh:
         # (b), (c) sealing off cells filled in both layers towards sides not filled in the previous one.
         both = cells & before
         if both.any():
-            for (dy, dx), ((ax, ay), (bx, by)) in _SIDES:
-                cy, cx = np.nonzero(both & _neighbour_not_filled(before, dy, dx))
+            for side, ((dy, dx), ((ax, ay), (bx, by))) in enumerate(_SIDES):
+                # The back wall of a fin: the run joined this side's neighbour at its top and the
+                # opposite side carries the wall down (farfield's addition, module docstring).
+                back = joined_at_top[side] & ~joined_at_top[side ^ 1]
+                cy, cx = np.nonzero(both & _neighbour_not_filled(before, dy, dx) & ~back)
                 if not cy.size:
                     continue
                 a = np.stack([cx + ax, cy + ay], 1)
@@ -188,6 +266,7 @@ def initial_mesh(field: VoxelField) -> TdmMesh:
         "initial_triangles": int(triangles.shape[0]),
         "initial_vertices": int(vertices.shape[0]),
         "fallback_quads": fallback,
+        "step_voxels": int(steps.sum()),
         "initial_meshes": int(mesh_labels(vertices.shape[0], triangles).max(initial=-1) + 1),
     }
     return TdmMesh(vertices, triangles, offsets.astype(np.int64), order.astype(np.int64), stats)

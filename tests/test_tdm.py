@@ -19,7 +19,7 @@ from core.evaluation import evaluate
 from core.glb import impostor_glb
 from core.layers import plan_layers
 from core.scene import Scene, SceneObject
-from core.tdm import SCHEDULE, TdmOptions, bake_tdm, schedule, simplify_mesh
+from core.tdm import SCHEDULE, TdmOptions, bake_tdm, schedule, simplify_mesh, uncovered_voxels
 from core.tdm_kernels import contraction_outcome, covered_by_any, tri_box
 from core.tdm_mesh import initial_mesh
 from core.voxel_field import record_voxel_field
@@ -99,6 +99,45 @@ def test_larger_enlargement_never_gives_more_triangles(house_bake):
     assert counts[-1] < counts[0]
     assert set(SCHEDULE) >= {1.0, 1.5, 2.0, 3.0}
     assert schedule(3.0)[:5] == schedule(2.0)
+
+
+def _steep_field(gap: int):
+    """A steep surface in voxel space, as a wall seen edge-on from the view cell records: 12 rows,
+    8 columns, column x a stack of 5 layers starting at x * (5 + gap), stacks ``gap`` empty layers
+    apart (the house's side walls at 90 m are stacks of 5-6 layers, one empty layer apart)."""
+    from types import SimpleNamespace
+
+    from core.voxel_field import VoxelField
+
+    cols, rows, depth = 8, 12, 5
+    x, y, layer = [], [], []
+    for col in range(cols):
+        for l in range(col * (depth + gap), col * (depth + gap) + depth):
+            x += [col] * rows
+            y += list(range(rows))
+            layer += [l] * rows
+    x, y, layer = (np.asarray(a, np.int64) for a in (x, y, layer))
+    plan = SimpleNamespace(count=int(layer.max()) + 1, texture_resolution=(cols, rows))
+    order = np.argsort((layer * rows + y) * cols + x)
+    rgba = np.full((x.size, 4), 200, np.uint8)
+    return VoxelField(plan, x[order], y[order], layer[order], rgba, {})
+
+
+@pytest.mark.parametrize("gap", [0, 1])
+def test_a_steep_surface_becomes_one_sheet_and_simplifies_to_a_plane(gap):
+    """The paper's rule sets seal every stack on both sides into a fin of its own, and fins one
+    layer apart never meet; farfield's step voxels join them and the back walls are left out, so
+    the stacks form one sheet that simplifies like the plane it is (module docstring of
+    core.tdm_mesh)."""
+    field = _steep_field(gap)
+    mesh = initial_mesh(field)
+    assert mesh.stats["initial_meshes"] == 1  # the paper's rules: 8, one fin per stack
+    # gap 0: each near stack steps one layer down (7 pairs x 12 rows); gap 1: both stacks fill it.
+    assert mesh.stats["step_voxels"] == 7 * 12 * (1 + gap)
+    # Measured: 5 triangles at f = 3 (the paper's rules: 42, five per fin).
+    triangles, offsets, voxels, _ = simplify_mesh(mesh, field, 3.0)
+    assert uncovered_voxels(mesh.vertices, triangles, offsets, voxels, field, 3.0) == 0
+    assert triangles.shape[0] <= 8, triangles.shape[0]
 
 
 def _grid(n: int):
