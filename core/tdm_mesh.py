@@ -66,7 +66,6 @@ from scipy.sparse.csgraph import connected_components
 from core.tdm_kernels import assign_voxels
 from core.voxel_field import VoxelField
 
-
 INSET = 1.0 / 16.0  # texels from a voxel's corner to its nearest vertex (the paper: 1/4)
 
 

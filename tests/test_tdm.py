@@ -10,20 +10,27 @@ import sys
 
 import numpy as np
 import pytest
-
 import scenes
+from test_bake import cell_in_front, city_block, dense, needs_shared
+
 from core.bake import BakeOptions, bake_layered
 from core.bundle import read_bundle, write_bundle
 from core.errors import LayerPlanError
 from core.evaluation import evaluate
 from core.glb import impostor_glb
 from core.layers import plan_layers
-from core.scene import Scene, SceneObject
-from core.tdm import SCHEDULE, TdmOptions, bake_tdm, schedule, simplify_mesh, uncovered_voxels
+from core.scene import Scene
+from core.tdm import (
+    SCHEDULE,
+    TdmOptions,
+    bake_tdm,
+    schedule,
+    simplify_mesh,
+    uncovered_voxels,
+)
 from core.tdm_kernels import contraction_outcome, covered_by_any, tri_box
 from core.tdm_mesh import initial_mesh
 from core.voxel_field import record_voxel_field
-from test_bake import cell_in_front, city_block, dense, needs_shared
 
 CASES = {
     # name: (scene factory, cell distance in part diameters, cell size in part diameters, lift)
@@ -145,7 +152,7 @@ def _grid(n: int):
     one voxel per quad, stored with the quad's first triangle."""
     ys, xs = np.mgrid[0 : n + 1, 0 : n + 1]
     vertices = np.stack([xs.ravel() + 0.0, ys.ravel() + 0.0, np.zeros(xs.size)], axis=1)
-    idx = lambda x, y: y * (n + 1) + x  # noqa: E731
+    idx = lambda x, y: y * (n + 1) + x
     triangles, centres = [], []
     for y in range(n):
         for x in range(n):
