@@ -7,8 +7,8 @@ Usage: ``.venv/bin/python benchmarks/bench_tdm.py [--quick] [--json] [--out DIR]
    90-1000 m between cell and model: layers, meshes, initial and final TDM triangles, TDM memory,
    layered quads and memory, generation time per stage of both, hole pixels and colour error of
    both (the same ``core.evaluation.evaluate``: the cell's 8 corners, its centre and 4 random
-   points).  Memory = atlas tile texels x 4 bytes + geometry as drawn (TDM 72 B per triangle,
-   layered 104 B per quad).
+   points).  Memory = atlas tile texels x 4 bytes + geometry as drawn (TDM an indexed mesh: 20 B
+   per vertex of each texture chart + 12 B per triangle; layered 104 B per quad).
 2. The trade: the voxel enlargement factor 1.0-3.0 at 140 m against triangles, memory, generation
    time and image error, as a table and a plot (``tdm_trade.png``).
 

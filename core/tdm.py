@@ -3,8 +3,9 @@
 
 plan layers (seed 000 §3.3.1, as for layered impostors) -> record and cull them into a voxel field
 (:mod:`core.voxel_field`, seed 003 §4) -> initial covering mesh (:mod:`core.tdm_mesh`, §5) ->
-voxel-covering simplification (:mod:`core.tdm_kernels`, §6) -> textures resampled per triangle and
-packed into atlas pages (:mod:`core.tdm_texture`, §7) -> vertices reprojected to world space (§8).
+voxel-covering simplification (:mod:`core.tdm_kernels`, §6) -> textures resampled per chart of
+edge-connected triangles and packed into atlas pages (:mod:`core.tdm_texture`, §7) -> vertices
+reprojected to world space (§8).
 
 **The simplification schedule.**  The enlargement factor f sizes the voxel boxes the mesh must keep
 meeting (seed 003 §6: "increasing the size of a voxel results in more simplified, but slightly less
@@ -40,7 +41,7 @@ from core.layers import plan_layers
 from core.scene import Scene
 from core.tdm_kernels import covered_by, simplify
 from core.tdm_mesh import TdmMesh, initial_mesh, mesh_labels
-from core.tdm_texture import chart_uvs, resample_tiles, triangle_charts
+from core.tdm_texture import build_charts, chart_tiles, chart_uvs
 from core.viewcells import ViewCell
 from core.voxel_field import VoxelField, record_voxel_field
 
@@ -78,9 +79,23 @@ class TdmOptions:
 # The cascade of enlargement factors (see the module docstring).
 SCHEDULE = (1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0, 4.0, 6.0, 8.0)
 
-# Bytes of one TDM triangle as drawn: 3 vertices x (3 position + 2 uv) float32 + 3 uint32 indices
-# (each triangle has its own tile, so vertices are not shared in texture space).
-TRIANGLE_GEOMETRY_BYTES = 3 * 5 * 4 + 3 * 4
+# Bytes of the TDM as drawn, an indexed mesh: one vertex of (3 position + 2 uv) float32 per distinct
+# (mesh vertex, texture chart) pair (triangles of one chart share their vertices and uvs, a vertex
+# on a chart border is stored once per chart), and 3 uint32 indices per triangle.
+VERTEX_BYTES = 5 * 4
+INDEX_BYTES = 4
+
+
+def geometry_bytes(triangles: np.ndarray, chart: np.ndarray) -> int:
+    """Bytes of the indexed mesh of ``triangles`` (t, 3) whose texture charts are ``chart`` (t,).
+
+    >>> geometry_bytes(np.array([[0, 1, 2], [0, 2, 3]]), np.array([0, 0])), geometry_bytes(np.array([[0, 1, 2], [0, 2, 3]]), np.array([0, 1]))
+    (104, 144)
+    """
+    triangles = np.asarray(triangles, dtype=np.int64)
+    pairs = np.stack([triangles.reshape(-1), np.repeat(np.asarray(chart, dtype=np.int64), 3)], axis=1)
+    vertices = np.unique(pairs, axis=0).shape[0] if pairs.size else 0
+    return int(vertices * VERTEX_BYTES + triangles.size * INDEX_BYTES)
 
 
 def schedule(enlargement: float) -> tuple[float, ...]:
@@ -157,14 +172,15 @@ def bake_tdm(
     voxel_space = mesh.vertices[used]
     world = field.to_world(voxel_space)
     corners = world[triangles]  # (t, 3, 3)
-    chart, sizes = triangle_charts(voxel_space[triangles], options.texel_margin)
-    tiles = resample_tiles(field, corners, chart, sizes, options.oversampling)
+    charts = build_charts(voxel_space, triangles, options.texel_margin)
+    tiles = chart_tiles(field, corners, charts, options.oversampling)
     times["texture"] = time.perf_counter() - start
     report("texture", 1, 1)
 
     start = time.perf_counter()
     pages, corner_uv, quad_page, tile_bytes = pack_tiles(tiles, options.padding)
-    uv = chart_uvs(chart, sizes, corner_uv)
+    uv = chart_uvs(charts.position, charts.sizes[charts.chart], corner_uv[charts.chart])
+    quad_page = quad_page[charts.chart]
     times["atlas"] = time.perf_counter() - start
     report("atlas", 1, 1)
 
@@ -187,8 +203,9 @@ def bake_tdm(
         "voxels_uncovered": uncovered,
         "texture_bytes": texture_bytes,
         "texture_bytes_tile_area": tile_bytes,
-        "geometry_bytes": int(count * TRIANGLE_GEOMETRY_BYTES),
+        "geometry_bytes": geometry_bytes(triangles, charts.chart),
         "atlas_pages": len(pages),
+        "texture_charts": charts.count,
         "texture_resolution": [int(r) for r in plan.texture_resolution],
         "seconds": {**times, "total": sum(times.values())},
     }
