@@ -57,7 +57,7 @@ class TdmOptions:
     culling: CullingMode = "penumbra"
     pixel_model: PixelModel = "min"
     padding: int = 2  # atlas padding, texels
-    texel_margin: int = 1  # texels around each triangle's chart, for bilinear filtering (seed 003 §7)
+    texel_margin: int = 1  # texels around each chart's triangles, for bilinear filtering (seed 003 §7)
 
     def __post_init__(self) -> None:
         check_resolution(self.resolution)
