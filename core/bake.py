@@ -84,6 +84,22 @@ def layer_tiles(image: np.ndarray, kept: np.ndarray, grid_cell: int, fill_thresh
     return rects, [fill_nearest_rgb(texels[y0:y1, x0:x1]) for x0, y0, x1, y1 in rects]
 
 
+def layer_records(plan, layer_ids, texels) -> list[dict]:
+    """The impostor's ``layers`` entries of the layers ``layer_ids`` of ``plan`` that keep
+    ``texels`` texels each: index, distance, depth range (recording and eye frame), texels."""
+    eye = plan.borders + plan.reference_offset
+    return [
+        {
+            "index": int(i),
+            "distance": float(plan.distances[i]),
+            "depth_range": [float(plan.borders[i]), float(plan.borders[i + 1])],
+            "eye_depth_range": [float(eye[i]), float(eye[i + 1])],
+            "texels": int(n),
+        }
+        for i, n in zip(layer_ids, texels)
+    ]
+
+
 def pack_tiles(tiles: list[np.ndarray], padding: int) -> tuple[tuple[np.ndarray, ...], np.ndarray, np.ndarray, int]:
     """Atlas pages (§3.6) of ``tiles``: (pages, quad uv (q, 4, 2), quad page (q,), tile bytes)."""
     if not tiles:
@@ -167,17 +183,7 @@ def bake_layered(
         "texture_resolution": [res_x, res_y],
         "seconds": {**times, "total": sum(times.values())},
     }
-    eye = plan.borders + plan.reference_offset
-    layers = [
-        {
-            "index": int(i),
-            "distance": float(plan.distances[i]),
-            "depth_range": [float(plan.borders[i]), float(plan.borders[i + 1])],
-            "eye_depth_range": [float(eye[i]), float(eye[i + 1])],
-            "texels": kept_per_layer[i],
-        }
-        for i in layer_ids
-    ]
+    layers = layer_records(plan, layer_ids, [kept_per_layer[i] for i in layer_ids])
     return Impostor(
         technique="layered",
         viewcell=cell.to_dict(),

@@ -32,7 +32,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from core import __version__
-from core.bake import Progress, pack_tiles
+from core.bake import Progress, layer_records, pack_tiles
 from core.culling import CULLING_MODES, CullingMode
 from core.errors import LayerPlanError
 from core.frustum import PIXEL_MODELS, PixelModel, check_fov, check_resolution
@@ -209,17 +209,7 @@ def bake_tdm(
         "texture_resolution": [int(r) for r in plan.texture_resolution],
         "seconds": {**times, "total": sum(times.values())},
     }
-    eye = plan.borders + plan.reference_offset
-    layers = [
-        {
-            "index": int(i),
-            "distance": float(plan.distances[i]),
-            "depth_range": [float(plan.borders[i]), float(plan.borders[i + 1])],
-            "eye_depth_range": [float(eye[i]), float(eye[i + 1])],
-            "texels": int(n),
-        }
-        for i, n in zip(*np.unique(field.layer, return_counts=True))
-    ]
+    layers = layer_records(plan, *np.unique(field.layer, return_counts=True))
     return Impostor(
         technique="tdm",
         viewcell=cell.to_dict(),
