@@ -3,9 +3,10 @@
 
 plan layers (seed 000 §3.3.1, as for layered impostors) -> record and cull them into a voxel field
 (:mod:`core.voxel_field`, seed 003 §4) -> initial covering mesh (:mod:`core.tdm_mesh`, §5) ->
-voxel-covering simplification (:mod:`core.tdm_kernels`, §6) -> textures resampled per chart of
-edge-connected triangles and packed into atlas pages (:mod:`core.tdm_texture`, §7) -> vertices
-reprojected to world space (§8).
+voxel-covering simplification (:mod:`core.tdm_kernels`, §6) -> charts of edge-connected triangles
+(:mod:`core.tdm_texture`), their needed texels packed as masks onto atlas pages
+(:mod:`core.mask_atlas`) and resampled from the field (§7) -> vertices reprojected to world space
+(§8).
 
 **The simplification schedule.**  The enlargement factor f sizes the voxel boxes the mesh must keep
 meeting (seed 003 §6: "increasing the size of a voxel results in more simplified, but slightly less
@@ -32,16 +33,17 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from core import __version__
-from core.bake import Progress, layer_records, pack_tiles
+from core.bake import Progress, layer_records
 from core.culling import CULLING_MODES, CullingMode
 from core.errors import LayerPlanError
 from core.frustum import PIXEL_MODELS, PixelModel, check_fov, check_resolution
 from core.impostor import Impostor
 from core.layers import plan_layers
+from core.mask_atlas import pack_masks
 from core.scene import Scene
 from core.tdm_kernels import covered_by, simplify
 from core.tdm_mesh import TdmMesh, initial_mesh, mesh_labels
-from core.tdm_texture import build_charts, chart_tiles, chart_uvs
+from core.tdm_texture import build_charts, chart_masks, chart_pages, chart_uvs
 from core.viewcells import ViewCell
 from core.voxel_field import VoxelField, record_voxel_field
 
@@ -173,16 +175,21 @@ def bake_tdm(
     world = field.to_world(voxel_space)
     corners = world[triangles]  # (t, 3, 3)
     charts = build_charts(voxel_space, triangles, options.texel_margin)
-    tiles = chart_tiles(field, corners, charts, options.oversampling)
-    times["texture"] = time.perf_counter() - start
-    report("texture", 1, 1)
+    masks = chart_masks(charts)
+    times["charts"] = time.perf_counter() - start
+    report("charts", 1, 1)
 
     start = time.perf_counter()
-    pages, corner_uv, quad_page, tile_bytes = pack_tiles(tiles, options.padding)
-    uv = chart_uvs(charts.position, charts.sizes[charts.chart], corner_uv[charts.chart])
-    quad_page = quad_page[charts.chart]
+    layout = pack_masks(masks, options.padding)
     times["atlas"] = time.perf_counter() - start
     report("atlas", 1, 1)
+
+    start = time.perf_counter()
+    pages = chart_pages(field, corners, charts, layout, options.oversampling)
+    uv = chart_uvs(charts, layout)
+    quad_page = layout.page[charts.chart]
+    times["texture"] = time.perf_counter() - start
+    report("texture", 1, 1)
 
     meshes = mesh_labels(len(used), triangles)
     count = triangles.shape[0]
@@ -196,13 +203,13 @@ def bake_tdm(
         "triangles_drawn": field.stats["triangles_drawn"],
         **mesh.stats,
         "triangles": int(count),
-        "vertices": int(len(used)),
+        "vertices": len(used),
         "meshes": int(meshes.max(initial=-1) + 1),
         "quads": int(count),
         "contractions": outcomes,
         "voxels_uncovered": uncovered,
         "texture_bytes": texture_bytes,
-        "texture_bytes_tile_area": tile_bytes,
+        "texture_bytes_tile_area": 4 * int(charts.texel_chart.size),  # the charts' needed texels
         "geometry_bytes": geometry_bytes(triangles, charts.chart),
         "atlas_pages": len(pages),
         "texture_charts": charts.count,

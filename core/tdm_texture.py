@@ -56,6 +56,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from core.mask_atlas import MaskLayout
 from core.voxel_field import VoxelField
 
 # Largest chart tile side in texels before a chart is cut into pieces (the packer's pages are at
@@ -291,13 +292,27 @@ def build_charts(points: np.ndarray, triangles: np.ndarray, margin: int) -> Char
     )
 
 
-def chart_tiles(field: VoxelField, world: np.ndarray, charts: Charts, oversampling: int) -> list[np.ndarray]:
-    """One (h, w, 4) uint8 tile per chart: its needed texels coloured from the voxel field through
-    the world triangles ``world`` (t, 3, 3) (see the module docstring), the rest copied from the
-    nearest needed texel."""
-    sizes = charts.sizes
-    areas = sizes.prod(axis=1)
-    first = np.concatenate([[0], np.cumsum(areas)[:-1]]).astype(np.int64)
+def chart_masks(charts: Charts) -> list[np.ndarray]:
+    """One (h, w) boolean mask per chart: its needed texels, the shape :func:`core.mask_atlas.pack_masks` places.
+
+    >>> pts = np.array([[0, 0, 0], [4, 0, 0], [4, 3, 0], [0, 3, 0]], float)
+    >>> chart_masks(build_charts(pts, np.array([[0, 1, 2], [0, 2, 3]]), 1))[0].astype(int).sum(), (5, 6)
+    (np.int64(30), (5, 6))
+    """
+    masks = [np.zeros((int(h), int(w)), bool) for w, h in charts.sizes]
+    order = np.argsort(charts.texel_chart, kind="stable")
+    bounds = np.searchsorted(charts.texel_chart[order], np.arange(charts.count + 1))
+    for i, mask in enumerate(masks):
+        pick = order[bounds[i] : bounds[i + 1]]
+        mask[charts.texel_row[pick], charts.texel_col[pick]] = True
+    return masks
+
+
+def chart_pages(field: VoxelField, world: np.ndarray, charts: Charts, layout: MaskLayout, oversampling: int) -> list[np.ndarray]:
+    """The (H, W, 4) uint8 atlas pages of ``charts`` placed by ``layout``: every needed texel
+    coloured from the voxel field through the world triangles ``world`` (t, 3, 3) (see the module
+    docstring), every other texel copied from the nearest needed one, so that every texel is
+    opaque and coarser mip levels bleed a chart's own colours into its gap."""
     owner = charts.texel_triangle
     p = charts.position[owner]  # (m, 3, 2)
     cx, cy = charts.texel_col + 0.5, charts.texel_row + 0.5
@@ -314,22 +329,21 @@ def chart_tiles(field: VoxelField, world: np.ndarray, charts: Charts, oversampli
     points = np.einsum("mk,mkc->mc", b, world[owner])
     colours = sample_field(field, field.from_world(points), oversampling)
 
-    buffer = np.zeros((int(areas.sum()), 4), np.uint8)
-    filled = np.zeros(int(areas.sum()), bool)
-    flat = first[charts.texel_chart] + charts.texel_row * sizes[charts.texel_chart, 0] + charts.texel_col
-    buffer[flat] = colours
-    filled[flat] = True
-    per_chart = np.bincount(charts.texel_chart, minlength=charts.count)
-    tiles = []
-    for i in range(charts.count):
-        w, h = int(sizes[i, 0]), int(sizes[i, 1])
-        tile = buffer[first[i] : first[i] + areas[i]].reshape(h, w, 4)
-        if 0 < per_chart[i] < areas[i]:
-            empty = ~filled[first[i] : first[i] + areas[i]].reshape(h, w)
+    page_of = layout.page[charts.texel_chart]
+    rows = layout.y[charts.texel_chart] + charts.texel_row
+    cols = layout.x[charts.texel_chart] + charts.texel_col
+    pages = []
+    for k, (w, h) in enumerate(layout.page_sizes.tolist()):
+        page = np.zeros((h, w, 4), np.uint8)
+        here = page_of == k
+        page[rows[here], cols[here]] = colours[here]
+        empty = np.ones((h, w), bool)
+        empty[rows[here], cols[here]] = False
+        if empty.any() and not empty.all():
             index = distance_transform_edt(empty, return_distances=False, return_indices=True)
-            tile[...] = tile[index[0], index[1]]
-        tiles.append(tile)
-    return tiles
+            page = page[index[0], index[1]]
+        pages.append(page)
+    return pages
 
 
 def sample_field(field: VoxelField, positions: np.ndarray, n: int) -> np.ndarray:
@@ -350,16 +364,15 @@ def sample_field(field: VoxelField, positions: np.ndarray, n: int) -> np.ndarray
     return out
 
 
-def chart_uvs(chart: np.ndarray, sizes: np.ndarray, corner_uv: np.ndarray) -> np.ndarray:
-    """(t, 3, 2) page UVs of the triangles' vertices from their tile positions ``chart`` (t, 3, 2),
-    their tiles' ``sizes`` (t, 2) and the tiles' corner UVs TL, TR, BR, BL ``corner_uv`` (t, 4, 2)
-    (which follow a tile the packer stored rotated).
+def chart_uvs(charts: Charts, layout: MaskLayout) -> np.ndarray:
+    """(t, 3, 2) page UVs (glTF: (0, 0) the page's top-left) of every triangle's vertices.
 
-    >>> corner = np.array([[[0.5, 0.0], [0.5, 0.5], [0.0, 0.5], [0.0, 0.0]]])  # a 4 x 2 tile stored turned
-    >>> chart_uvs(np.array([[[0.0, 0.0], [4.0, 0.0], [0.0, 2.0]]]), np.array([[4, 2]]), corner)[0].tolist()
-    [[0.5, 0.0], [0.5, 0.5], [0.0, 0.0]]
+    >>> pts = np.array([[0, 0, 0], [4, 0, 0], [4, 3, 0], [0, 3, 0]], float)
+    >>> ch = build_charts(pts, np.array([[0, 1, 2], [0, 2, 3]]), 1)
+    >>> lay = MaskLayout(np.array([0]), np.array([2]), np.array([0]), np.array([[8, 10]]))
+    >>> chart_uvs(ch, lay)[0].tolist()  # tile positions (1, 1), (5, 1), (5, 4), moved right 2
+    [[0.375, 0.1], [0.875, 0.1], [0.875, 0.4]]
     """
-    fx = chart[..., 0] / sizes[:, None, 0]
-    fy = chart[..., 1] / sizes[:, None, 1]
-    tl, tr, bl = corner_uv[:, None, 0], corner_uv[:, None, 1], corner_uv[:, None, 3]
-    return tl + fx[..., None] * (tr - tl) + fy[..., None] * (bl - tl)
+    offset = np.stack([layout.x, layout.y], axis=1)[charts.chart]  # (t, 2)
+    size = layout.page_sizes[layout.page[charts.chart]]  # (t, 2) W, H
+    return (charts.position + offset[:, None, :]) / size[:, None, :]

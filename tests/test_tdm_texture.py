@@ -1,6 +1,7 @@
 """Shared texture charts of textured depth meshes (core/tdm_texture.py, seed 003 §7-§8): grouping,
-folds, ties on shared edges, the size cap, sampling through the world triangle, and the memory and
-colour error of a real bake against per-triangle tiles (the layout before shared charts)."""
+folds, ties on shared edges, the size cap, sampling through the world triangle, their packing as
+masks (core/mask_atlas.py), and the memory and colour error of a real bake against per-triangle
+tiles (the layout before shared charts)."""
 
 from __future__ import annotations
 
@@ -12,14 +13,15 @@ import pytest
 import scenes
 
 from core.bake import pack_tiles
+from core.errors import AtlasOverflowError, LayerPlanError
 from core.evaluation import evaluate
 from core.layers import plan_layers
+from core.mask_atlas import pack_masks
 from core.tdm import TdmOptions, bake_tdm, geometry_bytes
 from core.tdm_texture import (
     MAX_CHART,
     build_charts,
-    chart_tiles,
-    chart_uvs,
+    chart_masks,
     rasterize,
     sample_field,
 )
@@ -163,6 +165,15 @@ def per_triangle_tiles(field, world: np.ndarray, margin: int) -> tuple[list[np.n
     return tiles, chart, sizes
 
 
+def tile_corner_uvs(chart: np.ndarray, sizes: np.ndarray, corner_uv: np.ndarray) -> np.ndarray:
+    """(t, 3, 2) page UVs of triangles at tile positions ``chart`` (t, 3, 2) in tiles of ``sizes``
+    (t, 2) whose corners TL, TR, BR, BL :func:`core.bake.pack_tiles` put at ``corner_uv`` (t, 4, 2)."""
+    fx = chart[..., 0] / sizes[:, None, 0]
+    fy = chart[..., 1] / sizes[:, None, 1]
+    tl, tr, bl = corner_uv[:, None, 0], corner_uv[:, None, 1], corner_uv[:, None, 3]
+    return tl + fx[..., None] * (tr - tl) + fy[..., None] * (bl - tl)
+
+
 def test_every_texel_inside_a_triangle_samples_its_world_point(house_tdm):
     """Each page texel whose centre lies inside a triangle's UV triangle has the colour of the voxel
     field at the world point with the same barycentric coordinates (the module docstring's rule,
@@ -197,7 +208,9 @@ def test_every_texel_inside_a_triangle_samples_its_world_point(house_tdm):
     assert same >= 0.995 * checked
 
 
-def test_house_tile_bytes_are_the_charts_and_every_tile_texel_is_opaque(house_tdm):
+def test_house_pages_hold_every_chart_texel_once_and_are_opaque(house_tdm):
+    """The charts of the bake again: their needed texels, packed as masks, are all on the pages,
+    no two charts' texels are within the padding of each other, and every page texel is opaque."""
     _, _, impostor, field = house_tdm
     world = impostor.quad_corners[:, :3]
     # The mesh again: a shared vertex has bit-identical world corners in all its triangles.
@@ -206,10 +219,61 @@ def test_house_tile_bytes_are_the_charts_and_every_tile_texel_is_opaque(house_td
     points = np.rint(points * 64) / 64  # back on the exact voxel-space values (sixteenths, whole layers)
     charts = build_charts(points, triangles.reshape(-1, 3), TdmOptions().texel_margin)
     assert charts.count == impostor.stats["texture_charts"]
-    tiles = chart_tiles(field, world, charts, 1)
-    assert [t.shape[:2] for t in tiles] == [(h, w) for w, h in charts.sizes.tolist()]
-    assert all(np.all(t[..., 3] == 255) for t in tiles)
-    assert impostor.stats["texture_bytes_tile_area"] == pack_tiles(tiles, 2)[3] == 4 * charts.tile_texels
+    masks = chart_masks(charts)
+    assert sum(int(m.sum()) for m in masks) == charts.texel_chart.size
+    assert impostor.stats["texture_bytes_tile_area"] == 4 * charts.texel_chart.size < 4 * charts.tile_texels
+    layout = pack_masks(masks, TdmOptions().padding)
+    assert [p.shape[:2] for p in impostor.pages] == [(h, w) for w, h in layout.page_sizes.tolist()]
+    assert impostor.stats["texture_bytes"] == 4 * layout.page_area
+    assert all(np.all(p[..., 3] == 255) for p in impostor.pages)
+    assert_packed_apart(masks, layout, TdmOptions().padding)
+
+
+def assert_packed_apart(masks, layout, padding: int) -> None:
+    """Every mask lies inside its page and no two masks' texels are within ``padding`` texels."""
+    owner = [np.full(tuple(int(v) for v in size[::-1]), -1) for size in layout.page_sizes]
+    for i, mask in enumerate(masks):
+        r, c = np.nonzero(mask)
+        page = owner[layout.page[i]]
+        r, c = r + layout.y[i], c + layout.x[i]
+        assert r.min(initial=0) >= 0 and c.min(initial=0) >= 0 and r.max(initial=0) < page.shape[0] and c.max(initial=0) < page.shape[1]
+        assert np.all(page[r, c] == -1), f"mask {i} overlaps another"
+        page[r, c] = i
+    for page in owner:
+        for dy in range(-padding, padding + 1):
+            for dx in range(-padding, padding + 1):
+                a = page[max(dy, 0) : page.shape[0] + min(dy, 0), max(dx, 0) : page.shape[1] + min(dx, 0)]
+                b = page[max(-dy, 0) : page.shape[0] + min(-dy, 0), max(-dx, 0) : page.shape[1] + min(-dx, 0)]
+                assert not np.any((a >= 0) & (b >= 0) & (a != b)), "two charts closer than the padding"
+
+
+@pytest.mark.parametrize("padding", [0, 1, 2, 3])
+def test_masks_pack_apart_and_tighter_than_their_rectangles(padding):
+    """Random blobs and L shapes: placed inside their pages, ``padding`` apart, and (concave ones
+    nesting) on less page area than their bounding rectangles grown by the padding."""
+    rng = np.random.default_rng(padding)
+    masks = []
+    for _ in range(60):
+        h, w = rng.integers(1, 24, size=2)
+        ell = np.zeros((h, w), bool)
+        ell[:, : max(1, w // 3)] = True
+        ell[-max(1, h // 3) :, :] = True
+        masks.append(ell if rng.random() < 0.5 else ell[::-1, ::-1])
+    layout = pack_masks(masks, padding)
+    assert_packed_apart(masks, layout, padding)
+    rectangles = sum((m.shape[0] + padding) * (m.shape[1] + padding) for m in masks)
+    print(f"padding {padding}: pages {layout.page_area} texels, rectangles {rectangles}")
+    assert layout.page_area < rectangles
+
+
+def test_masks_that_fill_a_page_open_another_and_oversized_ones_are_refused():
+    layout = pack_masks([np.ones((30, 30), bool)] * 5, padding=2, max_page=64)
+    assert layout.page.tolist() == [0, 0, 0, 0, 1] and layout.page_sizes.tolist() == [[64, 64], [64, 32]]
+    with pytest.raises(AtlasOverflowError, match="does not fit a page of at most 64x64"):
+        pack_masks([np.ones((65, 3), bool)], padding=0, max_page=64)
+    with pytest.raises(LayerPlanError, match="padding"):
+        pack_masks([np.ones((2, 2), bool)], padding=-1)
+    assert pack_masks([], 2).page_area == 0
 
 
 def test_house_tiles_are_smaller_and_the_colours_as_good(house_tdm):
@@ -218,12 +282,14 @@ def test_house_tiles_are_smaller_and_the_colours_as_good(house_tdm):
     world = impostor.quad_corners[:, :3]
     tiles, chart, sizes = per_triangle_tiles(field, world, margin)
     pages, corner_uv, quad_page, old_bytes = pack_tiles(tiles, TdmOptions().padding)
-    old = dataclasses.replace(impostor, quad_uv=chart_uvs(chart, sizes, corner_uv)[:, [0, 1, 2, 2]], quad_page=quad_page, pages=pages)
-    new_bytes = impostor.stats["texture_bytes_tile_area"]
-    # Measured at 90 / 140 units: 53,732 / 18,240 bytes of tiles per triangle, 37,128 / 11,576 shared
-    # (on the mesh of commit 82c6668, 153 triangles at 140 units: 28,116 and 9,824).
-    print(f"tile bytes: {old_bytes} per triangle, {new_bytes} shared")
+    old = dataclasses.replace(impostor, quad_uv=tile_corner_uvs(chart, sizes, corner_uv)[:, [0, 1, 2, 2]], quad_page=quad_page, pages=pages)
+    old_pages = sum(p.nbytes for p in pages)
+    new_bytes, new_pages = impostor.stats["texture_bytes_tile_area"], impostor.stats["texture_bytes"]
+    # Measured at 90 / 140 units: tiles per triangle 53,732 / 18,240 bytes on pages of 131,072 / 46,592;
+    # shared charts 24,496 / 7,920 bytes of needed texels on pages of 46,080 / 15,232.
+    print(f"bytes per triangle: {old_bytes} of tiles on {old_pages} of pages; shared charts: {new_bytes} needed on {new_pages} of pages")
     assert new_bytes < 0.75 * old_bytes
+    assert new_pages < 0.75 * old_pages
     assert impostor.stats["geometry_bytes"] < impostor.stats["triangles"] * 72  # 72: unshared vertices
     ev_new = evaluate(scene, impostor, cell, random_count=4, seed=3).totals
     ev_old = evaluate(scene, old, cell, random_count=4, seed=3).totals

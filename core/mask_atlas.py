@@ -1,0 +1,147 @@
+"""Atlas pages of texel *masks*: charts of any shape packed by first fit, keeping a gap between them.
+
+:mod:`core.atlas` packs rectangles, which suits the layered technique's quad tiles.  The charts of a
+textured depth mesh (:mod:`core.tdm_texture`) are not rectangles: on the house benchmark at 90 m
+(512 px) their bounding rectangles held 133k texels for 72k needed ones.  This module places each
+chart's *needed texels* (a boolean mask) instead, so that charts nest into each other's concave
+parts:
+
+* Masks go tallest first (then largest), each to the first position in row-major order (top row
+  first, then left) where it lies inside the page and no texel of it comes within ``padding``
+  texels (Chebyshev distance) of a texel already placed: its mask dilated by ``padding`` must meet
+  no placed texel.  The search is one numba kernel; a mask that fits no page opens a new one.
+* Pages have a fixed width, about the square root of the masks' area (rounded up to a multiple
+  of 4, never narrower than the widest mask), and end below their lowest texel (rounded up to a
+  multiple of 4).  They are not powers of two: glTF 2.0 and every current GPU API take any size.
+
+``padding`` is the gap between the texels of different masks, for mip levels: the bilinear ring
+is already part of a chart's mask (:func:`core.tdm_texture.build_charts`), and the gap texels are
+filled from the nearest chart texel (:func:`core.tdm_texture.chart_pages`).  Each chart thus gets
+its ring plus ``padding / 2`` texels of extension on every side, as each rectangle of
+:mod:`core.atlas` gets ``padding`` texels of edge extension, the first of which serves bilinear
+filtering.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+from scipy.ndimage import binary_dilation
+
+from core.errors import AtlasOverflowError, LayerPlanError
+
+
+@dataclass(frozen=True, slots=True)
+class MaskLayout:
+    """Where every mask lies: page, and the page row and column of its array's top-left texel."""
+
+    page: np.ndarray  # (n,) int64
+    x: np.ndarray  # (n,) int64 page column of the mask's column 0
+    y: np.ndarray  # (n,) int64 page row of the mask's row 0 (y down)
+    page_sizes: np.ndarray  # (p, 2) int64 [W, H] of each page
+
+    @property
+    def page_area(self) -> int:
+        """Texels of all pages together."""
+        return int(np.prod(self.page_sizes, axis=1).sum())
+
+
+@njit(cache=True)
+def _first_fit(blocked: np.ndarray, free: np.ndarray, rows: np.ndarray, cols: np.ndarray, height: int, width: int, need: np.ndarray) -> tuple[int, int]:
+    """First (row, column) in row-major order where the cells (``rows``, ``cols``) of a mask of
+    ``height`` x ``width`` meet no ``blocked`` cell of the page; (-1, -1) if none.  ``free`` counts
+    each page row's unblocked cells and ``need`` each mask row's cells: a row without enough is
+    skipped whole."""
+    page_h, page_w = blocked.shape
+    n = rows.size
+    for y in range(page_h - height + 1):
+        enough = True
+        for r in range(height):
+            if free[y + r] < need[r]:
+                enough = False
+                break
+        if not enough:
+            continue
+        for x in range(page_w - width + 1):
+            fits = True
+            for k in range(n):
+                if blocked[y + rows[k], x + cols[k]]:
+                    fits = False
+                    break
+            if fits:
+                return y, x
+    return -1, -1
+
+
+def _round4(v: int) -> int:
+    return -(-int(v) // 4) * 4
+
+
+def pack_masks(masks: Sequence[np.ndarray], padding: int = 2, max_page: int = 8192) -> MaskLayout:
+    """Place the (h, w) boolean ``masks`` on pages at most ``max_page`` texels a side, no two
+    masks' true texels closer than ``padding`` + 1 (so ``padding`` texels apart).
+
+    Two L shapes nest into a 2 x 3 rectangle, or, one texel apart (``padding=1``), stack:
+
+    >>> ell = np.array([[1, 0], [1, 1]], bool)
+    >>> lay = pack_masks([ell, ell[::-1, ::-1]], padding=0)
+    >>> lay.page_sizes.tolist(), lay.x.tolist(), lay.y.tolist()
+    ([[4, 4]], [0, 1], [0, 0])
+    >>> lay = pack_masks([ell, ell[::-1, ::-1]], padding=1)
+    >>> lay.x.tolist(), lay.y.tolist()
+    ([0, 0], [0, 3])
+    """
+    if isinstance(padding, bool) or not isinstance(padding, (int, np.integer)) or padding < 0:
+        raise LayerPlanError(f"atlas padding must be an integer >= 0, got {padding!r}")
+    n = len(masks)
+    masks = [np.asarray(m, dtype=bool) for m in masks]
+    if n == 0:
+        return MaskLayout(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2), np.int64))
+    shapes = np.array([m.shape for m in masks], dtype=np.int64)  # (n, 2) h, w
+    big = np.flatnonzero(np.any(shapes > max_page, axis=1))
+    if big.size:
+        h, w = shapes[big[0]]
+        raise AtlasOverflowError(f"chart {int(big[0])} of {int(w)}x{int(h)} texels does not fit a page of at most {max_page}x{max_page}")
+    area = sum(int(m.sum()) for m in masks)
+    width = min(max_page, max(_round4(shapes[:, 1].max()), _round4(np.ceil(np.sqrt(1.5 * area)))))
+    order = np.lexsort((-np.array([m.sum() for m in masks]), -shapes[:, 0]))
+    p = int(padding)
+    square = np.ones((2 * p + 1, 2 * p + 1), bool)
+
+    # Per page: the cells blocked for new texels (within ``padding`` of a placed one), the free
+    # cells of each row, and the lowest texel's row.
+    blocked: list[np.ndarray] = []
+    free: list[np.ndarray] = []
+    bottoms: list[int] = []
+    page = np.zeros(n, np.int64)
+    x = np.zeros(n, np.int64)
+    y = np.zeros(n, np.int64)
+    for i in order:
+        mask = masks[i]
+        h, w = mask.shape
+        rows, cols = (c.astype(np.int64) for c in np.nonzero(mask))
+        need = np.bincount(rows, minlength=h).astype(np.int64)
+        for index in range(len(blocked) + 1):
+            if index == len(blocked):
+                blocked.append(np.zeros((max_page, width), bool))
+                free.append(np.full(max_page, width, np.int64))
+                bottoms.append(0)
+            at = _first_fit(blocked[index], free[index], rows, cols, h, w, need)
+            if at[0] >= 0:
+                break
+        # Block the mask grown by ``padding``, clipped to the page.
+        grown = binary_dilation(np.pad(mask, p), square) if p else mask
+        top, left = at[0] - p, at[1] - p
+        r0, c0 = max(top, 0), max(left, 0)
+        r1, c1 = min(top + grown.shape[0], max_page), min(left + grown.shape[1], width)
+        window = blocked[index][r0:r1, c0:c1]
+        newly = grown[r0 - top : r1 - top, c0 - left : c1 - left] & ~window
+        window |= newly
+        free[index][r0:r1] -= newly.sum(axis=1)
+        page[i], y[i], x[i] = index, at[0], at[1]
+        bottoms[index] = max(bottoms[index], at[0] + h)
+    sizes = np.array([[width, min(max_page, _round4(b))] for b in bottoms], dtype=np.int64)
+    return MaskLayout(page, x, y, sizes)
