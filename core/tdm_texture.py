@@ -28,9 +28,12 @@ so the mesh is indexed: geometry is counted per distinct (vertex, chart) pair.
 **Which texels get a colour.**  A texel is *needed* when its centre lies within ``margin`` texels
 (Chebyshev distance, i.e. the bilinear footprint for ``margin = 1``) of one of the chart's
 triangles: inside a triangle it is sampled at its own point; outside all of them, at the point of
-the nearest triangle (clamped barycentric coordinates: never an extrapolation along a sliver).  The tile's other texels (between the arms of a concave chart) copy the colour of the
-nearest needed texel, so that every tile is opaque, as the per-triangle tiles were, and coarser
-mip levels keep their alpha.  Every texel colour is the paper's inverse-distance average; farfield
+the nearest triangle (clamped barycentric coordinates: never an extrapolation along a sliver).
+Only needed texels are stored: each chart's needed texels form a mask that :mod:`core.mask_atlas`
+packs onto the atlas pages (a chart's bounding rectangle is mostly empty: on the house benchmark
+at 90 m, 133k texels of rectangles for 72k needed).  Every other page texel (gaps between charts,
+between the arms of a concave chart) copies the colour of the nearest needed texel, so that pages
+are opaque and coarser mip levels keep their alpha and mostly a chart's own colours.  Every texel colour is the paper's inverse-distance average; farfield
 searches one k-d tree of the whole field for every texel (the paper restricts interior texels to
 the polygon's own voxels; the whole field finds those too, as the query point lies on the surface).
 
