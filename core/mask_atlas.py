@@ -105,9 +105,9 @@ def pack_masks(masks: Sequence[np.ndarray], padding: int = 2, max_page: int = 81
     if big.size:
         h, w = shapes[big[0]]
         raise AtlasOverflowError(f"chart {int(big[0])} of {int(w)}x{int(h)} texels does not fit a page of at most {max_page}x{max_page}")
-    area = sum(int(m.sum()) for m in masks)
-    width = min(max_page, max(_round4(shapes[:, 1].max()), _round4(np.ceil(np.sqrt(1.5 * area)))))
-    order = np.lexsort((-np.array([m.sum() for m in masks]), -shapes[:, 0]))
+    texels = np.array([int(m.sum()) for m in masks], dtype=np.int64)
+    width = min(max_page, max(_round4(shapes[:, 1].max()), _round4(np.ceil(np.sqrt(1.5 * texels.sum())))))
+    order = np.lexsort((-texels, -shapes[:, 0]))
     p = int(padding)
     square = np.ones((2 * p + 1, 2 * p + 1), bool)
 
