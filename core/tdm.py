@@ -41,7 +41,7 @@ from core.impostor import Impostor
 from core.layers import plan_layers
 from core.mask_atlas import pack_masks
 from core.scene import Scene
-from core.tdm_kernels import covered_by, simplify
+from core.tdm_kernels import box_half_sizes, covered_by, simplify
 from core.tdm_mesh import TdmMesh, initial_mesh, mesh_labels
 from core.tdm_texture import build_charts, chart_masks, chart_pages, chart_uvs
 from core.viewcells import ViewCell
@@ -114,10 +114,10 @@ def simplify_mesh(mesh: TdmMesh, field: VoxelField, enlargement: float) -> tuple
     """The cascade of :func:`core.tdm_kernels.simplify` passes for ``enlargement``: (triangles,
     voxel offsets, voxels, outcome counts summed over the passes)."""
     triangles, offsets, voxels = mesh.triangles, mesh.voxel_offsets, mesh.voxels
-    centres, keys = field.centres, field.keys
+    centres, silhouette = field.centres, field.silhouette
     totals: dict[str, int] = {}
     for factor in schedule(enlargement):
-        triangles, offsets, voxels, counts = simplify(mesh.vertices, triangles, offsets, voxels, centres, keys, field.shape, factor)
+        triangles, offsets, voxels, counts = simplify(mesh.vertices, triangles, offsets, voxels, centres, factor, silhouette)
         for key, value in counts.items():
             totals[key] = totals.get(key, 0) + value
     return triangles, offsets, voxels, totals
@@ -127,7 +127,7 @@ def uncovered_voxels(vertices: np.ndarray, triangles: np.ndarray, offsets: np.nd
     """Voxels of ``field`` that no triangle stores, or whose storing triangle misses its box
     enlarged by ``enlargement`` (0 after a correct simplification)."""
     owner = np.repeat(np.arange(triangles.shape[0]), np.diff(offsets))
-    hits = covered_by(vertices, triangles, owner, field.centres, voxels, 0.5 * enlargement)
+    hits = covered_by(vertices, triangles, owner, field.centres, box_half_sizes(field.count, enlargement, field.silhouette), voxels)
     stored = np.zeros(field.count, dtype=bool)
     stored[voxels[hits]] = True
     return int(field.count - stored.sum())

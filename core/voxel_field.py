@@ -62,6 +62,21 @@ class VoxelField:
         """(n, 3) float64 voxel centres in voxel units (x + 0.5, y + 0.5, layer)."""
         return np.stack([self.x + 0.5, self.y + 0.5, self.layer.astype(np.float64)], axis=1)
 
+    @property
+    def silhouette(self) -> np.ndarray:
+        """(n,) bool: the voxels with an empty column (no voxel on any layer) among the eight around
+        theirs, where the image of the part ends against the background.  The simplification does
+        not enlarge their boxes across the image (:func:`core.tdm_kernels.box_half_sizes`), so the
+        mesh's outline cannot retreat into them."""
+        _, res_y, res_x = self.shape
+        occupied = np.zeros((res_y + 2, res_x + 2), dtype=bool)
+        occupied[self.y + 1, self.x + 1] = True
+        full = np.ones_like(occupied)
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                full[1:-1, 1:-1] &= occupied[1 + dy : res_y + 1 + dy, 1 + dx : res_x + 1 + dx]
+        return ~full[self.y + 1, self.x + 1]
+
     def find(self, x, y, layer) -> np.ndarray:
         """Index of the voxel at each (x, y, layer), -1 where the field has none."""
         x, y, layer = (np.asarray(a, dtype=np.int64) for a in (x, y, layer))

@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 import scenes
+from scipy.spatial import cKDTree
 
 from core.bake import pack_tiles
 from core.errors import AtlasOverflowError, LayerPlanError
@@ -179,6 +180,7 @@ def test_every_texel_inside_a_triangle_samples_its_world_point(house_tdm):
     field at the world point with the same barycentric coordinates (the module docstring's rule,
     which makes the GLB right under perspective-correct interpolation)."""
     _, _, impostor, field = house_tdm
+    tree = cKDTree(field.centres)
     world = impostor.quad_corners[:, :3]
     uv = impostor.quad_uv[:, :3]
     checked = same = 0
@@ -197,13 +199,17 @@ def test_every_texel_inside_a_triangle_samples_its_world_point(house_tdm):
         inside = np.all(bary > 1e-6, axis=1)
         if not inside.any():
             continue
-        expected = sample_field(field, field.from_world(bary[inside] @ world[i]), 1)
+        # The nearest voxel, or any voxel tied with it (a triangle crossing an empty voxel cell has
+        # its texel centres one voxel from two or more voxels).
+        distance, index = tree.query(field.from_world(bary[inside] @ world[i]), k=4)
+        tied = distance <= distance[:, :1] + 1e-6
         texel = p[inside].astype(int)
         got = page[texel[:, 1], texel[:, 0]]
+        match = np.all(field.rgba[index, :3] == got[:, None, :3], axis=2) & tied
         checked += int(inside.sum())
-        same += int(np.all(got == expected, axis=1).sum())
+        same += int(match.any(axis=1).sum())
     assert checked > 500
-    # Exact but for nearest-voxel ties that rounding (page scale, packer rotation) can flip.
+    # Exact but where rounding the page position moves a texel centre across a Voronoi edge.
     print(f"{same} of {checked} texels exact")
     assert same >= 0.995 * checked
 
