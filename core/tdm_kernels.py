@@ -326,7 +326,8 @@ def _turns_inwards(v2, v1, other, tris, n_tris, triangles, vertices):
     """Does the boundary bend towards the mesh at ``v2`` as seen from the reference viewpoint (the
     grid's x-y projection)?  The boundary runs other -> v2 -> v1 or back, in the winding of the
     triangle on the edge (v2, v1); the initial mesh faces the viewpoint, so its inside lies to the
-    left of that direction."""
+    left of that direction.  (A triangle folded over in the image by earlier contractions would
+    read the other way; the benchmarks show no hole pixels from that, but it is not excluded.)"""
     forward = True
     for i in range(n_tris):
         tri = triangles[tris[i]]
@@ -428,8 +429,8 @@ def _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, 
         if other < 0:
             return NON_MANIFOLD, 0
         # No shrinking at convex corners either: the straight edge (v1, other) would cut the corner
-        # off.  v2 may go only where the boundary runs straight or bends outwards there (the angles
-        # of its triangles at it sum to at least 180 degrees).
+        # off.  v2 may go only where the boundary runs straight or bends outwards there, both in 3D
+        # (the angles of its triangles at it sum to at least 180 degrees) and in the image.
         if _fan_angle(v2, scratch_t2, n2, triangles, vertices) < np.pi * (1.0 - 1e-9) or _turns_inwards(
             v2, v1, other, scratch_t2, n2, triangles, vertices
         ):
