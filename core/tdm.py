@@ -110,11 +110,13 @@ def schedule(enlargement: float) -> tuple[float, ...]:
     return steps + (float(enlargement),)
 
 
-def simplify_mesh(mesh: TdmMesh, field: VoxelField, enlargement: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+def simplify_mesh(mesh: TdmMesh, field: VoxelField, enlargement: float, silhouette: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """The cascade of :func:`core.tdm_kernels.simplify` passes for ``enlargement``: (triangles,
-    voxel offsets, voxels, outcome counts summed over the passes)."""
+    voxel offsets, voxels, outcome counts summed over the passes).  ``silhouette``: the field's
+    :attr:`~core.voxel_field.VoxelField.silhouette`, if the caller has it already."""
     triangles, offsets, voxels = mesh.triangles, mesh.voxel_offsets, mesh.voxels
-    centres, silhouette = field.centres, field.silhouette
+    centres = field.centres
+    silhouette = field.silhouette if silhouette is None else silhouette
     totals: dict[str, int] = {}
     for factor in schedule(enlargement):
         triangles, offsets, voxels, counts = simplify(mesh.vertices, triangles, offsets, voxels, centres, factor, silhouette)
@@ -123,11 +125,13 @@ def simplify_mesh(mesh: TdmMesh, field: VoxelField, enlargement: float) -> tuple
     return triangles, offsets, voxels, totals
 
 
-def uncovered_voxels(vertices: np.ndarray, triangles: np.ndarray, offsets: np.ndarray, voxels: np.ndarray, field: VoxelField, enlargement: float) -> int:
+def uncovered_voxels(vertices: np.ndarray, triangles: np.ndarray, offsets: np.ndarray, voxels: np.ndarray, field: VoxelField, enlargement: float, silhouette: np.ndarray | None = None) -> int:
     """Voxels of ``field`` that no triangle stores, or whose storing triangle misses its box
-    enlarged by ``enlargement`` (0 after a correct simplification)."""
+    enlarged by ``enlargement`` (0 after a correct simplification); ``silhouette`` as for
+    :func:`simplify_mesh`."""
     owner = np.repeat(np.arange(triangles.shape[0]), np.diff(offsets))
-    hits = covered_by(vertices, triangles, owner, field.centres, box_half_sizes(field.count, enlargement, field.silhouette), voxels)
+    silhouette = field.silhouette if silhouette is None else silhouette
+    hits = covered_by(vertices, triangles, owner, field.centres, box_half_sizes(field.count, enlargement, silhouette), voxels)
     stored = np.zeros(field.count, dtype=bool)
     stored[voxels[hits]] = True
     return int(field.count - stored.sum())
@@ -161,10 +165,11 @@ def bake_tdm(
     report("mesh", 1, 1)
 
     start = time.perf_counter()
-    triangles, offsets, voxels, outcomes = simplify_mesh(mesh, field, options.enlargement)
+    silhouette = field.silhouette
+    triangles, offsets, voxels, outcomes = simplify_mesh(mesh, field, options.enlargement, silhouette)
     times["simplify"] = time.perf_counter() - start
     report("simplify", 1, 1)
-    uncovered = uncovered_voxels(mesh.vertices, triangles, offsets, voxels, field, options.enlargement)
+    uncovered = uncovered_voxels(mesh.vertices, triangles, offsets, voxels, field, options.enlargement, silhouette)
     if uncovered:
         raise LayerPlanError(f"internal error: {uncovered} voxels left uncovered by the simplified mesh")
 
