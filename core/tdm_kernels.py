@@ -416,6 +416,7 @@ def _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, 
     b1 = _is_boundary(m1, cnt1)
     boundary_edge = shared == 1
     other = -1  # v2's other boundary neighbour when the edge is a boundary edge
+    offset = 0.0  # v2's distance from the new boundary edge (v1, other)
     if b2:
         # Seed 003 Fig. 13: a boundary vertex may only go towards a boundary vertex, along the boundary.
         if not b1 or not boundary_edge:
@@ -429,13 +430,14 @@ def _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, 
                 other = nbr2[j]
         if other < 0:
             return NON_MANIFOLD, 0
+        offset = _segment_distance(vertices[v2], vertices[v1], vertices[other])
         # No shrinking at convex corners either: the straight edge (v1, other) would cut the corner
         # off.  v2 may go only where the boundary runs straight or bends outwards there, both in 3D
         # (the angles of its triangles at it sum to at least 180 degrees) and in the image.
         if _fan_angle(v2, scratch_t2, n2, triangles, vertices) < np.pi * (1.0 - 1e-9) or _turns_inwards(
             v2, v1, other, scratch_t2, n2, triangles, vertices
         ):
-            if _segment_distance(vertices[v2], vertices[v1], vertices[other]) > shrink:
+            if offset > shrink:
                 return BOUNDARY_AWAY, 0
     # The triangles after the contraction: v2's (not on the edge) moved onto v1, and v1's own.
     nc = 0
@@ -479,7 +481,7 @@ def _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, 
     # does not change: the new edge is the union of the two old ones and covers no new interval.
     # (The old edges may themselves cross empty layers, as the edges of step walls between
     # non-adjacent layers do; testing their union again would keep every vertex of such a run.)
-    if b2 and _segment_distance(vertices[v2], vertices[v1], vertices[other]) > EPS:
+    if b2 and offset > EPS:
         extra = nv
         around = np.empty(vt_len[v1] + vt_len[other], dtype=np.int64)
         for vv in (v1, other):
