@@ -273,7 +273,8 @@ def initial_mesh(field: VoxelField) -> TdmMesh:
         owner[missing] = first + 2 * np.arange(missing.size)
         fallback = int(missing.size)
 
-    slits, slit_triangles = close_slits(vertices, triangles)
+    meshes = mesh_labels(vertices.shape[0], triangles)  # closing slits joins no two meshes
+    slits, slit_triangles = close_slits(vertices, triangles, meshes)
     triangles = np.concatenate([triangles, slit_triangles])
 
     order = np.argsort(owner, kind="stable")
@@ -287,7 +288,7 @@ def initial_mesh(field: VoxelField) -> TdmMesh:
         "step_voxels": int(steps.sum()),
         "slits_closed": slits,
         "slit_triangles": int(slit_triangles.shape[0]),
-        "initial_meshes": int(mesh_labels(vertices.shape[0], triangles).max(initial=-1) + 1),
+        "initial_meshes": int(meshes.max(initial=-1) + 1),
     }
     return TdmMesh(vertices, triangles, offsets.astype(np.int64), order.astype(np.int64), stats)
 
@@ -302,7 +303,12 @@ def boundary_loops(triangles: np.ndarray) -> list[np.ndarray]:
     if not triangles.size:
         return []
     size = int(triangles.max()) + 1
-    keys, count = np.unique(_edge_keys(triangles, size), return_counts=True)
+    return _loops(*np.unique(_edge_keys(triangles, size), return_counts=True), size)
+
+
+def _loops(keys: np.ndarray, count: np.ndarray, size: int) -> list[np.ndarray]:
+    """:func:`boundary_loops` from the mesh's distinct edge keys (:func:`_edge_keys`) and how many
+    triangles share each."""
     single = keys[count == 1]
     if not single.size:
         return []
@@ -375,16 +381,17 @@ def _ear_clip(loop: np.ndarray, vertices: np.ndarray, edge_keys: np.ndarray, siz
     return np.array(out, dtype=np.int64)
 
 
-def close_slits(vertices: np.ndarray, triangles: np.ndarray, max_area: float = SLIT_AREA, max_width: float = 1.0) -> tuple[int, np.ndarray]:
+def close_slits(vertices: np.ndarray, triangles: np.ndarray, meshes: np.ndarray, max_area: float = SLIT_AREA, max_width: float = 1.0) -> tuple[int, np.ndarray]:
     """(number of slits, their closing triangles (s, 3) int64): the boundary loops of the mesh
-    that enclose (almost) no area in the image (see the module docstring)."""
+    that enclose (almost) no area in the image (see the module docstring); ``meshes``: the
+    triangles' :func:`mesh_labels`."""
     size = int(vertices.shape[0])
-    edge_keys = np.unique(_edge_keys(triangles, size))
-    loops = boundary_loops(triangles)
+    edge_keys, count = np.unique(_edge_keys(triangles, size), return_counts=True)
+    loops = _loops(edge_keys, count, size)
     # A mesh's rim (its loop of largest extent) stays open even where it is seen edge-on: closing
     # it would lay a second sheet over the mesh.
     part = np.zeros(size, dtype=np.int64)
-    part[triangles.reshape(-1)] = np.repeat(mesh_labels(size, triangles), 3)
+    part[triangles.reshape(-1)] = np.repeat(meshes, 3)
     extent = [float(np.ptp(vertices[loop], axis=0).sum()) for loop in loops]
     rim: dict[int, int] = {}
     for i, loop in enumerate(loops):

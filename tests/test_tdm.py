@@ -34,7 +34,14 @@ from core.tdm_kernels import (
     covered_by_any,
     tri_box,
 )
-from core.tdm_mesh import SLIT_AREA, TdmMesh, boundary_loops, close_slits, initial_mesh
+from core.tdm_mesh import (
+    SLIT_AREA,
+    TdmMesh,
+    boundary_loops,
+    close_slits,
+    initial_mesh,
+    mesh_labels,
+)
 from core.tdm_texture import rasterize
 from core.voxel_field import record_voxel_field
 
@@ -257,10 +264,11 @@ def test_a_hole_seen_edge_on_is_closed_and_one_seen_face_on_is_not():
     keep[[8, 9]] = False  # the centre quad: a hole of one texel
     holed = triangles[keep]
     # Face-on (in a layer) the hole covers a texel of the image: it stays open.
-    assert close_slits(vertices, holed)[0] == 0
+    meshes = mesh_labels(len(vertices), holed)
+    assert close_slits(vertices, holed, meshes)[0] == 0
     # The same mesh standing edge-on (x constant, across layers) encloses no area in the image.
     edge_on = vertices[:, [2, 0, 1]]
-    count, fill = close_slits(edge_on, holed)
+    count, fill = close_slits(edge_on, holed, meshes)
     assert count == 1 and fill.shape[0] == 2
     closed = np.concatenate([holed, fill])
     assert len(boundary_loops(closed)) == 1  # only the outer rim is left
