@@ -167,6 +167,20 @@ def test_the_cascade_repeats_each_pass_until_nothing_more_contracts(house_bake, 
     assert again[0].shape[0] == triangles.shape[0] and again[3]["ok"] == 0
 
 
+def test_meshes_that_store_no_voxel_are_left_out(house_bake):
+    """At 256 pixels and 110 units the house's initial mesh has two stray sealing walls whose voxels
+    all went to quads of the main mesh (module docstring of core.tdm_mesh)."""
+    scene, _ = house_bake
+    lo, hi = scene.bounds
+    field, mesh = _field_and_mesh(scene, scenes_cell(0.5 * (lo + hi), lo[2] - 110.0), 256)
+    assert mesh.stats["empty_meshes_dropped"] > 0
+    labels = mesh_labels(len(mesh.vertices), mesh.triangles)
+    assert labels.max() + 1 == mesh.stats["initial_meshes"]
+    stored = np.bincount(labels, weights=np.diff(mesh.voxel_offsets), minlength=labels.max() + 1)
+    assert np.all(stored > 0)
+    assert np.array_equal(np.sort(mesh.voxels), np.arange(field.count))
+
+
 def _steep_field(gap: int):
     """A steep surface in voxel space, as a wall seen edge-on from the view cell records: 12 rows,
     8 columns, column x a stack of 5 layers starting at x * (5 + gap), stacks ``gap`` empty layers
