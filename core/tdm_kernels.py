@@ -740,8 +740,9 @@ def box_half_sizes(count: int, enlargement: float, silhouette: np.ndarray | None
     cell's top corners.  Boxes kept at the voxel's own width across the image (still enlarged in
     depth, where the cascade gains most) close them there, for 1.1-1.34 times the triangles (90-250
     m).  They do not make the outline exact: a triangle that meets only part of an outline voxel's
-    box still keeps it, and single hole pixels remain at some distances (200-300 m in steps of 10:
-    in 6 of 22 bakes at f = 1 and 2, never two in one view; see ``tests/test_tdm.py``).
+    box still keeps it, and single hole pixels remain at some distances (200-300 m in steps of 10,
+    f = 1 and 2, 9 views each: in 2 of 22 bakes, both at 250 m, never two in one view; 4 of 22
+    before the image corner test read its triangles' image coverage; see ``tests/test_tdm.py``).
     """
     half = np.full((int(count), 2), 0.5 * float(enlargement))
     if silhouette is not None:

@@ -99,9 +99,10 @@ def test_the_outline_stays_within_a_pixel_at_the_silhouette(house_bake, enlargem
     A voxel is kept by any triangle that meets its box, so at the outline a triangle may hold only
     part of an outline voxel while a triangle deeper in the part covers the rest in the reference
     view, and from a corner of the cell that rest can open one pixel.  Measured on a sweep of 200
-    to 300 units in steps of 10 at f = 1 and 2 (13 views each): single hole pixels in 6 of the 22
-    bakes (7 of 22 before straight boundary runs were merged), never two in one view.  Without the
-    outline voxels' unenlarged boxes (:func:`core.tdm_kernels.box_half_sizes`) one view here has 4.
+    to 300 units in steps of 10 at f = 1 and 2 (9 views each): single hole pixels in 2 of the 22
+    bakes, both at 250 units (4 of 22 before boundary corners were judged by their triangles'
+    image coverage), never two in one view.  Without
+    the outline voxels' unenlarged boxes (:func:`core.tdm_kernels.box_half_sizes`) one view here has 4.
     """
     scene, _ = house_bake
     lo, hi = scene.bounds
