@@ -101,8 +101,8 @@ def test_the_outline_stays_within_a_pixel_at_the_silhouette(house_bake, enlargem
     view, and from a corner of the cell that rest can open one pixel.  Measured on a sweep of 200
     to 300 units in steps of 10 at f = 1 and 2 (9 views each): single hole pixels in 2 of the 22
     bakes, both at 250 units (4 of 22 before boundary corners were judged by their triangles'
-    image coverage), never two in one view.  Without
-    the outline voxels' unenlarged boxes (:func:`core.tdm_kernels.box_half_sizes`) one view here has 4.
+    image coverage), never two in one view.  Without the outline voxels' unenlarged boxes
+    (:func:`core.tdm_kernels.box_half_sizes`) one view here has 4.
     """
     scene, _ = house_bake
     lo, hi = scene.bounds
@@ -289,7 +289,10 @@ def test_a_corner_is_not_cut_through_a_triangle_folded_over_in_the_image():
     """
     # v2 = 2, the outline's corner in the image; boundary v1 = 3 - v2 - 5; triangle 1 on the
     # boundary edge (2, 3) is folded over in the image, 0 and 2 stand edge-on, 3 faces the viewpoint.
-    vertices = np.array([[1.9375, 0.9375, 1.0], [1.9375, 2.9375, 2.0], [1.9375, 0.0625, 2.0], [0.9375, 0.0625, 2.0], [1.9375, 2.9375, 3.0], [1.0625, 1.9375, 3.0]])
+    vertices = np.array([
+        [1.9375, 0.9375, 1.0], [1.9375, 2.9375, 2.0], [1.9375, 0.0625, 2.0],
+        [0.9375, 0.0625, 2.0], [1.9375, 2.9375, 3.0], [1.0625, 1.9375, 3.0],
+    ])  # fmt: skip
     triangles = np.array([[0, 1, 2], [0, 2, 3], [2, 1, 4], [2, 4, 5]])
     p = vertices[triangles]
     area = 0.5 * np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])[:, 2]
@@ -299,6 +302,20 @@ def test_a_corner_is_not_cut_through_a_triangle_folded_over_in_the_image():
     offsets = np.array([0, 0, 0, 0, 2])
     for f in (1.0, 2.0):
         assert contraction_outcome(vertices, triangles, offsets, np.array([0, 1]), centres, f, 2, 3) == "boundary_away"
+
+
+def test_a_reflex_corner_may_go_where_the_enlarged_voxels_reach():
+    """The other side of the corner test: at a reflex corner of the outline (a 4 x 4 grid without
+    its corner voxel (3, 0)) the new edge runs across the missing voxel, outside the mesh: refused
+    by the interval test at f = 1, allowed at f = 3 where the neighbours' boxes reach over it."""
+    vertices, triangles, offsets, voxels, centres, idx = _grid(4)
+    keep = np.ones(len(triangles), bool)
+    keep[[6, 7]] = False  # the quad of voxel (3, 0)
+    sub_offsets = np.concatenate([[0], np.cumsum(np.diff(offsets)[keep])])
+    sub_voxels = np.concatenate([voxels[offsets[t] : offsets[t + 1]] for t in np.flatnonzero(keep)])
+    args = (vertices, triangles[keep], sub_offsets, sub_voxels, centres)
+    assert contraction_outcome(*args, 1.0, idx(3, 1), idx(4, 1)) == "boundary_interval"
+    assert contraction_outcome(*args, 3.0, idx(3, 1), idx(4, 1)) == "ok"
 
 
 def _uncovered_texel_centres(field, vertices: np.ndarray, triangles: np.ndarray) -> int:
