@@ -117,8 +117,8 @@ def schedule(enlargement: float) -> tuple[float, ...]:
 def simplify_mesh(mesh: TdmMesh, field: VoxelField, enlargement: float, silhouette: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """The cascade of :func:`core.tdm_kernels.simplify` passes for ``enlargement``, each repeated
     until it changes nothing: (triangles, voxel offsets, voxels, outcome counts summed over every
-    pass, repeats included).  ``silhouette``: the field's :attr:`~core.voxel_field.VoxelField.silhouette`, if the
-    caller has it already."""
+    pass, repeats included).  ``silhouette``: the field's
+    :attr:`~core.voxel_field.VoxelField.silhouette`, if the caller has it already."""
     triangles, offsets, voxels = mesh.triangles, mesh.voxel_offsets, mesh.voxels
     centres = field.centres
     silhouette = field.silhouette if silhouette is None else silhouette

@@ -354,7 +354,7 @@ def _covers_corner(v2, v1, other, tris, n_tris, triangles, vertices):
     ux, uy, wx, wy = ux / nu, uy / nu, wx / nw, wy / nw
     cross = ux * wy - uy * wx
     if abs(cross) <= 1e-12:
-        return ux * wx + uy * wy > 0.0  # a spike folding back: taken as cut off, unprobed; a straight run: no change
+        return ux * wx + uy * wy > 0.0  # a spike: taken as cut off, unprobed; straight: no change
     for k in range(3):
         a = 1.0 + 2.0 * (k == 1)
         b = 1.0 + 2.0 * (k == 2)

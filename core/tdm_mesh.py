@@ -59,10 +59,10 @@ must keep (seed 003 Figs. 13-14): measured on the house at 90 m, 512 pixels, f =
 870 triangles after simplification where 660 remain once they are closed.  :func:`close_slits`
 closes every loop whose closing triangles (ear clipping, nearest neighbours first) cover at most
 :data:`SLIT_AREA` texels of the image, except a mesh's rim; the closing triangles store no
-voxels, so they hide nothing the recording saw from the reference viewpoint.  Seen from elsewhere in the cell, what
-lay behind such a slit shows the closing triangles' texture instead, and the vertices freed near
-the outline can fold the mesh over it in the image: the benchmark's pixels bloated beyond a pixel
-(README) count that.
+voxels, so they hide nothing the recording saw from the reference viewpoint.  Seen from elsewhere
+in the cell, what lay behind such a slit shows the closing triangles' texture instead, and the
+vertices freed near the outline can fold the mesh over it in the image: the benchmark's pixels
+bloated beyond a pixel (README) count that.
 
 **Meshes that store no voxel (farfield's addition).**  Every voxel is stored with one quad that
 meets it, and a stray sealing wall can lose all its voxels to the quads of a neighbouring mesh;
