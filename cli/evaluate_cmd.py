@@ -1,4 +1,9 @@
-"""``farfield evaluate``: compare a baked bundle with the real geometry from inside (and outside) its view cell."""
+"""``farfield evaluate``: compare baked bundles with the real geometry from inside (and outside) their view cell.
+
+One bundle: per-viewpoint errors.  Several bundles of the same part and view cell (say a layered
+impostor and a textured depth mesh): each is evaluated from the same viewpoints, and a side-by-side
+table ends with the one to use (:func:`core.comparison.choose`).
+"""
 
 from __future__ import annotations
 
@@ -8,23 +13,30 @@ from pathlib import Path
 import click
 
 from core.bundle import read_bundle
+from core.comparison import PREFERENCES, Candidate, check_comparable, choose
 from core.evaluation import evaluate as run_evaluation
-from core.runtime import evaluate_envmap
 from core.exchange import load_scene
+from core.runtime import evaluate_envmap
 from core.viewcells import viewcell_from_dict
 
 
 @click.command("evaluate")
-@click.argument("bundle", type=click.Path(file_okay=False))
+@click.argument("bundles", nargs=-1, required=True, type=click.Path(file_okay=False))
 @click.argument("scene", type=click.Path(dir_okay=False))
 @click.option("--random", "random_count", default=16, show_default=True, type=int, help="Random viewpoints inside the cell.")
 @click.option("--outside", "outside_count", default=4, show_default=True, type=int, help="Viewpoints just outside the cell.")
 @click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--prefer", type=click.Choice(PREFERENCES), default="memory", show_default=True, help="With several bundles: what decides among those with the fewest hole pixels.")
 @click.option("--json", "as_json", is_flag=True, help="Per-viewpoint results as JSON.")
-def evaluate(bundle, scene, random_count, outside_count, seed, as_json):
-    """Render SCENE's part and the impostor in BUNDLE from sampled viewpoints and report the errors."""
-    impostor = read_bundle(Path(bundle))
+def evaluate(bundles, scene, random_count, outside_count, seed, prefer, as_json):
+    """Render SCENE's part and the impostor in each BUNDLE from sampled viewpoints and report the
+    errors; with several bundles of one part and view cell, side by side and which to use."""
+    impostors = [read_bundle(Path(b)) for b in bundles]
     part = load_scene(scene)
+    if len(impostors) > 1:
+        _compare(list(bundles), impostors, part, random_count, outside_count, seed, prefer, as_json)
+        return
+    impostor = impostors[0]
     if impostor.technique == "envmap":
         _evaluate_envmap(part, impostor, random_count, seed, as_json)
         return
@@ -47,8 +59,38 @@ def evaluate(bundle, scene, random_count, outside_count, seed, as_json):
     click.echo(f"inside the view cell: {t['viewpoints']} viewpoints, {t['hole_pixels']} hole pixels, colour error mean {t['colour_error_mean']:.2f}")
     if "outside" in t:
         click.echo(f"outside the view cell: {t['outside']['viewpoints']} viewpoints, {t['outside']['hole_pixels']} hole pixels")
-    stats = impostor.stats
-    click.echo(f"impostor: {stats.get('layers')} layers, {stats.get('quads')} quads, {stats.get('texture_bytes', 0) / 1024:.1f} KiB texture")
+    candidate = Candidate.of(bundles[0], impostor, result)
+    click.echo(
+        f"impostor ({impostor.technique}): {impostor.stats.get('layers')} layers, {candidate.triangles:,} triangles, "
+        f"{candidate.memory_bytes / 1024:.1f} KiB (atlas pages {impostor.texture_bytes / 1024:.1f} KiB + geometry)"
+    )
+
+
+def _compare(names: list[str], impostors, part, random_count: int, outside_count: int, seed: int, prefer: str, as_json: bool) -> None:
+    """Several bundles of one part and view cell: each evaluated alike, side by side, and the one to use."""
+    check_comparable(names, impostors)
+    first = impostors[0]
+    objects = first.parameters.get("objects")
+    if objects:
+        part = part.subset(objects)
+    cell = viewcell_from_dict(first.viewcell)
+    results = [run_evaluation(part, impostor, cell, random_count, outside_count, seed) for impostor in impostors]
+    candidates = [Candidate.of(name, impostor, result) for name, impostor, result in zip(names, impostors, results)]
+    choice = choose(candidates, prefer)
+    if as_json:
+        rows = [{**c.to_dict(), "evaluation": r.to_dict()} for c, r in zip(candidates, results)]
+        click.echo(json.dumps({"bundles": rows, "prefer": prefer, "choice": candidates[choice.index].name, "reason": choice.reason}, indent=2))
+        return
+    width = max(len("bundle"), *(len(n) for n in names))
+    click.echo(f"{'bundle':<{width}} {'technique':<9} {'triangles':>9} {'memory KiB':>10} {'holes':>6} {'>1px':>6} {'err mean':>9} {'bake s':>7}")
+    for c in candidates:
+        seconds = f"{c.bake_seconds:.2f}" if c.bake_seconds is not None else "-"
+        click.echo(
+            f"{c.name:<{width}} {c.technique:<9} {c.triangles:>9,} {c.memory_bytes / 1024:>10.1f} {c.hole_pixels:>6} "
+            f"{c.bloat_beyond_1px:>6} {c.colour_error_mean:>9.2f} {seconds:>7}"
+        )
+    click.echo(f"{results[0].totals['viewpoints']} viewpoints inside the view cell for each (hole pixels, pixels bloated beyond 1 px, mean colour error 0-255)")
+    click.echo(f"use {choice.reason}")
 
 
 def _evaluate_envmap(scene, impostor, random_count: int, seed: int, as_json: bool) -> None:

@@ -61,6 +61,10 @@ class AtlasOverflowError(FarfieldError):
     """Texels do not fit the allowed atlas pages."""
 
 
+class ComparisonError(FarfieldError):
+    """Impostors that cannot be compared side by side (other parts, cells or images), or none."""
+
+
 class BundleFormatError(FarfieldError):
     """An impostor bundle on disk is malformed or of an unknown version."""
 

@@ -46,6 +46,13 @@ class Impostor:
         return int(self.quad_corners.shape[0])
 
     @property
+    def triangle_count(self) -> int:
+        """Triangles drawn: two per quad, one per quad whose fourth corner repeats its third (a
+        textured depth mesh's triangle, see :mod:`core.tdm`)."""
+        corners = self.quad_corners
+        return int(2 * corners.shape[0] - np.count_nonzero(np.all(corners[:, 3] == corners[:, 2], axis=1)))
+
+    @property
     def texture_bytes(self) -> int:
         """Uncompressed RGBA bytes of all atlas pages."""
         return int(sum(p.shape[0] * p.shape[1] * 4 for p in self.pages))

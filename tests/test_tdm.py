@@ -11,8 +11,10 @@ import sys
 import numpy as np
 import pytest
 import scenes
+from click.testing import CliRunner
 from test_bake import cell_in_front, city_block, dense, needs_shared
 
+from cli.main import _register, cli
 from core.bake import BakeOptions, bake_layered
 from core.bundle import read_bundle, write_bundle
 from core.errors import LayerPlanError
@@ -44,6 +46,7 @@ from core.tdm_mesh import (
     mesh_labels,
 )
 from core.tdm_texture import rasterize
+from core.viewcells import BoxCell
 from core.voxel_field import record_voxel_field
 
 CASES = {
@@ -450,14 +453,46 @@ def test_bundle_glb_and_evaluate_cli_read_a_tdm_unchanged(tmp_path, house_bake):
     assert report["impostor"]["quads"] == impostor.stats["triangles"]
 
 
-def test_tdm_and_layered_of_the_same_part_compare_side_by_side(house_bake):
+def test_evaluate_puts_a_tdm_and_a_layered_impostor_side_by_side_and_says_which_to_use(tmp_path, house_bake):
     scene, cell = house_bake
     tdm = bake_tdm(scene, cell, TdmOptions(resolution=RESOLUTION))
     layered = bake_layered(scene, cell, BakeOptions(resolution=RESOLUTION))
     assert tdm.stats["layers_planned"] == layered.stats["layers_planned"]
-    for impostor in (tdm, layered):
-        totals = evaluate(scene, impostor, cell, random_count=2).totals
-        assert totals["hole_pixels"] == 0 and totals["colour_error_mean"] < 20
+    write_bundle(tdm, tmp_path / "tdm")
+    write_bundle(layered, tmp_path / "layered")
+    scene_path = scenes.write_scene(scene, tmp_path, "glb", "house")
+    _register()
+
+    def run(*args):
+        return CliRunner().invoke(cli, ["evaluate", str(tmp_path / "tdm"), str(tmp_path / "layered"), str(scene_path), "--random", "2", "--outside", "0", *args])
+
+    result = run("--json")
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.output)
+    rows = {row["technique"]: row for row in report["bundles"]}
+    assert set(rows) == {"tdm", "layered"}
+    for row in rows.values():
+        assert row["hole_pixels"] == 0 and row["colour_error_mean"] < 20
+    # Both from the same viewpoints, counted as each technique draws and stores them.
+    positions = [[v["position"] for v in row["evaluation"]["viewpoints"]] for row in rows.values()]
+    assert positions[0] == positions[1] and len(positions[0]) == 11
+    assert rows["tdm"]["triangles"] == tdm.stats["triangles"] and rows["layered"]["triangles"] == 2 * layered.quad_count
+    for row, impostor in ((rows["tdm"], tdm), (rows["layered"], layered)):
+        assert row["memory_bytes"] == impostor.texture_bytes + impostor.stats["geometry_bytes"]
+    # Among the hole-free, the least memory by default, the fewest triangles when preferred.
+    least = min(rows.values(), key=lambda row: row["memory_bytes"])["name"]
+    assert report["choice"] == least and report["reason"].startswith(f"{least}: no hole pixels inside the view cell and the least memory")
+    fewest = min(rows.values(), key=lambda row: row["triangles"])["name"]
+    assert json.loads(run("--json", "--prefer", "triangles").output)["choice"] == fewest
+    text = run().output.strip().splitlines()
+    assert len(text) == 5 and text[0].split()[:3] == ["bundle", "technique", "triangles"]
+    assert text[3].startswith("11 viewpoints inside the view cell for each") and text[4].startswith(f"use {least}: ")
+
+    # Bundles of another view cell do not compare: one line, exit code 2.
+    moved = BoxCell(cell.lo + [5.0, 0.0, 0.0], cell.hi + [5.0, 0.0, 0.0])
+    write_bundle(bake_layered(scene, moved, BakeOptions(resolution=RESOLUTION)), tmp_path / "moved")
+    result = CliRunner().invoke(cli, ["evaluate", str(tmp_path / "tdm"), str(tmp_path / "moved"), str(scene_path)])
+    assert result.exit_code == 2 and result.output.strip().splitlines() == [f"farfield: error: {tmp_path / 'moved'} and {tmp_path / 'tdm'} differ in their view cell: only bundles of the same part, view cell, resolution and field of view compare"]
 
 
 @pytest.mark.parametrize("bad", [{"enlargement": 0.5}, {"enlargement": True}, {"oversampling": 0}, {"culling": "most"}, {"texel_margin": -1}])

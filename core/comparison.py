@@ -1,0 +1,141 @@
+"""Which impostor to use: bundles of one part for one view cell, evaluated alike, side by side.
+
+Seed 000 ch. 4 (Tables 4.1 and 4.2) weighs layered impostors against textured depth meshes by
+polygons, memory and image quality; users choose between the techniques per scene part.  A
+:class:`Candidate` is one baked impostor with the numbers that choice needs, every one measured the
+same way for every technique:
+
+* **triangles** drawn (two per layered quad, one per TDM triangle: :attr:`Impostor.triangle_count`);
+* **memory**: the atlas pages as stored plus the geometry as drawn (``stats["geometry_bytes"]``);
+* **hole pixels, pixels bloated beyond one pixel and colour error** inside the view cell, from
+  :func:`core.evaluation.evaluate` with the same viewpoints (corners, reference viewpoint, the same
+  seeded random points);
+* the **bake time** as recorded in the bundle (measured where it was baked).
+
+:func:`choose` keeps the candidates with the fewest hole pixels (zero is the promise of both
+techniques) and among them takes the smallest by the preferred measure, then by the others
+(memory, triangles, colour error) to break ties.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+from core.errors import ComparisonError
+from core.evaluation import Evaluation
+from core.impostor import Impostor
+
+PREFERENCES = ("memory", "triangles", "error")
+
+# Per preference: the Candidate field, the chosen one's merit and a rival's merit, in words.
+_MEASURES = {
+    "memory": ("memory_bytes", "the least memory", "takes less memory"),
+    "triangles": ("triangles", "the fewest triangles", "draws fewer triangles"),
+    "error": ("colour_error_mean", "the smallest colour error", "has a smaller colour error"),
+}
+
+
+@dataclass(frozen=True, slots=True)
+class Candidate:
+    """One impostor's numbers for the choice (see the module docstring)."""
+
+    name: str  # how the user named it (the bundle's path)
+    technique: str
+    triangles: int
+    memory_bytes: int
+    bake_seconds: float | None
+    hole_pixels: int
+    bloat_beyond_1px: int
+    colour_error_mean: float
+
+    @classmethod
+    def of(cls, name: str, impostor: Impostor, evaluation: Evaluation) -> Candidate:
+        seconds = impostor.stats.get("seconds", {})
+        totals = evaluation.totals
+        return cls(
+            name=name,
+            technique=impostor.technique,
+            triangles=impostor.triangle_count,
+            memory_bytes=int(impostor.texture_bytes + impostor.stats.get("geometry_bytes", 0)),
+            bake_seconds=float(seconds["total"]) if isinstance(seconds, dict) and "total" in seconds else None,
+            hole_pixels=int(totals["hole_pixels"]),
+            bloat_beyond_1px=int(totals["bloat_beyond_1px"]),
+            colour_error_mean=float(totals["colour_error_mean"]),
+        )
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True, slots=True)
+class Choice:
+    """The chosen candidate's index and why, in one sentence."""
+
+    index: int
+    reason: str
+
+
+def check_comparable(names: list[str], impostors: list[Impostor]) -> None:
+    """Raise :class:`ComparisonError` unless every impostor is of one part (not an envmap of a whole
+    scene), for one view cell, resolution and field of view: otherwise their numbers do not compare."""
+    first = impostors[0]
+    keys = {
+        "view cell": lambda i: i.viewcell,
+        "part": lambda i: sorted(i.parameters.get("objects") or []),
+        "resolution or field of view": lambda i: (i.resolution, i.fov_deg),
+    }
+    for name, impostor in zip(names, impostors):
+        if impostor.technique == "envmap":
+            raise ComparisonError(f"{name} is an envmap bundle (a whole scene around its cell); only impostors of one part compare side by side")
+        for what, key in keys.items():
+            if key(impostor) != key(first):
+                raise ComparisonError(f"{name} and {names[0]} differ in their {what}: only bundles of the same part, view cell, resolution and field of view compare")
+
+
+def _say(field: str, value: float) -> str:
+    if field == "memory_bytes":
+        return f"{value / 1024:.1f} KiB"
+    if field == "triangles":
+        return f"{int(value):,}"
+    return f"{value:.2f}"
+
+
+def choose(candidates: list[Candidate], prefer: str = "memory") -> Choice:
+    """The candidate to use (see the module docstring) and the reason, naming what the others do better.
+
+    >>> a = Candidate("out/tdm", "tdm", 706, 475_000, 4.5, 0, 0, 1.33)
+    >>> b = Candidate("out/layered", "layered", 538, 1_256_000, 0.2, 0, 0, 1.45)
+    >>> c = Candidate("out/coarse", "tdm", 90, 45_000, 0.5, 3, 0, 3.3)
+    >>> choice = choose([a, b, c])
+    >>> choice.index
+    0
+    >>> print(choice.reason)
+    out/tdm: no hole pixels inside the view cell and the least memory (463.9 KiB against 1226.6 KiB); out/coarse has 3 hole pixels; out/layered draws fewer triangles (538 against 706)
+    >>> choose([a, b], prefer="triangles").index
+    1
+    """
+    if prefer not in PREFERENCES:
+        raise ComparisonError(f"prefer must be one of {', '.join(PREFERENCES)}, got {prefer!r}")
+    if not candidates:
+        raise ComparisonError("nothing to choose from: no impostor given")
+    order = [prefer, *(p for p in PREFERENCES if p != prefer)]
+    fields = [_MEASURES[p][0] for p in order]
+    fewest = min(c.hole_pixels for c in candidates)
+    eligible = [i for i, c in enumerate(candidates) if c.hole_pixels == fewest]
+    best = min(eligible, key=lambda i: tuple(getattr(candidates[i], f) for f in fields))
+    chosen = candidates[best]
+    holes = "no hole pixels inside the view cell" if fewest == 0 else f"the fewest hole pixels inside the view cell ({fewest}; none has zero)"
+    field, merit, _ = _MEASURES[prefer]
+    reason = f"{chosen.name}: {holes}"
+    rivals = [candidates[i] for i in eligible if i != best]
+    if rivals:
+        runner = min(rivals, key=lambda c: getattr(c, field))
+        reason += f" and {merit} ({_say(field, getattr(chosen, field))} against {_say(field, getattr(runner, field))})"
+    notes = [f"{c.name} has {c.hole_pixels} hole pixels" for c in candidates if c.hole_pixels > fewest]
+    for p in order[1:]:
+        f, _, better = _MEASURES[p]
+        ahead = [c for c in rivals if getattr(c, f) < getattr(chosen, f)]
+        if ahead:
+            r = min(ahead, key=lambda c: getattr(c, f))
+            notes.append(f"{r.name} {better} ({_say(f, getattr(r, f))} against {_say(f, getattr(chosen, f))})")
+    return Choice(best, "; ".join([reason, *notes]))
