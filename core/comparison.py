@@ -13,8 +13,8 @@ same way for every technique:
 * the **bake time** as recorded in the bundle (measured where it was baked).
 
 :func:`choose` keeps the candidates with the fewest hole pixels (zero is the promise of both
-techniques) and among them takes the smallest by the preferred measure, then by the others
-(memory, triangles, colour error) to break ties.
+techniques), then those within :data:`TIE` (5 %) of the smallest by the preferred measure, then by
+each other one (memory, triangles, colour error), until one is left.
 """
 
 from __future__ import annotations
@@ -26,6 +26,9 @@ from core.evaluation import Evaluation
 from core.impostor import Impostor
 
 PREFERENCES = ("memory", "triangles", "error")
+
+# Measures within this fraction of the best count as equal, and the next measure decides.
+TIE = 0.05
 
 # Per preference: the Candidate field, the chosen one's merit and a rival's merit, in words.
 _MEASURES = {
@@ -113,29 +116,52 @@ def choose(candidates: list[Candidate], prefer: str = "memory") -> Choice:
     out/tdm: no hole pixels inside the view cell and the least memory (463.9 KiB against 1226.6 KiB); out/coarse has 3 hole pixels; out/layered draws fewer triangles (538 against 706)
     >>> choose([a, b], prefer="triangles").index
     1
+
+    Memory within 5 % of each other: the fewest triangles decide.
+
+    >>> d = Candidate("out/layered", "layered", 254, 292_760, 0.3, 0, 5, 0.0)
+    >>> e = Candidate("out/tdm", "tdm", 1080, 292_200, 2.5, 0, 11, 0.0)
+    >>> print(choose([e, d]).reason)
+    out/layered: no hole pixels inside the view cell and memory within 5% (285.9 KiB against 285.4 KiB), the fewest triangles (254 against 1,080); out/tdm takes less memory (285.4 KiB against 285.9 KiB)
     """
     if prefer not in PREFERENCES:
         raise ComparisonError(f"prefer must be one of {', '.join(PREFERENCES)}, got {prefer!r}")
     if not candidates:
         raise ComparisonError("nothing to choose from: no impostor given")
     order = [prefer, *(p for p in PREFERENCES if p != prefer)]
-    fields = [_MEASURES[p][0] for p in order]
     fewest = min(c.hole_pixels for c in candidates)
-    eligible = [i for i, c in enumerate(candidates) if c.hole_pixels == fewest]
-    best = min(eligible, key=lambda i: tuple(getattr(candidates[i], f) for f in fields))
-    chosen = candidates[best]
+    pool = [i for i, c in enumerate(candidates) if c.hole_pixels == fewest]
+    eligible = list(pool)
+    steps = []  # (measure, the pool it looked at, those it kept)
+    for p in order:
+        if len(pool) == 1:
+            break
+        field = _MEASURES[p][0]
+        best = min(getattr(candidates[i], field) for i in pool)
+        near = [i for i in pool if getattr(candidates[i], field) <= best + TIE * abs(best)]
+        steps.append((p, pool, near))
+        pool = near
+    first = _MEASURES[order[0]][0]
+    index = min(pool, key=lambda i: (getattr(candidates[i], first), i))
+    chosen = candidates[index]
     holes = "no hole pixels inside the view cell" if fewest == 0 else f"the fewest hole pixels inside the view cell ({fewest}; none has zero)"
-    field, merit, _ = _MEASURES[prefer]
-    reason = f"{chosen.name}: {holes}"
-    rivals = [candidates[i] for i in eligible if i != best]
-    if rivals:
-        runner = min(rivals, key=lambda c: getattr(c, field))
-        reason += f" and {merit} ({_say(field, getattr(chosen, field))} against {_say(field, getattr(runner, field))})"
+    parts = [f"{chosen.name}: {holes}"]
+    for p, looked, kept in steps:
+        field, merit, _ = _MEASURES[p]
+        tie = len(kept) == len(looked)
+        # Against the others it kept if it left none out, else the best of those it left out.
+        runner = min((candidates[i] for i in (kept if tie else looked) if i != index and (tie or i not in kept)), key=lambda c: getattr(c, field))
+        mine, theirs = _say(field, getattr(chosen, field)), _say(field, getattr(runner, field))
+        if tie:
+            parts.append(f"{p} within {TIE:.0%} ({mine} against {theirs})")
+        else:
+            parts.append(f"{merit}{'' if len(kept) == 1 else f' within {TIE:.0%}'} ({mine} against {theirs})")
+    reason = parts[0] + (" and " + ", ".join(parts[1:]) if len(parts) > 1 else "")
     notes = [f"{c.name} has {c.hole_pixels} hole pixels" for c in candidates if c.hole_pixels > fewest]
-    for p in order[1:]:
-        f, _, better = _MEASURES[p]
-        ahead = [c for c in rivals if getattr(c, f) < getattr(chosen, f)]
+    for p in order:
+        field, _, better = _MEASURES[p]
+        ahead = [candidates[i] for i in eligible if getattr(candidates[i], field) < getattr(chosen, field)]
         if ahead:
-            r = min(ahead, key=lambda c: getattr(c, f))
-            notes.append(f"{r.name} {better} ({_say(f, getattr(r, f))} against {_say(f, getattr(chosen, f))})")
-    return Choice(best, "; ".join([reason, *notes]))
+            r = min(ahead, key=lambda c: getattr(c, field))
+            notes.append(f"{r.name} {better} ({_say(field, getattr(r, field))} against {_say(field, getattr(chosen, field))})")
+    return Choice(index, "; ".join([reason, *notes]))

@@ -479,9 +479,11 @@ def test_evaluate_puts_a_tdm_and_a_layered_impostor_side_by_side_and_says_which_
     assert rows["tdm"]["triangles"] == tdm.stats["triangles"] and rows["layered"]["triangles"] == 2 * layered.quad_count
     for row, impostor in ((rows["tdm"], tdm), (rows["layered"], layered)):
         assert row["memory_bytes"] == impostor.texture_bytes + impostor.stats["geometry_bytes"]
-    # Among the hole-free, the least memory by default, the fewest triangles when preferred.
-    least = min(rows.values(), key=lambda row: row["memory_bytes"])["name"]
-    assert report["choice"] == least and report["reason"].startswith(f"{least}: no hole pixels inside the view cell and the least memory")
+    # Among the hole-free, the least memory by default (within 5 %, the fewest triangles decide),
+    # the fewest triangles when preferred.
+    memory = sorted(row["memory_bytes"] for row in rows.values())
+    least = min(rows.values(), key=lambda row: row["memory_bytes"] if memory[1] > 1.05 * memory[0] else row["triangles"])["name"]
+    assert report["choice"] == least and report["reason"].startswith(f"{least}: no hole pixels inside the view cell and ")
     fewest = min(rows.values(), key=lambda row: row["triangles"])["name"]
     assert json.loads(run("--json", "--prefer", "triangles").output)["choice"] == fewest
     text = run().output.strip().splitlines()
