@@ -11,9 +11,15 @@ Usage: ``.venv/bin/python benchmarks/bench_tdm.py [--quick] [--json] [--out DIR]
    texture chart + 12 B per triangle; layered 104 B per quad).  The TDM's texture is its atlas
    pages as stored (charts packed as masks, gaps included); the layered impostor's is counted two
    ways: its tiles alone (rectangles of kept texels, no padding: a lower bound no packer beats)
-   and its atlas pages as stored (power-of-two pages).  "TDM / layered" uses the lower bound.
+   and its atlas pages as stored (power-of-two pages); the TDM's also as its needed texels alone
+   (each chart's texels, no gaps between charts: the same kind of lower bound).  Ratios are given
+   like for like (lower bound against lower bound, pages against pages) and mixed (TDM pages
+   against the layered lower bound).
 2. The trade: the voxel enlargement factor 1.0-3.0 at 140 m against triangles, memory, generation
    time and image error, as a table and a plot (``tdm_trade.png``).
+3. Which to use, part by part (seed 000 Table 4.2 tries other models): the test suite's scenes
+   with cells near them (the same cells as ``tests/test_tdm.py``), both techniques evaluated alike
+   and :func:`core.comparison.choose` (fewest hole pixels, then least memory) naming the one to use.
 
 The renderer (llvmpipe or a GPU) is printed.  numba kernels are compiled (and cached) by a warm-up
 bake first, so their compile time is not in any row.  ``--quick`` uses 256 pixels and fewer rows.
@@ -33,14 +39,23 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
 from core.bake import BakeOptions, bake_layered  # noqa: E402
+from core.comparison import Candidate, choose  # noqa: E402
 from core.evaluation import evaluate  # noqa: E402
 from core.render.context import gl_context, renderer_info  # noqa: E402
 from core.tdm import TdmOptions, bake_tdm  # noqa: E402
 from core.viewcells import BoxCell  # noqa: E402
-from scenes import house  # noqa: E402
+from scenes import SHARED_SCENES, house, real_scene  # noqa: E402
+from test_bake import cell_in_front, city_block, dense  # noqa: E402
 
 DISTANCES = (90, 110, 140, 180, 250, 500, 1000)
 FACTORS = (1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0)
+PARTS = {
+    # name: (scene factory, cell distance and size in part diameters, lift) as in tests/test_tdm.py
+    "bunny": (lambda: real_scene("stanford_bunny/bun_zipper.ply"), 4.0, 0.6, 0.0),
+    "helmet": (lambda: real_scene("damaged_helmet/DamagedHelmet.glb"), 4.0, 0.5, 0.0),
+    "city_block": (city_block, 1.0, 0.1, 3.0),
+    "dense_mesh": (dense, 3.0, 0.5, 0.0),
+}
 
 
 def cell_before(scene, distance: float, size: float = 100.0) -> BoxCell:
@@ -68,6 +83,7 @@ def measure(scene, cell, resolution: int, enlargement: float = 2.0) -> dict:
         "tdm_triangles": s["triangles"],
         "tdm_memory": tdm_memory(s),
         "tdm_texture_needed_bytes": s["texture_bytes_tile_area"],
+        "tdm_memory_needed": int(s["texture_bytes_tile_area"] + s["geometry_bytes"]),
         "tdm_seconds": s["seconds"],
         "tdm_holes": ev_t["hole_pixels"],
         "tdm_colour_error": ev_t["colour_error_mean"],
@@ -82,6 +98,22 @@ def measure(scene, cell, resolution: int, enlargement: float = 2.0) -> dict:
     }
 
 
+def compare_part(name: str, resolution: int) -> dict:
+    """Both techniques of one test part, evaluated alike, and the one :func:`choose` names."""
+    factory, distance, size, lift = PARTS[name]
+    scene = factory()
+    diameter = float(np.max(scene.bounds[1] - scene.bounds[0]))
+    cell = cell_in_front(scene, distance, size * diameter, lift=lift)
+    tdm = bake_tdm(scene, cell, TdmOptions(resolution=resolution))
+    layered = bake_layered(scene, cell, BakeOptions(resolution=resolution))
+    candidates = [Candidate.of(i.technique, i, evaluate(scene, i, cell, random_count=4, seed=3)) for i in (tdm, layered)]
+    choice = choose(candidates)
+    return {
+        "triangles": scene.triangle_count, "layers": tdm.stats["layers_planned"], "candidates": [c.to_dict() for c in candidates],
+        "choice": candidates[choice.index].name, "reason": choice.reason,
+    }  # fmt: skip
+
+
 def print_table(rows: dict) -> None:
     keys = list(rows)
     def line(label, fn):
@@ -92,10 +124,12 @@ def print_table(rows: dict) -> None:
     line("# triangles in initial meshes", lambda r: f"{r['initial_triangles']:,}")
     line("# triangles of TDM", lambda r: r["tdm_triangles"])
     line("memory of TDM, pages (kB)", lambda r: f"{r['tdm_memory'] / 1000:.1f}")
+    line("memory of TDM, needed texels (kB)", lambda r: f"{r['tdm_memory_needed'] / 1000:.1f}")
     for stage in ("record", "mesh", "simplify", "charts", "atlas", "texture", "total"):
         line(f"TDM {stage} (s)", lambda r, st=stage: f"{r['tdm_seconds'].get(st, 0.0):.3f}")
     line("TDM hole pixels", lambda r: r["tdm_holes"])
     line("TDM colour error (mean, 0-255)", lambda r: f"{r['tdm_colour_error']:.2f}")
+    line("TDM pixels bloated beyond 1 px", lambda r: r["tdm_bloat_beyond_1px"])
     line("# quads of layered impostor", lambda r: r["layered_quads"])
     line("memory of layered, tiles (kB)", lambda r: f"{r['layered_memory'] / 1000:.1f}")
     line("memory of layered, pages (kB)", lambda r: f"{r['layered_memory_pages'] / 1000:.1f}")
@@ -103,7 +137,9 @@ def print_table(rows: dict) -> None:
     line("layered hole pixels", lambda r: r["layered_holes"])
     line("layered colour error", lambda r: f"{r['layered_colour_error']:.2f}")
     line("triangles TDM / quads layered", lambda r: f"{r['tdm_triangles'] / max(r['layered_quads'], 1):.2f}")
-    line("memory TDM / layered tiles", lambda r: f"{r['tdm_memory'] / max(r['layered_memory'], 1):.2f}")
+    line("triangles TDM / layered (2 a quad)", lambda r: f"{r['tdm_triangles'] / max(2 * r['layered_quads'], 1):.2f}")
+    line("memory TDM pages / layered tiles", lambda r: f"{r['tdm_memory'] / max(r['layered_memory'], 1):.2f}")
+    line("memory TDM needed / layered tiles", lambda r: f"{r['tdm_memory_needed'] / max(r['layered_memory'], 1):.2f}")
     line("memory TDM / layered pages", lambda r: f"{r['tdm_memory'] / max(r['layered_memory_pages'], 1):.2f}")
 
 
@@ -139,12 +175,19 @@ def main() -> None:
             "triangles": tdm.stats["triangles"], "memory": tdm_memory(tdm.stats), "seconds": tdm.stats["seconds"]["total"],
             "holes": ev["hole_pixels"], "colour_error": ev["colour_error_mean"], "bloat_beyond_1px": ev["bloat_beyond_1px"],
         }  # fmt: skip
+    parts = {}
+    for name in PARTS:
+        if name in ("bunny", "helmet") and not SHARED_SCENES.exists():
+            continue
+        parts[name] = compare_part(name, resolution)
+        if not args.json:
+            print(f"  {name}: use {parts[name]['choice']}", file=sys.stderr)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     plot = out / "tdm_trade.png"
     write_trade_plot(trade, plot)
     if args.json:
-        print(json.dumps({"renderer": info.renderer, "resolution": resolution, "table": table, "trade": trade}, indent=2))
+        print(json.dumps({"renderer": info.renderer, "resolution": resolution, "table": table, "trade": trade, "parts": parts}, indent=2))
         return
     print("\nTable 4.1 side by side (seed 000), enlargement factor 2:")
     print_table(table)
@@ -153,6 +196,13 @@ def main() -> None:
     for f, r in trade.items():
         print(f"{f:>7.2f}{r['triangles']:>11}{r['memory'] / 1000:>11.1f}{r['seconds']:>9.2f}{r['holes']:>7}{r['colour_error']:>11.2f}{r['bloat_beyond_1px']:>10}")
     print(f"plot: {plot}")
+    print("\nWhich to use, part by part (enlargement factor 2; memory = pages as stored + geometry):")
+    print(f"{'part':<12}{'tris':>9}{'layers':>7}{'technique':>10}{'triangles':>10}{'memory kB':>11}{'holes':>6}{'>1px':>6}{'colour err':>11}{'bake s':>8}  use")
+    for name, part in parts.items():
+        for c in part["candidates"]:
+            use = part["choice"] if c["name"] == "tdm" else ""
+            print(f"{name:<12}{part['triangles']:>9,}{part['layers']:>7}{c['name']:>10}{c['triangles']:>10,}{c['memory_bytes'] / 1000:>11.1f}{c['hole_pixels']:>6}"
+                  f"{c['bloat_beyond_1px']:>6}{c['colour_error_mean']:>11.2f}{c['bake_seconds']:>8.2f}  {use}")  # fmt: skip
 
 
 def write_trade_plot(trade: dict, path: Path) -> None:
