@@ -149,8 +149,9 @@ def choose(candidates: list[Candidate], prefer: str = "memory") -> Choice:
     for p, looked, kept in steps:
         field, merit, _ = _MEASURES[p]
         tie = len(kept) == len(looked)
-        # Against the others it kept if it left none out, else the best of those it left out.
-        runner = min((candidates[i] for i in (kept if tie else looked) if i != index and (tie or i not in kept)), key=lambda c: getattr(c, field))
+        # Against the others it kept if it left none out, else against those it left out.
+        others = [i for i in kept if i != index] if tie else [i for i in looked if i not in kept]
+        runner = min((candidates[i] for i in others), key=lambda c: getattr(c, field))
         mine, theirs = _say(field, getattr(chosen, field)), _say(field, getattr(runner, field))
         if tie:
             parts.append(f"{p} within {TIE:.0%} ({mine} against {theirs})")
