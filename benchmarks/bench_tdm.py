@@ -44,18 +44,12 @@ from core.evaluation import evaluate  # noqa: E402
 from core.render.context import gl_context, renderer_info  # noqa: E402
 from core.tdm import TdmOptions, bake_tdm  # noqa: E402
 from core.viewcells import BoxCell  # noqa: E402
-from scenes import SHARED_SCENES, house, real_scene  # noqa: E402
-from test_bake import cell_in_front, city_block, dense  # noqa: E402
+from scenes import SHARED_SCENES, house  # noqa: E402
+from test_bake import cell_in_front  # noqa: E402
+from test_tdm import CASES as PARTS  # noqa: E402  (the test suite's parts and cells)
 
 DISTANCES = (90, 110, 140, 180, 250, 500, 1000)
 FACTORS = (1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0)
-PARTS = {
-    # name: (scene factory, cell distance and size in part diameters, lift) as in tests/test_tdm.py
-    "bunny": (lambda: real_scene("stanford_bunny/bun_zipper.ply"), 4.0, 0.6, 0.0),
-    "helmet": (lambda: real_scene("damaged_helmet/DamagedHelmet.glb"), 4.0, 0.5, 0.0),
-    "city_block": (city_block, 1.0, 0.1, 3.0),
-    "dense_mesh": (dense, 3.0, 0.5, 0.0),
-}
 
 
 def cell_before(scene, distance: float, size: float = 100.0) -> BoxCell:
