@@ -45,14 +45,24 @@ OUTCOMES = ("ok", "stale", "non_manifold", "boundary_away", "boundary_interval",
 
 
 @njit(cache=True)
-def _axis_separates(p0, p1, p2, ax, ay, az, h, hz):
-    a = p0[0] * ax + p0[1] * ay + p0[2] * az
-    b = p1[0] * ax + p1[1] * ay + p1[2] * az
-    c = p2[0] * ax + p2[1] * ay + p2[2] * az
+def _axis_separates(x0, y0, z0, x1, y1, z1, x2, y2, z2, ax, ay, az, h, hz):
+    a = x0 * ax + y0 * ay + z0 * az
+    b = x1 * ax + y1 * ay + z1 * az
+    c = x2 * ax + y2 * ay + z2 * az
     lo = min(a, min(b, c))
     hi = max(a, max(b, c))
     r = h * (abs(ax) + abs(ay)) + hz * abs(az)
     return lo > r + EPS or hi < -r - EPS
+
+
+@njit(cache=True)
+def _edge_separates(x0, y0, z0, x1, y1, z1, x2, y2, z2, ex, ey, ez, h, hz):
+    """Does one of the cross products of the edge (ex, ey, ez) with the box's axes separate?"""
+    return (
+        _axis_separates(x0, y0, z0, x1, y1, z1, x2, y2, z2, 0.0, -ez, ey, h, hz)
+        or _axis_separates(x0, y0, z0, x1, y1, z1, x2, y2, z2, ez, 0.0, -ex, h, hz)
+        or _axis_separates(x0, y0, z0, x1, y1, z1, x2, y2, z2, -ey, ex, 0.0, h, hz)
+    )
 
 
 @njit(cache=True)
@@ -64,43 +74,33 @@ def tri_box(v0, v1, v2, cx, cy, cz, h):
 @njit(cache=True)
 def tri_slab(v0, v1, v2, cx, cy, cz, h, hz):
     """Does the triangle (v0, v1, v2) meet the closed box around (cx, cy, cz) of half size ``h``
-    across (x, y) and ``hz`` along the layers?"""
-    p0 = np.empty(3)
-    p1 = np.empty(3)
-    p2 = np.empty(3)
-    p0[0] = v0[0] - cx
-    p0[1] = v0[1] - cy
-    p0[2] = v0[2] - cz
-    p1[0] = v1[0] - cx
-    p1[1] = v1[1] - cy
-    p1[2] = v1[2] - cz
-    p2[0] = v2[0] - cx
-    p2[1] = v2[1] - cy
-    p2[2] = v2[2] - cz
-    for k in range(3):
-        r = h if k < 2 else hz
-        if min(p0[k], min(p1[k], p2[k])) > r + EPS or max(p0[k], max(p1[k], p2[k])) < -r - EPS:
-            return False
-    e0 = p1 - p0
-    e1 = p2 - p1
-    e2 = p0 - p2
-    nx = e0[1] * e1[2] - e0[2] * e1[1]
-    ny = e0[2] * e1[0] - e0[0] * e1[2]
-    nz = e0[0] * e1[1] - e0[1] * e1[0]
-    d = nx * p0[0] + ny * p0[1] + nz * p0[2]
+    across (x, y) and ``hz`` along the layers?  (Scalars throughout: this is the inner loop of the
+    simplification, and small arrays would cost a heap allocation each.)"""
+    x0, y0, z0 = v0[0] - cx, v0[1] - cy, v0[2] - cz
+    x1, y1, z1 = v1[0] - cx, v1[1] - cy, v1[2] - cz
+    x2, y2, z2 = v2[0] - cx, v2[1] - cy, v2[2] - cz
+    if min(x0, min(x1, x2)) > h + EPS or max(x0, max(x1, x2)) < -h - EPS:
+        return False
+    if min(y0, min(y1, y2)) > h + EPS or max(y0, max(y1, y2)) < -h - EPS:
+        return False
+    if min(z0, min(z1, z2)) > hz + EPS or max(z0, max(z1, z2)) < -hz - EPS:
+        return False
+    ax, ay, az = x1 - x0, y1 - y0, z1 - z0  # e0
+    bx, by, bz = x2 - x1, y2 - y1, z2 - z1  # e1
+    cx_, cy_, cz_ = x0 - x2, y0 - y2, z0 - z2  # e2
+    nx = ay * bz - az * by
+    ny = az * bx - ax * bz
+    nz = ax * by - ay * bx
+    d = nx * x0 + ny * y0 + nz * z0
     r = h * (abs(nx) + abs(ny)) + hz * abs(nz)
     scale = abs(nx) + abs(ny) + abs(nz)
     if abs(d) > r + EPS * max(scale, 1.0):
         return False
-    for e in (e0, e1, e2):
-        # cross(unit axis k, e) for k = x, y, z
-        if _axis_separates(p0, p1, p2, 0.0, -e[2], e[1], h, hz):
-            return False
-        if _axis_separates(p0, p1, p2, e[2], 0.0, -e[0], h, hz):
-            return False
-        if _axis_separates(p0, p1, p2, -e[1], e[0], 0.0, h, hz):
-            return False
-    return True
+    return not (
+        _edge_separates(x0, y0, z0, x1, y1, z1, x2, y2, z2, ax, ay, az, h, hz)
+        or _edge_separates(x0, y0, z0, x1, y1, z1, x2, y2, z2, bx, by, bz, h, hz)
+        or _edge_separates(x0, y0, z0, x1, y1, z1, x2, y2, z2, cx_, cy_, cz_, h, hz)
+    )
 
 
 @njit(cache=True)
@@ -284,13 +284,18 @@ def _is_boundary(m, cnt):
 
 @njit(cache=True)
 def _normal(a, b, c):
-    e0 = b - a
-    e1 = c - a
-    n = np.empty(3)
-    n[0] = e0[1] * e1[2] - e0[2] * e1[1]
-    n[1] = e0[2] * e1[0] - e0[0] * e1[2]
-    n[2] = e0[0] * e1[1] - e0[1] * e1[0]
-    return n
+    """The (unnormalised) normal of the triangle (a, b, c), as three scalars."""
+    e0x, e0y, e0z = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    e1x, e1y, e1z = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+    return e0y * e1z - e0z * e1y, e0z * e1x - e0x * e1z, e0x * e1y - e0y * e1x
+
+
+@njit(cache=True)
+def _distance(vertices, a, b):
+    """Distance between vertices a and b."""
+    return np.sqrt(
+        (vertices[a, 0] - vertices[b, 0]) ** 2 + (vertices[a, 1] - vertices[b, 1]) ** 2 + (vertices[a, 2] - vertices[b, 2]) ** 2
+    )
 
 
 @njit(cache=True)
@@ -476,17 +481,11 @@ def _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, 
         tri = triangles[t]
         if tri[0] == v1 or tri[1] == v1 or tri[2] == v1:
             continue
-        a = vertices[tri[0]]
-        b = vertices[tri[1]]
-        c = vertices[tri[2]]
-        before = _normal(a, b, c)
-        p = [a, b, c]
-        for k in range(3):
-            if tri[k] == v2:
-                p[k] = vertices[v1]
-        after = _normal(p[0], p[1], p[2])
-        size_after = np.sqrt(after[0] ** 2 + after[1] ** 2 + after[2] ** 2)
-        if size_after < 1e-12 or before[0] * after[0] + before[1] * after[1] + before[2] * after[2] <= 0.0:
+        bx, by, bz = _normal(vertices[tri[0]], vertices[tri[1]], vertices[tri[2]])
+        ax, ay, az = _normal(
+            vertices[v1 if tri[0] == v2 else tri[0]], vertices[v1 if tri[1] == v2 else tri[1]], vertices[v1 if tri[2] == v2 else tri[2]]
+        )
+        if np.sqrt(ax * ax + ay * ay + az * az) < 1e-12 or bx * ax + by * ay + bz * az <= 0.0:
             return FLIP, 0
         cand[nc] = t
         nc += 1
@@ -527,25 +526,15 @@ def _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, 
             return BOUNDARY_INTERVAL, 0
     # Every voxel must meet a triangle after the contraction (v2 read as v1).
     last = 0
-    q = np.empty(3)
-    pa = np.empty(3)
-    pb = np.empty(3)
-    pc = np.empty(3)
     for i in range(nv):
         c = centres[vox[i]]
         hit = -1
         for r in range(nc):
             j = (last + r) % nc
             tri = triangles[cand[j]]
-            for k in range(3):
-                idx = v1 if tri[k] == v2 else tri[k]
-                q = vertices[idx]
-                if k == 0:
-                    pa = q
-                elif k == 1:
-                    pb = q
-                else:
-                    pc = q
+            pa = vertices[v1 if tri[0] == v2 else tri[0]]
+            pb = vertices[v1 if tri[1] == v2 else tri[1]]
+            pc = vertices[v1 if tri[2] == v2 else tri[2]]
             if tri_slab(pa, pb, pc, c[0], c[1], c[2], half[vox[i], 0], half[vox[i], 1]):
                 hit = j
                 break
@@ -613,8 +602,7 @@ def _simplify(vertices, triangles, edges, tri_voxel_offsets, tri_voxels, centres
     for e in range(edges.shape[0]):
         a = edges[e, 0]
         b = edges[e, 1]
-        d = vertices[a] - vertices[b]
-        keys, items, size = _heap_push(keys, items, size, np.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2), a, b, 0, 0)
+        keys, items, size = _heap_push(keys, items, size, _distance(vertices, a, b), a, b, 0, 0)
 
     while size > 0:
         a, b, va, vb, size = _heap_pop(keys, items, size)
@@ -704,8 +692,7 @@ def _simplify(vertices, triangles, edges, tri_voxel_offsets, tri_voxels, centres
             m1 = _neighbours(v1, cand, nc, triangles, nbr1, cnt1)
             for j in range(m1):
                 w = nbr1[j]
-                d = vertices[v1] - vertices[w]
-                keys, items, size = _heap_push(keys, items, size, np.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2), v1, w, version[v1], version[w])
+                keys, items, size = _heap_push(keys, items, size, _distance(vertices, v1, w), v1, w, version[v1], version[w])
             done = True
             break
         if done:
@@ -760,7 +747,11 @@ def simplify(vertices, triangles, voxel_offsets, voxels, centres, enlargement, s
     triangles = np.ascontiguousarray(triangles, dtype=np.int64)
     valence = np.bincount(triangles.ravel(), minlength=len(vertices)).max(initial=1)
     edges = np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    edges = np.unique(edges, axis=0) if edges.size else edges.reshape(0, 2)
+    # Each edge once, in (a, b) order: unique on one int64 key per edge (np.unique(axis=0) sorts
+    # rows as structured records, 0.86 s of the 2.4 s simplification at 90 m in the profile).
+    n = max(len(vertices), 1)
+    keys = np.unique(edges[:, 0] * n + edges[:, 1])
+    edges = np.stack([keys // n, keys % n], axis=1)
     tris, offsets, vox, counts = _simplify(
         np.ascontiguousarray(vertices, dtype=np.float64), triangles, np.ascontiguousarray(edges),
         np.ascontiguousarray(voxel_offsets, dtype=np.int64), np.ascontiguousarray(voxels, dtype=np.int64),
