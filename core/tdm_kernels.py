@@ -20,8 +20,8 @@ grid; the shortest is taken, and it is contracted (v2 into v1, or, failing that,
    is convex in the image but not in 3D);
 3. every voxel stored with the triangles around the removed vertex meets one of the triangles
    around the kept vertex afterwards (polygon-box test against the voxel's box enlarged by the
-   factor f around its centre, but not across the image for the voxels on the part's outline:
-   :func:`box_half_sizes`); the voxels are then stored with the triangle that covers them.
+   factor f around its centre, but not for the voxels on the part's outline: :func:`box_half_sizes`);
+   the voxels are then stored with the triangle that covers them.
 
 After a contraction the edges around the kept vertex are pushed again with their new lengths; an
 edge that failed is only reconsidered when it is pushed again that way.  Every voxel stays stored
@@ -718,22 +718,25 @@ def corner_shrink(enlargement: float) -> float:
 
 def box_half_sizes(count: int, enlargement: float, silhouette: np.ndarray | None = None) -> np.ndarray:
     """(count, 2) float64 half sizes of the voxels' boxes, across the image (x, y) and along the
-    layers: f / 2 both ways, but only min(f, 1) / 2 across the image for the voxels flagged in
-    ``silhouette`` (see :attr:`core.voxel_field.VoxelField.silhouette`).
+    layers: f / 2 both ways, but min(f, 1) / 2 both ways for the voxels flagged in ``silhouette``
+    (see :attr:`core.voxel_field.VoxelField.silhouette`).
 
     Seed 003 §6 enlarges every box alike.  At the part's outline that lets a triangle one voxel
     inside "cover" an outline voxel, and the outline retreats by up to a voxel: measured on
     ``tests/scenes.py::house`` at 250 m, f = 2, 512 px, that opened 2-3 hole pixels seen from the
-    cell's top corners.  Boxes kept at the voxel's own width across the image (still enlarged in
-    depth, where the cascade gains most) close them there, for 1.1-1.34 times the triangles (90-250
-    m).  They do not make the outline exact: a triangle that meets only part of an outline voxel's
-    box still keeps it, and single hole pixels remain at some distances (200-300 m in steps of 10,
-    f = 1 and 2, 9 views each: in 2 of 22 bakes, both at 250 m, never two in one view; 4 of 22
-    before the image corner test read its triangles' image coverage; see ``tests/test_tdm.py``).
+    cell's top corners.  Boxes kept at the voxel's own width across the image closed them there,
+    but an outline voxel whose box was still enlarged in depth could be kept by a triangle up to
+    f / 2 layers in front of or behind it, which other viewpoints see shifted off the outline:
+    single hole pixels at 250 m (f = 1 and 2) and 315 pixels bloated beyond one pixel at 140 m
+    (f = 2).  Outline voxels at their own size both ways: no hole pixel in 22 bakes from 200 to 300
+    m at f = 2 and 3 (9 views each; at most 3 pixels bloated beyond one at f = 2, 19 at f = 3), none
+    at 90-1000 m and no pixel bloated beyond one at 140 m for any f from 1 to 3, for 1.05-1.3 times
+    the triangles at 90-250 m, f = 2.  At f = 1 nothing changes (the boxes are the voxels), and a
+    triangle that meets only part of an outline voxel's box still keeps it: one hole pixel at 250 m.
     """
     half = np.full((int(count), 2), 0.5 * float(enlargement))
     if silhouette is not None:
-        half[np.asarray(silhouette, dtype=bool), 0] = 0.5 * min(float(enlargement), 1.0)
+        half[np.asarray(silhouette, dtype=bool)] = 0.5 * min(float(enlargement), 1.0)
     return half
 
 

@@ -96,16 +96,15 @@ def test_no_hole_pixels_from_inside_the_view_cell(name):
 
 @pytest.mark.parametrize("enlargement", [1.0, 2.0])
 def test_the_outline_stays_within_a_pixel_at_the_silhouette(house_bake, enlargement):
-    """The house at 240-260 units and 512 pixels, seen from the cell's corners: no view has more
-    than one hole pixel (4 x 4 samples per pixel, a pixel of tolerance).
+    """The house at 240-260 units and 512 pixels, seen from the cell's corners and centre: no hole
+    pixel at f = 2, at most one in a view at f = 1 (4 x 4 samples per pixel, a pixel of tolerance).
 
-    A voxel is kept by any triangle that meets its box, so at the outline a triangle may hold only
-    part of an outline voxel while a triangle deeper in the part covers the rest in the reference
-    view, and from a corner of the cell that rest can open one pixel.  Measured on a sweep of 200
-    to 300 units in steps of 10 at f = 1 and 2 (9 views each): single hole pixels in 2 of the 22
-    bakes, both at 250 units (4 of 22 before boundary corners were judged by their triangles'
-    image coverage), never two in one view.  Without the outline voxels' unenlarged boxes
-    (:func:`core.tdm_kernels.box_half_sizes`) one view here has 4.
+    The outline voxels keep their own boxes (:func:`core.tdm_kernels.box_half_sizes`).  Enlarged
+    across the image, one view here had 4 hole pixels; enlarged in depth only, a triangle a layer in
+    front of an outline voxel could keep it, and 250 units opened one hole pixel at f = 2 (a sweep
+    of 200 to 300 units in steps of 10 at f = 2 and 3 now has none).  At f = 1 the boxes are the
+    voxels anyway, and a triangle that meets only part of an outline voxel's box still keeps it:
+    the sweep at f = 1 has one hole pixel, at 250 units.
     """
     scene, _ = house_bake
     lo, hi = scene.bounds
@@ -116,15 +115,15 @@ def test_the_outline_stays_within_a_pixel_at_the_silhouette(house_bake, enlargem
         result = evaluate(scene, impostor, cell, random_count=0)
         assert result.totals["geometry_pixels"] > 10_000
         worst.append(max(r["stats"]["hole_pixels"] for r in result.viewpoints))
-    assert max(worst) <= 1, worst
+    assert max(worst) <= (1 if enlargement == 1.0 else 0), worst
 
 
-def test_silhouette_voxels_keep_their_width_across_the_image():
+def test_silhouette_voxels_keep_their_own_boxes():
     field = _steep_field(0)  # a full 8 x 12 block of columns
     rim = (field.x == 0) | (field.x == 7) | (field.y == 0) | (field.y == 11)
     assert np.array_equal(field.silhouette, rim)
     half = box_half_sizes(field.count, 3.0, field.silhouette)
-    assert np.all(half[rim] == [0.5, 1.5]) and np.all(half[~rim] == [1.5, 1.5])
+    assert np.all(half[rim] == [0.5, 0.5]) and np.all(half[~rim] == [1.5, 1.5])
     assert np.all(box_half_sizes(2, 0.5, np.array([True, False])) == 0.25)  # shrunk boxes stay shrunk
 
 
