@@ -14,7 +14,8 @@ parts:
   multiple of 4, never narrower than the widest mask), and end below their lowest texel (rounded
   up to a multiple of 4).  The packing is run for each width of :data:`WIDTH_SCALES` and the
   smallest total page area is kept (on the house benchmark, 512 px, f = 2: 0-3 % less than the
-  single width 1.5 of earlier versions).  They are not powers of two: glTF 2.0 and every current GPU API take any size.
+  single width 1.5 of earlier versions).  They are not powers of two: glTF 2.0 and every current
+  GPU API take any size.
 
 ``padding`` is the gap between the texels of different masks, for mip levels: the bilinear ring
 is already part of a chart's mask (:func:`core.tdm_texture.build_charts`), and the gap texels are

@@ -18,10 +18,10 @@ the two other axes at one texel per voxel unit.  Along the surface a texel then 
 ``1 / |n_axis| <= sqrt(3)`` voxel units (``n`` the unit normal), so the texel density stays
 "approximately" the paper's; a group of one or two triangles between charts facing other ways
 joins a neighbouring chart if its normal follows that chart's axis by at least 0.3
-(:func:`adopt_axes`; its texels then span up to 3.3 voxel units one way).  A chart's tile is its bounding rectangle grown by ``margin`` texels,
-its corner shifted by an integer so that texel centres sit on the voxel centres' coordinates
-(x + 1/2, y + 1/2, whole layers; :data:`VOXEL_SHIFT`).  The
-projection of a connected group can fold over; a texel centre that two triangles of one chart both
+(:func:`adopt_axes`; its texels then span up to 3.3 voxel units one way).  A chart's tile is its
+bounding rectangle grown by ``margin`` texels, its corner shifted by an integer so that texel
+centres sit on the voxel centres' coordinates (x + 1/2, y + 1/2, whole layers;
+:data:`VOXEL_SHIFT`).  The projection of a connected group can fold over; a texel centre that two triangles of one chart both
 contain (a shared edge or vertex is claimed once, by a top-left rule) moves the later triangles into
 a chart of their own until every chart is one-to-one, and charts wider than :data:`MAX_CHART`
 texels are cut into pieces.  Triangles of one chart share their vertices and texture coordinates,
@@ -155,7 +155,8 @@ def adopt_axes(triangles: np.ndarray, corners: np.ndarray, axis: np.ndarray) -> 
     of 156 charts held fewer than 60 texels.  Adopted, it joins its neighbour's chart, its texels
     spanning up to 1 / ADOPT_SCORE voxel units along the surface instead of sqrt(3).
 
-    A sliver at 60 degrees to the layers beside a chart facing the layers joins it:
+    A sliver rising two layers over one texel (its normal 63 degrees off the layer axis) beside a
+    chart facing the layers joins it:
 
     >>> pts = np.array([[0, 0, 0], [4, 0, 0], [4, 4, 0], [0, 4, 0], [2, 2, 0], [5, 0, 2], [5, 4, 2]], float)
     >>> tris = np.array([[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4], [1, 5, 6], [1, 6, 2]])
@@ -171,7 +172,8 @@ def adopt_axes(triangles: np.ndarray, corners: np.ndarray, axis: np.ndarray) -> 
     pairs = np.concatenate([pairs, pairs[:, ::-1]])
     axis = axis.copy()
     for _ in range(3):
-        size = np.bincount(group := _components(t, edge_neighbours(triangles, axis), np.zeros(t, np.int64)))
+        group = _components(t, edge_neighbours(triangles, axis), np.zeros(t, np.int64))
+        size = np.bincount(group)
         i, j = pairs[:, 0], pairs[:, 1]
         small = (size[group[i]] <= ADOPT_TRIANGLES) & (size[group[j]] > size[group[i]]) & (axis[i] != axis[j])
         i, wanted = i[small], axis[j[small]]
