@@ -101,6 +101,13 @@ def pack_masks(masks: Sequence[np.ndarray], padding: int = 2, max_page: int = 81
     >>> lay = pack_masks([ell, ell[::-1, ::-1]], padding=1)
     >>> lay.x.tolist(), lay.y.tolist()
     ([0, 0], [0, 3])
+
+    Of the widths tried, the one with the least page area wins (the narrowest on a tie): rectangles
+    of 3 x 4, 7 x 4 and 4 x 3 texels fill a page 8 wide, where 12 wide (the width 1.5 alone) needs
+    12 x 8:
+
+    >>> pack_masks([np.ones((4, 3), bool), np.ones((4, 7), bool), np.ones((3, 4), bool)], padding=0).page_sizes.tolist()
+    [[8, 8]]
     """
     if isinstance(padding, bool) or not isinstance(padding, (int, np.integer)) or padding < 0:
         raise LayerPlanError(f"atlas padding must be an integer >= 0, got {padding!r}")
