@@ -727,8 +727,9 @@ def box_half_sizes(count: int, enlargement: float, silhouette: np.ndarray | None
     cell's top corners.  Boxes kept at the voxel's own width across the image closed them there,
     but an outline voxel whose box was still enlarged in depth could be kept by a triangle up to
     f / 2 layers in front of or behind it, which other viewpoints see shifted off the outline:
-    a single hole pixel at 250 m and 315 pixels bloated beyond one pixel at 140 m (both f = 2).  Outline voxels at their own size both ways: no hole pixel in 22 bakes from 200 to 300
-    m at f = 2 and 3 (9 views each; at most 3 pixels bloated beyond one at f = 2, 19 at f = 3), none
+    a single hole pixel at 250 m and 315 pixels bloated beyond one pixel at 140 m (both f = 2).
+    Outline voxels at their own size both ways: no hole pixel in 22 bakes from 200 to 300 m at f =
+    2 and 3 (9 views each; at most 3 pixels bloated beyond one at f = 2, 19 at f = 3), none
     at 90-1000 m and no pixel bloated beyond one at 140 m for any f from 1 to 3, for 1.05-1.3 times
     the triangles at 90-250 m, f = 2.  At f = 1 nothing changes (the boxes are the voxels), and a
     triangle that meets only part of an outline voxel's box still keeps it: one hole pixel at 250 m.

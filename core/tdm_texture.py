@@ -21,10 +21,10 @@ joins a neighbouring chart if its normal follows that chart's axis by at least 0
 (:func:`adopt_axes`; its texels then span up to 3.3 voxel units one way).  A chart's tile is its
 bounding rectangle grown by ``margin`` texels, its corner shifted by an integer so that texel
 centres sit on the voxel centres' coordinates (x + 1/2, y + 1/2, whole layers;
-:data:`VOXEL_SHIFT`).  The projection of a connected group can fold over; a texel centre that two triangles of one chart both
-contain (a shared edge or vertex is claimed once, by a top-left rule) moves the later triangles into
-a chart of their own until every chart is one-to-one, and charts wider than :data:`MAX_CHART`
-texels are cut into pieces.  Triangles of one chart share their vertices and texture coordinates,
+:data:`VOXEL_SHIFT`).  The projection of a connected group can fold over; a texel centre that two
+triangles of one chart both contain (a shared edge or vertex is claimed once, by a top-left rule)
+moves the later triangles into a chart of their own until every chart is one-to-one, and charts
+wider than :data:`MAX_CHART` texels are cut into pieces.  Triangles of one chart share their vertices and texture coordinates,
 so the mesh is indexed: geometry is counted per distinct (vertex, chart) pair.
 
 **Which texels get a colour.**  A texel is *needed* when its centre lies within ``margin`` texels
