@@ -102,6 +102,33 @@ def test_a_folded_strip_keeps_its_unfolded_part_together():
     assert charts.chart[4] != charts.chart[0]
 
 
+def test_a_lone_triangle_folded_back_is_unfolded_beside_its_neighbour():
+    # A 4 x 4 square facing the layers, and a triangle on its right edge folded back over it one
+    # layer deeper: it faces another way, so it would be a chart of its own; unfolded, it lies
+    # right of the square in the square's chart, at its true distance from the shared edge.
+    points = np.array([[0, 0, 0], [4, 0, 0], [4, 4, 0], [0, 4, 0], [2, 2, 1]], float)
+    triangles = np.array([[0, 1, 2], [0, 2, 3], [1, 4, 2]])
+    charts = build_charts(points, triangles, 1)
+    assert charts.chart.tolist() == [0, 0, 0]
+    assert_claimed_once(charts, points, triangles)
+    p = charts.position
+    assert np.allclose(p[2, 0], p[0, 1]) and np.allclose(p[2, 2], p[0, 2])  # the shared edge
+    assert p[2, 1, 0] == pytest.approx(p[0, 1, 0] + math.sqrt(5))  # (2, 2, 1) is sqrt(5) off the edge
+    inside = np.bincount(charts.texel_triangle[charts.texel_inside], minlength=3)
+    assert inside[2] > 0 and inside.sum() == 16 + inside[2]
+    assert geometry_bytes(triangles, charts.chart) == 5 * 20 + 3 * 3 * 4  # one position per vertex
+
+
+def test_an_unfolding_that_would_give_a_vertex_two_positions_is_refused():
+    # The lone triangle facing away spans the square's diagonal corners: across either shared edge
+    # its third vertex is already in the square's chart, where it has a position of its own.
+    points = np.array([[0, 0, 0], [4, 0, 0], [4, 4, 0], [0, 4, 0]], float)
+    triangles = np.array([[0, 1, 2], [0, 2, 3], [1, 3, 2]])
+    charts = build_charts(points, triangles, 1)
+    assert charts.chart[0] == charts.chart[1] != charts.chart[2]
+    assert_claimed_once(charts, points, triangles)
+
+
 def test_charts_wider_than_the_cap_are_cut():
     length = 5000
     xs = np.linspace(0, length, 51)
@@ -233,6 +260,25 @@ def test_house_pages_hold_every_chart_texel_once_and_are_opaque(house_tdm):
     assert impostor.stats["texture_bytes"] == 4 * layout.page_area
     assert all(np.all(p[..., 3] == 255) for p in impostor.pages)
     assert_packed_apart(masks, layout, TdmOptions().padding)
+
+
+def test_house_charts_hold_each_vertex_at_one_position_and_few_lone_triangles(house_tdm):
+    """Rebuilt from the bake: a mesh vertex has one tile position in each chart it is in (the
+    indexed GLB shares it), and lone triangles went into their neighbours' charts."""
+    _, _, impostor, field = house_tdm
+    world = impostor.quad_corners[:, :3]
+    unique, triangles = np.unique(world.reshape(-1, 3), axis=0, return_inverse=True)
+    points = np.rint(field.from_world(unique) * 64) / 64
+    triangles = triangles.reshape(-1, 3)
+    charts = build_charts(points, triangles, TdmOptions().texel_margin)
+    rows = np.column_stack([np.repeat(charts.chart, 3), triangles.reshape(-1), charts.position.reshape(-1, 2)])
+    assert len(np.unique(rows, axis=0)) == len(np.unique(rows[:, :2], axis=0))
+    lone = int((np.bincount(charts.chart) == 1).sum())
+    # Measured at 128 px: 45 / 9 charts at 90 / 140 units (78 / 30 before lone triangles were
+    # unfolded into their neighbours' charts).
+    print(f"{charts.count} charts, {lone} of one triangle, for {len(triangles)} triangles")
+    assert lone <= 0.1 * charts.count
+    assert charts.count < 0.3 * len(triangles)
 
 
 def assert_packed_apart(masks, layout, padding: int) -> None:
