@@ -13,10 +13,13 @@ timestamps, PNG pages encoded with fixed settings by :func:`page_png`).  Layout 
   as float64 JSON numbers, and POSITION holds float32 corners *relative to it*: float32 keeps ~7
   significant digits, which at continental coordinates (1e6 m) is ~0.1 m absolute, but relative
   to a viewpoint a few hundred metres away it is well below a millimetre.
-* One primitive per atlas page that has quads: four vertices per quad, two triangles per quad,
-  counter-clockwise as seen from the reference viewpoint (TL, BL, BR and TL, BR, TR); a triangle
-  with two equal corners is left out, so a textured-depth-mesh triangle (a quad whose fourth corner
-  repeats its third) gives its one real triangle.  Indices
+* One primitive per atlas page that has quads: two triangles per quad, counter-clockwise as seen
+  from the reference viewpoint (TL, BL, BR and TL, BR, TR); a triangle with two equal corners is
+  left out, so a textured-depth-mesh triangle (a quad whose fourth corner repeats its third) gives
+  its one real triangle.  Vertices are welded: each distinct float32 (position, UV) pair that a
+  triangle uses is stored once, in order of first use (a textured depth mesh's triangles of one
+  texture chart share their vertices; a layered impostor's quads, each with its own tile, keep
+  four each).  Indices
   are uint16 when the page has fewer than 65,535 vertices (0xFFFF is the primitive-restart value,
   which glTF forbids), else uint32.
 * One material per page, whether or not the page has quads: ``baseColorTexture`` of that page,
@@ -112,6 +115,29 @@ class _Bin:
         return b"".join(self.parts)
 
 
+def _weld(positions: np.ndarray, uv: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The vertices (float32 ``positions`` (n, 3), ``uv`` (n, 2)) that ``indices`` use, each
+    distinct (position, uv) pair once, in the order of its first copy among the given vertices,
+    and the indices remapped to them (vertices all distinct and all used: unchanged).
+
+    >>> p = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 1, 0]], "<f4")
+    >>> t = np.array([[0, 0], [1, 0], [0, 1], [0, 1]], "<f4")
+    >>> q, _, i = _weld(p, t, np.array([0, 3, 1, 0, 2, 1]))
+    >>> len(q), i.tolist()
+    (3, [0, 2, 1, 0, 2, 1])
+    """
+    rows = np.ascontiguousarray(np.concatenate([positions, uv], axis=1), dtype="<f4")
+    keys = rows.view(np.dtype((np.void, rows.dtype.itemsize * rows.shape[1])))[:, 0]
+    _, first, key_of = np.unique(keys, return_index=True, return_inverse=True)
+    key_of = key_of.reshape(-1)
+    used = np.unique(key_of[indices])  # the keys drawn
+    order = used[np.argsort(first[used], kind="stable")]
+    slot = np.empty(first.size, np.int64)
+    slot[order] = np.arange(order.size)
+    kept = first[order]
+    return positions[kept], uv[kept], slot[key_of[indices]]
+
+
 def impostor_glb(impostor: Impostor) -> bytes:
     """GLB bytes of ``impostor``: one node at the reference viewpoint, one primitive per page.
 
@@ -158,10 +184,6 @@ def impostor_glb(impostor: Impostor) -> bytes:
         if quads.size == 0:
             continue  # glTF accessors need count >= 1; the page keeps its material and image
         positions = relative[quads].reshape(-1, 3)
-        vertex_count = positions.shape[0]
-        index_dtype, component = (
-            ("<u2", _UNSIGNED_SHORT) if vertex_count < _MAX_UINT16_VERTICES else ("<u4", _UNSIGNED_INT)
-        )
         indices = (np.arange(quads.size, dtype=np.int64)[:, None] * 4 + _QUAD_TRIANGLES).reshape(-1, 3)
         # A triangle stored as a quad (core.tdm: fourth corner = third) has one degenerate half: drop it.
         corner = positions[indices]
@@ -170,7 +192,11 @@ def impostor_glb(impostor: Impostor) -> bytes:
             | np.all(corner[:, 1] == corner[:, 2], axis=1)
             | np.all(corner[:, 0] == corner[:, 2], axis=1)
         )
-        indices = indices[~degenerate].ravel()
+        positions, texcoords, indices = _weld(positions, uv[quads].reshape(-1, 2), indices[~degenerate].ravel())
+        vertex_count = positions.shape[0]
+        index_dtype, component = (
+            ("<u2", _UNSIGNED_SHORT) if vertex_count < _MAX_UINT16_VERTICES else ("<u4", _UNSIGNED_INT)
+        )
         base = len(accessors)
         accessors.append({
             "bufferView": binary.add(indices.astype(index_dtype).tobytes(), _ELEMENT_ARRAY_BUFFER),
@@ -188,7 +214,7 @@ def impostor_glb(impostor: Impostor) -> bytes:
             "max": [float(x) for x in positions.max(axis=0)],
         })
         accessors.append({
-            "bufferView": binary.add(uv[quads].reshape(-1, 2).tobytes(), _ARRAY_BUFFER),
+            "bufferView": binary.add(texcoords.tobytes(), _ARRAY_BUFFER),
             "componentType": _FLOAT,
             "count": int(vertex_count),
             "type": "VEC2",

@@ -13,6 +13,7 @@ import pytest
 import scenes
 from click.testing import CliRunner
 from test_bake import cell_in_front, city_block, dense, needs_shared
+from test_bundle import accessor_array
 
 from cli.main import _register, cli
 from core.bake import BakeOptions, bake_layered
@@ -427,6 +428,12 @@ def test_disjoint_parts_give_separate_meshes_and_one_part_one_mesh():
     assert single.stats["triangles"] <= 12
 
 
+def corner_set(row: list[float]) -> list[list[float]]:
+    """A triangle's (3 positions, 3 UVs) flattened row as its sorted corners (position + UV): the
+    GLB keeps a triangle's corners, not their order."""
+    return sorted(row[3 * k : 3 * k + 3] + row[9 + 2 * k : 11 + 2 * k] for k in range(3))
+
+
 def test_bundle_glb_and_evaluate_cli_read_a_tdm_unchanged(tmp_path, house_bake):
     scene, cell = house_bake
     impostor = bake_tdm(scene, cell, TdmOptions(resolution=RESOLUTION))
@@ -438,8 +445,24 @@ def test_bundle_glb_and_evaluate_cli_read_a_tdm_unchanged(tmp_path, house_bake):
     data = impostor_glb(impostor)
     length = struct.unpack_from("<I", data, 12)[0]
     gltf = json.loads(data[20 : 20 + length])
-    indices = sum(gltf["accessors"][p["indices"]]["count"] for p in gltf["meshes"][0]["primitives"])
+    primitives = gltf["meshes"][0]["primitives"]
+    indices = sum(gltf["accessors"][p["indices"]]["count"] for p in primitives)
     assert indices == 3 * impostor.stats["triangles"]
+    # Welded: the triangles of one texture chart share their vertices, as the memory figure counts
+    # them (20 bytes per vertex, 12 per triangle).
+    vertices = sum(gltf["accessors"][p["attributes"]["POSITION"]]["count"] for p in primitives)
+    assert vertices * 20 + impostor.stats["triangles"] * 12 == impostor.stats["geometry_bytes"]
+    assert vertices < 2 * impostor.stats["triangles"]
+    # ... and the welded file draws exactly the bundle's triangles with their UVs.
+    binary = data[20 + length + 8 :]
+    drawn = []
+    for p in primitives:
+        positions, uv, index = (accessor_array(gltf, binary, k) for k in (p["attributes"]["POSITION"], p["attributes"]["TEXCOORD_0"], p["indices"]))
+        index = index.reshape(-1, 3).astype(np.int64)
+        drawn += [np.concatenate([positions[t].ravel(), uv[t].ravel()]).tolist() for t in index]
+    relative = (impostor.quad_corners[:, :3] - impostor.reference_viewpoint).astype(np.float32)
+    expected = [np.concatenate([relative[i].ravel(), impostor.quad_uv[i, :3].astype(np.float32).ravel()]).tolist() for i in range(impostor.quad_count)]
+    assert sorted(map(corner_set, drawn)) == sorted(map(corner_set, expected))
     # `farfield evaluate` on the bundle, as for a layered one.
     scene_path = scenes.write_scene(scene, tmp_path, "obj", "house")
     out = subprocess.run(
