@@ -17,9 +17,9 @@ timestamps, PNG pages encoded with fixed settings by :func:`page_png`).  Layout 
   from the reference viewpoint (TL, BL, BR and TL, BR, TR); a triangle with two equal corners is
   left out, so a textured-depth-mesh triangle (a quad whose fourth corner repeats its third) gives
   its one real triangle.  Vertices are welded: each distinct float32 (position, UV) pair that a
-  triangle uses is stored once, in order of first use (a textured depth mesh's triangles of one
-  texture chart share their vertices; a layered impostor's quads, each with its own tile, keep
-  four each).  Indices
+  triangle uses is stored once, in the order of its first copy among the quads' corners (a
+  textured depth mesh's triangles of one texture chart share their vertices; a layered
+  impostor's quads, each with its own tile, keep their four corners in order).  Indices
   are uint16 when the page has fewer than 65,535 vertices (0xFFFF is the primitive-restart value,
   which glTF forbids), else uint32.
 * One material per page, whether or not the page has quads: ``baseColorTexture`` of that page,
