@@ -299,8 +299,6 @@ def build_charts(points: np.ndarray, triangles: np.ndarray, margin: int) -> Char
     base = min(int(u.min(initial=0)), int(v.min(initial=0)))
     span = max(int(u.max(initial=0)), int(v.max(initial=0))) - base + 1
     centroid = plane.mean(axis=1)
-    vertex_tri = np.repeat(np.arange(t), 3)
-    flat_plane = plane.reshape(-1, 2)
 
     label = np.zeros(t, np.int64)
     while True:
@@ -315,10 +313,7 @@ def build_charts(points: np.ndarray, triangles: np.ndarray, margin: int) -> Char
         evicted = np.zeros(t, np.int64)
         evicted[claim_tri[order][dup]] = 1
         # Oversized charts: cut into cells of half the limit by triangle centroid.
-        low = np.full((count, 2), np.inf)
-        high = np.full((count, 2), -np.inf)
-        np.minimum.at(low, chart[vertex_tri], flat_plane)
-        np.maximum.at(high, chart[vertex_tri], flat_plane)
+        low, high = _extents(chart, plane, count)
         too_big = np.any(high - low + 2 * margin + 1 > MAX_CHART, axis=1)
         cell = np.where(too_big[chart][:, None], np.floor((centroid - low[chart]) / (MAX_CHART // 2)), 0).astype(np.int64)
         refined = np.unique(np.stack([chart, evicted, cell[:, 0], cell[:, 1]], axis=1), axis=0, return_inverse=True)[1].reshape(-1)
@@ -328,11 +323,7 @@ def build_charts(points: np.ndarray, triangles: np.ndarray, margin: int) -> Char
 
     chart, plane = unfold_lone_triangles(points, triangles, chart, plane, margin, (tri[inside], u[inside], v[inside]))
     tri, u, v, inside, distance = rasterize(plane, margin)
-    count = int(chart.max(initial=-1)) + 1
-    low = np.full((count, 2), np.inf)
-    high = np.full((count, 2), -np.inf)
-    np.minimum.at(low, chart[vertex_tri], plane.reshape(-1, 2))
-    np.maximum.at(high, chart[vertex_tri], plane.reshape(-1, 2))
+    low, high = _extents(chart, plane, int(chart.max(initial=-1)) + 1)
 
     # Tiles: each chart's rectangle grown by the margin, its corner moved by an integer.
     offset = margin - np.floor(low).astype(np.int64)  # (c, 2)
@@ -360,6 +351,15 @@ def build_charts(points: np.ndarray, triangles: np.ndarray, margin: int) -> Char
         texel_triangle=tri[pick],
         texel_inside=inside[pick],
     )
+
+
+def _extents(chart: np.ndarray, plane: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """(count, 2) lowest and highest texel positions of each chart's vertices (``plane`` (t, 3, 2))."""
+    low = np.full((count, 2), np.inf)
+    high = np.full((count, 2), -np.inf)
+    np.minimum.at(low, np.repeat(chart, 3), plane.reshape(-1, 2))
+    np.maximum.at(high, np.repeat(chart, 3), plane.reshape(-1, 2))
+    return low, high
 
 
 def unfold_lone_triangles(points, triangles, chart, plane, margin, claimed):
@@ -405,10 +405,7 @@ def unfold_lone_triangles(points, triangles, chart, plane, margin, claimed):
             a, b = tri[e], tri[(e + 1) % 3]
             across[(min(a, b), max(a, b))].append(k)
     count = int(chart.max(initial=-1)) + 1
-    low = np.full((count, 2), np.inf)
-    high = np.full((count, 2), -np.inf)
-    np.minimum.at(low, np.repeat(chart, 3), plane.reshape(-1, 2))
-    np.maximum.at(high, np.repeat(chart, 3), plane.reshape(-1, 2))
+    low, high = _extents(chart, plane, count)
     size = np.bincount(chart, minlength=count)
     corners = points[triangles]
     area = np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
