@@ -7,6 +7,7 @@ import math
 import struct
 import subprocess
 import sys
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -46,9 +47,9 @@ from core.tdm_mesh import (
     initial_mesh,
     mesh_labels,
 )
-from core.tdm_texture import rasterize
+from core.tdm_texture import rasterize, sample_field
 from core.viewcells import BoxCell
-from core.voxel_field import record_voxel_field
+from core.voxel_field import VoxelField, record_voxel_field
 
 CASES = {
     # name: (scene factory, cell distance in part diameters, cell size in part diameters, lift)
@@ -189,10 +190,6 @@ def _steep_field(gap: int):
     """A steep surface in voxel space, as a wall seen edge-on from the view cell records: 12 rows,
     8 columns, column x a stack of 5 layers starting at x * (5 + gap), stacks ``gap`` empty layers
     apart (the house's side walls at 90 m are stacks of 5-6 layers, one empty layer apart)."""
-    from types import SimpleNamespace
-
-    from core.voxel_field import VoxelField
-
     cols, rows, depth = 8, 12, 5
     x, y, layer = [], [], []
     for col in range(cols):
@@ -201,10 +198,15 @@ def _steep_field(gap: int):
             y += list(range(rows))
             layer += [l] * rows
     x, y, layer = (np.asarray(a, np.int64) for a in (x, y, layer))
+    return voxel_field(x, y, layer, np.full((x.size, 4), 200, np.uint8), cols, rows)
+
+
+def voxel_field(x, y, layer, rgba, cols: int, rows: int) -> VoxelField:
+    """A voxel field of the given voxels (any order) on a ``cols`` x ``rows`` grid, without a
+    recording: voxels sorted by (layer, row, column) as :func:`record_voxel_field` stores them."""
     plan = SimpleNamespace(count=int(layer.max()) + 1, texture_resolution=(cols, rows))
-    order = np.argsort((layer * rows + y) * cols + x)
-    rgba = np.full((x.size, 4), 200, np.uint8)
-    return VoxelField(plan, x[order], y[order], layer[order], rgba, {})
+    order = np.argsort((layer * rows + y) * cols + x, kind="stable")
+    return VoxelField(plan, x[order], y[order], layer[order], rgba[order], {})
 
 
 @pytest.mark.parametrize("gap", [0, 1])
@@ -530,11 +532,6 @@ def test_oversampling_averages_the_nearest_voxels(house_bake):
     without changing the mesh, and between voxels it averages them.  (An earlier version compared
     the pages' roughness, a measure of 175 neighbour pairs at 128 pixels that the mesh moved either
     way: the texels sit near voxel centres, where the nearest voxel's weight dominates.)"""
-    from types import SimpleNamespace
-
-    from core.tdm_texture import sample_field
-    from core.voxel_field import VoxelField
-
     scene, cell = house_bake
     sharp = bake_tdm(scene, cell, TdmOptions(resolution=RESOLUTION))
     smooth = bake_tdm(scene, cell, TdmOptions(resolution=RESOLUTION, oversampling=4))
@@ -544,7 +541,7 @@ def test_oversampling_averages_the_nearest_voxels(house_bake):
     x, y = (a.ravel() for a in np.meshgrid(np.arange(4), np.arange(4)))
     rgba = np.full((16, 4), 255, np.uint8)
     rgba[(x + y) % 2 == 1, :3] = 0
-    field = VoxelField(SimpleNamespace(count=1, texture_resolution=(4, 4)), x, y, np.zeros(16, np.int64), rgba, {})
+    field = voxel_field(x, y, np.zeros(16, np.int64), rgba, 4, 4)
     corners = np.array([[1.0, 1.0, 0.0], [2.0, 3.0, 0.0]])
     assert set(sample_field(field, corners, 1)[:, 0].tolist()) <= {0, 255}
     assert np.all(np.abs(sample_field(field, corners, 4)[:, :3].astype(int) - 128) <= 1)
