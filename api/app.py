@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import logging
 from contextlib import asynccontextmanager
 
 from celery import Celery
@@ -47,6 +48,8 @@ def create_app(settings: Settings, celery: Celery | None = None, migrate: bool =
 
     @app.exception_handler(FarfieldError)
     async def farfield_error(_request: Request, error: FarfieldError) -> JSONResponse:
+        if error.kind is ErrorKind.INTERNAL:  # a bug (HTTP 500): keep its traceback
+            logging.getLogger("farfield.api").error("internal error: %s", error, exc_info=error)
         headers = {"WWW-Authenticate": "Bearer"} if error.kind is ErrorKind.UNAUTHORIZED else None
         return JSONResponse({"detail": str(error), "error": type(error).__name__}, status_code=error.kind.http_status, headers=headers)
 

@@ -1,17 +1,19 @@
 """Entry point of the ``farfield`` command: a click group whose subcommands live in sibling modules.
 
 Every :class:`core.errors.FarfieldError` (and a few well-known user mistakes) becomes one line on
-stderr and the exit code from :data:`core.errors.ErrorKind`; a traceback means a bug in farfield.
+stderr and the exit code from :data:`core.errors.ErrorKind`; a traceback means a bug in farfield
+(an uncaught exception, or a :class:`core.errors.InternalError`, which exits 1 like one).
 """
 
 from __future__ import annotations
 
 import sys
+import traceback
 
 import click
 
 from core import __version__
-from core.errors import FarfieldError
+from core.errors import ErrorKind, FarfieldError
 
 
 class FarfieldGroup(click.Group):
@@ -21,7 +23,11 @@ class FarfieldGroup(click.Group):
         try:
             return super().invoke(ctx)
         except FarfieldError as error:
-            click.echo(f"farfield: error: {error}", err=True)
+            if error.kind is ErrorKind.INTERNAL:  # a bug: the traceback is for the report
+                traceback.print_exc()
+                click.echo(f"farfield: internal error (a bug in farfield): {error}", err=True)
+            else:
+                click.echo(f"farfield: error: {error}", err=True)
             sys.exit(error.kind.exit_code)
 
 

@@ -2,7 +2,11 @@
 
 Every error raised on purpose by ``core`` derives from :class:`FarfieldError`.  Messages name the
 offending values.  The HTTP API and the CLI map an error to a status or exit code through
-:data:`ERROR_KINDS`, so the mapping lives in exactly one place.
+:class:`ErrorKind`, so the mapping lives in exactly one place.
+
+Most kinds blame the request (4xx, exit codes 2-6).  :class:`InternalError` (``INTERNAL``: HTTP 500,
+exit code 1, what Python gives an uncaught exception) blames farfield itself: an invariant that the
+code should guarantee was found broken, whatever the input.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ class ErrorKind(enum.Enum):
     TOO_LARGE = (413, 2)
     RENDERER_UNAVAILABLE = (503, 5)
     UNAUTHORIZED = (401, 6)
+    INTERNAL = (500, 1)  # a bug in farfield, never the caller's fault
 
     @property
     def http_status(self) -> int:
@@ -97,6 +102,16 @@ class AuthError(FarfieldError):
     """A missing, unknown or revoked API key."""
 
     kind = ErrorKind.UNAUTHORIZED
+
+
+class InternalError(FarfieldError):
+    """An invariant farfield should guarantee was found broken: a bug, not bad input.
+
+    >>> error_kind(InternalError("x")).http_status, error_kind(InternalError("x")).exit_code
+    (500, 1)
+    """
+
+    kind = ErrorKind.INTERNAL
 
 
 class ServiceConfigError(FarfieldError):

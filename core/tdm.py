@@ -39,7 +39,7 @@ import numpy as np
 from core import __version__
 from core.bake import Progress, layer_records
 from core.culling import CULLING_MODES, CullingMode
-from core.errors import LayerPlanError
+from core.errors import InternalError, LayerPlanError
 from core.frustum import PIXEL_MODELS, PixelModel, check_fov, check_resolution
 from core.impostor import Impostor
 from core.layers import plan_layers
@@ -180,7 +180,7 @@ def bake_tdm(
     report("simplify", 1, 1)
     uncovered = uncovered_voxels(mesh.vertices, triangles, offsets, voxels, field, options.enlargement, silhouette)
     if uncovered:
-        raise LayerPlanError(f"internal error: {uncovered} voxels left uncovered by the simplified mesh")
+        raise InternalError(f"{uncovered} voxels left uncovered by the simplified mesh (it must cover every voxel)")
 
     start = time.perf_counter()
     used, compact = np.unique(triangles, return_inverse=True)

@@ -14,9 +14,15 @@ cell finds it and does not bake again, and two workers baking the same key never
 from __future__ import annotations
 
 import json
+import logging
+import sys
 import tempfile
 import time
 from pathlib import Path
+
+import redis.exceptions
+import sqlalchemy.exc
+from kombu.exceptions import OperationalError as BrokerError
 
 from core.bake import bake_layered
 from core.bundle import MANIFEST_NAME, write_bundle
@@ -43,7 +49,8 @@ class CellCancelled(Exception):
 
 
 class RetryCell(Exception):
-    """The attempt failed in a way worth retrying, after ``countdown`` seconds."""
+    """The attempt failed in a way worth retrying (transient or internal, attempts left), after
+    ``countdown`` seconds; the attempt is counted on the cell, which is queued again."""
 
     def __init__(self, message: str, countdown: float) -> None:
         super().__init__(message)
@@ -53,6 +60,44 @@ class RetryCell(Exception):
 def backoff(attempt: int) -> float:
     """Seconds before attempt ``attempt + 1``: 2, 4, 8, ... capped at 60."""
     return float(min(2**attempt, 60))
+
+
+log = logging.getLogger("farfield.cells")
+
+# The three classes of failure (see run_cell).
+TRANSIENT, BAD_INPUT, INTERNAL = "transient", "bad input", "internal"
+# The database, broker or blob store could not be reached or gave up for now.  Not every DBAPI
+# error: ProgrammingError, IntegrityError, DataError and NotSupportedError are a wrong query or a
+# broken assumption (internal), unless the connection was lost under them.
+TRANSIENT_ERRORS: tuple[type[BaseException], ...] = (
+    sqlalchemy.exc.OperationalError, sqlalchemy.exc.InterfaceError, sqlalchemy.exc.InternalError,
+    sqlalchemy.exc.DisconnectionError, sqlalchemy.exc.TimeoutError,
+    redis.exceptions.ConnectionError, redis.exceptions.TimeoutError, BrokerError,
+    OSError,  # the local blob store, scratch files, sockets (ConnectionError, TimeoutError)
+)  # fmt: skip
+
+
+def failure_class(error: BaseException) -> str:
+    """:data:`TRANSIENT`, :data:`BAD_INPUT` or :data:`INTERNAL` (see :func:`run_cell`).
+
+    >>> failure_class(OSError("disk")), failure_class(ValueError("x")), failure_class(FarfieldError("x"))
+    ('transient', 'internal', 'bad input')
+    """
+    if isinstance(error, FarfieldError):
+        if error.kind in (ErrorKind.BAD_INPUT, ErrorKind.MISSING):
+            return BAD_INPUT
+        return TRANSIENT if error.kind is ErrorKind.RENDERER_UNAVAILABLE else INTERNAL  # CONFLICT etc.: not in a cell
+    if isinstance(error, sqlalchemy.exc.DBAPIError) and error.connection_invalidated:
+        return TRANSIENT
+    botocore = sys.modules.get("botocore.exceptions")  # the S3 blob store's errors, when it is in use
+    blob_errors = (botocore.BotoCoreError, botocore.ClientError) if botocore is not None else ()
+    return TRANSIENT if isinstance(error, (*TRANSIENT_ERRORS, *blob_errors)) else INTERNAL
+
+
+def failure_message(error: BaseException, klass: str) -> str:
+    """The error recorded on a cell: ``Type: message``, after ``internal error: `` for a bug."""
+    text = f"{type(error).__name__}: {error}"
+    return f"internal error: {text}" if klass == INTERNAL else text
 
 
 def bake_cell(job: JobRow, scene: Scene, viewcell: dict, progress) -> Impostor:
@@ -70,9 +115,24 @@ def bake_cell(job: JobRow, scene: Scene, viewcell: dict, progress) -> Impostor:
 def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, worker: str | None = None) -> str:
     """Run one cell; returns its new state ("done", "failed", "cancelled") or "skipped".
 
-    Raises :class:`RetryCell` when the attempt failed for a reason other than bad input and
-    attempts are left; the cell is queued again and the caller schedules the retry.  Every state
-    change names the attempt it ends, so a stale duplicate delivery changes nothing.
+    A failed attempt is counted on the cell and falls in one of three classes
+    (:func:`failure_class`):
+
+    - **transient**: the infrastructure failed (database: SQLAlchemy OperationalError and the like;
+      broker/Redis connection errors; blob store errors; any OSError; no renderer).  The cell is
+      queued again and :class:`RetryCell` raised with :func:`backoff`, until ``max_attempts``
+      attempts, then it is failed with the error.
+    - **bad input**: a :class:`~core.errors.FarfieldError` of kind BAD_INPUT or MISSING.  The
+      cell is failed at once with its message; no retry can help.
+    - **internal**: a bug (any other exception) or a broken invariant
+      (:class:`~core.errors.InternalError`).  Retried like a transient failure (it may depend on
+      the worker), its traceback logged at each attempt; after ``max_attempts`` the cell is failed
+      with ``internal error: Type: message``.
+
+    Every state change names the attempt it ends, so a stale duplicate delivery changes nothing.
+    An exception that escapes (claiming the cell or recording its outcome failed, so no attempt or
+    not its end was recorded) is the caller's to retry and count: the worker task
+    (:mod:`workers.tasks`) counts it in the Celery message's retries, within a bounded limit.
     """
     claim = claim_cell(db, cell_id, max_attempts, worker)
     if claim.ended:
@@ -116,10 +176,16 @@ def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, wo
     except CellCancelled:
         end("cancelled")
         return "cancelled"
-    except Exception as error:  # noqa: BLE001 - every failure is recorded on the cell
-        message = f"{type(error).__name__}: {error}"
-        permanent = isinstance(error, FarfieldError) and error.kind in (ErrorKind.BAD_INPUT, ErrorKind.MISSING)
-        if permanent or attempt >= max_attempts:
+    except Exception as error:  # noqa: BLE001 - every failure is classified and recorded on the cell
+        klass = failure_class(error)
+        message = failure_message(error, klass)
+        final = klass == BAD_INPUT or attempt >= max_attempts
+        outcome = "failed" if final else f"retried in {backoff(attempt):g} s"
+        if klass == INTERNAL:  # a bug: the traceback is what fixes it
+            log.error("cell %s attempt %d of %d: %s (%s)", cell_id, attempt, max_attempts, message, outcome, exc_info=error)
+        else:
+            log.warning("cell %s attempt %d of %d: %s failure: %s (%s)", cell_id, attempt, max_attempts, klass, message, outcome)
+        if final:
             end("failed", error=message)
             return "failed"
         end("queued", error=message)

@@ -1,18 +1,53 @@
-"""Celery tasks: each is a few lines around a function of ``service``."""
+"""Celery tasks: each is a few lines around a function of ``service``.
+
+:func:`bake_cell` runs :func:`service.cell_runner.run_cell`, which sorts a failed attempt into one of
+three classes and counts it on the cell:
+
+- **transient** (the database, broker, blob store or renderer failed; any OSError): retried with
+  backoff (2, 4, 8, ... s, capped at 60) until ``FARFIELD_MAX_ATTEMPTS`` attempts, then failed;
+- **bad input** (a :class:`~core.errors.FarfieldError` of kind BAD_INPUT or MISSING): failed at
+  once with its message;
+- **internal** (a bug: any other exception; or an :class:`~core.errors.InternalError`): retried
+  like a transient failure with its traceback logged, then failed as ``internal error: ...``.
+
+A failure outside the attempt (``claim_cell`` could not reach the database, or a bug there; the
+outcome could not be recorded) leaves nothing on the cell, so this task counts it in the message's
+Celery retries (``self.request.retries``) and retries it with the same backoff: a transient one while
+retries stay under :func:`max_retries` (10 per attempt: with the 60 s cap, a database or broker
+outage of some 25 minutes at the default 3 attempts), an internal one for ``FARFIELD_MAX_ATTEMPTS``
+deliveries, a bad-input one never.  Then the task gives up and fails the cell with the error if the
+database takes the write (else it logs that it could not).  No message is retried forever: the task's
+``max_retries`` is :func:`max_retries` of the attempt limit.
+"""
 
 from __future__ import annotations
 
+import logging
 import os
+
+from sqlalchemy import select, update
 
 from core.render.context import gl_context
 from service.blobs import BlobStore, blob_store
-from service.cell_runner import RetryCell, run_cell
-from service.db import Database
+from service.cell_runner import BAD_INPUT, TRANSIENT, RetryCell, backoff, failure_class, failure_message, run_cell
+from service.db import CellRow, Database, now
+from service.jobs import finish_job_if_complete
 from service.settings import Settings
 from workers.app import BAKE_CELL, celery_app
 
 _STATE: dict = {}
-INFRASTRUCTURE_RETRY_S = 10  # the cell itself counts attempts; claim_cell fails it past the limit
+TRANSIENT_RETRIES_PER_ATTEMPT = 10
+
+log = logging.getLogger("farfield.worker")
+
+
+def max_retries(max_attempts: int) -> int:
+    """The most Celery retries of one cell's message: ``TRANSIENT_RETRIES_PER_ATTEMPT`` per attempt.
+
+    >>> max_retries(3)
+    30
+    """
+    return TRANSIENT_RETRIES_PER_ATTEMPT * max(max_attempts, 1)
 
 
 def _services() -> tuple[Settings, Database, BlobStore]:
@@ -25,13 +60,46 @@ def _services() -> tuple[Settings, Database, BlobStore]:
     return _STATE["settings"], _STATE["db"], _STATE["blobs"]
 
 
-@celery_app.task(bind=True, name=BAKE_CELL, max_retries=None)
+def _give_up(db: Database, blobs: BlobStore, cell_id: str, message: str) -> str:
+    """Fail the cell (if still queued or running) with ``message`` and end its job if that was its
+    last open cell.  Returns "failed", "skipped" (the cell had ended), or "unrecorded" when the
+    database does not take the write either: the cell then stays as it is (a queued one is sent again
+    by the API's sweeper after FARFIELD_REQUEUE_AFTER)."""
+    try:
+        with db.session() as s:
+            job_id = s.scalar(select(CellRow.job_id).where(CellRow.id == cell_id))
+            changed = s.execute(update(CellRow).where(CellRow.id == cell_id, CellRow.state.in_(("queued", "running"))).values(state="failed", error=message, finished_at=now())).rowcount
+    except Exception:  # noqa: BLE001 - nothing more this message can do
+        log.exception("cell %s: could not record its failure either: %s", cell_id, message)
+        return "unrecorded"
+    if not changed:
+        return "skipped"
+    try:
+        finish_job_if_complete(db, blobs, job_id)
+    except Exception:  # noqa: BLE001 - the cell's failure is recorded; its job is what is broken
+        log.exception("cell %s failed, but its job %s could not be ended", cell_id, job_id)
+    return "failed"
+
+
+@celery_app.task(bind=True, name=BAKE_CELL, max_retries=max_retries(Settings.from_env().max_attempts))
 def bake_cell(self, cell_id: str) -> str:
-    """Bake one cell of a job (service.cell_runner.run_cell), retrying with backoff."""
+    """Bake one cell of a job (service.cell_runner.run_cell), retrying with backoff (see the module docstring)."""
     settings, db, blobs = _services()
+    limit, retries = max_retries(settings.max_attempts), self.request.retries
     try:
         return run_cell(db, blobs, cell_id, settings.max_attempts, worker=self.request.hostname)
-    except RetryCell as retry:
-        raise self.retry(countdown=retry.countdown, exc=None) from None
-    except Exception as error:  # the database or blob store failed around the cell: try again later
-        raise self.retry(countdown=INFRASTRUCTURE_RETRY_S, exc=error) from error
+    except RetryCell as retry:  # the attempt is counted on the cell, which is queued again
+        if retries < limit:
+            raise self.retry(countdown=retry.countdown, exc=None, max_retries=limit) from None
+        return _give_up(db, blobs, cell_id, f"{retry} (gave up: {retries + 1} deliveries, the limit)")
+    except Exception as error:  # noqa: BLE001 - outside the attempt: nothing on the cell counts it
+        klass = failure_class(error)
+        message = failure_message(error, klass)
+        allowed = limit if klass == TRANSIENT else 0 if klass == BAD_INPUT else max(settings.max_attempts - 1, 0)
+        delivery = retries + 1
+        if retries < allowed:
+            countdown = backoff(delivery)
+            log.warning("cell %s delivery %d: %s failure outside the attempt: %s (retried in %g s)", cell_id, delivery, klass, message, countdown, exc_info=klass != TRANSIENT)
+            raise self.retry(countdown=countdown, exc=error, max_retries=limit) from error
+        log.error("cell %s delivery %d: %s failure outside the attempt: %s (giving up)", cell_id, delivery, klass, message, exc_info=error)
+        return _give_up(db, blobs, cell_id, f"{message} (gave up after {delivery} deliveries that failed outside the attempt)")
