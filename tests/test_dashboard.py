@@ -1,6 +1,7 @@
 """The dashboard in a real headless browser (Debian's chromium driven by Playwright) against a real
 service (``farfield up``): key, upload, job form errors, submit, live progress, done, the map of the
-view-space grid and a cell's atlas thumbnail.
+view-space grid and a cell's atlas thumbnail; the job form's technique select and option fields,
+built from ``GET /v1/techniques``.
 
 Needs /usr/bin/chromium (``scripts/install-browser`` installs it where it can); skipped without it.
 Set FARFIELD_DASHBOARD_SCREENSHOT=/path.png to keep a screenshot of the job page.
@@ -14,7 +15,8 @@ from pathlib import Path
 
 import pytest
 
-from service_harness import ADMIN_KEY, BUNNY, BUNNY_GRID, start_service, upload
+from core.techniques import TECHNIQUES
+from service_harness import ADMIN_KEY, BUNNY, BUNNY_GRID, start_service, upload, wait_for_job
 
 CHROMIUM = Path(os.environ.get("FARFIELD_CHROMIUM", "/usr/bin/chromium"))
 CHROMIUM_ARGS = [
@@ -105,7 +107,7 @@ def test_upload_submit_progress_done_atlas(page, service):
     page.click(tid("job-submit"))
     error = page.locator(tid("job-form-error"))
     error.wait_for()
-    assert "resolution must be an integer >= 1, got 0" in error.inner_text()
+    assert "resolution must be an integer in [1, 16384], got 0" in error.inner_text()
     assert error.get_attribute("data-source") == "server"
     # One the form itself refuses (not three numbers).
     page.fill(tid("job-resolution"), "256")
@@ -185,6 +187,127 @@ def test_upload_submit_progress_done_atlas(page, service):
     assert row.locator(tid("job-row-progress")).evaluate("e => e.style.width") == "100%"
     assert page.js_errors == []
     assert time.monotonic() - started < 60
+
+
+def _changed(option: dict):
+    """A value other than ``option``'s default (within its bounds) and how to enter it: (value, action)."""
+    name, kind, default = option["name"], option["type"], option["default"]
+    control = tid(f"option-{name}")
+    if kind == "boolean":
+        return (not default), lambda page: page.locator(control).click()
+    if kind == "array":
+        first = default[0]
+        return [c for c in default if c != first], lambda page: page.locator(f'{control} input[value="{first}"]').uncheck()
+    if option["choices"]:
+        other = next(c for c in option["choices"] if c != default)
+        return other, lambda page: page.select_option(control, other)
+    if kind == "integer":
+        low = option["minimum"] if option["minimum"] is not None else 1
+        value = low + 1 if default is None else (default + 1 if option["maximum"] is None or default + 1 <= option["maximum"] else default - 1)
+    else:
+        low = option["minimum"] if option["minimum"] is not None else (option["exclusive_minimum"] or 0.0)
+        value = low + 2.5 if default is None else ((default + option["maximum"]) / 2 if option["maximum"] is not None else default + 2.5)
+    return value, lambda page: page.fill(control, str(value))
+
+
+def test_job_form_is_built_from_the_technique_registry(page, service):
+    """The technique select lists exactly the registry's techniques; each one's option fields are named as
+    its options, with defaults, bounds and help; a form left alone sends no options, a changed field
+    exactly that option; a job submitted with one changed option is stored with it."""
+    with service.client() as client:
+        described = client.get("/v1/techniques").json()["techniques"]
+        if not client.get("/v1/scenes").json():
+            upload(client, BUNNY)
+    assert described == [t.describe() for t in TECHNIQUES.values()]
+    page.goto(service.url + "/#/")
+    page.reload()
+    select = page.locator(tid("technique"))
+    select.locator(f'option[value="{described[-1]["name"]}"]').wait_for(state="attached")
+    assert select.locator("option").evaluate_all("os => os.map(o => o.value)") == list(TECHNIQUES)
+    assert select.input_value() == described[0]["name"]
+
+    posted = []
+
+    def capture(route):
+        if route.request.method == "POST":
+            posted.append(route.request.post_data_json)
+            route.abort()
+        else:
+            route.continue_()
+
+    def submit() -> dict:
+        count = len(posted)
+        page.click(tid("job-submit"))
+        page.locator(tid("job-form-error")).filter(has_text="cannot reach the service").wait_for()
+        assert len(posted) == count + 1
+        return posted[-1]
+
+    page.route("**/v1/jobs", capture)
+    try:
+        page.fill(tid("job-lo"), ", ".join(map(str, BUNNY_GRID["lo"])))
+        page.fill(tid("job-hi"), ", ".join(map(str, BUNNY_GRID["hi"])))
+        page.fill(tid("job-counts"), ", ".join(map(str, BUNNY_GRID["counts"])))
+        for technique in described:
+            name = technique["name"]
+            page.select_option(tid("technique"), name)
+            assert page.locator(tid("technique-help")).inner_text() == technique["help"]
+            fields = page.locator(f'{tid("option-fields")}[data-technique="{name}"] {tid("option-field")}')
+            assert fields.evaluate_all("fs => fs.map(f => f.dataset.option)") == [o["name"] for o in technique["options"]]
+            assert [o["name"] for o in technique["options"]] == [o["name"] for o in TECHNIQUES[name].describe()["options"]]
+            for option in technique["options"]:
+                field = page.locator(f'{tid("option-field")}[data-option="{option["name"]}"]')
+                assert field.get_attribute("title") == option["help"] and option["help"] in field.inner_text()
+                control = page.locator(tid(f"option-{option['name']}"))
+                if option["type"] in ("integer", "number"):
+                    assert control.input_value() == ("" if option["default"] is None else f"{option['default']:g}")
+                    for bound in ("minimum", "maximum"):
+                        if option[bound] is not None:
+                            assert float(control.get_attribute(bound[:3])) == option[bound]
+                elif option["type"] == "string" and option["choices"]:
+                    assert control.locator("option").evaluate_all("os => os.map(o => o.value)") == option["choices"]
+                    assert control.input_value() == option["default"]
+            image = {d["name"]: d for d in technique["image"]}
+            assert float(page.locator(tid("job-resolution")).input_value()) == image["resolution"]["default"]
+            assert float(page.locator(tid("job-fov")).input_value()) == image["fov_deg"]["default"]
+            assert page.locator(tid("job-objects")).is_visible() == (technique["scope"] == "part")
+
+            request = submit()  # nothing changed: no options
+            assert request["technique"] == name and "options" not in request and "job_type" not in request
+            assert request["resolution"] == image["resolution"]["default"] and request["fov_deg"] == image["fov_deg"]["default"]
+            expected = {}
+            for option in technique["options"]:
+                value, enter = _changed(option)
+                enter(page)
+                expected[option["name"]] = value
+            assert submit()["options"] == expected
+        # Switching back keeps the edits of each technique's fields and the technique's image defaults.
+        first = described[0]
+        page.select_option(tid("technique"), first["name"])
+        assert set(submit()["options"]) == {o["name"] for o in first["options"]}
+    finally:
+        page.unroute("**/v1/jobs", capture)
+
+    # A real job with one changed option: the service stores exactly that option.
+    page.reload()
+    page.locator(f'{tid("technique")} option[value="layered"]').wait_for(state="attached")
+    page.fill(tid("job-lo"), ", ".join(map(str, BUNNY_GRID["lo"])))
+    page.fill(tid("job-hi"), ", ".join(map(str, BUNNY_GRID["hi"])))
+    page.fill(tid("job-counts"), "1, 1, 1")
+    page.fill(tid("job-resolution"), "64")
+    page.fill(tid("option-grid_cell"), "16")
+    page.click(tid("job-submit"))
+    page.wait_for_url("**/#/jobs/*")
+    job_id = page.url.rsplit("/", 1)[1]
+    page.locator(f'{tid("job-technique-text")}[data-technique="layered"]').filter(has_text=TECHNIQUES["layered"].help).wait_for()
+    with service.client() as client:
+        job = client.get(f"/v1/jobs/{job_id}").json()
+        assert job["technique"] == "layered" and job["params"]["options"] == {"grid_cell": 16}, job["params"]
+        assert job["params"]["resolution"] == 64 and job["params"]["fov_deg"] == 45.0
+        wait = wait_for_job(client, job_id, timeout=60)
+        assert wait["state"] == "done", wait
+    page.click(tid("back-link"))
+    page.locator(f'{tid("job-row")}[data-job-id="{job_id}"] {tid("job-row-technique")}[data-technique="layered"]').wait_for()
+    assert page.js_errors == []
 
 
 def test_retry_is_refused_with_the_message_and_cancel_ends_a_job(page, service):

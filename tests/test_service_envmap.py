@@ -175,7 +175,7 @@ def tid(name: str) -> str:
 
 
 def test_dashboard_submits_an_envmap_job(service, city_id):
-    """The job form's type select and envmap fields, the job page's type and map, the list's type column."""
+    """The job form's technique select and envmap option fields, the job page's technique and map, the list's technique column."""
     if not CHROMIUM.exists():
         pytest.skip(f"needs Debian's chromium at {CHROMIUM} (scripts/install-browser installs it)")
     sync_api = pytest.importorskip("playwright.sync_api", reason="needs the playwright package (the test extra)")
@@ -192,16 +192,18 @@ def test_dashboard_submits_an_envmap_job(service, city_id):
             page.reload()
             page.locator(f'{tid("job-scene")} option[value="{city_id}"]').wait_for(state="attached")
             page.select_option(tid("job-scene"), city_id)
-            assert page.locator(tid("envmap-fields")).is_hidden()
-            page.select_option(tid("job-type"), "envmap")
-            assert page.locator(tid("envmap-fields")).is_visible() and page.locator(tid("job-objects")).is_hidden()
+            assert page.locator(tid("option-layers")).is_hidden() and page.locator(tid("job-fov")).input_value() == "45"
+            page.select_option(tid("technique"), "envmap")
+            assert page.locator(tid("option-layers")).is_visible() and page.locator(tid("job-objects")).is_hidden()
             assert page.locator(tid("job-fov")).input_value() == "90"
+            assert page.locator(tid("option-gap_fill")).is_visible() and not page.locator(tid("option-gap_fill")).is_checked()
             page.fill(tid("job-lo"), ", ".join(map(str, GRID["lo"])))
             page.fill(tid("job-hi"), ", ".join(map(str, [45.0, 35.0, -25.0])))  # not cubic: refused by the server
             page.fill(tid("job-counts"), "3, 3, 1")
             page.fill(tid("job-resolution"), "64")
-            page.fill(tid("job-layers"), "4")
-            page.fill(tid("job-directions"), "+z, -z")
+            page.fill(tid("option-layers"), "4")
+            for face in ("+x", "-x", "+y", "-y"):  # all six are checked: keep +z, -z
+                page.locator(f'{tid("option-directions")} input[value="{face}"]').uncheck()
             page.click(tid("job-submit"))
             error = page.locator(tid("job-form-error"))
             error.filter(has_text="cubic").wait_for()
@@ -210,7 +212,7 @@ def test_dashboard_submits_an_envmap_job(service, city_id):
             page.click(tid("job-submit"))
             page.wait_for_url("**/#/jobs/*")
             job_id = page.url.rsplit("/", 1)[1]
-            page.locator(f'{tid("job-type-text")}[data-job-type="envmap"]').wait_for()
+            page.locator(f'{tid("job-technique-text")}[data-technique="envmap"]').wait_for()
             page.locator(f'{tid("job-state")}[data-state="done"]').wait_for(timeout=60_000)
             assert page.locator(tid("job-counts-text")).inner_text().startswith("9/9 done")
             # The map: 3 y levels of 3 (x) by 1 (z) cells, all done; level 1 holds cells 3..5.
@@ -222,10 +224,10 @@ def test_dashboard_submits_an_envmap_job(service, city_id):
             assert page.locator(tid("cell-stats")).locator('[data-stat="near_field"]').count() == 1
             with service.client() as client:
                 job = client.get(f"/v1/jobs/{job_id}").json()
-            assert job["job_type"] == "envmap" and job["params"]["options"] == {"layers": 4, "directions": ["+z", "-z"]}
+            assert job["technique"] == "envmap" and job["params"]["options"] == {"layers": 4, "directions": ["+z", "-z"]}
             page.click(tid("back-link"))
             row = page.locator(f'{tid("job-row")}[data-job-id="{job_id}"]')
-            row.locator(f'{tid("job-row-type")}[data-job-type="envmap"]').wait_for()
+            row.locator(f'{tid("job-row-technique")}[data-technique="envmap"]').wait_for()
 
             # With 2 layers everything the cell sees lies in its near field: no atlas page, and the panel says so.
             with service.client() as client:

@@ -251,7 +251,7 @@ def tid(name: str) -> str:
 
 
 def test_dashboard_submits_a_tdm_job(service, block_id):
-    """The job form's type select and tdm fields, a refusal from the server, the job page and its statistics."""
+    """The job form's technique select and tdm option fields, a refusal from the server, the job page and its statistics."""
     if not CHROMIUM.exists():
         pytest.skip(f"needs Debian's chromium at {CHROMIUM} (scripts/install-browser installs it)")
     sync_api = pytest.importorskip("playwright.sync_api", reason="needs the playwright package (the test extra)")
@@ -268,29 +268,31 @@ def test_dashboard_submits_a_tdm_job(service, block_id):
             page.reload()
             page.locator(f'{tid("job-scene")} option[value="{block_id}"]').wait_for(state="attached")
             page.select_option(tid("job-scene"), block_id)
-            assert page.locator(tid("tdm-fields")).is_hidden()
-            page.select_option(tid("job-type"), "envmap")
-            page.select_option(tid("job-type"), "tdm")
-            assert page.locator(tid("tdm-fields")).is_visible() and page.locator(tid("envmap-fields")).is_hidden()
+            assert page.locator(tid("option-enlargement")).is_hidden()
+            page.select_option(tid("technique"), "envmap")
+            assert page.locator(tid("job-fov")).input_value() == "90"
+            page.select_option(tid("technique"), "tdm")
+            assert page.locator(tid("option-enlargement")).is_visible() and page.locator(tid("option-layers")).is_hidden()
             assert page.locator(tid("job-objects")).is_visible()
             assert page.locator(tid("job-fov")).input_value() == "45"  # back from envmap's 90
-            assert page.locator(tid("job-enlargement")).input_value() == "2" and page.locator(tid("job-oversampling")).input_value() == "1"
+            assert page.locator(tid("option-enlargement")).input_value() == "2" and page.locator(tid("option-oversampling")).input_value() == "1"
+            assert page.locator(tid("option-enlargement")).get_attribute("min") == "1" and page.locator(tid("option-enlargement")).get_attribute("max") == "8"
             page.fill(tid("job-lo"), ", ".join(map(str, GRID["lo"])))
             page.fill(tid("job-hi"), ", ".join(map(str, GRID["hi"])))
             page.fill(tid("job-counts"), "2, 1, 1")
             page.fill(tid("job-resolution"), "96")
             page.fill(tid("job-objects"), "block, tower")
-            page.fill(tid("job-enlargement"), "0.5")  # refused by the server
+            page.fill(tid("option-enlargement"), "0.5")  # refused by the server
             page.click(tid("job-submit"))
             error = page.locator(tid("job-form-error"))
             error.filter(has_text="enlargement").wait_for()
             assert error.get_attribute("data-source") == "server"
-            page.fill(tid("job-enlargement"), "3")
-            page.fill(tid("job-oversampling"), "2")
+            page.fill(tid("option-enlargement"), "3")
+            page.fill(tid("option-oversampling"), "2")
             page.click(tid("job-submit"))
             page.wait_for_url("**/#/jobs/*")
             job_id = page.url.rsplit("/", 1)[1]
-            page.locator(f'{tid("job-type-text")}[data-job-type="tdm"]').wait_for()
+            page.locator(f'{tid("job-technique-text")}[data-technique="tdm"]').wait_for()
             page.locator(f'{tid("job-state")}[data-state="done"]').wait_for(timeout=120_000)
             assert page.locator(tid("job-counts-text")).inner_text().startswith("2/2 done")
             page.locator(f'{tid("map-cell")}[data-index="1"]').click()
@@ -299,10 +301,10 @@ def test_dashboard_submits_a_tdm_job(service, block_id):
             assert stats.locator('[data-stat="triangles"]').count() == 1
             with service.client() as client:
                 job = client.get(f"/v1/jobs/{job_id}").json()
-            assert job["job_type"] == "tdm" and job["params"]["options"] == {"enlargement": 3, "oversampling": 2}
+            assert job["technique"] == "tdm" and job["params"]["options"] == {"enlargement": 3, "oversampling": 2}
             assert job["params"]["objects"] == PART
             page.click(tid("back-link"))
-            page.locator(f'{tid("job-row")}[data-job-id="{job_id}"] {tid("job-row-type")}[data-job-type="tdm"]').wait_for()
+            page.locator(f'{tid("job-row")}[data-job-id="{job_id}"] {tid("job-row-technique")}[data-technique="tdm"]').wait_for()
             assert errors == []
         finally:
             browser.close()

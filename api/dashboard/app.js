@@ -21,6 +21,8 @@ const state = {
   selected: null, // selected cell index
   atlas: {key: null, url: null}, // what the thumbnail shows
   polling: false,
+  techniques: new Map(), // name -> GET /v1/techniques entry
+  optionFields: new Map(), // technique name -> its option fields (kept across switches)
 };
 
 // ---------------------------------------------------------------- API
@@ -47,7 +49,8 @@ function errorMessage(status, body) {
 
 async function api(path, {method = "GET", json, form, raw = false} = {}) {
   const headers = {};
-  if (state.key) headers["Authorization"] = "Bearer " + state.key;
+  const key = state.key;
+  if (key) headers["Authorization"] = "Bearer " + key;
   let body;
   if (json !== undefined) {
     headers["Content-Type"] = "application/json";
@@ -65,7 +68,8 @@ async function api(path, {method = "GET", json, form, raw = false} = {}) {
     let parsed = null;
     try { parsed = await response.json(); } catch (_) { /* not JSON */ }
     const error = new ApiError(response.status, errorMessage(response.status, parsed), parsed && parsed.error);
-    if (response.status === 401) showGlobalError(`API key rejected: ${error.message}`);
+    // (An answer to a key changed meanwhile says nothing about the key in use now.)
+    if (response.status === 401 && key === state.key) showGlobalError(`API key rejected: ${error.message}`);
     throw error;
   }
   if (raw) return response;
@@ -277,21 +281,139 @@ function onModeChange() {
   $("viewcell-fields").hidden = grid;
 }
 
-// Field of view the form proposes per job type (seed 002 records 90-degree cube faces).
-const DEFAULT_FOV = {layered: "45", envmap: "90", tdm: "45"};
+// The techniques, their image defaults and options come from GET /v1/techniques: the form has no
+// per-technique code.  Each option becomes one field (integer/number: a number input with the
+// bounds; boolean: a checkbox; string with choices: a select; array with choices: checkboxes).
 
-function jobType() { return $("job-type").value; }
+async function refreshTechniques() {
+  if (!state.key) return;
+  const key = state.key;
+  const body = await api("/v1/techniques");
+  if (key !== state.key) return; // the key changed meanwhile: its own call fills the form
+  state.techniques = new Map(body.techniques.map((t) => [t.name, t]));
+  state.optionFields = new Map(); // built again for the new descriptions
+  const select = $("job-technique");
+  const previous = select.value;
+  select.replaceChildren(...body.techniques.map((t) => el("option", {value: t.name, title: t.help, text: `${t.name} (${t.scope === "scene" ? "whole scene" : "scene's objects"})`})));
+  select.disabled = body.techniques.length === 0;
+  if (previous && state.techniques.has(previous)) select.value = previous;
+  onTechniqueChange();
+  if (state.job) renderJob(state.job); // the job page names the technique with its help
+}
 
-function onJobTypeChange() {
-  const type = jobType();
-  const envmap = type === "envmap";
-  $("envmap-fields").hidden = !envmap;
-  $("tdm-fields").hidden = type !== "tdm";
-  $("objects-field").hidden = envmap; // an envmap represents the whole scene
-  const fov = $("job-fov");
-  if (Object.values(DEFAULT_FOV).includes(fov.value.trim())) fov.value = DEFAULT_FOV[type];
-  $("job-options").placeholder = envmap ? '{} or e.g. {"culling": "umbra", "gap_fill": true}'
-    : type === "tdm" ? '{} or e.g. {"culling": "umbra", "padding": 4}' : "{}";
+function technique() { return state.techniques.get($("job-technique").value) || null; }
+
+function techniqueHelp(name) {
+  const t = state.techniques.get(name);
+  return t ? t.help : "";
+}
+
+function fmtDefault(value) {
+  if (value === null || value === undefined) return "";
+  return Array.isArray(value) ? value.join(",") : String(value);
+}
+
+function rangeText(o) {
+  // "integer in [1, 1024]", "number in (0, 1]", "number > 0", ...
+  const lo = o.minimum !== null ? ["[", o.minimum] : o.exclusive_minimum !== null ? ["(", o.exclusive_minimum] : null;
+  const hi = o.maximum !== null ? [o.maximum, "]"] : o.exclusive_maximum !== null ? [o.exclusive_maximum, ")"] : null;
+  if (lo && hi) return `${o.type} in ${lo[0]}${lo[1]}, ${hi[0]}${hi[1]}`;
+  if (lo) return `${o.type} ${lo[0] === "[" ? "≥" : ">"} ${lo[1]}`;
+  if (hi) return `${o.type} ${hi[1] === "]" ? "≤" : "<"} ${hi[0]}`;
+  return o.type;
+}
+
+function applyBounds(input, o) {
+  // Bounds as attributes where the browser can show them; the service checks them all (novalidate form).
+  for (const name of ["min", "max"]) input.removeAttribute(name);
+  if (o.minimum !== null && o.minimum !== undefined) input.min = String(o.minimum);
+  if (o.maximum !== null && o.maximum !== undefined) input.max = String(o.maximum);
+  input.step = o.type === "integer" ? "1" : "any";
+}
+
+function optionHint(o) {
+  const parts = [rangeText(o)];
+  if (o.choices && o.type !== "array") parts[0] = `one of ${o.choices.join(", ")}`;
+  if (o.type === "array") parts[0] = o.choices ? `some of ${o.choices.join(", ")}` : "comma-separated list";
+  parts.push(o.default === null ? "empty: the service decides" : `default ${fmtDefault(o.default)}`);
+  return parts.join("; ");
+}
+
+function optionControl(o) {
+  const attrs = {"data-testid": `option-${o.name}`, name: o.name, "data-option-type": o.type, title: o.help};
+  if (o.type === "boolean") {
+    const box = el("input", {...attrs, type: "checkbox"});
+    box.checked = !!o.default;
+    return box;
+  }
+  if (o.type === "array" && o.choices) {
+    const group = el("span", {...attrs, class: "choices", role: "group"});
+    for (const choice of o.choices) {
+      const box = el("input", {type: "checkbox", value: choice});
+      box.checked = Array.isArray(o.default) && o.default.includes(choice);
+      group.append(el("label", {class: "inline"}, box, " " + choice));
+    }
+    return group;
+  }
+  if (o.choices) {
+    const select = el("select", attrs);
+    if (o.nullable) select.append(el("option", {value: "", text: "(service default)"}));
+    for (const choice of o.choices) select.append(el("option", {value: choice, text: choice}));
+    select.value = o.default === null ? "" : String(o.default);
+    return select;
+  }
+  const numeric = o.type === "integer" || o.type === "number";
+  const input = el("input", {...attrs, type: numeric ? "number" : "text", spellcheck: "false", placeholder: o.default === null ? "empty: the service decides" : fmtDefault(o.default)});
+  if (numeric) applyBounds(input, o);
+  input.value = fmtDefault(o.default);
+  return input;
+}
+
+function optionFields(t) {
+  // One container per technique, kept while the page lives: switching back finds the edits again.
+  let box = state.optionFields.get(t.name);
+  if (box) return box;
+  box = el("div", {"data-testid": "option-fields", "data-technique": t.name});
+  for (const o of t.options) {
+    const control = optionControl(o);
+    const hint = el("span", {class: "hint muted small", "data-testid": "option-help", text: `${o.help} (${optionHint(o)})`});
+    const field = o.type === "boolean"
+      ? el("label", {class: "option", title: o.help, "data-testid": "option-field", "data-option": o.name}, el("span", {class: "inline"}, control, " ", el("code", {text: o.name})), hint)
+      : el("label", {class: "option", title: o.help, "data-testid": "option-field", "data-option": o.name}, el("code", {text: o.name}), control, hint);
+    box.append(field);
+  }
+  state.optionFields.set(t.name, box);
+  return box;
+}
+
+function applyImageDefaults(t) {
+  // resolution and fov_deg take the technique's defaults unless the user typed something else.
+  for (const d of t.image) {
+    const input = document.querySelector(`#job-form input[name="${d.name}"]`);
+    if (!input) continue;
+    const value = input.value.trim();
+    if (input.dataset.default === undefined || value === "" || Number(value) === Number(input.dataset.default)) input.value = fmtDefault(d.default);
+    input.dataset.default = fmtDefault(d.default);
+    input.placeholder = fmtDefault(d.default);
+    applyBounds(input, d);
+    input.title = `${d.help} (${optionHint(d)})`;
+    input.closest("label").title = input.title;
+  }
+}
+
+function onTechniqueChange() {
+  const t = technique();
+  $("technique-help").textContent = t ? t.help : "";
+  $("technique-options").hidden = !t;
+  if (!t) return;
+  $("job-technique").title = t.help;
+  $("technique-options-name").textContent = `(${t.name})`;
+  $("technique-options").dataset.technique = t.name;
+  $("technique-option-fields").replaceChildren(optionFields(t));
+  applyImageDefaults(t);
+  const scene = t.scope === "scene"; // the whole scene: no objects to choose
+  $("objects-field").hidden = scene;
+  $("job-objects").disabled = scene;
 }
 
 function numberOrText(text) {
@@ -299,10 +421,32 @@ function numberOrText(text) {
   return text !== "" && Number.isFinite(Number(text)) ? Number(text) : text;
 }
 
+function sameValue(a, b) { return JSON.stringify(a) === JSON.stringify(b); }
+
+function optionValue(o, control) {
+  // The value to send, or undefined to leave the option out (the service's default).
+  let value;
+  if (o.type === "boolean") {
+    value = control.checked;
+  } else if (o.type === "array" && o.choices) {
+    value = [...control.querySelectorAll("input:checked")].map((box) => box.value);
+  } else {
+    if (control.validity && control.validity.badInput) throw new Error(`${o.name}: give a ${o.type}`);
+    const text = control.value.trim();
+    if (text === "") return undefined;
+    if (o.type === "array") value = text.split(/[\s,;]+/).filter(Boolean);
+    else if (o.type === "integer" || o.type === "number") value = numberOrText(text);
+    else value = text;
+  }
+  return sameValue(value, o.default) ? undefined : value;
+}
+
 function jobRequest() {
   const scene = $("job-scene").value;
   if (!scene) throw new Error("scene: upload and choose a scene first");
-  const request = {scene_id: scene, job_type: jobType()};
+  const t = technique();
+  if (!t) throw new Error("technique: none listed yet (GET /v1/techniques); is the API key right?");
+  const request = {scene_id: scene, technique: t.name};
   if (jobMode() === "grid") {
     request.grid = {lo: parseVec($("job-lo").value, "grid lo"), hi: parseVec($("job-hi").value, "grid hi"),
                     counts: parseVec($("job-counts").value, "cells along x, y, z", true)};
@@ -311,39 +455,24 @@ function jobRequest() {
     try { cells = JSON.parse($("job-viewcells").value); } catch (error) { throw new Error(`view cells: not JSON (${error.message})`); }
     request.viewcells = cells;
   }
-  // Empty fields take the server's defaults.
-  const resolution = $("job-resolution").value.trim();
-  if (resolution !== "") request.resolution = numberOrText(resolution);
-  const fov = $("job-fov").value.trim();
-  if (fov !== "") request.fov_deg = numberOrText(fov);
-  const envmap = request.job_type === "envmap";
-  const objects = envmap ? [] : $("job-objects").value.split(",").map((s) => s.trim()).filter(Boolean);
-  if (objects.length) request.objects = objects;
-  const options = $("job-options").value.trim();
-  if (options) {
-    try { request.options = JSON.parse(options); } catch (error) { throw new Error(`options: not JSON (${error.message})`); }
-    if (!request.options || typeof request.options !== "object" || Array.isArray(request.options)) {
-      throw new Error(`options: give a JSON object such as {"culling": "umbra"}, got ${options}`);
-    }
+  // Empty fields take the technique's defaults.
+  for (const d of t.image) {
+    const input = document.querySelector(`#job-form input[name="${d.name}"]`);
+    if (input && input.validity.badInput) throw new Error(`${d.name}: give a ${d.type}`);
+    const value = input ? input.value.trim() : "";
+    if (value !== "") request[d.name] = numberOrText(value);
   }
-  if (envmap) {
-    // The envmap fields go in as options (an option given in the JSON as well wins).
-    const extra = {};
-    const layers = $("job-layers").value.trim();
-    if (layers !== "") extra.layers = numberOrText(layers);
-    const directions = $("job-directions").value.split(/[\s,;]+/).filter(Boolean);
-    if (directions.length) extra.directions = directions;
-    if (Object.keys(extra).length) request.options = {...extra, ...(request.options || {})};
+  if (t.scope !== "scene") {
+    const objects = $("job-objects").value.split(",").map((s) => s.trim()).filter(Boolean);
+    if (objects.length) request.objects = objects;
   }
-  if (request.job_type === "tdm") {
-    // So do the tdm fields (an option given in the JSON as well wins).
-    const extra = {};
-    const enlargement = $("job-enlargement").value.trim();
-    if (enlargement !== "") extra.enlargement = numberOrText(enlargement);
-    const oversampling = $("job-oversampling").value.trim();
-    if (oversampling !== "") extra.oversampling = numberOrText(oversampling);
-    if (Object.keys(extra).length) request.options = {...extra, ...(request.options || {})};
+  const options = {};
+  const box = optionFields(t);
+  for (const o of t.options) {
+    const value = optionValue(o, box.querySelector(`[data-testid="option-${o.name}"]`));
+    if (value !== undefined) options[o.name] = value;
   }
+  if (Object.keys(options).length) request.options = options;
   return request;
 }
 
@@ -384,7 +513,7 @@ async function refreshJobs() {
     if (!row) {
       row = el("tr", {"data-testid": "job-row", "data-job-id": job.id},
         el("td", {}, el("a", {href: `#/jobs/${job.id}`, "data-testid": "job-link"}, el("code", {text: shortId(job.id)}))),
-        el("td", {class: "type small", "data-testid": "job-row-type"}),
+        el("td", {class: "type small", "data-testid": "job-row-technique"}),
         el("td", {class: "scene"}),
         el("td", {}, el("span", {class: "state", "data-testid": "job-row-state"})),
         el("td", {}, el("div", {class: "bar", "data-testid": "job-row-progress-bar"}, el("div", {class: "fill", "data-testid": "job-row-progress"})),
@@ -394,8 +523,10 @@ async function refreshJobs() {
     }
     const [, typeCell, sceneCell, stateCell, progressCell, countsCell, createdCell] = row.children;
     const scene = state.scenes.get(job.scene_id);
-    typeCell.textContent = job.job_type;
-    typeCell.dataset.jobType = job.job_type;
+    const name = job.technique || job.job_type;
+    typeCell.textContent = name;
+    typeCell.title = techniqueHelp(name);
+    typeCell.dataset.technique = name;
     sceneCell.textContent = scene ? scene.name : shortId(job.scene_id);
     setState(stateCell.firstChild, job.state);
     setBar(progressCell.querySelector(".fill"), job);
@@ -440,9 +571,10 @@ async function refreshJob() {
 
 function renderJob(job) {
   $("job-id").textContent = job.id;
-  $("job-type-text").textContent = job.job_type === "envmap" ? "envmap (environment-map impostors of the whole scene)"
-    : job.job_type === "tdm" ? "tdm (textured depth meshes)" : job.job_type;
-  $("job-type-text").dataset.jobType = job.job_type;
+  const name = job.technique || job.job_type;
+  const help = techniqueHelp(name);
+  $("job-technique-text").textContent = help ? `${name}: ${help}` : name;
+  $("job-technique-text").dataset.technique = name;
   setState($("job-state"), job.state);
   setBar($("job-progress"), job);
   $("job-progress-text").textContent = pct(job.progress);
@@ -453,7 +585,7 @@ function renderJob(job) {
   const p = job.params || {};
   const options = p.options && Object.keys(p.options).length ? `, options ${JSON.stringify(p.options)}` : "";
   const objects = p.objects ? `, objects ${p.objects.join(", ")}` : "";
-  $("job-params").textContent = `${job.job_type}, ${p.resolution} px, FOV ${p.fov_deg}°${objects}${options}`;
+  $("job-params").textContent = `${name}, ${p.resolution} px, FOV ${p.fov_deg}°${objects}${options}`;
   const s = job.seconds || {};
   $("job-times").textContent = `created ${fmtTime(job.created_at)}; wall ${fmtSeconds(s.wall)}; cells ${fmtSeconds(s.cells_total)} in all` +
     (s.cell_mean != null ? `, ${fmtSeconds(s.cell_mean)} each` : "");
@@ -673,7 +805,7 @@ async function loadAtlas(job, cell, page, pages) {
     state.atlas.key = null;
     img.hidden = true;
     img.removeAttribute("src");
-    note.textContent = job.job_type === "envmap"
+    note.textContent = cell.stats && cell.stats.near_field !== undefined
       ? "no atlas pages: everything this cell sees lies in its near field (drawn as polygons)"
       : "no atlas pages: the impostor kept no texels";
     return;
@@ -774,13 +906,13 @@ function start() {
     event.preventDefault();
     applyKey($("api-key").value);
     await refreshScenes().catch((error) => { if (error.status !== 401) showGlobalError(error.message); });
+    refreshTechniques().catch((error) => { if (error.status !== 401) showGlobalError(error.message); });
     tick(true);
   });
   $("key-forget").addEventListener("click", () => applyKey(""));
   $("upload-form").addEventListener("submit", onUpload);
   $("job-form").addEventListener("submit", onSubmitJob);
-  $("job-type").addEventListener("change", onJobTypeChange);
-  onJobTypeChange(); // a reload may keep the browser's last choice
+  $("job-technique").addEventListener("change", onTechniqueChange);
   for (const radio of document.querySelectorAll('#job-form input[name="mode"]')) radio.addEventListener("change", onModeChange);
   $("job-scene").addEventListener("change", showSceneInfo);
   $("jobs-filter").addEventListener("change", () => tick(true));
@@ -799,7 +931,10 @@ function start() {
   window.addEventListener("hashchange", route);
   refreshHealth();
   setInterval(refreshHealth, 10000);
-  if (state.key) refreshScenes().catch((error) => { if (error.status !== 401) showGlobalError(error.message); });
+  if (state.key) {
+    refreshScenes().catch((error) => { if (error.status !== 401) showGlobalError(error.message); });
+    refreshTechniques().catch((error) => { if (error.status !== 401) showGlobalError(error.message); });
+  }
   route();
   setInterval(() => tick(false), POLL_MS);
 }
