@@ -20,7 +20,7 @@ from core.atlas import compose, fill_nearest_rgb, pack, tile_uvs
 from core.culling import CULLING_MODES, CullingMode, LayerCuller
 from core.errors import LayerPlanError
 from core.frustum import PIXEL_MODELS, PixelModel, check_fov, check_resolution
-from core.impostor import Impostor, texel_rect_corners
+from core.impostor import Impostor, QuadPayload, texel_rect_corners
 from core.layers import plan_layers
 from core.quads import grow_quads
 from core.recording import iter_layers
@@ -190,11 +190,8 @@ def bake_layered(
         reference_viewpoint=plan.reference_viewpoint,
         resolution=options.resolution,
         fov_deg=options.fov_deg,
-        quad_corners=np.concatenate(quad_corners),
-        quad_uv=quad_uv,
-        quad_page=quad_page,
-        quad_layer=np.concatenate(quad_layer),
         pages=tuple(pages),
+        payload=QuadPayload(corners=np.concatenate(quad_corners), uv=quad_uv, page=quad_page, layer=np.concatenate(quad_layer)),
         layers=layers,
         stats=stats,
         parameters={**asdict(options), "objects": list(part.names), "scene_hash": scene.content_hash, "plan": plan.to_dict()},

@@ -1,15 +1,16 @@
-"""Impostor bundle: a directory of ``manifest.json`` + (H, W, 4) uint8 ``atlas-NNN.png`` pages + ``impostor.glb``.
+"""Impostor bundle: a directory of ``manifest.json`` + ``payload.bin`` + (H, W, 4) uint8 ``atlas-NNN.png`` pages + ``impostor.glb``.
 
-The bundle is the on-disk form of one :class:`core.impostor.Impostor`.  Format version 1:
+The bundle is the on-disk form of one :class:`core.impostor.Impostor`.  Format version 2:
 
 ``manifest.json``
     UTF-8 JSON object on one line, keys sorted, floats written with Python's shortest round-trip ``repr`` so
-    every float64 reads back bit-exact.  Keys:
+    every float64 reads back bit-exact.  Small: the header, one entry per layer and per page, the
+    stats and the parameters; no per-quad or per-vertex data.  Keys:
 
     ``format``
         ``"farfield-impostor"``.
     ``format_version``
-        ``1``.  A reader refuses any other value.
+        ``2``.  A reader refuses any value but 1 and 2 (version 1: see below).
     ``code_version``
         farfield version that made the impostor (string).
     ``technique``
@@ -27,11 +28,15 @@ The bundle is the on-disk form of one :class:`core.impostor.Impostor`.  Format v
     ``layers``
         List of one object per layer, as the technique recorded it (distance, depth range in eye
         depth, texels kept, ...).
-    ``quads``
-        Columns of the q quads: ``count`` (q); ``corners`` (q, 4, 3) world metres, top-left,
-        top-right, bottom-right, bottom-left as seen from the reference viewpoint; ``uv``
-        (q, 4, 2) page coordinates in glTF convention ((0, 0) is the top-left of the page);
-        ``page`` (q,) atlas page index; ``layer`` (q,) layer index.
+    ``payload``
+        What the geometry is and where its arrays lie: ``kind`` (``"quads"`` or ``"mesh"``, see
+        :mod:`core.impostor`), ``counts`` (``{"quads": q}`` or ``{"vertices": v, "triangles": t}``),
+        ``file`` (``"payload.bin"``), ``nbytes`` and ``sha256`` (hex) of that file, and ``arrays``:
+        one ``{"name", "dtype", "shape", "offset", "nbytes"}`` per array, in the kind's order.
+        ``dtype`` is a little-endian numpy type string: the writer uses ``"<f8"`` for every float
+        array and ``"<i4"`` for an integer array whose values fit in int32, else ``"<i8"``; a
+        reader accepts ``"<f4"``, ``"<f8"``, ``"<u2"``, ``"<u4"``, ``"<i4"`` and ``"<i8"`` and
+        widens to float64 / int64.
     ``pages``
         List of ``{"file": "atlas-000.png", "width": W, "height": H}``, in page order.
     ``glb``
@@ -39,11 +44,30 @@ The bundle is the on-disk form of one :class:`core.impostor.Impostor`.  Format v
     ``stats``, ``parameters``
         JSON objects: counts, memory and timings; every knob that made the impostor.
 
+``payload.bin``
+    The payload's arrays, C order, each at an offset that is a multiple of 8 (the end of the
+    previous array rounded up, zero bytes between; the first at 0), nothing after the last one.
+
+    ``"quads"``: ``corners`` (q, 4, 3) world metres, top-left, top-right, bottom-right,
+    bottom-left as seen from the reference viewpoint; ``uv`` (q, 4, 2) page coordinates in glTF
+    convention ((0, 0) is the top-left of the page); ``page`` (q,) atlas page; ``layer`` (q,) layer.
+
+    ``"mesh"``: ``vertices`` (v, 3) world metres; ``uv`` (v, 2) page coordinates, glTF
+    convention; ``triangles`` (t, 3) vertex indices; ``page`` (t,) atlas page and ``mesh`` (t,)
+    connected component of each triangle.
+
 ``atlas-000.png``, ``atlas-001.png``, ...
     8-bit RGBA PNG, top row first, one per atlas page, no metadata chunks.
 
 ``impostor.glb``
-    The same quads and pages as glTF 2.0 binary (see :mod:`core.glb`), for any glTF viewer.
+    The same geometry and pages as glTF 2.0 binary (see :mod:`core.glb`), for any glTF viewer.
+
+Format version 1 (read, no longer written) had no ``payload`` and no ``payload.bin``: a ``quads``
+object in the manifest held ``count`` and the JSON lists ``corners``, ``uv``, ``page`` and
+``layer``, and a TDM's triangle was a quad whose fourth corner repeated its third, its ``layer``
+the triangle's mesh.  :func:`read_bundle` gives a version 1 TDM a mesh payload
+(:meth:`core.impostor.MeshPayload.from_triangle_corners` of the quads' first three corners), any
+other version 1 bundle a quad payload.
 
 Equal impostors (and the same zlib) give byte-identical bundles.  :func:`write_bundle` builds the
 bundle in a hidden sibling directory and renames it into place, so a reader sees the old bundle
@@ -52,6 +76,7 @@ or the new one, never a mix.
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import os
@@ -66,15 +91,18 @@ from PIL import Image
 
 from core.errors import BundleFormatError
 from core.glb import impostor_glb, page_png
-from core.impostor import Impostor, check_impostor
+from core.impostor import PAYLOAD_KINDS, Impostor, MeshPayload, QuadPayload, check_impostor
 
 __all__ = [
     "FORMAT",
     "FORMAT_VERSION",
     "GLB_NAME",
     "MANIFEST_NAME",
+    "PAYLOAD_NAME",
+    "READABLE_VERSIONS",
     "BundlePaths",
     "bundle_zip",
+    "encode_payload",
     "manifest_bytes",
     "page_file_name",
     "read_bundle",
@@ -82,9 +110,17 @@ __all__ = [
 ]
 
 FORMAT = "farfield-impostor"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
 MANIFEST_NAME = "manifest.json"
+PAYLOAD_NAME = "payload.bin"
 GLB_NAME = "impostor.glb"
+
+# payload.bin: every array starts at a multiple of this many bytes.
+_ALIGNMENT = 8
+# dtypes a reader accepts per array kind ("f" float, "i" integer), widened to float64 / int64.
+_READ_DTYPES = {"f": ("<f4", "<f8"), "i": ("<u2", "<u4", "<i4", "<i8")}
+_INT32 = np.iinfo(np.int32)
 
 # A fixed, valid DOS timestamp (the zip epoch) so archives do not depend on file times.
 _ZIP_DATE_TIME = (1980, 1, 1, 0, 0, 0)
@@ -101,6 +137,7 @@ class BundlePaths:
     manifest: Path
     pages: tuple[Path, ...]  # (p,) atlas-NNN.png in page order
     glb: Path
+    payload: Path  # payload.bin
 
 
 def page_file_name(index: int) -> str:
@@ -121,7 +158,50 @@ def _json_default(value):
     raise TypeError(f"{type(value).__name__} is not JSON-ready: {value!r}")
 
 
-def _manifest(impostor: Impostor) -> dict:
+def _stored_dtype(kind: str, array: np.ndarray) -> str:
+    """The little-endian dtype an array is written as: ``<f8`` for floats; ``<i4`` for integers
+    that fit in int32, else ``<i8``."""
+    if kind == "f":
+        return "<f8"
+    if array.size == 0 or (array.min() >= _INT32.min and array.max() <= _INT32.max):
+        return "<i4"
+    return "<i8"
+
+
+def encode_payload(payload) -> tuple[bytes, dict]:
+    """``payload.bin``'s bytes and the manifest's ``payload`` entry for a checked payload.
+
+    >>> from core.impostor import QuadPayload
+    >>> data, entry = encode_payload(QuadPayload.empty())
+    >>> data, entry["kind"], entry["counts"], [(a["name"], a["dtype"], a["shape"]) for a in entry["arrays"]][:2]
+    (b'', 'quads', {'quads': 0}, [('corners', '<f8', [0, 4, 3]), ('uv', '<f8', [0, 4, 2])])
+    """
+    parts: list[bytes] = []
+    table = []
+    offset = 0
+    for name, kind, _ in payload.ARRAYS:
+        array = getattr(payload, name)
+        dtype = _stored_dtype(kind, array)
+        data = np.ascontiguousarray(array, dtype=dtype).tobytes()
+        pad = -offset % _ALIGNMENT
+        parts.append(b"\x00" * pad)
+        offset += pad
+        table.append({"name": name, "dtype": dtype, "shape": list(array.shape), "offset": offset, "nbytes": len(data)})
+        parts.append(data)
+        offset += len(data)
+    blob = b"".join(parts)
+    entry = {
+        "kind": payload.kind,
+        "counts": payload.counts(),
+        "file": PAYLOAD_NAME,
+        "nbytes": len(blob),
+        "sha256": hashlib.sha256(blob).hexdigest(),
+        "arrays": table,
+    }
+    return blob, entry
+
+
+def _manifest(impostor: Impostor, payload_entry: dict) -> dict:
     return {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
@@ -132,13 +212,7 @@ def _manifest(impostor: Impostor) -> dict:
         "resolution": int(impostor.resolution),
         "fov_deg": float(impostor.fov_deg),
         "layers": impostor.layers,
-        "quads": {
-            "count": impostor.quad_count,
-            "corners": np.asarray(impostor.quad_corners, dtype=np.float64).tolist(),
-            "uv": np.asarray(impostor.quad_uv, dtype=np.float64).tolist(),
-            "page": np.asarray(impostor.quad_page, dtype=np.int64).tolist(),
-            "layer": np.asarray(impostor.quad_layer, dtype=np.int64).tolist(),
-        },
+        "payload": payload_entry,
         "pages": [
             {"file": page_file_name(index), "width": int(page.shape[1]), "height": int(page.shape[0])}
             for index, page in enumerate(impostor.pages)
@@ -147,6 +221,20 @@ def _manifest(impostor: Impostor) -> dict:
         "stats": impostor.stats,
         "parameters": impostor.parameters,
     }
+
+
+def _manifest_bytes(impostor: Impostor, payload_entry: dict) -> bytes:
+    try:
+        text = json.dumps(
+            _manifest(impostor, payload_entry),
+            sort_keys=True,
+            separators=(",", ":"),
+            allow_nan=False,
+            default=_json_default,
+        )
+    except (TypeError, ValueError) as error:
+        raise BundleFormatError(f"{MANIFEST_NAME}: impostor is not JSON-ready: {error}") from error
+    return (text + "\n").encode("utf-8")
 
 
 def manifest_bytes(impostor: Impostor) -> bytes:
@@ -159,17 +247,7 @@ def manifest_bytes(impostor: Impostor) -> bytes:
         (an object, NaN, infinity).
     """
     check_impostor(impostor)
-    try:
-        text = json.dumps(
-            _manifest(impostor),
-            sort_keys=True,
-            separators=(",", ":"),
-            allow_nan=False,
-            default=_json_default,
-        )
-    except (TypeError, ValueError) as error:
-        raise BundleFormatError(f"{MANIFEST_NAME}: impostor is not JSON-ready: {error}") from error
-    return (text + "\n").encode("utf-8")
+    return _manifest_bytes(impostor, encode_payload(impostor.payload)[1])
 
 
 def _write_file(path: Path, data: bytes) -> None:
@@ -223,7 +301,9 @@ def write_bundle(impostor: Impostor, directory: str | os.PathLike) -> BundlePath
     """
     destination = Path(directory)
     # Everything is encoded before touching the disk, so a bad impostor creates nothing.
-    files = {MANIFEST_NAME: manifest_bytes(impostor)}
+    check_impostor(impostor)
+    payload, payload_entry = encode_payload(impostor.payload)
+    files = {MANIFEST_NAME: _manifest_bytes(impostor, payload_entry), PAYLOAD_NAME: payload}
     for index, page in enumerate(impostor.pages):
         files[page_file_name(index)] = page_png(page)
     files[GLB_NAME] = impostor_glb(impostor)
@@ -243,6 +323,7 @@ def write_bundle(impostor: Impostor, directory: str | os.PathLike) -> BundlePath
         manifest=destination / MANIFEST_NAME,
         pages=tuple(destination / page_file_name(i) for i in range(len(impostor.pages))),
         glb=destination / GLB_NAME,
+        payload=destination / PAYLOAD_NAME,
     )
 
 
@@ -262,10 +343,11 @@ def _read_manifest(directory: Path) -> dict:
         raise BundleFormatError(f"{path}: a JSON {type(manifest).__name__}, expected an object")
     if manifest.get("format") != FORMAT:
         raise BundleFormatError(f"{path}: format is {manifest.get('format')!r}, expected {FORMAT!r}")
-    if manifest.get("format_version") != FORMAT_VERSION:
+    version = manifest.get("format_version")
+    if isinstance(version, bool) or version not in READABLE_VERSIONS:
         raise BundleFormatError(
-            f"{path}: format_version {manifest.get('format_version')!r} is not supported "
-            f"(this reader knows {FORMAT_VERSION})"
+            f"{path}: format_version {version!r} is not supported "
+            f"(this reader knows {', '.join(map(str, READABLE_VERSIONS))})"
         )
     return manifest
 
@@ -338,37 +420,117 @@ def _page_entries(manifest: dict, path: Path) -> list[tuple[str, int, int]]:
     return result
 
 
+def _payload_v1(manifest: dict, path: Path):
+    """A version 1 manifest's ``quads``: a quad payload, or for a TDM (whose triangles were quads
+    with the fourth corner repeating the third) the mesh payload of those triangles."""
+    count = _field(manifest, path, "quads", "count")
+    if isinstance(count, bool) or not isinstance(count, int) or count < 0:
+        raise BundleFormatError(f"{path}: quads.count is {count!r}, expected a count")
+    corners = _array(manifest, path, (count, 4, 3), np.float64, "quads", "corners")
+    uv = _array(manifest, path, (count, 4, 2), np.float64, "quads", "uv")
+    page = _array(manifest, path, (count,), np.int64, "quads", "page")
+    layer = _array(manifest, path, (count,), np.int64, "quads", "layer")
+    if (
+        manifest.get("technique") == "tdm"
+        and np.array_equal(corners[:, 3], corners[:, 2])
+        and np.array_equal(uv[:, 3], uv[:, 2])
+    ):
+        return MeshPayload.from_triangle_corners(corners[:, :3], uv[:, :3], page=page, mesh=layer)
+    return QuadPayload(corners=corners, uv=uv, page=page, layer=layer)
+
+
+def _is_count(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _payload_v2(manifest: dict, root: Path, path: Path):
+    """The payload a version 2 manifest describes, read from ``payload.bin`` (see the module docstring)."""
+    kind = _field(manifest, path, "payload", "kind")
+    cls = PAYLOAD_KINDS.get(kind) if isinstance(kind, str) else None
+    if cls is None:
+        raise BundleFormatError(f"{path}: payload.kind is {kind!r}, expected one of {sorted(PAYLOAD_KINDS)}")
+    if _field(manifest, path, "payload", "file") != PAYLOAD_NAME:
+        raise BundleFormatError(f"{path}: payload.file is {manifest['payload']['file']!r}, expected {PAYLOAD_NAME!r}")
+    nbytes = _field(manifest, path, "payload", "nbytes")
+    digest = _field(manifest, path, "payload", "sha256")
+    table = _field(manifest, path, "payload", "arrays")
+    counts = _field(manifest, path, "payload", "counts")
+    if not _is_count(nbytes) or not isinstance(digest, str) or not isinstance(table, list) or not isinstance(counts, dict):
+        raise BundleFormatError(f"{path}: payload needs a byte count, a sha256, an arrays list and counts")
+    names = [name for name, _, _ in cls.ARRAYS]
+    if [entry.get("name") if isinstance(entry, dict) else None for entry in table] != names:
+        raise BundleFormatError(f"{path}: payload.arrays must list a {kind} payload's arrays {names}, in this order")
+    binary = root / PAYLOAD_NAME
+    try:
+        data = binary.read_bytes()
+    except FileNotFoundError as error:
+        raise BundleFormatError(f"{binary}: missing") from error
+    except OSError as error:
+        raise BundleFormatError(f"{binary}: unreadable: {error}") from error
+    if len(data) != nbytes or hashlib.sha256(data).hexdigest() != digest:
+        raise BundleFormatError(
+            f"{binary}: {len(data)} bytes that do not match the manifest's payload "
+            f"({nbytes} bytes, sha256 {digest})"
+        )
+    arrays = {}
+    offset = 0
+    for entry, (name, kind_of, _) in zip(table, cls.ARRAYS):
+        dtype, shape, start, size = entry.get("dtype"), entry.get("shape"), entry.get("offset"), entry.get("nbytes")
+        offset += -offset % _ALIGNMENT
+        if (
+            dtype not in _READ_DTYPES[kind_of]
+            or not isinstance(shape, list)
+            or not all(_is_count(n) for n in shape)
+            or start != offset
+            or not _is_count(size)
+            or size != int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
+        ):
+            raise BundleFormatError(
+                f"{path}: payload.arrays entry {entry!r} does not fit (dtype one of "
+                f"{list(_READ_DTYPES[kind_of])}, shape a list of counts, offset {offset}, nbytes = size x item size)"
+            )
+        if offset + size > len(data):
+            raise BundleFormatError(f"{path}: payload.arrays {name} runs past the end of {PAYLOAD_NAME} ({len(data)} bytes)")
+        array = np.frombuffer(data, dtype=dtype, count=size // np.dtype(dtype).itemsize, offset=offset).reshape(shape)
+        arrays[name] = array.astype(np.float64 if kind_of == "f" else np.int64)  # a writable native copy
+        offset += size
+    if offset != len(data):
+        raise BundleFormatError(f"{path}: payload.arrays end at byte {offset} of {PAYLOAD_NAME}'s {len(data)}")
+    payload = cls.from_arrays(arrays)
+    if payload.counts() != counts:
+        raise BundleFormatError(f"{path}: payload.counts is {counts!r}, the arrays hold {payload.counts()!r}")
+    return payload
+
+
 def read_bundle(directory: str | os.PathLike) -> Impostor:
-    """Read the impostor stored in a bundle directory.
+    """Read the impostor stored in a bundle directory (format version 2, or 1).
 
     Parameters
     ----------
     directory : path
-        A directory written by :func:`write_bundle`.
+        A directory written by :func:`write_bundle` (or by a version 1 writer).
 
     Returns
     -------
     Impostor
-        Arrays bit-equal to those written: float64 corners, UVs and viewpoint, int64 page and
-        layer indices, (H, W, 4) uint8 pages.  numpy scalars in ``stats``, ``parameters`` and
-        ``layers`` come back as Python numbers, arrays as lists.
+        Arrays bit-equal to those written: float64 coordinates, UVs and viewpoint, int64 indices,
+        (H, W, 4) uint8 pages.  numpy scalars in ``stats``, ``parameters`` and ``layers`` come
+        back as Python numbers, arrays as lists.
 
     Raises
     ------
     BundleFormatError
         A missing file, JSON that does not parse, an unknown ``format`` or ``format_version``,
-        arrays or images whose shapes disagree with the manifest.  The message names the file.
+        a payload file that disagrees with the manifest, arrays or images whose shapes disagree
+        with the manifest.  The message names the file.
     """
     root = Path(directory)
     manifest = _read_manifest(root)
     path = root / MANIFEST_NAME
-    count = _field(manifest, path, "quads", "count")
-    if not isinstance(count, int) or count < 0:
-        raise BundleFormatError(f"{path}: quads.count is {count!r}, expected a count")
-    corners = _array(manifest, path, (count, 4, 3), np.float64, "quads", "corners")
-    uv = _array(manifest, path, (count, 4, 2), np.float64, "quads", "uv")
-    quad_page = _array(manifest, path, (count,), np.int64, "quads", "page")
-    quad_layer = _array(manifest, path, (count,), np.int64, "quads", "layer")
+    if manifest["format_version"] == 1:
+        payload = _payload_v1(manifest, path)
+    else:
+        payload = _payload_v2(manifest, root, path)
     viewpoint = _array(manifest, path, (3,), np.float64, "reference_viewpoint")
     if _field(manifest, path, "glb") != GLB_NAME:
         raise BundleFormatError(f"{path}: glb is {manifest['glb']!r}, expected {GLB_NAME!r}")
@@ -382,11 +544,8 @@ def read_bundle(directory: str | os.PathLike) -> Impostor:
         reference_viewpoint=viewpoint,
         resolution=_field(manifest, path, "resolution"),
         fov_deg=_field(manifest, path, "fov_deg"),
-        quad_corners=corners,
-        quad_uv=uv,
-        quad_page=quad_page,
-        quad_layer=quad_layer,
         pages=pages,
+        payload=payload,
         layers=_field(manifest, path, "layers"),
         stats=_field(manifest, path, "stats"),
         parameters=_field(manifest, path, "parameters"),
@@ -400,7 +559,8 @@ def read_bundle(directory: str | os.PathLike) -> Impostor:
 
 
 def bundle_zip(directory: str | os.PathLike) -> bytes:
-    """Deterministic zip bytes of a bundle: its manifest, pages and GLB at the archive's top level.
+    """Deterministic zip bytes of a bundle: its manifest, payload file (version 2), pages and GLB at
+    the archive's top level.
 
     Only the files the manifest names are archived, sorted by name, with a fixed timestamp,
     permissions 0644 and deflate level 6, so equal bundles give byte-identical archives.
@@ -415,6 +575,8 @@ def bundle_zip(directory: str | os.PathLike) -> bytes:
     manifest = _read_manifest(root)
     path = root / MANIFEST_NAME
     names = [MANIFEST_NAME, GLB_NAME] + [name for name, _, _ in _page_entries(manifest, path)]
+    if manifest["format_version"] >= 2:
+        names.append(PAYLOAD_NAME)
     buffer = io.BytesIO()
     with zipfile.ZipFile(buffer, "w") as archive:
         for name in sorted(names):

@@ -41,7 +41,7 @@ from core.errors import LayerPlanError, ViewCellError
 from core.frustum import check_fov, check_resolution, pixel_angle
 from core.gap_fill import fill_gaps
 from core.glb import page_png
-from core.impostor import Impostor, texel_rect_corners
+from core.impostor import Impostor, QuadPayload, texel_rect_corners
 from core.near_field import near_field
 from core.scene import Scene
 from core.viewcells import BoxCell
@@ -292,11 +292,13 @@ def bake_envmap(scene: Scene, cell: BoxCell, options: EnvmapOptions = EnvmapOpti
         reference_viewpoint=centre,
         resolution=options.resolution,
         fov_deg=options.fov_deg,
-        quad_corners=np.concatenate(quad_corners) if quad_corners else np.zeros((0, 4, 3)),
-        quad_uv=quad_uv,
-        quad_page=quad_page,
-        quad_layer=np.concatenate(quad_layer) if quad_layer else np.zeros(0, np.int64),
         pages=tuple(pages),
+        payload=QuadPayload(
+            corners=np.concatenate(quad_corners) if quad_corners else np.zeros((0, 4, 3)),
+            uv=quad_uv,
+            page=quad_page,
+            layer=np.concatenate(quad_layer) if quad_layer else np.zeros(0, np.int64),
+        ),
         layers=layers,
         stats=stats,
         parameters=parameters,

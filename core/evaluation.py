@@ -27,24 +27,37 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from core.impostor import Impostor
+from core.impostor import Impostor, MeshPayload, QuadPayload
 from core.render.raster import Camera, MeshRenderer, depth_bounds
 from core.scene import Scene, SceneObject
 from core.viewcells import BoxCell, ShaftCell, ViewCell, box_corners
 
 
 def impostor_objects(impostor: Impostor) -> list[SceneObject]:
-    """The impostor as drawable objects: one per atlas page, two triangles per quad, alpha-cut at 0.5."""
+    """The impostor as drawable objects, alpha-cut at 0.5: one per atlas page with geometry.
+
+    A quad payload gives two triangles per quad; a mesh payload its triangles, with the vertices
+    they use.  Either way a page's triangles are drawn in payload order.
+    """
+    payload = impostor.payload
     objects = []
     for page_index, page in enumerate(impostor.pages):
-        sel = np.flatnonzero(impostor.quad_page == page_index)
+        sel = np.flatnonzero(payload.page == page_index)
         if sel.size == 0:
             continue
-        vertices = impostor.quad_corners[sel].reshape(-1, 3)
-        uv = impostor.quad_uv[sel].reshape(-1, 2).copy()
+        if isinstance(payload, QuadPayload):
+            vertices = payload.corners[sel].reshape(-1, 3)
+            uv = payload.uv[sel].reshape(-1, 2).copy()
+            base = 4 * np.arange(sel.size, dtype=np.int64)[:, None]
+            faces = np.concatenate([base + [0, 1, 2], base + [0, 2, 3]], axis=0)
+        elif isinstance(payload, MeshPayload):
+            used, faces = np.unique(payload.triangles[sel], return_inverse=True)
+            faces = faces.reshape(-1, 3)
+            vertices = payload.vertices[used]
+            uv = payload.uv[used].copy()
+        else:
+            raise TypeError(f"no renderer for a {payload.kind!r} payload")
         uv[:, 1] = 1.0 - uv[:, 1]  # glTF (top-left origin) -> scene convention (bottom-left)
-        base = 4 * np.arange(sel.size, dtype=np.int64)[:, None]
-        faces = np.concatenate([base + [0, 1, 2], base + [0, 2, 3]], axis=0)
         objects.append(SceneObject(name=f"page{page_index}", vertices=vertices, faces=faces, uv=uv, texture=page, alpha_cutoff=0.5))
     return objects
 
@@ -186,7 +199,7 @@ def evaluate(
         kinds += ["outside"] * len(out)
     points = np.concatenate(points)
     target = 0.5 * (part.bounds[0] + part.bounds[1])
-    extent = np.concatenate([box_corners(part.bounds), impostor.quad_corners.reshape(-1, 3)])
+    extent = np.concatenate([box_corners(part.bounds), impostor.payload.world_points()])
     fov = math.radians(impostor.fov_deg)
     rows = []
     with MeshRenderer(part.objects) as geometry, MeshRenderer(impostor_objects(impostor)) as stand_in:

@@ -1,4 +1,4 @@
-"""glTF 2.0 binary (GLB) bytes of one impostor: (q, 4, 3) float64 world quads -> float32 triangles.
+"""glTF 2.0 binary (GLB) bytes of one impostor: its float64 world quads or mesh -> float32 indexed triangles.
 
 The file is deterministic: the same impostor gives byte-identical bytes (fixed JSON key order, no
 timestamps, PNG pages encoded with fixed settings by :func:`page_png`).  Layout (glTF 2.0 spec,
@@ -13,15 +13,16 @@ timestamps, PNG pages encoded with fixed settings by :func:`page_png`).  Layout 
   as float64 JSON numbers, and POSITION holds float32 corners *relative to it*: float32 keeps ~7
   significant digits, which at continental coordinates (1e6 m) is ~0.1 m absolute, but relative
   to a viewpoint a few hundred metres away it is well below a millimetre.
-* One primitive per atlas page that has quads: two triangles per quad, counter-clockwise as seen
-  from the reference viewpoint (TL, BL, BR and TL, BR, TR); a triangle with two equal corners is
-  left out, so a textured-depth-mesh triangle (a quad whose fourth corner repeats its third) gives
-  its one real triangle.  Vertices are welded: each distinct float32 (position, UV) pair that a
-  triangle uses is stored once, in the order of its first copy among the quads' corners (a
-  textured depth mesh's triangles of one texture chart share their vertices; a layered
-  impostor's quads, each with its own tile, keep their four corners in order).  Indices
-  are uint16 when the page has fewer than 65,535 vertices (0xFFFF is the primitive-restart value,
-  which glTF forbids), else uint32.
+* One primitive per atlas page that has geometry.  A quad payload (:class:`core.impostor.QuadPayload`)
+  gives two triangles per quad, counter-clockwise as seen from the reference viewpoint when its
+  corners are TL, TR, BR, BL there (TL, BL, BR and TL, BR, TR); its vertices are welded: each
+  distinct float32 (position, UV) pair that a triangle uses is stored once, in the order of its
+  first copy among the quads' corners (a layered impostor's quads, each with its own tile, keep
+  their four corners in order).  A mesh payload (:class:`core.impostor.MeshPayload`) gives its
+  own indexed triangles, corners in their stored order: the page's triangles in payload order,
+  and the vertices they use in the order of their first use.  Indices are uint16 when the
+  page has fewer than 65,535 vertices (0xFFFF is the primitive-restart value, which glTF
+  forbids), else uint32.
 * One material per page, whether or not the page has quads: ``baseColorTexture`` of that page,
   ``KHR_materials_unlit``, ``alphaMode`` ``MASK`` with cutoff 0.5 and ``doubleSided`` (the
   impostor is only seen from inside its view cell, so a viewer must not cull it if it disagrees
@@ -40,7 +41,7 @@ import struct
 import numpy as np
 from PIL import Image
 
-from core.impostor import Impostor, check_impostor
+from core.impostor import Impostor, MeshPayload, QuadPayload, check_impostor
 
 __all__ = ["impostor_glb", "page_png"]
 
@@ -138,14 +139,51 @@ def _weld(positions: np.ndarray, uv: np.ndarray, indices: np.ndarray) -> tuple[n
     return positions[kept], uv[kept], slot[key_of[indices]]
 
 
+def _quad_pages(payload: QuadPayload, viewpoint: np.ndarray, page_count: int):
+    """Per page with quads: (page, float32 positions relative to ``viewpoint``, float32 UVs, indices)."""
+    # Narrowed to float32 here, after the float64 subtraction, so only the local offset is rounded.
+    relative = (payload.corners - viewpoint).astype("<f4")
+    uv = payload.uv.astype("<f4")
+    for page in range(page_count):
+        quads = np.flatnonzero(payload.page == page)
+        if quads.size == 0:
+            continue  # glTF accessors need count >= 1; the page keeps its material and image
+        indices = (np.arange(quads.size, dtype=np.int64)[:, None] * 4 + _QUAD_TRIANGLES).ravel()
+        yield (page, *_weld(relative[quads].reshape(-1, 3), uv[quads].reshape(-1, 2), indices))
+
+
+def _mesh_pages(payload: MeshPayload, viewpoint: np.ndarray, page_count: int):
+    """Per page with triangles: (page, float32 positions relative to ``viewpoint``, float32 UVs, indices)."""
+    for page in range(page_count):
+        triangles = payload.triangles[payload.page == page].ravel()
+        if triangles.size == 0:
+            continue
+        used, first, local = np.unique(triangles, return_index=True, return_inverse=True)
+        order = np.argsort(first, kind="stable")  # vertices in the order of their first use
+        slot = np.empty(used.size, np.int64)
+        slot[order] = np.arange(used.size)
+        kept = used[order]
+        positions = (payload.vertices[kept] - viewpoint).astype("<f4")
+        yield page, positions, payload.uv[kept].astype("<f4"), slot[local.reshape(-1)]
+
+
+def _page_geometry(payload, viewpoint: np.ndarray, page_count: int):
+    """The payload's drawn triangles per page, dispatched on its kind."""
+    if isinstance(payload, QuadPayload):
+        return _quad_pages(payload, viewpoint, page_count)
+    if isinstance(payload, MeshPayload):
+        return _mesh_pages(payload, viewpoint, page_count)
+    raise TypeError(f"no GLB writer for a {payload.kind!r} payload")
+
+
 def impostor_glb(impostor: Impostor) -> bytes:
     """GLB bytes of ``impostor``: one node at the reference viewpoint, one primitive per page.
 
     Parameters
     ----------
     impostor : Impostor
-        Quads (q, 4, 3) float64 world metres, TL, TR, BR, BL seen from the reference viewpoint;
-        UVs (q, 4, 2) in glTF convention; pages (H, W, 4) uint8 RGBA top row first.
+        A quad or mesh payload in float64 world metres, UVs in glTF convention; pages (H, W, 4)
+        uint8 RGBA top row first.
 
     Returns
     -------
@@ -161,8 +199,8 @@ def impostor_glb(impostor: Impostor) -> bytes:
     --------
     >>> quad = np.array([[[-1, 5, 1], [1, 5, 1], [1, 5, -1], [-1, 5, -1]]], dtype=np.float64)
     >>> uv = np.array([[[0, 0], [1, 0], [1, 1], [0, 1]]], dtype=np.float64)
-    >>> one = Impostor("billboard", {}, np.zeros(3), 64, 60.0, quad, uv, np.zeros(1, np.int64),
-    ...                np.zeros(1, np.int64), (np.full((4, 4, 4), 255, np.uint8),))
+    >>> payload = QuadPayload(quad, uv, np.zeros(1, np.int64), np.zeros(1, np.int64))
+    >>> one = Impostor("billboard", {}, np.zeros(3), 64, 60.0, (np.full((4, 4, 4), 255, np.uint8),), payload)
     >>> data = impostor_glb(one)
     >>> data[:4], struct.unpack_from("<I", data, 4)[0], len(data) % 4
     (b'glTF', 2, 0)
@@ -171,28 +209,11 @@ def impostor_glb(impostor: Impostor) -> bytes:
     """
     check_impostor(impostor)
     viewpoint = np.asarray(impostor.reference_viewpoint, dtype=np.float64)
-    # Narrowed to float32 here, after the float64 subtraction, so only the local offset is rounded.
-    relative = (np.asarray(impostor.quad_corners, dtype=np.float64) - viewpoint).astype("<f4")
-    uv = np.asarray(impostor.quad_uv, dtype=np.float64).astype("<f4")
-    quad_page = np.asarray(impostor.quad_page, dtype=np.int64)
 
     binary = _Bin()
     accessors: list[dict] = []
     primitives: list[dict] = []
-    for page in range(len(impostor.pages)):
-        quads = np.flatnonzero(quad_page == page)
-        if quads.size == 0:
-            continue  # glTF accessors need count >= 1; the page keeps its material and image
-        positions = relative[quads].reshape(-1, 3)
-        indices = (np.arange(quads.size, dtype=np.int64)[:, None] * 4 + _QUAD_TRIANGLES).reshape(-1, 3)
-        # A triangle stored as a quad (core.tdm: fourth corner = third) has one degenerate half: drop it.
-        corner = positions[indices]
-        degenerate = (
-            np.all(corner[:, 0] == corner[:, 1], axis=1)
-            | np.all(corner[:, 1] == corner[:, 2], axis=1)
-            | np.all(corner[:, 0] == corner[:, 2], axis=1)
-        )
-        positions, texcoords, indices = _weld(positions, uv[quads].reshape(-1, 2), indices[~degenerate].ravel())
+    for page, positions, texcoords, indices in _page_geometry(impostor.payload, viewpoint, len(impostor.pages)):
         vertex_count = positions.shape[0]
         index_dtype, component = (
             ("<u2", _UNSIGNED_SHORT) if vertex_count < _MAX_UINT16_VERTICES else ("<u4", _UNSIGNED_INT)

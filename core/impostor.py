@@ -1,18 +1,39 @@
-"""The impostor: world-space quads (q, 4, 3) float64 textured from RGBA atlas pages (H, W, 4) uint8.
+"""The impostor: a header (technique, view cell, reference viewpoint, ...), RGBA atlas pages
+(H, W, 4) uint8 and a typed **payload**, the geometry drawn textured from those pages.
 
 This is the in-memory form every technique produces and every consumer (bundle writer, GLB writer,
-evaluation renderer, service) reads.  Conventions:
+evaluation renderer, comparison, runtime) reads.  Consumers dispatch on the payload's ``kind``,
+never on the technique's name:
+
+``"quads"`` (:class:`QuadPayload`)
+    World-space quads (q, 4, 3) float64, each with its own UVs, atlas page and layer: layered and
+    environment-map impostors.
+``"mesh"`` (:class:`MeshPayload`)
+    An indexed triangle mesh: vertices (v, 3) float64 with UVs (v, 2), triangles (t, 3), and per
+    triangle an atlas page and a mesh (connected component) label: textured depth meshes.
+
+Points, depth layers (LDI) and frame atlases (billboards) get payload kinds of their own when those
+techniques are built: a frozen dataclass with the same members (``kind``, ``ARRAYS``,
+``triangle_count``, ``arrays()``, ``from_arrays()``, ``check()``, ``world_points()``), registered in
+:data:`PAYLOAD_KINDS`, is all the bundle format needs.
+
+Conventions:
 
 * Image arrays (layers, tiles, atlas pages) are **top row first**, as PNG and glTF store them.
 * Texel rectangles are ``[x0, y0, x1, y1)`` integer texel indices in such an image (x right, y down).
 * Quad corners are ordered top-left, top-right, bottom-right, bottom-left as seen from the
   reference viewpoint, and each corner's UV is in glTF's convention: (0, 0) is the top-left of
-  the page, (1, 1) the bottom-right.
+  the page, (1, 1) the bottom-right.  Mesh vertices' UVs use the same convention; a mesh's
+  triangles have no prescribed winding (the GLB's materials are double-sided).
+* Floating-point arrays are float64 and index arrays int64 in memory; the payload classes convert
+  float and integer inputs of other widths on construction (and leave other dtypes for
+  :meth:`check` to refuse).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar, Union
 
 import numpy as np
 
@@ -22,20 +43,232 @@ from core.layers import LayerPlan
 TECHNIQUES = ("layered", "envmap", "tdm", "points", "ldi", "billboard")
 
 
+def _canonical(value) -> np.ndarray:
+    """``value`` as an array; float arrays as float64, integer arrays as int64, others unchanged."""
+    array = np.asarray(value)
+    if array.dtype.kind == "f":
+        return array.astype(np.float64, copy=False)
+    if array.dtype.kind in "iu":
+        return array.astype(np.int64, copy=False)
+    return array
+
+
+def _check_arrays(payload, page_count: int) -> dict[str, int]:
+    """Check ``payload``'s arrays against its ``ARRAYS`` table; return the sizes of its symbolic axes.
+
+    ``ARRAYS`` lists ``(name, kind, shape)``: kind ``"f"`` (finite floats) or ``"i"`` (integers),
+    shape a tuple of ints and axis names; every array naming an axis must agree on its length.
+    """
+    sizes: dict[str, int] = {}
+    for name, kind, shape in payload.ARRAYS:
+        array = getattr(payload, name)
+        ok = isinstance(array, np.ndarray) and array.ndim == len(shape)
+        if ok:
+            for axis, length in zip(shape, array.shape):
+                if isinstance(axis, str):
+                    ok = ok and sizes.setdefault(axis, length) == length
+                else:
+                    ok = ok and axis == length
+        if not ok:
+            expected = tuple(sizes.get(a, a) if isinstance(a, str) else a for a in shape)
+            raise BundleFormatError(f"{payload.kind} payload: {name} has shape {getattr(array, 'shape', None)}, expected {expected}")
+        if kind == "f":
+            if array.dtype != np.float64 or not np.all(np.isfinite(array)):
+                raise BundleFormatError(f"{payload.kind} payload: {name} must be finite floats, got dtype {array.dtype}")
+        elif array.dtype != np.int64:
+            raise BundleFormatError(f"{payload.kind} payload: {name} must be integers, got dtype {array.dtype}")
+    page = payload.page
+    if page.size and (page.min() < 0 or page.max() >= page_count):
+        raise BundleFormatError(
+            f"{payload.kind} payload: page spans [{page.min()}, {page.max()}] but there are {page_count} pages"
+        )
+    return sizes
+
+
+@dataclass(frozen=True, slots=True)
+class QuadPayload:
+    """Textured quads: world corners TL, TR, BR, BL seen from the reference viewpoint.
+
+    >>> p = QuadPayload.empty()
+    >>> p.kind, p.count, p.triangle_count, list(p.arrays())
+    ('quads', 0, 0, ['corners', 'uv', 'page', 'layer'])
+    """
+
+    corners: np.ndarray  # (q, 4, 3) float64 world
+    uv: np.ndarray  # (q, 4, 2) float64 page UV, glTF convention, same corner order
+    page: np.ndarray  # (q,) int64 atlas page of each quad
+    layer: np.ndarray  # (q,) int64 layer of each quad
+
+    kind: ClassVar[str] = "quads"
+    ARRAYS: ClassVar[tuple] = (
+        ("corners", "f", ("q", 4, 3)),
+        ("uv", "f", ("q", 4, 2)),
+        ("page", "i", ("q",)),
+        ("layer", "i", ("q",)),
+    )
+
+    def __post_init__(self) -> None:
+        for name, _, _ in self.ARRAYS:
+            object.__setattr__(self, name, _canonical(getattr(self, name)))
+
+    @classmethod
+    def empty(cls) -> QuadPayload:
+        return cls(np.zeros((0, 4, 3)), np.zeros((0, 4, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64))
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> QuadPayload:
+        return cls(**{name: arrays[name] for name, _, _ in cls.ARRAYS})
+
+    @property
+    def count(self) -> int:
+        """Quads."""
+        return int(self.corners.shape[0]) if self.corners.ndim else 0
+
+    @property
+    def triangle_count(self) -> int:
+        """Triangles drawn: two per quad."""
+        return 2 * self.count
+
+    def counts(self) -> dict[str, int]:
+        return {"quads": self.count}
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The payload's arrays by name, in the bundle's order."""
+        return {name: getattr(self, name) for name, _, _ in self.ARRAYS}
+
+    def world_points(self) -> np.ndarray:
+        """(4q, 3) float64 every corner, world metres."""
+        return self.corners.reshape(-1, 3)
+
+    def check(self, page_count: int) -> None:
+        """Raise :class:`BundleFormatError` unless the arrays fit (shapes, dtypes, finite, pages in range)."""
+        _check_arrays(self, page_count)
+
+
+@dataclass(frozen=True, slots=True)
+class MeshPayload:
+    """An indexed textured triangle mesh (a textured depth mesh's triangles, seed 003).
+
+    A vertex is a (position, UV) pair: a position shared by triangles of two texture charts is two
+    vertices.  :meth:`from_triangle_corners` builds one from per-triangle corners.
+
+    >>> corners = np.array([[[0, 0, 5], [1, 0, 5], [1, 1, 5]], [[0, 0, 5], [1, 1, 5], [0, 1, 5]]], float)
+    >>> uv = np.array([[[0, 1], [1, 1], [1, 0]], [[0, 1], [1, 0], [0, 0]]], float)
+    >>> m = MeshPayload.from_triangle_corners(corners, uv, np.zeros(2, int), np.zeros(2, int))
+    >>> m.kind, m.counts(), m.triangles.tolist()
+    ('mesh', {'vertices': 4, 'triangles': 2}, [[0, 1, 2], [0, 2, 3]])
+    >>> bool(np.array_equal(m.triangle_corners(), corners))
+    True
+    """
+
+    vertices: np.ndarray  # (v, 3) float64 world
+    uv: np.ndarray  # (v, 2) float64 page UV, glTF convention
+    triangles: np.ndarray  # (t, 3) int64 vertex indices
+    page: np.ndarray  # (t,) int64 atlas page of each triangle
+    mesh: np.ndarray  # (t,) int64 mesh (connected component) of each triangle
+
+    kind: ClassVar[str] = "mesh"
+    ARRAYS: ClassVar[tuple] = (
+        ("vertices", "f", ("v", 3)),
+        ("uv", "f", ("v", 2)),
+        ("triangles", "i", ("t", 3)),
+        ("page", "i", ("t",)),
+        ("mesh", "i", ("t",)),
+    )
+
+    def __post_init__(self) -> None:
+        for name, _, _ in self.ARRAYS:
+            object.__setattr__(self, name, _canonical(getattr(self, name)))
+
+    @classmethod
+    def empty(cls) -> MeshPayload:
+        return cls(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64))
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> MeshPayload:
+        return cls(**{name: arrays[name] for name, _, _ in cls.ARRAYS})
+
+    @classmethod
+    def from_triangle_corners(cls, corners, uv, page, mesh) -> MeshPayload:
+        """The mesh of triangles given by their corners (t, 3, 3) float64 world and corner UVs
+        (t, 3, 2), with ``page`` and ``mesh`` (t,) per triangle.
+
+        Corners with bit-equal position and UV become one vertex, numbered in the order of their
+        first appearance (triangle by triangle, corner by corner), so the mesh draws exactly the
+        given triangles and equal inputs give equal meshes.
+        """
+        corners = np.asarray(corners, dtype=np.float64).reshape(-1, 3, 3)
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 3, 2)
+        t = corners.shape[0]
+        if uv.shape[0] != t:
+            raise BundleFormatError(f"mesh payload: {t} triangles' corners but {uv.shape[0]} triangles' UVs")
+        rows = np.ascontiguousarray(np.concatenate([corners.reshape(-1, 3), uv.reshape(-1, 2)], axis=1))
+        if t == 0:
+            return cls(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3), np.int64), page, mesh)
+        keys = rows.view(np.dtype((np.void, rows.dtype.itemsize * 5)))[:, 0]
+        _, first, key_of = np.unique(keys, return_index=True, return_inverse=True)
+        order = np.argsort(first, kind="stable")  # keys by first appearance
+        slot = np.empty(first.size, np.int64)
+        slot[order] = np.arange(first.size)
+        kept = rows[first[order]]
+        return cls(kept[:, :3], kept[:, 3:], slot[key_of.reshape(-1)].reshape(t, 3), page, mesh)
+
+    @property
+    def count(self) -> int:
+        """Triangles."""
+        return int(self.triangles.shape[0]) if self.triangles.ndim else 0
+
+    @property
+    def triangle_count(self) -> int:
+        return self.count
+
+    def counts(self) -> dict[str, int]:
+        return {"vertices": int(self.vertices.shape[0]) if self.vertices.ndim else 0, "triangles": self.count}
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The payload's arrays by name, in the bundle's order."""
+        return {name: getattr(self, name) for name, _, _ in self.ARRAYS}
+
+    def world_points(self) -> np.ndarray:
+        """(v, 3) float64 every vertex, world metres."""
+        return self.vertices.reshape(-1, 3)
+
+    def triangle_corners(self) -> np.ndarray:
+        """(t, 3, 3) float64 world corners of each triangle."""
+        return self.vertices[self.triangles]
+
+    def triangle_uv(self) -> np.ndarray:
+        """(t, 3, 2) float64 corner UVs of each triangle."""
+        return self.uv[self.triangles]
+
+    def check(self, page_count: int) -> None:
+        """Raise :class:`BundleFormatError` unless the arrays fit (shapes, dtypes, finite, pages and
+        vertex indices in range)."""
+        sizes = _check_arrays(self, page_count)
+        if self.triangles.size and (self.triangles.min() < 0 or self.triangles.max() >= sizes["v"]):
+            raise BundleFormatError(
+                f"mesh payload: triangles index [{self.triangles.min()}, {self.triangles.max()}] "
+                f"but there are {sizes['v']} vertices"
+            )
+
+
+Payload = Union[QuadPayload, MeshPayload]
+
+# Payload kind -> class: what the bundle reader builds from a manifest's ``payload.kind``.
+PAYLOAD_KINDS: dict[str, type] = {cls.kind: cls for cls in (QuadPayload, MeshPayload)}
+
+
 @dataclass(frozen=True, slots=True)
 class Impostor:
-    """One impostor of one part for one view cell."""
+    """One impostor of one part for one view cell: a header, atlas pages and a payload."""
 
     technique: str
     viewcell: dict  # BoxCell.to_dict() / ShaftCell.to_dict()
     reference_viewpoint: np.ndarray  # (3,) float64 world
     resolution: int  # output image pixels per side it was made for
     fov_deg: float  # output field of view it was made for
-    quad_corners: np.ndarray  # (q, 4, 3) float64 world: TL, TR, BR, BL
-    quad_uv: np.ndarray  # (q, 4, 2) float64 page UV, glTF convention, same corner order
-    quad_page: np.ndarray  # (q,) int64 atlas page of each quad
-    quad_layer: np.ndarray  # (q,) int64 layer of each quad
     pages: tuple[np.ndarray, ...]  # each (H, W, 4) uint8, top row first
+    payload: Payload  # the geometry drawn from the pages
     layers: list[dict] = field(default_factory=list)  # per layer: distance, depth range (eye depth), texels kept
     stats: dict = field(default_factory=dict)  # counts, memory, timings per stage
     parameters: dict = field(default_factory=dict)  # every knob that made it
@@ -43,19 +276,40 @@ class Impostor:
 
     @property
     def quad_count(self) -> int:
-        return int(self.quad_corners.shape[0])
+        """Quads of a quad payload; 0 for any other payload."""
+        return self.payload.count if isinstance(self.payload, QuadPayload) else 0
 
     @property
     def triangle_count(self) -> int:
-        """Triangles drawn: two per quad, one per quad whose fourth corner repeats its third (a
-        textured depth mesh's triangle, see :mod:`core.tdm`)."""
-        corners = self.quad_corners
-        return int(2 * corners.shape[0] - np.count_nonzero(np.all(corners[:, 3] == corners[:, 2], axis=1)))
+        """Triangles drawn: two per quad, one per mesh triangle."""
+        return self.payload.triangle_count
 
     @property
     def texture_bytes(self) -> int:
         """Uncompressed RGBA bytes of all atlas pages."""
         return int(sum(p.shape[0] * p.shape[1] * 4 for p in self.pages))
+
+    def _quads(self) -> QuadPayload:
+        if not isinstance(self.payload, QuadPayload):
+            raise AttributeError(f"a {self.technique} impostor has a {self.payload.kind!r} payload, not quads")
+        return self.payload
+
+    # Read-only conveniences for quad payloads (layered, envmap); they raise for any other payload.
+    @property
+    def quad_corners(self) -> np.ndarray:
+        return self._quads().corners
+
+    @property
+    def quad_uv(self) -> np.ndarray:
+        return self._quads().uv
+
+    @property
+    def quad_page(self) -> np.ndarray:
+        return self._quads().page
+
+    @property
+    def quad_layer(self) -> np.ndarray:
+        return self._quads().layer
 
 
 def texel_rect_corners(plan: LayerPlan, layer_distance: float, rects: np.ndarray) -> np.ndarray:
@@ -88,9 +342,9 @@ def check_impostor(impostor: Impostor) -> None:
     Parameters
     ----------
     impostor : Impostor
-        ``reference_viewpoint`` (3,) finite, ``quad_corners`` (q, 4, 3) finite, ``quad_uv``
-        (q, 4, 2) finite, ``quad_page`` and ``quad_layer`` (q,) integers, every ``quad_page`` an
-        index into ``pages``, every page (H, W, 4) uint8 with H, W >= 1.
+        ``reference_viewpoint`` (3,) finite, every page (H, W, 4) uint8 with H, W >= 1, a payload
+        of a kind in :data:`PAYLOAD_KINDS` whose :meth:`check` passes (its float arrays float64
+        and finite, its index arrays int64, every page index into ``pages``).
 
     Raises
     ------
@@ -99,10 +353,8 @@ def check_impostor(impostor: Impostor) -> None:
 
     Examples
     --------
-    >>> import numpy as np
-    >>> bad = Impostor("layered", {}, np.zeros(3), 64, 60.0, np.zeros((1, 4, 3)),
-    ...                np.zeros((1, 4, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64),
-    ...                (np.zeros((2, 2, 4), np.float32),))
+    >>> quads = QuadPayload(np.zeros((1, 4, 3)), np.zeros((1, 4, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64))
+    >>> bad = Impostor("layered", {}, np.zeros(3), 64, 60.0, (np.zeros((2, 2, 4), np.float32),), quads)
     >>> check_impostor(bad)
     Traceback (most recent call last):
     ...
@@ -111,23 +363,6 @@ def check_impostor(impostor: Impostor) -> None:
     viewpoint = np.asarray(impostor.reference_viewpoint)
     if viewpoint.shape != (3,) or not np.all(np.isfinite(viewpoint)):
         raise BundleFormatError(f"reference_viewpoint must be 3 finite numbers, got {viewpoint!r}")
-    corners = np.asarray(impostor.quad_corners)
-    q = corners.shape[0] if corners.ndim == 3 else -1
-    expected = {
-        "quad_corners": (q, 4, 3),
-        "quad_uv": (q, 4, 2),
-        "quad_page": (q,),
-        "quad_layer": (q,),
-    }
-    for name, shape in expected.items():
-        array = np.asarray(getattr(impostor, name))
-        if q < 0 or array.shape != shape:
-            raise BundleFormatError(f"{name} has shape {array.shape}, expected {shape}")
-        if name in ("quad_corners", "quad_uv"):
-            if not np.issubdtype(array.dtype, np.floating) or not np.all(np.isfinite(array)):
-                raise BundleFormatError(f"{name} must be finite floats, got dtype {array.dtype}")
-        elif not np.issubdtype(array.dtype, np.integer):
-            raise BundleFormatError(f"{name} must be integers, got dtype {array.dtype}")
     for index, page in enumerate(impostor.pages):
         if not isinstance(page, np.ndarray) or page.dtype != np.uint8 or page.ndim != 3 or page.shape[2] != 4:
             shape = getattr(page, "shape", None)
@@ -137,9 +372,7 @@ def check_impostor(impostor: Impostor) -> None:
             )
         if page.shape[0] < 1 or page.shape[1] < 1:
             raise BundleFormatError(f"page {index} is empty: {page.shape}")
-    page_of_quad = np.asarray(impostor.quad_page)
-    if q > 0 and (page_of_quad.min() < 0 or page_of_quad.max() >= len(impostor.pages)):
-        raise BundleFormatError(
-            f"quad_page spans [{page_of_quad.min()}, {page_of_quad.max()}] "
-            f"but there are {len(impostor.pages)} pages"
-        )
+    payload = impostor.payload
+    if PAYLOAD_KINDS.get(getattr(payload, "kind", None)) is not type(payload):
+        raise BundleFormatError(f"payload is a {type(payload).__name__}, expected one of {sorted(PAYLOAD_KINDS)}")
+    payload.check(len(impostor.pages))

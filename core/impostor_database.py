@@ -4,7 +4,7 @@ The layout is what ``GET /v1/jobs/{id}/database.zip`` serves and ``farfield subm
 unpacks::
 
     index.json              format "farfield-impostor-database": job, params, cells
-    cells/00000/            the bundle of cell 0 (manifest.json, atlas-NNN.png, impostor.glb)
+    cells/00000/            the bundle of cell 0 (manifest.json, payload.bin, atlas-NNN.png, impostor.glb)
     cells/00001/ ...
 
 Each cell entry of the index has its ``index``, ``grid`` position ``[i, j, k]`` (grid jobs),

@@ -40,8 +40,8 @@ class EnvmapCellRenderer:
         quads = impostor_objects(impostor)
         self.renderer = MeshRenderer(near_objects + quads, [self.near.clip] * len(near_objects) + [None] * len(quads))
         self.near_triangles = sum(obj.faces.shape[0] for obj in near_objects)
-        self.quad_triangles = 2 * impostor.quad_count
-        corners = impostor.quad_corners.reshape(-1, 3)
+        self.quad_triangles = impostor.triangle_count  # the impostor's triangles, whatever its payload
+        corners = impostor.payload.world_points()
         self.reach = float(np.max(np.linalg.norm(corners - self.near.centre, axis=1))) if corners.size else 0.0
 
     def release(self) -> None:

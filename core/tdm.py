@@ -22,10 +22,9 @@ contraction next to it pushes it again, so a second pass at the same factor stil
 (measured on the house at 90 m, 512 px, when this was added: 1,946 instead of 2,175 triangles at
 f = 1, 629 instead of 660 at f = 2, for a few hundredths of a second).
 
-**Triangles in an Impostor.**  The impostor format holds quads (q, 4, 3); a TDM triangle is stored
-as a quad whose fourth corner repeats its third, so the bundle, the evaluation renderer and the
-runtime read it unchanged, and the GLB writer emits the one real triangle.  ``quad_layer`` holds
-the triangle's mesh (connected component).
+**Triangles in an Impostor.**  A TDM's payload is a :class:`~core.impostor.MeshPayload`: the
+indexed triangles, a vertex per (position, chart UV) pair, and per triangle its atlas page and its
+mesh (connected component).
 """
 
 from __future__ import annotations
@@ -41,7 +40,7 @@ from core.bake import Progress, layer_records
 from core.culling import CULLING_MODES, CullingMode
 from core.errors import InternalError, LayerPlanError
 from core.frustum import PIXEL_MODELS, PixelModel, check_fov, check_resolution
-from core.impostor import Impostor
+from core.impostor import Impostor, MeshPayload
 from core.layers import plan_layers
 from core.mask_atlas import pack_masks
 from core.scene import Scene
@@ -201,7 +200,7 @@ def bake_tdm(
     start = time.perf_counter()
     pages = chart_pages(field, corners, charts, layout, options.oversampling)
     uv = chart_uvs(charts, layout)
-    quad_page = layout.page[charts.chart]
+    triangle_page = layout.page[charts.chart]
     times["texture"] = time.perf_counter() - start
     report("texture", 1, 1)
 
@@ -237,11 +236,8 @@ def bake_tdm(
         reference_viewpoint=plan.reference_viewpoint,
         resolution=options.resolution,
         fov_deg=options.fov_deg,
-        quad_corners=corners[:, [0, 1, 2, 2]],
-        quad_uv=uv[:, [0, 1, 2, 2]],
-        quad_page=quad_page,
-        quad_layer=meshes,
         pages=tuple(pages),
+        payload=MeshPayload.from_triangle_corners(corners, uv, page=triangle_page, mesh=meshes),
         layers=layers,
         stats=stats,
         parameters={**asdict(options), "schedule": list(schedule(options.enlargement)), "objects": list(part.names), "scene_hash": scene.content_hash, "plan": plan.to_dict()},

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import hashlib
+import dataclasses
 import io
 import json
+import shutil
 import os
 import struct
 import zipfile
@@ -16,8 +19,10 @@ from PIL import Image
 
 import core.bundle
 from core.bundle import (
+    FORMAT_VERSION,
     GLB_NAME,
     MANIFEST_NAME,
+    PAYLOAD_NAME,
     bundle_zip,
     page_file_name,
     read_bundle,
@@ -25,7 +30,7 @@ from core.bundle import (
 )
 from core.errors import BundleFormatError
 from core.glb import impostor_glb, page_png
-from core.impostor import Impostor
+from core.impostor import Impostor, MeshPayload, QuadPayload
 
 ORIGIN = (0.0, 0.0, 0.0)
 CONTINENTAL = (4.2e6, -1.3e6, 250.0)
@@ -72,11 +77,13 @@ def make_impostor(viewpoint=ORIGIN, seed: int = 7, quads=QUADS, page_shapes=PAGE
         reference_viewpoint=vp,
         resolution=512,
         fov_deg=60.0,
-        quad_corners=np.array(corners, dtype=np.float64).reshape(-1, 4, 3),
-        quad_uv=np.array(uvs, dtype=np.float64).reshape(-1, 4, 2),
-        quad_page=np.array([q[2] for q in quads], dtype=np.int64),
-        quad_layer=np.array([q[0] for q in quads], dtype=np.int64),
         pages=tuple(pages),
+        payload=QuadPayload(
+            corners=np.array(corners, dtype=np.float64).reshape(-1, 4, 3),
+            uv=np.array(uvs, dtype=np.float64).reshape(-1, 4, 2),
+            page=np.array([q[2] for q in quads], dtype=np.int64),
+            layer=np.array([q[0] for q in quads], dtype=np.int64),
+        ),
         layers=[
             {"distance": 20.0, "depth_range": [14.9, 31.3], "texels": 35},
             {"distance": 45.0, "depth_range": [31.3, 80.0], "texels": 6},
@@ -87,11 +94,46 @@ def make_impostor(viewpoint=ORIGIN, seed: int = 7, quads=QUADS, page_shapes=PAGE
     )
 
 
+def make_mesh_impostor(viewpoint=CONTINENTAL, seed: int = 5, triangles: int = 40) -> Impostor:
+    """A random textured mesh (a fan of triangles sharing vertices) over 2 pages, as a TDM would give."""
+    rng = np.random.default_rng(seed)
+    vp = np.asarray(viewpoint, dtype=np.float64)
+    vertices = vp + [0.0, 30.0, 0.0] + rng.normal(scale=4.0, size=(triangles + 2, 3))
+    tri = np.stack([np.zeros(triangles, np.int64), np.arange(1, triangles + 1), np.arange(2, triangles + 2)], axis=1)
+    pages = tuple(rng.integers(0, 256, size=shape, dtype=np.uint8) for shape in PAGE_SHAPES)
+    # Huge vertex indices are not needed to exercise <i8: the page/mesh labels stay small.
+    payload = MeshPayload(
+        vertices=vertices,
+        uv=rng.uniform(0.0, 1.0, size=(triangles + 2, 2)),
+        triangles=tri,
+        page=rng.integers(0, 2, size=triangles),
+        mesh=rng.integers(0, 3, size=triangles),
+    )
+    return Impostor(
+        technique="tdm",
+        viewcell={"kind": "box", "lo": (vp - 2.0).tolist(), "hi": (vp + 2.0).tolist()},
+        reference_viewpoint=vp,
+        resolution=256,
+        fov_deg=45.0,
+        pages=pages,
+        payload=payload,
+        layers=[{"distance": 30.0, "depth_range": [20.0, 40.0], "texels": 99}],
+        stats={"triangles": triangles, "seconds": {"total": 0.5}},
+        parameters={"enlargement": 2.0},
+        code_version="0.1.0+test",
+    )
+
+
 def assert_impostors_equal(a: Impostor, b: Impostor) -> None:
-    for name in ("reference_viewpoint", "quad_corners", "quad_uv", "quad_page", "quad_layer"):
-        x, y = getattr(a, name), getattr(b, name)
+    assert type(a.payload) is type(b.payload) and a.payload.kind == b.payload.kind
+    x, y = a.reference_viewpoint, b.reference_viewpoint
+    assert x.dtype == y.dtype and x.shape == y.shape and np.array_equal(x, y)
+    arrays_a, arrays_b = a.payload.arrays(), b.payload.arrays()
+    assert list(arrays_a) == list(arrays_b)
+    for name in arrays_a:
+        x, y = arrays_a[name], arrays_b[name]
         assert x.dtype == y.dtype and x.shape == y.shape, name
-        assert np.array_equal(x, y), name  # bit-exact, not approximately
+        assert x.tobytes() == y.tobytes(), name  # bit-exact, not approximately
     assert len(a.pages) == len(b.pages)
     for x, y in zip(a.pages, b.pages):
         assert x.dtype == y.dtype == np.uint8 and np.array_equal(x, y)
@@ -138,21 +180,67 @@ def test_round_trip_is_exact(tmp_path, viewpoint):
     impostor = make_impostor(viewpoint)
     paths = write_bundle(impostor, tmp_path / "cell-0")
     assert sorted(p.name for p in paths.directory.iterdir()) == [
-        "atlas-000.png", "atlas-001.png", "impostor.glb", "manifest.json",
+        "atlas-000.png", "atlas-001.png", "impostor.glb", "manifest.json", "payload.bin",
     ]
-    assert paths.manifest.is_file() and paths.glb.is_file() and all(p.is_file() for p in paths.pages)
+    assert paths.manifest.is_file() and paths.glb.is_file() and paths.payload.is_file()
+    assert all(p.is_file() for p in paths.pages)
+    assert_impostors_equal(read_bundle(paths.directory), impostor)
+
+
+@pytest.mark.parametrize("viewpoint", [ORIGIN, CONTINENTAL], ids=["origin", "continental"])
+def test_mesh_round_trip_is_exact(tmp_path, viewpoint):
+    impostor = make_mesh_impostor(viewpoint)
+    paths = write_bundle(impostor, tmp_path / "m")
+    back = read_bundle(paths.directory)
+    assert isinstance(back.payload, MeshPayload) and back.triangle_count == 40 and back.quad_count == 0
+    assert_impostors_equal(back, impostor)
+    manifest = json.loads(paths.manifest.read_text("utf-8"))
+    assert manifest["payload"]["kind"] == "mesh" and manifest["payload"]["counts"] == {"vertices": 42, "triangles": 40}
+    with pytest.raises(AttributeError, match="mesh"):
+        back.quad_corners  # noqa: B018  (a mesh has no quads to fake)
+
+
+def test_payload_file_layout(tmp_path):
+    """payload.bin is the arrays, little-endian, 8-byte aligned, as the manifest's table says."""
+    big = make_mesh_impostor()
+    # An integer array beyond int32 is written as <i8, the others as <i4, floats as <f8.
+    mesh = dataclasses.replace(big.payload, mesh=big.payload.mesh + 2**40)
+    impostor = dataclasses.replace(big, payload=mesh)
+    paths = write_bundle(impostor, tmp_path / "m")
+    entry = json.loads(paths.manifest.read_text("utf-8"))["payload"]
+    data = paths.payload.read_bytes()
+    assert entry["file"] == PAYLOAD_NAME and entry["nbytes"] == len(data)
+    assert entry["sha256"] == hashlib.sha256(data).hexdigest()
+    assert [(a["name"], a["dtype"]) for a in entry["arrays"]] == [
+        ("vertices", "<f8"), ("uv", "<f8"), ("triangles", "<i4"), ("page", "<i4"), ("mesh", "<i8"),
+    ]
+    end = 0
+    for a in entry["arrays"]:
+        assert a["offset"] % 8 == 0 and a["offset"] == end + (-end % 8)
+        assert data[end : a["offset"]] == b"\x00" * (a["offset"] - end)
+        expected = getattr(mesh, a["name"])
+        assert a["shape"] == list(expected.shape)
+        stored = np.frombuffer(data, dtype=a["dtype"], count=expected.size, offset=a["offset"]).reshape(a["shape"])
+        assert np.array_equal(stored, expected)
+        end = a["offset"] + a["nbytes"]
+    assert end == len(data)
     assert_impostors_equal(read_bundle(paths.directory), impostor)
 
 
 def test_manifest_schema(tmp_path):
     impostor = make_impostor(CONTINENTAL)
     manifest = json.loads(write_bundle(impostor, tmp_path / "b").manifest.read_text("utf-8"))
-    assert manifest["format"] == "farfield-impostor" and manifest["format_version"] == 1
+    assert manifest["format"] == "farfield-impostor" and manifest["format_version"] == FORMAT_VERSION == 2
     assert set(manifest) == {
         "format", "format_version", "code_version", "technique", "viewcell", "reference_viewpoint",
-        "resolution", "fov_deg", "layers", "quads", "pages", "glb", "stats", "parameters",
+        "resolution", "fov_deg", "layers", "payload", "pages", "glb", "stats", "parameters",
     }
-    assert set(manifest["quads"]) == {"count", "corners", "uv", "page", "layer"}
+    payload = manifest["payload"]
+    assert set(payload) == {"kind", "counts", "file", "nbytes", "sha256", "arrays"}
+    assert payload["kind"] == "quads" and payload["counts"] == {"quads": 3} and payload["file"] == PAYLOAD_NAME
+    assert [(a["name"], a["dtype"], a["shape"]) for a in payload["arrays"]] == [
+        ("corners", "<f8", [3, 4, 3]), ("uv", "<f8", [3, 4, 2]), ("page", "<i4", [3]), ("layer", "<i4", [3]),
+    ]
     assert manifest["pages"] == [
         {"file": "atlas-000.png", "width": 8, "height": 6},
         {"file": "atlas-001.png", "width": 7, "height": 5},
@@ -167,17 +255,24 @@ def test_empty_impostor_round_trips(tmp_path):
     assert "meshes" not in document and len(document["materials"]) == 1
 
 
-def test_writes_are_byte_identical(tmp_path):
-    first = write_bundle(make_impostor(CONTINENTAL), tmp_path / "a")
-    second = write_bundle(make_impostor(CONTINENTAL), tmp_path / "b")
+@pytest.mark.parametrize("make", [make_impostor, make_mesh_impostor], ids=["quads", "mesh"])
+def test_writes_are_byte_identical(tmp_path, make):
+    # Two impostors built alike, and the same in-memory impostor written twice.
+    impostor = make(CONTINENTAL)
+    first = write_bundle(impostor, tmp_path / "a")
+    second = write_bundle(make(CONTINENTAL), tmp_path / "b")
+    again = write_bundle(impostor, tmp_path / "c")
     names = sorted(p.name for p in first.directory.iterdir())
-    assert names == sorted(p.name for p in second.directory.iterdir())
-    for name in names:
-        assert (first.directory / name).read_bytes() == (second.directory / name).read_bytes(), name
-    assert bundle_zip(first.directory) == bundle_zip(second.directory)
+    assert PAYLOAD_NAME in names
+    for other in (second, again):
+        assert names == sorted(p.name for p in other.directory.iterdir())
+        for name in names:
+            assert (first.directory / name).read_bytes() == (other.directory / name).read_bytes(), name
+        assert bundle_zip(first.directory) == bundle_zip(other.directory)
     # A different impostor changes the bytes (the comparison above is not vacuous).
-    other = write_bundle(make_impostor(CONTINENTAL, seed=8), tmp_path / "c")
+    other = write_bundle(make(CONTINENTAL, seed=8), tmp_path / "d")
     assert other.glb.read_bytes() != first.glb.read_bytes()
+    assert other.payload.read_bytes() != first.payload.read_bytes()
 
 
 def test_bundle_zip_is_the_bundle(tmp_path):
@@ -185,7 +280,7 @@ def test_bundle_zip_is_the_bundle(tmp_path):
     (paths.directory / "stray.txt").write_text("not part of the bundle")
     with zipfile.ZipFile(io.BytesIO(bundle_zip(paths.directory))) as archive:
         infos = archive.infolist()
-        assert [i.filename for i in infos] == sorted([MANIFEST_NAME, GLB_NAME, "atlas-000.png", "atlas-001.png"])
+        assert [i.filename for i in infos] == sorted([MANIFEST_NAME, GLB_NAME, PAYLOAD_NAME, "atlas-000.png", "atlas-001.png"])
         for info in infos:
             assert info.date_time == (1980, 1, 1, 0, 0, 0)
             assert archive.read(info) == (paths.directory / info.filename).read_bytes()
@@ -222,15 +317,15 @@ def test_glb_structure(viewpoint):
         assert png == page_png(impostor.pages[page_index])
         assert np.array_equal(np.asarray(Image.open(io.BytesIO(png))), impostor.pages[page_index])
 
-        quads = np.flatnonzero(impostor.quad_page == page_index)
+        quads = np.flatnonzero(impostor.payload.page == page_index)
         position_accessor = document["accessors"][primitive["attributes"]["POSITION"]]
         positions = accessor_array(document, binary, primitive["attributes"]["POSITION"])
         assert position_accessor["min"] == positions.min(axis=0).tolist()
         assert position_accessor["max"] == positions.max(axis=0).tolist()
-        relative = (impostor.quad_corners[quads] - impostor.reference_viewpoint).reshape(-1, 3)
+        relative = (impostor.payload.corners[quads] - impostor.reference_viewpoint).reshape(-1, 3)
         assert np.array_equal(positions, relative.astype(np.float32))
         uv = accessor_array(document, binary, primitive["attributes"]["TEXCOORD_0"])
-        assert np.array_equal(uv, impostor.quad_uv[quads].reshape(-1, 2).astype(np.float32))
+        assert np.array_equal(uv, impostor.payload.uv[quads].reshape(-1, 2).astype(np.float32))
         indices = accessor_array(document, binary, primitive["indices"]).reshape(-1, 3)
         assert indices.shape == (2 * quads.size, 3) and indices.max() < positions.shape[0]
         # Counter-clockwise seen from the reference viewpoint (the local origin): normals face it.
@@ -248,22 +343,79 @@ def test_glb_loads_in_trimesh_at_world_position(tmp_path, viewpoint):
     assert len(meshes) == len(impostor.pages)
     # float32 relative to the viewpoint: error scales with the distance from it, not with 4e6 m.
     # Storing world float32 would be off by up to 0.25 m here.
-    reach = np.abs(impostor.quad_corners - impostor.reference_viewpoint).max()
+    reach = np.abs(impostor.payload.corners - impostor.reference_viewpoint).max()
     atol = 1e-6 * reach + 1e-9
     seen_pages = set()
     for mesh in meshes:
         texture = np.asarray(mesh.visual.material.baseColorTexture.convert("RGBA"))
         (page_index,) = [i for i, p in enumerate(impostor.pages) if p.shape == texture.shape and np.array_equal(p, texture)]
         seen_pages.add(page_index)
-        quads = np.flatnonzero(impostor.quad_page == page_index)
-        world = impostor.quad_corners[quads].reshape(-1, 3)
+        quads = np.flatnonzero(impostor.payload.page == page_index)
+        world = impostor.payload.corners[quads].reshape(-1, 3)
         assert mesh.vertices.shape == world.shape
         assert np.allclose(mesh.vertices, world, rtol=0, atol=atol)
-        uv = impostor.quad_uv[quads].reshape(-1, 2)
+        uv = impostor.payload.uv[quads].reshape(-1, 2)
         # trimesh flips glTF's top-left V origin to bottom-left on import.
         assert np.allclose(mesh.visual.uv, np.column_stack([uv[:, 0], 1.0 - uv[:, 1]]), atol=1e-6)
         assert mesh.visual.material.alphaMode == "MASK"
     assert seen_pages == set(range(len(impostor.pages)))
+
+
+@pytest.mark.parametrize("viewpoint", [ORIGIN, CONTINENTAL], ids=["origin", "continental"])
+def test_glb_of_a_mesh_draws_its_triangles(tmp_path, viewpoint):
+    impostor = make_mesh_impostor(viewpoint)
+    mesh = impostor.payload
+    document, binary = parse_glb(impostor_glb(impostor))
+    (primitives,) = [m["primitives"] for m in document["meshes"]]
+    assert [p["material"] for p in primitives] == [0, 1]
+    relative = (mesh.vertices - impostor.reference_viewpoint).astype(np.float32)
+    for primitive in primitives:
+        page = primitive["material"]
+        positions = accessor_array(document, binary, primitive["attributes"]["POSITION"])
+        uv = accessor_array(document, binary, primitive["attributes"]["TEXCOORD_0"])
+        indices = accessor_array(document, binary, primitive["indices"]).reshape(-1, 3).astype(np.int64)
+        triangles = mesh.triangles[mesh.page == page]
+        # Its own indexed triangles, corners in order, each used vertex once.
+        assert indices.shape == triangles.shape
+        assert np.array_equal(positions[indices], relative[triangles])
+        assert np.array_equal(uv[indices], mesh.uv[triangles].astype(np.float32))
+        assert positions.shape[0] == np.unique(triangles).size
+    # trimesh sees the same triangles at their world positions.
+    scene = trimesh.load(write_bundle(impostor, tmp_path / "m").glb, force="scene")
+    assert sum(m.faces.shape[0] for m in scene.dump()) == mesh.triangle_count
+    reach = np.abs(mesh.vertices - impostor.reference_viewpoint).max()
+    for loaded in scene.dump():
+        nearest = np.abs(loaded.vertices[:, None, :] - mesh.vertices[None, :, :]).max(axis=2).min(axis=1)
+        assert np.all(nearest <= 1e-6 * reach + 1e-9)
+
+
+def _longest_list(value) -> int:
+    if isinstance(value, dict):
+        return max((_longest_list(v) for v in value.values()), default=0)
+    if isinstance(value, list):
+        return max([len(value)] + [_longest_list(v) for v in value])
+    return 0
+
+
+def test_manifest_stays_small_for_a_mesh(tmp_path):
+    """No per-vertex or per-triangle data in the JSON: the v1 TDM fixture's 31 kB manifest of
+    corner lists becomes a few kB (its parameters and layers), the arrays go to payload.bin."""
+    v1 = FIXTURES / "bundle_v1_tdm"
+    impostor = read_bundle(v1)
+    paths = write_bundle(impostor, tmp_path / "m")
+    text = paths.manifest.read_text("utf-8")
+    manifest = json.loads(text)
+    assert "quads" not in manifest and set(manifest["payload"]) == {"kind", "counts", "file", "nbytes", "sha256", "arrays"}
+    for key in ('"corners":[', '"uv":[', '"vertices":[', '"triangles":[', '"page":[', '"mesh":['):
+        assert key not in text, key
+    # Outside the per-layer lists and the parameters, no JSON list longer than the payload's table.
+    rest = {k: v for k, v in manifest.items() if k not in ("layers", "parameters")}
+    assert _longest_list(rest) == len(manifest["payload"]["arrays"]) == 5
+    layers = len(json.dumps(manifest["layers"])) + len(json.dumps(manifest["parameters"]["plan"]))
+    assert len(text) - layers < 4096 < (v1 / MANIFEST_NAME).stat().st_size
+    # A thousand times the triangles would not grow it: only the counts and table numbers change.
+    big = make_mesh_impostor(triangles=60000)
+    assert len(write_bundle(big, tmp_path / "big").manifest.read_bytes()) < 2048
 
 
 def _rewrite_manifest(directory: Path, change) -> None:
@@ -277,16 +429,55 @@ def _truncate(path: Path) -> None:
     path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
 
 
+def _rewrite_payload(directory: Path, name: str, change) -> None:
+    """Change one array of payload.bin in place (``change(array)``) and keep the manifest's digest
+    in step, so only the change itself is wrong."""
+    manifest = json.loads((directory / MANIFEST_NAME).read_text("utf-8"))
+    (entry,) = [a for a in manifest["payload"]["arrays"] if a["name"] == name]
+    data = bytearray((directory / PAYLOAD_NAME).read_bytes())
+    count = entry["nbytes"] // np.dtype(entry["dtype"]).itemsize
+    array = np.frombuffer(bytes(data), dtype=entry["dtype"], count=count, offset=entry["offset"]).copy()
+    change(array)
+    data[entry["offset"] : entry["offset"] + entry["nbytes"]] = array.tobytes()
+    (directory / PAYLOAD_NAME).write_bytes(bytes(data))
+    _rewrite_manifest(directory, lambda m: m["payload"].update(sha256=hashlib.sha256(bytes(data)).hexdigest()))
+
+
+def _flip_a_byte(path: Path) -> None:
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    path.write_bytes(bytes(data))
+
+
+def _array_entry(name: str, **change):
+    def spoil(manifest):
+        (entry,) = [a for a in manifest["payload"]["arrays"] if a["name"] == name]
+        entry.update(change)
+
+    return spoil
+
+
 BAD_BUNDLES = {
     "missing manifest": (lambda d: (d / MANIFEST_NAME).unlink(), MANIFEST_NAME),
     "manifest not JSON": (lambda d: (d / MANIFEST_NAME).write_text('{"format": '), MANIFEST_NAME),
     "manifest not an object": (lambda d: (d / MANIFEST_NAME).write_text("[1, 2]"), MANIFEST_NAME),
     "wrong format": (lambda d: _rewrite_manifest(d, lambda m: m.update(format="gltf")), MANIFEST_NAME),
-    "wrong format_version": (lambda d: _rewrite_manifest(d, lambda m: m.update(format_version=2)), MANIFEST_NAME),
+    "wrong format_version": (lambda d: _rewrite_manifest(d, lambda m: m.update(format_version=3)), MANIFEST_NAME),
+    "format_version true": (lambda d: _rewrite_manifest(d, lambda m: m.update(format_version=True)), MANIFEST_NAME),
     "missing key": (lambda d: _rewrite_manifest(d, lambda m: m.pop("technique")), MANIFEST_NAME),
-    "quad count mismatch": (lambda d: _rewrite_manifest(d, lambda m: m["quads"]["corners"].pop()), MANIFEST_NAME),
-    "ragged corners": (lambda d: _rewrite_manifest(d, lambda m: m["quads"]["uv"][0].pop()), MANIFEST_NAME),
-    "page out of range": (lambda d: _rewrite_manifest(d, lambda m: m["quads"]["page"].__setitem__(0, 5)), MANIFEST_NAME),
+    "missing payload": (lambda d: _rewrite_manifest(d, lambda m: m.pop("payload")), MANIFEST_NAME),
+    "unknown payload kind": (lambda d: _rewrite_manifest(d, lambda m: m["payload"].update(kind="points")), MANIFEST_NAME),
+    "payload count mismatch": (lambda d: _rewrite_manifest(d, lambda m: m["payload"]["counts"].update(quads=4)), MANIFEST_NAME),
+    "array shape mismatch": (lambda d: _rewrite_manifest(d, _array_entry("uv", shape=[3, 4, 3], nbytes=288)), MANIFEST_NAME),
+    "array shapes disagree": (lambda d: _rewrite_manifest(d, _array_entry("uv", shape=[2, 6, 2])), MANIFEST_NAME),
+    "array big-endian": (lambda d: _rewrite_manifest(d, _array_entry("corners", dtype=">f8")), MANIFEST_NAME),
+    "array misaligned": (lambda d: _rewrite_manifest(d, _array_entry("uv", offset=292)), MANIFEST_NAME),
+    "arrays out of order": (lambda d: _rewrite_manifest(d, lambda m: m["payload"]["arrays"].reverse()), MANIFEST_NAME),
+    "missing payload file": (lambda d: (d / PAYLOAD_NAME).unlink(), PAYLOAD_NAME),
+    "truncated payload": (lambda d: _truncate(d / PAYLOAD_NAME), PAYLOAD_NAME),
+    "corrupt payload": (lambda d: _flip_a_byte(d / PAYLOAD_NAME), PAYLOAD_NAME),
+    "page out of range": (lambda d: _rewrite_payload(d, "page", lambda a: a.__setitem__(0, 5)), MANIFEST_NAME),
+    "corner not finite": (lambda d: _rewrite_payload(d, "corners", lambda a: a.__setitem__(4, np.nan)), MANIFEST_NAME),
     "page size mismatch": (lambda d: _rewrite_manifest(d, lambda m: m["pages"][1].update(width=9)), "atlas-001.png"),
     "page file renamed": (lambda d: _rewrite_manifest(d, lambda m: m["pages"][0].update(file="../x.png")), MANIFEST_NAME),
     "truncated PNG": (lambda d: _truncate(d / "atlas-001.png"), "atlas-001.png"),
@@ -301,8 +492,79 @@ BAD_BUNDLES = {
 def test_bad_bundle_raises_naming_the_file(tmp_path, name):
     spoil, culprit = BAD_BUNDLES[name]
     directory = write_bundle(make_impostor(), tmp_path / "b").directory
+    read_bundle(directory)  # good before it is spoiled
     spoil(directory)
     with pytest.raises(BundleFormatError, match=culprit.replace(".", r"\.")):
+        read_bundle(directory)
+
+
+def test_mesh_index_out_of_range_raises(tmp_path):
+    directory = write_bundle(make_mesh_impostor(), tmp_path / "m").directory
+    _rewrite_payload(directory, "triangles", lambda a: a.__setitem__(7, 42))
+    with pytest.raises(BundleFormatError, match="triangles index"):
+        read_bundle(directory)
+
+
+# ---- format version 1: bundles written by the previous writer (tests/fixtures/README.md) ----
+
+FIXTURES = Path(__file__).parent / "fixtures"
+V1_EXPECTED = json.loads((FIXTURES / "bundle_v1_expected.json").read_text("utf-8"))
+
+
+def _digest(array: np.ndarray, dtype: str) -> str:
+    return hashlib.sha256(np.ascontiguousarray(array, dtype=dtype).tobytes()).hexdigest()
+
+
+@pytest.mark.parametrize("name", ["layered", "tdm"])
+def test_reads_version_1_bundles(tmp_path, name):
+    expected = V1_EXPECTED[name]
+    directory = FIXTURES / f"bundle_v1_{name}"
+    assert json.loads((directory / MANIFEST_NAME).read_text("utf-8"))["format_version"] == 1
+    impostor = read_bundle(directory)
+    assert impostor.technique == expected["technique"] == name
+    assert impostor.triangle_count == expected["triangles"]
+    assert [list(p.shape) for p in impostor.pages] == expected["pages"]
+    assert [hashlib.sha256(p.tobytes()).hexdigest() for p in impostor.pages] == expected["pages_sha256"]
+    payload = impostor.payload
+    if name == "layered":
+        assert isinstance(payload, QuadPayload) and impostor.quad_count == expected["quads"]
+        corners, uv, page, layer = payload.corners, payload.uv, payload.page, payload.layer
+    else:
+        # A v1 TDM's repeated-corner quads come back as the mesh of its real triangles.
+        assert isinstance(payload, MeshPayload) and impostor.quad_count == 0
+        assert payload.count == expected["quads"] == expected["stats_triangles"]
+        assert payload.vertices.shape[0] < 3 * payload.count  # welded: triangles share vertices
+        corners = payload.triangle_corners()[:, [0, 1, 2, 2]]
+        uv = payload.triangle_uv()[:, [0, 1, 2, 2]]
+        page, layer = payload.page, payload.mesh
+    assert float(np.sum(corners)) == expected["corners_sum"]
+    assert _digest(corners, "<f8") == expected["corners_sha256"]
+    assert _digest(uv, "<f8") == expected["uv_sha256"]
+    assert _digest(page, "<i8") == expected["page_sha256"]
+    assert _digest(layer, "<i8") == expected["layer_sha256"]
+    # Rewritten, it is a version 2 bundle holding the same impostor.
+    paths = write_bundle(impostor, tmp_path / "v2")
+    assert json.loads(paths.manifest.read_text("utf-8"))["format_version"] == 2
+    assert_impostors_equal(read_bundle(paths.directory), impostor)
+    assert bundle_zip(directory) != bundle_zip(paths.directory)
+    with zipfile.ZipFile(io.BytesIO(bundle_zip(directory))) as archive:
+        assert PAYLOAD_NAME not in archive.namelist() and MANIFEST_NAME in archive.namelist()
+
+
+V1_BAD = {
+    "quad count mismatch": lambda m: m["quads"]["corners"].pop(),
+    "ragged corners": lambda m: m["quads"]["uv"][0].pop(),
+    "page out of range": lambda m: m["quads"]["page"].__setitem__(0, 5),
+    "count not a count": lambda m: m["quads"].update(count="14"),
+}
+
+
+@pytest.mark.parametrize("name", list(V1_BAD))
+def test_bad_version_1_bundle_raises(tmp_path, name):
+    directory = tmp_path / "v1"
+    shutil.copytree(FIXTURES / "bundle_v1_layered", directory)
+    _rewrite_manifest(directory, V1_BAD[name])
+    with pytest.raises(BundleFormatError, match=MANIFEST_NAME.replace(".", r"\.")):
         read_bundle(directory)
 
 
@@ -362,7 +624,7 @@ def test_rewrite_replaces_the_whole_directory(tmp_path):
     (destination / "stray.txt").write_text("left over")
     smaller = make_impostor(quads=QUADS[:1], page_shapes=PAGE_SHAPES[:1])
     paths = write_bundle(smaller, destination)
-    assert sorted(p.name for p in destination.iterdir()) == [page_file_name(0), GLB_NAME, MANIFEST_NAME]
+    assert sorted(p.name for p in destination.iterdir()) == [page_file_name(0), GLB_NAME, MANIFEST_NAME, PAYLOAD_NAME]
     assert paths.pages == (destination / page_file_name(0),)
     assert _siblings(destination) == ["cell-0"]
     assert_impostors_equal(read_bundle(destination), smaller)

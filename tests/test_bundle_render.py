@@ -61,7 +61,7 @@ def test_glb_renders_like_the_bundle(baked):
     assert sum(o.faces.shape[0] for o in from_glb) == 2 * impostor.quad_count
     # World-space quads: every GLB vertex is one of the impostor's quad corners.
     glb_vertices = np.concatenate([o.vertices for o in from_glb])
-    corners = impostor.quad_corners.reshape(-1, 3)
+    corners = impostor.payload.world_points()
     scale = float(np.max(np.abs(corners)))
     for v in glb_vertices[:: max(1, len(glb_vertices) // 200)]:
         assert np.min(np.linalg.norm(corners - v, axis=1)) < 1e-5 * scale
@@ -80,8 +80,9 @@ def test_glb_renders_like_the_bundle(baked):
 def test_read_bundle_equals_the_baked_impostor(baked):
     _, _, impostor, directory = baked
     back = read_bundle(directory)
-    np.testing.assert_array_equal(back.quad_corners, impostor.quad_corners)
-    np.testing.assert_array_equal(back.quad_uv, impostor.quad_uv)
+    assert back.payload.kind == impostor.payload.kind == "quads"
+    for name, array in impostor.payload.arrays().items():
+        np.testing.assert_array_equal(back.payload.arrays()[name], array)
     assert all(np.array_equal(a, b) for a, b in zip(back.pages, impostor.pages))
     assert back.stats["quads"] == impostor.quad_count
 

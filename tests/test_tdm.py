@@ -423,7 +423,7 @@ def test_disjoint_parts_give_separate_meshes_and_one_part_one_mesh():
     cell = BoxCell(np.array([3.0, 0.5, -30.0]), np.array([4.0, 1.5, -29.0]))
     impostor = bake_tdm(scene, cell, TdmOptions(resolution=96))
     assert impostor.stats["initial_meshes"] == 2 and impostor.stats["meshes"] == 2
-    assert set(impostor.quad_layer.tolist()) == {0, 1}
+    assert set(impostor.payload.mesh.tolist()) == {0, 1}
     single = bake_tdm(scene, cell, TdmOptions(resolution=96), objects=["a"])
     assert single.stats["meshes"] == 1
     # A flat front face ends as two triangles' worth of geometry, not thousands.
@@ -439,11 +439,19 @@ def corner_set(row: list[float]) -> list[list[float]]:
 def test_bundle_glb_and_evaluate_cli_read_a_tdm_unchanged(tmp_path, house_bake):
     scene, cell = house_bake
     impostor = bake_tdm(scene, cell, TdmOptions(resolution=RESOLUTION))
-    write_bundle(impostor, tmp_path / "tdm")
+    paths = write_bundle(impostor, tmp_path / "tdm")
     back = read_bundle(tmp_path / "tdm")
-    assert back.technique == "tdm" and back.quad_count == impostor.stats["triangles"]
-    assert np.array_equal(back.quad_corners[:, 3], back.quad_corners[:, 2])
-    # The GLB holds one real triangle per TDM triangle (the degenerate half of each quad is left out).
+    mesh = impostor.payload
+    assert back.technique == "tdm" and back.payload.kind == mesh.kind == "mesh"
+    assert back.triangle_count == mesh.triangle_count == impostor.stats["triangles"] and back.quad_count == 0
+    for name, array in mesh.arrays().items():
+        assert back.payload.arrays()[name].tobytes() == array.tobytes(), name  # bit-exact
+    # The manifest is small: the triangles are in payload.bin, not in JSON lists.
+    manifest = paths.manifest.read_text("utf-8")
+    assert len(manifest) < 64 * 1024 and '"corners"' not in manifest and '"vertices":[' not in manifest
+    assert json.loads(manifest)["payload"]["counts"] == {"vertices": mesh.vertices.shape[0], "triangles": mesh.triangle_count}
+    assert paths.payload.stat().st_size >= mesh.vertices.nbytes + mesh.uv.nbytes + 4 * mesh.triangles.size
+    # The GLB holds one indexed triangle per TDM triangle.
     data = impostor_glb(impostor)
     length = struct.unpack_from("<I", data, 12)[0]
     gltf = json.loads(data[20 : 20 + length])
@@ -462,8 +470,9 @@ def test_bundle_glb_and_evaluate_cli_read_a_tdm_unchanged(tmp_path, house_bake):
         positions, uv, index = (accessor_array(gltf, binary, k) for k in (p["attributes"]["POSITION"], p["attributes"]["TEXCOORD_0"], p["indices"]))
         index = index.reshape(-1, 3).astype(np.int64)
         drawn += [np.concatenate([positions[t].ravel(), uv[t].ravel()]).tolist() for t in index]
-    relative = (impostor.quad_corners[:, :3] - impostor.reference_viewpoint).astype(np.float32)
-    expected = [np.concatenate([relative[i].ravel(), impostor.quad_uv[i, :3].astype(np.float32).ravel()]).tolist() for i in range(impostor.quad_count)]
+    relative = (mesh.triangle_corners() - impostor.reference_viewpoint).astype(np.float32)
+    corner_uv = mesh.triangle_uv().astype(np.float32)
+    expected = [np.concatenate([relative[i].ravel(), corner_uv[i].ravel()]).tolist() for i in range(mesh.triangle_count)]
     assert sorted(map(corner_set, drawn)) == sorted(map(corner_set, expected))
     # `farfield evaluate` on the bundle, as for a layered one.
     scene_path = scenes.write_scene(scene, tmp_path, "obj", "house")
@@ -500,7 +509,7 @@ def test_evaluate_puts_a_tdm_and_a_layered_impostor_side_by_side_and_says_which_
     # Both from the same viewpoints, counted as each technique draws and stores them.
     positions = [[v["position"] for v in row["evaluation"]["viewpoints"]] for row in rows.values()]
     assert positions[0] == positions[1] and len(positions[0]) == 11
-    assert rows["tdm"]["triangles"] == tdm.stats["triangles"] and rows["layered"]["triangles"] == 2 * layered.quad_count
+    assert rows["tdm"]["triangles"] == tdm.stats["triangles"] and rows["layered"]["triangles"] == 2 * layered.payload.count
     for row, impostor in ((rows["tdm"], tdm), (rows["layered"], layered)):
         assert row["memory_bytes"] == impostor.texture_bytes + impostor.stats["geometry_bytes"]
     # Among the hole-free, the least memory by default (within 5 %, the fewest triangles decide),

@@ -16,6 +16,7 @@ from scipy.spatial import cKDTree
 from core.bake import pack_tiles
 from core.errors import AtlasOverflowError, LayerPlanError
 from core.evaluation import evaluate
+from core.impostor import MeshPayload
 from core.layers import plan_layers
 from core.mask_atlas import pack_masks
 from core.tdm import TdmOptions, bake_tdm, geometry_bytes
@@ -208,11 +209,12 @@ def test_every_texel_inside_a_triangle_samples_its_world_point(house_tdm):
     which makes the GLB right under perspective-correct interpolation)."""
     _, _, impostor, field = house_tdm
     tree = cKDTree(field.centres)
-    world = impostor.quad_corners[:, :3]
-    uv = impostor.quad_uv[:, :3]
+    mesh = impostor.payload
+    world = mesh.triangle_corners()
+    uv = mesh.triangle_uv()
     checked = same = 0
-    for i in range(impostor.quad_count):
-        page = impostor.pages[impostor.quad_page[i]]
+    for i in range(mesh.triangle_count):
+        page = impostor.pages[mesh.page[i]]
         h, w = page.shape[:2]
         corner = uv[i] * [w, h]  # texel units of the page
         lo, hi = np.floor(corner.min(0)).astype(int), np.ceil(corner.max(0)).astype(int)
@@ -245,7 +247,7 @@ def test_house_pages_hold_every_chart_texel_once_and_are_opaque(house_tdm):
     """The charts of the bake again: their needed texels, packed as masks, are all on the pages,
     no two charts' texels are within the padding of each other, and every page texel is opaque."""
     _, _, impostor, field = house_tdm
-    world = impostor.quad_corners[:, :3]
+    world = impostor.payload.triangle_corners()
     # The mesh again: a shared vertex has bit-identical world corners in all its triangles.
     unique, triangles = np.unique(world.reshape(-1, 3), axis=0, return_inverse=True)
     points = field.from_world(unique)
@@ -266,7 +268,7 @@ def test_house_charts_hold_each_vertex_at_one_position_and_few_lone_triangles(ho
     """Rebuilt from the bake: a mesh vertex has one tile position in each chart it is in (the
     indexed GLB shares it), and lone triangles went into their neighbours' charts."""
     _, _, impostor, field = house_tdm
-    world = impostor.quad_corners[:, :3]
+    world = impostor.payload.triangle_corners()
     unique, triangles = np.unique(world.reshape(-1, 3), axis=0, return_inverse=True)
     points = np.rint(field.from_world(unique) * 64) / 64
     triangles = triangles.reshape(-1, 3)
@@ -331,10 +333,11 @@ def test_masks_that_fill_a_page_open_another_and_oversized_ones_are_refused():
 def test_house_tiles_are_smaller_and_the_colours_as_good(house_tdm):
     scene, cell, impostor, field = house_tdm
     margin = TdmOptions().texel_margin
-    world = impostor.quad_corners[:, :3]
+    world = impostor.payload.triangle_corners()
     tiles, chart, sizes = per_triangle_tiles(field, world, margin)
-    pages, corner_uv, quad_page, old_bytes = pack_tiles(tiles, TdmOptions().padding)
-    old = dataclasses.replace(impostor, quad_uv=tile_corner_uvs(chart, sizes, corner_uv)[:, [0, 1, 2, 2]], quad_page=quad_page, pages=pages)
+    pages, corner_uv, tile_page, old_bytes = pack_tiles(tiles, TdmOptions().padding)
+    per_triangle = MeshPayload.from_triangle_corners(world, tile_corner_uvs(chart, sizes, corner_uv), page=tile_page, mesh=impostor.payload.mesh)
+    old = dataclasses.replace(impostor, payload=per_triangle, pages=pages)
     old_pages = sum(p.nbytes for p in pages)
     new_bytes, new_pages = impostor.stats["texture_bytes_tile_area"], impostor.stats["texture_bytes"]
     # Measured at 90 / 140 units: tiles per triangle 48,656 / 18,816 bytes on pages of 131,072 / 41,728;
