@@ -14,15 +14,19 @@ timestamps, PNG pages encoded with fixed settings by :func:`page_png`).  Layout 
   significant digits, which at continental coordinates (1e6 m) is ~0.1 m absolute, but relative
   to a viewpoint a few hundred metres away it is well below a millimetre.
 * One primitive per atlas page that has geometry.  A quad payload (:class:`core.impostor.QuadPayload`)
-  gives two triangles per quad, counter-clockwise as seen from the reference viewpoint when its
-  corners are TL, TR, BR, BL there (TL, BL, BR and TL, BR, TR); its vertices are welded: each
-  distinct float32 (position, UV) pair that a triangle uses is stored once, in the order of its
-  first copy among the quads' corners (a layered impostor's quads, each with its own tile, keep
-  their four corners in order).  A mesh payload (:class:`core.impostor.MeshPayload`) gives its
-  own indexed triangles, corners in their stored order: the page's triangles in payload order,
-  and the vertices they use in the order of their first use.  Indices are uint16 when the
-  page has fewer than 65,535 vertices (0xFFFF is the primitive-restart value, which glTF
+  gives two triangles per quad (corners 0, 3, 2 and 0, 2, 1: TL, BL, BR and TL, BR, TR); its
+  vertices are welded: each distinct float32 (position, UV) pair that a triangle uses is stored
+  once, in the order of its first copy among the quads' corners (a layered impostor's quads,
+  each with its own tile, keep their four corners in order).  A mesh payload
+  (:class:`core.impostor.MeshPayload`) gives its own indexed triangles: the page's triangles in
+  payload order, and the vertices they use in the order of their first use.  Indices are uint16
+  when the page has fewer than 65,535 vertices (0xFFFF is the primitive-restart value, which glTF
   forbids), else uint32.
+* Every triangle is counter-clockwise as seen from the reference viewpoint (glTF's front face):
+  a triangle whose stored float32 corners wind the other way there has its last two corners
+  swapped (a baked layered impostor's image x runs right to left as seen from the viewpoint, so
+  its quads' TL, BL, BR is clockwise there; a textured depth mesh's triangles have no winding of
+  their own).  A triangle seen edge-on keeps its order.
 * One material per page, whether or not the page has quads: ``baseColorTexture`` of that page,
   ``KHR_materials_unlit``, ``alphaMode`` ``MASK`` with cutoff 0.5 and ``doubleSided`` (the
   impostor is only seen from inside its view cell, so a viewer must not cull it if it disagrees
@@ -63,8 +67,8 @@ _TRIANGLES = 4
 
 _UNLIT = "KHR_materials_unlit"
 
-# Corner order TL, TR, BR, BL (0..3) seen from the reference viewpoint: TL-BL-BR and TL-BR-TR are
-# counter-clockwise there.
+# Corner order TL, TR, BR, BL (0..3): the triangles TL-BL-BR and TL-BR-TR (their winding as seen
+# from the reference viewpoint is then set by _face_viewpoint).
 _QUAD_TRIANGLES = np.array([0, 3, 2, 0, 2, 1], dtype=np.int64)
 # 0xFFFF is reserved as primitive restart, so uint16 indices address at most 65,535 vertices.
 _MAX_UINT16_VERTICES = 0xFFFF
@@ -167,6 +171,23 @@ def _mesh_pages(payload: MeshPayload, viewpoint: np.ndarray, page_count: int):
         yield page, positions, payload.uv[kept].astype("<f4"), slot[local.reshape(-1)]
 
 
+def _face_viewpoint(positions: np.ndarray, indices: np.ndarray) -> np.ndarray:
+    """``indices`` (3n,) of triangles over ``positions`` (float32, relative to the viewpoint at the
+    origin), each counter-clockwise as seen from the origin: the last two corners of a triangle
+    that winds the other way are swapped.
+
+    >>> p = np.array([[0, 5, 0], [1, 5, 0], [0, 5, 1]], "<f4")  # seen from the origin along +y
+    >>> _face_viewpoint(p, np.array([0, 1, 2])).tolist(), _face_viewpoint(p, np.array([0, 2, 1])).tolist()
+    ([0, 1, 2], [0, 1, 2])
+    """
+    triangles = indices.reshape(-1, 3).copy()
+    corner = positions.astype(np.float64)[triangles]
+    normal = np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0])
+    away = np.einsum("ij,ij->i", normal, corner.sum(axis=1)) > 0  # the front faces away from the origin
+    triangles[away] = triangles[away][:, [0, 2, 1]]
+    return triangles.reshape(-1)
+
+
 def _page_geometry(payload, viewpoint: np.ndarray, page_count: int):
     """The payload's drawn triangles per page, dispatched on its kind."""
     if isinstance(payload, QuadPayload):
@@ -214,6 +235,7 @@ def impostor_glb(impostor: Impostor) -> bytes:
     accessors: list[dict] = []
     primitives: list[dict] = []
     for page, positions, texcoords, indices in _page_geometry(impostor.payload, viewpoint, len(impostor.pages)):
+        indices = _face_viewpoint(positions, indices)
         vertex_count = positions.shape[0]
         index_dtype, component = (
             ("<u2", _UNSIGNED_SHORT) if vertex_count < _MAX_UINT16_VERTICES else ("<u4", _UNSIGNED_INT)

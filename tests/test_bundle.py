@@ -286,6 +286,27 @@ def test_bundle_zip_is_the_bundle(tmp_path):
             assert archive.read(info) == (paths.directory / info.filename).read_bytes()
 
 
+def assert_faces_viewpoint(positions: np.ndarray, indices: np.ndarray) -> None:
+    """Every triangle counter-clockwise seen from the reference viewpoint (the local origin): its
+    normal points at it."""
+    tri = positions.astype(np.float64)[indices.reshape(-1, 3)]
+    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    assert np.all(np.einsum("ij,ij->i", normals, -tri.mean(axis=1)) > 0)
+
+
+@pytest.mark.parametrize("name", ["layered", "tdm"])
+def test_glb_of_a_baked_impostor_faces_the_viewpoint(name):
+    """The baked fixtures (tests/fixtures): a layered impostor's image x runs right to left seen
+    from the viewpoint, a TDM's triangles wind both ways; the GLB's triangles all face it."""
+    impostor = read_bundle(FIXTURES / f"bundle_v1_{name}")
+    document, binary = parse_glb(impostor_glb(impostor))
+    (mesh,) = document["meshes"]
+    assert sum(document["accessors"][p["indices"]]["count"] for p in mesh["primitives"]) == 3 * impostor.triangle_count
+    for primitive in mesh["primitives"]:
+        positions = accessor_array(document, binary, primitive["attributes"]["POSITION"])
+        assert_faces_viewpoint(positions, accessor_array(document, binary, primitive["indices"]))
+
+
 @pytest.mark.parametrize("viewpoint", [ORIGIN, CONTINENTAL], ids=["origin", "continental"])
 def test_glb_structure(viewpoint):
     impostor = make_impostor(viewpoint)
@@ -328,10 +349,7 @@ def test_glb_structure(viewpoint):
         assert np.array_equal(uv, impostor.payload.uv[quads].reshape(-1, 2).astype(np.float32))
         indices = accessor_array(document, binary, primitive["indices"]).reshape(-1, 3)
         assert indices.shape == (2 * quads.size, 3) and indices.max() < positions.shape[0]
-        # Counter-clockwise seen from the reference viewpoint (the local origin): normals face it.
-        tri = positions.astype(np.float64)[indices]
-        normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        assert np.all(np.einsum("ij,ij->i", normals, -tri.mean(axis=1)) > 0)
+        assert_faces_viewpoint(positions, indices)
 
 
 @pytest.mark.parametrize("viewpoint", [ORIGIN, CONTINENTAL], ids=["origin", "continental"])
@@ -375,11 +393,17 @@ def test_glb_of_a_mesh_draws_its_triangles(tmp_path, viewpoint):
         uv = accessor_array(document, binary, primitive["attributes"]["TEXCOORD_0"])
         indices = accessor_array(document, binary, primitive["indices"]).reshape(-1, 3).astype(np.int64)
         triangles = mesh.triangles[mesh.page == page]
-        # Its own indexed triangles, corners in order, each used vertex once.
+        # Its own indexed triangles, each used vertex once, corners in order or the last two
+        # swapped so that the triangle faces the reference viewpoint.
         assert indices.shape == triangles.shape
-        assert np.array_equal(positions[indices], relative[triangles])
-        assert np.array_equal(uv[indices], mesh.uv[triangles].astype(np.float32))
         assert positions.shape[0] == np.unique(triangles).size
+        assert_faces_viewpoint(positions, indices)
+        drawn = np.concatenate([positions[indices], uv[indices]], axis=2)
+        stored = np.concatenate([relative[triangles], mesh.uv[triangles].astype(np.float32)], axis=2)
+        swapped = stored[:, [0, 2, 1]]
+        same = np.all(drawn == stored, axis=(1, 2))
+        assert np.all(same | np.all(drawn == swapped, axis=(1, 2)))
+        assert 0 < same.sum() < len(same)  # the random fan winds both ways: both cases are tested
     # trimesh sees the same triangles at their world positions.
     scene = trimesh.load(write_bundle(impostor, tmp_path / "m").glb, force="scene")
     assert sum(m.faces.shape[0] for m in scene.dump()) == mesh.triangle_count
