@@ -48,9 +48,11 @@ The bundle is the on-disk form of one :class:`core.impostor.Impostor`.  Format v
     The payload's arrays, C order, each at an offset that is a multiple of 8 (the end of the
     previous array rounded up, zero bytes between; the first at 0), nothing after the last one.
 
-    ``"quads"``: ``corners`` (q, 4, 3) world metres, top-left, top-right, bottom-right,
-    bottom-left as seen from the reference viewpoint; ``uv`` (q, 4, 2) page coordinates in glTF
-    convention ((0, 0) is the top-left of the page); ``page`` (q,) atlas page; ``layer`` (q,) layer.
+    ``"quads"``: ``corners`` (q, 4, 3) world metres, the top-left, top-right, bottom-right and
+    bottom-left corners of each quad's texel rectangle in its layer image (a baked layer image's x
+    runs right to left as seen from the reference viewpoint: see :mod:`core.impostor`); ``uv``
+    (q, 4, 2) page coordinates of the same corners in glTF convention ((0, 0) is the top-left of
+    the page); ``page`` (q,) atlas page; ``layer`` (q,) layer.
 
     ``"mesh"``: ``vertices`` (v, 3) world metres; ``uv`` (v, 2) page coordinates, glTF
     convention; ``triangles`` (t, 3) vertex indices; ``page`` (t,) atlas page and ``mesh`` (t,)

@@ -21,10 +21,13 @@ Conventions:
 
 * Image arrays (layers, tiles, atlas pages) are **top row first**, as PNG and glTF store them.
 * Texel rectangles are ``[x0, y0, x1, y1)`` integer texel indices in such an image (x right, y down).
-* Quad corners are ordered top-left, top-right, bottom-right, bottom-left as seen from the
-  reference viewpoint, and each corner's UV is in glTF's convention: (0, 0) is the top-left of
-  the page, (1, 1) the bottom-right.  Mesh vertices' UVs use the same convention; a mesh's
-  triangles have no prescribed winding (the GLB's materials are double-sided).
+* Quad corners are ordered as the corners of the quad's texel rectangle in its layer image:
+  top-left, top-right, bottom-right, bottom-left (:func:`texel_rect_corners`).  A baked layer
+  image's x runs along the plan's ``u`` and its y against ``v``, with u x v = the view axis (layered
+  and environment-map plans alike), i.e. x runs right to left as seen from the reference
+  viewpoint, so seen from there the order is top-right, top-left, bottom-left, bottom-right.  Each corner's UV is in glTF's convention: (0, 0) is the top-left of the page,
+  (1, 1) the bottom-right.  Mesh vertices' UVs use the same convention; a mesh's triangles have
+  no prescribed winding.  (The GLB writer orients every triangle to face the reference viewpoint.)
 * Floating-point arrays are float64 and index arrays int64 in memory; the payload classes convert
   float and integer inputs of other widths on construction (and leave other dtypes for
   :meth:`check` to refuse).
@@ -87,7 +90,7 @@ def _check_arrays(payload, page_count: int) -> dict[str, int]:
 
 @dataclass(frozen=True, slots=True)
 class QuadPayload:
-    """Textured quads: world corners TL, TR, BR, BL seen from the reference viewpoint.
+    """Textured quads: world corners TL, TR, BR, BL of each quad's texel rectangle (module docstring).
 
     >>> p = QuadPayload.empty()
     >>> p.kind, p.count, p.triangle_count, list(p.arrays())
