@@ -17,14 +17,15 @@ import numpy as np
 
 from core import __version__
 from core.atlas import compose, fill_nearest_rgb, pack, tile_uvs
-from core.culling import CULLING_MODES, CullingMode, LayerCuller
+from core.culling import CullingMode, LayerCuller
 from core.errors import LayerPlanError
-from core.frustum import PIXEL_MODELS, PixelModel, check_fov, check_resolution
+from core.frustum import MAX_RESOLUTION, PixelModel
 from core.impostor import Impostor, QuadPayload, texel_rect_corners
 from core.layers import plan_layers
 from core.quads import grow_quads
 from core.recording import iter_layers
 from core.scene import Scene
+from core.options import check_options, option
 from core.viewcells import ViewCell
 
 Progress = Callable[[str, int, int], None]  # (stage, done, total)
@@ -35,30 +36,20 @@ QUAD_GEOMETRY_BYTES = 4 * 5 * 4 + 6 * 4
 
 @dataclass(frozen=True, slots=True)
 class BakeOptions:
-    """The knobs of a layered bake (all recorded in the impostor's parameters)."""
+    """The knobs of a layered bake (all recorded in the impostor's parameters); validated from each
+    field's declaration (:mod:`core.techniques.options`)."""
 
-    resolution: int = 512  # output pixels per side
-    fov_deg: float = 45.0  # output field of view
-    grid_cell: int = 8  # box-growing grid cell, texels (§3.5)
-    fill_threshold: float = 0.8  # box-growing fill ratio (§3.5)
-    culling: CullingMode = "penumbra"  # §3.4.1, "umbra" (§3.4) or "off"
-    pixel_model: PixelModel = "min"
-    conservative: bool = True  # gap-free recording; False only to demonstrate the holes
-    padding: int = 2  # atlas padding, texels
+    resolution: int = option(512, "output image pixels per side the impostor serves", ge=1, le=MAX_RESOLUTION)
+    fov_deg: float = option(45.0, "output field of view, degrees", gt=0.0, lt=180.0)
+    grid_cell: int = option(8, "box-growing grid cell, texels (seed 000 §3.5): smaller, less texture but more quads", ge=1, le=1024)
+    fill_threshold: float = option(0.8, "box-growing fill ratio (§3.5): lower, fewer quads but more wasted texels", gt=0.0, le=1.0)
+    culling: CullingMode = option("penumbra", "hidden-texel culling: penumbra (§3.4.1), umbra (§3.4 3x3 rule) or off")
+    pixel_model: PixelModel = option("min", "error bound from the smallest pixel angle (min) or the thesis's centre pixel (center)")
+    conservative: bool = option(True, "gap-free recording; false only to demonstrate the holes", internal=True)
+    padding: int = option(2, "atlas padding between tiles, texels", ge=0, le=64)
 
     def __post_init__(self) -> None:
-        check_resolution(self.resolution)
-        check_fov(math.radians(self.fov_deg))
-        if isinstance(self.grid_cell, bool) or int(self.grid_cell) != self.grid_cell or self.grid_cell < 1:
-            raise LayerPlanError(f"grid cell size must be an integer >= 1 texel, got {self.grid_cell!r}")
-        if not 0.0 < self.fill_threshold <= 1.0:
-            raise LayerPlanError(f"fill threshold must lie in (0, 1], got {self.fill_threshold!r}")
-        if self.culling not in CULLING_MODES:
-            raise LayerPlanError(f"culling mode must be one of {CULLING_MODES}, got {self.culling!r}")
-        if self.pixel_model not in PIXEL_MODELS:
-            raise LayerPlanError(f"pixel model must be one of {PIXEL_MODELS}, got {self.pixel_model!r}")
-        if isinstance(self.padding, bool) or int(self.padding) != self.padding or self.padding < 0:
-            raise LayerPlanError(f"atlas padding must be an integer >= 0, got {self.padding!r}")
+        check_options(self)
 
 
 def timed_layers(scene: Scene, plan, conservative: bool, times: dict) -> Iterator[tuple[int, np.ndarray, int]]:

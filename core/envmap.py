@@ -35,28 +35,32 @@ import numpy as np
 
 from core import __version__
 from core.bake import layer_tiles, pack_tiles, timed_layers
-from core.culling import CULLING_MODES, CullingMode, LayerCuller
+from core.cube_faces import FACES
+from core.culling import CullingMode, LayerCuller
 from core.envmap_layers import EnvmapPlan, envmap_plan, layers_for_near_field
 from core.errors import LayerPlanError, ViewCellError
-from core.frustum import check_fov, check_resolution, pixel_angle
+from core.frustum import MAX_RESOLUTION, pixel_angle
 from core.gap_fill import fill_gaps
 from core.glb import page_png
 from core.impostor import Impostor, QuadPayload, texel_rect_corners
 from core.near_field import near_field
+from core.options import check_options, option
 from core.scene import Scene
 from core.viewcells import BoxCell
 
 Progress = Callable[[str, int, int], None]  # (stage, done, total)
 
-# Cube faces: name -> (axis index, sign).  Image x and y run along the next two world axes, so a
-# face's frustum square is the cube face itself.
-FACES: dict[str, tuple[int, int]] = {"+x": (0, 1), "-x": (0, -1), "+y": (1, 1), "-y": (1, -1), "+z": (2, 1), "-z": (2, -1)}
+# Cube faces (core.cube_faces.FACES): image x and y run along the next two world axes, so a face's
+# frustum square is the cube face itself.
 
 # Bytes of one quad's geometry as drawn: 4 vertices x (3 position + 2 uv) float32 + 6 uint32 indices.
 QUAD_GEOMETRY_BYTES = 4 * 5 * 4 + 6 * 4
 
 # A cube may differ from a cube by this relative amount (grids of equal cells, float64 division).
 CUBE_TOLERANCE = 1e-9
+
+
+DEFAULT_LAYERS = 64
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,41 +74,29 @@ class EnvmapOptions:
     ``ceil(resolution / tan(fov / 2))`` (= ``resolution`` at the paper's 90 degrees).
     """
 
-    resolution: int = 512  # output pixels per side
-    fov_deg: float = 90.0  # output field of view
-    layers: int | None = 64
-    near_field: float | None = None
-    directions: tuple[str, ...] = tuple(FACES)
-    face_resolution: int | None = None
-    gap_fill: bool = False  # §5.1; off by default: the conservative recording leaves no gap to fill (README)
-    culling: CullingMode = "penumbra"  # §5.2 (+ seed 000 §3.4.1), "umbra" (§5.2 as printed) or "off"
-    grid_cell: int = 8  # §5.3 grid, texels
-    fill_threshold: float = 0.8  # §5.3 threshold
-    padding: int = 2  # atlas padding, texels
-    conservative: bool = True  # gap-free recording; False only to demonstrate the holes
+    resolution: int = option(512, "output image pixels per side", ge=1, le=MAX_RESOLUTION)
+    fov_deg: float = option(90.0, "output field of view, degrees (the paper's 90)", gt=0.0, lt=180.0)
+    layers: int | None = option(None, f"number of layers (seed 002 Eqs. 1-2), default {DEFAULT_LAYERS} unless near_field is given; more bring the near field closer for more memory", ge=1, le=4096)
+    near_field: float | None = option(None, "largest acceptable near-field distance from the cell centre, scene units: the fewest layers that reach it (instead of layers)", gt=0.0)
+    directions: tuple[str, ...] = option(tuple(FACES), "cube faces that get layers, e.g. +x,-x,+z,-z (the others are drawn as geometry)", choices=tuple(FACES))
+    face_resolution: int | None = option(None, "texels per cube-face side (seed 002 Res); default ceil(resolution / tan(fov / 2))", ge=1, le=MAX_RESOLUTION)
+    gap_fill: bool = option(False, "seed 002 §5.1 gap filling (off: the conservative recording leaves no gap to fill)")
+    culling: CullingMode = option("penumbra", "invisible-texel removal: penumbra (§5.2 + seed 000 §3.4.1), umbra (§5.2) or off")
+    grid_cell: int = option(8, "microtexture grid (§5.3), texels", ge=1, le=1024)
+    fill_threshold: float = option(0.8, "microtexture fill ratio (§5.3)", gt=0.0, le=1.0)
+    padding: int = option(2, "atlas padding, texels", ge=0, le=64)
+    conservative: bool = option(True, "gap-free recording; false only to demonstrate the holes", internal=True)
 
     def __post_init__(self) -> None:
-        check_resolution(self.resolution)
-        check_fov(math.radians(self.fov_deg))
-        if (self.layers is None) == (self.near_field is None):
+        check_options(self)
+        if self.layers is None and self.near_field is None:
+            object.__setattr__(self, "layers", DEFAULT_LAYERS)
+        if self.layers is not None and self.near_field is not None:
             raise LayerPlanError("give exactly one of 'layers' or 'near_field' for an envmap impostor")
-        if self.layers is not None and (isinstance(self.layers, bool) or int(self.layers) != self.layers or self.layers < 1):
-            raise LayerPlanError(f"number of layers must be an integer >= 1, got {self.layers!r}")
         directions = tuple(self.directions)
-        unknown = [d for d in directions if d not in FACES]
-        if not directions or unknown or len(set(directions)) != len(directions):
+        if not directions or len(set(directions)) != len(directions):
             raise LayerPlanError(f"directions must be distinct cube faces out of {list(FACES)}, got {list(directions)}")
         object.__setattr__(self, "directions", tuple(d for d in FACES if d in directions))  # canonical order
-        if self.face_resolution is not None:
-            check_resolution(self.face_resolution, "face resolution")
-        if self.culling not in CULLING_MODES:
-            raise LayerPlanError(f"culling mode must be one of {CULLING_MODES}, got {self.culling!r}")
-        if isinstance(self.grid_cell, bool) or int(self.grid_cell) != self.grid_cell or self.grid_cell < 1:
-            raise LayerPlanError(f"grid cell size must be an integer >= 1 texel, got {self.grid_cell!r}")
-        if not 0.0 < self.fill_threshold <= 1.0:
-            raise LayerPlanError(f"fill threshold must lie in (0, 1], got {self.fill_threshold!r}")
-        if isinstance(self.padding, bool) or int(self.padding) != self.padding or self.padding < 0:
-            raise LayerPlanError(f"atlas padding must be an integer >= 0, got {self.padding!r}")
 
     @property
     def texels_per_face(self) -> int:

@@ -25,6 +25,11 @@ PixelModel = Literal["center", "min"]
 PIXEL_MODELS: tuple[str, ...] = ("center", "min")
 
 
+# The largest output or face resolution any technique accepts (pixels per side): 16 times the
+# default and beyond every documented example; larger images are refused when options are checked.
+MAX_RESOLUTION = 16384
+
+
 def check_fov(fov: float) -> float:
     """Return ``fov`` (radians) if it lies in the open interval (0, π), else raise LayerPlanError."""
     if not (math.isfinite(fov) and 0.0 < fov < math.pi):

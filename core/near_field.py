@@ -23,6 +23,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from core.cube_faces import FACES
 from core.scene import Scene, SceneObject
 
 
@@ -37,14 +38,11 @@ def face_ranges(selected: np.ndarray) -> list[list[int]]:
     return edges.reshape(-1, 2).tolist()
 
 
-FACE_AXES = {"+x": (0, 1), "-x": (0, -1), "+y": (1, 1), "-y": (1, -1), "+z": (2, 1), "-z": (2, -1)}
-
-
 def _boxes_meet_pyramid(lo: np.ndarray, hi: np.ndarray, face: str) -> np.ndarray:
     """(n,) bool: which boxes (n, 3) (relative to the centre) meet the closed pyramid of ``face``,
     ``s p_i >= |p_j|`` for the other two axes j.  Exact for boxes: take the box's largest ``s p_i``
     and, independently, its smallest ``|p_j|``."""
-    axis, sign = FACE_AXES[face]
+    axis, sign = FACES[face]
     reach = hi[:, axis] if sign > 0 else -lo[:, axis]
     ok = np.ones(lo.shape[0], dtype=bool)
     for j in range(3):
@@ -114,7 +112,7 @@ def near_field(scene: Scene, centre, half_size: float, open_faces=()) -> NearFie
     """The triangles of ``scene`` the runtime draws: inside the cube ``centre ± half_size``, and
     beyond it in the pyramids of ``open_faces`` (cube faces without layers, e.g. ``("+y", "-y")``)."""
     centre = np.asarray(centre, dtype=np.float64)
-    open_faces = tuple(f for f in FACE_AXES if f in set(open_faces))
+    open_faces = tuple(f for f in FACES if f in set(open_faces))
     ranges = {}
     for obj in scene.objects:
         lo, hi = obj.bounds[0] - centre, obj.bounds[1] - centre

@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 
+from core.cube_faces import face_normal
 from core.evaluation import compare_images, impostor_objects
 from core.impostor import Impostor
 from core.near_field import NearField
@@ -68,8 +69,7 @@ def compare_views(scene_renderer: MeshRenderer, cell_renderer: EnvmapCellRendere
 def view_directions(directions: list[str] | tuple[str, ...]) -> np.ndarray:
     """(n, 3) unit view directions for evaluating an envmap cell: every recorded face axis, and the
     diagonals between neighbouring recorded faces (where a view spans two faces)."""
-    axes = {"+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0), "+z": (0, 0, 1), "-z": (0, 0, -1)}
-    vectors = [np.array(axes[d], dtype=np.float64) for d in directions]
+    vectors = [face_normal(d) for d in directions]
     out = list(vectors)
     for a in range(len(vectors)):
         for b in range(a + 1, len(vectors)):

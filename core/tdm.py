@@ -37,12 +37,13 @@ import numpy as np
 
 from core import __version__
 from core.bake import Progress, layer_records
-from core.culling import CULLING_MODES, CullingMode
-from core.errors import InternalError, LayerPlanError
-from core.frustum import PIXEL_MODELS, PixelModel, check_fov, check_resolution
+from core.culling import CullingMode
+from core.errors import InternalError
+from core.frustum import MAX_RESOLUTION, PixelModel
 from core.impostor import Impostor, MeshPayload
 from core.layers import plan_layers
 from core.mask_atlas import pack_masks
+from core.options import check_options, option
 from core.scene import Scene
 from core.tdm_kernels import box_half_sizes, covered_by, simplify
 from core.tdm_mesh import TdmMesh, initial_mesh, mesh_labels
@@ -55,30 +56,17 @@ from core.voxel_field import VoxelField, record_voxel_field
 class TdmOptions:
     """The knobs of a TDM bake (all recorded in the impostor's parameters)."""
 
-    resolution: int = 512  # output pixels per side
-    fov_deg: float = 45.0  # output field of view
-    enlargement: float = 2.0  # voxel enlargement factor for the covering test (seed 003 §6), >= 1
-    oversampling: int = 1  # n nearest voxels averaged per texel (seed 003 §7), >= 1
-    culling: CullingMode = "penumbra"
-    pixel_model: PixelModel = "min"
-    padding: int = 2  # atlas padding, texels
-    texel_margin: int = 1  # texels around each chart's triangles, for bilinear filtering (seed 003 §7)
+    resolution: int = option(512, "output image pixels per side", ge=1, le=MAX_RESOLUTION)
+    fov_deg: float = option(45.0, "output field of view, degrees", gt=0.0, lt=180.0)
+    enlargement: float = option(2.0, "voxel enlargement factor of the covering test (seed 003 §6): larger, fewer polygons, less accurate", ge=1.0, le=8.0)
+    oversampling: int = option(1, "nearest voxels averaged per texel (seed 003 §7)", ge=1, le=64)
+    culling: CullingMode = option("penumbra", "hidden-texel culling of the recorded layers: penumbra, umbra or off")
+    pixel_model: PixelModel = option("min", "error bound from the smallest pixel angle (min) or the centre pixel (center)")
+    padding: int = option(2, "atlas padding between charts, texels", ge=0, le=64)
+    texel_margin: int = option(1, "texels around each chart's triangles, for bilinear filtering (seed 003 §7)", ge=0, le=8)
 
     def __post_init__(self) -> None:
-        check_resolution(self.resolution)
-        check_fov(math.radians(self.fov_deg))
-        if not (isinstance(self.enlargement, (int, float)) and not isinstance(self.enlargement, bool)) or not 1.0 <= float(self.enlargement) <= 8.0:
-            raise LayerPlanError(f"voxel enlargement factor must lie in [1, 8], got {self.enlargement!r}")
-        if isinstance(self.oversampling, bool) or int(self.oversampling) != self.oversampling or not 1 <= self.oversampling <= 64:
-            raise LayerPlanError(f"oversampling must be an integer in [1, 64] voxels per texel, got {self.oversampling!r}")
-        if self.culling not in CULLING_MODES:
-            raise LayerPlanError(f"culling mode must be one of {CULLING_MODES}, got {self.culling!r}")
-        if self.pixel_model not in PIXEL_MODELS:
-            raise LayerPlanError(f"pixel model must be one of {PIXEL_MODELS}, got {self.pixel_model!r}")
-        if isinstance(self.padding, bool) or int(self.padding) != self.padding or self.padding < 0:
-            raise LayerPlanError(f"atlas padding must be an integer >= 0, got {self.padding!r}")
-        if isinstance(self.texel_margin, bool) or int(self.texel_margin) != self.texel_margin or not 0 <= self.texel_margin <= 8:
-            raise LayerPlanError(f"texel margin must be an integer in [0, 8], got {self.texel_margin!r}")
+        check_options(self)
 
 
 # The cascade of enlargement factors (see the module docstring).
