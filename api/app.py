@@ -21,7 +21,7 @@ from service.keys import ensure_admin_key
 from service.settings import Settings
 from workers.app import make_celery
 
-from api import routes_dashboard, routes_jobs, routes_ops, routes_results, routes_scenes
+from api import routes_dashboard, routes_jobs, routes_ops, routes_results, routes_scenes, routes_techniques
 from api.deps import Services
 from api.limits import BodyLimit
 from api.sweeper import LostCellSweeper
@@ -55,7 +55,7 @@ def create_app(settings: Settings, celery: Celery | None = None, migrate: bool =
 
     app.add_middleware(BodyLimit, services=app.state.services)
 
-    for module in (routes_scenes, routes_jobs, routes_results, routes_ops, routes_dashboard):
+    for module in (routes_scenes, routes_jobs, routes_results, routes_techniques, routes_ops, routes_dashboard):
         app.include_router(module.router)
     return app
 

@@ -1,4 +1,4 @@
-"""``farfield bake``: bake one impostor (layered, an environment map, or a textured depth mesh) and write its bundle (manifest, atlas PNGs, GLB)."""
+"""``farfield bake``: bake one impostor of any registered technique (:mod:`core.techniques`) and write its bundle (manifest, atlas PNGs, GLB)."""
 
 from __future__ import annotations
 
@@ -8,14 +8,13 @@ from pathlib import Path
 import click
 from tqdm import tqdm
 
-from core.bake import BakeOptions, bake_layered
 from core.bundle import write_bundle
 from core.culling import CULLING_MODES
-from core.envmap import FACES, EnvmapOptions, bake_envmap
 from core.errors import LayerPlanError
 from core.exchange import load_scene
 from core.frustum import PIXEL_MODELS
-from core.tdm import TdmOptions, bake_tdm
+from core.options import parse_option_text
+from core.techniques import TECHNIQUES, get_technique
 from core.viewcells import parse_viewcell
 
 
@@ -40,87 +39,69 @@ class _Bar:
             self.bar.close()
 
 
+def _shortcuts(technique, layers, near_field, directions, gap_fill, enlargement, oversampling, grid_cell, fill_threshold, culling, pixel_model) -> dict:
+    """The documented per-technique flags that were given, as option values (only the technique's own)."""
+    given = {
+        "layers": layers, "near_field": near_field, "directions": directions, "gap_fill": gap_fill, "enlargement": enlargement,
+        "oversampling": oversampling, "grid_cell": grid_cell, "fill_threshold": fill_threshold, "culling": culling, "pixel_model": pixel_model,
+    }  # fmt: skip
+    known = {o["name"] for o in technique.describe()["options"]}
+    wrong = sorted(k for k, v in given.items() if v is not None and k not in known)
+    if wrong:
+        flags = ", ".join("--" + k.replace("_", "-") for k in wrong)
+        raise LayerPlanError(f"{flags} do not apply to the {technique.name} technique (its options: {sorted(known)})")
+    return {k: v for k, v in given.items() if v is not None}
+
+
 @click.command("bake")
 @click.argument("scene", type=click.Path(dir_okay=False))
 @click.option("--viewcell", required=True, help="box:x0,y0,z0,x1,y1,z1 | box-center:cx,cy,cz,size | shaft:...")
 @click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Bundle directory to write (replaced whole).")
 @click.option("--objects", default=None, help="Comma-separated object names forming the part (default: all).")
-@click.option("--resolution", default=512, show_default=True, type=int, help="Output image pixels per side.")
-@click.option("--technique", type=click.Choice(["layered", "envmap", "tdm"]), default="layered", show_default=True,
-              help="layered: one part seen from a view cell; envmap: the whole scene around a cubic view cell (seed 002); "
-                   "tdm: textured depth meshes of one part seen from a view cell (seed 003).")
-@click.option("--fov", default=None, type=float, help="Output field of view, degrees [default: 45 layered and tdm, 90 envmap].")
+@click.option("--technique", type=click.Choice(list(TECHNIQUES)), default="layered", show_default=True,
+              help="; ".join(f"{t.name}: {t.help}" for t in TECHNIQUES.values()) + " (`farfield techniques` lists their options).")
+@click.option("--option", "options", multiple=True, metavar="NAME=VALUE",
+              help="A technique option (repeat), e.g. --option grid_cell=4 or --option directions=+x,-x; `farfield techniques` lists them.")
+@click.option("--resolution", default=None, type=int, help="Output image pixels per side [default: the technique's, 512].")
+@click.option("--fov", default=None, type=float, help="Output field of view, degrees [default: the technique's: 45; envmap 90].")
 @click.option("--layers", default=None, type=int, help="envmap: number of layers [default: 64 unless --near-field].")
 @click.option("--near-field", default=None, type=float, help="envmap: largest near-field distance from the cell centre (instead of --layers).")
-@click.option("--directions", default=",".join(FACES), show_default=True, help="envmap: cube faces to record, e.g. +x,-x,+z,-z.")
-@click.option("--gap-fill/--no-gap-fill", default=False, show_default=True, help="envmap: seed 002 §5.1 gap filling.")
-@click.option("--enlargement", default=2.0, show_default=True, type=float,
-              help="tdm: voxel enlargement factor of the covering test (seed 003 §6): larger, fewer polygons, less accurate.")
-@click.option("--oversampling", default=1, show_default=True, type=int, help="tdm: nearest voxels averaged per texel (seed 003 §7).")
-@click.option("--grid-cell", default=8, show_default=True, type=int, help="Box-growing grid cell, texels.")
-@click.option("--fill-threshold", default=0.8, show_default=True, type=float, help="Box-growing fill ratio.")
-@click.option("--culling", type=click.Choice(CULLING_MODES), default="penumbra", show_default=True)
-@click.option("--pixel-model", type=click.Choice(PIXEL_MODELS), default="min", show_default=True)
+@click.option("--directions", default=None, help="envmap: cube faces to record, e.g. +x,-x,+z,-z [default: all six].")
+@click.option("--gap-fill/--no-gap-fill", default=None, help="envmap: seed 002 §5.1 gap filling [default: off].")
+@click.option("--enlargement", default=None, type=float,
+              help="tdm: voxel enlargement factor of the covering test (seed 003 §6): larger, fewer polygons, less accurate [default: 2].")
+@click.option("--oversampling", default=None, type=int, help="tdm: nearest voxels averaged per texel (seed 003 §7) [default: 1].")
+@click.option("--grid-cell", default=None, type=int, help="layered, envmap: box-growing grid cell, texels [default: 8].")
+@click.option("--fill-threshold", default=None, type=float, help="layered, envmap: box-growing fill ratio [default: 0.8].")
+@click.option("--culling", type=click.Choice(CULLING_MODES), default=None, help="Hidden-texel culling [default: penumbra].")
+@click.option("--pixel-model", type=click.Choice(PIXEL_MODELS), default=None, help="layered, tdm: pixel angle of the error bound [default: min].")
 @click.option("--json", "as_json", is_flag=True, help="Print the bundle's statistics as JSON.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
-def bake(scene, viewcell, out, objects, resolution, technique, fov, layers, near_field, directions, gap_fill, enlargement, oversampling, grid_cell,
-         fill_threshold, culling, pixel_model, as_json, quiet):  # fmt: skip
-    """Bake the impostor of SCENE for a view cell and write its bundle to --out."""
+def bake(scene, viewcell, out, objects, technique, options, resolution, fov, layers, near_field, directions, gap_fill, enlargement, oversampling,
+         grid_cell, fill_threshold, culling, pixel_model, as_json, quiet):  # fmt: skip
+    """Bake the impostor of SCENE for a view cell and write its bundle to --out.
+
+    The per-technique flags (--layers, --enlargement, ...) are shortcuts for --option NAME=VALUE."""
+    chosen = get_technique(technique)
+    values = _shortcuts(chosen, layers, near_field, directions, gap_fill, enlargement, oversampling, grid_cell, fill_threshold, culling, pixel_model)
+    for item in options:
+        name, sep, text = item.partition("=")
+        if not sep or not name.strip():
+            raise LayerPlanError(f"--option {item!r}: expected NAME=VALUE")
+        values[name.strip()] = parse_option_text(chosen.Options, name.strip(), text)
+    settings = chosen.options(values, resolution, fov)
     cell = parse_viewcell(viewcell)
-    if technique == "envmap":
-        if objects:
-            raise LayerPlanError("an envmap impostor represents the whole scene; --objects does not apply")
-        faces = tuple(d.strip() for d in directions.split(",") if d.strip())
-        options = EnvmapOptions(
-            resolution, 90.0 if fov is None else fov, layers if layers is not None or near_field is not None else 64, near_field,
-            faces, gap_fill=gap_fill, culling=culling, grid_cell=grid_cell, fill_threshold=fill_threshold,
-        )  # fmt: skip
-    elif technique == "tdm":
-        options = TdmOptions(resolution, 45.0 if fov is None else fov, enlargement, oversampling, culling, pixel_model)
-    else:
-        options = BakeOptions(resolution, 45.0 if fov is None else fov, grid_cell, fill_threshold, culling, pixel_model)
-    loaded = load_scene(scene)
     names = [n.strip() for n in objects.split(",") if n.strip()] if objects else None
+    if chosen.scope == "scene" and names:
+        raise LayerPlanError(f"a {chosen.name} impostor represents the whole scene; --objects does not apply")
+    loaded = load_scene(scene)
     bar = _Bar(not quiet and not as_json)
     try:
-        if technique == "envmap":
-            impostor = bake_envmap(loaded, cell, options, progress=bar)
-        elif technique == "tdm":
-            impostor = bake_tdm(loaded, cell, options, names, progress=bar)
-        else:
-            impostor = bake_layered(loaded, cell, options, names, progress=bar)
+        impostor = chosen.bake(loaded, cell, settings, names, bar)
     finally:
         bar.close()
     write_bundle(impostor, Path(out))
-    stats = impostor.stats
     if as_json:
-        click.echo(json.dumps({"bundle": str(out), "stats": stats}, indent=2))
+        click.echo(json.dumps({"bundle": str(out), "stats": impostor.stats}, indent=2))
         return
-    seconds = stats["seconds"]
-    if technique == "envmap":
-        click.echo(
-            f"bundle: {out}\n"
-            f"faces: {stats['faces']}  layers: {stats['layers']} kept of {stats['faces'] * stats['layers_planned']}  "
-            f"near field: {stats['near_field']:.6g} ({stats['near_field_triangles']} triangles)  quads: {stats['quads']}\n"
-            f"memory: raw layers {stats['raw_layer_bytes'] / 2**20:.1f} MiB -> macrotextures "
-            f"{stats['texture_bytes'] / 2**20:.2f} MiB -> PNG {stats['png_bytes'] / 1024:.1f} KiB\n"
-            "seconds: " + "  ".join(f"{k} {v:.3f}" for k, v in seconds.items())
-        )
-        return
-    if technique == "tdm":
-        click.echo(
-            f"bundle: {out}\n"
-            f"layers: {stats['layers']} (planned {stats['layers_planned']})  voxels: {stats['voxels']}  "
-            f"triangles: {stats['initial_triangles']} -> {stats['triangles']}  meshes: {stats['meshes']}\n"
-            f"texture: {stats['texture_bytes'] / 1024:.1f} KiB  geometry: {stats['geometry_bytes'] / 1024:.1f} KiB  atlas pages: {stats['atlas_pages']}\n"
-            "seconds: " + "  ".join(f"{k} {v:.3f}" for k, v in seconds.items())
-        )
-        return
-    click.echo(
-        f"bundle: {out}\n"
-        f"layers: {stats['layers']} (planned {stats['layers_planned']})  quads: {stats['quads']}  "
-        f"atlas pages: {stats['atlas_pages']}  texture: {stats['texture_bytes'] / 1024:.1f} KiB "
-        f"(one quad per layer: {stats['texture_bytes_one_quad_per_layer'] / 1024:.1f} KiB)\n"
-        f"texels: {stats['texels_covered']} covered, {stats['texels_culled']} culled\n"
-        "seconds: " + "  ".join(f"{k} {v:.3f}" for k, v in seconds.items())
-    )
+    click.echo(f"bundle: {out}\n" + chosen.summary(impostor.stats))

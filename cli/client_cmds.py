@@ -68,7 +68,8 @@ class Client:
                 detail = response.text
             if isinstance(detail, list):  # FastAPI's validation errors
                 detail = "; ".join(f"{'.'.join(str(p) for p in d.get('loc', [])[1:])}: {d.get('msg')}" for d in detail)
-            raise ServiceError(f"{detail} (HTTP {response.status_code})", STATUS_KINDS.get(response.status_code, ErrorKind.BAD_INPUT))
+            default = ErrorKind.INTERNAL if response.status_code >= 500 else ErrorKind.BAD_INPUT  # a 5xx is the service's fault, never bad input
+            raise ServiceError(f"{detail} (HTTP {response.status_code})", STATUS_KINDS.get(response.status_code, default))
         return response
 
 
@@ -121,23 +122,21 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
 
 @click.command("submit")
 @click.argument("scene")
-@click.option("--job-type", type=click.Choice(["layered", "envmap", "tdm"]), default="layered", show_default=True,
-              help="layered: impostors of the scene's objects, any view cell; envmap: environment-map impostors of the whole scene, cubic box cells; "
-                   "tdm: textured depth meshes of the scene's objects, any view cell.")
+@click.option("--technique", default=None, help="The impostor technique, as the service lists them (`farfield techniques`, GET /v1/techniques) [default: layered].")
+@click.option("--job-type", default=None, hidden=True, help="Former name of --technique.")
 @click.option("--grid", default=None, help="View cells: a grid x0,y0,z0,x1,y1,z1,nx,ny,nz over a view-space box.")
 @click.option("--viewcell", "viewcells", multiple=True, help="Or explicit cells (repeat): box:x0,y0,z0,x1,y1,z1 | box-center:... | shaft:...")
 @click.option("--objects", default=None, help="Comma-separated represented objects (default: all).")
-@click.option("--resolution", default=512, show_default=True, type=int)
-@click.option("--fov", default=45.0, show_default=True, type=float)
+@click.option("--resolution", default=None, type=int, help="Output image pixels per side [default: the technique's, 512].")
+@click.option("--fov", default=None, type=float, help="Output field of view, degrees [default: the technique's, 45; envmap 90].")
 @click.option("--option", "options", multiple=True, metavar="NAME=VALUE",
-              help="Technique parameter (repeat); VALUE is parsed as JSON, else taken as text. layered: grid_cell, fill_threshold, culling, "
-                   "pixel_model, padding; envmap: layers, near_field, directions (e.g. '[\"+x\",\"-x\"]' or +x,-x), face_resolution, gap_fill, "
-                   "culling, grid_cell, fill_threshold, padding; tdm: enlargement, oversampling, culling, pixel_model, padding.")
+              help="Technique option (repeat); VALUE is parsed as JSON, else taken as text (a list option also takes a,b,c). "
+                   "`farfield techniques` lists each technique's options.")
 @click.option("--wait", is_flag=True, help="Wait for the job to end (exit code != 0 unless it is done).")
 @click.option("--download", type=click.Path(file_okay=False), default=None, help="After --wait, unpack the impostor database here.")
 @click.option("--json", "as_json", is_flag=True, help="Print the job record as JSON.")
 @_client_options
-def submit(scene, job_type, grid, viewcells, objects, resolution, fov, options, wait, download, as_json, url, key):
+def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov, options, wait, download, as_json, url, key):
     """Submit a job for SCENE (a file to upload, or the id of an uploaded scene)."""
     client = Client(url, key or _default_key())
     if (grid is None) == (not viewcells):
@@ -158,9 +157,10 @@ def submit(scene, job_type, grid, viewcells, objects, resolution, fov, options, 
         except ValueError:
             parsed[name] = value
     spec = {
-        "scene_id": scene_id, "job_type": job_type, "resolution": resolution, "fov_deg": fov, "options": parsed,
+        "scene_id": scene_id, "technique": technique or job_type or "layered", "resolution": resolution, "fov_deg": fov, "options": parsed,
         "objects": [n.strip() for n in objects.split(",") if n.strip()] if objects else None,
     }  # fmt: skip
+    spec = {k: v for k, v in spec.items() if v is not None}
     if grid is not None:
         spec["grid"] = parse_grid(grid)
     else:

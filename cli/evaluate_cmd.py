@@ -14,10 +14,8 @@ import click
 
 from core.bundle import read_bundle
 from core.comparison import PREFERENCES, Candidate, check_comparable, choose
-from core.evaluation import evaluate as run_evaluation
 from core.exchange import load_scene
-from core.runtime import evaluate_envmap
-from core.viewcells import viewcell_from_dict
+from core.techniques import get_technique
 
 
 @click.command("evaluate")
@@ -37,44 +35,18 @@ def evaluate(bundles, scene, random_count, outside_count, seed, prefer, as_json)
         _compare(list(bundles), impostors, part, random_count, outside_count, seed, prefer, as_json)
         return
     impostor = impostors[0]
-    if impostor.technique == "envmap":
-        _evaluate_envmap(part, impostor, random_count, seed, as_json)
-        return
-    names = impostor.parameters.get("objects")
-    if names:
-        part = part.subset(names)
-    cell = viewcell_from_dict(impostor.viewcell)
-    result = run_evaluation(part, impostor, cell, random_count, outside_count, seed)
+    technique = get_technique(impostor.technique)
+    result = technique.evaluate(part, impostor, random_count, outside_count, seed)
     if as_json:
-        click.echo(json.dumps(result.to_dict(), indent=2))
+        click.echo(json.dumps(result.to_dict() if hasattr(result, "to_dict") else result, indent=2))
         return
-    click.echo(f"{'kind':<10} {'geometry':>9} {'holes':>6} {'bloat':>6} {'>1px':>6} {'err mean':>9} {'err max':>8}")
-    for row in result.viewpoints:
-        s = row["stats"]
-        click.echo(
-            f"{row['kind']:<10} {s['geometry_pixels']:>9} {s['hole_pixels']:>6} {s['bloat_pixels']:>6} "
-            f"{s['bloat_beyond_1px']:>6} {s['colour_error_mean']:>9.2f} {s['colour_error_max']:>8}"
-        )
-    t = result.totals
-    click.echo(f"inside the view cell: {t['viewpoints']} viewpoints, {t['hole_pixels']} hole pixels, colour error mean {t['colour_error_mean']:.2f}")
-    if "outside" in t:
-        click.echo(f"outside the view cell: {t['outside']['viewpoints']} viewpoints, {t['outside']['hole_pixels']} hole pixels")
-    candidate = Candidate.of(bundles[0], impostor, result)
-    click.echo(
-        f"impostor ({impostor.technique}): {impostor.stats.get('layers')} layers, {candidate.triangles:,} triangles, "
-        f"{candidate.memory_bytes / 1024:.1f} KiB (atlas pages {impostor.texture_bytes / 1024:.1f} KiB + geometry)"
-    )
+    click.echo(technique.evaluation_text(result, impostor))
 
 
 def _compare(names: list[str], impostors, part, random_count: int, outside_count: int, seed: int, prefer: str, as_json: bool) -> None:
     """Several bundles of one part and view cell: each evaluated alike, side by side, and the one to use."""
     check_comparable(names, impostors)
-    first = impostors[0]
-    objects = first.parameters.get("objects")
-    if objects:
-        part = part.subset(objects)
-    cell = viewcell_from_dict(first.viewcell)
-    results = [run_evaluation(part, impostor, cell, random_count, outside_count, seed) for impostor in impostors]
+    results = [get_technique(i.technique).evaluate(part, i, random_count, outside_count, seed) for i in impostors]
     candidates = [Candidate.of(name, impostor, result) for name, impostor, result in zip(names, impostors, results)]
     choice = choose(candidates, prefer)
     if as_json:
@@ -91,27 +63,3 @@ def _compare(names: list[str], impostors, part, random_count: int, outside_count
         )
     click.echo(f"{results[0].totals['viewpoints']} viewpoints inside the view cell for each (hole pixels, pixels bloated beyond 1 px, mean colour error 0-255)")
     click.echo(f"use {choice.reason}")
-
-
-def _evaluate_envmap(scene, impostor, random_count: int, seed: int, as_json: bool) -> None:
-    """An envmap bundle: the whole scene vs near field + impostors, from inside the cell in every recorded direction."""
-    result = evaluate_envmap(scene, impostor, random_count=random_count, seed=seed)
-    if as_json:
-        click.echo(json.dumps(result, indent=2))
-        return
-    click.echo(f"{'kind':<7} {'forward':<20} {'geometry':>9} {'holes':>6} {'>1px':>6} {'err mean':>9} {'err max':>8}")
-    for row in result["views"]:
-        s = row["stats"]
-        forward = ",".join(f"{c:+.2f}" for c in row["forward"])
-        click.echo(
-            f"{row['kind']:<7} {forward:<20} {s['geometry_pixels']:>9} {s['hole_pixels']:>6} "
-            f"{s['bloat_beyond_1px']:>6} {s['colour_error_mean']:>9.2f} {s['colour_error_max']:>8}"
-        )
-    t = result["totals"]
-    stats = impostor.stats
-    click.echo(f"inside the view cell: {t['views']} views, {t['hole_pixels']} hole pixels, colour error mean {t['colour_error_mean']:.3f}")
-    click.echo(
-        f"impostor: {stats.get('faces')} faces, {stats.get('layers')} layers, {stats.get('quads')} quads, "
-        f"near field {stats.get('near_field'):.6g} ({stats.get('near_field_triangles')} triangles), "
-        f"{stats.get('texture_bytes', 0) / 1024:.1f} KiB texture, {stats.get('png_bytes', 0) / 1024:.1f} KiB PNG"
-    )

@@ -38,11 +38,12 @@ def cli() -> None:
 
 
 def _register() -> None:
-    from cli import bake_cmd, client_cmds, evaluate_cmd, inspect_cmd, layers_cmd, service_cmds, walkthrough_cmd
+    from cli import bake_cmd, client_cmds, evaluate_cmd, inspect_cmd, layers_cmd, service_cmds, techniques_cmd, walkthrough_cmd
 
     cli.add_command(inspect_cmd.inspect)
     cli.add_command(layers_cmd.layers)
     cli.add_command(bake_cmd.bake)
+    cli.add_command(techniques_cmd.techniques)
     cli.add_command(evaluate_cmd.evaluate)
     cli.add_command(service_cmds.up)
     cli.add_command(service_cmds.worker)

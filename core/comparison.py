@@ -24,6 +24,7 @@ from dataclasses import asdict, dataclass
 from core.errors import ComparisonError
 from core.evaluation import Evaluation
 from core.impostor import Impostor
+from core.techniques import get_technique
 
 PREFERENCES = ("memory", "triangles", "error")
 
@@ -88,8 +89,8 @@ def check_comparable(names: list[str], impostors: list[Impostor]) -> None:
         "resolution or field of view": lambda i: (i.resolution, i.fov_deg),
     }
     for name, impostor in zip(names, impostors):
-        if impostor.technique == "envmap":
-            raise ComparisonError(f"{name} is an envmap bundle (a whole scene around its cell); only impostors of one part compare side by side")
+        if get_technique(impostor.technique).scope != "part":
+            raise ComparisonError(f"{name} is an {impostor.technique} bundle (a whole scene around its cell); only impostors of one part compare side by side")
         for what, key in keys.items():
             if key(impostor) != key(first):
                 raise ComparisonError(f"{name} and {names[0]} differ in their {what}: only bundles of the same part, view cell, resolution and field of view compare")

@@ -87,7 +87,7 @@ class ImpostorDatabase:
             raise BundleFormatError(f"{index_path}: format is {index.get('format')!r}, expected {DATABASE_FORMAT!r}")
         self.root = path
         self.index = index
-        self.job_type: str = index.get("job_type", "layered")
+        self.technique: str = index.get("technique", index.get("job_type", "layered"))
         entries = index["cells"]
         neighbours = grid_neighbours([e.get("grid") for e in entries])
         self.cells = [
@@ -149,22 +149,39 @@ class ImpostorDatabase:
         return np.array([np.min([b.lo for b in boxes], axis=0), np.max([b.hi for b in boxes], axis=0)])
 
 
-def write_database(directory: str | Path, job_type: str, params: dict, cells: list[tuple[list[int] | None, Impostor]]) -> Path:
+def database_index(technique: str, params: dict, cells: list[dict], job: str | None = None, scene: str | None = None) -> dict:
+    """The index document of an impostor database, the one writer of its format (the service's jobs
+    and :func:`write_database` both call it).
+
+    ``cells`` holds per cell, in cell order: ``index``, ``grid`` (position or None), ``viewcell``,
+    ``state`` and ``bundle`` (its folder, or None); each gets its ``neighbours`` (the indices of the
+    cells of its 26-neighbourhood on the grid; [] for explicit cells).  ``job_type`` repeats
+    ``technique`` for readers of the first version.
+    """
+    from core import __version__
+
+    neighbours = grid_neighbours([c["grid"] for c in cells])
+    positions = [c["index"] for c in cells]  # list positions -> cell indices (the same when all cells are there)
+    return {
+        "format": DATABASE_FORMAT, "format_version": 1, "code_version": __version__, "job": job, "scene": scene,
+        "technique": technique, "job_type": technique, "params": params,
+        "cells": [{**c, "neighbours": [positions[n] for n in near]} for c, near in zip(cells, neighbours)],
+    }  # fmt: skip
+
+
+def write_database(directory: str | Path, technique: str, params: dict, cells: list[tuple[list[int] | None, Impostor]]) -> Path:
     """Write an impostor database folder from impostors baked in this process (benchmarks, tests,
     local use): ``index.json`` in the service's format plus ``cells/NNNNN/`` bundles.
 
     ``cells`` holds (grid position or None, impostor) per cell, in cell order.
     """
-    from core import __version__
     from core.bundle import write_bundle
 
     root = Path(directory)
     root.mkdir(parents=True, exist_ok=True)
-    neighbours = grid_neighbours([grid for grid, _ in cells])
     entries = []
     for n, (grid, impostor) in enumerate(cells):
         write_bundle(impostor, root / "cells" / f"{n:05d}")
-        entries.append({"index": n, "grid": grid, "viewcell": impostor.viewcell, "state": "done", "bundle": f"cells/{n:05d}/", "neighbours": neighbours[n]})
-    index = {"format": DATABASE_FORMAT, "format_version": 1, "code_version": __version__, "job": None, "scene": None, "job_type": job_type, "params": params, "cells": entries}
-    (root / INDEX_NAME).write_text(json.dumps(index, sort_keys=True, indent=1))
+        entries.append({"index": n, "grid": grid, "viewcell": impostor.viewcell, "state": "done", "bundle": f"cells/{n:05d}/"})
+    (root / INDEX_NAME).write_text(json.dumps(database_index(technique, params, entries), sort_keys=True, indent=1))
     return root

@@ -84,8 +84,8 @@ def walkthrough(
     progress: Progress | None = None,
 ) -> dict:
     """Walk the path; returns ``{"frames": [...], "summary": {...}}`` (see the module docstring)."""
-    if database.job_type != "envmap":
-        raise LayerPlanError(f"a walkthrough needs an envmap impostor database, got job type {database.job_type!r}")
+    if database.technique != "envmap":  # the reference runtime draws environment-map impostors only
+        raise LayerPlanError(f"a walkthrough needs an envmap impostor database, got technique {database.technique!r}")
     report = progress or (lambda done, total: None)
     frames, current, cell_renderer = [], None, None
     first = next((c for c in database.cells if c.bundle is not None), None)

@@ -1,8 +1,6 @@
 """One cell of a job, start to end: claim it, bake its impostor, store the bundle, record the outcome.
 
-The job's type picks the bake: ``layered`` -> :func:`core.bake.bake_layered` of the job's objects,
-``envmap`` -> :func:`core.envmap.bake_envmap` of the whole scene, ``tdm`` -> :func:`core.tdm.bake_tdm`
-of the job's objects.
+The job's technique (:func:`core.techniques.get_technique`) bakes the cell.
 
 This is everything a worker task does (``workers/tasks.py`` is a few lines around it).  The bundle
 is published under a key derived from everything that determines its bytes
@@ -24,17 +22,15 @@ import redis.exceptions
 import sqlalchemy.exc
 from kombu.exceptions import OperationalError as BrokerError
 
-from core.bake import bake_layered
 from core.bundle import MANIFEST_NAME, write_bundle
-from core.envmap import bake_envmap
-from core.errors import ErrorKind, FarfieldError, LayerPlanError
+from core.errors import ErrorKind, FarfieldError
 from core.impostor import Impostor
 from core.scene import Scene
-from core.tdm import bake_tdm
+from core.techniques import get_technique
 from core.viewcells import viewcell_from_dict
 from service.blobs import BlobStore
 from service.db import Database, JobRow, SceneRow
-from service.jobs import bake_options, claim_cell, end_cell, envmap_options, finish_job_if_complete, job_cancelled, result_key, set_progress, tdm_options
+from service.jobs import claim_cell, end_cell, finish_job_if_complete, job_cancelled, result_key, set_progress
 from service.scenes import load_stored_scene
 
 # A running cell looks at its job's state at the first layer after CANCEL_CHECK_S since its last
@@ -101,15 +97,9 @@ def failure_message(error: BaseException, klass: str) -> str:
 
 
 def bake_cell(job: JobRow, scene: Scene, viewcell: dict, progress) -> Impostor:
-    """The impostor of one cell of ``job`` (its type picks the technique)."""
-    cell = viewcell_from_dict(viewcell)
-    if job.job_type == "layered":
-        return bake_layered(scene, cell, bake_options(job.params), job.params["objects"], progress)
-    if job.job_type == "envmap":
-        return bake_envmap(scene, cell, envmap_options(job.params), progress)
-    if job.job_type == "tdm":
-        return bake_tdm(scene, cell, tdm_options(job.params), job.params["objects"], progress)
-    raise LayerPlanError(f"job {job.id} has an unknown job type {job.job_type!r}")
+    """The impostor of one cell of ``job``, baked by the job's technique (:mod:`core.techniques`)."""
+    technique = get_technique(job.job_type)
+    return technique.bake(scene, viewcell_from_dict(viewcell), technique.options_of(job.params), job.params.get("objects"), progress)
 
 
 def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, worker: str | None = None) -> str:

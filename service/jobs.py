@@ -1,10 +1,9 @@
 """Jobs and their cells: the request schema, the state machine, progress, and the impostor database index.
 
-Job types: ``layered`` (seed 000's layered impostors of a scene's objects, any view cell),
-``envmap`` (seed 002's layered environment-map impostors of the whole scene, cubic box cells) and
-``tdm`` (seed 003's textured depth meshes of a scene's objects, any view cell; planned like
-``layered``); each has its own technique parameters (``options``), validated, with every cell's
-layer plan, when the job is created.
+A job names a technique of the registry (:data:`core.techniques.TECHNIQUES`: ``layered``,
+``envmap``, ``tdm``; the request's former field ``job_type`` is still accepted) and its options,
+validated from the technique's ``Options`` together with every cell's plan (the technique's
+``check``) when the job is created.  The SQL column keeps the name ``job_type``.
 
 States (kept in SQL, never in Celery results):
 
@@ -33,21 +32,14 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlalchemy import func, select, update
 
 from core import __version__
-from core.bake import BakeOptions
-from core.envmap import FACES, EnvmapOptions, plan_envmap
 from core.errors import ConflictError, LayerPlanError, NotFoundError, ViewCellError
-from core.impostor_database import grid_neighbours
-from core.layers import plan_layers
-from core.tdm import TdmOptions
-from core.viewcells import BoxCell, ViewCell, grid_boxes, viewcell_from_dict
+from core.impostor_database import database_index
+from core.techniques import TECHNIQUES, get_technique
+from core.viewcells import BoxCell, grid_boxes, viewcell_from_dict
 from service.blobs import BlobStore
 from service.db import CELL_FINAL, JOB_STATES, CellRow, Database, JobRow, SceneRow, now, owned_row
 
-JOB_TYPES = ("layered", "envmap", "tdm")
 MAX_CELLS = 10_000
-OPTION_NAMES = ("grid_cell", "fill_threshold", "culling", "pixel_model", "padding")  # layered
-ENVMAP_OPTION_NAMES = ("layers", "near_field", "directions", "face_resolution", "gap_fill", "culling", "grid_cell", "fill_threshold", "padding")
-TDM_OPTION_NAMES = ("enlargement", "oversampling", "culling", "pixel_model", "padding")
 
 
 class GridSpec(BaseModel):
@@ -59,34 +51,42 @@ class GridSpec(BaseModel):
     counts: tuple[int, int, int] = Field(description=f"cells along x, y, z (each >= 1; {MAX_CELLS} in all at most)")
 
 
+def _options_help() -> str:
+    return "technique parameters (GET /v1/techniques lists each technique's options with types, defaults, bounds and help); " + "; ".join(
+        f"{t.name}: " + ", ".join(o["name"] for o in t.describe()["options"]) for t in TECHNIQUES.values()
+    )
+
+
 class JobSpec(BaseModel):
-    """A job request (``POST /v1/jobs``): one impostor per view cell of a scene's part."""
+    """A job request (``POST /v1/jobs``): one impostor per view cell of a scene's part (or of the
+    whole scene, for a technique of scope ``scene``)."""
 
     model_config = ConfigDict(extra="forbid")
     scene_id: str
-    job_type: Literal["layered", "envmap", "tdm"] = Field(
-        "layered",
-        description="layered: impostors of the scene's objects for any view cell; envmap: environment-map impostors of the whole scene, cubic box cells; "
-        "tdm: textured depth meshes of the scene's objects for any view cell",
+    technique: Literal[tuple(TECHNIQUES)] | None = Field(  # type: ignore[valid-type]
+        None, description="the impostor technique (default layered): " + "; ".join(f"{t.name}: {t.help}" for t in TECHNIQUES.values())
+    )
+    job_type: Literal[tuple(TECHNIQUES)] | None = Field(  # type: ignore[valid-type]
+        None, deprecated=True, description="the former name of 'technique', accepted until format 2 of the API; give one of them"
     )
     viewcells: list[dict] | None = Field(None, description="explicit view cells, e.g. {'kind': 'box', 'lo': [..], 'hi': [..]}")
     grid: GridSpec | None = Field(None, description="or a grid of box cells over a view-space box")
-    objects: list[str] | None = Field(None, description="the represented objects (default: all)")
-    resolution: int = 512
-    fov_deg: float = 45.0
-    options: dict = Field(
-        default_factory=dict,
-        description=f"technique parameters; layered: {', '.join(OPTION_NAMES)}; envmap: {', '.join(ENVMAP_OPTION_NAMES)} "
-        "(give layers or near_field, not both; default 64 layers; directions: cube faces such as ['+x', '-x', '+z', '-z']); "
-        f"tdm: {', '.join(TDM_OPTION_NAMES)} (enlargement: voxel enlargement factor of the covering test, 1 to 8, default 2; "
-        "oversampling: nearest voxels averaged per texel, default 1)",
-    )
+    objects: list[str] | None = Field(None, description="the represented objects (default: all; not for scene-scope techniques)")
+    resolution: int | None = Field(None, description="output image pixels per side (default: the technique's, 512)")
+    fov_deg: float | None = Field(None, description="output field of view, degrees (default: the technique's: 45, envmap 90)")
+    options: dict = Field(default_factory=dict, description=_options_help())
 
     @model_validator(mode="after")
     def _one_view_space(self) -> JobSpec:
         if (self.viewcells is None) == (self.grid is None):
             raise ValueError("give exactly one of 'viewcells' (a list) or 'grid'")
+        if self.technique is not None and self.job_type is not None and self.technique != self.job_type:
+            raise ValueError(f"'technique' ({self.technique}) and its former name 'job_type' ({self.job_type}) disagree; give one")
         return self
+
+    @property
+    def technique_name(self) -> str:
+        return self.technique or self.job_type or "layered"
 
 
 def grid_cells(grid: GridSpec) -> list[tuple[tuple[int, int, int], BoxCell]]:
@@ -100,70 +100,6 @@ def grid_cells(grid: GridSpec) -> list[tuple[tuple[int, int, int], BoxCell]]:
     return grid_boxes(grid.lo, grid.hi, grid.counts)
 
 
-def bake_options(params: dict) -> BakeOptions:
-    """The BakeOptions of a job's stored parameters (validates them)."""
-    unknown = sorted(set(params["options"]) - set(OPTION_NAMES))
-    if unknown:
-        raise LayerPlanError(f"unknown technique parameters {unknown}; known: {list(OPTION_NAMES)}")
-    try:
-        return BakeOptions(resolution=params["resolution"], fov_deg=params["fov_deg"], **params["options"])
-    except (TypeError, ValueError, OverflowError) as error:
-        raise LayerPlanError(f"bad technique parameters {params['options']}: {error}") from None
-
-
-def envmap_options(params: dict) -> EnvmapOptions:
-    """The EnvmapOptions of an envmap job's stored parameters (validates them).
-
-    ``near_field`` without ``layers`` gives the fewest layers that reach it; ``directions`` is a list
-    of cube faces (or one comma-separated string of them).
-    """
-    given = dict(params["options"])
-    unknown = sorted(set(given) - set(ENVMAP_OPTION_NAMES))
-    if unknown:
-        raise LayerPlanError(f"unknown technique parameters {unknown} for an envmap job; known: {list(ENVMAP_OPTION_NAMES)}")
-    if given.get("near_field") is not None:
-        near = given["near_field"]
-        if isinstance(near, bool) or not isinstance(near, (int, float)) or not math.isfinite(near) or near <= 0:
-            raise LayerPlanError(f"near_field must be a distance > 0 (scene units), got {near!r}")
-        given["near_field"] = float(near)
-        given.setdefault("layers", None)
-    if "directions" in given:
-        directions = given["directions"]
-        if isinstance(directions, str):
-            directions = [d.strip() for d in directions.split(",") if d.strip()]
-        if not isinstance(directions, (list, tuple)) or not all(isinstance(d, str) for d in directions):
-            raise LayerPlanError(f"directions must be a list of cube faces out of {list(FACES)}, got {given['directions']!r}")
-        given["directions"] = tuple(directions)
-    if "gap_fill" in given and not isinstance(given["gap_fill"], bool):
-        raise LayerPlanError(f"gap_fill must be true or false, got {given['gap_fill']!r}")
-    try:
-        return EnvmapOptions(resolution=params["resolution"], fov_deg=params["fov_deg"], **given)
-    except (TypeError, ValueError, OverflowError) as error:
-        raise LayerPlanError(f"bad technique parameters {params['options']}: {error}") from None
-
-
-def tdm_options(params: dict) -> TdmOptions:
-    """The TdmOptions of a tdm job's stored parameters (validates them)."""
-    unknown = sorted(set(params["options"]) - set(TDM_OPTION_NAMES))
-    if unknown:
-        raise LayerPlanError(f"unknown technique parameters {unknown} for a tdm job; known: {list(TDM_OPTION_NAMES)}")
-    try:
-        return TdmOptions(resolution=params["resolution"], fov_deg=params["fov_deg"], **params["options"])
-    except (TypeError, ValueError, OverflowError) as error:
-        raise LayerPlanError(f"bad technique parameters {params['options']}: {error}") from None
-
-
-def technique_options(job_type: str, params: dict) -> BakeOptions | EnvmapOptions | TdmOptions:
-    """The bake options of a job of ``job_type`` from its stored parameters (validates them)."""
-    if job_type == "layered":
-        return bake_options(params)
-    if job_type == "envmap":
-        return envmap_options(params)
-    if job_type == "tdm":
-        return tdm_options(params)
-    raise LayerPlanError(f"unknown job type {job_type!r}; one of {list(JOB_TYPES)}")
-
-
 def part_bounds(scene: SceneRow, objects: list[str] | None) -> np.ndarray:
     """(2, 3) bounds of the represented objects, from the stored object summaries."""
     by_name = {obj["name"]: obj for obj in scene.objects}
@@ -175,24 +111,15 @@ def part_bounds(scene: SceneRow, objects: list[str] | None) -> np.ndarray:
     return np.array([bounds[:, 0].min(axis=0), bounds[:, 1].max(axis=0)])
 
 
-def plan_cell(job_type: str, cell: ViewCell, options: BakeOptions | EnvmapOptions | TdmOptions, bounds: np.ndarray | None = None) -> None:
-    """Plan ``cell``'s layers as a job of ``job_type`` would (``bounds``: the represented part, for
-    layered and tdm jobs: a textured depth mesh has the layered plan); raises LayerPlanError or
-    ViewCellError when the cell cannot have an impostor."""
-    if job_type in ("layered", "tdm"):
-        plan_layers(cell, bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model)
-    elif not isinstance(cell, BoxCell):
-        raise ViewCellError(f"an envmap job needs cubic box view cells, got a {cell.to_dict()['kind']!r} cell")
-    else:
-        plan_envmap(cell, options)
-
-
 def create_job(db: Database, tenant_id: str, scene: SceneRow, spec: JobSpec) -> JobRow:
-    """Validate ``spec`` against ``scene`` (every cell gets a layer plan) and store the job and cells."""
-    params = {"resolution": spec.resolution, "fov_deg": spec.fov_deg, "objects": spec.objects, "options": dict(spec.options)}
-    options = technique_options(spec.job_type, params)
-    if spec.job_type == "envmap" and spec.objects is not None:
-        raise LayerPlanError("an envmap job represents the whole scene: leave out 'objects' (it is for layered and tdm jobs)")
+    """Validate ``spec`` against ``scene`` (every cell is planned by its technique's check) and store
+    the job and its cells.  Stored parameters name every image field explicitly (the technique's
+    defaults filled in), so a job means the same thing if a default changes."""
+    technique = get_technique(spec.technique_name)
+    options = technique.options(spec.options, spec.resolution, spec.fov_deg)
+    params = {"resolution": options.resolution, "fov_deg": options.fov_deg, "objects": spec.objects, "options": dict(spec.options)}
+    if technique.scope == "scene" and spec.objects is not None:
+        raise LayerPlanError(f"a {technique.name} job represents the whole scene: leave out 'objects' (it is for techniques of one part)")
     if spec.grid is not None:
         cells = [(list(ijk), box) for ijk, box in grid_cells(spec.grid)]
     else:
@@ -201,14 +128,14 @@ def create_job(db: Database, tenant_id: str, scene: SceneRow, spec: JobSpec) -> 
         if len(spec.viewcells) > MAX_CELLS:
             raise ViewCellError(f"{len(spec.viewcells)} view cells is over the limit of {MAX_CELLS}")
         cells = [(None, viewcell_from_dict(cell)) for cell in spec.viewcells]
-    bounds = part_bounds(scene, spec.objects) if spec.job_type in ("layered", "tdm") else None
+    bounds = part_bounds(scene, spec.objects) if technique.scope == "part" else None
     for n, (_, cell) in enumerate(cells):
         try:
-            plan_cell(spec.job_type, cell, options, bounds)
+            technique.check(cell, options, bounds)
         except (LayerPlanError, ViewCellError) as error:
             raise type(error)(f"view cell {n} ({cell.to_dict()}): {error}") from None
     job = JobRow(
-        id=uuid.uuid4().hex, tenant_id=tenant_id, scene_id=scene.id, job_type=spec.job_type, params=params,
+        id=uuid.uuid4().hex, tenant_id=tenant_id, scene_id=scene.id, job_type=technique.name, params=params,
         state="queued", created_at=now(),
     )  # fmt: skip
     with db.session() as s:
@@ -291,7 +218,7 @@ def job_record(job: JobRow, summary: dict, cells: list[CellRow] | None = None) -
         busy = max(counts["running"], 1)  # cells in flight approximates the workers serving the job
         eta = remaining * mean / busy
     record = {
-        "id": job.id, "scene_id": job.scene_id, "job_type": job.job_type, "state": job.state, "params": job.params,
+        "id": job.id, "scene_id": job.scene_id, "technique": job.job_type, "job_type": job.job_type, "state": job.state, "params": job.params,
         "error": job.error, "cells_total": total, "counts": counts, "progress": progress, "eta_s": eta,
         "created_at": job.created_at, "started_at": job.started_at, "finished_at": job.finished_at,
         "seconds": {"cells_total": summary["done_seconds"], "cell_mean": mean,
@@ -439,21 +366,12 @@ def finish_job_if_complete(db: Database, blobs: BlobStore, job_id: str) -> bool:
 
 
 def index_document(job: JobRow, cells: list[CellRow]) -> dict:
-    """The impostor database index of a job: its cells, their view cells, states and bundles, and
-    each cell's ``neighbours`` (the indices of the cells of its 26-neighbourhood on the grid; [] for
-    explicit cells)."""
-    neighbours = grid_neighbours([c.grid for c in cells])
-    positions = [c.index for c in cells]  # list positions -> cell indices (the same when all cells are there)
-    return {
-        "format": "farfield-impostor-database", "format_version": 1, "code_version": __version__,
-        "job": job.id, "scene": job.scene_id, "job_type": job.job_type, "params": job.params,
-        "cells": [
-            {"index": c.index, "grid": c.grid, "viewcell": c.viewcell, "state": c.state,
-             "bundle": f"cells/{c.index:05d}/" if c.result_key else None,
-             "neighbours": [positions[n] for n in near]}
-            for c, near in zip(cells, neighbours)
-        ],
-    }  # fmt: skip
+    """The impostor database index of a job (:func:`core.impostor_database.database_index`)."""
+    entries = [
+        {"index": c.index, "grid": c.grid, "viewcell": c.viewcell, "state": c.state, "bundle": f"cells/{c.index:05d}/" if c.result_key else None}
+        for c in cells
+    ]  # fmt: skip
+    return database_index(job.job_type, job.params, entries, job=job.id, scene=job.scene_id)
 
 
 def write_index(db: Database, blobs: BlobStore, job_id: str, final_state: str) -> str:

@@ -99,14 +99,15 @@ def test_bad_uploads_leave_nothing_behind(service, client, name, content, status
     "change, status, message",
     [
         ({"resolution": 0}, 422, "resolution"),
-        ({"fov_deg": 200}, 422, "field of view"),
+        ({"fov_deg": 200}, 422, "fov_deg must be a number in (0, 180), got 200"),
         ({"grid": None, "viewcells": [{"kind": "box", "lo": [-0.01, 0.1, -0.01], "hi": [0.01, 0.12, 0.01]}]}, 422, "view cell 0"),
         ({"scene_id": "0" * 32}, 404, "not found"),
         ({"objects": ["nope"]}, 404, "no objects named"),
-        ({"options": {"grid_cell": 0}}, 422, "grid cell"),
+        ({"options": {"grid_cell": 0}}, 422, "grid_cell must be an integer in [1, 1024], got 0"),
         ({"grid": {"lo": [0, 0, 0], "hi": [1, 1, 1], "counts": [0, 1, 1]}}, 422, "counts"),
         ({"grid": {"lo": [0, 0, 0], "hi": [1, 1, 1], "counts": [2**32, 2**32, 1]}}, 422, "over the limit"),
-        ({"options": {"grid_cell": "abc"}}, 422, "technique parameters"),
+        ({"options": {"grid_cell": "abc"}}, 422, "grid_cell must be an integer"),
+        ({"options": {"grid_cell": 8.0, "padding": 1e18}}, 422, "padding must be an integer in [0, 64]"),
     ],
 )
 def test_bad_job_parameters_are_refused(client, bunny_id, change, status, message):

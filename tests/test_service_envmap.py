@@ -10,7 +10,6 @@ at 64 pixels, 90 degrees, 4 layers on the four horizontal faces: a few seconds o
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +21,7 @@ from core.exchange import load_scene
 from core.impostor_database import ImpostorDatabase
 from core.viewcells import viewcell_from_dict
 from scenes import city, write_scene
+from browser import dashboard_page, tid
 from service_harness import service_client, service_on_each_database  # noqa: F401 - the service and client fixtures
 from service_harness import ADMIN_KEY, upload, wait_for_job
 
@@ -63,7 +63,7 @@ def test_envmap_grid_job_makes_an_impostor_database(client, city_id, city_glb, t
     path = tmp_path / "database.zip"
     path.write_bytes(database.content)
     with ImpostorDatabase(path) as db:
-        assert db.job_type == "envmap" and db.index["job_type"] == "envmap"
+        assert db.technique == "envmap" and db.index["job_type"] == "envmap"
         assert len(db.cells) == 9 and [c.index for c in db.cells] == list(range(9))
         assert db.prefetch(CENTRE) == 8  # a runtime at the centre cell reads its 8 neighbours ahead
         for cell in db.cells:
@@ -103,7 +103,7 @@ def test_layered_index_has_neighbours_too(client, city_id, tmp_path):
     path = tmp_path / "layered.zip"
     path.write_bytes(client.get(f"/v1/jobs/{job['id']}/database.zip").content)
     with ImpostorDatabase(path) as db:
-        assert db.job_type == "layered" and db.index["cells"][0]["neighbours"] == []
+        assert db.technique == "layered" and db.index["cells"][0]["neighbours"] == []
         assert db.impostor(0).technique == "layered"
 
 
@@ -113,15 +113,17 @@ def test_layered_index_has_neighbours_too(client, city_id, tmp_path):
         ({"grid": {**GRID, "hi": [45.0, 35.0, -25.0]}}, "cubic"),  # 10 x 10 x 20 cells
         ({"grid": None, "viewcells": [{"kind": "box", "lo": [0, 5, -40], "hi": [10, 15, -35]}]}, "cubic"),
         ({"grid": None, "viewcells": [{"kind": "shaft", "apex": [0, 5, -40], "direction": [0, 0, 1], "apex_angle_deg": 10, "min_distance": 1}]}, "cubic box"),
-        ({"options": {**OPTIONS, "pixel_model": "exact"}}, "unknown technique parameters ['pixel_model']"),
+        ({"options": {**OPTIONS, "pixel_model": "exact"}}, "unknown envmap options ['pixel_model']"),
         ({"options": {**OPTIONS, "near_field": 200.0}}, "exactly one of 'layers' or 'near_field'"),
-        ({"options": {"near_field": "far"}}, "near_field must be a distance"),
-        ({"options": {"directions": ["+x", "+w"]}}, "directions must be distinct cube faces"),
-        ({"options": {"layers": 0}}, "number of layers"),
-        ({"options": {"culling": "maybe"}}, "culling mode"),
+        ({"options": {"near_field": "far"}}, "near_field must be a number > 0"),
+        ({"options": {"directions": ["+x", "+w"]}}, "directions must be a list of strings out of ['+x'"),
+        ({"options": {"directions": ["+x", "+x"]}}, "directions must be distinct cube faces"),
+        ({"options": {"layers": 0}}, "layers must be an integer in [1, 4096]"),
+        ({"options": {"culling": "maybe"}}, "culling must be a string out of"),
         ({"options": {"gap_fill": "yes"}}, "gap_fill must be true or false"),
         ({"objects": ["ground"]}, "whole scene"),
         ({"job_type": "bogus"}, "job_type"),
+        ({"technique": "bogus"}, "technique"),
     ],
 )
 def test_bad_envmap_jobs_are_refused(client, city_id, change, message):
@@ -149,7 +151,7 @@ def test_cli_submit_envmap(service, city_id, tmp_path):
     env_args = ("--url", service.url, "--key", service.env["FARFIELD_ADMIN_KEY"])
     grid = "20,5,-45,30,15,-35,1,1,1"
     done = service.cli(
-        "submit", city_id, "--job-type", "envmap", "--grid", grid, "--resolution", "64", "--fov", "90",
+        "submit", city_id, "--technique", "envmap", "--grid", grid, "--resolution", "64", "--fov", "90",
         "--option", "layers=3", "--option", "directions=+x,-x", "--wait", "--download", str(tmp_path / "db"), "--json", *env_args,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
@@ -161,84 +163,61 @@ def test_cli_submit_envmap(service, city_id, tmp_path):
     manifest = json.loads((tmp_path / "db" / index["cells"][0]["bundle"] / MANIFEST_NAME).read_text())
     assert manifest["technique"] == "envmap" and manifest["parameters"]["directions"] == ["+x", "-x"]
     bad = service.cli("submit", city_id, "--job-type", "envmap", "--grid", grid, "--option", "nope=1", *env_args)
-    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "unknown technique parameters" in bad.stderr
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "unknown envmap options ['nope']" in bad.stderr
     wrong = service.cli("submit", city_id, "--job-type", "cubes", "--grid", grid, *env_args)
     assert wrong.returncode != 0 and "cubes" in wrong.stderr
 
 
-CHROMIUM = Path(os.environ.get("FARFIELD_CHROMIUM", "/usr/bin/chromium"))
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--disable-background-networking", "--no-first-run", "--disable-quic"]
-
-
-def tid(name: str) -> str:
-    return f'[data-testid="{name}"]'
-
-
-def test_dashboard_submits_an_envmap_job(service, city_id):
+def test_dashboard_submits_an_envmap_job(service, city_id, browser):
     """The job form's technique select and envmap option fields, the job page's technique and map, the list's technique column."""
-    if not CHROMIUM.exists():
-        pytest.skip(f"needs Debian's chromium at {CHROMIUM} (scripts/install-browser installs it)")
-    sync_api = pytest.importorskip("playwright.sync_api", reason="needs the playwright package (the test extra)")
-    with sync_api.sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=CHROMIUM_ARGS)
-        try:
-            page = browser.new_context(viewport={"width": 1400, "height": 1000}).new_page()
-            page.set_default_timeout(30_000)
-            errors = []
-            page.on("pageerror", lambda error: errors.append(str(error)))
-            page.goto(service.url + "/")
-            page.evaluate(f"localStorage.setItem('farfield.apiKey', '{ADMIN_KEY}')")
-            page.goto(service.url + "/#/")
-            page.reload()
-            page.locator(f'{tid("job-scene")} option[value="{city_id}"]').wait_for(state="attached")
-            page.select_option(tid("job-scene"), city_id)
-            assert page.locator(tid("option-layers")).is_hidden() and page.locator(tid("job-fov")).input_value() == "45"
-            page.select_option(tid("technique"), "envmap")
-            assert page.locator(tid("option-layers")).is_visible() and page.locator(tid("job-objects")).is_hidden()
-            assert page.locator(tid("job-fov")).input_value() == "90"
-            assert page.locator(tid("option-gap_fill")).is_visible() and not page.locator(tid("option-gap_fill")).is_checked()
-            page.fill(tid("job-lo"), ", ".join(map(str, GRID["lo"])))
-            page.fill(tid("job-hi"), ", ".join(map(str, [45.0, 35.0, -25.0])))  # not cubic: refused by the server
-            page.fill(tid("job-counts"), "3, 3, 1")
-            page.fill(tid("job-resolution"), "64")
-            page.fill(tid("option-layers"), "4")
-            for face in ("+x", "-x", "+y", "-y"):  # all six are checked: keep +z, -z
-                page.locator(f'{tid("option-directions")} input[value="{face}"]').uncheck()
-            page.click(tid("job-submit"))
-            error = page.locator(tid("job-form-error"))
-            error.filter(has_text="cubic").wait_for()
-            assert error.get_attribute("data-source") == "server"
-            page.fill(tid("job-hi"), ", ".join(map(str, GRID["hi"])))
-            page.click(tid("job-submit"))
-            page.wait_for_url("**/#/jobs/*")
-            job_id = page.url.rsplit("/", 1)[1]
-            page.locator(f'{tid("job-technique-text")}[data-technique="envmap"]').wait_for()
-            page.locator(f'{tid("job-state")}[data-state="done"]').wait_for(timeout=60_000)
-            assert page.locator(tid("job-counts-text")).inner_text().startswith("9/9 done")
-            # The map: 3 y levels of 3 (x) by 1 (z) cells, all done; level 1 holds cells 3..5.
-            cells = page.locator(tid("map-cell"))
-            assert cells.count() == 3 and all(cells.nth(i).get_attribute("data-state") == "done" for i in range(3))
-            page.select_option(tid("map-level"), "1")
-            page.locator(f'{tid("map-cell")}[data-index="{CENTRE}"]').click()
-            page.locator(f'{tid("cell-atlas")}[data-cell="{CENTRE}"]').wait_for(state="visible")
-            assert page.locator(tid("cell-stats")).locator('[data-stat="near_field"]').count() == 1
-            with service.client() as client:
-                job = client.get(f"/v1/jobs/{job_id}").json()
-            assert job["technique"] == "envmap" and job["params"]["options"] == {"layers": 4, "directions": ["+z", "-z"]}
-            page.click(tid("back-link"))
-            row = page.locator(f'{tid("job-row")}[data-job-id="{job_id}"]')
-            row.locator(f'{tid("job-row-technique")}[data-technique="envmap"]').wait_for()
+    with dashboard_page(browser, service.url, ADMIN_KEY) as page:
+        page.locator(f'{tid("job-scene")} option[value="{city_id}"]').wait_for(state="attached")
+        page.select_option(tid("job-scene"), city_id)
+        assert page.locator(tid("option-layers")).is_hidden() and page.locator(tid("job-fov")).input_value() == "45"
+        page.select_option(tid("technique"), "envmap")
+        assert page.locator(tid("option-layers")).is_visible() and page.locator(tid("job-objects")).is_hidden()
+        assert page.locator(tid("job-fov")).input_value() == "90"
+        assert page.locator(tid("option-gap_fill")).is_visible() and not page.locator(tid("option-gap_fill")).is_checked()
+        page.fill(tid("job-lo"), ", ".join(map(str, GRID["lo"])))
+        page.fill(tid("job-hi"), ", ".join(map(str, [45.0, 35.0, -25.0])))  # not cubic: refused by the server
+        page.fill(tid("job-counts"), "3, 3, 1")
+        page.fill(tid("job-resolution"), "64")
+        page.fill(tid("option-layers"), "4")
+        for face in ("+x", "-x", "+y", "-y"):  # all six are checked: keep +z, -z
+            page.locator(f'{tid("option-directions")} input[value="{face}"]').uncheck()
+        page.click(tid("job-submit"))
+        error = page.locator(tid("job-form-error"))
+        error.filter(has_text="cubic").wait_for()
+        assert error.get_attribute("data-source") == "server"
+        page.fill(tid("job-hi"), ", ".join(map(str, GRID["hi"])))
+        page.click(tid("job-submit"))
+        page.wait_for_url("**/#/jobs/*")
+        job_id = page.url.rsplit("/", 1)[1]
+        page.locator(f'{tid("job-technique-text")}[data-technique="envmap"]').wait_for()
+        page.locator(f'{tid("job-state")}[data-state="done"]').wait_for(timeout=60_000)
+        assert page.locator(tid("job-counts-text")).inner_text().startswith("9/9 done")
+        # The map: 3 y levels of 3 (x) by 1 (z) cells, all done; level 1 holds cells 3..5.
+        cells = page.locator(tid("map-cell"))
+        assert cells.count() == 3 and all(cells.nth(i).get_attribute("data-state") == "done" for i in range(3))
+        page.select_option(tid("map-level"), "1")
+        page.locator(f'{tid("map-cell")}[data-index="{CENTRE}"]').click()
+        page.locator(f'{tid("cell-atlas")}[data-cell="{CENTRE}"]').wait_for(state="visible")
+        assert page.locator(tid("cell-stats")).locator('[data-stat="near_field"]').count() == 1
+        with service.client() as client:
+            job = client.get(f"/v1/jobs/{job_id}").json()
+        assert job["technique"] == "envmap" and job["params"]["options"] == {"layers": 4, "directions": ["+z", "-z"]}
+        page.click(tid("back-link"))
+        row = page.locator(f'{tid("job-row")}[data-job-id="{job_id}"]')
+        row.locator(f'{tid("job-row-technique")}[data-technique="envmap"]').wait_for()
 
-            # With 2 layers everything the cell sees lies in its near field: no atlas page, and the panel says so.
-            with service.client() as client:
-                spec = {**SPEC, "grid": {**GRID, "counts": [1, 1, 1], "hi": [25.0, 15.0, -35.0]}, "options": {"layers": 2, "directions": ["+z", "-z"]}}
-                near = wait_for_job(client, client.post("/v1/jobs", json={"scene_id": city_id, **spec}).json()["id"], timeout=60)
-            assert near["state"] == "done" and near["cells"][0]["stats"]["atlas_pages"] == 0, near
-            page.goto(f"{service.url}/#/jobs/{near['id']}")
-            page.locator(f'{tid("job-state")}[data-state="done"]').wait_for()
-            page.locator(f'{tid("map-cell")}[data-index="0"]').click()
-            page.locator(tid("cell-atlas-note")).filter(has_text="near field").wait_for()
-            assert page.locator(tid("cell-atlas")).is_hidden()
-            assert errors == []
-        finally:
-            browser.close()
+        # With 2 layers everything the cell sees lies in its near field: no atlas page, and the panel says so.
+        with service.client() as client:
+            spec = {**SPEC, "grid": {**GRID, "counts": [1, 1, 1], "hi": [25.0, 15.0, -35.0]}, "options": {"layers": 2, "directions": ["+z", "-z"]}}
+            near = wait_for_job(client, client.post("/v1/jobs", json={"scene_id": city_id, **spec}).json()["id"], timeout=60)
+        assert near["state"] == "done" and near["cells"][0]["stats"]["atlas_pages"] == 0, near
+        page.goto(f"{service.url}/#/jobs/{near['id']}")
+        page.locator(f'{tid("job-state")}[data-state="done"]').wait_for()
+        page.locator(f'{tid("map-cell")}[data-index="0"]').click()
+        page.locator(tid("cell-atlas-note")).filter(has_text="near field").wait_for()
+        assert page.locator(tid("cell-atlas")).is_hidden()
+        assert page.js_errors == []

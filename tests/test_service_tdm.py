@@ -11,7 +11,6 @@ of baking on llvmpipe.
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 import zipfile
@@ -26,9 +25,10 @@ from core.errors import LayerPlanError
 from core.exchange import load_scene
 from core.scene import Scene
 from core.tdm import TdmOptions, bake_tdm
+from core.techniques import get_technique
 from core.viewcells import viewcell_from_dict
 from scenes import box_object, write_scene
-from service.jobs import TDM_OPTION_NAMES, tdm_options
+from browser import dashboard_page, tid
 from service_harness import service_client, service_on_each_database  # noqa: F401 - the service and client fixtures
 from service_harness import ADMIN_KEY, ROOT, upload, wait_for_job
 
@@ -69,12 +69,15 @@ def block_id(client, block_glb):
 
 
 def test_tdm_options_of_stored_parameters():
+    tdm_options = get_technique("tdm").options_of
     params = {"resolution": 96, "fov_deg": 45.0, "objects": None, "options": {"enlargement": 3, "oversampling": 4, "culling": "umbra", "padding": 1}}
     options = tdm_options(params)
     assert options == TdmOptions(resolution=96, fov_deg=45.0, enlargement=3, oversampling=4, culling="umbra", padding=1)
     assert tdm_options({**params, "options": {}}) == TdmOptions(resolution=96, fov_deg=45.0)
-    assert set(TDM_OPTION_NAMES) == {"enlargement", "oversampling", "culling", "pixel_model", "padding"}
-    with pytest.raises(LayerPlanError, match=r"unknown technique parameters \['grid_cell'\] for a tdm job; known: \['enlargement'"):
+    names = {o["name"] for o in get_technique("tdm").describe()["options"]}
+    assert names == {"enlargement", "oversampling", "culling", "pixel_model", "padding", "texel_margin"}
+    assert tdm_options({**params, "options": {"texel_margin": 2}}).texel_margin == 2  # it was missing from the API's list
+    with pytest.raises(LayerPlanError, match=r"unknown tdm options \['grid_cell'\]; known: \['enlargement'"):
         tdm_options({**params, "options": {"grid_cell": 8}})
     with pytest.raises(LayerPlanError, match="enlargement"):
         tdm_options({**params, "options": {"enlargement": 0.5}})
@@ -88,13 +91,15 @@ def test_tdm_options_of_stored_parameters():
 @pytest.mark.parametrize(
     "change, status, message",
     [
-        ({"options": {**OPTIONS, "grid_cell": 8}}, 422, "unknown technique parameters ['grid_cell'] for a tdm job; known: ['enlargement', 'oversampling'"),
-        ({"options": {"enlargement": 0.5}}, 422, "enlargement factor must lie in [1, 8]"),
-        ({"options": {"enlargement": "big"}}, 422, "enlargement factor"),
+        ({"options": {**OPTIONS, "grid_cell": 8}}, 422, "unknown tdm options ['grid_cell']; known: ['enlargement', 'oversampling'"),
+        ({"options": {"enlargement": 0.5}}, 422, "enlargement must be a number in [1, 8], got 0.5"),
+        ({"options": {"enlargement": "big"}}, 422, "enlargement must be a number"),
+        ({"options": {"enlargement": True}}, 422, "enlargement must be a number"),
         ({"options": {"oversampling": 0}}, 422, "oversampling must be an integer"),
         ({"options": {"oversampling": 1.5}}, 422, "oversampling must be an integer"),
-        ({"options": {"culling": "maybe"}}, 422, "culling mode"),
-        ({"options": {"pixel_model": "maybe"}}, 422, "pixel model"),
+        ({"options": {"padding": 2**70}}, 422, "padding must be an integer in [0, 64]"),
+        ({"options": {"culling": "maybe"}}, 422, "culling must be a string out of"),
+        ({"options": {"pixel_model": "maybe"}}, 422, "pixel_model"),
         ({"options": {"padding": -1}}, 422, "padding"),
         ({"resolution": 0}, 422, "resolution"),
         ({"grid": None, "viewcells": [{"kind": "box", "lo": [-1, 2, -1], "hi": [1, 4, 1]}]}, 422, "view cell 0"),  # inside the part: no layer plan
@@ -182,7 +187,7 @@ def test_cli_submit_tdm(service, block_id, tmp_path):
     env_args = ("--url", service.url, "--key", service.env["FARFIELD_ADMIN_KEY"])
     grid = "-2,3,-27,2,7,-23,1,1,1"
     done = service.cli(
-        "submit", block_id, "--job-type", "tdm", "--grid", grid, "--objects", "block,tower", "--resolution", "96",
+        "submit", block_id, "--technique", "tdm", "--grid", grid, "--objects", "block,tower", "--resolution", "96",
         "--option", "enlargement=3", "--option", "oversampling=2", "--wait", "--download", str(tmp_path / "db"), "--json", *env_args,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
@@ -226,7 +231,9 @@ def test_cli_bake_tdm(tmp_path):
 @pytest.mark.parametrize(
     "extra, message",
     [
-        (["--enlargement", "0.5"], "enlargement factor must lie in [1, 8]"),
+        (["--enlargement", "0.5"], "enlargement must be a number in [1, 8]"),
+        (["--option", "enlargement=0.5"], "enlargement must be a number in [1, 8]"),
+        (["--option", "grid_cell=4"], "unknown option 'grid_cell'"),
         (["--oversampling", "0"], "oversampling must be an integer"),
         (["--viewcell", "box:-1,2,-1,1,4,1"], "the part touches or overlaps the view cell"),
     ],
@@ -242,69 +249,46 @@ def test_cli_bake_tdm_refuses_bad_options(tmp_path, extra, message):
 
 # --- the dashboard -------------------------------------------------------------------------------
 
-CHROMIUM = Path(os.environ.get("FARFIELD_CHROMIUM", "/usr/bin/chromium"))
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--disable-background-networking", "--no-first-run", "--disable-quic"]
-
-
-def tid(name: str) -> str:
-    return f'[data-testid="{name}"]'
-
-
-def test_dashboard_submits_a_tdm_job(service, block_id):
+def test_dashboard_submits_a_tdm_job(service, block_id, browser):
     """The job form's technique select and tdm option fields, a refusal from the server, the job page and its statistics."""
-    if not CHROMIUM.exists():
-        pytest.skip(f"needs Debian's chromium at {CHROMIUM} (scripts/install-browser installs it)")
-    sync_api = pytest.importorskip("playwright.sync_api", reason="needs the playwright package (the test extra)")
-    with sync_api.sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=CHROMIUM_ARGS)
-        try:
-            page = browser.new_context(viewport={"width": 1400, "height": 1000}).new_page()
-            page.set_default_timeout(30_000)
-            errors = []
-            page.on("pageerror", lambda error: errors.append(str(error)))
-            page.goto(service.url + "/")
-            page.evaluate(f"localStorage.setItem('farfield.apiKey', '{ADMIN_KEY}')")
-            page.goto(service.url + "/#/")
-            page.reload()
-            page.locator(f'{tid("job-scene")} option[value="{block_id}"]').wait_for(state="attached")
-            page.select_option(tid("job-scene"), block_id)
-            assert page.locator(tid("option-enlargement")).is_hidden()
-            page.select_option(tid("technique"), "envmap")
-            assert page.locator(tid("job-fov")).input_value() == "90"
-            page.select_option(tid("technique"), "tdm")
-            assert page.locator(tid("option-enlargement")).is_visible() and page.locator(tid("option-layers")).is_hidden()
-            assert page.locator(tid("job-objects")).is_visible()
-            assert page.locator(tid("job-fov")).input_value() == "45"  # back from envmap's 90
-            assert page.locator(tid("option-enlargement")).input_value() == "2" and page.locator(tid("option-oversampling")).input_value() == "1"
-            assert page.locator(tid("option-enlargement")).get_attribute("min") == "1" and page.locator(tid("option-enlargement")).get_attribute("max") == "8"
-            page.fill(tid("job-lo"), ", ".join(map(str, GRID["lo"])))
-            page.fill(tid("job-hi"), ", ".join(map(str, GRID["hi"])))
-            page.fill(tid("job-counts"), "2, 1, 1")
-            page.fill(tid("job-resolution"), "96")
-            page.fill(tid("job-objects"), "block, tower")
-            page.fill(tid("option-enlargement"), "0.5")  # refused by the server
-            page.click(tid("job-submit"))
-            error = page.locator(tid("job-form-error"))
-            error.filter(has_text="enlargement").wait_for()
-            assert error.get_attribute("data-source") == "server"
-            page.fill(tid("option-enlargement"), "3")
-            page.fill(tid("option-oversampling"), "2")
-            page.click(tid("job-submit"))
-            page.wait_for_url("**/#/jobs/*")
-            job_id = page.url.rsplit("/", 1)[1]
-            page.locator(f'{tid("job-technique-text")}[data-technique="tdm"]').wait_for()
-            page.locator(f'{tid("job-state")}[data-state="done"]').wait_for(timeout=120_000)
-            assert page.locator(tid("job-counts-text")).inner_text().startswith("2/2 done")
-            page.locator(f'{tid("map-cell")}[data-index="1"]').click()
-            stats = page.locator(tid("cell-stats"))
-            stats.locator('[data-stat="initial_triangles"]').wait_for()
-            assert stats.locator('[data-stat="triangles"]').count() == 1
-            with service.client() as client:
-                job = client.get(f"/v1/jobs/{job_id}").json()
-            assert job["technique"] == "tdm" and job["params"]["options"] == {"enlargement": 3, "oversampling": 2}
-            assert job["params"]["objects"] == PART
-            page.click(tid("back-link"))
-            page.locator(f'{tid("job-row")}[data-job-id="{job_id}"] {tid("job-row-technique")}[data-technique="tdm"]').wait_for()
-            assert errors == []
-        finally:
-            browser.close()
+    with dashboard_page(browser, service.url, ADMIN_KEY) as page:
+        page.locator(f'{tid("job-scene")} option[value="{block_id}"]').wait_for(state="attached")
+        page.select_option(tid("job-scene"), block_id)
+        assert page.locator(tid("option-enlargement")).is_hidden()
+        page.select_option(tid("technique"), "envmap")
+        assert page.locator(tid("job-fov")).input_value() == "90"
+        page.select_option(tid("technique"), "tdm")
+        assert page.locator(tid("option-enlargement")).is_visible() and page.locator(tid("option-layers")).is_hidden()
+        assert page.locator(tid("job-objects")).is_visible()
+        assert page.locator(tid("job-fov")).input_value() == "45"  # back from envmap's 90
+        assert page.locator(tid("option-enlargement")).input_value() == "2" and page.locator(tid("option-oversampling")).input_value() == "1"
+        assert page.locator(tid("option-enlargement")).get_attribute("min") == "1" and page.locator(tid("option-enlargement")).get_attribute("max") == "8"
+        page.fill(tid("job-lo"), ", ".join(map(str, GRID["lo"])))
+        page.fill(tid("job-hi"), ", ".join(map(str, GRID["hi"])))
+        page.fill(tid("job-counts"), "2, 1, 1")
+        page.fill(tid("job-resolution"), "96")
+        page.fill(tid("job-objects"), "block, tower")
+        page.fill(tid("option-enlargement"), "0.5")  # refused by the server
+        page.click(tid("job-submit"))
+        error = page.locator(tid("job-form-error"))
+        error.filter(has_text="enlargement").wait_for()
+        assert error.get_attribute("data-source") == "server"
+        page.fill(tid("option-enlargement"), "3")
+        page.fill(tid("option-oversampling"), "2")
+        page.click(tid("job-submit"))
+        page.wait_for_url("**/#/jobs/*")
+        job_id = page.url.rsplit("/", 1)[1]
+        page.locator(f'{tid("job-technique-text")}[data-technique="tdm"]').wait_for()
+        page.locator(f'{tid("job-state")}[data-state="done"]').wait_for(timeout=120_000)
+        assert page.locator(tid("job-counts-text")).inner_text().startswith("2/2 done")
+        page.locator(f'{tid("map-cell")}[data-index="1"]').click()
+        stats = page.locator(tid("cell-stats"))
+        stats.locator('[data-stat="initial_triangles"]').wait_for()
+        assert stats.locator('[data-stat="triangles"]').count() == 1
+        with service.client() as client:
+            job = client.get(f"/v1/jobs/{job_id}").json()
+        assert job["technique"] == "tdm" and job["params"]["options"] == {"enlargement": 3, "oversampling": 2}
+        assert job["params"]["objects"] == PART
+        page.click(tid("back-link"))
+        page.locator(f'{tid("job-row")}[data-job-id="{job_id}"] {tid("job-row-technique")}[data-technique="tdm"]').wait_for()
+        assert page.js_errors == []

@@ -1,0 +1,16 @@
+"""``/v1/techniques``: the registered impostor techniques with their options (what a job may ask for)."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends
+
+from core.techniques import TECHNIQUES
+
+from api.deps import tenant
+
+router = APIRouter(prefix="/v1/techniques", tags=["techniques"])
+
+
+@router.get("", summary="Every technique: name, scope, help, image defaults and options (types, defaults, bounds, help)")
+def list_techniques(tenant_id: str = Depends(tenant)) -> dict:
+    return {"techniques": [t.describe() for t in TECHNIQUES.values()]}

@@ -1,0 +1,80 @@
+"""What a technique is: the one object each technique module exposes, and what every consumer asks of it.
+
+A :class:`Technique` names its ``Options`` (a frozen dataclass of :func:`core.options.option`
+fields), its scope (``part``: impostors of a scene's objects; ``scene``: the whole scene around a
+view cell), the check that runs when a job is created (``check``: the layer planning that proves
+every cell can have an impostor), the bake, the evaluation against the real geometry, and the
+text the CLI prints of its statistics and its evaluation.  The registry
+(:data:`core.techniques.TECHNIQUES`) holds one of each; the service, the CLI and the dashboard read
+it instead of naming techniques.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from core.errors import LayerPlanError
+from core.impostor import Impostor
+from core.options import IMAGE_FIELDS, describe_options, options_from_mapping
+from core.scene import Scene
+from core.viewcells import ViewCell
+
+Progress = Callable[[str, int, int], None]  # (stage, done, total)
+Scope = Literal["part", "scene"]
+
+
+@dataclass(frozen=True)
+class Technique:
+    """One impostor technique, as every consumer sees it."""
+
+    name: str
+    scope: Scope
+    help: str  # one line: what it makes, and the paper
+    Options: type  # frozen dataclass; its fields' metadata give defaults, bounds and help
+    # check(cell, options, part_bounds or None): raises LayerPlanError/ViewCellError when the cell
+    # cannot have an impostor (the planning a job runs for every cell at creation)
+    check: Callable[[ViewCell, Any, np.ndarray | None], None]
+    # bake(scene, cell, options, objects or None, progress or None) -> Impostor
+    bake: Callable[[Scene, ViewCell, Any, list[str] | None, Progress | None], Impostor]
+    # summary(stats) -> the lines the CLI prints after a bake
+    summary: Callable[[dict], str]
+    # evaluate(scene, impostor, random_count, outside_count, seed) -> a result with to_dict()
+    evaluate: Callable[[Scene, Impostor, int, int, int], Any]
+    # evaluation_text(result, impostor) -> the table the CLI prints
+    evaluation_text: Callable[[Any, Impostor], str]
+
+    def options(self, values: Mapping[str, Any] | None = None, resolution: int | None = None, fov_deg: float | None = None) -> Any:
+        """Validated ``Options`` from a job's or the CLI's option values (unknown names refused);
+        ``resolution`` and ``fov_deg`` (``None``: the technique's default) come from the job's top level."""
+        given = dict(values or {})
+        image = [name for name in IMAGE_FIELDS if name in given]
+        if image:
+            raise LayerPlanError(f"{image} are the job's own fields, not technique options")
+        if resolution is not None:
+            given["resolution"] = resolution
+        if fov_deg is not None:
+            given["fov_deg"] = fov_deg
+        return options_from_mapping(self.Options, given, f"{self.name} options", unlisted=IMAGE_FIELDS)
+
+    def options_of(self, params: Mapping[str, Any]) -> Any:
+        """The ``Options`` of a job's stored parameters (``resolution``, ``fov_deg``, ``options``)."""
+        return self.options(params.get("options"), params.get("resolution"), params.get("fov_deg"))
+
+    def default(self, name: str) -> Any:
+        """The default of one option field, e.g. ``fov_deg``."""
+        return self.Options.__dataclass_fields__[name].default
+
+    def describe(self) -> dict:
+        """JSON-ready: name, scope, help, the image fields' defaults and every option."""
+        fields = describe_options(self.Options)
+        return {
+            "name": self.name,
+            "scope": self.scope,
+            "help": self.help,
+            "image": [f for f in fields if f["name"] in IMAGE_FIELDS],
+            "options": [f for f in fields if f["name"] not in IMAGE_FIELDS],
+        }

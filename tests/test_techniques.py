@@ -1,0 +1,185 @@
+"""The technique registry: one contract every registered technique keeps, and one description of
+each technique's options that the library, the CLI and the HTTP API agree on."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from cli.main import _register, cli
+from core.bundle import read_bundle, write_bundle
+from core.errors import LayerPlanError
+from core.options import describe_options, options_from_mapping
+from core.scene import Scene
+from core.techniques import TECHNIQUES, get_technique
+from core.viewcells import BoxCell
+from scenes import box_object, city, write_scene
+from service_harness import service_client, service_on_each_database  # noqa: F401 - the service and client fixtures
+from service_harness import upload, wait_for_job
+
+pytestmark = pytest.mark.filterwarnings("ignore::core.scene.SceneWarning")
+
+RESOLUTION = 96
+
+
+def part_scene() -> Scene:
+    """A block with a tower on top: the part of every part-scope technique's contract."""
+    return Scene.from_objects(
+        [
+            box_object("block", (-5.0, 0.0, -5.0), (5.0, 8.0, 5.0), (0.8, 0.35, 0.2, 1.0)),
+            box_object("tower", (-1.5, 8.0, -1.5), (1.5, 14.0, 1.5), (0.3, 0.4, 0.85, 1.0)),
+        ],
+        source="contract-block",
+    )
+
+
+# Per scope: a small scene and a view cell it can be seen from (the part 20 units in front of a
+# 4-unit box; the whole city around a 10-unit cube between its lots).
+CASES = {
+    "part": (part_scene, BoxCell(np.array([-2.0, 3.0, -27.0]), np.array([2.0, 7.0, -23.0]))),
+    "scene": (lambda: city(100), BoxCell.from_center([170.0, 5.0, 170.0], 10.0)),
+}
+
+
+def _equal(a, b, path: str = "impostor") -> None:
+    """Field by field, arrays bit for bit."""
+    if dataclasses.is_dataclass(a):
+        assert type(a) is type(b), path
+        for field in dataclasses.fields(a):
+            _equal(getattr(a, field.name), getattr(b, field.name), f"{path}.{field.name}")
+    elif isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        a, b = np.asarray(a), np.asarray(b)
+        assert a.shape == b.shape and np.array_equal(a, b), path
+    elif isinstance(a, (list, tuple)) and a and isinstance(a[0], np.ndarray):
+        assert len(a) == len(b), path
+        for n, (x, y) in enumerate(zip(a, b)):
+            _equal(x, y, f"{path}[{n}]")
+    else:
+        assert json.loads(json.dumps(a, default=list)) == json.loads(json.dumps(b, default=list)), path
+
+
+@pytest.mark.parametrize("name", list(TECHNIQUES))
+def test_every_technique_bakes_round_trips_and_has_no_hole_from_inside_its_cell(name, tmp_path):
+    technique = get_technique(name)
+    make_scene, cell = CASES[technique.scope]
+    scene = make_scene()
+    options = technique.options({}, RESOLUTION)
+    technique.check(cell, options, scene.bounds if technique.scope == "part" else None)
+    impostor = technique.bake(scene, cell, options, None, None)
+    assert impostor.technique == name and impostor.triangle_count > 0
+    write_bundle(impostor, tmp_path / "bundle")
+    back = read_bundle(tmp_path / "bundle")
+    _equal(impostor, back)
+    result = technique.evaluate(scene, back, 2, 0, 0)
+    totals = result.to_dict()["totals"] if hasattr(result, "to_dict") else result["totals"]
+    assert totals["hole_pixels"] == 0, totals
+    assert technique.evaluation_text(result, back)  # the CLI's table
+    assert "seconds:" in technique.summary(impostor.stats)
+
+
+def test_every_technique_declares_bounded_documented_options():
+    for technique in TECHNIQUES.values():
+        described = technique.describe()
+        assert described["scope"] in ("part", "scene") and described["help"]
+        assert [f["name"] for f in described["image"]] == ["resolution", "fov_deg"]
+        for entry in described["image"] + described["options"]:
+            assert entry["help"], (technique.name, entry["name"])
+            if entry["type"] in ("integer", "number"):
+                assert entry["minimum"] is not None or entry["exclusive_minimum"] is not None, (technique.name, entry["name"])
+            if entry["type"] == "integer":
+                assert entry["maximum"] is not None or entry["exclusive_maximum"] is not None, (technique.name, entry["name"])
+        # The declared defaults are what an Options made without arguments holds.
+        made = dataclasses.asdict(technique.Options())
+        for entry in described["options"]:
+            default = tuple(entry["default"]) if isinstance(entry["default"], list) else entry["default"]
+            if entry["default"] is not None:
+                assert made[entry["name"]] == default, (technique.name, entry["name"])
+
+
+@pytest.mark.parametrize(
+    "name, values, message",
+    [
+        ("layered", {"grid_cell": True}, "grid_cell must be an integer"),
+        ("layered", {"grid_cell": "8"}, "grid_cell must be an integer"),
+        ("layered", {"padding": 2**70}, "padding must be an integer in [0, 64]"),
+        ("layered", {"fill_threshold": float("nan")}, "fill_threshold must be a number in (0, 1]"),
+        ("layered", {"enlargement": 2.0}, "unknown layered options ['enlargement']"),
+        ("tdm", {"texel_margin": 9}, "texel_margin must be an integer in [0, 8]"),
+        ("envmap", {"layers": 8, "near_field": 30.0}, "exactly one of 'layers' or 'near_field'"),
+        ("envmap", {"directions": ["+x", "+w"]}, "directions must be a list of strings out of"),
+        ("envmap", {"gap_fill": "yes"}, "gap_fill must be true or false"),
+    ],
+)
+def test_bad_options_are_refused_with_the_field_named(name, values, message):
+    with pytest.raises(LayerPlanError) as error:
+        get_technique(name).options(values)
+    assert message in str(error.value)
+
+
+def test_defaults_come_from_each_technique():
+    assert get_technique("envmap").options({}).fov_deg == 90.0  # the paper's setting, everywhere
+    assert get_technique("layered").options({}).fov_deg == 45.0
+    assert get_technique("envmap").options({"near_field": 30.0}).layers is None
+    assert get_technique("envmap").options({}).layers == 64
+    assert get_technique("envmap").options({"directions": "-z,+x"}).directions == ("+x", "-z")  # canonical order
+    with pytest.raises(LayerPlanError, match="resolution must be an integer in"):
+        get_technique("tdm").options({}, resolution=0)
+    with pytest.raises(LayerPlanError, match=r"\['resolution'\] are the job's own fields"):
+        get_technique("tdm").options({"resolution": 64})
+    # The generic parser names what it knows, without the image fields.
+    with pytest.raises(LayerPlanError, match=r"known: \['grid_cell'"):
+        options_from_mapping(get_technique("layered").Options, {"nope": 1}, unlisted=("resolution", "fov_deg"))
+    assert {d["name"] for d in describe_options(get_technique("layered").Options)} >= {"grid_cell", "culling"}
+
+
+def test_cli_bake_takes_options_and_refuses_other_techniques_flags(tmp_path):
+    _register()
+    scene_file = write_scene(part_scene(), tmp_path, "glb", "block")
+    args = ["bake", str(scene_file), "--viewcell", "box:-2,3,-27,2,7,-23", "--resolution", "64", "--quiet"]
+    run = CliRunner().invoke(cli, [*args, "--out", str(tmp_path / "a"), "--option", "grid_cell=4", "--option", "culling=umbra", "--json"])
+    assert run.exit_code == 0, run.output
+    parameters = read_bundle(tmp_path / "a").parameters
+    assert parameters["grid_cell"] == 4 and parameters["culling"] == "umbra" and parameters["fov_deg"] == 45.0
+    wrong = CliRunner().invoke(cli, [*args, "--out", str(tmp_path / "b"), "--enlargement", "3"])
+    assert wrong.exit_code == 2 and "--enlargement do not apply to the layered technique" in wrong.output
+    unknown = CliRunner().invoke(cli, [*args, "--out", str(tmp_path / "c"), "--option", "nope=1"])
+    assert unknown.exit_code == 2 and "unknown option 'nope'" in unknown.output
+    assert not (tmp_path / "b").exists() and not (tmp_path / "c").exists()
+
+
+def test_route_cli_and_registry_agree(service, client, tmp_path):
+    registry = {"techniques": [t.describe() for t in TECHNIQUES.values()]}
+    response = client.get("/v1/techniques")
+    assert response.status_code == 200, response.text
+    assert response.json() == json.loads(json.dumps(registry))
+    run = service.cli("techniques", "--json")
+    assert run.returncode == 0, run.stderr
+    assert json.loads(run.stdout) == response.json()
+    readable = service.cli("techniques")
+    for technique in TECHNIQUES.values():
+        assert technique.name in readable.stdout
+        for option in technique.describe()["options"]:
+            assert option["name"] in readable.stdout
+    # The OpenAPI document describes the request's technique field with the registry's names.
+    schema = client.get("/openapi.json").json()["components"]["schemas"]["JobSpec"]["properties"]
+    assert set(TECHNIQUES) <= set(json.dumps(schema["technique"]).replace('"', " ").split())
+
+
+def test_jobs_name_their_technique_and_the_former_job_type_still_works(client, tmp_path):
+    scene_id = upload(client, write_scene(part_scene(), tmp_path, "glb", "block")).json()["id"]
+    spec = {"scene_id": scene_id, "viewcells": [{"kind": "box", "lo": [-2, 3, -27], "hi": [2, 7, -23]}], "resolution": 64}
+    new = client.post("/v1/jobs", json={**spec, "technique": "tdm", "options": {"texel_margin": 2}})
+    assert new.status_code == 201, new.text
+    old = client.post("/v1/jobs", json={**spec, "job_type": "layered", "options": {"grid_cell": 4}})
+    assert old.status_code == 201, old.text
+    assert new.json()["technique"] == "tdm" and old.json()["technique"] == old.json()["job_type"] == "layered"
+    assert new.json()["params"]["fov_deg"] == 45.0  # the technique's default, stored explicitly
+    clash = client.post("/v1/jobs", json={**spec, "technique": "tdm", "job_type": "layered"})
+    assert clash.status_code == 422 and "disagree" in clash.text
+    for job in (new.json(), old.json()):
+        done = wait_for_job(client, job["id"])
+        assert done["state"] == "done", done["errors"]
