@@ -6,6 +6,7 @@ import platform
 import sys
 
 import numpy
+import pytest
 import scipy
 import trimesh
 
@@ -25,3 +26,15 @@ def pytest_report_header(config):
     except RenderBackendError as error:
         lines.append(f"OpenGL: unavailable ({error})")
     return lines
+
+
+@pytest.fixture(scope="session")
+def browser():
+    """One headless chromium for the session's dashboard tests (skipped without it or Playwright)."""
+    from browser import CHROMIUM, SKIP_REASON, launched_browser
+
+    if not CHROMIUM.exists():
+        pytest.skip(SKIP_REASON)
+    pytest.importorskip("playwright.sync_api", reason="needs the playwright package (the test extra)")
+    with launched_browser() as launched:
+        yield launched
