@@ -9,26 +9,23 @@ Every stage is timed; memory grows with the texels that survive culling, not wit
 from __future__ import annotations
 
 import math
-import time
-from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from core import __version__
 from core.atlas import compose, fill_nearest_rgb, pack, tile_uvs
-from core.culling import CullingMode, LayerCuller
+from core.culled_layers import culled_layers
+from core.culling import CullingMode
 from core.errors import LayerPlanError
 from core.frustum import MAX_RESOLUTION, PixelModel
 from core.impostor import Impostor, QuadPayload, texel_rect_corners
 from core.layers import plan_layers
 from core.quads import grow_quads
-from core.recording import iter_layers
 from core.scene import Scene
+from core.stage_clock import Progress, StageClock
 from core.options import check_options, option
 from core.viewcells import ViewCell
-
-Progress = Callable[[str, int, int], None]  # (stage, done, total)
 
 # Bytes of one quad's geometry as drawn: 4 vertices x (3 position + 2 uv) float32 + 6 uint32 indices.
 QUAD_GEOMETRY_BYTES = 4 * 5 * 4 + 6 * 4
@@ -50,19 +47,6 @@ class BakeOptions:
 
     def __post_init__(self) -> None:
         check_options(self)
-
-
-def timed_layers(scene: Scene, plan, conservative: bool, times: dict) -> Iterator[tuple[int, np.ndarray, int]]:
-    """:func:`core.recording.iter_layers` with images top row first, adding its seconds to ``times["record"]``."""
-    layers = iter_layers(scene, plan, conservative)
-    while True:
-        start = time.perf_counter()
-        step = next(layers, None)
-        times["record"] += time.perf_counter() - start
-        if step is None:
-            return
-        i, recorded, drawn = step
-        yield i, recorded[::-1], drawn
 
 
 def layer_tiles(image: np.ndarray, kept: np.ndarray, grid_cell: int, fill_threshold: float) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -110,51 +94,40 @@ def bake_layered(
 ) -> Impostor:
     """Bake the layered impostor of ``scene`` (or of its ``objects``) for ``cell``."""
     part = scene.subset(objects) if objects else scene
-    times: dict[str, float] = {}
-    report = progress or (lambda stage, done, total: None)
+    clock = StageClock(("plan", "record", "cull", "quads"), progress)
 
-    start = time.perf_counter()
-    plan = plan_layers(cell, part.bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model)
-    times["plan"] = time.perf_counter() - start
-    report("plan", 1, 1)
+    with clock("plan"):
+        plan = plan_layers(cell, part.bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model)
+    clock.report("plan", 1, 1)
 
     # Stream: each layer is recorded, culled against the layers before it, cut into quads and
     # tiles, and dropped, so memory grows with the kept texels, not with layers x image.
     res_x, res_y = (int(r) for r in plan.texture_resolution)
-    culler = LayerCuller((res_y, res_x), options.culling)
     tiles, quad_layer, quad_corners, layer_ids = [], [], [], []
     counts = {"covered": 0, "culled": 0, "kept": 0, "drawn": 0}
     kept_per_layer: dict[int, int] = {}
-    for key in ("record", "cull", "quads"):
-        times[key] = 0.0
-    for i, image, drawn in timed_layers(part, plan, options.conservative, times):
-        start = time.perf_counter()
-        covered = image[..., 3] > 0
-        hidden = culler.hidden(covered)
-        kept = covered & ~hidden
-        counts["covered"] += int(covered.sum())
-        counts["culled"] += int(hidden.sum())
-        counts["drawn"] += drawn
-        times["cull"] += time.perf_counter() - start
-        report("record", i + 1, plan.count)
-        if not kept.any():  # layers with no visible content are dropped
+    for layer in culled_layers(part, plan, options.culling, clock, options.conservative):
+        i = layer.index
+        counts["covered"] += layer.covered
+        counts["culled"] += layer.culled
+        counts["drawn"] += layer.drawn
+        clock.report("record", i + 1, plan.count)
+        if not layer.kept.any():  # layers with no visible content are dropped
             continue
-        start = time.perf_counter()
-        rects, new_tiles = layer_tiles(image, kept, options.grid_cell, options.fill_threshold)
-        tiles += new_tiles
-        quad_layer.append(np.full(len(rects), i, dtype=np.int64))
-        quad_corners.append(texel_rect_corners(plan, float(plan.distances[i]), rects))
-        layer_ids.append(i)
-        kept_per_layer[i] = int(kept.sum())
-        counts["kept"] += kept_per_layer[i]
-        times["quads"] += time.perf_counter() - start
+        with clock("quads"):
+            rects, new_tiles = layer_tiles(layer.image, layer.kept, options.grid_cell, options.fill_threshold)
+            tiles += new_tiles
+            quad_layer.append(np.full(len(rects), i, dtype=np.int64))
+            quad_corners.append(texel_rect_corners(plan, float(plan.distances[i]), rects))
+            layer_ids.append(i)
+            kept_per_layer[i] = int(layer.kept.sum())
+            counts["kept"] += kept_per_layer[i]
     if not layer_ids:
         raise LayerPlanError("the part left no visible texel in any layer (is it empty or fully transparent?)")
 
-    start = time.perf_counter()
-    pages, quad_uv, quad_page, tile_bytes = pack_tiles(tiles, options.padding)
-    times["atlas"] = time.perf_counter() - start
-    report("atlas", 1, 1)
+    with clock("atlas"):
+        pages, quad_uv, quad_page, tile_bytes = pack_tiles(tiles, options.padding)
+    clock.report("atlas", 1, 1)
 
     quad_count = len(tiles)
     texture_bytes = int(sum(p.shape[0] * p.shape[1] * 4 for p in pages))
@@ -172,7 +145,7 @@ def bake_layered(
         "geometry_bytes": quad_count * QUAD_GEOMETRY_BYTES,
         "atlas_pages": len(pages),
         "texture_resolution": [res_x, res_y],
-        "seconds": {**times, "total": sum(times.values())},
+        "seconds": clock.totals(),
     }
     layers = layer_records(plan, layer_ids, [kept_per_layer[i] for i in layer_ids])
     return Impostor(

@@ -27,16 +27,15 @@ onto a further page instead of leaving a page half empty).
 from __future__ import annotations
 
 import math
-import time
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
 from core import __version__
-from core.bake import layer_tiles, pack_tiles, timed_layers
+from core.bake import layer_tiles, pack_tiles
 from core.cube_faces import FACES
-from core.culling import CullingMode, LayerCuller
+from core.culled_layers import culled_layers
+from core.culling import CullingMode
 from core.envmap_layers import EnvmapPlan, envmap_plan, layers_for_near_field
 from core.errors import LayerPlanError, ViewCellError
 from core.frustum import MAX_RESOLUTION, pixel_angle
@@ -46,9 +45,8 @@ from core.impostor import Impostor, QuadPayload, texel_rect_corners
 from core.near_field import near_field
 from core.options import check_options, option
 from core.scene import Scene
+from core.stage_clock import Progress, StageClock
 from core.viewcells import BoxCell
-
-Progress = Callable[[str, int, int], None]  # (stage, done, total)
 
 # Cube faces (core.cube_faces.FACES): image x and y run along the next two world axes, so a face's
 # frustum square is the cube face itself.
@@ -175,15 +173,13 @@ def face_plan(name: str, plan: EnvmapPlan, centre: np.ndarray, scene_bounds: np.
 
 def bake_envmap(scene: Scene, cell: BoxCell, options: EnvmapOptions = EnvmapOptions(), progress: Progress | None = None) -> Impostor:
     """Bake the layered environment-map impostor of ``scene`` for the cubic ``cell``."""
-    report = progress or (lambda stage, done, total: None)
-    times = {key: 0.0 for key in ("plan", "record", "gap_fill", "cull", "quads", "atlas", "png")}
-    start = time.perf_counter()
-    plan = plan_envmap(cell, options)
-    centre = cell.center
-    near = near_field(scene, centre, plan.near_field, [f for f in FACES if f not in options.directions])
-    faces = [face_plan(name, plan, centre, scene.bounds) for name in options.directions]
-    times["plan"] = time.perf_counter() - start
-    report("plan", 1, 1)
+    clock = StageClock(("plan", "record", "gap_fill", "cull", "quads", "atlas", "png"), progress)
+    with clock("plan"):
+        plan = plan_envmap(cell, options)
+        centre = cell.center
+        near = near_field(scene, centre, plan.near_field, [f for f in FACES if f not in options.directions])
+        faces = [face_plan(name, plan, centre, scene.bounds) for name in options.directions]
+    clock.report("plan", 1, 1)
 
     res = plan.resolution
     total_layers = len(options.directions) * plan.count
@@ -193,58 +189,45 @@ def bake_envmap(scene: Scene, cell: BoxCell, options: EnvmapOptions = EnvmapOpti
     for face_index, face in enumerate(faces):
         if face is None:
             done += plan.count
-            report("record", done, total_layers)
+            clock.report("record", done, total_layers)
             continue
-        culler = LayerCuller((res, res), options.culling)
-        previous = None
-        for i, image, drawn in timed_layers(scene, face, options.conservative, times):
+        fill = fill_gaps if options.gap_fill else None
+        for layer in culled_layers(scene, face, options.culling, clock, options.conservative, fill):
+            i = layer.index
             done += 1
-            counts["drawn"] += drawn
-            start = time.perf_counter()
-            closer, previous = previous, image  # fill from the closer layer as recorded, not as filled
-            if options.gap_fill and closer is not None and closer[..., 3].any():
-                image, added = fill_gaps(closer, image)
-                counts["gap_filled"] += added
-            times["gap_fill"] += time.perf_counter() - start
-            start = time.perf_counter()
-            covered = image[..., 3] > 0
-            hidden = culler.hidden(covered)
-            kept = covered & ~hidden
-            counts["covered"] += int(covered.sum())
-            counts["culled"] += int(hidden.sum())
-            times["cull"] += time.perf_counter() - start
-            report("record", done, total_layers)
-            if not kept.any():
+            counts["drawn"] += layer.drawn
+            counts["gap_filled"] += layer.filled
+            counts["covered"] += layer.covered
+            counts["culled"] += layer.culled
+            clock.report("record", done, total_layers)
+            if not layer.kept.any():
                 continue
-            start = time.perf_counter()
-            rects, face_tiles = layer_tiles(image, kept, options.grid_cell, options.fill_threshold)
-            tiles += face_tiles
-            layer_id = face_index * plan.count + i
-            quad_layer.append(np.full(len(rects), layer_id, dtype=np.int64))
-            quad_corners.append(texel_rect_corners(face, float(face.distances[i]), rects))
-            kept_count = int(kept.sum())
-            counts["kept"] += kept_count
-            layers.append(
-                {
-                    "index": layer_id,
-                    "face": face.name,
-                    "layer": int(i),
-                    "distance": float(plan.distances[i]),
-                    "depth_range": [float(plan.borders[i]), float(plan.borders[i + 1]) if math.isfinite(plan.borders[i + 1]) else None],
-                    "texels": kept_count,
-                    "quads": int(len(rects)),
-                }
-            )
-            times["quads"] += time.perf_counter() - start
-    report("record", total_layers, total_layers)
+            with clock("quads"):
+                rects, face_tiles = layer_tiles(layer.image, layer.kept, options.grid_cell, options.fill_threshold)
+                tiles += face_tiles
+                layer_id = face_index * plan.count + i
+                quad_layer.append(np.full(len(rects), layer_id, dtype=np.int64))
+                quad_corners.append(texel_rect_corners(face, float(face.distances[i]), rects))
+                kept_count = int(layer.kept.sum())
+                counts["kept"] += kept_count
+                layers.append(
+                    {
+                        "index": layer_id,
+                        "face": face.name,
+                        "layer": int(i),
+                        "distance": float(plan.distances[i]),
+                        "depth_range": [float(plan.borders[i]), float(plan.borders[i + 1]) if math.isfinite(plan.borders[i + 1]) else None],
+                        "texels": kept_count,
+                        "quads": int(len(rects)),
+                    }
+                )
+    clock.report("record", total_layers, total_layers)
 
-    start = time.perf_counter()
-    pages, quad_uv, quad_page, tile_bytes = pack_tiles(tiles, options.padding)  # none: all is near field
-    times["atlas"] = time.perf_counter() - start
-    start = time.perf_counter()
-    png_bytes = int(sum(len(page_png(page)) for page in pages))
-    times["png"] = time.perf_counter() - start
-    report("atlas", 1, 1)
+    with clock("atlas"):
+        pages, quad_uv, quad_page, tile_bytes = pack_tiles(tiles, options.padding)  # none: all is near field
+    with clock("png"):
+        png_bytes = int(sum(len(page_png(page)) for page in pages))
+    clock.report("atlas", 1, 1)
 
     quad_count = len(tiles)
     texture_bytes = int(sum(p.shape[0] * p.shape[1] * 4 for p in pages))
@@ -268,7 +251,7 @@ def bake_envmap(scene: Scene, cell: BoxCell, options: EnvmapOptions = EnvmapOpti
         "geometry_bytes": quad_count * QUAD_GEOMETRY_BYTES,
         "atlas_pages": len(pages),
         "texture_resolution": [res, res],
-        "seconds": {**times, "total": sum(times.values())},
+        "seconds": clock.totals(),
     }
     parameters = {
         **asdict(options),

@@ -30,13 +30,12 @@ mesh (connected component).
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from core import __version__
-from core.bake import Progress, layer_records
+from core.bake import layer_records
 from core.culling import CullingMode
 from core.errors import InternalError
 from core.frustum import MAX_RESOLUTION, PixelModel
@@ -45,6 +44,7 @@ from core.layers import plan_layers
 from core.mask_atlas import pack_masks
 from core.options import check_options, option
 from core.scene import Scene
+from core.stage_clock import Progress, StageClock
 from core.tdm_kernels import box_half_sizes, covered_by, simplify
 from core.tdm_mesh import TdmMesh, initial_mesh, mesh_labels
 from core.tdm_texture import build_charts, chart_masks, chart_pages, chart_uvs
@@ -145,52 +145,45 @@ def bake_tdm(
     Same contract as :func:`core.bake.bake_layered`; technique ``"tdm"``.
     """
     part = scene.subset(objects) if objects else scene
-    times: dict[str, float] = {}
-    report = progress or (lambda stage, done, total: None)
+    clock = StageClock(("plan",), progress)
 
-    start = time.perf_counter()
-    plan = plan_layers(cell, part.bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model)
-    times["plan"] = time.perf_counter() - start
-    report("plan", 1, 1)
+    with clock("plan"):
+        plan = plan_layers(cell, part.bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model)
+    clock.report("plan", 1, 1)
 
-    field = record_voxel_field(part, plan, options.culling, times, report)
+    field = record_voxel_field(part, plan, options.culling, clock)
 
-    start = time.perf_counter()
-    mesh = initial_mesh(field)
-    times["mesh"] = time.perf_counter() - start
-    report("mesh", 1, 1)
+    with clock("mesh"):
+        mesh = initial_mesh(field)
+    clock.report("mesh", 1, 1)
 
-    start = time.perf_counter()
-    silhouette = field.silhouette
-    triangles, offsets, voxels, outcomes = simplify_mesh(mesh, field, options.enlargement, silhouette)
-    times["simplify"] = time.perf_counter() - start
-    report("simplify", 1, 1)
+    with clock("simplify"):
+        silhouette = field.silhouette
+        triangles, offsets, voxels, outcomes = simplify_mesh(mesh, field, options.enlargement, silhouette)
+    clock.report("simplify", 1, 1)
     uncovered = uncovered_voxels(mesh.vertices, triangles, offsets, voxels, field, options.enlargement, silhouette)
     if uncovered:
         raise InternalError(f"{uncovered} voxels left uncovered by the simplified mesh (it must cover every voxel)")
 
-    start = time.perf_counter()
-    used, compact = np.unique(triangles, return_inverse=True)
-    triangles = compact.reshape(-1, 3)
-    voxel_space = mesh.vertices[used]
-    world = field.to_world(voxel_space)
-    corners = world[triangles]  # (t, 3, 3)
-    charts = build_charts(voxel_space, triangles, options.texel_margin)
-    masks = chart_masks(charts)
-    times["charts"] = time.perf_counter() - start
-    report("charts", 1, 1)
+    with clock("charts"):
+        used, compact = np.unique(triangles, return_inverse=True)
+        triangles = compact.reshape(-1, 3)
+        voxel_space = mesh.vertices[used]
+        world = field.to_world(voxel_space)
+        corners = world[triangles]  # (t, 3, 3)
+        charts = build_charts(voxel_space, triangles, options.texel_margin)
+        masks = chart_masks(charts)
+    clock.report("charts", 1, 1)
 
-    start = time.perf_counter()
-    layout = pack_masks(masks, options.padding)
-    times["atlas"] = time.perf_counter() - start
-    report("atlas", 1, 1)
+    with clock("atlas"):
+        layout = pack_masks(masks, options.padding)
+    clock.report("atlas", 1, 1)
 
-    start = time.perf_counter()
-    pages = chart_pages(field, corners, charts, layout, options.oversampling)
-    uv = chart_uvs(charts, layout)
-    triangle_page = layout.page[charts.chart]
-    times["texture"] = time.perf_counter() - start
-    report("texture", 1, 1)
+    with clock("texture"):
+        pages = chart_pages(field, corners, charts, layout, options.oversampling)
+        uv = chart_uvs(charts, layout)
+        triangle_page = layout.page[charts.chart]
+    clock.report("texture", 1, 1)
 
     meshes = mesh_labels(len(used), triangles)
     count = triangles.shape[0]
@@ -215,7 +208,7 @@ def bake_tdm(
         "atlas_pages": len(pages),
         "texture_charts": charts.count,
         "texture_resolution": [int(r) for r in plan.texture_resolution],
-        "seconds": {**times, "total": sum(times.values())},
+        "seconds": clock.totals(),
     }
     layers = layer_records(plan, *np.unique(field.layer, return_counts=True))
     return Impostor(

@@ -18,17 +18,17 @@ the kept voxels, not with layers x image.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
-from core.bake import timed_layers
-from core.culling import CullingMode, LayerCuller
+from core.culled_layers import culled_layers
+from core.culling import CullingMode
 from core.errors import LayerPlanError
 from core.layers import LayerPlan
 from core.recording import eye_coordinates
 from core.scene import Scene
+from core.stage_clock import StageClock
 
 
 @dataclass(frozen=True, slots=True)
@@ -126,34 +126,25 @@ class VoxelField:
         return np.stack([x, y, z], axis=1)
 
 
-def record_voxel_field(part: Scene, plan: LayerPlan, culling: CullingMode, times: dict, progress=None) -> VoxelField:
+def record_voxel_field(part: Scene, plan: LayerPlan, culling: CullingMode, clock: StageClock) -> VoxelField:
     """Record ``plan``'s layers of ``part`` (gap-free, seed 000 §3.3.2), cull the texels hidden from
     the whole view cell (seed 003 §4.2 via seed 000 §3.4.1) and keep the rest as voxels.
 
-    Adds its seconds to ``times["record"]`` and ``times["cull"]``.
+    Times ``record`` and ``cull`` on ``clock`` and reports each recorded layer.
     """
-    res_x, res_y = (int(r) for r in plan.texture_resolution)
-    culler = LayerCuller((res_y, res_x), culling)
     xs, ys, ls, colours = [], [], [], []
     covered = culled = drawn = 0
-    times.setdefault("record", 0.0)
-    times.setdefault("cull", 0.0)
-    for i, image, drawn_here in timed_layers(part, plan, True, times):
-        start = time.perf_counter()
-        opaque = image[..., 3] > 0
-        hidden = culler.hidden(opaque)
-        kept = opaque & ~hidden
-        covered += int(opaque.sum())
-        culled += int(hidden.sum())
-        drawn += drawn_here
-        row, col = np.nonzero(kept)  # row-major: sorted by (y, x) within the layer
-        xs.append(col.astype(np.int64))
-        ys.append(row.astype(np.int64))
-        ls.append(np.full(row.shape, i, dtype=np.int64))
-        colours.append(image[row, col])
-        times["cull"] += time.perf_counter() - start
-        if progress:
-            progress("record", i + 1, plan.count)
+    for layer in culled_layers(part, plan, culling, clock):
+        with clock("cull"):
+            covered += layer.covered
+            culled += layer.culled
+            drawn += layer.drawn
+            row, col = np.nonzero(layer.kept)  # row-major: sorted by (y, x) within the layer
+            xs.append(col.astype(np.int64))
+            ys.append(row.astype(np.int64))
+            ls.append(np.full(row.shape, layer.index, dtype=np.int64))
+            colours.append(layer.image[row, col])
+        clock.report("record", layer.index + 1, plan.count)
     x = np.concatenate(xs) if xs else np.zeros(0, np.int64)
     if x.size == 0:
         raise LayerPlanError("the part left no visible texel in any layer (is it empty or fully transparent?)")

@@ -49,6 +49,7 @@ from core.tdm_mesh import (
 )
 from core.tdm_texture import rasterize, sample_field
 from core.viewcells import BoxCell
+from core.stage_clock import StageClock
 from core.voxel_field import VoxelField, record_voxel_field
 
 CASES = {
@@ -131,7 +132,7 @@ def test_silhouette_voxels_keep_their_own_boxes():
 
 def _field_and_mesh(scene: Scene, cell, resolution: int = RESOLUTION):
     plan = plan_layers(cell, scene.bounds, math.radians(45.0), resolution)
-    field = record_voxel_field(scene, plan, "penumbra", {})
+    field = record_voxel_field(scene, plan, "penumbra", StageClock())
     return field, initial_mesh(field)
 
 

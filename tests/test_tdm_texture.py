@@ -28,6 +28,7 @@ from core.tdm_texture import (
     sample_field,
 )
 from core.viewcells import BoxCell
+from core.stage_clock import StageClock
 from core.voxel_field import record_voxel_field
 
 
@@ -160,7 +161,7 @@ def house_tdm(request):
     options = TdmOptions(resolution=128)
     impostor = bake_tdm(scene, cell, options)
     plan = plan_layers(cell, scene.bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model)
-    field = record_voxel_field(scene, plan, options.culling, {})
+    field = record_voxel_field(scene, plan, options.culling, StageClock())
     return scene, cell, impostor, field
 
 
