@@ -29,12 +29,12 @@ import trimesh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from core.bake import BakeOptions, bake_layered  # noqa: E402
 from core.evaluation import evaluate  # noqa: E402
 from core.layers import plan_layers  # noqa: E402
 from core.render.context import gl_context, renderer_info  # noqa: E402
 from core.render.raster import Camera, MeshRenderer  # noqa: E402
 from core.scene import Scene, SceneObject  # noqa: E402
+from core.techniques.layered import BakeOptions, bake_layered  # noqa: E402
 from core.viewcells import BoxCell  # noqa: E402
 
 

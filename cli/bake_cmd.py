@@ -12,8 +12,8 @@ from core.bundle import write_bundle
 from core.culling import CULLING_MODES
 from core.errors import LayerPlanError
 from core.exchange import load_scene
-from core.frustum import PIXEL_MODELS
 from core.options import parse_option_text
+from core.pixel_angles import PIXEL_MODELS
 from core.techniques import TECHNIQUES, get_technique
 from core.viewcells import parse_viewcell
 

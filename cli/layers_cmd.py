@@ -9,8 +9,8 @@ import click
 
 from core.envmap_layers import envmap_plan, layers_for_near_field
 from core.errors import LayerPlanError
-from core.frustum import PIXEL_MODELS, pixel_angle
 from core.layers import plan_layers
+from core.pixel_angles import PIXEL_MODELS, pixel_angle
 from core.viewcells import parse_viewcell
 
 

@@ -14,7 +14,7 @@ The bundle is the on-disk form of one :class:`core.impostor.Impostor`.  Format v
     ``code_version``
         farfield version that made the impostor (string).
     ``technique``
-        ``"layered"``, ``"envmap"``, ``"tdm"``, ``"points"``, ``"ldi"`` or ``"billboard"``.
+        the name of the technique that made it (:data:`core.techniques.TECHNIQUES`).
     ``viewcell``
         The view cell's JSON description (``{"kind": "box", "lo", "hi"}`` or
         ``{"kind": "shaft", "apex", "direction", "apex_angle_deg", "min_distance",

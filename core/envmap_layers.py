@@ -24,7 +24,7 @@ import numpy as np
 
 from core.constants import TOL
 from core.errors import LayerPlanError
-from core.frustum import check_fov, check_resolution
+from core.pixel_angles import check_fov, check_resolution
 
 DIMENSIONS = (2, 3)
 

@@ -43,9 +43,6 @@ import numpy as np
 from core.errors import BundleFormatError
 from core.layers import LayerPlan
 
-TECHNIQUES = ("layered", "envmap", "tdm", "points", "ldi", "billboard")
-
-
 def _canonical(value) -> np.ndarray:
     """``value`` as an array; float arrays as float64, integer arrays as int64, others unchanged."""
     array = np.asarray(value)

@@ -27,7 +27,7 @@ import numpy as np
 
 from core.constants import TOL
 from core.errors import LayerPlanError
-from core.frustum import PixelModel, check_fov, check_resolution, pixel_angle, texture_resolution
+from core.pixel_angles import PixelModel, check_fov, check_resolution, pixel_angle, texture_resolution
 from core.viewcells import BoxCell, ShaftCell, ViewCell, _orthonormal_frame, box_corners
 
 # ---------------------------------------------------------------------------------------------
@@ -337,7 +337,7 @@ def plan_layers(
     resolution : int
         Output image resolution (pixels per side), >= 1.
     pixel_model : {"min", "center"}
-        Which pixel angle bounds the error (see :mod:`core.frustum`); ``"center"`` is the thesis's.
+        Which pixel angle bounds the error (see :mod:`core.pixel_angles`); ``"center"`` is the thesis's.
     reference_offset : float, optional
         s; by default the candidate of :func:`reference_offset_candidates` with fewest layers.
 

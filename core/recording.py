@@ -331,7 +331,7 @@ def iter_layers(
     ``plan`` is a :class:`LayerPlan` or anything with its recording fields (``count``, ``borders``,
     ``reference_offset``, ``reference_viewpoint``, ``axis``, ``u``, ``v``,
     ``frustum_half_tangents``, ``texture_resolution``), such as a cube face of
-    :class:`core.envmap.FacePlan`.  A layer no triangle meets is yielded without drawing.
+    :class:`core.techniques.envmap.FacePlan`.  A layer no triangle meets is yielded without drawing.
 
     ``rgba`` is the (h, w, 4) uint8 layer i (row 0 is the bottom image row, GL order; alpha 255 =
     covered), valid until the next step; ``drawn`` the triangles drawn for it.  Only one layer is

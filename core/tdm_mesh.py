@@ -47,7 +47,7 @@ of them fins.  farfield therefore
 
 Measured (same case): 1,169 triangles, 4 s instead of 12 s, no hole pixels; and a synthetic steep
 plane (``tests/test_tdm.py``) becomes one mesh of 5 triangles at f = 3 where the paper's rules
-leave 8 fins of 42.  (Since the outline rules of :mod:`core.tdm_kernels`: 1,450 triangles, and
+leave 8 fins of 42.  (Since the outline rules of :mod:`core.tdm_simplify`: 1,450 triangles, and
 8-10 for the steep plane, whose rim is all outline.)
 
 **Slits (farfield's addition).**  Where the runs of neighbouring texel columns overlap in depth,
@@ -84,7 +84,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from core.tdm_kernels import assign_voxels
+from core.tdm_simplify import assign_voxels
 from core.voxel_field import VoxelField
 
 INSET = 1.0 / 16.0  # texels from a voxel's corner to its nearest vertex (the paper: 1/4)

@@ -66,7 +66,7 @@ class VoxelField:
     def silhouette(self) -> np.ndarray:
         """(n,) bool: the voxels with an empty column (no voxel on any layer) among the eight around
         theirs, where the image of the part ends against the background.  The simplification does
-        not enlarge their boxes (:func:`core.tdm_kernels.box_half_sizes`), so the mesh's outline
+        not enlarge their boxes (:func:`core.tdm_simplify.box_half_sizes`), so the mesh's outline
         can neither retreat into them nor be held by a triangle in front of or behind them."""
         _, res_y, res_x = self.shape
         occupied = np.zeros((res_y + 2, res_x + 2), dtype=bool)

@@ -1,6 +1,6 @@
 """Walkthroughs: a camera path through an envmap impostor database, frame by frame, runtime vs full scene.
 
-For every frame the reference runtime (:mod:`core.runtime`) finds the viewpoint's cell, switches to
+For every frame the reference runtime (:mod:`core.envmap_runtime`) finds the viewpoint's cell, switches to
 that cell's renderer when the cell changes (uploading its near field and quads, then prefetching
 the neighbours' bundles, seed 002 §3 runtime steps 1-2), and draws near field + impostors.  The
 full scene is drawn from the same camera by the same renderer.  Per frame: both frame times (draw
@@ -20,11 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
+from core.envmap_runtime import EnvmapCellRenderer, camera_at, depth_range_for
 from core.errors import LayerPlanError
 from core.evaluation import compare_images
 from core.impostor_database import ImpostorDatabase
 from core.render.raster import MeshRenderer
-from core.runtime import EnvmapCellRenderer, camera_at, depth_range_for
 from core.scene import Scene
 
 Progress = Callable[[int, int], None]  # (frames done, frames)

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 import scenes
-from core.bake import BakeOptions, bake_layered
+
 from core.evaluation import compare_images, evaluate, impostor_objects
 from core.render.context import gl_context
 from core.render.raster import Camera, MeshRenderer, depth_bounds
 from core.scene import Scene
+from core.techniques.layered import BakeOptions, bake_layered
 from core.viewcells import BoxCell, box_corners
 
 

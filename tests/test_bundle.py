@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import hashlib
 import dataclasses
+import hashlib
 import io
 import json
-import shutil
 import os
+import shutil
 import struct
 import zipfile
 from pathlib import Path

@@ -8,14 +8,14 @@ import sys
 
 import numpy as np
 import pytest
+import scenes
 import trimesh
 
-import scenes
-from core.bake import BakeOptions, bake_layered
 from core.bundle import read_bundle, write_bundle
 from core.evaluation import compare_images, impostor_objects
 from core.render.raster import Camera, MeshRenderer, depth_bounds
 from core.scene import SceneObject
+from core.techniques.layered import BakeOptions, bake_layered
 from core.viewcells import BoxCell, box_corners
 
 

@@ -17,7 +17,6 @@ from core.envmap_layers import (
     tdm_texel_limit,
     texel_limit,
 )
-from core.frustum import perspective_factor, pixel_angle, star_shape_distance
 from core.layers import (
     border_offset,
     depth_range,
@@ -27,6 +26,7 @@ from core.layers import (
     spacing_left_upper,
     spacing_right,
 )
+from core.pixel_angles import perspective_factor, pixel_angle, star_shape_distance
 from core.viewcells import BoxCell
 
 M = 5.0  # half of a 10 m cubic view cell

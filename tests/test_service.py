@@ -15,13 +15,12 @@ import numpy as np
 import PIL.Image
 import pytest
 import trimesh
+from service_harness import BUNNY, BUNNY_GRID, ROOT, service_client, service_on_each_database, upload, wait_for_job  # noqa: F401 - the service and client fixtures
 
-from core.bake import BakeOptions, bake_layered
 from core.bundle import page_file_name, write_bundle
 from core.exchange import load_scene
+from core.techniques.layered import BakeOptions, bake_layered
 from core.viewcells import viewcell_from_dict
-from service_harness import service_client, service_on_each_database  # noqa: F401 - the service and client fixtures
-from service_harness import BUNNY, BUNNY_GRID, ROOT, upload, wait_for_job
 
 pytestmark = pytest.mark.skipif(not BUNNY.exists(), reason="needs ../shared/scenes")
 

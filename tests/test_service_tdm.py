@@ -17,20 +17,19 @@ import zipfile
 from pathlib import Path
 
 import pytest
+from browser import dashboard_page, tid
 from click.testing import CliRunner
+from scenes import box_object, write_scene
+from service_harness import ADMIN_KEY, ROOT, service_client, service_on_each_database, upload, wait_for_job  # noqa: F401 - the service and client fixtures
 
 from cli.main import _register, cli
 from core.bundle import MANIFEST_NAME, read_bundle
 from core.errors import LayerPlanError
 from core.exchange import load_scene
 from core.scene import Scene
-from core.tdm import TdmOptions, bake_tdm
 from core.techniques import get_technique
+from core.techniques.tdm import TdmOptions, bake_tdm
 from core.viewcells import viewcell_from_dict
-from scenes import box_object, write_scene
-from browser import dashboard_page, tid
-from service_harness import service_client, service_on_each_database  # noqa: F401 - the service and client fixtures
-from service_harness import ADMIN_KEY, ROOT, upload, wait_for_job
 
 PART = ["block", "tower"]  # the represented objects; the shed is left out
 # 2 x 1 x 1 box cells of side 4, about 20 units in front (-z) of the block's face at z = -5.

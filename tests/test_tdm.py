@@ -17,28 +17,13 @@ from test_bake import cell_in_front, city_block, dense, needs_shared
 from test_bundle import accessor_array
 
 from cli.main import _register, cli
-from core.bake import BakeOptions, bake_layered
 from core.bundle import read_bundle, write_bundle
 from core.errors import LayerPlanError
 from core.evaluation import evaluate
 from core.glb import impostor_glb
 from core.layers import plan_layers
 from core.scene import Scene
-from core.tdm import (
-    SCHEDULE,
-    TdmOptions,
-    bake_tdm,
-    schedule,
-    simplify_mesh,
-    uncovered_voxels,
-)
-from core.tdm_kernels import (
-    box_half_sizes,
-    contraction_outcome,
-    covered_by_any,
-    simplify,
-    tri_box,
-)
+from core.stage_clock import StageClock
 from core.tdm_mesh import (
     SLIT_AREA,
     TdmMesh,
@@ -47,9 +32,24 @@ from core.tdm_mesh import (
     initial_mesh,
     mesh_labels,
 )
+from core.tdm_simplify import (
+    box_half_sizes,
+    contraction_outcome,
+    covered_by_any,
+    simplify,
+    tri_box,
+)
 from core.tdm_texture import rasterize, sample_field
+from core.techniques.layered import BakeOptions, bake_layered
+from core.techniques.tdm import (
+    SCHEDULE,
+    TdmOptions,
+    bake_tdm,
+    schedule,
+    simplify_mesh,
+    uncovered_voxels,
+)
 from core.viewcells import BoxCell
-from core.stage_clock import StageClock
 from core.voxel_field import VoxelField, record_voxel_field
 
 CASES = {
@@ -102,7 +102,7 @@ def test_the_outline_stays_within_a_pixel_at_the_silhouette(house_bake, enlargem
     """The house at 240-260 units and 512 pixels, seen from the cell's corners and centre: no hole
     pixel at f = 2, at most one in a view at f = 1 (4 x 4 samples per pixel, a pixel of tolerance).
 
-    The outline voxels keep their own boxes (:func:`core.tdm_kernels.box_half_sizes`).  Enlarged
+    The outline voxels keep their own boxes (:func:`core.tdm_simplify.box_half_sizes`).  Enlarged
     across the image, one view here had 4 hole pixels; enlarged in depth only, a triangle a layer in
     front of an outline voxel could keep it, and 250 units opened one hole pixel at f = 2 (a sweep
     of 200 to 300 units in steps of 10 at f = 2 and 3 now has none).  At f = 1 the boxes are the

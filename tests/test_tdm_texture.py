@@ -13,13 +13,13 @@ import pytest
 import scenes
 from scipy.spatial import cKDTree
 
-from core.bake import pack_tiles
 from core.errors import AtlasOverflowError, LayerPlanError
 from core.evaluation import evaluate
 from core.impostor import MeshPayload
+from core.layer_tiles import pack_tiles
 from core.layers import plan_layers
 from core.mask_atlas import pack_masks
-from core.tdm import TdmOptions, bake_tdm, geometry_bytes
+from core.stage_clock import StageClock
 from core.tdm_texture import (
     MAX_CHART,
     build_charts,
@@ -27,8 +27,8 @@ from core.tdm_texture import (
     rasterize,
     sample_field,
 )
+from core.techniques.tdm import TdmOptions, bake_tdm, geometry_bytes
 from core.viewcells import BoxCell
-from core.stage_clock import StageClock
 from core.voxel_field import record_voxel_field
 
 
@@ -197,7 +197,7 @@ def per_triangle_tiles(field, world: np.ndarray, margin: int) -> tuple[list[np.n
 
 def tile_corner_uvs(chart: np.ndarray, sizes: np.ndarray, corner_uv: np.ndarray) -> np.ndarray:
     """(t, 3, 2) page UVs of triangles at tile positions ``chart`` (t, 3, 2) in tiles of ``sizes``
-    (t, 2) whose corners TL, TR, BR, BL :func:`core.bake.pack_tiles` put at ``corner_uv`` (t, 4, 2)."""
+    (t, 2) whose corners TL, TR, BR, BL :func:`core.layer_tiles.pack_tiles` put at ``corner_uv`` (t, 4, 2)."""
     fx = chart[..., 0] / sizes[:, None, 0]
     fy = chart[..., 1] / sizes[:, None, 1]
     tl, tr, bl = corner_uv[:, None, 0], corner_uv[:, None, 1], corner_uv[:, None, 3]

@@ -9,6 +9,8 @@ import json
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from scenes import box_object, city, write_scene
+from service_harness import service_client, service_on_each_database, upload, wait_for_job  # noqa: F401 - the service and client fixtures
 
 from cli.main import _register, cli
 from core.bundle import read_bundle, write_bundle
@@ -17,9 +19,6 @@ from core.options import describe_options, options_from_mapping
 from core.scene import Scene
 from core.techniques import TECHNIQUES, get_technique
 from core.viewcells import BoxCell
-from scenes import box_object, city, write_scene
-from service_harness import service_client, service_on_each_database  # noqa: F401 - the service and client fixtures
-from service_harness import upload, wait_for_job
 
 pytestmark = pytest.mark.filterwarnings("ignore::core.scene.SceneWarning")
 

@@ -26,7 +26,7 @@ grid; the shortest is taken, and it is contracted (v2 into v1, or, failing that,
 After a contraction the edges around the kept vertex are pushed again with their new lengths; an
 edge that failed is only reconsidered when it is pushed again that way.  Every voxel stays stored
 with a triangle that meets its enlarged box, so after the queue empties every voxel of the initial
-field is covered (what ``core.tdm`` checks again directly).
+field is covered (what ``core.techniques.tdm`` checks again directly).
 
 Everything is in float64 voxel units.  The triangle-box test is the separating-axis test of
 Akenine-Möller (2001): the box's three axes, the triangle's normal and the nine edge cross products.
