@@ -35,9 +35,8 @@ COPY service ./service
 COPY api ./api
 COPY workers ./workers
 COPY cli ./cli
-# Installed like ./farfield installs it (scripts/bootstrap: editable, from this tree), so the
-# package's data files (shaders, migrations, dashboard) are read from /opt/farfield.
-RUN pip install -e . \
+# Installed as a wheel: one import package, farfield, with its shaders, migrations and dashboard.
+RUN pip install . \
  && useradd --system --create-home --home-dir /var/lib/farfield --uid 10001 farfield
 
 USER farfield

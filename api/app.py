@@ -1,6 +1,6 @@
 """The FastAPI application: routes under ``/v1``, errors as JSON with their HTTP status, the dashboard.
 
-``uvicorn api.app:app_from_env --factory`` serves it with the environment's settings (what
+``uvicorn farfield.api.app:app_from_env --factory`` serves it with the environment's settings (what
 ``farfield up`` does).
 """
 
@@ -13,18 +13,18 @@ from celery import Celery
 from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
 
-from core import __version__
-from core.errors import ErrorKind, FarfieldError
-from service.blobs import blob_store
-from service.db import Database
-from service.keys import ensure_admin_key
-from service.settings import Settings
-from workers.app import make_celery
+from farfield.core import __version__
+from farfield.core.errors import ErrorKind, FarfieldError
+from farfield.service.blobs import blob_store
+from farfield.service.db import Database
+from farfield.service.keys import ensure_admin_key
+from farfield.service.settings import Settings
+from farfield.workers.app import make_celery
 
-from api import routes_dashboard, routes_jobs, routes_ops, routes_results, routes_scenes, routes_techniques
-from api.deps import Services
-from api.limits import BodyLimit
-from api.sweeper import LostCellSweeper
+from farfield.api import routes_dashboard, routes_jobs, routes_ops, routes_results, routes_scenes, routes_techniques
+from farfield.api.deps import Services
+from farfield.api.limits import BodyLimit
+from farfield.api.sweeper import LostCellSweeper
 
 
 def create_app(settings: Settings, celery: Celery | None = None, migrate: bool = True) -> FastAPI:

@@ -7,12 +7,12 @@ from dataclasses import dataclass
 from celery import Celery
 from fastapi import Request
 
-from core.errors import AuthError
-from service.blobs import BlobStore
-from service.db import Database
-from service.keys import authenticate
-from service.settings import Settings
-from workers.app import BAKE_CELL, RENDER_QUEUE
+from farfield.core.errors import AuthError
+from farfield.service.blobs import BlobStore
+from farfield.service.db import Database
+from farfield.service.keys import authenticate
+from farfield.service.settings import Settings
+from farfield.workers.app import BAKE_CELL, RENDER_QUEUE
 
 RETRY_POLICY = {"max_retries": 30, "interval_start": 0.2, "interval_step": 0.5, "interval_max": 2.0}
 

@@ -15,8 +15,8 @@ import json
 from fastapi import HTTPException
 from starlette.concurrency import run_in_threadpool
 
-from core.errors import AuthError
-from service.keys import authenticate
+from farfield.core.errors import AuthError
+from farfield.service.keys import authenticate
 
 JSON_BODY_LIMIT = 8 * 2**20  # job specs: 10,000 explicit view cells fit with room to spare
 MULTIPART_ENVELOPE = 64 * 1024

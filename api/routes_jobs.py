@@ -4,13 +4,13 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Query
 
-from service.jobs import (
+from farfield.service.jobs import (
     JobSpec, cancel_job, create_job, full_job_record, get_job_row, job_record, job_summaries, list_job_rows,
     queued_cell_ids, retry_job,
 )  # fmt: skip
-from service.scenes import get_scene_row
+from farfield.service.scenes import get_scene_row
 
-from api.deps import Services, services, tenant
+from farfield.api.deps import Services, services, tenant
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 

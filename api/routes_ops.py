@@ -6,9 +6,9 @@ from fastapi import APIRouter, Depends
 from fastapi.responses import PlainTextResponse
 from sqlalchemy import func, select, text
 
-from service.db import CellRow, JobRow, SceneRow
+from farfield.service.db import CellRow, JobRow, SceneRow
 
-from api.deps import Services, services
+from farfield.api.deps import Services, services
 
 router = APIRouter(tags=["operations"])
 

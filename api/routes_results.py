@@ -10,11 +10,11 @@ from fastapi import APIRouter, Depends, Path as PathParam
 from fastapi.responses import FileResponse, Response
 from starlette.background import BackgroundTask
 
-from core.bundle import GLB_NAME, MANIFEST_NAME, bundle_zip, page_file_name
-from core.errors import ConflictError, NotFoundError
-from service.jobs import cell_record, get_cell_row, get_job_row, job_cells, lookup
+from farfield.core.bundle import GLB_NAME, MANIFEST_NAME, bundle_zip, page_file_name
+from farfield.core.errors import ConflictError, NotFoundError
+from farfield.service.jobs import cell_record, get_cell_row, get_job_row, job_cells, lookup
 
-from api.deps import Services, services, tenant
+from farfield.api.deps import Services, services, tenant
 
 router = APIRouter(prefix="/v1/jobs/{job_id}", tags=["results"])
 

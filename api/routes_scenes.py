@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends, UploadFile
 
-from core.errors import SceneLoadError
-from service.scenes import delete_scene, get_scene_row, ingest_scene, list_scene_rows, scene_record
+from farfield.core.errors import SceneLoadError
+from farfield.service.scenes import delete_scene, get_scene_row, ingest_scene, list_scene_rows, scene_record
 
-from api.deps import Services, services, tenant
+from farfield.api.deps import Services, services, tenant
 
 router = APIRouter(prefix="/v1/scenes", tags=["scenes"])
 

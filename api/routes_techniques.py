@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends
 
-from core.techniques import TECHNIQUES
+from farfield.core.techniques import TECHNIQUES
 
-from api.deps import tenant
+from farfield.api.deps import tenant
 
 router = APIRouter(prefix="/v1/techniques", tags=["techniques"])
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 import threading
 
-from service.jobs import lost_queued_cells
+from farfield.service.jobs import lost_queued_cells
 
 log = logging.getLogger("farfield.sweeper")
 

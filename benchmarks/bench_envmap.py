@@ -30,14 +30,14 @@ import trimesh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from core.envmap_runtime import EnvmapCellRenderer, camera_at, depth_range_for, evaluate_envmap  # noqa: E402
-from core.impostor_database import ImpostorDatabase, write_database  # noqa: E402
-from core.render.context import gl_context, renderer_info  # noqa: E402
-from core.render.raster import MeshRenderer  # noqa: E402
-from core.scene import Scene, SceneObject  # noqa: E402
-from core.techniques.envmap import EnvmapOptions, bake_envmap  # noqa: E402
-from core.viewcells import BoxCell, grid_boxes  # noqa: E402
-from core.walkthrough import generate_path, walkthrough, write_plot  # noqa: E402
+from farfield.core.envmap_runtime import EnvmapCellRenderer, camera_at, depth_range_for, evaluate_envmap  # noqa: E402
+from farfield.core.impostor_database import ImpostorDatabase, write_database  # noqa: E402
+from farfield.core.render.context import gl_context, renderer_info  # noqa: E402
+from farfield.core.render.raster import MeshRenderer  # noqa: E402
+from farfield.core.scene import Scene, SceneObject  # noqa: E402
+from farfield.core.techniques.envmap import EnvmapOptions, bake_envmap  # noqa: E402
+from farfield.core.viewcells import BoxCell, grid_boxes  # noqa: E402
+from farfield.core.walkthrough import generate_path, walkthrough, write_plot  # noqa: E402
 
 HORIZONTAL = ("+x", "-x", "+z", "-z")
 

@@ -29,13 +29,13 @@ import trimesh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from core.evaluation import evaluate  # noqa: E402
-from core.layers import plan_layers  # noqa: E402
-from core.render.context import gl_context, renderer_info  # noqa: E402
-from core.render.raster import Camera, MeshRenderer  # noqa: E402
-from core.scene import Scene, SceneObject  # noqa: E402
-from core.techniques.layered import BakeOptions, bake_layered  # noqa: E402
-from core.viewcells import BoxCell  # noqa: E402
+from farfield.core.evaluation import evaluate  # noqa: E402
+from farfield.core.layers import plan_layers  # noqa: E402
+from farfield.core.render.context import gl_context, renderer_info  # noqa: E402
+from farfield.core.render.raster import Camera, MeshRenderer  # noqa: E402
+from farfield.core.scene import Scene, SceneObject  # noqa: E402
+from farfield.core.techniques.layered import BakeOptions, bake_layered  # noqa: E402
+from farfield.core.viewcells import BoxCell  # noqa: E402
 
 
 def dense_object(seed: int = 0) -> Scene:
@@ -142,7 +142,7 @@ def speed(scene: Scene, distance: float, size: float, resolution: int, repeats: 
             for _ in range(plan.count):
                 texture.read()
             bounds.append(time.perf_counter() - start)
-        from core.render.programs import park_framebuffer
+        from farfield.core.render.programs import park_framebuffer
 
         park_framebuffer(ctx)
         fbo.release()

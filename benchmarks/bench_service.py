@@ -32,13 +32,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from core.bundle import write_bundle  # noqa: E402
-from core.exchange import load_scene  # noqa: E402
-from core.render.context import renderer_info  # noqa: E402
-from core.techniques.layered import BakeOptions, bake_layered  # noqa: E402
-from service.jobs import GridSpec, grid_cells  # noqa: E402
-from service.settings import Settings  # noqa: E402
-from service.supervisor import Service  # noqa: E402
+from farfield.core.bundle import write_bundle  # noqa: E402
+from farfield.core.exchange import load_scene  # noqa: E402
+from farfield.core.render.context import renderer_info  # noqa: E402
+from farfield.core.techniques.layered import BakeOptions, bake_layered  # noqa: E402
+from farfield.service.jobs import GridSpec, grid_cells  # noqa: E402
+from farfield.service.settings import Settings  # noqa: E402
+from farfield.service.supervisor import Service  # noqa: E402
 
 BUNNY = Path(__file__).resolve().parents[2] / "shared" / "scenes" / "stanford_bunny" / "bun_zipper.ply"
 KEY = "ff_bench_0123456789abcdef"

@@ -42,12 +42,12 @@ from scenes import SHARED_SCENES, house  # noqa: E402
 from test_bake import cell_in_front  # noqa: E402
 from test_tdm import CASES as PARTS  # noqa: E402  (the test suite's parts and cells)
 
-from core.comparison import Candidate, choose  # noqa: E402
-from core.evaluation import evaluate  # noqa: E402
-from core.render.context import gl_context, renderer_info  # noqa: E402
-from core.techniques.layered import BakeOptions, bake_layered  # noqa: E402
-from core.techniques.tdm import TdmOptions, bake_tdm  # noqa: E402
-from core.viewcells import BoxCell  # noqa: E402
+from farfield.core.comparison import Candidate, choose  # noqa: E402
+from farfield.core.evaluation import evaluate  # noqa: E402
+from farfield.core.render.context import gl_context, renderer_info  # noqa: E402
+from farfield.core.techniques.layered import BakeOptions, bake_layered  # noqa: E402
+from farfield.core.techniques.tdm import TdmOptions, bake_tdm  # noqa: E402
+from farfield.core.viewcells import BoxCell  # noqa: E402
 
 DISTANCES = (90, 110, 140, 180, 250, 500, 1000)
 FACTORS = (1.0, 1.25, 1.5, 1.75, 2.0, 2.5, 3.0)

@@ -8,14 +8,14 @@ from pathlib import Path
 import click
 from tqdm import tqdm
 
-from core.bundle import write_bundle
-from core.culling import CULLING_MODES
-from core.errors import LayerPlanError
-from core.exchange import load_scene
-from core.options import parse_option_text
-from core.pixel_angles import PIXEL_MODELS
-from core.techniques import TECHNIQUES, get_technique
-from core.viewcells import parse_viewcell
+from farfield.core.bundle import write_bundle
+from farfield.core.culling import CULLING_MODES
+from farfield.core.errors import LayerPlanError
+from farfield.core.exchange import load_scene
+from farfield.core.options import parse_option_text
+from farfield.core.pixel_angles import PIXEL_MODELS
+from farfield.core.techniques import TECHNIQUES, get_technique
+from farfield.core.viewcells import parse_viewcell
 
 
 class _Bar:

@@ -17,9 +17,9 @@ from pathlib import Path
 import click
 from tqdm import tqdm
 
-from core.errors import ErrorKind, FarfieldError
-from core.viewcells import parse_viewcell
-from service.settings import Settings
+from farfield.core.errors import ErrorKind, FarfieldError
+from farfield.core.viewcells import parse_viewcell
+from farfield.service.settings import Settings
 
 STATUS_KINDS = {401: ErrorKind.UNAUTHORIZED, 404: ErrorKind.MISSING, 409: ErrorKind.CONFLICT, 413: ErrorKind.TOO_LARGE, 503: ErrorKind.RENDERER_UNAVAILABLE}
 
@@ -67,7 +67,11 @@ class Client:
             except ValueError:
                 detail = response.text
             if isinstance(detail, list):  # FastAPI's validation errors
-                detail = "; ".join(f"{'.'.join(str(p) for p in d.get('loc', [])[1:])}: {d.get('msg')}" for d in detail)
+                detail = "; ".join(
+                    f"{'.'.join(str(p) for p in d.get('loc', [])[1:])}: {d.get('msg')}"
+                    + (f", got {d['input']!r}" if isinstance(d.get("input"), (str, int, float)) else "")
+                    for d in detail
+                )  # fmt: skip
             default = ErrorKind.INTERNAL if response.status_code >= 500 else ErrorKind.BAD_INPUT  # a 5xx is the service's fault, never bad input
             raise ServiceError(f"{detail} (HTTP {response.status_code})", STATUS_KINDS.get(response.status_code, default))
         return response

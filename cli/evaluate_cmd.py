@@ -12,10 +12,10 @@ from pathlib import Path
 
 import click
 
-from core.bundle import read_bundle
-from core.comparison import PREFERENCES, Candidate, check_comparable, choose
-from core.exchange import load_scene
-from core.techniques import get_technique
+from farfield.core.bundle import read_bundle
+from farfield.core.comparison import PREFERENCES, Candidate, check_comparable, choose
+from farfield.core.exchange import load_scene
+from farfield.core.techniques import get_technique
 
 
 @click.command("evaluate")

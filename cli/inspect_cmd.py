@@ -1,6 +1,6 @@
 """``farfield inspect SCENE [--json]``: load a scene file and print its objects, triangles, bounds and colour sources.
 
-Errors are :class:`core.errors.FarfieldError` s, reported by the group in :mod:`cli.main`.  Load
+Errors are :class:`farfield.core.errors.FarfieldError` s, reported by the group in :mod:`farfield.cli.main`.  Load
 warnings are shown in the output (table or JSON), not as Python warnings on stderr.
 """
 
@@ -12,8 +12,8 @@ from pathlib import Path
 
 import click
 
-from core.exchange import load_scene
-from core.scene import Scene, SceneWarning
+from farfield.core.exchange import load_scene
+from farfield.core.scene import Scene, SceneWarning
 
 
 def _vector(values) -> str:

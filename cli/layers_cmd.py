@@ -7,11 +7,11 @@ import math
 
 import click
 
-from core.envmap_layers import envmap_plan, layers_for_near_field
-from core.errors import LayerPlanError
-from core.layers import plan_layers
-from core.pixel_angles import PIXEL_MODELS, pixel_angle
-from core.viewcells import parse_viewcell
+from farfield.core.envmap_layers import envmap_plan, layers_for_near_field
+from farfield.core.errors import LayerPlanError
+from farfield.core.layers import plan_layers
+from farfield.core.pixel_angles import PIXEL_MODELS, pixel_angle
+from farfield.core.viewcells import parse_viewcell
 
 
 def _parse_bounds(text: str):
@@ -57,7 +57,7 @@ def part(scene, viewcell, objects, bounds, resolution, fov, pixel_model, referen
     if (scene is None) == (bounds is None):
         raise LayerPlanError("give either a SCENE or --bounds (not both)")
     if scene is not None:
-        from core.exchange import load_scene
+        from farfield.core.exchange import load_scene
 
         loaded = load_scene(scene)
         if objects:

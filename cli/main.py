@@ -1,8 +1,8 @@
 """Entry point of the ``farfield`` command: a click group whose subcommands live in sibling modules.
 
-Every :class:`core.errors.FarfieldError` (and a few well-known user mistakes) becomes one line on
+Every :class:`farfield.core.errors.FarfieldError` (and a few well-known user mistakes) becomes one line on
 stderr and the exit code from :data:`core.errors.ErrorKind`; a traceback means a bug in farfield
-(an uncaught exception, or a :class:`core.errors.InternalError`, which exits 1 like one).
+(an uncaught exception, or a :class:`farfield.core.errors.InternalError`, which exits 1 like one).
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ import traceback
 
 import click
 
-from core import __version__
-from core.errors import ErrorKind, FarfieldError
+from farfield.core import __version__
+from farfield.core.errors import ErrorKind, FarfieldError
 
 
 class FarfieldGroup(click.Group):
@@ -38,7 +38,7 @@ def cli() -> None:
 
 
 def _register() -> None:
-    from cli import bake_cmd, client_cmds, evaluate_cmd, inspect_cmd, layers_cmd, service_cmds, techniques_cmd, walkthrough_cmd
+    from farfield.cli import bake_cmd, client_cmds, evaluate_cmd, inspect_cmd, layers_cmd, service_cmds, techniques_cmd, walkthrough_cmd
 
     cli.add_command(inspect_cmd.inspect)
     cli.add_command(layers_cmd.layers)

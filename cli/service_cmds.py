@@ -8,9 +8,9 @@ import sys
 
 import click
 
-from service.db import Database
-from service.keys import create_key, list_keys, revoke_key
-from service.settings import Settings
+from farfield.service.db import Database
+from farfield.service.keys import create_key, list_keys, revoke_key
+from farfield.service.settings import Settings
 
 
 @click.command("up")
@@ -20,7 +20,7 @@ def up(workers):
 
     Prints the dashboard URL and the admin API key; Ctrl-C or SIGTERM stops everything.
     """
-    from service.supervisor import Service, render_devices
+    from farfield.service.supervisor import Service, render_devices
 
     service = Service(Settings.from_env(), workers=workers or render_devices())
     service.handle_signals()  # before any child exists, so none is left behind by an early signal
@@ -42,7 +42,7 @@ def up(workers):
 @click.option("--name", default="worker", show_default=True)
 def worker(concurrency, name):
     """Join this machine to a running service as a render worker (needs REDIS_URL and DATABASE_URL)."""
-    from service.supervisor import worker_command
+    from farfield.service.supervisor import worker_command
 
     settings = Settings.from_env()
     if settings.redis_url is None:

@@ -6,7 +6,7 @@ import json
 
 import click
 
-from core.techniques import TECHNIQUES
+from farfield.core.techniques import TECHNIQUES
 
 
 def _bounds(o: dict) -> str:

@@ -8,9 +8,9 @@ from pathlib import Path
 import click
 from tqdm import tqdm
 
-from core.exchange import load_scene
-from core.impostor_database import ImpostorDatabase
-from core.walkthrough import generate_path, load_path, walkthrough, write_plot
+from farfield.core.exchange import load_scene
+from farfield.core.impostor_database import ImpostorDatabase
+from farfield.core.walkthrough import generate_path, load_path, walkthrough, write_plot
 
 
 @click.command("walkthrough")

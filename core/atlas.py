@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from core.errors import AtlasOverflowError, LayerPlanError
+from farfield.core.errors import AtlasOverflowError, LayerPlanError
 
 
 @dataclass(frozen=True, slots=True)

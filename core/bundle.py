@@ -91,9 +91,9 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from core.errors import BundleFormatError
-from core.glb import impostor_glb, page_png
-from core.impostor import PAYLOAD_KINDS, Impostor, MeshPayload, QuadPayload, check_impostor
+from farfield.core.errors import BundleFormatError
+from farfield.core.glb import impostor_glb, page_png
+from farfield.core.impostor import PAYLOAD_KINDS, Impostor, MeshPayload, QuadPayload, check_impostor
 
 __all__ = [
     "FORMAT",

@@ -21,10 +21,10 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-from core.errors import ComparisonError
-from core.evaluation import Evaluation
-from core.impostor import Impostor
-from core.techniques import get_technique
+from farfield.core.errors import ComparisonError
+from farfield.core.evaluation import Evaluation
+from farfield.core.impostor import Impostor
+from farfield.core.techniques import get_technique
 
 PREFERENCES = ("memory", "triangles", "error")
 

@@ -16,10 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from core.culling import CullingMode, LayerCuller
-from core.recording import iter_layers
-from core.scene import Scene
-from core.stage_clock import StageClock
+from farfield.core.culling import CullingMode, LayerCuller
+from farfield.core.recording import iter_layers
+from farfield.core.scene import Scene
+from farfield.core.stage_clock import StageClock
 
 # fill(closer, image) -> (filled image, texels added): ``closer`` is the layer before as recorded.
 Fill = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, int]]

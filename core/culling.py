@@ -21,7 +21,7 @@ from typing import Literal
 
 import numpy as np
 
-from core.errors import LayerPlanError
+from farfield.core.errors import LayerPlanError
 
 CullingMode = Literal["penumbra", "umbra", "off"]
 CULLING_MODES: tuple[str, ...] = ("penumbra", "umbra", "off")

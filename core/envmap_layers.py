@@ -22,9 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from core.constants import TOL
-from core.errors import LayerPlanError
-from core.pixel_angles import check_fov, check_resolution
+from farfield.core.constants import TOL
+from farfield.core.errors import LayerPlanError
+from farfield.core.pixel_angles import check_fov, check_resolution
 
 DIMENSIONS = (2, 3)
 

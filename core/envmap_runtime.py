@@ -14,13 +14,13 @@ import math
 
 import numpy as np
 
-from core.cube_faces import face_normal
-from core.evaluation import compare_images, impostor_objects
-from core.impostor import Impostor
-from core.near_field import NearField
-from core.render.raster import Camera, MeshRenderer
-from core.scene import Scene
-from core.viewcells import BoxCell, box_corners
+from farfield.core.cube_faces import face_normal
+from farfield.core.evaluation import compare_images, impostor_objects
+from farfield.core.impostor import Impostor
+from farfield.core.near_field import NearField
+from farfield.core.render.raster import Camera, MeshRenderer
+from farfield.core.scene import Scene
+from farfield.core.viewcells import BoxCell, box_corners
 
 
 def camera_at(position, forward, fov_deg: float, resolution: int, near: float, far: float) -> Camera:

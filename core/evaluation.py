@@ -27,10 +27,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from core.impostor import Impostor, MeshPayload, QuadPayload
-from core.render.raster import Camera, MeshRenderer, depth_bounds
-from core.scene import Scene, SceneObject
-from core.viewcells import BoxCell, ShaftCell, ViewCell, box_corners
+from farfield.core.impostor import Impostor, MeshPayload, QuadPayload
+from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
+from farfield.core.scene import Scene, SceneObject
+from farfield.core.viewcells import BoxCell, ShaftCell, ViewCell, box_corners
 
 
 def impostor_objects(impostor: Impostor) -> list[SceneObject]:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from core.culling import _shift
+from farfield.core.culling import _shift
 
 _NEIGHBOURS = tuple((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0))
 

@@ -45,7 +45,7 @@ import struct
 import numpy as np
 from PIL import Image
 
-from core.impostor import Impostor, MeshPayload, QuadPayload, check_impostor
+from farfield.core.impostor import Impostor, MeshPayload, QuadPayload, check_impostor
 
 __all__ = ["impostor_glb", "page_png"]
 

@@ -40,8 +40,8 @@ from typing import ClassVar, Union
 
 import numpy as np
 
-from core.errors import BundleFormatError
-from core.layers import LayerPlan
+from farfield.core.errors import BundleFormatError
+from farfield.core.layers import LayerPlan
 
 def _canonical(value) -> np.ndarray:
     """``value`` as an array; float arrays as float64, integer arrays as int64, others unchanged."""
@@ -358,7 +358,7 @@ def check_impostor(impostor: Impostor) -> None:
     >>> check_impostor(bad)
     Traceback (most recent call last):
     ...
-    core.errors.BundleFormatError: page 0 is (2, 2, 4) float32, expected (H, W, 4) uint8
+    farfield.core.errors.BundleFormatError: page 0 is (2, 2, 4) float32, expected (H, W, 4) uint8
     """
     viewpoint = np.asarray(impostor.reference_viewpoint)
     if viewpoint.shape != (3,) or not np.all(np.isfinite(viewpoint)):

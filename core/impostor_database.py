@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from core.bundle import read_bundle
-from core.errors import BundleFormatError, NotFoundError
-from core.impostor import Impostor
-from core.viewcells import BoxCell, ViewCell, viewcell_from_dict
+from farfield.core.bundle import read_bundle
+from farfield.core.errors import BundleFormatError, NotFoundError
+from farfield.core.impostor import Impostor
+from farfield.core.viewcells import BoxCell, ViewCell, viewcell_from_dict
 
 DATABASE_FORMAT = "farfield-impostor-database"
 INDEX_NAME = "index.json"
@@ -158,7 +158,7 @@ def database_index(technique: str, params: dict, cells: list[dict], job: str | N
     cells of its 26-neighbourhood on the grid; [] for explicit cells).  ``job_type`` repeats
     ``technique`` for readers of the first version.
     """
-    from core import __version__
+    from farfield.core import __version__
 
     neighbours = grid_neighbours([c["grid"] for c in cells])
     positions = [c["index"] for c in cells]  # list positions -> cell indices (the same when all cells are there)
@@ -175,7 +175,7 @@ def write_database(directory: str | Path, technique: str, params: dict, cells: l
 
     ``cells`` holds (grid position or None, impostor) per cell, in cell order.
     """
-    from core.bundle import write_bundle
+    from farfield.core.bundle import write_bundle
 
     root = Path(directory)
     root.mkdir(parents=True, exist_ok=True)

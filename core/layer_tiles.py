@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from core.atlas import compose, fill_nearest_rgb, pack, tile_uvs
-from core.quads import grow_quads
+from farfield.core.atlas import compose, fill_nearest_rgb, pack, tile_uvs
+from farfield.core.quads import grow_quads
 
 # Bytes of one quad's geometry as drawn: 4 vertices x (3 position + 2 uv) float32 + 6 uint32 indices.
 QUAD_GEOMETRY_BYTES = 4 * 5 * 4 + 6 * 4

@@ -25,10 +25,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from core.constants import TOL
-from core.errors import LayerPlanError
-from core.pixel_angles import PixelModel, check_fov, check_resolution, pixel_angle, texture_resolution
-from core.viewcells import BoxCell, ShaftCell, ViewCell, _orthonormal_frame, box_corners
+from farfield.core.constants import TOL
+from farfield.core.errors import LayerPlanError
+from farfield.core.pixel_angles import PixelModel, check_fov, check_resolution, pixel_angle, texture_resolution
+from farfield.core.viewcells import BoxCell, ShaftCell, ViewCell, _orthonormal_frame, box_corners
 
 # ---------------------------------------------------------------------------------------------
 # The equations

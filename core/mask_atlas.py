@@ -34,7 +34,7 @@ import numpy as np
 from numba import njit
 from scipy.ndimage import binary_dilation
 
-from core.errors import AtlasOverflowError, LayerPlanError
+from farfield.core.errors import AtlasOverflowError, LayerPlanError
 
 
 @dataclass(frozen=True, slots=True)

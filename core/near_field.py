@@ -23,8 +23,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from core.cube_faces import FACES
-from core.scene import Scene, SceneObject
+from farfield.core.cube_faces import FACES
+from farfield.core.scene import Scene, SceneObject
 
 
 def face_ranges(selected: np.ndarray) -> list[list[int]]:

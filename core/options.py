@@ -21,7 +21,7 @@ import typing
 from collections.abc import Mapping
 from typing import Any, Literal, get_args, get_origin
 
-from core.errors import LayerPlanError
+from farfield.core.errors import LayerPlanError
 
 # Fields that describe the output image a job serves; a job gives them at its top level
 # ("resolution", "fov_deg"), not among the technique's "options".
@@ -108,11 +108,11 @@ def check_value(name: str, value: Any, hint: Any, meta: dict) -> Any:
     >>> check_value("grid_cell", True, int, {"ge": 1, "gt": None, "le": 256, "choices": None})
     Traceback (most recent call last):
     ...
-    core.errors.LayerPlanError: grid_cell must be an integer in [1, 256], got True
+    farfield.core.errors.LayerPlanError: grid_cell must be an integer in [1, 256], got True
     >>> check_value("enlargement", float("nan"), float, {"ge": 1, "gt": None, "le": 8, "choices": None})
     Traceback (most recent call last):
     ...
-    core.errors.LayerPlanError: enlargement must be a number in [1, 8], got nan
+    farfield.core.errors.LayerPlanError: enlargement must be a number in [1, 8], got nan
     """
     base, nullable = _base_type(hint)
     if value is None:

@@ -18,8 +18,8 @@ from __future__ import annotations
 import math
 from typing import Literal
 
-from core.constants import TOL
-from core.errors import LayerPlanError
+from farfield.core.constants import TOL
+from farfield.core.errors import LayerPlanError
 
 PixelModel = Literal["center", "min"]
 PIXEL_MODELS: tuple[str, ...] = ("center", "min")

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from core.errors import LayerPlanError
+from farfield.core.errors import LayerPlanError
 
 # Growth directions in tie-breaking order: (rows added above, below, columns added left, right).
 # A diagonal step extends two sides at once (seed 000 §3.5: "grown at steps of one cell in

@@ -28,11 +28,11 @@ from dataclasses import dataclass
 import moderngl
 import numpy as np
 
-from core.layers import LayerPlan
-from core.render.alpha_mips import max_alpha_levels
-from core.render.context import gl_context
-from core.render.programs import park_framebuffer, program, set_material
-from core.scene import Scene, SceneObject
+from farfield.core.layers import LayerPlan
+from farfield.core.render.alpha_mips import max_alpha_levels
+from farfield.core.render.context import gl_context
+from farfield.core.render.programs import park_framebuffer, program, set_material
+from farfield.core.scene import Scene, SceneObject
 
 # Most vertices a triangle keeps after clipping to a slab: each of the two planes adds at most one.
 MAX_POLYGON = 5

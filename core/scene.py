@@ -32,8 +32,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from core.constants import TOL
-from core.errors import DegenerateGeometryError, SceneLoadError
+from farfield.core.constants import TOL
+from farfield.core.errors import DegenerateGeometryError, SceneLoadError
 
 # Version of the content-hash recipe; bump it when the recipe changes so old hashes never collide
 # with new ones.

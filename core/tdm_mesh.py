@@ -84,8 +84,8 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from core.tdm_simplify import assign_voxels
-from core.voxel_field import VoxelField
+from farfield.core.tdm_simplify import assign_voxels
+from farfield.core.voxel_field import VoxelField
 
 INSET = 1.0 / 16.0  # texels from a voxel's corner to its nearest vertex (the paper: 1/4)
 SLIT_AREA = 0.25  # texels squared: the most image area the triangles closing a slit may cover

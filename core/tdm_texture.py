@@ -64,8 +64,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from core.mask_atlas import MaskLayout
-from core.voxel_field import VoxelField
+from farfield.core.mask_atlas import MaskLayout
+from farfield.core.voxel_field import VoxelField
 
 # Largest chart tile side in texels before a chart is cut into pieces (the packer's pages are at
 # most 8192 texels wide; a chart a quarter of that still packs with others).

@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from core.constants import TOL
-from core.errors import ViewCellError
+from farfield.core.constants import TOL
+from farfield.core.errors import ViewCellError
 
 
 def _vec3(value, what: str) -> np.ndarray:

@@ -22,13 +22,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from core.culled_layers import culled_layers
-from core.culling import CullingMode
-from core.errors import LayerPlanError
-from core.layers import LayerPlan
-from core.recording import eye_coordinates
-from core.scene import Scene
-from core.stage_clock import StageClock
+from farfield.core.culled_layers import culled_layers
+from farfield.core.culling import CullingMode
+from farfield.core.errors import LayerPlanError
+from farfield.core.layers import LayerPlan
+from farfield.core.recording import eye_coordinates
+from farfield.core.scene import Scene
+from farfield.core.stage_clock import StageClock
 
 
 @dataclass(frozen=True, slots=True)

@@ -20,12 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
-from core.envmap_runtime import EnvmapCellRenderer, camera_at, depth_range_for
-from core.errors import LayerPlanError
-from core.evaluation import compare_images
-from core.impostor_database import ImpostorDatabase
-from core.render.raster import MeshRenderer
-from core.scene import Scene
+from farfield.core.envmap_runtime import EnvmapCellRenderer, camera_at, depth_range_for
+from farfield.core.errors import LayerPlanError
+from farfield.core.evaluation import compare_images
+from farfield.core.impostor_database import ImpostorDatabase
+from farfield.core.render.raster import MeshRenderer
+from farfield.core.scene import Scene
 
 Progress = Callable[[int, int], None]  # (frames done, frames)
 

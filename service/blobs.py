@@ -24,10 +24,10 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, BinaryIO, Protocol, runtime_checkable
 
-from core.errors import NotFoundError, UploadTooLargeError
+from farfield.core.errors import NotFoundError, UploadTooLargeError
 
 if TYPE_CHECKING:
-    from service.settings import Settings
+    from farfield.service.settings import Settings
 
 CHUNK = 1 << 20
 

@@ -22,16 +22,16 @@ import redis.exceptions
 import sqlalchemy.exc
 from kombu.exceptions import OperationalError as BrokerError
 
-from core.bundle import MANIFEST_NAME, write_bundle
-from core.errors import ErrorKind, FarfieldError
-from core.impostor import Impostor
-from core.scene import Scene
-from core.techniques import get_technique
-from core.viewcells import viewcell_from_dict
-from service.blobs import BlobStore
-from service.db import Database, JobRow, SceneRow
-from service.jobs import claim_cell, end_cell, finish_job_if_complete, job_cancelled, result_key, set_progress
-from service.scenes import load_stored_scene
+from farfield.core.bundle import MANIFEST_NAME, write_bundle
+from farfield.core.errors import ErrorKind, FarfieldError
+from farfield.core.impostor import Impostor
+from farfield.core.scene import Scene
+from farfield.core.techniques import get_technique
+from farfield.core.viewcells import viewcell_from_dict
+from farfield.service.blobs import BlobStore
+from farfield.service.db import Database, JobRow, SceneRow
+from farfield.service.jobs import claim_cell, end_cell, finish_job_if_complete, job_cancelled, result_key, set_progress
+from farfield.service.scenes import load_stored_scene
 
 # A running cell looks at its job's state at the first layer after CANCEL_CHECK_S since its last
 # look (checking at every layer cost ~6% of a cell: ~1.7 ms a query against ~10 ms a layer at
@@ -112,10 +112,10 @@ def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, wo
       broker/Redis connection errors; blob store errors; any OSError; no renderer).  The cell is
       queued again and :class:`RetryCell` raised with :func:`backoff`, until ``max_attempts``
       attempts, then it is failed with the error.
-    - **bad input**: a :class:`~core.errors.FarfieldError` of kind BAD_INPUT or MISSING.  The
+    - **bad input**: a :class:`~farfield.core.errors.FarfieldError` of kind BAD_INPUT or MISSING.  The
       cell is failed at once with its message; no retry can help.
     - **internal**: a bug (any other exception) or a broken invariant
-      (:class:`~core.errors.InternalError`).  Retried like a transient failure (it may depend on
+      (:class:`~farfield.core.errors.InternalError`).  Retried like a transient failure (it may depend on
       the worker), its traceback logged at each attempt; after ``max_attempts`` the cell is failed
       with ``internal error: Type: message``.
 

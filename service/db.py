@@ -149,7 +149,7 @@ class Database:
 def owned_row(db: Database, model: type, tenant_id: str, row_id: str, what: str):
     """The ``model`` row ``row_id`` of tenant ``tenant_id``.  Another tenant's row is "not found"
     (404, never 403), so ids do not leak across tenants."""
-    from core.errors import NotFoundError
+    from farfield.core.errors import NotFoundError
 
     with db.session() as s:
         row = s.get(model, row_id)

@@ -11,7 +11,7 @@ import subprocess
 import time
 from pathlib import Path
 
-from core.errors import ServiceConfigError
+from farfield.core.errors import ServiceConfigError
 
 
 def redis_server_binary() -> str:

@@ -31,13 +31,13 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from sqlalchemy import func, select, update
 
-from core import __version__
-from core.errors import ConflictError, LayerPlanError, NotFoundError, ViewCellError
-from core.impostor_database import database_index
-from core.techniques import TECHNIQUES, get_technique
-from core.viewcells import BoxCell, grid_boxes, viewcell_from_dict
-from service.blobs import BlobStore
-from service.db import CELL_FINAL, JOB_STATES, CellRow, Database, JobRow, SceneRow, now, owned_row
+from farfield.core import __version__
+from farfield.core.errors import ConflictError, LayerPlanError, NotFoundError, ViewCellError
+from farfield.core.impostor_database import database_index
+from farfield.core.techniques import TECHNIQUES, get_technique
+from farfield.core.viewcells import BoxCell, grid_boxes, viewcell_from_dict
+from farfield.service.blobs import BlobStore
+from farfield.service.db import CELL_FINAL, JOB_STATES, CellRow, Database, JobRow, SceneRow, now, owned_row
 
 MAX_CELLS = 10_000
 

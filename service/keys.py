@@ -9,8 +9,8 @@ import uuid
 
 from sqlalchemy import select
 
-from core.errors import AuthError, NotFoundError
-from service.db import ApiKey, Database, Tenant, now
+from farfield.core.errors import AuthError, NotFoundError
+from farfield.service.db import ApiKey, Database, Tenant, now
 
 ADMIN_TENANT = "admin"
 

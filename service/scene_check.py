@@ -14,15 +14,15 @@ import sys
 import warnings
 from pathlib import Path
 
-from core import errors
-from core.errors import FarfieldError, SceneLoadError
+from farfield.core import errors
+from farfield.core.errors import FarfieldError, SceneLoadError
 
 TIMEOUT_S = 600
 
 
 def summarize(path: Path, extension: str, name: str) -> dict:
     """The summary the service stores for a scene file (run in the child)."""
-    from core.exchange import load_scene_bytes
+    from farfield.core.exchange import load_scene_bytes
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -40,7 +40,7 @@ def check_scene_file(path: Path, extension: str, name: str) -> dict:
     """Parse ``path`` in a child process; its summary, or the loader's error raised here."""
     try:
         done = subprocess.run(
-            [sys.executable, "-m", "service.scene_check", str(path), extension, name],
+            [sys.executable, "-m", "farfield.service.scene_check", str(path), extension, name],
             capture_output=True, text=True, timeout=TIMEOUT_S,
         )  # fmt: skip
     except subprocess.TimeoutExpired:

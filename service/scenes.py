@@ -18,12 +18,12 @@ from typing import BinaryIO
 
 from sqlalchemy import select
 
-from core.errors import ConflictError, SceneLoadError, UploadTooLargeError
-from core.exchange import load_scene_bytes, supported_extensions
-from core.scene import Scene
-from service.blobs import BlobStore
-from service.db import CELL_FINAL, Database, JobRow, SceneRow, now, owned_row
-from service.scene_check import check_scene_file
+from farfield.core.errors import ConflictError, SceneLoadError, UploadTooLargeError
+from farfield.core.exchange import load_scene_bytes, supported_extensions
+from farfield.core.scene import Scene
+from farfield.service.blobs import BlobStore
+from farfield.service.db import CELL_FINAL, Database, JobRow, SceneRow, now, owned_row
+from farfield.service.scene_check import check_scene_file
 
 
 def safe_file_name(name: str) -> str:

@@ -32,7 +32,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from core.errors import ServiceConfigError
+from farfield.core.errors import ServiceConfigError
 
 
 def _int(env: Mapping[str, str], name: str, default: int, minimum: int = 1) -> int:

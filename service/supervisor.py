@@ -19,10 +19,10 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from service.db import Database
-from service.embedded_redis import EmbeddedRedis, free_port
-from service.keys import ensure_admin_key
-from service.settings import Settings
+from farfield.service.db import Database
+from farfield.service.embedded_redis import EmbeddedRedis, free_port
+from farfield.service.keys import ensure_admin_key
+from farfield.service.settings import Settings
 
 STOP_GRACE_S = 20.0
 
@@ -46,7 +46,7 @@ def render_devices() -> int:
 def worker_command(name: str, concurrency: int = 1) -> list[str]:
     """The celery worker command line for the render queue."""
     return [
-        sys.executable, "-m", "celery", "-A", "workers.app", "worker", "-Q", "render", "--pool", "prefork",
+        sys.executable, "-m", "celery", "-A", "farfield.workers.app", "worker", "-Q", "render", "--pool", "prefork",
         "-c", str(concurrency), "-n", f"{name}@%h", "--loglevel", "INFO", "--without-gossip", "--without-mingle",
     ]  # fmt: skip
 
@@ -111,7 +111,7 @@ class Service:
             device = {"FARFIELD_EGL_DEVICE": str(i % gpus)} if gpus else {}
             self.worker_specs.append((worker_command(f"worker{i}"), {**env, **device}, logs / f"worker{i}.log"))
             self.worker_processes.append(self._spawn(*self.worker_specs[-1]))
-        api = [sys.executable, "-m", "uvicorn", "api.app:app_from_env", "--factory", "--host", settings.host, "--port", str(port), "--log-level", "warning"]
+        api = [sys.executable, "-m", "uvicorn", "farfield.api.app:app_from_env", "--factory", "--host", settings.host, "--port", str(port), "--log-level", "warning"]
         self.api = self._spawn(api, env, logs / "api.log")
         self.url = f"http://{settings.host}:{port}"
         self._wait_for_api()

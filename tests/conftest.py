@@ -17,8 +17,8 @@ def pytest_report_header(config):
         f"numpy {numpy.__version__}, scipy {scipy.__version__}, trimesh {trimesh.__version__}",
     ]
     # Asking for the renderer creates this process's EGL context; pytest does not fork afterwards.
-    from core.errors import RenderBackendError
-    from core.render.context import renderer_info
+    from farfield.core.errors import RenderBackendError
+    from farfield.core.render.context import renderer_info
 
     try:
         info = renderer_info()

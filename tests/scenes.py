@@ -20,8 +20,8 @@ import PIL.Image
 import trimesh
 from trimesh.visual.material import PBRMaterial
 
-from core.exchange import load_scene
-from core.scene import Scene, SceneObject
+from farfield.core.exchange import load_scene
+from farfield.core.scene import Scene, SceneObject
 
 SHARED_SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
 

@@ -47,7 +47,7 @@ class RunningService:
 
     def cli(self, *args: str) -> subprocess.CompletedProcess:
         """Run ``farfield ARGS`` against this service's settings."""
-        return subprocess.run([sys.executable, "-m", "cli.main", *args], cwd=ROOT, env=self.env, capture_output=True, text=True, timeout=120)
+        return subprocess.run([sys.executable, "-m", "farfield.cli.main", *args], cwd=ROOT, env=self.env, capture_output=True, text=True, timeout=120)
 
     def descendants(self) -> list[int]:
         found, todo = [], [self.process.pid]
@@ -87,7 +87,7 @@ def start_service(home: Path, **extra_env: str) -> RunningService:
         "FARFIELD_HOME": str(home), "FARFIELD_PORT": "0", "FARFIELD_WORKERS": "1",
         "FARFIELD_ADMIN_KEY": ADMIN_KEY, "FARFIELD_MAX_UPLOAD_MB": "5", **extra_env,
     })  # fmt: skip
-    process = subprocess.Popen([sys.executable, "-m", "cli.main", "up"], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    process = subprocess.Popen([sys.executable, "-m", "farfield.cli.main", "up"], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     url, broker, lines = None, None, []
     deadline = time.monotonic() + 120
     while broker is None and time.monotonic() < deadline:

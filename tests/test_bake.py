@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 import scenes
 
-from core.evaluation import compare_images, evaluate, impostor_objects
-from core.render.context import gl_context
-from core.render.raster import Camera, MeshRenderer, depth_bounds
-from core.scene import Scene
-from core.techniques.layered import BakeOptions, bake_layered
-from core.viewcells import BoxCell, box_corners
+from farfield.core.evaluation import compare_images, evaluate, impostor_objects
+from farfield.core.render.context import gl_context
+from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
+from farfield.core.scene import Scene
+from farfield.core.techniques.layered import BakeOptions, bake_layered
+from farfield.core.viewcells import BoxCell, box_corners
 
 
 def cell_in_front(scene: Scene, distance: float, size: float, axis: int = 0, lift: float = 0.0) -> BoxCell:

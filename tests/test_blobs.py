@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from core.errors import NotFoundError, ServiceConfigError, UploadTooLargeError
-from service.blobs import MIN_PART, BlobStore, LocalBlobStore, S3BlobStore, blob_store
-from service.settings import Settings
+from farfield.core.errors import NotFoundError, ServiceConfigError, UploadTooLargeError
+from farfield.service.blobs import MIN_PART, BlobStore, LocalBlobStore, S3BlobStore, blob_store
+from farfield.service.settings import Settings
 
 KEY, SECRET, REGION = "farfield-test", "farfield-test-secret", "us-east-1"
 

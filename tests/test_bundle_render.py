@@ -11,12 +11,12 @@ import pytest
 import scenes
 import trimesh
 
-from core.bundle import read_bundle, write_bundle
-from core.evaluation import compare_images, impostor_objects
-from core.render.raster import Camera, MeshRenderer, depth_bounds
-from core.scene import SceneObject
-from core.techniques.layered import BakeOptions, bake_layered
-from core.viewcells import BoxCell, box_corners
+from farfield.core.bundle import read_bundle, write_bundle
+from farfield.core.evaluation import compare_images, impostor_objects
+from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
+from farfield.core.scene import SceneObject
+from farfield.core.techniques.layered import BakeOptions, bake_layered
+from farfield.core.viewcells import BoxCell, box_corners
 
 
 def glb_objects(path) -> list[SceneObject]:
@@ -88,7 +88,7 @@ def test_read_bundle_equals_the_baked_impostor(baked):
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "cli.main", *args], capture_output=True, text=True, timeout=300)
+    return subprocess.run([sys.executable, "-m", "farfield.cli.main", *args], capture_output=True, text=True, timeout=300)
 
 
 def test_cli_bake_then_evaluate_on_a_shared_scene(tmp_path):

@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from cli.inspect_cmd import inspect
-from cli.main import cli
+from farfield.cli.inspect_cmd import inspect
+from farfield.cli.main import cli
 import scenes  # tests/ is on sys.path under pytest's default (prepend) import mode
 
 REPO = Path(__file__).resolve().parents[1]
@@ -78,7 +78,7 @@ def test_errors_are_one_line_on_stderr_with_the_error_kind_exit_code(tmp_path, n
     if content is not None:
         path.write_bytes(content)
     result = subprocess.run(
-        [sys.executable, "-m", "cli.main", "inspect", str(path)],
+        [sys.executable, "-m", "farfield.cli.main", "inspect", str(path)],
         cwd=REPO,
         capture_output=True,
         text=True,

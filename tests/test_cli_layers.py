@@ -14,7 +14,7 @@ SHARED_SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
 
 
 def farfield(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "cli.main", *args], capture_output=True, text=True, timeout=120)
+    return subprocess.run([sys.executable, "-m", "farfield.cli.main", *args], capture_output=True, text=True, timeout=120)
 
 
 def test_envmap_json_reproduces_the_paper():

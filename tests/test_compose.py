@@ -96,7 +96,7 @@ def test_api_and_workers_share_one_image_and_the_settings(compose_file):
     api, worker, gpu = services["api"], services["worker"], services["worker-gpu"]
     assert api["build"] == worker["build"] == gpu["build"] == "."
     assert api["image"] == worker["image"] == gpu["image"]
-    assert [api["entrypoint"][0], *api["command"]] == ["uvicorn", "api.app:app_from_env", "--factory", "--host", "0.0.0.0", "--port", "8000"]
+    assert [api["entrypoint"][0], *api["command"]] == ["uvicorn", "farfield.api.app:app_from_env", "--factory", "--host", "0.0.0.0", "--port", "8000"]
     assert "8000:8000" in api["ports"]
     assert worker["command"][0] == "worker" and gpu["command"][0] == "worker"
     for name in ("api", "worker", "worker-gpu"):

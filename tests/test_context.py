@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from core.errors import RenderBackendError
-from core.render.context import gl_context, renderer_info
-from core.render.programs import park_framebuffer, program
-from core.render.raster import Camera, MeshRenderer
-from core.scene import SceneObject
+from farfield.core.errors import RenderBackendError
+from farfield.core.render.context import gl_context, renderer_info
+from farfield.core.render.programs import park_framebuffer, program
+from farfield.core.render.raster import Camera, MeshRenderer
+from farfield.core.scene import SceneObject
 
 
 @pytest.fixture()

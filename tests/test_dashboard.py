@@ -16,7 +16,7 @@ import pytest
 from browser import CHROMIUM, SKIP_REASON, new_page, tid
 from service_harness import ADMIN_KEY, BUNNY, BUNNY_GRID, start_service, upload, wait_for_job
 
-from core.techniques import TECHNIQUES
+from farfield.core.techniques import TECHNIQUES
 
 if not CHROMIUM.exists():
     pytest.skip(SKIP_REASON, allow_module_level=True)

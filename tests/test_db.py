@@ -6,7 +6,7 @@ import sqlalchemy as sa
 from alembic import command
 from alembic.config import Config
 
-from service.db import MIGRATIONS, Database
+from farfield.service.db import MIGRATIONS, Database
 
 
 def _config(connection) -> Config:

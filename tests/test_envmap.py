@@ -15,19 +15,19 @@ import pytest
 from click.testing import CliRunner
 from PIL import Image
 
-from cli.main import _register, cli
-from core.envmap_layers import near_field_distance
-from core.envmap_runtime import camera_at, evaluate_envmap, view_directions
-from core.errors import LayerPlanError, ViewCellError
-from core.evaluation import impostor_objects
-from core.gap_fill import fill_gaps
-from core.impostor_database import ImpostorDatabase, write_database
-from core.near_field import NearField, near_field
-from core.render.raster import MeshRenderer
-from core.scene import Scene, SceneObject
-from core.techniques.envmap import EnvmapOptions, bake_envmap, face_plan, plan_envmap
-from core.viewcells import BoxCell, grid_boxes
-from core.walkthrough import generate_path, walkthrough, write_plot
+from farfield.cli.main import _register, cli
+from farfield.core.envmap_layers import near_field_distance
+from farfield.core.envmap_runtime import camera_at, evaluate_envmap, view_directions
+from farfield.core.errors import LayerPlanError, ViewCellError
+from farfield.core.evaluation import impostor_objects
+from farfield.core.gap_fill import fill_gaps
+from farfield.core.impostor_database import ImpostorDatabase, write_database
+from farfield.core.near_field import NearField, near_field
+from farfield.core.render.raster import MeshRenderer
+from farfield.core.scene import Scene, SceneObject
+from farfield.core.techniques.envmap import EnvmapOptions, bake_envmap, face_plan, plan_envmap
+from farfield.core.viewcells import BoxCell, grid_boxes
+from farfield.core.walkthrough import generate_path, walkthrough, write_plot
 from tests.scenes import box_object, city, real_scene, write_scene
 
 pytestmark = pytest.mark.filterwarnings("ignore::core.scene.SceneWarning")

@@ -21,18 +21,18 @@ from click.testing import CliRunner
 from fastapi.testclient import TestClient
 from sqlalchemy import event
 
-import service.cell_runner as cell_runner
-import workers.tasks as tasks
-from api.app import create_app
-from cli.main import FarfieldGroup
-from core.errors import ErrorKind, InternalError, LayerPlanError
-from service.blobs import LocalBlobStore
-from service.cell_runner import RetryCell, run_cell
-from service.db import CellRow, Database, JobRow
-from service.jobs import JobSpec, create_job
-from service.keys import tenant_named
-from service.scenes import ingest_scene
-from service.settings import Settings
+import farfield.service.cell_runner as cell_runner
+import farfield.workers.tasks as tasks
+from farfield.api.app import create_app
+from farfield.cli.main import FarfieldGroup
+from farfield.core.errors import ErrorKind, InternalError, LayerPlanError
+from farfield.service.blobs import LocalBlobStore
+from farfield.service.cell_runner import RetryCell, run_cell
+from farfield.service.db import CellRow, Database, JobRow
+from farfield.service.jobs import JobSpec, create_job
+from farfield.service.keys import tenant_named
+from farfield.service.scenes import ingest_scene
+from farfield.service.settings import Settings
 
 MAX_ATTEMPTS = 3
 CELL = {"kind": "box", "lo": [-4.0, -0.5, -0.5], "hi": [-3.0, 0.5, 0.5]}

@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 import sqlalchemy as sa
 
-from core.errors import AuthError
-from service.db import Database
-from service.keys import authenticate, create_key, ensure_admin_key, revoke_key
+from farfield.core.errors import AuthError
+from farfield.service.db import Database
+from farfield.service.keys import authenticate, create_key, ensure_admin_key, revoke_key
 
 
 @pytest.fixture

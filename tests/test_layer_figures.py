@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from core.envmap_layers import (
+from farfield.core.envmap_layers import (
     alpha_for_spacing,
     envmap_plan,
     layers_for_near_field,
@@ -17,7 +17,7 @@ from core.envmap_layers import (
     tdm_texel_limit,
     texel_limit,
 )
-from core.layers import (
+from farfield.core.layers import (
     border_offset,
     depth_range,
     depth_range_min,
@@ -26,8 +26,8 @@ from core.layers import (
     spacing_left_upper,
     spacing_right,
 )
-from core.pixel_angles import perspective_factor, pixel_angle, star_shape_distance
-from core.viewcells import BoxCell
+from farfield.core.pixel_angles import perspective_factor, pixel_angle, star_shape_distance
+from farfield.core.viewcells import BoxCell
 
 M = 5.0  # half of a 10 m cubic view cell
 RES = 512

@@ -9,11 +9,11 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from core.envmap_layers import envmap_plan, layers_for_near_field, near_field_distance
-from core.errors import LayerPlanError, ViewCellError
-from core.layers import layer_spacing, part_view, plan_layers
-from core.pixel_angles import pixel_angle, texture_resolution
-from core.viewcells import BoxCell, ShaftCell
+from farfield.core.envmap_layers import envmap_plan, layers_for_near_field, near_field_distance
+from farfield.core.errors import LayerPlanError, ViewCellError
+from farfield.core.layers import layer_spacing, part_view, plan_layers
+from farfield.core.pixel_angles import pixel_angle, texture_resolution
+from farfield.core.viewcells import BoxCell, ShaftCell
 
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

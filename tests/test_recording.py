@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from core.layers import plan_layers
-from core.recording import clip_to_slab, eye_coordinates, layer_buckets, record_layers, slab_instances
-from core.render.context import gl_context
-from core.scene import Scene, SceneObject
-from core.viewcells import BoxCell
+from farfield.core.layers import plan_layers
+from farfield.core.recording import clip_to_slab, eye_coordinates, layer_buckets, record_layers, slab_instances
+from farfield.core.render.context import gl_context
+from farfield.core.scene import Scene, SceneObject
+from farfield.core.viewcells import BoxCell
 
 
 def forest(count: int = 30, radius: float = 0.02, seed: int = 1) -> Scene:

@@ -11,9 +11,9 @@ import PIL.Image
 import pytest
 import trimesh
 
-from core.errors import DegenerateGeometryError, ErrorKind, SceneLoadError, SceneNotFoundError
-from core.exchange import load_scene, load_scene_bytes, supported_extensions
-from core.scene import Scene, SceneObject, SceneWarning, sample_texture
+from farfield.core.errors import DegenerateGeometryError, ErrorKind, SceneLoadError, SceneNotFoundError
+from farfield.core.exchange import load_scene, load_scene_bytes, supported_extensions
+from farfield.core.scene import Scene, SceneObject, SceneWarning, sample_texture
 import scenes  # tests/ is on sys.path under pytest's default (prepend) import mode
 
 # --------------------------------------------------------------------------- real scenes

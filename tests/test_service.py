@@ -17,10 +17,10 @@ import pytest
 import trimesh
 from service_harness import BUNNY, BUNNY_GRID, ROOT, service_client, service_on_each_database, upload, wait_for_job  # noqa: F401 - the service and client fixtures
 
-from core.bundle import page_file_name, write_bundle
-from core.exchange import load_scene
-from core.techniques.layered import BakeOptions, bake_layered
-from core.viewcells import viewcell_from_dict
+from farfield.core.bundle import page_file_name, write_bundle
+from farfield.core.exchange import load_scene
+from farfield.core.techniques.layered import BakeOptions, bake_layered
+from farfield.core.viewcells import viewcell_from_dict
 
 pytestmark = pytest.mark.skipif(not BUNNY.exists(), reason="needs ../shared/scenes")
 
@@ -265,7 +265,7 @@ def test_farfield_worker_joins_the_service(service, client, bunny_id, tmp_path):
     env = {**service.env, "REDIS_URL": service.broker}
     log = tmp_path / "joined.log"
     with open(log, "wb") as out:
-        extra = subprocess.Popen([sys.executable, "-m", "cli.main", "worker", "--name", "joined"], cwd=ROOT, env=env, stdout=out, stderr=subprocess.STDOUT)
+        extra = subprocess.Popen([sys.executable, "-m", "farfield.cli.main", "worker", "--name", "joined"], cwd=ROOT, env=env, stdout=out, stderr=subprocess.STDOUT)
     try:
         deadline = time.monotonic() + 60
         while b" ready." not in log.read_bytes():

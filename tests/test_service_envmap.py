@@ -18,11 +18,11 @@ from browser import dashboard_page, tid
 from scenes import city, write_scene
 from service_harness import ADMIN_KEY, service_client, service_on_each_database, upload, wait_for_job  # noqa: F401 - the service and client fixtures
 
-from core.bundle import MANIFEST_NAME
-from core.exchange import load_scene
-from core.impostor_database import ImpostorDatabase
-from core.techniques.envmap import EnvmapOptions, bake_envmap
-from core.viewcells import viewcell_from_dict
+from farfield.core.bundle import MANIFEST_NAME
+from farfield.core.exchange import load_scene
+from farfield.core.impostor_database import ImpostorDatabase
+from farfield.core.techniques.envmap import EnvmapOptions, bake_envmap
+from farfield.core.viewcells import viewcell_from_dict
 
 # 3 x 3 x 1 cubic cells of side 10 in front of the city (lots x, z in 0..60; ground from -10).
 GRID = {"lo": [15.0, 5.0, -45.0], "hi": [45.0, 35.0, -35.0], "counts": [3, 3, 1]}

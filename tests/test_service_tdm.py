@@ -22,14 +22,14 @@ from click.testing import CliRunner
 from scenes import box_object, write_scene
 from service_harness import ADMIN_KEY, ROOT, service_client, service_on_each_database, upload, wait_for_job  # noqa: F401 - the service and client fixtures
 
-from cli.main import _register, cli
-from core.bundle import MANIFEST_NAME, read_bundle
-from core.errors import LayerPlanError
-from core.exchange import load_scene
-from core.scene import Scene
-from core.techniques import get_technique
-from core.techniques.tdm import TdmOptions, bake_tdm
-from core.viewcells import viewcell_from_dict
+from farfield.cli.main import _register, cli
+from farfield.core.bundle import MANIFEST_NAME, read_bundle
+from farfield.core.errors import LayerPlanError
+from farfield.core.exchange import load_scene
+from farfield.core.scene import Scene
+from farfield.core.techniques import get_technique
+from farfield.core.techniques.tdm import TdmOptions, bake_tdm
+from farfield.core.viewcells import viewcell_from_dict
 
 PART = ["block", "tower"]  # the represented objects; the shed is left out
 # 2 x 1 x 1 box cells of side 4, about 20 units in front (-z) of the block's face at z = -5.
@@ -197,14 +197,14 @@ def test_cli_submit_tdm(service, block_id, tmp_path):
     impostor = read_bundle(tmp_path / "db" / index["cells"][0]["bundle"])
     assert impostor.technique == "tdm" and impostor.stats["triangles"] < impostor.stats["initial_triangles"]
     bad = service.cli("submit", block_id, "--job-type", "tdm", "--grid", grid, "--option", "enlargement=0.5", *env_args)
-    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "enlargement factor" in bad.stderr, bad.stderr
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "enlargement must be a number in [1, 8]" in bad.stderr, bad.stderr
 
 
 # --- farfield bake --technique tdm ---------------------------------------------------------------
 
 
 def _farfield(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "cli.main", *args], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    return subprocess.run([sys.executable, "-m", "farfield.cli.main", *args], cwd=ROOT, capture_output=True, text=True, timeout=300)
 
 
 def test_cli_bake_tdm(tmp_path):

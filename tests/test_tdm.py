@@ -16,15 +16,15 @@ from click.testing import CliRunner
 from test_bake import cell_in_front, city_block, dense, needs_shared
 from test_bundle import accessor_array
 
-from cli.main import _register, cli
-from core.bundle import read_bundle, write_bundle
-from core.errors import LayerPlanError
-from core.evaluation import evaluate
-from core.glb import impostor_glb
-from core.layers import plan_layers
-from core.scene import Scene
-from core.stage_clock import StageClock
-from core.tdm_mesh import (
+from farfield.cli.main import _register, cli
+from farfield.core.bundle import read_bundle, write_bundle
+from farfield.core.errors import LayerPlanError
+from farfield.core.evaluation import evaluate
+from farfield.core.glb import impostor_glb
+from farfield.core.layers import plan_layers
+from farfield.core.scene import Scene
+from farfield.core.stage_clock import StageClock
+from farfield.core.tdm_mesh import (
     SLIT_AREA,
     TdmMesh,
     boundary_loops,
@@ -32,16 +32,16 @@ from core.tdm_mesh import (
     initial_mesh,
     mesh_labels,
 )
-from core.tdm_simplify import (
+from farfield.core.tdm_simplify import (
     box_half_sizes,
     contraction_outcome,
     covered_by_any,
     simplify,
     tri_box,
 )
-from core.tdm_texture import rasterize, sample_field
-from core.techniques.layered import BakeOptions, bake_layered
-from core.techniques.tdm import (
+from farfield.core.tdm_texture import rasterize, sample_field
+from farfield.core.techniques.layered import BakeOptions, bake_layered
+from farfield.core.techniques.tdm import (
     SCHEDULE,
     TdmOptions,
     bake_tdm,
@@ -49,8 +49,8 @@ from core.techniques.tdm import (
     simplify_mesh,
     uncovered_voxels,
 )
-from core.viewcells import BoxCell
-from core.voxel_field import VoxelField, record_voxel_field
+from farfield.core.viewcells import BoxCell
+from farfield.core.voxel_field import VoxelField, record_voxel_field
 
 CASES = {
     # name: (scene factory, cell distance in part diameters, cell size in part diameters, lift)
@@ -73,7 +73,7 @@ def house_bake():
 
 
 def scenes_cell(centre, near_z):
-    from core.viewcells import BoxCell
+    from farfield.core.viewcells import BoxCell
 
     return BoxCell(np.array([centre[0] - 50, centre[1] - 50, near_z - 100]), np.array([centre[0] + 50, centre[1] + 50, near_z]))
 
@@ -419,7 +419,7 @@ def test_disjoint_parts_give_separate_meshes_and_one_part_one_mesh():
     one = scenes.box_object("a", (0, 0, 0), (2, 2, 2))
     two = scenes.box_object("b", (5, 0, 0), (7, 2, 2))
     scene = Scene.from_objects([one, two], "two boxes")
-    from core.viewcells import BoxCell
+    from farfield.core.viewcells import BoxCell
 
     cell = BoxCell(np.array([3.0, 0.5, -30.0]), np.array([4.0, 1.5, -29.0]))
     impostor = bake_tdm(scene, cell, TdmOptions(resolution=96))
@@ -478,7 +478,7 @@ def test_bundle_glb_and_evaluate_cli_read_a_tdm_unchanged(tmp_path, house_bake):
     # `farfield evaluate` on the bundle, as for a layered one.
     scene_path = scenes.write_scene(scene, tmp_path, "obj", "house")
     out = subprocess.run(
-        [sys.executable, "-m", "cli.main", "evaluate", str(tmp_path / "tdm"), str(scene_path), "--random", "2", "--json"],
+        [sys.executable, "-m", "farfield.cli.main", "evaluate", str(tmp_path / "tdm"), str(scene_path), "--random", "2", "--json"],
         capture_output=True, text=True, check=False,
     )  # fmt: skip
     assert out.returncode == 0, out.stderr

@@ -13,23 +13,23 @@ import pytest
 import scenes
 from scipy.spatial import cKDTree
 
-from core.errors import AtlasOverflowError, LayerPlanError
-from core.evaluation import evaluate
-from core.impostor import MeshPayload
-from core.layer_tiles import pack_tiles
-from core.layers import plan_layers
-from core.mask_atlas import pack_masks
-from core.stage_clock import StageClock
-from core.tdm_texture import (
+from farfield.core.errors import AtlasOverflowError, LayerPlanError
+from farfield.core.evaluation import evaluate
+from farfield.core.impostor import MeshPayload
+from farfield.core.layer_tiles import pack_tiles
+from farfield.core.layers import plan_layers
+from farfield.core.mask_atlas import pack_masks
+from farfield.core.stage_clock import StageClock
+from farfield.core.tdm_texture import (
     MAX_CHART,
     build_charts,
     chart_masks,
     rasterize,
     sample_field,
 )
-from core.techniques.tdm import TdmOptions, bake_tdm, geometry_bytes
-from core.viewcells import BoxCell
-from core.voxel_field import record_voxel_field
+from farfield.core.techniques.tdm import TdmOptions, bake_tdm, geometry_bytes
+from farfield.core.viewcells import BoxCell
+from farfield.core.voxel_field import record_voxel_field
 
 
 def claims(charts, points: np.ndarray, triangles: np.ndarray) -> list[tuple[int, int, int, int]]:

@@ -12,13 +12,13 @@ from click.testing import CliRunner
 from scenes import box_object, city, write_scene
 from service_harness import service_client, service_on_each_database, upload, wait_for_job  # noqa: F401 - the service and client fixtures
 
-from cli.main import _register, cli
-from core.bundle import read_bundle, write_bundle
-from core.errors import LayerPlanError
-from core.options import describe_options, options_from_mapping
-from core.scene import Scene
-from core.techniques import TECHNIQUES, get_technique
-from core.viewcells import BoxCell
+from farfield.cli.main import _register, cli
+from farfield.core.bundle import read_bundle, write_bundle
+from farfield.core.errors import LayerPlanError
+from farfield.core.options import describe_options, options_from_mapping
+from farfield.core.scene import Scene
+from farfield.core.techniques import TECHNIQUES, get_technique
+from farfield.core.viewcells import BoxCell
 
 pytestmark = pytest.mark.filterwarnings("ignore::core.scene.SceneWarning")
 

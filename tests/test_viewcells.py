@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from core.errors import ViewCellError
-from core.viewcells import BoxCell, ShaftCell, parse_viewcell, sample_viewpoints
+from farfield.core.errors import ViewCellError
+from farfield.core.viewcells import BoxCell, ShaftCell, parse_viewcell, sample_viewpoints
 
 
 def test_box_corners_centre_and_containment():

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from celery import Celery
 
-from service.settings import Settings
+from farfield.service.settings import Settings
 
 RENDER_QUEUE = "render"
 BAKE_CELL = "farfield.bake_cell"
@@ -19,7 +19,7 @@ BAKE_CELL = "farfield.bake_cell"
 
 def make_celery(settings: Settings) -> Celery:
     """A Celery app on ``settings``' Redis (which must be known by now)."""
-    app = Celery("farfield", broker=settings.redis_url, include=["workers.tasks"])
+    app = Celery("farfield", broker=settings.redis_url, include=["farfield.workers.tasks"])
     app.conf.update(
         task_default_queue=RENDER_QUEUE,
         task_routes={BAKE_CELL: {"queue": RENDER_QUEUE}},

@@ -5,9 +5,9 @@ three classes and counts it on the cell:
 
 - **transient** (the database, broker, blob store or renderer failed; any OSError): retried with
   backoff (2, 4, 8, ... s, capped at 60) until ``FARFIELD_MAX_ATTEMPTS`` attempts, then failed;
-- **bad input** (a :class:`~core.errors.FarfieldError` of kind BAD_INPUT or MISSING): failed at
+- **bad input** (a :class:`~farfield.core.errors.FarfieldError` of kind BAD_INPUT or MISSING): failed at
   once with its message;
-- **internal** (a bug: any other exception; or an :class:`~core.errors.InternalError`): retried
+- **internal** (a bug: any other exception; or an :class:`~farfield.core.errors.InternalError`): retried
   like a transient failure with its traceback logged, then failed as ``internal error: ...``.
 
 A failure outside the attempt (``claim_cell`` could not reach the database, or a bug there; the
@@ -27,13 +27,13 @@ import os
 
 from sqlalchemy import select, update
 
-from core.render.context import gl_context
-from service.blobs import BlobStore, blob_store
-from service.cell_runner import BAD_INPUT, TRANSIENT, RetryCell, backoff, failure_class, failure_message, run_cell
-from service.db import CellRow, Database, now
-from service.jobs import finish_job_if_complete
-from service.settings import Settings
-from workers.app import BAKE_CELL, celery_app
+from farfield.core.render.context import gl_context
+from farfield.service.blobs import BlobStore, blob_store
+from farfield.service.cell_runner import BAD_INPUT, TRANSIENT, RetryCell, backoff, failure_class, failure_message, run_cell
+from farfield.service.db import CellRow, Database, now
+from farfield.service.jobs import finish_job_if_complete
+from farfield.service.settings import Settings
+from farfield.workers.app import BAKE_CELL, celery_app
 
 _STATE: dict = {}
 TRANSIENT_RETRIES_PER_ATTEMPT = 10

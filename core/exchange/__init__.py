@@ -6,7 +6,7 @@ One module per format family (``gltf``, ``obj``, ``ply``, ``stl``), each with ``
 :func:`load_scene_bytes` reads uploaded bytes (referenced files from ``assets``).  Objects come
 sorted by name (trimesh's node order is an implementation detail).
 
-Every failure is a typed :class:`core.errors.FarfieldError` whose message starts with the file's
+Every failure is a typed :class:`farfield.core.errors.FarfieldError` whose message starts with the file's
 name; recoverable problems (a missing texture) are warnings: emitted as :class:`SceneWarning`
 and kept in ``Scene.warnings``.
 """
@@ -19,10 +19,10 @@ from pathlib import Path
 
 from trimesh.resolvers import Resolver
 
-from core.errors import FarfieldError, SceneLoadError, SceneNotFoundError
-from core.exchange import gltf, obj, ply, stl
-from core.exchange.trimesh_scene import asset_resolver
-from core.scene import Scene, SceneObject, SceneWarning
+from farfield.core.errors import FarfieldError, SceneLoadError, SceneNotFoundError
+from farfield.core.exchange import gltf, obj, ply, stl
+from farfield.core.exchange.trimesh_scene import asset_resolver
+from farfield.core.scene import Scene, SceneObject, SceneWarning
 
 Loader = Callable[[bytes, str, str, Resolver], tuple[tuple[SceneObject, ...], tuple[str, ...]]]
 

@@ -17,9 +17,9 @@ import struct
 
 from trimesh.resolvers import Resolver
 
-from core.errors import SceneLoadError
-from core.exchange.trimesh_scene import fetch, objects_from_trimesh, parse
-from core.scene import SceneObject
+from farfield.core.errors import SceneLoadError
+from farfield.core.exchange.trimesh_scene import fetch, objects_from_trimesh, parse
+from farfield.core.scene import SceneObject
 
 EXTENSIONS = ("glb", "gltf")
 

@@ -28,9 +28,9 @@ import trimesh
 from trimesh.resolvers import Resolver
 from trimesh.visual.material import SimpleMaterial
 
-from core.errors import SceneLoadError
-from core.exchange.trimesh_scene import IMAGE_ERRORS, fetch, objects_from_trimesh, parse
-from core.scene import SceneObject
+from farfield.core.errors import SceneLoadError
+from farfield.core.exchange.trimesh_scene import IMAGE_ERRORS, fetch, objects_from_trimesh, parse
+from farfield.core.scene import SceneObject
 
 EXTENSIONS = ("obj",)
 

@@ -11,8 +11,8 @@ from pathlib import PurePath
 
 from trimesh.resolvers import Resolver
 
-from core.exchange.trimesh_scene import objects_from_trimesh, parse
-from core.scene import SceneObject
+from farfield.core.exchange.trimesh_scene import objects_from_trimesh, parse
+from farfield.core.scene import SceneObject
 
 EXTENSIONS = ("ply",)
 

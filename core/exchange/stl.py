@@ -13,9 +13,9 @@ from pathlib import PurePath
 
 from trimesh.resolvers import Resolver
 
-from core.errors import SceneLoadError
-from core.exchange.trimesh_scene import objects_from_trimesh, parse
-from core.scene import SceneObject
+from farfield.core.errors import SceneLoadError
+from farfield.core.exchange.trimesh_scene import objects_from_trimesh, parse
+from farfield.core.scene import SceneObject
 
 EXTENSIONS = ("stl",)
 
@@ -45,7 +45,7 @@ def check_ascii(text: str) -> None:
     >>> check_ascii("solid a\\nfacet normal 0 0 1\\nouter loop\\nvertex 0 0\\n")
     Traceback (most recent call last):
     ...
-    core.errors.SceneLoadError: malformed ASCII STL: 1 facets, 0 endfacets, 1 vertex lines (0 with 3 numbers)
+    farfield.core.errors.SceneLoadError: malformed ASCII STL: 1 facets, 0 endfacets, 1 vertex lines (0 with 3 numbers)
     """
     lines = text.lower().splitlines()
     opened = sum(1 for line in lines if line.split()[:1] == ["facet"])

@@ -33,8 +33,8 @@ import trimesh
 from trimesh.resolvers import FilePathResolver, Resolver, ZipResolver
 from trimesh.visual.material import PBRMaterial, SimpleMaterial
 
-from core.errors import SceneLoadError
-from core.scene import SceneObject
+from farfield.core.errors import SceneLoadError
+from farfield.core.scene import SceneObject
 
 # What trimesh's parsers raise on malformed input (measured: IndexError for an empty GLB,
 # ValueError for a bad GLB header or PLY, KeyError for a PLY without x, TypeError for non-JSON

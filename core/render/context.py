@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import moderngl
 
-from core.errors import RenderBackendError
+from farfield.core.errors import RenderBackendError
 
 # OpenGL 3.3 core is enough for everything farfield draws (instancing, texelFetch); llvmpipe
 # offers 4.5 and the NVIDIA driver 4.6.

@@ -14,10 +14,10 @@ from dataclasses import dataclass
 import moderngl
 import numpy as np
 
-from core.errors import RenderBackendError, ViewCellError
-from core.render.context import gl_context
-from core.render.programs import park_framebuffer, program, set_material
-from core.scene import SceneObject
+from farfield.core.errors import RenderBackendError, ViewCellError
+from farfield.core.render.context import gl_context
+from farfield.core.render.programs import park_framebuffer, program, set_material
+from farfield.core.scene import SceneObject
 
 @dataclass(frozen=True, slots=True)
 class Camera:

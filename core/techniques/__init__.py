@@ -7,9 +7,9 @@ Adding a technique means adding its module (a :class:`~core.techniques.base.Tech
 
 from __future__ import annotations
 
-from core.errors import LayerPlanError
-from core.techniques import envmap, layered, tdm
-from core.techniques.base import Technique
+from farfield.core.errors import LayerPlanError
+from farfield.core.techniques import envmap, layered, tdm
+from farfield.core.techniques.base import Technique
 
 TECHNIQUES: dict[str, Technique] = {t.name: t for t in (layered.TECHNIQUE, envmap.TECHNIQUE, tdm.TECHNIQUE)}
 
@@ -22,7 +22,7 @@ def get_technique(name: str) -> Technique:
     >>> get_technique("nope")
     Traceback (most recent call last):
     ...
-    core.errors.LayerPlanError: unknown technique 'nope'; one of ['layered', 'envmap', 'tdm']
+    farfield.core.errors.LayerPlanError: unknown technique 'nope'; one of ['layered', 'envmap', 'tdm']
     """
     try:
         return TECHNIQUES[name]

@@ -17,11 +17,11 @@ from typing import Any, Literal
 
 import numpy as np
 
-from core.errors import LayerPlanError
-from core.impostor import Impostor
-from core.options import IMAGE_FIELDS, describe_options, options_from_mapping
-from core.scene import Scene
-from core.viewcells import ViewCell
+from farfield.core.errors import LayerPlanError
+from farfield.core.impostor import Impostor
+from farfield.core.options import IMAGE_FIELDS, describe_options, options_from_mapping
+from farfield.core.scene import Scene
+from farfield.core.viewcells import ViewCell
 
 Progress = Callable[[str, int, int], None]  # (stage, done, total)
 Scope = Literal["part", "scene"]

@@ -31,25 +31,25 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from core import __version__
-from core.cube_faces import FACES
-from core.culled_layers import culled_layers
-from core.culling import CullingMode
-from core.envmap_layers import EnvmapPlan, envmap_plan, layers_for_near_field
-from core.envmap_runtime import evaluate_envmap
-from core.errors import LayerPlanError, ViewCellError
-from core.gap_fill import fill_gaps
-from core.glb import page_png
-from core.impostor import Impostor, QuadPayload, texel_rect_corners
-from core.layer_tiles import QUAD_GEOMETRY_BYTES, layer_tiles, pack_tiles
-from core.near_field import near_field
-from core.options import check_options, option
-from core.pixel_angles import MAX_RESOLUTION, pixel_angle
-from core.scene import Scene
-from core.stage_clock import Progress, StageClock
-from core.techniques.base import Technique
-from core.techniques.part import seconds_line
-from core.viewcells import BoxCell
+from farfield.core import __version__
+from farfield.core.cube_faces import FACES
+from farfield.core.culled_layers import culled_layers
+from farfield.core.culling import CullingMode
+from farfield.core.envmap_layers import EnvmapPlan, envmap_plan, layers_for_near_field
+from farfield.core.envmap_runtime import evaluate_envmap
+from farfield.core.errors import LayerPlanError, ViewCellError
+from farfield.core.gap_fill import fill_gaps
+from farfield.core.glb import page_png
+from farfield.core.impostor import Impostor, QuadPayload, texel_rect_corners
+from farfield.core.layer_tiles import QUAD_GEOMETRY_BYTES, layer_tiles, pack_tiles
+from farfield.core.near_field import near_field
+from farfield.core.options import check_options, option
+from farfield.core.pixel_angles import MAX_RESOLUTION, pixel_angle
+from farfield.core.scene import Scene
+from farfield.core.stage_clock import Progress, StageClock
+from farfield.core.techniques.base import Technique
+from farfield.core.techniques.part import seconds_line
+from farfield.core.viewcells import BoxCell
 
 # Cube faces (core.cube_faces.FACES): image x and y run along the next two world axes, so a face's
 # frustum square is the cube face itself.

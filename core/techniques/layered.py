@@ -13,20 +13,20 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from core import __version__
-from core.culled_layers import culled_layers
-from core.culling import CullingMode
-from core.errors import LayerPlanError
-from core.impostor import Impostor, QuadPayload, texel_rect_corners
-from core.layer_tiles import QUAD_GEOMETRY_BYTES, layer_records, layer_tiles, pack_tiles
-from core.layers import plan_layers
-from core.options import check_options, option
-from core.pixel_angles import MAX_RESOLUTION, PixelModel
-from core.scene import Scene
-from core.stage_clock import Progress, StageClock
-from core.techniques.base import Technique
-from core.techniques.part import check_part_cell, evaluate_part, part_evaluation_text, seconds_line
-from core.viewcells import ViewCell
+from farfield.core import __version__
+from farfield.core.culled_layers import culled_layers
+from farfield.core.culling import CullingMode
+from farfield.core.errors import LayerPlanError
+from farfield.core.impostor import Impostor, QuadPayload, texel_rect_corners
+from farfield.core.layer_tiles import QUAD_GEOMETRY_BYTES, layer_records, layer_tiles, pack_tiles
+from farfield.core.layers import plan_layers
+from farfield.core.options import check_options, option
+from farfield.core.pixel_angles import MAX_RESOLUTION, PixelModel
+from farfield.core.scene import Scene
+from farfield.core.stage_clock import Progress, StageClock
+from farfield.core.techniques.base import Technique
+from farfield.core.techniques.part import check_part_cell, evaluate_part, part_evaluation_text, seconds_line
+from farfield.core.viewcells import ViewCell
 
 
 @dataclass(frozen=True, slots=True)

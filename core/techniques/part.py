@@ -7,11 +7,11 @@ import math
 
 import numpy as np
 
-from core.evaluation import Evaluation, evaluate
-from core.impostor import Impostor
-from core.layers import plan_layers
-from core.scene import Scene
-from core.viewcells import ViewCell, viewcell_from_dict
+from farfield.core.evaluation import Evaluation, evaluate
+from farfield.core.impostor import Impostor
+from farfield.core.layers import plan_layers
+from farfield.core.scene import Scene
+from farfield.core.viewcells import ViewCell, viewcell_from_dict
 
 
 def check_part_cell(cell: ViewCell, options, bounds: np.ndarray | None) -> None:

@@ -34,24 +34,24 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from core import __version__
-from core.culling import CullingMode
-from core.errors import InternalError
-from core.impostor import Impostor, MeshPayload
-from core.layer_tiles import layer_records
-from core.layers import plan_layers
-from core.mask_atlas import pack_masks
-from core.options import check_options, option
-from core.pixel_angles import MAX_RESOLUTION, PixelModel
-from core.scene import Scene
-from core.stage_clock import Progress, StageClock
-from core.tdm_mesh import TdmMesh, initial_mesh, mesh_labels
-from core.tdm_simplify import box_half_sizes, covered_by, simplify
-from core.tdm_texture import build_charts, chart_masks, chart_pages, chart_uvs
-from core.techniques.base import Technique
-from core.techniques.part import check_part_cell, evaluate_part, part_evaluation_text, seconds_line
-from core.viewcells import ViewCell
-from core.voxel_field import VoxelField, record_voxel_field
+from farfield.core import __version__
+from farfield.core.culling import CullingMode
+from farfield.core.errors import InternalError
+from farfield.core.impostor import Impostor, MeshPayload
+from farfield.core.layer_tiles import layer_records
+from farfield.core.layers import plan_layers
+from farfield.core.mask_atlas import pack_masks
+from farfield.core.options import check_options, option
+from farfield.core.pixel_angles import MAX_RESOLUTION, PixelModel
+from farfield.core.scene import Scene
+from farfield.core.stage_clock import Progress, StageClock
+from farfield.core.tdm_mesh import TdmMesh, initial_mesh, mesh_labels
+from farfield.core.tdm_simplify import box_half_sizes, covered_by, simplify
+from farfield.core.tdm_texture import build_charts, chart_masks, chart_pages, chart_uvs
+from farfield.core.techniques.base import Technique
+from farfield.core.techniques.part import check_part_cell, evaluate_part, part_evaluation_text, seconds_line
+from farfield.core.viewcells import ViewCell
+from farfield.core.voxel_field import VoxelField, record_voxel_field
 
 
 @dataclass(frozen=True, slots=True)
