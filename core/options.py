@@ -247,3 +247,33 @@ def describe_options(cls: type) -> list[dict]:
 def defaults(cls: type) -> dict:
     """The public fields' defaults (tuples as lists), e.g. for a job's stored parameters."""
     return {d["name"]: d["default"] for d in describe_options(cls)}
+
+
+def options_json_schema(cls: type) -> dict:
+    """A JSON Schema object of the public fields of ``cls`` but the image fields (what a job's
+    ``options`` may hold), each with its type, default, bounds, choices and help as ``description``.
+
+    >>> from dataclasses import dataclass
+    >>> @dataclass(frozen=True)
+    ... class O:
+    ...     n: int = option(1, "how many", ge=1, le=9)
+    >>> options_json_schema(O)["properties"]["n"]
+    {'type': 'integer', 'description': 'how many', 'default': 1, 'minimum': 1, 'maximum': 9}
+    """
+    properties = {}
+    for entry in describe_options(cls):
+        if entry["name"] in IMAGE_FIELDS:
+            continue
+        schema: dict = {"type": entry["type"], "description": entry["help"], "default": entry["default"]}
+        for key, name in (("minimum", "minimum"), ("exclusive_minimum", "exclusiveMinimum"), ("maximum", "maximum"), ("exclusive_maximum", "exclusiveMaximum")):
+            if entry[key] is not None:
+                schema[name] = entry[key]
+        if entry["choices"] is not None:
+            if entry["type"] == "array":
+                schema["items"] = {"type": "string", "enum": entry["choices"]}
+            else:
+                schema["enum"] = entry["choices"]
+        if entry["nullable"]:
+            schema["type"] = [schema["type"], "null"]
+        properties[entry["name"]] = schema
+    return {"type": "object", "additionalProperties": False, "properties": properties}

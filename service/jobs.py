@@ -34,6 +34,7 @@ from sqlalchemy import func, select, update
 from farfield.core import __version__
 from farfield.core.errors import ConflictError, LayerPlanError, NotFoundError, ViewCellError
 from farfield.core.impostor_database import database_index
+from farfield.core.options import options_json_schema
 from farfield.core.techniques import TECHNIQUES, get_technique
 from farfield.core.viewcells import BoxCell, grid_boxes, viewcell_from_dict
 from farfield.service.blobs import BlobStore
@@ -74,7 +75,11 @@ class JobSpec(BaseModel):
     objects: list[str] | None = Field(None, description="the represented objects (default: all; not for scene-scope techniques)")
     resolution: int | None = Field(None, description="output image pixels per side (default: the technique's, 512)")
     fov_deg: float | None = Field(None, description="output field of view, degrees (default: the technique's: 45, envmap 90)")
-    options: dict = Field(default_factory=dict, description=_options_help())
+    options: dict = Field(
+        default_factory=dict,
+        description=_options_help(),
+        json_schema_extra={"x-technique-options": {t.name: options_json_schema(t.Options) for t in TECHNIQUES.values()}},
+    )
 
     @model_validator(mode="after")
     def _one_view_space(self) -> JobSpec:

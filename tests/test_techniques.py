@@ -166,6 +166,10 @@ def test_route_cli_and_registry_agree(service, client, tmp_path):
     # The OpenAPI document describes the request's technique field with the registry's names.
     schema = client.get("/openapi.json").json()["components"]["schemas"]["JobSpec"]["properties"]
     assert set(TECHNIQUES) <= set(json.dumps(schema["technique"]).replace('"', " ").split())
+    documented = schema["options"]["x-technique-options"]
+    for technique in TECHNIQUES.values():
+        for option in technique.describe()["options"]:
+            assert documented[technique.name]["properties"][option["name"]]["description"] == option["help"]
 
 
 def test_jobs_name_their_technique_and_the_former_job_type_still_works(client, tmp_path):
