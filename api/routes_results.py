@@ -10,7 +10,7 @@ from fastapi import APIRouter, Depends, Path as PathParam
 from fastapi.responses import FileResponse, Response
 from starlette.background import BackgroundTask
 
-from farfield.core.bundle import GLB_NAME, MANIFEST_NAME, bundle_zip, page_file_name
+from farfield.core.bundle import GLB_NAME, MANIFEST_NAME, PAYLOAD_NAME, bundle_zip, page_file_name
 from farfield.core.errors import ConflictError, NotFoundError
 from farfield.service.jobs import cell_record, get_cell_row, get_job_row, job_cells, lookup
 
@@ -40,6 +40,11 @@ def cell_bundle(job_id: str, index: int = CellIndex, tenant_id: str = Depends(te
 @router.get("/cells/{index}/manifest.json", summary="A cell's bundle manifest")
 def cell_manifest(job_id: str, index: int = CellIndex, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> Response:
     return Response(svc.blobs.read_bytes(f"{_result(svc, tenant_id, job_id, index)}/{MANIFEST_NAME}"), media_type="application/json")
+
+
+@router.get("/cells/{index}/payload.bin", summary="A cell's payload arrays (little-endian; the manifest's 'payload' names their dtypes, shapes and offsets)")
+def cell_payload(job_id: str, index: int = CellIndex, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> Response:
+    return Response(svc.blobs.read_bytes(f"{_result(svc, tenant_id, job_id, index)}/{PAYLOAD_NAME}"), media_type="application/octet-stream")
 
 
 @router.get("/cells/{index}/atlas/{page}.png", summary="One atlas page of a cell (RGBA PNG)")

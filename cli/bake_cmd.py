@@ -14,7 +14,7 @@ from farfield.core.errors import LayerPlanError
 from farfield.core.exchange import load_scene
 from farfield.core.options import parse_option_text
 from farfield.core.pixel_angles import PIXEL_MODELS
-from farfield.core.techniques import TECHNIQUES, get_technique
+from farfield.core.techniques import DEFAULT_TECHNIQUE, TECHNIQUES, get_technique
 from farfield.core.viewcells import parse_viewcell
 
 
@@ -58,7 +58,7 @@ def _shortcuts(technique, layers, near_field, directions, gap_fill, enlargement,
 @click.option("--viewcell", required=True, help="box:x0,y0,z0,x1,y1,z1 | box-center:cx,cy,cz,size | shaft:...")
 @click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Bundle directory to write (replaced whole).")
 @click.option("--objects", default=None, help="Comma-separated object names forming the part (default: all).")
-@click.option("--technique", type=click.Choice(list(TECHNIQUES)), default="layered", show_default=True,
+@click.option("--technique", type=click.Choice(list(TECHNIQUES)), default=DEFAULT_TECHNIQUE, show_default=True,
               help="; ".join(f"{t.name}: {t.help}" for t in TECHNIQUES.values()) + " (`farfield techniques` lists their options).")
 @click.option("--option", "options", multiple=True, metavar="NAME=VALUE",
               help="A technique option (repeat), e.g. --option grid_cell=4 or --option directions=+x,-x; `farfield techniques` lists them.")

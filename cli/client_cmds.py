@@ -161,7 +161,7 @@ def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov
         except ValueError:
             parsed[name] = value
     spec = {
-        "scene_id": scene_id, "technique": technique or job_type or "layered", "resolution": resolution, "fov_deg": fov, "options": parsed,
+        "scene_id": scene_id, "technique": technique or job_type, "resolution": resolution, "fov_deg": fov, "options": parsed,
         "objects": [n.strip() for n in objects.split(",") if n.strip()] if objects else None,
     }  # fmt: skip
     spec = {k: v for k, v in spec.items() if v is not None}

@@ -173,7 +173,7 @@ def _stored_dtype(kind: str, array: np.ndarray) -> str:
 def encode_payload(payload) -> tuple[bytes, dict]:
     """``payload.bin``'s bytes and the manifest's ``payload`` entry for a checked payload.
 
-    >>> from core.impostor import QuadPayload
+    >>> from farfield.core.impostor import QuadPayload
     >>> data, entry = encode_payload(QuadPayload.empty())
     >>> data, entry["kind"], entry["counts"], [(a["name"], a["dtype"], a["shape"]) for a in entry["arrays"]][:2]
     (b'', 'quads', {'quads': 0}, [('corners', '<f8', [0, 4, 3]), ('uv', '<f8', [0, 4, 2])])

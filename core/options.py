@@ -138,7 +138,7 @@ def check_value(name: str, value: Any, hint: Any, meta: dict) -> Any:
                   (meta.get("le"), lambda b: value > b), (meta.get("lt"), lambda b: value >= b)]  # fmt: skip
         if any(bound is not None and outside(bound) for bound, outside in bounds):
             raise LayerPlanError(message)
-        return int(value) if kind == "integer" else value
+        return int(value) if kind == "integer" else float(value)
     if kind == "string":
         if not isinstance(value, str) or (choices is not None and value not in choices):
             allowed = f" out of {list(choices)}" if choices is not None else ""
@@ -244,9 +244,16 @@ def describe_options(cls: type) -> list[dict]:
     return out
 
 
-def defaults(cls: type) -> dict:
-    """The public fields' defaults (tuples as lists), e.g. for a job's stored parameters."""
-    return {d["name"]: d["default"] for d in describe_options(cls)}
+def stored_values(options: Any) -> dict:
+    """The public fields of an ``Options`` instance but the image fields, JSON-ready (tuples as lists):
+    what a job stores, so that equal options are stored alike however they were spelled and a job
+    means the same thing if a default changes."""
+    out = {}
+    for field in public_fields(type(options)):
+        if field.name not in IMAGE_FIELDS:
+            value = getattr(options, field.name)
+            out[field.name] = list(value) if isinstance(value, tuple) else value
+    return out
 
 
 def options_json_schema(cls: type) -> dict:

@@ -43,3 +43,8 @@ class StageClock:
     def totals(self) -> dict[str, float]:
         """Each stage's seconds and their ``total``."""
         return {**self.seconds, "total": sum(self.seconds.values())}
+
+
+def seconds_line(stats: dict) -> str:
+    """``seconds: stage s ...`` of a bake's statistics, as the CLI prints them."""
+    return "seconds: " + "  ".join(f"{k} {v:.3f}" for k, v in stats.get("seconds", {}).items())

@@ -23,7 +23,7 @@ import sqlalchemy.exc
 from kombu.exceptions import OperationalError as BrokerError
 
 from farfield.core.bundle import MANIFEST_NAME, write_bundle
-from farfield.core.errors import ErrorKind, FarfieldError
+from farfield.core.errors import BundleFormatError, ErrorKind, FarfieldError, InternalError
 from farfield.core.impostor import Impostor
 from farfield.core.scene import Scene
 from farfield.core.techniques import get_technique
@@ -160,7 +160,10 @@ def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, wo
             scene = load_stored_scene(blobs, scene_row)
             impostor = bake_cell(job, scene, cell.viewcell, progress)
             with tempfile.TemporaryDirectory(prefix="farfield-cell-") as tmp:
-                write_bundle(impostor, Path(tmp) / "bundle")
+                try:
+                    write_bundle(impostor, Path(tmp) / "bundle")
+                except BundleFormatError as error:  # the bake's own output does not fit its format: a bug, not bad input
+                    raise InternalError(f"the baked impostor could not be written: {error}") from error
                 blobs.publish_directory(key, Path(tmp) / "bundle", last=MANIFEST_NAME)
         stats = json.loads(blobs.read_bytes(f"{key}/{MANIFEST_NAME}"))["stats"]
     except CellCancelled:

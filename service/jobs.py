@@ -28,14 +28,14 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, model_validator
 from sqlalchemy import func, select, update
 
 from farfield.core import __version__
 from farfield.core.errors import ConflictError, LayerPlanError, NotFoundError, ViewCellError
 from farfield.core.impostor_database import database_index
-from farfield.core.options import options_json_schema
-from farfield.core.techniques import TECHNIQUES, get_technique
+from farfield.core.options import options_json_schema, stored_values
+from farfield.core.techniques import DEFAULT_TECHNIQUE, TECHNIQUES, get_technique
 from farfield.core.viewcells import BoxCell, grid_boxes, viewcell_from_dict
 from farfield.service.blobs import BlobStore
 from farfield.service.db import CELL_FINAL, JOB_STATES, CellRow, Database, JobRow, SceneRow, now, owned_row
@@ -73,8 +73,8 @@ class JobSpec(BaseModel):
     viewcells: list[dict] | None = Field(None, description="explicit view cells, e.g. {'kind': 'box', 'lo': [..], 'hi': [..]}")
     grid: GridSpec | None = Field(None, description="or a grid of box cells over a view-space box")
     objects: list[str] | None = Field(None, description="the represented objects (default: all; not for scene-scope techniques)")
-    resolution: int | None = Field(None, description="output image pixels per side (default: the technique's, 512)")
-    fov_deg: float | None = Field(None, description="output field of view, degrees (default: the technique's: 45, envmap 90)")
+    resolution: StrictInt | None = Field(None, description="output image pixels per side (default: the technique's, 512)")
+    fov_deg: StrictFloat | None = Field(None, description="output field of view, degrees (default: the technique's: 45, envmap 90)")
     options: dict = Field(
         default_factory=dict,
         description=_options_help(),
@@ -91,7 +91,7 @@ class JobSpec(BaseModel):
 
     @property
     def technique_name(self) -> str:
-        return self.technique or self.job_type or "layered"
+        return self.technique or self.job_type or DEFAULT_TECHNIQUE
 
 
 def grid_cells(grid: GridSpec) -> list[tuple[tuple[int, int, int], BoxCell]]:
@@ -118,11 +118,12 @@ def part_bounds(scene: SceneRow, objects: list[str] | None) -> np.ndarray:
 
 def create_job(db: Database, tenant_id: str, scene: SceneRow, spec: JobSpec) -> JobRow:
     """Validate ``spec`` against ``scene`` (every cell is planned by its technique's check) and store
-    the job and its cells.  Stored parameters name every image field explicitly (the technique's
-    defaults filled in), so a job means the same thing if a default changes."""
+    the job and its cells.  Stored parameters hold every option as validated (the technique's
+    defaults filled in, numbers and lists normalised), so equal requests store equal parameters (and
+    share their bundles, :func:`result_key`) and a job means the same thing if a default changes."""
     technique = get_technique(spec.technique_name)
     options = technique.options(spec.options, spec.resolution, spec.fov_deg)
-    params = {"resolution": options.resolution, "fov_deg": options.fov_deg, "objects": spec.objects, "options": dict(spec.options)}
+    params = {"resolution": options.resolution, "fov_deg": options.fov_deg, "objects": spec.objects, "options": stored_values(options)}
     if technique.scope == "scene" and spec.objects is not None:
         raise LayerPlanError(f"a {technique.name} job represents the whole scene: leave out 'objects' (it is for techniques of one part)")
     if spec.grid is not None:

@@ -163,3 +163,12 @@ def service_client(service):
     """An HTTP client of the module's service, authenticated as its admin."""
     with service.client() as c:
         yield c
+
+
+def stored_options(technique: str, **given) -> dict:
+    """The options a job of ``technique`` stores for the request's ``given`` options: every option,
+    validated and normalised (:func:`farfield.core.options.stored_values`)."""
+    from farfield.core.options import stored_values
+    from farfield.core.techniques import get_technique
+
+    return stored_values(get_technique(technique).options(given))

@@ -14,7 +14,7 @@ import time
 
 import pytest
 from browser import CHROMIUM, SKIP_REASON, new_page, tid
-from service_harness import ADMIN_KEY, BUNNY, BUNNY_GRID, start_service, upload, wait_for_job
+from service_harness import ADMIN_KEY, BUNNY, BUNNY_GRID, start_service, upload, wait_for_job, stored_options
 
 from farfield.core.techniques import TECHNIQUES
 
@@ -278,7 +278,7 @@ def test_job_form_is_built_from_the_technique_registry(page, service):
     page.locator(f'{tid("job-technique-text")}[data-technique="layered"]').filter(has_text=TECHNIQUES["layered"].help).wait_for()
     with service.client() as client:
         job = client.get(f"/v1/jobs/{job_id}").json()
-        assert job["technique"] == "layered" and job["params"]["options"] == {"grid_cell": 16}, job["params"]
+        assert job["technique"] == "layered" and job["params"]["options"] == stored_options("layered", grid_cell=16), job["params"]
         assert job["params"]["resolution"] == 64 and job["params"]["fov_deg"] == 45.0
         wait = wait_for_job(client, job_id, timeout=60)
         assert wait["state"] == "done", wait

@@ -30,7 +30,7 @@ from farfield.core.viewcells import BoxCell, grid_boxes
 from farfield.core.walkthrough import generate_path, walkthrough, write_plot
 from tests.scenes import box_object, city, real_scene, write_scene
 
-pytestmark = pytest.mark.filterwarnings("ignore::core.scene.SceneWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::farfield.core.scene.SceneWarning")
 
 SMALL = dict(resolution=96, fov_deg=90.0, layers=12)
 

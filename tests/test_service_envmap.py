@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from browser import dashboard_page, tid
 from scenes import city, write_scene
-from service_harness import ADMIN_KEY, service_client, service_on_each_database, upload, wait_for_job  # noqa: F401 - the service and client fixtures
+from service_harness import ADMIN_KEY, service_client, service_on_each_database, upload, wait_for_job, stored_options  # noqa: F401 - the service and client fixtures
 
 from farfield.core.bundle import MANIFEST_NAME
 from farfield.core.exchange import load_scene
@@ -50,7 +50,7 @@ def test_envmap_grid_job_makes_an_impostor_database(client, city_id, city_glb, t
     job = wait_for_job(client, created.json()["id"], timeout=120)
     assert job["state"] == "done", job["errors"]
     assert job["counts"]["done"] == 9 and job["progress"] == 1.0
-    assert job["params"]["options"] == OPTIONS
+    assert job["params"]["options"] == stored_options("envmap", **OPTIONS)
 
     # The lookup route serves the cell around a viewpoint, as for layered jobs.
     centre = viewcell_from_dict(job["cells"][CENTRE]["viewcell"]).center
@@ -156,7 +156,7 @@ def test_cli_submit_envmap(service, city_id, tmp_path):
     assert done.returncode == 0, done.stderr
     job = json.loads(done.stdout)
     assert job["state"] == "done" and job["job_type"] == "envmap" and job["counts"]["done"] == 1
-    assert job["params"]["options"] == {"layers": 3, "directions": "+x,-x"}
+    assert job["params"]["options"] == stored_options("envmap", layers=3, directions=["+x", "-x"])
     index = json.loads((tmp_path / "db" / "index.json").read_text())
     assert index["job_type"] == "envmap" and index["cells"][0]["neighbours"] == []
     manifest = json.loads((tmp_path / "db" / index["cells"][0]["bundle"] / MANIFEST_NAME).read_text())
@@ -204,7 +204,7 @@ def test_dashboard_submits_an_envmap_job(service, city_id, browser):
         assert page.locator(tid("cell-stats")).locator('[data-stat="near_field"]').count() == 1
         with service.client() as client:
             job = client.get(f"/v1/jobs/{job_id}").json()
-        assert job["technique"] == "envmap" and job["params"]["options"] == {"layers": 4, "directions": ["+z", "-z"]}
+        assert job["technique"] == "envmap" and job["params"]["options"] == stored_options("envmap", layers=4, directions=["+z", "-z"])
         page.click(tid("back-link"))
         row = page.locator(f'{tid("job-row")}[data-job-id="{job_id}"]')
         row.locator(f'{tid("job-row-technique")}[data-technique="envmap"]').wait_for()

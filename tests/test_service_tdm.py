@@ -20,7 +20,7 @@ import pytest
 from browser import dashboard_page, tid
 from click.testing import CliRunner
 from scenes import box_object, write_scene
-from service_harness import ADMIN_KEY, ROOT, service_client, service_on_each_database, upload, wait_for_job  # noqa: F401 - the service and client fixtures
+from service_harness import ADMIN_KEY, ROOT, service_client, service_on_each_database, upload, wait_for_job, stored_options  # noqa: F401 - the service and client fixtures
 
 from farfield.cli.main import _register, cli
 from farfield.core.bundle import MANIFEST_NAME, read_bundle
@@ -123,7 +123,7 @@ def test_tdm_job_makes_textured_depth_meshes(client, block_id, block_glb, tmp_pa
     job = wait_for_job(client, created.json()["id"], timeout=300)
     assert job["state"] == "done", job["errors"]
     assert job["counts"]["done"] == 2 and job["progress"] == 1.0
-    assert job["params"]["options"] == OPTIONS and job["params"]["objects"] == PART
+    assert job["params"]["options"] == stored_options("tdm", **OPTIONS) and job["params"]["objects"] == PART
     for cell in job["cells"]:
         assert cell["has_result"] and set(STATS) <= set(cell["stats"]), cell["stats"]
         assert 0 < cell["stats"]["triangles"] < cell["stats"]["initial_triangles"]
@@ -192,7 +192,7 @@ def test_cli_submit_tdm(service, block_id, tmp_path):
     assert done.returncode == 0, done.stderr
     job = json.loads(done.stdout)
     assert job["state"] == "done" and job["job_type"] == "tdm" and job["counts"]["done"] == 1
-    assert job["params"]["options"] == {"enlargement": 3, "oversampling": 2}
+    assert job["params"]["options"] == stored_options("tdm", enlargement=3, oversampling=2)
     index = json.loads((tmp_path / "db" / "index.json").read_text())
     impostor = read_bundle(tmp_path / "db" / index["cells"][0]["bundle"])
     assert impostor.technique == "tdm" and impostor.stats["triangles"] < impostor.stats["initial_triangles"]
@@ -286,7 +286,7 @@ def test_dashboard_submits_a_tdm_job(service, block_id, browser):
         assert stats.locator('[data-stat="triangles"]').count() == 1
         with service.client() as client:
             job = client.get(f"/v1/jobs/{job_id}").json()
-        assert job["technique"] == "tdm" and job["params"]["options"] == {"enlargement": 3, "oversampling": 2}
+        assert job["technique"] == "tdm" and job["params"]["options"] == stored_options("tdm", enlargement=3, oversampling=2)
         assert job["params"]["objects"] == PART
         page.click(tid("back-link"))
         page.locator(f'{tid("job-row")}[data-job-id="{job_id}"] {tid("job-row-technique")}[data-technique="tdm"]').wait_for()

@@ -20,7 +20,7 @@ from farfield.core.scene import Scene
 from farfield.core.techniques import TECHNIQUES, get_technique
 from farfield.core.viewcells import BoxCell
 
-pytestmark = pytest.mark.filterwarnings("ignore::core.scene.SceneWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::farfield.core.scene.SceneWarning")
 
 RESOLUTION = 96
 
@@ -186,3 +186,28 @@ def test_jobs_name_their_technique_and_the_former_job_type_still_works(client, t
     for job in (new.json(), old.json()):
         done = wait_for_job(client, job["id"])
         assert done["state"] == "done", done["errors"]
+    # The cell's payload arrays are served beside its manifest.
+    manifest = client.get(f"/v1/jobs/{new.json()['id']}/cells/0/manifest.json").json()
+    payload = client.get(f"/v1/jobs/{new.json()['id']}/cells/0/payload.bin")
+    assert payload.status_code == 200 and len(payload.content) == manifest["payload"]["nbytes"] > 0
+
+
+def test_equal_requests_store_equal_options_and_image_fields_are_strict(client, tmp_path):
+    scene_id = upload(client, write_scene(part_scene(), tmp_path, "glb", "block")).json()["id"]
+    spec = {"scene_id": scene_id, "viewcells": [{"kind": "box", "lo": [-2, 3, -27], "hi": [2, 7, -23]}], "resolution": 64, "technique": "tdm"}
+    stored = []
+    for options in ({}, {"enlargement": 2}, {"enlargement": 2.0, "culling": "penumbra"}):
+        created = client.post("/v1/jobs", json={**spec, "options": options})
+        assert created.status_code == 201, created.text
+        stored.append(created.json()["params"])
+        client.post(f"/v1/jobs/{created.json()['id']}/cancel")
+    assert stored[0] == stored[1] == stored[2] and stored[0]["options"]["enlargement"] == 2.0 and stored[0]["fov_deg"] == 45.0
+    envmap = [client.post("/v1/jobs", json={**spec, "technique": "envmap", "grid": None, "viewcells": [{"kind": "box", "lo": [100, 0, 100], "hi": [110, 10, 110]}],
+                                            "options": {"layers": 4, "directions": d}}) for d in ("+x,-z", ["-z", "+x"])]  # fmt: skip
+    assert [e.status_code for e in envmap] == [201, 201], envmap[0].text
+    assert envmap[0].json()["params"] == envmap[1].json()["params"] and envmap[0].json()["params"]["options"]["directions"] == ["+x", "-z"]
+    for job in envmap:
+        client.post(f"/v1/jobs/{job.json()['id']}/cancel")
+    for field, value in (("resolution", True), ("resolution", "64"), ("fov_deg", True), ("fov_deg", "45")):
+        refused = client.post("/v1/jobs", json={**spec, field: value})
+        assert refused.status_code == 422 and field in refused.text, (field, value, refused.text)

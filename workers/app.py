@@ -1,6 +1,6 @@
 """The Celery application: Redis broker, one ``render`` queue, late acknowledgement, prefetch 1.
 
-``celery -A workers.app worker`` (what ``farfield worker`` runs) reads the settings from the
+``celery -A farfield.workers.app worker`` (what ``farfield worker`` runs) reads the settings from the
 environment.  A cell is acknowledged only after it ends, so a worker that dies mid-cell leaves it
 to be delivered again: at once when a pool child is killed (``task_reject_on_worker_lost``), after
 the visibility timeout when the whole worker is.  The visibility timeout is longer than the
@@ -37,4 +37,4 @@ def make_celery(settings: Settings) -> Celery:
 
 
 celery_app = make_celery(Settings.from_env())
-app = celery_app  # what `celery -A workers.app` looks for
+app = celery_app  # what `celery -A farfield.workers.app` looks for

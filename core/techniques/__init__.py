@@ -12,6 +12,7 @@ from farfield.core.techniques import envmap, layered, tdm
 from farfield.core.techniques.base import Technique
 
 TECHNIQUES: dict[str, Technique] = {t.name: t for t in (layered.TECHNIQUE, envmap.TECHNIQUE, tdm.TECHNIQUE)}
+DEFAULT_TECHNIQUE = "layered"  # what a job or a bake that names none gets
 
 
 def get_technique(name: str) -> Technique:

@@ -64,10 +64,6 @@ class Technique:
         """The ``Options`` of a job's stored parameters (``resolution``, ``fov_deg``, ``options``)."""
         return self.options(params.get("options"), params.get("resolution"), params.get("fov_deg"))
 
-    def default(self, name: str) -> Any:
-        """The default of one option field, e.g. ``fov_deg``."""
-        return self.Options.__dataclass_fields__[name].default
-
     def describe(self) -> dict:
         """JSON-ready: name, scope, help, the image fields' defaults and every option."""
         fields = describe_options(self.Options)

@@ -46,9 +46,8 @@ from farfield.core.near_field import near_field
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION, pixel_angle
 from farfield.core.scene import Scene
-from farfield.core.stage_clock import Progress, StageClock
+from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import Technique
-from farfield.core.techniques.part import seconds_line
 from farfield.core.viewcells import BoxCell
 
 # Cube faces (core.cube_faces.FACES): image x and y run along the next two world axes, so a face's

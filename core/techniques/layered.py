@@ -23,16 +23,16 @@ from farfield.core.layers import plan_layers
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION, PixelModel
 from farfield.core.scene import Scene
-from farfield.core.stage_clock import Progress, StageClock
+from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import Technique
-from farfield.core.techniques.part import check_part_cell, evaluate_part, part_evaluation_text, seconds_line
+from farfield.core.techniques.part import check_part_cell, evaluate_part, part_evaluation_text
 from farfield.core.viewcells import ViewCell
 
 
 @dataclass(frozen=True, slots=True)
 class BakeOptions:
     """The knobs of a layered bake (all recorded in the impostor's parameters); validated from each
-    field's declaration (:mod:`core.techniques.options`)."""
+    field's declaration (:mod:`farfield.core.options`)."""
 
     resolution: int = option(512, "output image pixels per side the impostor serves", ge=1, le=MAX_RESOLUTION)
     fov_deg: float = option(45.0, "output field of view, degrees", gt=0.0, lt=180.0)

@@ -46,8 +46,3 @@ def part_evaluation_text(result: Evaluation, impostor: Impostor) -> str:
         f"{memory / 1024:.1f} KiB (atlas pages {impostor.texture_bytes / 1024:.1f} KiB + geometry)"
     )
     return "\n".join(lines)
-
-
-def seconds_line(stats: dict) -> str:
-    """``seconds: stage s ...`` of a bake's statistics."""
-    return "seconds: " + "  ".join(f"{k} {v:.3f}" for k, v in stats.get("seconds", {}).items())

@@ -44,12 +44,12 @@ from farfield.core.mask_atlas import pack_masks
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION, PixelModel
 from farfield.core.scene import Scene
-from farfield.core.stage_clock import Progress, StageClock
+from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.tdm_mesh import TdmMesh, initial_mesh, mesh_labels
 from farfield.core.tdm_simplify import box_half_sizes, covered_by, simplify
 from farfield.core.tdm_texture import build_charts, chart_masks, chart_pages, chart_uvs
 from farfield.core.techniques.base import Technique
-from farfield.core.techniques.part import check_part_cell, evaluate_part, part_evaluation_text, seconds_line
+from farfield.core.techniques.part import check_part_cell, evaluate_part, part_evaluation_text
 from farfield.core.viewcells import ViewCell
 from farfield.core.voxel_field import VoxelField, record_voxel_field
 
