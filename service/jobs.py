@@ -85,13 +85,15 @@ class JobSpec(BaseModel):
     def _one_view_space(self) -> JobSpec:
         if (self.viewcells is None) == (self.grid is None):
             raise ValueError("give exactly one of 'viewcells' (a list) or 'grid'")
-        if self.technique is not None and self.job_type is not None and self.technique != self.job_type:
-            raise ValueError(f"'technique' ({self.technique}) and its former name 'job_type' ({self.job_type}) disagree; give one")
+        former = self.__dict__.get("job_type")
+        if self.technique is not None and former is not None and self.technique != former:
+            raise ValueError(f"'technique' ({self.technique}) and its former name 'job_type' ({former}) disagree; give one")
         return self
 
     @property
     def technique_name(self) -> str:
-        return self.technique or self.job_type or DEFAULT_TECHNIQUE
+        # Read through __dict__: the deprecated field's attribute access warns.
+        return self.technique or self.__dict__.get("job_type") or DEFAULT_TECHNIQUE
 
 
 def grid_cells(grid: GridSpec) -> list[tuple[tuple[int, int, int], BoxCell]]:
