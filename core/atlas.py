@@ -77,7 +77,12 @@ def _check_int(value, what: str, low: int) -> int:
     return int(value)
 
 
-def pack(sizes: np.ndarray, padding: int = 2, max_page: int = 8192, min_fill: float = 0.75) -> AtlasLayout:
+# The default largest page side, texels: what most GPUs take (WebGL2 guarantees 2,048; many mobile
+# GPUs stop at 4,096).  A technique's ``max_page`` option changes it.
+MAX_PAGE = 4096
+
+
+def pack(sizes: np.ndarray, padding: int = 2, max_page: int = MAX_PAGE, min_fill: float = 0.75) -> AtlasLayout:
     """Pack tiles of (n, 2) int ``[w, h]`` sizes into power-of-two pages (seed 000 §3.6).
 
     The thesis's greedy: rotate every tile so its larger side is vertical; sort by decreasing

@@ -42,7 +42,8 @@ The bundle is the on-disk form of one :class:`core.impostor.Impostor`.  Format v
     ``glb``
         ``"impostor.glb"``.
     ``stats``, ``parameters``
-        JSON objects: counts, memory and timings; every knob that made the impostor.
+        JSON objects: counts and memory (not the timings, which differ from run to run: see
+        :data:`RUN_DEPENDENT_STATS`); every knob that made the impostor.
 
 ``payload.bin``
     The payload's arrays, C order, each at an offset that is a multiple of 8 (the end of the
@@ -203,6 +204,20 @@ def encode_payload(payload) -> tuple[bytes, dict]:
     return blob, entry
 
 
+# Statistics that differ between two runs of the same bake (seconds per stage): reported by the CLI,
+# the cell's record and the job, never written into a bundle, so equal inputs give equal bytes.
+RUN_DEPENDENT_STATS = ("seconds",)
+
+
+def stored_stats(stats: dict) -> dict:
+    """``stats`` as a bundle stores them: without :data:`RUN_DEPENDENT_STATS`.
+
+    >>> stored_stats({"quads": 3, "seconds": {"total": 0.5}})
+    {'quads': 3}
+    """
+    return {k: v for k, v in stats.items() if k not in RUN_DEPENDENT_STATS}
+
+
 def _manifest(impostor: Impostor, payload_entry: dict) -> dict:
     return {
         "format": FORMAT,
@@ -220,7 +235,7 @@ def _manifest(impostor: Impostor, payload_entry: dict) -> dict:
             for index, page in enumerate(impostor.pages)
         ],
         "glb": GLB_NAME,
-        "stats": impostor.stats,
+        "stats": stored_stats(impostor.stats),
         "parameters": impostor.parameters,
     }
 

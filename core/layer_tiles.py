@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from farfield.core.atlas import compose, fill_nearest_rgb, pack, tile_uvs
+from farfield.core.atlas import MAX_PAGE, compose, fill_nearest_rgb, pack, tile_uvs
+from farfield.core.errors import LayerPlanError
 from farfield.core.quads import grow_quads
 
 # Bytes of one quad's geometry as drawn: 4 vertices x (3 position + 2 uv) float32 + 6 uint32 indices.
@@ -43,11 +44,24 @@ def layer_records(plan, layer_ids, texels) -> list[dict]:
     ]
 
 
-def pack_tiles(tiles: list[np.ndarray], padding: int) -> tuple[tuple[np.ndarray, ...], np.ndarray, np.ndarray, int]:
-    """Atlas pages (§3.6) of ``tiles``: (pages, quad uv (q, 4, 2), quad page (q,), tile bytes)."""
+def check_power_of_two_pages(max_page: int) -> None:
+    """Refuse a largest page side the power-of-two packer (:func:`farfield.core.atlas.pack`) cannot use.
+
+    >>> check_power_of_two_pages(3000)
+    Traceback (most recent call last):
+    ...
+    farfield.core.errors.LayerPlanError: max_page must be a power of two for these atlas pages, got 3000
+    """
+    if max_page < 1 or max_page & (max_page - 1):
+        raise LayerPlanError(f"max_page must be a power of two for these atlas pages, got {max_page}")
+
+
+def pack_tiles(tiles: list[np.ndarray], padding: int, max_page: int = MAX_PAGE) -> tuple[tuple[np.ndarray, ...], np.ndarray, np.ndarray, int]:
+    """Atlas pages (§3.6) of ``tiles``, none wider or taller than ``max_page``: (pages, quad uv
+    (q, 4, 2), quad page (q,), tile bytes)."""
     if not tiles:
         return (), np.zeros((0, 4, 2)), np.zeros(0, np.int64), 0
     sizes = np.array([[t.shape[1], t.shape[0]] for t in tiles], dtype=np.int64)
-    layout = pack(sizes, padding=padding)
+    layout = pack(sizes, padding=padding, max_page=max_page)
     pages = compose(layout, tiles, padding, bleed=0)
     return tuple(pages), tile_uvs(layout), layout.page.astype(np.int64), int(sizes.prod(axis=1).sum() * 4)

@@ -34,6 +34,7 @@ import numpy as np
 from numba import njit
 from scipy.ndimage import binary_dilation
 
+from farfield.core.atlas import MAX_PAGE
 from farfield.core.errors import AtlasOverflowError, LayerPlanError
 
 
@@ -88,7 +89,7 @@ def _round4(v: int) -> int:
     return -(-int(v) // 4) * 4
 
 
-def pack_masks(masks: Sequence[np.ndarray], padding: int = 2, max_page: int = 8192) -> MaskLayout:
+def pack_masks(masks: Sequence[np.ndarray], padding: int = 2, max_page: int = MAX_PAGE) -> MaskLayout:
     """Place the (h, w) boolean ``masks`` on pages at most ``max_page`` texels a side, no two
     masks' true texels closer than ``padding`` + 1 (so ``padding`` texels apart).
 

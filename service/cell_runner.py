@@ -156,6 +156,7 @@ def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, wo
             job = s.get(JobRow, cell.job_id)
             scene_row = s.get(SceneRow, job.scene_id)
         key = result_key(scene_row.content_hash, job.job_type, job.params, cell.viewcell)
+        seconds = None  # this attempt's bake timings (a bundle stores none: its bytes depend on its inputs alone)
         if not blobs.exists(f"{key}/{MANIFEST_NAME}"):
             scene = load_stored_scene(blobs, scene_row)
             impostor = bake_cell(job, scene, cell.viewcell, progress)
@@ -165,7 +166,10 @@ def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, wo
                 except BundleFormatError as error:  # the bake's own output does not fit its format: a bug, not bad input
                     raise InternalError(f"the baked impostor could not be written: {error}") from error
                 blobs.publish_directory(key, Path(tmp) / "bundle", last=MANIFEST_NAME)
+            seconds = impostor.stats.get("seconds")
         stats = json.loads(blobs.read_bytes(f"{key}/{MANIFEST_NAME}"))["stats"]
+        if seconds is not None:
+            stats["seconds"] = seconds
     except CellCancelled:
         end("cancelled")
         return "cancelled"

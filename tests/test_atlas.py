@@ -263,8 +263,10 @@ def test_tile_larger_than_a_page_overflows(size, padding):
 
 
 def test_tile_as_large_as_a_page_fits():
-    layout = pack([[8192, 8]], 0)
+    layout = pack([[8192, 8]], 0, max_page=8192)
     assert layout.page_sizes.tolist() == [[8, 8192]] and layout.rotated.tolist() == [True]
+    with pytest.raises(AtlasOverflowError, match="4096"):  # the portable default refuses it
+        pack([[8192, 8]], 0)
     assert pack([[60, 60]], 2, max_page=64).page_sizes.tolist() == [[64, 64]]
 
 

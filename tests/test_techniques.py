@@ -13,8 +13,8 @@ from scenes import box_object, city, write_scene
 from service_harness import service_client, service_on_each_database, upload, wait_for_job  # noqa: F401 - the service and client fixtures
 
 from farfield.cli.main import _register, cli
-from farfield.core.bundle import read_bundle, write_bundle
-from farfield.core.errors import LayerPlanError
+from farfield.core.bundle import read_bundle, stored_stats, write_bundle
+from farfield.core.errors import AtlasOverflowError, LayerPlanError
 from farfield.core.options import describe_options, options_from_mapping
 from farfield.core.scene import Scene
 from farfield.core.techniques import TECHNIQUES, get_technique
@@ -70,14 +70,36 @@ def test_every_technique_bakes_round_trips_and_has_no_hole_from_inside_its_cell(
     technique.check(cell, options, scene.bounds if technique.scope == "part" else None)
     impostor = technique.bake(scene, cell, options, None, None)
     assert impostor.technique == name and impostor.triangle_count > 0
+    assert all(max(page.shape[:2]) <= options.max_page for page in impostor.pages)
     write_bundle(impostor, tmp_path / "bundle")
     back = read_bundle(tmp_path / "bundle")
-    _equal(impostor, back)
+    _equal(dataclasses.replace(impostor, stats=stored_stats(impostor.stats)), back)  # timings stay out of the bundle
+    # A second bake of the same inputs writes the same bytes, file for file.
+    write_bundle(technique.bake(scene, cell, options, None, None), tmp_path / "again")
+    files = sorted(p.name for p in (tmp_path / "bundle").iterdir())
+    assert files == sorted(p.name for p in (tmp_path / "again").iterdir())
+    for file in files:
+        assert (tmp_path / "bundle" / file).read_bytes() == (tmp_path / "again" / file).read_bytes(), file
     result = technique.evaluate(scene, back, 2, 0, 0)
     totals = result.to_dict()["totals"] if hasattr(result, "to_dict") else result["totals"]
     assert totals["hole_pixels"] == 0, totals
     assert technique.evaluation_text(result, back)  # the CLI's table
     assert "seconds:" in technique.summary(impostor.stats)
+
+
+@pytest.mark.parametrize("name", list(TECHNIQUES))
+def test_every_technique_keeps_its_pages_within_max_page(name):
+    technique = get_technique(name)
+    make_scene, cell = CASES[technique.scope]
+    scene = make_scene()
+    small = technique.bake(scene, cell, technique.options({"max_page": 128}, RESOLUTION), None, None)
+    assert all(max(page.shape[:2]) <= 128 for page in small.pages)
+    assert technique.options({}).max_page == 4096  # the portable default
+    if technique.scope == "scene":  # the city's faces need more than one small page
+        large = technique.bake(scene, cell, technique.options({}, RESOLUTION), None, None)
+        assert max(max(page.shape[:2]) for page in large.pages) > 128 and len(small.pages) > len(large.pages)
+    with pytest.raises(AtlasOverflowError, match="64"):
+        technique.bake(scene, cell, technique.options({"max_page": 64}, RESOLUTION), None, None)
 
 
 def test_every_technique_declares_bounded_documented_options():
@@ -111,6 +133,8 @@ def test_every_technique_declares_bounded_documented_options():
         ("envmap", {"layers": 8, "near_field": 30.0}, "exactly one of 'layers' or 'near_field'"),
         ("envmap", {"directions": ["+x", "+w"]}, "directions must be a list of strings out of"),
         ("envmap", {"gap_fill": "yes"}, "gap_fill must be true or false"),
+        ("envmap", {"max_page": 3000}, "max_page must be a power of two"),
+        ("layered", {"max_page": 32768}, "max_page must be an integer in [64, 16384]"),
     ],
 )
 def test_bad_options_are_refused_with_the_field_named(name, values, message):

@@ -32,6 +32,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from farfield.core import __version__
+from farfield.core.atlas import MAX_PAGE
 from farfield.core.cube_faces import FACES
 from farfield.core.culled_layers import culled_layers
 from farfield.core.culling import CullingMode
@@ -41,7 +42,7 @@ from farfield.core.errors import LayerPlanError, ViewCellError
 from farfield.core.gap_fill import fill_gaps
 from farfield.core.glb import page_png
 from farfield.core.impostor import Impostor, QuadPayload, texel_rect_corners
-from farfield.core.layer_tiles import QUAD_GEOMETRY_BYTES, layer_tiles, pack_tiles
+from farfield.core.layer_tiles import QUAD_GEOMETRY_BYTES, check_power_of_two_pages, layer_tiles, pack_tiles
 from farfield.core.near_field import near_field
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION, pixel_angle
@@ -83,10 +84,12 @@ class EnvmapOptions:
     grid_cell: int = option(8, "microtexture grid (§5.3), texels", ge=1, le=1024)
     fill_threshold: float = option(0.8, "microtexture fill ratio (§5.3)", gt=0.0, le=1.0)
     padding: int = option(2, "atlas padding, texels", ge=0, le=64)
+    max_page: int = option(MAX_PAGE, "largest atlas page side, texels (WebGL2 guarantees 2048, many mobile GPUs stop at 4096), a power of two", ge=64, le=16384)
     conservative: bool = option(True, "gap-free recording; false only to demonstrate the holes", internal=True)
 
     def __post_init__(self) -> None:
         check_options(self)
+        check_power_of_two_pages(self.max_page)
         if self.layers is None and self.near_field is None:
             object.__setattr__(self, "layers", DEFAULT_LAYERS)
         if self.layers is not None and self.near_field is not None:
@@ -224,7 +227,7 @@ def bake_envmap(scene: Scene, cell: BoxCell, options: EnvmapOptions = EnvmapOpti
     clock.report("record", total_layers, total_layers)
 
     with clock("atlas"):
-        pages, quad_uv, quad_page, tile_bytes = pack_tiles(tiles, options.padding)  # none: all is near field
+        pages, quad_uv, quad_page, tile_bytes = pack_tiles(tiles, options.padding, options.max_page)  # none: all is near field
     with clock("png"):
         png_bytes = int(sum(len(page_png(page)) for page in pages))
     clock.report("atlas", 1, 1)

@@ -14,11 +14,12 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from farfield.core import __version__
+from farfield.core.atlas import MAX_PAGE
 from farfield.core.culled_layers import culled_layers
 from farfield.core.culling import CullingMode
 from farfield.core.errors import LayerPlanError
 from farfield.core.impostor import Impostor, QuadPayload, texel_rect_corners
-from farfield.core.layer_tiles import QUAD_GEOMETRY_BYTES, layer_records, layer_tiles, pack_tiles
+from farfield.core.layer_tiles import QUAD_GEOMETRY_BYTES, check_power_of_two_pages, layer_records, layer_tiles, pack_tiles
 from farfield.core.layers import plan_layers
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION, PixelModel
@@ -42,9 +43,11 @@ class BakeOptions:
     pixel_model: PixelModel = option("min", "error bound from the smallest pixel angle (min) or the thesis's centre pixel (center)")
     conservative: bool = option(True, "gap-free recording; false only to demonstrate the holes", internal=True)
     padding: int = option(2, "atlas padding between tiles, texels", ge=0, le=64)
+    max_page: int = option(MAX_PAGE, "largest atlas page side, texels (WebGL2 guarantees 2048, many mobile GPUs stop at 4096), a power of two", ge=64, le=16384)
 
     def __post_init__(self) -> None:
         check_options(self)
+        check_power_of_two_pages(self.max_page)
 
 
 def bake_layered(
@@ -88,7 +91,7 @@ def bake_layered(
         raise LayerPlanError("the part left no visible texel in any layer (is it empty or fully transparent?)")
 
     with clock("atlas"):
-        pages, quad_uv, quad_page, tile_bytes = pack_tiles(tiles, options.padding)
+        pages, quad_uv, quad_page, tile_bytes = pack_tiles(tiles, options.padding, options.max_page)
     clock.report("atlas", 1, 1)
 
     quad_count = len(tiles)

@@ -35,6 +35,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from farfield.core import __version__
+from farfield.core.atlas import MAX_PAGE
 from farfield.core.culling import CullingMode
 from farfield.core.errors import InternalError
 from farfield.core.impostor import Impostor, MeshPayload
@@ -65,6 +66,7 @@ class TdmOptions:
     culling: CullingMode = option("penumbra", "hidden-texel culling of the recorded layers: penumbra, umbra or off")
     pixel_model: PixelModel = option("min", "error bound from the smallest pixel angle (min) or the centre pixel (center)")
     padding: int = option(2, "atlas padding between charts, texels", ge=0, le=64)
+    max_page: int = option(MAX_PAGE, "largest atlas page side, texels (WebGL2 guarantees 2048, many mobile GPUs stop at 4096)", ge=64, le=16384)
     texel_margin: int = option(1, "texels around each chart's triangles, for bilinear filtering (seed 003 §7)", ge=0, le=8)
 
     def __post_init__(self) -> None:
@@ -178,7 +180,7 @@ def bake_tdm(
     clock.report("charts", 1, 1)
 
     with clock("atlas"):
-        layout = pack_masks(masks, options.padding)
+        layout = pack_masks(masks, options.padding, options.max_page)
     clock.report("atlas", 1, 1)
 
     with clock("texture"):
