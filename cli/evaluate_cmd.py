@@ -14,6 +14,7 @@ import click
 
 from farfield.core.bundle import read_bundle
 from farfield.core.comparison import PREFERENCES, Candidate, check_comparable, choose
+from farfield.core.errors import GuaranteeError
 from farfield.core.exchange import load_scene
 from farfield.core.techniques import get_technique
 
@@ -26,24 +27,43 @@ from farfield.core.techniques import get_technique
 @click.option("--seed", default=0, show_default=True, type=int)
 @click.option("--prefer", type=click.Choice(PREFERENCES), default="memory", show_default=True, help="With several bundles: what decides among those with the fewest hole pixels.")
 @click.option("--json", "as_json", is_flag=True, help="Per-viewpoint results as JSON.")
-def evaluate(bundles, scene, random_count, outside_count, seed, prefer, as_json):
+@click.option("--check", is_flag=True, help="Exit non-zero (4) when a view inside the cell has a hole pixel or a pixel bloated beyond one.")
+def evaluate(bundles, scene, random_count, outside_count, seed, prefer, as_json, check):
     """Render SCENE's part and the impostor in each BUNDLE from sampled viewpoints and report the
     errors; with several bundles of one part and view cell, side by side and which to use."""
     impostors = [read_bundle(Path(b)) for b in bundles]
     part = load_scene(scene)
     if len(impostors) > 1:
-        _compare(list(bundles), impostors, part, random_count, outside_count, seed, prefer, as_json)
-        return
-    impostor = impostors[0]
-    technique = get_technique(impostor.technique)
-    result = technique.evaluate(part, impostor, random_count, outside_count, seed)
-    if as_json:
-        click.echo(json.dumps(result.to_dict() if hasattr(result, "to_dict") else result, indent=2))
-        return
-    click.echo(technique.evaluation_text(result, impostor))
+        results = _compare(list(bundles), impostors, part, random_count, outside_count, seed, prefer, as_json)
+    else:
+        impostor = impostors[0]
+        technique = get_technique(impostor.technique)
+        result = technique.evaluate(part, impostor, random_count, outside_count, seed)
+        if as_json:
+            click.echo(json.dumps(result.to_dict() if hasattr(result, "to_dict") else result, indent=2))
+        else:
+            click.echo(technique.evaluation_text(result, impostor))
+        results = [result]
+    if check:
+        _check(list(bundles), results)
 
 
-def _compare(names: list[str], impostors, part, random_count: int, outside_count: int, seed: int, prefer: str, as_json: bool) -> None:
+def _totals(result) -> dict:
+    return result.totals if hasattr(result, "totals") else result["totals"]
+
+
+def _check(names: list[str], results: list) -> None:
+    """GuaranteeError naming every bundle with a hole pixel or a pixel bloated beyond one inside its cell."""
+    broken = [
+        f"{name}: {t['hole_pixels']} hole pixels, {t['bloat_beyond_1px']} pixels bloated beyond one"
+        for name, t in ((name, _totals(result)) for name, result in zip(names, results))
+        if t["hole_pixels"] or t["bloat_beyond_1px"]
+    ]  # fmt: skip
+    if broken:
+        raise GuaranteeError("from inside the view cell, " + "; ".join(broken))
+
+
+def _compare(names: list[str], impostors, part, random_count: int, outside_count: int, seed: int, prefer: str, as_json: bool) -> list:
     """Several bundles of one part and view cell: each evaluated alike, side by side, and the one to use."""
     check_comparable(names, impostors)
     results = [get_technique(i.technique).evaluate(part, i, random_count, outside_count, seed) for i in impostors]
@@ -52,7 +72,7 @@ def _compare(names: list[str], impostors, part, random_count: int, outside_count
     if as_json:
         rows = [{**c.to_dict(), "evaluation": r.to_dict()} for c, r in zip(candidates, results)]
         click.echo(json.dumps({"bundles": rows, "prefer": prefer, "choice": candidates[choice.index].name, "reason": choice.reason}, indent=2))
-        return
+        return results
     width = max(len("bundle"), *(len(n) for n in names))
     click.echo(f"{'bundle':<{width}} {'technique':<9} {'triangles':>9} {'memory KiB':>10} {'holes':>6} {'>1px':>6} {'err mean':>9} {'bake s':>7}")
     for c in candidates:
@@ -63,3 +83,4 @@ def _compare(names: list[str], impostors, part, random_count: int, outside_count
         )
     click.echo(f"{results[0].totals['viewpoints']} viewpoints inside the view cell for each (hole pixels, pixels bloated beyond 1 px, mean colour error 0-255)")
     click.echo(f"use {choice.reason}")
+    return results

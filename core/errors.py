@@ -70,6 +70,13 @@ class ComparisonError(FarfieldError):
     """Impostors that cannot be compared side by side (other parts, cells or images), or none."""
 
 
+class GuaranteeError(FarfieldError):
+    """An impostor that breaks its promise from inside its view cell: a hole pixel, or a pixel
+    bloated beyond one (``farfield evaluate --check``)."""
+
+    kind = ErrorKind.CONFLICT
+
+
 class BundleFormatError(FarfieldError):
     """An impostor bundle on disk is malformed or of an unknown version."""
 

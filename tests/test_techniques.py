@@ -174,6 +174,21 @@ def test_cli_bake_takes_options_and_refuses_other_techniques_flags(tmp_path):
     assert not (tmp_path / "b").exists() and not (tmp_path / "c").exists()
 
 
+def test_evaluate_check_fails_on_a_broken_guarantee(tmp_path):
+    _register()
+    scene_file = write_scene(part_scene(), tmp_path, "glb", "block")
+    taller = Scene.from_objects([box_object("block", (-5.0, 0.0, -5.0), (5.0, 14.0, 5.0), (0.8, 0.35, 0.2, 1.0))], source="taller")
+    taller_file = write_scene(taller, tmp_path, "glb", "taller")
+    bake = ["bake", str(scene_file), "--objects", "block", "--viewcell", "box:-2,3,-27,2,7,-23", "--resolution", "256", "--quiet", "--out", str(tmp_path / "b")]
+    assert CliRunner().invoke(cli, bake).exit_code == 0
+    evaluate = ["evaluate", str(tmp_path / "b"), "--random", "2", "--outside", "0", "--check"]
+    kept = CliRunner().invoke(cli, [*evaluate[:2], str(scene_file), *evaluate[2:]])
+    assert kept.exit_code == 0, kept.output
+    # The same impostor against a taller block: what it lacks shows as hole pixels, and --check says so.
+    broken = CliRunner().invoke(cli, [*evaluate[:2], str(taller_file), *evaluate[2:]])
+    assert broken.exit_code == 4 and "hole pixels" in broken.output and "farfield: error: from inside the view cell" in broken.output
+
+
 def test_route_cli_and_registry_agree(service, client, tmp_path):
     registry = {"techniques": [t.describe() for t in TECHNIQUES.values()]}
     response = client.get("/v1/techniques")
