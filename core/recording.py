@@ -31,7 +31,8 @@ import numpy as np
 from farfield.core.layers import LayerPlan
 from farfield.core.render.alpha_mips import max_alpha_levels
 from farfield.core.render.context import gl_context
-from farfield.core.render.programs import park_framebuffer, program, set_material
+from farfield.core.render.cut_colours import premultiplied_linear
+from farfield.core.render.programs import park_framebuffer, program, set_material, srgb_texture
 from farfield.core.scene import Scene, SceneObject
 
 # Most vertices a triangle keeps after clipping to a slab: each of the two planes adds at most one.
@@ -306,19 +307,23 @@ def _instance_records(instances: SlabInstances, obj: SceneObject) -> np.ndarray:
 
 
 def _object_textures(ctx: moderngl.Context, obj: SceneObject):
-    """The object's base-colour texture and max-alpha mip chain (None where it has none)."""
-    texture = alpha = None
+    """The object's base-colour texture, and for an alpha-cut one its mipmapped premultiplied
+    colours (:mod:`core.render.cut_colours`) and max-alpha mip chain (None where it has none)."""
+    texture = cut = alpha = None
     if obj.texture is not None:
-        image = np.ascontiguousarray(obj.texture[::-1])  # top row first -> GL's bottom row first
-        texture = ctx.texture((image.shape[1], image.shape[0]), 4, image.tobytes())
+        texture = srgb_texture(ctx, obj.texture)
         if obj.alpha_cutoff is not None:
+            image = np.ascontiguousarray(premultiplied_linear(obj.texture)[::-1])
+            cut = ctx.texture((image.shape[1], image.shape[0]), 4, image.tobytes(), dtype="f2")
+            cut.build_mipmaps()
+            cut.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
             levels = max_alpha_levels(obj.texture[..., 3])
             alpha = ctx.texture((levels[0].shape[1], levels[0].shape[0]), 1, dtype="f1")
             alpha.build_mipmaps(0, len(levels) - 1)
             for level, data in enumerate(levels):
                 alpha.write(np.ascontiguousarray(data[::-1]).tobytes(), level=level)
             alpha.filter = (moderngl.NEAREST_MIPMAP_NEAREST, moderngl.NEAREST)
-    return texture, alpha
+    return texture, cut, alpha
 
 
 def iter_layers(
@@ -370,9 +375,9 @@ def iter_layers(
         owned.append(vao)
         textures = []
         for obj, _, _ in draws:
-            texture, alpha = _object_textures(ctx, obj)
-            owned += [t for t in (texture, alpha) if t is not None]
-            textures.append((texture, alpha))
+            made = _object_textures(ctx, obj)
+            owned += [t for t in made if t is not None]
+            textures.append(made)
         per_layer = np.zeros(k, dtype=np.int64)
         for _, offsets, _ in draws:
             per_layer += np.diff(offsets)
@@ -394,18 +399,22 @@ def iter_layers(
             fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
             prog["slab"].value = (float(slabs[i]), float(slabs[i + 1]))
             drawn = 0
-            for (obj, offsets, records), (texture, alpha) in zip(draws, textures):
+            for (obj, offsets, records), (texture, cut, alpha) in zip(draws, textures):
                 count = int(offsets[i + 1] - offsets[i])
                 if count == 0:
                     continue
                 set_material(prog, obj, texture)
                 prog["has_alpha_mip"].value = alpha is not None
+                if texture is not None:
+                    prog["texture_size"].value = (float(texture.width), float(texture.height))
+                if cut is not None:
+                    cut.use(2)
+                    prog["cut_texture"].value = 2
                 if alpha is not None:
                     alpha.use(1)
                     prog["alpha_mip"].value = 1
                     prog["alpha_mip_size"].value = (float(alpha.width), float(alpha.height))
                     prog["alpha_mip_levels"].value = int(np.log2(max(alpha.width, alpha.height))) + 1
-                    prog["texture_size"].value = (float(texture.width), float(texture.height))
                 stream.orphan()
                 stream.write(records[offsets[i] : offsets[i + 1]])
                 vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)

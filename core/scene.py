@@ -17,7 +17,10 @@ Conventions
   :func:`sample_texture`.  To upload to GL (whose first row is ``t = 0``) flip the rows,
   ``texture[::-1]``, and use ``uv`` unchanged.
 * Colour of a surface point = texture (if any) x vertex colour (if any) x ``base_color``, each
-  RGBA in 0..1 (the glTF 2.0 base-colour rule).  The summary names the *dominant* source:
+  RGBA in 0..1 (the glTF 2.0 base-colour rule), multiplied in linear light: ``base_color`` is
+  **linear**, ``vertex_colors`` and ``texture`` are **sRGB-encoded** (alpha is linear in all
+  three).  The loaders convert what a format states or implies (:mod:`core.exchange.trimesh_scene`,
+  :mod:`core.colour_space`).  The summary names the *dominant* source:
   ``"texture"`` if there is a texture, else ``"vertex"`` if there are vertex colours, else
   ``"material"``.
 * ``alpha_cutoff`` is ``None`` for opaque objects (alpha is ignored).  Otherwise a fragment whose
@@ -37,7 +40,9 @@ from farfield.core.errors import DegenerateGeometryError, SceneLoadError
 
 # Version of the content-hash recipe; bump it when the recipe changes so old hashes never collide
 # with new ones.
-HASH_VERSION = b"farfield-scene-hash-v1"
+# v2: colours are defined in colour spaces (base_color linear, vertex colours and textures sRGB), so
+# equal arrays read under v1 meant other colours.
+HASH_VERSION = b"farfield-scene-hash-v2"
 
 # glTF's default baseColorFactor (glTF 2.0, material.pbrMetallicRoughness): opaque white.
 DEFAULT_BASE_COLOR = (1.0, 1.0, 1.0, 1.0)
@@ -81,11 +86,12 @@ class SceneObject:
     uv : (v, 2) float64 or None
         Texture coordinates, origin bottom-left, v up (see the module docstring).
     vertex_colors : (v, 4) uint8 or None
-        Per-vertex RGBA.
+        Per-vertex RGBA, RGB sRGB-encoded.
     base_color : (4,) float64
-        Material RGBA factor in 0..1 (glTF ``baseColorFactor``, OBJ ``Kd`` and ``d``).
+        Material RGBA factor in 0..1, linear (glTF ``baseColorFactor``; OBJ ``Kd`` decoded from
+        sRGB, and ``d``).
     texture : (h, w, 4) uint8 or None
-        Base-colour RGBA image, top row first.  Requires ``uv``.
+        Base-colour RGBA image, RGB sRGB-encoded, top row first.  Requires ``uv``.
     alpha_cutoff : float or None
         Alpha-mask threshold in 0..1, or None for opaque.
 
@@ -101,9 +107,9 @@ class SceneObject:
     vertices: np.ndarray  # (v, 3) float64, world units
     faces: np.ndarray  # (f, 3) int64
     uv: np.ndarray | None = None  # (v, 2) float64, origin bottom-left
-    vertex_colors: np.ndarray | None = None  # (v, 4) uint8 RGBA
-    base_color: np.ndarray = DEFAULT_BASE_COLOR  # (4,) float64 RGBA in 0..1
-    texture: np.ndarray | None = None  # (h, w, 4) uint8 RGBA, top row first
+    vertex_colors: np.ndarray | None = None  # (v, 4) uint8 RGBA, sRGB-encoded RGB
+    base_color: np.ndarray = DEFAULT_BASE_COLOR  # (4,) float64 RGBA in 0..1, linear
+    texture: np.ndarray | None = None  # (h, w, 4) uint8 RGBA, sRGB-encoded RGB, top row first
     alpha_cutoff: float | None = None
     bounds: np.ndarray = field(init=False, repr=False)  # (2, 3) float64: min, max corner
 

@@ -20,6 +20,7 @@ import PIL.Image
 import trimesh
 from trimesh.visual.material import PBRMaterial
 
+from farfield.core.colour_space import linear_to_srgb, srgb_to_linear
 from farfield.core.exchange import load_scene
 from farfield.core.scene import Scene, SceneObject
 
@@ -240,6 +241,8 @@ def to_trimesh(scene: Scene) -> trimesh.Scene:
 
     Textured objects get a glTF material with ``baseColorTexture`` (and ``alphaMode: MASK`` when
     ``alpha_cutoff`` is set), vertex-coloured ones vertex colours, the rest a ``baseColorFactor``.
+    Colours go in glTF's spaces: the factor linear as it is, vertex colours decoded from sRGB to
+    linear bytes (so they come back within the 8-bit quantisation, not bit for bit).
     """
     out = trimesh.Scene()
     for obj in scene.objects:
@@ -253,7 +256,9 @@ def to_trimesh(scene: Scene) -> trimesh.Scene:
             )
             visual = trimesh.visual.TextureVisuals(uv=None if obj.uv is None else np.array(obj.uv), material=material)
         else:
-            visual = trimesh.visual.ColorVisuals(vertex_colors=np.array(obj.vertex_colors))
+            linear = np.array(obj.vertex_colors)
+            linear[:, :3] = np.round(srgb_to_linear(linear[:, :3] / 255.0) * 255.0)
+            visual = trimesh.visual.ColorVisuals(vertex_colors=linear)
         mesh = trimesh.Trimesh(np.array(obj.vertices), np.array(obj.faces), visual=visual, process=False)
         out.add_geometry(mesh, geom_name=obj.name, node_name=obj.name)
     return out
@@ -262,7 +267,8 @@ def to_trimesh(scene: Scene) -> trimesh.Scene:
 def write_obj(scene: Scene, path: Path, texture_names: dict[str, str] | None = None, skip_textures: bool = False) -> Path:
     """Write ``scene`` as ``path`` (OBJ) + an MTL beside it + one PNG per textured object.
 
-    One ``o`` per object with its own material ``<name>_mat`` (``Kd``, ``d``, ``map_Kd``).
+    One ``o`` per object with its own material ``<name>_mat`` (``Kd`` sRGB-encoded, as MTL files
+    are authored, ``d``, ``map_Kd``).
     ``texture_names`` maps object name to the PNG file name to reference; ``skip_textures``
     references the PNGs without writing them (the missing-texture case).
     """
@@ -274,7 +280,8 @@ def write_obj(scene: Scene, path: Path, texture_names: dict[str, str] | None = N
         material = f"{obj.name}_mat"
         obj_lines += [f"o {obj.name}", f"usemtl {material}"]
         obj_lines += ["v {:.17g} {:.17g} {:.17g}".format(*v) for v in obj.vertices.tolist()]
-        r, g, b, a = obj.base_color.tolist()
+        r, g, b = linear_to_srgb(obj.base_color[:3]).tolist()
+        a = float(obj.base_color[3])
         mtl_lines += [f"newmtl {material}", f"Kd {r:.17g} {g:.17g} {b:.17g}", f"d {a:.17g}"]
         if obj.uv is not None:
             obj_lines += ["vt {:.17g} {:.17g}".format(*t) for t in obj.uv.tolist()]

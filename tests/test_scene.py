@@ -135,7 +135,8 @@ def test_glb_vertex_colours_survive(tmp_path):
     loaded = load_scene(scenes.write_scene(forest, tmp_path, "glb"))
     for original, obj in zip(forest.objects, loaded.objects):
         assert obj.name == original.name and obj.colour_source == "vertex"
-        np.testing.assert_array_equal(obj.vertex_colors, original.vertex_colors)
+        # COLOR_0 is linear in glTF and stored as bytes: back within that quantisation.
+        np.testing.assert_allclose(obj.vertex_colors, original.vertex_colors, atol=2)
 
 
 def test_multi_object_obj_keeps_names_and_triangles(tmp_path):

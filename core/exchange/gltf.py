@@ -97,5 +97,5 @@ def load(
         f"texture {uri!r} not found; objects using it fall back to their material colour"
         for uri in missing_images(header_json(data), resolver)
     ]
-    objects, more = objects_from_trimesh(parse(data, extension, resolver))
+    objects, more = objects_from_trimesh(parse(data, extension, resolver), linear_colours=True)
     return objects, tuple(warnings) + more

@@ -17,6 +17,12 @@ Colour rules (see :mod:`core.scene` for the colour model):
   uniform, else the faces are unshared so that each corner carries its face's colour.
 * A texture of a single colour is folded into ``base_color`` (trimesh invents a 2 x 2 grey one
   for uv without a material).  ``uv`` is kept only for textured objects.
+
+Colour spaces (:mod:`core.colour_space`): ``base_color`` is linear and vertex colours and textures
+sRGB-encoded.  glTF states its own (§3.9.2: ``baseColorFactor`` and ``COLOR_0`` linear, textures
+sRGB), so with ``linear_colours`` its factor is kept and its ``COLOR_0`` encoded.  OBJ/MTL ``Kd``,
+PLY and face colours have no stated space; they are authored and shown as sRGB values (three.js's
+MTL, OBJ and PLY loaders read them so), so their factors are decoded and vertex colours kept.
 """
 
 from __future__ import annotations
@@ -33,6 +39,7 @@ import trimesh
 from trimesh.resolvers import FilePathResolver, Resolver, ZipResolver
 from trimesh.visual.material import PBRMaterial, SimpleMaterial
 
+from farfield.core.colour_space import encode_rgba_u8, srgb_to_linear
 from farfield.core.errors import SceneLoadError
 from farfield.core.scene import SceneObject
 
@@ -123,11 +130,15 @@ def texture_rgba(image: PIL.Image.Image) -> np.ndarray:
     return np.asarray(image, dtype=np.uint8)
 
 
-def _rgba_unit(color: np.ndarray | None) -> np.ndarray:
-    """(4,) float64 in 0..1 from trimesh's (4,) uint8 colour; white when None."""
+def _rgba_unit(color: np.ndarray | None, srgb: bool) -> np.ndarray:
+    """(4,) float64 linear RGBA in 0..1 from trimesh's (4,) uint8 colour (sRGB-encoded RGB when
+    ``srgb``); white when None."""
     if color is None:
         return np.ones(4)
-    return np.asarray(color, dtype=np.float64) / 255.0
+    rgba = np.asarray(color, dtype=np.float64) / 255.0
+    if srgb:
+        rgba[:3] = srgb_to_linear(rgba[:3])
+    return rgba
 
 
 def _mtl_alpha(material: SimpleMaterial) -> float:
@@ -157,16 +168,17 @@ class _Colours:
 
 
 def _texture_colours(
-    mesh: trimesh.Trimesh, name: str, textures: dict, warnings: list[str]
+    mesh: trimesh.Trimesh, name: str, textures: dict, warnings: list[str], linear: bool
 ) -> _Colours:
-    """Colour sources of a mesh with ``TextureVisuals`` (a material, maybe uv and a texture)."""
+    """Colour sources of a mesh with ``TextureVisuals`` (a material, maybe uv and a texture);
+    ``linear``: the file's factors and vertex colours are linear (glTF)."""
     visual = mesh.visual
     material = visual.material
     out = _Colours()
     image = None
     if isinstance(material, PBRMaterial):
         image = material.baseColorTexture
-        out.base_color = _rgba_unit(material.baseColorFactor)
+        out.base_color = _rgba_unit(material.baseColorFactor, srgb=not linear)
         mode = material.alphaMode
         if mode == "MASK":
             cutoff = material.alphaCutoff
@@ -178,16 +190,18 @@ def _texture_colours(
             )
     elif isinstance(material, SimpleMaterial):
         image = material.image
-        out.base_color = _rgba_unit(material.diffuse)
+        out.base_color = _rgba_unit(material.diffuse, srgb=True)
         if image is not None:
             out.base_color[:3] = 1.0
         out.base_color[3] = _mtl_alpha(material)
     elif material is not None:
-        out.base_color = _rgba_unit(material.main_color)
+        out.base_color = _rgba_unit(material.main_color, srgb=not linear)
 
     colors = getattr(visual, "vertex_attributes", {}).get("color")
     if colors is not None and len(colors) == len(mesh.vertices):
         out.vertex_colors = trimesh.visual.color.to_rgba(colors)
+        if linear:
+            out.vertex_colors = encode_rgba_u8(out.vertex_colors)
 
     if image is None:
         return out
@@ -212,38 +226,43 @@ def _texture_colours(
     if (texels == texels[0]).all():
         # One colour (e.g. the 2 x 2 placeholder trimesh gives uv without a material): the same
         # as a material colour, which is cheaper and names the colour source truthfully.
-        out.base_color = out.base_color * (texels[0] / 255.0)
+        out.base_color = out.base_color * _rgba_unit(texels[0], srgb=True)
         return out
     out.texture = texture
     out.uv = np.asarray(uv, dtype=np.float64)
     return out
 
 
-def _mesh_colours(mesh: trimesh.Trimesh, name: str, textures: dict, warnings: list[str]):
-    """(vertices, faces, colours) of a mesh in its own frame; face colours may unshare vertices."""
+def _mesh_colours(mesh: trimesh.Trimesh, name: str, textures: dict, warnings: list[str], linear: bool):
+    """(vertices, faces, colours) of a mesh in its own frame; face colours may unshare vertices.
+    ``linear``: the file's factors and vertex colours are linear (glTF)."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64)
     visual = mesh.visual
     if isinstance(visual, trimesh.visual.TextureVisuals):
-        return vertices, faces, _texture_colours(mesh, name, textures, warnings)
+        return vertices, faces, _texture_colours(mesh, name, textures, warnings, linear)
     out = _Colours()
     kind = getattr(visual, "kind", None)
     if kind == "vertex":
         out.vertex_colors = np.asarray(visual.vertex_colors, dtype=np.uint8)
+        if linear:
+            out.vertex_colors = encode_rgba_u8(out.vertex_colors)
     elif kind == "face":
         face_colors = np.asarray(visual.face_colors, dtype=np.uint8)
         if (face_colors == face_colors[0]).all():
-            out.base_color = _rgba_unit(face_colors[0])
+            out.base_color = _rgba_unit(face_colors[0], srgb=not linear)
         else:
             # The model has no face colours: give every face its own three corners.
             vertices = vertices[faces].reshape(-1, 3)
             faces = np.arange(len(vertices), dtype=np.int64).reshape(-1, 3)
             out.vertex_colors = np.repeat(face_colors, 3, axis=0)
+            if linear:
+                out.vertex_colors = encode_rgba_u8(out.vertex_colors)
     return vertices, faces, out
 
 
 def objects_from_trimesh(
-    scene: trimesh.Scene, rename: Mapping[str, str] | None = None
+    scene: trimesh.Scene, rename: Mapping[str, str] | None = None, linear_colours: bool = False
 ) -> tuple[tuple[SceneObject, ...], tuple[str, ...]]:
     """World-space :class:`SceneObject` s, one per geometry node of ``scene``, and warnings.
 
@@ -253,6 +272,9 @@ def objects_from_trimesh(
         As parsed; its geometry is not modified.
     rename : mapping of str to str, or None
         Object name for a node name; nodes not in it keep their node name.
+    linear_colours : bool
+        The file's colour factors and vertex colours are linear (glTF); otherwise sRGB values
+        (OBJ/MTL, PLY, STL).  See the module docstring.
 
     Returns
     -------
@@ -275,7 +297,7 @@ def objects_from_trimesh(
         if len(mesh.faces) == 0:
             warnings.append(f"node {name!r}: skipped a mesh without triangles")
             continue
-        vertices, faces, colours = _mesh_colours(mesh, name, textures, warnings)
+        vertices, faces, colours = _mesh_colours(mesh, name, textures, warnings, linear_colours)
         if vertices.ndim != 2 or vertices.shape[1] != 3:
             # trimesh keeps OBJ ``v`` lines of two numbers as (v, 2) vertices.
             raise SceneLoadError(f"object {name!r}: vertices have shape {vertices.shape}, expected (v, 3)")

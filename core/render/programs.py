@@ -1,13 +1,16 @@
 """Shader programs keyed by their shader files, cached on the process's context, and context bookkeeping.
 
-Shaders live as ``.vert`` / ``.geom`` / ``.frag`` files in ``core/render/shaders``.
+Shaders live as ``.vert`` / ``.geom`` / ``.frag`` files in ``core/render/shaders``; a line
+``#include "name.glsl"`` is replaced by that file of the same folder (one level, no guards).
 """
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import moderngl
+import numpy as np
 
 SHADERS = Path(__file__).resolve().parent / "shaders"
 
@@ -19,15 +22,23 @@ def context_cache(ctx: moderngl.Context) -> dict:
     return ctx.extra
 
 
+_INCLUDE = re.compile(r'^#include "([\w.-]+)"\s*$', re.MULTILINE)
+
+
+def shader_source(name: str) -> str:
+    """The text of shader file ``name`` with its ``#include`` lines expanded."""
+    return _INCLUDE.sub(lambda m: (SHADERS / m.group(1)).read_text(), (SHADERS / name).read_text())
+
+
 def program(ctx: moderngl.Context, vertex: str, fragment: str, geometry: str | None = None) -> moderngl.Program:
     """The program made of the named shader files (e.g. ``"mesh.vert"``), compiled once per context."""
     key = ("program", vertex, geometry, fragment)
     cache = context_cache(ctx)
     if key not in cache:
         cache[key] = ctx.program(
-            vertex_shader=(SHADERS / vertex).read_text(),
-            geometry_shader=(SHADERS / geometry).read_text() if geometry else None,
-            fragment_shader=(SHADERS / fragment).read_text(),
+            vertex_shader=shader_source(vertex),
+            geometry_shader=shader_source(geometry) if geometry else None,
+            fragment_shader=shader_source(fragment),
         )
     return cache[key]
 
@@ -44,9 +55,28 @@ def park_framebuffer(ctx: moderngl.Context) -> None:
     cache["parking"].use()
 
 
+# GL_SRGB8_ALPHA8: the GL decodes texels to linear before filtering (and builds mipmaps in linear).
+SRGB8_ALPHA8 = 0x8C43
+
+
+def srgb_texture(ctx: moderngl.Context, rgba: np.ndarray, mipmaps: bool = False) -> moderngl.Texture:
+    """A base-colour texture of (h, w, 4) uint8 sRGB-encoded RGBA, top row first: rows flipped to
+    GL's order, sampled as linear light, bilinear (trilinear over mipmaps built when ``mipmaps``),
+    repeating (glTF's default sampler)."""
+    image = np.ascontiguousarray(rgba[::-1])
+    texture = ctx.texture((image.shape[1], image.shape[0]), 4, image.tobytes(), internal_format=SRGB8_ALPHA8)
+    if mipmaps:
+        texture.build_mipmaps()
+        texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+    else:
+        texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
+    return texture
+
+
 def set_material(prog: moderngl.Program, obj, texture: moderngl.Texture | None) -> None:
     """Set the unlit-material uniforms every farfield shader shares (glTF's base colour rule):
-    ``base_color``, ``alpha_cutoff`` (-1: opaque), ``has_texture`` and ``base_texture`` on unit 0.
+    ``base_color`` (linear), ``alpha_cutoff`` (-1: opaque), ``has_texture`` and ``base_texture``
+    on unit 0 (an :func:`srgb_texture`).
 
     ``obj`` is a :class:`core.scene.SceneObject`; ``texture`` its uploaded base-colour texture.
     """

@@ -16,7 +16,7 @@ import numpy as np
 
 from farfield.core.errors import RenderBackendError, ViewCellError
 from farfield.core.render.context import gl_context
-from farfield.core.render.programs import park_framebuffer, program, set_material
+from farfield.core.render.programs import park_framebuffer, program, set_material, srgb_texture
 from farfield.core.scene import SceneObject
 
 @dataclass(frozen=True, slots=True)
@@ -101,11 +101,9 @@ class MeshRenderer:
             vbo = ctx.buffer(np.ascontiguousarray(data).tobytes())
             ibo = ctx.buffer(obj.faces.astype("<u4").tobytes())
             vao = ctx.vertex_array(self.program, [(vbo, "3f 2f 4f", "in_position", "in_uv", "in_color")], ibo)
-            texture = None
-            if obj.texture is not None:
-                image = np.ascontiguousarray(obj.texture[::-1])
-                texture = ctx.texture((image.shape[1], image.shape[0]), 4, image.tobytes())
-                texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
+            # The geometry as it is: alpha tested texel by texel, no mipmaps (their averaged alpha
+            # would thin an alpha-cut part with distance, a property of one viewer, not of the part).
+            texture = srgb_texture(ctx, obj.texture) if obj.texture is not None else None
             self._owned += [vbo, ibo, vao] + ([texture] if texture is not None else [])
             if clip is None:
                 clip_offset, clip_half, opened = np.zeros(3), 0.0, ()

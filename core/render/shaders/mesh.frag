@@ -1,5 +1,7 @@
 #version 330
-// Unlit base colour: base_color x vertex colour x texture (glTF's rule), alpha-masked.
+// Unlit base colour: base_color x vertex colour x texture (glTF's rule) in linear light, alpha-
+// masked, written sRGB-encoded (core/colour_space.py).  The texture is an sRGB texture (decoded by
+// the GL before filtering); vertex colours arrive sRGB-encoded (mesh.vert decodes them).
 uniform sampler2D base_texture;
 uniform bool has_texture;
 uniform vec4 base_color;
@@ -11,6 +13,9 @@ in vec2 v_uv;
 in vec4 v_color;
 in vec3 v_clip;
 out vec4 frag_color;
+
+#include "colour.glsl"
+
 void main() {
     vec3 a = abs(v_clip);
     float norm = max(max(a.x, a.y), a.z);
@@ -23,5 +28,5 @@ void main() {
     vec4 c = base_color * v_color;
     if (has_texture) { c *= texture(base_texture, v_uv); }
     if (alpha_cutoff >= 0.0 && c.a < alpha_cutoff) { discard; }
-    frag_color = vec4(c.rgb, 1.0);
+    frag_color = vec4(linear_to_srgb(c.rgb), 1.0);
 }

@@ -11,11 +11,14 @@ in vec4 in_color;
 out vec2 v_uv;
 out vec4 v_color;
 out vec3 v_clip;              // position relative to the clip cube's centre
+
+#include "colour.glsl"
+
 void main() {
     vec3 e = (eye_from_local * vec4(in_position, 1.0)).xyz;
     float n = depth_range.x, f = depth_range.y;
     gl_Position = vec4(e.x / half_tan.x, e.y / half_tan.y, (f + n) / (f - n) * e.z - 2.0 * f * n / (f - n), e.z);
     v_uv = in_uv;
-    v_color = in_color;
+    v_color = vec4(srgb_to_linear(in_color.rgb), in_color.a);  // interpolated in linear light
     v_clip = in_position + clip_offset;
 }

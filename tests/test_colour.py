@@ -1,0 +1,134 @@
+"""What colour people see: glTF's colour spaces, sRGB atlas pages, and alpha-cut texels that never
+take the RGB of transparent texels.
+
+The expected values come from the specifications, not from farfield's own renderer: glTF 2.0's
+``baseColorFactor`` and ``COLOR_0`` are linear and textures sRGB (a factor of 0.502 is shown as
+188 of 255, as three.js shows it); an MTL ``Kd`` of 0.5 is an sRGB value, shown as 128.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from scenes import SHARED_SCENES, write_scene
+from trimesh.visual.material import PBRMaterial
+
+from farfield.core.colour_space import linear_to_srgb, srgb_to_linear
+from farfield.core.exchange import load_scene
+from farfield.core.render.raster import Camera, MeshRenderer
+from farfield.core.scene import Scene, SceneObject
+from farfield.core.techniques import get_technique
+from farfield.core.viewcells import BoxCell
+
+GREY, VIOLET = (188, 188, 188), (188, 137, 229)  # 0.502 linear, and (128, 64, 200) linear bytes
+
+
+def two_box_glb(path: Path) -> Path:
+    """Two boxes: one with ``baseColorFactor`` 0.502, one with ``COLOR_0`` (128, 64, 200) bytes."""
+    grey = trimesh.creation.box(extents=(4, 4, 4))
+    grey.apply_translation((-3, 0, 0))
+    grey.visual = trimesh.visual.TextureVisuals(material=PBRMaterial(baseColorFactor=[0.502, 0.502, 0.502, 1.0]))
+    violet = trimesh.creation.box(extents=(4, 4, 4))
+    violet.apply_translation((3, 0, 0))
+    colours = np.tile(np.array([128, 64, 200, 255], dtype=np.uint8), (len(violet.vertices), 1))
+    violet.visual = trimesh.visual.ColorVisuals(violet, vertex_colors=colours)
+    scene = trimesh.Scene()
+    scene.add_geometry(grey, node_name="grey")
+    scene.add_geometry(violet, node_name="violet")
+    path.write_bytes(scene.export(file_type="glb"))
+    return path
+
+
+def dominant_colours(pages, least: int = 20) -> set[tuple[int, int, int]]:
+    """The RGB values of at least ``least`` opaque texels on the atlas pages."""
+    found = set()
+    for page in pages:
+        colours, counts = np.unique(page[page[..., 3] > 0][:, :3], axis=0, return_counts=True)
+        found |= {tuple(int(v) for v in c) for c, n in zip(colours, counts) if n >= least}
+    return found
+
+
+def front_view(scene: Scene, resolution: int = 64) -> np.ndarray:
+    centre = 0.5 * (scene.bounds[0] + scene.bounds[1])
+    camera = Camera.look_at(centre + [0.0, 0.0, 20.0], centre, np.radians(45.0), resolution, 1.0, 60.0)
+    with MeshRenderer(scene.objects) as renderer:
+        return renderer.render(camera)
+
+
+def test_gltf_factor_and_vertex_colours_are_linear_and_atlas_pages_are_srgb(tmp_path):
+    scene = load_scene(two_box_glb(tmp_path / "boxes.glb"))
+    by_name = {obj.name: obj for obj in scene.objects}
+    assert tuple(by_name["violet"].vertex_colors[0]) == (*VIOLET, 255)  # encoded on load
+    image = front_view(scene)
+    seen = {tuple(int(v) for v in px) for px in image[image[..., 3] > 0][:, :3]}
+    assert seen == {GREY, VIOLET}  # the geometry drawn as glTF says
+    technique = get_technique("layered")
+    cell = BoxCell(np.array([-2.0, -2.0, 18.0]), np.array([2.0, 2.0, 22.0]))
+    impostor = technique.bake(scene, cell, technique.options({}, 64, 45.0), None, None)
+    assert dominant_colours(impostor.pages) == {GREY, VIOLET}
+
+
+def test_gltf_texture_times_factor_multiplies_in_linear_light(tmp_path):
+    texture = np.full((4, 4, 4), 255, dtype=np.uint8)
+    texture[..., :3] = 128
+    quad = SceneObject(
+        "quad", np.array([[-2.0, -2.0, 0.0], [2.0, -2.0, 0.0], [2.0, 2.0, 0.0], [-2.0, 2.0, 0.0]]),
+        np.array([[0, 1, 2], [0, 2, 3]]), uv=np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]),
+        texture=texture, base_color=(0.5, 0.5, 0.5, 1.0),
+    )  # fmt: skip
+    loaded = load_scene(write_scene(Scene.from_objects([quad], "quad"), tmp_path, "glb"))
+    want = round(float(linear_to_srgb(0.5 * srgb_to_linear(128 / 255))) * 255)  # 93, not 64
+    image = front_view(loaded)
+    assert np.abs(image[image[..., 3] > 0][:, :3].astype(int) - want).max() <= 1
+
+
+def test_mtl_kd_is_an_srgb_value(tmp_path):
+    (tmp_path / "box.mtl").write_text("newmtl grey\nKd 0.5 0.5 0.5\n")
+    box = trimesh.creation.box(extents=(4, 4, 4))
+    lines = ["mtllib box.mtl", "usemtl grey"] + [f"v {x} {y} {z}" for x, y, z in box.vertices.tolist()]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in box.faces.tolist()]
+    (tmp_path / "box.obj").write_text("\n".join(lines) + "\n")
+    scene = load_scene(tmp_path / "box.obj")
+    np.testing.assert_allclose(scene.objects[0].base_color[:3], srgb_to_linear(128 / 255), rtol=1e-6)  # trimesh: bytes
+    image = front_view(scene)
+    assert {tuple(int(v) for v in px) for px in image[image[..., 3] > 0][:, :3]} == {(128, 128, 128)}
+
+
+def cut_texture(size: int = 64) -> np.ndarray:
+    """Thin green stripes, one texel wide every fourth column, on transparent black texels."""
+    texture = np.zeros((size, size, 4), dtype=np.uint8)
+    texture[:, ::4] = (60, 160, 40, 255)
+    return texture
+
+
+def test_alpha_cut_texels_never_take_the_transparent_texels_rgb(tmp_path):
+    """Minified stripes: every texel is kept (some stripe lies under each), and none may be black."""
+    vertices = np.array([[-2.0, -2.0, 0.0], [2.0, -2.0, 0.0], [2.0, 2.0, 0.0], [-2.0, 2.0, 0.0]])
+    quad = SceneObject(
+        "stripes", vertices, np.array([[0, 1, 2], [0, 2, 3]]), uv=(vertices[:, :2] + 2.0) / 4.0,
+        texture=cut_texture(), alpha_cutoff=0.5,
+    )  # fmt: skip
+    scene = Scene.from_objects([quad], "stripes")
+    technique = get_technique("layered")
+    cell = BoxCell(np.array([-0.5, -0.5, 29.5]), np.array([0.5, 0.5, 30.5]))
+    impostor = technique.bake(scene, cell, technique.options({}, 64, 45.0), None, None)
+    texels = np.concatenate([page[page[..., 3] > 0][:, :3] for page in impostor.pages]).astype(int)
+    assert len(texels) > 50
+    assert (texels.max(axis=1) < 20).sum() == 0
+    # The stripes' own colour (alpha-weighted: the transparent texels add nothing), within rounding.
+    assert np.abs(texels - (60, 160, 40)).max() <= 2
+
+
+@pytest.mark.skipif(not (SHARED_SCENES / "scrub_pine/scrubPine.obj").exists(), reason="needs ../shared/scenes")
+def test_pine_atlas_has_no_black_fringes():
+    """The issue's case: 15,735 of 36,037 opaque atlas texels were near black (max RGB < 20)."""
+    scene = load_scene(SHARED_SCENES / "scrub_pine/scrubPine.obj")
+    technique = get_technique("layered")
+    cell = BoxCell.from_center([-2500.0, 470.0, 0.0], 100.0)
+    impostor = technique.bake(scene, cell, technique.options({}, 256, 45.0), None, None)
+    texels = np.concatenate([page[page[..., 3] > 0][:, :3] for page in impostor.pages])
+    assert len(texels) > 5000
+    assert (texels.max(axis=1) < 20).mean() < 0.01
