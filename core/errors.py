@@ -44,6 +44,13 @@ class SceneLoadError(FarfieldError):
     """A scene file could not be read, parsed or validated."""
 
 
+class SceneTooCostlyError(SceneLoadError):
+    """A scene file whose structure (nodes, nesting, primitives, instanced triangles) is beyond the
+    configured limits, refused before it is parsed in full."""
+
+    kind = ErrorKind.TOO_LARGE
+
+
 class SceneNotFoundError(SceneLoadError):
     """A scene file does not exist."""
 

@@ -21,17 +21,18 @@ from trimesh.resolvers import Resolver
 
 from farfield.core.errors import FarfieldError, SceneLoadError, SceneNotFoundError
 from farfield.core.exchange import gltf, obj, ply, stl
+from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
 from farfield.core.exchange.trimesh_scene import asset_resolver
 from farfield.core.scene import Scene, SceneObject, SceneWarning
 
-Loader = Callable[[bytes, str, str, Resolver], tuple[tuple[SceneObject, ...], tuple[str, ...]]]
+Loader = Callable[..., tuple[tuple[SceneObject, ...], tuple[str, ...]]]  # (data, extension, name, resolver, limits)
 
 # Lower-case extension without the dot -> loader.
 LOADERS: dict[str, Loader] = {
     extension: module.load for module in (gltf, obj, ply, stl) for extension in module.EXTENSIONS
 }
 
-__all__ = ["LOADERS", "load_scene", "load_scene_bytes", "supported_extensions"]
+__all__ = ["DEFAULT_LIMITS", "LOADERS", "SceneLimits", "load_scene", "load_scene_bytes", "supported_extensions"]
 
 
 def supported_extensions() -> tuple[str, ...]:
@@ -51,12 +52,14 @@ def _extension(extension: str, name: str) -> str:
     return key
 
 
-def _load(data: bytes, extension: str, name: str, resolver: Resolver) -> Scene:
+def _load(data: bytes, extension: str, name: str, resolver: Resolver, limits: SceneLimits) -> Scene:
     """Run the loader for ``extension``; prefix errors with ``name``; emit the warnings."""
     if not data:
         raise SceneLoadError(f"{name}: file is empty (0 bytes)")
     try:
-        objects, warnings = LOADERS[extension](data, extension, name, resolver)
+        objects, warnings = LOADERS[extension](data, extension, name, resolver, limits)
+        limits.check("objects", len(objects), "nodes")
+        limits.check("triangles", sum(o.triangle_count for o in objects), "triangles")
         # trimesh's node order is an implementation detail (it reverses OBJ and glTF order); name
         # order is stable across versions and readable.
         objects = sorted(objects, key=lambda obj: obj.name)
@@ -69,13 +72,15 @@ def _load(data: bytes, extension: str, name: str, resolver: Resolver) -> Scene:
     return scene
 
 
-def load_scene(path: str | Path) -> Scene:
+def load_scene(path: str | Path, limits: SceneLimits = DEFAULT_LIMITS) -> Scene:
     """Load the scene file at ``path``; files it refers to are looked up beside it.
 
     Parameters
     ----------
     path : str or pathlib.Path
         A ``.glb``, ``.gltf``, ``.obj``, ``.ply`` or ``.stl`` file.
+    limits : SceneLimits
+        The most structure the file may have (:mod:`core.exchange.limits`).
 
     Returns
     -------
@@ -88,6 +93,8 @@ def load_scene(path: str | Path) -> Scene:
         No file at ``path``.
     SceneLoadError
         Unsupported extension, unreadable or corrupt file, absurd coordinates.
+    SceneTooCostlyError
+        Structure beyond ``limits``.
     DegenerateGeometryError
         No triangles, non-finite coordinates, or zero extent.
 
@@ -106,11 +113,12 @@ def load_scene(path: str | Path) -> Scene:
         data = path.read_bytes()
     except OSError as error:
         raise SceneLoadError(f"{path}: cannot read: {error.strerror or error}") from error
-    return _load(data, extension, path.name, asset_resolver(path.name, directory=str(path.parent)))
+    return _load(data, extension, path.name, asset_resolver(path.name, directory=str(path.parent)), limits)
 
 
 def load_scene_bytes(
-    data: bytes, extension: str, name: str, assets: Mapping[str, bytes] | None = None
+    data: bytes, extension: str, name: str, assets: Mapping[str, bytes] | None = None,
+    limits: SceneLimits = DEFAULT_LIMITS,
 ) -> Scene:
     """Load a scene from the bytes of its file (an upload).
 
@@ -125,6 +133,8 @@ def load_scene_bytes(
     assets : mapping of str to bytes, or None
         Files the scene refers to (MTL, textures, glTF buffers) by the name it uses for them.
         Without them, such references are reported as missing (a warning for textures).
+    limits : SceneLimits
+        As :func:`load_scene`.
 
     Returns
     -------
@@ -137,4 +147,4 @@ def load_scene_bytes(
         As :func:`load_scene`.
     """
     key = _extension(extension, name)
-    return _load(bytes(data), key, name, asset_resolver(name, assets=assets))
+    return _load(bytes(data), key, name, asset_resolver(name, assets=assets), limits)

@@ -18,6 +18,7 @@ import struct
 from trimesh.resolvers import Resolver
 
 from farfield.core.errors import SceneLoadError
+from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits, check_gltf
 from farfield.core.exchange.trimesh_scene import fetch, objects_from_trimesh, parse
 from farfield.core.scene import SceneObject
 
@@ -73,7 +74,7 @@ def missing_images(document: dict, resolver: Resolver) -> list[str]:
 
 
 def load(
-    data: bytes, extension: str, name: str, resolver: Resolver
+    data: bytes, extension: str, name: str, resolver: Resolver, limits: SceneLimits = DEFAULT_LIMITS
 ) -> tuple[tuple[SceneObject, ...], tuple[str, ...]]:
     """Objects and warnings of a .glb / .gltf file (see the module docstring).
 
@@ -92,10 +93,15 @@ def load(
     ------
     SceneLoadError
         Not parseable as glTF (its JSON is checked first, then trimesh parses).
+    SceneTooCostlyError
+        Its node hierarchy, primitives or instanced triangles are beyond ``limits``
+        (:mod:`core.exchange.limits`), found from the JSON before the buffers are parsed.
     """
+    document = header_json(data)
+    check_gltf(document, limits)
     warnings = [
         f"texture {uri!r} not found; objects using it fall back to their material colour"
-        for uri in missing_images(header_json(data), resolver)
+        for uri in missing_images(document, resolver)
     ]
     objects, more = objects_from_trimesh(parse(data, extension, resolver), linear_colours=True)
     return objects, tuple(warnings) + more

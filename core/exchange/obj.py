@@ -29,6 +29,7 @@ from trimesh.resolvers import Resolver
 from trimesh.visual.material import SimpleMaterial
 
 from farfield.core.errors import SceneLoadError
+from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
 from farfield.core.exchange.trimesh_scene import IMAGE_ERRORS, fetch, objects_from_trimesh, parse
 from farfield.core.scene import SceneObject
 
@@ -148,7 +149,7 @@ def _short_names(scene: trimesh.Scene) -> dict[str, str]:
 
 
 def load(
-    data: bytes, extension: str, name: str, resolver: Resolver
+    data: bytes, extension: str, name: str, resolver: Resolver, limits: SceneLimits = DEFAULT_LIMITS
 ) -> tuple[tuple[SceneObject, ...], tuple[str, ...]]:
     """Objects and warnings of an OBJ file (see the module docstring).
 

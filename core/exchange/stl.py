@@ -14,6 +14,7 @@ from pathlib import PurePath
 from trimesh.resolvers import Resolver
 
 from farfield.core.errors import SceneLoadError
+from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
 from farfield.core.exchange.trimesh_scene import objects_from_trimesh, parse
 from farfield.core.scene import SceneObject
 
@@ -60,7 +61,7 @@ def check_ascii(text: str) -> None:
 
 
 def load(
-    data: bytes, extension: str, name: str, resolver: Resolver
+    data: bytes, extension: str, name: str, resolver: Resolver, limits: SceneLimits = DEFAULT_LIMITS
 ) -> tuple[tuple[SceneObject, ...], tuple[str, ...]]:
     """Objects and warnings of an STL file.
 
