@@ -26,14 +26,27 @@ from farfield.service.db import CELL_FINAL, Database, JobRow, SceneRow, now, own
 from farfield.service.scene_check import check_scene_file
 
 
+# Longest stored file name: a blob file's temporary sibling adds a prefix and a suffix to it, and
+# file systems stop at 255 bytes (a 242-character upload name failed with "File name too long").
+MAX_FILE_NAME = 120
+
+
 def safe_file_name(name: str) -> str:
-    """The base name of an uploaded file with anything but letters, digits, ``.-_`` replaced.
+    """The base name of an uploaded file with anything but letters, digits, ``.-_`` replaced, at
+    most :data:`MAX_FILE_NAME` characters (the stem is shortened; the extension is kept).
 
     >>> safe_file_name("../x/my scene.GLB")
     'my_scene.GLB'
+    >>> len(safe_file_name("a" * 300 + ".obj")), safe_file_name("a" * 300 + ".obj")[-6:]
+    (120, 'aa.obj')
     """
     base = PurePath((name or "").replace("\\", "/")).name
-    return re.sub(r"[^A-Za-z0-9._-]", "_", base).lstrip(".") or "scene"
+    safe = re.sub(r"[^A-Za-z0-9._-]", "_", base).lstrip(".") or "scene"
+    if len(safe) > MAX_FILE_NAME:
+        stem, dot, extension = safe.rpartition(".")
+        extension = extension[:16] if dot and stem else ""
+        safe = safe[: MAX_FILE_NAME - len(extension) - (1 if extension else 0)] + ("." + extension if extension else "")
+    return safe
 
 
 def scene_record(row: SceneRow) -> dict:
