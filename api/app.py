@@ -6,11 +6,14 @@
 
 from __future__ import annotations
 
+import json
 import logging
+import math
 from contextlib import asynccontextmanager
 
 from celery import Celery
 from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
 from farfield.core import __version__
@@ -25,6 +28,32 @@ from farfield.api import routes_dashboard, routes_jobs, routes_ops, routes_resul
 from farfield.api.deps import Services
 from farfield.api.limits import BodyLimit
 from farfield.api.sweeper import LostCellSweeper
+
+
+def _shown(value) -> str | None:
+    """A short, JSON-safe rendering of a rejected input value, or None when it is not worth showing."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return "NaN" if math.isnan(value) else ("Infinity" if value > 0 else "-Infinity")
+    if value is None or isinstance(value, (bool, int, float)):
+        return json.dumps(value)
+    if isinstance(value, str):
+        return json.dumps(value if len(value) <= 60 else value[:57] + "...")
+    return None
+
+
+def validation_detail(errors) -> str:
+    """One line per problem of a request's validation, ``field: message, got value``; the input is
+    never echoed as JSON (a NaN or an infinity in it made FastAPI's own 422 body unencodable: 500).
+
+    >>> validation_detail([{"loc": ("body", "resolution"), "msg": "Input should be a valid integer", "input": float("nan")}])
+    'resolution: Input should be a valid integer, got NaN'
+    """
+    lines = []
+    for problem in errors:
+        where = ".".join(str(part) for part in problem.get("loc", ()) if part != "body")
+        shown = _shown(problem.get("input"))
+        lines.append(f"{where + ': ' if where else ''}{problem.get('msg', 'invalid')}{', got ' + shown if shown else ''}")
+    return "; ".join(lines)
 
 
 def create_app(settings: Settings, celery: Celery | None = None, migrate: bool = True) -> FastAPI:
@@ -52,6 +81,10 @@ def create_app(settings: Settings, celery: Celery | None = None, migrate: bool =
             logging.getLogger("farfield.api").error("internal error: %s", error, exc_info=error)
         headers = {"WWW-Authenticate": "Bearer"} if error.kind is ErrorKind.UNAUTHORIZED else None
         return JSONResponse({"detail": str(error), "error": type(error).__name__}, status_code=error.kind.http_status, headers=headers)
+
+    @app.exception_handler(RequestValidationError)
+    async def validation_error(_request: Request, error: RequestValidationError) -> JSONResponse:
+        return JSONResponse({"detail": validation_detail(error.errors()), "error": "ValidationError"}, status_code=422)
 
     app.add_middleware(BodyLimit, services=app.state.services)
 

@@ -47,9 +47,10 @@ class GridSpec(BaseModel):
     """A grid of equal box view cells over a view-space box."""
 
     model_config = ConfigDict(extra="forbid")
-    lo: tuple[float, float, float]
-    hi: tuple[float, float, float]
-    counts: tuple[int, int, int] = Field(description=f"cells along x, y, z (each >= 1; {MAX_CELLS} in all at most)")
+    # Strict: a string or a boolean is not a number (pydantic would coerce "1" and true to 1).
+    lo: tuple[StrictFloat | StrictInt, StrictFloat | StrictInt, StrictFloat | StrictInt]
+    hi: tuple[StrictFloat | StrictInt, StrictFloat | StrictInt, StrictFloat | StrictInt]
+    counts: tuple[StrictInt, StrictInt, StrictInt] = Field(description=f"cells along x, y, z (each >= 1; {MAX_CELLS} in all at most)")
 
 
 def _options_help() -> str:

@@ -1,0 +1,82 @@
+"""Hostile requests get a 4xx whose body is valid JSON naming the field, never a 500 (issue 24): the
+API app in-process with a real SQLite database and blob folder, a scene uploaded through the route
+(its parse runs in the real child process); no broker is needed, since nothing here is accepted."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from fastapi.testclient import TestClient
+from scenes import city, write_scene
+
+from farfield.api.app import create_app
+from farfield.service.settings import Settings
+
+KEY = "ff-test-hostile-key-0123456789"
+
+
+@pytest.fixture(scope="module")
+def api(tmp_path_factory):
+    home = tmp_path_factory.mktemp("hostile")
+    settings = Settings.from_env({"FARFIELD_HOME": str(home), "REDIS_URL": "redis://127.0.0.1:1/0", "FARFIELD_ADMIN_KEY": KEY})
+    with TestClient(create_app(settings), headers={"Authorization": f"Bearer {KEY}"}) as client:
+        path = write_scene(city(buildings=3), home, "glb")
+        response = client.post("/v1/scenes", files={"file": (path.name, path.read_bytes())})
+        assert response.status_code == 201, response.text
+        client.scene_id = response.json()["id"]
+        yield client
+
+
+def job(api, **change) -> dict:
+    body = {"scene_id": api.scene_id, "resolution": 64, "viewcells": [{"kind": "box", "lo": [40, 1, 40], "hi": [44, 5, 44]}]}
+    body.update(change)
+    if "grid" in change:
+        del body["viewcells"]
+    return body
+
+
+@pytest.mark.parametrize(
+    "raw, field",
+    [
+        ('"resolution": NaN', "resolution"),
+        ('"resolution": Infinity', "resolution"),
+        ('"resolution": -Infinity', "resolution"),
+        ('"resolution": 1e400', "resolution"),
+        ('"fov_deg": NaN', "fov_deg"),
+        ('"objects": [NaN]', "objects"),
+        ('"grid": {"lo": [0, 0, 0], "hi": [1, 1, 1], "counts": [1e400, 1, 1]}', "counts"),
+        ('"viewcells": [{"kind": "box", "lo": [NaN, 1, 40], "hi": [44, 5, 44]}]', "lo must be finite"),
+        ('"grid": {"lo": [NaN, 0, 0], "hi": [1, 1, 1], "counts": [1, 1, 1]}', "grid"),
+        ('"options": {"padding": Infinity}', "padding"),
+    ],
+)
+def test_non_finite_numbers_are_a_422_naming_the_field(api, raw, field):
+    """JSON has no NaN or infinity, but Python's parser reads them: the 422 used to echo them back
+    and fail to encode (a 500, and the client's kept-alive connection reset)."""
+    base = job(api)
+    if raw.startswith('"grid"') or raw.startswith('"viewcells"'):
+        del base["viewcells"]
+    body = json.dumps(base)[:-1] + ", " + raw + "}"
+    response = api.post("/v1/jobs", content=body, headers={"Content-Type": "application/json"})
+    assert response.status_code == 422, response.text
+    answer = response.json()  # valid JSON
+    assert answer["error"] in ("ValidationError", "ViewCellError", "LayerPlanError") and field in answer["detail"]
+    assert api.get("/v1/health").status_code == 200  # the connection is still usable
+
+
+@pytest.mark.parametrize("value", ["1", True, 1.5])
+def test_loose_types_are_refused(api, value):
+    """``"1"`` and ``true`` were taken as 1 in a grid's counts (pydantic's lax mode)."""
+    response = api.post("/v1/jobs", json=job(api, resolution=value))
+    assert response.status_code == 422 and "resolution" in response.json()["detail"]
+    response = api.post("/v1/jobs", json=job(api, grid={"lo": [0, 0, 0], "hi": [1, 1, 1], "counts": [value, 1, 1]}))
+    assert response.status_code == 422 and "counts" in response.json()["detail"]
+
+
+def test_a_long_upload_name_is_shortened_not_a_500(api, tmp_path):
+    path = write_scene(city(buildings=2), tmp_path, "glb")
+    response = api.post("/v1/scenes", files={"file": ("b" * 242 + ".glb", path.read_bytes())})
+    assert response.status_code == 201, response.text
+    name = response.json()["name"]
+    assert len(name) == 120 and name.endswith("b.glb")
