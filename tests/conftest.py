@@ -40,17 +40,40 @@ def pytest_report_header(config):
     return lines
 
 
+_GLB_WATCH = pytest.StashKey()
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    watch = config.stash.get(_GLB_WATCH, None)
+    if watch is not None:
+        terminalreporter.write_line(
+            f"glTF validator {watch.validator.version if watch.validator else ''}: {watch.files_checked} GLB files "
+            f"written by tests checked, {len(watch.flagged)} with errors or warnings ({watch.seconds:.1f} s)"
+        )
+
+
 @pytest.fixture(scope="session")
-def glb_watch(tmp_path_factory):
+def glb_watch(request, tmp_path_factory):
     """The session's :class:`glb_validation.GlbWatch` over pytest's base temporary directory
     (None without node or the validator: nothing is validated then)."""
     from glb_validation import GlbWatch
     from threejs import validator_available
 
     watch = GlbWatch(tmp_path_factory.getbasetemp()) if validator_available() else None
+    request.config.stash[_GLB_WATCH] = watch
     yield watch
     if watch is not None:
         watch.close()
+
+
+@pytest.fixture(scope="session")
+def gltf_validator(glb_watch):
+    """The session's :class:`glb_validation.GltfValidator` (skipped without node or the validator)."""
+    from threejs import VALIDATOR_SKIP_REASON
+
+    if glb_watch is None:
+        pytest.skip(VALIDATOR_SKIP_REASON)
+    return glb_watch.started()
 
 
 @pytest.fixture(autouse=True)

@@ -95,6 +95,8 @@ class GlbWatch:
         self.listings: dict[str, tuple[int, tuple[str, ...], tuple[str, ...]]] = {}  # folder -> (mtime_ns, folders, GLBs)
         self.seen: dict[str, tuple[int, int]] = {}  # GLB -> (size, mtime_ns) when validated
         self.files_checked = 0
+        self.flagged: set[str] = set()  # files found with errors or warnings, exempt tests' included
+        self.seconds = 0.0  # spent in check(): scanning and validating
 
     def _walk(self, folder: str, out: list[str]) -> None:
         try:
@@ -130,6 +132,13 @@ class GlbWatch:
         """Validate every GLB that is new or changed since the last call; ``finished``: top-level
         folders (a test's ``tmp_path``) that no one writes to after this call.  Returns
         ``{path: problems}`` for the files with errors or warnings (:func:`problems`)."""
+        start = time.perf_counter()
+        try:
+            return self._check(finished)
+        finally:
+            self.seconds += time.perf_counter() - start
+
+    def _check(self, finished) -> dict[str, list[str]]:
         found: list[str] = []
         self._walk(self.base, found)
         fresh, stamps = [], {}
@@ -149,16 +158,21 @@ class GlbWatch:
                 del self.listings[key]
         if not fresh:
             return {}
-        if self.validator is None:
-            self.validator = GltfValidator()
         bad = {}
-        for path, report in zip(fresh, self.validator.validate(fresh), strict=True):
+        for path, report in zip(fresh, self.started().validate(fresh), strict=True):
             self.seen[path] = stamps[path]
             self.files_checked += 1
             found_problems = problems(report)
             if found_problems and os.path.exists(path):  # a file removed meanwhile is no one's concern
                 bad[path] = found_problems
+                self.flagged.add(path)
         return bad
+
+    def started(self) -> GltfValidator:
+        """The session's validator process, started at the first call."""
+        if self.validator is None:
+            self.validator = GltfValidator()
+        return self.validator
 
     def close(self) -> None:
         if self.validator is not None:
