@@ -26,6 +26,17 @@ const gl = renderer.getContext();
 
 const loaded = new Map();  // key of (url, options) -> Object3D
 
+function unmipped(texture) {
+  // spec.mipmaps === false: the texture sampled without mipmaps (farfield's own renderer samples
+  // linearly from the full-size image), to tell the sampler's part in a difference.
+  if (!texture) return null;
+  const plain = texture.clone();
+  plain.minFilter = THREE.LinearFilter;
+  plain.generateMipmaps = false;
+  plain.needsUpdate = true;
+  return plain;
+}
+
 function unlit(material, spec) {
   // An OBJ material with a texture takes the texture's colour alone when spec.mapReplacesColor
   // (farfield's documented OBJ rule: map_Kd replaces Kd, as Blender draws it).
@@ -35,7 +46,7 @@ function unlit(material, spec) {
   if (spec.alphaCutoff !== null && spec.alphaCutoff !== undefined) alphaTest = spec.alphaCutoff;
   else if (material.transparent) alphaTest = 0.5;  // glTF BLEND drawn as a mask at 0.5, as farfield does
   return new THREE.MeshBasicMaterial({
-    map: material.map || null,
+    map: spec.mipmaps === false ? unmipped(material.map) : material.map || null,
     color,
     opacity: material.opacity === undefined ? 1 : material.opacity,
     vertexColors: !!material.vertexColors,
@@ -60,7 +71,7 @@ function unlitAll(root, spec) {
 }
 
 async function load(spec) {
-  const key = JSON.stringify([spec.url, spec.mtl, spec.alphaCutoff, spec.mapReplacesColor]);
+  const key = JSON.stringify([spec.url, spec.mtl, spec.alphaCutoff, spec.mapReplacesColor, spec.mipmaps]);
   if (loaded.has(key)) return loaded.get(key);
   let root;
   if (spec.kind === "gltf") {
