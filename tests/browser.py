@@ -1,5 +1,6 @@
-"""The dashboard's browser tests' one setup: Debian's chromium driven by Playwright, a page logged in
-with an API key, and the page's JavaScript errors collected (``page.js_errors``)."""
+"""The browser tests' one setup: Debian's chromium driven by Playwright, a dashboard page logged in
+with an API key, and the page's JavaScript errors collected (``page.js_errors``); the three.js
+harness (``tests/threejs.py``) opens its page in the same chromium."""
 
 from __future__ import annotations
 
@@ -11,6 +12,9 @@ CHROMIUM = Path(os.environ.get("FARFIELD_CHROMIUM", "/usr/bin/chromium"))
 CHROMIUM_ARGS = [
     "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--disable-background-networking",
     "--disable-component-update", "--disable-sync", "--no-first-run", "--disable-quic",
+    # WebGL for the three.js harness (tests/threejs.py): chromium's software renderer (ANGLE on
+    # SwiftShader), which newer builds no longer fall back to without this flag.
+    "--enable-unsafe-swiftshader",
 ]  # fmt: skip
 SKIP_REASON = f"needs Debian's chromium at {CHROMIUM} (scripts/install-browser installs it)"
 

@@ -352,6 +352,7 @@ def _glb() -> bytes:
     + [f"random-{e}" for e in ("glb", "gltf", "obj", "ply", "stl")]
     + ["truncated-glb", "short-glb", "version0-glb", "not-json-gltf", "short-ply", "short-stl", "bad-index-obj"],
 )
+@pytest.mark.invalid_glb  # corrupt GLBs on purpose
 def test_corrupt_bytes_are_one_scene_load_error_naming_the_file(tmp_path, extension, data):
     path = tmp_path / f"broken.{extension}"
     path.write_bytes(data)

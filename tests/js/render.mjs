@@ -1,0 +1,155 @@
+// farfield's three.js harness (tests/threejs.py drives it): load a glTF/GLB, OBJ (+MTL) or PLY
+// file with three.js's own loaders and draw it unlit from a farfield camera.
+//
+// Every material becomes a MeshBasicMaterial (glTF's KHR_materials_unlit rule: base colour =
+// map x color x vertex colour) keeping map, color, opacity, vertexColors and alphaTest, drawn
+// double-sided and opaque (alpha 1 where drawn); no tone mapping, sRGB output, no antialiasing.
+// Colour spaces are three.js's own (glTF factors and COLOR_0 linear, textures sRGB; MTL and PLY
+// colours sRGB).  window.farfieldRender(spec) returns the canvas's RGBA bytes, bottom row first,
+// as base64.
+import * as THREE from "three";
+import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
+import { MTLLoader } from "three/addons/loaders/MTLLoader.js";
+import { OBJLoader } from "three/addons/loaders/OBJLoader.js";
+import { PLYLoader } from "three/addons/loaders/PLYLoader.js";
+
+const canvas = document.createElement("canvas");
+document.body.appendChild(canvas);
+const renderer = new THREE.WebGLRenderer({
+  canvas, antialias: false, alpha: true, premultipliedAlpha: false, preserveDrawingBuffer: true,
+});
+renderer.setPixelRatio(1);
+renderer.setClearColor(0x000000, 0);
+renderer.toneMapping = THREE.NoToneMapping;
+renderer.outputColorSpace = THREE.SRGBColorSpace;
+const gl = renderer.getContext();
+
+const loaded = new Map();  // key of (url, options) -> Object3D
+
+function unmipped(texture) {
+  // spec.mipmaps === false: the texture sampled without mipmaps (farfield's own renderer samples
+  // linearly from the full-size image), to tell the sampler's part in a difference.
+  if (!texture) return null;
+  const plain = texture.clone();
+  plain.minFilter = THREE.LinearFilter;
+  plain.generateMipmaps = false;
+  plain.needsUpdate = true;
+  return plain;
+}
+
+function unlit(material, spec) {
+  // An OBJ material with a texture takes the texture's colour alone when spec.mapReplacesColor
+  // (farfield's documented OBJ rule: map_Kd replaces Kd, as Blender draws it).
+  const color = material.color ? material.color.clone() : new THREE.Color(1, 1, 1);
+  if (spec.mapReplacesColor && material.map) color.setRGB(1, 1, 1);
+  let alphaTest = material.alphaTest || 0;
+  if (spec.alphaCutoff !== null && spec.alphaCutoff !== undefined) alphaTest = spec.alphaCutoff;
+  else if (material.transparent) alphaTest = 0.5;  // glTF BLEND drawn as a mask at 0.5, as farfield does
+  return new THREE.MeshBasicMaterial({
+    map: spec.mipmaps === false ? unmipped(material.map) : material.map || null,
+    color,
+    opacity: material.opacity === undefined ? 1 : material.opacity,
+    vertexColors: !!material.vertexColors,
+    alphaTest,
+    side: THREE.DoubleSide,
+    transparent: false,
+  });
+}
+
+function unlitAll(root, spec) {
+  root.traverse((node) => {
+    if (!node.isMesh) return;
+    const hasColors = !!node.geometry.getAttribute("color");
+    const one = (m) => {
+      const basic = unlit(m || {}, spec);
+      basic.vertexColors = basic.vertexColors || (spec.kind === "ply" && hasColors);
+      return basic;
+    };
+    node.material = Array.isArray(node.material) ? node.material.map(one) : one(node.material);
+  });
+  return root;
+}
+
+async function load(spec) {
+  const key = JSON.stringify([spec.url, spec.mtl, spec.alphaCutoff, spec.mapReplacesColor, spec.mipmaps]);
+  if (loaded.has(key)) return loaded.get(key);
+  let root;
+  if (spec.kind === "gltf") {
+    root = (await new GLTFLoader().loadAsync(spec.url)).scene;
+  } else if (spec.kind === "obj") {
+    const obj = new OBJLoader();
+    if (spec.mtl) {
+      const base = spec.mtl.slice(0, spec.mtl.lastIndexOf("/") + 1);
+      const materials = await new MTLLoader().setResourcePath(base).loadAsync(spec.mtl);
+      materials.preload();
+      await Promise.all(Object.values(materials.materials).map((m) => textureReady(m.map)));
+      obj.setMaterials(materials);
+    }
+    root = await obj.loadAsync(spec.url);
+  } else if (spec.kind === "ply") {
+    const geometry = await new PLYLoader().loadAsync(spec.url);
+    root = new THREE.Mesh(geometry, new THREE.MeshBasicMaterial());
+  } else {
+    throw new Error(`unknown kind ${spec.kind}`);
+  }
+  unlitAll(root, spec);
+  root.updateMatrixWorld(true);
+  loaded.set(key, root);
+  return root;
+}
+
+function textureReady(texture) {
+  // MTLLoader starts its image loads without a promise; wait for each image.
+  if (!texture || !texture.image) return Promise.resolve();
+  if (texture.image.complete !== undefined && texture.image.complete) return Promise.resolve();
+  return new Promise((resolve) => {
+    const image = texture.image;
+    if (image.addEventListener) {
+      image.addEventListener("load", resolve, { once: true });
+      image.addEventListener("error", resolve, { once: true });
+    } else resolve();
+  });
+}
+
+function camera(c) {
+  // farfield's Camera: eye, right, up, forward (unit, world), full-angle square fov, near, far.
+  const cam = new THREE.PerspectiveCamera((c.fov * 180) / Math.PI, 1, c.near, c.far);
+  const basis = new THREE.Matrix4().makeBasis(
+    new THREE.Vector3(...c.right), new THREE.Vector3(...c.up), new THREE.Vector3(...c.forward).negate());
+  cam.position.set(...c.eye);
+  cam.quaternion.setFromRotationMatrix(basis);
+  cam.updateMatrixWorld(true);
+  return cam;
+}
+
+function base64(bytes) {
+  let text = "";
+  for (let i = 0; i < bytes.length; i += 0x8000) text += String.fromCharCode.apply(null, bytes.subarray(i, i + 0x8000));
+  return btoa(text);
+}
+
+window.farfieldRender = async (spec) => {
+  const root = await load(spec);
+  const scene = new THREE.Scene();
+  scene.add(root);
+  const images = [];
+  for (const c of spec.cameras) {
+    renderer.setSize(c.resolution, c.resolution, false);
+    renderer.render(scene, camera(c));
+    const pixels = new Uint8Array(c.resolution * c.resolution * 4);
+    gl.readPixels(0, 0, c.resolution, c.resolution, gl.RGBA, gl.UNSIGNED_BYTE, pixels);
+    images.push(base64(pixels));
+  }
+  scene.remove(root);
+  return images;
+};
+
+window.farfieldInfo = () => {
+  const debug = gl.getExtension("WEBGL_debug_renderer_info");
+  return {
+    three: THREE.REVISION,
+    version: gl.getParameter(gl.VERSION),
+    renderer: debug ? gl.getParameter(debug.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER),
+  };
+};
+window.farfieldReady = true;
