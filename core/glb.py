@@ -30,7 +30,10 @@ timestamps, PNG pages encoded with fixed settings by :func:`page_png`).  Layout 
 * One material per page, whether or not the page has quads: ``baseColorTexture`` of that page,
   ``KHR_materials_unlit``, ``alphaMode`` ``MASK`` with cutoff 0.5 and ``doubleSided`` (the
   impostor is only seen from inside its view cell, so a viewer must not cull it if it disagrees
-  about winding).  Samplers are linear / linear-mipmap-linear, clamp-to-edge.
+  about winding).  Samplers are linear / linear (no mipmaps), clamp-to-edge: a viewer's mipmaps
+  average a tile's alpha with the transparent texels around it, and the alpha cut then eats the
+  impostor's silhouette (three.js, envmap from a cell corner: up to 17 pixels beyond one); seen
+  from inside its cell, an impostor's texels are about one pixel wide, so mipmaps buy nothing.
 
 Texture coordinates are stored as given: :class:`core.impostor.Impostor` already uses glTF's
 convention (0, 0 is the top-left of the page).
@@ -61,7 +64,6 @@ _FLOAT = 5126
 _ARRAY_BUFFER = 34962
 _ELEMENT_ARRAY_BUFFER = 34963
 _LINEAR = 9729
-_LINEAR_MIPMAP_LINEAR = 9987
 _CLAMP_TO_EDGE = 33071
 _TRIANGLES = 4
 
@@ -307,7 +309,7 @@ def impostor_glb(impostor: Impostor) -> bytes:
         document["images"] = images
         document["samplers"] = [{
             "magFilter": _LINEAR,
-            "minFilter": _LINEAR_MIPMAP_LINEAR,
+            "minFilter": _LINEAR,
             "wrapS": _CLAMP_TO_EDGE,
             "wrapT": _CLAMP_TO_EDGE,
         }]

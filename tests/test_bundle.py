@@ -323,7 +323,7 @@ def test_glb_structure(viewpoint):
         assert view["byteOffset"] % 4 == 0
         assert view["byteOffset"] + view["byteLength"] <= document["buffers"][0]["byteLength"]
     sampler = document["samplers"][0]
-    assert (sampler["magFilter"], sampler["minFilter"], sampler["wrapS"], sampler["wrapT"]) == (9729, 9987, 33071, 33071)
+    assert (sampler["magFilter"], sampler["minFilter"], sampler["wrapS"], sampler["wrapT"]) == (9729, 9729, 33071, 33071)  # no mipmaps: they erode an alpha-cut silhouette
     for page_index, primitive in enumerate(mesh["primitives"]):
         assert primitive["material"] == page_index
         material = document["materials"][page_index]

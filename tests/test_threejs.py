@@ -6,8 +6,8 @@ Per registered technique: the bundle's GLB is valid (0 errors, 0 warnings), and 
 from the reference viewpoint and a cell corner with the coverage of farfield's own render of the
 same bundle (:func:`core.evaluation.impostor_objects` drawn by
 :class:`core.render.raster.MeshRenderer`) within one pixel, in the same colours where both cover
-(sampled without mipmaps, as farfield samples); with the mipmaps the GLB's sampler asks for, the
-coverage still within one pixel.  For the envmap technique the GLB holds the far field only (its
+(sampled without mipmaps, as farfield samples); with the sampler the GLB asks for, the coverage
+still within one pixel.  For the envmap technique the GLB holds the far field only (its
 near field is scene geometry drawn at run time), so its quads are compared alone, looking along
 every recorded face axis from the cell's centre and a corner.  Then colour spaces as a glTF viewer sees them: three.js's render of a source scene and of its
 layered impostor agree in colour (glTF's linear ``baseColorFactor`` and ``COLOR_0``, an sRGB
@@ -134,9 +134,10 @@ def test_every_techniques_glb_is_valid_and_three_js_draws_it_as_farfield_does(na
 
 @pytest.mark.parametrize("name", list(TECHNIQUES))
 def test_every_techniques_glb_keeps_its_coverage_with_its_own_sampler(name, bundles, threejs):
-    """The GLB's sampler asks for mipmaps (LINEAR_MIPMAP_LINEAR): a viewer's mipmaps average a
-    page's alpha with the transparent texels around each tile, which must not cut more than one
-    pixel off the coverage farfield promises from inside the cell."""
+    """Drawn with the sampler the GLB asks for: a viewer's mipmaps (the GLB once asked for
+    LINEAR_MIPMAP_LINEAR) averaged a page's alpha with the transparent texels around each tile and
+    cut up to 17 pixels beyond one off an envmap's coverage from a cell corner; it must keep the
+    coverage farfield promises from inside the cell."""
     paths, _, cameras, ours = bundles(name)
     theirs = threejs.render(paths.glb, cameras)
     lost = [compare(three, farfield) for three, farfield in zip(theirs, ours, strict=True)]
