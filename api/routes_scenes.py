@@ -16,7 +16,7 @@ router = APIRouter(prefix="/v1/scenes", tags=["scenes"])
 def upload_scene(file: UploadFile | None = None, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
     if file is None:
         raise SceneLoadError("send the scene as multipart form field 'file'")
-    return scene_record(ingest_scene(svc.db, svc.blobs, tenant_id, file.filename or "", file.file, svc.settings.max_upload_bytes))
+    return scene_record(ingest_scene(svc.db, svc.blobs, tenant_id, file.filename or "", file.file, svc.settings.max_upload_bytes, svc.settings.scene_limits))
 
 
 @router.get("", summary="List scenes")

@@ -2,8 +2,9 @@
 
 The API validates uploads by parsing them, but a 200 MB mesh parsed inside the API process would
 raise its memory by gigabytes (and a loader crash would take it down).  :func:`check_scene_file`
-runs ``python -m service.scene_check FILE EXTENSION NAME`` instead: the child prints the scene's
-summary (or the error's type and message) as one JSON line and exits.
+runs ``python -m service.scene_check FILE EXTENSION NAME [LIMITS_JSON]`` instead: the child checks
+the file against the scene limits (:mod:`core.exchange.limits`), prints the scene's summary (or the
+error's type and message) as one JSON line and exits.
 """
 
 from __future__ import annotations
@@ -14,19 +15,22 @@ import sys
 import warnings
 from pathlib import Path
 
+from dataclasses import asdict
+
 from farfield.core import errors
 from farfield.core.errors import FarfieldError, SceneLoadError
+from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
 
 TIMEOUT_S = 600
 
 
-def summarize(path: Path, extension: str, name: str) -> dict:
+def summarize(path: Path, extension: str, name: str, limits: SceneLimits = DEFAULT_LIMITS) -> dict:
     """The summary the service stores for a scene file (run in the child)."""
     from farfield.core.exchange import load_scene_bytes
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        scene = load_scene_bytes(path.read_bytes(), extension, name)
+        scene = load_scene_bytes(path.read_bytes(), extension, name, limits=limits)
     return {
         "content_hash": scene.content_hash,
         "triangles": scene.triangle_count,
@@ -36,11 +40,11 @@ def summarize(path: Path, extension: str, name: str) -> dict:
     }
 
 
-def check_scene_file(path: Path, extension: str, name: str) -> dict:
+def check_scene_file(path: Path, extension: str, name: str, limits: SceneLimits = DEFAULT_LIMITS) -> dict:
     """Parse ``path`` in a child process; its summary, or the loader's error raised here."""
     try:
         done = subprocess.run(
-            [sys.executable, "-m", "farfield.service.scene_check", str(path), extension, name],
+            [sys.executable, "-m", "farfield.service.scene_check", str(path), extension, name, json.dumps(asdict(limits))],
             capture_output=True, text=True, timeout=TIMEOUT_S,
         )  # fmt: skip
     except subprocess.TimeoutExpired:
@@ -62,8 +66,9 @@ def check_scene_file(path: Path, extension: str, name: str) -> dict:
 
 def main(argv: list[str]) -> int:
     path, extension, name = Path(argv[0]), argv[1], argv[2]
+    limits = SceneLimits(**json.loads(argv[3])) if len(argv) > 3 else DEFAULT_LIMITS
     try:
-        print(json.dumps(summarize(path, extension, name)))
+        print(json.dumps(summarize(path, extension, name, limits)))
         return 0
     except FarfieldError as error:
         print(json.dumps({"error": type(error).__name__, "message": str(error)}))

@@ -19,7 +19,7 @@ from typing import BinaryIO
 from sqlalchemy import select
 
 from farfield.core.errors import ConflictError, SceneLoadError, UploadTooLargeError
-from farfield.core.exchange import load_scene_bytes, supported_extensions
+from farfield.core.exchange import DEFAULT_LIMITS, SceneLimits, load_scene_bytes, supported_extensions
 from farfield.core.scene import Scene
 from farfield.service.blobs import BlobStore
 from farfield.service.db import CELL_FINAL, Database, JobRow, SceneRow, now, owned_row
@@ -70,10 +70,14 @@ def _spool(source: BinaryIO, limit: int, directory: str) -> tuple[Path, int]:
     return Path(name), size
 
 
-def ingest_scene(db: Database, blobs: BlobStore, tenant_id: str, file_name: str, source: BinaryIO, limit: int) -> SceneRow:
+def ingest_scene(
+    db: Database, blobs: BlobStore, tenant_id: str, file_name: str, source: BinaryIO, limit: int,
+    scene_limits: SceneLimits = DEFAULT_LIMITS,
+) -> SceneRow:
     """Validate and store one uploaded scene file; returns its row.
 
-    Raises :class:`SceneLoadError` (bad format, empty, unparsable), :class:`UploadTooLargeError`.
+    Raises :class:`SceneLoadError` (bad format, empty, unparsable), :class:`SceneTooCostlyError`
+    (structure beyond ``scene_limits``), :class:`UploadTooLargeError`.
     """
     name = safe_file_name(file_name)
     extension = PurePath(name).suffix.lower().lstrip(".")
@@ -88,7 +92,7 @@ def ingest_scene(db: Database, blobs: BlobStore, tenant_id: str, file_name: str,
         path, size = _spool(source, limit, work)
         if size == 0:
             raise SceneLoadError(f"{name}: the file is empty")
-        summary = check_scene_file(path, extension, name)
+        summary = check_scene_file(path, extension, name, scene_limits)
         with open(path, "rb") as f:
             blobs.put_stream(key, f)
         row = SceneRow(
@@ -130,6 +134,9 @@ def delete_scene(db: Database, blobs: BlobStore, tenant_id: str, scene_id: str) 
     blobs.delete_prefix(row.blob_key.rsplit("/", 1)[0])
 
 
+# A stored scene passed the limits in force when it was uploaded; a worker loads it whatever they are now.
+ADMITTED = SceneLimits(nodes=2**62, depth=2**62, primitives=2**62, accessors=2**62, triangles=2**62)
+
 # Scenes parsed in this process, by content hash: a worker loads each scene once, not once per cell.
 _CACHE: OrderedDict[str, Scene] = OrderedDict()
 _CACHE_LOCK = threading.Lock()
@@ -149,6 +156,6 @@ def load_stored_scene(blobs: BlobStore, row: SceneRow) -> Scene:
     with _CACHE_LOCK:
         scene = _CACHE.get(row.content_hash)
     if scene is None:
-        scene = load_scene_bytes(blobs.read_bytes(row.blob_key), row.extension, row.name)
+        scene = load_scene_bytes(blobs.read_bytes(row.blob_key), row.extension, row.name, limits=ADMITTED)
         _remember(row, scene)
     return scene

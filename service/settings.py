@@ -17,6 +17,7 @@ shared services instead, so API and workers can run on several machines.
 | ``FARFIELD_S3_KEY``, ``FARFIELD_S3_SECRET`` | unset | access key and secret key; required with ``FARFIELD_S3_BUCKET`` |
 | ``FARFIELD_S3_REGION`` | ``us-east-1`` | the bucket's region (MinIO accepts the default) |
 | ``FARFIELD_MAX_UPLOAD_MB`` | 512 | largest scene upload |
+| ``FARFIELD_MAX_SCENE_NODES``, ``_DEPTH``, ``_PRIMITIVES``, ``_ACCESSORS``, ``_TRIANGLES`` | 50,000, 128, 50,000, 200,000, 50,000,000 | most structure an upload may have (``core/exchange/limits.py``): glTF nodes (and objects of any format), node nesting, primitives and accessors, triangles once instancing is applied |
 | ``FARFIELD_ADMIN_KEY`` | unset | API key of the bootstrap tenant ``admin`` |
 | ``FARFIELD_HOST``, ``FARFIELD_PORT`` | ``127.0.0.1``, 8000 | where ``farfield up`` serves the API |
 | ``FARFIELD_MAX_ATTEMPTS`` | 3 | attempts per cell before it is marked failed |
@@ -33,6 +34,9 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from farfield.core.errors import ServiceConfigError
+from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
+
+_SCENE_LIMITS = ("nodes", "depth", "primitives", "accessors", "triangles")
 
 
 def _int(env: Mapping[str, str], name: str, default: int, minimum: int = 1) -> int:
@@ -91,6 +95,7 @@ class Settings:
     max_attempts: int = 3
     visibility_timeout: int = 3600
     requeue_after: int = 3600  # a cell queued this long without starting is sent again
+    scene_limits: SceneLimits = DEFAULT_LIMITS  # most structure an uploaded scene may have
 
     @classmethod
     def from_env(cls, env: Mapping[str, str] | None = None) -> Settings:
@@ -117,6 +122,7 @@ class Settings:
             max_attempts=_int(env, "FARFIELD_MAX_ATTEMPTS", 3),
             visibility_timeout=_int(env, "FARFIELD_VISIBILITY_TIMEOUT", 3600),
             requeue_after=_int(env, "FARFIELD_REQUEUE_AFTER", 3600),
+            scene_limits=SceneLimits(**{n: _int(env, f"FARFIELD_MAX_SCENE_{n.upper()}", getattr(DEFAULT_LIMITS, n)) for n in _SCENE_LIMITS}),
         )
 
     def with_redis(self, url: str) -> Settings:
@@ -133,6 +139,7 @@ class Settings:
             "FARFIELD_MAX_ATTEMPTS": str(self.max_attempts),
             "FARFIELD_VISIBILITY_TIMEOUT": str(self.visibility_timeout),
             "FARFIELD_REQUEUE_AFTER": str(self.requeue_after),
+            **{f"FARFIELD_MAX_SCENE_{n.upper()}": str(getattr(self.scene_limits, n)) for n in _SCENE_LIMITS},
         }
         if self.redis_url:
             env["REDIS_URL"] = self.redis_url

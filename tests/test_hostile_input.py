@@ -80,3 +80,21 @@ def test_a_long_upload_name_is_shortened_not_a_500(api, tmp_path):
     assert response.status_code == 201, response.text
     name = response.json()["name"]
     assert len(name) == 120 and name.endswith("b.glb")
+
+
+def test_a_deep_node_chain_upload_is_refused_quickly_with_413(api):
+    """The campaign's 2.3 MB glTF of a 100,000-deep node chain blocked its upload for 40 s."""
+    from test_scene_limits import gltf_bytes
+
+    nodes = [{"children": [i + 1]} for i in range(99_999)] + [{"mesh": 0}]
+    before = api.get("/v1/scenes").json()
+    response = api.post("/v1/scenes", files={"file": ("deep.gltf", gltf_bytes(nodes, [0]))})
+    assert response.status_code == 413, response.text
+    assert response.json()["error"] == "SceneTooCostlyError" and "FARFIELD_MAX_SCENE_NODES" in response.json()["detail"]
+    assert api.get("/v1/scenes").json() == before
+
+
+def test_scene_limits_come_from_the_environment():
+    settings = Settings.from_env({"FARFIELD_MAX_SCENE_DEPTH": "16", "FARFIELD_MAX_SCENE_TRIANGLES": "1000"})
+    assert (settings.scene_limits.depth, settings.scene_limits.triangles, settings.scene_limits.nodes) == (16, 1000, 50_000)
+    assert Settings.from_env(settings.environment()).scene_limits == settings.scene_limits  # handed to workers
