@@ -191,6 +191,26 @@ def _within_one_pixel(geometry: np.ndarray, impostor: np.ndarray) -> np.ndarray:
     return best
 
 
+def _covered_window(geometry: np.ndarray, impostor: np.ndarray, samples: int) -> tuple[slice, slice]:
+    """The part of two (h*s, w*s, 4) renders that :func:`compare_images` needs: the bounding box of
+    their coverage in whole pixels, grown by :data:`SSIM_WINDOW` pixels (clipped to the frame).
+
+    Everything outside is uncovered in both: it adds no hole, bloat or colour error, and SSIM's
+    filter does not reach past the margin; leaving it out saves most of the downsampling when the
+    part fills a fraction of the frame.
+    """
+    covered = (geometry[..., 3] > 0) | (impostor[..., 3] > 0)
+    rows, cols = np.flatnonzero(covered.any(axis=1)), np.flatnonzero(covered.any(axis=0))
+    if rows.size == 0:
+        return slice(0, 0), slice(0, 0)
+    h, w = covered.shape[0] // samples, covered.shape[1] // samples
+
+    def span(first: int, last: int, size: int) -> slice:
+        return slice(max(first // samples - SSIM_WINDOW, 0) * samples, min(last // samples + 1 + SSIM_WINDOW, size) * samples)
+
+    return span(rows[0], rows[-1], h), span(cols[0], cols[-1], w)
+
+
 def compare_images(geometry: np.ndarray, impostor: np.ndarray, samples: int = 1) -> dict:
     """Pixel statistics of two (h*s, w*s, 4) uint8 renders (geometry first) with ``samples`` s per
     pixel side; see the module docstring.
@@ -213,6 +233,8 @@ def compare_images(geometry: np.ndarray, impostor: np.ndarray, samples: int = 1)
     >>> e["colour_error_mean"], e["colour_error_p99"], e["ssim"]
     (0.0, 0.0, 1.0)
     """
+    window = _covered_window(geometry, impostor, samples)
+    geometry, impostor = geometry[window], impostor[window]
     one = _holes(geometry[samples // 2 :: samples, samples // 2 :: samples, 3] > 0, impostor[samples // 2 :: samples, samples // 2 :: samples, 3] > 0)
     geometry, impostor = downsample(geometry, samples), downsample(impostor, samples)
     g = geometry[..., 3] > 0
