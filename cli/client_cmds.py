@@ -136,11 +136,14 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
 @click.option("--option", "options", multiple=True, metavar="NAME=VALUE",
               help="Technique option (repeat); VALUE is parsed as JSON, else taken as text (a list option also takes a,b,c). "
                    "`farfield techniques` lists each technique's options.")
+@click.option("--evaluate/--no-evaluate", default=True, show_default=True,
+              help="Evaluate each baked cell against the real geometry on the worker (layered, tdm): hole pixels, bloat beyond 1 px, "
+                   "colour error, SSIM in the cell's record. It changes no bundle.")
 @click.option("--wait", is_flag=True, help="Wait for the job to end (exit code != 0 unless it is done).")
 @click.option("--download", type=click.Path(file_okay=False), default=None, help="After --wait, unpack the impostor database here.")
 @click.option("--json", "as_json", is_flag=True, help="Print the job record as JSON.")
 @_client_options
-def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov, options, wait, download, as_json, url, key):
+def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov, options, evaluate, wait, download, as_json, url, key):
     """Submit a job for SCENE (a file to upload, or the id of an uploaded scene)."""
     client = Client(url, key or _default_key())
     if (grid is None) == (not viewcells):
@@ -165,6 +168,8 @@ def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov
         "objects": [n.strip() for n in objects.split(",") if n.strip()] if objects else None,
     }  # fmt: skip
     spec = {k: v for k, v in spec.items() if v is not None}
+    if not evaluate:  # sent only when off: the service's default is on
+        spec["evaluate"] = False
     if grid is not None:
         spec["grid"] = parse_grid(grid)
     else:
@@ -180,9 +185,25 @@ def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov
         click.echo(json.dumps({k: v for k, v in job.items() if k != "cells"}))
     elif wait or download:
         click.echo(f"job {job['id']}: {job['state']} ({job['counts']['done']}/{job['cells_total']} cells done)" + (f", database in {download}" if download and job["state"] == "done" else ""))
+        if job.get("evaluation"):
+            click.echo(evaluation_line(job["evaluation"]))
     if (wait or download) and job["state"] != "done":
         first = job["errors"][0]["error"] if job["errors"] else job["state"]
         raise JobEndedBadly(f"job {job['id']} ended {job['state']}: {first}")
+
+
+def evaluation_line(summary: dict) -> str:
+    """One line of a job's evaluation summary (``evaluation`` of a job record).
+
+    >>> print(evaluation_line({"cells": 4, "cells_broken": 1, "hole_pixels": 0, "bloat_beyond_1px": 3,
+    ...                        "colour_error_mean": 2.5, "ssim_min": 0.91, "seconds": 1.75}))
+    evaluation: 4 cells, 1 breaking the guarantee (0 hole pixels, 3 pixels bloated beyond 1 px); worst colour error mean 2.50, worst SSIM 0.910; 1.75 s
+    """
+    return (
+        f"evaluation: {summary['cells']} cells, {summary['cells_broken']} breaking the guarantee ({summary['hole_pixels']} hole pixels, "
+        f"{summary['bloat_beyond_1px']} pixels bloated beyond 1 px); worst colour error mean {summary['colour_error_mean']:.2f}, "
+        f"worst SSIM {summary['ssim_min']:.3f}; {summary['seconds']:.2f} s"
+    )
 
 
 @click.command("jobs")
@@ -199,6 +220,8 @@ def jobs(job_id, state, as_json, url, key):
             click.echo(json.dumps(job))
             return
         click.echo(f"{job['id']}  {job['state']}  {job['counts']}  progress {job['progress']:.0%}")
+        if job.get("evaluation"):
+            click.echo(f"  {evaluation_line(job['evaluation'])}")
         for error in job["errors"]:
             click.echo(f"  cell {error['index']}: {error['error']}")
         return

@@ -7,9 +7,10 @@ same way for every technique:
 
 * **triangles** drawn (two per layered quad, one per TDM triangle: :attr:`Impostor.triangle_count`);
 * **memory**: the atlas pages as stored plus the geometry as drawn (``stats["geometry_bytes"]``);
-* **hole pixels, pixels bloated beyond one pixel and colour error** inside the view cell, from
-  :func:`core.evaluation.evaluate` with the same viewpoints (corners, reference viewpoint, the same
-  seeded random points);
+* **hole pixels, pixels bloated beyond one pixel, colour error and SSIM** inside the view cell,
+  from :func:`core.evaluation.evaluate` with the same viewpoints (corners, reference viewpoint, the
+  same seeded random points).  The colour error is the per-pixel difference where both cover (its
+  mean decides the ``error`` preference; its 99th percentile and the SSIM are shown beside it);
 * the **bake time** as recorded in the bundle (measured where it was baked).
 
 :func:`choose` keeps the candidates with the fewest hole pixels (zero is the promise of both
@@ -50,7 +51,9 @@ class Candidate:
     bake_seconds: float | None
     hole_pixels: int
     bloat_beyond_1px: int
-    colour_error_mean: float
+    colour_error_mean: float  # per pixel where both cover, max over RGB, 0..255
+    colour_error_p99: float  # the worst viewpoint's 99th percentile of the same
+    ssim: float  # mean over the viewpoints, over the union of coverage (1: equal)
 
     @classmethod
     def of(cls, name: str, impostor: Impostor, evaluation: Evaluation) -> Candidate:
@@ -65,6 +68,8 @@ class Candidate:
             hole_pixels=int(totals["hole_pixels"]),
             bloat_beyond_1px=int(totals["bloat_beyond_1px"]),
             colour_error_mean=float(totals["colour_error_mean"]),
+            colour_error_p99=float(totals["colour_error_p99"]),
+            ssim=float(totals["ssim"]),
         )
 
     def to_dict(self) -> dict:
@@ -107,9 +112,9 @@ def _say(field: str, value: float) -> str:
 def choose(candidates: list[Candidate], prefer: str = "memory") -> Choice:
     """The candidate to use (see the module docstring) and the reason, naming what the others do better.
 
-    >>> a = Candidate("out/tdm", "tdm", 706, 475_000, 4.5, 0, 0, 1.33)
-    >>> b = Candidate("out/layered", "layered", 538, 1_256_000, 0.2, 0, 0, 1.45)
-    >>> c = Candidate("out/coarse", "tdm", 90, 45_000, 0.5, 3, 0, 3.3)
+    >>> a = Candidate("out/tdm", "tdm", 706, 475_000, 4.5, 0, 0, 1.33, 12.0, 0.97)
+    >>> b = Candidate("out/layered", "layered", 538, 1_256_000, 0.2, 0, 0, 1.45, 14.0, 0.96)
+    >>> c = Candidate("out/coarse", "tdm", 90, 45_000, 0.5, 3, 0, 3.3, 40.0, 0.9)
     >>> choice = choose([a, b, c])
     >>> choice.index
     0
@@ -120,8 +125,8 @@ def choose(candidates: list[Candidate], prefer: str = "memory") -> Choice:
 
     Memory within 5 % of each other: the fewest triangles decide.
 
-    >>> d = Candidate("out/layered", "layered", 254, 292_760, 0.3, 0, 5, 0.0)
-    >>> e = Candidate("out/tdm", "tdm", 1080, 292_200, 2.5, 0, 11, 0.0)
+    >>> d = Candidate("out/layered", "layered", 254, 292_760, 0.3, 0, 5, 0.0, 0.0, 1.0)
+    >>> e = Candidate("out/tdm", "tdm", 1080, 292_200, 2.5, 0, 11, 0.0, 0.0, 1.0)
     >>> print(choose([e, d]).reason)
     out/layered: no hole pixels inside the view cell and memory within 5% (285.9 KiB against 285.4 KiB), the fewest triangles (254 against 1,080); out/tdm takes less memory (285.4 KiB against 285.9 KiB)
     """

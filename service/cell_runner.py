@@ -1,6 +1,10 @@
-"""One cell of a job, start to end: claim it, bake its impostor, store the bundle, record the outcome.
+"""One cell of a job, start to end: claim it, bake its impostor, store the bundle, evaluate it, record the outcome.
 
-The job's technique (:func:`core.techniques.get_technique`) bakes the cell.
+The job's technique (:func:`core.techniques.get_technique`) bakes the cell.  A cell of a technique
+of one part (layered, tdm) is then evaluated against the part's real geometry from a few viewpoints
+(:func:`core.techniques.part.report_part`), unless the job says ``evaluate: false``; the figures
+and the time they took go in the cell's record (``stats.evaluation``), never in the bundle, beside
+this attempt's bake timings (``stats.seconds``).
 
 This is everything a worker task does (``workers/tasks.py`` is a few lines around it).  The bundle
 is published under a key derived from everything that determines its bytes
@@ -22,11 +26,12 @@ import redis.exceptions
 import sqlalchemy.exc
 from kombu.exceptions import OperationalError as BrokerError
 
-from farfield.core.bundle import MANIFEST_NAME, write_bundle
+from farfield.core.bundle import MANIFEST_NAME, read_bundle, write_bundle
 from farfield.core.errors import BundleFormatError, ErrorKind, FarfieldError, InternalError
 from farfield.core.impostor import Impostor
 from farfield.core.scene import Scene
 from farfield.core.techniques import get_technique
+from farfield.core.techniques.part import report_part
 from farfield.core.viewcells import viewcell_from_dict
 from farfield.service.blobs import BlobStore
 from farfield.service.db import Database, JobRow, SceneRow
@@ -38,6 +43,8 @@ from farfield.service.scenes import load_stored_scene
 # 1024 on llvmpipe), and writes its progress every PROGRESS_EVERY_S.
 CANCEL_CHECK_S = 0.1
 PROGRESS_EVERY_S = 0.5
+# A cell's progress while it is evaluated (after its bundle is published).
+EVALUATION_PROGRESS = 0.95
 
 
 class CellCancelled(Exception):
@@ -102,6 +109,21 @@ def bake_cell(job: JobRow, scene: Scene, viewcell: dict, progress) -> Impostor:
     return technique.bake(scene, viewcell_from_dict(viewcell), technique.options_of(job.params), job.params.get("objects"), progress)
 
 
+def evaluate_cell(blobs: BlobStore, scene_row: SceneRow, key: str, scene: Scene | None = None, impostor: Impostor | None = None) -> dict:
+    """The job report's evaluation of the bundle under ``key`` (:func:`core.techniques.part.report_part`):
+    of ``impostor`` when this attempt baked it, else of the stored bundle read back (a redelivered
+    cell, or equal inputs another job baked); ``scene`` is loaded when not given."""
+    if scene is None:
+        scene = load_stored_scene(blobs, scene_row)
+    if impostor is None:
+        with tempfile.TemporaryDirectory(prefix="farfield-cell-") as tmp:
+            try:
+                impostor = read_bundle(blobs.copy_to_directory(key, Path(tmp) / "bundle"))
+            except BundleFormatError as error:  # a bundle this service published: a bug, not bad input
+                raise InternalError(f"the stored bundle {key} could not be read: {error}") from error
+    return report_part(scene, impostor)
+
+
 def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, worker: str | None = None) -> str:
     """Run one cell; returns its new state ("done", "failed", "cancelled") or "skipped".
 
@@ -157,6 +179,7 @@ def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, wo
             scene_row = s.get(SceneRow, job.scene_id)
         key = result_key(scene_row.content_hash, job.job_type, job.params, cell.viewcell)
         seconds = None  # this attempt's bake timings (a bundle stores none: its bytes depend on its inputs alone)
+        scene = impostor = None
         if not blobs.exists(f"{key}/{MANIFEST_NAME}"):
             scene = load_stored_scene(blobs, scene_row)
             impostor = bake_cell(job, scene, cell.viewcell, progress)
@@ -170,6 +193,9 @@ def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, wo
         stats = json.loads(blobs.read_bytes(f"{key}/{MANIFEST_NAME}"))["stats"]
         if seconds is not None:
             stats["seconds"] = seconds
+        if job.evaluate and get_technique(job.job_type).scope == "part":
+            set_progress(db, cell_id, EVALUATION_PROGRESS)
+            stats["evaluation"] = evaluate_cell(blobs, scene_row, key, scene, impostor)
     except CellCancelled:
         end("cancelled")
         return "cancelled"

@@ -149,6 +149,24 @@ def test_upload_submit_progress_done_atlas(page, service):
     assert page.locator(tid("cell-state")).get_attribute("data-state") == "done"
     stats = page.locator(tid("cell-stats"))
     assert stats.locator('[data-stat="quads"]').count() == 1 and stats.locator('[data-stat="atlas_pages"]').count() == 1
+    # The cell's evaluation against the bunny, as the worker measured it, in its own table.
+    with service.client() as client:
+        record = client.get(f"/v1/jobs/{job_id}").json()
+    measured = next(c for c in record["cells"] if c["index"] == 1)["stats"]["evaluation"]
+    figures = page.locator(tid("cell-evaluation"))
+    shown = {row.get_attribute("data-figure"): row.locator("td").nth(1).inner_text() for row in figures.locator("tr").all()}
+    assert list(shown) == ["hole_pixels", "bloat_beyond_1px", "colour_error_mean", "colour_error_p99", "colour_error_1px_mean", "ssim", "ssim_min", "viewpoints", "seconds"]
+    assert shown["hole_pixels"] == f"{measured['hole_pixels']:,}" and shown["bloat_beyond_1px"] == f"{measured['bloat_beyond_1px']:,}"
+    for name, places in (("colour_error_mean", 2), ("colour_error_p99", 1), ("colour_error_1px_mean", 2), ("ssim", 3), ("ssim_min", 3)):
+        assert abs(float(shown[name]) - measured[name]) <= 0.51 * 10**-places, (name, shown[name], measured[name])
+    assert shown["viewpoints"] == "4 × 2²"
+    kept = measured["hole_pixels"] == 0 and measured["bloat_beyond_1px"] == 0
+    assert page.locator(tid("cell-guarantee")).get_attribute("data-guarantee") == ("kept" if kept else "broken")
+    assert figures.locator('[data-figure="bloat_beyond_1px"]').get_attribute("class") == (None if measured["bloat_beyond_1px"] == 0 else "bad")
+    assert stats.locator('[data-stat^="evaluation"]').count() == 0  # not repeated among the bake's statistics
+    assert "evaluation" in page.locator(tid("cell-seconds")).inner_text() and "bake" in page.locator(tid("cell-seconds")).inner_text()
+    summary = record["evaluation"]
+    assert page.locator(tid("job-evaluation")).inner_text().startswith(f"4 cells, {summary['cells_broken'] or 'none'} breaking the guarantee")
     if os.environ.get("FARFIELD_DASHBOARD_SCREENSHOT"):
         page.screenshot(path=os.environ["FARFIELD_DASHBOARD_SCREENSHOT"], full_page=True)
 
@@ -250,6 +268,8 @@ def test_job_form_is_built_from_the_technique_registry(page, service):
 
             request = submit()  # nothing changed: no options
             assert request["technique"] == name and "options" not in request and "job_type" not in request
+            assert "evaluate" not in request  # on unless switched off, and only techniques of one part are evaluated
+            assert page.locator(tid("job-evaluate")).is_visible() == (technique["scope"] == "part")
             assert request["resolution"] == image["resolution"]["default"] and request["fov_deg"] == image["fov_deg"]["default"]
             expected = {}
             for option in technique["options"]:
@@ -261,6 +281,9 @@ def test_job_form_is_built_from_the_technique_registry(page, service):
         first = described[0]
         page.select_option(tid("technique"), first["name"])
         assert set(submit()["options"]) == {o["name"] for o in first["options"]}
+        page.locator(tid("job-evaluate")).uncheck()
+        assert submit()["evaluate"] is False
+        page.locator(tid("job-evaluate")).check()
     finally:
         page.unroute("**/v1/jobs", capture)
 

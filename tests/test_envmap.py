@@ -55,10 +55,15 @@ def _assert_faithful(result: dict) -> None:
     totals = result["totals"]
     assert totals["views"] > 0 and totals["geometry_pixels"] > 0
     assert totals["hole_pixels"] == 0, [r["stats"]["hole_pixels"] for r in result["views"]]
-    # Within one pixel (the metric already allows a one-pixel shift): what differs is resampling
-    # at silhouettes, a few pixels a view (the worst views see only ~700 pixels of geometry).
-    assert totals["colour_error_mean"] < 1.0
-    assert all(r["stats"]["colour_error_mean"] < 8.0 for r in result["views"])
+    views = [r["stats"] for r in result["views"]]
+    # Per pixel where both cover: what differs is resampling at silhouettes and texel edges.  Measured
+    # (llvmpipe, the four scenes below): means 0.09-1.63 over all views, at most 22.7 in one view
+    # (the worst views see only ~700 pixels of geometry, mostly silhouette).
+    assert totals["colour_error_mean"] < 2.5
+    assert all(v["colour_error_mean"] < 30.0 for v in views)
+    # Within one pixel (forgiving a one-pixel shift): 0.03-0.46 over all views, at most 7.5 in one.
+    assert totals["colour_error_1px_mean"] < 1.0
+    assert all(v["colour_error_1px_mean"] < 8.0 for v in views)
 
 
 def test_city_has_no_holes_from_anywhere_in_the_cell(town, town_impostor):

@@ -51,6 +51,8 @@ def test_envmap_grid_job_makes_an_impostor_database(client, city_id, city_glb, t
     assert job["state"] == "done", job["errors"]
     assert job["counts"]["done"] == 9 and job["progress"] == 1.0
     assert job["params"]["options"] == stored_options("envmap", **OPTIONS)
+    # The job report evaluates impostors of one part; an envmap cell (the whole scene) is not.
+    assert job["evaluate"] is True and job["evaluation"] is None and all("evaluation" not in c["stats"] for c in job["cells"])
 
     # The lookup route serves the cell around a viewpoint, as for layered jobs.
     centre = viewcell_from_dict(job["cells"][CENTRE]["viewcell"]).center

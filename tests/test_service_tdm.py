@@ -28,6 +28,7 @@ from farfield.core.errors import LayerPlanError
 from farfield.core.exchange import load_scene
 from farfield.core.scene import Scene
 from farfield.core.techniques import get_technique
+from farfield.core.techniques.part import REPORT_FIGURES, report_part
 from farfield.core.techniques.tdm import TdmOptions, bake_tdm
 from farfield.core.viewcells import viewcell_from_dict
 
@@ -127,6 +128,8 @@ def test_tdm_job_makes_textured_depth_meshes(client, block_id, block_glb, tmp_pa
     for cell in job["cells"]:
         assert cell["has_result"] and set(STATS) <= set(cell["stats"]), cell["stats"]
         assert 0 < cell["stats"]["triangles"] < cell["stats"]["initial_triangles"]
+        assert cell["stats"]["evaluation"]["hole_pixels"] == 0 and cell["stats"]["evaluation"]["viewpoints"] == 4  # evaluated on the worker
+    assert job["evaluation"]["cells"] == 2
 
     # One cell's bundle on its own, then the whole database.
     manifest = client.get(f"/v1/jobs/{job['id']}/cells/0/manifest.json").json()
@@ -165,6 +168,50 @@ def test_tdm_job_makes_textured_depth_meshes(client, block_id, block_glb, tmp_pa
         assert impostors[0].stats[name] == expected.stats[name], name
 
 
+def test_cells_of_a_part_are_evaluated_on_the_worker_unless_switched_off(service, client, block_id, block_glb):
+    """A layered job's cell carries its evaluation against the real geometry (``stats.evaluation``):
+    the figures core's report_part gives for the same bake, and the seconds it took apart from the
+    bake's; the bundle holds none of it.  ``evaluate: false`` skips it and shares the bundle; a job
+    that finds the bundle already baked evaluates the stored bundle, to the same figures."""
+    spec = {"scene_id": block_id, "technique": "layered", "viewcells": [{"kind": "box", "lo": [-2, 3, -27], "hi": [2, 7, -23]}],
+            "objects": PART, "resolution": 64}  # fmt: skip
+    first = wait_for_job(client, client.post("/v1/jobs", json=spec).json()["id"])
+    assert first["state"] == "done" and first["evaluate"] is True, first["errors"]
+    cell = first["cells"][0]
+    figures = cell["stats"]["evaluation"]
+    assert set(figures) == {*REPORT_FIGURES, "samples", "seconds"}
+    assert figures["viewpoints"] == 4 and figures["seconds"] > 0 and cell["stats"]["seconds"]["total"] > 0  # bake and evaluation apart
+    layered = get_technique("layered")
+    baked = layered.bake(load_scene(block_glb), viewcell_from_dict(cell["viewcell"]), layered.options_of(first["params"]), PART, None)
+    expected = report_part(load_scene(block_glb), baked)
+    for name in (*REPORT_FIGURES, "samples"):
+        assert figures[name] == pytest.approx(expected[name], rel=1e-12, abs=1e-12), name
+    assert figures["hole_pixels"] == 0
+    assert first["evaluation"] == {
+        "cells": 1, "cells_broken": int(bool(figures["hole_pixels"] or figures["bloat_beyond_1px"])), "hole_pixels": figures["hole_pixels"],
+        "bloat_beyond_1px": figures["bloat_beyond_1px"], "colour_error_mean": figures["colour_error_mean"], "ssim_min": figures["ssim_min"],
+        "seconds": figures["seconds"],
+    }  # fmt: skip
+    shown = service.cli("jobs", first["id"], "--url", service.url, "--key", service.env["FARFIELD_ADMIN_KEY"])
+    assert shown.returncode == 0 and f"evaluation: 1 cells, {first['evaluation']['cells_broken']} breaking the guarantee" in shown.stdout, shown.stdout
+    manifest = client.get(f"/v1/jobs/{first['id']}/cells/0/manifest.json")
+    assert "evaluation" not in manifest.json()["stats"] and "seconds" not in manifest.json()["stats"]
+
+    off = client.post("/v1/jobs", json={**spec, "evaluate": False})
+    assert off.status_code == 201 and off.json()["evaluate"] is False, off.text
+    off = wait_for_job(client, off.json()["id"])
+    assert off["state"] == "done" and off["evaluation"] is None
+    assert "evaluation" not in off["cells"][0]["stats"]
+    assert client.get(f"/v1/jobs/{off['id']}/cells/0/manifest.json").content == manifest.content  # the same bundle
+    refused = client.post("/v1/jobs", json={**spec, "evaluate": "no"})
+    assert refused.status_code == 422 and "evaluate" in refused.text
+
+    again = wait_for_job(client, client.post("/v1/jobs", json=spec).json()["id"])  # the bundle exists: read back and evaluated
+    assert again["state"] == "done" and "seconds" not in again["cells"][0]["stats"]
+    for name in (*REPORT_FIGURES, "samples"):
+        assert again["cells"][0]["stats"]["evaluation"][name] == pytest.approx(figures[name], rel=1e-12, abs=1e-12), name
+
+
 def test_tdm_job_of_explicit_and_shaft_cells_with_all_objects(client, block_id):
     """Explicit cells (a box and a shaft), no ``objects`` (the whole scene), non-default options."""
     cells = [
@@ -187,11 +234,12 @@ def test_cli_submit_tdm(service, block_id, tmp_path):
     grid = "-2,3,-27,2,7,-23,1,1,1"
     done = service.cli(
         "submit", block_id, "--technique", "tdm", "--grid", grid, "--objects", "block,tower", "--resolution", "96",
-        "--option", "enlargement=3", "--option", "oversampling=2", "--wait", "--download", str(tmp_path / "db"), "--json", *env_args,
+        "--option", "enlargement=3", "--option", "oversampling=2", "--no-evaluate", "--wait", "--download", str(tmp_path / "db"), "--json", *env_args,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
     job = json.loads(done.stdout)
     assert job["state"] == "done" and job["job_type"] == "tdm" and job["counts"]["done"] == 1
+    assert job["evaluate"] is False and job["evaluation"] is None
     assert job["params"]["options"] == stored_options("tdm", enlargement=3, oversampling=2)
     index = json.loads((tmp_path / "db" / "index.json").read_text())
     impostor = read_bundle(tmp_path / "db" / index["cells"][0]["bundle"])
@@ -274,6 +322,7 @@ def test_dashboard_submits_a_tdm_job(service, block_id, browser):
         assert error.get_attribute("data-source") == "server"
         page.fill(tid("option-enlargement"), "3")
         page.fill(tid("option-oversampling"), "2")
+        page.locator(tid("job-evaluate")).uncheck()
         page.click(tid("job-submit"))
         page.wait_for_url("**/#/jobs/*")
         job_id = page.url.rsplit("/", 1)[1]
@@ -284,8 +333,12 @@ def test_dashboard_submits_a_tdm_job(service, block_id, browser):
         stats = page.locator(tid("cell-stats"))
         stats.locator('[data-stat="initial_triangles"]').wait_for()
         assert stats.locator('[data-stat="triangles"]').count() == 1
+        assert "switched off" in page.locator(tid("cell-evaluation-note")).inner_text()
+        assert page.locator(tid("cell-evaluation")).locator("tr").count() == 0
+        assert page.locator(tid("job-evaluation")).inner_text() == "off for this job"
         with service.client() as client:
             job = client.get(f"/v1/jobs/{job_id}").json()
+        assert job["evaluate"] is False and all("evaluation" not in c["stats"] for c in job["cells"])
         assert job["technique"] == "tdm" and job["params"]["options"] == stored_options("tdm", enlargement=3, oversampling=2)
         assert job["params"]["objects"] == PART
         page.click(tid("back-link"))

@@ -205,6 +205,7 @@ def test_route_cli_and_registry_agree(service, client, tmp_path):
     # The OpenAPI document describes the request's technique field with the registry's names.
     schema = client.get("/openapi.json").json()["components"]["schemas"]["JobSpec"]["properties"]
     assert set(TECHNIQUES) <= set(json.dumps(schema["technique"]).replace('"', " ").split())
+    assert schema["evaluate"]["type"] == "boolean" and schema["evaluate"]["default"] is True and "SSIM" in schema["evaluate"]["description"]
     documented = schema["options"]["x-technique-options"]
     for technique in TECHNIQUES.values():
         for option in technique.describe()["options"]:

@@ -414,6 +414,8 @@ function onTechniqueChange() {
   const scene = t.scope === "scene"; // the whole scene: no objects to choose
   $("objects-field").hidden = scene;
   $("job-objects").disabled = scene;
+  $("evaluate-field").hidden = scene; // the evaluation a job records is of impostors of one part
+  $("job-evaluate").disabled = scene;
 }
 
 function numberOrText(text) {
@@ -473,6 +475,7 @@ function jobRequest() {
     if (value !== undefined) options[o.name] = value;
   }
   if (Object.keys(options).length) request.options = options;
+  if (t.scope !== "scene" && !$("job-evaluate").checked) request.evaluate = false; // on unless switched off
   return request;
 }
 
@@ -589,6 +592,7 @@ function renderJob(job) {
   const s = job.seconds || {};
   $("job-times").textContent = `created ${fmtTime(job.created_at)}; wall ${fmtSeconds(s.wall)}; cells ${fmtSeconds(s.cells_total)} in all` +
     (s.cell_mean != null ? `, ${fmtSeconds(s.cell_mean)} each` : "");
+  $("job-evaluation").textContent = evaluationText(job);
   $("job-cancel").disabled = FINAL.has(job.state);
   $("job-retry").disabled = job.state !== "failed";
   $("job-download").disabled = !job.has_index;
@@ -737,6 +741,64 @@ function selectCell(index, switchLevel = false) {
   renderCellPanel();
 }
 
+function evaluationText(job) {
+  // The job's evaluation summary (the "evaluation" of its record) in one line.
+  const e = job.evaluation;
+  if (job.evaluate === false) return "off for this job";
+  if (techniqueScope(job.technique || job.job_type) === "scene") return "— (cells are evaluated for techniques of one part)";
+  if (!e) return FINAL.has(job.state) ? "no cell evaluated" : "after each cell's bake";
+  const broken = e.cells_broken ? `${e.cells_broken} breaking the guarantee` : "none breaking the guarantee";
+  return `${e.cells} cells, ${broken} (${fmtNum(e.hole_pixels)} hole pixels, ${fmtNum(e.bloat_beyond_1px)} pixels bloated beyond 1 px); ` +
+    `worst colour error mean ${e.colour_error_mean.toFixed(2)}, worst SSIM ${e.ssim_min.toFixed(3)}; ${fmtSeconds(e.seconds)} evaluating`;
+}
+
+function techniqueScope(name) {
+  const t = state.techniques.get(name);
+  return t ? t.scope : null;
+}
+
+// The figures of a cell's evaluation, in the order shown: [key in stats.evaluation, label, format].
+const EVALUATION_ROWS = [
+  ["hole_pixels", "hole pixels", (v) => fmtNum(v)],
+  ["bloat_beyond_1px", "pixels bloated beyond 1 px", (v) => fmtNum(v)],
+  ["colour_error_mean", "colour error, mean (0–255)", (v) => v.toFixed(2)],
+  ["colour_error_p99", "colour error, 99th percentile", (v) => v.toFixed(1)],
+  ["colour_error_1px_mean", "colour error within 1 px, mean", (v) => v.toFixed(2)],
+  ["ssim", "SSIM (mean of views; 1 = equal)", (v) => v.toFixed(3)],
+  ["ssim_min", "SSIM, worst view", (v) => v.toFixed(3)],
+  ["viewpoints", "viewpoints × samples per pixel", (v, e) => `${v} × ${e.samples}²`],
+  ["seconds", "seconds evaluating", (v) => fmtSeconds(v)],
+];
+
+function renderCellEvaluation(job, cell) {
+  const e = cell.stats && cell.stats.evaluation;
+  const body = $("cell-evaluation");
+  const guarantee = $("cell-guarantee");
+  let note = "";
+  if (!e) {
+    body.replaceChildren();
+    guarantee.textContent = "";
+    delete guarantee.dataset.guarantee;
+    if (job.evaluate === false) note = "Not evaluated: switched off for this job.";
+    else if (techniqueScope(job.technique || job.job_type) === "scene") note = "Not evaluated: the job report evaluates impostors of one part (layered, tdm).";
+    else if (cell.state === "done") note = "Not evaluated.";
+    else note = "Evaluated on the worker after the bake.";
+    showBox($("cell-evaluation-note"), note);
+    return;
+  }
+  const broken = e.hole_pixels > 0 || e.bloat_beyond_1px > 0;
+  guarantee.textContent = broken ? "guarantee broken" : "guarantee kept";
+  guarantee.dataset.guarantee = broken ? "broken" : "kept";
+  guarantee.className = "guarantee " + (broken ? "broken" : "kept");
+  body.replaceChildren(...EVALUATION_ROWS.filter(([key]) => typeof e[key] === "number").map(([key, label, format]) => {
+    const bad = (key === "hole_pixels" || key === "bloat_beyond_1px") && e[key] > 0;
+    return el("tr", {"data-figure": key, class: bad ? "bad" : null}, el("td", {text: label}), el("td", {text: format(e[key], e)}));
+  }));
+  note = `From the reference viewpoint and ${e.viewpoints - 1} cell corners; colour error per pixel where both cover ` +
+    "(max over RGB), SSIM over both coverages. The guarantee: no hole pixel and no pixel bloated beyond 1 px.";
+  showBox($("cell-evaluation-note"), note);
+}
+
 function renderCellPanel() {
   const job = state.job;
   const cell = job && state.selected !== null ? (job.cells || []).find((c) => c.index === state.selected) : null;
@@ -755,7 +817,11 @@ function renderCellPanel() {
   const vc = cell.viewcell || {};
   $("cell-box").textContent = vc.lo ? `${vc.kind} ${fmtVec(vc.lo)} – ${fmtVec(vc.hi)}` : JSON.stringify(vc);
   $("cell-attempts").textContent = String(cell.attempts);
-  $("cell-seconds").textContent = fmtSeconds(cell.seconds);
+  const bake = cell.stats && cell.stats.seconds && typeof cell.stats.seconds.total === "number" ? cell.stats.seconds.total : null;
+  const evaluating = cell.stats && cell.stats.evaluation ? cell.stats.evaluation.seconds : null;
+  const parts = [bake !== null ? `bake ${fmtSeconds(bake)}` : null, evaluating != null ? `evaluation ${fmtSeconds(evaluating)}` : null].filter(Boolean);
+  $("cell-seconds").textContent = fmtSeconds(cell.seconds) + (parts.length ? ` (${parts.join(", ")})` : "");
+  renderCellEvaluation(job, cell);
   showBox($("cell-error"), cell.error ? cell.error : "");
 
   // A finished impostor may have no atlas page at all (an envmap cell that sees nothing beyond its near field).
@@ -783,7 +849,8 @@ function renderCellPanel() {
       if (/^seconds\./.test(prefix) && typeof value === "number") text = fmtSeconds(value);
       rows.push(el("tr", {"data-stat": prefix}, el("td", {text: prefix}), el("td", {text})));
     };
-    walk("", cell.stats || {});
+    const {evaluation: _shownAbove, ...rest} = cell.stats || {}; // the evaluation has its own table
+    walk("", rest);
     if (!rows.length) rows.push(el("tr", {}, el("td", {class: "muted", text: "no statistics yet"}), el("td", {})));
     stats.replaceChildren(...rows);
     stats.dataset.key = statsKey;
