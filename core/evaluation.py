@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from skimage.metrics import structural_similarity
 
+from farfield.core.colour_space import linear_to_srgb, srgb_to_linear
 from farfield.core.impostor import Impostor, MeshPayload, QuadPayload
 from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
 from farfield.core.scene import Scene, SceneObject
@@ -89,24 +90,28 @@ def _dilate(mask: np.ndarray) -> np.ndarray:
     return grown
 
 
+_LINEAR = srgb_to_linear(np.arange(256) / 255.0).astype(np.float32)  # sRGB byte -> linear
+
+
 def downsample(image: np.ndarray, samples: int) -> np.ndarray:
     """(h, w, 4) uint8 pixels of an (h*s, w*s, 4) render: alpha 255 if any sample is covered, RGB
-    the mean of the covered samples (rounded to the nearest integer)."""
+    the mean of the covered samples in linear light, sRGB-encoded and rounded (what a pixel
+    resolved from those samples shows; :mod:`core.colour_space`)."""
     if samples == 1:
         return image
     h, w = image.shape[0] // samples, image.shape[1] // samples
     covered = image[..., 3] > 0
-    masked = image[..., :3] * covered[..., None]
-    # One strided slice per sample position, summed as integers: a reduction over the reshaped
-    # (h, s, w, s) axes took five times as long (most of an evaluation at 512 px).
-    rgb = np.zeros((h, w, 3), dtype=np.uint32)
+    masked = _LINEAR[image[..., :3]] * covered[..., None]
+    # One strided slice per sample position: a reduction over the reshaped (h, s, w, s) axes took
+    # five times as long (most of an evaluation at 512 px).
+    rgb = np.zeros((h, w, 3), dtype=np.float32)
     count = np.zeros((h, w), dtype=np.uint32)
     for dy in range(samples):
         for dx in range(samples):
             rgb += masked[dy::samples, dx::samples]
             count += covered[dy::samples, dx::samples]
     out = np.zeros((h, w, 4), dtype=np.uint8)
-    out[..., :3] = np.round(rgb / np.maximum(count, 1)[..., None]).astype(np.uint8)
+    out[..., :3] = np.round(linear_to_srgb(rgb / np.maximum(count, 1)[..., None]) * 255.0).astype(np.uint8)
     out[..., 3] = np.where(count > 0, 255, 0)
     return out
 
