@@ -75,6 +75,7 @@ def table(scene: Scene, distances, resolutions, size: float, random_count: int) 
                 "distance": distance, "resolution": resolution, "layers": s["layers"], "quads": s["quads"],
                 "texture_kib": s["texture_bytes"] / 1024, "holes": ev.totals["hole_pixels"],
                 "bloat_1px": ev.totals["bloat_beyond_1px"], "colour_err": ev.totals["colour_error_mean"],
+                "colour_p99": ev.totals["colour_error_p99"], "ssim": ev.totals["ssim"],
                 **{f"t_{k}": v for k, v in s["seconds"].items()},
             })
     return rows
@@ -113,6 +114,7 @@ def knobs(scene: Scene, distance: float, size: float, random_count: int) -> list
             "knob": name, "layers": s["layers"], "quads": s["quads"], "texture_kib": s["texture_bytes"] / 1024,
             "tile_kib": s["texture_bytes_tile_area"] / 1024, "geometry_kib": s["geometry_bytes"] / 1024,
             "seconds": s["seconds"]["total"], "holes": ev.totals["hole_pixels"], "colour_err": ev.totals["colour_error_mean"],
+            "colour_p99": ev.totals["colour_error_p99"], "ssim": ev.totals["ssim"], "bloat_1px": ev.totals["bloat_beyond_1px"],
         })
     return rows
 
@@ -178,20 +180,20 @@ def main() -> None:
         return
     print(f"renderer: {info.renderer}   object: {scene.triangle_count} triangles, diameter {diameter:.3g}, cubic cell {size:.3g}")
     print("\n1. quality, memory and time by distance (near face to near face) and output resolution")
-    head = f"{'dist':>6} {'res':>5} {'layers':>6} {'quads':>6} {'tex KiB':>9} {'holes':>6} {'bloat>1':>8} {'col err':>8} {'record':>7} {'cull':>6} {'quads':>6} {'atlas':>6} {'total s':>8}"
+    head = f"{'dist':>6} {'res':>5} {'layers':>6} {'quads':>6} {'tex KiB':>9} {'holes':>6} {'bloat>1':>8} {'col err':>8} {'p99':>5} {'SSIM':>5} {'record':>7} {'cull':>6} {'quads':>6} {'atlas':>6} {'total s':>8}"
     print(head)
     for r in result["table"]:
-        print(f"{r['distance']:>6.2f} {r['resolution']:>5} {r['layers']:>6} {r['quads']:>6} {r['texture_kib']:>9.1f} {r['holes']:>6} {r['bloat_1px']:>8} {r['colour_err']:>8.2f} "
+        print(f"{r['distance']:>6.2f} {r['resolution']:>5} {r['layers']:>6} {r['quads']:>6} {r['texture_kib']:>9.1f} {r['holes']:>6} {r['bloat_1px']:>8} {r['colour_err']:>8.2f} {r['colour_p99']:>5.0f} {r['ssim']:>5.3f} "
               f"{r['t_record']:>7.3f} {r['t_cull']:>6.3f} {r['t_quads']:>6.3f} {r['t_atlas']:>6.3f} {r['t_total']:>8.3f}")
     m = result["memory"]
     print(f"\n2. texture memory at 512, {m['layers']} layers: one quad per layer {m['one_quad_per_layer_kib']:.0f} KiB -> box-grown "
           f"{m['box_grown_kib']:.0f} KiB -> box-grown after culling {m['box_grown_culled_kib']:.0f} KiB "
           f"(ratios {m['ratio_one_to_grown']:.1f}x, {m['ratio_one_to_culled']:.1f}x; thesis 2.9x, 13.7x); atlas pages {m['atlas_pages_culled_kib']:.0f} KiB")
     print("\n3. knobs at 512, one at a time (distance 1 diameter)")
-    print(f"{'knob':<22} {'layers':>6} {'quads':>6} {'atlas KiB':>10} {'tiles KiB':>10} {'geom KiB':>9} {'seconds':>8} {'holes':>6} {'col err':>8}")
+    print(f"{'knob':<22} {'layers':>6} {'quads':>6} {'atlas KiB':>10} {'tiles KiB':>10} {'geom KiB':>9} {'seconds':>8} {'holes':>6} {'bloat>1':>8} {'col err':>8} {'p99':>5} {'SSIM':>5}")
     for r in result["knobs"]:
         print(f"{r['knob']:<22} {r['layers']:>6} {r['quads']:>6} {r['texture_kib']:>10.1f} {r['tile_kib']:>10.1f} {r['geometry_kib']:>9.1f} "
-              f"{r['seconds']:>8.3f} {r['holes']:>6} {r['colour_err']:>8.2f}")
+              f"{r['seconds']:>8.3f} {r['holes']:>6} {r['bloat_1px']:>8} {r['colour_err']:>8.2f} {r['colour_p99']:>5.0f} {r['ssim']:>5.3f}")
     s = result["speed"]
     stages = "  ".join(f"{k} {v:.3f}" for k, v in s["stages"].items())
     print(f"\n4. speed: {s['triangles']} triangles, {s['layers']} layers, texture {s['texture'][0]}x{s['texture'][1]}: bake {s['bake_s']:.3f} s "

@@ -82,6 +82,8 @@ def measure(scene, cell, resolution: int, enlargement: float = 2.0) -> dict:
         "tdm_seconds": s["seconds"],
         "tdm_holes": ev_t["hole_pixels"],
         "tdm_colour_error": ev_t["colour_error_mean"],
+        "tdm_colour_p99": ev_t["colour_error_p99"],
+        "tdm_ssim": ev_t["ssim"],
         "tdm_bloat_beyond_1px": ev_t["bloat_beyond_1px"],
         "layered_quads": l["quads"],
         "layered_memory": int(l["texture_bytes_tile_area"] + l["geometry_bytes"]),
@@ -89,6 +91,9 @@ def measure(scene, cell, resolution: int, enlargement: float = 2.0) -> dict:
         "layered_seconds": l["seconds"]["total"],
         "layered_holes": ev_l["hole_pixels"],
         "layered_colour_error": ev_l["colour_error_mean"],
+        "layered_colour_p99": ev_l["colour_error_p99"],
+        "layered_ssim": ev_l["ssim"],
+        "layered_bloat_beyond_1px": ev_l["bloat_beyond_1px"],
         "geometry_pixels": ev_t["geometry_pixels"],
     }
 
@@ -124,6 +129,8 @@ def print_table(rows: dict) -> None:
         line(f"TDM {stage} (s)", lambda r, st=stage: f"{r['tdm_seconds'].get(st, 0.0):.3f}")
     line("TDM hole pixels", lambda r: r["tdm_holes"])
     line("TDM colour error (mean, 0-255)", lambda r: f"{r['tdm_colour_error']:.2f}")
+    line("TDM colour error (99th percentile)", lambda r: f"{r['tdm_colour_p99']:.0f}")
+    line("TDM SSIM", lambda r: f"{r['tdm_ssim']:.3f}")
     line("TDM pixels bloated beyond 1 px", lambda r: r["tdm_bloat_beyond_1px"])
     line("# quads of layered impostor", lambda r: r["layered_quads"])
     line("memory of layered, tiles (kB)", lambda r: f"{r['layered_memory'] / 1000:.1f}")
@@ -131,6 +138,9 @@ def print_table(rows: dict) -> None:
     line("layered generation (s)", lambda r: f"{r['layered_seconds']:.3f}")
     line("layered hole pixels", lambda r: r["layered_holes"])
     line("layered colour error", lambda r: f"{r['layered_colour_error']:.2f}")
+    line("layered colour error (99th percentile)", lambda r: f"{r['layered_colour_p99']:.0f}")
+    line("layered SSIM", lambda r: f"{r['layered_ssim']:.3f}")
+    line("layered pixels bloated beyond 1 px", lambda r: r["layered_bloat_beyond_1px"])
     line("triangles TDM / quads layered", lambda r: f"{r['tdm_triangles'] / max(r['layered_quads'], 1):.2f}")
     line("triangles TDM / layered (2 a quad)", lambda r: f"{r['tdm_triangles'] / max(2 * r['layered_quads'], 1):.2f}")
     line("memory TDM pages / layered tiles", lambda r: f"{r['tdm_memory'] / max(r['layered_memory'], 1):.2f}")
