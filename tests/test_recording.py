@@ -257,3 +257,61 @@ def test_recording_at_continental_offsets_matches_the_same_part_at_the_origin(ct
     assert ctx.error == "GL_NO_ERROR"
     assert a.sum() > 500
     np.testing.assert_array_equal(a, b)
+
+
+def _bilinear_alpha(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """(n,) alpha of ``texture`` (h, w, 4) uint8, top row first, at ``uv`` (n, 2) as GL_LINEAR with
+    GL_REPEAT samples it (v up, texel centres at half-integers)."""
+    alpha = texture[::-1, :, 3].astype(np.float64) / 255.0
+    h, w = alpha.shape
+    q = uv * (w, h) - 0.5
+    i, j = np.floor(q).astype(np.int64).T
+    fx, fy = (q - np.floor(q)).T
+
+    def at(di, dj):
+        return alpha[(j + dj) % h, (i + di) % w]
+
+    return (1 - fy) * ((1 - fx) * at(0, 0) + fx * at(1, 0)) + fy * ((1 - fx) * at(0, 1) + fx * at(1, 1))
+
+
+@pytest.mark.parametrize("size", [8, 128])
+def test_alpha_cut_keeps_exactly_the_texels_where_filtered_alpha_passes_the_cut(size, ctx):
+    """A quad facing the reference viewpoint with a random alpha texture, magnified (8 texels) and
+    about 1:1 (128 texels): the layer holds a texel exactly where the filtered alpha reaches the cut
+    somewhere on the quad's part of its square, not where a neighbour's opaque texel merely lies
+    within reach.  The quad is parallel to the layer and axis-aligned, so a texel's part of it is a
+    rectangle in texture space, on which the filter, linear along each axis between texel centres,
+    is largest at a corner, where an edge crosses a line of texel centres, or at a centre."""
+    rng = np.random.default_rng(7)
+    texture = np.zeros((size, size, 4), dtype=np.uint8)
+    texture[..., :3] = 200
+    texture[..., 3] = rng.choice(np.array([0, 0, 0, 96, 160, 255], dtype=np.uint8), size=(size, size))
+    half = 4.0
+    vertices = np.array([[-half, -half, 0.0], [half, -half, 0.0], [half, half, 0.0], [-half, half, 0.0]])
+    quad = SceneObject("card", vertices, np.array([[0, 1, 2], [0, 2, 3]]), uv=(vertices[:, :2] + half) / (2 * half), texture=texture, alpha_cutoff=0.5)
+    scene = Scene.from_objects([quad], "card")
+    plan = plan_layers(BoxCell.from_center([0.0, 0.0, -60.0], 2.0), scene.bounds, math.radians(45), 384)
+    assert plan.count == 1
+    kept = record_layers(scene, plan).coverage[0]  # GL rows: row 0 at the bottom
+    res = plan.texture_resolution
+    frame = np.stack([plan.u, plan.v, plan.axis])
+    depth = float(-plan.reference_viewpoint @ plan.axis)  # of the plane z = 0, parallel to the layer
+
+    def uv_at(tx, ty):  # texel coordinates -> uv on the plane z = 0
+        eye = np.stack([(tx / res[0] * 2 - 1) * plan.frustum_half_tangents[0] * depth, (ty / res[1] * 2 - 1) * plan.frustum_half_tangents[1] * depth, np.full(np.shape(tx), depth)], -1)
+        return ((plan.reference_viewpoint + eye @ frame)[..., :2] + half) / (2 * half)
+
+    ty, tx = np.indices(kept.shape).astype(np.float64)
+    a, b = uv_at(tx, ty), uv_at(tx + 1, ty + 1)
+    lo, hi = np.clip(np.minimum(a, b), 0.0, 1.0), np.clip(np.maximum(a, b), 0.0, 1.0)
+    best = np.zeros(kept.shape)
+    for index in zip(*np.nonzero(np.all(hi > lo, axis=-1))):
+        axes = []
+        for k in range(2):
+            centres = (np.arange(size) + 0.5) / size
+            axes.append(np.concatenate([[lo[index][k], hi[index][k]], centres[(centres > lo[index][k]) & (centres < hi[index][k])]]))
+        u, v = np.meshgrid(*axes)
+        best[index] = _bilinear_alpha(texture, np.column_stack([u.ravel(), v.ravel()])).max()
+    sure = np.abs(best - 0.5) > 0.01
+    assert (best >= 0.5).sum() > 100 and (best < 0.5).sum() > 100
+    np.testing.assert_array_equal(kept[sure], (best >= 0.5)[sure])

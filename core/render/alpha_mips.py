@@ -1,10 +1,11 @@
 """Max-alpha mip chains: (h, w) uint8 alpha in, a list of (H >> L, W >> L) uint8 levels (power-of-two) out.
 
-Conservative alpha-cut recording needs the largest alpha anywhere under a texel's footprint.  The
-alpha mask is first resampled to the next power of two on each axis, every new texel taking the
-maximum of the original texels it overlaps; each further level takes the maximum of 2x2 blocks.
-A footprint no wider than one level-L texel then meets at most 2x2 texels of level L, which the
-fragment shader reads with ``texelFetch``.
+Conservative alpha-cut recording needs the largest alpha that bilinear filtering gives anywhere
+under a texel's footprint.  :func:`bilinear_square_max` first turns every texel into the largest
+value bilinear filtering takes on its square; the result is resampled to the next power of two on
+each axis, every new texel taking the maximum of the original texels it overlaps; each further
+level takes the maximum of 2x2 blocks.  The fragment shader then reads the texels of one level
+whose squares meet the footprint.
 """
 
 from __future__ import annotations
@@ -23,6 +24,42 @@ def _stretch_max(alpha: np.ndarray, axis: int, size: int) -> np.ndarray:
     first = (i * n) // size
     last = np.minimum(((i + 1) * n + size - 1) // size - 1, n - 1)
     return np.maximum(np.take(alpha, first, axis=axis), np.take(alpha, last, axis=axis))
+
+
+def bilinear_square_max(alpha: np.ndarray) -> np.ndarray:
+    """(h, w) uint8: for every texel of ``alpha`` (h, w) uint8, the largest value bilinear
+    filtering with repeat wrapping (GL_LINEAR, GL_REPEAT) takes anywhere on its square.
+
+    The lines through the texel's centre cut its square into quarters that each lie between four
+    texel centres, where the filter is bilinear, so linear along each axis: its largest value on a
+    quarter is at one of the quarter's corners.  Those are the texel's centre (the texel itself),
+    the midpoints of its sides (the mean with that side's neighbour) and its corners (the mean of
+    the 2x2 texels around it).  Means are rounded half down: a side between alpha 0 and 255 is
+    exactly at a 0.5 cut only on the line itself, which the opaque texel's square holds.  Reading
+    raw alphas instead would need each square grown by half a texel, and the largest alpha of a
+    grown square (a neighbour that bilinear filtering mixes in at most halfway) keeps texels where
+    the filtered alpha never reaches the cut.
+
+    >>> bilinear_square_max(np.array([[0, 255, 0, 0]], dtype=np.uint8)).tolist()
+    [[127, 255, 127, 0]]
+    >>> int(bilinear_square_max(np.array([[127, 128], [128, 128]], dtype=np.uint8))[0, 0])  # corner mean 127.75
+    128
+    """
+    a = np.asarray(alpha, dtype=np.int32)
+    out = a.copy()
+
+    def half_down(total: np.ndarray, count: int) -> np.ndarray:
+        # ceil(total / count - 1/2) in integers: the mean rounded to nearest, ties down.
+        return -((-(2 * total - count)) // (2 * count))
+
+    for axis in (0, 1):
+        for shift in (1, -1):
+            out = np.maximum(out, half_down(a + np.roll(a, shift, axis), 2))
+    for dy in (1, -1):
+        for dx in (1, -1):
+            down = np.roll(a, dy, 0)
+            out = np.maximum(out, half_down(a + down + np.roll(a, dx, 1) + np.roll(down, dx, 1), 4))
+    return out.astype(np.uint8)
 
 
 def max_alpha_levels(alpha: np.ndarray) -> list[np.ndarray]:

@@ -127,22 +127,187 @@ vec3 cut_colour(vec2 uv, vec2 c) {
     return sum.a > 0.0 ? sum.rgb / sum.a : vec3(0.0);
 }
 
-// The largest texture alpha anywhere under the texel square centred at c, plus one texture texel
-// for bilinear filtering: read at most 2x2 texels of the max-alpha level whose texels are at
-// least as wide as that footprint.  Returns 1 where the footprint cannot be bounded.
-float footprint_alpha(vec2 c) {
-    vec2 lo, hi;
-    if (!footprint(c, lo, hi)) { return 1.0; }
-    lo -= 1.0 / texture_size;
-    hi += 1.0 / texture_size;
-    vec2 extent = (hi - lo) * alpha_mip_size;
-    int level = int(clamp(ceil(log2(max(max(extent.x, extent.y), 1.0))), 0.0, float(alpha_mip_levels - 1)));
-    ivec2 size = max(ivec2(alpha_mip_size) >> level, ivec2(1));
-    ivec2 i0 = ivec2(floor(lo * vec2(size)));
-    ivec2 i1 = ivec2(floor(hi * vec2(size)));
+// The part of the clipped polygon under the texel square centred at c (Sutherland-Hodgman against
+// the square's four sides, grown by EPS): at most 9 vertices, in order; 0 where they do not meet.
+int polygon_under_square(vec2 c, out vec2 part[9]) {
+    vec2 cur[9];
+    for (int i = 0; i < 9; ++i) { cur[i] = g_poly[min(i, 4)]; part[i] = cur[i]; }
+    int n = 5;
+    for (int side = 0; side < 4; ++side) {
+        int axis = side >> 1;
+        float sgn = (side & 1) == 0 ? 1.0 : -1.0;  // keep the points with sgn * (p[axis] - bound) >= 0
+        float bound = c[axis] - sgn * (0.5 + EPS);
+        int m = 0;
+        for (int i = 0; i < 9; ++i) {
+            if (i >= n) { break; }
+            vec2 p = cur[i], q = cur[i + 1 == n ? 0 : i + 1];
+            float dp = sgn * (p[axis] - bound), dq = sgn * (q[axis] - bound);
+            if (dp >= 0.0 && m < 9) { part[m] = p; m += 1; }
+            if ((dp >= 0.0) != (dq >= 0.0) && m < 9) { part[m] = mix(p, q, dp / (dp - dq)); m += 1; }
+        }
+        n = m;
+        for (int i = 0; i < 9; ++i) { cur[i] = part[i]; }
+    }
+    return n;
+}
+
+// Texture alpha of texel i, repeat-wrapped (the GL_REPEAT the renderers sample with).
+float texel_alpha(ivec2 i, ivec2 size) {
+    return texelFetch(base_texture, ((i % size) + size) % size, 0).a;
+}
+
+// The largest bilinearly filtered alpha (GL_LINEAR) on the convex polygon p[0..n), in texel units
+// of the base texture (texel centres at integers + 0.5), exactly: between four texel centres the
+// filter is bilinear, a saddle with no maximum inside, so the maximum lies on the polygon's edges
+// (within one such cell, a quadratic: its ends or its vertex) or at a texel centre inside the
+// polygon, where lines through the centres cross.  Walks the edges cell by cell and the rows of
+// centres; returns -1 beyond MAX_EXACT_STEPS steps (a footprint spanning many texels).
+const int MAX_EXACT_STEPS = 1024;
+
+float exact_polygon_alpha(vec2 p[9], int n, ivec2 size) {
     float best = 0.0;
-    for (int y = i0.y; y <= min(i1.y, i0.y + 1); ++y) {
-        for (int x = i0.x; x <= min(i1.x, i0.x + 1); ++x) {
+    int steps = 0;
+    for (int k = 0; k < 9; ++k) {
+        if (k >= n) { break; }
+        vec2 a = p[k], d = p[k + 1 == n ? 0 : k + 1] - a;
+        ivec2 cell = ivec2(floor(a - 0.5 + 1e-6 * sign(d)));
+        float t = 0.0;
+        for (int guard = 0; guard < MAX_EXACT_STEPS; ++guard) {
+            steps += 1;
+            if (steps > MAX_EXACT_STEPS) { return -1.0; }
+            vec2 next = vec2(1e30);
+            if (d.x != 0.0) { next.x = (float(cell.x) + (d.x > 0.0 ? 1.5 : 0.5) - a.x) / d.x; }
+            if (d.y != 0.0) { next.y = (float(cell.y) + (d.y > 0.0 ? 1.5 : 0.5) - a.y) / d.y; }
+            float end = min(min(next.x, next.y), 1.0);
+            float a00 = texel_alpha(cell, size), a10 = texel_alpha(cell + ivec2(1, 0), size);
+            float a01 = texel_alpha(cell + ivec2(0, 1), size), a11 = texel_alpha(cell + ivec2(1, 1), size);
+            // Along the edge, r(s) = a + s d - (cell + 0.5); f = a00 + bx rx + by ry + dd rx ry.
+            vec2 r0 = a - (vec2(cell) + 0.5);
+            float bx = a10 - a00, by = a01 - a00, dd = a00 - a10 - a01 + a11;
+            for (int e = 0; e < 3; ++e) {
+                float s = e == 0 ? t : end;
+                if (e == 2) {  // the quadratic's vertex, where it is a maximum inside [t, end]
+                    float c2 = dd * d.x * d.y;
+                    float c1 = bx * d.x + by * d.y + dd * (r0.x * d.y + r0.y * d.x);
+                    if (!(c2 < 0.0)) { continue; }
+                    s = -c1 / (2.0 * c2);
+                    if (s <= t || s >= end) { continue; }
+                }
+                vec2 r = r0 + s * d;
+                best = max(best, a00 + bx * r.x + by * r.y + dd * r.x * r.y);
+            }
+            if (end >= 1.0) { break; }
+            if (next.x <= next.y) { cell.x += d.x > 0.0 ? 1 : -1; }
+            if (next.y <= next.x) { cell.y += d.y > 0.0 ? 1 : -1; }
+            t = end;
+        }
+    }
+    // Texel centres inside the polygon, row by row.
+    float lo = 1e30, hi = -1e30;
+    for (int k = 0; k < 9; ++k) {
+        if (k >= n) { break; }
+        lo = min(lo, p[k].y);
+        hi = max(hi, p[k].y);
+    }
+    for (int j = int(ceil(lo - 0.5)); j <= int(floor(hi - 0.5)); ++j) {
+        float y = float(j) + 0.5;
+        float x0 = 1e30, x1 = -1e30;
+        for (int k = 0; k < 9; ++k) {
+            if (k >= n) { break; }
+            vec2 a = p[k], b = p[k + 1 == n ? 0 : k + 1];
+            if ((a.y - y) * (b.y - y) > 0.0) { continue; }
+            float x = a.y == b.y ? a.x : a.x + (y - a.y) / (b.y - a.y) * (b.x - a.x);
+            float xb = a.y == b.y ? b.x : x;
+            x0 = min(x0, min(x, xb));
+            x1 = max(x1, max(x, xb));
+        }
+        for (int i = int(ceil(x0 - 0.5)); i <= int(floor(x1 - 0.5)); ++i) {
+            steps += 1;
+            if (steps > MAX_EXACT_STEPS) { return -1.0; }
+            best = max(best, texel_alpha(ivec2(i, j), size));
+        }
+    }
+    return best;
+}
+
+// The largest texture alpha that bilinear filtering gives to a point of the triangle inside this
+// texel and this layer's slab.  That part of the triangle is the polygon under the texel square;
+// its texture footprint is the convex polygon of its vertices' UVs (a plane maps convex polygons
+// to convex ones).  Exact where the footprint spans few texels (exact_polygon_alpha); else read,
+// row by row, exactly the texels of one level of alpha_mip whose squares meet the footprint, the
+// finest level at which they are about MAX_FOOTPRINT_TEXELS at most (level 0 holds each texel's
+// largest filtered alpha on its square, core/render/alpha_mips.py), which errs by at most one
+// texel of that level.  Footprints of grazing triangles are long, thin and diagonal: a bounding
+// box or coarse texels would take in texture many texels across them, texels of the layer pixels
+// away from any opaque point (as an earlier, coarser read did).  Returns 1 where the footprint
+// cannot be bounded.
+const int MAX_FOOTPRINT_TEXELS = 1024;
+
+float footprint_alpha(vec2 c) {
+    vec2 a = g_tri[0].xy, b = g_tri[1].xy, d = g_tri[2].xy;
+    if (abs(cross2(b - a, d - a)) <= 1e-9) { return 1.0; }
+    vec2 part[9];
+    int n = polygon_under_square(c, part);
+    if (n == 0) { part[0] = nearest_boundary_point(c); n = 1; }
+    ivec2 size0 = textureSize(base_texture, 0);
+    vec2 texels[9];  // base texture texel units
+    vec2 uv[9];  // level-0 alpha_mip texel units
+    vec2 lo = vec2(1e30), hi = vec2(-1e30);
+    for (int k = 0; k < 9; ++k) {
+        if (k >= n) { break; }
+        vec4 bw = barycentric(part[k]);
+        if (!(bw.w > 0.0)) { return 1.0; }
+        vec2 at = bw.x * g_uv[0] + bw.y * g_uv[1] + bw.z * g_uv[2];
+        texels[k] = at * vec2(size0);
+        uv[k] = at * alpha_mip_size;
+        lo = min(lo, uv[k]);
+        hi = max(hi, uv[k]);
+    }
+    float exact = exact_polygon_alpha(texels, n, size0);
+    // One step of 8-bit filter weights (a fixed-point GL_LINEAR) above the exact value.
+    if (exact >= 0.0) { return exact + 1.0 / 256.0; }
+    // The level: texels met ~ area / side^2 + perimeter / side + rows.
+    float area = 0.0, perimeter = 0.0;
+    for (int k = 0; k < 9; ++k) {
+        if (k >= n) { break; }
+        vec2 q = uv[k + 1 == n ? 0 : k + 1];
+        area += cross2(uv[k], q);
+        perimeter += distance(uv[k], q);
+    }
+    area = 0.5 * abs(area);
+    int level = 0;
+    for (; level < alpha_mip_levels - 1; ++level) {
+        float side = float(1 << level);
+        if (area / (side * side) + 2.0 * perimeter / side + (hi.y - lo.y) / side + 4.0 <= float(MAX_FOOTPRINT_TEXELS)) { break; }
+    }
+    ivec2 size = max(ivec2(alpha_mip_size) >> level, ivec2(1));
+    vec2 side = alpha_mip_size / vec2(size);  // a level texel, in level-0 texels
+    float best = 0.0;
+    int fetched = 0;
+    for (int y = int(floor(lo.y / side.y)); y <= int(floor(hi.y / side.y)); ++y) {
+        // The footprint's x extent within this row's closed band: its edges clipped to the band.
+        float y0 = float(y) * side.y, y1 = y0 + side.y;
+        float x0 = 1e30, x1 = -1e30;
+        for (int k = 0; k < 9; ++k) {
+            if (k >= n) { break; }
+            vec2 p = uv[k], e = uv[k + 1 == n ? 0 : k + 1] - p;
+            float t0 = 0.0, t1 = 1.0;
+            if (e.y != 0.0) {
+                float ta = (y0 - p.y) / e.y, tb = (y1 - p.y) / e.y;
+                t0 = max(t0, min(ta, tb));
+                t1 = min(t1, max(ta, tb));
+            } else if (p.y < y0 || p.y > y1) {
+                continue;
+            }
+            if (t0 > t1) { continue; }
+            float xa = p.x + t0 * e.x, xb = p.x + t1 * e.x;
+            x0 = min(x0, min(xa, xb));
+            x1 = max(x1, max(xa, xb));
+        }
+        if (x0 > x1) { continue; }
+        for (int x = int(floor(x0 / side.x)); x <= int(floor(x1 / side.x)); ++x) {
+            fetched += 1;
+            if (fetched > 4 * MAX_FOOTPRINT_TEXELS) { return 1.0; }
             ivec2 at = ivec2(((x % size.x) + size.x) % size.x, ((y % size.y) + size.y) % size.y);
             best = max(best, texelFetch(alpha_mip, at, level).r);
         }
