@@ -155,6 +155,7 @@ class PartView:
     t0: float
     depth: float
     corners_rel: np.ndarray  # (8, 3) part bounding-box corners relative to near_center, in (u, v, axis)
+    viewpoints_rel: np.ndarray  # (m, 3) viewpoints of the cell that bound parallax, same frame
 
 
 def part_view(cell: ViewCell, bounds) -> PartView:
@@ -195,6 +196,7 @@ def part_view(cell: ViewCell, bounds) -> PartView:
     else:  # pragma: no cover - typing guard
         raise LayerPlanError(f"unknown view cell {cell!r}")
     corners_rel = (part_corners - near_center) @ frame.T
+    viewpoints_rel = (_parallax_viewpoints(cell) - near_center) @ frame.T
     t0 = float(corners_rel[:, 2].min())
     depth = float(corners_rel[:, 2].max()) - t0
     if t0 <= touch:
@@ -202,7 +204,24 @@ def part_view(cell: ViewCell, bounds) -> PartView:
             f"the part touches or overlaps the view cell along the view axis (distance {t0:.6g}); "
             "layered impostors need the part strictly in front of the cell"
         )
-    return PartView(cell.kind, axis, u, v, near_center, cell_width, cell_depth, apex, t0, depth, corners_rel)
+    return PartView(cell.kind, axis, u, v, near_center, cell_width, cell_depth, apex, t0, depth, corners_rel, viewpoints_rel)
+
+
+def _parallax_viewpoints(cell: ViewCell) -> np.ndarray:
+    """(m, 3) world points of ``cell`` over which parallax is maximised (:class:`RayPairs`): a
+    box's 8 corners; a shaft's cap corners at its near cap and at 2, 4, 8 and 16 times its
+    distance (and its far cap, if bounded), parallax falling with distance along a shaft.
+
+    The largest parallax over a box lay at a corner in all of 724 random part/cell
+    configurations tried against its corners, edge midpoints and face centres.
+    """
+    if isinstance(cell, BoxCell):
+        return cell.corners()
+    u, v, d = cell.frame()
+    square = np.array([(-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)])
+    caps = sorted({min(cell.min_distance * f, cell.max_distance) for f in (1.0, 2.0, 4.0, 8.0, 16.0)} | ({cell.max_distance} if cell.bounded else set()))
+    out = [cell.apex + dist * d + cell.half_width(dist) * (square[:, :1] * u + square[:, 1:] * v) for dist in caps]
+    return np.concatenate(out, axis=0)
 
 
 def reference_offset_candidates(view: PartView) -> tuple[float, ...]:
@@ -227,6 +246,124 @@ def _half_tangents(view: PartView, s: float) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------
+# Parallax in 3D, from every viewpoint of the cell (farfield's one-pixel budget)
+# ---------------------------------------------------------------------------------------------
+
+
+def parallax_angles(points: np.ndarray, viewpoints: np.ndarray, plane: float) -> np.ndarray:
+    """(m, n) angles (radians) between eye-frame ``points`` (n, 3) and their images on the layer
+    plane at eye depth ``plane``, seen from eye-frame ``viewpoints`` (m, 3).
+
+    The eye frame has the reference viewpoint at the origin and the view axis along z; a point X
+    is recorded where its ray from the reference viewpoint meets the plane, ``kX`` with
+    ``k = plane / z``.  From a viewpoint V, ``kX - V = k (X - V) + (k - 1) V``, so
+    ``(X - V) x (kX - V) = (k - 1) (X x V)`` and the angle is
+    ``atan2(|k - 1| |X x V|, (X - V) . (kX - V))``, exact near the plane where both vectors are
+    nearly equal.
+
+    >>> x = np.array([[0.0, 0.0, 110.0]]); v = np.array([[1.0, 0.0, 0.0]])
+    >>> round(float(parallax_angles(x, v, 100.0)[0, 0]), 8)  # ~ 1 * 10 / (100 * 110)
+    0.00090901
+    """
+    x = np.asarray(points, dtype=np.float64)[None, :, :]
+    v = np.asarray(viewpoints, dtype=np.float64)[:, None, :]
+    k = plane / x[..., 2:]
+    a = x - v
+    b = k * x - v
+    sine = np.abs(k[..., 0] - 1.0) * np.linalg.norm(np.cross(x, v), axis=-1)
+    return np.arctan2(sine, np.sum(a * b, axis=-1))
+
+
+def _section_grid(n: int = 33, edge: int = 129) -> np.ndarray:
+    """(m, 2) normalised points of a frustum cross-section, [-1, 1]^2: an n x n grid and ``edge``
+    points along each side (a viewpoint behind the reference viewpoint sees the largest parallax
+    at the frustum's edge: its depth times the frustum's half tangent adds to its lateral offset)."""
+    g = np.linspace(-1.0, 1.0, n)
+    e = np.linspace(-1.0, 1.0, edge)
+    one = np.ones_like(e)
+    sides = np.concatenate([np.stack([e, -one], 1), np.stack([e, one], 1), np.stack([-one, e], 1), np.stack([one, e], 1)])
+    return np.unique(np.concatenate([np.stack(np.meshgrid(g, g), -1).reshape(-1, 2), sides]), axis=0)
+
+
+_SECTION = _section_grid()
+
+
+@dataclass(frozen=True, slots=True)
+class RayPairs:
+    """Parallax geometry of every (viewpoint, ray) pair of a plan, independent of depth.
+
+    A ray leaves the reference viewpoint through a point of the frustum's cross-section; a point
+    at eye depth w on it lies ``w * length`` along it.  A viewpoint lies ``dist`` from the ray,
+    its foot ``foot`` along it, so it sees that point at the angle ``atan((w length - foot) / dist)``
+    within their common plane, and a point and its image on a layer plane (the same ray) at the
+    difference of two such angles, exactly.
+    """
+
+    length: np.ndarray  # (n,)
+    foot: np.ndarray  # (n,)
+    dist: np.ndarray  # (n,) > 0
+
+    @classmethod
+    def of(cls, view: PartView, s: float, half_tan: np.ndarray) -> RayPairs:
+        """The pairs of the cell's viewpoints (:func:`_parallax_viewpoints`) and rays through
+        :data:`_SECTION` plus, per viewpoint, the rays through the points straight ahead of it
+        (its lateral offset) at 33 depths across the part, where a viewpoint on the near border
+        sees the largest parallax (seed 000 Fig. 3.6) and a grid would pass between."""
+        eye_v = view.viewpoints_rel + np.array([0.0, 0.0, s])
+        depths = np.geomspace(view.t0 + s, view.t0 + view.depth + s, 33) if view.depth > 0 else np.array([view.t0 + s])
+        ahead = (eye_v[:, None, :2] / (half_tan * depths[None, :, None])).reshape(-1, 2)
+        ahead = ahead[np.all(np.abs(ahead) <= 1.0, axis=1)]
+        section = np.concatenate([_SECTION, ahead])
+        rays = np.column_stack([section * half_tan, np.ones(section.shape[0])])  # eye depth 1
+        length = np.linalg.norm(rays, axis=1)
+        unit = rays / length[:, None]
+        foot = eye_v @ unit.T  # (m, n)
+        dist = np.linalg.norm(np.cross(eye_v[:, None, :], unit[None, :, :]), axis=-1)
+        scale = float(np.max(np.abs(eye_v))) + 1.0
+        keep = dist > 1e-12 * scale  # a viewpoint on the ray sees no parallax along it
+        length = np.broadcast_to(length, foot.shape)
+        return cls(length[keep], foot[keep], dist[keep])
+
+    def angle(self, w: float) -> np.ndarray:
+        """(n,) the angle at which each viewpoint sees the point at eye depth ``w`` on its ray."""
+        return np.arctan2(w * self.length - self.foot, self.dist)
+
+    def worst(self, plane: float, depth: float) -> float:
+        """Largest parallax (radians) between points at eye depth ``depth`` and their images on
+        the plane at eye depth ``plane``."""
+        return float(np.max(np.abs(self.angle(plane) - self.angle(depth))))
+
+    def farthest(self, w: float, budget: float) -> float:
+        """The farthest eye depth whose points (or layer plane) every viewpoint sees within
+        ``budget`` radians of those at ``w`` (``inf`` where no ray limits it)."""
+        turned = self.angle(w) + budget
+        with np.errstate(over="ignore"):
+            depth = np.where(turned < 0.5 * math.pi, (self.foot + self.dist * np.tan(np.minimum(turned, 0.5 * math.pi - 1e-12))) / self.length, np.inf)
+        return float(depth.min())
+
+    def nearest(self, w: float, budget: float) -> float:
+        """The nearest eye depth whose points every viewpoint sees within ``budget`` radians of
+        their images on the plane at eye depth ``w`` (``-inf`` where no ray limits it)."""
+        turned = self.angle(w) - budget
+        depth = np.where(turned > -0.5 * math.pi, (self.foot + self.dist * np.tan(np.maximum(turned, -0.5 * math.pi + 1e-12))) / self.length, -np.inf)
+        return float(depth.max())
+
+
+def worst_parallax(view: PartView, s: float, half_tan: np.ndarray, plane: float, depth: float) -> float:
+    """Largest angle (radians) from any of the cell's viewpoints between a point of the part's
+    frustum at distance ``depth`` from the near border and its image on the layer plane at
+    distance ``plane`` (both the thesis's t; the reference viewpoint lies ``s`` behind the border).
+
+    Unlike Eq. 3.7 of seed 000, which puts the viewer on the near border in the plane of the
+    diagonal (§3.3.1, "Parallax Errors"), this takes every viewpoint of
+    :func:`_parallax_viewpoints` and the whole cross-section: a viewpoint deeper in the cell sees
+    the frustum's edge with a larger parallax than Eq. 3.7 assumes (1.2 alpha for the scrub pine's
+    first layer at 512 px).
+    """
+    return RayPairs.of(view, s, half_tan).worst(plane + s, depth + s)
+
+
+# ---------------------------------------------------------------------------------------------
 # The plan
 # ---------------------------------------------------------------------------------------------
 
@@ -248,7 +385,7 @@ class LayerPlan:
     reference_offset: float  # s
     frustum_half_tangents: np.ndarray  # (2,) float64, along u and v
     texture_resolution: np.ndarray  # (2,) int64 texels along u and v
-    alpha: float  # parallax angle, radians
+    alpha: float  # one output pixel, radians
     pixel_model: str
     t0: float
     depth: float
@@ -258,6 +395,13 @@ class LayerPlan:
     front_range: float  # e_min in front of the first layer's plane (may be inf)
     back_limit: float  # last layer plane + e_min behind it (inf past the pole)
     single_layer_distance: float  # t*, beyond which one layer represents everything behind it
+    # The error budget: texels subtend at most texel_angle, and parallax stays within
+    # parallax_angle.  The thesis gives both the whole pixel alpha (texel_share None); a share f
+    # gives texels f alpha and parallax (1 - f) alpha, so that a silhouette grown by one texel
+    # (conservative recording, §3.3.2) and moved by parallax stays within one pixel.
+    texel_share: float | None = None
+    texel_angle: float = math.nan
+    parallax_angle: float = math.nan
 
     @property
     def count(self) -> int:
@@ -281,6 +425,11 @@ class LayerPlan:
             "texture_resolution": self.texture_resolution.tolist(),
             "alpha_rad": self.alpha,
             "pixel_model": self.pixel_model,
+            **(
+                {}
+                if self.texel_share is None
+                else {"texel_share": self.texel_share, "texel_angle_rad": self.texel_angle, "parallax_angle_rad": self.parallax_angle}
+            ),
             "part_distance": self.t0,
             "part_depth": self.depth,
             "cell_width": self.cell_width.tolist(),
@@ -324,6 +473,7 @@ def plan_layers(
     resolution: int,
     pixel_model: PixelModel = "min",
     reference_offset: float | None = None,
+    texel_share: float | None = None,
 ) -> LayerPlan:
     """Plan the layers of a layered impostor for the part in ``bounds`` seen from ``cell``.
 
@@ -340,39 +490,53 @@ def plan_layers(
         Which pixel angle bounds the error (see :mod:`core.pixel_angles`); ``"center"`` is the thesis's.
     reference_offset : float, optional
         s; by default the candidate of :func:`reference_offset_candidates` with fewest layers.
+    texel_share : float in (0, 1), optional
+        None: the thesis's budget, texels and parallax each bounded by the pixel angle alpha.
+        A share f: texels subtend at most f alpha and parallax, measured in 3D from the cell's
+        viewpoints (:func:`worst_parallax`), at most (1 - f) alpha, so that a silhouette, grown
+        by up to one texel by the conservative recording (§3.3.2) and moved by parallax, stays
+        within one pixel of the geometry.
 
-    Layers start at ``t0 + e_min(t0)`` (clamped into the part) and follow at the one-texel spacing
-    of Eqs. 3.2–3.5 until a layer's back range ``e_min`` reaches the far end of the part; borders
-    between layers come from Eq. 3.6.  Work is O(layers).
+    Thesis budget: layers start at ``t0 + e_min(t0)`` (clamped into the part) and follow at the
+    one-texel spacing of Eqs. 3.2–3.5 until a layer's back range ``e_min`` reaches the far end of
+    the part; borders between layers come from Eq. 3.6.  With a share, the first layer is the
+    farthest whose parallax at the part's near plane is within budget, each next one the nearer
+    of the one-texel spacing and the farthest whose Eq. 3.6 border keeps both layers within
+    budget, until the last one's parallax at the far end is.  Work is O(layers).
     """
     fov = check_fov(float(fov))
     resolution = check_resolution(resolution)
     view = part_view(cell, bounds)
     alpha = pixel_angle(fov, resolution, pixel_model)
+    if texel_share is not None and not (math.isfinite(texel_share) and 0.0 < texel_share < 1.0):
+        raise LayerPlanError(f"texel share must lie in (0, 1), got {texel_share!r}")
     if reference_offset is not None:
         s = float(reference_offset)
         if not (math.isfinite(s) and 0.0 <= s <= view.cell_depth):
             raise LayerPlanError(f"reference offset s must lie in [0, cell depth {view.cell_depth:.6g}], got {s!r}")
-        return _plan_at_offset(view, s, alpha, pixel_model)
+        return _plan_at_offset(view, s, alpha, pixel_model, texel_share)
     best = None
     for s in reference_offset_candidates(view):
-        plan = _plan_at_offset(view, s, alpha, pixel_model)
+        plan = _plan_at_offset(view, s, alpha, pixel_model, texel_share)
         if best is None or plan.count < best.count:
             best = plan
     return best
 
 
-def _plan_at_offset(view: PartView, s: float, alpha: float, pixel_model: str) -> LayerPlan:
+def _plan_at_offset(view: PartView, s: float, alpha: float, pixel_model: str, texel_share: float | None = None) -> LayerPlan:
     """The layer plan of ``view`` with the reference viewpoint ``s`` behind the near border."""
     half_tan = _half_tangents(view, s)
     # A flat part seen edge-on has no lateral extent: give it a pixel's worth of frustum so the
     # spacing stays finite (a one-texel-wide layer).
     half_tan = np.maximum(half_tan, 0.5 * alpha)
+    texel = alpha if texel_share is None else texel_share * alpha
     widths = 2.0 * half_tan * (view.t0 + s)
-    res = np.array([texture_resolution(float(wd), view.t0, alpha) for wd in widths], dtype=np.int64)
+    res = np.array([texture_resolution(float(wd), view.t0, texel) for wd in widths], dtype=np.int64)
     r = float(np.hypot(*(0.5 * view.cell_width)))
 
     t0, t_end = view.t0, view.t0 + view.depth
+    if texel_share is not None:
+        return _shared_budget_plan(view, s, alpha, pixel_model, texel_share, half_tan, res, r)
     front = float(depth_range_min(t0, s, r, alpha))
     t = t0 + min(front, view.depth)
     distances = [t]
@@ -411,4 +575,70 @@ def _plan_at_offset(view: PartView, s: float, alpha: float, pixel_model: str) ->
         front_range=front,
         back_limit=back,
         single_layer_distance=float(single_layer_distance(s, r, alpha)),
+        texel_angle=alpha,
+        parallax_angle=alpha,
+    )
+
+
+def _shared_budget_plan(view: PartView, s: float, alpha: float, pixel_model: str, share: float, half_tan, res, r: float) -> LayerPlan:
+    """:func:`_plan_at_offset` with texels of ``share * alpha`` and parallax within ``(1 - share) * alpha``
+    from every viewpoint (:class:`RayPairs`; see :func:`plan_layers`).
+
+    Greedy and closed-form: in eye depths, the first plane is the farthest whose parallax reaches
+    the part's near plane, ``F(t0)``.  Behind a plane T, a border may lie up to ``F(T)`` and the
+    next plane up to ``F(F(T))`` (a plane reaches forward to a border exactly when the border
+    reaches back to it), so the next plane is the nearer of that and the one-texel spacing, and
+    its border is the one of Eq. 3.6 where that lies within both planes' reach, else the nearest
+    such.  Layers follow until one reaches the far end of the part.
+    """
+    budget = (1.0 - share) * alpha * (1.0 - TOL.parallax_grid)
+    pairs = RayPairs.of(view, s, half_tan)
+    t0, t_end = view.t0, view.t0 + view.depth
+    far = t_end + s  # eye depths from here on
+    plane = min(pairs.farthest(t0 + s, budget), far)
+    planes, borders = [plane], [t0 + s]
+    while pairs.farthest(plane, budget) < far:
+        c = float(layer_spacing(plane - s, s, view, half_tan, res))
+        if not c > 0.0:
+            raise LayerPlanError(f"layer spacing collapsed to {c!r} at distance {plane - s:.6g}")
+        reach = pairs.farthest(plane, budget)
+        nxt = min(plane + c, pairs.farthest(reach, budget), far)
+        thesis = plane + float(border_offset(plane - s, nxt - s, s))
+        borders.append(min(max(thesis, pairs.nearest(nxt, budget), plane), reach, nxt))
+        planes.append(nxt)
+        plane = nxt
+        if len(planes) > TOL.max_layers:
+            raise LayerPlanError(
+                f"more than {TOL.max_layers} layers needed for a part {view.depth:.6g} deep at "
+                f"distance {t0:.6g}; use a smaller view cell or a lower resolution"
+            )
+    d = np.asarray(planes, dtype=np.float64) - s
+    borders = np.concatenate([np.asarray(borders, dtype=np.float64) - s, [t_end]])
+    borders[0] = t0
+    # What the first and last layers may represent in front and behind, within budget (reported).
+    front = float(planes[0] - max(pairs.nearest(planes[0], budget), 0.0))
+    back = pairs.farthest(planes[-1], budget) - s
+    return LayerPlan(
+        distances=d,
+        borders=borders,
+        reference_viewpoint=view.near_center - s * view.axis,
+        axis=view.axis,
+        u=view.u,
+        v=view.v,
+        reference_offset=s,
+        frustum_half_tangents=half_tan,
+        texture_resolution=res,
+        alpha=alpha,
+        pixel_model=pixel_model,
+        t0=t0,
+        depth=view.depth,
+        cell_width=view.cell_width,
+        cell_depth=view.cell_depth,
+        corner_offset=r,
+        front_range=front,
+        back_limit=back,
+        single_layer_distance=float(single_layer_distance(s, r, alpha)),
+        texel_share=share,
+        texel_angle=share * alpha,
+        parallax_angle=budget,
     )

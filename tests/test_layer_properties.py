@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from farfield.core.envmap_layers import envmap_plan, layers_for_near_field, near_field_distance
 from farfield.core.errors import LayerPlanError, ViewCellError
-from farfield.core.layers import layer_spacing, part_view, plan_layers
+from farfield.core.layers import layer_spacing, parallax_angles, part_view, plan_layers
 from farfield.core.pixel_angles import pixel_angle, texture_resolution
 from farfield.core.viewcells import BoxCell, ShaftCell
 
@@ -138,6 +138,80 @@ def test_diagonal_part_uses_the_line_between_centres():
     plan = plan_layers(cell, [[100, 100, -5], [110, 110, 5]], math.radians(45), 256)
     np.testing.assert_allclose(plan.axis, [math.sqrt(0.5), math.sqrt(0.5), 0.0], atol=1e-12)
     check_plan(plan)
+
+
+# --- the one-pixel budget shared by texels and parallax (texel_share) -----------------------------
+
+SHARED = settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+shares = st.sampled_from([0.5, 0.7, 0.9])
+
+
+def worst_parallax_measured(plan, cell) -> float:
+    """The largest angle, from the cell's corners, between points of the frustum at each slab
+    border and their images on the slab's layer plane: parallax_angles on a 65 x 65 grid of the
+    cross-section, independently of the plan's own (coarser, ray-based) search."""
+    frame = np.stack([plan.u, plan.v, plan.axis])
+    corners = (cell.corners() - plan.reference_viewpoint) @ frame.T
+    g = np.linspace(-1.0, 1.0, 65)
+    section = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2) * plan.frustum_half_tangents
+    s = plan.reference_offset
+    worst = 0.0
+    for i in range(plan.count):
+        for z in (plan.borders[i] + s, plan.borders[i + 1] + s):
+            points = np.column_stack([section * z, np.full(section.shape[0], z)])
+            worst = max(worst, float(parallax_angles(points, corners, plan.distances[i] + s).max()))
+    return worst
+
+
+@SHARED
+@given(gap=st.floats(1.0, 30.0), depth=depths, width=widths, res=st.integers(16, 256), fov=fovs, model=models, share=shares)
+def test_shared_budget_keeps_texels_and_parallax_within_one_pixel(gap, depth, width, res, fov, model, share):
+    cell, bounds = scene(1.0, gap, depth, width)
+    plan = plan_layers(cell, bounds, math.radians(fov), res, model, texel_share=share)
+    check_plan(plan)
+    assert plan.texel_angle + plan.parallax_angle <= plan.alpha
+    # A texel of the nearest layer plane, seen from the near border, subtends at most the texel angle.
+    s = plan.reference_offset
+    texel = 2.0 * plan.frustum_half_tangents * (plan.t0 + s) / plan.texture_resolution / plan.t0
+    assert np.all(texel <= plan.texel_angle * (1 + 1e-9))
+    assert worst_parallax_measured(plan, cell) <= plan.parallax_angle * (1 + 1e-3)
+
+
+@SHARED
+@given(gap=st.floats(1.0, 30.0), depth=depths, width=widths, res=st.integers(16, 256), fov=fovs, share=shares, k=scales)
+def test_shared_budget_is_scale_invariant(gap, depth, width, res, fov, share, k):
+    p1 = plan_layers(*scene(1.0, gap, depth, width), math.radians(fov), res, texel_share=share)
+    pk = plan_layers(*scene(k, gap, depth, width), math.radians(fov), res, texel_share=share)
+    assert pk.count == p1.count
+    np.testing.assert_allclose(pk.distances, p1.distances * k, rtol=1e-9)
+    np.testing.assert_allclose(pk.borders, p1.borders * k, rtol=1e-9)
+
+
+@SHARED
+@given(gap=st.floats(1.0, 30.0), depth=depths, width=widths, res=st.integers(16, 128), factor=st.floats(1.1, 3.0), share=shares)
+def test_shared_budget_layer_count_rises_with_resolution(gap, depth, width, res, factor, share):
+    cell, bounds = scene(1.0, gap, depth, width)
+    low = plan_layers(cell, bounds, math.radians(45), res, texel_share=share)
+    high = plan_layers(cell, bounds, math.radians(45), int(res * factor), texel_share=share)
+    assert high.count >= low.count
+
+
+def test_thesis_depth_ranges_exceed_the_pixel_seen_from_the_far_corners():
+    """Eq. 3.7 (seed 000 §3.3.1) bounds parallax for a viewer on the near border in the diagonal
+    plane; from the far corners of a deep cell the frustum's edge moves further (the scrub pine
+    cell of issue 23: 1.2 alpha before the first layer).  The shared budget measures it in 3D."""
+    cell = BoxCell.from_center([-2500.0, 470.0, 0.0], 100.0)
+    bounds = [[-374.5, 3.0, -431.9], [341.1, 933.9, 269.7]]
+    thesis = plan_layers(cell, bounds, math.radians(45), 512)
+    assert worst_parallax_measured(thesis, cell) > 1.15 * thesis.alpha
+    shared = plan_layers(cell, bounds, math.radians(45), 512, texel_share=0.7)
+    assert worst_parallax_measured(shared, cell) <= shared.parallax_angle * (1 + 1e-3)
+
+
+@pytest.mark.parametrize("share", [0.0, 1.0, -0.5, math.nan])
+def test_texel_share_outside_0_1_is_refused(share):
+    with pytest.raises(LayerPlanError, match="texel share"):
+        plan_layers(BoxCell.from_center([0, 0, 0], 10.0), [[50.0, -5.0, -5.0], [60.0, 5.0, 5.0]], math.radians(45), 512, texel_share=share)
 
 
 # --- refusals -------------------------------------------------------------------------------------

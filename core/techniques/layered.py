@@ -41,6 +41,13 @@ class BakeOptions:
     fill_threshold: float = option(0.8, "box-growing fill ratio (§3.5): lower, fewer quads but more wasted texels", gt=0.0, le=1.0)
     culling: CullingMode = option("penumbra", "hidden-texel culling: penumbra (§3.4.1), umbra (§3.4 3x3 rule) or off")
     pixel_model: PixelModel = option("min", "error bound from the smallest pixel angle (min) or the thesis's centre pixel (center)")
+    texel_share: float = option(
+        0.7,
+        "share of the one-pixel error given to the texel size, the rest to parallax, so that a silhouette grown by one texel "
+        "(gap-free recording, §3.3.2) and moved by parallax stays within one pixel: larger, fewer texels but more layers",
+        gt=0.0,
+        lt=1.0,
+    )
     conservative: bool = option(True, "gap-free recording; false only to demonstrate the holes", internal=True)
     padding: int = option(2, "atlas padding between tiles, texels", ge=0, le=64)
     max_page: int = option(MAX_PAGE, "largest atlas page side, texels (WebGL2 guarantees 2048, many mobile GPUs stop at 4096), a power of two", ge=64, le=16384)
@@ -62,7 +69,7 @@ def bake_layered(
     clock = StageClock(("plan", "record", "cull", "quads"), progress)
 
     with clock("plan"):
-        plan = plan_layers(cell, part.bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model)
+        plan = plan_layers(cell, part.bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model, texel_share=options.texel_share)
     clock.report("plan", 1, 1)
 
     # Stream: each layer is recorded, culled against the layers before it, cut into quads and

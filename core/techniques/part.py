@@ -17,7 +17,7 @@ from farfield.core.viewcells import ViewCell, viewcell_from_dict
 
 def check_part_cell(cell: ViewCell, options, bounds: np.ndarray | None) -> None:
     """Plan the layers of the part (``bounds``) seen from ``cell`` (raises when there is no answer)."""
-    plan_layers(cell, bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model)
+    plan_layers(cell, bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model, texel_share=getattr(options, "texel_share", None))
 
 
 def evaluate_part(scene: Scene, impostor: Impostor, random_count: int, outside_count: int, seed: int) -> Evaluation:
