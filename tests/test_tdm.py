@@ -491,7 +491,9 @@ def test_evaluate_puts_a_tdm_and_a_layered_impostor_side_by_side_and_says_which_
     scene, cell = house_bake
     tdm = bake_tdm(scene, cell, TdmOptions(resolution=RESOLUTION))
     layered = bake_layered(scene, cell, BakeOptions(resolution=RESOLUTION))
-    assert tdm.stats["layers_planned"] == layered.stats["layers_planned"]
+    # The TDM keeps the thesis's budget (texel and parallax one pixel each); layered impostors share
+    # the pixel between them (texel_share), so they plan at least as many layers.
+    assert layered.stats["layers_planned"] >= tdm.stats["layers_planned"]
     write_bundle(tdm, tmp_path / "tdm")
     write_bundle(layered, tmp_path / "layered")
     scene_path = scenes.write_scene(scene, tmp_path, "glb", "house")
