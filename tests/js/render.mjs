@@ -98,17 +98,16 @@ async function load(spec) {
   return root;
 }
 
-function textureReady(texture) {
-  // MTLLoader starts its image loads without a promise; wait for each image.
-  if (!texture || !texture.image) return Promise.resolve();
-  if (texture.image.complete !== undefined && texture.image.complete) return Promise.resolve();
-  return new Promise((resolve) => {
+async function textureReady(texture) {
+  // MTLLoader starts its image loads without a promise, and TextureLoader sets texture.image only
+  // once the image has loaded: wait (up to 30 s) until the texture holds a decoded image.  Without
+  // this the first render could draw the pine before its leaf texture arrived (bark only).
+  if (!texture) return;
+  for (let i = 0; i < 600; i++) {
     const image = texture.image;
-    if (image.addEventListener) {
-      image.addEventListener("load", resolve, { once: true });
-      image.addEventListener("error", resolve, { once: true });
-    } else resolve();
-  });
+    if (image && (image.complete === undefined || image.complete) && (image.naturalWidth || image.width)) return;
+    await new Promise((resolve) => setTimeout(resolve, 50));
+  }
 }
 
 function camera(c) {
