@@ -16,7 +16,8 @@ class LostCellSweeper:
     def __init__(self, services, every_s: float | None = None) -> None:
         self.services = services
         after = services.settings.requeue_after
-        self.every_s = every_s or min(30.0, max(1.0, after / 4))
+        # Often enough that a dead worker's cells (service.jobs.release_lost_cells) go out again within seconds.
+        self.every_s = every_s or min(5.0, max(1.0, after / 4))
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="farfield-sweeper", daemon=True)
 

@@ -337,16 +337,60 @@ def claim_cell(db: Database, cell_id: str, max_attempts: int, worker: str | None
             return Claim(None, job_id, ended=True)
         if cell.state == "running" and cell.attempts >= max_attempts:
             cell.state, cell.finished_at = "failed", now()
-            cell.error = (
-                f"attempt {cell.attempts} of {max_attempts} never reported back (its worker process died: killed, "
-                "out of memory or crashed; or the database or blob store failed around it)"
-            )
+            cell.error = _never_reported(cell.attempts, max_attempts, "its worker process died: killed, out of memory or crashed; or the database or blob store failed around it")
             return Claim(None, job_id, ended=True)
         cell.state, cell.attempts, cell.started_at, cell.progress, cell.error = "running", cell.attempts + 1, now(), 0.0, None
         cell.worker = worker
         if job.state == "queued":
             job.state, job.started_at = "running", now()
         return Claim(cell, job_id)
+
+
+def _never_reported(attempt: int, max_attempts: int, why: str) -> str:
+    return f"attempt {attempt} of {max_attempts} never reported back ({why})"
+
+
+# queued_at of a cell whose message is stuck with a dead worker: the API's sweeper
+# (lost_queued_cells) sends it again at its next sweep instead of after FARFIELD_REQUEUE_AFTER.
+RESEND_NOW = 0.0
+
+
+def release_lost_cells(db: Database, blobs: BlobStore, cell_ids: list[str], max_attempts: int, why: str, *, worker: str | None = None, resend: bool = False) -> dict[str, str]:
+    """The cells of a worker process that died, moved on at once instead of showing ``running``
+    until their message comes back (which, for a whole worker, is the visibility timeout later).
+
+    Each of ``cell_ids`` still running (on ``worker``, when given) is queued again with ``why`` as
+    its error, or failed when its attempt was the last (:func:`claim_cell` would fail it on the
+    next delivery); a job left without open cells ends.  ``resend``: its message is not coming
+    back soon (the whole worker died with it unacknowledged), so the API's sweeper sends it again.
+    Returns the new state by cell id (cells that had moved on are left out)."""
+    changed: dict[str, str] = {}
+    for cell_id in cell_ids:
+        with db.session() as s:
+            job_id = s.scalar(select(CellRow.job_id).where(CellRow.id == cell_id))
+            if job_id is None:
+                continue
+            s.get(JobRow, job_id, with_for_update=True)  # the lock order of claim_cell
+            cell = s.get(CellRow, cell_id, with_for_update=True, populate_existing=True)
+            if cell.state != "running" or (worker is not None and cell.worker != worker):
+                continue
+            if cell.attempts >= max_attempts:
+                cell.state, cell.finished_at = "failed", now()
+                cell.error = _never_reported(cell.attempts, max_attempts, why)
+            else:
+                cell.state, cell.progress = "queued", 0.0
+                cell.queued_at = RESEND_NOW if resend else now()
+                cell.error = f"attempt {cell.attempts} of {max_attempts} was lost ({why}); queued again"
+            changed[cell_id] = cell.state
+        if changed[cell_id] == "failed":
+            finish_job_if_complete(db, blobs, job_id)
+    return changed
+
+
+def running_cells_of(db: Database, worker: str) -> list[str]:
+    """Ids of the cells that ``worker`` (a Celery node name, ``name@host``) is running."""
+    with db.session() as s:
+        return list(s.scalars(select(CellRow.id).where(CellRow.state == "running", CellRow.worker == worker)))
 
 
 def job_cancelled(db: Database, job_id: str) -> bool:

@@ -13,14 +13,17 @@ from __future__ import annotations
 import os
 import secrets
 import signal
+import socket
 import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from farfield.service.blobs import blob_store
 from farfield.service.db import Database
 from farfield.service.embedded_redis import EmbeddedRedis, free_port
+from farfield.service.jobs import release_lost_cells, running_cells_of
 from farfield.service.keys import ensure_admin_key
 from farfield.service.settings import Settings
 
@@ -140,10 +143,30 @@ class Service:
             for i, process in enumerate(self.worker_processes):
                 if process.poll() is not None:
                     print(f"farfield: worker{i} exited with code {process.returncode}; starting it again", file=sys.stderr)
+                    try:  # its pool processes outlive it: stop them rendering cells that are handed out again
+                        os.killpg(process.pid, signal.SIGKILL)
+                    except ProcessLookupError:
+                        pass
+                    self.release_cells_of(f"worker{i}", process.returncode)
                     self.worker_processes[i] = self._spawn(*self.worker_specs[i])
             if self.api.poll() is not None:
                 raise RuntimeError(f"the API exited with code {self.api.returncode}; see {self.settings.home / 'logs' / 'api.log'}")
             time.sleep(0.5)
+
+    def release_cells_of(self, name: str, code: int | None) -> None:
+        """Queue again at once the cells a dead worker was running (:func:`release_lost_cells`): their
+        messages stay unacknowledged in Redis until the visibility timeout, so they are sent again."""
+        worker = f"{name}@{socket.gethostname()}"  # the node name `-n name@%h` gives it
+        db = Database(self.settings.database_url)
+        try:
+            changed = release_lost_cells(db, blob_store(self.settings), running_cells_of(db, worker), self.settings.max_attempts,
+                                         f"worker {worker} exited with code {code}", worker=worker, resend=True)  # fmt: skip
+            if changed:
+                print(f"farfield: {len(changed)} cells of {worker} released: {sorted(set(changed.values()))}", file=sys.stderr)
+        except Exception as error:  # noqa: BLE001 - the cells come back after the visibility timeout anyway
+            print(f"farfield: could not release the cells of {worker}: {error}", file=sys.stderr)
+        finally:
+            db.dispose()
 
     def stop(self) -> None:
         """API first (no new jobs), then the workers, then Redis."""

@@ -178,10 +178,15 @@ def test_worker_killed_mid_cell_loses_nothing(service, client, bunny_id):
         if any(c["state"] == "running" and c["progress"] > 0 for c in job["cells"]):
             break
         time.sleep(0.05)
+    victim = next(c["index"] for c in job["cells"] if c["state"] == "running")
     victims = service.worker_pool_children()
     assert victims, "no celery pool process found"
     for pid in victims:
         os.kill(pid, signal.SIGKILL)
+    # Shown at once: the worker's main process queues the cell again (it showed running, attempt 1,
+    # until its message came back behind the other cells).
+    seen = poll_cell(client, job_id, victim, lambda c: c["state"] == "queued" and "worker process died" in (c["error"] or ""), 30)
+    assert seen["attempts"] == 1, seen
     job = wait_for_job(client, job_id, timeout=300)
     assert job["state"] == "done", job["errors"]
     assert job["counts"]["done"] == 3
@@ -192,6 +197,41 @@ def test_worker_killed_mid_cell_loses_nothing(service, client, bunny_id):
     stored = [json.loads(m.read_text()) for m in (service.home / "blobs" / "impostors").glob("*/manifest.json")]
     ours = [m for m in stored if m["resolution"] == 1024]
     assert sorted(json.dumps(m["viewcell"], sort_keys=True) for m in ours) == sorted(json.dumps(c["viewcell"], sort_keys=True) for c in job["cells"])
+
+
+def poll_cell(client, job_id: str, index: int, condition, timeout: float) -> dict:
+    """The cell's record once ``condition`` holds (polled every 20 ms, so a short-lived state is seen)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        cell = client.get(f"/v1/jobs/{job_id}").json()["cells"][index]
+        if condition(cell):
+            return cell
+        assert time.monotonic() < deadline, cell
+        time.sleep(0.02)
+
+
+def test_a_dead_worker_s_cell_is_queued_again_at_once(service, client, bunny_id):
+    """SIGKILL a worker's main process mid-cell: farfield up restarts it and queues its cell again at
+    once (the message would come back only after the visibility timeout, an hour), and the job ends."""
+    grid = {"lo": [-0.6, 0.05, -0.05], "hi": [-0.4, 0.15, 0.05], "counts": [2, 1, 1]}
+    job_id = client.post("/v1/jobs", json={"scene_id": bunny_id, "grid": grid, "resolution": 1024}).json()["id"]
+    deadline = time.monotonic() + 120
+    while True:
+        job = client.get(f"/v1/jobs/{job_id}").json()
+        running = [c for c in job["cells"] if c["state"] == "running" and c["progress"] > 0]
+        if running:
+            break
+        assert time.monotonic() < deadline, job["counts"]
+        time.sleep(0.05)
+    (main,) = service.worker_mains()
+    os.kill(main, signal.SIGKILL)
+    seen = poll_cell(client, job_id, running[0]["index"], lambda c: c["state"] != "running" or c["attempts"] > 1, 30)
+    assert seen["state"] in ("queued", "running") and seen["attempts"] in (1, 2), seen
+    if seen["state"] == "queued":
+        assert "exited with code -9" in seen["error"], seen
+    job = wait_for_job(client, job_id, timeout=240)
+    assert job["state"] == "done", job["errors"]
+    assert job["cells"][running[0]["index"]]["attempts"] == 2
 
 
 def test_redis_restart_during_a_job(service, client, bunny_id):

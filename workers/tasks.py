@@ -25,13 +25,15 @@ from __future__ import annotations
 import logging
 import os
 
+from billiard.exceptions import WorkerLostError
+from celery.worker.request import Request
 from sqlalchemy import select, update
 
 from farfield.core.render.context import gl_context
 from farfield.service.blobs import BlobStore, blob_store
 from farfield.service.cell_runner import BAD_INPUT, TRANSIENT, RetryCell, backoff, failure_class, failure_message, run_cell
 from farfield.service.db import CellRow, Database, now
-from farfield.service.jobs import finish_job_if_complete
+from farfield.service.jobs import finish_job_if_complete, release_lost_cells
 from farfield.service.settings import Settings
 from farfield.workers.app import BAKE_CELL, celery_app
 
@@ -81,7 +83,34 @@ def _give_up(db: Database, blobs: BlobStore, cell_id: str, message: str) -> str:
     return "failed"
 
 
-@celery_app.task(bind=True, name=BAKE_CELL, max_retries=max_retries(Settings.from_env().max_attempts))
+class CellRequest(Request):
+    """A bake request as the worker's main process sees it: when the pool process running it dies
+    (killed, out of memory, a driver crash), the cell is queued again (or failed, if that was its
+    last attempt) at once, before Celery puts the message back on the queue; without this it would
+    show ``running`` until its redelivery came up, behind every cell queued meanwhile."""
+
+    def on_failure(self, exc_info, send_failed_event=True, return_ok=False):
+        lost = getattr(exc_info.exception, "exc", exc_info.exception)  # ExceptionWithTraceback wraps it
+        if isinstance(lost, WorkerLostError) and self.args:
+            release_in_main_process(str(self.args[0]), f"its worker process died: {lost}", self.hostname)
+        return super().on_failure(exc_info, send_failed_event=send_failed_event, return_ok=return_ok)
+
+
+def release_in_main_process(cell_id: str, why: str, worker: str) -> None:
+    """:func:`release_lost_cells` from the worker's main process, on connections of its own that
+    are closed again (pool processes forked later must not inherit them)."""
+    settings = Settings.from_env()
+    db = Database(settings.database_url)
+    try:
+        changed = release_lost_cells(db, blob_store(settings), [cell_id], settings.max_attempts, why, worker=worker)
+        log.warning("cell %s: %s; now %s", cell_id, why, changed.get(cell_id, "unchanged (it had moved on)"))
+    except Exception:  # noqa: BLE001 - the redelivery still finds the cell running and counts it
+        log.exception("cell %s: %s, and could not be released", cell_id, why)
+    finally:
+        db.dispose()
+
+
+@celery_app.task(bind=True, name=BAKE_CELL, Request=CellRequest, max_retries=max_retries(Settings.from_env().max_attempts))
 def bake_cell(self, cell_id: str) -> str:
     """Bake one cell of a job (service.cell_runner.run_cell), retrying with backoff (see the module docstring)."""
     settings, db, blobs = _services()
