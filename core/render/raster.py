@@ -129,8 +129,9 @@ class MeshRenderer:
         """(h, w, 4) uint8 image, top row first; alpha 255 where something was drawn."""
         colour = self._draw(camera)
         image = np.frombuffer(colour.read(), dtype=np.uint8).reshape(camera.resolution, camera.resolution, 4)
-        if self.ctx.error != "GL_NO_ERROR":
-            raise RenderBackendError(f"OpenGL error while rendering: {self.ctx.error}")
+        error = self.ctx.error  # glGetError: reading it clears it, so it is read once
+        if error != "GL_NO_ERROR":
+            raise RenderBackendError(f"OpenGL error while rendering: {error}")
         return image[::-1].copy()
 
     def frame_seconds(self, camera: Camera) -> float:
