@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 from celery import Celery
 from fastapi import Request, Security
@@ -40,7 +41,7 @@ def services(request: Request) -> Services:
 BEARER_KEY = HTTPBearer(auto_error=False, scheme_name="BearerKey", description="an API key: 'Authorization: Bearer <key>' (farfield keys create)")
 
 
-def tenant(request: Request, credentials: HTTPAuthorizationCredentials | None = Security(BEARER_KEY)) -> str:
+def tenant(request: Request, credentials: Annotated[HTTPAuthorizationCredentials | None, Security(BEARER_KEY)]) -> str:
     """The tenant id of the request's Bearer key (401 without a valid one)."""
     if credentials is None and request.headers.get("authorization"):
         raise AuthError("use 'Authorization: Bearer <key>'")
