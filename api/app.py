@@ -1,4 +1,5 @@
-"""The FastAPI application: routes under ``/v1``, errors as JSON with their HTTP status, the dashboard.
+"""The FastAPI application: routes under ``/v1``, errors as JSON with their HTTP status (:mod:`farfield.api.errors`),
+the dashboard, and its OpenAPI document (:mod:`farfield.api.openapi`).
 
 ``uvicorn farfield.api.app:app_from_env --factory`` serves it with the environment's settings (what
 ``farfield up`` does).
@@ -6,18 +7,12 @@
 
 from __future__ import annotations
 
-import json
-import logging
-import math
 from contextlib import asynccontextmanager
 
 from celery import Celery
-from fastapi import FastAPI, Request
-from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
+from fastapi import FastAPI
 
 from farfield.core import __version__
-from farfield.core.errors import ErrorKind, FarfieldError
 from farfield.service.blobs import blob_store
 from farfield.service.db import Database
 from farfield.service.keys import ensure_admin_key
@@ -26,34 +21,10 @@ from farfield.workers.app import make_celery
 
 from farfield.api import routes_dashboard, routes_jobs, routes_ops, routes_results, routes_scenes, routes_techniques
 from farfield.api.deps import Services
+from farfield.api.errors import install_error_handlers
 from farfield.api.limits import BodyLimit
+from farfield.api.openapi import openapi_document
 from farfield.api.sweeper import LostCellSweeper
-
-
-def _shown(value) -> str | None:
-    """A short, JSON-safe rendering of a rejected input value, or None when it is not worth showing."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return "NaN" if math.isnan(value) else ("Infinity" if value > 0 else "-Infinity")
-    if value is None or isinstance(value, (bool, int, float)):
-        return json.dumps(value)
-    if isinstance(value, str):
-        return json.dumps(value if len(value) <= 60 else value[:57] + "...")
-    return None
-
-
-def validation_detail(errors) -> str:
-    """One line per problem of a request's validation, ``field: message, got value``; the input is
-    never echoed as JSON (a NaN or an infinity in it made FastAPI's own 422 body unencodable: 500).
-
-    >>> validation_detail([{"loc": ("body", "resolution"), "msg": "Input should be a valid integer", "input": float("nan")}])
-    'resolution: Input should be a valid integer, got NaN'
-    """
-    lines = []
-    for problem in errors:
-        where = ".".join(str(part) for part in problem.get("loc", ()) if part != "body")
-        shown = _shown(problem.get("input"))
-        lines.append(f"{where + ': ' if where else ''}{problem.get('msg', 'invalid')}{', got ' + shown if shown else ''}")
-    return "; ".join(lines)
 
 
 def create_app(settings: Settings, celery: Celery | None = None, migrate: bool = True) -> FastAPI:
@@ -75,21 +46,12 @@ def create_app(settings: Settings, celery: Celery | None = None, migrate: bool =
     app = FastAPI(title="farfield", version=__version__, description="Impostor baking service: scenes, placement jobs, impostor databases.", lifespan=lifespan)
     app.state.services = services
 
-    @app.exception_handler(FarfieldError)
-    async def farfield_error(_request: Request, error: FarfieldError) -> JSONResponse:
-        if error.kind is ErrorKind.INTERNAL:  # a bug (HTTP 500): keep its traceback
-            logging.getLogger("farfield.api").error("internal error: %s", error, exc_info=error)
-        headers = {"WWW-Authenticate": "Bearer"} if error.kind is ErrorKind.UNAUTHORIZED else None
-        return JSONResponse({"detail": str(error), "error": type(error).__name__}, status_code=error.kind.http_status, headers=headers)
-
-    @app.exception_handler(RequestValidationError)
-    async def validation_error(_request: Request, error: RequestValidationError) -> JSONResponse:
-        return JSONResponse({"detail": validation_detail(error.errors()), "error": "ValidationError"}, status_code=422)
-
+    install_error_handlers(app)
     app.add_middleware(BodyLimit, services=app.state.services)
 
     for module in (routes_scenes, routes_jobs, routes_results, routes_techniques, routes_ops, routes_dashboard):
         app.include_router(module.router)
+    app.openapi = lambda: openapi_document(app)
     return app
 
 

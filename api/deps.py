@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 from celery import Celery
-from fastapi import Request
+from fastapi import Request, Security
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from farfield.core.errors import AuthError
 from farfield.service.blobs import BlobStore
@@ -34,10 +36,13 @@ def services(request: Request) -> Services:
     return request.app.state.services
 
 
-def tenant(request: Request) -> str:
+# Declares the key in the OpenAPI document (the security of every route that depends on `tenant`);
+# its absence is our 401 with our message, not the 403 of FastAPI's auto_error.
+BEARER_KEY = HTTPBearer(auto_error=False, scheme_name="BearerKey", description="an API key: 'Authorization: Bearer <key>' (farfield keys create)")
+
+
+def tenant(request: Request, credentials: Annotated[HTTPAuthorizationCredentials | None, Security(BEARER_KEY)]) -> str:
     """The tenant id of the request's Bearer key (401 without a valid one)."""
-    header = request.headers.get("authorization", "")
-    scheme, _, key = header.partition(" ")
-    if header and scheme.lower() != "bearer":
+    if credentials is None and request.headers.get("authorization"):
         raise AuthError("use 'Authorization: Bearer <key>'")
-    return authenticate(services(request).db, key.strip() or None)
+    return authenticate(services(request).db, credentials.credentials.strip() if credentials else None)

@@ -63,7 +63,11 @@ class JobSpec(BaseModel):
     """A job request (``POST /v1/jobs``): one impostor per view cell of a scene's part (or of the
     whole scene, for a technique of scope ``scene``)."""
 
-    model_config = ConfigDict(extra="forbid")
+    # The document says what _one_view_space checks: exactly one of the two, not null.
+    model_config = ConfigDict(extra="forbid", json_schema_extra={"oneOf": [
+        {"required": ["viewcells"], "properties": {"viewcells": {"type": "array"}}},
+        {"required": ["grid"], "properties": {"grid": {"type": "object"}}},
+    ]})  # fmt: skip
     scene_id: str
     technique: Literal[tuple(TECHNIQUES)] | None = Field(  # type: ignore[valid-type]
         None, description="the impostor technique (default layered): " + "; ".join(f"{t.name}: {t.help}" for t in TECHNIQUES.values())
