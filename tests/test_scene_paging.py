@@ -5,6 +5,7 @@ folder; scenes uploaded through the route (parsed in the real child process); jo
 
 from __future__ import annotations
 
+import json
 import os
 import re
 
@@ -135,3 +136,49 @@ def test_a_scene_fetched_without_objects_does_not_load_them(api):
     """``objects`` is deferred: the rows of listings and of workers never carry it."""
     row = get_scene_row(api.app.state.services.db, authenticate(api.app.state.services.db, KEY), api.big["id"])
     assert "objects" not in row.__dict__
+
+
+@pytest.fixture(scope="module")
+def served(api):
+    """The module's app behind a real HTTP server (uvicorn in a thread), for the CLI."""
+    import socket
+    import threading
+    import time
+
+    import uvicorn
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = uvicorn.Server(uvicorn.Config(api.app, host="127.0.0.1", port=port, lifespan="off", log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    while not server.started:
+        time.sleep(0.05)
+    yield f"http://127.0.0.1:{port}"
+    server.should_exit = True
+    thread.join(10)
+
+
+def cli(url: str, *args: str):
+    import subprocess
+    import sys
+
+    env = {**os.environ, "FARFIELD_API_KEY": KEY, "FARFIELD_URL": url}
+    return subprocess.run([sys.executable, "-m", "farfield.cli.main", *args], check=False, env=env, capture_output=True, text=True, timeout=120)
+
+
+def test_cli_pages_scenes_objects_and_jobs(api, served):
+    one = cli(served, "scenes", "--limit", "3")
+    assert one.returncode == 0, one.stderr
+    assert len(one.stdout.splitlines()) == 3 and "scenes 1-3 of 4: --offset 3" in one.stderr
+    every = cli(served, "scenes", "--all", "--limit", "3", "--json")
+    assert [s["id"] for s in json.loads(every.stdout)] == [s["id"] for s in api.get("/v1/scenes").json()] and every.stderr == ""
+    objects = cli(served, "scenes", api.big["id"], "--objects", "--all", "--limit", "1000", "--json")
+    assert [o["name"] for o in json.loads(objects.stdout)] == [f"node{i:06d}" for i in range(OBJECTS)]
+    shown = cli(served, "scenes", api.big["id"])
+    assert shown.returncode == 0 and f"{OBJECTS} objects" in shown.stdout
+    assert cli(served, "scenes", "--limit", "1001").returncode == 2  # click's usage error, before any request
+    jobs = [j["id"] for j in api.get("/v1/jobs").json()]
+    listed = cli(served, "jobs", "--all", "--limit", "1", "--json")
+    assert [j["id"] for j in json.loads(listed.stdout)] == jobs
