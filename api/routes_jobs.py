@@ -2,33 +2,36 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Query
+from fastapi import APIRouter, Depends, Request, Response
 
 from farfield.service.jobs import (
-    JobSpec, cancel_job, create_job, full_job_record, get_job_row, job_record, job_summaries, list_job_rows,
-    queued_cell_ids, retry_job,
+    JobSpec, cancel_job, count_job_rows, create_job, full_job_record, get_job_row, job_record, job_summaries,
+    list_job_rows, queued_cell_ids, retry_job,
 )  # fmt: skip
 from farfield.service.scenes import get_scene_row
 
 from farfield.api.deps import Services, services, tenant
+from farfield.api.paging import DEFAULT_PAGE, PAGED, Limit, Offset, set_page_headers
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 
 
 @router.post("", status_code=201, summary="Create a job: one impostor per view cell")
 def submit_job(spec: JobSpec, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
-    scene = get_scene_row(svc.db, tenant_id, spec.scene_id)
+    scene = get_scene_row(svc.db, tenant_id, spec.scene_id, with_objects=True)  # a part's bounds are its objects'
+
     job = create_job(svc.db, tenant_id, scene, spec)
     svc.enqueue(queued_cell_ids(svc.db, job.id))
     return full_job_record(svc.db, job)
 
 
-@router.get("", summary="List jobs (filter by state or scene)")
+@router.get("", summary="List jobs, newest first (filter by state or scene); paged (X-Total-Count, Link)", responses=PAGED)
 def list_jobs(
-    state: str | None = None, scene_id: str | None = None, limit: int = Query(100, ge=1, le=1000), offset: int = Query(0, ge=0, le=2**31 - 1),
+    request: Request, response: Response, state: str | None = None, scene_id: str | None = None, limit: Limit = DEFAULT_PAGE, offset: Offset = 0,
     tenant_id: str = Depends(tenant), svc: Services = Depends(services),
 ) -> list[dict]:
     jobs = list_job_rows(svc.db, tenant_id, state, scene_id, limit, offset)
+    set_page_headers(request, response, count_job_rows(svc.db, tenant_id, state, scene_id), limit, offset)
     summaries = job_summaries(svc.db, [job.id for job in jobs])
     return [job_record(job, summaries[job.id]) for job in jobs]
 

@@ -1,13 +1,17 @@
-"""``/v1/scenes``: upload (multipart, streamed to the blob store), list, get, delete."""
+"""``/v1/scenes``: upload (multipart, streamed to the blob store), list, get, page a scene's objects, delete.
+
+Scenes are summaries (object count, triangles, bounds); a scene's object list is its own paged route.
+"""
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, UploadFile
+from fastapi import APIRouter, Depends, Request, Response, UploadFile
 
 from farfield.core.errors import SceneLoadError
-from farfield.service.scenes import delete_scene, get_scene_row, ingest_scene, list_scene_rows, scene_record
+from farfield.service.scenes import count_scenes, delete_scene, get_scene_row, ingest_scene, list_scene_rows, scene_objects, scene_record
 
 from farfield.api.deps import Services, services, tenant
+from farfield.api.paging import DEFAULT_PAGE, PAGED, Limit, Offset, set_page_headers
 
 router = APIRouter(prefix="/v1/scenes", tags=["scenes"])
 
@@ -19,14 +23,28 @@ def upload_scene(file: UploadFile | None = None, tenant_id: str = Depends(tenant
     return scene_record(ingest_scene(svc.db, svc.blobs, tenant_id, file.filename or "", file.file, svc.settings.max_upload_bytes, svc.settings.scene_limits))
 
 
-@router.get("", summary="List scenes")
-def list_scenes(tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> list[dict]:
-    return [scene_record(row) for row in list_scene_rows(svc.db, tenant_id)]
+@router.get("", summary="List scenes, newest first: summaries, paged (X-Total-Count, Link)", responses=PAGED)
+def list_scenes(
+    request: Request, response: Response, limit: Limit = DEFAULT_PAGE, offset: Offset = 0,
+    tenant_id: str = Depends(tenant), svc: Services = Depends(services),
+) -> list[dict]:  # fmt: skip
+    set_page_headers(request, response, count_scenes(svc.db, tenant_id), limit, offset)
+    return [scene_record(row) for row in list_scene_rows(svc.db, tenant_id, limit, offset)]
 
 
-@router.get("/{scene_id}", summary="One scene")
+@router.get("/{scene_id}", summary="One scene's summary (its objects: objects_url)")
 def get_scene(scene_id: str, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
     return scene_record(get_scene_row(svc.db, tenant_id, scene_id))
+
+
+@router.get("/{scene_id}/objects", summary="A scene's objects in file order: name, triangles, bounds, ...; paged (X-Total-Count, Link)", responses=PAGED)
+def list_scene_objects(
+    scene_id: str, request: Request, response: Response, limit: Limit = DEFAULT_PAGE, offset: Offset = 0,
+    tenant_id: str = Depends(tenant), svc: Services = Depends(services),
+) -> list[dict]:  # fmt: skip
+    objects, total = scene_objects(svc.db, tenant_id, scene_id, limit, offset)
+    set_page_headers(request, response, total, limit, offset)
+    return objects
 
 
 @router.delete("/{scene_id}", status_code=204, summary="Delete a scene and its finished jobs")

@@ -1,4 +1,4 @@
-"""``farfield submit`` and ``farfield jobs``: the service's client for pipelines and scripts.
+"""``farfield submit``, ``farfield jobs`` and ``farfield scenes``: the service's client for pipelines and scripts.
 
 The service is found at ``--url`` (``FARFIELD_URL``, default http://127.0.0.1:8000) with the key
 ``--key`` (``FARFIELD_API_KEY``, else the admin key ``farfield up`` keeps in
@@ -75,6 +75,28 @@ class Client:
             default = ErrorKind.INTERNAL if response.status_code >= 500 else ErrorKind.BAD_INPUT  # a 5xx is the service's fault, never bad input
             raise ServiceError(f"{detail} (HTTP {response.status_code})", STATUS_KINDS.get(response.status_code, default))
         return response
+
+    def pages(self, path: str, params: dict | None = None, limit: int = 100, offset: int = 0, every: bool = False):
+        """The entries of a paged listing from ``offset``, ``limit`` a page: one page, or ``every``
+        page (following the ``Link: rel="next"`` headers); and the ``X-Total-Count``."""
+        response = self.request("GET", path, params={**(params or {}), "limit": limit, "offset": offset})
+        entries = response.json()
+        while every and "next" in response.links:
+            response = self.request("GET", response.links["next"]["url"])
+            entries += response.json()
+        return entries, int(response.headers.get("X-Total-Count", len(entries)))
+
+
+def _more(shown: int, offset: int, total: int, what: str) -> None:
+    """A note on stderr when a listing shows only part of what there is."""
+    if offset + shown < total:
+        click.echo(f"{what} {offset + 1}-{offset + shown} of {total}: --offset {offset + shown} for the next, --all for every one", err=True)
+
+
+def _paging_options(f):
+    f = click.option("--all", "every", is_flag=True, help="Every page, not one.")(f)
+    f = click.option("--offset", type=click.IntRange(0), default=0, show_default=True, help="Entries to skip (newest first).")(f)
+    return click.option("--limit", type=click.IntRange(1, 1000), default=100, show_default=True, help="Entries per page.")(f)
 
 
 def _client_options(f):
@@ -210,9 +232,10 @@ def evaluation_line(summary: dict) -> str:
 @click.argument("job_id", required=False)
 @click.option("--state", default=None, help="Only jobs in this state.")
 @click.option("--json", "as_json", is_flag=True)
+@_paging_options
 @_client_options
-def jobs(job_id, state, as_json, url, key):
-    """List jobs, or show JOB_ID."""
+def jobs(job_id, state, as_json, limit, offset, every, url, key):
+    """List jobs, newest first, or show JOB_ID."""
     client = Client(url, key or _default_key())
     if job_id:
         job = client.request("GET", f"/v1/jobs/{job_id}").json()
@@ -225,9 +248,38 @@ def jobs(job_id, state, as_json, url, key):
         for error in job["errors"]:
             click.echo(f"  cell {error['index']}: {error['error']}")
         return
-    rows = client.request("GET", "/v1/jobs", params={"state": state} if state else None).json()
+    rows, total = client.pages("/v1/jobs", {"state": state} if state else None, limit, offset, every)
+    _more(len(rows), offset, total, "jobs")
     if as_json:
         click.echo(json.dumps(rows))
         return
     for job in rows:
         click.echo(f"{job['id']}  {job['state']:<9}  {job['counts']['done']}/{job['cells_total']} cells  {job['progress']:.0%}")
+
+
+@click.command("scenes")
+@click.argument("scene_id", required=False)
+@click.option("--objects", "with_objects", is_flag=True, help="With SCENE_ID: list its objects (paged like scenes).")
+@click.option("--json", "as_json", is_flag=True)
+@_paging_options
+@_client_options
+def scenes(scene_id, with_objects, as_json, limit, offset, every, url, key):
+    """List scenes, newest first, or show SCENE_ID (and its objects)."""
+    client = Client(url, key or _default_key())
+    if scene_id and with_objects:
+        rows, total = client.pages(f"/v1/scenes/{scene_id}/objects", None, limit, offset, every)
+        _more(len(rows), offset, total, "objects")
+        if as_json:
+            click.echo(json.dumps(rows))
+            return
+        for obj in rows:
+            click.echo(f"{obj['name']}  {obj['triangles']} triangles  bounds {obj['bounds']}")
+        return
+    rows, total = ([client.request("GET", f"/v1/scenes/{scene_id}").json()], 1) if scene_id else client.pages("/v1/scenes", None, limit, offset, every)
+    if not scene_id:
+        _more(len(rows), offset, total, "scenes")
+    if as_json:
+        click.echo(json.dumps(rows[0] if scene_id else rows))
+        return
+    for scene in rows:
+        click.echo(f"{scene['id']}  {scene['name']}  {scene['object_count']} objects  {scene['triangles']} triangles  {scene['size_bytes']} bytes")

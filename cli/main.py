@@ -50,6 +50,7 @@ def _register() -> None:
     cli.add_command(service_cmds.keys)
     cli.add_command(client_cmds.submit)
     cli.add_command(client_cmds.jobs)
+    cli.add_command(client_cmds.scenes)
     cli.add_command(walkthrough_cmd.walkthrough_cmd)
 
 

@@ -11,7 +11,7 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
-from sqlalchemy import JSON, Boolean, Float, ForeignKey, Integer, String, Text, create_engine, event, true
+from sqlalchemy import JSON, Boolean, Float, ForeignKey, Index, Integer, String, Text, create_engine, event, true
 from sqlalchemy.engine import Engine
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, sessionmaker
 
@@ -49,16 +49,21 @@ class ApiKey(Base):
 
 class SceneRow(Base):
     __tablename__ = "scenes"
+    __table_args__ = (Index("ix_scenes_tenant_created", "tenant_id", "created_at"),)  # listings: newest first
     id: Mapped[str] = mapped_column(String(32), primary_key=True)
     tenant_id: Mapped[str] = mapped_column(ForeignKey("tenants.id", ondelete="CASCADE"), index=True)
-    name: Mapped[str] = mapped_column(String(500))
+    name: Mapped[str] = mapped_column(String(500))  # path-safe (service.scenes.safe_file_name): the blob key's last part
+    original_name: Mapped[str] = mapped_column(String(1024), default="")  # as uploaded, bounded; metadata only, never in a path
     extension: Mapped[str] = mapped_column(String(16))
     blob_key: Mapped[str] = mapped_column(String(500))
     size_bytes: Mapped[int] = mapped_column(Integer)
     content_hash: Mapped[str] = mapped_column(String(64))
     triangles: Mapped[int] = mapped_column(Integer)
     bounds: Mapped[list] = mapped_column(JSON)
-    objects: Mapped[list] = mapped_column(JSON)  # core Scene.summary()["objects"]
+    object_count: Mapped[int] = mapped_column(Integer, default=0)
+    # core Scene.summary()["objects"]: megabytes for a scene of 10^5 objects, so deferred (never loaded
+    # by a listing or a worker's row; service.scenes.scene_objects pages it in SQL).
+    objects: Mapped[list] = mapped_column(JSON, deferred=True)
     created_at: Mapped[float] = mapped_column(Float, default=now)
 
 

@@ -125,7 +125,9 @@ def part_bounds(scene: SceneRow, objects: list[str] | None) -> np.ndarray:
     names = objects or list(by_name)
     missing = [name for name in names if name not in by_name]
     if missing:
-        raise NotFoundError(f"scene {scene.id!r} has no objects named {missing}; it has {sorted(by_name)}")
+        known = sorted(by_name)  # a scene may have 10^5 objects: the message names a few
+        shown = ", ".join(known[:20]) + (f", ... ({len(known)} in all; GET /v1/scenes/{scene.id}/objects)" if len(known) > 20 else "")
+        raise NotFoundError(f"scene {scene.id!r} has no objects named {missing[:20]}; it has {shown}")
     bounds = np.array([by_name[name]["bounds"] for name in names], dtype=np.float64)
     return np.array([bounds[:, 0].min(axis=0), bounds[:, 1].max(axis=0)])
 
@@ -276,17 +278,28 @@ def full_job_record(db: Database, job: JobRow) -> dict:
     return job_record(job, job_summaries(db, [job.id])[job.id], job_cells(db, job.id))
 
 
-def list_job_rows(db: Database, tenant_id: str, state: str | None = None, scene_id: str | None = None, limit: int = 100, offset: int = 0) -> list[JobRow]:
-    """The tenant's jobs, newest first, ``limit`` from ``offset``."""
+def _jobs_query(query, tenant_id: str, state: str | None, scene_id: str | None):
     if state is not None and state not in JOB_STATES:
         raise LayerPlanError(f"unknown job state {state!r}; one of {list(JOB_STATES)}")
-    query = select(JobRow).where(JobRow.tenant_id == tenant_id)
+    query = query.where(JobRow.tenant_id == tenant_id)
     if state:
         query = query.where(JobRow.state == state)
     if scene_id:
         query = query.where(JobRow.scene_id == scene_id)
+    return query
+
+
+def list_job_rows(db: Database, tenant_id: str, state: str | None = None, scene_id: str | None = None, limit: int = 100, offset: int = 0) -> list[JobRow]:
+    """The tenant's jobs, newest first, ``limit`` from ``offset``."""
+    query = _jobs_query(select(JobRow), tenant_id, state, scene_id)
     with db.session() as s:
         return list(s.scalars(query.order_by(JobRow.created_at.desc(), JobRow.id).limit(limit).offset(offset)))
+
+
+def count_job_rows(db: Database, tenant_id: str, state: str | None = None, scene_id: str | None = None) -> int:
+    """How many jobs :func:`list_job_rows` pages through."""
+    with db.session() as s:
+        return s.scalar(_jobs_query(select(func.count()).select_from(JobRow), tenant_id, state, scene_id))
 
 
 def queued_cell_ids(db: Database, job_id: str) -> list[str]:

@@ -6,6 +6,7 @@ A failed upload (too large, empty, unparsable) leaves neither a row nor a blob b
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -16,9 +17,10 @@ from collections import OrderedDict
 from pathlib import Path, PurePath
 from typing import BinaryIO
 
-from sqlalchemy import select
+from sqlalchemy import func, select, text
+from sqlalchemy.orm import undefer
 
-from farfield.core.errors import ConflictError, SceneLoadError, UploadTooLargeError
+from farfield.core.errors import ConflictError, NotFoundError, SceneLoadError, UploadTooLargeError
 from farfield.core.exchange import DEFAULT_LIMITS, SceneLimits, load_scene_bytes, supported_extensions
 from farfield.core.scene import Scene
 from farfield.service.blobs import BlobStore
@@ -49,11 +51,28 @@ def safe_file_name(name: str) -> str:
     return safe
 
 
+MAX_ORIGINAL_NAME = 1024
+
+
+def original_file_name(name: str | None) -> str:
+    """The uploaded file name as sent, kept as metadata: at most :data:`MAX_ORIGINAL_NAME`
+    characters, storable in any database (NUL and unencodable characters become U+FFFD).  Never
+    used to build a path: :func:`safe_file_name` is.
+
+    >>> original_file_name("../my scene.glb"), len(original_file_name("a" * 2000)), original_file_name("a\\x00b")
+    ('../my scene.glb', 1024, 'a\ufffdb')
+    """
+    text = (name or "").encode("utf-8", "replace").decode("utf-8").replace("\x00", "\ufffd")
+    return text[:MAX_ORIGINAL_NAME]
+
+
 def scene_record(row: SceneRow) -> dict:
-    """The API's view of a stored scene."""
+    """The API's view of a stored scene: a summary, without its object list (a scene of 10^5
+    objects has megabytes of them); ``objects_url`` pages them (:func:`scene_objects`)."""
     return {
-        "id": row.id, "name": row.name, "size_bytes": row.size_bytes, "content_hash": row.content_hash,
-        "triangles": row.triangles, "bounds": row.bounds, "objects": row.objects, "created_at": row.created_at,
+        "id": row.id, "name": row.name, "original_name": row.original_name, "size_bytes": row.size_bytes,
+        "content_hash": row.content_hash, "object_count": row.object_count, "triangles": row.triangles,
+        "bounds": row.bounds, "created_at": row.created_at, "objects_url": f"/v1/scenes/{row.id}/objects",
     }  # fmt: skip
 
 
@@ -96,9 +115,9 @@ def ingest_scene(
         with open(path, "rb") as f:
             blobs.put_stream(key, f)
         row = SceneRow(
-            id=scene_id, tenant_id=tenant_id, name=name, extension=extension, blob_key=key, size_bytes=size,
-            content_hash=summary["content_hash"], triangles=summary["triangles"], bounds=summary["bounds"],
-            objects=summary["objects"], created_at=now(),
+            id=scene_id, tenant_id=tenant_id, name=name, original_name=original_file_name(file_name), extension=extension,
+            blob_key=key, size_bytes=size, content_hash=summary["content_hash"], triangles=summary["triangles"],
+            bounds=summary["bounds"], object_count=len(summary["objects"]), objects=summary["objects"], created_at=now(),
         )  # fmt: skip
         with db.session() as s:
             s.add(row)
@@ -110,14 +129,49 @@ def ingest_scene(
     return row
 
 
-def get_scene_row(db: Database, tenant_id: str, scene_id: str) -> SceneRow:
-    """The tenant's scene ``scene_id``; another tenant's id is not found."""
-    return owned_row(db, SceneRow, tenant_id, scene_id, "scene")
-
-
-def list_scene_rows(db: Database, tenant_id: str) -> list[SceneRow]:
+def get_scene_row(db: Database, tenant_id: str, scene_id: str, with_objects: bool = False) -> SceneRow:
+    """The tenant's scene ``scene_id``; another tenant's id is not found.  Its deferred ``objects``
+    are loaded only ``with_objects`` (reading them on a row fetched without raises)."""
+    if not with_objects:
+        return owned_row(db, SceneRow, tenant_id, scene_id, "scene")
     with db.session() as s:
-        return list(s.scalars(select(SceneRow).where(SceneRow.tenant_id == tenant_id).order_by(SceneRow.created_at.desc())))
+        row = s.get(SceneRow, scene_id, options=[undefer(SceneRow.objects)])
+    if row is None or row.tenant_id != tenant_id:
+        raise NotFoundError(f"scene {scene_id!r} not found")
+    return row
+
+
+def list_scene_rows(db: Database, tenant_id: str, limit: int = 100, offset: int = 0) -> list[SceneRow]:
+    """The tenant's scenes, newest first, ``limit`` from ``offset`` (their objects not loaded)."""
+    query = select(SceneRow).where(SceneRow.tenant_id == tenant_id).order_by(SceneRow.created_at.desc(), SceneRow.id)
+    with db.session() as s:
+        return list(s.scalars(query.limit(limit).offset(offset)))
+
+
+def count_scenes(db: Database, tenant_id: str) -> int:
+    with db.session() as s:
+        return s.scalar(select(func.count()).select_from(SceneRow).where(SceneRow.tenant_id == tenant_id))
+
+
+# One page of a scene's objects, sliced by the database from the stored JSON array, so the API
+# never decodes the whole list (megabytes for 10^5 objects) to answer a page of it.
+_OBJECTS_PAGE = {
+    "sqlite": "SELECT j.value FROM scenes, json_each(scenes.objects) AS j WHERE scenes.id = :id ORDER BY j.key LIMIT :limit OFFSET :offset",
+    "postgresql": "SELECT e.value FROM scenes, json_array_elements(scenes.objects) WITH ORDINALITY AS e(value, n) "
+                  "WHERE scenes.id = :id ORDER BY e.n LIMIT :limit OFFSET :offset",
+}  # fmt: skip
+
+
+def scene_objects(db: Database, tenant_id: str, scene_id: str, limit: int = 100, offset: int = 0) -> tuple[list[dict], int]:
+    """``limit`` object summaries of the tenant's scene from ``offset``, in the scene's order, and
+    how many it has."""
+    row = get_scene_row(db, tenant_id, scene_id)
+    sql = _OBJECTS_PAGE.get(db.engine.dialect.name)
+    with db.session() as s:
+        if sql is None:  # another database: sliced here
+            return s.scalar(select(SceneRow.objects).where(SceneRow.id == scene_id))[offset : offset + limit], row.object_count
+        values = s.execute(text(sql), {"id": scene_id, "limit": limit, "offset": offset}).scalars().all()
+    return [json.loads(v) if isinstance(v, str) else v for v in values], row.object_count
 
 
 def delete_scene(db: Database, blobs: BlobStore, tenant_id: str, scene_id: str) -> None:

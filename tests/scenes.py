@@ -373,3 +373,29 @@ def house(seed: int = 4) -> Scene:
     for x in (7.3, 10.7):
         objects.append(box_object(f"porch_post_{x:g}", (x, 0.0, -2.0), (x + 0.2, 3.6, -1.8), (0.9, 0.9, 0.9, 1.0)))
     return Scene.from_objects(objects, source=f"house-{seed}")
+
+
+def instanced_nodes_glb(nodes: int) -> bytes:
+    """A GLB of ``nodes`` nodes (``node000000``...) on a square grid, each an instance of the one
+    triangle mesh: a scene of ``nodes`` objects in little more than 100 bytes per node (issue 24's
+    10^5-node upload)."""
+    import json
+    import struct
+
+    positions = np.array([[0, 0, 0], [0.5, 0, 0], [0, 0.5, 0]], dtype="<f4").tobytes()
+    side = max(1, int(np.ceil(np.sqrt(nodes))))
+    document = {
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": list(range(nodes))}],
+        "nodes": [{"name": f"node{i:06d}", "mesh": 0, "translation": [i % side, 0, i // side]} for i in range(nodes)],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [0.5, 0.5, 0]}],
+        "bufferViews": [{"buffer": 0, "byteLength": len(positions)}],
+        "buffers": [{"byteLength": len(positions)}],
+    }
+    text = json.dumps(document, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)
+    binary = positions + b"\0" * (-len(positions) % 4)
+    chunks = struct.pack("<I4s", len(text), b"JSON") + text + struct.pack("<I4s", len(binary), b"BIN\0") + binary
+    return struct.pack("<4sII", b"glTF", 2, 12 + len(chunks)) + chunks

@@ -13,7 +13,8 @@ import os
 import time
 
 import pytest
-from browser import CHROMIUM, SKIP_REASON, new_page, tid
+from browser import CHROMIUM, SKIP_REASON, dashboard_page, new_page, tid
+from scenes import instanced_nodes_glb
 from service_harness import ADMIN_KEY, BUNNY, BUNNY_GRID, start_service, upload, wait_for_job, stored_options
 
 from farfield.core.techniques import TECHNIQUES
@@ -72,7 +73,7 @@ def test_upload_submit_progress_done_atlas(page, service):
     page.click(tid("upload-submit"))
     result = page.locator(tid("upload-result"))
     result.wait_for()
-    assert "bun_zipper.ply" in result.inner_text() and "69,451 triangles" in result.inner_text()
+    assert "bun_zipper.ply" in result.inner_text() and "69,451 triangles" in result.inner_text() and "1 object(s)" in result.inner_text()
     scene_id = result.get_attribute("data-scene-id")
     assert page.locator(tid("job-scene")).input_value() == scene_id
 
@@ -325,3 +326,22 @@ def test_retry_is_refused_with_the_message_and_cancel_ends_a_job(page, service):
     page.click(tid("job-retry"))
     page.locator(tid("job-action-error")).filter(has_text="only a failed job can be retried").wait_for()
     assert page.js_errors == []
+
+
+def test_scene_info_and_listings_use_the_paged_routes(browser, service):
+    """Scenes are listed as summaries; the job form names a scene's first objects from its paged
+    objects route (a 2,000-object scene: its list was once in every listing); each list says when
+    it shows only the newest page."""
+    with service.client() as client:
+        made = client.post("/v1/scenes", files={"file": ("many.glb", instanced_nodes_glb(2000))})
+        assert made.status_code == 201, made.text
+        scene_id = made.json()["id"]
+        total_jobs = int(client.get("/v1/jobs", params={"limit": 1}).headers["X-Total-Count"])
+    with dashboard_page(browser, service.url, ADMIN_KEY) as page:
+        page.locator(f'[data-testid="job-scene"] option[value="{scene_id}"]').wait_for(state="attached")
+        page.select_option(tid("job-scene"), scene_id)
+        info = page.locator(tid("job-scene-info"))
+        info.filter(has_text="node000007, …").wait_for()
+        assert "2,000 object(s): node000000, node000001" in info.inner_text() and "node000008" not in info.inner_text()
+        assert page.locator(tid("scenes-more")).is_hidden() and page.locator(tid("jobs-more")).is_hidden() == (total_jobs <= 100)
+        assert page.js_errors == []

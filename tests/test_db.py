@@ -6,7 +6,7 @@ import sqlalchemy as sa
 from alembic import command
 from alembic.config import Config
 
-from farfield.service.db import MIGRATIONS, Database, JobRow
+from farfield.service.db import MIGRATIONS, Database, JobRow, SceneRow
 
 
 def _config(connection) -> Config:
@@ -27,7 +27,7 @@ def test_upgrade_keeps_rows_and_adds_columns(tmp_path):
     assert "worker" in {c["name"] for c in sa.inspect(db.engine).get_columns("cells")}
     with db.engine.connect() as connection:
         assert connection.execute(sa.text("SELECT name FROM tenants")).scalars().all() == ["acme"]
-        assert connection.execute(sa.text("SELECT version_num FROM alembic_version")).scalar() == "0004"
+        assert connection.execute(sa.text("SELECT version_num FROM alembic_version")).scalar() == "0005"
 
 
 def test_jobs_made_before_evaluate_existed_are_evaluated(tmp_path):
@@ -45,3 +45,21 @@ def test_jobs_made_before_evaluate_existed_are_evaluated(tmp_path):
     db.migrate()
     with db.session() as s:
         assert s.get(JobRow, "j").evaluate is True
+
+
+def test_scenes_made_before_0005_get_their_object_count_and_original_name(tmp_path):
+    db = Database(f"sqlite:///{tmp_path / 'old.db'}")
+    with db.engine.begin() as connection:
+        command.upgrade(_config(connection), "0004")
+        connection.execute(sa.text("INSERT INTO tenants (id, name, created_at) VALUES ('t', 'acme', 1.0)"))
+        for scene_id, objects in (("s", '[{"name": "a"}, {"name": "b"}, {"name": "c"}]'), ("e", "[]")):
+            connection.execute(sa.text(
+                "INSERT INTO scenes (id, tenant_id, name, extension, blob_key, size_bytes, content_hash, triangles, bounds, objects, created_at) "
+                f"VALUES ('{scene_id}', 't', 'my_scene.glb', 'glb', 'k', 1, 'h', 1, '[]', '{objects}', 1.0)"
+            ))  # fmt: skip
+    db.migrate()
+    with db.session() as s:
+        rows = {row.id: row for row in s.scalars(sa.select(SceneRow))}
+    assert (rows["s"].object_count, rows["e"].object_count) == (3, 0)
+    assert rows["s"].original_name == "my_scene.glb"
+    assert "ix_scenes_tenant_created" in {i["name"] for i in sa.inspect(db.engine).get_indexes("scenes")}

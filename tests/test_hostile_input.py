@@ -80,6 +80,7 @@ def test_a_long_upload_name_is_shortened_not_a_500(api, tmp_path):
     assert response.status_code == 201, response.text
     name = response.json()["name"]
     assert len(name) == 120 and name.endswith("b.glb")
+    assert response.json()["original_name"] == "b" * 242 + ".glb"  # kept as metadata, never in a path
 
 
 def test_a_deep_node_chain_upload_is_refused_quickly_with_413(api):

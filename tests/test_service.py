@@ -41,7 +41,10 @@ def test_upload_reports_the_scene(client, bunny_id):
     scene = client.get(f"/v1/scenes/{bunny_id}").json()
     assert scene["triangles"] == 69451
     assert scene["name"] == "bun_zipper.ply"
-    assert [o["name"] for o in scene["objects"]] and len(scene["bounds"]) == 2
+    assert scene["original_name"] == "bun_zipper.ply" and scene["object_count"] == 1 and "objects" not in scene
+    objects = client.get(scene["objects_url"])
+    assert [o["name"] for o in objects.json()] and objects.headers["X-Total-Count"] == "1" and len(scene["bounds"]) == 2
+    assert objects.json()[0]["triangles"] == 69451
     assert bunny_id in [s["id"] for s in client.get("/v1/scenes").json()]
 
 
@@ -139,6 +142,7 @@ def test_auth(service, client, bunny_id):
     with service.client(key=other_key["key"]) as other:
         assert other.get("/v1/scenes").json() == []
         assert other.get(f"/v1/scenes/{bunny_id}").status_code == 404
+        assert other.get(f"/v1/scenes/{bunny_id}/objects").status_code == 404
         jobs = client.get("/v1/jobs").json()
         if jobs:
             assert other.get(f"/v1/jobs/{jobs[0]['id']}").status_code == 404

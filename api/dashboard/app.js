@@ -15,7 +15,8 @@ const state = {
   jobId: null,
   job: null,
   jobFetchedAt: 0,
-  scenes: new Map(), // id -> scene record
+  scenes: new Map(), // id -> scene record (a summary: its objects are GET objects_url, paged)
+  sceneObjects: new Map(), // id -> the names of its first objects, for the job form
   map: null, // {key, rects: Map(index -> {rect, title, bar, w})}
   level: 0, // y level shown on the map (grid jobs)
   selected: null, // selected cell index
@@ -75,6 +76,20 @@ async function api(path, {method = "GET", json, form, raw = false} = {}) {
   if (raw) return response;
   if (response.status === 204) return null;
   return response.json();
+}
+
+// A page of a paged listing (GET /v1/scenes, /v1/jobs, a scene's objects): the body is a JSON
+// array of the page, X-Total-Count the entries in all pages.
+async function apiPage(path) {
+  const response = await api(path, {raw: true});
+  const items = await response.json();
+  const total = Number(response.headers.get("X-Total-Count") ?? items.length);
+  return {items, total};
+}
+
+function showMore(node, shown, total, what) {
+  node.hidden = total <= shown;
+  node.textContent = `the newest ${fmtNum(shown)} of ${fmtNum(total)} ${what} are listed`;
 }
 
 async function download(path, filename) {
@@ -204,8 +219,9 @@ async function refreshHealth() {
 
 async function refreshScenes() {
   if (!state.key) return;
-  const scenes = await api("/v1/scenes");
+  const {items: scenes, total} = await apiPage("/v1/scenes?limit=1000");
   state.scenes = new Map(scenes.map((s) => [s.id, s]));
+  showMore($("scenes-more"), scenes.length, total, "scenes");
   const body = $("scenes-body");
   body.replaceChildren(...scenes.map((s) => {
     const remove = el("button", {type: "button", class: "secondary small", "data-testid": "scene-delete", text: "delete"});
@@ -223,13 +239,24 @@ async function refreshScenes() {
   showSceneInfo();
 }
 
+const SCENE_INFO_OBJECTS = 8;
+
 function showSceneInfo() {
   const scene = state.scenes.get($("job-scene").value);
   const info = $("job-scene-info");
   if (!scene) { info.textContent = ""; return; }
   const [lo, hi] = scene.bounds;
-  const names = (scene.objects || []).map((o) => o.name);
-  info.textContent = `bounds ${fmtVec(lo)} – ${fmtVec(hi)}; objects: ${names.slice(0, 8).join(", ")}${names.length > 8 ? ", …" : ""}`;
+  const text = (names) => `bounds ${fmtVec(lo)} – ${fmtVec(hi)}; ${fmtNum(scene.object_count)} object(s)` +
+    (names ? `: ${names.join(", ")}${scene.object_count > names.length ? ", …" : ""}` : "");
+  const known = state.sceneObjects.get(scene.id);
+  info.textContent = text(known);
+  if (known) return;
+  // The first few names from the scene's paged objects route (a scene may have 10^5 objects).
+  apiPage(`${scene.objects_url}?limit=${SCENE_INFO_OBJECTS}`).then(({items}) => {
+    const names = items.map((o) => o.name);
+    state.sceneObjects.set(scene.id, names);
+    if ($("job-scene").value === scene.id) info.textContent = text(names);
+  }).catch(() => {});
 }
 
 async function deleteScene(scene) {
@@ -256,7 +283,7 @@ async function onUpload(event) {
     const scene = await api("/v1/scenes", {method: "POST", form});
     const result = $("upload-result");
     result.replaceChildren(
-      el("strong", {text: scene.name}), ` uploaded: ${fmtNum(scene.triangles)} triangles, ${scene.objects.length} object(s), `,
+      el("strong", {text: scene.name}), ` uploaded: ${fmtNum(scene.triangles)} triangles, ${fmtNum(scene.object_count)} object(s), `,
       `bounds ${fmtVec(scene.bounds[0])} – ${fmtVec(scene.bounds[1])}, id `, el("code", {"data-testid": "upload-scene-id", text: scene.id}));
     result.dataset.sceneId = scene.id;
     result.hidden = false;
@@ -508,7 +535,8 @@ async function onSubmitJob(event) {
 async function refreshJobs() {
   if (!state.key) return;
   const filter = $("jobs-filter").value;
-  const jobs = await api("/v1/jobs" + (filter ? `?state=${encodeURIComponent(filter)}` : ""));
+  const {items: jobs, total} = await apiPage("/v1/jobs" + (filter ? `?state=${encodeURIComponent(filter)}` : ""));
+  showMore($("jobs-more"), jobs.length, total, filter ? `${filter} jobs` : "jobs");
   const body = $("jobs-body");
   const existing = new Map([...body.children].map((row) => [row.dataset.jobId, row]));
   const rows = jobs.map((job) => {
