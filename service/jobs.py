@@ -63,17 +63,18 @@ class JobSpec(BaseModel):
     """A job request (``POST /v1/jobs``): one impostor per view cell of a scene's part (or of the
     whole scene, for a technique of scope ``scene``)."""
 
-    # The document says what _one_view_space checks: exactly one of the two, not null.
+    # The document says what _one_view_space checks: exactly one of the two view spaces, not
+    # null, and not both 'technique' and its former name.
     model_config = ConfigDict(extra="forbid", json_schema_extra={"oneOf": [
         {"required": ["viewcells"], "properties": {"viewcells": {"type": "array"}}},
         {"required": ["grid"], "properties": {"grid": {"type": "object"}}},
-    ]})  # fmt: skip
+    ], "not": {"required": ["technique", "job_type"], "properties": {"technique": {"type": "string"}, "job_type": {"type": "string"}}}})  # fmt: skip
     scene_id: str
     technique: Literal[tuple(TECHNIQUES)] | None = Field(  # type: ignore[valid-type]
         None, description="the impostor technique (default layered): " + "; ".join(f"{t.name}: {t.help}" for t in TECHNIQUES.values())
     )
     job_type: Literal[tuple(TECHNIQUES)] | None = Field(  # type: ignore[valid-type]
-        None, deprecated=True, description="the former name of 'technique', accepted until format 2 of the API; give one of them"
+        None, deprecated=True, description="the former name of 'technique', accepted until format 2 of the API; give one of them, not both"
     )
     viewcells: list[dict] | None = Field(None, description="explicit view cells, e.g. {'kind': 'box', 'lo': [..], 'hi': [..]}")
     grid: GridSpec | None = Field(None, description="or a grid of box cells over a view-space box")
@@ -98,8 +99,8 @@ class JobSpec(BaseModel):
         if (self.viewcells is None) == (self.grid is None):
             raise ValueError("give exactly one of 'viewcells' (a list) or 'grid'")
         former = self.__dict__.get("job_type")
-        if self.technique is not None and former is not None and self.technique != former:
-            raise ValueError(f"'technique' ({self.technique}) and its former name 'job_type' ({former}) disagree; give one")
+        if self.technique is not None and former is not None:
+            raise ValueError(f"'technique' ({self.technique}) and its former name 'job_type' ({former}) are both given; give one")
         return self
 
     @property

@@ -222,7 +222,9 @@ def test_jobs_name_their_technique_and_the_former_job_type_still_works(client, t
     assert new.json()["technique"] == "tdm" and old.json()["technique"] == old.json()["job_type"] == "layered"
     assert new.json()["params"]["fov_deg"] == 45.0  # the technique's default, stored explicitly
     clash = client.post("/v1/jobs", json={**spec, "technique": "tdm", "job_type": "layered"})
-    assert clash.status_code == 422 and "disagree" in clash.text
+    assert clash.status_code == 422 and "both given" in clash.text
+    both = client.post("/v1/jobs", json={**spec, "technique": "tdm", "job_type": "tdm"})  # the document allows one of them
+    assert both.status_code == 422 and "both given" in both.text
     for job in (new.json(), old.json()):
         done = wait_for_job(client, job["id"])
         assert done["state"] == "done", done["errors"]
