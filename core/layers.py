@@ -474,7 +474,6 @@ def plan_layers(
     pixel_model: PixelModel = "min",
     reference_offset: float | None = None,
     texel_share: float | None = None,
-    max_layers: int | None = None,
 ) -> LayerPlan:
     """Plan the layers of a layered impostor for the part in ``bounds`` seen from ``cell``.
 
@@ -497,10 +496,6 @@ def plan_layers(
         viewpoints (:func:`worst_parallax`), at most (1 - f) alpha, so that a silhouette, grown
         by up to one texel by the conservative recording (§3.3.2) and moved by parallax, stays
         within one pixel of the geometry.
-    max_layers : int, optional
-        Stop planning past this many layers and raise :class:`LayerCountError` (what a job's cost
-        admission asks, so that refusing a costly cell costs no more than the layers it may have);
-        at most ``TOL.max_layers`` in any case.
 
     Thesis budget: layers start at ``t0 + e_min(t0)`` (clamped into the part) and follow at the
     one-texel spacing of Eqs. 3.2–3.5 until a layer's back range ``e_min`` reaches the far end of
@@ -513,47 +508,22 @@ def plan_layers(
     resolution = check_resolution(resolution)
     view = part_view(cell, bounds)
     alpha = pixel_angle(fov, resolution, pixel_model)
-    cap = TOL.max_layers if max_layers is None else max(1, min(int(max_layers), TOL.max_layers))
     if texel_share is not None and not (math.isfinite(texel_share) and 0.0 < texel_share < 1.0):
         raise LayerPlanError(f"texel share must lie in (0, 1), got {texel_share!r}")
     if reference_offset is not None:
         s = float(reference_offset)
         if not (math.isfinite(s) and 0.0 <= s <= view.cell_depth):
             raise LayerPlanError(f"reference offset s must lie in [0, cell depth {view.cell_depth:.6g}], got {s!r}")
-        return _plan_at_offset(view, s, alpha, pixel_model, texel_share, cap)
-    best, over = None, None
+        return _plan_at_offset(view, s, alpha, pixel_model, texel_share)
+    best = None
     for s in reference_offset_candidates(view):
-        # A candidate that needs more layers than the best so far is abandoned as soon as it does.
-        try:
-            plan = _plan_at_offset(view, s, alpha, pixel_model, texel_share, cap if best is None else min(cap, best.count))
-        except LayerCountError as error:
-            over = over or error
-            continue
+        plan = _plan_at_offset(view, s, alpha, pixel_model, texel_share)
         if best is None or plan.count < best.count:
             best = plan
-    if best is None:
-        raise over
     return best
 
 
-class LayerCountError(LayerPlanError):
-    """A plan that needs more than ``cap`` layers (at least ``layers``, of ``texture_resolution``
-    texels each): beyond ``TOL.max_layers``, or beyond what the caller allowed."""
-
-    def __init__(self, message: str, layers: int, cap: int, texture_resolution) -> None:
-        super().__init__(message)
-        self.layers, self.cap, self.texture_resolution = layers, cap, tuple(int(r) for r in texture_resolution)
-
-
-def _too_many(view: PartView, count: int, cap: int, res) -> LayerCountError:
-    return LayerCountError(
-        f"more than {cap} layers needed for a part {view.depth:.6g} deep at distance {view.t0:.6g}; "
-        "use a smaller view cell or a lower resolution",
-        count, cap, res,
-    )  # fmt: skip
-
-
-def _plan_at_offset(view: PartView, s: float, alpha: float, pixel_model: str, texel_share: float | None = None, cap: int = TOL.max_layers) -> LayerPlan:
+def _plan_at_offset(view: PartView, s: float, alpha: float, pixel_model: str, texel_share: float | None = None) -> LayerPlan:
     """The layer plan of ``view`` with the reference viewpoint ``s`` behind the near border."""
     half_tan = _half_tangents(view, s)
     # A flat part seen edge-on has no lateral extent: give it a pixel's worth of frustum so the
@@ -566,7 +536,7 @@ def _plan_at_offset(view: PartView, s: float, alpha: float, pixel_model: str, te
 
     t0, t_end = view.t0, view.t0 + view.depth
     if texel_share is not None:
-        return _shared_budget_plan(view, s, alpha, pixel_model, texel_share, half_tan, res, r, cap)
+        return _shared_budget_plan(view, s, alpha, pixel_model, texel_share, half_tan, res, r)
     front = float(depth_range_min(t0, s, r, alpha))
     t = t0 + min(front, view.depth)
     distances = [t]
@@ -576,8 +546,11 @@ def _plan_at_offset(view: PartView, s: float, alpha: float, pixel_model: str, te
             raise LayerPlanError(f"layer spacing collapsed to {c!r} at distance {t:.6g}")
         t = min(t + c, t_end)
         distances.append(t)
-        if len(distances) > cap:
-            raise _too_many(view, len(distances), cap, res)
+        if len(distances) > TOL.max_layers:
+            raise LayerPlanError(
+                f"more than {TOL.max_layers} layers needed for a part {view.depth:.6g} deep at "
+                f"distance {t0:.6g}; use a smaller view cell or a lower resolution"
+            )
     d = np.asarray(distances, dtype=np.float64)
     inner = d[:-1] + border_offset(d[:-1], d[1:], s)
     borders = np.concatenate([[t0], inner, [t_end]])
@@ -607,7 +580,7 @@ def _plan_at_offset(view: PartView, s: float, alpha: float, pixel_model: str, te
     )
 
 
-def _shared_budget_plan(view: PartView, s: float, alpha: float, pixel_model: str, share: float, half_tan, res, r: float, cap: int = TOL.max_layers) -> LayerPlan:
+def _shared_budget_plan(view: PartView, s: float, alpha: float, pixel_model: str, share: float, half_tan, res, r: float) -> LayerPlan:
     """:func:`_plan_at_offset` with texels of ``share * alpha`` and parallax within ``(1 - share) * alpha``
     from every viewpoint (:class:`RayPairs`; see :func:`plan_layers`).
 
@@ -634,8 +607,11 @@ def _shared_budget_plan(view: PartView, s: float, alpha: float, pixel_model: str
         borders.append(min(max(thesis, pairs.nearest(nxt, budget), plane), reach, nxt))
         planes.append(nxt)
         plane = nxt
-        if len(planes) > cap:
-            raise _too_many(view, len(planes), cap, res)
+        if len(planes) > TOL.max_layers:
+            raise LayerPlanError(
+                f"more than {TOL.max_layers} layers needed for a part {view.depth:.6g} deep at "
+                f"distance {t0:.6g}; use a smaller view cell or a lower resolution"
+            )
     d = np.asarray(planes, dtype=np.float64) - s
     borders = np.concatenate([np.asarray(borders, dtype=np.float64) - s, [t_end]])
     borders[0] = t0
