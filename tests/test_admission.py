@@ -11,14 +11,19 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
+import time
 
+import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 from scenes import city, write_scene
+from service_harness import start_service, upload, wait_for_job
 
 from farfield.api.app import create_app
+from farfield.service.cell_limits import MemoryGuard, resident_bytes
 from farfield.service.db import CellRow, Database, JobRow, SceneRow
-from farfield.service.jobs import JobSpec, create_job
+from farfield.service.jobs import JobSpec, create_job, open_tenant_cells
 from farfield.service.keys import authenticate
 from farfield.service.settings import AdmissionLimits, Settings
 
@@ -125,7 +130,9 @@ def test_a_tenant_over_its_open_cells_is_refused_with_429(home):
     """Open (queued or running) cells per tenant are capped; the refusal names the count and the limit."""
     home, scene_id = home
     create_directly(home, scene_id, resolution=64, grid={"lo": [20.0, 3.0, -80.0], "hi": [36.0, 7.0, -76.0], "counts": [4, 1, 1]})
-    open_cells = stored(home)[1]  # every cell created so far is still queued: nothing sends them
+    db = Database(Settings.from_env({"FARFIELD_HOME": str(home)}).database_url)
+    open_cells = open_tenant_cells(db, authenticate(db, KEY))  # queued: nothing sends them
+    assert open_cells >= 4
     before = stored(home)
     with api_client(home, FARFIELD_MAX_TENANT_CELLS=str(open_cells + 1)) as client:
         response = client.post("/v1/jobs", json={"scene_id": scene_id, "resolution": 64, "viewcells": [CELL, CELL]})
@@ -146,3 +153,84 @@ def test_a_refused_plan_costs_no_more_than_the_limit(home):
         response = client.post("/v1/jobs", json={"scene_id": scene_id, "resolution": 4096, "viewcells": [CELL]})
     assert response.status_code == 413
     assert response.json()["detail"].startswith("view cell 0 needs more than 1.1e8 texels (at least 3 layers of 5141x7259) over the limit of 1e7")
+
+
+# --- limits per cell on a real worker ------------------------------------------------------------
+
+
+def limited_job(tmp_path, **env: str) -> dict:
+    """One 512-px layered cell of the city (a bake of some 5 s on llvmpipe, its 1.9e7 texels far
+    under the admission limits) on a real ``farfield up`` with ``env``; returns the ended job's record."""
+    service = start_service(tmp_path / "home", **env)
+    try:
+        with service.client() as client:
+            path = write_scene(city(buildings=3), tmp_path, "glb")
+            scene_id = upload(client, path).json()["id"]
+            created = client.post("/v1/jobs", json={"scene_id": scene_id, "resolution": 512, "viewcells": [CELL]})
+            assert created.status_code == 201, created.text
+            job = wait_for_job(client, created.json()["id"], timeout=180)
+            time.sleep(1.0)  # a redelivery after the pool process died must change nothing
+            return client.get(f"/v1/jobs/{job['id']}").json()
+    finally:
+        assert service.stop() == 0
+
+
+def test_a_cell_past_its_time_limit_fails_once_with_the_limit_named(tmp_path):
+    """Celery's soft time limit ends the attempt as a failed cell naming FARFIELD_CELL_TIME_LIMIT;
+    it is bad input, so there is no retry and the job ends failed."""
+    job = limited_job(tmp_path, FARFIELD_CELL_TIME_LIMIT="1")
+    cell = job["cells"][0]
+    assert job["state"] == "failed" and cell["state"] == "failed", job
+    assert cell["attempts"] == 1 and not cell["has_result"]
+    assert cell["error"].startswith("CellLimitError: the cell ran longer than FARFIELD_CELL_TIME_LIMIT (1 s) and was stopped; not retried")
+
+
+def test_a_cell_past_its_memory_limit_fails_once_with_the_limit_named(tmp_path):
+    """The pool process's memory guard fails the cell naming FARFIELD_CELL_MEMORY_MB and ends the
+    process; the redelivered message finds the cell failed, so there is one attempt and the job
+    ends failed.  (64 MiB is below any pool process's resident set: the guard fires at once.)"""
+    job = limited_job(tmp_path, FARFIELD_CELL_MEMORY_MB="64")
+    cell = job["cells"][0]
+    assert job["state"] == "failed" and cell["state"] == "failed", job
+    assert cell["attempts"] == 1 and not cell["has_result"]
+    assert re.fullmatch(r"CellLimitError: the cell's worker process grew to \d+ MiB of memory, over FARFIELD_CELL_MEMORY_MB \(64 MiB\), and was stopped; not retried.*", cell["error"]), cell["error"]
+
+
+def test_the_memory_guard_fires_on_growth_and_not_below_its_limit():
+    """The guard reads this process's real resident set: quiet while it stays under the limit,
+    firing once (its action, then the kill) when 256 MiB more are touched."""
+    base = resident_bytes()
+    fired, killed = [], []
+    guard = MemoryGuard(base // 2**20 + 128, interval=0.02, kill=lambda: killed.append(True))
+    with guard.armed(fired.append):
+        time.sleep(0.2)
+        assert not fired and not killed
+        block = np.ones(256 * 2**20, dtype=np.uint8)  # touched: resident
+        deadline = time.monotonic() + 5
+        while not killed and time.monotonic() < deadline:
+            time.sleep(0.02)
+    assert killed == [True] and len(fired) == 1 and fired[0] > guard.limit_bytes, (fired, guard.limit_bytes)
+    del block
+
+
+def test_a_cell_killed_at_the_hard_time_limit_is_failed_by_the_main_process(home):
+    """Where the pool process does not stop at the soft limit (a long call into the driver), Celery
+    kills it at the hard one and calls the task's on_failure in the worker's main process, which
+    fails the cell (it could record nothing itself) and ends the job."""
+    from celery.exceptions import TimeLimitExceeded
+
+    from farfield.workers import tasks
+
+    home, scene_id = home
+    job = create_directly(home, scene_id, resolution=64, viewcells=[CELL])
+    db = Database(Settings.from_env({"FARFIELD_HOME": str(home)}).database_url)
+    with db.session() as s:
+        cell_id = s.query(CellRow.id).filter(CellRow.job_id == job.id).scalar()
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("FARFIELD_HOME", str(home))
+        patch.setattr(tasks, "_STATE", {})
+        tasks.bake_cell.on_failure(TimeLimitExceeded(1860), "task-id", [cell_id], {}, None)
+    with db.session() as s:
+        cell, ended = s.get(CellRow, cell_id), s.get(JobRow, job.id)
+        assert cell.state == "failed" and ended.state == "failed"
+        assert cell.error.startswith("CellLimitError: the cell ran longer than FARFIELD_CELL_TIME_LIMIT and did not stop, so its worker process was killed at the hard limit (1860 s)")
