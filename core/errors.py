@@ -23,6 +23,7 @@ class ErrorKind(enum.Enum):
     TOO_LARGE = (413, 2)
     RENDERER_UNAVAILABLE = (503, 5)
     UNAUTHORIZED = (401, 6)
+    OVER_QUOTA = (429, 7)  # the caller has too much work in flight; the same request may pass later
     INTERNAL = (500, 1)  # a bug in farfield, never the caller's fault
 
     @property
@@ -69,8 +70,47 @@ class LayerPlanError(FarfieldError):
     """Layer mathematics asked for a configuration that has no valid answer."""
 
 
+class PlanBudgetError(LayerPlanError):
+    """A layer plan stopped once it passed a caller's budget of texels (:func:`core.layers.plan_layers`'s
+    ``max_texels``): ``layers`` planned so far (the plan needs at least these) of ``texture`` texels.
+
+    >>> error = PlanBudgetError(25, (3223, 3514))
+    >>> error.texels, str(error)
+    (283140550, 'the plan passed its budget of texels at 25 layers of 3223x3514')
+    """
+
+    def __init__(self, layers: int, texture: tuple[int, int]) -> None:
+        super().__init__(f"the plan passed its budget of texels at {layers} layers of {texture[0]}x{texture[1]}")
+        self.layers, self.texture = int(layers), (int(texture[0]), int(texture[1]))
+
+    @property
+    def texels(self) -> int:
+        return self.layers * self.texture[0] * self.texture[1]
+
+
 class AtlasOverflowError(FarfieldError):
     """Texels do not fit the allowed atlas pages."""
+
+
+class JobTooCostlyError(FarfieldError):
+    """A job whose estimated work (texels recorded, from its cells' layer plans) is beyond the
+    configured limits per cell or per job.  TOO_LARGE (413), like an upload or a scene beyond its
+    limits: the request is well formed and the same job passes on a service configured for more;
+    the message gives the estimate, the limit and the setting that raises it."""
+
+    kind = ErrorKind.TOO_LARGE
+
+
+class QuotaError(FarfieldError):
+    """A request refused because its tenant has too much work in flight (e.g. open cells); it may
+    pass once some of that work ends (HTTP 429)."""
+
+    kind = ErrorKind.OVER_QUOTA
+
+
+class CellLimitError(FarfieldError):
+    """A cell that ran past the worker's limit of time or memory per cell.  Bad input: the same cell
+    would take as long or as much again, so it is failed, not retried."""
 
 
 class ComparisonError(FarfieldError):

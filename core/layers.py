@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from farfield.core.constants import TOL
-from farfield.core.errors import LayerPlanError
+from farfield.core.errors import LayerPlanError, PlanBudgetError
 from farfield.core.pixel_angles import PixelModel, check_fov, check_resolution, pixel_angle, texture_resolution
 from farfield.core.viewcells import BoxCell, ShaftCell, ViewCell, _orthonormal_frame, box_corners
 
@@ -474,6 +474,7 @@ def plan_layers(
     pixel_model: PixelModel = "min",
     reference_offset: float | None = None,
     texel_share: float | None = None,
+    max_texels: int | None = None,
 ) -> LayerPlan:
     """Plan the layers of a layered impostor for the part in ``bounds`` seen from ``cell``.
 
@@ -496,6 +497,11 @@ def plan_layers(
         viewpoints (:func:`worst_parallax`), at most (1 - f) alpha, so that a silhouette, grown
         by up to one texel by the conservative recording (§3.3.2) and moved by parallax, stays
         within one pixel of the geometry.
+    max_texels : int, optional
+        A budget of texels (layers x texture resolution): planning stops with
+        :class:`~farfield.core.errors.PlanBudgetError` (the layers planned so far, one past the
+        budget, and the texture) as soon as every candidate plan has passed it, so refusing a costly
+        plan costs no more than the budget's layers.  None: no budget (only ``TOL.max_layers``).
 
     Thesis budget: layers start at ``t0 + e_min(t0)`` (clamped into the part) and follow at the
     one-texel spacing of Eqs. 3.2–3.5 until a layer's back range ``e_min`` reaches the far end of
@@ -514,16 +520,37 @@ def plan_layers(
         s = float(reference_offset)
         if not (math.isfinite(s) and 0.0 <= s <= view.cell_depth):
             raise LayerPlanError(f"reference offset s must lie in [0, cell depth {view.cell_depth:.6g}], got {s!r}")
-        return _plan_at_offset(view, s, alpha, pixel_model, texel_share)
-    best = None
+        return _plan_at_offset(view, s, alpha, pixel_model, texel_share, max_texels)
+    best, over = None, None
     for s in reference_offset_candidates(view):
-        plan = _plan_at_offset(view, s, alpha, pixel_model, texel_share)
+        try:
+            plan = _plan_at_offset(view, s, alpha, pixel_model, texel_share, max_texels)
+        except PlanBudgetError as error:  # this candidate is over the budget; another may not be
+            if over is None or error.texels < over.texels:
+                over = error
+            continue
         if best is None or plan.count < best.count:
             best = plan
+    if best is None:
+        raise over
     return best
 
 
-def _plan_at_offset(view: PartView, s: float, alpha: float, pixel_model: str, texel_share: float | None = None) -> LayerPlan:
+def _layer_cap(res: np.ndarray, max_texels: int | None) -> int:
+    """The most layers of texture ``res`` within ``max_texels`` (Python integers: no overflow),
+    at most ``TOL.max_layers``."""
+    if max_texels is None:
+        return TOL.max_layers
+    return min(TOL.max_layers, int(max_texels) // (int(res[0]) * int(res[1])))
+
+
+def _over_budget(count: int, res: np.ndarray, cap: int) -> None:
+    """Raise when ``count`` layers are more than ``cap`` allows (the texel budget, or ``TOL.max_layers``)."""
+    if count > cap and cap < TOL.max_layers:
+        raise PlanBudgetError(count, (int(res[0]), int(res[1])))
+
+
+def _plan_at_offset(view: PartView, s: float, alpha: float, pixel_model: str, texel_share: float | None = None, max_texels: int | None = None) -> LayerPlan:
     """The layer plan of ``view`` with the reference viewpoint ``s`` behind the near border."""
     half_tan = _half_tangents(view, s)
     # A flat part seen edge-on has no lateral extent: give it a pixel's worth of frustum so the
@@ -535,8 +562,10 @@ def _plan_at_offset(view: PartView, s: float, alpha: float, pixel_model: str, te
     r = float(np.hypot(*(0.5 * view.cell_width)))
 
     t0, t_end = view.t0, view.t0 + view.depth
+    cap = _layer_cap(res, max_texels)
+    _over_budget(1, res, cap)
     if texel_share is not None:
-        return _shared_budget_plan(view, s, alpha, pixel_model, texel_share, half_tan, res, r)
+        return _shared_budget_plan(view, s, alpha, pixel_model, texel_share, half_tan, res, r, cap)
     front = float(depth_range_min(t0, s, r, alpha))
     t = t0 + min(front, view.depth)
     distances = [t]
@@ -546,6 +575,7 @@ def _plan_at_offset(view: PartView, s: float, alpha: float, pixel_model: str, te
             raise LayerPlanError(f"layer spacing collapsed to {c!r} at distance {t:.6g}")
         t = min(t + c, t_end)
         distances.append(t)
+        _over_budget(len(distances), res, cap)
         if len(distances) > TOL.max_layers:
             raise LayerPlanError(
                 f"more than {TOL.max_layers} layers needed for a part {view.depth:.6g} deep at "
@@ -580,7 +610,7 @@ def _plan_at_offset(view: PartView, s: float, alpha: float, pixel_model: str, te
     )
 
 
-def _shared_budget_plan(view: PartView, s: float, alpha: float, pixel_model: str, share: float, half_tan, res, r: float) -> LayerPlan:
+def _shared_budget_plan(view: PartView, s: float, alpha: float, pixel_model: str, share: float, half_tan, res, r: float, cap: int = TOL.max_layers) -> LayerPlan:
     """:func:`_plan_at_offset` with texels of ``share * alpha`` and parallax within ``(1 - share) * alpha``
     from every viewpoint (:class:`RayPairs`; see :func:`plan_layers`).
 
@@ -607,6 +637,7 @@ def _shared_budget_plan(view: PartView, s: float, alpha: float, pixel_model: str
         borders.append(min(max(thesis, pairs.nearest(nxt, budget), plane), reach, nxt))
         planes.append(nxt)
         plane = nxt
+        _over_budget(len(planes), res, cap)
         if len(planes) > TOL.max_layers:
             raise LayerPlanError(
                 f"more than {TOL.max_layers} layers needed for a part {view.depth:.6g} deep at "

@@ -15,6 +15,7 @@ cell finds it and does not bake again, and two workers baking the same key never
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import sys
@@ -24,16 +25,18 @@ from pathlib import Path
 
 import redis.exceptions
 import sqlalchemy.exc
+from celery.exceptions import SoftTimeLimitExceeded
 from kombu.exceptions import OperationalError as BrokerError
 
 from farfield.core.bundle import MANIFEST_NAME, read_bundle, write_bundle
-from farfield.core.errors import BundleFormatError, ErrorKind, FarfieldError, InternalError
+from farfield.core.errors import BundleFormatError, CellLimitError, ErrorKind, FarfieldError, InternalError
 from farfield.core.impostor import Impostor
 from farfield.core.scene import Scene
 from farfield.core.techniques import get_technique
 from farfield.core.techniques.part import report_part
 from farfield.core.viewcells import viewcell_from_dict
 from farfield.service.blobs import BlobStore
+from farfield.service.cell_limits import MemoryGuard, memory_limit_message, time_limit_message
 from farfield.service.db import Database, JobRow, SceneRow
 from farfield.service.jobs import claim_cell, end_cell, finish_job_if_complete, job_cancelled, result_key, set_progress
 from farfield.service.scenes import load_stored_scene
@@ -124,7 +127,10 @@ def evaluate_cell(blobs: BlobStore, scene_row: SceneRow, key: str, scene: Scene 
     return report_part(scene, impostor)
 
 
-def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, worker: str | None = None) -> str:
+def run_cell(
+    db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, worker: str | None = None,
+    *, time_limit: int | None = None, memory: MemoryGuard | None = None,
+) -> str:  # fmt: skip
     """Run one cell; returns its new state ("done", "failed", "cancelled") or "skipped".
 
     A failed attempt is counted on the cell and falls in one of three classes
@@ -140,6 +146,11 @@ def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, wo
       (:class:`~farfield.core.errors.InternalError`).  Retried like a transient failure (it may depend on
       the worker), its traceback logged at each attempt; after ``max_attempts`` the cell is failed
       with ``internal error: Type: message``.
+
+    Past the worker's limits (:mod:`service.cell_limits`) the cell is failed at once, as bad input
+    (a :class:`~farfield.core.errors.CellLimitError`): Celery's soft time limit (``time_limit``
+    seconds, named in the message) raises ``SoftTimeLimitExceeded`` here, and ``memory``, armed
+    while the cell bakes and is evaluated, fails the cell and ends the process past its limit.
 
     Every state change names the attempt it ends, so a stale duplicate delivery changes nothing.
     An exception that escapes (claiming the cell or recording its outcome failed, so no attempt or
@@ -173,33 +184,40 @@ def run_cell(db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, wo
             last_progress[0] = clock
             set_progress(db, cell_id, 0.9 * done / max(total, 1))  # recording is most of a cell
 
+    def over_memory(resident: int) -> None:  # the guard's thread, just before it ends this process
+        end("failed", error=f"{CellLimitError.__name__}: {memory_limit_message(resident, memory.limit_mb)}")
+
+    guard = memory.armed(over_memory) if memory is not None else contextlib.nullcontext()
     try:
-        with db.session() as s:
-            job = s.get(JobRow, cell.job_id)
-            scene_row = s.get(SceneRow, job.scene_id)
-        key = result_key(scene_row.content_hash, job.job_type, job.params, cell.viewcell)
-        seconds = None  # this attempt's bake timings (a bundle stores none: its bytes depend on its inputs alone)
-        scene = impostor = None
-        if not blobs.exists(f"{key}/{MANIFEST_NAME}"):
-            scene = load_stored_scene(blobs, scene_row)
-            impostor = bake_cell(job, scene, cell.viewcell, progress)
-            with tempfile.TemporaryDirectory(prefix="farfield-cell-") as tmp:
-                try:
-                    write_bundle(impostor, Path(tmp) / "bundle")
-                except BundleFormatError as error:  # the bake's own output does not fit its format: a bug, not bad input
-                    raise InternalError(f"the baked impostor could not be written: {error}") from error
-                blobs.publish_directory(key, Path(tmp) / "bundle", last=MANIFEST_NAME)
-            seconds = impostor.stats.get("seconds")
-        stats = json.loads(blobs.read_bytes(f"{key}/{MANIFEST_NAME}"))["stats"]
-        if seconds is not None:
-            stats["seconds"] = seconds
-        if job.evaluate and get_technique(job.job_type).scope == "part":
-            set_progress(db, cell_id, EVALUATION_PROGRESS)
-            stats["evaluation"] = evaluate_cell(blobs, scene_row, key, scene, impostor)
+        with guard:
+            with db.session() as s:
+                job = s.get(JobRow, cell.job_id)
+                scene_row = s.get(SceneRow, job.scene_id)
+            key = result_key(scene_row.content_hash, job.job_type, job.params, cell.viewcell)
+            seconds = None  # this attempt's bake timings (a bundle stores none: its bytes depend on its inputs alone)
+            scene = impostor = None
+            if not blobs.exists(f"{key}/{MANIFEST_NAME}"):
+                scene = load_stored_scene(blobs, scene_row)
+                impostor = bake_cell(job, scene, cell.viewcell, progress)
+                with tempfile.TemporaryDirectory(prefix="farfield-cell-") as tmp:
+                    try:
+                        write_bundle(impostor, Path(tmp) / "bundle")
+                    except BundleFormatError as error:  # the bake's own output does not fit its format: a bug, not bad input
+                        raise InternalError(f"the baked impostor could not be written: {error}") from error
+                    blobs.publish_directory(key, Path(tmp) / "bundle", last=MANIFEST_NAME)
+                seconds = impostor.stats.get("seconds")
+            stats = json.loads(blobs.read_bytes(f"{key}/{MANIFEST_NAME}"))["stats"]
+            if seconds is not None:
+                stats["seconds"] = seconds
+            if job.evaluate and get_technique(job.job_type).scope == "part":
+                set_progress(db, cell_id, EVALUATION_PROGRESS)
+                stats["evaluation"] = evaluate_cell(blobs, scene_row, key, scene, impostor)
     except CellCancelled:
         end("cancelled")
         return "cancelled"
     except Exception as error:  # noqa: BLE001 - every failure is classified and recorded on the cell
+        if isinstance(error, SoftTimeLimitExceeded):  # Celery's soft time limit: bad input, never retried
+            error = CellLimitError(time_limit_message(time_limit) if time_limit else "the cell ran past the worker's time limit")
         klass = failure_class(error)
         message = failure_message(error, klass)
         final = klass == BAD_INPUT or attempt >= max_attempts

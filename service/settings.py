@@ -21,12 +21,18 @@ shared services instead, so API and workers can run on several machines.
 | ``FARFIELD_ADMIN_KEY`` | unset | API key of the bootstrap tenant ``admin`` |
 | ``FARFIELD_HOST``, ``FARFIELD_PORT`` | ``127.0.0.1``, 8000 | where ``farfield up`` serves the API |
 | ``FARFIELD_MAX_ATTEMPTS`` | 3 | attempts per cell before it is marked failed |
-| ``FARFIELD_VISIBILITY_TIMEOUT`` | 3600 | seconds before Redis redelivers an unacknowledged cell |
+| ``FARFIELD_MAX_CELL_TEXELS`` | 4e9 | most texels one cell of a job may record (its plan's layers x texture resolution), checked when the job is created (413) |
+| ``FARFIELD_MAX_JOB_TEXELS`` | 2.5e11 | most texels all cells of one job may record together (413) |
+| ``FARFIELD_MAX_TENANT_CELLS`` | 20,000 | most cells a tenant may have queued or running at once; a job that would pass it is refused (429) |
+| ``FARFIELD_CELL_TIME_LIMIT`` | 1800 | seconds a cell may run on a worker; past it the cell fails (no retry), and 60 s later its pool process is killed |
+| ``FARFIELD_CELL_MEMORY_MB`` | 8192 | resident memory a worker's pool process may reach while it runs a cell; past it the cell fails (no retry) and the process is killed |
+| ``FARFIELD_VISIBILITY_TIMEOUT`` | 3600, and above the cell's hard time limit | seconds before Redis redelivers an unacknowledged cell; must be longer than ``FARFIELD_CELL_TIME_LIMIT`` + 60 |
 | ``FARFIELD_REQUEUE_AFTER`` | 3600 | seconds a cell may stay queued before the API sends it again (a lost message) |
 """
 
 from __future__ import annotations
 
+import math
 import os
 import re
 from collections.abc import Mapping
@@ -37,6 +43,23 @@ from farfield.core.errors import ServiceConfigError
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
 
 _SCENE_LIMITS = ("nodes", "depth", "primitives", "accessors", "triangles")
+
+# Admission defaults, measured on this 2-core machine with Mesa llvmpipe (README, "Limits").  Layered
+# bakes recorded 0.8-1.2e7 planned texels a second in front of a small city (1.9e7 texels at 512 px in
+# 4.3 s, 1.5e8 at 1024 in 13 s, 1.2e9 at 2048 in 160 s, 290-560 MiB resident) and some 1.3e8 a
+# second for the service benchmark's bunny cells (mostly empty layers): a cell at the cell limit
+# takes about 5-9 minutes here at worst, inside the time limit.  Every documented job passes at
+# 2048 px with default options (the largest cell, envmap's 6 faces x 64 layers of 2048x2048, is
+# 1.6e9; the largest job, that envmap grid of 9 cells, 1.4e10), while a layered cell at 16384 px in
+# front of a small city plans some 6e11.  The job limit lets MAX_CELLS (10,000) cells of 2.3e7
+# texels (the bunny grid's at 512 px) through, or 60 cells at the cell limit.
+MAX_CELL_TEXELS = 4 * 10**9
+MAX_JOB_TEXELS = 25 * 10**10
+MAX_TENANT_CELLS = 20_000
+CELL_TIME_LIMIT = 1800
+CELL_TIME_GRACE = 60  # seconds between the soft limit (the cell fails) and the hard one (the process is killed)
+CELL_MEMORY_MB = 8192
+VISIBILITY_TIMEOUT = 3600
 
 
 def _int(env: Mapping[str, str], name: str, default: int, minimum: int = 1) -> int:
@@ -49,6 +72,73 @@ def _int(env: Mapping[str, str], name: str, default: int, minimum: int = 1) -> i
         raise ServiceConfigError(f"{name} must be an integer, got {raw!r}") from None
     if value < minimum:
         raise ServiceConfigError(f"{name} must be >= {minimum}, got {value}")
+    return value
+
+
+def _count(env: Mapping[str, str], name: str, default: int, minimum: int = 1) -> int:
+    """An integer that may be written as ``4e9`` or ``4_000_000_000`` (large counts of texels)."""
+    raw = (env.get(name) or "").strip()
+    if not raw:
+        return default
+    try:
+        value = int(raw)
+    except ValueError:
+        try:
+            number = float(raw)
+        except ValueError:
+            number = math.nan
+        if not (math.isfinite(number) and number == int(number)):
+            raise ServiceConfigError(f"{name} must be a whole number such as 4000000000 or 4e9, got {raw!r}") from None
+        value = int(number)
+    if value < minimum:
+        raise ServiceConfigError(f"{name} must be >= {minimum}, got {value}")
+    return value
+
+
+@dataclass(frozen=True, slots=True)
+class AdmissionLimits:
+    """What a job may cost when it is created (:func:`service.jobs.create_job`): texels per cell and
+    per job (estimated from the cells' layer plans), and cells a tenant may have queued or running."""
+
+    max_cell_texels: int = MAX_CELL_TEXELS
+    max_job_texels: int = MAX_JOB_TEXELS
+    max_tenant_cells: int = MAX_TENANT_CELLS
+
+    @classmethod
+    def from_env(cls, env: Mapping[str, str] | None = None) -> AdmissionLimits:
+        """``FARFIELD_MAX_CELL_TEXELS``, ``FARFIELD_MAX_JOB_TEXELS`` and ``FARFIELD_MAX_TENANT_CELLS``.
+
+        >>> AdmissionLimits.from_env({"FARFIELD_MAX_CELL_TEXELS": "2.5e8"}).max_cell_texels
+        250000000
+        """
+        env = os.environ if env is None else env
+        return cls(
+            max_cell_texels=_count(env, "FARFIELD_MAX_CELL_TEXELS", MAX_CELL_TEXELS),
+            max_job_texels=_count(env, "FARFIELD_MAX_JOB_TEXELS", MAX_JOB_TEXELS),
+            max_tenant_cells=_count(env, "FARFIELD_MAX_TENANT_CELLS", MAX_TENANT_CELLS),
+        )
+
+
+def _visibility_timeout(env: Mapping[str, str], hard_limit: int) -> int:
+    """Seconds before Redis hands an unacknowledged cell to another worker: longer than a cell may
+    run (its hard time limit), or a slow cell would run twice at once.  Unset: the default, or
+    the hard limit and a minute when that is longer; set too short: refused.
+
+    >>> _visibility_timeout({}, 1860), _visibility_timeout({}, 7260)
+    (3600, 7320)
+    >>> _visibility_timeout({"FARFIELD_VISIBILITY_TIMEOUT": "600"}, 1860)
+    Traceback (most recent call last):
+    ...
+    farfield.core.errors.ServiceConfigError: FARFIELD_VISIBILITY_TIMEOUT (600 s) must be longer than a cell's hard time limit (1860 s: FARFIELD_CELL_TIME_LIMIT + 60), or Redis would hand a running cell to a second worker
+    """
+    if not (env.get("FARFIELD_VISIBILITY_TIMEOUT") or "").strip():
+        return max(VISIBILITY_TIMEOUT, hard_limit + 60)
+    value = _int(env, "FARFIELD_VISIBILITY_TIMEOUT", VISIBILITY_TIMEOUT)
+    if value <= hard_limit:
+        raise ServiceConfigError(
+            f"FARFIELD_VISIBILITY_TIMEOUT ({value} s) must be longer than a cell's hard time limit ({hard_limit} s: "
+            f"FARFIELD_CELL_TIME_LIMIT + {CELL_TIME_GRACE}), or Redis would hand a running cell to a second worker"
+        )
     return value
 
 
@@ -93,9 +183,17 @@ class Settings:
     host: str = "127.0.0.1"
     port: int = 8000
     max_attempts: int = 3
-    visibility_timeout: int = 3600
+    visibility_timeout: int = VISIBILITY_TIMEOUT  # longer than cell_hard_time_limit
     requeue_after: int = 3600  # a cell queued this long without starting is sent again
     scene_limits: SceneLimits = DEFAULT_LIMITS  # most structure an uploaded scene may have
+    admission: AdmissionLimits = AdmissionLimits()  # what a job may cost when it is created
+    cell_time_limit: int = CELL_TIME_LIMIT  # seconds; past it the cell fails (Celery's soft limit)
+    cell_memory_mb: int = CELL_MEMORY_MB  # resident MiB of a pool process running a cell
+
+    @property
+    def cell_hard_time_limit(self) -> int:
+        """Seconds after which a cell's pool process is killed (Celery's hard limit)."""
+        return self.cell_time_limit + CELL_TIME_GRACE
 
     @classmethod
     def from_env(cls, env: Mapping[str, str] | None = None) -> Settings:
@@ -109,6 +207,7 @@ class Settings:
         if redis_url is not None and not redis_url.startswith(("redis://", "rediss://", "unix://")):
             raise ServiceConfigError(f"REDIS_URL must start with redis://, rediss:// or unix://, got {redis_url!r}")
         s3 = _s3(env)
+        cell_time_limit = _int(env, "FARFIELD_CELL_TIME_LIMIT", CELL_TIME_LIMIT)
         return cls(
             home=home,
             redis_url=redis_url,
@@ -120,9 +219,12 @@ class Settings:
             host=env.get("FARFIELD_HOST") or "127.0.0.1",
             port=_int(env, "FARFIELD_PORT", 8000, minimum=0),
             max_attempts=_int(env, "FARFIELD_MAX_ATTEMPTS", 3),
-            visibility_timeout=_int(env, "FARFIELD_VISIBILITY_TIMEOUT", 3600),
+            visibility_timeout=_visibility_timeout(env, cell_time_limit + CELL_TIME_GRACE),
             requeue_after=_int(env, "FARFIELD_REQUEUE_AFTER", 3600),
             scene_limits=SceneLimits(**{n: _int(env, f"FARFIELD_MAX_SCENE_{n.upper()}", getattr(DEFAULT_LIMITS, n)) for n in _SCENE_LIMITS}),
+            admission=AdmissionLimits.from_env(env),
+            cell_time_limit=cell_time_limit,
+            cell_memory_mb=_int(env, "FARFIELD_CELL_MEMORY_MB", CELL_MEMORY_MB),
         )
 
     def with_redis(self, url: str) -> Settings:
@@ -139,6 +241,11 @@ class Settings:
             "FARFIELD_MAX_ATTEMPTS": str(self.max_attempts),
             "FARFIELD_VISIBILITY_TIMEOUT": str(self.visibility_timeout),
             "FARFIELD_REQUEUE_AFTER": str(self.requeue_after),
+            "FARFIELD_MAX_CELL_TEXELS": str(self.admission.max_cell_texels),
+            "FARFIELD_MAX_JOB_TEXELS": str(self.admission.max_job_texels),
+            "FARFIELD_MAX_TENANT_CELLS": str(self.admission.max_tenant_cells),
+            "FARFIELD_CELL_TIME_LIMIT": str(self.cell_time_limit),
+            "FARFIELD_CELL_MEMORY_MB": str(self.cell_memory_mb),
             **{f"FARFIELD_MAX_SCENE_{n.upper()}": str(getattr(self.scene_limits, n)) for n in _SCENE_LIMITS},
         }
         if self.redis_url:

@@ -4,7 +4,9 @@
 environment.  A cell is acknowledged only after it ends, so a worker that dies mid-cell leaves it
 to be delivered again: at once when a pool child is killed (``task_reject_on_worker_lost``), after
 the visibility timeout when the whole worker is.  The visibility timeout is longer than the
-longest cell, so a slow cell is not handed to a second worker while the first still runs.
+longest cell (the settings refuse one shorter than the task's hard time limit,
+``FARFIELD_CELL_TIME_LIMIT`` + 60 s), so a slow cell is not handed to a second worker while the
+first still runs.
 """
 
 from __future__ import annotations

@@ -18,6 +18,12 @@ outage of some 25 minutes at the default 3 attempts), an internal one for ``FARF
 deliveries, a bad-input one never.  Then the task gives up and fails the cell with the error if the
 database takes the write (else it logs that it could not).  No message is retried forever: the task's
 ``max_retries`` is :func:`max_retries` of the attempt limit.
+
+Limits per cell (:mod:`service.cell_limits`): the decorator's soft and hard time limits are
+``FARFIELD_CELL_TIME_LIMIT`` and that plus ``CELL_TIME_GRACE`` seconds; the soft one fails the cell
+(no retry), and the hard one, where the pool process did not stop, is recorded by
+:meth:`CellTask.on_failure` in the worker's main process.  Each pool process runs a
+:class:`~farfield.service.cell_limits.MemoryGuard` of ``FARFIELD_CELL_MEMORY_MB``.
 """
 
 from __future__ import annotations
@@ -26,11 +32,15 @@ import logging
 import os
 
 from billiard.exceptions import WorkerLostError
+from celery import Task
+from celery.exceptions import SoftTimeLimitExceeded, TimeLimitExceeded
 from celery.worker.request import Request
 from sqlalchemy import select, update
 
+from farfield.core.errors import CellLimitError
 from farfield.core.render.context import gl_context
 from farfield.service.blobs import BlobStore, blob_store
+from farfield.service.cell_limits import MemoryGuard, hard_time_limit_message, time_limit_message
 from farfield.service.cell_runner import BAD_INPUT, TRANSIENT, RetryCell, backoff, failure_class, failure_message, run_cell
 from farfield.service.db import CellRow, Database, now
 from farfield.service.jobs import finish_job_if_complete, release_lost_cells
@@ -39,6 +49,7 @@ from farfield.workers.app import BAKE_CELL, celery_app
 
 _STATE: dict = {}
 TRANSIENT_RETRIES_PER_ATTEMPT = 10
+_DECLARED = Settings.from_env()  # the settings the task is declared with (retries, time limits)
 
 log = logging.getLogger("farfield.worker")
 
@@ -52,14 +63,24 @@ def max_retries(max_attempts: int) -> int:
     return TRANSIENT_RETRIES_PER_ATTEMPT * max(max_attempts, 1)
 
 
-def _services() -> tuple[Settings, Database, BlobStore]:
-    """Settings, database and blob store of this process, made after any fork (never inherited)."""
+def _records() -> tuple[Settings, Database, BlobStore]:
+    """Settings, database and blob store of this process, made after any fork (never inherited);
+    no GL context, so the worker's main process may use it too."""
     if _STATE.get("pid") != os.getpid():
         settings = Settings.from_env()
+        _STATE.clear()
         _STATE.update(pid=os.getpid(), settings=settings, db=Database(settings.database_url), blobs=blob_store(settings))
+    return _STATE["settings"], _STATE["db"], _STATE["blobs"]
+
+
+def _services() -> tuple[Settings, Database, BlobStore]:
+    """:func:`_records`, and in a pool process that bakes: its GL device and its memory guard."""
+    settings, db, blobs = _records()
+    if "memory" not in _STATE:
+        _STATE["memory"] = MemoryGuard(settings.cell_memory_mb)
         if os.environ.get("FARFIELD_EGL_DEVICE"):  # one worker per GPU: farfield up pins each to its device
             gl_context(int(os.environ["FARFIELD_EGL_DEVICE"]))
-    return _STATE["settings"], _STATE["db"], _STATE["blobs"]
+    return settings, db, blobs
 
 
 def _give_up(db: Database, blobs: BlobStore, cell_id: str, message: str) -> str:
@@ -110,13 +131,30 @@ def release_in_main_process(cell_id: str, why: str, worker: str) -> None:
         db.dispose()
 
 
-@celery_app.task(bind=True, name=BAKE_CELL, Request=CellRequest, max_retries=max_retries(Settings.from_env().max_attempts))
+class CellTask(Task):
+    """The bake task's class: a hard time limit fails the cell it killed."""
+
+    def on_failure(self, exc, task_id, args, kwargs, einfo) -> None:
+        # Celery calls this in the worker's main process when a pool process is killed at the hard
+        # time limit (its cell could record nothing); other failures end in the task body.
+        if isinstance(exc, TimeLimitExceeded) and args:
+            _settings, db, blobs = _records()
+            outcome = _give_up(db, blobs, args[0], f"{CellLimitError.__name__}: {hard_time_limit_message(_DECLARED.cell_hard_time_limit)}")
+            log.error("cell %s: killed at the hard time limit of %d s (%s)", args[0], _DECLARED.cell_hard_time_limit, outcome)
+
+
+@celery_app.task(
+    bind=True, base=CellTask, Request=CellRequest, name=BAKE_CELL, max_retries=max_retries(_DECLARED.max_attempts),
+    soft_time_limit=_DECLARED.cell_time_limit, time_limit=_DECLARED.cell_hard_time_limit,
+)  # fmt: skip
 def bake_cell(self, cell_id: str) -> str:
     """Bake one cell of a job (service.cell_runner.run_cell), retrying with backoff (see the module docstring)."""
     settings, db, blobs = _services()
     limit, retries = max_retries(settings.max_attempts), self.request.retries
     try:
-        return run_cell(db, blobs, cell_id, settings.max_attempts, worker=self.request.hostname)
+        return run_cell(db, blobs, cell_id, settings.max_attempts, worker=self.request.hostname, time_limit=settings.cell_time_limit, memory=_STATE["memory"])
+    except SoftTimeLimitExceeded:  # outside the attempt (claiming or recording it): the cell is as slow next time
+        return _give_up(db, blobs, cell_id, f"{CellLimitError.__name__}: {time_limit_message(settings.cell_time_limit)}")
     except RetryCell as retry:  # the attempt is counted on the cell, which is queued again
         if retries < limit:
             raise self.retry(countdown=retry.countdown, exc=None, max_retries=limit) from None

@@ -3,7 +3,7 @@
 A :class:`Technique` names its ``Options`` (a frozen dataclass of :func:`core.options.option`
 fields), its scope (``part``: impostors of a scene's objects; ``scene``: the whole scene around a
 view cell), the check that runs when a job is created (``check``: the layer planning that proves
-every cell can have an impostor), the bake, the evaluation against the real geometry, and the
+every cell can have an impostor, returning the cell's :class:`CellCost` from that plan), the bake, the evaluation against the real geometry, and the
 text the CLI prints of its statistics and its evaluation.  The registry
 (:data:`core.techniques.TECHNIQUES`) holds one of each; the service, the CLI and the dashboard read
 it instead of naming techniques.
@@ -15,8 +15,6 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
-import numpy as np
-
 from farfield.core.errors import LayerPlanError
 from farfield.core.impostor import Impostor
 from farfield.core.options import IMAGE_FIELDS, describe_options, options_from_mapping
@@ -25,6 +23,46 @@ from farfield.core.viewcells import ViewCell
 
 Progress = Callable[[str, int, int], None]  # (stage, done, total)
 Scope = Literal["part", "scene"]
+
+# Bytes of one recorded texel: RGBA8, as the layers are read back and the atlas pages stored.
+TEXEL_BYTES = 4
+
+
+@dataclass(frozen=True, slots=True)
+class CellCost:
+    """The work of baking one cell, from the plan its technique's check computes: ``layers`` images
+    of ``texture`` texels each (an envmap's layers of every chosen cube face counted apart), ``texels``
+    their sum and ``bytes`` their raw RGBA8 size.  An upper bound of what a bake records: layers
+    with nothing in view and culled texels cost less.  Python integers, so no product overflows.
+    ``complete`` is False when the check was given a budget and stopped planning past it: the
+    cell needs at least this much.
+
+    >>> cost = CellCost.of_layers(14, (16384, 8460))
+    >>> cost.texels, cost.bytes, cost.describe()
+    (1940520960, 7762083840, '14 layers of 16384x8460')
+    >>> CellCost.of_layers(10**6, (65536, 65536)).texels  # no int64 wrap
+    4294967296000000
+    >>> CellCost.of_layers(1, (64, 64), complete=False).describe()
+    'at least 1 layer of 64x64'
+    """
+
+    layers: int
+    texture: tuple[int, int]  # texels along the image's x and y (each layer's)
+    texels: int
+    bytes: int
+    complete: bool = True
+
+    @classmethod
+    def of_layers(cls, layers: int, texture, complete: bool = True) -> CellCost:
+        """``layers`` images of ``texture`` (x, y) texels each."""
+        x, y = (int(t) for t in texture)
+        texels = int(layers) * x * y
+        return cls(int(layers), (x, y), texels, texels * TEXEL_BYTES, complete)
+
+    def describe(self) -> str:
+        """``'14 layers of 16384x8460'`` (``'at least ...'`` when not ``complete``)."""
+        layers = f"{self.layers} layer{'s' if self.layers != 1 else ''} of {self.texture[0]}x{self.texture[1]}"
+        return layers if self.complete else f"at least {layers}"
 
 
 @dataclass(frozen=True)
@@ -35,9 +73,11 @@ class Technique:
     scope: Scope
     help: str  # one line: what it makes, and the paper
     Options: type  # frozen dataclass; its fields' metadata give defaults, bounds and help
-    # check(cell, options, part_bounds or None): raises LayerPlanError/ViewCellError when the cell
-    # cannot have an impostor (the planning a job runs for every cell at creation)
-    check: Callable[[ViewCell, Any, np.ndarray | None], None]
+    # check(cell, options, part_bounds or None, max_texels=None) -> the cell's CellCost; raises
+    # LayerPlanError/ViewCellError when the cell cannot have an impostor (the planning a job runs for
+    # every cell at creation, whose figures the job's cost admission sums).  Given max_texels, it may
+    # stop planning once the cell is past them (a CellCost that is not complete).
+    check: Callable[..., CellCost]
     # bake(scene, cell, options, objects or None, progress or None) -> Impostor
     bake: Callable[[Scene, ViewCell, Any, list[str] | None, Progress | None], Impostor]
     # summary(stats) -> the lines the CLI prints after a bake

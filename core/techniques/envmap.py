@@ -48,7 +48,7 @@ from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION, pixel_angle
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
-from farfield.core.techniques.base import Technique
+from farfield.core.techniques.base import CellCost, Technique
 from farfield.core.viewcells import BoxCell
 
 # Cube faces (core.cube_faces.FACES): image x and y run along the next two world axes, so a face's
@@ -284,10 +284,22 @@ def bake_envmap(scene: Scene, cell: BoxCell, options: EnvmapOptions = EnvmapOpti
     )
 
 
-def _check(cell, options, bounds) -> None:
+def envmap_cost(cell, options: EnvmapOptions) -> CellCost:
+    """The cost of ``cell``'s bake: every chosen face's layers of its face texels (seed 002 Res),
+    counted as if every face had geometry beyond the near field (a face without any records none).
+
+    >>> cost = envmap_cost(BoxCell([0.0, 0.0, 0.0], [2.0, 2.0, 2.0]), EnvmapOptions(resolution=256, directions=("+x", "-x", "+z", "-z")))
+    >>> cost.describe(), cost.texels == 4 * 64 * 256 * 256
+    ('256 layers of 256x256', True)
+    """
     if not isinstance(cell, BoxCell):
         raise ViewCellError(f"an envmap impostor needs a cubic box view cell, got a {cell.to_dict()['kind']!r} cell")
-    plan_envmap(cell, options)
+    plan = plan_envmap(cell, options)
+    return CellCost.of_layers(len(options.directions) * plan.count, (plan.resolution, plan.resolution))
+
+
+def _check(cell, options, bounds, max_texels: int | None = None) -> CellCost:
+    return envmap_cost(cell, options)  # closed form (seed 002 Eqs. 1-2): no budget needed
 
 
 def _bake(scene, cell, options, objects, progress):

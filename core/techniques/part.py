@@ -8,16 +8,37 @@ import math
 
 import numpy as np
 
+from farfield.core.errors import PlanBudgetError
 from farfield.core.evaluation import Evaluation, evaluate, evaluate_at, spread_corners
 from farfield.core.impostor import Impostor
 from farfield.core.layers import plan_layers
 from farfield.core.scene import Scene
+from farfield.core.techniques.base import CellCost
 from farfield.core.viewcells import ViewCell, viewcell_from_dict
 
 
-def check_part_cell(cell: ViewCell, options, bounds: np.ndarray | None) -> None:
-    """Plan the layers of the part (``bounds``) seen from ``cell`` (raises when there is no answer)."""
-    plan_layers(cell, bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model, texel_share=getattr(options, "texel_share", None))
+def check_part_cell(cell: ViewCell, options, bounds: np.ndarray | None, max_texels: int | None = None) -> CellCost:
+    """Plan the layers of the part (``bounds``) seen from ``cell`` as the bake will (raises when
+    there is no answer); the cell's cost is the plan's layers of its texture resolution.  Past
+    ``max_texels`` the planning stops (:func:`core.layers.plan_layers`) and the cost says at least.
+
+    >>> from farfield.core.techniques.layered import BakeOptions
+    >>> from farfield.core.viewcells import BoxCell
+    >>> cell, part = BoxCell([-1.0, 0.0, -1.0], [1.0, 2.0, 1.0]), np.array([[-5.0, 0.0, 20.0], [5.0, 10.0, 30.0]])
+    >>> small, large = (check_part_cell(cell, BakeOptions(resolution=r), part) for r in (256, 1024))
+    >>> small.describe(), large.describe()
+    ('21 layers of 315x297', '82 layers of 1260x1188')
+    >>> large.texels == 82 * 1260 * 1188, large.bytes == 4 * large.texels
+    (True, True)
+    >>> check_part_cell(cell, BakeOptions(resolution=1024), part, max_texels=10**7).describe()
+    'at least 7 layers of 1254x1188'
+    """
+    fov = math.radians(options.fov_deg)
+    try:
+        plan = plan_layers(cell, bounds, fov, options.resolution, options.pixel_model, texel_share=getattr(options, "texel_share", None), max_texels=max_texels)
+    except PlanBudgetError as over:
+        return CellCost.of_layers(over.layers, over.texture, complete=False)
+    return CellCost.of_layers(plan.count, plan.texture_resolution)
 
 
 def evaluate_part(scene: Scene, impostor: Impostor, random_count: int, outside_count: int, seed: int) -> Evaluation:
