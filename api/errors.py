@@ -62,6 +62,9 @@ def validation_detail(errors) -> str:
     return "; ".join(lines)
 
 
+QUOTA_RETRY_AFTER_S = 30  # Retry-After of a 429
+
+
 def install_error_handlers(app: FastAPI) -> None:
     """Answer every error of ``app`` with an :class:`ErrorBody`."""
 
@@ -70,6 +73,8 @@ def install_error_handlers(app: FastAPI) -> None:
         if error.kind is ErrorKind.INTERNAL:  # a bug (HTTP 500): keep its traceback
             logging.getLogger("farfield.api").error("internal error: %s", error, exc_info=error)
         headers = {"WWW-Authenticate": "Bearer"} if error.kind is ErrorKind.UNAUTHORIZED else None
+        if error.kind is ErrorKind.OVER_QUOTA:  # the tenant's open work has to end first: a hint, not a promise
+            headers = {"Retry-After": str(QUOTA_RETRY_AFTER_S)}
         return error_response(error.kind.http_status, str(error), type(error).__name__, headers)
 
     @app.exception_handler(RequestValidationError)

@@ -19,8 +19,7 @@ router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 @router.post("", status_code=201, summary="Create a job: one impostor per view cell")
 def submit_job(spec: JobSpec, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
     scene = get_scene_row(svc.db, tenant_id, spec.scene_id, with_objects=True)  # a part's bounds are its objects'
-
-    job = create_job(svc.db, tenant_id, scene, spec)
+    job = create_job(svc.db, tenant_id, scene, spec, svc.settings.admission)
     svc.enqueue(queued_cell_ids(svc.db, job.id))
     return full_job_record(svc.db, job)
 

@@ -21,7 +21,7 @@ from farfield.core.errors import ErrorKind, FarfieldError
 from farfield.core.viewcells import parse_viewcell
 from farfield.service.settings import Settings
 
-STATUS_KINDS = {401: ErrorKind.UNAUTHORIZED, 404: ErrorKind.MISSING, 409: ErrorKind.CONFLICT, 413: ErrorKind.TOO_LARGE, 503: ErrorKind.RENDERER_UNAVAILABLE}
+STATUS_KINDS = {401: ErrorKind.UNAUTHORIZED, 404: ErrorKind.MISSING, 409: ErrorKind.CONFLICT, 413: ErrorKind.TOO_LARGE, 429: ErrorKind.OVER_QUOTA, 503: ErrorKind.RENDERER_UNAVAILABLE}
 
 
 class ServiceError(FarfieldError):

@@ -136,7 +136,7 @@ def test_a_tenant_over_its_open_cells_is_refused_with_429(home):
     before = stored(home)
     with api_client(home, FARFIELD_MAX_TENANT_CELLS=str(open_cells + 1)) as client:
         response = client.post("/v1/jobs", json={"scene_id": scene_id, "resolution": 64, "viewcells": [CELL, CELL]})
-    assert response.status_code == 429, response.text
+    assert response.status_code == 429 and response.headers["retry-after"] == "30", response.text
     assert response.json() == {
         "detail": f"tenant has {open_cells:,} cells queued or running; this job's 2 would pass the limit of {open_cells + 1:,} "
         "(FARFIELD_MAX_TENANT_CELLS): wait for some to end, or cancel a job",
