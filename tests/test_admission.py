@@ -22,8 +22,9 @@ from service_harness import start_service, upload, wait_for_job
 
 from farfield.api.app import create_app
 from farfield.service.cell_limits import MemoryGuard, resident_bytes
-from farfield.service.db import CellRow, Database, JobRow, SceneRow
+from farfield.service.db import CellRow, Database, JobRow
 from farfield.service.jobs import JobSpec, create_job, open_tenant_cells
+from farfield.service.scenes import get_scene_row
 from farfield.service.keys import authenticate
 from farfield.service.settings import AdmissionLimits, Settings
 
@@ -67,9 +68,9 @@ def stored(home) -> tuple[int, int]:
 def create_directly(home, scene_id: str, limits: AdmissionLimits | None = None, **spec) -> JobRow:
     """A job created by the service function, as the API would (no broker: its cells stay queued)."""
     db = Database(Settings.from_env({"FARFIELD_HOME": str(home)}).database_url)
-    with db.session() as s:
-        scene = s.get(SceneRow, scene_id)
-    return create_job(db, authenticate(db, KEY), scene, JobSpec(scene_id=scene_id, **spec), limits or AdmissionLimits())
+    tenant_id = authenticate(db, KEY)
+    scene = get_scene_row(db, tenant_id, scene_id, with_objects=True)
+    return create_job(db, tenant_id, scene, JobSpec(scene_id=scene_id, **spec), limits or AdmissionLimits())
 
 
 def test_a_16384_job_is_refused_with_its_estimate(home):
