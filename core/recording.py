@@ -31,7 +31,7 @@ import numpy as np
 from farfield.core.layers import LayerPlan
 from farfield.core.render.alpha_mips import bilinear_square_max, max_alpha_levels
 from farfield.core.render.context import gl_context
-from farfield.core.render.cut_colours import premultiplied_linear
+from farfield.core.render.cut_colours import cut_weighted_linear
 from farfield.core.render.programs import park_framebuffer, program, set_material, srgb_texture
 from farfield.core.scene import Scene, SceneObject
 
@@ -307,13 +307,17 @@ def _instance_records(instances: SlabInstances, obj: SceneObject) -> np.ndarray:
 
 
 def _object_textures(ctx: moderngl.Context, obj: SceneObject):
-    """The object's base-colour texture, and for an alpha-cut one its mipmapped premultiplied
+    """The object's base-colour texture, and for an alpha-cut one its mipmapped cut-weighted
     colours (:mod:`core.render.cut_colours`) and max-alpha mip chain (None where it has none)."""
     texture = cut = alpha = None
     if obj.texture is not None:
         texture = srgb_texture(ctx, obj.texture)
         if obj.alpha_cutoff is not None:
-            image = np.ascontiguousarray(premultiplied_linear(obj.texture)[::-1])
+            # The cut on the texture's own alpha: slab.frag keeps a point where base alpha x
+            # vertex alpha x texture alpha reaches the cutoff (vertex alphas taken as 1 here).
+            base_alpha = float(obj.base_color[3])
+            cut = obj.alpha_cutoff / base_alpha if base_alpha > 0.0 else 2.0
+            image = np.ascontiguousarray(cut_weighted_linear(obj.texture, cut)[::-1])
             cut = ctx.texture((image.shape[1], image.shape[0]), 4, image.tobytes(), dtype="f2")
             cut.build_mipmaps()
             cut.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)

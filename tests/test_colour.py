@@ -97,29 +97,47 @@ def test_mtl_kd_is_an_srgb_value(tmp_path):
     assert {tuple(int(v) for v in px) for px in image[image[..., 3] > 0][:, :3]} == {(128, 128, 128)}
 
 
-def cut_texture(size: int = 64) -> np.ndarray:
-    """Thin green stripes, one texel wide every fourth column, on transparent black texels."""
+def cut_texture(size: int = 64, soft_edge=None) -> np.ndarray:
+    """Thin green stripes, one texel wide every fourth column, on transparent black texels; with
+    ``soft_edge`` (RGBA, alpha below the cut) the stripes' neighbours hold that instead."""
     texture = np.zeros((size, size, 4), dtype=np.uint8)
+    if soft_edge is not None:
+        texture[:, 1::4] = soft_edge
+        texture[:, 3::4] = soft_edge
     texture[:, ::4] = (60, 160, 40, 255)
     return texture
 
 
-def test_alpha_cut_texels_never_take_the_transparent_texels_rgb(tmp_path):
-    """Minified stripes: every texel is kept (some stripe lies under each), and none may be black."""
+def stripe_texels(texture: np.ndarray) -> np.ndarray:
+    """(n, 3) int: the opaque atlas texels of a minified quad of ``texture`` cut at 0.5, baked layered."""
     vertices = np.array([[-2.0, -2.0, 0.0], [2.0, -2.0, 0.0], [2.0, 2.0, 0.0], [-2.0, 2.0, 0.0]])
     quad = SceneObject(
         "stripes", vertices, np.array([[0, 1, 2], [0, 2, 3]]), uv=(vertices[:, :2] + 2.0) / 4.0,
-        texture=cut_texture(), alpha_cutoff=0.5,
+        texture=texture, alpha_cutoff=0.5,
     )  # fmt: skip
     scene = Scene.from_objects([quad], "stripes")
     technique = get_technique("layered")
     cell = BoxCell(np.array([-0.5, -0.5, 29.5]), np.array([0.5, 0.5, 30.5]))
     impostor = technique.bake(scene, cell, technique.options({}, 64, 45.0), None, None)
-    texels = np.concatenate([page[page[..., 3] > 0][:, :3] for page in impostor.pages]).astype(int)
+    return np.concatenate([page[page[..., 3] > 0][:, :3] for page in impostor.pages]).astype(int)
+
+
+def test_alpha_cut_texels_never_take_the_transparent_texels_rgb(tmp_path):
+    """Minified stripes: every texel is kept (some stripe lies under each), and none may be black."""
+    texels = stripe_texels(cut_texture())
     assert len(texels) > 50
     assert (texels.max(axis=1) < 20).sum() == 0
-    # The stripes' own colour (alpha-weighted: the transparent texels add nothing), within rounding.
+    # The stripes' own colour (the transparent texels add nothing), within rounding.
     assert np.abs(texels - (60, 160, 40)).max() <= 2
+
+
+def test_alpha_cut_texels_never_take_the_colour_of_texels_below_the_cut(tmp_path):
+    """A soft edge painted in another colour (white at alpha 100 of 255, as the scrub pine's
+    ``LushPine.png`` paints its needles' soft edges light) is cut away by the source: it adds nothing
+    to a kept texel's colour.  An alpha-weighted mean took it in: (182, 209, 179) on average here."""
+    texels = stripe_texels(cut_texture(soft_edge=(255, 255, 255, 100)))
+    assert len(texels) > 50
+    assert np.abs(texels - (60, 160, 40)).max() <= 2, texels.mean(axis=0)
 
 
 @pytest.mark.skipif(not (SHARED_SCENES / "scrub_pine/scrubPine.obj").exists(), reason="needs ../shared/scenes")

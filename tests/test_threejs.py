@@ -11,7 +11,8 @@ still within one pixel.  For the envmap technique the GLB holds the far field on
 near field is scene geometry drawn at run time), so its quads are compared alone, looking along
 every recorded face axis from the cell's centre and a corner.  Then colour spaces as a glTF viewer sees them: three.js's render of a source scene and of its
 layered impostor agree in colour (glTF's linear ``baseColorFactor`` and ``COLOR_0``, an sRGB
-base-colour texture, and an alpha-cut OBJ's foliage, whose impostor must not turn dark).
+base-colour texture, and an alpha-cut OBJ's foliage, whose impostor must neither turn dark nor
+bright where both cover).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import math
 import numpy as np
 import pytest
 from farfield.core.bundle import read_bundle, write_bundle
+from farfield.core.colour_space import linear_to_srgb, srgb_to_linear
 from farfield.core.envmap_runtime import camera_at, depth_range_for
 from farfield.core.evaluation import impostor_objects
 from farfield.core.exchange import load_scene
@@ -148,9 +150,10 @@ def test_every_techniques_glb_keeps_its_coverage_with_its_own_sampler(name, bund
 # ------------------------------------------------------------------- colour spaces, as viewers see them
 
 
-def source_and_impostor(threejs, source_file, tmp_path, cell: BoxCell, resolution: int, fov_deg: float = 45.0, alpha_cutoff=None):
+def source_and_impostor(threejs, source_file, tmp_path, cell: BoxCell, resolution: int, fov_deg: float = 45.0, alpha_cutoff=None, source_mipmaps: bool = True):
     """three.js's renders of ``source_file`` and of its layered impostor's GLB (baked by farfield
-    from the loaded scene for ``cell``), from the reference viewpoint towards the part's centre."""
+    from the loaded scene for ``cell``), from the reference viewpoint towards the part's centre;
+    ``source_mipmaps=False`` samples the source's textures without mipmaps."""
     scene = load_scene(source_file)
     technique = get_technique("layered")
     impostor = technique.bake(scene, cell, technique.options({}, resolution, fov_deg), None, None)
@@ -158,7 +161,7 @@ def source_and_impostor(threejs, source_file, tmp_path, cell: BoxCell, resolutio
     target = 0.5 * (scene.bounds[0] + scene.bounds[1])
     points = np.concatenate([box_corners(scene.bounds), impostor.payload.world_points()])
     camera = look_at(impostor.reference_viewpoint, target, points, impostor.fov_deg, impostor.resolution)
-    (source,) = threejs.render(source_file, camera, alpha_cutoff=alpha_cutoff)
+    (source,) = threejs.render(source_file, camera, alpha_cutoff=alpha_cutoff, mipmaps=source_mipmaps)
     (stand_in,) = threejs.render(glb, camera)
     return source, stand_in
 
@@ -203,24 +206,48 @@ def test_the_helmets_srgb_texture_keeps_its_colour_in_a_gltf_viewer(threejs, tmp
     assert found["pixels"] > 2000 and np.abs(found["mean_signed"]).max() <= 2.0, found
 
 
+def linear_light_mean(pixels: np.ndarray) -> np.ndarray:
+    """The mean colour of (n, 3) uint8 sRGB ``pixels`` taken in linear light, sRGB-encoded (0..255)."""
+    return linear_to_srgb(srgb_to_linear(pixels / 255.0).mean(axis=0)) * 255.0
+
+
 @pytest.mark.skipif(not SHARED_SCENES.exists(), reason="needs ../shared/scenes")
-def test_alpha_cut_foliage_does_not_turn_dark_in_a_viewer(threejs, tmp_path):
+def test_alpha_cut_foliage_keeps_its_colour_in_a_viewer(threejs, tmp_path):
+    """The scrub pine's layered impostor in three.js against the pine in three.js, where both cover.
+
+    The comparison is fair to what an impostor can do:
+
+    * The source is sampled without mipmaps, as farfield records it and as the impostor's own GLB
+      sampler (LINEAR, no mipmaps) is drawn.  three.js's default mip chain of ``LushPine.png``
+      averages its alpha (the cut then drops thin needles: 1,518 pixels against 1,702 without) and
+      its RGB with the black of the transparent texels (linear-light mean (71, 75, 49) against
+      (79, 87, 50) over each one's coverage): a viewer's minification of the source texture,
+      which no impostor drawn without minification reproduces.
+    * Means are taken in linear light over the pixels both cover.  An impostor texel is the
+      linear-light mean of the needles' detail under it, a source pixel one point sample of it;
+      the sRGB encoding is concave, so the mean of encoded bytes of the point samples is darker
+      than the encoded mean of the same light by ~5 of 255 here (farfield's own 4x-supersampled
+      source: (74, 82, 45) against (69, 77, 39) over the same pixels).  The impostor's extra
+      coverage (its one-pixel-wide needles, 582 pixels beyond the source's 1,702, needle tips
+      painted light) is not part of the colour comparison; its bound is the evaluation's.
+
+    Measured (llvmpipe, SwiftShader): impostor minus source (+1.7, +3.1, +0.2); (+4.6, +5.8, +4.2)
+    while a kept texel took the alpha-weighted mean of the texture, the soft needle edges below
+    the cut (alpha 1..127, painted light) included.  The rest is layered occlusion: a near layer's
+    needle kept in a whole texel hides what the source shows through the gaps of that texel.
+    """
     # farfield cuts an OBJ texture with alpha at 0.5 (core/exchange/trimesh_scene.py); the
-    # transparent texels of LushPine.png are near black (RGB ~ (10, 12, 8)).
+    # transparent texels of LushPine.png are black.
     source_file = SHARED_SCENES / "scrub_pine" / "scrubPine.obj"
-    source, stand_in = source_and_impostor(threejs, source_file, tmp_path, parse_viewcell("box-center:-2500,470,0,100"), 128, fov_deg=30.0, alpha_cutoff=0.5)
-    shares, means = [], []
-    for image in (source, stand_in):
-        covered = image[..., 3] > 0
-        rgb = image[covered, :3].astype(np.float64)
-        shares.append(100.0 * float((rgb.max(axis=1) < 20).mean()))
-        means.append(rgb.mean(axis=0))
-    print("pine", {"covered": [int((i[..., 3] > 0).sum()) for i in (source, stand_in)], "near_black_percent": shares, "mean": [m.round(1).tolist() for m in means]})
-    assert min(int((i[..., 3] > 0).sum()) for i in (source, stand_in)) > 1000
+    cell = parse_viewcell("box-center:-2500,470,0,100")
+    source, stand_in = source_and_impostor(threejs, source_file, tmp_path, cell, 128, fov_deg=30.0, alpha_cutoff=0.5, source_mipmaps=False)
+    covered = [image[..., 3] > 0 for image in (source, stand_in)]
+    both = covered[0] & covered[1]
+    shares = [100.0 * float((image[mask, :3].max(axis=1) < 20).mean()) for image, mask in zip((source, stand_in), covered, strict=True)]
+    means = [linear_light_mean(image[both, :3]) for image in (source, stand_in)]
+    print("pine", {"covered": [int(m.sum()) for m in covered], "both": int(both.sum()), "near_black_percent": shares, "linear_light_mean_where_both_cover": [m.round(1).tolist() for m in means]})
+    assert min(int(m.sum()) for m in covered) > 1000 and both.sum() > 0.9 * covered[0].sum()
     assert abs(shares[1] - shares[0]) <= 3.0, shares  # 35.4 % against 0.0 % before issue 23
-    # Not darker (before: (39, 44, 24) against (68, 74, 47)).  It is brighter, by up to 20 in
-    # green (measured: (84, 93, 54)): the gap-free recording shows needles thinner than a pixel one
-    # pixel wide, in the alpha-weighted mean colour of the texture under them, where a viewer
-    # point-samples the needle and blends in the near-black RGB of the transparent texels around
-    # it.  Left open in issue 23's closing note; the bound keeps it from growing.
-    assert (means[1] - means[0]).min() >= -4.0 and (means[1] - means[0]).max() <= 24.0, means
+    # Not darker (before issue 23: (39, 44, 24) against (68, 74, 47) in sRGB byte means), and not
+    # brighter by more than the layered occlusion above.
+    assert np.abs(means[1] - means[0]).max() <= 4.0, means

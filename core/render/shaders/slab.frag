@@ -3,8 +3,8 @@
 // the polygon, separating-axis test) or standard (the texel centre lies inside), then colour and
 // depth from the triangle at the polygon point nearest the texel centre.  Colour is shaded in
 // linear light and written sRGB-encoded (core/colour_space.py).  An alpha-cut texel takes the
-// alpha-weighted mean colour of the texture under its footprint (cut_texture), never the RGB of
-// transparent texels, which the source never shows.
+// mean colour of the texels under its footprint that pass the cut (cut_texture), never the RGB of
+// texels the cut removes, which the source never shows.
 flat in vec2 g_poly[5];   // unused slots repeat vertex 0 (slab_instanced.vert)
 flat in vec3 g_edge[5];   // inward unit edge normals and offsets
 flat in vec4 g_box;       // polygon bounding box
@@ -17,7 +17,8 @@ uniform bool conservative;
 uniform vec2 slab;
 uniform sampler2D base_texture;  // sRGB
 uniform bool has_texture;
-// Alpha-cut textures: linear colour x alpha, and alpha, mipmapped (core/render/cut_colours.py).
+// Alpha-cut textures: linear colour x pass, and pass (1 where the texel's alpha reaches the cut),
+// mipmapped (core/render/cut_colours.py).
 uniform sampler2D cut_texture;
 uniform vec4 base_color;
 uniform float alpha_cutoff;  // < 0: no alpha mask
@@ -115,8 +116,8 @@ float footprint_lod(vec2 c) {
     return log2(max(max(extent.x, extent.y), 1.0));
 }
 
-// The alpha-weighted mean linear colour of the texture around uv over the footprint, widened level
-// by level while everything under it is transparent (the texel was kept for its margin).
+// The mean linear colour of the texels around uv over the footprint that pass the cut, widened
+// level by level while none under it passes (the texel was kept for its margin).
 vec3 cut_colour(vec2 uv, vec2 c) {
     float top = floor(log2(max(texture_size.x, texture_size.y)));
     vec4 sum = vec4(0.0);
