@@ -21,7 +21,12 @@ from farfield.core.scene import SceneObject
 
 @dataclass(frozen=True, slots=True)
 class Camera:
-    """A square perspective camera: eye (3,) float64 world; right/up/forward (3,) float64 unit."""
+    """A square perspective camera: eye (3,) float64 world; right/up/forward (3,) float64 unit.
+
+    ``offset`` makes it off-axis: the image's centre lies in the direction (offset[0], offset[1], 1)
+    of the eye frame (tangents, x right, y up) instead of straight ahead, with the image plane still
+    perpendicular to ``forward``; :meth:`window` uses it to draw a part of another camera's image.
+    """
 
     eye: np.ndarray
     right: np.ndarray
@@ -31,6 +36,7 @@ class Camera:
     resolution: int
     near: float
     far: float
+    offset: tuple[float, float] = (0.0, 0.0)
 
     @classmethod
     def look_at(cls, eye, target, fov: float, resolution: int, near: float, far: float) -> "Camera":
@@ -49,9 +55,31 @@ class Camera:
             raise ViewCellError(f"camera needs 0 < near < far, got near={near!r}, far={far!r}")
         return cls(eye, right, up, forward, float(fov), int(resolution), float(near), float(far))
 
+    def window(self, x0: float, y0: float, size: float, resolution: int) -> Camera:
+        """The camera drawing the square of this camera's image from pixel (``x0``, ``y0``) (x right,
+        y down from the top-left corner, in this camera's pixels) ``size`` pixels wide, with
+        ``resolution`` pixels per side: the same eye, orientation, image plane and depth range, a
+        narrower off-axis frustum, so its pixels subdivide this camera's exactly.
+
+        >>> c = Camera.look_at(np.zeros(3), np.array([0.0, 1.0, 0.0]), math.radians(90.0), 8, 0.1, 10.0)
+        >>> w = c.window(6.0, 2.0, 2.0, 4)
+        >>> p = np.array([[0.7, 1.0, 0.3], [0.9, 1.0, 0.1]])  # two points in c's pixels (6..8, 2..4)
+        >>> c.project(p).round(3).tolist(), w.project(p).round(3).tolist()
+        ([[6.8, 2.8], [7.6, 3.6]], [[1.6, 1.6], [3.2, 3.2]])
+        """
+        t = math.tan(0.5 * self.fov)
+        scale = 2.0 * t / self.resolution  # tangent per pixel of this camera
+        half = 0.5 * size * scale
+        centre = (self.offset[0] + (x0 + 0.5 * size) * scale - t, self.offset[1] + t - (y0 + 0.5 * size) * scale)
+        return Camera(self.eye, self.right, self.up, self.forward, 2.0 * math.atan(half), int(resolution), self.near, self.far, centre)
+
     def eye_matrix(self, origin: np.ndarray) -> np.ndarray:
-        """(4, 4) float32 column-major matrix from coordinates relative to ``origin`` to the eye frame."""
+        """(4, 4) float32 column-major matrix from coordinates relative to ``origin`` to the eye frame
+        (sheared for an off-axis camera: x and y less ``offset`` times depth, so the frustum is
+        centred)."""
         rot = np.stack([self.right, self.up, self.forward])
+        if self.offset != (0.0, 0.0):
+            rot = np.array([[1.0, 0.0, -self.offset[0]], [0.0, 1.0, -self.offset[1]], [0.0, 0.0, 1.0]]) @ rot
         m = np.eye(4)
         m[:3, :3] = rot
         m[:3, 3] = rot @ (np.asarray(origin, dtype=np.float64) - self.eye)
@@ -61,8 +89,8 @@ class Camera:
         """(n, 2) float64 pixel coordinates (x right, y down from the top row) of world ``points`` (n, 3)."""
         e = (np.asarray(points, dtype=np.float64) - self.eye) @ np.stack([self.right, self.up, self.forward]).T
         t = math.tan(0.5 * self.fov)
-        x = (e[:, 0] / (e[:, 2] * t) * 0.5 + 0.5) * self.resolution
-        y = (0.5 - e[:, 1] / (e[:, 2] * t) * 0.5) * self.resolution
+        x = ((e[:, 0] / e[:, 2] - self.offset[0]) / t * 0.5 + 0.5) * self.resolution
+        y = (0.5 - (e[:, 1] / e[:, 2] - self.offset[1]) / t * 0.5) * self.resolution
         return np.stack([x, y], axis=1)
 
 
