@@ -93,6 +93,18 @@ def _more(shown: int, offset: int, total: int, what: str) -> None:
         click.echo(f"{what} {offset + 1}-{offset + shown} of {total}: --offset {offset + shown} for the next, --all for every one", err=True)
 
 
+def _listing(client: Client, path: str, params: dict | None, paging: tuple[int, int, bool], what: str, as_json: bool, line) -> None:
+    """Print a paged listing: JSON, or ``line(entry)`` per entry, with :func:`_more`'s note."""
+    limit, offset, every = paging
+    rows, total = client.pages(path, params, limit, offset, every)
+    _more(len(rows), offset, total, what)
+    if as_json:
+        click.echo(json.dumps(rows))
+        return
+    for row in rows:
+        click.echo(line(row))
+
+
 def _paging_options(f):
     f = click.option("--all", "every", is_flag=True, help="Every page, not one.")(f)
     f = click.option("--offset", type=click.IntRange(0), default=0, show_default=True, help="Entries to skip (newest first).")(f)
@@ -248,13 +260,8 @@ def jobs(job_id, state, as_json, limit, offset, every, url, key):
         for error in job["errors"]:
             click.echo(f"  cell {error['index']}: {error['error']}")
         return
-    rows, total = client.pages("/v1/jobs", {"state": state} if state else None, limit, offset, every)
-    _more(len(rows), offset, total, "jobs")
-    if as_json:
-        click.echo(json.dumps(rows))
-        return
-    for job in rows:
-        click.echo(f"{job['id']}  {job['state']:<9}  {job['counts']['done']}/{job['cells_total']} cells  {job['progress']:.0%}")
+    _listing(client, "/v1/jobs", {"state": state} if state else None, (limit, offset, every), "jobs", as_json,
+             lambda job: f"{job['id']}  {job['state']:<9}  {job['counts']['done']}/{job['cells_total']} cells  {job['progress']:.0%}")  # fmt: skip
 
 
 @click.command("scenes")
@@ -267,13 +274,8 @@ def scenes(scene_id, with_objects, as_json, limit, offset, every, url, key):
     """List scenes, newest first, or show SCENE_ID (and its objects)."""
     client = Client(url, key or _default_key())
     if scene_id and with_objects:
-        rows, total = client.pages(f"/v1/scenes/{scene_id}/objects", None, limit, offset, every)
-        _more(len(rows), offset, total, "objects")
-        if as_json:
-            click.echo(json.dumps(rows))
-            return
-        for obj in rows:
-            click.echo(f"{obj['name']}  {obj['triangles']} triangles  bounds {obj['bounds']}")
+        _listing(client, f"/v1/scenes/{scene_id}/objects", None, (limit, offset, every), "objects", as_json,
+                 lambda obj: f"{obj['name']}  {obj['triangles']} triangles  bounds {obj['bounds']}")  # fmt: skip
         return
     rows, total = ([client.request("GET", f"/v1/scenes/{scene_id}").json()], 1) if scene_id else client.pages("/v1/scenes", None, limit, offset, every)
     if not scene_id:
