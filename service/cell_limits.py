@@ -94,6 +94,12 @@ class MemoryGuard:
     the action that records the cell's failure (given the resident bytes); past the limit the
     action runs once and then ``kill`` (default: SIGKILL to this process) ends the process.
     The thread starts on the first :meth:`armed` in a process (never before a fork).
+
+    The resident set includes what earlier cells left in the process (parsed scenes kept for the
+    next cell, memory the allocator holds on to), so a cell is blamed only when it is the first
+    one the process runs: past the limit in a process that ran others, the action is skipped and
+    the process just ends; its cell is then queued again (the worker's main process releases it,
+    counting the attempt) and runs on a fresh process, where it is blamed if it grows as far again.
     """
 
     def __init__(self, limit_mb: int, interval: float = 0.1, kill: Callable[[], None] | None = None) -> None:
@@ -103,11 +109,12 @@ class MemoryGuard:
         self._action: Callable[[int], None] | None = None
         self._lock = threading.Lock()
         self._pid: int | None = None
+        self._cells = 0  # cells armed in this process (since its fork)
         self.fired = threading.Event()
 
     def _start(self) -> None:
         if self._pid != os.getpid():  # a forked copy has no thread: start its own
-            self._pid = os.getpid()
+            self._pid, self._cells = os.getpid(), 0
             threading.Thread(target=self._watch, name="farfield-memory-guard", daemon=True).start()
 
     def _watch(self) -> None:
@@ -130,6 +137,12 @@ class MemoryGuard:
             if self._action is not action or self.fired.is_set():
                 return False
             self.fired.set()
+            first = self._cells == 1
+        if not first:  # earlier cells' memory counts too: try the cell again on a fresh process
+            log.error("pool process %d: %d MiB resident, over FARFIELD_CELL_MEMORY_MB (%d MiB), after %d earlier cells: ending the process "
+                      "so that the cell runs again on a fresh one", os.getpid(), resident // 2**20, self.limit_mb, self._cells - 1)  # fmt: skip
+            self._kill()
+            return True
         log.error("pool process %d: %d MiB resident, over FARFIELD_CELL_MEMORY_MB (%d MiB): failing the cell and ending the process",
                   os.getpid(), resident // 2**20, self.limit_mb)  # fmt: skip
         try:
@@ -144,6 +157,7 @@ class MemoryGuard:
         self._start()
         with self._lock:
             self._action = action
+            self._cells += 1
         try:
             yield
         finally:

@@ -220,6 +220,11 @@ def create_job(db: Database, tenant_id: str, scene: SceneRow, spec: JobSpec, lim
             raise ViewCellError(f"{len(spec.viewcells)} view cells is over the limit of {MAX_CELLS}")
         cells = [(None, viewcell_from_dict(cell)) for cell in spec.viewcells]
     bounds = part_bounds(scene, spec.objects) if technique.scope == "part" else None
+    if len(cells) > limits.max_tenant_cells:  # it could never pass: not a 429 to retry
+        raise JobTooCostlyError(
+            f"the job's {len(cells):,} view cells are more than a tenant may have queued or running, {limits.max_tenant_cells:,} "
+            "(FARFIELD_MAX_TENANT_CELLS): split it into smaller jobs, or raise the limit"
+        )
     open_cells = open_tenant_cells(db, tenant_id)
     if open_cells + len(cells) > limits.max_tenant_cells:
         raise QuotaError(

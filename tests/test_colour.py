@@ -140,6 +140,16 @@ def test_alpha_cut_texels_never_take_the_colour_of_texels_below_the_cut(tmp_path
     assert np.abs(texels - (60, 160, 40)).max() <= 2, texels.mean(axis=0)
 
 
+def test_the_colour_cut_is_the_shaders_cut():
+    """A texel's colour takes exactly the texels the shaders keep (``alpha >= cutoff``): at glTF's
+    default 0.5, alpha 127 is cut and 128 kept (a half-step tolerance had let 127 in)."""
+    from farfield.core.render.cut_colours import cut_weighted_linear
+
+    texture = np.array([[[255, 255, 255, 127], [255, 255, 255, 128], [0, 0, 0, 76], [0, 0, 0, 77]]], dtype=np.uint8)
+    assert cut_weighted_linear(texture, 0.5)[0, :2, 3].astype(float).tolist() == [0.0, 1.0]
+    assert cut_weighted_linear(texture, 0.3)[0, 2:, 3].astype(float).tolist() == [0.0, 1.0]  # 76/255 < 0.3 <= 77/255
+
+
 @pytest.mark.skipif(not (SHARED_SCENES / "scrub_pine/scrubPine.obj").exists(), reason="needs ../shared/scenes")
 def test_pine_atlas_has_no_black_fringes():
     """The issue's case: 15,735 of 36,037 opaque atlas texels were near black (max RGB < 20)."""

@@ -68,6 +68,8 @@ def _records() -> tuple[Settings, Database, BlobStore]:
     no GL context, so the worker's main process may use it too."""
     if _STATE.get("pid") != os.getpid():
         settings = Settings.from_env()
+        if "db" in _STATE:  # inherited through a fork: drop its pool without closing the parent's connections
+            _STATE["db"].engine.dispose(close=False)
         _STATE.clear()
         _STATE.update(pid=os.getpid(), settings=settings, db=Database(settings.database_url), blobs=blob_store(settings))
     return _STATE["settings"], _STATE["db"], _STATE["blobs"]
@@ -138,8 +140,13 @@ class CellTask(Task):
         # Celery calls this in the worker's main process when a pool process is killed at the hard
         # time limit (its cell could record nothing); other failures end in the task body.
         if isinstance(exc, TimeLimitExceeded) and args:
-            _settings, db, blobs = _records()
-            outcome = _give_up(db, blobs, args[0], f"{CellLimitError.__name__}: {hard_time_limit_message(_DECLARED.cell_hard_time_limit)}")
+            # On connections of its own, closed again: pool processes forked later must not inherit them.
+            settings = Settings.from_env()
+            db = Database(settings.database_url)
+            try:
+                outcome = _give_up(db, blob_store(settings), args[0], f"{CellLimitError.__name__}: {hard_time_limit_message(_DECLARED.cell_hard_time_limit)}")
+            finally:
+                db.dispose()
             log.error("cell %s: killed at the hard time limit of %d s (%s)", args[0], _DECLARED.cell_hard_time_limit, outcome)
 
 

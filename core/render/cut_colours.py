@@ -42,7 +42,7 @@ def cut_weighted_linear(texture: np.ndarray, cut: float) -> np.ndarray:
     [1.0, 0.0, 0.392]
     """
     alpha = texture[..., 3].astype(np.float32) / 255.0
-    weight = (alpha >= np.float32(cut) - np.float32(0.5 / 255.0)).astype(np.float32)  # alpha is 8-bit
+    weight = (alpha >= np.float32(cut)).astype(np.float32)  # the shaders' test: alpha 127 does not pass 0.5
     if not weight.any():
         weight = alpha
     out = np.empty(texture.shape, dtype=np.float32)
