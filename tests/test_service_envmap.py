@@ -173,6 +173,8 @@ def test_dashboard_submits_an_envmap_job(service, city_id, browser):
     """The job form's technique select and envmap option fields, the job page's technique and map, the list's technique column."""
     with dashboard_page(browser, service.url, ADMIN_KEY) as page:
         page.locator(f'{tid("job-scene")} option[value="{city_id}"]').wait_for(state="attached")
+        # The form's image defaults come with GET /v1/techniques, which may answer after the scenes.
+        page.locator(f'{tid("technique")} option[value="envmap"]').wait_for(state="attached")
         page.select_option(tid("job-scene"), city_id)
         assert page.locator(tid("option-layers")).is_hidden() and page.locator(tid("job-fov")).input_value() == "45"
         page.select_option(tid("technique"), "envmap")

@@ -300,6 +300,8 @@ def test_dashboard_submits_a_tdm_job(service, block_id, browser):
     """The job form's technique select and tdm option fields, a refusal from the server, the job page and its statistics."""
     with dashboard_page(browser, service.url, ADMIN_KEY) as page:
         page.locator(f'{tid("job-scene")} option[value="{block_id}"]').wait_for(state="attached")
+        # The form's image defaults come with GET /v1/techniques, which may answer after the scenes.
+        page.locator(f'{tid("technique")} option[value="envmap"]').wait_for(state="attached")
         page.select_option(tid("job-scene"), block_id)
         assert page.locator(tid("option-enlargement")).is_hidden()
         page.select_option(tid("technique"), "envmap")
