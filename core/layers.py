@@ -158,13 +158,14 @@ class PartView:
     viewpoints_rel: np.ndarray  # (m, 3) viewpoints of the cell that bound parallax, same frame
 
 
-def part_view(cell: ViewCell, bounds) -> PartView:
+def part_view(cell: ViewCell, bounds, viewpoints: bool = True) -> PartView:
     """Describe the part with axis-aligned ``bounds`` (2, 3) as seen from ``cell``.
 
     A box cell looks along the line from its centre to the part's centre; the cell is replaced by
     its bounding box in that frame (exact when the axis is a coordinate axis, conservative
     otherwise).  A shaft looks along ``-direction``.  Raises LayerPlanError when the part touches
     or overlaps the view cell along the axis (the layer mathematics has no answer there).
+    ``viewpoints=False`` leaves ``viewpoints_rel`` empty (estimates that need no parallax in 3D).
     """
     b = np.asarray(bounds, dtype=np.float64).reshape(2, 3)
     if not np.all(np.isfinite(b)) or np.any(b[1] < b[0]):
@@ -196,7 +197,7 @@ def part_view(cell: ViewCell, bounds) -> PartView:
     else:  # pragma: no cover - typing guard
         raise LayerPlanError(f"unknown view cell {cell!r}")
     corners_rel = (part_corners - near_center) @ frame.T
-    viewpoints_rel = (_parallax_viewpoints(cell) - near_center) @ frame.T
+    viewpoints_rel = (_parallax_viewpoints(cell) - near_center) @ frame.T if viewpoints else np.empty((0, 3))
     t0 = float(corners_rel[:, 2].min())
     depth = float(corners_rel[:, 2].max()) - t0
     if t0 <= touch:
@@ -711,7 +712,7 @@ def estimate_layers(
     """
     check_fov(fov)
     check_resolution(resolution)
-    view = part_view(cell, bounds)
+    view = part_view(cell, bounds, viewpoints=False)
     alpha = pixel_angle(fov, resolution, pixel_model)
     s = reference_offset_candidates(view)[0]
     half_tan = np.maximum(_half_tangents(view, s), 0.5 * alpha)

@@ -128,10 +128,15 @@ def _orthonormal_frame(direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     The first is horizontal (perpendicular to world z) unless ``direction`` is vertical.
     """
-    helper = np.array([0.0, 0.0, 1.0]) if abs(direction[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
-    u = np.cross(helper, direction)
-    u /= np.linalg.norm(u)
-    v = np.cross(direction, u)
+    # Written out (np.cross on 3-vectors costs more than the arithmetic; placements ask for many frames).
+    x, y, z = (float(c) for c in direction)
+    if abs(z) < 0.9:  # helper (0, 0, 1)
+        ux, uy, uz = -y, x, 0.0
+    else:  # helper (1, 0, 0)
+        ux, uy, uz = 0.0, -z, y
+    norm = math.sqrt(ux * ux + uy * uy + uz * uz)
+    u = np.array([ux / norm, uy / norm, uz / norm])
+    v = np.array([y * u[2] - z * u[1], z * u[0] - x * u[2], x * u[1] - y * u[0]])
     return u, v
 
 

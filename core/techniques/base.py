@@ -15,6 +15,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
+import numpy as np
+
 from farfield.core.errors import LayerPlanError
 from farfield.core.impostor import Impostor
 from farfield.core.options import IMAGE_FIELDS, describe_options, options_from_mapping
@@ -86,6 +88,10 @@ class Technique:
     evaluate: Callable[[Scene, Impostor, int, int, int], Any]
     # evaluation_text(result, impostor) -> the table the CLI prints
     evaluation_text: Callable[[Any, Impostor], str]
+    # estimate(cell, options, part_bounds) -> (layers, texels per layer): the cheap figures a
+    # placement ranks candidates by (seed 000 §5.8.1); raises where the cell can have no impostor.
+    # None: the technique cannot be placed (a scene-scope technique replaces everything around its cell).
+    estimate: Callable[[ViewCell, Any, np.ndarray], tuple[float, float]] | None = None
 
     def options(self, values: Mapping[str, Any] | None = None, resolution: int | None = None, fov_deg: float | None = None) -> Any:
         """Validated ``Options`` from a job's or the CLI's option values (unknown names refused);

@@ -26,7 +26,7 @@ from farfield.core.pixel_angles import MAX_RESOLUTION, PixelModel
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import Technique
-from farfield.core.techniques.part import check_part_cell, evaluate_part, part_evaluation_text
+from farfield.core.techniques.part import check_part_cell, estimate_part_cell, evaluate_part, part_evaluation_text
 from farfield.core.viewcells import ViewCell
 
 
@@ -150,6 +150,7 @@ TECHNIQUE = Technique(
     help="layered impostors of a scene's objects for any view cell (seed 000 ch. 3)",
     Options=BakeOptions,
     check=check_part_cell,
+    estimate=estimate_part_cell,
     bake=bake_layered,
     summary=_summary,
     evaluate=evaluate_part,

@@ -11,7 +11,7 @@ import numpy as np
 from farfield.core.errors import PlanBudgetError
 from farfield.core.evaluation import Evaluation, evaluate, evaluate_at, spread_corners
 from farfield.core.impostor import Impostor
-from farfield.core.layers import plan_layers
+from farfield.core.layers import estimate_layers, plan_layers
 from farfield.core.scene import Scene
 from farfield.core.techniques.base import CellCost
 from farfield.core.viewcells import ViewCell, viewcell_from_dict
@@ -39,6 +39,13 @@ def check_part_cell(cell: ViewCell, options, bounds: np.ndarray | None, max_texe
     except PlanBudgetError as over:
         return CellCost.of_layers(over.layers, over.texture, complete=False)
     return CellCost.of_layers(plan.count, plan.texture_resolution)
+
+
+def estimate_part_cell(cell: ViewCell, options, bounds: np.ndarray) -> tuple[float, float]:
+    """The placement's estimate for the part in ``bounds`` seen from ``cell``: layers (estimated,
+    :func:`core.layers.estimate_layers`) and texels per layer (exact), without planning every layer."""
+    layers, res = estimate_layers(cell, bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model, getattr(options, "texel_share", None))
+    return layers, float(res[0]) * float(res[1])
 
 
 def evaluate_part(scene: Scene, impostor: Impostor, random_count: int, outside_count: int, seed: int) -> Evaluation:

@@ -50,7 +50,7 @@ from farfield.core.tdm_mesh import TdmMesh, initial_mesh, mesh_labels
 from farfield.core.tdm_simplify import box_half_sizes, covered_by, simplify
 from farfield.core.tdm_texture import build_charts, chart_masks, chart_pages, chart_uvs
 from farfield.core.techniques.base import Technique
-from farfield.core.techniques.part import check_part_cell, evaluate_part, part_evaluation_text
+from farfield.core.techniques.part import check_part_cell, estimate_part_cell, evaluate_part, part_evaluation_text
 from farfield.core.viewcells import ViewCell
 from farfield.core.voxel_field import VoxelField, record_voxel_field
 
@@ -245,6 +245,7 @@ TECHNIQUE = Technique(
     help="textured depth meshes of a scene's objects for any view cell (seed 003; planned like layered)",
     Options=TdmOptions,
     check=check_part_cell,
+    estimate=estimate_part_cell,
     bake=bake_tdm,
     summary=_summary,
     evaluate=evaluate_part,

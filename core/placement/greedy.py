@@ -1,0 +1,161 @@
+"""The greedy choice of impostors with lazy re-ranking (seed 000 §5.7).
+
+For a candidate ``i`` (node ``n``, view cell, memory ``m_i``) and a CPV ``p`` it serves
+(Eqs. 5.4-5.6)::
+
+    dt_p(i) = max(0, t_p - max(t_p^i, t_max)),  t_p^i = t_p - (t_o - t_i)
+    score(i) = sum_p dt_p(i) / m_i
+
+where ``t_p`` is the CPV's current time, ``t_o`` the time of what currently represents the node's
+part in ``p`` and ``t_i`` the impostor's time in ``p`` (``e * pixels + f * quads + g``, pixels
+those of the node's elements in the CPV's frustum).  Overlapping clusters (§5.7.5) follow from
+treating chosen impostors as the objects they represent: where an ancestor's impostor (or the
+node's own) is already drawn, ``i`` gains nothing; where descendants' impostors are drawn,
+``t_o`` is the node's geometry less what they already saved, and choosing ``i`` removes them from
+``p``.  An impostor left in no CPV is deleted and its memory regained.
+
+The best candidate is chosen and assigned to every CPV it accelerates (as the thesis does, §5.8.2:
+a CPV already solved is drawn faster still, at no memory), the CPVs' times fall, and the scores
+of the candidates serving them fall too: no score ever increases (§5.7.4), so a heap of stale
+scores is re-ranked lazily: the top is re-scored and chosen if it is still on top, else pushed
+back.  Ties go to the smaller candidate index.  ``lazy=False`` re-scores every candidate at every
+step (the reference the lazy form must equal; tested).
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from farfield.core.placement.candidates import Candidates
+from farfield.core.placement.hierarchy import Hierarchy
+from farfield.core.placement.view_space import ProblemViews
+
+
+@dataclass(slots=True)
+class Chosen:
+    """One impostor of the result: its candidate, its CPVs, and its time in each."""
+
+    candidate: int
+    node: int
+    cpvs: dict  # cpv -> (geometry time of the node there, impostor time there)
+    order: int  # when it was chosen
+
+
+class Greedy:
+    """The optimisation state: CPV times, the impostors drawn in each CPV, the chosen impostors."""
+
+    def __init__(self, hierarchy: Hierarchy, pv: ProblemViews, cand: Candidates, t_max: float) -> None:
+        self.h, self.pv, self.cand, self.t_max = hierarchy, pv, cand, float(t_max)
+        self.size = hierarchy.size
+        self.g, self.ti = cand.g, cand.ti  # flat, aligned with cand.served
+        self.nodes = np.int64(hierarchy.count)
+        self._index = None
+        self.t = pv.time.copy()
+        self.t[pv.unsolvable] = -np.inf  # unsolvable CPVs are left alone: no impostor gains there
+        self.drawn: list[list[int]] = [[] for _ in range(pv.count)]  # per CPV: chosen impostor ids
+        self.chosen: list[Chosen] = []
+        self.deleted: set[int] = set()
+        self.rescored = 0
+
+    def _drawn_index(self) -> tuple[np.ndarray, np.ndarray]:
+        """Sorted keys ``cpv * nodes + node`` of every drawn impostor and the running sum of what
+        each saves there (``g - t``), rebuilt once per choice.  In one CPV the drawn nodes never
+        include an ancestor of another (choosing an ancestor removes its descendants, §5.7.5)."""
+        if self._index is None:
+            keys, saved = [], []
+            for imp_id, imp in enumerate(self.chosen):
+                for p, (g_c, t_c) in imp.cpvs.items():
+                    keys.append(p * self.nodes + imp.node)
+                    saved.append(g_c - t_c)
+            keys_a = np.asarray(keys, dtype=np.int64)
+            order = np.argsort(keys_a, kind="stable")
+            self._index = (keys_a[order], np.concatenate([[0.0], np.cumsum(np.asarray(saved, dtype=np.float64)[order])]))
+        return self._index
+
+    def _gains(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(cpvs, saving, gain) of candidate ``i`` now; saving is -inf where an ancestor's impostor
+        (or the node's own) is drawn, and the gain is 0 where it saves nothing."""
+        a, b = self.cand.served_offsets[i], self.cand.served_offsets[i + 1]
+        cpvs = self.cand.served[a:b]
+        geometry = self.g[a:b]
+        node = int(self.cand.node[i])
+        if self.chosen:
+            keys, cum = self._drawn_index()
+            base = cpvs * self.nodes
+            # descendants drawn here: what they already save is no longer the node's to save
+            lo = np.searchsorted(keys, base + node + 1)
+            hi = np.searchsorted(keys, base + node + int(self.size[node]))
+            geometry = geometry - (cum[hi] - cum[lo])
+            # the nearest drawn node at or before this one in preorder: an ancestor (or itself) if its subtree holds it
+            at = np.searchsorted(keys, base + node, side="right") - 1
+            found = keys[np.maximum(at, 0)]
+            other = found - base
+            blocked = (at >= 0) & (other >= 0) & (other <= node) & (other + self.size[np.clip(other, 0, self.nodes - 1)] > node)
+            geometry = np.where(blocked, -np.inf, geometry)
+        saving = geometry - self.ti[a:b]
+        gain = np.maximum(0.0, np.minimum(saving, self.t[cpvs] - self.t_max))
+        return cpvs, saving, gain
+
+    def score(self, i: int) -> float:
+        self.rescored += 1
+        return float(self._gains(i)[2].sum()) / float(self.cand.memory[i])
+
+    def initial_scores(self) -> np.ndarray:
+        """Every candidate's score with nothing chosen (vectorised)."""
+        gain = np.maximum(0.0, np.minimum(self.g - self.ti, self.t[self.cand.served] - self.t_max))
+        sums = np.add.reduceat(gain, self.cand.served_offsets[:-1]) if gain.size else np.zeros(self.cand.count)
+        sums[np.diff(self.cand.served_offsets) == 0] = 0.0
+        return sums / self.cand.memory
+
+    def choose(self, i: int) -> None:
+        cpvs, saving, _ = self._gains(i)
+        a = self.cand.served_offsets[i]
+        node, me = int(self.cand.node[i]), len(self.chosen)
+        imp = Chosen(i, node, {}, me)
+        self._index = None
+        self.chosen.append(imp)
+        for k in np.flatnonzero(saving > 0.0):
+            p = int(cpvs[k])
+            kept = []
+            for other_id in self.drawn[p]:
+                other = self.chosen[other_id]
+                if node < other.node < node + self.size[node]:  # replaced by this impostor here
+                    del other.cpvs[p]
+                    if not other.cpvs:
+                        self.deleted.add(other_id)
+                else:
+                    kept.append(other_id)
+            kept.append(me)
+            self.drawn[p] = kept
+            imp.cpvs[p] = (float(self.g[a + k]), float(self.ti[a + k]))
+            self.t[p] -= float(saving[k])
+
+    def run(self, lazy: bool = True, progress: Callable[[int, float], None] | None = None) -> None:
+        scores = self.initial_scores()
+        if not lazy:
+            alive = scores > 0.0
+            while alive.any():
+                best = max(np.flatnonzero(alive), key=lambda j: (scores[j], -j))
+                self.choose(int(best))
+                alive[best] = False
+                for j in np.flatnonzero(alive):
+                    scores[j] = self.score(int(j))
+                alive &= scores > 0.0
+            return
+        heap = [(-float(s), int(j)) for j, s in enumerate(scores) if s > 0.0]
+        heapq.heapify(heap)
+        while heap:
+            _, j = heapq.heappop(heap)
+            s = self.score(j)
+            if s <= 0.0:
+                continue  # every CPV it serves is solved, or taken by an ancestor (§5.7.4)
+            if heap and (-s, j) > heap[0]:
+                heapq.heappush(heap, (-s, j))
+                continue
+            self.choose(j)
+            if progress is not None:
+                progress(len(self.chosen), float(np.max(self.t, initial=-np.inf)))
