@@ -39,7 +39,7 @@ def report_lines(result: Calibration, written: str | None) -> list[str]:
     o = fit["options"]
     ratio = fit["layers_est_over_planned"]
     lines = [f"renderer: {model.renderer}"]
-    lines += [f"scene: {s['source']} ({s['objects']} objects, {s['triangles']:,} triangles)" for s in fit["scenes"]]
+    lines += [f"scene: {s['source']} ({s['objects']} object{'s' if s['objects'] != 1 else ''}, {s['triangles']:,} triangles)" for s in fit["scenes"]]
     lines += [
         (
             f"samples: {n['geometry']} geometry views, {n['impostors_baked']} impostors baked ({n['cells_refused']} random cells refused) "
