@@ -6,9 +6,13 @@ engine whose coefficients a user types):
 * drawing geometry: ``t = a * draw_calls + b * triangles + c * pixels`` per object, plus ``d`` once
   per frame (the thesis found draw calls the bottleneck on its machine, §5.8.1);
 * drawing an impostor: ``t = e * pixels + f * quads + g`` per impostor (fill-rate bound, §5.8.1);
-* an impostor's memory: ``h * layers * texels_per_layer + k`` bytes, the thesis's heuristic
+* an impostor's memory: ``h * (layers * texels_per_layer) ** p + k`` bytes, the thesis's heuristic
   ("the resolution of the texture used for recording every impostor layer and the number of
-  layers", §5.8.1), and ``quads_per_layer``, the quads a layer is cut into (for ``f``).
+  layers", §5.8.1), and ``quads_per_layer``, the quads a layer is cut into (for ``f``).  ``p``
+  (``memory_exponent``) is 1 unless a calibration fits it: on llvmpipe's measurements memory grew
+  as about the 0.6th power of layers x texels over six orders of magnitude (a layer records only
+  its slab of the part, and culling removes more of the texels the more layers there are), and a
+  linear fit missed the small impostors by several times (:data:`LLVMPIPE_MODEL`).
 
 ``kind`` is ``"frame_ms"`` (times in milliseconds) or ``"primitives"`` (``t`` counts triangles: the
 primitive budget of seed 004 and of the power-plant test, §5.8.3; an impostor costs its quads'
@@ -90,10 +94,8 @@ def fit_linear(features, target, names, holdout: float = 0.25, seed: int = 0) ->
         raise CostModelError(f"features {x.shape} and target {y.shape} do not match {len(names)} names")
     if x.shape[0] < x.shape[1]:
         raise CostModelError(f"{x.shape[0]} samples cannot fit {x.shape[1]} coefficients")
-    order = np.random.default_rng(seed).permutation(x.shape[0])
-    held = round(holdout * x.shape[0])
-    held = held if x.shape[0] - held >= x.shape[1] else 0
-    test, train = order[:held], order[held:]
+    test, train = _holdout_split(x.shape[0], x.shape[1], holdout, seed)
+    held = test.size
     # Scale columns to unit norm so that nnls treats per-pixel and per-draw-call terms alike.
     scale = np.linalg.norm(x[train], axis=0)
     scale[scale == 0.0] = 1.0
@@ -102,12 +104,88 @@ def fit_linear(features, target, names, holdout: float = 0.25, seed: int = 0) ->
     residual = y[train] - x[train] @ coefficients
     total = float(np.sum((y[train] - y[train].mean()) ** 2))
     r2 = 1.0 - float(np.sum(residual**2)) / total if total > 0.0 else (1.0 if not residual.any() else 0.0)
-    if held:
-        rel = np.abs(x[test] @ coefficients - y[test]) / np.maximum(np.abs(y[test]), 1e-300)
-        median, p90 = float(np.median(rel)), float(np.percentile(rel, 90))
-    else:
-        median = p90 = math.nan
+    median, p90 = _relative_errors(x[test] @ coefficients, y[test])
     return LinearFit(tuple(float(c) for c in coefficients), tuple(names), r2, median, p90, int(train.size), int(held))
+
+
+def _holdout_split(rows: int, coefficients: int, holdout: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(test, train) row indices: a seeded random ``holdout`` share held out, none when the rest
+    could not fit ``coefficients``."""
+    order = np.random.default_rng(seed).permutation(rows)
+    held = round(holdout * rows)
+    held = held if rows - held >= coefficients else 0
+    return order[:held], order[held:]
+
+
+def _relative_errors(predicted: np.ndarray, measured: np.ndarray) -> tuple[float, float]:
+    """Median and 90th percentile of ``|predicted - measured| / |measured|`` (nan, nan when empty)."""
+    if measured.size == 0:
+        return math.nan, math.nan
+    rel = np.abs(predicted - measured) / np.maximum(np.abs(measured), 1e-300)
+    return float(np.median(rel)), float(np.percentile(rel, 90))
+
+
+def fit_power(x, target, names, holdout: float = 0.25, seed: int = 0, exponent: float | None = None, offset: bool = True) -> LinearFit:
+    """``target ~ h * x**p + k`` (``h > 0``, ``0 <= p <= 2``, ``k >= 0``) by least squares of the
+    *logarithms*, fitted and judged like :func:`fit_linear`; ``coefficients`` are ``(h, p, k)``, less
+    ``p`` when ``exponent`` fixes it and less ``k`` without ``offset``, named by ``names``; ``r2`` is
+    that of ``log(target)``.
+
+    For a positive quantity spanning orders of magnitude whose ratios matter (an impostor's memory,
+    ranked by Δt/m, seed 000 Eq. 5.6): a linear least-squares fit is ruled by the largest samples,
+    and weighting rows by ``1 / target`` biases it low (an over-estimate costs without bound, an
+    under-estimate at most 1).
+
+    >>> x = np.geomspace(1.0, 1e6, 40)
+    >>> fit = fit_power(x, 300.0 * x**0.6 + 50.0, ("h", "p", "k"))
+    >>> [round(c, 6) for c in fit.coefficients], fit.holdout_rel_error_median < 1e-6
+    ([300.0, 0.6, 50.0], True)
+    >>> [round(c, 6) for c in fit_power(x, 2.5 * x, ("q",), exponent=1.0, offset=False).coefficients]
+    [2.5]
+    """
+    from scipy.optimize import least_squares
+
+    x = np.asarray(x, dtype=np.float64).reshape(-1)
+    y = np.asarray(target, dtype=np.float64).reshape(-1)
+    free = 1 + (exponent is None) + bool(offset)
+    if x.shape != y.shape or len(names) != free:
+        raise CostModelError(f"x {x.shape} and target {y.shape} do not match {len(names)} names ({free} coefficients)")
+    if not (np.all(np.isfinite(x) & (x > 0.0)) and np.all(np.isfinite(y) & (y > 0.0))):
+        raise CostModelError("a power-law fit needs finite positive x and target")
+    if x.size < free:
+        raise CostModelError(f"{x.size} samples cannot fit {free} coefficients")
+    test, train = _holdout_split(x.size, free, holdout, seed)
+    lx, ly = np.log(x[train]), np.log(y[train])
+
+    def unpack(v):  # v = (log h[, p][, k])
+        p = v[1] if exponent is None else float(exponent)
+        k = v[-1] if offset else 0.0
+        return math.exp(v[0]), p, k
+
+    def predict(v, at):
+        h, p, k = unpack(v)
+        return h * at**p + k
+
+    # Start from the straight line through the log-log points (k = 0).
+    p0 = float(np.clip(np.polyfit(lx, ly, 1)[0], 0.0, 2.0)) if exponent is None and np.ptp(lx) > 0.0 else float(exponent or 1.0)
+    start = [float(np.mean(ly - p0 * lx))] + ([p0] if exponent is None else []) + ([0.0] if offset else [])
+    lower = [-np.inf] + ([0.0] if exponent is None else []) + ([0.0] if offset else [])
+    upper = [np.inf] + ([2.0] if exponent is None else []) + ([np.inf] if offset else [])
+    v = least_squares(lambda v: np.log(predict(v, x[train])) - ly, start, bounds=(lower, upper), x_scale="jac").x
+    h, p, k = unpack(v)
+    coefficients = (h,) + ((p,) if exponent is None else ()) + ((k,) if offset else ())
+    residual = np.log(predict(v, x[train])) - ly
+    total = float(np.sum((ly - ly.mean()) ** 2))
+    r2 = 1.0 - float(np.sum(residual**2)) / total if total > 0.0 else (1.0 if not np.any(np.abs(residual) > 1e-12) else 0.0)
+    median, p90 = _relative_errors(predict(v, x[test]), y[test])
+    return LinearFit(tuple(float(c) for c in coefficients), tuple(names), r2, median, p90, int(train.size), int(test.size))
+
+
+def _number(value, what: str) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise CostModelError(f"cost model {what}: a number expected, got {value!r}") from None
 
 
 @dataclass(frozen=True, slots=True)
@@ -121,6 +199,7 @@ class CostModel:
     renderer: str = "unspecified"
     fit: dict = field(default_factory=dict)  # the fits' quality, as calibration measured it
     source: str = "given"  # "calibration", "given", "builtin" or "primitives"
+    memory_exponent: float = 1.0  # p of the memory model, in (0, 2]
 
     def __post_init__(self) -> None:
         for name, values, size in (("geometry", self.geometry, 4), ("impostor", self.impostor, 3), ("memory", self.memory, 3)):
@@ -134,6 +213,10 @@ class CostModel:
             raise CostModelError("cost model: drawing geometry costs nothing (a, b and c are all 0)")
         if self.memory[0] <= 0.0:
             raise CostModelError("cost model: memory per layer texel (h) must be > 0")
+        exponent = float(self.memory_exponent)
+        if not (math.isfinite(exponent) and 0.0 < exponent <= 2.0):
+            raise CostModelError(f"cost model: memory exponent must lie in (0, 2], got {self.memory_exponent!r}")
+        object.__setattr__(self, "memory_exponent", exponent)
 
     @property
     def unit(self) -> str:
@@ -155,9 +238,11 @@ class CostModel:
         return e * np.asarray(pixels, dtype=np.float64) + f * np.asarray(quads, dtype=np.float64) + g
 
     def memory_bytes(self, layers, texels_per_layer):
-        """Estimated bytes of an impostor of ``layers`` layers of ``texels_per_layer`` recorded texels."""
+        """Estimated bytes of an impostor of ``layers`` layers of ``texels_per_layer`` recorded texels:
+        ``h * (layers * texels_per_layer) ** memory_exponent + k``."""
         h, k, _ = self.memory
-        return h * np.asarray(layers, dtype=np.float64) * np.asarray(texels_per_layer, dtype=np.float64) + k
+        texels = np.asarray(layers, dtype=np.float64) * np.asarray(texels_per_layer, dtype=np.float64)
+        return h * (texels if self.memory_exponent == 1.0 else texels**self.memory_exponent) + k
 
     def quads(self, layers):
         """Estimated quads of an impostor of ``layers`` layers."""
@@ -173,7 +258,7 @@ class CostModel:
             "source": self.source,
             "geometry": dict(zip(GEOMETRY_TERMS, self.geometry)),
             "impostor": dict(zip(IMPOSTOR_TERMS, self.impostor)),
-            "memory": dict(zip(MEMORY_TERMS, self.memory)),
+            "memory": {**dict(zip(MEMORY_TERMS, self.memory)), "exponent": self.memory_exponent},
             "fit": self.fit,
         }
 
@@ -202,6 +287,7 @@ class CostModel:
             renderer=str(data.get("renderer", "unspecified")),
             fit=dict(data.get("fit") or {}),
             source=str(data.get("source", "given")),
+            memory_exponent=_number(data["memory"].get("exponent", 1.0), "memory exponent"),
         )
 
     @classmethod
@@ -218,12 +304,15 @@ class CostModel:
         return cls.from_dict(data)
 
 
-# Memory of a layered impostor per planned layer texel and quads per layer, used when no
-# calibration gives them.  PROVISIONAL values, replaced by the calibration's fit.
-DEFAULT_MEMORY = (0.4, 4096.0, 12.0)
+# Memory of a layered impostor, ``h * (layers_est * texels_per_layer) ** p + k`` bytes, and quads per
+# layer: (h, k, q) and p as ``farfield calibrate`` fitted them on llvmpipe (LLVMPIPE_MODEL below;
+# they replaced the provisional linear (0.4, 4096, 12)).  Memory depends on the impostor technique's
+# output, not on the renderer, so every model without a calibration of its own uses these.
+DEFAULT_MEMORY = (97.75, 0.0, 1.27)
+DEFAULT_MEMORY_EXPONENT = 0.6132
 
 
-def primitive_model(memory: tuple[float, float, float] = DEFAULT_MEMORY) -> CostModel:
+def primitive_model(memory: tuple[float, float, float] = DEFAULT_MEMORY, memory_exponent: float = DEFAULT_MEMORY_EXPONENT) -> CostModel:
     """The primitive budget (seed 000 §5.8.3; seed 004): a view's cost is the triangles it draws,
     an impostor's the two triangles of each of its quads.
 
@@ -231,4 +320,38 @@ def primitive_model(memory: tuple[float, float, float] = DEFAULT_MEMORY) -> Cost
     >>> float(m.geometry_time(1, 500, 10_000)), float(m.impostor_time(10_000, 30))
     (500.0, 60.0)
     """
-    return CostModel("primitives", (0.0, 1.0, 0.0, 0.0), (0.0, 2.0, 0.0), memory, renderer="any (primitive count)", source="primitives")
+    return CostModel("primitives", (0.0, 1.0, 0.0, 0.0), (0.0, 2.0, 0.0), memory, renderer="any (primitive count)", source="primitives", memory_exponent=memory_exponent)
+
+
+# The builtin model of this project's CPU machine, which a placement uses when the user gives no
+# --cost-model.  Measured 2026-12-02 on a 2-core x86-64 machine with Mesa llvmpipe (LLVM 15.0.6,
+# 256 bits) through EGL, by ``farfield calibrate --out model.json`` with the defaults: the
+# procedural city (core.procedural.city(900, seed=0, detail=32): 901 objects, 163,862 triangles),
+# 800 geometry views (200 clusters of 1..256 objects x 4), 96 layered impostors (14 random cells
+# refused) drawn from 384 views, 256 px, 45°, seed 0; 78 s.  Fit quality (R², held-out relative
+# error median / p90): geometry 0.929, 27% / 78%; impostor 0.920, 39% / 234% (an impostor adds
+# tenths of a millisecond to a frame, near the timing noise); memory 0.975 in log(bytes), 26% / 62%;
+# quads 0.883 in log(quads), 40% / 97%.  The estimate's layers over the planned layers: median
+# 1.02 (0.83 .. 2.66).  Three runs (seeds 0 and 1, 600 or 800 views) gave a 0.044 .. 0.079 ms per
+# draw call, b 2.6e-4 .. 4.9e-4 ms per triangle, c 3.8e-5 .. 5.6e-5 ms per pixel, h 98 .. 105 and
+# p 0.61: llvmpipe's times on a shared 2-core machine vary by tens of percent between runs of the
+# same frame, and draw calls and triangles grow together in large clusters.
+LLVMPIPE_MODEL = CostModel(
+    "frame_ms",
+    geometry=(0.04447, 0.0004884, 5.605e-05, 0.0),  # ms per draw call, triangle, pixel; per frame
+    impostor=(0.0002451, 0.002801, 0.131),  # ms per pixel, quad, impostor
+    memory=DEFAULT_MEMORY,
+    renderer="llvmpipe (LLVM 15.0.6, 256 bits)",
+    fit={
+        "geometry": {"r2": 0.929, "holdout_rel_error_median": 0.270, "holdout_rel_error_p90": 0.783, "samples": 600, "holdout": 200},
+        "impostor": {"r2": 0.920, "holdout_rel_error_median": 0.391, "holdout_rel_error_p90": 2.337, "samples": 288, "holdout": 96},
+        "memory": {"r2": 0.975, "r2_of": "log(bytes)", "holdout_rel_error_median": 0.260, "holdout_rel_error_p90": 0.617, "samples": 72, "holdout": 24},
+        "quads": {"r2": 0.883, "r2_of": "log(quads)", "holdout_rel_error_median": 0.402, "holdout_rel_error_p90": 0.967, "samples": 72, "holdout": 24},
+        "empty_frame_ms": 0.158,
+        "command": "farfield calibrate --out model.json",
+        "machine": "2-core x86-64, Mesa llvmpipe (LLVM 15.0.6, 256 bits), EGL",
+        "date": "2026-12-02",
+    },
+    source="builtin",
+    memory_exponent=DEFAULT_MEMORY_EXPONENT,
+)
