@@ -719,8 +719,9 @@ def estimate_layers(
     texel = alpha if texel_share is None else texel_share * alpha
     widths = 2.0 * half_tan * (view.t0 + s)
     res = np.array([texture_resolution(float(wd), view.t0, texel) for wd in widths], dtype=np.int64)
-    if view.depth <= 0.0:
-        return 1.0, res
+    parallax = alpha if texel_share is None else (1.0 - texel_share) * alpha
+    if view.depth <= 0.0 or view.t0 >= float(single_layer_distance(s, float(np.hypot(*(0.5 * view.cell_width))), parallax)):
+        return 1.0, res  # past the pole one layer holds everything behind it (§3.3.1)
     t = np.geomspace(view.t0, view.t0 + view.depth, _ESTIMATE_SAMPLES)
     inverse = 1.0 / np.asarray(layer_spacing(t, s, view, half_tan, res), dtype=np.float64)
     count = 1.0 + float(np.sum(0.5 * (inverse[1:] + inverse[:-1]) * np.diff(t)))

@@ -195,14 +195,18 @@ def generate_candidates(
             found += [(1, cell, served) for cell, served in more]
             considered += c
         bounds = np.stack([hierarchy.lo[n], hierarchy.hi[n]])
+        floor = np.asarray(model.impostor_time(pixels_n, 0.0), dtype=np.float64).reshape(-1)  # no quads: a lower bound
         for kind, cell, served_regions in found:
+            in_cell = np.isin(cpv_regions, served_regions)
+            if not np.any(in_cell & (g_n > floor)):
+                continue  # saves nothing in any CPV it serves, whatever its layers: not worth estimating
             try:
                 layers, per_layer = estimate(cell, bounds)
             except FarfieldError:
                 refused += 1
                 continue
             ti = np.asarray(model.impostor_time(pixels_n, model.quads(layers)), dtype=np.float64).reshape(-1)
-            keep = np.isin(cpv_regions, served_regions) & (g_n > ti)
+            keep = in_cell & (g_n > ti)
             if not keep.any():
                 continue
             node_l.append(n), kind_l.append(kind), cell_l.append(cell), layer_l.append(layers), texel_l.append(per_layer)

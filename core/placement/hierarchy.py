@@ -24,7 +24,8 @@ from farfield.core.errors import FarfieldError
 from farfield.core.scene import Scene, SceneObject
 
 DEFAULT_LEAF_SIZE = 4  # elements per leaf at most
-MIN_CLUSTER_TRIANGLES = 1024
+OVERSIZED = 0.5  # an element whose diagonal passes this share of its node's is split off (see Hierarchy.build)
+MIN_CLUSTER_TRIANGLES = 64
 CLUSTERS_PER_SCENE = 256  # a scene is cut into about this many clusters at least, whatever its objects
 
 
@@ -33,11 +34,11 @@ class PlacementError(FarfieldError):
 
 
 def default_cluster_triangles(scene: Scene) -> int:
-    """Triangles above which an object is split: ``max(1024, total / 256)``.
+    """Triangles above which an object is split: ``max(64, total / 256)``.
 
     >>> from farfield.core.scene import SceneObject
     >>> default_cluster_triangles(Scene.from_objects([SceneObject("t", [[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])], "x"))
-    1024
+    64
     """
     return max(MIN_CLUSTER_TRIANGLES, math.ceil(scene.triangle_count / CLUSTERS_PER_SCENE))
 
@@ -162,11 +163,13 @@ class Hierarchy:
 
     @classmethod
     def build(cls, elements: Elements, leaf_size: int = DEFAULT_LEAF_SIZE) -> Hierarchy:
-        """Top-down median splits of element centroids along the longest axis (deterministic)."""
+        """Top-down median splits of element centroids along the longest axis (deterministic);
+        elements about as large as their node are split off first into a subtree of their own."""
         if leaf_size < 1:
             raise PlacementError(f"leaf_size must be >= 1, got {leaf_size!r}")
         b = elements.bounds
         centroids = 0.5 * (b[:, 0] + b[:, 1])
+        diagonal = np.linalg.norm(b[:, 1] - b[:, 0], axis=1)
         order = np.empty(elements.count, dtype=np.int64)
         nodes: list[list] = []  # [start, end, parent, depth]
         filled = 0
@@ -177,6 +180,17 @@ class Hierarchy:
             nodes.append([0, 0, parent, depth, 0])
             c = centroids[index]
             extent = c.max(axis=0) - c.min(axis=0)
+            # Elements as large as the node itself (a ground plane, a sky dome) go to a subtree of
+            # their own, so they do not stretch the bounds of the compact clusters around them
+            # (the thesis kept large triangles in interior nodes, §5.8.3).
+            big = diagonal[index] > OVERSIZED * np.linalg.norm(b[index, 1].max(axis=0) - b[index, 0].min(axis=0))
+            if index.size > leaf_size and 0 < int(big.sum()) < index.size:
+                first = filled
+                visit(index[big], me, depth + 1)
+                visit(index[~big], me, depth + 1)
+                nodes[me][0], nodes[me][1] = first, filled
+                nodes[me][4] = len(nodes) - me
+                return me
             if index.size <= leaf_size or not np.any(extent > 0.0):
                 nodes[me][0], nodes[me][1] = filled, filled + index.size
                 order[filled : filled + index.size] = index

@@ -38,6 +38,7 @@ class PlacementSettings:
     options: dict | None = None  # the technique's options (resolution and fov_deg included)
     cpv_size: float | None = None  # None: the view space's longest side / 8
     vdi_deg: float = 11.25
+    depth_complexity: float = 4.0  # a view's rasterised pixels are at most this many frames (core.placement.view_space)
     cells: str = "shafts"
     leaf_size: int = DEFAULT_LEAF_SIZE
     cluster_triangles: int | None = None
@@ -94,7 +95,7 @@ def place(
     clock.report("hierarchy", 1, 1)
     with clock("problem views"):
         pv = problem_view_space(
-            elements, hierarchy, lo, hi, settings.model, settings.t_max, fov, resolution, cpv_size, settings.vdi_deg, visible,
+            elements, hierarchy, lo, hi, settings.model, settings.t_max, fov, resolution, cpv_size, settings.vdi_deg, settings.depth_complexity, visible,
             lambda done, total: clock.report("problem views", done, total),
         )  # fmt: skip
 
@@ -201,6 +202,7 @@ def _result(scene, elements, hierarchy, pv, cand, greedy, settings, options, tec
         "options": {k: (v if not isinstance(v, tuple) else list(v)) for k, v in asdict(options).items()},
         "cpv_size": float(cpv_size),
         "vdi_deg": float(settings.vdi_deg),
+        "depth_complexity": float(settings.depth_complexity),
         "cells": settings.cells,
         "leaf_size": settings.leaf_size,
         "apex_angles_deg": [float(a) for a in settings.apex_angles_deg],

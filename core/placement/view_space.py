@@ -26,6 +26,12 @@ given to :func:`problem_view_space`: a *conservative from-region* visibility ste
 [Wonk00]) that removes elements hidden from the whole region before the VDI estimate.  None is
 built in, and a sampled, non-conservative one must not be plugged in: it would hide problem views.
 
+**Pixels.**  An element's covered pixels are estimated as its bounding sphere's disc seen from the
+region's nearest point, at most a frame.  Summed over a frustum without occlusion culling, these
+discs count every nearby element as a whole frame; the estimate therefore caps a view's pixels at
+``depth_complexity`` frames (default 4), scaling its elements' pixels alike.  This is an
+assumption about the scene, not a bound: ``inf`` gives the strict sum.
+
 **Unsolvable.**  An element whose hierarchy leaf meets a region can never be replaced there (no
 impostor may be built for a view cell that meets its part).  Where those elements alone exceed
 ``t_max`` in a CPV, no placement can solve it (§5.5.1, §5.9): the CPV is kept and reported as
@@ -229,6 +235,7 @@ def problem_view_space(
     resolution: int,
     region_size: float,
     vdi_deg: float = 11.25,
+    depth_complexity: float = 4.0,
     visible: Visibility | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> ProblemViews:
@@ -242,6 +249,9 @@ def problem_view_space(
         raise PlacementError(f"the CPV size must be > 0, got {region_size!r}")
     if not (math.isfinite(t_max) and t_max > 0.0):
         raise PlacementError(f"the budget t_max must be > 0, got {t_max!r}")
+    if not depth_complexity >= 1.0:
+        raise PlacementError(f"the depth complexity must be >= 1 (inf: no cap), got {depth_complexity!r}")
+    pixel_cap = float(depth_complexity) * float(resolution) ** 2
     min_level = level_for_angle(vdi_deg)
     widen = frame_half_diagonal(fov)
     leaf_of = np.empty(elements.count, dtype=np.int64)  # element -> its hierarchy leaf
@@ -265,14 +275,16 @@ def problem_view_space(
             cand = np.asarray(visible(r_lo, r_hi, cand), dtype=np.int64)
         sight = RegionSight.of(b[cand, 0], b[cand, 1], r_lo, r_hi)
         pixels = element_pixels(elements, r_lo, r_hi, fov, resolution, cand)
-        cost = model.geometry_time(elements.draw_calls[cand], elements.triangles[cand], pixels)
+        cost = model.geometry_time(elements.draw_calls[cand], elements.triangles[cand], 0.0)  # pixels apart
+        per_pixel = model.geometry[2]
         problems: list[tuple[VDI, np.ndarray, float]] = []
         todo = vdis
         while todo:
             cones = [v.cone() for v in todo]
             axes = np.array([c[0] for c in cones])
             seen = RegionSight.seen(sight, axes, np.array([c[1] for c in cones]) + widen)
-            t = model.frame_time + seen.astype(np.float64) @ cost
+            seen_f = seen.astype(np.float64)
+            t = model.frame_time + seen_f @ cost + per_pixel * np.minimum(seen_f @ pixels, pixel_cap)
             evaluated += len(todo)
             nxt = []
             for v, mask, tv in zip(todo, seen, t):
@@ -285,7 +297,7 @@ def problem_view_space(
             todo = nxt
         if not problems:
             continue
-        splittable = (r_hi - r_lo) > region_size
+        splittable = (r_hi - r_lo) > region_size * (1.0 + 1e-9)  # rounding must not split a region of the size
         if np.any(splittable):
             axis = int(np.argmax(np.where(splittable, r_hi - r_lo, -1.0)))
             mid = 0.5 * (r_lo[axis] + r_hi[axis])
@@ -307,16 +319,19 @@ def problem_view_space(
         stuck = box_gap(leaf_lo, leaf_hi, r_lo, r_hi) <= 0.0  # no impostor may replace these here
         stuck |= meets
         for v, mask, tv in problems:
+            share = min(1.0, pixel_cap / max(float(pixels[mask].sum()), 1e-300))  # the depth-complexity cap
+            entry_pixels = pixels[mask] * share
+            entry = cost[mask] + per_pixel * entry_pixels
             ids = cand[mask]
             pos = hierarchy.position[ids]
             order = np.argsort(pos, kind="stable")
             cpv_region.append(region)
             cpv_vdi.append(v)
             times.append(tv)
-            fixed.append(model.frame_time + float(cost[mask & stuck].sum()))
+            fixed.append(model.frame_time + float(entry[stuck[mask]].sum()))
             rows.append(pos[order])
-            row_time.append(cost[mask][order])
-            row_pixels.append(pixels[mask][order])
+            row_time.append(entry[order])
+            row_pixels.append(entry_pixels[order])
         leaves_done += 1
         if progress is not None:
             progress(leaves_done, total_leaves)

@@ -1,0 +1,125 @@
+"""``farfield place``: where impostors are needed so that every view of a view space meets a frame-time
+or primitive budget, at least memory (seed 000 ch. 5); prints the summary, writes the placement JSON."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import click
+
+from farfield.cli.bake_cmd import _Bar
+from farfield.core.exchange import load_scene
+from farfield.core.options import parse_option_text
+from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, CostModelError, primitive_model
+from farfield.core.placement.hierarchy import PlacementError
+from farfield.core.placement.planner import STEPS, PlacementSettings, place
+from farfield.core.techniques import DEFAULT_TECHNIQUE, TECHNIQUES, get_technique
+
+
+def _numbers(text: str, count: int, what: str) -> list[float]:
+    try:
+        values = [float(x) for x in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != count or not all(math.isfinite(v) for v in values):
+        raise PlacementError(f"{what} wants {count} finite comma-separated numbers, got {text!r}")
+    return values
+
+
+def _model(frame_ms, cost_model, primitives) -> tuple[CostModel, float, str | None]:
+    """The cost model and t_max of the options, and a note when the builtin model is used."""
+    if (frame_ms is None) == (primitives is None):
+        raise PlacementError("give a budget: --frame-ms T (with --cost-model FILE, or the builtin llvmpipe model) or --primitives N")
+    if primitives is not None:
+        if cost_model:
+            raise PlacementError("--primitives counts triangles; --cost-model applies to --frame-ms only")
+        return primitive_model(), float(primitives), None
+    if cost_model:
+        return CostModel.load(cost_model), float(frame_ms), None
+    note = (
+        f"using the builtin cost model measured on {LLVMPIPE_MODEL.renderer} (farfield calibrate); "
+        "the budget is your engine's: calibrate there or give --cost-model FILE"
+    )
+    return LLVMPIPE_MODEL, float(frame_ms), note
+
+
+def summary_lines(result) -> list[str]:
+    s, unit = result.summary, result.summary["unit"]
+    lines = [
+        f"view space {result.parameters['view_space']}, t_max {s['t_max']:.6g} {unit}, technique {result.parameters['technique']}, "
+        f"{s['elements']} elements in {s['hierarchy_nodes']} hierarchy nodes",
+        f"problem views (CPVs): {s['cpvs']} in {s['leaf_regions_with_cpvs']} regions of {result.parameters['cpv_size']:.6g} "
+        f"x {result.parameters['vdi_deg']:g} deg ({s['cpvs_solved']} solved, {s['cpvs_unsolved']} unsolved, {s['cpvs_unsolvable']} unsolvable)",
+        f"candidates: {s['candidates']} (of {s['candidates_considered']} considered; {s['candidates_refused_by_technique']} refused by the technique)",
+        f"impostors: {s['impostors']} ({s['impostors_deleted']} chosen, then replaced by an ancestor), estimated memory {s['memory_bytes'] / 2**20:.2f} MiB",
+        f"worst CPV: {s['worst_before']:.4g} {unit} before, {s['worst_after']:.4g} {unit} after (solvable ones: {s['worst_after_solvable']:.4g})",
+        "seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in result.seconds.items()),
+    ]
+    message = result.message()
+    if message:
+        lines.append("not every view meets the budget: " + message)
+    return lines
+
+
+@click.command("place")
+@click.argument("scene", type=click.Path(dir_okay=False))
+@click.option("--view-space", required=True, metavar="X0,Y0,Z0,X1,Y1,Z1", help="The box the viewer moves in (may be flat or a point).")
+@click.option("--frame-ms", type=float, default=None, help="Budget: every view within this many milliseconds by the cost model.")
+@click.option("--cost-model", type=click.Path(dir_okay=False), default=None, help="Cost model JSON (farfield calibrate --out) [default: the builtin llvmpipe one].")
+@click.option("--primitives", type=float, default=None, help="Budget: every view draws at most this many triangles (seed 000 §5.8.3, seed 004).")
+@click.option("--technique", type=click.Choice(list(TECHNIQUES)), default=DEFAULT_TECHNIQUE, show_default=True, help="Impostor technique (a part technique).")
+@click.option("--option", "options", multiple=True, metavar="NAME=VALUE", help="A technique option (repeatable; see farfield techniques).")
+@click.option("--resolution", default=512, show_default=True, type=int, help="Output image pixels per side.")
+@click.option("--fov", default=45.0, show_default=True, type=float, help="Output field of view, degrees.")
+@click.option("--cpv-size", type=float, default=None, help="Smallest 3D region of a problem view [default: the view space's longest side / 8].")
+@click.option("--vdi-deg", type=float, default=11.25, show_default=True, help="Smallest view-direction interval, degrees.")
+@click.option("--cells", type=click.Choice(["shafts", "boxes", "both"]), default="shafts", show_default=True, help="View-cell shapes of the candidates.")
+@click.option("--depth-complexity", type=float, default=4.0, show_default=True, help="A view's rasterised pixels are at most this many frames (inf: no cap).")
+@click.option("--leaf-size", type=int, default=4, show_default=True, help="Elements per leaf of the object hierarchy.")
+@click.option("--out", type=click.Path(dir_okay=False), default=None, help="Write the placement JSON here.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary, seconds and where the placement went as JSON.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, options, resolution, fov, cpv_size, vdi_deg, cells,
+              depth_complexity, leaf_size, out, as_json, quiet) -> None:  # fmt: skip
+    """Decide where impostors go so that every view from VIEW-SPACE meets the budget at least memory
+    (seed 000 ch. 5): problem views, candidates, greedy choice.  Views no placement can serve are
+    named; the exit status is 0 either way (see "status" per CPV in the JSON)."""
+    corners = _numbers(view_space, 6, "--view-space")
+    model, t_max, note = _model(frame_ms, cost_model, primitives)
+    values = {}
+    for item in options:
+        name, sep, text = item.partition("=")
+        if not sep or not name.strip():
+            raise PlacementError(f"--option {item!r}: expected NAME=VALUE")
+        values[name.strip()] = parse_option_text(get_technique(technique).Options, name.strip(), text)
+    values.update({"resolution": resolution, "fov_deg": fov})
+    if out and not Path(out).resolve().parent.is_dir():
+        raise PlacementError(f"cannot write the placement to {out!r}: no folder {str(Path(out).resolve().parent)!r}")
+    settings = PlacementSettings(
+        t_max=t_max, model=model, technique=technique, options=values, cpv_size=cpv_size, vdi_deg=vdi_deg, cells=cells,
+        depth_complexity=depth_complexity, leaf_size=leaf_size,
+    )  # fmt: skip
+    loaded = load_scene(scene)
+    bar = _Bar(enabled=not quiet)
+    try:
+        result = place(loaded, corners[:3], corners[3:], settings, progress=bar)
+    finally:
+        bar.close()
+    if out:
+        try:
+            Path(out).write_text(json.dumps(result.to_dict()) + "\n")
+        except OSError as error:
+            raise PlacementError(f"cannot write the placement to {out!r}: {error.strerror or error}") from None
+    if note and not as_json:
+        click.echo(f"note: {note}", err=True)
+    if as_json:
+        click.echo(json.dumps({"summary": result.summary, "seconds": result.seconds, "written": out, "note": note,
+                               "unsolvable": result.unsolvable}, indent=1))  # fmt: skip
+    else:
+        click.echo("\n".join(summary_lines(result)))
+        click.echo(f"placement written to {out}" if out else "placement not written (--out FILE writes it)")
+
+
+__all__ = ["place_cmd", "STEPS", "CostModelError"]

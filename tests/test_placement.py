@@ -1,0 +1,332 @@
+"""The placement planner (seed 000 ch. 5): enclosing frusta, the greedy against brute force and
+full re-ranking, extremes (no impostor needed, unsolvable, inside an object, scale, one mesh),
+determinism, and ``farfield place``."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from scenes import box_object, write_scene
+
+from farfield.cli.main import _register, cli
+from farfield.core import procedural
+from farfield.core.placement.candidates import Candidates
+from farfield.core.placement.cost_model import CostModel, primitive_model
+from farfield.core.placement.greedy import Greedy
+from farfield.core.placement.hierarchy import Elements, Hierarchy, PlacementError
+from farfield.core.placement.planner import PlacementSettings, place
+from farfield.core.placement.view_space import VDI, ProblemViews, RegionSight, frame_half_diagonal
+from farfield.core.scene import Scene, SceneObject
+
+FOV = math.radians(45.0)
+
+
+# --------------------------------------------------------------------------------------------
+# Enclosing frusta (§5.5.2, Fig. 5.2): never miss what a view sees
+# --------------------------------------------------------------------------------------------
+
+
+def _view_sees(eye, forward, roll, points, fov) -> bool:
+    """Whether the square frame at ``eye`` looking along ``forward`` (rolled by ``roll``) holds any of ``points``."""
+    helper = np.array([0.0, 1.0, 0.0]) if abs(forward[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    right = np.cross(forward, helper)
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    right, up = math.cos(roll) * right + math.sin(roll) * up, -math.sin(roll) * right + math.cos(roll) * up
+    q = points - eye
+    z = q @ forward
+    t = math.tan(0.5 * fov)
+    ok = (z > 0) & (np.abs(q @ right) <= t * z) & (np.abs(q @ up) <= t * z)
+    return bool(ok.any())
+
+
+def test_enclosing_frusta_never_miss_an_element_a_view_sees():
+    """Random boxes, regions, VDIs and views inside them: every element some view sees is in the
+    VDI's enclosing frustum (the test is conservative by construction; this checks the code)."""
+    rng = np.random.default_rng(25)
+    widen = frame_half_diagonal(FOV)
+    seen_checked = 0
+    for _ in range(60):
+        lo = rng.uniform(-50, 50, (40, 3))
+        boxes = np.stack([lo, lo + rng.uniform(0.1, 8, (40, 3))], axis=1)
+        r_lo = rng.uniform(-10, 0, 3)
+        r_hi = r_lo + rng.uniform(0, 6, 3)
+        level = int(rng.integers(0, 4))
+        vdi = VDI(int(rng.integers(0, 6)), level, int(rng.integers(0, 1 << level)), int(rng.integers(0, 1 << level)))
+        axis, half = vdi.cone()
+        mask = RegionSight.of(boxes[:, 0], boxes[:, 1], r_lo, r_hi).seen(axis[None, :], np.array([half + widen]))[0]
+        x0, x1, y0, y1 = vdi.ranges()
+        for _ in range(30):
+            eye = r_lo + rng.random(3) * (r_hi - r_lo)
+            forward = vdi.directions([rng.uniform(x0, x1)], [rng.uniform(y0, y1)])[0]
+            roll = rng.uniform(0, 2 * math.pi)
+            for k in np.flatnonzero(~mask):
+                pts = boxes[k, 0] + rng.random((200, 3)) * (boxes[k, 1] - boxes[k, 0])
+                corners = np.array([[boxes[k, i >> 2 & 1, 0], boxes[k, i >> 1 & 1, 1], boxes[k, i & 1, 2]] for i in range(8)])
+                assert not _view_sees(eye, forward, roll, np.concatenate([pts, corners]), FOV), (vdi, k)
+            seen_checked += int(mask.sum())
+    assert seen_checked > 0
+
+
+def test_vdi_quadtree_covers_the_sphere_once():
+    rng = np.random.default_rng(3)
+    d = rng.normal(size=(2000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    leaves = [VDI(f, 2, i, j) for f in range(6) for i in range(4) for j in range(4)]
+    hits = np.sum([v.contains(d) for v in leaves], axis=0)
+    assert hits.min() >= 1 and np.mean(hits == 1) > 0.99
+
+
+# --------------------------------------------------------------------------------------------
+# The greedy (§5.7): valid, near the optimum, lazy == full re-ranking
+# --------------------------------------------------------------------------------------------
+
+
+def _instance(seed: int, candidates: int = 8, cpvs: int = 5):
+    """A random small instance: a hierarchy over 6 unit boxes (leaves of one), CPVs whose elements
+    have random times, candidates on random nodes serving random CPVs with random impostor times
+    and memory."""
+    rng = np.random.default_rng(seed)
+    objects = [box_object(f"b{i}", (3.0 * i, 0, 0), (3.0 * i + 1, 1, 1)) for i in range(6)]
+    elements = Elements.of(Scene.from_objects(objects, "synthetic"))
+    h = Hierarchy.build(elements, leaf_size=1)
+    e = elements.count
+    entry = rng.uniform(0.5, 3.0, (cpvs, e))  # every CPV sees every element
+    time = 1.0 + entry.sum(axis=1)
+    t_max = float(rng.uniform(0.45, 0.8) * time.min())
+    pv = ProblemViews(
+        region_lo=np.zeros((1, 3)), region_hi=np.ones((1, 3)), tree_lo=np.zeros((1, 3)), tree_hi=np.ones((1, 3)),
+        tree_first=np.array([0]), tree_last=np.array([1]), tree_parent=np.array([-1]),
+        cpv_region=np.zeros(cpvs, dtype=np.int64), cpv_vdi=tuple(VDI(0, 0, 0, 0) for _ in range(cpvs)),
+        time=time, fixed_time=np.ones(cpvs), offsets=np.arange(cpvs + 1) * e,
+        positions=np.tile(np.arange(e), cpvs), entry_time=entry[:, h.order].reshape(-1), entry_pixels=np.zeros(cpvs * e),
+        stats={"t_max": t_max},
+    )  # fmt: skip
+    cum = np.concatenate([np.zeros((cpvs, 1)), np.cumsum(entry[:, h.order], axis=1)], axis=1)
+    # impostor time as the cost model gives it: per impostor plus per pixel, pixels adding up over
+    # the elements (so a cluster's impostor is faster than its parts' impostors together)
+    pixels = rng.uniform(0.0, 1.0, (cpvs, e))
+    pix_cum = np.concatenate([np.zeros((cpvs, 1)), np.cumsum(pixels[:, h.order], axis=1)], axis=1)
+    nodes = rng.integers(0, h.count, candidates)
+    served, g, ti = [], [], []
+    for n in nodes:
+        s = np.flatnonzero(rng.random(cpvs) < 0.7)
+        gn = cum[s, h.end[n]] - cum[s, h.start[n]]
+        tn = 0.3 + 0.5 * (pix_cum[s, h.end[n]] - pix_cum[s, h.start[n]])
+        s, gn, tn = s[gn > tn], gn[gn > tn], tn[gn > tn]  # served only where it saves (as generate_candidates keeps them)
+        served.append(s), g.append(gn), ti.append(tn)
+    cand = Candidates(
+        node=nodes, kind=np.zeros(candidates, dtype=np.int64), cells=tuple([None] * candidates),
+        memory=rng.uniform(1.0, 10.0, candidates), layers=np.ones(candidates), texels=np.ones(candidates), quads=np.ones(candidates),
+        served_offsets=np.concatenate([[0], np.cumsum([s.size for s in served])]), served=np.concatenate(served),
+        g=np.concatenate(g), ti=np.concatenate(ti), stats={},
+    )  # fmt: skip
+    return h, pv, cand, t_max
+
+
+def _best_time(h, pv, cand, subset, p) -> float:
+    """The fastest CPV ``p`` can be drawn with impostors of ``subset`` serving it (no two on one
+    path of the hierarchy): a min over the tree."""
+    start = pv.offsets[p]
+    cum = np.concatenate([[0.0], np.cumsum(pv.entry_time[start : pv.offsets[p + 1]])])
+    imp = {}
+    for i in subset:
+        rows = np.flatnonzero(cand.served[cand.served_offsets[i] : cand.served_offsets[i + 1]] == p)
+        if rows.size:
+            t = float(cand.ti[cand.served_offsets[i] + rows[0]])
+            imp[int(cand.node[i])] = min(imp.get(int(cand.node[i]), np.inf), t)
+
+    def best(n: int) -> float:
+        own = cum[h.end[n]] - cum[h.start[n]]
+        if not h.leaf[n]:
+            own = min(own, sum(best(c) for c in range(n + 1, n + int(h.size[n])) if h.parent[c] == n))
+        return min(own, imp.get(n, np.inf))
+
+    return float(pv.time[p] - (cum[-1] - best(0)))
+
+
+def _valid(h, pv, cand, subset, t_max) -> bool:
+    return all(_best_time(h, pv, cand, subset, p) <= t_max * (1 + 1e-12) for p in range(pv.count))
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_lazy_re_ranking_chooses_what_full_re_ranking_chooses(seed):
+    h, pv, cand, t_max = _instance(seed, candidates=14, cpvs=7)
+    lazy, full = Greedy(h, pv, cand, t_max), Greedy(h, pv, cand, t_max)
+    lazy.run(lazy=True)
+    full.run(lazy=False)
+    assert [c.candidate for c in lazy.chosen] == [c.candidate for c in full.chosen]
+    assert np.array_equal(lazy.t, full.t)
+
+
+def test_greedy_is_valid_and_near_the_brute_force_optimum():
+    """On 60 random instances small enough to enumerate (8 candidates, 256 subsets): whenever a
+    valid placement exists, the greedy's is valid, and its memory stays within 2x of the optimum
+    (measured: see the assertion message)."""
+    ratios, solvable = [], 0
+    for seed in range(60):
+        h, pv, cand, t_max = _instance(1000 + seed)
+        optimum = min(
+            (float(cand.memory[list(s)].sum()) for r in range(cand.count + 1) for s in itertools.combinations(range(cand.count), r)
+             if _valid(h, pv, cand, s, t_max)),
+            default=None,
+        )  # fmt: skip
+        g = Greedy(h, pv, cand, t_max)
+        g.run()
+        kept = [c.candidate for k, c in enumerate(g.chosen) if k not in g.deleted]
+        # the greedy's own bookkeeping matches the drawing it describes
+        for p in range(pv.count):
+            drawn = [g.chosen[k] for k in g.drawn[p]]
+            nodes = [c.node for c in drawn]
+            assert not any(h.is_ancestor_or_self(a, b) for a in nodes for b in nodes if a != b)
+        if optimum is None:
+            continue
+        solvable += 1
+        assert np.all(g.t <= t_max * (1 + 1e-9)), f"instance {seed}: a valid placement exists but the greedy left {g.t.max()} > {t_max}"
+        ratios.append(float(cand.memory[kept].sum()) / optimum)
+    assert solvable >= 20
+    assert max(ratios) <= 2.0, f"greedy / optimum memory: mean {np.mean(ratios):.3f}, worst {max(ratios):.3f}"
+
+
+# --------------------------------------------------------------------------------------------
+# place(): extremes, scale, one huge mesh, determinism
+# --------------------------------------------------------------------------------------------
+
+
+def _small_city(scale: float = 1.0) -> Scene:
+    city = procedural.city(36, seed=5, detail=6)
+    if scale == 1.0:
+        return city
+    return Scene.from_objects([SceneObject(o.name, o.vertices * scale, o.faces, base_color=o.base_color) for o in city.objects], "scaled")
+
+
+def _settings(t_max: float, **kw) -> PlacementSettings:
+    base = {"vdi_deg": 45.0, "options": {"resolution": 128}, "cpv_size": 20.0, "cells": "both"}
+    base.update(kw)
+    return PlacementSettings(t_max=t_max, model=primitive_model(), **base)
+
+
+VIEW = ([20.0, 110.0, 20.0], [100.0, 115.0, 100.0])  # above the roofs of the small city
+
+
+def test_a_generous_budget_needs_no_impostor():
+    city = _small_city()
+    result = place(city, *VIEW, _settings(t_max=2.0 * city.triangle_count))
+    assert result.summary["cpvs"] == 0 and result.impostors == [] and result.message() is None
+
+
+def test_a_tight_budget_is_met_with_impostors_and_every_cpv_stays_within_it():
+    city = _small_city()
+    result = place(city, *VIEW, _settings(t_max=0.5 * city.triangle_count))
+    s = result.summary
+    assert s["cpvs"] > 0 and s["impostors"] > 0 and s["memory_bytes"] > 0
+    assert s["cpvs_solved"] == s["cpvs"], result.message()
+    assert s["worst_after"] <= s["t_max"] < s["worst_before"]
+    served = {i for c in result.cpvs for i in c["impostors"]}
+    assert served == {imp["id"] for imp in result.impostors}  # no impostor drawn nowhere
+    for imp in result.impostors:
+        assert imp["cell"]["kind"] in ("shaft", "box") and imp["objects"]
+
+
+def test_memory_grows_as_the_budget_falls():
+    city = _small_city()
+    runs = [place(city, *VIEW, _settings(t_max=f * city.triangle_count)) for f in (0.8, 0.5)]
+    assert runs[1].memory_bytes > runs[0].memory_bytes and runs[1].summary["impostors"] > runs[0].summary["impostors"]
+    assert all(r.summary["cpvs_solved"] == r.summary["cpvs"] for r in runs)
+
+
+def test_a_view_space_inside_a_heavy_object_is_unsolvable_and_named():
+    city = _small_city()
+    v, f = procedural.subdivided_box([30.0, 100.0, 30.0], [60.0, 130.0, 60.0], 40)  # 19200 triangles around the viewer
+    heavy = SceneObject("shell", v, f[:, ::-1])
+    scene = Scene.from_objects([*city.objects, heavy], "city+shell")
+    result = place(scene, [40.0, 110.0, 40.0], [50.0, 115.0, 50.0], _settings(t_max=5000.0, cpv_size=10.0, cluster_triangles=100_000))
+    s = result.summary
+    assert s["cpvs_unsolvable"] > 0 and result.unsolvable
+    assert any("shell" in r["elements"] for r in result.unsolvable)
+    assert "unsolvable" in result.message() and "shell" in result.message()
+
+
+@pytest.mark.parametrize("scale", [2.0**-10, 2.0**17])
+def test_placement_is_the_same_up_to_scale(scale):
+    """At about 1e-3 and 1e5 times the size, the same placement scaled.  Powers of two keep every
+    product exact, so equality is exact; a scale like 1e-3 moves elements lying exactly on a
+    frustum's or a region's border to the other side by rounding (the counts then differ by a
+    few in a thousand)."""
+    base = place(_small_city(), *VIEW, _settings(t_max=0.5 * _small_city().triangle_count))
+    scaled_view = ([c * scale for c in VIEW[0]], [c * scale for c in VIEW[1]])
+    other = place(_small_city(scale), *scaled_view, _settings(t_max=0.5 * _small_city().triangle_count, cpv_size=20.0 * scale))
+    for key in ("cpvs", "candidates", "impostors", "cpvs_solved"):
+        assert other.summary[key] == base.summary[key], key
+    assert [i["node"] for i in other.impostors] == [i["node"] for i in base.impostors]
+    for a, b in zip(base.impostors, other.impostors):
+        if a["cell"]["kind"] == "shaft":
+            assert b["cell"]["min_distance"] == pytest.approx(a["cell"]["min_distance"] * scale, rel=1e-6)
+    assert other.memory_bytes == pytest.approx(base.memory_bytes, rel=1e-6)
+
+
+def test_a_single_huge_object_is_split_and_placed():
+    city = _small_city()
+    vertices, faces, offset = [], [], 0
+    for o in city.objects:
+        vertices.append(o.vertices), faces.append(o.faces + offset)
+        offset += len(o.vertices)
+    one = Scene.from_objects([SceneObject("everything", np.concatenate(vertices), np.concatenate(faces))], "one mesh")
+    result = place(one, *VIEW, _settings(t_max=0.5 * one.triangle_count))
+    assert result.elements["split"] == {"everything": result.elements["count"]} and result.elements["count"] > 8
+    assert result.summary["impostors"] > 0
+    assert all(name.startswith("everything#") for imp in result.impostors for name in imp["objects"])
+
+
+def test_two_runs_give_identical_json():
+    city = _small_city()
+    a = place(city, *VIEW, _settings(t_max=0.5 * city.triangle_count))
+    b = place(city, *VIEW, _settings(t_max=0.5 * city.triangle_count))
+    assert json.dumps(a.to_dict()) == json.dumps(b.to_dict())
+    assert a.summary["impostors"] > 0
+
+
+def test_bad_inputs_are_placement_errors():
+    city = _small_city()
+    with pytest.raises(PlacementError, match="t_max|budget"):
+        place(city, *VIEW, _settings(t_max=0.0))
+    with pytest.raises(PlacementError, match="lo <= hi"):
+        place(city, VIEW[1], VIEW[0], _settings(t_max=100.0))
+    with pytest.raises(PlacementError, match="cannot be placed"):
+        place(city, *VIEW, _settings(t_max=100.0, technique="envmap", options={}))
+
+
+def test_a_frame_time_model_with_a_per_frame_cost_above_the_budget_is_unsolvable():
+    model = CostModel("frame_ms", (0.01, 1e-5, 0.0, 5.0), (0.0, 1e-4, 0.01), (100.0, 0.0, 1.3))
+    result = place(_small_city(), *VIEW, PlacementSettings(t_max=4.0, model=model, vdi_deg=90.0, options={"resolution": 128}, cpv_size=80.0))
+    assert result.summary["cpvs"] == result.summary["cpvs_unsolvable"] > 0
+
+
+# --------------------------------------------------------------------------------------------
+# farfield place
+# --------------------------------------------------------------------------------------------
+
+
+def test_place_command_writes_a_placement_and_refuses_bad_input(tmp_path):
+    _register()
+    path = write_scene(_small_city(), tmp_path, "glb", "city")
+    out = tmp_path / "placement.json"
+    runner = CliRunner()
+    args = ["place", str(path), "--view-space", "20,110,20,100,115,100", "--primitives", str(0.5 * _small_city().triangle_count),
+            "--resolution", "128", "--vdi-deg", "45", "--cpv-size", "20", "--cells", "both", "--out", str(out), "--quiet"]  # fmt: skip
+    result = runner.invoke(cli, args)
+    assert result.exit_code == 0, result.output
+    assert "impostors:" in result.output and "placement written to" in result.output
+    doc = json.loads(out.read_text())
+    assert doc["format"] == "farfield-placement" and doc["summary"]["impostors"] > 0
+    as_json = runner.invoke(cli, [*args[:-1], "--json"])
+    assert json.loads(as_json.output)["summary"] == doc["summary"]
+    bad = runner.invoke(cli, ["place", str(path), "--view-space", "1,2,3", "--primitives", "10"])
+    assert bad.exit_code == 2 and "--view-space" in bad.output
+    both = runner.invoke(cli, ["place", str(path), "--view-space", "0,0,0,1,1,1"])
+    assert both.exit_code == 2 and "budget" in both.output
