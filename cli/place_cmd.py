@@ -75,7 +75,8 @@ def summary_lines(result) -> list[str]:
 @click.option("--fov", default=45.0, show_default=True, type=float, help="Output field of view, degrees.")
 @click.option("--cpv-size", type=float, default=None, help="Smallest 3D region of a problem view [default: the view space's longest side / 8].")
 @click.option("--vdi-deg", type=float, default=11.25, show_default=True, help="Smallest view-direction interval, degrees.")
-@click.option("--cells", type=click.Choice(["shafts", "boxes", "both"]), default="shafts", show_default=True, help="View-cell shapes of the candidates.")
+@click.option("--cells", type=click.Choice(["shafts", "boxes", "both", "leaf-boxes"]), default="both", show_default=True,
+              help="View cells of the candidates: shafts (§5.6), boxes of the view-space hierarchy, both, or leaf-boxes (one per smallest region, Table 5.1 test 14).")
 @click.option("--depth-complexity", type=float, default=4.0, show_default=True, help="A view's rasterised pixels are at most this many frames (inf: no cap).")
 @click.option("--leaf-size", type=int, default=4, show_default=True, help="Elements per leaf of the object hierarchy.")
 @click.option("--out", type=click.Path(dir_okay=False), default=None, help="Write the placement JSON here.")

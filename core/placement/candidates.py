@@ -41,7 +41,9 @@ APEX_ANGLES_DEG = (11.25, 22.5, 45.0, 90.0)
 DIRECTION_STEP_DEG = 11.25
 DISTANCE_STEPS = 11  # minimum distances 2^0 .. 2^10 x the node's size
 
-CellKinds = ("shafts", "boxes", "both")
+# "leaf-boxes": only the leaf regions as box view cells, one impostor per cell and node (seed 000
+# Table 5.1 test 14, "per rectangular view cell": the placement without Obs. 5.2.2)
+CellKinds = ("shafts", "boxes", "both", "leaf-boxes")
 # estimate(cell, bounds) -> (layers, texels per layer); raises FarfieldError where no impostor exists
 Estimate = Callable[[object, np.ndarray], tuple[float, float]]
 
@@ -128,6 +130,15 @@ def _shaft_cells(n: int, centre: np.ndarray, size: float, regions: np.ndarray, r
     return out, considered
 
 
+def _leaf_box_cells(pv: ProblemViews, lo: np.ndarray, hi: np.ndarray, region_relevant: np.ndarray):
+    """(cell, [region]) for every leaf region apart from the node where it is relevant."""
+    span = pv.region_hi - pv.region_lo
+    pad = np.where(span > 0.0, 0.0, np.maximum(1e-6 * span.max(axis=1, keepdims=True), 1e-9))
+    apart = box_gap(pv.region_lo, pv.region_hi, lo, hi) > 0.0
+    chosen = np.flatnonzero(region_relevant & apart)
+    return [(BoxCell(pv.region_lo[r] - pad[r], pv.region_hi[r] + pad[r]), np.array([r])) for r in chosen], int(chosen.size)
+
+
 def _box_cells(pv: ProblemViews, lo: np.ndarray, hi: np.ndarray, region_relevant: np.ndarray):
     """(cell, served regions) of a node's box candidates: view-space hierarchy regions apart from
     the node holding relevant leaf regions, unless one of their halves holds them all."""
@@ -190,8 +201,9 @@ def generate_candidates(
             more, c = _shaft_cells(n, node_centre[n], float(size[n]), np.flatnonzero(region_relevant), region_centre, region_radius, grid, halves, distance_steps)
             found += [(0, cell, served) for cell, served in more]
             considered += c
-        if cells in ("boxes", "both"):
-            more, c = _box_cells(pv, hierarchy.lo[n], hierarchy.hi[n], region_relevant)
+        if cells in ("boxes", "both", "leaf-boxes"):
+            boxes = _leaf_box_cells if cells == "leaf-boxes" else _box_cells
+            more, c = boxes(pv, hierarchy.lo[n], hierarchy.hi[n], region_relevant)
             found += [(1, cell, served) for cell, served in more]
             considered += c
         bounds = np.stack([hierarchy.lo[n], hierarchy.hi[n]])

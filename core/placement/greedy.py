@@ -53,7 +53,9 @@ class Greedy:
         self.size = hierarchy.size
         self.g, self.ti = cand.g, cand.ti  # flat, aligned with cand.served
         self.nodes = np.int64(hierarchy.count)
-        self._index = None
+        self._keys = np.empty(0, dtype=np.int64)
+        self._saved = np.empty(0, dtype=np.float64)
+        self._cum: np.ndarray | None = None
         self.t = pv.time.copy()
         self.t[pv.unsolvable] = -np.inf  # unsolvable CPVs are left alone: no impostor gains there
         self.drawn: list[list[int]] = [[] for _ in range(pv.count)]  # per CPV: chosen impostor ids
@@ -63,18 +65,12 @@ class Greedy:
 
     def _drawn_index(self) -> tuple[np.ndarray, np.ndarray]:
         """Sorted keys ``cpv * nodes + node`` of every drawn impostor and the running sum of what
-        each saves there (``g - t``), rebuilt once per choice.  In one CPV the drawn nodes never
-        include an ancestor of another (choosing an ancestor removes its descendants, §5.7.5)."""
-        if self._index is None:
-            keys, saved = [], []
-            for imp_id, imp in enumerate(self.chosen):
-                for p, (g_c, t_c) in imp.cpvs.items():
-                    keys.append(p * self.nodes + imp.node)
-                    saved.append(g_c - t_c)
-            keys_a = np.asarray(keys, dtype=np.int64)
-            order = np.argsort(keys_a, kind="stable")
-            self._index = (keys_a[order], np.concatenate([[0.0], np.cumsum(np.asarray(saved, dtype=np.float64)[order])]))
-        return self._index
+        each saves there (``g - t``), kept up to date by :meth:`choose` in time linear in the keys
+        (numpy), not in Python.  In one CPV the drawn nodes never include an ancestor of another
+        (choosing an ancestor removes its descendants, §5.7.5)."""
+        if self._cum is None:
+            self._cum = np.concatenate([[0.0], np.cumsum(self._saved)])
+        return self._keys, self._cum
 
     def _gains(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(cpvs, saving, gain) of candidate ``i`` now; saving is -inf where an ancestor's impostor
@@ -116,8 +112,8 @@ class Greedy:
         a = self.cand.served_offsets[i]
         node, me = int(self.cand.node[i]), len(self.chosen)
         imp = Chosen(i, node, {}, me)
-        self._index = None
         self.chosen.append(imp)
+        removed, added, added_saved = [], [], []
         for k in np.flatnonzero(saving > 0.0):
             p = int(cpvs[k])
             kept = []
@@ -125,14 +121,27 @@ class Greedy:
                 other = self.chosen[other_id]
                 if node < other.node < node + self.size[node]:  # replaced by this impostor here
                     del other.cpvs[p]
+                    removed.append(p * self.nodes + other.node)
                     if not other.cpvs:
                         self.deleted.add(other_id)
                 else:
                     kept.append(other_id)
             kept.append(me)
             self.drawn[p] = kept
-            imp.cpvs[p] = (float(self.g[a + k]), float(self.ti[a + k]))
+            g_p, t_p = float(self.g[a + k]), float(self.ti[a + k])
+            imp.cpvs[p] = (g_p, t_p)
+            added.append(p * self.nodes + node)
+            added_saved.append(g_p - t_p)
             self.t[p] -= float(saving[k])
+        if removed:
+            keep = ~np.isin(self._keys, np.asarray(removed, dtype=np.int64))
+            self._keys, self._saved = self._keys[keep], self._saved[keep]
+        if added:
+            new = np.asarray(added, dtype=np.int64)  # ascending: cpvs are
+            at = np.searchsorted(self._keys, new)
+            self._keys = np.insert(self._keys, at, new)
+            self._saved = np.insert(self._saved, at, np.asarray(added_saved, dtype=np.float64))
+        self._cum = None
 
     def run(self, lazy: bool = True, progress: Callable[[int, float], None] | None = None) -> None:
         scores = self.initial_scores()

@@ -39,7 +39,7 @@ class PlacementSettings:
     cpv_size: float | None = None  # None: the view space's longest side / 8
     vdi_deg: float = 11.25
     depth_complexity: float = 4.0  # a view's rasterised pixels are at most this many frames (core.placement.view_space)
-    cells: str = "shafts"
+    cells: str = "both"
     leaf_size: int = DEFAULT_LEAF_SIZE
     cluster_triangles: int | None = None
     apex_angles_deg: tuple[float, ...] = APEX_ANGLES_DEG
