@@ -174,14 +174,14 @@ def run(name: str, scene: Scene, lo, hi, model: CostModel, quick: bool, only: li
 
 
 def _worst_view(scene, lo, hi, model) -> float:
-    """The worst view's time with no impostor: the problem view space of a budget nothing meets,
-    the whole view space as one region, at the reference view-direction intervals."""
+    """The worst view's time with no impostor: the worst CPV of the reference CPV size and
+    view-direction intervals for a budget nothing meets."""
     from farfield.core.placement.hierarchy import Hierarchy
     from farfield.core.placement.view_space import problem_view_space
 
     elements = Elements.of(scene)
     h = Hierarchy.build(elements)
-    pv = problem_view_space(elements, h, lo, hi, model, 1e-9, math.radians(45.0), RESOLUTION, float(np.max(hi - lo)), 11.25)
+    pv = problem_view_space(elements, h, lo, hi, model, 1e-9, math.radians(45.0), RESOLUTION, float(np.max(hi - lo)) / 8.0, 11.25)
     return float(pv.time.max())
 
 

@@ -725,4 +725,9 @@ def estimate_layers(
     t = np.geomspace(view.t0, view.t0 + view.depth, _ESTIMATE_SAMPLES)
     inverse = 1.0 / np.asarray(layer_spacing(t, s, view, half_tan, res), dtype=np.float64)
     count = 1.0 + float(np.sum(0.5 * (inverse[1:] + inverse[:-1]) * np.diff(t)))
-    return min(count, float(TOL.max_layers)), res
+    if not count <= TOL.max_layers:  # plan_layers refuses these; so does the estimate
+        raise LayerPlanError(
+            f"about {count:.3g} layers needed for a part {view.depth:.6g} deep at distance {view.t0:.6g}, "
+            f"over {TOL.max_layers}; use a smaller view cell or a lower resolution"
+        )
+    return count, res

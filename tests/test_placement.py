@@ -105,6 +105,7 @@ def _instance(seed: int, candidates: int = 8, cpvs: int = 5):
         cpv_region=np.zeros(cpvs, dtype=np.int64), cpv_vdi=tuple(VDI(0, 0, 0, 0) for _ in range(cpvs)),
         time=time, fixed_time=np.ones(cpvs), offsets=np.arange(cpvs + 1) * e,
         positions=np.tile(np.arange(e), cpvs), entry_time=entry[:, h.order].reshape(-1), entry_pixels=np.zeros(cpvs * e),
+        entry_fixed=np.zeros(cpvs * e, dtype=bool),
         stats={"t_max": t_max},
     )  # fmt: skip
     cum = np.concatenate([np.zeros((cpvs, 1)), np.cumsum(entry[:, h.order], axis=1)], axis=1)
@@ -166,8 +167,9 @@ def test_lazy_re_ranking_chooses_what_full_re_ranking_chooses(seed):
 
 def test_greedy_is_valid_and_near_the_brute_force_optimum():
     """On 60 random instances small enough to enumerate (8 candidates, 256 subsets): whenever a
-    valid placement exists, the greedy's is valid, and its memory stays within 2x of the optimum
-    (measured: see the assertion message)."""
+    valid placement exists, the greedy's is valid, and its memory stays within 1.5x of the optimum.
+    Measured (2026-12-02): 33 instances had a valid placement; the greedy found the optimum in 26,
+    its memory was 1.037x the optimum on average and 1.42x at worst."""
     ratios, solvable = [], 0
     for seed in range(60):
         h, pv, cand, t_max = _instance(1000 + seed)
@@ -190,7 +192,7 @@ def test_greedy_is_valid_and_near_the_brute_force_optimum():
         assert np.all(g.t <= t_max * (1 + 1e-9)), f"instance {seed}: a valid placement exists but the greedy left {g.t.max()} > {t_max}"
         ratios.append(float(cand.memory[kept].sum()) / optimum)
     assert solvable >= 20
-    assert max(ratios) <= 2.0, f"greedy / optimum memory: mean {np.mean(ratios):.3f}, worst {max(ratios):.3f}"
+    assert max(ratios) <= 1.5, f"greedy / optimum memory: mean {np.mean(ratios):.3f}, worst {max(ratios):.3f}"
 
 
 # --------------------------------------------------------------------------------------------
@@ -330,3 +332,21 @@ def test_place_command_writes_a_placement_and_refuses_bad_input(tmp_path):
     assert bad.exit_code == 2 and "--view-space" in bad.output
     both = runner.invoke(cli, ["place", str(path), "--view-space", "0,0,0,1,1,1"])
     assert both.exit_code == 2 and "budget" in both.output
+
+
+def test_cluster_names_never_clash_with_object_names():
+    v, f = procedural.subdivided_box([0.0, 0.0, 0.0], [1.0, 1.0, 1.0], 8)  # 768 triangles
+    small_v, small_f = procedural.subdivided_box([5.0, 5.0, 5.0], [6.0, 6.0, 6.0], 1)
+    clash = SceneObject("a#0", small_v, small_f)  # an object named like the first cluster of "a"
+    scene = Scene.from_objects([SceneObject("a", v, f), clash], "clash")
+    elements = Elements.of(scene, cluster_triangles=300)
+    assert len(set(elements.names)) == elements.count and "a#0" in elements.names
+    assert elements.split_counts(scene) == {"a": elements.count - 1}
+    assert elements.scene_of(scene, range(elements.count)).object_count == elements.count
+
+
+def test_an_absurd_view_space_is_a_placement_error():
+    with pytest.raises(PlacementError, match="finite"):
+        place(_small_city(), [-1e308, 0, 0], [1e308, 1, 1], _settings(t_max=100.0, cpv_size=None))
+    with pytest.raises(PlacementError, match="regions"):
+        place(_small_city(), [0, 100, 0], [100, 110, 100], _settings(t_max=100.0, cpv_size=1e-3))

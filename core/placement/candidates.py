@@ -111,7 +111,7 @@ def _shaft_cells(n: int, centre: np.ndarray, size: float, regions: np.ndarray, r
     a_index = np.searchsorted(halves, need, side="left")  # smallest apex angle holding the region
     along = dist[:, None] * np.cos(np.minimum(need, 0.5 * math.pi)) - radius[:, None]
     with np.errstate(divide="ignore", invalid="ignore"):
-        k_index = np.floor(np.log2(np.where(along > 0.0, along / size, 0.5))).astype(np.int64)
+        k_index = np.floor(np.log2(np.clip(np.where(along > 0.0, along / size, 0.5), 0.5, 2.0**62))).astype(np.int64)
     k_index = np.minimum(k_index, distance_steps - 1)  # the largest k with 2^k size <= along, or -1
     ok = (a_index < len(halves)) & (k_index >= 0)
     for a in range(len(halves)):

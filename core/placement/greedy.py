@@ -15,7 +15,10 @@ node's own) is already drawn, ``i`` gains nothing; where descendants' impostors 
 ``p``.  An impostor left in no CPV is deleted and its memory regained.
 
 The best candidate is chosen and assigned to every CPV it accelerates (as the thesis does, §5.8.2:
-a CPV already solved is drawn faster still, at no memory), the CPVs' times fall, and the scores
+a CPV already solved is drawn faster still, at no memory); each CPV's time falls by the whole
+saving ``t_o - t_i`` there (what drawing the impostor changes), not by the clipped gain of
+Eq. 5.4, which only ranks.  Unsolvable CPVs (what meets their region exceeds ``t_max`` alone) take
+no part: no impostor is assigned to them, and none gains there.  The scores
 of the candidates serving them fall too: no score ever increases (§5.7.4), so a heap of stale
 scores is re-ranked lazily: the top is re-scored and chosen if it is still on top, else pushed
 back.  Ties go to the smaller candidate index.  ``lazy=False`` re-scores every candidate at every
@@ -103,9 +106,8 @@ class Greedy:
     def initial_scores(self) -> np.ndarray:
         """Every candidate's score with nothing chosen (vectorised)."""
         gain = np.maximum(0.0, np.minimum(self.g - self.ti, self.t[self.cand.served] - self.t_max))
-        sums = np.add.reduceat(gain, self.cand.served_offsets[:-1]) if gain.size else np.zeros(self.cand.count)
-        sums[np.diff(self.cand.served_offsets) == 0] = 0.0
-        return sums / self.cand.memory
+        owner = np.repeat(np.arange(self.cand.count), np.diff(self.cand.served_offsets))
+        return np.bincount(owner, weights=gain, minlength=self.cand.count) / self.cand.memory
 
     def choose(self, i: int) -> None:
         cpvs, saving, _ = self._gains(i)

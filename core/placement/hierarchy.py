@@ -88,6 +88,7 @@ class Elements:
         if limit < 1:
             raise PlacementError(f"cluster_triangles must be >= 1, got {cluster_triangles!r}")
         names, owner, faces, bounds, tris, calls = [], [], [], [], [], []
+        taken = set(scene.names)
         for i, obj in enumerate(scene.objects):
             if obj.triangle_count <= limit:
                 names.append(obj.name), owner.append(i), faces.append(None), bounds.append(obj.bounds)
@@ -97,13 +98,26 @@ class Elements:
             pieces = _median_split(corners.mean(axis=1), np.arange(obj.triangle_count), limit)
             for k, piece in enumerate(pieces):
                 c = corners[piece].reshape(-1, 3)
-                names.append(f"{obj.name}#{k}"), owner.append(i), faces.append(piece)
+                name = f"{obj.name}#{k}"
+                while name in taken:  # an object of the scene already has this name
+                    name += "'"
+                taken.add(name)
+                names.append(name), owner.append(i), faces.append(piece)
                 bounds.append(np.stack([c.min(axis=0), c.max(axis=0)]))
                 tris.append(piece.size), calls.append(1.0 / len(pieces))
         return cls(
             tuple(names), np.asarray(owner, dtype=np.int64), tuple(faces), np.asarray(bounds, dtype=np.float64).reshape(-1, 2, 3),
             np.asarray(tris, dtype=np.int64), np.asarray(calls, dtype=np.float64), limit,
         )
+
+    def split_counts(self, scene: Scene) -> dict[str, int]:
+        """Clusters per split object, by the object's name."""
+        out: dict[str, int] = {}
+        for i, piece in enumerate(self.faces):
+            if piece is not None:
+                name = scene.objects[int(self.object_index[i])].name
+                out[name] = out.get(name, 0) + 1
+        return dict(sorted(out.items()))
 
     def scene_of(self, scene: Scene, indices) -> Scene:
         """The scene of the elements ``indices``: whole objects as they are, clusters as objects of

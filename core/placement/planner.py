@@ -54,6 +54,9 @@ def _check(settings: PlacementSettings) -> None:
         raise PlacementError(f"cells must be one of {list(CellKinds)}, got {settings.cells!r}")
     if not 1 <= settings.distance_steps <= 30:
         raise PlacementError(f"distance steps must lie in 1..30, got {settings.distance_steps!r}")
+    angles = np.asarray(settings.apex_angles_deg, dtype=np.float64)
+    if angles.size == 0 or np.any(~((angles > 0.0) & (angles < 180.0))) or np.any(np.diff(angles) <= 0):
+        raise PlacementError(f"shaft apex angles must be increasing and lie in (0, 180) degrees, got {list(settings.apex_angles_deg)}")
     if not (0.5 <= settings.direction_step_deg <= 90.0):
         raise PlacementError(f"the shaft direction step must lie in [0.5, 90] degrees, got {settings.direction_step_deg!r}")
 
@@ -83,9 +86,13 @@ def place(
     lo, hi = np.asarray(view_lo, dtype=np.float64).reshape(-1), np.asarray(view_hi, dtype=np.float64).reshape(-1)
     if lo.shape != (3,) or hi.shape != (3,):
         raise PlacementError("the view space needs two corners of three numbers each")
+    with np.errstate(over="ignore", invalid="ignore"):
+        span = hi - lo
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(np.isfinite(span))):
+        raise PlacementError(f"the view space needs finite corners and size, got {lo.tolist()} .. {hi.tolist()}")
     cpv_size = settings.cpv_size
     if cpv_size is None:
-        longest = float(np.max(hi - lo)) if np.all(np.isfinite(hi - lo)) else math.nan
+        longest = float(np.max(span))
         cpv_size = longest / DEFAULT_CPV_DIVISIONS if longest > 0 else 1.0
     clock = StageClock(STEPS, progress)
 
@@ -153,24 +160,23 @@ def _result(scene, elements, hierarchy, pv, cand, greedy, settings, options, tec
             "status": status,
         })  # fmt: skip
     blame = []
-    for r in np.unique(pv.cpv_region[pv.unsolvable]):
-        worst = int(np.flatnonzero((pv.cpv_region == r) & pv.unsolvable)[np.argmax(pv.fixed_time[(pv.cpv_region == r) & pv.unsolvable])])
-        rlo, rhi = pv.region_lo[r], pv.region_hi[r]
-        ids = hierarchy.order[pv.positions[pv.offsets[worst] : pv.offsets[worst + 1]]]
-        b = elements.bounds[ids]
-        meets = np.all((b[:, 0] <= rhi) & (b[:, 1] >= rlo), axis=1)
+    unsolvable = np.flatnonzero(pv.unsolvable)
+    by_region: dict[int, list[int]] = {}
+    for p in unsolvable:
+        by_region.setdefault(int(pv.cpv_region[p]), []).append(int(p))
+    for r in sorted(by_region):
+        cpv_ids = by_region[r]
+        worst = max(cpv_ids, key=lambda p: (pv.fixed_time[p], -p))
+        a, b = pv.offsets[worst], pv.offsets[worst + 1]
+        ids = hierarchy.order[pv.positions[a:b][pv.entry_fixed[a:b]]]
         blame.append({
-            "region": [rlo.tolist(), rhi.tolist()],
-            "cpvs": int(np.sum((pv.cpv_region == r) & pv.unsolvable)),
+            "region": [pv.region_lo[r].tolist(), pv.region_hi[r].tolist()],
+            "cpvs": len(cpv_ids),
             "fixed_time": float(pv.fixed_time[worst]),
-            "elements": sorted(elements.names[e] for e in ids[meets]) or sorted(elements.names[e] for e in ids)[:20],
+            "elements": sorted(elements.names[e] for e in ids),
         })  # fmt: skip
     memory = float(sum(imp["memory_bytes"] for imp in impostors))
-    split = {}
-    for name in elements.names:
-        if "#" in name:
-            base = name.rsplit("#", 1)[0]
-            split[base] = split.get(base, 0) + 1
+    split = elements.split_counts(scene)
     summary = {
         "t_max": float(settings.t_max),
         "unit": unit,
@@ -212,7 +218,7 @@ def _result(scene, elements, hierarchy, pv, cand, greedy, settings, options, tec
     }
     return Placement(
         parameters=parameters,
-        elements={"count": elements.count, "cluster_triangles": elements.cluster_triangles, "split": dict(sorted(split.items()))},
+        elements={"count": elements.count, "cluster_triangles": elements.cluster_triangles, "split": split},
         impostors=impostors,
         cpvs=cpvs,
         unsolvable=blame,

@@ -51,6 +51,7 @@ from farfield.core.placement.cost_model import CostModel
 from farfield.core.placement.hierarchy import Elements, Hierarchy, PlacementError
 
 FACE_NAMES = tuple(FACES)
+MAX_REGIONS = 1e6  # smallest regions a view space may be cut into (a guard against a mistyped CPV size)
 Visibility = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 
 
@@ -74,7 +75,8 @@ def frame_half_diagonal(fov: float) -> float:
 
 
 def level_for_angle(min_angle_deg: float) -> int:
-    """Quadtree level whose VDIs span at most ``min_angle_deg`` (a face spans 90°).
+    """Quadtree level whose VDIs span about ``min_angle_deg`` at most (a face spans 90°; the
+    gnomonic cells are up to ~25 % wider near a face's centre, the distortion §5.5.2 accepts).
 
     >>> level_for_angle(11.25), level_for_angle(90), level_for_angle(10)
     (3, 0, 4)
@@ -212,6 +214,7 @@ class ProblemViews:
     positions: np.ndarray  # (total,) hierarchy positions of the elements, sorted within each CPV
     entry_time: np.ndarray  # (total,)
     entry_pixels: np.ndarray  # (total,)
+    entry_fixed: np.ndarray  # (total,) bool: no impostor may replace the element in this CPV (its leaf meets the region)
     stats: dict = field(default_factory=dict)
 
     @property
@@ -262,17 +265,26 @@ def problem_view_space(
 
     regions: list[tuple[np.ndarray, np.ndarray]] = []
     tree: list[list] = []  # [lo, hi, first, last]
-    cpv_region, cpv_vdi, times, fixed, rows, row_time, row_pixels = [], [], [], [], [], [], []
+    cpv_region, cpv_vdi, times, fixed, rows, row_time, row_pixels, row_fixed = [], [], [], [], [], [], [], []
     evaluated = 0
     # Regions to visit: (lo, hi, VDIs to test, candidate elements, tree index of the parent).
     # Depth-first, low half first, so the leaf regions of a subtree are contiguous.
-    total_leaves = max(1, int(np.prod(np.maximum(1, np.ceil((hi - lo) / region_size)))))
+    leaves_float = float(np.prod(np.maximum(1.0, np.ceil((hi - lo) / region_size))))
+    if not leaves_float <= MAX_REGIONS:
+        raise PlacementError(
+            f"a view space of {(hi - lo).tolist()} in regions of {region_size:.6g} has {leaves_float:.3g} regions, over {MAX_REGIONS:.0e}; "
+            "use a larger CPV size"
+        )
+    total_leaves = max(1, int(leaves_float))
     stack = [(lo, hi, [VDI(f, 0, 0, 0) for f in range(6)], all_elements, -1)]
     leaves_done = 0
     while stack:
         r_lo, r_hi, vdis, cand, parent_tree = stack.pop()
         if visible is not None:
-            cand = np.asarray(visible(r_lo, r_hi, cand), dtype=np.int64)
+            kept = np.unique(np.asarray(visible(r_lo, r_hi, cand), dtype=np.int64))
+            if kept.size and (kept[0] < 0 or kept[-1] >= elements.count):
+                raise PlacementError("the visibility hook returned element indices out of range")
+            cand = kept
         sight = RegionSight.of(b[cand, 0], b[cand, 1], r_lo, r_hi)
         pixels = element_pixels(elements, r_lo, r_hi, fov, resolution, cand)
         cost = model.geometry_time(elements.draw_calls[cand], elements.triangles[cand], 0.0)  # pixels apart
@@ -332,6 +344,7 @@ def problem_view_space(
             rows.append(pos[order])
             row_time.append(entry[order])
             row_pixels.append(entry_pixels[order])
+            row_fixed.append(stuck[mask][order])
         leaves_done += 1
         if progress is not None:
             progress(leaves_done, total_leaves)
@@ -364,6 +377,7 @@ def problem_view_space(
         positions=np.concatenate(rows).astype(np.int64) if rows else np.empty(0, dtype=np.int64),
         entry_time=np.concatenate(row_time) if rows else empty_f,
         entry_pixels=np.concatenate(row_pixels) if rows else empty_f,
+        entry_fixed=np.concatenate(row_fixed) if rows else np.empty(0, dtype=bool),
         stats={"t_max": float(t_max), "vdis_evaluated": evaluated, "min_level": min_level, "leaf_regions_with_cpvs": len(regions)},
     )
 
