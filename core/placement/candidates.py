@@ -52,7 +52,7 @@ def direction_grid(step_deg: float = DIRECTION_STEP_DEG) -> np.ndarray:
     """(k, 3) unit directions about ``step_deg`` apart: rings of elevation ``step_deg`` apart (poles included).
 
     >>> direction_grid().shape
-    (330, 3)
+    (328, 3)
     """
     step = math.radians(step_deg)
     rings = int(round(math.pi / step))
