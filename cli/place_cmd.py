@@ -12,9 +12,9 @@ import click
 from farfield.cli.bake_cmd import _Bar
 from farfield.core.exchange import load_scene
 from farfield.core.options import parse_option_text
-from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, CostModelError, primitive_model
+from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, primitive_model
 from farfield.core.placement.hierarchy import PlacementError
-from farfield.core.placement.planner import STEPS, PlacementSettings, place
+from farfield.core.placement.planner import PlacementSettings, place
 from farfield.core.techniques import DEFAULT_TECHNIQUE, TECHNIQUES, get_technique
 
 
@@ -121,6 +121,3 @@ def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, op
     else:
         click.echo("\n".join(summary_lines(result)))
         click.echo(f"placement written to {out}" if out else "placement not written (--out FILE writes it)")
-
-
-__all__ = ["place_cmd", "STEPS", "CostModelError"]

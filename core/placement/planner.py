@@ -13,7 +13,6 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from farfield.core.errors import FarfieldError
 from farfield.core.placement.candidates import APEX_ANGLES_DEG, DIRECTION_STEP_DEG, DISTANCE_STEPS, CellKinds, generate_candidates
 from farfield.core.placement.cost_model import CostModel
 from farfield.core.placement.greedy import Greedy
@@ -225,6 +224,3 @@ def _result(scene, elements, hierarchy, pv, cand, greedy, settings, options, tec
         summary=summary,
         seconds=seconds,
     )
-
-
-__all__ = ["PlacementError", "PlacementSettings", "place", "FarfieldError"]
