@@ -90,9 +90,6 @@ class Candidates:
     def count(self) -> int:
         return int(self.node.shape[0])
 
-    def served_by(self, i: int) -> np.ndarray:
-        return self.served[self.served_offsets[i] : self.served_offsets[i + 1]]
-
 
 def _shaft_cells(n: int, centre: np.ndarray, size: float, regions: np.ndarray, region_centre, region_radius, grid, halves, distance_steps):
     """(cell, served regions) of node ``n``'s shafts (see the module docstring), with the dominance

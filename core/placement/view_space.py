@@ -129,14 +129,6 @@ class VDI:
     def children(self) -> list[VDI]:
         return [VDI(self.face, self.level + 1, 2 * self.i + a, 2 * self.j + b) for b in (0, 1) for a in (0, 1)]
 
-    def to_dict(self) -> dict:
-        x0, x1, y0, y1 = self.ranges()
-        axis, half = self.cone()
-        return {
-            "face": FACE_NAMES[self.face], "level": self.level, "i": self.i, "j": self.j,
-            "x": [x0, x1], "y": [y0, y1], "axis": axis.tolist(), "half_angle_deg": math.degrees(half),
-        }  # fmt: skip
-
 
 def box_gap(lo_a: np.ndarray, hi_a: np.ndarray, lo_b, hi_b) -> np.ndarray:
     """(k,) distances between boxes ``lo_a``/``hi_a`` (k, 3) and one box ``lo_b``/``hi_b`` (3,); 0 where they meet."""
