@@ -96,7 +96,7 @@ class PlannerState:
     @classmethod
     def loads(cls, data: bytes) -> PlannerState:
         try:
-            doc = pickle.loads(data)  # noqa: S301 - farfield's own blob, never a user's
+            doc = pickle.loads(data)  # farfield's own blob, never a user's
         except Exception as error:  # noqa: BLE001 - any unpickling failure means the same
             raise PlacementError(f"the stored planner state could not be read: {type(error).__name__}: {error}") from error
         if not isinstance(doc, dict) or doc.get("format") != STATE_FORMAT or doc.get("version") != STATE_VERSION:
