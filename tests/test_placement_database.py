@@ -63,6 +63,10 @@ def test_repair_puts_the_baked_figures_in_and_keeps_ids(planned):
     for cpv in after.cpvs:
         if cpv["status"] == "solved":
             assert cpv["time_after"] <= t_max * (1 + 1e-9)
+    # No solved CPV draws an impostor slower than its node's geometry there, and no CPV got slower.
+    for imp in state.greedy.chosen:
+        assert all(g_p > t_p for g_p, t_p in imp.cpvs.values())
+    assert after.summary["worst_after"] <= placement.summary["worst_before"]
     # The additions, baked and reported, end the rounds (bounded): a repeat with nothing new adds nothing.
     cells = {c["index"]: c for c in placement_cells(after)}
     added = {i: bake_impostor(city, cells[i], after.elements["cluster_triangles"]) for i in first.added}

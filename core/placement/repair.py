@@ -9,7 +9,9 @@ are baked, :meth:`PlannerState.repair` puts each one's real figures in place of 
 memory), and the CPVs that the real figures push over ``t_max`` go back to the greedy, which
 resumes with every candidate not yet chosen (§5.7.4: scores only fall, so the lazy heap starts
 from fresh upper bounds).  What it adds is baked in the next round; :data:`MAX_REPAIR_ROUNDS`
-bounds the rounds.
+bounds the rounds.  Where a baked impostor turns out slower than its node's geometry in a CPV, it
+is no longer drawn there (the geometry is), so a round never leaves a CPV slower than the plain
+scene; an impostor left in no CPV is kept in the database with ``"cpvs": 0``.
 
 Covered pixels keep their estimate (the bounding-sphere disc of the replaced elements, at most a
 frame): a baked impostor's pixels depend on the view, and the estimate is conservative for the
@@ -151,6 +153,7 @@ class PlannerState:
                 greedy._saved[at] -= delta
                 greedy._cum = None
             self.baked[impostor_id] = {k: float(stats[k]) for k in BAKED_FIGURES}
+            self._withdraw_where_slower(self.order_of(impostor_id))
         self._correct_unchosen()
         over = int(np.sum(greedy.t > greedy.t_max * (1.0 + 1e-9)))
         before = len(greedy.chosen)
@@ -161,6 +164,29 @@ class PlannerState:
         step = RepairRound(len(self.rounds) + 1, over, added, self.placement(), self.correction)
         self.rounds.append(step.to_dict())
         return step
+
+    def _withdraw_where_slower(self, order: int) -> None:
+        """Stop drawing impostor ``order`` in the CPVs where, with its real figures, it is slower
+        than the geometry of its node (``g_p <= t_p``): the node is drawn as geometry there again
+        (``t += g_p - t_p``; the descendants' impostors it replaced stay replaced, their savings
+        were part of ``t`` before), so a round never leaves a CPV slower than before it.  An
+        impostor left in no CPV is deleted (§5.7.5), and its memory regained."""
+        greedy = self.greedy
+        chosen = greedy.chosen[order]
+        slower = [p for p, (g_p, t_p) in chosen.cpvs.items() if g_p <= t_p]
+        if not slower:
+            return
+        keys = []
+        for p in slower:
+            g_p, t_p = chosen.cpvs.pop(p)
+            greedy.t[p] += g_p - t_p
+            greedy.drawn[p] = [k for k in greedy.drawn[p] if k != order]
+            keys.append(p * int(greedy.nodes) + chosen.node)
+        keep = ~np.isin(greedy._keys, np.asarray(keys, dtype=np.int64))
+        greedy._keys, greedy._saved = greedy._keys[keep], greedy._saved[keep]
+        greedy._cum = None
+        if not chosen.cpvs:
+            greedy.deleted.add(order)
 
     def _correct_unchosen(self) -> None:
         """Scale the quads and memory of every candidate not chosen by the median ratio of baked to
