@@ -73,7 +73,10 @@ class JobSpec(BaseModel):
         {"required": ["viewcells"], "properties": {"viewcells": {"type": "array"}}},
         {"required": ["grid"], "properties": {"grid": {"type": "object"}}},
         {"required": ["placement"], "properties": {"placement": {"type": "object"}}},
-    ], "not": {"required": ["technique", "job_type"], "properties": {"technique": {"type": "string"}, "job_type": {"type": "string"}}}})  # fmt: skip
+    ], "not": {"anyOf": [
+        {"required": ["technique", "job_type"], "properties": {"technique": {"type": "string"}, "job_type": {"type": "string"}}},
+        {"required": ["placement", "objects"], "properties": {"placement": {"type": "object"}, "objects": {"type": "array"}}},
+    ]}})  # fmt: skip
     scene_id: str
     technique: Literal[tuple(TECHNIQUES)] | None = Field(  # type: ignore[valid-type]
         None, description="the impostor technique (default layered): " + "; ".join(f"{t.name}: {t.help}" for t in TECHNIQUES.values())
@@ -291,6 +294,7 @@ def cell_record(cell: CellRow) -> dict:
         "index": cell.index, "grid": cell.grid, "viewcell": cell.viewcell, "state": cell.state,
         "attempts": cell.attempts, "worker": cell.worker, "error": cell.error, "progress": cell.progress, "seconds": cell.seconds,
         "stats": cell.stats, "has_result": cell.result_key is not None,
+        "params": cell.params,  # a placement cell's own impostor (technique, objects, options); None: the job's
     }  # fmt: skip
 
 

@@ -193,22 +193,16 @@ def new_placement_job(tenant_id: str, scene: SceneRow, params: dict, requeue_aft
     )  # fmt: skip
 
 
-def cell_params(job_params: dict, impostor: dict) -> dict:
-    """A placement cell's own parameters (``cells.params``): what determines its bundle's bytes."""
-    return {
-        "technique": impostor.get("technique", job_params["technique"]), "objects": list(impostor["objects"]),
-        "resolution": job_params["resolution"], "fov_deg": job_params["fov_deg"], "options": job_params["options"],
-        "cluster_triangles": job_params["placement"]["cluster_triangles"],
-    }  # fmt: skip
+def cell_params(entry: dict, cluster_triangles: int) -> dict:
+    """A placement cell's own parameters (``cells.params``, what determines its bundle's bytes) from
+    its entry of :func:`core.placement.database.placement_cells`."""
+    return {"technique": entry["technique"], "objects": list(entry["objects"]), "params": entry["params"], "cluster_triangles": int(cluster_triangles)}
 
 
 def impostor_entry(cell: CellRow) -> dict:
     """The entry :func:`core.placement.database.bake_impostor` bakes for a placement cell."""
     p = cell.params
-    return {
-        "id": cell.index, "index": cell.index, "technique": p["technique"], "objects": p["objects"], "cell": cell.viewcell, "viewcell": cell.viewcell,
-        "params": {"resolution": p["resolution"], "fov_deg": p["fov_deg"], "options": p["options"]},
-    }  # fmt: skip
+    return {"index": cell.index, "technique": p["technique"], "objects": p["objects"], "params": p["params"], "viewcell": cell.viewcell}
 
 
 # --- claiming, the lease and its heartbeat ------------------------------------------------------
@@ -376,12 +370,14 @@ def _state_key(job_id: str, round_: int) -> str:
     return f"jobs/{job_id}/planner-{round_}.pickle"
 
 
-def _add_cells(session, job: JobRow, impostors: list[dict], ids) -> list[str]:
-    made = []
-    for imp in impostors:
-        if imp["id"] in ids:
+def _add_cells(session, job: JobRow, placement: dict, ids) -> list[str]:
+    from farfield.core.placement.database import placement_cells
+
+    made, cluster = [], placement["elements"]["cluster_triangles"]
+    for entry in placement_cells(placement):
+        if entry["index"] in ids:
             cell = CellRow(
-                id=uuid.uuid4().hex, job_id=job.id, index=int(imp["id"]), grid=None, viewcell=imp["cell"], params=cell_params(job.params, imp),
+                id=uuid.uuid4().hex, job_id=job.id, index=int(entry["index"]), grid=None, viewcell=entry["viewcell"], params=cell_params(entry, cluster),
                 state="queued", attempts=0, progress=0.0, queued_at=now(),
             )  # fmt: skip
             session.add(cell)
@@ -423,12 +419,12 @@ def plan_job(db: Database, blobs: BlobStore, job_id: str, worker: str, max_attem
             state_key = _state_key(job_id, 0)
             blobs.put_bytes(state_key, placement.state.dumps())
             as_dict = placement.to_dict()
-            impostors = as_dict["impostors"]
-            index_key = _write_database(db, blobs, job, as_dict, []) if not impostors else None
+            ids = {imp["id"] for imp in as_dict["impostors"]}
+            index_key = _write_database(db, blobs, job, as_dict, []) if not ids else None
     except PlanningCancelled:
         _end_cancelled(db, job_id)
         return "cancelled", []
-    return _commit_round(db, job_id, worker, attempt, state_key, impostors, {i["id"] for i in impostors}, 0, index_key, placement.summary, [])
+    return _commit_round(db, job_id, worker, attempt, state_key, as_dict, ids, 0, index_key, [])
 
 
 def _end_cancelled(db: Database, job_id: str) -> None:
@@ -437,16 +433,16 @@ def _end_cancelled(db: Database, job_id: str) -> None:
         s.execute(update(JobRow).where(JobRow.id == job_id).values(plan_worker=None, lease_until=None))
 
 
-def _commit_round(db, job_id, worker, attempt, state_key, impostors, ids, round_, index_key, summary, rounds) -> tuple[str, list[str]]:
+def _commit_round(db, job_id, worker, attempt, state_key, placement: dict, ids, round_, index_key, rounds) -> tuple[str, list[str]]:
     """Store a planned or repaired round: its cells (queued), or the database when none was added."""
     with db.session() as s:
         job = s.get(JobRow, job_id, with_for_update=True)
         if job.state != "placing" or job.plan_worker != worker or job.plan_attempts != attempt:
             return job.state, []  # cancelled meanwhile (or the hold was lost): nothing stored
-        made = _add_cells(s, job, impostors, ids) if index_key is None else []
+        made = _add_cells(s, job, placement, ids) if index_key is None else []
         record = {
             **job.planning, "phase": "bake", "step": f"bake round {round_}" if made else "done", "round": round_, "state_key": state_key,
-            "impostors": len(impostors), "summary": _summary_of(summary), "rounds": rounds, "done": 0, "total": 0,
+            "impostors": len(placement["impostors"]), "summary": _summary_of(placement.get("summary")), "rounds": rounds, "done": 0, "total": 0,
         }  # fmt: skip
         record.pop("worker", None)
         job.planning, job.plan_worker, job.lease_until, job.plan_attempts = record, None, None, 0
@@ -480,19 +476,18 @@ def check_job(db: Database, blobs: BlobStore, job_id: str, worker: str, max_atte
     with heartbeat(db, job_id, worker, attempt):
         state = PlannerState.loads(blobs.read_bytes(planning["state_key"]))
         baked = {c.index: c.stats for c in job_cells(db, job_id) if c.state == "done" and c.stats}
+        added: set[int] = set()
         if round_ <= MAX_REPAIR_ROUNDS:
             repaired = state.repair(baked)
-            rounds.append({"round": round_, "cpvs_over": int(repaired.cpvs_over), "added": [int(i) for i in repaired.added]})
-            added = set(int(i) for i in repaired.added)
-        else:
-            added = set()
+            rounds.append({**repaired.to_dict(), "round": round_})
+            added = {int(i) for i in repaired.added}
         current = state.placement().to_dict()
         if added:
             state_key = _state_key(job_id, round_)
             blobs.put_bytes(state_key, state.dumps())
-            return _commit_round(db, job_id, worker, attempt, state_key, current["impostors"], added, round_, None, current.get("summary"), rounds)
+            return _commit_round(db, job_id, worker, attempt, state_key, current, added, round_, None, rounds)
         index_key = _write_database(db, blobs, job, current, rounds)
-    return _commit_round(db, job_id, worker, attempt, planning["state_key"], current["impostors"], set(), round_, index_key, current.get("summary"), rounds)
+    return _commit_round(db, job_id, worker, attempt, planning["state_key"], current, set(), round_, index_key, rounds)
 
 
 def run_planning(db: Database, blobs: BlobStore, job_id: str, phase: str, worker: str, max_attempts: int) -> tuple[str, list[str]]:
