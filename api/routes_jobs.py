@@ -5,10 +5,11 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Request, Response
 
 from farfield.service.jobs import (
-    JobSpec, cancel_job, count_job_rows, create_job, full_job_record, get_job_row, job_record, job_summaries,
+    JobSpec, cancel_job, count_job_rows, create_job, create_placement_job, full_job_record, get_job_row, job_record, job_summaries,
     list_job_rows, queued_cell_ids, retry_job,
 )  # fmt: skip
 from farfield.service.scenes import get_scene_row
+from farfield.workers.app import send_planning
 
 from farfield.api.deps import Services, services, tenant
 from farfield.api.paging import DEFAULT_PAGE, PAGED, Limit, Offset, set_page_headers
@@ -16,8 +17,13 @@ from farfield.api.paging import DEFAULT_PAGE, PAGED, Limit, Offset, set_page_hea
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 
 
-@router.post("", status_code=201, summary="Create a job: one impostor per view cell")
+@router.post("", status_code=201, summary="Create a job: one impostor per view cell, or a placement job (planned on a worker: state 'placing')")
 def submit_job(spec: JobSpec, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
+    if spec.placement is not None:
+        scene = get_scene_row(svc.db, tenant_id, spec.scene_id)
+        job = create_placement_job(svc.db, tenant_id, scene, spec, svc.settings.requeue_after)
+        send_planning(svc.celery, job.id, "plan")
+        return full_job_record(svc.db, job)
     scene = get_scene_row(svc.db, tenant_id, spec.scene_id, with_objects=True)  # a part's bounds are its objects'
     job = create_job(svc.db, tenant_id, scene, spec, svc.settings.admission)
     svc.enqueue(queued_cell_ids(svc.db, job.id))

@@ -1,4 +1,5 @@
-"""The API's background sweep: cells queued too long without starting are sent to the queue again."""
+"""The API's background sweep: cells queued too long without starting are sent to the queue again, and so
+are placement jobs whose planning message or planning worker is lost (:func:`service.placement_jobs.lost_planning_jobs`)."""
 
 from __future__ import annotations
 
@@ -6,6 +7,8 @@ import logging
 import threading
 
 from farfield.service.jobs import lost_queued_cells
+from farfield.service.placement_jobs import lost_planning_jobs
+from farfield.workers.app import send_planning
 
 log = logging.getLogger("farfield.sweeper")
 
@@ -35,5 +38,8 @@ class LostCellSweeper:
                 if lost:
                     log.warning("sending %d queued cells again (queued over %d s without starting)", len(lost), self.services.settings.requeue_after)
                     self.services.enqueue(lost)
+                for job_id, phase in lost_planning_jobs(self.services.db, self.services.settings.requeue_after):
+                    log.warning("job %s: its %s was lost (message or worker); sending it again", job_id, phase)
+                    send_planning(self.services.celery, job_id, phase)
             except Exception:  # noqa: BLE001 - the next sweep tries again (e.g. Redis is restarting)
                 log.exception("sweep failed")

@@ -133,6 +133,53 @@ def parse_grid(text: str) -> dict:
     return {"lo": numbers[:3], "hi": numbers[3:], "counts": counts}
 
 
+def placement_request(view_space: str, frame_ms, cost_model, primitives, cpv_size, vdi_deg, cells, depth_complexity, leaf_size) -> dict:
+    """The ``placement`` of a job request from ``farfield submit --placement``'s flags (those of
+    ``farfield place``); --cost-model is a name the service knows (llvmpipe) or a model JSON file.
+
+    >>> placement_request("0,0,0,4,1,4", None, None, 5000, None, None, None, None, None)
+    {'view_space': {'lo': [0.0, 0.0, 0.0], 'hi': [4.0, 1.0, 4.0]}, 'budget': {'primitives': 5000}}
+    """
+    try:
+        corners = [float(v) for v in view_space.split(",")]
+    except (AttributeError, ValueError):
+        corners = []
+    if len(corners) != 6:
+        raise ServiceError(f"--view-space {view_space!r}: expected x0,y0,z0,x1,y1,z1")
+    budget: dict = {"frame_ms": frame_ms, "primitives": primitives}
+    if cost_model is not None:
+        if Path(cost_model).is_file():
+            try:
+                budget["cost_model"] = json.loads(Path(cost_model).read_text())
+            except (OSError, ValueError) as error:
+                raise ServiceError(f"--cost-model {cost_model!r}: not a cost model JSON file ({error})") from None
+        else:
+            budget["cost_model"] = cost_model
+    knobs = {"cpv_size": cpv_size, "vdi_deg": vdi_deg, "cells": cells, "depth_complexity": depth_complexity, "leaf_size": leaf_size}
+    return {
+        "view_space": {"lo": corners[:3], "hi": corners[3:]}, "budget": {k: v for k, v in budget.items() if v is not None},
+        **{k: v for k, v in knobs.items() if v is not None},
+    }  # fmt: skip
+
+
+def placement_line(job: dict) -> str | None:
+    """A placement job's planning progress, one line (None for other jobs).
+
+    >>> print(placement_line({"state": "placing", "placement": {"phase": "plan", "step": "candidates", "done": 3, "total": 8, "round": 0}}))
+    placement: plan, candidates 3/8, round 0
+    """
+    record = job.get("placement")
+    if not record:
+        return None
+    line = f"placement: {record.get('phase')}, {record.get('step')}"
+    if record.get("total"):
+        line += f" {record.get('done', 0)}/{record['total']}"
+    line += f", round {record.get('round', 0)}"
+    if record.get("impostors") is not None:
+        line += f", {record['impostors']} impostors"
+    return line
+
+
 def wait_for(client: Client, job_id: str, show_bar: bool) -> dict:
     """Poll the job until it ends, with a progress bar (cells) on a terminal."""
     bar = tqdm(total=None, desc="cells", unit="cell", disable=None if show_bar else True)
@@ -141,7 +188,7 @@ def wait_for(client: Client, job_id: str, show_bar: bool) -> dict:
             job = client.request("GET", f"/v1/jobs/{job_id}").json()
             bar.total = job["cells_total"]
             bar.update(job["counts"]["done"] + job["counts"]["failed"] + job["counts"]["cancelled"] - bar.n)
-            bar.set_postfix_str(job["state"])
+            bar.set_postfix_str(placement_line(job) if job["state"] == "placing" else job["state"])
             if job["state"] in ("done", "failed", "cancelled"):
                 return job
             time.sleep(0.5)
@@ -170,6 +217,18 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
 @click.option("--option", "options", multiple=True, metavar="NAME=VALUE",
               help="Technique option (repeat); VALUE is parsed as JSON, else taken as text (a list option also takes a,b,c). "
                    "`farfield techniques` lists each technique's options.")
+@click.option("--placement", "placement", is_flag=True,
+              help="A placement job: where impostors of --technique are needed over --view-space for the budget (the flags of `farfield place`); "
+                   "planned on a worker (state 'placing'), baked, checked and repaired.")
+@click.option("--view-space", default=None, metavar="X0,Y0,Z0,X1,Y1,Z1", help="With --placement: the box the viewer moves in.")
+@click.option("--frame-ms", type=float, default=None, help="With --placement: every view within this many milliseconds by the cost model.")
+@click.option("--cost-model", default=None, help="With --frame-ms: a cost model the service knows by name (llvmpipe, the default) or a model JSON file.")
+@click.option("--primitives", type=float, default=None, help="With --placement: every view draws at most this many triangles.")
+@click.option("--cpv-size", type=float, default=None, help="With --placement: smallest 3D region of a problem view [default: the view space's longest side / 8].")
+@click.option("--vdi-deg", type=float, default=None, help="With --placement: smallest view-direction interval, degrees [default: 11.25].")
+@click.option("--cells", "cell_kinds", type=click.Choice(["shafts", "boxes", "both", "leaf-boxes"]), default=None, help="With --placement: view cells of the candidates [default: both].")
+@click.option("--depth-complexity", type=float, default=None, help="With --placement: a view's rasterised pixels are at most this many frames [default: 4].")
+@click.option("--leaf-size", type=int, default=None, help="With --placement: elements per leaf of the object hierarchy [default: 4].")
 @click.option("--evaluate/--no-evaluate", default=True, show_default=True,
               help="Evaluate each baked cell against the real geometry on the worker (layered, tdm): hole pixels, bloat beyond 1 px, "
                    "colour error, SSIM in the cell's record. It changes no bundle.")
@@ -177,11 +236,18 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
 @click.option("--download", type=click.Path(file_okay=False), default=None, help="After --wait, unpack the impostor database here.")
 @click.option("--json", "as_json", is_flag=True, help="Print the job record as JSON.")
 @_client_options
-def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov, options, evaluate, wait, download, as_json, url, key):
+def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov, options, placement, view_space, frame_ms, cost_model, primitives,
+           cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, evaluate, wait, download, as_json, url, key):  # fmt: skip
     """Submit a job for SCENE (a file to upload, or the id of an uploaded scene)."""
     client = Client(url, key or _default_key())
-    if (grid is None) == (not viewcells):
-        raise ServiceError("give --grid or one or more --viewcell")
+    if placement:
+        if grid is not None or viewcells:
+            raise ServiceError("--placement chooses the view cells: leave out --grid and --viewcell")
+        if view_space is None:
+            raise ServiceError("--placement needs --view-space X0,Y0,Z0,X1,Y1,Z1")
+        request = placement_request(view_space, frame_ms, cost_model, primitives, cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size)
+    elif (grid is None) == (not viewcells):
+        raise ServiceError("give --grid, one or more --viewcell, or --placement")
     if Path(scene).is_file():
         with open(scene, "rb") as f:
             scene_id = client.request("POST", "/v1/scenes", files={"file": (Path(scene).name, f)}).json()["id"]
@@ -204,7 +270,9 @@ def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov
     spec = {k: v for k, v in spec.items() if v is not None}
     if not evaluate:  # sent only when off: the service's default is on
         spec["evaluate"] = False
-    if grid is not None:
+    if placement:
+        spec["placement"] = request
+    elif grid is not None:
         spec["grid"] = parse_grid(grid)
     else:
         spec["viewcells"] = [parse_viewcell(v).to_dict() for v in viewcells]
@@ -255,6 +323,10 @@ def jobs(job_id, state, as_json, limit, offset, every, url, key):
             click.echo(json.dumps(job))
             return
         click.echo(f"{job['id']}  {job['state']}  {job['counts']}  progress {job['progress']:.0%}")
+        if placement_line(job):
+            click.echo(f"  {placement_line(job)}")
+        if job.get("error"):
+            click.echo(f"  error: {job['error']}")
         if job.get("evaluation"):
             click.echo(f"  {evaluation_line(job['evaluation'])}")
         for error in job["errors"]:

@@ -4,7 +4,10 @@ The job's technique (:func:`core.techniques.get_technique`) bakes the cell.  A c
 of one part (layered, tdm) is then evaluated against the part's real geometry from a few viewpoints
 (:func:`core.techniques.part.report_part`), unless the job says ``evaluate: false``; the figures
 and the time they took go in the cell's record (``stats.evaluation``), never in the bundle, beside
-this attempt's bake timings (``stats.seconds``).
+this attempt's bake timings (``stats.seconds``) and whether this attempt baked the bundle or found it
+(``stats.baked``).  A placement job's cell (``cells.params``, :mod:`service.placement_jobs`) is baked
+by :func:`core.placement.database.bake_impostor` with its own technique, objects and options, keyed
+by them, and not evaluated here (the walkthrough measures a placement).
 
 This is everything a worker task does (``workers/tasks.py`` is a few lines around it).  The bundle
 is published under a key derived from everything that determines its bytes
@@ -37,8 +40,9 @@ from farfield.core.techniques.part import report_part
 from farfield.core.viewcells import viewcell_from_dict
 from farfield.service.blobs import BlobStore
 from farfield.service.cell_limits import MemoryGuard, memory_limit_message, time_limit_message
-from farfield.service.db import Database, JobRow, SceneRow
+from farfield.service.db import CellRow, Database, JobRow, SceneRow
 from farfield.service.jobs import claim_cell, end_cell, finish_job_if_complete, job_cancelled, result_key, set_progress
+from farfield.service.placement_jobs import impostor_entry
 from farfield.service.scenes import load_stored_scene
 
 # A running cell looks at its job's state at the first layer after CANCEL_CHECK_S since its last
@@ -106,8 +110,13 @@ def failure_message(error: BaseException, klass: str) -> str:
     return f"internal error: {text}" if klass == INTERNAL else text
 
 
-def bake_cell(job: JobRow, scene: Scene, viewcell: dict, progress) -> Impostor:
-    """The impostor of one cell of ``job``, baked by the job's technique (:mod:`core.techniques`)."""
+def bake_cell(job: JobRow, scene: Scene, viewcell: dict, progress, cell: CellRow | None = None) -> Impostor:
+    """The impostor of one cell of ``job``, baked by the job's technique (:mod:`core.techniques`);
+    a placement job's cell by its own (:func:`core.placement.database.bake_impostor`)."""
+    if cell is not None and cell.params is not None:
+        from farfield.core.placement.database import bake_impostor
+
+        return bake_impostor(scene, impostor_entry(cell), cell.params.get("cluster_triangles"), progress)
     technique = get_technique(job.job_type)
     return technique.bake(scene, viewcell_from_dict(viewcell), technique.options_of(job.params), job.params.get("objects"), progress)
 
@@ -193,12 +202,16 @@ def run_cell(
             with db.session() as s:
                 job = s.get(JobRow, cell.job_id)
                 scene_row = s.get(SceneRow, job.scene_id)
-            key = result_key(scene_row.content_hash, job.job_type, job.params, cell.viewcell)
+            if cell.params is not None:  # a placement cell: its own technique, objects and options
+                key = result_key(scene_row.content_hash, f"placement/{cell.params['technique']}", cell.params, cell.viewcell)
+            else:
+                key = result_key(scene_row.content_hash, job.job_type, job.params, cell.viewcell)
             seconds = None  # this attempt's bake timings (a bundle stores none: its bytes depend on its inputs alone)
             scene = impostor = None
-            if not blobs.exists(f"{key}/{MANIFEST_NAME}"):
+            baked = not blobs.exists(f"{key}/{MANIFEST_NAME}")
+            if baked:
                 scene = load_stored_scene(blobs, scene_row)
-                impostor = bake_cell(job, scene, cell.viewcell, progress)
+                impostor = bake_cell(job, scene, cell.viewcell, progress, cell)
                 with tempfile.TemporaryDirectory(prefix="farfield-cell-") as tmp:
                     try:
                         write_bundle(impostor, Path(tmp) / "bundle")
@@ -209,7 +222,8 @@ def run_cell(
             stats = json.loads(blobs.read_bytes(f"{key}/{MANIFEST_NAME}"))["stats"]
             if seconds is not None:
                 stats["seconds"] = seconds
-            if job.evaluate and get_technique(job.job_type).scope == "part":
+            stats["baked"] = baked  # False: the bundle was found (a redelivery, or equal inputs of another job)
+            if job.evaluate and cell.params is None and get_technique(job.job_type).scope == "part":
                 set_progress(db, cell_id, EVALUATION_PROGRESS)
                 stats["evaluation"] = evaluate_cell(blobs, scene_row, key, scene, impostor)
     except CellCancelled:

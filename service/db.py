@@ -19,7 +19,10 @@ MIGRATIONS = Path(__file__).resolve().parent / "migrations"
 
 CELL_STATES = ("queued", "running", "done", "failed", "cancelled")
 CELL_FINAL = ("done", "failed", "cancelled")
-JOB_STATES = ("queued", "running", "done", "failed", "cancelled")
+JOB_STATES = ("queued", "placing", "running", "done", "failed", "cancelled")
+# A placement job is ``placing`` while a worker plans it and while it checks (and repairs) the baked
+# impostors; its other states are a grid job's (service.placement_jobs).
+OPEN_JOB_STATES = ("queued", "placing", "running")
 
 
 def now() -> float:
@@ -82,6 +85,13 @@ class JobRow(Base):
     created_at: Mapped[float] = mapped_column(Float, default=now)
     started_at: Mapped[float | None] = mapped_column(Float, nullable=True)
     finished_at: Mapped[float | None] = mapped_column(Float, nullable=True)
+    # A placement job's planning (service.placement_jobs): its progress record (phase, step, done,
+    # total, round, rounds), which worker holds it and until when (a lease its heartbeat renews; the
+    # API's sweeper sends an expired one's task again), and the attempts of the current phase.
+    planning: Mapped[dict | None] = mapped_column(JSON, nullable=True)
+    plan_worker: Mapped[str | None] = mapped_column(String(200), nullable=True)
+    lease_until: Mapped[float | None] = mapped_column(Float, nullable=True, index=True)
+    plan_attempts: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
 
 
 class CellRow(Base):
@@ -91,6 +101,9 @@ class CellRow(Base):
     index: Mapped[int] = mapped_column(Integer)
     grid: Mapped[list | None] = mapped_column(JSON, nullable=True)  # (i, j, k) in a grid job
     viewcell: Mapped[dict] = mapped_column(JSON)  # core BoxCell/ShaftCell.to_dict()
+    # A placement job's cell carries its own impostor: technique, objects, resolution, fov_deg,
+    # options, cluster_triangles (None: the job's params, one technique for every cell).
+    params: Mapped[dict | None] = mapped_column(JSON, nullable=True)
     state: Mapped[str] = mapped_column(String(16), default="queued", index=True)
     attempts: Mapped[int] = mapped_column(Integer, default=0)
     worker: Mapped[str | None] = mapped_column(String(200), nullable=True)  # who ran the last attempt

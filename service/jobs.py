@@ -10,6 +10,8 @@ States (kept in SQL, never in Celery results):
     cell: queued -> running -> done | failed | cancelled;  running -> queued (a failed attempt that
           will be retried; the attempt is counted)
     job:  queued -> running -> done | failed | cancelled
+          a placement job (service.placement_jobs): queued -> placing -> running -> placing (check)
+          -> running (repairs) ... -> done | failed | cancelled
 
 A job ends when its last cell does: ``done`` when every cell is done, ``failed`` when some cell
 failed, ``cancelled`` when cancelled.  The worker that ends the last cell builds the job's
@@ -38,7 +40,8 @@ from farfield.core.options import options_json_schema, stored_values
 from farfield.core.techniques import DEFAULT_TECHNIQUE, TECHNIQUES, get_technique
 from farfield.core.viewcells import BoxCell, grid_boxes, viewcell_from_dict
 from farfield.service.blobs import BlobStore
-from farfield.service.db import CELL_FINAL, JOB_STATES, CellRow, Database, JobRow, SceneRow, now, owned_row
+from farfield.service.db import CELL_FINAL, JOB_STATES, OPEN_JOB_STATES, CellRow, Database, JobRow, SceneRow, now, owned_row
+from farfield.service.placement_jobs import PLACEMENT_JOB, PlacementSpec, begin_check, new_placement_job, placement_params
 from farfield.service.settings import AdmissionLimits
 
 MAX_CELLS = 10_000
@@ -69,7 +72,11 @@ class JobSpec(BaseModel):
     model_config = ConfigDict(extra="forbid", json_schema_extra={"oneOf": [
         {"required": ["viewcells"], "properties": {"viewcells": {"type": "array"}}},
         {"required": ["grid"], "properties": {"grid": {"type": "object"}}},
-    ], "not": {"required": ["technique", "job_type"], "properties": {"technique": {"type": "string"}, "job_type": {"type": "string"}}}})  # fmt: skip
+        {"required": ["placement"], "properties": {"placement": {"type": "object"}}},
+    ], "not": {"anyOf": [
+        {"required": ["technique", "job_type"], "properties": {"technique": {"type": "string"}, "job_type": {"type": "string"}}},
+        {"required": ["placement", "objects"], "properties": {"placement": {"type": "object"}, "objects": {"type": "array"}}},
+    ]}})  # fmt: skip
     scene_id: str
     technique: Literal[tuple(TECHNIQUES)] | None = Field(  # type: ignore[valid-type]
         None, description="the impostor technique (default layered): " + "; ".join(f"{t.name}: {t.help}" for t in TECHNIQUES.values())
@@ -79,6 +86,11 @@ class JobSpec(BaseModel):
     )
     viewcells: list[dict] | None = Field(None, description="explicit view cells, e.g. {'kind': 'box', 'lo': [..], 'hi': [..]}")
     grid: GridSpec | None = Field(None, description="or a grid of box cells over a view-space box")
+    placement: PlacementSpec | None = Field(
+        None,
+        description="or a placement job: a view space, a frame budget and the planner's knobs; a worker plans where impostors of "
+        "'technique' (a part technique: layered, tdm) are needed, bakes them, checks and repairs (job state 'placing' while it plans)",
+    )
     objects: list[str] | None = Field(None, description="the represented objects (default: all; not for scene-scope techniques)")
     resolution: StrictInt | None = Field(None, description="output image pixels per side (default: the technique's, 512)")
     fov_deg: StrictFloat | None = Field(None, description="output field of view, degrees (default: the technique's: 45, envmap 90)")
@@ -97,8 +109,10 @@ class JobSpec(BaseModel):
 
     @model_validator(mode="after")
     def _one_view_space(self) -> JobSpec:
-        if (self.viewcells is None) == (self.grid is None):
-            raise ValueError("give exactly one of 'viewcells' (a list) or 'grid'")
+        if (self.viewcells is not None) + (self.grid is not None) + (self.placement is not None) != 1:
+            raise ValueError("give exactly one of 'viewcells' (a list), 'grid' or 'placement'")
+        if self.placement is not None and self.objects is not None:
+            raise ValueError("a placement job chooses the objects its impostors replace: leave out 'objects'")
         former = self.__dict__.get("job_type")
         if self.technique is not None and former is not None:
             raise ValueError(f"'technique' ({self.technique}) and its former name 'job_type' ({former}) are both given; give one")
@@ -206,6 +220,8 @@ def create_job(db: Database, tenant_id: str, scene: SceneRow, spec: JobSpec, lim
     same moment may both pass the cell count (it is read, not locked): the cap is a bound on work in
     flight, not an exact quota."""
     limits = AdmissionLimits.from_env() if limits is None else limits
+    if spec.placement is not None:
+        return create_placement_job(db, tenant_id, scene, spec)
     technique = get_technique(spec.technique_name)
     options = technique.options(spec.options, spec.resolution, spec.fov_deg)
     params = {"resolution": options.resolution, "fov_deg": options.fov_deg, "objects": spec.objects, "options": stored_values(options)}
@@ -244,6 +260,17 @@ def create_job(db: Database, tenant_id: str, scene: SceneRow, spec: JobSpec, lim
     return job
 
 
+def create_placement_job(db: Database, tenant_id: str, scene: SceneRow, spec: JobSpec, requeue_after: float = 3600.0) -> JobRow:
+    """Validate a placement request (:func:`service.placement_jobs.placement_params`: 422 naming the
+    problem) and store the job, queued for planning, without cells (the planner makes them).  Its
+    cells are not known yet, so the texel and tenant-cell admission of a grid job does not apply."""
+    params = placement_params(spec.technique_name, spec.options, spec.resolution, spec.fov_deg, spec.placement)
+    job = new_placement_job(tenant_id, scene, params, requeue_after)
+    with db.session() as s:
+        s.add(job)
+    return job
+
+
 def get_job_row(db: Database, tenant_id: str, job_id: str) -> JobRow:
     return owned_row(db, JobRow, tenant_id, job_id, "job")
 
@@ -267,6 +294,7 @@ def cell_record(cell: CellRow) -> dict:
         "index": cell.index, "grid": cell.grid, "viewcell": cell.viewcell, "state": cell.state,
         "attempts": cell.attempts, "worker": cell.worker, "error": cell.error, "progress": cell.progress, "seconds": cell.seconds,
         "stats": cell.stats, "has_result": cell.result_key is not None,
+        "params": cell.params,  # a placement cell's own impostor (technique, objects, options); None: the job's
     }  # fmt: skip
 
 
@@ -334,8 +362,9 @@ def job_record(job: JobRow, summary: dict, cells: list[CellRow] | None = None) -
         remaining = counts["queued"] + counts["running"] - summary["running_progress"]
         busy = max(counts["running"], 1)  # cells in flight approximates the workers serving the job
         eta = remaining * mean / busy
+    placement = job.job_type == PLACEMENT_JOB
     record = {
-        "id": job.id, "scene_id": job.scene_id, "technique": job.job_type, "job_type": job.job_type, "state": job.state, "params": job.params,
+        "id": job.id, "scene_id": job.scene_id, "technique": job.params["technique"] if placement else job.job_type, "job_type": job.job_type, "state": job.state, "params": job.params,
         "evaluate": job.evaluate, "error": job.error, "cells_total": total, "counts": counts, "progress": progress, "eta_s": eta,
         "created_at": job.created_at, "started_at": job.started_at, "finished_at": job.finished_at,
         "seconds": {"cells_total": summary["done_seconds"], "cell_mean": mean,
@@ -343,6 +372,8 @@ def job_record(job: JobRow, summary: dict, cells: list[CellRow] | None = None) -
         "errors": summary["errors"], "errors_total": summary["errors_total"],
         "has_index": job.index_key is not None,
     }  # fmt: skip
+    if placement:  # phase, step, done, total, round, rounds, summary (service.placement_jobs)
+        record["placement"] = job.planning
     if cells is not None:
         record["cells"] = [cell_record(c) for c in cells]
         record["evaluation"] = evaluation_summary(cells)
@@ -532,10 +563,27 @@ def finish_job_if_complete(db: Database, blobs: BlobStore, job_id: str) -> bool:
             return False
         states = set(s.scalars(select(CellRow.state).where(CellRow.job_id == job_id)))
     final = "failed" if "failed" in states else "done" if states <= {"done"} else "cancelled"
+    if job.job_type == PLACEMENT_JOB:
+        return _end_placement_round(db, job_id, final)
     key = write_index(db, blobs, job_id, final)
     with db.session() as s:
         won = s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state.in_(("queued", "running"))).values(state=final, finished_at=now(), index_key=key)).rowcount
     return bool(won)
+
+
+def _end_placement_round(db: Database, job_id: str, final: str) -> bool:
+    """A placement job's round ended: all done -> placing, to be checked (its worker sends the check
+    task, :func:`service.placement_jobs.pending_check`); else the job ends ``final`` (no database:
+    it is written by the check)."""
+    with db.session() as s:
+        job = s.get(JobRow, job_id, with_for_update=True)
+        if job.state != "running":
+            return False
+        if final == "done":
+            begin_check(s, job)
+            return False
+        job.state, job.finished_at = final, now()
+        return True
 
 
 def index_document(job: JobRow, cells: list[CellRow]) -> dict:
@@ -566,7 +614,7 @@ def cancel_job(db: Database, blobs: BlobStore, tenant_id: str, job_id: str) -> J
     with db.session() as s:
         # Conditional, and the job row first (the lock order of claim_cell): a job that ended
         # meanwhile stays as it ended.
-        changed = s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state.in_(("queued", "running"))).values(state="cancelled")).rowcount
+        changed = s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state.in_(OPEN_JOB_STATES)).values(state="cancelled")).rowcount
         if changed:
             s.execute(update(CellRow).where(CellRow.job_id == job_id, CellRow.state == "queued").values(state="cancelled", finished_at=now()))
     if not changed:
@@ -576,8 +624,11 @@ def cancel_job(db: Database, blobs: BlobStore, tenant_id: str, job_id: str) -> J
 
 
 def retry_job(db: Database, tenant_id: str, job_id: str) -> list[str]:
-    """Queue the failed cells of a failed job again (attempts reset); returns their ids."""
-    get_job_row(db, tenant_id, job_id)
+    """Queue the failed cells of a failed job again (attempts reset); returns their ids.  A placement
+    job that failed before its cells were baked (planning or checking) is not retried: submit it again."""
+    job = get_job_row(db, tenant_id, job_id)
+    if job.job_type == PLACEMENT_JOB and job.state == "failed" and (job.planning or {}).get("phase") != "bake":
+        raise ConflictError(f"job {job_id!r} failed while placing ({job.error}); submit it again")
     with db.session() as s:
         changed = s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state == "failed").values(state="running", finished_at=None, index_key=None)).rowcount
         if changed:

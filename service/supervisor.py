@@ -25,6 +25,7 @@ from farfield.service.db import Database
 from farfield.service.embedded_redis import EmbeddedRedis, free_port
 from farfield.service.jobs import release_lost_cells, running_cells_of
 from farfield.service.keys import ensure_admin_key
+from farfield.service.placement_jobs import planning_jobs_of, release_planning
 from farfield.service.settings import Settings
 
 STOP_GRACE_S = 20.0
@@ -163,6 +164,9 @@ class Service:
                                          f"worker {worker} exited with code {code}", worker=worker, resend=True)  # fmt: skip
             if changed:
                 print(f"farfield: {len(changed)} cells of {worker} released: {sorted(set(changed.values()))}", file=sys.stderr)
+            for job_id in planning_jobs_of(db, worker):  # a placement job it planned: the sweeper sends it again
+                state = release_planning(db, job_id, f"worker {worker} exited with code {code}", worker, self.settings.max_attempts)
+                print(f"farfield: the planning of job {job_id} on {worker} released: {state}", file=sys.stderr)
         except Exception as error:  # noqa: BLE001 - the cells come back after the visibility timeout anyway
             print(f"farfield: could not release the cells of {worker}: {error}", file=sys.stderr)
         finally:

@@ -17,6 +17,15 @@ from farfield.service.settings import Settings
 
 RENDER_QUEUE = "render"
 BAKE_CELL = "farfield.bake_cell"
+# A placement job's planning and its check-and-repair rounds (service.placement_jobs) go to the same
+# render queue: every worker farfield up starts takes them with no queue of its own to configure, and
+# a plan needs what a bake needs (the stored scene, a process that may use much memory for a while).
+# The price: a plan waits behind the cells queued before it, like a cell does.
+PLAN_PLACEMENT = "farfield.plan_placement"
+CHECK_PLACEMENT = "farfield.check_placement"
+PLANNING_TASKS = {"plan": PLAN_PLACEMENT, "check": CHECK_PLACEMENT}
+# Sending while Redis restarts (the API's and a worker's sends alike).
+SEND_RETRY_POLICY = {"max_retries": 30, "interval_start": 0.2, "interval_step": 0.5, "interval_max": 2.0}
 
 
 def make_celery(settings: Settings) -> Celery:
@@ -24,7 +33,7 @@ def make_celery(settings: Settings) -> Celery:
     app = Celery("farfield", broker=settings.redis_url, include=["farfield.workers.tasks"])
     app.conf.update(
         task_default_queue=RENDER_QUEUE,
-        task_routes={BAKE_CELL: {"queue": RENDER_QUEUE}},
+        task_routes={name: {"queue": RENDER_QUEUE} for name in (BAKE_CELL, PLAN_PLACEMENT, CHECK_PLACEMENT)},
         task_acks_late=True,
         task_reject_on_worker_lost=True,
         worker_prefetch_multiplier=1,
@@ -36,6 +45,17 @@ def make_celery(settings: Settings) -> Celery:
         worker_send_task_events=False,
     )
     return app
+
+
+def send_cells(celery: Celery, cell_ids: list[str]) -> None:
+    """One bake task per cell to the render queue."""
+    for cell_id in cell_ids:
+        celery.send_task(BAKE_CELL, args=[cell_id], queue=RENDER_QUEUE, retry=True, retry_policy=SEND_RETRY_POLICY)
+
+
+def send_planning(celery: Celery, job_id: str, phase: str = "plan") -> None:
+    """A placement job's plan (``phase`` "plan") or check task to the render queue."""
+    celery.send_task(PLANNING_TASKS[phase], args=[job_id], queue=RENDER_QUEUE, retry=True, retry_policy=SEND_RETRY_POLICY)
 
 
 celery_app = make_celery(Settings.from_env())

@@ -24,6 +24,14 @@ Limits per cell (:mod:`service.cell_limits`): the decorator's soft and hard time
 (no retry), and the hard one, where the pool process did not stop, is recorded by
 :meth:`CellTask.on_failure` in the worker's main process.  Each pool process runs a
 :class:`~farfield.service.cell_limits.MemoryGuard` of ``FARFIELD_CELL_MEMORY_MB``.
+
+A placement job's :func:`plan_placement` and :func:`check_placement` run
+:func:`service.placement_jobs.run_planning` (plan, or check and repair) under the same time limits and
+send the cells it made; a bake whose cell ended the last open cell of a placement job's round sends
+the job's check.  A pool process that dies while it plans frees the job's hold from the worker's
+main process at once (:class:`PlanningRequest`), so the redelivery plans again (each time an
+attempt, ``FARFIELD_MAX_ATTEMPTS`` at most); a whole worker that dies leaves its hold to expire and
+the API's sweeper sends the task again.
 """
 
 from __future__ import annotations
@@ -44,8 +52,9 @@ from farfield.service.cell_limits import MemoryGuard, hard_time_limit_message, t
 from farfield.service.cell_runner import BAD_INPUT, TRANSIENT, RetryCell, backoff, failure_class, failure_message, run_cell
 from farfield.service.db import CellRow, Database, now
 from farfield.service.jobs import finish_job_if_complete, release_lost_cells
+from farfield.service.placement_jobs import fail_planning, pending_check, release_planning, run_planning
 from farfield.service.settings import Settings
-from farfield.workers.app import BAKE_CELL, celery_app
+from farfield.workers.app import BAKE_CELL, CHECK_PLACEMENT, PLAN_PLACEMENT, celery_app, send_cells, send_planning
 
 _STATE: dict = {}
 TRANSIENT_RETRIES_PER_ATTEMPT = 10
@@ -159,7 +168,10 @@ def bake_cell(self, cell_id: str) -> str:
     settings, db, blobs = _services()
     limit, retries = max_retries(settings.max_attempts), self.request.retries
     try:
-        return run_cell(db, blobs, cell_id, settings.max_attempts, worker=self.request.hostname, time_limit=settings.cell_time_limit, memory=_STATE["memory"])
+        state = run_cell(db, blobs, cell_id, settings.max_attempts, worker=self.request.hostname, time_limit=settings.cell_time_limit, memory=_STATE["memory"])
+        if state == "done":
+            _send_check_if_due(db, cell_id)
+        return state
     except SoftTimeLimitExceeded:  # outside the attempt (claiming or recording it): the cell is as slow next time
         return _give_up(db, blobs, cell_id, f"{CellLimitError.__name__}: {time_limit_message(settings.cell_time_limit)}")
     except RetryCell as retry:  # the attempt is counted on the cell, which is queued again
@@ -177,3 +189,77 @@ def bake_cell(self, cell_id: str) -> str:
             raise self.retry(countdown=countdown, exc=error, max_retries=limit) from error
         log.error("cell %s delivery %d: %s failure outside the attempt: %s (giving up)", cell_id, delivery, klass, message, exc_info=error)
         return _give_up(db, blobs, cell_id, f"{message} (gave up after {delivery} deliveries that failed outside the attempt)")
+
+
+def _send_check_if_due(db: Database, cell_id: str) -> None:
+    """The cell ended its placement job's round: send the job's check (a duplicate is harmless; a
+    lost one is sent again by the API's sweeper)."""
+    with db.session() as s:
+        job_id = s.scalar(select(CellRow.job_id).where(CellRow.id == cell_id))
+    if job_id is not None and pending_check(db, job_id):
+        send_planning(celery_app, job_id, "check")
+
+
+class PlanningRequest(Request):
+    """A plan or check request as the worker's main process sees it: when the pool process running
+    it dies, the job's hold is freed at once (or the job failed, at its last attempt), so the
+    redelivery Celery sends plans again instead of waiting for the lease to expire."""
+
+    def on_failure(self, exc_info, send_failed_event=True, return_ok=False):
+        lost = getattr(exc_info.exception, "exc", exc_info.exception)
+        if isinstance(lost, WorkerLostError) and self.args:
+            settings = Settings.from_env()
+            db = Database(settings.database_url)
+            try:
+                state = release_planning(db, str(self.args[0]), f"its worker process died: {lost}", self.hostname, settings.max_attempts)
+                log.warning("job %s: its planning process died (%s); now %s", self.args[0], lost, state)
+            except Exception:  # noqa: BLE001 - the lease expires and the sweeper sends it again
+                log.exception("job %s: its planning process died, and its hold could not be freed", self.args[0])
+            finally:
+                db.dispose()
+        return super().on_failure(exc_info, send_failed_event=send_failed_event, return_ok=return_ok)
+
+
+class PlanningTask(Task):
+    """A hard time limit fails the job it killed."""
+
+    def on_failure(self, exc, task_id, args, kwargs, einfo) -> None:
+        if isinstance(exc, TimeLimitExceeded) and args:
+            settings = Settings.from_env()
+            db = Database(settings.database_url)
+            try:
+                fail_planning(db, args[0], f"{CellLimitError.__name__}: {hard_time_limit_message(_DECLARED.cell_hard_time_limit)}")
+            finally:
+                db.dispose()
+
+
+def _planning(task, job_id: str, phase: str) -> str:
+    settings, db, blobs = _records()
+    limit, retries = max_retries(settings.max_attempts), task.request.retries
+    try:
+        state, cell_ids = run_planning(db, blobs, job_id, phase, task.request.hostname, settings.max_attempts)
+    except SoftTimeLimitExceeded:
+        fail_planning(db, job_id, f"{CellLimitError.__name__}: {time_limit_message(settings.cell_time_limit)}")
+        return "failed"
+    except Exception as error:  # noqa: BLE001 - transient (run_planning freed the hold): retried with backoff
+        if retries < limit:
+            raise task.retry(countdown=backoff(retries + 1), exc=error, max_retries=limit) from error
+        fail_planning(db, job_id, f"{failure_message(error, failure_class(error))} (gave up after {retries + 1} deliveries)")
+        return "failed"
+    send_cells(celery_app, cell_ids)
+    return state
+
+
+_PLANNING_LIMITS = {"soft_time_limit": _DECLARED.cell_time_limit, "time_limit": _DECLARED.cell_hard_time_limit, "max_retries": max_retries(_DECLARED.max_attempts)}
+
+
+@celery_app.task(bind=True, base=PlanningTask, Request=PlanningRequest, name=PLAN_PLACEMENT, **_PLANNING_LIMITS)
+def plan_placement(self, job_id: str) -> str:
+    """Plan a placement job and send its cells (service.placement_jobs.plan_job)."""
+    return _planning(self, job_id, "plan")
+
+
+@celery_app.task(bind=True, base=PlanningTask, Request=PlanningRequest, name=CHECK_PLACEMENT, **_PLANNING_LIMITS)
+def check_placement(self, job_id: str) -> str:
+    """Check a placement job's baked round, repair it and send the additions, or end it with its database."""
+    return _planning(self, job_id, "check")

@@ -1,0 +1,516 @@
+"""Placement jobs: scene + view space + frame budget -> the impostors a planner chooses, baked as cells, checked and repaired.
+
+A placement job (``POST /v1/jobs`` with ``"placement"``; SQL ``job_type`` ``"placement"``, the
+impostors' technique in ``params["technique"]``) goes
+
+    queued -> placing (plan) -> running (bake round 0) -> placing (check round 1) -> running (bake round 1) -> ... -> done | failed | cancelled
+
+- **plan** (:func:`plan_job`, the worker task ``farfield.plan_placement``): the planner
+  (:func:`core.placement.planner.place`, ``keep_state=True``) on the stored scene; its progress is
+  the job's ``planning`` record (``GET /v1/jobs/{id}`` shows it as ``"placement"``), cancellation is
+  looked at between progress calls, a :class:`~farfield.core.errors.FarfieldError` of bad input fails
+  the job with its message, anything else as ``internal error: ...``.  The planner state is kept as a
+  blob (``jobs/<id>/planner-<round>.pickle``) and every impostor becomes one cell (cell index =
+  impostor id) that carries its own technique, objects, options and view cell (``cells.params``).
+  A placement of no impostors ends ``done`` at once with its database.
+- **bake**: the cells go to the render workers as a grid job's do (:func:`service.cell_runner.run_cell`
+  bakes a placement cell with :func:`core.placement.database.bake_impostor`; its result key is made
+  of its own parameters, so equal impostors of another job are found, not baked again).
+- **check** (:func:`check_job`, ``farfield.check_placement``), when the last cell of a round ends
+  done: the planner state is loaded and repaired with the baked cells' real figures
+  (``PlannerState.repair``); impostors it adds become cells of the next round, else (or after
+  ``MAX_REPAIR_ROUNDS``) the database index is written (:func:`core.placement.database.placement_index`,
+  ``jobs/<id>/index.json``) and the job ends done.
+
+Planning and checking are held by one worker at a time under a lease (``jobs.plan_worker``,
+``jobs.lease_until``) that a heartbeat thread renews every ``HEARTBEAT_S``.  A worker process that
+dies loses it: its worker's main process releases it at once (a pool process killed), else it
+expires after ``LEASE_S`` (the whole worker gone) and the API's sweeper
+(:func:`lost_planning_jobs`) sends the task again; each claim counts an attempt, and a phase whose
+``max_attempts`` attempts never reported back fails the job.  So a job is never left ``placing``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import math
+import threading
+import time
+import uuid
+from dataclasses import dataclass
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt
+from sqlalchemy import select, update
+
+from farfield.core.options import stored_values
+from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, primitive_model
+from farfield.core.placement.hierarchy import PlacementError
+from farfield.core.techniques import get_technique
+from farfield.service.blobs import BlobStore
+from farfield.service.db import CellRow, Database, JobRow, SceneRow, now
+
+log = logging.getLogger("farfield.placement")
+
+PLACEMENT_JOB = "placement"  # the job_type column of a placement job
+LEASE_S = 20.0  # a held planning not renewed for this long is lost (its worker died)
+HEARTBEAT_S = 3.0  # how often the holder renews it
+CANCEL_CHECK_S = 0.2  # a planning job looks at its state at the first progress call after this
+PROGRESS_EVERY_S = 0.5  # and writes its progress record
+COST_MODELS = {"llvmpipe": LLVMPIPE_MODEL}  # cost models known by name
+CELL_KINDS = ("shafts", "boxes", "both", "leaf-boxes")
+MAX_REGIONS = 1e6  # as core.placement.view_space: smallest regions a view space may be cut into
+
+Number = StrictFloat | StrictInt
+
+
+class ViewSpaceSpec(BaseModel):
+    """The box the viewer moves in (may be flat or a point)."""
+
+    model_config = ConfigDict(extra="forbid")
+    lo: tuple[Number, Number, Number]
+    hi: tuple[Number, Number, Number]
+
+
+class BudgetSpec(BaseModel):
+    """Every view within ``frame_ms`` by a cost model, or at most ``primitives`` triangles."""
+
+    model_config = ConfigDict(extra="forbid")
+    frame_ms: Number | None = Field(None, description="t_max in milliseconds by the cost model")
+    cost_model: str | dict | None = Field(
+        None, description="with frame_ms: 'llvmpipe' (the builtin model, the default) or a cost model document (CostModel.to_dict(), farfield calibrate --out)"
+    )
+    primitives: Number | None = Field(None, description="or t_max as a triangle count (the primitive model)")
+
+
+class PlacementSpec(BaseModel):
+    """A placement job's view space, budget and the planner's knobs (``farfield place --help``)."""
+
+    model_config = ConfigDict(extra="forbid")
+    view_space: ViewSpaceSpec
+    budget: BudgetSpec
+    cpv_size: Number | None = Field(None, description="smallest 3D region of a problem view (default: the view space's longest side / 8)")
+    vdi_deg: Number = Field(11.25, description="smallest view-direction interval, degrees, in (0, 90]")
+    depth_complexity: Number | None = Field(4.0, description="a view's rasterised pixels are at most this many frames (>= 1; null: no cap)")
+    cells: Literal[CELL_KINDS] = Field("both", description="view cells of the candidates")  # type: ignore[valid-type]
+    leaf_size: StrictInt = Field(4, description="elements per leaf of the object hierarchy (>= 1)")
+
+
+def _finite(value, what: str) -> float:
+    value = float(value)
+    if not math.isfinite(value):
+        raise PlacementError(f"{what} must be a finite number, got {value!r}")
+    return value
+
+
+def cost_model_of(budget: BudgetSpec) -> tuple[CostModel, float, dict]:
+    """The budget's cost model, t_max and the stored budget record."""
+    if (budget.frame_ms is None) == (budget.primitives is None):
+        raise PlacementError("give a budget: 'frame_ms' (with 'cost_model', default 'llvmpipe') or 'primitives', not both")
+    if budget.primitives is not None:
+        if budget.cost_model is not None:
+            raise PlacementError("'primitives' counts triangles; 'cost_model' applies to 'frame_ms' only")
+        t_max = _finite(budget.primitives, "budget.primitives")
+        model, record = primitive_model(), {"primitives": t_max}
+    else:
+        t_max = _finite(budget.frame_ms, "budget.frame_ms")
+        given = "llvmpipe" if budget.cost_model is None else budget.cost_model
+        if isinstance(given, str):
+            if given not in COST_MODELS:
+                raise PlacementError(f"unknown cost model {given!r}; give one of {sorted(COST_MODELS)} or a cost model document (farfield calibrate --out)")
+            model, name = COST_MODELS[given], given
+        else:
+            model, name = CostModel.from_dict(given), "given"  # CostModelError: bad input, names the problem
+        record = {"frame_ms": t_max, "cost_model": name}
+    if not t_max > 0:
+        raise PlacementError(f"the budget t_max must be > 0, got {t_max!r}")
+    return model, t_max, {**record, "t_max": t_max, "unit": model.unit}
+
+
+def placement_params(technique_name: str, given_options: dict, resolution, fov_deg, spec: PlacementSpec) -> dict:
+    """Validate a placement request; the job's stored params (every option and knob as validated, the
+    cost model as a document), or a 422 error naming the problem."""
+    technique = get_technique(technique_name)
+    if technique.estimate is None:
+        raise PlacementError(f"technique {technique.name!r} cannot be placed: it replaces the whole scene around its cell; use a part technique (layered, tdm)")
+    options = technique.options(given_options, resolution, fov_deg)
+    lo = [_finite(v, "view_space.lo") for v in spec.view_space.lo]
+    hi = [_finite(v, "view_space.hi") for v in spec.view_space.hi]
+    inverted = [axis for axis, a, b in zip("xyz", lo, hi, strict=True) if b < a]
+    if inverted:
+        raise PlacementError(f"the view space is empty: hi < lo on axis {', '.join(inverted)} (lo {lo}, hi {hi})")
+    span = [b - a for a, b in zip(lo, hi, strict=True)]
+    if not all(math.isfinite(s) for s in span):
+        raise PlacementError(f"the view space's size is not finite: lo {lo}, hi {hi}")
+    model, t_max, budget = cost_model_of(spec.budget)
+    cpv_size = None if spec.cpv_size is None else _finite(spec.cpv_size, "cpv_size")
+    if cpv_size is not None and not cpv_size > 0:
+        raise PlacementError(f"cpv_size must be > 0, got {cpv_size!r}")
+    size = cpv_size if cpv_size is not None else (max(span) / 8 if max(span) > 0 else 1.0)
+    regions = math.prod(max(1.0, math.ceil(s / size)) for s in span)
+    if regions > MAX_REGIONS:
+        raise PlacementError(f"a view space of {span} in regions of {size:.6g} has {regions:.3g} regions, over {MAX_REGIONS:.0e}; use a larger cpv_size")
+    vdi = _finite(spec.vdi_deg, "vdi_deg")
+    if not 0 < vdi <= 90:
+        raise PlacementError(f"vdi_deg must lie in (0, 90] degrees, got {vdi!r}")
+    depth = None if spec.depth_complexity is None else float(spec.depth_complexity)
+    if depth is not None and not (depth >= 1.0):
+        raise PlacementError(f"depth_complexity must be >= 1 (null: no cap), got {depth!r}")
+    if depth is not None and math.isinf(depth):
+        depth = None  # JSON (and PostgreSQL) hold no infinity: null is no cap
+    if spec.leaf_size < 1:
+        raise PlacementError(f"leaf_size must be >= 1, got {spec.leaf_size!r}")
+    knobs = {
+        "view_space": {"lo": lo, "hi": hi}, "budget": budget, "cost_model": model.to_dict(), "cpv_size": cpv_size, "vdi_deg": vdi,
+        "depth_complexity": depth, "cells": spec.cells, "leaf_size": spec.leaf_size, "cluster_triangles": None,
+    }  # fmt: skip
+    return {"technique": technique.name, "resolution": options.resolution, "fov_deg": options.fov_deg, "objects": None, "options": stored_values(options), "placement": knobs}
+
+
+def planner_settings(params: dict):
+    """The job's :class:`~core.placement.planner.PlacementSettings` and view-space corners."""
+    from farfield.core.placement.planner import PlacementSettings
+
+    knobs = params["placement"]
+    settings = PlacementSettings(
+        t_max=knobs["budget"]["t_max"], model=CostModel.from_dict(knobs["cost_model"]), technique=params["technique"],
+        options={**params["options"], "resolution": params["resolution"], "fov_deg": params["fov_deg"]},
+        cpv_size=knobs["cpv_size"], vdi_deg=knobs["vdi_deg"], cells=knobs["cells"], leaf_size=knobs["leaf_size"],
+        depth_complexity=math.inf if knobs["depth_complexity"] is None else knobs["depth_complexity"],
+        cluster_triangles=knobs["cluster_triangles"],
+    )  # fmt: skip
+    return settings, knobs["view_space"]["lo"], knobs["view_space"]["hi"]
+
+
+def new_placement_job(tenant_id: str, scene: SceneRow, params: dict, requeue_after: float) -> JobRow:
+    """The row of a new placement job (queued; its plan task is sent by the caller)."""
+    return JobRow(
+        id=uuid.uuid4().hex, tenant_id=tenant_id, scene_id=scene.id, job_type=PLACEMENT_JOB, params=params, evaluate=False, state="queued",
+        created_at=now(), planning={"phase": "plan", "step": "queued", "done": 0, "total": 0, "round": 0, "rounds": []},
+        lease_until=now() + requeue_after, plan_attempts=0,
+    )  # fmt: skip
+
+
+def cell_params(entry: dict, cluster_triangles: int) -> dict:
+    """A placement cell's own parameters (``cells.params``, what determines its bundle's bytes) from
+    its entry of :func:`core.placement.database.placement_cells`."""
+    return {"technique": entry["technique"], "objects": list(entry["objects"]), "params": entry["params"], "cluster_triangles": int(cluster_triangles)}
+
+
+def impostor_entry(cell: CellRow) -> dict:
+    """The entry :func:`core.placement.database.bake_impostor` bakes for a placement cell."""
+    p = cell.params
+    return {"index": cell.index, "technique": p["technique"], "objects": p["objects"], "params": p["params"], "viewcell": cell.viewcell}
+
+
+# --- claiming, the lease and its heartbeat ------------------------------------------------------
+
+
+class PlanningCancelled(Exception):
+    """The job was cancelled (or its hold lost) while it was planned or checked."""
+
+
+@dataclass(frozen=True)
+class PlanClaim:
+    job: JobRow | None
+    attempt: int = 0
+    ended: bool = False  # this claim ended the job (attempts used up)
+
+
+def claim_planning(db: Database, blobs: BlobStore, job_id: str, phase: str, worker: str, max_attempts: int) -> PlanClaim:
+    """Hold the job's planning (``phase`` "plan" or "check") for ``worker``, counting the attempt;
+    None when it must not run here (another worker holds it, the phase is over, the job ended)."""
+    with db.session() as s:
+        job = s.get(JobRow, job_id, with_for_update=True)
+        if job is None or job.job_type != PLACEMENT_JOB or job.state not in ("queued", "placing"):
+            return PlanClaim(None)
+        if (job.planning or {}).get("phase") != phase:
+            return PlanClaim(None)
+        if job.plan_worker is not None and (job.lease_until or 0) > now():
+            return PlanClaim(None)  # held by a live worker: this is a duplicate delivery
+        if job.plan_attempts >= max_attempts:
+            job.state, job.finished_at, job.plan_worker, job.lease_until = "failed", now(), None, None
+            job.error = f"{phase} attempt {job.plan_attempts} of {max_attempts} never reported back (its worker process died: killed, out of memory or crashed)"
+            return PlanClaim(None, ended=True)
+        job.plan_attempts += 1
+        job.state, job.plan_worker, job.lease_until = "placing", worker, now() + LEASE_S
+        if job.started_at is None:
+            job.started_at = now()
+        job.planning = {**job.planning, "attempt": job.plan_attempts, "worker": worker}
+        return PlanClaim(job, job.plan_attempts)
+
+
+def _held(job_id: str, worker: str, attempt: int):
+    return (JobRow.id == job_id, JobRow.state == "placing", JobRow.plan_worker == worker, JobRow.plan_attempts == attempt)
+
+
+@contextlib.contextmanager
+def heartbeat(db: Database, job_id: str, worker: str, attempt: int):
+    """Renew the hold every ``HEARTBEAT_S`` while the body runs (a thread)."""
+    stop = threading.Event()
+
+    def beat() -> None:
+        while not stop.wait(HEARTBEAT_S):
+            try:
+                with db.session() as s:
+                    s.execute(update(JobRow).where(*_held(job_id, worker, attempt)).values(lease_until=now() + LEASE_S))
+            except Exception:  # noqa: BLE001 - the next beat tries again; a lost lease is the sweeper's
+                log.warning("job %s: could not renew the planning lease", job_id, exc_info=True)
+
+    thread = threading.Thread(target=beat, name=f"farfield-lease-{job_id[:8]}", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join(timeout=10)
+
+
+def set_planning(db: Database, job_id: str, worker: str, attempt: int, **values) -> bool:
+    """Merge ``values`` into the held job's planning record; False when the hold is gone."""
+    with db.session() as s:
+        job = s.get(JobRow, job_id, with_for_update=True)
+        if job is None or job.state != "placing" or job.plan_worker != worker or job.plan_attempts != attempt:
+            return False
+        job.planning = {**(job.planning or {}), **values}
+        return True
+
+
+def fail_planning(db: Database, job_id: str, message: str, worker: str | None = None, attempt: int | None = None) -> bool:
+    """Fail the job (if still held by ``worker``'s ``attempt``, when given) with ``message``."""
+    where = [JobRow.id == job_id, JobRow.state.in_(("queued", "placing"))]
+    if worker is not None:
+        where += [JobRow.plan_worker == worker, JobRow.plan_attempts == attempt]
+    with db.session() as s:
+        return bool(s.execute(update(JobRow).where(*where).values(state="failed", error=message, finished_at=now(), plan_worker=None, lease_until=None)).rowcount)
+
+
+def release_planning(db: Database, job_id: str, why: str, worker: str | None, max_attempts: int) -> str:
+    """A planning whose worker process died: free it for the next delivery (or fail the job when
+    that was its last attempt).  Returns the job's state, or "unchanged"."""
+    with db.session() as s:
+        job = s.get(JobRow, job_id, with_for_update=True)
+        if job is None or job.state != "placing" or job.plan_worker is None or (worker is not None and job.plan_worker != worker):
+            return "unchanged"
+        phase = (job.planning or {}).get("phase", "plan")
+        if job.plan_attempts >= max_attempts:
+            job.state, job.finished_at = "failed", now()
+            job.error = f"{phase} attempt {job.plan_attempts} of {max_attempts} never reported back ({why})"
+        else:
+            job.planning = {**job.planning, "error": f"{phase} attempt {job.plan_attempts} of {max_attempts} was lost ({why}); sent again"}
+            job.lease_until = 0.0  # the sweeper sends it again at its next sweep
+        job.plan_worker = None
+        return job.state
+
+
+def planning_jobs_of(db: Database, worker: str) -> list[str]:
+    """Ids of the placement jobs whose planning ``worker`` (a Celery node name) holds."""
+    with db.session() as s:
+        return list(s.scalars(select(JobRow.id).where(JobRow.state == "placing", JobRow.plan_worker == worker)))
+
+
+def lost_planning_jobs(db: Database, requeue_after: float) -> list[tuple[str, str]]:
+    """(job id, phase) of placement jobs whose planning message or holder is lost (the lease ran
+    out), claimed for sending again (their lease pushed ``requeue_after`` on, the hold dropped)."""
+    with db.session() as s:
+        found = list(s.execute(
+            select(JobRow.id, JobRow.lease_until).where(JobRow.job_type == PLACEMENT_JOB, JobRow.state.in_(("queued", "placing")), JobRow.lease_until < now())
+        ))  # fmt: skip
+    claimed = []
+    for job_id, lease in found:
+        with db.session() as s:
+            job = s.get(JobRow, job_id, with_for_update=True)
+            if job.state not in ("queued", "placing") or job.lease_until != lease:
+                continue
+            job.plan_worker, job.lease_until = None, now() + requeue_after
+            claimed.append((job_id, (job.planning or {}).get("phase", "plan")))
+    return claimed
+
+
+def pending_check(db: Database, job_id: str) -> bool:
+    """Whether the job waits for its check task (the caller sends it)."""
+    with db.session() as s:
+        job = s.get(JobRow, job_id)
+    return job is not None and job.state == "placing" and (job.planning or {}).get("phase") == "check" and job.plan_worker is None
+
+
+def begin_check(session, job: JobRow, requeue_after: float = 30.0) -> None:
+    """The job's last cell of a round ended done: back to ``placing`` for the check (in the
+    caller's session, the job row locked)."""
+    k = int((job.planning or {}).get("round", 0)) + 1
+    job.state, job.plan_worker, job.plan_attempts, job.lease_until = "placing", None, 0, now() + requeue_after
+    job.planning = {**(job.planning or {}), "phase": "check", "step": f"check round {k}", "done": 0, "total": 1, "check_round": k}
+
+
+# --- plan and check -----------------------------------------------------------------------------
+
+
+def _progress(db: Database, job_id: str, worker: str, attempt: int, round_: int):
+    last_check, last_write, last_step = [0.0], [0.0], [None]
+
+    def progress(step: str, done: int, total: int) -> None:
+        clock = time.perf_counter()
+        if clock - last_check[0] >= CANCEL_CHECK_S:
+            last_check[0] = clock
+            with db.session() as s:
+                state = s.scalar(select(JobRow.state).where(JobRow.id == job_id))
+            if state != "placing":
+                raise PlanningCancelled(f"job {job_id} is {state}")
+        if step != last_step[0] or clock - last_write[0] >= PROGRESS_EVERY_S or done == total:
+            last_step[0], last_write[0] = step, clock
+            if not set_planning(db, job_id, worker, attempt, step=step, done=int(done), total=int(total), round=round_):
+                raise PlanningCancelled(f"job {job_id}: its planning is no longer held here")
+
+    return progress
+
+
+def _state_key(job_id: str, round_: int) -> str:
+    return f"jobs/{job_id}/planner-{round_}.pickle"
+
+
+def _add_cells(session, job: JobRow, placement: dict, ids) -> list[str]:
+    from farfield.core.placement.database import placement_cells
+
+    made, cluster = [], placement["elements"]["cluster_triangles"]
+    for entry in placement_cells(placement):
+        if entry["index"] in ids:
+            cell = CellRow(
+                id=uuid.uuid4().hex, job_id=job.id, index=int(entry["index"]), grid=None, viewcell=entry["viewcell"], params=cell_params(entry, cluster),
+                state="queued", attempts=0, progress=0.0, queued_at=now(),
+            )  # fmt: skip
+            session.add(cell)
+            made.append(cell.id)
+    return made
+
+
+def _cell_entries(db: Database, job_id: str) -> list[dict]:
+    from farfield.service.jobs import job_cells
+
+    return [{"index": c.index, "state": c.state, "bundle": f"cells/{c.index:05d}/" if c.result_key else None, "stats": c.stats} for c in job_cells(db, job_id)]
+
+
+def _write_database(db: Database, blobs: BlobStore, job: JobRow, placement: dict, rounds: list) -> str:
+    from farfield.core.placement.database import placement_index
+
+    key = f"jobs/{job.id}/index.json"
+    index = placement_index(placement, _cell_entries(db, job.id), job=job.id, scene=job.scene_id, rounds=rounds)
+    blobs.put_bytes(key, json.dumps(index, sort_keys=True, indent=1).encode())
+    return key
+
+
+def plan_job(db: Database, blobs: BlobStore, job_id: str, worker: str, max_attempts: int) -> tuple[str, list[str]]:
+    """Plan a placement job (see the module docstring): (its state after, cell ids to send)."""
+    from farfield.core.placement.planner import place
+    from farfield.service.scenes import load_stored_scene
+
+    claim = claim_planning(db, blobs, job_id, "plan", worker, max_attempts)
+    if claim.job is None:
+        return ("failed" if claim.ended else "skipped"), []
+    job, attempt = claim.job, claim.attempt
+    try:
+        with heartbeat(db, job_id, worker, attempt):
+            with db.session() as s:
+                scene_row = s.get(SceneRow, job.scene_id)
+            scene = load_stored_scene(blobs, scene_row)
+            settings, lo, hi = planner_settings(job.params)
+            placement = place(scene, lo, hi, settings, progress=_progress(db, job_id, worker, attempt, 0), keep_state=True)
+            state_key = _state_key(job_id, 0)
+            blobs.put_bytes(state_key, placement.state.dumps())
+            as_dict = placement.to_dict()
+            ids = {imp["id"] for imp in as_dict["impostors"]}
+            index_key = _write_database(db, blobs, job, as_dict, []) if not ids else None
+    except PlanningCancelled:
+        _end_cancelled(db, job_id)
+        return "cancelled", []
+    return _commit_round(db, job_id, worker, attempt, state_key, as_dict, ids, 0, index_key, [])
+
+
+def _end_cancelled(db: Database, job_id: str) -> None:
+    with db.session() as s:
+        s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state == "cancelled", JobRow.finished_at.is_(None)).values(finished_at=now()))
+        s.execute(update(JobRow).where(JobRow.id == job_id).values(plan_worker=None, lease_until=None))
+
+
+def _commit_round(db, job_id, worker, attempt, state_key, placement: dict, ids, round_, index_key, rounds) -> tuple[str, list[str]]:
+    """Store a planned or repaired round: its cells (queued), or the database when none was added."""
+    with db.session() as s:
+        job = s.get(JobRow, job_id, with_for_update=True)
+        if job.state != "placing" or job.plan_worker != worker or job.plan_attempts != attempt:
+            return job.state, []  # cancelled meanwhile (or the hold was lost): nothing stored
+        made = _add_cells(s, job, placement, ids) if index_key is None else []
+        record = {
+            **job.planning, "phase": "bake", "step": f"bake round {round_}" if made else "done", "round": round_, "state_key": state_key,
+            "impostors": len(placement["impostors"]), "summary": _summary_of(placement.get("summary")), "rounds": rounds, "done": 0, "total": 0,
+        }  # fmt: skip
+        record.pop("worker", None)
+        job.planning, job.plan_worker, job.lease_until, job.plan_attempts = record, None, None, 0
+        if index_key is not None:
+            job.state, job.finished_at, job.index_key = "done", now(), index_key
+        else:
+            job.state = "running"
+        return job.state, made
+
+
+def _summary_of(summary: dict | None) -> dict | None:
+    if not summary:
+        return None
+    keep = ("t_max", "unit", "cpvs", "cpvs_solved", "cpvs_unsolved", "cpvs_unsolvable", "impostors", "memory_bytes", "worst_before", "worst_after")
+    return {k: summary[k] for k in keep if k in summary}
+
+
+def check_job(db: Database, blobs: BlobStore, job_id: str, worker: str, max_attempts: int) -> tuple[str, list[str]]:
+    """Check a placement job's baked round and repair it (see the module docstring): (its state
+    after, the cell ids of the added impostors, to send)."""
+    from farfield.core.placement.repair import MAX_REPAIR_ROUNDS, PlannerState
+    from farfield.service.jobs import job_cells
+
+    claim = claim_planning(db, blobs, job_id, "check", worker, max_attempts)
+    if claim.job is None:
+        return ("failed" if claim.ended else "skipped"), []
+    job, attempt = claim.job, claim.attempt
+    planning = job.planning
+    round_ = int(planning.get("check_round", planning.get("round", 0) + 1))
+    rounds = list(planning.get("rounds", []))
+    with heartbeat(db, job_id, worker, attempt):
+        state = PlannerState.loads(blobs.read_bytes(planning["state_key"]))
+        baked = {c.index: c.stats for c in job_cells(db, job_id) if c.state == "done" and c.stats}
+        added: set[int] = set()
+        if round_ <= MAX_REPAIR_ROUNDS:
+            repaired = state.repair(baked)
+            rounds.append({**repaired.to_dict(), "round": round_})
+            added = {int(i) for i in repaired.added}
+        current = state.placement().to_dict()
+        if added:
+            state_key = _state_key(job_id, round_)
+            blobs.put_bytes(state_key, state.dumps())
+            return _commit_round(db, job_id, worker, attempt, state_key, current, added, round_, None, rounds)
+        index_key = _write_database(db, blobs, job, current, rounds)
+    return _commit_round(db, job_id, worker, attempt, planning["state_key"], current, set(), round_, index_key, rounds)
+
+
+def run_planning(db: Database, blobs: BlobStore, job_id: str, phase: str, worker: str, max_attempts: int) -> tuple[str, list[str]]:
+    """:func:`plan_job` or :func:`check_job`, a failure sorted as a cell's is
+    (:func:`service.cell_runner.failure_class`): bad input fails the job with its message at once;
+    a bug fails it as ``internal error: ...`` (a plan is deterministic: running it again would fail
+    again); a transient failure frees the hold and is raised for the task to retry."""
+    from farfield.service.cell_runner import BAD_INPUT, INTERNAL, TRANSIENT, failure_class, failure_message
+
+    from celery.exceptions import SoftTimeLimitExceeded
+
+    run = plan_job if phase == "plan" else check_job
+    try:
+        return run(db, blobs, job_id, worker, max_attempts)
+    except SoftTimeLimitExceeded:  # the task fails the job, naming its limit
+        raise
+    except Exception as error:  # noqa: BLE001 - every failure is classified and recorded on the job
+        klass = failure_class(error)
+        if klass == TRANSIENT:
+            release_planning(db, job_id, f"{type(error).__name__}: {error}", worker, max_attempts)
+            raise
+        if klass == INTERNAL:
+            log.error("job %s %s: %s", job_id, phase, failure_message(error, klass), exc_info=error)
+        message = failure_message(error, klass) if klass != BAD_INPUT else f"{type(error).__name__}: {error}"
+        fail_planning(db, job_id, message)
+        return "failed", []

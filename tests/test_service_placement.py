@@ -1,0 +1,205 @@
+"""Placement jobs end to end with real parts (``farfield up``: embedded redis-server, uvicorn, a real
+``celery worker``, SQLite, EGL on whatever renderer the machine has): submit a scene, a view space
+and a primitive budget it cannot meet with geometry alone; the worker plans (state ``placing``),
+bakes the chosen impostors as cells, checks and repairs, and serves a database whose placement
+section references the baked cells.  Cancel while placing and while running, a worker killed while
+it plans, resubmission (nothing baked again) and a smaller budget (only the additions baked), and
+bad requests (422, nothing stored)."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import signal
+import time
+import zipfile
+
+import pytest
+from scenes import write_scene
+from service_harness import start_service, upload, wait_for_job
+
+from farfield.core.procedural import city
+
+# A 25-building city of 1,082 triangles (detail 8); from the view space between its buildings the
+# primitive budget of 800 triangles needs some 17 impostors (about 0.4 s of planning), 600 with
+# CPVs of 3 units some 165 (many seconds of planning: what the cancel and kill tests interrupt).
+VIEW_SPACE = {"lo": [10.0, 2.0, 10.0], "hi": [70.0, 6.0, 70.0]}
+QUICK = {"view_space": VIEW_SPACE, "budget": {"primitives": 800}, "cpv_size": 20}
+SLOW = {"view_space": VIEW_SPACE, "budget": {"primitives": 600}, "cpv_size": 3}
+
+
+@pytest.fixture(scope="module")
+def service(tmp_path_factory):
+    running = start_service(tmp_path_factory.mktemp("farfield-placement"))
+    yield running
+    assert running.stop() == 0
+
+
+@pytest.fixture(scope="module")
+def client(service):
+    with service.client() as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def scene_id(client, tmp_path_factory):
+    path = write_scene(city(25, seed=1, detail=8), tmp_path_factory.mktemp("city"), "glb", "city")
+    response = upload(client, path)
+    assert response.status_code == 201, response.text
+    return response.json()["id"]
+
+
+def submit(client, scene_id: str, placement: dict, **extra) -> dict:
+    response = client.post("/v1/jobs", json={"scene_id": scene_id, "technique": "layered", "resolution": 64, "placement": placement, **extra})
+    assert response.status_code == 201, response.text
+    return response.json()
+
+
+def watch(client, job_id: str, until, timeout: float = 240) -> tuple[dict, list[str]]:
+    """Poll the job every 50 ms until ``until(job)``: (the job, the states seen in order)."""
+    seen, deadline = [], time.monotonic() + timeout
+    while True:
+        job = client.get(f"/v1/jobs/{job_id}").json()
+        if not seen or seen[-1] != job["state"]:
+            seen.append(job["state"])
+        if until(job):
+            return job, seen
+        assert time.monotonic() < deadline, (job["state"], job.get("placement"), seen)
+        time.sleep(0.05)
+
+
+def ended(job: dict) -> bool:
+    return job["state"] in ("done", "failed", "cancelled")
+
+
+def cell_key(cell: dict) -> str:
+    """What makes two cells' impostors equal: their view cell and parameters (objects included)."""
+    return json.dumps([cell["viewcell"], cell["params"]], sort_keys=True)
+
+
+def test_a_placement_job_plans_bakes_and_serves_a_database(client, scene_id):
+    job, seen = watch(client, submit(client, scene_id, QUICK)["id"], ended)
+    assert job["state"] == "done", (job["error"], job["errors"])
+    assert job["job_type"] == "placement" and job["technique"] == "layered"
+    assert seen[0] in ("queued", "placing") and "placing" in seen and "running" in seen, seen
+    assert seen.index("placing") < seen.index("running") and seen[-1] == "done"
+    record = job["placement"]
+    assert record["impostors"] >= 1 and job["cells_total"] >= record["impostors"]
+    assert [r["round"] for r in record["rounds"]] == list(range(1, len(record["rounds"]) + 1))
+    assert all(c["state"] == "done" and c["stats"]["baked"] for c in job["cells"])
+    # Each cell carries its own impostor: the view cell the planner chose (a box or a shaft).
+    assert {c["viewcell"]["kind"] for c in job["cells"]} <= {"box", "shaft"}
+    archive = zipfile.ZipFile(io.BytesIO(client.get(f"/v1/jobs/{job['id']}/database.zip").content))
+    index = json.loads(archive.read("index.json"))
+    names = set(archive.namelist())
+    section = index["placement"]
+    assert {"parameters", "summary", "elements", "cpvs", "unsolvable", "rounds"} <= set(section)
+    assert section["cpvs"] and len(section["rounds"]) == len(record["rounds"])
+    by_index = {c["index"]: c for c in index["cells"]}
+    drawn = {i for cpv in section["cpvs"] for i in cpv["impostors"]}
+    assert drawn, "no CPV draws an impostor"
+    for i in drawn:  # every impostor a CPV draws is a baked cell of the database
+        assert by_index[i]["bundle"] == f"cells/{i:05d}/" and f"cells/{i:05d}/manifest.json" in names, i
+    # The check's verdict with the baked figures is the database's: the job record says the same.
+    statuses = [cpv["status"] for cpv in section["cpvs"]]
+    assert record["summary"]["cpvs_unsolved"] == statuses.count("unsolved") and record["summary"]["cpvs"] == len(statuses)
+
+
+def test_resubmission_bakes_nothing_and_a_smaller_budget_only_the_additions(service, client, scene_id):
+    first = wait_for_job(client, submit(client, scene_id, QUICK)["id"], timeout=300)
+    assert first["state"] == "done"
+    env_args = ("--url", service.url, "--key", service.env["FARFIELD_ADMIN_KEY"])
+    again = service.cli(
+        "submit", scene_id, "--placement", "--view-space", "10,2,10,70,6,70", "--primitives", "800", "--cpv-size", "20", "--resolution", "64",
+        "--wait", "--json", *env_args,
+    )  # fmt: skip
+    assert again.returncode == 0, again.stderr
+    second = client.get(f"/v1/jobs/{json.loads(again.stdout)['id']}").json()
+    assert second["state"] == "done" and second["cells_total"] == first["cells_total"]
+    assert [c["stats"]["baked"] for c in second["cells"]] == [False] * second["cells_total"]  # every bundle found
+    smaller = wait_for_job(client, submit(client, scene_id, {**QUICK, "budget": {"primitives": 700}})["id"], timeout=300)
+    assert smaller["state"] == "done", (smaller["error"], smaller["errors"])
+    known = {cell_key(c) for c in first["cells"]}
+    baked = {cell_key(c) for c in smaller["cells"] if c["stats"]["baked"]}
+    found = {cell_key(c) for c in smaller["cells"] if not c["stats"]["baked"]}
+    assert found <= known and not baked & known
+    assert baked, "a smaller budget added no impostor"
+    assert found, "a smaller budget reused no impostor"
+
+
+def test_cancel_while_placing_leaves_no_cells(client, scene_id):
+    job_id = submit(client, scene_id, SLOW)["id"]
+    watch(client, job_id, lambda j: j["state"] == "placing" and (j["placement"] or {}).get("step") in ("problem views", "candidates", "greedy"), 120)
+    cancelled = client.post(f"/v1/jobs/{job_id}/cancel")
+    assert cancelled.status_code == 200 and cancelled.json()["state"] == "cancelled"
+    time.sleep(3)  # the planner looks at the job between progress calls
+    job = client.get(f"/v1/jobs/{job_id}").json()
+    assert job["state"] == "cancelled" and job["cells_total"] == 0 and job["finished_at"] is not None
+    assert client.post(f"/v1/jobs/{job_id}/cancel").status_code == 409
+
+
+def test_cancel_while_running_stops_the_cells(client, scene_id):
+    job_id = submit(client, scene_id, {**QUICK, "budget": {"primitives": 650}}, options={"padding": 3})["id"]
+    watch(client, job_id, lambda j: j["state"] == "running" or ended(j), 120)
+    assert client.post(f"/v1/jobs/{job_id}/cancel").json()["state"] == "cancelled"
+    time.sleep(3)
+    job = client.get(f"/v1/jobs/{job_id}").json()
+    assert job["state"] == "cancelled" and job["counts"]["queued"] == 0 and job["counts"]["running"] == 0
+    assert job["counts"]["cancelled"] >= 1
+    time.sleep(2)
+    assert client.get(f"/v1/jobs/{job_id}").json()["counts"]["done"] == job["counts"]["done"]
+
+
+def test_a_worker_killed_while_planning_plans_again(service, client, scene_id):
+    """SIGKILL the pool process in the middle of planning: the job is planned again (attempt 2), not
+    left ``placing`` with a dead holder."""
+    job_id = submit(client, scene_id, SLOW)["id"]
+    watch(client, job_id, lambda j: j["state"] == "placing" and (j["placement"] or {}).get("step") in ("problem views", "candidates"), 120)
+    victims = service.worker_pool_children()
+    assert victims, "no celery pool process found"
+    for pid in victims:
+        os.kill(pid, signal.SIGKILL)
+    job, _ = watch(client, job_id, lambda j: (j["placement"] or {}).get("attempt", 0) >= 2 or ended(j), 120)
+    assert job["state"] == "placing", (job["state"], job["error"])
+    assert "worker process died" in job["placement"]["error"]
+    assert client.post(f"/v1/jobs/{job_id}/cancel").json()["state"] == "cancelled"  # the second plan is as slow: stop it
+    job, _ = watch(client, job_id, lambda j: ended(j) and j["finished_at"] is not None, 60)
+    assert job["state"] == "cancelled" and job["cells_total"] == 0
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"view_space": {"lo": [0, 0, 0], "hi": [10, -1, 10]}}, "the view space is empty: hi < lo on axis y"),
+        ({"view_space": {"lo": [0, 0, 0], "hi": [1e308, 1e308, -1e308]}}, "the view space is empty"),
+        ({"view_space": {"lo": [-1e308, 0, 0], "hi": [1e308, 1, 1]}}, "not finite"),
+        ({"budget": {"primitives": 0}}, "t_max must be > 0"),
+        ({"budget": {"frame_ms": -3}}, "t_max must be > 0"),
+        ({"budget": {"frame_ms": 10, "cost_model": "mystery"}}, "unknown cost model 'mystery'"),
+        ({"budget": {"frame_ms": 10, "cost_model": {"format": "nope"}}}, "not a cost model"),
+        ({"budget": {"frame_ms": 10, "primitives": 5}}, "give a budget"),
+        ({"budget": {}}, "give a budget"),
+        ({"budget": {"primitives": 100, "cost_model": "llvmpipe"}}, "'primitives' counts triangles"),
+        ({"cpv_size": 0}, "cpv_size must be > 0"),
+        ({"cpv_size": 1e-6}, "regions"),
+        ({"vdi_deg": 120}, "vdi_deg must lie in (0, 90]"),
+        ({"depth_complexity": 0.5}, "depth_complexity must be >= 1"),
+        ({"leaf_size": 0}, "leaf_size must be >= 1"),
+        ({"cells": "spheres"}, "cells"),
+        ({"technique": "envmap"}, "technique 'envmap' cannot be placed"),
+        ({"options": {"no_such_option": 1}}, "no_such_option"),
+        ({"resolution": 0}, "resolution"),
+        ({"grid": {"lo": [0, 0, 0], "hi": [1, 1, 1], "counts": [1, 1, 1]}}, "exactly one of"),
+        ({"objects": ["building_0000"]}, "leave out 'objects'"),
+    ],
+)
+def test_bad_placement_requests_are_refused(service, client, scene_id, change, message):
+    before = client.get("/v1/jobs").json()
+    placement = {**QUICK, **{k: v for k, v in change.items() if k in ("view_space", "budget", "cpv_size", "vdi_deg", "depth_complexity", "leaf_size", "cells")}}
+    spec = {"scene_id": scene_id, "technique": "layered", "resolution": 64, "placement": placement}
+    spec.update({k: v for k, v in change.items() if k not in placement})
+    response = client.post("/v1/jobs", json=spec)
+    assert response.status_code == 422, response.text
+    assert message in response.json()["detail"], response.json()["detail"]
+    assert client.get("/v1/jobs").json() == before  # nothing stored
