@@ -24,6 +24,10 @@ from scenes import write_scene
 from service_harness import ADMIN_KEY, start_service, upload
 from test_placement_api import city_placement, publish_placement_job
 
+from farfield.core.placement.cost_model import primitive_model
+from farfield.core.placement.database import bake_placement
+from farfield.core.placement.planner import PlacementSettings, place
+
 if not CHROMIUM.exists():
     pytest.skip(SKIP_REASON, allow_module_level=True)
 pytest.importorskip("playwright.sync_api", reason="needs the playwright package (the test extra)")
@@ -45,13 +49,20 @@ def planned():
 
 @pytest.fixture(scope="module")
 def jobs(service, planned, tmp_path_factory):
-    """(done placement job id, placing placement job id)."""
+    """(done placement job id, placing placement job id, (placement, job id) of one with unsolvable regions)."""
     city, placement, impostors = planned
     with service.client() as client:
         made = upload(client, write_scene(city, tmp_path_factory.mktemp("city"), "glb"))
         assert made.status_code == 201, made.text
         scene_id = made.json()["id"]
-    return publish_placement_job(service, scene_id, placement, impostors), publish_placement_job(service, scene_id, placement, impostors, state="placing")
+    # At street level with a twentieth of the triangles: the buildings around many regions exceed t_max alone.
+    street = place(city, [0.0, 2.0, 0.0], [40.0, 6.0, 40.0], PlacementSettings(t_max=0.05 * city.triangle_count, model=primitive_model(), vdi_deg=45.0, options={"resolution": 64}, cpv_size=20.0))
+    assert street.summary["cpvs_unsolvable"] and street.summary["cpvs_unsolved"] and street.unsolvable
+    return (
+        publish_placement_job(service, scene_id, placement, impostors),
+        publish_placement_job(service, scene_id, placement, impostors, state="placing"),
+        (street, publish_placement_job(service, scene_id, street, bake_placement(city, street))),
+    )
 
 
 def footprints(placement) -> dict[str, list[dict]]:
@@ -162,4 +173,27 @@ def test_a_placing_job_shows_its_planning_progress(browser, service, jobs):
         # No database yet: no map, a note saying when it comes; the grid map's cancel still works.
         assert page.locator(tid("placement-region")).count() == 0 and "when the planned impostors are baked" in page.locator(tid("placement-note")).inner_text()
         assert page.locator(tid("job-cancel")).is_enabled()
+        assert page.js_errors == []
+
+
+def test_unsolvable_and_unsolved_regions_are_shown(browser, service, jobs):
+    street, job_id = jobs[2]
+    groups = footprints(street)
+    rank = {"solved": 0, "unsolved": 1, "unsolvable": 2}
+    with dashboard_page(browser, service.url, ADMIN_KEY) as page:
+        page.goto(f"{service.url}/#/jobs/{job_id}")
+        page.locator(tid("placement-region")).first.wait_for()
+        assert page.locator(tid("placement-unsolvable-region")).count() == len(street.unsolvable)
+        assert page.locator(tid("placement-unsolvable")).get_attribute("data-regions") == str(len(street.unsolvable))
+        s = street.summary
+        assert page.locator(tid("placement-cpvs")).inner_text() == f"{s['cpvs']} ({s['cpvs_solved']} solved, {s['cpvs_unsolved']} unsolved, {s['cpvs_unsolvable']} unsolvable)"
+        for r in page.locator(tid("placement-region")).all():
+            cpvs = groups[r.get_attribute("data-key")]
+            assert r.get_attribute("data-status") == max((c["status"] for c in cpvs), key=rank.get)
+            assert r.get_attribute("data-over") == "true"  # nothing here is within t_max after placement
+        key = next(k for k, cpvs in groups.items() if any(c["status"] == "unsolvable" for c in cpvs))
+        page.locator(f'{tid("placement-region")}[data-key="{key}"]').click()
+        rows = page.locator(tid("region-cpv"))
+        rows.first.wait_for()
+        assert [r.get_attribute("data-status") for r in rows.all()] == [c["status"] for c in groups[key]]
         assert page.js_errors == []
