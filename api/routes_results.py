@@ -1,23 +1,34 @@
-"""Results: per-cell bundle (zip), manifest, atlas pages, GLB; a job's whole impostor database; lookup."""
+"""Results: per-cell bundle (zip), manifest, atlas pages, GLB; a job's whole impostor database; lookup;
+a placement job's CPVs and what to draw in a view (:mod:`core.placement.database`)."""
 
 from __future__ import annotations
 
+import json
 import tempfile
+import threading
 import zipfile
+from collections import OrderedDict
 from pathlib import Path
+from typing import Annotated
 
 from fastapi import APIRouter, Depends, Path as PathParam
 from fastapi.responses import FileResponse, Response
+from sqlalchemy import select
 from starlette.background import BackgroundTask
 
 from farfield.core.bundle import GLB_NAME, MANIFEST_NAME, PAYLOAD_NAME, bundle_zip, page_file_name
-from farfield.core.errors import ConflictError, NotFoundError
+from farfield.core.errors import BundleFormatError, ConflictError, NotFoundError, ViewCellError
+from farfield.core.placement.database import PlacementLookup
+from farfield.core.placement.hierarchy import PlacementError
+from farfield.service.db import CellRow, JobRow
 from farfield.service.jobs import cell_record, get_cell_row, get_job_row, job_cells, lookup
 
 from farfield.api.deps import Services, services, tenant
 
 router = APIRouter(prefix="/v1/jobs/{job_id}", tags=["results"])
 
+TenantDep = Annotated[str, Depends(tenant)]
+ServicesDep = Annotated[Services, Depends(services)]
 CellIndex = PathParam(ge=0, le=2**31 - 1, description="the cell's index in its job")
 PageIndex = PathParam(ge=0, le=2**31 - 1, description="atlas page number")
 
@@ -86,7 +97,103 @@ def job_database(job_id: str, tenant_id: str = Depends(tenant), svc: Services = 
     return FileResponse(out.name, media_type="application/zip", filename=f"job-{job_id}.zip", background=BackgroundTask(Path(out.name).unlink, missing_ok=True))
 
 
-@router.get("/lookup", summary="Which impostors serve this viewpoint")
-def lookup_viewpoint(job_id: str, x: float, y: float, z: float, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> list[dict]:
-    get_job_row(svc.db, tenant_id, job_id)
-    return [cell_record(cell) for cell in lookup(job_cells(svc.db, job_id), (x, y, z))]
+PLACEMENT = "placement"  # the job type of a placement job (its cells are the placement's impostors)
+LOOKUP_CACHE_SIZE = 16  # placement databases kept parsed in this process
+
+
+class _LookupCache:
+    """The parsed index and :class:`PlacementLookup` of recent placement jobs, least recently used
+    out first.  Keyed by the index blob's key and the job's end (a retried job writes its index
+    again under the same key), so a runtime polling the lookup does not re-read the blob each call."""
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self.entries: OrderedDict[tuple, tuple[dict, PlacementLookup]] = OrderedDict()
+        self.lock = threading.Lock()
+        self.reads = 0  # blobs read and parsed (tests: a second call reads nothing)
+
+    def get(self, svc: Services, job: JobRow) -> tuple[dict, PlacementLookup]:
+        key = (job.index_key, job.finished_at)
+        with self.lock:
+            if key in self.entries:
+                self.entries.move_to_end(key)
+                return self.entries[key]
+        try:
+            index = json.loads(svc.blobs.read_bytes(job.index_key))
+            found = (index, PlacementLookup(index))
+        except (ValueError, KeyError, TypeError, PlacementError) as error:
+            raise BundleFormatError(f"job {job.id!r}: its placement database index does not read: {error}") from error
+        with self.lock:
+            self.reads += 1
+            self.entries[key] = found
+            self.entries.move_to_end(key)
+            while len(self.entries) > self.size:
+                self.entries.popitem(last=False)
+        return found
+
+
+LOOKUPS = _LookupCache(LOOKUP_CACHE_SIZE)
+
+
+def _placement_database(svc: Services, tenant_id: str, job_id: str) -> tuple[JobRow, dict, PlacementLookup]:
+    """A placement job's (row, index, lookup): 404 for another kind of job, 409 before its index is written."""
+    job = get_job_row(svc.db, tenant_id, job_id)
+    if job.job_type != PLACEMENT:
+        raise NotFoundError(f"job {job_id!r} is a {job.job_type} job, not a placement job: it has no placement (its cells are looked up by position alone)")
+    if job.index_key is None:
+        raise ConflictError(f"job {job_id!r} is {job.state}; its placement database is written when its impostors are baked")
+    index, found = LOOKUPS.get(svc, job)
+    return job, index, found
+
+
+def _cell_records(svc: Services, job_id: str, indices: list[int]) -> list[dict]:
+    """The cell records of ``indices`` of a job, in that order."""
+    if not indices:
+        return []
+    with svc.db.session() as s:
+        rows = {c.index: c for c in s.scalars(select(CellRow).where(CellRow.job_id == job_id, CellRow.index.in_(indices)))}
+    return [cell_record(rows[i]) for i in indices if i in rows]
+
+
+@router.get("/placement", summary="A placement job's CPVs, impostors, unsolvable regions and totals (the dashboard's map)")
+def job_placement(job_id: str, tenant_id: TenantDep, svc: ServicesDep) -> dict:
+    job, index, _ = _placement_database(svc, tenant_id, job_id)
+    section = index["placement"]
+    cells = [
+        {k: c.get(k) for k in ("index", "state", "technique", "objects", "viewcell", "cpvs", "figures", "bundle")}
+        for c in index.get("cells", [])
+    ]  # fmt: skip
+    estimated = [(c["figures"] or {}).get("estimated") or {} for c in cells]
+    baked = [(c["figures"] or {}).get("baked") or {} for c in cells]
+    drawn = [c for c in cells if c.get("cpvs")]
+    totals = {
+        "impostors": len(drawn),
+        "impostors_listed": len(cells),
+        "impostors_baked": sum(1 for b in baked if "texture_bytes" in b),
+        "memory_bytes_estimated": sum(float(e.get("memory_bytes_estimated", 0.0)) for c, e in zip(cells, estimated) if c.get("cpvs")),
+        "memory_bytes_baked": sum(int(b.get("texture_bytes", 0)) for c, b in zip(cells, baked) if c.get("cpvs")),
+        "cpvs": len(section["cpvs"]),
+        "cpvs_by_status": {s: sum(1 for c in section["cpvs"] if c["status"] == s) for s in ("solved", "unsolved", "unsolvable")},
+        "unsolvable_regions": len(section["unsolvable"]),
+        "rounds": len(section.get("rounds") or []),
+    }
+    return {"job": job.id, "state": job.state, **section, "cells": cells, "totals": totals}
+
+
+@router.get("/lookup", summary="Which impostors serve this view: by position for grid jobs, by position and direction for placement jobs")
+def lookup_viewpoint(
+    job_id: str, tenant_id: TenantDep, svc: ServicesDep, x: float, y: float, z: float, dx: float | None = None, dy: float | None = None, dz: float | None = None
+) -> list[dict] | dict:
+    """A grid job's answer is the cells whose view cell holds (x, y, z).  A placement job's is
+    :meth:`PlacementLookup.find` for the view (``cpv``, ``status``, ``impostors``, ``replaced``,
+    ``time_estimated``) plus ``cells``: the record of each impostor to draw; everything not in
+    ``replaced`` is drawn as geometry."""
+    job = get_job_row(svc.db, tenant_id, job_id)
+    if job.job_type != PLACEMENT:
+        return [cell_record(cell) for cell in lookup(job_cells(svc.db, job_id), (x, y, z))]
+    missing = [name for name, value in (("dx", dx), ("dy", dy), ("dz", dz)) if value is None]
+    if missing:
+        raise ViewCellError(f"a placement job's lookup needs the view direction dx, dy, dz as well as the position; missing: {', '.join(missing)}")
+    _, _, found = _placement_database(svc, tenant_id, job_id)
+    answer = found.find((x, y, z), (dx, dy, dz))
+    return {**answer, "cells": _cell_records(svc, job_id, answer["impostors"])}

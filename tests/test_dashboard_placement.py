@@ -1,0 +1,199 @@
+"""A placement job's page of the dashboard in a real headless browser (Debian's chromium driven by
+Playwright) against a real service (``farfield up``): the planning progress while it places, then the
+map of its CPVs' regions coloured by estimated time before and after against t_max, a region's CPVs
+with their impostors and the objects each replaces, and the totals.
+
+The placement is real (a small procedural city, impostors baked at 64 px); the job is written through
+``service.db`` and the blob store as a finished one would be (tests/test_placement_api.py,
+:func:`publish_placement_job`).  TODO(merge): submit it over REST once placement jobs exist; the
+placing job's progress (the job record's ``placement``) is added to the service's answer in the
+browser only while the record lacks it.
+
+Needs /usr/bin/chromium (``scripts/install-browser``); skipped without it.  Set
+FARFIELD_DASHBOARD_SCREENSHOT=/path.png to keep a screenshot of the placement page.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+from browser import CHROMIUM, SKIP_REASON, dashboard_page, tid
+from scenes import write_scene
+from service_harness import ADMIN_KEY, start_service, upload
+from test_placement_api import city_placement, publish_placement_job
+
+from farfield.core.placement.cost_model import primitive_model
+from farfield.core.placement.database import bake_placement
+from farfield.core.placement.planner import PlacementSettings, place
+
+if not CHROMIUM.exists():
+    pytest.skip(SKIP_REASON, allow_module_level=True)
+pytest.importorskip("playwright.sync_api", reason="needs the playwright package (the test extra)")
+
+PLANNING = {"step": "candidates", "done": 3, "total": 8, "round": 1}  # shown while the record has none of its own
+
+
+@pytest.fixture(scope="module")
+def service(tmp_path_factory):
+    running = start_service(tmp_path_factory.mktemp("farfield-home"))
+    yield running
+    assert running.stop() == 0
+
+
+@pytest.fixture(scope="module")
+def planned():
+    return city_placement()
+
+
+@pytest.fixture(scope="module")
+def jobs(service, planned, tmp_path_factory):
+    """(done placement job id, placing placement job id, (placement, job id) of one with unsolvable regions)."""
+    city, placement, impostors = planned
+    with service.client() as client:
+        made = upload(client, write_scene(city, tmp_path_factory.mktemp("city"), "glb"))
+        assert made.status_code == 201, made.text
+        scene_id = made.json()["id"]
+    # At street level with a twentieth of the triangles: the buildings around many regions exceed t_max alone.
+    street = place(city, [0.0, 2.0, 0.0], [40.0, 6.0, 40.0], PlacementSettings(t_max=0.05 * city.triangle_count, model=primitive_model(), vdi_deg=45.0, options={"resolution": 64}, cpv_size=20.0))
+    assert street.summary["cpvs_unsolvable"] and street.summary["cpvs_unsolved"] and street.unsolvable
+    return (
+        publish_placement_job(service, scene_id, placement, impostors),
+        publish_placement_job(service, scene_id, placement, impostors, state="placing"),
+        (street, publish_placement_job(service, scene_id, street, bake_placement(city, street))),
+    )
+
+
+def footprints(placement) -> dict[str, list[dict]]:
+    """The CPVs by their region's footprint on x and z (the view space's two longest axes), keyed as the page keys them."""
+    out: dict[str, list[dict]] = {}
+    for cpv in placement.cpvs:
+        (lo, hi) = cpv["region"]
+        key = ",".join(str(int(v)) if float(v).is_integer() else repr(float(v)) for v in (lo[0], lo[2], hi[0], hi[2]))  # as JavaScript writes numbers
+        out.setdefault(key, []).append(cpv)
+    return out
+
+
+def test_a_placement_job_s_map_regions_cpvs_and_totals(browser, service, jobs, planned):
+    _, placement, impostors = planned
+    done = jobs[0]
+    t_max = placement.summary["t_max"]
+    groups = footprints(placement)
+    with dashboard_page(browser, service.url, ADMIN_KEY) as page:
+        page.goto(f"{service.url}/#/jobs/{done}")
+        page.locator(f'{tid("job-state")}[data-state="done"]').wait_for()
+        assert page.locator(tid("placement-panel")).is_visible() and page.locator(tid("placement-planning")).is_hidden()
+        regions = page.locator(tid("placement-region"))
+        regions.first.wait_for()
+        # One region per footprint, each holding its CPVs; after placement none is over t_max here, before some are.
+        shown = {r.get_attribute("data-key"): r for r in regions.all()}
+        assert set(shown) == set(groups)
+        for key, cpvs in groups.items():
+            assert int(shown[key].get_attribute("data-cpvs")) == len(cpvs)
+            assert float(shown[key].get_attribute("data-time")) == pytest.approx(max(c["time_after"] for c in cpvs))
+        over_after = sum(1 for cpvs in groups.values() if max(c["time_after"] for c in cpvs) > t_max)
+        over_before = sum(1 for cpvs in groups.values() if max(c["time_before"] for c in cpvs) > t_max)
+        assert over_before > over_after == 0
+        assert page.locator(f'{tid("placement-region")}[data-over="true"]').count() == over_after
+        fill_after = {r.get_attribute("data-key"): r.get_attribute("fill") for r in regions.all()}
+        page.select_option(tid("placement-colour"), "before")
+        page.locator(f'{tid("placement-map")}[data-colour="before"]').wait_for(state="attached")
+        assert page.locator(f'{tid("placement-region")}[data-over="true"]').count() == over_before
+        for r in regions.all():  # over t_max before, within it after: another colour
+            assert float(r.get_attribute("data-time")) == pytest.approx(max(c["time_before"] for c in groups[r.get_attribute("data-key")]))
+            if r.get_attribute("data-over") == "true":
+                assert r.get_attribute("fill") != fill_after[r.get_attribute("data-key")]
+        # x grows to the right, z downwards.
+        boxes = {r.get_attribute("data-key"): r.bounding_box() for r in regions.all()}
+        by_x = sorted(groups, key=lambda k: float(k.split(",")[0]))
+        by_z = sorted(groups, key=lambda k: float(k.split(",")[1]))
+        assert boxes[by_x[0]]["x"] < boxes[by_x[-1]]["x"] and boxes[by_z[0]]["y"] < boxes[by_z[-1]]["y"]
+
+        # Totals: impostors, memory (baked and estimated), CPVs, unsolvable regions, rounds.
+        drawn = [imp for imp in placement.impostors if imp["cpvs"]]
+        assert page.locator(tid("placement-impostors")).inner_text().startswith(f"{len(drawn)} drawn")
+        assert int(page.locator(tid("placement-memory")).get_attribute("data-baked")) == sum(impostors[i["id"]].stats["texture_bytes"] for i in drawn)
+        assert page.locator(tid("placement-cpvs")).inner_text().startswith(f"{len(placement.cpvs)} ({placement.summary['cpvs_solved']} solved")
+        assert page.locator(tid("placement-unsolvable")).get_attribute("data-regions") == str(len(placement.unsolvable))
+        assert page.locator(tid("placement-rounds")).inner_text().startswith("0 check-and-repair")
+
+        # Click the region with the most CPVs: its CPVs, their impostors and the objects each replaces.
+        key = max(groups, key=lambda k: (len(groups[k]), k))
+        page.locator(f'{tid("placement-region")}[data-key="{key}"]').click()
+        page.locator(f'{tid("region-panel")}[data-key="{key}"]').wait_for()
+        rows = page.locator(tid("region-cpv"))
+        assert [int(r.get_attribute("data-cpv")) for r in rows.all()] == [c["id"] for c in groups[key]]
+        for row, cpv in zip(rows.all(), groups[key]):
+            links = row.locator(tid("region-cpv-impostor"))
+            assert [int(a.get_attribute("data-index")) for a in links.all()] == cpv["impostors"]
+            assert row.get_attribute("data-status") == cpv["status"]
+        objects = {imp["id"]: imp["objects"] for imp in placement.impostors}
+        listed = page.locator(tid("region-impostor"))
+        expected = sorted({i for c in groups[key] for i in c["impostors"]})
+        assert [int(li.get_attribute("data-index")) for li in listed.all()] == expected
+        for li in listed.all():
+            assert li.locator(tid("region-impostor-objects")).inner_text() == ", ".join(objects[int(li.get_attribute("data-index"))])
+        # An impostor's link opens it in the cell panel: its atlas from the baked bundle.
+        first = expected[0]
+        page.locator(f'{tid("region-impostor")}[data-index="{first}"] a').click()
+        assert page.locator(tid("cell-panel")).get_attribute("data-index") == str(first)
+        atlas = page.locator(f'{tid("cell-atlas")}[data-cell="{first}"]')
+        atlas.wait_for(state="visible")
+        assert atlas.evaluate("img => img.complete && img.naturalWidth > 0")
+        if os.environ.get("FARFIELD_DASHBOARD_SCREENSHOT"):
+            page.screenshot(path=os.environ["FARFIELD_DASHBOARD_SCREENSHOT"], full_page=True)
+        assert page.js_errors == []
+
+
+def test_a_placing_job_shows_its_planning_progress(browser, service, jobs):
+    placing = jobs[1]
+    served = []
+
+    def with_progress(route):
+        response = route.fetch()
+        body = response.json()
+        if body.get("placement") is None:
+            body["placement"] = PLANNING
+        served.append(body["placement"])
+        route.fulfill(response=response, body=json.dumps(body))
+
+    with dashboard_page(browser, service.url, ADMIN_KEY) as page:
+        page.route(f"**/v1/jobs/{placing}", with_progress)
+        page.goto(f"{service.url}/#/jobs/{placing}")
+        page.locator(f'{tid("job-state")}[data-state="placing"]').wait_for()
+        box = page.locator(tid("placement-planning"))
+        box.wait_for()
+        p = served[-1]
+        assert box.get_attribute("data-step") == str(p["step"]) and box.get_attribute("data-done") == str(p["done"])
+        assert box.get_attribute("data-total") == str(p["total"]) and box.get_attribute("data-round") == str(p["round"])
+        text = page.locator(tid("placement-planning-text")).inner_text()
+        assert f"{p['step']}, {p['done']}/{p['total']}" in text and f"round {p['round']}" in text
+        assert page.locator(tid("placement-planning-bar")).evaluate("e => e.style.width") == f"{100 * p['done'] / p['total']:.0f}%"
+        # No database yet: no map, a note saying when it comes; the grid map's cancel still works.
+        assert page.locator(tid("placement-region")).count() == 0 and "when the planned impostors are baked" in page.locator(tid("placement-note")).inner_text()
+        assert page.locator(tid("job-cancel")).is_enabled()
+        assert page.js_errors == []
+
+
+def test_unsolvable_and_unsolved_regions_are_shown(browser, service, jobs):
+    street, job_id = jobs[2]
+    groups = footprints(street)
+    rank = {"solved": 0, "unsolved": 1, "unsolvable": 2}
+    with dashboard_page(browser, service.url, ADMIN_KEY) as page:
+        page.goto(f"{service.url}/#/jobs/{job_id}")
+        page.locator(tid("placement-region")).first.wait_for()
+        assert page.locator(tid("placement-unsolvable-region")).count() == len(street.unsolvable)
+        assert page.locator(tid("placement-unsolvable")).get_attribute("data-regions") == str(len(street.unsolvable))
+        s = street.summary
+        assert page.locator(tid("placement-cpvs")).inner_text() == f"{s['cpvs']} ({s['cpvs_solved']} solved, {s['cpvs_unsolved']} unsolved, {s['cpvs_unsolvable']} unsolvable)"
+        for r in page.locator(tid("placement-region")).all():
+            cpvs = groups[r.get_attribute("data-key")]
+            assert r.get_attribute("data-status") == max((c["status"] for c in cpvs), key=rank.get)
+            assert r.get_attribute("data-over") == "true"  # nothing here is within t_max after placement
+        key = next(k for k, cpvs in groups.items() if any(c["status"] == "unsolvable" for c in cpvs))
+        page.locator(f'{tid("placement-region")}[data-key="{key}"]').click()
+        rows = page.locator(tid("region-cpv"))
+        rows.first.wait_for()
+        assert [r.get_attribute("data-status") for r in rows.all()] == [c["status"] for c in groups[key]]
+        assert page.js_errors == []
