@@ -54,6 +54,8 @@ EXTRA_STATUSES = {
     ("post", "/v1/jobs/{job_id}/cancel"): {409},  # the job has ended
     ("post", "/v1/jobs/{job_id}/retry"): {409},  # the job has not failed
     ("get", "/v1/jobs/{job_id}/database.zip"): {409},  # the job has not ended
+    ("get", "/v1/jobs/{job_id}/lookup"): {409},  # a placement job without its database yet
+    ("get", "/v1/jobs/{job_id}/placement"): {409},  # the job has no database yet
 }
 FILE_MEDIA_TYPES = {".zip": "application/zip", ".bin": "application/octet-stream", ".png": "image/png", ".glb": "model/gltf-binary"}
 # Multipart fields that a route takes as optional only to answer their absence with its own 422.

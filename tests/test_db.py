@@ -27,7 +27,7 @@ def test_upgrade_keeps_rows_and_adds_columns(tmp_path):
     assert "worker" in {c["name"] for c in sa.inspect(db.engine).get_columns("cells")}
     with db.engine.connect() as connection:
         assert connection.execute(sa.text("SELECT name FROM tenants")).scalars().all() == ["acme"]
-        assert connection.execute(sa.text("SELECT version_num FROM alembic_version")).scalar() == "0005"
+        assert connection.execute(sa.text("SELECT version_num FROM alembic_version")).scalar() == "0006"
 
 
 def test_jobs_made_before_evaluate_existed_are_evaluated(tmp_path):

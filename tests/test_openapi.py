@@ -166,7 +166,7 @@ def test_the_document_lists_each_operation_s_errors(document):
     assert "409" in paths["/v1/scenes/{scene_id}"]["delete"]["responses"]
     assert document["components"]["securitySchemes"]["BearerKey"] == {"type": "http", "scheme": "bearer", "description": ANY}
     assert list(paths["/v1/jobs/{job_id}/cells/{index}/atlas/{page}.png"]["get"]["responses"]["200"]["content"]) == ["image/png"]
-    assert paths["/v1/jobs"]["get"]["parameters"][0]["schema"]["enum"] == ["queued", "running", "done", "failed", "cancelled"]
+    assert paths["/v1/jobs"]["get"]["parameters"][0]["schema"]["enum"] == ["queued", "placing", "running", "done", "failed", "cancelled"]
 
 
 def test_every_extra_status_names_an_operation(document):
