@@ -3,11 +3,9 @@ Playwright) against a real service (``farfield up``): the planning progress whil
 map of its CPVs' regions coloured by estimated time before and after against t_max, a region's CPVs
 with their impostors and the objects each replaces, and the totals.
 
-The placement is real (a small procedural city, impostors baked at 64 px); the job is written through
-``service.db`` and the blob store as a finished one would be (tests/test_placement_api.py,
-:func:`publish_placement_job`).  TODO(merge): submit it over REST once placement jobs exist; the
-placing job's progress (the job record's ``placement``) is added to the service's answer in the
-browser only while the record lacks it.
+The placement jobs are real: submitted over REST (tests/test_placement_api.py,
+:func:`submit_placement`), planned on the worker, baked at 64 px, checked and repaired; the placing
+one is caught while its worker plans.
 
 Needs /usr/bin/chromium (``scripts/install-browser``); skipped without it.  Set
 FARFIELD_DASHBOARD_SCREENSHOT=/path.png to keep a screenshot of the placement page.
@@ -15,24 +13,17 @@ FARFIELD_DASHBOARD_SCREENSHOT=/path.png to keep a screenshot of the placement pa
 
 from __future__ import annotations
 
-import json
 import os
 
 import pytest
 from browser import CHROMIUM, SKIP_REASON, dashboard_page, tid
 from scenes import write_scene
 from service_harness import ADMIN_KEY, start_service, upload
-from test_placement_api import city_placement, publish_placement_job
-
-from farfield.core.placement.cost_model import primitive_model
-from farfield.core.placement.database import bake_placement
-from farfield.core.placement.planner import PlacementSettings, place
+from test_placement_api import city_request, placing_job, small_city, submit_placement
 
 if not CHROMIUM.exists():
     pytest.skip(SKIP_REASON, allow_module_level=True)
 pytest.importorskip("playwright.sync_api", reason="needs the playwright package (the test extra)")
-
-PLANNING = {"step": "candidates", "done": 3, "total": 8, "round": 1}  # shown while the record has none of its own
 
 
 @pytest.fixture(scope="module")
@@ -43,26 +34,24 @@ def service(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def planned():
-    return city_placement()
-
-
-@pytest.fixture(scope="module")
-def jobs(service, planned, tmp_path_factory):
-    """(done placement job id, placing placement job id, (placement, job id) of one with unsolvable regions)."""
-    city, placement, impostors = planned
+def jobs(service, tmp_path_factory):
+    """Placement jobs submitted over REST: (the done one's (job id, placement, impostors, folder), a
+    placing one's id, the street-level one's (job id, placement, ...) with unsolvable regions)."""
+    city = small_city()
     with service.client() as client:
         made = upload(client, write_scene(city, tmp_path_factory.mktemp("city"), "glb"))
         assert made.status_code == 201, made.text
         scene_id = made.json()["id"]
-    # At street level with a twentieth of the triangles: the buildings around many regions exceed t_max alone.
-    street = place(city, [0.0, 2.0, 0.0], [40.0, 6.0, 40.0], PlacementSettings(t_max=0.05 * city.triangle_count, model=primitive_model(), vdi_deg=45.0, options={"resolution": 64}, cpv_size=20.0))
-    assert street.summary["cpvs_unsolvable"] and street.summary["cpvs_unsolved"] and street.unsolvable
-    return (
-        publish_placement_job(service, scene_id, placement, impostors),
-        publish_placement_job(service, scene_id, placement, impostors, state="placing"),
-        (street, publish_placement_job(service, scene_id, street, bake_placement(city, street))),
-    )
+        done = submit_placement(client, scene_id, city_request(0.5 * city.triangle_count), tmp_path_factory.mktemp("db"))
+        # At street level with a twentieth of the triangles: the buildings around many regions exceed t_max alone.
+        street = submit_placement(client, scene_id, city_request(0.05 * city.triangle_count, [0.0, 2.0, 0.0], [40.0, 6.0, 40.0]), tmp_path_factory.mktemp("street"))
+        assert street[1].summary["cpvs_unsolvable"] and street[1].summary["cpvs_unsolved"] and street[1].unsolvable
+        return done, placing_job(client, scene_id), street
+
+
+@pytest.fixture(scope="module")
+def planned(jobs):
+    return jobs[0]
 
 
 def footprints(placement) -> dict[str, list[dict]]:
@@ -76,8 +65,7 @@ def footprints(placement) -> dict[str, list[dict]]:
 
 
 def test_a_placement_job_s_map_regions_cpvs_and_totals(browser, service, jobs, planned):
-    _, placement, impostors = planned
-    done = jobs[0]
+    done, placement, impostors, _ = planned
     t_max = placement.summary["t_max"]
     groups = footprints(placement)
     with dashboard_page(browser, service.url, ADMIN_KEY) as page:
@@ -116,7 +104,7 @@ def test_a_placement_job_s_map_regions_cpvs_and_totals(browser, service, jobs, p
         assert int(page.locator(tid("placement-memory")).get_attribute("data-baked")) == sum(impostors[i["id"]].stats["texture_bytes"] for i in drawn)
         assert page.locator(tid("placement-cpvs")).inner_text().startswith(f"{len(placement.cpvs)} ({placement.summary['cpvs_solved']} solved")
         assert page.locator(tid("placement-unsolvable")).get_attribute("data-regions") == str(len(placement.unsolvable))
-        assert page.locator(tid("placement-rounds")).inner_text().startswith("0 check-and-repair")
+        assert page.locator(tid("placement-rounds")).inner_text().startswith(f"{placement.summary['rounds']} check-and-repair")
 
         # Click the region with the most CPVs: its CPVs, their impostors and the objects each replaces.
         key = max(groups, key=lambda k: (len(groups[k]), k))
@@ -148,36 +136,26 @@ def test_a_placement_job_s_map_regions_cpvs_and_totals(browser, service, jobs, p
 
 def test_a_placing_job_shows_its_planning_progress(browser, service, jobs):
     placing = jobs[1]
-    served = []
-
-    def with_progress(route):
-        response = route.fetch()
-        body = response.json()
-        if body.get("placement") is None:
-            body["placement"] = PLANNING
-        served.append(body["placement"])
-        route.fulfill(response=response, body=json.dumps(body))
-
-    with dashboard_page(browser, service.url, ADMIN_KEY) as page:
-        page.route(f"**/v1/jobs/{placing}", with_progress)
+    with service.client() as client, dashboard_page(browser, service.url, ADMIN_KEY) as page:
         page.goto(f"{service.url}/#/jobs/{placing}")
-        page.locator(f'{tid("job-state")}[data-state="placing"]').wait_for()
+        page.locator(f'{tid("job-state")}[data-state="placing"]').wait_for(timeout=120_000)
         box = page.locator(tid("placement-planning"))
         box.wait_for()
-        p = served[-1]
-        assert box.get_attribute("data-step") == str(p["step"]) and box.get_attribute("data-done") == str(p["done"])
-        assert box.get_attribute("data-total") == str(p["total"]) and box.get_attribute("data-round") == str(p["round"])
+        record = client.get(f"/v1/jobs/{placing}").json()["placement"]
+        assert record is not None and box.get_attribute("data-step") in {record["step"], "queued", "hierarchy", "problem views", "candidates", "greedy"}
+        done, total = int(box.get_attribute("data-done")), int(box.get_attribute("data-total"))
+        assert 0 <= done <= max(total, 1) and box.get_attribute("data-round") == str(record.get("round", 0))
         text = page.locator(tid("placement-planning-text")).inner_text()
-        assert f"{p['step']}, {p['done']}/{p['total']}" in text and f"round {p['round']}" in text
-        assert page.locator(tid("placement-planning-bar")).evaluate("e => e.style.width") == f"{100 * p['done'] / p['total']:.0f}%"
-        # No database yet: no map, a note saying when it comes; the grid map's cancel still works.
+        assert text.startswith("planning: ") and "/" in text  # e.g. "planning: problem views, 189/5,000" (it moves on as we read)
+        # No database yet: no map, a note saying when it comes; cancel works while it plans.
         assert page.locator(tid("placement-region")).count() == 0 and "when the planned impostors are baked" in page.locator(tid("placement-note")).inner_text()
-        assert page.locator(tid("job-cancel")).is_enabled()
+        page.locator(tid("job-cancel")).click()
+        page.locator(f'{tid("job-state")}[data-state="cancelled"]').wait_for()
         assert page.js_errors == []
 
 
 def test_unsolvable_and_unsolved_regions_are_shown(browser, service, jobs):
-    street, job_id = jobs[2]
+    job_id, street = jobs[2][:2]
     groups = footprints(street)
     rank = {"solved": 0, "unsolved": 1, "unsolvable": 2}
     with dashboard_page(browser, service.url, ADMIN_KEY) as page:
