@@ -80,11 +80,14 @@ def test_the_estimates_bias_corrects_the_candidates_not_chosen(planned):
     _, placement, impostors = planned
     state = PlannerState.loads(placement.state.dumps())
     before = state.cand.quads.copy()
-    chosen = {imp.candidate for imp in state.greedy.chosen}
     step = state.repair({i: imp.stats for i, imp in impostors.items()})
     ratio = step.correction["quads"]
-    free = [k for k in range(state.cand.count) if k not in chosen and k not in {imp.candidate for imp in state.greedy.chosen}]
+    baked = {state.candidate_of(i) for i in impostors}
+    free = [k for k in range(state.cand.count) if k not in baked]
     assert free and np.allclose(state.cand.quads[free], before[free] * ratio)
+    assert np.array_equal(state.cand.quads[sorted(baked)], [impostors[state.ids[k]].stats["quads"] for k in sorted(baked)])
+    # Estimates this far off (box growing cuts more quads per layer than the calibration's) replan.
+    assert (step.mode == "replanned") == (not 0.8 <= ratio <= 1.25 or not 0.8 <= step.correction["memory"] <= 1.25)
 
 
 def test_the_database_is_written_read_and_looked_up(planned, tmp_path):

@@ -6,9 +6,13 @@ so the greedy's figures are estimates (the cost model over the technique's cheap
 §5.8.1).  The check-and-repair round is the distributed form of §5.7.3: once a round's impostors
 are baked, :meth:`PlannerState.repair` puts each one's real figures in place of the estimates
 (its quads, hence its drawing time in every CPV it is drawn in, and its texture bytes, hence its
-memory), and the CPVs that the real figures push over ``t_max`` go back to the greedy, which
-resumes with every candidate not yet chosen (§5.7.4: scores only fall, so the lazy heap starts
-from fresh upper bounds).  What it adds is baked in the next round; :data:`MAX_REPAIR_ROUNDS`
+memory), every candidate not baked is scaled by the median ratio of baked to estimated figures
+(the estimates' bias on this scene), and the CPVs that the real figures push over ``t_max`` go back
+to the greedy, which resumes with every candidate not yet chosen (§5.7.4: scores only fall, so the
+lazy heap starts from fresh upper bounds).  When the first round finds the estimates off by more
+than :data:`REPLAN_RATIO`, the greedy starts again from the start over the corrected figures
+instead (what it chooses again is already baked; what it no longer chooses stays in the database,
+drawn nowhere): resuming would keep choices made on figures several times off.  What it adds is baked in the next round; :data:`MAX_REPAIR_ROUNDS`
 bounds the rounds.  Where a baked impostor turns out slower than its node's geometry in a CPV, it
 is no longer drawn there (the geometry is), so a round never leaves a CPV slower than the plain
 scene; an impostor left in no CPV is kept in the database with ``"cpvs": 0``.
@@ -39,6 +43,9 @@ from farfield.core.scene import Scene
 STATE_FORMAT = "farfield-planner-state"
 STATE_VERSION = 1
 MAX_REPAIR_ROUNDS = 3
+# At the first round, a median baked/estimated ratio (quads or memory) beyond this factor either way
+# makes the greedy start again over the corrected figures instead of resuming.
+REPLAN_RATIO = 1.25
 BAKED_FIGURES = ("quads", "texture_bytes")
 
 
@@ -61,9 +68,10 @@ class RepairRound:
     placement: Placement
 
     correction: dict | None = None
+    mode: str = "resumed"  # or "replanned"
 
     def to_dict(self) -> dict:
-        return {"round": self.round, "cpvs_over": self.cpvs_over, "added": list(self.added), "correction": self.correction}
+        return {"round": self.round, "cpvs_over": self.cpvs_over, "added": list(self.added), "correction": self.correction, "mode": self.mode}
 
 
 @dataclass(eq=False)
@@ -83,7 +91,7 @@ class PlannerState:
     hi: np.ndarray
     cpv_size: float
     seconds: dict
-    ids: dict = field(default_factory=dict)  # greedy order -> stable impostor id
+    ids: dict = field(default_factory=dict)  # candidate -> stable impostor id
     baked: dict = field(default_factory=dict)  # impostor id -> {"quads", "texture_bytes"}
     estimated: dict = field(default_factory=dict)  # impostor id -> its estimates before it was baked
     rounds: list = field(default_factory=list)
@@ -105,29 +113,37 @@ class PlannerState:
             raise PlacementError(f"the stored planner state is not {STATE_FORMAT} version {STATE_VERSION}")
         return doc["state"]
 
-    # --- ids -----------------------------------------------------------------------------------
+    # --- ids ---------------------------------------------------------------------------------
 
     def _assign_ids(self) -> None:
-        """Give every drawn impostor without an id the next one, in the order it was chosen."""
-        for order, _ in enumerate(self.greedy.chosen):
-            if order not in self.ids and order not in self.greedy.deleted:
-                self.ids[order] = len(self.ids)
+        """Give every drawn impostor whose candidate has no id the next one, in the order chosen."""
+        for order, imp in enumerate(self.greedy.chosen):
+            if order not in self.greedy.deleted and imp.candidate not in self.ids:
+                self.ids[imp.candidate] = len(self.ids)
 
-    def order_of(self, impostor_id: int) -> int:
-        for order, i in self.ids.items():
+    def candidate_of(self, impostor_id: int) -> int:
+        for candidate, i in self.ids.items():
             if i == impostor_id:
-                return order
+                return candidate
         raise PlacementError(f"the placement has no impostor {impostor_id}")
+
+    def _drawn(self) -> dict[int, int]:
+        """Candidate -> greedy order of every impostor drawn somewhere."""
+        return {imp.candidate: order for order, imp in enumerate(self.greedy.chosen) if order not in self.greedy.deleted}
 
     # --- repair --------------------------------------------------------------------------------
 
     def repair(self, baked: dict[int, dict]) -> RepairRound:
         """Put the real figures of the impostors baked since the last round (``baked``: impostor id
         -> the bundle's stats, of which ``quads`` and ``texture_bytes`` are used) in place of their
-        estimates, and resume the greedy for the CPVs now over ``t_max``.  Returns the round, with
-        the ids of the impostors it added (none: the placement holds with what is baked)."""
+        estimates, correct every candidate not baked by the estimates' bias so far, and go on with
+        the greedy for the CPVs over ``t_max``: resumed, or, at the first round when the bias is
+        large (:data:`REPLAN_RATIO`), run again from the start over the corrected figures (baked
+        impostors it chooses again are reused).  Returns the round, with the ids of the impostors
+        it added (to bake; none: the placement holds with what is baked)."""
         self._assign_ids()
         model, greedy, cand = self.settings.model, self.greedy, self.cand
+        drawn = self._drawn()
         for impostor_id, stats in sorted(baked.items()):
             impostor_id = int(impostor_id)
             if impostor_id in self.baked:
@@ -135,14 +151,17 @@ class PlannerState:
             missing = [k for k in BAKED_FIGURES if not isinstance(stats.get(k), (int, float))]
             if missing:
                 raise PlacementError(f"the baked stats of impostor {impostor_id} lack {missing}")
-            chosen = greedy.chosen[self.order_of(impostor_id)]
-            i = chosen.candidate
+            i = self.candidate_of(impostor_id)
             self.estimated[impostor_id] = {"quads": float(cand.quads[i]), "memory_bytes": float(cand.memory[i])}
             delta = float(model.impostor_time(0.0, float(stats["quads"])) - model.impostor_time(0.0, float(cand.quads[i])))
             cand.quads[i] = float(stats["quads"])
             cand.memory[i] = max(float(stats["texture_bytes"]), 1.0)
             a, b = cand.served_offsets[i], cand.served_offsets[i + 1]
             cand.ti[a:b] += delta  # greedy.ti is this array
+            self.baked[impostor_id] = {k: float(stats[k]) for k in BAKED_FIGURES}
+            if i not in drawn:
+                continue
+            chosen = greedy.chosen[drawn[i]]
             keys = []
             for p, (g_p, t_p) in chosen.cpvs.items():
                 chosen.cpvs[p] = (g_p, t_p + delta)
@@ -152,16 +171,21 @@ class PlannerState:
                 at = np.searchsorted(greedy._keys, np.asarray(keys, dtype=np.int64))
                 greedy._saved[at] -= delta
                 greedy._cum = None
-            self.baked[impostor_id] = {k: float(stats[k]) for k in BAKED_FIGURES}
-            self._withdraw_where_slower(self.order_of(impostor_id))
-        self._correct_unchosen()
+            self._withdraw_where_slower(drawn[i])
+        self._correct_not_baked()
         over = int(np.sum(greedy.t > greedy.t_max * (1.0 + 1e-9)))
-        before = len(greedy.chosen)
-        if over:
+        known = len(self.ids)
+        replan = not self.rounds and self.correction is not None and any(
+            not (1.0 / REPLAN_RATIO <= r <= REPLAN_RATIO) for r in self.correction.values()
+        )  # fmt: skip
+        if replan:
+            self.greedy = Greedy(self.hierarchy, self.pv, cand, self.settings.t_max)
+            self.greedy.run()
+        elif over:
             greedy.run()
         self._assign_ids()
-        added = sorted(self.ids[order] for order in range(before, len(greedy.chosen)) if order in self.ids)
-        step = RepairRound(len(self.rounds) + 1, over, added, self.placement(), self.correction)
+        added = sorted(i for i in self.ids.values() if i >= known)
+        step = RepairRound(len(self.rounds) + 1, over, added, self.placement(), self.correction, "replanned" if replan else "resumed")
         self.rounds.append(step.to_dict())
         return step
 
@@ -188,12 +212,12 @@ class PlannerState:
         if not chosen.cpvs:
             greedy.deleted.add(order)
 
-    def _correct_unchosen(self) -> None:
-        """Scale the quads and memory of every candidate not chosen by the median ratio of baked to
+    def _correct_not_baked(self) -> None:
+        """Scale the quads and memory of every candidate not baked by the median ratio of baked to
         estimated figures so far (the estimates' bias on this scene, e.g. box growing cutting more
-        quads per layer than the calibration scene's), so the resumed greedy ranks and counts with
-        figures like those its additions will have once baked; each candidate's figures are scaled
-        from their first estimate, so repeated rounds do not compound."""
+        quads per layer than on the calibration scenes), so the greedy ranks and counts with figures
+        like those its additions will have once baked; each candidate's figures are scaled from
+        their first estimate, so repeated rounds do not compound."""
         if not self.baked:
             return
         cand, model = self.cand, self.settings.model
@@ -203,9 +227,8 @@ class PlannerState:
         }  # fmt: skip
         if self.first is None:
             self.first = {"quads": cand.quads.copy(), "memory": cand.memory.copy()}
-        chosen = np.zeros(cand.count, dtype=bool)
-        chosen[[imp.candidate for imp in self.greedy.chosen]] = True
-        free = ~chosen
+        free = np.ones(cand.count, dtype=bool)
+        free[[self.candidate_of(i) for i in self.baked]] = False
         quads = np.where(free, self.first["quads"] * ratio["quads"], cand.quads)
         delta = np.asarray(model.impostor_time(0.0, quads), dtype=np.float64) - np.asarray(model.impostor_time(0.0, cand.quads), dtype=np.float64)
         cand.ti[:] += np.repeat(np.where(free, delta, 0.0), np.diff(cand.served_offsets))
@@ -220,13 +243,14 @@ class PlannerState:
         self._assign_ids()
         greedy, cand, pv, hierarchy, elements, settings = self.greedy, self.cand, self.pv, self.hierarchy, self.elements, self.settings
         impostors = []
-        for order, impostor_id in sorted(self.ids.items(), key=lambda kv: kv[1]):
-            imp = greedy.chosen[order]
-            i = imp.candidate
-            names = [elements.names[e] for e in np.sort(hierarchy.elements_of(imp.node))]
+        drawn = self._drawn()
+        for i, impostor_id in sorted(self.ids.items(), key=lambda kv: kv[1]):
+            imp = greedy.chosen[drawn[i]] if i in drawn else None
+            node = int(cand.node[i])
+            names = [elements.names[e] for e in np.sort(hierarchy.elements_of(node))]
             entry = {
                 "id": impostor_id,
-                "node": imp.node,
+                "node": node,
                 "objects": names,
                 "cell": cand.cells[i].to_dict(),
                 "technique": self.technique,
@@ -235,8 +259,8 @@ class PlannerState:
                 "quads_estimated": self.estimated.get(impostor_id, {}).get("quads", float(cand.quads[i])),
                 "memory_bytes_estimated": self.estimated.get(impostor_id, {}).get("memory_bytes", float(cand.memory[i])),
                 "memory_bytes": float(cand.memory[i]),  # the baked texture bytes, once baked
-                "cpvs": len(imp.cpvs),
-                "time_max": max((t for _, t in imp.cpvs.values()), default=0.0),
+                "cpvs": len(imp.cpvs) if imp else 0,
+                "time_max": max((t for _, t in imp.cpvs.values()), default=0.0) if imp else 0.0,
             }
             if impostor_id in self.baked:
                 entry["baked"] = dict(self.baked[impostor_id])
@@ -255,7 +279,7 @@ class PlannerState:
                 "vdi": {"face": FACE_NAMES[v.face], "level": v.level, "i": v.i, "j": v.j},
                 "time_before": float(pv.time[p]),
                 "time_after": float(after[p]),
-                "impostors": sorted(self.ids[k] for k in greedy.drawn[p]),
+                "impostors": sorted(self.ids[greedy.chosen[k].candidate] for k in greedy.drawn[p]),
                 "status": status,
             })  # fmt: skip
         blame = []
