@@ -49,8 +49,8 @@ def loop_path(lo, hi, frames: int, margin: float = 0.1) -> tuple[np.ndarray, np.
     along the direction of motion.
 
     >>> p, f = loop_path([0, 0, 0], [10, 2, 10], 4)
-    >>> p.round(3).tolist(), f.round(3).tolist()
-    ([[9.0, 1.0, 5.0], [5.0, 1.0, 9.0], [1.0, 1.0, 5.0], [5.0, 1.0, 1.0]], [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [-0.0, 0.0, -1.0], [1.0, 0.0, -0.0]])
+    >>> (p.round(3) + 0.0).tolist(), (f.round(3) + 0.0).tolist()  # + 0.0: no negative zeros
+    ([[9.0, 1.0, 5.0], [5.0, 1.0, 9.0], [1.0, 1.0, 5.0], [5.0, 1.0, 1.0]], [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
     """
     if isinstance(frames, bool) or int(frames) != frames or frames < 1:
         raise LayerPlanError(f"frames must be an integer >= 1, got {frames!r}")
