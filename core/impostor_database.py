@@ -88,6 +88,8 @@ class ImpostorDatabase:
         self.root = path
         self.index = index
         self.technique: str = index.get("technique", index.get("job_type", "layered"))
+        # A placement database's section (core.placement.database): CPVs and what each draws; None otherwise.
+        self.placement: dict | None = index.get("placement") if index.get("kind") == "placement" else None
         entries = index["cells"]
         neighbours = grid_neighbours([e.get("grid") for e in entries])
         self.cells = [

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -17,8 +17,9 @@ from farfield.core.placement.candidates import APEX_ANGLES_DEG, DIRECTION_STEP_D
 from farfield.core.placement.cost_model import CostModel
 from farfield.core.placement.greedy import Greedy
 from farfield.core.placement.hierarchy import DEFAULT_LEAF_SIZE, Elements, Hierarchy, PlacementError
+from farfield.core.placement.repair import PlannerState, scene_summary
 from farfield.core.placement.result import Placement
-from farfield.core.placement.view_space import FACE_NAMES, Visibility, problem_view_space
+from farfield.core.placement.view_space import Visibility, problem_view_space
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import StageClock
 from farfield.core.techniques import get_technique
@@ -67,11 +68,15 @@ def place(
     settings: PlacementSettings,
     progress: Callable[[str, int, int], None] | None = None,
     visible: Visibility | None = None,
+    keep_state: bool = False,
 ) -> Placement:
     """The impostor placement of ``scene`` for the view space box ``view_lo``..``view_hi`` (may be
     flat or a point) so that every view takes at most ``settings.t_max`` by the cost model, at
     least memory (greedily; seed 000 §5.7).  Raises PlacementError for unusable inputs; views no
-    placement can serve are reported in the result (``Placement.message``), not raised."""
+    placement can serve are reported in the result (``Placement.message``), not raised.
+
+    ``keep_state``: the result's ``state`` is the :class:`~core.placement.repair.PlannerState`
+    (hierarchy, problem views, candidates, greedy) that check-and-repair rounds resume."""
     _check(settings)
     technique = get_technique(settings.technique)
     if technique.estimate is None:
@@ -117,110 +122,8 @@ def place(
         greedy = Greedy(hierarchy, pv, cand, settings.t_max)
         greedy.run(progress=lambda chosen, worst: clock.report("greedy", chosen, cand.count))
     clock.report("greedy", 1, 1)
-    return _result(scene, elements, hierarchy, pv, cand, greedy, settings, options, technique.name, lo, hi, cpv_size, clock.totals())
-
-
-def _result(scene, elements, hierarchy, pv, cand, greedy, settings, options, technique, lo, hi, cpv_size, seconds) -> Placement:
-    kept = [imp for k, imp in enumerate(greedy.chosen) if k not in greedy.deleted]
-    new_id = {imp.order: n for n, imp in enumerate(kept)}
-    unit = settings.model.unit
-    impostors = []
-    for n, imp in enumerate(kept):
-        i = imp.candidate
-        names = [elements.names[e] for e in np.sort(hierarchy.elements_of(imp.node))]
-        impostors.append({
-            "id": n,
-            "node": imp.node,
-            "objects": names,
-            "cell": cand.cells[i].to_dict(),
-            "technique": technique,
-            "layers_estimated": float(cand.layers[i]),
-            "texels_per_layer": float(cand.texels[i]),
-            "quads_estimated": float(cand.quads[i]),
-            "memory_bytes": float(cand.memory[i]),
-            "cpvs": len(imp.cpvs),
-            "time_max": max(t for _, t in imp.cpvs.values()),
-        })  # fmt: skip
-    solvable = ~pv.unsolvable
-    after = np.where(solvable, greedy.t, pv.time)
-    unsolved = solvable & (after > settings.t_max * (1.0 + 1e-9))
-    cpvs = []
-    for p in range(pv.count):
-        status = "unsolvable" if pv.unsolvable[p] else ("unsolved" if unsolved[p] else "solved")
-        r = int(pv.cpv_region[p])
-        v = pv.cpv_vdi[p]
-        cpvs.append({
-            "id": p,
-            "region": [pv.region_lo[r].tolist(), pv.region_hi[r].tolist()],
-            "vdi": {"face": FACE_NAMES[v.face], "level": v.level, "i": v.i, "j": v.j},
-            "time_before": float(pv.time[p]),
-            "time_after": float(after[p]),
-            "impostors": sorted(new_id[k] for k in greedy.drawn[p]),
-            "status": status,
-        })  # fmt: skip
-    blame = []
-    unsolvable = np.flatnonzero(pv.unsolvable)
-    by_region: dict[int, list[int]] = {}
-    for p in unsolvable:
-        by_region.setdefault(int(pv.cpv_region[p]), []).append(int(p))
-    for r in sorted(by_region):
-        cpv_ids = by_region[r]
-        worst = max(cpv_ids, key=lambda p: (pv.fixed_time[p], -p))
-        a, b = pv.offsets[worst], pv.offsets[worst + 1]
-        ids = hierarchy.order[pv.positions[a:b][pv.entry_fixed[a:b]]]
-        blame.append({
-            "region": [pv.region_lo[r].tolist(), pv.region_hi[r].tolist()],
-            "cpvs": len(cpv_ids),
-            "fixed_time": float(pv.fixed_time[worst]),
-            "elements": sorted(elements.names[e] for e in ids),
-        })  # fmt: skip
-    memory = float(sum(imp["memory_bytes"] for imp in impostors))
-    split = elements.split_counts(scene)
-    summary = {
-        "t_max": float(settings.t_max),
-        "unit": unit,
-        "cpvs": pv.count,
-        "cpvs_solved": int(np.sum(solvable & ~unsolved)),
-        "cpvs_unsolved": int(unsolved.sum()),
-        "cpvs_unsolvable": int(pv.unsolvable.sum()),
-        "candidates": cand.count,
-        "candidates_considered": int(cand.stats["considered"]),
-        "candidates_refused_by_technique": int(cand.stats["refused_by_technique"]),
-        "impostors": len(impostors),
-        "impostors_deleted": len(greedy.deleted),
-        "memory_bytes": memory,
-        "worst_before": float(pv.time.max()) if pv.count else 0.0,
-        "worst_after": float(after.max()) if pv.count else 0.0,
-        "worst_after_solvable": float(after[solvable].max()) if solvable.any() else 0.0,
-        "leaf_regions_with_cpvs": int(pv.region_lo.shape[0]),
-        "vdis_evaluated": int(pv.stats["vdis_evaluated"]),
-        "hierarchy_nodes": hierarchy.count,
-        "elements": elements.count,
-        "rescored": greedy.rescored,
-    }
-    parameters = {
-        "scene": {"source": scene.source, "content_hash": scene.content_hash, "objects": scene.object_count, "triangles": scene.triangle_count},
-        "view_space": [lo.tolist(), hi.tolist()],
-        "t_max": float(settings.t_max),
-        "cost_model": settings.model.to_dict(),
-        "technique": technique,
-        "options": {k: (v if not isinstance(v, tuple) else list(v)) for k, v in asdict(options).items()},
-        "cpv_size": float(cpv_size),
-        "vdi_deg": float(settings.vdi_deg),
-        "depth_complexity": float(settings.depth_complexity),
-        "cells": settings.cells,
-        "leaf_size": settings.leaf_size,
-        "apex_angles_deg": [float(a) for a in settings.apex_angles_deg],
-        "direction_step_deg": float(settings.direction_step_deg),
-        "distance_steps": int(settings.distance_steps),
-        "visibility": "none (no occlusion culling; seed 000 Table 5.1 test 16 setting)",
-    }
-    return Placement(
-        parameters=parameters,
-        elements={"count": elements.count, "cluster_triangles": elements.cluster_triangles, "split": split},
-        impostors=impostors,
-        cpvs=cpvs,
-        unsolvable=blame,
-        summary=summary,
-        seconds=seconds,
-    )
+    state = PlannerState(
+        scene_summary(scene, elements), elements, hierarchy, pv, cand, greedy, settings, options, technique.name, lo, hi, float(cpv_size), clock.totals()
+    )  # fmt: skip
+    placement = state.placement()
+    return replace(placement, state=state) if keep_state else placement

@@ -14,11 +14,17 @@ in bytes, lengths in scene units.
   ``unsolved`` (no candidate set reaches ``t_max``) or ``unsolvable`` (what no impostor may
   replace, the elements meeting the region, exceeds ``t_max`` alone);
 * ``unsolvable``: per region with unsolvable CPVs, the worst such time and the elements to blame.
+
+An impostor's ``id`` is stable across check-and-repair rounds (:mod:`core.placement.repair`): one
+that no CPV draws any more after a round keeps its id with ``"cpvs": 0``, and new ones take the
+next ids.  Once baked, an impostor carries its real figures in ``baked`` (``quads``,
+``texture_bytes``), and the CPV times use them.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 FORMAT = "farfield-placement"
 VERSION = 1
@@ -35,6 +41,7 @@ class Placement:
     unsolvable: list[dict]
     summary: dict
     seconds: dict = field(default_factory=dict, compare=False)
+    state: Any = field(default=None, compare=False, repr=False)  # core.placement.repair.PlannerState, when kept
 
     def to_dict(self) -> dict:
         return {

@@ -1,0 +1,218 @@
+"""The impostor database of a placement: what to bake, what a runtime draws in every view, and the lookup.
+
+A placement database is an impostor database (:mod:`core.impostor_database`: ``index.json`` plus
+``cells/NNNNN/`` bundles, what ``GET /v1/jobs/{id}/database.zip`` serves) whose cells are the
+placement's impostors (cell index = impostor id) and whose index has ``"kind": "placement"`` and a
+``placement`` section::
+
+    placement.parameters   scene, view space, t_max, cost model, technique and options, the planner's knobs
+    placement.summary      CPV counts by status, impostors, memory (estimated and baked), worst times, rounds
+    placement.elements     the element split (objects over ``cluster_triangles`` triangles cut into ``name#k``)
+    placement.cpvs         per conservative problem view: its 3D region [lo, hi], its view-direction
+                           interval {face, level, i, j} (core.placement.view_space.VDI), the estimated time
+                           before and after, the impostors drawn there (cell indices), its status
+    placement.unsolvable   regions no placement can serve, with the elements to blame
+    placement.rounds       the check-and-repair rounds (core.placement.repair)
+
+and each cell entry, beside the usual ``index``, ``viewcell``, ``state`` and ``bundle``, has its own
+``technique``, ``objects`` (the elements it replaces), ``params`` (``resolution``, ``fov_deg``,
+``options``: what its bake takes) and ``figures`` (estimated, and baked once it is).
+
+A view (a position in the view space and a direction) falls in at most a few CPVs (on shared
+borders); :class:`PlacementLookup` returns the first.  A view in no CPV is *under budget*: the
+whole scene drawn as geometry is within ``t_max`` by the cost model (the planner dropped it as
+solved, §5.5), so nothing is replaced.  Format version 1.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from farfield.core.errors import ViewCellError
+from farfield.core.impostor import Impostor
+from farfield.core.impostor_database import INDEX_NAME, database_index
+from farfield.core.options import IMAGE_FIELDS, public_fields, stored_values
+from farfield.core.placement.hierarchy import Elements, PlacementError
+from farfield.core.placement.result import Placement
+from farfield.core.placement.view_space import FACE_NAMES, VDI
+from farfield.core.scene import Scene
+from farfield.core.techniques import get_technique
+from farfield.core.viewcells import viewcell_from_dict
+
+KIND = "placement"
+VERSION = 1
+UNDER_BUDGET = "under budget"
+
+
+def impostor_params(parameters: dict, objects: list[str]) -> dict:
+    """What one impostor's bake takes, in a job's stored form: ``resolution``, ``fov_deg``,
+    ``objects`` and the technique's other ``options`` (validated, defaults filled in)."""
+    technique = get_technique(parameters["technique"])
+    given = dict(parameters.get("options") or {})
+    public = {f.name for f in public_fields(technique.Options)} - set(IMAGE_FIELDS)  # the document holds every field
+    options = technique.options({k: v for k, v in given.items() if k in public}, given.get("resolution"), given.get("fov_deg"))
+    return {"resolution": options.resolution, "fov_deg": options.fov_deg, "objects": list(objects), "options": stored_values(options)}
+
+
+def placement_cells(placement: Placement | dict) -> list[dict]:
+    """Per impostor, in id order, what a cell of the placement is: ``index`` (= id), ``technique``,
+    ``objects``, ``params`` and ``viewcell``."""
+    doc = placement.to_dict() if isinstance(placement, Placement) else placement
+    parameters = doc["parameters"]
+    return [
+        {"index": imp["id"], "technique": imp["technique"], "objects": imp["objects"], "params": impostor_params(parameters, imp["objects"]), "viewcell": imp["cell"]}
+        for imp in doc["impostors"]
+    ]  # fmt: skip
+
+
+def placement_index(placement: Placement | dict, cells: list[dict], job: str | None = None, scene: str | None = None, rounds: list | None = None) -> dict:
+    """The index document of a placement database (see the module docstring).
+
+    ``cells`` holds per impostor, in id order: ``index`` (the impostor's id), ``state`` and
+    ``bundle`` (its folder, or None), and optionally ``stats`` (the baked bundle's)."""
+    doc = placement.to_dict() if isinstance(placement, Placement) else placement
+    impostors = {imp["id"]: imp for imp in doc["impostors"]}
+    parameters = doc["parameters"]
+    entries = []
+    for cell in cells:
+        imp = impostors.get(cell["index"])
+        if imp is None:
+            raise PlacementError(f"cell {cell['index']} is no impostor of the placement (it has {len(impostors)})")
+        stats = cell.get("stats") or {}
+        figures = {
+            "estimated": {k: imp[k] for k in ("layers_estimated", "texels_per_layer", "quads_estimated", "memory_bytes_estimated", "time_max") if k in imp},
+            "baked": {k: stats[k] for k in ("layers", "quads", "texture_bytes", "texels_covered") if k in stats} or imp.get("baked"),
+        }  # fmt: skip
+        entries.append({
+            "index": imp["id"], "grid": None, "viewcell": imp["cell"], "state": cell["state"], "bundle": cell.get("bundle"),
+            "technique": imp["technique"], "objects": imp["objects"], "params": impostor_params(parameters, imp["objects"]),
+            "cpvs": imp["cpvs"], "figures": figures,
+        })  # fmt: skip
+    opts = impostor_params(parameters, [])
+    params = {"resolution": opts["resolution"], "fov_deg": opts["fov_deg"], "objects": None, "options": opts["options"]}
+    index = database_index(parameters["technique"], params, entries, job=job, scene=scene)
+    index["kind"] = KIND
+    index["placement"] = {
+        "version": VERSION,
+        "parameters": parameters,
+        "summary": doc["summary"],
+        "elements": doc["elements"],
+        "cpvs": doc["cpvs"],
+        "unsolvable": doc["unsolvable"],
+        "rounds": list(rounds or []),
+    }
+    return index
+
+
+class PlacementLookup:
+    """What to draw for a view, from a placement database's index (see the module docstring)."""
+
+    def __init__(self, index: dict) -> None:
+        section = index.get("placement") if isinstance(index, dict) else None
+        if not section:
+            raise PlacementError("not a placement database: its index has no 'placement' section")
+        self.section = section
+        lo, hi = section["parameters"]["view_space"]
+        self.lo, self.hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+        cpvs = section["cpvs"]
+        self.cpvs = cpvs
+        self.region_lo = np.array([c["region"][0] for c in cpvs], dtype=np.float64).reshape(-1, 3)
+        self.region_hi = np.array([c["region"][1] for c in cpvs], dtype=np.float64).reshape(-1, 3)
+        self.vdis = [VDI(FACE_NAMES.index(c["vdi"]["face"]), int(c["vdi"]["level"]), int(c["vdi"]["i"]), int(c["vdi"]["j"])) for c in cpvs]
+        self.objects = {int(cell["index"]): list(cell.get("objects") or []) for cell in index.get("cells", [])}
+        span = float(np.max(self.hi - self.lo)) if self.lo.size else 0.0
+        self.tol = 1e-9 * max(span, float(np.max(np.abs(np.concatenate([self.lo, self.hi])))), 1.0)
+
+    def cpv_of(self, position, direction) -> int:
+        """The id of the first CPV holding the view, or -1 (under budget)."""
+        p = np.asarray(position, dtype=np.float64).reshape(3)
+        d = np.asarray(direction, dtype=np.float64).reshape(3)
+        norm = float(np.linalg.norm(d))
+        if not (np.all(np.isfinite(p)) and np.isfinite(norm) and norm > 0.0):
+            raise ViewCellError(f"a view needs a finite position and a non-zero finite direction, got {p.tolist()} {d.tolist()}")
+        if np.any(p < self.lo - self.tol) or np.any(p > self.hi + self.tol):
+            raise ViewCellError(f"position {p.tolist()} is outside the placement's view space {self.lo.tolist()} .. {self.hi.tolist()}")
+        inside = np.flatnonzero(np.all((self.region_lo - self.tol <= p) & (p <= self.region_hi + self.tol), axis=1))
+        d = (d / norm).reshape(1, 3)
+        for k in inside:
+            if bool(self.vdis[k].contains(d)[0]):
+                return int(k)
+        return -1
+
+    def find(self, position, direction) -> dict:
+        """``cpv`` (id or None), ``status`` (solved, unsolved, unsolvable or ``under budget``),
+        ``impostors`` (cell indices to draw), ``replaced`` (the elements they stand for: everything
+        else is drawn as geometry) and ``time_estimated`` (the CPV's time after placement; None
+        under budget)."""
+        k = self.cpv_of(position, direction)
+        if k < 0:
+            return {"cpv": None, "status": UNDER_BUDGET, "impostors": [], "replaced": [], "time_estimated": None}
+        cpv = self.cpvs[k]
+        replaced = sorted({name for i in cpv["impostors"] for name in self.objects.get(int(i), [])})
+        return {"cpv": k, "status": cpv["status"], "impostors": list(cpv["impostors"]), "replaced": replaced, "time_estimated": cpv["time_after"]}
+
+    def find_many(self, positions, directions) -> np.ndarray:
+        """(n,) CPV ids (-1: under budget) of ``n`` views."""
+        positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+        directions = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+        return np.array([self.cpv_of(p, d) for p, d in zip(positions, directions)], dtype=np.int64)
+
+
+def impostor_scene(scene: Scene, cluster_triangles: int, objects: list[str]) -> tuple[Scene, list[str] | None]:
+    """(scene, objects) to bake an impostor of the elements ``objects`` from: the scene and the
+    object names when they are whole objects, else the scene of just those elements (clusters
+    ``name#k`` of split objects cut as the planner cut them, :class:`~core.placement.hierarchy.Elements`)."""
+    names = set(scene.names)
+    if all(name in names for name in objects):
+        return scene, list(objects)
+    elements = Elements.of(scene, cluster_triangles)
+    by_name = {name: i for i, name in enumerate(elements.names)}
+    missing = [name for name in objects if name not in by_name]
+    if missing:
+        raise PlacementError(f"the scene has no elements {missing[:10]} (with objects split at {cluster_triangles} triangles): is it the placement's scene?")
+    return elements.scene_of(scene, [by_name[name] for name in objects]), None
+
+
+def bake_impostor(scene: Scene, entry: dict, cluster_triangles: int, progress: Callable | None = None) -> Impostor:
+    """Bake one impostor of a placement: ``entry`` is a cell of :func:`placement_cells` or of a
+    placement database's index (``technique``, ``objects``, ``params``, ``viewcell``)."""
+    technique = get_technique(entry["technique"])
+    options = technique.options_of(entry["params"])
+    part, objects = impostor_scene(scene, cluster_triangles, entry["objects"])
+    return technique.bake(part, viewcell_from_dict(entry["viewcell"]), options, objects, progress)
+
+
+def bake_placement(scene: Scene, placement: Placement, progress: Callable[[int, int], None] | None = None) -> dict[int, Impostor]:
+    """Every impostor of ``placement`` baked in this process (tests, benchmarks, local use)."""
+    cells = placement_cells(placement)
+    cluster = int(placement.elements["cluster_triangles"])
+    out = {}
+    for n, cell in enumerate(cells):
+        out[cell["index"]] = bake_impostor(scene, cell, cluster)
+        if progress is not None:
+            progress(n + 1, len(cells))
+    return out
+
+
+def write_placement_database(directory: str | Path, placement: Placement, impostors: dict[int, Impostor], rounds: list | None = None) -> Path:
+    """Write a placement database folder (``index.json`` and ``cells/NNNNN/`` bundles) from
+    impostors baked in this process; impostors missing from ``impostors`` are listed without a bundle."""
+    from farfield.core.bundle import write_bundle
+
+    root = Path(directory)
+    root.mkdir(parents=True, exist_ok=True)
+    cells = []
+    for imp in placement.impostors:
+        i = imp["id"]
+        if i in impostors:
+            write_bundle(impostors[i], root / "cells" / f"{i:05d}")
+            cells.append({"index": i, "state": "done", "bundle": f"cells/{i:05d}/", "stats": impostors[i].stats})
+        else:
+            cells.append({"index": i, "state": "missing", "bundle": None})
+    index = placement_index(placement, cells, rounds=rounds)
+    (root / INDEX_NAME).write_text(json.dumps(index, sort_keys=True, indent=1))
+    return root

@@ -1,0 +1,300 @@
+"""The planner's state, kept for check-and-repair rounds after the impostors are baked.
+
+The thesis builds each impostor inside its greedy loop and measures it before the next choice
+(seed 000 §5.7.3).  farfield bakes the chosen impostors afterwards, in parallel on render workers,
+so the greedy's figures are estimates (the cost model over the technique's cheap layer estimate,
+§5.8.1).  The check-and-repair round is the distributed form of §5.7.3: once a round's impostors
+are baked, :meth:`PlannerState.repair` puts each one's real figures in place of the estimates
+(its quads, hence its drawing time in every CPV it is drawn in, and its texture bytes, hence its
+memory), and the CPVs that the real figures push over ``t_max`` go back to the greedy, which
+resumes with every candidate not yet chosen (§5.7.4: scores only fall, so the lazy heap starts
+from fresh upper bounds).  What it adds is baked in the next round; :data:`MAX_REPAIR_ROUNDS`
+bounds the rounds.
+
+Covered pixels keep their estimate (the bounding-sphere disc of the replaced elements, at most a
+frame): a baked impostor's pixels depend on the view, and the estimate is conservative for the
+layered and tdm techniques, whose quads lie inside their part's bounds.
+
+The state pickles (:meth:`PlannerState.dumps`) with a format tag, so a worker other than the one
+that planned can run the round.  Only farfield writes these bytes (the service's blob store); they
+are never read from a user.
+"""
+
+from __future__ import annotations
+
+import pickle
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from farfield.core.placement.candidates import Candidates
+from farfield.core.placement.greedy import Greedy
+from farfield.core.placement.hierarchy import Elements, Hierarchy, PlacementError
+from farfield.core.placement.result import Placement
+from farfield.core.placement.view_space import FACE_NAMES, ProblemViews
+from farfield.core.scene import Scene
+
+STATE_FORMAT = "farfield-planner-state"
+STATE_VERSION = 1
+MAX_REPAIR_ROUNDS = 3
+BAKED_FIGURES = ("quads", "texture_bytes")
+
+
+def scene_summary(scene: Scene, elements: Elements) -> dict:
+    """What a placement document says of its scene (kept instead of the scene itself)."""
+    return {
+        "source": scene.source, "content_hash": scene.content_hash, "objects": scene.object_count, "triangles": scene.triangle_count,
+        "split": elements.split_counts(scene),
+    }  # fmt: skip
+
+
+@dataclass(frozen=True, slots=True)
+class RepairRound:
+    """One check-and-repair round: CPVs over ``t_max`` with the baked figures, before the greedy
+    resumed; the impostor ids it added (to bake); the placement after it."""
+
+    round: int
+    cpvs_over: int
+    added: list[int]
+    placement: Placement
+
+    correction: dict | None = None
+
+    def to_dict(self) -> dict:
+        return {"round": self.round, "cpvs_over": self.cpvs_over, "added": list(self.added), "correction": self.correction}
+
+
+@dataclass(eq=False)
+class PlannerState:
+    """Everything :func:`core.placement.planner.place` computed, and the rounds since."""
+
+    scene: dict  # scene_summary
+    elements: Elements
+    hierarchy: Hierarchy
+    pv: ProblemViews
+    cand: Candidates
+    greedy: Greedy
+    settings: object  # core.placement.planner.PlacementSettings
+    options: object  # the technique's Options
+    technique: str
+    lo: np.ndarray
+    hi: np.ndarray
+    cpv_size: float
+    seconds: dict
+    ids: dict = field(default_factory=dict)  # greedy order -> stable impostor id
+    baked: dict = field(default_factory=dict)  # impostor id -> {"quads", "texture_bytes"}
+    estimated: dict = field(default_factory=dict)  # impostor id -> its estimates before it was baked
+    rounds: list = field(default_factory=list)
+    first: dict | None = None  # every candidate's first estimates (quads, memory), before any correction
+    correction: dict | None = None  # the last ratios of baked to estimated figures
+
+    # --- persistence ---------------------------------------------------------------------------
+
+    def dumps(self) -> bytes:
+        return pickle.dumps({"format": STATE_FORMAT, "version": STATE_VERSION, "state": self}, protocol=pickle.HIGHEST_PROTOCOL)
+
+    @classmethod
+    def loads(cls, data: bytes) -> PlannerState:
+        try:
+            doc = pickle.loads(data)  # farfield's own blob, never a user's
+        except Exception as error:  # noqa: BLE001 - any unpickling failure means the same
+            raise PlacementError(f"the stored planner state could not be read: {type(error).__name__}: {error}") from error
+        if not isinstance(doc, dict) or doc.get("format") != STATE_FORMAT or doc.get("version") != STATE_VERSION:
+            raise PlacementError(f"the stored planner state is not {STATE_FORMAT} version {STATE_VERSION}")
+        return doc["state"]
+
+    # --- ids -----------------------------------------------------------------------------------
+
+    def _assign_ids(self) -> None:
+        """Give every drawn impostor without an id the next one, in the order it was chosen."""
+        for order, _ in enumerate(self.greedy.chosen):
+            if order not in self.ids and order not in self.greedy.deleted:
+                self.ids[order] = len(self.ids)
+
+    def order_of(self, impostor_id: int) -> int:
+        for order, i in self.ids.items():
+            if i == impostor_id:
+                return order
+        raise PlacementError(f"the placement has no impostor {impostor_id}")
+
+    # --- repair --------------------------------------------------------------------------------
+
+    def repair(self, baked: dict[int, dict]) -> RepairRound:
+        """Put the real figures of the impostors baked since the last round (``baked``: impostor id
+        -> the bundle's stats, of which ``quads`` and ``texture_bytes`` are used) in place of their
+        estimates, and resume the greedy for the CPVs now over ``t_max``.  Returns the round, with
+        the ids of the impostors it added (none: the placement holds with what is baked)."""
+        self._assign_ids()
+        model, greedy, cand = self.settings.model, self.greedy, self.cand
+        for impostor_id, stats in sorted(baked.items()):
+            impostor_id = int(impostor_id)
+            if impostor_id in self.baked:
+                continue  # its figures are in place already (a round repeated after a lost worker)
+            missing = [k for k in BAKED_FIGURES if not isinstance(stats.get(k), (int, float))]
+            if missing:
+                raise PlacementError(f"the baked stats of impostor {impostor_id} lack {missing}")
+            chosen = greedy.chosen[self.order_of(impostor_id)]
+            i = chosen.candidate
+            self.estimated[impostor_id] = {"quads": float(cand.quads[i]), "memory_bytes": float(cand.memory[i])}
+            delta = float(model.impostor_time(0.0, float(stats["quads"])) - model.impostor_time(0.0, float(cand.quads[i])))
+            cand.quads[i] = float(stats["quads"])
+            cand.memory[i] = max(float(stats["texture_bytes"]), 1.0)
+            a, b = cand.served_offsets[i], cand.served_offsets[i + 1]
+            cand.ti[a:b] += delta  # greedy.ti is this array
+            keys = []
+            for p, (g_p, t_p) in chosen.cpvs.items():
+                chosen.cpvs[p] = (g_p, t_p + delta)
+                greedy.t[p] += delta
+                keys.append(p * int(greedy.nodes) + chosen.node)
+            if keys:
+                at = np.searchsorted(greedy._keys, np.asarray(keys, dtype=np.int64))
+                greedy._saved[at] -= delta
+                greedy._cum = None
+            self.baked[impostor_id] = {k: float(stats[k]) for k in BAKED_FIGURES}
+        self._correct_unchosen()
+        over = int(np.sum(greedy.t > greedy.t_max * (1.0 + 1e-9)))
+        before = len(greedy.chosen)
+        if over:
+            greedy.run()
+        self._assign_ids()
+        added = sorted(self.ids[order] for order in range(before, len(greedy.chosen)) if order in self.ids)
+        step = RepairRound(len(self.rounds) + 1, over, added, self.placement(), self.correction)
+        self.rounds.append(step.to_dict())
+        return step
+
+    def _correct_unchosen(self) -> None:
+        """Scale the quads and memory of every candidate not chosen by the median ratio of baked to
+        estimated figures so far (the estimates' bias on this scene, e.g. box growing cutting more
+        quads per layer than the calibration scene's), so the resumed greedy ranks and counts with
+        figures like those its additions will have once baked; each candidate's figures are scaled
+        from their first estimate, so repeated rounds do not compound."""
+        if not self.baked:
+            return
+        cand, model = self.cand, self.settings.model
+        ratio = {
+            k: float(np.median([self.baked[i][b] / max(self.estimated[i][e], 1e-12) for i in self.baked]))
+            for k, b, e in (("quads", "quads", "quads"), ("memory", "texture_bytes", "memory_bytes"))
+        }  # fmt: skip
+        if self.first is None:
+            self.first = {"quads": cand.quads.copy(), "memory": cand.memory.copy()}
+        chosen = np.zeros(cand.count, dtype=bool)
+        chosen[[imp.candidate for imp in self.greedy.chosen]] = True
+        free = ~chosen
+        quads = np.where(free, self.first["quads"] * ratio["quads"], cand.quads)
+        delta = np.asarray(model.impostor_time(0.0, quads), dtype=np.float64) - np.asarray(model.impostor_time(0.0, cand.quads), dtype=np.float64)
+        cand.ti[:] += np.repeat(np.where(free, delta, 0.0), np.diff(cand.served_offsets))
+        cand.quads[:] = quads
+        cand.memory[:] = np.where(free, np.maximum(self.first["memory"] * ratio["memory"], 1.0), cand.memory)
+        self.correction = ratio
+
+    # --- the result ----------------------------------------------------------------------------
+
+    def placement(self) -> Placement:
+        """The placement as it stands (:class:`~core.placement.result.Placement`)."""
+        self._assign_ids()
+        greedy, cand, pv, hierarchy, elements, settings = self.greedy, self.cand, self.pv, self.hierarchy, self.elements, self.settings
+        impostors = []
+        for order, impostor_id in sorted(self.ids.items(), key=lambda kv: kv[1]):
+            imp = greedy.chosen[order]
+            i = imp.candidate
+            names = [elements.names[e] for e in np.sort(hierarchy.elements_of(imp.node))]
+            entry = {
+                "id": impostor_id,
+                "node": imp.node,
+                "objects": names,
+                "cell": cand.cells[i].to_dict(),
+                "technique": self.technique,
+                "layers_estimated": float(cand.layers[i]),
+                "texels_per_layer": float(cand.texels[i]),
+                "quads_estimated": self.estimated.get(impostor_id, {}).get("quads", float(cand.quads[i])),
+                "memory_bytes_estimated": self.estimated.get(impostor_id, {}).get("memory_bytes", float(cand.memory[i])),
+                "memory_bytes": float(cand.memory[i]),  # the baked texture bytes, once baked
+                "cpvs": len(imp.cpvs),
+                "time_max": max((t for _, t in imp.cpvs.values()), default=0.0),
+            }
+            if impostor_id in self.baked:
+                entry["baked"] = dict(self.baked[impostor_id])
+            impostors.append(entry)
+        solvable = ~pv.unsolvable
+        after = np.where(solvable, greedy.t, pv.time)
+        unsolved = solvable & (after > settings.t_max * (1.0 + 1e-9))
+        cpvs = []
+        for p in range(pv.count):
+            status = "unsolvable" if pv.unsolvable[p] else ("unsolved" if unsolved[p] else "solved")
+            r = int(pv.cpv_region[p])
+            v = pv.cpv_vdi[p]
+            cpvs.append({
+                "id": p,
+                "region": [pv.region_lo[r].tolist(), pv.region_hi[r].tolist()],
+                "vdi": {"face": FACE_NAMES[v.face], "level": v.level, "i": v.i, "j": v.j},
+                "time_before": float(pv.time[p]),
+                "time_after": float(after[p]),
+                "impostors": sorted(self.ids[k] for k in greedy.drawn[p]),
+                "status": status,
+            })  # fmt: skip
+        blame = []
+        by_region: dict[int, list[int]] = {}
+        for p in np.flatnonzero(pv.unsolvable):
+            by_region.setdefault(int(pv.cpv_region[p]), []).append(int(p))
+        for r in sorted(by_region):
+            cpv_ids = by_region[r]
+            worst = max(cpv_ids, key=lambda p: (pv.fixed_time[p], -p))
+            a, b = pv.offsets[worst], pv.offsets[worst + 1]
+            ids = hierarchy.order[pv.positions[a:b][pv.entry_fixed[a:b]]]
+            blame.append({
+                "region": [pv.region_lo[r].tolist(), pv.region_hi[r].tolist()],
+                "cpvs": len(cpv_ids),
+                "fixed_time": float(pv.fixed_time[worst]),
+                "elements": sorted(elements.names[e] for e in ids),
+            })  # fmt: skip
+        drawn = [imp for imp in impostors if imp["cpvs"]]
+        summary = {
+            "t_max": float(settings.t_max),
+            "unit": settings.model.unit,
+            "cpvs": pv.count,
+            "cpvs_solved": int(np.sum(solvable & ~unsolved)),
+            "cpvs_unsolved": int(unsolved.sum()),
+            "cpvs_unsolvable": int(pv.unsolvable.sum()),
+            "candidates": cand.count,
+            "candidates_considered": int(cand.stats["considered"]),
+            "candidates_refused_by_technique": int(cand.stats["refused_by_technique"]),
+            "impostors": len(drawn),
+            "impostors_unused": len(impostors) - len(drawn),
+            "impostors_deleted": len(greedy.deleted),
+            "memory_bytes": float(sum(imp["memory_bytes"] for imp in drawn)),
+            "worst_before": float(pv.time.max()) if pv.count else 0.0,
+            "worst_after": float(after.max()) if pv.count else 0.0,
+            "worst_after_solvable": float(after[solvable].max()) if solvable.any() else 0.0,
+            "leaf_regions_with_cpvs": int(pv.region_lo.shape[0]),
+            "vdis_evaluated": int(pv.stats["vdis_evaluated"]),
+            "hierarchy_nodes": hierarchy.count,
+            "elements": elements.count,
+            "rescored": greedy.rescored,
+            "rounds": len(self.rounds),
+        }
+        parameters = {
+            "scene": {k: v for k, v in self.scene.items() if k != "split"},
+            "view_space": [self.lo.tolist(), self.hi.tolist()],
+            "t_max": float(settings.t_max),
+            "cost_model": settings.model.to_dict(),
+            "technique": self.technique,
+            "options": {k: (v if not isinstance(v, tuple) else list(v)) for k, v in asdict(self.options).items()},
+            "cpv_size": float(self.cpv_size),
+            "vdi_deg": float(settings.vdi_deg),
+            "depth_complexity": float(settings.depth_complexity),
+            "cells": settings.cells,
+            "leaf_size": settings.leaf_size,
+            "apex_angles_deg": [float(a) for a in settings.apex_angles_deg],
+            "direction_step_deg": float(settings.direction_step_deg),
+            "distance_steps": int(settings.distance_steps),
+            "visibility": "none (no occlusion culling; seed 000 Table 5.1 test 16 setting)",
+        }
+        return Placement(
+            parameters=parameters,
+            elements={"count": elements.count, "cluster_triangles": elements.cluster_triangles, "split": self.scene["split"]},
+            impostors=impostors,
+            cpvs=cpvs,
+            unsolvable=blame,
+            summary=summary,
+            seconds=self.seconds,
+        )

@@ -1,0 +1,127 @@
+"""Check-and-repair rounds (core/placement/repair.py) and the placement database with its lookup (core/placement/database.py).
+
+Real placements of a small procedural city under a primitive budget, real EGL bakes at 64 px.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from farfield.core import procedural
+from farfield.core.errors import ViewCellError
+from farfield.core.impostor_database import ImpostorDatabase
+from farfield.core.placement.cost_model import primitive_model
+from farfield.core.placement.database import UNDER_BUDGET, PlacementLookup, bake_impostor, bake_placement, placement_cells, write_placement_database
+from farfield.core.placement.hierarchy import PlacementError
+from farfield.core.placement.planner import PlacementSettings, place
+from farfield.core.placement.repair import PlannerState
+from farfield.core.placement.view_space import FACE_NAMES, VDI
+from farfield.core.scene import Scene, SceneObject
+
+VIEW = ([20.0, 110.0, 20.0], [100.0, 115.0, 100.0])  # above the roofs of the small city
+
+
+def _settings(t_max: float, **kw) -> PlacementSettings:
+    base = {"vdi_deg": 45.0, "options": {"resolution": 64}, "cpv_size": 20.0}
+    base.update(kw)
+    return PlacementSettings(t_max=t_max, model=primitive_model(), **base)
+
+
+@pytest.fixture(scope="module")
+def planned():
+    city = procedural.city(36, seed=5, detail=6)
+    placement = place(city, *VIEW, _settings(0.5 * city.triangle_count), keep_state=True)
+    assert placement.summary["impostors"] > 0 and placement.summary["cpvs_solved"] == placement.summary["cpvs"]
+    return city, placement, bake_placement(city, placement)
+
+
+def test_the_state_survives_pickling_and_gives_the_same_placement(planned):
+    _, placement, _ = planned
+    again = PlannerState.loads(placement.state.dumps())
+    assert again.placement().to_dict() == placement.to_dict()
+    with pytest.raises(PlacementError, match="planner state"):
+        PlannerState.loads(b"not a pickle")
+
+
+def test_repair_puts_the_baked_figures_in_and_keeps_ids(planned):
+    city, placement, impostors = planned
+    state = PlannerState.loads(placement.state.dumps())
+    first = state.repair({i: imp.stats for i, imp in impostors.items()})
+    after = first.placement
+    old = {imp["id"]: imp for imp in placement.impostors}
+    for imp in after.impostors:
+        if imp["id"] in old:  # an impostor keeps its id, objects and cell across rounds
+            assert (imp["objects"], imp["cell"]) == (old[imp["id"]]["objects"], old[imp["id"]]["cell"])
+            assert imp["baked"]["quads"] == impostors[imp["id"]].stats["quads"]
+            assert imp["memory_bytes"] == impostors[imp["id"]].stats["texture_bytes"]
+    assert all(i > max(old) for i in first.added)
+    # Every CPV's time is recomputed with the real quads: redo the sum from the document.
+    t_max = after.summary["t_max"]
+    for cpv in after.cpvs:
+        if cpv["status"] == "solved":
+            assert cpv["time_after"] <= t_max * (1 + 1e-9)
+    # The additions, baked and reported, end the rounds (bounded): a repeat with nothing new adds nothing.
+    cells = {c["index"]: c for c in placement_cells(after)}
+    added = {i: bake_impostor(city, cells[i], after.elements["cluster_triangles"]) for i in first.added}
+    second = state.repair({i: imp.stats for i, imp in added.items()})
+    third = state.repair({})
+    assert third.added == [] and len(state.rounds) == 3
+    assert second.placement.summary["cpvs_unsolved"] == third.placement.summary["cpvs_unsolved"]
+
+
+def test_the_estimates_bias_corrects_the_candidates_not_chosen(planned):
+    _, placement, impostors = planned
+    state = PlannerState.loads(placement.state.dumps())
+    before = state.cand.quads.copy()
+    chosen = {imp.candidate for imp in state.greedy.chosen}
+    step = state.repair({i: imp.stats for i, imp in impostors.items()})
+    ratio = step.correction["quads"]
+    free = [k for k in range(state.cand.count) if k not in chosen and k not in {imp.candidate for imp in state.greedy.chosen}]
+    assert free and np.allclose(state.cand.quads[free], before[free] * ratio)
+
+
+def test_the_database_is_written_read_and_looked_up(planned, tmp_path):
+    city, placement, impostors = planned
+    root = write_placement_database(tmp_path / "db", placement, impostors)
+    with ImpostorDatabase(root) as db:
+        assert db.placement is not None and db.technique == "layered"
+        assert [c.index for c in db.cells] == [imp["id"] for imp in placement.impostors]
+        for cell in db.cells:
+            assert db.impostor(cell.index).quad_count == impostors[cell.index].quad_count
+        entry = db.index["cells"][0]
+        assert entry["objects"] == placement.impostors[0]["objects"] and entry["params"]["resolution"] == 64
+        assert entry["figures"]["baked"]["quads"] == impostors[0].stats["quads"]
+        lookup = PlacementLookup(db.index)
+    # The centre of every CPV (its region's centre, its VDI's axis) finds that CPV and its impostors.
+    for cpv in placement.cpvs:
+        lo, hi = (np.asarray(v) for v in cpv["region"])
+        v = cpv["vdi"]
+        axis, _ = VDI(FACE_NAMES.index(v["face"]), v["level"], v["i"], v["j"]).cone()
+        found = lookup.find(0.5 * (lo + hi), axis)
+        assert found["cpv"] == cpv["id"] and found["impostors"] == cpv["impostors"]
+        assert set(found["replaced"]) == {name for i in cpv["impostors"] for name in placement.impostors[i]["objects"]}
+    # Looking up into the sky from above the roofs: no CPV, nothing replaced.
+    assert lookup.find([60.0, 112.0, 60.0], [0.0, 1.0, 0.0])["status"] == UNDER_BUDGET
+    with pytest.raises(ViewCellError, match="outside the placement's view space"):
+        lookup.find([60.0, 0.0, 60.0], [1.0, 0.0, 0.0])
+    with pytest.raises(ViewCellError, match="non-zero"):
+        lookup.find([60.0, 112.0, 60.0], [0.0, 0.0, 0.0])
+    json.dumps(db.index)  # plain JSON
+
+
+def test_an_impostor_of_clusters_bakes_just_their_triangles():
+    city = procedural.city(36, seed=5, detail=6)
+    vertices, faces, offset = [], [], 0
+    for obj in city.objects:
+        vertices.append(obj.vertices), faces.append(obj.faces + offset)
+        offset += len(obj.vertices)
+    one = Scene.from_objects([SceneObject("everything", np.concatenate(vertices), np.concatenate(faces))], "one mesh")
+    placement = place(one, *VIEW, _settings(0.5 * one.triangle_count))
+    assert placement.elements["split"] == {"everything": placement.elements["count"]}
+    imp = max(placement.impostors, key=lambda i: len(i["objects"]))
+    cell = next(c for c in placement_cells(placement) if c["index"] == imp["id"])
+    baked = bake_impostor(one, cell, placement.elements["cluster_triangles"])
+    assert baked.stats["layers"] >= 1 and set(baked.parameters["objects"]) == set(imp["objects"])
