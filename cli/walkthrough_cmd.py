@@ -38,7 +38,7 @@ def walkthrough_cmd(database, scene, path_file, frames, random_count, seed, repe
     a placement database's impostors + remaining geometry against its frame budget."""
     loaded = load_scene(scene)
     with ImpostorDatabase(Path(database)) as db:
-        placement = db.index.get("placement")
+        placement = db.placement
         if random_count is not None and not placement:
             raise click.UsageError("--random needs a placement database (an envmap database is walked along a path)")
         if random_count is not None and path_file:

@@ -33,9 +33,8 @@ Progress = Callable[[int, int], None]  # (frames done, frames)
 def generate_path(database: ImpostorDatabase, frames: int, margin: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
     """(positions (n, 3), forwards (n, 3)): a closed ellipse through the cells' bounding box (for a
     placement database: through its view space, see :func:`loop_path`)."""
-    placement = database.index.get("placement")
-    if placement:
-        lo, hi = np.asarray(placement["parameters"]["view_space"], dtype=np.float64).reshape(2, 3)
+    if database.placement:
+        lo, hi = np.asarray(database.placement["parameters"]["view_space"], dtype=np.float64).reshape(2, 3)
     else:
         lo, hi = database.bounds()
     return loop_path(lo, hi, frames, margin)
@@ -126,7 +125,7 @@ def walkthrough(
 ) -> dict:
     """Walk the path; returns ``{"frames": [...], "summary": {...}}`` (see the module docstring).
     A placement database is walked by :func:`placement_walkthrough`."""
-    if database.index.get("placement"):
+    if database.placement:
         return placement_walkthrough(scene, database, positions, forwards, repeats, compare, progress)
     if database.technique != "envmap":  # the reference runtime draws environment-map impostors only
         raise LayerPlanError(f"a walkthrough needs an envmap impostor database, got technique {database.technique!r}")
@@ -249,7 +248,8 @@ def placement_walkthrough(
     """Walk ``positions``/``forwards`` through a placement database: per frame the runtime
     (:class:`core.placement.runtime.PlacementRenderer`: the CPV's impostors and the elements they do
     not replace, frustum-culled) and the plain geometry (every element, culled alike), both timed
-    from the same camera (median of ``repeats`` draws, no read-back), the model's estimate, what was
+    from the same camera (median of ``repeats`` draws, no read-back, after one untimed draw of the
+    runtime's list: a runtime uploads an impostor before it needs it), the model's estimate, what was
     drawn, and (``compare``) hole pixels and colour error of the runtime's image against the full
     scene drawn unculled.  Returns ``{"frames": [...], "summary": {...}}`` (:func:`summarize_placement`).
 
@@ -265,6 +265,7 @@ def placement_walkthrough(
         for n, (position, forward) in enumerate(zip(positions, forwards)):
             camera, draws, fig = runtime.prepare(position, forward)
             _, plain_draws, plain = runtime.prepare(position, forward, plain=True, camera=camera)
+            runtime.frame_seconds(camera, draws)  # untimed: the first draw of a new impostor uploads its pages to the renderer
             runtime_ms = 1e3 * float(np.median([runtime.frame_seconds(camera, draws) for _ in range(repeats)]))
             plain_ms = 1e3 * float(np.median([runtime.frame_seconds(camera, plain_draws) for _ in range(repeats)]))
             measured = runtime_ms if unit == "ms" else float(fig.triangles)
@@ -288,7 +289,7 @@ def placement_walkthrough(
     summary = summarize_placement(frames, runtime.t_max, unit)
     summary.update({"impostors_uploaded": impostors_used, "impostor_texture_bytes": memory, "resolution": runtime.resolution,
                     "fov_deg": runtime.fov_deg})  # fmt: skip
-    placement = database.index.get("placement") or {}
+    placement = database.placement or {}
     if placement.get("summary"):
         summary["impostors"] = placement["summary"].get("impostors")
         summary["memory_bytes_estimated"] = placement["summary"].get("memory_bytes")

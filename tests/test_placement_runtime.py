@@ -46,7 +46,7 @@ def placed(tmp_path_factory):
 def test_lookup_answers_every_sampled_view(placed):
     scene, placement, root = placed
     with ImpostorDatabase(root) as db:
-        assert db.index.get("placement")
+        assert db.placement is not None and db.placement["summary"]["impostors"] == placement.summary["impostors"]
         lookup = PlacementLookup(db.index)
         names = set(PlacementRenderer.element_names(scene, db))
         baked = {c.index for c in db.cells if c.bundle is not None}

@@ -46,14 +46,10 @@ DRAWERS = {"quads": impostor_objects, "mesh": impostor_objects}
 
 def placement_section(database: ImpostorDatabase) -> dict:
     """The ``placement`` section of a placement database's index (PlacementError when it has none)."""
-    section = getattr(database, "placement", None) or database.index.get("placement")
+    section = database.placement
     if not section:
         raise PlacementError(f"{database.root}: not a placement database (its index has no 'placement' section)")
     return section
-
-
-def is_placement_database(database: ImpostorDatabase) -> bool:
-    return bool(getattr(database, "placement", None) or database.index.get("placement"))
 
 
 def boxes_in_frustum(camera: Camera, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
