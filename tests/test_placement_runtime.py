@@ -18,6 +18,7 @@ from farfield.cli.main import _register, cli
 from farfield.core import procedural
 from farfield.core.impostor_database import ImpostorDatabase
 from farfield.core.placement.cost_model import primitive_model
+from farfield.core.placement.hierarchy import PlacementError
 from farfield.core.placement.database import PlacementLookup, bake_placement, write_placement_database
 from farfield.core.placement.planner import PlacementSettings, place
 from farfield.core.placement.runtime import PlacementRenderer, boxes_in_frustum
@@ -131,3 +132,9 @@ def test_walkthrough_command_on_a_placement_database(placed, tmp_path):
     loop = runner.invoke(cli, ["walkthrough", str(root), str(path), "--frames", "3", "--repeats", "1", "--no-compare"])
     assert loop.exit_code == 0, loop.output
     assert "frames; t_max" in loop.output
+
+
+def test_another_scene_is_refused(placed):
+    _, _, root = placed
+    with ImpostorDatabase(root) as db, pytest.raises(PlacementError, match="placement's scene"):
+        PlacementRenderer(procedural.city(9, seed=1), db)

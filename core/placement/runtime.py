@@ -136,6 +136,12 @@ class PlacementRenderer:
         self.lookup = PlacementLookup(database.index)
         names = self.elements.names
         self.element_of = {name: i for i, name in enumerate(names)}
+        missing = sorted({name for objects in self.lookup.objects.values() for name in objects} - set(names))
+        if missing:
+            raise PlacementError(
+                f"the scene has no elements {missing[:5]}{' ...' if len(missing) > 5 else ''} that the placement's impostors replace "
+                f"(objects split at {self.elements.cluster_triangles} triangles): is it the placement's scene?"
+            )
         # One object per element, in element order (scene_of sorts its indices: 0..count-1 is that order).
         objects = self.elements.scene_of(scene, range(self.elements.count)).objects
         self.gpu = MeshRenderer(objects)
