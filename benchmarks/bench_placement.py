@@ -1,6 +1,7 @@
 """Placement for a frame-time budget (seed 000 ch. 5): the shape of Table 5.1 on two seeded scenes, measured in one run.
 
 Usage: ``.venv/bin/python benchmarks/bench_placement.py [--scene city|helmets|both] [--quick] [--json OUT]``
+       ``.venv/bin/python benchmarks/bench_placement.py --walkthrough [--size N] [--views 200] [--json OUT]``
 
 For each scene the reference placement and its variations run side by side, with the same cost
 model (the builtin one ``farfield calibrate`` measured on this machine's llvmpipe, unless
@@ -21,11 +22,26 @@ model (the builtin one ``farfield calibrate`` measured on this machine's llvmpip
 Columns: # CPV, # candidates, # impostors, estimated memory (MiB), CPVs left unsolved/unsolvable,
 and the seconds of each step.  Memory is the cost model's estimate (layers x texels law); nothing
 is baked.  Everything runs on CPU; rendering is not involved (the cost model stands for it).
+
+``--walkthrough`` (issue 26, Measure) closes the loop by measurement on the city: for t_max at
+three values (``--factors`` times the reference budget, half the worst view's estimated time) it
+plans with the builtin llvmpipe model, bakes every chosen impostor in this process (layered, EGL),
+runs the check-and-repair rounds with the baked figures (:mod:`core.placement.repair`), writes the
+placement database and walks ``--views`` random views (positions uniform in the view space,
+directions uniform on the sphere, the same views for every t_max) with the reference runtime
+(:mod:`core.placement.runtime`) against plain geometry.  Columns: share of views whose measured
+frame is within t_max, and by the model's estimate; p99 and max frame time of the runtime and of
+plain geometry; speed-up (median of per-view ratios); hole pixels against the full scene; baked
+memory (atlas texture bytes) and the estimate; impostors; wall time of planning and of baking
+(one process); the envmap grid's estimated memory over the same view space and t_max (as test
+15 above) and its ratio to the placement's baked memory.  Frames over t_max are listed with
+their estimate and CPV status.
 """
 
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import math
 import sys
@@ -51,10 +67,10 @@ SHARED = Path(__file__).resolve().parents[2] / "shared" / "scenes"
 RESOLUTION = 256
 
 
-def city_scene(quick: bool, size: int | None = None) -> tuple[Scene, np.ndarray, np.ndarray]:
+def city_scene(quick: bool, size: int | None = None, detail: int = 16) -> tuple[Scene, np.ndarray, np.ndarray]:
     """A seeded city of detailed box buildings; the view space a box above the roofs of its centre,
     a quarter of the city's side across."""
-    scene = procedural.city(size or (400 if quick else 1600), seed=0, detail=16)
+    scene = procedural.city(size or (400 if quick else 1600), seed=0, detail=detail)
     c = 0.5 * (scene.bounds[0] + scene.bounds[1])
     top = float(scene.bounds[1][1])
     half = 0.1875 * float(scene.extents[0])
@@ -92,7 +108,7 @@ def helmet_scene(quick: bool, size: int | None = None) -> tuple[Scene, np.ndarra
     return scene, np.array([c[0] - half, 6.0, c[2] - half]), np.array([c[0] + half, 10.0, c[2] + half])
 
 
-def envmap_grid_memory(scene: Scene, lo, hi, cell: float, t_max: float, model: CostModel) -> dict:
+def envmap_grid_memory(scene: Scene, lo, hi, cell: float, t_max: float, model: CostModel, resolution: int = RESOLUTION) -> dict:
     """Estimated memory of a grid of layered environment maps (seed 002) over the view space with
     cubic cells of side ``cell``: per cell, the near field is the smallest radius from the cell's
     centre whose elements (all directions, no culling) fit t_max by the model; its layers follow
@@ -100,13 +116,13 @@ def envmap_grid_memory(scene: Scene, lo, hi, cell: float, t_max: float, model: C
     elements = Elements.of(scene)
     centre_b = 0.5 * (elements.bounds[:, 0] + elements.bounds[:, 1])
     counts = np.maximum(1, np.ceil((hi - lo) / cell - 1e-9)).astype(int)
-    alpha = pixel_angle(math.pi / 2, RESOLUTION, "min")
+    alpha = pixel_angle(math.pi / 2, resolution, "min")
     total, cells, layers_all, near_all = 0.0, 0, [], []
     for idx in np.ndindex(*counts):
         c_lo = lo + np.array(idx) * cell
         c_hi = np.minimum(c_lo + cell, np.maximum(hi, c_lo + 1e-9))
         centre = 0.5 * (c_lo + c_hi)
-        pixels = element_pixels(elements, c_lo, c_hi, math.radians(45.0), RESOLUTION)
+        pixels = element_pixels(elements, c_lo, c_hi, math.radians(45.0), resolution)
         cost = model.geometry_time(elements.draw_calls, elements.triangles, pixels)
         dist = np.linalg.norm(centre_b - centre, axis=1)
         order = np.argsort(dist)
@@ -116,8 +132,8 @@ def envmap_grid_memory(scene: Scene, lo, hi, cell: float, t_max: float, model: C
         near = max(near, 0.51 * math.sqrt(3) * cell)
         if math.isinf(near):
             continue
-        layers = layers_for_near_field(cell, RESOLUTION, near, alpha, 3)
-        total += 6.0 * float(model.memory_bytes(layers, RESOLUTION * RESOLUTION))
+        layers = layers_for_near_field(cell, resolution, near, alpha, 3)
+        total += 6.0 * float(model.memory_bytes(layers, resolution * resolution))
         cells += 1
         layers_all.append(layers), near_all.append(near)
     return {"cells": cells, "memory_bytes": total, "layers_median": float(np.median(layers_all)) if layers_all else 0.0,
@@ -173,7 +189,16 @@ def run(name: str, scene: Scene, lo, hi, model: CostModel, quick: bool, only: li
     return out
 
 
-def _worst_view(scene, lo, hi, model) -> float:
+def _renderer() -> str:
+    from farfield.core.render.context import renderer_info
+
+    try:
+        return renderer_info().renderer
+    except FarfieldError as error:
+        return f"unavailable ({error})"
+
+
+def _worst_view(scene, lo, hi, model, resolution: int = RESOLUTION) -> float:
     """The worst view's time with no impostor: the worst CPV of the reference CPV size and
     view-direction intervals for a budget nothing meets."""
     from farfield.core.placement.hierarchy import Hierarchy
@@ -181,7 +206,7 @@ def _worst_view(scene, lo, hi, model) -> float:
 
     elements = Elements.of(scene)
     h = Hierarchy.build(elements)
-    pv = problem_view_space(elements, h, lo, hi, model, 1e-9, math.radians(45.0), RESOLUTION, float(np.max(hi - lo)) / 8.0, 11.25)
+    pv = problem_view_space(elements, h, lo, hi, model, 1e-9, math.radians(45.0), resolution, float(np.max(hi - lo)) / 8.0, 11.25)
     return float(pv.time.max())
 
 
@@ -192,6 +217,91 @@ def _line(r: dict) -> str:
             f"{r['memory_mib']:>10.2f} {num(r['unsolved']):>6}/{num(r['unsolvable']):<6} {steps}")  # fmt: skip
 
 
+def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float], views: int, seed: int, repeats: int,
+                     resolution: int, out_dir: Path | None) -> list[dict]:
+    """The --walkthrough table (see the module docstring): one row per t_max."""
+    import tempfile
+
+    from farfield.core.impostor_database import ImpostorDatabase
+    from farfield.core.placement.database import bake_impostor, bake_placement, placement_cells, write_placement_database
+    from farfield.core.walkthrough import placement_walkthrough, random_views
+
+    worst = _worst_view(scene, lo, hi, model, resolution)
+    t_ref = 0.5 * worst
+    cpv = float(np.max(hi - lo)) / 8.0
+    positions, forwards = random_views(lo, hi, views, seed)
+    print(f"worst view by the model {worst:.4g} {model.unit}; reference t_max {t_ref:.4g} {model.unit}; {views} random views, seed {seed}; "
+          f"{resolution} px, 45°, {repeats} draws per frame (median)", flush=True)  # fmt: skip
+    print(f"{'t_max':>8} {'<=t_max':>8} {'est<=':>7} {'p99 ms':>7} {'max ms':>7} {'plain p99':>9} {'plain max':>9} {'speedup':>7} {'holes':>5} "
+          f"{'MiB baked':>9} {'MiB est.':>8} {'# imp':>5} {'rounds':>6} {'plan s':>6} {'bake s':>6} {'envmap MiB':>10} {'ratio':>6}", flush=True)  # fmt: skip
+    rows = []
+    for factor in factors:
+        t_max = factor * t_ref
+        settings = PlacementSettings(t_max=t_max, model=model, options={"resolution": resolution}, cpv_size=cpv, cells="both")
+        started = time.perf_counter()
+        if "keep_state" in inspect.signature(place).parameters:
+            placement = place(scene, lo, hi, settings, keep_state=True)
+            state = placement.state
+        else:  # a planner without check-and-repair
+            placement, state = place(scene, lo, hi, settings), None
+        plan_s = time.perf_counter() - started
+        print(f"   # t_max {t_max:.4g}: planned in {plan_s:.1f} s, {placement.summary['impostors']} impostors, {placement.summary['cpvs']} CPVs", flush=True)
+        started = time.perf_counter()
+        impostors = bake_placement(scene, placement)
+        print(f"   # baked in {time.perf_counter() - started:.1f} s", flush=True)
+        rounds = []
+        if state is not None:
+            from farfield.core.placement.repair import MAX_REPAIR_ROUNDS
+
+            cluster = int(placement.elements["cluster_triangles"])
+            for _ in range(MAX_REPAIR_ROUNDS):
+                baked = {i: {"quads": imp.quad_count, "texture_bytes": imp.texture_bytes, **imp.stats} for i, imp in impostors.items()}
+                round_ = state.repair(baked)
+                rounds.append({"round": round_.round, "cpvs_over": round_.cpvs_over, "added": len(round_.added)})
+                if not round_.added:
+                    break
+                cells = {c["index"]: c for c in placement_cells(round_.placement)}
+                for i in round_.added:
+                    impostors[i] = bake_impostor(scene, cells[i], cluster)
+            placement = state.placement()
+        bake_s = time.perf_counter() - started
+        print(f"   # repair rounds {rounds}; baking {bake_s:.1f} s in all; walking {views} views", flush=True)
+        kept = {imp["id"] for imp in placement.impostors}
+        impostors = {i: imp for i, imp in impostors.items() if i in kept}
+        baked_bytes = sum(imp.texture_bytes for imp in impostors.values())
+        with tempfile.TemporaryDirectory(prefix="farfield-bench-") as tmp:
+            root = Path(out_dir or tmp) / f"placement-{factor:g}"
+            write_placement_database(root, placement, impostors, rounds=rounds)
+            with ImpostorDatabase(root) as db:
+                result = placement_walkthrough(scene, db, positions, forwards, repeats=repeats)
+        s = result["summary"]
+        env = envmap_grid_memory(scene, lo, hi, cpv, t_max, model, resolution)
+        row = {
+            "t_max": t_max, "factor": factor, "unit": model.unit, "share_within_t_max": s["share_within_t_max"],
+            "share_estimate_within_t_max": s["share_estimate_within_t_max"], "share_estimate_within_t_max_solvable": s["share_estimate_within_t_max_solvable"],
+            "runtime_ms_p50": s["runtime_ms_p50"], "runtime_ms_p99": s["runtime_ms_p99"], "runtime_ms_max": s["runtime_ms_max"],
+            "plain_ms_p50": s["plain_ms_p50"], "plain_ms_p99": s["plain_ms_p99"], "plain_ms_max": s["plain_ms_max"],
+            "plain_share_within_t_max": float(np.mean([f["plain_ms"] <= t_max for f in result["frames"]])) if model.unit == "ms" else None,
+            "speedup_median": s["speedup_median"], "estimate_rel_error_median": s["estimate_rel_error_median"], "hole_pixels": s["hole_pixels"],
+            "colour_error_mean": s["colour_error_mean"], "memory_baked_bytes": baked_bytes, "memory_estimated_bytes": placement.summary["memory_bytes"],
+            "impostors": len(placement.impostors), "cpvs": placement.summary["cpvs"], "cpvs_unsolved": placement.summary["cpvs_unsolved"],
+            "cpvs_unsolvable": placement.summary["cpvs_unsolvable"], "statuses": s["statuses"], "rounds": rounds, "plan_s": plan_s, "bake_s": bake_s,
+            "envmap": env, "envmap_ratio": env["memory_bytes"] / baked_bytes if baked_bytes else None, "over_t_max": s["over_t_max"],
+        }  # fmt: skip
+        rows.append(row)
+        mib = lambda b: b / 2**20
+        ratio = "-" if row["envmap_ratio"] is None else f"{row['envmap_ratio']:.1f}x"
+        print(f"{t_max:>8.3g} {100 * row['share_within_t_max']:>7.1f}% {100 * row['share_estimate_within_t_max']:>6.1f}% {row['runtime_ms_p99']:>7.2f} "
+              f"{row['runtime_ms_max']:>7.2f} {row['plain_ms_p99']:>9.2f} {row['plain_ms_max']:>9.2f} {row['speedup_median']:>6.1f}x {row['hole_pixels']:>5} "
+              f"{mib(baked_bytes):>9.2f} {mib(row['memory_estimated_bytes']):>8.2f} {row['impostors']:>5} {len(rounds):>6} {plan_s:>6.1f} {bake_s:>6.1f} "
+              f"{mib(env['memory_bytes']):>10.1f} {ratio:>6}", flush=True)  # fmt: skip
+        for f in row["over_t_max"][:10]:
+            print(f"         over t_max: view {f['frame']}: {f['measured']:.3g} {model.unit}, estimate {f['estimate']:.3g} ({f['status']}, cpv {f['cpv']})")
+        if len(row["over_t_max"]) > 10:
+            print(f"         ... {len(row['over_t_max']) - 10} more")
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scene", choices=["city", "helmets", "both"], default="both")
@@ -200,8 +310,25 @@ def main() -> None:
     parser.add_argument("--rows", default=None, help="comma-separated test numbers to run (default: all)")
     parser.add_argument("--size", type=int, default=None, help="city buildings / helmets per side (default: 1600 / 12; --quick 400 / 6)")
     parser.add_argument("--json", default=None, help="write the rows here")
+    parser.add_argument("--walkthrough", action="store_true", help="plan, bake and walk random views on the city for three t_max (issue 26)")
+    parser.add_argument("--views", type=int, default=200, help="--walkthrough: random views")
+    parser.add_argument("--factors", default="1,0.75,0.5", help="--walkthrough: t_max as these multiples of the reference budget")
+    parser.add_argument("--repeats", type=int, default=3, help="--walkthrough: draws per frame (median)")
+    parser.add_argument("--seed", type=int, default=0, help="--walkthrough: seed of the random views")
+    parser.add_argument("--resolution", type=int, default=RESOLUTION, help="--walkthrough: output resolution")
+    parser.add_argument("--detail", type=int, default=16, help="--walkthrough: the city's most quads per building face side (core.procedural.city)")
+    parser.add_argument("--keep", default=None, help="--walkthrough: write the placement databases under this folder")
     args = parser.parse_args()
     model = {"llvmpipe": LLVMPIPE_MODEL, "primitives": primitive_model()}.get(args.cost_model) or CostModel.load(args.cost_model)
+    if args.walkthrough:
+        scene, lo, hi = city_scene(args.quick, args.size, args.detail)
+        print(f"cost model: {model.renderer} ({model.source}); layered impostors, baked here; EGL {_renderer()}")
+        print(f"# city: {scene.object_count} objects, {scene.triangle_count:,} triangles; view space {lo.round(2).tolist()} .. {hi.round(2).tolist()}")
+        rows = walkthrough_rows(scene, lo, hi, model, [float(f) for f in args.factors.split(",")], args.views, args.seed, args.repeats,
+                                args.resolution, Path(args.keep) if args.keep else None)  # fmt: skip
+        if args.json:
+            Path(args.json).write_text(json.dumps(rows, indent=1))
+        return
     print(f"cost model: {model.renderer} ({model.source}); layered impostors at {RESOLUTION} px, 45°; CPU only (no rendering)")
     print(f"{'scene':<8} {'test':>4} {'parameter':<44} {'# CPV':>7} {'# cand.':>9} {'# imp.':>7} {'MiB':>10} {'unsolved/unsolvable':<13} seconds per step")
     rows = []

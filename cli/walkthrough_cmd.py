@@ -1,4 +1,9 @@
-"""``farfield walkthrough``: a camera path through an envmap impostor database, runtime vs full scene, frame by frame."""
+"""``farfield walkthrough``: a camera path through an impostor database, runtime vs full scene, frame by frame.
+
+An envmap job's database is walked by the envmap runtime (near field + impostors); a placement
+database (its index has a ``placement`` section) by the placement runtime (the CPV's impostors and
+the elements they do not replace), against plain geometry, with the frame budget t_max.
+"""
 
 from __future__ import annotations
 
@@ -6,11 +11,12 @@ import json
 from pathlib import Path
 
 import click
+import numpy as np
 from tqdm import tqdm
 
 from farfield.core.exchange import load_scene
 from farfield.core.impostor_database import ImpostorDatabase
-from farfield.core.walkthrough import generate_path, load_path, walkthrough, write_plot
+from farfield.core.walkthrough import generate_path, load_path, random_views, walkthrough, write_placement_plot, write_plot
 
 
 @click.command("walkthrough")
@@ -19,22 +25,43 @@ from farfield.core.walkthrough import generate_path, load_path, walkthrough, wri
 @click.option("--path", "path_file", default=None, type=click.Path(dir_okay=False, exists=True),
               help="Recorded camera path: JSON list of {position, forward}. Default: a generated loop.")
 @click.option("--frames", default=120, show_default=True, type=int, help="Frames of the generated loop.")
+@click.option("--random", "random_count", default=None, type=click.IntRange(min=1),
+              help="Placement databases: this many random views instead of a path (positions uniform in the view space, directions uniform on the sphere).")
+@click.option("--seed", default=0, show_default=True, type=int, help="Seed of --random.")
 @click.option("--repeats", default=3, show_default=True, type=int, help="Draws per frame and renderer; the median counts.")
 @click.option("--plot", default=None, type=click.Path(dir_okay=False), help="Write a PNG of frame time and error along the path.")
 @click.option("--no-compare", is_flag=True, help="Frame times only (no image comparison).")
 @click.option("--json", "as_json", is_flag=True, help="Every frame and the summary as JSON.")
-def walkthrough_cmd(database, scene, path_file, frames, repeats, plot, no_compare, as_json):
-    """Walk a camera path through DATABASE (an envmap job's database.zip or its unpacked folder)
-    and compare the reference runtime (near field + impostors) with SCENE drawn in full."""
+def walkthrough_cmd(database, scene, path_file, frames, random_count, seed, repeats, plot, no_compare, as_json):
+    """Walk a camera path through DATABASE (a job's database.zip or its unpacked folder) and compare
+    the reference runtime with SCENE drawn in full: an envmap database's near field + impostors, or
+    a placement database's impostors + remaining geometry against its frame budget."""
     loaded = load_scene(scene)
     with ImpostorDatabase(Path(database)) as db:
-        positions, forwards = load_path(path_file) if path_file else generate_path(db, frames)
+        placement = db.placement
+        if random_count is not None and not placement:
+            raise click.UsageError("--random needs a placement database (an envmap database is walked along a path)")
+        if random_count is not None and path_file:
+            raise click.UsageError("give --random or --path, not both")
+        if random_count is not None:
+            lo, hi = np.asarray(placement["parameters"]["view_space"], dtype=np.float64).reshape(2, 3)
+            positions, forwards = random_views(lo, hi, random_count, seed)
+        else:
+            positions, forwards = load_path(path_file) if path_file else generate_path(db, frames)
         bar = tqdm(total=len(positions), desc="frames", unit="frame", leave=False, disable=True if as_json else None)
         try:
             result = walkthrough(loaded, db, positions, forwards, repeats=repeats, compare=not no_compare,
                                  progress=lambda done, total: bar.update(done - bar.n))  # fmt: skip
         finally:
             bar.close()
+    if placement:
+        if plot:
+            write_placement_plot(result, plot, title=f"{Path(scene).name}: placement runtime vs plain geometry")
+        if as_json:
+            click.echo(json.dumps(result, indent=1))
+            return
+        _print_placement(result, plot)
+        return
     if plot:
         write_plot(result, plot, title=f"{Path(scene).name}: full scene vs near field + impostors")
     if as_json:
@@ -57,5 +84,39 @@ def walkthrough_cmd(database, scene, path_file, frames, repeats, plot, no_compar
     if "hole_pixels" in s:
         line += f"; {s['hole_pixels']} hole pixels, colour error mean {s['colour_error_mean']:.3f}, max {s['colour_error_max']}"
     click.echo(line)
+    if plot:
+        click.echo(f"plot: {plot}")
+
+
+def _print_placement(result: dict, plot: str | None) -> None:
+    s = result["summary"]
+    unit = s["unit"]
+    click.echo(f"{'frame':>5} {'cpv':>6} {'status':<12} {'plain ms':>8} {'run ms':>8} {'speedup':>7} {'estimate':>9} {'imp':>4} {'holes':>6} {'err mean':>8}")
+    for f in result["frames"]:
+        speedup = f"{f['plain_ms'] / f['runtime_ms']:.1f}x" if f["runtime_ms"] > 0 else "-"
+        over = "  <- over t_max" if not f["within_t_max"] else ""
+        click.echo(
+            f"{f['frame']:>5} {'-' if f['cpv'] is None else f['cpv']:>6} {f['status']:<12} {f['plain_ms']:>8.2f} {f['runtime_ms']:>8.2f} "
+            f"{speedup:>7} {f['estimate']:>9.4g} {f['impostors']:>4} {f.get('hole_pixels', '-'):>6} "
+            f"{f.get('colour_error_mean', float('nan')):>8.3f}{over}"
+        )
+    pct = lambda x: "-" if x is None else f"{100.0 * x:.1f} %"
+    num = lambda x, fmt=".2f": "-" if x is None else format(x, fmt)
+    click.echo(
+        f"{s['frames']} frames; t_max {s['t_max']:.4g} {unit}: {pct(s['share_within_t_max'])} measured within, "
+        f"{pct(s['share_estimate_within_t_max'])} by the estimate ({pct(s['share_estimate_within_t_max_solvable'])} of solvable views); "
+        f"statuses {s['statuses']}"
+    )
+    click.echo(
+        f"runtime frame ms p50 {num(s['runtime_ms_p50'])}, p99 {num(s['runtime_ms_p99'])}, max {num(s['runtime_ms_max'])}; "
+        f"plain geometry p50 {num(s['plain_ms_p50'])}, p99 {num(s['plain_ms_p99'])}, max {num(s['plain_ms_max'])}; "
+        f"speed-up {num(s['speedup_median'], '.1f')}x (median); estimate's error {pct(s['estimate_rel_error_median'])} (median relative)"
+    )
+    if "hole_pixels" in s:
+        click.echo(f"{s['hole_pixels']} hole pixels, colour error mean {s['colour_error_mean']:.3f}, max {s['colour_error_max']}")
+    if s["over_t_max"]:
+        click.echo(f"{len(s['over_t_max'])} frames over t_max:")
+        for f in s["over_t_max"][:20]:
+            click.echo(f"  frame {f['frame']}: {f['measured']:.4g} {unit}, estimate {f['estimate']:.4g} ({f['status']}, cpv {f['cpv']})")
     if plot:
         click.echo(f"plot: {plot}")

@@ -31,18 +31,34 @@ Progress = Callable[[int, int], None]  # (frames done, frames)
 
 
 def generate_path(database: ImpostorDatabase, frames: int, margin: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
-    """(positions (n, 3), forwards (n, 3)): a closed ellipse through the cells' bounding box.
+    """(positions (n, 3), forwards (n, 3)): a closed ellipse through the cells' bounding box (for a
+    placement database: through its view space, see :func:`loop_path`)."""
+    if database.placement:
+        lo, hi = np.asarray(database.placement["parameters"]["view_space"], dtype=np.float64).reshape(2, 3)
+    else:
+        lo, hi = database.bounds()
+    return loop_path(lo, hi, frames, margin)
+
+
+def loop_path(lo, hi, frames: int, margin: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+    """(positions (n, 3), forwards (n, 3)): a closed ellipse through the box ``lo``..``hi``.
 
     The ellipse lies in the plane of the box's two longest axes, at the middle of the third (the
     "up" axis of a ground-level grid), ``margin`` of the box inside its border, and the camera looks
     along the direction of motion.
+
+    >>> p, f = loop_path([0, 0, 0], [10, 2, 10], 4)
+    >>> (p.round(3) + 0.0).tolist(), (f.round(3) + 0.0).tolist()  # + 0.0: no negative zeros
+    ([[9.0, 1.0, 5.0], [5.0, 1.0, 9.0], [1.0, 1.0, 5.0], [5.0, 1.0, 1.0]], [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
     """
     if isinstance(frames, bool) or int(frames) != frames or frames < 1:
         raise LayerPlanError(f"frames must be an integer >= 1, got {frames!r}")
-    lo, hi = database.bounds()
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
     extent = hi - lo
     up = int(np.argmin(extent))
     a, b = [i for i in range(3) if i != up]
+    if not (extent[a] > 0.0 and extent[b] > 0.0):
+        raise LayerPlanError(f"a loop path needs a box with two sides > 0, got {extent.tolist()}")
     centre = 0.5 * (lo + hi)
     t = 2.0 * math.pi * np.arange(int(frames)) / int(frames)
     positions = np.tile(centre, (int(frames), 1))
@@ -53,6 +69,30 @@ def generate_path(database: ImpostorDatabase, frames: int, margin: float = 0.1) 
     forwards[:, b] = np.cos(t) * extent[b]
     forwards /= np.linalg.norm(forwards, axis=1, keepdims=True)
     return positions, forwards
+
+
+def random_views(lo, hi, count: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(positions (n, 3), forwards (n, 3)): ``count`` positions uniform in the box ``lo``..``hi`` and
+    view directions uniform on the sphere (normalised Gaussian vectors), from ``seed``.
+
+    >>> p, f = random_views([0, 0, 0], [1, 2, 0], 500, seed=3)
+    >>> bool(np.all(p >= 0) and np.all(p <= [1, 2, 0])), bool(np.allclose(np.linalg.norm(f, axis=1), 1.0))
+    (True, True)
+    >>> bool(np.all(np.abs(f.mean(axis=0)) < 0.1)), random_views([0, 0, 0], [1, 1, 1], 2, 1)[0].tolist() == random_views([0, 0, 0], [1, 1, 1], 2, 1)[0].tolist()
+    (True, True)
+    """
+    if isinstance(count, bool) or int(count) != count or count < 1:
+        raise LayerPlanError(f"the number of random views must be an integer >= 1, got {count!r}")
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    rng = np.random.default_rng(seed)
+    positions = lo + rng.uniform(0.0, 1.0, (int(count), 3)) * (hi - lo)
+    forwards = rng.normal(size=(int(count), 3))
+    norms = np.linalg.norm(forwards, axis=1, keepdims=True)
+    while np.any(norms < 1e-12):  # practically never
+        bad = norms[:, 0] < 1e-12
+        forwards[bad] = rng.normal(size=(int(bad.sum()), 3))
+        norms = np.linalg.norm(forwards, axis=1, keepdims=True)
+    return np.clip(positions, lo, hi), forwards / norms
 
 
 def load_path(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
@@ -83,7 +123,10 @@ def walkthrough(
     compare: bool = True,
     progress: Progress | None = None,
 ) -> dict:
-    """Walk the path; returns ``{"frames": [...], "summary": {...}}`` (see the module docstring)."""
+    """Walk the path; returns ``{"frames": [...], "summary": {...}}`` (see the module docstring).
+    A placement database is walked by :func:`placement_walkthrough`."""
+    if database.placement:
+        return placement_walkthrough(scene, database, positions, forwards, repeats, compare, progress)
     if database.technique != "envmap":  # the reference runtime draws environment-map impostors only
         raise LayerPlanError(f"a walkthrough needs an envmap impostor database, got technique {database.technique!r}")
     report = progress or (lambda done, total: None)
@@ -183,6 +226,166 @@ def write_plot(result: dict, path: str | Path, title: str = "walkthrough") -> No
         if f["switched"]:
             for axis in (top, bottom):
                 axis.axvline(f["frame"], color="grey", linewidth=0.5, alpha=0.6)
+    fig.tight_layout()
+    fig.savefig(Path(path), dpi=100)
+    plt.close(fig)
+
+
+# ---------------------------------------------------------------------------------------------
+# Placement databases (seed 000 ch. 5): the runtime of core.placement.runtime against plain geometry
+# ---------------------------------------------------------------------------------------------
+
+
+def placement_walkthrough(
+    scene: Scene,
+    database: ImpostorDatabase,
+    positions: np.ndarray,
+    forwards: np.ndarray,
+    repeats: int = 3,
+    compare: bool = True,
+    progress: Progress | None = None,
+) -> dict:
+    """Walk ``positions``/``forwards`` through a placement database: per frame the runtime
+    (:class:`core.placement.runtime.PlacementRenderer`: the CPV's impostors and the elements they do
+    not replace, frustum-culled) and the plain geometry (every element, culled alike), both timed
+    from the same camera (median of ``repeats`` draws, no read-back, after one untimed draw of the
+    runtime's list: a runtime uploads an impostor before it needs it), the model's estimate, what was
+    drawn, and (``compare``) hole pixels and colour error of the runtime's image against the full
+    scene drawn unculled.  Returns ``{"frames": [...], "summary": {...}}`` (:func:`summarize_placement`).
+
+    ``measured`` is the frame in the cost model's unit: milliseconds of the runtime, or for a
+    primitive budget the triangles it drew (an impostor's quads two each).
+    """
+    from farfield.core.placement.runtime import PlacementRenderer
+
+    report = progress or (lambda done, total: None)
+    frames = []
+    with PlacementRenderer(scene, database) as runtime:
+        unit = runtime.unit
+        for n, (position, forward) in enumerate(zip(positions, forwards)):
+            camera, draws, fig = runtime.prepare(position, forward)
+            _, plain_draws, plain = runtime.prepare(position, forward, plain=True, camera=camera)
+            runtime.frame_seconds(camera, draws)  # untimed: the first draw of a new impostor uploads its pages to the renderer
+            runtime_ms = 1e3 * float(np.median([runtime.frame_seconds(camera, draws) for _ in range(repeats)]))
+            plain_ms = 1e3 * float(np.median([runtime.frame_seconds(camera, plain_draws) for _ in range(repeats)]))
+            measured = runtime_ms if unit == "ms" else float(fig.triangles)
+            row = {
+                "frame": n, "position": np.asarray(position, dtype=float).tolist(), "forward": np.asarray(forward, dtype=float).tolist(),
+                "cpv": fig.cpv, "status": fig.status, "runtime_ms": runtime_ms, "plain_ms": plain_ms, "measured": measured,
+                "estimate": fig.estimate, "plain_estimate": plain.estimate, "within_t_max": measured <= runtime.t_max,
+                "estimate_within_t_max": fig.estimate <= runtime.t_max * (1.0 + 1e-9),
+                "draw_calls": fig.draw_calls, "triangles": fig.triangles, "quads": fig.quads, "impostors": fig.impostors,
+                "impostors_in_cpv": fig.impostors_in_cpv, "elements": fig.elements,
+                "plain_draw_calls": plain.draw_calls, "plain_triangles": plain.triangles,
+            }  # fmt: skip
+            if compare:
+                _, everything, _ = runtime.prepare(position, forward, plain=True, cull=False, camera=camera)
+                stats = compare_images(runtime.render(camera, everything), runtime.render(camera, draws))
+                row.update({k: stats[k] for k in ("hole_pixels", "geometry_pixels", "colour_error_mean", "colour_error_max")})
+            frames.append(row)
+            report(n + 1, len(positions))
+        memory = runtime.uploaded_impostor_bytes
+        impostors_used = len(runtime._impostors)
+    summary = summarize_placement(frames, runtime.t_max, unit)
+    summary.update({"impostors_uploaded": impostors_used, "impostor_texture_bytes": memory, "resolution": runtime.resolution,
+                    "fov_deg": runtime.fov_deg})  # fmt: skip
+    placement = database.placement or {}
+    if placement.get("summary"):
+        summary["impostors"] = placement["summary"].get("impostors")
+        summary["memory_bytes_estimated"] = placement["summary"].get("memory_bytes")
+    return {"frames": frames, "summary": summary}
+
+
+def _percentile(values: np.ndarray, q: float) -> float | None:
+    return float(np.percentile(values, q)) if values.size else None
+
+
+def summarize_placement(frames: list[dict], t_max: float, unit: str) -> dict:
+    """Totals of a placement walkthrough: the share of frames at or below ``t_max`` (measured, and by
+    the estimate; over all frames and over frames of solvable views: no CPV or a solved one),
+    p50/p99/max frame time of the runtime and the plain geometry, the speed-up (median of per-frame
+    ratios, and of the means), the estimate's median relative error against the measured frame, hole
+    pixels and colour error, and the frames over ``t_max`` with their estimate and CPV status.
+
+    >>> rows = [{"frame": 0, "status": "solved", "cpv": 3, "runtime_ms": 2.0, "plain_ms": 8.0, "measured": 2.0, "estimate": 2.5},
+    ...         {"frame": 1, "status": "under budget", "cpv": None, "runtime_ms": 6.0, "plain_ms": 6.0, "measured": 6.0, "estimate": 4.0}]
+    >>> s = summarize_placement(rows, 5.0, "ms")
+    >>> s["share_within_t_max"], s["share_estimate_within_t_max"], s["speedup_median"], s["estimate_rel_error_median"]
+    (0.5, 1.0, 2.5, 0.29166666666666663)
+    >>> [(f["frame"], f["measured"], f["estimate"], f["status"]) for f in s["over_t_max"]]
+    [(1, 6.0, 4.0, 'under budget')]
+    """
+    run = np.array([f["runtime_ms"] for f in frames], dtype=float)
+    plain = np.array([f["plain_ms"] for f in frames], dtype=float)
+    measured = np.array([f["measured"] for f in frames], dtype=float)
+    estimate = np.array([f["estimate"] for f in frames], dtype=float)
+    tol = t_max * (1.0 + 1e-9)
+    solvable = np.array([f["status"] in ("solved", "under budget") for f in frames], dtype=bool)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = np.abs(estimate - measured) / np.where(measured > 0, measured, np.nan)
+        ratio = plain / np.where(run > 0, run, np.nan)
+    statuses: dict[str, int] = {}
+    for f in frames:
+        statuses[f["status"]] = statuses.get(f["status"], 0) + 1
+    n = len(frames)
+    out = {
+        "frames": n,
+        "t_max": float(t_max),
+        "unit": unit,
+        "statuses": dict(sorted(statuses.items())),
+        "share_within_t_max": float(np.mean(measured <= t_max)) if n else None,
+        "share_estimate_within_t_max": float(np.mean(estimate <= tol)) if n else None,
+        "share_within_t_max_solvable": float(np.mean(measured[solvable] <= t_max)) if solvable.any() else None,
+        "share_estimate_within_t_max_solvable": float(np.mean(estimate[solvable] <= tol)) if solvable.any() else None,
+        "runtime_ms_p50": _percentile(run, 50), "runtime_ms_p99": _percentile(run, 99), "runtime_ms_max": float(run.max()) if n else None,
+        "plain_ms_p50": _percentile(plain, 50), "plain_ms_p99": _percentile(plain, 99), "plain_ms_max": float(plain.max()) if n else None,
+        "measured_p50": _percentile(measured, 50), "measured_p99": _percentile(measured, 99), "measured_max": float(measured.max()) if n else None,
+        "speedup_median": float(np.nanmedian(ratio)) if n and np.isfinite(ratio).any() else None,
+        "speedup_mean": float(plain.mean() / run.mean()) if n and run.mean() > 0 else None,
+        "estimate_rel_error_median": float(np.nanmedian(rel)) if n and np.isfinite(rel).any() else None,
+        "over_t_max": [
+            {"frame": f["frame"], "measured": f["measured"], "estimate": f["estimate"], "status": f["status"], "cpv": f["cpv"]}
+            for f, m in zip(frames, measured) if m > t_max
+        ],
+    }  # fmt: skip
+    if frames and "hole_pixels" in frames[0]:
+        out["hole_pixels"] = int(sum(f["hole_pixels"] for f in frames))
+        out["max_hole_pixels"] = int(max(f["hole_pixels"] for f in frames))
+        out["colour_error_mean"] = float(np.mean([f["colour_error_mean"] for f in frames]))
+        out["colour_error_max"] = int(max(f["colour_error_max"] for f in frames))
+    return out
+
+
+def write_placement_plot(result: dict, path: str | Path, title: str = "placement walkthrough") -> None:
+    """A PNG of frame time along the path (runtime, plain geometry and the model's estimate) with
+    t_max drawn (like seed 000 Fig. 5.8), and below it the hole pixels and colour error."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    frames, s = result["frames"], result["summary"]
+    x = np.array([f["frame"] for f in frames])
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 6), sharex=True, gridspec_kw={"height_ratios": [3, 1]})
+    if s["unit"] == "ms":
+        top.plot(x, [f["plain_ms"] for f in frames], label="plain geometry", color="tab:red", linewidth=0.8)
+        top.plot(x, [f["runtime_ms"] for f in frames], label="runtime (geometry + impostors)", color="tab:blue", linewidth=0.8)
+        top.set_ylabel("frame time (ms)")
+    else:
+        top.plot(x, [f["plain_triangles"] for f in frames], label="plain geometry", color="tab:red", linewidth=0.8)
+        top.plot(x, [f["measured"] for f in frames], label="runtime (geometry + impostors)", color="tab:blue", linewidth=0.8)
+        top.set_ylabel(f"frame cost ({s['unit']})")
+    top.plot(x, [f["estimate"] for f in frames], label="model estimate", color="tab:green", linestyle=":", linewidth=0.8)
+    top.axhline(s["t_max"], color="black", linestyle="--", linewidth=1.0, label=f"t_max {s['t_max']:.3g} {s['unit']}")
+    top.set_yscale("log")
+    top.legend(loc="upper right", fontsize="small")
+    top.set_title(title)
+    if frames and "hole_pixels" in frames[0]:
+        bottom.plot(x, [f["colour_error_mean"] for f in frames], label="colour error, mean (0-255)", color="tab:green")
+        bottom.plot(x, [f["hole_pixels"] for f in frames], label="hole pixels", color="black", linestyle="--")
+        bottom.legend(loc="upper right", fontsize="small")
+    bottom.set_xlabel("frame")
+    bottom.set_ylabel("error")
     fig.tight_layout()
     fig.savefig(Path(path), dpi=100)
     plt.close(fig)

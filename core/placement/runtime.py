@@ -1,0 +1,268 @@
+"""The reference runtime of a placement database (beside :mod:`core.envmap_runtime`): for a view,
+the CPV's impostors plus every element no impostor of that CPV replaces, frustum-culled.
+
+Seed 000 §5.7: the runtime looks up the view's conservative problem view (CPV, a 3D region x a
+view-direction interval), draws the impostors chosen for it and, as geometry, the rest of the
+scene.  Here every *element* of the placement (a scene object, or a cluster ``name#k`` of a split
+object, :class:`core.placement.hierarchy.Elements`) is its own draw call, so that what an
+impostor replaces is exactly what is left out; each impostor bundle is read and uploaded once,
+when a view first needs it, and drawn as its technique's payload is drawn everywhere else
+(:func:`core.evaluation.impostor_objects`: quads or meshes textured from the atlas pages).
+
+Frustum culling is conservative: an element (or impostor) is left out only when every corner of
+its bounding box lies outside one of the camera's four side planes, or behind the eye; no far
+plane (the depth range reaches past the scene).  Plain geometry for comparison is the same
+renderer with every element selected, culled the same way (:meth:`PlacementRenderer.draw` with
+``plain=True``), and the reference image of the full scene draws every element unculled.
+
+Figures per view (:class:`ViewFigures`): draw calls, triangles (geometry and impostor), quads,
+impostors drawn, the CPV and its status, and the model's estimate: the CPV's ``time_after`` by the
+placement, or for a view no CPV holds ("under budget") the cost model's estimate of the plain
+geometry in the view (:func:`plain_estimate`: the planner's per-element law, pixels from the
+bounding-sphere disc at the eye, capped at ``depth_complexity`` frames).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Self
+
+import numpy as np
+
+from farfield.core.envmap_runtime import camera_at
+from farfield.core.evaluation import impostor_objects
+from farfield.core.impostor_database import ImpostorDatabase
+from farfield.core.placement.cost_model import CostModel
+from farfield.core.placement.hierarchy import Elements, PlacementError
+from farfield.core.placement.view_space import element_pixels
+from farfield.core.render.raster import Camera, MeshRenderer
+from farfield.core.scene import Scene
+from farfield.core.viewcells import box_corners
+
+# Drawers by payload kind: every payload the techniques bake is drawn as textured triangles.
+DRAWERS = {"quads": impostor_objects, "mesh": impostor_objects}
+
+
+def placement_section(database: ImpostorDatabase) -> dict:
+    """The ``placement`` section of a placement database's index (PlacementError when it has none)."""
+    section = database.placement
+    if not section:
+        raise PlacementError(f"{database.root}: not a placement database (its index has no 'placement' section)")
+    return section
+
+
+def boxes_in_frustum(camera: Camera, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(k,) bool: whether each axis-aligned box ``lo``..``hi`` ((k, 3) each) may show in ``camera``'s
+    image.  Conservative: a box is culled only when all eight corners lie outside one side plane of
+    the frustum (or all behind the eye); no far plane.
+
+    >>> cam = Camera.look_at(np.zeros(3), [0.0, 0.0, 1.0], math.radians(90), 8, 0.1, 100.0)
+    >>> lo = np.array([[-1, -1, 4.0], [-1, -1, -6.0], [8, -1, 4.0], [5.5, -1, 4.0], [-1, -1, -1]])
+    >>> boxes_in_frustum(cam, lo, lo + 2.0).tolist()
+    [True, False, False, True, True]
+    """
+    lo, hi = np.asarray(lo, dtype=np.float64).reshape(-1, 3), np.asarray(hi, dtype=np.float64).reshape(-1, 3)
+    pick = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=bool)
+    corners = np.where(pick[None, :, :], hi[:, None, :], lo[:, None, :])  # (k, 8, 3)
+    e = (corners - camera.eye) @ np.stack([camera.right, camera.up, camera.forward]).T
+    scale = 1e-9 * (1.0 + np.abs(e).max(axis=(1, 2), initial=0.0))[:, None]  # rounding slack
+    t = math.tan(0.5 * camera.fov)
+    x = e[..., 0] - camera.offset[0] * e[..., 2]
+    y = e[..., 1] - camera.offset[1] * e[..., 2]
+    z = e[..., 2]
+    inside = np.any(z >= -scale, axis=1)
+    for value in (x, -x, y, -y):
+        inside &= np.any(value - t * z <= scale, axis=1)
+    return inside
+
+
+def plain_estimate(model: CostModel, elements: Elements, drawn: np.ndarray, position, fov: float, resolution: int, depth_complexity: float = 4.0) -> float:
+    """The cost model's time of drawing elements ``drawn`` (indices) as geometry from ``position``:
+    ``d + sum(a calls + b triangles) + c pixels``, pixels each element's bounding-sphere disc at its
+    distance from the eye (a whole frame where the eye is inside its bounds), their sum capped at
+    ``depth_complexity`` frames, as the planner estimates a problem view (:mod:`core.placement.view_space`)."""
+    drawn = np.asarray(drawn, dtype=np.int64)
+    p = np.asarray(position, dtype=np.float64)
+    pixels = element_pixels(elements, p, p, fov, resolution, drawn) if drawn.size else np.zeros(0)
+    cap = float(depth_complexity) * float(resolution) ** 2
+    base = model.geometry_time(elements.draw_calls[drawn], elements.triangles[drawn], 0.0)
+    return float(model.frame_time + np.sum(base) + model.geometry[2] * min(float(pixels.sum()), cap))
+
+
+@dataclass
+class ViewFigures:
+    """What one :meth:`PlacementRenderer.draw` drew, and what the model expected of it."""
+
+    cpv: int | None
+    status: str
+    estimate: float | None  # model units (ms or triangles)
+    draw_calls: int
+    triangles: int  # geometry and impostor triangles together
+    geometry_triangles: int
+    quads: int
+    impostors: int  # impostors drawn (after culling)
+    impostors_in_cpv: int
+    elements: int  # elements drawn as geometry (after culling)
+    near: float
+    far: float
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+class PlacementRenderer:
+    """A placement database's reference runtime: the scene's elements uploaded once, each its own
+    draw call; the impostors uploaded when first needed (see the module docstring).  Release with
+    :meth:`release` or use as a context manager."""
+
+    def __init__(self, scene: Scene, database: ImpostorDatabase):
+        from farfield.core.placement.database import PlacementLookup
+
+        section = placement_section(database)
+        self.database = database
+        self.section = section
+        params = section["parameters"]
+        self.t_max = float(params["t_max"])
+        self.model = CostModel.from_dict(params["cost_model"])
+        self.unit = self.model.unit
+        options = params.get("options") or {}
+        self.resolution = int(options.get("resolution", 256))
+        self.fov_deg = float(options.get("fov_deg", 45.0))
+        self.depth_complexity = float(params.get("depth_complexity", 4.0))
+        self.view_space = np.asarray(params["view_space"], dtype=np.float64).reshape(2, 3)
+        cluster = (section.get("elements") or {}).get("cluster_triangles")
+        self.elements = Elements.of(scene, cluster)
+        self.lookup = PlacementLookup(database.index)
+        names = self.elements.names
+        self.element_of = {name: i for i, name in enumerate(names)}
+        missing = sorted({name for objects in self.lookup.objects.values() for name in objects} - set(names))
+        if missing:
+            raise PlacementError(
+                f"the scene has no elements {missing[:5]}{' ...' if len(missing) > 5 else ''} that the placement's impostors replace "
+                f"(objects split at {self.elements.cluster_triangles} triangles): is it the placement's scene?"
+            )
+        # One object per element, in element order (scene_of sorts its indices: 0..count-1 is that order).
+        objects = self.elements.scene_of(scene, range(self.elements.count)).objects
+        self.gpu = MeshRenderer(objects)
+        self.element_draws = list(self.gpu._draws)
+        self.scene_corners = box_corners(scene.bounds)
+        self._impostors: dict[int, tuple] = {}
+        self.uploaded_impostor_bytes = 0
+
+    @staticmethod
+    def element_names(scene: Scene, database: ImpostorDatabase) -> tuple[str, ...]:
+        """The names of the placement's elements of ``scene`` (what a lookup's ``replaced`` names)."""
+        return Elements.of(scene, (placement_section(database).get("elements") or {}).get("cluster_triangles")).names
+
+    # -- impostors ------------------------------------------------------------------------
+
+    def impostor(self, cell: int) -> tuple[MeshRenderer, int, int, np.ndarray, np.ndarray, np.ndarray]:
+        """(renderer, triangles, quads, bounds lo, bounds hi, bounds corners) of impostor ``cell``,
+        read and uploaded once."""
+        if cell not in self._impostors:
+            impostor = self.database.impostor(cell)
+            drawer = DRAWERS.get(impostor.payload.kind)
+            if drawer is None:
+                raise PlacementError(f"impostor {cell}: no drawer for a {impostor.payload.kind!r} payload ({impostor.technique})")
+            renderer = MeshRenderer(drawer(impostor))
+            points = impostor.payload.world_points().reshape(-1, 3)
+            if points.size:
+                lo, hi = points.min(axis=0), points.max(axis=0)
+            else:
+                lo = hi = np.zeros(3)
+            self._impostors[cell] = (renderer, impostor.triangle_count, impostor.quad_count, lo, hi, box_corners(np.stack([lo, hi])))
+            self.uploaded_impostor_bytes += impostor.texture_bytes
+        return self._impostors[cell]
+
+    # -- drawing --------------------------------------------------------------------------
+
+    def _depth(self, position: np.ndarray, points: list[np.ndarray]) -> tuple[float, float]:
+        """(near, far): far past every corner of the scene and of the impostors' ``points``; near half
+        the distance to the nearest element's or impostor's bounds, at least far / 1e5."""
+        corners = np.concatenate([self.scene_corners, *points]) if points else self.scene_corners
+        far = 1.01 * float(np.max(np.linalg.norm(corners - position, axis=1)))
+        lows = np.concatenate([self.elements.bounds[:, 0]] + [p.min(axis=0, keepdims=True) for p in points])
+        highs = np.concatenate([self.elements.bounds[:, 1]] + [p.max(axis=0, keepdims=True) for p in points])
+        gap = np.maximum(0.0, np.maximum(lows - position, position - highs))
+        near = max(0.5 * float(np.sqrt((gap * gap).sum(axis=1)).min()), far * 1e-5)
+        return near, max(far, 2.0 * near)
+
+    def prepare(self, position, forward, fov_deg: float | None = None, resolution: int | None = None, plain: bool = False,
+                cull: bool = True, camera: Camera | None = None) -> tuple[Camera, list, ViewFigures]:
+        """The camera, the draw list and the figures of one view (nothing drawn yet).
+
+        ``plain``: every element as geometry, no impostor (the scene without the placement);
+        ``cull``: False draws everything selected whether in the frustum or not (a reference image);
+        ``camera``: draw from this camera (another view's, to compare images) instead of a new one.
+        The depth range counts every element and the view's impostors, whichever are drawn, so the
+        runtime's camera also serves the plain geometry and the full scene.
+        """
+        position = np.asarray(position, dtype=np.float64).reshape(3)
+        forward = np.asarray(forward, dtype=np.float64).reshape(3)
+        fov_deg = self.fov_deg if fov_deg is None else float(fov_deg)
+        resolution = self.resolution if resolution is None else int(resolution)
+        found = self.lookup.find(position, forward)
+        replaced = set() if plain else set(found.get("replaced") or [])
+        cells = [int(c) for c in found.get("impostors") or []]
+        keep = np.ones(self.elements.count, dtype=bool)
+        for name in replaced:
+            keep[self.element_of[name]] = False
+        loaded = [self.impostor(c) for c in cells]
+        if camera is None:
+            near, far = self._depth(position, [item[5] for item in loaded])
+            camera = camera_at(position, forward, fov_deg, resolution, near, far)
+        if plain:
+            loaded = []
+        selected = np.flatnonzero(keep)
+        if cull and selected.size:
+            b = self.elements.bounds[selected]
+            selected = selected[boxes_in_frustum(camera, b[:, 0], b[:, 1])]
+        draws = [self.element_draws[i] for i in selected]
+        shown = [item for item in loaded if not cull or bool(boxes_in_frustum(camera, item[3][None, :], item[4][None, :])[0])]
+        for item in shown:
+            draws.extend(item[0]._draws)
+        geometry_triangles = int(self.elements.triangles[selected].sum())
+        estimate = None if plain else found.get("time_estimated")
+        if estimate is None:
+            estimate = plain_estimate(self.model, self.elements, selected, position, math.radians(fov_deg), resolution, self.depth_complexity)
+        figures = ViewFigures(
+            cpv=None if found.get("cpv") is None else int(found["cpv"]), status="plain" if plain else found["status"],
+            estimate=float(estimate), draw_calls=len(draws), triangles=geometry_triangles + sum(item[1] for item in shown),
+            geometry_triangles=geometry_triangles, quads=sum(item[2] for item in shown), impostors=len(shown),
+            impostors_in_cpv=0 if plain else len(cells), elements=int(selected.size), near=camera.near, far=camera.far,
+        )  # fmt: skip
+        return camera, draws, figures
+
+    def _with(self, draws: list, action):
+        saved = self.gpu._draws
+        self.gpu._draws = draws
+        try:
+            return action()
+        finally:
+            self.gpu._draws = saved
+
+    def render(self, camera: Camera, draws: list) -> np.ndarray:
+        """(h, w, 4) uint8 image of ``draws`` (from :meth:`prepare`) from ``camera``."""
+        return self._with(draws, lambda: self.gpu.render(camera))
+
+    def frame_seconds(self, camera: Camera, draws: list) -> float:
+        """Seconds to draw ``draws`` and finish (no read-back), as :meth:`MeshRenderer.frame_seconds`."""
+        return self._with(draws, lambda: self.gpu.frame_seconds(camera))
+
+    def draw(self, position, forward, fov_deg: float | None = None, resolution: int | None = None) -> tuple[np.ndarray, ViewFigures]:
+        """Draw one view as the runtime does; returns the image and its figures."""
+        camera, draws, figures = self.prepare(position, forward, fov_deg, resolution)
+        return self.render(camera, draws), figures
+
+    def release(self) -> None:
+        for item in self._impostors.values():
+            item[0].release()
+        self._impostors.clear()
+        self.gpu.release()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()

@@ -1,0 +1,140 @@
+"""The reference runtime of placement databases and ``farfield walkthrough`` on them (issue 26, Build 5-6).
+
+A small seeded city, a primitive budget of half its triangles over a view space above the roofs,
+placed, baked offline (layered impostors at 64 px) and written as a placement database; then drawn
+with real EGL from random views inside the view space.  Nothing here asserts a wall-clock time.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from scenes import write_scene
+
+from farfield.cli.main import _register, cli
+from farfield.core import procedural
+from farfield.core.impostor_database import ImpostorDatabase
+from farfield.core.placement.cost_model import primitive_model
+from farfield.core.placement.hierarchy import PlacementError
+from farfield.core.placement.database import PlacementLookup, bake_placement, write_placement_database
+from farfield.core.placement.planner import PlacementSettings, place
+from farfield.core.placement.runtime import PlacementRenderer, boxes_in_frustum
+from farfield.core.walkthrough import placement_walkthrough, random_views
+
+VIEW = (np.array([20.0, 110.0, 20.0]), np.array([100.0, 115.0, 100.0]))  # above the roofs of the city
+RESOLUTION = 64
+
+
+def _city():
+    return procedural.city(36, seed=5, detail=6)
+
+
+@pytest.fixture(scope="module")
+def placed(tmp_path_factory):
+    scene = _city()
+    settings = PlacementSettings(t_max=0.5 * scene.triangle_count, model=primitive_model(), options={"resolution": RESOLUTION},
+                                 vdi_deg=45.0, cpv_size=20.0, cells="both")  # fmt: skip
+    placement = place(scene, *VIEW, settings)
+    assert placement.summary["impostors"] > 0 and placement.summary["cpvs_solved"] == placement.summary["cpvs"]
+    impostors = bake_placement(scene, placement)
+    root = write_placement_database(tmp_path_factory.mktemp("placement") / "db", placement, impostors)
+    return scene, placement, root
+
+
+def test_lookup_answers_every_sampled_view(placed):
+    scene, placement, root = placed
+    with ImpostorDatabase(root) as db:
+        assert db.placement is not None and db.placement["summary"]["impostors"] == placement.summary["impostors"]
+        lookup = PlacementLookup(db.index)
+        names = set(PlacementRenderer.element_names(scene, db))
+        baked = {c.index for c in db.cells if c.bundle is not None}
+        positions, forwards = random_views(*VIEW, 300, seed=1)
+        seen = set()
+        for p, d in zip(positions, forwards):
+            found = lookup.find(p, d)
+            seen.add(found["status"])
+            assert found["status"] in ("solved", "unsolved", "unsolvable", "under budget")
+            assert set(found["impostors"]) <= baked
+            assert set(found["replaced"]) <= names
+            if found["cpv"] is None:
+                assert found["impostors"] == [] and found["replaced"] == []
+            else:
+                assert placement.cpvs[found["cpv"]]["status"] == found["status"]
+        assert "solved" in seen  # the sample reaches the problem views
+
+
+def test_culling_is_conservative_and_the_runtime_draws_less(placed):
+    scene, _, root = placed
+    with ImpostorDatabase(root) as db, PlacementRenderer(scene, db) as runtime:
+        positions, forwards = random_views(*VIEW, 12, seed=2)
+        fewer = 0
+        for p, d in zip(positions, forwards):
+            camera, culled, plain = runtime.prepare(p, d, plain=True)
+            _, everything, full = runtime.prepare(p, d, plain=True, cull=False, camera=camera)
+            assert np.array_equal(runtime.render(camera, culled), runtime.render(camera, everything))
+            assert plain.draw_calls <= full.draw_calls == len(runtime.element_draws)
+            _, _, fig = runtime.prepare(p, d, camera=camera)
+            assert fig.impostors <= fig.impostors_in_cpv
+            if fig.impostors:
+                fewer += fig.geometry_triangles < plain.geometry_triangles
+        assert fewer > 0  # some view replaced geometry by impostors
+
+
+def test_frustum_test_keeps_every_box_a_frame_shows():
+    from farfield.core.envmap_runtime import camera_at
+
+    rng = np.random.default_rng(4)
+    for _ in range(5):
+        camera = camera_at(rng.uniform(-5, 5, 3), rng.normal(size=3), 60.0, 32, 0.01, 100.0)
+        lo = rng.uniform(-20, 20, (500, 3))
+        hi = lo + rng.uniform(0.0, 6.0, (500, 3))
+        kept = boxes_in_frustum(camera, lo, hi)
+        # Points sampled in each box: one inside the image (in front of the eye) keeps its box.
+        points = lo[:, None, :] + rng.uniform(0, 1, (500, 64, 3)) * (hi - lo)[:, None, :]
+        flat = points.reshape(-1, 3)
+        depth = ((flat - camera.eye) @ camera.forward).reshape(500, 64)
+        xy = camera.project(flat).reshape(500, 64, 2)
+        shown = np.any((depth > 0) & np.all((xy >= 0) & (xy <= 32), axis=2), axis=1)
+        assert np.all(kept[shown]) and not np.all(kept)
+
+
+def test_random_views_have_no_holes_and_estimates_within_budget(placed):
+    scene, placement, root = placed
+    t_max = placement.summary["t_max"]
+    with ImpostorDatabase(root) as db:
+        positions, forwards = random_views(*VIEW, 24, seed=3)
+        result = placement_walkthrough(scene, db, positions, forwards, repeats=1)
+    frames, s = result["frames"], result["summary"]
+    assert len(frames) == 24 and sum(f["impostors"] > 0 for f in frames) > 0
+    assert s["hole_pixels"] == 0, [(f["frame"], f["hole_pixels"]) for f in frames if f["hole_pixels"]]
+    assert sum(f["geometry_pixels"] for f in frames) > 0
+    for f in frames:
+        if f["status"] in ("solved", "under budget"):
+            assert f["estimate"] <= t_max * (1 + 1e-9), f
+        assert f["triangles"] <= f["plain_triangles"] or f["impostors"] > 0
+    assert s["share_estimate_within_t_max_solvable"] == 1.0
+
+
+def test_walkthrough_command_on_a_placement_database(placed, tmp_path):
+    scene, _, root = placed
+    _register()
+    path = write_scene(scene, tmp_path, "glb", "city")
+    runner = CliRunner()
+    result = runner.invoke(cli, ["walkthrough", str(root), str(path), "--random", "4", "--seed", "5", "--repeats", "1", "--json",
+                                 "--plot", str(tmp_path / "plot.png")])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    doc = json.loads(result.output)
+    assert len(doc["frames"]) == 4 and doc["summary"]["hole_pixels"] == 0 and (tmp_path / "plot.png").stat().st_size > 0
+    assert doc["summary"]["t_max"] == 0.5 * scene.triangle_count and doc["summary"]["unit"] == "triangles"
+    loop = runner.invoke(cli, ["walkthrough", str(root), str(path), "--frames", "3", "--repeats", "1", "--no-compare"])
+    assert loop.exit_code == 0, loop.output
+    assert "frames; t_max" in loop.output
+
+
+def test_another_scene_is_refused(placed):
+    _, _, root = placed
+    with ImpostorDatabase(root) as db, pytest.raises(PlacementError, match="placement's scene"):
+        PlacementRenderer(procedural.city(9, seed=1), db)
