@@ -17,7 +17,7 @@ from sqlalchemy import select
 from starlette.background import BackgroundTask
 
 from farfield.core.bundle import GLB_NAME, MANIFEST_NAME, PAYLOAD_NAME, bundle_zip, page_file_name
-from farfield.core.errors import BundleFormatError, ConflictError, NotFoundError, ViewCellError
+from farfield.core.errors import ConflictError, InternalError, NotFoundError, ViewCellError
 from farfield.core.placement.database import PlacementLookup
 from farfield.core.placement.hierarchy import PlacementError
 from farfield.service.db import CellRow, JobRow
@@ -122,7 +122,8 @@ class _LookupCache:
             index = json.loads(svc.blobs.read_bytes(job.index_key))
             found = (index, PlacementLookup(index))
         except (ValueError, KeyError, TypeError, PlacementError) as error:
-            raise BundleFormatError(f"job {job.id!r}: its placement database index does not read: {error}") from error
+            # farfield wrote this index: one that does not read is a bug (500), not bad input
+            raise InternalError(f"job {job.id!r}: its placement database index does not read: {error}") from error
         with self.lock:
             self.reads += 1
             self.entries[key] = found

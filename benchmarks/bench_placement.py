@@ -41,7 +41,6 @@ their estimate and CPV status.
 from __future__ import annotations
 
 import argparse
-import inspect
 import json
 import math
 import sys
@@ -218,7 +217,7 @@ def _line(r: dict) -> str:
 
 
 def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float], views: int, seed: int, repeats: int,
-                     resolution: int, out_dir: Path | None) -> list[dict]:
+                     resolution: int, out_dir: Path | None, vdi_deg: float = 11.25, cpv_divisions: int = 8) -> list[dict]:
     """The --walkthrough table (see the module docstring): one row per t_max."""
     import tempfile
 
@@ -228,7 +227,7 @@ def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float
 
     worst = _worst_view(scene, lo, hi, model, resolution)
     t_ref = 0.5 * worst
-    cpv = float(np.max(hi - lo)) / 8.0
+    cpv = float(np.max(hi - lo)) / cpv_divisions
     positions, forwards = random_views(lo, hi, views, seed)
     print(f"worst view by the model {worst:.4g} {model.unit}; reference t_max {t_ref:.4g} {model.unit}; {views} random views, seed {seed}; "
           f"{resolution} px, 45°, {repeats} draws per frame (median)", flush=True)  # fmt: skip
@@ -237,13 +236,10 @@ def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float
     rows = []
     for factor in factors:
         t_max = factor * t_ref
-        settings = PlacementSettings(t_max=t_max, model=model, options={"resolution": resolution}, cpv_size=cpv, cells="both")
+        settings = PlacementSettings(t_max=t_max, model=model, options={"resolution": resolution}, cpv_size=cpv, cells="both", vdi_deg=vdi_deg)
         started = time.perf_counter()
-        if "keep_state" in inspect.signature(place).parameters:
-            placement = place(scene, lo, hi, settings, keep_state=True)
-            state = placement.state
-        else:  # a planner without check-and-repair
-            placement, state = place(scene, lo, hi, settings), None
+        placement = place(scene, lo, hi, settings, keep_state=True)
+        state = placement.state
         plan_s = time.perf_counter() - started
         print(f"   # t_max {t_max:.4g}: planned in {plan_s:.1f} s, {placement.summary['impostors']} impostors, {placement.summary['cpvs']} CPVs", flush=True)
         started = time.perf_counter()
@@ -254,10 +250,10 @@ def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float
             from farfield.core.placement.repair import MAX_REPAIR_ROUNDS
 
             cluster = int(placement.elements["cluster_triangles"])
-            for _ in range(MAX_REPAIR_ROUNDS):
+            for k in range(MAX_REPAIR_ROUNDS + 1):  # as the service: the last round puts the figures in and adds nothing
                 baked = {i: {"quads": imp.quad_count, "texture_bytes": imp.texture_bytes, **imp.stats} for i, imp in impostors.items()}
-                round_ = state.repair(baked)
-                rounds.append({"round": round_.round, "cpvs_over": round_.cpvs_over, "added": len(round_.added)})
+                round_ = state.repair(baked, extend=k < MAX_REPAIR_ROUNDS)
+                rounds.append({"round": round_.round, "cpvs_over": round_.cpvs_over, "added": len(round_.added), "mode": round_.mode})
                 if not round_.added:
                     break
                 cells = {c["index"]: c for c in placement_cells(round_.placement)}
@@ -318,6 +314,8 @@ def main() -> None:
     parser.add_argument("--resolution", type=int, default=RESOLUTION, help="--walkthrough: output resolution")
     parser.add_argument("--detail", type=int, default=16, help="--walkthrough: the city's most quads per building face side (core.procedural.city)")
     parser.add_argument("--keep", default=None, help="--walkthrough: write the placement databases under this folder")
+    parser.add_argument("--vdi-deg", type=float, default=11.25, help="--walkthrough: the planner's smallest view-direction interval, degrees")
+    parser.add_argument("--cpv-divisions", type=int, default=8, help="--walkthrough: CPV size = the view space's longest side / this")
     args = parser.parse_args()
     model = {"llvmpipe": LLVMPIPE_MODEL, "primitives": primitive_model()}.get(args.cost_model) or CostModel.load(args.cost_model)
     if args.walkthrough:
@@ -325,7 +323,7 @@ def main() -> None:
         print(f"cost model: {model.renderer} ({model.source}); layered impostors, baked here; EGL {_renderer()}")
         print(f"# city: {scene.object_count} objects, {scene.triangle_count:,} triangles; view space {lo.round(2).tolist()} .. {hi.round(2).tolist()}")
         rows = walkthrough_rows(scene, lo, hi, model, [float(f) for f in args.factors.split(",")], args.views, args.seed, args.repeats,
-                                args.resolution, Path(args.keep) if args.keep else None)  # fmt: skip
+                                args.resolution, Path(args.keep) if args.keep else None, args.vdi_deg, args.cpv_divisions)  # fmt: skip
         if args.json:
             Path(args.json).write_text(json.dumps(rows, indent=1))
         return

@@ -167,7 +167,9 @@ def run_cell(
     (:mod:`workers.tasks`) counts it in the Celery message's retries, within a bounded limit.
     """
     claim = claim_cell(db, cell_id, max_attempts, worker)
-    if claim.ended:
+    if claim.cell is None and claim.job_id is not None:
+        # Ended here, or found ended: a redelivery after the outcome was recorded but its job's end
+        # was not (the database failed between them) ends the job now (idempotent).
         finish_job_if_complete(db, blobs, claim.job_id)
     if claim.cell is None:
         return "skipped"

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt
-from sqlalchemy import select, update
+from sqlalchemy import func, select, update
 
 from farfield.core.options import stored_values
 from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, primitive_model
@@ -149,7 +149,10 @@ def placement_params(technique_name: str, given_options: dict, resolution, fov_d
     if cpv_size is not None and not cpv_size > 0:
         raise PlacementError(f"cpv_size must be > 0, got {cpv_size!r}")
     size = cpv_size if cpv_size is not None else (max(span) / 8 if max(span) > 0 else 1.0)
-    regions = math.prod(max(1.0, math.ceil(s / size)) for s in span)
+    cuts = [s / size for s in span]
+    if not all(math.isfinite(c) for c in cuts):  # a size so small the quotient overflows
+        raise PlacementError(f"a view space of {span} in regions of {size:.6g} has too many regions (over {MAX_REGIONS:.0e}); use a larger cpv_size")
+    regions = math.prod(max(1.0, math.ceil(c)) for c in cuts)
     if regions > MAX_REGIONS:
         raise PlacementError(f"a view space of {span} in regions of {size:.6g} has {regions:.3g} regions, over {MAX_REGIONS:.0e}; use a larger cpv_size")
     vdi = _finite(spec.vdi_deg, "vdi_deg")
@@ -282,7 +285,9 @@ def fail_planning(db: Database, job_id: str, message: str, worker: str | None = 
     """Fail the job (if still held by ``worker``'s ``attempt``, when given) with ``message``."""
     where = [JobRow.id == job_id, JobRow.state.in_(("queued", "placing"))]
     if worker is not None:
-        where += [JobRow.plan_worker == worker, JobRow.plan_attempts == attempt]
+        where.append(JobRow.plan_worker == worker)
+    if attempt is not None:
+        where.append(JobRow.plan_attempts == attempt)
     with db.session() as s:
         return bool(s.execute(update(JobRow).where(*where).values(state="failed", error=message, finished_at=now(), plan_worker=None, lease_until=None)).rowcount)
 
@@ -396,7 +401,7 @@ def _write_database(db: Database, blobs: BlobStore, job: JobRow, placement: dict
 
     key = f"jobs/{job.id}/index.json"
     index = placement_index(placement, _cell_entries(db, job.id), job=job.id, scene=job.scene_id, rounds=rounds)
-    blobs.put_bytes(key, json.dumps(index, sort_keys=True, indent=1).encode())
+    blobs.put_bytes(key, json.dumps(index, sort_keys=True, indent=1, allow_nan=False).encode())  # strict JSON: engines read it
     return key
 
 
@@ -422,15 +427,18 @@ def plan_job(db: Database, blobs: BlobStore, job_id: str, worker: str, max_attem
             ids = {imp["id"] for imp in as_dict["impostors"]}
             index_key = _write_database(db, blobs, job, as_dict, []) if not ids else None
     except PlanningCancelled:
-        _end_cancelled(db, job_id)
-        return "cancelled", []
+        return _end_cancelled(db, job_id), []
     return _commit_round(db, job_id, worker, attempt, state_key, as_dict, ids, 0, index_key, [])
 
 
-def _end_cancelled(db: Database, job_id: str) -> None:
+def _end_cancelled(db: Database, job_id: str) -> str:
+    """After :class:`PlanningCancelled`: end a cancelled job's planning ("cancelled"), or leave the
+    job alone when this attempt only lost its hold ("skipped"): a newer attempt holds it, and
+    clearing the hold would leave the job ``placing`` with nothing to send it again."""
     with db.session() as s:
         s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state == "cancelled", JobRow.finished_at.is_(None)).values(finished_at=now()))
-        s.execute(update(JobRow).where(JobRow.id == job_id).values(plan_worker=None, lease_until=None))
+        ended = s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state == "cancelled").values(plan_worker=None, lease_until=None)).rowcount
+    return "cancelled" if ended else "skipped"
 
 
 def _commit_round(db, job_id, worker, attempt, state_key, placement: dict, ids, round_, index_key, rounds) -> tuple[str, list[str]]:
@@ -439,6 +447,17 @@ def _commit_round(db, job_id, worker, attempt, state_key, placement: dict, ids, 
         job = s.get(JobRow, job_id, with_for_update=True)
         if job.state != "placing" or job.plan_worker != worker or job.plan_attempts != attempt:
             return job.state, []  # cancelled meanwhile (or the hold was lost): nothing stored
+        if index_key is None:
+            from farfield.service.jobs import MAX_CELLS
+
+            have = s.scalar(select(func.count()).select_from(CellRow).where(CellRow.job_id == job_id))
+            if have + len(ids) > MAX_CELLS:
+                job.state, job.finished_at, job.plan_worker, job.lease_until = "failed", now(), None, None
+                job.error = (
+                    f"PlacementError: the placement needs {have + len(ids):,} impostors, over the limit of {MAX_CELLS:,} cells per job: "
+                    "use a larger budget, a smaller view space or larger --cpv-size / --vdi-deg"
+                )
+                return job.state, []
         made = _add_cells(s, job, placement, ids) if index_key is None else []
         record = {
             **job.planning, "phase": "bake", "step": f"bake round {round_}" if made else "done", "round": round_, "state_key": state_key,
@@ -477,10 +496,11 @@ def check_job(db: Database, blobs: BlobStore, job_id: str, worker: str, max_atte
         state = PlannerState.loads(blobs.read_bytes(planning["state_key"]))
         baked = {c.index: c.stats for c in job_cells(db, job_id) if c.state == "done" and c.stats}
         added: set[int] = set()
-        if round_ <= MAX_REPAIR_ROUNDS:
-            repaired = state.repair(baked)
-            rounds.append({**repaired.to_dict(), "round": round_})
-            added = {int(i) for i in repaired.added}
+        # Past the last round the baked figures still go in (extend=False: nothing added), so the
+        # database's CPV times and statuses are those of what is baked, never estimates.
+        repaired = state.repair(baked, extend=round_ <= MAX_REPAIR_ROUNDS)
+        rounds.append({**repaired.to_dict(), "round": round_})
+        added = {int(i) for i in repaired.added}
         current = state.placement().to_dict()
         if added:
             state_key = _state_key(job_id, round_)
@@ -512,5 +532,5 @@ def run_planning(db: Database, blobs: BlobStore, job_id: str, phase: str, worker
         if klass == INTERNAL:
             log.error("job %s %s: %s", job_id, phase, failure_message(error, klass), exc_info=error)
         message = failure_message(error, klass) if klass != BAD_INPUT else f"{type(error).__name__}: {error}"
-        fail_planning(db, job_id, message)
-        return "failed", []
+        # Only while this worker holds it: a stale attempt must not fail a job a newer one plans.
+        return ("failed" if fail_planning(db, job_id, message, worker) else "skipped"), []

@@ -132,3 +132,23 @@ def test_an_impostor_of_clusters_bakes_just_their_triangles():
     cell = next(c for c in placement_cells(placement) if c["index"] == imp["id"])
     baked = bake_impostor(one, cell, placement.elements["cluster_triangles"])
     assert baked.stats["layers"] >= 1 and set(baked.parameters["objects"]) == set(imp["objects"])
+
+
+def test_a_last_round_puts_the_figures_in_and_adds_nothing(planned):
+    _, placement, impostors = planned
+    state = PlannerState.loads(placement.state.dumps())
+    step = state.repair({i: imp.stats for i, imp in impostors.items()}, extend=False)
+    assert step.added == [] and step.mode == "resumed"
+    for imp in step.placement.impostors:
+        assert imp["baked"]["quads"] == impostors[imp["id"]].stats["quads"]
+    # The bias is measured against the first estimates, whatever the corrections did since.
+    assert all(state.estimated[i]["quads"] == state.first["quads"][state.candidate_of(i)] for i in impostors)
+
+
+def test_uncapped_depth_complexity_is_json_null_and_huge_directions_are_views(planned):
+    city, _, _ = planned
+    placement = place(city, *VIEW, _settings(0.5 * city.triangle_count, depth_complexity=float("inf")))
+    assert placement.parameters["depth_complexity"] is None
+    json.dumps(placement.to_dict(), allow_nan=False)
+    index = {"placement": {"parameters": placement.parameters, "cpvs": placement.cpvs}, "cells": []}
+    assert PlacementLookup(index).find([60.0, 112.0, 60.0], [1e200, 1e200, 0.0])["status"] in ("solved", UNDER_BUDGET, "unsolved")

@@ -203,3 +203,35 @@ def test_bad_placement_requests_are_refused(service, client, scene_id, change, m
     assert response.status_code == 422, response.text
     assert message in response.json()["detail"], response.json()["detail"]
     assert client.get("/v1/jobs").json() == before  # nothing stored
+
+
+def test_an_attempt_that_lost_its_hold_leaves_the_newer_one_alone(tmp_path):
+    """A lease that ran out while its worker lived (a stalled heartbeat, clocks apart): the sweeper
+    sends the planning again and worker B holds it; when A then sees it lost its hold, it must not
+    clear B's (the job would stay 'placing' with nothing to send it again), nor fail the job."""
+    from farfield.service.blobs import LocalBlobStore
+    from farfield.service.db import Database, JobRow, SceneRow, Tenant, now
+    from farfield.service.placement_jobs import _end_cancelled, claim_planning, fail_planning, lost_planning_jobs
+
+    db = Database(f"sqlite:///{tmp_path / 'jobs.db'}")
+    db.migrate()
+    blobs = LocalBlobStore(tmp_path / "blobs")
+    with db.session() as s:
+        s.add(Tenant(id="t", name="t"))
+        s.flush()
+        s.add(SceneRow(id="s", tenant_id="t", name="s", extension="glb", blob_key="k", size_bytes=1, content_hash="h", triangles=1, bounds=[[0, 0, 0], [1, 1, 1]], objects=[]))
+        s.flush()
+        s.add(JobRow(id="j", tenant_id="t", scene_id="s", job_type="placement", params={}, state="queued", created_at=now(), planning={"phase": "plan"}))
+    a = claim_planning(db, blobs, "j", "plan", "A", 3)
+    assert a.attempt == 1
+    with db.session() as s:
+        s.get(JobRow, "j").lease_until = now() - 1.0  # A's lease ran out
+    assert lost_planning_jobs(db, 0.0) == [("j", "plan")]
+    b = claim_planning(db, blobs, "j", "plan", "B", 3)
+    assert b.attempt == 2
+    assert _end_cancelled(db, "j") == "skipped"  # A learns it lost the hold
+    assert not fail_planning(db, "j", "A's stale failure", "A")
+    with db.session() as s:
+        job = s.get(JobRow, "j")
+        assert (job.state, job.plan_worker, job.plan_attempts) == ("placing", "B", 2) and job.lease_until is not None
+    db.dispose()

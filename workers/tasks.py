@@ -169,7 +169,7 @@ def bake_cell(self, cell_id: str) -> str:
     limit, retries = max_retries(settings.max_attempts), self.request.retries
     try:
         state = run_cell(db, blobs, cell_id, settings.max_attempts, worker=self.request.hostname, time_limit=settings.cell_time_limit, memory=_STATE["memory"])
-        if state == "done":
+        if state in ("done", "skipped"):  # skipped: a redelivery of a cell already done may be what ends its round
             _send_check_if_due(db, cell_id)
         return state
     except SoftTimeLimitExceeded:  # outside the attempt (claiming or recording it): the cell is as slow next time

@@ -181,6 +181,15 @@ def fit_power(x, target, names, holdout: float = 0.25, seed: int = 0, exponent: 
     return LinearFit(tuple(float(c) for c in coefficients), tuple(names), r2, median, p90, int(train.size), int(test.size))
 
 
+def _fit(value) -> dict:
+    """A model document's ``fit`` section: an object (its fit statistics), or nothing."""
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise CostModelError(f"cost model 'fit' must be an object, got {type(value).__name__}")
+    return dict(value)
+
+
 def _number(value, what: str) -> float:
     try:
         return float(value)
@@ -285,7 +294,7 @@ class CostModel:
             impostor=terms("impostor", IMPOSTOR_TERMS),
             memory=terms("memory", MEMORY_TERMS),
             renderer=str(data.get("renderer", "unspecified")),
-            fit=dict(data.get("fit") or {}),
+            fit=_fit(data.get("fit")),
             source=str(data.get("source", "given")),
             memory_exponent=_number(data["memory"].get("exponent", 1.0), "memory exponent"),
         )

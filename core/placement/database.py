@@ -131,9 +131,11 @@ class PlacementLookup:
         """The id of the first CPV holding the view, or -1 (under budget)."""
         p = np.asarray(position, dtype=np.float64).reshape(3)
         d = np.asarray(direction, dtype=np.float64).reshape(3)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            d = d / np.max(np.abs(d))  # scaled first: the norm of (1e200, 1e200, 0) would overflow
         norm = float(np.linalg.norm(d))
         if not (np.all(np.isfinite(p)) and np.isfinite(norm) and norm > 0.0):
-            raise ViewCellError(f"a view needs a finite position and a non-zero finite direction, got {p.tolist()} {d.tolist()}")
+            raise ViewCellError(f"a view needs a finite position and a non-zero finite direction, got {p.tolist()} {np.asarray(direction, dtype=np.float64).reshape(3).tolist()}")
         if np.any(p < self.lo - self.tol) or np.any(p > self.hi + self.tol):
             raise ViewCellError(f"position {p.tolist()} is outside the placement's view space {self.lo.tolist()} .. {self.hi.tolist()}")
         inside = np.flatnonzero(np.all((self.region_lo - self.tol <= p) & (p <= self.region_hi + self.tol), axis=1))

@@ -28,6 +28,7 @@ are never read from a user.
 
 from __future__ import annotations
 
+import math
 import pickle
 from dataclasses import asdict, dataclass, field
 
@@ -133,16 +134,20 @@ class PlannerState:
 
     # --- repair --------------------------------------------------------------------------------
 
-    def repair(self, baked: dict[int, dict]) -> RepairRound:
+    def repair(self, baked: dict[int, dict], extend: bool = True) -> RepairRound:
         """Put the real figures of the impostors baked since the last round (``baked``: impostor id
         -> the bundle's stats, of which ``quads`` and ``texture_bytes`` are used) in place of their
         estimates, correct every candidate not baked by the estimates' bias so far, and go on with
         the greedy for the CPVs over ``t_max``: resumed, or, at the first round when the bias is
         large (:data:`REPLAN_RATIO`), run again from the start over the corrected figures (baked
         impostors it chooses again are reused).  Returns the round, with the ids of the impostors
-        it added (to bake; none: the placement holds with what is baked)."""
+        it added (to bake; none: the placement holds with what is baked).  ``extend=False``
+        (the last round) puts the figures in and adds nothing: the CPVs' times and statuses are
+        then those of what is baked."""
         self._assign_ids()
         model, greedy, cand = self.settings.model, self.greedy, self.cand
+        if self.first is None:  # every candidate's estimates before any baked figure or correction
+            self.first = {"quads": cand.quads.copy(), "memory": cand.memory.copy()}
         drawn = self._drawn()
         for impostor_id, stats in sorted(baked.items()):
             impostor_id = int(impostor_id)
@@ -152,7 +157,8 @@ class PlannerState:
             if missing:
                 raise PlacementError(f"the baked stats of impostor {impostor_id} lack {missing}")
             i = self.candidate_of(impostor_id)
-            self.estimated[impostor_id] = {"quads": float(cand.quads[i]), "memory_bytes": float(cand.memory[i])}
+            # The estimate before any correction: the bias is measured against what the corrections scale.
+            self.estimated[impostor_id] = {"quads": float(self.first["quads"][i]), "memory_bytes": float(self.first["memory"][i])}
             delta = float(model.impostor_time(0.0, float(stats["quads"])) - model.impostor_time(0.0, float(cand.quads[i])))
             cand.quads[i] = float(stats["quads"])
             cand.memory[i] = max(float(stats["texture_bytes"]), 1.0)
@@ -175,13 +181,13 @@ class PlannerState:
         self._correct_not_baked()
         over = int(np.sum(greedy.t > greedy.t_max * (1.0 + 1e-9)))
         known = len(self.ids)
-        replan = not self.rounds and self.correction is not None and any(
+        replan = extend and not self.rounds and self.correction is not None and any(
             not (1.0 / REPLAN_RATIO <= r <= REPLAN_RATIO) for r in self.correction.values()
         )  # fmt: skip
         if replan:
             self.greedy = Greedy(self.hierarchy, self.pv, cand, self.settings.t_max)
             self.greedy.run()
-        elif over:
+        elif over and extend:
             greedy.run()
         self._assign_ids()
         added = sorted(i for i in self.ids.values() if i >= known)
@@ -225,8 +231,6 @@ class PlannerState:
             k: float(np.median([self.baked[i][b] / max(self.estimated[i][e], 1e-12) for i in self.baked]))
             for k, b, e in (("quads", "quads", "quads"), ("memory", "texture_bytes", "memory_bytes"))
         }  # fmt: skip
-        if self.first is None:
-            self.first = {"quads": cand.quads.copy(), "memory": cand.memory.copy()}
         free = np.ones(cand.count, dtype=bool)
         free[[self.candidate_of(i) for i in self.baked]] = False
         quads = np.where(free, self.first["quads"] * ratio["quads"], cand.quads)
@@ -331,7 +335,7 @@ class PlannerState:
             "options": {k: (v if not isinstance(v, tuple) else list(v)) for k, v in asdict(self.options).items()},
             "cpv_size": float(self.cpv_size),
             "vdi_deg": float(settings.vdi_deg),
-            "depth_complexity": float(settings.depth_complexity),
+            "depth_complexity": None if math.isinf(settings.depth_complexity) else float(settings.depth_complexity),  # None: no cap (JSON has no infinity)
             "cells": settings.cells,
             "leaf_size": settings.leaf_size,
             "apex_angles_deg": [float(a) for a in settings.apex_angles_deg],
