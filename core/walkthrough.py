@@ -187,12 +187,20 @@ def summarize(frames: list[dict]) -> dict:
         "impostor_ms_max": float(fast.max()) if served else None,
         "speedup_mean": float(full.mean() / fast.mean()) if served else None,
     }
-    if served and "hole_pixels" in served[0]:
-        out["hole_pixels"] = int(sum(f["hole_pixels"] for f in served))
-        out["max_hole_pixels"] = int(max(f["hole_pixels"] for f in served))
-        out["colour_error_mean"] = float(np.mean([f["colour_error_mean"] for f in served]))
-        out["colour_error_max"] = int(max(f["colour_error_max"] for f in served))
-    return out
+    return out | image_errors(served)
+
+
+def image_errors(frames: list[dict]) -> dict:
+    """Hole pixels (total, worst frame) and colour error (mean of the frames' means, worst) of
+    compared frames; empty when the frames were not compared."""
+    if not frames or "hole_pixels" not in frames[0]:
+        return {}
+    return {
+        "hole_pixels": int(sum(f["hole_pixels"] for f in frames)),
+        "max_hole_pixels": int(max(f["hole_pixels"] for f in frames)),
+        "colour_error_mean": float(np.mean([f["colour_error_mean"] for f in frames])),
+        "colour_error_max": int(max(f["colour_error_max"] for f in frames)),
+    }
 
 
 def write_plot(result: dict, path: str | Path, title: str = "walkthrough") -> None:
@@ -348,12 +356,7 @@ def summarize_placement(frames: list[dict], t_max: float, unit: str) -> dict:
             for f, m in zip(frames, measured) if m > t_max
         ],
     }  # fmt: skip
-    if frames and "hole_pixels" in frames[0]:
-        out["hole_pixels"] = int(sum(f["hole_pixels"] for f in frames))
-        out["max_hole_pixels"] = int(max(f["hole_pixels"] for f in frames))
-        out["colour_error_mean"] = float(np.mean([f["colour_error_mean"] for f in frames]))
-        out["colour_error_max"] = int(max(f["colour_error_max"] for f in frames))
-    return out
+    return out | image_errors(frames)
 
 
 def write_placement_plot(result: dict, path: str | Path, title: str = "placement walkthrough") -> None:
