@@ -168,8 +168,13 @@ def generate_candidates(
     direction_step_deg: float = DIRECTION_STEP_DEG,
     distance_steps: int = DISTANCE_STEPS,
     progress: Callable[[int, int], None] | None = None,
+    max_bytes: float = math.inf,
 ) -> Candidates:
-    """The candidates of every hierarchy node for the solvable CPVs of ``pv`` (see the module docstring)."""
+    """The candidates of every hierarchy node for the solvable CPVs of ``pv`` (see the module docstring).
+
+    ``max_bytes``: a cell whose impostor the model expects to take more memory than this is not a
+    candidate (counted in ``stats["refused_by_memory"]``): its bake would take long and its memory
+    would be most of the placement's."""
     if cells not in CellKinds:
         raise PlacementError(f"cells must be one of {list(CellKinds)}, got {cells!r}")
     halves = np.radians(np.asarray(apex_angles_deg, dtype=np.float64)) * 0.5
@@ -184,7 +189,7 @@ def generate_candidates(
     size = np.maximum(hierarchy.diagonal, 1e-300)
     grid = direction_grid(direction_step_deg)
     node_l, kind_l, cell_l, layer_l, texel_l, served_l, g_l, ti_l = [], [], [], [], [], [], [], []
-    considered = refused = 0
+    considered = refused = too_large = 0
     for n in range(hierarchy.count):
         g_all, pixels_all = geometry.of(np.full(solvable.size, n), solvable)
         seen = g_all > 0.0
@@ -214,6 +219,9 @@ def generate_candidates(
             except FarfieldError:
                 refused += 1
                 continue
+            if float(model.memory_bytes(layers, per_layer)) > max_bytes:
+                too_large += 1
+                continue
             ti = np.asarray(model.impostor_time(pixels_n, model.quads(layers)), dtype=np.float64).reshape(-1)
             keep = in_cell & (g_n > ti)
             if not keep.any():
@@ -236,5 +244,5 @@ def generate_candidates(
         served=flat(served_l, np.int64),
         g=flat(g_l, np.float64),
         ti=flat(ti_l, np.float64),
-        stats={"considered": considered, "refused_by_technique": refused},
+        stats={"considered": considered, "refused_by_technique": refused, "refused_by_memory": too_large},
     )

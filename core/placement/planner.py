@@ -26,6 +26,10 @@ from farfield.core.techniques import get_technique
 
 STEPS = ("hierarchy", "problem views", "candidates", "greedy")
 DEFAULT_CPV_DIVISIONS = 8  # default CPV size: the view space's longest side / 8
+# The largest impostor a placement considers, by the model's memory estimate.  On a dense city a
+# replanned greedy chose one impostor of 152 MB (estimated) over the whole view space, whose bake
+# had not ended after 15 minutes on llvmpipe; the placement's other impostors were 0.02-1 MB.
+DEFAULT_MAX_IMPOSTOR_BYTES = 32 * 2**20
 
 
 @dataclass(frozen=True, slots=True)
@@ -45,6 +49,7 @@ class PlacementSettings:
     apex_angles_deg: tuple[float, ...] = APEX_ANGLES_DEG
     direction_step_deg: float = DIRECTION_STEP_DEG
     distance_steps: int = DISTANCE_STEPS
+    max_impostor_bytes: float = DEFAULT_MAX_IMPOSTOR_BYTES  # larger candidates (by the model's memory estimate) are refused
 
 
 def _check(settings: PlacementSettings) -> None:
@@ -57,6 +62,8 @@ def _check(settings: PlacementSettings) -> None:
     angles = np.asarray(settings.apex_angles_deg, dtype=np.float64)
     if angles.size == 0 or np.any(~((angles > 0.0) & (angles < 180.0))) or np.any(np.diff(angles) <= 0):
         raise PlacementError(f"shaft apex angles must be increasing and lie in (0, 180) degrees, got {list(settings.apex_angles_deg)}")
+    if not (isinstance(settings.max_impostor_bytes, (int, float)) and settings.max_impostor_bytes > 0):
+        raise PlacementError(f"the largest impostor must be > 0 bytes, got {settings.max_impostor_bytes!r}")
     if not (0.5 <= settings.direction_step_deg <= 90.0):
         raise PlacementError(f"the shaft direction step must lie in [0.5, 90] degrees, got {settings.direction_step_deg!r}")
 
@@ -116,7 +123,7 @@ def place(
     with clock("candidates"):
         cand = generate_candidates(
             hierarchy, pv, settings.model, estimate, float(resolution) ** 2, settings.cells, settings.apex_angles_deg, settings.direction_step_deg,
-            settings.distance_steps, lambda done, total: clock.report("candidates", done, total),
+            settings.distance_steps, lambda done, total: clock.report("candidates", done, total), settings.max_impostor_bytes,
         )  # fmt: skip
     with clock("greedy"):
         greedy = Greedy(hierarchy, pv, cand, settings.t_max)

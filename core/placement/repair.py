@@ -9,10 +9,7 @@ are baked, :meth:`PlannerState.repair` puts each one's real figures in place of 
 memory), every candidate not baked is scaled by the median ratio of baked to estimated figures
 (the estimates' bias on this scene), and the CPVs that the real figures push over ``t_max`` go back
 to the greedy, which resumes with every candidate not yet chosen (§5.7.4: scores only fall, so the
-lazy heap starts from fresh upper bounds).  When the first round finds the estimates off by more
-than :data:`REPLAN_RATIO`, the greedy starts again from the start over the corrected figures
-instead (what it chooses again is already baked; what it no longer chooses stays in the database,
-drawn nowhere): resuming would keep choices made on figures several times off.  What it adds is baked in the next round; :data:`MAX_REPAIR_ROUNDS`
+lazy heap starts from fresh upper bounds).  What it adds is baked in the next round; :data:`MAX_REPAIR_ROUNDS`
 bounds the rounds.  Where a baked impostor turns out slower than its node's geometry in a CPV, it
 is no longer drawn there (the geometry is), so a round never leaves a CPV slower than the plain
 scene; an impostor left in no CPV is kept in the database with ``"cpvs": 0``.
@@ -44,9 +41,6 @@ from farfield.core.scene import Scene
 STATE_FORMAT = "farfield-planner-state"
 STATE_VERSION = 1
 MAX_REPAIR_ROUNDS = 3
-# At the first round, a median baked/estimated ratio (quads or memory) beyond this factor either way
-# makes the greedy start again over the corrected figures instead of resuming.
-REPLAN_RATIO = 1.25
 BAKED_FIGURES = ("quads", "texture_bytes")
 
 
@@ -69,7 +63,7 @@ class RepairRound:
     placement: Placement
 
     correction: dict | None = None
-    mode: str = "resumed"  # or "replanned"
+    mode: str = "resumed"  # the greedy resumes (kept in the document for its readers)
 
     def to_dict(self) -> dict:
         return {"round": self.round, "cpvs_over": self.cpvs_over, "added": list(self.added), "correction": self.correction, "mode": self.mode}
@@ -138,9 +132,9 @@ class PlannerState:
         """Put the real figures of the impostors baked since the last round (``baked``: impostor id
         -> the bundle's stats, of which ``quads`` and ``texture_bytes`` are used) in place of their
         estimates, correct every candidate not baked by the estimates' bias so far, and go on with
-        the greedy for the CPVs over ``t_max``: resumed, or, at the first round when the bias is
-        large (:data:`REPLAN_RATIO`), run again from the start over the corrected figures (baked
-        impostors it chooses again are reused).  Returns the round, with the ids of the impostors
+        the greedy for the CPVs over ``t_max``, resumed with the candidates not chosen.  (Running
+        it again from the start when the first estimates were far off discarded most of what was
+        baked and, on a dense city, chose one impostor over the whole view space instead.)  Returns the round, with the ids of the impostors
         it added (to bake; none: the placement holds with what is baked).  ``extend=False``
         (the last round) puts the figures in and adds nothing: the CPVs' times and statuses are
         then those of what is baked."""
@@ -181,17 +175,11 @@ class PlannerState:
         self._correct_not_baked()
         over = int(np.sum(greedy.t > greedy.t_max * (1.0 + 1e-9)))
         known = len(self.ids)
-        replan = extend and not self.rounds and self.correction is not None and any(
-            not (1.0 / REPLAN_RATIO <= r <= REPLAN_RATIO) for r in self.correction.values()
-        )  # fmt: skip
-        if replan:
-            self.greedy = Greedy(self.hierarchy, self.pv, cand, self.settings.t_max)
-            self.greedy.run()
-        elif over and extend:
+        if over and extend:
             greedy.run()
         self._assign_ids()
         added = sorted(i for i in self.ids.values() if i >= known)
-        step = RepairRound(len(self.rounds) + 1, over, added, self.placement(), self.correction, "replanned" if replan else "resumed")
+        step = RepairRound(len(self.rounds) + 1, over, added, self.placement(), self.correction, "resumed")
         self.rounds.append(step.to_dict())
         return step
 
@@ -312,6 +300,7 @@ class PlannerState:
             "candidates": cand.count,
             "candidates_considered": int(cand.stats["considered"]),
             "candidates_refused_by_technique": int(cand.stats["refused_by_technique"]),
+            "candidates_refused_by_memory": int(cand.stats.get("refused_by_memory", 0)),
             "impostors": len(drawn),
             "impostors_unused": len(impostors) - len(drawn),
             "impostors_deleted": len(greedy.deleted),
