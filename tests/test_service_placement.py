@@ -320,7 +320,7 @@ def test_only_the_state_the_next_check_needs_is_kept_and_the_check_waits_the_con
 def test_a_cancel_during_the_check_leaves_no_index_and_no_state(flow, monkeypatch):
     """The user cancels while the last check runs, after it wrote the database index and before it
     commits: the index is removed (and every planner state), the job stays cancelled, no index."""
-    import farfield.service.placement_jobs as placement_jobs
+    from farfield.service import placement_jobs
     from farfield.service.jobs import cancel_job, job_cells
 
     commit = placement_jobs._commit_round_row
