@@ -12,7 +12,11 @@ impostors' technique in ``params["technique"]``) goes
   the job with its message, anything else as ``internal error: ...``.  The planner state is kept as a
   blob (``jobs/<id>/planner-<round>.pickle``) and every impostor becomes one cell (cell index =
   impostor id) that carries its own technique, objects, options and view cell (``cells.params``).
-  A placement of no impostors ends ``done`` at once with its database.
+  A placement of no impostors ends ``done`` at once with its database.  Only the state the next
+  check needs is kept: a committed round deletes the older rounds' states, and a job that ends
+  deletes them all (:func:`drop_ended_planning`; a job failed while baking keeps its current one,
+  which ``retry`` needs to check the round again); an attempt that finds its job cancelled or
+  failed removes the index it wrote.
 - **bake**: the cells go to the render workers as a grid job's do (:func:`service.cell_runner.run_cell`
   bakes a placement cell with :func:`core.placement.database.bake_impostor`; its result key is made
   of its own parameters, so equal impostors of another job are found, not baked again).
@@ -51,6 +55,7 @@ from farfield.core.placement.hierarchy import PlacementError
 from farfield.core.techniques import get_technique
 from farfield.service.blobs import BlobStore
 from farfield.service.db import CellRow, Database, JobRow, SceneRow, now
+from farfield.service.settings import Settings
 
 log = logging.getLogger("farfield.placement")
 
@@ -241,7 +246,13 @@ def claim_planning(db: Database, blobs: BlobStore, job_id: str, phase: str, work
         job.state, job.plan_worker, job.lease_until = "placing", worker, now() + LEASE_S
         if job.started_at is None:
             job.started_at = now()
-        job.planning = {**job.planning, "attempt": job.plan_attempts, "worker": worker}
+        # A lost attempt's message (release_planning) is history, not this attempt's error: kept in
+        # "lost_attempts", so that a later success's record shows no "error".
+        planning = dict(job.planning or {})
+        lost = planning.pop("error", None)
+        if lost:
+            planning["lost_attempts"] = [*planning.get("lost_attempts", []), lost]
+        job.planning = {**planning, "attempt": job.plan_attempts, "worker": worker}
         return PlanClaim(job, job.plan_attempts)
 
 
@@ -281,15 +292,19 @@ def set_planning(db: Database, job_id: str, worker: str, attempt: int, **values)
         return True
 
 
-def fail_planning(db: Database, job_id: str, message: str, worker: str | None = None, attempt: int | None = None) -> bool:
-    """Fail the job (if still held by ``worker``'s ``attempt``, when given) with ``message``."""
+def fail_planning(db: Database, job_id: str, message: str, worker: str | None = None, attempt: int | None = None, blobs: BlobStore | None = None) -> bool:
+    """Fail the job (if still held by ``worker``'s ``attempt``, when given) with ``message``; given
+    ``blobs``, then delete its planner states (:func:`drop_ended_planning`)."""
     where = [JobRow.id == job_id, JobRow.state.in_(("queued", "placing"))]
     if worker is not None:
         where.append(JobRow.plan_worker == worker)
     if attempt is not None:
         where.append(JobRow.plan_attempts == attempt)
     with db.session() as s:
-        return bool(s.execute(update(JobRow).where(*where).values(state="failed", error=message, finished_at=now(), plan_worker=None, lease_until=None)).rowcount)
+        failed = bool(s.execute(update(JobRow).where(*where).values(state="failed", error=message, finished_at=now(), plan_worker=None, lease_until=None)).rowcount)
+    if failed and blobs is not None:
+        drop_ended_planning(db, blobs, job_id)
+    return failed
 
 
 def release_planning(db: Database, job_id: str, why: str, worker: str | None, max_attempts: int) -> str:
@@ -341,9 +356,13 @@ def pending_check(db: Database, job_id: str) -> bool:
     return job is not None and job.state == "placing" and (job.planning or {}).get("phase") == "check" and job.plan_worker is None
 
 
-def begin_check(session, job: JobRow, requeue_after: float = 30.0) -> None:
+def begin_check(session, job: JobRow, requeue_after: float | None = None) -> None:
     """The job's last cell of a round ended done: back to ``placing`` for the check (in the
-    caller's session, the job row locked)."""
+    caller's session, the job row locked).  Its check message, if lost, is sent again by the
+    API's sweeper after ``requeue_after`` seconds: by default ``FARFIELD_REQUEUE_AFTER`` of this
+    process's settings (every process of a service has the same), as a queued plan's."""
+    if requeue_after is None:
+        requeue_after = Settings.from_env().requeue_after
     k = int((job.planning or {}).get("round", 0)) + 1
     job.state, job.plan_worker, job.plan_attempts, job.lease_until = "placing", None, 0, now() + requeue_after
     job.planning = {**(job.planning or {}), "phase": "check", "step": f"check round {k}", "done": 0, "total": 1, "check_round": k}
@@ -373,6 +392,41 @@ def _progress(db: Database, job_id: str, worker: str, attempt: int, round_: int)
 
 def _state_key(job_id: str, round_: int) -> str:
     return f"jobs/{job_id}/planner-{round_}.pickle"
+
+
+def planner_state_keys(blobs: BlobStore, job_id: str) -> list[str]:
+    """The keys of the job's stored planner states (``jobs/<id>/planner-<round>.pickle``)."""
+    return [f"jobs/{job_id}/{name}" for name in blobs.list_files(f"jobs/{job_id}") if name.startswith("planner-") and name.endswith(".pickle")]
+
+
+def drop_planner_states(blobs: BlobStore, job_id: str, keep: str | None = None) -> list[str]:
+    """Delete the job's planner states but ``keep``; returns the keys deleted."""
+    dropped = [key for key in planner_state_keys(blobs, job_id) if key != keep]
+    for key in dropped:
+        blobs.delete_prefix(key)
+    return dropped
+
+
+def drop_ended_planning(db: Database, blobs: BlobStore, job_id: str) -> list[str]:
+    """When the placement job has ended (done, failed, cancelled), delete its planner states: all of
+    them, except that a job that failed while baking keeps its current one (``retry`` bakes the
+    failed cells again, and the check that follows loads it).  Returns the keys deleted."""
+    with db.session() as s:
+        job = s.get(JobRow, job_id)
+    if job is None or job.job_type != PLACEMENT_JOB or job.state not in ("done", "failed", "cancelled"):
+        return []
+    planning = job.planning or {}
+    keep = planning.get("state_key") if job.state == "failed" and planning.get("phase") == "bake" else None
+    return drop_planner_states(blobs, job_id, keep)
+
+
+def after_cell(db: Database, blobs: BlobStore, job_id: str) -> bool:
+    """After a cell of the job ended: whether the job waits for its check task (the caller sends
+    it); otherwise a placement job that has ended drops its planner states."""
+    if pending_check(db, job_id):
+        return True
+    drop_ended_planning(db, blobs, job_id)
+    return False
 
 
 def _add_cells(session, job: JobRow, placement: dict, ids) -> list[str]:
@@ -412,6 +466,7 @@ def plan_job(db: Database, blobs: BlobStore, job_id: str, worker: str, max_attem
 
     claim = claim_planning(db, blobs, job_id, "plan", worker, max_attempts)
     if claim.job is None:
+        drop_ended_planning(db, blobs, job_id)
         return ("failed" if claim.ended else "skipped"), []
     job, attempt = claim.job, claim.attempt
     try:
@@ -427,26 +482,45 @@ def plan_job(db: Database, blobs: BlobStore, job_id: str, worker: str, max_attem
             ids = {imp["id"] for imp in as_dict["impostors"]}
             index_key = _write_database(db, blobs, job, as_dict, []) if not ids else None
     except PlanningCancelled:
-        return _end_cancelled(db, job_id), []
-    return _commit_round(db, job_id, worker, attempt, state_key, as_dict, ids, 0, index_key, [])
+        return _end_cancelled(db, blobs, job_id), []
+    return _commit_round(db, blobs, job_id, worker, attempt, state_key, as_dict, ids, 0, index_key, [])
 
 
-def _end_cancelled(db: Database, job_id: str) -> str:
-    """After :class:`PlanningCancelled`: end a cancelled job's planning ("cancelled"), or leave the
-    job alone when this attempt only lost its hold ("skipped"): a newer attempt holds it, and
-    clearing the hold would leave the job ``placing`` with nothing to send it again."""
+def _end_cancelled(db: Database, blobs: BlobStore, job_id: str) -> str:
+    """After :class:`PlanningCancelled`: end a cancelled job's planning ("cancelled") and delete its
+    planner states, or leave the job alone when this attempt only lost its hold ("skipped"): a newer
+    attempt holds it, and clearing the hold would leave the job ``placing`` with nothing to send it again."""
     with db.session() as s:
         s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state == "cancelled", JobRow.finished_at.is_(None)).values(finished_at=now()))
         ended = s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state == "cancelled").values(plan_worker=None, lease_until=None)).rowcount
-    return "cancelled" if ended else "skipped"
+    if not ended:
+        return "skipped"
+    drop_ended_planning(db, blobs, job_id)
+    return "cancelled"
 
 
-def _commit_round(db, job_id, worker, attempt, state_key, placement: dict, ids, round_, index_key, rounds) -> tuple[str, list[str]]:
-    """Store a planned or repaired round: its cells (queued), or the database when none was added."""
+def _commit_round(db, blobs, job_id, worker, attempt, state_key, placement: dict, ids, round_, index_key, rounds) -> tuple[str, list[str]]:
+    """Store a planned or repaired round: its cells (queued), or the database when none was added.
+    Then only the state the next check loads is kept (all are deleted when the job ended).  An
+    attempt that finds its job cancelled or failed meanwhile removes the index it wrote (a newer
+    attempt that only took its hold writes its own under the same key: that one is left alone)."""
+    committed, state, made = _commit_round_row(db, job_id, worker, attempt, state_key, placement, ids, round_, index_key, rounds)
+    if committed and state == "running":
+        drop_planner_states(blobs, job_id, keep=state_key)
+    elif state in ("failed", "cancelled") or (committed and state == "done"):
+        if not committed and index_key is not None:
+            blobs.delete_prefix(index_key)
+        drop_ended_planning(db, blobs, job_id)
+    return state, made
+
+
+def _commit_round_row(db, job_id, worker, attempt, state_key, placement: dict, ids, round_, index_key, rounds) -> tuple[bool, str, list[str]]:
+    """:func:`_commit_round`'s change of the job's row: (whether this attempt committed, the job's
+    state, the cells made)."""
     with db.session() as s:
         job = s.get(JobRow, job_id, with_for_update=True)
         if job.state != "placing" or job.plan_worker != worker or job.plan_attempts != attempt:
-            return job.state, []  # cancelled meanwhile (or the hold was lost): nothing stored
+            return False, job.state, []  # cancelled meanwhile (or the hold was lost): nothing stored
         if index_key is None:
             from farfield.service.jobs import MAX_CELLS
 
@@ -457,7 +531,7 @@ def _commit_round(db, job_id, worker, attempt, state_key, placement: dict, ids, 
                     f"PlacementError: the placement needs {have + len(ids):,} impostors, over the limit of {MAX_CELLS:,} cells per job: "
                     "use a larger budget, a smaller view space or larger --cpv-size / --vdi-deg"
                 )
-                return job.state, []
+                return True, job.state, []
         made = _add_cells(s, job, placement, ids) if index_key is None else []
         record = {
             **job.planning, "phase": "bake", "step": f"bake round {round_}" if made else "done", "round": round_, "state_key": state_key,
@@ -469,7 +543,7 @@ def _commit_round(db, job_id, worker, attempt, state_key, placement: dict, ids, 
             job.state, job.finished_at, job.index_key = "done", now(), index_key
         else:
             job.state = "running"
-        return job.state, made
+        return True, job.state, made
 
 
 def _summary_of(summary: dict | None) -> dict | None:
@@ -487,6 +561,7 @@ def check_job(db: Database, blobs: BlobStore, job_id: str, worker: str, max_atte
 
     claim = claim_planning(db, blobs, job_id, "check", worker, max_attempts)
     if claim.job is None:
+        drop_ended_planning(db, blobs, job_id)
         return ("failed" if claim.ended else "skipped"), []
     job, attempt = claim.job, claim.attempt
     planning = job.planning
@@ -505,9 +580,9 @@ def check_job(db: Database, blobs: BlobStore, job_id: str, worker: str, max_atte
         if added:
             state_key = _state_key(job_id, round_)
             blobs.put_bytes(state_key, state.dumps())
-            return _commit_round(db, job_id, worker, attempt, state_key, current, added, round_, None, rounds)
+            return _commit_round(db, blobs, job_id, worker, attempt, state_key, current, added, round_, None, rounds)
         index_key = _write_database(db, blobs, job, current, rounds)
-    return _commit_round(db, job_id, worker, attempt, planning["state_key"], current, set(), round_, index_key, rounds)
+    return _commit_round(db, blobs, job_id, worker, attempt, planning["state_key"], current, set(), round_, index_key, rounds)
 
 
 def run_planning(db: Database, blobs: BlobStore, job_id: str, phase: str, worker: str, max_attempts: int) -> tuple[str, list[str]]:
@@ -533,4 +608,4 @@ def run_planning(db: Database, blobs: BlobStore, job_id: str, phase: str, worker
             log.error("job %s %s: %s", job_id, phase, failure_message(error, klass), exc_info=error)
         message = failure_message(error, klass) if klass != BAD_INPUT else f"{type(error).__name__}: {error}"
         # Only while this worker holds it: a stale attempt must not fail a job a newer one plans.
-        return ("failed" if fail_planning(db, job_id, message, worker) else "skipped"), []
+        return ("failed" if fail_planning(db, job_id, message, worker, blobs=blobs) else "skipped"), []

@@ -162,7 +162,8 @@ def test_a_worker_killed_while_planning_plans_again(service, client, scene_id):
         os.kill(pid, signal.SIGKILL)
     job, _ = watch(client, job_id, lambda j: (j["placement"] or {}).get("attempt", 0) >= 2 or ended(j), 120)
     assert job["state"] == "placing", (job["state"], job["error"])
-    assert "worker process died" in job["placement"]["error"]
+    # The lost attempt is history: listed, not the running attempt's error.
+    assert "error" not in job["placement"] and any("worker process died" in m for m in job["placement"]["lost_attempts"]), job["placement"]
     assert client.post(f"/v1/jobs/{job_id}/cancel").json()["state"] == "cancelled"  # the second plan is as slow: stop it
     job, _ = watch(client, job_id, lambda j: ended(j) and j["finished_at"] is not None, 60)
     assert job["state"] == "cancelled" and job["cells_total"] == 0
@@ -229,9 +230,172 @@ def test_an_attempt_that_lost_its_hold_leaves_the_newer_one_alone(tmp_path):
     assert lost_planning_jobs(db, 0.0) == [("j", "plan")]
     b = claim_planning(db, blobs, "j", "plan", "B", 3)
     assert b.attempt == 2
-    assert _end_cancelled(db, "j") == "skipped"  # A learns it lost the hold
+    assert _end_cancelled(db, blobs, "j") == "skipped"  # A learns it lost the hold
     assert not fail_planning(db, "j", "A's stale failure", "A")
     with db.session() as s:
         job = s.get(JobRow, "j")
         assert (job.state, job.plan_worker, job.plan_attempts) == ("placing", "B", 2) and job.lease_until is not None
+    db.dispose()
+
+
+# --- the planner's stored states, a lost attempt's message, a cancelled check, the check's lease ---
+# In one process on real parts (SQLite, the blob folder, the planner, EGL bakes at 32 px): the
+# worker tasks' functions called in turn, as a worker would.
+
+
+class Flow:
+    """A placement job of the QUICK request on the module's city, stored and queued for planning."""
+
+    def __init__(self, root):
+        from farfield.service.blobs import LocalBlobStore
+        from farfield.service.db import Database
+        from farfield.service.jobs import JobSpec, create_placement_job
+        from farfield.service.keys import tenant_named
+        from farfield.service.scenes import ingest_scene
+        from farfield.service.settings import Settings
+
+        settings = Settings.from_env({"FARFIELD_HOME": str(root)})
+        self.db = Database(settings.database_url)
+        self.db.migrate()
+        self.blobs = LocalBlobStore(settings.blob_dir)
+        self.tenant = tenant_named(self.db, "placement").id
+        with open(write_scene(city(25, seed=1, detail=8), root, "glb", "city"), "rb") as f:
+            scene = ingest_scene(self.db, self.blobs, self.tenant, "city.glb", f, limit=2**26)
+        spec = JobSpec(scene_id=scene.id, technique="layered", resolution=32, placement=QUICK)
+        self.job_id = create_placement_job(self.db, self.tenant, scene, spec).id
+
+    def job(self):
+        from farfield.service.db import JobRow
+
+        with self.db.session() as s:
+            return s.get(JobRow, self.job_id)
+
+    def states(self) -> list[str]:
+        from farfield.service.placement_jobs import planner_state_keys
+
+        return planner_state_keys(self.blobs, self.job_id)
+
+    def bake(self, cell_ids) -> None:
+        """Bake the cells as the bake task does: run_cell, then after_cell (whose True the task
+        answers by sending the check: here the caller runs it)."""
+        from farfield.service.cell_runner import run_cell
+        from farfield.service.placement_jobs import after_cell
+
+        for cell_id in cell_ids:
+            assert run_cell(self.db, self.blobs, cell_id, 3, worker="W") in ("done", "cancelled", "skipped")
+            after_cell(self.db, self.blobs, self.job_id)
+
+
+@pytest.fixture
+def flow(tmp_path):
+    made = Flow(tmp_path)
+    yield made
+    made.db.dispose()
+
+
+def test_only_the_state_the_next_check_needs_is_kept_and_the_check_waits_the_configured_lease(flow, monkeypatch):
+    from farfield.service.db import now
+    from farfield.service.placement_jobs import check_job, plan_job
+
+    monkeypatch.setenv("FARFIELD_REQUEUE_AFTER", "5000")
+    state, cells = plan_job(flow.db, flow.blobs, flow.job_id, "W", 3)
+    assert state == "running" and cells
+    assert flow.states() == [f"jobs/{flow.job_id}/planner-0.pickle"]
+    rounds = 0
+    while state == "running":
+        flow.bake(cells)
+        job = flow.job()
+        assert job.state == "placing" and job.planning["phase"] == "check"
+        # A lost check message is sent again after FARFIELD_REQUEUE_AFTER, as a lost plan's, not 30 s.
+        assert job.lease_until - now() > 4000, job.lease_until - now()
+        state, cells = check_job(flow.db, flow.blobs, flow.job_id, "W", 3)
+        rounds += 1
+        if state == "running":  # the round's additions: only their state is kept
+            assert flow.states() == [flow.job().planning["state_key"]] == [f"jobs/{flow.job_id}/planner-{rounds}.pickle"]
+    assert state == "done", flow.job().error
+    assert flow.states() == []  # the job ended: no state is needed any more
+    assert flow.blobs.exists(flow.job().index_key)
+
+
+def test_a_cancel_during_the_check_leaves_no_index_and_no_state(flow, monkeypatch):
+    """The user cancels while the last check runs, after it wrote the database index and before it
+    commits: the index is removed (and every planner state), the job stays cancelled, no index."""
+    from farfield.service import placement_jobs
+    from farfield.service.jobs import cancel_job, job_cells
+
+    commit = placement_jobs._commit_round_row
+
+    def cancelled_first(db, job_id, worker, attempt, state_key, placement, ids, round_, index_key, rounds):
+        if index_key is not None:  # the round that ends the job: the cancel arrives now
+            assert flow.blobs.exists(index_key)
+            assert cancel_job(flow.db, flow.blobs, flow.tenant, flow.job_id).state == "cancelled"
+        return commit(db, job_id, worker, attempt, state_key, placement, ids, round_, index_key, rounds)
+
+    monkeypatch.setattr(placement_jobs, "_commit_round_row", cancelled_first)
+    state, cells = placement_jobs.plan_job(flow.db, flow.blobs, flow.job_id, "W", 3)
+    assert state == "running"
+    while state == "running":
+        flow.bake(cells)
+        state, cells = placement_jobs.check_job(flow.db, flow.blobs, flow.job_id, "W", 3)
+    assert (state, cells) == ("cancelled", [])
+    job = flow.job()
+    assert job.state == "cancelled" and job.index_key is None and job.finished_at is not None
+    assert flow.blobs.list_files(f"jobs/{flow.job_id}") == []  # neither index.json nor a planner state
+    assert all(c.state == "done" for c in job_cells(flow.db, flow.job_id))  # nothing added after the cancel
+
+
+def test_a_job_cancelled_while_baking_drops_its_state(flow):
+    from farfield.service.jobs import cancel_job
+    from farfield.service.placement_jobs import plan_job
+
+    state, cells = plan_job(flow.db, flow.blobs, flow.job_id, "W", 3)
+    assert state == "running" and flow.states()
+    cancel_job(flow.db, flow.blobs, flow.tenant, flow.job_id)
+    flow.bake(cells)  # each delivery finds its cell cancelled
+    assert flow.job().state == "cancelled" and flow.states() == []
+
+
+def _stored_job(tmp_path, **values):
+    from farfield.service.blobs import LocalBlobStore
+    from farfield.service.db import Database, JobRow, SceneRow, Tenant, now
+
+    db = Database(f"sqlite:///{tmp_path / 'jobs.db'}")
+    db.migrate()
+    blobs = LocalBlobStore(tmp_path / "blobs")
+    with db.session() as s:
+        s.add(Tenant(id="t", name="t"))
+        s.flush()
+        s.add(SceneRow(id="s", tenant_id="t", name="s", extension="glb", blob_key="k", size_bytes=1, content_hash="h", triangles=1, bounds=[[0, 0, 0], [1, 1, 1]], objects=[]))
+        s.flush()
+        s.add(JobRow(id="j", tenant_id="t", scene_id="s", job_type="placement", params={}, created_at=now(), **values))
+    return db, blobs
+
+
+def test_a_job_that_failed_while_baking_keeps_the_state_its_retry_checks_with(tmp_path):
+    from farfield.service.db import JobRow
+    from farfield.service.placement_jobs import drop_ended_planning, planner_state_keys
+
+    db, blobs = _stored_job(tmp_path, state="failed", planning={"phase": "bake", "round": 1, "state_key": "jobs/j/planner-1.pickle"})
+    for k in (0, 1):
+        blobs.put_bytes(f"jobs/j/planner-{k}.pickle", b"state")
+    assert drop_ended_planning(db, blobs, "j") == ["jobs/j/planner-0.pickle"]
+    assert planner_state_keys(blobs, "j") == ["jobs/j/planner-1.pickle"]
+    with db.session() as s:  # failed while checking: not retried, nothing kept
+        s.get(JobRow, "j").planning = {"phase": "check", "round": 1, "state_key": "jobs/j/planner-1.pickle"}
+    assert drop_ended_planning(db, blobs, "j") == ["jobs/j/planner-1.pickle"] and planner_state_keys(blobs, "j") == []
+    db.dispose()
+
+
+def test_a_lost_attempts_message_is_not_the_next_attempts_error(tmp_path):
+    from farfield.service.placement_jobs import claim_planning, release_planning, set_planning
+
+    db, blobs = _stored_job(tmp_path, state="queued", planning={"phase": "plan"})
+    assert claim_planning(db, blobs, "j", "plan", "A", 3).attempt == 1
+    assert release_planning(db, "j", "its worker process died: SIGKILL", "A", 3) == "placing"
+    second = claim_planning(db, blobs, "j", "plan", "B", 3)
+    assert second.attempt == 2
+    assert "error" not in second.job.planning
+    assert second.job.planning["lost_attempts"] == ["plan attempt 1 of 3 was lost (its worker process died: SIGKILL); sent again"]
+    assert set_planning(db, "j", "B", 2, step="greedy")
+    assert claim_planning(db, blobs, "j", "plan", "C", 3).job is None  # B holds it: nothing changes
     db.dispose()

@@ -52,7 +52,7 @@ from farfield.service.cell_limits import MemoryGuard, hard_time_limit_message, t
 from farfield.service.cell_runner import BAD_INPUT, TRANSIENT, RetryCell, backoff, failure_class, failure_message, run_cell
 from farfield.service.db import CellRow, Database, now
 from farfield.service.jobs import finish_job_if_complete, release_lost_cells
-from farfield.service.placement_jobs import fail_planning, pending_check, release_planning, run_planning
+from farfield.service.placement_jobs import after_cell, fail_planning, release_planning, run_planning
 from farfield.service.settings import Settings
 from farfield.workers.app import BAKE_CELL, CHECK_PLACEMENT, PLAN_PLACEMENT, celery_app, send_cells, send_planning
 
@@ -169,8 +169,9 @@ def bake_cell(self, cell_id: str) -> str:
     limit, retries = max_retries(settings.max_attempts), self.request.retries
     try:
         state = run_cell(db, blobs, cell_id, settings.max_attempts, worker=self.request.hostname, time_limit=settings.cell_time_limit, memory=_STATE["memory"])
-        if state in ("done", "skipped"):  # skipped: a redelivery of a cell already done may be what ends its round
-            _send_check_if_due(db, cell_id)
+        # Every outcome: a done cell (or a redelivery of one, "skipped") may end its round; a
+        # cancelled or failed one may have ended its placement job.
+        _send_check_if_due(db, blobs, cell_id)
         return state
     except SoftTimeLimitExceeded:  # outside the attempt (claiming or recording it): the cell is as slow next time
         return _give_up(db, blobs, cell_id, f"{CellLimitError.__name__}: {time_limit_message(settings.cell_time_limit)}")
@@ -191,12 +192,13 @@ def bake_cell(self, cell_id: str) -> str:
         return _give_up(db, blobs, cell_id, f"{message} (gave up after {delivery} deliveries that failed outside the attempt)")
 
 
-def _send_check_if_due(db: Database, cell_id: str) -> None:
+def _send_check_if_due(db: Database, blobs: BlobStore, cell_id: str) -> None:
     """The cell ended its placement job's round: send the job's check (a duplicate is harmless; a
-    lost one is sent again by the API's sweeper)."""
+    lost one is sent again by the API's sweeper); a placement job that has ended (cancelled while
+    its cells ran, failed) drops its planner states (:func:`service.placement_jobs.after_cell`)."""
     with db.session() as s:
         job_id = s.scalar(select(CellRow.job_id).where(CellRow.id == cell_id))
-    if job_id is not None and pending_check(db, job_id):
+    if job_id is not None and after_cell(db, blobs, job_id):
         send_planning(celery_app, job_id, "check")
 
 
@@ -228,7 +230,7 @@ class PlanningTask(Task):
             settings = Settings.from_env()
             db = Database(settings.database_url)
             try:
-                fail_planning(db, args[0], f"{CellLimitError.__name__}: {hard_time_limit_message(_DECLARED.cell_hard_time_limit)}")
+                fail_planning(db, args[0], f"{CellLimitError.__name__}: {hard_time_limit_message(_DECLARED.cell_hard_time_limit)}", blobs=blob_store(settings))
             finally:
                 db.dispose()
 
@@ -239,12 +241,12 @@ def _planning(task, job_id: str, phase: str) -> str:
     try:
         state, cell_ids = run_planning(db, blobs, job_id, phase, task.request.hostname, settings.max_attempts)
     except SoftTimeLimitExceeded:
-        fail_planning(db, job_id, f"{CellLimitError.__name__}: {time_limit_message(settings.cell_time_limit)}")
+        fail_planning(db, job_id, f"{CellLimitError.__name__}: {time_limit_message(settings.cell_time_limit)}", blobs=blobs)
         return "failed"
     except Exception as error:  # noqa: BLE001 - transient (run_planning freed the hold): retried with backoff
         if retries < limit:
             raise task.retry(countdown=backoff(retries + 1), exc=error, max_retries=limit) from error
-        fail_planning(db, job_id, f"{failure_message(error, failure_class(error))} (gave up after {retries + 1} deliveries)")
+        fail_planning(db, job_id, f"{failure_message(error, failure_class(error))} (gave up after {retries + 1} deliveries)", blobs=blobs)
         return "failed"
     send_cells(celery_app, cell_ids)
     return state
