@@ -307,9 +307,10 @@ def fail_planning(db: Database, job_id: str, message: str, worker: str | None = 
     return failed
 
 
-def release_planning(db: Database, job_id: str, why: str, worker: str | None, max_attempts: int) -> str:
+def release_planning(db: Database, job_id: str, why: str, worker: str | None, max_attempts: int, blobs: BlobStore | None = None) -> str:
     """A planning whose worker process died: free it for the next delivery (or fail the job when
-    that was its last attempt).  Returns the job's state, or "unchanged"."""
+    that was its last attempt, and then, given ``blobs``, delete its planner states).  Returns the
+    job's state, or "unchanged"."""
     with db.session() as s:
         job = s.get(JobRow, job_id, with_for_update=True)
         if job is None or job.state != "placing" or job.plan_worker is None or (worker is not None and job.plan_worker != worker):
@@ -322,7 +323,10 @@ def release_planning(db: Database, job_id: str, why: str, worker: str | None, ma
             job.planning = {**job.planning, "error": f"{phase} attempt {job.plan_attempts} of {max_attempts} was lost ({why}); sent again"}
             job.lease_until = 0.0  # the sweeper sends it again at its next sweep
         job.plan_worker = None
-        return job.state
+        state = job.state
+    if state == "failed" and blobs is not None:
+        drop_ended_planning(db, blobs, job_id)
+    return state
 
 
 def planning_jobs_of(db: Database, worker: str) -> list[str]:
@@ -602,7 +606,7 @@ def run_planning(db: Database, blobs: BlobStore, job_id: str, phase: str, worker
     except Exception as error:  # noqa: BLE001 - every failure is classified and recorded on the job
         klass = failure_class(error)
         if klass == TRANSIENT:
-            release_planning(db, job_id, f"{type(error).__name__}: {error}", worker, max_attempts)
+            release_planning(db, job_id, f"{type(error).__name__}: {error}", worker, max_attempts, blobs)
             raise
         if klass == INTERNAL:
             log.error("job %s %s: %s", job_id, phase, failure_message(error, klass), exc_info=error)

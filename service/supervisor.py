@@ -160,12 +160,13 @@ class Service:
         worker = f"{name}@{socket.gethostname()}"  # the node name `-n name@%h` gives it
         db = Database(self.settings.database_url)
         try:
-            changed = release_lost_cells(db, blob_store(self.settings), running_cells_of(db, worker), self.settings.max_attempts,
+            blobs = blob_store(self.settings)
+            changed = release_lost_cells(db, blobs, running_cells_of(db, worker), self.settings.max_attempts,
                                          f"worker {worker} exited with code {code}", worker=worker, resend=True)  # fmt: skip
             if changed:
                 print(f"farfield: {len(changed)} cells of {worker} released: {sorted(set(changed.values()))}", file=sys.stderr)
             for job_id in planning_jobs_of(db, worker):  # a placement job it planned: the sweeper sends it again
-                state = release_planning(db, job_id, f"worker {worker} exited with code {code}", worker, self.settings.max_attempts)
+                state = release_planning(db, job_id, f"worker {worker} exited with code {code}", worker, self.settings.max_attempts, blobs)
                 print(f"farfield: the planning of job {job_id} on {worker} released: {state}", file=sys.stderr)
         except Exception as error:  # noqa: BLE001 - the cells come back after the visibility timeout anyway
             print(f"farfield: could not release the cells of {worker}: {error}", file=sys.stderr)

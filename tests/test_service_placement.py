@@ -399,3 +399,14 @@ def test_a_lost_attempts_message_is_not_the_next_attempts_error(tmp_path):
     assert set_planning(db, "j", "B", 2, step="greedy")
     assert claim_planning(db, blobs, "j", "plan", "C", 3).job is None  # B holds it: nothing changes
     db.dispose()
+
+
+def test_a_planning_lost_at_its_last_attempt_fails_the_job_and_drops_its_states(tmp_path):
+    from farfield.service.placement_jobs import claim_planning, planner_state_keys, release_planning
+
+    db, blobs = _stored_job(tmp_path, state="queued", planning={"phase": "plan"})
+    blobs.put_bytes("jobs/j/planner-0.pickle", b"state")
+    assert claim_planning(db, blobs, "j", "plan", "A", 1).attempt == 1
+    assert release_planning(db, "j", "its worker process died: SIGKILL", "A", 1, blobs) == "failed"
+    assert planner_state_keys(blobs, "j") == []
+    db.dispose()

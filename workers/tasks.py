@@ -213,7 +213,7 @@ class PlanningRequest(Request):
             settings = Settings.from_env()
             db = Database(settings.database_url)
             try:
-                state = release_planning(db, str(self.args[0]), f"its worker process died: {lost}", self.hostname, settings.max_attempts)
+                state = release_planning(db, str(self.args[0]), f"its worker process died: {lost}", self.hostname, settings.max_attempts, blob_store(settings))
                 log.warning("job %s: its planning process died (%s); now %s", self.args[0], lost, state)
             except Exception:  # noqa: BLE001 - the lease expires and the sweeper sends it again
                 log.exception("job %s: its planning process died, and its hold could not be freed", self.args[0])
