@@ -133,7 +133,7 @@ def parse_grid(text: str) -> dict:
     return {"lo": numbers[:3], "hi": numbers[3:], "counts": counts}
 
 
-def placement_request(view_space: str, frame_ms, cost_model, primitives, cpv_size, vdi_deg, cells, depth_complexity, leaf_size) -> dict:
+def placement_request(view_space: str, frame_ms, cost_model, primitives, cpv_size, vdi_deg, cells, depth_complexity, leaf_size, max_impostor_mb=None) -> dict:
     """The ``placement`` of a job request from ``farfield submit --placement``'s flags (those of
     ``farfield place``); --cost-model is a name the service knows (llvmpipe) or a model JSON file.
 
@@ -155,7 +155,8 @@ def placement_request(view_space: str, frame_ms, cost_model, primitives, cpv_siz
                 raise ServiceError(f"--cost-model {cost_model!r}: not a cost model JSON file ({error})") from None
         else:
             budget["cost_model"] = cost_model
-    knobs = {"cpv_size": cpv_size, "vdi_deg": vdi_deg, "cells": cells, "depth_complexity": depth_complexity, "leaf_size": leaf_size}
+    knobs = {"cpv_size": cpv_size, "vdi_deg": vdi_deg, "cells": cells, "depth_complexity": depth_complexity, "leaf_size": leaf_size,
+             "max_impostor_mb": max_impostor_mb}
     return {
         "view_space": {"lo": corners[:3], "hi": corners[3:]}, "budget": {k: v for k, v in budget.items() if v is not None},
         **{k: v for k, v in knobs.items() if v is not None},
@@ -229,6 +230,7 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
 @click.option("--cells", "cell_kinds", type=click.Choice(["shafts", "boxes", "both", "leaf-boxes"]), default=None, help="With --placement: view cells of the candidates [default: both].")
 @click.option("--depth-complexity", type=float, default=None, help="With --placement: a view's rasterised pixels are at most this many frames [default: 4].")
 @click.option("--leaf-size", type=int, default=None, help="With --placement: elements per leaf of the object hierarchy [default: 4].")
+@click.option("--max-impostor-mb", type=float, default=None, help="With --placement: largest impostor considered, MiB by the cost model [default: 32].")
 @click.option("--evaluate/--no-evaluate", default=True, show_default=True,
               help="Evaluate each baked cell against the real geometry on the worker (layered, tdm): hole pixels, bloat beyond 1 px, "
                    "colour error, SSIM in the cell's record. It changes no bundle.")
@@ -237,7 +239,7 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
 @click.option("--json", "as_json", is_flag=True, help="Print the job record as JSON.")
 @_client_options
 def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov, options, placement, view_space, frame_ms, cost_model, primitives,
-           cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, evaluate, wait, download, as_json, url, key):  # fmt: skip
+           cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, max_impostor_mb, evaluate, wait, download, as_json, url, key):  # fmt: skip
     """Submit a job for SCENE (a file to upload, or the id of an uploaded scene)."""
     client = Client(url, key or _default_key())
     if placement:
@@ -245,7 +247,7 @@ def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov
             raise ServiceError("--placement chooses the view cells: leave out --grid and --viewcell")
         if view_space is None:
             raise ServiceError("--placement needs --view-space X0,Y0,Z0,X1,Y1,Z1")
-        request = placement_request(view_space, frame_ms, cost_model, primitives, cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size)
+        request = placement_request(view_space, frame_ms, cost_model, primitives, cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, max_impostor_mb)
     elif (grid is None) == (not viewcells):
         raise ServiceError("give --grid, one or more --viewcell, or --placement")
     if Path(scene).is_file():

@@ -52,7 +52,8 @@ def summary_lines(result) -> list[str]:
         f"{s['elements']} elements in {s['hierarchy_nodes']} hierarchy nodes",
         f"problem views (CPVs): {s['cpvs']} in {s['leaf_regions_with_cpvs']} regions of {result.parameters['cpv_size']:.6g} "
         f"x {result.parameters['vdi_deg']:g} deg ({s['cpvs_solved']} solved, {s['cpvs_unsolved']} unsolved, {s['cpvs_unsolvable']} unsolvable)",
-        f"candidates: {s['candidates']} (of {s['candidates_considered']} considered; {s['candidates_refused_by_technique']} refused by the technique)",
+        f"candidates: {s['candidates']} (of {s['candidates_considered']} considered; {s['candidates_refused_by_technique']} refused by the technique, "
+        f"{s.get('candidates_refused_by_memory', 0)} over --max-impostor-mb)",
         f"impostors: {s['impostors']} ({s['impostors_deleted']} chosen, then replaced by an ancestor), estimated memory {s['memory_bytes'] / 2**20:.2f} MiB",
         f"worst CPV: {s['worst_before']:.4g} {unit} before, {s['worst_after']:.4g} {unit} after (solvable ones: {s['worst_after_solvable']:.4g})",
         "seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in result.seconds.items()),
@@ -79,11 +80,12 @@ def summary_lines(result) -> list[str]:
               help="View cells of the candidates: shafts (§5.6), boxes of the view-space hierarchy, both, or leaf-boxes (one per smallest region, Table 5.1 test 14).")
 @click.option("--depth-complexity", type=float, default=4.0, show_default=True, help="A view's rasterised pixels are at most this many frames (inf: no cap).")
 @click.option("--leaf-size", type=int, default=4, show_default=True, help="Elements per leaf of the object hierarchy.")
+@click.option("--max-impostor-mb", type=float, default=32.0, show_default=True, help="Largest impostor considered, MiB by the cost model's memory estimate.")
 @click.option("--out", type=click.Path(dir_okay=False), default=None, help="Write the placement JSON here.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary, seconds and where the placement went as JSON.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, options, resolution, fov, cpv_size, vdi_deg, cells,
-              depth_complexity, leaf_size, out, as_json, quiet) -> None:  # fmt: skip
+              depth_complexity, leaf_size, max_impostor_mb, out, as_json, quiet) -> None:  # fmt: skip
     """Decide where impostors go so that every view from VIEW-SPACE meets the budget at least memory
     (seed 000 ch. 5): problem views, candidates, greedy choice.  Views no placement can serve are
     named; the exit status is 0 either way (see "status" per CPV in the JSON)."""
@@ -100,7 +102,7 @@ def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, op
         raise PlacementError(f"cannot write the placement to {out!r}: no folder {str(Path(out).resolve().parent)!r}")
     settings = PlacementSettings(
         t_max=t_max, model=model, technique=technique, options=values, cpv_size=cpv_size, vdi_deg=vdi_deg, cells=cells,
-        depth_complexity=depth_complexity, leaf_size=leaf_size,
+        depth_complexity=depth_complexity, leaf_size=leaf_size, max_impostor_bytes=max_impostor_mb * 2**20,
     )  # fmt: skip
     loaded = load_scene(scene)
     bar = _Bar(enabled=not quiet)

@@ -101,6 +101,7 @@ class PlacementSpec(BaseModel):
     depth_complexity: Number | None = Field(4.0, description="a view's rasterised pixels are at most this many frames (>= 1; null: no cap)")
     cells: Literal[CELL_KINDS] = Field("both", description="view cells of the candidates")  # type: ignore[valid-type]
     leaf_size: StrictInt = Field(4, description="elements per leaf of the object hierarchy (>= 1)")
+    max_impostor_mb: Number = Field(32, description="largest impostor a placement considers, MiB by the cost model's memory estimate (> 0)")
 
 
 def _finite(value, what: str) -> float:
@@ -170,9 +171,13 @@ def placement_params(technique_name: str, given_options: dict, resolution, fov_d
         depth = None  # JSON (and PostgreSQL) hold no infinity: null is no cap
     if spec.leaf_size < 1:
         raise PlacementError(f"leaf_size must be >= 1, got {spec.leaf_size!r}")
+    largest = _finite(spec.max_impostor_mb, "max_impostor_mb")
+    if not largest > 0:
+        raise PlacementError(f"max_impostor_mb must be > 0, got {largest!r}")
     knobs = {
         "view_space": {"lo": lo, "hi": hi}, "budget": budget, "cost_model": model.to_dict(), "cpv_size": cpv_size, "vdi_deg": vdi,
         "depth_complexity": depth, "cells": spec.cells, "leaf_size": spec.leaf_size, "cluster_triangles": None,
+        "max_impostor_mb": largest,
     }  # fmt: skip
     return {"technique": technique.name, "resolution": options.resolution, "fov_deg": options.fov_deg, "objects": None, "options": stored_values(options), "placement": knobs}
 
@@ -187,7 +192,7 @@ def planner_settings(params: dict):
         options={**params["options"], "resolution": params["resolution"], "fov_deg": params["fov_deg"]},
         cpv_size=knobs["cpv_size"], vdi_deg=knobs["vdi_deg"], cells=knobs["cells"], leaf_size=knobs["leaf_size"],
         depth_complexity=math.inf if knobs["depth_complexity"] is None else knobs["depth_complexity"],
-        cluster_triangles=knobs["cluster_triangles"],
+        cluster_triangles=knobs["cluster_triangles"], max_impostor_bytes=float(knobs.get("max_impostor_mb", 32)) * 2**20,
     )  # fmt: skip
     return settings, knobs["view_space"]["lo"], knobs["view_space"]["hi"]
 

@@ -242,6 +242,18 @@ def test_memory_grows_as_the_budget_falls():
     assert all(r.summary["cpvs_solved"] == r.summary["cpvs"] for r in runs)
 
 
+def test_impostors_over_the_largest_size_are_never_candidates():
+    city = _small_city()
+    free = place(city, *VIEW, _settings(t_max=0.5 * city.triangle_count))
+    largest = max(imp["memory_bytes_estimated"] for imp in free.impostors)
+    capped = place(city, *VIEW, _settings(t_max=0.5 * city.triangle_count, max_impostor_bytes=0.5 * largest))
+    assert free.summary["candidates_refused_by_memory"] == 0 < capped.summary["candidates_refused_by_memory"]
+    assert all(imp["memory_bytes_estimated"] <= 0.5 * largest for imp in capped.impostors)
+    assert capped.parameters["max_impostor_bytes"] == 0.5 * largest
+    with pytest.raises(PlacementError, match="largest impostor"):
+        place(city, *VIEW, _settings(t_max=100.0, max_impostor_bytes=0))
+
+
 def test_a_view_space_inside_a_heavy_object_is_unsolvable_and_named():
     city = _small_city()
     v, f = procedural.subdivided_box([30.0, 100.0, 30.0], [60.0, 130.0, 60.0], 40)  # 19200 triangles around the viewer

@@ -187,6 +187,7 @@ def test_a_worker_killed_while_planning_plans_again(service, client, scene_id):
         ({"vdi_deg": 120}, "vdi_deg must lie in (0, 90]"),
         ({"depth_complexity": 0.5}, "depth_complexity must be >= 1"),
         ({"leaf_size": 0}, "leaf_size must be >= 1"),
+        ({"max_impostor_mb": 0}, "max_impostor_mb must be > 0"),
         ({"cells": "spheres"}, "cells"),
         ({"technique": "envmap"}, "technique 'envmap' cannot be placed"),
         ({"options": {"no_such_option": 1}}, "no_such_option"),

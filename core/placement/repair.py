@@ -327,6 +327,7 @@ class PlannerState:
             "depth_complexity": None if math.isinf(settings.depth_complexity) else float(settings.depth_complexity),  # None: no cap (JSON has no infinity)
             "cells": settings.cells,
             "leaf_size": settings.leaf_size,
+            "max_impostor_bytes": float(settings.max_impostor_bytes),
             "apex_angles_deg": [float(a) for a in settings.apex_angles_deg],
             "direction_step_deg": float(settings.direction_step_deg),
             "distance_steps": int(settings.distance_steps),
