@@ -83,9 +83,11 @@ def job_database(job_id: str, tenant_id: str = Depends(tenant), svc: Services = 
     out = tempfile.NamedTemporaryFile(prefix="farfield-db-", suffix=".zip", delete=False)
     try:
         with out, zipfile.ZipFile(out, "w", zipfile.ZIP_STORED) as archive:  # PNG and GLB are compressed already
-            archive.writestr("index.json", svc.blobs.read_bytes(job.index_key))
+            index = svc.blobs.read_bytes(job.index_key)
+            archive.writestr("index.json", index)
+            shipped = _bundled_cells(index)
             for cell in job_cells(svc.db, job_id):
-                if cell.result_key is None:
+                if cell.result_key is None or (shipped is not None and cell.index not in shipped):
                     continue
                 for name in svc.blobs.list_files(cell.result_key):
                     with archive.open(f"cells/{cell.index:05d}/{name}", "w") as member:
@@ -95,6 +97,15 @@ def job_database(job_id: str, tenant_id: str = Depends(tenant), svc: Services = 
         Path(out.name).unlink(missing_ok=True)
         raise
     return FileResponse(out.name, media_type="application/zip", filename=f"job-{job_id}.zip", background=BackgroundTask(Path(out.name).unlink, missing_ok=True))
+
+
+def _bundled_cells(index: bytes) -> set[int] | None:
+    """The cells a placement database ships (those its index gives a bundle: an impostor no CPV
+    draws has none); None for any other database (every baked cell)."""
+    doc = json.loads(index)
+    if doc.get("kind") != "placement":
+        return None
+    return {int(c["index"]) for c in doc.get("cells", []) if c.get("bundle")}
 
 
 PLACEMENT = "placement"  # the job type of a placement job (its cells are the placement's impostors)

@@ -264,7 +264,9 @@ def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float
         print(f"   # repair rounds {rounds}; baking {bake_s:.1f} s in all; walking {views} views", flush=True)
         kept = {imp["id"] for imp in placement.impostors}
         impostors = {i: imp for i, imp in impostors.items() if i in kept}
-        baked_bytes = sum(imp.texture_bytes for imp in impostors.values())
+        drawn = {imp["id"] for imp in placement.impostors if imp["cpvs"]}  # what the database ships
+        baked_bytes = sum(imp.texture_bytes for i, imp in impostors.items() if i in drawn)
+        all_baked_bytes = sum(imp.texture_bytes for imp in impostors.values())
         with tempfile.TemporaryDirectory(prefix="farfield-bench-") as tmp:
             root = Path(out_dir or tmp) / f"placement-{factor:g}"
             write_placement_database(root, placement, impostors, rounds=rounds)
@@ -280,7 +282,7 @@ def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float
             "plain_share_within_t_max": float(np.mean([f["plain_ms"] <= t_max for f in result["frames"]])) if model.unit == "ms" else None,
             "speedup_median": s["speedup_median"], "estimate_rel_error_median": s["estimate_rel_error_median"], "hole_pixels": s["hole_pixels"],
             "colour_error_mean": s["colour_error_mean"], "memory_baked_bytes": baked_bytes, "memory_estimated_bytes": placement.summary["memory_bytes"],
-            "impostors": len(placement.impostors), "cpvs": placement.summary["cpvs"], "cpvs_unsolved": placement.summary["cpvs_unsolved"],
+            "memory_all_baked_bytes": all_baked_bytes, "impostors": len(drawn), "impostors_baked": len(impostors), "cpvs": placement.summary["cpvs"], "cpvs_unsolved": placement.summary["cpvs_unsolved"],
             "cpvs_unsolvable": placement.summary["cpvs_unsolvable"], "statuses": s["statuses"], "rounds": rounds, "plan_s": plan_s, "bake_s": bake_s,
             "envmap": env, "envmap_ratio": env["memory_bytes"] / baked_bytes if baked_bytes else None, "over_t_max": s["over_t_max"],
         }  # fmt: skip

@@ -74,6 +74,13 @@ def test_log_fit_recovers_a_memory_power_law(noise):
     assert fit.holdout_rel_error_median < (1e-6 if noise == 0.0 else 0.15)
     quads = fit_power(texels, 3.0 * texels, ("quads_per_layer",), exponent=1.0, offset=False)
     assert quads.coefficients == pytest.approx((3.0,))
+    # Quads per layer as a power of the texels per layer, as calibrate fits it; the model round-trips it.
+    law = fit_power(texels, 0.3 * texels**0.25, ("quads_per_layer", "quads_exponent"), offset=False)
+    assert law.coefficients == pytest.approx((0.3, 0.25), rel=1e-6)
+    model = CostModel("frame_ms", (0.0, 1e-4, 0.0, 0.0), (0.0, 0.0, 0.0), (100.0, 0.0, 0.3), quads_exponent=0.25)
+    assert CostModel.from_dict(model.to_dict()).quads(2.0, 1e4) == pytest.approx(0.3 * 2.0 * 10.0)
+    with pytest.raises(CostModelError, match="quads exponent"):
+        CostModel("frame_ms", (0.0, 1e-4, 0.0, 0.0), (0.0, 0.0, 0.0), (100.0, 0.0, 0.3), quads_exponent=1.5)
 
 
 def test_fits_refuse_too_few_or_bad_samples():

@@ -14,7 +14,7 @@ from farfield.core import procedural
 from farfield.core.errors import ViewCellError
 from farfield.core.impostor_database import ImpostorDatabase
 from farfield.core.placement.cost_model import primitive_model
-from farfield.core.placement.database import UNDER_BUDGET, PlacementLookup, bake_impostor, bake_placement, placement_cells, write_placement_database
+from farfield.core.placement.database import UNDER_BUDGET, PlacementLookup, bake_impostor, bake_placement, placement_cells, placement_index, write_placement_database
 from farfield.core.placement.hierarchy import PlacementError
 from farfield.core.placement.planner import PlacementSettings, place
 from farfield.core.placement.repair import PlannerState
@@ -88,7 +88,7 @@ def test_the_estimates_bias_corrects_the_candidates_not_chosen(planned):
     assert np.array_equal(state.cand.quads[sorted(baked)], [impostors[state.ids[k]].stats["quads"] for k in sorted(baked)])
     # However far off, the greedy resumes: what is baked stays drawn where it still pays.
     assert step.mode == "resumed"
-    assert all(state.ids[imp.candidate] in impostors for imp in state.greedy.chosen[: len(impostors)])
+    assert set(impostors) <= {imp["id"] for imp in step.placement.impostors}  # nothing baked is thrown away
 
 
 def test_the_database_is_written_read_and_looked_up(planned, tmp_path):
@@ -153,3 +153,13 @@ def test_uncapped_depth_complexity_is_json_null_and_huge_directions_are_views(pl
     json.dumps(placement.to_dict(), allow_nan=False)
     index = {"placement": {"parameters": placement.parameters, "cpvs": placement.cpvs}, "cells": []}
     assert PlacementLookup(index).find([60.0, 112.0, 60.0], [1e200, 1e200, 0.0])["status"] in ("solved", UNDER_BUDGET, "unsolved")
+
+
+def test_an_impostor_no_cpv_draws_ships_without_a_bundle(planned, tmp_path):
+    _, placement, impostors = planned
+    doc = placement.to_dict()
+    doc["impostors"][0]["cpvs"] = 0  # as after a repair round that replaced it by an ancestor
+    cells = [{"index": imp["id"], "state": "done", "bundle": f"cells/{imp['id']:05d}/", "stats": impostors[imp["id"]].stats} for imp in doc["impostors"]]
+    entries = placement_index(doc, cells)["cells"]
+    assert entries[0]["state"] == "unused" and entries[0]["bundle"] is None and entries[0]["figures"]["baked"]
+    assert all(e["bundle"] for e in entries[1:]) and {e["state"] for e in entries[1:]} == {"done"}

@@ -101,6 +101,9 @@ def test_a_placement_job_plans_bakes_and_serves_a_database(client, scene_id):
     assert drawn, "no CPV draws an impostor"
     for i in drawn:  # every impostor a CPV draws is a baked cell of the database
         assert by_index[i]["bundle"] == f"cells/{i:05d}/" and f"cells/{i:05d}/manifest.json" in names, i
+    for cell in index["cells"]:  # and only those: one no CPV draws ships no bundle
+        if cell["index"] not in drawn:
+            assert cell["bundle"] is None and cell["state"] == "unused" and not any(n.startswith(f"cells/{cell['index']:05d}/") for n in names)
     # The check's verdict with the baked figures is the database's: the job record says the same.
     statuses = [cpv["status"] for cpv in section["cpvs"]]
     assert record["summary"]["cpvs_unsolved"] == statuses.count("unsolved") and record["summary"]["cpvs"] == len(statuses)

@@ -372,13 +372,15 @@ def calibrate(
         impostor_fit = fit_linear(i, [s.ms for s in impostors], ("pixel", "quad", "impostor"), options.holdout, options.seed)
         layer_texels = [s.layers_est * s.texels_per_layer for s in memory]
         memory_fit = fit_power(layer_texels, [s.bytes for s in memory], ("layer_texel", "exponent", "impostor"), options.holdout, options.seed)
-        quads_fit = fit_power([s.layers_est for s in memory], [s.quads for s in memory], ("quads_per_layer",), options.holdout, options.seed, exponent=1.0, offset=False)
+        # Quads per estimated layer as a power of the texels per layer (core.placement.cost_model.CostModel.quads).
+        quads_fit = fit_power([s.texels_per_layer for s in memory], [max(s.quads, 1) / s.layers_est for s in memory], ("quads_per_layer", "quads_exponent"),
+                              options.holdout, options.seed, offset=False)  # fmt: skip
     seconds = clock.totals()
     fit = {
         "geometry": geometry_fit.to_dict(),
         "impostor": impostor_fit.to_dict(),
         "memory": {**memory_fit.to_dict(), "r2_of": "log(bytes)"},
-        "quads": {**quads_fit.to_dict(), "r2_of": "log(quads)"},
+        "quads": {**quads_fit.to_dict(), "r2_of": "log(quads / layers_est)"},
         "empty_frame_ms": empty_ms,
         "samples": {"geometry": len(geometry), "impostor": len(impostors), "impostors_baked": len(memory), "cells_refused": skipped},
         "layers_est_over_planned": _ratio_summary([s.layers_est / s.layers_planned for s in memory]),
@@ -392,7 +394,8 @@ def calibrate(
         raise CostModelError(f"calibration: memory does not grow with the estimated texels (fit {memory_fit.to_dict()}); give more impostors")
     try:
         model = CostModel("frame_ms", geometry_fit.coefficients, impostor_fit.coefficients, (h, k, quads_fit.coefficients[0]),
-                          renderer=renderer_info().renderer, fit=fit, source="calibration", memory_exponent=p)  # fmt: skip
+                          renderer=renderer_info().renderer, fit=fit, source="calibration", memory_exponent=p,
+                          quads_exponent=min(max(quads_fit.coefficients[1], 0.0), 1.0))  # fmt: skip
     except CostModelError as error:
         raise CostModelError(f"calibration: the fit gives no usable model ({error}); give more samples") from None
     return Calibration(model, tuple(geometry), tuple(impostors), tuple(memory), empty_ms, skipped, seconds)

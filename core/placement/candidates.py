@@ -222,7 +222,7 @@ def generate_candidates(
             if float(model.memory_bytes(layers, per_layer)) > max_bytes:
                 too_large += 1
                 continue
-            ti = np.asarray(model.impostor_time(pixels_n, model.quads(layers)), dtype=np.float64).reshape(-1)
+            ti = np.asarray(model.impostor_time(pixels_n, model.quads(layers, per_layer)), dtype=np.float64).reshape(-1)
             keep = in_cell & (g_n > ti)
             if not keep.any():
                 continue
@@ -239,7 +239,7 @@ def generate_candidates(
         memory=np.asarray(model.memory_bytes(layers_a, texels_a), dtype=np.float64).reshape(-1),
         layers=layers_a,
         texels=texels_a,
-        quads=np.asarray(model.quads(layers_a), dtype=np.float64).reshape(-1),
+        quads=np.asarray(model.quads(layers_a, texels_a), dtype=np.float64).reshape(-1),
         served_offsets=np.concatenate([[0], np.cumsum([r.size for r in served_l])]).astype(np.int64),
         served=flat(served_l, np.int64),
         g=flat(g_l, np.float64),

@@ -8,7 +8,8 @@ engine whose coefficients a user types):
 * drawing an impostor: ``t = e * pixels + f * quads + g`` per impostor (fill-rate bound, §5.8.1);
 * an impostor's memory: ``h * (layers * texels_per_layer) ** p + k`` bytes, the thesis's heuristic
   ("the resolution of the texture used for recording every impostor layer and the number of
-  layers", §5.8.1), and ``quads_per_layer``, the quads a layer is cut into (for ``f``).  ``p``
+  layers", §5.8.1), and its quads ``q * layers * texels_per_layer ** beta`` (for ``f``; ``beta``,
+  ``quads_exponent``, is 0 in a model that predates it: a fixed ``quads_per_layer``).  ``p``
   (``memory_exponent``) is 1 unless a calibration fits it: on llvmpipe's measurements memory grew
   as about the 0.6th power of layers x texels over six orders of magnitude (a layer records only
   its slab of the part, and culling removes more of the texels the more layers there are), and a
@@ -209,6 +210,7 @@ class CostModel:
     fit: dict = field(default_factory=dict)  # the fits' quality, as calibration measured it
     source: str = "given"  # "calibration", "given", "builtin" or "primitives"
     memory_exponent: float = 1.0  # p of the memory model, in (0, 2]
+    quads_exponent: float = 0.0  # quads per layer = q * texels_per_layer ** this, in [0, 1]
 
     def __post_init__(self) -> None:
         for name, values, size in (("geometry", self.geometry, 4), ("impostor", self.impostor, 3), ("memory", self.memory, 3)):
@@ -226,6 +228,10 @@ class CostModel:
         if not (math.isfinite(exponent) and 0.0 < exponent <= 2.0):
             raise CostModelError(f"cost model: memory exponent must lie in (0, 2], got {self.memory_exponent!r}")
         object.__setattr__(self, "memory_exponent", exponent)
+        beta = float(self.quads_exponent)
+        if not (math.isfinite(beta) and 0.0 <= beta <= 1.0):
+            raise CostModelError(f"cost model: quads exponent must lie in [0, 1], got {self.quads_exponent!r}")
+        object.__setattr__(self, "quads_exponent", beta)
 
     @property
     def unit(self) -> str:
@@ -253,9 +259,19 @@ class CostModel:
         texels = np.asarray(layers, dtype=np.float64) * np.asarray(texels_per_layer, dtype=np.float64)
         return h * (texels if self.memory_exponent == 1.0 else texels**self.memory_exponent) + k
 
-    def quads(self, layers):
-        """Estimated quads of an impostor of ``layers`` layers."""
-        return self.memory[2] * np.asarray(layers, dtype=np.float64)
+    def quads(self, layers, texels_per_layer=1.0):
+        """Estimated quads of an impostor of ``layers`` layers of ``texels_per_layer`` texels:
+        ``q * layers * texels_per_layer ** quads_exponent`` (a layer's box growing cuts more quads
+        the larger the layer is on screen).
+
+        >>> m = CostModel("frame_ms", (0.0, 1.0, 0.0, 0.0), (0.0, 0.0, 0.0), (1.0, 0.0, 0.5), quads_exponent=0.25)
+        >>> float(m.quads(10, 10_000))
+        50.0
+        """
+        layers = np.asarray(layers, dtype=np.float64)
+        if self.quads_exponent == 0.0:
+            return self.memory[2] * layers
+        return self.memory[2] * layers * np.asarray(texels_per_layer, dtype=np.float64) ** self.quads_exponent
 
     def to_dict(self) -> dict:
         return {
@@ -267,7 +283,7 @@ class CostModel:
             "source": self.source,
             "geometry": dict(zip(GEOMETRY_TERMS, self.geometry)),
             "impostor": dict(zip(IMPOSTOR_TERMS, self.impostor)),
-            "memory": {**dict(zip(MEMORY_TERMS, self.memory)), "exponent": self.memory_exponent},
+            "memory": {**dict(zip(MEMORY_TERMS, self.memory)), "exponent": self.memory_exponent, "quads_exponent": self.quads_exponent},
             "fit": self.fit,
         }
 
@@ -297,6 +313,7 @@ class CostModel:
             fit=_fit(data.get("fit")),
             source=str(data.get("source", "given")),
             memory_exponent=_number(data["memory"].get("exponent", 1.0), "memory exponent"),
+            quads_exponent=_number(data["memory"].get("quads_exponent", 0.0), "quads exponent"),
         )
 
     @classmethod
@@ -317,11 +334,19 @@ class CostModel:
 # layer: (h, k, q) and p as ``farfield calibrate`` fitted them on llvmpipe (LLVMPIPE_MODEL below;
 # they replaced the provisional linear (0.4, 4096, 12)).  Memory depends on the impostor technique's
 # output, not on the renderer, so every model without a calibration of its own uses these.
-DEFAULT_MEMORY = (97.75, 0.0, 1.27)
+DEFAULT_MEMORY = (97.75, 0.0, 0.290)
 DEFAULT_MEMORY_EXPONENT = 0.6132
+# Quads per layer, q * texels_per_layer ** DEFAULT_QUADS_EXPONENT: fitted (log of quads per estimated
+# layer, least squares) on the 352 impostors that `bench_placement.py --walkthrough --size 49
+# --detail 64 --resolution 128` baked on 2026-12-02 (box and shaft cells, 585 .. 411,445 texels per
+# layer): q 0.290, exponent 0.251, r² 0.33, median error 1.36x.  The constant 1.27 quads per layer
+# that calibration's far shaft impostors gave was 3.2x low on the placement's (median; 2.5 at 1e3 ..
+# 1e4 texels, 5.6 above 1e5), and at 256 px about 4.9 per layer were baked against 1.27.
+DEFAULT_QUADS_EXPONENT = 0.251
 
 
-def primitive_model(memory: tuple[float, float, float] = DEFAULT_MEMORY, memory_exponent: float = DEFAULT_MEMORY_EXPONENT) -> CostModel:
+def primitive_model(memory: tuple[float, float, float] = DEFAULT_MEMORY, memory_exponent: float = DEFAULT_MEMORY_EXPONENT,
+                    quads_exponent: float = DEFAULT_QUADS_EXPONENT) -> CostModel:  # fmt: skip
     """The primitive budget (seed 000 §5.8.3; seed 004): a view's cost is the triangles it draws,
     an impostor's the two triangles of each of its quads.
 
@@ -329,7 +354,8 @@ def primitive_model(memory: tuple[float, float, float] = DEFAULT_MEMORY, memory_
     >>> float(m.geometry_time(1, 500, 10_000)), float(m.impostor_time(10_000, 30))
     (500.0, 60.0)
     """
-    return CostModel("primitives", (0.0, 1.0, 0.0, 0.0), (0.0, 2.0, 0.0), memory, renderer="any (primitive count)", source="primitives", memory_exponent=memory_exponent)
+    return CostModel("primitives", (0.0, 1.0, 0.0, 0.0), (0.0, 2.0, 0.0), memory, renderer="any (primitive count)", source="primitives", memory_exponent=memory_exponent,
+                     quads_exponent=quads_exponent)  # fmt: skip
 
 
 # The builtin model of this project's CPU machine, which a placement uses when the user gives no
@@ -355,7 +381,8 @@ LLVMPIPE_MODEL = CostModel(
         "geometry": {"r2": 0.929, "holdout_rel_error_median": 0.270, "holdout_rel_error_p90": 0.783, "samples": 600, "holdout": 200},
         "impostor": {"r2": 0.920, "holdout_rel_error_median": 0.391, "holdout_rel_error_p90": 2.337, "samples": 288, "holdout": 96},
         "memory": {"r2": 0.975, "r2_of": "log(bytes)", "holdout_rel_error_median": 0.260, "holdout_rel_error_p90": 0.617, "samples": 72, "holdout": 24},
-        "quads": {"r2": 0.883, "r2_of": "log(quads)", "holdout_rel_error_median": 0.402, "holdout_rel_error_p90": 0.967, "samples": 72, "holdout": 24},
+        "quads": {"r2": 0.328, "r2_of": "log(quads / layers_est)", "samples": 352, "holdout": 0,
+                  "source": "352 impostors of bench_placement.py --walkthrough --size 49 --detail 64 --resolution 128 (DEFAULT_QUADS_EXPONENT)"},
         "empty_frame_ms": 0.158,
         "command": "farfield calibrate --out model.json",
         "machine": "2-core x86-64, Mesa llvmpipe (LLVM 15.0.6, 256 bits), EGL",
@@ -363,4 +390,5 @@ LLVMPIPE_MODEL = CostModel(
     },
     source="builtin",
     memory_exponent=DEFAULT_MEMORY_EXPONENT,
+    quads_exponent=DEFAULT_QUADS_EXPONENT,
 )

@@ -73,7 +73,10 @@ def placement_index(placement: Placement | dict, cells: list[dict], job: str | N
     """The index document of a placement database (see the module docstring).
 
     ``cells`` holds per impostor, in id order: ``index`` (the impostor's id), ``state`` and
-    ``bundle`` (its folder, or None), and optionally ``stats`` (the baked bundle's)."""
+    ``bundle`` (its folder, or None), and optionally ``stats`` (the baked bundle's).  An impostor no
+    CPV draws (``"cpvs": 0``: replaced by an ancestor, or slower than its geometry once baked) is
+    listed with its figures, ``"state": "unused"`` and no bundle: a database ships only what a
+    runtime draws."""
     doc = placement.to_dict() if isinstance(placement, Placement) else placement
     impostors = {imp["id"]: imp for imp in doc["impostors"]}
     parameters = doc["parameters"]
@@ -87,8 +90,10 @@ def placement_index(placement: Placement | dict, cells: list[dict], job: str | N
             "estimated": {k: imp[k] for k in ("layers_estimated", "texels_per_layer", "quads_estimated", "memory_bytes_estimated", "time_max") if k in imp},
             "baked": {k: stats[k] for k in ("layers", "quads", "texture_bytes", "texels_covered") if k in stats} or imp.get("baked"),
         }  # fmt: skip
+        unused = not imp["cpvs"]
         entries.append({
-            "index": imp["id"], "grid": None, "viewcell": imp["cell"], "state": cell["state"], "bundle": cell.get("bundle"),
+            "index": imp["id"], "grid": None, "viewcell": imp["cell"], "state": "unused" if unused else cell["state"],
+            "bundle": None if unused else cell.get("bundle"),
             "technique": imp["technique"], "objects": imp["objects"], "params": impostor_params(parameters, imp["objects"]),
             "cpvs": imp["cpvs"], "figures": figures,
         })  # fmt: skip
@@ -210,11 +215,11 @@ def write_placement_database(directory: str | Path, placement: Placement, impost
     cells = []
     for imp in placement.impostors:
         i = imp["id"]
-        if i in impostors:
+        if i in impostors and imp["cpvs"]:
             write_bundle(impostors[i], root / "cells" / f"{i:05d}")
             cells.append({"index": i, "state": "done", "bundle": f"cells/{i:05d}/", "stats": impostors[i].stats})
         else:
-            cells.append({"index": i, "state": "missing", "bundle": None})
+            cells.append({"index": i, "state": "missing" if imp["cpvs"] else "unused", "bundle": None})
     index = placement_index(placement, cells, rounds=rounds)
     (root / INDEX_NAME).write_text(json.dumps(index, sort_keys=True, indent=1))
     return root
