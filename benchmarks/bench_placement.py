@@ -32,7 +32,8 @@ directions uniform on the sphere, the same views for every t_max) with the refer
 (:mod:`core.placement.runtime`) against plain geometry.  Columns: share of views whose measured
 frame is within t_max, and by the model's estimate; p99 and max frame time of the runtime and of
 plain geometry; speed-up (median of per-view ratios); hole pixels against the full scene; baked
-memory (atlas texture bytes) and the estimate; impostors; wall time of planning and of baking
+memory (atlas texture bytes) of the impostors some CPV draws (what the database ships; the JSON
+also has every impostor baked, ``memory_all_baked_bytes``) and the estimate; impostors drawn; wall time of planning and of baking
 (one process); the envmap grid's estimated memory over the same view space and t_max (as test
 15 above) and its ratio to the placement's baked memory.  Frames over t_max are listed with
 their estimate and CPV status.
