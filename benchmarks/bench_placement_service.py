@@ -201,7 +201,7 @@ def main() -> None:
     again = two["resubmitted"]
 
     print("\n| workers | wall s | queued s | planning s (plan + check) | baking s | impostors drawn / cells | cells baked | check rounds "
-          "| MiB baked (drawn) | MiB estimated (drawn) | MiB in the database |")  # fmt: skip
+          "| MiB baked (drawn) | MiB estimated (drawn) | MiB baked in all (drawn or not) |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for name, r in (("1", one), ("2", two), ("2, resubmitted", again)):
         print(f"| {name} | {r['wall_s']:.1f} | {r['queued_s']:.1f} | {r['planning_s']:.1f} ({r['plan_s']:.1f} + {r['check_s']:.1f}) | {r['baking_s']:.1f} | "
