@@ -201,7 +201,7 @@ def test_a_worker_killed_while_planning_plans_again(service, client, scene_id):
 )
 def test_bad_placement_requests_are_refused(service, client, scene_id, change, message):
     before = client.get("/v1/jobs").json()
-    placement = {**QUICK, **{k: v for k, v in change.items() if k in ("view_space", "budget", "cpv_size", "vdi_deg", "depth_complexity", "leaf_size", "cells")}}
+    placement = {**QUICK, **{k: v for k, v in change.items() if k in ("view_space", "budget", "cpv_size", "vdi_deg", "depth_complexity", "leaf_size", "cells", "max_impostor_mb")}}
     spec = {"scene_id": scene_id, "technique": "layered", "resolution": 64, "placement": placement}
     spec.update({k: v for k, v in change.items() if k not in placement})
     response = client.post("/v1/jobs", json=spec)
