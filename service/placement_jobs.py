@@ -52,6 +52,7 @@ from sqlalchemy import func, select, update
 from farfield.core.options import stored_values
 from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, primitive_model
 from farfield.core.placement.hierarchy import PlacementError
+from farfield.core.placement.planner import DEFAULT_MAX_IMPOSTOR_BYTES
 from farfield.core.techniques import get_technique
 from farfield.service.blobs import BlobStore
 from farfield.service.db import CellRow, Database, JobRow, SceneRow, now
@@ -101,7 +102,7 @@ class PlacementSpec(BaseModel):
     depth_complexity: Number | None = Field(4.0, description="a view's rasterised pixels are at most this many frames (>= 1; null: no cap)")
     cells: Literal[CELL_KINDS] = Field("both", description="view cells of the candidates")  # type: ignore[valid-type]
     leaf_size: StrictInt = Field(4, description="elements per leaf of the object hierarchy (>= 1)")
-    max_impostor_mb: Number = Field(32, description="largest impostor a placement considers, MiB by the cost model's memory estimate (> 0)")
+    max_impostor_mb: Number = Field(DEFAULT_MAX_IMPOSTOR_BYTES / 2**20, description="largest impostor a placement considers, MiB by the cost model's memory estimate (> 0)")
 
 
 def _finite(value, what: str) -> float:
@@ -192,7 +193,7 @@ def planner_settings(params: dict):
         options={**params["options"], "resolution": params["resolution"], "fov_deg": params["fov_deg"]},
         cpv_size=knobs["cpv_size"], vdi_deg=knobs["vdi_deg"], cells=knobs["cells"], leaf_size=knobs["leaf_size"],
         depth_complexity=math.inf if knobs["depth_complexity"] is None else knobs["depth_complexity"],
-        cluster_triangles=knobs["cluster_triangles"], max_impostor_bytes=float(knobs.get("max_impostor_mb", 32)) * 2**20,
+        cluster_triangles=knobs["cluster_triangles"], max_impostor_bytes=float(knobs.get("max_impostor_mb", math.inf)) * 2**20,  # a job stored before the cap: none
     )  # fmt: skip
     return settings, knobs["view_space"]["lo"], knobs["view_space"]["hi"]
 

@@ -263,3 +263,11 @@ def test_farfield_lookup_bad_input_is_one_line(planned, tmp_path):
     position, direction = cpv_centre_view(cpv)
     bare = _lookup(str(bare_root), "--at", *map(str, position), "--look", *map(str, direction), "--json")
     assert bare.returncode == 0 and [c["bundle"] for c in json.loads(bare.stdout)["cells"]] == [None] * len(cpv["impostors"])
+
+
+def test_database_zip_ships_only_the_bundles_a_placement_index_names():
+    from farfield.api.routes_results import _bundled_cells
+
+    index = {"kind": "placement", "cells": [{"index": 0, "bundle": "cells/00000/"}, {"index": 1, "bundle": None, "state": "unused"}]}
+    assert _bundled_cells(json.dumps(index).encode()) == {0}
+    assert _bundled_cells(json.dumps({"cells": [{"index": 0, "bundle": None}]}).encode()) is None  # a grid job's: every baked cell

@@ -6,6 +6,7 @@ Real placements of a small procedural city under a primitive budget, real EGL ba
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -80,15 +81,47 @@ def test_the_estimates_bias_corrects_the_candidates_not_chosen(planned):
     _, placement, impostors = planned
     state = PlannerState.loads(placement.state.dumps())
     before = state.cand.quads.copy()
+    chosen = [imp.candidate for imp in state.greedy.chosen]
     step = state.repair({i: imp.stats for i, imp in impostors.items()})
     ratio = step.correction["quads"]
     baked = {state.candidate_of(i) for i in impostors}
     free = [k for k in range(state.cand.count) if k not in baked]
     assert free and np.allclose(state.cand.quads[free], before[free] * ratio)
     assert np.array_equal(state.cand.quads[sorted(baked)], [impostors[state.ids[k]].stats["quads"] for k in sorted(baked)])
-    # However far off, the greedy resumes: what is baked stays drawn where it still pays.
+    # However far off, the greedy resumes: its earlier choices stay, in order, and it only adds.
     assert step.mode == "resumed"
-    assert set(impostors) <= {imp["id"] for imp in step.placement.impostors}  # nothing baked is thrown away
+    assert [imp.candidate for imp in state.greedy.chosen][: len(chosen)] == chosen
+
+
+def test_a_corrected_candidate_over_the_largest_size_is_not_chosen(planned):
+    _, placement, impostors = planned
+    state = PlannerState.loads(placement.state.dumps())
+    cap = float(np.median(state.cand.memory))
+    object.__setattr__(state.settings, "max_impostor_bytes", cap)
+    step = state.repair({i: imp.stats for i, imp in impostors.items()})
+    assert all(state.cand.memory[state.candidate_of(i)] <= cap for i in step.added)
+
+
+def test_a_state_pickled_before_the_newer_fields_still_loads(planned, monkeypatch):
+    from dataclasses import fields
+
+    from farfield.core.placement.cost_model import CostModel
+    from farfield.core.placement.planner import PlacementSettings
+
+    _, placement, _ = planned
+
+    def without_last_field(self):  # what these slotted dataclasses pickled before their last field existed
+        return [getattr(self, f.name) for f in fields(self)][:-1]
+
+    assert fields(PlacementSettings)[-1].name == "max_impostor_bytes" and fields(CostModel)[-1].name == "quads_exponent"
+    monkeypatch.setattr(PlacementSettings, "__getstate__", without_last_field)
+    monkeypatch.setattr(CostModel, "__getstate__", without_last_field)
+    data = placement.state.dumps()
+    monkeypatch.undo()
+    old = PlannerState.loads(data)
+    assert old.settings.max_impostor_bytes == math.inf and old.settings.model.quads_exponent == 0.0
+    parameters = old.placement().parameters
+    assert parameters["cost_model"]["memory"]["quads_exponent"] == 0.0 and parameters["max_impostor_bytes"] is None
 
 
 def test_the_database_is_written_read_and_looked_up(planned, tmp_path):

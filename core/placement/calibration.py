@@ -372,9 +372,7 @@ def calibrate(
         impostor_fit = fit_linear(i, [s.ms for s in impostors], ("pixel", "quad", "impostor"), options.holdout, options.seed)
         layer_texels = [s.layers_est * s.texels_per_layer for s in memory]
         memory_fit = fit_power(layer_texels, [s.bytes for s in memory], ("layer_texel", "exponent", "impostor"), options.holdout, options.seed)
-        # Quads per estimated layer as a power of the texels per layer (core.placement.cost_model.CostModel.quads).
-        quads_fit = fit_power([s.texels_per_layer for s in memory], [max(s.quads, 1) / s.layers_est for s in memory], ("quads_per_layer", "quads_exponent"),
-                              options.holdout, options.seed, offset=False)  # fmt: skip
+        quads_fit, q, beta = _quads_law(memory, options)
     seconds = clock.totals()
     fit = {
         "geometry": geometry_fit.to_dict(),
@@ -393,12 +391,29 @@ def calibrate(
     if p <= 0.0:
         raise CostModelError(f"calibration: memory does not grow with the estimated texels (fit {memory_fit.to_dict()}); give more impostors")
     try:
-        model = CostModel("frame_ms", geometry_fit.coefficients, impostor_fit.coefficients, (h, k, quads_fit.coefficients[0]),
+        model = CostModel("frame_ms", geometry_fit.coefficients, impostor_fit.coefficients, (h, k, q),
                           renderer=renderer_info().renderer, fit=fit, source="calibration", memory_exponent=p,
-                          quads_exponent=min(max(quads_fit.coefficients[1], 0.0), 1.0))  # fmt: skip
+                          quads_exponent=beta)  # fmt: skip
     except CostModelError as error:
         raise CostModelError(f"calibration: the fit gives no usable model ({error}); give more samples") from None
     return Calibration(model, tuple(geometry), tuple(impostors), tuple(memory), empty_ms, skipped, seconds)
+
+
+def _quads_law(memory: list[MemorySample], options: CalibrationOptions):
+    """(fit, q, beta) of quads per estimated layer as ``q * texels_per_layer ** beta``
+    (:meth:`core.placement.cost_model.CostModel.quads`), beta in [0, 1]: fixed at 1 when the free fit
+    is steeper, at 0 when every sample has the same texels per layer (beta is then undetermined)."""
+    texels = [s.texels_per_layer for s in memory]
+    per_layer = [max(s.quads, 1) / s.layers_est for s in memory]
+    names = ("quads_per_layer", "quads_exponent")
+    if len(set(texels)) == 1:
+        fit = fit_power(texels, per_layer, names[:1], options.holdout, options.seed, exponent=0.0, offset=False)
+        return fit, fit.coefficients[0], 0.0
+    fit = fit_power(texels, per_layer, names, options.holdout, options.seed, offset=False)
+    if fit.coefficients[1] > 1.0:
+        fit = fit_power(texels, per_layer, names[:1], options.holdout, options.seed, exponent=1.0, offset=False)
+        return fit, fit.coefficients[0], 1.0
+    return fit, fit.coefficients[0], fit.coefficients[1]
 
 
 def _ratio_summary(values: list[float]) -> dict:

@@ -259,7 +259,7 @@ class CostModel:
         texels = np.asarray(layers, dtype=np.float64) * np.asarray(texels_per_layer, dtype=np.float64)
         return h * (texels if self.memory_exponent == 1.0 else texels**self.memory_exponent) + k
 
-    def quads(self, layers, texels_per_layer=1.0):
+    def quads(self, layers, texels_per_layer):
         """Estimated quads of an impostor of ``layers`` layers of ``texels_per_layer`` texels:
         ``q * layers * texels_per_layer ** quads_exponent`` (a layer's box growing cuts more quads
         the larger the layer is on screen).

@@ -106,7 +106,13 @@ class PlannerState:
             raise PlacementError(f"the stored planner state could not be read: {type(error).__name__}: {error}") from error
         if not isinstance(doc, dict) or doc.get("format") != STATE_FORMAT or doc.get("version") != STATE_VERSION:
             raise PlacementError(f"the stored planner state is not {STATE_FORMAT} version {STATE_VERSION}")
-        return doc["state"]
+        state = doc["state"]
+        # Fields added since the state was written (slotted dataclasses unpickle without them):
+        # the values its candidates were made with.
+        for holder, name, value in ((state.settings, "max_impostor_bytes", math.inf), (state.settings.model, "quads_exponent", 0.0)):
+            if not hasattr(holder, name):
+                object.__setattr__(holder, name, value)
+        return state
 
     # --- ids ---------------------------------------------------------------------------------
 
@@ -226,6 +232,9 @@ class PlannerState:
         cand.ti[:] += np.repeat(np.where(free, delta, 0.0), np.diff(cand.served_offsets))
         cand.quads[:] = quads
         cand.memory[:] = np.where(free, np.maximum(self.first["memory"] * ratio["memory"], 1.0), cand.memory)
+        # A candidate the correction makes larger than max_impostor_bytes gains nothing any more.
+        over = np.repeat(free & (cand.memory > self.settings.max_impostor_bytes), np.diff(cand.served_offsets))
+        cand.ti[:] = np.where(over, np.maximum(cand.ti, cand.g), cand.ti)
         self.correction = ratio
 
     # --- the result ----------------------------------------------------------------------------
@@ -327,7 +336,7 @@ class PlannerState:
             "depth_complexity": None if math.isinf(settings.depth_complexity) else float(settings.depth_complexity),  # None: no cap (JSON has no infinity)
             "cells": settings.cells,
             "leaf_size": settings.leaf_size,
-            "max_impostor_bytes": float(settings.max_impostor_bytes),
+            "max_impostor_bytes": None if math.isinf(settings.max_impostor_bytes) else float(settings.max_impostor_bytes),  # None: no cap
             "apex_angles_deg": [float(a) for a in settings.apex_angles_deg],
             "direction_step_deg": float(settings.direction_step_deg),
             "distance_steps": int(settings.distance_steps),
