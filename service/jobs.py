@@ -41,7 +41,7 @@ from farfield.core.techniques import DEFAULT_TECHNIQUE, TECHNIQUES, get_techniqu
 from farfield.core.viewcells import BoxCell, grid_boxes, viewcell_from_dict
 from farfield.service.blobs import BlobStore
 from farfield.service.db import CELL_FINAL, JOB_STATES, OPEN_JOB_STATES, CellRow, Database, JobRow, SceneRow, now, owned_row
-from farfield.service.placement_jobs import PLACEMENT_JOB, PlacementSpec, begin_check, new_placement_job, placement_params
+from farfield.service.placement_jobs import PLACEMENT_JOB, PlacementSpec, begin_check, drop_ended_planning, new_placement_job, placement_params
 from farfield.service.settings import AdmissionLimits
 
 MAX_CELLS = 10_000
@@ -620,7 +620,12 @@ def cancel_job(db: Database, blobs: BlobStore, tenant_id: str, job_id: str) -> J
     if not changed:
         raise ConflictError(f"job {job_id!r} is already {get_job_row(db, tenant_id, job_id).state}")
     finish_job_if_complete(db, blobs, job_id)
-    return get_job_row(db, tenant_id, job_id)
+    job = get_job_row(db, tenant_id, job_id)
+    if job.job_type == PLACEMENT_JOB and job.plan_worker is None:
+        # No worker holds its planning (one that does deletes them when it sees the cancel), and a
+        # check message still queued would only find the job cancelled: its planner states go now.
+        drop_ended_planning(db, blobs, job_id)
+    return job
 
 
 def retry_job(db: Database, tenant_id: str, job_id: str) -> list[str]:
