@@ -214,19 +214,10 @@ def test_an_attempt_that_lost_its_hold_leaves_the_newer_one_alone(tmp_path):
     """A lease that ran out while its worker lived (a stalled heartbeat, clocks apart): the sweeper
     sends the planning again and worker B holds it; when A then sees it lost its hold, it must not
     clear B's (the job would stay 'placing' with nothing to send it again), nor fail the job."""
-    from farfield.service.blobs import LocalBlobStore
-    from farfield.service.db import Database, JobRow, SceneRow, Tenant, now
+    from farfield.service.db import JobRow, now
     from farfield.service.placement_jobs import _end_cancelled, claim_planning, fail_planning, lost_planning_jobs
 
-    db = Database(f"sqlite:///{tmp_path / 'jobs.db'}")
-    db.migrate()
-    blobs = LocalBlobStore(tmp_path / "blobs")
-    with db.session() as s:
-        s.add(Tenant(id="t", name="t"))
-        s.flush()
-        s.add(SceneRow(id="s", tenant_id="t", name="s", extension="glb", blob_key="k", size_bytes=1, content_hash="h", triangles=1, bounds=[[0, 0, 0], [1, 1, 1]], objects=[]))
-        s.flush()
-        s.add(JobRow(id="j", tenant_id="t", scene_id="s", job_type="placement", params={}, state="queued", created_at=now(), planning={"phase": "plan"}))
+    db, blobs = _stored_job(tmp_path, state="queued", planning={"phase": "plan"})
     a = claim_planning(db, blobs, "j", "plan", "A", 3)
     assert a.attempt == 1
     with db.session() as s:
