@@ -16,8 +16,9 @@ model (the builtin one ``farfield calibrate`` measured on this machine's llvmpip
 * a grid of layered environment maps over the same view space (test 15), **estimated** from the
   envmap layer plans (not baked): per leaf region a cubic cell, its near field the smallest radius
   whose geometry (every element within it, all directions) fits t_max, its layers from
-  :func:`core.envmap_layers.layers_for_near_field`, and its memory the cost model's memory law
-  applied to each of the six faces' layers.
+  :func:`core.envmap_layers.layers_for_near_field` for the same output as the placement (the
+  resolution at 45°: face resolution ``ceil(res / tan 22.5°)``, the parallax angle of a 45° pixel),
+  and its memory the cost model's memory law applied to each of the six faces' layers.
 
 Columns: # CPV, # candidates, # impostors, estimated memory (MiB), CPVs left unsolved/unsolvable,
 and the seconds of each step.  Memory is the cost model's estimate (layers x texels law); nothing
@@ -34,9 +35,12 @@ frame is within t_max, and by the model's estimate; p99 and max frame time of th
 plain geometry; speed-up (median of per-view ratios); hole pixels against the full scene; baked
 memory (atlas texture bytes) of the impostors some CPV draws (what the database ships; the JSON
 also has every impostor baked, ``memory_all_baked_bytes``) and the estimate; impostors drawn; wall time of planning and of baking
-(one process); the envmap grid's estimated memory over the same view space and t_max (as test
-15 above) and its ratio to the placement's baked memory.  Frames over t_max are listed with
-their estimate and CPV status.
+(one process); colour error against the full scene.  Frames over t_max are listed with their
+estimate and CPV status.  Beside each placement, grids of layered environment maps over the same
+view space (``--envmap-cells``, default 2x and 1x the CPV size) are **baked** at the same output
+(resolution, 45°), each cell's near field the one above for the same t_max, and walked on the same
+views with the envmap reference runtime: their baked memory, share of views within t_max, p99/max
+frame time, hole pixels and colour error, and their memory's ratio to the placement's.
 """
 
 from __future__ import annotations
@@ -56,12 +60,12 @@ from farfield.core import procedural  # noqa: E402
 from farfield.core.envmap_layers import layers_for_near_field  # noqa: E402
 from farfield.core.errors import FarfieldError  # noqa: E402
 from farfield.core.exchange import load_scene  # noqa: E402
-from farfield.core.pixel_angles import pixel_angle  # noqa: E402
 from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, primitive_model  # noqa: E402
 from farfield.core.placement.hierarchy import Elements  # noqa: E402
 from farfield.core.placement.planner import PlacementSettings, place  # noqa: E402
 from farfield.core.placement.view_space import element_pixels  # noqa: E402
 from farfield.core.scene import Scene, SceneObject  # noqa: E402
+from farfield.core.techniques.envmap import EnvmapOptions  # noqa: E402
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "scenes"
 RESOLUTION = 256
@@ -75,6 +79,33 @@ def city_scene(quick: bool, size: int | None = None, detail: int = 16) -> tuple[
     top = float(scene.bounds[1][1])
     half = 0.1875 * float(scene.extents[0])
     return scene, np.array([c[0] - half, top + 10.0, c[2] - half]), np.array([c[0] + half, top + 20.0, c[2] + half])
+
+
+def downtown_scene(quick: bool, size: int | None = None, detail: int = 20) -> tuple[Scene, np.ndarray, np.ndarray]:
+    """Where a placement should shine (seed 000 §5.8: impostors only where views are slow): a
+    sparse suburb of 12-triangle houses 5..25 m tall (``size`` lots 40 m apart, default 100) and,
+    in one corner, a downtown of 4 x 4 towers 60..120 m tall whose faces are ``detail`` x ``detail``
+    quads (20: 4,800 triangles each); the view space the whole suburb, 30..40 m above the ground.
+    Seeded.  Views looking away from downtown fit any sensible budget; views towards it do not."""
+    rng = np.random.default_rng(1)
+    side = int(math.ceil(math.sqrt(size or (36 if quick else 100))))
+    objects = []
+    for i in range(side):
+        for j in range(side):
+            w, d = rng.uniform(8.0, 20.0, 2)
+            low, high = (i * 40.0 - w / 2, 0.0, j * 40.0 - d / 2), (i * 40.0 + w / 2, rng.uniform(5.0, 25.0), j * 40.0 + d / 2)
+            v, f = procedural.subdivided_box(low, high, 1)
+            objects.append(SceneObject(f"house_{i}_{j}", v, f, base_color=(*rng.uniform(0.5, 0.9, 3), 1.0)))
+    corner = (side - 1) * 40.0 - 70.0
+    for i in range(4):
+        for j in range(4):
+            low = (corner + i * 20.0 - 6.0, 0.0, corner + j * 20.0 - 6.0)
+            v, f = procedural.subdivided_box(low, (low[0] + 12.0, rng.uniform(60.0, 120.0), low[2] + 12.0), detail)
+            objects.append(SceneObject(f"tower_{i}_{j}", v, f, base_color=(*rng.uniform(0.3, 0.6, 3), 1.0)))
+    edge = (side - 1) * 40.0 + 20.0
+    ground = np.array([[-20.0, 0.0, -20.0], [-20.0, 0.0, edge], [edge, 0.0, edge], [edge, 0.0, -20.0]])
+    objects.append(SceneObject("ground", ground, np.array([[0, 1, 2], [0, 2, 3]]), base_color=(0.3, 0.5, 0.25, 1.0)))
+    return Scene.from_objects(objects, "downtown"), np.array([-20.0, 30.0, -20.0]), np.array([edge, 40.0, edge])
 
 
 def helmet_scene(quick: bool, size: int | None = None) -> tuple[Scene, np.ndarray, np.ndarray]:
@@ -108,36 +139,91 @@ def helmet_scene(quick: bool, size: int | None = None) -> tuple[Scene, np.ndarra
     return scene, np.array([c[0] - half, 6.0, c[2] - half]), np.array([c[0] + half, 10.0, c[2] + half])
 
 
+def _envmap_near_field(elements: Elements, c_lo, c_hi, t_max: float, model: CostModel, resolution: int) -> float:
+    """The near field of an envmap cell for ``t_max``: the smallest distance from the cell's centre
+    beyond which the elements no longer fit t_max by the model (nearest first, all directions, no
+    culling: what a view of any direction may draw), at least just outside the cell; inf when every
+    element fits (the cell needs no impostor)."""
+    centre_b = 0.5 * (elements.bounds[:, 0] + elements.bounds[:, 1])
+    centre = 0.5 * (np.asarray(c_lo) + np.asarray(c_hi))
+    pixels = element_pixels(elements, c_lo, c_hi, math.radians(45.0), resolution)
+    cost = model.geometry_time(elements.draw_calls, elements.triangles, pixels)
+    dist = np.linalg.norm(centre_b - centre, axis=1)
+    order = np.argsort(dist)
+    within = model.frame_time + np.cumsum(cost[order])
+    fits = np.searchsorted(within, t_max, side="right")  # elements that fit, nearest first
+    near = float(dist[order[fits]]) if fits < order.size else math.inf
+    return max(near, 0.51 * math.sqrt(3) * float(np.max(np.asarray(c_hi) - np.asarray(c_lo))))
+
+
 def envmap_grid_memory(scene: Scene, lo, hi, cell: float, t_max: float, model: CostModel, resolution: int = RESOLUTION) -> dict:
     """Estimated memory of a grid of layered environment maps (seed 002) over the view space with
-    cubic cells of side ``cell``: per cell, the near field is the smallest radius from the cell's
-    centre whose elements (all directions, no culling) fit t_max by the model; its layers follow
-    from the envmap layer plan; memory is the model's law per face (see the module docstring)."""
+    cubic cells of side ``cell``, for the same output as the placement's impostors (``resolution``
+    pixels, 45 degrees: the envmap's face resolution and parallax angle follow from both): per cell,
+    the near field of :func:`_envmap_near_field`, its layers from the envmap layer plan, and memory
+    the model's law per face (see the module docstring)."""
     elements = Elements.of(scene)
-    centre_b = 0.5 * (elements.bounds[:, 0] + elements.bounds[:, 1])
     counts = np.maximum(1, np.ceil((hi - lo) / cell - 1e-9)).astype(int)
-    alpha = pixel_angle(math.pi / 2, resolution, "min")
+    options = EnvmapOptions(resolution=resolution, fov_deg=45.0)
+    face = options.texels_per_face
     total, cells, layers_all, near_all = 0.0, 0, [], []
     for idx in np.ndindex(*counts):
         c_lo = lo + np.array(idx) * cell
-        c_hi = np.minimum(c_lo + cell, np.maximum(hi, c_lo + 1e-9))
-        centre = 0.5 * (c_lo + c_hi)
-        pixels = element_pixels(elements, c_lo, c_hi, math.radians(45.0), resolution)
-        cost = model.geometry_time(elements.draw_calls, elements.triangles, pixels)
-        dist = np.linalg.norm(centre_b - centre, axis=1)
-        order = np.argsort(dist)
-        within = model.frame_time + np.cumsum(cost[order])
-        fits = np.searchsorted(within, t_max, side="right")  # elements that fit, nearest first
-        near = float(dist[order[fits]]) if fits < order.size else math.inf
-        near = max(near, 0.51 * math.sqrt(3) * cell)
+        near = _envmap_near_field(elements, c_lo, c_lo + cell, t_max, model, resolution)
         if math.isinf(near):
             continue
-        layers = layers_for_near_field(cell, resolution, near, alpha, 3)
-        total += 6.0 * float(model.memory_bytes(layers, resolution * resolution))
+        layers = layers_for_near_field(cell, face, near, options.alpha, 3)
+        total += 6.0 * float(model.memory_bytes(layers, face * face))
         cells += 1
         layers_all.append(layers), near_all.append(near)
     return {"cells": cells, "memory_bytes": total, "layers_median": float(np.median(layers_all)) if layers_all else 0.0,
             "near_field_median": float(np.median(near_all)) if near_all else 0.0}  # fmt: skip
+
+
+def envmap_grid_walkthrough(scene: Scene, lo, hi, cell: float, t_max: float, model: CostModel, resolution: int,
+                            positions: np.ndarray, forwards: np.ndarray, repeats: int, root: Path) -> dict:
+    """Bake a grid of layered environment maps (seed 002) with cubic cells of side ``cell`` over the
+    view space (the grid covers it, overhanging where the sides do not divide), each cell's near
+    field from :func:`_envmap_near_field` for ``t_max``, at the placement's output (``resolution``
+    pixels, 45 degrees); write the database and walk the same views with the envmap reference
+    runtime (:func:`core.walkthrough.walkthrough`: near-field geometry plus the cell's layers).
+    A cell whose every element fits t_max gets no impostor; its views draw the plain scene.
+    Returns the baked memory, the share of views within t_max, p99/max frame time, holes and
+    colour error (of the views an impostor served), and the seconds of baking."""
+    from farfield.core.impostor_database import ImpostorDatabase, write_database
+    from farfield.core.techniques.envmap import bake_envmap
+    from farfield.core.viewcells import grid_boxes
+    from farfield.core.walkthrough import walkthrough
+
+    elements = Elements.of(scene)
+    counts = np.maximum(1, np.ceil((hi - lo) / cell - 1e-9)).astype(int)
+    started = time.perf_counter()
+    baked, nears, not_needed = [], [], 0
+    for ijk, box in grid_boxes(lo, lo + counts * cell, counts):
+        near = _envmap_near_field(elements, box.lo, box.hi, t_max, model, resolution)
+        if math.isinf(near):  # everything fits: views in this cell draw the plain scene
+            not_needed += 1
+            continue
+        baked.append((list(ijk), bake_envmap(scene, box, EnvmapOptions(resolution=resolution, fov_deg=45.0, near_field=near))))
+        nears.append(near)
+    bake_s = time.perf_counter() - started
+    frames = []
+    if baked:  # else no cell needs an impostor by the model: nothing to walk
+        write_database(root, "envmap", {}, baked)
+        with ImpostorDatabase(root) as db:
+            frames = walkthrough(scene, db, positions, forwards, repeats=repeats)["frames"]
+    served = [f for f in frames if f.get("impostor_ms") is not None]
+    ms = np.array([f["full_ms"] if f.get("impostor_ms") is None else f["impostor_ms"] for f in frames], dtype=float)
+    return {
+        "cell": cell, "cells": len(baked), "cells_not_needed": not_needed, "memory_baked_bytes": int(sum(imp.texture_bytes for _, imp in baked)),
+        "layers_median": float(np.median([imp.stats["layers"] for _, imp in baked])) if baked else 0.0,
+        "near_field_median": float(np.median(nears)) if nears else 0.0,
+        "near_field_triangles_median": float(np.median([imp.stats["near_field_triangles"] for _, imp in baked])) if baked else 0.0,
+        "frames": len(frames), "frames_served": len(served), "share_within_t_max": float(np.mean(ms <= t_max)) if ms.size else None,
+        "runtime_ms_p99": float(np.percentile(ms, 99)) if ms.size else None, "runtime_ms_max": float(ms.max()) if ms.size else None,
+        "hole_pixels": int(sum(f["hole_pixels"] for f in served)), "colour_error_mean": float(np.mean([f["colour_error_mean"] for f in served])) if served else None,
+        "bake_s": bake_s,
+    }  # fmt: skip
 
 
 def run(name: str, scene: Scene, lo, hi, model: CostModel, quick: bool, only: list[str] | None = None) -> list[dict]:
@@ -218,7 +304,8 @@ def _line(r: dict) -> str:
 
 
 def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float], views: int, seed: int, repeats: int,
-                     resolution: int, out_dir: Path | None, vdi_deg: float = 11.25, cpv_divisions: int = 8) -> list[dict]:
+                     resolution: int, out_dir: Path | None, vdi_deg: float = 11.25, cpv_divisions: int = 8,
+                     envmap_cells: list[float] | None = None) -> list[dict]:
     """The --walkthrough table (see the module docstring): one row per t_max."""
     import tempfile
 
@@ -229,11 +316,12 @@ def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float
     worst = _worst_view(scene, lo, hi, model, resolution)
     t_ref = 0.5 * worst
     cpv = float(np.max(hi - lo)) / cpv_divisions
+    envmap_cells = envmap_cells if envmap_cells is not None else [2.0 * cpv, cpv]
     positions, forwards = random_views(lo, hi, views, seed)
     print(f"worst view by the model {worst:.4g} {model.unit}; reference t_max {t_ref:.4g} {model.unit}; {views} random views, seed {seed}; "
           f"{resolution} px, 45°, {repeats} draws per frame (median)", flush=True)  # fmt: skip
     print(f"{'t_max':>8} {'<=t_max':>8} {'est<=':>7} {'p99 ms':>7} {'max ms':>7} {'plain p99':>9} {'plain max':>9} {'speedup':>7} {'holes':>5} "
-          f"{'MiB baked':>9} {'MiB est.':>8} {'# imp':>5} {'rounds':>6} {'plan s':>6} {'bake s':>6} {'envmap MiB':>10} {'ratio':>6}", flush=True)  # fmt: skip
+          f"{'MiB baked':>9} {'MiB est.':>8} {'# imp':>5} {'rounds':>6} {'plan s':>6} {'bake s':>6} {'colour err':>10}", flush=True)  # fmt: skip
     rows = []
     for factor in factors:
         t_max = factor * t_ref
@@ -268,13 +356,16 @@ def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float
         drawn = {imp["id"] for imp in placement.impostors if imp["cpvs"]}  # what the database ships
         baked_bytes = sum(imp.texture_bytes for i, imp in impostors.items() if i in drawn)
         all_baked_bytes = sum(imp.texture_bytes for imp in impostors.values())
+        grids = []
         with tempfile.TemporaryDirectory(prefix="farfield-bench-") as tmp:
             root = Path(out_dir or tmp) / f"placement-{factor:g}"
             write_placement_database(root, placement, impostors, rounds=rounds)
             with ImpostorDatabase(root) as db:
                 result = placement_walkthrough(scene, db, positions, forwards, repeats=repeats)
+            for cell in envmap_cells:
+                grids.append(envmap_grid_walkthrough(scene, lo, hi, cell, t_max, model, resolution, positions, forwards, repeats,
+                                                     Path(out_dir or tmp) / f"envmap-{factor:g}-{cell:g}"))  # fmt: skip
         s = result["summary"]
-        env = envmap_grid_memory(scene, lo, hi, cpv, t_max, model, resolution)
         row = {
             "t_max": t_max, "factor": factor, "unit": model.unit, "share_within_t_max": s["share_within_t_max"],
             "share_estimate_within_t_max": s["share_estimate_within_t_max"], "share_estimate_within_t_max_solvable": s["share_estimate_within_t_max_solvable"],
@@ -285,25 +376,34 @@ def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float
             "colour_error_mean": s["colour_error_mean"], "memory_baked_bytes": baked_bytes, "memory_estimated_bytes": placement.summary["memory_bytes"],
             "memory_all_baked_bytes": all_baked_bytes, "impostors": len(drawn), "impostors_baked": len(impostors), "cpvs": placement.summary["cpvs"], "cpvs_unsolved": placement.summary["cpvs_unsolved"],
             "cpvs_unsolvable": placement.summary["cpvs_unsolvable"], "statuses": s["statuses"], "rounds": rounds, "plan_s": plan_s, "bake_s": bake_s,
-            "envmap": env, "envmap_ratio": env["memory_bytes"] / baked_bytes if baked_bytes else None, "over_t_max": s["over_t_max"],
+            "envmap_grids": grids, "envmap_estimate": envmap_grid_memory(scene, lo, hi, cpv, t_max, model, resolution), "over_t_max": s["over_t_max"],
         }  # fmt: skip
         rows.append(row)
         mib = lambda b: b / 2**20
-        ratio = "-" if row["envmap_ratio"] is None else f"{row['envmap_ratio']:.1f}x"
         print(f"{t_max:>8.3g} {100 * row['share_within_t_max']:>7.1f}% {100 * row['share_estimate_within_t_max']:>6.1f}% {row['runtime_ms_p99']:>7.2f} "
               f"{row['runtime_ms_max']:>7.2f} {row['plain_ms_p99']:>9.2f} {row['plain_ms_max']:>9.2f} {row['speedup_median']:>6.1f}x {row['hole_pixels']:>5} "
               f"{mib(baked_bytes):>9.2f} {mib(row['memory_estimated_bytes']):>8.2f} {row['impostors']:>5} {len(rounds):>6} {plan_s:>6.1f} {bake_s:>6.1f} "
-              f"{mib(env['memory_bytes']):>10.1f} {ratio:>6}", flush=True)  # fmt: skip
+              f"{row['colour_error_mean']:>10.2f}", flush=True)  # fmt: skip
         for f in row["over_t_max"][:10]:
             print(f"         over t_max: view {f['frame']}: {f['measured']:.3g} {model.unit}, estimate {f['estimate']:.3g} ({f['status']}, cpv {f['cpv']})")
         if len(row["over_t_max"]) > 10:
             print(f"         ... {len(row['over_t_max']) - 10} more")
+        for g in grids:
+            ratio = g["memory_baked_bytes"] / baked_bytes if baked_bytes else math.nan
+            if not g["frames"]:
+                print(f"         envmap grid of {g['cell']:.3g}: no cell needs an impostor by the model")
+                continue
+            print(f"         envmap grid, {g['cells']} cells of {g['cell']:.3g} ({g['cells_not_needed']} need none; baked, near field median "
+                  f"{g['near_field_median']:.3g}, {g['layers_median']:.0f} layers): {100 * g['share_within_t_max']:.1f}% <= t_max, p99 {g['runtime_ms_p99']:.2f} ms, "
+                  f"max {g['runtime_ms_max']:.2f}, {g['hole_pixels']} hole pixels, colour err {g['colour_error_mean']:.2f}, "
+                  f"{mib(g['memory_baked_bytes']):.2f} MiB ({ratio:.2f}x the placement), baked in {g['bake_s']:.1f} s", flush=True)  # fmt: skip
     return rows
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scene", choices=["city", "helmets", "both"], default="both")
+    parser.add_argument("--scene", choices=["city", "helmets", "downtown", "both"], default="both",
+                        help="the planning table's scenes (both: city and helmets), or the --walkthrough scene (default city)")
     parser.add_argument("--quick", action="store_true", help="smaller scenes, fewer rows")
     parser.add_argument("--cost-model", default="llvmpipe", help="'llvmpipe' (the builtin model measured here), 'primitives' (t = triangles, seed 000 §5.8.3) or a model JSON")
     parser.add_argument("--rows", default=None, help="comma-separated test numbers to run (default: all)")
@@ -319,21 +419,26 @@ def main() -> None:
     parser.add_argument("--keep", default=None, help="--walkthrough: write the placement databases under this folder")
     parser.add_argument("--vdi-deg", type=float, default=11.25, help="--walkthrough: the planner's smallest view-direction interval, degrees")
     parser.add_argument("--cpv-divisions", type=int, default=8, help="--walkthrough: CPV size = the view space's longest side / this")
+    parser.add_argument("--envmap-cells", default=None, help="--walkthrough: sides of the envmap grids baked and walked beside each placement, scene units, comma-separated (default: 2x and 1x the CPV size; '' for none)")
     args = parser.parse_args()
     model = {"llvmpipe": LLVMPIPE_MODEL, "primitives": primitive_model()}.get(args.cost_model) or CostModel.load(args.cost_model)
     if args.walkthrough:
-        scene, lo, hi = city_scene(args.quick, args.size, args.detail)
+        name = "city" if args.scene == "both" else args.scene
+        if name == "helmets":
+            parser.error("--walkthrough runs on --scene city or downtown")
+        scene, lo, hi = {"city": city_scene, "downtown": downtown_scene}[name](args.quick, args.size, args.detail if name == "city" or args.detail != 16 else 20)
         print(f"cost model: {model.renderer} ({model.source}); layered impostors, baked here; EGL {_renderer()}")
-        print(f"# city: {scene.object_count} objects, {scene.triangle_count:,} triangles; view space {lo.round(2).tolist()} .. {hi.round(2).tolist()}")
+        print(f"# {name}: {scene.object_count} objects, {scene.triangle_count:,} triangles; view space {lo.round(2).tolist()} .. {hi.round(2).tolist()}")
         rows = walkthrough_rows(scene, lo, hi, model, [float(f) for f in args.factors.split(",")], args.views, args.seed, args.repeats,
-                                args.resolution, Path(args.keep) if args.keep else None, args.vdi_deg, args.cpv_divisions)  # fmt: skip
+                                args.resolution, Path(args.keep) if args.keep else None, args.vdi_deg, args.cpv_divisions,
+                                None if args.envmap_cells is None else [float(c) for c in args.envmap_cells.split(",") if c.strip()])  # fmt: skip
         if args.json:
             Path(args.json).write_text(json.dumps(rows, indent=1))
         return
     print(f"cost model: {model.renderer} ({model.source}); layered impostors at {RESOLUTION} px, 45°; CPU only (no rendering)")
     print(f"{'scene':<8} {'test':>4} {'parameter':<44} {'# CPV':>7} {'# cand.':>9} {'# imp.':>7} {'MiB':>10} {'unsolved/unsolvable':<13} seconds per step")
     rows = []
-    builders = {"city": city_scene, "helmets": helmet_scene}
+    builders = {"city": city_scene, "helmets": helmet_scene, "downtown": downtown_scene}
     for name in (["city", "helmets"] if args.scene == "both" else [args.scene]):
         try:
             scene, lo, hi = builders[name](args.quick, args.size)
