@@ -55,10 +55,16 @@ class SceneWarning(UserWarning):
 def _frozen(array: np.ndarray, dtype: type, name: str, obj: str, shape: tuple) -> np.ndarray:
     """A read-only C-contiguous copy of ``array`` as ``dtype``, checked against ``shape``.
 
-    ``shape`` holds ints for fixed sizes and ``None`` for free ones.
+    ``shape`` holds ints for fixed sizes and ``None`` for free ones.  An array that is already
+    such a copy (read-only, C-contiguous, of ``dtype``, owning its data; e.g. a texture the loader
+    decoded once for all the objects that use it) is shared, not copied again.
     """
     try:
-        out = np.array(array, dtype=dtype, copy=True, order="C")
+        if (isinstance(array, np.ndarray) and array.dtype == dtype and array.flags.c_contiguous
+                and not array.flags.writeable and array.base is None):
+            out = array
+        else:
+            out = np.array(array, dtype=dtype, copy=True, order="C")
     except (TypeError, ValueError) as error:
         raise SceneLoadError(f"object {obj!r}: {name} is not a {np.dtype(dtype).name} array: {error}") from error
     if out.ndim != len(shape) or any(want is not None and got != want for got, want in zip(out.shape, shape)):
@@ -211,7 +217,7 @@ def _update_hash(digest: "hashlib._Hash", tag: bytes, array: np.ndarray | None) 
         return
     little = array.astype(array.dtype.newbyteorder("<"), copy=False)
     digest.update(f":{little.dtype.str}:{little.shape};".encode())
-    digest.update(np.ascontiguousarray(little).tobytes())
+    digest.update(np.ascontiguousarray(little).reshape(-1).view(np.uint8))  # the same bytes as tobytes(), not copied
 
 
 def object_hash(obj: SceneObject) -> bytes:

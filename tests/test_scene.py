@@ -246,6 +246,55 @@ def test_obj_map_d_becomes_texture_alpha(tmp_path):
     np.testing.assert_array_equal(obj.texture[..., :3], opaque_texture[..., :3])
 
 
+def _atlas_obj(tmp_path, materials: int, map_d: bool = False):
+    """Two-triangle quads, one per material, every material naming the same atlas (and mask)."""
+    rng = np.random.default_rng(0)
+    atlas = rng.integers(0, 256, size=(64, 32, 4), dtype=np.uint8)
+    atlas[..., 3] = 255
+    PIL.Image.fromarray(atlas, "RGBA").save(tmp_path / "atlas.png")
+    mask = np.full((64, 32), 255, dtype=np.uint8)
+    mask[:8] = 0
+    PIL.Image.fromarray(mask, "L").save(tmp_path / "mask.png")
+    lines, mtl = ["mtllib m.mtl"], []
+    for k in range(materials):
+        lines += [f"v {k} 0 0", f"v {k + 1} 0 0", f"v {k + 1} 1 0", f"v {k} 1 0", "vt 0 0", "vt 1 0", "vt 1 1", "vt 0 1"]
+    for k in range(materials):
+        a = 4 * k + 1
+        lines += [f"o part{k}", f"usemtl mat{k}", f"f {a}/{a} {a + 1}/{a + 1} {a + 2}/{a + 2}", f"f {a}/{a} {a + 2}/{a + 2} {a + 3}/{a + 3}"]
+        mtl += [f"newmtl mat{k}", "Kd 1 1 1", "map_Kd atlas.png"] + (["map_d mask.png"] if map_d else []) + [""]
+    (tmp_path / "m.mtl").write_text("\n".join(mtl))
+    (tmp_path / "scene.obj").write_text("\n".join(lines) + "\n")
+    return tmp_path / "scene.obj", atlas, mask
+
+
+@pytest.mark.parametrize("map_d", [False, True])
+def test_obj_materials_naming_one_atlas_share_one_decoded_texture(tmp_path, map_d):
+    """Issue 29: a texture file named by many materials is decoded once and every object holds that
+    one array (before, 45 materials of one 4096^2 atlas took 92 s and 11 GB to load)."""
+    path, atlas, mask = _atlas_obj(tmp_path, 5, map_d)
+    scene = load_scene(path)
+    assert scene.object_count == 5
+    textures = [obj.texture for obj in scene.objects]
+    assert all(t is textures[0] for t in textures)
+    assert not textures[0].flags.writeable
+    np.testing.assert_array_equal(textures[0][..., :3], atlas[..., :3])
+    np.testing.assert_array_equal(textures[0][..., 3], mask if map_d else atlas[..., 3])
+    assert {obj.alpha_cutoff for obj in scene.objects} == ({0.5} if map_d else {None})
+    # Sharing changes nothing else: the scene is the one its objects give, and hashes alike.
+    again = Scene.from_objects([dataclasses.replace(o, texture=o.texture.copy()) for o in scene.objects], "copy")
+    assert again.content_hash == scene.content_hash
+    assert all(o.texture is not textures[0] for o in again.objects)  # writable input is still copied
+
+
+def test_scene_object_copies_a_writable_array_and_shares_a_frozen_one():
+    quad = scenes.textured_quad().objects[0]
+    texture = np.array(scenes.QUAD_TEXTURE)  # writable: the object must not see later changes
+    obj = dataclasses.replace(quad, texture=texture)
+    texture[...] = 0
+    np.testing.assert_array_equal(obj.texture, scenes.QUAD_TEXTURE)
+    assert dataclasses.replace(quad, texture=obj.texture).texture is obj.texture
+
+
 # --------------------------------------------------------------------------- missing referenced files
 
 

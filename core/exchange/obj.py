@@ -105,9 +105,16 @@ def _apply_opacity(material: SimpleMaterial, data: bytes) -> None:
 
 
 def _textures(scene: trimesh.Scene, maps: dict[str, dict[str, str]], resolver: Resolver) -> list[str]:
-    """Apply ``map_d`` maps to the parsed materials; warn about maps that could not be loaded."""
+    """Apply ``map_d`` maps to the parsed materials; warn about maps that could not be loaded.
+
+    Materials naming the same texture file share one image (trimesh opens the file once per
+    material), and those naming the same ``map_kd`` and ``map_d`` files one composed image, so a
+    shared atlas is decoded once however many materials use it (:func:`objects_from_trimesh`
+    decodes each image once)."""
     warnings: list[str] = []
     seen: set[int] = set()
+    images: dict[str, PIL.Image.Image] = {}  # map_kd file -> the first material's image
+    composed: dict[tuple, PIL.Image.Image] = {}  # (map_kd file or Kd, map_d file) -> image with alpha
     for mesh in scene.geometry.values():
         material = getattr(getattr(mesh, "visual", None), "material", None)
         if not isinstance(material, SimpleMaterial) or id(material) in seen:
@@ -119,7 +126,13 @@ def _textures(scene: trimesh.Scene, maps: dict[str, dict[str, str]], resolver: R
                 f"texture {files['map_kd']!r} of material {material.name!r} could not be loaded; "
                 "using the material colour"
             )
+        if "map_kd" in files and material.image is not None:
+            material.image = images.setdefault(files["map_kd"], material.image)
         if "map_d" not in files:
+            continue
+        key = (files.get("map_kd") if material.image is not None else tuple(np.asarray(material.diffuse).tolist()), files["map_d"])
+        if key in composed:
+            material.image = composed[key]
             continue
         data = fetch(resolver, files["map_d"])
         if data is None:
@@ -127,6 +140,7 @@ def _textures(scene: trimesh.Scene, maps: dict[str, dict[str, str]], resolver: R
             continue
         try:
             _apply_opacity(material, data)
+            composed[key] = material.image
         except IMAGE_ERRORS as error:
             warnings.append(
                 f"opacity map {files['map_d']!r} of material {material.name!r} could not be decoded "

@@ -90,8 +90,22 @@ def asset_resolver(name: str, directory: str | None = None, assets: Mapping[str,
         Referenced files by relative name, for scenes uploaded as bytes.
     """
     if directory is not None:
-        return FilePathResolver(os.path.join(directory, name))
+        return _ReadOnceFileResolver(os.path.join(directory, name))
     return _NamedZipResolver(dict(assets or {}), name)
+
+
+class _ReadOnceFileResolver(FilePathResolver):
+    """A folder's files, each read once: trimesh reads a texture file again for every material
+    that names it (45 materials of one atlas: 45 reads and 45 copies of its bytes)."""
+
+    def __init__(self, source: str):
+        super().__init__(source)
+        self._read: dict[str, bytes] = {}
+
+    def get(self, name: str) -> bytes:
+        if name not in self._read:
+            self._read[name] = super().get(name)
+        return self._read[name]
 
 
 def fetch(resolver: Resolver, name: str) -> bytes | None:
@@ -167,6 +181,25 @@ class _Colours:
         self.alpha_cutoff: float | None = None
 
 
+class _Texture:
+    """A decoded texture and what every object using it needs to know, found once per image."""
+
+    __slots__ = ("rgba", "single", "translucent")
+
+    def __init__(self, rgba: np.ndarray, single: np.ndarray | None, translucent: bool) -> None:
+        self.rgba = rgba  # (h, w, 4) uint8, shared by the objects using it
+        self.single = single  # (4,) uint8 when every texel has this colour, else None
+        self.translucent = translucent  # some texel's alpha is below 255
+
+    @classmethod
+    def of(cls, rgba: np.ndarray) -> "_Texture":
+        rgba = np.array(rgba, dtype=np.uint8, copy=True, order="C")
+        rgba.flags.writeable = False  # frozen once: every SceneObject using it shares it (core.scene._frozen)
+        texels = rgba.reshape(-1, 4)
+        single = texels[0].copy() if (texels == texels[0]).all() else None
+        return cls(rgba, single, bool(rgba[..., 3].min() < 255))
+
+
 def _texture_colours(
     mesh: trimesh.Trimesh, name: str, textures: dict, warnings: list[str], linear: bool
 ) -> _Colours:
@@ -212,7 +245,7 @@ def _texture_colours(
     key = id(image)
     if key not in textures:
         try:
-            textures[key] = texture_rgba(image)
+            textures[key] = _Texture.of(texture_rgba(image))
         except IMAGE_ERRORS as error:
             textures[key] = None
             warnings.append(f"object {name!r}: texture could not be decoded ({type(error).__name__}: {error}); "
@@ -220,15 +253,14 @@ def _texture_colours(
     texture = textures[key]
     if texture is None:
         return out
-    if out.alpha_cutoff is None and not isinstance(material, PBRMaterial) and texture[..., 3].min() < 255:
+    if out.alpha_cutoff is None and not isinstance(material, PBRMaterial) and texture.translucent:
         out.alpha_cutoff = DEFAULT_ALPHA_CUTOFF
-    texels = texture.reshape(-1, 4)
-    if (texels == texels[0]).all():
+    if texture.single is not None:
         # One colour (e.g. the 2 x 2 placeholder trimesh gives uv without a material): the same
         # as a material colour, which is cheaper and names the colour source truthfully.
-        out.base_color = out.base_color * _rgba_unit(texels[0], srgb=True)
+        out.base_color = out.base_color * _rgba_unit(texture.single, srgb=True)
         return out
-    out.texture = texture
+    out.texture = texture.rgba
     out.uv = np.asarray(uv, dtype=np.float64)
     return out
 
@@ -286,7 +318,7 @@ def objects_from_trimesh(
     rename = rename or {}
     objects: list[SceneObject] = []
     warnings: list[str] = []
-    textures: dict = {}  # id(PIL image) -> (h, w, 4) uint8 or None, shared materials decode once
+    textures: dict = {}  # id(PIL image) -> _Texture or None: an image shared by materials is decoded once
     for node in scene.graph.nodes_geometry:
         transform, geometry_name = scene.graph[node]
         name = rename.get(node, str(node))
