@@ -377,11 +377,13 @@ def iter_layers(
         owned.append(stream)
         vao = ctx.vertex_array(prog, [(stream, INSTANCE_FORMAT, *INSTANCE_ATTRIBUTES)])
         owned.append(vao)
-        textures = []
+        textures, uploaded = [], {}  # objects sharing a texture (and its cut) share its GL textures
         for obj, _, _ in draws:
-            made = _object_textures(ctx, obj)
-            owned += [t for t in made if t is not None]
-            textures.append(made)
+            key = None if obj.texture is None else (id(obj.texture), obj.alpha_cutoff, float(obj.base_color[3]))
+            if key not in uploaded:
+                uploaded[key] = _object_textures(ctx, obj)
+                owned += [t for t in uploaded[key] if t is not None]
+            textures.append(uploaded[key])
         per_layer = np.zeros(k, dtype=np.int64)
         for _, offsets, _ in draws:
             per_layer += np.diff(offsets)

@@ -160,3 +160,31 @@ def test_pine_atlas_has_no_black_fringes():
     texels = np.concatenate([page[page[..., 3] > 0][:, :3] for page in impostor.pages])
     assert len(texels) > 5000
     assert (texels.max(axis=1) < 20).mean() < 0.01
+
+
+@pytest.mark.parametrize("cut", [None, 0.5])
+def test_objects_sharing_one_texture_draw_and_bake_as_with_copies(cut):
+    """Objects holding one texture array (a loaded atlas shared by many materials) upload it once;
+    the renderer and the layered recording must give what they give for separate copies."""
+    rng = np.random.default_rng(3)
+    atlas = rng.integers(0, 256, size=(16, 16, 4), dtype=np.uint8)
+    atlas[..., 3] = np.where(rng.random((16, 16)) < 0.3, 0, 255)
+    atlas.flags.writeable = False
+    quads = []
+    for k in range(3):
+        v = np.array([[k, 0, 0], [k + 0.9, 0, 0], [k + 0.9, 1, 0], [k, 1, 0]], dtype=float)
+        uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float) * 0.5 + 0.25 * k
+        quads.append(SceneObject(f"q{k}", v, np.array([[0, 1, 2], [0, 2, 3]]), uv=uv, texture=atlas, alpha_cutoff=cut))
+    shared = Scene.from_objects(quads, "shared")
+    assert all(o.texture is shared.objects[0].texture for o in shared.objects)
+    copies = Scene.from_objects([SceneObject(o.name, o.vertices, o.faces, uv=o.uv, texture=atlas.copy(), alpha_cutoff=cut) for o in quads], "copies")
+    assert shared.objects[1].texture is not copies.objects[1].texture
+    np.testing.assert_array_equal(front_view(shared), front_view(copies))
+    technique = get_technique("layered")
+    cell = BoxCell(np.array([1.0, 0.0, 8.0]), np.array([2.0, 1.0, 9.0]))
+    a = technique.bake(shared, cell, technique.options({}, 64, 45.0), None, None)
+    b = technique.bake(copies, cell, technique.options({}, 64, 45.0), None, None)
+    assert len(a.pages) == len(b.pages) and a.quad_count == b.quad_count
+    for pa, pb in zip(a.pages, b.pages):
+        np.testing.assert_array_equal(pa, pb)
+    assert (a.pages[0][..., 3] > 0).any()

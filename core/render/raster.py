@@ -120,6 +120,7 @@ class MeshRenderer:
         self.program = program(ctx, "mesh.vert", "mesh.frag")
         self._owned: list = []
         self._draws = []
+        uploaded: dict[int, moderngl.Texture] = {}  # objects sharing a texture array share its GL texture
         for obj, clip in zip(objects, clips, strict=True):
             origin = 0.5 * (obj.bounds[0] + obj.bounds[1])
             n = obj.vertices.shape[0]
@@ -131,8 +132,13 @@ class MeshRenderer:
             vao = ctx.vertex_array(self.program, [(vbo, "3f 2f 4f", "in_position", "in_uv", "in_color")], ibo)
             # The geometry as it is: alpha tested texel by texel, no mipmaps (their averaged alpha
             # would thin an alpha-cut part with distance, a property of one viewer, not of the part).
-            texture = srgb_texture(ctx, obj.texture) if obj.texture is not None else None
-            self._owned += [vbo, ibo, vao] + ([texture] if texture is not None else [])
+            texture = None
+            if obj.texture is not None:
+                texture = uploaded.get(id(obj.texture))
+                if texture is None:
+                    texture = uploaded[id(obj.texture)] = srgb_texture(ctx, obj.texture)
+                    self._owned.append(texture)
+            self._owned += [vbo, ibo, vao]
             if clip is None:
                 clip_offset, clip_half, opened = np.zeros(3), 0.0, ()
             else:  # the difference in float64, so large world offsets cancel before narrowing
