@@ -42,7 +42,7 @@ from farfield.core.errors import DegenerateGeometryError, SceneLoadError
 # with new ones.
 # v2: colours are defined in colour spaces (base_color linear, vertex colours and textures sRGB), so
 # equal arrays read under v1 meant other colours.
-HASH_VERSION = b"farfield-scene-hash-v2"
+HASH_VERSION = b"farfield-scene-hash-v3"  # v3: a texture enters its objects' digests as its own digest
 
 # glTF's default baseColorFactor (glTF 2.0, material.pbrMetallicRoughness): opaque white.
 DEFAULT_BASE_COLOR = (1.0, 1.0, 1.0, 1.0)
@@ -220,8 +220,24 @@ def _update_hash(digest: "hashlib._Hash", tag: bytes, array: np.ndarray | None) 
     digest.update(np.ascontiguousarray(little).reshape(-1).view(np.uint8))  # the same bytes as tobytes(), not copied
 
 
-def object_hash(obj: SceneObject) -> bytes:
-    """SHA-256 digest (32 bytes) of one object's geometry and colour arrays, name left out."""
+def _texture_digest(texture: np.ndarray | None, memo: dict | None) -> np.ndarray | None:
+    """A texture as the 32 bytes of its own tagged digest, so a texture many objects share is
+    hashed once per :func:`content_hash` (``memo``: id -> digest while the objects are alive)."""
+    if texture is None:
+        return None
+    found = None if memo is None else memo.get(id(texture))
+    if found is None:
+        inner = hashlib.sha256(HASH_VERSION + b":texture;")
+        _update_hash(inner, b"texels", texture)
+        found = np.frombuffer(inner.digest(), dtype=np.uint8)
+        if memo is not None:
+            memo[id(texture)] = found
+    return found
+
+
+def object_hash(obj: SceneObject, memo: dict | None = None) -> bytes:
+    """SHA-256 digest (32 bytes) of one object's geometry and colour arrays, name left out
+    (the texture by its digest, :func:`_texture_digest`)."""
     digest = hashlib.sha256(HASH_VERSION)
     # Adding 0.0 maps -0.0 to +0.0, so equal coordinates give equal bytes.
     _update_hash(digest, b"vertices", obj.vertices + 0.0)
@@ -229,7 +245,7 @@ def object_hash(obj: SceneObject) -> bytes:
     _update_hash(digest, b"uv", None if obj.uv is None else obj.uv + 0.0)
     _update_hash(digest, b"vertex_colors", obj.vertex_colors)
     _update_hash(digest, b"base_color", obj.base_color + 0.0)
-    _update_hash(digest, b"texture", obj.texture)
+    _update_hash(digest, b"texture", _texture_digest(obj.texture, memo))
     cutoff = None if obj.alpha_cutoff is None else np.array([obj.alpha_cutoff], dtype=np.float64)
     _update_hash(digest, b"alpha_cutoff", cutoff)
     return digest.digest()
@@ -253,7 +269,9 @@ def content_hash(objects: Iterable[SceneObject]) -> str:
         64 hex digits.
     """
     digest = hashlib.sha256(HASH_VERSION + b":scene;")
-    for part in sorted(object_hash(obj) for obj in objects):
+    objects = list(objects)  # alive while ``memo`` keys their textures by id
+    memo: dict = {}
+    for part in sorted(object_hash(obj, memo) for obj in objects):
         digest.update(part)
     return digest.hexdigest()
 
