@@ -2,7 +2,8 @@
 renderer), the session's chromium and three.js page, and the glTF validator run on every GLB a test
 writes (``tests/glb_validation.py``): a test that leaves an invalid one under pytest's temporary
 directories fails at teardown with the validator's messages, unless it is marked ``invalid_glb``
-(it writes broken files on purpose)."""
+(it writes broken files on purpose).  The header also fills numba's cache (the TDM kernels) before
+any test starts a render worker."""
 
 from __future__ import annotations
 
@@ -37,6 +38,11 @@ def pytest_report_header(config):
 
     versions = installed_versions()
     lines.append("npm (tests/js): " + (", ".join(f"{k} {v}" for k, v in versions.items()) or "not installed (scripts/install-js)"))
+    # Fill numba's cache once here, so the render workers the service tests start load the TDM
+    # kernels (warm_worker) instead of each compiling them while a test waits for it.
+    from farfield.core.techniques.tdm import warm_kernels
+
+    lines.append(f"numba kernels ready in {warm_kernels():.1f} s")
     return lines
 
 

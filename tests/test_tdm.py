@@ -561,3 +561,37 @@ def test_oversampling_averages_the_nearest_voxels(house_bake):
     corners = np.array([[1.0, 1.0, 0.0], [2.0, 3.0, 0.0]])
     assert set(sample_field(field, corners, 1)[:, 0].tolist()) <= {0, 255}
     assert np.all(np.abs(sample_field(field, corners, 4)[:, :3].astype(int) - 128) <= 1)
+
+
+WARM_CHECK = """
+import json, numba, numpy as np
+import farfield.core.mask_atlas as atlas, farfield.core.tdm_simplify as simplify
+from farfield.core.procedural import city
+from farfield.core.render.context import gl_context
+from farfield.core.techniques.tdm import TdmOptions, bake_tdm, warm_kernels
+from farfield.core.viewcells import BoxCell
+
+kernels = {f"{m.__name__}.{k}": v for m in (atlas, simplify) for k, v in vars(m).items() if isinstance(v, numba.core.registry.CPUDispatcher)}
+def compiled():
+    return {k: len(v.signatures) for k, v in kernels.items()}
+before = compiled()
+warm_kernels()
+warmed = compiled()
+scene = city(4)
+lo, hi = scene.bounds
+with gl_context():
+    bake_tdm(scene, BoxCell(np.array([lo[0] - 60, lo[1], lo[2]]), np.array([lo[0] - 40, lo[1] + 20, lo[2] + 20])), TdmOptions(resolution=64))
+print(json.dumps({"before": before, "warmed": warmed, "baked": compiled()}))
+"""
+
+
+def test_warming_compiles_every_kernel_a_bake_runs_with_the_types_it_runs_them_with():
+    """What a render worker does when it starts (``workers.tasks.warm_worker``), in a fresh process:
+    after :func:`warm_kernels` a real TDM bake adds no compiled signature to any numba kernel, so
+    none compiles (or loads from the cache) during a cell."""
+    out = subprocess.run([sys.executable, "-c", WARM_CHECK], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    counts = json.loads(out.stdout.strip().splitlines()[-1])
+    assert not any(counts["before"].values())
+    assert counts["baked"] == counts["warmed"]
+    assert counts["warmed"]["farfield.core.tdm_simplify._simplify"] == 1 and counts["warmed"]["farfield.core.mask_atlas._first_fit"] == 1

@@ -32,6 +32,9 @@ the job's check.  A pool process that dies while it plans frees the job's hold f
 main process at once (:class:`PlanningRequest`), so the redelivery plans again (each time an
 attempt, ``FARFIELD_MAX_ATTEMPTS`` at most); a whole worker that dies leaves its hold to expire and
 the API's sweeper sends the task again.
+
+When a worker starts, :func:`warm_worker` compiles the TDM's numba kernels in its main process
+before the pool processes fork, so no cell pays the compilation.
 """
 
 from __future__ import annotations
@@ -41,12 +44,14 @@ import os
 
 from billiard.exceptions import WorkerLostError
 from celery import Task
+from celery.signals import worker_init
 from celery.exceptions import SoftTimeLimitExceeded, TimeLimitExceeded
 from celery.worker.request import Request
 from sqlalchemy import select, update
 
 from farfield.core.errors import CellLimitError
 from farfield.core.render.context import gl_context
+from farfield.core.techniques.tdm import warm_kernels
 from farfield.service.blobs import BlobStore, blob_store
 from farfield.service.cell_limits import MemoryGuard, hard_time_limit_message, time_limit_message
 from farfield.service.cell_runner import BAD_INPUT, TRANSIENT, RetryCell, backoff, failure_class, failure_message, run_cell
@@ -61,6 +66,17 @@ TRANSIENT_RETRIES_PER_ATTEMPT = 10
 _DECLARED = Settings.from_env()  # the settings the task is declared with (retries, time limits)
 
 log = logging.getLogger("farfield.worker")
+
+
+@worker_init.connect
+def warm_worker(**_) -> None:
+    """Compile the TDM's numba kernels in the worker's main process, before its pool processes fork
+    (they inherit them): the first cell a worker bakes does not pay the compilation.  A failure
+    here is logged and left to the first bake to meet again."""
+    try:
+        log.info("numba kernels ready in %.1f s", warm_kernels())
+    except Exception:  # noqa: BLE001 - a bake reports the same failure with its cell
+        log.exception("could not warm the numba kernels")
 
 
 def max_retries(max_attempts: int) -> int:

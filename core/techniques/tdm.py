@@ -30,6 +30,7 @@ mesh (connected component).
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -51,7 +52,7 @@ from farfield.core.tdm_simplify import box_half_sizes, covered_by, simplify
 from farfield.core.tdm_texture import build_charts, chart_masks, chart_pages, chart_uvs
 from farfield.core.techniques.base import Technique
 from farfield.core.techniques.part import check_part_cell, estimate_part_cell, evaluate_part, part_evaluation_text
-from farfield.core.viewcells import ViewCell
+from farfield.core.viewcells import BoxCell, ViewCell
 from farfield.core.voxel_field import VoxelField, record_voxel_field
 
 
@@ -137,26 +138,10 @@ def uncovered_voxels(vertices: np.ndarray, triangles: np.ndarray, offsets: np.nd
     return int(field.count - stored.sum())
 
 
-def bake_tdm(
-    scene: Scene,
-    cell: ViewCell,
-    options: TdmOptions = TdmOptions(),
-    objects: list[str] | None = None,
-    progress: Progress | None = None,
-) -> Impostor:
-    """Bake the textured depth mesh of ``scene`` (or of its ``objects``) for ``cell``.
-
-    Same contract as :func:`core.techniques.layered.bake_layered`; technique ``"tdm"``.
-    """
-    part = scene.subset(objects) if objects else scene
-    clock = StageClock(("plan",), progress)
-
-    with clock("plan"):
-        plan = plan_layers(cell, part.bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model)
-    clock.report("plan", 1, 1)
-
-    field = record_voxel_field(part, plan, options.culling, clock)
-
+def mesh_field(field: VoxelField, options: TdmOptions, clock: StageClock) -> tuple:
+    """The textured mesh of a recorded ``field`` (stages ``mesh`` to ``texture`` on ``clock``):
+    (world triangle corners (t, 3, 3), their uvs, page and mesh per triangle, the atlas pages, and
+    the stats of those stages)."""
     with clock("mesh"):
         mesh = initial_mesh(field)
     clock.report("mesh", 1, 1)
@@ -191,14 +176,7 @@ def bake_tdm(
 
     meshes = mesh_labels(len(used), triangles)
     count = triangles.shape[0]
-    texture_bytes = int(sum(p.shape[0] * p.shape[1] * 4 for p in pages))
     stats = {
-        "layers_planned": plan.count,
-        "layers": field.stats["layers"],
-        "voxels": field.count,
-        "texels_covered": field.stats["texels_covered"],
-        "texels_culled": field.stats["texels_culled"],
-        "triangles_drawn": field.stats["triangles_drawn"],
         **mesh.stats,
         "triangles": int(count),
         "vertices": len(used),
@@ -206,11 +184,61 @@ def bake_tdm(
         "quads": int(count),
         "contractions": outcomes,
         "voxels_uncovered": uncovered,
-        "texture_bytes": texture_bytes,
+        "texture_bytes": int(sum(p.shape[0] * p.shape[1] * 4 for p in pages)),
         "texture_bytes_tile_area": 4 * int(charts.texel_chart.size),  # the charts' needed texels
         "geometry_bytes": geometry_bytes(triangles, charts.chart),
         "atlas_pages": len(pages),
         "texture_charts": charts.count,
+    }
+    return corners, uv, triangle_page, meshes, tuple(pages), stats
+
+
+def warm_kernels() -> float:
+    """Compile (or load from numba's cache) every numba kernel a TDM bake runs, by meshing a small
+    synthetic voxel field (a tilted slab: steps, boundaries, several charts) the way a bake does;
+    no GL.  Returns the seconds it took.  A render worker calls it when it starts
+    (:mod:`workers.tasks`), so its first cell does not pay the compilation (some 35 s on a 2-core
+    machine with an empty cache, 0.4 s to load a filled one)."""
+    start = time.perf_counter()
+    plan = plan_layers(BoxCell(np.array([-0.5, -0.5, -4.0]), np.array([0.5, 0.5, -3.0])), np.array([[-1.0, -1.0, 0.0], [1.0, 1.0, 1.0]]), math.radians(45.0), 64, "min")
+    res_x, res_y = (int(r) for r in plan.texture_resolution)
+    y, x = np.mgrid[res_y // 4 : 3 * res_y // 4, res_x // 4 : 3 * res_x // 4]
+    layer = np.minimum((x - x.min()) * plan.count // (2 * max(int(np.ptp(x)), 1)), plan.count - 1)
+    key = np.argsort((layer * res_y + y) * res_x + x, axis=None)
+    rgba = np.full((key.size, 4), 255, np.uint8)
+    field = VoxelField(plan, x.ravel()[key].astype(np.int64), y.ravel()[key].astype(np.int64), layer.ravel()[key].astype(np.int64), rgba, {})
+    mesh_field(field, TdmOptions(resolution=64), StageClock(()))
+    return time.perf_counter() - start
+
+
+def bake_tdm(
+    scene: Scene,
+    cell: ViewCell,
+    options: TdmOptions = TdmOptions(),
+    objects: list[str] | None = None,
+    progress: Progress | None = None,
+) -> Impostor:
+    """Bake the textured depth mesh of ``scene`` (or of its ``objects``) for ``cell``.
+
+    Same contract as :func:`core.techniques.layered.bake_layered`; technique ``"tdm"``.
+    """
+    part = scene.subset(objects) if objects else scene
+    clock = StageClock(("plan",), progress)
+
+    with clock("plan"):
+        plan = plan_layers(cell, part.bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model)
+    clock.report("plan", 1, 1)
+
+    field = record_voxel_field(part, plan, options.culling, clock)
+    corners, uv, triangle_page, meshes, pages, stats = mesh_field(field, options, clock)
+    stats = {
+        "layers_planned": plan.count,
+        "layers": field.stats["layers"],
+        "voxels": field.count,
+        "texels_covered": field.stats["texels_covered"],
+        "texels_culled": field.stats["texels_culled"],
+        "triangles_drawn": field.stats["triangles_drawn"],
+        **stats,
         "texture_resolution": [int(r) for r in plan.texture_resolution],
         "seconds": clock.totals(),
     }
@@ -221,7 +249,7 @@ def bake_tdm(
         reference_viewpoint=plan.reference_viewpoint,
         resolution=options.resolution,
         fov_deg=options.fov_deg,
-        pages=tuple(pages),
+        pages=pages,
         payload=MeshPayload.from_triangle_corners(corners, uv, page=triangle_page, mesh=meshes),
         layers=layers,
         stats=stats,
