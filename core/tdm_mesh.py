@@ -135,7 +135,7 @@ _SIDES = (
 
 def step_voxels(occupied: np.ndarray) -> np.ndarray:
     """(k, h, w) bool: the step voxels that join the stacks of a steep surface (farfield's addition
-    to the rule sets, see the module docstring).
+    to the rule sets, see the module docstring); :func:`layer_steps` of every layer.
 
     Two side-neighbouring voxel columns whose stacks end and begin one or two layers apart get the
     layers between filled so that they share one: with the near column holding l and not l + 1, and
@@ -149,33 +149,47 @@ def step_voxels(occupied: np.ndarray) -> np.ndarray:
     >>> np.argwhere(step_voxels(occ)).tolist()  # columns 0, 1 share layer 2; column 1 steps into 5
     [[2, 0, 0], [2, 0, 1], [5, 0, 1]]
     """
-    steps = np.zeros_like(occupied)
     k = occupied.shape[0]
-    for axis in (1, 2):
-        n = occupied.shape[axis]
-        a = occupied.take(np.arange(n - 1), axis=axis)
-        b = occupied.take(np.arange(1, n), axis=axis)
-        for near, far, into_near, into_far in ((a, b, 0, 1), (b, a, 1, 0)):
-            # One layer apart: the entry at l marks layer l + 1.
-            one = np.zeros_like(a)
-            one[1:] = near[:-1] & ~far[:-1] & far[1:] & ~near[1:]
-            _add_side(steps, one, axis, into_near)
-            # Two layers apart, stacks of two: near holds l - 1, l; far holds l + 2, l + 3;
-            # marked at l + 1, for l = 1 .. k - 4.
-            if k >= 5:
-                marked = np.zeros_like(a)
-                marked[2 : k - 2] = (near[0 : k - 4] & near[1 : k - 3] & ~far[1 : k - 3] & ~near[2 : k - 2] & ~far[2 : k - 2]
-                                     & far[3 : k - 1] & ~near[3 : k - 1] & far[4:k])  # fmt: skip
-                _add_side(steps, marked, axis, into_near)
-                _add_side(steps, marked, axis, into_far)
-    return steps & ~occupied
+    return np.stack([layer_steps(occupied.__getitem__, l, k) for l in range(k)]) if k else np.zeros_like(occupied)
+
+
+def layer_steps(layer, l: int, k: int) -> np.ndarray:
+    """(h, w) bool: the step voxels (:func:`step_voxels`) of layer ``l`` of ``k``, from
+    ``layer(j)``, the (h, w) occupancy of layer j, read for j in l - 2 .. l + 2 only: a bake
+    builds its initial mesh one layer at a time, never holding layers x rows x columns."""
+    current = layer(l)
+    steps = np.zeros_like(current)
+    before = layer(l - 1) if l >= 1 else None
+    two_apart = k >= 5 and 2 <= l <= k - 3
+    if two_apart:
+        window = (layer(l - 2), before, current, layer(l + 1), layer(l + 2))
+    for axis in (0, 1):
+        n = current.shape[axis]
+
+        def pairs(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            return a.take(np.arange(n - 1), axis=axis), a.take(np.arange(1, n), axis=axis)
+
+        cur = pairs(current)
+        prev = pairs(before) if before is not None else None
+        win = [pairs(a) for a in window] if two_apart else None
+        for near, far in ((0, 1), (1, 0)):
+            # One layer apart: near holds l - 1 and not l, far holds l and not l - 1.
+            if prev is not None:
+                _add_side(steps, prev[near] & ~prev[far] & cur[far] & ~cur[near], axis, near)
+            # Two layers apart, stacks of two: near holds l - 2, l - 1; far holds l + 1, l + 2.
+            if two_apart:
+                (n2, f2), (n1, f1), (n0, f0), (p1n, p1f), (p2n, p2f) = ((w[near], w[far]) for w in win)
+                marked = n2 & n1 & ~f1 & ~n0 & ~f0 & p1f & ~p1n & p2f
+                _add_side(steps, marked, axis, near)
+                _add_side(steps, marked, axis, far)
+    return steps & ~current
 
 
 def _add_side(steps: np.ndarray, added: np.ndarray, axis: int, side: int) -> None:
     """OR ``added`` (one column pair per entry along ``axis``) into the first (side 0) or second
     (side 1) column of each pair."""
     n = steps.shape[axis]
-    index = [slice(None)] * 3
+    index = [slice(None)] * steps.ndim
     index[axis] = slice(0, n - 1) if side == 0 else slice(1, n)
     steps[tuple(index)] |= added
 
@@ -203,11 +217,26 @@ def initial_mesh(field: VoxelField) -> TdmMesh:
     # Work inside the bounding box of the voxels, one grid of layers x rows x columns.
     x0, y0 = int(field.x.min()), int(field.y.min())
     w, h = int(field.x.max()) - x0 + 1, int(field.y.max()) - y0 + 1
-    occupied = np.zeros((k, h, w), dtype=bool)
-    occupied[field.layer, field.y - y0, field.x - x0] = True
-    steps = step_voxels(occupied)
-    occupied |= steps
-    layers_with_voxels = np.flatnonzero(occupied.any(axis=(1, 2)))
+    # One layer at a time (the field is sorted by layer): a layer and its step voxels need the
+    # occupancy of the two layers on either side, never the whole layers x rows x columns grid.
+    starts = np.searchsorted(field.layer, np.arange(k + 1))
+    recent: dict[int, np.ndarray] = {}
+
+    def layer(j: int) -> np.ndarray:
+        if j not in recent:
+            if len(recent) > 6:
+                recent.pop(min(recent))
+            occupied = np.zeros((h, w), dtype=bool)
+            occupied[field.y[starts[j] : starts[j + 1]] - y0, field.x[starts[j] : starts[j + 1]] - x0] = True
+            recent[j] = occupied
+        return recent[j]
+
+    # Layers that can hold a voxel or a step voxel: a step needs voxels on the layer or on both
+    # layers next to it.
+    has = np.diff(starts) > 0
+    near = has.copy()
+    near[1:-1] |= has[:-2] & has[2:]
+    step_count = 0
 
     quads = []  # each (q, 4, 3) int64 corner (X, Y, layer) in the half-texel grid
     touches = []  # each (q, 8, 3) int64 voxel (x, y, layer) per quad (repeats allowed)
@@ -215,8 +244,13 @@ def initial_mesh(field: VoxelField) -> TdmMesh:
     previous_layer = -2
     # Per side: was the neighbour cell filled in the first layer of the cell's current run?
     joined_at_top = [np.zeros_like(previous) for _ in _SIDES]
-    for l in layers_with_voxels:
-        cells = cell_grid(occupied[l])
+    for l in np.flatnonzero(near):
+        steps = layer_steps(layer, int(l), k)
+        step_count += int(steps.sum())
+        filled = layer(int(l)) | steps
+        if not filled.any():
+            continue
+        cells = cell_grid(filled)
         before = previous if previous_layer == l - 1 else np.zeros_like(cells)
         start = cells & ~before
         for side, ((dy, dx), _) in enumerate(_SIDES):
@@ -298,7 +332,7 @@ def initial_mesh(field: VoxelField) -> TdmMesh:
         "initial_triangles": int(triangles.shape[0]),
         "initial_vertices": int(np.unique(triangles).size),  # those of the meshes left out stay unused
         "fallback_quads": fallback,
-        "step_voxels": int(steps.sum()),
+        "step_voxels": step_count,
         "slits_closed": slits,
         "slit_triangles": int(slit_triangles.shape[0]),
         "initial_meshes": int(meshes.max(initial=-1) + 1),
