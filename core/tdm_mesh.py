@@ -81,6 +81,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
@@ -399,34 +400,65 @@ def _image_area(vertices: np.ndarray, triangles: np.ndarray) -> float:
     return float(0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum())
 
 
-def _ear_clip(loop: np.ndarray, vertices: np.ndarray, edge_keys: np.ndarray, size: int) -> np.ndarray | None:
+def ear_clip(loop: np.ndarray, vertices: np.ndarray, edge_keys: np.ndarray, size: int) -> np.ndarray | None:
     """Triangles closing ``loop``: each step cuts off the vertex whose neighbours are nearest each
     other, among those that make a proper triangle and whose new edge is not an edge already (which
     would make the mesh non-manifold).  None where no such vertex is left."""
+    out = np.empty((max(loop.size - 2, 0), 3), dtype=np.int64)
+    return out if _ear_clip_kernel(np.ascontiguousarray(loop, dtype=np.int64), vertices, edge_keys, size, out) else None
+
+
+@njit(cache=True)
+def _ear_clip_kernel(loop, vertices, edge_keys, size, out):
+    """:func:`ear_clip` into ``out`` ((n - 2, 3)); False where it stops short.  A tie in the chord
+    goes to the earliest vertex of the ring, as a stable sort would; a ring of three is the last
+    triangle, as it stands, if its first vertex makes a proper one."""
     ring = loop.copy()
-    added: set[int] = set()
-    out = []
-    while ring.size >= 3:
-        prev, nxt = np.roll(ring, 1), np.roll(ring, -1)
-        a, b, c = vertices[prev], vertices[ring], vertices[nxt]
-        proper = np.linalg.norm(np.cross(b - a, c - a), axis=1) > 1e-9
-        if ring.size == 3:
-            if not proper[0]:
-                return None
-            out.append(ring.copy())
-            break
-        chord = np.linalg.norm(c - a, axis=1)
-        key = np.minimum(prev, nxt) * size + np.maximum(prev, nxt)
-        found = np.searchsorted(edge_keys, key)
-        exists = edge_keys[np.minimum(found, edge_keys.size - 1)] == key
-        candidates = np.flatnonzero(proper & ~exists)
-        pick = next((int(i) for i in candidates[np.argsort(chord[candidates], kind="stable")] if int(key[i]) not in added), None)
-        if pick is None:
-            return None
-        out.append(np.array([prev[pick], ring[pick], nxt[pick]]))
-        added.add(int(key[pick]))
-        ring = np.delete(ring, pick)
-    return np.array(out, dtype=np.int64)
+    n = ring.size
+    added = np.empty(max(n, 1), dtype=np.int64)
+    n_added = 0
+    made = 0
+    while n >= 3:
+        best, best_chord = -1, np.inf
+        for i in range(n):
+            p, v, q = ring[(i - 1) % n], ring[i], ring[(i + 1) % n]
+            ab = vertices[v] - vertices[p]
+            ac = vertices[q] - vertices[p]
+            cx = ab[1] * ac[2] - ab[2] * ac[1]
+            cy = ab[2] * ac[0] - ab[0] * ac[2]
+            cz = ab[0] * ac[1] - ab[1] * ac[0]
+            if not np.sqrt(cx * cx + cy * cy + cz * cz) > 1e-9:
+                if n == 3:
+                    return False
+                continue
+            if n == 3:  # the last triangle, in the ring's order
+                out[made, 0], out[made, 1], out[made, 2] = ring[0], ring[1], ring[2]
+                return True
+            chord = np.sqrt(ac[0] * ac[0] + ac[1] * ac[1] + ac[2] * ac[2])
+            if chord >= best_chord:
+                continue
+            key = min(p, q) * size + max(p, q)
+            found = np.searchsorted(edge_keys, key)
+            if found < edge_keys.size and edge_keys[found] == key:
+                continue
+            taken = False
+            for j in range(n_added):
+                if added[j] == key:
+                    taken = True
+                    break
+            if taken:
+                continue
+            best, best_chord = i, chord
+        if best < 0:
+            return False
+        p, v, q = ring[(best - 1) % n], ring[best], ring[(best + 1) % n]
+        out[made, 0], out[made, 1], out[made, 2] = p, v, q
+        made += 1
+        added[n_added] = min(p, q) * size + max(p, q)
+        n_added += 1
+        ring[best : n - 1] = ring[best + 1 : n]
+        n -= 1
+    return True
 
 
 def close_slits(vertices: np.ndarray, triangles: np.ndarray, meshes: np.ndarray, max_area: float = SLIT_AREA, max_width: float = 1.0) -> tuple[int, np.ndarray]:
@@ -451,7 +483,7 @@ def close_slits(vertices: np.ndarray, triangles: np.ndarray, meshes: np.ndarray,
         xy = vertices[loop, :2]
         if rim[int(part[loop[0]])] == i or (xy.max(axis=0) - xy.min(axis=0)).min() > max_width:
             continue
-        fill = _ear_clip(loop, vertices, edge_keys, size)
+        fill = ear_clip(loop, vertices, edge_keys, size)
         if fill is None or _image_area(vertices, fill) > max_area:
             continue
         closed.append(fill)  # (its new edges join vertices of this loop only: no other loop's)

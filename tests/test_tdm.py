@@ -29,8 +29,11 @@ from farfield.core.tdm_mesh import (
     TdmMesh,
     boundary_loops,
     close_slits,
+    ear_clip,
     initial_mesh,
+    layer_steps,
     mesh_labels,
+    step_voxels,
 )
 from farfield.core.tdm_simplify import (
     box_half_sizes,
@@ -571,7 +574,8 @@ from farfield.core.render.context import gl_context
 from farfield.core.techniques.tdm import TdmOptions, bake_tdm, warm_kernels
 from farfield.core.viewcells import BoxCell
 
-kernels = {f"{m.__name__}.{k}": v for m in (atlas, simplify) for k, v in vars(m).items() if isinstance(v, numba.core.registry.CPUDispatcher)}
+import farfield.core.tdm_mesh as mesh
+kernels = {f"{m.__name__}.{k}": v for m in (atlas, simplify, mesh) for k, v in vars(m).items() if isinstance(v, numba.core.registry.CPUDispatcher)}
 def compiled():
     return {k: len(v.signatures) for k, v in kernels.items()}
 before = compiled()
@@ -594,4 +598,75 @@ def test_warming_compiles_every_kernel_a_bake_runs_with_the_types_it_runs_them_w
     counts = json.loads(out.stdout.strip().splitlines()[-1])
     assert not any(counts["before"].values())
     assert counts["baked"] == counts["warmed"]
-    assert counts["warmed"]["farfield.core.tdm_simplify._simplify"] == 1 and counts["warmed"]["farfield.core.mask_atlas._first_fit"] == 1
+    for kernel in ("tdm_simplify._simplify", "mask_atlas._first_fit", "mask_atlas._block", "tdm_mesh._ear_clip_kernel", "tdm_mesh.assign_voxels"):
+        assert counts["warmed"][f"farfield.core.{kernel}"] == 1
+
+
+def _plain_ear_clip(loop, vertices, edge_keys, size):
+    """The ear clipping rule of ``core.tdm_mesh.ear_clip`` written plainly: cut off the proper ear
+    of shortest chord whose new edge is no edge yet, ties to the earliest; the last three as they stand."""
+    ring, added, out = [int(v) for v in loop], set(), []
+    existing = set(int(k) for k in edge_keys)
+    while len(ring) >= 3:
+        n = len(ring)
+        ears = []
+        for i in range(n):
+            p, v, q = ring[i - 1], ring[i], ring[(i + 1) % n]
+            proper = np.linalg.norm(np.cross(vertices[v] - vertices[p], vertices[q] - vertices[p])) > 1e-9
+            ears.append((proper, float(np.linalg.norm(vertices[q] - vertices[p])), i, min(p, q) * size + max(p, q)))
+        if n == 3:
+            return np.array(out + [ring], dtype=np.int64) if ears[0][0] else None
+        free = [e for e in ears if e[0] and e[3] not in existing and e[3] not in added]
+        if not free:
+            return None
+        _, _, i, key = min(free, key=lambda e: (e[1], e[2]))
+        out.append([ring[i - 1], ring[i], ring[(i + 1) % n]])
+        added.add(key)
+        del ring[i]
+    return np.array(out, dtype=np.int64)
+
+
+def test_ear_clipping_follows_its_rule_on_random_loops():
+    """The numba ear clipping (``ear_clip``) against the rule written plainly, on 500 random loops
+    over a coarse grid of vertices (many degenerate ears, ties and existing edges)."""
+    rng = np.random.default_rng(5)
+    closed = 0
+    for _ in range(500):
+        size = 30
+        vertices = rng.integers(0, 3, size=(size, 3)).astype(np.float64)
+        loop = rng.choice(size, int(rng.integers(3, 10)), replace=False)
+        edge_keys = np.unique(rng.integers(0, size * size, int(rng.integers(1, 25))))
+        got, want = ear_clip(loop, vertices, edge_keys, size), _plain_ear_clip(loop, vertices, edge_keys, size)
+        assert (got is None) == (want is None)
+        if want is not None:
+            assert got.tolist() == want.tolist()
+            closed += 1
+    assert 100 < closed < 500  # both outcomes were met
+
+
+def test_steps_one_layer_at_a_time_are_the_steps_of_the_whole_grid():
+    """``layer_steps`` (what the initial mesh reads, layer by layer) against the whole-grid rule
+    written with shifted arrays, on random occupancies."""
+    rng = np.random.default_rng(6)
+    for _ in range(30):
+        occ = rng.random((int(rng.integers(1, 9)), int(rng.integers(1, 6)), int(rng.integers(1, 6)))) < rng.uniform(0.2, 0.8)
+        k = occ.shape[0]
+        want = np.zeros_like(occ)
+        for axis in (1, 2):
+            n = occ.shape[axis]
+            a, b = occ.take(np.arange(n - 1), axis=axis), occ.take(np.arange(1, n), axis=axis)
+            for near, far, side in ((a, b, 0), (b, a, 1)):
+                one = np.zeros_like(a)
+                one[1:] = near[:-1] & ~far[:-1] & far[1:] & ~near[1:]
+                marked = np.zeros_like(a)
+                if k >= 5:
+                    marked[2 : k - 2] = near[: k - 4] & near[1 : k - 3] & ~far[1 : k - 3] & ~near[2 : k - 2] & ~far[2 : k - 2] & far[3 : k - 1] & ~near[3 : k - 1] & far[4:]
+                index = [slice(None)] * 3
+                index[axis] = slice(0, n - 1)
+                other = list(index)
+                other[axis] = slice(1, n)
+                want[tuple(index if side == 0 else other)] |= one | marked
+                want[tuple(other if side == 0 else index)] |= marked
+        want &= ~occ
+        assert (step_voxels(occ) == want).all()
+        assert all((layer_steps(occ.__getitem__, l, k) == want[l]).all() for l in range(k))
