@@ -116,9 +116,10 @@ def simplify_mesh(mesh: TdmMesh, field: VoxelField, enlargement: float, silhouet
     silhouette = field.silhouette if silhouette is None else silhouette
     totals: dict[str, int] = {}
     for factor in schedule(enlargement):
+        touched = None  # a new factor tries every edge; its repeats, those near the last pass's changes
         while True:
             before = triangles.shape[0]
-            triangles, offsets, voxels, counts = simplify(mesh.vertices, triangles, offsets, voxels, centres, factor, silhouette)
+            triangles, offsets, voxels, counts, touched = simplify(mesh.vertices, triangles, offsets, voxels, centres, factor, silhouette, touched)
             for key, value in counts.items():
                 totals[key] = totals.get(key, 0) + value
             if triangles.shape[0] == before:
