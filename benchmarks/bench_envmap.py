@@ -1,13 +1,18 @@
 """Layered environment-map impostors (seed 002) measured side by side in one run.
 
-Usage: ``.venv/bin/python benchmarks/bench_envmap.py [--quick] [--json] [--out DIR]``
+Usage: ``.venv/bin/python benchmarks/bench_envmap.py [--quick] [--only walkthrough] [--before REV] [--json] [--out DIR]``
 
 1. Generation per cell at 512 x 512 faces with 64 layers, 4 and 6 directions (the paper: 2.5 min
    per cell on a GeForce 3), with the time of every stage.
 2. Memory per cell at each compression step (seed 002 Table 2: 256 MB -> 6 MB -> 288 KB).
 3. Walkthrough: a loop through a 3 x 1 x 3 grid of 10 m cells in a procedural city of about a
    million triangles; frame time of the full scene vs near field + impostors (same renderer, same
-   run), hole pixels and colour error per frame, and a plot (``walkthrough.png``).
+   run), hole pixels and colour error per frame, and a plot (``walkthrough.png``).  The same
+   database and path are walked by the runtime as it is and as it was at git revision ``--before``
+   (its ``core/`` from ``git archive``, imported in a fresh process), one after the other in this
+   run, so the before/after speed-ups share the machine, the cells and the frames.  Then where
+   the runtime's frame goes, on the same path: the near field alone, the layers alone, and one
+   quad filling the frame (the renderer's cost per covered pixel).
 4. The trade: number of layers (near-field distance) and resolution against memory, generation
    time, frame time and image error, as a table and a plot (``trade.png``).
 
@@ -18,9 +23,13 @@ The city comes from a seeded ``np.random.default_rng``; the renderer (llvmpipe o
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import math
+import os
+import subprocess
 import sys
+import tarfile
 import tempfile
 import time
 from pathlib import Path
@@ -28,7 +37,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
 from farfield.core.envmap_runtime import EnvmapCellRenderer, camera_at, depth_range_for, evaluate_envmap  # noqa: E402
 from farfield.core.impostor_database import ImpostorDatabase, write_database  # noqa: E402
@@ -117,7 +127,14 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="small city and settings (smoke run)")
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--out", default="benchmarks/out", help="folder for the plots")
+    parser.add_argument("--only", choices=("walkthrough",), help="run only this part")
+    parser.add_argument("--before", default="8392e0a", help="git revision whose runtime is walked beside this tree's ('' for none)")
+    parser.add_argument("--walk", nargs=4, metavar=("DIR", "SIDE", "SUBDIVISIONS", "FRAMES"), help=argparse.SUPPRESS)  # internal: one walk, JSON out
     args = parser.parse_args()
+    if args.walk:
+        directory, side, subdiv, frames = args.walk
+        print(json.dumps(walk_database(Path(directory), int(side), int(subdiv), int(frames)), default=float))
+        return
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     side, subdiv = (12, 1) if args.quick else (36, 3)
@@ -133,6 +150,16 @@ def main() -> None:
 
     # 1 + 2: generation and memory per cell, 4 and 6 directions, on the middle cell.
     middle = cells[len(cells) // 2][1]
+    if args.only != "walkthrough":
+        generation(scene, middle, res, layers, report)
+    walkthrough_section(args, scene, cells, res, layers, frames, side, subdiv, info, out, report)
+    if args.only != "walkthrough":
+        trade(args, scene, middle, info, out, report)
+    if args.json:
+        print(json.dumps(report, indent=1, default=float))
+
+
+def generation(scene: Scene, middle: BoxCell, res: int, layers: int, report: dict) -> None:
     print(f"\n1-2. one cell ({middle.size[0]:.0f} m cube at {middle.center.tolist()}), {res} x {res} faces, {layers} layers")
     print(f"{'dirs':>4} {'near field':>10} {'layers':>6} {'quads':>6} {'raw MB':>8} {'macro MB':>9} {'PNG KB':>8} {'raw/macro':>9} {'macro/PNG':>9} {'total s':>8}  stages (s)")
     rows = []
@@ -150,32 +177,112 @@ def main() -> None:
     print("   seed 002 Table 2 (4 directions, 512, 64 layers): 256 MB -> 6.0 MB -> 0.288 MB, ratios 42.5 and 20.9")
     report["cell"] = rows
 
-    # 3: walkthrough through a 3 x 1 x 3 grid.
+
+def walkthrough_section(args, scene: Scene, cells, res: int, layers: int, frames: int, side: int, subdiv: int, info, out: Path, report: dict) -> None:
+    """3: a walkthrough through a 3 x 1 x 3 grid, the runtime before and after."""
     print(f"\n3. walkthrough: {len(cells)} cells, 6 directions, {frames} frames")
     options = EnvmapOptions(resolution=res, fov_deg=90.0, layers=layers)
     t = time.perf_counter()
     baked = [(list(ijk), bake_envmap(scene, box, options)) for ijk, box in cells]
     bake_s = time.perf_counter() - t
     print(f"   baked in {bake_s:.1f} s ({bake_s / len(cells):.2f} s per cell)")
-    with tempfile.TemporaryDirectory() as tmp:
-        write_database(Path(tmp) / "db", "envmap", {}, baked)
-        with ImpostorDatabase(Path(tmp) / "db") as db:
-            positions, forwards = generate_path(db, frames)
-            walk = walkthrough(scene, db, positions, forwards, repeats=3)
+    tmp_db = tempfile.TemporaryDirectory()
+    write_database(Path(tmp_db.name) / "db", "envmap", {}, baked)
+    runs = {}
+    for label, rev in ([("before", args.before)] if args.before else []) + [("after", None)]:
+        runs[label] = walk_in_process(Path(tmp_db.name), side, subdiv, frames, rev)
+    walk = runs["after"]
     write_plot(walk, out / "walkthrough.png", title=f"{scene.triangle_count:,}-triangle city, {res}x{res}, {layers} layers ({info.renderer})")
+    print(f"   {'runtime':<16} {'full ms':>8} {'runtime ms':>10} {'max ms':>7} {'speed-up':>8} {'holes':>6} {'colour err':>10}")
+    for label, run in runs.items():
+        s = run["summary"]
+        name = f"{label} ({args.before})" if label == "before" else "after (this tree)"
+        print(
+            f"   {name:<16} {s['full_ms_mean']:>8.1f} {s['impostor_ms_mean']:>10.2f} {s['impostor_ms_max']:>7.1f} {s['speedup_mean']:>7.2f}x "
+            f"{s['hole_pixels']:>6} {s['colour_error_mean']:>10.3f}"
+        )
     s = walk["summary"]
-    print(
-        f"   full scene {s['full_ms_mean']:.1f} ms/frame, near field + impostors {s['impostor_ms_mean']:.1f} ms/frame "
-        f"(max {s['impostor_ms_max']:.1f}): speed-up {s['speedup_mean']:.1f}x; {s['cell_switches']} cell switches; "
-        f"hole pixels {s['hole_pixels']} (max {s['max_hole_pixels']} a frame), colour error mean {s['colour_error_mean']:.3f}, max {s['colour_error_max']}"
-    )
-    print(f"   plot: {out / 'walkthrough.png'}")
+    print(f"   {s['cell_switches']} cell switches; largest colour difference {s['colour_error_max']} (0-255); plot: {out / 'walkthrough.png'}")
+    if "before" in runs:
+        b = runs["before"]["summary"]
+        print(f"   runtime frame {b['impostor_ms_mean']:.2f} -> {s['impostor_ms_mean']:.2f} ms ({b['impostor_ms_mean'] / s['impostor_ms_mean']:.2f}x); speed-up over the full scene {b['speedup_mean']:.2f}x -> {s['speedup_mean']:.2f}x")
+        report["walkthrough_before"] = {"revision": args.before, "summary": b}
     report["walkthrough"] = {"summary": s, "bake_seconds_per_cell": bake_s / len(cells)}
+    report["walkthrough_parts"] = frame_parts(scene, Path(tmp_db.name), frames, res)
+    tmp_db.cleanup()
 
-    # 4: the trade, on the middle cell, horizontal directions.
+
+def frame_parts(scene: Scene, directory: Path, frames: int, res: int) -> dict:
+    """Mean ms per frame along the walkthrough's path (best of 5 draws a frame) of the full scene,
+    the runtime, its near field alone and its layers alone, and of one opaque quad filling a
+    frame of ``res`` pixels."""
+    times: dict[str, list] = {}
+    with ImpostorDatabase(directory / "db") as db, MeshRenderer(scene.objects) as full:
+        positions, forwards = generate_path(db, frames)
+        current, parts = None, {}
+        try:
+            for position, forward in zip(positions, forwards):
+                found = db.find(position)
+                if found is None or found.bundle is None:
+                    continue
+                if found.index != current:
+                    for renderer in parts.values():
+                        renderer.release()
+                    current, runtime = found.index, EnvmapCellRenderer(scene, db.impostor(found.index))
+                    near = [obj for obj, *_ in runtime.renderer._draws][: len(runtime.near.objects(scene))]
+                    layers = [obj for obj, *_ in runtime.renderer._draws][len(near) :]
+                    parts = {"runtime": runtime.renderer, "near field": MeshRenderer(near, [runtime.near.clip] * len(near)), "layers": MeshRenderer(layers)}
+                camera = camera_at(position, forward, runtime.impostor.fov_deg, runtime.impostor.resolution, *depth_range_for(scene, found.viewcell, position, runtime.reach))
+                for name, renderer in [("full scene", full), *parts.items()]:
+                    renderer.frame_seconds(camera)
+                    times.setdefault(name, []).append(min(renderer.frame_seconds(camera) for _ in range(5)))
+        finally:
+            for renderer in parts.values():
+                renderer.release()
+    wall = SceneObject("wall", np.array([[-1.0, -1.0, 1.0], [1.0, -1.0, 1.0], [1.0, 1.0, 1.0], [-1.0, 1.0, 1.0]]), np.array([[0, 1, 2], [0, 2, 3]]))
+    with MeshRenderer([wall]) as one:
+        camera = camera_at(np.zeros(3), [0.0, 0.0, 1.0], 60.0, res, 0.1, 10.0)
+        one.frame_seconds(camera)
+        times["one quad filling the frame"] = [min(one.frame_seconds(camera) for _ in range(30))]
+    out = {name: 1e3 * float(np.mean(v)) for name, v in times.items()}
+    print("   where the runtime's frame goes (same path, best of 5 draws a frame, mean ms):")
+    for name, ms in out.items():
+        print(f"     {name:<28} {ms:7.2f}")
+    return out
+
+
+def walk_database(directory: Path, side: int, subdiv: int, frames: int) -> dict:
+    """The walkthrough of the database in ``directory``/db along its generated path (``--walk``)."""
+    gl_context()
+    scene = detailed_city(side, subdiv)
+    with ImpostorDatabase(directory / "db") as db:
+        positions, forwards = generate_path(db, frames)
+        return walkthrough(scene, db, positions, forwards, repeats=3)
+
+
+def walk_in_process(directory: Path, side: int, subdiv: int, frames: int, revision: str | None) -> dict:
+    """:func:`walk_database` in a fresh process: with this tree's ``farfield``, or with the ``core/``
+    of git ``revision`` (extracted beside ``directory`` and put first on the import path)."""
+    env = dict(os.environ)
+    if revision is not None:
+        root = directory / f"rev-{revision}"
+        package = root / "farfield"
+        package.mkdir(parents=True, exist_ok=True)
+        archive = subprocess.run(["git", "archive", revision, "core"], check=True, capture_output=True, cwd=ROOT).stdout
+        with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
+            tar.extractall(package, filter="data")
+        (package / "__init__.py").write_text("")
+        env["PYTHONPATH"] = os.pathsep.join([str(root), env.get("PYTHONPATH", "")])
+    command = [sys.executable, str(Path(__file__).resolve()), "--walk", str(directory), str(side), str(subdiv), str(frames)]
+    result = subprocess.run(command, check=True, capture_output=True, text=True, env=env, cwd=directory)
+    return json.loads(result.stdout.strip().splitlines()[-1])
+
+
+def trade(args, scene: Scene, middle: BoxCell, info, out: Path, report: dict) -> None:
+    """4: the trade, on the middle cell, horizontal directions."""
     print("\n4. trade (middle cell, 4 directions; frame times and errors over its 8 corners and centre)")
     print(f"{'res':>5} {'layers':>6} {'near field':>10} {'quads':>6} {'macro MB':>9} {'PNG KB':>8} {'gen s':>7} {'full ms':>8} {'imp ms':>7} {'holes':>6} {'err mean':>8}")
-    trade = []
+    rows = []
     settings = [(128, 8), (128, 16)] if args.quick else [(256, 16), (256, 32), (256, 64), (512, 16), (512, 32), (512, 64)]
     for r, k in settings:
         t = time.perf_counter()
@@ -187,16 +294,14 @@ def main() -> None:
         row = {"resolution": r, "layers": k, "near_field": imp.stats["near_field"], "quads": imp.stats["quads"], "texture_bytes": imp.stats["texture_bytes"],
                "png_bytes": imp.stats["png_bytes"], "generation_s": gen, "full_ms": full_ms, "impostor_ms": fast_ms,
                "hole_pixels": ev["hole_pixels"], "colour_error_mean": ev["colour_error_mean"]}  # fmt: skip
-        trade.append(row)
+        rows.append(row)
         print(
             f"{r:>5} {k:>6} {row['near_field']:>10.1f} {row['quads']:>6} {row['texture_bytes'] / 1e6:>9.2f} {row['png_bytes'] / 1e3:>8.1f} "
             f"{gen:>7.2f} {full_ms:>8.1f} {fast_ms:>7.2f} {row['hole_pixels']:>6} {row['colour_error_mean']:>8.3f}"
         )
-    report["trade"] = trade
-    _trade_plot(trade, out / "trade.png", info.renderer)
+    report["trade"] = rows
+    _trade_plot(rows, out / "trade.png", info.renderer)
     print(f"   plot: {out / 'trade.png'}")
-    if args.json:
-        print(json.dumps(report, indent=1, default=float))
 
 
 def _trade_plot(trade: list[dict], path: Path, renderer: str) -> None:

@@ -3,7 +3,12 @@
 Seed 002 §3, runtime: for a viewpoint (1) find its view cell, (2) prefetch the neighbours' impostors,
 (3) draw the near-field geometry, (4) draw the cell's impostor quads.  Both this runtime and the
 full-scene renderer draw through the same :class:`core.render.raster.MeshRenderer` (same shader,
-same camera), so frame times and images differ only by what is drawn.  The near-field triangles
+same camera), so frame times and images differ only by what is drawn.  The runtime draws nearest
+first (:func:`nearest_first`): the near field, each object's triangles front to back but the
+objects in the scene's order (so coplanar objects resolve their depth ties as in the full scene),
+then the layers from the innermost out, so that fragments behind nearer ones fail the depth test
+before they are shaded (opaque geometry is drawn without a discard for this, see
+:class:`core.render.raster.MeshRenderer`).  The near-field triangles
 are clipped to their cube in the fragment shader, the layers were clipped to the same cube's faces
 when recorded, so nothing is drawn twice or lost at the border (:mod:`core.near_field`).
 """
@@ -11,6 +16,7 @@ when recorded, so nothing is drawn twice or lost at the border (:mod:`core.near_
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -19,7 +25,7 @@ from farfield.core.evaluation import compare_images, impostor_objects
 from farfield.core.impostor import Impostor
 from farfield.core.near_field import NearField
 from farfield.core.render.raster import Camera, MeshRenderer
-from farfield.core.scene import Scene
+from farfield.core.scene import Scene, SceneObject
 from farfield.core.viewcells import BoxCell, box_corners
 
 
@@ -27,6 +33,37 @@ def camera_at(position, forward, fov_deg: float, resolution: int, near: float, f
     """A camera at ``position`` looking along ``forward`` (any length > 0)."""
     position = np.asarray(position, dtype=np.float64)
     return Camera.look_at(position, position + np.asarray(forward, dtype=np.float64), math.radians(fov_deg), resolution, near, far)
+
+
+def nearest_first(objects: list[SceneObject], centre, keep_object_order: bool = False) -> list[SceneObject]:
+    """``objects`` with each one's triangles sorted by the distance of their centroid from
+    ``centre`` in the cube (maximum) norm, and, unless ``keep_object_order``, the objects by their
+    nearest triangle.
+
+    Seen from inside the near-field cube, a layer's quads lie at its border distance in that norm,
+    so this draws the layers innermost first and geometry roughly front to back: an order, not a
+    guarantee.  The depth test makes the image independent of the order except where two
+    triangles tie in depth (coplanar overlaps, which z-fight in any renderer): there the first
+    drawn wins, so ``keep_object_order`` keeps the scene's winner between objects.
+
+    >>> tri = lambda x: SceneObject(f"at{x}", np.array([[x, 0.0, 0.0], [x, 1.0, 0.0], [x, 0.0, 1.0]]), np.array([[0, 1, 2]]))
+    >>> two = SceneObject("two", np.array([[5.0, 0, 0], [5, 1, 0], [5, 0, 1], [2, 0, 0], [2, 1, 0], [2, 0, 1]]), np.array([[0, 1, 2], [3, 4, 5]]))
+    >>> [(o.name, o.faces.tolist()) for o in nearest_first([tri(9.0), two, tri(-3.0)], np.zeros(3))]
+    [('two', [[3, 4, 5], [0, 1, 2]]), ('at-3.0', [[0, 1, 2]]), ('at9.0', [[0, 1, 2]])]
+    >>> [o.name for o in nearest_first([tri(9.0), two, tri(-3.0)], np.zeros(3), keep_object_order=True)]
+    ['at9.0', 'two', 'at-3.0']
+    """
+    centre = np.asarray(centre, dtype=np.float64)
+    keyed = []
+    for obj in objects:
+        if obj.faces.shape[0] == 0:
+            continue
+        key = np.max(np.abs(obj.vertices[obj.faces].mean(axis=1) - centre), axis=1)
+        order = np.argsort(key, kind="stable")
+        keyed.append((float(key[order[0]]), replace(obj, faces=obj.faces[order])))
+    if not keep_object_order:
+        keyed.sort(key=lambda pair: pair[0])
+    return [obj for _, obj in keyed]
 
 
 class EnvmapCellRenderer:
@@ -37,8 +74,8 @@ class EnvmapCellRenderer:
             raise ValueError(f"an envmap runtime needs an envmap impostor, got {impostor.technique!r}")
         self.impostor = impostor
         self.near = NearField.from_dict(impostor.parameters["near_field"])
-        near_objects = self.near.objects(scene)
-        quads = impostor_objects(impostor)
+        near_objects = nearest_first(self.near.objects(scene), self.near.centre, keep_object_order=True)
+        quads = nearest_first(impostor_objects(impostor), self.near.centre)
         self.renderer = MeshRenderer(near_objects + quads, [self.near.clip] * len(near_objects) + [None] * len(quads))
         self.near_triangles = sum(obj.faces.shape[0] for obj in near_objects)
         self.quad_triangles = impostor.triangle_count  # the impostor's triangles, whatever its payload

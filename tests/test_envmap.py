@@ -17,7 +17,7 @@ from PIL import Image
 
 from farfield.cli.main import _register, cli
 from farfield.core.envmap_layers import near_field_distance
-from farfield.core.envmap_runtime import camera_at, evaluate_envmap, view_directions
+from farfield.core.envmap_runtime import EnvmapCellRenderer, camera_at, evaluate_envmap, view_directions
 from farfield.core.errors import LayerPlanError, ViewCellError
 from farfield.core.evaluation import impostor_objects
 from farfield.core.gap_fill import fill_gaps
@@ -117,6 +117,45 @@ def test_near_field_border_neither_gap_nor_double_drawn():
     assert n_clip.any() and q.any()
     assert seam <= (2 * texel_rows + 2) * 128, (seam, texel_rows)
     assert int((n_all & q).sum()) > 4 * seam, (int((n_all & q).sum()), seam)
+
+
+def test_clip_planes_cut_what_the_fragment_clip_cuts():
+    # A closed clip cube is cut by the GL's clip planes in an opaque program; a cube with an open
+    # face by discards.  Opening -x, where nothing lies, must draw the same pixels, and both must
+    # draw fewer than no clip at all.
+    scene, cell = _long_beam()
+    beam = scene.objects[0]
+    camera = camera_at([0.0, 0.9, 0.0], [1.0, -0.2, 0.3], 60.0, 128, 0.01, 2000.0)
+    clip = (np.zeros(3), 5.0)
+    with MeshRenderer([beam], [clip]) as planes, MeshRenderer([beam], [(*clip, ("-x",))]) as discards, MeshRenderer([beam]) as whole:
+        by_planes, by_discards, unclipped = (r.render(camera) for r in (planes, discards, whole))
+    assert by_planes[..., 3].any()
+    assert np.array_equal(by_planes, by_discards)
+    inside, everything = by_planes[..., 3] > 0, unclipped[..., 3] > 0
+    assert not (inside & ~everything).any() and (everything & ~inside).sum() > 1000
+
+
+def test_runtime_draws_nearest_first_and_sees_what_payload_order_sees(town, town_cell, town_impostor):
+    # The runtime sorts the near field's triangles (within each object) and the layers' quads
+    # nearest first, so the depth test rejects hidden fragments before shading; the image must be
+    # the one drawn in the stored order.
+    runtime = EnvmapCellRenderer(town, town_impostor)
+    near = runtime.near
+    objects = near.objects(town)
+    stored = objects + impostor_objects(town_impostor)
+    clips = [near.clip] * len(objects) + [None] * (len(stored) - len(objects))
+    quads = [obj for obj, *_ in runtime.renderer._draws][len(objects):]
+    for quad in quads:
+        depth = np.max(np.abs(quad.vertices[quad.faces].mean(axis=1) - near.centre), axis=1)
+        assert np.all(np.diff(depth) >= 0.0)
+    try:
+        with MeshRenderer(stored, clips) as in_stored_order:
+            for position in [town_cell.center, town_cell.lo, town_cell.hi]:
+                for forward in view_directions(town_impostor.parameters["directions"]):
+                    camera = camera_at(position, forward, 90.0, 96, 0.05, 2000.0)
+                    assert np.array_equal(runtime.renderer.render(camera), in_stored_order.render(camera))
+    finally:
+        runtime.release()
 
 
 def test_directions_subset_records_only_those_faces(town, town_cell):

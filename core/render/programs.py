@@ -1,7 +1,9 @@
 """Shader programs keyed by their shader files, cached on the process's context, and context bookkeeping.
 
 Shaders live as ``.vert`` / ``.geom`` / ``.frag`` files in ``core/render/shaders``; a line
-``#include "name.glsl"`` is replaced by that file of the same folder (one level, no guards).
+``#include "name.glsl"`` is replaced by that file of the same folder (one level, no guards), and a
+program may be built with ``defines`` (``#define NAME`` lines after ``#version``) to select a
+variant of the same files.
 """
 
 from __future__ import annotations
@@ -25,20 +27,30 @@ def context_cache(ctx: moderngl.Context) -> dict:
 _INCLUDE = re.compile(r'^#include "([\w.-]+)"\s*$', re.MULTILINE)
 
 
-def shader_source(name: str) -> str:
-    """The text of shader file ``name`` with its ``#include`` lines expanded."""
-    return _INCLUDE.sub(lambda m: (SHADERS / m.group(1)).read_text(), (SHADERS / name).read_text())
+def shader_source(name: str, defines: tuple[str, ...] = ()) -> str:
+    """The text of shader file ``name`` with its ``#include`` lines expanded and a ``#define`` line
+    for each of ``defines`` after its ``#version`` line.
+
+    >>> shader_source("mesh.frag", ("DISCARDS",)).splitlines()[:2]
+    ['#version 330', '#define DISCARDS']
+    """
+    text = _INCLUDE.sub(lambda m: (SHADERS / m.group(1)).read_text(), (SHADERS / name).read_text())
+    if defines:
+        version, _, rest = text.partition("\n")
+        text = "\n".join([version, *(f"#define {d}" for d in defines), rest])
+    return text
 
 
-def program(ctx: moderngl.Context, vertex: str, fragment: str, geometry: str | None = None) -> moderngl.Program:
-    """The program made of the named shader files (e.g. ``"mesh.vert"``), compiled once per context."""
-    key = ("program", vertex, geometry, fragment)
+def program(ctx: moderngl.Context, vertex: str, fragment: str, geometry: str | None = None, defines: tuple[str, ...] = ()) -> moderngl.Program:
+    """The program made of the named shader files (e.g. ``"mesh.vert"``) with ``defines`` (see
+    :func:`shader_source`), compiled once per context."""
+    key = ("program", vertex, geometry, fragment, tuple(defines))
     cache = context_cache(ctx)
     if key not in cache:
         cache[key] = ctx.program(
-            vertex_shader=shader_source(vertex),
-            geometry_shader=shader_source(geometry) if geometry else None,
-            fragment_shader=shader_source(fragment),
+            vertex_shader=shader_source(vertex, defines),
+            geometry_shader=shader_source(geometry, defines) if geometry else None,
+            fragment_shader=shader_source(fragment, defines),
         )
     return cache[key]
 
@@ -81,7 +93,9 @@ def set_material(prog: moderngl.Program, obj, texture: moderngl.Texture | None) 
     ``obj`` is a :class:`core.scene.SceneObject`; ``texture`` its uploaded base-colour texture.
     """
     prog["base_color"].value = tuple(float(c) for c in obj.base_color)
-    prog["alpha_cutoff"].value = float(obj.alpha_cutoff) if obj.alpha_cutoff is not None else -1.0
+    cutoff = prog.get("alpha_cutoff", None)  # absent from a variant that never discards
+    if cutoff is not None:
+        cutoff.value = float(obj.alpha_cutoff) if obj.alpha_cutoff is not None else -1.0
     prog["has_texture"].value = texture is not None
     if texture is not None:
         texture.use(0)

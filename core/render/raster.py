@@ -19,6 +19,10 @@ from farfield.core.render.context import gl_context
 from farfield.core.render.programs import park_framebuffer, program, set_material, srgb_texture
 from farfield.core.scene import SceneObject
 
+GL_CLIP_DISTANCE0 = 0x3000
+_CLIP_PLANES = tuple(GL_CLIP_DISTANCE0 + i for i in range(6))
+
+
 @dataclass(frozen=True, slots=True)
 class Camera:
     """A square perspective camera: eye (3,) float64 world; right/up/forward (3,) float64 unit.
@@ -111,25 +115,34 @@ class MeshRenderer:
     """
 
     def __init__(self, objects: list[SceneObject] | tuple[SceneObject, ...], clips=None):
-        """``clips``: per object None or ``(centre (3,), half_size[, open_faces])``: fragments
-        outside that cube are discarded, except in the face pyramids named in ``open_faces``
-        (e.g. ``("+y",)``) (the reference runtime clips near-field geometry this way)."""
+        """``clips``: per object None or ``(centre (3,), half_size[, open_faces])``: what lies
+        outside that cube is not drawn, except in the face pyramids named in ``open_faces`` (e.g.
+        ``("+y",)``) (the reference runtime clips near-field geometry this way).  A closed cube is
+        cut by the GL's clip planes; with open faces the region is not convex and the fragment
+        shader discards instead.
+
+        Objects are drawn in the order given, each with the cheapest variant of ``mesh.frag`` that
+        draws it (``DISCARDS`` only for an alpha cut or open faces), so opaque geometry listed
+        front to back is shaded about once per pixel.
+        """
         self.ctx = gl_context()
         clips = list(clips) if clips is not None else [None] * len(objects)
         ctx = self.ctx
-        self.program = program(ctx, "mesh.vert", "mesh.frag")
         self._owned: list = []
         self._draws = []
         uploaded: dict[int, moderngl.Texture] = {}  # objects sharing a texture array share its GL texture
         for obj, clip in zip(objects, clips, strict=True):
             origin = 0.5 * (obj.bounds[0] + obj.bounds[1])
+            opened = tuple(clip[2]) if clip is not None and len(clip) > 2 else ()
+            discards = obj.alpha_cutoff is not None or bool(opened)
+            prog = program(ctx, "mesh.vert", "mesh.frag", defines=("DISCARDS",) if discards else ())
             n = obj.vertices.shape[0]
             uv = obj.uv if obj.uv is not None else np.zeros((n, 2))
             colour = obj.vertex_colors / 255.0 if obj.vertex_colors is not None else np.ones((n, 4))
             data = np.concatenate([obj.vertices - origin, uv, colour], axis=1).astype("<f4")
             vbo = ctx.buffer(np.ascontiguousarray(data).tobytes())
             ibo = ctx.buffer(obj.faces.astype("<u4").tobytes())
-            vao = ctx.vertex_array(self.program, [(vbo, "3f 2f 4f", "in_position", "in_uv", "in_color")], ibo)
+            vao = ctx.vertex_array(prog, [(vbo, "3f 2f 4f", "in_position", "in_uv", "in_color")], ibo)
             # The geometry as it is: alpha tested texel by texel, no mipmaps (their averaged alpha
             # would thin an alpha-cut part with distance, a property of one viewer, not of the part).
             texture = None
@@ -140,14 +153,20 @@ class MeshRenderer:
                     self._owned.append(texture)
             self._owned += [vbo, ibo, vao]
             if clip is None:
-                clip_offset, clip_half, opened = np.zeros(3), 0.0, ()
+                clip_offset, clip_half = np.zeros(3), 0.0
             else:  # the difference in float64, so large world offsets cancel before narrowing
                 clip_offset, clip_half = origin - np.asarray(clip[0], dtype=np.float64), float(clip[1])
-                opened = tuple(clip[2]) if len(clip) > 2 else ()
-            open_pos = tuple(float(f"+{axis}" in opened) for axis in "xyz")
-            open_neg = tuple(float(f"-{axis}" in opened) for axis in "xyz")
-            clip_uniforms = (tuple(float(c) for c in clip_offset), clip_half, open_pos, open_neg)
-            self._draws.append((obj, origin, vao, texture, clip_uniforms))
+            uniforms = {
+                "clip_offset": tuple(float(c) for c in clip_offset),
+                "plane_half": 0.0 if opened else clip_half,
+            }
+            if discards:
+                uniforms |= {
+                    "clip_half": clip_half if opened else 0.0,
+                    "clip_open_pos": tuple(float(f"+{axis}" in opened) for axis in "xyz"),
+                    "clip_open_neg": tuple(float(f"-{axis}" in opened) for axis in "xyz"),
+                }
+            self._draws.append((obj, origin, prog, vao, texture, uniforms))
         self._targets: dict[int, tuple] = {}
 
     def _target(self, resolution: int):
@@ -183,23 +202,32 @@ class MeshRenderer:
 
     def _draw(self, camera: Camera):
         colour, _, fbo = self._target(camera.resolution)
-        ctx, prog = self.ctx, self.program
+        ctx = self.ctx
         fbo.use()
         ctx.viewport = (0, 0, camera.resolution, camera.resolution)
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
         t = math.tan(0.5 * camera.fov)
-        prog["half_tan"].value = (t, t)
-        prog["depth_range"].value = (camera.near, camera.far)
-        for obj, origin, vao, texture, (clip_offset, clip_half, open_pos, open_neg) in self._draws:
-            prog["eye_from_local"].write(camera.eye_matrix(origin).tobytes())
-            prog["clip_offset"].value = clip_offset
-            prog["clip_half"].value = clip_half
-            prog["clip_open_pos"].value = open_pos
-            prog["clip_open_neg"].value = open_neg
-            set_material(prog, obj, texture)
-            vao.render(moderngl.TRIANGLES)
+        framed: set[int] = set()  # the programs given this camera (draws may come from other renderers)
+        # mesh.vert writes all six clip distances; other programs of the context write none, so
+        # the planes are on only while these draws run.
+        for plane in _CLIP_PLANES:
+            ctx.enable_direct(plane)
+        try:
+            for obj, origin, prog, vao, texture, uniforms in self._draws:
+                if id(prog) not in framed:
+                    framed.add(id(prog))
+                    prog["half_tan"].value = (t, t)
+                    prog["depth_range"].value = (camera.near, camera.far)
+                prog["eye_from_local"].write(camera.eye_matrix(origin).tobytes())
+                for name, value in uniforms.items():
+                    prog[name].value = value
+                set_material(prog, obj, texture)
+                vao.render(moderngl.TRIANGLES)
+        finally:
+            for plane in _CLIP_PLANES:
+                ctx.disable_direct(plane)
         return colour
 
     def release(self) -> None:
