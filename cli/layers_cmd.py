@@ -1,4 +1,5 @@
-"""``farfield layers``: print the layer arrangement for a part seen from a view cell, or around an environment-map cell."""
+"""``farfield layers``: print the layer arrangement for a part seen from a view cell, or around an
+environment-map cell, or the sampling geometry of a point-based impostor."""
 
 from __future__ import annotations
 
@@ -11,7 +12,8 @@ from farfield.core.envmap_layers import envmap_plan, layers_for_near_field
 from farfield.core.errors import LayerPlanError
 from farfield.core.layers import plan_layers
 from farfield.core.pixel_angles import PIXEL_MODELS, pixel_angle
-from farfield.core.viewcells import parse_viewcell
+from farfield.core.point_sampling import plan_point_sampling
+from farfield.core.viewcells import BoxCell, parse_viewcell
 
 
 def _parse_bounds(text: str):
@@ -40,6 +42,20 @@ def layers() -> None:
     """Layer distances, borders (depth ranges) and near field of the two layer arrangements."""
 
 
+def _part_bounds(scene, objects, bounds):
+    """The part's (2, 3) bounds: of SCENE (or its ``objects``), or parsed from ``bounds``."""
+    if (scene is None) == (bounds is None):
+        raise LayerPlanError("give either a SCENE or --bounds (not both)")
+    if scene is None:
+        return _parse_bounds(bounds)
+    from farfield.core.exchange import load_scene
+
+    loaded = load_scene(scene)
+    if objects:
+        loaded = loaded.subset([name.strip() for name in objects.split(",") if name.strip()])
+    return loaded.bounds
+
+
 @layers.command("part")
 @click.argument("scene", required=False, type=click.Path(dir_okay=False))
 @click.option("--viewcell", required=True, help="box:x0,y0,z0,x1,y1,z1 | box-center:cx,cy,cz,size | shaft:ax,ay,az,dx,dy,dz,apex_deg,min_dist[,max_dist]")
@@ -54,17 +70,7 @@ def layers() -> None:
 def part(scene, viewcell, objects, bounds, resolution, fov, pixel_model, reference_offset, as_json) -> None:
     """Layers of a layered impostor for a scene part seen from a view cell (seed 000 §3.3.1)."""
     cell = parse_viewcell(viewcell)
-    if (scene is None) == (bounds is None):
-        raise LayerPlanError("give either a SCENE or --bounds (not both)")
-    if scene is not None:
-        from farfield.core.exchange import load_scene
-
-        loaded = load_scene(scene)
-        if objects:
-            loaded = loaded.subset([name.strip() for name in objects.split(",") if name.strip()])
-        part_bounds = loaded.bounds
-    else:
-        part_bounds = _parse_bounds(bounds)
+    part_bounds = _part_bounds(scene, objects, bounds)
     plan = plan_layers(cell, part_bounds, math.radians(fov), resolution, pixel_model, reference_offset)
     data = plan.to_dict()
     data["viewcell"] = cell.to_dict()
@@ -78,6 +84,37 @@ def part(scene, viewcell, objects, bounds, resolution, fov, pixel_model, referen
     ]
     for i, (t, (a, b)) in enumerate(zip(data["distances"], data["depth_ranges"])):
         lines.append(f"{i:>5} {t:>14.6f} {a:>14.6f} .. {b:<14.6f}")
+    _emit(data, as_json, lines)
+
+
+@layers.command("points")
+@click.argument("scene", required=False, type=click.Path(dir_okay=False))
+@click.option("--viewcell", required=True, help="box:x0,y0,z0,x1,y1,z1 | box-center:cx,cy,cz,size")
+@click.option("--objects", default=None, help="Comma-separated object names of SCENE forming the part (default: all).")
+@click.option("--bounds", default=None, help="Part bounds x0,y0,z0,x1,y1,z1 instead of a SCENE.")
+@click.option("--resolution", default=512, show_default=True, type=int, help="Output image pixels per side.")
+@click.option("--fov", default=45.0, show_default=True, type=float, help="Output field of view, degrees.")
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+def points(scene, viewcell, objects, bounds, resolution, fov, as_json) -> None:
+    """Sampling plane, LDI cameras and their resolution of a point-based impostor (seed 001 §5.1)."""
+    cell = parse_viewcell(viewcell)
+    if not isinstance(cell, BoxCell):
+        raise LayerPlanError("a point-based impostor's sampling is planned for a box view cell (box: or box-center:)")
+    part_bounds = _part_bounds(scene, objects, bounds)
+    sampling = plan_point_sampling(cell, part_bounds, fov, resolution)
+    data = sampling.to_dict()
+    data["viewcell"] = cell.to_dict()
+    data["part_bounds"] = [list(map(float, row)) for row in part_bounds]
+    f = sampling.factors
+    lines = [
+        f"sampling plane: normal {[round(x, 6) for x in sampling.normal.tolist()]}, offset {sampling.offset:.6g}; the part lies {sampling.depth:.6g} beyond it",
+        f"polygon: {len(sampling.polygon)} vertices; triangle perimeter {data['perimeter']:.6g}; farthest from a camera: {sampling.reach:.6g} (boundary {sampling.boundary_reach:.6g})",
+        f"factors: movement {f['movement']:.4g} x perspective {f['perspective']:.4g} x diagonal {f['diagonal']:.4g}",
+        f"{'camera':>6} {'position':>40} {'window (tangents)':>22} {'LDI pixels':>10}",
+    ]
+    for i, c in enumerate(sampling.cameras):
+        position = ", ".join(f"{x:.6g}" for x in c.position)
+        lines.append(f"{i:>6} {position:>40} {2.0 * c.half_size:>22.6g} {c.resolution:>7}^2")
     _emit(data, as_json, lines)
 
 

@@ -60,6 +60,25 @@ def test_part_on_shared_scenes(scene):
     assert np.allclose(data["part_bounds"], inspect["bounds"])
 
 
+def test_points_on_a_shared_scene_json():
+    path = SHARED_SCENES / "scrub_pine/scrubPine.obj"
+    if not path.exists():
+        pytest.skip(f"{path} not present (shared/scenes is beside the checkout in CI)")
+    # A 200-unit cell 2,000 units in front of the 700-unit pine.
+    out = farfield("layers", "points", str(path), "--viewcell", "box-center:0,450,2500,200", "--resolution", "512", "--json")
+    assert out.returncode == 0, out.stderr
+    data = json.loads(out.stdout)
+    assert len(data["cameras"]) == 3 and len(data["polygon"]) >= 3
+    normal = np.array(data["plane"]["normal"])
+    assert normal[2] < -0.99  # from the cell (z = 2500) towards the pine (z about 0)
+    for camera in data["cameras"]:
+        assert np.dot(camera["position"], normal) == pytest.approx(data["plane"]["offset"])
+        assert 64 < camera["resolution"] < 4096
+    assert data["factors"]["movement"] > 1.0 and data["factors"]["perspective"] == pytest.approx(1.3431, abs=1e-4)
+    text = farfield("layers", "points", str(path), "--viewcell", "box-center:0,450,2500,200")
+    assert text.returncode == 0 and "LDI pixels" in text.stdout
+
+
 @pytest.mark.parametrize(
     ("args", "needle"),
     [
@@ -71,6 +90,8 @@ def test_part_on_shared_scenes(scene):
         (["layers", "envmap", "--cell-size", "10", "--layers", "4", "--alpha", "0"], "alpha"),
         (["layers", "envmap", "--cell-size", "10", "--near-field", "3"], "outside the view cell"),
         (["layers", "envmap", "--cell-size", "10"], "--layers or --near-field"),
+        (["layers", "points", "--bounds", "0,0,0,1,1,1", "--viewcell", "box-center:0,0,0,1"], "reaches the view cell"),
+        (["layers", "points", "--bounds", "5,0,0,6,1,1", "--viewcell", "shaft:0,0,0,1,0,0,30,1"], "box view cell"),
     ],
 )
 def test_bad_configurations_print_one_line_and_exit_non_zero(args, needle):
