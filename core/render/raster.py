@@ -98,6 +98,32 @@ class Camera:
         return np.stack([x, y], axis=1)
 
 
+def upload(ctx: moderngl.Context, prog: moderngl.Program, obj: SceneObject, origin: np.ndarray, textures: dict, owned: list):
+    """(vertex array, texture or None) of ``obj`` for ``prog`` (attributes ``in_position`` relative
+    to ``origin``, ``in_uv``, ``in_color``), its base-colour texture shared through ``textures``
+    (id of the array -> GL texture) by objects that share the array; every GL object made is
+    appended to ``owned``.
+
+    The geometry as it is: alpha tested texel by texel, no mipmaps (their averaged alpha would thin
+    an alpha-cut part with distance, a property of one viewer, not of the part).
+    """
+    n = obj.vertices.shape[0]
+    uv = obj.uv if obj.uv is not None else np.zeros((n, 2))
+    colour = obj.vertex_colors / 255.0 if obj.vertex_colors is not None else np.ones((n, 4))
+    data = np.concatenate([obj.vertices - origin, uv, colour], axis=1).astype("<f4")
+    vbo = ctx.buffer(np.ascontiguousarray(data).tobytes())
+    ibo = ctx.buffer(obj.faces.astype("<u4").tobytes())
+    vao = ctx.vertex_array(prog, [(vbo, "3f 2f 4f", "in_position", "in_uv", "in_color")], ibo)
+    owned += [vbo, ibo, vao]
+    texture = None
+    if obj.texture is not None:
+        texture = textures.get(id(obj.texture))
+        if texture is None:
+            texture = textures[id(obj.texture)] = srgb_texture(ctx, obj.texture)
+            owned.append(texture)
+    return vao, texture
+
+
 def depth_bounds(eye: np.ndarray, forward: np.ndarray, points: np.ndarray) -> tuple[float, float]:
     """A (near, far) pair enclosing ``points`` (n, 3) in front of the camera, with margins."""
     z = (np.asarray(points, dtype=np.float64) - eye) @ forward
@@ -136,22 +162,7 @@ class MeshRenderer:
             opened = tuple(clip[2]) if clip is not None and len(clip) > 2 else ()
             discards = obj.alpha_cutoff is not None or bool(opened)
             prog = program(ctx, "mesh.vert", "mesh.frag", defines=("DISCARDS",) if discards else ())
-            n = obj.vertices.shape[0]
-            uv = obj.uv if obj.uv is not None else np.zeros((n, 2))
-            colour = obj.vertex_colors / 255.0 if obj.vertex_colors is not None else np.ones((n, 4))
-            data = np.concatenate([obj.vertices - origin, uv, colour], axis=1).astype("<f4")
-            vbo = ctx.buffer(np.ascontiguousarray(data).tobytes())
-            ibo = ctx.buffer(obj.faces.astype("<u4").tobytes())
-            vao = ctx.vertex_array(prog, [(vbo, "3f 2f 4f", "in_position", "in_uv", "in_color")], ibo)
-            # The geometry as it is: alpha tested texel by texel, no mipmaps (their averaged alpha
-            # would thin an alpha-cut part with distance, a property of one viewer, not of the part).
-            texture = None
-            if obj.texture is not None:
-                texture = uploaded.get(id(obj.texture))
-                if texture is None:
-                    texture = uploaded[id(obj.texture)] = srgb_texture(ctx, obj.texture)
-                    self._owned.append(texture)
-            self._owned += [vbo, ibo, vao]
+            vao, texture = upload(ctx, prog, obj, origin, uploaded, self._owned)
             if clip is None:
                 clip_offset, clip_half = np.zeros(3), 0.0
             else:  # the difference in float64, so large world offsets cancel before narrowing

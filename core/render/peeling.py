@@ -1,0 +1,94 @@
+"""Depth peeling on the GL: every surface a camera's pixel-centre rays meet, nearest first.
+
+Pass k draws the objects with the depth test on and discards every fragment not strictly behind
+pass k-1's surface at its pixel (``peel.frag``), so it keeps the k-th surface along each ray.  Back
+faces count (no culling); alpha-cut texels do not (glTF's MASK rule).  Passes stop when one
+draws nothing.  Surfaces closer than the depth buffer's 24-bit resolution of [near, far] at a
+pixel merge into one: give a tight depth range.
+"""
+
+from __future__ import annotations
+
+import math
+
+import moderngl
+import numpy as np
+
+from farfield.core.errors import LayerPlanError, RenderBackendError
+from farfield.core.render.context import gl_context
+from farfield.core.render.programs import park_framebuffer, program
+from farfield.core.render.raster import Camera, upload
+from farfield.core.scene import SceneObject
+
+
+def peel(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, max_layers: int = 256) -> np.ndarray:
+    """(layers, h, w, 3) float64 hits of ``camera``'s rays, nearest first, rows top first:
+    (eye depth along the camera's forward axis, object index, primitive index), NaN / -1 / -1
+    where a ray has fewer surfaces.  More than ``max_layers`` surfaces on one ray is an error."""
+    ctx = gl_context()
+    prog = program(ctx, "peel.vert", "peel.frag")
+    owned: list = []
+    textures: dict = {}
+    size = (camera.resolution, camera.resolution)
+    layers = []
+    try:
+        draws = []
+        for index, obj in enumerate(objects):
+            origin = 0.5 * (obj.bounds[0] + obj.bounds[1])
+            vao, texture = upload(ctx, prog, obj, origin, textures, owned)
+            draws.append((index, obj, origin, vao, texture))
+        hits = [ctx.texture(size, 4, dtype="f4") for _ in range(2)]
+        depth = ctx.depth_texture(size)
+        owned += [*hits, depth]
+        for texture in hits:
+            texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        framebuffers = [ctx.framebuffer([h], depth) for h in hits]
+        owned += framebuffers
+        hits[1].write(np.full(size + (4,), -1.0, dtype="f4").tobytes())  # "previous" of the first pass
+        t = math.tan(0.5 * camera.fov)
+        prog["half_tan"].value = (t, t)
+        prog["depth_range"].value = (camera.near, camera.far)
+        prog["previous"].value = 1
+        ctx.enable(moderngl.DEPTH_TEST)
+        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+        current = 0
+        while True:
+            previous = 1 - current
+            framebuffers[current].use()
+            ctx.viewport = (0, 0, *size)
+            # A ray without a surface in this pass has none behind either: r = 2 (beyond any
+            # window depth) stops it in the next pass.
+            framebuffers[current].clear(2.0, 0.0, 0.0, 0.0, depth=1.0)
+            hits[previous].use(1)
+            for index, obj, origin, vao, texture in draws:
+                prog["eye_from_local"].write(camera.eye_matrix(origin).tobytes())
+                prog["object_index"].value = float(index)
+                prog["base_color"].value = tuple(float(c) for c in obj.base_color)
+                prog["alpha_cutoff"].value = float(obj.alpha_cutoff) if obj.alpha_cutoff is not None else -1.0
+                prog["has_texture"].value = texture is not None
+                if texture is not None:
+                    texture.use(0)
+                    prog["base_texture"].value = 0
+                vao.render(moderngl.TRIANGLES)
+            layer = np.frombuffer(hits[current].read(), dtype="f4").reshape(size[1], size[0], 4)[::-1]
+            error = ctx.error
+            if error != "GL_NO_ERROR":
+                raise RenderBackendError(f"OpenGL error while peeling depth layers: {error}")
+            drawn = layer[..., 3] > 0.0
+            if not drawn.any():
+                break
+            if len(layers) == max_layers:
+                raise LayerPlanError(f"more than {max_layers} surfaces along one ray of a {size[0]}-pixel layered depth image (raise max_layers)")
+            out = np.full(layer.shape[:2] + (3,), -1.0)
+            out[..., 0] = np.where(drawn, layer[..., 1], np.nan)
+            out[..., 1] = np.where(drawn, layer[..., 2], -1.0)
+            out[..., 2] = np.where(drawn, layer[..., 3] - 1.0, -1.0)
+            layers.append(out)
+            current = previous
+    finally:
+        park_framebuffer(ctx)
+        for resource in owned:
+            resource.release()
+    if not layers:
+        return np.zeros((0, size[1], size[0], 3))
+    return np.stack(layers)

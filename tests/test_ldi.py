@@ -1,0 +1,93 @@
+"""Layered depth images by depth peeling on EGL (core/ldi.py, core/render/peeling.py): every surface
+along every pixel ray, checked against the geometry the rays were cast at."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import trimesh
+
+from farfield.core.errors import LayerPlanError
+from farfield.core.ldi import record_ldi
+from farfield.core.point_sampling import plan_point_sampling
+from farfield.core.render.raster import Camera
+from farfield.core.scene import SceneObject
+from farfield.core.viewcells import BoxCell
+
+
+def _quad(name: str, z: float, half: float = 1.0, **kwargs) -> SceneObject:
+    vertices = np.array([[-half, -half, z], [half, -half, z], [half, half, z], [-half, half, z]])
+    uv = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    return SceneObject(name, vertices, np.array([[0, 1, 2], [0, 2, 3]]), uv=uv, **kwargs)
+
+
+def _camera(resolution: int = 48, near: float = 0.5, far: float = 20.0) -> Camera:
+    return Camera.look_at(np.zeros(3), np.array([0.0, 0.0, 1.0]), math.radians(50.0), resolution, near, far)
+
+
+def test_a_stack_of_planes_gives_one_layer_per_plane_nearest_first():
+    planes = [_quad(f"q{z}", float(z), half=50.0) for z in (7, 3, 9, 5, 4)]  # drawn out of order
+    ldi = record_ldi(planes, _camera())
+    assert ldi.layers == 5 and ldi.count == 5 * 48 * 48
+    assert np.allclose(ldi.depth[:, 24, 24], [3.0, 4.0, 5.0, 7.0, 9.0], rtol=1e-6)
+    assert [int(np.unique(ldi.obj[k])[0]) for k in range(5)] == [1, 4, 3, 0, 2]
+    positions, index = ldi.samples()
+    assert np.allclose(positions[:, 2], ldi.depth[index[:, 0], index[:, 1], index[:, 2]], rtol=1e-6)
+    # Every sample lies on its pixel's centre ray.
+    assert np.abs(ldi.camera.project(positions) - (index[:, [2, 1]] + 0.5)).max() < 1e-3
+    with pytest.raises(LayerPlanError, match="more than 3 surfaces"):
+        record_ldi(planes, _camera(), max_layers=3)
+
+
+def test_back_faces_count_so_a_closed_mesh_gives_two_hits_a_ray():
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=2.0)
+    obj = SceneObject("ball", np.asarray(sphere.vertices) + [0.3, -0.2, 8.0], np.asarray(sphere.faces))
+    ldi = record_ldi([obj], _camera(64, 5.0, 11.0))
+    hits = np.isfinite(ldi.depth).sum(axis=0)
+    assert ldi.layers == 2 and hits.max() == 2
+    assert (hits == 2).sum() > 0.2 * 64 * 64 and (hits == 1).sum() <= 0.02 * (hits > 0).sum()  # grazing rays only
+    positions, index = ldi.samples()
+    # Each sample lies on the triangle it names: in its plane and inside it.
+    faces = obj.faces[ldi.triangle[index[:, 0], index[:, 1], index[:, 2]]]
+    a, b, c = (obj.vertices[faces[:, k]] for k in range(3))
+    normal = np.cross(b - a, c - a)
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    assert np.abs(np.einsum("ij,ij->i", positions - a, normal)).max() < 1e-4
+    barycentric = trimesh.triangles.points_to_barycentric(np.stack([a, b, c], axis=1), positions)
+    assert barycentric.min() > -1e-3
+
+
+def test_alpha_cut_texels_are_not_surfaces():
+    texture = np.zeros((8, 8, 4), dtype=np.uint8)
+    texture[..., :3] = 200
+    texture[..., 3] = np.where((np.arange(8)[:, None] // 2 + np.arange(8)[None, :] // 2) % 2 == 0, 255, 0)  # 2x2-texel checker
+    screen = _quad("screen", 4.0, half=1.0, texture=texture, alpha_cutoff=0.5)
+    wall = _quad("wall", 6.0, half=50.0)
+    ldi = record_ldi([screen, wall], _camera(96))
+    positions, index = ldi.samples()
+    on_screen = ldi.obj[index[:, 0], index[:, 1], index[:, 2]] == 0
+    # Texel of each screen sample (u right, v up; the texture's first row is the top, v = 1).
+    u = (positions[on_screen, 0] + 1.0) / 2.0
+    v = (positions[on_screen, 1] + 1.0) / 2.0
+    column, row = np.floor(u * 8).astype(int).clip(0, 7), np.floor((1.0 - v) * 8).astype(int).clip(0, 7)
+    texel_u, texel_v = (u * 8) % 1.0, ((1.0 - v) * 8) % 1.0
+    inner = (np.abs(texel_u - 0.5) < 0.3) & (np.abs(texel_v - 0.5) < 0.3)  # away from bilinear blending
+    assert on_screen.sum() > 100 and np.all(texture[row[inner], column[inner], 3] == 255)
+    # Behind transparent texels the wall is the first surface; behind opaque ones the second.
+    inside = (np.abs(positions[:, 0]) < 0.99) & (np.abs(positions[:, 1]) < 0.99) & ~on_screen
+    first = index[inside, 0] == 0
+    assert 0.35 < first.mean() < 0.65
+
+
+def test_ldi_cameras_of_a_point_impostor_see_the_part_in_their_window():
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=1.5)
+    obj = SceneObject("part", np.asarray(sphere.vertices) + [0.5, 1.0, 9.0], np.asarray(sphere.faces))
+    sampling = plan_point_sampling(BoxCell.from_center([0.0, 0.0, 0.0], 1.0), obj.bounds, 45.0, 64)
+    for camera in sampling.cameras:
+        ldi = record_ldi([obj], camera.camera())
+        positions, index = ldi.samples()
+        assert ldi.count > 0.3 * camera.resolution**2  # the off-axis window is filled by the sphere
+        assert np.abs(np.linalg.norm(positions - [0.5, 1.0, 9.0], axis=1) - 1.5).max() < 0.05  # on the sphere
+        assert np.abs(ldi.camera.project(positions) - (index[:, [2, 1]] + 0.5)).max() < 1e-3
