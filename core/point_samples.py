@@ -2,7 +2,8 @@
 
 Seed 001 §4.2 and §5.1.  Every surface hit along every ray of the three LDI cameras of
 :mod:`core.point_sampling` is a candidate point (:func:`core.ldi.record_ldi`: all depth layers,
-back faces kept, alpha-cut texels skipped).  Three cameras sample most surfaces two or three times,
+back faces kept, alpha-cut texels skipped; conservative, so geometry thinner than an LDI pixel
+leaves a sample in every pixel it touches).  Three cameras sample most surfaces two or three times,
 so §5.1 removes a point "if [it] lies in a region which is sampled better and sufficiently by
 another camera", where a camera samples a region sufficiently when "a triangulation of the
 sampling pattern from this camera in a small neighbourhood contains no edge which projects to more
@@ -21,7 +22,9 @@ than a pixel in any view".  Here, for a sample ``s`` of one LDI:
   :func:`core.point_sampling.corner_perspective_factor`);
 - ``s`` is **redundant** when another camera's sample at the same place (``s`` projected into that
   LDI's pixel, the layer within the continuity tolerance of ``s``'s depth there) has a sufficient
-  spacing smaller than ``s``'s (ties: the lower camera index keeps its point).
+  spacing smaller than ``s``'s (ties: the lower camera index keeps its point);
+- a sample of a pixel its surface only touches (the conservative LDI's extra samples, for
+  geometry thinner than a pixel) is always kept and never stands for another.
 """
 
 from __future__ import annotations
@@ -66,8 +69,7 @@ def ldi_spacing(ldi: LayeredDepthImage, cell: BoxCell) -> np.ndarray:
     depth = ldi.depth
     centre = cell.center
     radius = 0.5 * float(np.linalg.norm(cell.size))
-    rays = ldi.directions()  # (h, w, 3) at eye depth 1
-    positions = ldi.camera.eye + depth[..., None] * rays[None]  # (L, h, w, 3)
+    positions = ldi.sample_positions()  # (L, h, w, 3)
     pixel = 2.0 * math.tan(0.5 * ldi.camera.fov) / ldi.camera.resolution  # image tangents per pixel
     spacing = np.zeros(depth.shape)
     for dr, dc in _NEIGHBOURS:
@@ -91,6 +93,8 @@ def ldi_spacing(ldi: LayeredDepthImage, cell: BoxCell) -> np.ndarray:
             theta = np.arccos(np.clip(cos_theta, 0.0, 1.0))
             across = length * np.minimum(1.0, np.sin(np.minimum(theta + gamma, 0.5 * math.pi)))
             spacing[layer] = np.maximum(spacing[layer], np.where(same, across, np.inf))
+    if ldi.touched is not None:  # off their rays: no pattern to judge by, and kept (module docstring)
+        spacing = np.where(ldi.touched, np.inf, spacing)
     return np.where(np.isfinite(depth), spacing, np.nan)
 
 
@@ -157,7 +161,7 @@ def gather_point_samples(objects: list[SceneObject] | tuple[SceneObject, ...], s
     ``fov_deg`` and ``resolution`` are the output camera's, as planned."""  # fmt: skip
     fov = math.radians(float(fov_deg))
     beta = 2.0 * math.tan(0.5 * fov) / int(resolution) / corner_perspective_factor(fov)  # smallest pixel angle
-    ldis = tuple(record_ldi(objects, camera.camera(), max_layers) for camera in sampling.cameras)
+    ldis = tuple(record_ldi(objects, camera.camera(), max_layers, conservative=True) for camera in sampling.cameras)
     spacings = [ldi_spacing(ldi, cell) for ldi in ldis]
     parts = []
     for k, (ldi, spacing) in enumerate(zip(ldis, spacings)):
@@ -175,6 +179,9 @@ def gather_point_samples(objects: list[SceneObject] | tuple[SceneObject, ...], s
             other = _lookup(ldi, spacing, positions)
             better = (other < s) | ((other == s) & (j < k))
             redundant |= (other <= allowed) & better
+        touched = ldis[k].touched
+        if touched is not None:  # a touched-pixel sample stays (module docstring)
+            redundant &= ~touched[index[:, 0], index[:, 1], index[:, 2]]
         kept_parts.append(~redundant)
     ldi_of = np.concatenate([np.full(p[1].shape[0], p[0], dtype=np.int64) for p in parts])
     index = np.concatenate([p[2] for p in parts])

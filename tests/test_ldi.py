@@ -91,3 +91,28 @@ def test_ldi_cameras_of_a_point_impostor_see_the_part_in_their_window():
         assert ldi.count > 0.3 * camera.resolution**2  # the off-axis window is filled by the sphere
         assert np.abs(np.linalg.norm(positions - [0.5, 1.0, 9.0], axis=1) - 1.5).max() < 0.05  # on the sphere
         assert np.abs(ldi.camera.project(positions) - (index[:, [2, 1]] + 0.5)).max() < 1e-3
+
+
+def test_a_conservative_ldi_samples_geometry_thinner_than_a_pixel_in_every_pixel_it_crosses():
+    # A sliver a fifth of a pixel wide, between two pixel centres: no centre ray meets it.
+    camera = _camera(64, 1.0, 10.0)
+    pixel = 2.0 * math.tan(0.5 * camera.fov) / 64 * 5.0  # one pixel's width at depth 5
+    x0 = 0.6 * pixel
+    sliver = SceneObject("sliver", np.array([[x0, -1.0, 5.0], [x0 + 0.2 * pixel, -1.0, 5.0], [x0 + 0.2 * pixel, 1.0, 5.0], [x0, 1.0, 5.0]]), np.array([[0, 1, 2], [0, 2, 3]]))
+    wall = _quad("wall", 8.0, half=50.0)
+    plain = record_ldi([sliver, wall], camera)
+    assert not (plain.obj == 0).any()  # missed by every centre ray
+    ldi = record_ldi([sliver, wall], camera, conservative=True)
+    on_sliver = (ldi.obj == 0) & np.isfinite(ldi.depth)
+    rows = np.unique(np.argwhere(on_sliver)[:, 1])
+    expected = np.flatnonzero(np.any(np.abs(camera.project(np.array([[x0, y, 5.0] for y in np.linspace(-1.0, 1.0, 2001)]))[:, 1][:, None] - (np.arange(64) + 0.5)[None, :]) <= 0.5, axis=0))
+    assert set(expected.tolist()) <= set(rows.tolist())  # every row the sliver crosses has a sample
+    assert on_sliver.sum() <= 2 * len(rows)  # one surface, one sample a pixel (its two triangles merged)
+    positions, index = ldi.samples()
+    mine = ldi.obj[index[:, 0], index[:, 1], index[:, 2]] == 0
+    assert np.allclose(positions[mine, 2], 5.0) and np.all((positions[mine, 0] >= x0 - 1e-9) & (positions[mine, 0] <= x0 + 0.2 * pixel + 1e-9))
+    # Within its pixel's square, on the sliver's edge nearest the pixel centre.
+    pixels = camera.project(positions[mine]) - index[mine][:, [2, 1]]
+    assert np.all((pixels >= -1e-6) & (pixels <= 1.0 + 1e-6))
+    # The wall behind keeps its centre samples; nothing else is added on it.
+    assert (ldi.obj == 1).sum() == (plain.obj == 1).sum()

