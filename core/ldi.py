@@ -41,6 +41,7 @@ class LayeredDepthImage:
     triangle: np.ndarray
     positions: np.ndarray | None = None  # (layers, h, w, 3) world, where samples leave their centre ray
     touched: np.ndarray | None = None  # (layers, h, w) bool: a touched-pixel sample (conservative LDIs)
+    colour: np.ndarray | None = None  # (layers, h, w, 4) uint8 sRGB: the surface's colour at the sample
 
     @property
     def layers(self) -> int:
@@ -80,25 +81,27 @@ def record_ldi(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Cam
     """The layered depth image of ``objects`` from ``camera`` (see :mod:`core.render.peeling` for the
     rules: back faces count, alpha-cut texels do not; give a tight depth range); ``conservative``
     adds the samples of touched pixels (module docstring)."""  # fmt: skip
-    hits = peel(objects, camera, max_layers)
+    hits, colours = peel(objects, camera, max_layers)
     if not conservative:
-        return LayeredDepthImage(camera, hits[..., 0], hits[..., 1].astype(np.int64), hits[..., 2].astype(np.int64))
+        return LayeredDepthImage(camera, hits[..., 0], hits[..., 1].astype(np.int64), hits[..., 2].astype(np.int64), colour=colours)
     pixel = 2.0 * math.tan(0.5 * camera.fov) / camera.resolution
-    touched = peel(objects, camera, max_layers, touching=True, centre=hits[..., 0], same_surface=SAME_SURFACE * pixel)
-    return _merge(camera, hits, touched, objects)
+    touched, touched_colours = peel(objects, camera, max_layers, touching=True, centre=hits[..., 0], same_surface=SAME_SURFACE * pixel)
+    return _merge(camera, (hits, colours), (touched, touched_colours), objects)
 
 
-def _merge(camera: Camera, centre: np.ndarray, touched: np.ndarray, objects) -> LayeredDepthImage:
+def _merge(camera: Camera, centre: tuple, touched: tuple, objects) -> LayeredDepthImage:
     """Centre-ray hits plus the touched-pixel hits that are no other sample's surface, sorted by
     depth per pixel.  A touched sample's position is recomputed in float64 from its triangle: the
     point of the triangle nearest the pixel's centre ray."""
+    (centre, centre_colours), (touched, touched_colours) = centre, touched
     n = camera.resolution
     pixel = 2.0 * math.tan(0.5 * camera.fov) / n
     plain = LayeredDepthImage(camera, centre[..., 0], centre[..., 1].astype(np.int64), centre[..., 2].astype(np.int64))
     positions = [plain.sample_positions()]
     depth, obj, tri, kind = [plain.depth], [plain.obj], [plain.triangle], [np.zeros(plain.depth.shape, dtype=bool)]
+    shade = [centre_colours]
     kept_depth = plain.depth
-    for layer in touched:  # nearest first: a touched sample is kept if no kept sample is near it in depth
+    for layer, layer_colour in zip(touched, touched_colours):  # nearest first: kept if no kept sample is near it in depth
         d = layer[..., 0]
         tolerance = SAME_SURFACE * pixel * d
         if kept_depth.shape[0]:
@@ -115,6 +118,7 @@ def _merge(camera: Camera, centre: np.ndarray, touched: np.ndarray, objects) -> 
         obj.append(o[None])
         tri.append(t[None])
         kind.append(keep[None])
+        shade.append(np.where(keep[..., None], layer_colour, 0).astype(np.uint8)[None])
         positions.append(_touch_positions(camera, d, o, t, objects)[None])
         kept_depth = np.concatenate([kept_depth, d[None]])
     depth = np.concatenate(depth)
@@ -123,8 +127,9 @@ def _merge(camera: Camera, centre: np.ndarray, touched: np.ndarray, objects) -> 
     take = lambda a: np.take_along_axis(a, order, axis=0)  # noqa: E731
     depth, obj, tri, kind = take(depth), take(np.concatenate(obj)), take(np.concatenate(tri)), take(np.concatenate(kind))
     positions = np.take_along_axis(positions, order[..., None], axis=0)
+    colour = np.take_along_axis(np.concatenate(shade), order[..., None], axis=0)
     filled = np.isfinite(depth).any(axis=(1, 2))
-    return LayeredDepthImage(camera, depth[filled], obj[filled], tri[filled], positions[filled], kind[filled])
+    return LayeredDepthImage(camera, depth[filled], obj[filled], tri[filled], positions[filled], kind[filled], colour[filled])
 
 
 def _touch_positions(camera: Camera, depth: np.ndarray, obj: np.ndarray, tri: np.ndarray, objects) -> np.ndarray:

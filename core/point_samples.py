@@ -105,7 +105,8 @@ class PointSamples:
     ``positions`` (n, 3) float64 world; ``camera`` (n,) int64 LDI index; ``index`` (n, 3) int64
     (layer, row, column) in that LDI; ``obj``, ``triangle`` (n,) int64 the surface hit; ``spacing``
     (n,) float64 (module docstring; inf at a discontinuity); ``sufficient`` (n,) bool; ``kept`` (n,)
-    bool: not redundant."""
+    bool: not redundant; ``colour`` (n, 4) uint8 sRGB: the surface's colour at the sample, as the
+    mesh shader draws it (seed 001 §5.3's one-colour preview, before §5.2's appearance)."""
 
     positions: np.ndarray
     camera: np.ndarray
@@ -115,6 +116,7 @@ class PointSamples:
     spacing: np.ndarray
     sufficient: np.ndarray
     kept: np.ndarray
+    colour: np.ndarray
     ldis: tuple[LayeredDepthImage, ...] = field(repr=False)
 
     @property
@@ -189,4 +191,5 @@ def gather_point_samples(objects: list[SceneObject] | tuple[SceneObject, ...], s
     triangle = np.concatenate([ldis[k].triangle[i[:, 0], i[:, 1], i[:, 2]] for k, _, i, _, _ in parts])
     spacing = np.concatenate([p[3] for p in parts])
     sufficient = np.concatenate([p[3] <= p[4] for p in parts])
-    return PointSamples(np.concatenate([p[1] for p in parts]), ldi_of, index, obj, triangle, spacing, sufficient, np.concatenate(kept_parts), ldis)
+    colour = np.concatenate([ldis[k].colour[i[:, 0], i[:, 1], i[:, 2]] for k, _, i, _, _ in parts])
+    return PointSamples(np.concatenate([p[1] for p in parts]), ldi_of, index, obj, triangle, spacing, sufficient, np.concatenate(kept_parts), colour, ldis)

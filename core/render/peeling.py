@@ -28,10 +28,11 @@ from farfield.core.scene import SceneObject
 
 
 def peel(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, max_layers: int = 256, touching: bool = False,
-         centre: np.ndarray | None = None, same_surface: float = 0.0) -> np.ndarray:
-    """(layers, h, w, 3) float64 hits of ``camera``'s rays, nearest first, rows top first:
-    (eye depth along the camera's forward axis, object index, primitive index), NaN / -1 / -1
-    where a ray has fewer surfaces.  More than ``max_layers`` surfaces on one ray is an error.
+         centre: np.ndarray | None = None, same_surface: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """((layers, h, w, 3) float64 hits, (layers, h, w, 4) uint8 colours) of ``camera``'s rays,
+    nearest first, rows top first: (eye depth along the camera's forward axis, object index,
+    primitive index), NaN / -1 / -1 where a ray has fewer surfaces, and the surface's colour at
+    the hit as the mesh shader draws it (sRGB-encoded, alpha 255; 0 where none).  More than ``max_layers`` surfaces on one ray is an error.
     ``touching``: the samples of touched, not covered, pixels instead (module docstring), skipping
     those within ``same_surface`` times their depth of one of the ``centre`` eye depths (layers, h,
     w; NaN where none) of their pixel or of the touched sample peeled before them there."""
@@ -43,7 +44,7 @@ def peel(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, m
     owned: list = []
     textures: dict = {}
     size = (camera.resolution, camera.resolution)
-    layers = []
+    layers, shades = [], []
     try:
         draws = []
         for index, obj in enumerate(objects):
@@ -51,11 +52,12 @@ def peel(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, m
             vao, texture = upload(ctx, prog, obj, origin, textures, owned)
             draws.append((index, obj, origin, vao, texture))
         hits = [ctx.texture(size, 4, dtype="f4") for _ in range(2)]
+        colours = [ctx.texture(size, 4) for _ in range(2)]
         depth = ctx.depth_texture(size)
-        owned += [*hits, depth]
+        owned += [*hits, *colours, depth]
         for texture in hits:
             texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        framebuffers = [ctx.framebuffer([h], depth) for h in hits]
+        framebuffers = [ctx.framebuffer([h, c], depth) for h, c in zip(hits, colours)]
         owned += framebuffers
         hits[1].write(np.full(size + (4,), -1.0, dtype="f4").tobytes())  # "previous" of the first pass
         t = math.tan(0.5 * camera.fov)
@@ -85,7 +87,7 @@ def peel(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, m
             ctx.viewport = (0, 0, *size)
             # A ray without a surface in this pass has none behind either: r = 2 (beyond any
             # window depth) stops it in the next pass.
-            framebuffers[current].clear(2.0, 0.0, 0.0, 0.0, depth=1.0)
+            framebuffers[current].clear(2.0, 0.0, 0.0, 0.0, depth=1.0)  # both attachments: the colour's r saturates, a = 0
             hits[previous].use(1)
             for index, obj, origin, vao, texture in draws:
                 prog["eye_from_local"].write(camera.eye_matrix(origin).tobytes())
@@ -98,6 +100,7 @@ def peel(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, m
                     prog["base_texture"].value = 0
                 vao.render(moderngl.TRIANGLES)
             layer = np.frombuffer(hits[current].read(), dtype="f4").reshape(size[1], size[0], 4)[::-1]
+            colour = np.frombuffer(colours[current].read(), dtype=np.uint8).reshape(size[1], size[0], 4)[::-1]
             error = ctx.error
             if error != "GL_NO_ERROR":
                 raise RenderBackendError(f"OpenGL error while peeling depth layers: {error}")
@@ -111,11 +114,12 @@ def peel(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, m
             out[..., 1] = np.where(drawn, layer[..., 2], -1.0)
             out[..., 2] = np.where(drawn, layer[..., 3] - 1.0, -1.0)
             layers.append(out)
+            shades.append(np.where(drawn[..., None], colour, 0).astype(np.uint8))
             current = previous
     finally:
         park_framebuffer(ctx)
         for resource in owned:
             resource.release()
     if not layers:
-        return np.zeros((0, size[1], size[0], 3))
-    return np.stack(layers)
+        return np.zeros((0, size[1], size[0], 3)), np.zeros((0, size[1], size[0], 4), dtype=np.uint8)
+    return np.stack(layers), np.stack(shades)

@@ -2,7 +2,8 @@
 // Conservative depth peeling, the pixels a triangle touches but whose centre it does not cover
 // (those come from peel.frag): if the triangle's projection meets the pixel's square, its sample is
 // the triangle's point whose projection is nearest the pixel centre, lifted onto the triangle with
-// perspective-correct weights.  Peeled like peel.frag on that point's depth (gl_FragDepth).
+// perspective-correct weights, shaded there as mesh.frag would.  Peeled like peel.frag on that
+// point's depth (gl_FragDepth).
 uniform sampler2D previous;   // as in peel.frag
 uniform sampler2D base_texture;
 uniform bool has_texture;
@@ -21,8 +22,13 @@ flat in vec3 g_c;
 flat in vec2 g_uv_a;
 flat in vec2 g_uv_b;
 flat in vec2 g_uv_c;
-flat in vec3 g_alpha;
-out vec4 hit;
+flat in vec4 g_color_a;
+flat in vec4 g_color_b;
+flat in vec4 g_color_c;
+layout(location = 0) out vec4 hit;
+layout(location = 1) out vec4 colour;
+
+#include "colour.glsl"
 
 float cross2(vec2 u, vec2 v) { return u.x * v.y - u.y * v.x; }
 
@@ -82,11 +88,10 @@ void main() {
         float d = texelFetch(centre_depths, ivec3(ivec2(gl_FragCoord.xy), i), 0).r;
         if (d > 0.0 && abs(d - p.z) <= tolerance) { discard; }
     }
-    if (alpha_cutoff >= 0.0) {
-        float alpha = base_color.a * dot(k, g_alpha);
-        if (has_texture) { alpha *= texture(base_texture, k.x * g_uv_a + k.y * g_uv_b + k.z * g_uv_c).a; }
-        if (alpha < alpha_cutoff) { discard; }
-    }
+    vec4 shade = base_color * (k.x * g_color_a + k.y * g_color_b + k.z * g_color_c);
+    if (has_texture) { shade *= texture(base_texture, k.x * g_uv_a + k.y * g_uv_b + k.z * g_uv_c); }
+    if (alpha_cutoff >= 0.0 && shade.a < alpha_cutoff) { discard; }
     gl_FragDepth = window;
     hit = vec4(window, p.z, object_index, float(gl_PrimitiveID) + 1.0);
+    colour = vec4(linear_to_srgb(shade.rgb), 1.0);
 }

@@ -8,14 +8,16 @@ uniform vec2 half_tan;
 uniform float pixel_ndc;      // one pixel in normalised device coordinates, 2 / resolution
 in vec3 v_eye[];
 in vec2 v_uv[];
-in float v_alpha[];
+in vec4 v_color[];
 flat out vec3 g_a;
 flat out vec3 g_b;
 flat out vec3 g_c;
 flat out vec2 g_uv_a;
 flat out vec2 g_uv_b;
 flat out vec2 g_uv_c;
-flat out vec3 g_alpha;
+flat out vec4 g_color_a;
+flat out vec4 g_color_b;
+flat out vec4 g_color_c;
 
 void main() {
     if (v_eye[0].z <= 0.0 || v_eye[1].z <= 0.0 || v_eye[2].z <= 0.0) { return; }  // behind the camera
@@ -31,7 +33,7 @@ void main() {
     for (int i = 0; i < 4; ++i) {
         g_a = v_eye[0]; g_b = v_eye[1]; g_c = v_eye[2];
         g_uv_a = v_uv[0]; g_uv_b = v_uv[1]; g_uv_c = v_uv[2];
-        g_alpha = vec3(v_alpha[0], v_alpha[1], v_alpha[2]);
+        g_color_a = v_color[0]; g_color_b = v_color[1]; g_color_c = v_color[2];
         gl_PrimitiveID = gl_PrimitiveIDIn;
         gl_Position = vec4(corners[i], 0.0, 1.0);
         EmitVertex();
