@@ -9,7 +9,8 @@ objects in the scene's order (so coplanar objects resolve their depth ties as in
 then the layers from the innermost out, so that fragments behind nearer ones fail the depth test
 before they are shaded (opaque geometry is drawn without a discard for this, see
 :class:`core.render.raster.MeshRenderer`).  The near-field triangles
-are clipped to their cube in the fragment shader, the layers were clipped to the same cube's faces
+are clipped to their cube (by the GL's clip planes; by the fragment shader's discard where faces
+are open), the layers were clipped to the same cube's faces
 when recorded, so nothing is drawn twice or lost at the border (:mod:`core.near_field`).
 """
 
@@ -56,7 +57,8 @@ def nearest_first(objects: list[SceneObject], centre, keep_object_order: bool = 
     centre = np.asarray(centre, dtype=np.float64)
     keyed = []
     for obj in objects:
-        if obj.faces.shape[0] == 0:
+        if obj.faces.shape[0] == 0:  # kept, so the list stays aligned with what was given
+            keyed.append((math.inf, obj))
             continue
         key = np.max(np.abs(obj.vertices[obj.faces].mean(axis=1) - centre), axis=1)
         order = np.argsort(key, kind="stable")

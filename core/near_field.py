@@ -11,8 +11,9 @@ then also holds what lies beyond the cube in the face pyramids of the unrecorded
 the regions where the largest coordinate relative to the centre is that face's.
 
 A triangle is listed when its bounding box meets the closed cube or an open pyramid
-(conservative: a few listed triangles may miss both).  The runtime clips what it draws to the cube exactly (the mesh
-shader discards fragments outside it, :class:`core.render.raster.MeshRenderer`'s ``clip``), and the
+(conservative: a few listed triangles may miss both).  The runtime clips what it draws to the cube exactly
+(:class:`core.render.raster.MeshRenderer`'s ``clip``: the GL's clip planes for a closed cube, the
+fragment shader's discard where faces are open), and the
 layers are clipped to the same cube's faces by the slab recording, so a triangle crossing the
 border is drawn inside by the runtime and outside by the layers: nothing twice, nothing lost.
 """

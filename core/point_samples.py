@@ -143,7 +143,7 @@ def _lookup(ldi: LayeredDepthImage, spacing: np.ndarray, points: np.ndarray) -> 
     z = (points - camera.eye) @ camera.forward
     inside = (column >= 0) & (column < n) & (row >= 0) & (row < n) & (z > 0.0)
     out = np.full(points.shape[0], np.inf)
-    if not inside.any():
+    if not inside.any() or ldi.layers == 0:
         return out
     r, c, zi = row[inside], column[inside], z[inside]
     depths = ldi.depth[:, r, c]  # (L, m')

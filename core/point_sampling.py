@@ -44,17 +44,19 @@ MAX_LDI_HALF_SIZE = math.tan(math.radians(80.0))
 
 
 def plane_frame(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors (3,) spanning the plane perpendicular to unit ``normal``, deterministic
-    (the first horizontal in world x-z unless ``normal`` is nearly vertical along y).
+    """Two unit vectors (3,) u, v spanning the plane perpendicular to unit ``normal``, deterministic
+    (u horizontal in world x-z unless ``normal`` is nearly vertical along y), with u × v = -normal:
+    as a camera's right, up and forward they make the frame :meth:`Camera.look_at
+    <farfield.core.render.raster.Camera.look_at>` makes, so images are not mirrored.
 
     >>> u, v = plane_frame(np.array([0.0, 0.0, 1.0]))
-    >>> u.tolist(), v.tolist()
-    ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+    >>> (u + 0.0).tolist(), (v + 0.0).tolist()
+    ([-1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
     """
     helper = np.array([0.0, 1.0, 0.0]) if abs(float(normal[1])) < 0.9 else np.array([1.0, 0.0, 0.0])
-    u = np.cross(helper, normal)
+    u = np.cross(normal, helper)
     u /= np.linalg.norm(u)
-    v = np.cross(normal, u)
+    v = np.cross(u, normal)
     return u, v
 
 

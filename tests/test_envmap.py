@@ -130,7 +130,9 @@ def test_clip_planes_cut_what_the_fragment_clip_cuts():
     with MeshRenderer([beam], [clip]) as planes, MeshRenderer([beam], [(*clip, ("-x",))]) as discards, MeshRenderer([beam]) as whole:
         by_planes, by_discards, unclipped = (r.render(camera) for r in (planes, discards, whole))
     assert by_planes[..., 3].any()
-    assert np.array_equal(by_planes, by_discards)
+    # Identical on llvmpipe; a GPU's clipper and fragment test may split pixels whose centre lies
+    # on the cube's face differently, a thin line at most.
+    assert (by_planes != by_discards).any(axis=2).sum() <= 0.01 * (by_planes[..., 3] > 0).sum()
     inside, everything = by_planes[..., 3] > 0, unclipped[..., 3] > 0
     assert not (inside & ~everything).any() and (everything & ~inside).sum() > 1000
 
@@ -144,10 +146,13 @@ def test_runtime_draws_nearest_first_and_sees_what_payload_order_sees(town, town
     objects = near.objects(town)
     stored = objects + impostor_objects(town_impostor)
     clips = [near.clip] * len(objects) + [None] * (len(stored) - len(objects))
-    quads = [obj for obj, *_ in runtime.renderer._draws][len(objects):]
-    for quad in quads:
-        depth = np.max(np.abs(quad.vertices[quad.faces].mean(axis=1) - near.centre), axis=1)
-        assert np.all(np.diff(depth) >= 0.0)
+    drawn = [obj for obj, *_ in runtime.renderer._draws]
+    key = lambda obj: np.max(np.abs(obj.vertices[obj.faces].mean(axis=1) - near.centre), axis=1)  # noqa: E731
+    assert [obj.name for obj in drawn[: len(objects)]] == [obj.name for obj in objects]  # the scene's object order
+    for obj in drawn:  # every object's triangles nearest first
+        assert np.all(np.diff(key(obj)) >= 0.0)
+    firsts = [float(key(quad)[0]) for quad in drawn[len(objects) :]]
+    assert len(firsts) >= 1 and firsts == sorted(firsts)  # the layers' pages innermost first
     try:
         with MeshRenderer(stored, clips) as in_stored_order:
             for position in [town_cell.center, town_cell.lo, town_cell.hi]:

@@ -131,3 +131,6 @@ def test_the_one_colour_preview_draws_the_part_without_holes_and_close_in_colour
             stats = compare_images(geometry.render(camera), preview.render(camera))
             assert stats["geometry_pixels"] > 1000 and stats["hole_pixels"] == 0 and stats["bloat_beyond_1px"] == 0
             assert stats["colour_error_mean"] < 3.0
+    # An LDI that recorded nothing stands for nothing (and does not fail).
+    empty = record_ldi([], camera)
+    assert empty.layers == 0 and np.all(np.isinf(_lookup(empty, np.zeros((0, 32, 32)), on_wall)))

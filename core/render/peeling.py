@@ -10,7 +10,9 @@ pixel merge into one: give a tight depth range.
 (``peel_touch.geom`` / ``.frag``: the triangle's screen rectangle, an exact triangle-square overlap
 test, and as the sample the triangle's point whose projection is nearest the centre), so geometry
 thinner than a pixel, which pixel-centre rays can miss, still leaves a sample in every pixel it
-crosses (:func:`core.ldi.record_ldi` merges the two).
+crosses (:func:`core.ldi.record_ldi` merges the two).  A triangle reaching behind the camera
+(eye depth <= 0 at a corner) adds no touched samples: give a camera that has the geometry in front,
+as the LDI cameras of a point impostor do.
 """
 
 from __future__ import annotations

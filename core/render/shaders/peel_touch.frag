@@ -60,7 +60,10 @@ void main() {
             if (dot(centre - v[i], n) > reach) { discard; }
         }
         w = vec3(cross2(b - centre, c - centre), cross2(c - centre, a - centre), cross2(a - centre, b - centre)) / area;
-        if (all(greaterThanEqual(w, vec3(0.0)))) { discard; }  // the centre is covered: peel.frag's sample
+        // The centre is clearly covered: peel.frag has its sample.  (Near an edge the GL's snapping
+        // and tie rule may have left it to a neighbour or to nobody: sample it here too; a
+        // duplicate of a centre sample is dropped below as the same surface.)
+        if (all(greaterThan(w, vec3(1e-4)))) { discard; }
     }
     if (!(abs(area) > 0.0) || any(lessThan(w, vec3(0.0)))) {
         // The nearest point lies on an edge (or the projection is a segment).
