@@ -170,15 +170,15 @@ def test_a_refused_plan_costs_no_more_than_the_limit(home):
 # --- limits per cell on a real worker ------------------------------------------------------------
 
 
-def limited_job(tmp_path, **env: str) -> dict:
-    """One 512-px layered cell of the city (a bake of some 5 s on llvmpipe, its 1.9e7 texels far
-    under the admission limits) on a real ``farfield up`` with ``env``; returns the ended job's record."""
+def limited_job(tmp_path, resolution: int = 512, **env: str) -> dict:
+    """One layered cell of the city at ``resolution`` (512 px: 1.9e7 texels, far under the admission
+    limits) on a real ``farfield up`` with ``env``; returns the ended job's record."""
     service = start_service(tmp_path / "home", **env)
     try:
         with service.client() as client:
             path = write_scene(city(buildings=3), tmp_path, "glb")
             scene_id = upload(client, path).json()["id"]
-            created = client.post("/v1/jobs", json={"scene_id": scene_id, "resolution": 512, "viewcells": [CELL]})
+            created = client.post("/v1/jobs", json={"scene_id": scene_id, "resolution": resolution, "viewcells": [CELL]})
             assert created.status_code == 201, created.text
             job = wait_for_job(client, created.json()["id"], timeout=180)
             time.sleep(1.0)  # a redelivery after the pool process died must change nothing
@@ -190,7 +190,9 @@ def limited_job(tmp_path, **env: str) -> dict:
 def test_a_cell_past_its_time_limit_fails_once_with_the_limit_named(tmp_path):
     """Celery's soft time limit ends the attempt as a failed cell naming FARFIELD_CELL_TIME_LIMIT;
     it is bad input, so there is no retry and the job ends failed."""
-    job = limited_job(tmp_path, FARFIELD_CELL_TIME_LIMIT="1")
+    # 2048 px: 130 layers of 2577 x 3646 (1.2e9 texels, under the 4e9 cell limit), a bake of 14 s on
+    # llvmpipe here; at 512 px it took 0.4 s on a faster machine and sometimes ended within the 1 s.
+    job = limited_job(tmp_path, 2048, FARFIELD_CELL_TIME_LIMIT="1")
     cell = job["cells"][0]
     assert job["state"] == "failed" and cell["state"] == "failed", job
     # One attempt, or none where the limit strikes while the fresh pool process still sets up (its GL
