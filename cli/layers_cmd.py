@@ -56,13 +56,27 @@ def _part_bounds(scene, objects, bounds):
     return loaded.bounds
 
 
+def _part_options(viewcells: str):
+    """The options both part commands take: SCENE or --bounds, --viewcell (``viewcells``: the kinds
+    it accepts), --objects, --resolution, --fov."""
+
+    def wrap(command):
+        for decorate in reversed([
+            click.argument("scene", required=False, type=click.Path(dir_okay=False)),
+            click.option("--viewcell", required=True, help=viewcells),
+            click.option("--objects", default=None, help="Comma-separated object names of SCENE forming the part (default: all)."),
+            click.option("--bounds", default=None, help="Part bounds x0,y0,z0,x1,y1,z1 instead of a SCENE."),
+            click.option("--resolution", default=512, show_default=True, type=int, help="Output image pixels per side."),
+            click.option("--fov", default=45.0, show_default=True, type=float, help="Output field of view, degrees."),
+        ]):
+            command = decorate(command)
+        return command
+
+    return wrap
+
+
 @layers.command("part")
-@click.argument("scene", required=False, type=click.Path(dir_okay=False))
-@click.option("--viewcell", required=True, help="box:x0,y0,z0,x1,y1,z1 | box-center:cx,cy,cz,size | shaft:ax,ay,az,dx,dy,dz,apex_deg,min_dist[,max_dist]")
-@click.option("--objects", default=None, help="Comma-separated object names of SCENE forming the part (default: all).")
-@click.option("--bounds", default=None, help="Part bounds x0,y0,z0,x1,y1,z1 instead of a SCENE.")
-@click.option("--resolution", default=512, show_default=True, type=int, help="Output image pixels per side.")
-@click.option("--fov", default=45.0, show_default=True, type=float, help="Output field of view, degrees.")
+@_part_options("box:x0,y0,z0,x1,y1,z1 | box-center:cx,cy,cz,size | shaft:ax,ay,az,dx,dy,dz,apex_deg,min_dist[,max_dist]")
 @click.option("--pixel-model", type=click.Choice(PIXEL_MODELS), default="min", show_default=True,
               help="min: smallest pixel angle in the image (strict); center: the thesis's centre pixel.")
 @click.option("--reference-offset", type=float, default=None, help="s: reference viewpoint behind the cell's near border (default: seed 000 §3.3.1 rule).")
@@ -88,12 +102,7 @@ def part(scene, viewcell, objects, bounds, resolution, fov, pixel_model, referen
 
 
 @layers.command("points")
-@click.argument("scene", required=False, type=click.Path(dir_okay=False))
-@click.option("--viewcell", required=True, help="box:x0,y0,z0,x1,y1,z1 | box-center:cx,cy,cz,size")
-@click.option("--objects", default=None, help="Comma-separated object names of SCENE forming the part (default: all).")
-@click.option("--bounds", default=None, help="Part bounds x0,y0,z0,x1,y1,z1 instead of a SCENE.")
-@click.option("--resolution", default=512, show_default=True, type=int, help="Output image pixels per side.")
-@click.option("--fov", default=45.0, show_default=True, type=float, help="Output field of view, degrees.")
+@_part_options("box:x0,y0,z0,x1,y1,z1 | box-center:cx,cy,cz,size")
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
 def points(scene, viewcell, objects, bounds, resolution, fov, as_json) -> None:
     """Sampling plane, LDI cameras and their resolution of a point-based impostor (seed 001 §5.1)."""

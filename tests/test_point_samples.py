@@ -111,6 +111,9 @@ def test_a_sample_stands_only_for_points_on_its_own_surface():
     in_front = np.array([[0.1, 0.2, 6.0], [-0.75, 0.375, 6.0]])  # the same pixels, 2 units nearer
     assert np.all(_lookup(ldi, spacing, on_wall) == 0.01)
     assert np.all(np.isinf(_lookup(ldi, spacing, in_front)))
+    # An LDI that recorded nothing stands for nothing (and does not fail).
+    empty = record_ldi([], camera)
+    assert empty.layers == 0 and np.all(np.isinf(_lookup(empty, np.zeros((0, 32, 32)), on_wall)))
 
 
 def test_the_one_colour_preview_draws_the_part_without_holes_and_close_in_colour():
@@ -131,6 +134,3 @@ def test_the_one_colour_preview_draws_the_part_without_holes_and_close_in_colour
             stats = compare_images(geometry.render(camera), preview.render(camera))
             assert stats["geometry_pixels"] > 1000 and stats["hole_pixels"] == 0 and stats["bloat_beyond_1px"] == 0
             assert stats["colour_error_mean"] < 3.0
-    # An LDI that recorded nothing stands for nothing (and does not fail).
-    empty = record_ldi([], camera)
-    assert empty.layers == 0 and np.all(np.isinf(_lookup(empty, np.zeros((0, 32, 32)), on_wall)))

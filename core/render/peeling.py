@@ -24,7 +24,7 @@ import numpy as np
 
 from farfield.core.errors import LayerPlanError, RenderBackendError
 from farfield.core.render.context import gl_context
-from farfield.core.render.programs import park_framebuffer, program
+from farfield.core.render.programs import park_framebuffer, program, set_material
 from farfield.core.render.raster import Camera, upload
 from farfield.core.scene import SceneObject
 
@@ -94,12 +94,7 @@ def peel(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, m
             for index, obj, origin, vao, texture in draws:
                 prog["eye_from_local"].write(camera.eye_matrix(origin).tobytes())
                 prog["object_index"].value = float(index)
-                prog["base_color"].value = tuple(float(c) for c in obj.base_color)
-                prog["alpha_cutoff"].value = float(obj.alpha_cutoff) if obj.alpha_cutoff is not None else -1.0
-                prog["has_texture"].value = texture is not None
-                if texture is not None:
-                    texture.use(0)
-                    prog["base_texture"].value = 0
+                set_material(prog, obj, texture)
                 vao.render(moderngl.TRIANGLES)
             layer = np.frombuffer(hits[current].read(), dtype="f4").reshape(size[1], size[0], 4)[::-1]
             colour = np.frombuffer(colours[current].read(), dtype=np.uint8).reshape(size[1], size[0], 4)[::-1]
