@@ -26,7 +26,7 @@ Everything is float64 in world units; angles are radians unless a name ends in `
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import minimize
@@ -409,6 +409,4 @@ def plan_point_sampling(cell: BoxCell, part_bounds, fov_deg: float, resolution: 
         near, far = float(local[:, 2].min()), float(local[:, 2].max())
         n = ldi_resolution(half, fov, resolution, movement)
         cameras.append(LdiCamera(position, normal, u, v, centre, half, n, near * (1.0 - 1e-6), far * (1.0 + 1e-6)))
-    return PointSampling(
-        sampling.normal, sampling.offset, u, v, polygon, triangle, sampling.rectangle, depth, reach, boundary_reach, sampling.factors, tuple(cameras)
-    )
+    return replace(sampling, cameras=tuple(cameras))
