@@ -73,7 +73,8 @@ import numpy as np
 from skimage.metrics import structural_similarity
 
 from farfield.core.colour_space import linear_to_srgb, srgb_to_linear
-from farfield.core.impostor import Impostor, MeshPayload, QuadPayload
+from farfield.core.impostor import Impostor, MeshPayload, PointPayload, QuadPayload
+from farfield.core.render.points import Appearance, PointRenderer
 from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
 from farfield.core.scene import Scene, SceneObject
 from farfield.core.viewcells import BoxCell, ShaftCell, ViewCell, box_corners
@@ -106,6 +107,22 @@ def impostor_objects(impostor: Impostor) -> list[SceneObject]:
         uv[:, 1] = 1.0 - uv[:, 1]  # glTF (top-left origin) -> scene convention (bottom-left)
         objects.append(SceneObject(name=f"page{page_index}", vertices=vertices, faces=faces, uv=uv, texture=page, alpha_cutoff=0.5))
     return objects
+
+
+def impostor_renderer(impostor: Impostor) -> MeshRenderer:
+    """The renderer that draws ``impostor`` as its runtime does: its textured triangles
+    (:func:`impostor_objects`), or its points with their directional colours at the baked
+    resolution's pixels (:class:`core.render.points.PointRenderer`)."""
+    payload = impostor.payload
+    if isinstance(payload, PointPayload):
+        return PointRenderer(payload.positions, payload.colour.astype(np.uint8), point_appearance(impostor), grid=(impostor.resolution, math.radians(impostor.fov_deg)))
+    return MeshRenderer(impostor_objects(impostor))
+
+
+def point_appearance(impostor: Impostor) -> Appearance:
+    """The :class:`core.render.points.Appearance` of a point impostor's payload and pages."""
+    p = impostor.payload
+    return Appearance(impostor.pages, p.page, p.texel, (int(p.tile[0]), int(p.tile[1])), p.plane[:3], float(p.plane[3]), p.axes[0], p.axes[1], p.rectangle[0], p.rectangle[1])
 
 
 def _dilate(mask: np.ndarray) -> np.ndarray:
@@ -494,7 +511,7 @@ def evaluate_at(part: Scene, impostor: Impostor, points: np.ndarray, kinds: list
     extent = np.concatenate([box_corners(part.bounds), impostor.payload.world_points()])
     fov = math.radians(impostor.fov_deg)
     rows = []
-    with MeshRenderer(part.objects) as geometry, MeshRenderer(impostor_objects(impostor)) as stand_in:
+    with MeshRenderer(part.objects) as geometry, impostor_renderer(impostor) as stand_in:
         for position, kind in zip(np.asarray(points, dtype=np.float64), kinds):
             forward = (target - position) / np.linalg.norm(target - position)
             near, far = depth_bounds(position, forward, extent)

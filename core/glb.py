@@ -48,7 +48,8 @@ import struct
 import numpy as np
 from PIL import Image
 
-from farfield.core.impostor import Impostor, MeshPayload, QuadPayload, check_impostor
+from farfield.core.colour_space import srgb_to_linear
+from farfield.core.impostor import Impostor, MeshPayload, PointPayload, QuadPayload, check_impostor
 
 __all__ = ["impostor_glb", "page_png"]
 
@@ -66,8 +67,12 @@ _ELEMENT_ARRAY_BUFFER = 34963
 _LINEAR = 9729
 _CLAMP_TO_EDGE = 33071
 _TRIANGLES = 4
+_POINTS = 0
 
 _UNLIT = "KHR_materials_unlit"
+# A point impostor's directional colours (seed 001 §5.3), for a runtime that knows them (see
+# :func:`_point_primitive`); viewers that do not show the points' COLOR_0.
+POINT_APPEARANCE = "FARFIELD_point_appearance"
 
 # Corner order TL, TR, BR, BL (0..3): the triangles TL-BL-BR and TL-BR-TR (their winding as seen
 # from the reference viewpoint is then set by _face_viewpoint).
@@ -199,6 +204,50 @@ def _page_geometry(payload, viewpoint: np.ndarray, page_count: int):
     raise TypeError(f"no GLB writer for a {payload.kind!r} payload")
 
 
+def _point_primitive(payload: PointPayload, viewpoint: np.ndarray, binary: _Bin, accessors: list[dict]) -> dict:
+    """The one ``POINTS`` primitive of a point impostor (material 0, unlit): POSITION (float32,
+    relative to the node's translation), ``COLOR_0`` (float32 linear RGB, glTF's rule: the
+    single-colour preview of seed 001 §5.3, what any viewer shows as one-pixel points) and
+    ``_FARFIELD_TILE`` (float32 VEC3: the point's page, -1 for one colour, and its tile's first
+    texel x, y).  The extension :data:`POINT_APPEARANCE` on the primitive names the textures of the
+    pages (``textures``, one per atlas page, in page order), the tile's texels ``tile`` (along u,
+    along v), the sampling ``plane`` (unit normal, offset; world coordinates: normal · x = offset),
+    its ``axes`` u, v and the ``rectangle`` [[lo u, lo v], [hi u, hi v]] of plane coordinates
+    (x · u, x · v) the tiles span.  A runtime shows a textured point with the bilinear look-up, in
+    its tile, of where the ray from the eye to the point crosses the plane (texel centres at
+    (c + ½) / tu, (r + ½) / tv of the rectangle; row 0 at low v)."""
+    positions = np.ascontiguousarray(payload.positions - viewpoint, dtype="<f4")
+    colour = np.ascontiguousarray(srgb_to_linear(payload.colour[:, :3] / 255.0), dtype="<f4")
+    tile = np.ascontiguousarray(np.concatenate([payload.page[:, None], payload.texel], axis=1), dtype="<f4")
+    base = len(accessors)
+    accessors.append({
+        "bufferView": binary.add(positions.tobytes(), _ARRAY_BUFFER), "componentType": _FLOAT, "count": int(positions.shape[0]), "type": "VEC3",
+        "min": [float(x) for x in positions.min(axis=0)], "max": [float(x) for x in positions.max(axis=0)],
+    })  # fmt: skip
+    accessors.append({"bufferView": binary.add(colour.tobytes(), _ARRAY_BUFFER), "componentType": _FLOAT, "count": int(colour.shape[0]), "type": "VEC3"})
+    accessors.append({"bufferView": binary.add(tile.tobytes(), _ARRAY_BUFFER), "componentType": _FLOAT, "count": int(tile.shape[0]), "type": "VEC3"})
+    return {
+        "attributes": {"POSITION": base, "COLOR_0": base + 1, "_FARFIELD_TILE": base + 2},
+        "material": 0,
+        "mode": _POINTS,
+        "extensions": {POINT_APPEARANCE: {
+            "textures": list(range(int(payload.page.max(initial=-1)) + 1)),
+            "tile": [int(t) for t in payload.tile],
+            "plane": [float(x) for x in payload.plane],
+            "axes": [[float(x) for x in a] for a in payload.axes],
+            "rectangle": [[float(x) for x in r] for r in payload.rectangle],
+        }},
+    }  # fmt: skip
+
+
+def _points_glb_parts(impostor: Impostor, viewpoint: np.ndarray, binary: _Bin, accessors: list[dict]) -> tuple[list[dict], list[dict]]:
+    """(primitives, materials) of a point impostor: one POINTS primitive, one unlit opaque material."""
+    material = {"name": "points", "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0}, "extensions": {_UNLIT: {}}}
+    if impostor.payload.count == 0:
+        return [], [material]
+    return [_point_primitive(impostor.payload, viewpoint, binary, accessors)], [material]
+
+
 def impostor_glb(impostor: Impostor) -> bytes:
     """GLB bytes of ``impostor``: one node at the reference viewpoint, one primitive per page.
 
@@ -236,7 +285,8 @@ def impostor_glb(impostor: Impostor) -> bytes:
     binary = _Bin()
     accessors: list[dict] = []
     primitives: list[dict] = []
-    for page, positions, texcoords, indices in _page_geometry(impostor.payload, viewpoint, len(impostor.pages)):
+    pages = () if isinstance(impostor.payload, PointPayload) else _page_geometry(impostor.payload, viewpoint, len(impostor.pages))
+    for page, positions, texcoords, indices in pages:
         indices = _face_viewpoint(positions, indices)
         vertex_count = positions.shape[0]
         index_dtype, component = (
@@ -291,10 +341,14 @@ def impostor_glb(impostor: Impostor) -> bytes:
         }
         for index in range(len(impostor.pages))
     ]
+    extensions = [_UNLIT]
+    if isinstance(impostor.payload, PointPayload):
+        primitives, materials = _points_glb_parts(impostor, viewpoint, binary, accessors)
+        extensions.append(POINT_APPEARANCE)
     node: dict = {"name": "impostor", "translation": [float(x) for x in viewpoint]}
     document: dict = {
         "asset": {"version": "2.0", "generator": f"farfield {impostor.code_version}".rstrip()},
-        "extensionsUsed": [_UNLIT],
+        "extensionsUsed": sorted(extensions),
         "scene": 0,
         "scenes": [{"nodes": [0]}],
         "nodes": [node],
@@ -306,6 +360,7 @@ def impostor_glb(impostor: Impostor) -> bytes:
         document["accessors"] = accessors
     if materials:
         document["materials"] = materials
+    if images:
         document["images"] = images
         document["samplers"] = [{
             "magFilter": _LINEAR,
@@ -313,7 +368,7 @@ def impostor_glb(impostor: Impostor) -> bytes:
             "wrapS": _CLAMP_TO_EDGE,
             "wrapT": _CLAMP_TO_EDGE,
         }]
-        document["textures"] = [{"sampler": 0, "source": index} for index in range(len(materials))]
+        document["textures"] = [{"sampler": 0, "source": index} for index in range(len(images))]
     blob = binary.bytes()
     if blob:
         document["buffers"] = [{"byteLength": len(blob)}]

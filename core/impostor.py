@@ -12,7 +12,12 @@ never on the technique's name:
     An indexed triangle mesh: vertices (v, 3) float64 with UVs (v, 2), triangles (t, 3), and per
     triangle an atlas page and a mesh (connected component) label: textured depth meshes.
 
-Points, depth layers (LDI) and frame atlases (billboards) get payload kinds of their own when those
+``"points"`` (:class:`PointPayload`)
+    Points (n, 3) float64, each with one sRGB colour and, unless that colour is all it needs, a tile
+    of directional colours in an atlas page over the sampling plane's rectangle: point-based
+    impostors (seed 001).
+
+Depth layers (LDI) and frame atlases (billboards) get payload kinds of their own when those
 techniques are built: a frozen dataclass with the same members (``kind``, ``ARRAYS``,
 ``triangle_count``, ``arrays()``, ``from_arrays()``, ``check()``, ``world_points()``), registered in
 :data:`PAYLOAD_KINDS`, is all the bundle format needs.
@@ -78,6 +83,7 @@ def _check_arrays(payload, page_count: int) -> dict[str, int]:
         elif array.dtype != np.int64:
             raise BundleFormatError(f"{payload.kind} payload: {name} must be integers, got dtype {array.dtype}")
     page = payload.page
+    page = page[page != getattr(payload, "NO_PAGE", None)]  # a payload's "no page" value, if it has one
     if page.size and (page.min() < 0 or page.max() >= page_count):
         raise BundleFormatError(
             f"{payload.kind} payload: page spans [{page.min()}, {page.max()}] but there are {page_count} pages"
@@ -252,10 +258,99 @@ class MeshPayload:
             )
 
 
-Payload = Union[QuadPayload, MeshPayload]
+@dataclass(frozen=True, slots=True)
+class PointPayload:
+    """Points with directional colours (seed 001 §5.3): ``positions`` (n, 3) float64 world;
+    ``colour`` (n, 4) int64 sRGB bytes, a point's only colour when ``page`` is -1 and its preview
+    colour otherwise; ``page`` (n,) int64 the atlas page of its tile (-1: one colour); ``texel``
+    (n, 2) int64 the tile's first texel (x, y) in its page; ``tile`` (2,) texels of a tile along u
+    and v; the sampling plane ``plane`` (4,) (normal, offset: normal · x = offset), its in-plane
+    axes ``axes`` (2, 3) (u, v) and the ``rectangle`` (2, 2) of plane coordinates (x · u, x · v)
+    (lo, hi) the tiles span.  Row r, column c of a tile is the texel at the rectangle's (c + ½) / tu
+    along u and (r + ½) / tv along v, where the ray from the eye to the point crosses the plane.
+
+    >>> p = PointPayload.empty()
+    >>> p.kind, p.count, p.triangle_count, p.counts()
+    ('points', 0, 0, {'points': 0, 'textured': 0})
+    """
+
+    positions: np.ndarray
+    colour: np.ndarray
+    page: np.ndarray
+    texel: np.ndarray
+    tile: np.ndarray
+    plane: np.ndarray
+    axes: np.ndarray
+    rectangle: np.ndarray
+
+    kind: ClassVar[str] = "points"
+    NO_PAGE: ClassVar[int] = -1
+    ARRAYS: ClassVar[tuple] = (
+        ("positions", "f", ("n", 3)),
+        ("colour", "i", ("n", 4)),
+        ("page", "i", ("n",)),
+        ("texel", "i", ("n", 2)),
+        ("tile", "i", (2,)),
+        ("plane", "f", (4,)),
+        ("axes", "f", (2, 3)),
+        ("rectangle", "f", (2, 2)),
+    )
+
+    def __post_init__(self) -> None:
+        for name, _, _ in self.ARRAYS:
+            object.__setattr__(self, name, _canonical(getattr(self, name)))
+
+    @classmethod
+    def empty(cls) -> PointPayload:
+        return cls(np.zeros((0, 3)), np.zeros((0, 4), np.int64), np.zeros(0, np.int64), np.zeros((0, 2), np.int64),
+                   np.array([8, 2]), np.array([0.0, 0.0, 1.0, 0.0]), np.eye(3)[:2], np.array([[0.0, 0.0], [1.0, 1.0]]))  # fmt: skip
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> PointPayload:
+        return cls(**{name: arrays[name] for name, _, _ in cls.ARRAYS})
+
+    @property
+    def count(self) -> int:
+        """Points."""
+        return int(self.positions.shape[0]) if self.positions.ndim else 0
+
+    @property
+    def triangle_count(self) -> int:
+        """Triangles drawn: none, points are drawn as points."""
+        return 0
+
+    def counts(self) -> dict[str, int]:
+        return {"points": self.count, "textured": int((self.page >= 0).sum())}
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The payload's arrays by name, in the bundle's order."""
+        return {name: getattr(self, name) for name, _, _ in self.ARRAYS}
+
+    def world_points(self) -> np.ndarray:
+        """(n, 3) float64 every point, world metres."""
+        return self.positions.reshape(-1, 3)
+
+    def check(self, page_count: int) -> None:
+        """Raise :class:`BundleFormatError` unless the arrays fit (shapes, dtypes, finite, pages
+        in range or -1, colours bytes, a tile of at least one texel, a unit normal)."""
+        _check_arrays(self, page_count)
+        if self.page.size and self.page.min() < -1:
+            raise BundleFormatError(f"points payload: page must be -1 or a page index, got {int(self.page.min())}")
+        if self.colour.size and (self.colour.min() < 0 or self.colour.max() > 255):
+            raise BundleFormatError("points payload: colour must be bytes, 0-255")
+        if self.tile.min() < 1:
+            raise BundleFormatError(f"points payload: tile must be at least 1 x 1 texels, got {self.tile.tolist()}")
+        if abs(float(np.linalg.norm(self.plane[:3])) - 1.0) > 1e-6 or np.any(self.rectangle[1] <= self.rectangle[0]):
+            raise BundleFormatError("points payload: plane needs a unit normal and rectangle lo < hi")
+        textured = self.page >= 0
+        if textured.any() and self.texel[textured].min() < 0:
+            raise BundleFormatError("points payload: a textured point's texel must be >= 0")
+
+
+Payload = Union[QuadPayload, MeshPayload, PointPayload]
 
 # Payload kind -> class: what the bundle reader builds from a manifest's ``payload.kind``.
-PAYLOAD_KINDS: dict[str, type] = {cls.kind: cls for cls in (QuadPayload, MeshPayload)}
+PAYLOAD_KINDS: dict[str, type] = {cls.kind: cls for cls in (QuadPayload, MeshPayload, PointPayload)}
 
 
 @dataclass(frozen=True, slots=True)
@@ -281,7 +376,7 @@ class Impostor:
 
     @property
     def triangle_count(self) -> int:
-        """Triangles drawn: two per quad, one per mesh triangle."""
+        """Triangles drawn: two per quad, one per mesh triangle, none for points."""
         return self.payload.triangle_count
 
     @property

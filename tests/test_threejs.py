@@ -28,6 +28,7 @@ from farfield.core.evaluation import impostor_objects
 from farfield.core.exchange import load_scene
 from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
 from farfield.core.scene import Scene, SceneObject
+from farfield.core.render.points import PointRenderer
 from farfield.core.techniques import TECHNIQUES, get_technique
 from farfield.core.viewcells import BoxCell, box_corners, parse_viewcell
 from scenes import SHARED_SCENES, box_object, real_scene, write_scene
@@ -108,7 +109,10 @@ def bundles(tmp_path_factory):
             paths = write_bundle(impostor, tmp_path_factory.mktemp(name) / "bundle")
             back = read_bundle(paths.directory)
             cameras = (envmap_cameras if technique.scope == "scene" else part_cameras)(scene, back, cell)
-            with MeshRenderer(impostor_objects(back)) as renderer:
+            # A viewer shows a point impostor's one-colour preview (COLOR_0), as farfield's point
+            # renderer does without the appearance.
+            preview = back.payload.kind == "points"
+            with (PointRenderer(back.payload.positions, back.payload.colour.astype(np.uint8)) if preview else MeshRenderer(impostor_objects(back))) as renderer:
                 made[name] = (paths, back, cameras, [renderer.render(camera) for camera in cameras])
         return made[name]
 

@@ -105,7 +105,8 @@ def part_evaluation_text(result: Evaluation, impostor: Impostor) -> str:
         lines.append(f"outside the view cell: {t['outside']['viewpoints']} viewpoints, {t['outside']['hole_pixels']} hole pixels")
     memory = impostor.texture_bytes + impostor.stats.get("geometry_bytes", 0)
     lines.append(
-        f"impostor ({impostor.technique}): {impostor.stats.get('layers')} layers, {impostor.triangle_count:,} triangles, "
-        f"{memory / 1024:.1f} KiB (atlas pages {impostor.texture_bytes / 1024:.1f} KiB + geometry)"
+        f"impostor ({impostor.technique}): "
+        + (f"{impostor.stats.get('layers')} layers, {impostor.triangle_count:,} triangles, " if impostor.triangle_count else "".join(f"{v:,} {k}, " for k, v in impostor.payload.counts().items()))
+        + f"{memory / 1024:.1f} KiB (atlas pages {impostor.texture_bytes / 1024:.1f} KiB + geometry)"
     )
     return "\n".join(lines)
