@@ -74,11 +74,11 @@ def _compare(names: list[str], impostors, part, random_count: int, outside_count
         click.echo(json.dumps({"bundles": rows, "prefer": prefer, "choice": candidates[choice.index].name, "reason": choice.reason}, indent=2))
         return results
     width = max(len("bundle"), *(len(n) for n in names))
-    click.echo(f"{'bundle':<{width}} {'technique':<9} {'triangles':>9} {'memory KiB':>10} {'holes':>6} {'>1px':>6} {'err mean':>9} {'err p99':>8} {'ssim':>6} {'bake s':>7}")
+    click.echo(f"{'bundle':<{width}} {'technique':<9} {'primitives':>10} {'memory KiB':>10} {'holes':>6} {'>1px':>6} {'err mean':>9} {'err p99':>8} {'ssim':>6} {'bake s':>7}")
     for c in candidates:
         seconds = f"{c.bake_seconds:.2f}" if c.bake_seconds is not None else "-"
         click.echo(
-            f"{c.name:<{width}} {c.technique:<9} {c.triangles:>9,} {c.memory_bytes / 1024:>10.1f} {c.hole_pixels:>6} "
+            f"{c.name:<{width}} {c.technique:<9} {c.primitives:>10,} {c.memory_bytes / 1024:>10.1f} {c.hole_pixels:>6} "
             f"{c.bloat_beyond_1px:>6} {c.colour_error_mean:>9.2f} {c.colour_error_p99:>8.1f} {c.ssim:>6.3f} {seconds:>7}"
         )
     click.echo(

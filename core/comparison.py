@@ -5,7 +5,9 @@ polygons, memory and image quality; users choose between the techniques per scen
 :class:`Candidate` is one baked impostor with the numbers that choice needs, every one measured the
 same way for every technique:
 
-* **triangles** drawn (two per layered quad, one per TDM triangle: :attr:`Impostor.triangle_count`);
+* **triangles** drawn (two per layered quad, one per TDM triangle: :attr:`Impostor.triangle_count`)
+  and **points** drawn (a point-based impostor's); the ``triangles`` preference weighs their sum,
+  the **primitives** (a one-pixel point counted as one primitive, like a triangle);
 * **memory**: the atlas pages as stored plus the geometry as drawn (``stats["geometry_bytes"]``);
 * **hole pixels, pixels bloated beyond one pixel, colour error and SSIM** inside the view cell,
   from :func:`core.evaluation.evaluate` with the same viewpoints (corners, reference viewpoint, the
@@ -35,7 +37,7 @@ TIE = 0.05
 # Per preference: the Candidate field, the chosen one's merit and a rival's merit, in words.
 _MEASURES = {
     "memory": ("memory_bytes", "the least memory", "takes less memory"),
-    "triangles": ("triangles", "the fewest triangles", "draws fewer triangles"),
+    "triangles": ("primitives", "the fewest primitives", "draws fewer primitives"),
     "error": ("colour_error_mean", "the smallest colour error", "has a smaller colour error"),
 }
 
@@ -54,6 +56,12 @@ class Candidate:
     colour_error_mean: float  # per pixel where both cover, max over RGB, 0..255
     colour_error_p99: float  # the worst viewpoint's 99th percentile of the same
     ssim: float  # mean over the viewpoints, over the union of coverage (1: equal)
+    points: int = 0  # points drawn (a point-based impostor)
+
+    @property
+    def primitives(self) -> int:
+        """Triangles and points drawn."""
+        return self.triangles + self.points
 
     @classmethod
     def of(cls, name: str, impostor: Impostor, evaluation: Evaluation) -> Candidate:
@@ -70,6 +78,7 @@ class Candidate:
             colour_error_mean=float(totals["colour_error_mean"]),
             colour_error_p99=float(totals["colour_error_p99"]),
             ssim=float(totals["ssim"]),
+            points=impostor.payload.count if impostor.payload.kind == "points" else 0,
         )
 
     def to_dict(self) -> dict:
@@ -104,7 +113,7 @@ def check_comparable(names: list[str], impostors: list[Impostor]) -> None:
 def _say(field: str, value: float) -> str:
     if field == "memory_bytes":
         return f"{value / 1024:.1f} KiB"
-    if field == "triangles":
+    if field == "primitives":
         return f"{int(value):,}"
     return f"{value:.2f}"
 
@@ -119,16 +128,16 @@ def choose(candidates: list[Candidate], prefer: str = "memory") -> Choice:
     >>> choice.index
     0
     >>> print(choice.reason)
-    out/tdm: no hole pixels inside the view cell and the least memory (463.9 KiB against 1226.6 KiB); out/coarse has 3 hole pixels; out/layered draws fewer triangles (538 against 706)
+    out/tdm: no hole pixels inside the view cell and the least memory (463.9 KiB against 1226.6 KiB); out/coarse has 3 hole pixels; out/layered draws fewer primitives (538 against 706)
     >>> choose([a, b], prefer="triangles").index
     1
 
-    Memory within 5 % of each other: the fewest triangles decide.
+    Memory within 5 % of each other: the fewest primitives decide.
 
     >>> d = Candidate("out/layered", "layered", 254, 292_760, 0.3, 0, 5, 0.0, 0.0, 1.0)
     >>> e = Candidate("out/tdm", "tdm", 1080, 292_200, 2.5, 0, 11, 0.0, 0.0, 1.0)
     >>> print(choose([e, d]).reason)
-    out/layered: no hole pixels inside the view cell and memory within 5% (285.9 KiB against 285.4 KiB), the fewest triangles (254 against 1,080); out/tdm takes less memory (285.4 KiB against 285.9 KiB)
+    out/layered: no hole pixels inside the view cell and memory within 5% (285.9 KiB against 285.4 KiB), the fewest primitives (254 against 1,080); out/tdm takes less memory (285.4 KiB against 285.9 KiB)
     """
     if prefer not in PREFERENCES:
         raise ComparisonError(f"prefer must be one of {', '.join(PREFERENCES)}, got {prefer!r}")
