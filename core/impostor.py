@@ -261,8 +261,8 @@ class MeshPayload:
 @dataclass(frozen=True, slots=True)
 class PointPayload:
     """Points with directional colours (seed 001 §5.3): ``positions`` (n, 3) float64 world;
-    ``colour`` (n, 4) int64 sRGB bytes, a point's only colour when ``page`` is -1 and its preview
-    colour otherwise; ``page`` (n,) int64 the atlas page of its tile (-1: one colour); ``texel``
+    ``colour`` (n, 4) int64 sRGB bytes (alpha: the share of a pixel the part covers there), a
+    point's only colour when ``page`` is -1 and its preview colour otherwise; ``page`` (n,) int64 the atlas page of its tile (-1: one colour); ``texel``
     (n, 2) int64 the tile's first texel (x, y) in its page; ``tile`` (2,) texels of a tile along u
     and v; the sampling plane ``plane`` (4,) (normal, offset: normal · x = offset), its in-plane
     axes ``axes`` (2, 3) (u, v) and the ``rectangle`` (2, 2) of plane coordinates (x · u, x · v)

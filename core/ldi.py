@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from farfield.core.render.peeling import peel
@@ -91,45 +92,110 @@ def record_ldi(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Cam
 
 def _merge(camera: Camera, centre: tuple, touched: tuple, objects) -> LayeredDepthImage:
     """Centre-ray hits plus the touched-pixel hits that are no other sample's surface, sorted by
-    depth per pixel.  A touched sample's position is recomputed in float64 from its triangle: the
-    point of the triangle nearest the pixel's centre ray."""
+    depth per pixel (centre samples before touched ones at equal depth).  A touched sample's
+    position is recomputed in float64 from its triangle: the point of the triangle nearest the
+    pixel's centre ray.  (Numba kernels, pixel by pixel: which touched samples stay, then the
+    merge; the work follows the samples, not layers x layers x pixels.)"""
     (centre, centre_colours), (touched, touched_colours) = centre, touched
     n = camera.resolution
     pixel = 2.0 * math.tan(0.5 * camera.fov) / n
     plain = LayeredDepthImage(camera, centre[..., 0], centre[..., 1].astype(np.int64), centre[..., 2].astype(np.int64))
-    positions = [plain.sample_positions()]
-    depth, obj, tri, kind = [plain.depth], [plain.obj], [plain.triangle], [np.zeros(plain.depth.shape, dtype=bool)]
-    shade = [centre_colours]
-    kept_depth = plain.depth
-    for layer, layer_colour in zip(touched, touched_colours):  # nearest first: kept if no kept sample is near it in depth
-        d = layer[..., 0]
-        tolerance = SAME_SURFACE * pixel * d
-        if kept_depth.shape[0]:
-            near = np.any(np.abs(kept_depth - d[None]) <= tolerance[None], axis=0)
-        else:
-            near = np.zeros(d.shape, dtype=bool)
-        keep = np.isfinite(d) & ~near
-        if not keep.any():
-            continue
-        d = np.where(keep, d, np.nan)
-        o = np.where(keep, layer[..., 1], -1).astype(np.int64)
-        t = np.where(keep, layer[..., 2], -1).astype(np.int64)
-        depth.append(d[None])
-        obj.append(o[None])
-        tri.append(t[None])
-        kind.append(keep[None])
-        shade.append(np.where(keep[..., None], layer_colour, 0).astype(np.uint8)[None])
-        positions.append(_touch_positions(camera, d, o, t, objects)[None])
-        kept_depth = np.concatenate([kept_depth, d[None]])
-    depth = np.concatenate(depth)
-    positions = np.concatenate(positions)
-    order = np.argsort(depth, axis=0, kind="stable")  # NaN last
-    take = lambda a: np.take_along_axis(a, order, axis=0)  # noqa: E731
-    depth, obj, tri, kind = take(depth), take(np.concatenate(obj)), take(np.concatenate(tri)), take(np.concatenate(kind))
-    positions = np.take_along_axis(positions, order[..., None], axis=0)
-    colour = np.take_along_axis(np.concatenate(shade), order[..., None], axis=0)
-    filled = np.isfinite(depth).any(axis=(1, 2))
-    return LayeredDepthImage(camera, depth[filled], obj[filled], tri[filled], positions[filled], kind[filled], colour[filled])
+    c_depth = np.ascontiguousarray(plain.depth, dtype=np.float64)
+    t_depth = np.ascontiguousarray(touched[..., 0], dtype=np.float64).reshape((-1,) + c_depth.shape[1:])
+    keep = _touched_kept(c_depth, t_depth, SAME_SURFACE * pixel)
+    t_obj = np.where(keep, touched[..., 1], -1).astype(np.int64)
+    t_tri = np.where(keep, touched[..., 2], -1).astype(np.int64)
+    t_pos = np.full(t_depth.shape + (3,), np.nan)
+    for layer in np.flatnonzero(keep.any(axis=(1, 2))):
+        t_pos[layer] = _touch_positions(camera, np.where(keep[layer], t_depth[layer], np.nan), t_obj[layer], t_tri[layer], objects)
+    depth, obj, tri, kind, positions, colour = _merge_kernel(
+        c_depth, plain.obj, plain.triangle, np.ascontiguousarray(plain.sample_positions()), np.ascontiguousarray(centre_colours, dtype=np.uint8),
+        t_depth, t_obj, t_tri, t_pos, np.ascontiguousarray(touched_colours, dtype=np.uint8).reshape(t_depth.shape + (4,)), keep,
+    )  # fmt: skip
+    return LayeredDepthImage(camera, depth, obj, tri, positions, kind, colour)
+
+
+@numba.njit(cache=True, nogil=True)
+def _touched_kept(c_depth, t_depth, same_surface):  # pragma: no cover - compiled
+    """(Lt, h, w) bool: the touched samples, nearest layer first, with no kept sample of their
+    pixel (centre samples and touched ones kept before) within ``same_surface`` x depth of them."""
+    lc, h, w = c_depth.shape
+    lt = t_depth.shape[0]
+    keep = np.zeros(t_depth.shape, dtype=np.bool_)
+    for r in range(h):
+        for c in range(w):
+            for k in range(lt):
+                d = t_depth[k, r, c]
+                if not np.isfinite(d):
+                    continue
+                tolerance = same_surface * d
+                near = False
+                for m in range(lc):
+                    if abs(c_depth[m, r, c] - d) <= tolerance:
+                        near = True
+                        break
+                if not near:
+                    for m in range(k):
+                        if keep[m, r, c] and abs(t_depth[m, r, c] - d) <= tolerance:
+                            near = True
+                            break
+                keep[k, r, c] = not near
+    return keep
+
+
+@numba.njit(cache=True, nogil=True)
+def _merge_kernel(c_depth, c_obj, c_tri, c_pos, c_col, t_depth, t_obj, t_tri, t_pos, t_col, keep):  # pragma: no cover - compiled
+    lc, h, w = c_depth.shape
+    lt = t_depth.shape[0]
+    layers = 0
+    for r in range(h):
+        for c in range(w):
+            count = 0
+            for m in range(lc):
+                count += np.isfinite(c_depth[m, r, c])
+            for k in range(lt):
+                count += keep[k, r, c]
+            layers = max(layers, count)
+    depth = np.full((layers, h, w), np.nan)
+    obj = np.full((layers, h, w), -1, np.int64)
+    tri = np.full((layers, h, w), -1, np.int64)
+    kind = np.zeros((layers, h, w), np.bool_)
+    positions = np.full((layers, h, w, 3), np.nan)
+    colour = np.zeros((layers, h, w, 4), np.uint8)
+    source = np.empty(lc + lt, np.int64)  # per pixel: m (centre) or lc + k (touched), by depth
+    value = np.empty(lc + lt)
+    for r in range(h):
+        for c in range(w):
+            count = 0
+            for m in range(lc + lt):  # insertion sort, stable: centre layers first, then touched
+                if m < lc:
+                    d = c_depth[m, r, c]
+                    if not np.isfinite(d):
+                        continue
+                else:
+                    if not keep[m - lc, r, c]:
+                        continue
+                    d = t_depth[m - lc, r, c]
+                i = count
+                while i > 0 and value[i - 1] > d:
+                    value[i], source[i] = value[i - 1], source[i - 1]
+                    i -= 1
+                value[i], source[i] = d, m
+                count += 1
+            for i in range(count):
+                m = source[i]
+                depth[i, r, c] = value[i]
+                if m < lc:
+                    obj[i, r, c], tri[i, r, c] = c_obj[m, r, c], c_tri[m, r, c]
+                    positions[i, r, c] = c_pos[m, r, c]
+                    colour[i, r, c] = c_col[m, r, c]
+                else:
+                    k = m - lc
+                    obj[i, r, c], tri[i, r, c] = t_obj[k, r, c], t_tri[k, r, c]
+                    positions[i, r, c] = t_pos[k, r, c]
+                    colour[i, r, c] = t_col[k, r, c]
+                    kind[i, r, c] = True
+    return depth, obj, tri, kind, positions, colour
 
 
 def _touch_positions(camera: Camera, depth: np.ndarray, obj: np.ndarray, tri: np.ndarray, objects) -> np.ndarray:

@@ -21,7 +21,9 @@ estimated by Monte Carlo (§5.2) on the GL instead of the paper's ray tracer, on
   pixel (only the window of the image around the part) and filtered with a Gaussian of σ = 0.5
   pixel centred on each pixel's centre ("a Gaussian distribution centered over the pixel which the
   point projects to"), in linear light with the coverage as weight: the colour of what covers the
-  footprint (uncovered samples, the background, carry no weight: the points are drawn opaque);
+  footprint (uncovered samples, the background, carry no weight), and the **coverage**, the
+  covered share of the footprint's weight, as alpha: a runtime composites a point over what lies
+  behind the impostor with it, and the evaluation reads a pixel's colour as that of what covers it;
 - **the viewpoint basis** b_i: the sample adds to each texel of the point's tile with the weight of
   a Gaussian (σ = :data:`TEXEL_SIGMA` texel) around the texel's centre, at the place (in texels)
   where the ray from s to the point crosses the sampling rectangle: the paper approximates the dual
@@ -69,7 +71,7 @@ Progress = Callable[[int, int], None]  # (views done, most views)
 @dataclass(frozen=True, slots=True)
 class PointAppearance:
     """``tiles`` (n, tv, tu, 4) uint8 sRGB (row 0 at the rectangle's low v, column 0 at low u),
-    alpha 255; ``seen`` (n,) bool: the point won a pixel in some view; ``stats``: views, the
+    alpha the covered share of the footprint (at least 1); ``seen`` (n,) bool: the point won a pixel in some view; ``stats``: views, the
     final standard error, shares."""
 
     tiles: np.ndarray
@@ -177,6 +179,7 @@ def integrate_appearance(
     weight = np.zeros((n, texels))
     weight2 = np.zeros((n, texels))
     colour = np.zeros((n, texels, 3))
+    coverage = np.zeros((n, texels))
     luma2 = np.zeros((n, texels))
     sobol = qmc.Sobol(5, scramble=True, seed=seed)
     views = 0
@@ -204,6 +207,7 @@ def integrate_appearance(
                 weight[j] += w
                 weight2[j] += w * w
                 colour[j] += w[..., None] * seen_colour[:, None, :]
+                coverage[j] += w * cover[row, col][:, None]
                 luma2[j] += w * (seen_colour @ _LUMA)[:, None] ** 2
             views += batch.shape[0]
             if progress is not None:
@@ -221,12 +225,17 @@ def integrate_appearance(
     seen = reached.any(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         texel_colour = colour / weight[..., None]
+        texel_cover = coverage / weight
         point_mean = colour.sum(axis=1) / weight.sum(axis=1)[:, None]  # the point's mean over its samples
+        point_cover = coverage.sum(axis=1) / weight.sum(axis=1)
     fallback_linear = srgb_to_linear(np.asarray(fallback, dtype=np.float64)[:, :3] / 255.0)
     point_mean = np.where(seen[:, None], point_mean, fallback_linear)
+    point_cover = np.where(seen, point_cover, 1.0)
     texel_colour = np.where(reached[..., None], texel_colour, point_mean[:, None, :])
+    texel_cover = np.where(reached, texel_cover, point_cover[:, None])
     rgb = np.rint(np.clip(linear_to_srgb(texel_colour), 0.0, 1.0) * 255.0).astype(np.uint8)
-    tiles = np.concatenate([rgb, np.full((n, texels, 1), 255, np.uint8)], axis=2).reshape(n, tv, tu, 4)
+    alpha = np.clip(np.rint(texel_cover * 255.0), 1, 255).astype(np.uint8)  # a point covers at least 1/255
+    tiles = np.concatenate([rgb, alpha[..., None]], axis=2).reshape(n, tv, tu, 4)
     stats = {
         "views": views,
         "standard_error_p95": se95 if math.isfinite(se95) else None,
@@ -239,19 +248,20 @@ def integrate_appearance(
 
 def single_colour(tiles: np.ndarray, threshold: float) -> np.ndarray:
     """(n,) bool: the points whose tile varies less than ``threshold`` (the standard deviation of
-    its texels, sRGB levels 0-255, largest over R, G, B): §5.3's compression stores one colour for
+    its texels, sRGB levels 0-255, largest over R, G, B and alpha): §5.3's compression stores one colour for
     them.
 
     >>> tiles = np.zeros((2, 2, 8, 4), np.uint8); tiles[1, 0, 0, 0] = 200
     >>> single_colour(tiles, 2.0).tolist()
     [True, False]
     """
-    flat = tiles.reshape(tiles.shape[0], -1, 4)[..., :3].astype(np.float64)
+    flat = tiles.reshape(tiles.shape[0], -1, 4).astype(np.float64)
     return flat.std(axis=1).max(axis=1, initial=0.0) < float(threshold) if flat.size else np.zeros(tiles.shape[0], bool)
 
 
 def mean_colour(tiles: np.ndarray) -> np.ndarray:
-    """(n, 4) uint8 sRGB: each tile's mean colour, averaged in linear light (alpha 255)."""
-    flat = tiles.reshape(tiles.shape[0], -1, 4)[..., :3] / 255.0
-    rgb = np.rint(np.clip(linear_to_srgb(srgb_to_linear(flat).mean(axis=1)), 0.0, 1.0) * 255.0).astype(np.uint8)
-    return np.concatenate([rgb, np.full((tiles.shape[0], 1), 255, np.uint8)], axis=1)
+    """(n, 4) uint8 sRGB: each tile's mean colour, averaged in linear light, and mean alpha."""
+    flat = tiles.reshape(tiles.shape[0], -1, 4) / 255.0
+    rgb = np.rint(np.clip(linear_to_srgb(srgb_to_linear(flat[..., :3]).mean(axis=1)), 0.0, 1.0) * 255.0).astype(np.uint8)
+    alpha = np.clip(np.rint(flat[..., 3].mean(axis=1) * 255.0), 1, 255).astype(np.uint8)
+    return np.concatenate([rgb, alpha[:, None]], axis=1)

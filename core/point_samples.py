@@ -32,6 +32,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
 from farfield.core.ldi import LayeredDepthImage, record_ldi
@@ -43,19 +44,6 @@ from farfield.core.viewcells import BoxCell
 # many times the lateral distance between the two rays (tan 76° ≈ 4).
 CONTINUITY = 4.0
 
-_NEIGHBOURS = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
-
-
-def _shifted(array: np.ndarray, dr: int, dc: int, fill) -> np.ndarray:
-    """``array`` (..., h, w) moved so that [..., r, c] holds the value at [..., r + dr, c + dc]."""
-    out = np.full_like(array, fill)
-    h, w = array.shape[-2:]
-    rs, re = max(0, -dr), min(h, h - dr)
-    cs, ce = max(0, -dc), min(w, w - dc)
-    out[..., rs:re, cs:ce] = array[..., rs + dr : re + dr, cs + dc : ce + dc]
-    return out
-
-
 def ldi_spacing(ldi: LayeredDepthImage, cell: BoxCell) -> np.ndarray:
     """(layers, h, w) float64: the longest edge from each sample to its 8 same-surface neighbours
     as the view cell can see it (module docstring), inf where a neighbour is missing, NaN where
@@ -65,37 +53,62 @@ def ldi_spacing(ldi: LayeredDepthImage, cell: BoxCell) -> np.ndarray:
     The directions from the cell to p lie within γ = asin(r / |p - c|) of the direction from the
     cell's centre c (r the cell's half diagonal), so that component is at most
     |e| min(1, sin(θ + γ)), θ the angle between e and p - c folded into [0, π/2]: a surface seen
-    edge-on from the whole cell needs no dense sampling along its depth."""
-    depth = ldi.depth
-    centre = cell.center
-    radius = 0.5 * float(np.linalg.norm(cell.size))
-    positions = ldi.sample_positions()  # (L, h, w, 3)
+    edge-on from the whole cell needs no dense sampling along its depth.  (A numba kernel, one
+    sample at a time; ``tests/test_point_samples.py`` holds the rule written with numpy arrays.)"""
+    depth = np.ascontiguousarray(ldi.depth, dtype=np.float64)
+    positions = np.ascontiguousarray(ldi.sample_positions(), dtype=np.float64)  # (L, h, w, 3)
     pixel = 2.0 * math.tan(0.5 * ldi.camera.fov) / ldi.camera.resolution  # image tangents per pixel
-    spacing = np.zeros(depth.shape)
-    for dr, dc in _NEIGHBOURS:
-        other = _shifted(depth, dr, dc, np.nan)  # (L, h, w): the neighbour pixel's layers
-        other = np.where(np.isnan(other), np.inf, other)
-        other_pos = _shifted(np.moveaxis(positions, -1, 0), dr, dc, np.nan)  # (3, L, h, w)
-        step = pixel * math.hypot(dr, dc)
-        for layer in range(depth.shape[0]):  # one layer at a time: (L, h, w), not (L, L, h, w)
-            gap = np.abs(other - depth[layer])
-            nearest = np.argmin(gap, axis=0)  # (h, w)
-            best = np.take_along_axis(gap, nearest[None], axis=0)[0]
-            same = best <= CONTINUITY * depth[layer] * step
-            q = np.take_along_axis(other_pos, np.broadcast_to(nearest[None, None], (3, 1) + nearest.shape), axis=1)[:, 0]  # (3, h, w)
-            e = np.moveaxis(q, 0, -1) - positions[layer]
-            length = np.linalg.norm(e, axis=-1)
-            seen = positions[layer] - centre
-            distance = np.linalg.norm(seen, axis=-1)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                cos_theta = np.abs(np.einsum("...i,...i->...", e, seen)) / (length * distance)
-                gamma = np.arcsin(np.clip(radius / distance, 0.0, 1.0))
-            theta = np.arccos(np.clip(cos_theta, 0.0, 1.0))
-            across = length * np.minimum(1.0, np.sin(np.minimum(theta + gamma, 0.5 * math.pi)))
-            spacing[layer] = np.maximum(spacing[layer], np.where(same, across, np.inf))
-    if ldi.touched is not None:  # off their rays: no pattern to judge by, and kept (module docstring)
-        spacing = np.where(ldi.touched, np.inf, spacing)
-    return np.where(np.isfinite(depth), spacing, np.nan)
+    touched = np.zeros(depth.shape, dtype=np.bool_) if ldi.touched is None else np.ascontiguousarray(ldi.touched, dtype=np.bool_)
+    return _spacing_kernel(depth, positions, touched, np.asarray(cell.center, dtype=np.float64), 0.5 * float(np.linalg.norm(cell.size)), pixel, CONTINUITY)
+
+
+@numba.njit(cache=True, nogil=True)
+def _spacing_kernel(depth, positions, touched, centre, radius, pixel, continuity):  # pragma: no cover - compiled
+    layers, h, w = depth.shape
+    out = np.full(depth.shape, np.nan)
+    half_pi = 0.5 * math.pi
+    for layer in range(layers):
+        for r in range(h):
+            for c in range(w):
+                d = depth[layer, r, c]
+                if not np.isfinite(d):
+                    continue
+                if touched[layer, r, c]:  # off their rays: no pattern to judge by, and kept
+                    out[layer, r, c] = np.inf
+                    continue
+                px, py, pz = positions[layer, r, c, 0], positions[layer, r, c, 1], positions[layer, r, c, 2]
+                sx, sy, sz = px - centre[0], py - centre[1], pz - centre[2]
+                distance = math.sqrt(sx * sx + sy * sy + sz * sz)
+                gamma = math.asin(min(max(radius / distance, 0.0), 1.0)) if distance > 0.0 else half_pi
+                spacing = 0.0
+                for dr in range(-1, 2):
+                    for dc in range(-1, 2):
+                        if dr == 0 and dc == 0:
+                            continue
+                        rr, cc = r + dr, c + dc
+                        best, nearest = np.inf, 0
+                        if 0 <= rr < h and 0 <= cc < w:
+                            for m in range(layers):
+                                g = abs(depth[m, rr, cc] - d)
+                                if g < best:  # NaN compares false: a missing layer is never nearest
+                                    best, nearest = g, m
+                        if not best <= continuity * d * pixel * math.sqrt(dr * dr + dc * dc):
+                            across = np.inf  # a discontinuity or a border
+                        else:
+                            ex = positions[nearest, rr, cc, 0] - px
+                            ey = positions[nearest, rr, cc, 1] - py
+                            ez = positions[nearest, rr, cc, 2] - pz
+                            length = math.sqrt(ex * ex + ey * ey + ez * ez)
+                            cos_theta = abs(ex * sx + ey * sy + ez * sz) / (length * distance) if length * distance > 0.0 else np.nan
+                            theta = math.acos(min(max(cos_theta, 0.0), 1.0)) if cos_theta == cos_theta else np.nan
+                            angle = theta + gamma
+                            across = length * min(1.0, math.sin(min(angle, half_pi))) if angle == angle else np.nan
+                        if across != across or spacing != spacing:
+                            spacing = np.nan  # NaN stays, as numpy's maximum keeps it
+                        elif across > spacing:
+                            spacing = across
+                out[layer, r, c] = spacing
+    return out
 
 
 @dataclass(frozen=True, slots=True)

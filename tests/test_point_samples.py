@@ -9,6 +9,8 @@ and its nearest point must lie on the first surface there, not behind it.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 import trimesh
@@ -18,7 +20,7 @@ from farfield.core.envmap_runtime import camera_at
 from farfield.core.evaluation import compare_images
 from farfield.core.ldi import record_ldi
 from farfield.core.point_sampling import plan_point_sampling
-from farfield.core.point_samples import _lookup, gather_point_samples
+from farfield.core.point_samples import CONTINUITY, _lookup, gather_point_samples, ldi_spacing
 from farfield.core.render.points import PointRenderer
 from farfield.core.render.raster import MeshRenderer
 from farfield.core.scene import SceneObject
@@ -134,3 +136,62 @@ def test_the_one_colour_preview_draws_the_part_without_holes_and_close_in_colour
             stats = compare_images(geometry.render(camera), preview.render(camera))
             assert stats["geometry_pixels"] > 1000 and stats["hole_pixels"] == 0 and stats["bloat_beyond_1px"] == 0
             assert stats["colour_error_mean"] < 3.0
+
+
+def _shifted(array: np.ndarray, dr: int, dc: int, fill) -> np.ndarray:
+    """``array`` (..., h, w) moved so that [..., r, c] holds the value at [..., r + dr, c + dc]."""
+    out = np.full_like(array, fill)
+    h, w = array.shape[-2:]
+    rs, re = max(0, -dr), min(h, h - dr)
+    cs, ce = max(0, -dc), min(w, w - dc)
+    out[..., rs:re, cs:ce] = array[..., rs + dr : re + dr, cs + dc : ce + dc]
+    return out
+
+
+def spacing_with_arrays(ldi, cell: BoxCell) -> np.ndarray:
+    """:func:`core.point_samples.ldi_spacing`'s rule written with whole numpy arrays (it was the
+    implementation before the numba kernel): per neighbour direction, the nearest layer of the
+    shifted image, the continuity test, the edge's component across the cell's rays."""
+    depth = ldi.depth
+    centre, radius = cell.center, 0.5 * float(np.linalg.norm(cell.size))
+    positions = ldi.sample_positions()
+    pixel = 2.0 * math.tan(0.5 * ldi.camera.fov) / ldi.camera.resolution
+    spacing = np.zeros(depth.shape)
+    for dr, dc in ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)):
+        other = _shifted(depth, dr, dc, np.nan)
+        other = np.where(np.isnan(other), np.inf, other)
+        other_pos = _shifted(np.moveaxis(positions, -1, 0), dr, dc, np.nan)
+        step = pixel * math.hypot(dr, dc)
+        for layer in range(depth.shape[0]):
+            gap = np.abs(other - depth[layer])
+            nearest = np.argmin(gap, axis=0)
+            best = np.take_along_axis(gap, nearest[None], axis=0)[0]
+            same = best <= CONTINUITY * depth[layer] * step
+            q = np.take_along_axis(other_pos, np.broadcast_to(nearest[None, None], (3, 1) + nearest.shape), axis=1)[:, 0]
+            e = np.moveaxis(q, 0, -1) - positions[layer]
+            length = np.linalg.norm(e, axis=-1)
+            seen = positions[layer] - centre
+            distance = np.linalg.norm(seen, axis=-1)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                cos_theta = np.abs(np.einsum("...i,...i->...", e, seen)) / (length * distance)
+                gamma = np.arcsin(np.clip(radius / distance, 0.0, 1.0))
+            theta = np.arccos(np.clip(cos_theta, 0.0, 1.0))
+            across = length * np.minimum(1.0, np.sin(np.minimum(theta + gamma, 0.5 * math.pi)))
+            spacing[layer] = np.maximum(spacing[layer], np.where(same, across, np.inf))
+    if ldi.touched is not None:
+        spacing = np.where(ldi.touched, np.inf, spacing)
+    return np.where(np.isfinite(depth), spacing, np.nan)
+
+
+@pytest.mark.parametrize("scene", ["ball and box", "trunks"])
+def test_the_spacing_kernel_keeps_the_rule_written_with_arrays(scene):
+    objects = _ball_and_box() if scene == "ball and box" else _trunks()
+    cell = BoxCell.from_center([0.0, 0.0, 0.0], 1.0)
+    lo = np.min([o.bounds[0] for o in objects], axis=0)
+    hi = np.max([o.bounds[1] for o in objects], axis=0)
+    sampling = plan_point_sampling(cell, np.stack([lo, hi]), 45.0, RESOLUTION)
+    for camera in sampling.cameras:
+        ldi = record_ldi(objects, camera.camera(), conservative=True)
+        fast, plain = ldi_spacing(ldi, cell), spacing_with_arrays(ldi, cell)
+        assert np.isinf(fast).any() and np.isfinite(fast).any()
+        assert np.allclose(fast, plain, rtol=1e-12, atol=0.0, equal_nan=True)

@@ -14,6 +14,11 @@ supersampled views and its confirmation windows, :mod:`core.evaluation`) sees wh
 resolution shows, not sparse dots.  Such cameras must share the baked camera's axis: their
 ``offset`` is measured from it.
 
+A point's alpha is the share of its pixel's footprint the part covers (:mod:`core.point_appearance`):
+drawn without blending, the image holds the nearest point's colour (that of what covers the pixel)
+and that coverage, for a runtime to composite over what lies behind the impostor; a point without
+a coverage of its own (a preview's) has alpha 255.
+
 The camera, targets and read-back are :class:`core.render.raster.MeshRenderer`'s, so its images
 compare pixel for pixel with the mesh's.  :meth:`PointRenderer.render_ids` draws each point's index
 instead: the visibility of the points among themselves, as the z-buffer resolves it (§4.3's v_j).
