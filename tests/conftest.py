@@ -39,10 +39,10 @@ def pytest_report_header(config):
     versions = installed_versions()
     lines.append("npm (tests/js): " + (", ".join(f"{k} {v}" for k, v in versions.items()) or "not installed (scripts/install-js)"))
     # Fill numba's cache once here, so the render workers the service tests start load the TDM
-    # kernels (warm_worker) instead of each compiling them while a test waits for it.
-    from farfield.core.techniques.tdm import warm_kernels
+    # and point kernels (warm_worker) instead of each compiling them while a test waits for it.
+    from farfield.core.techniques import points, tdm
 
-    lines.append(f"numba kernels ready in {warm_kernels():.1f} s")
+    lines.append(f"numba kernels ready in {tdm.warm_kernels() + points.warm_kernels():.1f} s")
     return lines
 
 

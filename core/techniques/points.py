@@ -18,11 +18,13 @@ The paper's ≈ 20 bytes per point assumes 8:1 compressed textures, which farfie
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from farfield.core import __version__
+from farfield.core import ldi as ldi_kernels
 from farfield.core.atlas import MAX_PAGE
 from farfield.core.errors import AtlasOverflowError, LayerPlanError
 from farfield.core.evaluation import Evaluation
@@ -30,7 +32,7 @@ from farfield.core.impostor import Impostor, PointPayload
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION
 from farfield.core.point_appearance import PointAppearance, integrate_appearance, mean_colour, single_colour
-from farfield.core.point_samples import gather_point_samples
+from farfield.core.point_samples import _spacing_kernel, gather_point_samples
 from farfield.core.point_sampling import plan_point_sampling
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
@@ -186,6 +188,19 @@ def bake_points(scene: Scene, cell: ViewCell, options: PointOptions = PointOptio
         parameters={**asdict(options), "objects": list(part.names), "scene_hash": scene.content_hash, "sampling": sampling.to_dict()},
         code_version=__version__,
     )
+
+
+def warm_kernels() -> float:
+    """Compile (or load from numba's cache) the numba kernels of a point bake (the conservative
+    LDI's merge, the sampling spacing) on tiny arrays, without GL; the seconds it took.  A render
+    worker calls it when it starts, beside the TDM's (:mod:`workers.tasks`)."""
+    start = time.perf_counter()
+    depth = np.full((1, 2, 2), 1.0)
+    keep = ldi_kernels._touched_kept(depth, depth + 1.0, 0.1)
+    index, positions, colour = np.zeros((1, 2, 2), np.int64), np.zeros((1, 2, 2, 3)), np.zeros((1, 2, 2, 4), np.uint8)
+    ldi_kernels._merge_kernel(depth, index, index, positions, colour, depth + 1.0, index, index, positions, colour, keep)
+    _spacing_kernel(depth, positions, np.zeros((1, 2, 2), np.bool_), np.zeros(3), 1.0, 0.01, 4.0)
+    return time.perf_counter() - start
 
 
 def _summary(stats: dict) -> str:
