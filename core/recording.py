@@ -29,7 +29,7 @@ import moderngl
 import numpy as np
 
 from farfield.core.layers import LayerPlan
-from farfield.core.render.alpha_mips import bilinear_square_max, max_alpha_levels
+from farfield.core.render.alpha_mips import max_alpha_texture
 from farfield.core.render.context import gl_context
 from farfield.core.render.cut_colours import cut_weighted_linear
 from farfield.core.render.programs import park_framebuffer, program, set_material, srgb_texture
@@ -321,12 +321,7 @@ def _object_textures(ctx: moderngl.Context, obj: SceneObject):
             cut = ctx.texture((image.shape[1], image.shape[0]), 4, image.tobytes(), dtype="f2")
             cut.build_mipmaps()
             cut.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
-            levels = max_alpha_levels(bilinear_square_max(obj.texture[..., 3]))
-            alpha = ctx.texture((levels[0].shape[1], levels[0].shape[0]), 1, dtype="f1")
-            alpha.build_mipmaps(0, len(levels) - 1)
-            for level, data in enumerate(levels):
-                alpha.write(np.ascontiguousarray(data[::-1]).tobytes(), level=level)
-            alpha.filter = (moderngl.NEAREST_MIPMAP_NEAREST, moderngl.NEAREST)
+            alpha = max_alpha_texture(ctx, obj.texture[..., 3])
     return texture, cut, alpha
 
 

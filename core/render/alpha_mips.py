@@ -10,6 +10,7 @@ whose squares meet the footprint.
 
 from __future__ import annotations
 
+import moderngl
 import numpy as np
 
 
@@ -80,3 +81,17 @@ def max_alpha_levels(alpha: np.ndarray) -> list[np.ndarray]:
             level = np.maximum(level[:, 0::2], level[:, 1::2])
         levels.append(level)
     return levels
+
+
+def max_alpha_texture(ctx: moderngl.Context, alpha: np.ndarray) -> moderngl.Texture:
+    """The GL texture of the max-alpha chain of ``alpha`` (h, w) uint8, top row first (each
+    texel's largest bilinear alpha on its square, :func:`bilinear_square_max`, then
+    :func:`max_alpha_levels`): one channel, rows bottom first as every farfield texture is
+    uploaded, nearest filtering, one mip level per chain level."""
+    levels = max_alpha_levels(bilinear_square_max(alpha))
+    texture = ctx.texture((levels[0].shape[1], levels[0].shape[0]), 1, dtype="f1")
+    texture.build_mipmaps(0, len(levels) - 1)
+    for level, data in enumerate(levels):
+        texture.write(np.ascontiguousarray(data[::-1]).tobytes(), level=level)
+    texture.filter = (moderngl.NEAREST_MIPMAP_NEAREST, moderngl.NEAREST)
+    return texture

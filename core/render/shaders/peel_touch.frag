@@ -3,7 +3,10 @@
 // (those come from peel.frag): if the triangle's projection meets the pixel's square, its sample is
 // the triangle's point whose projection is nearest the pixel centre, lifted onto the triangle with
 // perspective-correct weights, shaded there as mesh.frag would.  Peeled like peel.frag on that
-// point's depth (gl_FragDepth).
+// point's depth (gl_FragDepth).  Alpha-cut texels count texel-conservatively, as in peel.frag: the
+// sample stays when the texture passes the cut anywhere on the triangle under the pixel's square
+// (the texture coordinates of the square's corners on the triangle's plane, within the
+// triangle's own).
 uniform sampler2D previous;   // as in peel.frag
 uniform sampler2D base_texture;
 uniform bool has_texture;
@@ -29,6 +32,7 @@ layout(location = 0) out vec4 hit;
 layout(location = 1) out vec4 colour;
 
 #include "colour.glsl"
+#include "alpha_box.glsl"
 
 float cross2(vec2 u, vec2 v) { return u.x * v.y - u.y * v.x; }
 
@@ -93,7 +97,30 @@ void main() {
     }
     vec4 shade = base_color * (k.x * g_color_a + k.y * g_color_b + k.z * g_color_c);
     if (has_texture) { shade *= texture(base_texture, k.x * g_uv_a + k.y * g_uv_b + k.z * g_uv_c); }
-    if (alpha_cutoff >= 0.0 && shade.a < alpha_cutoff) { discard; }
+    if (alpha_cutoff >= 0.0 && shade.a < alpha_cutoff) {
+        vec2 lo = min(min(g_uv_a, g_uv_b), g_uv_c), hi = max(max(g_uv_a, g_uv_b), g_uv_c);
+        if (abs(area) > 0.0) {
+            vec2 box_lo = vec2(1e30), box_hi = vec2(-1e30);
+            bool bounded = true;
+            for (int i = 0; i < 4; ++i) {
+                vec2 q = centre + half_pixel * vec2(i == 1 || i == 2 ? 1.0 : -1.0, i >= 2 ? 1.0 : -1.0);
+                vec3 s = vec3(cross2(b - q, c - q), cross2(c - q, a - q), cross2(a - q, b - q)) / area;
+                vec3 m = s / vec3(g_a.z, g_b.z, g_c.z);
+                float total = m.x + m.y + m.z;
+                if (!(abs(total) > 1e-20)) { bounded = false; break; }
+                vec2 uv = (m.x * g_uv_a + m.y * g_uv_b + m.z * g_uv_c) / total;
+                box_lo = min(box_lo, uv);
+                box_hi = max(box_hi, uv);
+            }
+            if (bounded) {
+                lo = max(lo, box_lo);
+                hi = min(hi, box_hi);
+                hi = max(hi, lo);
+            }
+        }
+        vec4 vertex = max(max(g_color_a, g_color_b), g_color_c);
+        if (base_color.a * vertex.a * box_alpha(lo, hi) < alpha_cutoff) { discard; }
+    }
     gl_FragDepth = window;
     hit = vec4(window, p.z, object_index, float(gl_PrimitiveID) + 1.0);
     colour = vec4(linear_to_srgb(shade.rgb), 1.0);
