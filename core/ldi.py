@@ -201,7 +201,7 @@ def _merge_kernel(c_depth, c_obj, c_tri, c_pos, c_col, t_depth, t_obj, t_tri, t_
 def _touch_positions(camera: Camera, depth: np.ndarray, obj: np.ndarray, tri: np.ndarray, objects) -> np.ndarray:
     """(h, w, 3) world points (NaN where ``depth`` is NaN) of touched-pixel samples: on triangle
     ``tri`` of object ``obj``, the point whose projection is nearest the pixel centre (the same rule
-    as ``peel_touch.frag``, in float64)."""
+    as ``peel_touch.frag``, in float64): the centre itself when the triangle covers it."""
     out = np.full(depth.shape + (3,), np.nan)
     rows, cols = np.nonzero(np.isfinite(depth))
     if rows.size == 0:
@@ -230,6 +230,15 @@ def _touch_positions(camera: Camera, depth: np.ndarray, obj: np.ndarray, tri: np
         w = np.zeros((rows.size, 3))
         w[:, i], w[:, j] = 1.0 - s, s
         best_w[better], best_d[better] = w[better], dist[better]
+    # A triangle covering the pixel's centre on a cut texel (peel_touch.frag samples it there too):
+    # the centre itself.
+    a, b, c = proj[:, 0], proj[:, 1], proj[:, 2]
+    cross = lambda u, v: u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]  # noqa: E731
+    area = cross(b - a, c - a)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        inside_w = np.stack([cross(b - q, c - q), cross(c - q, a - q), cross(a - q, b - q)], axis=1) / area[:, None]
+    inside = (area != 0.0) & np.all(inside_w >= 0.0, axis=1)
+    best_w[inside] = inside_w[inside]
     k = best_w / eye[..., 2]
     k /= k.sum(axis=1, keepdims=True)
     out[rows, cols] = np.einsum("mi,mij->mj", k, corners)

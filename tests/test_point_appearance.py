@@ -20,6 +20,7 @@ from farfield.core.render.raster import Camera, MeshRenderer
 from farfield.core.scene import Scene, SceneObject
 from farfield.core.techniques import get_technique
 from farfield.core.viewcells import BoxCell, ShaftCell
+from tests.scenes import box_object as _box
 
 RED, BLUE = (0.9, 0.1, 0.1, 1.0), (0.1, 0.1, 0.9, 1.0)
 
@@ -114,3 +115,31 @@ def test_point_impostors_refuse_what_they_cannot_make():
         technique.options({"min_views": 200, "max_views": 100})
     with pytest.raises(ViewCellError, match="reaches the view cell"):  # a cell touching the part
         technique.bake(scene, BoxCell(np.array([-1.0, -1.0, 9.0]), np.array([1.0, 1.0, 9.995])), technique.options({}, 64), None, None)
+
+
+def _evaluate(scene: Scene, cell: BoxCell, resolution: int = 64):
+    technique = get_technique("points")
+    impostor = technique.bake(scene, cell, technique.options({}, resolution), None, None)
+    return impostor, technique.evaluate(scene, impostor, 8, 0, 0).totals
+
+
+def test_a_sub_pixel_part_and_a_part_seen_nearly_edge_on_keep_every_pixel():
+    cell = BoxCell.from_center([0.0, 0.0, 0.0], 1.0)
+    # A box a tenth of a pixel wide at 10 units (a 64-pixel image's pixel is 0.13 units there).
+    speck = Scene.from_objects([_box("speck", (-0.0065, -0.0065, 9.99), (0.0065, 0.0065, 10.01))], source="speck")
+    impostor, totals = _evaluate(speck, cell)
+    assert 0 < impostor.payload.count < 50 and totals["hole_pixels"] == 0, (impostor.payload.count, totals)
+    # A sheet in the plane y = 0 through the cell's middle: every viewer sees it within 3 degrees of edge-on.
+    sheet = SceneObject("sheet", np.array([[-1.0, 0.0, 9.0], [1.0, 0.0, 9.0], [1.0, 0.0, 11.0], [-1.0, 0.0, 11.0]]), np.array([[0, 1, 2], [0, 2, 3]]))
+    impostor, totals = _evaluate(Scene.from_objects([sheet], source="sheet"), cell)
+    assert impostor.payload.count > 0 and totals["hole_pixels"] == 0, (impostor.payload.count, totals)
+
+
+def test_a_part_whose_texels_are_all_cut_away_is_refused():
+    quad = SceneObject(
+        "glass", np.array([[-1.0, -1.0, 10.0], [1.0, -1.0, 10.0], [1.0, 1.0, 10.0], [-1.0, 1.0, 10.0]]), np.array([[0, 1, 2], [0, 2, 3]]),
+        uv=np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]), texture=np.zeros((4, 4, 4), np.uint8), alpha_cutoff=0.5,
+    )  # fmt: skip
+    technique = get_technique("points")
+    with pytest.raises(LayerPlanError, match="no surface"):
+        technique.bake(Scene.from_objects([quad], source="glass"), BoxCell.from_center([0.0, 0.0, 0.0], 1.0), technique.options({}, 64), None, None)

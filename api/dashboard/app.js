@@ -815,7 +815,7 @@ function renderCellEvaluation(job, cell) {
     guarantee.textContent = "";
     delete guarantee.dataset.guarantee;
     if (job.evaluate === false) note = "Not evaluated: switched off for this job.";
-    else if (techniqueScope(job.technique || job.job_type) === "scene") note = "Not evaluated: the job report evaluates impostors of one part (layered, tdm).";
+    else if (techniqueScope(job.technique || job.job_type) === "scene") note = "Not evaluated: the job report evaluates impostors of one part (layered, tdm, points).";
     else if (cell.state === "done") note = "Not evaluated.";
     else note = "Evaluated on the worker after the bake.";
     showBox($("cell-evaluation-note"), note);

@@ -2,9 +2,7 @@
 
 Pass k draws the objects with the depth test on and discards every fragment not strictly behind
 pass k-1's surface at its pixel (``peel.frag``), so it keeps the k-th surface along each ray.  Back
-faces count (no culling); alpha-cut texels do not (glTF's MASK rule), texel-conservatively: a
-surface whose texture passes the cut anywhere under the pixel's footprint keeps its sample there
-(``alpha_box.glsl``), so a needle the pixel's centre ray meets beside its opaque texels is kept.  Passes stop when one
+faces count (no culling); alpha-cut texels do not (glTF's MASK rule).  Passes stop when one
 draws nothing.  Surfaces closer than the depth buffer's 24-bit resolution of [near, far] at a
 pixel merge into one: give a tight depth range.
 
@@ -12,7 +10,10 @@ pixel merge into one: give a tight depth range.
 (``peel_touch.geom`` / ``.frag``: the triangle's screen rectangle, an exact triangle-square overlap
 test, and as the sample the triangle's point whose projection is nearest the centre), so geometry
 thinner than a pixel, which pixel-centre rays can miss, still leaves a sample in every pixel it
-crosses (:func:`core.ldi.record_ldi` merges the two).  A triangle reaching behind the camera
+crosses (:func:`core.ldi.record_ldi` merges the two).  An alpha-cut triangle's
+touched sample stays when the texture passes the cut at any point of a fine grid over the
+triangle's part of the pixel, also where it covers the pixel's centre on a cut texel, so a needle
+the centre ray meets beside its opaque texels is kept.  A triangle reaching behind the camera
 (eye depth <= 0 at a corner) adds no touched samples: give a camera that has the geometry in front,
 as the LDI cameras of a point impostor do.
 """
@@ -25,7 +26,6 @@ import moderngl
 import numpy as np
 
 from farfield.core.errors import LayerPlanError, RenderBackendError
-from farfield.core.render.alpha_mips import max_alpha_texture
 from farfield.core.render.context import gl_context
 from farfield.core.render.programs import park_framebuffer, program, set_material
 from farfield.core.render.raster import Camera, upload
@@ -52,17 +52,10 @@ def peel(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, m
     layers, shades = [], []
     try:
         draws = []
-        alphas: dict = {}  # id of a texture array -> its max-alpha chain (objects sharing it share this)
         for index, obj in enumerate(objects):
             origin = 0.5 * (obj.bounds[0] + obj.bounds[1])
             vao, texture = upload(ctx, prog, obj, origin, textures, owned)
-            alpha = None
-            if obj.alpha_cutoff is not None and obj.texture is not None:
-                if id(obj.texture) not in alphas:
-                    alphas[id(obj.texture)] = max_alpha_texture(ctx, obj.texture[..., 3])
-                    owned.append(alphas[id(obj.texture)])
-                alpha = alphas[id(obj.texture)]
-            draws.append((index, obj, origin, vao, texture, alpha))
+            draws.append((index, obj, origin, vao, texture))
         hits = [ctx.texture(size, 4, dtype="f4") for _ in range(2)]
         colours = [ctx.texture(size, 4) for _ in range(2)]
         depth = ctx.depth_texture(size)
@@ -101,16 +94,10 @@ def peel(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, m
             # window depth) stops it in the next pass.
             framebuffers[current].clear(2.0, 0.0, 0.0, 0.0, depth=1.0)  # both attachments: the colour's r saturates, a = 0
             hits[previous].use(1)
-            for index, obj, origin, vao, texture, alpha in draws:
+            for index, obj, origin, vao, texture in draws:
                 prog["eye_from_local"].write(camera.eye_matrix(origin).tobytes())
                 prog["object_index"].value = float(index)
                 set_material(prog, obj, texture)
-                prog["has_alpha_mip"].value = alpha is not None
-                if alpha is not None:
-                    alpha.use(3)
-                    prog["alpha_mip"].value = 3
-                    prog["alpha_mip_size"].value = (float(alpha.width), float(alpha.height))
-                    prog["alpha_mip_levels"].value = int(np.log2(max(alpha.width, alpha.height))) + 1
                 vao.render(moderngl.TRIANGLES)
             layer = np.frombuffer(hits[current].read(), dtype="f4").reshape(size[1], size[0], 4)[::-1]
             colour = np.frombuffer(colours[current].read(), dtype=np.uint8).reshape(size[1], size[0], 4)[::-1]

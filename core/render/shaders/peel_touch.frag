@@ -3,10 +3,13 @@
 // (those come from peel.frag): if the triangle's projection meets the pixel's square, its sample is
 // the triangle's point whose projection is nearest the pixel centre, lifted onto the triangle with
 // perspective-correct weights, shaded there as mesh.frag would.  Peeled like peel.frag on that
-// point's depth (gl_FragDepth).  Alpha-cut texels count texel-conservatively, as in peel.frag: the
-// sample stays when the texture passes the cut anywhere on the triangle under the pixel's square
-// (the texture coordinates of the square's corners on the triangle's plane, within the
-// triangle's own).
+// point's depth (gl_FragDepth).  Alpha-cut texels: the sample stays when the texture passes the
+// cut at any point of an 8 x 8 grid over the triangle's part of the pixel's square, also in a
+// pixel whose centre the triangle covers on a cut texel (which peel.frag skips), so a needle
+// thinner than a pixel still leaves a sample where it crosses one.  (The largest alpha of a
+// max-alpha mip chain over that part, as the layered recording reads it, also kept parts where
+// bilinear filtering reaches the cut only at a point: the pine's point impostor drew 740 pixels
+// more than a pixel from any needle.)
 uniform sampler2D previous;   // as in peel.frag
 uniform sampler2D base_texture;
 uniform bool has_texture;
@@ -32,7 +35,8 @@ layout(location = 0) out vec4 hit;
 layout(location = 1) out vec4 colour;
 
 #include "colour.glsl"
-#include "alpha_box.glsl"
+// Grid points per side at which a touched pixel's part of an alpha-cut triangle is tested.
+const int CUT_GRID = 8;
 
 float cross2(vec2 u, vec2 v) { return u.x * v.y - u.y * v.x; }
 
@@ -55,6 +59,7 @@ void main() {
     if (max(max(a.y, b.y), c.y) < lo.y || min(min(a.y, b.y), c.y) > hi.y) { discard; }
     float area = cross2(b - a, c - a);
     vec3 w;  // screen-space barycentric weights of the sample
+    bool centre_covered = false;
     if (abs(area) > 0.0) {
         vec2 e[3] = vec2[3](b - a, c - b, a - c);
         vec2 v[3] = vec2[3](a, b, c);
@@ -67,7 +72,12 @@ void main() {
         // The centre is clearly covered: peel.frag has its sample.  (Near an edge the GL's snapping
         // and tie rule may have left it to a neighbour or to nobody: sample it here too; a
         // duplicate of a centre sample is dropped below as the same surface.)
-        if (all(greaterThan(w, vec3(1e-4)))) { discard; }
+        // An alpha-cut triangle whose cut texel there hid it from peel.frag goes on: it may pass
+        // the cut elsewhere in the pixel (below).
+        if (all(greaterThan(w, vec3(1e-4)))) {
+            if (!(alpha_cutoff >= 0.0 && has_texture)) { discard; }
+            centre_covered = true;
+        }
     }
     if (!(abs(area) > 0.0) || any(lessThan(w, vec3(0.0)))) {
         // The nearest point lies on an edge (or the projection is a segment).
@@ -97,29 +107,26 @@ void main() {
     }
     vec4 shade = base_color * (k.x * g_color_a + k.y * g_color_b + k.z * g_color_c);
     if (has_texture) { shade *= texture(base_texture, k.x * g_uv_a + k.y * g_uv_b + k.z * g_uv_c); }
+    if (centre_covered && !(shade.a < alpha_cutoff)) { discard; }  // peel.frag's sample
     if (alpha_cutoff >= 0.0 && shade.a < alpha_cutoff) {
-        vec2 lo = min(min(g_uv_a, g_uv_b), g_uv_c), hi = max(max(g_uv_a, g_uv_b), g_uv_c);
-        if (abs(area) > 0.0) {
-            vec2 box_lo = vec2(1e30), box_hi = vec2(-1e30);
-            bool bounded = true;
-            for (int i = 0; i < 4; ++i) {
-                vec2 q = centre + half_pixel * vec2(i == 1 || i == 2 ? 1.0 : -1.0, i >= 2 ? 1.0 : -1.0);
-                vec3 s = vec3(cross2(b - q, c - q), cross2(c - q, a - q), cross2(a - q, b - q)) / area;
-                vec3 m = s / vec3(g_a.z, g_b.z, g_c.z);
-                float total = m.x + m.y + m.z;
-                if (!(abs(total) > 1e-20)) { bounded = false; break; }
-                vec2 uv = (m.x * g_uv_a + m.y * g_uv_b + m.z * g_uv_c) / total;
-                box_lo = min(box_lo, uv);
-                box_hi = max(box_hi, uv);
-            }
-            if (bounded) {
-                lo = max(lo, box_lo);
-                hi = min(hi, box_hi);
-                hi = max(hi, lo);
+        // The triangle's part of the pixel's square on a CUT_GRID x CUT_GRID grid, shaded as the
+        // renderer filters the texture: the sample stays if any grid point passes the cut.
+        bool passes = false;
+        if (has_texture && abs(area) > 0.0) {
+            for (int i = 0; i < CUT_GRID && !passes; ++i) {
+                for (int j = 0; j < CUT_GRID && !passes; ++j) {
+                    vec2 q = centre + half_pixel * vec2((2.0 * float(i) + 1.0) / float(CUT_GRID) - 1.0, (2.0 * float(j) + 1.0) / float(CUT_GRID) - 1.0);
+                    vec3 s = vec3(cross2(b - q, c - q), cross2(c - q, a - q), cross2(a - q, b - q)) / area;
+                    if (any(lessThan(s, vec3(0.0)))) { continue; }
+                    vec3 m = s / vec3(g_a.z, g_b.z, g_c.z);
+                    m /= (m.x + m.y + m.z);
+                    float alpha = base_color.a * dot(m, vec3(g_color_a.a, g_color_b.a, g_color_c.a))
+                                * textureLod(base_texture, m.x * g_uv_a + m.y * g_uv_b + m.z * g_uv_c, 0.0).a;
+                    passes = alpha >= alpha_cutoff;
+                }
             }
         }
-        vec4 vertex = max(max(g_color_a, g_color_b), g_color_c);
-        if (base_color.a * vertex.a * box_alpha(lo, hi) < alpha_cutoff) { discard; }
+        if (!passes) { discard; }
     }
     gl_FragDepth = window;
     hit = vec4(window, p.z, object_index, float(gl_PrimitiveID) + 1.0);
