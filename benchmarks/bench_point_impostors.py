@@ -12,7 +12,8 @@ quarter of the part's size two part-diameters in front of it), output at 45°.  
   the cell's centre at 4 x 4 samples), the share of one-colour points (§5.3) and the bytes per point;
 - **bake seconds** per stage (plan, points, appearance, pack) and the appearance's views;
 - **the evaluation** (:func:`core.evaluation.evaluate`, as ``farfield evaluate`` runs it): the cell's
-  corners, reference viewpoint (its centre) and 16 random points, hole pixels, colour error mean;
+  corners, reference viewpoint (its centre) and 16 random points, hole pixels, pixels bloated
+  beyond one pixel, colour error mean;
 - **aliasing error** (the paper's reason to exist, Figs. 6-8): from the cell's centre and 8
   random points, the mean over the pixels either image covers of the difference (max over RGB,
   0-255) to a **reference**: the part drawn with 8 x 8 samples per pixel, each pixel the mean of
@@ -143,7 +144,7 @@ def main() -> None:
             "redundant_share": s["removed_share"], "unseen_dropped": s["unseen_dropped"], "points_per_covered_pixel": s["points"] / covered,
             "single_colour_share": s["single_colour_share"], "bytes_per_point": s["bytes_per_point"], "views": s["appearance"]["views"],
             "standard_error_p95": s["appearance"]["standard_error_p95"], "seconds": s["seconds"], "bake_seconds": bake_s,
-            "hole_pixels": t["hole_pixels"], "colour_error_mean": t["colour_error_mean"], "viewpoints": t["viewpoints"],
+            "hole_pixels": t["hole_pixels"], "bloat_beyond_1px": t["bloat_beyond_1px"], "colour_error_mean": t["colour_error_mean"], "viewpoints": t["viewpoints"],
             "aliasing_points": float(np.mean(alias["points"])), "aliasing_geometry": float(np.mean(alias["geometry"])),
             "flicker_reference": float(np.mean(flicker["reference"])), "flicker_points": float(np.mean(flicker["points"])), "flicker_geometry": float(np.mean(flicker["geometry"])),
         }  # fmt: skip
@@ -153,7 +154,7 @@ def main() -> None:
             f"{name}: {row['points']:,} points of {row['candidates']:,} candidates (redundant {100 * row['redundant_share']:.1f} %, never shown {row['unseen_dropped']:,}), "
             f"{row['points_per_covered_pixel']:.1f} per covered pixel, one colour {100 * row['single_colour_share']:.1f} %, {row['bytes_per_point']:.1f} B/point; "
             f"{row['views']} views (SE p95 {row['standard_error_p95']}); seconds plan {sec['plan']:.1f} points {sec['points']:.1f} appearance {sec['appearance']:.1f} pack {sec['pack']:.1f} total {sec['total']:.1f}\n"
-            f"    evaluation over {row['viewpoints']} viewpoints: {row['hole_pixels']} hole pixels, colour error mean {row['colour_error_mean']:.2f}; "
+            f"    evaluation over {row['viewpoints']} viewpoints: {row['hole_pixels']} hole pixels, {row['bloat_beyond_1px']} bloated beyond 1 px, colour error mean {row['colour_error_mean']:.2f}; "
             f"aliasing error points {row['aliasing_points']:.2f} vs geometry 1 spp {row['aliasing_geometry']:.2f} (ratio {row['aliasing_geometry'] / max(row['aliasing_points'], 1e-9):.2f}); "
             f"flicker reference {row['flicker_reference']:.2f}, points {row['flicker_points']:.2f}, geometry {row['flicker_geometry']:.2f}",
             flush=True,

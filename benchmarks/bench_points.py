@@ -9,7 +9,7 @@ share removed as redundant (paper: 40-60 %), the kept points per covered output 
 and the hole pixels of the kept points drawn as one-pixel points from the cell's 8 corners, centre
 and 8 random points with a z-buffer, against the part's own depth-peeled first surface (also those
 with no point in their 8 neighbours either, and the pixels whose nearest point lies more than 0.5 %
-behind the first surface: a see-through), with the seconds of each step.  Appearance (§5.2) is not built yet, so nothing here is coloured.
+behind the first surface: a see-through), with the seconds of each step: the geometry alone (``bench_point_impostors.py`` bakes the whole technique).
 """
 
 from __future__ import annotations
