@@ -143,3 +143,28 @@ def test_a_part_whose_texels_are_all_cut_away_is_refused():
     technique = get_technique("points")
     with pytest.raises(LayerPlanError, match="no surface"):
         technique.bake(Scene.from_objects([quad], source="glass"), BoxCell.from_center([0.0, 0.0, 0.0], 1.0), technique.options({}, 64), None, None)
+
+
+def test_the_cli_bakes_evaluates_and_compares_a_point_impostor(tmp_path):
+    from click.testing import CliRunner
+
+    from farfield.cli.main import _register, cli
+    from tests.scenes import write_scene
+
+    _register()
+    scene_file = write_scene(sawtooth(), tmp_path, "glb", "sawtooth")
+    cell = "box:-5,-0.5,-0.5,5,0.5,0.5"
+    common = [str(scene_file), "--viewcell", cell, "--resolution", "64", "--quiet"]
+    baked = CliRunner().invoke(cli, ["bake", *common, "--technique", "points", "--option", "max_views=64", "--out", str(tmp_path / "points"), "--json"])
+    assert baked.exit_code == 0, baked.output
+    assert CliRunner().invoke(cli, ["bake", *common, "--out", str(tmp_path / "layered")]).exit_code == 0
+    checked = CliRunner().invoke(cli, ["evaluate", str(tmp_path / "points"), str(scene_file), "--random", "4", "--check"])
+    assert checked.exit_code == 0 and "points" in checked.output, checked.output
+    compared = CliRunner().invoke(cli, ["evaluate", str(tmp_path / "layered"), str(tmp_path / "points"), str(scene_file), "--random", "2", "--json"])
+    assert compared.exit_code == 0, compared.output
+    import json
+
+    rows = {row["technique"]: row for row in json.loads(compared.output)["bundles"]}
+    assert rows["points"]["points"] > 0 and rows["points"]["triangles"] == 0 and rows["layered"]["points"] == 0
+    wrong = CliRunner().invoke(cli, ["bake", *common[:1], "--viewcell", "shaft:0,0,0,0,0,1,5,1", "--technique", "points", "--out", str(tmp_path / "shaft")])
+    assert wrong.exit_code == 2 and "box view cell" in wrong.output and not (tmp_path / "shaft").exists()
