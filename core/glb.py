@@ -210,7 +210,7 @@ def _point_primitive(payload: PointPayload, viewpoint: np.ndarray, binary: _Bin,
     single-colour preview of seed 001 §5.3, what any viewer shows as one-pixel points) and
     ``_FARFIELD_TILE`` (float32 VEC3: the point's page, -1 for one colour, and its tile's first
     texel x, y).  The extension :data:`POINT_APPEARANCE` on the primitive names the textures of the
-    pages (``textures``, one per atlas page, in page order), the tile's texels ``tile`` (along u,
+    pages (``textures``, one per atlas page, in page order; sRGB like a base-colour texture), the tile's texels ``tile`` (along u,
     along v), the sampling ``plane`` (unit normal, offset; world coordinates: normal · x = offset),
     its ``axes`` u, v and the ``rectangle`` [[lo u, lo v], [hi u, hi v]] of plane coordinates
     (x · u, x · v) the tiles span.  A runtime shows a textured point with the bilinear look-up, in

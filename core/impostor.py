@@ -471,3 +471,10 @@ def check_impostor(impostor: Impostor) -> None:
     if PAYLOAD_KINDS.get(getattr(payload, "kind", None)) is not type(payload):
         raise BundleFormatError(f"payload is a {type(payload).__name__}, expected one of {sorted(PAYLOAD_KINDS)}")
     payload.check(len(impostor.pages))
+    if isinstance(payload, PointPayload) and payload.count:  # every tile inside its page
+        textured = payload.page >= 0
+        if textured.any():
+            shapes = np.array([page.shape[1::-1] for page in impostor.pages], dtype=np.int64)  # (width, height)
+            beyond = payload.texel[textured] + payload.tile > shapes[payload.page[textured]]
+            if beyond.any():
+                raise BundleFormatError(f"points payload: {int(beyond.any(axis=1).sum())} tiles reach beyond their page")

@@ -63,6 +63,7 @@ TEXEL_SIGMA = 0.5  # texels: the Gaussian of the viewpoint basis b_i
 PIXEL_SIGMA = 0.5  # output pixels: the Gaussian of the pixel footprint q_j
 MIN_WEIGHT = 1e-3  # a texel's Gaussian weight below this adds nothing
 MAX_WINDOW = 4096  # pixels per side of one supersampled geometry window
+WINDOW_STEP = 32  # window sides are multiples of this
 _LUMA = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709 / sRGB primaries
 
 Progress = Callable[[int, int], None]  # (views done, most views)
@@ -71,8 +72,9 @@ Progress = Callable[[int, int], None]  # (views done, most views)
 @dataclass(frozen=True, slots=True)
 class PointAppearance:
     """``tiles`` (n, tv, tu, 4) uint8 sRGB (row 0 at the rectangle's low v, column 0 at low u),
-    alpha the covered share of the footprint (at least 1); ``seen`` (n,) bool: the point won a pixel in some view; ``stats``: views, the
-    final standard error, shares."""
+    alpha the covered share of the footprint over every view the point won a pixel in (at least
+    1); ``seen`` (n,) bool: the point won a pixel whose footprint the part covers in some view;
+    ``stats``: views, the final standard error, shares."""
 
     tiles: np.ndarray
     seen: np.ndarray
@@ -180,6 +182,7 @@ def integrate_appearance(
     weight2 = np.zeros((n, texels))
     colour = np.zeros((n, texels, 3))
     coverage = np.zeros((n, texels))
+    coverage_weight = np.zeros((n, texels))
     luma2 = np.zeros((n, texels))
     sobol = qmc.Sobol(5, scramble=True, seed=seed)
     views = 0
@@ -196,18 +199,26 @@ def integrate_appearance(
                 camera = _view_camera(eye, target, q[3:] - 0.5, fov, resolution, extent)
                 pixels = camera.project(extent)
                 x0, y0 = np.floor(pixels.min(axis=0)).astype(int) - 2
-                size = int(np.ceil(float(np.max(pixels.max(axis=0) - pixels.min(axis=0))))) + 5
+                # Window sides rounded up to WINDOW_STEP, so the renderers keep a few targets.
+                size = -(-(int(np.ceil(float(np.max(pixels.max(axis=0) - pixels.min(axis=0))))) + 5) // WINDOW_STEP) * WINDOW_STEP
+                if size > MAX_WINDOW:
+                    raise LayerPlanError(
+                        f"the part spans {size} pixels from the view cell at {resolution} px (at most {MAX_WINDOW}): "
+                        "lower the resolution, or split the part"
+                    )
                 s = max(1, min(int(samples), MAX_WINDOW // size))
                 drawn = ids.render_ids(camera.window(x0, y0, size, size))
                 linear, cover = footprint_filter(geometry.render(camera.window(x0, y0, size, size * s)), s)
-                row, col = np.nonzero((drawn >= 0) & (cover > 0.0))
+                row, col = np.nonzero(drawn >= 0)  # each point wins at most one pixel
                 j = drawn[row, col]
-                seen_colour = linear[row, col]
                 w = texel_weights(plane_coordinates(sampling, eye, points[j]), (tu, tv))
+                coverage[j] += w * cover[row, col][:, None]  # the coverage counts every view a point wins
+                coverage_weight[j] += w
+                covered = cover[row, col] > 0.0  # the colour, those where something covers its footprint
+                j, w, seen_colour = j[covered], w[covered], linear[row[covered], col[covered]]
                 weight[j] += w
                 weight2[j] += w * w
                 colour[j] += w[..., None] * seen_colour[:, None, :]
-                coverage[j] += w * cover[row, col][:, None]
                 luma2[j] += w * (seen_colour @ _LUMA)[:, None] ** 2
             views += batch.shape[0]
             if progress is not None:
@@ -225,14 +236,14 @@ def integrate_appearance(
     seen = reached.any(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         texel_colour = colour / weight[..., None]
-        texel_cover = coverage / weight
+        texel_cover = coverage / coverage_weight
         point_mean = colour.sum(axis=1) / weight.sum(axis=1)[:, None]  # the point's mean over its samples
-        point_cover = coverage.sum(axis=1) / weight.sum(axis=1)
+        point_cover = coverage.sum(axis=1) / coverage_weight.sum(axis=1)
     fallback_linear = srgb_to_linear(np.asarray(fallback, dtype=np.float64)[:, :3] / 255.0)
     point_mean = np.where(seen[:, None], point_mean, fallback_linear)
     point_cover = np.where(seen, point_cover, 1.0)
     texel_colour = np.where(reached[..., None], texel_colour, point_mean[:, None, :])
-    texel_cover = np.where(reached, texel_cover, point_cover[:, None])
+    texel_cover = np.where(coverage_weight > 0.0, texel_cover, point_cover[:, None])
     rgb = np.rint(np.clip(linear_to_srgb(texel_colour), 0.0, 1.0) * 255.0).astype(np.uint8)
     alpha = np.clip(np.rint(texel_cover * 255.0), 1, 255).astype(np.uint8)  # a point covers at least 1/255
     tiles = np.concatenate([rgb, alpha[..., None]], axis=2).reshape(n, tv, tu, 4)

@@ -116,3 +116,85 @@ def test_a_conservative_ldi_samples_geometry_thinner_than_a_pixel_in_every_pixel
     assert np.all((pixels >= -1e-6) & (pixels <= 1.0 + 1e-6))
     # The wall behind keeps its centre samples; nothing else is added on it.
     assert (ldi.obj == 1).sum() == (plain.obj == 1).sum()
+
+
+def test_a_conservative_ldi_samples_an_alpha_cut_needle_in_every_pixel_it_crosses():
+    # A card whose only opaque texels are a red column a fifth of a pixel wide, beside the centres.
+    camera = _camera(64, 1.0, 10.0)
+    pixel = 2.0 * math.tan(0.5 * camera.fov) / 64 * 5.0  # one pixel's width at depth 5
+    texture = np.zeros((16, 512, 4), dtype=np.uint8)
+    half = 40.0 * pixel  # the card spans 80 pixels: a texel is 80 / 512 of a pixel
+    column = int(round((0.6 * pixel + half) / (2.0 * half) * 512))
+    texture[:, column : column + 1] = (255, 0, 0, 255)
+    card = _quad("card", 5.0, half=half, texture=texture, alpha_cutoff=0.5)
+    wall = _quad("wall", 8.0, half=50.0)
+    plain = record_ldi([card, wall], camera)
+    assert not (plain.obj == 0).any()  # every centre ray meets a cut texel
+    ldi = record_ldi([card, wall], camera, conservative=True)
+    on_card = (ldi.obj == 0) & np.isfinite(ldi.depth)
+    rows, cols = np.argwhere(on_card)[:, 1], np.argwhere(on_card)[:, 2]
+    needle_x = (column + 0.5) / 512 * 2.0 * half - half
+    expected = int(np.floor(camera.project(np.array([[needle_x, 0.0, 5.0]]))[0, 0]))
+    assert set(range(64)) <= set(rows.tolist()) and set(cols.tolist()) == {expected}  # every row, the column the needle crosses
+    assert on_card.sum() == 64  # one sample a pixel
+    positions, index = ldi.samples()
+    mine = ldi.obj[index[:, 0], index[:, 1], index[:, 2]] == 0
+    assert np.allclose(positions[mine, 2], 5.0)
+    pixels = camera.project(positions[mine]) - index[mine][:, [2, 1]]
+    assert np.all((pixels >= -1e-6) & (pixels <= 1.0 + 1e-6))  # in its own pixel (the centre: the card covers it)
+    red = ldi.colour[on_card]
+    assert np.all(red[:, 0] > 200) and np.all(red[:, 1:3] < 30), red[:4]  # the needle's colour, not a cut texel's
+
+
+def merge_with_arrays(camera, centre, touched, objects):
+    """:func:`core.ldi._merge` written with whole numpy arrays (it was the implementation before the
+    numba kernels): touched layers nearest first, each sample kept unless a kept sample of its
+    pixel lies within the same-surface tolerance; then every pixel's samples sorted by depth."""
+    from farfield.core.ldi import SAME_SURFACE, LayeredDepthImage, _touch_positions
+
+    (centre, centre_colours), (touched, touched_colours) = centre, touched
+    pixel = 2.0 * math.tan(0.5 * camera.fov) / camera.resolution
+    plain = LayeredDepthImage(camera, centre[..., 0], centre[..., 1].astype(np.int64), centre[..., 2].astype(np.int64))
+    positions, depth, obj, tri = [plain.sample_positions()], [plain.depth], [plain.obj], [plain.triangle]
+    kind, shade, kept_depth = [np.zeros(plain.depth.shape, dtype=bool)], [centre_colours], plain.depth
+    for layer, layer_colour in zip(touched, touched_colours):
+        d = layer[..., 0]
+        near = np.any(np.abs(kept_depth - d[None]) <= (SAME_SURFACE * pixel * d)[None], axis=0) if kept_depth.shape[0] else np.zeros(d.shape, bool)
+        keep = np.isfinite(d) & ~near
+        if not keep.any():
+            continue
+        d = np.where(keep, d, np.nan)
+        o, t = np.where(keep, layer[..., 1], -1).astype(np.int64), np.where(keep, layer[..., 2], -1).astype(np.int64)
+        depth.append(d[None]), obj.append(o[None]), tri.append(t[None]), kind.append(keep[None])
+        shade.append(np.where(keep[..., None], layer_colour, 0).astype(np.uint8)[None])
+        positions.append(_touch_positions(camera, d, o, t, objects)[None])
+        kept_depth = np.concatenate([kept_depth, d[None]])
+    depth = np.concatenate(depth)
+    order = np.argsort(depth, axis=0, kind="stable")
+    take = lambda a: np.take_along_axis(a, order, axis=0)  # noqa: E731
+    depth, obj, tri, kind = take(depth), take(np.concatenate(obj)), take(np.concatenate(tri)), take(np.concatenate(kind))
+    positions = np.take_along_axis(np.concatenate(positions), order[..., None], axis=0)
+    colour = np.take_along_axis(np.concatenate(shade), order[..., None], axis=0)
+    filled = np.isfinite(depth).any(axis=(1, 2))
+    return depth[filled], obj[filled], tri[filled], kind[filled], positions[filled], colour[filled]
+
+
+def test_the_merge_kernels_keep_the_rule_written_with_arrays():
+    from farfield.core.ldi import SAME_SURFACE, _merge
+    from farfield.core.render.peeling import peel
+
+    camera = _camera(64, 1.0, 10.0)
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
+    pixel = 2.0 * math.tan(0.5 * camera.fov) / 64 * 5.0
+    objects = [
+        SceneObject("ball", np.asarray(ball.vertices) + [0.3, 0.0, 5.0], np.asarray(ball.faces)),
+        SceneObject("sliver", np.array([[0.6 * pixel, -1.0, 4.0], [0.8 * pixel, -1.0, 4.0], [0.8 * pixel, 1.0, 4.0], [0.6 * pixel, 1.0, 4.0]]), np.array([[0, 1, 2], [0, 2, 3]])),
+        _quad("wall", 8.0, half=50.0),
+    ]
+    hits = peel(objects, camera)
+    touched = peel(objects, camera, touching=True, centre=hits[0][..., 0], same_surface=SAME_SURFACE * 2.0 * math.tan(0.5 * camera.fov) / 64)
+    fast = _merge(camera, hits, touched, objects)
+    depth, obj, tri, kind, positions, colour = merge_with_arrays(camera, hits, touched, objects)
+    assert kind.any() and depth.shape[0] >= 3
+    assert np.array_equal(fast.depth, depth, equal_nan=True) and np.array_equal(fast.obj, obj) and np.array_equal(fast.triangle, tri)
+    assert np.array_equal(fast.touched, kind) and np.array_equal(fast.positions, positions, equal_nan=True) and np.array_equal(fast.colour, colour)

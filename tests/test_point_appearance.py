@@ -12,6 +12,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from farfield.core.colour_space import linear_to_srgb, srgb_to_linear
 from farfield.core.errors import LayerPlanError, ViewCellError
 from farfield.core.evaluation import downsample, impostor_renderer
 from farfield.core.point_appearance import plane_coordinates
@@ -45,7 +46,9 @@ def test_the_runtime_looks_up_the_texel_where_the_eye_ray_crosses_the_sampling_p
             image = renderer.render(camera)
             drawn = image[image[..., 3] > 0]
             assert drawn.shape[0] == 1
-            expected = [30 * column, [50, 150][row], 200] if column == int(column) else [0.5 * (30 * 2 + 30 * 3), 150, 200]
+            # Halfway between two texels: their mean in linear light (the pages are sRGB textures).
+            halfway = 255.0 * float(linear_to_srgb(0.5 * (srgb_to_linear(60 / 255) + srgb_to_linear(90 / 255))))
+            expected = [30 * column, [50, 150][row], 200] if column == int(column) else [halfway, 150, 200]
             assert np.abs(drawn[0, :3].astype(float) - expected).max() <= 1.0, (column, row, drawn[0])
 
 
@@ -168,3 +171,22 @@ def test_the_cli_bakes_evaluates_and_compares_a_point_impostor(tmp_path):
     assert rows["points"]["points"] > 0 and rows["points"]["triangles"] == 0 and rows["layered"]["points"] == 0
     wrong = CliRunner().invoke(cli, ["bake", *common[:1], "--viewcell", "shaft:0,0,0,0,0,1,5,1", "--technique", "points", "--out", str(tmp_path / "shaft")])
     assert wrong.exit_code == 2 and "box view cell" in wrong.output and not (tmp_path / "shaft").exists()
+
+
+def test_points_drawn_as_baked_pixels_look_the_same_through_a_window():
+    # The evaluation's confirmation draws windows of its supersampled camera: the points must
+    # land in the same baked pixels there as in the whole image.
+    rng = np.random.default_rng(5)
+    positions = rng.uniform([-1.0, -1.0, 9.0], [1.0, 1.0, 11.0], (3000, 3))
+    colours = np.concatenate([rng.integers(0, 256, (3000, 3)), np.full((3000, 1), 255)], axis=1).astype(np.uint8)
+    fov = math.radians(20.0)
+    with PointRenderer(positions, colours, grid=(64, fov)) as renderer:
+        whole = Camera.look_at(np.array([0.3, -0.2, 0.0]), np.array([0.0, 0.0, 10.0]), fov, 64 * 4, 5.0, 15.0)
+        image = renderer.render(whole)
+        covered = image[..., 3] > 0
+        assert covered.any() and (covered.reshape(64, 4, 64, 4).all(axis=(1, 3)) == covered[::4, ::4]).all()  # whole baked pixels
+        for x0, y0, size, resolution in ((100, 88, 40, 40), (96, 120, 24, 72)):  # windows on whole baked pixels, as the evaluation's
+            window = renderer.render(whole.window(x0, y0, size, resolution))
+            scale = resolution // size
+            expected = np.repeat(np.repeat(image[y0 : y0 + size, x0 : x0 + size], scale, axis=0), scale, axis=1)
+            assert np.array_equal(window, expected), (x0, y0, size, resolution)

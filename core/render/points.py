@@ -3,7 +3,8 @@
 Each point lands in the pixel that contains its projection (a one-pixel point's footprint); nearer
 points hide farther ones.  Its colour is either the one it carries (§5.3's "lower quality, but
 faster preview ... using only one color per point", and a compressed point's only colour) or,
-given an :class:`Appearance`, a bilinear look-up in its tile of an atlas page at the place where
+given an :class:`Appearance`, a bilinear look-up (in linear light: the pages are sRGB
+textures, as the meshes' base colours) in its tile of an atlas page at the place where
 the ray from the eye to the point crosses the sampling plane (§5.3; the vertex shader,
 ``shaders/points.vert``).
 
@@ -11,8 +12,10 @@ the ray from the eye to the point crosses the sampling plane (§5.3; the vertex 
 pixels: each point snapped to the centre of the baked pixel it falls in and drawn as a square of
 that pixel's size, so that a camera whose pixels subdivide the baked ones (the evaluation's
 supersampled views and its confirmation windows, :mod:`core.evaluation`) sees what the baked
-resolution shows, not sparse dots.  Such cameras must share the baked camera's axis: their
-``offset`` is measured from it.
+resolution shows, not sparse dots.  Such cameras must share the baked camera's axis (their
+``offset`` is measured from it), and a window's sides must fall on baked pixels' edges: the GL
+drops a point whose centre lies outside the viewport, so a window that cuts a baked pixel in two
+loses its part of that pixel (the evaluation's windows start and end on evaluated pixels).
 
 A point's alpha is the share of its pixel's footprint the part covers (:mod:`core.point_appearance`):
 drawn without blending, the image holds the nearest point's colour (that of what covers the pixel)
@@ -33,7 +36,7 @@ import moderngl
 import numpy as np
 
 from farfield.core.errors import RenderBackendError
-from farfield.core.render.programs import program
+from farfield.core.render.programs import program, srgb_texture
 from farfield.core.render.raster import Camera, MeshRenderer
 
 
@@ -100,9 +103,9 @@ class PointRenderer(MeshRenderer):
             last = int(np.searchsorted(sorted_page, value, "right"))
             texture = None
             if value >= 0:
-                image = np.ascontiguousarray(appearance.pages[int(value)])
-                texture = self.ctx.texture((image.shape[1], image.shape[0]), 4, image.tobytes())
-                texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
+                # Uploaded as srgb_texture flips rows to GL's order, so the shader's texel rows
+                # count from the texture's bottom: flip back to keep row y of the page at y.
+                texture = srgb_texture(self.ctx, np.ascontiguousarray(appearance.pages[int(value)][::-1]))
                 texture.repeat_x = texture.repeat_y = False
                 self._owned.append(texture)
             self._ranges.append((first, last - first, texture))

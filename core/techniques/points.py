@@ -11,7 +11,7 @@ atlas pages (:func:`pack_tiles`).
 
 **Memory** (``geometry_bytes``, ``texture_bytes``), as a runtime holds it: per point a float32
 position and an RGBA8 colour (16 bytes), per textured point a tile reference (4 bytes: its page
-texel as two uint16), and the pages' texels; ``bytes_per_point`` is their sum over the points.
+texel as two uint16; its page is that of the draw it is in), and the pages' texels; ``bytes_per_point`` is their sum over the points.
 The paper's ≈ 20 bytes per point assumes 8:1 compressed textures, which farfield does not apply.
 """
 
@@ -50,8 +50,8 @@ class PointOptions:
 
     resolution: int = option(512, "output image pixels per side", ge=1, le=MAX_RESOLUTION)
     fov_deg: float = option(45.0, "output field of view, degrees", gt=0.0, lt=180.0)
-    tile_u: int = option(8, "directional texels per point along the sampling plane's longer axis (seed 001 §6: 8 x 2)", ge=1, le=32)
-    tile_v: int = option(2, "directional texels per point along the other axis", ge=1, le=32)
+    tile_u: int = option(8, "directional texels per point along the sampling plane's u axis, level unless the plane faces up or down (seed 001 §6: 8 x 2)", ge=1, le=32)
+    tile_v: int = option(2, "directional texels per point along the plane's v axis", ge=1, le=32)
     samples: int = option(4, "geometry samples per output pixel side in the appearance's pixel footprint", ge=1, le=8)
     appearance_error: float = option(0.02, "stop adding views when 95 % of the texels' standard errors are below this (linear luminance, 0-1)", gt=0.0, le=1.0)
     min_views: int = option(64, "fewest Monte Carlo views of the appearance integration (they also judge which points are ever visible)", ge=1, le=4096)

@@ -122,7 +122,11 @@ void main() {
                     m /= (m.x + m.y + m.z);
                     float alpha = base_color.a * dot(m, vec3(g_color_a.a, g_color_b.a, g_color_c.a))
                                 * textureLod(base_texture, m.x * g_uv_a + m.y * g_uv_b + m.z * g_uv_c, 0.0).a;
-                    passes = alpha >= alpha_cutoff;
+                    if (alpha >= alpha_cutoff) {  // the sample's colour: this point's
+                        passes = true;
+                        vec2 uv = m.x * g_uv_a + m.y * g_uv_b + m.z * g_uv_c;
+                        shade = base_color * (m.x * g_color_a + m.y * g_color_b + m.z * g_color_c) * textureLod(base_texture, uv, 0.0);
+                    }
                 }
             }
         }

@@ -26,8 +26,9 @@ uniform vec4 rect_u;         // xyz / w: the rectangle's coordinate along u is d
 uniform vec4 rect_v;
 uniform vec2 tile;           // texels of a tile along u and v
 uniform vec2 page_size;
-uniform sampler2D page;
+uniform sampler2D page;        // sRGB texels, sampled (and filtered) as linear light
 in vec2 in_tile;             // the tile's first texel in the page; x < 0: one colour (in_color)
+#include "colour.glsl"
 #endif
 
 void main() {
@@ -45,7 +46,8 @@ void main() {
         vec3 s = eye_local + (plane.w - dot(plane.xyz, eye_local)) / dot(plane.xyz, d) * d;
         vec2 a = vec2(dot(s, rect_u.xyz) + rect_u.w, dot(s, rect_v.xyz) + rect_v.w);
         vec2 texel = in_tile + clamp(a * tile, vec2(0.5), tile - 0.5);
-        v_color = textureLod(page, texel / page_size, 0.0);
+        vec4 c = textureLod(page, texel / page_size, 0.0);
+        v_color = vec4(linear_to_srgb(c.rgb), c.a);
     }
 #endif
 }
