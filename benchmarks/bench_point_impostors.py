@@ -9,7 +9,8 @@ quarter of the part's size two part-diameters in front of it), output at 45°.  
 
 - **size**: the points, the LDI candidates and the shares removed (redundant, §5.1; never shown by
   any appearance view), the points per covered output pixel (covered: the part's pixels seen from
-  the cell's centre at 4 x 4 samples), the share of one-colour points (§5.3) and the bytes per point;
+  the cell's centre at 4 x 4 samples) and per pixel of the part's screen bounding box there (seed
+  001's Table 1 measure), the share of one-colour points (§5.3) and the bytes per point;
 - **bake seconds** per stage (plan, points, appearance, pack) and the appearance's views;
 - **the evaluation** (:func:`core.evaluation.evaluate`, as ``farfield evaluate`` runs it): the cell's
   corners, reference viewpoint (its centre) and 16 random points, hole pixels, pixels bloated
@@ -117,7 +118,10 @@ def main() -> None:
         alias = {"points": [], "geometry": []}
         flicker = {"reference": [], "points": [], "geometry": []}
         with MeshRenderer(scene.objects) as geometry, impostor_renderer(impostor) as points:
-            covered = int((over_grey(geometry.render(camera(cell.center, target, extent, 4 * args.resolution)), 4)[..., 3] > 0).sum())
+            centre_view = over_grey(geometry.render(camera(cell.center, target, extent, 4 * args.resolution)), 4)[..., 3] > 0
+            covered = int(centre_view.sum())
+            rows, cols = np.nonzero(centre_view)
+            box = int((np.ptp(rows) + 1) * (np.ptp(cols) + 1)) if rows.size else 0  # the paper's measure
 
             def frames(eye):
                 c = camera(eye, target, extent, args.resolution)
@@ -141,7 +145,7 @@ def main() -> None:
                 previous = f
         row = {
             "part": name, "triangles": scene.triangle_count, "points": s["points"], "candidates": s["candidates"],
-            "redundant_share": s["removed_share"], "unseen_dropped": s["unseen_dropped"], "points_per_covered_pixel": s["points"] / covered,
+            "redundant_share": s["removed_share"], "unseen_dropped": s["unseen_dropped"], "points_per_covered_pixel": s["points"] / covered, "points_per_box_pixel": s["points"] / box,
             "single_colour_share": s["single_colour_share"], "bytes_per_point": s["bytes_per_point"], "views": s["appearance"]["views"],
             "standard_error_p95": s["appearance"]["standard_error_p95"], "seconds": s["seconds"], "bake_seconds": bake_s,
             "hole_pixels": t["hole_pixels"], "bloat_beyond_1px": t["bloat_beyond_1px"], "colour_error_mean": t["colour_error_mean"], "viewpoints": t["viewpoints"],
@@ -152,7 +156,7 @@ def main() -> None:
         sec = s["seconds"]
         print(
             f"{name}: {row['points']:,} points of {row['candidates']:,} candidates (redundant {100 * row['redundant_share']:.1f} %, never shown {row['unseen_dropped']:,}), "
-            f"{row['points_per_covered_pixel']:.1f} per covered pixel, one colour {100 * row['single_colour_share']:.1f} %, {row['bytes_per_point']:.1f} B/point; "
+            f"{row['points_per_covered_pixel']:.1f} per covered pixel ({row['points_per_box_pixel']:.1f} per pixel of its screen bounding box), one colour {100 * row['single_colour_share']:.1f} %, {row['bytes_per_point']:.1f} B/point; "
             f"{row['views']} views (SE p95 {row['standard_error_p95']}); seconds plan {sec['plan']:.1f} points {sec['points']:.1f} appearance {sec['appearance']:.1f} pack {sec['pack']:.1f} total {sec['total']:.1f}\n"
             f"    evaluation over {row['viewpoints']} viewpoints: {row['hole_pixels']} hole pixels, {row['bloat_beyond_1px']} bloated beyond 1 px, colour error mean {row['colour_error_mean']:.2f}; "
             f"aliasing error points {row['aliasing_points']:.2f} vs geometry 1 spp {row['aliasing_geometry']:.2f} (ratio {row['aliasing_geometry'] / max(row['aliasing_points'], 1e-9):.2f}); "
