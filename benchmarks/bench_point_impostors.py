@@ -120,8 +120,8 @@ def main() -> None:
         with MeshRenderer(scene.objects) as geometry, impostor_renderer(impostor) as points:
             centre_view = over_grey(geometry.render(camera(cell.center, target, extent, 4 * args.resolution)), 4)[..., 3] > 0
             covered = int(centre_view.sum())
-            rows, cols = np.nonzero(centre_view)
-            box = int((np.ptp(rows) + 1) * (np.ptp(cols) + 1)) if rows.size else 0  # the paper's measure
+            ys, xs = np.nonzero(centre_view)
+            box = int((np.ptp(ys) + 1) * (np.ptp(xs) + 1)) if ys.size else 0  # the paper's measure
 
             def frames(eye):
                 c = camera(eye, target, extent, args.resolution)
