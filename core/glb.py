@@ -9,8 +9,9 @@ timestamps, PNG pages encoded with fixed settings by :func:`page_png`).  Layout 
 * BIN chunk (type ``BIN\\0``), padded with zeros; every bufferView inside starts on a 4-byte
   boundary.  For each page with quads, in page order: indices, POSITION, TEXCOORD_0; then every
   page's PNG image.
-* One scene, one node, one mesh.  The node's ``translation`` is the impostor's reference viewpoint
-  as float64 JSON numbers, and POSITION holds float32 corners *relative to it*: float32 keeps ~7
+* One scene, one node, one mesh.  The node's ``extras.farfield`` says where the impostor is valid
+  (:func:`engine_metadata`: technique, view cell, reference viewpoint, resolution, field of view).
+  Its ``translation`` is the impostor's reference viewpoint as float64 JSON numbers, and POSITION holds float32 corners *relative to it*: float32 keeps ~7
   significant digits, which at continental coordinates (1e6 m) is ~0.1 m absolute, but relative
   to a viewpoint a few hundred metres away it is well below a millimetre.
 * One primitive per atlas page that has geometry.  A quad payload (:class:`core.impostor.QuadPayload`)
@@ -51,7 +52,7 @@ from PIL import Image
 from farfield.core.colour_space import srgb_to_linear
 from farfield.core.impostor import Impostor, MeshPayload, PointPayload, QuadPayload, check_impostor
 
-__all__ = ["impostor_glb", "page_png"]
+__all__ = ["engine_metadata", "impostor_glb", "page_png"]
 
 _MAGIC = 0x46546C67  # "glTF"
 _VERSION = 2
@@ -248,6 +249,26 @@ def _points_glb_parts(impostor: Impostor, viewpoint: np.ndarray, binary: _Bin, a
     return [_point_primitive(impostor.payload, viewpoint, binary, accessors)], [material]
 
 
+def engine_metadata(impostor: Impostor) -> dict:
+    """What an engine needs to know where the impostor is valid, as the node's ``extras.farfield``:
+    ``technique``, ``viewcell`` (the bundle's dict: kind and corners or shaft), ``reference_viewpoint``
+    (world, the node's translation), ``resolution`` and ``fov_deg`` (the output image it was made
+    for: one texel or point about one pixel there), ``code_version``.
+
+    >>> from farfield.core.impostor import PointPayload
+    >>> engine_metadata(Impostor("points", {"kind": "box", "lo": [0, 0, 0], "hi": [1, 1, 1]}, np.zeros(3), 64, 45.0, (), PointPayload.empty()))["viewcell"]["kind"]
+    'box'
+    """
+    return json.loads(json.dumps({
+        "technique": impostor.technique,
+        "viewcell": impostor.viewcell,
+        "reference_viewpoint": [float(x) for x in np.asarray(impostor.reference_viewpoint, dtype=np.float64)],
+        "resolution": int(impostor.resolution),
+        "fov_deg": float(impostor.fov_deg),
+        "code_version": impostor.code_version,
+    }, default=lambda v: v.tolist() if isinstance(v, np.ndarray) else float(v), allow_nan=False))  # fmt: skip
+
+
 def impostor_glb(impostor: Impostor) -> bytes:
     """GLB bytes of ``impostor``: one node at the reference viewpoint, one primitive per page.
 
@@ -345,7 +366,7 @@ def impostor_glb(impostor: Impostor) -> bytes:
     if isinstance(impostor.payload, PointPayload):
         primitives, materials = _points_glb_parts(impostor, viewpoint, binary, accessors)
         extensions.append(POINT_APPEARANCE)
-    node: dict = {"name": "impostor", "translation": [float(x) for x in viewpoint]}
+    node: dict = {"name": "impostor", "translation": [float(x) for x in viewpoint], "extras": {"farfield": engine_metadata(impostor)}}
     document: dict = {
         "asset": {"version": "2.0", "generator": f"farfield {impostor.code_version}".rstrip()},
         "extensionsUsed": sorted(extensions),

@@ -317,6 +317,11 @@ def test_glb_structure(viewpoint):
     assert document["extensionsUsed"] == ["KHR_materials_unlit"]
     (node,) = document["nodes"]
     assert node["translation"] == list(viewpoint)  # float64 JSON numbers, exact
+    # Where the impostor is valid, for an engine: in the node's extras.
+    assert node["extras"]["farfield"] == {
+        "technique": impostor.technique, "viewcell": impostor.viewcell, "reference_viewpoint": list(viewpoint),
+        "resolution": impostor.resolution, "fov_deg": impostor.fov_deg, "code_version": impostor.code_version,
+    }  # fmt: skip
     (mesh,) = document["meshes"]
     assert len(mesh["primitives"]) == len(impostor.pages)
     for view in document["bufferViews"]:

@@ -190,3 +190,29 @@ def test_points_drawn_as_baked_pixels_look_the_same_through_a_window():
             scale = resolution // size
             expected = np.repeat(np.repeat(image[y0 : y0 + size, x0 : x0 + size], scale, axis=0), scale, axis=1)
             assert np.array_equal(window, expected), (x0, y0, size, resolution)
+
+
+def test_the_glb_holds_the_points_their_preview_colour_and_their_tiles():
+    from farfield.core.glb import POINT_APPEARANCE, impostor_glb
+    from tests.test_bundle import accessor_array, parse_glb
+
+    technique = get_technique("points")
+    cell = BoxCell(np.array([-5.0, -0.5, -0.5]), np.array([5.0, 0.5, 0.5]))
+    impostor = technique.bake(sawtooth(), cell, technique.options({"max_views": 64}, 48), None, None)
+    payload = impostor.payload
+    document, binary = parse_glb(impostor_glb(impostor))
+    (node,) = document["nodes"]
+    assert node["extras"]["farfield"]["technique"] == "points" and node["extras"]["farfield"]["viewcell"] == cell.to_dict()
+    (primitive,) = document["meshes"][0]["primitives"]
+    assert primitive["mode"] == 0 and POINT_APPEARANCE in document["extensionsUsed"] and POINT_APPEARANCE not in document.get("extensionsRequired", [])
+    positions = accessor_array(document, binary, primitive["attributes"]["POSITION"])
+    assert np.allclose(positions + np.asarray(node["translation"]), payload.positions, atol=1e-5)
+    colour = accessor_array(document, binary, primitive["attributes"]["COLOR_0"])  # glTF: linear
+    assert np.allclose(colour, srgb_to_linear(payload.colour[:, :3] / 255.0), atol=1e-6)
+    tile = accessor_array(document, binary, primitive["attributes"]["_FARFIELD_TILE"])
+    assert np.array_equal(tile[:, 0], payload.page) and np.array_equal(tile[:, 1:], payload.texel)
+    extension = primitive["extensions"][POINT_APPEARANCE]
+    assert extension["tile"] == payload.tile.tolist() and extension["plane"] == payload.plane.tolist()
+    assert extension["axes"] == payload.axes.tolist() and extension["rectangle"] == payload.rectangle.tolist()
+    assert len(extension["textures"]) == len(impostor.pages) > 0
+    assert document["materials"][primitive["material"]]["extensions"] == {"KHR_materials_unlit": {}}
