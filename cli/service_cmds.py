@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+from dataclasses import replace
 
 import click
 
@@ -14,15 +15,20 @@ from farfield.service.settings import Settings
 
 
 @click.command("up")
-@click.option("--workers", type=int, default=None, help="Render workers to start (default: one per GPU, at least one; FARFIELD_WORKERS).")
-def up(workers):
+@click.option("--workers", type=click.IntRange(min=1), default=None, help="Render workers to start (default: one per GPU, at least one; FARFIELD_WORKERS).")
+@click.option("--host", default=None, help="Address the API listens on (default 127.0.0.1; FARFIELD_HOST).")
+@click.option("--port", type=click.IntRange(0, 65535), default=None, help="Port the API listens on, 0 for any free one (default 8000; FARFIELD_PORT).")
+def up(workers, host, port):
     """Start the service with its embedded defaults: Redis, the API and render workers.
 
-    Prints the dashboard URL and the admin API key; Ctrl-C or SIGTERM stops everything.
+    Prints the dashboard URL and the admin API key; Ctrl-C or SIGTERM stops everything.  The
+    flags win over the environment variables.
     """
     from farfield.service.supervisor import Service, render_devices
 
-    service = Service(Settings.from_env(), workers=workers or render_devices())
+    settings = Settings.from_env()
+    settings = replace(settings, host=settings.host if host is None else host, port=settings.port if port is None else port)
+    service = Service(settings, workers=workers or render_devices())
     service.handle_signals()  # before any child exists, so none is left behind by an early signal
     try:
         service.start()

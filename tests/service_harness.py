@@ -81,13 +81,15 @@ class RunningService:
         return self.process.wait()
 
 
-def start_service(home: Path, **extra_env: str) -> RunningService:
+def start_service(home: Path, *args: str, **extra_env: str) -> RunningService:
+    """``farfield up`` with ``args`` in ``home``, with a free port and one worker unless ``args`` or
+    ``extra_env`` say otherwise; returns once it printed its URL and broker."""
     env = {k: v for k, v in os.environ.items() if k not in ("REDIS_URL", "DATABASE_URL") and not k.startswith("FARFIELD_")}
     env.update({
         "FARFIELD_HOME": str(home), "FARFIELD_PORT": "0", "FARFIELD_WORKERS": "1",
         "FARFIELD_ADMIN_KEY": ADMIN_KEY, "FARFIELD_MAX_UPLOAD_MB": "5", **extra_env,
     })  # fmt: skip
-    process = subprocess.Popen([sys.executable, "-m", "farfield.cli.main", "up"], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    process = subprocess.Popen([sys.executable, "-m", "farfield.cli.main", "up", *args], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     url, broker, lines = None, None, []
     deadline = time.monotonic() + 120
     while broker is None and time.monotonic() < deadline:

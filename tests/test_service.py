@@ -371,3 +371,22 @@ def test_bodies_are_bounded_as_they_arrive(service, client):
     assert response.status_code == 413
     assert blob_files(service) == before
     assert client.get("/v1/health").json()["status"] == "ok"
+
+
+def test_farfield_up_takes_host_and_port_flags_over_the_environment(tmp_path):
+    import socket
+
+    import httpx
+    from service_harness import start_service
+
+    with socket.socket() as probe:  # a port free now
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    running = start_service(tmp_path / "home", "--host", "127.0.0.1", "--port", str(port), "--workers", "1")  # FARFIELD_PORT=0 in its environment
+    try:
+        assert running.url == f"http://127.0.0.1:{port}"
+        assert httpx.get(f"{running.url}/v1/health", timeout=10).status_code == 200
+    finally:
+        assert running.stop() == 0
+    bad = subprocess.run([sys.executable, "-m", "farfield.cli.main", "up", "--port", "70000"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "70000 is not in the range 0<=x<=65535" in bad.stderr
