@@ -69,11 +69,10 @@ void main() {
             if (dot(centre - v[i], n) > reach) { discard; }
         }
         w = vec3(cross2(b - centre, c - centre), cross2(c - centre, a - centre), cross2(a - centre, b - centre)) / area;
-        // The centre is clearly covered: peel.frag has its sample.  (Near an edge the GL's snapping
-        // and tie rule may have left it to a neighbour or to nobody: sample it here too; a
-        // duplicate of a centre sample is dropped below as the same surface.)
-        // An alpha-cut triangle whose cut texel there hid it from peel.frag goes on: it may pass
-        // the cut elsewhere in the pixel (below).
+        // The centre is clearly covered: peel.frag has its sample, unless the texel there is cut,
+        // and then the triangle may pass the cut elsewhere in the pixel (below).  (Near an edge the
+        // GL's snapping and tie rule may have left the centre to a neighbour or to nobody: sample
+        // it here too; a duplicate of a centre sample is dropped below as the same surface.)
         if (all(greaterThan(w, vec3(1e-4)))) {
             if (!(alpha_cutoff >= 0.0 && has_texture)) { discard; }
             centre_covered = true;
@@ -120,12 +119,11 @@ void main() {
                     if (any(lessThan(s, vec3(0.0)))) { continue; }
                     vec3 m = s / vec3(g_a.z, g_b.z, g_c.z);
                     m /= (m.x + m.y + m.z);
-                    float alpha = base_color.a * dot(m, vec3(g_color_a.a, g_color_b.a, g_color_c.a))
-                                * textureLod(base_texture, m.x * g_uv_a + m.y * g_uv_b + m.z * g_uv_c, 0.0).a;
-                    if (alpha >= alpha_cutoff) {  // the sample's colour: this point's
+                    vec4 here = base_color * (m.x * g_color_a + m.y * g_color_b + m.z * g_color_c)
+                              * textureLod(base_texture, m.x * g_uv_a + m.y * g_uv_b + m.z * g_uv_c, 0.0);
+                    if (here.a >= alpha_cutoff) {  // the sample takes this point's colour
                         passes = true;
-                        vec2 uv = m.x * g_uv_a + m.y * g_uv_b + m.z * g_uv_c;
-                        shade = base_color * (m.x * g_color_a + m.y * g_color_b + m.z * g_color_c) * textureLod(base_texture, uv, 0.0);
+                        shade = here;
                     }
                 }
             }
