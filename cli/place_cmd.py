@@ -15,6 +15,7 @@ from farfield.core.options import parse_option_text
 from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, primitive_model
 from farfield.core.placement.hierarchy import PlacementError
 from farfield.core.placement.planner import PlacementSettings, place
+from farfield.core.placement.solution_grid import BudgetSettings, check_views as count_views, place_primitives
 from farfield.core.techniques import DEFAULT_TECHNIQUE, TECHNIQUES, get_technique
 
 
@@ -73,7 +74,15 @@ def summary_lines(result) -> list[str]:
 @click.option("--technique", type=click.Choice(list(TECHNIQUES)), default=DEFAULT_TECHNIQUE, show_default=True, help="Impostor technique (a part technique).")
 @click.option("--option", "options", multiple=True, metavar="NAME=VALUE", help="A technique option (repeatable; see farfield techniques).")
 @click.option("--resolution", default=512, show_default=True, type=int, help="Output image pixels per side.")
-@click.option("--fov", default=45.0, show_default=True, type=float, help="Output field of view, degrees.")
+@click.option("--fov", default=None, type=float, help="Output field of view, degrees [default: 45; 60 for --algorithm primitive-budget, square, the same at run time].")
+@click.option("--algorithm", type=click.Choice(["frame-time", "primitive-budget"]), default="frame-time", show_default=True,
+              help="frame-time: impostors of --technique at least memory (seed 000 ch. 5); primitive-budget: a grid of solution points "
+                   "with one image per view so that no view draws more than --primitives (seed 004).")
+@click.option("--p-opt", type=float, default=None, help="primitive-budget: the optimisation budget < P [default: P - 5 %% of the model, at least P / 2].")
+@click.option("--octree-depth", type=int, default=5, show_default=True, help="primitive-budget: depth of the octree's pseudo-leaf cells.")
+@click.option("--grid-points", type=int, default=3, show_default=True, help="primitive-budget: initial grid points along the view space's longest side.")
+@click.option("--max-level", type=int, default=4, show_default=True, help="primitive-budget: subdivision levels at most; points still unsolved there are reported.")
+@click.option("--check-views", type=int, default=2000, show_default=True, help="primitive-budget: random (eye, yaw) views to count primitives over after placing (0: none).")
 @click.option("--cpv-size", type=float, default=None, help="Smallest 3D region of a problem view [default: the view space's longest side / 8].")
 @click.option("--vdi-deg", type=float, default=11.25, show_default=True, help="Smallest view-direction interval, degrees.")
 @click.option("--cells", type=click.Choice(["shafts", "boxes", "both", "leaf-boxes"]), default="both", show_default=True,
@@ -84,12 +93,22 @@ def summary_lines(result) -> list[str]:
 @click.option("--out", type=click.Path(dir_okay=False), default=None, help="Write the placement JSON here.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary, seconds and where the placement went as JSON.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
-def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, options, resolution, fov, cpv_size, vdi_deg, cells,
-              depth_complexity, leaf_size, max_impostor_mb, out, as_json, quiet) -> None:  # fmt: skip
+def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, options, resolution, fov, algorithm, p_opt, octree_depth,
+              grid_points, max_level, check_views, cpv_size, vdi_deg, cells, depth_complexity, leaf_size, max_impostor_mb, out, as_json,
+              quiet) -> None:  # fmt: skip
     """Decide where impostors go so that every view from VIEW-SPACE meets the budget at least memory
     (seed 000 ch. 5): problem views, candidates, greedy choice.  Views no placement can serve are
-    named; the exit status is 0 either way (see "status" per CPV in the JSON)."""
+    named; the exit status is 0 either way (see "status" per CPV in the JSON).  With --algorithm
+    primitive-budget: seed 004's grid of solution points and images instead."""
     corners = _numbers(view_space, 6, "--view-space")
+    if algorithm == "primitive-budget":
+        if primitives is None or frame_ms is not None or cost_model:
+            raise PlacementError("--algorithm primitive-budget takes a budget of --primitives N only (no --frame-ms, no --cost-model)")
+        settings = BudgetSettings(primitives=primitives, p_opt=p_opt, fov_deg=60.0 if fov is None else fov, octree_depth=octree_depth,
+                                  grid_points=grid_points, max_level=max_level)  # fmt: skip
+        _place_primitive_budget(scene, corners, settings, check_views, out, as_json, quiet)
+        return
+    fov = 45.0 if fov is None else fov
     model, t_max, note = _model(frame_ms, cost_model, primitives)
     values = {}
     for item in options:
@@ -122,4 +141,51 @@ def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, op
                                "unsolvable": result.unsolvable}, indent=1))  # fmt: skip
     else:
         click.echo("\n".join(summary_lines(result)))
+        click.echo(f"placement written to {out}" if out else "placement not written (--out FILE writes it)")
+
+
+def primitive_summary_lines(summary: dict, check: dict | None) -> list[str]:
+    s = summary
+    lines = [
+        f"budget P {s['primitives']:g} triangles (p_opt {s['p_opt']:g}) of {s['model_triangles']}, fov {s['fov_deg']:.4g} deg; "
+        f"{s['cells']} octree cells at depth {s['octree_depth']}",
+        f"grid points: {s['grid_points']} (per level {s['points_per_level']}; spacing {s['spacing']:.6g} at level 0), "
+        f"{s['unsolved_points']} unsolved at the last level",
+        f"images: {s['images']}; grid points by images: " + ", ".join(f"{k}: {v}" for k, v in s["points_with_images"].items()),
+    ]
+    if s["image_drawn_over_p_opt"]:
+        r = s["image_drawn_over_p_opt"]
+        lines.append(f"primitives left by each image / p_opt: min {r['min']:.3f}, median {r['median']:.3f}, max {r['max']:.3f}")
+    if check:
+        lines.append(
+            f"check: {check['views']} random views, {100 * check['within_p']:.2f} % within P (max {check['max']:.0f}, p99 {check['p99']:.0f} "
+            f"= {check['p99_over_p_opt']:.3f} p_opt); {check['without_grid_point']} without a grid point, {check['eye_past_quad']} "
+            f"past their image, {check['in_unsolved_range']} in unsolved ranges"
+        )
+    return lines
+
+
+def _place_primitive_budget(scene, corners, settings, views, out, as_json, quiet) -> None:
+    if isinstance(views, bool) or views < 0:
+        raise PlacementError(f"--check-views must be >= 0, got {views!r}")
+    if out and not Path(out).resolve().parent.is_dir():
+        raise PlacementError(f"cannot write the placement to {out!r}: no folder {str(Path(out).resolve().parent)!r}")
+    loaded = load_scene(scene)
+    bar = _Bar(enabled=not quiet)
+    try:
+        result = place_primitives(loaded, corners[:3], corners[3:], settings, progress=bar)
+    finally:
+        bar.close()
+    check = count_views(result, views) if views else None
+    data = result.to_dict()
+    data["check"] = check
+    if out:
+        try:
+            Path(out).write_text(json.dumps(data) + "\n")
+        except OSError as error:
+            raise PlacementError(f"cannot write the placement to {out!r}: {error.strerror or error}") from None
+    if as_json:
+        click.echo(json.dumps({"summary": data["summary"], "seconds": result.seconds, "check": check, "written": out}, indent=1))
+    else:
+        click.echo("\n".join(primitive_summary_lines(data["summary"], check)))
         click.echo(f"placement written to {out}" if out else "placement not written (--out FILE writes it)")
