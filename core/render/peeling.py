@@ -33,11 +33,12 @@ from farfield.core.scene import SceneObject
 
 
 def peel(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, max_layers: int = 256, touching: bool = False,
-         centre: np.ndarray | None = None, same_surface: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+         centre: np.ndarray | None = None, same_surface: float = 0.0, truncate: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """((layers, h, w, 3) float64 hits, (layers, h, w, 4) uint8 colours) of ``camera``'s rays,
     nearest first, rows top first: (eye depth along the camera's forward axis, object index,
     primitive index), NaN / -1 / -1 where a ray has fewer surfaces, and the surface's colour at
-    the hit as the mesh shader draws it (sRGB-encoded, alpha 255; 0 where none).  More than ``max_layers`` surfaces on one ray is an error.
+    the hit as the mesh shader draws it (sRGB-encoded, alpha 255; 0 where none).  More than ``max_layers`` surfaces on one ray is an error,
+    unless ``truncate``: then the nearest ``max_layers`` are returned (``max_layers=1``: a plain image with depth and ids).
     ``touching``: the samples of touched, not covered, pixels instead (module docstring), skipping
     those within ``same_surface`` times their depth of one of the ``centre`` eye depths (layers, h,
     w; NaN where none) of their pixel or of the touched sample peeled before them there."""
@@ -108,6 +109,8 @@ def peel(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, m
             if not drawn.any():
                 break
             if len(layers) == max_layers:
+                if truncate:
+                    break
                 raise LayerPlanError(f"more than {max_layers} surfaces along one ray of a {size[0]}-pixel layered depth image (raise max_layers)")
             out = np.full(layer.shape[:2] + (3,), -1.0)
             out[..., 0] = np.where(drawn, layer[..., 1], np.nan)
