@@ -56,7 +56,7 @@ class Candidate:
     colour_error_mean: float  # per pixel where both cover, max over RGB, 0..255
     colour_error_p99: float  # the worst viewpoint's 99th percentile of the same
     ssim: float  # mean over the viewpoints, over the union of coverage (1: equal)
-    points: int = 0  # points drawn (a point-based impostor)
+    points: int = 0  # points drawn (a point-based impostor) or samples splatted (an LDI)
 
     @property
     def primitives(self) -> int:
@@ -78,7 +78,7 @@ class Candidate:
             colour_error_mean=float(totals["colour_error_mean"]),
             colour_error_p99=float(totals["colour_error_p99"]),
             ssim=float(totals["ssim"]),
-            points=impostor.payload.count if impostor.payload.kind == "points" else 0,
+            points=impostor.payload.count if impostor.payload.kind in ("points", "ldi") else 0,
         )
 
     def to_dict(self) -> dict:

@@ -73,9 +73,10 @@ import numpy as np
 from skimage.metrics import structural_similarity
 
 from farfield.core.colour_space import linear_to_srgb, srgb_to_linear
-from farfield.core.impostor import Impostor, MeshPayload, PointPayload, QuadPayload
+from farfield.core.impostor import Impostor, LdiPayload, MeshPayload, PointPayload, QuadPayload
 from farfield.core.render.points import Appearance, PointRenderer
 from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
+from farfield.core.render.splats import SplatRenderer
 from farfield.core.scene import Scene, SceneObject
 from farfield.core.viewcells import BoxCell, ShaftCell, ViewCell, box_corners
 
@@ -111,9 +112,11 @@ def impostor_objects(impostor: Impostor) -> list[SceneObject]:
 
 def impostor_renderer(impostor: Impostor) -> MeshRenderer:
     """The renderer that draws ``impostor`` as its runtime does: its textured triangles
-    (:func:`impostor_objects`), or its points with their directional colours at the baked
+    (:func:`impostor_objects`), an LDI's samples as splats (:class:`core.render.splats.SplatRenderer`), or its points with their directional colours at the baked
     resolution's pixels (:class:`core.render.points.PointRenderer`)."""
     payload = impostor.payload
+    if isinstance(payload, LdiPayload):
+        return SplatRenderer([], splats=(payload.positions, payload.colour.astype(np.uint8), payload.extent))
     if isinstance(payload, PointPayload):
         return PointRenderer(payload.positions, payload.colour.astype(np.uint8), point_appearance(impostor), grid=(impostor.resolution, math.radians(impostor.fov_deg)))
     return MeshRenderer(impostor_objects(impostor))

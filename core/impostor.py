@@ -17,8 +17,12 @@ never on the technique's name:
     of directional colours in an atlas page over the sampling plane's rectangle: point-based
     impostors (seed 001).
 
-Depth layers (LDI) and frame atlases (billboards) get payload kinds of their own when those
-techniques are built: a frozen dataclass with the same members (``kind``, ``ARRAYS``,
+``"ldi"`` (:class:`LdiPayload`)
+    The samples of a layered depth image (seed 004 §4): world positions (n, 3) float64, one sRGB
+    colour each, the width of the LDI pixel's footprint at the sample, and the LDI's camera, so
+    that a runtime can splat them or warp them in occlusion-compatible order.
+
+Frame atlases (billboards) get a payload kind of their own when that technique is built: a frozen dataclass with the same members (``kind``, ``ARRAYS``,
 ``triangle_count``, ``arrays()``, ``from_arrays()``, ``check()``, ``world_points()``), registered in
 :data:`PAYLOAD_KINDS`, is all the bundle format needs.
 
@@ -82,7 +86,9 @@ def _check_arrays(payload, page_count: int) -> dict[str, int]:
                 raise BundleFormatError(f"{payload.kind} payload: {name} must be finite floats, got dtype {array.dtype}")
         elif array.dtype != np.int64:
             raise BundleFormatError(f"{payload.kind} payload: {name} must be integers, got dtype {array.dtype}")
-    page = payload.page
+    page = getattr(payload, "page", None)
+    if page is None:  # a payload without atlas pages (ldi)
+        return sizes
     page = page[page != getattr(payload, "NO_PAGE", None)]  # a payload's "no page" value, if it has one
     if page.size and (page.min() < 0 or page.max() >= page_count):
         raise BundleFormatError(
@@ -347,10 +353,90 @@ class PointPayload:
             raise BundleFormatError("points payload: a textured point's texel must be >= 0")
 
 
-Payload = Union[QuadPayload, MeshPayload, PointPayload]
+@dataclass(frozen=True, slots=True)
+class LdiPayload:
+    """A layered depth image's samples (seed 004 §4): ``positions`` (n, 3) float64 world, on their
+    LDI pixel's centre ray; ``colour`` (n, 4) int64 sRGB bytes; ``extent`` (n,) float64 the world
+    width of the LDI pixel's footprint at the sample (the splat size a drawer derives its width
+    from); the LDI's camera: ``eye`` (3,), ``axes`` (3, 3) right, up, forward, ``window`` (4,)
+    (tan of the half field of view, off-axis offset x, y in tangents, near plane depth) and
+    ``size`` (1,) its pixels per side.
+
+    >>> p = LdiPayload.empty()
+    >>> p.kind, p.count, p.triangle_count, p.counts()
+    ('ldi', 0, 0, {'samples': 0})
+    """
+
+    positions: np.ndarray
+    colour: np.ndarray
+    extent: np.ndarray
+    eye: np.ndarray
+    axes: np.ndarray
+    window: np.ndarray
+    size: np.ndarray
+
+    kind: ClassVar[str] = "ldi"
+    ARRAYS: ClassVar[tuple] = (
+        ("positions", "f", ("n", 3)),
+        ("colour", "i", ("n", 4)),
+        ("extent", "f", ("n",)),
+        ("eye", "f", (3,)),
+        ("axes", "f", (3, 3)),
+        ("window", "f", (4,)),
+        ("size", "i", (1,)),
+    )
+
+    def __post_init__(self) -> None:
+        for name, _, _ in self.ARRAYS:
+            object.__setattr__(self, name, _canonical(getattr(self, name)))
+
+    @classmethod
+    def empty(cls) -> LdiPayload:
+        return cls(np.zeros((0, 3)), np.zeros((0, 4), np.int64), np.zeros(0), np.zeros(3), np.eye(3), np.array([1.0, 0.0, 0.0, 1.0]), np.array([1]))
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> LdiPayload:
+        return cls(**{name: arrays[name] for name, _, _ in cls.ARRAYS})
+
+    @property
+    def count(self) -> int:
+        """Samples."""
+        return int(self.positions.shape[0]) if self.positions.ndim else 0
+
+    @property
+    def triangle_count(self) -> int:
+        """Triangles drawn: none, samples are splatted."""
+        return 0
+
+    def counts(self) -> dict[str, int]:
+        return {"samples": self.count}
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The payload's arrays by name, in the bundle's order."""
+        return {name: getattr(self, name) for name, _, _ in self.ARRAYS}
+
+    def world_points(self) -> np.ndarray:
+        """(n, 3) float64 every sample, world metres."""
+        return self.positions.reshape(-1, 3)
+
+    def check(self, page_count: int) -> None:
+        """Raise :class:`BundleFormatError` unless the arrays fit (shapes, dtypes, finite, colours
+        bytes, footprints > 0, orthonormal axes, a window with a positive half tangent and near plane)."""
+        _check_arrays(self, page_count)
+        if self.colour.size and (self.colour.min() < 0 or self.colour.max() > 255):
+            raise BundleFormatError("ldi payload: colour must be bytes, 0-255")
+        if self.extent.size and self.extent.min() <= 0:
+            raise BundleFormatError("ldi payload: every extent must be > 0")
+        if not np.allclose(self.axes @ self.axes.T, np.eye(3), atol=1e-6):
+            raise BundleFormatError("ldi payload: axes must be orthonormal (right, up, forward)")
+        if self.window[0] <= 0 or self.window[3] <= 0 or self.size[0] < 1:
+            raise BundleFormatError("ldi payload: window needs a half tangent > 0 and a near plane > 0, size >= 1")
+
+
+Payload = Union[QuadPayload, MeshPayload, PointPayload, LdiPayload]
 
 # Payload kind -> class: what the bundle reader builds from a manifest's ``payload.kind``.
-PAYLOAD_KINDS: dict[str, type] = {cls.kind: cls for cls in (QuadPayload, MeshPayload, PointPayload)}
+PAYLOAD_KINDS: dict[str, type] = {cls.kind: cls for cls in (QuadPayload, MeshPayload, PointPayload, LdiPayload)}
 
 
 @dataclass(frozen=True, slots=True)

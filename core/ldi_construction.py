@@ -68,35 +68,49 @@ def construction_cops(grid_point: np.ndarray, quad: np.ndarray, images: int = 9)
     return np.concatenate([g + half, g[None], g - half])
 
 
-def _window(points: np.ndarray, eye: np.ndarray, yaw: float, resolution: int, near: float | None = None) -> Camera:
-    """The square camera at ``eye`` looking along ``yaw`` whose window just holds ``points``."""
-    f, r = forward(yaw), right(yaw)
+def view_frame(direction) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(right, up, forward) of a camera looking along ``direction`` (a yaw in radians, or a 3-vector):
+    up is +y unless the view is within ~8° of vertical, then +z."""
+    if np.ndim(direction) == 0:
+        return right(float(direction)), UP.copy(), forward(float(direction))
+    f = np.asarray(direction, dtype=np.float64)
+    f = f / np.linalg.norm(f)
+    hint = UP if abs(f[1]) < 0.99 else np.array([0.0, 0.0, 1.0])
+    r = np.cross(f, hint)
+    r /= np.linalg.norm(r)
+    return r, np.cross(r, f), f
+
+
+def _window(points: np.ndarray, eye: np.ndarray, direction, resolution: int, near: float | None = None) -> Camera:
+    """The square camera at ``eye`` looking along ``direction`` whose window just holds ``points``."""
+    r, u, f = view_frame(direction)
     d = points - eye
     z = d @ f
     if np.any(z <= 0):
         raise ValueError("construction camera: the subset reaches behind the centre of projection")
-    x, y = (d @ r) / z, (d @ UP) / z
+    x, y = (d @ r) / z, (d @ u) / z
     cx, cy = 0.5 * (x.min() + x.max()), 0.5 * (y.min() + y.max())
     # A hair wider than the points so none falls on the window's outer edge.
     h = 0.5 * max(x.max() - x.min(), y.max() - y.min(), 1e-9) * (1.0 + 2.0 / resolution)
     lo = z.min() if near is None else near
-    return Camera(eye.copy(), r, UP.copy(), f, 2.0 * math.atan(h), int(resolution), float(lo) * (1 - 1e-6), float(z.max()) * (1 + 1e-6) + 1e-9,
+    return Camera(eye.copy(), r, u, f, 2.0 * math.atan(h), int(resolution), float(lo) * (1 - 1e-6), float(z.max()) * (1 + 1e-6) + 1e-9,
                   (float(cx), float(cy)))  # fmt: skip
 
 
-def ldi_camera(grid_point: np.ndarray, yaw: float, quad: np.ndarray, depth: float, far: float, resolution: int) -> Camera:
-    """The LDI's camera: at the grid point along ``yaw``, the square window around ``quad``, near plane the quad's."""
-    cam = _window(np.asarray(quad, dtype=np.float64), np.asarray(grid_point, dtype=np.float64), yaw, resolution)
+def ldi_camera(grid_point: np.ndarray, direction, quad: np.ndarray, depth: float, far: float, resolution: int) -> Camera:
+    """The LDI's camera: at the grid point along ``direction`` (yaw or vector), the square window around ``quad``, near plane the quad's."""
+    cam = _window(np.asarray(quad, dtype=np.float64), np.asarray(grid_point, dtype=np.float64), direction, resolution)
     return Camera(cam.eye, cam.right, cam.up, cam.forward, cam.fov, cam.resolution, float(depth) * (1 - 1e-6), float(far), cam.offset)
 
 
-def construct_ldi(objects: list[SceneObject], grid_point, yaw: float, quad, depth: float, resolution: int = 256,
+def construct_ldi(objects: list[SceneObject], grid_point, direction, quad, depth: float, resolution: int = 256,
                   images: int = 9, max_layers: int = DEFAULT_MAX_LAYERS) -> ConstructedLdi:  # fmt: skip
-    """The LDI of ``objects`` (the subset's triangles) for the image at ``grid_point`` (module docstring)."""
+    """The LDI of ``objects`` (the subset's triangles) for the image at ``grid_point`` looking along
+    ``direction`` (a yaw, radians, or a 3-vector) through ``quad`` at ``depth`` (module docstring)."""
     g = np.asarray(grid_point, dtype=np.float64)
     vertices = np.concatenate([o.vertices[np.unique(o.faces)] for o in objects])
-    far = float(((vertices - g) @ forward(yaw)).max()) * (1 + 1e-6)
-    camera = ldi_camera(g, yaw, quad, depth, far, resolution)
+    far = float(((vertices - g) @ view_frame(direction)[2]).max()) * (1 + 1e-6)
+    camera = ldi_camera(g, direction, quad, depth, far, resolution)
     cops = construction_cops(g, quad, images)
     pixel = 2.0 * math.tan(0.5 * camera.fov) / resolution
     frame = np.stack([camera.right, camera.up, camera.forward])
@@ -107,7 +121,7 @@ def construct_ldi(objects: list[SceneObject], grid_point, yaw: float, quad, dept
     count = np.zeros((resolution, resolution), np.int64)
     offered = kept = dropped = 0
     for cop in cops:
-        cam = camera if np.array_equal(cop, g) else _window(vertices, cop, yaw, resolution)
+        cam = camera if np.array_equal(cop, g) else _window(vertices, cop, direction, resolution)
         hits, colours = peel(objects, cam, max_layers=1, truncate=True)
         if hits.shape[0] == 0:
             continue

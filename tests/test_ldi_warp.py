@@ -157,3 +157,27 @@ def test_hybrid_frames_have_few_holes_and_nine_images_fewer_than_one(city_images
             footprint += result.footprint
     assert footprint > 1000 and holes[9] < 0.6 * holes[1]  # seed 004 Fig. 10: nine images leave far fewer gaps
     assert holes[9] < 0.05 * footprint
+
+
+def test_the_ldi_technique_refuses_a_part_that_reaches_into_its_cell_and_bad_payloads():
+    from farfield.core.errors import BundleFormatError, LayerPlanError
+    from farfield.core.impostor import LdiPayload
+    from farfield.core.scene import Scene
+    from farfield.core.techniques import get_technique
+    from farfield.core.viewcells import BoxCell
+
+    technique = get_technique("ldi")
+    scene = Scene.from_objects(_boxes(), "boxes")
+    options = technique.options({"images": 1}, 64)
+    far_cell = BoxCell(np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0]))
+    assert technique.check(far_cell, options, scene.bounds).layers == 1
+    one = technique.bake(scene, far_cell, options, None, None)
+    assert one.stats["construction_images"] == 1 and one.payload.count == one.stats["samples"] > 0
+    near_cell = BoxCell(np.array([-3.0, -3.0, -6.0]), np.array([3.0, 3.0, 0.0]))  # half-diagonal 5.8, the part starts 6 ahead of -3
+    with pytest.raises(LayerPlanError, match="half-diagonal"):
+        technique.check(near_cell, options, scene.bounds)
+    with pytest.raises(LayerPlanError, match="1 or 9"):
+        technique.options({"images": 4}, 64)
+    bad = LdiPayload(np.zeros((1, 3)), np.zeros((1, 4), np.int64), np.ones(1), np.zeros(3), 2 * np.eye(3), np.array([1.0, 0, 0, 1.0]), np.array([8]))
+    with pytest.raises(BundleFormatError, match="orthonormal"):
+        bad.check(0)

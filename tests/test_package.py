@@ -71,7 +71,7 @@ def test_the_installed_wheel_runs_outside_the_checkout(wheel, tmp_path):
     helped = run(farfield, "--help")
     assert helped.returncode == 0 and "bake" in helped.stdout, helped.stderr
     listed = run(farfield, "techniques", "--json")
-    assert listed.returncode == 0 and [t["name"] for t in json.loads(listed.stdout)["techniques"]] == ["layered", "envmap", "tdm", "points"]
+    assert listed.returncode == 0 and [t["name"] for t in json.loads(listed.stdout)["techniques"]] == ["layered", "envmap", "tdm", "points", "ldi"]
     scene = Scene.from_objects([box_object("block", (-5.0, 0.0, -5.0), (5.0, 8.0, 5.0), (0.8, 0.35, 0.2, 1.0))], source="package")
     scene_file = write_scene(scene, work, "glb", "block")
     baked = run(farfield, "bake", str(scene_file), "--viewcell", "box:-2,3,-27,2,7,-23", "--resolution", "64", "--out", "bundle", "--json")

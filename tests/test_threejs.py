@@ -110,8 +110,8 @@ def bundles(tmp_path_factory):
             back = read_bundle(paths.directory)
             cameras = (envmap_cameras if technique.scope == "scene" else part_cameras)(scene, back, cell)
             # A viewer shows a point impostor's one-colour preview (COLOR_0), as farfield's point
-            # renderer does without the appearance.
-            preview = back.payload.kind == "points"
+            # renderer does without the appearance; an LDI's samples (its fallback) likewise.
+            preview = back.payload.kind in ("points", "ldi")
             with (PointRenderer(back.payload.positions, back.payload.colour.astype(np.uint8)) if preview else MeshRenderer(impostor_objects(back))) as renderer:
                 made[name] = (paths, back, cameras, [renderer.render(camera) for camera in cameras])
         return made[name]

@@ -51,7 +51,7 @@ from sqlalchemy import select, update
 
 from farfield.core.errors import CellLimitError
 from farfield.core.render.context import gl_context
-from farfield.core.techniques import points, tdm
+from farfield.core.techniques import ldi, points, tdm
 from farfield.service.blobs import BlobStore, blob_store
 from farfield.service.cell_limits import MemoryGuard, hard_time_limit_message, time_limit_message
 from farfield.service.cell_runner import BAD_INPUT, TRANSIENT, RetryCell, backoff, failure_class, failure_message, run_cell
@@ -74,7 +74,7 @@ def warm_worker(**_) -> None:
     (they inherit them): the first cell a worker bakes does not pay the compilation.  A failure
     here is logged and left to the first bake to meet again."""
     try:
-        log.info("numba kernels ready in %.1f s", tdm.warm_kernels() + points.warm_kernels())
+        log.info("numba kernels ready in %.1f s", tdm.warm_kernels() + points.warm_kernels() + ldi.warm_kernels())
     except Exception:  # noqa: BLE001 - a bake reports the same failure with its cell
         log.exception("could not warm the numba kernels")
 

@@ -33,11 +33,13 @@ def ldi_splats(ldi: LayeredDepthImage) -> tuple[np.ndarray, np.ndarray, np.ndarr
 
 
 class SplatRenderer(MeshRenderer):
-    """``objects`` drawn as geometry, then the ``ldis``' samples as splats (module docstring)."""
+    """``objects`` drawn as geometry, then the ``ldis``' samples and the ``splats`` (positions, colours,
+    footprint widths: :func:`ldi_splats`'s arrays) as splats (module docstring)."""
 
-    def __init__(self, objects: list[SceneObject] | tuple[SceneObject, ...], ldis: list[LayeredDepthImage] | tuple = ()):
+    def __init__(self, objects: list[SceneObject] | tuple[SceneObject, ...], ldis: list[LayeredDepthImage] | tuple = (),
+                 splats: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None):  # fmt: skip
         super().__init__(objects)
-        parts = [ldi_splats(ldi) for ldi in ldis]
+        parts = [ldi_splats(ldi) for ldi in ldis] + ([splats] if splats is not None else [])
         positions = np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3))
         colours = np.concatenate([p[1] for p in parts]) if parts else np.zeros((0, 4), np.uint8)
         extents = np.concatenate([p[2] for p in parts]) if parts else np.zeros(0)

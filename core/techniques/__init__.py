@@ -8,10 +8,10 @@ Adding a technique means adding its module (a :class:`~core.techniques.base.Tech
 from __future__ import annotations
 
 from farfield.core.errors import LayerPlanError
-from farfield.core.techniques import envmap, layered, points, tdm
+from farfield.core.techniques import envmap, layered, ldi, points, tdm
 from farfield.core.techniques.base import Technique
 
-TECHNIQUES: dict[str, Technique] = {t.name: t for t in (layered.TECHNIQUE, envmap.TECHNIQUE, tdm.TECHNIQUE, points.TECHNIQUE)}
+TECHNIQUES: dict[str, Technique] = {t.name: t for t in (layered.TECHNIQUE, envmap.TECHNIQUE, tdm.TECHNIQUE, points.TECHNIQUE, ldi.TECHNIQUE)}
 DEFAULT_TECHNIQUE = "layered"  # what a job or a bake that names none gets
 
 
@@ -23,7 +23,7 @@ def get_technique(name: str) -> Technique:
     >>> get_technique("nope")
     Traceback (most recent call last):
     ...
-    farfield.core.errors.LayerPlanError: unknown technique 'nope'; one of ['layered', 'envmap', 'tdm', 'points']
+    farfield.core.errors.LayerPlanError: unknown technique 'nope'; one of ['layered', 'envmap', 'tdm', 'points', 'ldi']
     """
     try:
         return TECHNIQUES[name]

@@ -1,0 +1,173 @@
+"""Layered-depth-image impostors (seed 004 §4, Aliaga and Lastra 1999): a scene part and a box view
+cell in, an :class:`~core.impostor.Impostor` of LDI samples out, splatted at run time.
+
+The LDI's centre of projection is the cell's centre, looking at the part's centre.  Its image
+plane, which is also its near plane, is the quad through the part's nearest point: the square
+window around the part's bounds.  Seed 004's image of a grid point is the same construction, with
+the grid point's star sphere as the cell.  The part must lie wholly farther ahead than the cell's
+half-diagonal, so that every eye in the cell stays in front of the quad (§3.2.1's condition).  The
+LDI is built from nine construction images (§4.1, :mod:`core.ldi_construction`), or from the
+central one alone (``images=1``, the single-image LDI of Fig. 10).
+
+**Memory** (``geometry_bytes``), as the GPU drawer holds it: per sample a float32 position, an RGBA8
+colour and a float32 footprint width (20 bytes).  No atlas pages.
+
+**For standard viewers** the GLB holds the samples as a ``POINTS`` primitive with ``COLOR_0`` and
+the footprint widths as ``_FARFIELD_EXTENT``.  A viewer that ignores the widths draws one-pixel
+points: a preview that is sparse up close, not the splatted LDI.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from farfield.core import __version__
+from farfield.core.errors import LayerPlanError
+from farfield.core.evaluation import Evaluation
+from farfield.core.impostor import Impostor, LdiPayload
+from farfield.core.ldi_construction import DEFAULT_MAX_LAYERS, _merge_samples, construct_ldi, view_frame
+from farfield.core.ldi_warp import _warp_kernel
+from farfield.core.options import check_options, option
+from farfield.core.pixel_angles import MAX_RESOLUTION
+from farfield.core.render.splats import ldi_splats
+from farfield.core.scene import Scene
+from farfield.core.stage_clock import Progress, StageClock, seconds_line
+from farfield.core.techniques.base import CellCost, Technique
+from farfield.core.techniques.part import evaluate_part, part_evaluation_text
+from farfield.core.viewcells import BoxCell, ViewCell
+
+SAMPLE_BYTES = 20  # float32 position, RGBA8 colour, float32 footprint width
+
+
+@dataclass(frozen=True, slots=True)
+class LdiOptions:
+    """The knobs of an LDI bake (all recorded in the impostor's parameters)."""
+
+    resolution: int = option(512, "output image pixels per side; the LDI has as many across its window", ge=1, le=MAX_RESOLUTION)
+    fov_deg: float = option(60.0, "output field of view, degrees", gt=0.0, lt=180.0)
+    images: int = option(9, "construction images: 9 (seed 004 §4.1, Fig. 11) or 1 (the centre's alone, Fig. 10 left)", ge=1, le=9)
+    max_layers: int = option(DEFAULT_MAX_LAYERS, "most samples an LDI pixel keeps", ge=1, le=64)
+
+    def __post_init__(self) -> None:
+        check_options(self)
+        if self.images not in (1, 9):
+            raise LayerPlanError(f"images must be 1 or 9, got {self.images}")
+
+
+@dataclass(frozen=True)
+class LdiView:
+    """Where an LDI of a part is taken from: centre of projection, direction, quad and its depth."""
+
+    eye: np.ndarray
+    direction: np.ndarray
+    quad: np.ndarray
+    depth: float
+
+
+def ldi_view(cell: ViewCell, bounds: np.ndarray) -> LdiView:
+    """The LDI's view of a part with ``bounds`` from a box ``cell`` (module docstring); LayerPlanError
+    where the part comes within the cell's half-diagonal of its centre."""
+    if not isinstance(cell, BoxCell):
+        raise LayerPlanError(f"an LDI impostor needs a box view cell, got a {type(cell).__name__}")
+    eye = np.asarray(cell.center, dtype=np.float64)
+    lo, hi = np.asarray(bounds, dtype=np.float64)
+    direction = 0.5 * (lo + hi) - eye
+    if not np.linalg.norm(direction) > 0:
+        raise LayerPlanError("the part's centre is the view cell's centre: an LDI needs the part ahead of the cell")
+    r, u, f = view_frame(direction)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]) - eye
+    z = corners @ f
+    reach = 0.5 * float(np.linalg.norm(np.asarray(cell.hi) - np.asarray(cell.lo)))
+    if z.min() <= reach:
+        raise LayerPlanError(
+            f"the part comes within {max(z.min(), 0.0):.6g} of the view cell's centre along its view, inside the cell's "
+            f"half-diagonal {reach:.6g}: an LDI's image plane must lie ahead of every eye in the cell (seed 004 §3.2.1)"
+        )
+    x, y = (corners @ r) / z, (corners @ u) / z
+    depth = float(z.min())
+    quad = np.stack([eye + depth * (f + a * r + b * u) for a, b in ((x.min(), y.min()), (x.max(), y.min()), (x.max(), y.max()), (x.min(), y.max()))])
+    return LdiView(eye, f, quad, depth)
+
+
+def check_ldi_cell(cell: ViewCell, options: LdiOptions, bounds: np.ndarray | None, max_texels: int | None = None) -> CellCost:
+    """The cell's recording work: ``images`` construction images of ``resolution`` pixels; raises where
+    the cell can have no LDI of the part; without ``bounds``, only the cell's kind."""
+    if bounds is None:
+        if not isinstance(cell, BoxCell):
+            raise LayerPlanError(f"an LDI impostor needs a box view cell, got a {type(cell).__name__}")
+        return CellCost.of_layers(0, (0, 0))
+    ldi_view(cell, bounds)
+    return CellCost.of_layers(options.images, (options.resolution, options.resolution))
+
+
+def bake_ldi(scene: Scene, cell: ViewCell, options: LdiOptions = LdiOptions(), objects: list[str] | None = None, progress: Progress | None = None) -> Impostor:
+    """Bake the LDI impostor of ``scene`` (or of its ``objects``) for ``cell`` (a box); technique ``"ldi"``."""
+    part = scene.subset(objects) if objects else scene
+    clock = StageClock(("plan", "images"), progress)
+    with clock("plan"):
+        view = ldi_view(cell, part.bounds)
+    clock.report("plan", 1, 1)
+    with clock("images"):
+        made = construct_ldi(list(part.objects), view.eye, view.direction, view.quad, view.depth, options.resolution, options.images, options.max_layers)
+    clock.report("images", 1, 1)
+    ldi = made.ldi
+    positions, colour, extent = ldi_splats(ldi)
+    if positions.shape[0] == 0:
+        raise LayerPlanError("the part has no surface the LDI's construction images see: nothing to make an LDI impostor of")
+    cam = ldi.camera
+    payload = LdiPayload(positions, colour.astype(np.int64), extent, cam.eye, np.stack([cam.right, cam.up, cam.forward]),
+                         np.array([math.tan(0.5 * cam.fov), cam.offset[0], cam.offset[1], cam.near]), np.array([cam.resolution]))  # fmt: skip
+    n = positions.shape[0]
+    stats = {
+        "samples": n, "layers": ldi.layers, "offered": made.offered, "dropped_full": made.dropped_full,
+        "construction_images": options.images, "quad_depth": view.depth, "geometry_bytes": n * SAMPLE_BYTES, "texture_bytes": 0,
+        "seconds": clock.totals(),
+    }  # fmt: skip
+    return Impostor(
+        technique="ldi", viewcell=cell.to_dict(), reference_viewpoint=view.eye, resolution=options.resolution, fov_deg=options.fov_deg,
+        pages=(), payload=payload, layers=[], stats=stats,
+        parameters={**asdict(options), "objects": list(part.names), "scene_hash": scene.content_hash, "quad": view.quad.tolist()},
+        code_version=__version__,
+    )  # fmt: skip
+
+
+def warm_kernels() -> float:
+    """Compile (or load from numba's cache) the LDI merge and the CPU warp on tiny arrays, without GL;
+    the seconds it took.  A render worker calls it when it starts, beside the other techniques'."""
+    start = time.perf_counter()
+    layers = (np.full((1, 1, 1), np.nan), np.full((1, 1, 1), -1, np.int64), np.full((1, 1, 1), -1, np.int64), np.zeros((1, 1, 1, 4), np.uint8))
+    _merge_samples(np.array([[0.0, 0.0, 1.0]]), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros((1, 4), np.uint8), 0.0, 0.0, 1.0, 1, 0.5,
+                   0.01, *layers, np.zeros((1, 1), np.int64))  # fmt: skip
+    frame = np.eye(3)
+    _warp_kernel(np.ones((1, 1, 1)), np.zeros((1, 1, 1, 4), np.uint8), np.zeros(3), frame, 0.0, 0.0, 1.0, np.zeros(3), frame, 0.0, 0.0, 1.0,
+                 0.1, 0.5, 0.5, True, np.zeros((1, 1, 4), np.uint8), np.full((1, 1), np.nan))  # fmt: skip
+    return time.perf_counter() - start
+
+
+def _summary(stats: dict) -> str:
+    return (
+        f"LDI: {stats['samples']:,} samples in {stats['layers']} layers from {stats['construction_images']} construction images "
+        f"({stats['offered']:,} offered, {stats['dropped_full']:,} dropped by the layer cap)  {stats['geometry_bytes'] / 1024:.1f} KiB\n"
+        + seconds_line(stats)
+    )
+
+
+def _evaluation_text(result: Evaluation, impostor: Impostor) -> str:
+    return part_evaluation_text(result, impostor) + f"\nLDI samples: {impostor.payload.count:,}"
+
+
+TECHNIQUE = Technique(
+    name="ldi",
+    scope="part",
+    help="layered-depth-image impostors of a scene's objects for a box view cell: nine construction images, splatted (seed 004)",
+    Options=LdiOptions,
+    check=check_ldi_cell,
+    bake=bake_ldi,
+    summary=_summary,
+    evaluate=evaluate_part,
+    evaluation_text=_evaluation_text,
+)
