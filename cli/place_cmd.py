@@ -15,6 +15,7 @@ from farfield.core.options import parse_option_text
 from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, primitive_model
 from farfield.core.placement.hierarchy import PlacementError
 from farfield.core.placement.planner import PlacementSettings, place
+from farfield.core.placement.image_database import write_image_database
 from farfield.core.placement.solution_grid import BudgetSettings, check_views as count_views, place_primitives
 from farfield.core.techniques import DEFAULT_TECHNIQUE, TECHNIQUES, get_technique
 
@@ -83,6 +84,9 @@ def summary_lines(result) -> list[str]:
 @click.option("--grid-points", type=int, default=3, show_default=True, help="primitive-budget: initial grid points along the view space's longest side.")
 @click.option("--max-level", type=int, default=4, show_default=True, help="primitive-budget: subdivision levels at most; points still unsolved there are reported.")
 @click.option("--check-views", type=int, default=2000, show_default=True, help="primitive-budget: random (eye, yaw) views to count primitives over after placing (0: none).")
+@click.option("--bake", "bake_dir", type=click.Path(file_okay=False), default=None,
+              help="primitive-budget: bake every image's LDI and write the placement database to this folder (farfield walkthrough reads it).")
+@click.option("--ldi-resolution", type=int, default=256, show_default=True, help="primitive-budget --bake: LDI pixels per side.")
 @click.option("--cpv-size", type=float, default=None, help="Smallest 3D region of a problem view [default: the view space's longest side / 8].")
 @click.option("--vdi-deg", type=float, default=11.25, show_default=True, help="Smallest view-direction interval, degrees.")
 @click.option("--cells", type=click.Choice(["shafts", "boxes", "both", "leaf-boxes"]), default="both", show_default=True,
@@ -94,7 +98,7 @@ def summary_lines(result) -> list[str]:
 @click.option("--json", "as_json", is_flag=True, help="Print the summary, seconds and where the placement went as JSON.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, options, resolution, fov, algorithm, p_opt, octree_depth,
-              grid_points, max_level, check_views, cpv_size, vdi_deg, cells, depth_complexity, leaf_size, max_impostor_mb, out, as_json,
+              grid_points, max_level, check_views, bake_dir, ldi_resolution, cpv_size, vdi_deg, cells, depth_complexity, leaf_size, max_impostor_mb, out, as_json,
               quiet) -> None:  # fmt: skip
     """Decide where impostors go so that every view from VIEW-SPACE meets the budget at least memory
     (seed 000 ch. 5): problem views, candidates, greedy choice.  Views no placement can serve are
@@ -106,8 +110,10 @@ def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, op
             raise PlacementError("--algorithm primitive-budget takes a budget of --primitives N only (no --frame-ms, no --cost-model)")
         settings = BudgetSettings(primitives=primitives, p_opt=p_opt, fov_deg=60.0 if fov is None else fov, octree_depth=octree_depth,
                                   grid_points=grid_points, max_level=max_level)  # fmt: skip
-        _place_primitive_budget(scene, corners, settings, check_views, out, as_json, quiet)
+        _place_primitive_budget(scene, corners, settings, check_views, out, as_json, quiet, bake_dir, ldi_resolution)
         return
+    if bake_dir:
+        raise PlacementError("--bake writes a primitive-budget placement's database (--algorithm primitive-budget); a frame-time placement is baked as a job")
     fov = 45.0 if fov is None else fov
     model, t_max, note = _model(frame_ms, cost_model, primitives)
     values = {}
@@ -165,9 +171,13 @@ def primitive_summary_lines(summary: dict, check: dict | None) -> list[str]:
     return lines
 
 
-def _place_primitive_budget(scene, corners, settings, views, out, as_json, quiet) -> None:
+def _place_primitive_budget(scene, corners, settings, views, out, as_json, quiet, bake_dir=None, ldi_resolution=256) -> None:
     if isinstance(views, bool) or views < 0:
         raise PlacementError(f"--check-views must be >= 0, got {views!r}")
+    if bake_dir and not 1 <= ldi_resolution <= 4096:
+        raise PlacementError(f"--ldi-resolution must be in 1..4096, got {ldi_resolution}")
+    if bake_dir and Path(bake_dir).exists() and any(Path(bake_dir).iterdir()):
+        raise PlacementError(f"--bake {bake_dir!r}: the folder is not empty")
     if out and not Path(out).resolve().parent.is_dir():
         raise PlacementError(f"cannot write the placement to {out!r}: no folder {str(Path(out).resolve().parent)!r}")
     loaded = load_scene(scene)
@@ -177,6 +187,12 @@ def _place_primitive_budget(scene, corners, settings, views, out, as_json, quiet
     finally:
         bar.close()
     check = count_views(result, views) if views else None
+    if bake_dir:
+        bar = _Bar(enabled=not quiet)
+        try:
+            write_image_database(Path(bake_dir), loaded, result, ldi_resolution, progress=bar)
+        finally:
+            bar.close()
     data = result.to_dict()
     data["check"] = check
     if out:
@@ -185,7 +201,9 @@ def _place_primitive_budget(scene, corners, settings, views, out, as_json, quiet
         except OSError as error:
             raise PlacementError(f"cannot write the placement to {out!r}: {error.strerror or error}") from None
     if as_json:
-        click.echo(json.dumps({"summary": data["summary"], "seconds": result.seconds, "check": check, "written": out}, indent=1))
+        click.echo(json.dumps({"summary": data["summary"], "seconds": result.seconds, "check": check, "written": out, "database": bake_dir}, indent=1))
     else:
         click.echo("\n".join(primitive_summary_lines(data["summary"], check)))
         click.echo(f"placement written to {out}" if out else "placement not written (--out FILE writes it)")
+        if bake_dir:
+            click.echo(f"database with {result.images} LDIs written to {bake_dir} (farfield walkthrough {bake_dir} SCENE)")

@@ -2,7 +2,10 @@
 
 An envmap job's database is walked by the envmap runtime (near field + impostors); a placement
 database (its index has a ``placement`` section) by the placement runtime (the CPV's impostors and
-the elements they do not replace), against plain geometry, with the frame budget t_max.
+the elements they do not replace), against plain geometry, with the frame budget t_max; a
+primitive-budget database (``farfield place --algorithm primitive-budget --bake``) by seed 004's run
+time (the grid point's LDI warped, the rest frustum-culled geometry), with the primitives of every
+view against the budget P.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ from tqdm import tqdm
 
 from farfield.core.exchange import load_scene
 from farfield.core.impostor_database import ImpostorDatabase
+from farfield.core.placement.image_database import ImageDatabase, image_walkthrough, is_image_database
 from farfield.core.walkthrough import generate_path, load_path, random_views, walkthrough, write_placement_plot, write_plot
 
 
@@ -37,6 +41,9 @@ def walkthrough_cmd(database, scene, path_file, frames, random_count, seed, repe
     the reference runtime with SCENE drawn in full: an envmap database's near field + impostors, or
     a placement database's impostors + remaining geometry against its frame budget."""
     loaded = load_scene(scene)
+    if is_image_database(Path(database)):
+        _walk_images(Path(database), loaded, path_file, frames, random_count, seed, repeats, no_compare, as_json)
+        return
     with ImpostorDatabase(Path(database)) as db:
         placement = db.placement
         if random_count is not None and not placement:
@@ -120,3 +127,39 @@ def _print_placement(result: dict, plot: str | None) -> None:
             click.echo(f"  frame {f['frame']}: {f['measured']:.4g} {unit}, estimate {f['estimate']:.4g} ({f['status']}, cpv {f['cpv']})")
     if plot:
         click.echo(f"plot: {plot}")
+
+
+def _walk_images(root: Path, scene, path_file, frames, random_count, seed, repeats, no_compare, as_json) -> None:
+    """A primitive-budget database: random views (positions uniform in the view space, yaw uniform,
+    pitch 0) or a path (its forwards' yaw), primitives and frame time per view."""
+    db = ImageDatabase(root, scene)
+    p = db.placement
+    if random_count is not None and path_file:
+        raise click.UsageError("give --random or --path, not both")
+    if path_file:
+        positions, forwards = load_path(path_file)
+        yaws = np.arctan2(forwards[:, 0], -forwards[:, 2])
+    else:
+        count = random_count if random_count is not None else frames
+        rng = np.random.default_rng(seed)
+        positions = p.view_lo + rng.random((count, 3)) * (p.view_hi - p.view_lo)
+        yaws = rng.random(count) * 2.0 * np.pi
+    bar = tqdm(total=len(positions), desc="frames", unit="frame", leave=False, disable=True if as_json else None)
+    try:
+        result = image_walkthrough(db, positions, yaws, repeats=repeats, compare=not no_compare, progress=lambda done, total: bar.update(done - bar.n))
+    finally:
+        bar.close()
+    if as_json:
+        click.echo(json.dumps(result, indent=1))
+        return
+    click.echo(f"{'frame':>5} {'point':>6} {'image':>5} {'primitives':>10} {'plain':>8} {'run ms':>7} {'plain ms':>8} {'holes':>6}")
+    for f in result["frames"]:
+        over = "  <- over P" if not f["within_p"] else ""
+        click.echo(f"{f['frame']:>5} {f['point']:>6} {f['image']:>5} {f['primitives']:>10} {f['plain_primitives']:>8} {f['runtime_ms']:>7.2f} "
+                   f"{f['plain_ms']:>8.2f} {f.get('hole_pixels', '-'):>6}{over}")  # fmt: skip
+    s = result["summary"]
+    click.echo(f"{s['views']} views; P {s['primitives_budget']:.6g} (p_opt {s['p_opt']:.6g}): {100 * s['share_within_p']:.2f} % within, primitives p99 "
+               f"{s['primitives_p99']:.0f}, max {s['primitives_max']:.0f} (plain geometry's max {s['plain_primitives_max']:.0f}); {s['views_with_image']} views warp an LDI")  # fmt: skip
+    click.echo(f"frame ms p50 {s['runtime_ms_p50']:.2f}, p99 {s['runtime_ms_p99']:.2f}; plain frustum-culled geometry p50 {s['plain_ms_p50']:.2f}, p99 {s['plain_ms_p99']:.2f}")
+    if "hole_pixels" in s:
+        click.echo(f"{s['hole_pixels']} hole pixels in {s['views_with_holes']} views, colour error mean {s['colour_error_mean']:.3f}")

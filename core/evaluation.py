@@ -77,6 +77,7 @@ from farfield.core.impostor import Impostor, LdiPayload, MeshPayload, PointPaylo
 from farfield.core.render.points import Appearance, PointRenderer
 from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
 from farfield.core.render.splats import SplatRenderer
+from farfield.core.ldi_pages import ldi_of
 from farfield.core.scene import Scene, SceneObject
 from farfield.core.viewcells import BoxCell, ShaftCell, ViewCell, box_corners
 
@@ -116,7 +117,7 @@ def impostor_renderer(impostor: Impostor) -> MeshRenderer:
     resolution's pixels (:class:`core.render.points.PointRenderer`)."""
     payload = impostor.payload
     if isinstance(payload, LdiPayload):
-        return SplatRenderer([], splats=(payload.positions, payload.colour.astype(np.uint8), payload.extent))
+        return SplatRenderer([], [ldi_of(impostor)])
     if isinstance(payload, PointPayload):
         return PointRenderer(payload.positions, payload.colour.astype(np.uint8), point_appearance(impostor), grid=(impostor.resolution, math.radians(impostor.fov_deg)))
     return MeshRenderer(impostor_objects(impostor))

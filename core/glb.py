@@ -249,29 +249,6 @@ def _points_glb_parts(impostor: Impostor, viewpoint: np.ndarray, binary: _Bin, a
     return [_point_primitive(impostor.payload, viewpoint, binary, accessors)], [material]
 
 
-def _ldi_glb_parts(impostor: Impostor, viewpoint: np.ndarray, binary: _Bin, accessors: list[dict]) -> tuple[list[dict], list[dict]]:
-    """(primitives, materials) of an LDI impostor, the fallback for standard viewers: one ``POINTS``
-    primitive of its samples, POSITION (float32, relative to the node's translation), ``COLOR_0``
-    (float32 linear RGB) and ``_FARFIELD_EXTENT`` (float32: the world width of each sample's LDI
-    pixel footprint, what a runtime sizes its splat by), with one unlit opaque material."""
-    material = {"name": "ldi", "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0}, "extensions": {_UNLIT: {}}}
-    payload = impostor.payload
-    if payload.count == 0:
-        return [], [material]
-    positions = np.ascontiguousarray(payload.positions - viewpoint, dtype="<f4")
-    colour = np.ascontiguousarray(srgb_to_linear(payload.colour[:, :3] / 255.0), dtype="<f4")
-    extent = np.ascontiguousarray(payload.extent, dtype="<f4")
-    base = len(accessors)
-    accessors.append({
-        "bufferView": binary.add(positions.tobytes(), _ARRAY_BUFFER), "componentType": _FLOAT, "count": int(positions.shape[0]), "type": "VEC3",
-        "min": [float(x) for x in positions.min(axis=0)], "max": [float(x) for x in positions.max(axis=0)],
-    })  # fmt: skip
-    accessors.append({"bufferView": binary.add(colour.tobytes(), _ARRAY_BUFFER), "componentType": _FLOAT, "count": int(colour.shape[0]), "type": "VEC3"})
-    accessors.append({"bufferView": binary.add(extent.tobytes(), _ARRAY_BUFFER), "componentType": _FLOAT, "count": int(extent.shape[0]), "type": "SCALAR"})
-    primitive = {"attributes": {"POSITION": base, "COLOR_0": base + 1, "_FARFIELD_EXTENT": base + 2}, "material": 0, "mode": _POINTS}
-    return [primitive], [material]
-
-
 def engine_metadata(impostor: Impostor) -> dict:
     """What an engine needs to know where the impostor is valid, as the node's ``extras.farfield``:
     ``technique``, ``viewcell`` (the bundle's dict: kind and corners or shaft), ``reference_viewpoint``
@@ -329,7 +306,13 @@ def impostor_glb(impostor: Impostor) -> bytes:
     binary = _Bin()
     accessors: list[dict] = []
     primitives: list[dict] = []
-    pages = () if isinstance(impostor.payload, (PointPayload, LdiPayload)) else _page_geometry(impostor.payload, viewpoint, len(impostor.pages))
+    shown = impostor.pages
+    if isinstance(impostor.payload, LdiPayload):  # the fallback: the first layer's colour on the image quad (core.ldi_pages)
+        shown = impostor.pages[:1]
+        quad = QuadPayload(impostor.payload.quad[None], np.array([[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]]), np.zeros(1, np.int64), np.zeros(1, np.int64))
+        pages = _page_geometry(quad, viewpoint, len(shown)) if shown else ()
+    else:
+        pages = () if isinstance(impostor.payload, PointPayload) else _page_geometry(impostor.payload, viewpoint, len(impostor.pages))
     for page, positions, texcoords, indices in pages:
         indices = _face_viewpoint(positions, indices)
         vertex_count = positions.shape[0]
@@ -367,7 +350,7 @@ def impostor_glb(impostor: Impostor) -> bytes:
 
     images = [
         {"bufferView": binary.add(page_png(page)), "mimeType": "image/png", "name": f"atlas-{index:03d}"}
-        for index, page in enumerate(impostor.pages)
+        for index, page in enumerate(shown)
     ]
     materials = [
         {
@@ -383,14 +366,12 @@ def impostor_glb(impostor: Impostor) -> bytes:
             "doubleSided": True,
             "extensions": {_UNLIT: {}},
         }
-        for index in range(len(impostor.pages))
+        for index in range(len(shown))
     ]
     extensions = [_UNLIT]
     if isinstance(impostor.payload, PointPayload):
         primitives, materials = _points_glb_parts(impostor, viewpoint, binary, accessors)
         extensions.append(POINT_APPEARANCE)
-    if isinstance(impostor.payload, LdiPayload):
-        primitives, materials = _ldi_glb_parts(impostor, viewpoint, binary, accessors)
     node: dict = {"name": "impostor", "translation": [float(x) for x in viewpoint], "extras": {"farfield": engine_metadata(impostor)}}
     document: dict = {
         "asset": {"version": "2.0", "generator": f"farfield {impostor.code_version}".rstrip()},

@@ -18,9 +18,9 @@ never on the technique's name:
     impostors (seed 001).
 
 ``"ldi"`` (:class:`LdiPayload`)
-    The samples of a layered depth image (seed 004 §4): world positions (n, 3) float64, one sRGB
-    colour each, the width of the LDI pixel's footprint at the sample, and the LDI's camera, so
-    that a runtime can splat them or warp them in occlusion-compatible order.
+    A layered depth image (seed 004 §4): its camera; its layers are the pages, a colour page and a
+    depth page each (:mod:`core.ldi_pages`), so that a runtime can splat its samples or warp them in
+    occlusion-compatible order.
 
 Frame atlases (billboards) get a payload kind of their own when that technique is built: a frozen dataclass with the same members (``kind``, ``ARRAYS``,
 ``triangle_count``, ``arrays()``, ``from_arrays()``, ``check()``, ``world_points()``), registered in
@@ -355,35 +355,31 @@ class PointPayload:
 
 @dataclass(frozen=True, slots=True)
 class LdiPayload:
-    """A layered depth image's samples (seed 004 §4): ``positions`` (n, 3) float64 world, on their
-    LDI pixel's centre ray; ``colour`` (n, 4) int64 sRGB bytes; ``extent`` (n,) float64 the world
-    width of the LDI pixel's footprint at the sample (the splat size a drawer derives its width
-    from); the LDI's camera: ``eye`` (3,), ``axes`` (3, 3) right, up, forward, ``window`` (4,)
-    (tan of the half field of view, off-axis offset x, y in tangents, near plane depth) and
-    ``size`` (1,) its pixels per side.
+    """A layered depth image (seed 004 §4) whose layers are the impostor's pages, two per layer
+    (colour, then float32 depth as bytes: :mod:`core.ldi_pages`).  The payload is the LDI's camera:
+    ``eye`` (3,), ``axes`` (3, 3) right, up, forward, ``window`` (5,) (tan of the half field of
+    view, off-axis offset x, y in tangents, near and far plane depths), ``size`` (3,) (pixels per
+    side, layers, samples) and ``quad`` (4, 3) its window on the near plane (top-left, top-right,
+    bottom-right, bottom-left seen from the eye: the image quad of §3.3.2, and the GLB's fallback).
 
     >>> p = LdiPayload.empty()
     >>> p.kind, p.count, p.triangle_count, p.counts()
-    ('ldi', 0, 0, {'samples': 0})
+    ('ldi', 0, 0, {'samples': 0, 'layers': 0})
     """
 
-    positions: np.ndarray
-    colour: np.ndarray
-    extent: np.ndarray
     eye: np.ndarray
     axes: np.ndarray
     window: np.ndarray
     size: np.ndarray
+    quad: np.ndarray
 
     kind: ClassVar[str] = "ldi"
     ARRAYS: ClassVar[tuple] = (
-        ("positions", "f", ("n", 3)),
-        ("colour", "i", ("n", 4)),
-        ("extent", "f", ("n",)),
         ("eye", "f", (3,)),
         ("axes", "f", (3, 3)),
-        ("window", "f", (4,)),
-        ("size", "i", (1,)),
+        ("window", "f", (5,)),
+        ("size", "i", (3,)),
+        ("quad", "f", (4, 3)),
     )
 
     def __post_init__(self) -> None:
@@ -392,7 +388,7 @@ class LdiPayload:
 
     @classmethod
     def empty(cls) -> LdiPayload:
-        return cls(np.zeros((0, 3)), np.zeros((0, 4), np.int64), np.zeros(0), np.zeros(3), np.eye(3), np.array([1.0, 0.0, 0.0, 1.0]), np.array([1]))
+        return cls(np.zeros(3), np.eye(3), np.array([1.0, 0.0, 0.0, 1.0, 2.0]), np.array([1, 0, 0]), np.array([[-1.0, 1, 1], [1, 1, 1], [1, -1, 1], [-1, -1, 1]]))
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray]) -> LdiPayload:
@@ -401,7 +397,7 @@ class LdiPayload:
     @property
     def count(self) -> int:
         """Samples."""
-        return int(self.positions.shape[0]) if self.positions.ndim else 0
+        return int(self.size[2])
 
     @property
     def triangle_count(self) -> int:
@@ -409,28 +405,26 @@ class LdiPayload:
         return 0
 
     def counts(self) -> dict[str, int]:
-        return {"samples": self.count}
+        return {"samples": self.count, "layers": int(self.size[1])}
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The payload's arrays by name, in the bundle's order."""
         return {name: getattr(self, name) for name, _, _ in self.ARRAYS}
 
     def world_points(self) -> np.ndarray:
-        """(n, 3) float64 every sample, world metres."""
-        return self.positions.reshape(-1, 3)
+        """(4, 3) float64 the image quad's corners, world metres (the samples lie behind it, in the pages)."""
+        return self.quad.reshape(-1, 3)
 
     def check(self, page_count: int) -> None:
-        """Raise :class:`BundleFormatError` unless the arrays fit (shapes, dtypes, finite, colours
-        bytes, footprints > 0, orthonormal axes, a window with a positive half tangent and near plane)."""
+        """Raise :class:`BundleFormatError` unless the arrays fit (shapes, dtypes, finite, orthonormal
+        axes, a window with a positive half tangent and 0 < near < far, two pages per layer)."""
         _check_arrays(self, page_count)
-        if self.colour.size and (self.colour.min() < 0 or self.colour.max() > 255):
-            raise BundleFormatError("ldi payload: colour must be bytes, 0-255")
-        if self.extent.size and self.extent.min() <= 0:
-            raise BundleFormatError("ldi payload: every extent must be > 0")
         if not np.allclose(self.axes @ self.axes.T, np.eye(3), atol=1e-6):
             raise BundleFormatError("ldi payload: axes must be orthonormal (right, up, forward)")
-        if self.window[0] <= 0 or self.window[3] <= 0 or self.size[0] < 1:
-            raise BundleFormatError("ldi payload: window needs a half tangent > 0 and a near plane > 0, size >= 1")
+        if not (self.window[0] > 0 and 0 < self.window[3] < self.window[4]):
+            raise BundleFormatError("ldi payload: window needs a half tangent > 0 and 0 < near < far")
+        if self.size[0] < 1 or self.size[1] < 0 or self.size[2] < 0 or page_count != 2 * self.size[1]:
+            raise BundleFormatError(f"ldi payload: {int(self.size[1])} layers need {2 * int(self.size[1])} pages, got {page_count}")
 
 
 Payload = Union[QuadPayload, MeshPayload, PointPayload, LdiPayload]

@@ -178,6 +178,14 @@ def test_the_ldi_technique_refuses_a_part_that_reaches_into_its_cell_and_bad_pay
         technique.check(near_cell, options, scene.bounds)
     with pytest.raises(LayerPlanError, match="1 or 9"):
         technique.options({"images": 4}, 64)
-    bad = LdiPayload(np.zeros((1, 3)), np.zeros((1, 4), np.int64), np.ones(1), np.zeros(3), 2 * np.eye(3), np.array([1.0, 0, 0, 1.0]), np.array([8]))
+    good = one.payload
+    bad = LdiPayload(good.eye, 2 * good.axes, good.window, good.size, good.quad)
     with pytest.raises(BundleFormatError, match="orthonormal"):
-        bad.check(0)
+        bad.check(len(one.pages))
+    with pytest.raises(BundleFormatError, match="pages"):
+        good.check(len(one.pages) - 1)
+    # the pages hold the LDI: depth and colour come back bit for bit
+    from farfield.core.ldi_pages import ldi_of
+
+    back = ldi_of(one)
+    assert back.count == one.payload.count and back.layers == one.stats["layers"]

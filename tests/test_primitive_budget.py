@@ -232,3 +232,31 @@ def test_place_command_with_the_primitive_budget(tmp_path):
     assert narrow.exit_code == 2 and "star-shape bound" in narrow.output
     mixed = runner.invoke(cli, [*args, "--frame-ms", "10"])
     assert mixed.exit_code == 2 and "--primitives N only" in mixed.output
+
+
+def test_a_baked_database_is_walked_within_the_budget(tmp_path):
+    """farfield place --bake writes the grid and an LDI bundle per image; farfield walkthrough reads it
+    back against the scene: every view within P, LDIs warped, a few hole pixels at most."""
+    _register()
+    scene = procedural.city(16, seed=2, detail=8)
+    path = write_scene(scene, tmp_path, "glb", "city")
+    lo, hi = _view_space(scene)
+    space = ",".join(f"{v:g}" for v in (*lo, *hi))
+    db = tmp_path / "db"
+    runner = CliRunner()
+    placed = runner.invoke(cli, ["place", str(path), "--view-space", space, "--algorithm", "primitive-budget", "--primitives",
+                                 str(int(0.4 * scene.triangle_count)), "--check-views", "0", "--bake", str(db), "--ldi-resolution", "96", "--quiet"])  # fmt: skip
+    assert placed.exit_code == 0, placed.output
+    index = json.loads((db / "placement.json").read_text())
+    assert len(index["bundles"]) == index["summary"]["images"] > 0
+    assert all((db / b / "impostor.glb").is_file() for b in index["bundles"].values())
+    walked = runner.invoke(cli, ["walkthrough", str(db), str(path), "--random", "12", "--repeats", "1", "--json"])
+    assert walked.exit_code == 0, walked.output
+    s = json.loads(walked.output)["summary"]
+    assert s["views"] == 12 and s["share_within_p"] == 1.0 and s["eye_past_quad"] == 0
+    assert s["views_with_image"] > 0 and s["primitives_max"] <= s["primitives_budget"]
+    other = procedural.city(16, seed=3, detail=8)
+    wrong = runner.invoke(cli, ["walkthrough", str(db), str(write_scene(other, tmp_path, "glb", "other")), "--random", "2"])
+    assert wrong.exit_code == 2 and "another scene" in wrong.output
+    again = runner.invoke(cli, ["place", str(path), "--view-space", space, "--algorithm", "primitive-budget", "--primitives", "5000", "--bake", str(db)])
+    assert again.exit_code == 2 and "not empty" in again.output

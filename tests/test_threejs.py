@@ -26,6 +26,7 @@ from farfield.core.colour_space import linear_to_srgb, srgb_to_linear
 from farfield.core.envmap_runtime import camera_at, depth_range_for
 from farfield.core.evaluation import impostor_objects
 from farfield.core.exchange import load_scene
+from farfield.core.ldi_pages import preview_objects
 from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
 from farfield.core.scene import Scene, SceneObject
 from farfield.core.render.points import PointRenderer
@@ -110,9 +111,10 @@ def bundles(tmp_path_factory):
             back = read_bundle(paths.directory)
             cameras = (envmap_cameras if technique.scope == "scene" else part_cameras)(scene, back, cell)
             # A viewer shows a point impostor's one-colour preview (COLOR_0), as farfield's point
-            # renderer does without the appearance; an LDI's samples (its fallback) likewise.
-            preview = back.payload.kind in ("points", "ldi")
-            with (PointRenderer(back.payload.positions, back.payload.colour.astype(np.uint8)) if preview else MeshRenderer(impostor_objects(back))) as renderer:
+            # renderer does without the appearance, and an LDI's fallback quad (core.ldi_pages).
+            preview = back.payload.kind == "points"
+            objects = preview_objects(back) if back.payload.kind == "ldi" else None if preview else impostor_objects(back)
+            with (PointRenderer(back.payload.positions, back.payload.colour.astype(np.uint8)) if preview else MeshRenderer(objects)) as renderer:
                 made[name] = (paths, back, cameras, [renderer.render(camera) for camera in cameras])
         return made[name]
 

@@ -9,17 +9,16 @@ half-diagonal, so that every eye in the cell stays in front of the quad (§3.2.1
 LDI is built from nine construction images (§4.1, :mod:`core.ldi_construction`), or from the
 central one alone (``images=1``, the single-image LDI of Fig. 10).
 
-**Memory** (``geometry_bytes``), as the GPU drawer holds it: per sample a float32 position, an RGBA8
-colour and a float32 footprint width (20 bytes).  No atlas pages.
+**Stored** as two pages per layer, colour and float32 depth (:mod:`core.ldi_pages`; PNG in the
+bundle).  ``texture_bytes`` counts those pages raw; ``splat_bytes`` what the GPU drawer uploads,
+20 bytes a sample (a float32 position, an RGBA8 colour, a float32 footprint width).
 
-**For standard viewers** the GLB holds the samples as a ``POINTS`` primitive with ``COLOR_0`` and
-the footprint widths as ``_FARFIELD_EXTENT``.  A viewer that ignores the widths draws one-pixel
-points: a preview that is sparse up close, not the splatted LDI.
+**For standard viewers** the GLB holds the first layer as one textured quad on the image plane, a
+billboard (:func:`core.ldi_pages.preview_quad`), not the splatted LDI.
 """
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import asdict, dataclass
 
@@ -28,12 +27,12 @@ import numpy as np
 from farfield.core import __version__
 from farfield.core.errors import LayerPlanError
 from farfield.core.evaluation import Evaluation
-from farfield.core.impostor import Impostor, LdiPayload
+from farfield.core.impostor import Impostor
 from farfield.core.ldi_construction import DEFAULT_MAX_LAYERS, _merge_samples, construct_ldi, view_frame
 from farfield.core.ldi_warp import _warp_kernel
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION
-from farfield.core.render.splats import ldi_splats
+from farfield.core.ldi_pages import ldi_payload_and_pages
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import CellCost, Technique
@@ -115,21 +114,18 @@ def bake_ldi(scene: Scene, cell: ViewCell, options: LdiOptions = LdiOptions(), o
         made = construct_ldi(list(part.objects), view.eye, view.direction, view.quad, view.depth, options.resolution, options.images, options.max_layers)
     clock.report("images", 1, 1)
     ldi = made.ldi
-    positions, colour, extent = ldi_splats(ldi)
-    if positions.shape[0] == 0:
+    if ldi.count == 0:
         raise LayerPlanError("the part has no surface the LDI's construction images see: nothing to make an LDI impostor of")
-    cam = ldi.camera
-    payload = LdiPayload(positions, colour.astype(np.int64), extent, cam.eye, np.stack([cam.right, cam.up, cam.forward]),
-                         np.array([math.tan(0.5 * cam.fov), cam.offset[0], cam.offset[1], cam.near]), np.array([cam.resolution]))  # fmt: skip
-    n = positions.shape[0]
+    payload, pages = ldi_payload_and_pages(ldi)
+    n = ldi.count
     stats = {
         "samples": n, "layers": ldi.layers, "offered": made.offered, "dropped_full": made.dropped_full,
-        "construction_images": options.images, "quad_depth": view.depth, "geometry_bytes": n * SAMPLE_BYTES, "texture_bytes": 0,
-        "seconds": clock.totals(),
+        "construction_images": options.images, "quad_depth": view.depth, "splat_bytes": n * SAMPLE_BYTES,
+        "texture_bytes": int(sum(p.nbytes for p in pages)), "seconds": clock.totals(),
     }  # fmt: skip
     return Impostor(
         technique="ldi", viewcell=cell.to_dict(), reference_viewpoint=view.eye, resolution=options.resolution, fov_deg=options.fov_deg,
-        pages=(), payload=payload, layers=[], stats=stats,
+        pages=pages, payload=payload, layers=[], stats=stats,
         parameters={**asdict(options), "objects": list(part.names), "scene_hash": scene.content_hash, "quad": view.quad.tolist()},
         code_version=__version__,
     )  # fmt: skip
@@ -151,7 +147,8 @@ def warm_kernels() -> float:
 def _summary(stats: dict) -> str:
     return (
         f"LDI: {stats['samples']:,} samples in {stats['layers']} layers from {stats['construction_images']} construction images "
-        f"({stats['offered']:,} offered, {stats['dropped_full']:,} dropped by the layer cap)  {stats['geometry_bytes'] / 1024:.1f} KiB\n"
+        f"({stats['offered']:,} offered, {stats['dropped_full']:,} dropped by the layer cap)  pages {stats['texture_bytes'] / 1024:.1f} KiB raw, "
+        f"splats {stats['splat_bytes'] / 1024:.1f} KiB\n"
         + seconds_line(stats)
     )
 
