@@ -53,7 +53,7 @@ from farfield.core.placement.planner import PlacementSettings, place  # noqa: E4
 from farfield.core.walkthrough import placement_walkthrough  # noqa: E402
 from farfield.core.placement.image_frames import boundary_eyes, cell_objects, frame_holes, image_ldi, view_camera  # noqa: E402
 from farfield.core.placement.solution_grid import BudgetSettings, check_views, place_primitives  # noqa: E402
-from farfield.core.placement.yaw_ranges import forward  # noqa: E402
+from farfield.core.placement.yaw_ranges import drawn_cells, forward  # noqa: E402
 from farfield.core.render.context import gl_context  # noqa: E402
 from farfield.core.render.raster import MeshRenderer  # noqa: E402
 from farfield.core.render.splats import SplatRenderer  # noqa: E402
@@ -145,7 +145,8 @@ def ldi_walk(scene, placement, positions, yaws, resolution: int) -> dict:
         view = placement.view(eye, yaw)
         camera = view_camera(eye, yaw, 2 * placement.half, resolution, 0.05, 1e5)
         cells = view["cells"]
-        frame = {"primitives": view["primitives"], "image": view["image"] >= 0}
+        seen = drawn_cells(placement.cells.lo, placement.cells.hi, eye, yaw, placement.half)
+        frame = {"primitives": view["primitives"], "plain_primitives": int(placement.cells.triangles[seen].sum()), "image": view["image"] >= 0}
         geometry = cell_objects(scene, placement.cells, cells) if cells.any() else []
         if view["image"] >= 0:
             key = (view["point"], view["image"])
@@ -240,7 +241,9 @@ def main() -> None:
     print(f"{'frame-time (layered)':>22} {100 * np.mean(t_prims <= p):>5.1f}% {np.percentile(t_prims, 99):>9.0f} {t_prims.max():>7.0f} {np.median(t_ms):>6.2f} "
           f"{np.percentile(t_ms, 99):>6.2f} {t_holes.sum():>8} ({np.count_nonzero(t_holes)}) {theirs['memory_bytes'] / 2**20:>7.1f} ({theirs['stored_bytes'] / 2**20:.2f}) {theirs['impostors']:>8} "
           f"{theirs['plan_s'] + theirs['bake_s']:>7.1f}")  # fmt: skip
-    print(f"{'plain geometry':>22} {'':>6} {'':>9} {'':>7} {np.median(plain_ms):>6.2f} {np.percentile(plain_ms, 99):>6.2f}")
+    plain_prims = np.array([f["plain_primitives"] for f in ours["frames"]])
+    print(f"{'plain geometry':>22} {100 * np.mean(plain_prims <= p):>5.1f}% {np.percentile(plain_prims, 99):>9.0f} {plain_prims.max():>7.0f} "
+          f"{np.median(plain_ms):>6.2f} {np.percentile(plain_ms, 99):>6.2f}")  # fmt: skip
     ts = theirs["summary"]
     print(f"(frame-time: planned in {theirs['plan_s']:.1f} s, baked in {theirs['bake_s']:.1f} s, {ts['cpvs']} CPVs of which {ts['cpvs_unsolved']} unsolved and "
           f"{ts['cpvs_unsolvable']} unsolvable by the model; memory: atlas pages raw (as PNG). primitive-budget: grid {middle['seconds']:.1f} s, "

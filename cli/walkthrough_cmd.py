@@ -141,6 +141,8 @@ def _walk_images(root: Path, scene, path_file, frames, random_count, seed, repea
         yaws = np.arctan2(forwards[:, 0], -forwards[:, 2])
     else:
         count = random_count if random_count is not None else frames
+        if count < 1:
+            raise click.UsageError(f"--frames must be >= 1, got {count}")
         rng = np.random.default_rng(seed)
         positions = p.view_lo + rng.random((count, 3)) * (p.view_hi - p.view_lo)
         yaws = rng.random(count) * 2.0 * np.pi

@@ -112,8 +112,9 @@ def _warp_sample(z, r, c, colour, layer, ref_eye, ref_frame, rox, roy, rhalf, n,
 @numba.njit(cache=True, nogil=True)
 def _warp_kernel(ldi_depth, colour, ref_eye, ref_frame, rox, roy, rhalf, eye, frame, oox, ooy, ohalf, near, col_e, row_e, positive, image, depth):  # pragma: no cover - compiled
     layers, n, _ = ldi_depth.shape
-    ce = min(max(int(math.floor(col_e)), -1), n)  # the epipole's column; sheets: columns <= ce and > ce
-    re = min(max(int(math.floor(row_e)), -1), n)
+    # The sheets split at the epipole between pixel centres (c + 0.5): columns <= ce lie left of it.
+    ce = min(max(int(math.floor(col_e - 0.5)), -1), n)
+    re = min(max(int(math.floor(row_e - 0.5)), -1), n)
     for sheet in range(4):
         # rows: sheet 0, 1 above-or-at the epipole row, 2, 3 below; columns: 0, 2 left, 1, 3 right
         upper = sheet < 2

@@ -87,18 +87,21 @@ def boxes_ldi():
 
 @pytest.mark.parametrize("eye, yaw, exact", [
     ((0.0, 0.0, 0.0), 0.0, True), ((0.0, 0.0, 2.0), 0.0, True), ((1.0, 0.3, 3.0), 0.2, True), ((2.0, 0.5, 1.0), 0.0, True),
-    ((0.0, 0.0, -2.5), 0.0, False), ((1.5, -0.5, -1.0), 0.3, False), ((2.5, 0.0, 0.0), -0.4, False),
+    ((0.0, 0.0, -2.5), 0.0, True), ((1.5, -0.5, -1.0), 0.3, False), ((2.5, 0.0, 0.0), -0.4, False),
 ])  # fmt: skip
 def test_the_cpu_warp_paints_in_occlusion_compatible_order_and_agrees_with_the_gpu(boxes_ldi, eye, yaw, exact):
-    """Painter's order leaves the nearest sample on top, as a depth test does.  Exactly so where
-    the view shrinks the LDI (splats of one pixel: w < 0 here); where it magnifies, splats wider
-    than a pixel overlap across epipolar lines and a few silhouette pixels come out the other way."""
+    """Painter's order leaves the nearest surface on top, as a depth test does: never a farther
+    surface (the sheets split at the epipole between pixel centres; splitting at its pixel's edge
+    once painted the far box over the near one along the epipole's row and column).  Where splats
+    wider than a pixel overlap on one slanted surface, which of its samples stays on top may differ
+    by a few per cent of depth."""
     ldi = boxes_ldi
     camera = view_camera(eye, yaw, FOV, 96, 0.05, 100.0)
     image, depth = warp_cpu(ldi, camera)
     brute = _zbuffer_warp(ldi, camera)
     reached = np.isfinite(depth)
     assert reached.sum() > 500 and np.array_equal(reached, np.isfinite(brute))
+    assert not np.any(depth[reached] > 1.1 * brute[reached])  # never a farther surface
     same = np.isclose(depth[reached], brute[reached], rtol=0.01)
     assert np.mean(same) >= (0.999 if exact else 0.97)
     with SplatRenderer([], [ldi]) as gpu:

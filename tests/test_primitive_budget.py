@@ -3,6 +3,7 @@ grid with star-shapes, and the guarantee over sampled views."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 
@@ -20,6 +21,10 @@ from farfield.core.placement.solution_grid import (
     MIN_FOV_DEG, UNSOLVED, BudgetSettings, check_views, place_primitives, star_radius,
 )  # fmt: skip
 from farfield.core.placement.yaw_ranges import TWO_PI, YawRanges, drawn_cells, forward, right
+
+
+# barycentric weights of points on a triangle: corners, edge points and inside points (6 steps a side)
+WEIGHTS = np.array([(i, j, 6 - i - j) for i in range(7) for j in range(7 - i)], dtype=np.float64) / 6.0
 
 
 def _city():
@@ -163,6 +168,12 @@ def test_the_guarantee_holds_on_ten_thousand_views(city_placement):
     assert check["within_p"] == 1.0 and check["max"] <= placement.primitives
     assert check["without_grid_point"] == 0 and check["eye_past_quad"] == 0 and check["in_unsolved_range"] == 0
     assert check["with_image"] > 0
+    # the view space's corners, edge middles and face centres (where a grid point is farthest) at 24 yaws
+    lo, hi = placement.view_lo, placement.view_hi
+    for f in itertools.product((0.0, 0.5, 1.0), repeat=3):
+        for yaw in np.linspace(0.0, TWO_PI, 24, endpoint=False):
+            view = placement.view(lo + np.asarray(f) * (hi - lo), yaw)
+            assert view["point"] >= 0 and not view["past_quad"] and view["primitives"] <= placement.primitives
 
 
 def test_what_a_view_does_not_draw_lies_outside_its_frustum_or_in_its_image(city_placement):
@@ -182,7 +193,8 @@ def test_what_a_view_does_not_draw_lies_outside_its_frustum_or_in_its_image(city
             assert not np.any(view["cells"][im["cells"]])
             covered[im["cells"]] = True
         for k, obj in enumerate(scene.objects):
-            seen = _in_frustum(obj.vertices[obj.faces], eye, yaw, half).any(axis=1)
+            # points on every triangle: its corners and a lattice of barycentric points inside it
+            seen = _in_frustum(np.einsum("sc,fcd->fsd", WEIGHTS, obj.vertices[obj.faces]), eye, yaw, half).any(axis=1)
             assert np.all(covered[cells.face_cell[k][seen]])
 
 
@@ -202,8 +214,12 @@ def test_bad_inputs_are_clear_errors():
     lo, hi = _view_space(scene)
     with pytest.raises(PlacementError, match="star-shape bound"):
         place_primitives(scene, lo, hi, BudgetSettings(primitives=1000, fov_deg=45))
-    with pytest.raises(PlacementError, match="octree cell holds"):
-        place_primitives(scene, lo, hi, BudgetSettings(primitives=10))
+    with pytest.raises(PlacementError, match="meets the view space holds"):
+        place_primitives(scene, lo, hi, BudgetSettings(primitives=1))
+    with pytest.raises(PlacementError, match="views to check"):
+        check_views(place_primitives(scene, lo, hi, BudgetSettings(primitives=scene.triangle_count)), 0)
+    # a budget of the whole model needs no image, whatever the cells hold
+    assert place_primitives(scene, lo, hi, BudgetSettings(primitives=scene.triangle_count, octree_depth=0)).images == 0
     with pytest.raises(PlacementError, match="empty"):
         place_primitives(scene, hi, lo, BudgetSettings(primitives=1000))
     with pytest.raises(PlacementError, match="p_opt"):
@@ -252,7 +268,9 @@ def test_a_baked_database_is_walked_within_the_budget(tmp_path):
     assert all((db / b / "impostor.glb").is_file() for b in index["bundles"].values())
     walked = runner.invoke(cli, ["walkthrough", str(db), str(path), "--random", "12", "--repeats", "1", "--json"])
     assert walked.exit_code == 0, walked.output
-    s = json.loads(walked.output)["summary"]
+    result = json.loads(walked.output)
+    assert all(f["drawn_triangles"] == f["primitives"] for f in result["frames"])  # what the GL drew is what was counted
+    s = result["summary"]
     assert s["views"] == 12 and s["share_within_p"] == 1.0 and s["eye_past_quad"] == 0
     assert s["views_with_image"] > 0 and s["primitives_max"] <= s["primitives_budget"]
     other = procedural.city(16, seed=3, detail=8)

@@ -139,6 +139,8 @@ def image_walkthrough(db: ImageDatabase, eyes: np.ndarray, yaws: np.ndarray, rep
     """Per view (pitch 0): the grid point and image the run time picks (Fig. 12), the primitives it draws,
     its frame time (frustum-culled geometry + splatted LDI) against plain frustum-culled geometry, and
     (``compare``) hole pixels against the full scene; and a summary against ``P``."""
+    if len(eyes) < 1:
+        raise PlacementError("a walkthrough needs at least one view")
     placement, scene = db.placement, db.scene
     resolution = int(db.index["resolution"])
     frames = []
@@ -153,6 +155,7 @@ def image_walkthrough(db: ImageDatabase, eyes: np.ndarray, yaws: np.ndarray, rep
                "primitives": view["primitives"], "plain_primitives": int(placement.cells.triangles[seen].sum()),
                "within_p": view["primitives"] <= placement.primitives, "eye_past_quad": view["past_quad"]}  # fmt: skip
         with SplatRenderer(geometry, ldis) as runtime:
+            row["drawn_triangles"] = runtime.triangle_count  # what the GL was given, against the count above
             row["runtime_ms"] = _median_ms(runtime, camera, repeats)
             frame = runtime.render(camera) if compare else None
         with MeshRenderer(cell_objects(scene, placement.cells, seen) if seen.any() else []) as plain:

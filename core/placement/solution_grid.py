@@ -302,15 +302,21 @@ def place_primitives(scene: Scene, view_lo, view_hi, settings: BudgetSettings,
     if cells is None:
         cells = octree_cells(scene, settings.octree_depth)
     clock["cells"] = time.perf_counter() - t0
-    if int(cells.triangles.max()) > p_opt:
-        raise PlacementError(
-            f"one octree cell holds {int(cells.triangles.max())} triangles, more than p_opt {p_opt:g}: a view next to it cannot "
-            f"meet the budget; raise --primitives or --octree-depth (now {cells.depth})"
-        )
     extent = float((scene.bounds[1] - scene.bounds[0]).max())
     side = float((view_hi - view_lo).max())
     r0 = settings.spacing if settings.spacing is not None else (side / (settings.grid_points - 1) if side > 0 else extent / 8.0)
     radii = [star_radius(r0 / 2**k, half) for k in range(settings.max_level + 1)]
+    # An eye inside a cell's bounds draws the cell from every yaw and no image can replace it (an
+    # image lies ahead of its grid point, which lies within reach of the eye): a cell that meets the
+    # view space with more than P triangles leaves no valid answer.  (Cells nearby with more than
+    # p_opt may still fail; those grid points are reported as unsolved.)
+    inside = np.all((cells.lo <= view_hi) & (cells.hi >= view_lo), axis=1) & (cells.triangles > p)
+    if inside.any():
+        worst = int(cells.triangles[inside].max())
+        raise PlacementError(
+            f"an octree cell that meets the view space holds {worst} triangles, more than P = {p:g}: a view from inside it "
+            f"draws them all; raise --primitives, or --octree-depth (now {cells.depth}) for smaller cells"
+        )
     scale = 2 ** settings.max_level  # keys: lattice indices at the finest level
     points: dict[tuple, GridPoint] = {}
     queue: deque[tuple] = deque()
@@ -321,6 +327,9 @@ def place_primitives(scene: Scene, view_lo, view_hi, settings: BudgetSettings,
         near = _box_distance(pos, view_lo, view_hi) <= radii[level] * (1 + 1e-9)
         for i, x in zip(index[near], pos[near]):
             key = tuple(int(v) * (scale >> level) for v in i)
+            # A point already there keeps its level: the queue is first in, first out, so every point
+            # of level k is solved (and refined) before one of level k + 1, and an existing point is
+            # never finer than the level being added.
             if key not in points:
                 points[key] = GridPoint(position=x, level=level, radius=radii[level])
                 queue.append(key)
@@ -355,6 +364,8 @@ def check_views(placement: PrimitivePlacement, views: int = 10_000, seed: int = 
     """Sample (eye, yaw) pairs uniformly in the view space (pitch 0) and count what each draws: the
     guarantee's check (share within ``P``), p99 against ``p_opt``, views without a grid point, eyes
     past their image's quad, views in unsolved ranges."""
+    if isinstance(views, bool) or int(views) != views or views < 1:
+        raise PlacementError(f"the number of views to check must be an integer >= 1, got {views!r}")
     rng = np.random.default_rng(seed)
     eyes = placement.view_lo + rng.random((views, 3)) * (placement.view_hi - placement.view_lo)
     yaws = rng.random(views) * 2.0 * math.pi
