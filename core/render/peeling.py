@@ -109,8 +109,6 @@ def peel(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, m
             if not drawn.any():
                 break
             if len(layers) == max_layers:
-                if truncate:
-                    break
                 raise LayerPlanError(f"more than {max_layers} surfaces along one ray of a {size[0]}-pixel layered depth image (raise max_layers)")
             out = np.full(layer.shape[:2] + (3,), -1.0)
             out[..., 0] = np.where(drawn, layer[..., 1], np.nan)
@@ -118,6 +116,8 @@ def peel(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, m
             out[..., 2] = np.where(drawn, layer[..., 3] - 1.0, -1.0)
             layers.append(out)
             shades.append(np.where(drawn[..., None], colour, 0).astype(np.uint8))
+            if truncate and len(layers) == max_layers:
+                break  # the nearest max_layers are all that was asked for: no pass to look past them
             current = previous
     finally:
         park_framebuffer(ctx)
