@@ -20,7 +20,7 @@ from tqdm import tqdm
 from farfield.core.exchange import load_scene
 from farfield.core.impostor_database import ImpostorDatabase
 from farfield.core.placement.image_database import ImageDatabase, image_walkthrough, is_image_database
-from farfield.core.walkthrough import generate_path, load_path, random_views, walkthrough, write_placement_plot, write_plot
+from farfield.core.walkthrough import generate_path, load_path, random_views, walkthrough, write_image_plot, write_placement_plot, write_plot
 
 
 @click.command("walkthrough")
@@ -42,7 +42,7 @@ def walkthrough_cmd(database, scene, path_file, frames, random_count, seed, repe
     a placement database's impostors + remaining geometry against its frame budget."""
     loaded = load_scene(scene)
     if is_image_database(Path(database)):
-        _walk_images(Path(database), loaded, path_file, frames, random_count, seed, repeats, no_compare, as_json)
+        _walk_images(Path(database), loaded, path_file, frames, random_count, seed, repeats, no_compare, as_json, plot)
         return
     with ImpostorDatabase(Path(database)) as db:
         placement = db.placement
@@ -129,9 +129,10 @@ def _print_placement(result: dict, plot: str | None) -> None:
         click.echo(f"plot: {plot}")
 
 
-def _walk_images(root: Path, scene, path_file, frames, random_count, seed, repeats, no_compare, as_json) -> None:
-    """A primitive-budget database: random views (positions uniform in the view space, yaw uniform,
-    pitch 0) or a path (its forwards' yaw), primitives and frame time per view."""
+def _walk_images(root: Path, scene, path_file, frames, random_count, seed, repeats, no_compare, as_json, plot=None) -> None:
+    """A primitive-budget database: ``--random`` views (positions uniform in the view space, yaw
+    uniform, pitch 0), a recorded path (its forwards' yaw) or a generated loop (an ellipse through
+    the view space, looking along it); primitives and frame time per view."""
     db = ImageDatabase(root, scene)
     p = db.placement
     if random_count is not None and path_file:
@@ -139,18 +140,24 @@ def _walk_images(root: Path, scene, path_file, frames, random_count, seed, repea
     if path_file:
         positions, forwards = load_path(path_file)
         yaws = np.arctan2(forwards[:, 0], -forwards[:, 2])
-    else:
-        count = random_count if random_count is not None else frames
-        if count < 1:
-            raise click.UsageError(f"--frames must be >= 1, got {count}")
+    elif random_count is not None:
         rng = np.random.default_rng(seed)
-        positions = p.view_lo + rng.random((count, 3)) * (p.view_hi - p.view_lo)
-        yaws = rng.random(count) * 2.0 * np.pi
+        positions = p.view_lo + rng.random((random_count, 3)) * (p.view_hi - p.view_lo)
+        yaws = rng.random(random_count) * 2.0 * np.pi
+    else:  # a generated loop: an ellipse through the view space at mid height, looking where it goes
+        if frames < 1:
+            raise click.UsageError(f"--frames must be >= 1, got {frames}")
+        t = np.linspace(0.0, 2.0 * np.pi, frames, endpoint=False)
+        centre, half = 0.5 * (p.view_lo + p.view_hi), 0.45 * (p.view_hi - p.view_lo)
+        positions = np.stack([centre[0] + half[0] * np.cos(t), np.full(frames, centre[1]), centre[2] + half[2] * np.sin(t)], axis=1)
+        yaws = np.arctan2(-half[0] * np.sin(t), -half[2] * np.cos(t))  # the tangent (dx, dz) = (-a sin t, c cos t): yaw = atan2(dx, -dz)
     bar = tqdm(total=len(positions), desc="frames", unit="frame", leave=False, disable=True if as_json else None)
     try:
         result = image_walkthrough(db, positions, yaws, repeats=repeats, compare=not no_compare, progress=lambda done, total: bar.update(done - bar.n))
     finally:
         bar.close()
+    if plot:
+        write_image_plot(result, plot, title=f"{root.name}: primitives per view against P (seed 004)")
     if as_json:
         click.echo(json.dumps(result, indent=1))
         return
@@ -165,3 +172,5 @@ def _walk_images(root: Path, scene, path_file, frames, random_count, seed, repea
     click.echo(f"frame ms p50 {s['runtime_ms_p50']:.2f}, p99 {s['runtime_ms_p99']:.2f}; plain frustum-culled geometry p50 {s['plain_ms_p50']:.2f}, p99 {s['plain_ms_p99']:.2f}")
     if "hole_pixels" in s:
         click.echo(f"{s['hole_pixels']} hole pixels in {s['views_with_holes']} views, colour error mean {s['colour_error_mean']:.3f}")
+    if plot:
+        click.echo(f"plot: {plot}")

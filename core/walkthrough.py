@@ -392,3 +392,32 @@ def write_placement_plot(result: dict, path: str | Path, title: str = "placement
     fig.tight_layout()
     fig.savefig(Path(path), dpi=100)
     plt.close(fig)
+
+
+def write_image_plot(result: dict, path: str | Path, title: str = "primitive-budget walkthrough") -> None:
+    """A PNG of a primitive-budget walkthrough (:func:`core.placement.image_database.image_walkthrough`):
+    primitives per view, the run time's and plain geometry's, with P and p_opt drawn (like seed 004
+    Fig. 14), and below it frame time of both."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    frames, s = result["frames"], result["summary"]
+    x = np.array([f["frame"] for f in frames])
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 6), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
+    top.plot(x, [f["plain_primitives"] for f in frames], label="view-frustum culling only", color="tab:red", linewidth=0.8)
+    top.plot(x, [f["primitives"] for f in frames], label="image culling + view-frustum culling", color="tab:blue", linewidth=0.8)
+    top.axhline(s["primitives_budget"], color="black", linestyle="--", linewidth=1.0, label=f"P {s['primitives_budget']:.6g}")
+    top.axhline(s["p_opt"], color="grey", linestyle=":", linewidth=1.0, label=f"p_opt {s['p_opt']:.6g}")
+    top.set_ylabel("primitives drawn")
+    top.legend(loc="upper right", fontsize="small")
+    top.set_title(title)
+    bottom.plot(x, [f["plain_ms"] for f in frames], label="plain geometry", color="tab:red", linewidth=0.8)
+    bottom.plot(x, [f["runtime_ms"] for f in frames], label="geometry + warped LDI", color="tab:blue", linewidth=0.8)
+    bottom.set_xlabel("view")
+    bottom.set_ylabel("frame time (ms)")
+    bottom.legend(loc="upper right", fontsize="small")
+    fig.tight_layout()
+    fig.savefig(Path(path), dpi=100)
+    plt.close(fig)

@@ -266,7 +266,8 @@ def test_a_baked_database_is_walked_within_the_budget(tmp_path):
     index = json.loads((db / "placement.json").read_text())
     assert len(index["bundles"]) == index["summary"]["images"] > 0
     assert all((db / b / "impostor.glb").is_file() for b in index["bundles"].values())
-    walked = runner.invoke(cli, ["walkthrough", str(db), str(path), "--random", "12", "--repeats", "1", "--json"])
+    walked = runner.invoke(cli, ["walkthrough", str(db), str(path), "--random", "12", "--repeats", "1", "--json", "--plot", str(tmp_path / "walk.png")])
+    assert (tmp_path / "walk.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert walked.exit_code == 0, walked.output
     result = json.loads(walked.output)
     assert all(f["drawn_triangles"] == f["primitives"] for f in result["frames"])  # what the GL drew is what was counted
