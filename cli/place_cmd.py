@@ -47,6 +47,27 @@ def _model(frame_ms, cost_model, primitives) -> tuple[CostModel, float, str | No
     return LLVMPIPE_MODEL, float(frame_ms), note
 
 
+def _check_out(out) -> None:
+    if out and not Path(out).resolve().parent.is_dir():
+        raise PlacementError(f"cannot write the placement to {out!r}: no folder {str(Path(out).resolve().parent)!r}")
+
+
+def _write_out(out, document: dict) -> None:
+    try:
+        Path(out).write_text(json.dumps(document) + "\n")
+    except OSError as error:
+        raise PlacementError(f"cannot write the placement to {out!r}: {error.strerror or error}") from None
+
+
+def _with_bar(quiet: bool, run):
+    """``run(progress)`` with a progress bar on stderr (none with ``quiet``)."""
+    bar = _Bar(enabled=not quiet)
+    try:
+        return run(bar)
+    finally:
+        bar.close()
+
+
 def summary_lines(result) -> list[str]:
     s, unit = result.summary, result.summary["unit"]
     lines = [
@@ -123,23 +144,15 @@ def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, op
             raise PlacementError(f"--option {item!r}: expected NAME=VALUE")
         values[name.strip()] = parse_option_text(get_technique(technique).Options, name.strip(), text)
     values.update({"resolution": resolution, "fov_deg": fov})
-    if out and not Path(out).resolve().parent.is_dir():
-        raise PlacementError(f"cannot write the placement to {out!r}: no folder {str(Path(out).resolve().parent)!r}")
+    _check_out(out)
     settings = PlacementSettings(
         t_max=t_max, model=model, technique=technique, options=values, cpv_size=cpv_size, vdi_deg=vdi_deg, cells=cells,
         depth_complexity=depth_complexity, leaf_size=leaf_size, max_impostor_bytes=max_impostor_mb * 2**20,
     )  # fmt: skip
     loaded = load_scene(scene)
-    bar = _Bar(enabled=not quiet)
-    try:
-        result = place(loaded, corners[:3], corners[3:], settings, progress=bar)
-    finally:
-        bar.close()
+    result = _with_bar(quiet, lambda bar: place(loaded, corners[:3], corners[3:], settings, progress=bar))
     if out:
-        try:
-            Path(out).write_text(json.dumps(result.to_dict()) + "\n")
-        except OSError as error:
-            raise PlacementError(f"cannot write the placement to {out!r}: {error.strerror or error}") from None
+        _write_out(out, result.to_dict())
     if note and not as_json:
         click.echo(f"note: {note}", err=True)
     if as_json:
@@ -178,28 +191,16 @@ def _place_primitive_budget(scene, corners, settings, views, out, as_json, quiet
         raise PlacementError(f"--ldi-resolution must be in 1..4096, got {ldi_resolution}")
     if bake_dir and Path(bake_dir).exists() and any(Path(bake_dir).iterdir()):
         raise PlacementError(f"--bake {bake_dir!r}: the folder is not empty")
-    if out and not Path(out).resolve().parent.is_dir():
-        raise PlacementError(f"cannot write the placement to {out!r}: no folder {str(Path(out).resolve().parent)!r}")
+    _check_out(out)
     loaded = load_scene(scene)
-    bar = _Bar(enabled=not quiet)
-    try:
-        result = place_primitives(loaded, corners[:3], corners[3:], settings, progress=bar)
-    finally:
-        bar.close()
+    result = _with_bar(quiet, lambda bar: place_primitives(loaded, corners[:3], corners[3:], settings, progress=bar))
     check = count_views(result, views) if views else None
     if bake_dir:
-        bar = _Bar(enabled=not quiet)
-        try:
-            write_image_database(Path(bake_dir), loaded, result, ldi_resolution, progress=bar)
-        finally:
-            bar.close()
+        _with_bar(quiet, lambda bar: write_image_database(Path(bake_dir), loaded, result, ldi_resolution, progress=bar))
     data = result.to_dict()
     data["check"] = check
     if out:
-        try:
-            Path(out).write_text(json.dumps(data) + "\n")
-        except OSError as error:
-            raise PlacementError(f"cannot write the placement to {out!r}: {error.strerror or error}") from None
+        _write_out(out, data)
     if as_json:
         click.echo(json.dumps({"summary": data["summary"], "seconds": result.seconds, "check": check, "written": out, "database": bake_dir}, indent=1))
     else:
