@@ -6,6 +6,10 @@ Layout of the folder (format ``farfield.primitive_placement``, version 1)::
     placement.json              the grid (PrimitivePlacement.to_dict) and "bundles": {"<point>-<image>": "images/<point>-<image>"}
     images/<point>-<image>/     an LDI bundle (technique "ldi", core.bundle): manifest.json, payload.bin, impostor.glb
 
+A placement job's database (``GET /v1/jobs/{id}/database.zip``, unpacked) holds the same index as
+``index.json``, with each image baked as one of the job's cells: its "bundles" name
+``cells/<NNNNN>/`` and its "cells_baked" list each cell's index, image name, state and stats.
+
 An image's bundle holds its LDI's samples (:class:`core.impostor.LdiPayload`); its view cell is the
 cube around its grid point's star sphere, its reference viewpoint the grid point.  The octree cells
 are recomputed from the scene when the database is opened, and their bounds and counts must match
@@ -14,10 +18,14 @@ the stored ones: a database is only valid for the scene it was made of.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import tempfile
 import time
-from collections.abc import Callable
+import zipfile
+from collections import OrderedDict
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -26,10 +34,11 @@ from farfield.core import __version__
 from farfield.core.bundle import read_bundle, write_bundle
 from farfield.core.impostor import Impostor
 from farfield.core.ldi_pages import ldi_of, ldi_payload_and_pages
+from farfield.core.ldi_construction import DEFAULT_MAX_LAYERS, construct_ldi
 from farfield.core.placement.hierarchy import PlacementError
-from farfield.core.placement.image_frames import cell_objects, image_ldi, view_camera
-from farfield.core.placement.octree_cells import octree_cells
-from farfield.core.placement.solution_grid import FORMAT_VERSION, GridPoint, PrimitivePlacement
+from farfield.core.placement.image_frames import cell_objects, view_camera
+from farfield.core.placement.octree_cells import OctreeCells, octree_cells
+from farfield.core.placement.solution_grid import FORMAT_VERSION, UNSOLVED, GridPoint, PrimitivePlacement
 from farfield.core.placement.yaw_ranges import drawn_cells
 from farfield.core.render.raster import MeshRenderer
 from farfield.core.render.splats import SplatRenderer
@@ -37,26 +46,84 @@ from farfield.core.scene import Scene
 from farfield.core.viewcells import BoxCell
 
 FORMAT = "farfield.primitive_placement"
-INDEX = "placement.json"
+INDEX = "placement.json"  # a database written by ``farfield place --bake``
+INDEX_NAMES = (INDEX, "index.json")  # and by a placement job (GET /v1/jobs/{id}/database.zip)
+
+
+def image_entries(placement: PrimitivePlacement, resolution: int, images: int = 9, max_layers: int = DEFAULT_MAX_LAYERS) -> list[dict]:
+    """Every image of ``placement``, in order, as an entry :func:`bake_image` bakes alone (a job's
+    cell each): ``index`` (its number), ``name`` ("<point>-<image>"), ``viewcell`` (the cube around
+    its grid point's star sphere) and ``params``, what determines its bundle's bytes."""
+    out = []
+    fov = math.degrees(2 * placement.half)
+    for pi, point in enumerate(placement.points):
+        cell = BoxCell(point.position - point.radius, point.position + point.radius).to_dict()
+        for ii, im in enumerate(point.images):
+            params = {
+                "octree_depth": placement.cells.depth, "fov_deg": fov, "resolution": int(resolution), "construction_images": int(images),
+                "max_layers": int(max_layers), "position": point.position.tolist(), "yaw": float(im["yaw"]), "depth": float(im["depth"]),
+                "quad": np.asarray(im["quad"]).tolist(), "cells": np.asarray(im["cells"]).tolist(),
+            }  # fmt: skip
+            out.append({"index": len(out), "name": f"{pi}-{ii}", "point": pi, "image": ii, "viewcell": cell, "params": params})
+    return out
+
+
+_CELLS: OrderedDict[tuple[int, int], tuple[Scene, OctreeCells]] = OrderedDict()  # a worker bakes a job's images one by one
+_CELLS_KEPT = 2
+
+
+def _scene_cells(scene: Scene, depth: int) -> OctreeCells:
+    """The octree cells of ``scene`` (this object: its objects' order is the cells' face order), kept
+    for the next image of the same scene."""
+    key = (id(scene), depth)
+    found = _CELLS.get(key)
+    if found is None or found[0] is not scene:
+        found = _CELLS[key] = (scene, octree_cells(scene, depth))
+        while len(_CELLS) > _CELLS_KEPT:
+            _CELLS.popitem(last=False)
+    _CELLS.move_to_end(key)
+    return found[1]
+
+
+def bake_image(scene: Scene, entry: dict, cells: OctreeCells | None = None, progress: Callable | None = None) -> Impostor:
+    """One entry of :func:`image_entries` as an ``ldi`` impostor: its subset's cells (of ``cells``, or
+    of the scene's octree at the entry's depth) built into the LDI of its grid point's view."""
+    p = entry["params"]
+    started = time.perf_counter()
+    if cells is None:
+        cells = _scene_cells(scene, int(p["octree_depth"]))
+    chosen = np.asarray(p["cells"], dtype=np.int64)
+    if chosen.size and (chosen.min() < 0 or chosen.max() >= cells.count):
+        raise PlacementError(f"image {entry.get('name')}: its cells {chosen.min()}..{chosen.max()} are not cells of this scene's octree ({cells.count} cells)")
+    position, quad = np.asarray(p["position"], dtype=np.float64), np.asarray(p["quad"], dtype=np.float64)
+    made = construct_ldi(cell_objects(scene, cells, chosen), position, float(p["yaw"]), quad, float(p["depth"]), int(p["resolution"]),
+                         images=int(p["construction_images"]), max_layers=int(p.get("max_layers", DEFAULT_MAX_LAYERS)))  # fmt: skip
+    if progress is not None:
+        progress("record", 1, 1)
+    ldi = made.ldi
+    payload, pages = ldi_payload_and_pages(ldi)
+    return Impostor(
+        technique="ldi", viewcell=entry["viewcell"], reference_viewpoint=position, resolution=int(p["resolution"]), fov_deg=float(p["fov_deg"]),
+        pages=pages, payload=payload, layers=[],
+        stats={"samples": ldi.count, "layers": ldi.layers, "offered": made.offered, "dropped_full": made.dropped_full,
+               "construction_images": int(p["construction_images"]), "splat_bytes": 20 * ldi.count, "texture_bytes": int(sum(pg.nbytes for pg in pages)),
+               "seconds": {"total": time.perf_counter() - started}},
+        parameters={"resolution": int(p["resolution"]), "fov_deg": float(p["fov_deg"]), "images": int(p["construction_images"]), "yaw": float(p["yaw"]),
+                    "depth": float(p["depth"]), "quad": quad.tolist(), "cells": chosen.tolist(), "scene_hash": scene.content_hash},
+        code_version=__version__,
+    )  # fmt: skip
 
 
 def image_impostor(scene: Scene, placement: PrimitivePlacement, point: GridPoint, index: int, resolution: int, images: int = 9) -> Impostor:
-    """Image ``index`` of ``point`` as an ``ldi`` impostor (module docstring)."""
-    image = point.images[index]
-    started = time.perf_counter()
-    made = image_ldi(scene, placement, point, image, resolution, images)
-    ldi = made.ldi
-    payload, pages = ldi_payload_and_pages(ldi)
-    cell = BoxCell(point.position - point.radius, point.position + point.radius)
-    return Impostor(
-        technique="ldi", viewcell=cell.to_dict(), reference_viewpoint=point.position, resolution=resolution, fov_deg=math.degrees(2 * placement.half),
-        pages=pages, payload=payload, layers=[],
-        stats={"samples": ldi.count, "layers": ldi.layers, "offered": made.offered, "dropped_full": made.dropped_full, "construction_images": images,
-               "splat_bytes": 20 * ldi.count, "texture_bytes": int(sum(p.nbytes for p in pages)), "seconds": {"total": time.perf_counter() - started}},
-        parameters={"resolution": resolution, "fov_deg": math.degrees(2 * placement.half), "images": images, "yaw": image["yaw"], "depth": image["depth"],
-                    "quad": np.asarray(image["quad"]).tolist(), "cells": np.asarray(image["cells"]).tolist(), "scene_hash": scene.content_hash},
-        code_version=__version__,
-    )  # fmt: skip
+    """Image ``index`` of ``point`` as an ``ldi`` impostor (:func:`bake_image`)."""
+    pi = next(i for i, q in enumerate(placement.points) if q is point)
+    entry = next(e for e in image_entries(placement, resolution, images) if e["point"] == pi and e["image"] == index)
+    return bake_image(scene, entry, placement.cells)
+
+
+def image_index(placement: dict, bundles: dict[str, str], resolution: int, images: int, scene_hash: str, **extra) -> dict:
+    """A database's index: the grid (:meth:`PrimitivePlacement.to_dict`) and where each image's bundle is."""
+    return {**placement, "bundles": bundles, "resolution": int(resolution), "construction_images": int(images), "scene_hash": scene_hash, **extra}
 
 
 def write_image_database(root: Path, scene: Scene, placement: PrimitivePlacement, resolution: int, images: int = 9,
@@ -65,40 +132,112 @@ def write_image_database(root: Path, scene: Scene, placement: PrimitivePlacement
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     bundles = {}
-    total = placement.images
-    done = 0
-    for pi, point in enumerate(placement.points):
-        for ii in range(len(point.images)):
-            name = f"{pi}-{ii}"
-            write_bundle(image_impostor(scene, placement, point, ii, resolution, images), root / "images" / name)
-            bundles[name] = f"images/{name}"
-            done += 1
-            if progress is not None:
-                progress("images", done, total)
-    index = placement.to_dict()
-    index.update({"bundles": bundles, "resolution": resolution, "construction_images": images, "scene_hash": scene.content_hash})
+    entries = image_entries(placement, resolution, images)
+    for n, entry in enumerate(entries):
+        write_bundle(bake_image(scene, entry, placement.cells), root / "images" / entry["name"])
+        bundles[entry["name"]] = f"images/{entry['name']}"
+        if progress is not None:
+            progress("images", n + 1, len(entries))
+    index = image_index(placement.to_dict(), bundles, resolution, images, scene.content_hash)
     (root / INDEX).write_text(json.dumps(index) + "\n")
     return index
 
 
+def _index_file(root: Path) -> Path | None:
+    """The index of a primitive-budget database folder, or None."""
+    for name in INDEX_NAMES:
+        path = Path(root) / name
+        try:
+            if path.is_file() and json.loads(path.read_text()).get("format") == FORMAT:
+                return path
+        except (OSError, ValueError):
+            continue
+    return None
+
+
 def is_image_database(root: Path) -> bool:
-    index = Path(root) / INDEX
-    if not index.is_file():
-        return False
-    try:
-        return json.loads(index.read_text()).get("format") == FORMAT
-    except (OSError, ValueError):
-        return False
+    return _index_file(root) is not None
+
+
+@contextlib.contextmanager
+def image_database_folder(path: Path) -> Iterator[Path | None]:
+    """A primitive-budget database's folder: ``path`` itself, or a zip of one (``database.zip``)
+    unpacked to a temporary folder for the block; None when ``path`` holds no such database."""
+    path = Path(path)
+    if path.is_dir():
+        yield path if is_image_database(path) else None
+        return
+    if not (path.is_file() and zipfile.is_zipfile(path)):
+        yield None
+        return
+    with zipfile.ZipFile(path) as archive:
+        names = [n for n in INDEX_NAMES if n in archive.namelist()]
+        try:
+            found = any(json.loads(archive.read(n)).get("format") == FORMAT for n in names)
+        except ValueError:
+            found = False
+        if not found:
+            yield None
+            return
+        with tempfile.TemporaryDirectory(prefix="farfield-images-") as tmp:
+            archive.extractall(tmp)
+            yield Path(tmp)
+
+
+def image_lookup(index: dict, placement: PrimitivePlacement, eye, direction) -> dict:
+    """What a run time draws for one view (seed 004 Fig. 12): the grid point, the image (its name,
+    None when the view draws geometry alone), the octree cells it culls and those drawn as geometry,
+    and the triangles left against P.  Views are horizontal (pitch 0): ``direction``'s y is not used."""
+    dx, _, dz = (float(v) for v in direction)
+    if not (math.isfinite(dx) and math.isfinite(dz) and dx * dx + dz * dz > 0):
+        raise PlacementError("a primitive-budget placement's views look horizontally (pitch 0, seed 004): give a direction with dx or dz not 0")
+    yaw = math.atan2(dx, -dz) % (2 * math.pi)  # forward(yaw) = (sin yaw, 0, -cos yaw)
+    view = placement.view(np.asarray(eye, dtype=np.float64), yaw)
+    name = f"{view['point']}-{view['image']}" if view["image"] >= 0 else None
+    culled = np.asarray(placement.points[view["point"]].images[view["image"]]["cells"]).tolist() if name else []
+    status = "no grid point" if view["point"] < 0 else ("unsolved" if view["image"] == UNSOLVED else "solved")
+    return {
+        "algorithm": "primitive-budget", "position": [float(v) for v in eye], "yaw": yaw, "point": view["point"], "image": name,
+        "bundle": index["bundles"].get(name) if name else None, "status": status, "primitives": view["primitives"],
+        "primitives_budget": placement.primitives, "within_budget": view["primitives"] <= placement.primitives,
+        "replaced_octree_cells": culled, "drawn_octree_cells": np.flatnonzero(view["cells"]).tolist(), "eye_past_quad": view["past_quad"],
+    }  # fmt: skip
+
+
+def stored_cells(index: dict) -> OctreeCells:
+    """The octree cells a database stores (bounds, counts: enough to count and cull, not to draw)."""
+    c = index["cells"]
+    lo = np.asarray(c["lo"], dtype=np.float64).reshape(-1, 3)
+    return OctreeCells(lo, np.asarray(c["hi"], dtype=np.float64).reshape(-1, 3), np.asarray(c["triangles"], dtype=np.int64),
+                       np.zeros((len(lo), 3), dtype=np.int64), int(c["depth"]), np.asarray(c["cube_lo"], dtype=np.float64), float(c["cube_size"]), ())  # fmt: skip
+
+
+def placement_of_index(index: dict, cells: OctreeCells | None = None) -> PrimitivePlacement:
+    """The placement a database's index holds, with ``cells`` (default: :func:`stored_cells`)."""
+    if index.get("format") != FORMAT or index.get("version") != FORMAT_VERSION:
+        raise PlacementError(f"format {index.get('format')!r} version {index.get('version')!r}, expected {FORMAT!r} {FORMAT_VERSION}")
+    points = []
+    for p in index["points"]:
+        point = GridPoint(np.asarray(p["position"], dtype=np.float64), int(p["level"]), float(p["radius"]), np.asarray(p["breaks"], dtype=np.float64),
+                          np.asarray(p["image"], dtype=np.int64), failure=p["failure"])  # fmt: skip
+        point.images = [{**im, "quad": np.asarray(im["quad"]), "cells": np.asarray(im["cells"], dtype=np.int64)} for im in p["images"]]
+        points.append(point)
+    s = index["summary"]
+    lo, hi = (np.asarray(v, dtype=np.float64) for v in index["view_space"])
+    return PrimitivePlacement(stored_cells(index) if cells is None else cells, points, lo, hi, float(s["primitives"]), float(s["p_opt"]),
+                              math.radians(s["fov_deg"]) / 2, float(s["spacing"]), len(s["points_per_level"]) - 1, index.get("seconds", {}))  # fmt: skip
 
 
 class ImageDatabase:
-    """An opened primitive-budget database: the placement (cells recomputed from ``scene`` and checked)
+    """An opened primitive-budget database (a folder of ``farfield place --bake`` or an unpacked
+    placement job's ``database.zip``): the placement (cells recomputed from ``scene`` and checked)
     and its LDIs, read when first used."""
 
     def __init__(self, root: Path, scene: Scene) -> None:
         self.root = Path(root)
+        found = _index_file(self.root)
         try:
-            index = json.loads((self.root / INDEX).read_text())
+            index = json.loads((found or self.root / INDEX).read_text())
         except (OSError, ValueError) as error:
             raise PlacementError(f"{self.root} is not a primitive-budget placement database: {error}") from None
         if index.get("format") != FORMAT or index.get("version") != FORMAT_VERSION:
@@ -109,16 +248,7 @@ class ImageDatabase:
         if (cells.count != len(stored["triangles"]) or not np.array_equal(cells.triangles, stored["triangles"])
                 or not np.allclose(cells.lo, stored["lo"]) or not np.allclose(cells.hi, stored["hi"])):  # fmt: skip
             raise PlacementError(f"{self.root} was made for another scene (its octree cells differ from this scene's)")
-        points = []
-        for p in index["points"]:
-            point = GridPoint(np.asarray(p["position"], dtype=np.float64), int(p["level"]), float(p["radius"]), np.asarray(p["breaks"], dtype=np.float64),
-                              np.asarray(p["image"], dtype=np.int64), failure=p["failure"])  # fmt: skip
-            point.images = [{**im, "quad": np.asarray(im["quad"]), "cells": np.asarray(im["cells"], dtype=np.int64)} for im in p["images"]]
-            points.append(point)
-        s = index["summary"]
-        lo, hi = (np.asarray(v, dtype=np.float64) for v in index["view_space"])
-        self.placement = PrimitivePlacement(cells, points, lo, hi, float(s["primitives"]), float(s["p_opt"]), math.radians(s["fov_deg"]) / 2,
-                                            float(s["spacing"]), len(s["points_per_level"]) - 1, index.get("seconds", {}))  # fmt: skip
+        self.placement = placement_of_index(index, cells)
         self.scene = scene
         self._ldis: dict[tuple[int, int], Impostor] = {}
 
