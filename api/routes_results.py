@@ -20,8 +20,10 @@ from farfield.core.bundle import GLB_NAME, MANIFEST_NAME, PAYLOAD_NAME, bundle_z
 from farfield.core.errors import ConflictError, InternalError, NotFoundError, ViewCellError
 from farfield.core.placement.database import PlacementLookup
 from farfield.core.placement.hierarchy import PlacementError
+from farfield.core.placement.image_database import image_lookup, placement_of_index
 from farfield.service.db import CellRow, JobRow
 from farfield.service.jobs import cell_record, get_cell_row, get_job_row, job_cells, lookup
+from farfield.service.placement_jobs import PRIMITIVE_INDEX_KIND
 
 from farfield.api.deps import Services, services, tenant
 
@@ -131,7 +133,7 @@ class _LookupCache:
                 return self.entries[key]
         try:
             index = json.loads(svc.blobs.read_bytes(job.index_key))
-            found = (index, PlacementLookup(index))
+            found = (index, placement_of_index(index) if index.get("kind") == PRIMITIVE_INDEX_KIND else PlacementLookup(index))
         except (ValueError, KeyError, TypeError, PlacementError) as error:
             # farfield wrote this index: one that does not read is a bug (500), not bad input
             raise InternalError(f"job {job.id!r}: its placement database index does not read: {error}") from error
@@ -170,6 +172,8 @@ def _cell_records(svc: Services, job_id: str, indices: list[int]) -> list[dict]:
 @router.get("/placement", summary="A placement job's CPVs, impostors, unsolvable regions and totals (the dashboard's map)")
 def job_placement(job_id: str, tenant_id: TenantDep, svc: ServicesDep) -> dict:
     job, index, _ = _placement_database(svc, tenant_id, job_id)
+    if index.get("kind") == PRIMITIVE_INDEX_KIND:
+        return _image_placement(job, index)
     section = index["placement"]
     cells = [
         {k: c.get(k) for k in ("index", "state", "technique", "objects", "viewcell", "cpvs", "figures", "bundle")}
@@ -206,6 +210,42 @@ def lookup_viewpoint(
     missing = [name for name, value in (("dx", dx), ("dy", dy), ("dz", dz)) if value is None]
     if missing:
         raise ViewCellError(f"a placement job's lookup needs the view direction dx, dy, dz as well as the position; missing: {', '.join(missing)}")
-    _, _, found = _placement_database(svc, tenant_id, job_id)
+    _, index, found = _placement_database(svc, tenant_id, job_id)
+    if index.get("kind") == PRIMITIVE_INDEX_KIND:
+        return _image_lookup(svc, job_id, index, found, (x, y, z), (dx, dy, dz))
     answer = found.find((x, y, z), (dx, dy, dz))
     return {**answer, "cells": _cell_records(svc, job_id, answer["impostors"])}
+
+
+def _image_placement(job: JobRow, index: dict) -> dict:
+    """``/placement`` of a primitive-budget job: its parameters, the grid's summary and points with
+    their images (each with its cell and bundle), and totals."""
+    bundles = index["bundles"]
+    baked = {b["image"]: b for b in index.get("cells_baked", [])}
+    points = []
+    for pi, p in enumerate(index["points"]):
+        images = []
+        for ii, im in enumerate(p["images"]):
+            name = f"{pi}-{ii}"
+            cell = baked.get(name) or {}
+            images.append({"name": name, "yaw": im["yaw"], "depth": im["depth"], "drawn": im["drawn"], "octree_cells": len(im["cells"]),
+                           "cell": cell.get("index"), "bundle": bundles.get(name), "texture_bytes": (cell.get("stats") or {}).get("texture_bytes")})  # fmt: skip
+        points.append({"position": p["position"], "level": p["level"], "radius": p["radius"], "failure": p["failure"], "images": images})
+    summary = index["summary"]
+    sizes = [im["texture_bytes"] or 0 for p in points for im in p["images"]]
+    totals = {
+        "images": summary["images"], "images_baked": sum(1 for p in points for im in p["images"] if im["bundle"]), "memory_bytes_baked": int(sum(sizes)),
+        "grid_points": summary["grid_points"], "unsolved_points": summary["unsolved_points"],
+    }  # fmt: skip
+    parameters = {"algorithm": "primitive-budget", "technique": "ldi", "primitives": summary["primitives"], "p_opt": summary["p_opt"],
+                  "fov_deg": summary["fov_deg"], "octree_depth": summary["octree_depth"], "resolution": index["resolution"],
+                  "construction_images": index["construction_images"], "view_space": index["view_space"]}  # fmt: skip
+    return {"job": job.id, "state": job.state, "algorithm": "primitive-budget", "parameters": parameters, "summary": summary, "points": points, "totals": totals}
+
+
+def _image_lookup(svc: Services, job_id: str, index: dict, placement, eye, direction) -> dict:
+    """``/lookup`` of a primitive-budget job (:func:`core.placement.image_database.image_lookup`), with
+    the record of the cell that baked the image."""
+    answer = image_lookup(index, placement, eye, direction)
+    cell = next((b["index"] for b in index.get("cells_baked", []) if b["image"] == answer["image"]), None) if answer["image"] else None
+    return {**answer, "cells": _cell_records(svc, job_id, [cell] if cell is not None else [])}

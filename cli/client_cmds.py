@@ -133,12 +133,15 @@ def parse_grid(text: str) -> dict:
     return {"lo": numbers[:3], "hi": numbers[3:], "counts": counts}
 
 
-def placement_request(view_space: str, frame_ms, cost_model, primitives, cpv_size, vdi_deg, cells, depth_complexity, leaf_size, max_impostor_mb=None) -> dict:
+def placement_request(view_space: str, frame_ms, cost_model, primitives, cpv_size, vdi_deg, cells, depth_complexity, leaf_size, max_impostor_mb=None,
+                      algorithm=None, **image_knobs) -> dict:  # fmt: skip
     """The ``placement`` of a job request from ``farfield submit --placement``'s flags (those of
     ``farfield place``); --cost-model is a name the service knows (llvmpipe) or a model JSON file.
 
     >>> placement_request("0,0,0,4,1,4", None, None, 5000, None, None, None, None, None)
     {'view_space': {'lo': [0.0, 0.0, 0.0], 'hi': [4.0, 1.0, 4.0]}, 'budget': {'primitives': 5000}}
+    >>> placement_request("0,0,0,4,1,4", None, None, 5000, None, None, None, None, None, algorithm="primitive-budget", p_opt=4000, max_level=None)
+    {'view_space': {'lo': [0.0, 0.0, 0.0], 'hi': [4.0, 1.0, 4.0]}, 'budget': {'primitives': 5000}, 'algorithm': 'primitive-budget', 'p_opt': 4000}
     """
     try:
         corners = [float(v) for v in view_space.split(",")]
@@ -156,7 +159,7 @@ def placement_request(view_space: str, frame_ms, cost_model, primitives, cpv_siz
         else:
             budget["cost_model"] = cost_model
     knobs = {"cpv_size": cpv_size, "vdi_deg": vdi_deg, "cells": cells, "depth_complexity": depth_complexity, "leaf_size": leaf_size,
-             "max_impostor_mb": max_impostor_mb}
+             "max_impostor_mb": max_impostor_mb, "algorithm": algorithm, **image_knobs}
     return {
         "view_space": {"lo": corners[:3], "hi": corners[3:]}, "budget": {k: v for k, v in budget.items() if v is not None},
         **{k: v for k, v in knobs.items() if v is not None},
@@ -231,6 +234,14 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
 @click.option("--depth-complexity", type=float, default=None, help="With --placement: a view's rasterised pixels are at most this many frames [default: 4].")
 @click.option("--leaf-size", type=int, default=None, help="With --placement: elements per leaf of the object hierarchy [default: 4].")
 @click.option("--max-impostor-mb", type=float, default=None, help="With --placement: largest impostor considered, MiB by the cost model [default: 32].")
+@click.option("--algorithm", type=click.Choice(["frame-time", "primitive-budget"]), default=None,
+              help="With --placement: frame-time (seed 000, the default) or primitive-budget (seed 004: LDIs on a solution grid, technique ldi, "
+                   "every view within --primitives).")
+@click.option("--p-opt", type=float, default=None, help="primitive-budget: the optimisation budget [default: P less 5 %% of the model, at least P / 2].")
+@click.option("--octree-depth", type=int, default=None, help="primitive-budget: depth of the octree's pseudo-leaf cells [default: 5].")
+@click.option("--grid-points", type=int, default=None, help="primitive-budget: initial lattice points along the view space's longest side [default: 3].")
+@click.option("--max-level", type=int, default=None, help="primitive-budget: deepest subdivision of the solution grid [default: 4].")
+@click.option("--check-views", type=int, default=None, help="primitive-budget: random views the planner checks the guarantee on [default: 2000].")
 @click.option("--evaluate/--no-evaluate", default=True, show_default=True,
               help="Evaluate each baked cell against the real geometry on the worker (layered, tdm): hole pixels, bloat beyond 1 px, "
                    "colour error, SSIM in the cell's record. It changes no bundle.")
@@ -239,7 +250,8 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
 @click.option("--json", "as_json", is_flag=True, help="Print the job record as JSON.")
 @_client_options
 def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov, options, placement, view_space, frame_ms, cost_model, primitives,
-           cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, max_impostor_mb, evaluate, wait, download, as_json, url, key):  # fmt: skip
+           cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, max_impostor_mb, algorithm, p_opt, octree_depth, grid_points, max_level,
+           check_views, evaluate, wait, download, as_json, url, key):  # fmt: skip
     """Submit a job for SCENE (a file to upload, or the id of an uploaded scene)."""
     client = Client(url, key or _default_key())
     if placement:
@@ -247,7 +259,10 @@ def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov
             raise ServiceError("--placement chooses the view cells: leave out --grid and --viewcell")
         if view_space is None:
             raise ServiceError("--placement needs --view-space X0,Y0,Z0,X1,Y1,Z1")
-        request = placement_request(view_space, frame_ms, cost_model, primitives, cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, max_impostor_mb)
+        request = placement_request(view_space, frame_ms, cost_model, primitives, cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, max_impostor_mb,
+                                    algorithm, p_opt=p_opt, octree_depth=octree_depth, grid_points=grid_points, max_level=max_level, check_views=check_views)  # fmt: skip
+    elif any(v is not None for v in (algorithm, p_opt, octree_depth, grid_points, max_level, check_views)):
+        raise ServiceError("--algorithm, --p-opt, --octree-depth, --grid-points, --max-level and --check-views go with --placement")
     elif (grid is None) == (not viewcells):
         raise ServiceError("give --grid, one or more --viewcell, or --placement")
     if Path(scene).is_file():

@@ -1,6 +1,8 @@
 """``farfield lookup``: what a runtime draws for one view of a placement database (offline): the CPV
 holding the view, its status, the impostors to draw (with their bundle folders) and the elements
-they replace; everything else is drawn as geometry (:class:`core.placement.database.PlacementLookup`)."""
+they replace; everything else is drawn as geometry (:class:`core.placement.database.PlacementLookup`).
+A primitive-budget database's answer is its grid point, the image to warp and the triangles left
+(:func:`core.placement.image_database.image_lookup`)."""
 
 from __future__ import annotations
 
@@ -12,6 +14,7 @@ import click
 from farfield.core.impostor_database import ImpostorDatabase
 from farfield.core.placement.database import PlacementLookup
 from farfield.core.placement.hierarchy import PlacementError
+from farfield.core.placement.image_database import INDEX_NAMES, image_database_folder, image_lookup, placement_of_index
 
 
 def lookup_answer(database: ImpostorDatabase, position, direction, folder: Path | None = None) -> dict:
@@ -54,6 +57,19 @@ def answer_lines(answer: dict) -> list[str]:
     return lines
 
 
+def image_answer_lines(answer: dict) -> list[str]:
+    """A primitive-budget answer for a person: the grid point, the image to warp, the triangles left."""
+    lines = [f"view at {answer['position']} yaw {answer['yaw']:.4f} rad (P {answer['primitives_budget']:.6g} triangles)"]
+    if answer["point"] < 0:
+        lines.append("grid point: none holds this view (outside the view space?)")
+    else:
+        lines.append(f"grid point {answer['point']}: {answer['status']}")
+    lines.append(f"image to warp: {answer['image']} ({answer['bundle']})" if answer["image"] else "image to warp: none, geometry alone")
+    lines.append(f"geometry: {len(answer['drawn_octree_cells'])} octree cells, {answer['primitives']} triangles"
+                 + ("" if answer["within_budget"] else "  <- over P"))  # fmt: skip
+    return lines
+
+
 def _vector(values: tuple[float, float, float]) -> list[float]:
     return [float(v) for v in values]
 
@@ -67,6 +83,14 @@ def lookup_cmd(database: Path, position, direction, as_json: bool) -> None:
     """What to draw for one view of a placement DATABASE (a folder or a zip, as ``farfield submit
     --download`` or ``GET /v1/jobs/{id}/database.zip`` gives it): the CPV, its status, the impostors
     to draw with their bundle folders (inside the zip for a zip), and the elements they replace."""
+    with image_database_folder(database) as images:
+        if images is not None:  # a primitive-budget database (seed 004): no scene needed, the index holds the cells' bounds
+            index = json.loads(next(images / n for n in INDEX_NAMES if (images / n).is_file()).read_text())
+            answer = image_lookup(index, placement_of_index(index), _vector(position), _vector(direction))
+            if answer["bundle"] is not None and database.is_dir():
+                answer["bundle"] = str(database / answer["bundle"])
+            click.echo(json.dumps(answer, indent=1) if as_json else "\n".join(image_answer_lines(answer)))
+            return
     with ImpostorDatabase(database) as db:
         answer = lookup_answer(db, _vector(position), _vector(direction), database if database.is_dir() else None)
         if as_json:

@@ -19,7 +19,7 @@ from tqdm import tqdm
 
 from farfield.core.exchange import load_scene
 from farfield.core.impostor_database import ImpostorDatabase
-from farfield.core.placement.image_database import ImageDatabase, image_walkthrough, is_image_database
+from farfield.core.placement.image_database import ImageDatabase, image_database_folder, image_walkthrough
 from farfield.core.walkthrough import generate_path, load_path, random_views, walkthrough, write_image_plot, write_placement_plot, write_plot
 
 
@@ -41,9 +41,10 @@ def walkthrough_cmd(database, scene, path_file, frames, random_count, seed, repe
     the reference runtime with SCENE drawn in full: an envmap database's near field + impostors, or
     a placement database's impostors + remaining geometry against its frame budget."""
     loaded = load_scene(scene)
-    if is_image_database(Path(database)):
-        _walk_images(Path(database), loaded, path_file, frames, random_count, seed, repeats, no_compare, as_json, plot)
-        return
+    with image_database_folder(Path(database)) as images:
+        if images is not None:  # a primitive-budget database (farfield place --bake, or a job's)
+            _walk_images(images, loaded, path_file, frames, random_count, seed, repeats, no_compare, as_json, plot, name=Path(database).name)
+            return
     with ImpostorDatabase(Path(database)) as db:
         placement = db.placement
         if random_count is not None and not placement:
@@ -129,7 +130,7 @@ def _print_placement(result: dict, plot: str | None) -> None:
         click.echo(f"plot: {plot}")
 
 
-def _walk_images(root: Path, scene, path_file, frames, random_count, seed, repeats, no_compare, as_json, plot=None) -> None:
+def _walk_images(root: Path, scene, path_file, frames, random_count, seed, repeats, no_compare, as_json, plot=None, name=None) -> None:
     """A primitive-budget database: ``--random`` views (positions uniform in the view space, yaw
     uniform, pitch 0), a recorded path (its forwards' yaw) or a generated loop (an ellipse through
     the view space, looking along it); primitives and frame time per view."""
@@ -157,7 +158,7 @@ def _walk_images(root: Path, scene, path_file, frames, random_count, seed, repea
     finally:
         bar.close()
     if plot:
-        write_image_plot(result, plot, title=f"{root.name}: primitives per view against P (seed 004)")
+        write_image_plot(result, plot, title=f"{name or root.name}: primitives per view against P (seed 004)")
     if as_json:
         click.echo(json.dumps(result, indent=1))
         return

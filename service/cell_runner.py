@@ -6,8 +6,9 @@ of one part (layered, tdm) is then evaluated against the part's real geometry fr
 and the time they took go in the cell's record (``stats.evaluation``), never in the bundle, beside
 this attempt's bake timings (``stats.seconds``) and whether this attempt baked the bundle or found it
 (``stats.baked``).  A placement job's cell (``cells.params``, :mod:`service.placement_jobs`) is baked
-by :func:`core.placement.database.bake_impostor` with its own technique, objects and options, keyed
-by them, and not evaluated here (the walkthrough measures a placement).
+by :func:`core.placement.database.bake_impostor` with its own technique, objects and options (an image
+of a primitive-budget placement by :func:`core.placement.image_database.bake_image`), keyed by them,
+and not evaluated here (the walkthrough measures a placement).
 
 This is everything a worker task does (``workers/tasks.py`` is a few lines around it).  The bundle
 is published under a key derived from everything that determines its bytes
@@ -113,6 +114,10 @@ def failure_message(error: BaseException, klass: str) -> str:
 def bake_cell(job: JobRow, scene: Scene, viewcell: dict, progress, cell: CellRow | None = None) -> Impostor:
     """The impostor of one cell of ``job``, baked by the job's technique (:mod:`core.techniques`);
     a placement job's cell by its own (:func:`core.placement.database.bake_impostor`)."""
+    if cell is not None and cell.params is not None and "image" in cell.params:  # an image of a primitive-budget placement (seed 004)
+        from farfield.core.placement.image_database import bake_image
+
+        return bake_image(scene, {"name": cell.params["image"], "viewcell": cell.viewcell, "params": cell.params["params"]}, progress=progress)
     if cell is not None and cell.params is not None:
         from farfield.core.placement.database import bake_impostor
 
@@ -205,7 +210,9 @@ def run_cell(
                 job = s.get(JobRow, cell.job_id)
                 scene_row = s.get(SceneRow, job.scene_id)
             if cell.params is not None:  # a placement cell: its own technique, objects and options
-                key = result_key(scene_row.content_hash, f"placement/{cell.params['technique']}", cell.params, cell.viewcell)
+                # Keyed by what makes its bytes (not an image's name in its grid): equal impostors of another job are found.
+                own = {k: v for k, v in cell.params.items() if k != "image"}
+                key = result_key(scene_row.content_hash, f"placement/{cell.params['technique']}", own, cell.viewcell)
             else:
                 key = result_key(scene_row.content_hash, job.job_type, job.params, cell.viewcell)
             seconds = None  # this attempt's bake timings (a bundle stores none: its bytes depend on its inputs alone)

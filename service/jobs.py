@@ -264,7 +264,8 @@ def create_placement_job(db: Database, tenant_id: str, scene: SceneRow, spec: Jo
     """Validate a placement request (:func:`service.placement_jobs.placement_params`: 422 naming the
     problem) and store the job, queued for planning, without cells (the planner makes them).  Its
     cells are not known yet, so the texel and tenant-cell admission of a grid job does not apply."""
-    params = placement_params(spec.technique_name, spec.options, spec.resolution, spec.fov_deg, spec.placement)
+    technique = spec.technique or spec.__dict__.get("job_type")  # None: the algorithm's default
+    params = placement_params(technique, spec.options, spec.resolution, spec.fov_deg, spec.placement, scene.triangles)
     job = new_placement_job(tenant_id, scene, params, requeue_after)
     with db.session() as s:
         s.add(job)

@@ -26,6 +26,17 @@ impostors' technique in ``params["technique"]``) goes
   ``MAX_REPAIR_ROUNDS``) the database index is written (:func:`core.placement.database.placement_index`,
   ``jobs/<id>/index.json``) and the job ends done.
 
+A **primitive-budget** job (``"algorithm": "primitive-budget"``, seed 004, technique ``ldi``) goes the
+same way with one round: the plan is :func:`core.placement.solution_grid.place_primitives` and its
+check of ``check_views`` random views; the grid is kept as ``jobs/<id>/planner-grid.json``; every
+image becomes one cell (``cells.params``: its name "<point>-<image>" and what its LDI is made of,
+:func:`core.placement.image_database.image_entries`), baked by
+:func:`core.placement.image_database.bake_image` and keyed without its name, so the same image of
+another job (another P that keeps it) is found, not baked.  The check has nothing to repair (the
+guarantee counts triangles, which baking does not change): it writes the index
+(:func:`core.placement.image_database.image_index`, ``kind`` "primitive-placement", the bundles
+under ``cells/NNNNN/``) and ends the job.
+
 Planning and checking are held by one worker at a time under a lease (``jobs.plan_worker``,
 ``jobs.lease_until``) that a heartbeat thread renews every ``HEARTBEAT_S``.  A worker process that
 dies loses it: its worker's main process releases it at once (a pool process killed), else it
@@ -52,8 +63,9 @@ from sqlalchemy import func, select, update
 from farfield.core.options import stored_values
 from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, primitive_model
 from farfield.core.placement.hierarchy import PlacementError
+from farfield.core.placement.octree_cells import DEFAULT_DEPTH
 from farfield.core.placement.planner import DEFAULT_MAX_IMPOSTOR_BYTES
-from farfield.core.techniques import get_technique
+from farfield.core.techniques import DEFAULT_TECHNIQUE, get_technique
 from farfield.service.blobs import BlobStore
 from farfield.service.db import CellRow, Database, JobRow, SceneRow, now
 from farfield.service.settings import Settings
@@ -67,6 +79,13 @@ CANCEL_CHECK_S = 0.2  # a planning job looks at its state at the first progress 
 PROGRESS_EVERY_S = 0.5  # and writes its progress record
 COST_MODELS = {"llvmpipe": LLVMPIPE_MODEL}  # cost models known by name
 CELL_KINDS = ("shafts", "boxes", "both", "leaf-boxes")
+FRAME_TIME, PRIMITIVE_BUDGET = "frame-time", "primitive-budget"
+ALGORITHMS = (FRAME_TIME, PRIMITIVE_BUDGET)
+FRAME_TIME_KNOBS = ("cpv_size", "vdi_deg", "depth_complexity", "cells", "leaf_size", "max_impostor_mb")
+PRIMITIVE_KNOBS = ("p_opt", "octree_depth", "grid_points", "max_level", "check_views")
+DEFAULT_CHECK_VIEWS = 2000
+PRIMITIVE_INDEX_KIND = "primitive-placement"  # the "kind" of a primitive-budget job's database index
+MAX_CHECK_VIEWS = 1_000_000
 MAX_REGIONS = 1e6  # as core.placement.view_space: smallest regions a view space may be cut into
 
 Number = StrictFloat | StrictInt
@@ -97,12 +116,26 @@ class PlacementSpec(BaseModel):
     model_config = ConfigDict(extra="forbid")
     view_space: ViewSpaceSpec
     budget: BudgetSpec
+    algorithm: Literal[ALGORITHMS] = Field(  # type: ignore[valid-type]
+        FRAME_TIME,
+        description="'frame-time' (seed 000: impostors of a part technique wherever a view is too slow by the cost model) or "
+        "'primitive-budget' (seed 004: a solution grid of layered depth images, technique 'ldi', so that no view draws more than "
+        "budget.primitives triangles)",
+    )
     cpv_size: Number | None = Field(None, description="smallest 3D region of a problem view (default: the view space's longest side / 8)")
     vdi_deg: Number = Field(11.25, description="smallest view-direction interval, degrees, in (0, 90]")
     depth_complexity: Number | None = Field(4.0, description="a view's rasterised pixels are at most this many frames (>= 1; null: no cap)")
     cells: Literal[CELL_KINDS] = Field("both", description="view cells of the candidates")  # type: ignore[valid-type]
     leaf_size: StrictInt = Field(4, description="elements per leaf of the object hierarchy (>= 1)")
     max_impostor_mb: Number = Field(DEFAULT_MAX_IMPOSTOR_BYTES / 2**20, description="largest impostor a placement considers, MiB by the cost model's memory estimate (> 0)")
+    # the primitive-budget placement's knobs (seed 004 §5; farfield place --algorithm primitive-budget)
+    p_opt: Number | None = Field(None, description="primitive-budget: the optimisation budget in (0, P] (default: P less 5 % of the model, at least P / 2)")
+    octree_depth: StrictInt | None = Field(None, description=f"primitive-budget: depth of the octree's pseudo-leaf cells (default {DEFAULT_DEPTH})")
+    grid_points: StrictInt | None = Field(None, description="primitive-budget: initial lattice points along the view space's longest side (>= 2, default 3)")
+    max_level: StrictInt | None = Field(None, description="primitive-budget: deepest subdivision of the solution grid (>= 0, default 4)")
+    check_views: StrictInt | None = Field(
+        None, description=f"primitive-budget: random (eye, yaw) pairs the planner checks the guarantee on (0: none; default {DEFAULT_CHECK_VIEWS})"
+    )
 
 
 def _finite(value, what: str) -> float:
@@ -136,13 +169,8 @@ def cost_model_of(budget: BudgetSpec) -> tuple[CostModel, float, dict]:
     return model, t_max, {**record, "t_max": t_max, "unit": model.unit}
 
 
-def placement_params(technique_name: str, given_options: dict, resolution, fov_deg, spec: PlacementSpec) -> dict:
-    """Validate a placement request; the job's stored params (every option and knob as validated, the
-    cost model as a document), or a 422 error naming the problem."""
-    technique = get_technique(technique_name)
-    if technique.estimate is None:
-        raise PlacementError(f"technique {technique.name!r} cannot be placed: it replaces the whole scene around its cell; use a part technique (layered, tdm)")
-    options = technique.options(given_options, resolution, fov_deg)
+def _view_space(spec: PlacementSpec) -> tuple[list[float], list[float], list[float]]:
+    """The view space's (lo, hi, span), checked."""
     lo = [_finite(v, "view_space.lo") for v in spec.view_space.lo]
     hi = [_finite(v, "view_space.hi") for v in spec.view_space.hi]
     inverted = [axis for axis, a, b in zip("xyz", lo, hi, strict=True) if b < a]
@@ -151,6 +179,27 @@ def placement_params(technique_name: str, given_options: dict, resolution, fov_d
     span = [b - a for a, b in zip(lo, hi, strict=True)]
     if not all(math.isfinite(s) for s in span):
         raise PlacementError(f"the view space's size is not finite: lo {lo}, hi {hi}")
+    return lo, hi, span
+
+
+def _not_given(spec: PlacementSpec, knobs: tuple[str, ...], algorithm: str) -> None:
+    given = [k for k in knobs if k in spec.model_fields_set and getattr(spec, k) is not None]
+    if given:
+        raise PlacementError(f"{', '.join(given)}: {'not a knob' if len(given) == 1 else 'not knobs'} of the {algorithm} placement (algorithm {spec.algorithm!r})")
+
+
+def placement_params(technique_name: str | None, given_options: dict, resolution, fov_deg, spec: PlacementSpec, model_triangles: int | None = None) -> dict:
+    """Validate a placement request; the job's stored params (every option and knob as validated, the
+    cost model as a document), or a 422 error naming the problem.  ``technique_name`` None: the
+    algorithm's default (layered; ldi for the primitive-budget placement)."""
+    if spec.algorithm == PRIMITIVE_BUDGET:
+        return primitive_params(technique_name, given_options, resolution, fov_deg, spec, model_triangles)
+    _not_given(spec, PRIMITIVE_KNOBS, FRAME_TIME)
+    technique = get_technique(technique_name or DEFAULT_TECHNIQUE)
+    if technique.estimate is None:
+        raise PlacementError(f"technique {technique.name!r} cannot be placed: it replaces the whole scene around its cell; use a part technique (layered, tdm)")
+    options = technique.options(given_options, resolution, fov_deg)
+    lo, hi, span = _view_space(spec)
     model, t_max, budget = cost_model_of(spec.budget)
     cpv_size = None if spec.cpv_size is None else _finite(spec.cpv_size, "cpv_size")
     if cpv_size is not None and not cpv_size > 0:
@@ -196,6 +245,53 @@ def planner_settings(params: dict):
         cluster_triangles=knobs["cluster_triangles"], max_impostor_bytes=float(knobs.get("max_impostor_mb", math.inf)) * 2**20,  # a job stored before the cap: none
     )  # fmt: skip
     return settings, knobs["view_space"]["lo"], knobs["view_space"]["hi"]
+
+
+def primitive_params(technique_name: str | None, given_options: dict, resolution, fov_deg, spec: PlacementSpec, model_triangles: int | None) -> dict:
+    """:func:`placement_params` of the primitive-budget placement (seed 004): technique ``ldi``, a
+    budget of ``primitives``, the solution grid's knobs checked as ``farfield place`` checks them."""
+    from farfield.core.placement.octree_cells import MAX_DEPTH
+
+    _not_given(spec, FRAME_TIME_KNOBS, PRIMITIVE_BUDGET)
+    if technique_name not in (None, "ldi"):
+        raise PlacementError(f"the primitive-budget placement replaces geometry with layered depth images: technique 'ldi' (or none), not {technique_name!r}")
+    if spec.budget.frame_ms is not None or spec.budget.cost_model is not None or spec.budget.primitives is None:
+        raise PlacementError("the primitive-budget placement bounds the triangles a view draws: give budget.primitives (and no frame_ms or cost_model)")
+    technique = get_technique("ldi")
+    options = technique.options(given_options, resolution, fov_deg)
+    lo, hi, _ = _view_space(spec)
+    depth = DEFAULT_DEPTH if spec.octree_depth is None else spec.octree_depth
+    if not 0 <= depth <= MAX_DEPTH:
+        raise PlacementError(f"octree_depth must be an integer in 0..{MAX_DEPTH}, got {depth!r}")
+    views = DEFAULT_CHECK_VIEWS if spec.check_views is None else spec.check_views
+    if not 0 <= views <= MAX_CHECK_VIEWS:
+        raise PlacementError(f"check_views must be an integer in 0..{MAX_CHECK_VIEWS:,}, got {views!r}")
+    knobs = {
+        "algorithm": PRIMITIVE_BUDGET, "view_space": {"lo": lo, "hi": hi}, "p_opt": None if spec.p_opt is None else _finite(spec.p_opt, "p_opt"),
+        "octree_depth": depth, "grid_points": 3 if spec.grid_points is None else spec.grid_points, "max_level": 4 if spec.max_level is None else spec.max_level,
+        "check_views": views,
+    }  # fmt: skip
+    primitives = _finite(spec.budget.primitives, "budget.primitives")
+    knobs["budget"] = {"primitives": primitives, "t_max": primitives, "unit": "triangles"}
+    params = {"technique": technique.name, "resolution": options.resolution, "fov_deg": options.fov_deg, "objects": None, "options": stored_values(options), "placement": knobs}
+    budget_settings(params).checked(model_triangles if model_triangles is not None else 0)  # P, p_opt, the FOV's star-shape bound, the grid's knobs
+    return params
+
+
+def budget_settings(params: dict):
+    """A primitive-budget job's :class:`~core.placement.solution_grid.BudgetSettings`."""
+    from farfield.core.placement.solution_grid import BudgetSettings
+
+    knobs = params["placement"]
+    return BudgetSettings(
+        primitives=knobs["budget"]["primitives"], p_opt=knobs["p_opt"], fov_deg=params["fov_deg"], octree_depth=knobs["octree_depth"],
+        grid_points=knobs["grid_points"], max_level=knobs["max_level"],
+    )  # fmt: skip
+
+
+def algorithm_of(params: dict) -> str:
+    """A placement job's algorithm (a job stored before there were two: frame-time)."""
+    return params["placement"].get("algorithm", FRAME_TIME)
 
 
 def new_placement_job(tenant_id: str, scene: SceneRow, params: dict, requeue_after: float) -> JobRow:
@@ -404,9 +500,15 @@ def _state_key(job_id: str, round_: int) -> str:
     return f"jobs/{job_id}/planner-{round_}.pickle"
 
 
+def _grid_key(job_id: str) -> str:
+    """Where a primitive-budget job keeps its solution grid between planning and its database."""
+    return f"jobs/{job_id}/planner-grid.json"
+
+
 def planner_state_keys(blobs: BlobStore, job_id: str) -> list[str]:
-    """The keys of the job's stored planner states (``jobs/<id>/planner-<round>.pickle``)."""
-    return [f"jobs/{job_id}/{name}" for name in blobs.list_files(f"jobs/{job_id}") if name.startswith("planner-") and name.endswith(".pickle")]
+    """The keys of the job's stored planner states (``jobs/<id>/planner-<round>.pickle``, a primitive-budget
+    job's ``planner-grid.json``)."""
+    return [f"jobs/{job_id}/{name}" for name in blobs.list_files(f"jobs/{job_id}") if name.startswith("planner-") and name.endswith((".pickle", ".json"))]
 
 
 def drop_planner_states(blobs: BlobStore, job_id: str, keep: str | None = None) -> list[str]:
@@ -439,18 +541,29 @@ def after_cell(db: Database, blobs: BlobStore, job_id: str) -> bool:
     return False
 
 
-def _add_cells(session, job: JobRow, placement: dict, ids) -> list[str]:
+def _frame_time_cells(placement: dict, ids) -> list[dict]:
+    """The cells (index, view cell, own parameters) of a frame-time placement's impostors ``ids``."""
     from farfield.core.placement.database import placement_cells
 
-    made, cluster = [], placement["elements"]["cluster_triangles"]
-    for entry in placement_cells(placement):
-        if entry["index"] in ids:
-            cell = CellRow(
-                id=uuid.uuid4().hex, job_id=job.id, index=int(entry["index"]), grid=None, viewcell=entry["viewcell"], params=cell_params(entry, cluster),
-                state="queued", attempts=0, progress=0.0, queued_at=now(),
-            )  # fmt: skip
-            session.add(cell)
-            made.append(cell.id)
+    cluster = placement["elements"]["cluster_triangles"]
+    return [{"index": int(e["index"]), "viewcell": e["viewcell"], "params": cell_params(e, cluster)} for e in placement_cells(placement) if e["index"] in ids]
+
+
+def image_cell_params(entry: dict) -> dict:
+    """A primitive-budget cell's own parameters: its image's name and what its LDI is baked from
+    (:func:`core.placement.image_database.image_entries`)."""
+    return {"technique": "ldi", "image": entry["name"], "params": entry["params"]}
+
+
+def _add_cells(session, job: JobRow, cells: list[dict]) -> list[str]:
+    made = []
+    for entry in cells:
+        cell = CellRow(
+            id=uuid.uuid4().hex, job_id=job.id, index=int(entry["index"]), grid=None, viewcell=entry["viewcell"], params=entry["params"],
+            state="queued", attempts=0, progress=0.0, queued_at=now(),
+        )  # fmt: skip
+        session.add(cell)
+        made.append(cell.id)
     return made
 
 
@@ -461,17 +574,32 @@ def _cell_entries(db: Database, job_id: str) -> list[dict]:
 
 
 def _write_database(db: Database, blobs: BlobStore, job: JobRow, placement: dict, rounds: list) -> str:
-    from farfield.core.placement.database import placement_index
-
+    """Write the job's database index (``jobs/<id>/index.json``): a frame-time placement's
+    (:func:`core.placement.database.placement_index`) or a primitive-budget grid's
+    (:func:`core.placement.image_database.image_index`, its images' bundles under ``cells/NNNNN/``)."""
     key = f"jobs/{job.id}/index.json"
-    index = placement_index(placement, _cell_entries(db, job.id), job=job.id, scene=job.scene_id, rounds=rounds)
+    if algorithm_of(job.params) == PRIMITIVE_BUDGET:
+        from farfield.core.placement.image_database import image_index
+        from farfield.service.jobs import job_cells
+
+        with db.session() as s:
+            scene_hash = s.get(SceneRow, job.scene_id).content_hash
+        cells = job_cells(db, job.id)
+        bundles = {c.params["image"]: f"cells/{c.index:05d}/" for c in cells if c.result_key}
+        baked = [{"index": c.index, "image": c.params["image"], "state": c.state, "bundle": bundles.get(c.params["image"]), "stats": c.stats} for c in cells]
+        options = job.params["options"]
+        index = image_index(placement, bundles, job.params["resolution"], options["images"], scene_hash, kind=PRIMITIVE_INDEX_KIND, job=job.id,
+                            scene=job.scene_id, cells_baked=baked)  # fmt: skip
+    else:
+        from farfield.core.placement.database import placement_index
+
+        index = placement_index(placement, _cell_entries(db, job.id), job=job.id, scene=job.scene_id, rounds=rounds)
     blobs.put_bytes(key, json.dumps(index, sort_keys=True, indent=1, allow_nan=False).encode())  # strict JSON: engines read it
     return key
 
 
 def plan_job(db: Database, blobs: BlobStore, job_id: str, worker: str, max_attempts: int) -> tuple[str, list[str]]:
     """Plan a placement job (see the module docstring): (its state after, cell ids to send)."""
-    from farfield.core.placement.planner import place
     from farfield.service.scenes import load_stored_scene
 
     claim = claim_planning(db, blobs, job_id, "plan", worker, max_attempts)
@@ -484,16 +612,48 @@ def plan_job(db: Database, blobs: BlobStore, job_id: str, worker: str, max_attem
             with db.session() as s:
                 scene_row = s.get(SceneRow, job.scene_id)
             scene = load_stored_scene(blobs, scene_row)
-            settings, lo, hi = planner_settings(job.params)
-            placement = place(scene, lo, hi, settings, progress=_progress(db, job_id, worker, attempt, 0), keep_state=True)
-            state_key = _state_key(job_id, 0)
-            blobs.put_bytes(state_key, placement.state.dumps())
-            as_dict = placement.to_dict()
-            ids = {imp["id"] for imp in as_dict["impostors"]}
-            index_key = _write_database(db, blobs, job, as_dict, []) if not ids else None
+            progress = _progress(db, job_id, worker, attempt, 0)
+            plan = _plan_images if algorithm_of(job.params) == PRIMITIVE_BUDGET else _plan_frame_time
+            state_key, doc, cells = plan(blobs, job, scene, progress)
+            index_key = _write_database(db, blobs, job, doc, []) if not cells else None
     except PlanningCancelled:
         return _end_cancelled(db, blobs, job_id), []
-    return _commit_round(db, blobs, job_id, worker, attempt, state_key, as_dict, ids, 0, index_key, [])
+    return _commit_round(db, blobs, job_id, worker, attempt, state_key, cells, _impostors(doc), doc.get("summary"), 0, index_key, [])
+
+
+def _impostors(doc: dict) -> int:
+    """How many impostors a placement (frame-time) or a grid (primitive-budget) holds."""
+    return len(doc["impostors"]) if "impostors" in doc else int(doc["summary"]["images"])
+
+
+def _plan_frame_time(blobs: BlobStore, job: JobRow, scene, progress) -> tuple[str, dict, list[dict]]:
+    """Seed 000's planner: (its state's key, the placement, the cells of its impostors)."""
+    from farfield.core.placement.planner import place
+
+    settings, lo, hi = planner_settings(job.params)
+    placement = place(scene, lo, hi, settings, progress=progress, keep_state=True)
+    state_key = _state_key(job.id, 0)
+    blobs.put_bytes(state_key, placement.state.dumps())
+    as_dict = placement.to_dict()
+    return state_key, as_dict, _frame_time_cells(as_dict, {imp["id"] for imp in as_dict["impostors"]})
+
+
+def _plan_images(blobs: BlobStore, job: JobRow, scene, progress) -> tuple[str, dict, list[dict]]:
+    """Seed 004's solution grid, checked on ``check_views`` random views: (the grid's key, the grid
+    with the check in its summary, one cell per image)."""
+    from farfield.core.placement.image_database import image_entries
+    from farfield.core.placement.solution_grid import check_views, place_primitives
+
+    knobs, options = job.params["placement"], job.params["options"]
+    placement = place_primitives(scene, knobs["view_space"]["lo"], knobs["view_space"]["hi"], budget_settings(job.params), progress=progress)
+    grid = placement.to_dict()
+    if knobs["check_views"]:
+        progress("check views", 0, 1)
+        grid["summary"]["check"] = check_views(placement, knobs["check_views"])
+    entries = image_entries(placement, job.params["resolution"], options["images"], options["max_layers"])
+    state_key = _grid_key(job.id)
+    blobs.put_bytes(state_key, json.dumps(grid, allow_nan=False).encode())
+    return state_key, grid, [{"index": e["index"], "viewcell": e["viewcell"], "params": image_cell_params(e)} for e in entries]
 
 
 def _end_cancelled(db: Database, blobs: BlobStore, job_id: str) -> str:
@@ -509,12 +669,12 @@ def _end_cancelled(db: Database, blobs: BlobStore, job_id: str) -> str:
     return "cancelled"
 
 
-def _commit_round(db, blobs, job_id, worker, attempt, state_key, placement: dict, ids, round_, index_key, rounds) -> tuple[str, list[str]]:
-    """Store a planned or repaired round: its cells (queued), or the database when none was added.
+def _commit_round(db, blobs, job_id, worker, attempt, state_key, cells: list[dict], impostors: int, summary, round_, index_key, rounds) -> tuple[str, list[str]]:
+    """Store a planned or repaired round: its ``cells`` (queued), or the database when none was added.
     Then only the state the next check loads is kept (all are deleted when the job ended).  An
     attempt that finds its job cancelled or failed meanwhile removes the index it wrote (a newer
     attempt that only took its hold writes its own under the same key: that one is left alone)."""
-    committed, state, made = _commit_round_row(db, job_id, worker, attempt, state_key, placement, ids, round_, index_key, rounds)
+    committed, state, made = _commit_round_row(db, job_id, worker, attempt, state_key, cells, impostors, summary, round_, index_key, rounds)
     if committed and state == "running":
         drop_planner_states(blobs, job_id, keep=state_key)
     elif state in ("failed", "cancelled") or (committed and state == "done"):
@@ -524,7 +684,7 @@ def _commit_round(db, blobs, job_id, worker, attempt, state_key, placement: dict
     return state, made
 
 
-def _commit_round_row(db, job_id, worker, attempt, state_key, placement: dict, ids, round_, index_key, rounds) -> tuple[bool, str, list[str]]:
+def _commit_round_row(db, job_id, worker, attempt, state_key, cells: list[dict], impostors: int, summary, round_, index_key, rounds) -> tuple[bool, str, list[str]]:
     """:func:`_commit_round`'s change of the job's row: (whether this attempt committed, the job's
     state, the cells made)."""
     with db.session() as s:
@@ -535,17 +695,18 @@ def _commit_round_row(db, job_id, worker, attempt, state_key, placement: dict, i
             from farfield.service.jobs import MAX_CELLS
 
             have = s.scalar(select(func.count()).select_from(CellRow).where(CellRow.job_id == job_id))
-            if have + len(ids) > MAX_CELLS:
+            if have + len(cells) > MAX_CELLS:
                 job.state, job.finished_at, job.plan_worker, job.lease_until = "failed", now(), None, None
                 job.error = (
-                    f"PlacementError: the placement needs {have + len(ids):,} impostors, over the limit of {MAX_CELLS:,} cells per job: "
-                    "use a larger budget, a smaller view space or larger --cpv-size / --vdi-deg"
-                )
+                    f"PlacementError: the placement needs {have + len(cells):,} impostors, over the limit of {MAX_CELLS:,} cells per job: "
+                    + ("raise the primitive budget or p_opt, or use a smaller view space" if algorithm_of(job.params) == PRIMITIVE_BUDGET
+                       else "use a larger budget, a smaller view space or larger --cpv-size / --vdi-deg")
+                )  # fmt: skip
                 return True, job.state, []
-        made = _add_cells(s, job, placement, ids) if index_key is None else []
+        made = _add_cells(s, job, cells) if index_key is None else []
         record = {
             **job.planning, "phase": "bake", "step": f"bake round {round_}" if made else "done", "round": round_, "state_key": state_key,
-            "impostors": len(placement["impostors"]), "summary": _summary_of(placement.get("summary")), "rounds": rounds, "done": 0, "total": 0,
+            "impostors": impostors, "summary": _summary_of(summary), "rounds": rounds, "done": 0, "total": 0,
         }  # fmt: skip
         record.pop("worker", None)
         job.planning, job.plan_worker, job.lease_until, job.plan_attempts = record, None, None, 0
@@ -559,7 +720,10 @@ def _commit_round_row(db, job_id, worker, attempt, state_key, placement: dict, i
 def _summary_of(summary: dict | None) -> dict | None:
     if not summary:
         return None
-    keep = ("t_max", "unit", "cpvs", "cpvs_solved", "cpvs_unsolved", "cpvs_unsolvable", "impostors", "memory_bytes", "worst_before", "worst_after")
+    keep = (
+        "t_max", "unit", "cpvs", "cpvs_solved", "cpvs_unsolved", "cpvs_unsolvable", "impostors", "memory_bytes", "worst_before", "worst_after",
+        "primitives", "p_opt", "model_triangles", "grid_points", "points_per_level", "images", "points_with_images", "unsolved_points", "check",
+    )  # fmt: skip
     return {k: summary[k] for k in keep if k in summary}
 
 
@@ -577,6 +741,11 @@ def check_job(db: Database, blobs: BlobStore, job_id: str, worker: str, max_atte
     planning = job.planning
     round_ = int(planning.get("check_round", planning.get("round", 0) + 1))
     rounds = list(planning.get("rounds", []))
+    if algorithm_of(job.params) == PRIMITIVE_BUDGET:  # no repair: the grid's guarantee counts triangles, which baking does not change
+        with heartbeat(db, job_id, worker, attempt):
+            grid = json.loads(blobs.read_bytes(planning["state_key"]))
+            index_key = _write_database(db, blobs, job, grid, [])
+        return _commit_round(db, blobs, job_id, worker, attempt, planning["state_key"], [], _impostors(grid), grid["summary"], round_ - 1, index_key, [])
     with heartbeat(db, job_id, worker, attempt):
         state = PlannerState.loads(blobs.read_bytes(planning["state_key"]))
         baked = {c.index: c.stats for c in job_cells(db, job_id) if c.state == "done" and c.stats}
@@ -590,9 +759,10 @@ def check_job(db: Database, blobs: BlobStore, job_id: str, worker: str, max_atte
         if added:
             state_key = _state_key(job_id, round_)
             blobs.put_bytes(state_key, state.dumps())
-            return _commit_round(db, blobs, job_id, worker, attempt, state_key, current, added, round_, None, rounds)
+            return _commit_round(db, blobs, job_id, worker, attempt, state_key, _frame_time_cells(current, added), _impostors(current), current.get("summary"),
+                                 round_, None, rounds)  # fmt: skip
         index_key = _write_database(db, blobs, job, current, rounds)
-    return _commit_round(db, blobs, job_id, worker, attempt, planning["state_key"], current, set(), round_, index_key, rounds)
+    return _commit_round(db, blobs, job_id, worker, attempt, planning["state_key"], [], _impostors(current), current.get("summary"), round_, index_key, rounds)
 
 
 def run_planning(db: Database, blobs: BlobStore, job_id: str, phase: str, worker: str, max_attempts: int) -> tuple[str, list[str]]:

@@ -18,7 +18,7 @@ import os
 import pytest
 from browser import CHROMIUM, SKIP_REASON, dashboard_page, tid
 from scenes import write_scene
-from service_harness import ADMIN_KEY, start_service, upload
+from service_harness import ADMIN_KEY, start_service, upload, wait_for_job
 from test_placement_api import city_request, placing_job, small_city, submit_placement
 
 if not CHROMIUM.exists():
@@ -174,4 +174,39 @@ def test_unsolvable_and_unsolved_regions_are_shown(browser, service, jobs):
         rows = page.locator(tid("region-cpv"))
         rows.first.wait_for()
         assert [r.get_attribute("data-status") for r in rows.all()] == [c["status"] for c in groups[key]]
+        assert page.js_errors == []
+
+
+def test_a_primitive_budget_job_s_grid_points_images_and_check(browser, service, jobs, planned, tmp_path):
+    """Seed 004 as a job: its grid points on the map, marked by their images, and the check of the
+    guarantee in the totals; then a frame-time job's page has its own labels back."""
+    from test_service_primitive_placement import REQUEST, _scene
+
+    from farfield.service.placement_jobs import DEFAULT_CHECK_VIEWS
+
+    with service.client() as client:
+        client.post(f"/v1/jobs/{jobs[1]}/cancel")  # the slow placing job holds the worker until then (its own test cancels it; run alone, this one does)
+        made = upload(client, write_scene(_scene(), tmp_path, "glb", "city25"))
+        assert made.status_code == 201, made.text
+        submitted = client.post("/v1/jobs", json={"scene_id": made.json()["id"], "resolution": 32, "placement": REQUEST})
+        assert submitted.status_code == 201, submitted.text
+        job = wait_for_job(client, submitted.json()["id"], timeout=300)
+        assert job["state"] == "done", job["error"]
+        doc = client.get(f"/v1/jobs/{job['id']}/placement").json()
+    with dashboard_page(browser, service.url, ADMIN_KEY) as page:
+        page.goto(f"{service.url}/#/jobs/{job['id']}")
+        points = page.locator(tid("placement-point"))
+        points.first.wait_for()
+        assert points.count() == len(doc["points"])
+        assert [int(p.get_attribute("data-images")) for p in points.all()] == [len(p["images"]) for p in doc["points"]]
+        assert page.locator(f'{tid("placement-point")}[data-kind="images"]').count() == sum(1 for p in doc["points"] if p["images"] and not p["failure"])
+        assert page.locator(tid("placement-impostors")).inner_text().startswith(f"{doc['totals']['images']} LDI images ({job['cells_total']} baked")
+        assert int(page.locator(tid("placement-memory")).get_attribute("data-baked")) == doc["totals"]["memory_bytes_baked"] > 0
+        assert page.locator(tid("placement-rounds")).inner_text().startswith(f"{DEFAULT_CHECK_VIEWS:,} random views: 100 % within P")
+        assert page.locator("#placement-cpvs-label").inner_text() == "grid points" and page.locator(tid("region-panel")).is_hidden()
+        if os.environ.get("FARFIELD_DASHBOARD_SCREENSHOT"):
+            page.screenshot(path=os.environ["FARFIELD_DASHBOARD_SCREENSHOT"].replace(".png", "-primitive-budget.png"), full_page=True)
+        page.goto(f"{service.url}/#/jobs/{planned[0]}")
+        page.locator(tid("placement-region")).first.wait_for()
+        assert page.locator("#placement-cpvs-label").inner_text() == "CPVs" and page.locator(tid("region-panel")).is_visible()
         assert page.js_errors == []

@@ -608,7 +608,10 @@ async function refreshJob() {
 function renderJob(job) {
   $("job-id").textContent = job.id;
   const name = job.technique || job.job_type;
-  const help = job.job_type === PLACEMENT ? `impostors of ${(job.params || {}).technique} where the frame budget needs them` : techniqueHelp(name);
+  const placed = job.job_type === PLACEMENT ? (job.params || {}) : null;
+  const help = !placed ? techniqueHelp(name)
+    : (placed.placement || {}).algorithm === "primitive-budget" ? "layered depth images on a solution grid, so that no view draws more than the primitive budget (seed 004)"
+    : `impostors of ${placed.technique} where the frame budget needs them`;
   $("job-technique-text").textContent = help ? `${name}: ${help}` : name;
   $("job-technique-text").dataset.technique = name;
   setState($("job-state"), job.state);
@@ -1032,8 +1035,22 @@ function timeColour(ratio) {
   return `hsl(${Math.round(40 - 40 * Math.min(1, ratio - 1))}, 80%, 52%)`;
 }
 
+const FACTS = ["budget", "impostors", "memory", "cpvs", "unsolvable", "rounds"];
+
+function factLabels(labels) {
+  // The totals' labels: a primitive-budget placement has grid points where a frame-time one has CPVs.
+  for (const k of FACTS) $(`placement-${k}-label`).textContent = (labels && labels[k]) || $(`placement-${k}-label`).dataset.label;
+}
+
 function drawPlacement(doc) {
   $("placement-body").hidden = false;
+  const images = doc.algorithm === "primitive-budget";
+  $("placement-colour-label").hidden = images;
+  $("placement-legend").hidden = images;
+  $("placement-point-legend").hidden = !images;
+  $("region-panel").hidden = images;
+  if (images) return drawImagePlacement(doc);
+  factLabels(null);
   const t = doc.totals, s = doc.summary, unit = s.unit;
   const tMax = doc.parameters.t_max;
   $("placement-budget").textContent = `t_max ${fmtNum(tMax, 4)} ${unit} (cost model: ${doc.parameters.cost_model.kind || doc.parameters.cost_model.source || "given"}); ` +
@@ -1092,6 +1109,54 @@ function drawPlacement(doc) {
   $("placement-axes").textContent = `${names[a]} ${fmtNum(lo[a], 4)} … ${fmtNum(hi[a], 4)} to the right, ${names[b]} ${fmtNum(lo[b], 4)} … ${fmtNum(hi[b], 4)} downwards ` +
     `(the view space's two longest axes; regions stacked along ${names[3 - a - b]} are drawn as one, with their worst time). Click a region.`;
   renderRegion(doc, groups.find((g) => g.key === state.region) || null);
+}
+
+function drawImagePlacement(doc) {
+  // Seed 004's solution grid: its points over the view space's two longest axes, marked by whether
+  // their views warp LDI images; the budget, the images and the check of the guarantee.
+  factLabels({cpvs: "grid points", unsolvable: "unsolved", rounds: "check"});
+  const t = doc.totals, s = doc.summary, par = doc.parameters, check = s.check;
+  $("placement-budget").textContent = `P ${fmtNum(par.primitives)} triangles a view (p_opt ${fmtNum(par.p_opt)}; the model ${fmtNum(s.model_triangles)}), FOV ${fmtNum(par.fov_deg)}°`;
+  $("placement-impostors").textContent = `${fmtNum(t.images)} LDI images (${fmtNum(t.images_baked)} baked, ${par.construction_images} construction images, ${par.resolution} px), ldi`;
+  $("placement-memory").textContent = `${fmtBytes(t.memory_bytes_baked)} baked`;
+  $("placement-memory").dataset.baked = String(t.memory_bytes_baked);
+  $("placement-cpvs").textContent = `${fmtNum(t.grid_points)} (per level: ${s.points_per_level.join(" / ")})`;
+  $("placement-unsolvable").textContent = t.unsolved_points ? `${fmtNum(t.unsolved_points)} grid point(s) over P at the deepest level` : "no grid point";
+  $("placement-unsolvable").dataset.regions = String(t.unsolved_points);
+  $("placement-rounds").textContent = check
+    ? `${fmtNum(check.views)} random views: ${fmtNum(100 * check.within_p, 4)} % within P, at most ${fmtNum(check.max)} triangles (p99 ${fmtNum(check.p99)})`
+    : "not checked (check_views 0)";
+  const [lo, hi] = par.view_space;
+  const axes = mapAxes(lo, hi);
+  const names = "xyz";
+  const root = $("placement-map");
+  if (root.dataset.key === state.placement.key) return;
+  root.dataset.key = state.placement.key;
+  const [a, b] = axes;
+  const reach = Math.max(...doc.points.map((p) => p.radius), 0);
+  const x0 = lo[a] - reach, z0 = lo[b] - reach, dx = Math.max(hi[a] - lo[a] + 2 * reach, 1e-9), dz = Math.max(hi[b] - lo[b] + 2 * reach, 1e-9);
+  const width = 600, margin = 30;
+  const scale = Math.min((width - 2 * margin) / dx, (700 - 2 * margin) / dz);
+  const X = (v) => margin + (v - x0) * scale;
+  const Z = (v) => margin + (v - z0) * scale;
+  root.setAttribute("viewBox", `0 0 ${width} ${dz * scale + 2 * margin}`);
+  const nodes = [svg("rect", {x: X(lo[a]), y: Z(lo[b]), width: Math.max(2, (hi[a] - lo[a]) * scale), height: Math.max(2, (hi[b] - lo[b]) * scale),
+    class: "view-space", "data-testid": "placement-view-space"})];
+  doc.points.forEach((p, i) => {
+    const kind = p.failure ? "unsolved" : p.images.length ? "images" : "geometry";
+    const dot = svg("circle", {cx: X(p.position[a]), cy: Z(p.position[b]), r: p.images.length ? 4 : 2.5,
+      fill: kind === "unsolved" ? timeColour(2) : kind === "images" ? timeColour(0.95) : timeColour(0.2),
+      "data-testid": "placement-point", "data-index": String(i), "data-images": String(p.images.length), "data-kind": kind});
+    const title = svg("title", {});
+    title.textContent = `grid point ${i} at ${fmtVec(p.position)}, level ${p.level}: ${p.images.length} image(s)` +
+      (p.images.length ? ` (${p.images.map((im) => `${im.name}: cell ${im.cell}, ${fmtNum(im.drawn)} triangles drawn`).join("; ")})` : "") +
+      (p.failure ? `; unsolved: ${p.failure}` : "");
+    dot.append(title);
+    nodes.push(dot);
+  });
+  root.replaceChildren(...nodes);
+  $("placement-axes").textContent = `${names[a]} to the right, ${names[b]} downwards (the view space's two longest axes; points stacked along ` +
+    `${names[3 - a - b]} are drawn on top of each other). Each grid point's images replace one subset of the model in the views of one range of yaw.`;
 }
 
 function selectRegion(key) {
