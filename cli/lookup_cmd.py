@@ -14,7 +14,7 @@ import click
 from farfield.core.impostor_database import ImpostorDatabase
 from farfield.core.placement.database import PlacementLookup
 from farfield.core.placement.hierarchy import PlacementError
-from farfield.core.placement.image_database import INDEX_NAMES, image_database_folder, image_lookup, placement_of_index
+from farfield.core.placement.image_database import image_index_of, image_lookup, placement_of_index
 
 
 def lookup_answer(database: ImpostorDatabase, position, direction, folder: Path | None = None) -> dict:
@@ -83,14 +83,13 @@ def lookup_cmd(database: Path, position, direction, as_json: bool) -> None:
     """What to draw for one view of a placement DATABASE (a folder or a zip, as ``farfield submit
     --download`` or ``GET /v1/jobs/{id}/database.zip`` gives it): the CPV, its status, the impostors
     to draw with their bundle folders (inside the zip for a zip), and the elements they replace."""
-    with image_database_folder(database) as images:
-        if images is not None:  # a primitive-budget database (seed 004): no scene needed, the index holds the cells' bounds
-            index = json.loads(next(images / n for n in INDEX_NAMES if (images / n).is_file()).read_text())
-            answer = image_lookup(index, placement_of_index(index), _vector(position), _vector(direction))
-            if answer["bundle"] is not None and database.is_dir():
-                answer["bundle"] = str(database / answer["bundle"])
-            click.echo(json.dumps(answer, indent=1) if as_json else "\n".join(image_answer_lines(answer)))
-            return
+    index = image_index_of(database)
+    if index is not None:  # a primitive-budget database (seed 004): no scene needed, the index holds the cells' bounds
+        answer = image_lookup(index, placement_of_index(index), _vector(position), _vector(direction))
+        if answer["bundle"] is not None and database.is_dir():
+            answer["bundle"] = str(database / answer["bundle"])
+        click.echo(json.dumps(answer, indent=1) if as_json else "\n".join(image_answer_lines(answer)))
+        return
     with ImpostorDatabase(database) as db:
         answer = lookup_answer(db, _vector(position), _vector(direction), database if database.is_dir() else None)
         if as_json:

@@ -117,7 +117,12 @@ def bake_cell(job: JobRow, scene: Scene, viewcell: dict, progress, cell: CellRow
     if cell is not None and cell.params is not None and "image" in cell.params:  # an image of a primitive-budget placement (seed 004)
         from farfield.core.placement.image_database import bake_image
 
-        return bake_image(scene, {"name": cell.params["image"], "viewcell": cell.viewcell, "params": cell.params["params"]}, progress=progress)
+        from farfield.core.placement.hierarchy import PlacementError
+
+        try:
+            return bake_image(scene, {"name": cell.params["image"], "viewcell": cell.viewcell, "params": cell.params["params"]}, progress=progress)
+        except PlacementError as error:  # the planner made this cell of the same stored scene: a bug, not bad input
+            raise InternalError(f"image {cell.params['image']} does not fit its scene: {error}") from error
     if cell is not None and cell.params is not None:
         from farfield.core.placement.database import bake_impostor
 

@@ -648,8 +648,7 @@ def _plan_images(blobs: BlobStore, job: JobRow, scene, progress) -> tuple[str, d
     placement = place_primitives(scene, knobs["view_space"]["lo"], knobs["view_space"]["hi"], budget_settings(job.params), progress=progress)
     grid = placement.to_dict()
     if knobs["check_views"]:
-        progress("check views", 0, 1)
-        grid["summary"]["check"] = check_views(placement, knobs["check_views"])
+        grid["summary"]["check"] = check_views(placement, knobs["check_views"], progress=progress)
     entries = image_entries(placement, job.params["resolution"], options["images"], options["max_layers"])
     state_key = _grid_key(job.id)
     blobs.put_bytes(state_key, json.dumps(grid, allow_nan=False).encode())
@@ -697,10 +696,10 @@ def _commit_round_row(db, job_id, worker, attempt, state_key, cells: list[dict],
             have = s.scalar(select(func.count()).select_from(CellRow).where(CellRow.job_id == job_id))
             if have + len(cells) > MAX_CELLS:
                 job.state, job.finished_at, job.plan_worker, job.lease_until = "failed", now(), None, None
+                images = algorithm_of(job.params) == PRIMITIVE_BUDGET
                 job.error = (
-                    f"PlacementError: the placement needs {have + len(cells):,} impostors, over the limit of {MAX_CELLS:,} cells per job: "
-                    + ("raise the primitive budget or p_opt, or use a smaller view space" if algorithm_of(job.params) == PRIMITIVE_BUDGET
-                       else "use a larger budget, a smaller view space or larger --cpv-size / --vdi-deg")
+                    f"PlacementError: the placement needs {have + len(cells):,} {'images' if images else 'impostors'}, over the limit of {MAX_CELLS:,} cells per job: "
+                    + ("raise the primitive budget or p_opt, or use a smaller view space" if images else "use a larger budget, a smaller view space or larger --cpv-size / --vdi-deg")
                 )  # fmt: skip
                 return True, job.state, []
         made = _add_cells(s, job, cells) if index_key is None else []

@@ -164,6 +164,8 @@ def test_a_second_job_of_the_same_request_bakes_nothing(flow):
         ({"p_opt": 2 * P}, "p_opt must lie in (0, P]"),
         ({"octree_depth": 11}, "octree_depth must be an integer in 0..10"),
         ({"grid_points": 1}, "grid_points must be an integer >= 2"),
+        ({"grid_points": 1000}, "grid_points must be an integer >= 2 and <= 58"),
+        ({"max_level": 5000}, "max_level must be an integer >= 0 and <= 20"),
         ({"check_views": -1}, "check_views must be an integer"),
         ({"budget": {"primitives": 0}}, "primitive budget must be a finite number >= 1"),
         ({"view_space": {"lo": [1, 1, 1], "hi": [0, 2, 2]}}, "the view space is empty"),
@@ -229,7 +231,7 @@ def test_submit_wait_download_walk_look_up_and_refuse_over_the_service(service, 
         assert doc["totals"]["images"] == doc["totals"]["images_baked"] == job["cells_total"] and doc["totals"]["memory_bytes_baked"] > 0
         cell_of = {im["name"]: im["cell"] for p in doc["points"] for im in p["images"]}
         # a view from a grid point along one of its images' yaw warps that image, within P
-        looked = 0
+        looked, answers, pi_with = 0, {}, None
         for pi, point in enumerate(doc["points"]):
             for im in point["images"]:
                 x, y, z = point["position"]
@@ -239,10 +241,14 @@ def test_submit_wait_download_walk_look_up_and_refuse_over_the_service(service, 
                 if answer["image"] is not None:
                     assert answer["point"] == pi and answer["cells"][0]["index"] == cell_of[answer["image"]]
                     looked += 1
+                    answers[pi], pi_with = (answer, point["position"], im["yaw"]), pi
         assert looked >= 1
         flat = client.get(f"/v1/jobs/{job['id']}/lookup", params={"x": 40, "y": 3, "z": 40, "dx": 0, "dy": 1, "dz": 0})
         assert flat.status_code == 422 and "horizontally" in flat.json()["detail"]
-        archive = zipfile.ZipFile(io.BytesIO(client.get(f"/v1/jobs/{job['id']}/database.zip").content))
+        nowhere = client.get(f"/v1/jobs/{job['id']}/lookup", params={"x": "nan", "y": 3, "z": 40, "dx": 1, "dy": 0, "dz": 0})
+        assert nowhere.status_code == 422 and "finite" in nowhere.json()["detail"]
+        zipped = client.get(f"/v1/jobs/{job['id']}/database.zip").content
+        archive = zipfile.ZipFile(io.BytesIO(zipped))
         assert sum(n.endswith("manifest.json") for n in archive.namelist()) == job["cells_total"]
         # the same request again: every image found, none baked
         again = wait_for_job(client, client.post("/v1/jobs", json={"scene_id": job["scene_id"], "resolution": 32, "placement": REQUEST}).json()["id"], timeout=300)
@@ -251,6 +257,14 @@ def test_submit_wait_download_walk_look_up_and_refuse_over_the_service(service, 
         bad = client.post("/v1/jobs", json={"scene_id": job["scene_id"], "placement": {**REQUEST, "budget": {"frame_ms": 5}}})
         assert bad.status_code == 422 and "give budget.primitives" in bad.json()["detail"]
         assert client.get("/v1/jobs").json() == before
+    # offline, on the zip as the API gives it: the same answer as the service's lookup at a grid point with an image
+    (tmp_path / "db.zip").write_bytes(zipped)
+    answer, (x, y, z), yaw = answers[pi_with]
+    offline = service.cli("lookup", str(tmp_path / "db.zip"), "--at", str(x), str(y), str(z), "--look", str(math.sin(yaw)), "0", str(-math.cos(yaw)), "--json")
+    assert offline.returncode == 0, offline.stderr
+    assert json.loads(offline.stdout)["image"] == answer["image"] is not None
+    walked_zip = service.cli("walkthrough", str(tmp_path / "db.zip"), str(path), "--random", "2", "--repeats", "1", "--no-compare", "--json")
+    assert walked_zip.returncode == 0 and json.loads(walked_zip.stdout)["summary"]["share_within_p"] == 1.0, walked_zip.stderr
     refused = service.cli("submit", job["scene_id"], "--placement", "--view-space", "35,3,35,45,4,45", "--primitives", "400", "--fov", "40",
                           "--algorithm", "primitive-budget", *auth)  # fmt: skip
     assert refused.returncode != 0 and "star-shape bound" in refused.stderr and len(refused.stderr.strip().splitlines()) == 1

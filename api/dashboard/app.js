@@ -1133,7 +1133,7 @@ function drawImagePlacement(doc) {
   if (root.dataset.key === state.placement.key) return;
   root.dataset.key = state.placement.key;
   const [a, b] = axes;
-  const reach = Math.max(...doc.points.map((p) => p.radius), 0);
+  const reach = doc.points.reduce((m, p) => Math.max(m, p.radius), 0);
   const x0 = lo[a] - reach, z0 = lo[b] - reach, dx = Math.max(hi[a] - lo[a] + 2 * reach, 1e-9), dz = Math.max(hi[b] - lo[b] + 2 * reach, 1e-9);
   const width = 600, margin = 30;
   const scale = Math.min((width - 2 * margin) / dx, (700 - 2 * margin) / dz);

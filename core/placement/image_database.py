@@ -108,7 +108,8 @@ def bake_image(scene: Scene, entry: dict, cells: OctreeCells | None = None, prog
         stats={"samples": ldi.count, "layers": ldi.layers, "offered": made.offered, "dropped_full": made.dropped_full,
                "construction_images": int(p["construction_images"]), "splat_bytes": 20 * ldi.count, "texture_bytes": int(sum(pg.nbytes for pg in pages)),
                "seconds": {"total": time.perf_counter() - started}},
-        parameters={"resolution": int(p["resolution"]), "fov_deg": float(p["fov_deg"]), "images": int(p["construction_images"]), "yaw": float(p["yaw"]),
+        parameters={"resolution": int(p["resolution"]), "fov_deg": float(p["fov_deg"]), "images": int(p["construction_images"]),
+                    "max_layers": int(p.get("max_layers", DEFAULT_MAX_LAYERS)), "yaw": float(p["yaw"]),
                     "depth": float(p["depth"]), "quad": quad.tolist(), "cells": chosen.tolist(), "scene_hash": scene.content_hash},
         code_version=__version__,
     )  # fmt: skip
@@ -159,45 +160,56 @@ def is_image_database(root: Path) -> bool:
     return _index_file(root) is not None
 
 
+def image_index_of(path: Path) -> dict | None:
+    """The index of the primitive-budget database at ``path`` (a folder, or a zip of one: read from
+    the archive, nothing unpacked), or None when ``path`` holds no such database."""
+    path = Path(path)
+    if path.is_dir():
+        found = _index_file(path)
+        return json.loads(found.read_text()) if found is not None else None
+    if not (path.is_file() and zipfile.is_zipfile(path)):
+        return None
+    with zipfile.ZipFile(path) as archive:
+        for name in (n for n in INDEX_NAMES if n in archive.namelist()):
+            try:
+                index = json.loads(archive.read(name))
+            except ValueError:
+                continue
+            if isinstance(index, dict) and index.get("format") == FORMAT:
+                return index
+    return None
+
+
 @contextlib.contextmanager
 def image_database_folder(path: Path) -> Iterator[Path | None]:
     """A primitive-budget database's folder: ``path`` itself, or a zip of one (``database.zip``)
     unpacked to a temporary folder for the block; None when ``path`` holds no such database."""
     path = Path(path)
-    if path.is_dir():
-        yield path if is_image_database(path) else None
+    if path.is_dir() or image_index_of(path) is None:
+        yield path if path.is_dir() and is_image_database(path) else None
         return
-    if not (path.is_file() and zipfile.is_zipfile(path)):
-        yield None
-        return
-    with zipfile.ZipFile(path) as archive:
-        names = [n for n in INDEX_NAMES if n in archive.namelist()]
-        try:
-            found = any(json.loads(archive.read(n)).get("format") == FORMAT for n in names)
-        except ValueError:
-            found = False
-        if not found:
-            yield None
-            return
-        with tempfile.TemporaryDirectory(prefix="farfield-images-") as tmp:
-            archive.extractall(tmp)
-            yield Path(tmp)
+    with tempfile.TemporaryDirectory(prefix="farfield-images-") as tmp, zipfile.ZipFile(path) as archive:
+        archive.extractall(tmp)
+        yield Path(tmp)
 
 
 def image_lookup(index: dict, placement: PrimitivePlacement, eye, direction) -> dict:
     """What a run time draws for one view (seed 004 Fig. 12): the grid point, the image (its name,
     None when the view draws geometry alone), the octree cells it culls and those drawn as geometry,
     and the triangles left against P.  Views are horizontal (pitch 0): ``direction``'s y is not used."""
+    eye = np.asarray(eye, dtype=np.float64)
+    if eye.shape != (3,) or not np.all(np.isfinite(eye)):
+        raise PlacementError(f"the view's position must be 3 finite numbers, got {eye.tolist()}")
     dx, _, dz = (float(v) for v in direction)
     if not (math.isfinite(dx) and math.isfinite(dz) and dx * dx + dz * dz > 0):
         raise PlacementError("a primitive-budget placement's views look horizontally (pitch 0, seed 004): give a direction with dx or dz not 0")
     yaw = math.atan2(dx, -dz) % (2 * math.pi)  # forward(yaw) = (sin yaw, 0, -cos yaw)
-    view = placement.view(np.asarray(eye, dtype=np.float64), yaw)
+    view = placement.view(eye, yaw)
     name = f"{view['point']}-{view['image']}" if view["image"] >= 0 else None
     culled = np.asarray(placement.points[view["point"]].images[view["image"]]["cells"]).tolist() if name else []
     status = "no grid point" if view["point"] < 0 else ("unsolved" if view["image"] == UNSOLVED else "solved")
     return {
-        "algorithm": "primitive-budget", "position": [float(v) for v in eye], "yaw": yaw, "point": view["point"], "image": name,
+        "algorithm": "primitive-budget", "position": eye.tolist(), "yaw": yaw, "point": view["point"], "image": name,
         "bundle": index["bundles"].get(name) if name else None, "status": status, "primitives": view["primitives"],
         "primitives_budget": placement.primitives, "within_budget": view["primitives"] <= placement.primitives,
         "replaced_octree_cells": culled, "drawn_octree_cells": np.flatnonzero(view["cells"]).tolist(), "eye_past_quad": view["past_quad"],

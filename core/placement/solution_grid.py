@@ -65,6 +65,8 @@ from farfield.core.scene import Scene
 MIN_FOV_DEG = math.degrees(2.0 * math.atan(0.5))  # 53.13: s = r / (2 tan alpha) <= r (seed 004 §3.2.1)
 NO_IMAGE, UNSOLVED = -1, -2
 MAX_GRID_POINTS = 200_000  # a guard against a view space far finer than its geometry
+MAX_LATTICE_SIDE = 58  # grid_points: the initial lattice alone (58^3) would pass MAX_GRID_POINTS
+MAX_LEVEL = 20  # a millionth of the initial spacing
 FORMAT_VERSION = 1
 
 
@@ -104,10 +106,10 @@ class BudgetSettings:
                 f"field of view {self.fov_deg!r}° is below the star-shape bound: the primitive-budget placement needs "
                 f"{MIN_FOV_DEG:.2f}° <= fov < 180° (seed 004 §3.2.1; 60° or more in the paper)"
             )
-        for name, low in (("grid_points", 2), ("max_level", 0), ("lookahead", 0)):
+        for name, low, high in (("grid_points", 2, MAX_LATTICE_SIDE), ("max_level", 0, MAX_LEVEL), ("lookahead", 0, None)):
             value = getattr(self, name)
-            if isinstance(value, bool) or int(value) != value or value < low:
-                raise PlacementError(f"{name} must be an integer >= {low}, got {value!r}")
+            if isinstance(value, bool) or int(value) != value or value < low or (high is not None and value > high):
+                raise PlacementError(f"{name} must be an integer >= {low}" + (f" and <= {high}" if high is not None else "") + f", got {value!r}")
         if self.spacing is not None and not (math.isfinite(self.spacing) and self.spacing > 0):
             raise PlacementError(f"grid spacing must be > 0, got {self.spacing!r}")
         return p, p_opt, math.radians(self.fov_deg) / 2.0
@@ -360,7 +362,7 @@ def place_primitives(scene: Scene, view_lo, view_hi, settings: BudgetSettings,
     return PrimitivePlacement(cells, ordered, view_lo, view_hi, p, p_opt, half, r0, settings.max_level, clock)
 
 
-def check_views(placement: PrimitivePlacement, views: int = 10_000, seed: int = 0) -> dict:
+def check_views(placement: PrimitivePlacement, views: int = 10_000, seed: int = 0, progress: Callable[[str, int, int], None] | None = None) -> dict:
     """Sample (eye, yaw) pairs uniformly in the view space (pitch 0) and count what each draws: the
     guarantee's check (share within ``P``), p99 against ``p_opt``, views without a grid point, eyes
     past their image's quad, views in unsolved ranges."""
@@ -378,6 +380,8 @@ def check_views(placement: PrimitivePlacement, views: int = 10_000, seed: int = 
         past += v["past_quad"]
         unsolved += v["image"] == UNSOLVED
         with_image += v["image"] >= 0
+        if progress is not None and ((k + 1) % 256 == 0 or k + 1 == views):
+            progress("check views", k + 1, views)
     return {
         "views": views, "seed": seed, "within_p": float(np.mean(prims <= placement.primitives)),
         "max": float(prims.max()), "p99": float(np.percentile(prims, 99)), "median": float(np.median(prims)),
