@@ -1,4 +1,5 @@
-"""Seeded procedural scenes: a :class:`core.scene.Scene` of box buildings on a grid, from ``np.random.default_rng``.
+"""Seeded procedural scenes from ``np.random.default_rng``: a city of box buildings on a grid, a house, a
+forest of thin trunks (``farfield scenes demo``).
 
 The city is the scene ``farfield calibrate`` measures when given none, and a scene tests and
 benchmarks may build without files.  Buildings are boxes whose faces are cut into ``n x n`` grids
@@ -9,7 +10,10 @@ and triangles (seed 000 §5.8.1) can tell the two apart.  World +y is up, as in 
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
+import trimesh
 
 from farfield.core.scene import Scene, SceneObject
 
@@ -90,3 +94,101 @@ def city(buildings: int = 300, seed: int = 0, detail: int = 1, spacing: float = 
         base_color=(0.3, 0.5, 0.25, 1.0),
     )
     return Scene.from_objects([ground, *objects], source=f"city-{buildings}-{seed}-{detail}")
+
+
+@functools.lru_cache(maxsize=None)
+def _unit_box() -> tuple[np.ndarray, np.ndarray]:
+    """(8, 3) float64 corners of the unit cube [0, 1]^3 and (12, 3) int64 outward faces."""
+    box = trimesh.creation.box(bounds=[[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
+    return np.asarray(box.vertices, dtype=np.float64), np.asarray(box.faces, dtype=np.int64)
+
+
+def box_object(name: str, low, high, base_color=(0.8, 0.8, 0.8, 1.0)) -> SceneObject:
+    """An axis-aligned box from corner ``low`` to ``high`` ((3,) float64), material-coloured."""
+    vertices, faces = _unit_box()
+    low, high = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
+    return SceneObject(name, low + vertices * (high - low), faces, base_color=base_color)
+
+
+def forest(trees: int = 200, seed: int = 1) -> Scene:
+    """A forest of ``trees`` thin vertical cylinders (trunks) with brown-to-green vertex colours.
+
+    Radii 0.05..0.2, heights 4..12 units, scattered over a 100 x 100 square.
+    """
+    rng = np.random.default_rng(seed)
+    unit = trimesh.creation.cylinder(radius=1.0, height=1.0, sections=8)  # z in -0.5..0.5
+    vertices = np.asarray(unit.vertices, dtype=np.float64)
+    faces = np.asarray(unit.faces, dtype=np.int64)
+    up = vertices[:, 2] + 0.5  # 0 at the foot, 1 at the top
+    colours = np.empty((len(vertices), 4), dtype=np.uint8)
+    colours[:, :3] = np.round((1 - up)[:, None] * (100, 70, 40) + up[:, None] * (40, 140, 50))
+    colours[:, 3] = 255
+    radius = rng.uniform(0.05, 0.2, size=trees)
+    height = rng.uniform(4.0, 12.0, size=trees)
+    where = rng.uniform(0.0, 100.0, size=(trees, 2))
+    objects = []
+    for i in range(trees):
+        scaled = vertices * (radius[i], radius[i], height[i])
+        # z-up cylinder to y-up world: (x, y, z) -> (x, z + h/2, -y), a proper rotation.
+        world = np.column_stack([scaled[:, 0] + where[i, 0], scaled[:, 2] + height[i] / 2, -scaled[:, 1] + where[i, 1]])
+        objects.append(SceneObject(f"tree_{i:03d}", world, faces, vertex_colors=colours))
+    return Scene.from_objects(objects, source=f"forest-{trees}-{seed}")
+
+
+def house(seed: int = 4) -> Scene:
+    """A building-like object, 20 x 10 x 12 units under a gable roof, with window frames and a door
+    standing out of its walls, a chimney and a porch roof: ~1,500 triangles, material colours.
+
+    The stand-in for the house model of seed 000 Table 4.1 (that model is not public).
+    """
+    rng = np.random.default_rng(seed)
+    objects = [box_object("body", (0.0, 0.0, 0.0), (20.0, 10.0, 12.0), (0.85, 0.8, 0.7, 1.0))]
+    # Gable roof: a triangular prism along x over the body, overhanging by 0.5.
+    ridge = 15.0
+    roof_v = np.array([
+        [-0.5, 10.0, -0.5], [20.5, 10.0, -0.5], [20.5, ridge, 6.0], [-0.5, ridge, 6.0],
+        [-0.5, 10.0, 12.5], [20.5, 10.0, 12.5],
+    ])  # fmt: skip
+    roof_f = np.array([[0, 2, 1], [0, 3, 2], [4, 5, 2], [4, 2, 3], [0, 4, 3], [1, 2, 5], [0, 1, 5], [0, 5, 4]])
+    objects.append(SceneObject("roof", roof_v, roof_f, base_color=(0.6, 0.2, 0.15, 1.0)))
+    objects.append(box_object("chimney", (14.0, 11.0, 3.0), (15.5, 16.5, 4.5), (0.5, 0.45, 0.45, 1.0)))
+    # Window frames and sills on the front (z = 0) and back (z = 12) walls, two storeys.
+    n = 0
+    for z, out in ((0.0, -1.0), (12.0, 1.0)):
+        for storey, y in enumerate((1.5, 6.0)):
+            for x in np.arange(1.5, 19.0, 3.6):
+                if z == 0.0 and storey == 0 and abs(x - 8.7) < 1.0:
+                    continue  # the door goes here
+                depth = 0.25 * out
+                shade = rng.uniform(0.15, 0.3)
+                for k, (lo, hi) in enumerate((((x, y, z), (x + 1.8, y + 0.2, z + depth)),  # sill
+                                              ((x, y + 2.3, z), (x + 1.8, y + 2.5, z + depth)),  # lintel
+                                              ((x, y, z), (x + 0.2, y + 2.5, z + depth)),
+                                              ((x + 1.6, y, z), (x + 1.8, y + 2.5, z + depth)))):
+                    lo, hi = np.minimum(lo, hi), np.maximum(lo, hi)
+                    objects.append(box_object(f"frame_{n:03d}_{k}", lo, hi, (0.95, 0.95, 0.9, 1.0)))
+                objects.append(box_object(f"glass_{n:03d}", (x + 0.2, y + 0.2, z + 0.05 * out), (x + 1.6, y + 2.3, z + 0.06 * out), (shade, shade, shade + 0.2, 1.0)))
+                n += 1
+    objects.append(box_object("door", (8.2, 0.0, -0.2), (10.0, 3.2, 0.0), (0.35, 0.2, 0.1, 1.0)))
+    objects.append(box_object("porch_roof", (7.2, 3.6, -2.0), (11.0, 3.8, 0.0), (0.3, 0.3, 0.3, 1.0)))
+    for x in (7.3, 10.7):
+        objects.append(box_object(f"porch_post_{x:g}", (x, 0.0, -2.0), (x + 0.2, 3.6, -1.8), (0.9, 0.9, 0.9, 1.0)))
+    return Scene.from_objects(objects, source=f"house-{seed}")
+
+
+DEMOS = {  # farfield scenes demo NAME: what the README's examples and the benchmarks start from
+    "city": "a city of box buildings on a grid of lots 20 m apart, faces cut into quads (city(buildings, seed, detail))",
+    "house": "a building-like object under a gable roof, ~1,500 triangles (house(seed))",
+    "forest": "thin vertical trunks over a 100 x 100 m square (forest(trees, seed))",
+}
+
+
+def demo_scene(name: str, size: int | None = None, seed: int | None = None, detail: int = 1) -> Scene:
+    """The procedural scene ``name`` of :data:`DEMOS`; ``size`` counts buildings or trees."""
+    if name == "city":
+        return city(300 if size is None else size, seed=0 if seed is None else seed, detail=detail)
+    if name == "house":
+        return house(4 if seed is None else seed)
+    if name == "forest":
+        return forest(200 if size is None else size, seed=1 if seed is None else seed)
+    raise ValueError(f"unknown demo scene {name!r}; one of {', '.join(DEMOS)}")

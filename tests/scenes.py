@@ -16,12 +16,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import PIL.Image
 import trimesh
-from trimesh.visual.material import PBRMaterial
 
-from farfield.core.colour_space import linear_to_srgb, srgb_to_linear
+from farfield.core.colour_space import linear_to_srgb
 from farfield.core.exchange import load_scene
+from farfield.core.exchange.export import texture_image, to_trimesh
+from farfield.core.procedural import box_object, forest, house  # noqa: F401 - moved to core (farfield scenes demo); tests import them from here
 from farfield.core.scene import Scene, SceneObject
 
 SHARED_SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
@@ -52,19 +52,6 @@ def real_scene(path: str) -> Scene:
 
 
 # ---------------------------------------------------------------------------------- primitives
-
-
-def _unit_box() -> tuple[np.ndarray, np.ndarray]:
-    """(8, 3) float64 corners of the unit cube [0, 1]^3 and (12, 3) int64 outward faces."""
-    box = trimesh.creation.box(bounds=[[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
-    return np.asarray(box.vertices, dtype=np.float64), np.asarray(box.faces, dtype=np.int64)
-
-
-def box_object(name: str, low, high, base_color=(0.8, 0.8, 0.8, 1.0)) -> SceneObject:
-    """An axis-aligned box from corner ``low`` to ``high`` ((3,) float64), material-coloured."""
-    vertices, faces = _unit_box()
-    low, high = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
-    return SceneObject(name, low + vertices * (high - low), faces, base_color=base_color)
 
 
 def checker(size: int = 8, squares: int = 2) -> np.ndarray:
@@ -105,31 +92,6 @@ def city(buildings: int = 300, seed: int = 0) -> Scene:
         base_color=(0.3, 0.5, 0.25, 1.0),
     )
     return Scene.from_objects([ground, *objects], source=f"city-{buildings}-{seed}")
-
-
-def forest(trees: int = 200, seed: int = 1) -> Scene:
-    """A forest of ``trees`` thin vertical cylinders (trunks) with brown-to-green vertex colours.
-
-    Radii 0.05..0.2, heights 4..12 units, scattered over a 100 x 100 square.
-    """
-    rng = np.random.default_rng(seed)
-    unit = trimesh.creation.cylinder(radius=1.0, height=1.0, sections=8)  # z in -0.5..0.5
-    vertices = np.asarray(unit.vertices, dtype=np.float64)
-    faces = np.asarray(unit.faces, dtype=np.int64)
-    up = vertices[:, 2] + 0.5  # 0 at the foot, 1 at the top
-    colours = np.empty((len(vertices), 4), dtype=np.uint8)
-    colours[:, :3] = np.round((1 - up)[:, None] * (100, 70, 40) + up[:, None] * (40, 140, 50))
-    colours[:, 3] = 255
-    radius = rng.uniform(0.05, 0.2, size=trees)
-    height = rng.uniform(4.0, 12.0, size=trees)
-    where = rng.uniform(0.0, 100.0, size=(trees, 2))
-    objects = []
-    for i in range(trees):
-        scaled = vertices * (radius[i], radius[i], height[i])
-        # z-up cylinder to y-up world: (x, y, z) -> (x, z + h/2, -y), a proper rotation.
-        world = np.column_stack([scaled[:, 0] + where[i, 0], scaled[:, 2] + height[i] / 2, -scaled[:, 1] + where[i, 1]])
-        objects.append(SceneObject(f"tree_{i:03d}", world, faces, vertex_colors=colours))
-    return Scene.from_objects(objects, source=f"forest-{trees}-{seed}")
 
 
 def sphere_field(spheres: int = 100, seed: int = 2) -> Scene:
@@ -231,39 +193,6 @@ def bad_obj(kind: str) -> str:
 # ---------------------------------------------------------------------------------- writers
 
 
-def _image(texture: np.ndarray) -> PIL.Image.Image:
-    """PIL RGBA image of a (h, w, 4) uint8 texture, top row first."""
-    return PIL.Image.fromarray(np.ascontiguousarray(texture), "RGBA")
-
-
-def to_trimesh(scene: Scene) -> trimesh.Scene:
-    """A trimesh.Scene with one node per object, named after it, identity transforms.
-
-    Textured objects get a glTF material with ``baseColorTexture`` (and ``alphaMode: MASK`` when
-    ``alpha_cutoff`` is set), vertex-coloured ones vertex colours, the rest a ``baseColorFactor``.
-    Colours go in glTF's spaces: the factor linear as it is, vertex colours decoded from sRGB to
-    linear bytes (so they come back within the 8-bit quantisation, not bit for bit).
-    """
-    out = trimesh.Scene()
-    for obj in scene.objects:
-        if obj.texture is not None or obj.vertex_colors is None:
-            material = PBRMaterial(
-                name=f"{obj.name}_material",
-                baseColorFactor=np.array(obj.base_color),  # trimesh writes into its inputs
-                baseColorTexture=None if obj.texture is None else _image(obj.texture),
-                alphaMode=None if obj.alpha_cutoff is None else "MASK",
-                alphaCutoff=obj.alpha_cutoff,
-            )
-            visual = trimesh.visual.TextureVisuals(uv=None if obj.uv is None else np.array(obj.uv), material=material)
-        else:
-            linear = np.array(obj.vertex_colors)
-            linear[:, :3] = np.round(srgb_to_linear(linear[:, :3] / 255.0) * 255.0)
-            visual = trimesh.visual.ColorVisuals(vertex_colors=linear)
-        mesh = trimesh.Trimesh(np.array(obj.vertices), np.array(obj.faces), visual=visual, process=False)
-        out.add_geometry(mesh, geom_name=obj.name, node_name=obj.name)
-    return out
-
-
 def write_obj(scene: Scene, path: Path, texture_names: dict[str, str] | None = None, skip_textures: bool = False) -> Path:
     """Write ``scene`` as ``path`` (OBJ) + an MTL beside it + one PNG per textured object.
 
@@ -296,7 +225,7 @@ def write_obj(scene: Scene, path: Path, texture_names: dict[str, str] | None = N
             png = (texture_names or {}).get(obj.name, f"{obj.name}.png")
             mtl_lines.append(f"map_Kd {png}")
             if not skip_textures:
-                _image(obj.texture).save(path.parent / png)
+                texture_image(obj.texture).save(path.parent / png)
         offset += len(obj.vertices)
     path.write_text("\n".join(obj_lines) + "\n")
     (path.parent / mtl_name).write_text("\n".join(mtl_lines) + "\n")
@@ -330,49 +259,8 @@ def write_scene(scene: Scene, directory: Path, extension: str, stem: str = "scen
 def png_bytes(texture: np.ndarray) -> bytes:
     """PNG file bytes of a (h, w, 4) uint8 RGBA texture."""
     buffer = io.BytesIO()
-    _image(texture).save(buffer, format="PNG")
+    texture_image(texture).save(buffer, format="PNG")
     return buffer.getvalue()
-
-
-def house(seed: int = 4) -> Scene:
-    """A building-like object, 20 x 10 x 12 units under a gable roof, with window frames and a door
-    standing out of its walls, a chimney and a porch roof: ~1,500 triangles, material colours.
-
-    The stand-in for the house model of seed 000 Table 4.1 (that model is not public).
-    """
-    rng = np.random.default_rng(seed)
-    objects = [box_object("body", (0.0, 0.0, 0.0), (20.0, 10.0, 12.0), (0.85, 0.8, 0.7, 1.0))]
-    # Gable roof: a triangular prism along x over the body, overhanging by 0.5.
-    ridge = 15.0
-    roof_v = np.array([
-        [-0.5, 10.0, -0.5], [20.5, 10.0, -0.5], [20.5, ridge, 6.0], [-0.5, ridge, 6.0],
-        [-0.5, 10.0, 12.5], [20.5, 10.0, 12.5],
-    ])  # fmt: skip
-    roof_f = np.array([[0, 2, 1], [0, 3, 2], [4, 5, 2], [4, 2, 3], [0, 4, 3], [1, 2, 5], [0, 1, 5], [0, 5, 4]])
-    objects.append(SceneObject("roof", roof_v, roof_f, base_color=(0.6, 0.2, 0.15, 1.0)))
-    objects.append(box_object("chimney", (14.0, 11.0, 3.0), (15.5, 16.5, 4.5), (0.5, 0.45, 0.45, 1.0)))
-    # Window frames and sills on the front (z = 0) and back (z = 12) walls, two storeys.
-    n = 0
-    for z, out in ((0.0, -1.0), (12.0, 1.0)):
-        for storey, y in enumerate((1.5, 6.0)):
-            for x in np.arange(1.5, 19.0, 3.6):
-                if z == 0.0 and storey == 0 and abs(x - 8.7) < 1.0:
-                    continue  # the door goes here
-                depth = 0.25 * out
-                shade = rng.uniform(0.15, 0.3)
-                for k, (lo, hi) in enumerate((((x, y, z), (x + 1.8, y + 0.2, z + depth)),  # sill
-                                              ((x, y + 2.3, z), (x + 1.8, y + 2.5, z + depth)),  # lintel
-                                              ((x, y, z), (x + 0.2, y + 2.5, z + depth)),
-                                              ((x + 1.6, y, z), (x + 1.8, y + 2.5, z + depth)))):
-                    lo, hi = np.minimum(lo, hi), np.maximum(lo, hi)
-                    objects.append(box_object(f"frame_{n:03d}_{k}", lo, hi, (0.95, 0.95, 0.9, 1.0)))
-                objects.append(box_object(f"glass_{n:03d}", (x + 0.2, y + 0.2, z + 0.05 * out), (x + 1.6, y + 2.3, z + 0.06 * out), (shade, shade, shade + 0.2, 1.0)))
-                n += 1
-    objects.append(box_object("door", (8.2, 0.0, -0.2), (10.0, 3.2, 0.0), (0.35, 0.2, 0.1, 1.0)))
-    objects.append(box_object("porch_roof", (7.2, 3.6, -2.0), (11.0, 3.8, 0.0), (0.3, 0.3, 0.3, 1.0)))
-    for x in (7.3, 10.7):
-        objects.append(box_object(f"porch_post_{x:g}", (x, 0.0, -2.0), (x + 0.2, 3.6, -1.8), (0.9, 0.9, 0.9, 1.0)))
-    return Scene.from_objects(objects, source=f"house-{seed}")
 
 
 def instanced_nodes_glb(nodes: int) -> bytes:

@@ -1,0 +1,55 @@
+"""Scenes written as GLB: :func:`to_trimesh` (one node per object, glTF materials) and :func:`scene_glb`.
+
+What ``farfield scenes demo`` writes and what tests upload: every object keeps its name, geometry,
+UVs, vertex colours, base colour, texture and alpha cutoff, so a GLB written here loads back as the
+same scene (vertex colours within their 8-bit quantisation).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import PIL.Image
+import trimesh
+from trimesh.visual.material import PBRMaterial
+
+from farfield.core.colour_space import srgb_to_linear
+from farfield.core.scene import Scene
+
+
+def texture_image(texture: np.ndarray) -> PIL.Image.Image:
+    """PIL RGBA image of a (h, w, 4) uint8 texture, top row first."""
+    return PIL.Image.fromarray(np.ascontiguousarray(texture), "RGBA")
+
+
+def to_trimesh(scene: Scene) -> trimesh.Scene:
+    """A trimesh.Scene with one node per object, named after it, identity transforms.
+
+    Textured objects get a glTF material with ``baseColorTexture`` (and ``alphaMode: MASK`` when
+    ``alpha_cutoff`` is set), vertex-coloured ones vertex colours, the rest a ``baseColorFactor``.
+    Colours go in glTF's spaces: the factor linear as it is, vertex colours decoded from sRGB to
+    linear bytes (so they come back within the 8-bit quantisation, not bit for bit).
+    """
+    out = trimesh.Scene()
+    for obj in scene.objects:
+        if obj.texture is not None or obj.vertex_colors is None:
+            material = PBRMaterial(
+                name=f"{obj.name}_material",
+                baseColorFactor=np.array(obj.base_color),  # trimesh writes into its inputs
+                baseColorTexture=None if obj.texture is None else texture_image(obj.texture),
+                alphaMode=None if obj.alpha_cutoff is None else "MASK",
+                alphaCutoff=obj.alpha_cutoff,
+            )
+            visual = trimesh.visual.TextureVisuals(uv=None if obj.uv is None else np.array(obj.uv), material=material)
+        else:
+            linear = np.array(obj.vertex_colors)
+            linear[:, :3] = np.round(srgb_to_linear(linear[:, :3] / 255.0) * 255.0)
+            visual = trimesh.visual.ColorVisuals(vertex_colors=linear)
+        mesh = trimesh.Trimesh(np.array(obj.vertices), np.array(obj.faces), visual=visual, process=False)
+        out.add_geometry(mesh, geom_name=obj.name, node_name=obj.name)
+    return out
+
+
+def scene_glb(scene: Scene) -> bytes:
+    """``scene`` as the bytes of a GLB file."""
+    data = to_trimesh(scene).export(file_type="glb")
+    return data if isinstance(data, bytes) else data.encode()
