@@ -5,7 +5,9 @@ Scenes are summaries (object count, triangles, bounds); a scene's object list is
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Request, Response, UploadFile
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, File, Request, Response, UploadFile
 
 from farfield.core.errors import SceneLoadError
 from farfield.service.scenes import count_scenes, delete_scene, get_scene_row, ingest_scene, list_scene_rows, scene_objects, scene_record
@@ -16,11 +18,19 @@ from farfield.api.paging import DEFAULT_PAGE, PAGED, Limit, Offset, set_page_hea
 router = APIRouter(prefix="/v1/scenes", tags=["scenes"])
 
 
-@router.post("", status_code=201, summary="Upload a scene file (glb, gltf, obj, ply, stl)")
-def upload_scene(file: UploadFile | None = None, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
-    if file is None:
-        raise SceneLoadError("send the scene as multipart form field 'file'")
-    return scene_record(ingest_scene(svc.db, svc.blobs, tenant_id, file.filename or "", file.file, svc.settings.max_upload_bytes, svc.settings.scene_limits))
+@router.post(
+    "", status_code=201,
+    summary="Upload a scene: one file (glb, gltf, obj, ply, stl), a zip of one with the files it refers to, or several 'file' fields",
+)  # fmt: skip
+def upload_scene(
+    file: Annotated[list[UploadFile] | None, File(description="the scene file; or a .zip of it and its MTL, textures, buffers; or one field per file")] = None,
+    tenant_id: str = Depends(tenant), svc: Services = Depends(services),
+) -> dict:  # fmt: skip
+    if not file:
+        raise SceneLoadError("send the scene as multipart form field 'file' (a scene file, a .zip of one and its files, or one 'file' field per file)")
+    first, more = file[0], [(f.filename or "", f.file) for f in file[1:]]
+    row = ingest_scene(svc.db, svc.blobs, tenant_id, first.filename or "", first.file, svc.settings.max_upload_bytes, svc.settings.scene_limits, more)
+    return {**scene_record(row), "warnings": getattr(row, "upload_warnings", [])}
 
 
 @router.get("", summary="List scenes, newest first: summaries, paged (X-Total-Count, Link)", responses=PAGED)

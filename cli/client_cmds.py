@@ -166,6 +166,23 @@ def placement_request(view_space: str, frame_ms, cost_model, primitives, cpv_siz
     }  # fmt: skip
 
 
+def upload_scene(client: Client, path: Path) -> str:
+    """Upload the scene file at ``path``; a ``.gltf`` or ``.obj`` that refers to files beside it (buffers,
+    images; MTL, textures) goes as a zip of them all (:func:`core.exchange.archive.pack_scene`).
+    Returns the scene's id; the loader's warnings (a missing texture) are printed to stderr."""
+    from farfield.core.exchange.archive import pack_scene
+
+    packed = pack_scene(path)
+    if packed is not None:
+        made = client.request("POST", "/v1/scenes", files={"file": (f"{path.stem}.zip", packed, "application/zip")}).json()
+    else:
+        with open(path, "rb") as f:
+            made = client.request("POST", "/v1/scenes", files={"file": (path.name, f)}).json()
+    for warning in made.get("warnings", []):
+        click.echo(f"warning: {warning}", err=True)
+    return made["id"]
+
+
 def placement_line(job: dict) -> str | None:
     """A placement job's planning progress, one line (None for other jobs).
 
@@ -252,7 +269,8 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
 def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov, options, placement, view_space, frame_ms, cost_model, primitives,
            cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, max_impostor_mb, algorithm, p_opt, octree_depth, grid_points, max_level,
            check_views, evaluate, wait, download, as_json, url, key):  # fmt: skip
-    """Submit a job for SCENE (a file to upload, or the id of an uploaded scene)."""
+    """Submit a job for SCENE (a file to upload, or the id of an uploaded scene).  A .gltf or .obj is
+    uploaded with the files it refers to (buffers, images; MTL, textures), zipped."""
     client = Client(url, key or _default_key())
     if placement:
         if grid is not None or viewcells:
@@ -266,8 +284,7 @@ def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov
     elif (grid is None) == (not viewcells):
         raise ServiceError("give --grid, one or more --viewcell, or --placement")
     if Path(scene).is_file():
-        with open(scene, "rb") as f:
-            scene_id = client.request("POST", "/v1/scenes", files={"file": (Path(scene).name, f)}).json()["id"]
+        scene_id = upload_scene(client, Path(scene))
     else:
         scene_id = scene
     parsed = {}
@@ -353,14 +370,56 @@ def jobs(job_id, state, as_json, limit, offset, every, url, key):
              lambda job: f"{job['id']}  {job['state']:<9}  {job['counts']['done']}/{job['cells_total']} cells  {job['progress']:.0%}")  # fmt: skip
 
 
+def _write_demo(names, out, size, seed, detail, as_json) -> None:
+    """``farfield scenes demo NAME --out FILE``."""
+    from farfield.core.exchange.export import scene_glb
+    from farfield.core.procedural import DEMOS, demo_scene
+
+    if len(names) != 1 or names[0] not in DEMOS:
+        raise FarfieldError("farfield scenes demo NAME --out FILE.glb: NAME is one of " + "; ".join(f"{k} ({v})" for k, v in DEMOS.items()))
+    if out is None:
+        raise FarfieldError("farfield scenes demo needs --out FILE.glb")
+    if not out.lower().endswith(".glb"):
+        raise FarfieldError(f"--out {out!r}: the demo scenes are written as GLB; give a .glb file name")
+    if names[0] == "house" and size is not None:
+        raise FarfieldError("--size applies to the city (buildings) and the forest (trees), not the house")
+    scene = demo_scene(names[0], size, seed, detail)
+    path = Path(out)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(f".{path.name}.part")
+    temporary.write_bytes(scene_glb(scene))
+    temporary.replace(path)  # nothing half-written
+    summary = {"scene": names[0], "out": str(path), "objects": scene.object_count, "triangles": scene.triangle_count, "bounds": scene.bounds.tolist()}
+    if as_json:
+        click.echo(json.dumps(summary))
+    else:
+        lo, hi = scene.bounds
+        click.echo(f"{path}: {names[0]}, {scene.object_count} objects, {scene.triangle_count:,} triangles, bounds {lo.round(3).tolist()} .. {hi.round(3).tolist()}")
+
+
 @click.command("scenes")
-@click.argument("scene_id", required=False)
+@click.argument("words", nargs=-1, metavar="[SCENE_ID | demo NAME]")
 @click.option("--objects", "with_objects", is_flag=True, help="With SCENE_ID: list its objects (paged like scenes).")
+@click.option("--out", default=None, type=click.Path(dir_okay=False), help="demo: the GLB file to write.")
+@click.option("--size", default=None, type=click.IntRange(min=1), help="demo: buildings of the city [300] or trees of the forest [200].")
+@click.option("--seed", default=None, type=int, help="demo: the random seed [city 0, house 4, forest 1].")
+@click.option("--detail", default=1, show_default=True, type=click.IntRange(min=1, max=64), help="demo city: most quads per building face side.")
 @click.option("--json", "as_json", is_flag=True)
 @_paging_options
 @_client_options
-def scenes(scene_id, with_objects, as_json, limit, offset, every, url, key):
-    """List scenes, newest first, or show SCENE_ID (and its objects)."""
+def scenes(words, with_objects, out, size, seed, detail, as_json, limit, offset, every, url, key):
+    """List scenes, newest first, or show SCENE_ID (and its objects).
+
+    `farfield scenes demo city|house|forest --out FILE.glb` writes a procedural scene (no service
+    needed): the city, house and forest the README's examples and the benchmarks use."""
+    if words and words[0] == "demo":
+        _write_demo(words[1:], out, size, seed, detail, as_json)
+        return
+    if len(words) > 1:
+        raise FarfieldError(f"expected one SCENE_ID (or 'demo NAME'), got {' '.join(words)}")
+    if out is not None or size is not None or seed is not None or detail != 1:
+        raise FarfieldError("--out, --size, --seed and --detail go with 'farfield scenes demo NAME'")
+    scene_id = words[0] if words else None
     client = Client(url, key or _default_key())
     if scene_id and with_objects:
         _listing(client, f"/v1/scenes/{scene_id}/objects", None, (limit, offset, every), "objects", as_json,

@@ -2,7 +2,7 @@
 
 The API validates uploads by parsing them, but a 200 MB mesh parsed inside the API process would
 raise its memory by gigabytes (and a loader crash would take it down).  :func:`check_scene_file`
-runs ``python -m service.scene_check FILE EXTENSION NAME [LIMITS_JSON]`` instead: the child checks
+runs ``python -m service.scene_check FILE EXTENSION NAME [LIMITS_JSON [ASSETS_ZIP]]`` instead: the child checks
 the file against the scene limits (:mod:`core.exchange.limits`), prints the scene's summary (or the
 error's type and message) as one JSON line and exits.
 """
@@ -24,13 +24,16 @@ from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
 TIMEOUT_S = 600
 
 
-def summarize(path: Path, extension: str, name: str, limits: SceneLimits = DEFAULT_LIMITS) -> dict:
-    """The summary the service stores for a scene file (run in the child)."""
+def summarize(path: Path, extension: str, name: str, limits: SceneLimits = DEFAULT_LIMITS, assets: Path | None = None) -> dict:
+    """The summary the service stores for a scene file (run in the child); ``assets``: a zip of the
+    files it refers to (:func:`core.exchange.archive.assets_zip`)."""
     from farfield.core.exchange import load_scene_bytes
+    from farfield.core.exchange.archive import read_assets_zip
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        scene = load_scene_bytes(path.read_bytes(), extension, name, limits=limits)
+        files = read_assets_zip(assets.read_bytes()) if assets is not None else None
+        scene = load_scene_bytes(path.read_bytes(), extension, name, files, limits=limits)
     return {
         "content_hash": scene.content_hash,
         "triangles": scene.triangle_count,
@@ -40,11 +43,12 @@ def summarize(path: Path, extension: str, name: str, limits: SceneLimits = DEFAU
     }
 
 
-def check_scene_file(path: Path, extension: str, name: str, limits: SceneLimits = DEFAULT_LIMITS) -> dict:
-    """Parse ``path`` in a child process; its summary, or the loader's error raised here."""
+def check_scene_file(path: Path, extension: str, name: str, limits: SceneLimits = DEFAULT_LIMITS, assets: Path | None = None) -> dict:
+    """Parse ``path`` (with the files of the ``assets`` zip) in a child process; its summary, or the
+    loader's error raised here."""
     try:
         done = subprocess.run(
-            [sys.executable, "-m", "farfield.service.scene_check", str(path), extension, name, json.dumps(asdict(limits))],
+            [sys.executable, "-m", "farfield.service.scene_check", str(path), extension, name, json.dumps(asdict(limits)), *([str(assets)] if assets else [])],
             capture_output=True, text=True, timeout=TIMEOUT_S,
         )  # fmt: skip
     except subprocess.TimeoutExpired:
@@ -67,8 +71,9 @@ def check_scene_file(path: Path, extension: str, name: str, limits: SceneLimits 
 def main(argv: list[str]) -> int:
     path, extension, name = Path(argv[0]), argv[1], argv[2]
     limits = SceneLimits(**json.loads(argv[3])) if len(argv) > 3 else DEFAULT_LIMITS
+    assets = Path(argv[4]) if len(argv) > 4 else None
     try:
-        print(json.dumps(summarize(path, extension, name, limits)))
+        print(json.dumps(summarize(path, extension, name, limits, assets)))
         return 0
     except FarfieldError as error:
         print(json.dumps({"error": type(error).__name__, "message": str(error)}))

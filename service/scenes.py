@@ -1,5 +1,6 @@
 """Scene uploads: streamed to a local file, validated by parsing (in a child process, so the API's
-memory stays flat), stored in the blob store, recorded in the database.
+memory stays flat), stored in the blob store, recorded in the database.  An upload may be several
+files: a zip of a scene file and what it refers to, or several multipart files.
 
 A failed upload (too large, empty, unparsable) leaves neither a row nor a blob behind.
 """
@@ -22,11 +23,14 @@ from sqlalchemy.orm import undefer
 
 from farfield.core.errors import ConflictError, NotFoundError, SceneLoadError, UploadTooLargeError
 from farfield.core.exchange import DEFAULT_LIMITS, SceneLimits, load_scene_bytes, supported_extensions
+from farfield.core.exchange.archive import SCENE_EXTENSIONS, SceneArchive, assets_zip, is_zip, read_assets_zip, read_scene_archive
 from farfield.core.scene import Scene
 from farfield.service.blobs import BlobStore
 from farfield.service.db import CELL_FINAL, Database, JobRow, SceneRow, now, owned_row
 from farfield.service.scene_check import check_scene_file
 
+
+ASSETS = "assets.zip"  # beside a stored scene file: the files it refers to (core.exchange.archive.assets_zip)
 
 # Longest stored file name: a blob file's temporary sibling adds a prefix and a suffix to it, and
 # file systems stop at 255 bytes (a 242-character upload name failed with "File name too long").
@@ -91,29 +95,54 @@ def _spool(source: BinaryIO, limit: int, directory: str) -> tuple[Path, int]:
 
 def ingest_scene(
     db: Database, blobs: BlobStore, tenant_id: str, file_name: str, source: BinaryIO, limit: int,
-    scene_limits: SceneLimits = DEFAULT_LIMITS,
+    scene_limits: SceneLimits = DEFAULT_LIMITS, more: list[tuple[str, BinaryIO]] | None = None,
 ) -> SceneRow:
-    """Validate and store one uploaded scene file; returns its row.
+    """Validate and store one uploaded scene; returns its row (``row.upload_warnings``: what the
+    loader warned of, e.g. a missing texture).
 
-    Raises :class:`SceneLoadError` (bad format, empty, unparsable), :class:`SceneTooCostlyError`
-    (structure beyond ``scene_limits``), :class:`UploadTooLargeError`.
+    The upload is one scene file, a zip of a scene file and the files it refers to
+    (:mod:`core.exchange.archive`), or, with ``more``, several files (name, stream) of which one is
+    the scene; ``limit`` bounds their bytes together, uncompressed.  The files a scene refers to are
+    stored beside it as ``scenes/<id>/assets.zip``.
+
+    Raises :class:`SceneLoadError` (bad format, empty, unparsable, an archive without exactly one
+    scene file or with a name outside it), :class:`SceneTooCostlyError` (structure beyond
+    ``scene_limits``), :class:`UploadTooLargeError`.
     """
-    name = safe_file_name(file_name)
-    extension = PurePath(name).suffix.lower().lstrip(".")
-    if extension not in supported_extensions():
-        shown = f"'.{extension}'" if extension else "no extension"
-        raise SceneLoadError(f"{name}: unsupported scene format {shown}; supported: " + ", ".join("." + e for e in supported_extensions()))
     scene_id = uuid.uuid4().hex
     prefix = f"scenes/{scene_id}"
-    key = f"{prefix}/{name}"
     work = tempfile.mkdtemp(prefix="farfield-ingest-")
     try:
         path, size = _spool(source, limit, work)
-        if size == 0:
+        archive = None
+        if more:
+            archive = _parts_archive([(file_name, path), *more], limit, work, size)
+            size = sum(len(b) for b in archive.assets.values()) + len(archive.data)
+        elif file_name.lower().endswith(".zip") or (size and is_zip(path)):
+            archive = read_scene_archive(path, limit, safe_file_name(file_name))
+        if archive is not None:
+            name = safe_file_name(archive.name)
+            path = Path(work) / "scene"
+            path.write_bytes(archive.data)
+        else:
+            name = safe_file_name(file_name)
+        extension = PurePath(name).suffix.lower().lstrip(".")
+        if extension not in supported_extensions():
+            shown = f"'.{extension}'" if extension else "no extension"
+            raise SceneLoadError(f"{name}: unsupported scene format {shown}; supported: " + ", ".join("." + e for e in supported_extensions()) + ", or a .zip of one with its files")
+        if size == 0 or path.stat().st_size == 0:
             raise SceneLoadError(f"{name}: the file is empty")
-        summary = check_scene_file(path, extension, name, scene_limits)
+        assets = None
+        if archive is not None and archive.assets:
+            assets = Path(work) / "assets.zip"
+            assets.write_bytes(assets_zip(archive.assets))
+        summary = check_scene_file(path, extension, name, scene_limits, assets)
+        key = f"{prefix}/{name}"
         with open(path, "rb") as f:
             blobs.put_stream(key, f)
+        if assets is not None:
+            with open(assets, "rb") as f:
+                blobs.put_stream(f"{prefix}/{ASSETS}", f)
         row = SceneRow(
             id=scene_id, tenant_id=tenant_id, name=name, original_name=original_file_name(file_name), extension=extension,
             blob_key=key, size_bytes=size, content_hash=summary["content_hash"], triangles=summary["triangles"],
@@ -126,7 +155,30 @@ def ingest_scene(
         raise
     finally:
         shutil.rmtree(work, ignore_errors=True)
+    row.upload_warnings = list(summary.get("warnings", []))
     return row
+
+
+def _parts_archive(parts: list[tuple[str, object]], limit: int, work: str, spooled: int) -> SceneArchive:
+    """Several uploaded files (the first already spooled to a path) as one archive: one of them
+    is the scene, the others are keyed by their base names (as a browser sends them)."""
+    files, total = {}, spooled
+    for n, (name, source) in enumerate(parts):
+        if n == 0:
+            body = Path(source).read_bytes()
+        else:
+            part, size = _spool(source, limit - total, work)
+            total += size
+            body = part.read_bytes()
+        key = safe_file_name(name)
+        if key in files:
+            raise SceneLoadError(f"two uploaded files are named {key!r}; send each file once")
+        files[key] = body
+    scenes = [k for k in files if PurePath(k).suffix.lower().lstrip(".") in SCENE_EXTENSIONS]
+    if len(scenes) != 1:
+        raise SceneLoadError(f"several files upload one scene: exactly one scene file ({', '.join('.' + e for e in SCENE_EXTENSIONS)}) and the files it refers to; found {', '.join(scenes) or 'none'}")
+    data = files.pop(scenes[0])
+    return SceneArchive(scenes[0], data, files)
 
 
 def get_scene_row(db: Database, tenant_id: str, scene_id: str, with_objects: bool = False) -> SceneRow:
@@ -210,6 +262,8 @@ def load_stored_scene(blobs: BlobStore, row: SceneRow) -> Scene:
     with _CACHE_LOCK:
         scene = _CACHE.get(row.content_hash)
     if scene is None:
-        scene = load_scene_bytes(blobs.read_bytes(row.blob_key), row.extension, row.name, limits=ADMITTED)
+        assets_key = f"{row.blob_key.rsplit('/', 1)[0]}/{ASSETS}"
+        assets = read_assets_zip(blobs.read_bytes(assets_key)) if blobs.exists(assets_key) else None
+        scene = load_scene_bytes(blobs.read_bytes(row.blob_key), row.extension, row.name, assets, limits=ADMITTED)
         _remember(row, scene)
     return scene

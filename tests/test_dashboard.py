@@ -345,3 +345,28 @@ def test_scene_info_and_listings_use_the_paged_routes(browser, service):
         assert "2,000 object(s): node000000, node000001" in info.inner_text() and "node000008" not in info.inner_text()
         assert page.locator(tid("scenes-more")).is_hidden() and page.locator(tid("jobs-more")).is_hidden() == (total_jobs <= 100)
         assert page.js_errors == []
+
+
+def test_uploading_a_scene_s_several_files_at_once(page, service):
+    """The duck's OBJ, MTL and texture chosen together: one textured scene, as loaded from its folder;
+    without the texture, the upload says so."""
+    from scenes import SHARED_SCENES
+
+    from farfield.core.exchange import load_scene
+
+    duck = SHARED_SCENES / "duck"
+    page.goto(service.url + "/#/")
+    page.set_input_files(tid("upload-file"), [str(duck / "duck.obj"), str(duck / "duck.mtl"), str(duck / "duckCM.png")])
+    page.click(tid("upload-submit"))
+    result = page.locator(tid("upload-result"))
+    result.wait_for()
+    assert "duck.obj" in result.inner_text() and "4,212 triangles" in result.inner_text()
+    with service.client() as client:
+        stored = client.get(f"/v1/scenes/{result.get_attribute('data-scene-id')}").json()
+    assert stored["content_hash"] == load_scene(duck / "duck.obj").content_hash  # the texture came with it
+    assert page.locator(tid("upload-warning")).count() == 0
+    page.set_input_files(tid("upload-file"), [str(duck / "duck.obj"), str(duck / "duck.mtl")])
+    page.click(tid("upload-submit"))
+    page.locator(tid("upload-warning")).first.wait_for()
+    assert "duckCM.png" in page.locator(tid("upload-warning")).first.inner_text()
+    assert page.js_errors == []

@@ -282,14 +282,15 @@ async function onUpload(event) {
   $("upload-result").hidden = true;
   if (!input.files.length) { showBox($("upload-error"), "choose a scene file first"); return; }
   const form = new FormData();
-  form.append("file", input.files[0]);
+  for (const file of input.files) form.append("file", file); // several files: one scene and what it refers to
   $("upload-busy").hidden = false;
   try {
     const scene = await api("/v1/scenes", {method: "POST", form});
     const result = $("upload-result");
     result.replaceChildren(
       el("strong", {text: scene.name}), ` uploaded: ${fmtNum(scene.triangles)} triangles, ${fmtNum(scene.object_count)} object(s), `,
-      `bounds ${fmtVec(scene.bounds[0])} – ${fmtVec(scene.bounds[1])}, id `, el("code", {"data-testid": "upload-scene-id", text: scene.id}));
+      `bounds ${fmtVec(scene.bounds[0])} – ${fmtVec(scene.bounds[1])}, id `, el("code", {"data-testid": "upload-scene-id", text: scene.id}),
+      ...(scene.warnings || []).map((w) => el("div", {class: "warning", "data-testid": "upload-warning", text: `warning: ${w}`})));
     result.dataset.sceneId = scene.id;
     result.hidden = false;
     input.value = "";
