@@ -413,6 +413,8 @@ def scenes(words, with_objects, out, size, seed, detail, as_json, limit, offset,
     `farfield scenes demo city|house|forest --out FILE.glb` writes a procedural scene (no service
     needed): the city, house and forest the README's examples and the benchmarks use."""
     if words and words[0] == "demo":
+        if with_objects:
+            raise FarfieldError("--objects goes with a SCENE_ID, not with 'farfield scenes demo'")
         _write_demo(words[1:], out, size, seed, detail, as_json)
         return
     if len(words) > 1:

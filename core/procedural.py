@@ -137,7 +137,7 @@ def forest(trees: int = 200, seed: int = 1) -> Scene:
 
 def house(seed: int = 4) -> Scene:
     """A building-like object, 20 x 10 x 12 units under a gable roof, with window frames and a door
-    standing out of its walls, a chimney and a porch roof: ~1,500 triangles, material colours.
+    standing out of its walls, a chimney and a porch roof: 1,220 triangles, material colours.
 
     The stand-in for the house model of seed 000 Table 4.1 (that model is not public).
     """
@@ -178,7 +178,7 @@ def house(seed: int = 4) -> Scene:
 
 DEMOS = {  # farfield scenes demo NAME: what the README's examples and the benchmarks start from
     "city": "a city of box buildings on a grid of lots 20 m apart, faces cut into quads (city(buildings, seed, detail))",
-    "house": "a building-like object under a gable roof, ~1,500 triangles (house(seed))",
+    "house": "a building-like object under a gable roof, 1,220 triangles (house(seed))",
     "forest": "thin vertical trunks over a 100 x 100 m square (forest(trees, seed))",
 }
 

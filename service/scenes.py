@@ -23,7 +23,7 @@ from sqlalchemy.orm import undefer
 
 from farfield.core.errors import ConflictError, NotFoundError, SceneLoadError, UploadTooLargeError
 from farfield.core.exchange import DEFAULT_LIMITS, SceneLimits, load_scene_bytes, supported_extensions
-from farfield.core.exchange.archive import SCENE_EXTENSIONS, SceneArchive, assets_zip, is_zip, read_assets_zip, read_scene_archive
+from farfield.core.exchange.archive import SCENE_EXTENSIONS, is_zip, parts_archive, read_assets_zip, unpack_scene_archive
 from farfield.core.scene import Scene
 from farfield.service.blobs import BlobStore
 from farfield.service.db import CELL_FINAL, Database, JobRow, SceneRow, now, owned_row
@@ -116,26 +116,24 @@ def ingest_scene(
         path, size = _spool(source, limit, work)
         archive = None
         if more:
-            archive = _parts_archive([(file_name, path), *more], limit, work, size)
-            size = sum(len(b) for b in archive.assets.values()) + len(archive.data)
-        elif file_name.lower().endswith(".zip") or (size and is_zip(path)):
-            archive = read_scene_archive(path, limit, safe_file_name(file_name))
+            parts = [(file_name, path)]
+            for part_name, part in more:
+                part_path, part_size = _spool(part, limit - size, work)
+                size += part_size
+                parts.append((part_name, part_path))
+            archive = parts_archive(parts, Path(work))
+        elif PurePath(file_name).suffix.lower().lstrip(".") not in SCENE_EXTENSIONS and (file_name.lower().endswith(".zip") or (size and is_zip(path))):
+            archive = unpack_scene_archive(path, limit, Path(work), safe_file_name(file_name))
         if archive is not None:
-            name = safe_file_name(archive.name)
-            path = Path(work) / "scene"
-            path.write_bytes(archive.data)
+            name, path, assets = safe_file_name(archive.name), archive.scene, archive.assets
         else:
-            name = safe_file_name(file_name)
+            name, assets = safe_file_name(file_name), None
         extension = PurePath(name).suffix.lower().lstrip(".")
         if extension not in supported_extensions():
             shown = f"'.{extension}'" if extension else "no extension"
             raise SceneLoadError(f"{name}: unsupported scene format {shown}; supported: " + ", ".join("." + e for e in supported_extensions()) + ", or a .zip of one with its files")
         if size == 0 or path.stat().st_size == 0:
             raise SceneLoadError(f"{name}: the file is empty")
-        assets = None
-        if archive is not None and archive.assets:
-            assets = Path(work) / "assets.zip"
-            assets.write_bytes(assets_zip(archive.assets))
         summary = check_scene_file(path, extension, name, scene_limits, assets)
         key = f"{prefix}/{name}"
         with open(path, "rb") as f:
@@ -156,29 +154,10 @@ def ingest_scene(
     finally:
         shutil.rmtree(work, ignore_errors=True)
     row.upload_warnings = list(summary.get("warnings", []))
+    if archive is not None and archive.skipped:
+        shown = ", ".join(archive.skipped[:5]) + (f" and {len(archive.skipped) - 5} more" if len(archive.skipped) > 5 else "")
+        row.upload_warnings.append(f"{len(archive.skipped)} file(s) of the archive lie outside the scene file's folder and were not used: {shown}")
     return row
-
-
-def _parts_archive(parts: list[tuple[str, object]], limit: int, work: str, spooled: int) -> SceneArchive:
-    """Several uploaded files (the first already spooled to a path) as one archive: one of them
-    is the scene, the others are keyed by their base names (as a browser sends them)."""
-    files, total = {}, spooled
-    for n, (name, source) in enumerate(parts):
-        if n == 0:
-            body = Path(source).read_bytes()
-        else:
-            part, size = _spool(source, limit - total, work)
-            total += size
-            body = part.read_bytes()
-        key = safe_file_name(name)
-        if key in files:
-            raise SceneLoadError(f"two uploaded files are named {key!r}; send each file once")
-        files[key] = body
-    scenes = [k for k in files if PurePath(k).suffix.lower().lstrip(".") in SCENE_EXTENSIONS]
-    if len(scenes) != 1:
-        raise SceneLoadError(f"several files upload one scene: exactly one scene file ({', '.join('.' + e for e in SCENE_EXTENSIONS)}) and the files it refers to; found {', '.join(scenes) or 'none'}")
-    data = files.pop(scenes[0])
-    return SceneArchive(scenes[0], data, files)
 
 
 def get_scene_row(db: Database, tenant_id: str, scene_id: str, with_objects: bool = False) -> SceneRow:

@@ -18,7 +18,7 @@ from service_harness import start_service, wait_for_job
 
 from farfield.core.errors import SceneLoadError, UploadTooLargeError
 from farfield.core.exchange import load_scene
-from farfield.core.exchange.archive import MAX_FILES, member_path, pack_scene, read_scene_archive, referenced_files
+from farfield.core.exchange.archive import MAX_FILES, member_path, pack_scene, referenced_files, unpack_scene_archive
 
 DUCK = SHARED_SCENES / "duck" / "duck.obj"
 HELMET = SHARED_SCENES / "damaged_helmet" / "DamagedHelmet.glb"
@@ -46,38 +46,81 @@ def helmet_gltf(tmp_path_factory) -> Path:
     return folder / "model.gltf"
 
 
-def test_member_names_outside_the_archive_are_refused():
+def unpack(tmp_path: Path, data: bytes, limit: int = LIMIT):
+    """``unpack_scene_archive`` of ``data``: (the archive, its scene's bytes, its assets by name)."""
+    source = tmp_path / "upload.zip"
+    source.write_bytes(data)
+    work = tmp_path / "work"
+    work.mkdir(exist_ok=True)
+    found = unpack_scene_archive(source, limit, work)
+    assets = {}
+    if found.assets is not None:
+        with zipfile.ZipFile(found.assets) as archive:
+            assets = {n: archive.read(n) for n in archive.namelist()}
+    return found, found.scene.read_bytes(), assets
+
+
+def test_member_names_outside_the_archive_are_refused(tmp_path):
     assert str(member_path("./a/b.png")) == "a/b.png"
     for name in ("../evil.png", "a/../../evil.png", "/etc/passwd", "C:\\evil.png", "..\\evil.png"):
         with pytest.raises(SceneLoadError, match="outside the archive"):
             member_path(name)
     with pytest.raises(SceneLoadError, match="outside the archive"):
-        read_scene_archive(zipped({"duck.obj": b"v 0 0 0", "../../evil.mtl": b""}), LIMIT)
+        unpack(tmp_path, zipped({"duck.obj": b"v 0 0 0", "../../evil.mtl": b""}))
+    assert not list((tmp_path / "work").rglob("evil*"))
 
 
-def test_an_archive_holds_exactly_one_scene_and_its_folder_s_files():
+def test_an_archive_holds_exactly_one_scene_and_its_folder_s_files(tmp_path):
     files = duck_files()
-    found = read_scene_archive(zipped({f"models/{k}": v for k, v in files.items()} | {"readme.txt": b"hi", "__MACOSX/._duck.obj": b"junk"}), LIMIT)
-    assert found.name == "duck.obj" and found.data == files["duck.obj"]
-    assert set(found.assets) == {"duck.mtl", "duckCM.png"} and found.skipped == ("readme.txt",)
+    found, scene, assets = unpack(tmp_path, zipped({f"models/{k}": v for k, v in files.items()} | {"readme.txt": b"hi", "__MACOSX/._duck.obj": b"junk"}))
+    assert found.name == "duck.obj" and scene == files["duck.obj"] and found.size == sum(len(v) for v in files.values())
+    assert assets == {"duck.mtl": files["duck.mtl"], "duckCM.png": files["duckCM.png"]} and found.skipped == ("readme.txt",)
     with pytest.raises(SceneLoadError, match="exactly one scene file.*found none"):
-        read_scene_archive(zipped({"duck.mtl": files["duck.mtl"]}), LIMIT)
+        unpack(tmp_path, zipped({"duck.mtl": files["duck.mtl"]}))
     with pytest.raises(SceneLoadError, match="exactly one scene file.*a.obj, b.glb"):
-        read_scene_archive(zipped({"a.obj": b"", "b.glb": b""}), LIMIT)
+        unpack(tmp_path, zipped({"a.obj": b"", "b.glb": b""}))
     with pytest.raises(SceneLoadError, match="not a readable zip"):
-        read_scene_archive(b"PK\x03\x04 truncated", LIMIT)
+        unpack(tmp_path, b"PK\x03\x04 truncated")
+    with pytest.raises(SceneLoadError, match="two members are named 'T.png'"):
+        unpack(tmp_path, zipped({"a.obj": b"", "t.png": b"1", "./T.png": b"2"}))
 
 
-def test_bombs_too_many_files_and_the_limit_are_refused_before_inflating():
+def test_unreadable_members_are_bad_input_not_a_crash(tmp_path):
+    corrupt = bytearray(zipped({"a.obj": b"v 0 0 0\n" * 1000}, zipfile.ZIP_STORED))
+    at = corrupt.index(b"v 0 0 0")
+    corrupt[at : at + 7] = b"x 9 9 9"  # the stored bytes no longer match their CRC
+    with pytest.raises(SceneLoadError, match="cannot be read .*BadZipFile"):
+        unpack(tmp_path, bytes(corrupt))
+    encrypted = bytearray(zipped({"a.obj": b"v 0 0 0\n"}, zipfile.ZIP_STORED))
+    for at in (6, encrypted.index(b"PK\x01\x02") + 8):  # the encrypted flag, in the local and the central header
+        encrypted[at] |= 1
+    with pytest.raises(SceneLoadError, match="cannot be read"):
+        unpack(tmp_path, bytes(encrypted))
+
+
+def test_bombs_too_many_files_and_the_limit_are_refused_before_inflating(tmp_path):
     bomb = zipped({"scene.obj": b"v 0 0 0\n", "huge.png": bytes(64 << 20)})
     assert len(bomb) < 1 << 20
     with pytest.raises(UploadTooLargeError, match="inflates .* times"):
-        read_scene_archive(bomb, 1 << 30)
+        unpack(tmp_path, bomb, 1 << 30)
     with pytest.raises(UploadTooLargeError, match=f"more than the {MAX_FILES}"):
-        read_scene_archive(zipped({f"f{i}.txt": b"" for i in range(MAX_FILES + 1)} | {"a.obj": b""}, zipfile.ZIP_STORED), LIMIT)
+        unpack(tmp_path, zipped({f"f{i}.txt": b"" for i in range(MAX_FILES + 1)} | {"a.obj": b""}, zipfile.ZIP_STORED))
+    many = zipped({f"d{i}/": b"" for i in range(3 * MAX_FILES)} | {"a.obj": b""}, zipfile.ZIP_STORED)  # entries counted before zipfile reads them
+    with pytest.raises(UploadTooLargeError, match="entries, more than"):
+        unpack(tmp_path, many)
     stored = zipped({"scene.obj": b"v 0 0 0\n", "big.png": bytes(3 << 20)}, zipfile.ZIP_STORED)  # no ratio to catch: the limit does
-    with pytest.raises(UploadTooLargeError, match="more than 2 MiB uncompressed"):
-        read_scene_archive(stored, 2 << 20)
+    with pytest.raises(UploadTooLargeError, match="more than the upload limit uncompressed"):
+        unpack(tmp_path, stored, 2 << 20)
+
+
+def test_references_resolve_among_the_upload_s_files_as_other_tools_name_them():
+    from farfield.core.exchange.trimesh_scene import asset_resolver, fetch
+
+    resolver = asset_resolver("scene.gltf", assets={"textures/Tex.png": b"png", "my buffer.bin": b"bin", "café.bin": b"cafe"})
+    for reference, body in (("textures/Tex.png", b"png"), ("./textures/tex.png", b"png"), ("textures\\Tex.png", b"png"), ("Tex.png", b"png"),
+                            ("-s 1 1 1 textures/Tex.png", b"png"), ("my%20buffer.bin", b"bin"), ("caf%C3%A9.bin", b"cafe")):  # fmt: skip
+        assert fetch(resolver, reference) == body, reference
+    assert fetch(resolver, "other.png") is None
 
 
 def test_packing_finds_an_obj_s_mtl_and_texture_and_a_gltf_s_buffer_and_images(helmet_gltf, tmp_path):
@@ -90,6 +133,12 @@ def test_packing_finds_an_obj_s_mtl_and_texture_and_a_gltf_s_buffer_and_images(h
     # no references that leave the folder, none that are URIs, none that do not exist
     (tmp_path / "x.obj").write_text("mtllib ../outside.mtl missing.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     assert referenced_files(tmp_path / "x.obj") == [] and pack_scene(tmp_path / "x.obj") is None
+    # names are the rest of the line, as the loader reads them; a map's options are skipped
+    (tmp_path / "my mat.mtl").write_text("newmtl a\nmap_Kd my tex.png\nnewmtl b\nmap_Kd -s 1 1 1 plain.png\n")
+    (tmp_path / "my tex.png").write_bytes(b"1")
+    (tmp_path / "plain.png").write_bytes(b"2")
+    (tmp_path / "y.obj").write_text("  mtllib my mat.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    assert referenced_files(tmp_path / "y.obj") == ["my mat.mtl", "my tex.png", "plain.png"]
     assert pack_scene(HELMET) is None  # a .glb holds its files
 
 

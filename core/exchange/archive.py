@@ -21,7 +21,8 @@ import io
 import json
 import re
 import zipfile
-from dataclasses import dataclass, field
+import zlib
+from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
 from farfield.core.errors import SceneLoadError, UploadTooLargeError
@@ -35,19 +36,19 @@ _DRIVE = re.compile(r"^[A-Za-z]:")
 
 @dataclass(frozen=True)
 class SceneArchive:
-    """An archive's scene file (its name and bytes) and its assets by the name the scene uses."""
+    """An unpacked upload: the scene file's name and where its bytes are, and the zip of its assets
+    (:func:`assets_zip` layout: names as the scene uses them), or None without assets."""
 
     name: str
-    data: bytes
-    assets: dict[str, bytes] = field(default_factory=dict)
+    scene: Path
+    assets: Path | None = None
+    size: int = 0  # bytes unpacked, the scene's and the assets' together
     skipped: tuple[str, ...] = ()  # members outside the scene file's folder (no reference can reach them)
 
 
-def is_zip(data_or_path) -> bool:
-    """Whether bytes or a file start like a zip archive."""
-    if isinstance(data_or_path, (bytes, bytearray)):
-        return bytes(data_or_path[:4]) == b"PK\x03\x04"
-    with open(data_or_path, "rb") as f:
+def is_zip(path) -> bool:
+    """Whether a file starts like a zip archive."""
+    with open(path, "rb") as f:
         return f.read(4) == b"PK\x03\x04"
 
 
@@ -59,51 +60,124 @@ def member_path(name: str) -> PurePosixPath:
     """
     text = name.replace("\\", "/")
     path = PurePosixPath(text)
-    if text.startswith("/") or _DRIVE.match(text) or ".." in path.parts:
+    if text.startswith("/") or _DRIVE.match(text) or ".." in path.parts or "\x00" in text:
         raise SceneLoadError(f"archive member {name!r}: a path outside the archive (absolute, a drive or '..') is refused")
     return PurePosixPath(*[p for p in path.parts if p not in ("", ".")])
 
 
-def read_scene_archive(source, limit: int, archive_name: str = "upload.zip") -> SceneArchive:
-    """The scene and assets of a zip (bytes, a path or a binary file), checked as the module says."""
+def _entries(file, archive_name: str) -> None:
+    """Refuse an archive whose central directory lists more than MAX_FILES entries, before zipfile
+    reads it all into memory (millions of entries fit in an upload)."""
     try:
-        archive = zipfile.ZipFile(io.BytesIO(source) if isinstance(source, (bytes, bytearray)) else source)
-    except (zipfile.BadZipFile, OSError) as error:
-        raise SceneLoadError(f"{archive_name}: not a readable zip archive ({error})") from None
-    with archive:
-        infos = [i for i in archive.infolist() if not i.is_dir() and not i.filename.startswith("__MACOSX/") and not PurePosixPath(i.filename).name.startswith("._")]
-        if len(infos) > MAX_FILES:
-            raise UploadTooLargeError(f"{archive_name}: {len(infos)} files, more than the {MAX_FILES} an archive may hold")
-        paths = [member_path(i.filename) for i in infos]
-        scenes = [p for p in paths if p.suffix.lower().lstrip(".") in SCENE_EXTENSIONS]
-        if len(scenes) != 1:
-            found = ", ".join(str(p) for p in scenes[:10]) or "none"
-            raise SceneLoadError(
-                f"{archive_name}: an archive holds exactly one scene file ({', '.join('.' + e for e in SCENE_EXTENSIONS)}) and the files it refers to; found {found}"
-            )
-        scene = scenes[0]
-        total, data, assets, skipped = 0, b"", {}, []
-        for info, path in zip(infos, paths, strict=True):
-            if info.file_size > MIN_RATIO_BYTES and info.file_size > MAX_RATIO * max(info.compress_size, 1):
-                raise UploadTooLargeError(f"{archive_name}: member {path} inflates {info.file_size / max(info.compress_size, 1):.0f} times (a zip bomb?); at most {MAX_RATIO}")
-            inside = path.parent == scene.parent or scene.parent in path.parents
-            if not inside:
-                skipped.append(str(path))
-                continue
-            with archive.open(info) as member:
-                body = member.read(limit - total + 1)
-            total += len(body)
-            if total > limit:
-                raise UploadTooLargeError(f"{archive_name}: more than {limit // 2**20} MiB uncompressed, the upload limit")
-            if path == scene:
-                data = body
-            else:
-                assets[str(path.relative_to(scene.parent))] = body
-        return SceneArchive(scene.name, data, assets, tuple(skipped))
+        end = zipfile._EndRecData(file)  # the end record (zip64's when there is one): entries, directory size
+    except (OSError, ValueError):
+        end = None
+    if not end:
+        raise SceneLoadError(f"{archive_name}: not a readable zip archive (no end of central directory)")
+    entries, size = end[zipfile._ECD_ENTRIES_TOTAL], end[zipfile._ECD_SIZE]
+    if entries > 2 * MAX_FILES or size > 2 * MAX_FILES * 1024:
+        raise UploadTooLargeError(f"{archive_name}: {entries:,} entries, more than the {MAX_FILES} files an archive may hold")
+    file.seek(0)
+
+
+_READ_ERRORS = (RuntimeError, NotImplementedError, zlib.error, zipfile.BadZipFile, EOFError, ValueError)
+
+
+def _copy(source, target, budget: int, what: str, archive_name: str) -> int:
+    """Copy ``source`` into ``target`` in chunks; at most ``budget`` bytes (UploadTooLargeError past it)."""
+    copied = 0
+    try:
+        while chunk := source.read(1 << 20):
+            copied += len(chunk)
+            if copied > budget:
+                raise UploadTooLargeError(f"{archive_name}: more than the upload limit uncompressed")
+            target.write(chunk)
+    except _READ_ERRORS as error:  # encrypted, an unknown method, corrupt data, a bad CRC
+        raise SceneLoadError(f"{archive_name}: member {what} cannot be read ({type(error).__name__}: {error})") from None
+    return copied
+
+
+def unpack_scene_archive(path: Path, limit: int, work: Path, archive_name: str = "upload.zip") -> SceneArchive:
+    """The scene and assets of the zip at ``path``, checked as the module says, written under the
+    folder ``work`` (the scene file, and the assets as one zip): nothing is held in memory whole."""
+    work = Path(work)
+    with open(path, "rb") as file:
+        _entries(file, archive_name)
+        try:
+            archive = zipfile.ZipFile(file)
+        except (zipfile.BadZipFile, OSError, ValueError) as error:
+            raise SceneLoadError(f"{archive_name}: not a readable zip archive ({error})") from None
+        with archive:
+            infos = [i for i in archive.infolist() if not i.is_dir() and not i.filename.startswith("__MACOSX/") and not PurePosixPath(i.filename).name.startswith("._")]
+            if len(infos) > MAX_FILES:
+                raise UploadTooLargeError(f"{archive_name}: {len(infos)} files, more than the {MAX_FILES} an archive may hold")
+            paths = [member_path(i.filename) for i in infos]
+            scenes = [p for p in paths if p.suffix.lower().lstrip(".") in SCENE_EXTENSIONS]
+            if len(scenes) != 1:
+                found = ", ".join(str(p) for p in scenes[:10]) or "none"
+                raise SceneLoadError(
+                    f"{archive_name}: an archive holds exactly one scene file ({', '.join('.' + e for e in SCENE_EXTENSIONS)}) and the files it refers to; found {found}"
+                )
+            scene = scenes[0]
+            total, skipped, names = 0, [], set()
+            scene_file, assets_file = work / "scene", work / "assets.zip"
+            with zipfile.ZipFile(assets_file, "w", zipfile.ZIP_STORED) as assets:
+                for info, member in zip(infos, paths, strict=True):
+                    if info.file_size > MIN_RATIO_BYTES and info.file_size > MAX_RATIO * max(info.compress_size, 1):
+                        raise UploadTooLargeError(
+                            f"{archive_name}: member {member} inflates {info.file_size / max(info.compress_size, 1):.0f} times (a zip bomb?); at most {MAX_RATIO}"
+                        )
+                    if not (member.parent == scene.parent or scene.parent in member.parents):
+                        skipped.append(str(member))
+                        continue
+                    key = str(member.relative_to(scene.parent))
+                    if key.lower() in names:
+                        raise SceneLoadError(f"{archive_name}: two members are named {key!r} (names differ only in case or in './'); send each file once")
+                    names.add(key.lower())
+                    try:
+                        source = archive.open(info)
+                    except _READ_ERRORS as error:
+                        raise SceneLoadError(f"{archive_name}: member {member} cannot be read ({type(error).__name__}: {error})") from None
+                    with source:
+                        if member == scene:
+                            with open(scene_file, "wb") as out:
+                                total += _copy(source, out, limit - total, str(member), archive_name)
+                        else:
+                            with assets.open(key, "w") as out:
+                                total += _copy(source, out, limit - total, str(member), archive_name)
+            has_assets = len(names) > 1
+            if not has_assets:
+                assets_file.unlink()
+            return SceneArchive(scene.name, scene_file, assets_file if has_assets else None, total, tuple(skipped))
+
+
+def parts_archive(parts: list[tuple[str, Path]], work: Path) -> SceneArchive:
+    """Several uploaded files (name as sent, spooled path) as one archive: one of them is the scene,
+    the others are assets keyed by their names as sent (a browser sends base names)."""
+    keyed: dict[str, Path] = {}
+    for name, path in parts:
+        key = PurePosixPath((name or "").replace("\\", "/")).name
+        if not key or "\x00" in key:
+            raise SceneLoadError(f"an uploaded file needs a name, got {name!r}")
+        if key.lower() in {k.lower() for k in keyed}:
+            raise SceneLoadError(f"two uploaded files are named {key!r}; send each file once")
+        keyed[key] = Path(path)
+    scenes = [k for k in keyed if PurePosixPath(k).suffix.lower().lstrip(".") in SCENE_EXTENSIONS]
+    if len(scenes) != 1:
+        raise SceneLoadError(
+            f"several files upload one scene: exactly one scene file ({', '.join('.' + e for e in SCENE_EXTENSIONS)}) and the files it refers to; found {', '.join(scenes) or 'none'}"
+        )
+    scene = keyed.pop(scenes[0])
+    assets_file = Path(work) / "assets.zip"
+    with zipfile.ZipFile(assets_file, "w", zipfile.ZIP_STORED) as assets:
+        for key, path in keyed.items():
+            assets.write(path, key)
+    size = scene.stat().st_size + sum(p.stat().st_size for p in keyed.values())
+    return SceneArchive(scenes[0], scene, assets_file if keyed else None, size)
 
 
 def assets_zip(assets: dict[str, bytes]) -> bytes:
-    """Assets as a zip of their names (what the service stores beside a scene)."""
+    """Assets as a zip of their names (the layout stored beside a scene)."""
     out = io.BytesIO()
     with zipfile.ZipFile(out, "w", zipfile.ZIP_STORED) as archive:
         for name, body in sorted(assets.items()):
@@ -112,7 +186,7 @@ def assets_zip(assets: dict[str, bytes]) -> bytes:
 
 
 def read_assets_zip(data: bytes) -> dict[str, bytes]:
-    """The assets of :func:`assets_zip`."""
+    """The assets of a stored assets zip, by name."""
     with zipfile.ZipFile(io.BytesIO(data)) as archive:
         return {name: archive.read(name) for name in archive.namelist()}
 
@@ -144,23 +218,29 @@ def referenced_files(path: Path) -> list[str]:
         except (OSError, ValueError, UnicodeDecodeError):
             return []
         uris = [b.get("uri") for b in document.get("buffers", []) if isinstance(b, dict)] + [i.get("uri") for i in document.get("images", []) if isinstance(i, dict)]
-        found = [r for r in (_local(u) for u in uris if isinstance(u, str)) if r]
+        found = [r for r in (_local(u) for u in uris if isinstance(u, str)) if r]  # packed under the decoded name: the server's resolver decodes too
     elif suffix == ".obj":
-        libraries = []
-        for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
-            if line.startswith("mtllib"):
-                libraries += [r for r in (_local(t) for t in line.split()[1:]) if r]
-        found = list(libraries)
-        for library in libraries:
-            mtl = path.parent / library
-            if not mtl.is_file():
+        from farfield.core.exchange.obj import _MTLLIB, decode_text, texture_maps
+
+        try:
+            libraries = _MTLLIB.findall(decode_text(path.read_bytes()))[:1]  # the loader reads the first library only
+        except (OSError, SceneLoadError):
+            return []
+        found = [r for r in (_local(name) for name in libraries) if r]
+        for library in list(found):
+            try:
+                maps = texture_maps(decode_text((path.parent / library).read_bytes()))
+            except (OSError, SceneLoadError):
                 continue
-            for line in mtl.read_text(encoding="utf-8", errors="replace").splitlines():
-                words = line.split()
-                if words and words[0].lower().startswith(("map_", "bump", "disp", "decal", "refl", "norm")) and len(words) > 1:
-                    local = _local(words[-1])  # options (-s 1 1 1, ...) come first; the file name is last
-                    if local:
-                        found.append(str((PurePosixPath(library).parent / local)) if PurePosixPath(library).parent != PurePosixPath(".") else local)
+            for files in maps.values():
+                for name in files.values():
+                    # the loader takes the rest of the line as the name (relative to the OBJ's folder);
+                    # a name with options before it (-s 1 1 1 tex.png) is packed by its last word
+                    for candidate in (name, name.split()[-1]):
+                        local = _local(candidate)
+                        if local and (path.parent / local).is_file():
+                            found.append(local)
+                            break
     seen, out = set(), []
     for name in found:
         if name not in seen and (path.parent / name).is_file():

@@ -32,6 +32,7 @@ import os
 import struct
 import zlib
 from collections.abc import Mapping
+from urllib.parse import unquote
 
 import numpy as np
 import PIL.Image
@@ -70,11 +71,33 @@ DEFAULT_ALPHA_CUTOFF = 0.5
 
 
 class _NamedZipResolver(ZipResolver):
-    """A ZipResolver over an in-memory ``{name: bytes}`` mapping that knows the main file's name."""
+    """A ZipResolver over an in-memory ``{name: bytes}`` mapping that knows the main file's name.
+
+    A reference is looked up as written, then as a path (URL-decoded, ``\\`` as ``/``, ``./``
+    dropped), then ignoring case, then by its base name, then by its last word (an MTL map with
+    options before the file name), each also against the files' base names where one is unique:
+    references name files of the upload only, and the upload's names come from other systems.
+    """
 
     def __init__(self, archive: dict, file_name: str):
         super().__init__(archive=archive)
         self.file_name = file_name
+        self._folded = {name.lower(): name for name in archive}
+        bases: dict[str, list[str]] = {}
+        for name in archive:
+            bases.setdefault(name.rsplit("/", 1)[-1].lower(), []).append(name)
+        self._bases = {base: names[0] for base, names in bases.items() if len(names) == 1}  # unique base names only
+
+    def get(self, name: str) -> bytes:
+        if name is None or name in self.archive:
+            return super().get(name)
+        text = unquote(name.decode("utf-8") if hasattr(name, "decode") else name).replace("\\", "/")
+        path = "/".join(p for p in text.split("/") if p not in ("", "."))
+        for candidate in (path, path.rsplit("/", 1)[-1], text.split()[-1] if text.split() else text):
+            for key in (candidate, self._folded.get(candidate.lower()), self._bases.get(candidate.rsplit("/", 1)[-1].lower())):
+                if key is not None and key in self.archive:
+                    return super().get(key)
+        return super().get(name)  # trimesh's own fallbacks, or its KeyError
 
 
 def asset_resolver(name: str, directory: str | None = None, assets: Mapping[str, bytes] | None = None) -> Resolver:
