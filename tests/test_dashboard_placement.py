@@ -210,3 +210,46 @@ def test_a_primitive_budget_job_s_grid_points_images_and_check(browser, service,
         page.locator(tid("placement-region")).first.wait_for()
         assert page.locator("#placement-cpvs-label").inner_text() == "CPVs" and page.locator(tid("region-panel")).is_visible()
         assert page.js_errors == []
+
+
+def test_the_job_form_submits_a_placement_job(browser, service, jobs, tmp_path):
+    """The form's placement mode: the view space, a budget (one of the two), the algorithm (the
+    primitive-budget one switches the technique to ldi) and more knobs as JSON; the job is planned,
+    baked and shown."""
+    from test_service_primitive_placement import P, VIEW_SPACE, _scene
+
+    with service.client() as client:
+        client.post(f"/v1/jobs/{jobs[1]}/cancel")  # the slow placing job would hold the worker
+        made = upload(client, write_scene(_scene(), tmp_path, "glb", "form-city"))
+        assert made.status_code == 201, made.text
+        scene_id = made.json()["id"]
+    with dashboard_page(browser, service.url, ADMIN_KEY) as page:
+        page.goto(f"{service.url}/#/")
+        page.locator(f'{tid("job-scene")} option[value="{scene_id}"]').wait_for(state="attached")
+        page.select_option(tid("job-scene"), scene_id)
+        page.check(tid("job-mode-placement"))
+        assert page.locator(tid("placement-fields")).is_visible() and page.locator(tid("job-counts")).is_hidden()
+        assert page.locator(tid("objects-field")).is_hidden() and page.locator(tid("evaluate-field")).is_hidden()
+        page.fill(tid("job-lo"), ", ".join(map(str, VIEW_SPACE["lo"])))
+        page.fill(tid("job-hi"), ", ".join(map(str, VIEW_SPACE["hi"])))
+        page.select_option(tid("job-placement-algorithm"), "primitive-budget")
+        assert page.locator(tid("technique")).input_value() == "ldi"
+        page.fill(tid("job-resolution"), "32")
+        page.fill(tid("job-frame-ms"), "10")
+        page.fill(tid("job-primitives"), str(P))
+        page.click(tid("job-submit"))  # both budgets: the form refuses
+        error = page.locator(tid("job-form-error"))
+        error.wait_for()
+        assert "one of them" in error.inner_text() and error.get_attribute("data-source") == "form"
+        page.fill(tid("job-frame-ms"), "")
+        page.fill(tid("job-placement-knobs"), '{"grid_points": 2, "max_level": 1, "check_views": 500}')
+        page.click(tid("job-submit"))
+        page.wait_for_url("**/#/jobs/*")
+        page.locator(f'{tid("job-state")}[data-state="done"]').wait_for(timeout=240_000)
+        page.locator(tid("placement-point")).first.wait_for()
+        assert page.locator(tid("placement-rounds")).inner_text().startswith("500 random views: 100 % within P")
+        job_id = page.url.rsplit("/", 1)[-1]
+        assert page.js_errors == []
+    with service.client() as client:
+        job = client.get(f"/v1/jobs/{job_id}").json()
+    assert job["technique"] == "ldi" and job["params"]["placement"]["algorithm"] == "primitive-budget" and job["params"]["resolution"] == 32

@@ -309,9 +309,36 @@ async function onUpload(event) {
 function jobMode() { return document.querySelector('#job-form input[name="mode"]:checked').value; }
 
 function onModeChange() {
-  const grid = jobMode() === "grid";
-  $("grid-fields").hidden = !grid;
-  $("viewcell-fields").hidden = grid;
+  const mode = jobMode();
+  $("grid-fields").hidden = mode === "viewcells";
+  $("counts-field").hidden = mode !== "grid";
+  $("viewcell-fields").hidden = mode !== "viewcells";
+  $("placement-fields").hidden = mode !== "placement";
+  onTechniqueChange(); // a placement chooses the objects and is measured by its walkthrough: no objects, no evaluation
+}
+
+function onAlgorithmChange() {
+  // The primitive-budget placement places layered depth images: technique ldi.
+  if ($("job-placement-algorithm").value === "primitive-budget" && state.techniques.has("ldi")) {
+    $("job-technique").value = "ldi";
+    onTechniqueChange();
+  }
+}
+
+function placementRequest() {
+  const placement = {view_space: {lo: parseVec($("job-lo").value, "view space lo"), hi: parseVec($("job-hi").value, "view space hi")}};
+  const ms = $("job-frame-ms").value.trim(), prims = $("job-primitives").value.trim();
+  if ((ms === "") === (prims === "")) throw new Error("budget: give a frame budget in ms or a number of primitives, one of them");
+  placement.budget = ms !== "" ? {frame_ms: numberOrText(ms)} : {primitives: numberOrText(prims)};
+  placement.algorithm = $("job-placement-algorithm").value;
+  const text = $("job-placement-knobs").value.trim();
+  if (text !== "") {
+    let knobs;
+    try { knobs = JSON.parse(text); } catch (error) { throw new Error(`more knobs: not JSON (${error.message})`); }
+    if (!knobs || typeof knobs !== "object" || Array.isArray(knobs)) throw new Error("more knobs: give a JSON object, e.g. {\"cpv_size\": 20}");
+    Object.assign(placement, knobs);
+  }
+  return placement;
 }
 
 // The techniques, their image defaults and options come from GET /v1/techniques: the form has no
@@ -444,10 +471,10 @@ function onTechniqueChange() {
   $("technique-options").dataset.technique = t.name;
   $("technique-option-fields").replaceChildren(optionFields(t));
   applyImageDefaults(t);
-  const scene = t.scope === "scene"; // the whole scene: no objects to choose
+  const scene = t.scope === "scene" || jobMode() === "placement"; // the whole scene, or a placement's own choice: no objects to choose
   $("objects-field").hidden = scene;
   $("job-objects").disabled = scene;
-  $("evaluate-field").hidden = scene; // the evaluation a job records is of impostors of one part
+  $("evaluate-field").hidden = scene; // the evaluation a job records is of impostors of one part (a placement's: its walkthrough)
   $("job-evaluate").disabled = scene;
 }
 
@@ -482,9 +509,12 @@ function jobRequest() {
   const t = technique();
   if (!t) throw new Error("technique: none listed yet (GET /v1/techniques); is the API key right?");
   const request = {scene_id: scene, technique: t.name};
+  const placing = jobMode() === "placement";
   if (jobMode() === "grid") {
     request.grid = {lo: parseVec($("job-lo").value, "grid lo"), hi: parseVec($("job-hi").value, "grid hi"),
                     counts: parseVec($("job-counts").value, "cells along x, y, z", true)};
+  } else if (placing) {
+    request.placement = placementRequest();
   } else {
     let cells;
     try { cells = JSON.parse($("job-viewcells").value); } catch (error) { throw new Error(`view cells: not JSON (${error.message})`); }
@@ -497,7 +527,7 @@ function jobRequest() {
     const value = input ? input.value.trim() : "";
     if (value !== "") request[d.name] = numberOrText(value);
   }
-  if (t.scope !== "scene") {
+  if (t.scope !== "scene" && !placing) {
     const objects = $("job-objects").value.split(",").map((s) => s.trim()).filter(Boolean);
     if (objects.length) request.objects = objects;
   }
@@ -508,7 +538,7 @@ function jobRequest() {
     if (value !== undefined) options[o.name] = value;
   }
   if (Object.keys(options).length) request.options = options;
-  if (t.scope !== "scene" && !$("job-evaluate").checked) request.evaluate = false; // on unless switched off
+  if (t.scope !== "scene" && !placing && !$("job-evaluate").checked) request.evaluate = false; // on unless switched off
   return request;
 }
 
@@ -1283,6 +1313,7 @@ function start() {
   $("key-forget").addEventListener("click", () => applyKey(""));
   $("upload-form").addEventListener("submit", onUpload);
   $("job-form").addEventListener("submit", onSubmitJob);
+  $("job-placement-algorithm").addEventListener("change", onAlgorithmChange);
   $("job-technique").addEventListener("change", onTechniqueChange);
   for (const radio of document.querySelectorAll('#job-form input[name="mode"]')) radio.addEventListener("change", onModeChange);
   $("job-scene").addEventListener("change", showSceneInfo);
