@@ -26,7 +26,7 @@ TIMEOUT_S = 600
 
 def summarize(path: Path, extension: str, name: str, limits: SceneLimits = DEFAULT_LIMITS, assets: Path | None = None) -> dict:
     """The summary the service stores for a scene file (run in the child); ``assets``: a zip of the
-    files it refers to (:func:`core.exchange.archive.assets_zip`)."""
+    files it refers to (:func:`core.exchange.archive.unpack_scene_archive`)."""
     from farfield.core.exchange import load_scene_bytes
     from farfield.core.exchange.archive import read_assets_zip
 

@@ -30,7 +30,7 @@ from farfield.service.db import CELL_FINAL, Database, JobRow, SceneRow, now, own
 from farfield.service.scene_check import check_scene_file
 
 
-ASSETS = "assets.zip"  # beside a stored scene file: the files it refers to (core.exchange.archive.assets_zip)
+ASSETS = "assets.zip"  # beside a stored scene file: the files it refers to, by the names it uses
 
 # Longest stored file name: a blob file's temporary sibling adds a prefix and a suffix to it, and
 # file systems stop at 255 bytes (a 242-character upload name failed with "File name too long").

@@ -1,14 +1,18 @@
 """Multi-file scenes: a zip of one scene file and the files it refers to (an OBJ's MTL and textures, a
 glTF's buffers and images), read with bounds; and such a zip packed from a scene file on disk.
 
-**Reading** (:func:`read_scene_archive`, an upload): the archive must hold exactly one scene file
+**Reading** (:func:`unpack_scene_archive`, an upload; :func:`parts_archive` for several files
+uploaded at once): the archive must hold exactly one scene file
 (``.glb``, ``.gltf``, ``.obj``, ``.ply``, ``.stl``; anywhere in it); every other file inside the
 scene file's folder is an asset, keyed by its path relative to that folder, which is how the scene
-names it.  Nothing is written to disk and references resolve only among those assets, so a name
-cannot reach outside the upload; still, a member named with ``..``, an absolute path or a drive is
-refused, as are more than ``MAX_FILES`` files, more than ``limit`` bytes uncompressed (counted as
-they are read, not as the archive declares) and a member that inflates more than ``MAX_RATIO``
-times (a zip bomb).  macOS's ``__MACOSX/`` and ``._*`` entries are skipped.
+names it.  Members are copied in chunks into the caller's temporary folder (the scene file, and the
+assets as one stored zip), never whole into memory, and references resolve only among those assets,
+so a name cannot reach outside the upload; still, a member named with ``..``, an absolute path or a
+drive is refused, as are two names that differ only in case, an encrypted or corrupt member, more
+than ``MAX_FILES`` files (counted from the end record before zipfile reads the directory), more than
+``limit`` bytes uncompressed (counted as they are read, not as the archive declares) and a member
+that inflates more than ``MAX_RATIO`` times (a zip bomb).  macOS's ``__MACOSX/`` and ``._*``
+entries are skipped.
 
 **Packing** (:func:`pack_scene`, the client): a ``.gltf``'s buffer and image URIs and an ``.obj``'s
 ``mtllib`` files and their ``map_*`` textures, those that exist beside it and do not leave its
@@ -37,7 +41,7 @@ _DRIVE = re.compile(r"^[A-Za-z]:")
 @dataclass(frozen=True)
 class SceneArchive:
     """An unpacked upload: the scene file's name and where its bytes are, and the zip of its assets
-    (:func:`assets_zip` layout: names as the scene uses them), or None without assets."""
+    (stored, members named as the scene names them), or None without assets."""
 
     name: str
     scene: Path
@@ -174,15 +178,6 @@ def parts_archive(parts: list[tuple[str, Path]], work: Path) -> SceneArchive:
             assets.write(path, key)
     size = scene.stat().st_size + sum(p.stat().st_size for p in keyed.values())
     return SceneArchive(scenes[0], scene, assets_file if keyed else None, size)
-
-
-def assets_zip(assets: dict[str, bytes]) -> bytes:
-    """Assets as a zip of their names (the layout stored beside a scene)."""
-    out = io.BytesIO()
-    with zipfile.ZipFile(out, "w", zipfile.ZIP_STORED) as archive:
-        for name, body in sorted(assets.items()):
-            archive.writestr(name, body)
-    return out.getvalue()
 
 
 def read_assets_zip(data: bytes) -> dict[str, bytes]:

@@ -115,13 +115,6 @@ def bake_image(scene: Scene, entry: dict, cells: OctreeCells | None = None, prog
     )  # fmt: skip
 
 
-def image_impostor(scene: Scene, placement: PrimitivePlacement, point: GridPoint, index: int, resolution: int, images: int = 9) -> Impostor:
-    """Image ``index`` of ``point`` as an ``ldi`` impostor (:func:`bake_image`)."""
-    pi = next(i for i, q in enumerate(placement.points) if q is point)
-    entry = next(e for e in image_entries(placement, resolution, images) if e["point"] == pi and e["image"] == index)
-    return bake_image(scene, entry, placement.cells)
-
-
 def image_index(placement: dict, bundles: dict[str, str], resolution: int, images: int, scene_hash: str, **extra) -> dict:
     """A database's index: the grid (:meth:`PrimitivePlacement.to_dict`) and where each image's bundle is."""
     return {**placement, "bundles": bundles, "resolution": int(resolution), "construction_images": int(images), "scene_hash": scene_hash, **extra}
