@@ -19,11 +19,12 @@ from starlette.background import BackgroundTask
 from farfield.core.bundle import GLB_NAME, MANIFEST_NAME, PAYLOAD_NAME, bundle_zip, page_file_name
 from farfield.core.errors import ConflictError, InternalError, NotFoundError, ViewCellError
 from farfield.core.placement.database import PlacementLookup
-from farfield.core.placement.hierarchy import PlacementError
+from farfield.core.placement.hierarchy import Elements, PlacementError
 from farfield.core.placement.image_database import image_lookup, placement_of_index
 from farfield.service.db import CellRow, JobRow
 from farfield.service.jobs import cell_record, get_cell_row, get_job_row, job_cells, lookup
 from farfield.service.placement_jobs import PRIMITIVE_INDEX_KIND
+from farfield.service.scenes import get_scene_row, load_stored_scene
 
 from farfield.api.deps import Services, services, tenant
 
@@ -75,6 +76,14 @@ def cell_glb(job_id: str, index: int = CellIndex, tenant_id: str = Depends(tenan
 @router.get("/cells/{index}", summary="One cell: state, statistics")
 def cell_info(job_id: str, index: int = CellIndex, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
     return cell_record(get_cell_row(svc.db, tenant_id, job_id, index))
+
+
+@router.get("/index.json", summary="The job's impostor database index (format farfield-impostor-database): its cells, their view cells, bundles and neighbours; a placement job's CPVs")
+def job_index(job_id: str, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> Response:
+    job = get_job_row(svc.db, tenant_id, job_id)
+    if job.index_key is None:
+        raise ConflictError(f"job {job_id!r} is {job.state}; its impostor database index is written when it ends")
+    return Response(svc.blobs.read_bytes(job.index_key), media_type="application/json")
 
 
 @router.get("/database.zip", summary="The job's whole impostor database: index.json and every cell's bundle")
@@ -215,6 +224,27 @@ def lookup_viewpoint(
         return _image_lookup(svc, job_id, index, found, (x, y, z), (dx, dy, dz))
     answer = found.find((x, y, z), (dx, dy, dz))
     return {**answer, "cells": _cell_records(svc, job_id, answer["impostors"])}
+
+
+_CLUSTERS: OrderedDict[tuple, dict] = OrderedDict()  # (index key, end) -> /clusters answer, the last few jobs
+
+
+@router.get("/clusters", summary="A placement job's clusters of split objects: each one's object and face ranges (what a runtime hides when an impostor replaces a cluster)")
+def placement_clusters(job_id: str, tenant_id: TenantDep, svc: ServicesDep) -> dict:
+    """``{"cluster_triangles": n, "clusters": {name: {"object": name, "faces": [[start, end), ...]}}}``:
+    the lookup's ``replaced`` names elements; an element that is not a whole object of the scene is
+    one of these clusters (:meth:`core.placement.hierarchy.Elements.clusters`)."""
+    job, index, _ = _placement_database(svc, tenant_id, job_id)
+    if index.get("kind") == PRIMITIVE_INDEX_KIND:
+        raise NotFoundError(f"job {job_id!r} is a primitive-budget placement: its images replace octree cells, not clusters")
+    key = (job.index_key, job.finished_at)
+    if key not in _CLUSTERS:
+        cluster = int(index["placement"]["elements"]["cluster_triangles"])
+        scene = load_stored_scene(svc.blobs, get_scene_row(svc.db, tenant_id, job.scene_id))
+        _CLUSTERS[key] = {"cluster_triangles": cluster, "clusters": Elements.of(scene, cluster).clusters(scene)}
+        while len(_CLUSTERS) > LOOKUP_CACHE_SIZE:
+            _CLUSTERS.popitem(last=False)
+    return _CLUSTERS[key]
 
 
 def _image_placement(job: JobRow, index: dict) -> dict:

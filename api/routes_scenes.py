@@ -10,7 +10,7 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, File, Request, Response, UploadFile
 
 from farfield.core.errors import SceneLoadError
-from farfield.service.scenes import count_scenes, delete_scene, get_scene_row, ingest_scene, list_scene_rows, scene_objects, scene_record
+from farfield.service.scenes import count_scenes, delete_scene, get_scene_row, ingest_scene, list_scene_rows, scene_objects, scene_record, stored_scene_glb
 
 from farfield.api.deps import Services, services, tenant
 from farfield.api.paging import DEFAULT_PAGE, PAGED, Limit, Offset, set_page_headers
@@ -55,6 +55,12 @@ def list_scene_objects(
     objects, total = scene_objects(svc.db, tenant_id, scene_id, limit, offset)
     set_page_headers(request, response, total, limit, offset)
     return objects
+
+
+@router.get("/{scene_id}/scene.glb", summary="The scene as loaded, as GLB: one node per object, its name in the mesh's extras (farfield_object); what the 3D view draws")
+def get_scene_glb(scene_id: str, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> Response:
+    data = stored_scene_glb(svc.blobs, get_scene_row(svc.db, tenant_id, scene_id))
+    return Response(data, media_type="model/gltf-binary", headers={"Content-Disposition": f'attachment; filename="scene-{scene_id}.glb"'})
 
 
 @router.delete("/{scene_id}", status_code=204, summary="Delete a scene and its finished jobs")

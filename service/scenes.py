@@ -23,6 +23,7 @@ from sqlalchemy.orm import undefer
 
 from farfield.core.errors import ConflictError, NotFoundError, SceneLoadError, UploadTooLargeError
 from farfield.core.exchange import DEFAULT_LIMITS, SceneLimits, load_scene_bytes, supported_extensions
+from farfield.core.exchange.export import scene_glb
 from farfield.core.exchange.archive import SCENE_EXTENSIONS, is_zip, parts_archive, read_assets_zip, unpack_scene_archive
 from farfield.core.scene import Scene
 from farfield.service.blobs import BlobStore
@@ -30,6 +31,7 @@ from farfield.service.db import CELL_FINAL, Database, JobRow, SceneRow, now, own
 from farfield.service.scene_check import check_scene_file
 
 
+SCENE_GLB = "scene.glb"  # beside a stored scene file: the loaded scene as GLB, written on first request
 ASSETS = "assets.zip"  # beside a stored scene file: the files it refers to, by the names it uses
 
 # Longest stored file name: a blob file's temporary sibling adds a prefix and a suffix to it, and
@@ -246,3 +248,15 @@ def load_stored_scene(blobs: BlobStore, row: SceneRow) -> Scene:
         scene = load_scene_bytes(blobs.read_bytes(row.blob_key), row.extension, row.name, assets, limits=ADMITTED)
         _remember(row, scene)
     return scene
+
+
+def stored_scene_glb(blobs: BlobStore, row: SceneRow) -> bytes:
+    """The loaded scene of ``row`` as GLB (:func:`core.exchange.export.scene_glb`: one node per
+    object, its name in the mesh's extras), written beside the scene file on first request and
+    read from there afterwards; deleted with the scene."""
+    key = f"{row.blob_key.rsplit('/', 1)[0]}/{SCENE_GLB}"
+    if blobs.exists(key):
+        return blobs.read_bytes(key)
+    data = scene_glb(load_stored_scene(blobs, row))
+    blobs.put_bytes(key, data)
+    return data

@@ -663,6 +663,9 @@ function renderJob(job) {
   $("job-cancel").disabled = FINAL.has(job.state);
   $("job-retry").disabled = job.state !== "failed";
   $("job-download").disabled = !job.has_index;
+  // the 3D view (viewer.html) reads the job's index.json: there once the job has ended
+  $("job-viewer").hidden = !job.has_index;
+  $("job-viewer").href = `/dashboard/viewer.html?job=${encodeURIComponent(job.id)}`;
   showBox($("job-error"), job.error ? `job error: ${job.error}` : "");
 
   const errors = job.errors || [];
@@ -903,6 +906,9 @@ function renderCellPanel() {
   }
   pageSelect.disabled = pages <= 1;
   for (const button of document.querySelectorAll("#cell-panel [data-download]")) button.disabled = !cell.has_result;
+  const inside = $("cell-viewer");
+  inside.hidden = !(cell.has_result && job.has_index && cell.viewcell && cell.viewcell.kind === "box");
+  inside.href = `/dashboard/viewer.html?job=${encodeURIComponent(job.id)}&cell=${cell.index}`;
 
   const stats = $("cell-stats");
   const statsKey = `${job.id}/${cell.index}/${JSON.stringify(cell.stats)}`;

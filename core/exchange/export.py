@@ -22,7 +22,9 @@ def texture_image(texture: np.ndarray) -> PIL.Image.Image:
 
 
 def to_trimesh(scene: Scene) -> trimesh.Scene:
-    """A trimesh.Scene with one node per object, named after it, identity transforms.
+    """A trimesh.Scene with one node per object, named after it, identity transforms; each mesh's
+    ``extras`` hold ``{"farfield_object": name}`` (viewers rename nodes: three.js drops dots,
+    colons and slashes, so a runtime matches a database's object names through the extras).
 
     Textured objects get a glTF material with ``baseColorTexture`` (and ``alphaMode: MASK`` when
     ``alpha_cutoff`` is set), vertex-coloured ones vertex colours, the rest a ``baseColorFactor``.
@@ -45,6 +47,7 @@ def to_trimesh(scene: Scene) -> trimesh.Scene:
             linear[:, :3] = np.round(srgb_to_linear(linear[:, :3] / 255.0) * 255.0)
             visual = trimesh.visual.ColorVisuals(vertex_colors=linear)
         mesh = trimesh.Trimesh(np.array(obj.vertices), np.array(obj.faces), visual=visual, process=False)
+        mesh.metadata["farfield_object"] = obj.name
         out.add_geometry(mesh, geom_name=obj.name, node_name=obj.name)
     return out
 

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from farfield.core.errors import FarfieldError
+from farfield.core.near_field import face_ranges
 from farfield.core.scene import Scene, SceneObject
 
 DEFAULT_LEAF_SIZE = 4  # elements per leaf at most
@@ -109,6 +110,24 @@ class Elements:
             tuple(names), np.asarray(owner, dtype=np.int64), tuple(faces), np.asarray(bounds, dtype=np.float64).reshape(-1, 2, 3),
             np.asarray(tris, dtype=np.int64), np.asarray(calls, dtype=np.float64), limit,
         )
+
+    def clusters(self, scene: Scene) -> dict[str, dict]:
+        """The clusters of split objects, by name: ``object`` (the object's name) and ``faces`` (its
+        face-index ranges ``[start, end)``, ascending), for a runtime that draws an object less the
+        clusters an impostor replaces (the 3D view).
+
+        >>> from farfield.core.scene import SceneObject
+        >>> strip = SceneObject("strip", np.array([[x, y, 0.0] for x in range(9) for y in (0, 1)]), np.array([[2 * i, 2 * i + 2, 2 * i + 1] for i in range(8)]))
+        >>> Elements.of(Scene.from_objects([strip], "s"), 4).clusters(Scene.from_objects([strip], "s"))
+        {'strip#0': {'object': 'strip', 'faces': [[0, 4]]}, 'strip#1': {'object': 'strip', 'faces': [[4, 8]]}}
+        """
+        out = {}
+        for i, piece in enumerate(self.faces):
+            if piece is not None:
+                selected = np.zeros(scene.objects[int(self.object_index[i])].triangle_count, dtype=bool)
+                selected[piece] = True
+                out[self.names[i]] = {"object": scene.objects[int(self.object_index[i])].name, "faces": face_ranges(selected)}
+        return out
 
     def split_counts(self, scene: Scene) -> dict[str, int]:
         """Clusters per split object, by the object's name."""

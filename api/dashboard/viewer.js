@@ -1,0 +1,589 @@
+// farfield's 3D view of a job: the reference client of an impostor database, in three.js.
+//
+// What an engine does with a job's database, step by step (README "Using an impostor database
+// in an engine"):
+//   1. GET /v1/jobs/{id}/index.json: the cells, each with its view cell (a box), its bundle and
+//      its neighbours; and GET /v1/scenes/{scene}/scene.glb, the geometry that stays geometry.
+//   2. Every frame, find the cell whose box holds the camera (the lowest index where boxes share
+//      a face).  A placement job's impostors depend on the view direction too: ask
+//      GET /v1/jobs/{id}/lookup?x=&y=&z=&dx=&dy=&dz= when the view has changed.
+//   3. When the cell changes, draw its impostor (GET .../cells/{n}/impostor.glb: unlit, alpha
+//      mask 0.5, double-sided) and the geometry it does not replace:
+//        envmap   the near field of the cell's manifest (parameters.near_field): per object the
+//                 face ranges [start, end) to draw, clipped to the near-field cube centred on
+//                 the reference viewpoint (beyond it too in the pyramids of "open_faces");
+//        a part   (layered, tdm, points, ldi) every object not in the job's "objects"
+//                 (none when the job names no objects: the impostor replaces the whole scene);
+//        placement every object not in the lookup's "replaced".
+//   4. Prefetch the neighbours' bundles (the index's "neighbours") so the next switch is instant.
+//
+// The page is also the dashboard's "3D view" of a job (?job=ID) and of one cell (?job=ID&cell=N:
+// the camera starts at that cell's centre).  ?x=&y=&z=&dx=&dy=&dz= place the camera, ?fov= sets
+// the vertical field of view in degrees (default: the job's), ?size=N draws an N x N canvas,
+// ?mode=impostors|scene|split picks what is drawn.  window.farfieldViewer is the hook the tests
+// drive (tests/test_viewer.py).
+import * as THREE from "three";
+import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
+
+const KEY_STORAGE = "farfield.apiKey";
+const CACHED_CELLS = 64; // cells kept loaded (the active one and its neighbours always are)
+const LOOKUP_MS = 150; // a placement job's lookup: at most one request in flight, this often
+const FACES = {"+x": [0, 1], "-x": [0, -1], "+y": [1, 1], "-y": [1, -1], "+z": [2, 1], "-z": [2, -1]}; // core/cube_faces.py
+const FACE_ORDER = ["+x", "-x", "+y", "-y", "+z", "-z"];
+
+const $ = (id) => document.getElementById(id);
+const query = new URLSearchParams(location.search);
+const number = (name) => (query.has(name) && query.get(name) !== "" && Number.isFinite(Number(query.get(name))) ? Number(query.get(name)) : null);
+
+const view = {
+  job: null, index: null, kind: "grid", // grid | placement | primitive-placement
+  sceneRoot: null, objects: new Map(), // object name -> its meshes in the scene GLB
+  clusters: {}, // a placement job's clusters of split objects: name -> {object, faces}
+  bounds: new THREE.Box3(),
+  cells: new Map(), // index entry by cell index
+  loads: new Map(), // cell index -> Promise of {root, near} (impostor GLB root, near-field meshes)
+  loadedOrder: [], // cell indices, least recently used first
+  fetched: new Set(), prefetched: new Set(), // what was downloaded (the tests read both)
+  groups: new Map(), // what-to-draw key -> THREE.Group
+  activeKey: null, wantedKey: null, activeInfo: null,
+  lookup: {busy: false, at: 0, pose: "", answer: null},
+  showImpostors: query.get("impostors") !== "0", // off: only what stays geometry (near field, kept objects)
+  mode: ["impostors", "scene", "split"].includes(query.get("mode")) ? query.get("mode") : "impostors",
+  error: null,
+};
+
+// ---------------------------------------------------------------- API
+
+async function api(path, {binary = false} = {}) {
+  const key = localStorage.getItem(KEY_STORAGE) || "";
+  const response = await fetch(path, {headers: key ? {Authorization: `Bearer ${key}`} : {}});
+  if (!response.ok) {
+    let detail = `${response.status} ${response.statusText}`;
+    try { detail = (await response.json()).detail || detail; } catch (_) { /* not JSON */ }
+    if (response.status === 401) detail += " (enter an API key on the dashboard first)";
+    throw new Error(`${path}: ${detail}`);
+  }
+  return binary ? response.arrayBuffer() : response.json();
+}
+
+async function parseGlb(buffer) {
+  return (await new GLTFLoader().parseAsync(buffer, "")).scene;
+}
+
+// ---------------------------------------------------------------- drawing
+
+const canvas = $("viewer-canvas");
+const renderer = new THREE.WebGLRenderer({canvas, antialias: false, alpha: true, premultipliedAlpha: false, preserveDrawingBuffer: true});
+renderer.setPixelRatio(query.has("size") ? 1 : window.devicePixelRatio);
+renderer.setClearColor(0x000000, 0);
+renderer.toneMapping = THREE.NoToneMapping;
+renderer.outputColorSpace = THREE.SRGBColorSpace;
+const camera = new THREE.PerspectiveCamera(60, 1, 0.1, 1000);
+const runtimeScene = new THREE.Scene();
+const sourceScene = new THREE.Scene();
+
+function unlit(material) {
+  // farfield draws unlit (glTF's KHR_materials_unlit rule: base colour = map x colour x vertex
+  // colour); a glTF BLEND material is drawn as a mask at 0.5, as farfield's loader does.
+  const m = material || {};
+  return new THREE.MeshBasicMaterial({
+    map: m.map || null, color: m.color ? m.color.clone() : new THREE.Color(1, 1, 1), vertexColors: !!m.vertexColors,
+    alphaTest: m.alphaTest || (m.transparent ? 0.5 : 0), side: THREE.DoubleSide, transparent: false,
+  });
+}
+
+function nearFieldMaterial(material, near) {
+  // The near field drawn inside its cube only (and in the pyramids beyond the open faces), as
+  // core/render/raster.py's MeshRenderer clips it: a fragment outside both is discarded.
+  const m = material.clone();
+  const open = FACE_ORDER.map((f) => (near.open_faces.includes(f) ? 1 : 0));
+  m.onBeforeCompile = (shader) => {
+    shader.uniforms.ffCentre = {value: new THREE.Vector3(...near.centre)};
+    shader.uniforms.ffHalf = {value: near.half_size};
+    shader.uniforms.ffOpen = {value: open};
+    shader.vertexShader = shader.vertexShader
+      .replace("#include <common>", "#include <common>\nvarying vec3 ffWorld;")
+      .replace("#include <project_vertex>", "#include <project_vertex>\nffWorld = (modelMatrix * vec4(transformed, 1.0)).xyz;");
+    shader.fragmentShader = shader.fragmentShader
+      .replace("#include <common>", "#include <common>\nvarying vec3 ffWorld;\nuniform vec3 ffCentre;\nuniform float ffHalf;\nuniform float ffOpen[6];")
+      .replace("void main() {", `void main() {
+  vec3 ffP = ffWorld - ffCentre;
+  vec3 ffA = abs(ffP);
+  bool ffKeep = max(ffA.x, max(ffA.y, ffA.z)) <= ffHalf;
+  ffKeep = ffKeep || (ffOpen[0] > 0.5 && ffP.x >= max(ffA.y, ffA.z)) || (ffOpen[1] > 0.5 && -ffP.x >= max(ffA.y, ffA.z));
+  ffKeep = ffKeep || (ffOpen[2] > 0.5 && ffP.y >= max(ffA.x, ffA.z)) || (ffOpen[3] > 0.5 && -ffP.y >= max(ffA.x, ffA.z));
+  ffKeep = ffKeep || (ffOpen[4] > 0.5 && ffP.z >= max(ffA.x, ffA.y)) || (ffOpen[5] > 0.5 && -ffP.z >= max(ffA.x, ffA.y));
+  if (!ffKeep) discard;`);
+  };
+  m.customProgramCacheKey = () => "farfield-near-field";
+  return m;
+}
+
+function faceRanges(geometry, ranges) {
+  // A geometry drawing only the faces [start, end) of ``ranges`` (its attributes shared).
+  const count = ranges.reduce((n, [a, b]) => n + 3 * (b - a), 0);
+  const source = geometry.index ? geometry.index.array : null;
+  const out = source instanceof Uint16Array ? new Uint16Array(count) : new Uint32Array(count);
+  let o = 0;
+  for (const [a, b] of ranges) {
+    if (source) out.set(source.subarray(3 * a, 3 * b), o);
+    else for (let i = 3 * a; i < 3 * b; i++) out[o + i - 3 * a] = i;
+    o += 3 * (b - a);
+  }
+  const part = new THREE.BufferGeometry();
+  for (const [name, attribute] of Object.entries(geometry.attributes)) part.setAttribute(name, attribute);
+  part.setIndex(new THREE.BufferAttribute(out, 1));
+  return part;
+}
+
+function objectMesh(mesh, geometry = mesh.geometry, material = mesh.material) {
+  const copy = new THREE.Mesh(geometry, material);
+  copy.matrixAutoUpdate = false;
+  copy.matrix.copy(mesh.matrixWorld);
+  copy.matrixWorld.copy(mesh.matrixWorld);
+  return copy;
+}
+
+// ---------------------------------------------------------------- the database
+
+async function loadJob(jobId) {
+  view.job = await api(`/v1/jobs/${encodeURIComponent(jobId)}`);
+  $("viewer-title").textContent = `job ${view.job.id} · ${view.job.technique || view.job.params?.technique || ""}`;
+  const [index, sceneGlb] = await Promise.all([
+    api(`/v1/jobs/${encodeURIComponent(jobId)}/index.json`),
+    api(`/v1/scenes/${encodeURIComponent(view.job.scene_id)}/scene.glb`, {binary: true}),
+  ]);
+  view.index = index;
+  view.kind = index.kind === "placement" ? "placement" : index.kind === "primitive-placement" ? "primitive-placement" : "grid";
+  for (const cell of index.cells || []) view.cells.set(cell.index, cell);
+  if (view.kind === "placement") view.clusters = (await api(`/v1/jobs/${encodeURIComponent(jobId)}/clusters`)).clusters;
+  view.sceneRoot = await parseGlb(sceneGlb);
+  view.sceneRoot.updateMatrixWorld(true);
+  view.sceneRoot.traverse((node) => {
+    if (!node.isMesh) return;
+    node.material = Array.isArray(node.material) ? node.material.map(unlit) : unlit(node.material);
+    const name = node.userData.farfield_object ?? node.name;
+    if (!view.objects.has(name)) view.objects.set(name, []);
+    view.objects.get(name).push(node);
+  });
+  view.bounds.setFromObject(view.sceneRoot);
+  sourceScene.add(view.sceneRoot);
+}
+
+function cellAt(p) {
+  // The cell whose box holds p (boxes are closed: the lowest index where they share a face).
+  let best = null;
+  for (const cell of view.cells.values()) {
+    const vc = cell.viewcell;
+    if (!vc || vc.kind !== "box" || !cell.bundle) continue;
+    if (p.x >= vc.lo[0] && p.x <= vc.hi[0] && p.y >= vc.lo[1] && p.y <= vc.hi[1] && p.z >= vc.lo[2] && p.z <= vc.hi[2]) {
+      if (best === null || cell.index < best.index) best = cell;
+    }
+  }
+  return best;
+}
+
+function loadCell(n, prefetch = false) {
+  // The impostor GLB of cell n (and an envmap cell's manifest: its near field), once.
+  if (!view.loads.has(n)) {
+    const base = `/v1/jobs/${encodeURIComponent(view.job.id)}/cells/${n}`;
+    const technique = cellTechnique(n);
+    view.loads.set(n, (async () => {
+      const [glb, manifest] = await Promise.all([
+        api(`${base}/impostor.glb`, {binary: true}),
+        technique === "envmap" ? api(`${base}/manifest.json`) : Promise.resolve(null),
+      ]);
+      const root = await parseGlb(glb);
+      (prefetch ? view.prefetched : view.fetched).add(n);
+      return {root, near: manifest ? nearField(manifest.parameters.near_field) : null};
+    })());
+    view.loads.get(n).catch(() => view.loads.delete(n)); // a failed load is tried again next time
+  }
+  view.loadedOrder = view.loadedOrder.filter((i) => i !== n).concat([n]);
+  return view.loads.get(n);
+}
+
+function cellTechnique(n) {
+  const cell = view.cells.get(n);
+  return cell?.technique || view.index.technique || view.job.technique;
+}
+
+function nearField(near) {
+  const meshes = [];
+  for (const {name, faces} of near.objects) {
+    for (const mesh of view.objects.get(name) || []) {
+      const materials = Array.isArray(mesh.material) ? mesh.material.map((m) => nearFieldMaterial(m, near)) : nearFieldMaterial(mesh.material, near);
+      meshes.push(objectMesh(mesh, faceRanges(mesh.geometry, faces), materials));
+    }
+  }
+  return meshes;
+}
+
+function keptObjects(replaced) {
+  // Every element of the scene not in ``replaced`` (a Set of names), as meshes sharing the scene's
+  // buffers: a whole object, or an object less the clusters of it that are replaced.
+  const hidden = new Map(); // object name -> face ranges of its replaced clusters
+  for (const name of replaced) {
+    const cluster = view.clusters[name];
+    if (!cluster) continue;
+    if (!hidden.has(cluster.object)) hidden.set(cluster.object, []);
+    hidden.get(cluster.object).push(...cluster.faces);
+  }
+  const meshes = [];
+  for (const [name, list] of view.objects) {
+    if (replaced.has(name)) continue;
+    for (const mesh of list) {
+      const cut = hidden.get(name);
+      if (!cut) { meshes.push(objectMesh(mesh)); continue; }
+      const faces = (mesh.geometry.index ? mesh.geometry.index.count : mesh.geometry.attributes.position.count) / 3;
+      const kept = complement(cut, faces);
+      if (kept.length) meshes.push(objectMesh(mesh, faceRanges(mesh.geometry, kept)));
+    }
+  }
+  return meshes;
+}
+
+function complement(ranges, count) {
+  // The ranges [start, end) of 0..count not covered by ``ranges``.
+  const out = [];
+  let at = 0;
+  for (const [a, b] of [...ranges].sort((p, q) => p[0] - q[0])) {
+    if (a > at) out.push([at, a]);
+    at = Math.max(at, b);
+  }
+  if (at < count) out.push([at, count]);
+  return out;
+}
+
+function evict(keep) {
+  // Impostors beyond CACHED_CELLS, least recently used first, except those in ``keep``.
+  while (view.loadedOrder.length > CACHED_CELLS) {
+    const victim = view.loadedOrder.find((n) => !keep.has(n));
+    if (victim === undefined) return;
+    view.loadedOrder = view.loadedOrder.filter((n) => n !== victim);
+    const load = view.loads.get(victim);
+    view.loads.delete(victim);
+    for (const [key, group] of view.groups) if (group.userData.cells.includes(victim)) view.groups.delete(key);
+    load.then(({root}) => root.traverse((node) => {
+      if (!node.isMesh) return;
+      node.geometry.dispose();
+      for (const m of [].concat(node.material)) { m.map?.dispose(); m.dispose(); }
+    })).catch(() => {});
+  }
+}
+
+async function groupFor(key, cells, replaced) {
+  // What to draw for one cell (grid) or one lookup answer (placement): impostors + kept geometry.
+  if (view.groups.has(key)) return view.groups.get(key);
+  const loaded = await Promise.all(cells.map((n) => loadCell(n)));
+  const group = new THREE.Group();
+  group.userData.cells = cells;
+  for (const {root, near} of loaded) {
+    const impostor = root.clone(); // shares the impostor's geometry and textures
+    impostor.userData.impostor = true;
+    impostor.visible = view.showImpostors;
+    group.add(impostor);
+    if (near) for (const mesh of near) group.add(mesh);
+  }
+  if (replaced) for (const mesh of keptObjects(replaced)) group.add(mesh);
+  view.groups.set(key, group);
+  return group;
+}
+
+// ---------------------------------------------------------------- what the camera needs
+
+function gridWanted() {
+  const cell = cellAt(camera.position);
+  if (cell === null) return {key: "outside", cells: [], replaced: new Set(), info: "outside every view cell: drawing the source scene", outside: true};
+  const technique = cellTechnique(cell.index);
+  let replaced = null; // envmap: the near field comes with the cell
+  if (technique !== "envmap") {
+    const named = view.job.params?.objects;
+    replaced = new Set(named || view.objects.keys());
+  }
+  return {key: `cell ${cell.index}`, cells: [cell.index], replaced, info: `cell ${cell.index} (${technique})`, cell: cell.index, neighbours: cell.neighbours || []};
+}
+
+function placementWanted() {
+  const answer = view.lookup.answer;
+  if (answer === null) return null;
+  const cells = answer.impostors || [];
+  const info = answer.cpv === null ? "under budget: drawing the geometry" : `CPV ${answer.cpv} (${answer.status}), ${cells.length} impostors`;
+  return {key: `cpv ${answer.cpv} ${cells.join(",")}`, cells, replaced: new Set(answer.replaced || []), info, cpv: answer.cpv};
+}
+
+function poseKey() {
+  const d = new THREE.Vector3();
+  camera.getWorldDirection(d);
+  return [...camera.position.toArray(), ...d.toArray()].map((v) => v.toPrecision(6)).join(",");
+}
+
+async function lookupPlacement(force = false) {
+  const pose = poseKey();
+  const now = performance.now();
+  if (!force && (view.lookup.busy || pose === view.lookup.pose || now - view.lookup.at < LOOKUP_MS)) return;
+  view.lookup.busy = true;
+  view.lookup.at = now;
+  const d = new THREE.Vector3();
+  camera.getWorldDirection(d);
+  const p = camera.position;
+  try {
+    const answer = await api(`/v1/jobs/${encodeURIComponent(view.job.id)}/lookup?x=${p.x}&y=${p.y}&z=${p.z}&dx=${d.x}&dy=${d.y}&dz=${d.z}`);
+    view.lookup.answer = answer;
+    view.lookup.pose = pose;
+  } finally {
+    view.lookup.busy = false;
+  }
+}
+
+async function update() {
+  // Switch to what the camera needs; resolves when it is drawn.  The tests await it.
+  if (view.kind === "primitive-placement") {
+    view.activeInfo = "a primitive-budget job's LDIs are drawn by a warper (farfield walkthrough): this view shows its source scene";
+    return;
+  }
+  if (view.kind === "placement") await lookupPlacement();
+  const wanted = view.kind === "placement" ? placementWanted() : gridWanted();
+  if (wanted === null) return;
+  view.wantedKey = wanted.key;
+  if (wanted.key === view.activeKey) return;
+  if (wanted.outside) {
+    view.activeKey = wanted.key;
+    view.activeInfo = wanted.info;
+    runtimeScene.clear();
+    return;
+  }
+  const group = await groupFor(wanted.key, wanted.cells, wanted.replaced);
+  if (view.wantedKey !== wanted.key) return; // the camera moved on meanwhile
+  runtimeScene.clear();
+  runtimeScene.add(group);
+  view.activeKey = wanted.key;
+  view.activeInfo = wanted.info;
+  const keep = new Set(wanted.cells.concat(wanted.neighbours || []));
+  for (const n of wanted.neighbours || []) if (view.cells.get(n)?.bundle) loadCell(n, true).catch(() => {});
+  evict(keep);
+}
+
+// ---------------------------------------------------------------- camera and controls
+
+function setDepthRange() {
+  // near: a hundredth of the current cell's smallest side (as core/envmap_runtime.depth_range_for);
+  // far: past the farthest corner of the scene.
+  if (view.fixedDepth) return;
+  const corners = [];
+  for (const x of [view.bounds.min.x, view.bounds.max.x]) for (const y of [view.bounds.min.y, view.bounds.max.y]) for (const z of [view.bounds.min.z, view.bounds.max.z]) corners.push(new THREE.Vector3(x, y, z));
+  const far = Math.max(...corners.map((c) => c.distanceTo(camera.position)), 1e-6) * 1.5;
+  const cell = view.kind === "grid" ? cellAt(camera.position) : null;
+  const size = cell ? Math.min(...cell.viewcell.hi.map((h, i) => h - cell.viewcell.lo[i])) : 0;
+  camera.near = size > 0 ? 0.01 * size : far * 1e-5;
+  camera.far = Math.max(far, 2 * camera.near);
+}
+
+function lookAlong(direction) {
+  const d = new THREE.Vector3(...direction).normalize();
+  controls.yaw = Math.atan2(d.x, -d.z);
+  controls.pitch = Math.asin(Math.max(-1, Math.min(1, d.y)));
+  applyControls();
+}
+
+function startPose() {
+  const scale = view.bounds.isEmpty() ? 1 : view.bounds.getSize(new THREE.Vector3()).length();
+  controls.speed = Math.max(scale / 20, 1e-6);
+  const given = ["x", "y", "z"].map(number);
+  const cellIndex = number("cell");
+  const first = [...view.cells.values()].find((c) => c.viewcell?.kind === "box" && c.bundle);
+  const cell = cellIndex !== null ? view.cells.get(cellIndex) : first;
+  if (given.every((v) => v !== null)) camera.position.set(...given);
+  else if (cell?.viewcell?.kind === "box") camera.position.set(...cell.viewcell.lo.map((l, i) => 0.5 * (l + cell.viewcell.hi[i])));
+  else if (view.index.placement?.parameters?.view_space || view.index.view_space) {
+    const [lo, hi] = view.index.placement?.parameters?.view_space || view.index.view_space; // [lo, hi]
+    camera.position.set(...lo.map((l, i) => 0.5 * (l + hi[i])));
+  } else view.bounds.getCenter(camera.position);
+  const dir = ["dx", "dy", "dz"].map(number);
+  if (dir.every((v) => v !== null) && Math.hypot(...dir) > 0) lookAlong(dir);
+  else {
+    const towards = view.bounds.getCenter(new THREE.Vector3()).sub(camera.position);
+    towards.y = 0;
+    lookAlong(towards.lengthSq() > 0 ? towards.toArray() : [0, 0, -1]);
+  }
+  camera.fov = number("fov") ?? view.job.params?.fov_deg ?? 60;
+}
+
+const controls = {yaw: 0, pitch: 0, speed: 1, keys: new Set(), dragging: null};
+
+function applyControls() {
+  camera.quaternion.setFromEuler(new THREE.Euler(controls.pitch, -controls.yaw, 0, "YXZ"));
+  camera.updateMatrixWorld(true);
+}
+
+canvas.addEventListener("pointerdown", (e) => { controls.dragging = {x: e.clientX, y: e.clientY}; canvas.setPointerCapture(e.pointerId); canvas.focus(); });
+canvas.addEventListener("pointerup", () => { controls.dragging = null; });
+canvas.addEventListener("pointermove", (e) => {
+  if (!controls.dragging) return;
+  controls.yaw += 0.005 * (e.clientX - controls.dragging.x);
+  controls.pitch = Math.max(-1.55, Math.min(1.55, controls.pitch - 0.005 * (e.clientY - controls.dragging.y)));
+  controls.dragging = {x: e.clientX, y: e.clientY};
+  applyControls();
+});
+canvas.addEventListener("wheel", (e) => { e.preventDefault(); controls.speed *= e.deltaY < 0 ? 1.25 : 0.8; }, {passive: false});
+window.addEventListener("keydown", (e) => controls.keys.add(e.key.toLowerCase()));
+window.addEventListener("keyup", (e) => controls.keys.delete(e.key.toLowerCase()));
+window.addEventListener("blur", () => controls.keys.clear());
+
+function move(seconds) {
+  const k = controls.keys;
+  const step = controls.speed * seconds * (k.has("shift") ? 5 : 1);
+  const forward = new THREE.Vector3(), right = new THREE.Vector3();
+  camera.getWorldDirection(forward);
+  right.crossVectors(forward, camera.up).normalize();
+  const delta = new THREE.Vector3();
+  if (k.has("w") || k.has("arrowup")) delta.add(forward);
+  if (k.has("s") || k.has("arrowdown")) delta.sub(forward);
+  if (k.has("d") || k.has("arrowright")) delta.add(right);
+  if (k.has("a") || k.has("arrowleft")) delta.sub(right);
+  if (k.has("e")) delta.y += 1;
+  if (k.has("q")) delta.y -= 1;
+  if (delta.lengthSq() === 0) return false;
+  camera.position.addScaledVector(delta.normalize(), step);
+  camera.updateMatrixWorld(true);
+  return true;
+}
+
+// ---------------------------------------------------------------- frames
+
+function size() {
+  const fixed = number("size");
+  if (fixed) return [fixed, fixed];
+  const stage = $("viewer-stage");
+  return [Math.max(1, stage.clientWidth), Math.max(1, stage.clientHeight)];
+}
+
+function draw() {
+  const [w, h] = size();
+  renderer.setSize(w, h, false);
+  if (!query.has("size")) { canvas.style.width = `${w}px`; canvas.style.height = `${h}px`; }
+  setDepthRange();
+  const runtime = view.activeKey === "outside" || view.kind === "primitive-placement" ? sourceScene : runtimeScene;
+  renderer.setScissorTest(view.mode === "split");
+  if (view.mode === "split") {
+    const half = Math.floor(w / 2);
+    for (const [x, width, scene] of [[0, half, runtime], [half, w - half, sourceScene]]) {
+      renderer.setViewport(x, 0, width, h);
+      renderer.setScissor(x, 0, width, h);
+      camera.aspect = width / h;
+      camera.updateProjectionMatrix();
+      renderer.render(scene, camera);
+    }
+  } else {
+    renderer.setViewport(0, 0, w, h);
+    camera.aspect = w / h;
+    camera.updateProjectionMatrix();
+    renderer.render(view.mode === "scene" ? sourceScene : runtime, camera);
+  }
+  $("viewer-labels").hidden = view.mode !== "split";
+}
+
+let last = performance.now(), frames = 0, fps = 0, fpsAt = last;
+function status() {
+  const info = renderer.info.render;
+  const loading = view.wantedKey !== view.activeKey ? ` · loading ${view.wantedKey}…` : "";
+  $("viewer-status").textContent = `${view.activeInfo || "…"}${loading} · ${view.fetched.size} bundles loaded, ${view.prefetched.size} prefetched · ${info.triangles.toLocaleString()} triangles · ${fps} fps`;
+}
+
+function frame(now) {
+  const seconds = Math.min(0.1, (now - last) / 1000);
+  last = now;
+  move(seconds);
+  update().catch(fail);
+  draw();
+  frames += 1;
+  if (now - fpsAt > 1000) { fps = Math.round((1000 * frames) / (now - fpsAt)); frames = 0; fpsAt = now; }
+  status();
+  if (!view.error && !window.farfieldViewer.paused) requestAnimationFrame(frame);
+}
+
+function fail(error) {
+  view.error = String(error.message || error);
+  $("viewer-error").textContent = view.error;
+  $("viewer-error").hidden = false;
+  $("viewer-status").textContent = "failed";
+}
+
+function showImpostors(shown) {
+  view.showImpostors = shown;
+  for (const group of view.groups.values()) for (const child of group.children) if (child.userData.impostor) child.visible = shown;
+  $("viewer-impostors").checked = shown;
+}
+$("viewer-impostors").addEventListener("change", (e) => showImpostors(e.target.checked));
+
+function setMode(mode) {
+  view.mode = mode;
+  for (const b of document.querySelectorAll("[data-mode]")) b.classList.toggle("active", b.dataset.mode === mode);
+}
+for (const b of document.querySelectorAll("[data-mode]")) b.addEventListener("click", () => setMode(b.dataset.mode));
+
+function listedTriangles(scene) {
+  // Triangles of the visible meshes of ``scene``, before three.js's frustum culling.
+  let count = 0;
+  scene.traverseVisible((node) => {
+    if (node.isMesh) count += (node.geometry.index ? node.geometry.index.count : node.geometry.attributes.position.count) / 3;
+  });
+  return count;
+}
+
+function base64(bytes) {
+  let text = "";
+  for (let i = 0; i < bytes.length; i += 0x8000) text += String.fromCharCode.apply(null, bytes.subarray(i, i + 0x8000));
+  return btoa(text);
+}
+
+// The tests' hook: place a camera exactly (farfield's Camera: eye, right, up, forward, the
+// full-angle square fov in radians, near, far), wait until its cell is drawn, read the pixels.
+window.farfieldViewer = {
+  paused: query.get("paused") === "1",
+  ready: null,
+  async show(c, mode = "impostors", impostors = true) {
+    const basis = new THREE.Matrix4().makeBasis(new THREE.Vector3(...c.right), new THREE.Vector3(...c.up), new THREE.Vector3(...c.forward).negate());
+    camera.position.set(...c.eye);
+    camera.quaternion.setFromRotationMatrix(basis);
+    camera.fov = (c.fov * 180) / Math.PI;
+    camera.near = c.near;
+    camera.far = c.far;
+    camera.updateMatrixWorld(true);
+    view.fixedDepth = true;
+    setMode(mode);
+    if (view.kind === "placement") await lookupPlacement(true);
+    await update();
+    showImpostors(impostors);
+    draw();
+    const triangles = listedTriangles(mode === "scene" ? sourceScene : runtimeScene);
+    const gl = renderer.getContext();
+    const [w, h] = size();
+    const pixels = new Uint8Array(w * h * 4);
+    gl.readPixels(0, 0, w, h, gl.RGBA, gl.UNSIGNED_BYTE, pixels);
+    return {pixels: base64(pixels), width: w, height: h, triangles, ...this.state()};
+  },
+  state() {
+    return {key: view.activeKey, info: view.activeInfo, kind: view.kind, fetched: [...view.fetched].sort((a, b) => a - b),
+            prefetched: [...view.prefetched].sort((a, b) => a - b), objects: view.objects.size, error: view.error};
+  },
+  async settled() {
+    // every download started so far has ended
+    await Promise.allSettled([...view.loads.values()]);
+    return this.state();
+  },
+};
+
+async function main() {
+  const jobId = query.get("job");
+  if (!jobId) throw new Error("no job: open the 3D view from a job's page (viewer.html?job=ID)");
+  $("viewer-back").href = `/dashboard/#/jobs/${encodeURIComponent(jobId)}`;
+  await loadJob(jobId);
+  startPose();
+  setMode(view.mode);
+  showImpostors(view.showImpostors);
+  await update();
+  requestAnimationFrame(frame);
+}
+
+window.farfieldViewer.ready = main().then(() => true, (error) => { fail(error); return false; });

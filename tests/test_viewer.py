@@ -1,0 +1,280 @@
+"""The dashboard's 3D view (``api/dashboard/viewer.html``): the three.js client of an impostor
+database, in headless chromium against a real service (``farfield up``: embedded redis-server, a
+real celery worker, SQLite, EGL bakes).
+
+For a fixed camera, the view's frame (three.js in chromium: ANGLE on SwiftShader) is compared with
+the Python reference runtime's (:class:`core.envmap_runtime.EnvmapCellRenderer` on EGL) from the
+same camera: the drawn pixels agree within one pixel (what one rasteriser draws, the other draws
+within a pixel of it), so the view draws the right impostor, the right near field clipped to the
+right cube, and nothing else.  Moving the camera switches to the cell that holds it and prefetches
+that cell's neighbours.  Also: the routes the view reads (``index.json``, ``scene.glb``, three.js).
+
+Set FARFIELD_VIEWER_SCREENSHOT=/path/prefix to keep the frames compared (PNG) for diagnosis;
+a failing comparison writes them under pytest's tmp_path and names them in the message.
+"""
+
+from __future__ import annotations
+
+import base64
+import os
+
+import numpy as np
+import PIL.Image
+import pytest
+from browser import CHROMIUM, SKIP_REASON, dashboard_page, new_page, tid
+from scenes import city, write_scene
+from service_harness import ADMIN_KEY, start_service, upload, wait_for_job
+from test_threejs import compare
+from threejs import THREE_SKIP_REASON, three_available
+
+from farfield.core.envmap_runtime import EnvmapCellRenderer, camera_at, depth_range_for
+from farfield.core.exchange import load_scene, load_scene_bytes
+from farfield.core.impostor_database import ImpostorDatabase
+from farfield.core.placement.runtime import PlacementRenderer
+from farfield.core.procedural import city as procedural_city
+from farfield.core.render.raster import MeshRenderer
+
+if not CHROMIUM.exists():
+    pytest.skip(SKIP_REASON, allow_module_level=True)
+if not three_available():
+    pytest.skip(THREE_SKIP_REASON, allow_module_level=True)
+pytest.importorskip("playwright.sync_api", reason="needs the playwright package (the test extra)")
+
+# The envmap job of tests/test_service_envmap.py: 3 x 3 x 1 cubic cells of side 10 in front of a
+# 16-building city, four horizontal faces recorded (so +y and -y are open: the ground below the
+# cell is near-field geometry beyond the cube, in the -y pyramid).
+GRID = {"lo": [15.0, 5.0, -45.0], "hi": [45.0, 35.0, -35.0], "counts": [3, 3, 1]}
+SPEC = {"job_type": "envmap", "grid": GRID, "resolution": 64, "fov_deg": 90.0, "options": {"layers": 4, "directions": ["+x", "-x", "+z", "-z"]}}
+CENTRE = 4  # cell (1, 1, 0)
+PLACEMENT = {"view_space": {"lo": [10.0, 2.0, 10.0], "hi": [70.0, 6.0, 70.0]}, "budget": {"primitives": 800}, "cpv_size": 20}
+SIZE = 128  # the compared frames, square
+
+
+@pytest.fixture(scope="module")
+def service(tmp_path_factory):
+    running = start_service(tmp_path_factory.mktemp("farfield-home"))
+    yield running
+    assert running.stop() == 0
+
+
+@pytest.fixture(scope="module")
+def client(service):
+    with service.client() as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def city_glb(tmp_path_factory):
+    return write_scene(city(buildings=16), tmp_path_factory.mktemp("city"), "glb", stem="city16")
+
+
+@pytest.fixture(scope="module")
+def envmap_job(client, city_glb, tmp_path_factory):
+    """(job record, its database read back, the scene as loaded here)."""
+    scene_id = upload(client, city_glb).json()["id"]
+    created = client.post("/v1/jobs", json={"scene_id": scene_id, **SPEC})
+    assert created.status_code == 201, created.text
+    job = wait_for_job(client, created.json()["id"], timeout=180)
+    assert job["state"] == "done", job["errors"]
+    path = tmp_path_factory.mktemp("db") / "database.zip"
+    path.write_bytes(client.get(f"/v1/jobs/{job['id']}/database.zip").content)
+    with ImpostorDatabase(path) as db:
+        yield job, db, load_scene(city_glb)
+
+
+def open_viewer(browser, service, query: str):
+    page = new_page(browser, service.url)
+    page.evaluate(f"localStorage.setItem('farfield.apiKey', '{ADMIN_KEY}')")
+    page.goto(f"{service.url}/dashboard/viewer.html?{query}")
+    assert page.evaluate("window.farfieldViewer.ready") is True, page.locator(tid("viewer-error")).text_content()
+    return page
+
+
+@pytest.fixture(scope="module")
+def viewer(browser, service, envmap_job):
+    job = envmap_job[0]
+    page = open_viewer(browser, service, f"job={job['id']}&size={SIZE}&paused=1")
+    yield page
+    assert page.js_errors == []
+    page.context.close()
+
+
+def show(page, camera, mode: str = "impostors", impostors: bool = True) -> tuple[np.ndarray, dict]:
+    """The view's frame from ``camera`` (h, w, 4) top row first, and its state (with the triangles
+    drawn); ``impostors`` False draws only what stays geometry."""
+    spec = {"eye": camera.eye.tolist(), "right": camera.right.tolist(), "up": camera.up.tolist(), "forward": camera.forward.tolist(),
+            "fov": camera.fov, "near": camera.near, "far": camera.far}  # fmt: skip
+    answer = page.evaluate("([c, mode, impostors]) => window.farfieldViewer.show(c, mode, impostors)", [spec, mode, impostors])
+    assert answer["error"] is None, answer["error"]
+    pixels = np.frombuffer(base64.b64decode(answer["pixels"]), np.uint8).reshape(answer["height"], answer["width"], 4)
+    return pixels[::-1].copy(), answer
+
+
+def keep(images: dict, tmp_path) -> str:
+    prefix = os.environ.get("FARFIELD_VIEWER_SCREENSHOT") or str(tmp_path / "viewer")
+    for name, image in images.items():
+        PIL.Image.fromarray(image, "RGBA").save(f"{prefix}-{name}.png")
+    return prefix
+
+
+def test_the_view_draws_what_the_reference_runtime_draws(viewer, envmap_job, tmp_path):
+    job, db, scene = envmap_job
+    impostor = db.impostor(CENTRE)
+    runtime = EnvmapCellRenderer(scene, impostor)
+    full = MeshRenderer(scene.objects)
+    cell = db.cell(CENTRE).viewcell
+    try:
+        # off-centre in the centre cell, towards the city and down a little (the ground below is
+        # near field beyond the open -y face), and along a diagonal between two recorded faces
+        for eye, forward in (((31.0, 22.0, -42.0), (0.2, -0.35, 1.0)), ((27.0, 18.0, -38.0), (-1.0, -0.1, 1.0))):
+            near, far = depth_range_for(scene, cell, eye, runtime.reach)
+            camera = camera_at(eye, forward, 60.0, SIZE, near, far)
+            reference = runtime.renderer.render(camera)
+            drawn, state = show(viewer, camera)
+            assert state["key"] == f"cell {CENTRE}" and state["kind"] == "grid"
+            figures = compare(drawn, reference)
+            # the same triangles: the near field's face ranges and the impostor's quads
+            assert state["triangles"] == runtime.near_triangles + runtime.quad_triangles, (state["triangles"], runtime.near_triangles, runtime.quad_triangles)
+            # what stays geometry alone: the near field, clipped to its cube (and the open faces' pyramids)
+            near_objects = runtime.near.objects(scene)
+            with MeshRenderer(near_objects, [runtime.near.clip] * len(near_objects)) as near_field:
+                near_reference = near_field.render(camera)
+            assert (near_reference[..., 3] > 0).sum() > 100, "the camera should see near-field geometry"
+            near_drawn, _ = show(viewer, camera, impostors=False)
+            near_figures = compare(near_drawn, near_reference)
+            assert near_figures["three_beyond_1px"] == 0 and near_figures["farfield_beyond_1px"] == 0, near_figures
+            assert figures["three_pixels"] > 0.15 * SIZE * SIZE, figures
+            if os.environ.get("FARFIELD_VIEWER_SCREENSHOT"):
+                keep({f"view-{forward[0]}": drawn, f"reference-{forward[0]}": reference}, tmp_path)
+            ok = figures["three_beyond_1px"] == 0 and figures["farfield_beyond_1px"] == 0 and figures["colour_mean"] < 6.0
+            assert ok, f"{figures} (frames: {keep({'view': drawn, 'reference': reference}, tmp_path)}-*.png)"
+
+            # The source scene: every triangle, as farfield draws it.
+            source, _ = show(viewer, camera, "scene")
+            figures = compare(source, full.render(camera))
+            assert figures["three_beyond_1px"] == 0 and figures["farfield_beyond_1px"] == 0 and figures["colour_mean"] < 6.0, figures
+    finally:
+        runtime.release()
+        full.release()
+
+
+def test_moving_switches_to_the_cell_holding_the_camera_and_prefetches_its_neighbours(viewer, envmap_job):
+    job, db, scene = envmap_job
+    for eye in ((16.0, 6.0, -44.0), (44.0, 34.0, -36.0), (25.0, 10.0, -40.0), (35.0, 20.0, -40.0)):  # cells 0, 8, and shared faces
+        camera = camera_at(eye, (0.0, 0.0, 1.0), 60.0, SIZE, 0.1, 500.0)
+        _, state = show(viewer, camera)
+        expected = db.find(eye).index
+        assert state["key"] == f"cell {expected}", (eye, state)
+        assert expected in state["fetched"] + state["prefetched"]
+        state = viewer.evaluate("window.farfieldViewer.settled()")
+        assert set(db.cell(expected).neighbours) <= set(state["fetched"]) | set(state["prefetched"]), state
+    # cell 0 and 8 are opposite corners: 8's neighbours were prefetched before the camera got there
+    assert 8 in state["fetched"] + state["prefetched"]
+    _, state = show(viewer, camera_at((0.0, 20.0, -40.0), (0.0, 0.0, 1.0), 60.0, SIZE, 0.1, 500.0))
+    assert state["key"] == "outside" and "outside every view cell" in state["info"]
+
+
+@pytest.fixture(scope="module")
+def placement_job(client, tmp_path_factory):
+    """The quick placement job of tests/test_service_placement.py (a 25-building city at detail 8,
+    whose buildings the planner splits into clusters; layered impostors at 64 px): (job, database, scene)."""
+    path = write_scene(procedural_city(25, seed=1, detail=8), tmp_path_factory.mktemp("placement-city"), "glb", "city")
+    scene_id = upload(client, path).json()["id"]
+    created = client.post("/v1/jobs", json={"scene_id": scene_id, "technique": "layered", "resolution": 64, "placement": PLACEMENT})
+    assert created.status_code == 201, created.text
+    job = wait_for_job(client, created.json()["id"], timeout=300)
+    assert job["state"] == "done", (job["error"], job["errors"])
+    database = tmp_path_factory.mktemp("placement-db") / "database.zip"
+    database.write_bytes(client.get(f"/v1/jobs/{job['id']}/database.zip").content)
+    with ImpostorDatabase(database) as db:
+        yield job, db, load_scene(path)
+
+
+def test_a_placement_job_is_drawn_as_its_reference_runtime_draws_it(browser, service, client, placement_job, tmp_path):
+    """For views whose CPV draws impostors: the lookup's impostors, and every element they do not
+    replace (whole objects, or objects less the replaced clusters: GET .../clusters)."""
+    job, db, scene = placement_job
+    clusters = client.get(f"/v1/jobs/{job['id']}/clusters").json()
+    assert clusters["clusters"] and all(name.rsplit("#", 1)[0] == c["object"] for name, c in clusters["clusters"].items())
+    page = open_viewer(browser, service, f"job={job['id']}&size={SIZE}&paused=1")
+    rng = np.random.default_rng(4)
+    lo, hi = (np.array(PLACEMENT["view_space"][k]) for k in ("lo", "hi"))
+    compared = cut = 0
+    with PlacementRenderer(scene, db) as runtime:
+        for _ in range(200):
+            eye, forward = rng.uniform(lo, hi), rng.normal(size=3) * [1.0, 0.2, 1.0]
+            camera, draws, figures = runtime.prepare(eye, forward, fov_deg=60.0, resolution=SIZE, cull=False)
+            if figures.impostors_in_cpv == 0:
+                continue
+            reference = runtime.render(camera, draws)
+            drawn, state = show(page, camera)
+            assert state["kind"] == "placement" and state["key"].startswith(f"cpv {figures.cpv} "), (state, figures)
+            assert state["triangles"] == figures.triangles, (state["triangles"], figures)
+            geometry, _ = show(page, camera, impostors=False)  # the elements no impostor replaces, alone
+            kept = compare(geometry, runtime.render(camera, draws[: figures.elements]))
+            assert kept["three_beyond_1px"] == 0 and kept["farfield_beyond_1px"] == 0, kept
+            result = compare(drawn, reference)
+            ok = result["three_beyond_1px"] == 0 and result["farfield_beyond_1px"] == 0 and result["colour_mean"] < 6.0
+            assert ok, f"{result} (frames: {keep({'view': drawn, 'reference': reference}, tmp_path)}-*.png)"
+            compared += 1
+            cut += any(name in clusters["clusters"] for name in runtime.lookup.find(eye, forward)["replaced"])
+            if compared == 3:
+                break
+    assert compared == 3, "no view of the placement draws an impostor"
+    assert cut > 0, "no compared view replaces a cluster of a split object"
+    assert page.js_errors == []
+    page.context.close()
+
+
+def test_the_job_page_links_to_the_view_and_the_view_flies(browser, service, envmap_job):
+    job = envmap_job[0]
+    with dashboard_page(browser, service.url, ADMIN_KEY) as page:
+        page.goto(f"{service.url}/#/jobs/{job['id']}")
+        link = page.locator(tid("job-viewer"))
+        link.wait_for()
+        assert link.get_attribute("href") == f"/dashboard/viewer.html?job={job['id']}"
+        page.goto(f"{service.url}{link.get_attribute('href')}&cell={CENTRE}")
+        assert page.evaluate("window.farfieldViewer.ready") is True, page.locator(tid("viewer-error")).text_content()
+        page.locator(tid("viewer-status")).filter(has_text=f"cell {CENTRE} (envmap)").wait_for()
+        canvas = page.locator(tid("viewer-canvas"))
+        canvas.click()
+        page.keyboard.down("d")  # strafe right (looking +z: towards -x) out of the centre cell into cell (0, 1, 0)
+        page.locator(tid("viewer-status")).filter(has_text=f"cell {CENTRE - 1} (envmap)").wait_for(timeout=60_000)
+        page.keyboard.up("d")
+        page.click(tid("mode-split"))
+        assert "active" in page.locator(tid("mode-split")).get_attribute("class")
+        assert page.js_errors == []
+
+
+def test_the_view_reports_what_it_cannot_show(browser, service):
+    page = new_page(browser, service.url)
+    try:
+        page.evaluate(f"localStorage.setItem('farfield.apiKey', '{ADMIN_KEY}')")
+        page.goto(f"{service.url}/dashboard/viewer.html?job=nosuchjob")
+        assert page.evaluate("window.farfieldViewer.ready") is False
+        assert "nosuchjob" in page.locator(tid("viewer-error")).text_content()
+    finally:
+        page.context.close()
+
+
+def test_the_routes_the_view_reads(client, service, envmap_job, city_glb):
+    job, db, scene = envmap_job
+    index = client.get(f"/v1/jobs/{job['id']}/index.json")
+    assert index.status_code == 200 and index.json() == db.index
+    assert client.get("/v1/jobs/nosuchjob/index.json").status_code == 404
+
+    glb = client.get(f"/v1/scenes/{job['scene_id']}/scene.glb")
+    assert glb.status_code == 200 and glb.headers["content-type"] == "model/gltf-binary"
+    again = load_scene_bytes(glb.content, ".glb", "scene.glb")
+    assert again.names == scene.names and [o.faces.shape[0] for o in again.objects] == [o.faces.shape[0] for o in scene.objects]
+    assert client.get(f"/v1/scenes/{job['scene_id']}/scene.glb").content == glb.content  # written once, then read back
+    assert client.get("/v1/scenes/nosuchscene/scene.glb").status_code == 404
+
+    with service.client(key=None) as anonymous:
+        assert anonymous.get(f"/v1/scenes/{job['scene_id']}/scene.glb").status_code == 401
+        served = anonymous.get("/dashboard/three/build/three.module.js")
+        assert served.status_code == 200 and "javascript" in served.headers["content-type"]
+        assert anonymous.get("/dashboard/three/examples/jsm/loaders/GLTFLoader.js").status_code == 200
+        for outside in ("package.json", "build/../package.json", "src/Three.js", "%2e%2e/%2e%2e/api/app.py"):
+            assert anonymous.get(f"/dashboard/three/{outside}").status_code == 404, outside
+
