@@ -30,6 +30,8 @@ router = APIRouter(tags=["dashboard"], include_in_schema=False)
 
 
 def _file(name: str) -> FileResponse:
+    if "\0" in name:  # resolve() raises on a NUL: not a file name
+        raise NotFoundError(f"no dashboard file {name!r}")
     path = (DASHBOARD_DIR / name).resolve()
     if not path.is_relative_to(DASHBOARD_DIR) or not path.is_file() or path.suffix not in MEDIA_TYPES:
         raise NotFoundError(f"no dashboard file {name!r}")
@@ -51,6 +53,8 @@ def three_dir() -> Path:
 @router.get("/dashboard/three/{name:path}", summary="A three.js module for the 3D view")
 def three_file(name: str) -> FileResponse:
     root = three_dir()
+    if "\0" in name:
+        raise NotFoundError(f"no three.js file {name!r}")
     path = (root / name).resolve()
     inside = any(path.is_relative_to(root / folder) for folder in THREE_FOLDERS)
     if not inside or not path.is_file() or path.suffix != ".js":

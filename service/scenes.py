@@ -31,7 +31,9 @@ from farfield.service.db import CELL_FINAL, Database, JobRow, SceneRow, now, own
 from farfield.service.scene_check import check_scene_file
 
 
-SCENE_GLB = "scene.glb"  # beside a stored scene file: the loaded scene as GLB, written on first request
+# beside a stored scene file, in a folder (an upload's own name never holds a "/", so no upload
+# can be called this): the loaded scene as GLB, written on first request
+SCENE_GLB = "export/scene.glb"
 ASSETS = "assets.zip"  # beside a stored scene file: the files it refers to, by the names it uses
 
 # Longest stored file name: a blob file's temporary sibling adds a prefix and a suffix to it, and

@@ -27,6 +27,7 @@ import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
 
 const KEY_STORAGE = "farfield.apiKey";
 const CACHED_CELLS = 64; // cells kept loaded (the active one and its neighbours always are)
+const CACHED_GROUPS = 32; // what-to-draw groups kept built (a placement job makes one per lookup answer)
 const LOOKUP_MS = 150; // a placement job's lookup: at most one request in flight, this often
 const FACES = {"+x": [0, 1], "-x": [0, -1], "+y": [1, 1], "-y": [1, -1], "+z": [2, 1], "-z": [2, -1]}; // core/cube_faces.py
 const FACE_ORDER = ["+x", "-x", "+y", "-y", "+z", "-z"];
@@ -44,9 +45,11 @@ const view = {
   loads: new Map(), // cell index -> Promise of {root, near} (impostor GLB root, near-field meshes)
   loadedOrder: [], // cell indices, least recently used first
   fetched: new Set(), prefetched: new Set(), // what was downloaded (the tests read both)
-  groups: new Map(), // what-to-draw key -> THREE.Group
+  groups: new Map(), // what-to-draw key -> THREE.Group, least recently used first
+  groupLoads: new Map(), // key -> Promise of the group, while it is built
+  updating: null, activeBounds: null, warning: null, retryAt: 0,
   activeKey: null, wantedKey: null, activeInfo: null,
-  lookup: {busy: false, at: 0, pose: "", answer: null},
+  lookup: {at: 0, pose: "", answer: null},
   showImpostors: query.get("impostors") !== "0", // off: only what stays geometry (near field, kept objects)
   mode: ["impostors", "scene", "split"].includes(query.get("mode")) ? query.get("mode") : "impostors",
   error: null,
@@ -171,11 +174,13 @@ async function loadJob(jobId) {
 }
 
 function cellAt(p) {
-  // The cell whose box holds p (boxes are closed: the lowest index where they share a face).
+  // The cell whose box holds p (boxes are closed: the lowest index where they share a face), as
+  // core/impostor_database.py's find; a cell without a result too (the caller says so).  Shaft
+  // view cells (explicit cells of a part job) are not looked up here.
   let best = null;
   for (const cell of view.cells.values()) {
     const vc = cell.viewcell;
-    if (!vc || vc.kind !== "box" || !cell.bundle) continue;
+    if (!vc || vc.kind !== "box") continue;
     if (p.x >= vc.lo[0] && p.x <= vc.hi[0] && p.y >= vc.lo[1] && p.y <= vc.hi[1] && p.z >= vc.lo[2] && p.z <= vc.hi[2]) {
       if (best === null || cell.index < best.index) best = cell;
     }
@@ -197,7 +202,10 @@ function loadCell(n, prefetch = false) {
       (prefetch ? view.prefetched : view.fetched).add(n);
       return {root, near: manifest ? nearField(manifest.parameters.near_field) : null};
     })());
-    view.loads.get(n).catch(() => view.loads.delete(n)); // a failed load is tried again next time
+    view.loads.get(n).catch(() => { // a failed load is tried again next time
+      view.loads.delete(n);
+      view.loadedOrder = view.loadedOrder.filter((i) => i !== n);
+    });
   }
   view.loadedOrder = view.loadedOrder.filter((i) => i !== n).concat([n]);
   return view.loads.get(n);
@@ -213,7 +221,9 @@ function nearField(near) {
   for (const {name, faces} of near.objects) {
     for (const mesh of view.objects.get(name) || []) {
       const materials = Array.isArray(mesh.material) ? mesh.material.map((m) => nearFieldMaterial(m, near)) : nearFieldMaterial(mesh.material, near);
-      meshes.push(objectMesh(mesh, faceRanges(mesh.geometry, faces), materials));
+      const part = objectMesh(mesh, faceRanges(mesh.geometry, faces), materials);
+      part.userData.ownsIndex = part.userData.ownsMaterial = true; // freed with the cell
+      meshes.push(part);
     }
   }
   return meshes;
@@ -237,7 +247,10 @@ function keptObjects(replaced) {
       if (!cut) { meshes.push(objectMesh(mesh)); continue; }
       const faces = (mesh.geometry.index ? mesh.geometry.index.count : mesh.geometry.attributes.position.count) / 3;
       const kept = complement(cut, faces);
-      if (kept.length) meshes.push(objectMesh(mesh, faceRanges(mesh.geometry, kept)));
+      if (!kept.length) continue;
+      const part = objectMesh(mesh, faceRanges(mesh.geometry, kept));
+      part.userData.ownsIndex = true; // freed with its group
+      meshes.push(part);
     }
   }
   return meshes;
@@ -255,46 +268,89 @@ function complement(ranges, count) {
   return out;
 }
 
-function evict(keep) {
-  // Impostors beyond CACHED_CELLS, least recently used first, except those in ``keep``.
+function release(mesh) {
+  // What a near-field or kept-faces mesh owns: its index (its attributes are the scene's, shared:
+  // taken off first so that dispose() leaves their GPU buffers alone) and, for the near field, its
+  // clipping materials.
+  if (mesh.userData.ownsIndex) {
+    for (const name of Object.keys(mesh.geometry.attributes)) mesh.geometry.deleteAttribute(name);
+    mesh.geometry.dispose();
+  }
+  if (mesh.userData.ownsMaterial) for (const m of [].concat(mesh.material)) m.dispose();
+}
+
+function dropGroup(key) {
+  const group = view.groups.get(key);
+  view.groups.delete(key);
+  view.groupLoads.delete(key);
+  if (group) for (const child of group.children) if (child.isMesh && child.userData.ownsIndex && !child.userData.ownsMaterial) release(child);
+}
+
+function evict(keep, active) {
+  // Impostors beyond CACHED_CELLS and groups beyond CACHED_GROUPS, least recently used first,
+  // never those in ``keep`` (cells) or the ``active`` group.
   while (view.loadedOrder.length > CACHED_CELLS) {
     const victim = view.loadedOrder.find((n) => !keep.has(n));
-    if (victim === undefined) return;
+    if (victim === undefined) break;
     view.loadedOrder = view.loadedOrder.filter((n) => n !== victim);
     const load = view.loads.get(victim);
     view.loads.delete(victim);
-    for (const [key, group] of view.groups) if (group.userData.cells.includes(victim)) view.groups.delete(key);
-    load.then(({root}) => root.traverse((node) => {
-      if (!node.isMesh) return;
-      node.geometry.dispose();
-      for (const m of [].concat(node.material)) { m.map?.dispose(); m.dispose(); }
-    })).catch(() => {});
+    for (const [key, group] of view.groups) if (key !== active && group.userData.cells.includes(victim)) dropGroup(key);
+    if (!load) continue;
+    load.then(({root, near}) => {
+      root.traverse((node) => {
+        if (!node.isMesh) return;
+        node.geometry.dispose();
+        for (const m of [].concat(node.material)) { m.map?.dispose(); m.dispose(); }
+      });
+      for (const mesh of near || []) release(mesh);
+    }).catch(() => {});
+  }
+  for (const key of [...view.groups.keys()]) {
+    if (view.groups.size <= CACHED_GROUPS) break;
+    if (key !== active) dropGroup(key);
   }
 }
 
-async function groupFor(key, cells, replaced) {
-  // What to draw for one cell (grid) or one lookup answer (placement): impostors + kept geometry.
-  if (view.groups.has(key)) return view.groups.get(key);
-  const loaded = await Promise.all(cells.map((n) => loadCell(n)));
-  const group = new THREE.Group();
-  group.userData.cells = cells;
-  for (const {root, near} of loaded) {
-    const impostor = root.clone(); // shares the impostor's geometry and textures
-    impostor.userData.impostor = true;
-    impostor.visible = view.showImpostors;
-    group.add(impostor);
-    if (near) for (const mesh of near) group.add(mesh);
+function groupFor(key, cells, replaced) {
+  // What to draw for one cell (grid) or one lookup answer (placement): impostors + kept geometry;
+  // built once per key (the promise is shared while it builds).
+  if (view.groups.has(key)) {
+    const group = view.groups.get(key);
+    view.groups.delete(key); // most recently used last
+    view.groups.set(key, group);
+    for (const n of cells) loadCell(n); // their recency too (loaded: no download)
+    return Promise.resolve(group);
   }
-  if (replaced) for (const mesh of keptObjects(replaced)) group.add(mesh);
-  view.groups.set(key, group);
-  return group;
+  if (!view.groupLoads.has(key)) {
+    const building = (async () => {
+      const loaded = await Promise.all(cells.map((n) => loadCell(n)));
+      const group = new THREE.Group();
+      group.userData.cells = cells;
+      for (const {root, near} of loaded) {
+        const impostor = root.clone(); // shares the impostor's geometry and textures
+        impostor.userData.impostor = true;
+        impostor.visible = view.showImpostors;
+        group.add(impostor);
+        if (near) for (const mesh of near) group.add(mesh);
+      }
+      if (replaced) for (const mesh of keptObjects(replaced)) group.add(mesh);
+      group.userData.bounds = new THREE.Box3().setFromObject(group); // impostors may reach past the scene
+      view.groups.set(key, group);
+      return group;
+    })();
+    view.groupLoads.set(key, building);
+    building.then(() => view.groupLoads.delete(key), () => view.groupLoads.delete(key));
+  }
+  return view.groupLoads.get(key);
 }
 
 // ---------------------------------------------------------------- what the camera needs
 
 function gridWanted() {
   const cell = cellAt(camera.position);
-  if (cell === null) return {key: "outside", cells: [], replaced: new Set(), info: "outside every view cell: drawing the source scene", outside: true};
+  if (cell === null) return {key: "outside", info: "outside every view cell: drawing the source scene", outside: true};
+  if (!cell.bundle) return {key: `no result ${cell.index}`, info: `cell ${cell.index} has no result (${cell.state}): drawing the source scene`, outside: true};
   const technique = cellTechnique(cell.index);
   let replaced = null; // envmap: the near field comes with the cell
   if (technique !== "envmap") {
@@ -319,30 +375,32 @@ function poseKey() {
 }
 
 async function lookupPlacement(force = false) {
+  // Called only from doUpdate, which runs one at a time: one request in flight, answers in order.
   const pose = poseKey();
   const now = performance.now();
-  if (!force && (view.lookup.busy || pose === view.lookup.pose || now - view.lookup.at < LOOKUP_MS)) return;
-  view.lookup.busy = true;
+  if (!force && (pose === view.lookup.pose || now - view.lookup.at < LOOKUP_MS)) return;
   view.lookup.at = now;
   const d = new THREE.Vector3();
   camera.getWorldDirection(d);
   const p = camera.position;
-  try {
-    const answer = await api(`/v1/jobs/${encodeURIComponent(view.job.id)}/lookup?x=${p.x}&y=${p.y}&z=${p.z}&dx=${d.x}&dy=${d.y}&dz=${d.z}`);
-    view.lookup.answer = answer;
-    view.lookup.pose = pose;
-  } finally {
-    view.lookup.busy = false;
-  }
+  view.lookup.answer = await api(`/v1/jobs/${encodeURIComponent(view.job.id)}/lookup?x=${p.x}&y=${p.y}&z=${p.z}&dx=${d.x}&dy=${d.y}&dz=${d.z}`);
+  view.lookup.pose = pose;
 }
 
-async function update() {
-  // Switch to what the camera needs; resolves when it is drawn.  The tests await it.
+function update(force = false) {
+  // Switch to what the camera needs; resolves when it is drawn.  One runs at a time: a forced one
+  // (the tests' show: a lookup whatever the throttle) waits for the one in flight, then runs.
+  if (view.updating) return force ? view.updating.catch(() => {}).then(() => update(true)) : view.updating;
+  view.updating = doUpdate(force).finally(() => { view.updating = null; });
+  return view.updating;
+}
+
+async function doUpdate(force) {
   if (view.kind === "primitive-placement") {
     view.activeInfo = "a primitive-budget job's LDIs are drawn by a warper (farfield walkthrough): this view shows its source scene";
     return;
   }
-  if (view.kind === "placement") await lookupPlacement();
+  if (view.kind === "placement") await lookupPlacement(force);
   const wanted = view.kind === "placement" ? placementWanted() : gridWanted();
   if (wanted === null) return;
   view.wantedKey = wanted.key;
@@ -350,6 +408,7 @@ async function update() {
   if (wanted.outside) {
     view.activeKey = wanted.key;
     view.activeInfo = wanted.info;
+    view.activeBounds = null;
     runtimeScene.clear();
     return;
   }
@@ -359,9 +418,10 @@ async function update() {
   runtimeScene.add(group);
   view.activeKey = wanted.key;
   view.activeInfo = wanted.info;
+  view.activeBounds = group.userData.bounds;
   const keep = new Set(wanted.cells.concat(wanted.neighbours || []));
   for (const n of wanted.neighbours || []) if (view.cells.get(n)?.bundle) loadCell(n, true).catch(() => {});
-  evict(keep);
+  evict(keep, wanted.key);
 }
 
 // ---------------------------------------------------------------- camera and controls
@@ -370,8 +430,10 @@ function setDepthRange() {
   // near: a hundredth of the current cell's smallest side (as core/envmap_runtime.depth_range_for);
   // far: past the farthest corner of the scene.
   if (view.fixedDepth) return;
+  const box = view.bounds.clone();
+  if (view.activeBounds && !view.activeBounds.isEmpty()) box.union(view.activeBounds); // envmap layers may lie past the scene
   const corners = [];
-  for (const x of [view.bounds.min.x, view.bounds.max.x]) for (const y of [view.bounds.min.y, view.bounds.max.y]) for (const z of [view.bounds.min.z, view.bounds.max.z]) corners.push(new THREE.Vector3(x, y, z));
+  for (const x of [box.min.x, box.max.x]) for (const y of [box.min.y, box.max.y]) for (const z of [box.min.z, box.max.z]) corners.push(new THREE.Vector3(x, y, z));
   const far = Math.max(...corners.map((c) => c.distanceTo(camera.position)), 1e-6) * 1.5;
   const cell = view.kind === "grid" ? cellAt(camera.position) : null;
   const size = cell ? Math.min(...cell.viewcell.hi.map((h, i) => h - cell.viewcell.lo[i])) : 0;
@@ -487,14 +549,20 @@ let last = performance.now(), frames = 0, fps = 0, fpsAt = last;
 function status() {
   const info = renderer.info.render;
   const loading = view.wantedKey !== view.activeKey ? ` · loading ${view.wantedKey}…` : "";
-  $("viewer-status").textContent = `${view.activeInfo || "…"}${loading} · ${view.fetched.size} bundles loaded, ${view.prefetched.size} prefetched · ${info.triangles.toLocaleString()} triangles · ${fps} fps`;
+  const warning = view.warning ? ` · ${view.warning} (retrying)` : "";
+  $("viewer-status").textContent = `${view.activeInfo || "…"}${loading}${warning} · ${view.fetched.size} bundles loaded, ${view.prefetched.size} prefetched · ${info.triangles.toLocaleString()} triangles · ${fps} fps`;
 }
 
 function frame(now) {
   const seconds = Math.min(0.1, (now - last) / 1000);
   last = now;
   move(seconds);
-  update().catch(fail);
+  if (!view.updating && now >= view.retryAt) {
+    update().then(() => { view.warning = null; }, (error) => { // shown, and tried again in a second
+      view.warning = String(error.message || error);
+      view.retryAt = performance.now() + 1000;
+    });
+  }
   draw();
   frames += 1;
   if (now - fpsAt > 1000) { fps = Math.round((1000 * frames) / (now - fpsAt)); frames = 0; fpsAt = now; }
@@ -552,8 +620,7 @@ window.farfieldViewer = {
     camera.updateMatrixWorld(true);
     view.fixedDepth = true;
     setMode(mode);
-    if (view.kind === "placement") await lookupPlacement(true);
-    await update();
+    await update(true);
     showImpostors(impostors);
     draw();
     const triangles = listedTriangles(mode === "scene" ? sourceScene : runtimeScene);
