@@ -9,15 +9,16 @@ import threading
 import zipfile
 from collections import OrderedDict
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
-from fastapi import APIRouter, Depends, Path as PathParam
+from fastapi import APIRouter, Depends, Path as PathParam, Query
 from fastapi.responses import FileResponse, Response
 from sqlalchemy import select
 from starlette.background import BackgroundTask
 
 from farfield.core.bundle import GLB_NAME, MANIFEST_NAME, PAYLOAD_NAME, bundle_zip, page_file_name
-from farfield.core.errors import ConflictError, InternalError, NotFoundError, ViewCellError
+from farfield.core.glb_compression import compress_glb
+from farfield.core.errors import BundleFormatError, ConflictError, InternalError, NotFoundError, ViewCellError
 from farfield.core.placement.database import PlacementLookup
 from farfield.core.placement.hierarchy import Elements, PlacementError
 from farfield.core.placement.image_database import image_lookup, placement_of_index
@@ -67,10 +68,19 @@ def cell_atlas(job_id: str, index: int = CellIndex, page: int = PageIndex, tenan
     return Response(svc.blobs.read_bytes(key), media_type="image/png")
 
 
-@router.get("/cells/{index}/impostor.glb", summary="A cell's impostor as GLB")
-def cell_glb(job_id: str, index: int = CellIndex, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> Response:
+@router.get("/cells/{index}/impostor.glb", summary="A cell's impostor as GLB: plain (PNG pages) by default, or with KTX2 pages and meshopt geometry")
+def cell_glb(
+    job_id: str, index: int = CellIndex, tenant_id: str = Depends(tenant), svc: Services = Depends(services),
+    textures: Literal["png", "ktx2", "ktx2+png"] = Query("png", description="ktx2: Basis Universal pages (KHR_texture_basisu, required); ktx2+png: the PNG kept as fallback"),
+    geometry: Literal["plain", "meshopt"] = Query("plain", description="meshopt: EXT_meshopt_compression (lossless, required)"),
+    codec: Literal["etc1s", "uastc"] = Query("etc1s", description="Basis Universal's codec for ktx2 pages"),
+) -> Response:  # fmt: skip
     key = f"{_result(svc, tenant_id, job_id, index)}/{GLB_NAME}"
-    return Response(svc.blobs.read_bytes(key), media_type="model/gltf-binary", headers={"Content-Disposition": f'attachment; filename="cell-{index:05d}.glb"'})
+    try:  # encoded per request: the plain GLB is what is stored
+        data = compress_glb(svc.blobs.read_bytes(key), textures, geometry, codec)
+    except BundleFormatError as error:  # farfield wrote this GLB: one that does not compress is a bug
+        raise InternalError(f"cell {index} of job {job_id!r}: its GLB does not compress: {error}") from error
+    return Response(data, media_type="model/gltf-binary", headers={"Content-Disposition": f'attachment; filename="cell-{index:05d}.glb"'})
 
 
 @router.get("/cells/{index}", summary="One cell: state, statistics")
@@ -226,7 +236,8 @@ def lookup_viewpoint(
     return {**answer, "cells": _cell_records(svc, job_id, answer["impostors"])}
 
 
-_CLUSTERS: OrderedDict[tuple, dict] = OrderedDict()  # (index key, end) -> /clusters answer, the last few jobs
+_CLUSTERS: OrderedDict[tuple, dict] = OrderedDict()  # (index key, end) -> /clusters answer, the last few jobs used
+_CLUSTERS_LOCK = threading.Lock()
 
 
 @router.get("/clusters", summary="A placement job's clusters of split objects: each one's object and face ranges (what a runtime hides when an impostor replaces a cluster)")
@@ -238,13 +249,19 @@ def placement_clusters(job_id: str, tenant_id: TenantDep, svc: ServicesDep) -> d
     if index.get("kind") == PRIMITIVE_INDEX_KIND:
         raise NotFoundError(f"job {job_id!r} is a primitive-budget placement: its images replace octree cells, not clusters")
     key = (job.index_key, job.finished_at)
-    if key not in _CLUSTERS:
-        cluster = int(index["placement"]["elements"]["cluster_triangles"])
-        scene = load_stored_scene(svc.blobs, get_scene_row(svc.db, tenant_id, job.scene_id))
-        _CLUSTERS[key] = {"cluster_triangles": cluster, "clusters": Elements.of(scene, cluster).clusters(scene)}
+    with _CLUSTERS_LOCK:
+        found = _CLUSTERS.get(key)
+        if found is not None:
+            _CLUSTERS.move_to_end(key)
+            return found
+    cluster = int(index["placement"]["elements"]["cluster_triangles"])
+    scene = load_stored_scene(svc.blobs, get_scene_row(svc.db, tenant_id, job.scene_id))
+    found = {"cluster_triangles": cluster, "clusters": Elements.of(scene, cluster).clusters(scene)}
+    with _CLUSTERS_LOCK:
+        _CLUSTERS[key] = found
         while len(_CLUSTERS) > LOOKUP_CACHE_SIZE:
             _CLUSTERS.popitem(last=False)
-    return _CLUSTERS[key]
+    return found
 
 
 def _image_placement(job: JobRow, index: dict) -> dict:

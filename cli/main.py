@@ -38,7 +38,7 @@ def cli() -> None:
 
 
 def _register() -> None:
-    from farfield.cli import bake_cmd, calibrate_cmd, client_cmds, evaluate_cmd, inspect_cmd, layers_cmd, lookup_cmd, place_cmd, service_cmds, techniques_cmd, walkthrough_cmd
+    from farfield.cli import bake_cmd, calibrate_cmd, client_cmds, evaluate_cmd, glb_cmd, inspect_cmd, layers_cmd, lookup_cmd, place_cmd, service_cmds, techniques_cmd, walkthrough_cmd
 
     cli.add_command(inspect_cmd.inspect)
     cli.add_command(layers_cmd.layers)
@@ -55,6 +55,7 @@ def _register() -> None:
     cli.add_command(place_cmd.place_cmd)
     cli.add_command(lookup_cmd.lookup_cmd)
     cli.add_command(calibrate_cmd.calibrate_cmd)
+    cli.add_command(glb_cmd.glb_cmd)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -16,6 +16,7 @@ a failing comparison writes them under pytest's tmp_path and names them in the m
 from __future__ import annotations
 
 import base64
+import json
 import os
 
 import numpy as np
@@ -29,6 +30,7 @@ from threejs import THREE_SKIP_REASON, three_available
 
 from farfield.core.envmap_runtime import EnvmapCellRenderer, camera_at, depth_range_for
 from farfield.core.exchange import load_scene, load_scene_bytes
+from farfield.core.glb_compression import BASISU, MESHOPT, read_glb
 from farfield.core.impostor_database import ImpostorDatabase
 from farfield.core.placement.runtime import PlacementRenderer
 from farfield.core.procedural import city as procedural_city
@@ -168,10 +170,28 @@ def test_moving_switches_to_the_cell_holding_the_camera_and_prefetches_its_neigh
         assert expected in state["fetched"] + state["prefetched"]
         state = viewer.evaluate("window.farfieldViewer.settled()")
         assert set(db.cell(expected).neighbours) <= set(state["fetched"]) | set(state["prefetched"]), state
-    # cell 0 and 8 are opposite corners: 8's neighbours were prefetched before the camera got there
-    assert 8 in state["fetched"] + state["prefetched"]
     _, state = show(viewer, camera_at((0.0, 20.0, -40.0), (0.0, 0.0, 1.0), 60.0, SIZE, 0.1, 500.0))
     assert state["key"] == "outside" and "outside every view cell" in state["info"]
+
+
+def test_a_neighbour_is_there_before_the_camera_arrives(browser, service, envmap_job):
+    """In a fresh view: starting in corner cell 0, its neighbours 1, 3 and 4 are prefetched; walking
+    into cell 4 downloads nothing more for it."""
+    job, db, scene = envmap_job
+    page = open_viewer(browser, service, f"job={job['id']}&size={SIZE}&paused=1&cell=0")
+    try:
+        state = page.evaluate("window.farfieldViewer.settled()")
+        assert state["key"] == "cell 0" and state["fetched"] == [0] and state["prefetched"] == sorted(db.cell(0).neighbours) == [1, 3, 4], state
+        _, state = show(page, camera_at(viewcell_centre(db, CENTRE), (0.0, 0.0, 1.0), 60.0, SIZE, 0.1, 500.0))
+        assert state["key"] == f"cell {CENTRE}" and state["fetched"] == [0] and CENTRE in state["prefetched"], state
+        assert page.js_errors == []
+    finally:
+        page.context.close()
+
+
+def viewcell_centre(db, index: int) -> list[float]:
+    cell = db.cell(index).viewcell
+    return (0.5 * (cell.lo + cell.hi)).tolist()
 
 
 @pytest.fixture(scope="module")
@@ -269,6 +289,27 @@ def test_the_routes_the_view_reads(client, service, envmap_job, city_glb):
     assert again.names == scene.names and [o.faces.shape[0] for o in again.objects] == [o.faces.shape[0] for o in scene.objects]
     assert client.get(f"/v1/scenes/{job['scene_id']}/scene.glb").content == glb.content  # written once, then read back
     assert client.get("/v1/scenes/nosuchscene/scene.glb").status_code == 404
+    # an upload called scene.glb is still exported (its objects' names in the extras), not sent back as uploaded
+    named = upload(client, city_glb, name="scene.glb").json()["id"]
+    document = read_glb(client.get(f"/v1/scenes/{named}/scene.glb").content)[0]
+    assert {m["extras"]["farfield_object"] for m in document["meshes"]} == set(scene.names)
+
+    # a cell's GLB, plain as stored, or compressed on request (core/glb_compression.py)
+    route = f"/v1/jobs/{job['id']}/cells/{CENTRE}/impostor.glb"
+    plain = client.get(route)
+    assert plain.status_code == 200 and plain.content == (db.cell(CENTRE).bundle / "impostor.glb").read_bytes()
+    packed = client.get(route, params={"textures": "ktx2", "geometry": "meshopt", "codec": "uastc"})
+    assert packed.status_code == 200 and read_glb(packed.content)[0]["extensionsRequired"] == [MESHOPT, BASISU]
+    for bad in ({"textures": "webp"}, {"geometry": "draco"}, {"codec": "bc7"}):
+        refused = client.get(route, params=bad)
+        assert refused.status_code == 422 and next(iter(bad)) in refused.json()["detail"], refused.text
+
+    # another tenant sees none of it
+    made = service.cli("keys", "create", "--tenant", "viewer-other", "--json")
+    assert made.returncode == 0, made.stderr
+    with service.client(key=json.loads(made.stdout)["key"]) as other:
+        for path in (f"/v1/jobs/{job['id']}/index.json", f"/v1/scenes/{job['scene_id']}/scene.glb", route):
+            assert other.get(path).status_code == 404, path
 
     with service.client(key=None) as anonymous:
         assert anonymous.get(f"/v1/scenes/{job['scene_id']}/scene.glb").status_code == 401

@@ -9,6 +9,8 @@
 // as base64.
 import * as THREE from "three";
 import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
+import { KTX2Loader } from "three/addons/loaders/KTX2Loader.js";
+import { MeshoptDecoder } from "three/addons/libs/meshopt_decoder.module.js";
 import { MTLLoader } from "three/addons/loaders/MTLLoader.js";
 import { OBJLoader } from "three/addons/loaders/OBJLoader.js";
 import { PLYLoader } from "three/addons/loaders/PLYLoader.js";
@@ -23,6 +25,9 @@ renderer.setClearColor(0x000000, 0);
 renderer.toneMapping = THREE.NoToneMapping;
 renderer.outputColorSpace = THREE.SRGBColorSpace;
 const gl = renderer.getContext();
+// compressed GLBs (core/glb_compression.py): KTX2 pages through three.js's Basis Universal
+// transcoder (its own wasm, from the pinned package) and meshopt geometry through its decoder
+const ktx2 = new KTX2Loader().setTranscoderPath("/three/examples/jsm/libs/basis/").detectSupport(renderer);
 
 const loaded = new Map();  // key of (url, options) -> Object3D
 
@@ -75,7 +80,7 @@ async function load(spec) {
   if (loaded.has(key)) return loaded.get(key);
   let root;
   if (spec.kind === "gltf") {
-    root = (await new GLTFLoader().loadAsync(spec.url)).scene;
+    root = (await new GLTFLoader().setKTX2Loader(ktx2).setMeshoptDecoder(MeshoptDecoder).loadAsync(spec.url)).scene;
   } else if (spec.kind === "obj") {
     const obj = new OBJLoader();
     if (spec.mtl) {
