@@ -75,11 +75,19 @@ def cell_glb(
     geometry: Literal["plain", "meshopt"] = Query("plain", description="meshopt: EXT_meshopt_compression (lossless, required)"),
     codec: Literal["etc1s", "uastc"] = Query("etc1s", description="Basis Universal's codec for ktx2 pages"),
 ) -> Response:  # fmt: skip
-    key = f"{_result(svc, tenant_id, job_id, index)}/{GLB_NAME}"
-    try:  # encoded per request: the plain GLB is what is stored
-        data = compress_glb(svc.blobs.read_bytes(key), textures, geometry, codec)
-    except BundleFormatError as error:  # farfield wrote this GLB: one that does not compress is a bug
-        raise InternalError(f"cell {index} of job {job_id!r}: its GLB does not compress: {error}") from error
+    result = _result(svc, tenant_id, job_id, index)
+    if textures == "png" and geometry == "plain":
+        data = svc.blobs.read_bytes(f"{result}/{GLB_NAME}")
+    else:  # encoded on first request, then kept beside the bundle (a folder its listing leaves out)
+        variant = f"{result}/variants/{textures}-{geometry}-{codec}.glb"
+        if svc.blobs.exists(variant):
+            data = svc.blobs.read_bytes(variant)
+        else:
+            try:
+                data = compress_glb(svc.blobs.read_bytes(f"{result}/{GLB_NAME}"), textures, geometry, codec)
+            except BundleFormatError as error:  # farfield wrote this GLB: one that does not compress is a bug
+                raise InternalError(f"cell {index} of job {job_id!r}: its GLB does not compress: {error}") from error
+            svc.blobs.put_bytes(variant, data)
     return Response(data, media_type="model/gltf-binary", headers={"Content-Disposition": f'attachment; filename="cell-{index:05d}.glb"'})
 
 

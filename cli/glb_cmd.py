@@ -14,7 +14,7 @@ from pathlib import Path
 import click
 
 from farfield.core.bundle import GLB_NAME
-from farfield.core.errors import NotFoundError
+from farfield.core.errors import BundleFormatError, NotFoundError
 from farfield.core.glb_compression import CODECS, GEOMETRY, TEXTURES, compress_glb
 
 
@@ -25,6 +25,27 @@ def glb_input(path: Path) -> Path:
     if not path.is_file():
         raise NotFoundError(f"{path}: no such GLB (give an impostor's .glb or its bundle folder)")
     return path
+
+
+def write_whole(out: Path, data: bytes) -> None:
+    """``data`` to ``out`` through a temporary file beside it, renamed into place (readable as a
+    plain new file would be); on failure nothing is left and the error is one line."""
+    tmp = None
+    try:
+        if out.is_dir():
+            raise IsADirectoryError(21, "is a folder")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=out.parent, prefix=f".{out.name}.", delete=False) as handle:
+            tmp = Path(handle.name)
+            handle.write(data)
+        umask = os.umask(0)
+        os.umask(umask)
+        tmp.chmod(0o666 & ~umask)
+        os.replace(tmp, out)
+    except OSError as error:
+        if tmp is not None:
+            tmp.unlink(missing_ok=True)
+        raise BundleFormatError(f"cannot write {str(out)!r}: {error.strerror or error}") from None
 
 
 @click.command("glb")
@@ -42,10 +63,7 @@ def glb_cmd(source: Path, out: Path, textures: str, geometry: str, codec: str, a
     start = time.perf_counter()
     data = compress_glb(plain, textures, geometry, codec)
     seconds = time.perf_counter() - start
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.NamedTemporaryFile(dir=out.parent, prefix=f".{out.name}.", delete=False) as tmp:
-        tmp.write(data)
-    os.replace(tmp.name, out)
+    write_whole(out, data)
     figures = {"source": str(path), "out": str(out), "textures": textures, "geometry": geometry, "codec": codec,
                "bytes_before": len(plain), "bytes_after": len(data), "ratio": len(data) / len(plain), "seconds": seconds}  # fmt: skip
     if as_json:

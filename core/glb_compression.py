@@ -48,7 +48,7 @@ _MAGIC, _JSON, _BIN = 0x46546C67, 0x4E4F534A, 0x004E4942
 _COMPONENT_BYTES = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
 _TYPE_COUNT = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 _TRIANGLES = 4
-_ETC1S_QUALITY = 128  # Basis Universal's ETC1S quality 1..255 (its default 128)
+_ETC1S_QUALITY = 100  # alktx2's ETC1S quality, 1..100 (its highest)
 _UASTC_ZSTD = 18  # Zstandard level of UASTC's supercompression (basisu's -ktx2 default)
 
 
@@ -63,7 +63,12 @@ def read_glb(data: bytes) -> tuple[dict, bytes]:
     length, kind = struct.unpack_from("<II", data, 12)
     if kind != _JSON or 20 + length > len(data):
         raise BundleFormatError("GLB: the first chunk is not a whole JSON chunk")
-    document = json.loads(data[20 : 20 + length])
+    try:
+        document = json.loads(data[20 : 20 + length])
+    except ValueError as error:
+        raise BundleFormatError(f"GLB: its JSON chunk does not parse: {error}") from None
+    if not isinstance(document, dict):
+        raise BundleFormatError("GLB: its JSON chunk is not an object")
     blob = b""
     at = 20 + length
     if at + 8 <= len(data):
@@ -88,11 +93,26 @@ def write_glb(document: dict, blob: bytes) -> bytes:
     return struct.pack("<III", _MAGIC, 2, 12 + len(chunks)) + chunks
 
 
+def block_padded(rgba: np.ndarray) -> np.ndarray:
+    """``rgba`` (H, W, 4) grown right and down to multiples of 4 by repeating its last column and
+    row (KHR_texture_basisu: a KTX2 image's width and height MUST be multiples of 4; repeating the
+    edge keeps what a clamp-to-edge sampler shows inside the original area).
+
+    >>> block_padded(np.zeros((5, 8, 4), np.uint8)).shape
+    (8, 8, 4)
+    """
+    h, w = rgba.shape[:2]
+    return np.pad(rgba, ((0, -h % 4), (0, -w % 4), (0, 0)), mode="edge")
+
+
 def ktx2_page(rgba: np.ndarray, codec: str = "etc1s") -> bytes:
-    """KTX2 bytes (Basis Universal, sRGB, no mipmaps) of one (H, W, 4) uint8 RGBA page, top row first."""
+    """KTX2 bytes (Basis Universal, sRGB, no mipmaps) of one (H, W, 4) uint8 RGBA page, top row
+    first; H and W multiples of 4 (:func:`block_padded`)."""
     import alktx2
 
     h, w = rgba.shape[:2]
+    if h % 4 or w % 4:
+        raise ValueError(f"a KTX2 page must be a multiple of 4 texels each way, got {w} x {h}")
     options = {"quality": _ETC1S_QUALITY} if codec == "etc1s" else {"zstd_supercompression_level": _UASTC_ZSTD}
     return alktx2.encode_raw_rgba_to_ktx2(np.ascontiguousarray(rgba, dtype=np.uint8).tobytes(), w, h, True, codec=codec, srgb=True, mipmaps=False, threads=1, **options)
 
@@ -145,14 +165,16 @@ def _geometry_views(document: dict) -> dict[int, tuple[str, int]]:
         size = _COMPONENT_BYTES[accessor["componentType"]] * _TYPE_COUNT[accessor["type"]]
         view = accessor["bufferView"]
         if document["bufferViews"][view].get("target") == 34963:  # ELEMENT_ARRAY_BUFFER
-            modes[view] = ("TRIANGLES" if n in triangle_indices else "INDICES", size)
+            if size in (2, 4):  # meshopt's index codecs take 16- and 32-bit indices
+                modes[view] = ("TRIANGLES" if n in triangle_indices else "INDICES", size)
         elif size % 4 == 0 and size <= 256 and "byteStride" not in document["bufferViews"][view]:
             modes[view] = ("ATTRIBUTES", size)
     return modes
 
 
 def compress_glb(data: bytes, textures: str = "png", geometry: str = "plain", codec: str = "etc1s") -> bytes:
-    """``data`` (a GLB of :func:`core.glb.impostor_glb`) with its textures and geometry compressed.
+    """``data`` (a GLB of :func:`core.glb.impostor_glb`) with its textures and geometry compressed
+    (see the module docstring); a GLB it cannot read is a :class:`BundleFormatError`.
 
     >>> from farfield.core.glb import impostor_glb
     >>> from farfield.core.impostor import Impostor, QuadPayload
@@ -166,6 +188,13 @@ def compress_glb(data: bytes, textures: str = "png", geometry: str = "plain", co
     >>> compress_glb(plain) == plain
     True
     """
+    try:
+        return _compress(data, textures, geometry, codec)
+    except (KeyError, IndexError, TypeError, ValueError, OSError) as error:  # PIL's UnidentifiedImageError is an OSError
+        raise BundleFormatError(f"GLB: not one this can compress ({type(error).__name__}: {error})") from None
+
+
+def _compress(data: bytes, textures: str, geometry: str, codec: str) -> bytes:
     import meshopt
 
     if textures not in TEXTURES:
@@ -181,19 +210,40 @@ def compress_glb(data: bytes, textures: str = "png", geometry: str = "plain", co
         raise BundleFormatError("the GLB is compressed already (it uses KHR_texture_basisu or EXT_meshopt_compression)")
     if len(document.get("buffers", [])) > 1 or any("uri" in b for b in document.get("buffers", [])):
         raise BundleFormatError("only a self-contained GLB (one buffer, the BIN chunk) can be compressed here")
-    if textures != "png" and any(img.get("mimeType") != "image/png" or "bufferView" not in img for img in document.get("images", [])):
+    images = document.get("images", [])
+    if textures != "png" and any(img.get("mimeType") != "image/png" or "bufferView" not in img for img in images):
         raise BundleFormatError("KTX2 pages are made from PNG images inside the GLB; this GLB has others")
     views = document.get("bufferViews", [])
+    image_views = {img["bufferView"] for img in images if "bufferView" in img}
     used = set(document.get("extensionsUsed", []))
     required = set(document.get("extensionsRequired", []))
+    keep_png = textures == "ktx2+png"
+
+    # The pages first: a page grown to whole 4 x 4 blocks scales the texture coordinates that use it.
+    pages: list[tuple[bytes, bytes | None]] = []  # per image: (PNG to keep or b"", KTX2 or None)
+    grown: dict[int, tuple[float, float]] = {}  # image -> (u, v) scale
+    for n, image in enumerate(images):
+        png = _view_bytes(document, blob, image["bufferView"])
+        if textures == "png":
+            pages.append((png, None))
+            continue
+        rgba = np.asarray(Image.open(io.BytesIO(png)).convert("RGBA"))
+        padded = block_padded(rgba)
+        if padded.shape != rgba.shape:
+            grown[n] = (rgba.shape[1] / padded.shape[1], rgba.shape[0] / padded.shape[0])
+            png = _png(padded) if keep_png else png  # the fallback shares the scaled coordinates
+        pages.append((png if keep_png else b"", ktx2_page(padded, codec)))
+    scale = _uv_scales(document, grown)
+
     out, fallback = _Blob(), _Blob()
     new_views: list[dict | None] = [None] * len(views)
     compressed = _geometry_views(document) if geometry == "meshopt" else {}
-    image_views = {img["bufferView"] for img in document.get("images", []) if "bufferView" in img}
     for n, view in enumerate(views):
         if n in image_views:
             continue  # written with the images below
         raw = _view_bytes(document, blob, n)
+        if n in scale:
+            raw = (np.frombuffer(raw, "<f4").reshape(-1, 2) * np.asarray(scale[n], dtype="<f4")).astype("<f4").tobytes()
         if n in compressed:
             mode, size = compressed[n]
             count = len(raw) // size
@@ -208,43 +258,33 @@ def compress_glb(data: bytes, textures: str = "png", geometry: str = "plain", co
         else:
             offset, length = out.add(raw)
             new_views[n] = {**view, "buffer": 0, "byteOffset": offset, "byteLength": length}
-    images = document.get("images", [])
+
     new_images: list[dict] = []
-    if textures == "png":
-        for image in images:
-            offset, length = out.add(_view_bytes(document, blob, image["bufferView"]))
+    png_of: dict[int, int] = {}
+    ktx2_of: dict[int, int] = {}
+    for n, (image, (png, ktx2)) in enumerate(zip(images, pages)):
+        if png:
+            offset, length = out.add(png)
             new_views[image["bufferView"]] = {"buffer": 0, "byteOffset": offset, "byteLength": length}
+            png_of[n] = len(new_images)
             new_images.append(image)
-    else:
-        keep_png = textures == "ktx2+png"
-        ktx2_of: dict[int, int] = {}
-        png_of: dict[int, int] = {}
-        for n, image in enumerate(images):
-            png = _view_bytes(document, blob, image["bufferView"])
-            if keep_png:
-                offset, length = out.add(png)
-                new_views[image["bufferView"]] = {"buffer": 0, "byteOffset": offset, "byteLength": length}
-                png_of[n] = len(new_images)
-                new_images.append(image)
-            rgba = np.asarray(Image.open(io.BytesIO(png)).convert("RGBA"))
-            offset, length = out.add(ktx2_page(rgba, codec))
+        if ktx2 is not None:
+            offset, length = out.add(ktx2)
             new_views.append({"buffer": 0, "byteOffset": offset, "byteLength": length})
             ktx2_of[n] = len(new_images)
             new_images.append({"bufferView": len(new_views) - 1, "mimeType": "image/ktx2", "name": f"{image.get('name', f'image-{n}')}-{codec}"})
-        if not keep_png:  # the PNGs' views are gone: their slots are dropped below
-            for image in images:
-                new_views[image["bufferView"]] = None
-        for texture in document.get("textures", []):
-            source = texture["source"]
-            texture.setdefault("extensions", {})[BASISU] = {"source": ktx2_of[source]}
-            if keep_png:
-                texture["source"] = png_of[source]  # the PNG, for viewers without the extension
-            else:
-                del texture["source"]
+    for texture in document.get("textures", []) if textures != "png" else []:
+        source = texture["source"]
+        texture.setdefault("extensions", {})[BASISU] = {"source": ktx2_of[source]}
+        if keep_png:
+            texture["source"] = png_of[source]  # the PNG, for viewers without the extension
+        else:
+            del texture["source"]
         used.add(BASISU)
         if not keep_png:
             required.add(BASISU)
-    # renumber the bufferViews that remain
+
+    # renumber the bufferViews that remain (a dropped PNG's view is gone)
     renumber, kept = {}, []
     for n, view in enumerate(new_views):
         if view is not None:
@@ -255,15 +295,50 @@ def compress_glb(data: bytes, textures: str = "png", geometry: str = "plain", co
             accessor["bufferView"] = renumber[accessor["bufferView"]]
     for image in new_images:
         image["bufferView"] = renumber[image["bufferView"]]
-    document["bufferViews"] = kept
+    if kept:
+        document["bufferViews"] = kept
+    else:
+        document.pop("bufferViews", None)
     if new_images:
         document["images"] = new_images
-    document["buffers"] = [{"byteLength": out.length}]
+    buffers = [{"byteLength": out.length}] if out.length else []
     if compressed:
-        document["buffers"].append({"byteLength": fallback.length, "extensions": {MESHOPT: {"fallback": True}}})
+        buffers.append({"byteLength": fallback.length, "extensions": {MESHOPT: {"fallback": True}}})
         used.add(MESHOPT)
         required.add(MESHOPT)
-    document["extensionsUsed"] = sorted(used)
+    if buffers:
+        document["buffers"] = buffers
+    else:
+        document.pop("buffers", None)
+    if used:
+        document["extensionsUsed"] = sorted(used)
     if required:
         document["extensionsRequired"] = sorted(required)
     return write_glb(document, out.bytes())
+
+
+def _png(rgba: np.ndarray) -> bytes:
+    from farfield.core.glb import page_png
+
+    return page_png(rgba)
+
+
+def _uv_scales(document: dict, grown: dict[int, tuple[float, float]]) -> dict[int, tuple[float, float]]:
+    """bufferView -> (u, v) scale for the texture coordinates of every primitive whose base-colour
+    texture's image was grown to whole blocks."""
+    out: dict[int, tuple[float, float]] = {}
+    if not grown:
+        return out
+    materials, textures, accessors = document.get("materials", []), document.get("textures", []), document.get("accessors", [])
+    for mesh in document.get("meshes", []):
+        for primitive in mesh["primitives"]:
+            info = materials[primitive["material"]].get("pbrMetallicRoughness", {}).get("baseColorTexture") if "material" in primitive else None
+            if info is None or textures[info["index"]]["source"] not in grown:
+                continue
+            accessor = accessors[primitive["attributes"][f"TEXCOORD_{info.get('texCoord', 0)}"]]
+            if accessor["componentType"] != 5126 or accessor["type"] != "VEC2" or "byteStride" in document["bufferViews"][accessor["bufferView"]]:
+                raise BundleFormatError("a grown page's texture coordinates must be a float VEC2 bufferView of their own")
+            factor = grown[textures[info["index"]]["source"]]
+            if out.setdefault(accessor["bufferView"], factor) != factor:
+                raise BundleFormatError("texture coordinates shared by pages of different sizes")
+    return out

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import subprocess
 import sys
 
@@ -20,7 +21,7 @@ from test_techniques import CASES
 from farfield.core.bundle import write_bundle
 from farfield.core.errors import BundleFormatError
 from farfield.core.glb import impostor_glb
-from farfield.core.glb_compression import BASISU, MESHOPT, compress_glb, decode_ktx2, read_glb
+from farfield.core.glb_compression import BASISU, MESHOPT, compress_glb, decode_ktx2, read_glb, write_glb
 from farfield.core.techniques import TECHNIQUES, get_technique
 
 RESOLUTION = 64
@@ -101,7 +102,10 @@ def test_ktx2_pages_decode_to_the_png_pages_within_the_codecs_error(name, codec,
     pages = [decode_ktx2(data) for data in images(packed, "image/ktx2")]
     assert len(pages) == len(pngs) and pngs
     for png, page in zip(pngs, pages):
-        assert page.shape == png.shape
+        # KHR_texture_basisu: whole 4 x 4 blocks; a page grows right and down by repeating its edge
+        h, w = png.shape[:2]
+        assert page.shape == (h + -h % 4, w + -w % 4, 4), (page.shape, png.shape)
+        page = page[:h, :w]
         kept = png[..., 3] >= 128
         error = np.abs(png[..., :3].astype(int) - page[..., :3].astype(int))[kept]
         assert error.mean() <= mean_error, (name, codec, error.mean())
@@ -111,12 +115,62 @@ def test_ktx2_pages_decode_to_the_png_pages_within_the_codecs_error(name, codec,
         assert flips == 0 or name == "points", (name, codec, flips)
 
 
+def test_pages_grown_to_whole_blocks_keep_their_texture_coordinates(plain_glbs):
+    """A page whose sides are not multiples of 4 grows; the coordinates that use it shrink by the
+    same factor, so every texel stays where it was (three.js checks the drawing: test_threejs)."""
+    grown = 0
+    for name, plain in {**plain_glbs, "odd page": odd_page_glb()}.items():
+        before, blob_before = read_glb(plain)
+        after, blob_after = read_glb(compress_glb(plain, "ktx2"))
+        sizes = [Image.open(io.BytesIO(view_bytes(before, blob_before, img["bufferView"]))).size for img in before.get("images", [])]
+        for mesh_before, mesh_after in zip(before.get("meshes", []), after.get("meshes", [])):
+            for p, q in zip(mesh_before["primitives"], mesh_after["primitives"]):
+                if "TEXCOORD_0" not in p["attributes"]:
+                    continue
+                w, h = sizes[before["textures"][before["materials"][p["material"]]["pbrMetallicRoughness"]["baseColorTexture"]["index"]]["source"]]
+                uv_before = np.frombuffer(view_bytes(before, blob_before, before["accessors"][p["attributes"]["TEXCOORD_0"]]["bufferView"]), "<f4").reshape(-1, 2)
+                uv_after = np.frombuffer(view_bytes(after, blob_after, after["accessors"][q["attributes"]["TEXCOORD_0"]]["bufferView"]), "<f4").reshape(-1, 2)
+                factor = np.array([w / (w + -w % 4), h / (h + -h % 4)], "<f4")
+                assert np.array_equal(uv_after, (uv_before * factor).astype("<f4")), name
+                grown += bool(w % 4 or h % 4)
+    assert grown > 0, "no page of the cases has a side that is not a multiple of 4"
+
+
+def odd_page_glb() -> bytes:
+    """A quad impostor whose one page is 10 x 6 texels (neither side a multiple of 4): a face of
+    four colour bands, transparent at its left column."""
+    from farfield.core.impostor import Impostor, QuadPayload
+
+    page = np.zeros((6, 10, 4), np.uint8)
+    page[..., 3] = 255
+    page[:, 0, 3] = 0
+    for k, colour in enumerate(([220, 40, 40], [40, 200, 60], [50, 80, 230], [240, 220, 40])):
+        page[:, 1 + 2 * k + (k > 0) :, :3] = colour
+    quad = np.array([[[-2.0, 1.2, 5.0], [2.0, 1.2, 5.0], [2.0, -1.2, 5.0], [-2.0, -1.2, 5.0]]])
+    uv = np.array([[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]])
+    return impostor_glb(Impostor("billboard", {}, np.zeros(3), 64, 60.0, (page,), QuadPayload(quad, uv, np.zeros(1, np.int64), np.zeros(1, np.int64))))
+
+
+def test_an_empty_point_impostor_compresses_to_a_valid_file(gltf_validator, tmp_path):
+    from farfield.core.impostor import Impostor, PointPayload
+
+    empty = impostor_glb(Impostor("points", {"kind": "box", "lo": [0, 0, 0], "hi": [1, 1, 1]}, np.zeros(3), 64, 45.0, (), PointPayload.empty()))
+    path = tmp_path / "empty.glb"
+    path.write_bytes(compress_glb(empty, "ktx2", "meshopt"))
+    document, blob = read_glb(path.read_bytes())
+    assert "buffers" not in document and blob == b"" and BASISU not in document.get("extensionsUsed", [])
+    (report,) = gltf_validator.validate([path])
+    assert report.get("errors") == 0 and report.get("warnings") == 0, report
+
+
 def test_ktx2_with_the_png_kept_as_fallback(plain_glbs):
     plain = plain_glbs["layered"]
     packed = compress_glb(plain, "ktx2+png")
     document, _ = read_glb(packed)
     assert BASISU in document["extensionsUsed"] and "extensionsRequired" not in document
-    assert images(packed, "image/png") == images(plain, "image/png")
+    kept = [np.asarray(Image.open(io.BytesIO(d))) for d in images(packed, "image/png")]
+    for page, png in zip(kept, (np.asarray(Image.open(io.BytesIO(d))) for d in images(plain, "image/png"))):
+        assert np.array_equal(page[: png.shape[0], : png.shape[1]], png)  # the same texels (grown alike when not whole blocks)
     for texture in document["textures"]:
         assert document["images"][texture["source"]]["mimeType"] == "image/png"
         assert document["images"][texture["extensions"][BASISU]["source"]]["mimeType"] == "image/ktx2"
@@ -148,6 +202,10 @@ def test_what_cannot_be_compressed_is_refused(plain_glbs):
         compress_glb(packed, "ktx2", "meshopt")
     with pytest.raises(BundleFormatError, match="not a GLB"):
         compress_glb(b"not a glb at all, just bytes", "ktx2")
+    document, blob = read_glb(plain_glbs["layered"])
+    document["images"][0]["bufferView"] = document["accessors"][0]["bufferView"]  # the "PNG" is index bytes
+    with pytest.raises(BundleFormatError, match="not one this can compress"):
+        compress_glb(write_glb(document, blob), "ktx2")
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:
@@ -166,9 +224,18 @@ def test_the_command_writes_a_compressed_glb_from_a_bundle(tmp_path):
     assert read_glb(out.read_bytes())[0]["extensionsRequired"] == [MESHOPT, BASISU]
     done = run_cli("glb", str(bundle.glb), "--out", str(tmp_path / "fallback.glb"), "--textures", "ktx2+png", "--geometry", "plain")
     assert done.returncode == 0 and "fallback.glb:" in done.stdout, done.stderr
+    assert (out.stat().st_mode & 0o777) == 0o666 & ~current_umask()
     # bad input: one line, a non-zero exit, nothing written
-    for args in (["glb", str(tmp_path / "missing"), "--out", str(tmp_path / "x.glb")], ["glb", str(out), "--out", str(tmp_path / "y.glb")]):
+    (tmp_path / "folder.glb").mkdir()
+    for args in (["glb", str(tmp_path / "missing"), "--out", str(tmp_path / "x.glb")], ["glb", str(out), "--out", str(tmp_path / "y.glb")],
+                 ["glb", str(bundle.glb), "--out", str(tmp_path / "folder.glb")]):  # fmt: skip
         failed = run_cli(*args)
         assert failed.returncode != 0 and failed.stderr.count("\n") == 1 and failed.stderr.startswith("farfield: error:"), failed.stderr
     assert not (tmp_path / "x.glb").exists() and not (tmp_path / "y.glb").exists()
-    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == [] and list((tmp_path / "folder.glb").iterdir()) == []
+
+
+def current_umask() -> int:
+    umask = os.umask(0)
+    os.umask(umask)
+    return umask

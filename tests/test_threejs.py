@@ -174,6 +174,22 @@ def test_every_techniques_compressed_glb_draws_as_the_plain_one(name, bundles, t
         assert stats["colour_mean"] <= 6.0, (view, stats)
 
 
+def test_a_page_grown_to_whole_blocks_draws_as_before(threejs, tmp_path):
+    """A 10 x 6 page becomes a 12 x 8 KTX2 (its edge repeated) and the quad's texture coordinates
+    shrink to match: three.js draws the compressed GLB as it draws the plain one."""
+    from test_glb_compression import odd_page_glb
+
+    plain, packed = tmp_path / "plain.glb", tmp_path / "packed.glb"
+    plain.write_bytes(odd_page_glb())
+    packed.write_bytes(compress_glb(plain.read_bytes(), "ktx2", "meshopt", "uastc"))
+    camera = Camera.look_at(np.zeros(3), np.array([0.0, 0.0, 5.0]), math.radians(60.0), RESOLUTION, 0.5, 20.0)
+    (before,) = threejs.render(plain, camera, mipmaps=False)
+    (after,) = threejs.render(packed, camera, mipmaps=False)
+    stats = compare(after, before)
+    assert stats["three_pixels"] > 1000 and stats["three_beyond_1px"] == 0 and stats["farfield_beyond_1px"] == 0, stats
+    assert stats["colour_mean"] <= 4.0, stats
+
+
 # ------------------------------------------------------------------- colour spaces, as viewers see them
 
 
