@@ -70,6 +70,7 @@ def codec_error(plain: bytes, compressed: bytes) -> tuple[float, int, int]:
     ktx = [decode_ktx2(data) for kind, data in pages_of(compressed) if kind == "image/ktx2"]
     errors, flips, texels = [], 0, 0
     for a, b in zip(pngs, ktx):
+        b = b[: a.shape[0], : a.shape[1]]  # a page grown to whole 4 x 4 blocks: its own texels
         kept = a[..., 3] >= 128
         errors.append(np.abs(a[..., :3].astype(np.int16) - b[..., :3].astype(np.int16))[kept].ravel())
         flips += int((kept != (b[..., 3] >= 128)).sum())
