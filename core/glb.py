@@ -52,7 +52,7 @@ from PIL import Image
 from farfield.core.colour_space import srgb_to_linear
 from farfield.core.impostor import Impostor, LdiPayload, MeshPayload, PointPayload, QuadPayload, check_impostor
 
-__all__ = ["engine_metadata", "impostor_glb", "page_png"]
+__all__ = ["engine_metadata", "impostor_glb", "page_png", "write_glb"]
 
 _MAGIC = 0x46546C67  # "glTF"
 _VERSION = 2
@@ -401,9 +401,17 @@ def impostor_glb(impostor: Impostor) -> bytes:
         document["buffers"] = [{"byteLength": len(blob)}]
         document["bufferViews"] = binary.views
 
+    return write_glb(document, blob)
+
+
+def write_glb(document: dict, blob: bytes) -> bytes:
+    """GLB bytes of a JSON document and a BIN chunk (none when empty): fixed JSON key order and
+    spacing, the JSON padded with spaces and the BIN with zeros to 4 bytes (glTF 2.0, "GLB File
+    Format Specification")."""
     text = json.dumps(document, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False)
     json_chunk = _pad(text.encode("ascii"), b" ")
     chunks = struct.pack("<II", len(json_chunk), _CHUNK_JSON) + json_chunk
     if blob:
+        blob = _pad(blob, b"\x00")
         chunks += struct.pack("<II", len(blob), _CHUNK_BIN) + blob
     return struct.pack("<III", _MAGIC, _VERSION, 12 + len(chunks)) + chunks

@@ -35,8 +35,9 @@ import numpy as np
 from PIL import Image
 
 from farfield.core.errors import BundleFormatError
+from farfield.core.glb import page_png, write_glb
 
-__all__ = ["CODECS", "GEOMETRY", "TEXTURES", "compress_glb", "read_glb", "write_glb"]
+__all__ = ["CODECS", "GEOMETRY", "TEXTURES", "compress_glb", "read_glb", "write_glb"]  # write_glb: core.glb's
 
 TEXTURES = ("png", "ktx2", "ktx2+png")
 GEOMETRY = ("plain", "meshopt")
@@ -76,21 +77,6 @@ def read_glb(data: bytes) -> tuple[dict, bytes]:
         if kind == _BIN:
             blob = data[at + 8 : at + 8 + size]
     return document, blob
-
-
-def _pad(data: bytes, fill: bytes) -> bytes:
-    return data + fill * (-len(data) % 4)
-
-
-def write_glb(document: dict, blob: bytes) -> bytes:
-    """GLB bytes of a JSON document and a BIN chunk (padded as glTF 2.0's GLB format says)."""
-    text = json.dumps(document, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False)
-    json_chunk = _pad(text.encode("ascii"), b" ")
-    chunks = struct.pack("<II", len(json_chunk), _JSON) + json_chunk
-    if blob:
-        blob = _pad(blob, b"\x00")
-        chunks += struct.pack("<II", len(blob), _BIN) + blob
-    return struct.pack("<III", _MAGIC, 2, 12 + len(chunks)) + chunks
 
 
 def block_padded(rgba: np.ndarray) -> np.ndarray:
@@ -137,7 +123,7 @@ class _Blob:
 
     def add(self, data: bytes) -> tuple[int, int]:
         offset = self.length
-        padded = _pad(data, b"\x00")
+        padded = data + b"\x00" * (-len(data) % 4)
         self.parts.append(padded)
         self.length += len(padded)
         return offset, len(data)
@@ -231,7 +217,7 @@ def _compress(data: bytes, textures: str, geometry: str, codec: str) -> bytes:
         padded = block_padded(rgba)
         if padded.shape != rgba.shape:
             grown[n] = (rgba.shape[1] / padded.shape[1], rgba.shape[0] / padded.shape[0])
-            png = _png(padded) if keep_png else png  # the fallback shares the scaled coordinates
+            png = page_png(padded) if keep_png else png  # the fallback shares the scaled coordinates
         pages.append((png if keep_png else b"", ktx2_page(padded, codec)))
     scale = _uv_scales(document, grown)
 
@@ -315,12 +301,6 @@ def _compress(data: bytes, textures: str, geometry: str, codec: str) -> bytes:
     if required:
         document["extensionsRequired"] = sorted(required)
     return write_glb(document, out.bytes())
-
-
-def _png(rgba: np.ndarray) -> bytes:
-    from farfield.core.glb import page_png
-
-    return page_png(rgba)
 
 
 def _uv_scales(document: dict, grown: dict[int, tuple[float, float]]) -> dict[int, tuple[float, float]]:
