@@ -55,7 +55,6 @@ coordinates.
 
 from __future__ import annotations
 
-import collections
 from dataclasses import dataclass
 
 import numpy as np
@@ -210,7 +209,8 @@ def rasterize(plane: np.ndarray, margin: int) -> tuple[np.ndarray, ...]:
     distance ``margin`` of the triangle: the texel's integer column u and row v (centre at
     u + 0.5, v + 0.5), whether the triangle claims the centre (inside it; on an edge only by a
     top-left rule, so a centre on an edge shared by two triangles on either side is claimed once),
-    and the Chebyshev distance to the farthest edge line the centre lies outside of (0 inside).
+    and the Chebyshev distance to the farthest edge line the centre lies outside of (0 inside);
+    triangle by triangle, in order.
 
     >>> tri, u, v, inside, dist = rasterize(np.array([[[0, 0], [2, 0], [0, 2]]], float), 0)
     >>> sorted(zip(u[inside].tolist(), v[inside].tolist()))
@@ -237,38 +237,40 @@ def rasterize(plane: np.ndarray, margin: int) -> tuple[np.ndarray, ...]:
     row1 = np.floor(hi[:, 1] - 0.5 + 1e-9).astype(np.int64)
     rows = np.maximum(row1 - row0 + 1, 0)
     rt = np.repeat(np.arange(t, dtype=np.int64), rows)
-    ry = np.arange(rt.size) - np.repeat(np.cumsum(rows) - rows, rows) + row0[rt]
+    ry = _ranges(row0, rows)
     cy = ry + 0.5
     x0, x1 = lo[rt, 0].copy(), hi[rt, 0].copy()
+    use = valid[rt]
     for k in range(3):
-        ex, ey = e[rt, k, 0], e[rt, k, 1]
-        qx, qy = q[rt, k, 0], q[rt, k, 1]
+        ex, ey, qx, qy, length = e[rt, k, 0], e[rt, k, 1], q[rt, k, 0], q[rt, k, 1], l1[rt, k]
         # E(x) = ex (cy - qy) - ey (x - qx) >= -margin * l1  <=>  -ey x >= -margin * l1 - ex (cy - qy) - ey qx
-        rhs = -m * l1[rt, k] - ex * (cy - qy) - ey * qx
+        rhs = -m * length - ex * (cy - qy) - ey * qx
         with np.errstate(divide="ignore", invalid="ignore"):
             bound = rhs / -ey
-        use = valid[rt]
         x0 = np.where(use & (ey < 0), np.maximum(x0, bound), x0)
         x1 = np.where(use & (ey > 0), np.minimum(x1, bound), x1)
-        x1 = np.where(use & (ey == 0) & (rhs > 1e-9 * scale * l1[rt, k]), -np.inf, x1)
+        x1 = np.where(use & (ey == 0) & (rhs > 1e-9 * scale * length), -np.inf, x1)
     col0 = np.ceil(np.nan_to_num(x0, neginf=0.0, posinf=0.0) - 0.5 - 1e-6).astype(np.int64)
     col1 = np.floor(np.nan_to_num(x1, neginf=-1e9, posinf=0.0) - 0.5 + 1e-6).astype(np.int64)
     cols = np.maximum(col1 - col0 + 1, 0)
     tri = np.repeat(rt, cols)
     v = np.repeat(ry, cols)
-    u = np.arange(tri.size) - np.repeat(np.cumsum(cols) - cols, cols) + np.repeat(col0, cols)
+    u = _ranges(col0, cols)
 
-    # The exact tests per texel.
+    # The exact tests per texel, one edge after the other (per-triangle values gathered per edge:
+    # reductions over an axis of 3 are slow).
     cx, cy = u + 0.5, v + 0.5
-    fn = np.empty((tri.size, 3))
+    use = valid[tri]
+    tol = 1e-12 * scale * l1
+    owns = (e[:, :, 1] < 0) | ((e[:, :, 1] == 0) & (e[:, :, 0] > 0))  # (t, 3) top-left edges
+    grad = np.where(l1 > 0, l1, 1.0)
+    inside, distance = use, np.full(tri.size, -np.inf)
     for k in range(3):
-        fn[:, k] = e[tri, k, 0] * (cy - q[tri, k, 1]) - e[tri, k, 1] * (cx - q[tri, k, 0])
-    grad = l1[tri]
-    tol = 1e-12 * scale * grad
-    owns = (e[tri, :, 1] < 0) | ((e[tri, :, 1] == 0) & (e[tri, :, 0] > 0))
-    inside = valid[tri] & np.all((fn > tol) | ((np.abs(fn) <= tol) & owns), axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        distance = np.where(valid[tri][:, None], -fn / np.where(grad > 0, grad, 1.0), 0.0).max(axis=1)
+        fn = e[tri, k, 0] * (cy - q[tri, k, 1]) - e[tri, k, 1] * (cx - q[tri, k, 0])
+        limit = tol[tri, k]
+        inside = inside & ((fn > limit) | ((np.abs(fn) <= limit) & owns[tri, k]))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            distance = np.maximum(distance, np.where(use, -fn / grad[tri, k], 0.0))
     distance = np.where(inside, 0.0, np.maximum(distance, 0.0))
     near = (distance <= m + 1e-9) & (cx >= lo[tri, 0] - 1e-9) & (cx <= hi[tri, 0] + 1e-9)
     return tri[near], u[near], v[near], inside[near], distance[near]
@@ -307,7 +309,7 @@ def build_charts(points: np.ndarray, triangles: np.ndarray, margin: int) -> Char
         # Folds: a texel centre claimed by two triangles of one chart.  All but the first claimer
         # leave (greedy); the leavers regroup among themselves on the next round.
         key = (chart[claim_tri] * span + (claim_v - base)) * span + (claim_u - base)
-        order = np.lexsort((claim_tri, key))
+        order = np.argsort(key, kind="stable")  # then by triangle: rasterize emits by triangle
         dup = np.zeros(order.size, bool)
         dup[1:] = key[order][1:] == key[order][:-1]
         evicted = np.zeros(t, np.int64)
@@ -316,7 +318,9 @@ def build_charts(points: np.ndarray, triangles: np.ndarray, margin: int) -> Char
         low, high = _extents(chart, plane, count)
         too_big = np.any(high - low + 2 * margin + 1 > MAX_CHART, axis=1)
         cell = np.where(too_big[chart][:, None], np.floor((centroid - low[chart]) / (MAX_CHART // 2)), 0).astype(np.int64)
-        refined = np.unique(np.stack([chart, evicted, cell[:, 0], cell[:, 1]], axis=1), axis=0, return_inverse=True)[1].reshape(-1)
+        cell -= cell.min(axis=0, initial=0)
+        rows = np.ravel_multi_index((chart, evicted, cell[:, 0], cell[:, 1]), (count, 2, *(cell.max(axis=0, initial=0) + 1)))
+        refined = np.unique(rows, return_inverse=True)[1].reshape(-1)  # the (chart, evicted, cell) rows in order
         if int(refined.max(initial=-1)) + 1 == count:
             break
         label = refined
@@ -336,7 +340,7 @@ def build_charts(points: np.ndarray, triangles: np.ndarray, margin: int) -> Char
     # One record per texel: the claiming triangle, else the nearest one (then the lowest index).
     first = np.concatenate([[0], np.cumsum(sizes.prod(axis=1))[:-1]])
     flat = first[texel_chart] + row * sizes[texel_chart, 0] + col
-    order = np.lexsort((tri, distance, ~inside, flat))
+    order = np.lexsort((distance, 2 * flat + ~inside))  # stable, and rasterize emits by triangle
     keep = np.ones(order.size, bool)
     keep[1:] = flat[order][1:] != flat[order][:-1]
     pick = order[keep]
@@ -357,8 +361,9 @@ def _extents(chart: np.ndarray, plane: np.ndarray, count: int) -> tuple[np.ndarr
     """(count, 2) lowest and highest texel positions of each chart's vertices (``plane`` (t, 3, 2))."""
     low = np.full((count, 2), np.inf)
     high = np.full((count, 2), -np.inf)
-    np.minimum.at(low, np.repeat(chart, 3), plane.reshape(-1, 2))
-    np.maximum.at(high, np.repeat(chart, 3), plane.reshape(-1, 2))
+    for k in range(2):  # faster than (count, 2) at once or a vertex at a time
+        np.minimum.at(low[:, k], chart, plane[:, :, k].min(axis=1))
+        np.maximum.at(high[:, k], chart, plane[:, :, k].max(axis=1))
     return low, high
 
 
@@ -391,91 +396,170 @@ def unfold_lone_triangles(points, triangles, chart, plane, margin, claimed):
     >>> ch = build_charts(pts, tris, 1)
     >>> ch.chart.tolist(), np.round(ch.position[2, 1] - ch.position[2, 0], 3).tolist()
     ([0, 0, 0], [2.236, 2.0])
+
+    Each round lists every candidate move at once (:func:`_unfoldings`), rasterizes them together
+    and accepts them one after the other in that order where the checks above, on the charts as
+    the moves before left them, allow it (:class:`_Unfolding`).
     """
-    chart, plane = chart.copy(), plane.copy()
-    claim = set()  # (chart, u, v) of every claimed texel centre
-    owned = collections.defaultdict(list)  # triangle -> its claims
-    for k, uu, vv in zip(*(c.tolist() for c in claimed)):
-        claim.add((int(chart[k]), uu, vv))
-        owned[k].append((int(chart[k]), uu, vv))
-    uses = collections.Counter(zip(np.repeat(chart, 3).tolist(), triangles.reshape(-1).tolist()))
-    across = collections.defaultdict(list)  # edge (low vertex, high vertex) -> triangles
-    for k, tri in enumerate(triangles.tolist()):
-        for e in range(3):
-            a, b = tri[e], tri[(e + 1) % 3]
-            across[(min(a, b), max(a, b))].append(k)
-    count = int(chart.max(initial=-1)) + 1
-    low, high = _extents(chart, plane, count)
-    size = np.bincount(chart, minlength=count)
+    state = _Unfolding(points, triangles, chart, plane, claimed)
+    edges = _edge_index(triangles, points.shape[0])
+    geometry = _edge_geometry(points, triangles)
     corners = points[triangles]
     area = np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
-    largest_first = np.argsort(-area, kind="stable").tolist()
+    largest_first = np.argsort(-area, kind="stable")
     while True:
         # Every way a lone triangle could go, largest triangles first, rasterized together.
-        candidates = [(s, j, third, new) for s in largest_first if size[chart[s]] == 1 for j, third, new in _unfoldings(points, triangles, chart, plane, s, across, size)]
-        if not candidates:
+        lone = largest_first[state.size[state.chart[largest_first]] == 1]
+        candidates = _unfoldings(triangles, state.chart, state.plane, state.size, lone, edges, geometry)
+        if not candidates[0].size or not state.move(margin, *candidates):
             break
-        ct, cu, cv, cin, _ = rasterize(np.array([new for *_, new in candidates]), margin)
-        ct, cu, cv = ct[cin], cu[cin], cv[cin]
-        bounds = np.searchsorted(ct, np.arange(len(candidates) + 1))  # rasterize emits by triangle
-        moved = False
-        for i, (s, j, third, new) in enumerate(candidates):
-            own, other = int(chart[s]), int(chart[j])
-            if size[own] != 1 or uses[(other, third)] > 0:
+    return np.unique(state.chart, return_inverse=True)[1].reshape(-1).astype(np.int64), state.plane
+
+
+class _Unfolding:
+    """The charts while :func:`unfold_lone_triangles` moves triangles: each triangle's chart and
+    texel positions, each chart's triangle count and vertex extents, the claimed texel centres
+    (integer keys, :meth:`keys`) and those of each triangle, and how many triangles of each chart
+    use each vertex (key chart * n + vertex, n the vertex count).  What the greedy loop reads is
+    kept in flat Python lists, sets and dicts of numbers (no numpy scalars, no small lists for the
+    garbage collector to walk)."""
+
+    def __init__(self, points, triangles, chart, plane, claimed):
+        self.n, self.vertices = points.shape[0], triangles.reshape(-1).tolist()  # triangle s: [3 s, 3 s + 3)
+        self.chart, self.plane = chart.copy(), plane.copy()
+        count = int(chart.max(initial=-1)) + 1
+        self.size = np.bincount(chart, minlength=count)
+        low, high = _extents(chart, plane, count)
+        self.extent = np.concatenate([low, high], axis=1).reshape(-1).tolist()  # chart c: low u, v, high u, v at 4 c
+        uses, times = np.unique(np.repeat(chart, 3) * self.n + triangles.reshape(-1), return_counts=True)
+        self.uses = dict(zip(uses.tolist(), times.tolist()))
+        # Every centre looked up lies in a chart's tile, which keeps the chart's own triangles (a
+        # chart that takes triangles has two or more, which never leave) and stays within
+        # MAX_CHART texels: the keys' window reaches that far beyond every position.
+        tri, u, v = claimed
+        known = plane[np.isfinite(plane)]
+        self.base = min(int(np.floor(known.min(initial=0.0))), int(u.min(initial=0)), int(v.min(initial=0))) - MAX_CHART - 2
+        self.span = max(int(np.ceil(known.max(initial=0.0))), int(u.max(initial=0)), int(v.max(initial=0))) + MAX_CHART + 3 - self.base
+        order = np.argsort(tri, kind="stable")
+        self.owned = self.keys(chart[tri[order]], u[order], v[order]).tolist()  # triangle s: from owned_from[s]
+        self.owned_from = np.searchsorted(tri[order], np.arange(chart.size + 1)).tolist()
+        self.claim = set(self.owned)
+
+    def keys(self, chart: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """int64 keys of texel centres (u, v) of ``chart``, one to one inside the window."""
+        return (chart * self.span + (v - self.base)) * self.span + (u - self.base)
+
+    def move(self, margin, lone, across, third, new) -> bool:
+        """Move each lone triangle into the chart of the triangle ``across`` from it, its vertex
+        ``third`` off their shared edge and its texel positions ``new`` (m, 3, 2), one candidate
+        after the other where allowed (see :func:`unfold_lone_triangles`); whether any moved."""
+        tri, u, v, inside, _ = rasterize(new, margin)
+        tri, u, v = tri[inside], u[inside], v[inside]
+        bounds = np.searchsorted(tri, np.arange(lone.size + 1)).tolist()  # rasterize emits by triangle
+        source, target = self.chart[lone], self.chart[across]
+        keys = self.keys(target[tri], u, v).tolist()  # those outside the window are of moves past MAX_CHART, never looked up
+        size, extent, uses, claim, n, moved = self.size.tolist(), self.extent, self.uses, self.claim, self.n, []
+        candidates = zip(lone.tolist(), source.tolist(), target.tolist(), third.tolist(), *new.min(axis=1).T.tolist(), *new.max(axis=1).T.tolist())
+        for i, (s, own, other, apex, new_lu, new_lv, new_hu, new_hv) in enumerate(candidates):
+            # Not moved already (its chart would be empty), and the vertex not in that chart.
+            if size[own] != 1 or uses.get(other * n + apex, 0) > 0:
                 continue
-            lo, hi = np.minimum(low[other], new.min(axis=0)), np.maximum(high[other], new.max(axis=0))
-            keys = [(other, uu, vv) for uu, vv in zip(cu[bounds[i] : bounds[i + 1]].tolist(), cv[bounds[i] : bounds[i + 1]].tolist())]
-            if np.any(hi - lo + 2 * margin + 1 > MAX_CHART) or any(key in claim for key in keys):
+            at = 4 * other
+            lu, lv, hu, hv = min(extent[at], new_lu), min(extent[at + 1], new_lv), max(extent[at + 2], new_hu), max(extent[at + 3], new_hv)
+            if hu - lu + 2 * margin + 1 > MAX_CHART or hv - lv + 2 * margin + 1 > MAX_CHART:
                 continue
-            claim.difference_update(owned[s])
-            claim.update(keys)
-            owned[s] = keys
-            for v in triangles[s].tolist():
-                uses[(own, v)] -= 1
-                uses[(other, v)] += 1
-            chart[s], plane[s] = other, new
+            mine = keys[bounds[i] : bounds[i + 1]]
+            if not claim.isdisjoint(mine):
+                continue
+            # A triangle moved stays in a chart of two or more: its claims are never looked up again.
+            claim.difference_update(self.owned[self.owned_from[s] : self.owned_from[s + 1]])
+            claim.update(mine)
+            for vertex in self.vertices[3 * s : 3 * s + 3]:
+                uses[own * n + vertex] -= 1
+                uses[other * n + vertex] = uses.get(other * n + vertex, 0) + 1
             size[own], size[other] = 0, size[other] + 1
-            low[other], high[other] = lo, hi
-            moved = True
-        if not moved:
-            break
-    return np.unique(chart, return_inverse=True)[1].reshape(-1).astype(np.int64), plane
+            extent[at : at + 4] = lu, lv, hu, hv
+            moved.append(i)
+        self.chart[lone[moved]], self.plane[lone[moved]] = target[moved], new[moved]
+        self.size = np.array(size, np.int64)
+        return bool(moved)
 
 
-def _unfoldings(points, triangles, chart, plane, s, across, size):
-    """Each (neighbour j, s's vertex off the shared edge, s's unfolded texel positions (3, 2)) for
-    lone triangle ``s``: across each edge, into each neighbour's chart of two or more triangles
-    where the edge appears at least ``ADOPT_SCORE`` times its length."""
-    out = []
-    row_s = triangles[s].tolist()
-    for e in range(3):
-        ia, ib, ic = e, (e + 1) % 3, (e + 2) % 3
-        a, b, c = row_s[ia], row_s[ib], row_s[ic]
-        edge = points[b] - points[a]
-        length = float(np.linalg.norm(edge))
-        if length <= EPS:
-            continue
-        along = float((points[c] - points[a]) @ edge) / (length * length)
-        height = float(np.linalg.norm(points[c] - points[a] - along * edge))
-        if height <= EPS:
-            continue
-        for j in across[(min(a, b), max(a, b))]:
-            if j == s or size[chart[j]] < 2:
-                continue
-            row = triangles[j].tolist()
-            ka, kb = row.index(a), row.index(b)
-            pa, pb, opposite = plane[j, ka], plane[j, kb], plane[j, 3 - ka - kb]
-            flat = pb - pa
-            shown = float(np.linalg.norm(flat))
-            if shown < ADOPT_SCORE * length:
-                continue
-            normal = np.array([-flat[1], flat[0]]) / shown
-            if (opposite - pa) @ normal > 0:
-                normal = -normal
-            new = np.empty((3, 2))
-            new[ia], new[ib], new[ic] = pa, pb, pa + along * flat + height * normal
-            out.append((j, c, new))
-    return out
+def _edge_index(triangles: np.ndarray, n: int) -> tuple[int, np.ndarray, np.ndarray]:
+    """The triangles across every edge of the (t, 3) ``triangles`` (of vertices < ``n``): ``n``,
+    the sorted keys of their edges (:func:`_edge_keys`) and the triangle of each, ascending within
+    a key (twice where a triangle has the edge twice)."""
+    key = _edge_keys(triangles.reshape(-1), triangles[:, [1, 2, 0]].reshape(-1), n)
+    order = np.argsort(key, kind="stable")
+    return n, key[order], order // 3
+
+
+def _edge_keys(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
+    """Keys of the edges from vertices ``a`` to ``b`` (< ``n``), the same either way."""
+    return np.minimum(a, b) * n + np.maximum(a, b)
+
+
+def _edge_geometry(points: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(t, 3) length, along and height of the edge e of each triangle, from its vertex e to the
+    next: the edge's length, the third vertex's distance along it (a fraction of its length) and
+    from it (voxel units)."""
+    a = points[triangles]
+    edge, off = a[:, [1, 2, 0]] - a, a[:, [2, 0, 1]] - a
+    length = np.sqrt(_dot(edge, edge))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        along = _dot(off, edge) / (length * length)
+    rest = off - along[..., None] * edge
+    return length, along, np.sqrt(_dot(rest, rest))
+
+
+def _dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Sums of ``x * y`` over the last axis, added in order, as ``@`` and :func:`numpy.linalg.norm`
+    add a 2- or 3-vector: the vectorized unfoldings round as one unfolding at a time would."""
+    total = x[..., 0] * y[..., 0]
+    for k in range(1, x.shape[-1]):
+        total = total + x[..., k] * y[..., k]
+    return total
+
+
+def _ranges(start: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """The integers start[i], ..., start[i] + count[i] - 1 for every i, one after the other."""
+    return np.arange(count.sum()) - np.repeat(np.cumsum(count) - count - start, count)
+
+
+def _unfoldings(triangles, chart, plane, size, lone, edges, geometry):
+    """Every way the ``lone`` triangles can go, in their order, then by edge, then by neighbour:
+    across each edge (:func:`_edge_index`) into each neighbour's chart of two or more triangles
+    (``size``) where the edge appears at least ``ADOPT_SCORE`` times its length, unfolded by the
+    edges' ``geometry`` (:func:`_edge_geometry`).  Returns arrays (lone triangle, neighbour, the
+    lone triangle's vertex off the shared edge, its unfolded texel positions (m, 3, 2))."""
+    n, edge_key, edge_triangle = edges
+    length, along, height = geometry
+    s, e = np.repeat(lone, 3), np.tile(np.arange(3), lone.size)
+    keep = ~(length[s, e] <= EPS) & ~(height[s, e] <= EPS)
+    s, e = s[keep], e[keep]
+    a, b, c = triangles[s, e], triangles[s, (e + 1) % 3], triangles[s, (e + 2) % 3]
+    key = _edge_keys(a, b, n)
+    first = np.searchsorted(edge_key, key)
+    count = np.searchsorted(edge_key, key, side="right") - first
+    j = edge_triangle[_ranges(first, count)]
+    s, e, a, b, c = (np.repeat(x, count) for x in (s, e, a, b, c))
+    keep = (j != s) & (size[chart[j]] >= 2)
+    s, e, a, b, c, j = (x[keep] for x in (s, e, a, b, c, j))
+    # The shared edge and the third vertex in the neighbour's chart.
+    ka, kb = np.argmax(triangles[j] == a[:, None], axis=1), np.argmax(triangles[j] == b[:, None], axis=1)
+    pa, pb, opposite = plane[j, ka], plane[j, kb], plane[j, 3 - ka - kb]
+    flat = pb - pa
+    shown = np.sqrt(_dot(flat, flat))
+    keep = ~(shown < ADOPT_SCORE * length[s, e])
+    s, e, c, j, pa, pb, opposite, flat, shown = (x[keep] for x in (s, e, c, j, pa, pb, opposite, flat, shown))
+    # The edge's normal away from the neighbour's third vertex.
+    normal = np.stack([-flat[:, 1], flat[:, 0]], axis=1) / shown[:, None]
+    normal = np.where((_dot(opposite - pa, normal) > 0)[:, None], -normal, normal)
+    new = np.empty((s.size, 3, 2))
+    row = np.arange(s.size)
+    new[row, e], new[row, (e + 1) % 3] = pa, pb
+    new[row, (e + 2) % 3] = pa + along[s, e][:, None] * flat + height[s, e][:, None] * normal
+    return s, j, c, new
 
 
 def chart_masks(charts: Charts) -> list[np.ndarray]:

@@ -131,6 +131,29 @@ def test_an_unfolding_that_would_give_a_vertex_two_positions_is_refused():
     assert_claimed_once(charts, points, triangles)
 
 
+@pytest.mark.parametrize("wall_first", [False, True])
+def test_a_lone_triangle_on_an_edge_of_two_charts_goes_to_the_first_neighbour(wall_first):
+    # The square's right edge (vertices 1, 2) is also the top edge of a wall facing x and an edge
+    # of a triangle folded back over the square (a non-manifold edge): the triangle unfolds into
+    # the chart of the neighbour of lower index, across the edge from it, sqrt(5) off the edge.
+    points = np.array([[0, 0, 0], [4, 0, 0], [4, 4, 0], [0, 4, 0], [2, 2, 1], [4, 4, -3], [4, 0, -3]], float)
+    square, wall = [[0, 1, 2], [0, 2, 3]], [[2, 1, 5], [1, 6, 5]]
+    triangles = np.array((wall + square if wall_first else square + wall) + [[1, 4, 2]])
+    charts = build_charts(points, triangles, 1)
+    assert charts.count == 2 and charts.chart[4] == charts.chart[0] != charts.chart[2]
+    assert_claimed_once(charts, points, triangles)
+    at = dict(zip(triangles[0].tolist(), charts.position[0]))  # the neighbour's vertices
+    a, apex, b = charts.position[4]
+    assert np.allclose(a, at[1]) and np.allclose(b, at[2])
+
+    def side(p):
+        return (b - a)[0] * (p - a)[1] - (b - a)[1] * (p - a)[0]
+
+    (third,) = set(at) - {1, 2}
+    assert abs(side(apex)) / np.linalg.norm(b - a) == pytest.approx(math.sqrt(5))
+    assert side(apex) * side(at[third]) < 0
+
+
 def test_charts_wider_than_the_cap_are_cut():
     length = 5000
     xs = np.linspace(0, length, 51)
@@ -346,9 +369,9 @@ def _plain_first_fit(masks, padding, width, max_page):
 
 @pytest.mark.parametrize("padding", [0, 2])
 def test_mask_packing_is_the_plain_first_fit(padding):
-    """The packer's row skips and column jumps (``_first_fit``) change its speed, not its answer: on
-    random blobs with holes, at the width it keeps, every mask lies where the plain row-major first
-    fit puts it."""
+    """The packer's row skips and column jumps (``_first_fit``) and its searches resumed where the
+    same mask went last change its speed, not its answer: on random blobs with holes, some of them
+    repeated, at the width it keeps, every mask lies where the plain row-major first fit puts it."""
     rng = np.random.default_rng(7 + padding)
     masks = []
     for _ in range(80):
@@ -356,6 +379,7 @@ def test_mask_packing_is_the_plain_first_fit(padding):
         blob = rng.random((h, w)) < 0.7
         blob[0, rng.integers(w)] = blob[rng.integers(h), 0] = blob[-1, rng.integers(w)] = blob[rng.integers(h), -1] = True
         masks.append(blob)
+    masks += [masks[i].copy() for i in rng.integers(0, 10, size=40)]  # repeats, across pages too
     layout = pack_masks(masks, padding, max_page=48)
     assert len(layout.page_sizes) > 1  # a page filled up: the search went through blocked rows
     width = int(layout.page_sizes[0, 0])
