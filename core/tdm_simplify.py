@@ -564,19 +564,6 @@ def _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, 
 
 
 @njit(cache=True)
-def _near(v, touched, vt_start, vt_len, vt_pool, tri_alive, triangles):
-    """Is ``v`` or a vertex of one of its triangles ``touched``?"""
-    if touched[v]:
-        return True
-    s = vt_start[v]
-    for j in range(vt_len[v]):
-        t = vt_pool[s + j]
-        if tri_alive[t] and (touched[triangles[t, 0]] or touched[triangles[t, 1]] or touched[triangles[t, 2]]):
-            return True
-    return False
-
-
-@njit(cache=True)
 def _simplify(vertices, triangles, edges, tri_voxel_offsets, tri_voxels, centres, half, shrink, max_valence, touched_before, repeat):
     nv_total = vertices.shape[0]
     nt = triangles.shape[0]
@@ -644,11 +631,23 @@ def _simplify(vertices, triangles, edges, tri_voxel_offsets, tri_voxels, centres
     # previous pass's at the same factor): see :func:`simplify`.
     touched = touched_before.copy() if repeat else np.zeros(nv_total, dtype=np.bool_)
     touched_now = np.zeros(nv_total, dtype=np.bool_)
+    # A repeat tries an edge only if one of its vertices is ``near``: touched, or on a live
+    # triangle with a touched vertex.  Kept as a flag: set here for the triangles as they are, then
+    # at every contraction for the vertices it touches first and those on their triangles after it.
+    # (A vertex leaves a triangle only by a contraction, and a contraction touches every vertex of
+    # the triangles it changes or removes, so a flag set once stays true.)
+    near = np.zeros(nv_total, dtype=np.bool_)
+    if repeat:
+        for t in range(nt):
+            if touched[triangles[t, 0]] or touched[triangles[t, 1]] or touched[triangles[t, 2]]:
+                for k in range(3):
+                    near[triangles[t, k]] = True
+    fresh = np.empty(6 * cap_t, dtype=np.int64)  # the vertices a contraction touched first
     while size > 0:
         a, b, va, vb, size = _heap_pop(keys, items, size)
         if not vert_alive[a] or not vert_alive[b] or version[a] != va or version[b] != vb:
             continue
-        if repeat and not (_near(a, touched, vt_start, vt_len, vt_pool, tri_alive, triangles) or _near(b, touched, vt_start, vt_len, vt_pool, tri_alive, triangles)):
+        if repeat and not (near[a] or near[b]):
             continue
         if vt_len[a] > cap_t // 2 or vt_len[b] > cap_t // 2:
             cap_t = 2 * max(vt_len[a], vt_len[b]) + 16
@@ -661,6 +660,7 @@ def _simplify(vertices, triangles, edges, tri_voxel_offsets, tri_voxels, centres
             cand = np.empty(2 * cap_t, dtype=np.int64)
             corner = np.empty((2 * cap_t, 9))
             per = np.zeros(2 * cap_t, dtype=np.int64)
+            fresh = np.empty(6 * cap_t, dtype=np.int64)
         done = False
         for attempt in range(2):
             v2, v1 = (b, a) if attempt == 0 else (a, b)
@@ -689,16 +689,25 @@ def _simplify(vertices, triangles, edges, tri_voxel_offsets, tri_voxels, centres
                 if tri_alive[t]:
                     cand[nc] = t
                     nc += 1
+            n_fresh = 0
             for i in range(n2):
                 for k in range(3):
-                    touched[triangles[scratch_t2[i], k]] = True
-                    touched_now[triangles[scratch_t2[i], k]] = True
+                    w = triangles[scratch_t2[i], k]
+                    if not touched[w]:
+                        fresh[n_fresh] = w
+                        n_fresh += 1
+                    touched[w] = True
+                    touched_now[w] = True
             for i in range(nc):
                 t = cand[i]
                 for k in range(3):
-                    touched[triangles[t, k]] = True
-                    touched_now[triangles[t, k]] = True
-                    if triangles[t, k] == v2:
+                    w = triangles[t, k]
+                    if not touched[w]:
+                        fresh[n_fresh] = w
+                        n_fresh += 1
+                    touched[w] = True
+                    touched_now[w] = True
+                    if w == v2:
                         triangles[t, k] = v1
             vert_alive[v2] = False
             # v1's triangle list.
@@ -708,6 +717,16 @@ def _simplify(vertices, triangles, edges, tri_voxel_offsets, tri_voxels, centres
             vt_start[v1] = vt_top
             vt_len[v1] = nc
             vt_top += nc
+            if repeat:
+                for i in range(n_fresh):
+                    w = fresh[i]
+                    near[w] = True
+                    s = vt_start[w]
+                    for j in range(vt_len[w]):
+                        t = vt_pool[s + j]
+                        if tri_alive[t]:
+                            for k in range(3):
+                                near[triangles[t, k]] = True
             # Voxel lists: moved triangles keep exactly the voxels assigned to them; v1's own add theirs.
             per[:nc] = 0
             for i in range(nv):
