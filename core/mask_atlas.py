@@ -180,31 +180,44 @@ def pack_masks(masks: Sequence[np.ndarray], padding: int = 2, max_page: int = MA
     widest = _round4(shapes[:, 1].max())
     widths = sorted({min(max_page, max(widest, _round4(np.ceil(np.sqrt(s * texels.sum()))))) for s in WIDTH_SCALES})
     p = int(padding)
-    square = np.ones((2 * p + 1, 2 * p + 1), bool)
     cells = [tuple(c.astype(np.int64) for c in np.nonzero(m)) for m in masks]
     # Masks alike texel for texel share a number: a search for one resumes where the last ended.
     kinds: dict[tuple, int] = {}
     kind = np.array([kinds.setdefault((m.shape, m.tobytes()), len(kinds)) for m in masks], dtype=np.int64)
     need = [np.bincount(rows, minlength=m.shape[0]).astype(np.int64) for m, (rows, _) in zip(masks, cells)]
-    need_run = [_longest_runs(m) for m in masks]
-    grown = [binary_dilation(np.pad(m, p), square) if p else m for m in masks]
+    need_run, grown = _stacked(masks, shapes, p)
     # One thread per width (the kernels release the GIL): the widths are independent packings.
     with ThreadPoolExecutor(max_workers=min(len(widths), os.cpu_count() or 1)) as pool:
         layouts = list(pool.map(lambda width: _pack(shapes, cells, need, need_run, grown, kind, order, width, p, max_page), widths))
     return min(layouts, key=lambda layout: (layout.page_area, len(layout.page_sizes)))
 
 
-def _longest_runs(mask: np.ndarray) -> np.ndarray:
-    """(h,) int64: the longest run of true texels in each row of ``mask``.
+def _stacked(masks: Sequence[np.ndarray], shapes: np.ndarray, p: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Each mask's longest run of true texels in each row and the mask dilated
+    by ``p`` texels (Chebyshev) on an array grown by ``p`` all round, found for all masks at once:
+    they lie one under the other on one array, ``2 p + 1`` rows apart (a call per mask cost more
+    than the packing of the small ones: 31k charts of benchmarks/bench_tdm_scale.py, 2.6 s).
 
-    >>> _longest_runs(np.array([[1, 1, 0, 1], [0, 0, 0, 0], [1, 0, 1, 1]], bool)).tolist()
-    [2, 0, 2]
+    >>> runs, grown = _stacked([np.array([[1, 1, 0, 1]], bool), np.ones((2, 1), bool)], np.array([[1, 4], [2, 1]]), 1)
+    >>> [r.tolist() for r in runs], grown[1].astype(int).tolist()
+    ([[2], [1, 1]], [[1, 1, 1], [1, 1, 1], [1, 1, 1], [1, 1, 1]])
     """
-    edges = np.diff(np.pad(mask.astype(np.int8), ((0, 0), (1, 1))), axis=1)
-    starts, ends = np.nonzero(edges == 1), np.nonzero(edges == -1)  # both row-major: paired in order
-    longest = np.zeros(mask.shape[0], np.int64)
-    np.maximum.at(longest, starts[0], ends[1] - starts[1])
-    return longest
+    heights, width = shapes[:, 0] + 2 * p + 1, int(shapes[:, 1].max()) + 2 * p
+    top = np.concatenate([[0], np.cumsum(heights)[:-1]]) + p  # each mask's row 0 on the stack
+    stack = np.zeros((int(heights.sum()) + p, width + 2), bool)  # a false column each side
+    for mask, row in zip(masks, top.tolist()):
+        stack[row : row + mask.shape[0], p + 1 : p + 1 + mask.shape[1]] = mask
+    # Runs: where a row turns true and back to false, pairs in row-major order.
+    edges = np.diff(stack.view(np.int8), axis=1)
+    (start_row, start_col), (_, end_col) = np.nonzero(edges == 1), np.nonzero(edges == -1)
+    longest = np.zeros(stack.shape[0], np.int64)
+    np.maximum.at(longest, start_row, end_col - start_col)
+    runs = [longest[row : row + h] for row, h in zip(top.tolist(), shapes[:, 0].tolist())]
+    if not p:
+        return runs, [np.asarray(m, bool) for m in masks]
+    dilated = binary_dilation(stack, np.ones((2 * p + 1, 2 * p + 1), bool))
+    grown = [dilated[row - p : row + h + p, 1 : 1 + w + 2 * p] for row, (h, w) in zip(top.tolist(), shapes.tolist())]
+    return runs, grown
 
 
 def _pack(shapes, cells, need, need_run, grown, kind, order: np.ndarray, width: int, p: int, max_page: int) -> MaskLayout:
