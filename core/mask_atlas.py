@@ -193,30 +193,36 @@ def pack_masks(masks: Sequence[np.ndarray], padding: int = 2, max_page: int = MA
 
 
 def _stacked(masks: Sequence[np.ndarray], shapes: np.ndarray, p: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Each mask's longest run of true texels in each row and the mask dilated
-    by ``p`` texels (Chebyshev) on an array grown by ``p`` all round, found for all masks at once:
-    they lie one under the other on one array, ``2 p + 1`` rows apart (a call per mask cost more
-    than the packing of the small ones: 31k charts of benchmarks/bench_tdm_scale.py, 2.6 s).
+    """Each mask's longest run of true texels in each row and the mask dilated by ``p`` texels
+    (Chebyshev) on an array grown by ``p`` all round, found for many masks at once: masks of about
+    the same width (within a factor of two) lie one under the other on one array, ``2 p + 1`` rows
+    apart (a call per mask cost more than the packing of the small ones: 31k charts of
+    benchmarks/bench_tdm_scale.py, 2.6 s).
 
     >>> runs, grown = _stacked([np.array([[1, 1, 0, 1]], bool), np.ones((2, 1), bool)], np.array([[1, 4], [2, 1]]), 1)
     >>> [r.tolist() for r in runs], grown[1].astype(int).tolist()
     ([[2], [1, 1]], [[1, 1, 1], [1, 1, 1], [1, 1, 1], [1, 1, 1]])
     """
-    heights, width = shapes[:, 0] + 2 * p + 1, int(shapes[:, 1].max()) + 2 * p
-    top = np.concatenate([[0], np.cumsum(heights)[:-1]]) + p  # each mask's row 0 on the stack
-    stack = np.zeros((int(heights.sum()) + p, width + 2), bool)  # a false column each side
-    for mask, row in zip(masks, top.tolist()):
-        stack[row : row + mask.shape[0], p + 1 : p + 1 + mask.shape[1]] = mask
-    # Runs: where a row turns true and back to false, pairs in row-major order.
-    edges = np.diff(stack.view(np.int8), axis=1)
-    (start_row, start_col), (_, end_col) = np.nonzero(edges == 1), np.nonzero(edges == -1)
-    longest = np.zeros(stack.shape[0], np.int64)
-    np.maximum.at(longest, start_row, end_col - start_col)
-    runs = [longest[row : row + h] for row, h in zip(top.tolist(), shapes[:, 0].tolist())]
-    if not p:
-        return runs, [np.asarray(m, bool) for m in masks]
-    dilated = binary_dilation(stack, np.ones((2 * p + 1, 2 * p + 1), bool))
-    grown = [dilated[row - p : row + h + p, 1 : 1 + w + 2 * p] for row, (h, w) in zip(top.tolist(), shapes.tolist())]
+    runs: list[np.ndarray] = [np.zeros(0, np.int64)] * len(masks)
+    grown: list[np.ndarray] = [np.zeros((0, 0), bool)] * len(masks)
+    bucket = np.ceil(np.log2(shapes[:, 1] + 2 * p + 2)).astype(np.int64)
+    for b in np.unique(bucket):
+        group = np.flatnonzero(bucket == b)
+        heights, width = shapes[group, 0] + 2 * p + 1, int(shapes[group, 1].max()) + 2 * p
+        top = np.concatenate([[0], np.cumsum(heights)[:-1]]) + p  # each mask's row 0 on the stack
+        stack = np.zeros((int(heights.sum()) + p, width + 2), bool)  # a false column each side
+        for i, row in zip(group.tolist(), top.tolist()):
+            stack[row : row + shapes[i, 0], p + 1 : p + 1 + shapes[i, 1]] = masks[i]
+        # Runs: where a row turns true and back to false, pairs in row-major order.
+        edges = np.diff(stack.view(np.int8), axis=1)
+        (start_row, start_col), (_, end_col) = np.nonzero(edges == 1), np.nonzero(edges == -1)
+        longest = np.zeros(stack.shape[0], np.int64)
+        np.maximum.at(longest, start_row, end_col - start_col)
+        dilated = binary_dilation(stack, np.ones((2 * p + 1, 2 * p + 1), bool)) if p else stack
+        for i, row in zip(group.tolist(), top.tolist()):
+            h, w = (int(v) for v in shapes[i])
+            runs[i] = longest[row : row + h].copy()
+            grown[i] = np.ascontiguousarray(dilated[row - p : row + h + p, 1 : 1 + w + 2 * p])
     return runs, grown
 
 

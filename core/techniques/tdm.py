@@ -112,7 +112,7 @@ def simplify_mesh(mesh: TdmMesh, field: VoxelField, enlargement: float, silhouet
     pass, repeats included).  ``silhouette``: the field's
     :attr:`~core.voxel_field.VoxelField.silhouette`, if the caller has it already."""
     triangles, offsets, voxels = mesh.triangles, mesh.voxel_offsets, mesh.voxels
-    vertices, original = mesh.vertices, np.arange(len(mesh.vertices))
+    vertices, original = mesh.vertices, np.arange(len(mesh.vertices), dtype=np.int64)
     centres = field.centres
     silhouette = field.silhouette if silhouette is None else silhouette
     totals: dict[str, int] = {}
