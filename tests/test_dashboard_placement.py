@@ -226,6 +226,7 @@ def test_the_job_form_submits_a_placement_job(browser, service, jobs, tmp_path):
     with dashboard_page(browser, service.url, ADMIN_KEY) as page:
         page.goto(f"{service.url}/#/")
         page.locator(f'{tid("job-scene")} option[value="{scene_id}"]').wait_for(state="attached")
+        page.locator(f'{tid("technique")} option[value="ldi"]').wait_for(state="attached")  # the techniques have loaded
         page.select_option(tid("job-scene"), scene_id)
         page.check(tid("job-mode-placement"))
         assert page.locator(tid("placement-fields")).is_visible() and page.locator(tid("job-counts")).is_hidden()

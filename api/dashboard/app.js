@@ -463,6 +463,13 @@ function applyImageDefaults(t) {
 
 function onTechniqueChange() {
   const t = technique();
+  // The whole scene, or a placement's own choice: no objects to choose (set before the techniques
+  // have loaded too, so that switching to placement hides them at once).
+  const scene = Boolean(t && t.scope === "scene") || jobMode() === "placement";
+  $("objects-field").hidden = scene;
+  $("job-objects").disabled = scene;
+  $("evaluate-field").hidden = scene; // the evaluation a job records is of impostors of one part (a placement's: its walkthrough)
+  $("job-evaluate").disabled = scene;
   $("technique-help").textContent = t ? t.help : "";
   $("technique-options").hidden = !t;
   if (!t) return;
@@ -471,11 +478,6 @@ function onTechniqueChange() {
   $("technique-options").dataset.technique = t.name;
   $("technique-option-fields").replaceChildren(optionFields(t));
   applyImageDefaults(t);
-  const scene = t.scope === "scene" || jobMode() === "placement"; // the whole scene, or a placement's own choice: no objects to choose
-  $("objects-field").hidden = scene;
-  $("job-objects").disabled = scene;
-  $("evaluate-field").hidden = scene; // the evaluation a job records is of impostors of one part (a placement's: its walkthrough)
-  $("job-evaluate").disabled = scene;
 }
 
 function numberOrText(text) {
