@@ -195,13 +195,40 @@ def _add_side(steps: np.ndarray, added: np.ndarray, axis: int, side: int) -> Non
     steps[tuple(index)] |= added
 
 
-def _neighbour_not_filled(cells: np.ndarray, dy: int, dx: int) -> np.ndarray:
-    """(H, W) bool: the cell at (Y + dy, X + dx) is not filled (or lies outside)."""
-    h, w = cells.shape
-    out = np.ones_like(cells)
-    ys, yd = (slice(dy, h), slice(0, h - dy)) if dy >= 0 else (slice(0, h + dy), slice(-dy, h))
-    xs, xd = (slice(dx, w), slice(0, w - dx)) if dx >= 0 else (slice(0, w + dx), slice(-dx, w))
-    out[yd, xd] = ~cells[ys, xs]
+def _cell_keys(filled: np.ndarray) -> np.ndarray:
+    """The filled cells of :func:`cell_grid` of ``filled`` as sorted keys Y * (2w - 1) + X, found
+    from the filled texels alone (each cell from the texel at its top left).
+
+    >>> _cell_keys(np.array([[True, True], [True, False]])).tolist()  # cells (0, 0..2), (1, 0), (2, 0)
+    [0, 1, 2, 3, 6]
+    """
+    h, w = filled.shape
+    ty, tx = np.nonzero(filled)
+    right = np.zeros(ty.size, dtype=bool)
+    down = np.zeros(ty.size, dtype=bool)
+    inside = tx + 1 < w
+    right[inside] = filled[ty[inside], tx[inside] + 1]
+    inside = ty + 1 < h
+    down[inside] = filled[ty[inside] + 1, tx[inside]]
+    diagonal = right & down
+    diagonal[diagonal] = filled[ty[diagonal] + 1, tx[diagonal] + 1]
+    key = 2 * ty * (2 * w - 1) + 2 * tx
+    return np.sort(np.concatenate([key, key[right] + 1, key[down] + 2 * w - 1, key[diagonal] + 2 * w]))
+
+
+def _neighbour_not_filled(grid: np.ndarray, grid_w: int, keys: np.ndarray, dy: int, dx: int) -> np.ndarray:
+    """Whether the neighbour (Y + dy, X + dx) of each cell ``keys`` (Y * grid_w + X) is not filled in
+    the flat cell ``grid`` of width ``grid_w``, or lies outside it.
+
+    >>> grid = cell_grid(np.array([[True, True], [True, False]])).ravel()
+    >>> _neighbour_not_filled(grid, 3, np.array([0, 1, 3]), 0, 1).tolist()  # right of (0,0), (0,1), (1,0)
+    [False, False, True]
+    """
+    y, x = np.divmod(keys, grid_w)
+    y, x = y + dy, x + dx
+    inside = (y >= 0) & (y < grid.size // grid_w) & (x >= 0) & (x < grid_w)
+    out = np.ones(keys.size, dtype=bool)
+    out[inside] = ~grid[y[inside] * grid_w + x[inside]]
     return out
 
 
@@ -212,8 +239,11 @@ def _cell_voxels(cy: np.ndarray, cx: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return np.stack([y0, y0, y1, y1], axis=1), np.stack([x0, x1, x0, x1], axis=1)
 
 
-def initial_mesh(field: VoxelField) -> TdmMesh:
-    """The covering mesh of ``field`` by the rule sets of seed 003 §5 (see the module docstring)."""
+def layer_quads(field: VoxelField) -> tuple[np.ndarray, np.ndarray, int, int, int]:
+    """The quads of seed 003 §5's rule sets for ``field``, layer by layer: (q, 4, 3) int64 corners
+    (X, Y, layer) in the half-texel grid of the voxels' bounding box, (q, 8, 3) int64 voxels
+    (x, y, layer) of that box each quad touches (repeats allowed), the step voxels added, and the
+    box's corner x0, y0."""
     k = field.plan.count
     # Work inside the bounding box of the voxels, one grid of layers x rows x columns.
     x0, y0 = int(field.x.min()), int(field.y.min())
@@ -241,39 +271,49 @@ def initial_mesh(field: VoxelField) -> TdmMesh:
 
     quads = []  # each (q, 4, 3) int64 corner (X, Y, layer) in the half-texel grid
     touches = []  # each (q, 8, 3) int64 voxel (x, y, layer) per quad (repeats allowed)
-    previous = np.zeros((2 * h - 1, 2 * w - 1), dtype=bool)
+    # The cells are kept as sorted lists of their keys Y * (2w - 1) + X (row-major, the order
+    # np.nonzero gives), looked up in two grids that are set and cleared at those keys only: a
+    # layer holds ~1 % of its cells here, and whole-grid operations (some 25 a layer) cost 3-4 s
+    # of this bake (benchmarks/bench_tdm_scale.py).
+    grid_w = 2 * w - 1
+    current_grid = np.zeros((2 * h - 1) * grid_w, dtype=bool)
+    previous_grid = np.zeros_like(current_grid)
+    previous = np.zeros(0, np.int64)
     previous_layer = -2
     # Per side: was the neighbour cell filled in the first layer of the cell's current run?
-    joined_at_top = [np.zeros_like(previous) for _ in _SIDES]
+    joined_at_top = np.zeros((len(_SIDES), current_grid.size), dtype=bool)
     for l in np.flatnonzero(near):
         steps = layer_steps(layer, int(l), k)
         step_count += int(steps.sum())
         filled = layer(int(l)) | steps
-        if not filled.any():
+        cells = _cell_keys(filled)
+        if not cells.size:
             continue
-        cells = cell_grid(filled)
-        before = previous if previous_layer == l - 1 else np.zeros_like(cells)
-        start = cells & ~before
+        current_grid[cells] = True
+        adjacent = previous_layer == l - 1
+        in_before = previous_grid[cells] if adjacent else np.zeros(cells.size, dtype=bool)
+        start = cells[~in_before]
         for side, ((dy, dx), _) in enumerate(_SIDES):
-            joined_at_top[side] = np.where(start, ~_neighbour_not_filled(cells, dy, dx), joined_at_top[side])
+            joined_at_top[side, start] = ~_neighbour_not_filled(current_grid, grid_w, start, dy, dx)
         # (a) quads in the current layer where the previous layer's cell is not filled.
-        cy, cx = np.nonzero(cells & ~before)
-        if cy.size:
+        if start.size:
+            cy, cx = np.divmod(start, grid_w)
             corner = np.stack([np.stack([cx, cy], 1), np.stack([cx + 1, cy], 1), np.stack([cx + 1, cy + 1], 1), np.stack([cx, cy + 1], 1)], axis=1)
             quads.append(np.concatenate([corner, np.full(corner.shape[:2] + (1,), l)], axis=2))
             vy, vx = _cell_voxels(cy, cx)
             touch = np.stack([vx, vy, np.full(vx.shape, l)], axis=2)
             touches.append(np.concatenate([touch, touch], axis=1))
         # (b), (c) sealing off cells filled in both layers towards sides not filled in the previous one.
-        both = cells & before
-        if both.any():
+        both = cells[in_before]
+        if both.size:
             for side, ((dy, dx), ((ax, ay), (bx, by))) in enumerate(_SIDES):
                 # The back wall of a fin: the run joined this side's neighbour at its top and the
                 # opposite side carries the wall down (farfield's addition, module docstring).
-                back = joined_at_top[side] & ~joined_at_top[side ^ 1]
-                cy, cx = np.nonzero(both & _neighbour_not_filled(before, dy, dx) & ~back)
-                if not cy.size:
+                back = joined_at_top[side, both] & ~joined_at_top[side ^ 1, both]
+                sealed = both[_neighbour_not_filled(previous_grid, grid_w, both, dy, dx) & ~back]
+                if not sealed.size:
                     continue
+                cy, cx = np.divmod(sealed, grid_w)
                 a = np.stack([cx + ax, cy + ay], 1)
                 b = np.stack([cx + bx, cy + by], 1)
                 lay = np.full((cy.size, 1), l)
@@ -288,14 +328,22 @@ def initial_mesh(field: VoxelField) -> TdmMesh:
                     vy = np.where(dy > 0, (cy + 1) // 2, cy // 2)[:, None].repeat(4, 1)
                 touch = np.stack([vx, vy, np.full(vx.shape, l)], axis=2)
                 touches.append(np.concatenate([touch, touch - [0, 0, 1]], axis=1))
+        previous_grid[previous] = False
+        previous_grid, current_grid = current_grid, previous_grid
         previous, previous_layer = cells, l
-
     quads_arr = np.concatenate(quads) if quads else np.zeros((0, 4, 3), np.int64)
     touch_arr = np.concatenate(touches) if touches else np.zeros((0, 8, 3), np.int64)
+    return quads_arr, touch_arr, step_count, x0, y0
+
+
+def initial_mesh(field: VoxelField) -> TdmMesh:
+    """The covering mesh of ``field`` by the rule sets of seed 003 §5 (see the module docstring)."""
+    quads_arr, touch_arr, step_count, x0, y0 = layer_quads(field)
     # Voxel indices of the touches (crop coordinates back to texels).
     touch_voxel = field.find(touch_arr[..., 0] + x0, touch_arr[..., 1] + y0, touch_arr[..., 2])
     centres = field.centres
-    vertices, triangles = _triangles(quads_arr, x0, y0)
+    corners = _Corners(quads_arr, 2 * int(max(field.x.max() - x0, field.y.max() - y0)) + 3)
+    vertices, triangles = corners.mesh(x0, y0)
     pair_voxel = touch_voxel.ravel()
     pair_quad = np.repeat(np.arange(quads_arr.shape[0]), 8)
     keep = pair_voxel >= 0
@@ -309,7 +357,8 @@ def initial_mesh(field: VoxelField) -> TdmMesh:
         cx, cy = 2 * mx, 2 * my
         extra = np.stack([np.stack([cx, cy, ml], 1), np.stack([cx + 1, cy, ml], 1), np.stack([cx + 1, cy + 1, ml], 1), np.stack([cx, cy + 1, ml], 1)], axis=1)
         quads_arr = np.concatenate([quads_arr, extra])
-        vertices, triangles = _triangles(quads_arr, x0, y0)
+        corners.add(extra)
+        vertices, triangles = corners.mesh(x0, y0)
         first = 2 * (quads_arr.shape[0] - missing.size)
         owner[missing] = first + 2 * np.arange(missing.size)
         fallback = int(missing.size)
@@ -492,24 +541,39 @@ def close_slits(vertices: np.ndarray, triangles: np.ndarray, meshes: np.ndarray,
     return len(closed), np.concatenate(closed)
 
 
-def _triangles(quads: np.ndarray, x0: int, y0: int) -> tuple[np.ndarray, np.ndarray]:
-    """Shared vertices (v, 3) float64 and triangles (2q, 3) int64 (quad i -> 2i, 2i + 1) of quads
-    given by half-grid corners (X, Y, layer) in the crop."""
-    corners = quads.reshape(-1, 3)
-    span = int(corners[:, :2].max(initial=0)) + 2
-    key = (corners[:, 2] * span + corners[:, 1]) * span + corners[:, 0]
-    unique, inverse = np.unique(key, return_inverse=True)
-    first = np.zeros(unique.size, dtype=np.int64)
-    first[inverse] = np.arange(key.size)
-    grid = corners[first]
-    offset = np.where(grid[:, :2] % 2 == 0, INSET, 1.0 - INSET)
-    xy = grid[:, :2] // 2 + offset + [x0, y0]
-    vertices = np.concatenate([xy, grid[:, 2:3].astype(np.float64)], axis=1)
-    idx = inverse.reshape(-1, 4)
-    triangles = np.empty((2 * idx.shape[0], 3), dtype=np.int64)
-    triangles[0::2] = idx[:, [0, 1, 2]]
-    triangles[1::2] = idx[:, [0, 2, 3]]
-    return vertices, triangles
+class _Corners:
+    """The distinct corners of quads (X, Y, layer in the half-texel grid of the crop) numbered in
+    (layer, Y, X) order, and each quad's four: :meth:`mesh` makes the shared vertices and
+    triangles, :meth:`add` appends quads, numbering all corners as if they had come at once (the
+    fallback quads come after the rules' 1.7 M on benchmarks/bench_tdm_scale.py: a second sort of
+    all 6.8 M corners cost 0.7 s)."""
+
+    def __init__(self, quads: np.ndarray, span: int):
+        self.span = span  # more than any X or Y: keys sort as (layer, Y, X) do
+        self.keys, self.inverse = np.unique(self._keys(quads), return_inverse=True)
+
+    def _keys(self, quads: np.ndarray) -> np.ndarray:
+        corners = quads.reshape(-1, 3)
+        return (corners[:, 2] * self.span + corners[:, 1]) * self.span + corners[:, 0]
+
+    def add(self, quads: np.ndarray) -> None:
+        extra = self._keys(quads)
+        keys = np.union1d(self.keys, extra)
+        self.inverse = np.concatenate([np.searchsorted(keys, self.keys)[self.inverse.reshape(-1)], np.searchsorted(keys, extra)])
+        self.keys = keys
+
+    def mesh(self, x0: int, y0: int) -> tuple[np.ndarray, np.ndarray]:
+        """Shared vertices (v, 3) float64 and triangles (2q, 3) int64 (quad i -> 2i, 2i + 1)."""
+        layer, rest = np.divmod(self.keys, self.span * self.span)
+        grid = np.stack(np.divmod(rest, self.span)[::-1], axis=1)  # X, Y
+        offset = np.where(grid % 2 == 0, INSET, 1.0 - INSET)
+        xy = grid // 2 + offset + [x0, y0]
+        vertices = np.concatenate([xy, layer[:, None].astype(np.float64)], axis=1)
+        idx = self.inverse.reshape(-1, 4)
+        triangles = np.empty((2 * idx.shape[0], 3), dtype=np.int64)
+        triangles[0::2] = idx[:, [0, 1, 2]]
+        triangles[1::2] = idx[:, [0, 2, 3]]
+        return vertices, triangles
 
 
 def mesh_labels(vertex_count: int, triangles: np.ndarray) -> np.ndarray:

@@ -25,12 +25,16 @@ from farfield.core.layers import plan_layers
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import StageClock
 from farfield.core.tdm_mesh import (
+    _SIDES,
     SLIT_AREA,
     TdmMesh,
+    _cell_voxels,
     boundary_loops,
+    cell_grid,
     close_slits,
     ear_clip,
     initial_mesh,
+    layer_quads,
     layer_steps,
     mesh_labels,
     step_voxels,
@@ -690,3 +694,93 @@ def test_steps_one_layer_at_a_time_are_the_steps_of_the_whole_grid():
         want &= ~occ
         assert (step_voxels(occ) == want).all()
         assert all((layer_steps(occ.__getitem__, l, k) == want[l]).all() for l in range(k))
+
+
+def _plain_layer_quads(field):
+    """``layer_quads`` written with whole-grid arrays (as farfield built the initial mesh until
+    its cells became lists of keys): every layer's cells, the previous layer's and the fin flags
+    are (2h - 1, 2w - 1) grids, neighbours read through shifted copies."""
+    k = field.plan.count
+    x0, y0 = int(field.x.min()), int(field.y.min())
+    w, h = int(field.x.max()) - x0 + 1, int(field.y.max()) - y0 + 1
+    occupancy = np.zeros((k, h, w), dtype=bool)
+    occupancy[field.layer, field.y - y0, field.x - x0] = True
+
+    def not_filled(cells, dy, dx):
+        out = np.ones_like(cells)
+        padded = np.zeros((cells.shape[0] + 2, cells.shape[1] + 2), dtype=bool)
+        padded[1:-1, 1:-1] = cells
+        out[:] = ~padded[1 + dy : 1 + dy + cells.shape[0], 1 + dx : 1 + dx + cells.shape[1]]
+        return out
+
+    quads, touches = [], []
+    previous, previous_layer = np.zeros((2 * h - 1, 2 * w - 1), dtype=bool), -2
+    joined = [np.zeros_like(previous) for _ in _SIDES]
+    for l in range(k):
+        filled = occupancy[l] | layer_steps(occupancy.__getitem__, l, k)
+        if not filled.any():
+            continue
+        cells = cell_grid(filled)
+        before = previous if previous_layer == l - 1 else np.zeros_like(cells)
+        start = cells & ~before
+        for side, ((dy, dx), _) in enumerate(_SIDES):
+            joined[side] = np.where(start, ~not_filled(cells, dy, dx), joined[side])
+        cy, cx = np.nonzero(start)
+        for y, x in zip(cy.tolist(), cx.tolist()):
+            quads.append([[x, y, l], [x + 1, y, l], [x + 1, y + 1, l], [x, y + 1, l]])
+            vy, vx = _cell_voxels(np.array([y]), np.array([x]))
+            touches.append([[a, b, l] for a, b in zip(vx[0], vy[0])] * 2)
+        both = cells & before
+        for side, ((dy, dx), ((ax, ay), (bx, by))) in enumerate(_SIDES):
+            back = joined[side] & ~joined[side ^ 1]
+            cy, cx = np.nonzero(both & not_filled(before, dy, dx) & ~back)
+            for y, x in zip(cy.tolist(), cx.tolist()):
+                quads.append([[x + ax, y + ay, l - 1], [x + bx, y + by, l - 1], [x + bx, y + by, l], [x + ax, y + ay, l]])
+                vy, vx = _cell_voxels(np.array([y]), np.array([x]))
+                if dx:
+                    vx = np.full((1, 4), (x + 1) // 2 if dx > 0 else x // 2)
+                else:
+                    vy = np.full((1, 4), (y + 1) // 2 if dy > 0 else y // 2)
+                side_voxels = [[a, b, l] for a, b in zip(vx[0], vy[0])]
+                touches.append(side_voxels + [[a, b, c - 1] for a, b, c in side_voxels])
+        previous, previous_layer = cells, l
+    return np.array(quads, np.int64).reshape(-1, 4, 3), np.array(touches, np.int64).reshape(-1, 8, 3), x0, y0
+
+
+def _random_field(rng, cols: int, rows: int, layers: int):
+    """Random surfaces: per column a few stacks of layers, with gaps of 0-2 layers, some columns empty."""
+    x, y, layer = [], [], []
+    for r in range(rows):
+        for c in range(cols):
+            if rng.random() < 0.15:
+                continue
+            at = int(rng.integers(0, 3))
+            for _ in range(int(rng.integers(1, 3))):
+                top = min(layers, at + int(rng.integers(1, 5)))
+                x += [c] * (top - at)
+                y += [r] * (top - at)
+                layer += range(at, top)
+                at = top + int(rng.integers(1, 4))
+                if at >= layers:
+                    break
+    x, y, layer = (np.asarray(a, np.int64) for a in (x, y, layer))
+    return voxel_field(x + 3, y + 2, layer, np.full((x.size, 4), 200, np.uint8), cols + 5, rows + 4)
+
+
+def test_layer_quads_are_the_whole_grid_rules(house_bake):
+    """The initial mesh's quads, found from lists of cell keys, against the rules written with
+    whole-grid arrays: the same quads and touched voxels in the same order (the simplification's
+    ties follow the vertex numbers, so order matters), on random surfaces, steep walls and the
+    house's recorded field."""
+    rng = np.random.default_rng(11)
+    fields = [_random_field(rng, int(rng.integers(1, 12)), int(rng.integers(1, 12)), int(rng.integers(1, 9))) for _ in range(60)]
+    fields += [_steep_field(0), _steep_field(1), _field_and_mesh(*house_bake, resolution=64)[0]]
+    sealed = 0
+    for field in fields:
+        quads, touches, _, x0, y0 = layer_quads(field)
+        want_quads, want_touches, want_x0, want_y0 = _plain_layer_quads(field)
+        assert (x0, y0) == (want_x0, want_y0)
+        assert quads.tolist() == want_quads.tolist()
+        assert touches.tolist() == want_touches.tolist()
+        sealed += int(np.count_nonzero(quads[:, 0, 2] != quads[:, 2, 2]))
+    assert sealed > 100  # standing quads (rules b, c) were compared, not only flat ones
