@@ -168,7 +168,9 @@ def layer_steps(layer, l: int, k: int) -> np.ndarray:
         n = current.shape[axis]
 
         def pairs(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            return a.take(np.arange(n - 1), axis=axis), a.take(np.arange(1, n), axis=axis)
+            first, second = [slice(None)] * 2, [slice(None)] * 2
+            first[axis], second[axis] = slice(0, n - 1), slice(1, n)
+            return a[tuple(first)], a[tuple(second)]
 
         cur = pairs(current)
         prev = pairs(before) if before is not None else None
@@ -241,9 +243,10 @@ def _cell_voxels(cy: np.ndarray, cx: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 def layer_quads(field: VoxelField) -> tuple[np.ndarray, np.ndarray, int, int, int]:
     """The quads of seed 003 §5's rule sets for ``field``, layer by layer: (q, 4, 3) int64 corners
-    (X, Y, layer) in the half-texel grid of the voxels' bounding box, (q, 8, 3) int64 voxels
-    (x, y, layer) of that box each quad touches (repeats allowed), the step voxels added, and the
-    box's corner x0, y0."""
+    (X, Y, layer) in the half-texel grid of the voxels' bounding box, (q, 8) int64 indices of the
+    voxels each quad touches (-1 at a texel without one; repeats allowed), the step voxels added,
+    and the box's corner x0, y0.  Voxel indices are read from per-layer grids, not searched for
+    (a search of 13.6 M touches took 1.4 s on benchmarks/bench_tdm_scale.py)."""
     k = field.plan.count
     # Work inside the bounding box of the voxels, one grid of layers x rows x columns.
     x0, y0 = int(field.x.min()), int(field.y.min())
@@ -251,16 +254,20 @@ def layer_quads(field: VoxelField) -> tuple[np.ndarray, np.ndarray, int, int, in
     # One layer at a time (the field is sorted by layer): a layer and its step voxels need the
     # occupancy of the two layers on either side, never the whole layers x rows x columns grid.
     starts = np.searchsorted(field.layer, np.arange(k + 1))
-    recent: dict[int, np.ndarray] = {}
+    recent: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
-    def layer(j: int) -> np.ndarray:
+    def grids(j: int) -> tuple[np.ndarray, np.ndarray]:
+        """Layer j's occupancy and the index of its voxel at each texel (-1 where none)."""
         if j not in recent:
             if len(recent) > 6:
                 recent.pop(min(recent))
-            occupied = np.zeros((h, w), dtype=bool)
-            occupied[field.y[starts[j] : starts[j + 1]] - y0, field.x[starts[j] : starts[j + 1]] - x0] = True
-            recent[j] = occupied
+            index = np.full((h, w), -1, dtype=np.int64)
+            index[field.y[starts[j] : starts[j + 1]] - y0, field.x[starts[j] : starts[j + 1]] - x0] = np.arange(starts[j], starts[j + 1])
+            recent[j] = (index >= 0, index)
         return recent[j]
+
+    def layer(j: int) -> np.ndarray:
+        return grids(j)[0]
 
     # Layers that can hold a voxel or a step voxel: a step needs voxels on the layer or on both
     # layers next to it.
@@ -270,7 +277,7 @@ def layer_quads(field: VoxelField) -> tuple[np.ndarray, np.ndarray, int, int, in
     step_count = 0
 
     quads = []  # each (q, 4, 3) int64 corner (X, Y, layer) in the half-texel grid
-    touches = []  # each (q, 8, 3) int64 voxel (x, y, layer) per quad (repeats allowed)
+    touches = []  # each (q, 8) int64 index of a voxel the quad touches, -1 for none (repeats allowed)
     # The cells are kept as sorted lists of their keys Y * (2w - 1) + X (row-major, the order
     # np.nonzero gives), looked up in two grids that are set and cleared at those keys only: a
     # layer holds ~1 % of its cells here, and whole-grid operations (some 25 a layer) cost 3-4 s
@@ -301,7 +308,7 @@ def layer_quads(field: VoxelField) -> tuple[np.ndarray, np.ndarray, int, int, in
             corner = np.stack([np.stack([cx, cy], 1), np.stack([cx + 1, cy], 1), np.stack([cx + 1, cy + 1], 1), np.stack([cx, cy + 1], 1)], axis=1)
             quads.append(np.concatenate([corner, np.full(corner.shape[:2] + (1,), l)], axis=2))
             vy, vx = _cell_voxels(cy, cx)
-            touch = np.stack([vx, vy, np.full(vx.shape, l)], axis=2)
+            touch = grids(int(l))[1][vy, vx]
             touches.append(np.concatenate([touch, touch], axis=1))
         # (b), (c) sealing off cells filled in both layers towards sides not filled in the previous one.
         both = cells[in_before]
@@ -326,21 +333,18 @@ def layer_quads(field: VoxelField) -> tuple[np.ndarray, np.ndarray, int, int, in
                     vx = np.where(dx > 0, (cx + 1) // 2, cx // 2)[:, None].repeat(4, 1)
                 else:
                     vy = np.where(dy > 0, (cy + 1) // 2, cy // 2)[:, None].repeat(4, 1)
-                touch = np.stack([vx, vy, np.full(vx.shape, l)], axis=2)
-                touches.append(np.concatenate([touch, touch - [0, 0, 1]], axis=1))
+                touches.append(np.concatenate([grids(int(l))[1][vy, vx], grids(int(l) - 1)[1][vy, vx]], axis=1))
         previous_grid[previous] = False
         previous_grid, current_grid = current_grid, previous_grid
         previous, previous_layer = cells, l
     quads_arr = np.concatenate(quads) if quads else np.zeros((0, 4, 3), np.int64)
-    touch_arr = np.concatenate(touches) if touches else np.zeros((0, 8, 3), np.int64)
+    touch_arr = np.concatenate(touches) if touches else np.zeros((0, 8), np.int64)
     return quads_arr, touch_arr, step_count, x0, y0
 
 
 def initial_mesh(field: VoxelField) -> TdmMesh:
     """The covering mesh of ``field`` by the rule sets of seed 003 §5 (see the module docstring)."""
-    quads_arr, touch_arr, step_count, x0, y0 = layer_quads(field)
-    # Voxel indices of the touches (crop coordinates back to texels).
-    touch_voxel = field.find(touch_arr[..., 0] + x0, touch_arr[..., 1] + y0, touch_arr[..., 2])
+    quads_arr, touch_voxel, step_count, x0, y0 = layer_quads(field)
     centres = field.centres
     corners = _Corners(quads_arr, 2 * int(max(field.x.max() - x0, field.y.max() - y0)) + 3)
     vertices, triangles = corners.mesh(x0, y0)
@@ -558,7 +562,12 @@ class _Corners:
 
     def add(self, quads: np.ndarray) -> None:
         extra = self._keys(quads)
-        keys = np.union1d(self.keys, extra)
+        # The new keys inserted where they sort (np.union1d hashes all of them: 1.8 s for 6.8 M).
+        fresh = np.unique(extra)
+        at = np.searchsorted(self.keys, fresh)
+        known = at < self.keys.size
+        known[known] = self.keys[at[known]] == fresh[known]
+        keys = np.insert(self.keys, at[~known], fresh[~known])
         self.inverse = np.concatenate([np.searchsorted(keys, self.keys)[self.inverse.reshape(-1)], np.searchsorted(keys, extra)])
         self.keys = keys
 
