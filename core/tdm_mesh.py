@@ -255,13 +255,14 @@ def layer_quads(field: VoxelField) -> tuple[np.ndarray, np.ndarray, int, int, in
     # occupancy of the two layers on either side, never the whole layers x rows x columns grid.
     starts = np.searchsorted(field.layer, np.arange(k + 1))
     recent: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    index_type = np.int32 if field.count < 2**31 else np.int64  # seven layers' grids are cached
 
     def grids(j: int) -> tuple[np.ndarray, np.ndarray]:
         """Layer j's occupancy and the index of its voxel at each texel (-1 where none)."""
         if j not in recent:
             if len(recent) > 6:
                 recent.pop(min(recent))
-            index = np.full((h, w), -1, dtype=np.int64)
+            index = np.full((h, w), -1, dtype=index_type)
             index[field.y[starts[j] : starts[j + 1]] - y0, field.x[starts[j] : starts[j + 1]] - x0] = np.arange(starts[j], starts[j + 1])
             recent[j] = (index >= 0, index)
         return recent[j]
@@ -308,7 +309,7 @@ def layer_quads(field: VoxelField) -> tuple[np.ndarray, np.ndarray, int, int, in
             corner = np.stack([np.stack([cx, cy], 1), np.stack([cx + 1, cy], 1), np.stack([cx + 1, cy + 1], 1), np.stack([cx, cy + 1], 1)], axis=1)
             quads.append(np.concatenate([corner, np.full(corner.shape[:2] + (1,), l)], axis=2))
             vy, vx = _cell_voxels(cy, cx)
-            touch = grids(int(l))[1][vy, vx]
+            touch = grids(int(l))[1][vy, vx].astype(np.int64)
             touches.append(np.concatenate([touch, touch], axis=1))
         # (b), (c) sealing off cells filled in both layers towards sides not filled in the previous one.
         both = cells[in_before]
@@ -333,7 +334,7 @@ def layer_quads(field: VoxelField) -> tuple[np.ndarray, np.ndarray, int, int, in
                     vx = np.where(dx > 0, (cx + 1) // 2, cx // 2)[:, None].repeat(4, 1)
                 else:
                     vy = np.where(dy > 0, (cy + 1) // 2, cy // 2)[:, None].repeat(4, 1)
-                touches.append(np.concatenate([grids(int(l))[1][vy, vx], grids(int(l) - 1)[1][vy, vx]], axis=1))
+                touches.append(np.concatenate([grids(int(l))[1][vy, vx], grids(int(l) - 1)[1][vy, vx]], axis=1).astype(np.int64))
         previous_grid[previous] = False
         previous_grid, current_grid = current_grid, previous_grid
         previous, previous_layer = cells, l
@@ -557,7 +558,7 @@ class _Corners:
         self.keys, self.inverse = np.unique(self._keys(quads), return_inverse=True)
 
     def _keys(self, quads: np.ndarray) -> np.ndarray:
-        corners = quads.reshape(-1, 3)
+        corners = quads.reshape(-1, 3).astype(np.int64, copy=False)
         return (corners[:, 2] * self.span + corners[:, 1]) * self.span + corners[:, 0]
 
     def add(self, quads: np.ndarray) -> None:

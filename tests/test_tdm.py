@@ -771,10 +771,16 @@ def test_layer_quads_are_the_whole_grid_rules(house_bake):
     """The initial mesh's quads, found from lists of cell keys, against the rules written with
     whole-grid arrays: the same quads and touched voxels (their indices, looked up in per-layer
     grids, against the field's search) in the same order (the simplification's
-    ties follow the vertex numbers, so order matters), on random surfaces, steep walls and the
-    house's recorded field."""
+    ties follow the vertex numbers, so order matters), on random surfaces (some with whole layers
+    empty between filled ones), steep walls and the house's recorded field."""
     rng = np.random.default_rng(11)
     fields = [_random_field(rng, int(rng.integers(1, 12)), int(rng.integers(1, 12)), int(rng.integers(1, 9))) for _ in range(60)]
+    # Whole layers empty between filled ones: the previous layer's cells are then not "before".
+    for _ in range(20):
+        field = _random_field(rng, int(rng.integers(2, 10)), int(rng.integers(2, 10)), 9)
+        gap = int(rng.integers(1, 6))
+        keep = (field.layer < gap) | (field.layer > gap + 1)
+        fields.append(voxel_field(field.x[keep], field.y[keep], field.layer[keep], field.rgba[keep], *field.plan.texture_resolution))
     fields += [_steep_field(0), _steep_field(1), _field_and_mesh(*house_bake, resolution=64)[0]]
     sealed = 0
     for field in fields:
