@@ -1,6 +1,6 @@
 """Layered impostors measured side by side in one run: quality, memory and speed against a lower bound.
 
-Usage: ``.venv/bin/python benchmarks/bench_layered.py [--quick] [--json]``
+Usage: ``.venv/bin/python benchmarks/bench_layered.py [--quick] [--only PART ...] [--json]``
 
 1. Table (seed 000 Table 4.1 / Fig. 3.11): one object, a cubic view cell at several distances and
    output resolutions 256, 512, 1024 -> layers, quads, texture memory, hole pixels, bloat, colour
@@ -8,8 +8,8 @@ Usage: ``.venv/bin/python benchmarks/bench_layered.py [--quick] [--json]``
 2. Memory: one quad per layer vs box-grown quads vs box-grown after culling (the thesis went
    6.15 MB -> 2.1 MB -> 0.45 MB on its dragon).
 3. Knobs: grid cell, fill threshold, culling, pixel model, one at a time.
-4. Speed: the bake of a ~100k-triangle object at 512 with about 30 layers against a lower bound
-   measured in the same run: one full render of the part at the impostor resolution plus the
+4. Speed: the bake of a ~100k-triangle object at 512 (about 30 layers) and at 1024 against a lower
+   bound measured in the same run: one full render of the part at the impostor resolution plus the
    readback of all layer texels.
 
 Inputs come from a seeded ``np.random.default_rng``; the renderer (llvmpipe or a GPU) is printed.
@@ -151,53 +151,78 @@ def speed(scene: Scene, distance: float, size: float, resolution: int, repeats: 
         texture.release()
     bake_s, bound_s = min(bakes), min(bounds)
     return {
-        "triangles": scene.triangle_count, "layers": imp.stats["layers_planned"], "texture": [res_x, res_y],
+        "resolution": resolution, "triangles": scene.triangle_count, "layers": imp.stats["layers_planned"], "texture": [res_x, res_y],
         "bake_s": bake_s, "stages": imp.stats["seconds"], "lower_bound_s": bound_s, "ratio": bake_s / bound_s,
     }
+
+
+PARTS = ("table", "memory", "knobs", "speed")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer distances and resolutions")
+    parser.add_argument("--only", action="append", choices=PARTS, help="run only this part (repeatable; default: all four)")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
+    parts = args.only or PARTS
     info = renderer_info()
     scene = dense_object()
     diameter = float(np.max(scene.bounds[1] - scene.bounds[0]))
     size = 0.3 * diameter
     distances = [1.0 * diameter, 3.0 * diameter] if args.quick else [0.5 * diameter, 1.0 * diameter, 2.0 * diameter, 4.0 * diameter, 8.0 * diameter]
     resolutions = [256, 512] if args.quick else [256, 512, 1024]
-    result = {
-        "renderer": info.renderer,
-        "object_triangles": scene.triangle_count,
-        "table": table(scene, distances, resolutions, size, random_count=4 if args.quick else 8),
-        "memory": memory(scene, 0.5 * diameter, size, 512),
-        "knobs": knobs(scene, 1.0 * diameter, size, random_count=4 if args.quick else 8),
-        "speed": speed(scene, 1.6 * diameter, size, 512, repeats=2 if args.quick else 3),
-    }
+    random_count = 4 if args.quick else 8
+    result = {"renderer": info.renderer, "object_triangles": scene.triangle_count}
+    if "table" in parts:
+        result["table"] = table(scene, distances, resolutions, size, random_count)
+    if "memory" in parts:
+        result["memory"] = memory(scene, 0.5 * diameter, size, 512)
+    if "knobs" in parts:
+        result["knobs"] = knobs(scene, 1.0 * diameter, size, random_count)
+    if "speed" in parts:
+        result["speed"] = [speed(scene, 1.6 * diameter, size, r, repeats=2 if args.quick else 3) for r in (512, 1024)]
     if args.json:
         print(json.dumps(result, indent=2))
         return
-    print(f"renderer: {info.renderer}   object: {scene.triangle_count} triangles, diameter {diameter:.3g}, cubic cell {size:.3g}")
+    print(f"renderer: {info.renderer} ({info.vendor}, {info.version})   object: {scene.triangle_count} triangles, diameter {diameter:.3g}, cubic cell {size:.3g}")
+    report(result)
+
+
+def report(result: dict) -> None:
+    if "table" in result:
+        _print_table(result["table"])
+    if "memory" in result:
+        _print_memory(result["memory"])
+    if "knobs" in result:
+        _print_knobs(result["knobs"])
+    for s in result.get("speed", []):
+        stages = "  ".join(f"{k} {v:.3f}" for k, v in s["stages"].items())
+        print(f"\n4. speed at {s['resolution']}: {s['triangles']} triangles, {s['layers']} layers, texture {s['texture'][0]}x{s['texture'][1]}: bake {s['bake_s']:.3f} s "
+              f"vs lower bound {s['lower_bound_s']:.3f} s = {s['ratio']:.1f}x\n   stages: {stages}")
+
+
+def _print_table(rows: list[dict]) -> None:
     print("\n1. quality, memory and time by distance (near face to near face) and output resolution")
     head = f"{'dist':>6} {'res':>5} {'layers':>6} {'quads':>6} {'tex KiB':>9} {'holes':>6} {'bloat>1':>8} {'col err':>8} {'p99':>5} {'SSIM':>5} {'record':>7} {'cull':>6} {'quads':>6} {'atlas':>6} {'total s':>8}"
     print(head)
-    for r in result["table"]:
+    for r in rows:
         print(f"{r['distance']:>6.2f} {r['resolution']:>5} {r['layers']:>6} {r['quads']:>6} {r['texture_kib']:>9.1f} {r['holes']:>6} {r['bloat_1px']:>8} {r['colour_err']:>8.2f} {r['colour_p99']:>5.0f} {r['ssim']:>5.3f} "
               f"{r['t_record']:>7.3f} {r['t_cull']:>6.3f} {r['t_quads']:>6.3f} {r['t_atlas']:>6.3f} {r['t_total']:>8.3f}")
-    m = result["memory"]
+
+
+def _print_memory(m: dict) -> None:
     print(f"\n2. texture memory at 512, {m['layers']} layers: one quad per layer {m['one_quad_per_layer_kib']:.0f} KiB -> box-grown "
           f"{m['box_grown_kib']:.0f} KiB -> box-grown after culling {m['box_grown_culled_kib']:.0f} KiB "
           f"(ratios {m['ratio_one_to_grown']:.1f}x, {m['ratio_one_to_culled']:.1f}x; thesis 2.9x, 13.7x); atlas pages {m['atlas_pages_culled_kib']:.0f} KiB")
+
+
+def _print_knobs(rows: list[dict]) -> None:
     print("\n3. knobs at 512, one at a time (distance 1 diameter)")
     print(f"{'knob':<22} {'layers':>6} {'quads':>6} {'atlas KiB':>10} {'tiles KiB':>10} {'geom KiB':>9} {'seconds':>8} {'holes':>6} {'bloat>1':>8} {'col err':>8} {'p99':>5} {'SSIM':>5}")
-    for r in result["knobs"]:
+    for r in rows:
         print(f"{r['knob']:<22} {r['layers']:>6} {r['quads']:>6} {r['texture_kib']:>10.1f} {r['tile_kib']:>10.1f} {r['geometry_kib']:>9.1f} "
               f"{r['seconds']:>8.3f} {r['holes']:>6} {r['bloat_1px']:>8} {r['colour_err']:>8.2f} {r['colour_p99']:>5.0f} {r['ssim']:>5.3f}")
-    s = result["speed"]
-    stages = "  ".join(f"{k} {v:.3f}" for k, v in s["stages"].items())
-    print(f"\n4. speed: {s['triangles']} triangles, {s['layers']} layers, texture {s['texture'][0]}x{s['texture'][1]}: bake {s['bake_s']:.3f} s "
-          f"vs lower bound {s['lower_bound_s']:.3f} s = {s['ratio']:.1f}x\n   stages: {stages}")
 
 
 if __name__ == "__main__":
