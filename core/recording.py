@@ -229,6 +229,40 @@ def texel_rectangles(lo: np.ndarray, hi: np.ndarray, resolution: np.ndarray) -> 
     return np.concatenate([np.clip(first, 0.0, size), np.clip(last, 0.0, size)]).astype(np.int64)
 
 
+def facing_the_image(texel: np.ndarray, depth: np.ndarray, faces: np.ndarray, resolution: np.ndarray) -> np.ndarray:
+    """Indices (ascending) of the triangles that may reach the image: all but those whose three
+    vertices lie in front of the eye and beyond the same edge of the image.
+
+    Such a triangle lies in the half-space beyond that edge's frustum plane (a linear condition in
+    eye space), and so does every piece of it a slab clips, whose texel rectangle is then empty:
+    dropping it first spares the slab pairing and clipping (a cube face of an envmap sees about a
+    sixth of the scene around it) and changes nothing recorded.  The slack, a millionth of a texel
+    plus a billionth of the coordinate, keeps triangles whose rounding could put them on the edge.
+
+    Parameters
+    ----------
+    texel : (2, v) float64 texel coordinates of the vertices (:func:`texel_coordinates`).
+    depth : (v,) float64 eye depths of the vertices.
+    faces : (f, 3) int64.
+    resolution : (2,) int64 texels along u and v.
+
+    >>> texel = np.array([[-3.0, -1.0, 2.0, 9.0, 10.0], [1.0, 1.0, 1.0, 1.0, 1.0]])
+    >>> faces = np.array([[0, 1, 1], [0, 1, 2], [3, 4, 4], [0, 3, 4]])
+    >>> facing_the_image(texel, np.ones(5), faces, np.array([8, 8])).tolist()
+    [1, 3]
+    >>> facing_the_image(texel, np.array([1.0, -1.0, 1.0, 1.0, 1.0]), faces, np.array([8, 8])).tolist()  # one behind the eye
+    [0, 1, 3]
+    """
+    size = np.asarray(resolution, dtype=np.float64)[:, None]
+    with np.errstate(invalid="ignore"):  # NaN or infinite coordinates (behind or on the eye plane) are masked below
+        slack = 1e-6 + 1e-9 * np.abs(texel)
+        low, high = texel < -slack, texel > size + slack
+    beyond = (low[0] * np.uint8(1)) | (high[0] * np.uint8(2)) | (low[1] * np.uint8(4)) | (high[1] * np.uint8(8))
+    beyond[~(depth > 0.0)] = 0
+    corner = beyond[faces.T]  # (3, f)
+    return np.flatnonzero((corner[0] & corner[1] & corner[2]) == 0)
+
+
 def slab_instances(
     eye_vertices: np.ndarray,
     faces: np.ndarray,
@@ -249,11 +283,14 @@ def slab_instances(
     Pairs whose clipped polygon is empty or whose rectangle misses the image are dropped.
     """
     k = eye_borders.shape[0] - 1
-    order, offsets = layer_buckets(eye_vertices[:, 2], faces, eye_borders)
-    layer = np.repeat(np.arange(k), np.diff(offsets))
     eye = np.ascontiguousarray(eye_vertices.T)  # (3, v)
     with np.errstate(divide="ignore", invalid="ignore"):  # vertices behind the eye belong to no pair
-        at_vertex = np.concatenate([texel_coordinates(eye, half_tan, resolution), 1.0 / eye[2:]])  # (3, v)
+        texel = texel_coordinates(eye, half_tan, resolution)
+        at_vertex = np.concatenate([texel, 1.0 / eye[2:]])  # (3, v)
+    seen = facing_the_image(texel, eye[2], faces, resolution)
+    order, offsets = layer_buckets(eye_vertices[:, 2], faces[seen], eye_borders)
+    order = seen[order]
+    layer = np.repeat(np.arange(k), np.diff(offsets))
     pieces = []
     for start in range(0, order.shape[0], CHUNK_PAIRS):
         part, part_layer = order[start : start + CHUNK_PAIRS], layer[start : start + CHUNK_PAIRS]

@@ -9,7 +9,16 @@ import pytest
 import trimesh
 
 from farfield.core.layers import plan_layers
-from farfield.core.recording import clip_to_slab, eye_coordinates, layer_buckets, record_layers, slab_instances
+from farfield.core.recording import (
+    clip_to_slab,
+    eye_coordinates,
+    facing_the_image,
+    layer_buckets,
+    record_layers,
+    slab_instances,
+    texel_coordinates,
+    texel_rectangles,
+)
 from farfield.core.render.context import gl_context
 from farfield.core.scene import Scene, SceneObject
 from farfield.core.viewcells import BoxCell
@@ -108,6 +117,45 @@ def test_layers_draw_only_the_triangles_their_slab_needs():
         expected = np.flatnonzero((zmin <= borders[i + 1]) & (zmax >= borders[i]))
         np.testing.assert_array_equal(np.sort(order[offsets[i] : offsets[i + 1]]), expected)
     assert offsets[-1] == order.shape[0] < faces.shape[0] * 40
+
+
+def test_triangles_beyond_an_image_edge_are_dropped_before_pairing_and_would_have_drawn_nothing():
+    rng = np.random.default_rng(3)
+    half_tan, resolution = np.array([0.7, 0.5]), np.array([64, 48])
+    # Vertices spread well past the frustum on every side, some behind the eye, and 400 exactly on
+    # the image's four edges (texel 0 or the resolution there), in triplets on the same edge.
+    n, m = 3000, 400
+    centre = np.stack([rng.uniform(-3.0, 3.0, n // 3), rng.uniform(-3.0, 3.0, n // 3), rng.uniform(-0.5, 4.0, n // 3)], axis=1)
+    loose = (centre[:, None, :] + rng.uniform(-0.3, 0.3, (n // 3, 3, 3))).reshape(n, 3)  # small triangles
+    z = rng.uniform(0.3, 4.0, m)
+    side = rng.integers(0, 4, m // 3).repeat(3)[:m]
+    side = np.concatenate([side, np.zeros(m - side.shape[0], dtype=side.dtype)])
+    axis, sign = side // 2, np.where(side % 2 == 0, -1.0, 1.0)
+    on_edge = np.stack([rng.uniform(-0.6, 0.6, m) * z, rng.uniform(-0.4, 0.4, m) * z, z], axis=1)
+    on_edge[np.arange(m), axis] = sign * half_tan[axis] * z
+    eye = np.concatenate([loose, on_edge])
+    faces = np.concatenate([np.arange(n).reshape(-1, 3), rng.integers(0, n + m, (1000, 3)), n + np.arange(m - m % 3).reshape(-1, 3)])
+    borders = np.linspace(0.2, 4.2, 17)
+    texel = texel_coordinates(eye.T, half_tan, resolution)
+    seen = facing_the_image(texel, eye[:, 2], faces, resolution)
+    dropped = np.setdiff1d(np.arange(faces.shape[0]), seen)
+    assert 500 < dropped.shape[0] < faces.shape[0] - 500
+    assert np.isin(np.arange(2000, faces.shape[0]), seen).all()  # triangles lying on an edge stay
+
+    def reached(triangles: np.ndarray) -> set:
+        """(triangle, layer) pairs whose clipped piece reaches a texel, every layer tried."""
+        tri, layer = np.repeat(triangles, 16), np.tile(np.arange(16), triangles.shape[0])
+        polygon, count = clip_to_slab(np.take(eye.T, faces[tri].T, axis=1), borders[layer], borders[layer + 1])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            polygon = texel_coordinates(polygon, half_tan, resolution)
+        rect = texel_rectangles(polygon.min(axis=1), polygon.max(axis=1), resolution)
+        keep = (count > 0) & (rect[0] < rect[2]) & (rect[1] < rect[3])
+        return set(zip(tri[keep].tolist(), layer[keep].tolist()))
+
+    assert reached(dropped) == set()
+    instances = slab_instances(eye, faces, borders, half_tan, resolution)
+    layers = np.repeat(np.arange(16), np.diff(instances.offsets))
+    assert set(zip(instances.triangle.tolist(), layers.tolist())) == reached(np.arange(faces.shape[0]))
 
 
 def test_recording_is_deterministic(ctx):
