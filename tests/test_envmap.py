@@ -150,6 +150,28 @@ def test_clip_planes_cut_what_the_fragment_clip_cuts():
     assert not (inside & ~everything).any() and (everything & ~inside).sum() > 1000
 
 
+def test_clip_planes_follow_each_draw_in_a_mixed_renderer():
+    # The planes are enabled only around the draws cut by a closed cube: a clipped object drawn
+    # after an unclipped one must still be cut, whatever the order.  llvmpipe clips by every clip
+    # distance the shader writes, enabled or not, so only a driver that follows the enables (the
+    # NVIDIA one: this test failed there with the planes never enabled) can fail this.
+    scene, _ = _long_beam()
+    beam, wall = scene.objects
+    raised = replace(beam, name="raised", vertices=beam.vertices + np.array([0.0, 0.5, 0.0]))
+    camera = camera_at([0.0, 0.9, 0.0], [1.0, -0.2, 0.3], 60.0, 128, 0.01, 2000.0)
+    clip = (np.zeros(3), 5.0)
+    with (
+        MeshRenderer([beam, wall, raised], [clip, None, clip]) as mixed,
+        MeshRenderer([wall, beam, raised], [None, clip, clip]) as wall_first,
+        MeshRenderer([beam, raised, wall], [clip, clip, None]) as grouped,
+        MeshRenderer([beam, wall, raised], [clip, None, None]) as uncut,
+    ):
+        images = [r.render(camera) for r in (mixed, wall_first, grouped, uncut)]
+    np.testing.assert_array_equal(images[0], images[2])
+    np.testing.assert_array_equal(images[1], images[2])
+    assert (images[3][..., 3] > 0).sum() > (images[0][..., 3] > 0).sum() + 500
+
+
 def test_runtime_draws_nearest_first_and_sees_what_payload_order_sees(town, town_cell, town_impostor):
     # The runtime sorts the near field's triangles (within each object) and the layers' quads
     # nearest first, so the depth test rejects hidden fragments before shading; the image must be
