@@ -142,20 +142,40 @@ def test_triangles_beyond_an_image_edge_are_dropped_before_pairing_and_would_hav
     assert 500 < dropped.shape[0] < faces.shape[0] - 500
     assert np.isin(np.arange(2000, faces.shape[0]), seen).all()  # triangles lying on an edge stay
 
-    def reached(triangles: np.ndarray) -> set:
-        """(triangle, layer) pairs whose clipped piece reaches a texel, every layer tried."""
-        tri, layer = np.repeat(triangles, 16), np.tile(np.arange(16), triangles.shape[0])
-        polygon, count = clip_to_slab(np.take(eye.T, faces[tri].T, axis=1), borders[layer], borders[layer + 1])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            polygon = texel_coordinates(polygon, half_tan, resolution)
-        rect = texel_rectangles(polygon.min(axis=1), polygon.max(axis=1), resolution)
-        keep = (count > 0) & (rect[0] < rect[2]) & (rect[1] < rect[3])
-        return set(zip(tri[keep].tolist(), layer[keep].tolist()))
-
-    assert reached(dropped) == set()
+    assert _reaching(eye, faces, borders, half_tan, resolution, dropped) == set()
     instances = slab_instances(eye, faces, borders, half_tan, resolution)
     layers = np.repeat(np.arange(16), np.diff(instances.offsets))
-    assert set(zip(instances.triangle.tolist(), layers.tolist())) == reached(np.arange(faces.shape[0]))
+    assert set(zip(instances.triangle.tolist(), layers.tolist())) == _reaching(eye, faces, borders, half_tan, resolution, np.arange(faces.shape[0]))
+
+
+def test_the_edge_slack_keeps_triangles_whose_clipped_pieces_round_back_onto_the_image():
+    # Vertices up to ~5e-13 texel beyond the right edge: whole triangles there reach no texel, but
+    # a piece clipped to a slab is computed from new points, which can round onto the edge itself,
+    # where the rectangle rule takes in the last column.  Without the slack those are dropped.
+    rng = np.random.default_rng(5)
+    half_tan, resolution = np.array([0.7, 0.5]), np.array([512, 384])
+    z = rng.uniform(0.3, 4.0, 30000)
+    eye = np.stack([half_tan[0] * z * (1.0 + rng.uniform(0.0, 2e-15, z.shape[0])), rng.uniform(-0.4, 0.4, z.shape[0]) * z, z], axis=1)
+    faces = np.arange(z.shape[0]).reshape(-1, 3)
+    borders = np.linspace(0.2, 4.2, 5)
+    texel = texel_coordinates(eye.T, half_tan, resolution)
+    assert (texel[0] > resolution[0]).mean() > 0.5
+    seen = facing_the_image(texel, eye[:, 2], faces, resolution)
+    reaching = {t for t, _ in _reaching(eye, faces, borders, half_tan, resolution, np.arange(faces.shape[0]))}
+    assert len(reaching) > 1000 and reaching <= set(seen.tolist())
+
+
+def _reaching(eye, faces, borders, half_tan, resolution, triangles: np.ndarray) -> set:
+    """(triangle, layer) pairs whose piece clipped to the layer's slab reaches a texel, every
+    layer tried, as ``slab_instances`` decides it but without dropping anything first."""
+    k = borders.shape[0] - 1
+    tri, layer = np.repeat(triangles, k), np.tile(np.arange(k), triangles.shape[0])
+    polygon, count = clip_to_slab(np.take(eye.T, faces[tri].T, axis=1), borders[layer], borders[layer + 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        polygon = texel_coordinates(polygon, half_tan, resolution)
+    rect = texel_rectangles(polygon.min(axis=1), polygon.max(axis=1), resolution)
+    keep = (count > 0) & (rect[0] < rect[2]) & (rect[1] < rect[3])
+    return set(zip(tri[keep].tolist(), layer[keep].tolist()))
 
 
 def test_recording_is_deterministic(ctx):

@@ -222,9 +222,10 @@ class MeshRenderer:
         t = math.tan(0.5 * camera.fov)
         framed: set[int] = set()  # the programs given this camera (draws may come from other renderers)
         # mesh.vert writes all six clip distances, but the planes are on only for the draws cut
-        # by a closed cube: enabled, they cost the NVIDIA driver even where nothing is cut (an
-        # H200 drew the million-triangle benchmark city in 4.8 ms with them on, 2.1 ms off).
-        # Other programs of the context write no clip distances, so they are off between frames.
+        # by a closed cube: enabled, they can cost the NVIDIA driver where nothing is cut (an H200
+        # drew the million-triangle benchmark city from one cell's centre in 4.8 ms with them on,
+        # 2.1 ms off, in one run).  Other programs of the context write no clip distances, so
+        # the planes are off between frames.
         planes = False
         try:
             for obj, origin, prog, vao, texture, uniforms in self._draws:
