@@ -1,6 +1,6 @@
 """Layered environment-map impostors (seed 002) measured side by side in one run.
 
-Usage: ``.venv/bin/python benchmarks/bench_envmap.py [--quick] [--only walkthrough] [--before REV] [--json] [--out DIR]``
+Usage: ``.venv/bin/python benchmarks/bench_envmap.py [--quick] [--only walkthrough] [--path streets|loop|both] [--before REV] [--json] [--out DIR]``
 
 1. Generation per cell at 512 x 512 faces with 64 layers, 4 and 6 directions (the paper: 2.5 min
    per cell on a GeForce 3), with the time of every stage.
@@ -10,7 +10,10 @@ Usage: ``.venv/bin/python benchmarks/bench_envmap.py [--quick] [--only walkthrou
    run), hole pixels and colour error per frame, and a plot (``walkthrough.png``).  The same
    database and path are walked by the runtime as it is and as it was at git revision ``--before``
    (its ``core/`` from ``git archive``, imported in a fresh process), one after the other in this
-   run, so the before/after speed-ups share the machine, the cells and the frames.  Then where
+   run, so the before/after speed-ups share the machine, the cells and the frames.  The path
+   (``--path``) keeps to the two streets of the crossing (``streets``, the default) or is the
+   ellipse through the grid's bounding box that ``farfield walkthrough`` generates (``loop``),
+   which passes through buildings in 27 of its 60 frames; ``both`` walks each.  Then where
    the runtime's frame goes, on the same path: the near field alone, the layers alone, and one
    quad filling the frame (the renderer's cost per covered pixel).
 4. The trade: number of layers (near-field distance) and resolution against memory, generation
@@ -101,6 +104,40 @@ def street_grid(side: int, counts=(3, 1, 3), size: float = 10.0) -> list:
     return grid_boxes(lo, hi, counts)
 
 
+def street_path(side: int, frames: int, counts=(3, 1, 3), size: float = 10.0) -> tuple[np.ndarray, np.ndarray]:
+    """(positions (n, 3), forwards (n, 3)) along the two streets of :func:`street_grid`'s crossing,
+    at the cells' middle height, looking along the way: east along one street, south along the
+    other, back west, then north, each leg from one end of the cells to the other, 5 % inside.
+
+    Lots are 20 m apart and footprints at most 16 m, so a street's centre line is 2 m or more
+    from any building: no frame looks from inside one.
+
+    >>> p, f = street_path(36, 4)
+    >>> p.tolist()
+    [[335.75, 5.5, 350.0], [350.0, 5.5, 364.25], [364.25, 5.5, 350.0], [350.0, 5.5, 335.75]]
+    >>> f.tolist()
+    [[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+    """
+    middle = (side // 2) * 20.0 - 10.0
+    height = 0.5 + counts[1] * size / 2
+    reach = 0.95 * min(counts[0], counts[2]) * size / 2
+    legs = [((-1, 0), (1, 0)), ((0, 1), (0, -1)), ((1, 0), (-1, 0)), ((0, -1), (0, 1))]  # (start, heading) in (x, z)
+    positions, forwards = [], []
+    for k in range(int(frames)):
+        leg, step = divmod(k * len(legs), int(frames))
+        (sx, sz), (hx, hz) = legs[leg]
+        t = step / int(frames)  # 0..1 along the leg
+        along = -reach + 2.0 * reach * t
+        positions.append([middle + sx * reach + hx * (along + reach), height, middle + sz * reach + hz * (along + reach)])
+        forwards.append([float(hx), 0.0, float(hz)])
+    return np.array(positions), np.array(forwards)
+
+
+def walk_path(db, side: int, frames: int, path: str) -> tuple[np.ndarray, np.ndarray]:
+    """The walkthrough's path: :func:`street_path`, or ``farfield walkthrough``'s loop."""
+    return street_path(side, frames) if path == "streets" else generate_path(db, frames)
+
+
 def runtime_frame_ms(scene: Scene, impostor, directions, repeats: int = 3) -> tuple[float, float]:
     """Mean frame time (ms) over the cell's corners and centre looking along ``directions``:
     (full scene, near field + impostors), same renderer."""
@@ -129,11 +166,12 @@ def main() -> None:
     parser.add_argument("--out", default="benchmarks/out", help="folder for the plots")
     parser.add_argument("--only", choices=("walkthrough",), help="run only this part")
     parser.add_argument("--before", default="8392e0a", help="git revision whose runtime is walked beside this tree's ('' for none)")
-    parser.add_argument("--walk", nargs=4, metavar=("DIR", "SIDE", "SUBDIVISIONS", "FRAMES"), help=argparse.SUPPRESS)  # internal: one walk, JSON out
+    parser.add_argument("--path", choices=("streets", "loop", "both"), default="streets", help="the walkthrough's path (default: along the streets)")
+    parser.add_argument("--walk", nargs=5, metavar=("DIR", "SIDE", "SUBDIVISIONS", "FRAMES", "PATH"), help=argparse.SUPPRESS)  # internal: one walk, JSON out
     args = parser.parse_args()
     if args.walk:
-        directory, side, subdiv, frames = args.walk
-        print(json.dumps(walk_database(Path(directory), int(side), int(subdiv), int(frames)), default=float))
+        directory, side, subdiv, frames, path = args.walk
+        print(json.dumps(walk_database(Path(directory), int(side), int(subdiv), int(frames), path), default=float))
         return
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -188,11 +226,19 @@ def walkthrough_section(args, scene: Scene, cells, res: int, layers: int, frames
     print(f"   baked in {bake_s:.1f} s ({bake_s / len(cells):.2f} s per cell)")
     tmp_db = tempfile.TemporaryDirectory()
     write_database(Path(tmp_db.name) / "db", "envmap", {}, baked)
+    for path in ("streets", "loop") if args.path == "both" else (args.path,):
+        walk_path_section(args, scene, Path(tmp_db.name), res, layers, frames, side, subdiv, info, out, report, path, bake_s / len(cells))
+    tmp_db.cleanup()
+
+
+def walk_path_section(args, scene: Scene, directory: Path, res: int, layers: int, frames: int, side: int, subdiv: int, info, out: Path, report: dict, path: str, bake_per_cell: float) -> None:
+    """3, on one path: the runtime before and after, then where its frame goes."""
+    print(f"   path: {path}")
     runs = {}
     for label, rev in ([("before", args.before)] if args.before else []) + [("after", None)]:
-        runs[label] = walk_in_process(Path(tmp_db.name), side, subdiv, frames, rev)
+        runs[label] = walk_in_process(directory, side, subdiv, frames, path, rev)
     walk = runs["after"]
-    write_plot(walk, out / "walkthrough.png", title=f"{scene.triangle_count:,}-triangle city, {res}x{res}, {layers} layers ({info.renderer})")
+    write_plot(walk, out / f"walkthrough-{path}.png", title=f"{scene.triangle_count:,}-triangle city, {res}x{res}, {layers} layers, {path} ({info.renderer})")
     print(f"   {'runtime':<16} {'full ms':>8} {'runtime ms':>10} {'max ms':>7} {'speed-up':>8} {'holes':>6} {'colour err':>10}")
     for label, run in runs.items():
         s = run["summary"]
@@ -202,23 +248,22 @@ def walkthrough_section(args, scene: Scene, cells, res: int, layers: int, frames
             f"{s['hole_pixels']:>6} {s['colour_error_mean']:>10.3f}"
         )
     s = walk["summary"]
-    print(f"   {s['cell_switches']} cell switches; largest colour difference {s['colour_error_max']} (0-255); plot: {out / 'walkthrough.png'}")
+    print(f"   {s['cell_switches']} cell switches; largest colour difference {s['colour_error_max']} (0-255); plot: {out / f'walkthrough-{path}.png'}")
     if "before" in runs:
         b = runs["before"]["summary"]
         print(f"   runtime frame {b['impostor_ms_mean']:.2f} -> {s['impostor_ms_mean']:.2f} ms ({b['impostor_ms_mean'] / s['impostor_ms_mean']:.2f}x); speed-up over the full scene {b['speedup_mean']:.2f}x -> {s['speedup_mean']:.2f}x")
-        report["walkthrough_before"] = {"revision": args.before, "summary": b}
-    report["walkthrough"] = {"summary": s, "bake_seconds_per_cell": bake_s / len(cells)}
-    report["walkthrough_parts"] = frame_parts(scene, Path(tmp_db.name), frames, res)
-    tmp_db.cleanup()
+        report[f"walkthrough_before_{path}"] = {"revision": args.before, "summary": b}
+    report[f"walkthrough_{path}"] = {"summary": s, "bake_seconds_per_cell": bake_per_cell}
+    report[f"walkthrough_parts_{path}"] = frame_parts(scene, directory, frames, res, side, path)
 
 
-def frame_parts(scene: Scene, directory: Path, frames: int, res: int) -> dict:
+def frame_parts(scene: Scene, directory: Path, frames: int, res: int, side: int, path: str) -> dict:
     """Mean ms per frame along the walkthrough's path (best of 5 draws a frame) of the full scene,
     the runtime, its near field alone and its layers alone, and of one opaque quad filling a
     frame of ``res`` pixels."""
     times: dict[str, list] = {}
     with ImpostorDatabase(directory / "db") as db, MeshRenderer(scene.objects) as full:
-        positions, forwards = generate_path(db, frames)
+        positions, forwards = walk_path(db, side, frames, path)
         current, parts = None, {}
         try:
             for position, forward in zip(positions, forwards):
@@ -251,16 +296,16 @@ def frame_parts(scene: Scene, directory: Path, frames: int, res: int) -> dict:
     return out
 
 
-def walk_database(directory: Path, side: int, subdiv: int, frames: int) -> dict:
-    """The walkthrough of the database in ``directory``/db along its generated path (``--walk``)."""
+def walk_database(directory: Path, side: int, subdiv: int, frames: int, path: str) -> dict:
+    """The walkthrough of the database in ``directory``/db along ``path`` (``--walk``)."""
     gl_context()
     scene = detailed_city(side, subdiv)
     with ImpostorDatabase(directory / "db") as db:
-        positions, forwards = generate_path(db, frames)
+        positions, forwards = walk_path(db, side, frames, path)
         return walkthrough(scene, db, positions, forwards, repeats=3)
 
 
-def walk_in_process(directory: Path, side: int, subdiv: int, frames: int, revision: str | None) -> dict:
+def walk_in_process(directory: Path, side: int, subdiv: int, frames: int, path: str, revision: str | None) -> dict:
     """:func:`walk_database` in a fresh process: with this tree's ``farfield``, or with the ``core/``
     of git ``revision`` (extracted beside ``directory`` and put first on the import path)."""
     env = dict(os.environ)
@@ -273,7 +318,7 @@ def walk_in_process(directory: Path, side: int, subdiv: int, frames: int, revisi
             tar.extractall(package, filter="data")
         (package / "__init__.py").write_text("")
         env["PYTHONPATH"] = os.pathsep.join([str(root), env.get("PYTHONPATH", "")])
-    command = [sys.executable, str(Path(__file__).resolve()), "--walk", str(directory), str(side), str(subdiv), str(frames)]
+    command = [sys.executable, str(Path(__file__).resolve()), "--walk", str(directory), str(side), str(subdiv), str(frames), path]
     result = subprocess.run(command, check=True, capture_output=True, text=True, env=env, cwd=directory)
     return json.loads(result.stdout.strip().splitlines()[-1])
 
