@@ -5,15 +5,15 @@ Usage: ``.venv/bin/python benchmarks/bench_envmap.py [--quick] [--only walkthrou
 1. Generation per cell at 512 x 512 faces with 64 layers, 4 and 6 directions (the paper: 2.5 min
    per cell on a GeForce 3), with the time of every stage.
 2. Memory per cell at each compression step (seed 002 Table 2: 256 MB -> 6 MB -> 288 KB).
-3. Walkthrough: a loop through a 3 x 1 x 3 grid of 10 m cells in a procedural city of about a
+3. Walkthrough: a path through a 3 x 1 x 3 grid of 10 m cells in a procedural city of about a
    million triangles; frame time of the full scene vs near field + impostors (same renderer, same
-   run), hole pixels and colour error per frame, and a plot (``walkthrough.png``).  The same
+   run), hole pixels and colour error per frame, and a plot (``walkthrough-<path>.png``).  The same
    database and path are walked by the runtime as it is and as it was at git revision ``--before``
    (its ``core/`` from ``git archive``, imported in a fresh process), one after the other in this
    run, so the before/after speed-ups share the machine, the cells and the frames.  The path
    (``--path``) keeps to the two streets of the crossing (``streets``, the default) or is the
    ellipse through the grid's bounding box that ``farfield walkthrough`` generates (``loop``),
-   which passes through buildings in 27 of its 60 frames; ``both`` walks each.  Then where
+   which passes through buildings (27 of its 60 frames in the full run); ``both`` walks each.  Then where
    the runtime's frame goes, on the same path: the near field alone, the layers alone, and one
    quad filling the frame (the renderer's cost per covered pixel).
 4. The trade: number of layers (near-field distance) and resolution against memory, generation
@@ -106,8 +106,9 @@ def street_grid(side: int, counts=(3, 1, 3), size: float = 10.0) -> list:
 
 def street_path(side: int, frames: int, counts=(3, 1, 3), size: float = 10.0) -> tuple[np.ndarray, np.ndarray]:
     """(positions (n, 3), forwards (n, 3)) along the two streets of :func:`street_grid`'s crossing,
-    at the cells' middle height, looking along the way: east along one street, south along the
-    other, back west, then north, each leg from one end of the cells to the other, 5 % inside.
+    at the cells' middle height, looking along the way: along +x on one street, -z on the other,
+    then back along -x and +z over the same ground, each leg starting 5 % inside the cells'
+    border and advancing evenly (``frames`` over the four legs).
 
     Lots are 20 m apart and footprints at most 16 m, so a street's centre line is 2 m or more
     from any building: no frame looks from inside one.
@@ -118,6 +119,8 @@ def street_path(side: int, frames: int, counts=(3, 1, 3), size: float = 10.0) ->
     >>> f.tolist()
     [[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
     """
+    if isinstance(frames, bool) or int(frames) != frames or frames < 1:
+        raise ValueError(f"frames must be an integer >= 1, got {frames!r}")
     middle = (side // 2) * 20.0 - 10.0
     height = 0.5 + counts[1] * size / 2
     reach = 0.95 * min(counts[0], counts[2]) * size / 2
@@ -135,6 +138,8 @@ def street_path(side: int, frames: int, counts=(3, 1, 3), size: float = 10.0) ->
 
 def walk_path(db, side: int, frames: int, path: str) -> tuple[np.ndarray, np.ndarray]:
     """The walkthrough's path: :func:`street_path`, or ``farfield walkthrough``'s loop."""
+    if path not in ("streets", "loop"):
+        raise ValueError(f"unknown path {path!r}")
     return street_path(side, frames) if path == "streets" else generate_path(db, frames)
 
 
