@@ -13,6 +13,7 @@ from farfield.core.render.context import gl_context, renderer_info
 from farfield.core.render.programs import park_framebuffer, program
 from farfield.core.render.raster import Camera, MeshRenderer
 from farfield.core.scene import SceneObject
+from tests.scenes import checker
 
 
 @pytest.fixture()
@@ -79,6 +80,40 @@ def test_renderer_releases_everything_it_made(ctx):
             image = renderer.render(camera)
         assert image[16, 16, 3] == 255 and image[0, 0, 3] == 0
     assert ctx.error == "GL_NO_ERROR"
+
+
+def test_each_draw_keeps_its_own_matrix_and_material(ctx):
+    # The renderer builds every draw's eye matrix in one go and sets each draw's material from
+    # values made once: drawn together, objects at their own places, with their own colours, a
+    # texture and an alpha cut, must look as each one drawn alone (they do not overlap on screen).
+    rng = np.random.default_rng(4)
+    quad = np.array([[0.0, 0.0, 0.0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    uv = np.array([[0.0, 0.0], [1, 0], [1, 1], [0, 1]])
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    texture = checker(8)
+    cut = checker(8)
+    cut[:4, :, 3] = 0
+    objects = []
+    for i in range(9):
+        place = np.array([(i % 3) * 1.5 - 2.0, (i // 3) * 1.5 - 2.0, 6.0 + 0.5 * i])
+        kind = i % 3
+        objects.append(
+            SceneObject(
+                f"q{i}", quad * (0.8 + 0.1 * i) + place, faces, uv=uv if kind else None, base_color=(*rng.uniform(0.2, 1.0, 3), 1.0),
+                texture=(texture if kind == 1 else cut) if kind else None, alpha_cutoff=0.5 if kind == 2 else None,
+            )
+        )  # fmt: skip
+    camera = Camera.look_at([0.0, 0.0, 0.0], [0.0, 0.0, 6.0], np.radians(70), 96, 0.5, 50.0)
+    with MeshRenderer(objects) as together:
+        image = together.render(camera)
+    alone = []
+    for obj in objects:
+        with MeshRenderer([obj]) as one:
+            alone.append(one.render(camera))
+    covered = np.stack([a[..., 3] > 0 for a in alone])
+    assert covered.sum(axis=0).max() == 1 and all(c.sum() > 30 for c in covered), covered.sum(axis=(1, 2))
+    np.testing.assert_array_equal(image, np.sum([a.astype(np.int64) for a in alone], axis=0).astype(np.uint8))
+    assert len({tuple(a[c][0]) for a, c in zip(alone, covered)}) == len(objects)  # nine different looks
 
 
 @pytest.mark.gpu

@@ -85,18 +85,25 @@ def srgb_texture(ctx: moderngl.Context, rgba: np.ndarray, mipmaps: bool = False)
     return texture
 
 
-def set_material(prog: moderngl.Program, obj, texture: moderngl.Texture | None) -> None:
-    """Set the unlit-material uniforms every farfield shader shares (glTF's base colour rule):
-    ``base_color`` (linear), ``alpha_cutoff`` (-1: opaque), ``has_texture`` and ``base_texture``
-    on unit 0 (an :func:`srgb_texture`).
+def material_uniforms(prog: moderngl.Program, obj, texture: moderngl.Texture | None) -> dict:
+    """The unlit-material uniforms every farfield shader shares (glTF's base colour rule), as
+    name -> value: ``base_color`` (linear), ``alpha_cutoff`` (-1: opaque; only where ``prog``
+    has it), ``has_texture`` and, with a texture, ``base_texture`` on unit 0 (the caller binds
+    ``texture``, an :func:`srgb_texture`, there).
 
     ``obj`` is a :class:`core.scene.SceneObject`; ``texture`` its uploaded base-colour texture.
     """
-    prog["base_color"].value = tuple(float(c) for c in obj.base_color)
-    cutoff = prog.get("alpha_cutoff", None)  # absent from a variant that never discards
-    if cutoff is not None:
-        cutoff.value = float(obj.alpha_cutoff) if obj.alpha_cutoff is not None else -1.0
-    prog["has_texture"].value = texture is not None
+    uniforms = {"base_color": tuple(float(c) for c in obj.base_color), "has_texture": texture is not None}
+    if prog.get("alpha_cutoff", None) is not None:  # absent from a variant that never discards
+        uniforms["alpha_cutoff"] = float(obj.alpha_cutoff) if obj.alpha_cutoff is not None else -1.0
+    if texture is not None:
+        uniforms["base_texture"] = 0
+    return uniforms
+
+
+def set_material(prog: moderngl.Program, obj, texture: moderngl.Texture | None) -> None:
+    """Set :func:`material_uniforms` on ``prog`` and bind ``texture`` (if any) to unit 0."""
+    for name, value in material_uniforms(prog, obj, texture).items():
+        prog[name].value = value
     if texture is not None:
         texture.use(0)
-        prog["base_texture"].value = 0
