@@ -96,9 +96,15 @@ def detailed_city(side: int = 36, subdivisions: int = 3, seed: int = 0) -> Scene
     return Scene.from_objects([ground, *objects], source=f"detailed-city-{side}-{subdivisions}")
 
 
+def crossing(side: int) -> float:
+    """x (and z) of the street crossing nearest the middle of :func:`detailed_city`: a street
+    between lots, whose centres are 20 m apart."""
+    return (side // 2) * 20.0 - 10.0
+
+
 def street_grid(side: int, counts=(3, 1, 3), size: float = 10.0) -> list:
     """Cubic cells of ``size`` over the street crossing nearest the city's middle, eye height 0.5..size+0.5."""
-    middle = (side // 2) * 20.0 - 10.0  # a street between lots
+    middle = crossing(side)
     lo = np.array([middle - counts[0] * size / 2, 0.5, middle - counts[2] * size / 2])
     hi = lo + np.array(counts) * size
     return grid_boxes(lo, hi, counts)
@@ -121,7 +127,7 @@ def street_path(side: int, frames: int, counts=(3, 1, 3), size: float = 10.0) ->
     """
     if isinstance(frames, bool) or int(frames) != frames or frames < 1:
         raise ValueError(f"frames must be an integer >= 1, got {frames!r}")
-    middle = (side // 2) * 20.0 - 10.0
+    middle = crossing(side)
     height = 0.5 + counts[1] * size / 2
     reach = 0.95 * min(counts[0], counts[2]) * size / 2
     legs = [((-1, 0), (1, 0)), ((0, 1), (0, -1)), ((1, 0), (-1, 0)), ((0, -1), (0, 1))]  # (start, heading) in (x, z)
