@@ -34,6 +34,8 @@ Akenine-Möller (2001): the box's three axes, the triangle's normal and the nine
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numba import njit
 
@@ -440,7 +442,11 @@ def _segment_covered(vertices, p, q, centres, half, voxels, n_vox, lo, hi):
 @njit(cache=True)
 def _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, tv_start, tv_len, tv_pool,
              centres, half, shrink, scratch_t2, scratch_t1, nbr2, cnt2, nbr1, cnt1, vox, assign, cand, lo, hi, corner):
-    """Try to contract v2 into v1 (v1 stays); returns (outcome, number of voxels re-stored)."""
+    """Try to contract v2 into v1 (v1 stays); returns (outcome, number of voxels re-stored, the
+    vertex besides v2 and v1 whose triangles it read or -1 (v2's other boundary neighbour), whether
+    the outcome reads no enlargement factor).  A failure that reads none (a stale edge, a non-manifold
+    result, a boundary vertex moved off the boundary, a flip) stands at any larger factor: the
+    convex-corner rule before the flip test only lets more through as the factor grows."""
     n2 = _vertex_tris(v2, vt_start, vt_len, vt_pool, tri_alive, scratch_t2)
     n1 = _vertex_tris(v1, vt_start, vt_len, vt_pool, tri_alive, scratch_t1)
     # Triangles on the edge.
@@ -450,9 +456,9 @@ def _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, 
         if triangles[t, 0] == v1 or triangles[t, 1] == v1 or triangles[t, 2] == v1:
             shared += 1
     if shared == 0:
-        return STALE, 0
+        return STALE, 0, -1, True
     if shared > 2:
-        return NON_MANIFOLD, 0
+        return NON_MANIFOLD, 0, -1, True
     m2 = _neighbours(v2, scratch_t2, n2, triangles, nbr2, cnt2)
     m1 = _neighbours(v1, scratch_t1, n1, triangles, nbr1, cnt1)
     common = 0
@@ -461,7 +467,7 @@ def _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, 
             if nbr2[i] == nbr1[j]:
                 common += 1
     if common != shared:
-        return NON_MANIFOLD, 0
+        return NON_MANIFOLD, 0, -1, True
     b2 = _is_boundary(m2, cnt2)
     b1 = _is_boundary(m1, cnt1)
     boundary_edge = shared == 1
@@ -470,16 +476,16 @@ def _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, 
     if b2:
         # Seed 003 Fig. 13: a boundary vertex may only go towards a boundary vertex, along the boundary.
         if not b1 or not boundary_edge:
-            return BOUNDARY_AWAY, 0
+            return BOUNDARY_AWAY, 0, -1, True
         for j in range(m2):
             if cnt2[j] > 2:
-                return NON_MANIFOLD, 0
+                return NON_MANIFOLD, 0, -1, True
             if cnt2[j] == 1 and nbr2[j] != v1:
                 if other >= 0:
-                    return NON_MANIFOLD, 0
+                    return NON_MANIFOLD, 0, -1, True
                 other = nbr2[j]
         if other < 0:
-            return NON_MANIFOLD, 0
+            return NON_MANIFOLD, 0, -1, True
         offset = _segment_distance(vertices, v2, v1, other)
         # No shrinking at convex corners either: the straight edge (v1, other) would cut the corner
         # off.  v2 may go only where the boundary runs straight or bends outwards there, both in 3D
@@ -489,7 +495,7 @@ def _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, 
             _fan_angle(v2, scratch_t2, n2, triangles, vertices) < np.pi * (1.0 - 1e-9)
             or _covers_corner(v2, v1, other, scratch_t2, n2, triangles, vertices)
         ):
-            return BOUNDARY_AWAY, 0
+            return BOUNDARY_AWAY, 0, -1, False
     # The triangles after the contraction: v2's (not on the edge) moved onto v1, and v1's own.
     nc = 0
     for i in range(n2):
@@ -500,7 +506,7 @@ def _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, 
         bx, by, bz = _normal(vertices, p, q, r)
         ax, ay, az = _normal(vertices, v1 if p == v2 else p, v1 if q == v2 else q, v1 if r == v2 else r)
         if np.sqrt(ax * ax + ay * ay + az * az) < 1e-12 or bx * ax + by * ay + bz * az <= 0.0:
-            return FLIP, 0
+            return FLIP, 0, -1, True
         cand[nc] = t
         nc += 1
     for i in range(n1):
@@ -523,7 +529,9 @@ def _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, 
     # does not change: the new edge is the union of the two old ones and covers no new interval.
     # (The old edges may themselves cross empty layers, as the edges of step walls between
     # non-adjacent layers do; testing their union again would keep every vertex of such a run.)
+    read = -1  # v2's other boundary neighbour, if its triangles were read
     if b2 and offset > EPS:
+        read = other
         extra = nv
         around = np.empty(vt_len[v1] + vt_len[other], dtype=np.int64)
         for vv in (v1, other):
@@ -536,7 +544,7 @@ def _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, 
                         vox[extra] = tv_pool[s + j]
                         extra += 1
         if not _segment_covered(vertices, v1, other, centres, half, vox, extra, lo, hi):
-            return BOUNDARY_INTERVAL, 0
+            return BOUNDARY_INTERVAL, 0, read, False
     # Every voxel must meet a triangle after the contraction (v2 read as v1): the corners of the
     # triangles after it, once.
     for j in range(nc):
@@ -557,14 +565,14 @@ def _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, 
                 hit = j
                 break
         if hit < 0:
-            return UNCOVERED, 0
+            return UNCOVERED, 0, read, False
         assign[i] = hit
         last = hit
-    return OK, nv
+    return OK, nv, read, False
 
 
 @njit(cache=True)
-def _simplify(vertices, triangles, edges, tri_voxel_offsets, tri_voxels, centres, half, shrink, max_valence, touched_before, repeat):
+def _simplify(vertices, triangles, edge_keys, tri_voxel_offsets, tri_voxels, centres, half, shrink, max_valence, touch_before, remembered, clock, new_factor):
     nv_total = vertices.shape[0]
     nt = triangles.shape[0]
     triangles = triangles.copy()
@@ -619,36 +627,40 @@ def _simplify(vertices, triangles, edges, tri_voxel_offsets, tri_voxels, centres
     # of the 327,680-triangle sphere of benchmarks/bench_tdm_scale.py peaked at 2.2 times its 5.1 M
     # edges), the entries' vertices and versions in 32 bits: a smaller heap reads fewer cache lines
     # and touches fewer fresh pages.
-    keys = np.empty(5 * edges.shape[0] // 2 + 16)
-    items = np.empty((5 * edges.shape[0] // 2 + 16, 4), dtype=np.int32)
+    n_edges = edge_keys.shape[0]
+    keys = np.empty(5 * n_edges // 2 + 16)
+    items = np.empty((5 * n_edges // 2 + 16, 4), dtype=np.int32)
     size = 0
-    for e in range(edges.shape[0]):
-        a = edges[e, 0]
-        b = edges[e, 1]
-        keys, items, size = _heap_push(keys, items, size, _distance(vertices, a, b), a, b, 0, 0)
+    for e in range(n_edges):
+        a = edge_keys[e] // nv_total
+        b = edge_keys[e] % nv_total
+        # An entry of the first edges carries -(its index + 1) for a's version (0).
+        keys, items, size = _heap_push(keys, items, size, _distance(vertices, a, b), a, b, -(e + 1), 0)
 
-    # Vertices of the triangles a contraction changed (this pass's, and when ``repeat``, the
-    # previous pass's at the same factor): see :func:`simplify`.
-    touched = touched_before.copy() if repeat else np.zeros(nv_total, dtype=np.bool_)
-    touched_now = np.zeros(nv_total, dtype=np.bool_)
-    # A repeat tries an edge only if one of its vertices is ``near``: touched, or on a live
-    # triangle with a touched vertex.  Kept as a flag: set here for the triangles as they are, then
-    # at every contraction for the vertices it touches first and those on their triangles after it.
-    # (A vertex leaves a triangle only by a contraction, and a contraction touches every vertex of
-    # the triangles it changes or removes, so a flag set once stays true.)
-    near = np.zeros(nv_total, dtype=np.bool_)
-    if repeat:
-        for t in range(nt):
-            if touched[triangles[t, 0]] or touched[triangles[t, 1]] or touched[triangles[t, 2]]:
-                for k in range(3):
-                    near[triangles[t, k]] = True
-    fresh = np.empty(6 * cap_t, dtype=np.int64)  # the vertices a contraction touched first
+    # The memory of failures (see :class:`PassMemory`): ``clock`` counts contractions, ``touch_time``
+    # is each vertex's last.  A failure is (the clock, the vertex besides a and b each attempt read
+    # or -1, 1 if neither outcome read the factor): in ``remembered`` for an entry of the first
+    # edges, else in ``log`` after a and b (a < b).  (The first entry of an edge goes stale before
+    # any entry pushed again, so the log's failures come after.)
+    touch_time = touch_before.copy()
+    log = np.empty((n_edges // 8 + 16, 6), dtype=np.int32)
+    n_log = 0
     while size > 0:
         a, b, va, vb, size = _heap_pop(keys, items, size)
+        e = -1
+        if va < 0:
+            e, va = -va - 1, 0
         if not vert_alive[a] or not vert_alive[b] or version[a] != va or version[b] != vb:
             continue
-        if repeat and not (near[a] or near[b]):
-            continue
+        # An edge whose last attempts failed fails again if nothing they read changed since (and,
+        # at a larger factor, if neither outcome read the factor): the triangles and their voxels
+        # around its two vertices and around the boundary neighbours the boundary test read.  A
+        # contraction touches every vertex of the triangles it changes, removes or moves.  (An edge
+        # pushed again in this pass has a vertex just touched.)
+        if e >= 0 and remembered[e, 0] >= 0 and (remembered[e, 3] or not new_factor):
+            t_e, r0, r1 = remembered[e, 0], remembered[e, 1], remembered[e, 2]
+            if touch_time[a] <= t_e and touch_time[b] <= t_e and (r0 < 0 or touch_time[r0] <= t_e) and (r1 < 0 or touch_time[r1] <= t_e):
+                continue
         if vt_len[a] > cap_t // 2 or vt_len[b] > cap_t // 2:
             cap_t = 2 * max(vt_len[a], vt_len[b]) + 16
             scratch_t2 = np.empty(cap_t, dtype=np.int64)
@@ -660,14 +672,20 @@ def _simplify(vertices, triangles, edges, tri_voxel_offsets, tri_voxels, centres
             cand = np.empty(2 * cap_t, dtype=np.int64)
             corner = np.empty((2 * cap_t, 9))
             per = np.zeros(2 * cap_t, dtype=np.int64)
-            fresh = np.empty(6 * cap_t, dtype=np.int64)
         done = False
+        read0 = read1 = -1
+        fixed = True
         for attempt in range(2):
             v2, v1 = (b, a) if attempt == 0 else (a, b)
-            outcome, nv = _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, tv_start, tv_len,
+            outcome, nv, read, free = _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, tv_start, tv_len,
                                    tv_pool, centres, half, shrink, scratch_t2, scratch_t1, nbr2, cnt2, nbr1, cnt1, vox, assign,
                                    cand, lo, hi, corner)  # fmt: skip
             counts[outcome] += 1
+            fixed = fixed and free
+            if attempt == 0:
+                read0 = read
+            else:
+                read1 = read
             if outcome == STALE:
                 break
             if outcome != OK:
@@ -689,24 +707,15 @@ def _simplify(vertices, triangles, edges, tri_voxel_offsets, tri_voxels, centres
                 if tri_alive[t]:
                     cand[nc] = t
                     nc += 1
-            n_fresh = 0
+            clock += 1  # (fewer contractions than vertices: int32)
             for i in range(n2):
                 for k in range(3):
-                    w = triangles[scratch_t2[i], k]
-                    if not touched[w]:
-                        fresh[n_fresh] = w
-                        n_fresh += 1
-                    touched[w] = True
-                    touched_now[w] = True
+                    touch_time[triangles[scratch_t2[i], k]] = clock
             for i in range(nc):
                 t = cand[i]
                 for k in range(3):
                     w = triangles[t, k]
-                    if not touched[w]:
-                        fresh[n_fresh] = w
-                        n_fresh += 1
-                    touched[w] = True
-                    touched_now[w] = True
+                    touch_time[w] = clock
                     if w == v2:
                         triangles[t, k] = v1
             vert_alive[v2] = False
@@ -717,16 +726,6 @@ def _simplify(vertices, triangles, edges, tri_voxel_offsets, tri_voxels, centres
             vt_start[v1] = vt_top
             vt_len[v1] = nc
             vt_top += nc
-            if repeat:
-                for i in range(n_fresh):
-                    w = fresh[i]
-                    near[w] = True
-                    s = vt_start[w]
-                    for j in range(vt_len[w]):
-                        t = vt_pool[s + j]
-                        if tri_alive[t]:
-                            for k in range(3):
-                                near[triangles[t, k]] = True
             # Voxel lists: moved triangles keep exactly the voxels assigned to them; v1's own add theirs.
             per[:nc] = 0
             for i in range(nv):
@@ -763,8 +762,23 @@ def _simplify(vertices, triangles, edges, tri_voxel_offsets, tri_voxels, centres
                 keys, items, size = _heap_push(keys, items, size, _distance(vertices, v1, w), v1, w, version[v1], version[w])
             done = True
             break
-        if done:
-            continue
+        if not done and e >= 0:
+            remembered[e, 0] = clock
+            remembered[e, 1] = read0
+            remembered[e, 2] = read1
+            remembered[e, 3] = 1 if fixed else 0
+        elif not done:
+            if n_log == log.shape[0]:
+                bigger = np.empty((2 * n_log, 6), dtype=np.int32)
+                bigger[:n_log] = log
+                log = bigger
+            log[n_log, 0] = min(a, b)
+            log[n_log, 1] = max(a, b)
+            log[n_log, 2] = clock
+            log[n_log, 3] = read0
+            log[n_log, 4] = read1
+            log[n_log, 5] = 1 if fixed else 0
+            n_log += 1
     # Output: live triangles with their voxels.
     live = np.flatnonzero(tri_alive)
     out_offsets = np.zeros(live.shape[0] + 1, dtype=np.int64)
@@ -775,7 +789,7 @@ def _simplify(vertices, triangles, edges, tri_voxel_offsets, tri_voxels, centres
         s = tv_start[live[i]]
         for j in range(tv_len[live[i]]):
             out_voxels[out_offsets[i] + j] = tv_pool[s + j]
-    return triangles[live], out_offsets, out_voxels, counts, touched_now
+    return triangles[live], out_offsets, out_voxels, counts, touch_time, log[:n_log], clock
 
 
 def corner_shrink(enlargement: float) -> float:
@@ -808,44 +822,109 @@ def box_half_sizes(count: int, enlargement: float, silhouette: np.ndarray | None
     return half
 
 
-def simplify(vertices, triangles, voxel_offsets, voxels, centres, enlargement, silhouette=None, touched=None):
+@dataclass(frozen=True, slots=True)
+class PassMemory:
+    """The failures a pass of :func:`simplify` leaves for the next pass on its result.
+
+    ``clock`` counts contractions since the first pass; ``touch_time`` (v,) int32 is the clock of
+    each vertex's last touch (0: none), a contraction touching every vertex of the triangles it
+    changes, removes or moves.  ``keys`` (sorted) are edges ``a * v + b`` (a < b) whose last
+    attempts failed; ``failures`` (k, 4) int32 their clock then (-1: forgotten), the vertex besides
+    a and b whose triangles each of the two attempts read (v2's other boundary neighbour, in the
+    boundary test; -1: none), and 1 if neither outcome read the factor.  ``enlargement`` is the
+    factor of the pass."""
+
+    touch_time: np.ndarray
+    keys: np.ndarray
+    failures: np.ndarray
+    clock: int
+    enlargement: float
+
+    @classmethod
+    def empty(cls, count: int, enlargement: float) -> PassMemory:
+        return cls(np.zeros(count, np.int32), np.zeros(0, np.int64), np.zeros((0, 4), np.int32), 0, float(enlargement))
+
+    def renumbered(self, kept: np.ndarray) -> PassMemory:
+        """The memory for the vertices ``kept`` (old numbers, ascending), numbered 0, 1, ... in
+        order.  A failure that read a vertex not kept is forgotten: that vertex lost its triangles
+        after it (a touch), so the failure could not be skipped anyway."""
+        old, new = len(self.touch_time), len(kept)
+        number = np.full(old + 1, -1, np.int32)  # number[-1]: the -1 of no vertex read stays -1
+        number[kept] = np.arange(new)
+        a, b = number[self.keys // old].astype(np.int64), number[self.keys % old]
+        keep = (a >= 0) & (b >= 0)
+        failures = self.failures[keep]
+        reads = number[failures[:, 1:3]]
+        failures[~((reads >= 0) | (failures[:, 1:3] < 0)).all(axis=1), 0] = -1
+        failures[:, 1:3] = reads
+        return PassMemory(self.touch_time[kept], a[keep] * new + b[keep], failures, self.clock, self.enlargement)
+
+
+def simplify(vertices, triangles, voxel_offsets, voxels, centres, enlargement, silhouette=None, memory: PassMemory | None = None):
     """Simplify a covering mesh (see the module docstring); ``silhouette`` flags the voxels whose
     boxes are not enlarged.
 
-    ``touched``: for a pass that repeats the previous one at the same ``enlargement`` on its
-    result, the (v,) bool vertices of the triangles that pass changed (what it returned).  An
-    attempt reads only the triangles around the edge's two vertices and around their neighbours
-    (their voxels included), and a failed one changes nothing; so an edge none of whose vertices
-    and neighbours was touched since its last attempt, in that pass, fails again, and the repeat
-    skips it.  Its failures are then not counted again.  Measured on the 327,680-triangle sphere
-    of ``benchmarks/bench_tdm_scale.py`` (3.4 M initial triangles, 143,481 kept, 23 passes): the
-    same mesh, the whole cascade 54 s instead of 80 s.  (The neighbours matter only for the
-    boundary test, which reads the triangles around v2's other boundary neighbour.)
+    ``memory``: the :class:`PassMemory` of the pass whose result this is, if any.  An attempt reads
+    only the triangles around the edge's two vertices and, at a boundary, around the other boundary
+    neighbour of the vertex it removes (their voxels included), and a failed one changes nothing;
+    so an edge whose last attempts failed, with none of those vertices touched since, fails again,
+    at the same factor, and at a larger one if neither outcome read the factor
+    (:func:`_attempt`).  The pass skips such edges, counting their failures no more.  It pops the
+    same heap entries as without skipping, so it makes the same mesh.  Measured on the
+    327,680-triangle sphere of ``benchmarks/bench_tdm_scale.py`` (3.4 M initial triangles, 143,481
+    kept, 23 passes): skipping in the repeats at one factor the edges with no vertex around them
+    touched in the previous pass or this one (the memory of earlier versions), the cascade took 54 s
+    instead of 80 s; see the README for each edge's own memory.
 
     Returns (triangles (t, 3) int64 into the same vertices, voxel_offsets, voxels, outcome counts
-    as a dict, touched: the vertices of the triangles this pass changed).
+    as a dict, the pass's :class:`PassMemory`).
     """
     triangles = np.ascontiguousarray(triangles, dtype=np.int64)
-    if len(vertices) >= 2**31:  # the queue keeps vertex numbers in 32 bits
+    if len(vertices) >= 2**31:  # the queue keeps vertex numbers and edge indices in 32 bits
         raise InternalError(f"a mesh of {len(vertices):,} vertices is past the simplification's 2**31")
     valence = np.bincount(triangles.ravel(), minlength=len(vertices)).max(initial=1)
-    edges = np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    # Each edge once, in (a, b) order: one int64 key per edge, sorted, repeats dropped
-    # (np.unique(axis=0) sorts rows as structured records, 0.86 s of the 2.4 s simplification at
-    # 90 m in the profile; np.unique of the keys hashes them first, 0.4 s a pass for 800k edges).
+    # Each edge once: one int64 key a * n + b (a < b) per edge, sorted, repeats dropped (np.unique
+    # of the keys hashes them first, 0.4 s a pass for 800k edges).
     n = max(len(vertices), 1)
-    keys = np.sort(edges[:, 0] * n + edges[:, 1])
+    first, second = triangles, triangles[:, [1, 2, 0]]
+    keys = np.sort((np.minimum(first, second) * n + np.maximum(first, second)).ravel())
     keys = keys[np.concatenate([[True], keys[1:] != keys[:-1]])] if keys.size else keys
-    edges = np.stack([keys // n, keys % n], axis=1)
-    repeat = touched is not None
-    tris, offsets, vox, counts, touched = _simplify(
-        np.ascontiguousarray(vertices, dtype=np.float64), triangles, np.ascontiguousarray(edges),
+    if memory is None:
+        memory = PassMemory.empty(len(vertices), enlargement)
+    elif len(memory.touch_time) != len(vertices) or enlargement < memory.enlargement:
+        raise InternalError(f"a pass memory of {len(memory.touch_time):,} vertices at f = {memory.enlargement} for a mesh of {len(vertices):,} at f = {enlargement}")
+    # Each edge's failure, if remembered (one row an edge: the kernel reads it in one cache line).
+    remembered = np.full((len(keys), 4), -1, np.int32)  # the kernel writes this pass's into it
+    if len(memory.keys):
+        at = np.minimum(np.searchsorted(memory.keys, keys), len(memory.keys) - 1)
+        known = memory.keys[at] == keys
+        remembered[known] = memory.failures[at[known]]
+    tris, offsets, vox, counts, touch_time, log, clock = _simplify(
+        np.ascontiguousarray(vertices, dtype=np.float64), triangles, keys,
         np.ascontiguousarray(voxel_offsets, dtype=np.int64), np.ascontiguousarray(voxels, dtype=np.int64),
         np.ascontiguousarray(centres, dtype=np.float64), box_half_sizes(len(centres), enlargement, silhouette),
-        corner_shrink(enlargement), int(4 * valence + 64),
-        np.ascontiguousarray(touched, dtype=np.bool_) if repeat else np.zeros(len(vertices), dtype=np.bool_), repeat,
+        corner_shrink(enlargement), int(4 * valence + 64), np.ascontiguousarray(memory.touch_time, dtype=np.int32),
+        remembered, int(memory.clock), bool(enlargement > memory.enlargement),
     )  # fmt: skip
-    return tris, offsets, vox, dict(zip(OUTCOMES, (int(c) for c in counts))), touched
+    # The memory after: each edge's last failure (the log's last, else ``remembered``'s), between
+    # live vertices.
+    log_keys = log[:, 0].astype(np.int64) * n + log[:, 1]
+    order = np.argsort(log_keys, kind="stable")
+    log_keys = log_keys[order]
+    last = np.append(log_keys[1:] != log_keys[:-1], True) if log_keys.size else np.zeros(0, bool)
+    log_keys, log_failures = log_keys[last], log[order[last], 2:]
+    failed = remembered[:, 0] >= 0
+    merged_keys, failures = keys[failed], remembered[failed]
+    at = np.minimum(np.searchsorted(merged_keys, log_keys), max(len(merged_keys) - 1, 0))
+    again = merged_keys[at] == log_keys if len(merged_keys) else np.zeros(len(log_keys), bool)
+    failures[at[again]] = log_failures[again]
+    merged_keys, failures = np.concatenate([merged_keys, log_keys[~again]]), np.concatenate([failures, log_failures[~again]])
+    order = np.argsort(merged_keys, kind="stable")  # two sorted runs: merged in linear time
+    live = np.bincount(tris.ravel(), minlength=n) > 0
+    merged_keys, failures = merged_keys[order], failures[order]
+    between = live[merged_keys // n] & live[merged_keys % n]
+    memory = PassMemory(touch_time, merged_keys[between], failures[between], int(clock), float(enlargement))
+    return tris, offsets, vox, dict(zip(OUTCOMES, (int(c) for c in counts))), memory
 
 
 def contraction_outcome(vertices, triangles, voxel_offsets, voxels, centres, enlargement, v2, v1, silhouette=None) -> str:
@@ -864,7 +943,7 @@ def contraction_outcome(vertices, triangles, voxel_offsets, voxels, centres, enl
     voxel_offsets = np.asarray(voxel_offsets, dtype=np.int64)
     cap = 4 * int(vt_len.max(initial=1)) + 64
     n = 3 * len(voxels) + 16
-    outcome, _ = _attempt(
+    outcome, _, _, _ = _attempt(
         int(v2), int(v1), vertices, triangles, np.ones(nt, dtype=np.bool_), vt_start, vt_len, vt_pool,
         voxel_offsets[:-1].copy(), np.diff(voxel_offsets), np.ascontiguousarray(voxels, dtype=np.int64),
         np.ascontiguousarray(centres, dtype=np.float64), box_half_sizes(len(centres), enlargement, silhouette),

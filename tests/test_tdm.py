@@ -18,7 +18,7 @@ from test_bundle import accessor_array
 
 from farfield.cli.main import _register, cli
 from farfield.core.bundle import read_bundle, write_bundle
-from farfield.core.errors import LayerPlanError
+from farfield.core.errors import InternalError, LayerPlanError
 from farfield.core.evaluation import evaluate
 from farfield.core.glb import impostor_glb
 from farfield.core.layers import plan_layers
@@ -181,23 +181,54 @@ def test_the_cascade_repeats_each_pass_until_nothing_more_contracts(house_bake, 
 
 
 @pytest.mark.parametrize("enlargement", [1.0, 2.0])
-def test_a_repeat_pass_skips_only_edges_whose_neighbourhood_did_not_change(house_bake, enlargement):
-    """A repeat pass given the vertices the previous pass touched makes the same mesh as one that
-    tries every edge again, with fewer attempts (seed 003 §6's greedy pass, farfield's repeats)."""
+def test_a_pass_skips_only_edges_that_would_fail_again(house_bake, enlargement):
+    """A pass given the memory of the pass before makes the same mesh as one that tries every edge
+    again, with fewer attempts: repeated at the same factor, and at a larger factor, where only
+    failures whose outcome read no factor are skipped (seed 003 §6's greedy pass, farfield's
+    repeats and cascade).  After a pass that changed nothing, the next attempts nothing."""
     scene, _ = house_bake
     lo, hi = scene.bounds
     field, mesh = _field_and_mesh(scene, scenes_cell(0.5 * (lo + hi), lo[2] - 90.0))
-    args = (field.centres, enlargement, field.silhouette)
-    triangles, offsets, voxels, _, touched = simplify(mesh.vertices, mesh.triangles, mesh.voxel_offsets, mesh.voxels, *args)
-    assert 0 < touched.sum() < touched.size
-    for _ in range(3):
-        full = simplify(mesh.vertices, triangles, offsets, voxels, *args)
-        skipping = simplify(mesh.vertices, triangles, offsets, voxels, *args, touched)
-        assert all(np.array_equal(a, b) for a, b in zip(full[:3], skipping[:3]))
-        assert full[3]["ok"] == skipping[3]["ok"] and sum(skipping[3].values()) < sum(full[3].values())
-        triangles, offsets, voxels, _, touched = skipping
-    untouched = simplify(mesh.vertices, triangles, offsets, voxels, *args, np.zeros_like(touched))
-    assert sum(untouched[3].values()) == 0 and np.array_equal(untouched[0], triangles)
+    args = (field.centres,)
+    triangles, offsets, voxels, _, memory = simplify(mesh.vertices, mesh.triangles, mesh.voxel_offsets, mesh.voxels, *args, enlargement, field.silhouette)
+    assert 0 < memory.keys.size and 0 < memory.clock
+    fewer = 0
+    for factor in (enlargement,) * 3 + (enlargement + 0.5,) * 3 + (enlargement + 1.5,):
+        full = simplify(mesh.vertices, triangles, offsets, voxels, *args, factor, field.silhouette)
+        skipping = simplify(mesh.vertices, triangles, offsets, voxels, *args, factor, field.silhouette, memory)
+        assert all(np.array_equal(a, b) for a, b in zip(full[:3], skipping[:3])), factor
+        assert full[3]["ok"] == skipping[3]["ok"] and sum(skipping[3].values()) <= sum(full[3].values())
+        fewer += sum(skipping[3].values()) < sum(full[3].values())
+        triangles, offsets, voxels, _, memory = skipping
+    assert fewer == 7
+    while True:
+        triangles, offsets, voxels, counts, memory = simplify(mesh.vertices, triangles, offsets, voxels, *args, factor, field.silhouette, memory)
+        if counts["ok"] == 0:
+            break
+    again = simplify(mesh.vertices, triangles, offsets, voxels, *args, factor, field.silhouette, memory)
+    assert sum(again[3].values()) == 0 and np.array_equal(again[0], triangles)
+    with pytest.raises(InternalError, match="pass memory"):
+        simplify(mesh.vertices, triangles, offsets, voxels, *args, factor - 0.5, field.silhouette, memory)
+
+
+@pytest.mark.parametrize("distance, resolution", [(90.0, 128), (250.0, 128), (60.0, 256)])
+def test_the_cascade_with_memory_is_the_cascade_without(house_bake, distance, resolution):
+    """:func:`simplify_mesh` carries each pass's memory to the next, across factors and through
+    the renumbering of the vertices left: the same triangles and voxels as every pass trying every
+    edge.  (At 60 units and 256 pixels, skipping without reading whether the boundary neighbours
+    the boundary test read were touched gives another mesh.)"""
+    scene, _ = house_bake
+    lo, hi = scene.bounds
+    field, mesh = _field_and_mesh(scene, scenes_cell(0.5 * (lo + hi), lo[2] - distance), resolution)
+    triangles, offsets, voxels = mesh.triangles, mesh.voxel_offsets, mesh.voxels
+    for factor in schedule(3.0):
+        while True:
+            before = triangles.shape[0]
+            triangles, offsets, voxels, _, _ = simplify(mesh.vertices, triangles, offsets, voxels, field.centres, factor, field.silhouette)
+            if triangles.shape[0] == before:
+                break
+    cascade = simplify_mesh(mesh, field, 3.0)
+    assert np.array_equal(cascade[0], triangles) and np.array_equal(cascade[1], offsets) and np.array_equal(cascade[2], voxels)
 
 
 def test_meshes_that_store_no_voxel_are_left_out(house_bake):

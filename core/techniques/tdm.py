@@ -116,11 +116,11 @@ def simplify_mesh(mesh: TdmMesh, field: VoxelField, enlargement: float, silhouet
     centres = field.centres
     silhouette = field.silhouette if silhouette is None else silhouette
     totals: dict[str, int] = {}
+    memory = None  # each pass skips the edges that would fail again (core.tdm_simplify.simplify)
     for factor in schedule(enlargement):
-        touched = None  # a new factor tries every edge; its repeats, those near the last pass's changes
         while True:
             before = triangles.shape[0]
-            triangles, offsets, voxels, counts, touched = simplify(vertices, triangles, offsets, voxels, centres, factor, silhouette, touched)
+            triangles, offsets, voxels, counts, memory = simplify(vertices, triangles, offsets, voxels, centres, factor, silhouette, memory)
             for key, value in counts.items():
                 totals[key] = totals.get(key, 0) + value
             if triangles.shape[0] == before:
@@ -133,7 +133,7 @@ def simplify_mesh(mesh: TdmMesh, field: VoxelField, enlargement: float, silhouet
             if kept.size < 0.75 * len(vertices):
                 number = np.zeros(len(vertices), np.int64)
                 number[kept] = np.arange(kept.size)
-                triangles, vertices, original, touched = number[triangles], vertices[kept], original[kept], touched[kept]
+                triangles, vertices, original, memory = number[triangles], vertices[kept], original[kept], memory.renumbered(kept)
     return original[triangles], offsets, voxels, totals
 
 
