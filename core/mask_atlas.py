@@ -229,6 +229,38 @@ def _stacked(masks: Sequence[np.ndarray], shapes: np.ndarray, p: int) -> tuple[l
     return runs, grown
 
 
+@njit(cache=True, nogil=True)
+def _pack_from(start, order, shapes, kind, cell_at, cell_rows, cell_cols, row_at, need, need_run, grown_at, grown, p,
+               blocked, next_free, free, run, bottoms, resume, page, x, y):  # fmt: skip
+    """Place the masks ``order[start:]`` on the pages (:func:`_pack` says how); the position in
+    ``order`` of the first mask that fits no page (the caller adds one and goes on from there), or
+    ``len(order)`` when every mask is placed.  Mask i's cells are ``cell_rows``/``cell_cols``
+    [``cell_at[i]``:``cell_at[i + 1]``], its rows' ``need`` and ``need_run`` [``row_at[i]``:...],
+    its dilated mask ``grown`` [``grown_at[i]``:...] raveled, (h + 2p) x (w + 2p)."""
+    for j in range(start, order.shape[0]):
+        i = order[j]
+        h, w = shapes[i, 0], shapes[i, 1]
+        rows, cols = cell_rows[cell_at[i] : cell_at[i + 1]], cell_cols[cell_at[i] : cell_at[i + 1]]
+        need_i, run_i = need[row_at[i] : row_at[i + 1]], need_run[row_at[i] : row_at[i + 1]]
+        first, start_y, start_x = resume[kind[i], 0], resume[kind[i], 1], resume[kind[i], 2]
+        at_y = at_x = -1
+        index = first
+        while index < blocked.shape[0]:
+            sy, sx = (start_y, start_x) if index == first else (0, 0)
+            at_y, at_x = _first_fit(blocked[index], next_free[index], free[index], run[index], rows, cols, h, w, need_i, run_i, sy, sx)
+            if at_y >= 0:
+                break
+            index += 1
+        if at_y < 0:
+            return j
+        dilated = grown[grown_at[i] : grown_at[i + 1]].reshape(h + 2 * p, w + 2 * p)
+        _block(blocked[index], next_free[index], free[index], run[index], dilated, at_y - p, at_x - p)
+        page[i], y[i], x[i] = index, at_y, at_x
+        resume[kind[i], 0], resume[kind[i], 1], resume[kind[i], 2] = index, at_y, at_x
+        bottoms[index] = max(bottoms[index], at_y + h)
+    return order.shape[0]
+
+
 def _pack(shapes, cells, need, need_run, grown, kind, order: np.ndarray, width: int, p: int, max_page: int) -> MaskLayout:
     """First fit of the masks (``shapes`` (n, 2) h, w, ``cells`` their true texels as (rows, cols),
     ``need`` true texels per row and ``need_run`` their longest run, ``grown`` dilated by ``p``) in
@@ -237,39 +269,43 @@ def _pack(shapes, cells, need, need_run, grown, kind, order: np.ndarray, width: 
     Placed cells only ever block more, so no position before the one where a mask was placed can
     take a mask of the same ``kind`` (the same texels) later: its search starts there.  Of the
     30,957 charts of ``benchmarks/bench_tdm_scale.py``'s sphere, 19,611 kinds: the positions tried
-    at one width went from 377 M to 178 M, the same layout."""
+    at one width went from 377 M to 178 M, the same layout.  The loop over the masks is one numba
+    kernel (:func:`_pack_from`), which also frees the other packing threads from the GIL: a loop
+    in Python cost 0.7 of the 4.6 s of one width there."""
     n = len(shapes)
-
+    flat = _flattened(cells, need, need_run, grown)
     # Per page (:func:`_first_fit` says what each holds): the cells blocked for new texels (within
     # ``padding`` of a placed one), next_free, free, run, and the lowest texel's row.
-    blocked: list[np.ndarray] = []
-    next_free: list[np.ndarray] = []
-    free: list[np.ndarray] = []
-    run: list[np.ndarray] = []
-    bottoms: list[int] = []
-    page = np.zeros(n, np.int64)
-    x = np.zeros(n, np.int64)
-    y = np.zeros(n, np.int64)
-    columns = np.arange(width, dtype=np.int32)
-    resume: dict[int, tuple[int, int, int]] = {}  # kind -> (page, row, column) of its last placement
-    for i in order:
-        h, w = (int(v) for v in shapes[i])
-        rows, cols = cells[i]
-        first, start_y, start_x = resume.get(int(kind[i]), (0, 0, 0))
-        for index in range(first, len(blocked) + 1):
-            if index == len(blocked):
-                blocked.append(np.zeros((max_page, width), bool))
-                next_free.append(np.broadcast_to(columns, (max_page, width)).copy())
-                free.append(np.full(max_page, width, np.int64))
-                run.append(np.full(max_page, width, np.int64))
-                bottoms.append(0)
-            start = (start_y, start_x) if index == first else (0, 0)
-            at = _first_fit(blocked[index], next_free[index], free[index], run[index], rows, cols, h, w, need[i], need_run[i], *start)
-            if at[0] >= 0:
-                break
-        _block(blocked[index], next_free[index], free[index], run[index], grown[i], at[0] - p, at[1] - p)
-        page[i], y[i], x[i] = index, at[0], at[1]
-        resume[int(kind[i])] = (index, int(at[0]), int(at[1]))
-        bottoms[index] = max(bottoms[index], at[0] + h)
+    blocked = np.zeros((0, max_page, width), bool)
+    next_free = np.zeros((0, max_page, width), np.int32)
+    free = np.zeros((0, max_page), np.int64)
+    run = np.zeros((0, max_page), np.int64)
+    bottoms = np.zeros(0, np.int64)
+    page, x, y = np.zeros(n, np.int64), np.zeros(n, np.int64), np.zeros(n, np.int64)
+    resume = np.zeros((int(kind.max(initial=-1)) + 1, 3), np.int64)  # kind -> (page, row, column) of its last placement
+    order = np.ascontiguousarray(order, dtype=np.int64)
+    start = 0
+    while start < n:  # a page more each time a mask fits none
+        blocked = np.concatenate([blocked, np.zeros((1, max_page, width), bool)])
+        next_free = np.concatenate([next_free, np.broadcast_to(np.arange(width, dtype=np.int32), (1, max_page, width))])
+        free = np.concatenate([free, np.full((1, max_page), width, np.int64)])
+        run = np.concatenate([run, np.full((1, max_page), width, np.int64)])
+        bottoms = np.append(bottoms, 0)
+        start = _pack_from(start, order, shapes, kind, *flat, p, blocked, next_free, free, run, bottoms, resume, page, x, y)
     sizes = np.array([[width, min(max_page, _round4(b))] for b in bottoms], dtype=np.int64)
     return MaskLayout(page, x, y, sizes)
+
+
+def _flattened(cells, need, need_run, grown) -> tuple[np.ndarray, ...]:
+    """The per-mask arrays of :func:`_pack` as flat arrays and offsets, for :func:`_pack_from`."""
+
+    def offsets(parts) -> np.ndarray:
+        return np.concatenate([[0], np.cumsum([len(part) for part in parts])]).astype(np.int64)
+
+    rows = [c[0] for c in cells]
+    flat_grown = [g.ravel() for g in grown]
+    return (
+        offsets(rows), np.concatenate(rows).astype(np.int64), np.concatenate([c[1] for c in cells]).astype(np.int64),
+        offsets(need), np.concatenate(need).astype(np.int64), np.concatenate(need_run).astype(np.int64),
+        offsets(flat_grown), np.concatenate(flat_grown),
+    )  # fmt: skip

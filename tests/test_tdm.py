@@ -653,7 +653,7 @@ def test_warming_compiles_every_kernel_a_bake_runs_with_the_types_it_runs_them_w
     counts = json.loads(out.stdout.strip().splitlines()[-1])
     assert not any(counts["before"].values())
     assert counts["baked"] == counts["warmed"]
-    for kernel in ("tdm_simplify._simplify", "mask_atlas._first_fit", "mask_atlas._block", "tdm_mesh._ear_clip_kernel", "tdm_mesh.assign_voxels"):
+    for kernel in ("tdm_simplify._simplify", "mask_atlas._pack_from", "tdm_mesh._ear_clip_kernel", "tdm_mesh.assign_voxels"):
         assert counts["warmed"][f"farfield.core.{kernel}"] == 1
 
 
