@@ -10,10 +10,11 @@ parts:
   first, then left) where it lies inside the page and no texel of it comes within ``padding``
   texels (Chebyshev distance) of a texel already placed: its mask dilated by ``padding`` must meet
   no placed texel.  The search is one numba kernel (:func:`_first_fit`) that skips rows without
-  enough free cells or a long enough free run and jumps over blocked runs, so its cost grows with
-  the free runs it meets, not with the area already packed (30,957 charts of a 327,680-triangle
-  sphere from a close cell: 60 s instead of more than 10 minutes, the same layout; see
-  ``benchmarks/bench_tdm_scale.py``).  A mask the same texel for texel as one placed before
+  enough free cells or a long enough free run, tests a mask row's runs against the page's free
+  runs in one read each and jumps over blocked runs, so its cost grows with the free runs it
+  meets, not with the area already packed (30,957 charts of a 327,680-triangle sphere from a
+  close cell: 60 s instead of more than 10 minutes, then 14.5 s with texel tests, 6.5 s with run
+  tests, the same layout each time; see ``benchmarks/bench_tdm_scale.py``).  A mask the same texel for texel as one placed before
   starts its search where that one went (:func:`_pack`).  A mask that fits no page opens a new one.
 * Pages have a fixed width, a multiple of the square root of the masks' area (rounded up to a
   multiple of 4, never narrower than the widest mask), and end below their lowest texel (rounded
@@ -61,22 +62,28 @@ class MaskLayout:
 
 
 @njit(cache=True, nogil=True)
-def _first_fit(blocked, next_free, free, run, rows, cols, height, width, need, need_run, start_y, start_x):
-    """First (row, column) in row-major order, from (``start_y``, ``start_x``) on, where the cells
-    (``rows``, ``cols``) of a mask of ``height`` x ``width`` meet no ``blocked`` cell of the page;
-    (-1, -1) if none.
+def _first_fit(span, free, run, run_rows, run_cols, run_lens, height, width, need, need_run, start_y, start_x):
+    """First (row, column) in row-major order, from (``start_y``, ``start_x``) on, where the runs
+    of a mask of ``height`` x ``width`` (row ``run_rows``, first column ``run_cols``, ``run_lens``
+    cells) meet no blocked cell of the page; (-1, -1) if none.
 
     The answer is the plain row-major scan's; what makes it cheaper:
 
     * ``free`` counts each page row's unblocked cells and ``run`` their longest run; ``need``
       counts each mask row's cells and ``need_run`` their longest run: a row without enough of
       either is skipped whole.
-    * ``next_free[r, c]`` is the first unblocked column >= ``c`` of row ``r`` (the page width if
-      none): where cell ``k`` meets a blocked cell, no column before the one that puts it on
-      ``next_free`` can fit either, so the scan jumps there.
+    * ``span[r, c]`` is the length of the free run that starts at cell (r, c), or minus the length
+      of the blocked run that starts there: a mask run is tested in one read, and where it does not
+      fit, no column before the one that puts its first cell on the next free cell after the
+      blocking one can fit either, so the scan jumps there.  The mask's longest run is tested
+      first (it fails most often), then the others in row-major order.
     """
-    page_h, page_w = blocked.shape
-    n = rows.size
+    page_h, page_w = span.shape
+    m = run_rows.size
+    anchor = 0
+    for j in range(1, m):
+        if run_lens[j] > run_lens[anchor]:
+            anchor = j
     for y in range(start_y, page_h - height + 1):
         enough = True
         for r in range(height):
@@ -88,10 +95,13 @@ def _first_fit(blocked, next_free, free, run, rows, cols, height, width, need, n
         x = start_x if y == start_y else 0
         while x <= page_w - width:
             fits = True
-            for k in range(n):
-                r, c = y + rows[k], x + cols[k]
-                if blocked[r, c]:
-                    x = next_free[r, c] - cols[k]
+            for t in range(m):
+                j = anchor if t == 0 else (t - 1 if t - 1 < anchor else t)
+                r, c = y + run_rows[j], x + run_cols[j]
+                length = span[r, c]
+                if length < run_lens[j]:
+                    end = c + length if length > 0 else c  # the first blocked cell at or after c
+                    x = page_w if end >= page_w else end - span[r, end] - run_cols[j]
                     fits = False
                     break
             if fits:
@@ -100,10 +110,10 @@ def _first_fit(blocked, next_free, free, run, rows, cols, height, width, need, n
 
 
 @njit(cache=True, nogil=True)
-def _block(blocked, next_free, free, run, grown, top, left):
+def _block(span, free, run, grown, top, left):
     """Block the cells of ``grown`` (a mask dilated by the padding) with its top-left at (``top``,
-    ``left``), clipped to the page, and bring ``free``, ``run`` and ``next_free`` up to date."""
-    page_h, page_w = blocked.shape
+    ``left``), clipped to the page, and bring ``span``, ``free`` and ``run`` up to date."""
+    page_h, page_w = span.shape
     gh, gw = grown.shape
     for gr in range(gh):
         r = top + gr
@@ -112,25 +122,28 @@ def _block(blocked, next_free, free, run, grown, top, left):
         right = -1
         for gc in range(gw):
             c = left + gc
-            if 0 <= c < page_w and grown[gr, gc] and not blocked[r, c]:
-                blocked[r, c] = True
+            if 0 <= c < page_w and grown[gr, gc] and span[r, c] > 0:
+                span[r, c] = 0  # newly blocked: its span is set below
                 free[r] -= 1
                 right = c
         if right < 0:
             continue
-        # next_free changes only at and left of the rightmost cell newly blocked, up to the first
+        # The spans change only at and left of the rightmost cell newly blocked, up to the first
         # column left of the mask whose value stays the same.
         c = right
         while c >= 0:
-            value = c if not blocked[r, c] else (next_free[r, c + 1] if c + 1 < page_w else page_w)
-            if value == next_free[r, c] and c < left:
+            after = span[r, c + 1] if c + 1 < page_w else 0
+            if span[r, c] > 0:
+                value = after + 1 if after > 0 else 1
+            else:
+                value = after - 1 if after < 0 else -1
+            if value == span[r, c] and c < left:
                 break
-            next_free[r, c] = value
+            span[r, c] = value
             c -= 1
-        longest = length = 0
+        longest = 0
         for c in range(page_w):
-            length = 0 if blocked[r, c] else length + 1
-            longest = max(longest, length)
+            longest = max(longest, span[r, c])
         run[r] = longest
 
 
@@ -230,31 +243,32 @@ def _stacked(masks: Sequence[np.ndarray], shapes: np.ndarray, p: int) -> tuple[l
 
 
 @njit(cache=True, nogil=True)
-def _pack_from(start, order, shapes, kind, cell_at, cell_rows, cell_cols, row_at, need, need_run, grown_at, grown, p,
-               blocked, next_free, free, run, bottoms, resume, page, x, y):  # fmt: skip
+def _pack_from(start, order, shapes, kind, run_at, run_rows, run_cols, run_lens, row_at, need, need_run, grown_at, grown, p,
+               span, free, run, bottoms, resume, page, x, y):  # fmt: skip
     """Place the masks ``order[start:]`` on the pages (:func:`_pack` says how); the position in
     ``order`` of the first mask that fits no page (the caller adds one and goes on from there), or
-    ``len(order)`` when every mask is placed.  Mask i's cells are ``cell_rows``/``cell_cols``
-    [``cell_at[i]``:``cell_at[i + 1]``], its rows' ``need`` and ``need_run`` [``row_at[i]``:...],
-    its dilated mask ``grown`` [``grown_at[i]``:...] raveled, (h + 2p) x (w + 2p)."""
+    ``len(order)`` when every mask is placed.  Mask i's runs are ``run_rows``/``run_cols``/
+    ``run_lens`` [``run_at[i]``:``run_at[i + 1]``], its rows' ``need`` and ``need_run``
+    [``row_at[i]``:...], its dilated mask ``grown`` [``grown_at[i]``:...] raveled, (h + 2p) x
+    (w + 2p)."""
     for j in range(start, order.shape[0]):
         i = order[j]
         h, w = shapes[i, 0], shapes[i, 1]
-        rows, cols = cell_rows[cell_at[i] : cell_at[i + 1]], cell_cols[cell_at[i] : cell_at[i + 1]]
+        lo, hi = run_at[i], run_at[i + 1]
         need_i, run_i = need[row_at[i] : row_at[i + 1]], need_run[row_at[i] : row_at[i + 1]]
         first, start_y, start_x = resume[kind[i], 0], resume[kind[i], 1], resume[kind[i], 2]
         at_y = at_x = -1
         index = first
-        while index < blocked.shape[0]:
+        while index < span.shape[0]:
             sy, sx = (start_y, start_x) if index == first else (0, 0)
-            at_y, at_x = _first_fit(blocked[index], next_free[index], free[index], run[index], rows, cols, h, w, need_i, run_i, sy, sx)
+            at_y, at_x = _first_fit(span[index], free[index], run[index], run_rows[lo:hi], run_cols[lo:hi], run_lens[lo:hi], h, w, need_i, run_i, sy, sx)
             if at_y >= 0:
                 break
             index += 1
         if at_y < 0:
             return j
         dilated = grown[grown_at[i] : grown_at[i + 1]].reshape(h + 2 * p, w + 2 * p)
-        _block(blocked[index], next_free[index], free[index], run[index], dilated, at_y - p, at_x - p)
+        _block(span[index], free[index], run[index], dilated, at_y - p, at_x - p)
         page[i], y[i], x[i] = index, at_y, at_x
         resume[kind[i], 0], resume[kind[i], 1], resume[kind[i], 2] = index, at_y, at_x
         bottoms[index] = max(bottoms[index], at_y + h)
@@ -274,10 +288,10 @@ def _pack(shapes, cells, need, need_run, grown, kind, order: np.ndarray, width: 
     in Python cost 0.7 of the 4.6 s of one width there."""
     n = len(shapes)
     flat = _flattened(cells, need, need_run, grown)
-    # Per page (:func:`_first_fit` says what each holds): the cells blocked for new texels (within
-    # ``padding`` of a placed one), next_free, free, run, and the lowest texel's row.
-    blocked = np.zeros((0, max_page, width), bool)
-    next_free = np.zeros((0, max_page, width), np.int32)
+    # Per page (:func:`_first_fit` says what each holds): the spans of free and blocked runs (a cell
+    # is blocked for new texels within ``padding`` of a placed one), free, run, and the lowest
+    # texel's row.
+    span = np.zeros((0, max_page, width), np.int32)
     free = np.zeros((0, max_page), np.int64)
     run = np.zeros((0, max_page), np.int64)
     bottoms = np.zeros(0, np.int64)
@@ -286,26 +300,34 @@ def _pack(shapes, cells, need, need_run, grown, kind, order: np.ndarray, width: 
     order = np.ascontiguousarray(order, dtype=np.int64)
     start = 0
     while start < n:  # a page more each time a mask fits none
-        blocked = np.concatenate([blocked, np.zeros((1, max_page, width), bool)])
-        next_free = np.concatenate([next_free, np.broadcast_to(np.arange(width, dtype=np.int32), (1, max_page, width))])
+        span = np.concatenate([span, np.broadcast_to(np.arange(width, 0, -1, dtype=np.int32), (1, max_page, width))])
         free = np.concatenate([free, np.full((1, max_page), width, np.int64)])
         run = np.concatenate([run, np.full((1, max_page), width, np.int64)])
         bottoms = np.append(bottoms, 0)
-        start = _pack_from(start, order, shapes, kind, *flat, p, blocked, next_free, free, run, bottoms, resume, page, x, y)
+        start = _pack_from(start, order, shapes, kind, *flat, p, span, free, run, bottoms, resume, page, x, y)
     sizes = np.array([[width, min(max_page, _round4(b))] for b in bottoms], dtype=np.int64)
     return MaskLayout(page, x, y, sizes)
 
 
 def _flattened(cells, need, need_run, grown) -> tuple[np.ndarray, ...]:
-    """The per-mask arrays of :func:`_pack` as flat arrays and offsets, for :func:`_pack_from`."""
+    """The per-mask arrays of :func:`_pack` as flat arrays and offsets, for :func:`_pack_from`:
+    each mask's cells as runs (row, first column, length) in row-major order."""
 
-    def offsets(parts) -> np.ndarray:
-        return np.concatenate([[0], np.cumsum([len(part) for part in parts])]).astype(np.int64)
+    def offsets(counts) -> np.ndarray:
+        return np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
 
-    rows = [c[0] for c in cells]
+    rows = np.concatenate([c[0] for c in cells]).astype(np.int64)
+    cols = np.concatenate([c[1] for c in cells]).astype(np.int64)
+    cell_at = offsets([len(c[0]) for c in cells])
+    starts = np.ones(len(rows), bool)  # a run starts at a mask's first cell, a new row, or a gap
+    starts[1:] = (rows[1:] != rows[:-1]) | (cols[1:] != cols[:-1] + 1)
+    starts[cell_at[:-1][cell_at[:-1] < len(rows)]] = True
+    first = np.flatnonzero(starts)
+    lens = np.diff(np.append(first, len(rows)))
+    run_at = np.searchsorted(first, cell_at)  # each mask's first run
     flat_grown = [g.ravel() for g in grown]
     return (
-        offsets(rows), np.concatenate(rows).astype(np.int64), np.concatenate([c[1] for c in cells]).astype(np.int64),
-        offsets(need), np.concatenate(need).astype(np.int64), np.concatenate(need_run).astype(np.int64),
-        offsets(flat_grown), np.concatenate(flat_grown),
+        run_at, rows[first], cols[first], lens,
+        offsets([len(part) for part in need]), np.concatenate(need).astype(np.int64), np.concatenate(need_run).astype(np.int64),
+        offsets([len(part) for part in flat_grown]), np.concatenate(flat_grown),
     )  # fmt: skip

@@ -369,8 +369,8 @@ def _plain_first_fit(masks, padding, width, max_page):
 
 @pytest.mark.parametrize("padding", [0, 2])
 def test_mask_packing_is_the_plain_first_fit(padding):
-    """The packer's row skips and column jumps (``_first_fit``) and its searches resumed where the
-    same mask went last change its speed, not its answer: on random blobs with holes, some of them
+    """The packer's row skips, run tests and column jumps (``_first_fit``) and its searches resumed
+    where the same mask went last change its speed, not its answer: on random blobs with holes, some of them
     repeated, at the width it keeps, every mask lies where the plain row-major first fit puts it."""
     rng = np.random.default_rng(7 + padding)
     masks = []
@@ -380,6 +380,7 @@ def test_mask_packing_is_the_plain_first_fit(padding):
         blob[0, rng.integers(w)] = blob[rng.integers(h), 0] = blob[-1, rng.integers(w)] = blob[rng.integers(h), -1] = True
         masks.append(blob)
     masks += [masks[i].copy() for i in rng.integers(0, 10, size=40)]  # repeats, across pages too
+    masks += [np.ones((1, 1), bool), np.array([[False, True]])]  # one mask's last run ends where the next's starts
     layout = pack_masks(masks, padding, max_page=48)
     assert len(layout.page_sizes) > 1  # a page filled up: the search went through blocked rows
     width = int(layout.page_sizes[0, 0])
