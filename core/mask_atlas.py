@@ -199,12 +199,13 @@ def pack_masks(masks: Sequence[np.ndarray], padding: int = 2, max_page: int = MA
     kind = np.array([kinds.setdefault((m.shape, m.tobytes()), len(kinds)) for m in masks], dtype=np.int64)
     need = [np.bincount(rows, minlength=m.shape[0]).astype(np.int64) for m, (rows, _) in zip(masks, cells)]
     need_run, grown = _stacked(masks, shapes, p)
+    flat = _flattened(cells, need, need_run, grown)
     # One thread per width (the kernels release the GIL): the widths are independent packings.
     # The widest, which take longest, start first, so that fewer threads idle at the end (on two
     # cores and five widths of benchmarks/bench_tdm_scale.py, measured in turns in one process:
     # 12.7 and 15.4 s ascending, 11.7 and 13.1 s widest first).
     with ThreadPoolExecutor(max_workers=min(len(widths), os.cpu_count() or 1)) as pool:
-        packed = dict(zip(widths[::-1], pool.map(lambda width: _pack(shapes, cells, need, need_run, grown, kind, order, width, p, max_page), widths[::-1])))
+        packed = dict(zip(widths[::-1], pool.map(lambda width: _pack(shapes, flat, kind, order, width, p, max_page), widths[::-1])))
     return min((packed[width] for width in widths), key=lambda layout: (layout.page_area, len(layout.page_sizes)))
 
 
@@ -275,10 +276,9 @@ def _pack_from(start, order, shapes, kind, run_at, run_rows, run_cols, run_lens,
     return order.shape[0]
 
 
-def _pack(shapes, cells, need, need_run, grown, kind, order: np.ndarray, width: int, p: int, max_page: int) -> MaskLayout:
-    """First fit of the masks (``shapes`` (n, 2) h, w, ``cells`` their true texels as (rows, cols),
-    ``need`` true texels per row and ``need_run`` their longest run, ``grown`` dilated by ``p``) in
-    ``order`` onto pages ``width`` texels wide.
+def _pack(shapes, flat, kind, order: np.ndarray, width: int, p: int, max_page: int) -> MaskLayout:
+    """First fit of the masks (``shapes`` (n, 2) h, w; ``flat`` their runs, rows' needs and
+    dilated masks as :func:`_flattened` gives them) in ``order`` onto pages ``width`` texels wide.
 
     Placed cells only ever block more, so no position before the one where a mask was placed can
     take a mask of the same ``kind`` (the same texels) later: its search starts there.  Of the
@@ -287,25 +287,26 @@ def _pack(shapes, cells, need, need_run, grown, kind, order: np.ndarray, width: 
     kernel (:func:`_pack_from`), which also frees the other packing threads from the GIL: a loop
     in Python cost 0.7 of the 4.6 s of one width there."""
     n = len(shapes)
-    flat = _flattened(cells, need, need_run, grown)
     # Per page (:func:`_first_fit` says what each holds): the spans of free and blocked runs (a cell
     # is blocked for new texels within ``padding`` of a placed one), free, run, and the lowest
-    # texel's row.
-    span = np.zeros((0, max_page, width), np.int32)
-    free = np.zeros((0, max_page), np.int64)
-    run = np.zeros((0, max_page), np.int64)
-    bottoms = np.zeros(0, np.int64)
+    # texel's row.  Room for twice the pages each time it runs out.
+    span = np.empty((1, max_page, width), np.int32)
+    free = np.empty((1, max_page), np.int64)
+    run = np.empty((1, max_page), np.int64)
+    bottoms = np.empty(1, np.int64)
     page, x, y = np.zeros(n, np.int64), np.zeros(n, np.int64), np.zeros(n, np.int64)
     resume = np.zeros((int(kind.max(initial=-1)) + 1, 3), np.int64)  # kind -> (page, row, column) of its last placement
     order = np.ascontiguousarray(order, dtype=np.int64)
-    start = 0
+    start = pages = 0
     while start < n:  # a page more each time a mask fits none
-        span = np.concatenate([span, np.broadcast_to(np.arange(width, 0, -1, dtype=np.int32), (1, max_page, width))])
-        free = np.concatenate([free, np.full((1, max_page), width, np.int64)])
-        run = np.concatenate([run, np.full((1, max_page), width, np.int64)])
-        bottoms = np.append(bottoms, 0)
-        start = _pack_from(start, order, shapes, kind, *flat, p, span, free, run, bottoms, resume, page, x, y)
-    sizes = np.array([[width, min(max_page, _round4(b))] for b in bottoms], dtype=np.int64)
+        if pages == len(span):
+            span, free, run, bottoms = (np.concatenate([a, np.empty_like(a)]) for a in (span, free, run, bottoms))
+        span[pages] = np.arange(width, 0, -1, dtype=np.int32)
+        free[pages] = run[pages] = width
+        bottoms[pages] = 0
+        pages += 1
+        start = _pack_from(start, order, shapes, kind, *flat, p, span[:pages], free[:pages], run[:pages], bottoms[:pages], resume, page, x, y)
+    sizes = np.array([[width, min(max_page, _round4(b))] for b in bottoms[:pages]], dtype=np.int64)
     return MaskLayout(page, x, y, sizes)
 
 

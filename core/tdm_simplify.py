@@ -864,13 +864,17 @@ def simplify(vertices, triangles, voxel_offsets, voxels, centres, enlargement, s
     """Simplify a covering mesh (see the module docstring); ``silhouette`` flags the voxels whose
     boxes are not enlarged.
 
-    ``memory``: the :class:`PassMemory` of the pass whose result this is, if any.  An attempt reads
+    ``memory``: the :class:`PassMemory` of the pass whose result this is, if any, with the same
+    vertices, ``centres`` and ``silhouette`` (:func:`core.techniques.tdm.simplify_mesh` keeps them;
+    only the vertex count and the factor are checked).  An attempt reads
     only the triangles around the edge's two vertices and, at a boundary, around the other boundary
     neighbour of the vertex it removes (their voxels included), and a failed one changes nothing;
     so an edge whose last attempts failed, with none of those vertices touched since, fails again,
     at the same factor, and at a larger one if neither outcome read the factor
     (:func:`_attempt`).  The pass skips such edges, counting their failures no more.  It pops the
-    same heap entries as without skipping, so it makes the same mesh.  Measured on the
+    same heap entries as without skipping, so it makes the same mesh (up to the order in which a
+    fan's angles are summed, which a new pass's rebuilt triangle lists may change: a sum within
+    rounding of 180 degrees could tip, as it could with the skipping of earlier versions).  Measured on the
     327,680-triangle sphere of ``benchmarks/bench_tdm_scale.py`` (3.4 M initial triangles, 143,481
     kept, 23 passes): skipping in the repeats at one factor the edges with no vertex around them
     touched in the previous pass or this one (the memory of earlier versions), the cascade took 54 s
@@ -889,6 +893,8 @@ def simplify(vertices, triangles, voxel_offsets, voxels, centres, enlargement, s
     first, second = triangles, triangles[:, [1, 2, 0]]
     keys = np.sort((np.minimum(first, second) * n + np.maximum(first, second)).ravel())
     keys = keys[np.concatenate([[True], keys[1:] != keys[:-1]])] if keys.size else keys
+    if len(keys) >= 2**31:  # the queue's first entries carry their edge's index in 32 bits
+        raise InternalError(f"a mesh of {len(keys):,} edges is past the simplification's 2**31")
     if memory is None:
         memory = PassMemory.empty(len(vertices), enlargement)
     elif len(memory.touch_time) != len(vertices) or enlargement < memory.enlargement:

@@ -389,6 +389,23 @@ def test_mask_packing_is_the_plain_first_fit(padding):
     assert len(WIDTH_SCALES) > 1
 
 
+@pytest.mark.parametrize("padding", [0, 2])
+def test_many_pages_are_the_plain_first_fit_too(padding):
+    """The pages' arrays grow as pages open (twice the room each time): 5 and 10 pages of small
+    blobs, every mask where the plain first fit puts it."""
+    rng = np.random.default_rng(3)
+    masks = []
+    for _ in range(150):
+        h, w = rng.integers(1, 9, size=2)
+        blob = rng.random((h, w)) < 0.7
+        blob[0, rng.integers(w)] = blob[rng.integers(h), 0] = True
+        masks.append(blob)
+    layout = pack_masks(masks, padding, max_page=24)
+    assert len(layout.page_sizes) >= 5
+    got = list(zip(layout.page.tolist(), layout.y.tolist(), layout.x.tolist()))
+    assert got == _plain_first_fit(masks, padding, int(layout.page_sizes[0, 0]), 24)
+
+
 def test_masks_that_fill_a_page_open_another_and_oversized_ones_are_refused():
     layout = pack_masks([np.ones((30, 30), bool)] * 5, padding=2, max_page=64)
     assert layout.page.tolist() == [0, 0, 0, 0, 1] and layout.page_sizes.tolist() == [[64, 64], [64, 32]]
