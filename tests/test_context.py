@@ -50,7 +50,7 @@ def test_a_forked_child_refuses_the_parents_context(ctx):
 
 @pytest.mark.parametrize("kind", ["buffer", "texture", "depth_texture", "framebuffer", "vertex_array"])
 def test_create_and_release_each_resource_kind(ctx, kind):
-    prog = program(ctx, "mesh.vert", "mesh.frag")
+    prog = program(ctx, "mesh.vert", "mesh.frag", defines=("VERTEX_COLOURS", "TEXTURED"))
     made = []
     if kind == "buffer":
         made.append(ctx.buffer(reserve=1024))

@@ -31,8 +31,8 @@ def shader_source(name: str, defines: tuple[str, ...] = ()) -> str:
     """The text of shader file ``name`` with its ``#include`` lines expanded and a ``#define`` line
     for each of ``defines`` after its ``#version`` line.
 
-    >>> shader_source("mesh.frag", ("DISCARDS",)).splitlines()[:2]
-    ['#version 330', '#define DISCARDS']
+    >>> shader_source("mesh.frag", ("ALPHA_CUT",)).splitlines()[:2]
+    ['#version 330', '#define ALPHA_CUT']
     """
     text = _INCLUDE.sub(lambda m: (SHADERS / m.group(1)).read_text(), (SHADERS / name).read_text())
     if defines:
@@ -87,13 +87,15 @@ def srgb_texture(ctx: moderngl.Context, rgba: np.ndarray, mipmaps: bool = False)
 
 def material_uniforms(prog: moderngl.Program, obj, texture: moderngl.Texture | None) -> dict:
     """The unlit-material uniforms every farfield shader shares (glTF's base colour rule), as
-    name -> value: ``base_color`` (linear), ``alpha_cutoff`` (-1: opaque; only where ``prog``
-    has it), ``has_texture`` and, with a texture, ``base_texture`` on unit 0 (the caller binds
+    name -> value: ``base_color`` (linear), ``alpha_cutoff`` (-1: opaque) and ``has_texture``
+    (each only where ``prog`` has it) and, with a texture, ``base_texture`` on unit 0 (the caller binds
     ``texture``, an :func:`srgb_texture`, there).
 
     ``obj`` is a :class:`core.scene.SceneObject`; ``texture`` its uploaded base-colour texture.
     """
-    uniforms = {"base_color": tuple(float(c) for c in obj.base_color), "has_texture": texture is not None}
+    uniforms = {"base_color": tuple(float(c) for c in obj.base_color)}
+    if prog.get("has_texture", None) is not None:  # absent from a variant built for its object
+        uniforms["has_texture"] = texture is not None
     if prog.get("alpha_cutoff", None) is not None:  # absent from a variant that never discards
         uniforms["alpha_cutoff"] = float(obj.alpha_cutoff) if obj.alpha_cutoff is not None else -1.0
     if texture is not None:

@@ -114,7 +114,7 @@ class Camera:
 
 def upload(ctx: moderngl.Context, prog: moderngl.Program, obj: SceneObject, origin: np.ndarray, textures: dict, owned: list):
     """(vertex array, texture or None) of ``obj`` for ``prog`` (attributes ``in_position`` relative
-    to ``origin``, ``in_uv``, ``in_color``), its base-colour texture shared through ``textures``
+    to ``origin``, and ``in_uv`` and ``in_color`` where ``prog`` reads them), its base-colour texture shared through ``textures``
     (id of the array -> GL texture) by objects that share the array; every GL object made is
     appended to ``owned``.
 
@@ -122,12 +122,19 @@ def upload(ctx: moderngl.Context, prog: moderngl.Program, obj: SceneObject, orig
     an alpha-cut part with distance, a property of one viewer, not of the part).
     """
     n = obj.vertices.shape[0]
-    uv = obj.uv if obj.uv is not None else np.zeros((n, 2))
-    colour = obj.vertex_colors / 255.0 if obj.vertex_colors is not None else np.ones((n, 4))
-    data = np.concatenate([obj.vertices - origin, uv, colour], axis=1).astype("<f4")
+    columns, names, layout = [obj.vertices - origin], ["in_position"], ["3f"]
+    if prog.get("in_uv", None) is not None:  # a variant that needs no attribute is not given it
+        columns.append(obj.uv if obj.uv is not None else np.zeros((n, 2)))
+        names.append("in_uv")
+        layout.append("2f")
+    if prog.get("in_color", None) is not None:
+        columns.append(obj.vertex_colors / 255.0 if obj.vertex_colors is not None else np.ones((n, 4)))
+        names.append("in_color")
+        layout.append("4f")
+    data = np.concatenate(columns, axis=1).astype("<f4")
     vbo = ctx.buffer(np.ascontiguousarray(data).tobytes())
     ibo = ctx.buffer(obj.faces.astype("<u4").tobytes())
-    vao = ctx.vertex_array(prog, [(vbo, "3f 2f 4f", "in_position", "in_uv", "in_color")], ibo)
+    vao = ctx.vertex_array(prog, [(vbo, " ".join(layout), *names)], ibo)
     owned += [vbo, ibo, vao]
     texture = None
     if obj.texture is not None:
@@ -148,6 +155,32 @@ def depth_bounds(eye: np.ndarray, forward: np.ndarray, points: np.ndarray) -> tu
     return near, far
 
 
+def mesh_variant(obj: SceneObject, planes: bool, open_faces: bool) -> tuple[str, ...]:
+    """The defines of the ``mesh.vert`` / ``mesh.frag`` variant that draws ``obj``: only what it
+    has is computed per vertex and interpolated per fragment (on llvmpipe every varying costs
+    each covered pixel), and only an alpha cut or open clip faces discard.
+
+    >>> from dataclasses import replace
+    >>> quad = SceneObject("q", np.zeros((3, 3)), np.array([[0, 1, 2]]))
+    >>> mesh_variant(quad, planes=True, open_faces=False)
+    ('CLIP_PLANES',)
+    >>> mesh_variant(replace(quad, vertex_colors=np.zeros((3, 4), np.uint8), alpha_cutoff=0.5), False, False)
+    ('VERTEX_COLOURS', 'ALPHA_CUT')
+    """
+    defines = []
+    if obj.vertex_colors is not None:
+        defines.append("VERTEX_COLOURS")
+    if obj.texture is not None:
+        defines.append("TEXTURED")
+    if obj.alpha_cutoff is not None:
+        defines.append("ALPHA_CUT")
+    if planes:
+        defines.append("CLIP_PLANES")
+    if open_faces:
+        defines.append("OPEN_FACES")
+    return tuple(defines)
+
+
 class MeshRenderer:
     """Objects uploaded once to the process's context, drawn from any :class:`Camera`.
 
@@ -161,9 +194,10 @@ class MeshRenderer:
         cut by the GL's clip planes; with open faces the region is not convex and the fragment
         shader discards instead.
 
-        Objects are drawn in the order given, each with the cheapest variant of ``mesh.frag`` that
-        draws it (``DISCARDS`` only for an alpha cut or open faces), so opaque geometry listed
-        front to back is shaded about once per pixel.
+        Objects are drawn in the order given, each with the cheapest variant of ``mesh.vert`` and
+        ``mesh.frag`` that draws it (:func:`mesh_variant`: a discard only for an alpha cut or open
+        faces, so opaque geometry listed front to back is shaded about once per pixel; no vertex
+        colours, texture coordinates or clip distances where the object has none).
         """
         self.ctx = gl_context()
         clips = list(clips) if clips is not None else [None] * len(objects)
@@ -174,25 +208,24 @@ class MeshRenderer:
         for obj, clip in zip(objects, clips, strict=True):
             origin = 0.5 * (obj.bounds[0] + obj.bounds[1])
             opened = tuple(clip[2]) if clip is not None and len(clip) > 2 else ()
-            discards = obj.alpha_cutoff is not None or bool(opened)
-            prog = program(ctx, "mesh.vert", "mesh.frag", defines=("DISCARDS",) if discards else ())
+            clip_half = float(clip[1]) if clip is not None else 0.0
+            planes = clip_half > 0.0 and not opened
+            defines = mesh_variant(obj, planes, clip_half > 0.0 and bool(opened))
+            prog = program(ctx, "mesh.vert", "mesh.frag", defines=defines)
             vao, texture = upload(ctx, prog, obj, origin, uploaded, self._owned)
-            if clip is None:
-                clip_offset, clip_half = np.zeros(3), 0.0
-            else:  # the difference in float64, so large world offsets cancel before narrowing
-                clip_offset, clip_half = origin - np.asarray(clip[0], dtype=np.float64), float(clip[1])
-            uniforms = {
-                "clip_offset": tuple(float(c) for c in clip_offset),
-                "plane_half": 0.0 if opened else clip_half,
-            }
-            if discards:
+            uniforms = {}
+            if clip_half > 0.0:  # the difference in float64, so large world offsets cancel before narrowing
+                uniforms["clip_offset"] = tuple(float(c) for c in origin - np.asarray(clip[0], dtype=np.float64))
+            if planes:
+                uniforms["plane_half"] = clip_half
+            elif "OPEN_FACES" in defines:
                 uniforms |= {
-                    "clip_half": clip_half if opened else 0.0,
+                    "clip_half": clip_half,
                     "clip_open_pos": tuple(float(f"+{axis}" in opened) for axis in "xyz"),
                     "clip_open_neg": tuple(float(f"-{axis}" in opened) for axis in "xyz"),
                 }
             uniforms |= material_uniforms(prog, obj, texture)
-            self._draws.append((obj, origin, prog, vao, texture, uniforms))
+            self._draws.append((obj, origin, prog, vao, texture, uniforms, planes))
         self._targets: dict[int, tuple] = {}
 
     def _target(self, resolution: int):
@@ -246,7 +279,7 @@ class MeshRenderer:
         # hoisted: the eye matrices built one by one, the material's uniforms rebuilt every frame).
         matrices = camera.eye_matrices([origin for _, origin, *_ in self._draws])
         try:
-            for (obj, origin, prog, vao, texture, uniforms), matrix in zip(self._draws, matrices):
+            for (obj, origin, prog, vao, texture, uniforms, clipped), matrix in zip(self._draws, matrices):
                 if id(prog) not in framed:
                     framed.add(id(prog))
                     prog["half_tan"].value = (t, t)
@@ -254,7 +287,7 @@ class MeshRenderer:
                 prog["eye_from_local"].write(matrix)
                 for name, value in uniforms.items():
                     prog[name].value = value
-                if (uniforms["plane_half"] > 0.0) != planes:
+                if clipped != planes:
                     planes = not planes
                     for plane in _CLIP_PLANES:
                         (ctx.enable_direct if planes else ctx.disable_direct)(plane)
