@@ -36,10 +36,19 @@ def camera_at(position, forward, fov_deg: float, resolution: int, near: float, f
     return Camera.look_at(position, position + np.asarray(forward, dtype=np.float64), math.radians(fov_deg), resolution, near, far)
 
 
-def nearest_first(objects: list[SceneObject], centre, keep_object_order: bool = False) -> list[SceneObject]:
+# Triangles sorted nearest first in runs of this many, each run kept in the mesh's own order: the
+# GL shades a vertex once for the indices it sees together, and a per-triangle sort scattered them
+# (the near field alone at 16 px, 0.83 against 0.69 ms unsorted; see the README, "The runtime's
+# frame").  The layers' quads are sorted two triangles at a time, a quad's pair together.
+NEAR_FIELD_RUN = 64
+QUAD_RUN = 2
+
+
+def nearest_first(objects: list[SceneObject], centre, keep_object_order: bool = False, run: int = 1) -> list[SceneObject]:
     """``objects`` with each one's triangles sorted by the distance of their centroid from
     ``centre`` in the cube (maximum) norm, and, unless ``keep_object_order``, the objects by their
-    nearest triangle.
+    nearest triangle.  With ``run`` > 1 the triangles move in runs of that many consecutive ones,
+    each run keyed by its nearest triangle and kept in its order.
 
     Seen from inside the near-field cube, a layer's quads lie at its border distance in that norm,
     so this draws the layers innermost first and geometry roughly front to back: an order, not a
@@ -53,6 +62,9 @@ def nearest_first(objects: list[SceneObject], centre, keep_object_order: bool = 
     [('two', [[3, 4, 5], [0, 1, 2]]), ('at-3.0', [[0, 1, 2]]), ('at9.0', [[0, 1, 2]])]
     >>> [o.name for o in nearest_first([tri(9.0), two, tri(-3.0)], np.zeros(3), keep_object_order=True)]
     ['at9.0', 'two', 'at-3.0']
+    >>> four = SceneObject("four", np.array([[x, y, z] for x in (5.0, 2.0, 7.0, 1.0) for y, z in ((0, 0), (1, 0), (0, 1))]), np.arange(12).reshape(4, 3))
+    >>> nearest_first([four], np.zeros(3), run=2)[0].faces[:, 0].tolist()  # runs (5, 2) and (7, 1): the second's nearest is nearer
+    [6, 9, 0, 3]
     """
     centre = np.asarray(centre, dtype=np.float64)
     keyed = []
@@ -61,6 +73,8 @@ def nearest_first(objects: list[SceneObject], centre, keep_object_order: bool = 
             keyed.append((math.inf, obj))
             continue
         key = np.max(np.abs(obj.vertices[obj.faces].mean(axis=1) - centre), axis=1)
+        if run > 1:  # every triangle takes its run's key; the stable sort keeps a run's order
+            key = np.repeat(np.minimum.reduceat(key, np.arange(0, key.size, run)), run)[: key.size]
         order = np.argsort(key, kind="stable")
         keyed.append((float(key[order[0]]), replace(obj, faces=obj.faces[order])))
     if not keep_object_order:
@@ -76,8 +90,8 @@ class EnvmapCellRenderer:
             raise ValueError(f"an envmap runtime needs an envmap impostor, got {impostor.technique!r}")
         self.impostor = impostor
         self.near = NearField.from_dict(impostor.parameters["near_field"])
-        near_objects = nearest_first(self.near.objects(scene), self.near.centre, keep_object_order=True)
-        quads = nearest_first(impostor_objects(impostor), self.near.centre)
+        near_objects = nearest_first(self.near.objects(scene), self.near.centre, keep_object_order=True, run=NEAR_FIELD_RUN)
+        quads = nearest_first(impostor_objects(impostor), self.near.centre, run=QUAD_RUN)
         self.renderer = MeshRenderer(near_objects + quads, [self.near.clip] * len(near_objects) + [None] * len(quads))
         self.near_triangles = sum(obj.faces.shape[0] for obj in near_objects)
         self.quad_triangles = impostor.triangle_count  # the impostor's triangles, whatever its payload

@@ -85,7 +85,7 @@ from farfield.core.viewcells import BoxCell, ShaftCell, ViewCell, box_corners
 def impostor_objects(impostor: Impostor) -> list[SceneObject]:
     """The impostor as drawable objects, alpha-cut at 0.5: one per atlas page with geometry.
 
-    A quad payload gives two triangles per quad; a mesh payload its triangles, with the vertices
+    A quad payload gives two triangles per quad, one after the other; a mesh payload its triangles, with the vertices
     they use.  Either way a page's triangles are drawn in payload order.
     """
     payload = impostor.payload
@@ -98,7 +98,7 @@ def impostor_objects(impostor: Impostor) -> list[SceneObject]:
             vertices = payload.corners[sel].reshape(-1, 3)
             uv = payload.uv[sel].reshape(-1, 2).copy()
             base = 4 * np.arange(sel.size, dtype=np.int64)[:, None]
-            faces = np.concatenate([base + [0, 1, 2], base + [0, 2, 3]], axis=0)
+            faces = np.concatenate([base + [0, 1, 2], base + [0, 2, 3]], axis=1).reshape(-1, 3)  # a quad's two together
         elif isinstance(payload, MeshPayload):
             used, faces = np.unique(payload.triangles[sel], return_inverse=True)
             faces = faces.reshape(-1, 3)

@@ -18,7 +18,7 @@ from PIL import Image
 
 from farfield.cli.main import _register, cli
 from farfield.core.envmap_layers import near_field_distance
-from farfield.core.envmap_runtime import EnvmapCellRenderer, camera_at, evaluate_envmap, view_directions
+from farfield.core.envmap_runtime import NEAR_FIELD_RUN, QUAD_RUN, EnvmapCellRenderer, camera_at, evaluate_envmap, view_directions
 from farfield.core.errors import LayerPlanError, ViewCellError
 from farfield.core.evaluation import impostor_objects
 from farfield.core.gap_fill import fill_gaps
@@ -193,10 +193,23 @@ def test_runtime_draws_nearest_first_and_sees_what_payload_order_sees(coplanar_t
     drawn = [obj for obj, *_ in runtime.renderer._draws]
     key = lambda obj: np.max(np.abs(obj.vertices[obj.faces].mean(axis=1) - near.centre), axis=1)  # noqa: E731
     assert [obj.name for obj in drawn[: len(objects)]] == [obj.name for obj in objects]  # the scene's object order
-    for obj in drawn:  # every object's triangles nearest first
-        assert np.all(np.diff(key(obj)) >= 0.0)
-    firsts = [float(key(quad)[0]) for quad in drawn[len(objects) :]]
+    stored_by_name = {obj.name: obj for obj in stored}
+    for n, obj in enumerate(drawn):  # every object's triangles nearest first, in runs of the stored order kept whole
+        run = NEAR_FIELD_RUN if n < len(objects) else QUAD_RUN
+        where = {tuple(f): i for i, f in enumerate(stored_by_name[obj.name].faces.tolist())}
+        index = np.array([where[tuple(f)] for f in obj.faces.tolist()])
+        assert sorted(index.tolist()) == list(range(len(where)))
+        starts = np.flatnonzero(np.diff(index, prepend=-2) != 1)  # where the drawn order jumps
+        blocks = np.split(index, starts[1:])
+        assert all(b[0] % run == 0 and (len(b) % run == 0 or b[-1] == len(where) - 1) for b in blocks)
+        runs = np.minimum.reduceat(key(obj), starts)
+        assert np.all(np.diff(runs) >= 0.0)
+    quads = drawn[len(objects) :]
+    firsts = [float(key(quad)[:2].min()) for quad in quads]
     assert len(firsts) >= 1 and firsts == sorted(firsts)  # the layers' pages innermost first
+    for quad in quads:  # a quad's two triangles one after the other
+        pairs = quad.faces.reshape(-1, 6)
+        assert np.array_equal(pairs[:, 0], pairs[:, 3]) and np.array_equal(pairs[:, 2], pairs[:, 4])
     try:
         with MeshRenderer(stored, clips) as in_stored_order:
             for position in [town_cell.center, town_cell.lo, town_cell.hi]:
