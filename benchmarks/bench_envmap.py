@@ -1,6 +1,6 @@
 """Layered environment-map impostors (seed 002) measured side by side in one run.
 
-Usage: ``.venv/bin/python benchmarks/bench_envmap.py [--quick] [--only walkthrough] [--path streets|loop|both] [--before REV] [--json] [--out DIR]``
+Usage: ``.venv/bin/python benchmarks/bench_envmap.py [--quick] [--only walkthrough|grid] [--path streets|loop|both] [--before REV] [--grid-cells 8,4,2] [--json] [--out DIR]``
 
 1. Generation per cell at 512 x 512 faces with 64 layers, 4 and 6 directions (the paper: 2.5 min
    per cell on a GeForce 3), with the time of every stage.
@@ -18,6 +18,9 @@ Usage: ``.venv/bin/python benchmarks/bench_envmap.py [--quick] [--only walkthrou
    quad filling the frame (the renderer's cost per covered pixel).
 4. The trade: number of layers (near-field distance) and resolution against memory, generation
    time, frame time and image error, as a table and a plot (``trade.png``).
+5. The microtexture grid (``--only grid``): the walkthrough's nine cells baked at each of
+   ``--grid-cells`` in turn and walked along the same path by this tree's runtime (each walk in a
+   fresh process): quads, texture, bake time, frame times, speed-up, holes and colour error.
 
 The city comes from a seeded ``np.random.default_rng``; the renderer (llvmpipe or a GPU) is printed.
 ``--quick`` shrinks the city and the settings for a smoke run.
@@ -175,7 +178,8 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="small city and settings (smoke run)")
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--out", default="benchmarks/out", help="folder for the plots")
-    parser.add_argument("--only", choices=("walkthrough",), help="run only this part")
+    parser.add_argument("--only", choices=("walkthrough", "grid"), help="run only this part")
+    parser.add_argument("--grid-cells", default="8,4,2", help="microtexture grids of part 5, comma-separated (default 8,4,2)")
     parser.add_argument("--before", default="8392e0a", help="git revision whose runtime is walked beside this tree's ('' for none)")
     parser.add_argument("--path", choices=("streets", "loop", "both"), default="streets", help="the walkthrough's path (default: along the streets)")
     parser.add_argument("--walk", nargs=5, metavar=("DIR", "SIDE", "SUBDIVISIONS", "FRAMES", "PATH"), help=argparse.SUPPRESS)  # internal: one walk, JSON out
@@ -199,11 +203,14 @@ def main() -> None:
 
     # 1 + 2: generation and memory per cell, 4 and 6 directions, on the middle cell.
     middle = cells[len(cells) // 2][1]
-    if args.only != "walkthrough":
+    if args.only is None:
         generation(scene, middle, res, layers, report)
-    walkthrough_section(args, scene, cells, res, layers, frames, side, subdiv, info, out, report)
-    if args.only != "walkthrough":
+    if args.only in (None, "walkthrough"):
+        walkthrough_section(args, scene, cells, res, layers, frames, side, subdiv, info, out, report)
+    if args.only is None:
         trade(args, scene, middle, info, out, report)
+    if args.only in (None, "grid"):
+        grid_section(args, scene, cells, res, layers, frames, side, subdiv, report)
     if args.json:
         print(json.dumps(report, indent=1, default=float))
 
@@ -332,6 +339,30 @@ def walk_in_process(directory: Path, side: int, subdiv: int, frames: int, path: 
     command = [sys.executable, str(Path(__file__).resolve()), "--walk", str(directory), str(side), str(subdiv), str(frames), path]
     result = subprocess.run(command, check=True, capture_output=True, text=True, env=env, cwd=directory)
     return json.loads(result.stdout.strip().splitlines()[-1])
+
+
+def grid_section(args, scene: Scene, cells, res: int, layers: int, frames: int, side: int, subdiv: int, report: dict) -> None:
+    """5: the walkthrough's cells baked at each microtexture grid, walked by this tree's runtime."""
+    grids = [int(g) for g in args.grid_cells.split(",")]
+    path = "loop" if args.path == "loop" else "streets"
+    print(f"\n5. microtexture grid: {len(cells)} cells, {res}, {layers} layers, walked along {path} ({frames} frames, each walk in a fresh process)")
+    print(f"   {'grid':>4} {'quads':>7} {'texture MB':>10} {'bake s':>7} {'full ms':>8} {'runtime ms':>10} {'speed-up':>8} {'holes':>6} {'colour err':>10}")
+    rows = []
+    for grid in grids:
+        options = EnvmapOptions(resolution=res, fov_deg=90.0, layers=layers, grid_cell=grid)
+        t = time.perf_counter()
+        baked = [(list(ijk), bake_envmap(scene, box, options)) for ijk, box in cells]
+        bake_s = time.perf_counter() - t
+        with tempfile.TemporaryDirectory() as tmp:
+            write_database(Path(tmp) / "db", "envmap", {}, baked)
+            s = walk_in_process(Path(tmp), side, subdiv, frames, path, None)["summary"]
+        row = {"grid_cell": grid, "quads": sum(imp.stats["quads"] for _, imp in baked), "texture_bytes": sum(imp.stats["texture_bytes"] for _, imp in baked), "bake_s": bake_s, **s}
+        rows.append(row)
+        print(
+            f"   {grid:>4} {row['quads']:>7,} {row['texture_bytes'] / 1e6:>10.1f} {bake_s:>7.1f} {s['full_ms_mean']:>8.1f} {s['impostor_ms_mean']:>10.2f} "
+            f"{s['speedup_mean']:>7.2f}x {s['hole_pixels']:>6} {s['colour_error_mean']:>10.3f}"
+        )
+    report["grid"] = rows
 
 
 def trade(args, scene: Scene, middle: BoxCell, info, out: Path, report: dict) -> None:

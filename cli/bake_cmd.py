@@ -71,7 +71,7 @@ def _shortcuts(technique, layers, near_field, directions, gap_fill, enlargement,
 @click.option("--enlargement", default=None, type=float,
               help="tdm: voxel enlargement factor of the covering test (seed 003 §6): larger, fewer polygons, less accurate [default: 2].")
 @click.option("--oversampling", default=None, type=int, help="tdm: nearest voxels averaged per texel (seed 003 §7) [default: 1].")
-@click.option("--grid-cell", default=None, type=int, help="layered, envmap: box-growing grid cell, texels [default: 8].")
+@click.option("--grid-cell", default=None, type=int, help="layered, envmap: box-growing grid cell, texels [default: layered 8, envmap 4].")
 @click.option("--fill-threshold", default=None, type=float, help="layered, envmap: box-growing fill ratio [default: 0.8].")
 @click.option("--culling", type=click.Choice(CULLING_MODES), default=None, help="Hidden-texel culling [default: penumbra].")
 @click.option("--pixel-model", type=click.Choice(PIXEL_MODELS), default=None, help="layered, tdm: pixel angle of the error bound [default: min].")

@@ -81,7 +81,10 @@ class EnvmapOptions:
     face_resolution: int | None = option(None, "texels per cube-face side (seed 002 Res); default ceil(resolution / tan(fov / 2))", ge=1, le=MAX_RESOLUTION)
     gap_fill: bool = option(False, "seed 002 §5.1 gap filling (off: the conservative recording leaves no gap to fill)")
     culling: CullingMode = option("penumbra", "invisible-texel removal: penumbra (§5.2 + seed 000 §3.4.1), umbra (§5.2) or off")
-    grid_cell: int = option(8, "microtexture grid (§5.3), texels", ge=1, le=1024)
+    # The paper's grid is 8 (§5.3); at 4 the city walkthrough's nine cells keep 18 % less texture
+    # for 12 % more quads, and the runtime rasterises less empty quad area (README, "The runtime's
+    # frame, second round").
+    grid_cell: int = option(4, "microtexture grid (§5.3; the paper's 8), texels", ge=1, le=1024)
     fill_threshold: float = option(0.8, "microtexture fill ratio (§5.3)", gt=0.0, le=1.0)
     padding: int = option(2, "atlas padding, texels", ge=0, le=64)
     max_page: int = option(MAX_PAGE, "largest atlas page side, texels (WebGL2 guarantees 2048, many mobile GPUs stop at 4096), a power of two", ge=64, le=16384)
