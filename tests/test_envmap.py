@@ -18,7 +18,7 @@ from PIL import Image
 
 from farfield.cli.main import _register, cli
 from farfield.core.envmap_layers import near_field_distance
-from farfield.core.envmap_runtime import NEAR_FIELD_RUN, QUAD_RUN, EnvmapCellRenderer, camera_at, evaluate_envmap, view_directions
+from farfield.core.envmap_runtime import NEAR_FIELD_RUN, QUAD_RUN, EnvmapCellRenderer, camera_at, evaluate_envmap, nearest_first, view_directions
 from farfield.core.errors import LayerPlanError, ViewCellError
 from farfield.core.evaluation import impostor_objects
 from farfield.core.gap_fill import fill_gaps
@@ -179,6 +179,19 @@ def test_clip_planes_follow_each_draw_in_a_mixed_renderer():
     assert (images[3][..., 3] > 0).sum() > (images[0][..., 3] > 0).sum() + 500
 
 
+@pytest.mark.parametrize("run", [1, 4, 64])
+def test_nearest_first_moves_whole_runs_by_their_nearest_triangle(run):
+    rng = np.random.default_rng(run)
+    vertices = rng.uniform(-50.0, 50.0, (600, 3))
+    obj = SceneObject("cloud", vertices, rng.permutation(600).reshape(200, 3))
+    centre = np.array([3.0, -2.0, 1.0])
+    key = np.max(np.abs(vertices[obj.faces].mean(axis=1) - centre), axis=1)
+    runs = [list(range(start, min(start + run, 200))) for start in range(0, 200, run)]
+    expected = [i for r in sorted(runs, key=lambda r: min(key[r])) for i in r]  # Python's sort is stable
+    drawn = nearest_first([obj], centre, run=run)[0]
+    np.testing.assert_array_equal(drawn.faces, obj.faces[expected])
+
+
 def test_runtime_draws_nearest_first_and_sees_what_payload_order_sees(coplanar_town, town_cell):
     # The runtime sorts the near field's triangles (within each object) and the layers' quads
     # nearest first, so the depth test rejects hidden fragments before shading; the image must be
@@ -202,8 +215,9 @@ def test_runtime_draws_nearest_first_and_sees_what_payload_order_sees(coplanar_t
         starts = np.flatnonzero(np.diff(index, prepend=-2) != 1)  # where the drawn order jumps
         blocks = np.split(index, starts[1:])
         assert all(b[0] % run == 0 and (len(b) % run == 0 or b[-1] == len(where) - 1) for b in blocks)
-        runs = np.minimum.reduceat(key(obj), starts)
-        assert np.all(np.diff(runs) >= 0.0)
+        stored_key = key(stored_by_name[obj.name])
+        run_key = np.minimum.reduceat(stored_key, np.arange(0, stored_key.size, run))[index // run]
+        assert np.all(np.diff(run_key) >= 0.0)  # each triangle's run key, in the drawn order
     quads = drawn[len(objects) :]
     firsts = [float(key(quad)[:2].min()) for quad in quads]
     assert len(firsts) >= 1 and firsts == sorted(firsts)  # the layers' pages innermost first

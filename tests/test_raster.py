@@ -58,16 +58,19 @@ def _neutral(obj: SceneObject) -> SceneObject:
     )
 
 
-@pytest.mark.parametrize("clipped", [False, True], ids=["whole", "clip planes"])
-def test_each_variant_draws_what_the_full_shader_draws(clipped):
+@pytest.mark.parametrize("clipping", ["whole", "clip planes", "open faces"])
+def test_each_variant_draws_what_the_full_shader_draws(clipping):
     sphere = _sphere()
     camera = camera_at([0.3, 0.4, -3.0], [-0.1, -0.13, 1.0], 50.0, 96, 0.1, 10.0)
-    clip = [(np.array([0.0, 0.45, 0.0]), 0.85)] if clipped else None  # cuts the front, sides and bottom
+    cube = (np.array([0.0, 0.45, 0.0]), 0.85)  # cuts the front, sides and bottom
+    clipped = clipping != "whole"
+    clip = None if not clipped else [cube] if clipping == "clip planes" else [(*cube, ("+z",))]  # open behind the sphere
+    extra = {"whole": (), "clip planes": ("CLIP_PLANES",), "open faces": ("OPEN_FACES",)}[clipping]
     images = {}
     for features in itertools.product([False, True], repeat=3):
         lean = _without(sphere, *features)
         full = _neutral(lean)
-        assert mesh_variant(full, clipped, False) == ("VERTEX_COLOURS", "TEXTURED", "ALPHA_CUT") + (("CLIP_PLANES",) if clipped else ())
+        assert mesh_variant(full, clipping == "clip planes", clipping == "open faces") == ("VERTEX_COLOURS", "TEXTURED", "ALPHA_CUT", *extra)
         with MeshRenderer([lean], clip) as a, MeshRenderer([full], clip) as b:
             images[features] = a.render(camera)
             np.testing.assert_array_equal(images[features], b.render(camera), err_msg=f"colours, texture, cut = {features}")
@@ -80,3 +83,6 @@ def test_each_variant_draws_what_the_full_shader_draws(clipped):
     with MeshRenderer([sphere]) as whole:
         drawn = whole.render(camera)[..., 3] > 0
     assert (drawn.sum() > (every[..., 3] > 0).sum() + 100) == clipped
+    if clipping == "open faces":  # the face opened behind the sphere lets its back through
+        with MeshRenderer([sphere], [cube]) as closed:
+            assert (every[..., 3] > 0).sum() > (closed.render(camera)[..., 3] > 0).sum() + 50

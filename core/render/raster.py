@@ -269,11 +269,11 @@ class MeshRenderer:
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
         t = math.tan(0.5 * camera.fov)
         framed: set[int] = set()  # the programs given this camera (draws may come from other renderers)
-        # mesh.vert writes all six clip distances, but the planes are on only for the draws cut
-        # by a closed cube: enabled, they can cost the NVIDIA driver where nothing is cut (an H200
-        # drew the million-triangle benchmark city from one cell's centre in 4.8 ms with them on,
-        # 2.1 ms off, in one run).  Other programs of the context write no clip distances, so
-        # the planes are off between frames.
+        # The planes are on only for the draws cut by a closed cube, whose variant (CLIP_PLANES)
+        # alone writes the six clip distances: enabled, they can cost the NVIDIA driver where
+        # nothing is cut (an H200 drew the million-triangle benchmark city from one cell's centre
+        # in 4.8 ms with them on, 2.1 ms off, in one run, when every draw wrote them).  Other
+        # programs of the context write no clip distances, so the planes are off between frames.
         planes = False
         # A draw's own work in Python is most of its cost on llvmpipe (18 us before these were
         # hoisted: the eye matrices built one by one, the material's uniforms rebuilt every frame).
