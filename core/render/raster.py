@@ -209,8 +209,8 @@ class MeshRenderer:
             origin = 0.5 * (obj.bounds[0] + obj.bounds[1])
             opened = tuple(clip[2]) if clip is not None and len(clip) > 2 else ()
             clip_half = float(clip[1]) if clip is not None else 0.0
-            planes = clip_half > 0.0 and not opened
-            defines = mesh_variant(obj, planes, clip_half > 0.0 and bool(opened))
+            planes, open_faces = clip_half > 0.0 and not opened, clip_half > 0.0 and bool(opened)
+            defines = mesh_variant(obj, planes, open_faces)
             prog = program(ctx, "mesh.vert", "mesh.frag", defines=defines)
             vao, texture = upload(ctx, prog, obj, origin, uploaded, self._owned)
             uniforms = {}
@@ -218,7 +218,7 @@ class MeshRenderer:
                 uniforms["clip_offset"] = tuple(float(c) for c in origin - np.asarray(clip[0], dtype=np.float64))
             if planes:
                 uniforms["plane_half"] = clip_half
-            elif "OPEN_FACES" in defines:
+            elif open_faces:
                 uniforms |= {
                     "clip_half": clip_half,
                     "clip_open_pos": tuple(float(f"+{axis}" in opened) for axis in "xyz"),
