@@ -39,7 +39,7 @@ def camera_at(position, forward, fov_deg: float, resolution: int, near: float, f
 # Triangles sorted nearest first in runs of this many, each run kept in the mesh's own order: the
 # GL shades a vertex once for the indices it sees together, and a per-triangle sort scattered them
 # (the near field alone at 16 px, 0.83 against 0.69 ms unsorted; see the README, "The runtime's
-# frame").  The layers' quads are sorted two triangles at a time, a quad's pair together.
+# frame, second round").  The layers' quads are sorted two triangles at a time, a quad's pair together.
 NEAR_FIELD_RUN = 64
 QUAD_RUN = 2
 
