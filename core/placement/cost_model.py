@@ -359,34 +359,38 @@ def primitive_model(memory: tuple[float, float, float] = DEFAULT_MEMORY, memory_
 
 
 # The builtin model of this project's CPU machine, which a placement uses when the user gives no
-# --cost-model.  Measured 2026-12-02 on a 2-core x86-64 machine with Mesa llvmpipe (LLVM 15.0.6,
-# 256 bits) through EGL, by ``farfield calibrate --out model.json`` with the defaults: the
-# procedural city (core.procedural.city(900, seed=0, detail=32): 901 objects, 163,862 triangles),
-# 800 geometry views (200 clusters of 1..256 objects x 4), 96 layered impostors (14 random cells
-# refused) drawn from 384 views, 256 px, 45°, seed 0; 78 s.  Fit quality (R², held-out relative
-# error median / p90): geometry 0.929, 27% / 78%; impostor 0.920, 39% / 234% (an impostor adds
-# tenths of a millisecond to a frame, near the timing noise); memory 0.975 in log(bytes), 26% / 62%;
-# quads 0.883 in log(quads), 40% / 97%.  The estimate's layers over the planned layers: median
-# 1.02 (0.83 .. 2.66).  Three runs (seeds 0 and 1, 600 or 800 views) gave a 0.044 .. 0.079 ms per
-# draw call, b 2.6e-4 .. 4.9e-4 ms per triangle, c 3.8e-5 .. 5.6e-5 ms per pixel, h 98 .. 105 and
-# p 0.61: llvmpipe's times on a shared 2-core machine vary by tens of percent between runs of the
-# same frame, and draw calls and triangles grow together in large clusters.
+# --cost-model.  Measured 2026-12-04 on a 2-core x86-64 machine with Mesa llvmpipe (LLVM 15.0.6,
+# 256 bits) through EGL, with the shader variants of core/render/raster.py, by ``farfield calibrate
+# --out model.json`` with the defaults: the procedural city (core.procedural.city(900, seed=0,
+# detail=32): 901 objects, 163,862 triangles), 800 geometry views (200 clusters of 1..256 objects x
+# 4), 96 layered impostors (14 random cells refused) drawn from 384 views, 256 px, 45°, seed 0; 24 s.
+# Fit quality (R², held-out relative error median / p90): geometry 0.965, 19% / 44%; impostor 0.960,
+# 21% / 90% (an impostor adds tenths of a millisecond to a frame, near the timing noise); memory
+# 0.975 in log(bytes), 26% / 62%.  The estimate's layers over the planned layers: median 1.02 (0.83
+# .. 2.66).  Four runs the same hour (seed 0 three times, seed 1) gave a 0.0127 .. 0.0162 ms per
+# draw call, b 7.6e-5 .. 1.23e-4 ms per triangle, c 1.1e-5 .. 1.9e-5 ms per pixel, e 2.7e-5 .. 1.6e-4
+# ms per impostor pixel.
+# The model it replaces (2026-12-02: a 0.0445, b 4.9e-4, c 5.6e-5; 78 s) was 3.1 .. 4.5x slower in
+# its geometry terms and 2.3 .. 8.9x in its impostor terms: the shader variants made triangles about 1.3x cheaper (the renderer before them,
+# calibrated the same hour: b 1.58e-4, a 0.0173, c 2.5e-5), and the rest is the machine, whose
+# llvmpipe ran the same calibration in 78 s then and 24 .. 29 s now.  A model is a snapshot of
+# its machine: run ``farfield calibrate`` where the budget matters.
 LLVMPIPE_MODEL = CostModel(
     "frame_ms",
-    geometry=(0.04447, 0.0004884, 5.605e-05, 0.0),  # ms per draw call, triangle, pixel; per frame
-    impostor=(0.0002451, 0.002801, 0.131),  # ms per pixel, quad, impostor
+    geometry=(0.01419, 0.0001076, 1.513e-05, 0.04332),  # ms per draw call, triangle, pixel; per frame
+    impostor=(2.749e-05, 0.001199, 0.05759),  # ms per pixel, quad, impostor
     memory=DEFAULT_MEMORY,
     renderer="llvmpipe (LLVM 15.0.6, 256 bits)",
     fit={
-        "geometry": {"r2": 0.929, "holdout_rel_error_median": 0.270, "holdout_rel_error_p90": 0.783, "samples": 600, "holdout": 200},
-        "impostor": {"r2": 0.920, "holdout_rel_error_median": 0.391, "holdout_rel_error_p90": 2.337, "samples": 288, "holdout": 96},
+        "geometry": {"r2": 0.965, "holdout_rel_error_median": 0.187, "holdout_rel_error_p90": 0.440, "samples": 600, "holdout": 200},
+        "impostor": {"r2": 0.960, "holdout_rel_error_median": 0.208, "holdout_rel_error_p90": 0.897, "samples": 288, "holdout": 96},
         "memory": {"r2": 0.975, "r2_of": "log(bytes)", "holdout_rel_error_median": 0.260, "holdout_rel_error_p90": 0.617, "samples": 72, "holdout": 24},
         "quads": {"r2": 0.328, "r2_of": "log(quads / layers_est)", "samples": 352, "holdout": 0,
                   "source": "352 impostors of bench_placement.py --walkthrough --size 49 --detail 64 --resolution 128 (DEFAULT_QUADS_EXPONENT)"},
-        "empty_frame_ms": 0.158,
+        "empty_frame_ms": 0.105,
         "command": "farfield calibrate --out model.json",
         "machine": "2-core x86-64, Mesa llvmpipe (LLVM 15.0.6, 256 bits), EGL",
-        "date": "2026-12-02",
+        "date": "2026-12-04",
     },
     source="builtin",
     memory_exponent=DEFAULT_MEMORY_EXPONENT,
