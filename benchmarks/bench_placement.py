@@ -2,6 +2,7 @@
 
 Usage: ``.venv/bin/python benchmarks/bench_placement.py [--scene city|helmets|both] [--quick] [--json OUT]``
        ``.venv/bin/python benchmarks/bench_placement.py --walkthrough [--size N] [--views 200] [--json OUT]``
+       ``.venv/bin/python benchmarks/bench_placement.py --estimates 45,11.25 [--scene downtown] [--json OUT]``
 
 For each scene the reference placement and its variations run side by side, with the same cost
 model (the builtin one ``farfield calibrate`` measured on this machine's llvmpipe, unless
@@ -37,10 +38,15 @@ memory (atlas texture bytes) of the impostors some CPV draws (what the database 
 also has every impostor baked, ``memory_all_baked_bytes``) and the estimate; impostors drawn; wall time of planning and of baking
 (one process); colour error against the full scene.  Frames over t_max are listed with their
 estimate and CPV status.  Beside each placement, grids of layered environment maps over the same
-view space (``--envmap-cells``, default 2x and 1x the CPV size) are **baked** at the same output
-(resolution, 45°), each cell's near field the one above for the same t_max, and walked on the same
-views with the envmap reference runtime: their baked memory, share of views within t_max, p99/max
-frame time, hole pixels and colour error, and their memory's ratio to the placement's.
+view space (``--envmap-cells``, default ``auto``: the coarsest grid that meets t_max by the model,
+:func:`coarsest_envmap_cell`) are **baked** at the same output (resolution, 45°), each cell's near
+field :func:`_envmap_near_field`'s for the same t_max and model, and walked on the same views with
+the envmap reference runtime: their baked memory, share of views within t_max, p99/max frame time,
+hole pixels and colour error, and their memory's ratio to the placement's.
+
+``--estimates DEGREES`` measures the model itself on the same random views: each view's plain
+frame against the model over its frustum and against the time of the problem view it lies in
+(:func:`estimate_rows`).
 """
 
 from __future__ import annotations
@@ -139,21 +145,78 @@ def helmet_scene(quick: bool, size: int | None = None) -> tuple[Scene, np.ndarra
     return scene, np.array([c[0] - half, 6.0, c[2] - half]), np.array([c[0] + half, 10.0, c[2] + half])
 
 
-def _envmap_near_field(elements: Elements, c_lo, c_hi, t_max: float, model: CostModel, resolution: int) -> float:
-    """The near field of an envmap cell for ``t_max``: the smallest distance from the cell's centre
-    beyond which the elements no longer fit t_max by the model (nearest first, all directions, no
-    culling: what a view of any direction may draw), at least just outside the cell; inf when every
-    element fits (the cell needs no impostor)."""
-    centre_b = 0.5 * (elements.bounds[:, 0] + elements.bounds[:, 1])
-    centre = 0.5 * (np.asarray(c_lo) + np.asarray(c_hi))
+ENVMAP_FACES_IN_VIEW = 3  # cube faces a view of 45° can meet (a corner's three)
+AUTO_MAX_CELLS = 1024  # --envmap-cells auto: the finest grid baked
+
+
+def _envmap_near_field(elements: Elements, c_lo, c_hi, t_max: float, model: CostModel, resolution: int,
+                       depth_complexity: float = 4.0) -> tuple[float, float]:  # fmt: skip
+    """(near field, frame estimate) of an envmap cell for ``t_max``: the largest near field (the
+    half-size of a cube about the cell's centre, as the envmap bake cuts it,
+    :func:`core.near_field.near_field`; one of the elements' distances) at which the cell's frame
+    fits t_max by the model, at least just outside the cell (where nothing fits, the estimate says
+    by how much); inf when every element fits with no layer (the cell needs no impostor).
+
+    The frame is built as the planner builds a problem view's (:mod:`core.placement.view_space`):
+    the elements whose bounds meet the near field's cube (all of each, though the bake keeps only
+    its triangles inside), from every direction and unculled (what a view of any
+    direction may draw), its pixels each element's disc from the cell's nearest point, their sum
+    capped at ``depth_complexity`` frames; plus the layers the near field needs
+    (:func:`core.envmap_layers.layers_for_near_field`) drawn as impostors by the model's impostor
+    terms: ``ENVMAP_FACES_IN_VIEW`` faces, each ``g`` plus ``f`` per quad (the model's quads law at a
+    whole face's texels per layer), and one frame of layer pixels (``e``)."""
+    c_lo, c_hi = np.asarray(c_lo, dtype=np.float64), np.asarray(c_hi, dtype=np.float64)
+    centre = 0.5 * (c_lo + c_hi)
+    cell = float(np.max(c_hi - c_lo))
     pixels = element_pixels(elements, c_lo, c_hi, math.radians(45.0), resolution)
-    cost = model.geometry_time(elements.draw_calls, elements.triangles, pixels)
-    dist = np.linalg.norm(centre_b - centre, axis=1)
+    cost = model.geometry_time(elements.draw_calls, elements.triangles, 0.0)
+    b = elements.bounds
+    dist = np.max(np.maximum(0.0, np.maximum(b[:, 0] - centre, centre - b[:, 1])), axis=1)  # to the box, along the farthest axis
     order = np.argsort(dist)
-    within = model.frame_time + np.cumsum(cost[order])
-    fits = np.searchsorted(within, t_max, side="right")  # elements that fit, nearest first
-    near = float(dist[order[fits]]) if fits < order.size else math.inf
-    return max(near, 0.51 * math.sqrt(3) * float(np.max(np.asarray(c_hi) - np.asarray(c_lo))))
+    frame = float(resolution) ** 2
+    # Inside a near field of half-size dist[order[k]]: the k nearest elements.
+    geometry = model.frame_time + np.concatenate([[0.0], np.cumsum(cost[order])])
+    geometry += model.geometry[2] * np.minimum(np.concatenate([[0.0], np.cumsum(pixels[order])]), depth_complexity * frame)
+    if geometry[-1] <= t_max:
+        return math.inf, float(geometry[-1])
+    options = EnvmapOptions(resolution=resolution, fov_deg=45.0)
+    face = options.texels_per_face
+    least = 0.51 * cell  # just outside the cell
+    e, f, g = model.impostor
+    inside = int(np.searchsorted(dist[order], least))  # elements within the smallest near field
+
+    def frame_at(k: int, near: float) -> float:
+        layers = layers_for_near_field(cell, face, near, options.alpha, 3)
+        return float(geometry[k]) + ENVMAP_FACES_IN_VIEW * (g + f * float(model.quads(layers, face * face))) + e * frame
+
+    best = (least, frame_at(min(inside, order.size), least))  # the smallest near field, fitting or not
+    for k in range(inside + 1, order.size):
+        if geometry[k] > t_max:
+            break
+        estimate = frame_at(k, float(dist[order[k]]))
+        if estimate <= t_max:
+            best = (float(dist[order[k]]), estimate)
+    return best
+
+
+def coarsest_envmap_cell(elements: Elements, lo, hi, t_max: float, model: CostModel, resolution: int, max_cells: int = 4096) -> tuple[float, int]:
+    """(cell side, cells over t_max by the model) of the coarsest grid of cubic envmap cells over
+    the view space, of side ``longest side / 2^k``, in which every cell's frame fits t_max by the
+    model (:func:`_envmap_near_field`): the grid the placement's memory is compared with, planned by
+    the same model as the placement.  Halving stops at ``max_cells`` cells; the count says how many
+    cells of that grid are still over (0: it fits)."""
+    from farfield.core.viewcells import grid_boxes
+
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    cell = float(np.max(hi - lo))
+    while True:
+        counts = np.maximum(1, np.ceil((hi - lo) / cell - 1e-9)).astype(int)
+        over = sum(_envmap_near_field(elements, box.lo, box.hi, t_max, model, resolution)[1] > t_max
+                   for _, box in grid_boxes(lo, lo + counts * cell, counts))  # fmt: skip
+        finer = np.maximum(1, np.ceil((hi - lo) / (0.5 * cell) - 1e-9)).astype(int)
+        if over == 0 or int(np.prod(finer)) > max_cells:
+            return cell, int(over)
+        cell *= 0.5
 
 
 def envmap_grid_memory(scene: Scene, lo, hi, cell: float, t_max: float, model: CostModel, resolution: int = RESOLUTION) -> dict:
@@ -169,7 +232,7 @@ def envmap_grid_memory(scene: Scene, lo, hi, cell: float, t_max: float, model: C
     total, cells, layers_all, near_all = 0.0, 0, [], []
     for idx in np.ndindex(*counts):
         c_lo = lo + np.array(idx) * cell
-        near = _envmap_near_field(elements, c_lo, c_lo + cell, t_max, model, resolution)
+        near, _ = _envmap_near_field(elements, c_lo, c_lo + cell, t_max, model, resolution)
         if math.isinf(near):
             continue
         layers = layers_for_near_field(cell, face, near, options.alpha, 3)
@@ -198,9 +261,11 @@ def envmap_grid_walkthrough(scene: Scene, lo, hi, cell: float, t_max: float, mod
     elements = Elements.of(scene)
     counts = np.maximum(1, np.ceil((hi - lo) / cell - 1e-9)).astype(int)
     started = time.perf_counter()
-    baked, nears, not_needed = [], [], 0
+    baked, nears, not_needed, over = [], [], 0, []
     for ijk, box in grid_boxes(lo, lo + counts * cell, counts):
-        near = _envmap_near_field(elements, box.lo, box.hi, t_max, model, resolution)
+        near, estimate = _envmap_near_field(elements, box.lo, box.hi, t_max, model, resolution)
+        if estimate > t_max:
+            over.append(estimate)
         if math.isinf(near):  # everything fits: views in this cell draw the plain scene
             not_needed += 1
             continue
@@ -215,7 +280,8 @@ def envmap_grid_walkthrough(scene: Scene, lo, hi, cell: float, t_max: float, mod
     served = [f for f in frames if f.get("impostor_ms") is not None]
     ms = np.array([f["full_ms"] if f.get("impostor_ms") is None else f["impostor_ms"] for f in frames], dtype=float)
     return {
-        "cell": cell, "cells": len(baked), "cells_not_needed": not_needed, "memory_baked_bytes": int(sum(imp.texture_bytes for _, imp in baked)),
+        "cell": cell, "cells": len(baked), "cells_not_needed": not_needed, "cells_over_by_model": len(over),
+        "estimate_max_over": max(over, default=None), "memory_baked_bytes": int(sum(imp.texture_bytes for _, imp in baked)),
         "layers_median": float(np.median([imp.stats["layers"] for _, imp in baked])) if baked else 0.0,
         "near_field_median": float(np.median(nears)) if nears else 0.0,
         "near_field_triangles_median": float(np.median([imp.stats["near_field_triangles"] for _, imp in baked])) if baked else 0.0,
@@ -303,9 +369,21 @@ def _line(r: dict) -> str:
             f"{r['memory_mib']:>10.2f} {num(r['unsolved']):>6}/{num(r['unsolvable']):<6} {steps}")  # fmt: skip
 
 
+def _print_grid(g: dict, placement_bytes: int) -> None:
+    mib = lambda b: b / 2**20  # noqa: E731
+    ratio = g["memory_baked_bytes"] / placement_bytes if placement_bytes else math.nan
+    if not g["frames"]:
+        print(f"         envmap grid of {g['cell']:.3g}: no cell needs an impostor by the model")
+        return
+    print(f"         envmap grid, {g['cells']} cells of {g['cell']:.3g} ({g['cells_not_needed']} need none, {g['cells_over_by_model']} over t_max by the model; baked, near field median "
+          f"{g['near_field_median']:.3g}, {g['layers_median']:.0f} layers): {100 * g['share_within_t_max']:.1f}% <= t_max, p99 {g['runtime_ms_p99']:.2f} ms, "
+          f"max {g['runtime_ms_max']:.2f}, {g['hole_pixels']} hole pixels, colour err {g['colour_error_mean']:.2f}, "
+          f"{mib(g['memory_baked_bytes']):.2f} MiB ({ratio:.2f}x the placement), baked in {g['bake_s']:.1f} s", flush=True)  # fmt: skip
+
+
 def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float], views: int, seed: int, repeats: int,
                      resolution: int, out_dir: Path | None, vdi_deg: float = 11.25, cpv_divisions: int = 8,
-                     envmap_cells: list[float] | None = None) -> list[dict]:
+                     envmap_cells: list[float | str] | None = None) -> list[dict]:
     """The --walkthrough table (see the module docstring): one row per t_max."""
     import tempfile
 
@@ -316,7 +394,7 @@ def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float
     worst = _worst_view(scene, lo, hi, model, resolution)
     t_ref = 0.5 * worst
     cpv = float(np.max(hi - lo)) / cpv_divisions
-    envmap_cells = envmap_cells if envmap_cells is not None else [2.0 * cpv, cpv]
+    envmap_cells = envmap_cells if envmap_cells is not None else ["auto"]
     positions, forwards = random_views(lo, hi, views, seed)
     print(f"worst view by the model {worst:.4g} {model.unit}; reference t_max {t_ref:.4g} {model.unit}; {views} random views, seed {seed}; "
           f"{resolution} px, 45°, {repeats} draws per frame (median)", flush=True)  # fmt: skip
@@ -363,8 +441,21 @@ def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float
             with ImpostorDatabase(root) as db:
                 result = placement_walkthrough(scene, db, positions, forwards, repeats=repeats)
             for cell in envmap_cells:
-                grids.append(envmap_grid_walkthrough(scene, lo, hi, cell, t_max, model, resolution, positions, forwards, repeats,
-                                                     Path(out_dir or tmp) / f"envmap-{factor:g}-{cell:g}"))  # fmt: skip
+                refine = cell == "auto"
+                if refine:
+                    cell, over = coarsest_envmap_cell(Elements.of(scene), lo, hi, t_max, model, resolution, max_cells=AUTO_MAX_CELLS)
+                    print(f"   # the coarsest envmap grid that fits t_max by the model: cells of {cell:.4g}"
+                          + (f" ({over} still over at the finest tried)" if over else ""), flush=True)  # fmt: skip
+                while True:
+                    grids.append(envmap_grid_walkthrough(scene, lo, hi, cell, t_max, model, resolution, positions, forwards, repeats,
+                                                         Path(out_dir or tmp) / f"envmap-{factor:g}-{cell:g}"))  # fmt: skip
+                    g = grids[-1]
+                    _print_grid(g, baked_bytes)
+                    # auto: until the walk meets the budget as the goal asks (99 % of views), halving the cells
+                    finer = int(np.prod(np.maximum(1, np.ceil((hi - lo) / (0.5 * cell) - 1e-9))))
+                    if not refine or g["share_within_t_max"] is None or g["share_within_t_max"] >= 0.99 or finer > AUTO_MAX_CELLS:
+                        break
+                    cell *= 0.5
         s = result["summary"]
         row = {
             "t_max": t_max, "factor": factor, "unit": model.unit, "share_within_t_max": s["share_within_t_max"],
@@ -388,15 +479,57 @@ def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float
             print(f"         over t_max: view {f['frame']}: {f['measured']:.3g} {model.unit}, estimate {f['estimate']:.3g} ({f['status']}, cpv {f['cpv']})")
         if len(row["over_t_max"]) > 10:
             print(f"         ... {len(row['over_t_max']) - 10} more")
-        for g in grids:
-            ratio = g["memory_baked_bytes"] / baked_bytes if baked_bytes else math.nan
-            if not g["frames"]:
-                print(f"         envmap grid of {g['cell']:.3g}: no cell needs an impostor by the model")
-                continue
-            print(f"         envmap grid, {g['cells']} cells of {g['cell']:.3g} ({g['cells_not_needed']} need none; baked, near field median "
-                  f"{g['near_field_median']:.3g}, {g['layers_median']:.0f} layers): {100 * g['share_within_t_max']:.1f}% <= t_max, p99 {g['runtime_ms_p99']:.2f} ms, "
-                  f"max {g['runtime_ms_max']:.2f}, {g['hole_pixels']} hole pixels, colour err {g['colour_error_mean']:.2f}, "
-                  f"{mib(g['memory_baked_bytes']):.2f} MiB ({ratio:.2f}x the placement), baked in {g['bake_s']:.1f} s", flush=True)  # fmt: skip
+
+    return rows
+
+
+def estimate_rows(scene: Scene, lo, hi, model: CostModel, views: int, seed: int, repeats: int, resolution: int,
+                  vdi_degs: list[float], cpv_divisions: int) -> list[dict]:
+    """--estimates: how far the model's estimates lie from the measured plain frame, on the same
+    random views as --walkthrough.  Per view: plain geometry's measured frame (frustum-culled, as
+    the placement runtime draws it), the model over the elements in its frustum (``plain_estimate``,
+    what the runtime estimates for a view in no CPV) and, for each smallest view-direction interval
+    in ``vdi_degs``, the time of the problem view it lies in with no impostor placed (the enclosing
+    frustum of its region and interval, what the planner budgets).  Rows: the medians of
+    estimate / measured over all views and over the slowest quarter."""
+    import tempfile
+
+    from farfield.core.impostor_database import ImpostorDatabase
+    from farfield.core.placement.database import write_placement_database
+    from farfield.core.placement.hierarchy import Hierarchy
+    from farfield.core.placement.view_space import problem_view_space
+    from farfield.core.walkthrough import placement_walkthrough, random_views
+
+    cpv = float(np.max(hi - lo)) / cpv_divisions
+    positions, forwards = random_views(lo, hi, views, seed)
+    empty = place(scene, lo, hi, PlacementSettings(t_max=1e12, model=model, options={"resolution": resolution}, cpv_size=cpv, vdi_deg=45.0))
+    with tempfile.TemporaryDirectory(prefix="farfield-bench-") as tmp:
+        write_placement_database(Path(tmp) / "db", empty, {})
+        with ImpostorDatabase(Path(tmp) / "db") as db:
+            frames = placement_walkthrough(scene, db, positions, forwards, repeats=repeats, compare=False)["frames"]
+    measured = np.array([f["plain_ms"] for f in frames])
+    slow = measured >= np.percentile(measured, 75)
+    elements = Elements.of(scene)
+    hierarchy = Hierarchy.build(elements)
+    columns = {"per view (its frustum)": np.array([f["plain_estimate"] for f in frames])}
+    for deg in vdi_degs:  # every region and interval is a problem view for a budget nothing meets
+        pv = problem_view_space(elements, hierarchy, lo, hi, model, 1e-12, math.radians(45.0), resolution, cpv, deg)
+        est = np.zeros(len(frames))
+        for n, (p, d) in enumerate(zip(positions, forwards)):
+            inside = np.all((pv.region_lo <= p + 1e-9) & (p <= pv.region_hi + 1e-9), axis=1)
+            for c in np.flatnonzero(inside[pv.cpv_region]):
+                if pv.cpv_vdi[c].contains(d[None, :])[0]:
+                    est[n] = max(est[n], pv.time[c])
+        columns[f"its problem view, {deg:g}° intervals"] = est
+    print(f"{views} random views, seed {seed}, {resolution} px, 45°; CPV size {cpv:.4g}; plain frame measured p50 {np.median(measured):.2f} ms, "
+          f"p99 {np.percentile(measured, 99):.2f} ms")  # fmt: skip
+    print(f"{'estimate':<36} {'est. p99 ms':>11} {'est./measured, median':>22} {'slowest quarter':>16}")
+    rows = []
+    for name, est in columns.items():
+        ratio = est / measured
+        row = {"estimate": name, "p99_ms": float(np.percentile(est, 99)), "ratio_median": float(np.median(ratio)), "ratio_median_slowest_quarter": float(np.median(ratio[slow]))}
+        rows.append(row)
+        print(f"{name:<36} {row['p99_ms']:>11.2f} {row['ratio_median']:>22.2f} {row['ratio_median_slowest_quarter']:>16.2f}")
     return rows
 
 
@@ -409,6 +542,8 @@ def main() -> None:
     parser.add_argument("--rows", default=None, help="comma-separated test numbers to run (default: all)")
     parser.add_argument("--size", type=int, default=None, help="city buildings / helmets per side (default: 1600 / 12; --quick 400 / 6)")
     parser.add_argument("--json", default=None, help="write the rows here")
+    parser.add_argument("--estimates", default=None, metavar="DEGREES",
+                        help="with --walkthrough's scene options: the model's estimates of plain views against their measured frames, per view and for problem views of these smallest intervals (comma-separated degrees, e.g. 45,11.25); no placement is baked")
     parser.add_argument("--walkthrough", action="store_true", help="plan, bake and walk random views on the city for three t_max (issue 26)")
     parser.add_argument("--views", type=int, default=200, help="--walkthrough: random views")
     parser.add_argument("--factors", default="1,0.75,0.5", help="--walkthrough: t_max as these multiples of the reference budget")
@@ -419,9 +554,18 @@ def main() -> None:
     parser.add_argument("--keep", default=None, help="--walkthrough: write the placement databases under this folder")
     parser.add_argument("--vdi-deg", type=float, default=11.25, help="--walkthrough: the planner's smallest view-direction interval, degrees")
     parser.add_argument("--cpv-divisions", type=int, default=8, help="--walkthrough: CPV size = the view space's longest side / this")
-    parser.add_argument("--envmap-cells", default=None, help="--walkthrough: sides of the envmap grids baked and walked beside each placement, scene units, comma-separated (default: 2x and 1x the CPV size; '' for none)")
+    parser.add_argument("--envmap-cells", default=None, help="--walkthrough: sides of the envmap grids baked and walked beside each placement, scene units, comma-separated (default 'auto': the coarsest grid of side / 2^k that fits t_max by the model; '' for none)")
     args = parser.parse_args()
     model = {"llvmpipe": LLVMPIPE_MODEL, "primitives": primitive_model()}.get(args.cost_model) or CostModel.load(args.cost_model)
+    if args.estimates is not None:
+        name = "city" if args.scene == "both" else args.scene
+        scene, lo, hi = {"city": city_scene, "downtown": downtown_scene}[name](args.quick, args.size, args.detail if name == "city" or args.detail != 16 else 20)
+        print(f"cost model: {model.renderer} ({model.source}); EGL {_renderer()}; # {name}: {scene.object_count} objects, {scene.triangle_count:,} triangles")
+        rows = estimate_rows(scene, lo, hi, model, args.views, args.seed, args.repeats, args.resolution,
+                             [float(d) for d in args.estimates.split(",") if d.strip()], args.cpv_divisions)  # fmt: skip
+        if args.json:
+            Path(args.json).write_text(json.dumps(rows, indent=1))
+        return
     if args.walkthrough:
         name = "city" if args.scene == "both" else args.scene
         if name == "helmets":
@@ -431,7 +575,7 @@ def main() -> None:
         print(f"# {name}: {scene.object_count} objects, {scene.triangle_count:,} triangles; view space {lo.round(2).tolist()} .. {hi.round(2).tolist()}")
         rows = walkthrough_rows(scene, lo, hi, model, [float(f) for f in args.factors.split(",")], args.views, args.seed, args.repeats,
                                 args.resolution, Path(args.keep) if args.keep else None, args.vdi_deg, args.cpv_divisions,
-                                None if args.envmap_cells is None else [float(c) for c in args.envmap_cells.split(",") if c.strip()])  # fmt: skip
+                                None if args.envmap_cells is None else [c.strip() if c.strip() == "auto" else float(c) for c in args.envmap_cells.split(",") if c.strip()])  # fmt: skip
         if args.json:
             Path(args.json).write_text(json.dumps(rows, indent=1))
         return
