@@ -371,10 +371,11 @@ def primitive_model(memory: tuple[float, float, float] = DEFAULT_MEMORY, memory_
 # draw call, b 7.6e-5 .. 1.23e-4 ms per triangle, c 1.1e-5 .. 1.9e-5 ms per pixel, e 2.7e-5 .. 1.6e-4
 # ms per impostor pixel.
 # The model it replaces (2026-12-02: a 0.0445, b 4.9e-4, c 5.6e-5; 78 s) was 3.1 .. 4.5x slower in
-# its geometry terms and 2.3 .. 8.9x in its impostor terms: the shader variants made triangles about 1.3x cheaper (the renderer before them,
-# calibrated the same hour: b 1.58e-4, a 0.0173, c 2.5e-5), and the rest is the machine, whose
-# llvmpipe ran the same calibration in 78 s then and 24 .. 29 s now.  A model is a snapshot of
-# its machine: run ``farfield calibrate`` where the budget matters.
+# its geometry terms and 2.3 .. 8.9x in its impostor terms.  The renderer before the shader variants
+# of core/render/raster.py, calibrated the same hour (b 1.58e-4, a 0.0173, c 2.5e-5; 29 s), shows
+# the variants made a triangle 1.5x and a pixel 1.7x cheaper than in the run above; the rest is
+# the machine, on which that renderer now calibrates 2.7x faster (78 s -> 29 s).  A model is a
+# snapshot of its machine: run ``farfield calibrate`` where the budget matters.
 LLVMPIPE_MODEL = CostModel(
     "frame_ms",
     geometry=(0.01419, 0.0001076, 1.513e-05, 0.04332),  # ms per draw call, triangle, pixel; per frame
