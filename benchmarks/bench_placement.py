@@ -149,6 +149,11 @@ ENVMAP_FACES_IN_VIEW = 3  # cube faces a view of 45° can meet (a corner's three
 AUTO_MAX_CELLS = 1024  # --envmap-cells auto: the finest grid baked
 
 
+def _grid_counts(lo, hi, cell: float) -> np.ndarray:
+    """Cells per axis of a grid of cubic cells of side ``cell`` covering ``lo``..``hi`` (at least one)."""
+    return np.maximum(1, np.ceil((np.asarray(hi) - np.asarray(lo)) / cell - 1e-9)).astype(int)
+
+
 def _envmap_near_field(elements: Elements, c_lo, c_hi, t_max: float, model: CostModel, resolution: int,
                        depth_complexity: float = 4.0) -> tuple[float, float]:  # fmt: skip
     """(near field, frame estimate) of an envmap cell for ``t_max``: the largest near field (the
@@ -189,7 +194,7 @@ def _envmap_near_field(elements: Elements, c_lo, c_hi, t_max: float, model: Cost
         layers = layers_for_near_field(cell, face, near, options.alpha, 3)
         return float(geometry[k]) + ENVMAP_FACES_IN_VIEW * (g + f * float(model.quads(layers, face * face))) + e * frame
 
-    best = (least, frame_at(min(inside, order.size), least))  # the smallest near field, fitting or not
+    best = (least, frame_at(inside, least))  # the smallest near field, fitting or not
     for k in range(inside + 1, order.size):
         if geometry[k] > t_max:
             break
@@ -210,11 +215,10 @@ def coarsest_envmap_cell(elements: Elements, lo, hi, t_max: float, model: CostMo
     lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
     cell = float(np.max(hi - lo))
     while True:
-        counts = np.maximum(1, np.ceil((hi - lo) / cell - 1e-9)).astype(int)
+        counts = _grid_counts(lo, hi, cell)
         over = sum(_envmap_near_field(elements, box.lo, box.hi, t_max, model, resolution)[1] > t_max
                    for _, box in grid_boxes(lo, lo + counts * cell, counts))  # fmt: skip
-        finer = np.maximum(1, np.ceil((hi - lo) / (0.5 * cell) - 1e-9)).astype(int)
-        if over == 0 or int(np.prod(finer)) > max_cells:
+        if over == 0 or int(np.prod(_grid_counts(lo, hi, 0.5 * cell))) > max_cells:
             return cell, int(over)
         cell *= 0.5
 
@@ -226,7 +230,7 @@ def envmap_grid_memory(scene: Scene, lo, hi, cell: float, t_max: float, model: C
     the near field of :func:`_envmap_near_field`, its layers from the envmap layer plan, and memory
     the model's law per face (see the module docstring)."""
     elements = Elements.of(scene)
-    counts = np.maximum(1, np.ceil((hi - lo) / cell - 1e-9)).astype(int)
+    counts = _grid_counts(lo, hi, cell)
     options = EnvmapOptions(resolution=resolution, fov_deg=45.0)
     face = options.texels_per_face
     total, cells, layers_all, near_all = 0.0, 0, [], []
@@ -259,7 +263,7 @@ def envmap_grid_walkthrough(scene: Scene, lo, hi, cell: float, t_max: float, mod
     from farfield.core.walkthrough import walkthrough
 
     elements = Elements.of(scene)
-    counts = np.maximum(1, np.ceil((hi - lo) / cell - 1e-9)).astype(int)
+    counts = _grid_counts(lo, hi, cell)
     started = time.perf_counter()
     baked, nears, not_needed, over = [], [], 0, []
     for ijk, box in grid_boxes(lo, lo + counts * cell, counts):
@@ -452,7 +456,7 @@ def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float
                     g = grids[-1]
                     _print_grid(g, baked_bytes)
                     # auto: until the walk meets the budget as the goal asks (99 % of views), halving the cells
-                    finer = int(np.prod(np.maximum(1, np.ceil((hi - lo) / (0.5 * cell) - 1e-9))))
+                    finer = int(np.prod(_grid_counts(lo, hi, 0.5 * cell)))
                     if not refine or g["share_within_t_max"] is None or g["share_within_t_max"] >= 0.99 or finer > AUTO_MAX_CELLS:
                         break
                     cell *= 0.5
