@@ -16,9 +16,10 @@ by layer (cost O(triangles + layers + spans)), never drawn for every layer.
 
 Deviation from an earlier farfield: the clipping ran in a geometry shader on float32 eye
 coordinates.  Clipping on the CPU in float64 keeps the polygons exact at any world offset and makes
-them testable without GL.  On llvmpipe, a 100k-triangle part at 512 with 32 layers spends ~0.1 s
-clipping, ~0.25 s in per-instance vertex and setup work, and ~0.1 s in slab.frag's coverage test
-(README, "Speed").
+them testable without GL.  Each object is drawn with the slab.frag variant of its material
+(:func:`slab_variant`).  On llvmpipe, the benchmark's untextured 100k-triangle part at 512 (61
+layers of 685 x 590 texels, 152k pairs) spends ~0.07 s clipping and ~0.25 s in the GL, of which
+~0.05 s draws the rectangles with a constant fragment shader (README, "Speed").
 """
 
 from __future__ import annotations
@@ -343,6 +344,40 @@ def _instance_records(instances: SlabInstances, obj: SceneObject) -> np.ndarray:
     return np.ascontiguousarray(records.T)
 
 
+def slab_variant(obj: SceneObject) -> tuple[str, ...]:
+    """The defines of the ``slab.frag`` variant that records ``obj``: its texture reads only where it
+    has a texture, its alpha cut only where it has one (llvmpipe runs a uniform's untaken branch
+    with its lanes masked off, texture reads included: 0.60 s against 0.21 s of GL time for the
+    untextured 102,400-triangle benchmark part at 512, README "Speed").
+
+    >>> quad = SceneObject("q", np.zeros((3, 3)), np.array([[0, 1, 2]]))
+    >>> slab_variant(quad)
+    ()
+    >>> from dataclasses import replace
+    >>> slab_variant(replace(quad, uv=np.zeros((3, 2)), texture=np.zeros((2, 2, 4), np.uint8), alpha_cutoff=0.5))
+    ('TEXTURED', 'ALPHA_CUT')
+    """
+    defines = []
+    if obj.texture is not None:
+        defines.append("TEXTURED")
+    if obj.alpha_cutoff is not None:
+        defines.append("ALPHA_CUT")
+    return tuple(defines)
+
+
+def _instance_format(prog: moderngl.Program) -> tuple[str, ...]:
+    """INSTANCE_FORMAT and the attribute names for ``prog``: attributes its variant does not read
+    (the compiler removed them) become padding."""
+    formats, names = [], []
+    for fmt, name in zip(INSTANCE_FORMAT.split()[:-1], INSTANCE_ATTRIBUTES, strict=True):
+        if name in prog:
+            formats.append(fmt)
+            names.append(name)
+        else:
+            formats.append(f"{4 * int(fmt[:-1])}x")
+    return (" ".join(formats) + " /i", *names)
+
+
 def _object_textures(ctx: moderngl.Context, obj: SceneObject):
     """The object's base-colour texture, and for an alpha-cut one its mipmapped cut-weighted
     colours (:mod:`core.render.cut_colours`) and max-alpha mip chain (None where it has none)."""
@@ -382,13 +417,10 @@ def iter_layers(
     exists to show (in tests) the holes the conservative rule prevents.
     """
     ctx = gl_context()
-    prog = program(ctx, "slab_instanced.vert", "slab.frag")
     res_x, res_y = (int(r) for r in plan.texture_resolution)
     k = plan.count
     eye_borders = plan.borders + plan.reference_offset
     slabs = eye_borders.astype("<f4")
-    prog["resolution"].value = (float(res_x), float(res_y))
-    prog["conservative"].value = bool(conservative)
 
     draws = []
     for obj in scene.objects:
@@ -407,15 +439,22 @@ def iter_layers(
         # writes its own instances to the start of a freshly orphaned store.
         stream = ctx.buffer(reserve=max(largest, 1) * INSTANCE_FLOATS * 4, dynamic=True)
         owned.append(stream)
-        vao = ctx.vertex_array(prog, [(stream, INSTANCE_FORMAT, *INSTANCE_ATTRIBUTES)])
-        owned.append(vao)
-        textures, uploaded = [], {}  # objects sharing a texture (and its cut) share its GL textures
+        variants = {}  # defines -> (program, its vertex array over the stream)
+        passes, uploaded = [], {}  # objects sharing a texture (and its cut) share its GL textures
         for obj, _, _ in draws:
+            defines = slab_variant(obj)
+            if defines not in variants:
+                prog = program(ctx, "slab_instanced.vert", "slab.frag", defines=defines)
+                prog["resolution"].value = (float(res_x), float(res_y))
+                prog["conservative"].value = bool(conservative)
+                vao = ctx.vertex_array(prog, [(stream, *_instance_format(prog))])
+                owned.append(vao)
+                variants[defines] = (prog, vao)
             key = None if obj.texture is None else (id(obj.texture), obj.alpha_cutoff, float(obj.base_color[3]))
             if key not in uploaded:
                 uploaded[key] = _object_textures(ctx, obj)
                 owned += [t for t in uploaded[key] if t is not None]
-            textures.append(uploaded[key])
+            passes.append((*variants[defines], uploaded[key]))
         per_layer = np.zeros(k, dtype=np.int64)
         for _, offsets, _ in draws:
             per_layer += np.diff(offsets)
@@ -435,17 +474,16 @@ def iter_layers(
             ctx.depth_func = "<="
             ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
             fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-            prog["slab"].value = (float(slabs[i]), float(slabs[i + 1]))
+            for prog, _ in variants.values():
+                prog["slab"].value = (float(slabs[i]), float(slabs[i + 1]))
             drawn = 0
-            for (obj, offsets, records), (texture, cut, alpha) in zip(draws, textures):
+            for (obj, offsets, records), (prog, vao, (texture, cut, alpha)) in zip(draws, passes):
                 count = int(offsets[i + 1] - offsets[i])
                 if count == 0:
                     continue
                 set_material(prog, obj, texture)
-                prog["has_alpha_mip"].value = alpha is not None
-                if texture is not None:
-                    prog["texture_size"].value = (float(texture.width), float(texture.height))
                 if cut is not None:
+                    prog["texture_size"].value = (float(texture.width), float(texture.height))
                     cut.use(2)
                     prog["cut_texture"].value = 2
                 if alpha is not None:

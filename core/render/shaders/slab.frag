@@ -5,6 +5,11 @@
 // linear light and written sRGB-encoded (core/colour_space.py).  An alpha-cut texel takes the
 // mean colour of the texels under its footprint that pass the cut (cut_texture), never the RGB of
 // texels the cut removes, which the source never shows.
+//
+// Variants (core/recording.py::slab_variant): TEXTURED for an object with a base-colour texture,
+// ALPHA_CUT for one with an alpha cut.  llvmpipe runs both sides of a branch on a uniform (the
+// texture reads included, with their lanes masked off), so a branch no object of the variant can
+// take is left out at compile time; the code that stays is the same.
 flat in vec2 g_poly[5];   // unused slots repeat vertex 0 (slab_instanced.vert)
 flat in vec3 g_edge[5];   // inward unit edge normals and offsets
 flat in vec4 g_box;       // polygon bounding box
@@ -16,16 +21,14 @@ flat in vec4 g_color[3];
 uniform bool conservative;
 uniform vec2 slab;
 uniform sampler2D base_texture;  // sRGB
-uniform bool has_texture;
 // Alpha-cut textures: linear colour x pass, and pass (1 where the texel's alpha reaches the cut),
 // mipmapped (core/render/cut_colours.py).
 uniform sampler2D cut_texture;
 uniform vec4 base_color;
 uniform float alpha_cutoff;  // < 0: no alpha mask
-// Max-alpha mip chain of the texture (core/render/alpha_mips.py): power-of-two level 0 of
-// alpha_mip_size texels, alpha_mip_levels levels; texture_size is the original texture's size.
+// Max-alpha mip chain of the texture (core/render/alpha_mips.py), in TEXTURED ALPHA_CUT: power-of-two
+// level 0 of alpha_mip_size texels, alpha_mip_levels levels; texture_size is the original texture's size.
 uniform sampler2D alpha_mip;
-uniform bool has_alpha_mip;
 uniform vec2 alpha_mip_size;
 uniform int alpha_mip_levels;
 uniform vec2 texture_size;
@@ -345,20 +348,28 @@ void main() {
     // glTF's rule in linear light: factor x vertex colour x texture (vertex colours arrive sRGB).
     vec3 vertex = pb.x * srgb_to_linear(g_color[0].rgb) + pb.y * srgb_to_linear(g_color[1].rgb) + pb.z * srgb_to_linear(g_color[2].rgb);
     vec4 colour = base_color * vec4(vertex, pb.x * g_color[0].a + pb.y * g_color[1].a + pb.z * g_color[2].a);
-    if (has_texture) {
+#ifdef TEXTURED
+    {
         vec4 texel = textureLod(base_texture, uv, 0.0);
-        if (alpha_cutoff >= 0.0 && has_alpha_mip) {
+#ifdef ALPHA_CUT
+        if (alpha_cutoff >= 0.0) {
             shown = shown && colour.a * texel.a >= alpha_cutoff;
             texel.rgb = cut_colour(uv, c);
         }
+#endif
         colour *= texel;
     }
+#endif
+#ifdef ALPHA_CUT
     if (alpha_cutoff >= 0.0) {
         // Conservative alpha cut: keep the texel if any point under it may be opaque.
         float most = base_color.a * max(g_color[0].a, max(g_color[1].a, g_color[2].a));
-        if (has_alpha_mip) { most *= footprint_alpha(c); }
+#ifdef TEXTURED
+        most *= footprint_alpha(c);
+#endif
         if (most < alpha_cutoff) { discard; }
     }
+#endif
     // Two depth bands: a triangle the texel centre shows wins over one kept only by the
     // conservative rules (its rim or the transparent part of its texture), whatever their depths,
     // so the texel holds the colour its centre shows; within a band the nearest wins.  Only the
