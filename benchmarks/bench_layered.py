@@ -32,6 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from farfield.core.evaluation import evaluate  # noqa: E402
 from farfield.core.layers import plan_layers  # noqa: E402
 from farfield.core.render.context import gl_context, renderer_info  # noqa: E402
+from farfield.core.render.programs import park_framebuffer  # noqa: E402
 from farfield.core.render.raster import Camera, MeshRenderer  # noqa: E402
 from farfield.core.scene import Scene, SceneObject  # noqa: E402
 from farfield.core.techniques.layered import BakeOptions, bake_layered  # noqa: E402
@@ -119,16 +120,15 @@ def knobs(scene: Scene, distance: float, size: float, random_count: int) -> list
     return rows
 
 
-def speed(scene: Scene, distance: float, size: float, resolution: int, repeats: int) -> dict:
-    cell = cell_before(scene, distance, size)
-    bake_layered(scene, cell, BakeOptions(resolution=resolution))  # warm: context, shaders
-    bakes = []  # (seconds, impostor): the best bake's stages are reported with its time
-    for _ in range(repeats):
-        start = time.perf_counter()
-        made = bake_layered(scene, cell, BakeOptions(resolution=resolution))
-        bakes.append((time.perf_counter() - start, made))
-    options = BakeOptions(resolution=resolution)  # the bake's own plan: its texels and layers
-    plan = plan_layers(cell, scene.bounds, math.radians(options.fov_deg), resolution, options.pixel_model, texel_share=options.texel_share)
+def bake_plan(scene: Scene, cell: BoxCell, resolution: int):
+    """The layer plan a default bake of ``scene`` (one part) at ``resolution`` records."""
+    options = BakeOptions(resolution=resolution)
+    return plan_layers(cell, scene.bounds, math.radians(options.fov_deg), resolution, options.pixel_model, texel_share=options.texel_share)
+
+
+def lower_bound_s(scene: Scene, plan, repeats: int) -> float:
+    """The recording's lower bound, best of ``repeats``: one plain render of ``scene`` at ``plan``'s
+    texels, from its reference viewpoint, plus the read-back of all of its layers."""
     res_x, res_y = (int(r) for r in plan.texture_resolution)
     ctx = gl_context()
     target = 0.5 * (scene.bounds[0] + scene.bounds[1])
@@ -145,12 +145,24 @@ def speed(scene: Scene, distance: float, size: float, resolution: int, repeats: 
             for _ in range(plan.count):
                 texture.read()
             bounds.append(time.perf_counter() - start)
-        from farfield.core.render.programs import park_framebuffer
-
         park_framebuffer(ctx)
         fbo.release()
         texture.release()
-    (bake_s, imp), bound_s = min(bakes, key=lambda pair: pair[0]), min(bounds)
+    return min(bounds)
+
+
+def speed(scene: Scene, distance: float, size: float, resolution: int, repeats: int) -> dict:
+    cell = cell_before(scene, distance, size)
+    bake_layered(scene, cell, BakeOptions(resolution=resolution))  # warm: context, shaders
+    bakes = []  # (seconds, impostor): the best bake's stages are reported with its time
+    for _ in range(repeats):
+        start = time.perf_counter()
+        made = bake_layered(scene, cell, BakeOptions(resolution=resolution))
+        bakes.append((time.perf_counter() - start, made))
+    plan = bake_plan(scene, cell, resolution)
+    res_x, res_y = (int(r) for r in plan.texture_resolution)
+    bound_s = lower_bound_s(scene, plan, repeats)
+    bake_s, imp = min(bakes, key=lambda pair: pair[0])
     record_s = min(made.stats["seconds"]["record"] for _, made in bakes)  # issue 29 item 3: recording alone
     return {
         "resolution": resolution, "triangles": scene.triangle_count, "layers": imp.stats["layers_planned"], "texture": [res_x, res_y],

@@ -26,8 +26,11 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+import time
+
 import moderngl
 import numpy as np
+from numba import njit
 
 from farfield.core.layers import LayerPlan
 from farfield.core.render.alpha_mips import max_alpha_texture
@@ -264,6 +267,92 @@ def facing_the_image(texel: np.ndarray, depth: np.ndarray, faces: np.ndarray, re
     return np.flatnonzero((corner[0] & corner[1] & corner[2]) == 0)
 
 
+@njit(cache=True, error_model="numpy")  # a crossing that does not exist divides by zero; it is never used
+def _lerp_into(out, slot, a, b, plane):
+    """out[:, slot] = the point where line a -> b (3,) reaches depth ``plane``; :func:`_lerp_at`'s
+    arithmetic, one pair at a time."""
+    t = (plane - a[2]) / (b[2] - a[2])
+    for c in range(2):
+        out[c, slot] = a[c] + t * (b[c] - a[c])
+    out[2, slot] = plane
+
+
+@njit(cache=True, error_model="numpy")
+def _pair_kernel(eye, at_vertex, faces, pairs, layers, eye_borders, half_tan, resolution, triangle, layer, rect, polygon, count, vertices):
+    """Clip, project and bound every (triangle, layer) pair (:func:`clip_to_slab`,
+    :func:`texel_coordinates` and :func:`texel_rectangles` fused, the same float64 operations in
+    the same order, so the records are bit for bit theirs); writes the kept pairs to the front of
+    the outputs, in input order, and returns how many were kept."""
+    kept = 0
+    v = np.empty((3, 3))  # (corner, coordinate), sorted by depth
+    poly = np.empty((3, 5))  # (coordinate, slot): the clipped polygon in eye coordinates
+    low_a, high_a, far_b, near_b = np.empty((3, 1)), np.empty((3, 1)), np.empty((3, 1)), np.empty((3, 1))
+    size_x, size_y = float(resolution[0]), float(resolution[1])
+    for n in range(pairs.shape[0]):
+        f, i = pairs[n], layers[n]
+        near, far = eye_borders[i], eye_borders[i + 1]
+        for j in range(3):
+            for c in range(3):
+                v[j, c] = eye[c, faces[f, j]]
+        for i0, i1 in ((0, 1), (1, 2), (0, 1)):  # the sorting network of clip_to_slab
+            if v[i0, 2] > v[i1, 2]:
+                for c in range(3):
+                    v[i0, c], v[i1, c] = v[i1, c], v[i0, c]
+        z0, z1, z2 = v[0, 2], v[1, 2], v[2, 2]
+        if z2 < near or z0 > far:
+            continue
+        below, above = z0 < near, z2 > far
+        middle = z1 >= near and z1 <= far
+        if below:
+            if z1 >= near:
+                _lerp_into(low_a, 0, v[0], v[1], near)
+            else:
+                _lerp_into(low_a, 0, v[1], v[2], near)
+        else:
+            low_a[:, 0] = v[0]
+        if above:
+            if z1 <= far:
+                _lerp_into(high_a, 0, v[1], v[2], far)
+            else:
+                _lerp_into(high_a, 0, v[0], v[1], far)
+        else:
+            high_a[:, 0] = v[2]
+        _lerp_into(far_b, 0, v[0], v[2], far)
+        _lerp_into(near_b, 0, v[0], v[2], near)
+        tail = far_b if above else near_b
+        last = near_b if above and below else low_a
+        either = tail if above or below else low_a
+        poly[:, 0] = low_a[:, 0]
+        poly[:, 1] = v[1] if middle else high_a[:, 0]
+        poly[:, 2] = high_a[:, 0] if middle else either[:, 0]
+        poly[:, 3] = either[:, 0] if middle else last[:, 0]
+        poly[:, 4] = near_b[:, 0] if middle and above and below else low_a[:, 0]
+        lo_x = lo_y = np.inf
+        hi_x = hi_y = -np.inf
+        finite = True
+        for k in range(5):
+            x = (poly[0, k] / (poly[2, k] * half_tan[0]) * 0.5 + 0.5) * size_x
+            y = (poly[1, k] / (poly[2, k] * half_tan[1]) * 0.5 + 0.5) * size_y
+            finite = finite and np.isfinite(x) and np.isfinite(y)
+            polygon[0, k, kept], polygon[1, k, kept] = x, y
+            lo_x, hi_x, lo_y, hi_y = min(lo_x, x), max(hi_x, x), min(lo_y, y), max(hi_y, y)
+        x0, y0 = np.floor(lo_x), np.floor(lo_y)
+        x0 -= x0 == lo_x
+        y0 -= y0 == lo_y
+        box = (min(max(x0, 0.0), size_x), min(max(y0, 0.0), size_y), min(max(np.floor(hi_x) + 1.0, 0.0), size_x), min(max(np.floor(hi_y) + 1.0, 0.0), size_y))
+        if not finite or not (box[0] < box[2] and box[1] < box[3]):
+            continue
+        for c in range(4):
+            rect[c, kept] = int(box[c])
+        for j in range(3):
+            for c in range(3):
+                vertices[c, j, kept] = at_vertex[c, faces[f, j]]
+        triangle[kept], layer[kept] = f, i
+        count[kept] = 2 + middle + above + below
+        kept += 1
+    return kept
+
+
 def slab_instances(
     eye_vertices: np.ndarray,
     faces: np.ndarray,
@@ -291,36 +380,27 @@ def slab_instances(
     seen = facing_the_image(texel, eye[2], faces, resolution)
     order, offsets = layer_buckets(eye_vertices[:, 2], faces[seen], eye_borders)
     order = seen[order]
-    layer = np.repeat(np.arange(k), np.diff(offsets))
-    pieces = []
-    for start in range(0, order.shape[0], CHUNK_PAIRS):
-        part, part_layer = order[start : start + CHUNK_PAIRS], layer[start : start + CHUNK_PAIRS]
-        corner = faces[part].T  # (3, m) vertex index of each pair's corners
-        # np.take, not fancy indexing on a later axis: numpy returns that transposed (not
-        # C-contiguous), and every later step would run ~10x slower on it.
-        slab = eye_borders[part_layer], eye_borders[part_layer + 1]
-        polygon, count = clip_to_slab(np.take(eye, corner, axis=1), *slab)
-        with np.errstate(divide="ignore", invalid="ignore"):  # pairs that miss their slab are dropped below
-            polygon = texel_coordinates(polygon, half_tan, resolution)
-        rect = texel_rectangles(polygon.min(axis=1), polygon.max(axis=1), resolution)
-        keep = (count > 0) & (rect[0] < rect[2]) & (rect[1] < rect[3])
-        pieces.append(
-            (
-                part[keep],
-                part_layer[keep],
-                np.compress(keep, rect, axis=1),
-                np.compress(keep, polygon, axis=2),
-                count[keep],
-                np.take(at_vertex, np.compress(keep, corner, axis=1), axis=1),
-            )
-        )
-    if not pieces:
-        empty = np.zeros(0, dtype=np.int64)
-        rect, polygon, vertices = np.zeros((4, 0), np.int64), np.zeros((2, MAX_POLYGON, 0)), np.zeros((3, 3, 0))
-        return SlabInstances(empty, offsets, rect, polygon, empty, vertices)
-    triangle, layer, rect, polygon, count, vertices = (np.concatenate(arrays, axis=-1) for arrays in zip(*pieces))
+    n = order.shape[0]
+    triangle, layer, count = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
+    rect, polygon, vertices = np.empty((4, n), np.int64), np.empty((2, MAX_POLYGON, n)), np.empty((3, 3, n))
+    layers = np.repeat(np.arange(k), np.diff(offsets))
+    kept = _pair_kernel(eye, at_vertex, faces, order, layers, eye_borders, np.asarray(half_tan, np.float64), np.asarray(resolution, np.int64),
+                        triangle, layer, rect, polygon, count, vertices)  # fmt: skip
+    triangle, layer, count = triangle[:kept], layer[:kept], count[:kept]
+    rect, polygon, vertices = (np.ascontiguousarray(a[..., :kept]) for a in (rect, polygon, vertices))
     offsets = np.concatenate([[0], np.cumsum(np.bincount(layer, minlength=k))]).astype(np.int64)
     return SlabInstances(triangle, offsets, rect, polygon, count, vertices)
+
+
+def warm_kernels() -> float:
+    """Compile (or load from numba's cache) the pairing kernel of :func:`slab_instances` on one
+    triangle, without GL; the seconds it took.  A render worker calls it when it starts, beside the
+    other techniques' (:mod:`workers.tasks`), so the first layered or envmap cell does not pay it."""
+    start = time.perf_counter()
+    faces = np.array([[0, 1, 2]], dtype=np.int64)
+    faces.flags.writeable = False  # as a SceneObject holds them: numba compiles read-only arrays apart
+    slab_instances(np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 2.0]]), faces, np.array([0.5, 1.5, 2.5]), np.ones(2), np.array([4, 4]))
+    return time.perf_counter() - start
 
 
 def _instance_records(instances: SlabInstances, obj: SceneObject) -> np.ndarray:

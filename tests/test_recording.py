@@ -165,15 +165,42 @@ def test_the_edge_slack_keeps_triangles_whose_clipped_pieces_round_back_onto_the
     assert len(reaching) > 1000 and reaching <= set(seen.tolist())
 
 
+def test_the_pairing_kernel_gives_the_numpy_clipping_bit_for_bit():
+    """slab_instances pairs, clips and bounds in one numba kernel; every field it keeps equals, bit for
+    bit, what clip_to_slab, texel_coordinates and texel_rectangles give (the reference the layers
+    were recorded with before), and it keeps exactly the pairs they keep."""
+    rng = np.random.default_rng(7)
+    half_tan, resolution = np.array([0.7, 0.5]), np.array([64, 48])
+    borders = np.linspace(0.2, 4.2, 17)
+    z = rng.uniform(0.05, 4.5, 6000)
+    z[rng.random(z.shape[0]) < 0.2] = rng.choice(borders, 1)  # corners on slab borders, edges in them
+    eye = np.stack([rng.uniform(-1.3, 1.3, z.shape[0]) * half_tan[0] * z, rng.uniform(-1.3, 1.3, z.shape[0]) * half_tan[1] * z, z], axis=1)
+    small = (eye[:900, None, :] + rng.uniform(-0.05, 0.05, (900, 3, 3))).reshape(-1, 3)
+    eye = np.concatenate([eye, small, [[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]])  # and a point triangle
+    faces = np.concatenate([rng.integers(0, 6000, (3000, 3)), 6000 + np.arange(2700).reshape(-1, 3), [[8700, 8701, 8702]]])
+    inst = slab_instances(eye, faces, borders, half_tan, resolution)
+    layer = np.repeat(np.arange(16), np.diff(inst.offsets))
+    assert inst.triangle.shape[0] > 3000
+    assert set(zip(inst.triangle.tolist(), layer.tolist())) == _reaching(eye, faces, borders, half_tan, resolution, np.arange(faces.shape[0]))
+    polygon, count = clip_to_slab(np.take(eye.T, faces[inst.triangle].T, axis=1), borders[layer], borders[layer + 1])
+    texel = texel_coordinates(polygon, half_tan, resolution)
+    np.testing.assert_array_equal(inst.count, count)
+    assert inst.polygon.tobytes() == texel.tobytes()
+    np.testing.assert_array_equal(inst.rect, texel_rectangles(texel.min(axis=1), texel.max(axis=1), resolution))
+    with np.errstate(divide="ignore"):
+        at_vertex = np.concatenate([texel_coordinates(eye.T, half_tan, resolution), 1.0 / eye.T[2:]])
+    assert inst.vertices.tobytes() == np.take(at_vertex, faces[inst.triangle].T, axis=1).tobytes()
+
+
 def _reaching(eye, faces, borders, half_tan, resolution, triangles: np.ndarray) -> set:
     """(triangle, layer) pairs whose piece clipped to the layer's slab reaches a texel, every
     layer tried, as ``slab_instances`` decides it but without dropping anything first."""
     k = borders.shape[0] - 1
     tri, layer = np.repeat(triangles, k), np.tile(np.arange(k), triangles.shape[0])
     polygon, count = clip_to_slab(np.take(eye.T, faces[tri].T, axis=1), borders[layer], borders[layer + 1])
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):  # pairs that miss their slab have no polygon
         polygon = texel_coordinates(polygon, half_tan, resolution)
-    rect = texel_rectangles(polygon.min(axis=1), polygon.max(axis=1), resolution)
+        rect = texel_rectangles(polygon.min(axis=1), polygon.max(axis=1), resolution)
     keep = (count > 0) & (rect[0] < rect[2]) & (rect[1] < rect[3])
     return set(zip(tri[keep].tolist(), layer[keep].tolist()))
 
