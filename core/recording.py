@@ -460,8 +460,9 @@ def _instance_format(prog: moderngl.Program) -> tuple[str, ...]:
 
 def _object_textures(ctx: moderngl.Context, obj: SceneObject):
     """The object's base-colour texture, and for an alpha-cut one its mipmapped cut-weighted
-    colours (:mod:`core.render.cut_colours`) and max-alpha mip chain (None where it has none)."""
-    texture = cut = alpha = None
+    colours (:mod:`core.render.cut_colours`), max-alpha mip chain and alpha alone (one channel, the
+    texels ``slab.frag``'s exact footprint walk reads); None where it has none."""
+    texture = cut = alpha = texels = None
     if obj.texture is not None:
         texture = srgb_texture(ctx, obj.texture)
         if obj.alpha_cutoff is not None:
@@ -474,7 +475,9 @@ def _object_textures(ctx: moderngl.Context, obj: SceneObject):
             cut.build_mipmaps()
             cut.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
             alpha = max_alpha_texture(ctx, obj.texture[..., 3])
-    return texture, cut, alpha
+            texels = ctx.texture((texture.width, texture.height), 1, np.ascontiguousarray(obj.texture[::-1, :, 3]).tobytes())
+            texels.filter = (moderngl.NEAREST, moderngl.NEAREST)
+    return texture, cut, alpha, texels
 
 
 def iter_layers(
@@ -557,7 +560,7 @@ def iter_layers(
             for prog, _ in variants.values():
                 prog["slab"].value = (float(slabs[i]), float(slabs[i + 1]))
             drawn = 0
-            for (obj, offsets, records), (prog, vao, (texture, cut, alpha)) in zip(draws, passes):
+            for (obj, offsets, records), (prog, vao, (texture, cut, alpha, texels)) in zip(draws, passes):
                 count = int(offsets[i + 1] - offsets[i])
                 if count == 0:
                     continue
@@ -567,6 +570,8 @@ def iter_layers(
                     cut.use(2)
                     prog["cut_texture"].value = 2
                 if alpha is not None:
+                    texels.use(3)
+                    prog["alpha_texels"].value = 3
                     alpha.use(1)
                     prog["alpha_mip"].value = 1
                     prog["alpha_mip_size"].value = (float(alpha.width), float(alpha.height))

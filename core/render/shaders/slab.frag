@@ -1,4 +1,5 @@
 #version 330
+#extension GL_ARB_texture_gather : require
 // Exact coverage of one texel by the clipped polygon: conservative (the closed texel square meets
 // the polygon, separating-axis test) or standard (the texel centre lies inside), then colour and
 // depth from the triangle at the polygon point nearest the texel centre.  Colour is shaded in
@@ -29,6 +30,7 @@ uniform float alpha_cutoff;  // < 0: no alpha mask
 // Max-alpha mip chain of the texture (core/render/alpha_mips.py), in TEXTURED ALPHA_CUT: power-of-two
 // level 0 of alpha_mip_size texels, alpha_mip_levels levels; texture_size is the original texture's size.
 uniform sampler2D alpha_mip;
+uniform sampler2D alpha_texels;  // the texture's alpha alone (R8), for the exact walk's texel reads
 uniform vec2 alpha_mip_size;
 uniform int alpha_mip_levels;
 uniform vec2 texture_size;
@@ -157,7 +159,15 @@ int polygon_under_square(vec2 c, out vec2 part[9]) {
 
 // Texture alpha of texel i, repeat-wrapped (the GL_REPEAT the renderers sample with).
 float texel_alpha(ivec2 i, ivec2 size) {
-    return texelFetch(base_texture, ((i % size) + size) % size, 0).a;
+    return texelFetch(alpha_texels, ((i % size) + size) % size, 0).r;
+}
+
+// The alphas of texels cell, cell + (1, 0), cell + (0, 1) and cell + (1, 1), repeat-wrapped, in one
+// gather: the 2x2 block a bilinear read at the corner the four share would filter.
+vec4 cell_alphas(ivec2 cell, ivec2 size) {
+    ivec2 wrapped = ((cell % size) + size) % size;
+    vec4 g = textureGather(alpha_texels, (vec2(wrapped) + 1.0) / vec2(size));
+    return g.wzxy;  // the gather's order: (i0, j1), (i1, j1), (i1, j0), (i0, j0)
 }
 
 // The largest bilinearly filtered alpha (GL_LINEAR) on the convex polygon p[0..n), in texel units
@@ -183,8 +193,8 @@ float exact_polygon_alpha(vec2 p[9], int n, ivec2 size) {
             if (d.x != 0.0) { next.x = (float(cell.x) + (d.x > 0.0 ? 1.5 : 0.5) - a.x) / d.x; }
             if (d.y != 0.0) { next.y = (float(cell.y) + (d.y > 0.0 ? 1.5 : 0.5) - a.y) / d.y; }
             float end = min(min(next.x, next.y), 1.0);
-            float a00 = texel_alpha(cell, size), a10 = texel_alpha(cell + ivec2(1, 0), size);
-            float a01 = texel_alpha(cell + ivec2(0, 1), size), a11 = texel_alpha(cell + ivec2(1, 1), size);
+            vec4 block = cell_alphas(cell, size);
+            float a00 = block.x, a10 = block.y, a01 = block.z, a11 = block.w;
             // Along the edge, r(s) = a + s d - (cell + 0.5); f = a00 + bx rx + by ry + dd rx ry.
             vec2 r0 = a - (vec2(cell) + 0.5);
             float bx = a10 - a00, by = a01 - a00, dd = a00 - a10 - a01 + a11;
