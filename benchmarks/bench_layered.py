@@ -127,8 +127,9 @@ def bake_plan(scene: Scene, cell: BoxCell, resolution: int):
 
 
 def lower_bound_s(scene: Scene, plan, repeats: int) -> float:
-    """The recording's lower bound, best of ``repeats``: one plain render of ``scene`` at ``plan``'s
-    texels, from its reference viewpoint, plus the read-back of all of its layers."""
+    """The recording's lower bound, best of ``repeats``: one plain render of ``scene`` from ``plan``'s
+    reference viewpoint (a square as wide as the layers' longer side, the one shape the renderer's
+    camera has: up to ~16 % more texels than a layer here), plus the read-back of all its layers."""
     res_x, res_y = (int(r) for r in plan.texture_resolution)
     ctx = gl_context()
     target = 0.5 * (scene.bounds[0] + scene.bounds[1])

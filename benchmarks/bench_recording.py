@@ -3,9 +3,10 @@
 Usage: ``.venv/bin/python benchmarks/bench_recording.py [--before REV] [--rounds N] [--no-envmap] [--json]``
 
 Each case is timed in a fresh process with this tree's ``farfield`` and with the ``core/`` of git
-revision ``--before`` (from ``git archive``, first on the import path), alternating, ``--rounds``
-times each; a process warms up once, then keeps the best of 3.  The table gives the best of all
-rounds per tree, and whether the two trees recorded the same bytes.
+revision ``--before`` (from ``git archive``, first on the import path; the benchmark code, scenes,
+plans and bound are this tree's), alternating, ``--rounds`` times each; a process warms up once,
+then keeps the best of 3 (of 2 for the envmap cell).  The table gives the best of all rounds per
+tree, and whether the two trees recorded the same bytes.
 
 - ``dense 512`` and ``dense 1024``: :func:`core.recording.record_layers` of ``bench_layered.py``'s
   102,400-triangle object (vertex colours and a plain colour) from its speed cell, the plan a
@@ -92,7 +93,8 @@ def measure(envmap: bool) -> dict:
         from farfield.core.techniques.envmap import EnvmapOptions, bake_envmap
 
         city = detailed_city(36, 3)
-        middle = street_grid(36)[len(street_grid(36)) // 2][1]
+        cells = street_grid(36)
+        middle = cells[len(cells) // 2][1]
         options = EnvmapOptions(resolution=512, fov_deg=90.0, layers=64, directions=("+x", "-x", "+y", "-y", "+z", "-z"))
         bakes = []
         for _ in range(3):  # the first warms up
@@ -119,10 +121,12 @@ def run_tree(revision: str | None, envmap: bool, work: Path) -> dict:
             with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
                 tar.extractall(package, filter="data")
             (package / "__init__.py").write_text("")
-        env["PYTHONPATH"] = os.pathsep.join([str(root), env.get("PYTHONPATH", "")])
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (str(root), env.get("PYTHONPATH", "")) if p)
         env["NUMBA_CACHE_DIR"] = str(root / "numba-cache")
     command = [sys.executable, str(Path(__file__).resolve()), "--measure"] + ([] if envmap else ["--no-envmap"])
-    result = subprocess.run(command, check=True, capture_output=True, text=True, env=env, cwd=ROOT)
+    result = subprocess.run(command, capture_output=True, text=True, env=env, cwd=ROOT)
+    if result.returncode != 0:
+        sys.exit(f"bench_recording: the {revision or 'this tree'} process failed:\n{result.stderr[-3000:]}")
     return json.loads(result.stdout.strip().splitlines()[-1])
 
 
@@ -148,7 +152,7 @@ def main() -> None:
     if args.json:
         print(json.dumps(report, indent=1))
         return
-    print(f"renderer: {report['renderer']}   before: {args.before}   best of {args.rounds} processes x 3 per tree")
+    print(f"renderer: {report['renderer']}   before: {args.before}   best of {args.rounds} processes x 3 per tree (envmap: x 2)")
     print(f"{'case':<12} {'layers':>6} {'texels':>10} {'pairs':>8} {'before s':>9} {'after s':>8} {'speed-up':>8} {'same bytes':>10} {'bound s':>8} {'before/bound':>12} {'after/bound':>11}")
     for name, after in best["after"].items():
         before = best["before"][name]

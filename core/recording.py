@@ -16,10 +16,12 @@ by layer (cost O(triangles + layers + spans)), never drawn for every layer.
 
 Deviation from an earlier farfield: the clipping ran in a geometry shader on float32 eye
 coordinates.  Clipping on the CPU in float64 keeps the polygons exact at any world offset and makes
-them testable without GL.  Each object is drawn with the slab.frag variant of its material
+them testable without GL; one numba kernel pairs, clips and bounds (:func:`_pair_kernel`, bit for
+bit the numpy functions below).  Each object is drawn with the slab.frag variant of its material
 (:func:`slab_variant`).  On llvmpipe, the benchmark's untextured 100k-triangle part at 512 (61
-layers of 685 x 590 texels, 152k pairs) spends ~0.07 s clipping and ~0.25 s in the GL, of which
-~0.05 s draws the rectangles with a constant fragment shader (README, "Speed").
+layers of 685 x 590 texels, 152k pairs) spends ~0.045 s pairing and ~0.25 s in the GL, of which
+~0.05 s draws the rectangles with a constant fragment shader (README, "Recording against its
+lower bound").
 """
 
 from __future__ import annotations
@@ -50,11 +52,6 @@ INSTANCE_ATTRIBUTES = (
     "i_uv01", "i_uv2", "i_color0", "i_color1", "i_color2",
 )  # fmt: skip
 INSTANCE_FLOATS = 43
-
-# Pairs clipped per numpy pass: small enough that the temporaries stay in cache and are reused
-# rather than freshly paged in (about twice as fast here as one pass over 155k pairs).
-CHUNK_PAIRS = 8192
-
 
 @dataclass(frozen=True, slots=True)
 class RecordedLayers:
@@ -370,9 +367,13 @@ def slab_instances(
     half_tan : (2,) float64 tangents of the frustum's half angles along u and v.
     resolution : (2,) int64 texels along u and v.
 
-    Pairs whose clipped polygon is empty or whose rectangle misses the image are dropped.
+    Pairs whose clipped polygon is empty or whose rectangle misses the image are dropped, and so
+    are pairs with a coordinate that is not finite (a polygon point on the eye plane, which a first
+    border > 0 rules out).
     """
     k = eye_borders.shape[0] - 1
+    if not eye_borders[0] > 0.0:
+        raise ValueError(f"the first slab border must lie in front of the eye, not at eye depth {eye_borders[0]!r}")
     eye = np.ascontiguousarray(eye_vertices.T)  # (3, v)
     with np.errstate(divide="ignore", invalid="ignore"):  # vertices behind the eye belong to no pair
         texel = texel_coordinates(eye, half_tan, resolution)
@@ -428,7 +429,7 @@ def slab_variant(obj: SceneObject) -> tuple[str, ...]:
     """The defines of the ``slab.frag`` variant that records ``obj``: its texture reads only where it
     has a texture, its alpha cut only where it has one (llvmpipe runs a uniform's untaken branch
     with its lanes masked off, texture reads included: 0.60 s against 0.21 s of GL time for the
-    untextured 102,400-triangle benchmark part at 512, README "Speed").
+    untextured 102,400-triangle benchmark part at 512, README "Recording against its lower bound").
 
     >>> quad = SceneObject("q", np.zeros((3, 3)), np.array([[0, 1, 2]]))
     >>> slab_variant(quad)
@@ -476,7 +477,7 @@ def _object_textures(ctx: moderngl.Context, obj: SceneObject):
             cut.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
             alpha = max_alpha_texture(ctx, obj.texture[..., 3])
             texels = ctx.texture((texture.width, texture.height), 1, np.ascontiguousarray(obj.texture[::-1, :, 3]).tobytes())
-            texels.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            texels.filter = (moderngl.LINEAR, moderngl.LINEAR)  # the footprint a gather reads is GL_LINEAR's
     return texture, cut, alpha, texels
 
 

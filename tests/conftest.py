@@ -38,11 +38,12 @@ def pytest_report_header(config):
 
     versions = installed_versions()
     lines.append("npm (tests/js): " + (", ".join(f"{k} {v}" for k, v in versions.items()) or "not installed (scripts/install-js)"))
-    # Fill numba's cache once here, so the render workers the service tests start load the TDM
-    # and point kernels (warm_worker) instead of each compiling them while a test waits for it.
+    # Fill numba's cache once here, so the render workers the service tests start load the TDM,
+    # point and recording kernels (warm_worker) instead of each compiling them while a test waits.
+    from farfield.core import recording
     from farfield.core.techniques import ldi, points, tdm
 
-    lines.append(f"numba kernels ready in {tdm.warm_kernels() + points.warm_kernels() + ldi.warm_kernels():.1f} s")
+    lines.append(f"numba kernels ready in {tdm.warm_kernels() + points.warm_kernels() + ldi.warm_kernels() + recording.warm_kernels():.1f} s")
     return lines
 
 

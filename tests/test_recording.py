@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import json
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -173,7 +176,8 @@ def test_the_pairing_kernel_gives_the_numpy_clipping_bit_for_bit():
     half_tan, resolution = np.array([0.7, 0.5]), np.array([64, 48])
     borders = np.linspace(0.2, 4.2, 17)
     z = rng.uniform(0.05, 4.5, 6000)
-    z[rng.random(z.shape[0]) < 0.2] = rng.choice(borders, 1)  # corners on slab borders, edges in them
+    on_border = rng.random(z.shape[0]) < 0.2  # corners on slab borders (every border), edges in them
+    z[on_border] = rng.choice(borders, int(on_border.sum()))
     eye = np.stack([rng.uniform(-1.3, 1.3, z.shape[0]) * half_tan[0] * z, rng.uniform(-1.3, 1.3, z.shape[0]) * half_tan[1] * z, z], axis=1)
     small = (eye[:900, None, :] + rng.uniform(-0.05, 0.05, (900, 3, 3))).reshape(-1, 3)
     eye = np.concatenate([eye, small, [[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]])  # and a point triangle
@@ -190,6 +194,77 @@ def test_the_pairing_kernel_gives_the_numpy_clipping_bit_for_bit():
     with np.errstate(divide="ignore"):
         at_vertex = np.concatenate([texel_coordinates(eye.T, half_tan, resolution), 1.0 / eye.T[2:]])
     assert inst.vertices.tobytes() == np.take(at_vertex, faces[inst.triangle].T, axis=1).tobytes()
+
+
+def test_objects_of_every_material_variant_record_in_one_scene_as_each_does_alone(ctx):
+    """Each object is drawn with the slab.frag variant of its material (plain, vertex colours with
+    an alpha cut but no texture, textured, textured with an alpha cut), all in one layer pass: the
+    scene's layers are, texel for texel, what each object records alone with the same plan (the
+    four lie apart in the image), so no variant's inputs or uniforms leak into another's."""
+    rng = np.random.default_rng(4)
+    texture = rng.integers(0, 256, (16, 16, 4)).astype(np.uint8)
+    cut_texture = texture.copy()
+    cut_texture[..., 3] = np.where(rng.random((16, 16)) < 0.5, 0, 255)
+    card = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    uv = card[:, :2] * 3.0 - 1.0  # repeating
+
+    def at(x, y):
+        return card + np.array([x, y, 0.0])
+
+    colours = rng.integers(0, 256, (4, 4)).astype(np.uint8)
+    colours[:, 3] = [40, 255, 90, 60]  # the second triangle's largest alpha misses the cut
+    objects = [
+        SceneObject("plain", at(-2.0, -2.0), faces, base_color=(0.2, 0.6, 0.9, 1.0)),
+        SceneObject("vertex-cut", at(1.0, -2.0), faces, vertex_colors=colours, alpha_cutoff=0.5),
+        SceneObject("textured", at(-2.0, 1.0), faces, uv=uv, texture=texture),
+        SceneObject("textured-cut", at(1.0, 1.0), faces, uv=uv, texture=cut_texture, alpha_cutoff=0.5),
+    ]
+    scene = Scene.from_objects(objects, "variants")
+    plan = plan_layers(BoxCell.from_center([0.0, 0.0, -8.0], 1.0), scene.bounds, math.radians(60), 128)
+    together = record_layers(scene, plan).rgba
+    alone = [record_layers(Scene.from_objects([obj], obj.name), plan).rgba for obj in objects]
+    covered = [a[..., 3] > 0 for a in alone]
+    assert all(c.sum() > 100 for c in covered)
+    assert not np.any(np.sum(covered, axis=0) > 1)  # apart in every layer
+    expected = np.zeros_like(together)
+    for image, mask in zip(alone, covered):
+        expected[mask] = image[mask]
+    np.testing.assert_array_equal(together, expected)
+
+
+WARM_CHECK = """
+import json, numpy as np
+import farfield.core.recording as recording
+from farfield.core.procedural import city
+from farfield.core.render.context import gl_context
+from farfield.core.techniques.layered import BakeOptions, bake_layered
+from farfield.core.viewcells import BoxCell
+before = len(recording._pair_kernel.signatures)
+recording.warm_kernels()
+warmed = len(recording._pair_kernel.signatures)
+scene = city(4)
+lo, hi = scene.bounds
+with gl_context():
+    bake_layered(scene, BoxCell(np.array([lo[0] - 60, lo[1], lo[2]]), np.array([lo[0] - 40, lo[1] + 20, lo[2] + 20])), BakeOptions(resolution=64))
+print(json.dumps({"before": before, "warmed": warmed, "baked": len(recording._pair_kernel.signatures)}))
+"""
+
+
+def test_warming_compiles_the_pairing_kernel_with_the_types_a_bake_runs_it_with():
+    """What a render worker does when it starts (``workers.tasks.warm_worker``), in a fresh process:
+    after :func:`warm_kernels` a real layered bake adds no compiled signature to the pairing
+    kernel, so none compiles (or loads from the cache) during a cell."""
+    out = subprocess.run([sys.executable, "-c", WARM_CHECK], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    counts = json.loads(out.stdout.strip().splitlines()[-1])
+    assert counts == {"before": 0, "warmed": 1, "baked": 1}
+
+
+def test_a_slab_border_at_or_behind_the_eye_is_refused():
+    eye = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 2.0]])
+    with pytest.raises(ValueError, match="in front of the eye"):
+        slab_instances(eye, np.array([[0, 1, 2]]), np.array([0.0, 1.5, 2.5]), np.ones(2), np.array([4, 4]))
 
 
 def _reaching(eye, faces, borders, half_tan, resolution, triangles: np.ndarray) -> set:

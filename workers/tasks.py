@@ -71,11 +71,11 @@ log = logging.getLogger("farfield.worker")
 
 @worker_init.connect
 def warm_worker(**_) -> None:
-    """Compile the recording's, the TDM's and the point impostors' numba kernels in the worker's main process, before its pool processes fork
+    """Compile the TDM's, the point impostors' and the recording's numba kernels in the worker's main process, before its pool processes fork
     (they inherit them): the first cell a worker bakes does not pay the compilation.  A failure
     here is logged and left to the first bake to meet again."""
     try:
-        log.info("numba kernels ready in %.1f s", recording.warm_kernels() + tdm.warm_kernels() + points.warm_kernels() + ldi.warm_kernels())
+        log.info("numba kernels ready in %.1f s", tdm.warm_kernels() + points.warm_kernels() + ldi.warm_kernels() + recording.warm_kernels())
     except Exception:  # noqa: BLE001 - a bake reports the same failure with its cell
         log.exception("could not warm the numba kernels")
 

@@ -1,5 +1,7 @@
 #version 330
+#if defined(TEXTURED) && defined(ALPHA_CUT)
 #extension GL_ARB_texture_gather : require
+#endif
 // Exact coverage of one texel by the clipped polygon: conservative (the closed texel square meets
 // the polygon, separating-axis test) or standard (the texel centre lies inside), then colour and
 // depth from the triangle at the polygon point nearest the texel centre.  Colour is shaded in
@@ -157,6 +159,7 @@ int polygon_under_square(vec2 c, out vec2 part[9]) {
     return n;
 }
 
+#if defined(TEXTURED) && defined(ALPHA_CUT)  // the exact alpha walk: only an alpha-cut texture needs it
 // Texture alpha of texel i, repeat-wrapped (the GL_REPEAT the renderers sample with).
 float texel_alpha(ivec2 i, ivec2 size) {
     return texelFetch(alpha_texels, ((i % size) + size) % size, 0).r;
@@ -263,7 +266,7 @@ float footprint_alpha(vec2 c) {
     vec2 part[9];
     int n = polygon_under_square(c, part);
     if (n == 0) { part[0] = nearest_boundary_point(c); n = 1; }
-    ivec2 size0 = textureSize(base_texture, 0);
+    ivec2 size0 = textureSize(alpha_texels, 0);
     vec2 texels[9];  // base texture texel units
     vec2 uv[9];  // level-0 alpha_mip texel units
     vec2 lo = vec2(1e30), hi = vec2(-1e30);
@@ -328,6 +331,7 @@ float footprint_alpha(vec2 c) {
     }
     return best;
 }
+#endif
 
 void main() {
     vec2 c = gl_FragCoord.xy;
