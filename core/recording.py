@@ -264,6 +264,37 @@ def facing_the_image(texel: np.ndarray, depth: np.ndarray, faces: np.ndarray, re
     return np.flatnonzero((corner[0] & corner[1] & corner[2]) == 0)
 
 
+@njit(cache=True)
+def _bucket_kernel(depth, faces, triangles, eye_borders):
+    """:func:`layer_buckets` of ``faces[triangles]`` by counting instead of sorting: the same pairs
+    in the same order (by layer, then as in ``triangles``), as face indices, with each pair's layer."""
+    k = eye_borders.shape[0] - 1
+    upper, lower = eye_borders[1:], eye_borders[:-1]
+    n = triangles.shape[0]
+    first, last = np.empty(n, np.int64), np.empty(n, np.int64)
+    offsets = np.zeros(k + 1, np.int64)
+    for m in range(n):
+        t = triangles[m]
+        z0, z1, z2 = depth[faces[t, 0]], depth[faces[t, 1]], depth[faces[t, 2]]
+        zmin, zmax = min(z0, min(z1, z2)), max(z0, max(z1, z2))
+        f = min(max(np.searchsorted(upper, zmin, side="left"), 0), k - 1)
+        g = min(max(np.searchsorted(lower, zmax, side="right") - 1, 0), k - 1)
+        if not (zmax >= eye_borders[0] and zmin <= eye_borders[k] and f <= g):
+            f, g = 1, 0  # meets no slab
+        first[m], last[m] = f, g
+        for i in range(f, g + 1):
+            offsets[i + 1] += 1
+    for i in range(k):
+        offsets[i + 1] += offsets[i]
+    order, layer = np.empty(offsets[k], np.int64), np.empty(offsets[k], np.int64)
+    at = offsets[:k].copy()
+    for m in range(n):
+        for i in range(first[m], last[m] + 1):
+            order[at[i]], layer[at[i]] = triangles[m], i
+            at[i] += 1
+    return order, layer, offsets
+
+
 @njit(cache=True, error_model="numpy")  # a crossing that does not exist divides by zero; it is never used
 def _lerp_into(out, slot, a, b, plane):
     """out[:, slot] = the point where line a -> b (3,) reaches depth ``plane``; :func:`_lerp_at`'s
@@ -379,12 +410,10 @@ def slab_instances(
         texel = texel_coordinates(eye, half_tan, resolution)
         at_vertex = np.concatenate([texel, 1.0 / eye[2:]])  # (3, v)
     seen = facing_the_image(texel, eye[2], faces, resolution)
-    order, offsets = layer_buckets(eye_vertices[:, 2], faces[seen], eye_borders)
-    order = seen[order]
+    order, layers, offsets = _bucket_kernel(np.ascontiguousarray(eye[2]), faces, seen, eye_borders)
     n = order.shape[0]
     triangle, layer, count = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
     rect, polygon, vertices = np.empty((4, n), np.int64), np.empty((2, MAX_POLYGON, n)), np.empty((3, 3, n))
-    layers = np.repeat(np.arange(k), np.diff(offsets))
     kept = _pair_kernel(eye, at_vertex, faces, order, layers, eye_borders, np.asarray(half_tan, np.float64), np.asarray(resolution, np.int64),
                         triangle, layer, rect, polygon, count, vertices)  # fmt: skip
     triangle, layer, count = triangle[:kept], layer[:kept], count[:kept]
@@ -394,7 +423,7 @@ def slab_instances(
 
 
 def warm_kernels() -> float:
-    """Compile (or load from numba's cache) the pairing kernel of :func:`slab_instances` on one
+    """Compile (or load from numba's cache) the bucketing and pairing kernels of :func:`slab_instances` on one
     triangle, without GL; the seconds it took.  A render worker calls it when it starts, beside the
     other techniques' (:mod:`workers.tasks`), so the first layered or envmap cell does not pay it."""
     start = time.perf_counter()
