@@ -39,6 +39,7 @@ from farfield.core.render.alpha_mips import max_alpha_texture
 from farfield.core.render.context import gl_context
 from farfield.core.render.cut_colours import cut_weighted_linear
 from farfield.core.render.programs import park_framebuffer, program, set_material, srgb_texture
+from farfield.core.render.raster import mesh_variant
 from farfield.core.scene import Scene, SceneObject
 
 # Most vertices a triangle keeps after clipping to a slab: each of the two planes adds at most one.
@@ -455,10 +456,11 @@ def _instance_records(instances: SlabInstances, obj: SceneObject) -> np.ndarray:
 
 
 def slab_variant(obj: SceneObject) -> tuple[str, ...]:
-    """The defines of the ``slab.frag`` variant that records ``obj``: its texture reads only where it
-    has a texture, its alpha cut only where it has one (llvmpipe runs a uniform's untaken branch
-    with its lanes masked off, texture reads included: 0.60 s against 0.21 s of GL time for the
-    untextured 102,400-triangle benchmark part at 512, README "Recording against its lower bound").
+    """The defines of the ``slab.frag`` variant that records ``obj`` (the two of ``mesh_variant``'s it
+    has): its texture reads only where it has a texture, its alpha cut only where it has one
+    (llvmpipe runs a uniform's untaken branch with its lanes masked off, texture reads included:
+    0.60 s against 0.21 s of GL time for the untextured 102,400-triangle benchmark part at 512,
+    README "Recording against its lower bound").
 
     >>> quad = SceneObject("q", np.zeros((3, 3)), np.array([[0, 1, 2]]))
     >>> slab_variant(quad)
@@ -467,12 +469,7 @@ def slab_variant(obj: SceneObject) -> tuple[str, ...]:
     >>> slab_variant(replace(quad, uv=np.zeros((3, 2)), texture=np.zeros((2, 2, 4), np.uint8), alpha_cutoff=0.5))
     ('TEXTURED', 'ALPHA_CUT')
     """
-    defines = []
-    if obj.texture is not None:
-        defines.append("TEXTURED")
-    if obj.alpha_cutoff is not None:
-        defines.append("ALPHA_CUT")
-    return tuple(defines)
+    return tuple(d for d in mesh_variant(obj, planes=False, open_faces=False) if d in ("TEXTURED", "ALPHA_CUT"))
 
 
 def _instance_format(prog: moderngl.Program) -> tuple[str, ...]:
