@@ -74,16 +74,24 @@ def hard_time_limit_message(seconds: int) -> str:
     )
 
 
-def memory_limit_message(resident: int, limit_mb: int) -> str:
-    """What a cell whose process grew past the memory limit records.
+CELL, PLANNING = "cell", "planning"  # what a memory limit stopped
+_REMEDY = {
+    CELL: "since the cell would need as much again: lower the resolution, use smaller or farther view cells, or raise the limit",
+    PLANNING: "since planning would need as much again: use a larger cpv_size or vdi_deg, a smaller view space, or raise the limit",
+}
+
+
+def memory_limit_message(resident: int, limit_mb: int, what: str = CELL) -> str:
+    """What a cell (or a placement's planning) whose process grew past the memory limit records.
 
     >>> memory_limit_message(9 * 2**30, 8192)[:90]
     "the cell's worker process grew to 9216 MiB of memory, over FARFIELD_CELL_MEMORY_MB (8192 M"
+    >>> memory_limit_message(9 * 2**30, 8192, PLANNING)[:40]
+    "the planning's worker process grew to 92"
     """
     return (
-        f"the cell's worker process grew to {resident // 2**20} MiB of memory, over FARFIELD_CELL_MEMORY_MB ({limit_mb} MiB), "
-        "and was stopped; not retried, since the cell would need as much again: lower the resolution, use smaller or farther "
-        "view cells, or raise the limit"
+        f"the {what}'s worker process grew to {resident // 2**20} MiB of memory, over FARFIELD_CELL_MEMORY_MB ({limit_mb} MiB), "
+        f"and was stopped; not retried, {_REMEDY[what]}"
     )
 
 

@@ -65,6 +65,7 @@ from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, primit
 from farfield.core.placement.hierarchy import PlacementError
 from farfield.core.placement.octree_cells import DEFAULT_DEPTH
 from farfield.core.placement.planner import DEFAULT_MAX_IMPOSTOR_BYTES
+from farfield.core.placement.view_space import MAX_REGIONS, MIN_VDI_DEG
 from farfield.core.techniques import DEFAULT_TECHNIQUE, get_technique
 from farfield.service.blobs import BlobStore
 from farfield.service.db import CellRow, Database, JobRow, SceneRow, now
@@ -86,7 +87,6 @@ PRIMITIVE_KNOBS = ("p_opt", "octree_depth", "grid_points", "max_level", "check_v
 DEFAULT_CHECK_VIEWS = 2000
 PRIMITIVE_INDEX_KIND = "primitive-placement"  # the "kind" of a primitive-budget job's database index
 MAX_CHECK_VIEWS = 1_000_000
-MAX_REGIONS = 1e6  # as core.placement.view_space: smallest regions a view space may be cut into
 
 Number = StrictFloat | StrictInt
 
@@ -123,7 +123,7 @@ class PlacementSpec(BaseModel):
         "budget.primitives triangles)",
     )
     cpv_size: Number | None = Field(None, description="smallest 3D region of a problem view (default: the view space's longest side / 8)")
-    vdi_deg: Number = Field(11.25, description="smallest view-direction interval, degrees, in (0, 90]")
+    vdi_deg: Number = Field(11.25, description=f"smallest view-direction interval, degrees, in [{MIN_VDI_DEG:g}, 90]")
     depth_complexity: Number | None = Field(4.0, description="a view's rasterised pixels are at most this many frames (>= 1; null: no cap)")
     cells: Literal[CELL_KINDS] = Field("both", description="view cells of the candidates")  # type: ignore[valid-type]
     leaf_size: StrictInt = Field(4, description="elements per leaf of the object hierarchy (>= 1)")
@@ -148,7 +148,8 @@ def _finite(value, what: str) -> float:
 def cost_model_of(budget: BudgetSpec) -> tuple[CostModel, float, dict]:
     """The budget's cost model, t_max and the stored budget record."""
     if (budget.frame_ms is None) == (budget.primitives is None):
-        raise PlacementError("give a budget: 'frame_ms' (with 'cost_model', default 'llvmpipe') or 'primitives', not both")
+        which = "neither was given" if budget.frame_ms is None else "not both"
+        raise PlacementError(f"give a budget: 'frame_ms' (with 'cost_model', default 'llvmpipe') or 'primitives'; {which}")
     if budget.primitives is not None:
         if budget.cost_model is not None:
             raise PlacementError("'primitives' counts triangles; 'cost_model' applies to 'frame_ms' only")
@@ -165,7 +166,8 @@ def cost_model_of(budget: BudgetSpec) -> tuple[CostModel, float, dict]:
             model, name = CostModel.from_dict(given), "given"  # CostModelError: bad input, names the problem
         record = {"frame_ms": t_max, "cost_model": name}
     if not t_max > 0:
-        raise PlacementError(f"the budget t_max must be > 0, got {t_max!r}")
+        field = "budget.primitives" if budget.primitives is not None else "budget.frame_ms"
+        raise PlacementError(f"the budget t_max must be > 0 ({field}), got {t_max!r}")
     return model, t_max, {**record, "t_max": t_max, "unit": model.unit}
 
 
@@ -212,8 +214,8 @@ def placement_params(technique_name: str | None, given_options: dict, resolution
     if regions > MAX_REGIONS:
         raise PlacementError(f"a view space of {span} in regions of {size:.6g} has {regions:.3g} regions, over {MAX_REGIONS:.0e}; use a larger cpv_size")
     vdi = _finite(spec.vdi_deg, "vdi_deg")
-    if not 0 < vdi <= 90:
-        raise PlacementError(f"vdi_deg must lie in (0, 90] degrees, got {vdi!r}")
+    if not MIN_VDI_DEG <= vdi <= 90:
+        raise PlacementError(f"vdi_deg must lie in [{MIN_VDI_DEG:g}, 90] degrees, got {vdi!r}")
     depth = None if spec.depth_complexity is None else float(spec.depth_complexity)
     if depth is not None and not (depth >= 1.0):
         raise PlacementError(f"depth_complexity must be >= 1 (null: no cap), got {depth!r}")

@@ -21,6 +21,7 @@ from scenes import city, write_scene
 from service_harness import start_service, upload, wait_for_job
 
 from farfield.api.app import create_app
+from farfield.core import procedural
 from farfield.service.cell_limits import MemoryGuard, resident_bytes
 from farfield.service.db import CellRow, Database, JobRow
 from farfield.service.jobs import JobSpec, create_job, open_tenant_cells
@@ -211,6 +212,29 @@ def test_a_cell_past_its_memory_limit_fails_once_with_the_limit_named(tmp_path):
     assert job["state"] == "failed" and cell["state"] == "failed", job
     assert cell["attempts"] == 1 and not cell["has_result"]
     assert re.fullmatch(r"CellLimitError: the cell's worker process grew to \d+ MiB of memory, over FARFIELD_CELL_MEMORY_MB \(64 MiB\), and was stopped; not retried.*", cell["error"]), cell["error"]
+
+
+def test_a_placement_s_planning_past_the_memory_limit_fails_the_job_once(tmp_path):
+    """Planning runs under the same guard as a cell: past FARFIELD_CELL_MEMORY_MB the job fails
+    naming the limit and what to change, and the planning process's redelivery changes nothing.
+    (Before the guard covered planning, a request whose planning grew without bound held its worker
+    until someone killed it.)"""
+    service = start_service(tmp_path / "home", FARFIELD_CELL_MEMORY_MB="64")
+    try:
+        with service.client() as client:
+            # test_service_placement's slow plan (many seconds): the guard, reading every 0.1 s, sees it
+            scene_id = upload(client, write_scene(procedural.city(25, seed=1, detail=8), tmp_path, "glb", "city")).json()["id"]
+            placement = {"view_space": {"lo": [10.0, 2.0, 10.0], "hi": [70.0, 6.0, 70.0]}, "budget": {"primitives": 600}, "cpv_size": 3}
+            created = client.post("/v1/jobs", json={"scene_id": scene_id, "resolution": 64, "placement": placement})
+            assert created.status_code == 201, created.text
+            job = wait_for_job(client, created.json()["id"], timeout=180)
+            time.sleep(1.0)
+            job = client.get(f"/v1/jobs/{job['id']}").json()
+    finally:
+        assert service.stop() == 0
+    assert job["state"] == "failed" and job["cells_total"] == 0, job
+    assert re.fullmatch(r"CellLimitError: the planning's worker process grew to \d+ MiB of memory, over FARFIELD_CELL_MEMORY_MB \(64 MiB\), "
+                        r"and was stopped; not retried, since planning would need as much again: use a larger cpv_size.*", job["error"]), job["error"]
 
 
 def test_the_memory_guard_fires_on_growth_and_not_below_its_limit():

@@ -27,7 +27,7 @@ Limits per cell (:mod:`service.cell_limits`): the decorator's soft and hard time
 
 A placement job's :func:`plan_placement` and :func:`check_placement` run
 :func:`service.placement_jobs.run_planning` (plan, or check and repair) under the same time limits and
-send the cells it made; a bake whose cell ended the last open cell of a placement job's round sends
+memory guard (past it the job fails, naming the limit) and send the cells it made; a bake whose cell ended the last open cell of a placement job's round sends
 the job's check.  A pool process that dies while it plans frees the job's hold from the worker's
 main process at once (:class:`PlanningRequest`), so the redelivery plans again (each time an
 attempt, ``FARFIELD_MAX_ATTEMPTS`` at most); a whole worker that dies leaves its hold to expire and
@@ -54,7 +54,7 @@ from farfield.core.errors import CellLimitError
 from farfield.core.render.context import gl_context
 from farfield.core.techniques import ldi, points, tdm
 from farfield.service.blobs import BlobStore, blob_store
-from farfield.service.cell_limits import MemoryGuard, hard_time_limit_message, time_limit_message
+from farfield.service.cell_limits import PLANNING, MemoryGuard, hard_time_limit_message, memory_limit_message, time_limit_message
 from farfield.service.cell_runner import BAD_INPUT, TRANSIENT, RetryCell, backoff, failure_class, failure_message, run_cell
 from farfield.service.db import CellRow, Database, now
 from farfield.service.jobs import finish_job_if_complete, release_lost_cells
@@ -101,11 +101,19 @@ def _records() -> tuple[Settings, Database, BlobStore]:
     return _STATE["settings"], _STATE["db"], _STATE["blobs"]
 
 
+def _memory_guard(settings: Settings) -> MemoryGuard:
+    """This pool process's memory guard (made once; its thread starts when first armed)."""
+    if "memory" not in _STATE:
+        _STATE["memory"] = MemoryGuard(settings.cell_memory_mb)
+    return _STATE["memory"]
+
+
 def _services() -> tuple[Settings, Database, BlobStore]:
     """:func:`_records`, and in a pool process that bakes: its GL device and its memory guard."""
     settings, db, blobs = _records()
-    if "memory" not in _STATE:
-        _STATE["memory"] = MemoryGuard(settings.cell_memory_mb)
+    _memory_guard(settings)
+    if "gl" not in _STATE:
+        _STATE["gl"] = True
         if os.environ.get("FARFIELD_EGL_DEVICE"):  # one worker per GPU: farfield up pins each to its device
             gl_context(int(os.environ["FARFIELD_EGL_DEVICE"]))
     return settings, db, blobs
@@ -255,8 +263,14 @@ class PlanningTask(Task):
 def _planning(task, job_id: str, phase: str) -> str:
     settings, db, blobs = _records()
     limit, retries = max_retries(settings.max_attempts), task.request.retries
+    guard = _memory_guard(settings)
+
+    def over_memory(resident: int) -> None:  # the guard's thread, just before it ends this process
+        fail_planning(db, job_id, f"{CellLimitError.__name__}: {memory_limit_message(resident, guard.limit_mb, PLANNING)}", blobs=blobs)
+
     try:
-        state, cell_ids = run_planning(db, blobs, job_id, phase, task.request.hostname, settings.max_attempts)
+        with guard.armed(over_memory):
+            state, cell_ids = run_planning(db, blobs, job_id, phase, task.request.hostname, settings.max_attempts)
     except SoftTimeLimitExceeded:
         fail_planning(db, job_id, f"{CellLimitError.__name__}: {time_limit_message(settings.cell_time_limit)}", blobs=blobs)
         return "failed"

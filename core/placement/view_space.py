@@ -52,6 +52,11 @@ from farfield.core.placement.hierarchy import Elements, Hierarchy, PlacementErro
 
 FACE_NAMES = tuple(FACES)
 MAX_REGIONS = 1e6  # smallest regions a view space may be cut into (a guard against a mistyped CPV size)
+# Deepest VDI quadtree level: 6 x 4^6 = 24,576 intervals of 1.40625° per region at most.  Without it a
+# mistyped angle (1e-9°: level 37) makes the subdivision of one region outgrow any memory; a frame of
+# 45° at 128 px is 0.35° a pixel, and the thesis works at 11.25° and coarser.
+MAX_VDI_LEVEL = 6
+MIN_VDI_DEG = 90.0 / 2**MAX_VDI_LEVEL
 Visibility = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 
 
@@ -78,11 +83,11 @@ def level_for_angle(min_angle_deg: float) -> int:
     """Quadtree level whose VDIs span about ``min_angle_deg`` at most (a face spans 90°; the
     gnomonic cells are up to ~25 % wider near a face's centre, the distortion §5.5.2 accepts).
 
-    >>> level_for_angle(11.25), level_for_angle(90), level_for_angle(10)
-    (3, 0, 4)
+    >>> level_for_angle(11.25), level_for_angle(90), level_for_angle(10), level_for_angle(MIN_VDI_DEG)
+    (3, 0, 4, 6)
     """
-    if not (math.isfinite(min_angle_deg) and 0.0 < min_angle_deg <= 90.0):
-        raise PlacementError(f"the minimum view-direction interval must lie in (0, 90] degrees, got {min_angle_deg!r}")
+    if not (math.isfinite(min_angle_deg) and MIN_VDI_DEG <= min_angle_deg <= 90.0):
+        raise PlacementError(f"the minimum view-direction interval must lie in [{MIN_VDI_DEG:g}, 90] degrees, got {min_angle_deg!r}")
     return max(0, math.ceil(math.log2(90.0 / min_angle_deg) - 1e-9))
 
 
