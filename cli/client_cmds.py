@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
 import time
 import zipfile
@@ -57,6 +58,9 @@ class Client:
     def request(self, method: str, path: str, **kwargs):
         import httpx
 
+        where = non_finite(kwargs.get("json"))
+        if where is not None:  # JSON has no NaN or infinity: say which value, before httpx fails to encode it
+            raise ServiceError(f"{where[0] or 'the request'} is {where[1]!r}: the service takes finite numbers only")
         try:
             response = self.http.request(method, path, **kwargs)
         except httpx.TransportError as error:
@@ -85,6 +89,24 @@ class Client:
             response = self.request("GET", response.links["next"]["url"])
             entries += response.json()
         return entries, int(response.headers.get("X-Total-Count", len(entries)))
+
+
+def non_finite(value, where: str = "") -> tuple[str, float] | None:
+    """The first number in a JSON-like ``value`` that is NaN or infinite: (its path, it), or None.
+
+    >>> non_finite({"placement": {"budget": {"frame_ms": float("nan")}}})
+    ('placement.budget.frame_ms', nan)
+    >>> non_finite({"grid": {"lo": [0.0, float("inf"), 0.0]}}), non_finite({"a": [1, 2.5, "x"]})
+    (('grid.lo[1]', inf), None)
+    """
+    if isinstance(value, float):
+        return None if math.isfinite(value) else (where, value)
+    items = value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, (list, tuple)) else ()
+    for key, item in items:
+        found = non_finite(item, f"{where}[{key}]" if isinstance(key, int) else f"{where}.{key}" if where else str(key))
+        if found is not None:
+            return found
+    return None
 
 
 def _more(shown: int, offset: int, total: int, what: str) -> None:
@@ -283,10 +305,6 @@ def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov
         raise ServiceError("--algorithm, --p-opt, --octree-depth, --grid-points, --max-level and --check-views go with --placement")
     elif (grid is None) == (not viewcells):
         raise ServiceError("give --grid, one or more --viewcell, or --placement")
-    if Path(scene).is_file():
-        scene_id = upload_scene(client, Path(scene))
-    else:
-        scene_id = scene
     parsed = {}
     for item in options:
         name, sep, value = item.partition("=")
@@ -298,7 +316,7 @@ def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov
         except ValueError:
             parsed[name] = value
     spec = {
-        "scene_id": scene_id, "technique": technique or job_type, "resolution": resolution, "fov_deg": fov, "options": parsed,
+        "technique": technique or job_type, "resolution": resolution, "fov_deg": fov, "options": parsed,
         "objects": [n.strip() for n in objects.split(",") if n.strip()] if objects else None,
     }  # fmt: skip
     spec = {k: v for k, v in spec.items() if v is not None}
@@ -310,6 +328,10 @@ def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov
         spec["grid"] = parse_grid(grid)
     else:
         spec["viewcells"] = [parse_viewcell(v).to_dict() for v in viewcells]
+    where = non_finite(spec)
+    if where is not None:  # before the upload: a request that cannot be sent leaves nothing behind
+        raise ServiceError(f"{where[0]} is {where[1]!r}: the service takes finite numbers only")
+    spec["scene_id"] = upload_scene(client, Path(scene)) if Path(scene).is_file() else scene
     job = client.request("POST", "/v1/jobs", json=spec).json()
     if not as_json:
         click.echo(f"job {job['id']}: {job['cells_total']} cells, {job['state']}")

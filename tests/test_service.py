@@ -273,6 +273,12 @@ def test_cli_submit_waits_and_downloads(service, tmp_path):
     assert job["id"] in [j["id"] for j in json.loads(listed.stdout)]
     bad = service.cli("submit", job["scene_id"], "--grid", grid, "--resolution", "0", *env_args)
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "resolution" in bad.stderr
+    scenes = service.cli("scenes", "--json", *env_args).stdout
+    for args, named in ((("--grid", "nan," + grid.split(",", 1)[1]), "grid.lo[0] is nan"), (("--grid", grid, "--fov", "inf"), "fov_deg is inf"),
+                        (("--placement", "--view-space", "0,0,0,1,1,1", "--frame-ms", "nan"), "placement.budget.frame_ms is nan")):  # fmt: skip
+        refused = service.cli("submit", str(BUNNY), *args, *env_args)  # JSON carries no NaN: one line, and no upload
+        assert refused.returncode == 2 and refused.stderr.strip().splitlines() == [f"farfield: error: {named}: the service takes finite numbers only"], refused.stderr
+    assert service.cli("scenes", "--json", *env_args).stdout == scenes
     nobody = service.cli("jobs", "--url", service.url, "--key", "ff_wrong_key")
     assert nobody.returncode == 6 and "unknown API key" in nobody.stderr
 
