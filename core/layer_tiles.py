@@ -18,11 +18,32 @@ from farfield.core.quads import grow_quads
 QUAD_GEOMETRY_BYTES = 4 * 5 * 4 + 6 * 4
 
 
-def layer_tiles(image: np.ndarray, kept: np.ndarray, grid_cell: int, fill_threshold: float) -> tuple[np.ndarray, list[np.ndarray]]:
+def split_rects(rects: np.ndarray, largest: int) -> np.ndarray:
+    """``rects`` (q, 4) ``[x0, y0, x1, y1)``, each one wider or taller than ``largest`` cut into a
+    grid of pieces of at most ``largest`` a side (row by row, in place of it); the others as they are.
+
+    >>> split_rects(np.array([[0, 0, 5, 2], [10, 10, 12, 12]]), 2).tolist()
+    [[0, 0, 2, 2], [2, 0, 4, 2], [4, 0, 5, 2], [10, 10, 12, 12]]
+    """
+    rects = np.asarray(rects, dtype=np.int64).reshape(-1, 4)
+    if not rects.size or (np.max(rects[:, 2:] - rects[:, :2]) <= largest):
+        return rects
+    pieces = []
+    for x0, y0, x1, y1 in rects.tolist():
+        for ya in range(y0, y1, largest):
+            for xa in range(x0, x1, largest):
+                pieces.append((xa, ya, min(xa + largest, x1), min(ya + largest, y1)))
+    return np.array(pieces, dtype=np.int64)
+
+
+def layer_tiles(image: np.ndarray, kept: np.ndarray, grid_cell: int, fill_threshold: float, max_page: int = MAX_PAGE,
+                padding: int = 0) -> tuple[np.ndarray, list[np.ndarray]]:  # fmt: skip
     """Box-grown rectangles (q, 4) of a layer's kept texels (§3.5) and their tiles: each its own
     array (not a view that would keep the layer alive), transparent texels coloured from the
-    nearest opaque one so that bilinear filtering and mipmaps never pull black into the edges."""
-    rects = grow_quads(kept, grid_cell, fill_threshold)
+    nearest opaque one so that bilinear filtering and mipmaps never pull black into the edges.
+    A rectangle that would not fit a page of ``max_page`` with its ``padding`` is cut into pieces
+    that do (:func:`split_rects`), each its own quad."""
+    rects = split_rects(grow_quads(kept, grid_cell, fill_threshold), max_page - 2 * padding)
     texels = image.copy()
     texels[..., 3] = np.where(kept, texels[..., 3], 0)
     return rects, [fill_nearest_rgb(texels[y0:y1, x0:x1]) for x0, y0, x1, y1 in rects]
@@ -44,16 +65,24 @@ def layer_records(plan, layer_ids, texels) -> list[dict]:
     ]
 
 
-def check_power_of_two_pages(max_page: int) -> None:
-    """Refuse a largest page side the power-of-two packer (:func:`farfield.core.atlas.pack`) cannot use.
+def check_pages(max_page: int, padding: int) -> None:
+    """Refuse a largest page side the power-of-two packer (:func:`farfield.core.atlas.pack`) cannot
+    use, or one that its padding leaves no texel of.
 
-    >>> check_power_of_two_pages(3000)
+    >>> check_pages(3000, 2)
     Traceback (most recent call last):
     ...
     farfield.core.errors.LayerPlanError: max_page must be a power of two for these atlas pages, got 3000
+    >>> check_pages(64, 32)
+    Traceback (most recent call last):
+    ...
+    farfield.core.errors.LayerPlanError: padding 32 on both sides of a tile leaves no texel of a page of 64 (max_page); give padding < 32 or a larger max_page
     """
     if max_page < 1 or max_page & (max_page - 1):
         raise LayerPlanError(f"max_page must be a power of two for these atlas pages, got {max_page}")
+    if 2 * padding >= max_page:
+        raise LayerPlanError(f"padding {padding} on both sides of a tile leaves no texel of a page of {max_page} (max_page); "
+                             f"give padding < {max_page // 2} or a larger max_page")  # fmt: skip
 
 
 def pack_tiles(tiles: list[np.ndarray], padding: int, max_page: int = MAX_PAGE) -> tuple[tuple[np.ndarray, ...], np.ndarray, np.ndarray, int]:

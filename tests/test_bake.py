@@ -170,3 +170,20 @@ def test_memory_grows_with_kept_texels_not_layers_times_image(ctx):
     all_layers = impostor.stats["layers_planned"] * res_x * res_y * 4
     assert impostor.stats["layers_planned"] >= 40
     assert peak < 0.25 * all_layers, (peak, all_layers)
+
+
+def test_small_pages_cut_the_quads_that_would_not_fit_and_draw_the_same(ctx):
+    """max_page 64 (the option's least) with padding 2: box-grown quads up to a layer wide used to
+    end the bake with AtlasOverflowError; they are cut into pieces of at most 60 texels a side,
+    every page is at most 64, and the impostor draws what the default one draws."""
+    scene = city_block()
+    diameter = float(np.max(scene.bounds[1] - scene.bounds[0]))
+    cell = cell_in_front(scene, 1.0, 0.1 * diameter, lift=3.0)
+    default = bake_layered(scene, cell, BakeOptions(resolution=128))
+    small = bake_layered(scene, cell, BakeOptions(resolution=128, max_page=64))
+    assert max(max(p.shape[:2]) for p in default.pages) > 64  # the default needed a larger page
+    assert max(max(p.shape[:2]) for p in small.pages) <= 64 and small.quad_count > default.quad_count
+    assert small.stats["texels_kept"] == default.stats["texels_kept"]
+    a, b = (evaluate(scene, impostor, cell, random_count=4).totals for impostor in (default, small))
+    assert a["hole_pixels"] == b["hole_pixels"] == 0 and a["bloat_beyond_1px"] == b["bloat_beyond_1px"] == 0
+    assert abs(a["colour_error_mean"] - b["colour_error_mean"]) < 0.05, (a, b)

@@ -42,7 +42,7 @@ from farfield.core.errors import LayerPlanError, ViewCellError
 from farfield.core.gap_fill import fill_gaps
 from farfield.core.glb import page_png
 from farfield.core.impostor import Impostor, QuadPayload, texel_rect_corners
-from farfield.core.layer_tiles import QUAD_GEOMETRY_BYTES, check_power_of_two_pages, layer_tiles, pack_tiles
+from farfield.core.layer_tiles import QUAD_GEOMETRY_BYTES, check_pages, layer_tiles, pack_tiles
 from farfield.core.near_field import near_field
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION, pixel_angle
@@ -92,7 +92,7 @@ class EnvmapOptions:
 
     def __post_init__(self) -> None:
         check_options(self)
-        check_power_of_two_pages(self.max_page)
+        check_pages(self.max_page, self.padding)
         if self.layers is None and self.near_field is None:
             object.__setattr__(self, "layers", DEFAULT_LAYERS)
         if self.layers is not None and self.near_field is not None:
@@ -209,7 +209,7 @@ def bake_envmap(scene: Scene, cell: BoxCell, options: EnvmapOptions = EnvmapOpti
             if not layer.kept.any():
                 continue
             with clock("quads"):
-                rects, face_tiles = layer_tiles(layer.image, layer.kept, options.grid_cell, options.fill_threshold)
+                rects, face_tiles = layer_tiles(layer.image, layer.kept, options.grid_cell, options.fill_threshold, options.max_page, options.padding)
                 tiles += face_tiles
                 layer_id = face_index * plan.count + i
                 quad_layer.append(np.full(len(rects), layer_id, dtype=np.int64))

@@ -19,7 +19,7 @@ from farfield.core.culled_layers import culled_layers
 from farfield.core.culling import CullingMode
 from farfield.core.errors import LayerPlanError
 from farfield.core.impostor import Impostor, QuadPayload, texel_rect_corners
-from farfield.core.layer_tiles import QUAD_GEOMETRY_BYTES, check_power_of_two_pages, layer_records, layer_tiles, pack_tiles
+from farfield.core.layer_tiles import QUAD_GEOMETRY_BYTES, check_pages, layer_records, layer_tiles, pack_tiles
 from farfield.core.layers import plan_layers
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION, PixelModel
@@ -54,7 +54,7 @@ class BakeOptions:
 
     def __post_init__(self) -> None:
         check_options(self)
-        check_power_of_two_pages(self.max_page)
+        check_pages(self.max_page, self.padding)
 
 
 def bake_layered(
@@ -87,7 +87,7 @@ def bake_layered(
         if not layer.kept.any():  # layers with no visible content are dropped
             continue
         with clock("quads"):
-            rects, new_tiles = layer_tiles(layer.image, layer.kept, options.grid_cell, options.fill_threshold)
+            rects, new_tiles = layer_tiles(layer.image, layer.kept, options.grid_cell, options.fill_threshold, options.max_page, options.padding)
             tiles += new_tiles
             quad_layer.append(np.full(len(rects), i, dtype=np.int64))
             quad_corners.append(texel_rect_corners(plan, float(plan.distances[i]), rects))
