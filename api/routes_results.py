@@ -4,6 +4,7 @@ a placement job's CPVs and what to draw in a view (:mod:`core.placement.database
 from __future__ import annotations
 
 import json
+import math
 import tempfile
 import threading
 import zipfile
@@ -96,11 +97,18 @@ def cell_info(job_id: str, index: int = CellIndex, tenant_id: str = Depends(tena
     return cell_record(get_cell_row(svc.db, tenant_id, job_id, index))
 
 
+def _not_written(job: JobRow, what: str) -> ConflictError:
+    """The 409 for a job with no database index: one that has not ended yet, or one that ended without it."""
+    if job.state in ("cancelled", "failed"):
+        return ConflictError(f"job {job.id!r} is {job.state}; it ended without an {what}")
+    return ConflictError(f"job {job.id!r} is {job.state}; its {what} is written when it ends")
+
+
 @router.get("/index.json", summary="The job's impostor database index (format farfield-impostor-database): its cells, their view cells, bundles and neighbours; a placement job's CPVs")
 def job_index(job_id: str, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> Response:
     job = get_job_row(svc.db, tenant_id, job_id)
     if job.index_key is None:
-        raise ConflictError(f"job {job_id!r} is {job.state}; its impostor database index is written when it ends")
+        raise _not_written(job, "impostor database index")
     return Response(svc.blobs.read_bytes(job.index_key), media_type="application/json")
 
 
@@ -108,7 +116,7 @@ def job_index(job_id: str, tenant_id: str = Depends(tenant), svc: Services = Dep
 def job_database(job_id: str, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> FileResponse:
     job = get_job_row(svc.db, tenant_id, job_id)
     if job.index_key is None:
-        raise ConflictError(f"job {job_id!r} is {job.state}; its impostor database is written when it ends")
+        raise _not_written(job, "impostor database")
     out = tempfile.NamedTemporaryFile(prefix="farfield-db-", suffix=".zip", delete=False)
     try:
         with out, zipfile.ZipFile(out, "w", zipfile.ZIP_STORED) as archive:  # PNG and GLB are compressed already
@@ -232,6 +240,10 @@ def lookup_viewpoint(
     ``time_estimated``) plus ``cells``: the record of each impostor to draw; everything not in
     ``replaced`` is drawn as geometry."""
     job = get_job_row(svc.db, tenant_id, job_id)
+    given = (("x", x), ("y", y), ("z", z), ("dx", dx), ("dy", dy), ("dz", dz))
+    not_finite = [f"{name}={value!r}" for name, value in given if value is not None and not math.isfinite(value)]
+    if not_finite:
+        raise ViewCellError(f"the lookup's coordinates must be finite numbers, got {', '.join(not_finite)}")
     if job.job_type != PLACEMENT:
         return [cell_record(cell) for cell in lookup(job_cells(svc.db, job_id), (x, y, z))]
     missing = [name for name, value in (("dx", dx), ("dy", dy), ("dz", dz)) if value is None]

@@ -113,6 +113,8 @@ class JobSpec(BaseModel):
             raise ValueError("give exactly one of 'viewcells' (a list), 'grid' or 'placement'")
         if self.placement is not None and self.objects is not None:
             raise ValueError("a placement job chooses the objects its impostors replace: leave out 'objects'")
+        if self.objects is not None and not self.objects:  # stored as [], it would read as "no object replaced" to a runtime
+            raise ValueError("'objects' is empty: name at least one object, or leave it out for every object")
         former = self.__dict__.get("job_type")
         if self.technique is not None and former is not None:
             raise ValueError(f"'technique' ({self.technique}) and its former name 'job_type' ({former}) are both given; give one")

@@ -76,6 +76,9 @@ def test_grid_job_pages_equal_what_core_bakes(client, bunny_id, tmp_path):
     centre = np.mean([viewcell_from_dict(job["cells"][0]["viewcell"]).center], axis=0)
     served = client.get(f"/v1/jobs/{job['id']}/lookup", params=dict(zip("xyz", centre.tolist()))).json()
     assert [c["index"] for c in served] == [0]
+    for x in ("nan", "inf", "1e309"):  # no cell holds such a point: a 422, not an empty answer
+        refused = client.get(f"/v1/jobs/{job['id']}/lookup", params={"x": x, "y": centre[1], "z": centre[2]})
+        assert refused.status_code == 422 and "must be finite numbers, got x=" in refused.json()["detail"], refused.text
 
 
 @pytest.mark.parametrize(
@@ -110,6 +113,8 @@ def test_bad_uploads_leave_nothing_behind(service, client, name, content, status
         ({"grid": {"lo": [0, 0, 0], "hi": [1, 1, 1], "counts": [2**32, 2**32, 1]}}, 422, "over the limit"),
         ({"options": {"grid_cell": "abc"}}, 422, "grid_cell must be an integer"),
         ({"options": {"grid_cell": 8.0, "padding": 1e18}}, 422, "padding must be an integer in [0, 64]"),
+        ({"options": {"padding": 64, "max_page": 64}}, 422, "padding 64 on both sides of a tile leaves no texel of a page of 64"),
+        ({"objects": []}, 422, "'objects' is empty"),
     ],
 )
 def test_bad_job_parameters_are_refused(client, bunny_id, change, status, message):
@@ -169,6 +174,9 @@ def test_cancel_stops_the_job(client, bunny_id):
     time.sleep(2)
     assert client.get(f"/v1/jobs/{job_id}").json()["counts"]["done"] == done  # no cell started after the cancel
     assert client.post(f"/v1/jobs/{job_id}/cancel").status_code == 409
+    for path, what in (("index.json", "impostor database index"), ("database.zip", "impostor database")):  # never written: not "when it ends"
+        missing = client.get(f"/v1/jobs/{job_id}/{path}")
+        assert missing.status_code == 409 and missing.json()["detail"] == f"job {job_id!r} is cancelled; it ended without an {what}", missing.text
 
 
 def test_worker_killed_mid_cell_loses_nothing(service, client, bunny_id):
