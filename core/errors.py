@@ -66,6 +66,10 @@ class ViewCellError(FarfieldError):
     """A view cell that is malformed or that does not fit the represented part."""
 
 
+class QueryError(FarfieldError):
+    """A listing's or a query's parameter that names nothing the service has (an unknown job state, ...)."""
+
+
 class LayerPlanError(FarfieldError):
     """Layer mathematics asked for a configuration that has no valid answer."""
 

@@ -108,13 +108,13 @@ def texture_resolution(width: float, distance: float, angle: float) -> int:
     exact = width / (distance * angle)
     # Shrink by a relative epsilon before rounding up so that exact integers stay themselves
     # under uniform scaling of width and distance (whose quotient may be off by one ulp).
-    res = max(1, math.ceil(exact * (1.0 - TOL.rel_round)))
-    if res > TOL.max_texture_resolution:
+    shrunk = exact * (1.0 - TOL.rel_round)
+    if not shrunk <= TOL.max_texture_resolution:  # before ceil: an overflowing quotient has no integer
         raise LayerPlanError(
-            f"impostor texture would need {res} texels per side (> {TOL.max_texture_resolution}): "
+            f"impostor texture would need {shrunk:.4g} texels per side (> {TOL.max_texture_resolution}): "
             f"the part ({width:.6g} wide) is too close ({distance:.6g}) for a {angle:.3g} rad pixel"
         )
-    return res
+    return max(1, math.ceil(shrunk))
 
 
 def star_shape_distance(spacing: float, fov: float) -> float:

@@ -75,7 +75,12 @@ class BoxCell:
         hi = _vec3(self.hi, "box view cell hi")
         size = hi - lo
         scale = max(float(np.max(np.abs(np.concatenate([lo, hi])))), 1.0)
-        if np.any(size <= max(TOL.min_extent, scale * 1e-15)):
+        least = max(TOL.min_extent, scale * 1e-15)
+        if np.any(size <= least):
+            if np.all(size > 0):  # lo < hi holds: the box is too thin for float64 at coordinates this large
+                axes = ", ".join(f"{a} {float(d):.3g}" for a, d in zip("xyz", size) if d <= least)
+                raise ViewCellError(f"box view cell is too thin for coordinates up to {scale:.3g}: its size on {axes} must exceed {least:.3g} "
+                                    f"(float64 resolves 1e-15 of the largest coordinate), got lo={lo.tolist()}, hi={hi.tolist()}")  # fmt: skip
             raise ViewCellError(
                 f"box view cell needs lo < hi on every axis with a positive size, got lo={lo.tolist()}, hi={hi.tolist()}"
             )
@@ -362,6 +367,10 @@ def grid_boxes(lo, hi, counts) -> list[tuple[tuple[int, int, int], BoxCell]]:
         raise ViewCellError(f"grid counts must be three integers >= 1, got {np.asarray(counts).tolist()}")
     if not (hi > lo).all():
         raise ViewCellError(f"grid box needs lo < hi on every axis, got lo={lo.tolist()}, hi={hi.tolist()}")
+    with np.errstate(over="ignore"):
+        overflow = not np.isfinite(hi - lo).all()
+    if overflow:
+        raise ViewCellError(f"grid box's size hi - lo is not finite in float64, got lo={lo.tolist()}, hi={hi.tolist()}")
     step = (hi - lo) / counts
     cells = []
     for k in range(counts[2]):

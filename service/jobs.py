@@ -34,7 +34,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictFloat, Stri
 from sqlalchemy import func, select, update
 
 from farfield.core import __version__
-from farfield.core.errors import ConflictError, JobTooCostlyError, LayerPlanError, NotFoundError, QuotaError, ViewCellError
+from farfield.core.errors import ConflictError, JobTooCostlyError, LayerPlanError, NotFoundError, QueryError, QuotaError, ViewCellError
 from farfield.core.impostor_database import database_index
 from farfield.core.options import options_json_schema, stored_values
 from farfield.core.techniques import DEFAULT_TECHNIQUE, TECHNIQUES, get_technique
@@ -390,7 +390,7 @@ def full_job_record(db: Database, job: JobRow) -> dict:
 
 def _jobs_query(query, tenant_id: str, state: str | None, scene_id: str | None):
     if state is not None and state not in JOB_STATES:
-        raise LayerPlanError(f"unknown job state {state!r}; one of {list(JOB_STATES)}")
+        raise QueryError(f"unknown job state {state!r}; one of {list(JOB_STATES)}")
     query = query.where(JobRow.tenant_id == tenant_id)
     if state:
         query = query.where(JobRow.state == state)

@@ -68,10 +68,11 @@ def test_warnings_are_reported_in_the_output_not_on_stderr(tmp_path):
         ("absent.glb", None, 3, "absent.glb: no such file"),
         ("model.fbx", b"x", 2, "unsupported scene format '.fbx'"),
         pytest.param("broken.glb", b"glTF" + bytes(40), 2, "broken.glb: GLB's first chunk", marks=pytest.mark.invalid_glb),
+        pytest.param("random.glb", b"MQYs" + bytes(96), 2, "random.glb: not a GLB: a GLB starts with the bytes 'glTF', this file with b'MQYs'", marks=pytest.mark.invalid_glb),
         ("broken.ply", b"ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2\n", 2, "broken.ply: could not parse PLY"),
         ("nan.obj", scenes.bad_obj("nan").encode(), 2, "non-finite"),
     ],
-    ids=["missing", "unsupported", "corrupt-glb", "corrupt-ply", "nan"],
+    ids=["missing", "unsupported", "corrupt-glb", "not-a-glb", "corrupt-ply", "nan"],
 )
 def test_errors_are_one_line_on_stderr_with_the_error_kind_exit_code(tmp_path, name, content, exit_code, message):
     path = tmp_path / name

@@ -130,7 +130,8 @@ def test_bad_job_parameters_are_refused(client, bunny_id, change, status, messag
 def test_unknown_ids_are_404(client):
     for path in ("/v1/scenes/nope", "/v1/jobs/nope", "/v1/jobs/nope/cells/0/bundle.zip", "/v1/jobs/nope/database.zip"):
         assert client.get(path).status_code == 404, path
-    assert client.get("/v1/jobs", params={"state": "bogus"}).status_code == 422
+    bogus = client.get("/v1/jobs", params={"state": "bogus"})
+    assert bogus.status_code == 422 and bogus.json()["error"] == "QueryError" and "unknown job state 'bogus'" in bogus.json()["detail"]
     assert client.get("/v1/jobs", params={"limit": 0}).status_code == 422
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from farfield.core.errors import ViewCellError
-from farfield.core.viewcells import BoxCell, ShaftCell, parse_viewcell, sample_viewpoints
+from farfield.core.viewcells import BoxCell, ShaftCell, grid_boxes, parse_viewcell, sample_viewpoints
 
 
 def test_box_corners_centre_and_containment():
@@ -112,3 +112,14 @@ def test_parse_viewcell():
     for bad in ("box:1,2", "cube:0,0,0,1", "box:a,b,c,d,e,f", ""):
         with pytest.raises(ViewCellError):
             parse_viewcell(bad)
+
+
+def test_refusals_name_what_is_wrong_at_extreme_coordinates():
+    """Finite corners whose difference overflows, and a box thin for its coordinates' magnitude: the
+    message says so, instead of 'not finite, got [nan ...]' or 'needs lo < hi' where lo < hi holds."""
+    with pytest.raises(ViewCellError, match=r"grid box's size hi - lo is not finite in float64"):
+        grid_boxes([-1e308, 0, 0], [1e308, 1, 1], [2, 1, 1])
+    with pytest.raises(ViewCellError, match=r"too thin for coordinates up to 1e\+15: its size on y 0.5, z 0.5 must exceed 1"):
+        BoxCell(np.array([1e15, 0, 0]), np.array([1.0000001e15, 0.5, 0.5]))
+    with pytest.raises(ViewCellError, match="needs lo < hi on every axis"):
+        BoxCell(np.array([0.0, 0, 0]), np.array([1.0, 0, 1]))

@@ -97,6 +97,8 @@ def load(
         Its node hierarchy, primitives or instanced triangles are beyond ``limits``
         (:mod:`core.exchange.limits`), found from the JSON before the buffers are parsed.
     """
+    if extension == "glb" and data[:4] != _GLB_MAGIC:
+        raise SceneLoadError(f"not a GLB: a GLB starts with the bytes 'glTF', this file with {data[:4]!r}")
     document = header_json(data)
     check_gltf(document, limits)
     warnings = [
