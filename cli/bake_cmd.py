@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 from tqdm import tqdm
 
-from farfield.core.bundle import write_bundle
+from farfield.core.bundle import check_destination, write_bundle
 from farfield.core.culling import CULLING_MODES
 from farfield.core.errors import LayerPlanError
 from farfield.core.exchange import load_scene
@@ -56,7 +56,7 @@ def _shortcuts(technique, layers, near_field, directions, gap_fill, enlargement,
 @click.command("bake")
 @click.argument("scene", type=click.Path(dir_okay=False))
 @click.option("--viewcell", required=True, help="box:x0,y0,z0,x1,y1,z1 | box-center:cx,cy,cz,size | shaft:...")
-@click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Bundle directory to write (replaced whole).")
+@click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Bundle directory to write: a new or empty folder, or an earlier bundle (replaced whole); any other folder is refused.")
 @click.option("--objects", default=None, help="Comma-separated object names forming the part (default: all).")
 @click.option("--technique", type=click.Choice(list(TECHNIQUES)), default=DEFAULT_TECHNIQUE, show_default=True,
               help="; ".join(f"{t.name}: {t.help}" for t in TECHNIQUES.values()) + " (`farfield techniques` lists their options).")
@@ -90,6 +90,7 @@ def bake(scene, viewcell, out, objects, technique, options, resolution, fov, lay
             raise LayerPlanError(f"--option {item!r}: expected NAME=VALUE")
         values[name.strip()] = parse_option_text(chosen.Options, name.strip(), text)
     settings = chosen.options(values, resolution, fov)
+    check_destination(out)  # before the bake: a folder that is not a bundle is refused, not replaced
     cell = parse_viewcell(viewcell)
     names = [n.strip() for n in objects.split(",") if n.strip()] if objects else None
     if chosen.scope == "scene" and names:

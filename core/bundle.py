@@ -92,7 +92,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from farfield.core.errors import BundleFormatError
+from farfield.core.errors import BundleFormatError, ConflictError
 from farfield.core.glb import impostor_glb, page_png
 from farfield.core.impostor import PAYLOAD_KINDS, Impostor, MeshPayload, QuadPayload, check_impostor
 
@@ -295,6 +295,35 @@ def _swap_into_place(staging: Path, destination: Path) -> None:
     raise BundleFormatError(f"{destination}: could not replace it in {_REPLACE_ATTEMPTS} attempts")
 
 
+def check_destination(directory: str | os.PathLike) -> None:
+    """Refuse a folder that :func:`write_bundle` would replace but that is not a bundle: a user's
+    ``--out`` pointing at a folder of other files (the scene itself, say) would lose them all.
+
+    Accepted: a path that does not exist yet, an empty folder, or a bundle (a ``manifest.json`` of
+    this format) to replace.  Refused (:class:`ConflictError`): a file, the current folder or one
+    above it, and any other folder with something in it.
+    """
+    path = Path(directory)
+    where = path.resolve()
+    if where == Path.cwd().resolve() or where in Path.cwd().resolve().parents:
+        raise ConflictError(f"{directory}: the current folder or one above it would be replaced by the bundle; give a folder of its own")
+    if not path.exists():
+        return
+    if not path.is_dir():
+        raise ConflictError(f"{directory}: is a file, not a bundle folder; give a new or empty folder")
+    entries = sorted(p.name for p in path.iterdir())
+    if not entries:
+        return
+    try:
+        bundle = json.loads((path / MANIFEST_NAME).read_bytes()).get("format") == FORMAT
+    except (OSError, ValueError, AttributeError):
+        bundle = False
+    if not bundle:
+        shown = ", ".join(entries[:3]) + (f", ... ({len(entries)} entries)" if len(entries) > 3 else "")
+        raise ConflictError(f"{directory}: exists and is not a bundle (it holds {shown}); the bundle would replace it whole: "
+                            "give a new or empty folder, or an earlier bundle's")  # fmt: skip
+
+
 def write_bundle(impostor: Impostor, directory: str | os.PathLike) -> BundlePaths:
     """Write ``impostor`` as a bundle directory, replacing any file or directory already there.
 
@@ -325,8 +354,11 @@ def write_bundle(impostor: Impostor, directory: str | os.PathLike) -> BundlePath
         files[page_file_name(index)] = page_png(page)
     files[GLB_NAME] = impostor_glb(impostor)
 
-    destination.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{destination.name}.tmp-", dir=destination.parent))
+    try:
+        destination.parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=f".{destination.name}.tmp-", dir=destination.parent))
+    except OSError as error:
+        raise BundleFormatError(f"{destination}: cannot write a bundle there: {error.strerror or error}") from error
     try:
         for name, data in files.items():
             _write_file(staging / name, data)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -100,3 +101,28 @@ def test_bad_configurations_print_one_line_and_exit_non_zero(args, needle):
     assert "Traceback" not in out.stderr
     lines = out.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0]
+
+
+def test_bake_refuses_an_out_folder_that_is_not_a_bundle_and_replaces_one_that_is(tmp_path):
+    """``bake --out`` replaces its folder whole: pointed at the scene's own folder it deleted the
+    scene, and ``--out .`` crashed.  A folder of other files, the current folder and an unwritable
+    path are one-line errors, before the bake; an earlier bundle is replaced."""
+    folder = tmp_path / "duck"
+    shutil.copytree(SHARED_SCENES / "duck", folder)
+    before = sorted(p.name for p in folder.iterdir())
+    scene = str(folder / "duck.obj")
+    cell = ("--viewcell", "box-center:-8,0.9,0,1", "--resolution", "32", "--quiet")
+    refused = farfield("bake", scene, *cell, "--out", str(folder))
+    assert refused.returncode == 4 and refused.stderr.strip().splitlines() == [
+        f"farfield: error: {folder}: exists and is not a bundle (it holds duck.mtl, duck.obj, duckCM.png); "
+        "the bundle would replace it whole: give a new or empty folder, or an earlier bundle's"
+    ], refused.stderr
+    assert sorted(p.name for p in folder.iterdir()) == before
+    here = subprocess.run([sys.executable, "-m", "farfield.cli.main", "bake", scene, *cell, "--out", "."], cwd=folder, capture_output=True, text=True, timeout=120)
+    assert here.returncode == 4 and "the current folder or one above it" in here.stderr and sorted(p.name for p in folder.iterdir()) == before
+    unwritable = farfield("bake", scene, *cell, "--out", "/proc/farfield-nope")
+    assert unwritable.returncode == 2 and unwritable.stderr.strip() == "farfield: error: /proc/farfield-nope: cannot write a bundle there: No such file or directory"
+    for _ in range(2):  # new, then an earlier bundle replaced
+        made = farfield("bake", scene, *cell, "--out", str(tmp_path / "bundle"))
+        assert made.returncode == 0, made.stderr
+    assert (tmp_path / "bundle" / "manifest.json").is_file()
