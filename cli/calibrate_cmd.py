@@ -70,7 +70,7 @@ def report_lines(result: Calibration, written: str | None) -> list[str]:
 @click.option("--impostors", default=_DEFAULTS.impostors, show_default=True, type=int, help="Layered impostors baked for random shaft cells and drawn from inside them.")
 @click.option("--resolution", default=_DEFAULTS.resolution, show_default=True, type=int, help="Output image pixels per side (drawing and baking).")
 @click.option("--fov", default=_DEFAULTS.fov_deg, show_default=True, type=float, help="Output field of view, degrees.")
-@click.option("--seed", default=_DEFAULTS.seed, show_default=True, type=int, help="Seed of the clusters, viewpoints and cells.")
+@click.option("--seed", default=_DEFAULTS.seed, show_default=True, type=click.IntRange(min=0), help="Seed of the clusters, viewpoints and cells.")
 @click.option("--out", default=None, type=click.Path(dir_okay=False), help="Write the model (JSON, for --cost-model) here.")
 @click.option("--json", "as_json", is_flag=True, help="The model, where it was written and every sample, as JSON.")
 def calibrate_cmd(scenes, samples, impostors, resolution, fov, seed, out, as_json):

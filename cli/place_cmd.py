@@ -33,7 +33,8 @@ def _numbers(text: str, count: int, what: str) -> list[float]:
 def _model(frame_ms, cost_model, primitives) -> tuple[CostModel, float, str | None]:
     """The cost model and t_max of the options, and a note when the builtin model is used."""
     if (frame_ms is None) == (primitives is None):
-        raise PlacementError("give a budget: --frame-ms T (with --cost-model FILE, or the builtin llvmpipe model) or --primitives N")
+        which = "neither was given" if frame_ms is None else "not both"
+        raise PlacementError(f"give a budget: --frame-ms T (with --cost-model FILE, or the builtin llvmpipe model) or --primitives N; {which}")
     if primitives is not None:
         if cost_model:
             raise PlacementError("--primitives counts triangles; --cost-model applies to --frame-ms only")

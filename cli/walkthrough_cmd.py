@@ -17,6 +17,7 @@ import click
 import numpy as np
 from tqdm import tqdm
 
+from farfield.core.errors import FarfieldError
 from farfield.core.exchange import load_scene
 from farfield.core.impostor_database import ImpostorDatabase
 from farfield.core.placement.image_database import ImageDatabase, image_database_folder, image_walkthrough
@@ -28,11 +29,11 @@ from farfield.core.walkthrough import generate_path, load_path, random_views, wa
 @click.argument("scene", type=click.Path(dir_okay=False, exists=True))
 @click.option("--path", "path_file", default=None, type=click.Path(dir_okay=False, exists=True),
               help="Recorded camera path: JSON list of {position, forward}. Default: a generated loop.")
-@click.option("--frames", default=120, show_default=True, type=int, help="Frames of the generated loop.")
+@click.option("--frames", default=120, show_default=True, type=click.IntRange(min=1), help="Frames of the generated loop.")
 @click.option("--random", "random_count", default=None, type=click.IntRange(min=1),
               help="Placement databases: this many random views instead of a path (positions uniform in the view space, directions uniform on the sphere).")
-@click.option("--seed", default=0, show_default=True, type=int, help="Seed of --random.")
-@click.option("--repeats", default=3, show_default=True, type=int, help="Draws per frame and renderer; the median counts.")
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Seed of --random.")
+@click.option("--repeats", default=3, show_default=True, type=click.IntRange(min=1), help="Draws per frame and renderer; the median counts.")
 @click.option("--plot", default=None, type=click.Path(dir_okay=False), help="Write a PNG of frame time and error along the path.")
 @click.option("--no-compare", is_flag=True, help="Frame times only (no image comparison).")
 @click.option("--json", "as_json", is_flag=True, help="Every frame and the summary as JSON.")
@@ -40,6 +41,8 @@ def walkthrough_cmd(database, scene, path_file, frames, random_count, seed, repe
     """Walk a camera path through DATABASE (a job's database.zip or its unpacked folder) and compare
     the reference runtime with SCENE drawn in full: an envmap database's near field + impostors, or
     a placement database's impostors + remaining geometry against its frame budget."""
+    if plot and not Path(plot).resolve().parent.is_dir():  # before the walk, not after it
+        raise FarfieldError(f"--plot {plot}: the folder {Path(plot).resolve().parent} does not exist")
     loaded = load_scene(scene)
     with image_database_folder(Path(database)) as images:
         if images is not None:  # a primitive-budget database (farfield place --bake, or a job's)

@@ -64,7 +64,7 @@ from farfield.core.options import stored_values
 from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, primitive_model
 from farfield.core.placement.hierarchy import PlacementError
 from farfield.core.placement.octree_cells import DEFAULT_DEPTH
-from farfield.core.placement.planner import DEFAULT_MAX_IMPOSTOR_BYTES
+from farfield.core.placement.planner import DEFAULT_MAX_IMPOSTOR_BYTES, check_placeable
 from farfield.core.placement.view_space import MAX_REGIONS, MIN_VDI_DEG
 from farfield.core.techniques import DEFAULT_TECHNIQUE, get_technique
 from farfield.service.blobs import BlobStore
@@ -198,8 +198,7 @@ def placement_params(technique_name: str | None, given_options: dict, resolution
         return primitive_params(technique_name, given_options, resolution, fov_deg, spec, model_triangles)
     _not_given(spec, PRIMITIVE_KNOBS, FRAME_TIME)
     technique = get_technique(technique_name or DEFAULT_TECHNIQUE)
-    if technique.estimate is None:
-        raise PlacementError(f"technique {technique.name!r} cannot be placed: it replaces the whole scene around its cell; use a part technique (layered, tdm)")
+    check_placeable(technique)
     options = technique.options(given_options, resolution, fov_deg)
     lo, hi, span = _view_space(spec)
     model, t_max, budget = cost_model_of(spec.budget)

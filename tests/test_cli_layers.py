@@ -103,10 +103,11 @@ def test_bad_configurations_print_one_line_and_exit_non_zero(args, needle):
     assert len(lines) == 1 and needle in lines[0]
 
 
-def test_bake_refuses_an_out_folder_that_is_not_a_bundle_and_replaces_one_that_is(tmp_path):
+def test_bake_refuses_an_out_folder_that_is_not_a_bundle_and_bad_numbers_are_errors_not_tracebacks(tmp_path):
     """``bake --out`` replaces its folder whole: pointed at the scene's own folder it deleted the
     scene, and ``--out .`` crashed.  A folder of other files, the current folder and an unwritable
-    path are one-line errors, before the bake; an earlier bundle is replaced."""
+    path are one-line errors, before the bake; an earlier bundle is replaced.  Then ``evaluate``'s
+    negative counts and ``place``'s cost model of random bytes, which were tracebacks."""
     folder = tmp_path / "duck"
     shutil.copytree(SHARED_SCENES / "duck", folder)
     before = sorted(p.name for p in folder.iterdir())
@@ -126,3 +127,9 @@ def test_bake_refuses_an_out_folder_that_is_not_a_bundle_and_replaces_one_that_i
         made = farfield("bake", scene, *cell, "--out", str(tmp_path / "bundle"))
         assert made.returncode == 0, made.stderr
     assert (tmp_path / "bundle" / "manifest.json").is_file()
+    for flag in ("--random", "--outside", "--seed"):  # were tracebacks (numpy's "negative dimensions")
+        bad = farfield("evaluate", str(tmp_path / "bundle"), scene, flag, "-1")
+        assert bad.returncode == 2 and f"Invalid value for '{flag}': -1 is not in the range x>=0" in bad.stderr and "Traceback" not in bad.stderr, bad.stderr
+    (tmp_path / "model.json").write_bytes(bytes(range(128, 256)))
+    corrupt = farfield("place", scene, "--view-space", "-8,0,0,-7,1,1", "--frame-ms", "1", "--cost-model", str(tmp_path / "model.json"))
+    assert corrupt.returncode == 2 and corrupt.stderr.strip() == f"farfield: error: cost model {str(tmp_path / 'model.json')!r} is not JSON: not UTF-8 text"

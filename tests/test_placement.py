@@ -313,6 +313,11 @@ def test_bad_inputs_are_placement_errors():
         place(city, VIEW[1], VIEW[0], _settings(t_max=100.0))
     with pytest.raises(PlacementError, match="cannot be placed"):
         place(city, *VIEW, _settings(t_max=100.0, technique="envmap", options={}))
+    # part techniques without an estimate: not envmap's reason (points and ldi replace a part too)
+    with pytest.raises(PlacementError, match=r"technique 'points' has no memory and frame-time estimate for the frame-time planner; for a frame budget"):
+        place(city, *VIEW, _settings(t_max=100.0, technique="points", options={}))
+    with pytest.raises(PlacementError, match=r"technique 'ldi' has no .* placed by the primitive-budget algorithm"):
+        place(city, *VIEW, _settings(t_max=100.0, technique="ldi", options={}))
 
 
 def test_a_frame_time_model_with_a_per_frame_cost_above_the_budget_is_unsolvable():

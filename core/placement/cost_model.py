@@ -320,9 +320,11 @@ class CostModel:
     def load(cls, path: str | Path) -> CostModel:
         """Read a model written by ``farfield calibrate --out`` (or by hand)."""
         try:
-            text = Path(path).read_text()
+            text = Path(path).read_bytes().decode("utf-8")
         except OSError as error:
             raise CostModelError(f"cannot read cost model {str(path)!r}: {error.strerror or error}") from None
+        except UnicodeDecodeError:
+            raise CostModelError(f"cost model {str(path)!r} is not JSON: not UTF-8 text") from None
         try:
             data = json.loads(text)
         except json.JSONDecodeError as error:

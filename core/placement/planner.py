@@ -68,6 +68,25 @@ def _check(settings: PlacementSettings) -> None:
         raise PlacementError(f"the shaft direction step must lie in [0.5, 90] degrees, got {settings.direction_step_deg!r}")
 
 
+def check_placeable(technique) -> None:
+    """Refuse a technique the frame-time planner cannot place, saying why.
+
+    >>> from farfield.core.techniques import get_technique
+    >>> check_placeable(get_technique("ldi"))
+    Traceback (most recent call last):
+    ...
+    farfield.core.placement.hierarchy.PlacementError: technique 'ldi' has no memory and frame-time estimate for the frame-time planner; layered depth images are placed by the primitive-budget algorithm (algorithm primitive-budget, a primitives budget); for a frame budget use layered or tdm
+    """
+    if technique.estimate is not None:
+        return
+    if technique.scope == "scene":
+        raise PlacementError(f"technique {technique.name!r} cannot be placed: it replaces the whole scene around its cell; use a part technique (layered, tdm)")
+    why = "has no memory and frame-time estimate for the frame-time planner"
+    if technique.name == "ldi":
+        why += "; layered depth images are placed by the primitive-budget algorithm (algorithm primitive-budget, a primitives budget)"
+    raise PlacementError(f"technique {technique.name!r} {why}; for a frame budget use layered or tdm")
+
+
 def place(
     scene: Scene,
     view_lo,
@@ -86,11 +105,7 @@ def place(
     (hierarchy, problem views, candidates, greedy) that check-and-repair rounds resume."""
     _check(settings)
     technique = get_technique(settings.technique)
-    if technique.estimate is None:
-        raise PlacementError(
-            f"technique {technique.name!r} cannot be placed: it replaces the whole scene around its cell; "
-            "use a part technique (layered, tdm)"
-        )
+    check_placeable(technique)
     options = technique.options({k: v for k, v in (settings.options or {}).items() if k not in ("resolution", "fov_deg")},
                                 (settings.options or {}).get("resolution"), (settings.options or {}).get("fov_deg"))  # fmt: skip
     fov, resolution = math.radians(options.fov_deg), int(options.resolution)
