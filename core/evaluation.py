@@ -466,10 +466,16 @@ def spread_corners(cell: ViewCell, start: np.ndarray, count: int) -> np.ndarray:
     return corners[taken]
 
 
+UNBOUNDED_SHAFT_DEPTH = 3.0  # viewpoints of an unbounded shaft lie within 4x its near distance of the apex
+
+
 def viewpoints(cell: ViewCell, reference: np.ndarray, random_count: int = 8, outside_count: int = 0, seed: int = 0, depth: float | None = None) -> tuple[np.ndarray, list[str]]:
     """(n, 3) float64 viewpoints and their kinds: the cell's corners, the ``reference`` viewpoint,
-    ``random_count`` seeded points inside (``depth`` bounds an unbounded shaft) and up to
-    ``outside_count`` just outside."""
+    ``random_count`` seeded points inside (``depth`` bounds an unbounded shaft: by default
+    ``UNBOUNDED_SHAFT_DEPTH`` times its near distance, beyond which the part is under a quarter of its
+    size at the near cap) and up to ``outside_count`` just outside."""
+    if isinstance(cell, ShaftCell) and not cell.bounded and depth is None:
+        depth = UNBOUNDED_SHAFT_DEPTH * cell.min_distance
     points, kinds = [cell.corners()], ["corner"] * len(cell.corners())
     points.append(np.asarray(reference, dtype=np.float64)[None, :])
     kinds.append("reference")

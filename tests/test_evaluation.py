@@ -256,3 +256,18 @@ def test_fine_sampling_includes_the_coarse_samples():
         assert f >= 32 and f % s == 0 and (f // s) % 2 == 1
         fine = {(2 * j + 1) * s for j in range(f)}  # centres scaled by 2 * f * s
         assert all((2 * k + 1) * f in fine for k in range(s))
+
+
+def test_an_unbounded_shaft_is_evaluated_up_to_four_times_its_near_distance():
+    """``farfield evaluate`` of a bundle baked for an unbounded shaft failed ("needs a positive
+    depth") and nothing could give one: the random viewpoints now lie between the near cap and
+    4x its distance from the apex, inside the shaft."""
+    from farfield.core.evaluation import viewpoints
+    from farfield.core.viewcells import ShaftCell
+
+    shaft = ShaftCell(np.zeros(3), np.array([-1.0, 0.0, 0.0]), np.radians(30.0), 8.0)
+    points, kinds = viewpoints(shaft, np.array([-8.0, 0.0, 0.0]), random_count=64)
+    random = points[[k == "random" for k in kinds]]
+    along = -random[:, 0]
+    assert len(random) == 64 and along.min() >= 8.0 and along.max() <= 32.0 and along.max() > 24.0
+    assert shaft.contains(random).all()
