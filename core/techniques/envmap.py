@@ -334,7 +334,8 @@ def _evaluation_text(result: dict, impostor) -> str:
             f"{s['bloat_beyond_1px']:>6} {s['colour_error_mean']:>9.2f} {s['colour_error_max']:>8}"
         )
     t, stats = result["totals"], impostor.stats
-    lines.append(f"inside the view cell: {t['views']} views, {t['hole_pixels']} hole pixels, colour error mean {t['colour_error_mean']:.3f}")
+    lines.append(f"inside the view cell: {t['views']} views, {t['hole_pixels']} hole pixels, {t['bloat_beyond_1px']} pixels bloated beyond 1 px, "
+                 f"colour error mean {t['colour_error_mean']:.3f}")  # fmt: skip
     lines.append(
         f"impostor: {stats.get('faces')} faces, {stats.get('layers')} layers, {stats.get('quads')} quads, "
         f"near field {stats.get('near_field'):.6g} ({stats.get('near_field_triangles')} triangles), "
