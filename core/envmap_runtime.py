@@ -22,7 +22,7 @@ from dataclasses import replace
 import numpy as np
 
 from farfield.core.cube_faces import face_normal
-from farfield.core.evaluation import compare_images, impostor_objects
+from farfield.core.evaluation import compare_images, impostor_objects, vertex_pixels
 from farfield.core.impostor import Impostor
 from farfield.core.near_field import NearField
 from farfield.core.render.raster import Camera, MeshRenderer
@@ -112,11 +112,14 @@ def depth_range_for(scene: Scene, cell: BoxCell, position, reach: float = 0.0) -
     return near, max(far * 1.01, 2.0 * near)
 
 
-def compare_views(scene_renderer: MeshRenderer, cell_renderer: EnvmapCellRenderer, camera: Camera, samples: int = 1) -> dict:
-    """Pixel statistics (:func:`core.evaluation.compare_images`) of the full scene vs the runtime."""
+def compare_views(scene_renderer: MeshRenderer, cell_renderer: EnvmapCellRenderer, camera: Camera, samples: int = 1, objects=None) -> dict:
+    """Pixel statistics (:func:`core.evaluation.compare_images`) of the full scene vs the runtime;
+    given the scene's ``objects``, an impostor pixel within one pixel of a vertex is not bloat
+    (:func:`core.evaluation.vertex_pixels`: geometry smaller than a sample is still there)."""
     if samples > 1:
         camera = Camera(camera.eye, camera.right, camera.up, camera.forward, camera.fov, camera.resolution * samples, camera.near, camera.far)
-    return compare_images(scene_renderer.render(camera), cell_renderer.renderer.render(camera), samples)
+    reach = None if objects is None else (lambda: vertex_pixels(objects, camera, samples))
+    return compare_images(scene_renderer.render(camera), cell_renderer.renderer.render(camera), samples, reach=reach)
 
 
 def view_directions(directions: list[str] | tuple[str, ...]) -> np.ndarray:
@@ -157,7 +160,7 @@ def evaluate_envmap(
                 near, far = depth_range_for(scene, cell, position, cell_renderer.reach)
                 for forward in directions:
                     camera = camera_at(position, forward, impostor.fov_deg, impostor.resolution, near, far)
-                    stats = compare_views(full, cell_renderer, camera, samples)
+                    stats = compare_views(full, cell_renderer, camera, samples, scene.objects)
                     rows.append({"position": position.tolist(), "forward": forward.tolist(), "kind": kind, "stats": stats})
     finally:
         cell_renderer.release()

@@ -14,7 +14,8 @@ hole pixels (``hole_pixels``)
     the view cell), confirmed at fine sampling (below);
 bloat pixels (``bloat_pixels``)
     covered by the impostor only; ``bloat_beyond_1px``: those with no geometry within one pixel,
-    confirmed at fine sampling (the guarantee allows none of those either);
+    confirmed at fine sampling (the guarantee allows none of those either); a vertex of an opaque
+    object counts as geometry in its pixel even where no sample sees it (:func:`vertex_pixels`);
 fine confirmation
     at ``samples x samples`` per pixel a needle or twig narrower than the gap between two samples
     can fall between all of them in its own pixel and its eight neighbours, while the impostor,
@@ -316,11 +317,14 @@ def _confirmed(candidates: np.ndarray, side: str, origin: tuple[int, int], confi
     return counted + unconfirmed, unconfirmed
 
 
-def compare_images(geometry: np.ndarray, impostor: np.ndarray, samples: int = 1, confirm: Confirm | None = None, confirm_windows: int = CONFIRM_WINDOWS) -> dict:
+def compare_images(geometry: np.ndarray, impostor: np.ndarray, samples: int = 1, confirm: Confirm | None = None, confirm_windows: int = CONFIRM_WINDOWS,
+                   reach: Callable[[], np.ndarray] | None = None) -> dict:  # fmt: skip
     """Pixel statistics of two (h*s, w*s, 4) uint8 renders (geometry first) with ``samples`` s per
     pixel side; see the module docstring.  ``confirm`` draws either side finely around coarse holes
     and bloat beyond one pixel (at most ``confirm_windows`` blocks per side); without it they count
-    as found, all unconfirmed.
+    as found, all unconfirmed.  ``reach`` gives the (h, w) pixels the geometry reaches however small
+    it is (:func:`vertex_pixels`); called only when there are candidates for bloat beyond one pixel,
+    whose geometry side it widens.
 
     An impostor whose colours are all 30 darker, over a ramp that rises by 30 a column: each
     pixel's right-hand neighbour holds its old colour, so the within-one-pixel figure sees an error
@@ -349,6 +353,8 @@ def compare_images(geometry: np.ndarray, impostor: np.ndarray, samples: int = 1,
     holes = _holes(g, i)
     beyond = i & ~_dilate(g)
     origin = (window[1].start // samples, window[0].start // samples)
+    if reach is not None and beyond.any():  # geometry smaller than a sample (a part far away) reaches pixels no sample covers
+        beyond &= ~_dilate(reach()[origin[1] : origin[1] + g.shape[0], origin[0] : origin[0] + g.shape[1]])
     hole_count, hole_unconfirmed = _confirmed(holes, "impostor", origin, confirm, confirm_windows)
     beyond_count, beyond_unconfirmed = _confirmed(beyond, "geometry", origin, confirm, confirm_windows)
     bloat = i & ~g
@@ -374,6 +380,37 @@ def compare_images(geometry: np.ndarray, impostor: np.ndarray, samples: int = 1,
         "colour_error_1px_max": int(nearest.max()) if nearest.size else 0,
         "ssim": ssim_over_union(geometry, impostor),
     }
+
+
+def vertex_pixels(objects, camera: Camera, samples: int = 1) -> np.ndarray:
+    """(r, r) bool, r = ``camera.resolution // samples``: the pixels (of ``samples`` x ``samples``
+    camera pixels each, top row first) holding a vertex of an opaque object in front of ``camera``.
+
+    Geometry is there however small it is: a part whose triangles fall between every sample of a
+    pixel (a whole object at 100 km, 0.003 pixels wide) still lies at its vertices, and an
+    impostor pixel within one pixel of them keeps the promise.  Alpha-cut objects are left out: a
+    card's corners may be cut away.
+
+    >>> c = Camera.look_at(np.zeros(3), np.array([0.0, 1.0, 0.0]), math.radians(90.0), 8, 0.1, 10.0)
+    >>> from farfield.core.scene import SceneObject
+    >>> tiny = SceneObject("tiny", np.array([[0.51, 1.0, 0.3], [0.52, 1.0, 0.3], [0.51, 1.0, 0.31]]), np.array([[0, 1, 2]]))
+    >>> np.argwhere(vertex_pixels([tiny], c, samples=2)).tolist()  # x 6.04-6.08, y 2.76-2.8 of 8 -> pixel (row 1, col 3) of 4
+    [[1, 3]]
+    """
+    size = camera.resolution // samples
+    reached = np.zeros((size, size), dtype=bool)
+    frame = np.stack([camera.right, camera.up, camera.forward]).T
+    for obj in objects:
+        if obj.alpha_cutoff is not None:
+            continue
+        depth = (obj.vertices - camera.eye) @ frame[:, 2]
+        front = obj.vertices[(depth >= camera.near) & (depth <= camera.far)]
+        if not front.size:
+            continue
+        pixel = np.floor(camera.project(front) / samples).astype(np.int64)
+        inside = np.all((pixel >= 0) & (pixel < size), axis=1)
+        reached[pixel[inside, 1], pixel[inside, 0]] = True
+    return reached
 
 
 def _window_coverage(renderers: dict[str, MeshRenderer], camera: Camera, samples: int) -> Confirm:
@@ -527,7 +564,8 @@ def evaluate_at(part: Scene, impostor: Impostor, points: np.ndarray, kinds: list
             near, far = depth_bounds(position, forward, extent)
             camera = Camera.look_at(position, target, fov, impostor.resolution * samples, near, far)
             confirm = _window_coverage({"geometry": geometry, "impostor": stand_in}, camera, samples)
-            stats = compare_images(geometry.render(camera), stand_in.render(camera), samples, confirm, confirm_windows)
+            stats = compare_images(geometry.render(camera), stand_in.render(camera), samples, confirm, confirm_windows,
+                                   reach=lambda camera=camera: vertex_pixels(part.objects, camera, samples))  # fmt: skip
             rows.append({"position": position.tolist(), "kind": kind, "inside": kind != "outside", "stats": stats})
     totals = _totals([r for r in rows if r["inside"]])
     outside = _totals([r for r in rows if not r["inside"]])

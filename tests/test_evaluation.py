@@ -271,3 +271,18 @@ def test_an_unbounded_shaft_is_evaluated_up_to_four_times_its_near_distance():
     along = -random[:, 0]
     assert len(random) == 64 and along.min() >= 8.0 and along.max() <= 32.0 and along.max() > 24.0
     assert shaft.contains(random).all()
+
+
+def test_a_part_smaller_than_every_sample_is_not_bloat_where_its_impostor_shows_it():
+    """A 1 m box 100 km away at 128 px is 0.002 pixels wide: no sample of the geometry's render
+    covers it, while the impostor, recorded conservatively, keeps a texel there.  That texel lies
+    within one pixel of the geometry (its vertices), so it is not bloat beyond one pixel; it used
+    to be counted as such from every viewpoint, and ``evaluate --check`` failed every technique."""
+    from farfield.core.evaluation import evaluate
+
+    part = Scene.from_objects([scenes.box_object("far", (-0.5, 0.0, -0.5), (0.5, 1.0, 0.5), (0.8, 0.3, 0.2, 1.0))], "far")
+    cell = BoxCell.from_center(np.array([-100_000.0, 0.5, 0.0]), 1.0)
+    impostor = bake_layered(part, cell, BakeOptions(resolution=128))
+    totals = evaluate(part, impostor, cell, random_count=2).totals
+    assert totals["geometry_pixels"] == 0 and totals["bloat_pixels"] > 0, totals  # the impostor shows it, the samples miss it
+    assert totals["bloat_beyond_1px"] == 0 and totals["hole_pixels"] == 0, totals
