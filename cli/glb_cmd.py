@@ -58,6 +58,9 @@ def write_whole(out: Path, data: bytes) -> None:
 @click.option("--json", "as_json", is_flag=True, help="print the figures as JSON")
 def glb_cmd(source: Path, out: Path, textures: str, geometry: str, codec: str, as_json: bool) -> None:
     """Write SOURCE (an impostor GLB, or a bundle folder) with compressed textures and geometry."""
+    given = click.get_current_context().get_parameter_source("codec") is not click.core.ParameterSource.DEFAULT
+    if given and textures == "png":
+        raise BundleFormatError(f"--codec {codec} encodes KTX2 textures; with --textures png there are none (give --textures ktx2 or ktx2+png)")
     path = glb_input(source)
     plain = path.read_bytes()
     start = time.perf_counter()

@@ -7,6 +7,7 @@ warnings are shown in the output (table or JSON), not as Python warnings on stde
 from __future__ import annotations
 
 import json
+import math
 import warnings
 from pathlib import Path
 
@@ -16,9 +17,19 @@ from farfield.core.exchange import load_scene
 from farfield.core.scene import Scene, SceneWarning
 
 
-def _vector(values) -> str:
-    """``(x, y, z)`` with 4 significant digits."""
-    return "(" + ", ".join(f"{v:.4g}" for v in values) + ")"
+def _vector(values, size=None) -> str:
+    """``(x, y, z)`` with 4 significant digits, or, given the box's ``size``, as many more as it takes
+    for each coordinate to resolve a thousandth of the size along its axis (a 1.7 m duck at 1e7 m,
+    whose min would otherwise print as its max).
+
+    >>> corner = [9999999.0382, 0.09929, 9999999.4607]
+    >>> _vector(corner), _vector(corner, [1.655, 1.54, 1.153])
+    ('(1e+07, 0.09929, 1e+07)', '(9999999.0382, 0.09929, 9999999.4607)')
+    """
+    if size is None:
+        return "(" + ", ".join(f"{v:.4g}" for v in values) + ")"
+    digits = [4 if v == 0 or s <= 0 else min(17, max(4, math.ceil(math.log10(abs(v) / s)) + 4)) for v, s in zip(values, size)]
+    return "(" + ", ".join(f"{v:.{d}g}" for v, d in zip(values, digits)) + ")"
 
 
 def _size(extents) -> str:
@@ -33,7 +44,7 @@ def format_table(scene: Scene) -> str:
         f"hash       {scene.content_hash}",
         f"objects    {scene.object_count}",
         f"triangles  {scene.triangle_count:,}",
-        f"bounds     min {_vector(scene.bounds[0])}  max {_vector(scene.bounds[1])}",
+        f"bounds     min {_vector(scene.bounds[0], scene.extents)}  max {_vector(scene.bounds[1], scene.extents)}",
         f"size       {_size(scene.extents)}",
         "",
     ]

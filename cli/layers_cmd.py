@@ -45,7 +45,7 @@ def layers() -> None:
 def _part_bounds(scene, objects, bounds):
     """The part's (2, 3) bounds: of SCENE (or its ``objects``), or parsed from ``bounds``."""
     if (scene is None) == (bounds is None):
-        raise LayerPlanError("give either a SCENE or --bounds (not both)")
+        raise LayerPlanError("give either a SCENE or --bounds" + ("; neither was given" if scene is None else ", not both"))
     if scene is None:
         return _parse_bounds(bounds)
     from farfield.core.exchange import load_scene
@@ -141,7 +141,7 @@ def envmap(cell_size, resolution, count, near_field, alpha, dims, as_json) -> No
     if alpha is None:
         alpha = pixel_angle(math.pi / 2, resolution, "min")
     if (count is None) == (near_field is None):
-        raise LayerPlanError("give either --layers or --near-field (not both)")
+        raise LayerPlanError("give either --layers or --near-field" + ("; neither was given" if count is None else ", not both"))
     if count is None:
         count = layers_for_near_field(cell_size, resolution, near_field, alpha, dims)
     plan = envmap_plan(cell_size, resolution, count, alpha, dims)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import sys
 import traceback
+import warnings
 
 import click
 
@@ -58,8 +59,23 @@ def _register() -> None:
     cli.add_command(glb_cmd.glb_cmd)
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A scene's warnings (a missing texture, dropped triangles) as one ``farfield: warning:`` line
+    each on stderr, not Python's warning format with a source line of farfield; others as Python shows them."""
+    from farfield.core.scene import SceneWarning
+
+    if issubclass(category, SceneWarning):
+        click.echo(f"farfield: warning: {message}", err=True)
+    else:
+        _PYTHON_SHOW_WARNING(message, category, filename, lineno, file, line)
+
+
+_PYTHON_SHOW_WARNING = warnings.showwarning
+
+
 def main(argv: list[str] | None = None) -> None:
     """Run the CLI (the ``farfield`` console script)."""
+    warnings.showwarning = _show_warning
     _register()
     cli.main(args=argv, prog_name="farfield")
 

@@ -146,6 +146,8 @@ def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, op
         values[name.strip()] = parse_option_text(get_technique(technique).Options, name.strip(), text)
     values.update({"resolution": resolution, "fov_deg": fov})
     _check_out(out)
+    if not max_impostor_mb > 0:  # said in the unit given, not in the bytes it becomes
+        raise PlacementError(f"--max-impostor-mb must be > 0, got {max_impostor_mb!r}")
     settings = PlacementSettings(
         t_max=t_max, model=model, technique=technique, options=values, cpv_size=cpv_size, vdi_deg=vdi_deg, cells=cells,
         depth_complexity=depth_complexity, leaf_size=leaf_size, max_impostor_bytes=max_impostor_mb * 2**20,

@@ -32,7 +32,7 @@ import json
 import struct
 
 import numpy as np
-from PIL import Image
+from PIL import Image, UnidentifiedImageError
 
 from farfield.core.errors import BundleFormatError
 from farfield.core.glb import page_png, write_glb
@@ -174,9 +174,13 @@ def compress_glb(data: bytes, textures: str = "png", geometry: str = "plain", co
     >>> compress_glb(plain) == plain
     True
     """
+    if len(data) >= 12 and data[:4] == b"glTF" and int.from_bytes(data[8:12], "little") > len(data):
+        raise BundleFormatError(f"GLB: truncated: its header says {int.from_bytes(data[8:12], 'little'):,} bytes, the file has {len(data):,}")
     try:
         return _compress(data, textures, geometry, codec)
-    except (KeyError, IndexError, TypeError, ValueError, OSError) as error:  # PIL's UnidentifiedImageError is an OSError
+    except UnidentifiedImageError:  # an OSError: before the general case, whose message would name a BytesIO
+        raise BundleFormatError("GLB: not one this can compress (an embedded image is neither a PNG nor a JPEG PIL can read)") from None
+    except (KeyError, IndexError, TypeError, ValueError, OSError) as error:
         raise BundleFormatError(f"GLB: not one this can compress ({type(error).__name__}: {error})") from None
 
 

@@ -133,3 +133,24 @@ def test_bake_refuses_an_out_folder_that_is_not_a_bundle_and_bad_numbers_are_err
     (tmp_path / "model.json").write_bytes(bytes(range(128, 256)))
     corrupt = farfield("place", scene, "--view-space", "-8,0,0,-7,1,1", "--frame-ms", "1", "--cost-model", str(tmp_path / "model.json"))
     assert corrupt.returncode == 2 and corrupt.stderr.strip() == f"farfield: error: cost model {str(tmp_path / 'model.json')!r} is not JSON: not UTF-8 text"
+
+
+def test_messages_a_new_user_met_name_the_problem(tmp_path):
+    """Each of these printed something about another thing (a BytesIO, a byte count the user did
+    not give, 'not both' when neither was given, Python's warning format) or ignored an option."""
+    duck = str(SHARED_SCENES / "duck" / "duck.obj")
+    neither = farfield("layers", "part", "--viewcell", "box:0,0,0,1,1,1")
+    assert neither.returncode == 2 and neither.stderr.strip() == "farfield: error: give either a SCENE or --bounds; neither was given"
+    mb = farfield("place", duck, "--view-space", "2,0,0,3,1,1", "--frame-ms", "5", "--max-impostor-mb", "-1")
+    assert mb.returncode == 2 and mb.stderr.strip() == "farfield: error: --max-impostor-mb must be > 0, got -1.0"
+    flat = tmp_path / "flat.obj"
+    flat.write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 4\n")
+    baked = farfield("bake", str(flat), "--viewcell", "box-center:1,0.5,5,0.5", "--resolution", "32", "--out", str(tmp_path / "b"), "--quiet")
+    assert baked.returncode == 0 and baked.stderr.strip() == (
+        "farfield: warning: flat.obj: object 'flat.obj': 1 of its 2 triangles have zero area and were dropped (they draw nothing)"), baked.stderr
+    codec = farfield("glb", str(tmp_path / "b"), "--out", str(tmp_path / "x.glb"), "--textures", "png", "--codec", "uastc")
+    assert codec.returncode == 2 and "with --textures png there are none" in codec.stderr and not (tmp_path / "x.glb").exists()
+    glb = (tmp_path / "b" / "impostor.glb").read_bytes()
+    (tmp_path / "cut.glb").write_bytes(glb[: len(glb) // 2])
+    cut = farfield("glb", str(tmp_path / "cut.glb"), "--out", str(tmp_path / "y.glb"))
+    assert cut.returncode == 2 and cut.stderr.strip() == f"farfield: error: GLB: truncated: its header says {len(glb):,} bytes, the file has {len(glb) // 2:,}"

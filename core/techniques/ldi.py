@@ -71,7 +71,7 @@ def ldi_view(cell: ViewCell, bounds: np.ndarray) -> LdiView:
     """The LDI's view of a part with ``bounds`` from a box ``cell`` (module docstring); LayerPlanError
     where the part comes within the cell's half-diagonal of its centre."""
     if not isinstance(cell, BoxCell):
-        raise LayerPlanError(f"an LDI impostor needs a box view cell, got a {type(cell).__name__}")
+        raise LayerPlanError(f"an LDI impostor needs a box view cell, got a {cell.kind} cell")
     eye = np.asarray(cell.center, dtype=np.float64)
     lo, hi = np.asarray(bounds, dtype=np.float64)
     direction = 0.5 * (lo + hi) - eye
@@ -97,7 +97,7 @@ def check_ldi_cell(cell: ViewCell, options: LdiOptions, bounds: np.ndarray | Non
     the cell can have no LDI of the part; without ``bounds``, only the cell's kind."""
     if bounds is None:
         if not isinstance(cell, BoxCell):
-            raise LayerPlanError(f"an LDI impostor needs a box view cell, got a {type(cell).__name__}")
+            raise LayerPlanError(f"an LDI impostor needs a box view cell, got a {cell.kind} cell")
         return CellCost.of_layers(0, (0, 0))
     ldi_view(cell, bounds)
     return CellCost.of_layers(options.images, (options.resolution, options.resolution))

@@ -69,7 +69,7 @@ class PointOptions:
 
 def _box(cell: ViewCell) -> BoxCell:
     if not isinstance(cell, BoxCell):
-        raise LayerPlanError(f"a point-based impostor needs a box view cell, got a {type(cell).__name__}")
+        raise LayerPlanError(f"a point-based impostor needs a box view cell, got a {cell.kind} cell")
     return cell
 
 
