@@ -357,7 +357,9 @@ def job_record(job: JobRow, summary: dict, cells: list[CellRow] | None = None) -
     each cell's record and the :func:`evaluation_summary` of them)."""
     counts = summary["counts"]
     total = sum(counts.values())
-    finished = counts["done"] + counts["failed"] + counts["cancelled"]
+    # The share of the work that was carried out: a cancelled cell was not, so a job cancelled with 7
+    # of 27 cells done shows 26 %, not 100 %.
+    finished = counts["done"] + counts["failed"]
     progress = (finished + summary["running_progress"]) / max(total, 1)
     mean = summary["done_seconds"] / summary["done_timed"] if summary["done_timed"] else None
     eta = None

@@ -171,6 +171,7 @@ def test_cancel_stops_the_job(client, bunny_id):
     assert job["state"] == "cancelled"
     assert job["counts"]["queued"] == 0 and job["counts"]["running"] == 0
     assert job["counts"]["cancelled"] >= 10
+    assert job["progress"] == job["counts"]["done"] / job["cells_total"] < 1  # what was carried out, not 100 %
     done = job["counts"]["done"]
     time.sleep(2)
     assert client.get(f"/v1/jobs/{job_id}").json()["counts"]["done"] == done  # no cell started after the cancel
