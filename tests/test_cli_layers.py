@@ -135,6 +135,7 @@ def test_bake_refuses_an_out_folder_that_is_not_a_bundle_and_bad_numbers_are_err
     assert corrupt.returncode == 2 and corrupt.stderr.strip() == f"farfield: error: cost model {str(tmp_path / 'model.json')!r} is not JSON: not UTF-8 text"
 
 
+@pytest.mark.invalid_glb  # writes a truncated GLB on purpose
 def test_messages_a_new_user_met_name_the_problem(tmp_path):
     """Each of these printed something about another thing (a BytesIO, a byte count the user did
     not give, 'not both' when neither was given, Python's warning format) or ignored an option."""
