@@ -4,4 +4,4 @@ Nothing in ``core`` imports ``api``, ``workers`` or ``cli``; every function take
 (numpy arrays, frozen dataclasses) and returns plain data.
 """
 
-__version__ = "0.3.0"
+__version__ = "0.3.1"

@@ -26,6 +26,7 @@ lower bound").
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 import time
@@ -382,12 +383,45 @@ def _pair_kernel(eye, at_vertex, faces, pairs, layers, eye_borders, half_tan, re
     return kept
 
 
+_AREA_CACHE: OrderedDict[int, tuple[SceneObject, np.ndarray]] = OrderedDict()  # id -> (object, faces_with_area), the last few
+_AREA_CACHED = 64
+
+
+def faces_with_area(obj: SceneObject) -> np.ndarray | None:
+    """Indices (ascending) of ``obj``'s triangles whose corners are not collinear in float64 world
+    coordinates, or None when every one has an area (the usual case).
+
+    No renderer draws a triangle of zero area, but the conservative recording would write the
+    texels along its segment: a line the source never shows (an OBJ of one such triangle baked
+    184 texels, all of them bloat).  The scene keeps them (face indices are what clusters and
+    near-field ranges count); the recording leaves them out.  Cached for the last few objects: an
+    envmap cell records each object for six faces.
+
+    >>> flat = SceneObject("flat", np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2], [0, 1, 3]]))
+    >>> faces_with_area(flat).tolist(), faces_with_area(SceneObject("one", flat.vertices, flat.faces[1:]))
+    ([1], None)
+    """
+    cached = _AREA_CACHE.get(id(obj))
+    if cached is not None and cached[0] is obj:
+        _AREA_CACHE.move_to_end(id(obj))
+        return cached[1]
+    v, f = obj.vertices, obj.faces
+    a = v[f[:, 0]]
+    area = np.cross(v[f[:, 1]] - a, v[f[:, 2]] - a).any(axis=1)
+    kept = None if area.all() else np.flatnonzero(area)
+    _AREA_CACHE[id(obj)] = (obj, kept)
+    while len(_AREA_CACHE) > _AREA_CACHED:
+        _AREA_CACHE.popitem(last=False)
+    return kept
+
+
 def slab_instances(
     eye_vertices: np.ndarray,
     faces: np.ndarray,
     eye_borders: np.ndarray,
     half_tan: np.ndarray,
     resolution: np.ndarray,
+    drawn: np.ndarray | None = None,
 ) -> SlabInstances:
     """Every (triangle, layer) pair of one object, clipped to the layer's closed slab and projected.
 
@@ -401,7 +435,8 @@ def slab_instances(
 
     Pairs whose clipped polygon is empty or whose rectangle misses the image are dropped, and so
     are pairs with a coordinate that is not finite (a polygon point on the eye plane, which a first
-    border > 0 rules out).
+    border > 0 rules out).  ``drawn`` (ascending face indices, or None for all) leaves the other
+    triangles out (:func:`faces_with_area`).
     """
     k = eye_borders.shape[0] - 1
     if not eye_borders[0] > 0.0:
@@ -411,6 +446,8 @@ def slab_instances(
         texel = texel_coordinates(eye, half_tan, resolution)
         at_vertex = np.concatenate([texel, 1.0 / eye[2:]])  # (3, v)
     seen = facing_the_image(texel, eye[2], faces, resolution)
+    if drawn is not None:
+        seen = np.intersect1d(seen, drawn, assume_unique=True)
     order, layers, offsets = _bucket_kernel(np.ascontiguousarray(eye[2]), faces, seen, eye_borders)
     n = order.shape[0]
     triangle, layer, count = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
@@ -535,7 +572,7 @@ def iter_layers(
     draws = []
     for obj in scene.objects:
         eye = eye_coordinates(plan, obj.vertices)
-        instances = slab_instances(eye, obj.faces, eye_borders, plan.frustum_half_tangents, plan.texture_resolution)
+        instances = slab_instances(eye, obj.faces, eye_borders, plan.frustum_half_tangents, plan.texture_resolution, faces_with_area(obj))
         if instances.triangle.size:
             draws.append((obj, instances.offsets, _instance_records(instances, obj)))
     largest = max((int(np.diff(offsets).max()) for _, offsets, _ in draws), default=0)

@@ -108,6 +108,26 @@ def test_clipping_edges_are_written_into_both_adjacent_layers(ctx):
             assert np.any(cov[i] & cov[i + 1]), f"layers {i} and {i + 1} share no clipping-edge texels"
 
 
+def test_triangles_of_zero_area_are_not_recorded_and_the_scene_keeps_them(ctx):
+    """Three collinear corners draw nothing in any renderer, but the conservative rule wrote the
+    texels along them (an OBJ of one such triangle: a layered impostor of 184 texels, all bloat).
+    The recording leaves them out; the object keeps them (face indices count for clusters)."""
+    ground = trimesh.creation.box(extents=[40.0, 30.0, 0.01])
+    ground.apply_translation([70.0, 0.0, -4.0])
+    line = np.array([[65.0, -10.0, -8.0], [70.0, 0.0, -6.0], [75.0, 10.0, -4.0]])  # collinear, across the ground's view
+    vertices = np.concatenate([ground.vertices, line])
+    n = len(ground.vertices)
+    with_line = SceneObject(name="ground", vertices=vertices, faces=np.concatenate([[[n, n + 1, n + 2]], ground.faces]))
+    without = SceneObject(name="ground", vertices=vertices, faces=ground.faces)
+    plan = plan_layers(BoxCell.from_center([0, 0, 0], 10.0), with_line.bounds, math.radians(45), 128)
+    a = record_layers(Scene.from_objects([with_line], "a"), plan)
+    b = record_layers(Scene.from_objects([without], "b"), plan)
+    assert with_line.faces.shape[0] == without.faces.shape[0] + 1
+    np.testing.assert_array_equal(a.rgba, b.rgba)
+    alone = SceneObject(name="line", vertices=line, faces=np.array([[0, 1, 2]]))
+    assert not record_layers(Scene.from_objects([alone], "c"), plan).coverage.any()
+
+
 def test_layers_draw_only_the_triangles_their_slab_needs():
     rng = np.random.default_rng(0)
     depth = rng.uniform(0.0, 100.0, 3000)

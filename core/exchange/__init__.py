@@ -13,15 +13,13 @@ and kept in ``Scene.warnings``.
 
 from __future__ import annotations
 
-import dataclasses
 import warnings as _warnings
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
-import numpy as np
 from trimesh.resolvers import Resolver
 
-from farfield.core.errors import DegenerateGeometryError, FarfieldError, SceneLoadError, SceneNotFoundError
+from farfield.core.errors import FarfieldError, SceneLoadError, SceneNotFoundError
 from farfield.core.exchange import gltf, obj, ply, stl
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
 from farfield.core.exchange.trimesh_scene import asset_resolver
@@ -54,33 +52,6 @@ def _extension(extension: str, name: str) -> str:
     return key
 
 
-def without_zero_area(objects) -> tuple[list[SceneObject], list[str]]:
-    """``objects`` without their triangles of exactly zero area (three collinear corners in float64),
-    and a warning for each object that had some.  No renderer draws such a triangle, but the
-    conservative recording would write the texels along its segment: a line the source never
-    shows.  An object made only of them is left out.
-
-    >>> import numpy as np
-    >>> flat = SceneObject("flat", np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2], [0, 1, 3]]))
-    >>> kept, said = without_zero_area([flat])
-    >>> kept[0].faces.tolist(), said
-    ([[0, 1, 3]], ["object 'flat': 1 of its 2 triangles have zero area and were dropped (they draw nothing)"])
-    """
-    kept, said = [], []
-    for part in objects:
-        corners = part.vertices[part.faces]  # (f, 3, 3)
-        area = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]).any(axis=1)
-        flat = int(area.size - np.count_nonzero(area))
-        if not flat:
-            kept.append(part)
-        elif flat == area.size:
-            said.append(f"object {part.name!r}: left out, every one of its {flat} triangles has zero area (they draw nothing)")
-        else:
-            kept.append(dataclasses.replace(part, faces=part.faces[area]))
-            said.append(f"object {part.name!r}: {flat} of its {area.size} triangles have zero area and were dropped (they draw nothing)")
-    return kept, said
-
-
 def _load(data: bytes, extension: str, name: str, resolver: Resolver, limits: SceneLimits) -> Scene:
     """Run the loader for ``extension``; prefix errors with ``name``; emit the warnings."""
     if not data:
@@ -91,11 +62,8 @@ def _load(data: bytes, extension: str, name: str, resolver: Resolver, limits: Sc
         limits.check("triangles", sum(o.triangle_count for o in objects), "triangles")
         # trimesh's node order is an implementation detail (it reverses OBJ and glTF order); name
         # order is stable across versions and readable.
-        kept, dropped = without_zero_area(sorted(objects, key=lambda obj: obj.name))
-        if objects and not kept:
-            raise DegenerateGeometryError("every triangle has zero area: nothing to draw")
-        objects = kept
-        scene = Scene.from_objects(objects, source=name, warnings=(*warnings, *dropped))
+        objects = sorted(objects, key=lambda obj: obj.name)
+        scene = Scene.from_objects(objects, source=name, warnings=warnings)
     except FarfieldError as error:
         # Messages from inside a loader name objects, not the file: name it once, here.
         raise type(error)(f"{name}: {error}") from error
