@@ -83,6 +83,7 @@ import hashlib
 import io
 import json
 import os
+import re
 import shutil
 import tempfile
 import zipfile
@@ -295,19 +296,26 @@ def _swap_into_place(staging: Path, destination: Path) -> None:
     raise BundleFormatError(f"{destination}: could not replace it in {_REPLACE_ATTEMPTS} attempts")
 
 
+_BUNDLE_ENTRY = re.compile(rf"{re.escape(MANIFEST_NAME)}|{re.escape(PAYLOAD_NAME)}|{re.escape(GLB_NAME)}|atlas-\d+\.png")
+
+
 def check_destination(directory: str | os.PathLike) -> None:
     """Refuse a folder that :func:`write_bundle` would replace but that is not a bundle: a user's
     ``--out`` pointing at a folder of other files (the scene itself, say) would lose them all.
 
-    Accepted: a path that does not exist yet, an empty folder, or a bundle (a ``manifest.json`` of
-    this format) to replace.  Refused (:class:`ConflictError`): a file, the current folder or one
-    above it, and any other folder with something in it.
+    Accepted: a path that does not exist yet (in a folder this process may write), an empty folder,
+    or a bundle to replace (a ``manifest.json`` of this format and nothing but bundle files).
+    Refused (:class:`ConflictError`): a file, the current folder or one above it, and any other
+    folder with something in it.
     """
     path = Path(directory)
     where = path.resolve()
     if where == Path.cwd().resolve() or where in Path.cwd().resolve().parents:
         raise ConflictError(f"{directory}: the current folder or one above it would be replaced by the bundle; give a folder of its own")
     if not path.exists():
+        parent = next(p for p in where.parents if p.exists())  # the folder that will hold it, made on writing
+        if not (parent.is_dir() and os.access(parent, os.W_OK | os.X_OK)):
+            raise BundleFormatError(f"{directory}: cannot write a bundle there: {parent} is not a folder this process may write")
         return
     if not path.is_dir():
         raise ConflictError(f"{directory}: is a file, not a bundle folder; give a new or empty folder")
@@ -318,10 +326,15 @@ def check_destination(directory: str | os.PathLike) -> None:
         bundle = json.loads((path / MANIFEST_NAME).read_bytes()).get("format") == FORMAT
     except (OSError, ValueError, AttributeError):
         bundle = False
-    if not bundle:
-        shown = ", ".join(entries[:3]) + (f", ... ({len(entries)} entries)" if len(entries) > 3 else "")
-        raise ConflictError(f"{directory}: exists and is not a bundle (it holds {shown}); the bundle would replace it whole: "
-                            "give a new or empty folder, or an earlier bundle's")  # fmt: skip
+    others = [e for e in entries if not _BUNDLE_ENTRY.fullmatch(e)]
+    if bundle and not others:
+        return
+
+    def shown(names: list[str]) -> str:
+        return ", ".join(names[:3]) + (f", ... ({len(names)} in all)" if len(names) > 3 else "")
+
+    what = f"holds files no bundle has ({shown(others)})" if bundle else f"is not a bundle (it holds {shown(entries)})"
+    raise ConflictError(f"{directory}: exists and {what}; the bundle would replace it whole: give a new or empty folder, or an earlier bundle's")
 
 
 def write_bundle(impostor: Impostor, directory: str | os.PathLike) -> BundlePaths:

@@ -42,8 +42,11 @@ def layer_tiles(image: np.ndarray, kept: np.ndarray, grid_cell: int, fill_thresh
     array (not a view that would keep the layer alive), transparent texels coloured from the
     nearest opaque one so that bilinear filtering and mipmaps never pull black into the edges.
     A rectangle that would not fit a page of ``max_page`` with its ``padding`` is cut into pieces
-    that do (:func:`split_rects`), each its own quad."""
-    rects = split_rects(grow_quads(kept, grid_cell, fill_threshold), max_page - 2 * padding)
+    that do (:func:`split_rects`), each holding a kept texel its own quad."""
+    grown = grow_quads(kept, grid_cell, fill_threshold)
+    rects = split_rects(grown, max_page - 2 * padding)
+    if len(rects) != len(grown):  # cut: a piece of a box's empty cells keeps no texel, and is no quad
+        rects = rects[np.array([kept[y0:y1, x0:x1].any() for x0, y0, x1, y1 in rects], dtype=bool)]
     texels = image.copy()
     texels[..., 3] = np.where(kept, texels[..., 3], 0)
     return rects, [fill_nearest_rgb(texels[y0:y1, x0:x1]) for x0, y0, x1, y1 in rects]

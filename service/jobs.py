@@ -91,7 +91,7 @@ class JobSpec(BaseModel):
         description="or a placement job: a view space, a frame budget and the planner's knobs; a worker plans where impostors of "
         "'technique' (a part technique: layered, tdm) are needed, bakes them, checks and repairs (job state 'placing' while it plans)",
     )
-    objects: list[str] | None = Field(None, description="the represented objects (default: all; not for scene-scope techniques)")
+    objects: list[str] | None = Field(None, min_length=1, description="the represented objects, at least one (default, left out: all; not for scene-scope techniques)")
     resolution: StrictInt | None = Field(None, description="output image pixels per side (default: the technique's, 512)")
     fov_deg: StrictFloat | None = Field(None, description="output field of view, degrees (default: the technique's: 45, envmap 90)")
     options: dict = Field(
@@ -113,8 +113,6 @@ class JobSpec(BaseModel):
             raise ValueError("give exactly one of 'viewcells' (a list), 'grid' or 'placement'")
         if self.placement is not None and self.objects is not None:
             raise ValueError("a placement job chooses the objects its impostors replace: leave out 'objects'")
-        if self.objects is not None and not self.objects:  # stored as [], it would read as "no object replaced" to a runtime
-            raise ValueError("'objects' is empty: name at least one object, or leave it out for every object")
         former = self.__dict__.get("job_type")
         if self.technique is not None and former is not None:
             raise ValueError(f"'technique' ({self.technique}) and its former name 'job_type' ({former}) are both given; give one")

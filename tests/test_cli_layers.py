@@ -127,6 +127,9 @@ def test_bake_refuses_an_out_folder_that_is_not_a_bundle_and_bad_numbers_are_err
         made = farfield("bake", scene, *cell, "--out", str(tmp_path / "bundle"))
         assert made.returncode == 0, made.stderr
     assert (tmp_path / "bundle" / "manifest.json").is_file()
+    (tmp_path / "bundle" / "notes.txt").write_text("mine")  # a bundle holding a user's file is not replaced either
+    kept = farfield("bake", scene, *cell, "--out", str(tmp_path / "bundle"))
+    assert kept.returncode == 4 and "exists and holds files no bundle has (notes.txt)" in kept.stderr and (tmp_path / "bundle" / "notes.txt").exists()
     for flag in ("--random", "--outside", "--seed"):  # were tracebacks (numpy's "negative dimensions")
         bad = farfield("evaluate", str(tmp_path / "bundle"), scene, flag, "-1")
         assert bad.returncode == 2 and f"Invalid value for '{flag}': -1 is not in the range x>=0" in bad.stderr and "Traceback" not in bad.stderr, bad.stderr
@@ -144,11 +147,11 @@ def test_messages_a_new_user_met_name_the_problem(tmp_path):
     assert neither.returncode == 2 and neither.stderr.strip() == "farfield: error: give either a SCENE or --bounds; neither was given"
     mb = farfield("place", duck, "--view-space", "2,0,0,3,1,1", "--frame-ms", "5", "--max-impostor-mb", "-1")
     assert mb.returncode == 2 and mb.stderr.strip() == "farfield: error: --max-impostor-mb must be > 0, got -1.0"
-    flat = tmp_path / "flat.obj"
-    flat.write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 4\n")
-    baked = farfield("bake", str(flat), "--viewcell", "box-center:1,0.5,5,0.5", "--resolution", "32", "--out", str(tmp_path / "b"), "--quiet")
+    lone = tmp_path / "lone.obj"
+    lone.write_text("mtllib nothere.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    baked = farfield("bake", str(lone), "--viewcell", "box-center:0.3,0.3,5,0.5", "--resolution", "32", "--out", str(tmp_path / "b"), "--quiet")
     assert baked.returncode == 0 and baked.stderr.strip() == (
-        "farfield: warning: flat.obj: object 'flat.obj': 1 of its 2 triangles have zero area and were dropped (they draw nothing)"), baked.stderr
+        "farfield: warning: lone.obj: material library 'nothere.mtl' not found; objects use the default colour"), baked.stderr
     codec = farfield("glb", str(tmp_path / "b"), "--out", str(tmp_path / "x.glb"), "--textures", "png", "--codec", "uastc")
     assert codec.returncode == 2 and "with --textures png there are none" in codec.stderr and not (tmp_path / "x.glb").exists()
     glb = (tmp_path / "b" / "impostor.glb").read_bytes()

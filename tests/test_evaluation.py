@@ -274,13 +274,16 @@ def test_an_unbounded_shaft_is_evaluated_up_to_four_times_its_near_distance():
 
 
 def test_a_part_smaller_than_every_sample_is_not_bloat_where_its_impostor_shows_it():
-    """A 1 m box 100 km away at 128 px is 0.002 pixels wide: no sample of the geometry's render
+    """1 m boxes 100 km away at 128 px are 0.002 pixels wide: no sample of the geometry's render
     covers it, while the impostor, recorded conservatively, keeps a texel there.  That texel lies
     within one pixel of the geometry (its vertices), so it is not bloat beyond one pixel; it used
     to be counted as such from every viewpoint, and ``evaluate --check`` failed every technique."""
     from farfield.core.evaluation import evaluate
 
-    part = Scene.from_objects([scenes.box_object("far", (-0.5, 0.0, -0.5), (0.5, 1.0, 0.5), (0.8, 0.3, 0.2, 1.0))], "far")
+    # Two boxes 24 km apart across the view and 5 km apart up it: each ~18 pixels off the image's
+    # centre, the second also ~8 up, so the pixels they reach are cropped with the comparison's window.
+    part = Scene.from_objects([scenes.box_object("far", (-0.5, 0.0, -12000.5), (0.5, 1.0, -11999.5), (0.8, 0.3, 0.2, 1.0)),
+                               scenes.box_object("farther", (-0.5, 5000.0, 11999.5), (0.5, 5001.0, 12000.5), (0.2, 0.3, 0.8, 1.0))], "far")  # fmt: skip
     cell = BoxCell.from_center(np.array([-100_000.0, 0.5, 0.0]), 1.0)
     impostor = bake_layered(part, cell, BakeOptions(resolution=128))
     totals = evaluate(part, impostor, cell, random_count=2).totals

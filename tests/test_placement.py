@@ -352,7 +352,7 @@ def test_place_command_writes_a_placement_and_refuses_bad_input(tmp_path):
     capped = runner.invoke(cli, [*args[:-1], "--json", "--max-impostor-mb", "0.001"])
     assert json.loads(capped.output)["summary"]["candidates_refused_by_memory"] > 0 == doc["summary"]["candidates_refused_by_memory"]
     zero = runner.invoke(cli, [*args[:-1], "--max-impostor-mb", "0"])
-    assert zero.exit_code == 2 and "largest impostor" in zero.output
+    assert zero.exit_code == 2 and "--max-impostor-mb must be > 0, got 0.0" in zero.output
 
 
 def test_cluster_names_never_clash_with_object_names():

@@ -266,7 +266,9 @@ def _planning(task, job_id: str, phase: str) -> str:
     guard = _memory_guard(settings)
 
     def over_memory(resident: int) -> None:  # the guard's thread, just before it ends this process
-        fail_planning(db, job_id, f"{CellLimitError.__name__}: {memory_limit_message(resident, guard.limit_mb, PLANNING)}", blobs=blobs)
+        # Only while this worker holds the job (a stale attempt must not fail a newer one's); no blob
+        # deletion here, on the way to the kill: the redelivery finds the job failed and drops them.
+        fail_planning(db, job_id, f"{CellLimitError.__name__}: {memory_limit_message(resident, guard.limit_mb, PLANNING)}", task.request.hostname)
 
     try:
         with guard.armed(over_memory):
