@@ -383,8 +383,11 @@ def _pair_kernel(eye, at_vertex, faces, pairs, layers, eye_borders, half_tan, re
     return kept
 
 
-_AREA_CACHE: OrderedDict[int, tuple[SceneObject, np.ndarray]] = OrderedDict()  # id -> (object, faces_with_area), the last few
-_AREA_CACHED = 64
+# id -> (object, faces_with_area) of the last few objects.  It holds the objects (so an id cannot be
+# reused under it), so it is kept small: a worker's scene cache decides which scenes stay in memory,
+# and a small object is cheap to test again.
+_AREA_CACHE: OrderedDict[int, tuple[SceneObject, np.ndarray | None]] = OrderedDict()
+_AREA_CACHED = 8
 
 
 def faces_with_area(obj: SceneObject) -> np.ndarray | None:
