@@ -1,5 +1,5 @@
 """Results: per-cell bundle (zip), manifest, atlas pages, GLB; a job's whole impostor database; lookup;
-a placement job's CPVs and what to draw in a view (:mod:`core.placement.database`)."""
+a placement job's CPVs and what to draw in a view (:mod:`farfield.core.placement.database`)."""
 
 from __future__ import annotations
 
@@ -17,8 +17,8 @@ from fastapi.responses import FileResponse, Response
 from sqlalchemy import select
 from starlette.background import BackgroundTask
 
-from farfield.core.bundle import GLB_NAME, MANIFEST_NAME, PAYLOAD_NAME, bundle_zip, page_file_name
-from farfield.core.glb_compression import compress_glb
+from farfield.core.impostor.bundle import GLB_NAME, MANIFEST_NAME, PAYLOAD_NAME, bundle_zip, page_file_name
+from farfield.core.impostor.glb_compression import compress_glb
 from farfield.core.errors import BundleFormatError, ConflictError, InternalError, NotFoundError, ViewCellError
 from farfield.core.placement.database import PlacementLookup
 from farfield.core.placement.hierarchy import Elements, PlacementError
@@ -264,7 +264,7 @@ _CLUSTERS_LOCK = threading.Lock()
 def placement_clusters(job_id: str, tenant_id: TenantDep, svc: ServicesDep) -> dict:
     """``{"cluster_triangles": n, "clusters": {name: {"object": name, "faces": [[start, end), ...]}}}``:
     the lookup's ``replaced`` names elements; an element that is not a whole object of the scene is
-    one of these clusters (:meth:`core.placement.hierarchy.Elements.clusters`)."""
+    one of these clusters (:meth:`farfield.core.placement.hierarchy.Elements.clusters`)."""
     job, index, _ = _placement_database(svc, tenant_id, job_id)
     if index.get("kind") == PRIMITIVE_INDEX_KIND:
         raise NotFoundError(f"job {job_id!r} is a primitive-budget placement: its images replace octree cells, not clusters")
@@ -311,7 +311,7 @@ def _image_placement(job: JobRow, index: dict) -> dict:
 
 
 def _image_lookup(svc: Services, job_id: str, index: dict, placement, eye, direction) -> dict:
-    """``/lookup`` of a primitive-budget job (:func:`core.placement.image_database.image_lookup`), with
+    """``/lookup`` of a primitive-budget job (:func:`farfield.core.placement.image_database.image_lookup`), with
     the record of the cell that baked the image."""
     answer = image_lookup(index, placement, eye, direction)
     cell = next((b["index"] for b in index.get("cells_baked", []) if b["image"] == answer["image"]), None) if answer["image"] else None

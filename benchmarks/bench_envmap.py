@@ -46,14 +46,14 @@ import trimesh
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from farfield.core.envmap_runtime import EnvmapCellRenderer, camera_at, depth_range_for, evaluate_envmap  # noqa: E402
-from farfield.core.impostor_database import ImpostorDatabase, write_database  # noqa: E402
+from farfield.core.techniques.envmap.runtime import EnvmapCellRenderer, camera_at, depth_range_for, evaluate_envmap  # noqa: E402
+from farfield.core.impostor.database import ImpostorDatabase, write_database  # noqa: E402
 from farfield.core.render.context import gl_context, renderer_info  # noqa: E402
 from farfield.core.render.raster import MeshRenderer  # noqa: E402
 from farfield.core.scene import Scene, SceneObject  # noqa: E402
-from farfield.core.techniques.envmap import EnvmapOptions, bake_envmap  # noqa: E402
+from farfield.core.techniques.envmap.technique import EnvmapOptions, bake_envmap  # noqa: E402
 from farfield.core.viewcells import BoxCell, grid_boxes  # noqa: E402
-from farfield.core.walkthrough import generate_path, walkthrough, write_plot  # noqa: E402
+from farfield.core.quality.walkthrough import generate_path, walkthrough, write_plot  # noqa: E402
 
 HORIZONTAL = ("+x", "-x", "+z", "-z")
 

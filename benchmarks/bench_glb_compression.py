@@ -9,7 +9,7 @@ demo city from a 10-unit cell at (170, 5, 170); and layered impostors of two tex
 ``../shared/scenes`` (the damaged helmet's photographic PBR atlas, the scrub pine's alpha-cut leaf
 cards), from a cell one diameter in front (the flat-coloured procedural pages are what PNG
 compresses best; photographs are what Basis Universal is for).  Each GLB is written plain (PNG pages, plain
-buffers: the default) and through :func:`core.glb_compression.compress_glb`: meshopt geometry,
+buffers: the default) and through :func:`farfield.core.impostor.glb_compression.compress_glb`: meshopt geometry,
 KTX2 pages (ETC1S, UASTC), both, and KTX2 with the PNG kept as fallback.  Columns: bytes, and the
 ratio to plain; for each codec the decoded pages against the PNG (Basis Universal's own
 transcoder to RGBA8): mean absolute RGB error on the texels the alpha cut keeps (0..255), texels
@@ -32,9 +32,9 @@ from PIL import Image
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT.parent))
 
-from farfield.core.glb import impostor_glb  # noqa: E402
+from farfield.core.impostor.glb import impostor_glb  # noqa: E402
 from farfield.core.exchange import load_scene  # noqa: E402
-from farfield.core.glb_compression import compress_glb, decode_ktx2, read_glb  # noqa: E402
+from farfield.core.impostor.glb_compression import compress_glb, decode_ktx2, read_glb  # noqa: E402
 from farfield.core.procedural import demo_scene  # noqa: E402
 from farfield.core.techniques import get_technique  # noqa: E402
 from farfield.core.viewcells import BoxCell  # noqa: E402

@@ -29,8 +29,8 @@ import trimesh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from farfield.core.evaluation import evaluate  # noqa: E402
-from farfield.core.layers import plan_layers  # noqa: E402
+from farfield.core.quality.evaluation import evaluate  # noqa: E402
+from farfield.core.layering.plan import plan_layers  # noqa: E402
 from farfield.core.render.context import gl_context, renderer_info  # noqa: E402
 from farfield.core.render.programs import park_framebuffer  # noqa: E402
 from farfield.core.render.raster import Camera, MeshRenderer  # noqa: E402

@@ -8,7 +8,7 @@ measured (225,000 triangles of an icosphere in 45 material groups, every materia
 a fresh Python process that has already imported both libraries, so neither pays the other's
 imports: the seconds of the load call (best of ``--repeats``) and the peak resident memory above
 what the process held before it (``VmHWM`` reset through ``/proc/self/clear_refs``).
-``farfield`` is ``core.exchange.load_scene`` (what ``farfield inspect``, the service and every
+``farfield`` is ``farfield.core.exchange.load_scene`` (what ``farfield inspect``, the service and every
 worker call); ``trimesh`` is ``trimesh.load(path, process=False)``, which parses but leaves
 textures undecoded; ``+decode`` is that plus decoding each distinct image its materials hold to
 RGBA once, the least a loader that renders must do.  The ratios are farfield over ``+decode``.

@@ -17,7 +17,7 @@ model (the builtin one ``farfield calibrate`` measured on this machine's llvmpip
 * a grid of layered environment maps over the same view space (test 15), **estimated** from the
   envmap layer plans (not baked): per leaf region a cubic cell, its near field the smallest radius
   whose geometry (every element within it, all directions) fits t_max, its layers from
-  :func:`core.envmap_layers.layers_for_near_field` for the same output as the placement (the
+  :func:`farfield.core.techniques.envmap.arrangement.layers_for_near_field` for the same output as the placement (the
   resolution at 45°: face resolution ``ceil(res / tan 22.5°)``, the parallax angle of a 45° pixel),
   and its memory the cost model's memory law applied to each of the six faces' layers.
 
@@ -28,10 +28,10 @@ is baked.  Everything runs on CPU; rendering is not involved (the cost model sta
 ``--walkthrough`` (issue 26, Measure) closes the loop by measurement on the city: for t_max at
 three values (``--factors`` times the reference budget, half the worst view's estimated time) it
 plans with the builtin llvmpipe model, bakes every chosen impostor in this process (layered, EGL),
-runs the check-and-repair rounds with the baked figures (:mod:`core.placement.repair`), writes the
+runs the check-and-repair rounds with the baked figures (:mod:`farfield.core.placement.repair`), writes the
 placement database and walks ``--views`` random views (positions uniform in the view space,
 directions uniform on the sphere, the same views for every t_max) with the reference runtime
-(:mod:`core.placement.runtime`) against plain geometry.  Columns: share of views whose measured
+(:mod:`farfield.core.placement.runtime`) against plain geometry.  Columns: share of views whose measured
 frame is within t_max, and by the model's estimate; p99 and max frame time of the runtime and of
 plain geometry; speed-up (median of per-view ratios); hole pixels against the full scene; baked
 memory (atlas texture bytes) of the impostors some CPV draws (what the database ships; the JSON
@@ -63,7 +63,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from farfield.core import procedural  # noqa: E402
-from farfield.core.envmap_layers import layers_for_near_field  # noqa: E402
+from farfield.core.techniques.envmap.arrangement import layers_for_near_field  # noqa: E402
 from farfield.core.errors import FarfieldError  # noqa: E402
 from farfield.core.exchange import load_scene  # noqa: E402
 from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, primitive_model  # noqa: E402
@@ -71,7 +71,7 @@ from farfield.core.placement.hierarchy import Elements  # noqa: E402
 from farfield.core.placement.planner import PlacementSettings, place  # noqa: E402
 from farfield.core.placement.view_space import element_pixels  # noqa: E402
 from farfield.core.scene import Scene, SceneObject  # noqa: E402
-from farfield.core.techniques.envmap import EnvmapOptions  # noqa: E402
+from farfield.core.techniques.envmap.technique import EnvmapOptions  # noqa: E402
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "scenes"
 RESOLUTION = 256
@@ -158,16 +158,16 @@ def _envmap_near_field(elements: Elements, c_lo, c_hi, t_max: float, model: Cost
                        depth_complexity: float = 4.0) -> tuple[float, float]:  # fmt: skip
     """(near field, frame estimate) of an envmap cell for ``t_max``: the largest near field (the
     half-size of a cube about the cell's centre, as the envmap bake cuts it,
-    :func:`core.near_field.near_field`; one of the elements' distances) at which the cell's frame
+    :func:`farfield.core.techniques.envmap.near_field.near_field`; one of the elements' distances) at which the cell's frame
     fits t_max by the model, at least just outside the cell (where nothing fits, the estimate says
     by how much); inf when every element fits with no layer (the cell needs no impostor).
 
-    The frame is built as the planner builds a problem view's (:mod:`core.placement.view_space`):
+    The frame is built as the planner builds a problem view's (:mod:`farfield.core.placement.view_space`):
     the elements whose bounds meet the near field's cube (all of each, though the bake keeps only
     its triangles inside), from every direction and unculled (what a view of any
     direction may draw), its pixels each element's disc from the cell's nearest point, their sum
     capped at ``depth_complexity`` frames; plus the layers the near field needs
-    (:func:`core.envmap_layers.layers_for_near_field`) drawn as impostors by the model's impostor
+    (:func:`farfield.core.techniques.envmap.arrangement.layers_for_near_field`) drawn as impostors by the model's impostor
     terms: ``ENVMAP_FACES_IN_VIEW`` faces, each ``g`` plus ``f`` per quad (the model's quads law at a
     whole face's texels per layer), and one frame of layer pixels (``e``)."""
     c_lo, c_hi = np.asarray(c_lo, dtype=np.float64), np.asarray(c_hi, dtype=np.float64)
@@ -253,14 +253,14 @@ def envmap_grid_walkthrough(scene: Scene, lo, hi, cell: float, t_max: float, mod
     view space (the grid covers it, overhanging where the sides do not divide), each cell's near
     field from :func:`_envmap_near_field` for ``t_max``, at the placement's output (``resolution``
     pixels, 45 degrees); write the database and walk the same views with the envmap reference
-    runtime (:func:`core.walkthrough.walkthrough`: near-field geometry plus the cell's layers).
+    runtime (:func:`farfield.core.quality.walkthrough.walkthrough`: near-field geometry plus the cell's layers).
     A cell whose every element fits t_max gets no impostor; its views draw the plain scene.
     Returns the baked memory, the share of views within t_max, p99/max frame time, holes and
     colour error (of the views an impostor served), and the seconds of baking."""
-    from farfield.core.impostor_database import ImpostorDatabase, write_database
-    from farfield.core.techniques.envmap import bake_envmap
+    from farfield.core.impostor.database import ImpostorDatabase, write_database
+    from farfield.core.techniques.envmap.technique import bake_envmap
     from farfield.core.viewcells import grid_boxes
-    from farfield.core.walkthrough import walkthrough
+    from farfield.core.quality.walkthrough import walkthrough
 
     elements = Elements.of(scene)
     counts = _grid_counts(lo, hi, cell)
@@ -391,9 +391,9 @@ def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float
     """The --walkthrough table (see the module docstring): one row per t_max."""
     import tempfile
 
-    from farfield.core.impostor_database import ImpostorDatabase
+    from farfield.core.impostor.database import ImpostorDatabase
     from farfield.core.placement.database import bake_impostor, bake_placement, placement_cells, write_placement_database
-    from farfield.core.walkthrough import placement_walkthrough, random_views
+    from farfield.core.quality.walkthrough import placement_walkthrough, random_views
 
     worst = _worst_view(scene, lo, hi, model, resolution)
     t_ref = 0.5 * worst
@@ -498,11 +498,11 @@ def estimate_rows(scene: Scene, lo, hi, model: CostModel, views: int, seed: int,
     estimate / measured over all views and over the slowest quarter."""
     import tempfile
 
-    from farfield.core.impostor_database import ImpostorDatabase
+    from farfield.core.impostor.database import ImpostorDatabase
     from farfield.core.placement.database import write_placement_database
     from farfield.core.placement.hierarchy import Hierarchy
     from farfield.core.placement.view_space import problem_view_space
-    from farfield.core.walkthrough import placement_walkthrough, random_views
+    from farfield.core.quality.walkthrough import placement_walkthrough, random_views
 
     cpv = float(np.max(hi - lo)) / cpv_divisions
     positions, forwards = random_views(lo, hi, views, seed)
@@ -554,7 +554,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="--walkthrough: draws per frame (median)")
     parser.add_argument("--seed", type=int, default=0, help="--walkthrough: seed of the random views")
     parser.add_argument("--resolution", type=int, default=RESOLUTION, help="--walkthrough: output resolution")
-    parser.add_argument("--detail", type=int, default=16, help="--walkthrough: the city's most quads per building face side (core.procedural.city)")
+    parser.add_argument("--detail", type=int, default=16, help="--walkthrough: the city's most quads per building face side (farfield.core.procedural.city)")
     parser.add_argument("--keep", default=None, help="--walkthrough: write the placement databases under this folder")
     parser.add_argument("--vdi-deg", type=float, default=11.25, help="--walkthrough: the planner's smallest view-direction interval, degrees")
     parser.add_argument("--cpv-divisions", type=int, default=8, help="--walkthrough: CPV size = the view space's longest side / this")

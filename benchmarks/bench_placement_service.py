@@ -4,7 +4,7 @@ Usage: ``.venv/bin/python benchmarks/bench_placement_service.py [--size 49] [--d
 [--vdi-deg 45] [--cpv-divisions 4] [--json OUT]``
 
 The scene is the seeded procedural city of ``benchmarks/bench_placement.py`` (``city_scene(False,
-size, detail)``: ``core.procedural.city(size, seed=0, detail=detail)``, its view space a box above
+size, detail)``: ``farfield.core.procedural.city(size, seed=0, detail=detail)``, its view space a box above
 the roofs of its centre), written as a GLB and uploaded as a scene.  The budget is that benchmark's
 too: t_max = ``--factor`` x the reference budget, half the worst view's time with no impostor by the
 builtin llvmpipe cost model (``LLVMPIPE_MODEL``) at ``--resolution``; the planner's knobs
@@ -169,7 +169,7 @@ def _row(r: dict) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--size", type=int, default=49, help="buildings of the city (core.procedural.city)")
+    parser.add_argument("--size", type=int, default=49, help="buildings of the city (farfield.core.procedural.city)")
     parser.add_argument("--detail", type=int, default=64, help="the city's most quads per building face side")
     parser.add_argument("--resolution", type=int, default=128, help="impostor resolution (and the cost model's view resolution)")
     parser.add_argument("--factor", type=float, default=1.0, help="t_max as this multiple of the reference budget (half the worst view's time)")

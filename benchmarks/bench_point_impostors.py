@@ -12,7 +12,7 @@ quarter of the part's size two part-diameters in front of it), output at 45°.  
   the cell's centre at 4 x 4 samples) and per pixel of the part's screen bounding box there (seed
   001's Table 1 measure), the share of one-colour points (§5.3) and the bytes per point;
 - **bake seconds** per stage (plan, points, appearance, pack) and the appearance's views;
-- **the evaluation** (:func:`core.evaluation.evaluate`, as ``farfield evaluate`` runs it): the cell's
+- **the evaluation** (:func:`farfield.core.quality.evaluation.evaluate`, as ``farfield evaluate`` runs it): the cell's
   corners, reference viewpoint (its centre) and 16 random points, hole pixels, pixels bloated
   beyond one pixel, colour error mean;
 - **aliasing error** (the paper's reason to exist, Figs. 6-8): from the cell's centre and 8
@@ -44,7 +44,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from bench_points import parts  # noqa: E402
 
 from farfield.core.colour_space import linear_to_srgb, srgb_to_linear  # noqa: E402
-from farfield.core.evaluation import evaluate, impostor_renderer  # noqa: E402
+from farfield.core.quality.evaluation import evaluate, impostor_renderer  # noqa: E402
 from farfield.core.render.context import gl_context, renderer_info  # noqa: E402
 from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds  # noqa: E402
 from farfield.core.scene import Scene  # noqa: E402

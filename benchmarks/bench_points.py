@@ -28,10 +28,10 @@ sys.path.insert(0, str(ROOT))
 
 from tests.scenes import city, forest, real_scene  # noqa: E402
 
-from farfield.core.envmap_runtime import camera_at  # noqa: E402
-from farfield.core.ldi import record_ldi  # noqa: E402
-from farfield.core.point_sampling import plan_point_sampling  # noqa: E402
-from farfield.core.point_samples import gather_point_samples  # noqa: E402
+from farfield.core.techniques.envmap.runtime import camera_at  # noqa: E402
+from farfield.core.ldi.image import record_ldi  # noqa: E402
+from farfield.core.techniques.points.sampling import plan_point_sampling  # noqa: E402
+from farfield.core.techniques.points.samples import gather_point_samples  # noqa: E402
 from farfield.core.render.context import gl_context, renderer_info  # noqa: E402
 from farfield.core.viewcells import BoxCell  # noqa: E402
 

@@ -44,13 +44,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from farfield.core import procedural  # noqa: E402
-from farfield.core.glb import page_png  # noqa: E402
-from farfield.core.impostor_database import ImpostorDatabase  # noqa: E402
-from farfield.core.ldi_pages import ldi_payload_and_pages  # noqa: E402
+from farfield.core.impostor.glb import page_png  # noqa: E402
+from farfield.core.impostor.database import ImpostorDatabase  # noqa: E402
+from farfield.core.ldi.pages import ldi_payload_and_pages  # noqa: E402
 from farfield.core.placement.cost_model import primitive_model  # noqa: E402
 from farfield.core.placement.database import bake_placement, write_placement_database  # noqa: E402
 from farfield.core.placement.planner import PlacementSettings, place  # noqa: E402
-from farfield.core.walkthrough import placement_walkthrough  # noqa: E402
+from farfield.core.quality.walkthrough import placement_walkthrough  # noqa: E402
 from farfield.core.placement.image_frames import boundary_eyes, cell_objects, frame_holes, image_ldi, view_camera  # noqa: E402
 from farfield.core.placement.solution_grid import BudgetSettings, check_views, place_primitives  # noqa: E402
 from farfield.core.placement.yaw_ranges import drawn_cells, forward  # noqa: E402
@@ -70,7 +70,7 @@ def scene_and_view_space(buildings: int, detail: int):
 
 def ldi_bytes(ldi) -> tuple[int, int]:
     """(splat, stored) bytes of an LDI: what the GPU drawer uploads (20 bytes a sample) and its pages as
-    the bundle stores them (a colour and a depth PNG per layer, core.ldi_pages)."""
+    the bundle stores them (a colour and a depth PNG per layer, farfield.core.ldi.pages)."""
     _, pages = ldi_payload_and_pages(ldi)
     return 20 * ldi.count, sum(len(page_png(p)) for p in pages)
 

@@ -8,7 +8,7 @@ plans and bound are this tree's), alternating, ``--rounds`` times each; a proces
 then keeps the best of 3 (of 2 for the envmap cell).  The table gives the best of all rounds per
 tree, and whether the two trees recorded the same bytes.
 
-- ``dense 512`` and ``dense 1024``: :func:`core.recording.record_layers` of ``bench_layered.py``'s
+- ``dense 512`` and ``dense 1024``: :func:`farfield.core.layering.recording.record_layers` of ``bench_layered.py``'s
   102,400-triangle object (vertex colours and a plain colour) from its speed cell, the plan a
   default bake records; beside it the lower bound of issue 29 item 3, one plain render of the
   object at the plan's texels plus the read-back of every layer (``bench_layered.lower_bound_s``).
@@ -68,7 +68,7 @@ def measure(envmap: bool) -> dict:
     from bench_layered import bake_plan, cell_before, dense_object, lower_bound_s
 
     from farfield.core.exchange import load_scene
-    from farfield.core.recording import record_layers
+    from farfield.core.layering.recording import record_layers
     from farfield.core.render.context import renderer_info
 
     cases = {"renderer": renderer_info().renderer}
@@ -90,7 +90,7 @@ def measure(envmap: bool) -> dict:
     if envmap:
         from bench_envmap import detailed_city, street_grid
 
-        from farfield.core.techniques.envmap import EnvmapOptions, bake_envmap
+        from farfield.core.techniques.envmap.technique import EnvmapOptions, bake_envmap
 
         city = detailed_city(36, 3)
         cells = street_grid(36)

@@ -32,7 +32,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from farfield.core.bundle import write_bundle  # noqa: E402
+from farfield.core.impostor.bundle import write_bundle  # noqa: E402
 from farfield.core.exchange import load_scene  # noqa: E402
 from farfield.core.render.context import renderer_info  # noqa: E402
 from farfield.core.techniques.layered import BakeOptions, bake_layered  # noqa: E402

@@ -6,7 +6,7 @@ Usage: ``.venv/bin/python benchmarks/bench_tdm.py [--quick] [--json] [--out DIR]
    thesis's house model is not public), a cubic 100 m view cell, 512 x 512, 45°, distances
    90-1000 m between cell and model: layers, meshes, initial and final TDM triangles, TDM memory,
    layered quads and memory, generation time per stage of both, hole pixels and colour error of
-   both (the same ``core.evaluation.evaluate``: the cell's 8 corners, its centre and 4 random
+   both (the same ``farfield.core.quality.evaluation.evaluate``: the cell's 8 corners, its centre and 4 random
    points).  Memory = texture + geometry as drawn (TDM an indexed mesh: 20 B per vertex of each
    texture chart + 12 B per triangle; layered 104 B per quad).  The TDM's texture is its atlas
    pages as stored (charts packed as masks, gaps included); the layered impostor's is counted two
@@ -19,7 +19,7 @@ Usage: ``.venv/bin/python benchmarks/bench_tdm.py [--quick] [--json] [--out DIR]
    time and image error, as a table and a plot (``tdm_trade.png``).
 3. Which to use, part by part (seed 000 Table 4.2 tries other models): the test suite's scenes
    with cells near them (the same cells as ``tests/test_tdm.py``), both techniques evaluated alike
-   and :func:`core.comparison.choose` (fewest hole pixels, then least memory) naming the one to use.
+   and :func:`farfield.core.quality.comparison.choose` (fewest hole pixels, then least memory) naming the one to use.
 
 The renderer (llvmpipe or a GPU) is printed.  numba kernels are compiled (and cached) by a warm-up
 bake first, so their compile time is not in any row.  ``--quick`` uses 256 pixels and fewer rows.
@@ -42,11 +42,11 @@ from scenes import SHARED_SCENES, house  # noqa: E402
 from test_bake import cell_in_front  # noqa: E402
 from test_tdm import CASES as PARTS  # noqa: E402  (the test suite's parts and cells)
 
-from farfield.core.comparison import Candidate, choose  # noqa: E402
-from farfield.core.evaluation import evaluate  # noqa: E402
+from farfield.core.quality.comparison import Candidate, choose  # noqa: E402
+from farfield.core.quality.evaluation import evaluate  # noqa: E402
 from farfield.core.render.context import gl_context, renderer_info  # noqa: E402
 from farfield.core.techniques.layered import BakeOptions, bake_layered  # noqa: E402
-from farfield.core.techniques.tdm import TdmOptions, bake_tdm  # noqa: E402
+from farfield.core.techniques.tdm.technique import TdmOptions, bake_tdm  # noqa: E402
 from farfield.core.viewcells import BoxCell  # noqa: E402
 
 DISTANCES = (90, 110, 140, 180, 250, 500, 1000)

@@ -9,7 +9,7 @@ Usage: ``.venv/bin/python benchmarks/bench_tdm_scale.py [--subdivisions 7] [--be
    triangles at 7 subdivisions: the size of the 346k-triangle scan the issue measured) from a
    cubic cell of side 1 whose far face lies 2 units in front of it, 512 px, 45°, f = 2: its layers,
    voxels, charts, triangles, memory and the seconds of each stage (``Impostor.stats``).
-2. **The packer, before and after**: the bake's chart masks packed by ``core/mask_atlas.py`` as it
+2. **The packer, before and after**: the bake's chart masks packed by ``core/techniques/tdm/mask_atlas.py`` as it
    is and as it was at git revision ``--before`` (loaded from ``git show``), each in a fresh
    process, the old one stopped after ``--before-limit`` seconds.  Both must give the same layout;
    the table says whether they did.
@@ -43,14 +43,14 @@ from scenes import dense_mesh  # noqa: E402
 
 from farfield.core.render.context import gl_context, renderer_info  # noqa: E402
 from farfield.core.techniques import tdm as tdm_module  # noqa: E402
-from farfield.core.techniques.tdm import TdmOptions, bake_tdm, warm_kernels  # noqa: E402
+from farfield.core.techniques.tdm.technique import TdmOptions, bake_tdm, warm_kernels  # noqa: E402
 from farfield.core.viewcells import BoxCell  # noqa: E402
 
 PACK = """
 import importlib.util, pickle, sys, time
 masks, padding, max_page, source = pickle.load(open(sys.argv[1], "rb"))
 if source is None:
-    from farfield.core.mask_atlas import pack_masks
+    from farfield.core.techniques.tdm.mask_atlas import pack_masks
 else:
     spec = importlib.util.spec_from_file_location("mask_atlas_before", source)
     module = importlib.util.module_from_spec(spec)
@@ -68,7 +68,7 @@ import sys, time
 import numpy as np
 from farfield.core.procedural import city
 from farfield.core.render.context import gl_context
-from farfield.core.techniques.tdm import TdmOptions, bake_tdm, warm_kernels
+from farfield.core.techniques.tdm.technique import TdmOptions, bake_tdm, warm_kernels
 warm = warm_kernels() if sys.argv[1] == "warm" else 0.0
 scene = city(4)
 lo, hi = scene.bounds
@@ -144,7 +144,7 @@ def main() -> None:
     report = {"renderer": info.renderer, "peak_mib": peak, "triangles_in": int(sum(len(o.faces) for o in scene.objects)), "stats": {k: s[k] for k in (
         "layers_planned", "layers", "voxels", "initial_triangles", "triangles", "texture_charts", "atlas_pages", "texture_bytes", "geometry_bytes", "texture_resolution", "seconds")}}  # fmt: skip
 
-    before_source = subprocess.run(["git", "show", f"{args.before}:core/mask_atlas.py"], check=True, capture_output=True, text=True, cwd=ROOT).stdout
+    before_source = subprocess.run(["git", "show", f"{args.before}:core/techniques/tdm/mask_atlas.py"], check=True, capture_output=True, text=True, cwd=ROOT).stdout
     after = pack_in_process(masks, options, None, 3600.0)
     before = pack_in_process(masks, options, before_source, args.before_limit)
     report["packer"] = {

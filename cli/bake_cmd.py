@@ -1,4 +1,4 @@
-"""``farfield bake``: bake one impostor of any registered technique (:mod:`core.techniques`) and write its bundle (manifest, atlas PNGs, GLB)."""
+"""``farfield bake``: bake one impostor of any registered technique (:mod:`farfield.core.techniques`) and write its bundle (manifest, atlas PNGs, GLB)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from pathlib import Path
 import click
 from tqdm import tqdm
 
-from farfield.core.bundle import check_destination, write_bundle
-from farfield.core.culling import CULLING_MODES
+from farfield.core.impostor.bundle import check_destination, write_bundle
+from farfield.core.layering.culling import CULLING_MODES
 from farfield.core.errors import LayerPlanError
 from farfield.core.exchange import load_scene
 from farfield.core.options import parse_option_text

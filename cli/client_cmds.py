@@ -190,7 +190,7 @@ def placement_request(view_space: str, frame_ms, cost_model, primitives, cpv_siz
 
 def upload_scene(client: Client, path: Path) -> str:
     """Upload the scene file at ``path``; a ``.gltf`` or ``.obj`` that refers to files beside it (buffers,
-    images; MTL, textures) goes as a zip of them all (:func:`core.exchange.archive.pack_scene`).
+    images; MTL, textures) goes as a zip of them all (:func:`farfield.core.exchange.archive.pack_scene`).
     Returns the scene's id; the loader's warnings (a missing texture) are printed to stderr."""
     from farfield.core.exchange.archive import pack_scene
 

@@ -2,7 +2,7 @@
 
 One bundle: per-viewpoint errors.  Several bundles of the same part and view cell (say a layered
 impostor and a textured depth mesh): each is evaluated from the same viewpoints, and a side-by-side
-table ends with the one to use (:func:`core.comparison.choose`).
+table ends with the one to use (:func:`farfield.core.quality.comparison.choose`).
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ from pathlib import Path
 
 import click
 
-from farfield.core.bundle import read_bundle
-from farfield.core.comparison import PREFERENCES, Candidate, check_comparable, choose
+from farfield.core.impostor.bundle import read_bundle
+from farfield.core.quality.comparison import PREFERENCES, Candidate, check_comparable, choose
 from farfield.core.errors import GuaranteeError
 from farfield.core.exchange import load_scene
 from farfield.core.techniques import get_technique

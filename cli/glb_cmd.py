@@ -1,6 +1,6 @@
 """``farfield glb``: an impostor's GLB with KTX2 textures (Basis Universal, ``KHR_texture_basisu``)
 and meshopt geometry (``EXT_meshopt_compression``), for engines and web viewers
-(:func:`core.glb_compression.compress_glb`).  The plain GLB (PNG pages) stays what bakes and jobs
+(:func:`farfield.core.impostor.glb_compression.compress_glb`).  The plain GLB (PNG pages) stays what bakes and jobs
 write; this makes the compressed one from it."""
 
 from __future__ import annotations
@@ -13,9 +13,9 @@ from pathlib import Path
 
 import click
 
-from farfield.core.bundle import GLB_NAME
+from farfield.core.impostor.bundle import GLB_NAME
 from farfield.core.errors import BundleFormatError, NotFoundError
-from farfield.core.glb_compression import CODECS, GEOMETRY, TEXTURES, compress_glb
+from farfield.core.impostor.glb_compression import CODECS, GEOMETRY, TEXTURES, compress_glb
 
 
 def glb_input(path: Path) -> Path:

@@ -8,11 +8,11 @@ import math
 
 import click
 
-from farfield.core.envmap_layers import envmap_plan, layers_for_near_field
+from farfield.core.techniques.envmap.arrangement import envmap_plan, layers_for_near_field
 from farfield.core.errors import LayerPlanError
-from farfield.core.layers import plan_layers
+from farfield.core.layering.plan import plan_layers
 from farfield.core.pixel_angles import PIXEL_MODELS, pixel_angle
-from farfield.core.point_sampling import plan_point_sampling
+from farfield.core.techniques.points.sampling import plan_point_sampling
 from farfield.core.viewcells import BoxCell, parse_viewcell
 
 

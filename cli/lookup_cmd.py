@@ -1,8 +1,8 @@
 """``farfield lookup``: what a runtime draws for one view of a placement database (offline): the CPV
 holding the view, its status, the impostors to draw (with their bundle folders) and the elements
-they replace; everything else is drawn as geometry (:class:`core.placement.database.PlacementLookup`).
+they replace; everything else is drawn as geometry (:class:`farfield.core.placement.database.PlacementLookup`).
 A primitive-budget database's answer is its grid point, the image to warp and the triangles left
-(:func:`core.placement.image_database.image_lookup`)."""
+(:func:`farfield.core.placement.image_database.image_lookup`)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import click
 
-from farfield.core.impostor_database import ImpostorDatabase
+from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.placement.database import PlacementLookup
 from farfield.core.placement.hierarchy import PlacementError
 from farfield.core.placement.image_database import image_index_of, image_lookup, placement_of_index

@@ -1,7 +1,7 @@
 """Entry point of the ``farfield`` command: a click group whose subcommands live in sibling modules.
 
 Every :class:`farfield.core.errors.FarfieldError` (and a few well-known user mistakes) becomes one line on
-stderr and the exit code from :data:`core.errors.ErrorKind`; a traceback means a bug in farfield
+stderr and the exit code from :data:`farfield.core.errors.ErrorKind`; a traceback means a bug in farfield
 (an uncaught exception, or a :class:`farfield.core.errors.InternalError`, which exits 1 like one).
 """
 

@@ -19,9 +19,9 @@ from tqdm import tqdm
 
 from farfield.core.errors import FarfieldError
 from farfield.core.exchange import load_scene
-from farfield.core.impostor_database import ImpostorDatabase
+from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.placement.image_database import ImageDatabase, image_database_folder, image_walkthrough
-from farfield.core.walkthrough import generate_path, load_path, random_views, walkthrough, write_image_plot, write_placement_plot, write_plot
+from farfield.core.quality.walkthrough import generate_path, load_path, random_views, walkthrough, write_image_plot, write_placement_plot, write_plot
 
 
 @click.command("walkthrough")

@@ -3,7 +3,7 @@
 farfield draws in linear light and stores sRGB, as glTF 2.0 prescribes (§3.9.2, "Metallic-Roughness
 Material": ``baseColorFactor`` and ``COLOR_0`` are linear, ``baseColorTexture`` is sRGB-encoded):
 
-* :class:`core.scene.SceneObject` holds ``base_color`` **linear** (a glTF factor as it is; an
+* :class:`farfield.core.scene.SceneObject` holds ``base_color`` **linear** (a glTF factor as it is; an
   OBJ/MTL ``Kd``, a PLY or face colour decoded from sRGB, the way those formats are authored and
   shown), ``vertex_colors`` and ``texture`` **sRGB-encoded** uint8 (a glTF ``COLOR_0`` is encoded
   on load with :data:`LINEAR_TO_SRGB_U8`);

@@ -28,7 +28,7 @@ class Tolerances:
     max_layers: int = 100_000
     # Largest texture resolution (texels per side) a layer plan may ask for.
     max_texture_resolution: int = 65_536
-    # Relative margin on the parallax budget of a shared one-pixel budget (core/layers.py): the
+    # Relative margin on the parallax budget of a shared one-pixel budget (core/layering/plan.py): the
     # largest parallax over the frustum is searched on a grid of rays, which found it to within
     # 4e-4 relative of a 16 times finer grid on every plan tried, wide frusta included.
     parallax_grid: float = 1e-3

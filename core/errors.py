@@ -75,7 +75,7 @@ class LayerPlanError(FarfieldError):
 
 
 class PlanBudgetError(LayerPlanError):
-    """A layer plan stopped once it passed a caller's budget of texels (:func:`core.layers.plan_layers`'s
+    """A layer plan stopped once it passed a caller's budget of texels (:func:`farfield.core.layering.plan.plan_layers`'s
     ``max_texels``): ``layers`` planned so far (the plan needs at least these) of ``texture`` texels.
 
     >>> error = PlanBudgetError(25, (3223, 3514))

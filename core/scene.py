@@ -19,8 +19,8 @@ Conventions
 * Colour of a surface point = texture (if any) x vertex colour (if any) x ``base_color``, each
   RGBA in 0..1 (the glTF 2.0 base-colour rule), multiplied in linear light: ``base_color`` is
   **linear**, ``vertex_colors`` and ``texture`` are **sRGB-encoded** (alpha is linear in all
-  three).  The loaders convert what a format states or implies (:mod:`core.exchange.trimesh_scene`,
-  :mod:`core.colour_space`).  The summary names the *dominant* source:
+  three).  The loaders convert what a format states or implies (:mod:`farfield.core.exchange.trimesh_scene`,
+  :mod:`farfield.core.colour_space`).  The summary names the *dominant* source:
   ``"texture"`` if there is a texture, else ``"vertex"`` if there are vertex colours, else
   ``"material"``.
 * ``alpha_cutoff`` is ``None`` for opaque objects (alpha is ignored).  Otherwise a fragment whose

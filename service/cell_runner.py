@@ -1,13 +1,13 @@
 """One cell of a job, start to end: claim it, bake its impostor, store the bundle, evaluate it, record the outcome.
 
-The job's technique (:func:`core.techniques.get_technique`) bakes the cell.  A cell of a technique
+The job's technique (:func:`farfield.core.techniques.get_technique`) bakes the cell.  A cell of a technique
 of one part (layered, tdm) is then evaluated against the part's real geometry from a few viewpoints
-(:func:`core.techniques.part.report_part`), unless the job says ``evaluate: false``; the figures
+(:func:`farfield.core.techniques.part.report_part`), unless the job says ``evaluate: false``; the figures
 and the time they took go in the cell's record (``stats.evaluation``), never in the bundle, beside
 this attempt's bake timings (``stats.seconds``) and whether this attempt baked the bundle or found it
 (``stats.baked``).  A placement job's cell (``cells.params``, :mod:`service.placement_jobs`) is baked
-by :func:`core.placement.database.bake_impostor` with its own technique, objects and options (an image
-of a primitive-budget placement by :func:`core.placement.image_database.bake_image`), keyed by them,
+by :func:`farfield.core.placement.database.bake_impostor` with its own technique, objects and options (an image
+of a primitive-budget placement by :func:`farfield.core.placement.image_database.bake_image`), keyed by them,
 and not evaluated here (the walkthrough measures a placement).
 
 This is everything a worker task does (``workers/tasks.py`` is a few lines around it).  The bundle
@@ -32,9 +32,9 @@ import sqlalchemy.exc
 from celery.exceptions import SoftTimeLimitExceeded
 from kombu.exceptions import OperationalError as BrokerError
 
-from farfield.core.bundle import MANIFEST_NAME, read_bundle, write_bundle
+from farfield.core.impostor.bundle import MANIFEST_NAME, read_bundle, write_bundle
 from farfield.core.errors import BundleFormatError, CellLimitError, ErrorKind, FarfieldError, InternalError
-from farfield.core.impostor import Impostor
+from farfield.core.impostor.impostor import Impostor
 from farfield.core.scene import Scene
 from farfield.core.techniques import get_technique
 from farfield.core.techniques.part import report_part
@@ -112,8 +112,8 @@ def failure_message(error: BaseException, klass: str) -> str:
 
 
 def bake_cell(job: JobRow, scene: Scene, viewcell: dict, progress, cell: CellRow | None = None) -> Impostor:
-    """The impostor of one cell of ``job``, baked by the job's technique (:mod:`core.techniques`);
-    a placement job's cell by its own (:func:`core.placement.database.bake_impostor`)."""
+    """The impostor of one cell of ``job``, baked by the job's technique (:mod:`farfield.core.techniques`);
+    a placement job's cell by its own (:func:`farfield.core.placement.database.bake_impostor`)."""
     if cell is not None and cell.params is not None and "image" in cell.params:  # an image of a primitive-budget placement (seed 004)
         from farfield.core.placement.image_database import bake_image
 
@@ -132,7 +132,7 @@ def bake_cell(job: JobRow, scene: Scene, viewcell: dict, progress, cell: CellRow
 
 
 def evaluate_cell(blobs: BlobStore, scene_row: SceneRow, key: str, scene: Scene | None = None, impostor: Impostor | None = None) -> dict:
-    """The job report's evaluation of the bundle under ``key`` (:func:`core.techniques.part.report_part`):
+    """The job report's evaluation of the bundle under ``key`` (:func:`farfield.core.techniques.part.report_part`):
     of ``impostor`` when this attempt baked it, else of the stored bundle read back (a redelivered
     cell, or equal inputs another job baked); ``scene`` is loaded when not given."""
     if scene is None:

@@ -1,6 +1,6 @@
 """Jobs and their cells: the request schema, the state machine, progress, and the impostor database index.
 
-A job names a technique of the registry (:data:`core.techniques.TECHNIQUES`: ``layered``,
+A job names a technique of the registry (:data:`farfield.core.techniques.TECHNIQUES`: ``layered``,
 ``envmap``, ``tdm``; the request's former field ``job_type`` is still accepted) and its options,
 validated from the technique's ``Options`` together with every cell's plan (the technique's
 ``check``) when the job is created.  The SQL column keeps the name ``job_type``.
@@ -35,7 +35,7 @@ from sqlalchemy import func, select, update
 
 from farfield.core import __version__
 from farfield.core.errors import ConflictError, JobTooCostlyError, LayerPlanError, NotFoundError, QueryError, QuotaError, ViewCellError
-from farfield.core.impostor_database import database_index
+from farfield.core.impostor.database import database_index
 from farfield.core.options import options_json_schema, stored_values
 from farfield.core.techniques import DEFAULT_TECHNIQUE, TECHNIQUES, get_technique
 from farfield.core.viewcells import BoxCell, grid_boxes, viewcell_from_dict
@@ -333,7 +333,7 @@ def job_summaries(db: Database, job_ids: list[str]) -> dict[str, dict]:
 
 
 def evaluation_summary(cells: list[CellRow]) -> dict | None:
-    """Over the cells evaluated so far (``stats.evaluation``, :func:`core.techniques.part.report_part`):
+    """Over the cells evaluated so far (``stats.evaluation``, :func:`farfield.core.techniques.part.report_part`):
     how many, how many break the guarantee (a hole pixel or a pixel bloated beyond one), their hole
     and bloated pixels, the worst SSIM and the seconds spent evaluating; None when none was."""
     found = [c.stats["evaluation"] for c in cells if c.stats and c.stats.get("evaluation")]
@@ -590,7 +590,7 @@ def _end_placement_round(db: Database, job_id: str, final: str) -> bool:
 
 
 def index_document(job: JobRow, cells: list[CellRow]) -> dict:
-    """The impostor database index of a job (:func:`core.impostor_database.database_index`)."""
+    """The impostor database index of a job (:func:`farfield.core.impostor.database.database_index`)."""
     entries = [
         {"index": c.index, "grid": c.grid, "viewcell": c.viewcell, "state": c.state, "bundle": f"cells/{c.index:05d}/" if c.result_key else None}
         for c in cells

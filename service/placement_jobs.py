@@ -6,7 +6,7 @@ impostors' technique in ``params["technique"]``) goes
     queued -> placing (plan) -> running (bake round 0) -> placing (check round 1) -> running (bake round 1) -> ... -> done | failed | cancelled
 
 - **plan** (:func:`plan_job`, the worker task ``farfield.plan_placement``): the planner
-  (:func:`core.placement.planner.place`, ``keep_state=True``) on the stored scene; its progress is
+  (:func:`farfield.core.placement.planner.place`, ``keep_state=True``) on the stored scene; its progress is
   the job's ``planning`` record (``GET /v1/jobs/{id}`` shows it as ``"placement"``), cancellation is
   looked at between progress calls, a :class:`~farfield.core.errors.FarfieldError` of bad input fails
   the job with its message, anything else as ``internal error: ...``.  The planner state is kept as a
@@ -18,23 +18,23 @@ impostors' technique in ``params["technique"]``) goes
   which ``retry`` needs to check the round again); an attempt that finds its job cancelled or
   failed removes the index it wrote.
 - **bake**: the cells go to the render workers as a grid job's do (:func:`service.cell_runner.run_cell`
-  bakes a placement cell with :func:`core.placement.database.bake_impostor`; its result key is made
+  bakes a placement cell with :func:`farfield.core.placement.database.bake_impostor`; its result key is made
   of its own parameters, so equal impostors of another job are found, not baked again).
 - **check** (:func:`check_job`, ``farfield.check_placement``), when the last cell of a round ends
   done: the planner state is loaded and repaired with the baked cells' real figures
   (``PlannerState.repair``); impostors it adds become cells of the next round, else (or after
-  ``MAX_REPAIR_ROUNDS``) the database index is written (:func:`core.placement.database.placement_index`,
+  ``MAX_REPAIR_ROUNDS``) the database index is written (:func:`farfield.core.placement.database.placement_index`,
   ``jobs/<id>/index.json``) and the job ends done.
 
 A **primitive-budget** job (``"algorithm": "primitive-budget"``, seed 004, technique ``ldi``) goes the
-same way with one round: the plan is :func:`core.placement.solution_grid.place_primitives` and its
+same way with one round: the plan is :func:`farfield.core.placement.solution_grid.place_primitives` and its
 check of ``check_views`` random views; the grid is kept as ``jobs/<id>/planner-grid.json``; every
 image becomes one cell (``cells.params``: its name "<point>-<image>" and what its LDI is made of,
-:func:`core.placement.image_database.image_entries`), baked by
-:func:`core.placement.image_database.bake_image` and keyed without its name, so the same image of
+:func:`farfield.core.placement.image_database.image_entries`), baked by
+:func:`farfield.core.placement.image_database.bake_image` and keyed without its name, so the same image of
 another job (another P that keeps it) is found, not baked.  The check has nothing to repair (the
 guarantee counts triangles, which baking does not change): it writes the index
-(:func:`core.placement.image_database.image_index`, ``kind`` "primitive-placement", the bundles
+(:func:`farfield.core.placement.image_database.image_index`, ``kind`` "primitive-placement", the bundles
 under ``cells/NNNNN/``) and ends the job.
 
 Planning and checking are held by one worker at a time under a lease (``jobs.plan_worker``,
@@ -234,7 +234,7 @@ def placement_params(technique_name: str | None, given_options: dict, resolution
 
 
 def planner_settings(params: dict):
-    """The job's :class:`~core.placement.planner.PlacementSettings` and view-space corners."""
+    """The job's :class:`~farfield.core.placement.planner.PlacementSettings` and view-space corners."""
     from farfield.core.placement.planner import PlacementSettings
 
     knobs = params["placement"]
@@ -280,7 +280,7 @@ def primitive_params(technique_name: str | None, given_options: dict, resolution
 
 
 def budget_settings(params: dict):
-    """A primitive-budget job's :class:`~core.placement.solution_grid.BudgetSettings`."""
+    """A primitive-budget job's :class:`~farfield.core.placement.solution_grid.BudgetSettings`."""
     from farfield.core.placement.solution_grid import BudgetSettings
 
     knobs = params["placement"]
@@ -306,12 +306,12 @@ def new_placement_job(tenant_id: str, scene: SceneRow, params: dict, requeue_aft
 
 def cell_params(entry: dict, cluster_triangles: int) -> dict:
     """A placement cell's own parameters (``cells.params``, what determines its bundle's bytes) from
-    its entry of :func:`core.placement.database.placement_cells`."""
+    its entry of :func:`farfield.core.placement.database.placement_cells`."""
     return {"technique": entry["technique"], "objects": list(entry["objects"]), "params": entry["params"], "cluster_triangles": int(cluster_triangles)}
 
 
 def impostor_entry(cell: CellRow) -> dict:
-    """The entry :func:`core.placement.database.bake_impostor` bakes for a placement cell."""
+    """The entry :func:`farfield.core.placement.database.bake_impostor` bakes for a placement cell."""
     p = cell.params
     return {"index": cell.index, "technique": p["technique"], "objects": p["objects"], "params": p["params"], "viewcell": cell.viewcell}
 
@@ -552,7 +552,7 @@ def _frame_time_cells(placement: dict, ids) -> list[dict]:
 
 def image_cell_params(entry: dict) -> dict:
     """A primitive-budget cell's own parameters: its image's name and what its LDI is baked from
-    (:func:`core.placement.image_database.image_entries`)."""
+    (:func:`farfield.core.placement.image_database.image_entries`)."""
     return {"technique": "ldi", "image": entry["name"], "params": entry["params"]}
 
 
@@ -576,8 +576,8 @@ def _cell_entries(db: Database, job_id: str) -> list[dict]:
 
 def _write_database(db: Database, blobs: BlobStore, job: JobRow, placement: dict, rounds: list) -> str:
     """Write the job's database index (``jobs/<id>/index.json``): a frame-time placement's
-    (:func:`core.placement.database.placement_index`) or a primitive-budget grid's
-    (:func:`core.placement.image_database.image_index`, its images' bundles under ``cells/NNNNN/``)."""
+    (:func:`farfield.core.placement.database.placement_index`) or a primitive-budget grid's
+    (:func:`farfield.core.placement.image_database.image_index`, its images' bundles under ``cells/NNNNN/``)."""
     key = f"jobs/{job.id}/index.json"
     if algorithm_of(job.params) == PRIMITIVE_BUDGET:
         from farfield.core.placement.image_database import image_index

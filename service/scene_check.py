@@ -3,7 +3,7 @@
 The API validates uploads by parsing them, but a 200 MB mesh parsed inside the API process would
 raise its memory by gigabytes (and a loader crash would take it down).  :func:`check_scene_file`
 runs ``python -m service.scene_check FILE EXTENSION NAME [LIMITS_JSON [ASSETS_ZIP]]`` instead: the child checks
-the file against the scene limits (:mod:`core.exchange.limits`), prints the scene's summary (or the
+the file against the scene limits (:mod:`farfield.core.exchange.limits`), prints the scene's summary (or the
 error's type and message) as one JSON line and exits.
 """
 
@@ -26,7 +26,7 @@ TIMEOUT_S = 600
 
 def summarize(path: Path, extension: str, name: str, limits: SceneLimits = DEFAULT_LIMITS, assets: Path | None = None) -> dict:
     """The summary the service stores for a scene file (run in the child); ``assets``: a zip of the
-    files it refers to (:func:`core.exchange.archive.unpack_scene_archive`)."""
+    files it refers to (:func:`farfield.core.exchange.archive.unpack_scene_archive`)."""
     from farfield.core.exchange import load_scene_bytes
     from farfield.core.exchange.archive import read_assets_zip
 

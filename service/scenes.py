@@ -105,7 +105,7 @@ def ingest_scene(
     loader warned of, e.g. a missing texture).
 
     The upload is one scene file, a zip of a scene file and the files it refers to
-    (:mod:`core.exchange.archive`), or, with ``more``, several files (name, stream) of which one is
+    (:mod:`farfield.core.exchange.archive`), or, with ``more``, several files (name, stream) of which one is
     the scene; ``limit`` bounds their bytes together, uncompressed.  The files a scene refers to are
     stored beside it as ``scenes/<id>/assets.zip``.
 
@@ -253,7 +253,7 @@ def load_stored_scene(blobs: BlobStore, row: SceneRow) -> Scene:
 
 
 def stored_scene_glb(blobs: BlobStore, row: SceneRow) -> bytes:
-    """The loaded scene of ``row`` as GLB (:func:`core.exchange.export.scene_glb`: one node per
+    """The loaded scene of ``row`` as GLB (:func:`farfield.core.exchange.export.scene_glb`: one node per
     object, its name in the mesh's extras), written beside the scene file on first request and
     read from there afterwards; deleted with the scene."""
     key = f"{row.blob_key.rsplit('/', 1)[0]}/{SCENE_GLB}"

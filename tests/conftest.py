@@ -40,8 +40,10 @@ def pytest_report_header(config):
     lines.append("npm (tests/js): " + (", ".join(f"{k} {v}" for k, v in versions.items()) or "not installed (scripts/install-js)"))
     # Fill numba's cache once here, so the render workers the service tests start load the TDM,
     # point and recording kernels (warm_worker) instead of each compiling them while a test waits.
-    from farfield.core import recording
-    from farfield.core.techniques import ldi, points, tdm
+    from farfield.core.layering import recording
+    from farfield.core.techniques import ldi
+    from farfield.core.techniques.points import technique as points
+    from farfield.core.techniques.tdm import technique as tdm
 
     lines.append(f"numba kernels ready in {tdm.warm_kernels() + points.warm_kernels() + ldi.warm_kernels() + recording.warm_kernels():.1f} s")
     return lines

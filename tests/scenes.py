@@ -1,4 +1,4 @@
-"""Canonical test scenes: procedural :class:`core.scene.Scene` s from a seeded ``np.random.default_rng``, bad inputs, and file writers.
+"""Canonical test scenes: procedural :class:`farfield.core.scene.Scene` s from a seeded ``np.random.default_rng``, bad inputs, and file writers.
 
 Good scenes (``city``, ``forest``, ``sphere_field``, ``dense_mesh``, ``textured_quad``) are
 returned as validated ``Scene`` s; the bad ones cannot be ``Scene`` s, so they come as raw arrays

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from farfield.core.atlas import AtlasLayout, bleed_rgb, compose, pack, tile_uv, tile_uvs
+from farfield.core.layering.atlas import AtlasLayout, bleed_rgb, compose, pack, tile_uv, tile_uvs
 from farfield.core.errors import AtlasOverflowError, LayerPlanError
-from farfield.core.quads import grow_quads
+from farfield.core.layering.quads import grow_quads
 
 
 def random_sizes(n: int, seed: int, low: int = 1, high: int = 90) -> np.ndarray:

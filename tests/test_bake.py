@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import scenes
 
-from farfield.core.evaluation import compare_images, evaluate, impostor_objects
+from farfield.core.quality.evaluation import compare_images, evaluate, impostor_objects
 from farfield.core.render.context import gl_context
 from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
 from farfield.core.scene import Scene

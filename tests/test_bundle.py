@@ -17,8 +17,8 @@ import pytest
 import trimesh
 from PIL import Image
 
-import farfield.core.bundle
-from farfield.core.bundle import (
+import farfield.core.impostor.bundle
+from farfield.core.impostor.bundle import (
     FORMAT_VERSION,
     GLB_NAME,
     MANIFEST_NAME,
@@ -30,8 +30,8 @@ from farfield.core.bundle import (
     stored_stats,
 )
 from farfield.core.errors import BundleFormatError
-from farfield.core.glb import impostor_glb, page_png
-from farfield.core.impostor import Impostor, MeshPayload, QuadPayload
+from farfield.core.impostor.glb import impostor_glb, page_png
+from farfield.core.impostor.impostor import Impostor, MeshPayload, QuadPayload
 
 ORIGIN = (0.0, 0.0, 0.0)
 CONTINENTAL = (4.2e6, -1.3e6, 250.0)
@@ -631,7 +631,7 @@ def test_failed_write_keeps_the_old_bundle(tmp_path, monkeypatch):
         write_bundle(_bad_page_impostor(), paths.directory)
 
     # A failure after some files are on disk (disk full) removes the staging directory too.
-    real_write = farfield.core.bundle._write_file
+    real_write = farfield.core.impostor.bundle._write_file
     calls = []
 
     def failing_write(path, data):
@@ -640,7 +640,7 @@ def test_failed_write_keeps_the_old_bundle(tmp_path, monkeypatch):
             raise OSError(28, "No space left on device", str(path))
         real_write(path, data)
 
-    monkeypatch.setattr(farfield.core.bundle, "_write_file", failing_write)
+    monkeypatch.setattr(farfield.core.impostor.bundle, "_write_file", failing_write)
     with pytest.raises(OSError, match="No space"):
         write_bundle(make_impostor(seed=9), paths.directory)
     assert len(calls) == 3

@@ -11,8 +11,8 @@ import pytest
 import scenes
 import trimesh
 
-from farfield.core.bundle import read_bundle, write_bundle
-from farfield.core.evaluation import compare_images, impostor_objects
+from farfield.core.impostor.bundle import read_bundle, write_bundle
+from farfield.core.quality.evaluation import compare_images, impostor_objects
 from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
 from farfield.core.scene import SceneObject
 from farfield.core.techniques.layered import BakeOptions, bake_layered

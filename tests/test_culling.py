@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from farfield.core.culling import hidden_texels
+from farfield.core.layering.culling import hidden_texels
 from farfield.core.errors import LayerPlanError
 
 

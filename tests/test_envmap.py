@@ -17,18 +17,18 @@ from click.testing import CliRunner
 from PIL import Image
 
 from farfield.cli.main import _register, cli
-from farfield.core.envmap_layers import near_field_distance
-from farfield.core.envmap_runtime import NEAR_FIELD_RUN, QUAD_RUN, EnvmapCellRenderer, camera_at, evaluate_envmap, nearest_first, view_directions
+from farfield.core.techniques.envmap.arrangement import near_field_distance
+from farfield.core.techniques.envmap.runtime import NEAR_FIELD_RUN, QUAD_RUN, EnvmapCellRenderer, camera_at, evaluate_envmap, nearest_first, view_directions
 from farfield.core.errors import LayerPlanError, ViewCellError
-from farfield.core.evaluation import impostor_objects
-from farfield.core.gap_fill import fill_gaps
-from farfield.core.impostor_database import ImpostorDatabase, write_database
-from farfield.core.near_field import NearField, near_field
+from farfield.core.quality.evaluation import impostor_objects
+from farfield.core.techniques.envmap.gap_fill import fill_gaps
+from farfield.core.impostor.database import ImpostorDatabase, write_database
+from farfield.core.techniques.envmap.near_field import NearField, near_field
 from farfield.core.render.raster import MeshRenderer
 from farfield.core.scene import Scene, SceneObject
-from farfield.core.techniques.envmap import EnvmapOptions, bake_envmap, face_plan, plan_envmap
+from farfield.core.techniques.envmap.technique import EnvmapOptions, bake_envmap, face_plan, plan_envmap
 from farfield.core.viewcells import BoxCell, grid_boxes
-from farfield.core.walkthrough import generate_path, walkthrough, write_plot
+from farfield.core.quality.walkthrough import generate_path, walkthrough, write_plot
 from tests.scenes import box_object, city, real_scene, write_scene
 
 pytestmark = pytest.mark.filterwarnings("ignore::farfield.core.scene.SceneWarning")

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import scenes
 
-from farfield.core.evaluation import BACKGROUND, compare_images, evaluate_at, fine_samples, spread_corners, ssim_over_union
+from farfield.core.quality.evaluation import BACKGROUND, compare_images, evaluate_at, fine_samples, spread_corners, ssim_over_union
 from farfield.core.render.context import gl_context
 from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
 from farfield.core.scene import Scene
@@ -262,7 +262,7 @@ def test_an_unbounded_shaft_is_evaluated_up_to_four_times_its_near_distance():
     """``farfield evaluate`` of a bundle baked for an unbounded shaft failed ("needs a positive
     depth") and nothing could give one: the random viewpoints now lie between the near cap and
     4x its distance from the apex, inside the shaft."""
-    from farfield.core.evaluation import viewpoints
+    from farfield.core.quality.evaluation import viewpoints
     from farfield.core.viewcells import ShaftCell
 
     shaft = ShaftCell(np.zeros(3), np.array([-1.0, 0.0, 0.0]), np.radians(30.0), 8.0)
@@ -278,7 +278,7 @@ def test_a_part_smaller_than_every_sample_is_not_bloat_where_its_impostor_shows_
     covers it, while the impostor, recorded conservatively, keeps a texel there.  That texel lies
     within one pixel of the geometry (its vertices), so it is not bloat beyond one pixel; it used
     to be counted as such from every viewpoint, and ``evaluate --check`` failed every technique."""
-    from farfield.core.evaluation import evaluate
+    from farfield.core.quality.evaluation import evaluate
 
     # Two boxes 24 km apart across the view and 5 km apart up it: each ~18 pixels off the image's
     # centre, the second also ~8 up, so the pixels they reach are cropped with the comparison's window.

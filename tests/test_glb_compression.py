@@ -1,4 +1,4 @@
-"""Compressed impostor GLBs (:mod:`core.glb_compression`): meshopt geometry decodes back to the
+"""Compressed impostor GLBs (:mod:`farfield.core.impostor.glb_compression`): meshopt geometry decodes back to the
 plain GLB's bytes exactly (meshoptimizer's own decoder), KTX2 pages decode back to the PNG pages
 within the codec's error (Basis Universal's transcoder), the PNG fallback is the plain PNG, the
 bytes are deterministic, bad requests are refused, and ``farfield glb`` writes the file whole or
@@ -18,10 +18,10 @@ import pytest
 from PIL import Image
 from test_techniques import CASES
 
-from farfield.core.bundle import write_bundle
+from farfield.core.impostor.bundle import write_bundle
 from farfield.core.errors import BundleFormatError
-from farfield.core.glb import impostor_glb
-from farfield.core.glb_compression import BASISU, MESHOPT, compress_glb, decode_ktx2, read_glb, write_glb
+from farfield.core.impostor.glb import impostor_glb
+from farfield.core.impostor.glb_compression import BASISU, MESHOPT, compress_glb, decode_ktx2, read_glb, write_glb
 from farfield.core.techniques import TECHNIQUES, get_technique
 
 RESOLUTION = 64
@@ -139,7 +139,7 @@ def test_pages_grown_to_whole_blocks_keep_their_texture_coordinates(plain_glbs):
 def odd_page_glb() -> bytes:
     """A quad impostor whose one page is 10 x 6 texels (neither side a multiple of 4): a face of
     four colour bands, transparent at its left column."""
-    from farfield.core.impostor import Impostor, QuadPayload
+    from farfield.core.impostor.impostor import Impostor, QuadPayload
 
     page = np.zeros((6, 10, 4), np.uint8)
     page[..., 3] = 255
@@ -152,7 +152,7 @@ def odd_page_glb() -> bytes:
 
 
 def test_an_empty_point_impostor_compresses_to_a_valid_file(gltf_validator, tmp_path):
-    from farfield.core.impostor import Impostor, PointPayload
+    from farfield.core.impostor.impostor import Impostor, PointPayload
 
     empty = impostor_glb(Impostor("points", {"kind": "box", "lo": [0, 0, 0], "hi": [1, 1, 1]}, np.zeros(3), 64, 45.0, (), PointPayload.empty()))
     path = tmp_path / "empty.glb"

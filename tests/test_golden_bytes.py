@@ -19,7 +19,7 @@ import pytest
 from scenes import box_object, city
 
 from farfield.core import procedural
-from farfield.core.bundle import write_bundle
+from farfield.core.impostor.bundle import write_bundle
 from farfield.core.placement.cost_model import primitive_model
 from farfield.core.placement.planner import PlacementSettings, place
 from farfield.core.placement.solution_grid import BudgetSettings, place_primitives

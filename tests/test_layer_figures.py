@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from farfield.core.envmap_layers import (
+from farfield.core.techniques.envmap.arrangement import (
     alpha_for_spacing,
     envmap_plan,
     layers_for_near_field,
@@ -17,7 +17,7 @@ from farfield.core.envmap_layers import (
     tdm_texel_limit,
     texel_limit,
 )
-from farfield.core.layers import (
+from farfield.core.layering.plan import (
     border_offset,
     depth_range,
     depth_range_min,

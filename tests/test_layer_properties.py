@@ -9,9 +9,9 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from farfield.core.envmap_layers import envmap_plan, layers_for_near_field, near_field_distance
+from farfield.core.techniques.envmap.arrangement import envmap_plan, layers_for_near_field, near_field_distance
 from farfield.core.errors import LayerPlanError, ViewCellError
-from farfield.core.layers import layer_spacing, parallax_angles, part_view, plan_layers
+from farfield.core.layering.plan import layer_spacing, parallax_angles, part_view, plan_layers
 from farfield.core.pixel_angles import pixel_angle, texture_resolution
 from farfield.core.viewcells import BoxCell, ShaftCell
 

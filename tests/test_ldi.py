@@ -1,4 +1,4 @@
-"""Layered depth images by depth peeling on EGL (core/ldi.py, core/render/peeling.py): every surface
+"""Layered depth images by depth peeling on EGL (core/ldi/image.py, core/render/peeling.py): every surface
 along every pixel ray, checked against the geometry the rays were cast at."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import pytest
 import trimesh
 
 from farfield.core.errors import LayerPlanError
-from farfield.core.ldi import record_ldi
-from farfield.core.point_sampling import plan_point_sampling
+from farfield.core.ldi.image import record_ldi
+from farfield.core.techniques.points.sampling import plan_point_sampling
 from farfield.core.render.raster import Camera
 from farfield.core.scene import SceneObject
 from farfield.core.viewcells import BoxCell
@@ -147,10 +147,10 @@ def test_a_conservative_ldi_samples_an_alpha_cut_needle_in_every_pixel_it_crosse
 
 
 def merge_with_arrays(camera, centre, touched, objects):
-    """:func:`core.ldi._merge` written with whole numpy arrays (it was the implementation before the
+    """:func:`farfield.core.ldi.image._merge` written with whole numpy arrays (it was the implementation before the
     numba kernels): touched layers nearest first, each sample kept unless a kept sample of its
     pixel lies within the same-surface tolerance; then every pixel's samples sorted by depth."""
-    from farfield.core.ldi import SAME_SURFACE, LayeredDepthImage, _touch_positions
+    from farfield.core.ldi.image import SAME_SURFACE, LayeredDepthImage, _touch_positions
 
     (centre, centre_colours), (touched, touched_colours) = centre, touched
     pixel = 2.0 * math.tan(0.5 * camera.fov) / camera.resolution
@@ -180,7 +180,7 @@ def merge_with_arrays(camera, centre, touched, objects):
 
 
 def test_the_merge_kernels_keep_the_rule_written_with_arrays():
-    from farfield.core.ldi import SAME_SURFACE, _merge
+    from farfield.core.ldi.image import SAME_SURFACE, _merge
     from farfield.core.render.peeling import peel
 
     camera = _camera(64, 1.0, 10.0)

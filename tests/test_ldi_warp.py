@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from farfield.core import procedural
-from farfield.core.ldi_construction import construct_ldi, construction_cops
-from farfield.core.ldi_warp import _frame, epipole, fill_pin_holes, warp_cpu
+from farfield.core.ldi.construction import construct_ldi, construction_cops
+from farfield.core.ldi.warp import _frame, epipole, fill_pin_holes, warp_cpu
 from farfield.core.placement.image_frames import boundary_eyes, frame_holes, image_ldi, view_camera
 from farfield.core.placement.solution_grid import BudgetSettings, place_primitives
 from farfield.core.render.splats import SplatRenderer
@@ -164,7 +164,7 @@ def test_hybrid_frames_have_few_holes_and_nine_images_fewer_than_one(city_images
 
 def test_the_ldi_technique_refuses_a_part_that_reaches_into_its_cell_and_bad_payloads():
     from farfield.core.errors import BundleFormatError, LayerPlanError
-    from farfield.core.impostor import LdiPayload
+    from farfield.core.impostor.impostor import LdiPayload
     from farfield.core.scene import Scene
     from farfield.core.techniques import get_technique
     from farfield.core.viewcells import BoxCell
@@ -188,7 +188,7 @@ def test_the_ldi_technique_refuses_a_part_that_reaches_into_its_cell_and_bad_pay
     with pytest.raises(BundleFormatError, match="pages"):
         good.check(len(one.pages) - 1)
     # the pages hold the LDI: depth and colour come back bit for bit
-    from farfield.core.ldi_pages import ldi_of
+    from farfield.core.ldi.pages import ldi_of
 
     back = ldi_of(one)
     assert back.count == one.payload.count and back.layers == one.stats["layers"]

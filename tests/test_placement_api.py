@@ -24,7 +24,7 @@ from scenes import write_scene
 from service_harness import ADMIN_KEY, ROOT, service_client, service_on_each_database, upload, wait_for_job  # noqa: F401 - fixtures
 
 from farfield.core import procedural
-from farfield.core.bundle import MANIFEST_NAME
+from farfield.core.impostor.bundle import MANIFEST_NAME
 from farfield.core.placement.database import UNDER_BUDGET
 from farfield.core.placement.result import Placement
 from farfield.core.placement.view_space import FACE_NAMES, VDI

@@ -13,7 +13,7 @@ import pytest
 
 from farfield.core import procedural
 from farfield.core.errors import ViewCellError
-from farfield.core.impostor_database import ImpostorDatabase
+from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.placement.cost_model import primitive_model
 from farfield.core.placement.database import UNDER_BUDGET, PlacementLookup, bake_impostor, bake_placement, placement_cells, placement_index, write_placement_database
 from farfield.core.placement.hierarchy import PlacementError

@@ -16,13 +16,13 @@ from scenes import write_scene
 
 from farfield.cli.main import _register, cli
 from farfield.core import procedural
-from farfield.core.impostor_database import ImpostorDatabase
+from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.placement.cost_model import primitive_model
 from farfield.core.placement.hierarchy import PlacementError
 from farfield.core.placement.database import PlacementLookup, bake_placement, write_placement_database
 from farfield.core.placement.planner import PlacementSettings, place
 from farfield.core.placement.runtime import PlacementRenderer, boxes_in_frustum
-from farfield.core.walkthrough import placement_walkthrough, random_views
+from farfield.core.quality.walkthrough import placement_walkthrough, random_views
 
 VIEW = (np.array([20.0, 110.0, 20.0]), np.array([100.0, 115.0, 100.0]))  # above the roofs of the city
 RESOLUTION = 64
@@ -84,7 +84,7 @@ def test_culling_is_conservative_and_the_runtime_draws_less(placed):
 
 
 def test_frustum_test_keeps_every_box_a_frame_shows():
-    from farfield.core.envmap_runtime import camera_at
+    from farfield.core.techniques.envmap.runtime import camera_at
 
     rng = np.random.default_rng(4)
     for _ in range(5):

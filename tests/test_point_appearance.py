@@ -1,4 +1,4 @@
-"""The directional appearance of point-based impostors (core/point_appearance.py, seed 001 §4.3,
+"""The directional appearance of point-based impostors (core/techniques/points/appearance.py, seed 001 §4.3,
 §5.2, §5.3): the runtime's look-up finds the texel the integration filled, and a surface whose
 sub-pixel structure shows different colours from different sides of the view cell (the paper's
 Fig. 3 "microgeometry") keeps those colours, as a 16-sample reference of the real geometry shows
@@ -14,8 +14,8 @@ import pytest
 
 from farfield.core.colour_space import linear_to_srgb, srgb_to_linear
 from farfield.core.errors import LayerPlanError, ViewCellError
-from farfield.core.evaluation import downsample, impostor_renderer
-from farfield.core.point_appearance import plane_coordinates
+from farfield.core.quality.evaluation import downsample, impostor_renderer
+from farfield.core.techniques.points.appearance import plane_coordinates
 from farfield.core.render.points import Appearance, PointRenderer
 from farfield.core.render.raster import Camera, MeshRenderer
 from farfield.core.scene import Scene, SceneObject
@@ -193,7 +193,7 @@ def test_points_drawn_as_baked_pixels_look_the_same_through_a_window():
 
 
 def test_the_glb_holds_the_points_their_preview_colour_and_their_tiles():
-    from farfield.core.glb import POINT_APPEARANCE, impostor_glb
+    from farfield.core.impostor.glb import POINT_APPEARANCE, impostor_glb
     from tests.test_bundle import accessor_array, parse_glb
 
     technique = get_technique("points")

@@ -1,4 +1,4 @@
-"""The points of a point-based impostor (core/point_samples.py, seed 001 §5.1): the three LDIs'
+"""The points of a point-based impostor (core/techniques/points/samples.py, seed 001 §5.1): the three LDIs'
 samples less the redundant ones leave no hole from anywhere in the view cell.
 
 The check is independent of the removal rule: every kept point is projected (numpy) into views from
@@ -16,11 +16,11 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
-from farfield.core.envmap_runtime import camera_at
-from farfield.core.evaluation import compare_images
-from farfield.core.ldi import record_ldi
-from farfield.core.point_sampling import plan_point_sampling
-from farfield.core.point_samples import CONTINUITY, _lookup, gather_point_samples, ldi_spacing
+from farfield.core.techniques.envmap.runtime import camera_at
+from farfield.core.quality.evaluation import compare_images
+from farfield.core.ldi.image import record_ldi
+from farfield.core.techniques.points.sampling import plan_point_sampling
+from farfield.core.techniques.points.samples import CONTINUITY, _lookup, gather_point_samples, ldi_spacing
 from farfield.core.render.points import PointRenderer
 from farfield.core.render.raster import MeshRenderer
 from farfield.core.scene import SceneObject
@@ -149,7 +149,7 @@ def _shifted(array: np.ndarray, dr: int, dc: int, fill) -> np.ndarray:
 
 
 def spacing_with_arrays(ldi, cell: BoxCell) -> np.ndarray:
-    """:func:`core.point_samples.ldi_spacing`'s rule written with whole numpy arrays (it was the
+    """:func:`farfield.core.techniques.points.samples.ldi_spacing`'s rule written with whole numpy arrays (it was the
     implementation before the numba kernel): per neighbour direction, the nearest layer of the
     shifted image, the continuity test, the edge's component across the cell's rays."""
     depth = ldi.depth

@@ -14,7 +14,7 @@ import pytest
 from scipy.spatial import ConvexHull, Delaunay
 
 from farfield.core.errors import ViewCellError
-from farfield.core.point_sampling import (
+from farfield.core.techniques.points.sampling import (
     farthest_from_cameras,
     ldi_resolution,
     min_perimeter_triangle,

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from farfield.core.errors import LayerPlanError
-from farfield.core.quads import filled_cells, full_quad, grow_quads, quads_for_layers, rect_areas, single_quad
+from farfield.core.layering.quads import filled_cells, full_quad, grow_quads, quads_for_layers, rect_areas, single_quad
 
 
 def blobs(h: int, w: int, n: int, seed: int) -> np.ndarray:

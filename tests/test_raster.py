@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from farfield.core.envmap_runtime import camera_at
+from farfield.core.techniques.envmap.runtime import camera_at
 from farfield.core.render.raster import MeshRenderer, mesh_variant
 from farfield.core.scene import SceneObject
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from farfield.core.layers import plan_layers
-from farfield.core.recording import (
+from farfield.core.layering.plan import plan_layers
+from farfield.core.layering.recording import (
     clip_to_slab,
     eye_coordinates,
     facing_the_image,
@@ -263,7 +263,7 @@ def test_objects_of_every_material_variant_record_in_one_scene_as_each_does_alon
 
 WARM_CHECK = """
 import json, numpy as np
-import farfield.core.recording as recording
+import farfield.core.layering.recording as recording
 from farfield.core.procedural import city
 from farfield.core.render.context import gl_context
 from farfield.core.techniques.layered import BakeOptions, bake_layered

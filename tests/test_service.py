@@ -17,7 +17,7 @@ import pytest
 import trimesh
 from service_harness import BUNNY, BUNNY_GRID, ROOT, service_client, service_on_each_database, upload, wait_for_job  # noqa: F401 - the service and client fixtures
 
-from farfield.core.bundle import page_file_name, write_bundle
+from farfield.core.impostor.bundle import page_file_name, write_bundle
 from farfield.core.exchange import load_scene
 from farfield.core.techniques.layered import BakeOptions, bake_layered
 from farfield.core.viewcells import viewcell_from_dict

@@ -1,7 +1,7 @@
 """The ``envmap`` job type end to end with real parts: ``farfield up`` (embedded redis-server,
 uvicorn, a real ``celery worker``, SQLite or PostgreSQL, blob directory) driven over HTTP, the CLI
 and the dashboard; the downloaded impostor database read back with
-:class:`core.impostor_database.ImpostorDatabase`.
+:class:`farfield.core.impostor.database.ImpostorDatabase`.
 
 A small procedural city (16 buildings) and a 3 x 3 x 1 grid of 10-unit cubic cells in front of it,
 at 64 pixels, 90 degrees, 4 layers on the four horizontal faces: a few seconds of baking on llvmpipe.
@@ -18,10 +18,10 @@ from browser import dashboard_page, tid
 from scenes import city, write_scene
 from service_harness import ADMIN_KEY, service_client, service_on_each_database, upload, wait_for_job, stored_options  # noqa: F401 - the service and client fixtures
 
-from farfield.core.bundle import MANIFEST_NAME
+from farfield.core.impostor.bundle import MANIFEST_NAME
 from farfield.core.exchange import load_scene
-from farfield.core.impostor_database import ImpostorDatabase
-from farfield.core.techniques.envmap import EnvmapOptions, bake_envmap
+from farfield.core.impostor.database import ImpostorDatabase
+from farfield.core.techniques.envmap.technique import EnvmapOptions, bake_envmap
 from farfield.core.viewcells import viewcell_from_dict
 
 # 3 x 3 x 1 cubic cells of side 10 in front of the city (lots x, z in 0..60; ground from -10).

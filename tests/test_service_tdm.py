@@ -1,7 +1,7 @@
 """The ``tdm`` job type (seed 003's textured depth meshes) end to end with real parts: ``farfield up``
 (embedded redis-server, uvicorn, a real ``celery worker``, SQLite or PostgreSQL, blob directory)
 driven over HTTP, the CLI and the dashboard; the downloaded bundles read back with
-:func:`core.bundle.read_bundle`.  Plus ``farfield bake --technique tdm`` and the option checks.
+:func:`farfield.core.impostor.bundle.read_bundle`.  Plus ``farfield bake --technique tdm`` and the option checks.
 
 A small procedural scene (a 10-unit block with a tower on it, and a shed off to the side that the
 jobs leave out) and two 4-unit box cells about 20 units in front of it, at 96 pixels: a few seconds
@@ -23,13 +23,13 @@ from scenes import box_object, write_scene
 from service_harness import ADMIN_KEY, ROOT, service_client, service_on_each_database, upload, wait_for_job, stored_options  # noqa: F401 - the service and client fixtures
 
 from farfield.cli.main import _register, cli
-from farfield.core.bundle import MANIFEST_NAME, read_bundle
+from farfield.core.impostor.bundle import MANIFEST_NAME, read_bundle
 from farfield.core.errors import LayerPlanError
 from farfield.core.exchange import load_scene
 from farfield.core.scene import Scene
 from farfield.core.techniques import get_technique
 from farfield.core.techniques.part import REPORT_FIGURES, report_part
-from farfield.core.techniques.tdm import TdmOptions, bake_tdm
+from farfield.core.techniques.tdm.technique import TdmOptions, bake_tdm
 from farfield.core.viewcells import viewcell_from_dict
 
 PART = ["block", "tower"]  # the represented objects; the shed is left out

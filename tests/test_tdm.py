@@ -17,14 +17,14 @@ from test_bake import cell_in_front, city_block, dense, needs_shared
 from test_bundle import accessor_array
 
 from farfield.cli.main import _register, cli
-from farfield.core.bundle import read_bundle, write_bundle
+from farfield.core.impostor.bundle import read_bundle, write_bundle
 from farfield.core.errors import InternalError, LayerPlanError
-from farfield.core.evaluation import evaluate
-from farfield.core.glb import impostor_glb
-from farfield.core.layers import plan_layers
+from farfield.core.quality.evaluation import evaluate
+from farfield.core.impostor.glb import impostor_glb
+from farfield.core.layering.plan import plan_layers
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import StageClock
-from farfield.core.tdm_mesh import (
+from farfield.core.techniques.tdm.mesh import (
     _SIDES,
     SLIT_AREA,
     TdmMesh,
@@ -39,16 +39,16 @@ from farfield.core.tdm_mesh import (
     mesh_labels,
     step_voxels,
 )
-from farfield.core.tdm_simplify import (
+from farfield.core.techniques.tdm.simplify import (
     box_half_sizes,
     contraction_outcome,
     covered_by_any,
     simplify,
     tri_box,
 )
-from farfield.core.tdm_texture import rasterize, sample_field
+from farfield.core.techniques.tdm.texture import rasterize, sample_field
 from farfield.core.techniques.layered import BakeOptions, bake_layered
-from farfield.core.techniques.tdm import (
+from farfield.core.techniques.tdm.technique import (
     SCHEDULE,
     TdmOptions,
     bake_tdm,
@@ -57,7 +57,7 @@ from farfield.core.techniques.tdm import (
     uncovered_voxels,
 )
 from farfield.core.viewcells import BoxCell
-from farfield.core.voxel_field import VoxelField, record_voxel_field
+from farfield.core.techniques.tdm.voxel_field import VoxelField, record_voxel_field
 
 CASES = {
     # name: (scene factory, cell distance in part diameters, cell size in part diameters, lift)
@@ -109,7 +109,7 @@ def test_the_outline_stays_within_a_pixel_at_the_silhouette(house_bake, enlargem
     """The house at 240-260 units and 512 pixels, seen from the cell's corners and centre: no hole
     pixel at f = 2, at most one in a view at f = 1 (4 x 4 samples per pixel, a pixel of tolerance).
 
-    The outline voxels keep their own boxes (:func:`core.tdm_simplify.box_half_sizes`).  Enlarged
+    The outline voxels keep their own boxes (:func:`farfield.core.techniques.tdm.simplify.box_half_sizes`).  Enlarged
     across the image, one view here had 4 hole pixels; enlarged in depth only, a triangle a layer in
     front of an outline voxel could keep it, and 250 units opened one hole pixel at f = 2 (a sweep
     of 200 to 300 units in steps of 10 at f = 2 and 3 now has none).  At f = 1 the boxes are the
@@ -233,7 +233,7 @@ def test_the_cascade_with_memory_is_the_cascade_without(house_bake, distance, re
 
 def test_meshes_that_store_no_voxel_are_left_out(house_bake):
     """At 256 pixels and 110 units the house's initial mesh has two stray sealing walls whose voxels
-    all went to quads of the main mesh (module docstring of core.tdm_mesh)."""
+    all went to quads of the main mesh (module docstring of farfield.core.techniques.tdm.mesh)."""
     scene, _ = house_bake
     lo, hi = scene.bounds
     field, mesh = _field_and_mesh(scene, scenes_cell(0.5 * (lo + hi), lo[2] - 110.0), 256)
@@ -273,7 +273,7 @@ def test_a_steep_surface_becomes_one_sheet_and_simplifies_to_a_plane(gap):
     """The paper's rule sets seal every stack on both sides into a fin of its own, and fins one
     layer apart never meet; farfield's step voxels join them and the back walls are left out, so
     the stacks form one sheet that simplifies like the plane it is (module docstring of
-    core.tdm_mesh)."""
+    farfield.core.techniques.tdm.mesh)."""
     field = _steep_field(gap)
     mesh = initial_mesh(field)
     assert mesh.stats["initial_meshes"] == 1  # the paper's rules: 8, one fin per stack
@@ -428,7 +428,7 @@ def test_a_hole_seen_edge_on_is_closed_and_one_seen_face_on_is_not():
 
 def test_closing_slits_keeps_every_voxel_covered_and_saves_triangles(house_bake):
     """The slits of the initial mesh (thin tubes and edge-on gaps where sealing walls meet across
-    layers, module docstring of core.tdm_mesh): closed with triangles that store no voxels and
+    layers, module docstring of farfield.core.techniques.tdm.mesh): closed with triangles that store no voxels and
     cover at most SLIT_AREA texels of the image each; left open, their rims are boundary the
     simplification must keep (the house at 90 m, 512 px: 870 triangles open, 660 closed)."""
     scene, _ = house_bake
@@ -623,13 +623,13 @@ def test_oversampling_averages_the_nearest_voxels(house_bake):
 
 WARM_CHECK = """
 import json, numba, numpy as np
-import farfield.core.mask_atlas as atlas, farfield.core.tdm_simplify as simplify
+import farfield.core.techniques.tdm.mask_atlas as atlas, farfield.core.techniques.tdm.simplify as simplify
 from farfield.core.procedural import city
 from farfield.core.render.context import gl_context
-from farfield.core.techniques.tdm import TdmOptions, bake_tdm, warm_kernels
+from farfield.core.techniques.tdm.technique import TdmOptions, bake_tdm, warm_kernels
 from farfield.core.viewcells import BoxCell
 
-import farfield.core.tdm_mesh as mesh
+import farfield.core.techniques.tdm.mesh as mesh
 kernels = {f"{m.__name__}.{k}": v for m in (atlas, simplify, mesh) for k, v in vars(m).items() if isinstance(v, numba.core.registry.CPUDispatcher)}
 def compiled():
     return {k: len(v.signatures) for k, v in kernels.items()}
@@ -653,12 +653,12 @@ def test_warming_compiles_every_kernel_a_bake_runs_with_the_types_it_runs_them_w
     counts = json.loads(out.stdout.strip().splitlines()[-1])
     assert not any(counts["before"].values())
     assert counts["baked"] == counts["warmed"]
-    for kernel in ("tdm_simplify._simplify", "mask_atlas._pack_from", "tdm_mesh._ear_clip_kernel", "tdm_mesh.assign_voxels"):
+    for kernel in ("techniques.tdm.simplify._simplify", "techniques.tdm.mask_atlas._pack_from", "techniques.tdm.mesh._ear_clip_kernel", "techniques.tdm.mesh.assign_voxels"):
         assert counts["warmed"][f"farfield.core.{kernel}"] == 1
 
 
 def _plain_ear_clip(loop, vertices, edge_keys, size):
-    """The ear clipping rule of ``core.tdm_mesh.ear_clip`` written plainly: cut off the proper ear
+    """The ear clipping rule of ``farfield.core.techniques.tdm.mesh.ear_clip`` written plainly: cut off the proper ear
     of shortest chord whose new edge is no edge yet, ties to the earliest; the last three as they stand."""
     ring, added, out = [int(v) for v in loop], set(), []
     existing = set(int(k) for k in edge_keys)

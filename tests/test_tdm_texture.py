@@ -1,6 +1,6 @@
-"""Shared texture charts of textured depth meshes (core/tdm_texture.py, seed 003 §7-§8): grouping,
+"""Shared texture charts of textured depth meshes (core/techniques/tdm/texture.py, seed 003 §7-§8): grouping,
 folds, ties on shared edges, the size cap, sampling through the world triangle, their packing as
-masks (core/mask_atlas.py), and the memory and colour error of a real bake against per-triangle
+masks (core/techniques/tdm/mask_atlas.py), and the memory and colour error of a real bake against per-triangle
 tiles (the layout before shared charts)."""
 
 from __future__ import annotations
@@ -14,22 +14,22 @@ import scenes
 from scipy.spatial import cKDTree
 
 from farfield.core.errors import AtlasOverflowError, LayerPlanError
-from farfield.core.evaluation import evaluate
-from farfield.core.impostor import MeshPayload
-from farfield.core.layer_tiles import pack_tiles
-from farfield.core.layers import plan_layers
-from farfield.core.mask_atlas import WIDTH_SCALES, pack_masks
+from farfield.core.quality.evaluation import evaluate
+from farfield.core.impostor.impostor import MeshPayload
+from farfield.core.layering.tiles import pack_tiles
+from farfield.core.layering.plan import plan_layers
+from farfield.core.techniques.tdm.mask_atlas import WIDTH_SCALES, pack_masks
 from farfield.core.stage_clock import StageClock
-from farfield.core.tdm_texture import (
+from farfield.core.techniques.tdm.texture import (
     MAX_CHART,
     build_charts,
     chart_masks,
     rasterize,
     sample_field,
 )
-from farfield.core.techniques.tdm import TdmOptions, bake_tdm, geometry_bytes
+from farfield.core.techniques.tdm.technique import TdmOptions, bake_tdm, geometry_bytes
 from farfield.core.viewcells import BoxCell
-from farfield.core.voxel_field import record_voxel_field
+from farfield.core.techniques.tdm.voxel_field import record_voxel_field
 
 
 def claims(charts, points: np.ndarray, triangles: np.ndarray) -> list[tuple[int, int, int, int]]:
@@ -220,7 +220,7 @@ def per_triangle_tiles(field, world: np.ndarray, margin: int) -> tuple[list[np.n
 
 def tile_corner_uvs(chart: np.ndarray, sizes: np.ndarray, corner_uv: np.ndarray) -> np.ndarray:
     """(t, 3, 2) page UVs of triangles at tile positions ``chart`` (t, 3, 2) in tiles of ``sizes``
-    (t, 2) whose corners TL, TR, BR, BL :func:`core.layer_tiles.pack_tiles` put at ``corner_uv`` (t, 4, 2)."""
+    (t, 2) whose corners TL, TR, BR, BL :func:`farfield.core.layering.tiles.pack_tiles` put at ``corner_uv`` (t, 4, 2)."""
     fx = chart[..., 0] / sizes[:, None, 0]
     fy = chart[..., 1] / sizes[:, None, 1]
     tl, tr, bl = corner_uv[:, None, 0], corner_uv[:, None, 1], corner_uv[:, None, 3]
@@ -345,7 +345,7 @@ def test_masks_pack_apart_and_tighter_than_their_rectangles(padding):
 
 
 def _plain_first_fit(masks, padding, width, max_page):
-    """The first fit :func:`core.mask_atlas.pack_masks` promises, written plainly (every position of
+    """The first fit :func:`farfield.core.techniques.tdm.mask_atlas.pack_masks` promises, written plainly (every position of
     every page in row-major order, a mask's texels against the blocked cells): (page, y, x) per mask."""
     shapes = np.array([m.shape for m in masks])
     order = np.lexsort((-np.array([m.sum() for m in masks]), -shapes[:, 0]))

@@ -13,7 +13,7 @@ from scenes import box_object, city, write_scene
 from service_harness import service_client, service_on_each_database, upload, wait_for_job  # noqa: F401 - the service and client fixtures
 
 from farfield.cli.main import _register, cli
-from farfield.core.bundle import read_bundle, stored_stats, write_bundle
+from farfield.core.impostor.bundle import read_bundle, stored_stats, write_bundle
 from farfield.core.errors import AtlasOverflowError, LayerPlanError
 from farfield.core.options import describe_options, options_from_mapping
 from farfield.core.scene import Scene
@@ -106,7 +106,7 @@ def test_every_technique_keeps_its_pages_within_max_page(name):
     if name == "points":  # its 8 x 2 tiles spread over as many pages as they need: nothing overflows
         assert all(page.shape[1] % 8 == 0 and page.shape[0] % 2 == 0 for page in small.pages)
         return
-    if name in ("layered", "envmap"):  # quads larger than a page are cut into quads that fit (core.layer_tiles.split_rects)
+    if name in ("layered", "envmap"):  # quads larger than a page are cut into quads that fit (farfield.core.layering.tiles.split_rects)
         tiny = technique.bake(scene, cell, technique.options({"max_page": 64}, RESOLUTION), None, None)
         assert all(max(page.shape[:2]) <= 64 for page in tiny.pages) and tiny.quad_count > small.quad_count
         return

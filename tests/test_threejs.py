@@ -4,8 +4,8 @@ GLB and the source scenes, the Khronos glTF validator checks the GLB (``tests/th
 
 Per registered technique: the bundle's GLB is valid (0 errors, 0 warnings), and three.js draws it
 from the reference viewpoint and a cell corner with the coverage of farfield's own render of the
-same bundle (:func:`core.evaluation.impostor_objects` drawn by
-:class:`core.render.raster.MeshRenderer`) within one pixel, in the same colours where both cover
+same bundle (:func:`farfield.core.quality.evaluation.impostor_objects` drawn by
+:class:`farfield.core.render.raster.MeshRenderer`) within one pixel, in the same colours where both cover
 (sampled without mipmaps, as farfield samples); with the sampler the GLB asks for, the coverage
 still within one pixel.  For the envmap technique the GLB holds the far field only (its
 near field is scene geometry drawn at run time), so its quads are compared alone, looking along
@@ -21,13 +21,13 @@ import math
 
 import numpy as np
 import pytest
-from farfield.core.bundle import read_bundle, write_bundle
+from farfield.core.impostor.bundle import read_bundle, write_bundle
 from farfield.core.colour_space import linear_to_srgb, srgb_to_linear
-from farfield.core.envmap_runtime import camera_at, depth_range_for
-from farfield.core.evaluation import impostor_objects
+from farfield.core.techniques.envmap.runtime import camera_at, depth_range_for
+from farfield.core.quality.evaluation import impostor_objects
 from farfield.core.exchange import load_scene
-from farfield.core.glb_compression import compress_glb
-from farfield.core.ldi_pages import preview_objects
+from farfield.core.impostor.glb_compression import compress_glb
+from farfield.core.ldi.pages import preview_objects
 from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
 from farfield.core.scene import Scene, SceneObject
 from farfield.core.render.points import PointRenderer
@@ -77,7 +77,7 @@ def look_at(position, target, points, fov_deg: float, resolution: int) -> Camera
 
 def part_cameras(scene: Scene, impostor, cell: BoxCell) -> list[Camera]:
     """From the reference viewpoint and the cell's first corner, at the impostor's resolution and
-    field of view, looking at the part's centre (as :func:`core.evaluation.evaluate` does)."""
+    field of view, looking at the part's centre (as :func:`farfield.core.quality.evaluation.evaluate` does)."""
     target = 0.5 * (scene.bounds[0] + scene.bounds[1])
     points = np.concatenate([box_corners(scene.bounds), impostor.payload.world_points()])
     return [look_at(p, target, points, impostor.fov_deg, impostor.resolution) for p in (impostor.reference_viewpoint, cell.corners()[0])]
@@ -113,7 +113,7 @@ def bundles(tmp_path_factory):
             back = read_bundle(paths.directory)
             cameras = (envmap_cameras if technique.scope == "scene" else part_cameras)(scene, back, cell)
             # A viewer shows a point impostor's one-colour preview (COLOR_0), as farfield's point
-            # renderer does without the appearance, and an LDI's fallback quad (core.ldi_pages).
+            # renderer does without the appearance, and an LDI's fallback quad (farfield.core.ldi.pages).
             preview = back.payload.kind == "points"
             objects = preview_objects(back) if back.payload.kind == "ldi" else None if preview else impostor_objects(back)
             with (PointRenderer(back.payload.positions, back.payload.colour.astype(np.uint8)) if preview else MeshRenderer(objects)) as renderer:
@@ -157,7 +157,7 @@ def test_every_techniques_glb_keeps_its_coverage_with_its_own_sampler(name, bund
 
 @pytest.mark.parametrize("name", list(TECHNIQUES))
 def test_every_techniques_compressed_glb_draws_as_the_plain_one(name, bundles, threejs, gltf_validator, tmp_path):
-    """KTX2 pages (ETC1S; UASTC for points) and meshopt geometry (core/glb_compression.py), decoded by three.js's
+    """KTX2 pages (ETC1S; UASTC for points) and meshopt geometry (core/impostor/glb_compression.py), decoded by three.js's
     own KTX2Loader (Basis Universal's transcoder, wasm) and MeshoptDecoder: the coverage farfield
     draws, within one pixel, and the colours within the codec's error.  The validator finds no
     error; its two warnings per KTX2 image are its not knowing KHR_texture_basisu (glb_validation.ktx2_gaps)."""

@@ -3,7 +3,7 @@ database, in headless chromium against a real service (``farfield up``: embedded
 real celery worker, SQLite, EGL bakes).
 
 For a fixed camera, the view's frame (three.js in chromium: ANGLE on SwiftShader) is compared with
-the Python reference runtime's (:class:`core.envmap_runtime.EnvmapCellRenderer` on EGL) from the
+the Python reference runtime's (:class:`farfield.core.techniques.envmap.runtime.EnvmapCellRenderer` on EGL) from the
 same camera: the drawn pixels agree within one pixel (what one rasteriser draws, the other draws
 within a pixel of it), so the view draws the right impostor, the right near field clipped to the
 right cube, and nothing else.  Moving the camera switches to the cell that holds it and prefetches
@@ -28,10 +28,10 @@ from service_harness import ADMIN_KEY, start_service, upload, wait_for_job
 from test_threejs import compare
 from threejs import THREE_SKIP_REASON, three_available
 
-from farfield.core.envmap_runtime import EnvmapCellRenderer, camera_at, depth_range_for
+from farfield.core.techniques.envmap.runtime import EnvmapCellRenderer, camera_at, depth_range_for
 from farfield.core.exchange import load_scene, load_scene_bytes
-from farfield.core.glb_compression import BASISU, MESHOPT, read_glb
-from farfield.core.impostor_database import ImpostorDatabase
+from farfield.core.impostor.glb_compression import BASISU, MESHOPT, read_glb
+from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.placement.runtime import PlacementRenderer
 from farfield.core.procedural import city as procedural_city
 from farfield.core.render.raster import MeshRenderer
@@ -294,7 +294,7 @@ def test_the_routes_the_view_reads(client, service, envmap_job, city_glb):
     document = read_glb(client.get(f"/v1/scenes/{named}/scene.glb").content)[0]
     assert {m["extras"]["farfield_object"] for m in document["meshes"]} == set(scene.names)
 
-    # a cell's GLB, plain as stored, or compressed on request (core/glb_compression.py)
+    # a cell's GLB, plain as stored, or compressed on request (core/impostor/glb_compression.py)
     route = f"/v1/jobs/{job['id']}/cells/{CENTRE}/impostor.glb"
     plain = client.get(route)
     assert plain.status_code == 200 and plain.content == (db.cell(CENTRE).bundle / "impostor.glb").read_bytes()

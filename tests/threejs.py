@@ -66,7 +66,7 @@ def installed_versions() -> dict[str, str]:
 
 
 def camera_spec(camera) -> dict:
-    """A :class:`core.render.raster.Camera` as the page takes it (plain lists)."""
+    """A :class:`farfield.core.render.raster.Camera` as the page takes it (plain lists)."""
     return {
         "eye": [float(x) for x in camera.eye], "right": [float(x) for x in camera.right],
         "up": [float(x) for x in camera.up], "forward": [float(x) for x in camera.forward],
@@ -128,7 +128,7 @@ class ThreeRenderer:
     def render(self, path, cameras, alpha_cutoff: float | None = None, map_replaces_color: bool | None = None, mipmaps: bool = True) -> list[np.ndarray]:
         """(h, w, 4) uint8 images of the file at ``path`` (.glb, .gltf, .obj with its MTL, .ply),
         top row first, alpha 255 where drawn, 0 elsewhere; one per camera of ``cameras`` (a
-        :class:`core.render.raster.Camera` or a list of them).
+        :class:`farfield.core.render.raster.Camera` or a list of them).
 
         ``alpha_cutoff`` replaces every material's alpha test (an OBJ's textures with alpha are
         cut at 0.5 by farfield; three.js's MTLLoader cuts nothing); ``map_replaces_color``

@@ -49,10 +49,12 @@ from celery.exceptions import SoftTimeLimitExceeded, TimeLimitExceeded
 from celery.worker.request import Request
 from sqlalchemy import select, update
 
-from farfield.core import recording
+from farfield.core.layering import recording
 from farfield.core.errors import CellLimitError
 from farfield.core.render.context import gl_context
-from farfield.core.techniques import ldi, points, tdm
+from farfield.core.techniques import ldi
+from farfield.core.techniques.points import technique as points
+from farfield.core.techniques.tdm import technique as tdm
 from farfield.service.blobs import BlobStore, blob_store
 from farfield.service.cell_limits import PLANNING, MemoryGuard, hard_time_limit_message, memory_limit_message, time_limit_message
 from farfield.service.cell_runner import BAD_INPUT, TRANSIENT, RetryCell, backoff, failure_class, failure_message, run_cell

@@ -175,7 +175,7 @@ async function loadJob(jobId) {
 
 function cellAt(p) {
   // The cell whose box holds p (boxes are closed: the lowest index where they share a face), as
-  // core/impostor_database.py's find; a cell without a result too (the caller says so).  Shaft
+  // core/impostor/database.py's find; a cell without a result too (the caller says so).  Shaft
   // view cells (explicit cells of a part job) are not looked up here.
   let best = null;
   for (const cell of view.cells.values()) {

@@ -1,4 +1,4 @@
-"""Scene files -> :class:`core.scene.Scene`: a registry of loaders keyed by lower-case extension.
+"""Scene files -> :class:`farfield.core.scene.Scene`: a registry of loaders keyed by lower-case extension.
 
 One module per format family (``gltf``, ``obj``, ``ply``, ``stl``), each with ``EXTENSIONS`` and
 ``load(data, extension, name, resolver) -> (objects, warnings)``, after trimesh's ``exchange``.
@@ -80,7 +80,7 @@ def load_scene(path: str | Path, limits: SceneLimits = DEFAULT_LIMITS) -> Scene:
     path : str or pathlib.Path
         A ``.glb``, ``.gltf``, ``.obj``, ``.ply`` or ``.stl`` file.
     limits : SceneLimits
-        The most structure the file may have (:mod:`core.exchange.limits`).
+        The most structure the file may have (:mod:`farfield.core.exchange.limits`).
 
     Returns
     -------

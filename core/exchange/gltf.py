@@ -4,7 +4,7 @@ Object names are the scene graph's node names (unique; trimesh invents one for a
 A node that instances a shared mesh becomes its own object.  Colours follow glTF's metallic-
 roughness base colour: ``baseColorTexture`` x ``COLOR_0`` x ``baseColorFactor``; ``alphaMode``
 ``MASK`` gives ``alpha_cutoff`` (default 0.5).  Texture coordinates are flipped by trimesh from
-glTF's top-left origin to the bottom-left origin of :mod:`core.scene`.
+glTF's top-left origin to the bottom-left origin of :mod:`farfield.core.scene`.
 
 trimesh drops an image it cannot fetch (a missing ``uri`` file of a ``.gltf``) with a debug log
 only, so :func:`load` checks every external image itself and warns.
@@ -95,7 +95,7 @@ def load(
         Not parseable as glTF (its JSON is checked first, then trimesh parses).
     SceneTooCostlyError
         Its node hierarchy, primitives or instanced triangles are beyond ``limits``
-        (:mod:`core.exchange.limits`), found from the JSON before the buffers are parsed.
+        (:mod:`farfield.core.exchange.limits`), found from the JSON before the buffers are parsed.
     """
     if extension == "glb" and data[:4] != _GLB_MAGIC:
         raise SceneLoadError(f"not a GLB: a GLB starts with the bytes 'glTF', this file with {data[:4]!r}")

@@ -4,7 +4,7 @@ A small file can describe a large amount of work: a 2.3 MB glTF with a 100,000-d
 took 40 s to parse, a 6 MB GLB with 200,000 primitives 28 s and about 2 GB, 10^5 instanced nodes
 8 s (issue 24's campaign).  The file size limit does not bound these, so the loaders check the
 structure they can read cheaply (a glTF's JSON document) against :class:`SceneLimits` first and
-refuse with :class:`core.errors.SceneTooCostlyError` (HTTP 413), naming the count and the limit.
+refuse with :class:`farfield.core.errors.SceneTooCostlyError` (HTTP 413), naming the count and the limit.
 The service sets the limits from ``FARFIELD_MAX_SCENE_*`` (``service/settings.py``).
 """
 

@@ -90,7 +90,7 @@ def _apply_opacity(material: SimpleMaterial, data: bytes) -> None:
     Raises
     ------
     OSError, ValueError, SyntaxError, ...
-        See :data:`core.exchange.trimesh_scene.IMAGE_ERRORS`.
+        See :data:`farfield.core.exchange.trimesh_scene.IMAGE_ERRORS`.
     """
     alpha = _opacity(PIL.Image.open(io.BytesIO(data)))
     if material.image is not None:

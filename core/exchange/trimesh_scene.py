@@ -1,10 +1,10 @@
 """trimesh.Scene -> (k,) SceneObject: node transforms applied in float64, colour sources taken from trimesh visuals.
 
-Shared by the format modules in :mod:`core.exchange`.  Each of them parses with trimesh through
+Shared by the format modules in :mod:`farfield.core.exchange`.  Each of them parses with trimesh through
 :func:`parse` (the one place that turns trimesh's parse exceptions into :class:`SceneLoadError`)
 and converts with :func:`objects_from_trimesh`.
 
-Colour rules (see :mod:`core.scene` for the colour model):
+Colour rules (see :mod:`farfield.core.scene` for the colour model):
 
 * ``PBRMaterial`` (glTF): ``texture = baseColorTexture``, ``base_color = baseColorFactor``;
   ``alphaMode`` ``MASK`` gives ``alpha_cutoff = alphaCutoff`` (default 0.5), ``BLEND`` is
@@ -18,7 +18,7 @@ Colour rules (see :mod:`core.scene` for the colour model):
 * A texture of a single colour is folded into ``base_color`` (trimesh invents a 2 x 2 grey one
   for uv without a material).  ``uv`` is kept only for textured objects.
 
-Colour spaces (:mod:`core.colour_space`): ``base_color`` is linear and vertex colours and textures
+Colour spaces (:mod:`farfield.core.colour_space`): ``base_color`` is linear and vertex colours and textures
 sRGB-encoded.  glTF states its own (§3.9.2: ``baseColorFactor`` and ``COLOR_0`` linear, textures
 sRGB), so with ``linear_colours`` its factor is kept and its ``COLOR_0`` encoded.  OBJ/MTL ``Kd``,
 PLY and face colours have no stated space; they are authored and shown as sRGB values (three.js's
@@ -217,7 +217,7 @@ class _Texture:
     @classmethod
     def of(cls, rgba: np.ndarray) -> "_Texture":
         rgba = np.array(rgba, dtype=np.uint8, copy=True, order="C")
-        rgba.flags.writeable = False  # frozen once: every SceneObject using it shares it (core.scene._frozen)
+        rgba.flags.writeable = False  # frozen once: every SceneObject using it shares it (farfield.core.scene._frozen)
         texels = rgba.reshape(-1, 4)
         single = texels[0].copy() if (texels == texels[0]).all() else None
         return cls(rgba, single, bool(rgba[..., 3].min() < 255))

@@ -11,14 +11,14 @@ Seed 000 §5.8.1 "Parameter Estimation", Figs. 5.5-5.6, on the renderer this pro
   bake its layered impostor, draw it from random points inside the cell, and record covered pixels,
   quads and the time it adds to an empty frame; fit ``t = e * pixels + f * quads + g``;
 * memory (the same setup): each baked impostor's bytes (atlas pages + quad geometry) against the
-  estimate a placement ranks by (:func:`core.layers.estimate_layers`: layers and texels per
+  estimate a placement ranks by (:func:`farfield.core.layering.plan.estimate_layers`: layers and texels per
   layer), ``bytes = h * (layers_est * texels_per_layer) ** p + k``, and its quads,
-  ``quads = q * layers_est``, both fitted to the logarithms (:func:`core.placement.cost_model.fit_power`:
+  ``quads = q * layers_est``, both fitted to the logarithms (:func:`farfield.core.placement.cost_model.fit_power`:
   bytes span six orders of magnitude, and a ranking by Δt/m needs their ratios).
 
 Clusters are contiguous runs of objects in a Morton (Z-curve) order of their centres, so they are
 spatially compact, with sizes log-uniform from one object to ``max_cluster``: a stand-in for the
-object hierarchy's nodes, which the thesis sampled (the hierarchy, :mod:`core.placement`, is built
+object hierarchy's nodes, which the thesis sampled (the hierarchy, :mod:`farfield.core.placement`, is built
 elsewhere).  Which clusters, cells and viewpoints are measured depends on the seed alone
 (:func:`sample_cases`, no GL); the times, of course, vary from run to run.
 
@@ -40,8 +40,8 @@ from datetime import UTC, datetime
 import numpy as np
 
 from farfield.core.errors import LayerPlanError, ViewCellError
-from farfield.core.evaluation import impostor_objects
-from farfield.core.layers import estimate_layers
+from farfield.core.quality.evaluation import impostor_objects
+from farfield.core.layering.plan import estimate_layers
 from farfield.core.placement.cost_model import CostModel, CostModelError, fit_linear, fit_power
 from farfield.core.procedural import city
 from farfield.core.render.context import renderer_info
@@ -185,7 +185,7 @@ class Calibration:
 
 def default_scene() -> Scene:
     """The scene calibrated when none is given: a procedural city of 900 buildings of 12 to 12,288
-    triangles (:func:`core.procedural.city`, seed 0, detail 32; 163,862 triangles), fixed so that
+    triangles (:func:`farfield.core.procedural.city`, seed 0, detail 32; 163,862 triangles), fixed so that
     calibrations of different machines measure the same objects."""
     return city(900, seed=0, detail=32)
 
@@ -401,7 +401,7 @@ def calibrate(
 
 def _quads_law(memory: list[MemorySample], options: CalibrationOptions):
     """(fit, q, beta) of quads per estimated layer as ``q * texels_per_layer ** beta``
-    (:meth:`core.placement.cost_model.CostModel.quads`), beta in [0, 1]: fixed at 1 when the free fit
+    (:meth:`farfield.core.placement.cost_model.CostModel.quads`), beta in [0, 1]: fixed at 1 when the free fit
     is steeper, at 0 when every sample has the same texels per layer (beta is then undetermined)."""
     texels = [s.texels_per_layer for s in memory]
     per_layer = [max(s.quads, 1) / s.layers_est for s in memory]

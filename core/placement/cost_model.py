@@ -363,7 +363,7 @@ def primitive_model(memory: tuple[float, float, float] = DEFAULT_MEMORY, memory_
 # The builtin model of this project's CPU machine, which a placement uses when the user gives no
 # --cost-model.  Measured 2026-12-04 on a 2-core x86-64 machine with Mesa llvmpipe (LLVM 15.0.6,
 # 256 bits) through EGL, with the shader variants of core/render/raster.py, by ``farfield calibrate
-# --out model.json`` with the defaults: the procedural city (core.procedural.city(900, seed=0,
+# --out model.json`` with the defaults: the procedural city (farfield.core.procedural.city(900, seed=0,
 # detail=32): 901 objects, 163,862 triangles), 800 geometry views (200 clusters of 1..256 objects x
 # 4), 96 layered impostors (14 random cells refused) drawn from 384 views, 256 px, 45°, seed 0; 24 s.
 # Fit quality (R², held-out relative error median / p90): geometry 0.965, 19% / 44%; impostor 0.960,

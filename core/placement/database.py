@@ -1,6 +1,6 @@
 """The impostor database of a placement: what to bake, what a runtime draws in every view, and the lookup.
 
-A placement database is an impostor database (:mod:`core.impostor_database`: ``index.json`` plus
+A placement database is an impostor database (:mod:`farfield.core.impostor.database`: ``index.json`` plus
 ``cells/NNNNN/`` bundles, what ``GET /v1/jobs/{id}/database.zip`` serves) whose cells are the
 placement's impostors (cell index = impostor id) and whose index has ``"kind": "placement"`` and a
 ``placement`` section::
@@ -9,10 +9,10 @@ placement's impostors (cell index = impostor id) and whose index has ``"kind": "
     placement.summary      CPV counts by status, impostors, memory (estimated and baked), worst times, rounds
     placement.elements     the element split (objects over ``cluster_triangles`` triangles cut into ``name#k``)
     placement.cpvs         per conservative problem view: its 3D region [lo, hi], its view-direction
-                           interval {face, level, i, j} (core.placement.view_space.VDI), the estimated time
+                           interval {face, level, i, j} (farfield.core.placement.view_space.VDI), the estimated time
                            before and after, the impostors drawn there (cell indices), its status
     placement.unsolvable   regions no placement can serve, with the elements to blame
-    placement.rounds       the check-and-repair rounds (core.placement.repair)
+    placement.rounds       the check-and-repair rounds (farfield.core.placement.repair)
 
 and each cell entry, beside the usual ``index``, ``viewcell``, ``state`` and ``bundle``, has its own
 ``technique``, ``objects`` (the elements it replaces), ``params`` (``resolution``, ``fov_deg``,
@@ -33,8 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from farfield.core.errors import ViewCellError
-from farfield.core.impostor import Impostor
-from farfield.core.impostor_database import INDEX_NAME, database_index
+from farfield.core.impostor.impostor import Impostor
+from farfield.core.impostor.database import INDEX_NAME, database_index
 from farfield.core.options import IMAGE_FIELDS, public_fields, stored_values
 from farfield.core.placement.hierarchy import Elements, PlacementError
 from farfield.core.placement.result import Placement
@@ -172,7 +172,7 @@ class PlacementLookup:
 def impostor_scene(scene: Scene, cluster_triangles: int, objects: list[str]) -> tuple[Scene, list[str] | None]:
     """(scene, objects) to bake an impostor of the elements ``objects`` from: the scene and the
     object names when they are whole objects, else the scene of just those elements (clusters
-    ``name#k`` of split objects cut as the planner cut them, :class:`~core.placement.hierarchy.Elements`)."""
+    ``name#k`` of split objects cut as the planner cut them, :class:`~farfield.core.placement.hierarchy.Elements`)."""
     names = set(scene.names)
     if all(name in names for name in objects):
         return scene, list(objects)
@@ -208,7 +208,7 @@ def bake_placement(scene: Scene, placement: Placement, progress: Callable[[int, 
 def write_placement_database(directory: str | Path, placement: Placement, impostors: dict[int, Impostor], rounds: list | None = None) -> Path:
     """Write a placement database folder (``index.json`` and ``cells/NNNNN/`` bundles) from
     impostors baked in this process; impostors missing from ``impostors`` are listed without a bundle."""
-    from farfield.core.bundle import write_bundle
+    from farfield.core.impostor.bundle import write_bundle
 
     root = Path(directory)
     root.mkdir(parents=True, exist_ok=True)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from farfield.core.errors import FarfieldError
-from farfield.core.near_field import face_ranges
+from farfield.core.techniques.envmap.near_field import face_ranges
 from farfield.core.scene import Scene, SceneObject
 
 DEFAULT_LEAF_SIZE = 4  # elements per leaf at most

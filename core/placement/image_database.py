@@ -4,13 +4,13 @@ and the walkthrough that counts, times and compares what its run time draws.
 Layout of the folder (format ``farfield.primitive_placement``, version 1)::
 
     placement.json              the grid (PrimitivePlacement.to_dict) and "bundles": {"<point>-<image>": "images/<point>-<image>"}
-    images/<point>-<image>/     an LDI bundle (technique "ldi", core.bundle): manifest.json, payload.bin, impostor.glb
+    images/<point>-<image>/     an LDI bundle (technique "ldi", farfield.core.impostor.bundle): manifest.json, payload.bin, impostor.glb
 
 A placement job's database (``GET /v1/jobs/{id}/database.zip``, unpacked) holds the same index as
 ``index.json``, with each image baked as one of the job's cells: its "bundles" name
 ``cells/<NNNNN>/`` and its "cells_baked" list each cell's index, image name, state and stats.
 
-An image's bundle holds its LDI's samples (:class:`core.impostor.LdiPayload`); its view cell is the
+An image's bundle holds its LDI's samples (:class:`farfield.core.impostor.impostor.LdiPayload`); its view cell is the
 cube around its grid point's star sphere, its reference viewpoint the grid point.  The octree cells
 are recomputed from the scene when the database is opened, and their bounds and counts must match
 the stored ones: a database is only valid for the scene it was made of.
@@ -31,10 +31,10 @@ from pathlib import Path
 import numpy as np
 
 from farfield.core import __version__
-from farfield.core.bundle import read_bundle, write_bundle
-from farfield.core.impostor import Impostor
-from farfield.core.ldi_pages import ldi_of, ldi_payload_and_pages
-from farfield.core.ldi_construction import DEFAULT_MAX_LAYERS, construct_ldi
+from farfield.core.impostor.bundle import read_bundle, write_bundle
+from farfield.core.impostor.impostor import Impostor
+from farfield.core.ldi.pages import ldi_of, ldi_payload_and_pages
+from farfield.core.ldi.construction import DEFAULT_MAX_LAYERS, construct_ldi
 from farfield.core.placement.hierarchy import PlacementError
 from farfield.core.placement.image_frames import cell_objects, view_camera
 from farfield.core.placement.octree_cells import OctreeCells, octree_cells

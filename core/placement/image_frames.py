@@ -3,7 +3,7 @@ LDI it warps, drawn on the GL, and how far that frame falls short of the full sc
 
 For a view (eye, yaw): :meth:`PrimitivePlacement.view` picks the grid point and its image.  The
 cells the eye's frustum meets are drawn as geometry, less the image's subset, and the image's LDI
-is warped in (:class:`core.render.splats.SplatRenderer`, then its 3x3 pass).  *Hole pixels* are
+is warped in (:class:`farfield.core.render.splats.SplatRenderer`, then its 3x3 pass).  *Hole pixels* are
 pixels the full scene covers from that view and the frame leaves empty.  They are counted against
 the subset's *footprint*: the pixels its geometry covers when drawn alone from there.
 """
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from farfield.core.ldi_construction import ConstructedLdi, construct_ldi
+from farfield.core.ldi.construction import ConstructedLdi, construct_ldi
 from farfield.core.placement.octree_cells import OctreeCells
 from farfield.core.placement.solution_grid import GridPoint, PrimitivePlacement
 from farfield.core.placement.yaw_ranges import drawn_cells, forward, right
@@ -41,7 +41,7 @@ def view_camera(eye, yaw: float, fov: float, resolution: int, near: float, far: 
 
 
 def image_ldi(scene: Scene, placement: PrimitivePlacement, point: GridPoint, image: dict, resolution: int, images: int = 9) -> ConstructedLdi:
-    """The LDI of one image of ``point`` (:func:`core.ldi_construction.construct_ldi`)."""
+    """The LDI of one image of ``point`` (:func:`farfield.core.ldi.construction.construct_ldi`)."""
     objects = cell_objects(scene, placement.cells, image["cells"])
     return construct_ldi(objects, point.position, image["yaw"], image["quad"], image["depth"], resolution, images=images)
 

@@ -1,7 +1,7 @@
 """``place``: the whole placement of seed 000 ch. 5 from a scene, a view space and a budget.
 
 elements and hierarchy (§5.4) -> problem view space (§5.5) -> candidates (§5.6) -> greedy (§5.7)
--> :class:`~core.placement.result.Placement`.  Every step is timed (``Placement.seconds``) and
+-> :class:`~farfield.core.placement.result.Placement`.  Every step is timed (``Placement.seconds``) and
 reports progress as ``(step, done, total)``.
 """
 
@@ -42,7 +42,7 @@ class PlacementSettings:
     options: dict | None = None  # the technique's options (resolution and fov_deg included)
     cpv_size: float | None = None  # None: the view space's longest side / 8
     vdi_deg: float = 11.25
-    depth_complexity: float = 4.0  # a view's rasterised pixels are at most this many frames (core.placement.view_space)
+    depth_complexity: float = 4.0  # a view's rasterised pixels are at most this many frames (farfield.core.placement.view_space)
     cells: str = "both"
     leaf_size: int = DEFAULT_LEAF_SIZE
     cluster_triangles: int | None = None
@@ -101,7 +101,7 @@ def place(
     least memory (greedily; seed 000 §5.7).  Raises PlacementError for unusable inputs; views no
     placement can serve are reported in the result (``Placement.message``), not raised.
 
-    ``keep_state``: the result's ``state`` is the :class:`~core.placement.repair.PlannerState`
+    ``keep_state``: the result's ``state`` is the :class:`~farfield.core.placement.repair.PlannerState`
     (hierarchy, problem views, candidates, greedy) that check-and-repair rounds resume."""
     _check(settings)
     technique = get_technique(settings.technique)

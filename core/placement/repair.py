@@ -71,7 +71,7 @@ class RepairRound:
 
 @dataclass(eq=False)
 class PlannerState:
-    """Everything :func:`core.placement.planner.place` computed, and the rounds since."""
+    """Everything :func:`farfield.core.placement.planner.place` computed, and the rounds since."""
 
     scene: dict  # scene_summary
     elements: Elements
@@ -79,7 +79,7 @@ class PlannerState:
     pv: ProblemViews
     cand: Candidates
     greedy: Greedy
-    settings: object  # core.placement.planner.PlacementSettings
+    settings: object  # farfield.core.placement.planner.PlacementSettings
     options: object  # the technique's Options
     technique: str
     lo: np.ndarray
@@ -240,7 +240,7 @@ class PlannerState:
     # --- the result ----------------------------------------------------------------------------
 
     def placement(self) -> Placement:
-        """The placement as it stands (:class:`~core.placement.result.Placement`)."""
+        """The placement as it stands (:class:`~farfield.core.placement.result.Placement`)."""
         self._assign_ids()
         greedy, cand, pv, hierarchy, elements, settings = self.greedy, self.cand, self.pv, self.hierarchy, self.elements, self.settings
         impostors = []

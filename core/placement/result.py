@@ -15,7 +15,7 @@ in bytes, lengths in scene units.
   replace, the elements meeting the region, exceeds ``t_max`` alone);
 * ``unsolvable``: per region with unsolvable CPVs, the worst such time and the elements to blame.
 
-An impostor's ``id`` is stable across check-and-repair rounds (:mod:`core.placement.repair`): one
+An impostor's ``id`` is stable across check-and-repair rounds (:mod:`farfield.core.placement.repair`): one
 that no CPV draws any more after a round keeps its id with ``"cpvs": 0``, and new ones take the
 next ids.  Once baked, an impostor carries its real figures in ``baked`` (``quads``,
 ``texture_bytes``), and the CPV times use them.
@@ -32,7 +32,7 @@ VERSION = 1
 
 @dataclass(frozen=True)
 class Placement:
-    """The result of :func:`core.placement.planner.place` (see the module docstring)."""
+    """The result of :func:`farfield.core.placement.planner.place` (see the module docstring)."""
 
     parameters: dict
     elements: dict
@@ -41,7 +41,7 @@ class Placement:
     unsolvable: list[dict]
     summary: dict
     seconds: dict = field(default_factory=dict, compare=False)
-    state: Any = field(default=None, compare=False, repr=False)  # core.placement.repair.PlannerState, when kept
+    state: Any = field(default=None, compare=False, repr=False)  # farfield.core.placement.repair.PlannerState, when kept
 
     def to_dict(self) -> dict:
         return {

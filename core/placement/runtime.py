@@ -1,13 +1,13 @@
-"""The reference runtime of a placement database (beside :mod:`core.envmap_runtime`): for a view,
+"""The reference runtime of a placement database (beside :mod:`farfield.core.techniques.envmap.runtime`): for a view,
 the CPV's impostors plus every element no impostor of that CPV replaces, frustum-culled.
 
 Seed 000 §5.7: the runtime looks up the view's conservative problem view (CPV, a 3D region x a
 view-direction interval), draws the impostors chosen for it and, as geometry, the rest of the
 scene.  Here every *element* of the placement (a scene object, or a cluster ``name#k`` of a split
-object, :class:`core.placement.hierarchy.Elements`) is its own draw call, so that what an
+object, :class:`farfield.core.placement.hierarchy.Elements`) is its own draw call, so that what an
 impostor replaces is exactly what is left out; each impostor bundle is read and uploaded once,
 when a view first needs it, and drawn as its technique's payload is drawn everywhere else
-(:func:`core.evaluation.impostor_objects`: quads or meshes textured from the atlas pages).
+(:func:`farfield.core.quality.evaluation.impostor_objects`: quads or meshes textured from the atlas pages).
 
 Frustum culling is conservative: an element (or impostor) is left out only when every corner of
 its bounding box lies outside one of the camera's four side planes, or behind the eye; no far
@@ -30,9 +30,9 @@ from typing import Self
 
 import numpy as np
 
-from farfield.core.envmap_runtime import camera_at
-from farfield.core.evaluation import impostor_objects
-from farfield.core.impostor_database import ImpostorDatabase
+from farfield.core.techniques.envmap.runtime import camera_at
+from farfield.core.quality.evaluation import impostor_objects
+from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.placement.cost_model import CostModel
 from farfield.core.placement.hierarchy import Elements, PlacementError
 from farfield.core.placement.view_space import element_pixels
@@ -81,7 +81,7 @@ def plain_estimate(model: CostModel, elements: Elements, drawn: np.ndarray, posi
     """The cost model's time of drawing elements ``drawn`` (indices) as geometry from ``position``:
     ``d + sum(a calls + b triangles) + c pixels``, pixels each element's bounding-sphere disc at its
     distance from the eye (a whole frame where the eye is inside its bounds), their sum capped at
-    ``depth_complexity`` frames, as the planner estimates a problem view (:mod:`core.placement.view_space`)."""
+    ``depth_complexity`` frames, as the planner estimates a problem view (:mod:`farfield.core.placement.view_space`)."""
     drawn = np.asarray(drawn, dtype=np.int64)
     p = np.asarray(position, dtype=np.float64)
     pixels = element_pixels(elements, p, p, fov, resolution, drawn) if drawn.size else np.zeros(0)

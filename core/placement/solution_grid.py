@@ -3,7 +3,7 @@ star-shapes, and at each point the images that keep every view within ``P`` prim
 
 **The guarantee** (§3.1, Fig. 3).  A view at eye ``e`` and yaw ``theta`` uses a grid point ``g`` whose
 frustum of the same direction and field of view holds ``e``.  The eye's frustum then lies inside
-``g``'s, so it meets no cell that ``g``'s view does not (:mod:`core.placement.yaw_ranges`).  The
+``g``'s, so it meets no cell that ``g``'s view does not (:mod:`farfield.core.placement.yaw_ranges`).  The
 preprocessing makes every yaw range of every grid point draw at most ``P`` after culling one subset
 (at most one image per view); the primitives of any such view are then at most ``P``, whatever the
 eye.
@@ -38,7 +38,7 @@ kept and reported: their failing ranges are *unsolved*, and views there may exce
 cannot be solved at this level: the point is subdivided without a search.
 
 **Per grid point** (§3.3.2, Fig. 2).  The yaw ranges are computed, and the most expensive range over
-``P`` gets a subset (:mod:`core.placement.cell_subsets`).  Every range that the subset's culling
+``P`` gets a subset (:mod:`farfield.core.placement.cell_subsets`).  Every range that the subset's culling
 brings within ``P`` uses that image, and the next most expensive range left over ``P`` gets its own
 subset, computed from the full model.  This repeats until every range is within ``P``.  The default
 ``p_opt`` is ``P`` less 5 % of the model's triangles, at least ``P / 2``: the paper found a

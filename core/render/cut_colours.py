@@ -9,7 +9,7 @@ hold what the geometry shows under it: the **mean colour of the texels under its
 pass the cut**.  Box-filtered mip levels of (linear colour x pass, pass) give exactly that
 sum(pass x colour) / sum(pass) over power-of-two blocks; ``slab.frag`` reads the level as wide as
 the footprint (a coarser one where nothing under it passes) and divides by the fourth channel.
-Colours are averaged in linear light (:mod:`core.colour_space`), as a renderer's filtering does.
+Colours are averaged in linear light (:mod:`farfield.core.colour_space`), as a renderer's filtering does.
 
 Weighting by pass/fail rather than by alpha matters where a texture's soft edge (alpha above 0,
 below the cut) is painted in another colour than its opaque body: ``LushPine.png`` holds 20,033

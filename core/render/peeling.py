@@ -10,7 +10,7 @@ pixel merge into one: give a tight depth range.
 (``peel_touch.geom`` / ``.frag``: the triangle's screen rectangle, an exact triangle-square overlap
 test, and as the sample the triangle's point whose projection is nearest the centre), so geometry
 thinner than a pixel, which pixel-centre rays can miss, still leaves a sample in every pixel it
-crosses (:func:`core.ldi.record_ldi` merges the two).  An alpha-cut triangle's
+crosses (:func:`farfield.core.ldi.image.record_ldi` merges the two).  An alpha-cut triangle's
 touched sample stays when the texture passes the cut at any point of a fine grid over the
 triangle's part of the pixel, also where it covers the pixel's centre on a cut texel, so a needle
 the centre ray meets beside its opaque texels is kept.  A triangle reaching behind the camera

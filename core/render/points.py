@@ -11,18 +11,18 @@ the ray from the eye to the point crosses the sampling plane (§5.3; the vertex 
 ``grid`` (the baked image's resolution and field of view) draws the points as the baked image's
 pixels: each point snapped to the centre of the baked pixel it falls in and drawn as a square of
 that pixel's size, so that a camera whose pixels subdivide the baked ones (the evaluation's
-supersampled views and its confirmation windows, :mod:`core.evaluation`) sees what the baked
+supersampled views and its confirmation windows, :mod:`farfield.core.quality.evaluation`) sees what the baked
 resolution shows, not sparse dots.  Such cameras must share the baked camera's axis (their
 ``offset`` is measured from it), and a window's sides must fall on baked pixels' edges: the GL
 drops a point whose centre lies outside the viewport, so a window that cuts a baked pixel in two
 loses its part of that pixel (the evaluation's windows start and end on evaluated pixels).
 
-A point's alpha is the share of its pixel's footprint the part covers (:mod:`core.point_appearance`):
+A point's alpha is the share of its pixel's footprint the part covers (:mod:`farfield.core.techniques.points.appearance`):
 drawn without blending, the image holds the nearest point's colour (that of what covers the pixel)
 and that coverage, for a runtime to composite over what lies behind the impostor; a point without
 a coverage of its own (a preview's) has alpha 255.
 
-The camera, targets and read-back are :class:`core.render.raster.MeshRenderer`'s, so its images
+The camera, targets and read-back are :class:`farfield.core.render.raster.MeshRenderer`'s, so its images
 compare pixel for pixel with the mesh's.  :meth:`PointRenderer.render_ids` draws each point's index
 instead: the visibility of the points among themselves, as the z-buffer resolves it (§4.3's v_j).
 """

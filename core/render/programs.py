@@ -91,7 +91,7 @@ def material_uniforms(prog: moderngl.Program, obj, texture: moderngl.Texture | N
     (each only where ``prog`` has it) and, with a texture, ``base_texture`` on unit 0 (the caller binds
     ``texture``, an :func:`srgb_texture`, there).
 
-    ``obj`` is a :class:`core.scene.SceneObject`; ``texture`` its uploaded base-colour texture.
+    ``obj`` is a :class:`farfield.core.scene.SceneObject`; ``texture`` its uploaded base-colour texture.
     """
     uniforms = {"base_color": tuple(float(c) for c in obj.base_color)}
     if prog.get("has_texture", None) is not None:  # absent from a variant built for its object

@@ -1,10 +1,10 @@
 """The GPU drawer of a warped layered depth image (seed 004 §4), composited with geometry.
 
-The geometry is drawn first, as :class:`core.render.raster.MeshRenderer` draws it.  Then every LDI
+The geometry is drawn first, as :class:`farfield.core.render.raster.MeshRenderer` draws it.  Then every LDI
 sample is drawn as a depth-tested square point, as wide as its LDI pixel's footprint seen from the
 camera, in whole pixels (``shaders/splats.vert``; the same widths as the CPU warp,
-:mod:`core.ldi_warp`).  Splat pixels get alpha 254 and geometry 255, so
-:meth:`SplatRenderer.render` can run the 3x3 pass (:func:`core.ldi_warp.fill_pin_holes`) on the
+:mod:`farfield.core.ldi.warp`).  Splat pixels get alpha 254 and geometry 255, so
+:meth:`SplatRenderer.render` can run the 3x3 pass (:func:`farfield.core.ldi.warp.fill_pin_holes`) on the
 pixels the splats left empty next to splats, after read-back.
 """
 
@@ -15,8 +15,8 @@ import math
 import moderngl
 import numpy as np
 
-from farfield.core.ldi import LayeredDepthImage
-from farfield.core.ldi_warp import fill_pin_holes
+from farfield.core.ldi.image import LayeredDepthImage
+from farfield.core.ldi.warp import fill_pin_holes
 from farfield.core.render.programs import program
 from farfield.core.render.raster import Camera, MeshRenderer
 from farfield.core.scene import SceneObject

@@ -1,6 +1,6 @@
 """The technique registry: every impostor technique farfield bakes, by name.
 
-Adding a technique means adding its module (a :class:`~core.techniques.base.Technique` named
+Adding a technique means adding its module (a :class:`~farfield.core.techniques.base.Technique` named
 ``TECHNIQUE``) and one line here; the job API, the CLI (``farfield bake --technique``,
 ``farfield techniques``), ``GET /v1/techniques`` and the dashboard's job form read this table.
 """

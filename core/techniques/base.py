@@ -1,11 +1,11 @@
 """What a technique is: the one object each technique module exposes, and what every consumer asks of it.
 
-A :class:`Technique` names its ``Options`` (a frozen dataclass of :func:`core.options.option`
+A :class:`Technique` names its ``Options`` (a frozen dataclass of :func:`farfield.core.options.option`
 fields), its scope (``part``: impostors of a scene's objects; ``scene``: the whole scene around a
 view cell), the check that runs when a job is created (``check``: the layer planning that proves
 every cell can have an impostor, returning the cell's :class:`CellCost` from that plan), the bake, the evaluation against the real geometry, and the
 text the CLI prints of its statistics and its evaluation.  The registry
-(:data:`core.techniques.TECHNIQUES`) holds one of each; the service, the CLI and the dashboard read
+(:data:`farfield.core.techniques.TECHNIQUES`) holds one of each; the service, the CLI and the dashboard read
 it instead of naming techniques.
 """
 
@@ -18,7 +18,7 @@ from typing import Any, Literal
 import numpy as np
 
 from farfield.core.errors import LayerPlanError
-from farfield.core.impostor import Impostor
+from farfield.core.impostor.impostor import Impostor
 from farfield.core.options import IMAGE_FIELDS, describe_options, options_from_mapping
 from farfield.core.scene import Scene
 from farfield.core.viewcells import ViewCell

@@ -1,4 +1,4 @@
-"""Layered impostors (seed 000 ch. 3): a scene part and a view cell in, an :class:`~core.impostor.Impostor` of textured quads on layers out.
+"""Layered impostors (seed 000 ch. 3): a scene part and a view cell in, an :class:`~farfield.core.impostor.impostor.Impostor` of textured quads on layers out.
 
 plan layers (seed 000 §3.3.1) -> record layers on EGL (§3.3.2) -> cull hidden texels (§3.4, §3.4.1)
 -> box-grown quads (§3.5) -> atlas pages (§3.6) -> world-space quads.
@@ -14,13 +14,13 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from farfield.core import __version__
-from farfield.core.atlas import MAX_PAGE
-from farfield.core.culled_layers import culled_layers
-from farfield.core.culling import CullingMode
+from farfield.core.layering.atlas import MAX_PAGE
+from farfield.core.layering.culled import culled_layers
+from farfield.core.layering.culling import CullingMode
 from farfield.core.errors import LayerPlanError
-from farfield.core.impostor import Impostor, QuadPayload, texel_rect_corners
-from farfield.core.layer_tiles import QUAD_GEOMETRY_BYTES, check_pages, layer_records, layer_tiles, pack_tiles
-from farfield.core.layers import plan_layers
+from farfield.core.impostor.impostor import Impostor, QuadPayload, texel_rect_corners
+from farfield.core.layering.tiles import QUAD_GEOMETRY_BYTES, check_pages, layer_records, layer_tiles, pack_tiles
+from farfield.core.layering.plan import plan_layers
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION, PixelModel
 from farfield.core.scene import Scene

@@ -1,20 +1,20 @@
 """Layered-depth-image impostors (seed 004 §4, Aliaga and Lastra 1999): a scene part and a box view
-cell in, an :class:`~core.impostor.Impostor` of LDI samples out, splatted at run time.
+cell in, an :class:`~farfield.core.impostor.impostor.Impostor` of LDI samples out, splatted at run time.
 
 The LDI's centre of projection is the cell's centre, looking at the part's centre.  Its image
 plane, which is also its near plane, is the quad through the part's nearest point: the square
 window around the part's bounds.  Seed 004's image of a grid point is the same construction, with
 the grid point's star sphere as the cell.  The part must lie wholly farther ahead than the cell's
 half-diagonal, so that every eye in the cell stays in front of the quad (§3.2.1's condition).  The
-LDI is built from nine construction images (§4.1, :mod:`core.ldi_construction`), or from the
+LDI is built from nine construction images (§4.1, :mod:`farfield.core.ldi.construction`), or from the
 central one alone (``images=1``, the single-image LDI of Fig. 10).
 
-**Stored** as two pages per layer, colour and float32 depth (:mod:`core.ldi_pages`; PNG in the
+**Stored** as two pages per layer, colour and float32 depth (:mod:`farfield.core.ldi.pages`; PNG in the
 bundle).  ``texture_bytes`` counts those pages raw; ``splat_bytes`` what the GPU drawer uploads,
 20 bytes a sample (a float32 position, an RGBA8 colour, a float32 footprint width).
 
 **For standard viewers** the GLB holds the first layer as one textured quad on the image plane, a
-billboard (:func:`core.ldi_pages.preview_quad`), not the splatted LDI.
+billboard (:func:`farfield.core.ldi.pages.preview_quad`), not the splatted LDI.
 """
 
 from __future__ import annotations
@@ -26,13 +26,13 @@ import numpy as np
 
 from farfield.core import __version__
 from farfield.core.errors import LayerPlanError
-from farfield.core.evaluation import Evaluation
-from farfield.core.impostor import Impostor
-from farfield.core.ldi_construction import DEFAULT_MAX_LAYERS, _merge_samples, construct_ldi, view_frame
-from farfield.core.ldi_warp import _warp_kernel
+from farfield.core.quality.evaluation import Evaluation
+from farfield.core.impostor.impostor import Impostor
+from farfield.core.ldi.construction import DEFAULT_MAX_LAYERS, _merge_samples, construct_ldi, view_frame
+from farfield.core.ldi.warp import _warp_kernel
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION
-from farfield.core.ldi_pages import ldi_payload_and_pages
+from farfield.core.ldi.pages import ldi_payload_and_pages
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import CellCost, Technique

@@ -9,9 +9,9 @@ import math
 import numpy as np
 
 from farfield.core.errors import PlanBudgetError
-from farfield.core.evaluation import Evaluation, evaluate, evaluate_at, spread_corners
-from farfield.core.impostor import Impostor
-from farfield.core.layers import estimate_layers, plan_layers
+from farfield.core.quality.evaluation import Evaluation, evaluate, evaluate_at, spread_corners
+from farfield.core.impostor.impostor import Impostor
+from farfield.core.layering.plan import estimate_layers, plan_layers
 from farfield.core.scene import Scene
 from farfield.core.techniques.base import CellCost
 from farfield.core.viewcells import ViewCell, viewcell_from_dict
@@ -20,7 +20,7 @@ from farfield.core.viewcells import ViewCell, viewcell_from_dict
 def check_part_cell(cell: ViewCell, options, bounds: np.ndarray | None, max_texels: int | None = None) -> CellCost:
     """Plan the layers of the part (``bounds``) seen from ``cell`` as the bake will (raises when
     there is no answer); the cell's cost is the plan's layers of its texture resolution.  Past
-    ``max_texels`` the planning stops (:func:`core.layers.plan_layers`) and the cost says at least.
+    ``max_texels`` the planning stops (:func:`farfield.core.layering.plan.plan_layers`) and the cost says at least.
 
     >>> from farfield.core.techniques.layered import BakeOptions
     >>> from farfield.core.viewcells import BoxCell
@@ -43,7 +43,7 @@ def check_part_cell(cell: ViewCell, options, bounds: np.ndarray | None, max_texe
 
 def estimate_part_cell(cell: ViewCell, options, bounds: np.ndarray) -> tuple[float, float]:
     """The placement's estimate for the part in ``bounds`` seen from ``cell``: layers (estimated,
-    :func:`core.layers.estimate_layers`) and texels per layer (exact), without planning every layer."""
+    :func:`farfield.core.layering.plan.estimate_layers`) and texels per layer (exact), without planning every layer."""
     layers, res = estimate_layers(cell, bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model, getattr(options, "texel_share", None))
     return layers, float(res[0]) * float(res[1])
 
@@ -70,10 +70,10 @@ REPORT_FIGURES = (
 
 def report_part(scene: Scene, impostor: Impostor, corners: int = REPORT_CORNERS, samples: int = REPORT_SAMPLES) -> dict:
     """The evaluation a job records for one baked cell: the impostor against its part from its
-    reference viewpoint and ``corners`` corners of its cell far apart (:func:`core.evaluation.spread_corners`),
+    reference viewpoint and ``corners`` corners of its cell far apart (:func:`farfield.core.quality.evaluation.spread_corners`),
     with ``samples`` per pixel side.
 
-    Returns the totals named in :data:`REPORT_FIGURES` (see :mod:`core.evaluation`), plus
+    Returns the totals named in :data:`REPORT_FIGURES` (see :mod:`farfield.core.quality.evaluation`), plus
     ``samples`` and ``seconds`` (the time the evaluation took, apart from the bake's).
     """
     names = impostor.parameters.get("objects")

@@ -25,7 +25,7 @@ renderer.setClearColor(0x000000, 0);
 renderer.toneMapping = THREE.NoToneMapping;
 renderer.outputColorSpace = THREE.SRGBColorSpace;
 const gl = renderer.getContext();
-// compressed GLBs (core/glb_compression.py): KTX2 pages through three.js's Basis Universal
+// compressed GLBs (core/impostor/glb_compression.py): KTX2 pages through three.js's Basis Universal
 // transcoder (its own wasm, from the pinned package) and meshopt geometry through its decoder
 const ktx2 = new KTX2Loader().setTranscoderPath("/three/examples/jsm/libs/basis/").detectSupport(renderer);
 

@@ -1,0 +1,417 @@
+"""glTF 2.0 binary (GLB) bytes of one impostor: its float64 world quads or mesh -> float32 indexed triangles.
+
+The file is deterministic: the same impostor gives byte-identical bytes (fixed JSON key order, no
+timestamps, PNG pages encoded with fixed settings by :func:`page_png`).  Layout (glTF 2.0 spec,
+"GLB File Format Specification" and "Properties Reference"):
+
+* 12-byte header: magic ``glTF``, version 2, total length (little-endian uint32).
+* JSON chunk (type ``JSON``), padded with spaces (0x20) to a multiple of 4 bytes.
+* BIN chunk (type ``BIN\\0``), padded with zeros; every bufferView inside starts on a 4-byte
+  boundary.  For each page with quads, in page order: indices, POSITION, TEXCOORD_0; then every
+  page's PNG image.
+* One scene, one node, one mesh.  The node's ``extras.farfield`` says where the impostor is valid
+  (:func:`engine_metadata`: technique, view cell, reference viewpoint, resolution, field of view).
+  Its ``translation`` is the impostor's reference viewpoint as float64 JSON numbers, and POSITION holds float32 corners *relative to it*: float32 keeps ~7
+  significant digits, which at continental coordinates (1e6 m) is ~0.1 m absolute, but relative
+  to a viewpoint a few hundred metres away it is well below a millimetre.
+* One primitive per atlas page that has geometry.  A quad payload (:class:`farfield.core.impostor.impostor.QuadPayload`)
+  gives two triangles per quad (corners 0, 3, 2 and 0, 2, 1: TL, BL, BR and TL, BR, TR); its
+  vertices are welded: each distinct float32 (position, UV) pair that a triangle uses is stored
+  once, in the order of its first copy among the quads' corners (a layered impostor's quads,
+  each with its own tile, keep their four corners in order).  A mesh payload
+  (:class:`farfield.core.impostor.impostor.MeshPayload`) gives its own indexed triangles: the page's triangles in
+  payload order, and the vertices they use in the order of their first use.  Indices are uint16
+  when the page has fewer than 65,535 vertices (0xFFFF is the primitive-restart value, which glTF
+  forbids), else uint32.
+* Every triangle is counter-clockwise as seen from the reference viewpoint (glTF's front face):
+  a triangle whose stored float32 corners wind the other way there has its last two corners
+  swapped (a baked layered impostor's image x runs right to left as seen from the viewpoint, so
+  its quads' TL, BL, BR is clockwise there; a textured depth mesh's triangles have no winding of
+  their own).  A triangle seen edge-on keeps its order.
+* One material per page, whether or not the page has quads: ``baseColorTexture`` of that page,
+  ``KHR_materials_unlit``, ``alphaMode`` ``MASK`` with cutoff 0.5 and ``doubleSided`` (the
+  impostor is only seen from inside its view cell, so a viewer must not cull it if it disagrees
+  about winding).  Samplers are linear / linear (no mipmaps), clamp-to-edge: a viewer's mipmaps
+  average a tile's alpha with the transparent texels around it, and the alpha cut then eats the
+  impostor's silhouette (three.js, envmap from a cell corner: up to 17 pixels beyond one); seen
+  from inside its cell, an impostor's texels are about one pixel wide, so mipmaps buy nothing.
+
+Texture coordinates are stored as given: :class:`farfield.core.impostor.impostor.Impostor` already uses glTF's
+convention (0, 0 is the top-left of the page).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import struct
+
+import numpy as np
+from PIL import Image
+
+from farfield.core.colour_space import srgb_to_linear
+from farfield.core.impostor.impostor import Impostor, LdiPayload, MeshPayload, PointPayload, QuadPayload, check_impostor
+
+__all__ = ["engine_metadata", "impostor_glb", "page_png", "write_glb"]
+
+_MAGIC = 0x46546C67  # "glTF"
+_VERSION = 2
+_CHUNK_JSON = 0x4E4F534A  # "JSON"
+_CHUNK_BIN = 0x004E4942  # "BIN\0"
+
+# glTF enums (spec, "accessor.componentType", "bufferView.target", "sampler").
+_UNSIGNED_SHORT = 5123
+_UNSIGNED_INT = 5125
+_FLOAT = 5126
+_ARRAY_BUFFER = 34962
+_ELEMENT_ARRAY_BUFFER = 34963
+_LINEAR = 9729
+_CLAMP_TO_EDGE = 33071
+_TRIANGLES = 4
+_POINTS = 0
+
+_UNLIT = "KHR_materials_unlit"
+# A point impostor's directional colours (seed 001 §5.3), for a runtime that knows them (see
+# :func:`_point_primitive`); viewers that do not show the points' COLOR_0.
+POINT_APPEARANCE = "FARFIELD_point_appearance"
+
+# Corner order TL, TR, BR, BL (0..3): the triangles TL-BL-BR and TL-BR-TR (their winding as seen
+# from the reference viewpoint is then set by _face_viewpoint).
+_QUAD_TRIANGLES = np.array([0, 3, 2, 0, 2, 1], dtype=np.int64)
+# 0xFFFF is reserved as primitive restart, so uint16 indices address at most 65,535 vertices.
+_MAX_UINT16_VERTICES = 0xFFFF
+
+# Fixed PNG settings: zlib level 6 without the optimiser's search, no metadata chunks.
+_PNG_COMPRESS_LEVEL = 6
+
+
+def page_png(page: np.ndarray) -> bytes:
+    """Deterministic PNG bytes of one (H, W, 4) uint8 RGBA page, top row first.
+
+    The same array gives the same bytes with the same zlib: fixed compression level, no optimiser
+    search, no text or time chunks.
+
+    >>> data = page_png(np.zeros((2, 3, 4), np.uint8))
+    >>> data[:8] == b"\\x89PNG\\r\\n\\x1a\\n", data == page_png(np.zeros((2, 3, 4), np.uint8))
+    (True, True)
+    """
+    buffer = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(page), mode="RGBA").save(
+        buffer, "PNG", optimize=False, compress_level=_PNG_COMPRESS_LEVEL
+    )
+    return buffer.getvalue()
+
+
+def _pad(data: bytes, fill: bytes) -> bytes:
+    return data + fill * (-len(data) % 4)
+
+
+class _Bin:
+    """The growing BIN chunk: appends 4-byte-aligned bufferViews and returns their indices."""
+
+    def __init__(self) -> None:
+        self.parts: list[bytes] = []
+        self.length = 0
+        self.views: list[dict] = []
+
+    def add(self, data: bytes, target: int | None = None) -> int:
+        view = {"buffer": 0, "byteOffset": self.length, "byteLength": len(data)}
+        if target is not None:
+            view["target"] = target
+        padded = _pad(data, b"\x00")
+        self.parts.append(padded)
+        self.length += len(padded)
+        self.views.append(view)
+        return len(self.views) - 1
+
+    def bytes(self) -> bytes:
+        return b"".join(self.parts)
+
+
+def _weld(positions: np.ndarray, uv: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The vertices (float32 ``positions`` (n, 3), ``uv`` (n, 2)) that ``indices`` use, each
+    distinct (position, uv) pair once, in the order of its first copy among the given vertices,
+    and the indices remapped to them (vertices all distinct and all used: unchanged).
+
+    >>> p = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 1, 0]], "<f4")
+    >>> t = np.array([[0, 0], [1, 0], [0, 1], [0, 1]], "<f4")
+    >>> q, _, i = _weld(p, t, np.array([0, 3, 1, 0, 2, 1]))
+    >>> len(q), i.tolist()
+    (3, [0, 2, 1, 0, 2, 1])
+    """
+    rows = np.ascontiguousarray(np.concatenate([positions, uv], axis=1), dtype="<f4")
+    keys = rows.view(np.dtype((np.void, rows.dtype.itemsize * rows.shape[1])))[:, 0]
+    _, first, key_of = np.unique(keys, return_index=True, return_inverse=True)
+    key_of = key_of.reshape(-1)
+    used = np.unique(key_of[indices])  # the keys drawn
+    order = used[np.argsort(first[used], kind="stable")]
+    slot = np.empty(first.size, np.int64)
+    slot[order] = np.arange(order.size)
+    kept = first[order]
+    return positions[kept], uv[kept], slot[key_of[indices]]
+
+
+def _quad_pages(payload: QuadPayload, viewpoint: np.ndarray, page_count: int):
+    """Per page with quads: (page, float32 positions relative to ``viewpoint``, float32 UVs, indices)."""
+    # Narrowed to float32 here, after the float64 subtraction, so only the local offset is rounded.
+    relative = (payload.corners - viewpoint).astype("<f4")
+    uv = payload.uv.astype("<f4")
+    for page in range(page_count):
+        quads = np.flatnonzero(payload.page == page)
+        if quads.size == 0:
+            continue  # glTF accessors need count >= 1; the page keeps its material and image
+        indices = (np.arange(quads.size, dtype=np.int64)[:, None] * 4 + _QUAD_TRIANGLES).ravel()
+        yield (page, *_weld(relative[quads].reshape(-1, 3), uv[quads].reshape(-1, 2), indices))
+
+
+def _mesh_pages(payload: MeshPayload, viewpoint: np.ndarray, page_count: int):
+    """Per page with triangles: (page, float32 positions relative to ``viewpoint``, float32 UVs, indices)."""
+    for page in range(page_count):
+        triangles = payload.triangles[payload.page == page].ravel()
+        if triangles.size == 0:
+            continue
+        used, first, local = np.unique(triangles, return_index=True, return_inverse=True)
+        order = np.argsort(first, kind="stable")  # vertices in the order of their first use
+        slot = np.empty(used.size, np.int64)
+        slot[order] = np.arange(used.size)
+        kept = used[order]
+        positions = (payload.vertices[kept] - viewpoint).astype("<f4")
+        yield page, positions, payload.uv[kept].astype("<f4"), slot[local.reshape(-1)]
+
+
+def _face_viewpoint(positions: np.ndarray, indices: np.ndarray) -> np.ndarray:
+    """``indices`` (3n,) of triangles over ``positions`` (float32, relative to the viewpoint at the
+    origin), each counter-clockwise as seen from the origin: the last two corners of a triangle
+    that winds the other way are swapped.
+
+    >>> p = np.array([[0, 5, 0], [1, 5, 0], [0, 5, 1]], "<f4")  # seen from the origin along +y
+    >>> _face_viewpoint(p, np.array([0, 1, 2])).tolist(), _face_viewpoint(p, np.array([0, 2, 1])).tolist()
+    ([0, 1, 2], [0, 1, 2])
+    """
+    triangles = indices.reshape(-1, 3).copy()
+    corner = positions.astype(np.float64)[triangles]
+    normal = np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0])
+    away = np.einsum("ij,ij->i", normal, corner.sum(axis=1)) > 0  # the front faces away from the origin
+    triangles[away] = triangles[away][:, [0, 2, 1]]
+    return triangles.reshape(-1)
+
+
+def _page_geometry(payload, viewpoint: np.ndarray, page_count: int):
+    """The payload's drawn triangles per page, dispatched on its kind."""
+    if isinstance(payload, QuadPayload):
+        return _quad_pages(payload, viewpoint, page_count)
+    if isinstance(payload, MeshPayload):
+        return _mesh_pages(payload, viewpoint, page_count)
+    raise TypeError(f"no GLB writer for a {payload.kind!r} payload")
+
+
+def _point_primitive(payload: PointPayload, viewpoint: np.ndarray, binary: _Bin, accessors: list[dict]) -> dict:
+    """The one ``POINTS`` primitive of a point impostor (material 0, unlit): POSITION (float32,
+    relative to the node's translation), ``COLOR_0`` (float32 linear RGB, glTF's rule: the
+    single-colour preview of seed 001 §5.3, what any viewer shows as one-pixel points) and
+    ``_FARFIELD_TILE`` (float32 VEC3: the point's page, -1 for one colour, and its tile's first
+    texel x, y).  The extension :data:`POINT_APPEARANCE` on the primitive names the textures of the
+    pages (``textures``, one per atlas page, in page order; sRGB like a base-colour texture), the tile's texels ``tile`` (along u,
+    along v), the sampling ``plane`` (unit normal, offset; world coordinates: normal · x = offset),
+    its ``axes`` u, v and the ``rectangle`` [[lo u, lo v], [hi u, hi v]] of plane coordinates
+    (x · u, x · v) the tiles span.  A runtime shows a textured point with the bilinear look-up, in
+    its tile, of where the ray from the eye to the point crosses the plane (texel centres at
+    (c + ½) / tu, (r + ½) / tv of the rectangle; row 0 at low v)."""
+    positions = np.ascontiguousarray(payload.positions - viewpoint, dtype="<f4")
+    colour = np.ascontiguousarray(srgb_to_linear(payload.colour[:, :3] / 255.0), dtype="<f4")
+    tile = np.ascontiguousarray(np.concatenate([payload.page[:, None], payload.texel], axis=1), dtype="<f4")
+    base = len(accessors)
+    accessors.append({
+        "bufferView": binary.add(positions.tobytes(), _ARRAY_BUFFER), "componentType": _FLOAT, "count": int(positions.shape[0]), "type": "VEC3",
+        "min": [float(x) for x in positions.min(axis=0)], "max": [float(x) for x in positions.max(axis=0)],
+    })  # fmt: skip
+    accessors.append({"bufferView": binary.add(colour.tobytes(), _ARRAY_BUFFER), "componentType": _FLOAT, "count": int(colour.shape[0]), "type": "VEC3"})
+    accessors.append({"bufferView": binary.add(tile.tobytes(), _ARRAY_BUFFER), "componentType": _FLOAT, "count": int(tile.shape[0]), "type": "VEC3"})
+    return {
+        "attributes": {"POSITION": base, "COLOR_0": base + 1, "_FARFIELD_TILE": base + 2},
+        "material": 0,
+        "mode": _POINTS,
+        "extensions": {POINT_APPEARANCE: {
+            "textures": list(range(int(payload.page.max(initial=-1)) + 1)),
+            "tile": [int(t) for t in payload.tile],
+            "plane": [float(x) for x in payload.plane],
+            "axes": [[float(x) for x in a] for a in payload.axes],
+            "rectangle": [[float(x) for x in r] for r in payload.rectangle],
+        }},
+    }  # fmt: skip
+
+
+def _points_glb_parts(impostor: Impostor, viewpoint: np.ndarray, binary: _Bin, accessors: list[dict]) -> tuple[list[dict], list[dict]]:
+    """(primitives, materials) of a point impostor: one POINTS primitive, one unlit opaque material."""
+    material = {"name": "points", "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0}, "extensions": {_UNLIT: {}}}
+    if impostor.payload.count == 0:
+        return [], [material]
+    return [_point_primitive(impostor.payload, viewpoint, binary, accessors)], [material]
+
+
+def engine_metadata(impostor: Impostor) -> dict:
+    """What an engine needs to know where the impostor is valid, as the node's ``extras.farfield``:
+    ``technique``, ``viewcell`` (the bundle's dict: kind and corners or shaft), ``reference_viewpoint``
+    (world, the node's translation), ``resolution`` and ``fov_deg`` (the output image it was made
+    for: one texel or point about one pixel there), ``code_version``.
+
+    >>> from farfield.core.impostor.impostor import PointPayload
+    >>> engine_metadata(Impostor("points", {"kind": "box", "lo": [0, 0, 0], "hi": [1, 1, 1]}, np.zeros(3), 64, 45.0, (), PointPayload.empty()))["viewcell"]["kind"]
+    'box'
+    """
+    return json.loads(json.dumps({
+        "technique": impostor.technique,
+        "viewcell": impostor.viewcell,
+        "reference_viewpoint": [float(x) for x in np.asarray(impostor.reference_viewpoint, dtype=np.float64)],
+        "resolution": int(impostor.resolution),
+        "fov_deg": float(impostor.fov_deg),
+        "code_version": impostor.code_version,
+    }, default=lambda v: v.tolist() if isinstance(v, np.ndarray) else float(v), allow_nan=False))  # fmt: skip
+
+
+def impostor_glb(impostor: Impostor) -> bytes:
+    """GLB bytes of ``impostor``: one node at the reference viewpoint, one primitive per page.
+
+    Parameters
+    ----------
+    impostor : Impostor
+        A quad or mesh payload in float64 world metres, UVs in glTF convention; pages (H, W, 4)
+        uint8 RGBA top row first.
+
+    Returns
+    -------
+    bytes
+        A glTF 2.0 binary file, byte-identical for equal impostors.
+
+    Raises
+    ------
+    BundleFormatError
+        The impostor's arrays do not fit (see :func:`farfield.core.impostor.impostor.check_impostor`).
+
+    Examples
+    --------
+    >>> quad = np.array([[[-1, 5, 1], [1, 5, 1], [1, 5, -1], [-1, 5, -1]]], dtype=np.float64)
+    >>> uv = np.array([[[0, 0], [1, 0], [1, 1], [0, 1]]], dtype=np.float64)
+    >>> payload = QuadPayload(quad, uv, np.zeros(1, np.int64), np.zeros(1, np.int64))
+    >>> one = Impostor("billboard", {}, np.zeros(3), 64, 60.0, (np.full((4, 4, 4), 255, np.uint8),), payload)
+    >>> data = impostor_glb(one)
+    >>> data[:4], struct.unpack_from("<I", data, 4)[0], len(data) % 4
+    (b'glTF', 2, 0)
+    >>> impostor_glb(one) == data
+    True
+    """
+    check_impostor(impostor)
+    viewpoint = np.asarray(impostor.reference_viewpoint, dtype=np.float64)
+
+    binary = _Bin()
+    accessors: list[dict] = []
+    primitives: list[dict] = []
+    shown = impostor.pages
+    if isinstance(impostor.payload, LdiPayload):  # the fallback: the first layer's colour on the image quad (farfield.core.ldi.pages)
+        shown = impostor.pages[:1]
+        quad = QuadPayload(impostor.payload.quad[None], np.array([[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]]), np.zeros(1, np.int64), np.zeros(1, np.int64))
+        pages = _page_geometry(quad, viewpoint, len(shown)) if shown else ()
+    else:
+        pages = () if isinstance(impostor.payload, PointPayload) else _page_geometry(impostor.payload, viewpoint, len(impostor.pages))
+    for page, positions, texcoords, indices in pages:
+        indices = _face_viewpoint(positions, indices)
+        vertex_count = positions.shape[0]
+        index_dtype, component = (
+            ("<u2", _UNSIGNED_SHORT) if vertex_count < _MAX_UINT16_VERTICES else ("<u4", _UNSIGNED_INT)
+        )
+        base = len(accessors)
+        accessors.append({
+            "bufferView": binary.add(indices.astype(index_dtype).tobytes(), _ELEMENT_ARRAY_BUFFER),
+            "componentType": component,
+            "count": int(indices.size),
+            "type": "SCALAR",
+        })
+        accessors.append({
+            "bufferView": binary.add(positions.tobytes(), _ARRAY_BUFFER),
+            "componentType": _FLOAT,
+            "count": int(vertex_count),
+            "type": "VEC3",
+            # float32 values widened exactly to float64, so min/max equal the stored data.
+            "min": [float(x) for x in positions.min(axis=0)],
+            "max": [float(x) for x in positions.max(axis=0)],
+        })
+        accessors.append({
+            "bufferView": binary.add(texcoords.tobytes(), _ARRAY_BUFFER),
+            "componentType": _FLOAT,
+            "count": int(vertex_count),
+            "type": "VEC2",
+        })
+        primitives.append({
+            "attributes": {"POSITION": base + 1, "TEXCOORD_0": base + 2},
+            "indices": base,
+            "material": page,
+            "mode": _TRIANGLES,
+        })
+
+    images = [
+        {"bufferView": binary.add(page_png(page)), "mimeType": "image/png", "name": f"atlas-{index:03d}"}
+        for index, page in enumerate(shown)
+    ]
+    materials = [
+        {
+            "name": f"atlas-{index:03d}",
+            "pbrMetallicRoughness": {
+                "baseColorFactor": [1.0, 1.0, 1.0, 1.0],
+                "baseColorTexture": {"index": index, "texCoord": 0},
+                "metallicFactor": 0.0,
+                "roughnessFactor": 1.0,
+            },
+            "alphaMode": "MASK",
+            "alphaCutoff": 0.5,
+            "doubleSided": True,
+            "extensions": {_UNLIT: {}},
+        }
+        for index in range(len(shown))
+    ]
+    extensions = [_UNLIT]
+    if isinstance(impostor.payload, PointPayload):
+        primitives, materials = _points_glb_parts(impostor, viewpoint, binary, accessors)
+        extensions.append(POINT_APPEARANCE)
+    node: dict = {"name": "impostor", "translation": [float(x) for x in viewpoint], "extras": {"farfield": engine_metadata(impostor)}}
+    document: dict = {
+        "asset": {"version": "2.0", "generator": f"farfield {impostor.code_version}".rstrip()},
+        "extensionsUsed": sorted(extensions),
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [node],
+    }
+    if primitives:
+        node["mesh"] = 0
+        document["meshes"] = [{"name": f"impostor-{impostor.technique}", "primitives": primitives}]
+    if accessors:
+        document["accessors"] = accessors
+    if materials:
+        document["materials"] = materials
+    if images:
+        document["images"] = images
+        document["samplers"] = [{
+            "magFilter": _LINEAR,
+            "minFilter": _LINEAR,
+            "wrapS": _CLAMP_TO_EDGE,
+            "wrapT": _CLAMP_TO_EDGE,
+        }]
+        document["textures"] = [{"sampler": 0, "source": index} for index in range(len(images))]
+    blob = binary.bytes()
+    if blob:
+        document["buffers"] = [{"byteLength": len(blob)}]
+        document["bufferViews"] = binary.views
+
+    return write_glb(document, blob)
+
+
+def write_glb(document: dict, blob: bytes) -> bytes:
+    """GLB bytes of a JSON document and a BIN chunk (none when empty): fixed JSON key order and
+    spacing, the JSON padded with spaces and the BIN with zeros to 4 bytes (glTF 2.0, "GLB File
+    Format Specification")."""
+    text = json.dumps(document, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False)
+    json_chunk = _pad(text.encode("ascii"), b" ")
+    chunks = struct.pack("<II", len(json_chunk), _CHUNK_JSON) + json_chunk
+    if blob:
+        blob = _pad(blob, b"\x00")
+        chunks += struct.pack("<II", len(blob), _CHUNK_BIN) + blob
+    return struct.pack("<III", _MAGIC, _VERSION, 12 + len(chunks)) + chunks

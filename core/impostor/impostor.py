@@ -1,0 +1,560 @@
+"""The impostor: a header (technique, view cell, reference viewpoint, ...), RGBA atlas pages
+(H, W, 4) uint8 and a typed **payload**, the geometry drawn textured from those pages.
+
+This is the in-memory form every technique produces and every consumer (bundle writer, GLB writer,
+evaluation renderer, comparison, runtime) reads.  Consumers dispatch on the payload's ``kind``,
+never on the technique's name:
+
+``"quads"`` (:class:`QuadPayload`)
+    World-space quads (q, 4, 3) float64, each with its own UVs, atlas page and layer: layered and
+    environment-map impostors.
+``"mesh"`` (:class:`MeshPayload`)
+    An indexed triangle mesh: vertices (v, 3) float64 with UVs (v, 2), triangles (t, 3), and per
+    triangle an atlas page and a mesh (connected component) label: textured depth meshes.
+
+``"points"`` (:class:`PointPayload`)
+    Points (n, 3) float64, each with one sRGB colour and, unless that colour is all it needs, a tile
+    of directional colours in an atlas page over the sampling plane's rectangle: point-based
+    impostors (seed 001).
+
+``"ldi"`` (:class:`LdiPayload`)
+    A layered depth image (seed 004 §4): its camera; its layers are the pages, a colour page and a
+    depth page each (:mod:`farfield.core.ldi.pages`), so that a runtime can splat its samples or warp them in
+    occlusion-compatible order.
+
+Frame atlases (billboards) get a payload kind of their own when that technique is built: a frozen dataclass with the same members (``kind``, ``ARRAYS``,
+``triangle_count``, ``arrays()``, ``from_arrays()``, ``check()``, ``world_points()``), registered in
+:data:`PAYLOAD_KINDS`, is all the bundle format needs.
+
+Conventions:
+
+* Image arrays (layers, tiles, atlas pages) are **top row first**, as PNG and glTF store them.
+* Texel rectangles are ``[x0, y0, x1, y1)`` integer texel indices in such an image (x right, y down).
+* Quad corners are ordered as the corners of the quad's texel rectangle in its layer image:
+  top-left, top-right, bottom-right, bottom-left (:func:`texel_rect_corners`).  A baked layer
+  image's x runs along the plan's ``u`` and its y against ``v``, with u x v = the view axis (layered
+  and environment-map plans alike), i.e. x runs right to left as seen from the reference
+  viewpoint, so seen from there the order is top-right, top-left, bottom-left, bottom-right.  Each corner's UV is in glTF's convention: (0, 0) is the top-left of the page,
+  (1, 1) the bottom-right.  Mesh vertices' UVs use the same convention; a mesh's triangles have
+  no prescribed winding.  (The GLB writer orients every triangle to face the reference viewpoint.)
+* Floating-point arrays are float64 and index arrays int64 in memory; the payload classes convert
+  float and integer inputs of other widths on construction (and leave other dtypes for
+  :meth:`check` to refuse).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar, Union
+
+import numpy as np
+
+from farfield.core.errors import BundleFormatError
+from farfield.core.layering.plan import LayerPlan
+
+def _canonical(value) -> np.ndarray:
+    """``value`` as an array; float arrays as float64, integer arrays as int64, others unchanged."""
+    array = np.asarray(value)
+    if array.dtype.kind == "f":
+        return array.astype(np.float64, copy=False)
+    if array.dtype.kind in "iu":
+        return array.astype(np.int64, copy=False)
+    return array
+
+
+def _check_arrays(payload, page_count: int) -> dict[str, int]:
+    """Check ``payload``'s arrays against its ``ARRAYS`` table; return the sizes of its symbolic axes.
+
+    ``ARRAYS`` lists ``(name, kind, shape)``: kind ``"f"`` (finite floats) or ``"i"`` (integers),
+    shape a tuple of ints and axis names; every array naming an axis must agree on its length.
+    """
+    sizes: dict[str, int] = {}
+    for name, kind, shape in payload.ARRAYS:
+        array = getattr(payload, name)
+        ok = isinstance(array, np.ndarray) and array.ndim == len(shape)
+        if ok:
+            for axis, length in zip(shape, array.shape):
+                if isinstance(axis, str):
+                    ok = ok and sizes.setdefault(axis, length) == length
+                else:
+                    ok = ok and axis == length
+        if not ok:
+            expected = tuple(sizes.get(a, a) if isinstance(a, str) else a for a in shape)
+            raise BundleFormatError(f"{payload.kind} payload: {name} has shape {getattr(array, 'shape', None)}, expected {expected}")
+        if kind == "f":
+            if array.dtype != np.float64 or not np.all(np.isfinite(array)):
+                raise BundleFormatError(f"{payload.kind} payload: {name} must be finite floats, got dtype {array.dtype}")
+        elif array.dtype != np.int64:
+            raise BundleFormatError(f"{payload.kind} payload: {name} must be integers, got dtype {array.dtype}")
+    page = getattr(payload, "page", None)
+    if page is None:  # a payload without atlas pages (ldi)
+        return sizes
+    page = page[page != getattr(payload, "NO_PAGE", None)]  # a payload's "no page" value, if it has one
+    if page.size and (page.min() < 0 or page.max() >= page_count):
+        raise BundleFormatError(
+            f"{payload.kind} payload: page spans [{page.min()}, {page.max()}] but there are {page_count} pages"
+        )
+    return sizes
+
+
+@dataclass(frozen=True, slots=True)
+class QuadPayload:
+    """Textured quads: world corners TL, TR, BR, BL of each quad's texel rectangle (module docstring).
+
+    >>> p = QuadPayload.empty()
+    >>> p.kind, p.count, p.triangle_count, list(p.arrays())
+    ('quads', 0, 0, ['corners', 'uv', 'page', 'layer'])
+    """
+
+    corners: np.ndarray  # (q, 4, 3) float64 world
+    uv: np.ndarray  # (q, 4, 2) float64 page UV, glTF convention, same corner order
+    page: np.ndarray  # (q,) int64 atlas page of each quad
+    layer: np.ndarray  # (q,) int64 layer of each quad
+
+    kind: ClassVar[str] = "quads"
+    ARRAYS: ClassVar[tuple] = (
+        ("corners", "f", ("q", 4, 3)),
+        ("uv", "f", ("q", 4, 2)),
+        ("page", "i", ("q",)),
+        ("layer", "i", ("q",)),
+    )
+
+    def __post_init__(self) -> None:
+        for name, _, _ in self.ARRAYS:
+            object.__setattr__(self, name, _canonical(getattr(self, name)))
+
+    @classmethod
+    def empty(cls) -> QuadPayload:
+        return cls(np.zeros((0, 4, 3)), np.zeros((0, 4, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64))
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> QuadPayload:
+        return cls(**{name: arrays[name] for name, _, _ in cls.ARRAYS})
+
+    @property
+    def count(self) -> int:
+        """Quads."""
+        return int(self.corners.shape[0]) if self.corners.ndim else 0
+
+    @property
+    def triangle_count(self) -> int:
+        """Triangles drawn: two per quad."""
+        return 2 * self.count
+
+    def counts(self) -> dict[str, int]:
+        return {"quads": self.count}
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The payload's arrays by name, in the bundle's order."""
+        return {name: getattr(self, name) for name, _, _ in self.ARRAYS}
+
+    def world_points(self) -> np.ndarray:
+        """(4q, 3) float64 every corner, world metres."""
+        return self.corners.reshape(-1, 3)
+
+    def check(self, page_count: int) -> None:
+        """Raise :class:`BundleFormatError` unless the arrays fit (shapes, dtypes, finite, pages in range)."""
+        _check_arrays(self, page_count)
+
+
+@dataclass(frozen=True, slots=True)
+class MeshPayload:
+    """An indexed textured triangle mesh (a textured depth mesh's triangles, seed 003).
+
+    A vertex is a (position, UV) pair: a position shared by triangles of two texture charts is two
+    vertices.  :meth:`from_triangle_corners` builds one from per-triangle corners.
+
+    >>> corners = np.array([[[0, 0, 5], [1, 0, 5], [1, 1, 5]], [[0, 0, 5], [1, 1, 5], [0, 1, 5]]], float)
+    >>> uv = np.array([[[0, 1], [1, 1], [1, 0]], [[0, 1], [1, 0], [0, 0]]], float)
+    >>> m = MeshPayload.from_triangle_corners(corners, uv, np.zeros(2, int), np.zeros(2, int))
+    >>> m.kind, m.counts(), m.triangles.tolist()
+    ('mesh', {'vertices': 4, 'triangles': 2}, [[0, 1, 2], [0, 2, 3]])
+    >>> bool(np.array_equal(m.triangle_corners(), corners))
+    True
+    """
+
+    vertices: np.ndarray  # (v, 3) float64 world
+    uv: np.ndarray  # (v, 2) float64 page UV, glTF convention
+    triangles: np.ndarray  # (t, 3) int64 vertex indices
+    page: np.ndarray  # (t,) int64 atlas page of each triangle
+    mesh: np.ndarray  # (t,) int64 mesh (connected component) of each triangle
+
+    kind: ClassVar[str] = "mesh"
+    ARRAYS: ClassVar[tuple] = (
+        ("vertices", "f", ("v", 3)),
+        ("uv", "f", ("v", 2)),
+        ("triangles", "i", ("t", 3)),
+        ("page", "i", ("t",)),
+        ("mesh", "i", ("t",)),
+    )
+
+    def __post_init__(self) -> None:
+        for name, _, _ in self.ARRAYS:
+            object.__setattr__(self, name, _canonical(getattr(self, name)))
+
+    @classmethod
+    def empty(cls) -> MeshPayload:
+        return cls(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64))
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> MeshPayload:
+        return cls(**{name: arrays[name] for name, _, _ in cls.ARRAYS})
+
+    @classmethod
+    def from_triangle_corners(cls, corners, uv, page, mesh) -> MeshPayload:
+        """The mesh of triangles given by their corners (t, 3, 3) float64 world and corner UVs
+        (t, 3, 2), with ``page`` and ``mesh`` (t,) per triangle.
+
+        Corners with bit-equal position and UV become one vertex, numbered in the order of their
+        first appearance (triangle by triangle, corner by corner), so the mesh draws exactly the
+        given triangles and equal inputs give equal meshes.
+        """
+        corners = np.asarray(corners, dtype=np.float64).reshape(-1, 3, 3)
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 3, 2)
+        t = corners.shape[0]
+        if uv.shape[0] != t:
+            raise BundleFormatError(f"mesh payload: {t} triangles' corners but {uv.shape[0]} triangles' UVs")
+        rows = np.ascontiguousarray(np.concatenate([corners.reshape(-1, 3), uv.reshape(-1, 2)], axis=1))
+        if t == 0:
+            return cls(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3), np.int64), page, mesh)
+        keys = rows.view(np.dtype((np.void, rows.dtype.itemsize * 5)))[:, 0]
+        _, first, key_of = np.unique(keys, return_index=True, return_inverse=True)
+        order = np.argsort(first, kind="stable")  # keys by first appearance
+        slot = np.empty(first.size, np.int64)
+        slot[order] = np.arange(first.size)
+        kept = rows[first[order]]
+        return cls(kept[:, :3], kept[:, 3:], slot[key_of.reshape(-1)].reshape(t, 3), page, mesh)
+
+    @property
+    def count(self) -> int:
+        """Triangles."""
+        return int(self.triangles.shape[0]) if self.triangles.ndim else 0
+
+    @property
+    def triangle_count(self) -> int:
+        return self.count
+
+    def counts(self) -> dict[str, int]:
+        return {"vertices": int(self.vertices.shape[0]) if self.vertices.ndim else 0, "triangles": self.count}
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The payload's arrays by name, in the bundle's order."""
+        return {name: getattr(self, name) for name, _, _ in self.ARRAYS}
+
+    def world_points(self) -> np.ndarray:
+        """(v, 3) float64 every vertex, world metres."""
+        return self.vertices.reshape(-1, 3)
+
+    def triangle_corners(self) -> np.ndarray:
+        """(t, 3, 3) float64 world corners of each triangle."""
+        return self.vertices[self.triangles]
+
+    def triangle_uv(self) -> np.ndarray:
+        """(t, 3, 2) float64 corner UVs of each triangle."""
+        return self.uv[self.triangles]
+
+    def check(self, page_count: int) -> None:
+        """Raise :class:`BundleFormatError` unless the arrays fit (shapes, dtypes, finite, pages and
+        vertex indices in range)."""
+        sizes = _check_arrays(self, page_count)
+        if self.triangles.size and (self.triangles.min() < 0 or self.triangles.max() >= sizes["v"]):
+            raise BundleFormatError(
+                f"mesh payload: triangles index [{self.triangles.min()}, {self.triangles.max()}] "
+                f"but there are {sizes['v']} vertices"
+            )
+
+
+@dataclass(frozen=True, slots=True)
+class PointPayload:
+    """Points with directional colours (seed 001 §5.3): ``positions`` (n, 3) float64 world;
+    ``colour`` (n, 4) int64 sRGB bytes (alpha: the share of a pixel the part covers there), a
+    point's only colour when ``page`` is -1 and its preview colour otherwise; ``page`` (n,) int64 the atlas page of its tile (-1: one colour); ``texel``
+    (n, 2) int64 the tile's first texel (x, y) in its page; ``tile`` (2,) texels of a tile along u
+    and v; the sampling plane ``plane`` (4,) (normal, offset: normal · x = offset), its in-plane
+    axes ``axes`` (2, 3) (u, v) and the ``rectangle`` (2, 2) of plane coordinates (x · u, x · v)
+    (lo, hi) the tiles span.  Row r, column c of a tile is the texel at the rectangle's (c + ½) / tu
+    along u and (r + ½) / tv along v, where the ray from the eye to the point crosses the plane.
+
+    >>> p = PointPayload.empty()
+    >>> p.kind, p.count, p.triangle_count, p.counts()
+    ('points', 0, 0, {'points': 0, 'textured': 0})
+    """
+
+    positions: np.ndarray
+    colour: np.ndarray
+    page: np.ndarray
+    texel: np.ndarray
+    tile: np.ndarray
+    plane: np.ndarray
+    axes: np.ndarray
+    rectangle: np.ndarray
+
+    kind: ClassVar[str] = "points"
+    NO_PAGE: ClassVar[int] = -1
+    ARRAYS: ClassVar[tuple] = (
+        ("positions", "f", ("n", 3)),
+        ("colour", "i", ("n", 4)),
+        ("page", "i", ("n",)),
+        ("texel", "i", ("n", 2)),
+        ("tile", "i", (2,)),
+        ("plane", "f", (4,)),
+        ("axes", "f", (2, 3)),
+        ("rectangle", "f", (2, 2)),
+    )
+
+    def __post_init__(self) -> None:
+        for name, _, _ in self.ARRAYS:
+            object.__setattr__(self, name, _canonical(getattr(self, name)))
+
+    @classmethod
+    def empty(cls) -> PointPayload:
+        return cls(np.zeros((0, 3)), np.zeros((0, 4), np.int64), np.zeros(0, np.int64), np.zeros((0, 2), np.int64),
+                   np.array([8, 2]), np.array([0.0, 0.0, 1.0, 0.0]), np.eye(3)[:2], np.array([[0.0, 0.0], [1.0, 1.0]]))  # fmt: skip
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> PointPayload:
+        return cls(**{name: arrays[name] for name, _, _ in cls.ARRAYS})
+
+    @property
+    def count(self) -> int:
+        """Points."""
+        return int(self.positions.shape[0]) if self.positions.ndim else 0
+
+    @property
+    def triangle_count(self) -> int:
+        """Triangles drawn: none, points are drawn as points."""
+        return 0
+
+    def counts(self) -> dict[str, int]:
+        return {"points": self.count, "textured": int((self.page >= 0).sum())}
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The payload's arrays by name, in the bundle's order."""
+        return {name: getattr(self, name) for name, _, _ in self.ARRAYS}
+
+    def world_points(self) -> np.ndarray:
+        """(n, 3) float64 every point, world metres."""
+        return self.positions.reshape(-1, 3)
+
+    def check(self, page_count: int) -> None:
+        """Raise :class:`BundleFormatError` unless the arrays fit (shapes, dtypes, finite, pages
+        in range or -1, colours bytes, a tile of at least one texel, a unit normal)."""
+        _check_arrays(self, page_count)
+        if self.page.size and self.page.min() < -1:
+            raise BundleFormatError(f"points payload: page must be -1 or a page index, got {int(self.page.min())}")
+        if self.colour.size and (self.colour.min() < 0 or self.colour.max() > 255):
+            raise BundleFormatError("points payload: colour must be bytes, 0-255")
+        if self.tile.min() < 1:
+            raise BundleFormatError(f"points payload: tile must be at least 1 x 1 texels, got {self.tile.tolist()}")
+        if abs(float(np.linalg.norm(self.plane[:3])) - 1.0) > 1e-6 or np.any(self.rectangle[1] <= self.rectangle[0]):
+            raise BundleFormatError("points payload: plane needs a unit normal and rectangle lo < hi")
+        textured = self.page >= 0
+        if textured.any() and self.texel[textured].min() < 0:
+            raise BundleFormatError("points payload: a textured point's texel must be >= 0")
+
+
+@dataclass(frozen=True, slots=True)
+class LdiPayload:
+    """A layered depth image (seed 004 §4) whose layers are the impostor's pages, two per layer
+    (colour, then float32 depth as bytes: :mod:`farfield.core.ldi.pages`).  The payload is the LDI's camera:
+    ``eye`` (3,), ``axes`` (3, 3) right, up, forward, ``window`` (5,) (tan of the half field of
+    view, off-axis offset x, y in tangents, near and far plane depths), ``size`` (3,) (pixels per
+    side, layers, samples) and ``quad`` (4, 3) its window on the near plane (top-left, top-right,
+    bottom-right, bottom-left seen from the eye: the image quad of §3.3.2, and the GLB's fallback).
+
+    >>> p = LdiPayload.empty()
+    >>> p.kind, p.count, p.triangle_count, p.counts()
+    ('ldi', 0, 0, {'samples': 0, 'layers': 0})
+    """
+
+    eye: np.ndarray
+    axes: np.ndarray
+    window: np.ndarray
+    size: np.ndarray
+    quad: np.ndarray
+
+    kind: ClassVar[str] = "ldi"
+    ARRAYS: ClassVar[tuple] = (
+        ("eye", "f", (3,)),
+        ("axes", "f", (3, 3)),
+        ("window", "f", (5,)),
+        ("size", "i", (3,)),
+        ("quad", "f", (4, 3)),
+    )
+
+    def __post_init__(self) -> None:
+        for name, _, _ in self.ARRAYS:
+            object.__setattr__(self, name, _canonical(getattr(self, name)))
+
+    @classmethod
+    def empty(cls) -> LdiPayload:
+        return cls(np.zeros(3), np.eye(3), np.array([1.0, 0.0, 0.0, 1.0, 2.0]), np.array([1, 0, 0]), np.array([[-1.0, 1, 1], [1, 1, 1], [1, -1, 1], [-1, -1, 1]]))
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> LdiPayload:
+        return cls(**{name: arrays[name] for name, _, _ in cls.ARRAYS})
+
+    @property
+    def count(self) -> int:
+        """Samples."""
+        return int(self.size[2])
+
+    @property
+    def triangle_count(self) -> int:
+        """Triangles drawn: none, samples are splatted."""
+        return 0
+
+    def counts(self) -> dict[str, int]:
+        return {"samples": self.count, "layers": int(self.size[1])}
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The payload's arrays by name, in the bundle's order."""
+        return {name: getattr(self, name) for name, _, _ in self.ARRAYS}
+
+    def world_points(self) -> np.ndarray:
+        """(4, 3) float64 the image quad's corners, world metres (the samples lie behind it, in the pages)."""
+        return self.quad.reshape(-1, 3)
+
+    def check(self, page_count: int) -> None:
+        """Raise :class:`BundleFormatError` unless the arrays fit (shapes, dtypes, finite, orthonormal
+        axes, a window with a positive half tangent and 0 < near < far, two pages per layer)."""
+        _check_arrays(self, page_count)
+        if not np.allclose(self.axes @ self.axes.T, np.eye(3), atol=1e-6):
+            raise BundleFormatError("ldi payload: axes must be orthonormal (right, up, forward)")
+        if not (self.window[0] > 0 and 0 < self.window[3] < self.window[4]):
+            raise BundleFormatError("ldi payload: window needs a half tangent > 0 and 0 < near < far")
+        if self.size[0] < 1 or self.size[1] < 0 or self.size[2] < 0 or page_count != 2 * self.size[1]:
+            raise BundleFormatError(f"ldi payload: {int(self.size[1])} layers need {2 * int(self.size[1])} pages, got {page_count}")
+
+
+Payload = Union[QuadPayload, MeshPayload, PointPayload, LdiPayload]
+
+# Payload kind -> class: what the bundle reader builds from a manifest's ``payload.kind``.
+PAYLOAD_KINDS: dict[str, type] = {cls.kind: cls for cls in (QuadPayload, MeshPayload, PointPayload, LdiPayload)}
+
+
+@dataclass(frozen=True, slots=True)
+class Impostor:
+    """One impostor of one part for one view cell: a header, atlas pages and a payload."""
+
+    technique: str
+    viewcell: dict  # BoxCell.to_dict() / ShaftCell.to_dict()
+    reference_viewpoint: np.ndarray  # (3,) float64 world
+    resolution: int  # output image pixels per side it was made for
+    fov_deg: float  # output field of view it was made for
+    pages: tuple[np.ndarray, ...]  # each (H, W, 4) uint8, top row first
+    payload: Payload  # the geometry drawn from the pages
+    layers: list[dict] = field(default_factory=list)  # per layer: distance, depth range (eye depth), texels kept
+    stats: dict = field(default_factory=dict)  # counts, memory, timings per stage
+    parameters: dict = field(default_factory=dict)  # every knob that made it
+    code_version: str = ""
+
+    @property
+    def quad_count(self) -> int:
+        """Quads of a quad payload; 0 for any other payload."""
+        return self.payload.count if isinstance(self.payload, QuadPayload) else 0
+
+    @property
+    def triangle_count(self) -> int:
+        """Triangles drawn: two per quad, one per mesh triangle, none for points."""
+        return self.payload.triangle_count
+
+    @property
+    def texture_bytes(self) -> int:
+        """Uncompressed RGBA bytes of all atlas pages."""
+        return int(sum(p.shape[0] * p.shape[1] * 4 for p in self.pages))
+
+    def _quads(self) -> QuadPayload:
+        if not isinstance(self.payload, QuadPayload):
+            raise AttributeError(f"a {self.technique} impostor has a {self.payload.kind!r} payload, not quads")
+        return self.payload
+
+    # Read-only conveniences for quad payloads (layered, envmap); they raise for any other payload.
+    @property
+    def quad_corners(self) -> np.ndarray:
+        return self._quads().corners
+
+    @property
+    def quad_uv(self) -> np.ndarray:
+        return self._quads().uv
+
+    @property
+    def quad_page(self) -> np.ndarray:
+        return self._quads().page
+
+    @property
+    def quad_layer(self) -> np.ndarray:
+        return self._quads().layer
+
+
+def texel_rect_corners(plan: LayerPlan, layer_distance: float, rects: np.ndarray) -> np.ndarray:
+    """World corners (q, 4, 3) float64 of texel rectangles (q, 4) int ``[x0, y0, x1, y1)`` on one layer.
+
+    The layer plane lies ``layer_distance`` from the view cell's near border (the plan's t), i.e.
+    at eye depth ``t + s`` from the reference viewpoint, and spans the recording frustum.  Image x
+    runs along ``plan.u``, image y (top row first) against ``plan.v``.
+    """
+    rects = np.asarray(rects, dtype=np.float64).reshape(-1, 4)
+    res = plan.texture_resolution.astype(np.float64)
+    depth = float(layer_distance) + plan.reference_offset
+    x = np.stack([rects[:, 0], rects[:, 2], rects[:, 2], rects[:, 0]], axis=1)  # TL TR BR BL
+    y = np.stack([rects[:, 1], rects[:, 1], rects[:, 3], rects[:, 3]], axis=1)
+    ndc_x = x / res[0] * 2.0 - 1.0
+    ndc_y = 1.0 - y / res[1] * 2.0
+    ex = ndc_x * plan.frustum_half_tangents[0] * depth
+    ey = ndc_y * plan.frustum_half_tangents[1] * depth
+    return (
+        plan.reference_viewpoint
+        + ex[..., None] * plan.u
+        + ey[..., None] * plan.v
+        + depth * plan.axis
+    )
+
+
+def check_impostor(impostor: Impostor) -> None:
+    """Raise unless the impostor's arrays have the shapes and dtypes every writer relies on.
+
+    Parameters
+    ----------
+    impostor : Impostor
+        ``reference_viewpoint`` (3,) finite, every page (H, W, 4) uint8 with H, W >= 1, a payload
+        of a kind in :data:`PAYLOAD_KINDS` whose :meth:`check` passes (its float arrays float64
+        and finite, its index arrays int64, every page index into ``pages``).
+
+    Raises
+    ------
+    BundleFormatError
+        Naming the first field that does not fit.
+
+    Examples
+    --------
+    >>> quads = QuadPayload(np.zeros((1, 4, 3)), np.zeros((1, 4, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64))
+    >>> bad = Impostor("layered", {}, np.zeros(3), 64, 60.0, (np.zeros((2, 2, 4), np.float32),), quads)
+    >>> check_impostor(bad)
+    Traceback (most recent call last):
+    ...
+    farfield.core.errors.BundleFormatError: page 0 is (2, 2, 4) float32, expected (H, W, 4) uint8
+    """
+    viewpoint = np.asarray(impostor.reference_viewpoint)
+    if viewpoint.shape != (3,) or not np.all(np.isfinite(viewpoint)):
+        raise BundleFormatError(f"reference_viewpoint must be 3 finite numbers, got {viewpoint!r}")
+    for index, page in enumerate(impostor.pages):
+        if not isinstance(page, np.ndarray) or page.dtype != np.uint8 or page.ndim != 3 or page.shape[2] != 4:
+            shape = getattr(page, "shape", None)
+            raise BundleFormatError(
+                f"page {index} is {shape} {getattr(page, 'dtype', type(page).__name__)}, "
+                "expected (H, W, 4) uint8"
+            )
+        if page.shape[0] < 1 or page.shape[1] < 1:
+            raise BundleFormatError(f"page {index} is empty: {page.shape}")
+    payload = impostor.payload
+    if PAYLOAD_KINDS.get(getattr(payload, "kind", None)) is not type(payload):
+        raise BundleFormatError(f"payload is a {type(payload).__name__}, expected one of {sorted(PAYLOAD_KINDS)}")
+    payload.check(len(impostor.pages))
+    if isinstance(payload, PointPayload) and payload.count:  # every tile inside its page
+        textured = payload.page >= 0
+        if textured.any():
+            shapes = np.array([page.shape[1::-1] for page in impostor.pages], dtype=np.int64)  # (width, height)
+            beyond = payload.texel[textured] + payload.tile > shapes[payload.page[textured]]
+            if beyond.any():
+                raise BundleFormatError(f"points payload: {int(beyond.any(axis=1).sum())} tiles reach beyond their page")

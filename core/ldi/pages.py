@@ -1,0 +1,87 @@
+"""A layered depth image stored as atlas pages (seed 004 §6 stored its LDIs gzip'd): two pages per layer.
+
+Page ``2k`` is layer ``k``'s colour: (n, n, 4) sRGB bytes, alpha 255 where the layer has a sample
+and 0 elsewhere.  Page ``2k + 1`` is its depth: each texel's four bytes are the sample's float32
+eye depth along the LDI's forward axis, little-endian, and zero where there is no sample.  The
+bundle stores pages as PNG, so both are compressed losslessly.  The payload
+(:class:`farfield.core.impostor.impostor.LdiPayload`) holds the LDI's camera.
+
+For standard viewers the GLB holds only the first layer, as one textured quad in the LDI's image
+plane (:func:`preview_quad`).  That is a billboard, right from the LDI's centre of projection and
+flat from anywhere else.  The splatted LDI is what farfield's drawer shows.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from farfield.core.impostor.impostor import Impostor, LdiPayload
+from farfield.core.ldi.image import LayeredDepthImage
+from farfield.core.render.raster import Camera
+from farfield.core.scene import SceneObject
+
+
+def ldi_payload_and_pages(ldi: LayeredDepthImage) -> tuple[LdiPayload, tuple[np.ndarray, ...]]:
+    """The payload (camera, layer and sample counts, image quad) and pages of ``ldi``."""
+    cam = ldi.camera
+    pages = []
+    for k in range(ldi.layers):
+        present = np.isfinite(ldi.depth[k])
+        colour = np.where(present[..., None], ldi.colour[k], 0).astype(np.uint8)
+        colour[..., 3] = np.where(present, 255, 0)
+        depth = np.where(present, ldi.depth[k], 0.0).astype("<f4")
+        pages += [np.ascontiguousarray(colour), np.ascontiguousarray(depth.view(np.uint8).reshape(depth.shape + (4,)))]
+    payload = LdiPayload(
+        cam.eye, np.stack([cam.right, cam.up, cam.forward]), np.array([math.tan(0.5 * cam.fov), cam.offset[0], cam.offset[1], cam.near, cam.far]),
+        np.array([cam.resolution, ldi.layers, ldi.count]), image_quad(cam),
+    )  # fmt: skip
+    return payload, tuple(pages)
+
+
+def camera_of(payload: LdiPayload) -> Camera:
+    t, ox, oy, near, far = (float(x) for x in payload.window)
+    right, up, forward = payload.axes
+    return Camera(payload.eye.copy(), right.copy(), up.copy(), forward.copy(), 2.0 * math.atan(t), int(payload.size[0]), near, far, (ox, oy))
+
+
+def image_quad(camera: Camera) -> np.ndarray:
+    """(4, 3) world corners of the LDI's window on its near plane: top-left, top-right, bottom-right,
+    bottom-left as seen from its eye."""
+    t = math.tan(0.5 * camera.fov)
+    ox, oy = camera.offset
+    d = camera.near
+    return np.stack([camera.eye + d * (camera.forward + (ox + a) * camera.right + (oy + b) * camera.up) for a, b in ((-t, t), (t, t), (t, -t), (-t, -t))])
+
+
+def ldi_of(impostor: Impostor) -> LayeredDepthImage:
+    """The LDI an ``ldi`` impostor's pages hold."""
+    payload = impostor.payload
+    layers = int(payload.size[1])
+    n = int(payload.size[0])
+    depth = np.full((layers, n, n), np.nan)
+    colour = np.zeros((layers, n, n, 4), np.uint8)
+    for k in range(layers):
+        c, d = impostor.pages[2 * k], impostor.pages[2 * k + 1]
+        present = c[..., 3] > 0
+        values = np.ascontiguousarray(d).view("<f4").reshape(n, n).astype(np.float64)
+        depth[k] = np.where(present, values, np.nan)
+        colour[k] = c
+    missing = np.full(depth.shape, -1, np.int64)
+    return LayeredDepthImage(camera_of(payload), depth, missing, missing.copy(), colour=colour)
+
+
+def preview_quad(impostor: Impostor) -> tuple[np.ndarray, np.ndarray]:
+    """((4, 3) corners, (4, 2) glTF UVs) of the GLB's fallback quad: the first layer's colour page on
+    the LDI's window (module docstring)."""
+    return np.asarray(impostor.payload.quad), np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+
+
+def preview_objects(impostor: Impostor) -> list[SceneObject]:
+    """The fallback quad as a drawable object, alpha-cut at 0.5 as the GLB asks (what a standard viewer shows)."""
+    corners, uv = preview_quad(impostor)
+    uv = uv.copy()
+    uv[:, 1] = 1.0 - uv[:, 1]  # glTF (top-left origin) -> scene convention (bottom-left)
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    return [SceneObject("ldi-preview", corners, faces, uv=uv, texture=impostor.pages[0], alpha_cutoff=0.5)]
