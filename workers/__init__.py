@@ -1,5 +1,4 @@
-"""Celery application and render tasks.
-
-Empty until the service issue lands; each task will load a cell by id, call one ``core``
-pipeline function and store what it returns.
+"""The Celery side of the service: :mod:`farfield.workers.app` (the application, its broker settings
+and the one ``render`` queue) and :mod:`farfield.workers.tasks` (bake a cell, plan and check a
+placement job), each task a few lines around a function of :mod:`farfield.service`.
 """
