@@ -8,9 +8,9 @@ from pathlib import Path
 import click
 from tqdm import tqdm
 
+from farfield.cli import ArgumentError
 from farfield.core.impostor.bundle import check_destination, write_bundle
 from farfield.core.layering.culling import CULLING_MODES
-from farfield.core.errors import LayerPlanError
 from farfield.core.exchange import load_scene
 from farfield.core.options import parse_option_text
 from farfield.core.pixel_angles import PIXEL_MODELS
@@ -49,7 +49,7 @@ def _shortcuts(technique, layers, near_field, directions, gap_fill, enlargement,
     wrong = sorted(k for k, v in given.items() if v is not None and k not in known)
     if wrong:
         flags = ", ".join("--" + k.replace("_", "-") for k in wrong)
-        raise LayerPlanError(f"{flags} do not apply to the {technique.name} technique (its options: {sorted(known)})")
+        raise ArgumentError(f"{flags} do not apply to the {technique.name} technique (its options: {sorted(known)})")
     return {k: v for k, v in given.items() if v is not None}
 
 
@@ -87,14 +87,14 @@ def bake(scene, viewcell, out, objects, technique, options, resolution, fov, lay
     for item in options:
         name, sep, text = item.partition("=")
         if not sep or not name.strip():
-            raise LayerPlanError(f"--option {item!r}: expected NAME=VALUE")
+            raise ArgumentError(f"--option {item!r}: expected NAME=VALUE")
         values[name.strip()] = parse_option_text(chosen.Options, name.strip(), text)
     settings = chosen.options(values, resolution, fov)
     check_destination(out)  # before the bake: a folder that is not a bundle is refused, not replaced
     cell = parse_viewcell(viewcell)
     names = [n.strip() for n in objects.split(",") if n.strip()] if objects else None
     if chosen.scope == "scene" and names:
-        raise LayerPlanError(f"a {chosen.name} impostor represents the whole scene; --objects does not apply")
+        raise ArgumentError(f"a {chosen.name} impostor represents the whole scene; --objects does not apply")
     loaded = load_scene(scene)
     bar = _Bar(not quiet and not as_json)
     try:

@@ -8,8 +8,9 @@ import math
 
 import click
 
+from farfield.cli import ArgumentError
 from farfield.core.techniques.envmap.arrangement import envmap_plan, layers_for_near_field
-from farfield.core.errors import LayerPlanError
+from farfield.core.errors import ViewCellError
 from farfield.core.layering.plan import plan_layers
 from farfield.core.pixel_angles import PIXEL_MODELS, pixel_angle
 from farfield.core.techniques.points.sampling import plan_point_sampling
@@ -22,7 +23,7 @@ def _parse_bounds(text: str):
     except ValueError:
         nums = []
     if len(nums) != 6:
-        raise LayerPlanError(f"--bounds wants x0,y0,z0,x1,y1,z1, got {text!r}")
+        raise ArgumentError(f"--bounds wants x0,y0,z0,x1,y1,z1, got {text!r}")
     return [nums[:3], nums[3:]]
 
 
@@ -45,7 +46,7 @@ def layers() -> None:
 def _part_bounds(scene, objects, bounds):
     """The part's (2, 3) bounds: of SCENE (or its ``objects``), or parsed from ``bounds``."""
     if (scene is None) == (bounds is None):
-        raise LayerPlanError("give either a SCENE or --bounds" + ("; neither was given" if scene is None else ", not both"))
+        raise ArgumentError("give either a SCENE or --bounds" + ("; neither was given" if scene is None else ", not both"))
     if scene is None:
         return _parse_bounds(bounds)
     from farfield.core.exchange import load_scene
@@ -108,7 +109,7 @@ def points(scene, viewcell, objects, bounds, resolution, fov, as_json) -> None:
     """Sampling plane, LDI cameras and their resolution of a point-based impostor (seed 001 §5.1)."""
     cell = parse_viewcell(viewcell)
     if not isinstance(cell, BoxCell):
-        raise LayerPlanError("a point-based impostor's sampling is planned for a box view cell (box: or box-center:)")
+        raise ViewCellError("a point-based impostor's sampling is planned for a box view cell (box: or box-center:)")
     part_bounds = _part_bounds(scene, objects, bounds)
     sampling = plan_point_sampling(cell, part_bounds, fov, resolution)
     data = sampling.to_dict()
@@ -141,7 +142,7 @@ def envmap(cell_size, resolution, count, near_field, alpha, dims, as_json) -> No
     if alpha is None:
         alpha = pixel_angle(math.pi / 2, resolution, "min")
     if (count is None) == (near_field is None):
-        raise LayerPlanError("give either --layers or --near-field" + ("; neither was given" if count is None else ", not both"))
+        raise ArgumentError("give either --layers or --near-field" + ("; neither was given" if count is None else ", not both"))
     if count is None:
         count = layers_for_near_field(cell_size, resolution, near_field, alpha, dims)
     plan = envmap_plan(cell_size, resolution, count, alpha, dims)

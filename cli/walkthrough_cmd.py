@@ -111,8 +111,13 @@ def _print_placement(result: dict, plot: str | None) -> None:
             f"{speedup:>7} {f['estimate']:>9.4g} {f['impostors']:>4} {f.get('hole_pixels', '-'):>6} "
             f"{f.get('colour_error_mean', float('nan')):>8.3f}{over}"
         )
-    pct = lambda x: "-" if x is None else f"{100.0 * x:.1f} %"
-    num = lambda x, fmt=".2f": "-" if x is None else format(x, fmt)
+
+    def pct(x):
+        return "-" if x is None else f"{100.0 * x:.1f} %"
+
+    def num(x, fmt=".2f"):
+        return "-" if x is None else format(x, fmt)
+
     click.echo(
         f"{s['frames']} frames; t_max {s['t_max']:.4g} {unit}: {pct(s['share_within_t_max'])} measured within, "
         f"{pct(s['share_estimate_within_t_max'])} by the estimate ({pct(s['share_estimate_within_t_max_solvable'])} of solvable views); "
