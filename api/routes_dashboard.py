@@ -1,7 +1,12 @@
 """The dashboard: static HTML, JavaScript and CSS (no build step), served without a key.
 
 ``GET /`` is the page; its files are under ``/dashboard/``.  The page asks for an API key and
-sends it as ``Authorization: Bearer <key>`` on every ``/v1`` call.
+sends it as ``Authorization: Bearer <key>`` on every ``/v1`` call.  Its JavaScript is ES modules
+(``text/javascript``, which a module script needs), loaded by the pages' one ``<script
+type="module">`` each: ``app.js`` (the dashboard: routing, polling, the controls) imports one
+module per part of the page (``scenes.js``, ``job-form.js``, ``jobs.js``, ``job.js``,
+``placement.js``, ``key.js``) and the shared ``api.js`` (the key and the request helpers, which
+the 3D view's ``viewer.js`` imports too), ``state.js``, ``dom.js`` and ``format.js``.
 
 The 3D view (``/dashboard/viewer.html``) imports three.js from ``/dashboard/three/``: the files of
 the npm package ``three`` (its ``build/`` and ``examples/jsm/`` folders), from

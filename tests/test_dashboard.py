@@ -17,6 +17,7 @@ from browser import CHROMIUM, SKIP_REASON, dashboard_page, new_page, tid
 from scenes import instanced_nodes_glb
 from service_harness import ADMIN_KEY, BUNNY, BUNNY_GRID, start_service, upload, wait_for_job, stored_options
 
+from farfield.api.routes_dashboard import DASHBOARD_DIR
 from farfield.core.techniques import TECHNIQUES
 
 if not CHROMIUM.exists():
@@ -44,8 +45,11 @@ def test_static_files_need_no_key_and_stay_in_their_folder(service):
     with service.client(key=None) as anonymous:
         index = anonymous.get("/")
         assert index.status_code == 200 and "text/html" in index.headers["content-type"]
-        assert "/dashboard/app.js" in index.text
-        for name, kind in (("app.js", "javascript"), ("style.css", "text/css")):
+        assert '<script type="module" src="/dashboard/app.js">' in index.text
+        # ES modules: a browser runs a module script only when it is served as JavaScript
+        modules = [(p.name, "text/javascript") for p in DASHBOARD_DIR.glob("*.js")]
+        assert {"app.js", "api.js", "viewer.js"} <= {name for name, _ in modules}
+        for name, kind in [*modules, ("style.css", "text/css")]:
             served = anonymous.get(f"/dashboard/{name}")
             assert served.status_code == 200 and kind in served.headers["content-type"], name
         assert anonymous.get("/dashboard/nothing.js").status_code == 404

@@ -1,0 +1,89 @@
+// Scenes: the list, upload and delete; the job form's scene choice and its summary.
+
+import {api, apiKey, apiPage} from "./api.js";
+import {state} from "./state.js";
+import {$, el, showBox, showMore} from "./dom.js";
+import {fmtBytes, fmtNum, fmtVec, shortId} from "./format.js";
+
+export async function refreshScenes() {
+  if (!apiKey()) return;
+  const {items: scenes, total} = await apiPage("/v1/scenes?limit=1000");
+  state.scenes = new Map(scenes.map((s) => [s.id, s]));
+  showMore($("scenes-more"), scenes.length, total, "scenes");
+  const body = $("scenes-body");
+  body.replaceChildren(...scenes.map((s) => {
+    const remove = el("button", {type: "button", class: "secondary small", "data-testid": "scene-delete", text: "delete"});
+    remove.addEventListener("click", () => deleteScene(s));
+    return el("tr", {"data-testid": "scene-row", "data-scene-id": s.id},
+      el("td", {title: s.id, text: s.name}), el("td", {text: fmtNum(s.triangles)}), el("td", {text: fmtBytes(s.size_bytes)}), el("td", {}, remove));
+  }));
+  $("scenes-empty").hidden = scenes.length > 0;
+  const select = $("job-scene");
+  const previous = select.value;
+  select.replaceChildren(...scenes.map((s) =>
+    el("option", {value: s.id, text: `${s.name} (${shortId(s.id)}, ${fmtNum(s.triangles)} triangles)`})));
+  if (!scenes.length) select.append(el("option", {value: "", text: "— upload a scene first —"}));
+  if (previous && state.scenes.has(previous)) select.value = previous;
+  showSceneInfo();
+}
+
+const SCENE_INFO_OBJECTS = 8;
+
+export function showSceneInfo() {
+  const scene = state.scenes.get($("job-scene").value);
+  const info = $("job-scene-info");
+  if (!scene) { info.textContent = ""; return; }
+  const [lo, hi] = scene.bounds;
+  const text = (names) => `bounds ${fmtVec(lo)} – ${fmtVec(hi)}; ${fmtNum(scene.object_count)} object(s)` +
+    (names ? `: ${names.join(", ")}${scene.object_count > names.length ? ", …" : ""}` : "");
+  const known = state.sceneObjects.get(scene.id);
+  info.textContent = text(known);
+  if (known) return;
+  // The first few names from the scene's paged objects route (a scene may have 10^5 objects).
+  apiPage(`${scene.objects_url}?limit=${SCENE_INFO_OBJECTS}`).then(({items}) => {
+    const names = items.map((o) => o.name);
+    state.sceneObjects.set(scene.id, names);
+    if ($("job-scene").value === scene.id) info.textContent = text(names);
+  }).catch(() => {});
+}
+
+async function deleteScene(scene) {
+  if (!confirm(`Delete scene ${scene.name} and its finished jobs?`)) return;
+  try {
+    await api(`/v1/scenes/${scene.id}`, {method: "DELETE"});
+    showBox($("upload-error"), "");
+  } catch (error) {
+    showBox($("upload-error"), error.message);
+  }
+  await refreshScenes().catch(() => {});
+}
+
+export async function onUpload(event) {
+  event.preventDefault();
+  const input = $("upload-file");
+  showBox($("upload-error"), "");
+  $("upload-result").hidden = true;
+  if (!input.files.length) { showBox($("upload-error"), "choose a scene file first"); return; }
+  const form = new FormData();
+  for (const file of input.files) form.append("file", file); // several files: one scene and what it refers to
+  $("upload-busy").hidden = false;
+  try {
+    const scene = await api("/v1/scenes", {method: "POST", form});
+    const result = $("upload-result");
+    result.replaceChildren(
+      el("strong", {text: scene.name}), ` uploaded: ${fmtNum(scene.triangles)} triangles, ${fmtNum(scene.object_count)} object(s), `,
+      `bounds ${fmtVec(scene.bounds[0])} – ${fmtVec(scene.bounds[1])}, id `, el("code", {"data-testid": "upload-scene-id", text: scene.id}),
+      ...(scene.warnings || []).map((w) => el("div", {class: "warning", "data-testid": "upload-warning", text: `warning: ${w}`})));
+    result.dataset.sceneId = scene.id;
+    result.hidden = false;
+    input.value = "";
+    await refreshScenes();
+    $("job-scene").value = scene.id;
+    showSceneInfo();
+  } catch (error) {
+    showBox($("upload-error"), (error.kind ? `${error.kind}: ` : "") + error.message);
+  } finally {
+    $("upload-busy").hidden = true;
+  }
+}
+
