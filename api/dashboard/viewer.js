@@ -8,12 +8,15 @@
 //      a face).  A placement job's impostors depend on the view direction too: ask
 //      GET /v1/jobs/{id}/lookup?x=&y=&z=&dx=&dy=&dz= when the view has changed.
 //   3. When the cell changes, draw its impostor (GET .../cells/{n}/impostor.glb: unlit, alpha
-//      mask 0.5, double-sided) and the geometry it does not replace:
-//        envmap   the near field of the cell's manifest (parameters.near_field): per object the
-//                 face ranges [start, end) to draw, clipped to the near-field cube centred on
-//                 the reference viewpoint (beyond it too in the pyramids of "open_faces");
-//        a part   (layered, tdm, points, ldi) every object not in the job's "objects"
-//                 (none when the job names no objects: the impostor replaces the whole scene);
+//      mask 0.5, double-sided) and the geometry it does not replace, as its bundle's manifest
+//      (GET .../cells/{n}/manifest.json) says, whatever the technique's name:
+//        a near field in the manifest (parameters.near_field; an impostor of the whole scene
+//                 around its cell, e.g. envmap): per object the face ranges [start, end) to
+//                 draw, clipped to the near-field cube centred on the reference viewpoint
+//                 (beyond it too in the pyramids of "open_faces"), and nothing else;
+//        none     (an impostor of a part: layered, tdm, points, ldi, ...) every object not in
+//                 the job's "objects" (none when the job names no objects: the impostor
+//                 replaces the whole scene);
 //        placement every object not in the lookup's "replaced".
 //   4. Prefetch the neighbours' bundles (the index's "neighbours") so the next switch is instant.
 //
@@ -25,7 +28,8 @@
 import * as THREE from "three";
 import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
 
-const KEY_STORAGE = "farfield.apiKey";
+import {api as request} from "./api.js";
+
 const CACHED_CELLS = 64; // cells kept loaded (the active one and its neighbours always are)
 const CACHED_GROUPS = 32; // what-to-draw groups kept built (a placement job makes one per lookup answer)
 const LOOKUP_MS = 150; // a placement job's lookup: at most one request in flight, this often
@@ -58,15 +62,14 @@ const view = {
 // ---------------------------------------------------------------- API
 
 async function api(path, {binary = false} = {}) {
-  const key = localStorage.getItem(KEY_STORAGE) || "";
-  const response = await fetch(path, {headers: key ? {Authorization: `Bearer ${key}`} : {}});
-  if (!response.ok) {
-    let detail = `${response.status} ${response.statusText}`;
-    try { detail = (await response.json()).detail || detail; } catch (_) { /* not JSON */ }
-    if (response.status === 401) detail += " (enter an API key on the dashboard first)";
+  // api.js's call (the dashboard's key), its error naming the path
+  try {
+    return await request(path, {binary});
+  } catch (error) {
+    let detail = error.status && !error.body ? `${error.status} ${error.statusText}` : error.message;
+    if (error.status === 401) detail += " (enter an API key on the dashboard first)";
     throw new Error(`${path}: ${detail}`);
   }
-  return binary ? response.arrayBuffer() : response.json();
 }
 
 async function parseGlb(buffer) {
@@ -189,18 +192,17 @@ function cellAt(p) {
 }
 
 function loadCell(n, prefetch = false) {
-  // The impostor GLB of cell n (and an envmap cell's manifest: its near field), once.
+  // The impostor GLB of cell n and its manifest, once.  A manifest with a near field
+  // (parameters.near_field: an impostor of the whole scene around its cell) brings the geometry
+  // drawn with it; without one, the impostor replaces objects and the rest of the scene is drawn.
   if (!view.loads.has(n)) {
     const base = `/v1/jobs/${encodeURIComponent(view.job.id)}/cells/${n}`;
-    const technique = cellTechnique(n);
     view.loads.set(n, (async () => {
-      const [glb, manifest] = await Promise.all([
-        api(`${base}/impostor.glb`, {binary: true}),
-        technique === "envmap" ? api(`${base}/manifest.json`) : Promise.resolve(null),
-      ]);
+      const [glb, manifest] = await Promise.all([api(`${base}/impostor.glb`, {binary: true}), api(`${base}/manifest.json`)]);
       const root = await parseGlb(glb);
       (prefetch ? view.prefetched : view.fetched).add(n);
-      return {root, near: manifest ? nearField(manifest.parameters.near_field) : null};
+      const near = manifest.parameters?.near_field;
+      return {root, near: near ? nearField(near) : null};
     })());
     view.loads.get(n).catch(() => { // a failed load is tried again next time
       view.loads.delete(n);
@@ -334,7 +336,8 @@ function groupFor(key, cells, replaced) {
         group.add(impostor);
         if (near) for (const mesh of near) group.add(mesh);
       }
-      if (replaced) for (const mesh of keptObjects(replaced)) group.add(mesh);
+      // a bundle with a near field replaces the whole scene but its near field: nothing more is kept
+      if (replaced && !loaded.some(({near}) => near)) for (const mesh of keptObjects(replaced)) group.add(mesh);
       group.userData.bounds = new THREE.Box3().setFromObject(group); // impostors may reach past the scene
       view.groups.set(key, group);
       return group;
@@ -351,13 +354,10 @@ function gridWanted() {
   const cell = cellAt(camera.position);
   if (cell === null) return {key: "outside", info: "outside every view cell: drawing the source scene", outside: true};
   if (!cell.bundle) return {key: `no result ${cell.index}`, info: `cell ${cell.index} has no result (${cell.state}): drawing the source scene`, outside: true};
-  const technique = cellTechnique(cell.index);
-  let replaced = null; // envmap: the near field comes with the cell
-  if (technique !== "envmap") {
-    const named = view.job.params?.objects;
-    replaced = new Set(named || view.objects.keys());
-  }
-  return {key: `cell ${cell.index}`, cells: [cell.index], replaced, info: `cell ${cell.index} (${technique})`, cell: cell.index, neighbours: cell.neighbours || []};
+  // What the impostor replaces: the job's objects (all when it names none), or, for a cell whose
+  // bundle brings its near field, everything (groupFor decides once the bundle is loaded).
+  const replaced = new Set(view.job.params?.objects || view.objects.keys());
+  return {key: `cell ${cell.index}`, cells: [cell.index], replaced, info: `cell ${cell.index} (${cellTechnique(cell.index)})`, cell: cell.index, neighbours: cell.neighbours || []};
 }
 
 function placementWanted() {
@@ -427,7 +427,7 @@ async function doUpdate(force) {
 // ---------------------------------------------------------------- camera and controls
 
 function setDepthRange() {
-  // near: a hundredth of the current cell's smallest side (as core/envmap_runtime.depth_range_for);
+  // near: a hundredth of the current cell's smallest side (as farfield.core.techniques.envmap.runtime.depth_range_for);
   // far: past the farthest corner of the scene.
   if (view.fixedDepth) return;
   const box = view.bounds.clone();
