@@ -1,0 +1,66 @@
+"""The dashboard's JavaScript as ES modules (no browser, no service): every page loads one entry
+module, every relative import names a module of the folder and a name it exports, the key and the
+request helpers live once (``api.js``), and no module knows a technique by its name (what a page
+knows of a technique comes from ``GET /v1/techniques``; how the 3D view draws a cell, from its
+bundle's manifest)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from farfield.core.techniques import TECHNIQUES
+
+DASHBOARD = Path(__file__).resolve().parents[1] / "api" / "dashboard"
+MODULES = sorted(DASHBOARD.glob("*.js"))
+IMPORT = re.compile(r"^import\s*\{([^}]*)\}\s*from\s*\"\./([\w.-]+)\";", re.M)
+EXPORT = re.compile(r"^export (?:async function|function|const|class) ([\w$]+)", re.M)
+# The one technique a page still names: the primitive-budget placement's (GET /v1/techniques does
+# not say which placement algorithms can place a technique).
+NAMED = {("job-form.js", "ldi")}
+
+
+def _code(path: Path) -> str:
+    return re.sub(r"//[^\n]*", "", path.read_text(encoding="utf-8"))
+
+
+def test_each_page_loads_its_entry_module():
+    index = (DASHBOARD / "index.html").read_text(encoding="utf-8")
+    viewer = (DASHBOARD / "viewer.html").read_text(encoding="utf-8")
+    assert re.findall(r"<script[^>]*src=\"([^\"]+)\"", index) == ["/dashboard/app.js"]
+    assert '<script type="module" src="/dashboard/app.js"></script>' in index
+    assert '<script type="module" src="/dashboard/viewer.js"></script>' in viewer
+
+
+@pytest.mark.parametrize("module", MODULES, ids=lambda p: p.name)
+def test_relative_imports_name_exported_names_of_the_folder(module):
+    for names, target in IMPORT.findall(module.read_text(encoding="utf-8")):
+        path = DASHBOARD / target
+        assert path.is_file(), f"{module.name} imports ./{target}, which is not in api/dashboard"
+        exported = set(EXPORT.findall(path.read_text(encoding="utf-8")))
+        for name in (n.strip() for n in names.split(",")):
+            name = name.split(" as ")[0].strip()
+            assert name in exported, f"{module.name} imports {name} from ./{target}, which does not export it"
+
+
+def test_the_key_and_the_requests_live_in_api_js():
+    for module in MODULES:
+        code = _code(module)
+        if module.name == "api.js":
+            assert "localStorage" in code and "fetch(" in code
+            continue
+        assert "localStorage" not in code, f"{module.name} reads the key itself: use api.js"
+        assert "Authorization" not in code, f"{module.name} sends the key itself: use api.js"
+        # the health check needs no key; every other call goes through api.js
+        assert re.findall(r"\bfetch\(([^)]*)\)", code) in ([], ['"/v1/health"']), module.name
+
+
+@pytest.mark.parametrize("module", MODULES, ids=lambda p: p.name)
+def test_no_module_compares_a_technique_name(module):
+    code = _code(module)
+    for name in TECHNIQUES:
+        if (module.name, name) in NAMED:
+            continue
+        assert not re.search(rf"[\"'`]{re.escape(name)}[\"'`]", code), f"{module.name} names the technique {name!r}"
