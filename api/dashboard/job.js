@@ -232,6 +232,12 @@ const EVALUATION_ROWS = [
   ["seconds", "seconds evaluating", (v) => fmtSeconds(v)],
 ];
 
+function partList() {
+  // " (layered, tdm, ...)": the techniques of one part, as GET /v1/techniques lists them
+  const names = partTechniques();
+  return names.length ? ` (${names.join(", ")})` : "";
+}
+
 function renderCellEvaluation(job, cell) {
   const e = cell.stats && cell.stats.evaluation;
   const body = $("cell-evaluation");
@@ -242,7 +248,7 @@ function renderCellEvaluation(job, cell) {
     guarantee.textContent = "";
     delete guarantee.dataset.guarantee;
     if (job.evaluate === false) note = "Not evaluated: switched off for this job.";
-    else if (techniqueScope(job.technique || job.job_type) === "scene") note = `Not evaluated: the job report evaluates impostors of one part (${partTechniques().join(", ")}).`;
+    else if (techniqueScope(job.technique || job.job_type) === "scene") note = `Not evaluated: the job report evaluates impostors of one part${partList()}.`;
     else if (cell.state === "done") note = "Not evaluated.";
     else note = "Evaluated on the worker after the bake.";
     showBox($("cell-evaluation-note"), note);
