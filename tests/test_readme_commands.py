@@ -73,7 +73,7 @@ def offline_commands() -> list[str]:
 
 
 def test_the_readme_is_a_guide_with_offline_examples():
-    assert len((ROOT / "README.md").read_text(encoding="utf-8").splitlines()) <= 260
+    assert len((ROOT / "README.md").read_text(encoding="utf-8").splitlines()) <= 250
     commands = [c for c in readme_commands() if offline(c)]
     assert len(commands) >= 6, commands
     # the two commands, exactly as they are
@@ -92,6 +92,25 @@ def test_the_docs_list_offline_examples():
     assert len(commands) >= 12, commands
     for verb in ("layers", "bake", "evaluate", "glb", "inspect", "scenes"):
         assert any(shlex.split(c)[1] == verb for c in commands), (verb, commands)
+
+
+def test_the_docs_links_lead_somewhere():
+    """Every relative link of README.md, CHANGELOG.md and docs/ names a file of the checkout (links
+    to ``../shared`` aside), and every page of docs/ is linked from its index or the README."""
+    linked, broken = set(), []
+    for page in [*documents(), ROOT / "CHANGELOG.md"]:
+        for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text(encoding="utf-8")):
+            path = target.split("#", 1)[0]
+            if not path or target.startswith(("http://", "https://", "mailto:")):
+                continue
+            resolved = (page.parent / path).resolve()
+            if not resolved.is_relative_to(ROOT):
+                continue
+            linked.add(resolved)
+            if not resolved.exists():
+                broken.append(f"{page.relative_to(ROOT)}: {target}")
+    assert not broken, broken
+    assert not [str(p.relative_to(ROOT)) for p in documents()[1:] if p.resolve() not in linked]
 
 
 @pytest.mark.skipif(not (SHARED / "scenes").is_dir(), reason="needs ../shared/scenes")
