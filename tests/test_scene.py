@@ -11,6 +11,7 @@ import PIL.Image
 import pytest
 import trimesh
 
+from farfield.core.colour_space import srgb_to_linear
 from farfield.core.errors import DegenerateGeometryError, ErrorKind, SceneLoadError, SceneNotFoundError
 from farfield.core.exchange import load_scene, load_scene_bytes, supported_extensions
 from farfield.core.scene import Scene, SceneObject, SceneWarning, sample_texture
@@ -57,10 +58,10 @@ def test_scrub_pine_leaf_cards_are_alpha_cut_and_bark_is_opaque():
     assert leaves.triangle_count + bark.triangle_count == 527
 
 
-def test_duck_textured_obj_replaces_kd_with_texture():
+def test_duck_textured_obj_multiplies_kd_into_its_texture():
     duck = scenes.real_scene("duck/duck.obj").objects[0]
-    # The MTL says Kd 0.64 and map_Kd: the texture is drawn as is (white factor).
-    np.testing.assert_array_equal(duck.base_color, [1.0, 1.0, 1.0, 1.0])
+    # The MTL says Kd 0.64 and map_Kd: the MTL specification (and three.js) multiply them, in linear light.
+    np.testing.assert_allclose(duck.base_color, [*srgb_to_linear(np.full(3, 163 / 255)), 1.0])  # Kd as trimesh keeps it, in bytes
     assert duck.alpha_cutoff is None
     # The yellow duck: the texels its uv land on are mostly yellow (red and green over blue).
     texels = sample_texture(duck.texture, duck.uv).astype(float)

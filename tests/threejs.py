@@ -125,15 +125,16 @@ class ThreeRenderer:
         else:
             route.fulfill(path=str(file))
 
-    def render(self, path, cameras, alpha_cutoff: float | None = None, map_replaces_color: bool | None = None, mipmaps: bool = True) -> list[np.ndarray]:
+    def render(self, path, cameras, alpha_cutoff: float | None = None, map_replaces_color: bool = False, mipmaps: bool = True) -> list[np.ndarray]:
         """(h, w, 4) uint8 images of the file at ``path`` (.glb, .gltf, .obj with its MTL, .ply),
         top row first, alpha 255 where drawn, 0 elsewhere; one per camera of ``cameras`` (a
         :class:`farfield.core.render.raster.Camera` or a list of them).
 
         ``alpha_cutoff`` replaces every material's alpha test (an OBJ's textures with alpha are
         cut at 0.5 by farfield; three.js's MTLLoader cuts nothing); ``map_replaces_color``
-        (default: for OBJ) draws a textured material in its texture's colour alone, as farfield
-        reads an MTL (``map_Kd`` replaces ``Kd``); ``mipmaps=False`` samples every texture without
+        draws a textured material in its texture's colour alone (as Blender's importer does; by
+        default ``Kd`` × ``map_Kd``, as the MTL specification, three.js and farfield read it);
+        ``mipmaps=False`` samples every texture without
         mipmaps whatever its sampler asks (as farfield's renderer does), to tell the sampler's part
         in a difference.
         """
@@ -148,7 +149,7 @@ class ThreeRenderer:
             "url": file_url(path),
             "mtl": file_url(mtl) if mtl else None,
             "alphaCutoff": alpha_cutoff,
-            "mapReplacesColor": (kind == "obj") if map_replaces_color is None else bool(map_replaces_color),
+            "mapReplacesColor": bool(map_replaces_color),
             "mipmaps": bool(mipmaps),
             "cameras": [camera_spec(c) for c in cameras],
         }

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
 from farfield.core.errors import SceneLoadError, UploadTooLargeError
+from farfield.core.exchange.references import FileIndex
 
 SCENE_EXTENSIONS = ("glb", "gltf", "obj", "ply", "stl")
 MAX_FILES = 2000  # members of an uploaded archive
@@ -189,59 +190,45 @@ def read_assets_zip(data: bytes) -> dict[str, bytes]:
 _URI_SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*:")
 
 
-def _local(reference: str) -> str | None:
-    """A reference that names a file beside the scene (not a data, file: or http URI; not ``..``)."""
-    from urllib.parse import unquote
-
-    reference = reference.strip().replace("\\", "/")
-    if not reference or _URI_SCHEME.match(reference) or reference.startswith("/"):
-        return None
-    path = PurePosixPath(unquote(reference))
-    if ".." in path.parts:
-        return None
-    return str(PurePosixPath(*[p for p in path.parts if p not in ("", ".")]))
-
-
 def referenced_files(path: Path) -> list[str]:
-    """The files a ``.gltf`` or ``.obj`` at ``path`` refers to that exist beside it (relative names)."""
+    """The files a ``.gltf`` or ``.obj`` at ``path`` refers to that exist under its folder (relative
+    names), found as the loader finds them (:class:`~farfield.core.exchange.references.FileIndex`:
+    a reference that differs in case or folder from the file is packed under the file's name)."""
     path = Path(path)
     suffix = path.suffix.lower()
-    found: list[str] = []
+    references: list[str] = []
     if suffix == ".gltf":
         try:
             document = json.loads(path.read_text(encoding="utf-8"))
         except (OSError, ValueError, UnicodeDecodeError):
             return []
         uris = [b.get("uri") for b in document.get("buffers", []) if isinstance(b, dict)] + [i.get("uri") for i in document.get("images", []) if isinstance(i, dict)]
-        found = [r for r in (_local(u) for u in uris if isinstance(u, str)) if r]  # packed under the decoded name: the server's resolver decodes too
+        references = [u for u in uris if isinstance(u, str)]
     elif suffix == ".obj":
         from farfield.core.exchange.obj import _MTLLIB, decode_text, texture_maps
 
         try:
-            libraries = _MTLLIB.findall(decode_text(path.read_bytes()))[:1]  # the loader reads the first library only
+            references = _MTLLIB.findall(decode_text(path.read_bytes()))[:1]  # the loader reads the first library only
         except (OSError, SceneLoadError):
             return []
-        found = [r for r in (_local(name) for name in libraries) if r]
-        for library in list(found):
+    index = None
+    found: list[str] = []
+    while references:
+        reference = references.pop(0)
+        if _URI_SCHEME.match(reference.strip()) and not re.match(r"^[A-Za-z]:[\\/]", reference.strip()):
+            continue  # a data:, file: or http URI (a Windows drive path is a file name)
+        index = index or FileIndex.of_folder(path.parent)
+        local = index.find(reference)
+        if local is None or local in found:
+            continue
+        found.append(local)
+        if suffix == ".obj" and local.lower().endswith(".mtl") and len(found) == 1:
             try:
-                maps = texture_maps(decode_text((path.parent / library).read_bytes()))
+                maps = texture_maps(decode_text((path.parent / local).read_bytes()))
             except (OSError, SceneLoadError):
                 continue
-            for files in maps.values():
-                for name in files.values():
-                    # the loader takes the rest of the line as the name (relative to the OBJ's folder);
-                    # a name with options before it (-s 1 1 1 tex.png) is packed by its last word
-                    for candidate in (name, name.split()[-1]):
-                        local = _local(candidate)
-                        if local and (path.parent / local).is_file():
-                            found.append(local)
-                            break
-    seen, out = set(), []
-    for name in found:
-        if name not in seen and (path.parent / name).is_file():
-            seen.add(name)
-            out.append(name)
-    return out
+            references += [name for files in maps.values() for name in files.values()]
+    return [name for name in found if name != path.name]
 
 
 def pack_scene(path: Path) -> bytes | None:

@@ -6,11 +6,17 @@ several materials; the material suffix is dropped again where the object name al
 A file without ``o`` statements gives one object per material, named after the material (or after
 the file when there is a single material).
 
-Colours: ``map_Kd`` is the texture and replaces ``Kd``; ``Kd`` is the colour of untextured
-materials; ``d`` (or ``1 - Tr``) is the alpha factor.  ``map_d`` (an opacity image: its alpha
-channel, or its luminance if it has none) becomes the texture's alpha.  A texture with any alpha
-below 255 is alpha-cut at 0.5.  OBJ ``vt`` coordinates already have their origin at the
-bottom-left and are kept as they are.
+Colours, after the MTL specification: the diffuse colour is ``Kd`` × ``map_Kd`` (a material with a
+texture and no ``Kd`` shows the texture as is); ``d`` (or ``1 - Tr``) is the alpha factor.
+``map_d`` is a scalar opacity map multiplied into the texture's alpha: the channel its ``-imfchan``
+names (``r``, ``g``, ``b``, ``m`` the matte/alpha, ``l`` luminance), luminance by default, since a
+mask is often saved as an RGBA image whose alpha is constant.  Without ``-imfchan`` the image's
+alpha is taken instead where it is evidently the mask: it varies while the colour channels do not,
+or the map is the ``map_Kd`` file itself (an RGBA texture named twice).  A texture with any alpha
+below 255 is alpha-cut at 0.5.  ``map_Kd``'s ``-o`` and ``-s`` move and scale the uv; other map
+options that change what is shown (``-t``, ``-clamp on``, ``-mm``, ``-cc on``, ``-boost``, and any
+on ``map_d`` but ``-imfchan``) are not supported and each gives a warning naming it.  OBJ ``vt``
+coordinates already have their origin at the bottom-left and are kept as they are.
 
 trimesh only logs (at debug level) a material library or texture it cannot find; :func:`load`
 looks them up itself and returns a warning for each, and the objects keep the material colour.
@@ -24,12 +30,14 @@ from collections import Counter
 
 import numpy as np
 import PIL.Image
+import PIL.ImageChops
 import trimesh
 from trimesh.resolvers import Resolver
 from trimesh.visual.material import SimpleMaterial
 
 from farfield.core.errors import SceneLoadError
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
+from farfield.core.exchange.references import MapStatement, map_statement
 from farfield.core.exchange.trimesh_scene import IMAGE_ERRORS, fetch, objects_from_trimesh, parse
 from farfield.core.scene import SceneObject
 
@@ -77,22 +85,53 @@ def texture_maps(mtl: str) -> dict[str, dict[str, str]]:
     return {name: files for name, files in maps.items() if files}
 
 
-def _opacity(image: PIL.Image.Image) -> PIL.Image.Image:
-    """An ``L`` image of opacity from a ``map_d`` image: its alpha channel, or its luminance."""
-    if image.mode in ("RGBA", "LA", "PA") or "transparency" in image.info:
-        return image.convert("RGBA").getchannel("A")
-    return image.convert("L")
+# map options that change what a texture shows and that farfield does not apply (warned about)
+_UNSUPPORTED = {"t": None, "clamp": ("off",), "mm": ("0", "1"), "cc": ("off",), "boost": None}
 
 
-def _apply_opacity(material: SimpleMaterial, data: bytes) -> None:
-    """Make ``map_d`` (``data``) the alpha channel of the material's texture (a flat ``Kd`` one if none).
+def _unsupported(options: dict, allowed: tuple[str, ...]) -> list[str]:
+    """The options of a map statement that farfield does not apply (defaults excepted)."""
+    out = []
+    for key, args in options.items():
+        if key in allowed or (key not in _UNSUPPORTED and key not in ("o", "s", "imfchan")):
+            continue
+        default = _UNSUPPORTED.get(key)
+        if default is not None and tuple(a.lower() for a in args) == default[: len(args)]:
+            continue
+        out.append("-" + " ".join((key, *args)))
+    return out
+
+
+def _opacity(image: PIL.Image.Image, channel: str | None, colour_file: bool) -> PIL.Image.Image:
+    """An ``L`` image of opacity from a ``map_d`` image (see the module docstring): the channel
+    ``channel`` (``-imfchan``), else luminance, else the alpha where it is evidently the mask
+    (``colour_file``: the map is the ``map_Kd`` file)."""
+    has_alpha = image.mode in ("RGBA", "LA", "PA") or "transparency" in image.info
+    rgba = image.convert("RGBA")
+    if channel in ("r", "g", "b"):
+        return rgba.getchannel(channel.upper())
+    if channel == "m":
+        return rgba.getchannel("A")
+    luminance = image.convert("L")
+    if channel is None and has_alpha:
+        alpha = rgba.getchannel("A")
+        alpha_varies = alpha.getextrema()[0] != alpha.getextrema()[1]
+        colour_constant = all(lo == hi for lo, hi in rgba.convert("RGB").getextrema())
+        if alpha_varies and (colour_constant or colour_file):
+            return alpha
+    return luminance
+
+
+def _apply_opacity(material: SimpleMaterial, data: bytes, channel: str | None, colour_file: bool) -> PIL.Image.Image:
+    """Multiply ``map_d`` (``data``) into the alpha of the material's texture (a flat ``Kd`` one if
+    none); returns the opacity image.
 
     Raises
     ------
     OSError, ValueError, SyntaxError, ...
         See :data:`farfield.core.exchange.trimesh_scene.IMAGE_ERRORS`.
     """
-    alpha = _opacity(PIL.Image.open(io.BytesIO(data)))
+    alpha = _opacity(PIL.Image.open(io.BytesIO(data)), channel, colour_file)
     if material.image is not None:
         base = material.image.convert("RGBA")
     else:
@@ -100,21 +139,54 @@ def _apply_opacity(material: SimpleMaterial, data: bytes) -> None:
         base = PIL.Image.new("RGBA", alpha.size, rgb + (255,))
     if alpha.size != base.size:
         alpha = alpha.resize(base.size, PIL.Image.Resampling.BILINEAR)
-    base.putalpha(alpha)
+    # the colour texture's own alpha, named again as its opacity map, applies once (not squared)
+    own = colour_file and material.image is not None and alpha.tobytes() == base.getchannel("A").tobytes()
+    base.putalpha(alpha if own else PIL.ImageChops.multiply(base.getchannel("A"), alpha))
     material.image = base
+    return alpha
+
+
+def _uv_transforms(scene: trimesh.Scene, statements: dict[str, MapStatement], warnings: list[str]) -> None:
+    """Apply ``map_Kd``'s ``-o`` (offset) and ``-s`` (scale) to the uv of the meshes of each material:
+    uv' = uv × s + o, on u and v (a texture has no w)."""
+    for mesh in scene.geometry.values():
+        visual = getattr(mesh, "visual", None)
+        material = getattr(visual, "material", None)
+        statement = statements.get(getattr(material, "name", None))
+        if statement is None or getattr(visual, "uv", None) is None:
+            continue
+        transform = []
+        for key, default in (("s", 1.0), ("o", 0.0)):
+            args = list(statement.options.get(key, ()))[:2]
+            try:
+                values = [float(a) for a in args]
+            except ValueError:
+                warnings.append(f"material {material.name!r}: map_Kd option -{key} {' '.join(args)} is not numeric; ignored")
+                values = []
+            values += [default if key == "o" or not values else values[0]] * (2 - len(values))
+            transform.append(np.array(values[:2]))
+        scale, offset = transform
+        if np.any(scale != 1.0) or np.any(offset != 0.0):
+            visual.uv = np.asarray(visual.uv, dtype=np.float64) * scale + offset
 
 
 def _textures(scene: trimesh.Scene, maps: dict[str, dict[str, str]], resolver: Resolver) -> list[str]:
-    """Apply ``map_d`` maps to the parsed materials; warn about maps that could not be loaded.
+    """Apply ``map_d`` maps and ``map_Kd``'s uv options to the parsed materials; warn about maps that
+    could not be loaded and options that are not applied.
 
     Materials naming the same texture file share one image (trimesh opens the file once per
-    material), and those naming the same ``map_kd`` and ``map_d`` files one composed image, so a
-    shared atlas is decoded once however many materials use it (:func:`objects_from_trimesh`
-    decodes each image once)."""
+    material), and those naming the same ``map_kd`` and ``map_d`` files (and channel) one composed
+    image, so a shared atlas is decoded once however many materials use it
+    (:func:`objects_from_trimesh` decodes each image once)."""
     warnings: list[str] = []
     seen: set[int] = set()
     images: dict[str, PIL.Image.Image] = {}  # map_kd file -> the first material's image
-    composed: dict[tuple, PIL.Image.Image] = {}  # (map_kd file or Kd, map_d file) -> image with alpha
+    composed: dict[tuple, PIL.Image.Image] = {}  # (map_kd file or Kd, map_d file, channel) -> image with alpha
+    colour_maps = {name: map_statement(files["map_kd"]) for name, files in maps.items() if "map_kd" in files}
+    for name, statement in colour_maps.items():
+        for option in _unsupported(statement.options, ("o", "s")):
+            warnings.append(f"material {name!r}: map_Kd option {option} is not supported; ignored")
+    _uv_transforms(scene, colour_maps, warnings)
     for mesh in scene.geometry.values():
         material = getattr(getattr(mesh, "visual", None), "material", None)
         if not isinstance(material, SimpleMaterial) or id(material) in seen:
@@ -130,7 +202,18 @@ def _textures(scene: trimesh.Scene, maps: dict[str, dict[str, str]], resolver: R
             material.image = images.setdefault(files["map_kd"], material.image)
         if "map_d" not in files:
             continue
-        key = (files.get("map_kd") if material.image is not None else tuple(np.asarray(material.diffuse).tolist()), files["map_d"])
+        opacity = map_statement(files["map_d"])
+        for option in _unsupported({k: v for k, v in opacity.options.items() if k != "imfchan"}, ()) + [
+            f"-{k} {' '.join(v)}" for k, v in opacity.options.items() if k in ("o", "s")
+        ]:
+            warnings.append(f"material {material.name!r}: map_d option {option} is not supported; ignored")
+        channel = (opacity.options.get("imfchan") or (None,))[0]
+        channel = channel.lower() if channel else None
+        if channel not in (None, "r", "g", "b", "m", "l"):
+            warnings.append(f"material {material.name!r}: map_d channel -imfchan {channel} is not supported; using luminance")
+            channel = "l"
+        colour_file = "map_kd" in files and opacity.file == colour_maps[material.name].file
+        key = (files.get("map_kd") if material.image is not None else tuple(np.asarray(material.diffuse).tolist()), files["map_d"], channel)
         if key in composed:
             material.image = composed[key]
             continue
@@ -139,13 +222,19 @@ def _textures(scene: trimesh.Scene, maps: dict[str, dict[str, str]], resolver: R
             warnings.append(f"opacity map {files['map_d']!r} of material {material.name!r} not found; ignored")
             continue
         try:
-            _apply_opacity(material, data)
+            alpha = _apply_opacity(material, data, channel, colour_file)
             composed[key] = material.image
         except IMAGE_ERRORS as error:
             warnings.append(
                 f"opacity map {files['map_d']!r} of material {material.name!r} could not be decoded "
                 f"({type(error).__name__}: {error}); ignored"
             )
+            continue
+        lo, hi = alpha.getextrema()
+        if lo == hi == 255:
+            warnings.append(f"opacity map {files['map_d']!r} of material {material.name!r} is opaque everywhere; nothing is cut")
+        elif hi == 0:
+            warnings.append(f"opacity map {files['map_d']!r} of material {material.name!r} is transparent everywhere")
     return warnings
 
 

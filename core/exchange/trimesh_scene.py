@@ -32,7 +32,6 @@ import os
 import struct
 import zlib
 from collections.abc import Mapping
-from urllib.parse import unquote
 
 import numpy as np
 import PIL.Image
@@ -42,6 +41,7 @@ from trimesh.visual.material import PBRMaterial, SimpleMaterial
 
 from farfield.core.colour_space import encode_rgba_u8, srgb_to_linear
 from farfield.core.errors import SceneLoadError
+from farfield.core.exchange.references import FileIndex
 from farfield.core.scene import SceneObject
 
 # What trimesh's parsers raise on malformed input (measured: IndexError for an empty GLB,
@@ -71,33 +71,19 @@ DEFAULT_ALPHA_CUTOFF = 0.5
 
 
 class _NamedZipResolver(ZipResolver):
-    """A ZipResolver over an in-memory ``{name: bytes}`` mapping that knows the main file's name.
-
-    A reference is looked up as written, then as a path (URL-decoded, ``\\`` as ``/``, ``./``
-    dropped), then ignoring case, then by its base name, then by its last word (an MTL map with
-    options before the file name), each also against the files' base names where one is unique:
-    references name files of the upload only, and the upload's names come from other systems.
-    """
+    """A ZipResolver over an in-memory ``{name: bytes}`` mapping that knows the main file's name;
+    references are looked up as :class:`~farfield.core.exchange.references.FileIndex` does."""
 
     def __init__(self, archive: dict, file_name: str):
         super().__init__(archive=archive)
         self.file_name = file_name
-        self._folded = {name.lower(): name for name in archive}
-        bases: dict[str, list[str]] = {}
-        for name in archive:
-            bases.setdefault(name.rsplit("/", 1)[-1].lower(), []).append(name)
-        self._bases = {base: names[0] for base, names in bases.items() if len(names) == 1}  # unique base names only
+        self._index = FileIndex(archive)
 
     def get(self, name: str) -> bytes:
         if name is None or name in self.archive:
             return super().get(name)
-        text = unquote(name.decode("utf-8") if hasattr(name, "decode") else name).replace("\\", "/")
-        path = "/".join(p for p in text.split("/") if p not in ("", "."))
-        for candidate in (path, path.rsplit("/", 1)[-1], text.split()[-1] if text.split() else text):
-            for key in (candidate, self._folded.get(candidate.lower()), self._bases.get(candidate.rsplit("/", 1)[-1].lower())):
-                if key is not None and key in self.archive:
-                    return super().get(key)
-        return super().get(name)  # trimesh's own fallbacks, or its KeyError
+        key = self._index.find(name.decode("utf-8") if hasattr(name, "decode") else name)
+        return super().get(key if key is not None else name)  # else trimesh's own fallbacks, or its KeyError
 
 
 def asset_resolver(name: str, directory: str | None = None, assets: Mapping[str, bytes] | None = None) -> Resolver:
@@ -118,16 +104,28 @@ def asset_resolver(name: str, directory: str | None = None, assets: Mapping[str,
 
 
 class _ReadOnceFileResolver(FilePathResolver):
-    """A folder's files, each read once: trimesh reads a texture file again for every material
-    that names it (45 materials of one atlas: 45 reads and 45 copies of its bytes)."""
+    """A folder's files, each read once (trimesh reads a texture file again for every material that
+    names it: 45 materials of one atlas, 45 reads and 45 copies of its bytes).  A reference not
+    found as written is looked up among the folder's files as an upload's are
+    (:class:`~farfield.core.exchange.references.FileIndex`), so a scene loads alike from its folder
+    and from an upload of it."""
 
     def __init__(self, source: str):
         super().__init__(source)
         self._read: dict[str, bytes] = {}
+        self._index: FileIndex | None = None
 
     def get(self, name: str) -> bytes:
         if name not in self._read:
-            self._read[name] = super().get(name)
+            try:
+                self._read[name] = super().get(name)
+            except OSError:
+                if self._index is None:
+                    self._index = FileIndex.of_folder(self.parent)
+                key = self._index.find(name)
+                if key is None:
+                    raise
+                self._read[name] = super().get(key)
         return self._read[name]
 
 
@@ -207,12 +205,13 @@ class _Colours:
 class _Texture:
     """A decoded texture and what every object using it needs to know, found once per image."""
 
-    __slots__ = ("rgba", "single", "translucent")
+    __slots__ = ("rgba", "single", "translucent", "max_alpha")
 
-    def __init__(self, rgba: np.ndarray, single: np.ndarray | None, translucent: bool) -> None:
+    def __init__(self, rgba: np.ndarray, single: np.ndarray | None, translucent: bool, max_alpha: int) -> None:
         self.rgba = rgba  # (h, w, 4) uint8, shared by the objects using it
         self.single = single  # (4,) uint8 when every texel has this colour, else None
         self.translucent = translucent  # some texel's alpha is below 255
+        self.max_alpha = max_alpha  # the largest alpha of any texel
 
     @classmethod
     def of(cls, rgba: np.ndarray) -> "_Texture":
@@ -220,7 +219,7 @@ class _Texture:
         rgba.flags.writeable = False  # frozen once: every SceneObject using it shares it (farfield.core.scene._frozen)
         texels = rgba.reshape(-1, 4)
         single = texels[0].copy() if (texels == texels[0]).all() else None
-        return cls(rgba, single, bool(rgba[..., 3].min() < 255))
+        return cls(rgba, single, bool(rgba[..., 3].min() < 255), int(rgba[..., 3].max()))
 
 
 def _texture_colours(
@@ -247,8 +246,8 @@ def _texture_colours(
     elif isinstance(material, SimpleMaterial):
         image = material.image
         out.base_color = _rgba_unit(material.diffuse, srgb=True)
-        if image is not None:
-            out.base_color[:3] = 1.0
+        if image is not None and "kd" not in material.kwargs:
+            out.base_color[:3] = 1.0  # MTL: the texture times Kd; without Kd, the texture as is
         out.base_color[3] = _mtl_alpha(material)
     elif material is not None:
         out.base_color = _rgba_unit(material.main_color, srgb=not linear)
@@ -278,6 +277,8 @@ def _texture_colours(
         return out
     if out.alpha_cutoff is None and not isinstance(material, PBRMaterial) and texture.translucent:
         out.alpha_cutoff = DEFAULT_ALPHA_CUTOFF
+    if out.alpha_cutoff is not None and texture.max_alpha * out.base_color[3] < 255.0 * out.alpha_cutoff:
+        warnings.append(f"object {name!r}: no texel of its texture passes its alpha cut ({out.alpha_cutoff:g}); it is invisible")
     if texture.single is not None:
         # One colour (e.g. the 2 x 2 placeholder trimesh gives uv without a material): the same
         # as a material colour, which is cheaper and names the colour source truthfully.

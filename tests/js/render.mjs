@@ -44,7 +44,8 @@ function unmipped(texture) {
 
 function unlit(material, spec) {
   // An OBJ material with a texture takes the texture's colour alone when spec.mapReplacesColor
-  // (farfield's documented OBJ rule: map_Kd replaces Kd, as Blender draws it).
+  // (as Blender's importer draws it); by default three.js's own rule, which is the MTL
+  // specification's and farfield's: Kd x map_Kd.
   const color = material.color ? material.color.clone() : new THREE.Color(1, 1, 1);
   if (spec.mapReplacesColor && material.map) color.setRGB(1, 1, 1);
   let alphaTest = material.alphaTest || 0;
@@ -52,6 +53,8 @@ function unlit(material, spec) {
   else if (material.transparent) alphaTest = 0.5;  // glTF BLEND drawn as a mask at 0.5, as farfield does
   return new THREE.MeshBasicMaterial({
     map: spec.mipmaps === false ? unmipped(material.map) : material.map || null,
+    // MTLLoader's map_d (three.js reads an alpha map's green channel)
+    alphaMap: spec.mipmaps === false ? unmipped(material.alphaMap) : material.alphaMap || null,
     color,
     opacity: material.opacity === undefined ? 1 : material.opacity,
     vertexColors: !!material.vertexColors,
@@ -87,7 +90,7 @@ async function load(spec) {
       const base = spec.mtl.slice(0, spec.mtl.lastIndexOf("/") + 1);
       const materials = await new MTLLoader().setResourcePath(base).loadAsync(spec.mtl);
       materials.preload();
-      await Promise.all(Object.values(materials.materials).map((m) => textureReady(m.map)));
+      await Promise.all(Object.values(materials.materials).flatMap((m) => [textureReady(m.map), textureReady(m.alphaMap)]));
       obj.setMaterials(materials);
     }
     root = await obj.loadAsync(spec.url);

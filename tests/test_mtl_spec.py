@@ -1,0 +1,178 @@
+"""OBJ/MTL read as the MTL specification means it (issue 54), on small files built like the scenes
+where farfield departed from it: a grey atlas tinted by ``Kd``, an RGBA opacity mask whose alpha is
+constant, map options, and texture names that differ in case from the files.  three.js's
+MTLLoader/OBJLoader draws the same files in tests/test_threejs.py."""
+
+from __future__ import annotations
+
+import io
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import PIL.Image
+import pytest
+
+from farfield.core.colour_space import srgb_to_linear
+from farfield.core.exchange import load_scene, load_scene_bytes
+from farfield.core.exchange.archive import pack_scene, read_assets_zip, referenced_files
+from farfield.core.exchange.references import FileIndex, map_statement
+
+GRASS_KD = (0.47, 0.70, 0.30)
+
+
+def quads_obj(folder: Path, materials: dict[str, list[str]], name: str = "scene") -> Path:
+    """One unit quad per material (side by side along x, facing +z, uv 0..1) and an MTL holding
+    ``materials`` (material -> its statements)."""
+    lines, mtl = [f"mtllib {name}.mtl"], []
+    for k, (material, statements) in enumerate(materials.items()):
+        lines += [f"v {k} 0 0", f"v {k + 1} 0 0", f"v {k + 1} 1 0", f"v {k} 1 0", "vt 0 0", "vt 1 0", "vt 1 1", "vt 0 1"]
+        a = 4 * k + 1
+        lines += [f"o {material}", f"usemtl {material}", f"f {a}/{a} {a + 1}/{a + 1} {a + 2}/{a + 2}", f"f {a}/{a} {a + 2}/{a + 2} {a + 3}/{a + 3}"]
+        mtl += [f"newmtl {material}", *statements, ""]
+    (folder / f"{name}.mtl").write_text("\n".join(mtl))
+    path = folder / f"{name}.obj"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def grey_atlas(folder: Path, name: str = "atlas.png") -> np.ndarray:
+    rng = np.random.default_rng(3)
+    grey = rng.integers(100, 160, size=(16, 16), dtype=np.uint8)
+    rgba = np.dstack([grey, grey, grey, np.full_like(grey, 255)])
+    PIL.Image.fromarray(rgba, "RGBA").save(folder / name)
+    return rgba
+
+
+def leaf_textures(folder: Path) -> tuple[np.ndarray, np.ndarray]:
+    """A green RGBA colour texture whose own alpha cuts its left quarter, and an opacity mask saved
+    as RGBA with a constant alpha (the mask is in its colour channels): a disc."""
+    colour = np.zeros((16, 16, 4), np.uint8)
+    colour[..., 1] = 180
+    colour[..., 3] = 255
+    colour[:, :4, 3] = 0
+    y, x = np.mgrid[:16, :16]
+    disc = np.where((x - 8) ** 2 + (y - 8) ** 2 <= 36, 255, 0).astype(np.uint8)
+    mask = np.dstack([disc, disc, disc, np.full_like(disc, 255)])
+    PIL.Image.fromarray(colour, "RGBA").save(folder / "leaf.png")
+    PIL.Image.fromarray(mask, "RGBA").save(folder / "leaf_mask.png")
+    return colour, mask
+
+
+def test_kd_multiplies_map_kd_and_a_material_without_kd_shows_its_texture(tmp_path):
+    """A voxel-world scene's shared atlas is grey and ``Kd`` carries each material's tint: the
+    colour is ``Kd`` × ``map_Kd`` (MTL; three.js), in linear light."""
+    atlas = grey_atlas(tmp_path)
+    path = quads_obj(tmp_path, {"grass": [f"Kd {' '.join(map(str, GRASS_KD))}", "map_Kd atlas.png"], "plain": ["map_Kd atlas.png"]})
+    scene = load_scene(path)
+    grass, plain = scene.subset(["grass"]).objects[0], scene.subset(["plain"]).objects[0]
+    np.testing.assert_allclose(grass.base_color[:3], srgb_to_linear(np.round(np.array(GRASS_KD) * 255) / 255), atol=2e-3)
+    np.testing.assert_array_equal(plain.base_color, [1.0, 1.0, 1.0, 1.0])
+    for obj in (grass, plain):
+        np.testing.assert_array_equal(obj.texture, atlas)
+
+
+def test_an_rgba_mask_with_constant_alpha_is_read_by_its_luminance_and_multiplies_the_colour_alpha(tmp_path):
+    colour, mask = leaf_textures(tmp_path)
+    path = quads_obj(tmp_path, {"leaf": ["Kd 1 1 1", "map_Kd leaf.png", "map_d leaf_mask.png"]})
+    (obj,) = load_scene(path).objects
+    assert obj.alpha_cutoff == 0.5
+    expected = (colour[..., 3].astype(np.uint16) * mask[..., 0] + 127) // 255
+    assert np.abs(obj.texture[..., 3].astype(int) - expected).max() <= 1
+    np.testing.assert_array_equal(obj.texture[..., :3], colour[..., :3])
+    assert obj.texture[8, 8, 3] == 255 and obj.texture[0, 0, 3] == 0 and obj.texture[8, 2, 3] == 0  # disc; outside; the colour's own cut
+
+
+@pytest.mark.parametrize("channel, band", [("r", 0), ("g", 1), ("b", 2), ("m", 3)])
+def test_imfchan_chooses_the_channel_of_the_opacity_map(tmp_path, channel, band):
+    grey_atlas(tmp_path)
+    rng = np.random.default_rng(band)
+    mask = np.full((16, 16, 4), 255, np.uint8)
+    mask[..., band] = rng.integers(0, 256, size=(16, 16), dtype=np.uint8)
+    PIL.Image.fromarray(mask, "RGBA").save(tmp_path / "mask.png")
+    path = quads_obj(tmp_path, {"m": ["map_Kd atlas.png", f"map_d -imfchan {channel} mask.png"]})
+    (obj,) = load_scene(path).objects
+    np.testing.assert_array_equal(obj.texture[..., 3], mask[..., band])
+
+
+def test_an_rgba_texture_named_as_its_own_opacity_map_keeps_its_alpha(tmp_path):
+    colour = np.zeros((16, 16, 4), np.uint8)
+    colour[..., 0] = np.arange(16, dtype=np.uint8)[None, :] * 16  # colourful: its luminance is no mask
+    colour[..., 1] = 90
+    colour[..., 3] = np.where(np.arange(16)[:, None] < 8, 255, 40)
+    PIL.Image.fromarray(colour, "RGBA").save(tmp_path / "leaf.png")
+    path = quads_obj(tmp_path, {"leaf": ["map_Kd leaf.png", "map_d leaf.png"]})
+    (obj,) = load_scene(path).objects
+    np.testing.assert_array_equal(obj.texture, colour)  # not its luminance, and not alpha squared
+
+
+def test_a_mask_that_hides_nothing_and_a_texture_that_never_passes_its_cut_are_warned_about(tmp_path):
+    grey_atlas(tmp_path)
+    PIL.Image.new("L", (4, 4), 255).save(tmp_path / "opaque.png")
+    PIL.Image.new("RGBA", (4, 4), (0, 0, 0, 255)).save(tmp_path / "black.png")
+    path = quads_obj(tmp_path, {"a": ["map_Kd atlas.png", "map_d opaque.png"], "b": ["map_Kd atlas.png", "map_d black.png"]})
+    with pytest.warns(UserWarning):
+        warnings = load_scene(path).warnings
+    assert any("'opaque.png'" in w and "opaque everywhere" in w for w in warnings), warnings
+    assert any("'black.png'" in w and "transparent everywhere" in w for w in warnings), warnings
+    assert any("object 'b'" in w and "passes its alpha cut" in w for w in warnings), warnings
+
+
+def test_map_kd_offset_and_scale_move_the_uv_and_unsupported_options_are_named(tmp_path):
+    grey_atlas(tmp_path)
+    path = quads_obj(tmp_path, {"moved": ["map_Kd -s 2 3 1 -o 0.5 0.25 0 -clamp on atlas.png"], "still": ["map_Kd atlas.png"]})
+    with pytest.warns(UserWarning):
+        scene = load_scene(path)
+    moved, still = scene.subset(["moved"]).objects[0], scene.subset(["still"]).objects[0]
+    np.testing.assert_allclose(moved.uv, still.uv * [2.0, 3.0] + [0.5, 0.25])
+    assert any("-clamp on" in w and "not supported" in w for w in scene.warnings), scene.warnings
+
+
+def test_map_statements_split_options_from_file_names():
+    assert map_statement("-s 1 1 1 my tex.png").file == "my tex.png"
+    assert map_statement("-imfchan r -bm 0.5 bump map.png").options == {"imfchan": ("r",), "bm": ("0.5",)}
+    assert map_statement("-o 1 leaf.png").options == {"o": ("1",)}
+    assert map_statement("-clamp on leaf.png").options == {"clamp": ("on",)}
+    assert map_statement("leaf.png").options == {}
+
+
+def case_scene(folder: Path) -> Path:
+    """Materials naming their textures in other case and Windows-style folders than the files have."""
+    (folder / "textures").mkdir()
+    grey_atlas(folder / "textures", "bark.png")
+    grey_atlas(folder, "leaf.png")
+    return quads_obj(folder, {"bark": ["map_Kd Textures\\Bark.PNG"], "leaf": ["map_Kd LEAF.png"], "flat": ["Kd 1 0 0"]})
+
+
+def test_texture_names_resolve_alike_from_disk_and_from_an_upload(tmp_path):
+    path = case_scene(tmp_path)
+    from_disk = load_scene(path)
+    assert all(o.texture is not None for o in from_disk.objects if o.name != "flat"), [o.name for o in from_disk.objects if o.texture is None]
+    files = {p.relative_to(tmp_path).as_posix(): p.read_bytes() for p in tmp_path.rglob("*") if p.is_file() and p != path}
+    uploaded = load_scene_bytes(path.read_bytes(), "obj", path.name, assets=files)
+    assert uploaded.content_hash == from_disk.content_hash
+    # what `farfield submit` packs: the files under their own names, found as the loader finds them
+    assert sorted(referenced_files(path)) == ["leaf.png", "scene.mtl", "textures/bark.png"]
+    packed = read_assets_zip(pack_scene(path))
+    assert load_scene_bytes(packed.pop("scene.obj"), "obj", "scene.obj", assets=packed).content_hash == from_disk.content_hash
+
+
+def test_a_file_index_prefers_the_exact_name_and_refuses_an_ambiguous_base_name():
+    index = FileIndex(["a/leaf.png", "b/leaf.png", "Leaf.png", "bark.png"])
+    assert index.find("Leaf.png") == "Leaf.png"
+    assert index.find("x/y/BARK.png") == "bark.png"
+    assert index.find("c/leaf.png") == "Leaf.png"  # the base name, case folded: the one at the top
+    assert index.find("missing.png") is None
+    assert FileIndex(["a/leaf.png", "b/leaf.png"]).find("c/leaf.png") is None
+
+
+def test_upload_zip_of_a_folder_keeps_its_names(tmp_path):
+    path = case_scene(tmp_path)
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w") as archive:
+        for p in tmp_path.rglob("*"):
+            if p.is_file():
+                archive.write(p, p.relative_to(tmp_path).as_posix())
+    assets = read_assets_zip(buffer.getvalue())
+    scene = load_scene_bytes(assets.pop("scene.obj"), "obj", "scene.obj", assets=assets)
+    assert scene.content_hash == load_scene(path).content_hash
