@@ -22,8 +22,8 @@ from service_harness import ADMIN_KEY, BUNNY, ROOT, start_service, upload, wait_
 from farfield.core.errors import LayerPlanError, UnknownTechniqueError, error_kind
 from farfield.core.impostor.bundle import MANIFEST_NAME, read_bundle
 from farfield.core.impostor.glb import impostor_glb
-from farfield.core.impostor.impostor import QuadPayload
-from farfield.core.techniques import TECHNIQUES, get_technique, register
+from farfield.core.impostor.impostor import PAYLOAD_KINDS, Payload, QuadPayload
+from farfield.core.techniques import TECHNIQUES, Technique, get_technique, register
 
 TOY_ENV = {"FARFIELD_TECHNIQUE_MODULES": "toy_technique", "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT / "tests"), os.environ.get("PYTHONPATH")]))}
 # One box cell in front of the bunny (bounds x -0.095..0.061, y 0.033..0.187, z -0.062..0.059).
@@ -55,6 +55,22 @@ def test_the_registry_refuses_what_it_cannot_hold_and_an_unknown_name_is_bad_inp
         get_technique("toy")
     assert not isinstance(raised.value, LayerPlanError)
     assert error_kind(raised.value).value == (422, 2)
+
+
+def test_every_technique_and_payload_kind_has_the_members_consumers_call():
+    """The registry's techniques are :class:`Technique`s naming a registered payload kind; every
+    payload kind is a :class:`Payload`, and says how it is drawn (triangles or not) and counted."""
+    for technique in TECHNIQUES.values():
+        assert isinstance(technique, Technique) and technique.payload_kind in PAYLOAD_KINDS
+        assert technique.describe()["payload"] == technique.payload_kind
+        assert technique.describe()["placeable"] == (technique.estimate is not None)
+    assert sorted(PAYLOAD_KINDS) == ["ldi", "mesh", "points", "quads"]
+    for kind, cls in PAYLOAD_KINDS.items():
+        payload = cls.empty()
+        assert isinstance(payload, Payload) and payload.kind == kind
+        assert payload.quad_count == 0 and payload.point_count == 0 and payload.triangle_count == 0
+    one = QuadPayload(np.zeros((1, 4, 3)), np.zeros((1, 4, 2)), np.zeros(1, np.int64), np.zeros(1, np.int64))
+    assert (one.quad_count, one.point_count, one.triangle_count) == (1, 0, 2)
 
 
 @needs_bunny
