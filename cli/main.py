@@ -76,6 +76,13 @@ _PYTHON_SHOW_WARNING = warnings.showwarning
 def main(argv: list[str] | None = None) -> None:
     """Run the CLI (the ``farfield`` console script)."""
     warnings.showwarning = _show_warning
+    try:  # techniques of FARFIELD_TECHNIQUE_MODULES, registered before the commands list the techniques
+        from farfield.service.settings import load_technique_modules
+
+        load_technique_modules()
+    except FarfieldError as error:
+        click.echo(f"farfield: error: {error}", err=True)
+        sys.exit(error.kind.exit_code)
     _register()
     cli.main(args=argv, prog_name="farfield")
 

@@ -70,6 +70,15 @@ class QueryError(FarfieldError):
     """A listing's or a query's parameter that names nothing the service has (an unknown job state, ...)."""
 
 
+class UnknownTechniqueError(FarfieldError):
+    """A technique name the registry does not hold (:func:`farfield.core.techniques.get_technique`):
+    bad input (HTTP 422, exit code 2).
+
+    >>> error_kind(UnknownTechniqueError("x")).value
+    (422, 2)
+    """
+
+
 class LayerPlanError(FarfieldError):
     """Layer mathematics asked for a configuration that has no valid answer."""
 

@@ -28,6 +28,7 @@ shared services instead, so API and workers can run on several machines.
 | ``FARFIELD_CELL_MEMORY_MB`` | 8192 | resident memory a worker's pool process may reach while it runs a cell; past it the cell fails (no retry) and the process is killed |
 | ``FARFIELD_VISIBILITY_TIMEOUT`` | 3600, and above the cell's hard time limit | seconds before Redis redelivers an unacknowledged cell; must be longer than ``FARFIELD_CELL_TIME_LIMIT`` + 60 |
 | ``FARFIELD_REQUEUE_AFTER`` | 3600 | seconds a cell may stay queued before the API sends it again (a lost message) |
+| ``FARFIELD_TECHNIQUE_MODULES`` | unset | comma-separated importable modules whose import registers more techniques (:func:`farfield.core.techniques.register`); the CLI, the API and every worker import them before they read the registry |
 """
 
 from __future__ import annotations
@@ -259,3 +260,30 @@ class Settings:
         if self.admin_key:
             env["FARFIELD_ADMIN_KEY"] = self.admin_key
         return env
+
+
+def technique_modules(env: Mapping[str, str] | None = None) -> list[str]:
+    """The modules ``FARFIELD_TECHNIQUE_MODULES`` names (comma-separated; blanks dropped).
+
+    >>> technique_modules({"FARFIELD_TECHNIQUE_MODULES": " my.toy, other ,"})
+    ['my.toy', 'other']
+    """
+    env = os.environ if env is None else env
+    return [name.strip() for name in (env.get("FARFIELD_TECHNIQUE_MODULES") or "").split(",") if name.strip()]
+
+
+def load_technique_modules(env: Mapping[str, str] | None = None) -> list[str]:
+    """Import the modules of :func:`technique_modules`, registering their techniques (once: a module
+    imported before is not run again); ServiceConfigError for one that cannot be imported."""
+    names = technique_modules(env)
+    if not names:
+        return []
+    from farfield.core.techniques import load_technique_modules as load
+
+    return load(names)
+
+
+# Every service process (API, workers) imports these settings before anything reads the technique
+# registry (service.jobs lists the techniques in its job schema when it is imported), and the CLI
+# calls this before its commands are built: so FARFIELD_TECHNIQUE_MODULES registers its techniques here.
+load_technique_modules()

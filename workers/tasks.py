@@ -33,8 +33,9 @@ main process at once (:class:`PlanningRequest`), so the redelivery plans again (
 attempt, ``FARFIELD_MAX_ATTEMPTS`` at most); a whole worker that dies leaves its hold to expire and
 the API's sweeper sends the task again.
 
-When a worker starts, :func:`warm_worker` compiles the TDM's numba kernels in its main process
-before the pool processes fork, so no cell pays the compilation.
+When a worker starts, :func:`warm_worker` compiles every registered technique's numba kernels
+(:func:`farfield.core.techniques.warm_techniques`) in its main process before the pool processes
+fork, so no cell pays the compilation.
 """
 
 from __future__ import annotations
@@ -49,12 +50,9 @@ from celery.exceptions import SoftTimeLimitExceeded, TimeLimitExceeded
 from celery.worker.request import Request
 from sqlalchemy import select, update
 
-from farfield.core.layering import recording
 from farfield.core.errors import CellLimitError
 from farfield.core.render.context import gl_context
-from farfield.core.techniques import ldi
-from farfield.core.techniques.points import technique as points
-from farfield.core.techniques.tdm import technique as tdm
+from farfield.core.techniques import warm_techniques
 from farfield.service.blobs import BlobStore, blob_store
 from farfield.service.cell_limits import PLANNING, MemoryGuard, hard_time_limit_message, memory_limit_message, time_limit_message
 from farfield.service.cell_runner import BAD_INPUT, TRANSIENT, RetryCell, backoff, failure_class, failure_message, run_cell
@@ -73,11 +71,11 @@ log = logging.getLogger("farfield.worker")
 
 @worker_init.connect
 def warm_worker(**_) -> None:
-    """Compile the TDM's, the point impostors' and the recording's numba kernels in the worker's main process, before its pool processes fork
+    """Compile every registered technique's numba kernels (:meth:`farfield.core.techniques.base.Technique.warm`) in the worker's main process, before its pool processes fork
     (they inherit them): the first cell a worker bakes does not pay the compilation.  A failure
     here is logged and left to the first bake to meet again."""
     try:
-        log.info("numba kernels ready in %.1f s", tdm.warm_kernels() + points.warm_kernels() + ldi.warm_kernels() + recording.warm_kernels())
+        log.info("numba kernels ready in %.1f s", warm_techniques())
     except Exception:  # noqa: BLE001 - a bake reports the same failure with its cell
         log.exception("could not warm the numba kernels")
 

@@ -483,8 +483,11 @@ def _page_entries(manifest: dict, path: Path) -> list[tuple[str, int, int]]:
 
 
 def _payload_v1(manifest: dict, path: Path):
-    """A version 1 manifest's ``quads``: a quad payload, or for a TDM (whose triangles were quads
-    with the fourth corner repeating the third) the mesh payload of those triangles."""
+    """A version 1 manifest's ``quads``: a quad payload, or for a technique that bakes meshes (the
+    TDM, whose triangles were quads with the fourth corner repeating the third) the mesh payload of
+    those triangles."""
+    from farfield.core.techniques import TECHNIQUES  # here: only a version 1 bundle needs the registry (it imports every technique)
+
     count = _field(manifest, path, "quads", "count")
     if isinstance(count, bool) or not isinstance(count, int) or count < 0:
         raise BundleFormatError(f"{path}: quads.count is {count!r}, expected a count")
@@ -493,7 +496,7 @@ def _payload_v1(manifest: dict, path: Path):
     page = _array(manifest, path, (count,), np.int64, "quads", "page")
     layer = _array(manifest, path, (count,), np.int64, "quads", "layer")
     if (
-        manifest.get("technique") == "tdm"
+        getattr(TECHNIQUES.get(manifest.get("technique")), "payload_kind", None) == MeshPayload.kind
         and np.array_equal(corners[:, 3], corners[:, 2])
         and np.array_equal(uv[:, 3], uv[:, 2])
     ):

@@ -45,14 +45,16 @@ from __future__ import annotations
 import io
 import json
 import struct
+from collections.abc import Iterable
+from dataclasses import dataclass
 
 import numpy as np
 from PIL import Image
 
 from farfield.core.colour_space import srgb_to_linear
-from farfield.core.impostor.impostor import Impostor, LdiPayload, MeshPayload, PointPayload, QuadPayload, check_impostor
+from farfield.core.impostor.impostor import Impostor, MeshPayload, PointPayload, QuadPayload, check_impostor
 
-__all__ = ["engine_metadata", "impostor_glb", "page_png", "write_glb"]
+__all__ = ["GlbBuilder", "GlbParts", "engine_metadata", "impostor_glb", "page_png", "write_glb"]
 
 _MAGIC = 0x46546C67  # "glTF"
 _VERSION = 2
@@ -196,15 +198,6 @@ def _face_viewpoint(positions: np.ndarray, indices: np.ndarray) -> np.ndarray:
     return triangles.reshape(-1)
 
 
-def _page_geometry(payload, viewpoint: np.ndarray, page_count: int):
-    """The payload's drawn triangles per page, dispatched on its kind."""
-    if isinstance(payload, QuadPayload):
-        return _quad_pages(payload, viewpoint, page_count)
-    if isinstance(payload, MeshPayload):
-        return _mesh_pages(payload, viewpoint, page_count)
-    raise TypeError(f"no GLB writer for a {payload.kind!r} payload")
-
-
 def _point_primitive(payload: PointPayload, viewpoint: np.ndarray, binary: _Bin, accessors: list[dict]) -> dict:
     """The one ``POINTS`` primitive of a point impostor (material 0, unlit): POSITION (float32,
     relative to the node's translation), ``COLOR_0`` (float32 linear RGB, glTF's rule: the
@@ -241,12 +234,110 @@ def _point_primitive(payload: PointPayload, viewpoint: np.ndarray, binary: _Bin,
     }  # fmt: skip
 
 
-def _points_glb_parts(impostor: Impostor, viewpoint: np.ndarray, binary: _Bin, accessors: list[dict]) -> tuple[list[dict], list[dict]]:
-    """(primitives, materials) of a point impostor: one POINTS primitive, one unlit opaque material."""
-    material = {"name": "points", "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0}, "extensions": {_UNLIT: {}}}
-    if impostor.payload.count == 0:
-        return [], [material]
-    return [_point_primitive(impostor.payload, viewpoint, binary, accessors)], [material]
+@dataclass(frozen=True)
+class GlbParts:
+    """A payload's part of its impostor's GLB (:meth:`farfield.core.impostor.impostor.Payload.glb_parts`):
+    the mesh's ``primitives``, the ``materials``, the ``images`` (glTF image objects, their PNGs in
+    the BIN chunk already) and the ``extensions`` it uses beside ``KHR_materials_unlit``."""
+
+    primitives: list[dict]
+    materials: list[dict]
+    images: list[dict]
+    extensions: tuple[str, ...] = ()
+
+
+def _page_material(index: int) -> dict:
+    """The material of atlas page ``index``: its texture, unlit, alpha-cut at 0.5, double-sided."""
+    return {
+        "name": f"atlas-{index:03d}",
+        "pbrMetallicRoughness": {
+            "baseColorFactor": [1.0, 1.0, 1.0, 1.0],
+            "baseColorTexture": {"index": index, "texCoord": 0},
+            "metallicFactor": 0.0,
+            "roughnessFactor": 1.0,
+        },
+        "alphaMode": "MASK",
+        "alphaCutoff": 0.5,
+        "doubleSided": True,
+        "extensions": {_UNLIT: {}},
+    }
+
+
+_POINTS_MATERIAL = {"name": "points", "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0}, "extensions": {_UNLIT: {}}}
+
+
+class GlbBuilder:
+    """The GLB being written: the BIN chunk, the accessors, and the helpers a payload builds its
+    :class:`GlbParts` with (:meth:`textured` for textured triangles per page, :meth:`points` for a
+    point impostor).  Positions are float32 relative to ``viewpoint`` (the node's translation)."""
+
+    def __init__(self, viewpoint: np.ndarray) -> None:
+        self.viewpoint = np.asarray(viewpoint, dtype=np.float64)
+        self.binary = _Bin()
+        self.accessors: list[dict] = []
+
+    def quad_pages(self, payload: QuadPayload, page_count: int):
+        """Per page with quads: (page, float32 positions, float32 UVs, indices), vertices welded."""
+        return _quad_pages(payload, self.viewpoint, page_count)
+
+    def mesh_pages(self, payload: MeshPayload, page_count: int):
+        """Per page with triangles: (page, float32 positions, float32 UVs, indices)."""
+        return _mesh_pages(payload, self.viewpoint, page_count)
+
+    def images(self, pages) -> list[dict]:
+        """Each page's PNG in the BIN chunk, as glTF images in page order."""
+        return [
+            {"bufferView": self.binary.add(page_png(page)), "mimeType": "image/png", "name": f"atlas-{index:03d}"}
+            for index, page in enumerate(pages)
+        ]
+
+    def textured(self, page_geometry: Iterable, pages) -> GlbParts:
+        """One ``TRIANGLES`` primitive per item of ``page_geometry`` ((page, positions, UVs, indices),
+        each triangle turned to face the viewpoint), then every page of ``pages`` as an image and a material."""
+        primitives = []
+        for page, positions, texcoords, indices in page_geometry:
+            indices = _face_viewpoint(positions, indices)
+            vertex_count = positions.shape[0]
+            index_dtype, component = (
+                ("<u2", _UNSIGNED_SHORT) if vertex_count < _MAX_UINT16_VERTICES else ("<u4", _UNSIGNED_INT)
+            )
+            base = len(self.accessors)
+            self.accessors.append({
+                "bufferView": self.binary.add(indices.astype(index_dtype).tobytes(), _ELEMENT_ARRAY_BUFFER),
+                "componentType": component,
+                "count": int(indices.size),
+                "type": "SCALAR",
+            })
+            self.accessors.append({
+                "bufferView": self.binary.add(positions.tobytes(), _ARRAY_BUFFER),
+                "componentType": _FLOAT,
+                "count": int(vertex_count),
+                "type": "VEC3",
+                # float32 values widened exactly to float64, so min/max equal the stored data.
+                "min": [float(x) for x in positions.min(axis=0)],
+                "max": [float(x) for x in positions.max(axis=0)],
+            })
+            self.accessors.append({
+                "bufferView": self.binary.add(texcoords.tobytes(), _ARRAY_BUFFER),
+                "componentType": _FLOAT,
+                "count": int(vertex_count),
+                "type": "VEC2",
+            })
+            primitives.append({
+                "attributes": {"POSITION": base + 1, "TEXCOORD_0": base + 2},
+                "indices": base,
+                "material": page,
+                "mode": _TRIANGLES,
+            })
+        images = self.images(pages)
+        return GlbParts(primitives, [_page_material(index) for index in range(len(pages))], images)
+
+    def points(self, payload: PointPayload, pages) -> GlbParts:
+        """A point impostor: every page as an image (the directional colours' tiles), then one
+        ``POINTS`` primitive (none without points, :func:`_point_primitive`) and one unlit opaque material."""
+        images = self.images(pages)
+        primitives = [_point_primitive(payload, self.viewpoint, self.binary, self.accessors)] if payload.count else []
+        return GlbParts(primitives, [json.loads(json.dumps(_POINTS_MATERIAL))], images, (POINT_APPEARANCE,))
 
 
 def engine_metadata(impostor: Impostor) -> dict:
@@ -302,76 +393,10 @@ def impostor_glb(impostor: Impostor) -> bytes:
     """
     check_impostor(impostor)
     viewpoint = np.asarray(impostor.reference_viewpoint, dtype=np.float64)
-
-    binary = _Bin()
-    accessors: list[dict] = []
-    primitives: list[dict] = []
-    shown = impostor.pages
-    if isinstance(impostor.payload, LdiPayload):  # the fallback: the first layer's colour on the image quad (farfield.core.ldi.pages)
-        shown = impostor.pages[:1]
-        quad = QuadPayload(impostor.payload.quad[None], np.array([[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]]), np.zeros(1, np.int64), np.zeros(1, np.int64))
-        pages = _page_geometry(quad, viewpoint, len(shown)) if shown else ()
-    else:
-        pages = () if isinstance(impostor.payload, PointPayload) else _page_geometry(impostor.payload, viewpoint, len(impostor.pages))
-    for page, positions, texcoords, indices in pages:
-        indices = _face_viewpoint(positions, indices)
-        vertex_count = positions.shape[0]
-        index_dtype, component = (
-            ("<u2", _UNSIGNED_SHORT) if vertex_count < _MAX_UINT16_VERTICES else ("<u4", _UNSIGNED_INT)
-        )
-        base = len(accessors)
-        accessors.append({
-            "bufferView": binary.add(indices.astype(index_dtype).tobytes(), _ELEMENT_ARRAY_BUFFER),
-            "componentType": component,
-            "count": int(indices.size),
-            "type": "SCALAR",
-        })
-        accessors.append({
-            "bufferView": binary.add(positions.tobytes(), _ARRAY_BUFFER),
-            "componentType": _FLOAT,
-            "count": int(vertex_count),
-            "type": "VEC3",
-            # float32 values widened exactly to float64, so min/max equal the stored data.
-            "min": [float(x) for x in positions.min(axis=0)],
-            "max": [float(x) for x in positions.max(axis=0)],
-        })
-        accessors.append({
-            "bufferView": binary.add(texcoords.tobytes(), _ARRAY_BUFFER),
-            "componentType": _FLOAT,
-            "count": int(vertex_count),
-            "type": "VEC2",
-        })
-        primitives.append({
-            "attributes": {"POSITION": base + 1, "TEXCOORD_0": base + 2},
-            "indices": base,
-            "material": page,
-            "mode": _TRIANGLES,
-        })
-
-    images = [
-        {"bufferView": binary.add(page_png(page)), "mimeType": "image/png", "name": f"atlas-{index:03d}"}
-        for index, page in enumerate(shown)
-    ]
-    materials = [
-        {
-            "name": f"atlas-{index:03d}",
-            "pbrMetallicRoughness": {
-                "baseColorFactor": [1.0, 1.0, 1.0, 1.0],
-                "baseColorTexture": {"index": index, "texCoord": 0},
-                "metallicFactor": 0.0,
-                "roughnessFactor": 1.0,
-            },
-            "alphaMode": "MASK",
-            "alphaCutoff": 0.5,
-            "doubleSided": True,
-            "extensions": {_UNLIT: {}},
-        }
-        for index in range(len(shown))
-    ]
-    extensions = [_UNLIT]
-    if isinstance(impostor.payload, PointPayload):
-        primitives, materials = _points_glb_parts(impostor, viewpoint, binary, accessors)
-        extensions.append(POINT_APPEARANCE)
+    glb = GlbBuilder(viewpoint)
+    parts = impostor.payload.glb_parts(impostor, glb)  # the payload's kind decides what it writes
+    primitives, materials, images, accessors, binary = parts.primitives, parts.materials, parts.images, glb.accessors, glb.binary
+    extensions = [_UNLIT, *parts.extensions]
     node: dict = {"name": "impostor", "translation": [float(x) for x in viewpoint], "extras": {"farfield": engine_metadata(impostor)}}
     document: dict = {
         "asset": {"version": "2.0", "generator": f"farfield {impostor.code_version}".rstrip()},

@@ -22,9 +22,20 @@ never on the technique's name:
     depth page each (:mod:`farfield.core.ldi.pages`), so that a runtime can splat its samples or warp them in
     occlusion-compatible order.
 
-Frame atlases (billboards) get a payload kind of their own when that technique is built: a frozen dataclass with the same members (``kind``, ``ARRAYS``,
-``triangle_count``, ``arrays()``, ``from_arrays()``, ``check()``, ``world_points()``), registered in
-:data:`PAYLOAD_KINDS`, is all the bundle format needs.
+A payload draws and writes itself (:class:`Payload`): besides its arrays (``kind``, ``ARRAYS``,
+``arrays()``, ``from_arrays()``, ``check()``, ``world_points()``) and figures (``count``,
+``triangle_count``, ``quad_count``, ``point_count``, ``counts()``), each kind gives
+
+* ``glb_parts(impostor, glb)``: its part of the impostor's GLB (primitives, materials, the pages shown
+  as images, extensions), built with the writer's helpers (:class:`farfield.core.impostor.glb.GlbBuilder`);
+* ``renderer(impostor)``: the renderer that draws it as its runtime does, for the evaluation and the
+  comparison (:func:`farfield.core.quality.evaluation.impostor_renderer`);
+* ``draw_objects(impostor)``: its runtime draw list, textured alpha-cut triangle objects, one per
+  atlas page with geometry (the placement and environment-map runtimes draw these), or None
+  when it is not drawn as triangles.
+
+A new payload kind (frame atlases, say) is a frozen dataclass with these members registered with
+:func:`register_payload_kind`: the bundle, GLB, evaluation and runtimes then take it as it is.
 
 Conventions:
 
@@ -45,7 +56,9 @@ Conventions:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import ClassVar, Union
+from typing import Any, ClassVar, Protocol, runtime_checkable
+
+import math
 
 import numpy as np
 
@@ -97,8 +110,65 @@ def _check_arrays(payload, page_count: int) -> dict[str, int]:
     return sizes
 
 
+class _PayloadBase:
+    """What the payload kinds share: their arrays by name, and the defaults of the members a kind
+    without quads, points or triangles to draw leaves alone."""
+
+    __slots__ = ()
+    ARRAYS: ClassVar[tuple]
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray]):
+        return cls(**{name: arrays[name] for name, _, _ in cls.ARRAYS})
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The payload's arrays by name, in the bundle's order."""
+        return {name: getattr(self, name) for name, _, _ in self.ARRAYS}
+
+    @property
+    def quad_count(self) -> int:
+        """Quads drawn (a quad payload's); 0 for other kinds."""
+        return 0
+
+    @property
+    def point_count(self) -> int:
+        """Points or samples drawn one by one (not as triangles); 0 for triangle kinds."""
+        return 0
+
+    def check_pages(self, pages: tuple[np.ndarray, ...]) -> None:
+        """Raise :class:`BundleFormatError` unless what the payload reads of the pages themselves
+        (their sizes) fits; :meth:`check` has seen their count.  Nothing to check by default."""
+
+    def draw_objects(self, impostor: Impostor) -> list | None:
+        """The runtime's draw list (textured triangle objects); None: not drawn as triangles."""
+        return None
+
+
+def _page_objects(impostor: Impostor, page_triangles) -> list:
+    """Textured alpha-cut (0.5) objects, one per atlas page with geometry: ``page_triangles(selected)``
+    gives the (vertices, faces, uv in glTF's convention) of the payload's elements ``selected`` on a page."""
+    from farfield.core.scene import SceneObject
+
+    payload = impostor.payload
+    objects = []
+    for page_index, page in enumerate(impostor.pages):
+        sel = np.flatnonzero(payload.page == page_index)
+        if sel.size == 0:
+            continue
+        vertices, faces, uv = page_triangles(sel)
+        uv[:, 1] = 1.0 - uv[:, 1]  # glTF (top-left origin) -> scene convention (bottom-left)
+        objects.append(SceneObject(name=f"page{page_index}", vertices=vertices, faces=faces, uv=uv, texture=page, alpha_cutoff=0.5))
+    return objects
+
+
+def _mesh_renderer(objects: list):
+    from farfield.core.render.raster import MeshRenderer
+
+    return MeshRenderer(objects)
+
+
 @dataclass(frozen=True, slots=True)
-class QuadPayload:
+class QuadPayload(_PayloadBase):
     """Textured quads: world corners TL, TR, BR, BL of each quad's texel rectangle (module docstring).
 
     >>> p = QuadPayload.empty()
@@ -127,10 +197,6 @@ class QuadPayload:
     def empty(cls) -> QuadPayload:
         return cls(np.zeros((0, 4, 3)), np.zeros((0, 4, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64))
 
-    @classmethod
-    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> QuadPayload:
-        return cls(**{name: arrays[name] for name, _, _ in cls.ARRAYS})
-
     @property
     def count(self) -> int:
         """Quads."""
@@ -144,9 +210,9 @@ class QuadPayload:
     def counts(self) -> dict[str, int]:
         return {"quads": self.count}
 
-    def arrays(self) -> dict[str, np.ndarray]:
-        """The payload's arrays by name, in the bundle's order."""
-        return {name: getattr(self, name) for name, _, _ in self.ARRAYS}
+    @property
+    def quad_count(self) -> int:
+        return self.count
 
     def world_points(self) -> np.ndarray:
         """(4q, 3) float64 every corner, world metres."""
@@ -156,9 +222,27 @@ class QuadPayload:
         """Raise :class:`BundleFormatError` unless the arrays fit (shapes, dtypes, finite, pages in range)."""
         _check_arrays(self, page_count)
 
+    def glb_parts(self, impostor: Impostor, glb) -> Any:
+        """Per page with quads one primitive of two triangles per quad, every page an image and a material."""
+        return glb.textured(glb.quad_pages(self, len(impostor.pages)), impostor.pages)
+
+    def draw_objects(self, impostor: Impostor) -> list:
+        """A page's quads as two triangles each, one after the other (corners 0, 1, 2 and 0, 2, 3)."""
+
+        def triangles(sel: np.ndarray):
+            base = 4 * np.arange(sel.size, dtype=np.int64)[:, None]
+            faces = np.concatenate([base + [0, 1, 2], base + [0, 2, 3]], axis=1).reshape(-1, 3)  # a quad's two together
+            return self.corners[sel].reshape(-1, 3), faces, self.uv[sel].reshape(-1, 2).copy()
+
+        return _page_objects(impostor, triangles)
+
+    def renderer(self, impostor: Impostor):
+        """A :class:`farfield.core.render.raster.MeshRenderer` of :meth:`draw_objects`."""
+        return _mesh_renderer(self.draw_objects(impostor))
+
 
 @dataclass(frozen=True, slots=True)
-class MeshPayload:
+class MeshPayload(_PayloadBase):
     """An indexed textured triangle mesh (a textured depth mesh's triangles, seed 003).
 
     A vertex is a (position, UV) pair: a position shared by triangles of two texture charts is two
@@ -197,10 +281,6 @@ class MeshPayload:
         return cls(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64))
 
     @classmethod
-    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> MeshPayload:
-        return cls(**{name: arrays[name] for name, _, _ in cls.ARRAYS})
-
-    @classmethod
     def from_triangle_corners(cls, corners, uv, page, mesh) -> MeshPayload:
         """The mesh of triangles given by their corners (t, 3, 3) float64 world and corner UVs
         (t, 3, 2), with ``page`` and ``mesh`` (t,) per triangle.
@@ -237,10 +317,6 @@ class MeshPayload:
     def counts(self) -> dict[str, int]:
         return {"vertices": int(self.vertices.shape[0]) if self.vertices.ndim else 0, "triangles": self.count}
 
-    def arrays(self) -> dict[str, np.ndarray]:
-        """The payload's arrays by name, in the bundle's order."""
-        return {name: getattr(self, name) for name, _, _ in self.ARRAYS}
-
     def world_points(self) -> np.ndarray:
         """(v, 3) float64 every vertex, world metres."""
         return self.vertices.reshape(-1, 3)
@@ -252,6 +328,23 @@ class MeshPayload:
     def triangle_uv(self) -> np.ndarray:
         """(t, 3, 2) float64 corner UVs of each triangle."""
         return self.uv[self.triangles]
+
+    def glb_parts(self, impostor: Impostor, glb) -> Any:
+        """Per page with triangles one primitive of its indexed triangles, every page an image and a material."""
+        return glb.textured(glb.mesh_pages(self, len(impostor.pages)), impostor.pages)
+
+    def draw_objects(self, impostor: Impostor) -> list:
+        """A page's triangles in payload order, with the vertices they use."""
+
+        def triangles(sel: np.ndarray):
+            used, faces = np.unique(self.triangles[sel], return_inverse=True)
+            return self.vertices[used], faces.reshape(-1, 3), self.uv[used].copy()
+
+        return _page_objects(impostor, triangles)
+
+    def renderer(self, impostor: Impostor):
+        """A :class:`farfield.core.render.raster.MeshRenderer` of :meth:`draw_objects`."""
+        return _mesh_renderer(self.draw_objects(impostor))
 
     def check(self, page_count: int) -> None:
         """Raise :class:`BundleFormatError` unless the arrays fit (shapes, dtypes, finite, pages and
@@ -265,7 +358,7 @@ class MeshPayload:
 
 
 @dataclass(frozen=True, slots=True)
-class PointPayload:
+class PointPayload(_PayloadBase):
     """Points with directional colours (seed 001 §5.3): ``positions`` (n, 3) float64 world;
     ``colour`` (n, 4) int64 sRGB bytes (alpha: the share of a pixel the part covers there), a
     point's only colour when ``page`` is -1 and its preview colour otherwise; ``page`` (n,) int64 the atlas page of its tile (-1: one colour); ``texel``
@@ -311,10 +404,6 @@ class PointPayload:
         return cls(np.zeros((0, 3)), np.zeros((0, 4), np.int64), np.zeros(0, np.int64), np.zeros((0, 2), np.int64),
                    np.array([8, 2]), np.array([0.0, 0.0, 1.0, 0.0]), np.eye(3)[:2], np.array([[0.0, 0.0], [1.0, 1.0]]))  # fmt: skip
 
-    @classmethod
-    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> PointPayload:
-        return cls(**{name: arrays[name] for name, _, _ in cls.ARRAYS})
-
     @property
     def count(self) -> int:
         """Points."""
@@ -327,10 +416,6 @@ class PointPayload:
 
     def counts(self) -> dict[str, int]:
         return {"points": self.count, "textured": int((self.page >= 0).sum())}
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        """The payload's arrays by name, in the bundle's order."""
-        return {name: getattr(self, name) for name, _, _ in self.ARRAYS}
 
     def world_points(self) -> np.ndarray:
         """(n, 3) float64 every point, world metres."""
@@ -352,9 +437,39 @@ class PointPayload:
         if textured.any() and self.texel[textured].min() < 0:
             raise BundleFormatError("points payload: a textured point's texel must be >= 0")
 
+    @property
+    def point_count(self) -> int:
+        return self.count
+
+    def check_pages(self, pages: tuple[np.ndarray, ...]) -> None:
+        """Every tile inside its page."""
+        textured = self.page >= 0
+        if self.count and textured.any():
+            shapes = np.array([page.shape[1::-1] for page in pages], dtype=np.int64)  # (width, height)
+            beyond = self.texel[textured] + self.tile > shapes[self.page[textured]]
+            if beyond.any():
+                raise BundleFormatError(f"points payload: {int(beyond.any(axis=1).sum())} tiles reach beyond their page")
+
+    def appearance(self, pages: tuple[np.ndarray, ...]):
+        """The :class:`farfield.core.render.points.Appearance` of these points' tiles in ``pages``."""
+        from farfield.core.render.points import Appearance
+
+        return Appearance(pages, self.page, self.texel, (int(self.tile[0]), int(self.tile[1])), self.plane[:3], float(self.plane[3]), self.axes[0], self.axes[1], self.rectangle[0], self.rectangle[1])
+
+    def glb_parts(self, impostor: Impostor, glb) -> Any:
+        """One ``POINTS`` primitive with one unlit material; every page an image for the
+        directional colours (:data:`farfield.core.impostor.glb.POINT_APPEARANCE`)."""
+        return glb.points(self, impostor.pages)
+
+    def renderer(self, impostor: Impostor):
+        """A :class:`farfield.core.render.points.PointRenderer`: the points with their directional colours at the baked resolution's pixels."""
+        from farfield.core.render.points import PointRenderer
+
+        return PointRenderer(self.positions, self.colour.astype(np.uint8), self.appearance(impostor.pages), grid=(impostor.resolution, math.radians(impostor.fov_deg)))
+
 
 @dataclass(frozen=True, slots=True)
-class LdiPayload:
+class LdiPayload(_PayloadBase):
     """A layered depth image (seed 004 §4) whose layers are the impostor's pages, two per layer
     (colour, then float32 depth as bytes: :mod:`farfield.core.ldi.pages`).  The payload is the LDI's camera:
     ``eye`` (3,), ``axes`` (3, 3) right, up, forward, ``window`` (5,) (tan of the half field of
@@ -390,10 +505,6 @@ class LdiPayload:
     def empty(cls) -> LdiPayload:
         return cls(np.zeros(3), np.eye(3), np.array([1.0, 0.0, 0.0, 1.0, 2.0]), np.array([1, 0, 0]), np.array([[-1.0, 1, 1], [1, 1, 1], [1, -1, 1], [-1, -1, 1]]))
 
-    @classmethod
-    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> LdiPayload:
-        return cls(**{name: arrays[name] for name, _, _ in cls.ARRAYS})
-
     @property
     def count(self) -> int:
         """Samples."""
@@ -406,10 +517,6 @@ class LdiPayload:
 
     def counts(self) -> dict[str, int]:
         return {"samples": self.count, "layers": int(self.size[1])}
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        """The payload's arrays by name, in the bundle's order."""
-        return {name: getattr(self, name) for name, _, _ in self.ARRAYS}
 
     def world_points(self) -> np.ndarray:
         """(4, 3) float64 the image quad's corners, world metres (the samples lie behind it, in the pages)."""
@@ -426,11 +533,69 @@ class LdiPayload:
         if self.size[0] < 1 or self.size[1] < 0 or self.size[2] < 0 or page_count != 2 * self.size[1]:
             raise BundleFormatError(f"ldi payload: {int(self.size[1])} layers need {2 * int(self.size[1])} pages, got {page_count}")
 
+    @property
+    def point_count(self) -> int:
+        return self.count
 
-Payload = Union[QuadPayload, MeshPayload, PointPayload, LdiPayload]
+    def glb_parts(self, impostor: Impostor, glb) -> Any:
+        """The fallback a glTF viewer shows: the first layer's colour page on the image quad
+        (:mod:`farfield.core.ldi.pages`); the samples stay in the bundle."""
+        shown = impostor.pages[:1]
+        quad = QuadPayload(self.quad[None], np.array([[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]]), np.zeros(1, np.int64), np.zeros(1, np.int64))
+        return glb.textured(glb.quad_pages(quad, len(shown)) if shown else (), shown)
+
+    def renderer(self, impostor: Impostor):
+        """A :class:`farfield.core.render.splats.SplatRenderer` of the LDI's samples."""
+        from farfield.core.ldi.pages import ldi_of
+        from farfield.core.render.splats import SplatRenderer
+
+        return SplatRenderer([], [ldi_of(impostor)])
+
+
+@runtime_checkable
+class Payload(Protocol):
+    """What every consumer asks of a payload (the module docstring); the four kinds above have it."""
+
+    kind: ClassVar[str]
+    ARRAYS: ClassVar[tuple]
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> Payload: ...
+    def arrays(self) -> dict[str, np.ndarray]: ...
+    def check(self, page_count: int) -> None: ...
+    def check_pages(self, pages: tuple[np.ndarray, ...]) -> None: ...
+    def world_points(self) -> np.ndarray: ...
+    def counts(self) -> dict[str, int]: ...
+    @property
+    def count(self) -> int: ...
+    @property
+    def triangle_count(self) -> int: ...
+    @property
+    def quad_count(self) -> int: ...
+    @property
+    def point_count(self) -> int: ...
+    def glb_parts(self, impostor: Impostor, glb) -> Any:
+        """Its part of the impostor's GLB: a :class:`farfield.core.impostor.glb.GlbParts` built with ``glb``'s helpers."""
+    def renderer(self, impostor: Impostor) -> Any:
+        """A renderer (``render(camera)``, ``release()``, a context manager) that draws it as its runtime does."""
+    def draw_objects(self, impostor: Impostor) -> list | None:
+        """Its runtime draw list: textured triangle objects, or None when it is not drawn as triangles."""
+
 
 # Payload kind -> class: what the bundle reader builds from a manifest's ``payload.kind``.
-PAYLOAD_KINDS: dict[str, type] = {cls.kind: cls for cls in (QuadPayload, MeshPayload, PointPayload, LdiPayload)}
+PAYLOAD_KINDS: dict[str, type] = {}
+
+
+def register_payload_kind(cls: type) -> type:
+    """Add a payload class to :data:`PAYLOAD_KINDS` under its ``kind`` (refusing a kind taken); returns it."""
+    if cls.kind in PAYLOAD_KINDS:
+        raise ValueError(f"a payload kind {cls.kind!r} is registered already")
+    PAYLOAD_KINDS[cls.kind] = cls
+    return cls
+
+
+for _cls in (QuadPayload, MeshPayload, PointPayload, LdiPayload):
+    register_payload_kind(_cls)
 
 
 @dataclass(frozen=True, slots=True)
@@ -452,7 +617,7 @@ class Impostor:
     @property
     def quad_count(self) -> int:
         """Quads of a quad payload; 0 for any other payload."""
-        return self.payload.count if isinstance(self.payload, QuadPayload) else 0
+        return self.payload.quad_count
 
     @property
     def triangle_count(self) -> int:
@@ -551,10 +716,4 @@ def check_impostor(impostor: Impostor) -> None:
     if PAYLOAD_KINDS.get(getattr(payload, "kind", None)) is not type(payload):
         raise BundleFormatError(f"payload is a {type(payload).__name__}, expected one of {sorted(PAYLOAD_KINDS)}")
     payload.check(len(impostor.pages))
-    if isinstance(payload, PointPayload) and payload.count:  # every tile inside its page
-        textured = payload.page >= 0
-        if textured.any():
-            shapes = np.array([page.shape[1::-1] for page in impostor.pages], dtype=np.int64)  # (width, height)
-            beyond = payload.texel[textured] + payload.tile > shapes[payload.page[textured]]
-            if beyond.any():
-                raise BundleFormatError(f"points payload: {int(beyond.any(axis=1).sum())} tiles reach beyond their page")
+    payload.check_pages(impostor.pages)

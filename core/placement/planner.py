@@ -82,8 +82,8 @@ def check_placeable(technique) -> None:
     if technique.scope == "scene":
         raise PlacementError(f"technique {technique.name!r} cannot be placed: it replaces the whole scene around its cell; use a part technique (layered, tdm)")
     why = "has no memory and frame-time estimate for the frame-time planner"
-    if technique.name == "ldi":
-        why += "; layered depth images are placed by the primitive-budget algorithm (algorithm primitive-budget, a primitives budget)"
+    if technique.placement:  # what places it instead
+        why += f"; {technique.placement}"
     raise PlacementError(f"technique {technique.name!r} {why}; for a frame budget use layered or tdm")
 
 

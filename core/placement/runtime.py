@@ -6,8 +6,8 @@ view-direction interval), draws the impostors chosen for it and, as geometry, th
 scene.  Here every *element* of the placement (a scene object, or a cluster ``name#k`` of a split
 object, :class:`farfield.core.placement.hierarchy.Elements`) is its own draw call, so that what an
 impostor replaces is exactly what is left out; each impostor bundle is read and uploaded once,
-when a view first needs it, and drawn as its technique's payload is drawn everywhere else
-(:func:`farfield.core.quality.evaluation.impostor_objects`: quads or meshes textured from the atlas pages).
+when a view first needs it, and drawn as its payload draws itself everywhere else
+(:meth:`farfield.core.impostor.impostor.Payload.draw_objects`: quads or meshes textured from the atlas pages).
 
 Frustum culling is conservative: an element (or impostor) is left out only when every corner of
 its bounding box lies outside one of the camera's four side planes, or behind the eye; no far
@@ -31,7 +31,6 @@ from typing import Self
 import numpy as np
 
 from farfield.core.techniques.envmap.runtime import camera_at
-from farfield.core.quality.evaluation import impostor_objects
 from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.placement.cost_model import CostModel
 from farfield.core.placement.hierarchy import Elements, PlacementError
@@ -39,10 +38,6 @@ from farfield.core.placement.view_space import element_pixels
 from farfield.core.render.raster import Camera, MeshRenderer
 from farfield.core.scene import Scene
 from farfield.core.viewcells import box_corners
-
-# Drawers by payload kind: every payload the techniques bake is drawn as textured triangles.
-DRAWERS = {"quads": impostor_objects, "mesh": impostor_objects}
-
 
 def placement_section(database: ImpostorDatabase) -> dict:
     """The ``placement`` section of a placement database's index (PlacementError when it has none)."""
@@ -162,10 +157,10 @@ class PlacementRenderer:
         read and uploaded once."""
         if cell not in self._impostors:
             impostor = self.database.impostor(cell)
-            drawer = DRAWERS.get(impostor.payload.kind)
-            if drawer is None:
+            objects = impostor.payload.draw_objects(impostor)  # the payload's runtime draw list
+            if objects is None:
                 raise PlacementError(f"impostor {cell}: no drawer for a {impostor.payload.kind!r} payload ({impostor.technique})")
-            renderer = MeshRenderer(drawer(impostor))
+            renderer = MeshRenderer(objects)
             points = impostor.payload.world_points().reshape(-1, 3)
             if points.size:
                 lo, hi = points.min(axis=0), points.max(axis=0)

@@ -78,7 +78,7 @@ class Candidate:
             colour_error_mean=float(totals["colour_error_mean"]),
             colour_error_p99=float(totals["colour_error_p99"]),
             ssim=float(totals["ssim"]),
-            points=impostor.payload.count if impostor.payload.kind in ("points", "ldi") else 0,
+            points=impostor.payload.point_count,
         )
 
     def to_dict(self) -> dict:

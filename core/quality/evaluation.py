@@ -74,60 +74,38 @@ import numpy as np
 from skimage.metrics import structural_similarity
 
 from farfield.core.colour_space import linear_to_srgb, srgb_to_linear
-from farfield.core.impostor.impostor import Impostor, LdiPayload, MeshPayload, PointPayload, QuadPayload
-from farfield.core.render.points import Appearance, PointRenderer
+from farfield.core.impostor.impostor import Impostor
+from farfield.core.render.points import Appearance
 from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
-from farfield.core.render.splats import SplatRenderer
-from farfield.core.ldi.pages import ldi_of
 from farfield.core.scene import Scene, SceneObject
 from farfield.core.viewcells import BoxCell, ShaftCell, ViewCell, box_corners
 
 
 def impostor_objects(impostor: Impostor) -> list[SceneObject]:
-    """The impostor as drawable objects, alpha-cut at 0.5: one per atlas page with geometry.
+    """The impostor as drawable objects, alpha-cut at 0.5: one per atlas page with geometry
+    (its payload's :meth:`~farfield.core.impostor.impostor.Payload.draw_objects`).
 
     A quad payload gives two triangles per quad, one after the other; a mesh payload its triangles, with the vertices
-    they use.  Either way a page's triangles are drawn in payload order.
+    they use.  Either way a page's triangles are drawn in payload order.  TypeError for a payload
+    that is not drawn as triangles (points, LDI samples).
     """
-    payload = impostor.payload
-    objects = []
-    for page_index, page in enumerate(impostor.pages):
-        sel = np.flatnonzero(payload.page == page_index)
-        if sel.size == 0:
-            continue
-        if isinstance(payload, QuadPayload):
-            vertices = payload.corners[sel].reshape(-1, 3)
-            uv = payload.uv[sel].reshape(-1, 2).copy()
-            base = 4 * np.arange(sel.size, dtype=np.int64)[:, None]
-            faces = np.concatenate([base + [0, 1, 2], base + [0, 2, 3]], axis=1).reshape(-1, 3)  # a quad's two together
-        elif isinstance(payload, MeshPayload):
-            used, faces = np.unique(payload.triangles[sel], return_inverse=True)
-            faces = faces.reshape(-1, 3)
-            vertices = payload.vertices[used]
-            uv = payload.uv[used].copy()
-        else:
-            raise TypeError(f"no renderer for a {payload.kind!r} payload")
-        uv[:, 1] = 1.0 - uv[:, 1]  # glTF (top-left origin) -> scene convention (bottom-left)
-        objects.append(SceneObject(name=f"page{page_index}", vertices=vertices, faces=faces, uv=uv, texture=page, alpha_cutoff=0.5))
+    objects = impostor.payload.draw_objects(impostor)
+    if objects is None:
+        raise TypeError(f"no renderer for a {impostor.payload.kind!r} payload")
     return objects
 
 
 def impostor_renderer(impostor: Impostor) -> MeshRenderer:
-    """The renderer that draws ``impostor`` as its runtime does: its textured triangles
+    """The renderer that draws ``impostor`` as its runtime does, its payload's
+    (:meth:`~farfield.core.impostor.impostor.Payload.renderer`): its textured triangles
     (:func:`impostor_objects`), an LDI's samples as splats (:class:`farfield.core.render.splats.SplatRenderer`), or its points with their directional colours at the baked
     resolution's pixels (:class:`farfield.core.render.points.PointRenderer`)."""
-    payload = impostor.payload
-    if isinstance(payload, LdiPayload):
-        return SplatRenderer([], [ldi_of(impostor)])
-    if isinstance(payload, PointPayload):
-        return PointRenderer(payload.positions, payload.colour.astype(np.uint8), point_appearance(impostor), grid=(impostor.resolution, math.radians(impostor.fov_deg)))
-    return MeshRenderer(impostor_objects(impostor))
+    return impostor.payload.renderer(impostor)
 
 
 def point_appearance(impostor: Impostor) -> Appearance:
     """The :class:`farfield.core.render.points.Appearance` of a point impostor's payload and pages."""
-    p = impostor.payload
-    return Appearance(impostor.pages, p.page, p.texel, (int(p.tile[0]), int(p.tile[1])), p.plane[:3], float(p.plane[3]), p.axes[0], p.axes[1], p.rectangle[0], p.rectangle[1])
+    return impostor.payload.appearance(impostor.pages)
 
 
 def _dilate(mask: np.ndarray) -> np.ndarray:

@@ -21,12 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
-from farfield.core.techniques.envmap.runtime import EnvmapCellRenderer, camera_at, depth_range_for
+from farfield.core.techniques.envmap.runtime import camera_at, depth_range_for
 from farfield.core.errors import LayerPlanError
 from farfield.core.quality.evaluation import compare_images
 from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.render.raster import MeshRenderer
 from farfield.core.scene import Scene
+from farfield.core.techniques import TECHNIQUES
 
 Progress = Callable[[int, int], None]  # (frames done, frames)
 
@@ -137,8 +138,11 @@ def walkthrough(
     A placement database is walked by :func:`placement_walkthrough`."""
     if database.placement:
         return placement_walkthrough(scene, database, positions, forwards, repeats, compare, progress)
-    if database.technique != "envmap":  # the reference runtime draws environment-map impostors only
-        raise LayerPlanError(f"a walkthrough needs an envmap impostor database, got technique {database.technique!r}")
+    technique = TECHNIQUES.get(database.technique)
+    runtime = getattr(technique, "runtime", None)  # the technique's cell renderer (environment-map impostors have one)
+    if runtime is None:
+        walkable = " or ".join(t.name for t in TECHNIQUES.values() if t.runtime is not None)
+        raise LayerPlanError(f"a walkthrough needs an {walkable} impostor database, got technique {database.technique!r}")
     report = progress or (lambda done, total: None)
     frames, current, cell_renderer = [], None, None
     first = next((c for c in database.cells if c.bundle is not None), None)
@@ -156,7 +160,7 @@ def walkthrough(
                     cell_renderer.release()
                     cell_renderer = None
                 if found.bundle is not None:
-                    cell_renderer = EnvmapCellRenderer(scene, database.impostor(found.index))
+                    cell_renderer = runtime(scene, database.impostor(found.index))
                     database.prefetch(found.index)
                 current = found.index
             row["switched"] = bool(switched and n > 0)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -67,18 +67,88 @@ class CellCost:
         return layers if self.complete else f"at least {layers}"
 
 
+@runtime_checkable
+class Technique(Protocol):
+    """One impostor technique, as every consumer sees it: what the registry
+    (:func:`farfield.core.techniques.register`) holds, whether defined in ``farfield.core.techniques``
+    or in a module of its own (``FARFIELD_TECHNIQUE_MODULES``).  :class:`TechniqueDefinition` is the
+    ready-made one, built from plain functions.  A consumer never compares a technique's name: it
+    asks the technique (its ``scope``, ``estimate``, ``placement``, ``runtime``) or its impostor's payload
+    (:mod:`farfield.core.impostor.impostor`)."""
+
+    name: str
+    scope: Scope  # "part": impostors of a scene's objects; "scene": the whole scene around a view cell
+    help: str  # one line: what it makes, and the paper
+    Options: type  # frozen dataclass; its fields' metadata give defaults, bounds and help
+    payload_kind: str  # the kind of payload its impostors carry (a key of farfield.core.impostor.impostor.PAYLOAD_KINDS)
+    # estimate(cell, options, part_bounds) -> (layers, texels per layer): the cheap figures a
+    # placement ranks candidates by (seed 000 §5.8.1); raises where the cell can have no impostor.
+    # None: the frame-time planner cannot place it.
+    estimate: Callable[[ViewCell, Any, np.ndarray], tuple[float, float]] | None
+    # Why the frame-time planner cannot place it and what places it instead (appended to the refusal);
+    # "" when there is nothing to add.
+    placement: str
+    # runtime(scene, impostor) -> a cell renderer (``renderer``, ``reach``, ``near_triangles``,
+    # ``quad_triangles``, ``release()``) for ``farfield walkthrough`` of an impostor database; None: no walk-through runtime.
+    runtime: Callable[[Scene, Impostor], Any] | None
+
+    def check(self, cell: ViewCell, options: Any, bounds: np.ndarray | None, max_texels: int | None = None) -> CellCost:
+        """The cell's :class:`CellCost` from the planning a job runs for every cell at creation;
+        raises LayerPlanError/ViewCellError when the cell cannot have an impostor.  Given
+        ``max_texels``, it may stop planning once past them (a cost that is not ``complete``)."""
+        ...
+
+    def bake(self, scene: Scene, cell: ViewCell, options: Any, objects: list[str] | None = None, progress: Progress | None = None) -> Impostor:
+        """The impostor of ``objects`` of ``scene`` (a part technique; None: every object) or of the
+        whole scene around ``cell`` (a scene technique)."""
+        ...
+
+    def summary(self, stats: dict) -> str:
+        """The text the CLI prints after a bake, of the impostor's ``stats``."""
+        ...
+
+    def evaluate(self, scene: Scene, impostor: Impostor, random_count: int, outside_count: int, seed: int) -> Any:
+        """The impostor against the real geometry: a result with ``to_dict()``."""
+        ...
+
+    def evaluation_text(self, result: Any, impostor: Impostor) -> str:
+        """The table the CLI prints of an evaluation's ``result``."""
+        ...
+
+    def warm(self) -> float:
+        """Compile (or load from numba's cache) the technique's numba kernels on tiny inputs, without
+        GL; the seconds it took (0 when it has none).  A render worker and the test session call it
+        for every registered technique (:func:`farfield.core.techniques.warm_techniques`)."""
+        ...
+
+    def options(self, values: Mapping[str, Any] | None = None, resolution: int | None = None, fov_deg: float | None = None) -> Any:
+        """Validated ``Options`` from a job's or the CLI's option values."""
+        ...
+
+    def options_of(self, params: Mapping[str, Any]) -> Any:
+        """The ``Options`` of a job's stored parameters (``resolution``, ``fov_deg``, ``options``)."""
+        ...
+
+    def describe(self) -> dict:
+        """JSON-ready: what ``GET /v1/techniques`` and ``farfield techniques`` show of it."""
+        ...
+
+
 @dataclass(frozen=True)
-class Technique:
-    """One impostor technique, as every consumer sees it."""
+class TechniqueDefinition:
+    """A :class:`Technique` made of plain functions: what each technique module exposes as ``TECHNIQUE``.
+
+    >>> from farfield.core.techniques import get_technique
+    >>> isinstance(get_technique("layered"), Technique)
+    True
+    """
 
     name: str
     scope: Scope
     help: str  # one line: what it makes, and the paper
     Options: type  # frozen dataclass; its fields' metadata give defaults, bounds and help
-    # check(cell, options, part_bounds or None, max_texels=None) -> the cell's CellCost; raises
-    # LayerPlanError/ViewCellError when the cell cannot have an impostor (the planning a job runs for
-    # every cell at creation, whose figures the job's cost admission sums).  Given max_texels, it may
-    # stop planning once the cell is past them (a CellCost that is not complete).
+    payload_kind: str  # the kind of payload its impostors carry (farfield.core.impostor.impostor.PAYLOAD_KINDS)
+    # check(cell, options, part_bounds or None, max_texels=None) -> the cell's CellCost (Technique.check)
     check: Callable[..., CellCost]
     # bake(scene, cell, options, objects or None, progress or None) -> Impostor
     bake: Callable[[Scene, ViewCell, Any, list[str] | None, Progress | None], Impostor]
@@ -88,35 +158,61 @@ class Technique:
     evaluate: Callable[[Scene, Impostor, int, int, int], Any]
     # evaluation_text(result, impostor) -> the table the CLI prints
     evaluation_text: Callable[[Any, Impostor], str]
-    # estimate(cell, options, part_bounds) -> (layers, texels per layer): the cheap figures a
-    # placement ranks candidates by (seed 000 §5.8.1); raises where the cell can have no impostor.
-    # None: the technique cannot be placed (a scene-scope technique replaces everything around its cell).
+    # estimate(cell, options, part_bounds) -> (layers, texels per layer) for the frame-time planner; None: not placeable there
     estimate: Callable[[ViewCell, Any, np.ndarray], tuple[float, float]] | None = None
+    # what places it instead, when the frame-time planner cannot (Technique.placement)
+    placement: str = ""
+    # runtime(scene, impostor) -> its walk-through cell renderer (Technique.runtime); None: none
+    runtime: Callable[[Scene, Impostor], Any] | None = None
+    # Its numba kernels' warm-ups: each compiles some kernels on tiny inputs and returns the seconds
+    # it took (Technique.warm); shared ones (the slab recording's) appear in several techniques.
+    kernels: tuple[Callable[[], float], ...] = ()
+
+    def warm(self) -> float:
+        """Compile its numba kernels (every function of ``kernels``); the seconds it took."""
+        return float(sum(warm() for warm in self.kernels))
 
     def options(self, values: Mapping[str, Any] | None = None, resolution: int | None = None, fov_deg: float | None = None) -> Any:
         """Validated ``Options`` from a job's or the CLI's option values (unknown names refused);
         ``resolution`` and ``fov_deg`` (``None``: the technique's default) come from the job's top level."""
-        given = dict(values or {})
-        image = [name for name in IMAGE_FIELDS if name in given]
-        if image:
-            raise LayerPlanError(f"{image} are the job's own fields, not technique options")
-        if resolution is not None:
-            given["resolution"] = resolution
-        if fov_deg is not None:
-            given["fov_deg"] = fov_deg
-        return options_from_mapping(self.Options, given, f"{self.name} options", unlisted=IMAGE_FIELDS)
+        return technique_options(self, values, resolution, fov_deg)
 
     def options_of(self, params: Mapping[str, Any]) -> Any:
         """The ``Options`` of a job's stored parameters (``resolution``, ``fov_deg``, ``options``)."""
         return self.options(params.get("options"), params.get("resolution"), params.get("fov_deg"))
 
     def describe(self) -> dict:
-        """JSON-ready: name, scope, help, the image fields' defaults and every option."""
-        fields = describe_options(self.Options)
-        return {
-            "name": self.name,
-            "scope": self.scope,
-            "help": self.help,
-            "image": [f for f in fields if f["name"] in IMAGE_FIELDS],
-            "options": [f for f in fields if f["name"] not in IMAGE_FIELDS],
-        }
+        """JSON-ready (:func:`describe_technique`)."""
+        return describe_technique(self)
+
+
+def technique_options(technique: Technique, values: Mapping[str, Any] | None = None, resolution: int | None = None, fov_deg: float | None = None) -> Any:
+    """Validated ``technique.Options`` from option values (unknown names refused), with the job's
+    ``resolution`` and ``fov_deg`` (``None``: the technique's default): what :meth:`Technique.options` does."""
+    given = dict(values or {})
+    image = [name for name in IMAGE_FIELDS if name in given]
+    if image:
+        raise LayerPlanError(f"{image} are the job's own fields, not technique options")
+    if resolution is not None:
+        given["resolution"] = resolution
+    if fov_deg is not None:
+        given["fov_deg"] = fov_deg
+    return options_from_mapping(technique.Options, given, f"{technique.name} options", unlisted=IMAGE_FIELDS)
+
+
+def describe_technique(technique: Technique) -> dict:
+    """JSON-ready: name, scope, help, the kind of payload it bakes (``payload``), whether the
+    frame-time planner can place it (``placeable``), whether it has a walk-through runtime
+    (``runtime``), the image fields' defaults and every option.  A client (the dashboard) reads
+    these fields instead of comparing technique names."""
+    fields = describe_options(technique.Options)
+    return {
+        "name": technique.name,
+        "scope": technique.scope,
+        "help": technique.help,
+        "payload": technique.payload_kind,
+        "placeable": technique.estimate is not None,
+        "runtime": technique.runtime is not None,
+        "image": [f for f in fields if f["name"] in IMAGE_FIELDS],
+        "options": [f for f in fields if f["name"] not in IMAGE_FIELDS],
+    }

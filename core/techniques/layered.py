@@ -25,7 +25,8 @@ from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION, PixelModel
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
-from farfield.core.techniques.base import Technique
+from farfield.core.layering import recording
+from farfield.core.techniques.base import TechniqueDefinition
 from farfield.core.techniques.part import check_part_cell, estimate_part_cell, evaluate_part, part_evaluation_text
 from farfield.core.viewcells import ViewCell
 
@@ -144,8 +145,10 @@ def _summary(stats: dict) -> str:
     )
 
 
-TECHNIQUE = Technique(
+TECHNIQUE = TechniqueDefinition(
     name="layered",
+    payload_kind=QuadPayload.kind,
+    kernels=(recording.warm_kernels,),
     scope="part",
     help="layered impostors of a scene's objects for any view cell (seed 000 ch. 3)",
     Options=BakeOptions,

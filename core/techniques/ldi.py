@@ -27,7 +27,7 @@ import numpy as np
 from farfield.core import __version__
 from farfield.core.errors import LayerPlanError
 from farfield.core.quality.evaluation import Evaluation
-from farfield.core.impostor.impostor import Impostor
+from farfield.core.impostor.impostor import Impostor, LdiPayload
 from farfield.core.ldi.construction import DEFAULT_MAX_LAYERS, _merge_samples, construct_ldi, view_frame
 from farfield.core.ldi.warp import _warp_kernel
 from farfield.core.options import check_options, option
@@ -35,7 +35,7 @@ from farfield.core.pixel_angles import MAX_RESOLUTION
 from farfield.core.ldi.pages import ldi_payload_and_pages
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
-from farfield.core.techniques.base import CellCost, Technique
+from farfield.core.techniques.base import CellCost, TechniqueDefinition
 from farfield.core.techniques.part import evaluate_part, part_evaluation_text
 from farfield.core.viewcells import BoxCell, ViewCell
 
@@ -157,8 +157,11 @@ def _evaluation_text(result: Evaluation, impostor: Impostor) -> str:
     return part_evaluation_text(result, impostor) + f"\nLDI samples: {impostor.payload.count:,}"
 
 
-TECHNIQUE = Technique(
+TECHNIQUE = TechniqueDefinition(
     name="ldi",
+    payload_kind=LdiPayload.kind,
+    placement="layered depth images are placed by the primitive-budget algorithm (algorithm primitive-budget, a primitives budget)",
+    kernels=(warm_kernels,),
     scope="part",
     help="layered-depth-image impostors of a scene's objects for a box view cell: nine construction images, splatted (seed 004)",
     Options=LdiOptions,

@@ -37,7 +37,7 @@ from farfield.core.cube_faces import FACES
 from farfield.core.layering.culled import culled_layers
 from farfield.core.layering.culling import CullingMode
 from farfield.core.techniques.envmap.arrangement import EnvmapPlan, envmap_plan, layers_for_near_field
-from farfield.core.techniques.envmap.runtime import evaluate_envmap
+from farfield.core.techniques.envmap.runtime import EnvmapCellRenderer, evaluate_envmap
 from farfield.core.errors import LayerPlanError, ViewCellError
 from farfield.core.techniques.envmap.gap_fill import fill_gaps
 from farfield.core.impostor.glb import page_png
@@ -48,7 +48,8 @@ from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION, pixel_angle
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
-from farfield.core.techniques.base import CellCost, Technique
+from farfield.core.layering import recording
+from farfield.core.techniques.base import CellCost, TechniqueDefinition
 from farfield.core.viewcells import BoxCell
 
 # Cube faces (farfield.core.cube_faces.FACES): image x and y run along the next two world axes, so a face's
@@ -344,8 +345,11 @@ def _evaluation_text(result: dict, impostor) -> str:
     return "\n".join(lines)
 
 
-TECHNIQUE = Technique(
+TECHNIQUE = TechniqueDefinition(
     name="envmap",
+    payload_kind=QuadPayload.kind,
+    runtime=EnvmapCellRenderer,
+    kernels=(recording.warm_kernels,),
     scope="scene",
     help="layered environment-map impostors of the whole scene around cubic box view cells (seed 002)",
     Options=EnvmapOptions,

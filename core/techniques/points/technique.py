@@ -36,7 +36,7 @@ from farfield.core.techniques.points.samples import _spacing_kernel, gather_poin
 from farfield.core.techniques.points.sampling import plan_point_sampling
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
-from farfield.core.techniques.base import CellCost, Technique
+from farfield.core.techniques.base import CellCost, TechniqueDefinition
 from farfield.core.techniques.part import evaluate_part, part_evaluation_text
 from farfield.core.viewcells import BoxCell, ViewCell
 
@@ -223,8 +223,10 @@ def _evaluation_text(result: Evaluation, impostor: Impostor) -> str:
     return text + f"\npoints: {impostor.payload.count:,} ({impostor.stats.get('bytes_per_point', math.nan):.1f} B/point)"
 
 
-TECHNIQUE = Technique(
+TECHNIQUE = TechniqueDefinition(
     name="points",
+    payload_kind=PointPayload.kind,
+    kernels=(warm_kernels,),
     scope="part",
     help="point-based impostors of a scene's objects for a box view cell: LDI points with directional colours (seed 001)",
     Options=PointOptions,

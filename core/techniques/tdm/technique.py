@@ -50,7 +50,8 @@ from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.tdm.mesh import TdmMesh, ear_clip, initial_mesh, mesh_labels
 from farfield.core.techniques.tdm.simplify import box_half_sizes, covered_by, simplify
 from farfield.core.techniques.tdm.texture import build_charts, chart_masks, chart_pages, chart_uvs
-from farfield.core.techniques.base import Technique
+from farfield.core.layering import recording
+from farfield.core.techniques.base import TechniqueDefinition
 from farfield.core.techniques.part import check_part_cell, estimate_part_cell, evaluate_part, part_evaluation_text
 from farfield.core.viewcells import BoxCell, ViewCell
 from farfield.core.techniques.tdm.voxel_field import VoxelField, record_voxel_field
@@ -280,8 +281,10 @@ def _summary(stats: dict) -> str:
     )
 
 
-TECHNIQUE = Technique(
+TECHNIQUE = TechniqueDefinition(
     name="tdm",
+    payload_kind=MeshPayload.kind,
+    kernels=(recording.warm_kernels, warm_kernels),
     scope="part",
     help="textured depth meshes of a scene's objects for any view cell (seed 003; planned like layered)",
     Options=TdmOptions,
