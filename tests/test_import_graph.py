@@ -155,3 +155,15 @@ def test_core_imports_none_of_the_layers_above_it():
         for target, line in sorted(targets.items()) if target.startswith(ABOVE_CORE)
     ]  # fmt: skip
     assert not wrong, "farfield.core imports a layer above it:\n" + "\n".join(wrong)
+
+
+def test_placement_builds_on_no_module_of_service_jobs():
+    """service.jobs asks the placement registry for a placement job's part; the reverse would be a
+    cycle between the two packages, even when no two modules form one."""
+    graph, files = import_graph(), module_files()
+    wrong = [
+        f"{files[name].relative_to(ROOT)}:{line}: {name} imports {target}"
+        for name, targets in sorted(graph.items()) if name.startswith("farfield.service.placement")
+        for target, line in sorted(targets.items()) if target == "farfield.service.jobs" or target.startswith("farfield.service.jobs.")
+    ]  # fmt: skip
+    assert not wrong, "\n".join(wrong)
