@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Request, Response
 
-from farfield.service.jobs import (
-    JobSpec, cancel_job, count_job_rows, create_job, create_placement_job, full_job_record, get_job_row, job_record, job_summaries,
-    list_job_rows, queued_cell_ids, retry_job,
-)  # fmt: skip
+from farfield.service.jobs.admission import create_job, create_placement_job
+from farfield.service.jobs.cells import cancel_job, retry_job
+from farfield.service.jobs.records import count_job_rows, full_job_record, get_job_row, job_record, job_summaries, list_job_rows, queued_cell_ids
+from farfield.service.jobs.schema import JobSpec
 from farfield.service.scenes import get_scene_row
 from farfield.workers.app import send_planning
 

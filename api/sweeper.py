@@ -1,13 +1,13 @@
 """The API's background sweep: cells queued too long without starting are sent to the queue again, and so
-are placement jobs whose planning message or planning worker is lost (:func:`service.placement_jobs.lost_planning_jobs`)."""
+are placement jobs whose planning message or planning worker is lost (:func:`service.placement.lease.lost_planning_jobs`)."""
 
 from __future__ import annotations
 
 import logging
 import threading
 
-from farfield.service.jobs import lost_queued_cells
-from farfield.service.placement_jobs import lost_planning_jobs
+from farfield.service.jobs.cells import lost_queued_cells
+from farfield.service.placement.lease import lost_planning_jobs
 from farfield.workers.app import send_planning
 
 log = logging.getLogger("farfield.sweeper")
@@ -19,7 +19,7 @@ class LostCellSweeper:
     def __init__(self, services, every_s: float | None = None) -> None:
         self.services = services
         after = services.settings.requeue_after
-        # Often enough that a dead worker's cells (service.jobs.release_lost_cells) go out again within seconds.
+        # Often enough that a dead worker's cells (service.jobs.cells.release_lost_cells) go out again within seconds.
         self.every_s = every_s or min(5.0, max(1.0, after / 4))
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="farfield-sweeper", daemon=True)

@@ -36,7 +36,7 @@ from farfield.core.impostor.bundle import write_bundle  # noqa: E402
 from farfield.core.exchange import load_scene  # noqa: E402
 from farfield.core.render.context import renderer_info  # noqa: E402
 from farfield.core.techniques.layered import BakeOptions, bake_layered  # noqa: E402
-from farfield.service.jobs import GridSpec, grid_cells  # noqa: E402
+from farfield.service.jobs.schema import GridSpec, grid_cells  # noqa: E402
 from farfield.service.settings import Settings  # noqa: E402
 from farfield.service.supervisor import Service  # noqa: E402
 

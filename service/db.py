@@ -11,7 +11,7 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
-from sqlalchemy import JSON, Boolean, Float, ForeignKey, Index, Integer, String, Text, create_engine, event, true
+from sqlalchemy import JSON, Boolean, Float, ForeignKey, Index, Integer, String, Text, create_engine, event, select, true
 from sqlalchemy.engine import Engine
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, sessionmaker
 
@@ -21,7 +21,7 @@ CELL_STATES = ("queued", "running", "done", "failed", "cancelled")
 CELL_FINAL = ("done", "failed", "cancelled")
 JOB_STATES = ("queued", "placing", "running", "done", "failed", "cancelled")
 # A placement job is ``placing`` while a worker plans it and while it checks (and repairs) the baked
-# impostors; its other states are a grid job's (service.placement_jobs).
+# impostors; its other states are a grid job's (service.placement).
 OPEN_JOB_STATES = ("queued", "placing", "running")
 
 
@@ -80,12 +80,12 @@ class JobRow(Base):
     state: Mapped[str] = mapped_column(String(16), default="queued", index=True)
     error: Mapped[str | None] = mapped_column(Text, nullable=True)
     index_key: Mapped[str | None] = mapped_column(String(500), nullable=True)  # the impostor database index
-    # Evaluate each baked cell against the real geometry (part-scope techniques; service.cell_runner).
+    # Evaluate each baked cell against the real geometry (part-scope techniques; service.jobs.runner).
     evaluate: Mapped[bool] = mapped_column(Boolean, default=True, server_default=true())
     created_at: Mapped[float] = mapped_column(Float, default=now)
     started_at: Mapped[float | None] = mapped_column(Float, nullable=True)
     finished_at: Mapped[float | None] = mapped_column(Float, nullable=True)
-    # A placement job's planning (service.placement_jobs): its progress record (phase, step, done,
+    # A placement job's planning (service.placement): its progress record (phase, step, done,
     # total, round, rounds), which worker holds it and until when (a lease its heartbeat renews; the
     # API's sweeper sends an expired one's task again), and the attempts of the current phase.
     planning: Mapped[dict | None] = mapped_column(JSON, nullable=True)
@@ -176,6 +176,12 @@ def owned_row(db: Database, model: type, tenant_id: str, row_id: str, what: str)
     if row is None or row.tenant_id != tenant_id:
         raise NotFoundError(f"{what} {row_id!r} not found")
     return row
+
+
+def job_cells(db: Database, job_id: str) -> list[CellRow]:
+    """The job's cells, by index."""
+    with db.session() as s:
+        return list(s.scalars(select(CellRow).where(CellRow.job_id == job_id).order_by(CellRow.index)))
 
 
 def migrate(engine: Engine) -> None:

@@ -23,9 +23,9 @@ from pathlib import Path
 from farfield.service.blobs import blob_store
 from farfield.service.db import Database
 from farfield.service.embedded_redis import EmbeddedRedis, free_port
-from farfield.service.jobs import release_lost_cells, running_cells_of
+from farfield.service.jobs.cells import release_lost_cells, running_cells_of
 from farfield.service.keys import ensure_admin_key
-from farfield.service.placement_jobs import planning_jobs_of, release_planning
+from farfield.service.placement.lease import planning_jobs_of, release_planning
 from farfield.service.settings import Settings
 
 STOP_GRACE_S = 20.0

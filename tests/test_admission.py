@@ -3,7 +3,7 @@ texels per cell and per job (413) and on open cells per tenant (429), with nothi
 
 The API app runs in-process on a real SQLite database and blob folder, with a scene uploaded through
 the route; no broker is needed, since every job sent through the API here is refused.  Jobs that
-pass are created with :func:`service.jobs.create_job` on the same database (their cells stay
+pass are created with :func:`service.jobs.admission.create_job` on the same database (their cells stay
 queued: nothing sends them).
 """
 
@@ -24,7 +24,8 @@ from farfield.api.app import create_app
 from farfield.core import procedural
 from farfield.service.cell_limits import MemoryGuard, resident_bytes
 from farfield.service.db import CellRow, Database, JobRow
-from farfield.service.jobs import JobSpec, create_job, open_tenant_cells
+from farfield.service.jobs.admission import create_job, open_tenant_cells
+from farfield.service.jobs.schema import JobSpec
 from farfield.service.scenes import get_scene_row
 from farfield.service.keys import authenticate
 from farfield.service.settings import AdmissionLimits, Settings

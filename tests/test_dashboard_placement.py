@@ -182,7 +182,7 @@ def test_a_primitive_budget_job_s_grid_points_images_and_check(browser, service,
     guarantee in the totals; then a frame-time job's page has its own labels back."""
     from test_service_primitive_placement import REQUEST, _scene
 
-    from farfield.service.placement_jobs import DEFAULT_CHECK_VIEWS
+    from farfield.service.placement.primitive_budget import DEFAULT_CHECK_VIEWS
 
     with service.client() as client:
         client.post(f"/v1/jobs/{jobs[1]}/cancel")  # the slow placing job holds the worker until then (its own test cancels it; run alone, this one does)

@@ -1,7 +1,7 @@
 """Failure classes of a cell (issue 22): transient, bad input and internal failures.
 
 The cells live in a real SQLite database and a local blob store.  Cells are run the way a worker
-runs them: ``service.cell_runner.run_cell`` in a loop (as the task does, without its countdowns),
+runs them: ``service.jobs.runner.run_cell`` in a loop (as the task does, without its countdowns),
 or the Celery task itself executed eagerly (``apply``: each retry runs at once, with the message's
 retry count, instead of after its countdown).  Only the bake is replaced where a test needs it to
 fail in a given way; the classification, counting and retry limits are the real ones.
@@ -21,15 +21,16 @@ from click.testing import CliRunner
 from fastapi.testclient import TestClient
 from sqlalchemy import event
 
-import farfield.service.cell_runner as cell_runner
+import farfield.service.jobs.runner as cell_runner
 import farfield.workers.tasks as tasks
 from farfield.api.app import create_app
 from farfield.cli.main import FarfieldGroup
 from farfield.core.errors import ErrorKind, InternalError, LayerPlanError
 from farfield.service.blobs import LocalBlobStore
-from farfield.service.cell_runner import RetryCell, run_cell
+from farfield.service.jobs.runner import RetryCell, run_cell
 from farfield.service.db import CellRow, Database, JobRow
-from farfield.service.jobs import JobSpec, create_job
+from farfield.service.jobs.admission import create_job
+from farfield.service.jobs.schema import JobSpec
 from farfield.service.keys import tenant_named
 from farfield.service.scenes import ingest_scene
 from farfield.service.settings import Settings

@@ -266,7 +266,7 @@ def test_farfield_lookup_bad_input_is_one_line(planned, tmp_path):
 
 
 def test_database_zip_ships_only_the_bundles_a_placement_index_names():
-    from farfield.api.routes_results import _bundled_cells
+    from farfield.service.jobs.index import bundled_cells as _bundled_cells
 
     index = {"kind": "placement", "cells": [{"index": 0, "bundle": "cells/00000/"}, {"index": 1, "bundle": None, "state": "unused"}]}
     assert _bundled_cells(json.dumps(index).encode()) == {0}

@@ -17,7 +17,8 @@ from service_harness import fresh_postgres_database
 from farfield.api.app import create_app
 from farfield.core.errors import NotFoundError
 from farfield.core.exchange import load_scene_bytes
-from farfield.service.jobs import JobSpec, create_job
+from farfield.service.jobs.admission import create_job
+from farfield.service.jobs.schema import JobSpec
 from farfield.service.keys import authenticate, create_key
 from farfield.service.scenes import get_scene_row
 from farfield.service.settings import Settings

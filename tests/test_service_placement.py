@@ -216,7 +216,8 @@ def test_an_attempt_that_lost_its_hold_leaves_the_newer_one_alone(tmp_path):
     sends the planning again and worker B holds it; when A then sees it lost its hold, it must not
     clear B's (the job would stay 'placing' with nothing to send it again), nor fail the job."""
     from farfield.service.db import JobRow, now
-    from farfield.service.placement_jobs import _end_cancelled, claim_planning, fail_planning, lost_planning_jobs
+    from farfield.service.placement.lease import claim_planning, fail_planning, lost_planning_jobs
+    from farfield.service.placement.rounds import _end_cancelled
 
     db, blobs = _stored_job(tmp_path, state="queued", planning={"phase": "plan"})
     a = claim_planning(db, blobs, "j", "plan", "A", 3)
@@ -245,7 +246,8 @@ class Flow:
     def __init__(self, root):
         from farfield.service.blobs import LocalBlobStore
         from farfield.service.db import Database
-        from farfield.service.jobs import JobSpec, create_placement_job
+        from farfield.service.jobs.admission import create_placement_job
+        from farfield.service.jobs.schema import JobSpec
         from farfield.service.keys import tenant_named
         from farfield.service.scenes import ingest_scene
         from farfield.service.settings import Settings
@@ -267,15 +269,15 @@ class Flow:
             return s.get(JobRow, self.job_id)
 
     def states(self) -> list[str]:
-        from farfield.service.placement_jobs import planner_state_keys
+        from farfield.service.placement.states import planner_state_keys
 
         return planner_state_keys(self.blobs, self.job_id)
 
     def bake(self, cell_ids) -> None:
         """Bake the cells as the bake task does: run_cell, then after_cell (whose True the task
         answers by sending the check: here the caller runs it)."""
-        from farfield.service.cell_runner import run_cell
-        from farfield.service.placement_jobs import after_cell
+        from farfield.service.jobs.runner import run_cell
+        from farfield.service.placement.rounds import after_cell
 
         for cell_id in cell_ids:
             assert run_cell(self.db, self.blobs, cell_id, 3, worker="W") in ("done", "cancelled", "skipped")
@@ -291,7 +293,7 @@ def flow(tmp_path):
 
 def test_only_the_state_the_next_check_needs_is_kept_and_the_check_waits_the_configured_lease(flow, monkeypatch):
     from farfield.service.db import now
-    from farfield.service.placement_jobs import check_job, plan_job
+    from farfield.service.placement.rounds import check_job, plan_job
 
     monkeypatch.setenv("FARFIELD_REQUEUE_AFTER", "5000")
     state, cells = plan_job(flow.db, flow.blobs, flow.job_id, "W", 3)
@@ -316,8 +318,9 @@ def test_only_the_state_the_next_check_needs_is_kept_and_the_check_waits_the_con
 def test_a_cancel_during_the_check_leaves_no_index_and_no_state(flow, monkeypatch):
     """The user cancels while the last check runs, after it wrote the database index and before it
     commits: the index is removed (and every planner state), the job stays cancelled, no index."""
-    from farfield.service import placement_jobs
-    from farfield.service.jobs import cancel_job, job_cells
+    from farfield.service.db import job_cells
+    from farfield.service.jobs.cells import cancel_job
+    from farfield.service.placement import rounds as placement_jobs
 
     commit = placement_jobs._commit_round_row
 
@@ -341,8 +344,8 @@ def test_a_cancel_during_the_check_leaves_no_index_and_no_state(flow, monkeypatc
 
 
 def test_a_job_cancelled_while_baking_drops_its_state(flow):
-    from farfield.service.jobs import cancel_job
-    from farfield.service.placement_jobs import plan_job
+    from farfield.service.jobs.cells import cancel_job
+    from farfield.service.placement.rounds import plan_job
 
     state, cells = plan_job(flow.db, flow.blobs, flow.job_id, "W", 3)
     assert state == "running" and flow.states()
@@ -370,7 +373,7 @@ def _stored_job(tmp_path, **values):
 
 def test_a_job_that_failed_while_baking_keeps_the_state_its_retry_checks_with(tmp_path):
     from farfield.service.db import JobRow
-    from farfield.service.placement_jobs import drop_ended_planning, planner_state_keys
+    from farfield.service.placement.states import drop_ended_planning, planner_state_keys
 
     db, blobs = _stored_job(tmp_path, state="failed", planning={"phase": "bake", "round": 1, "state_key": "jobs/j/planner-1.pickle"})
     for k in (0, 1):
@@ -384,7 +387,7 @@ def test_a_job_that_failed_while_baking_keeps_the_state_its_retry_checks_with(tm
 
 
 def test_a_lost_attempts_message_is_not_the_next_attempts_error(tmp_path):
-    from farfield.service.placement_jobs import claim_planning, release_planning, set_planning
+    from farfield.service.placement.lease import claim_planning, release_planning, set_planning
 
     db, blobs = _stored_job(tmp_path, state="queued", planning={"phase": "plan"})
     assert claim_planning(db, blobs, "j", "plan", "A", 3).attempt == 1
@@ -399,7 +402,8 @@ def test_a_lost_attempts_message_is_not_the_next_attempts_error(tmp_path):
 
 
 def test_a_planning_lost_at_its_last_attempt_fails_the_job_and_drops_its_states(tmp_path):
-    from farfield.service.placement_jobs import claim_planning, planner_state_keys, release_planning
+    from farfield.service.placement.lease import claim_planning, release_planning
+    from farfield.service.placement.states import planner_state_keys
 
     db, blobs = _stored_job(tmp_path, state="queued", planning={"phase": "plan"})
     blobs.put_bytes("jobs/j/planner-0.pickle", b"state")

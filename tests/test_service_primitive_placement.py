@@ -41,7 +41,8 @@ class Flow:
     def __init__(self, root: Path, request: dict = REQUEST):
         from farfield.service.blobs import LocalBlobStore
         from farfield.service.db import Database
-        from farfield.service.jobs import JobSpec, create_placement_job
+        from farfield.service.jobs.admission import create_placement_job
+        from farfield.service.jobs.schema import JobSpec
         from farfield.service.keys import tenant_named
         from farfield.service.scenes import ingest_scene
         from farfield.service.settings import Settings
@@ -64,8 +65,8 @@ class Flow:
 
     def run(self) -> list[str]:
         """Plan, bake every cell, check: the states the job went through."""
-        from farfield.service.cell_runner import run_cell
-        from farfield.service.placement_jobs import after_cell, check_job, plan_job
+        from farfield.service.jobs.runner import run_cell
+        from farfield.service.placement.rounds import after_cell, check_job, plan_job
 
         state, cells = plan_job(self.db, self.blobs, self.job_id, "W", 3)
         seen = [state]
@@ -89,8 +90,8 @@ def flow(tmp_path_factory):
 
 
 def test_the_job_plans_the_grid_bakes_one_ldi_cell_per_image_and_writes_its_database(flow):
-    from farfield.service.jobs import job_cells
-    from farfield.service.placement_jobs import planner_state_keys
+    from farfield.service.db import job_cells
+    from farfield.service.placement.states import planner_state_keys
 
     assert flow.states == ["running", "done"]
     job = flow.job()
@@ -116,7 +117,7 @@ def test_the_unpacked_database_walks_within_the_budget(flow, tmp_path):
     database, its LDIs are the baked bundles, and every sampled view draws at most P."""
     from farfield.core.placement.image_database import ImageDatabase, image_walkthrough
     from farfield.core.exchange import load_scene
-    from farfield.service.jobs import job_cells
+    from farfield.service.db import job_cells
 
     root = tmp_path / "db"
     root.mkdir()
@@ -143,7 +144,9 @@ def test_the_unpacked_database_walks_within_the_budget(flow, tmp_path):
 
 
 def test_a_second_job_of_the_same_request_bakes_nothing(flow):
-    from farfield.service.jobs import JobSpec, create_placement_job, job_cells
+    from farfield.service.db import job_cells
+    from farfield.service.jobs.admission import create_placement_job
+    from farfield.service.jobs.schema import JobSpec
 
     first = {c.params["image"]: c.result_key for c in job_cells(flow.db, flow.job_id)}
     again = Flow.__new__(Flow)
@@ -175,7 +178,8 @@ def test_a_second_job_of_the_same_request_bakes_nothing(flow):
 )
 def test_bad_primitive_budget_requests_name_their_problem(tmp_path, change, message):
     from farfield.core.errors import FarfieldError
-    from farfield.service.jobs import JobSpec, create_placement_job
+    from farfield.service.jobs.admission import create_placement_job
+    from farfield.service.jobs.schema import JobSpec
 
     flow = Flow(tmp_path)
     try:
@@ -187,7 +191,8 @@ def test_bad_primitive_budget_requests_name_their_problem(tmp_path, change, mess
 
 def test_a_technique_other_than_ldi_or_a_fov_below_the_star_shape_bound_is_refused(tmp_path):
     from farfield.core.errors import FarfieldError
-    from farfield.service.jobs import JobSpec, create_placement_job
+    from farfield.service.jobs.admission import create_placement_job
+    from farfield.service.jobs.schema import JobSpec
 
     flow = Flow(tmp_path)
     try:

@@ -17,7 +17,7 @@ from farfield.service.settings import Settings
 
 RENDER_QUEUE = "render"
 BAKE_CELL = "farfield.bake_cell"
-# A placement job's planning and its check-and-repair rounds (service.placement_jobs) go to the same
+# A placement job's planning and its check-and-repair rounds (service.placement) go to the same
 # render queue: every worker farfield up starts takes them with no queue of its own to configure, and
 # a plan needs what a bake needs (the stored scene, a process that may use much memory for a while).
 # The price: a plan waits behind the cells queued before it, like a cell does.

@@ -1,6 +1,6 @@
 """Celery tasks: each is a few lines around a function of ``service``.
 
-:func:`bake_cell` runs :func:`service.cell_runner.run_cell`, which sorts a failed attempt into one of
+:func:`bake_cell` runs :func:`service.jobs.runner.run_cell`, which sorts a failed attempt into one of
 three classes and counts it on the cell:
 
 - **transient** (the database, broker, blob store or renderer failed; any OSError): retried with
@@ -26,7 +26,7 @@ Limits per cell (:mod:`service.cell_limits`): the decorator's soft and hard time
 :class:`~farfield.service.cell_limits.MemoryGuard` of ``FARFIELD_CELL_MEMORY_MB``.
 
 A placement job's :func:`plan_placement` and :func:`check_placement` run
-:func:`service.placement_jobs.run_planning` (plan, or check and repair) under the same time limits and
+:func:`service.placement.rounds.run_planning` (plan, or check and repair) under the same time limits and
 memory guard (past it the job fails, naming the limit) and send the cells it made; a bake whose cell ended the last open cell of a placement job's round sends
 the job's check.  A pool process that dies while it plans frees the job's hold from the worker's
 main process at once (:class:`PlanningRequest`), so the redelivery plans again (each time an
@@ -55,10 +55,12 @@ from farfield.core.render.context import gl_context
 from farfield.core.techniques import warm_techniques
 from farfield.service.blobs import BlobStore, blob_store
 from farfield.service.cell_limits import PLANNING, MemoryGuard, hard_time_limit_message, memory_limit_message, time_limit_message
-from farfield.service.cell_runner import BAD_INPUT, TRANSIENT, RetryCell, backoff, failure_class, failure_message, run_cell
 from farfield.service.db import CellRow, Database, now
-from farfield.service.jobs import finish_job_if_complete, release_lost_cells
-from farfield.service.placement_jobs import after_cell, fail_planning, release_planning, run_planning
+from farfield.service.failures import BAD_INPUT, TRANSIENT, failure_class, failure_message
+from farfield.service.jobs.cells import finish_job_if_complete, release_lost_cells
+from farfield.service.jobs.runner import RetryCell, backoff, run_cell
+from farfield.service.placement.lease import fail_planning, release_planning
+from farfield.service.placement.rounds import after_cell, run_planning
 from farfield.service.settings import Settings
 from farfield.workers.app import BAKE_CELL, CHECK_PLACEMENT, PLAN_PLACEMENT, celery_app, send_cells, send_planning
 
@@ -189,7 +191,7 @@ class CellTask(Task):
     soft_time_limit=_DECLARED.cell_time_limit, time_limit=_DECLARED.cell_hard_time_limit,
 )  # fmt: skip
 def bake_cell(self, cell_id: str) -> str:
-    """Bake one cell of a job (service.cell_runner.run_cell), retrying with backoff (see the module docstring)."""
+    """Bake one cell of a job (service.jobs.runner.run_cell), retrying with backoff (see the module docstring)."""
     settings, db, blobs = _services()
     limit, retries = max_retries(settings.max_attempts), self.request.retries
     try:
@@ -220,7 +222,7 @@ def bake_cell(self, cell_id: str) -> str:
 def _send_check_if_due(db: Database, blobs: BlobStore, cell_id: str) -> None:
     """The cell ended its placement job's round: send the job's check (a duplicate is harmless; a
     lost one is sent again by the API's sweeper); a placement job that has ended (cancelled while
-    its cells ran, failed) drops its planner states (:func:`service.placement_jobs.after_cell`)."""
+    its cells ran, failed) drops its planner states (:func:`service.placement.rounds.after_cell`)."""
     with db.session() as s:
         job_id = s.scalar(select(CellRow.job_id).where(CellRow.id == cell_id))
     if job_id is not None and after_cell(db, blobs, job_id):
@@ -290,7 +292,7 @@ _PLANNING_LIMITS = {"soft_time_limit": _DECLARED.cell_time_limit, "time_limit": 
 
 @celery_app.task(bind=True, base=PlanningTask, Request=PlanningRequest, name=PLAN_PLACEMENT, **_PLANNING_LIMITS)
 def plan_placement(self, job_id: str) -> str:
-    """Plan a placement job and send its cells (service.placement_jobs.plan_job)."""
+    """Plan a placement job and send its cells (service.placement.rounds.plan_job)."""
     return _planning(self, job_id, "plan")
 
 

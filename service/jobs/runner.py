@@ -5,14 +5,14 @@ of one part (layered, tdm) is then evaluated against the part's real geometry fr
 (:func:`farfield.core.techniques.part.report_part`), unless the job says ``evaluate: false``; the figures
 and the time they took go in the cell's record (``stats.evaluation``), never in the bundle, beside
 this attempt's bake timings (``stats.seconds``) and whether this attempt baked the bundle or found it
-(``stats.baked``).  A placement job's cell (``cells.params``, :mod:`service.placement_jobs`) is baked
-by :func:`farfield.core.placement.database.bake_impostor` with its own technique, objects and options (an image
-of a primitive-budget placement by :func:`farfield.core.placement.image_database.bake_image`), keyed by them,
-and not evaluated here (the walkthrough measures a placement).
+(``stats.baked``).  A placement job's cell (``cells.params``, :mod:`service.placement`) is of its
+algorithm's kind: keyed (:meth:`~farfield.service.placement.base.Algorithm.cell_inputs`) and baked
+(:meth:`~farfield.service.placement.base.Algorithm.bake_cell`) by the job's algorithm with its own
+technique, objects and options, and not evaluated here (the walkthrough measures a placement).
 
 This is everything a worker task does (``workers/tasks.py`` is a few lines around it).  The bundle
 is published under a key derived from everything that determines its bytes
-(:func:`service.jobs.result_key`) all at once (the local store renames a staging folder into
+(:func:`service.jobs.cells.result_key`) all at once (the local store renames a staging folder into
 place; S3 writes the manifest last), so a bundle whose manifest exists is complete, a redelivered
 cell finds it and does not bake again, and two workers baking the same key never mix their files.
 """
@@ -22,18 +22,14 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-import redis.exceptions
-import sqlalchemy.exc
 from celery.exceptions import SoftTimeLimitExceeded
-from kombu.exceptions import OperationalError as BrokerError
 
 from farfield.core.impostor.bundle import MANIFEST_NAME, read_bundle, write_bundle
-from farfield.core.errors import BundleFormatError, CellLimitError, ErrorKind, FarfieldError, InternalError
+from farfield.core.errors import BundleFormatError, CellLimitError, InternalError
 from farfield.core.impostor.impostor import Impostor
 from farfield.core.scene import Scene
 from farfield.core.techniques import get_technique
@@ -42,8 +38,9 @@ from farfield.core.viewcells import viewcell_from_dict
 from farfield.service.blobs import BlobStore
 from farfield.service.cell_limits import MemoryGuard, memory_limit_message, time_limit_message
 from farfield.service.db import CellRow, Database, JobRow, SceneRow
-from farfield.service.jobs import claim_cell, end_cell, finish_job_if_complete, job_cancelled, result_key, set_progress
-from farfield.service.placement_jobs import impostor_entry
+from farfield.service.failures import BAD_INPUT, INTERNAL, failure_class, failure_message
+from farfield.service.jobs.cells import claim_cell, end_cell, finish_job_if_complete, job_cancelled, result_key, set_progress
+from farfield.service.placement import job_algorithm
 from farfield.service.scenes import load_stored_scene
 
 # A running cell looks at its job's state at the first layer after CANCEL_CHECK_S since its last
@@ -75,60 +72,27 @@ def backoff(attempt: int) -> float:
 
 log = logging.getLogger("farfield.cells")
 
-# The three classes of failure (see run_cell).
-TRANSIENT, BAD_INPUT, INTERNAL = "transient", "bad input", "internal"
-# The database, broker or blob store could not be reached or gave up for now.  Not every DBAPI
-# error: ProgrammingError, IntegrityError, DataError and NotSupportedError are a wrong query or a
-# broken assumption (internal), unless the connection was lost under them.
-TRANSIENT_ERRORS: tuple[type[BaseException], ...] = (
-    sqlalchemy.exc.OperationalError, sqlalchemy.exc.InterfaceError, sqlalchemy.exc.InternalError,
-    sqlalchemy.exc.DisconnectionError, sqlalchemy.exc.TimeoutError,
-    redis.exceptions.ConnectionError, redis.exceptions.TimeoutError, BrokerError,
-    OSError,  # the local blob store, scratch files, sockets (ConnectionError, TimeoutError)
-)  # fmt: skip
-
-
-def failure_class(error: BaseException) -> str:
-    """:data:`TRANSIENT`, :data:`BAD_INPUT` or :data:`INTERNAL` (see :func:`run_cell`).
-
-    >>> failure_class(OSError("disk")), failure_class(ValueError("x")), failure_class(FarfieldError("x"))
-    ('transient', 'internal', 'bad input')
-    """
-    if isinstance(error, FarfieldError):
-        if error.kind in (ErrorKind.BAD_INPUT, ErrorKind.MISSING):
-            return BAD_INPUT
-        return TRANSIENT if error.kind is ErrorKind.RENDERER_UNAVAILABLE else INTERNAL  # CONFLICT etc.: not in a cell
-    if isinstance(error, sqlalchemy.exc.DBAPIError) and error.connection_invalidated:
-        return TRANSIENT
-    botocore = sys.modules.get("botocore.exceptions")  # the S3 blob store's errors, when it is in use
-    blob_errors = (botocore.BotoCoreError, botocore.ClientError) if botocore is not None else ()
-    return TRANSIENT if isinstance(error, (*TRANSIENT_ERRORS, *blob_errors)) else INTERNAL
-
-
-def failure_message(error: BaseException, klass: str) -> str:
-    """The error recorded on a cell: ``Type: message``, after ``internal error: `` for a bug."""
-    text = f"{type(error).__name__}: {error}"
-    return f"internal error: {text}" if klass == INTERNAL else text
-
 
 def bake_cell(job: JobRow, scene: Scene, viewcell: dict, progress, cell: CellRow | None = None) -> Impostor:
     """The impostor of one cell of ``job``, baked by the job's technique (:mod:`farfield.core.techniques`);
-    a placement job's cell by its own (:func:`farfield.core.placement.database.bake_impostor`)."""
-    if cell is not None and cell.params is not None and "image" in cell.params:  # an image of a primitive-budget placement (seed 004)
-        from farfield.core.placement.image_database import bake_image
-
-        from farfield.core.placement.hierarchy import PlacementError
-
-        try:
-            return bake_image(scene, {"name": cell.params["image"], "viewcell": cell.viewcell, "params": cell.params["params"]}, progress=progress)
-        except PlacementError as error:  # the planner made this cell of the same stored scene: a bug, not bad input
-            raise InternalError(f"image {cell.params['image']} does not fit its scene: {error}") from error
-    if cell is not None and cell.params is not None:
-        from farfield.core.placement.database import bake_impostor
-
-        return bake_impostor(scene, impostor_entry(cell), cell.params.get("cluster_triangles"), progress)
+    a placement job's cell by its algorithm, with the cell's own parameters
+    (:meth:`~farfield.service.placement.base.Algorithm.bake_cell`)."""
+    algorithm = job_algorithm(job)
+    if algorithm is not None:
+        return algorithm.bake_cell(scene, cell, progress)
     technique = get_technique(job.job_type)
     return technique.bake(scene, viewcell_from_dict(viewcell), technique.options_of(job.params), job.params.get("objects"), progress)
+
+
+def cell_key(scene_hash: str, job: JobRow, cell: CellRow) -> str:
+    """The blob prefix of a cell's bundle (:func:`~farfield.service.jobs.cells.result_key`): of the job's
+    technique and params, or, a placement job's cell, of what its algorithm says makes its bytes (its
+    own parameters: equal impostors of another job are found)."""
+    algorithm = job_algorithm(job)
+    if algorithm is not None:
+        kind, own = algorithm.cell_inputs(cell)
+        return result_key(scene_hash, kind, own, cell.viewcell)
+    return result_key(scene_hash, job.job_type, job.params, cell.viewcell)
 
 
 def evaluate_cell(blobs: BlobStore, scene_row: SceneRow, key: str, scene: Scene | None = None, impostor: Impostor | None = None) -> dict:
@@ -214,12 +178,7 @@ def run_cell(
             with db.session() as s:
                 job = s.get(JobRow, cell.job_id)
                 scene_row = s.get(SceneRow, job.scene_id)
-            if cell.params is not None:  # a placement cell: its own technique, objects and options
-                # Keyed by what makes its bytes (not an image's name in its grid): equal impostors of another job are found.
-                own = {k: v for k, v in cell.params.items() if k != "image"}
-                key = result_key(scene_row.content_hash, f"placement/{cell.params['technique']}", own, cell.viewcell)
-            else:
-                key = result_key(scene_row.content_hash, job.job_type, job.params, cell.viewcell)
+            key = cell_key(scene_row.content_hash, job, cell)
             seconds = None  # this attempt's bake timings (a bundle stores none: its bytes depend on its inputs alone)
             scene = impostor = None
             baked = not blobs.exists(f"{key}/{MANIFEST_NAME}")
@@ -237,7 +196,7 @@ def run_cell(
             if seconds is not None:
                 stats["seconds"] = seconds
             stats["baked"] = baked  # False: the bundle was found (a redelivery, or equal inputs of another job)
-            if job.evaluate and cell.params is None and get_technique(job.job_type).scope == "part":
+            if job.evaluate and job_algorithm(job) is None and get_technique(job.job_type).scope == "part":
                 set_progress(db, cell_id, EVALUATION_PROGRESS)
                 stats["evaluation"] = evaluate_cell(blobs, scene_row, key, scene, impostor)
     except CellCancelled:

@@ -1,0 +1,247 @@
+"""The cell state machine: a cell's attempts, a job's end, and the API's cancel and retry.
+
+States (kept in SQL, never in Celery results):
+
+    cell: queued -> running -> done | failed | cancelled;  running -> queued (a failed attempt that
+          will be retried; the attempt is counted)
+    job:  queued -> running -> done | failed | cancelled
+          a placement job (service.placement): queued -> placing -> running -> placing (check)
+          -> running (repairs) ... -> done | failed | cancelled
+
+A job ends when its last cell does: ``done`` when every cell is done, ``failed`` when some cell
+failed, ``cancelled`` when cancelled.  The worker that ends the last cell builds the job's
+impostor database index (:func:`service.jobs.index.write_index`); a placement job's round ends
+instead (:func:`service.placement.rounds.end_round`: its check writes its database).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+
+from sqlalchemy import func, select, update
+
+from farfield.core import __version__
+from farfield.core.errors import ConflictError
+from farfield.service.blobs import BlobStore
+from farfield.service.db import CELL_FINAL, OPEN_JOB_STATES, CellRow, Database, JobRow, now
+from farfield.service.jobs.index import write_index
+from farfield.service.jobs.records import get_job_row
+from farfield.service.placement import PLACEMENT_JOB
+from farfield.service.placement.rounds import end_round
+from farfield.service.placement.states import drop_ended_planning
+from farfield.service.settings import MAX_CELLS
+
+
+def result_key(scene_hash: str, job_type: str, params: dict, viewcell: dict) -> str:
+    """Blob prefix of a cell's bundle: a digest of everything that determines its bytes.
+
+    Equal inputs (even in another job) give the same key, so a redelivered or repeated cell
+    overwrites identical bytes and never makes a second impostor.
+    """
+    blob = json.dumps(
+        {"scene": scene_hash, "type": job_type, "params": params, "viewcell": viewcell, "code": __version__},
+        sort_keys=True, separators=(",", ":"),
+    )  # fmt: skip
+    return "impostors/" + hashlib.sha256(blob.encode()).hexdigest()
+
+
+@dataclass(frozen=True)
+class Claim:
+    """What :func:`claim_cell` decided: run ``cell`` (attempt ``cell.attempts``), or not; ``ended``
+    when it ended the cell itself (cancelled job, attempts used up), so the job may be complete."""
+
+    cell: CellRow | None
+    job_id: str | None = None
+    ended: bool = False
+
+
+def claim_cell(db: Database, cell_id: str, max_attempts: int, worker: str | None = None) -> Claim:
+    """Mark the cell running and count the attempt, unless it must not run.
+
+    A cell found ``running`` is one whose earlier attempt never reported back: its worker process
+    died (killed, out of memory, a driver crash) and the broker delivered it again.  Such a cell
+    runs again until ``max_attempts``, then is failed here, so a cell that kills its worker cannot
+    loop forever.  Locks the job row before the cell row, as :func:`cancel_job` does.
+    """
+    with db.session() as s:
+        job_id = s.scalar(select(CellRow.job_id).where(CellRow.id == cell_id))
+        if job_id is None:
+            return Claim(None)
+        job = s.get(JobRow, job_id, with_for_update=True)
+        cell = s.get(CellRow, cell_id, with_for_update=True, populate_existing=True)
+        if cell.state in CELL_FINAL:
+            return Claim(None, job_id)
+        if job.state == "cancelled":
+            cell.state, cell.finished_at = "cancelled", now()
+            return Claim(None, job_id, ended=True)
+        if cell.state == "running" and cell.attempts >= max_attempts:
+            cell.state, cell.finished_at = "failed", now()
+            cell.error = _never_reported(cell.attempts, max_attempts, "its worker process died: killed, out of memory or crashed; or the database or blob store failed around it")
+            return Claim(None, job_id, ended=True)
+        cell.state, cell.attempts, cell.started_at, cell.progress, cell.error = "running", cell.attempts + 1, now(), 0.0, None
+        cell.worker = worker
+        if job.state == "queued":
+            job.state, job.started_at = "running", now()
+        return Claim(cell, job_id)
+
+
+def _never_reported(attempt: int, max_attempts: int, why: str) -> str:
+    return f"attempt {attempt} of {max_attempts} never reported back ({why})"
+
+
+# queued_at of a cell whose message is stuck with a dead worker: the API's sweeper
+# (lost_queued_cells) sends it again at its next sweep instead of after FARFIELD_REQUEUE_AFTER.
+RESEND_NOW = 0.0
+
+
+def release_lost_cells(db: Database, blobs: BlobStore, cell_ids: list[str], max_attempts: int, why: str, *, worker: str | None = None, resend: bool = False) -> dict[str, str]:
+    """The cells of a worker process that died, moved on at once instead of showing ``running``
+    until their message comes back (which, for a whole worker, is the visibility timeout later).
+
+    Each of ``cell_ids`` still running (on ``worker``, when given) is queued again with ``why`` as
+    its error, or failed when its attempt was the last (:func:`claim_cell` would fail it on the
+    next delivery); a job left without open cells ends.  ``resend``: its message is not coming
+    back soon (the whole worker died with it unacknowledged), so the API's sweeper sends it again.
+    Returns the new state by cell id (cells that had moved on are left out)."""
+    changed: dict[str, str] = {}
+    for cell_id in cell_ids:
+        with db.session() as s:
+            job_id = s.scalar(select(CellRow.job_id).where(CellRow.id == cell_id))
+            if job_id is None:
+                continue
+            s.get(JobRow, job_id, with_for_update=True)  # the lock order of claim_cell
+            cell = s.get(CellRow, cell_id, with_for_update=True, populate_existing=True)
+            if cell.state != "running" or (worker is not None and cell.worker != worker):
+                continue
+            if cell.attempts >= max_attempts:
+                cell.state, cell.finished_at = "failed", now()
+                cell.error = _never_reported(cell.attempts, max_attempts, why)
+            else:
+                cell.state, cell.progress = "queued", 0.0
+                cell.queued_at = RESEND_NOW if resend else now()
+                cell.error = f"attempt {cell.attempts} of {max_attempts} was lost ({why}); queued again"
+            changed[cell_id] = cell.state
+        if changed[cell_id] == "failed":
+            finish_job_if_complete(db, blobs, job_id)
+    return changed
+
+
+def running_cells_of(db: Database, worker: str) -> list[str]:
+    """Ids of the cells that ``worker`` (a Celery node name, ``name@host``) is running."""
+    with db.session() as s:
+        return list(s.scalars(select(CellRow.id).where(CellRow.state == "running", CellRow.worker == worker)))
+
+
+def job_cancelled(db: Database, job_id: str) -> bool:
+    with db.session() as s:
+        return s.scalar(select(JobRow.state).where(JobRow.id == job_id)) == "cancelled"
+
+
+def set_progress(db: Database, cell_id: str, fraction: float) -> None:
+    with db.session() as s:
+        s.execute(update(CellRow).where(CellRow.id == cell_id, CellRow.state == "running").values(progress=fraction))
+
+
+def end_cell(db: Database, cell_id: str, attempt: int, state: str, *, result: str | None = None, stats: dict | None = None, error: str | None = None, seconds: float | None = None) -> bool:
+    """Move the cell from running attempt ``attempt`` to ``state`` (done, failed, cancelled, or
+    queued for another attempt).  False, and nothing written, when the cell has moved on since (a
+    stale duplicate delivery of an older attempt, or a cancel)."""
+    values: dict = {"state": state, "error": error}
+    if state == "queued":
+        values.update(progress=0.0, queued_at=now())
+    else:
+        values.update(finished_at=now(), seconds=seconds)
+        if state == "done":
+            values["progress"] = 1.0
+    if result is not None:
+        values.update(result_key=result, stats=stats)
+    with db.session() as s:
+        return s.execute(update(CellRow).where(CellRow.id == cell_id, CellRow.state == "running", CellRow.attempts == attempt).values(**values)).rowcount == 1
+
+
+def finish_job_if_complete(db: Database, blobs: BlobStore, job_id: str) -> bool:
+    """End the job when no cell is left to run; True if this call ended it.
+
+    The index is written before the state flips, so a ``done`` job always has one; workers that
+    finish at once may both write it (the same document), and the conditional update lets one win.
+    """
+    with db.session() as s:
+        open_cells = s.scalar(select(func.count()).select_from(CellRow).where(CellRow.job_id == job_id, CellRow.state.in_(("queued", "running"))))
+        if open_cells:
+            return False
+        job = s.get(JobRow, job_id)
+        if job.state == "cancelled":
+            if job.finished_at is None:
+                job.finished_at = now()
+            return False
+        if job.state not in ("queued", "running"):
+            return False
+        states = set(s.scalars(select(CellRow.state).where(CellRow.job_id == job_id)))
+    final = "failed" if "failed" in states else "done" if states <= {"done"} else "cancelled"
+    if job.job_type == PLACEMENT_JOB:
+        return end_round(db, job_id, final)
+    key = write_index(db, blobs, job_id, final)
+    with db.session() as s:
+        won = s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state.in_(("queued", "running"))).values(state=final, finished_at=now(), index_key=key)).rowcount
+    return bool(won)
+
+
+# --- the API's side ----------------------------------------------------------------------------
+
+
+def cancel_job(db: Database, blobs: BlobStore, tenant_id: str, job_id: str) -> JobRow:
+    """Cancel: queued cells never run; running cells stop at their next layer."""
+    get_job_row(db, tenant_id, job_id)
+    with db.session() as s:
+        # Conditional, and the job row first (the lock order of claim_cell): a job that ended
+        # meanwhile stays as it ended.
+        changed = s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state.in_(OPEN_JOB_STATES)).values(state="cancelled")).rowcount
+        if changed:
+            s.execute(update(CellRow).where(CellRow.job_id == job_id, CellRow.state == "queued").values(state="cancelled", finished_at=now()))
+    if not changed:
+        raise ConflictError(f"job {job_id!r} is already {get_job_row(db, tenant_id, job_id).state}")
+    finish_job_if_complete(db, blobs, job_id)
+    job = get_job_row(db, tenant_id, job_id)
+    if job.job_type == PLACEMENT_JOB and job.plan_worker is None:
+        # No worker holds its planning (one that does deletes them when it sees the cancel), and a
+        # check message still queued would only find the job cancelled: its planner states go now.
+        drop_ended_planning(db, blobs, job_id)
+    return job
+
+
+def retry_job(db: Database, tenant_id: str, job_id: str) -> list[str]:
+    """Queue the failed cells of a failed job again (attempts reset); returns their ids.  A placement
+    job that failed before its cells were baked (planning or checking) is not retried: submit it again."""
+    job = get_job_row(db, tenant_id, job_id)
+    if job.job_type == PLACEMENT_JOB and job.state == "failed" and (job.planning or {}).get("phase") != "bake":
+        raise ConflictError(f"job {job_id!r} failed while placing ({job.error}); submit it again")
+    with db.session() as s:
+        changed = s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state == "failed").values(state="running", finished_at=None, index_key=None)).rowcount
+        if changed:
+            ids = list(s.scalars(select(CellRow.id).where(CellRow.job_id == job_id, CellRow.state == "failed")))
+            s.execute(update(CellRow).where(CellRow.id.in_(ids)).values(state="queued", attempts=0, error=None, progress=0.0, finished_at=None, queued_at=now()))
+    if not changed:
+        raise ConflictError(f"only a failed job can be retried; job {job_id!r} is {get_job_row(db, tenant_id, job_id).state}")
+    return ids
+
+
+def lost_queued_cells(db: Database, older_than_s: float) -> list[str]:
+    """Cells queued longer than ``older_than_s`` ago, claimed for sending again.
+
+    A queued cell's message can be lost: Redis restarted without writing its last second, or the
+    API died while sending a job's cells.  Such a cell would wait forever; sending it again costs at
+    most a duplicate delivery, which the attempt-keyed state changes make harmless.  Each id is
+    claimed by a conditional update of ``queued_at``, so several API processes sweeping at once send
+    it once.
+    """
+    cutoff = now() - older_than_s
+    with db.session() as s:
+        candidates = list(s.scalars(select(CellRow.id).where(CellRow.state == "queued", CellRow.queued_at < cutoff).limit(MAX_CELLS)))
+    claimed = []
+    for cell_id in candidates:
+        with db.session() as s:
+            if s.execute(update(CellRow).where(CellRow.id == cell_id, CellRow.state == "queued", CellRow.queued_at < cutoff).values(queued_at=now())).rowcount:
+                claimed.append(cell_id)
+    return claimed

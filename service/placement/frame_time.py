@@ -1,0 +1,257 @@
+"""The frame-time placement (seed 000): impostors of a part technique wherever a view is too slow by a cost model.
+
+- **plan**: the planner (:func:`farfield.core.placement.planner.place`, ``keep_state=True``) on the
+  stored scene; its state is kept as a blob (``jobs/<id>/planner-<round>.pickle``) and every
+  impostor becomes one cell (cell index = impostor id) that carries its own technique, objects,
+  options and view cell (``cells.params``: :func:`cell_params`).
+- **bake**: :func:`farfield.core.placement.database.bake_impostor` with the cell's own parameters,
+  keyed by them (equal impostors of another job are found, not baked again).
+- **check**, when the last cell of a round ends done: the planner state is loaded and repaired with
+  the baked cells' real figures (``PlannerState.repair``); impostors it adds become cells of the next
+  round, else (or after ``MAX_REPAIR_ROUNDS``) the database index is written
+  (:func:`farfield.core.placement.database.placement_index`, ``kind`` "placement") and the job ends done.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+from pydantic import Field, StrictFloat, StrictInt
+
+from farfield.core.options import stored_values
+from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, primitive_model
+from farfield.core.placement.hierarchy import Elements, PlacementError
+from farfield.core.placement.planner import DEFAULT_MAX_IMPOSTOR_BYTES, check_placeable
+from farfield.core.placement.view_space import MAX_REGIONS, MIN_VDI_DEG
+from farfield.core.techniques import DEFAULT_TECHNIQUE, get_technique
+from farfield.service.blobs import BlobStore
+from farfield.service.db import CellRow, Database, JobRow, job_cells
+from farfield.service.placement.base import Algorithm, Round, finite, put_index, state_key, view_space
+from farfield.service.scenes import get_scene_row, load_stored_scene
+
+NAME = "frame-time"
+INDEX_KIND = "placement"  # the "kind" of its database index
+COST_MODELS = {"llvmpipe": LLVMPIPE_MODEL}  # cost models known by name
+CELL_KINDS = ("shafts", "boxes", "both", "leaf-boxes")
+Number = StrictFloat | StrictInt
+
+
+def cost_model_of(budget) -> tuple[CostModel, float, dict]:
+    """The budget's cost model, t_max and the stored budget record."""
+    if (budget.frame_ms is None) == (budget.primitives is None):
+        which = "neither was given" if budget.frame_ms is None else "not both"
+        raise PlacementError(f"give a budget: 'frame_ms' (with 'cost_model', default 'llvmpipe') or 'primitives'; {which}")
+    if budget.primitives is not None:
+        if budget.cost_model is not None:
+            raise PlacementError("'primitives' counts triangles; 'cost_model' applies to 'frame_ms' only")
+        t_max = finite(budget.primitives, "budget.primitives")
+        model, record = primitive_model(), {"primitives": t_max}
+    else:
+        t_max = finite(budget.frame_ms, "budget.frame_ms")
+        given = "llvmpipe" if budget.cost_model is None else budget.cost_model
+        if isinstance(given, str):
+            if given not in COST_MODELS:
+                raise PlacementError(f"unknown cost model {given!r}; give one of {sorted(COST_MODELS)} or a cost model document (farfield calibrate --out)")
+            model, name = COST_MODELS[given], given
+        else:
+            model, name = CostModel.from_dict(given), "given"  # CostModelError: bad input, names the problem
+        record = {"frame_ms": t_max, "cost_model": name}
+    if not t_max > 0:
+        field = "budget.primitives" if budget.primitives is not None else "budget.frame_ms"
+        raise PlacementError(f"the budget t_max must be > 0 ({field}), got {t_max!r}")
+    return model, t_max, {**record, "t_max": t_max, "unit": model.unit}
+
+
+def planner_settings(params: dict):
+    """The job's :class:`~farfield.core.placement.planner.PlacementSettings` and view-space corners."""
+    from farfield.core.placement.planner import PlacementSettings
+
+    knobs = params["placement"]
+    settings = PlacementSettings(
+        t_max=knobs["budget"]["t_max"], model=CostModel.from_dict(knobs["cost_model"]), technique=params["technique"],
+        options={**params["options"], "resolution": params["resolution"], "fov_deg": params["fov_deg"]},
+        cpv_size=knobs["cpv_size"], vdi_deg=knobs["vdi_deg"], cells=knobs["cells"], leaf_size=knobs["leaf_size"],
+        depth_complexity=math.inf if knobs["depth_complexity"] is None else knobs["depth_complexity"],
+        cluster_triangles=knobs["cluster_triangles"], max_impostor_bytes=float(knobs.get("max_impostor_mb", math.inf)) * 2**20,  # a job stored before the cap: none
+    )  # fmt: skip
+    return settings, knobs["view_space"]["lo"], knobs["view_space"]["hi"]
+
+
+def cell_params(entry: dict, cluster_triangles: int) -> dict:
+    """A placement cell's own parameters (``cells.params``, what determines its bundle's bytes) from
+    its entry of :func:`farfield.core.placement.database.placement_cells`."""
+    return {"technique": entry["technique"], "objects": list(entry["objects"]), "params": entry["params"], "cluster_triangles": int(cluster_triangles)}
+
+
+def impostor_entry(cell: CellRow) -> dict:
+    """The entry :func:`farfield.core.placement.database.bake_impostor` bakes for a placement cell."""
+    p = cell.params
+    return {"index": cell.index, "technique": p["technique"], "objects": p["objects"], "params": p["params"], "viewcell": cell.viewcell}
+
+
+def placement_cells(placement: dict, ids) -> list[dict]:
+    """The cells (index, view cell, own parameters) of a placement's impostors ``ids``."""
+    from farfield.core.placement.database import placement_cells as cells_of
+
+    cluster = placement["elements"]["cluster_triangles"]
+    return [{"index": int(e["index"]), "viewcell": e["viewcell"], "params": cell_params(e, cluster)} for e in cells_of(placement) if e["index"] in ids]
+
+
+def _cell_entries(db: Database, job_id: str) -> list[dict]:
+    return [{"index": c.index, "state": c.state, "bundle": f"cells/{c.index:05d}/" if c.result_key else None, "stats": c.stats} for c in job_cells(db, job_id)]
+
+
+class FrameTime(Algorithm):
+    name = NAME
+    help = "seed 000: impostors of a part technique wherever a view is too slow by the cost model"
+    index_kind = INDEX_KIND
+    noun = "impostors"
+    # The request's fields of this placement, in the request schema's order (farfield place --help).
+    fields = {
+        "cpv_size": (Number | None, Field(None, description="smallest 3D region of a problem view (default: the view space's longest side / 8)")),
+        "vdi_deg": (Number, Field(11.25, description=f"smallest view-direction interval, degrees, in [{MIN_VDI_DEG:g}, 90]")),
+        "depth_complexity": (Number | None, Field(4.0, description="a view's rasterised pixels are at most this many frames (>= 1; null: no cap)")),
+        "cells": (Literal[CELL_KINDS], Field("both", description="view cells of the candidates")),
+        "leaf_size": (StrictInt, Field(4, description="elements per leaf of the object hierarchy (>= 1)")),
+        "max_impostor_mb": (
+            Number, Field(DEFAULT_MAX_IMPOSTOR_BYTES / 2**20, description="largest impostor a placement considers, MiB by the cost model's memory estimate (> 0)")
+        ),
+    }  # fmt: skip
+
+    def params(self, technique_name, given_options, resolution, fov_deg, spec, model_triangles=None) -> dict:
+        """Its stored params: a part technique (default layered) with its options, the cost model as a
+        document, the planner's knobs as validated."""
+        technique = get_technique(technique_name or DEFAULT_TECHNIQUE)
+        check_placeable(technique)
+        options = technique.options(given_options, resolution, fov_deg)
+        lo, hi, span = view_space(spec)
+        model, t_max, budget = cost_model_of(spec.budget)
+        cpv_size = None if spec.cpv_size is None else finite(spec.cpv_size, "cpv_size")
+        if cpv_size is not None and not cpv_size > 0:
+            raise PlacementError(f"cpv_size must be > 0, got {cpv_size!r}")
+        size = cpv_size if cpv_size is not None else (max(span) / 8 if max(span) > 0 else 1.0)
+        cuts = [s / size for s in span]
+        if not all(math.isfinite(c) for c in cuts):  # a size so small the quotient overflows
+            raise PlacementError(f"a view space of {span} in regions of {size:.6g} has too many regions (over {MAX_REGIONS:.0e}); use a larger cpv_size")
+        regions = math.prod(max(1.0, math.ceil(c)) for c in cuts)
+        if regions > MAX_REGIONS:
+            raise PlacementError(f"a view space of {span} in regions of {size:.6g} has {regions:.3g} regions, over {MAX_REGIONS:.0e}; use a larger cpv_size")
+        vdi = finite(spec.vdi_deg, "vdi_deg")
+        if not MIN_VDI_DEG <= vdi <= 90:
+            raise PlacementError(f"vdi_deg must lie in [{MIN_VDI_DEG:g}, 90] degrees, got {vdi!r}")
+        depth = None if spec.depth_complexity is None else float(spec.depth_complexity)
+        if depth is not None and not (depth >= 1.0):
+            raise PlacementError(f"depth_complexity must be >= 1 (null: no cap), got {depth!r}")
+        if depth is not None and math.isinf(depth):
+            depth = None  # JSON (and PostgreSQL) hold no infinity: null is no cap
+        if spec.leaf_size < 1:
+            raise PlacementError(f"leaf_size must be >= 1, got {spec.leaf_size!r}")
+        largest = finite(spec.max_impostor_mb, "max_impostor_mb")
+        if not largest > 0:
+            raise PlacementError(f"max_impostor_mb must be > 0, got {largest!r}")
+        knobs = {
+            "view_space": {"lo": lo, "hi": hi}, "budget": budget, "cost_model": model.to_dict(), "cpv_size": cpv_size, "vdi_deg": vdi,
+            "depth_complexity": depth, "cells": spec.cells, "leaf_size": spec.leaf_size, "cluster_triangles": None,
+            "max_impostor_mb": largest,
+        }  # fmt: skip
+        return {"technique": technique.name, "resolution": options.resolution, "fov_deg": options.fov_deg, "objects": None, "options": stored_values(options), "placement": knobs}
+
+    def plan(self, blobs: BlobStore, job: JobRow, scene, progress) -> tuple[str, dict, list[dict]]:
+        """Seed 000's planner: (its state's key, the placement, the cells of its impostors)."""
+        from farfield.core.placement.planner import place
+
+        settings, lo, hi = planner_settings(job.params)
+        placement = place(scene, lo, hi, settings, progress=progress, keep_state=True)
+        key = state_key(job.id, 0)
+        blobs.put_bytes(key, placement.state.dumps())
+        as_dict = placement.to_dict()
+        return key, as_dict, placement_cells(as_dict, {imp["id"] for imp in as_dict["impostors"]})
+
+    def impostors(self, doc: dict) -> int:
+        return len(doc["impostors"])
+
+    def check(self, db: Database, blobs: BlobStore, job: JobRow, round_: int, rounds: list) -> Round:
+        """Repair the planner state with the baked cells' real figures: the impostors it adds are the
+        next round's cells; none (or past ``MAX_REPAIR_ROUNDS``): the database is written."""
+        from farfield.core.placement.repair import MAX_REPAIR_ROUNDS, PlannerState
+
+        planning = job.planning
+        state = PlannerState.loads(blobs.read_bytes(planning["state_key"]))
+        baked = {c.index: c.stats for c in job_cells(db, job.id) if c.state == "done" and c.stats}
+        # Past the last round the baked figures still go in (extend=False: nothing added), so the
+        # database's CPV times and statuses are those of what is baked, never estimates.
+        repaired = state.repair(baked, extend=round_ <= MAX_REPAIR_ROUNDS)
+        rounds = [*rounds, {**repaired.to_dict(), "round": round_}]
+        added = {int(i) for i in repaired.added}
+        current = state.placement().to_dict()
+        if added:
+            key = state_key(job.id, round_)
+            blobs.put_bytes(key, state.dumps())
+            return Round(key, placement_cells(current, added), self.impostors(current), current.get("summary"), round_, None, rounds)
+        index_key = self.write_index(db, blobs, job, current, rounds)
+        return Round(planning["state_key"], [], self.impostors(current), current.get("summary"), round_, index_key, rounds)
+
+    def too_many_cells(self, cells: int, limit: int) -> str:
+        return (
+            f"PlacementError: the placement needs {cells:,} impostors, over the limit of {limit:,} cells per job: "
+            "use a larger budget, a smaller view space or larger --cpv-size / --vdi-deg"
+        )
+
+    def bake_cell(self, scene, cell: CellRow, progress):
+        from farfield.core.placement.database import bake_impostor
+
+        return bake_impostor(scene, impostor_entry(cell), cell.params.get("cluster_triangles"), progress)
+
+    def write_index(self, db: Database, blobs: BlobStore, job: JobRow, doc: dict, rounds: list) -> str:
+        """:func:`farfield.core.placement.database.placement_index` of the placement and its cells."""
+        from farfield.core.placement.database import placement_index
+
+        return put_index(blobs, job.id, placement_index(doc, _cell_entries(db, job.id), job=job.id, scene=job.scene_id, rounds=rounds))
+
+    def bundled_cells(self, index: dict) -> set[int]:
+        """Those its index gives a bundle (an impostor no CPV draws has none)."""
+        return {int(c["index"]) for c in index.get("cells", []) if c.get("bundle")}
+
+    def read_index(self, index: dict):
+        from farfield.core.placement.database import PlacementLookup
+
+        return PlacementLookup(index)
+
+    def placement_document(self, job: JobRow, index: dict) -> dict:
+        """The CPVs, impostors, unsolvable regions and totals (the dashboard's map)."""
+        section = index["placement"]
+        cells = [
+            {k: c.get(k) for k in ("index", "state", "technique", "objects", "viewcell", "cpvs", "figures", "bundle")}
+            for c in index.get("cells", [])
+        ]  # fmt: skip
+        estimated = [(c["figures"] or {}).get("estimated") or {} for c in cells]
+        baked = [(c["figures"] or {}).get("baked") or {} for c in cells]
+        drawn = [c for c in cells if c.get("cpvs")]
+        totals = {
+            "impostors": len(drawn),
+            "impostors_listed": len(cells),
+            "impostors_baked": sum(1 for b in baked if "texture_bytes" in b),
+            "memory_bytes_estimated": sum(float(e.get("memory_bytes_estimated", 0.0)) for c, e in zip(cells, estimated) if c.get("cpvs")),
+            "memory_bytes_baked": sum(int(b.get("texture_bytes", 0)) for c, b in zip(cells, baked) if c.get("cpvs")),
+            "cpvs": len(section["cpvs"]),
+            "cpvs_by_status": {s: sum(1 for c in section["cpvs"] if c["status"] == s) for s in ("solved", "unsolved", "unsolvable")},
+            "unsolvable_regions": len(section["unsolvable"]),
+            "rounds": len(section.get("rounds") or []),
+        }
+        return {"job": job.id, "state": job.state, **section, "cells": cells, "totals": totals}
+
+    def lookup(self, index: dict, found, eye, direction) -> tuple[dict, list[int]]:
+        """:meth:`PlacementLookup.find` of the view (``cpv``, ``status``, ``impostors``, ``replaced``,
+        ``time_estimated``), and the cells of the impostors to draw."""
+        answer = found.find(eye, direction)
+        return answer, answer["impostors"]
+
+    def clusters(self, db: Database, blobs: BlobStore, job: JobRow, index: dict) -> dict:
+        """Its clusters of split objects (:meth:`farfield.core.placement.hierarchy.Elements.clusters`)."""
+        cluster = int(index["placement"]["elements"]["cluster_triangles"])
+        scene = load_stored_scene(blobs, get_scene_row(db, job.tenant_id, job.scene_id))
+        return {"cluster_triangles": cluster, "clusters": Elements.of(scene, cluster).clusters(scene)}
+
+
+ALGORITHM = FrameTime()
