@@ -12,19 +12,18 @@ from contextlib import asynccontextmanager
 from celery import Celery
 from fastapi import FastAPI
 
-from farfield.core import __version__
-from farfield.service.blobs import blob_store
-from farfield.service.db import Database
-from farfield.service.keys import ensure_admin_key
-from farfield.service.settings import Settings
-from farfield.workers.app import make_celery
-
 from farfield.api import routes_dashboard, routes_jobs, routes_ops, routes_results, routes_scenes, routes_techniques
 from farfield.api.deps import Services
 from farfield.api.errors import install_error_handlers
 from farfield.api.limits import BodyLimit
 from farfield.api.openapi import openapi_document
 from farfield.api.sweeper import LostCellSweeper
+from farfield.core import __version__
+from farfield.service.blobs import blob_store
+from farfield.service.db import Database
+from farfield.service.keys import ensure_admin_key
+from farfield.service.settings import Settings
+from farfield.workers.app import make_celery
 
 
 def create_app(settings: Settings, celery: Celery | None = None, migrate: bool = True) -> FastAPI:
@@ -43,7 +42,12 @@ def create_app(settings: Settings, celery: Celery | None = None, migrate: bool =
         yield
         sweeper.stop()
 
-    app = FastAPI(title="farfield", version=__version__, description="Impostor baking service: scenes, placement jobs, impostor databases.", lifespan=lifespan)
+    app = FastAPI(
+        title="farfield",
+        version=__version__,
+        description="Impostor baking service: scenes, placement jobs, impostor databases.",
+        lifespan=lifespan,
+    )
     app.state.services = services
 
     install_error_handlers(app)

@@ -38,7 +38,11 @@ def services(request: Request) -> Services:
 
 # Declares the key in the OpenAPI document (the security of every route that depends on `tenant`);
 # its absence is our 401 with our message, not the 403 of FastAPI's auto_error.
-BEARER_KEY = HTTPBearer(auto_error=False, scheme_name="BearerKey", description="an API key: 'Authorization: Bearer <key>' (farfield keys create)")
+BEARER_KEY = HTTPBearer(
+    auto_error=False,
+    scheme_name="BearerKey",
+    description="an API key: 'Authorization: Bearer <key>' (farfield keys create)",
+)
 
 
 def tenant(request: Request, credentials: Annotated[HTTPAuthorizationCredentials | None, Security(BEARER_KEY)]) -> str:

@@ -23,13 +23,16 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException
 
+from farfield.api.openapi import ErrorBody, declared_methods
 from farfield.core.errors import ErrorKind, FarfieldError
 
-from farfield.api.openapi import ErrorBody, declared_methods
-
-
 # Starlette's HTTPException by status, named like the farfield errors of the same meaning.
-HTTP_ERROR_NAMES = {400: "BadRequestError", 404: "NotFoundError", 405: "MethodNotAllowedError", 413: "UploadTooLargeError"}
+HTTP_ERROR_NAMES = {
+    400: "BadRequestError",
+    404: "NotFoundError",
+    405: "MethodNotAllowedError",
+    413: "UploadTooLargeError",
+}
 
 
 def error_response(status: int, detail: str, error: str, headers: dict[str, str] | None = None) -> JSONResponse:
@@ -58,7 +61,9 @@ def validation_detail(errors) -> str:
     for problem in errors:
         where = ".".join(str(part) for part in problem.get("loc", ()) if part != "body")
         shown = _shown(problem.get("input"))
-        lines.append(f"{where + ': ' if where else ''}{problem.get('msg', 'invalid')}{', got ' + shown if shown else ''}")
+        lines.append(
+            f"{where + ': ' if where else ''}{problem.get('msg', 'invalid')}{', got ' + shown if shown else ''}"
+        )
     return "; ".join(lines)
 
 

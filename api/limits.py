@@ -48,12 +48,19 @@ class BodyLimit:
         headers = dict(scope["headers"])
         length = headers.get(b"content-length", b"").decode()
         if length.isdigit() and int(length) > limit:
-            await self._reply(send, 413, f"request body of {int(length)} bytes is larger than the limit of {limit} bytes", "UploadTooLargeError")
+            await self._reply(
+                send,
+                413,
+                f"request body of {int(length)} bytes is larger than the limit of {limit} bytes",
+                "UploadTooLargeError",
+            )
             return
         if scope["method"] == "POST" and scope["path"] == "/v1/scenes":
             scheme, _, key = headers.get(b"authorization", b"").decode(errors="replace").partition(" ")
             try:
-                await run_in_threadpool(authenticate, self.services.db, key.strip() if scheme.lower() == "bearer" else None)
+                await run_in_threadpool(
+                    authenticate, self.services.db, key.strip() if scheme.lower() == "bearer" else None
+                )
             except AuthError as error:
                 await self._reply(send, 401, str(error), "AuthError")
                 return

@@ -35,7 +35,9 @@ class ErrorBody(BaseModel):
     """The body of every error response."""
 
     detail: str = Field(description="what is wrong, naming the offending field or value")
-    error: str = Field(description="the kind of error: a farfield error class (NotFoundError, AuthError, ...) or ValidationError")
+    error: str = Field(
+        description="the kind of error: a farfield error class (NotFoundError, AuthError, ...) or ValidationError"
+    )
 
 
 ERROR_DESCRIPTIONS = {
@@ -57,9 +59,18 @@ EXTRA_STATUSES = {
     ("get", "/v1/jobs/{job_id}/lookup"): {409},  # a placement job without its database yet
     ("get", "/v1/jobs/{job_id}/placement"): {409},  # the job has no database yet
 }
-FILE_MEDIA_TYPES = {".zip": "application/zip", ".bin": "application/octet-stream", ".png": "image/png", ".glb": "model/gltf-binary"}
+FILE_MEDIA_TYPES = {
+    ".zip": "application/zip",
+    ".bin": "application/octet-stream",
+    ".png": "image/png",
+    ".glb": "model/gltf-binary",
+}
 # Multipart fields that a route takes as optional only to answer their absence with its own 422.
-REQUIRED_FORM_FIELDS = {("post", "/v1/scenes"): {"file": {"type": "string", "format": "binary", "description": "the scene file (glb, gltf, obj, ply, stl)"}}}
+REQUIRED_FORM_FIELDS = {
+    ("post", "/v1/scenes"): {
+        "file": {"type": "string", "format": "binary", "description": "the scene file (glb, gltf, obj, ply, stl)"}
+    }
+}
 # Values of query parameters that the route types as a plain string, by (method, path, name).
 QUERY_VALUES = {("get", "/v1/jobs", "state"): list(JOB_STATES)}
 FASTAPI_ERROR_SCHEMAS = ("HTTPValidationError", "ValidationError")
@@ -67,7 +78,10 @@ METHODS = ("get", "put", "post", "delete", "options", "head", "patch", "trace")
 
 
 def _error_response(status: int) -> dict:
-    response = {"description": ERROR_DESCRIPTIONS[status], "content": {"application/json": {"schema": {"$ref": "#/components/schemas/ErrorBody"}}}}
+    response = {
+        "description": ERROR_DESCRIPTIONS[status],
+        "content": {"application/json": {"schema": {"$ref": "#/components/schemas/ErrorBody"}}},
+    }
     if status == 401:
         response["headers"] = {"WWW-Authenticate": {"description": "Bearer", "schema": {"type": "string"}}}
     return response
@@ -118,7 +132,11 @@ def describe(document: dict) -> dict:
             for parameter in operation.get("parameters", []):
                 values = QUERY_VALUES.get((method, path, parameter["name"]))
                 if values is not None and parameter["in"] == "query":
-                    parameter["schema"] = {"type": "string", "enum": values, "title": parameter["schema"].get("title", parameter["name"])}
+                    parameter["schema"] = {
+                        "type": "string",
+                        "enum": values,
+                        "title": parameter["schema"].get("title", parameter["name"]),
+                    }
     return document
 
 
@@ -130,7 +148,10 @@ def openapi_document(app: FastAPI) -> dict:
 
 
 def _template(path: str) -> re.Pattern:
-    return re.compile("".join(r"[^/]+" if part.startswith("{") else re.escape(part) for part in re.split(r"(\{[^}]+\})", path)) + r"\Z")
+    return re.compile(
+        "".join(r"[^/]+" if part.startswith("{") else re.escape(part) for part in re.split(r"(\{[^}]+\})", path))
+        + r"\Z"
+    )
 
 
 def declared_methods(document: dict, path: str) -> list[str] | None:

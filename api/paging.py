@@ -24,7 +24,10 @@ Offset = Annotated[int, Query(ge=0, le=2**31 - 1, description="entries to skip (
 
 PAGE_HEADERS = {
     "X-Total-Count": {"description": "entries in all pages", "schema": {"type": "integer"}},
-    "Link": {"description": 'RFC 8288 links to the neighbouring pages: <url>; rel="next", <url>; rel="prev"', "schema": {"type": "string"}},
+    "Link": {
+        "description": 'RFC 8288 links to the neighbouring pages: <url>; rel="next", <url>; rel="prev"',
+        "schema": {"type": "string"},
+    },
 }
 PAGED = {200: {"description": "one page, newest first; paging in the headers", "headers": PAGE_HEADERS}}
 
@@ -38,6 +41,7 @@ def page_links(path: str, query: dict[str, str], total: int, limit: int, offset:
     >>> page_links("/v1/scenes", {}, 100, 100, 0)
     ''
     """
+
     def link(at: int, rel: str) -> str:
         return f'<{path}?{urlencode({**query, "limit": limit, "offset": at})}>; rel="{rel}"'
 

@@ -27,7 +27,13 @@ from farfield.core.errors import NotFoundError
 DASHBOARD_DIR = Path(__file__).resolve().parent / "dashboard"
 PINNED_THREE = Path(__file__).resolve().parent.parent / "tests" / "js" / "node_modules" / "three"
 THREE_FOLDERS = ("build", "examples/jsm")  # what the view imports; the package's other files are not served
-MEDIA_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8", ".css": "text/css; charset=utf-8", ".svg": "image/svg+xml", ".png": "image/png"}
+MEDIA_TYPES = {
+    ".html": "text/html; charset=utf-8",
+    ".js": "text/javascript; charset=utf-8",
+    ".css": "text/css; charset=utf-8",
+    ".svg": "image/svg+xml",
+    ".png": "image/png",
+}
 # The files change with the service: the browser asks again each time (cheap: they are small).
 NO_CACHE = {"Cache-Control": "no-cache"}
 
@@ -63,7 +69,11 @@ def three_file(name: str) -> FileResponse:
     path = (root / name).resolve()
     inside = any(path.is_relative_to(root / folder) for folder in THREE_FOLDERS)
     if not inside or not path.is_file() or path.suffix != ".js":
-        hint = "" if (root / "build" / "three.module.js").is_file() else f" (three.js is not installed at {root}: run scripts/install-js or set FARFIELD_THREE_DIR)"
+        hint = (
+            ""
+            if (root / "build" / "three.module.js").is_file()
+            else f" (three.js is not installed at {root}: run scripts/install-js or set FARFIELD_THREE_DIR)"
+        )
         raise NotFoundError(f"no three.js file {name!r}{hint}")
     # the package is pinned: its files change only with the lock file, so the browser may keep them
     return FileResponse(path, media_type=MEDIA_TYPES[".js"], headers={"Cache-Control": "max-age=3600"})

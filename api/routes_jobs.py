@@ -4,20 +4,31 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Request, Response
 
+from farfield.api.deps import Services, services, tenant
+from farfield.api.paging import DEFAULT_PAGE, PAGED, Limit, Offset, set_page_headers
 from farfield.service.jobs.admission import create_job, create_placement_job
 from farfield.service.jobs.cells import cancel_job, retry_job
-from farfield.service.jobs.records import count_job_rows, full_job_record, get_job_row, job_record, job_summaries, list_job_rows, queued_cell_ids
+from farfield.service.jobs.records import (
+    count_job_rows,
+    full_job_record,
+    get_job_row,
+    job_record,
+    job_summaries,
+    list_job_rows,
+    queued_cell_ids,
+)
 from farfield.service.jobs.schema import JobSpec
 from farfield.service.scenes import get_scene_row
 from farfield.workers.app import send_planning
 
-from farfield.api.deps import Services, services, tenant
-from farfield.api.paging import DEFAULT_PAGE, PAGED, Limit, Offset, set_page_headers
-
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 
 
-@router.post("", status_code=201, summary="Create a job: one impostor per view cell, or a placement job (planned on a worker: state 'placing')")
+@router.post(
+    "",
+    status_code=201,
+    summary="Create a job: one impostor per view cell, or a placement job (planned on a worker: state 'placing')",
+)
 def submit_job(spec: JobSpec, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
     if spec.placement is not None:
         scene = get_scene_row(svc.db, tenant_id, spec.scene_id)
@@ -30,10 +41,18 @@ def submit_job(spec: JobSpec, tenant_id: str = Depends(tenant), svc: Services = 
     return full_job_record(svc.db, job)
 
 
-@router.get("", summary="List jobs, newest first (filter by state or scene); paged (X-Total-Count, Link)", responses=PAGED)
+@router.get(
+    "", summary="List jobs, newest first (filter by state or scene); paged (X-Total-Count, Link)", responses=PAGED
+)
 def list_jobs(
-    request: Request, response: Response, state: str | None = None, scene_id: str | None = None, limit: Limit = DEFAULT_PAGE, offset: Offset = 0,
-    tenant_id: str = Depends(tenant), svc: Services = Depends(services),
+    request: Request,
+    response: Response,
+    state: str | None = None,
+    scene_id: str | None = None,
+    limit: Limit = DEFAULT_PAGE,
+    offset: Offset = 0,
+    tenant_id: str = Depends(tenant),
+    svc: Services = Depends(services),
 ) -> list[dict]:
     jobs = list_job_rows(svc.db, tenant_id, state, scene_id, limit, offset)
     set_page_headers(request, response, count_job_rows(svc.db, tenant_id, state, scene_id), limit, offset)

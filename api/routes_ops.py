@@ -12,11 +12,9 @@ from fastapi import APIRouter, Depends
 from fastapi.responses import PlainTextResponse
 from sqlalchemy import func, select, text
 
-from farfield.service.db import CellRow, JobRow, SceneRow, Tenant
-
-from farfield.service.keys import ADMIN_TENANT
-
 from farfield.api.deps import Services, services, tenant
+from farfield.service.db import CellRow, JobRow, SceneRow, Tenant
+from farfield.service.keys import ADMIN_TENANT
 
 router = APIRouter(tags=["operations"])
 
@@ -42,7 +40,11 @@ def health(svc: Services = Depends(services)) -> dict:
     return {"status": "ok" if database and broker else "degraded", "database": database, "broker": broker}
 
 
-@router.get("/metrics", response_class=PlainTextResponse, summary="Prometheus text format: the caller's tenant's figures (the admin key: the service's)")
+@router.get(
+    "/metrics",
+    response_class=PlainTextResponse,
+    summary="Prometheus text format: the caller's tenant's figures (the admin key: the service's)",
+)
 def metrics(tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> str:
     lines = []
     with svc.db.session() as s:
@@ -53,7 +55,10 @@ def metrics(tenant_id: str = Depends(tenant), svc: Services = Depends(services))
         scenes = select(func.count()).select_from(SceneRow)
         if not admin:
             jobs = jobs.where(JobRow.tenant_id == tenant_id)
-            cells, attempts, seconds = (q.join(JobRow, CellRow.job_id == JobRow.id).where(JobRow.tenant_id == tenant_id) for q in (cells, attempts, seconds))
+            cells, attempts, seconds = (
+                q.join(JobRow, CellRow.job_id == JobRow.id).where(JobRow.tenant_id == tenant_id)
+                for q in (cells, attempts, seconds)
+            )
             scenes = scenes.where(SceneRow.tenant_id == tenant_id)
         lines += ["# HELP farfield_jobs Jobs by state.", "# TYPE farfield_jobs gauge"]
         for state, count in s.execute(jobs.group_by(JobRow.state)):
@@ -61,9 +66,15 @@ def metrics(tenant_id: str = Depends(tenant), svc: Services = Depends(services))
         lines += ["# HELP farfield_cells Cells by state.", "# TYPE farfield_cells gauge"]
         for state, count in s.execute(cells.group_by(CellRow.state)):
             lines.append(f'farfield_cells{{state="{state}"}} {count}')
-        lines += ["# HELP farfield_cell_attempts_total Attempts over all cells.", "# TYPE farfield_cell_attempts_total counter"]
+        lines += [
+            "# HELP farfield_cell_attempts_total Attempts over all cells.",
+            "# TYPE farfield_cell_attempts_total counter",
+        ]
         lines.append(f"farfield_cell_attempts_total {s.scalar(attempts)}")
-        lines += ["# HELP farfield_cell_seconds_total Seconds spent in finished cells.", "# TYPE farfield_cell_seconds_total counter"]
+        lines += [
+            "# HELP farfield_cell_seconds_total Seconds spent in finished cells.",
+            "# TYPE farfield_cell_seconds_total counter",
+        ]
         lines.append(f"farfield_cell_seconds_total {float(s.scalar(seconds))}")
         lines += ["# HELP farfield_scenes Stored scenes.", "# TYPE farfield_scenes gauge"]
         lines.append(f"farfield_scenes {s.scalar(scenes)}")

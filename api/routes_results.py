@@ -11,19 +11,19 @@ import zipfile
 from pathlib import Path
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, Depends, Path as PathParam, Query
+from fastapi import APIRouter, Depends, Query
+from fastapi import Path as PathParam
 from fastapi.responses import FileResponse, Response
 from starlette.background import BackgroundTask
 
+from farfield.api.deps import Services, services, tenant
+from farfield.core.errors import BundleFormatError, ConflictError, InternalError, NotFoundError, ViewCellError
 from farfield.core.impostor.bundle import GLB_NAME, MANIFEST_NAME, PAYLOAD_NAME, bundle_zip, page_file_name
 from farfield.core.impostor.glb_compression import compress_glb
-from farfield.core.errors import BundleFormatError, ConflictError, InternalError, NotFoundError, ViewCellError
 from farfield.service.db import JobRow
 from farfield.service.jobs.index import bundled_cells, lookup_view
 from farfield.service.jobs.records import cell_record, get_cell_row, get_job_row, job_cells
 from farfield.service.placement import documents
-
-from farfield.api.deps import Services, services, tenant
 
 router = APIRouter(prefix="/v1/jobs/{job_id}", tags=["results"])
 
@@ -41,30 +41,57 @@ def _result(svc: Services, tenant_id: str, job_id: str, index: int) -> str:
 
 
 @router.get("/cells/{index}/bundle.zip", summary="A cell's impostor bundle as a zip")
-def cell_bundle(job_id: str, index: int = CellIndex, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> Response:
+def cell_bundle(
+    job_id: str, index: int = CellIndex, tenant_id: str = Depends(tenant), svc: Services = Depends(services)
+) -> Response:
     key = _result(svc, tenant_id, job_id, index)
     with tempfile.TemporaryDirectory(prefix="farfield-zip-") as tmp:
         data = bundle_zip(svc.blobs.copy_to_directory(key, tmp))
-    return Response(data, media_type="application/zip", headers={"Content-Disposition": f'attachment; filename="cell-{index:05d}.zip"'})
+    return Response(
+        data,
+        media_type="application/zip",
+        headers={"Content-Disposition": f'attachment; filename="cell-{index:05d}.zip"'},
+    )
 
 
 @router.get("/cells/{index}/manifest.json", summary="A cell's bundle manifest")
-def cell_manifest(job_id: str, index: int = CellIndex, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> Response:
-    return Response(svc.blobs.read_bytes(f"{_result(svc, tenant_id, job_id, index)}/{MANIFEST_NAME}"), media_type="application/json")
+def cell_manifest(
+    job_id: str, index: int = CellIndex, tenant_id: str = Depends(tenant), svc: Services = Depends(services)
+) -> Response:
+    return Response(
+        svc.blobs.read_bytes(f"{_result(svc, tenant_id, job_id, index)}/{MANIFEST_NAME}"), media_type="application/json"
+    )
 
 
-@router.get("/cells/{index}/payload.bin", summary="A cell's payload arrays (little-endian; the manifest's 'payload' names their dtypes, shapes and offsets)")
-def cell_payload(job_id: str, index: int = CellIndex, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> Response:
-    return Response(svc.blobs.read_bytes(f"{_result(svc, tenant_id, job_id, index)}/{PAYLOAD_NAME}"), media_type="application/octet-stream")
+@router.get(
+    "/cells/{index}/payload.bin",
+    summary="A cell's payload arrays (little-endian; the manifest's 'payload' names their dtypes, shapes and offsets)",
+)
+def cell_payload(
+    job_id: str, index: int = CellIndex, tenant_id: str = Depends(tenant), svc: Services = Depends(services)
+) -> Response:
+    return Response(
+        svc.blobs.read_bytes(f"{_result(svc, tenant_id, job_id, index)}/{PAYLOAD_NAME}"),
+        media_type="application/octet-stream",
+    )
 
 
 @router.get("/cells/{index}/atlas/{page}.png", summary="One atlas page of a cell (RGBA PNG)")
-def cell_atlas(job_id: str, index: int = CellIndex, page: int = PageIndex, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> Response:
+def cell_atlas(
+    job_id: str,
+    index: int = CellIndex,
+    page: int = PageIndex,
+    tenant_id: str = Depends(tenant),
+    svc: Services = Depends(services),
+) -> Response:
     key = f"{_result(svc, tenant_id, job_id, index)}/{page_file_name(page)}"
     return Response(svc.blobs.read_bytes(key), media_type="image/png")
 
 
-@router.get("/cells/{index}/impostor.glb", summary="A cell's impostor as GLB: plain (PNG pages) by default, or with KTX2 pages and meshopt geometry")
+@router.get(
+    "/cells/{index}/impostor.glb",
+    summary="A cell's impostor as GLB: plain (PNG pages) by default, or with KTX2 pages and meshopt geometry",
+)
 def cell_glb(
     job_id: str, index: int = CellIndex, tenant_id: str = Depends(tenant), svc: Services = Depends(services),
     textures: Literal["png", "ktx2", "ktx2+png"] = Query("png", description="ktx2: Basis Universal pages (KHR_texture_basisu, required); ktx2+png: the PNG kept as fallback"),
@@ -84,11 +111,17 @@ def cell_glb(
             except BundleFormatError as error:  # farfield wrote this GLB: one that does not compress is a bug
                 raise InternalError(f"cell {index} of job {job_id!r}: its GLB does not compress: {error}") from error
             svc.blobs.put_bytes(variant, data)
-    return Response(data, media_type="model/gltf-binary", headers={"Content-Disposition": f'attachment; filename="cell-{index:05d}.glb"'})
+    return Response(
+        data,
+        media_type="model/gltf-binary",
+        headers={"Content-Disposition": f'attachment; filename="cell-{index:05d}.glb"'},
+    )
 
 
 @router.get("/cells/{index}", summary="One cell: state, statistics")
-def cell_info(job_id: str, index: int = CellIndex, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
+def cell_info(
+    job_id: str, index: int = CellIndex, tenant_id: str = Depends(tenant), svc: Services = Depends(services)
+) -> dict:
     return cell_record(get_cell_row(svc.db, tenant_id, job_id, index))
 
 
@@ -99,7 +132,10 @@ def _not_written(job: JobRow, what: str) -> ConflictError:
     return ConflictError(f"job {job.id!r} is {job.state}; its {what} is written when it ends")
 
 
-@router.get("/index.json", summary="The job's impostor database index (format farfield-impostor-database): its cells, their view cells, bundles and neighbours; a placement job's CPVs")
+@router.get(
+    "/index.json",
+    summary="The job's impostor database index (format farfield-impostor-database): its cells, their view cells, bundles and neighbours; a placement job's CPVs",
+)
 def job_index(job_id: str, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> Response:
     job = get_job_row(svc.db, tenant_id, job_id)
     if job.index_key is None:
@@ -128,17 +164,35 @@ def job_database(job_id: str, tenant_id: str = Depends(tenant), svc: Services = 
     except BaseException:
         Path(out.name).unlink(missing_ok=True)
         raise
-    return FileResponse(out.name, media_type="application/zip", filename=f"job-{job_id}.zip", background=BackgroundTask(Path(out.name).unlink, missing_ok=True))
+    return FileResponse(
+        out.name,
+        media_type="application/zip",
+        filename=f"job-{job_id}.zip",
+        background=BackgroundTask(Path(out.name).unlink, missing_ok=True),
+    )
 
 
-@router.get("/placement", summary="A placement job's CPVs, impostors, unsolvable regions and totals (the dashboard's map)")
+@router.get(
+    "/placement", summary="A placement job's CPVs, impostors, unsolvable regions and totals (the dashboard's map)"
+)
 def job_placement(job_id: str, tenant_id: TenantDep, svc: ServicesDep) -> dict:
     return documents.placement_document(svc.blobs, get_job_row(svc.db, tenant_id, job_id))
 
 
-@router.get("/lookup", summary="Which impostors serve this view: by position for grid jobs, by position and direction for placement jobs")
+@router.get(
+    "/lookup",
+    summary="Which impostors serve this view: by position for grid jobs, by position and direction for placement jobs",
+)
 def lookup_viewpoint(
-    job_id: str, tenant_id: TenantDep, svc: ServicesDep, x: float, y: float, z: float, dx: float | None = None, dy: float | None = None, dz: float | None = None
+    job_id: str,
+    tenant_id: TenantDep,
+    svc: ServicesDep,
+    x: float,
+    y: float,
+    z: float,
+    dx: float | None = None,
+    dy: float | None = None,
+    dz: float | None = None,
 ) -> list[dict] | dict:
     """A grid job's answer is the cells whose view cell holds (x, y, z).  A placement job's is
     :meth:`PlacementLookup.find` for the view (``cpv``, ``status``, ``impostors``, ``replaced``,
@@ -152,7 +206,10 @@ def lookup_viewpoint(
     return lookup_view(svc.db, svc.blobs, job, (x, y, z), (dx, dy, dz))
 
 
-@router.get("/clusters", summary="A placement job's clusters of split objects: each one's object and face ranges (what a runtime hides when an impostor replaces a cluster)")
+@router.get(
+    "/clusters",
+    summary="A placement job's clusters of split objects: each one's object and face ranges (what a runtime hides when an impostor replaces a cluster)",
+)
 def placement_clusters(job_id: str, tenant_id: TenantDep, svc: ServicesDep) -> dict:
     """``{"cluster_triangles": n, "clusters": {name: {"object": name, "faces": [[start, end), ...]}}}``:
     the lookup's ``replaced`` names elements; an element that is not a whole object of the scene is

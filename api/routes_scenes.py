@@ -9,11 +9,19 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, File, Request, Response, UploadFile
 
-from farfield.core.errors import SceneLoadError
-from farfield.service.scenes import count_scenes, delete_scene, get_scene_row, ingest_scene, list_scene_rows, scene_objects, scene_record, stored_scene_glb
-
 from farfield.api.deps import Services, services, tenant
 from farfield.api.paging import DEFAULT_PAGE, PAGED, Limit, Offset, set_page_headers
+from farfield.core.errors import SceneLoadError
+from farfield.service.scenes import (
+    count_scenes,
+    delete_scene,
+    get_scene_row,
+    ingest_scene,
+    list_scene_rows,
+    scene_objects,
+    scene_record,
+    stored_scene_glb,
+)
 
 router = APIRouter(prefix="/v1/scenes", tags=["scenes"])
 
@@ -27,9 +35,20 @@ def upload_scene(
     tenant_id: str = Depends(tenant), svc: Services = Depends(services),
 ) -> dict:  # fmt: skip
     if not file:
-        raise SceneLoadError("send the scene as multipart form field 'file' (a scene file, a .zip of one and its files, or one 'file' field per file)")
+        raise SceneLoadError(
+            "send the scene as multipart form field 'file' (a scene file, a .zip of one and its files, or one 'file' field per file)"
+        )
     first, more = file[0], [(f.filename or "", f.file) for f in file[1:]]
-    row = ingest_scene(svc.db, svc.blobs, tenant_id, first.filename or "", first.file, svc.settings.max_upload_bytes, svc.settings.scene_limits, more)
+    row = ingest_scene(
+        svc.db,
+        svc.blobs,
+        tenant_id,
+        first.filename or "",
+        first.file,
+        svc.settings.max_upload_bytes,
+        svc.settings.scene_limits,
+        more,
+    )
     return {**scene_record(row), "warnings": getattr(row, "upload_warnings", [])}
 
 
@@ -47,7 +66,11 @@ def get_scene(scene_id: str, tenant_id: str = Depends(tenant), svc: Services = D
     return scene_record(get_scene_row(svc.db, tenant_id, scene_id))
 
 
-@router.get("/{scene_id}/objects", summary="A scene's objects in file order: name, triangles, bounds, ...; paged (X-Total-Count, Link)", responses=PAGED)
+@router.get(
+    "/{scene_id}/objects",
+    summary="A scene's objects in file order: name, triangles, bounds, ...; paged (X-Total-Count, Link)",
+    responses=PAGED,
+)
 def list_scene_objects(
     scene_id: str, request: Request, response: Response, limit: Limit = DEFAULT_PAGE, offset: Offset = 0,
     tenant_id: str = Depends(tenant), svc: Services = Depends(services),
@@ -57,10 +80,17 @@ def list_scene_objects(
     return objects
 
 
-@router.get("/{scene_id}/scene.glb", summary="The scene as loaded, as GLB: one node per object, its name in the mesh's extras (farfield_object); what the 3D view draws")
+@router.get(
+    "/{scene_id}/scene.glb",
+    summary="The scene as loaded, as GLB: one node per object, its name in the mesh's extras (farfield_object); what the 3D view draws",
+)
 def get_scene_glb(scene_id: str, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> Response:
     data = stored_scene_glb(svc.blobs, get_scene_row(svc.db, tenant_id, scene_id))
-    return Response(data, media_type="model/gltf-binary", headers={"Content-Disposition": f'attachment; filename="scene-{scene_id}.glb"'})
+    return Response(
+        data,
+        media_type="model/gltf-binary",
+        headers={"Content-Disposition": f'attachment; filename="scene-{scene_id}.glb"'},
+    )
 
 
 @router.delete("/{scene_id}", status_code=204, summary="Delete a scene and its finished jobs")

@@ -36,7 +36,11 @@ class LostCellSweeper:
             try:
                 lost = lost_queued_cells(self.services.db, self.services.settings.requeue_after)
                 if lost:
-                    log.warning("sending %d queued cells again (queued over %d s without starting)", len(lost), self.services.settings.requeue_after)
+                    log.warning(
+                        "sending %d queued cells again (queued over %d s without starting)",
+                        len(lost),
+                        self.services.settings.requeue_after,
+                    )
                     self.services.enqueue(lost)
                 for job_id, phase in lost_planning_jobs(self.services.db, self.services.settings.requeue_after):
                     log.warning("job %s: its %s was lost (message or worker); sending it again", job_id, phase)

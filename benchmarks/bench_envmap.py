@@ -46,14 +46,14 @@ import trimesh
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from farfield.core.techniques.envmap.runtime import EnvmapCellRenderer, camera_at, depth_range_for, evaluate_envmap  # noqa: E402
 from farfield.core.impostor.database import ImpostorDatabase, write_database  # noqa: E402
+from farfield.core.quality.walkthrough import generate_path, walkthrough, write_plot  # noqa: E402
 from farfield.core.render.context import gl_context, renderer_info  # noqa: E402
 from farfield.core.render.raster import MeshRenderer  # noqa: E402
 from farfield.core.scene import Scene, SceneObject  # noqa: E402
+from farfield.core.techniques.envmap.runtime import EnvmapCellRenderer, camera_at, depth_range_for, evaluate_envmap  # noqa: E402
 from farfield.core.techniques.envmap.technique import EnvmapOptions, bake_envmap  # noqa: E402
 from farfield.core.viewcells import BoxCell, grid_boxes  # noqa: E402
-from farfield.core.quality.walkthrough import generate_path, walkthrough, write_plot  # noqa: E402
 
 HORIZONTAL = ("+x", "-x", "+z", "-z")
 
@@ -76,7 +76,10 @@ def detailed_city(side: int = 36, subdivisions: int = 3, seed: int = 0) -> Scene
             grey = rng.uniform(0.3, 0.9)
             # Storeys as colour bands, so the images have detail to get wrong.
             band = (np.floor(uv[:, 1] * h / 3.0) % 2)[:, None]
-            colour = np.concatenate([np.clip(255 * (grey - 0.15 * band) * np.array([1.0, 0.97, 0.9]), 0, 255), np.full((len(uv), 1), 255)], axis=1)
+            colour = np.concatenate(
+                [np.clip(255 * (grey - 0.15 * band) * np.array([1.0, 0.97, 0.9]), 0, 255), np.full((len(uv), 1), 255)],
+                axis=1,
+            )
             blocks.setdefault((i // 6, j // 6), []).append((low + uv * [w, h, d], uf, colour.astype(np.uint8)))
     objects = []
     for (bi, bj), parts in sorted(blocks.items()):
@@ -140,7 +143,9 @@ def street_path(side: int, frames: int, counts=(3, 1, 3), size: float = 10.0) ->
         (sx, sz), (hx, hz) = legs[leg]
         t = step / int(frames)  # 0..1 along the leg
         along = -reach + 2.0 * reach * t
-        positions.append([middle + sx * reach + hx * (along + reach), height, middle + sz * reach + hz * (along + reach)])
+        positions.append(
+            [middle + sx * reach + hx * (along + reach), height, middle + sz * reach + hz * (along + reach)]
+        )
         forwards.append([float(hx), 0.0, float(hz)])
     return np.array(positions), np.array(forwards)
 
@@ -179,10 +184,21 @@ def main() -> None:
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--out", default="benchmarks/out", help="folder for the plots")
     parser.add_argument("--only", choices=("walkthrough", "grid"), help="run only this part")
-    parser.add_argument("--grid-cells", default="8,4,2", help="microtexture grids of part 5, comma-separated (default 8,4,2)")
-    parser.add_argument("--before", default="8392e0a", help="git revision whose runtime is walked beside this tree's ('' for none)")
-    parser.add_argument("--path", choices=("streets", "loop", "both"), default="streets", help="the walkthrough's path (default: along the streets)")
-    parser.add_argument("--walk", nargs=5, metavar=("DIR", "SIDE", "SUBDIVISIONS", "FRAMES", "PATH"), help=argparse.SUPPRESS)  # internal: one walk, JSON out
+    parser.add_argument(
+        "--grid-cells", default="8,4,2", help="microtexture grids of part 5, comma-separated (default 8,4,2)"
+    )
+    parser.add_argument(
+        "--before", default="8392e0a", help="git revision whose runtime is walked beside this tree's ('' for none)"
+    )
+    parser.add_argument(
+        "--path",
+        choices=("streets", "loop", "both"),
+        default="streets",
+        help="the walkthrough's path (default: along the streets)",
+    )
+    parser.add_argument(
+        "--walk", nargs=5, metavar=("DIR", "SIDE", "SUBDIVISIONS", "FRAMES", "PATH"), help=argparse.SUPPRESS
+    )  # internal: one walk, JSON out
     args = parser.parse_args()
     if args.walk:
         directory, side, subdiv, frames, path = args.walk
@@ -197,7 +213,9 @@ def main() -> None:
     print(f"renderer: {info.renderer} ({info.vendor}, {info.version})")
     t = time.perf_counter()
     scene = detailed_city(side, subdiv)
-    print(f"city: {scene.triangle_count:,} triangles in {scene.object_count} objects (built in {time.perf_counter() - t:.1f} s)")
+    print(
+        f"city: {scene.triangle_count:,} triangles in {scene.object_count} objects (built in {time.perf_counter() - t:.1f} s)"
+    )
     cells = street_grid(side)
     report: dict = {"renderer": info.renderer, "triangles": scene.triangle_count}
 
@@ -216,13 +234,23 @@ def main() -> None:
 
 
 def generation(scene: Scene, middle: BoxCell, res: int, layers: int, report: dict) -> None:
-    print(f"\n1-2. one cell ({middle.size[0]:.0f} m cube at {middle.center.tolist()}), {res} x {res} faces, {layers} layers")
-    print(f"{'dirs':>4} {'near field':>10} {'layers':>6} {'quads':>6} {'raw MB':>8} {'macro MB':>9} {'PNG KB':>8} {'raw/macro':>9} {'macro/PNG':>9} {'total s':>8}  stages (s)")
+    print(
+        f"\n1-2. one cell ({middle.size[0]:.0f} m cube at {middle.center.tolist()}), {res} x {res} faces, {layers} layers"
+    )
+    print(
+        f"{'dirs':>4} {'near field':>10} {'layers':>6} {'quads':>6} {'raw MB':>8} {'macro MB':>9} {'PNG KB':>8} {'raw/macro':>9} {'macro/PNG':>9} {'total s':>8}  stages (s)"
+    )
     rows = []
     for directions in (HORIZONTAL, ("+x", "-x", "+y", "-y", "+z", "-z")):
-        imp = bake_envmap(scene, middle, EnvmapOptions(resolution=res, fov_deg=90.0, layers=layers, directions=directions))
+        imp = bake_envmap(
+            scene, middle, EnvmapOptions(resolution=res, fov_deg=90.0, layers=layers, directions=directions)
+        )
         s = imp.stats
-        row = {"directions": len(directions), **{k: s[k] for k in ("near_field", "layers", "quads", "raw_layer_bytes", "texture_bytes", "png_bytes")}, "seconds": s["seconds"]}
+        row = {
+            "directions": len(directions),
+            **{k: s[k] for k in ("near_field", "layers", "quads", "raw_layer_bytes", "texture_bytes", "png_bytes")},
+            "seconds": s["seconds"],
+        }
         rows.append(row)
         stages = " ".join(f"{k} {v:.2f}" for k, v in s["seconds"].items() if k != "total")
         print(
@@ -234,7 +262,9 @@ def generation(scene: Scene, middle: BoxCell, res: int, layers: int, report: dic
     report["cell"] = rows
 
 
-def walkthrough_section(args, scene: Scene, cells, res: int, layers: int, frames: int, side: int, subdiv: int, info, out: Path, report: dict) -> None:
+def walkthrough_section(
+    args, scene: Scene, cells, res: int, layers: int, frames: int, side: int, subdiv: int, info, out: Path, report: dict
+) -> None:
     """3: a walkthrough through a 3 x 1 x 3 grid, the runtime before and after."""
     print(f"\n3. walkthrough: {len(cells)} cells, 6 directions, {frames} frames")
     options = EnvmapOptions(resolution=res, fov_deg=90.0, layers=layers)
@@ -245,19 +275,53 @@ def walkthrough_section(args, scene: Scene, cells, res: int, layers: int, frames
     tmp_db = tempfile.TemporaryDirectory()
     write_database(Path(tmp_db.name) / "db", "envmap", {}, baked)
     for path in ("streets", "loop") if args.path == "both" else (args.path,):
-        walk_path_section(args, scene, Path(tmp_db.name), res, layers, frames, side, subdiv, info, out, report, path, bake_s / len(cells))
+        walk_path_section(
+            args,
+            scene,
+            Path(tmp_db.name),
+            res,
+            layers,
+            frames,
+            side,
+            subdiv,
+            info,
+            out,
+            report,
+            path,
+            bake_s / len(cells),
+        )
     tmp_db.cleanup()
 
 
-def walk_path_section(args, scene: Scene, directory: Path, res: int, layers: int, frames: int, side: int, subdiv: int, info, out: Path, report: dict, path: str, bake_per_cell: float) -> None:
+def walk_path_section(
+    args,
+    scene: Scene,
+    directory: Path,
+    res: int,
+    layers: int,
+    frames: int,
+    side: int,
+    subdiv: int,
+    info,
+    out: Path,
+    report: dict,
+    path: str,
+    bake_per_cell: float,
+) -> None:
     """3, on one path: the runtime before and after, then where its frame goes."""
     print(f"   path: {path}")
     runs = {}
     for label, rev in ([("before", args.before)] if args.before else []) + [("after", None)]:
         runs[label] = walk_in_process(directory, side, subdiv, frames, path, rev)
     walk = runs["after"]
-    write_plot(walk, out / f"walkthrough-{path}.png", title=f"{scene.triangle_count:,}-triangle city, {res}x{res}, {layers} layers, {path} ({info.renderer})")
-    print(f"   {'runtime':<16} {'full ms':>8} {'runtime ms':>10} {'max ms':>7} {'speed-up':>8} {'holes':>6} {'colour err':>10}")
+    write_plot(
+        walk,
+        out / f"walkthrough-{path}.png",
+        title=f"{scene.triangle_count:,}-triangle city, {res}x{res}, {layers} layers, {path} ({info.renderer})",
+    )
+    print(
+        f"   {'runtime':<16} {'full ms':>8} {'runtime ms':>10} {'max ms':>7} {'speed-up':>8} {'holes':>6} {'colour err':>10}"
+    )
     for label, run in runs.items():
         s = run["summary"]
         name = f"{label} ({args.before})" if label == "before" else "after (this tree)"
@@ -266,10 +330,14 @@ def walk_path_section(args, scene: Scene, directory: Path, res: int, layers: int
             f"{s['hole_pixels']:>6} {s['colour_error_mean']:>10.3f}"
         )
     s = walk["summary"]
-    print(f"   {s['cell_switches']} cell switches; largest colour difference {s['colour_error_max']} (0-255); plot: {out / f'walkthrough-{path}.png'}")
+    print(
+        f"   {s['cell_switches']} cell switches; largest colour difference {s['colour_error_max']} (0-255); plot: {out / f'walkthrough-{path}.png'}"
+    )
     if "before" in runs:
         b = runs["before"]["summary"]
-        print(f"   runtime frame {b['impostor_ms_mean']:.2f} -> {s['impostor_ms_mean']:.2f} ms ({b['impostor_ms_mean'] / s['impostor_ms_mean']:.2f}x); speed-up over the full scene {b['speedup_mean']:.2f}x -> {s['speedup_mean']:.2f}x")
+        print(
+            f"   runtime frame {b['impostor_ms_mean']:.2f} -> {s['impostor_ms_mean']:.2f} ms ({b['impostor_ms_mean'] / s['impostor_ms_mean']:.2f}x); speed-up over the full scene {b['speedup_mean']:.2f}x -> {s['speedup_mean']:.2f}x"
+        )
         report[f"walkthrough_before_{path}"] = {"revision": args.before, "summary": b}
     report[f"walkthrough_{path}"] = {"summary": s, "bake_seconds_per_cell": bake_per_cell}
     report[f"walkthrough_parts_{path}"] = frame_parts(scene, directory, frames, res, side, path)
@@ -294,15 +362,29 @@ def frame_parts(scene: Scene, directory: Path, frames: int, res: int, side: int,
                     current, runtime = found.index, EnvmapCellRenderer(scene, db.impostor(found.index))
                     near = [obj for obj, *_ in runtime.renderer._draws][: len(runtime.near.objects(scene))]
                     layers = [obj for obj, *_ in runtime.renderer._draws][len(near) :]
-                    parts = {"runtime": runtime.renderer, "near field": MeshRenderer(near, [runtime.near.clip] * len(near)), "layers": MeshRenderer(layers)}
-                camera = camera_at(position, forward, runtime.impostor.fov_deg, runtime.impostor.resolution, *depth_range_for(scene, found.viewcell, position, runtime.reach))
+                    parts = {
+                        "runtime": runtime.renderer,
+                        "near field": MeshRenderer(near, [runtime.near.clip] * len(near)),
+                        "layers": MeshRenderer(layers),
+                    }
+                camera = camera_at(
+                    position,
+                    forward,
+                    runtime.impostor.fov_deg,
+                    runtime.impostor.resolution,
+                    *depth_range_for(scene, found.viewcell, position, runtime.reach),
+                )
                 for name, renderer in [("full scene", full), *parts.items()]:
                     renderer.frame_seconds(camera)
                     times.setdefault(name, []).append(min(renderer.frame_seconds(camera) for _ in range(5)))
         finally:
             for renderer in parts.values():
                 renderer.release()
-    wall = SceneObject("wall", np.array([[-1.0, -1.0, 1.0], [1.0, -1.0, 1.0], [1.0, 1.0, 1.0], [-1.0, 1.0, 1.0]]), np.array([[0, 1, 2], [0, 2, 3]]))
+    wall = SceneObject(
+        "wall",
+        np.array([[-1.0, -1.0, 1.0], [1.0, -1.0, 1.0], [1.0, 1.0, 1.0], [-1.0, 1.0, 1.0]]),
+        np.array([[0, 1, 2], [0, 2, 3]]),
+    )
     with MeshRenderer([wall]) as one:
         camera = camera_at(np.zeros(3), [0.0, 0.0, 1.0], 60.0, res, 0.1, 10.0)
         one.frame_seconds(camera)
@@ -336,17 +418,32 @@ def walk_in_process(directory: Path, side: int, subdiv: int, frames: int, path: 
             tar.extractall(package, filter="data")
         (package / "__init__.py").write_text("")
         env["PYTHONPATH"] = os.pathsep.join([str(root), env.get("PYTHONPATH", "")])
-    command = [sys.executable, str(Path(__file__).resolve()), "--walk", str(directory), str(side), str(subdiv), str(frames), path]
+    command = [
+        sys.executable,
+        str(Path(__file__).resolve()),
+        "--walk",
+        str(directory),
+        str(side),
+        str(subdiv),
+        str(frames),
+        path,
+    ]
     result = subprocess.run(command, check=True, capture_output=True, text=True, env=env, cwd=directory)
     return json.loads(result.stdout.strip().splitlines()[-1])
 
 
-def grid_section(args, scene: Scene, cells, res: int, layers: int, frames: int, side: int, subdiv: int, report: dict) -> None:
+def grid_section(
+    args, scene: Scene, cells, res: int, layers: int, frames: int, side: int, subdiv: int, report: dict
+) -> None:
     """5: the walkthrough's cells baked at each microtexture grid, walked by this tree's runtime."""
     grids = [int(g) for g in args.grid_cells.split(",")]
     path = "loop" if args.path == "loop" else "streets"
-    print(f"\n5. microtexture grid: {len(cells)} cells, {res}, {layers} layers, walked along {path} ({frames} frames, each walk in a fresh process)")
-    print(f"   {'grid':>4} {'quads':>7} {'texture MB':>10} {'bake s':>7} {'full ms':>8} {'runtime ms':>10} {'speed-up':>8} {'holes':>6} {'colour err':>10}")
+    print(
+        f"\n5. microtexture grid: {len(cells)} cells, {res}, {layers} layers, walked along {path} ({frames} frames, each walk in a fresh process)"
+    )
+    print(
+        f"   {'grid':>4} {'quads':>7} {'texture MB':>10} {'bake s':>7} {'full ms':>8} {'runtime ms':>10} {'speed-up':>8} {'holes':>6} {'colour err':>10}"
+    )
     rows = []
     for grid in grids:
         options = EnvmapOptions(resolution=res, fov_deg=90.0, layers=layers, grid_cell=grid)
@@ -356,7 +453,13 @@ def grid_section(args, scene: Scene, cells, res: int, layers: int, frames: int, 
         with tempfile.TemporaryDirectory() as tmp:
             write_database(Path(tmp) / "db", "envmap", {}, baked)
             s = walk_in_process(Path(tmp), side, subdiv, frames, path, None)["summary"]
-        row = {"grid_cell": grid, "quads": sum(imp.stats["quads"] for _, imp in baked), "texture_bytes": sum(imp.stats["texture_bytes"] for _, imp in baked), "bake_s": bake_s, **s}
+        row = {
+            "grid_cell": grid,
+            "quads": sum(imp.stats["quads"] for _, imp in baked),
+            "texture_bytes": sum(imp.stats["texture_bytes"] for _, imp in baked),
+            "bake_s": bake_s,
+            **s,
+        }
         rows.append(row)
         print(
             f"   {grid:>4} {row['quads']:>7,} {row['texture_bytes'] / 1e6:>10.1f} {bake_s:>7.1f} {s['full_ms_mean']:>8.1f} {s['impostor_ms_mean']:>10.2f} "
@@ -368,9 +471,13 @@ def grid_section(args, scene: Scene, cells, res: int, layers: int, frames: int, 
 def trade(args, scene: Scene, middle: BoxCell, info, out: Path, report: dict) -> None:
     """4: the trade, on the middle cell, horizontal directions."""
     print("\n4. trade (middle cell, 4 directions; frame times and errors over its 8 corners and centre)")
-    print(f"{'res':>5} {'layers':>6} {'near field':>10} {'quads':>6} {'macro MB':>9} {'PNG KB':>8} {'gen s':>7} {'full ms':>8} {'imp ms':>7} {'holes':>6} {'err mean':>8}")
+    print(
+        f"{'res':>5} {'layers':>6} {'near field':>10} {'quads':>6} {'macro MB':>9} {'PNG KB':>8} {'gen s':>7} {'full ms':>8} {'imp ms':>7} {'holes':>6} {'err mean':>8}"
+    )
     rows = []
-    settings = [(128, 8), (128, 16)] if args.quick else [(256, 16), (256, 32), (256, 64), (512, 16), (512, 32), (512, 64)]
+    settings = (
+        [(128, 8), (128, 16)] if args.quick else [(256, 16), (256, 32), (256, 64), (512, 16), (512, 32), (512, 64)]
+    )
     for r, k in settings:
         t = time.perf_counter()
         imp = bake_envmap(scene, middle, EnvmapOptions(resolution=r, fov_deg=90.0, layers=k, directions=HORIZONTAL))
@@ -406,7 +513,9 @@ def _trade_plot(trade: list[dict], path: Path, renderer: str) -> None:
         axes[2].plot(k, [row["generation_s"] for row in rows], marker="o", label=f"{r}")
         axes[3].plot(k, [row["impostor_ms"] for row in rows], marker="o", label=f"{r} impostors")
         axes[3].plot(k, [row["full_ms"] for row in rows], linestyle=":", color="grey")
-    for ax, title in zip(axes, ("near-field distance (m)", "macrotextures (MB)", "generation (s)", "frame time (ms; dotted: full scene)")):
+    for ax, title in zip(
+        axes, ("near-field distance (m)", "macrotextures (MB)", "generation (s)", "frame time (ms; dotted: full scene)")
+    ):
         ax.set_xlabel("layers")
         ax.set_title(title)
         ax.legend(title="resolution")

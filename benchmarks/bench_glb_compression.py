@@ -32,8 +32,8 @@ from PIL import Image
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT.parent))
 
-from farfield.core.impostor.glb import impostor_glb  # noqa: E402
 from farfield.core.exchange import load_scene  # noqa: E402
+from farfield.core.impostor.glb import impostor_glb  # noqa: E402
 from farfield.core.impostor.glb_compression import compress_glb, decode_ktx2, read_glb  # noqa: E402
 from farfield.core.procedural import demo_scene  # noqa: E402
 from farfield.core.techniques import get_technique  # noqa: E402
@@ -42,7 +42,10 @@ from farfield.core.viewcells import BoxCell  # noqa: E402
 PART_CELL = BoxCell([-40.0, -41.75, -192.0], [60.0, 58.25, -92.0])  # the README's house cell
 SCENE_CELL = BoxCell.from_center([170.0, 5.0, 170.0], 10.0)
 SHARED = ROOT.parent / "shared" / "scenes"
-TEXTURED = {"layered (helmet)": SHARED / "damaged_helmet" / "DamagedHelmet.glb", "layered (pine)": SHARED / "scrub_pine" / "scrubPine.obj"}
+TEXTURED = {
+    "layered (helmet)": SHARED / "damaged_helmet" / "DamagedHelmet.glb",
+    "layered (pine)": SHARED / "scrub_pine" / "scrubPine.obj",
+}
 
 
 def cell_in_front(scene) -> BoxCell:
@@ -66,7 +69,11 @@ def pages_of(glb: bytes) -> list[tuple[str, bytes]]:
 
 def codec_error(plain: bytes, compressed: bytes) -> tuple[float, int, int]:
     """(mean |RGB| error on kept texels, texels whose alpha cut flips, texels) of the KTX2 pages."""
-    pngs = [np.asarray(Image.open(io.BytesIO(data)).convert("RGBA")) for kind, data in pages_of(plain) if kind == "image/png"]
+    pngs = [
+        np.asarray(Image.open(io.BytesIO(data)).convert("RGBA"))
+        for kind, data in pages_of(plain)
+        if kind == "image/png"
+    ]
     ktx = [decode_ktx2(data) for kind, data in pages_of(compressed) if kind == "image/ktx2"]
     errors, flips, texels = [], 0, 0
     for a, b in zip(pngs, ktx):
@@ -86,7 +93,10 @@ def main() -> None:
     args = parser.parse_args()
     house, city = demo_scene("house"), demo_scene("city", 100)
     rows = []
-    cases = [(name, name, (city, SCENE_CELL) if get_technique(name).scope == "scene" else (house, PART_CELL)) for name in ("layered", "tdm", "points", "ldi", "envmap")]
+    cases = [
+        (name, name, (city, SCENE_CELL) if get_technique(name).scope == "scene" else (house, PART_CELL))
+        for name in ("layered", "tdm", "points", "ldi", "envmap")
+    ]
     for label, path in TEXTURED.items():
         if path.is_file():
             scene = load_scene(path)
@@ -95,7 +105,12 @@ def main() -> None:
         technique = get_technique(technique_name)
         impostor = technique.bake(scene, cell, technique.options({}, args.resolution), None, None)
         plain = impostor_glb(impostor)
-        row = {"technique": name, "plain": len(plain), "pages": len(impostor.pages), "texels": int(sum(p.shape[0] * p.shape[1] for p in impostor.pages))}
+        row = {
+            "technique": name,
+            "plain": len(plain),
+            "pages": len(impostor.pages),
+            "texels": int(sum(p.shape[0] * p.shape[1] for p in impostor.pages)),
+        }
         row["geometry_plain"] = len(plain) - sum(len(d) for _, d in pages_of(plain))
         for label, textures, geometry, codec in (("meshopt", "png", "meshopt", "etc1s"), ("etc1s", "ktx2", "plain", "etc1s"), ("uastc", "ktx2", "plain", "uastc"),
                                                  ("etc1s+meshopt", "ktx2", "meshopt", "etc1s"), ("uastc+meshopt", "ktx2", "meshopt", "uastc"), ("etc1s+png", "ktx2+png", "plain", "etc1s")):  # fmt: skip
@@ -114,12 +129,22 @@ def main() -> None:
     print("|---|---|---|" + "---|" * len(labels))
     for r in rows:
         cells = [f"{r[k]:,} ({r[k] / r['plain']:.2f})" for k in labels]
-        print(f"| {r['technique']} | {r['pages']} ({r['texels']:,}) | {r['plain']:,} ({r['geometry_plain']:,}) | " + " | ".join(cells) + " |")
-    print("\ncodec figures: mean |RGB| error on kept texels (0..255), alpha-cut flips, encode seconds; GPU bytes RGBA8 -> 8 bpp")
-    print("| technique | etc1s error | etc1s flips | etc1s s | uastc error | uastc flips | uastc s | GPU bytes RGBA8 | transcoded |")
+        print(
+            f"| {r['technique']} | {r['pages']} ({r['texels']:,}) | {r['plain']:,} ({r['geometry_plain']:,}) | "
+            + " | ".join(cells)
+            + " |"
+        )
+    print(
+        "\ncodec figures: mean |RGB| error on kept texels (0..255), alpha-cut flips, encode seconds; GPU bytes RGBA8 -> 8 bpp"
+    )
+    print(
+        "| technique | etc1s error | etc1s flips | etc1s s | uastc error | uastc flips | uastc s | GPU bytes RGBA8 | transcoded |"
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['technique']} | {r['etc1s_error']:.2f} | {r['etc1s_flips']:,} | {r['etc1s_seconds']:.2f} | {r['uastc_error']:.2f} | {r['uastc_flips']:,} | {r['uastc_seconds']:.2f} | {4 * r['texels']:,} | {r['texels']:,} |")
+        print(
+            f"| {r['technique']} | {r['etc1s_error']:.2f} | {r['etc1s_flips']:,} | {r['etc1s_seconds']:.2f} | {r['uastc_error']:.2f} | {r['uastc_flips']:,} | {r['uastc_seconds']:.2f} | {4 * r['texels']:,} | {r['texels']:,} |"
+        )
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
 

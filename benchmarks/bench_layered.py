@@ -29,8 +29,8 @@ import trimesh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from farfield.core.quality.evaluation import evaluate  # noqa: E402
 from farfield.core.layering.plan import plan_layers  # noqa: E402
+from farfield.core.quality.evaluation import evaluate  # noqa: E402
 from farfield.core.render.context import gl_context, renderer_info  # noqa: E402
 from farfield.core.render.programs import park_framebuffer  # noqa: E402
 from farfield.core.render.raster import Camera, MeshRenderer  # noqa: E402
@@ -43,10 +43,16 @@ def dense_object(seed: int = 0) -> Scene:
     """A bumpy icosphere (81,920 triangles) fused with a smaller one (20,480): 102,400 triangles, radius ~1."""
     rng = np.random.default_rng(seed)
     big = trimesh.creation.icosphere(subdivisions=6)
-    bumps = 1.0 + 0.04 * np.sin(7 * big.vertices[:, :1]) * np.cos(5 * big.vertices[:, 1:2]) + 0.01 * rng.standard_normal((len(big.vertices), 1))
+    bumps = (
+        1.0
+        + 0.04 * np.sin(7 * big.vertices[:, :1]) * np.cos(5 * big.vertices[:, 1:2])
+        + 0.01 * rng.standard_normal((len(big.vertices), 1))
+    )
     small = trimesh.creation.icosphere(subdivisions=5, radius=0.5)
     small.apply_translation([0.3, 0.9, 0.4])
-    colours = np.concatenate([rng.integers(60, 255, (len(big.vertices), 3)), np.full((len(big.vertices), 1), 255)], axis=1).astype(np.uint8)
+    colours = np.concatenate(
+        [rng.integers(60, 255, (len(big.vertices), 3)), np.full((len(big.vertices), 1), 255)], axis=1
+    ).astype(np.uint8)
     return Scene.from_objects(
         [
             SceneObject("body", big.vertices * bumps, big.faces, vertex_colors=colours),
@@ -72,13 +78,21 @@ def table(scene: Scene, distances, resolutions, size: float, random_count: int) 
             imp = bake_layered(scene, cell, BakeOptions(resolution=resolution))
             ev = evaluate(scene, imp, cell, random_count=random_count, seed=1, samples=2)
             s = imp.stats
-            rows.append({
-                "distance": distance, "resolution": resolution, "layers": s["layers"], "quads": s["quads"],
-                "texture_kib": s["texture_bytes"] / 1024, "holes": ev.totals["hole_pixels"],
-                "bloat_1px": ev.totals["bloat_beyond_1px"], "colour_err": ev.totals["colour_error_mean"],
-                "colour_p99": ev.totals["colour_error_p99"], "ssim": ev.totals["ssim"],
-                **{f"t_{k}": v for k, v in s["seconds"].items()},
-            })
+            rows.append(
+                {
+                    "distance": distance,
+                    "resolution": resolution,
+                    "layers": s["layers"],
+                    "quads": s["quads"],
+                    "texture_kib": s["texture_bytes"] / 1024,
+                    "holes": ev.totals["hole_pixels"],
+                    "bloat_1px": ev.totals["bloat_beyond_1px"],
+                    "colour_err": ev.totals["colour_error_mean"],
+                    "colour_p99": ev.totals["colour_error_p99"],
+                    "ssim": ev.totals["ssim"],
+                    **{f"t_{k}": v for k, v in s["seconds"].items()},
+                }
+            )
     return rows
 
 
@@ -111,19 +125,36 @@ def knobs(scene: Scene, distance: float, size: float, random_count: int) -> list
         imp = bake_layered(scene, cell, BakeOptions(resolution=512, **change))
         ev = evaluate(scene, imp, cell, random_count=random_count, seed=1, samples=2)
         s = imp.stats
-        rows.append({
-            "knob": name, "layers": s["layers"], "quads": s["quads"], "texture_kib": s["texture_bytes"] / 1024,
-            "tile_kib": s["texture_bytes_tile_area"] / 1024, "geometry_kib": s["geometry_bytes"] / 1024,
-            "seconds": s["seconds"]["total"], "holes": ev.totals["hole_pixels"], "colour_err": ev.totals["colour_error_mean"],
-            "colour_p99": ev.totals["colour_error_p99"], "ssim": ev.totals["ssim"], "bloat_1px": ev.totals["bloat_beyond_1px"],
-        })
+        rows.append(
+            {
+                "knob": name,
+                "layers": s["layers"],
+                "quads": s["quads"],
+                "texture_kib": s["texture_bytes"] / 1024,
+                "tile_kib": s["texture_bytes_tile_area"] / 1024,
+                "geometry_kib": s["geometry_bytes"] / 1024,
+                "seconds": s["seconds"]["total"],
+                "holes": ev.totals["hole_pixels"],
+                "colour_err": ev.totals["colour_error_mean"],
+                "colour_p99": ev.totals["colour_error_p99"],
+                "ssim": ev.totals["ssim"],
+                "bloat_1px": ev.totals["bloat_beyond_1px"],
+            }
+        )
     return rows
 
 
 def bake_plan(scene: Scene, cell: BoxCell, resolution: int):
     """The layer plan a default bake of ``scene`` (one part) at ``resolution`` records."""
     options = BakeOptions(resolution=resolution)
-    return plan_layers(cell, scene.bounds, math.radians(options.fov_deg), resolution, options.pixel_model, texel_share=options.texel_share)
+    return plan_layers(
+        cell,
+        scene.bounds,
+        math.radians(options.fov_deg),
+        resolution,
+        options.pixel_model,
+        texel_share=options.texel_share,
+    )
 
 
 def lower_bound_s(scene: Scene, plan, repeats: int) -> float:
@@ -135,7 +166,14 @@ def lower_bound_s(scene: Scene, plan, repeats: int) -> float:
     target = 0.5 * (scene.bounds[0] + scene.bounds[1])
     bounds = []
     with MeshRenderer(scene.objects) as renderer:
-        camera = Camera.look_at(plan.reference_viewpoint, target, 2 * math.atan(float(plan.frustum_half_tangents.max())), max(res_x, res_y), plan.t0 * 0.5, (plan.t0 + plan.depth + plan.reference_offset) * 2)
+        camera = Camera.look_at(
+            plan.reference_viewpoint,
+            target,
+            2 * math.atan(float(plan.frustum_half_tangents.max())),
+            max(res_x, res_y),
+            plan.t0 * 0.5,
+            (plan.t0 + plan.depth + plan.reference_offset) * 2,
+        )
         renderer.render(camera)
         texture = ctx.texture((res_x, res_y), 4)
         fbo = ctx.framebuffer([texture])
@@ -166,9 +204,16 @@ def speed(scene: Scene, distance: float, size: float, resolution: int, repeats: 
     bake_s, imp = min(bakes, key=lambda pair: pair[0])
     record_s = min(made.stats["seconds"]["record"] for _, made in bakes)  # issue 29 item 3: recording alone
     return {
-        "resolution": resolution, "triangles": scene.triangle_count, "layers": imp.stats["layers_planned"], "texture": [res_x, res_y],
-        "bake_s": bake_s, "stages": imp.stats["seconds"], "lower_bound_s": bound_s, "ratio": bake_s / bound_s,
-        "record_s": record_s, "record_ratio": record_s / bound_s,
+        "resolution": resolution,
+        "triangles": scene.triangle_count,
+        "layers": imp.stats["layers_planned"],
+        "texture": [res_x, res_y],
+        "bake_s": bake_s,
+        "stages": imp.stats["seconds"],
+        "lower_bound_s": bound_s,
+        "ratio": bake_s / bound_s,
+        "record_s": record_s,
+        "record_ratio": record_s / bound_s,
     }
 
 
@@ -178,7 +223,9 @@ PARTS = ("table", "memory", "knobs", "speed")
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer distances and resolutions")
-    parser.add_argument("--only", action="append", choices=PARTS, help="run only this part (repeatable; default: all four)")
+    parser.add_argument(
+        "--only", action="append", choices=PARTS, help="run only this part (repeatable; default: all four)"
+    )
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     parts = args.only or PARTS
@@ -186,7 +233,11 @@ def main() -> None:
     scene = dense_object()
     diameter = float(np.max(scene.bounds[1] - scene.bounds[0]))
     size = 0.3 * diameter
-    distances = [1.0 * diameter, 3.0 * diameter] if args.quick else [0.5 * diameter, 1.0 * diameter, 2.0 * diameter, 4.0 * diameter, 8.0 * diameter]
+    distances = (
+        [1.0 * diameter, 3.0 * diameter]
+        if args.quick
+        else [0.5 * diameter, 1.0 * diameter, 2.0 * diameter, 4.0 * diameter, 8.0 * diameter]
+    )
     resolutions = [256, 512] if args.quick else [256, 512, 1024]
     random_count = 4 if args.quick else 8
     result = {"renderer": info.renderer, "object_triangles": scene.triangle_count}
@@ -201,7 +252,9 @@ def main() -> None:
     if args.json:
         print(json.dumps(result, indent=2))
         return
-    print(f"renderer: {info.renderer} ({info.vendor}, {info.version})   object: {scene.triangle_count} triangles, diameter {diameter:.3g}, cubic cell {size:.3g}")
+    print(
+        f"renderer: {info.renderer} ({info.vendor}, {info.version})   object: {scene.triangle_count} triangles, diameter {diameter:.3g}, cubic cell {size:.3g}"
+    )
     report(result)
 
 
@@ -214,9 +267,11 @@ def report(result: dict) -> None:
         _print_knobs(result["knobs"])
     for s in result.get("speed", []):
         stages = "  ".join(f"{k} {v:.3f}" for k, v in s["stages"].items())
-        print(f"\n4. speed at {s['resolution']}: {s['triangles']} triangles, {s['layers']} layers, texture {s['texture'][0]}x{s['texture'][1]}: bake {s['bake_s']:.3f} s "
-              f"vs lower bound {s['lower_bound_s']:.3f} s = {s['ratio']:.1f}x\n   stages: {stages}\n"
-              f"   recording (best of the bakes) {s['record_s']:.3f} s = {s['record_ratio']:.1f}x the lower bound")
+        print(
+            f"\n4. speed at {s['resolution']}: {s['triangles']} triangles, {s['layers']} layers, texture {s['texture'][0]}x{s['texture'][1]}: bake {s['bake_s']:.3f} s "
+            f"vs lower bound {s['lower_bound_s']:.3f} s = {s['ratio']:.1f}x\n   stages: {stages}\n"
+            f"   recording (best of the bakes) {s['record_s']:.3f} s = {s['record_ratio']:.1f}x the lower bound"
+        )
 
 
 def _print_table(rows: list[dict]) -> None:
@@ -224,22 +279,30 @@ def _print_table(rows: list[dict]) -> None:
     head = f"{'dist':>6} {'res':>5} {'layers':>6} {'quads':>6} {'tex KiB':>9} {'holes':>6} {'bloat>1':>8} {'col err':>8} {'p99':>5} {'SSIM':>5} {'record':>7} {'cull':>6} {'quads':>6} {'atlas':>6} {'total s':>8}"
     print(head)
     for r in rows:
-        print(f"{r['distance']:>6.2f} {r['resolution']:>5} {r['layers']:>6} {r['quads']:>6} {r['texture_kib']:>9.1f} {r['holes']:>6} {r['bloat_1px']:>8} {r['colour_err']:>8.2f} {r['colour_p99']:>5.0f} {r['ssim']:>5.3f} "
-              f"{r['t_record']:>7.3f} {r['t_cull']:>6.3f} {r['t_quads']:>6.3f} {r['t_atlas']:>6.3f} {r['t_total']:>8.3f}")
+        print(
+            f"{r['distance']:>6.2f} {r['resolution']:>5} {r['layers']:>6} {r['quads']:>6} {r['texture_kib']:>9.1f} {r['holes']:>6} {r['bloat_1px']:>8} {r['colour_err']:>8.2f} {r['colour_p99']:>5.0f} {r['ssim']:>5.3f} "
+            f"{r['t_record']:>7.3f} {r['t_cull']:>6.3f} {r['t_quads']:>6.3f} {r['t_atlas']:>6.3f} {r['t_total']:>8.3f}"
+        )
 
 
 def _print_memory(m: dict) -> None:
-    print(f"\n2. texture memory at 512, {m['layers']} layers: one quad per layer {m['one_quad_per_layer_kib']:.0f} KiB -> box-grown "
-          f"{m['box_grown_kib']:.0f} KiB -> box-grown after culling {m['box_grown_culled_kib']:.0f} KiB "
-          f"(ratios {m['ratio_one_to_grown']:.1f}x, {m['ratio_one_to_culled']:.1f}x; thesis 2.9x, 13.7x); atlas pages {m['atlas_pages_culled_kib']:.0f} KiB")
+    print(
+        f"\n2. texture memory at 512, {m['layers']} layers: one quad per layer {m['one_quad_per_layer_kib']:.0f} KiB -> box-grown "
+        f"{m['box_grown_kib']:.0f} KiB -> box-grown after culling {m['box_grown_culled_kib']:.0f} KiB "
+        f"(ratios {m['ratio_one_to_grown']:.1f}x, {m['ratio_one_to_culled']:.1f}x; thesis 2.9x, 13.7x); atlas pages {m['atlas_pages_culled_kib']:.0f} KiB"
+    )
 
 
 def _print_knobs(rows: list[dict]) -> None:
     print("\n3. knobs at 512, one at a time (distance 1 diameter)")
-    print(f"{'knob':<22} {'layers':>6} {'quads':>6} {'atlas KiB':>10} {'tiles KiB':>10} {'geom KiB':>9} {'seconds':>8} {'holes':>6} {'bloat>1':>8} {'col err':>8} {'p99':>5} {'SSIM':>5}")
+    print(
+        f"{'knob':<22} {'layers':>6} {'quads':>6} {'atlas KiB':>10} {'tiles KiB':>10} {'geom KiB':>9} {'seconds':>8} {'holes':>6} {'bloat>1':>8} {'col err':>8} {'p99':>5} {'SSIM':>5}"
+    )
     for r in rows:
-        print(f"{r['knob']:<22} {r['layers']:>6} {r['quads']:>6} {r['texture_kib']:>10.1f} {r['tile_kib']:>10.1f} {r['geometry_kib']:>9.1f} "
-              f"{r['seconds']:>8.3f} {r['holes']:>6} {r['bloat_1px']:>8} {r['colour_err']:>8.2f} {r['colour_p99']:>5.0f} {r['ssim']:>5.3f}")
+        print(
+            f"{r['knob']:<22} {r['layers']:>6} {r['quads']:>6} {r['texture_kib']:>10.1f} {r['tile_kib']:>10.1f} {r['geometry_kib']:>9.1f} "
+            f"{r['seconds']:>8.3f} {r['holes']:>6} {r['bloat_1px']:>8} {r['colour_err']:>8.2f} {r['colour_p99']:>5.0f} {r['ssim']:>5.3f}"
+        )
 
 
 if __name__ == "__main__":

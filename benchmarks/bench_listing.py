@@ -59,10 +59,16 @@ def measure(client: httpx.Client, pid: int, path: str, repeats: int) -> dict:
 
 
 def run(nodes: int, repeats: int) -> dict:
-    limits = {"FARFIELD_MAX_SCENE_NODES": str(2 * nodes), "FARFIELD_MAX_SCENE_PRIMITIVES": str(2 * nodes), "FARFIELD_MAX_UPLOAD_MB": "100"}
+    limits = {
+        "FARFIELD_MAX_SCENE_NODES": str(2 * nodes),
+        "FARFIELD_MAX_SCENE_PRIMITIVES": str(2 * nodes),
+        "FARFIELD_MAX_UPLOAD_MB": "100",
+    }
     with tempfile.TemporaryDirectory() as home:
         os.environ.update({"FARFIELD_ADMIN_KEY": KEY, **limits})
-        settings = Settings.from_env({"FARFIELD_HOME": str(home), "FARFIELD_PORT": "0", "FARFIELD_ADMIN_KEY": KEY, **limits})
+        settings = Settings.from_env(
+            {"FARFIELD_HOME": str(home), "FARFIELD_PORT": "0", "FARFIELD_ADMIN_KEY": KEY, **limits}
+        )
         service = Service(settings, workers=0).start()
         try:
             client = httpx.Client(base_url=service.url, headers={"Authorization": f"Bearer {KEY}"}, timeout=600)
@@ -99,10 +105,14 @@ def main() -> None:
         return
     print(f"{result['nodes']:,} nodes, a {result['glb_mb']:.1f} MB GLB: upload {result['upload_s']:.1f} s (response {result['upload_response_bytes']:,} bytes); "
           f"API resident {result['rss_idle_mib']:.0f} MiB idle, {result['rss_after_upload_mib']:.0f} MiB after the upload (peak {result['peak_after_upload_mib']:.0f} MiB)")  # fmt: skip
-    print(f"\n| route ({args.repeats} requests each) | HTTP | body bytes | X-Total-Count | s (slowest / fastest) | API resident MiB before -> after | API peak MiB after |")
+    print(
+        f"\n| route ({args.repeats} requests each) | HTTP | body bytes | X-Total-Count | s (slowest / fastest) | API resident MiB before -> after | API peak MiB after |"
+    )
     print("|---|---|---|---|---|---|---|")
     for r in result["routes"]:
-        path = r["path"].replace(r["path"].split("/")[3].split("?")[0], "{id}") if r["path"].count("/") > 2 else r["path"]
+        path = (
+            r["path"].replace(r["path"].split("/")[3].split("?")[0], "{id}") if r["path"].count("/") > 2 else r["path"]
+        )
         print(f"| GET {path} | {r['status']} | {r['bytes']:,} | {r['total_count'] or '-'} | {r['seconds_max']:.3f} / {r['seconds_min']:.3f} | "
               f"{r['rss_before_mib']:.0f} -> {r['rss_after_mib']:.0f} | {r['peak_after_mib']:.0f} |")  # fmt: skip
 

@@ -28,7 +28,12 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "scenes"
-SCENE_FILES = {"damaged_helmet": "DamagedHelmet.glb", "duck": "duck.obj", "scrub_pine": "scrubPine.obj", "stanford_bunny": "bun_zipper.ply"}
+SCENE_FILES = {
+    "damaged_helmet": "DamagedHelmet.glb",
+    "duck": "duck.obj",
+    "scrub_pine": "scrubPine.obj",
+    "stanford_bunny": "bun_zipper.ply",
+}
 
 CHILD = r"""
 import json, sys, time
@@ -80,7 +85,9 @@ def atlas_obj(folder: Path, size: int, triangles: int = 225_000, materials: int 
     for k, group in enumerate(np.array_split(np.arange(len(faces)), materials)):
         lines.append(f"usemtl mat{k}")
         lines += [f"f {a}/{a} {b}/{b} {c}/{c}" for a, b, c in faces[group]]
-    (folder / "atlas.mtl").write_text("".join(f"newmtl mat{k}\nKd 1 1 1\nmap_Kd atlas.png\n\n" for k in range(materials)))
+    (folder / "atlas.mtl").write_text(
+        "".join(f"newmtl mat{k}\nKd 1 1 1\nmap_Kd atlas.png\n\n" for k in range(materials))
+    )
     path = folder / "atlas_45_materials.obj"
     path.write_text("\n".join(lines) + "\n")
     return path
@@ -88,7 +95,9 @@ def atlas_obj(folder: Path, size: int, triangles: int = 225_000, materials: int 
 
 def measure(which: str, path: Path, repeats: int) -> dict:
     code = CHILD
-    done = subprocess.run([sys.executable, "-c", code, which, str(path), str(repeats)], capture_output=True, text=True, check=False)
+    done = subprocess.run(
+        [sys.executable, "-c", code, which, str(path), str(repeats)], capture_output=True, text=True, check=False
+    )
     if done.returncode != 0:
         return {"error": done.stderr.strip().splitlines()[-1] if done.stderr.strip() else f"exit {done.returncode}"}
     return json.loads(done.stdout.strip().splitlines()[-1])
@@ -102,7 +111,9 @@ def main() -> None:
     args = parser.parse_args()
     rows = []
     kinds = ("farfield", "trimesh", "trimesh+decode")
-    print(f"{'scene':<30} {'farfield s':>10} {'trimesh s':>9} {'+decode s':>9} {'ratio':>6} {'farfield MiB':>12} {'trimesh MiB':>11} {'+decode MiB':>11} {'ratio':>6}")
+    print(
+        f"{'scene':<30} {'farfield s':>10} {'trimesh s':>9} {'+decode s':>9} {'ratio':>6} {'farfield MiB':>12} {'trimesh MiB':>11} {'+decode MiB':>11} {'ratio':>6}"
+    )
     with tempfile.TemporaryDirectory(prefix="farfield-bench-loading-") as tmp:
         paths = {name: SHARED / name / file for name, file in SCENE_FILES.items() if (SHARED / name / file).exists()}
         paths[f"OBJ, 45 materials, {args.atlas}² atlas"] = atlas_obj(Path(tmp), args.atlas)

@@ -63,7 +63,6 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from farfield.core import procedural  # noqa: E402
-from farfield.core.techniques.envmap.arrangement import layers_for_near_field  # noqa: E402
 from farfield.core.errors import FarfieldError  # noqa: E402
 from farfield.core.exchange import load_scene  # noqa: E402
 from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, primitive_model  # noqa: E402
@@ -71,10 +70,15 @@ from farfield.core.placement.hierarchy import Elements  # noqa: E402
 from farfield.core.placement.planner import PlacementSettings, place  # noqa: E402
 from farfield.core.placement.view_space import element_pixels  # noqa: E402
 from farfield.core.scene import Scene, SceneObject  # noqa: E402
+from farfield.core.techniques.envmap.arrangement import layers_for_near_field  # noqa: E402
 from farfield.core.techniques.envmap.technique import EnvmapOptions  # noqa: E402
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "scenes"
 RESOLUTION = 256
+
+
+def mib(b: float) -> float:
+    return b / 2**20
 
 
 def city_scene(quick: bool, size: int | None = None, detail: int = 16) -> tuple[Scene, np.ndarray, np.ndarray]:
@@ -99,7 +103,10 @@ def downtown_scene(quick: bool, size: int | None = None, detail: int = 20) -> tu
     for i in range(side):
         for j in range(side):
             w, d = rng.uniform(8.0, 20.0, 2)
-            low, high = (i * 40.0 - w / 2, 0.0, j * 40.0 - d / 2), (i * 40.0 + w / 2, rng.uniform(5.0, 25.0), j * 40.0 + d / 2)
+            low, high = (
+                (i * 40.0 - w / 2, 0.0, j * 40.0 - d / 2),
+                (i * 40.0 + w / 2, rng.uniform(5.0, 25.0), j * 40.0 + d / 2),
+            )
             v, f = procedural.subdivided_box(low, high, 1)
             objects.append(SceneObject(f"house_{i}_{j}", v, f, base_color=(*rng.uniform(0.5, 0.9, 3), 1.0)))
     corner = (side - 1) * 40.0 - 70.0
@@ -176,12 +183,16 @@ def _envmap_near_field(elements: Elements, c_lo, c_hi, t_max: float, model: Cost
     pixels = element_pixels(elements, c_lo, c_hi, math.radians(45.0), resolution)
     cost = model.geometry_time(elements.draw_calls, elements.triangles, 0.0)
     b = elements.bounds
-    dist = np.max(np.maximum(0.0, np.maximum(b[:, 0] - centre, centre - b[:, 1])), axis=1)  # to the box, along the farthest axis
+    dist = np.max(
+        np.maximum(0.0, np.maximum(b[:, 0] - centre, centre - b[:, 1])), axis=1
+    )  # to the box, along the farthest axis
     order = np.argsort(dist)
     frame = float(resolution) ** 2
     # Inside a near field of half-size dist[order[k]]: the k nearest elements.
     geometry = model.frame_time + np.concatenate([[0.0], np.cumsum(cost[order])])
-    geometry += model.geometry[2] * np.minimum(np.concatenate([[0.0], np.cumsum(pixels[order])]), depth_complexity * frame)
+    geometry += model.geometry[2] * np.minimum(
+        np.concatenate([[0.0], np.cumsum(pixels[order])]), depth_complexity * frame
+    )
     if geometry[-1] <= t_max:
         return math.inf, float(geometry[-1])
     options = EnvmapOptions(resolution=resolution, fov_deg=45.0)
@@ -204,7 +215,9 @@ def _envmap_near_field(elements: Elements, c_lo, c_hi, t_max: float, model: Cost
     return best
 
 
-def coarsest_envmap_cell(elements: Elements, lo, hi, t_max: float, model: CostModel, resolution: int, max_cells: int = 4096) -> tuple[float, int]:
+def coarsest_envmap_cell(
+    elements: Elements, lo, hi, t_max: float, model: CostModel, resolution: int, max_cells: int = 4096
+) -> tuple[float, int]:
     """(cell side, cells over t_max by the model) of the coarsest grid of cubic envmap cells over
     the view space, of side ``longest side / 2^k``, in which every cell's frame fits t_max by the
     model (:func:`_envmap_near_field`): the grid the placement's memory is compared with, planned by
@@ -223,7 +236,9 @@ def coarsest_envmap_cell(elements: Elements, lo, hi, t_max: float, model: CostMo
         cell *= 0.5
 
 
-def envmap_grid_memory(scene: Scene, lo, hi, cell: float, t_max: float, model: CostModel, resolution: int = RESOLUTION) -> dict:
+def envmap_grid_memory(
+    scene: Scene, lo, hi, cell: float, t_max: float, model: CostModel, resolution: int = RESOLUTION
+) -> dict:
     """Estimated memory of a grid of layered environment maps (seed 002) over the view space with
     cubic cells of side ``cell``, for the same output as the placement's impostors (``resolution``
     pixels, 45 degrees: the envmap's face resolution and parallax angle follow from both): per cell,
@@ -247,8 +262,19 @@ def envmap_grid_memory(scene: Scene, lo, hi, cell: float, t_max: float, model: C
             "near_field_median": float(np.median(near_all)) if near_all else 0.0}  # fmt: skip
 
 
-def envmap_grid_walkthrough(scene: Scene, lo, hi, cell: float, t_max: float, model: CostModel, resolution: int,
-                            positions: np.ndarray, forwards: np.ndarray, repeats: int, root: Path) -> dict:
+def envmap_grid_walkthrough(
+    scene: Scene,
+    lo,
+    hi,
+    cell: float,
+    t_max: float,
+    model: CostModel,
+    resolution: int,
+    positions: np.ndarray,
+    forwards: np.ndarray,
+    repeats: int,
+    root: Path,
+) -> dict:
     """Bake a grid of layered environment maps (seed 002) with cubic cells of side ``cell`` over the
     view space (the grid covers it, overhanging where the sides do not divide), each cell's near
     field from :func:`_envmap_near_field` for ``t_max``, at the placement's output (``resolution``
@@ -258,9 +284,9 @@ def envmap_grid_walkthrough(scene: Scene, lo, hi, cell: float, t_max: float, mod
     Returns the baked memory, the share of views within t_max, p99/max frame time, holes and
     colour error (of the views an impostor served), and the seconds of baking."""
     from farfield.core.impostor.database import ImpostorDatabase, write_database
+    from farfield.core.quality.walkthrough import walkthrough
     from farfield.core.techniques.envmap.technique import bake_envmap
     from farfield.core.viewcells import grid_boxes
-    from farfield.core.quality.walkthrough import walkthrough
 
     elements = Elements.of(scene)
     counts = _grid_counts(lo, hi, cell)
@@ -273,7 +299,9 @@ def envmap_grid_walkthrough(scene: Scene, lo, hi, cell: float, t_max: float, mod
         if math.isinf(near):  # everything fits: views in this cell draw the plain scene
             not_needed += 1
             continue
-        baked.append((list(ijk), bake_envmap(scene, box, EnvmapOptions(resolution=resolution, fov_deg=45.0, near_field=near))))
+        baked.append(
+            (list(ijk), bake_envmap(scene, box, EnvmapOptions(resolution=resolution, fov_deg=45.0, near_field=near)))
+        )
         nears.append(near)
     bake_s = time.perf_counter() - started
     frames = []
@@ -362,7 +390,9 @@ def _worst_view(scene, lo, hi, model, resolution: int = RESOLUTION) -> float:
 
     elements = Elements.of(scene)
     h = Hierarchy.build(elements)
-    pv = problem_view_space(elements, h, lo, hi, model, 1e-9, math.radians(45.0), resolution, float(np.max(hi - lo)) / 8.0, 11.25)
+    pv = problem_view_space(
+        elements, h, lo, hi, model, 1e-9, math.radians(45.0), resolution, float(np.max(hi - lo)) / 8.0, 11.25
+    )
     return float(pv.time.max())
 
 
@@ -374,7 +404,6 @@ def _line(r: dict) -> str:
 
 
 def _print_grid(g: dict, placement_bytes: int) -> None:
-    mib = lambda b: b / 2**20  # noqa: E731
     ratio = g["memory_baked_bytes"] / placement_bytes if placement_bytes else math.nan
     if not g["frames"]:
         print(f"         envmap grid of {g['cell']:.3g}: no cell needs an impostor by the model")
@@ -385,14 +414,31 @@ def _print_grid(g: dict, placement_bytes: int) -> None:
           f"{mib(g['memory_baked_bytes']):.2f} MiB ({ratio:.2f}x the placement), baked in {g['bake_s']:.1f} s", flush=True)  # fmt: skip
 
 
-def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float], views: int, seed: int, repeats: int,
-                     resolution: int, out_dir: Path | None, vdi_deg: float = 11.25, cpv_divisions: int = 8,
-                     envmap_cells: list[float | str] | None = None) -> list[dict]:
+def walkthrough_rows(
+    scene: Scene,
+    lo,
+    hi,
+    model: CostModel,
+    factors: list[float],
+    views: int,
+    seed: int,
+    repeats: int,
+    resolution: int,
+    out_dir: Path | None,
+    vdi_deg: float = 11.25,
+    cpv_divisions: int = 8,
+    envmap_cells: list[float | str] | None = None,
+) -> list[dict]:
     """The --walkthrough table (see the module docstring): one row per t_max."""
     import tempfile
 
     from farfield.core.impostor.database import ImpostorDatabase
-    from farfield.core.placement.database import bake_impostor, bake_placement, placement_cells, write_placement_database
+    from farfield.core.placement.database import (
+        bake_impostor,
+        bake_placement,
+        placement_cells,
+        write_placement_database,
+    )
     from farfield.core.quality.walkthrough import placement_walkthrough, random_views
 
     worst = _worst_view(scene, lo, hi, model, resolution)
@@ -407,12 +453,17 @@ def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float
     rows = []
     for factor in factors:
         t_max = factor * t_ref
-        settings = PlacementSettings(t_max=t_max, model=model, options={"resolution": resolution}, cpv_size=cpv, cells="both", vdi_deg=vdi_deg)
+        settings = PlacementSettings(
+            t_max=t_max, model=model, options={"resolution": resolution}, cpv_size=cpv, cells="both", vdi_deg=vdi_deg
+        )
         started = time.perf_counter()
         placement = place(scene, lo, hi, settings, keep_state=True)
         state = placement.state
         plan_s = time.perf_counter() - started
-        print(f"   # t_max {t_max:.4g}: planned in {plan_s:.1f} s, {placement.summary['impostors']} impostors, {placement.summary['cpvs']} CPVs", flush=True)
+        print(
+            f"   # t_max {t_max:.4g}: planned in {plan_s:.1f} s, {placement.summary['impostors']} impostors, {placement.summary['cpvs']} CPVs",
+            flush=True,
+        )
         started = time.perf_counter()
         impostors = bake_placement(scene, placement)
         print(f"   # baked in {time.perf_counter() - started:.1f} s", flush=True)
@@ -421,10 +472,22 @@ def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float
             from farfield.core.placement.repair import MAX_REPAIR_ROUNDS
 
             cluster = int(placement.elements["cluster_triangles"])
-            for k in range(MAX_REPAIR_ROUNDS + 1):  # as the service: the last round puts the figures in and adds nothing
-                baked = {i: {"quads": imp.quad_count, "texture_bytes": imp.texture_bytes, **imp.stats} for i, imp in impostors.items()}
+            for k in range(
+                MAX_REPAIR_ROUNDS + 1
+            ):  # as the service: the last round puts the figures in and adds nothing
+                baked = {
+                    i: {"quads": imp.quad_count, "texture_bytes": imp.texture_bytes, **imp.stats}
+                    for i, imp in impostors.items()
+                }
                 round_ = state.repair(baked, extend=k < MAX_REPAIR_ROUNDS)
-                rounds.append({"round": round_.round, "cpvs_over": round_.cpvs_over, "added": len(round_.added), "mode": round_.mode})
+                rounds.append(
+                    {
+                        "round": round_.round,
+                        "cpvs_over": round_.cpvs_over,
+                        "added": len(round_.added),
+                        "mode": round_.mode,
+                    }
+                )
                 if not round_.added:
                     break
                 cells = {c["index"]: c for c in placement_cells(round_.placement)}
@@ -447,7 +510,9 @@ def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float
             for cell in envmap_cells:
                 refine = cell == "auto"
                 if refine:
-                    cell, over = coarsest_envmap_cell(Elements.of(scene), lo, hi, t_max, model, resolution, max_cells=AUTO_MAX_CELLS)
+                    cell, over = coarsest_envmap_cell(
+                        Elements.of(scene), lo, hi, t_max, model, resolution, max_cells=AUTO_MAX_CELLS
+                    )
                     print(f"   # the coarsest envmap grid that fits t_max by the model: cells of {cell:.4g}"
                           + (f" ({over} still over at the finest tried)" if over else ""), flush=True)  # fmt: skip
                 while True:
@@ -457,7 +522,12 @@ def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float
                     _print_grid(g, baked_bytes)
                     # auto: until the walk meets the budget as the goal asks (99 % of views), halving the cells
                     finer = int(np.prod(_grid_counts(lo, hi, 0.5 * cell)))
-                    if not refine or g["share_within_t_max"] is None or g["share_within_t_max"] >= 0.99 or finer > AUTO_MAX_CELLS:
+                    if (
+                        not refine
+                        or g["share_within_t_max"] is None
+                        or g["share_within_t_max"] >= 0.99
+                        or finer > AUTO_MAX_CELLS
+                    ):
                         break
                     cell *= 0.5
         s = result["summary"]
@@ -474,21 +544,32 @@ def walkthrough_rows(scene: Scene, lo, hi, model: CostModel, factors: list[float
             "envmap_grids": grids, "envmap_estimate": envmap_grid_memory(scene, lo, hi, cpv, t_max, model, resolution), "over_t_max": s["over_t_max"],
         }  # fmt: skip
         rows.append(row)
-        mib = lambda b: b / 2**20
         print(f"{t_max:>8.3g} {100 * row['share_within_t_max']:>7.1f}% {100 * row['share_estimate_within_t_max']:>6.1f}% {row['runtime_ms_p99']:>7.2f} "
               f"{row['runtime_ms_max']:>7.2f} {row['plain_ms_p99']:>9.2f} {row['plain_ms_max']:>9.2f} {row['speedup_median']:>6.1f}x {row['hole_pixels']:>5} "
               f"{mib(baked_bytes):>9.2f} {mib(row['memory_estimated_bytes']):>8.2f} {row['impostors']:>5} {len(rounds):>6} {plan_s:>6.1f} {bake_s:>6.1f} "
               f"{row['colour_error_mean']:>10.2f}", flush=True)  # fmt: skip
         for f in row["over_t_max"][:10]:
-            print(f"         over t_max: view {f['frame']}: {f['measured']:.3g} {model.unit}, estimate {f['estimate']:.3g} ({f['status']}, cpv {f['cpv']})")
+            print(
+                f"         over t_max: view {f['frame']}: {f['measured']:.3g} {model.unit}, estimate {f['estimate']:.3g} ({f['status']}, cpv {f['cpv']})"
+            )
         if len(row["over_t_max"]) > 10:
             print(f"         ... {len(row['over_t_max']) - 10} more")
 
     return rows
 
 
-def estimate_rows(scene: Scene, lo, hi, model: CostModel, views: int, seed: int, repeats: int, resolution: int,
-                  vdi_degs: list[float], cpv_divisions: int) -> list[dict]:
+def estimate_rows(
+    scene: Scene,
+    lo,
+    hi,
+    model: CostModel,
+    views: int,
+    seed: int,
+    repeats: int,
+    resolution: int,
+    vdi_degs: list[float],
+    cpv_divisions: int,
+) -> list[dict]:
     """--estimates: how far the model's estimates lie from the measured plain frame, on the same
     random views as --walkthrough.  Per view: plain geometry's measured frame (frustum-culled, as
     the placement runtime draws it), the model over the elements in its frustum (``plain_estimate``,
@@ -506,7 +587,12 @@ def estimate_rows(scene: Scene, lo, hi, model: CostModel, views: int, seed: int,
 
     cpv = float(np.max(hi - lo)) / cpv_divisions
     positions, forwards = random_views(lo, hi, views, seed)
-    empty = place(scene, lo, hi, PlacementSettings(t_max=1e12, model=model, options={"resolution": resolution}, cpv_size=cpv, vdi_deg=45.0))
+    empty = place(
+        scene,
+        lo,
+        hi,
+        PlacementSettings(t_max=1e12, model=model, options={"resolution": resolution}, cpv_size=cpv, vdi_deg=45.0),
+    )
     with tempfile.TemporaryDirectory(prefix="farfield-bench-") as tmp:
         write_placement_database(Path(tmp) / "db", empty, {})
         with ImpostorDatabase(Path(tmp) / "db") as db:
@@ -531,40 +617,89 @@ def estimate_rows(scene: Scene, lo, hi, model: CostModel, views: int, seed: int,
     rows = []
     for name, est in columns.items():
         ratio = est / measured
-        row = {"estimate": name, "p99_ms": float(np.percentile(est, 99)), "ratio_median": float(np.median(ratio)), "ratio_median_slowest_quarter": float(np.median(ratio[slow]))}
+        row = {
+            "estimate": name,
+            "p99_ms": float(np.percentile(est, 99)),
+            "ratio_median": float(np.median(ratio)),
+            "ratio_median_slowest_quarter": float(np.median(ratio[slow])),
+        }
         rows.append(row)
-        print(f"{name:<36} {row['p99_ms']:>11.2f} {row['ratio_median']:>22.2f} {row['ratio_median_slowest_quarter']:>16.2f}")
+        print(
+            f"{name:<36} {row['p99_ms']:>11.2f} {row['ratio_median']:>22.2f} {row['ratio_median_slowest_quarter']:>16.2f}"
+        )
     return rows
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scene", choices=["city", "helmets", "downtown", "both"], default="both",
-                        help="the planning table's scenes (both: city and helmets), or the --walkthrough scene (default city)")
+    parser.add_argument(
+        "--scene",
+        choices=["city", "helmets", "downtown", "both"],
+        default="both",
+        help="the planning table's scenes (both: city and helmets), or the --walkthrough scene (default city)",
+    )
     parser.add_argument("--quick", action="store_true", help="smaller scenes, fewer rows")
-    parser.add_argument("--cost-model", default="llvmpipe", help="'llvmpipe' (the builtin model measured here), 'primitives' (t = triangles, seed 000 §5.8.3) or a model JSON")
+    parser.add_argument(
+        "--cost-model",
+        default="llvmpipe",
+        help="'llvmpipe' (the builtin model measured here), 'primitives' (t = triangles, seed 000 §5.8.3) or a model JSON",
+    )
     parser.add_argument("--rows", default=None, help="comma-separated test numbers to run (default: all)")
-    parser.add_argument("--size", type=int, default=None, help="city buildings / helmets per side (default: 1600 / 12; --quick 400 / 6)")
+    parser.add_argument(
+        "--size", type=int, default=None, help="city buildings / helmets per side (default: 1600 / 12; --quick 400 / 6)"
+    )
     parser.add_argument("--json", default=None, help="write the rows here")
-    parser.add_argument("--estimates", default=None, metavar="DEGREES",
-                        help="with --walkthrough's scene options: the model's estimates of plain views against their measured frames, per view and for problem views of these smallest intervals (comma-separated degrees, e.g. 45,11.25); no placement is baked")
-    parser.add_argument("--walkthrough", action="store_true", help="plan, bake and walk random views on the city for three t_max (issue 26)")
+    parser.add_argument(
+        "--estimates",
+        default=None,
+        metavar="DEGREES",
+        help="with --walkthrough's scene options: the model's estimates of plain views against their measured frames, per view and for problem views of these smallest intervals (comma-separated degrees, e.g. 45,11.25); no placement is baked",
+    )
+    parser.add_argument(
+        "--walkthrough",
+        action="store_true",
+        help="plan, bake and walk random views on the city for three t_max (issue 26)",
+    )
     parser.add_argument("--views", type=int, default=200, help="--walkthrough: random views")
-    parser.add_argument("--factors", default="1,0.75,0.5", help="--walkthrough: t_max as these multiples of the reference budget")
+    parser.add_argument(
+        "--factors", default="1,0.75,0.5", help="--walkthrough: t_max as these multiples of the reference budget"
+    )
     parser.add_argument("--repeats", type=int, default=3, help="--walkthrough: draws per frame (median)")
     parser.add_argument("--seed", type=int, default=0, help="--walkthrough: seed of the random views")
     parser.add_argument("--resolution", type=int, default=RESOLUTION, help="--walkthrough: output resolution")
-    parser.add_argument("--detail", type=int, default=16, help="--walkthrough: the city's most quads per building face side (farfield.core.procedural.city)")
+    parser.add_argument(
+        "--detail",
+        type=int,
+        default=16,
+        help="--walkthrough: the city's most quads per building face side (farfield.core.procedural.city)",
+    )
     parser.add_argument("--keep", default=None, help="--walkthrough: write the placement databases under this folder")
-    parser.add_argument("--vdi-deg", type=float, default=11.25, help="--walkthrough: the planner's smallest view-direction interval, degrees")
-    parser.add_argument("--cpv-divisions", type=int, default=8, help="--walkthrough: CPV size = the view space's longest side / this")
-    parser.add_argument("--envmap-cells", default=None, help="--walkthrough: sides of the envmap grids baked and walked beside each placement, scene units, comma-separated (default 'auto': the coarsest grid of side / 2^k that fits t_max by the model; '' for none)")
+    parser.add_argument(
+        "--vdi-deg",
+        type=float,
+        default=11.25,
+        help="--walkthrough: the planner's smallest view-direction interval, degrees",
+    )
+    parser.add_argument(
+        "--cpv-divisions", type=int, default=8, help="--walkthrough: CPV size = the view space's longest side / this"
+    )
+    parser.add_argument(
+        "--envmap-cells",
+        default=None,
+        help="--walkthrough: sides of the envmap grids baked and walked beside each placement, scene units, comma-separated (default 'auto': the coarsest grid of side / 2^k that fits t_max by the model; '' for none)",
+    )
     args = parser.parse_args()
-    model = {"llvmpipe": LLVMPIPE_MODEL, "primitives": primitive_model()}.get(args.cost_model) or CostModel.load(args.cost_model)
+    model = {"llvmpipe": LLVMPIPE_MODEL, "primitives": primitive_model()}.get(args.cost_model) or CostModel.load(
+        args.cost_model
+    )
     if args.estimates is not None:
         name = "city" if args.scene == "both" else args.scene
-        scene, lo, hi = {"city": city_scene, "downtown": downtown_scene}[name](args.quick, args.size, args.detail if name == "city" or args.detail != 16 else 20)
-        print(f"cost model: {model.renderer} ({model.source}); EGL {_renderer()}; # {name}: {scene.object_count} objects, {scene.triangle_count:,} triangles")
+        scene, lo, hi = {"city": city_scene, "downtown": downtown_scene}[name](
+            args.quick, args.size, args.detail if name == "city" or args.detail != 16 else 20
+        )
+        print(
+            f"cost model: {model.renderer} ({model.source}); EGL {_renderer()}; # {name}: {scene.object_count} objects, {scene.triangle_count:,} triangles"
+        )
         rows = estimate_rows(scene, lo, hi, model, args.views, args.seed, args.repeats, args.resolution,
                              [float(d) for d in args.estimates.split(",") if d.strip()], args.cpv_divisions)  # fmt: skip
         if args.json:
@@ -574,26 +709,36 @@ def main() -> None:
         name = "city" if args.scene == "both" else args.scene
         if name == "helmets":
             parser.error("--walkthrough runs on --scene city or downtown")
-        scene, lo, hi = {"city": city_scene, "downtown": downtown_scene}[name](args.quick, args.size, args.detail if name == "city" or args.detail != 16 else 20)
+        scene, lo, hi = {"city": city_scene, "downtown": downtown_scene}[name](
+            args.quick, args.size, args.detail if name == "city" or args.detail != 16 else 20
+        )
         print(f"cost model: {model.renderer} ({model.source}); layered impostors, baked here; EGL {_renderer()}")
-        print(f"# {name}: {scene.object_count} objects, {scene.triangle_count:,} triangles; view space {lo.round(2).tolist()} .. {hi.round(2).tolist()}")
+        print(
+            f"# {name}: {scene.object_count} objects, {scene.triangle_count:,} triangles; view space {lo.round(2).tolist()} .. {hi.round(2).tolist()}"
+        )
         rows = walkthrough_rows(scene, lo, hi, model, [float(f) for f in args.factors.split(",")], args.views, args.seed, args.repeats,
                                 args.resolution, Path(args.keep) if args.keep else None, args.vdi_deg, args.cpv_divisions,
                                 None if args.envmap_cells is None else [c.strip() if c.strip() == "auto" else float(c) for c in args.envmap_cells.split(",") if c.strip()])  # fmt: skip
         if args.json:
             Path(args.json).write_text(json.dumps(rows, indent=1))
         return
-    print(f"cost model: {model.renderer} ({model.source}); layered impostors at {RESOLUTION} px, 45°; CPU only (no rendering)")
-    print(f"{'scene':<8} {'test':>4} {'parameter':<44} {'# CPV':>7} {'# cand.':>9} {'# imp.':>7} {'MiB':>10} {'unsolved/unsolvable':<13} seconds per step")
+    print(
+        f"cost model: {model.renderer} ({model.source}); layered impostors at {RESOLUTION} px, 45°; CPU only (no rendering)"
+    )
+    print(
+        f"{'scene':<8} {'test':>4} {'parameter':<44} {'# CPV':>7} {'# cand.':>9} {'# imp.':>7} {'MiB':>10} {'unsolved/unsolvable':<13} seconds per step"
+    )
     rows = []
     builders = {"city": city_scene, "helmets": helmet_scene, "downtown": downtown_scene}
-    for name in (["city", "helmets"] if args.scene == "both" else [args.scene]):
+    for name in ["city", "helmets"] if args.scene == "both" else [args.scene]:
         try:
             scene, lo, hi = builders[name](args.quick, args.size)
         except FarfieldError as error:
             print(f"{name}: cannot build the scene: {error}")
             continue
-        print(f"# {name}: {scene.object_count} objects, {scene.triangle_count:,} triangles; view space {lo.round(2).tolist()} .. {hi.round(2).tolist()}")
+        print(
+            f"# {name}: {scene.object_count} objects, {scene.triangle_count:,} triangles; view space {lo.round(2).tolist()} .. {hi.round(2).tolist()}"
+        )
         rows += run(name, scene, lo, hi, model, args.quick, args.rows.split(",") if args.rows else None)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))

@@ -59,8 +59,15 @@ def _cli(args: list[str], env: dict) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scene", choices=("downtown", "city"), default="downtown")
-    parser.add_argument("--factor", type=float, default=1.0, help="t_max as this multiple of half the worst view's time")
-    parser.add_argument("--cpv-divisions", type=int, default=None, help="CPV size = the view space's longest side / this [downtown 8, city 4]")
+    parser.add_argument(
+        "--factor", type=float, default=1.0, help="t_max as this multiple of half the worst view's time"
+    )
+    parser.add_argument(
+        "--cpv-divisions",
+        type=int,
+        default=None,
+        help="CPV size = the view space's longest side / this [downtown 8, city 4]",
+    )
     parser.add_argument("--views", type=int, default=200, help="random views walked")
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--keep", default=None, help="keep the GLB and the downloaded database here")
@@ -72,8 +79,12 @@ def main() -> None:
     worst = _worst_view(scene, lo, hi, LLVMPIPE_MODEL, RESOLUTION)
     t_max = args.factor * 0.5 * worst
     cpv = float(np.max(hi - lo)) / divisions
-    print(f"# {args.scene}: {scene.object_count} objects, {scene.triangle_count:,} triangles; EGL {_renderer()}; {os.cpu_count()} CPUs")
-    print(f"# worst view by the builtin llvmpipe model {worst:.4g} ms; t_max {t_max:.4g} ms; CPV size {cpv:.4g}; {args.workers} worker(s)")
+    print(
+        f"# {args.scene}: {scene.object_count} objects, {scene.triangle_count:,} triangles; EGL {_renderer()}; {os.cpu_count()} CPUs"
+    )
+    print(
+        f"# worst view by the builtin llvmpipe model {worst:.4g} ms; t_max {t_max:.4g} ms; CPV size {cpv:.4g}; {args.workers} worker(s)"
+    )
     with tempfile.TemporaryDirectory(prefix="farfield-bench-rest-") as tmp:
         out = Path(args.keep or tmp)
         out.mkdir(parents=True, exist_ok=True)
@@ -111,7 +122,9 @@ def main() -> None:
           f"hole pixels {result['hole_pixels']}, colour error {result['colour_error_mean']:.3f}, "
           f"estimate within t_max on {100 * result['share_estimate_within_t_max_solvable']:.1f} % of solvable views")  # fmt: skip
     for f in result["over_t_max"]:
-        print(f"   over t_max: view {f['frame']}: {f['measured']:.3g} ms, estimate {f['estimate']:.3g} ({f['status']}, cpv {f['cpv']})")
+        print(
+            f"   over t_max: view {f['frame']}: {f['measured']:.3g} ms, estimate {f['estimate']:.3g} ({f['status']}, cpv {f['cpv']})"
+        )
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=1))
 

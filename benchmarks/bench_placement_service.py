@@ -52,6 +52,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench_placement import LLVMPIPE_MODEL, _renderer, _worst_view, city_scene  # noqa: E402
+
 from farfield.core.scene import Scene  # noqa: E402
 from farfield.service.settings import Settings  # noqa: E402
 from farfield.service.supervisor import Service  # noqa: E402
@@ -65,8 +66,15 @@ def write_glb(scene: Scene, path: Path) -> Path:
     factor (the procedural city has neither textures nor vertex colours)."""
     out = trimesh.Scene()
     for obj in scene.objects:
-        material = trimesh.visual.material.PBRMaterial(name=f"{obj.name}_material", baseColorFactor=np.array(obj.base_color))
-        mesh = trimesh.Trimesh(np.array(obj.vertices), np.array(obj.faces), visual=trimesh.visual.TextureVisuals(material=material), process=False)
+        material = trimesh.visual.material.PBRMaterial(
+            name=f"{obj.name}_material", baseColorFactor=np.array(obj.base_color)
+        )
+        mesh = trimesh.Trimesh(
+            np.array(obj.vertices),
+            np.array(obj.faces),
+            visual=trimesh.visual.TextureVisuals(material=material),
+            process=False,
+        )
         out.add_geometry(mesh, geom_name=obj.name, node_name=obj.name)
     path.write_bytes(out.export(file_type="glb"))
     return path
@@ -83,8 +91,14 @@ def warm(client: httpx.Client, scene_id: str, obj: str, lo, hi, workers: int) ->
     space's centre: each worker's EGL context, shaders and scene cache are made before the timed job
     (its impostors are not the placement's)."""
     c = 0.5 * (np.asarray(lo) + np.asarray(hi))
-    cells = [{"kind": "box", "lo": (c - 0.5 + [i, 0, 0]).tolist(), "hi": (c + 0.5 + [i, 0, 0]).tolist()} for i in range(2 * workers)]
-    made = client.post("/v1/jobs", json={"scene_id": scene_id, "viewcells": cells, "objects": [obj], "resolution": 64, "evaluate": False})
+    cells = [
+        {"kind": "box", "lo": (c - 0.5 + [i, 0, 0]).tolist(), "hi": (c + 0.5 + [i, 0, 0]).tolist()}
+        for i in range(2 * workers)
+    ]
+    made = client.post(
+        "/v1/jobs",
+        json={"scene_id": scene_id, "viewcells": cells, "objects": [obj], "resolution": 64, "evaluate": False},
+    )
     assert made.status_code == 201, made.text
     while (job := client.get(f"/v1/jobs/{made.json()['id']}").json())["state"] not in ENDED:
         time.sleep(0.1)
@@ -100,7 +114,15 @@ def phase_of(job: dict) -> str:
 
 def timed_job(client: httpx.Client, scene_id: str, request: dict, poll: float) -> dict:
     """Submit the placement job, poll it until it ends; its figures (see the module docstring)."""
-    made = client.post("/v1/jobs", json={"scene_id": scene_id, "technique": "layered", "resolution": request.pop("resolution"), "placement": request})
+    made = client.post(
+        "/v1/jobs",
+        json={
+            "scene_id": scene_id,
+            "technique": "layered",
+            "resolution": request.pop("resolution"),
+            "placement": request,
+        },
+    )
     assert made.status_code == 201, made.text
     job = made.json()
     seconds = dict.fromkeys(("queued", "plan", "check", "bake"), 0.0)
@@ -154,7 +176,10 @@ def through_service(glb: Path, obj: str, lo, hi, request: dict, workers: int, po
             if resubmit:
                 again = timed_job(client, scene_id, dict(request), poll)
                 run["resubmitted"] = again
-                print(f"   # resubmitted: {again['cells_baked']} of {again['cells']} cells baked, {again['wall_s']:.1f} s", flush=True)
+                print(
+                    f"   # resubmitted: {again['cells_baked']} of {again['cells']} cells baked, {again['wall_s']:.1f} s",
+                    flush=True,
+                )
             return run
         finally:
             service.stop()
@@ -171,9 +196,18 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=49, help="buildings of the city (farfield.core.procedural.city)")
     parser.add_argument("--detail", type=int, default=64, help="the city's most quads per building face side")
-    parser.add_argument("--resolution", type=int, default=128, help="impostor resolution (and the cost model's view resolution)")
-    parser.add_argument("--factor", type=float, default=1.0, help="t_max as this multiple of the reference budget (half the worst view's time)")
-    parser.add_argument("--vdi-deg", type=float, default=45.0, help="the planner's smallest view-direction interval, degrees")
+    parser.add_argument(
+        "--resolution", type=int, default=128, help="impostor resolution (and the cost model's view resolution)"
+    )
+    parser.add_argument(
+        "--factor",
+        type=float,
+        default=1.0,
+        help="t_max as this multiple of the reference budget (half the worst view's time)",
+    )
+    parser.add_argument(
+        "--vdi-deg", type=float, default=45.0, help="the planner's smallest view-direction interval, degrees"
+    )
     parser.add_argument("--cpv-divisions", type=int, default=4, help="CPV size = the view space's longest side / this")
     parser.add_argument("--poll", type=float, default=0.5, help="seconds between polls of the job")
     parser.add_argument("--json", default=None, help="write the results here")
@@ -188,13 +222,22 @@ def main() -> None:
         "view_space": {"lo": lo.tolist(), "hi": hi.tolist()}, "budget": {"frame_ms": t_max, "cost_model": "llvmpipe"},
         "vdi_deg": args.vdi_deg, "cpv_size": cpv, "resolution": args.resolution,
     }  # fmt: skip
-    print(f"cost model: {model.renderer} ({model.source}); layered impostors at {args.resolution} px; EGL {_renderer()}; {os.cpu_count()} CPUs")
-    print(f"# city: {scene.object_count} objects, {scene.triangle_count:,} triangles; view space {lo.round(2).tolist()} .. {hi.round(2).tolist()}")
-    print(f"# worst view {worst:.4g} ms; t_max {t_max:.4g} ms ({args.factor:g} x half of it); CPV size {cpv:.4g}, vdi {args.vdi_deg:g}°; polled every {args.poll:g} s")
+    print(
+        f"cost model: {model.renderer} ({model.source}); layered impostors at {args.resolution} px; EGL {_renderer()}; {os.cpu_count()} CPUs"
+    )
+    print(
+        f"# city: {scene.object_count} objects, {scene.triangle_count:,} triangles; view space {lo.round(2).tolist()} .. {hi.round(2).tolist()}"
+    )
+    print(
+        f"# worst view {worst:.4g} ms; t_max {t_max:.4g} ms ({args.factor:g} x half of it); CPV size {cpv:.4g}, vdi {args.vdi_deg:g}°; polled every {args.poll:g} s"
+    )
     with tempfile.TemporaryDirectory(prefix="farfield-bench-scene-") as tmp:
         glb = write_glb(scene, Path(tmp) / "city.glb")
         building = next(o.name for o in scene.objects if o.name != "ground")
-        runs = [through_service(glb, building, lo, hi, request, workers, args.poll, resubmit=workers == 2) for workers in (1, 2)]
+        runs = [
+            through_service(glb, building, lo, hi, request, workers, args.poll, resubmit=workers == 2)
+            for workers in (1, 2)
+        ]
     one, two = runs
     ratio = lambda key: one[key] / two[key] if two[key] > 0 else math.nan  # noqa: E731
     ratios = {key: ratio(key) for key in ("wall_s", "planning_s", "baking_s")}
@@ -207,8 +250,12 @@ def main() -> None:
         print(f"| {name} | {r['wall_s']:.1f} | {r['queued_s']:.1f} | {r['planning_s']:.1f} ({r['plan_s']:.1f} + {r['check_s']:.1f}) | {r['baking_s']:.1f} | "
               f"{r['impostors']} / {r['cells']} | {r['cells_baked']} | {r['check_rounds']} | {r['memory_bytes_baked'] / 2**20:.2f} | "
               f"{r['memory_bytes_estimated'] / 2**20:.2f} | {r['memory_bytes_database'] / 2**20:.2f} |")  # fmt: skip
-    print(f"\n1 -> 2 workers: wall {ratios['wall_s']:.2f}x, planning {ratios['planning_s']:.2f}x, baking {ratios['baking_s']:.2f}x")
-    print(f"resubmitted: {again['cells_baked']} of {again['cells']} cells baked (every other bundle found by its content key)")
+    print(
+        f"\n1 -> 2 workers: wall {ratios['wall_s']:.2f}x, planning {ratios['planning_s']:.2f}x, baking {ratios['baking_s']:.2f}x"
+    )
+    print(
+        f"resubmitted: {again['cells_baked']} of {again['cells']} cells baked (every other bundle found by its content key)"
+    )
     if args.json:
         result = {
             "renderer": _renderer(), "size": args.size, "detail": args.detail, "resolution": args.resolution, "factor": args.factor, "t_max_ms": t_max,

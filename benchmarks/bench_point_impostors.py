@@ -118,7 +118,9 @@ def main() -> None:
         alias = {"points": [], "geometry": []}
         flicker = {"reference": [], "points": [], "geometry": []}
         with MeshRenderer(scene.objects) as geometry, impostor_renderer(impostor) as points:
-            centre_view = over_grey(geometry.render(camera(cell.center, target, extent, 4 * args.resolution)), 4)[..., 3] > 0
+            centre_view = (
+                over_grey(geometry.render(camera(cell.center, target, extent, 4 * args.resolution)), 4)[..., 3] > 0
+            )
             covered = int(centre_view.sum())
             ys, xs = np.nonzero(centre_view)
             box = int((np.ptp(ys) + 1) * (np.ptp(xs) + 1)) if ys.size else 0  # the paper's measure

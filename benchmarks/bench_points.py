@@ -26,14 +26,13 @@ from scipy.ndimage import binary_dilation
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tests.scenes import city, forest, real_scene  # noqa: E402
-
-from farfield.core.techniques.envmap.runtime import camera_at  # noqa: E402
 from farfield.core.ldi.image import record_ldi  # noqa: E402
-from farfield.core.techniques.points.sampling import plan_point_sampling  # noqa: E402
-from farfield.core.techniques.points.samples import gather_point_samples  # noqa: E402
 from farfield.core.render.context import gl_context, renderer_info  # noqa: E402
+from farfield.core.techniques.envmap.runtime import camera_at  # noqa: E402
+from farfield.core.techniques.points.samples import gather_point_samples  # noqa: E402
+from farfield.core.techniques.points.sampling import plan_point_sampling  # noqa: E402
 from farfield.core.viewcells import BoxCell  # noqa: E402
+from tests.scenes import city, forest, real_scene  # noqa: E402
 
 
 def parts():
@@ -42,7 +41,12 @@ def parts():
     pine = real_scene("scrub_pine/scrubPine.obj")
     trunks = forest(60, seed=1).subset([f"tree_{i:03d}" for i in range(60)])
     block = city(16, seed=0)
-    for name, scene in (("bunny (shared scan)", bunny), ("scrub pine (shared, alpha-cut)", pine), ("forest of thin trunks", trunks), ("city block", block)):
+    for name, scene in (
+        ("bunny (shared scan)", bunny),
+        ("scrub pine (shared, alpha-cut)", pine),
+        ("forest of thin trunks", trunks),
+        ("city block", block),
+    ):
         lo, hi = scene.bounds
         size = float(np.max(hi - lo))
         centre = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2] - 2.0 * size])
@@ -58,7 +62,14 @@ def holes(objects, cell: BoxCell, points: np.ndarray, resolution: int) -> tuple[
     missing = far = wrong = covered_total = 0
     for eye in np.concatenate([cell.corners(), cell.center[None], cell.sample_random(8, 1)]):
         near = float(np.linalg.norm(np.clip(eye, lo, hi) - eye)) * 0.5
-        camera = camera_at(eye, target - eye, 45.0, resolution, max(near, 1e-3), float(np.max(np.linalg.norm(np.stack([lo, hi]) - eye, axis=1))) * 2.0)
+        camera = camera_at(
+            eye,
+            target - eye,
+            45.0,
+            resolution,
+            max(near, 1e-3),
+            float(np.max(np.linalg.norm(np.stack([lo, hi]) - eye, axis=1))) * 2.0,
+        )
         surface = record_ldi(objects, camera).depth[0]
         first = np.isfinite(surface)
         pixels = np.floor(camera.project(points)).astype(np.int64)
@@ -82,7 +93,9 @@ def main() -> None:
     gl_context()
     info = renderer_info()
     print(f"renderer: {info.renderer} ({info.vendor}, {info.version}); output {args.resolution} px, 45°")
-    print(f"{'part':<32} {'tris':>8} {'LDI px':>16} {'layers':>9} {'candidates':>10} {'removed':>8} {'kept':>9} {'pts/px':>7} {'holes':>6} {'>1 px':>6} {'behind':>6} {'plan s':>7} {'points s':>8}")
+    print(
+        f"{'part':<32} {'tris':>8} {'LDI px':>16} {'layers':>9} {'candidates':>10} {'removed':>8} {'kept':>9} {'pts/px':>7} {'holes':>6} {'>1 px':>6} {'behind':>6} {'plan s':>7} {'points s':>8}"
+    )
     rows = []
     for name, objects, cell in parts():
         lo = np.min([o.bounds[0] for o in objects], axis=0)

@@ -44,16 +44,16 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from farfield.core import procedural  # noqa: E402
-from farfield.core.impostor.glb import page_png  # noqa: E402
 from farfield.core.impostor.database import ImpostorDatabase  # noqa: E402
+from farfield.core.impostor.glb import page_png  # noqa: E402
 from farfield.core.ldi.pages import ldi_payload_and_pages  # noqa: E402
 from farfield.core.placement.cost_model import primitive_model  # noqa: E402
 from farfield.core.placement.database import bake_placement, write_placement_database  # noqa: E402
-from farfield.core.placement.planner import PlacementSettings, place  # noqa: E402
-from farfield.core.quality.walkthrough import placement_walkthrough  # noqa: E402
 from farfield.core.placement.image_frames import boundary_eyes, cell_objects, frame_holes, image_ldi, view_camera  # noqa: E402
+from farfield.core.placement.planner import PlacementSettings, place  # noqa: E402
 from farfield.core.placement.solution_grid import BudgetSettings, check_views, place_primitives  # noqa: E402
 from farfield.core.placement.yaw_ranges import drawn_cells, forward  # noqa: E402
+from farfield.core.quality.walkthrough import placement_walkthrough  # noqa: E402
 from farfield.core.render.context import gl_context  # noqa: E402
 from farfield.core.render.raster import MeshRenderer  # noqa: E402
 from farfield.core.render.splats import SplatRenderer  # noqa: E402
@@ -87,7 +87,15 @@ def table1(scene, lo, hi, shares: list[float], views: int, max_level: int) -> li
         check = check_views(placement, views, seed=1)
         s = placement.summary()
         ratio = s["image_drawn_over_p_opt"]
-        row = {"share": share, "P": p, "p_opt": placement.p_opt, "summary": s, "seconds": seconds, "check": check, "placement": placement}
+        row = {
+            "share": share,
+            "P": p,
+            "p_opt": placement.p_opt,
+            "summary": s,
+            "seconds": seconds,
+            "check": check,
+            "placement": placement,
+        }
         rows.append(row)
         per_point = ", ".join(f"{k}:{v}" for k, v in s["points_with_images"].items())
         print(f"{share:>7.2f} {p:>8.0f} {placement.p_opt:>8.0f} {s['grid_points']:>7} {str(s['points_per_level']):>22} {s['images']:>7} "
@@ -98,7 +106,10 @@ def table1(scene, lo, hi, shares: list[float], views: int, max_level: int) -> li
 
 def ldi_quality(scene, placement, count: int, eyes: int, resolution: int, rng) -> dict:
     points = [i for i, p in enumerate(placement.points) if p.images]
-    picks = [(int(i), int(rng.integers(len(placement.points[i].images)))) for i in rng.choice(points, min(count, len(points)), replace=False)]
+    picks = [
+        (int(i), int(rng.integers(len(placement.points[i].images))))
+        for i in rng.choice(points, min(count, len(points)), replace=False)
+    ]
     out = {}
     for n in (1, 9):
         holes = footprint = cracks = 0
@@ -146,13 +157,19 @@ def ldi_walk(scene, placement, positions, yaws, resolution: int) -> dict:
         camera = view_camera(eye, yaw, 2 * placement.half, resolution, 0.05, 1e5)
         cells = view["cells"]
         seen = drawn_cells(placement.cells.lo, placement.cells.hi, eye, yaw, placement.half)
-        frame = {"primitives": view["primitives"], "plain_primitives": int(placement.cells.triangles[seen].sum()), "image": view["image"] >= 0}
+        frame = {
+            "primitives": view["primitives"],
+            "plain_primitives": int(placement.cells.triangles[seen].sum()),
+            "image": view["image"] >= 0,
+        }
         geometry = cell_objects(scene, placement.cells, cells) if cells.any() else []
         if view["image"] >= 0:
             key = (view["point"], view["image"])
             if key not in ldis:
                 t0 = time.perf_counter()
-                made = image_ldi(scene, placement, placement.points[key[0]], placement.points[key[0]].images[key[1]], resolution, 9)
+                made = image_ldi(
+                    scene, placement, placement.points[key[0]], placement.points[key[0]].images[key[1]], resolution, 9
+                )
                 build.append(time.perf_counter() - t0)
                 ldis[key] = made.ldi
                 bytes_.append(ldi_bytes(made.ldi))
@@ -196,7 +213,9 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="a smaller city, fewer budgets, views and images")
     parser.add_argument("--buildings", type=int, default=None, help="city buildings (default 144; --quick 64)")
     parser.add_argument("--detail", type=int, default=8, help="the city's most quads per building face side")
-    parser.add_argument("--shares", default=None, help="budgets P as shares of the model, comma-separated (default 0.2,0.3,0.4,0.5)")
+    parser.add_argument(
+        "--shares", default=None, help="budgets P as shares of the model, comma-separated (default 0.2,0.3,0.4,0.5)"
+    )
     parser.add_argument("--views", type=int, default=10_000, help="random (eye, yaw) views of the guarantee's check")
     parser.add_argument("--max-level", type=int, default=4)
     parser.add_argument("--images", type=int, default=None, help="LDIs sampled for table 2 (default 24; --quick 8)")
@@ -219,7 +238,10 @@ def main() -> None:
     rng = np.random.default_rng(0)
     print(f"\n2. LDIs at P = {middle['P']:.0f} ({middle['share']:g} of the model), {args.resolution} px", flush=True)
     quality = ldi_quality(scene, placement, images, args.eyes, args.resolution, rng)
-    print(f"\n3. Against the frame-time placement at P = {middle['P']:.0f}, {walk} random views, {args.resolution} px", flush=True)
+    print(
+        f"\n3. Against the frame-time placement at P = {middle['P']:.0f}, {walk} random views, {args.resolution} px",
+        flush=True,
+    )
     positions = lo + rng.random((walk, 3)) * (hi - lo)
     yaws = rng.random(walk) * 2 * math.pi
     ours = ldi_walk(scene, placement, positions, yaws, args.resolution)
@@ -234,7 +256,9 @@ def main() -> None:
     plain_ms = np.array([f["plain_ms"] for f in tf])
     t_holes = np.array([f.get("hole_pixels", 0) for f in tf])
     prep = middle["seconds"] + ours["build_s_mean"] * placement.images
-    print(f"{'placement':>22} {'<=P':>6} {'p99 prims':>9} {'max':>7} {'p50 ms':>6} {'p99 ms':>6} {'hole px (views)':>15} {'MiB (stored)':>16} {'# images':>8} {'prep s':>7}")
+    print(
+        f"{'placement':>22} {'<=P':>6} {'p99 prims':>9} {'max':>7} {'p50 ms':>6} {'p99 ms':>6} {'hole px (views)':>15} {'MiB (stored)':>16} {'# images':>8} {'prep s':>7}"
+    )
     print(f"{'primitive-budget (LDI)':>22} {100 * np.mean(prims <= p):>5.1f}% {np.percentile(prims, 99):>9.0f} {prims.max():>7.0f} {np.median(ms):>6.2f} "
           f"{np.percentile(ms, 99):>6.2f} {holes.sum():>8} ({np.count_nonzero(holes)}) {ours['memory_splat_bytes'] / 2**20:>7.1f} ({ours['memory_stored_bytes'] / 2**20:.1f}) "
           f"{placement.images:>8} {prep:>7.1f}")  # fmt: skip

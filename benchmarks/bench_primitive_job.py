@@ -89,7 +89,11 @@ def through_service(path: Path, req: dict, warm_req: dict, resolution: int, work
             def run(body: dict) -> dict:
                 made = client.post("/v1/jobs", json={"scene_id": scene_id, "resolution": resolution, "placement": body})
                 assert made.status_code == 201, made.text
-                while (job := client.get(f"/v1/jobs/{made.json()['id']}").json())["state"] not in ("done", "failed", "cancelled"):
+                while (job := client.get(f"/v1/jobs/{made.json()['id']}").json())["state"] not in (
+                    "done",
+                    "failed",
+                    "cancelled",
+                ):
                     time.sleep(0.5)
                 assert job["state"] == "done", (job["error"], job["errors"][:3])
                 return job
@@ -101,7 +105,9 @@ def through_service(path: Path, req: dict, warm_req: dict, resolution: int, work
             if keep is not None:
                 archive.extractall(keep / f"job-{workers}-workers")
             index = json.loads(archive.read("index.json"))
-            files = {n: hashlib.sha256(archive.read(n)).hexdigest() for n in archive.namelist() if n.startswith("cells/")}
+            files = {
+                n: hashlib.sha256(archive.read(n)).hexdigest() for n in archive.namelist() if n.startswith("cells/")
+            }
             return {
                 "wall_s": job["finished_at"] - job["created_at"], "cells": job["cells_total"], "cell_seconds_sum": job["seconds"]["cells_total"],
                 "baked": sum(bool(c["stats"]["baked"]) for c in job["cells"]), "again_wall_s": again["finished_at"] - again["created_at"],
@@ -118,13 +124,19 @@ def equal_bundles(local: Path, job: dict) -> tuple[int, int]:
     for name, folder in job["index"]["bundles"].items():
         mine = local / "images" / name
         theirs = {n.split("/", 2)[2]: h for n, h in job["files"].items() if n.startswith(folder)}
-        ours = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in mine.iterdir() if p.name != "manifest.json" and p.name != "impostor.glb"}
+        ours = {
+            p.name: hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in mine.iterdir()
+            if p.name != "manifest.json" and p.name != "impostor.glb"
+        }
         same += all(theirs.get(n) == h for n, h in ours.items())
     return same, len(job["index"]["bundles"])
 
 
 def same_grid(grid: dict, index: dict) -> bool:
-    strip = lambda points: [{k: p[k] for k in ("position", "level", "radius", "breaks", "image", "images")} for p in points]  # noqa: E731
+    def strip(points):
+        return [{k: p[k] for k in ("position", "level", "radius", "breaks", "image", "images")} for p in points]
+
     return strip(grid["points"]) == strip(index["points"]) and grid["cells"] == index["cells"]
 
 
@@ -148,7 +160,12 @@ def main() -> None:
         path = write_scene(scene, Path(tmp), "glb", "city")
         scene = load_scene(path)  # as the service loads it (float32 positions in the GLB)
         local = (keep or Path(tmp)) / "in-process"
-        result = {"renderer": renderer_info().renderer, "triangles": scene.triangle_count, "request": req, "resolution": args.resolution}
+        result = {
+            "renderer": renderer_info().renderer,
+            "triangles": scene.triangle_count,
+            "request": req,
+            "resolution": args.resolution,
+        }
         result["in_process"] = mine = in_process(scene, req, args.resolution, local)
         for workers in (int(w) for w in args.workers.split(",")):
             run = through_service(path, req, warm_req, args.resolution, workers, keep)
@@ -163,9 +180,13 @@ def main() -> None:
     p = req["budget"]["primitives"]
     print(f"renderer: {result['renderer']}; city of {result['triangles']:,} triangles, P = {p:,} ({args.share:.0%}), max level {args.max_level}, "
           f"LDIs at {args.resolution} px, {mine['images']} images")  # fmt: skip
-    print("\n| run | wall s | plan s | bake s (cells' sum) | images baked | within P | same grid | identical LDIs | again: wall s, baked |")
+    print(
+        "\n| run | wall s | plan s | bake s (cells' sum) | images baked | within P | same grid | identical LDIs | again: wall s, baked |"
+    )
     print("|---|---|---|---|---|---|---|---|---|")
-    print(f"| in one process | {mine['wall_s']:.1f} | {mine['plan_s']:.1f} | {mine['bake_s']:.1f} | {mine['images']} | {mine['within_p']:.0%} | | | |")
+    print(
+        f"| in one process | {mine['wall_s']:.1f} | {mine['plan_s']:.1f} | {mine['bake_s']:.1f} | {mine['images']} | {mine['within_p']:.0%} | | | |"
+    )
     for key in [k for k in result if k.startswith("service_")]:
         r = result[key]
         print(f"| service, {key.split('_')[1]} worker(s) | {r['wall_s']:.1f} | | {r['cell_seconds_sum']:.1f} | {r['baked']} of {r['cells']} | {r['within_p']:.0%} | "

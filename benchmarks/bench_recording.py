@@ -74,7 +74,10 @@ def measure(envmap: bool) -> dict:
     cases = {"renderer": renderer_info().renderer}
     dense = dense_object()
     diameter = float(np.max(dense.bounds[1] - dense.bounds[0]))
-    parts = [(f"dense {r}", dense, bake_plan(dense, cell_before(dense, 1.6 * diameter, 0.3 * diameter), r)) for r in (512, 1024)]
+    parts = [
+        (f"dense {r}", dense, bake_plan(dense, cell_before(dense, 1.6 * diameter, 0.3 * diameter), r))
+        for r in (512, 1024)
+    ]
     for name, path in THIRD_PARTY.items():
         scene = load_scene(SHARED_SCENES / path)
         d = float(np.max(scene.bounds[1] - scene.bounds[0]))
@@ -82,8 +85,11 @@ def measure(envmap: bool) -> dict:
     for name, scene, plan in parts:
         seconds, recorded = _best(lambda scene=scene, plan=plan: record_layers(scene, plan))
         cases[name] = {
-            "seconds": seconds, "layers": int(plan.count), "texels": [int(r) for r in plan.texture_resolution],
-            "pairs": int(recorded.drawn_triangles.sum()), "digest": _digest(recorded.rgba),
+            "seconds": seconds,
+            "layers": int(plan.count),
+            "texels": [int(r) for r in plan.texture_resolution],
+            "pairs": int(recorded.drawn_triangles.sum()),
+            "digest": _digest(recorded.rgba),
         }
         if name.startswith("dense"):
             cases[name]["lower_bound_s"] = lower_bound_s(scene, plan, 3)
@@ -95,7 +101,9 @@ def measure(envmap: bool) -> dict:
         city = detailed_city(36, 3)
         cells = street_grid(36)
         middle = cells[len(cells) // 2][1]
-        options = EnvmapOptions(resolution=512, fov_deg=90.0, layers=64, directions=("+x", "-x", "+y", "-y", "+z", "-z"))
+        options = EnvmapOptions(
+            resolution=512, fov_deg=90.0, layers=64, directions=("+x", "-x", "+y", "-y", "+z", "-z")
+        )
         bakes = []
         for _ in range(3):  # the first warms up
             start = time.perf_counter()
@@ -103,8 +111,10 @@ def measure(envmap: bool) -> dict:
             bakes.append((time.perf_counter() - start, imp))
         seconds, imp = min(bakes[1:], key=lambda pair: pair[0])
         cases["envmap cell"] = {
-            "seconds": seconds, "record_s": min(b.stats["seconds"]["record"] for _, b in bakes[1:]),
-            "layers": int(imp.stats["layers"]), "digest": _digest(*imp.pages, imp.payload.corners, imp.payload.uv),
+            "seconds": seconds,
+            "record_s": min(b.stats["seconds"]["record"] for _, b in bakes[1:]),
+            "layers": int(imp.stats["layers"]),
+            "digest": _digest(*imp.pages, imp.payload.corners, imp.payload.uv),
         }
     return cases
 
@@ -117,7 +127,9 @@ def run_tree(revision: str | None, envmap: bool, work: Path) -> dict:
         package = root / "farfield"
         if not package.exists():
             package.mkdir(parents=True)
-            archive = subprocess.run(["git", "archive", revision, "core"], check=True, capture_output=True, cwd=ROOT).stdout
+            archive = subprocess.run(
+                ["git", "archive", revision, "core"], check=True, capture_output=True, cwd=ROOT
+            ).stdout
             with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
                 tar.extractall(package, filter="data")
             (package / "__init__.py").write_text("")
@@ -132,9 +144,15 @@ def run_tree(revision: str | None, envmap: bool, work: Path) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--before", default="db81940", help="git revision recorded beside this tree (default: db81940, before the slab.frag variants)")
+    parser.add_argument(
+        "--before",
+        default="db81940",
+        help="git revision recorded beside this tree (default: db81940, before the slab.frag variants)",
+    )
     parser.add_argument("--rounds", type=int, default=2, help="fresh processes per tree, alternating (default 2)")
-    parser.add_argument("--no-envmap", action="store_true", help="leave out the envmap cell (its city takes a while to build)")
+    parser.add_argument(
+        "--no-envmap", action="store_true", help="leave out the envmap cell (its city takes a while to build)"
+    )
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--measure", action="store_true", help=argparse.SUPPRESS)  # internal: one tree, JSON out
     args = parser.parse_args()
@@ -147,13 +165,24 @@ def main() -> None:
             for tree, revision in (("before", args.before), ("after", None)):
                 print(f"round {r + 1}/{args.rounds}: {tree} ...", file=sys.stderr, flush=True)
                 runs[tree].append(run_tree(revision, not args.no_envmap, Path(work)))
-    best = {tree: {name: min((run[name] for run in results), key=lambda case: case["seconds"]) for name in results[0] if name != "renderer"} for tree, results in runs.items()}
+    best = {
+        tree: {
+            name: min((run[name] for run in results), key=lambda case: case["seconds"])
+            for name in results[0]
+            if name != "renderer"
+        }
+        for tree, results in runs.items()
+    }
     report = {"renderer": runs["after"][0]["renderer"], "before": args.before, "rounds": args.rounds, **best}
     if args.json:
         print(json.dumps(report, indent=1))
         return
-    print(f"renderer: {report['renderer']}   before: {args.before}   best of {args.rounds} processes x 3 per tree (envmap: x 2)")
-    print(f"{'case':<12} {'layers':>6} {'texels':>10} {'pairs':>8} {'before s':>9} {'after s':>8} {'speed-up':>8} {'same bytes':>10} {'bound s':>8} {'before/bound':>12} {'after/bound':>11}")
+    print(
+        f"renderer: {report['renderer']}   before: {args.before}   best of {args.rounds} processes x 3 per tree (envmap: x 2)"
+    )
+    print(
+        f"{'case':<12} {'layers':>6} {'texels':>10} {'pairs':>8} {'before s':>9} {'after s':>8} {'speed-up':>8} {'same bytes':>10} {'bound s':>8} {'before/bound':>12} {'after/bound':>11}"
+    )
     for name, after in best["after"].items():
         before = best["before"][name]
         texels = "x".join(str(t) for t in after["texels"]) if "texels" in after else ""
@@ -163,7 +192,9 @@ def main() -> None:
             row += f" {bound:>8.3f} {before['seconds'] / bound:>11.1f}x {after['seconds'] / bound:>10.1f}x"
         print(row)
         if "record_s" in after:
-            print(f"{'':<12} record stage: before {before['record_s']:.3f} s, after {after['record_s']:.3f} s ({before['record_s'] / after['record_s']:.2f}x)")
+            print(
+                f"{'':<12} record stage: before {before['record_s']:.3f} s, after {after['record_s']:.3f} s ({before['record_s'] / after['record_s']:.2f}x)"
+            )
 
 
 if __name__ == "__main__":

@@ -32,8 +32,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from farfield.core.impostor.bundle import write_bundle  # noqa: E402
 from farfield.core.exchange import load_scene  # noqa: E402
+from farfield.core.impostor.bundle import write_bundle  # noqa: E402
 from farfield.core.render.context import renderer_info  # noqa: E402
 from farfield.core.techniques.layered import BakeOptions, bake_layered  # noqa: E402
 from farfield.service.jobs.schema import GridSpec, grid_cells  # noqa: E402
@@ -87,7 +87,9 @@ def interleaved(cells: int, repeats: int) -> dict:
     for name, done in runs.items():
         best = min(done, key=lambda run: run["wall_s"])
         result[name] = {**best, "walls_s": [run["wall_s"] for run in done]}
-    result["scaling_per_round"] = [a["wall_s"] / b["wall_s"] for a, b in zip(runs["service_1_worker"], runs["service_2_workers"])]
+    result["scaling_per_round"] = [
+        a["wall_s"] / b["wall_s"] for a, b in zip(runs["service_1_worker"], runs["service_2_workers"])
+    ]
     return result
 
 
@@ -99,10 +101,14 @@ def _through_service(cells: int, workers: int, **env: str) -> dict:
             with open(BUNNY, "rb") as f:
                 scene_id = client.post("/v1/scenes", files={"file": (BUNNY.name, f)}).json()["id"]
             # Warm each worker (EGL context, scene parse) with a small job, as the in-process run is warmed.
-            warm = client.post("/v1/jobs", json={"scene_id": scene_id, "grid": grid(2 * workers), "resolution": 256}).json()["id"]
+            warm = client.post(
+                "/v1/jobs", json={"scene_id": scene_id, "grid": grid(2 * workers), "resolution": 256}
+            ).json()["id"]
             while client.get(f"/v1/jobs/{warm}").json()["state"] not in ("done", "failed"):
                 time.sleep(0.05)
-            job_id = client.post("/v1/jobs", json={"scene_id": scene_id, "grid": grid(cells), "resolution": RESOLUTION}).json()["id"]
+            job_id = client.post(
+                "/v1/jobs", json={"scene_id": scene_id, "grid": grid(cells), "resolution": RESOLUTION}
+            ).json()["id"]
             while (job := client.get(f"/v1/jobs/{job_id}").json())["state"] not in ("done", "failed", "cancelled"):
                 time.sleep(0.5)
             assert job["state"] == "done", job["errors"]
@@ -165,26 +171,41 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="runs per configuration; the fastest counts")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
-    result = {"renderer": renderer_info().renderer, "cells": args.cells, "resolution": RESOLUTION, "repeats": args.repeats}
+    result = {
+        "renderer": renderer_info().renderer,
+        "cells": args.cells,
+        "resolution": RESOLUTION,
+        "repeats": args.repeats,
+    }
     result.update(interleaved(args.cells, args.repeats))
     result["upload"] = upload_memory(args.upload_mb)
     if args.json:
         print(json.dumps(result, indent=1))
         return
     one = result["service_1_worker"]["wall_s"]
-    print(f"renderer: {result['renderer']}; {args.cells} bunny cells at {RESOLUTION}; fastest of {args.repeats} runs each")
+    print(
+        f"renderer: {result['renderer']}; {args.cells} bunny cells at {RESOLUTION}; fastest of {args.repeats} runs each"
+    )
     print("\n| run | wall s | cell seconds (sum) | vs in-process |\n|---|---|---|---|")
-    print(f"| in one process, serial | {result['in_process_s']:.2f} (runs: {', '.join(f'{w:.1f}' for w in result['in_process_runs_s'])}) | | 1.00 |")
+    print(
+        f"| in one process, serial | {result['in_process_s']:.2f} (runs: {', '.join(f'{w:.1f}' for w in result['in_process_runs_s'])}) | | 1.00 |"
+    )
     for name in ("service_1_worker", "service_2_workers", "service_2_workers_1_thread_each"):
         run = result[name]
-        print(f"| {name.replace('_', ' ')} | {run['wall_s']:.2f} (runs: {', '.join(f'{w:.1f}' for w in run['walls_s'])}) | {run['cell_seconds_sum']:.2f} | {run['wall_s'] / result['in_process_s']:.2f} |")
+        print(
+            f"| {name.replace('_', ' ')} | {run['wall_s']:.2f} (runs: {', '.join(f'{w:.1f}' for w in run['walls_s'])}) | {run['cell_seconds_sum']:.2f} | {run['wall_s'] / result['in_process_s']:.2f} |"
+        )
     print(f"\noverhead (1 worker vs in-process): {100 * (one / result['in_process_s'] - 1):+.1f}%")
-    print(f"scaling 1 -> 2 workers: {one / result['service_2_workers']['wall_s']:.2f}x "
-          f"({one / result['service_2_workers_1_thread_each']['wall_s']:.2f}x with LP_NUM_THREADS=1 in the two workers); "
-          f"per round: {', '.join(f'{r:.2f}x' for r in result['scaling_per_round'])}")
+    print(
+        f"scaling 1 -> 2 workers: {one / result['service_2_workers']['wall_s']:.2f}x "
+        f"({one / result['service_2_workers_1_thread_each']['wall_s']:.2f}x with LP_NUM_THREADS=1 in the two workers); "
+        f"per round: {', '.join(f'{r:.2f}x' for r in result['scaling_per_round'])}"
+    )
     u = result["upload"]
-    print(f"\nupload of {u['file_mb']:.0f} MB (HTTP {u['status']}, {u['seconds']:.1f} s): API resident {u['rss_before_mib']:.0f} -> {u['rss_after_mib']:.0f} MiB, "
-          f"peak {u['peak_before_mib']:.0f} -> {u['peak_after_mib']:.0f} MiB")
+    print(
+        f"\nupload of {u['file_mb']:.0f} MB (HTTP {u['status']}, {u['seconds']:.1f} s): API resident {u['rss_before_mib']:.0f} -> {u['rss_after_mib']:.0f} MiB, "
+        f"peak {u['peak_before_mib']:.0f} -> {u['peak_after_mib']:.0f} MiB"
+    )
 
 
 if __name__ == "__main__":

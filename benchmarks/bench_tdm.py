@@ -57,7 +57,10 @@ def cell_before(scene, distance: float, size: float = 100.0) -> BoxCell:
     """A cubic cell of ``size`` centred on the part's x and y, ``distance`` in front of its z = min face."""
     lo, hi = scene.bounds
     c = 0.5 * (lo + hi)
-    return BoxCell(np.array([c[0] - size / 2, c[1] - size / 2, lo[2] - distance - size]), np.array([c[0] + size / 2, c[1] + size / 2, lo[2] - distance]))
+    return BoxCell(
+        np.array([c[0] - size / 2, c[1] - size / 2, lo[2] - distance - size]),
+        np.array([c[0] + size / 2, c[1] + size / 2, lo[2] - distance]),
+    )
 
 
 def tdm_memory(stats: dict) -> int:
@@ -106,7 +109,9 @@ def compare_part(name: str, resolution: int) -> dict:
     cell = cell_in_front(scene, distance, size * diameter, lift=lift)
     tdm = bake_tdm(scene, cell, TdmOptions(resolution=resolution))
     layered = bake_layered(scene, cell, BakeOptions(resolution=resolution))
-    candidates = [Candidate.of(i.technique, i, evaluate(scene, i, cell, random_count=4, seed=3)) for i in (tdm, layered)]
+    candidates = [
+        Candidate.of(i.technique, i, evaluate(scene, i, cell, random_count=4, seed=3)) for i in (tdm, layered)
+    ]
     choice = choose(candidates)
     return {
         "triangles": scene.triangle_count, "layers": tdm.stats["layers_planned"], "candidates": [c.to_dict() for c in candidates],
@@ -116,8 +121,10 @@ def compare_part(name: str, resolution: int) -> dict:
 
 def print_table(rows: dict) -> None:
     keys = list(rows)
+
     def line(label, fn):
         print(f"{label:<34}" + "".join(f"{fn(rows[k]):>11}" for k in keys))
+
     line("distance view cell to model (m)", lambda r: r["distance"])
     line("# layers", lambda r: r["layers"])
     line("# meshes", lambda r: r["meshes"])
@@ -161,7 +168,9 @@ def main() -> None:
     info = renderer_info()
     scene = house()
     if not args.json:
-        print(f"renderer: {info.vendor} / {info.renderer}; part: {scene.triangle_count} triangles; {resolution} px, 45°, 100 m cubic cell")
+        print(
+            f"renderer: {info.vendor} / {info.renderer}; part: {scene.triangle_count} triangles; {resolution} px, 45°, 100 m cubic cell"
+        )
     bake_tdm(scene, cell_before(scene, 500.0), TdmOptions(resolution=64))  # compile the numba kernels
 
     table = {}
@@ -170,7 +179,9 @@ def main() -> None:
         row["distance"] = d
         table[d] = row
         if not args.json:
-            print(f"  {d} m: TDM {row['tdm_triangles']} triangles in {row['tdm_seconds']['total']:.2f} s", file=sys.stderr)
+            print(
+                f"  {d} m: TDM {row['tdm_triangles']} triangles in {row['tdm_seconds']['total']:.2f} s", file=sys.stderr
+            )
     trade = {}
     cell = cell_before(scene, 140.0)
     for f in factors:
@@ -192,17 +203,28 @@ def main() -> None:
     plot = out / "tdm_trade.png"
     write_trade_plot(trade, plot)
     if args.json:
-        print(json.dumps({"renderer": info.renderer, "resolution": resolution, "table": table, "trade": trade, "parts": parts}, indent=2))
+        print(
+            json.dumps(
+                {"renderer": info.renderer, "resolution": resolution, "table": table, "trade": trade, "parts": parts},
+                indent=2,
+            )
+        )
         return
     print("\nTable 4.1 side by side (seed 000), enlargement factor 2:")
     print_table(table)
     print("\nThe trade at 140 m (enlargement factor -> triangles, memory, time, image error):")
-    print(f"{'factor':>7}{'triangles':>11}{'memory kB':>11}{'seconds':>9}{'holes':>7}{'colour err':>11}{'bloat>1px':>10}")
+    print(
+        f"{'factor':>7}{'triangles':>11}{'memory kB':>11}{'seconds':>9}{'holes':>7}{'colour err':>11}{'bloat>1px':>10}"
+    )
     for f, r in trade.items():
-        print(f"{f:>7.2f}{r['triangles']:>11}{r['memory'] / 1000:>11.1f}{r['seconds']:>9.2f}{r['holes']:>7}{r['colour_error']:>11.2f}{r['bloat_beyond_1px']:>10}")
+        print(
+            f"{f:>7.2f}{r['triangles']:>11}{r['memory'] / 1000:>11.1f}{r['seconds']:>9.2f}{r['holes']:>7}{r['colour_error']:>11.2f}{r['bloat_beyond_1px']:>10}"
+        )
     print(f"plot: {plot}")
     print("\nWhich to use, part by part (enlargement factor 2; memory = pages as stored + geometry):")
-    print(f"{'part':<12}{'tris':>9}{'layers':>7}{'technique':>10}{'triangles':>10}{'memory kB':>11}{'holes':>6}{'>1px':>6}{'colour err':>11}{'bake s':>8}  use")
+    print(
+        f"{'part':<12}{'tris':>9}{'layers':>7}{'technique':>10}{'triangles':>10}{'memory kB':>11}{'holes':>6}{'>1px':>6}{'colour err':>11}{'bake s':>8}  use"
+    )
     for name, part in parts.items():
         for c in part["candidates"]:
             use = part["choice"] if c["name"] == "tdm" else ""
@@ -223,7 +245,13 @@ def write_trade_plot(trade: dict, path: Path) -> None:
     axes[1].plot(factors, [trade[f]["memory"] / 1000 for f in factors], "o-", color="tab:green")
     axes[1].set_ylabel("memory (kB)")
     axes[2].plot(factors, [trade[f]["colour_error"] for f in factors], "o-", color="tab:red", label="mean colour error")
-    axes[2].plot(factors, [trade[f]["bloat_beyond_1px"] / 100 for f in factors], "s--", color="tab:purple", label="bloat > 1 px / 100")
+    axes[2].plot(
+        factors,
+        [trade[f]["bloat_beyond_1px"] / 100 for f in factors],
+        "s--",
+        color="tab:purple",
+        label="bloat > 1 px / 100",
+    )
     axes[2].legend()
     for ax in axes:
         ax.set_xlabel("voxel enlargement factor")

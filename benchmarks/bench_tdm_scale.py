@@ -83,7 +83,10 @@ with gl_context():
 def close_cell(scene, size: float = 1.0, distance: float = 2.0) -> BoxCell:
     lo, hi = scene.bounds
     c = 0.5 * (lo + hi)
-    return BoxCell(np.array([c[0] - size / 2, c[1] - size / 2, lo[2] - distance - size]), np.array([c[0] + size / 2, c[1] + size / 2, lo[2] - distance]))
+    return BoxCell(
+        np.array([c[0] - size / 2, c[1] - size / 2, lo[2] - distance - size]),
+        np.array([c[0] + size / 2, c[1] + size / 2, lo[2] - distance]),
+    )
 
 
 def bake_with_masks(scene, cell, options: TdmOptions):
@@ -110,7 +113,16 @@ def pack_in_process(masks, options: TdmOptions, source: str | None, limit: float
         given, result = Path(tmp) / "in.pkl", Path(tmp) / "out.pkl"
         if source is not None:
             (Path(tmp) / "mask_atlas_before.py").write_text(source)
-        given.write_bytes(pickle.dumps((masks, options.padding, options.max_page, None if source is None else str(Path(tmp) / "mask_atlas_before.py"))))
+        given.write_bytes(
+            pickle.dumps(
+                (
+                    masks,
+                    options.padding,
+                    options.max_page,
+                    None if source is None else str(Path(tmp) / "mask_atlas_before.py"),
+                )
+            )
+        )
         try:
             subprocess.run([sys.executable, "-c", PACK, str(given), str(result)], check=True, timeout=limit, cwd=ROOT)
         except subprocess.TimeoutExpired:
@@ -120,7 +132,9 @@ def pack_in_process(masks, options: TdmOptions, source: str | None, limit: float
 
 
 def first_cell(mode: str, env: dict) -> tuple[float, float]:
-    out = subprocess.run([sys.executable, "-c", FIRST_CELL, mode], check=True, capture_output=True, text=True, env=env, cwd=ROOT)
+    out = subprocess.run(
+        [sys.executable, "-c", FIRST_CELL, mode], check=True, capture_output=True, text=True, env=env, cwd=ROOT
+    )
     warm, bake = (float(v) for v in out.stdout.split()[-2:])
     return warm, bake
 
@@ -130,7 +144,9 @@ def main() -> None:
     parser.add_argument("--subdivisions", type=int, default=7, help="icosphere subdivisions (7: 327,680 triangles)")
     parser.add_argument("--before", default="85137ad", help="git revision of the packer to compare against")
     parser.add_argument("--before-limit", type=float, default=900.0, help="seconds the old packer may take")
-    parser.add_argument("--no-warm", action="store_true", help="skip the fresh-worker measurement (it compiles for ~40 s)")
+    parser.add_argument(
+        "--no-warm", action="store_true", help="skip the fresh-worker measurement (it compiles for ~40 s)"
+    )
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
 
@@ -144,7 +160,13 @@ def main() -> None:
     report = {"renderer": info.renderer, "peak_mib": peak, "triangles_in": int(sum(len(o.faces) for o in scene.objects)), "stats": {k: s[k] for k in (
         "layers_planned", "layers", "voxels", "initial_triangles", "triangles", "texture_charts", "atlas_pages", "texture_bytes", "geometry_bytes", "texture_resolution", "seconds")}}  # fmt: skip
 
-    before_source = subprocess.run(["git", "show", f"{args.before}:core/techniques/tdm/mask_atlas.py"], check=True, capture_output=True, text=True, cwd=ROOT).stdout
+    before_source = subprocess.run(
+        ["git", "show", f"{args.before}:core/techniques/tdm/mask_atlas.py"],
+        check=True,
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    ).stdout
     after = pack_in_process(masks, options, None, 3600.0)
     before = pack_in_process(masks, options, before_source, args.before_limit)
     report["packer"] = {
@@ -172,7 +194,9 @@ def main() -> None:
         print(json.dumps(report, indent=2))
         return
     print(f"renderer: {info.renderer}")
-    print(f"\n## The bake: dense_mesh({args.subdivisions}), {report['triangles_in']:,} triangles, 1-unit cell 2 units in front, 512 px, f = 2")
+    print(
+        f"\n## The bake: dense_mesh({args.subdivisions}), {report['triangles_in']:,} triangles, 1-unit cell 2 units in front, 512 px, f = 2"
+    )
     st = report["stats"]
     print(f"layers {st['layers']} (planned {st['layers_planned']}), texture {st['texture_resolution'][0]} x {st['texture_resolution'][1]}, voxels {st['voxels']:,}, "
           f"initial triangles {st['initial_triangles']:,}, kept {st['triangles']:,}, charts {st['texture_charts']:,}, pages {st['atlas_pages']}, "
@@ -185,8 +209,12 @@ def main() -> None:
     old = f"{pk['before_seconds']:.1f}" if pk["before_seconds"] is not None else f"> {pk['before_limit']:.0f} (stopped)"
     print(f"\n## The packer on those {pk['charts']:,} charts ({pk['texels']:,} texels), each in a fresh process")
     print("| packer | seconds | page texels | same layout |\n|---|---:|---:|---|")
-    print(f"| before ({args.before}) | {old} | {pk['before_page_area'] if pk['before_page_area'] is not None else '-'} | |")
-    print(f"| after | {pk['after_seconds']:.1f} | {pk['after_page_area']} | {pk['same_layout'] if pk['same_layout'] is not None else 'not known'} |")
+    print(
+        f"| before ({args.before}) | {old} | {pk['before_page_area'] if pk['before_page_area'] is not None else '-'} | |"
+    )
+    print(
+        f"| after | {pk['after_seconds']:.1f} | {pk['after_page_area']} | {pk['same_layout'] if pk['same_layout'] is not None else 'not known'} |"
+    )
     if pk["before_seconds"] is not None:
         print(f"speed-up: {pk['before_seconds'] / pk['after_seconds']:.1f}x")
     if "first_cell" in report:

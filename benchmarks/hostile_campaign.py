@@ -70,7 +70,9 @@ class Tally:
             return
         counts[f"{response.status_code // 100}xx"] += 1
         if response.status_code >= 500:
-            notes.append(f"{response.request.method} {response.request.url.path}: {response.status_code} {response.text[:200]}")
+            notes.append(
+                f"{response.request.method} {response.request.url.path}: {response.status_code} {response.text[:200]}"
+            )
         if response.status_code >= 400:
             try:
                 body = response.json()
@@ -170,7 +172,9 @@ def run(args) -> dict:
     # Attempts enough that the five kills, which may all land on one cell, do not use its attempts up
     # (a cell that keeps killing its worker is failed after FARFIELD_MAX_ATTEMPTS by design).
     service = start_service(home, FARFIELD_MAX_UPLOAD_MB="64", FARFIELD_MAX_ATTEMPTS="8")
-    tmp_before = {p.name for p in Path(tempfile.gettempdir()).glob("farfield-upload-*")} | {p.name for p in Path(tempfile.gettempdir()).glob("farfield-ingest-*")}
+    tmp_before = {p.name for p in Path(tempfile.gettempdir()).glob("farfield-upload-*")} | {
+        p.name for p in Path(tempfile.gettempdir()).glob("farfield-ingest-*")
+    }
     client = service.client()
     client.timeout = httpx.Timeout(120)
     result: dict = {}
@@ -180,17 +184,35 @@ def run(args) -> dict:
         small = city(buildings=4)
         valid = {ext: write_scene(small, files, ext).read_bytes() for ext in ("glb", "obj", "ply", "stl")}
         valid["gltf"] = gltf([{"mesh": 0}], [0])
-        scene_id = send(tally, "setup", client, "POST", "/v1/scenes", files={"file": ("city.glb", valid["glb"])}).json()["id"]
+        scene_id = send(
+            tally, "setup", client, "POST", "/v1/scenes", files={"file": ("city.glb", valid["glb"])}
+        ).json()["id"]
         cell = {"kind": "box", "lo": [50, 1, 50], "hi": [54, 5, 54]}
         base = {"scene_id": scene_id, "resolution": 64, "viewcells": [cell]}
 
         # 1. non-finite and loose numbers
         for raw in NON_FINITE:
             body = json.dumps(base)[:-1] + ", " + raw + "}"
-            send(tally, "1 non-finite/loose numbers", client, "POST", "/v1/jobs", content=body, headers={"content-type": "application/json"})
+            send(
+                tally,
+                "1 non-finite/loose numbers",
+                client,
+                "POST",
+                "/v1/jobs",
+                content=body,
+                headers={"content-type": "application/json"},
+            )
         for raw in GRIDS:
             body = json.dumps({k: v for k, v in base.items() if k != "viewcells"})[:-1] + ', "grid": ' + raw + "}"
-            send(tally, "1 non-finite/loose numbers", client, "POST", "/v1/jobs", content=body, headers={"content-type": "application/json"})
+            send(
+                tally,
+                "1 non-finite/loose numbers",
+                client,
+                "POST",
+                "/v1/jobs",
+                content=body,
+                headers={"content-type": "application/json"},
+            )
         accepted = tally.phases["1 non-finite/loose numbers"]["2xx"]
         if accepted:
             tally.note("1 non-finite/loose numbers", f"{accepted} accepted (should be none)")
@@ -202,18 +224,25 @@ def run(args) -> dict:
         made = 0
         for ext, data in valid.items():
             for mutated in mutations(data, args.mutations, rng):
-                response = send(tally, "2 mutated uploads", client, "POST", "/v1/scenes", files={"file": (f"m.{ext}", mutated)})
+                response = send(
+                    tally, "2 mutated uploads", client, "POST", "/v1/scenes", files={"file": (f"m.{ext}", mutated)}
+                )
                 made += response is not None and response.status_code == 201
         stored_after = {p.parent.name for p in blob_root.glob("*/*")}
         if len(stored_after - stored_before) != made:
-            tally.note("2 mutated uploads", f"leak: {len(stored_after - stored_before)} scene folders for {made} accepted uploads")
+            tally.note(
+                "2 mutated uploads",
+                f"leak: {len(stored_after - stored_before)} scene folders for {made} accepted uploads",
+            )
         tally.note("2 mutated uploads", f"{made} accepted (still valid files), the rest refused")
 
         # 3. hostile names
         names = ["../../../../etc/passwd.obj", "..\\..\\boot.ini.obj", "a" * 300 + ".obj", "b" * 242 + ".obj", "nul\x00byte.obj",
                  "ünï cødé ☃.obj", "noextension", ".obj", "....obj", "/abs/path.obj", "x.OBJ", "x.obj.exe", "%2e%2e%2fenc.obj"]  # fmt: skip
         for name in names:
-            response = send(tally, "3 hostile names", client, "POST", "/v1/scenes", files={"file": (name, valid["obj"])})
+            response = send(
+                tally, "3 hostile names", client, "POST", "/v1/scenes", files={"file": (name, valid["obj"])}
+            )
             if response is not None and response.status_code == 201:
                 key_parts = list(blob_root.glob(f"{response.json()['id']}/*"))
                 if not all(p.resolve().is_relative_to(blob_root.resolve()) for p in key_parts):
@@ -247,7 +276,9 @@ def run(args) -> dict:
                       ("GET", f"/v1/jobs/{job['id']}/cells/0/bundle.zip"), ("GET", f"/v1/jobs/{job['id']}/cells/0/manifest.json"),
                       ("GET", f"/v1/jobs/{job['id']}/lookup?x=52&y=3&z=52"), ("POST", "/v1/jobs", base)]  # fmt: skip
             for method, path, *body in probes:
-                response = send(tally, "5 cross-tenant probes", stranger, method, path, **({"json": body[0]} if body else {}))
+                response = send(
+                    tally, "5 cross-tenant probes", stranger, method, path, **({"json": body[0]} if body else {})
+                )
                 if response is not None and response.status_code < 400:
                     tally.note("5 cross-tenant probes", f"LEAK: {method} {path} answered {response.status_code}")
             listed = stranger.get("/v1/scenes").json()
@@ -257,7 +288,10 @@ def run(args) -> dict:
         # 6. concurrent submissions
         def submit(n: int) -> str | None:
             with service.client() as c:
-                spec = {**base, "viewcells": [{"kind": "box", "lo": [50 + 0.01 * n, 1, 50], "hi": [54 + 0.01 * n, 5, 54]}]}
+                spec = {
+                    **base,
+                    "viewcells": [{"kind": "box", "lo": [50 + 0.01 * n, 1, 50], "hi": [54 + 0.01 * n, 5, 54]}],
+                }
                 response = send(tally, "6 concurrent submissions", c, "POST", "/v1/jobs", json=spec)
                 return response.json()["id"] if response is not None and response.status_code == 201 else None
 
@@ -269,9 +303,13 @@ def run(args) -> dict:
             tally.note("6 concurrent submissions", f"LOST: {dict(ends)} of {len(ids)}")
 
         # 7. kills under a 6-cell job
-        bunny = send(tally, "7 kills", client, "POST", "/v1/scenes", files={"file": (BUNNY.name, BUNNY.read_bytes())}).json()["id"]
+        bunny = send(
+            tally, "7 kills", client, "POST", "/v1/scenes", files={"file": (BUNNY.name, BUNNY.read_bytes())}
+        ).json()["id"]
         grid = {"lo": [-0.6, 0.05, -0.05], "hi": [-0.4, 0.15, 0.05], "counts": [3, 2, 1]}
-        job_id = send(tally, "7 kills", client, "POST", "/v1/jobs", json={"scene_id": bunny, "grid": grid, "resolution": 768}).json()["id"]
+        job_id = send(
+            tally, "7 kills", client, "POST", "/v1/jobs", json={"scene_id": bunny, "grid": grid, "resolution": 768}
+        ).json()["id"]
         kills = []
         for victim in ("pool", "pool", "pool", "worker", "redis"):
             deadline = time.monotonic() + 120
@@ -280,7 +318,11 @@ def run(args) -> dict:
                 if any(c["state"] == "running" and c["progress"] > 0 for c in cells) or victim == "redis":
                     break
                 time.sleep(0.05)
-            pids = {"pool": service.worker_pool_children, "worker": service.worker_mains, "redis": lambda: [service.redis_pid()]}[victim]()
+            pids = {
+                "pool": service.worker_pool_children,
+                "worker": service.worker_mains,
+                "redis": lambda: [service.redis_pid()],
+            }[victim]()
             for pid in pids:
                 os.kill(pid, signal.SIGKILL)
             kills.append(victim)
@@ -301,8 +343,13 @@ def run(args) -> dict:
             result["schemathesis"] = {"returncode": done.returncode, "summary": tail}
 
         # the end: crashes and leaks
-        result["crashes"] = {"supervisor_alive": service.process.poll() is None, "health": client.get("/v1/health").json()}
-        tmp_after = {p.name for p in Path(tempfile.gettempdir()).glob("farfield-upload-*")} | {p.name for p in Path(tempfile.gettempdir()).glob("farfield-ingest-*")}
+        result["crashes"] = {
+            "supervisor_alive": service.process.poll() is None,
+            "health": client.get("/v1/health").json(),
+        }
+        tmp_after = {p.name for p in Path(tempfile.gettempdir()).glob("farfield-upload-*")} | {
+            p.name for p in Path(tempfile.gettempdir()).glob("farfield-ingest-*")
+        }
         result["leaks"] = {"temporary_upload_files_left": len(tmp_after - tmp_before)}
     finally:
         client.close()
@@ -314,12 +361,19 @@ def run(args) -> dict:
 
 
 def table(result: dict) -> str:
-    lines = ["| phase | requests | 2xx | 4xx | 5xx | connection errors | error bodies not {detail, error} |", "|---|---|---|---|---|---|---|"]
+    lines = [
+        "| phase | requests | 2xx | 4xx | 5xx | connection errors | error bodies not {detail, error} |",
+        "|---|---|---|---|---|---|---|",
+    ]
     total = Counter()
     for phase, counts in result["phases"].items():
         total.update(counts)
-        lines.append(f"| {phase} | {counts.get('requests', 0)} | {counts.get('2xx', 0)} | {counts.get('4xx', 0)} | {counts.get('5xx', 0)} | {counts.get('connection_errors', 0)} | {counts.get('bad_error_bodies', 0)} |")
-    lines.append(f"| **all** | {total['requests']} | {total['2xx']} | {total['4xx']} | {total['5xx']} | {total['connection_errors']} | {total['bad_error_bodies']} |")
+        lines.append(
+            f"| {phase} | {counts.get('requests', 0)} | {counts.get('2xx', 0)} | {counts.get('4xx', 0)} | {counts.get('5xx', 0)} | {counts.get('connection_errors', 0)} | {counts.get('bad_error_bodies', 0)} |"
+        )
+    lines.append(
+        f"| **all** | {total['requests']} | {total['2xx']} | {total['4xx']} | {total['5xx']} | {total['connection_errors']} | {total['bad_error_bodies']} |"
+    )
     lines.append("")
     for label, outcome in result.get("costly", {}).items():
         lines.append(f"- {label}: HTTP {outcome['status']} in {outcome['seconds']} s: {outcome['detail']}")
@@ -329,7 +383,10 @@ def table(result: dict) -> str:
         lines.append(f"- kills: {result['kills']}")
     lines.append(f"- crashes: {result['crashes']}; leaks: {result['leaks']}")
     if "schemathesis" in result:
-        lines.append("- schemathesis (exit %d):\n    " % result["schemathesis"]["returncode"] + "\n    ".join(result["schemathesis"]["summary"]))
+        lines.append(
+            f"- schemathesis (exit {result['schemathesis']['returncode']}):\n    "
+            + "\n    ".join(result["schemathesis"]["summary"])
+        )
     for phase, notes in result.get("notes", {}).items():
         lines.append(f"- notes, {phase}: " + "; ".join(notes))
     return "\n".join(lines)
@@ -339,7 +396,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--mutations", type=int, default=40, help="mutations per valid file (5 formats)")
     parser.add_argument("--concurrent", type=int, default=100, help="one-cell jobs submitted at once")
-    parser.add_argument("--schemathesis", type=int, default=0, help="examples per operation of a schemathesis run (0: none)")
+    parser.add_argument(
+        "--schemathesis", type=int, default=0, help="examples per operation of a schemathesis run (0: none)"
+    )
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     if not BUNNY.exists():

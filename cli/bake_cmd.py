@@ -9,9 +9,9 @@ import click
 from tqdm import tqdm
 
 from farfield.cli import ArgumentError
+from farfield.core.exchange import load_scene
 from farfield.core.impostor.bundle import check_destination, write_bundle
 from farfield.core.layering.culling import CULLING_MODES
-from farfield.core.exchange import load_scene
 from farfield.core.options import parse_option_text
 from farfield.core.pixel_angles import PIXEL_MODELS
 from farfield.core.techniques import DEFAULT_TECHNIQUE, TECHNIQUES, get_technique
@@ -39,7 +39,19 @@ class _Bar:
             self.bar.close()
 
 
-def _shortcuts(technique, layers, near_field, directions, gap_fill, enlargement, oversampling, grid_cell, fill_threshold, culling, pixel_model) -> dict:
+def _shortcuts(
+    technique,
+    layers,
+    near_field,
+    directions,
+    gap_fill,
+    enlargement,
+    oversampling,
+    grid_cell,
+    fill_threshold,
+    culling,
+    pixel_model,
+) -> dict:
     """The documented per-technique flags that were given, as option values (only the technique's own)."""
     given = {
         "layers": layers, "near_field": near_field, "directions": directions, "gap_fill": gap_fill, "enlargement": enlargement,
@@ -56,25 +68,71 @@ def _shortcuts(technique, layers, near_field, directions, gap_fill, enlargement,
 @click.command("bake")
 @click.argument("scene", type=click.Path(dir_okay=False))
 @click.option("--viewcell", required=True, help="box:x0,y0,z0,x1,y1,z1 | box-center:cx,cy,cz,size | shaft:...")
-@click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Bundle directory to write: a new or empty folder, or an earlier bundle (replaced whole); any other folder is refused.")
+@click.option(
+    "--out",
+    "out",
+    required=True,
+    type=click.Path(file_okay=False),
+    help="Bundle directory to write: a new or empty folder, or an earlier bundle (replaced whole); any other folder is refused.",
+)
 @click.option("--objects", default=None, help="Comma-separated object names forming the part (default: all).")
-@click.option("--technique", type=click.Choice(list(TECHNIQUES)), default=DEFAULT_TECHNIQUE, show_default=True,
-              help="; ".join(f"{t.name}: {t.help}" for t in TECHNIQUES.values()) + " (`farfield techniques` lists their options).")
-@click.option("--option", "options", multiple=True, metavar="NAME=VALUE",
-              help="A technique option (repeat), e.g. --option grid_cell=4 or --option directions=+x,-x; `farfield techniques` lists them.")
-@click.option("--resolution", default=None, type=int, help="Output image pixels per side [default: the technique's, 512].")
-@click.option("--fov", default=None, type=float, help="Output field of view, degrees [default: the technique's: 45; envmap 90].")
+@click.option(
+    "--technique",
+    type=click.Choice(list(TECHNIQUES)),
+    default=DEFAULT_TECHNIQUE,
+    show_default=True,
+    help="; ".join(f"{t.name}: {t.help}" for t in TECHNIQUES.values())
+    + " (`farfield techniques` lists their options).",
+)
+@click.option(
+    "--option",
+    "options",
+    multiple=True,
+    metavar="NAME=VALUE",
+    help="A technique option (repeat), e.g. --option grid_cell=4 or --option directions=+x,-x; `farfield techniques` lists them.",
+)
+@click.option(
+    "--resolution", default=None, type=int, help="Output image pixels per side [default: the technique's, 512]."
+)
+@click.option(
+    "--fov", default=None, type=float, help="Output field of view, degrees [default: the technique's: 45; envmap 90]."
+)
 @click.option("--layers", default=None, type=int, help="envmap: number of layers [default: 64 unless --near-field].")
-@click.option("--near-field", default=None, type=float, help="envmap: largest near-field distance from the cell centre (instead of --layers).")
+@click.option(
+    "--near-field",
+    default=None,
+    type=float,
+    help="envmap: largest near-field distance from the cell centre (instead of --layers).",
+)
 @click.option("--directions", default=None, help="envmap: cube faces to record, e.g. +x,-x,+z,-z [default: all six].")
 @click.option("--gap-fill/--no-gap-fill", default=None, help="envmap: seed 002 §5.1 gap filling [default: off].")
-@click.option("--enlargement", default=None, type=float,
-              help="tdm: voxel enlargement factor of the covering test (seed 003 §6): larger, fewer polygons, less accurate [default: 2].")
-@click.option("--oversampling", default=None, type=int, help="tdm: nearest voxels averaged per texel (seed 003 §7) [default: 1].")
-@click.option("--grid-cell", default=None, type=int, help="layered, envmap: box-growing grid cell, texels [default: layered 8, envmap 4].")
-@click.option("--fill-threshold", default=None, type=float, help="layered, envmap: box-growing fill ratio [default: 0.8].")
-@click.option("--culling", type=click.Choice(CULLING_MODES), default=None, help="Hidden-texel culling [default: penumbra].")
-@click.option("--pixel-model", type=click.Choice(PIXEL_MODELS), default=None, help="layered, tdm: pixel angle of the error bound [default: min].")
+@click.option(
+    "--enlargement",
+    default=None,
+    type=float,
+    help="tdm: voxel enlargement factor of the covering test (seed 003 §6): larger, fewer polygons, less accurate [default: 2].",
+)
+@click.option(
+    "--oversampling", default=None, type=int, help="tdm: nearest voxels averaged per texel (seed 003 §7) [default: 1]."
+)
+@click.option(
+    "--grid-cell",
+    default=None,
+    type=int,
+    help="layered, envmap: box-growing grid cell, texels [default: layered 8, envmap 4].",
+)
+@click.option(
+    "--fill-threshold", default=None, type=float, help="layered, envmap: box-growing fill ratio [default: 0.8]."
+)
+@click.option(
+    "--culling", type=click.Choice(CULLING_MODES), default=None, help="Hidden-texel culling [default: penumbra]."
+)
+@click.option(
+    "--pixel-model",
+    type=click.Choice(PIXEL_MODELS),
+    default=None,
+    help="layered, tdm: pixel angle of the error bound [default: min].",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the bundle's statistics as JSON.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def bake(scene, viewcell, out, objects, technique, options, resolution, fov, layers, near_field, directions, gap_fill, enlargement, oversampling,
@@ -83,7 +141,19 @@ def bake(scene, viewcell, out, objects, technique, options, resolution, fov, lay
 
     The per-technique flags (--layers, --enlargement, ...) are shortcuts for --option NAME=VALUE."""
     chosen = get_technique(technique)
-    values = _shortcuts(chosen, layers, near_field, directions, gap_fill, enlargement, oversampling, grid_cell, fill_threshold, culling, pixel_model)
+    values = _shortcuts(
+        chosen,
+        layers,
+        near_field,
+        directions,
+        gap_fill,
+        enlargement,
+        oversampling,
+        grid_cell,
+        fill_threshold,
+        culling,
+        pixel_model,
+    )
     for item in options:
         name, sep, text = item.partition("=")
         if not sep or not name.strip():

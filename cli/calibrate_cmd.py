@@ -39,7 +39,10 @@ def report_lines(result: Calibration, written: str | None) -> list[str]:
     o = fit["options"]
     ratio = fit["layers_est_over_planned"]
     lines = [f"renderer: {model.renderer}"]
-    lines += [f"scene: {s['source']} ({s['objects']} object{'s' if s['objects'] != 1 else ''}, {s['triangles']:,} triangles)" for s in fit["scenes"]]
+    lines += [
+        f"scene: {s['source']} ({s['objects']} object{'s' if s['objects'] != 1 else ''}, {s['triangles']:,} triangles)"
+        for s in fit["scenes"]
+    ]
     lines += [
         (
             f"samples: {n['geometry']} geometry views, {n['impostors_baked']} impostors baked ({n['cells_refused']} random cells refused) "
@@ -66,12 +69,38 @@ def report_lines(result: Calibration, written: str | None) -> list[str]:
 
 @click.command("calibrate")
 @click.argument("scenes", nargs=-1, type=click.Path(dir_okay=False))
-@click.option("--samples", default=_DEFAULTS.samples, show_default=True, type=int, help="Geometry measurements (random clusters x viewpoints).")
-@click.option("--impostors", default=_DEFAULTS.impostors, show_default=True, type=int, help="Layered impostors baked for random shaft cells and drawn from inside them.")
-@click.option("--resolution", default=_DEFAULTS.resolution, show_default=True, type=int, help="Output image pixels per side (drawing and baking).")
+@click.option(
+    "--samples",
+    default=_DEFAULTS.samples,
+    show_default=True,
+    type=int,
+    help="Geometry measurements (random clusters x viewpoints).",
+)
+@click.option(
+    "--impostors",
+    default=_DEFAULTS.impostors,
+    show_default=True,
+    type=int,
+    help="Layered impostors baked for random shaft cells and drawn from inside them.",
+)
+@click.option(
+    "--resolution",
+    default=_DEFAULTS.resolution,
+    show_default=True,
+    type=int,
+    help="Output image pixels per side (drawing and baking).",
+)
 @click.option("--fov", default=_DEFAULTS.fov_deg, show_default=True, type=float, help="Output field of view, degrees.")
-@click.option("--seed", default=_DEFAULTS.seed, show_default=True, type=click.IntRange(min=0), help="Seed of the clusters, viewpoints and cells.")
-@click.option("--out", default=None, type=click.Path(dir_okay=False), help="Write the model (JSON, for --cost-model) here.")
+@click.option(
+    "--seed",
+    default=_DEFAULTS.seed,
+    show_default=True,
+    type=click.IntRange(min=0),
+    help="Seed of the clusters, viewpoints and cells.",
+)
+@click.option(
+    "--out", default=None, type=click.Path(dir_okay=False), help="Write the model (JSON, for --cost-model) here."
+)
 @click.option("--json", "as_json", is_flag=True, help="The model, where it was written and every sample, as JSON.")
 def calibrate_cmd(scenes, samples, impostors, resolution, fov, seed, out, as_json):
     """Fit the rendering-time and memory models of impostor placement on the renderer this runs on
@@ -95,6 +124,10 @@ def calibrate_cmd(scenes, samples, impostors, resolution, fov, seed, out, as_jso
             raise CostModelError(f"cannot write the cost model to {out!r}: {error.strerror or error}") from None
         written = str(out)
     if as_json:
-        click.echo(json.dumps({"model": result.model.to_dict(), "written": written, "samples": result.samples_dict()}, indent=1))
+        click.echo(
+            json.dumps(
+                {"model": result.model.to_dict(), "written": written, "samples": result.samples_dict()}, indent=1
+            )
+        )
     else:
         click.echo("\n".join(report_lines(result, written)))

@@ -22,7 +22,14 @@ from farfield.core.errors import ErrorKind, FarfieldError
 from farfield.core.viewcells import parse_viewcell
 from farfield.service.settings import Settings
 
-STATUS_KINDS = {401: ErrorKind.UNAUTHORIZED, 404: ErrorKind.MISSING, 409: ErrorKind.CONFLICT, 413: ErrorKind.TOO_LARGE, 429: ErrorKind.OVER_QUOTA, 503: ErrorKind.RENDERER_UNAVAILABLE}
+STATUS_KINDS = {
+    401: ErrorKind.UNAUTHORIZED,
+    404: ErrorKind.MISSING,
+    409: ErrorKind.CONFLICT,
+    413: ErrorKind.TOO_LARGE,
+    429: ErrorKind.OVER_QUOTA,
+    503: ErrorKind.RENDERER_UNAVAILABLE,
+}
 
 
 class ServiceError(FarfieldError):
@@ -53,7 +60,9 @@ class Client:
         import httpx
 
         self.url = url.rstrip("/")
-        self.http = httpx.Client(base_url=self.url, headers={"Authorization": f"Bearer {key}"} if key else {}, timeout=300)
+        self.http = httpx.Client(
+            base_url=self.url, headers={"Authorization": f"Bearer {key}"} if key else {}, timeout=300
+        )
 
     def request(self, method: str, path: str, **kwargs):
         import httpx
@@ -64,7 +73,9 @@ class Client:
         try:
             response = self.http.request(method, path, **kwargs)
         except httpx.TransportError as error:
-            raise ServiceError(f"cannot reach the service at {self.url}: {error}", ErrorKind.RENDERER_UNAVAILABLE) from None
+            raise ServiceError(
+                f"cannot reach the service at {self.url}: {error}", ErrorKind.RENDERER_UNAVAILABLE
+            ) from None
         if response.status_code >= 400:
             try:
                 detail = response.json().get("detail")
@@ -76,8 +87,12 @@ class Client:
                     + (f", got {d['input']!r}" if isinstance(d.get("input"), (str, int, float)) else "")
                     for d in detail
                 )  # fmt: skip
-            default = ErrorKind.INTERNAL if response.status_code >= 500 else ErrorKind.BAD_INPUT  # a 5xx is the service's fault, never bad input
-            raise ServiceError(f"{detail} (HTTP {response.status_code})", STATUS_KINDS.get(response.status_code, default))
+            default = (
+                ErrorKind.INTERNAL if response.status_code >= 500 else ErrorKind.BAD_INPUT
+            )  # a 5xx is the service's fault, never bad input
+            raise ServiceError(
+                f"{detail} (HTTP {response.status_code})", STATUS_KINDS.get(response.status_code, default)
+            )
         return response
 
     def pages(self, path: str, params: dict | None = None, limit: int = 100, offset: int = 0, every: bool = False):
@@ -112,10 +127,15 @@ def non_finite(value, where: str = "") -> tuple[str, float] | None:
 def _more(shown: int, offset: int, total: int, what: str) -> None:
     """A note on stderr when a listing shows only part of what there is."""
     if offset + shown < total:
-        click.echo(f"{what} {offset + 1}-{offset + shown} of {total}: --offset {offset + shown} for the next, --all for every one", err=True)
+        click.echo(
+            f"{what} {offset + 1}-{offset + shown} of {total}: --offset {offset + shown} for the next, --all for every one",
+            err=True,
+        )
 
 
-def _listing(client: Client, path: str, params: dict | None, paging: tuple[int, int, bool], what: str, as_json: bool, line) -> None:
+def _listing(
+    client: Client, path: str, params: dict | None, paging: tuple[int, int, bool], what: str, as_json: bool, line
+) -> None:
     """Print a paged listing: JSON, or ``line(entry)`` per entry, with :func:`_more`'s note."""
     limit, offset, every = paging
     rows, total = client.pages(path, params, limit, offset, every)
@@ -129,13 +149,25 @@ def _listing(client: Client, path: str, params: dict | None, paging: tuple[int, 
 
 def _paging_options(f):
     f = click.option("--all", "every", is_flag=True, help="Every page, not one.")(f)
-    f = click.option("--offset", type=click.IntRange(0), default=0, show_default=True, help="Entries to skip (newest first).")(f)
-    return click.option("--limit", type=click.IntRange(1, 1000), default=100, show_default=True, help="Entries per page.")(f)
+    f = click.option(
+        "--offset", type=click.IntRange(0), default=0, show_default=True, help="Entries to skip (newest first)."
+    )(f)
+    return click.option(
+        "--limit", type=click.IntRange(1, 1000), default=100, show_default=True, help="Entries per page."
+    )(f)
 
 
 def _client_options(f):
-    f = click.option("--key", default=None, help="API key (FARFIELD_API_KEY; default: the admin key of a local farfield up).")(f)
-    return click.option("--url", envvar="FARFIELD_URL", default="http://127.0.0.1:8000", show_default=True, help="The service (FARFIELD_URL).")(f)
+    f = click.option(
+        "--key", default=None, help="API key (FARFIELD_API_KEY; default: the admin key of a local farfield up)."
+    )(f)
+    return click.option(
+        "--url",
+        envvar="FARFIELD_URL",
+        default="http://127.0.0.1:8000",
+        show_default=True,
+        help="The service (FARFIELD_URL).",
+    )(f)
 
 
 def parse_grid(text: str) -> dict:
@@ -180,8 +212,16 @@ def placement_request(view_space: str, frame_ms, cost_model, primitives, cpv_siz
                 raise ServiceError(f"--cost-model {cost_model!r}: not a cost model JSON file ({error})") from None
         else:
             budget["cost_model"] = cost_model
-    knobs = {"cpv_size": cpv_size, "vdi_deg": vdi_deg, "cells": cells, "depth_complexity": depth_complexity, "leaf_size": leaf_size,
-             "max_impostor_mb": max_impostor_mb, "algorithm": algorithm, **image_knobs}
+    knobs = {
+        "cpv_size": cpv_size,
+        "vdi_deg": vdi_deg,
+        "cells": cells,
+        "depth_complexity": depth_complexity,
+        "leaf_size": leaf_size,
+        "max_impostor_mb": max_impostor_mb,
+        "algorithm": algorithm,
+        **image_knobs,
+    }
     return {
         "view_space": {"lo": corners[:3], "hi": corners[3:]}, "budget": {k: v for k, v in budget.items() if v is not None},
         **{k: v for k, v in knobs.items() if v is not None},
@@ -196,7 +236,9 @@ def upload_scene(client: Client, path: Path) -> str:
 
     packed = pack_scene(path)
     if packed is not None:
-        made = client.request("POST", "/v1/scenes", files={"file": (f"{path.stem}.zip", packed, "application/zip")}).json()
+        made = client.request(
+            "POST", "/v1/scenes", files={"file": (f"{path.stem}.zip", packed, "application/zip")}
+        ).json()
     else:
         with open(path, "rb") as f:
             made = client.request("POST", "/v1/scenes", files={"file": (path.name, f)}).json()
@@ -250,42 +292,146 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
 
 @click.command("submit")
 @click.argument("scene")
-@click.option("--technique", default=None, help="The impostor technique, as the service lists them (`farfield techniques`, GET /v1/techniques) [default: layered].")
+@click.option(
+    "--technique",
+    default=None,
+    help="The impostor technique, as the service lists them (`farfield techniques`, GET /v1/techniques) [default: layered].",
+)
 @click.option("--job-type", default=None, hidden=True, help="Former name of --technique.")
 @click.option("--grid", default=None, help="View cells: a grid x0,y0,z0,x1,y1,z1,nx,ny,nz over a view-space box.")
-@click.option("--viewcell", "viewcells", multiple=True, help="Or explicit cells (repeat): box:x0,y0,z0,x1,y1,z1 | box-center:... | shaft:...")
+@click.option(
+    "--viewcell",
+    "viewcells",
+    multiple=True,
+    help="Or explicit cells (repeat): box:x0,y0,z0,x1,y1,z1 | box-center:... | shaft:...",
+)
 @click.option("--objects", default=None, help="Comma-separated represented objects (default: all).")
-@click.option("--resolution", default=None, type=int, help="Output image pixels per side [default: the technique's, 512].")
-@click.option("--fov", default=None, type=float, help="Output field of view, degrees [default: the technique's, 45; envmap 90].")
-@click.option("--option", "options", multiple=True, metavar="NAME=VALUE",
-              help="Technique option (repeat); VALUE is parsed as JSON, else taken as text (a list option also takes a,b,c). "
-                   "`farfield techniques` lists each technique's options.")
-@click.option("--placement", "placement", is_flag=True,
-              help="A placement job: where impostors of --technique are needed over --view-space for the budget (the flags of `farfield place`); "
-                   "planned on a worker (state 'placing'), baked, checked and repaired.")
-@click.option("--view-space", default=None, metavar="X0,Y0,Z0,X1,Y1,Z1", help="With --placement: the box the viewer moves in.")
-@click.option("--frame-ms", type=float, default=None, help="With --placement: every view within this many milliseconds by the cost model.")
-@click.option("--cost-model", default=None, help="With --frame-ms: a cost model the service knows by name (llvmpipe, the default) or a model JSON file.")
-@click.option("--primitives", type=float, default=None, help="With --placement: every view draws at most this many triangles.")
-@click.option("--cpv-size", type=float, default=None, help="With --placement: smallest 3D region of a problem view [default: the view space's longest side / 8].")
-@click.option("--vdi-deg", type=float, default=None, help="With --placement: smallest view-direction interval, degrees [default: 11.25].")
-@click.option("--cells", "cell_kinds", type=click.Choice(["shafts", "boxes", "both", "leaf-boxes"]), default=None, help="With --placement: view cells of the candidates [default: both].")
-@click.option("--depth-complexity", type=float, default=None, help="With --placement: a view's rasterised pixels are at most this many frames [default: 4].")
-@click.option("--leaf-size", type=int, default=None, help="With --placement: elements per leaf of the object hierarchy [default: 4].")
-@click.option("--max-impostor-mb", type=float, default=None, help="With --placement: largest impostor considered, MiB by the cost model [default: 32].")
-@click.option("--algorithm", type=click.Choice(["frame-time", "primitive-budget"]), default=None,
-              help="With --placement: frame-time (seed 000, the default) or primitive-budget (seed 004: LDIs on a solution grid, technique ldi, "
-                   "every view within --primitives).")
-@click.option("--p-opt", type=float, default=None, help="primitive-budget: the optimisation budget [default: P less 5 %% of the model, at least P / 2].")
-@click.option("--octree-depth", type=int, default=None, help="primitive-budget: depth of the octree's pseudo-leaf cells [default: 5].")
-@click.option("--grid-points", type=int, default=None, help="primitive-budget: initial lattice points along the view space's longest side [default: 3].")
-@click.option("--max-level", type=int, default=None, help="primitive-budget: deepest subdivision of the solution grid [default: 4].")
-@click.option("--check-views", type=int, default=None, help="primitive-budget: random views the planner checks the guarantee on [default: 2000].")
-@click.option("--evaluate/--no-evaluate", default=True, show_default=True,
-              help="Evaluate each baked cell against the real geometry on the worker (layered, tdm): hole pixels, bloat beyond 1 px, "
-                   "colour error, SSIM in the cell's record. It changes no bundle.")
+@click.option(
+    "--resolution", default=None, type=int, help="Output image pixels per side [default: the technique's, 512]."
+)
+@click.option(
+    "--fov", default=None, type=float, help="Output field of view, degrees [default: the technique's, 45; envmap 90]."
+)
+@click.option(
+    "--option",
+    "options",
+    multiple=True,
+    metavar="NAME=VALUE",
+    help="Technique option (repeat); VALUE is parsed as JSON, else taken as text (a list option also takes a,b,c). "
+    "`farfield techniques` lists each technique's options.",
+)
+@click.option(
+    "--placement",
+    "placement",
+    is_flag=True,
+    help="A placement job: where impostors of --technique are needed over --view-space for the budget (the flags of `farfield place`); "
+    "planned on a worker (state 'placing'), baked, checked and repaired.",
+)
+@click.option(
+    "--view-space", default=None, metavar="X0,Y0,Z0,X1,Y1,Z1", help="With --placement: the box the viewer moves in."
+)
+@click.option(
+    "--frame-ms",
+    type=float,
+    default=None,
+    help="With --placement: every view within this many milliseconds by the cost model.",
+)
+@click.option(
+    "--cost-model",
+    default=None,
+    help="With --frame-ms: a cost model the service knows by name (llvmpipe, the default) or a model JSON file.",
+)
+@click.option(
+    "--primitives", type=float, default=None, help="With --placement: every view draws at most this many triangles."
+)
+@click.option(
+    "--cpv-size",
+    type=float,
+    default=None,
+    help="With --placement: smallest 3D region of a problem view [default: the view space's longest side / 8].",
+)
+@click.option(
+    "--vdi-deg",
+    type=float,
+    default=None,
+    help="With --placement: smallest view-direction interval, degrees [default: 11.25].",
+)
+@click.option(
+    "--cells",
+    "cell_kinds",
+    type=click.Choice(["shafts", "boxes", "both", "leaf-boxes"]),
+    default=None,
+    help="With --placement: view cells of the candidates [default: both].",
+)
+@click.option(
+    "--depth-complexity",
+    type=float,
+    default=None,
+    help="With --placement: a view's rasterised pixels are at most this many frames [default: 4].",
+)
+@click.option(
+    "--leaf-size",
+    type=int,
+    default=None,
+    help="With --placement: elements per leaf of the object hierarchy [default: 4].",
+)
+@click.option(
+    "--max-impostor-mb",
+    type=float,
+    default=None,
+    help="With --placement: largest impostor considered, MiB by the cost model [default: 32].",
+)
+@click.option(
+    "--algorithm",
+    type=click.Choice(["frame-time", "primitive-budget"]),
+    default=None,
+    help="With --placement: frame-time (seed 000, the default) or primitive-budget (seed 004: LDIs on a solution grid, technique ldi, "
+    "every view within --primitives).",
+)
+@click.option(
+    "--p-opt",
+    type=float,
+    default=None,
+    help="primitive-budget: the optimisation budget [default: P less 5 %% of the model, at least P / 2].",
+)
+@click.option(
+    "--octree-depth",
+    type=int,
+    default=None,
+    help="primitive-budget: depth of the octree's pseudo-leaf cells [default: 5].",
+)
+@click.option(
+    "--grid-points",
+    type=int,
+    default=None,
+    help="primitive-budget: initial lattice points along the view space's longest side [default: 3].",
+)
+@click.option(
+    "--max-level",
+    type=int,
+    default=None,
+    help="primitive-budget: deepest subdivision of the solution grid [default: 4].",
+)
+@click.option(
+    "--check-views",
+    type=int,
+    default=None,
+    help="primitive-budget: random views the planner checks the guarantee on [default: 2000].",
+)
+@click.option(
+    "--evaluate/--no-evaluate",
+    default=True,
+    show_default=True,
+    help="Evaluate each baked cell against the real geometry on the worker (layered, tdm): hole pixels, bloat beyond 1 px, "
+    "colour error, SSIM in the cell's record. It changes no bundle.",
+)
 @click.option("--wait", is_flag=True, help="Wait for the job to end (exit code != 0 unless it is done).")
-@click.option("--download", type=click.Path(file_okay=False), default=None, help="After --wait, unpack the impostor database here.")
+@click.option(
+    "--download",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="After --wait, unpack the impostor database here.",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the job record as JSON.")
 @_client_options
 def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov, options, placement, view_space, frame_ms, cost_model, primitives,
@@ -302,7 +448,9 @@ def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov
         request = placement_request(view_space, frame_ms, cost_model, primitives, cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, max_impostor_mb,
                                     algorithm, p_opt=p_opt, octree_depth=octree_depth, grid_points=grid_points, max_level=max_level, check_views=check_views)  # fmt: skip
     elif any(v is not None for v in (algorithm, p_opt, octree_depth, grid_points, max_level, check_views)):
-        raise ServiceError("--algorithm, --p-opt, --octree-depth, --grid-points, --max-level and --check-views go with --placement")
+        raise ServiceError(
+            "--algorithm, --p-opt, --octree-depth, --grid-points, --max-level and --check-views go with --placement"
+        )
     elif (grid is None) == (not viewcells):
         raise ServiceError("give --grid, one or more --viewcell, or --placement")
     parsed = {}
@@ -342,7 +490,10 @@ def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov
     if as_json:
         click.echo(json.dumps({k: v for k, v in job.items() if k != "cells"}))
     elif wait or download:
-        click.echo(f"job {job['id']}: {job['state']} ({job['counts']['done']}/{job['cells_total']} cells done)" + (f", database in {download}" if download and job["state"] == "done" else ""))
+        click.echo(
+            f"job {job['id']}: {job['state']} ({job['counts']['done']}/{job['cells_total']} cells done)"
+            + (f", database in {download}" if download and job["state"] == "done" else "")
+        )
         if job.get("evaluation"):
             click.echo(evaluation_line(job["evaluation"]))
     if (wait or download) and job["state"] != "done":
@@ -398,7 +549,10 @@ def _write_demo(names, out, size, seed, detail, as_json) -> None:
     from farfield.core.procedural import DEMOS, demo_scene
 
     if len(names) != 1 or names[0] not in DEMOS:
-        raise FarfieldError("farfield scenes demo NAME --out FILE.glb: NAME is one of " + "; ".join(f"{k} ({v})" for k, v in DEMOS.items()))
+        raise FarfieldError(
+            "farfield scenes demo NAME --out FILE.glb: NAME is one of "
+            + "; ".join(f"{k} ({v})" for k, v in DEMOS.items())
+        )
     if out is None:
         raise FarfieldError("farfield scenes demo needs --out FILE.glb")
     if not out.lower().endswith(".glb"):
@@ -411,21 +565,40 @@ def _write_demo(names, out, size, seed, detail, as_json) -> None:
     temporary = path.with_name(f".{path.name}.part")
     temporary.write_bytes(scene_glb(scene))
     temporary.replace(path)  # nothing half-written
-    summary = {"scene": names[0], "out": str(path), "objects": scene.object_count, "triangles": scene.triangle_count, "bounds": scene.bounds.tolist()}
+    summary = {
+        "scene": names[0],
+        "out": str(path),
+        "objects": scene.object_count,
+        "triangles": scene.triangle_count,
+        "bounds": scene.bounds.tolist(),
+    }
     if as_json:
         click.echo(json.dumps(summary))
     else:
         lo, hi = scene.bounds
-        click.echo(f"{path}: {names[0]}, {scene.object_count} objects, {scene.triangle_count:,} triangles, bounds {lo.round(3).tolist()} .. {hi.round(3).tolist()}")
+        click.echo(
+            f"{path}: {names[0]}, {scene.object_count} objects, {scene.triangle_count:,} triangles, bounds {lo.round(3).tolist()} .. {hi.round(3).tolist()}"
+        )
 
 
 @click.command("scenes")
 @click.argument("words", nargs=-1, metavar="[SCENE_ID | demo NAME]")
 @click.option("--objects", "with_objects", is_flag=True, help="With SCENE_ID: list its objects (paged like scenes).")
 @click.option("--out", default=None, type=click.Path(dir_okay=False), help="demo: the GLB file to write.")
-@click.option("--size", default=None, type=click.IntRange(min=1), help="demo: buildings of the city [300] or trees of the forest [200].")
+@click.option(
+    "--size",
+    default=None,
+    type=click.IntRange(min=1),
+    help="demo: buildings of the city [300] or trees of the forest [200].",
+)
 @click.option("--seed", default=None, type=int, help="demo: the random seed [city 0, house 4, forest 1].")
-@click.option("--detail", default=1, show_default=True, type=click.IntRange(min=1, max=64), help="demo city: most quads per building face side.")
+@click.option(
+    "--detail",
+    default=1,
+    show_default=True,
+    type=click.IntRange(min=1, max=64),
+    help="demo city: most quads per building face side.",
+)
 @click.option("--json", "as_json", is_flag=True)
 @_paging_options
 @_client_options
@@ -449,11 +622,17 @@ def scenes(words, with_objects, out, size, seed, detail, as_json, limit, offset,
         _listing(client, f"/v1/scenes/{scene_id}/objects", None, (limit, offset, every), "objects", as_json,
                  lambda obj: f"{obj['name']}  {obj['triangles']} triangles  bounds {obj['bounds']}")  # fmt: skip
         return
-    rows, total = ([client.request("GET", f"/v1/scenes/{scene_id}").json()], 1) if scene_id else client.pages("/v1/scenes", None, limit, offset, every)
+    rows, total = (
+        ([client.request("GET", f"/v1/scenes/{scene_id}").json()], 1)
+        if scene_id
+        else client.pages("/v1/scenes", None, limit, offset, every)
+    )
     if not scene_id:
         _more(len(rows), offset, total, "scenes")
     if as_json:
         click.echo(json.dumps(rows[0] if scene_id else rows))
         return
     for scene in rows:
-        click.echo(f"{scene['id']}  {scene['name']}  {scene['object_count']} objects  {scene['triangles']} triangles  {scene['size_bytes']} bytes")
+        click.echo(
+            f"{scene['id']}  {scene['name']}  {scene['object_count']} objects  {scene['triangles']} triangles  {scene['size_bytes']} bytes"
+        )

@@ -12,22 +12,46 @@ from pathlib import Path
 
 import click
 
-from farfield.core.impostor.bundle import read_bundle
-from farfield.core.quality.comparison import PREFERENCES, Candidate, check_comparable, choose
 from farfield.core.errors import GuaranteeError
 from farfield.core.exchange import load_scene
+from farfield.core.impostor.bundle import read_bundle
+from farfield.core.quality.comparison import PREFERENCES, Candidate, check_comparable, choose
 from farfield.core.techniques import get_technique
 
 
 @click.command("evaluate")
 @click.argument("bundles", nargs=-1, required=True, type=click.Path(file_okay=False))
 @click.argument("scene", type=click.Path(dir_okay=False))
-@click.option("--random", "random_count", default=16, show_default=True, type=click.IntRange(min=0), help="Random viewpoints inside the cell.")
-@click.option("--outside", "outside_count", default=4, show_default=True, type=click.IntRange(min=0), help="Viewpoints just outside the cell.")
+@click.option(
+    "--random",
+    "random_count",
+    default=16,
+    show_default=True,
+    type=click.IntRange(min=0),
+    help="Random viewpoints inside the cell.",
+)
+@click.option(
+    "--outside",
+    "outside_count",
+    default=4,
+    show_default=True,
+    type=click.IntRange(min=0),
+    help="Viewpoints just outside the cell.",
+)
 @click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0))
-@click.option("--prefer", type=click.Choice(PREFERENCES), default="memory", show_default=True, help="With several bundles: what decides among those with the fewest hole pixels.")
+@click.option(
+    "--prefer",
+    type=click.Choice(PREFERENCES),
+    default="memory",
+    show_default=True,
+    help="With several bundles: what decides among those with the fewest hole pixels.",
+)
 @click.option("--json", "as_json", is_flag=True, help="Per-viewpoint results as JSON.")
-@click.option("--check", is_flag=True, help="Exit non-zero (4) when a view inside the cell has a hole pixel or a pixel bloated beyond one.")
+@click.option(
+    "--check",
+    is_flag=True,
+    help="Exit non-zero (4) when a view inside the cell has a hole pixel or a pixel bloated beyond one.",
+)
 def evaluate(bundles, scene, random_count, outside_count, seed, prefer, as_json, check):
     """Render SCENE's part and the impostor in each BUNDLE from sampled viewpoints and report the
     errors; with several bundles of one part and view cell, side by side and which to use."""
@@ -63,7 +87,9 @@ def _check(names: list[str], results: list) -> None:
         raise GuaranteeError("from inside the view cell, " + "; ".join(broken))
 
 
-def _compare(names: list[str], impostors, part, random_count: int, outside_count: int, seed: int, prefer: str, as_json: bool) -> list:
+def _compare(
+    names: list[str], impostors, part, random_count: int, outside_count: int, seed: int, prefer: str, as_json: bool
+) -> list:
     """Several bundles of one part and view cell: each evaluated alike, side by side, and the one to use."""
     check_comparable(names, impostors)
     results = [get_technique(i.technique).evaluate(part, i, random_count, outside_count, seed) for i in impostors]
@@ -71,10 +97,17 @@ def _compare(names: list[str], impostors, part, random_count: int, outside_count
     choice = choose(candidates, prefer)
     if as_json:
         rows = [{**c.to_dict(), "evaluation": r.to_dict()} for c, r in zip(candidates, results)]
-        click.echo(json.dumps({"bundles": rows, "prefer": prefer, "choice": candidates[choice.index].name, "reason": choice.reason}, indent=2))
+        click.echo(
+            json.dumps(
+                {"bundles": rows, "prefer": prefer, "choice": candidates[choice.index].name, "reason": choice.reason},
+                indent=2,
+            )
+        )
         return results
     width = max(len("bundle"), *(len(n) for n in names))
-    click.echo(f"{'bundle':<{width}} {'technique':<9} {'primitives':>10} {'memory KiB':>10} {'holes':>6} {'>1px':>6} {'err mean':>9} {'err p99':>8} {'ssim':>6} {'bake s':>7}")
+    click.echo(
+        f"{'bundle':<{width}} {'technique':<9} {'primitives':>10} {'memory KiB':>10} {'holes':>6} {'>1px':>6} {'err mean':>9} {'err p99':>8} {'ssim':>6} {'bake s':>7}"
+    )
     for c in candidates:
         seconds = f"{c.bake_seconds:.2f}" if c.bake_seconds is not None else "-"
         click.echo(

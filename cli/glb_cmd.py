@@ -13,8 +13,8 @@ from pathlib import Path
 
 import click
 
-from farfield.core.impostor.bundle import GLB_NAME
 from farfield.core.errors import BundleFormatError, NotFoundError
+from farfield.core.impostor.bundle import GLB_NAME
 from farfield.core.impostor.glb_compression import CODECS, GEOMETRY, TEXTURES, compress_glb
 
 
@@ -50,17 +50,33 @@ def write_whole(out: Path, data: bytes) -> None:
 
 @click.command("glb")
 @click.argument("source", type=click.Path(path_type=Path))
-@click.option("--out", type=click.Path(path_type=Path), required=True, help="the GLB to write (written whole, or not at all)")
+@click.option(
+    "--out", type=click.Path(path_type=Path), required=True, help="the GLB to write (written whole, or not at all)"
+)
 @click.option("--textures", type=click.Choice(TEXTURES), default="ktx2", show_default=True,
               help="png: as baked; ktx2: Basis Universal pages, KHR_texture_basisu required; ktx2+png: the PNG kept as fallback")  # fmt: skip
-@click.option("--geometry", type=click.Choice(GEOMETRY), default="meshopt", show_default=True, help="meshopt: EXT_meshopt_compression (lossless), required")
-@click.option("--codec", type=click.Choice(CODECS), default="etc1s", show_default=True, help="Basis Universal's codec: etc1s (small) or uastc (near-lossless, Zstandard)")
+@click.option(
+    "--geometry",
+    type=click.Choice(GEOMETRY),
+    default="meshopt",
+    show_default=True,
+    help="meshopt: EXT_meshopt_compression (lossless), required",
+)
+@click.option(
+    "--codec",
+    type=click.Choice(CODECS),
+    default="etc1s",
+    show_default=True,
+    help="Basis Universal's codec: etc1s (small) or uastc (near-lossless, Zstandard)",
+)
 @click.option("--json", "as_json", is_flag=True, help="print the figures as JSON")
 def glb_cmd(source: Path, out: Path, textures: str, geometry: str, codec: str, as_json: bool) -> None:
     """Write SOURCE (an impostor GLB, or a bundle folder) with compressed textures and geometry."""
     given = click.get_current_context().get_parameter_source("codec") is not click.core.ParameterSource.DEFAULT
     if given and textures == "png":
-        raise BundleFormatError(f"--codec {codec} encodes KTX2 textures; with --textures png there are none (give --textures ktx2 or ktx2+png)")
+        raise BundleFormatError(
+            f"--codec {codec} encodes KTX2 textures; with --textures png there are none (give --textures ktx2 or ktx2+png)"
+        )
     path = glb_input(source)
     plain = path.read_bytes()
     start = time.perf_counter()

@@ -28,7 +28,9 @@ def _vector(values, size=None) -> str:
     """
     if size is None:
         return "(" + ", ".join(f"{v:.4g}" for v in values) + ")"
-    digits = [4 if v == 0 or s <= 0 else min(17, max(4, math.ceil(math.log10(abs(v) / s)) + 4)) for v, s in zip(values, size)]
+    digits = [
+        4 if v == 0 or s <= 0 else min(17, max(4, math.ceil(math.log10(abs(v) / s)) + 4)) for v, s in zip(values, size)
+    ]
     return "(" + ", ".join(f"{v:.{d}g}" for v, d in zip(values, digits)) + ")"
 
 

@@ -9,10 +9,10 @@ import math
 import click
 
 from farfield.cli import ArgumentError
-from farfield.core.techniques.envmap.arrangement import envmap_plan, layers_for_near_field
 from farfield.core.errors import ViewCellError
 from farfield.core.layering.plan import plan_layers
 from farfield.core.pixel_angles import PIXEL_MODELS, pixel_angle
+from farfield.core.techniques.envmap.arrangement import envmap_plan, layers_for_near_field
 from farfield.core.techniques.points.sampling import plan_point_sampling
 from farfield.core.viewcells import BoxCell, parse_viewcell
 
@@ -46,7 +46,9 @@ def layers() -> None:
 def _part_bounds(scene, objects, bounds):
     """The part's (2, 3) bounds: of SCENE (or its ``objects``), or parsed from ``bounds``."""
     if (scene is None) == (bounds is None):
-        raise ArgumentError("give either a SCENE or --bounds" + ("; neither was given" if scene is None else ", not both"))
+        raise ArgumentError(
+            "give either a SCENE or --bounds" + ("; neither was given" if scene is None else ", not both")
+        )
     if scene is None:
         return _parse_bounds(bounds)
     from farfield.core.exchange import load_scene
@@ -62,14 +64,24 @@ def _part_options(viewcells: str):
     it accepts), --objects, --resolution, --fov."""
 
     def wrap(command):
-        for decorate in reversed([
-            click.argument("scene", required=False, type=click.Path(dir_okay=False)),
-            click.option("--viewcell", required=True, help=viewcells),
-            click.option("--objects", default=None, help="Comma-separated object names of SCENE forming the part (default: all)."),
-            click.option("--bounds", default=None, help="Part bounds x0,y0,z0,x1,y1,z1 instead of a SCENE."),
-            click.option("--resolution", default=512, show_default=True, type=int, help="Output image pixels per side."),
-            click.option("--fov", default=45.0, show_default=True, type=float, help="Output field of view, degrees."),
-        ]):
+        for decorate in reversed(
+            [
+                click.argument("scene", required=False, type=click.Path(dir_okay=False)),
+                click.option("--viewcell", required=True, help=viewcells),
+                click.option(
+                    "--objects",
+                    default=None,
+                    help="Comma-separated object names of SCENE forming the part (default: all).",
+                ),
+                click.option("--bounds", default=None, help="Part bounds x0,y0,z0,x1,y1,z1 instead of a SCENE."),
+                click.option(
+                    "--resolution", default=512, show_default=True, type=int, help="Output image pixels per side."
+                ),
+                click.option(
+                    "--fov", default=45.0, show_default=True, type=float, help="Output field of view, degrees."
+                ),
+            ]
+        ):
             command = decorate(command)
         return command
 
@@ -77,10 +89,22 @@ def _part_options(viewcells: str):
 
 
 @layers.command("part")
-@_part_options("box:x0,y0,z0,x1,y1,z1 | box-center:cx,cy,cz,size | shaft:ax,ay,az,dx,dy,dz,apex_deg,min_dist[,max_dist]")
-@click.option("--pixel-model", type=click.Choice(PIXEL_MODELS), default="min", show_default=True,
-              help="min: smallest pixel angle in the image (strict); center: the thesis's centre pixel.")
-@click.option("--reference-offset", type=float, default=None, help="s: reference viewpoint behind the cell's near border (default: seed 000 §3.3.1 rule).")
+@_part_options(
+    "box:x0,y0,z0,x1,y1,z1 | box-center:cx,cy,cz,size | shaft:ax,ay,az,dx,dy,dz,apex_deg,min_dist[,max_dist]"
+)
+@click.option(
+    "--pixel-model",
+    type=click.Choice(PIXEL_MODELS),
+    default="min",
+    show_default=True,
+    help="min: smallest pixel angle in the image (strict); center: the thesis's centre pixel.",
+)
+@click.option(
+    "--reference-offset",
+    type=float,
+    default=None,
+    help="s: reference viewpoint behind the cell's near border (default: seed 000 §3.3.1 rule).",
+)
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
 def part(scene, viewcell, objects, bounds, resolution, fov, pixel_model, reference_offset, as_json) -> None:
     """Layers of a layered impostor for a scene part seen from a view cell (seed 000 §3.3.1)."""
@@ -133,7 +157,9 @@ def points(scene, viewcell, objects, bounds, resolution, fov, as_json) -> None:
 @click.option("--resolution", default=512, show_default=True, type=int, help="Texels per cube-face side.")
 @click.option("--layers", "count", type=int, default=None, help="Number of layers (give this or --near-field).")
 @click.option("--near-field", type=float, default=None, help="Wanted near-field distance from the cell centre.")
-@click.option("--alpha", type=float, default=None, help="Parallax angle in radians (default: smallest pixel angle of a 90° face).")
+@click.option(
+    "--alpha", type=float, default=None, help="Parallax angle in radians (default: smallest pixel angle of a 90° face)."
+)
 @click.option("--dims", type=click.Choice(["2", "3"]), default="3", show_default=True)
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
 def envmap(cell_size, resolution, count, near_field, alpha, dims, as_json) -> None:
@@ -142,7 +168,9 @@ def envmap(cell_size, resolution, count, near_field, alpha, dims, as_json) -> No
     if alpha is None:
         alpha = pixel_angle(math.pi / 2, resolution, "min")
     if (count is None) == (near_field is None):
-        raise ArgumentError("give either --layers or --near-field" + ("; neither was given" if count is None else ", not both"))
+        raise ArgumentError(
+            "give either --layers or --near-field" + ("; neither was given" if count is None else ", not both")
+        )
     if count is None:
         count = layers_for_near_field(cell_size, resolution, near_field, alpha, dims)
     plan = envmap_plan(cell_size, resolution, count, alpha, dims)

@@ -22,7 +22,9 @@ def lookup_answer(database: ImpostorDatabase, position, direction, folder: Path 
     ``bundle`` folder (under ``folder``, or as the index names it inside the database when None; None
     without a result), ``technique`` and ``objects``; and the budget."""
     if database.placement is None:
-        raise PlacementError(f"{database.root}: not a placement database (its index has no 'placement' section); look up a grid job's cells by position")
+        raise PlacementError(
+            f"{database.root}: not a placement database (its index has no 'placement' section); look up a grid job's cells by position"
+        )
     lookup = PlacementLookup(database.index)
     found = lookup.find(position, direction)
     entries = {int(e["index"]): e for e in database.index["cells"]}
@@ -46,9 +48,13 @@ def answer_lines(answer: dict) -> list[str]:
     unit = answer["unit"]
     lines = [f"view at {answer['position']} looking {answer['direction']} (t_max {answer['t_max']:.6g} {unit})"]
     if answer["cpv"] is None:
-        lines.append(f"CPV: none ({answer['status']}): the whole scene as geometry is within t_max by the cost model; draw no impostor")
+        lines.append(
+            f"CPV: none ({answer['status']}): the whole scene as geometry is within t_max by the cost model; draw no impostor"
+        )
         return lines
-    lines.append(f"CPV {answer['cpv']}: {answer['status']}, estimated {answer['time_estimated']:.6g} {unit} with its impostors")
+    lines.append(
+        f"CPV {answer['cpv']}: {answer['status']}, estimated {answer['time_estimated']:.6g} {unit} with its impostors"
+    )
     lines.append(f"impostors to draw: {len(answer['cells'])}")
     for cell in answer["cells"]:
         where = cell["bundle"] or f"no bundle (cell {cell['state']})"
@@ -59,12 +65,18 @@ def answer_lines(answer: dict) -> list[str]:
 
 def image_answer_lines(answer: dict) -> list[str]:
     """A primitive-budget answer for a person: the grid point, the image to warp, the triangles left."""
-    lines = [f"view at {answer['position']} yaw {answer['yaw']:.4f} rad (P {answer['primitives_budget']:.6g} triangles)"]
+    lines = [
+        f"view at {answer['position']} yaw {answer['yaw']:.4f} rad (P {answer['primitives_budget']:.6g} triangles)"
+    ]
     if answer["point"] < 0:
         lines.append("grid point: none holds this view (outside the view space?)")
     else:
         lines.append(f"grid point {answer['point']}: {answer['status']}")
-    lines.append(f"image to warp: {answer['image']} ({answer['bundle']})" if answer["image"] else "image to warp: none, geometry alone")
+    lines.append(
+        f"image to warp: {answer['image']} ({answer['bundle']})"
+        if answer["image"]
+        else "image to warp: none, geometry alone"
+    )
     lines.append(f"geometry: {len(answer['drawn_octree_cells'])} octree cells, {answer['primitives']} triangles"
                  + ("" if answer["within_budget"] else "  <- over P"))  # fmt: skip
     return lines
@@ -76,8 +88,24 @@ def _vector(values: tuple[float, float, float]) -> list[float]:
 
 @click.command("lookup")
 @click.argument("database", type=click.Path(path_type=Path))
-@click.option("--at", "position", type=float, nargs=3, required=True, metavar="X Y Z", help="the view's position (inside the view space)")
-@click.option("--look", "direction", type=float, nargs=3, required=True, metavar="DX DY DZ", help="the view's direction (any length but 0)")
+@click.option(
+    "--at",
+    "position",
+    type=float,
+    nargs=3,
+    required=True,
+    metavar="X Y Z",
+    help="the view's position (inside the view space)",
+)
+@click.option(
+    "--look",
+    "direction",
+    type=float,
+    nargs=3,
+    required=True,
+    metavar="DX DY DZ",
+    help="the view's direction (any length but 0)",
+)
 @click.option("--json", "as_json", is_flag=True, help="print the answer as JSON")
 def lookup_cmd(database: Path, position, direction, as_json: bool) -> None:
     """What to draw for one view of a placement DATABASE (a folder or a zip, as ``farfield submit

@@ -39,7 +39,20 @@ def cli() -> None:
 
 
 def _register() -> None:
-    from farfield.cli import bake_cmd, calibrate_cmd, client_cmds, evaluate_cmd, glb_cmd, inspect_cmd, layers_cmd, lookup_cmd, place_cmd, service_cmds, techniques_cmd, walkthrough_cmd
+    from farfield.cli import (
+        bake_cmd,
+        calibrate_cmd,
+        client_cmds,
+        evaluate_cmd,
+        glb_cmd,
+        inspect_cmd,
+        layers_cmd,
+        lookup_cmd,
+        place_cmd,
+        service_cmds,
+        techniques_cmd,
+        walkthrough_cmd,
+    )
 
     cli.add_command(inspect_cmd.inspect)
     cli.add_command(layers_cmd.layers)

@@ -14,9 +14,10 @@ from farfield.core.exchange import load_scene
 from farfield.core.options import parse_option_text
 from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, primitive_model
 from farfield.core.placement.hierarchy import PlacementError
-from farfield.core.placement.planner import PlacementSettings, place
 from farfield.core.placement.image_database import write_image_database
-from farfield.core.placement.solution_grid import BudgetSettings, check_views as count_views, place_primitives
+from farfield.core.placement.planner import PlacementSettings, place
+from farfield.core.placement.solution_grid import BudgetSettings, place_primitives
+from farfield.core.placement.solution_grid import check_views as count_views
 from farfield.core.techniques import DEFAULT_TECHNIQUE, TECHNIQUES, get_technique
 
 
@@ -34,7 +35,9 @@ def _model(frame_ms, cost_model, primitives) -> tuple[CostModel, float, str | No
     """The cost model and t_max of the options, and a note when the builtin model is used."""
     if (frame_ms is None) == (primitives is None):
         which = "neither was given" if frame_ms is None else "not both"
-        raise PlacementError(f"give a budget: --frame-ms T (with --cost-model FILE, or the builtin llvmpipe model) or --primitives N; {which}")
+        raise PlacementError(
+            f"give a budget: --frame-ms T (with --cost-model FILE, or the builtin llvmpipe model) or --primitives N; {which}"
+        )
     if primitives is not None:
         if cost_model:
             raise PlacementError("--primitives counts triangles; --cost-model applies to --frame-ms only")
@@ -90,34 +93,135 @@ def summary_lines(result) -> list[str]:
 
 @click.command("place")
 @click.argument("scene", type=click.Path(dir_okay=False))
-@click.option("--view-space", required=True, metavar="X0,Y0,Z0,X1,Y1,Z1", help="The box the viewer moves in (may be flat or a point).")
-@click.option("--frame-ms", type=float, default=None, help="Budget: every view within this many milliseconds by the cost model.")
-@click.option("--cost-model", type=click.Path(dir_okay=False), default=None, help="Cost model JSON (farfield calibrate --out) [default: the builtin llvmpipe one].")
-@click.option("--primitives", type=float, default=None, help="Budget: every view draws at most this many triangles (seed 000 §5.8.3, seed 004).")
-@click.option("--technique", type=click.Choice(list(TECHNIQUES)), default=DEFAULT_TECHNIQUE, show_default=True, help="Impostor technique (a part technique).")
-@click.option("--option", "options", multiple=True, metavar="NAME=VALUE", help="A technique option (repeatable; see farfield techniques).")
+@click.option(
+    "--view-space",
+    required=True,
+    metavar="X0,Y0,Z0,X1,Y1,Z1",
+    help="The box the viewer moves in (may be flat or a point).",
+)
+@click.option(
+    "--frame-ms", type=float, default=None, help="Budget: every view within this many milliseconds by the cost model."
+)
+@click.option(
+    "--cost-model",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Cost model JSON (farfield calibrate --out) [default: the builtin llvmpipe one].",
+)
+@click.option(
+    "--primitives",
+    type=float,
+    default=None,
+    help="Budget: every view draws at most this many triangles (seed 000 §5.8.3, seed 004).",
+)
+@click.option(
+    "--technique",
+    type=click.Choice(list(TECHNIQUES)),
+    default=DEFAULT_TECHNIQUE,
+    show_default=True,
+    help="Impostor technique (a part technique).",
+)
+@click.option(
+    "--option",
+    "options",
+    multiple=True,
+    metavar="NAME=VALUE",
+    help="A technique option (repeatable; see farfield techniques).",
+)
 @click.option("--resolution", default=512, show_default=True, type=int, help="Output image pixels per side.")
-@click.option("--fov", default=None, type=float, help="Output field of view, degrees [default: 45; 60 for --algorithm primitive-budget, square, the same at run time].")
-@click.option("--algorithm", type=click.Choice(["frame-time", "primitive-budget"]), default="frame-time", show_default=True,
-              help="frame-time: impostors of --technique at least memory (seed 000 ch. 5); primitive-budget: a grid of solution points "
-                   "with one image per view so that no view draws more than --primitives (seed 004).")
-@click.option("--p-opt", type=float, default=None, help="primitive-budget: the optimisation budget < P [default: P - 5 %% of the model, at least P / 2].")
-@click.option("--octree-depth", type=int, default=5, show_default=True, help="primitive-budget: depth of the octree's pseudo-leaf cells.")
-@click.option("--grid-points", type=int, default=3, show_default=True, help="primitive-budget: initial grid points along the view space's longest side.")
-@click.option("--max-level", type=int, default=4, show_default=True, help="primitive-budget: subdivision levels at most; points still unsolved there are reported.")
-@click.option("--check-views", type=int, default=2000, show_default=True, help="primitive-budget: random (eye, yaw) views to count primitives over after placing (0: none).")
-@click.option("--bake", "bake_dir", type=click.Path(file_okay=False), default=None,
-              help="primitive-budget: bake every image's LDI and write the placement database to this folder (farfield walkthrough reads it).")
-@click.option("--ldi-resolution", type=int, default=256, show_default=True, help="primitive-budget --bake: LDI pixels per side.")
-@click.option("--cpv-size", type=float, default=None, help="Smallest 3D region of a problem view [default: the view space's longest side / 8].")
-@click.option("--vdi-deg", type=float, default=11.25, show_default=True, help="Smallest view-direction interval, degrees.")
-@click.option("--cells", type=click.Choice(["shafts", "boxes", "both", "leaf-boxes"]), default="both", show_default=True,
-              help="View cells of the candidates: shafts (§5.6), boxes of the view-space hierarchy, both, or leaf-boxes (one per smallest region, Table 5.1 test 14).")
-@click.option("--depth-complexity", type=float, default=4.0, show_default=True, help="A view's rasterised pixels are at most this many frames (inf: no cap).")
+@click.option(
+    "--fov",
+    default=None,
+    type=float,
+    help="Output field of view, degrees [default: 45; 60 for --algorithm primitive-budget, square, the same at run time].",
+)
+@click.option(
+    "--algorithm",
+    type=click.Choice(["frame-time", "primitive-budget"]),
+    default="frame-time",
+    show_default=True,
+    help="frame-time: impostors of --technique at least memory (seed 000 ch. 5); primitive-budget: a grid of solution points "
+    "with one image per view so that no view draws more than --primitives (seed 004).",
+)
+@click.option(
+    "--p-opt",
+    type=float,
+    default=None,
+    help="primitive-budget: the optimisation budget < P [default: P - 5 %% of the model, at least P / 2].",
+)
+@click.option(
+    "--octree-depth",
+    type=int,
+    default=5,
+    show_default=True,
+    help="primitive-budget: depth of the octree's pseudo-leaf cells.",
+)
+@click.option(
+    "--grid-points",
+    type=int,
+    default=3,
+    show_default=True,
+    help="primitive-budget: initial grid points along the view space's longest side.",
+)
+@click.option(
+    "--max-level",
+    type=int,
+    default=4,
+    show_default=True,
+    help="primitive-budget: subdivision levels at most; points still unsolved there are reported.",
+)
+@click.option(
+    "--check-views",
+    type=int,
+    default=2000,
+    show_default=True,
+    help="primitive-budget: random (eye, yaw) views to count primitives over after placing (0: none).",
+)
+@click.option(
+    "--bake",
+    "bake_dir",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="primitive-budget: bake every image's LDI and write the placement database to this folder (farfield walkthrough reads it).",
+)
+@click.option(
+    "--ldi-resolution", type=int, default=256, show_default=True, help="primitive-budget --bake: LDI pixels per side."
+)
+@click.option(
+    "--cpv-size",
+    type=float,
+    default=None,
+    help="Smallest 3D region of a problem view [default: the view space's longest side / 8].",
+)
+@click.option(
+    "--vdi-deg", type=float, default=11.25, show_default=True, help="Smallest view-direction interval, degrees."
+)
+@click.option(
+    "--cells",
+    type=click.Choice(["shafts", "boxes", "both", "leaf-boxes"]),
+    default="both",
+    show_default=True,
+    help="View cells of the candidates: shafts (§5.6), boxes of the view-space hierarchy, both, or leaf-boxes (one per smallest region, Table 5.1 test 14).",
+)
+@click.option(
+    "--depth-complexity",
+    type=float,
+    default=4.0,
+    show_default=True,
+    help="A view's rasterised pixels are at most this many frames (inf: no cap).",
+)
 @click.option("--leaf-size", type=int, default=4, show_default=True, help="Elements per leaf of the object hierarchy.")
-@click.option("--max-impostor-mb", type=float, default=32.0, show_default=True, help="Largest impostor considered, MiB by the cost model's memory estimate.")
+@click.option(
+    "--max-impostor-mb",
+    type=float,
+    default=32.0,
+    show_default=True,
+    help="Largest impostor considered, MiB by the cost model's memory estimate.",
+)
 @click.option("--out", type=click.Path(dir_okay=False), default=None, help="Write the placement JSON here.")
-@click.option("--json", "as_json", is_flag=True, help="Print the summary, seconds and where the placement went as JSON.")
+@click.option(
+    "--json", "as_json", is_flag=True, help="Print the summary, seconds and where the placement went as JSON."
+)
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, options, resolution, fov, algorithm, p_opt, octree_depth,
               grid_points, max_level, check_views, bake_dir, ldi_resolution, cpv_size, vdi_deg, cells, depth_complexity, leaf_size, max_impostor_mb, out, as_json,
@@ -129,13 +233,17 @@ def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, op
     corners = _numbers(view_space, 6, "--view-space")
     if algorithm == "primitive-budget":
         if primitives is None or frame_ms is not None or cost_model:
-            raise PlacementError("--algorithm primitive-budget takes a budget of --primitives N only (no --frame-ms, no --cost-model)")
+            raise PlacementError(
+                "--algorithm primitive-budget takes a budget of --primitives N only (no --frame-ms, no --cost-model)"
+            )
         settings = BudgetSettings(primitives=primitives, p_opt=p_opt, fov_deg=60.0 if fov is None else fov, octree_depth=octree_depth,
                                   grid_points=grid_points, max_level=max_level)  # fmt: skip
         _place_primitive_budget(scene, corners, settings, check_views, out, as_json, quiet, bake_dir, ldi_resolution)
         return
     if bake_dir:
-        raise PlacementError("--bake writes a primitive-budget placement's database (--algorithm primitive-budget); a frame-time placement is baked as a job")
+        raise PlacementError(
+            "--bake writes a primitive-budget placement's database (--algorithm primitive-budget); a frame-time placement is baked as a job"
+        )
     fov = 45.0 if fov is None else fov
     model, t_max, note = _model(frame_ms, cost_model, primitives)
     values = {}
@@ -173,11 +281,14 @@ def primitive_summary_lines(summary: dict, check: dict | None) -> list[str]:
         f"{s['cells']} octree cells at depth {s['octree_depth']}",
         f"grid points: {s['grid_points']} (per level {s['points_per_level']}; spacing {s['spacing']:.6g} at level 0), "
         f"{s['unsolved_points']} unsolved at the last level",
-        f"images: {s['images']}; grid points by images: " + ", ".join(f"{k}: {v}" for k, v in s["points_with_images"].items()),
+        f"images: {s['images']}; grid points by images: "
+        + ", ".join(f"{k}: {v}" for k, v in s["points_with_images"].items()),
     ]
     if s["image_drawn_over_p_opt"]:
         r = s["image_drawn_over_p_opt"]
-        lines.append(f"primitives left by each image / p_opt: min {r['min']:.3f}, median {r['median']:.3f}, max {r['max']:.3f}")
+        lines.append(
+            f"primitives left by each image / p_opt: min {r['min']:.3f}, median {r['median']:.3f}, max {r['max']:.3f}"
+        )
     if check:
         lines.append(
             f"check: {check['views']} random views, {100 * check['within_p']:.2f} % within P (max {check['max']:.0f}, p99 {check['p99']:.0f} "
@@ -187,7 +298,9 @@ def primitive_summary_lines(summary: dict, check: dict | None) -> list[str]:
     return lines
 
 
-def _place_primitive_budget(scene, corners, settings, views, out, as_json, quiet, bake_dir=None, ldi_resolution=256) -> None:
+def _place_primitive_budget(
+    scene, corners, settings, views, out, as_json, quiet, bake_dir=None, ldi_resolution=256
+) -> None:
     if isinstance(views, bool) or views < 0:
         raise PlacementError(f"--check-views must be >= 0, got {views!r}")
     if bake_dir and not 1 <= ldi_resolution <= 4096:
@@ -205,9 +318,22 @@ def _place_primitive_budget(scene, corners, settings, views, out, as_json, quiet
     if out:
         _write_out(out, data)
     if as_json:
-        click.echo(json.dumps({"summary": data["summary"], "seconds": result.seconds, "check": check, "written": out, "database": bake_dir}, indent=1))
+        click.echo(
+            json.dumps(
+                {
+                    "summary": data["summary"],
+                    "seconds": result.seconds,
+                    "check": check,
+                    "written": out,
+                    "database": bake_dir,
+                },
+                indent=1,
+            )
+        )
     else:
         click.echo("\n".join(primitive_summary_lines(data["summary"], check)))
         click.echo(f"placement written to {out}" if out else "placement not written (--out FILE writes it)")
         if bake_dir:
-            click.echo(f"database with {result.images} LDIs written to {bake_dir} (farfield walkthrough {bake_dir} SCENE)")
+            click.echo(
+                f"database with {result.images} LDIs written to {bake_dir} (farfield walkthrough {bake_dir} SCENE)"
+            )

@@ -15,9 +15,19 @@ from farfield.service.settings import Settings
 
 
 @click.command("up")
-@click.option("--workers", type=click.IntRange(min=1), default=None, help="Render workers to start (default: one per GPU, at least one; FARFIELD_WORKERS).")
+@click.option(
+    "--workers",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Render workers to start (default: one per GPU, at least one; FARFIELD_WORKERS).",
+)
 @click.option("--host", default=None, help="Address the API listens on (default 127.0.0.1; FARFIELD_HOST).")
-@click.option("--port", type=click.IntRange(0, 65535), default=None, help="Port the API listens on, 0 for any free one (default 8000; FARFIELD_PORT).")
+@click.option(
+    "--port",
+    type=click.IntRange(0, 65535),
+    default=None,
+    help="Port the API listens on, 0 for any free one (default 8000; FARFIELD_PORT).",
+)
 def up(workers, host, port):
     """Start the service with its embedded defaults: Redis, the API and render workers.
 
@@ -27,7 +37,9 @@ def up(workers, host, port):
     from farfield.service.supervisor import Service, render_devices
 
     settings = Settings.from_env()
-    settings = replace(settings, host=settings.host if host is None else host, port=settings.port if port is None else port)
+    settings = replace(
+        settings, host=settings.host if host is None else host, port=settings.port if port is None else port
+    )
     service = Service(settings, workers=workers or render_devices())
     service.handle_signals()  # before any child exists, so none is left behind by an early signal
     try:
@@ -44,7 +56,9 @@ def up(workers, host, port):
 
 
 @click.command("worker", context_settings={"ignore_unknown_options": True})
-@click.option("--concurrency", "-c", type=int, default=1, show_default=True, help="Cells rendered at once (one per EGL device).")
+@click.option(
+    "--concurrency", "-c", type=int, default=1, show_default=True, help="Cells rendered at once (one per EGL device)."
+)
 @click.option("--name", default="worker", show_default=True)
 def worker(concurrency, name):
     """Join this machine to a running service as a render worker (needs REDIS_URL and DATABASE_URL)."""
@@ -52,7 +66,9 @@ def worker(concurrency, name):
 
     settings = Settings.from_env()
     if settings.redis_url is None:
-        raise click.UsageError("set REDIS_URL, DATABASE_URL and FARFIELD_S3_* (or a shared FARFIELD_BLOB_DIR) to the service's Redis, database and blob store")
+        raise click.UsageError(
+            "set REDIS_URL, DATABASE_URL and FARFIELD_S3_* (or a shared FARFIELD_BLOB_DIR) to the service's Redis, database and blob store"
+        )
     Database(settings.database_url).migrate()
     command = worker_command(name, concurrency)
     os.execvpe(command[0], command, {**os.environ, **settings.environment()})

@@ -10,8 +10,20 @@ from farfield.core.techniques import TECHNIQUES
 
 
 def _bounds(o: dict) -> str:
-    low = f"[{o['minimum']:g}" if o["minimum"] is not None else f"({o['exclusive_minimum']:g}" if o["exclusive_minimum"] is not None else ""
-    high = f"{o['maximum']:g}]" if o["maximum"] is not None else f"{o['exclusive_maximum']:g})" if o["exclusive_maximum"] is not None else ""
+    low = (
+        f"[{o['minimum']:g}"
+        if o["minimum"] is not None
+        else f"({o['exclusive_minimum']:g}"
+        if o["exclusive_minimum"] is not None
+        else ""
+    )
+    high = (
+        f"{o['maximum']:g}]"
+        if o["maximum"] is not None
+        else f"{o['exclusive_maximum']:g})"
+        if o["exclusive_maximum"] is not None
+        else ""
+    )
     if o["choices"] is not None:
         return "|".join(o["choices"])
     if low or high:

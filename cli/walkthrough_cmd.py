@@ -21,20 +21,48 @@ from farfield.core.errors import FarfieldError
 from farfield.core.exchange import load_scene
 from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.placement.image_database import ImageDatabase, image_database_folder, image_walkthrough
-from farfield.core.quality.walkthrough import generate_path, load_path, random_views, walkthrough, write_image_plot, write_placement_plot, write_plot
+from farfield.core.quality.walkthrough import (
+    generate_path,
+    load_path,
+    random_views,
+    walkthrough,
+    write_image_plot,
+    write_placement_plot,
+    write_plot,
+)
 
 
 @click.command("walkthrough")
 @click.argument("database", type=click.Path(exists=True))
 @click.argument("scene", type=click.Path(dir_okay=False, exists=True))
-@click.option("--path", "path_file", default=None, type=click.Path(dir_okay=False, exists=True),
-              help="Recorded camera path: JSON list of {position, forward}. Default: a generated loop.")
-@click.option("--frames", default=120, show_default=True, type=click.IntRange(min=1), help="Frames of the generated loop.")
-@click.option("--random", "random_count", default=None, type=click.IntRange(min=1),
-              help="Placement databases: this many random views instead of a path (positions uniform in the view space, directions uniform on the sphere).")
+@click.option(
+    "--path",
+    "path_file",
+    default=None,
+    type=click.Path(dir_okay=False, exists=True),
+    help="Recorded camera path: JSON list of {position, forward}. Default: a generated loop.",
+)
+@click.option(
+    "--frames", default=120, show_default=True, type=click.IntRange(min=1), help="Frames of the generated loop."
+)
+@click.option(
+    "--random",
+    "random_count",
+    default=None,
+    type=click.IntRange(min=1),
+    help="Placement databases: this many random views instead of a path (positions uniform in the view space, directions uniform on the sphere).",
+)
 @click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Seed of --random.")
-@click.option("--repeats", default=3, show_default=True, type=click.IntRange(min=1), help="Draws per frame and renderer; the median counts.")
-@click.option("--plot", default=None, type=click.Path(dir_okay=False), help="Write a PNG of frame time and error along the path.")
+@click.option(
+    "--repeats",
+    default=3,
+    show_default=True,
+    type=click.IntRange(min=1),
+    help="Draws per frame and renderer; the median counts.",
+)
+@click.option(
+    "--plot", default=None, type=click.Path(dir_okay=False), help="Write a PNG of frame time and error along the path."
+)
 @click.option("--no-compare", is_flag=True, help="Frame times only (no image comparison).")
 @click.option("--json", "as_json", is_flag=True, help="Every frame and the summary as JSON.")
 def walkthrough_cmd(database, scene, path_file, frames, random_count, seed, repeats, plot, no_compare, as_json):
@@ -46,7 +74,19 @@ def walkthrough_cmd(database, scene, path_file, frames, random_count, seed, repe
     loaded = load_scene(scene)
     with image_database_folder(Path(database)) as images:
         if images is not None:  # a primitive-budget database (farfield place --bake, or a job's)
-            _walk_images(images, loaded, path_file, frames, random_count, seed, repeats, no_compare, as_json, plot, name=Path(database).name)
+            _walk_images(
+                images,
+                loaded,
+                path_file,
+                frames,
+                random_count,
+                seed,
+                repeats,
+                no_compare,
+                as_json,
+                plot,
+                name=Path(database).name,
+            )
             return
     with ImpostorDatabase(Path(database)) as db:
         placement = db.placement
@@ -78,7 +118,9 @@ def walkthrough_cmd(database, scene, path_file, frames, random_count, seed, repe
     if as_json:
         click.echo(json.dumps(result, indent=1))
         return
-    click.echo(f"{'frame':>5} {'cell':>5} {'full ms':>8} {'imp ms':>8} {'speedup':>7} {'holes':>6} {'err mean':>8} {'err max':>7}")
+    click.echo(
+        f"{'frame':>5} {'cell':>5} {'full ms':>8} {'imp ms':>8} {'speedup':>7} {'holes':>6} {'err mean':>8} {'err max':>7}"
+    )
     for f in result["frames"]:
         fast = f.get("impostor_ms")
         speedup = f"{f['full_ms'] / fast:.1f}x" if fast else "-"
@@ -102,7 +144,9 @@ def walkthrough_cmd(database, scene, path_file, frames, random_count, seed, repe
 def _print_placement(result: dict, plot: str | None) -> None:
     s = result["summary"]
     unit = s["unit"]
-    click.echo(f"{'frame':>5} {'cpv':>6} {'status':<12} {'plain ms':>8} {'run ms':>8} {'speedup':>7} {'estimate':>9} {'imp':>4} {'holes':>6} {'err mean':>8}")
+    click.echo(
+        f"{'frame':>5} {'cpv':>6} {'status':<12} {'plain ms':>8} {'run ms':>8} {'speedup':>7} {'estimate':>9} {'imp':>4} {'holes':>6} {'err mean':>8}"
+    )
     for f in result["frames"]:
         speedup = f"{f['plain_ms'] / f['runtime_ms']:.1f}x" if f["runtime_ms"] > 0 else "-"
         over = "  <- over t_max" if not f["within_t_max"] else ""
@@ -129,16 +173,22 @@ def _print_placement(result: dict, plot: str | None) -> None:
         f"speed-up {num(s['speedup_median'], '.1f')}x (median); estimate's error {pct(s['estimate_rel_error_median'])} (median relative)"
     )
     if "hole_pixels" in s:
-        click.echo(f"{s['hole_pixels']} hole pixels, colour error mean {s['colour_error_mean']:.3f}, max {s['colour_error_max']}")
+        click.echo(
+            f"{s['hole_pixels']} hole pixels, colour error mean {s['colour_error_mean']:.3f}, max {s['colour_error_max']}"
+        )
     if s["over_t_max"]:
         click.echo(f"{len(s['over_t_max'])} frames over t_max:")
         for f in s["over_t_max"][:20]:
-            click.echo(f"  frame {f['frame']}: {f['measured']:.4g} {unit}, estimate {f['estimate']:.4g} ({f['status']}, cpv {f['cpv']})")
+            click.echo(
+                f"  frame {f['frame']}: {f['measured']:.4g} {unit}, estimate {f['estimate']:.4g} ({f['status']}, cpv {f['cpv']})"
+            )
     if plot:
         click.echo(f"plot: {plot}")
 
 
-def _walk_images(root: Path, scene, path_file, frames, random_count, seed, repeats, no_compare, as_json, plot=None, name=None) -> None:
+def _walk_images(
+    root: Path, scene, path_file, frames, random_count, seed, repeats, no_compare, as_json, plot=None, name=None
+) -> None:
     """A primitive-budget database: ``--random`` views (positions uniform in the view space, yaw
     uniform, pitch 0), a recorded path (its forwards' yaw) or a generated loop (an ellipse through
     the view space, looking along it); primitives and frame time per view."""
@@ -158,11 +208,22 @@ def _walk_images(root: Path, scene, path_file, frames, random_count, seed, repea
             raise click.UsageError(f"--frames must be >= 1, got {frames}")
         t = np.linspace(0.0, 2.0 * np.pi, frames, endpoint=False)
         centre, half = 0.5 * (p.view_lo + p.view_hi), 0.45 * (p.view_hi - p.view_lo)
-        positions = np.stack([centre[0] + half[0] * np.cos(t), np.full(frames, centre[1]), centre[2] + half[2] * np.sin(t)], axis=1)
-        yaws = np.arctan2(-half[0] * np.sin(t), -half[2] * np.cos(t))  # the tangent (dx, dz) = (-a sin t, c cos t): yaw = atan2(dx, -dz)
+        positions = np.stack(
+            [centre[0] + half[0] * np.cos(t), np.full(frames, centre[1]), centre[2] + half[2] * np.sin(t)], axis=1
+        )
+        yaws = np.arctan2(
+            -half[0] * np.sin(t), -half[2] * np.cos(t)
+        )  # the tangent (dx, dz) = (-a sin t, c cos t): yaw = atan2(dx, -dz)
     bar = tqdm(total=len(positions), desc="frames", unit="frame", leave=False, disable=True if as_json else None)
     try:
-        result = image_walkthrough(db, positions, yaws, repeats=repeats, compare=not no_compare, progress=lambda done, total: bar.update(done - bar.n))
+        result = image_walkthrough(
+            db,
+            positions,
+            yaws,
+            repeats=repeats,
+            compare=not no_compare,
+            progress=lambda done, total: bar.update(done - bar.n),
+        )
     finally:
         bar.close()
     if plot:
@@ -170,7 +231,9 @@ def _walk_images(root: Path, scene, path_file, frames, random_count, seed, repea
     if as_json:
         click.echo(json.dumps(result, indent=1))
         return
-    click.echo(f"{'frame':>5} {'point':>6} {'image':>5} {'primitives':>10} {'plain':>8} {'run ms':>7} {'plain ms':>8} {'holes':>6}")
+    click.echo(
+        f"{'frame':>5} {'point':>6} {'image':>5} {'primitives':>10} {'plain':>8} {'run ms':>7} {'plain ms':>8} {'holes':>6}"
+    )
     for f in result["frames"]:
         over = "  <- over P" if not f["within_p"] else ""
         click.echo(f"{f['frame']:>5} {f['point']:>6} {f['image']:>5} {f['primitives']:>10} {f['plain_primitives']:>8} {f['runtime_ms']:>7.2f} "
@@ -178,8 +241,12 @@ def _walk_images(root: Path, scene, path_file, frames, random_count, seed, repea
     s = result["summary"]
     click.echo(f"{s['views']} views; P {s['primitives_budget']:.6g} (p_opt {s['p_opt']:.6g}): {100 * s['share_within_p']:.2f} % within, primitives p99 "
                f"{s['primitives_p99']:.0f}, max {s['primitives_max']:.0f} (plain geometry's max {s['plain_primitives_max']:.0f}); {s['views_with_image']} views warp an LDI")  # fmt: skip
-    click.echo(f"frame ms p50 {s['runtime_ms_p50']:.2f}, p99 {s['runtime_ms_p99']:.2f}; plain frustum-culled geometry p50 {s['plain_ms_p50']:.2f}, p99 {s['plain_ms_p99']:.2f}")
+    click.echo(
+        f"frame ms p50 {s['runtime_ms_p50']:.2f}, p99 {s['runtime_ms_p99']:.2f}; plain frustum-culled geometry p50 {s['plain_ms_p50']:.2f}, p99 {s['plain_ms_p99']:.2f}"
+    )
     if "hole_pixels" in s:
-        click.echo(f"{s['hole_pixels']} hole pixels in {s['views_with_holes']} views, colour error mean {s['colour_error_mean']:.3f}")
+        click.echo(
+            f"{s['hole_pixels']} hole pixels in {s['views_with_holes']} views, colour error mean {s['colour_error_mean']:.3f}"
+        )
     if plot:
         click.echo(f"plot: {plot}")

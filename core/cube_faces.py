@@ -6,7 +6,14 @@ from __future__ import annotations
 import numpy as np
 
 # name -> (axis index, sign); the dict's order is the canonical order of faces everywhere.
-FACES: dict[str, tuple[int, int]] = {"+x": (0, 1), "-x": (0, -1), "+y": (1, 1), "-y": (1, -1), "+z": (2, 1), "-z": (2, -1)}
+FACES: dict[str, tuple[int, int]] = {
+    "+x": (0, 1),
+    "-x": (0, -1),
+    "+y": (1, 1),
+    "-y": (1, -1),
+    "+z": (2, 1),
+    "-z": (2, -1),
+}
 
 
 def face_normal(name: str) -> np.ndarray:

@@ -43,7 +43,9 @@ def option(default: Any, help: str, *, ge: float | None = None, gt: float | None
 
 
 def _meta(field: dataclasses.Field) -> dict:
-    return field.metadata.get("farfield", {"help": "", "ge": None, "gt": None, "le": None, "lt": None, "choices": None, "internal": False})
+    return field.metadata.get(
+        "farfield", {"help": "", "ge": None, "gt": None, "le": None, "lt": None, "choices": None, "internal": False}
+    )
 
 
 def _hints(cls: type) -> dict:
@@ -55,7 +57,7 @@ def _base_type(hint: Any) -> tuple[Any, bool]:
     origin = get_origin(hint)
     if origin in (typing.Union, types.UnionType):
         args = [a for a in get_args(hint) if a is not type(None)]
-        return (args[0] if len(args) == 1 else typing.Union[tuple(args)]), len(args) < len(get_args(hint))
+        return (args[0] if len(args) == 1 else typing.Union[tuple(args)]), len(args) < len(get_args(hint))  # noqa: UP007 - built at run time
     return hint, False
 
 
@@ -148,7 +150,11 @@ def check_value(name: str, value: Any, hint: Any, meta: dict) -> Any:
     if isinstance(value, str):
         value = [v.strip() for v in value.split(",") if v.strip()]
     items = tuple(value) if isinstance(value, (list, tuple)) else None
-    if items is None or not all(isinstance(v, str) for v in items) or (choices is not None and any(v not in choices for v in items)):
+    if (
+        items is None
+        or not all(isinstance(v, str) for v in items)
+        or (choices is not None and any(v not in choices for v in items))
+    ):
         allowed = f" out of {list(choices)}" if choices is not None else ""
         raise LayerPlanError(f"{name} must be a list of strings{allowed}, got {value!r}")
     return items
@@ -169,7 +175,9 @@ def public_fields(cls: type) -> list[dataclasses.Field]:
     return [f for f in dataclasses.fields(cls) if not _meta(f)["internal"]]
 
 
-def options_from_mapping(cls: type, values: Mapping[str, Any], what: str = "technique parameters", unlisted: tuple[str, ...] = ()) -> Any:
+def options_from_mapping(
+    cls: type, values: Mapping[str, Any], what: str = "technique parameters", unlisted: tuple[str, ...] = ()
+) -> Any:
     """An ``Options`` instance from a mapping of field names to JSON-like values (unknown names and
     bad values raise LayerPlanError naming them; ``unlisted`` names are accepted but not listed as
     known in that message)."""
@@ -272,7 +280,12 @@ def options_json_schema(cls: type) -> dict:
         if entry["name"] in IMAGE_FIELDS:
             continue
         schema: dict = {"type": entry["type"], "description": entry["help"], "default": entry["default"]}
-        for key, name in (("minimum", "minimum"), ("exclusive_minimum", "exclusiveMinimum"), ("maximum", "maximum"), ("exclusive_maximum", "exclusiveMaximum")):
+        for key, name in (
+            ("minimum", "minimum"),
+            ("exclusive_minimum", "exclusiveMinimum"),
+            ("maximum", "maximum"),
+            ("exclusive_maximum", "exclusiveMaximum"),
+        ):
             if entry[key] is not None:
                 schema[name] = entry[key]
         if entry["choices"] is not None:

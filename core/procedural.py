@@ -40,7 +40,9 @@ def subdivided_box(low, high, n: int = 1) -> tuple[np.ndarray, np.ndarray]:
     gu, gv = (g.reshape(-1) for g in np.meshgrid(s, s, indexing="ij"))  # u slowest
     i = np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]  # quad (iu, iv) -> its low-low vertex
     i = i.reshape(-1)
-    quad = np.stack([i, i + n + 1, i + n + 2, i + 1], axis=1)  # (u0 v0) (u1 v0) (u1 v1) (u0 v1): counter-clockwise in (u, v)
+    quad = np.stack(
+        [i, i + n + 1, i + n + 2, i + 1], axis=1
+    )  # (u0 v0) (u1 v0) (u1 v1) (u0 v1): counter-clockwise in (u, v)
     vertices, faces = [], []
     for k, (axis, value, u, v) in enumerate(_FACES):
         unit = np.zeros((gu.size, 3))
@@ -85,7 +87,9 @@ def city(buildings: int = 300, seed: int = 0, detail: int = 1, spacing: float = 
         low = (centre[0] - footprint[i, 0] / 2, 0.0, centre[1] - footprint[i, 1] / 2)
         high = (centre[0] + footprint[i, 0] / 2, height[i], centre[1] + footprint[i, 1] / 2)
         vertices, faces = subdivided_box(low, high, cuts[i])
-        objects.append(SceneObject(f"building_{i:04d}", vertices, faces, base_color=(grey[i], grey[i], grey[i] * 0.95, 1.0)))
+        objects.append(
+            SceneObject(f"building_{i:04d}", vertices, faces, base_color=(grey[i], grey[i], grey[i] * 0.95, 1.0))
+        )
     lo, hi = -0.5 * spacing, (side - 0.5) * spacing
     ground = SceneObject(
         "ground",
@@ -96,7 +100,7 @@ def city(buildings: int = 300, seed: int = 0, detail: int = 1, spacing: float = 
     return Scene.from_objects([ground, *objects], source=f"city-{buildings}-{seed}-{detail}")
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _unit_box() -> tuple[np.ndarray, np.ndarray]:
     """(8, 3) float64 corners of the unit cube [0, 1]^3 and (12, 3) int64 outward faces."""
     box = trimesh.creation.box(bounds=[[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
@@ -161,13 +165,24 @@ def house(seed: int = 4) -> Scene:
                     continue  # the door goes here
                 depth = 0.25 * out
                 shade = rng.uniform(0.15, 0.3)
-                for k, (lo, hi) in enumerate((((x, y, z), (x + 1.8, y + 0.2, z + depth)),  # sill
-                                              ((x, y + 2.3, z), (x + 1.8, y + 2.5, z + depth)),  # lintel
-                                              ((x, y, z), (x + 0.2, y + 2.5, z + depth)),
-                                              ((x + 1.6, y, z), (x + 1.8, y + 2.5, z + depth)))):
+                for k, (lo, hi) in enumerate(
+                    (
+                        ((x, y, z), (x + 1.8, y + 0.2, z + depth)),  # sill
+                        ((x, y + 2.3, z), (x + 1.8, y + 2.5, z + depth)),  # lintel
+                        ((x, y, z), (x + 0.2, y + 2.5, z + depth)),
+                        ((x + 1.6, y, z), (x + 1.8, y + 2.5, z + depth)),
+                    )
+                ):
                     lo, hi = np.minimum(lo, hi), np.maximum(lo, hi)
                     objects.append(box_object(f"frame_{n:03d}_{k}", lo, hi, (0.95, 0.95, 0.9, 1.0)))
-                objects.append(box_object(f"glass_{n:03d}", (x + 0.2, y + 0.2, z + 0.05 * out), (x + 1.6, y + 2.3, z + 0.06 * out), (shade, shade, shade + 0.2, 1.0)))
+                objects.append(
+                    box_object(
+                        f"glass_{n:03d}",
+                        (x + 0.2, y + 0.2, z + 0.05 * out),
+                        (x + 1.6, y + 2.3, z + 0.06 * out),
+                        (shade, shade, shade + 0.2, 1.0),
+                    )
+                )
                 n += 1
     objects.append(box_object("door", (8.2, 0.0, -0.2), (10.0, 3.2, 0.0), (0.35, 0.2, 0.1, 1.0)))
     objects.append(box_object("porch_roof", (7.2, 3.6, -2.0), (11.0, 3.8, 0.0), (0.3, 0.3, 0.3, 1.0)))

@@ -60,8 +60,13 @@ def _frozen(array: np.ndarray, dtype: type, name: str, obj: str, shape: tuple) -
     decoded once for all the objects that use it) is shared, not copied again.
     """
     try:
-        if (isinstance(array, np.ndarray) and array.dtype == dtype and array.flags.c_contiguous
-                and not array.flags.writeable and array.base is None):
+        if (
+            isinstance(array, np.ndarray)
+            and array.dtype == dtype
+            and array.flags.c_contiguous
+            and not array.flags.writeable
+            and array.base is None
+        ):
             out = array
         else:
             out = np.array(array, dtype=dtype, copy=True, order="C")
@@ -209,7 +214,7 @@ def _check_colour(name: str, base_color: np.ndarray, uv: np.ndarray | None, alph
         raise SceneLoadError(f"object {name!r}: alpha_cutoff {alpha_cutoff} is not in 0..1")
 
 
-def _update_hash(digest: "hashlib._Hash", tag: bytes, array: np.ndarray | None) -> None:
+def _update_hash(digest: hashlib._Hash, tag: bytes, array: np.ndarray | None) -> None:
     """Feed a tagged array into ``digest``: tag, dtype, shape, then little-endian bytes."""
     digest.update(tag)
     if array is None:

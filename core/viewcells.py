@@ -88,7 +88,7 @@ class BoxCell:
         object.__setattr__(self, "hi", hi)
 
     @classmethod
-    def from_center(cls, center, size) -> "BoxCell":
+    def from_center(cls, center, size) -> BoxCell:
         """A box of ``size`` (scalar or (3,)) around ``center`` (3,)."""
         c = _vec3(center, "box view cell centre")
         s = np.broadcast_to(np.asarray(size, dtype=np.float64), (3,))
@@ -177,9 +177,7 @@ class ShaftCell:
         if norm == 0.0:
             raise ViewCellError("shaft direction must be non-zero")
         if not (math.isfinite(self.apex_angle) and 0.0 < self.apex_angle < math.pi):
-            raise ViewCellError(
-                f"shaft apex angle must lie in (0°, 180°), got {math.degrees(self.apex_angle)!r}°"
-            )
+            raise ViewCellError(f"shaft apex angle must lie in (0°, 180°), got {math.degrees(self.apex_angle)!r}°")
         if not (math.isfinite(self.min_distance) and self.min_distance > 0.0):
             raise ViewCellError(f"shaft min_distance must be finite and > 0, got {self.min_distance!r}")
         if not self.max_distance > self.min_distance:
@@ -346,8 +344,11 @@ def viewcell_from_dict(data: dict) -> ViewCell:
         if kind == "shaft":
             far = data.get("max_distance")
             return ShaftCell(
-                data["apex"], data["direction"], math.radians(float(data["apex_angle_deg"])),
-                float(data["min_distance"]), math.inf if far is None else float(far),
+                data["apex"],
+                data["direction"],
+                math.radians(float(data["apex_angle_deg"])),
+                float(data["min_distance"]),
+                math.inf if far is None else float(far),
             )
     except (KeyError, TypeError, ValueError) as error:
         raise ViewCellError(f"view cell description {data!r} is incomplete: {error}") from None

@@ -244,7 +244,9 @@ class S3BlobStore:
             if "request_checksum_calculation" in Config.OPTION_DEFAULTS:  # botocore >= 1.36
                 # Checksums only where S3 requires them: several S3-compatible servers refuse or
                 # ignore the trailing checksums botocore sends by default since 1.36.
-                options.update(request_checksum_calculation="when_required", response_checksum_validation="when_required")
+                options.update(
+                    request_checksum_calculation="when_required", response_checksum_validation="when_required"
+                )
             config = Config(**options)
             client = boto3.client(
                 "s3", endpoint_url=endpoint_url or None, aws_access_key_id=access_key, aws_secret_access_key=secret_key, config=config,
@@ -309,7 +311,9 @@ class S3BlobStore:
             else:
                 if buffer:  # the last part, shorter than the others
                     self._upload_part(key, upload_id, parts, bytes(buffer))
-                self.client.complete_multipart_upload(Bucket=self.bucket, Key=key, UploadId=upload_id, MultipartUpload={"Parts": parts})
+                self.client.complete_multipart_upload(
+                    Bucket=self.bucket, Key=key, UploadId=upload_id, MultipartUpload={"Parts": parts}
+                )
         except BaseException as error:
             if upload_id is not None:
                 with contextlib.suppress(Exception):  # the first error is the one to report
@@ -321,7 +325,9 @@ class S3BlobStore:
 
     def _upload_part(self, key: str, upload_id: str, parts: list[dict], body: bytes) -> None:
         number = len(parts) + 1
-        etag = self.client.upload_part(Bucket=self.bucket, Key=key, UploadId=upload_id, PartNumber=number, Body=body)["ETag"]
+        etag = self.client.upload_part(Bucket=self.bucket, Key=key, UploadId=upload_id, PartNumber=number, Body=body)[
+            "ETag"
+        ]
         parts.append({"ETag": etag, "PartNumber": number})
 
     def publish_directory(self, prefix: str, directory: str | os.PathLike, last: str) -> bool:
@@ -371,7 +377,9 @@ class S3BlobStore:
         if delimiter:
             arguments["Delimiter"] = "/"
         try:
-            pages = self.client.get_paginator("list_objects_v2").paginate(**arguments, PaginationConfig={"PageSize": self.page_size})
+            pages = self.client.get_paginator("list_objects_v2").paginate(
+                **arguments, PaginationConfig={"PageSize": self.page_size}
+            )
             for page in pages:
                 for item in page.get("Contents", ()):
                     yield item["Key"]
@@ -394,7 +402,9 @@ class S3BlobStore:
                 response = self.client.delete_objects(Bucket=self.bucket, Delete={"Objects": batch, "Quiet": True})
                 if response.get("Errors"):
                     failed = response["Errors"][0]
-                    raise OSError(f"could not delete blob {failed.get('Key')!r}: {failed.get('Code')} {failed.get('Message')}")
+                    raise OSError(
+                        f"could not delete blob {failed.get('Key')!r}: {failed.get('Code')} {failed.get('Message')}"
+                    )
         except self._client_error() as error:
             raise self._translate(error, prefix) from error
 

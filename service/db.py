@@ -11,7 +11,20 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
-from sqlalchemy import JSON, Boolean, Float, ForeignKey, Index, Integer, String, Text, create_engine, event, select, true
+from sqlalchemy import (
+    JSON,
+    Boolean,
+    Float,
+    ForeignKey,
+    Index,
+    Integer,
+    String,
+    Text,
+    create_engine,
+    event,
+    select,
+    true,
+)
 from sqlalchemy.engine import Engine
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, sessionmaker
 
@@ -55,8 +68,12 @@ class SceneRow(Base):
     __table_args__ = (Index("ix_scenes_tenant_created", "tenant_id", "created_at"),)  # listings: newest first
     id: Mapped[str] = mapped_column(String(32), primary_key=True)
     tenant_id: Mapped[str] = mapped_column(ForeignKey("tenants.id", ondelete="CASCADE"), index=True)
-    name: Mapped[str] = mapped_column(String(500))  # path-safe (service.scenes.safe_file_name): the blob key's last part
-    original_name: Mapped[str] = mapped_column(String(1024), default="")  # as uploaded, bounded; metadata only, never in a path
+    name: Mapped[str] = mapped_column(
+        String(500)
+    )  # path-safe (service.scenes.safe_file_name): the blob key's last part
+    original_name: Mapped[str] = mapped_column(
+        String(1024), default=""
+    )  # as uploaded, bounded; metadata only, never in a path
     extension: Mapped[str] = mapped_column(String(16))
     blob_key: Mapped[str] = mapped_column(String(500))
     size_bytes: Mapped[int] = mapped_column(Integer)

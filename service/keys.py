@@ -61,10 +61,16 @@ def ensure_admin_key(db: Database, key: str) -> None:
     with db.session() as s:
         row = s.scalar(select(ApiKey).where(ApiKey.prefix == prefix))
         if row is None:
-            s.add(ApiKey(id=uuid.uuid4().hex, tenant_id=tenant.id, prefix=prefix, digest=_digest(key), created_at=now()))
+            s.add(
+                ApiKey(id=uuid.uuid4().hex, tenant_id=tenant.id, prefix=prefix, digest=_digest(key), created_at=now())
+            )
         elif row.revoked_at is not None:
             row.revoked_at = None  # set again on purpose
-        for old in s.scalars(select(ApiKey).where(ApiKey.prefix.startswith(BOOTSTRAP), ApiKey.prefix != prefix, ApiKey.revoked_at.is_(None))):
+        for old in s.scalars(
+            select(ApiKey).where(
+                ApiKey.prefix.startswith(BOOTSTRAP), ApiKey.prefix != prefix, ApiKey.revoked_at.is_(None)
+            )
+        ):
             old.revoked_at = now()
 
 
@@ -79,7 +85,9 @@ def revoke_key(db: Database, prefix: str) -> None:
 
 def list_keys(db: Database) -> list[dict]:
     with db.session() as s:
-        rows = s.execute(select(ApiKey, Tenant.name).join(Tenant, Tenant.id == ApiKey.tenant_id).order_by(ApiKey.created_at)).all()
+        rows = s.execute(
+            select(ApiKey, Tenant.name).join(Tenant, Tenant.id == ApiKey.tenant_id).order_by(ApiKey.created_at)
+        ).all()
         return [
             {"prefix": key.prefix, "tenant": name, "created_at": key.created_at, "revoked": key.revoked_at is not None}
             for key, name in rows

@@ -13,9 +13,8 @@ import json
 import subprocess
 import sys
 import warnings
-from pathlib import Path
-
 from dataclasses import asdict
+from pathlib import Path
 
 from farfield.core import errors
 from farfield.core.errors import FarfieldError, SceneLoadError
@@ -24,7 +23,9 @@ from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
 TIMEOUT_S = 600
 
 
-def summarize(path: Path, extension: str, name: str, limits: SceneLimits = DEFAULT_LIMITS, assets: Path | None = None) -> dict:
+def summarize(
+    path: Path, extension: str, name: str, limits: SceneLimits = DEFAULT_LIMITS, assets: Path | None = None
+) -> dict:
     """The summary the service stores for a scene file (run in the child); ``assets``: a zip of the
     files it refers to (:func:`farfield.core.exchange.archive.unpack_scene_archive`)."""
     from farfield.core.exchange import load_scene_bytes
@@ -43,7 +44,9 @@ def summarize(path: Path, extension: str, name: str, limits: SceneLimits = DEFAU
     }
 
 
-def check_scene_file(path: Path, extension: str, name: str, limits: SceneLimits = DEFAULT_LIMITS, assets: Path | None = None) -> dict:
+def check_scene_file(
+    path: Path, extension: str, name: str, limits: SceneLimits = DEFAULT_LIMITS, assets: Path | None = None
+) -> dict:
     """Parse ``path`` (with the files of the ``assets`` zip) in a child process; its summary, or the
     loader's error raised here."""
     try:

@@ -23,13 +23,18 @@ from sqlalchemy.orm import undefer
 
 from farfield.core.errors import ConflictError, NotFoundError, SceneLoadError, UploadTooLargeError
 from farfield.core.exchange import DEFAULT_LIMITS, SceneLimits, load_scene_bytes, supported_extensions
+from farfield.core.exchange.archive import (
+    SCENE_EXTENSIONS,
+    is_zip,
+    parts_archive,
+    read_assets_zip,
+    unpack_scene_archive,
+)
 from farfield.core.exchange.export import scene_glb
-from farfield.core.exchange.archive import SCENE_EXTENSIONS, is_zip, parts_archive, read_assets_zip, unpack_scene_archive
 from farfield.core.scene import Scene
 from farfield.service.blobs import BlobStore
 from farfield.service.db import CELL_FINAL, Database, JobRow, SceneRow, now, owned_row
 from farfield.service.scene_check import check_scene_file
-
 
 # beside a stored scene file, in a folder (an upload's own name never holds a "/", so no upload
 # can be called this): the loaded scene as GLB, written on first request
@@ -98,8 +103,14 @@ def _spool(source: BinaryIO, limit: int, directory: str) -> tuple[Path, int]:
 
 
 def ingest_scene(
-    db: Database, blobs: BlobStore, tenant_id: str, file_name: str, source: BinaryIO, limit: int,
-    scene_limits: SceneLimits = DEFAULT_LIMITS, more: list[tuple[str, BinaryIO]] | None = None,
+    db: Database,
+    blobs: BlobStore,
+    tenant_id: str,
+    file_name: str,
+    source: BinaryIO,
+    limit: int,
+    scene_limits: SceneLimits = DEFAULT_LIMITS,
+    more: list[tuple[str, BinaryIO]] | None = None,
 ) -> SceneRow:
     """Validate and store one uploaded scene; returns its row (``row.upload_warnings``: what the
     loader warned of, e.g. a missing texture).
@@ -126,7 +137,9 @@ def ingest_scene(
                 size += part_size
                 parts.append((part_name, part_path))
             archive = parts_archive(parts, Path(work))
-        elif PurePath(file_name).suffix.lower().lstrip(".") not in SCENE_EXTENSIONS and (file_name.lower().endswith(".zip") or (size and is_zip(path))):
+        elif PurePath(file_name).suffix.lower().lstrip(".") not in SCENE_EXTENSIONS and (
+            file_name.lower().endswith(".zip") or (size and is_zip(path))
+        ):
             archive = unpack_scene_archive(path, limit, Path(work), safe_file_name(file_name))
         if archive is not None:
             name, path, assets = safe_file_name(archive.name), archive.scene, archive.assets
@@ -135,7 +148,11 @@ def ingest_scene(
         extension = PurePath(name).suffix.lower().lstrip(".")
         if extension not in supported_extensions():
             shown = f"'.{extension}'" if extension else "no extension"
-            raise SceneLoadError(f"{name}: unsupported scene format {shown}; supported: " + ", ".join("." + e for e in supported_extensions()) + ", or a .zip of one with its files")
+            raise SceneLoadError(
+                f"{name}: unsupported scene format {shown}; supported: "
+                + ", ".join("." + e for e in supported_extensions())
+                + ", or a .zip of one with its files"
+            )
         if size == 0 or path.stat().st_size == 0:
             raise SceneLoadError(f"{name}: the file is empty")
         summary = check_scene_file(path, extension, name, scene_limits, assets)
@@ -159,8 +176,12 @@ def ingest_scene(
         shutil.rmtree(work, ignore_errors=True)
     row.upload_warnings = list(summary.get("warnings", []))
     if archive is not None and archive.skipped:
-        shown = ", ".join(archive.skipped[:5]) + (f" and {len(archive.skipped) - 5} more" if len(archive.skipped) > 5 else "")
-        row.upload_warnings.append(f"{len(archive.skipped)} file(s) of the archive lie outside the scene file's folder and were not used: {shown}")
+        shown = ", ".join(archive.skipped[:5]) + (
+            f" and {len(archive.skipped) - 5} more" if len(archive.skipped) > 5 else ""
+        )
+        row.upload_warnings.append(
+            f"{len(archive.skipped)} file(s) of the archive lie outside the scene file's folder and were not used: {shown}"
+        )
     return row
 
 
@@ -197,14 +218,18 @@ _OBJECTS_PAGE = {
 }  # fmt: skip
 
 
-def scene_objects(db: Database, tenant_id: str, scene_id: str, limit: int = 100, offset: int = 0) -> tuple[list[dict], int]:
+def scene_objects(
+    db: Database, tenant_id: str, scene_id: str, limit: int = 100, offset: int = 0
+) -> tuple[list[dict], int]:
     """``limit`` object summaries of the tenant's scene from ``offset``, in the scene's order, and
     how many it has."""
     row = get_scene_row(db, tenant_id, scene_id)
     sql = _OBJECTS_PAGE.get(db.engine.dialect.name)
     with db.session() as s:
         if sql is None:  # another database: sliced here
-            return s.scalar(select(SceneRow.objects).where(SceneRow.id == scene_id))[offset : offset + limit], row.object_count
+            return s.scalar(select(SceneRow.objects).where(SceneRow.id == scene_id))[
+                offset : offset + limit
+            ], row.object_count
         values = s.execute(text(sql), {"id": scene_id, "limit": limit, "offset": offset}).scalars().all()
     return [json.loads(v) if isinstance(v, str) else v for v in values], row.object_count
 

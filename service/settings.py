@@ -152,21 +152,39 @@ _BUCKET = re.compile(r"[a-z0-9][a-z0-9.-]{1,61}[a-z0-9]")
 
 def _s3(env: Mapping[str, str]) -> dict:
     """The ``s3_*`` settings of ``env``: all unset (local blobs), or a bucket with its credentials."""
-    names = ("FARFIELD_S3_ENDPOINT", "FARFIELD_S3_BUCKET", "FARFIELD_S3_KEY", "FARFIELD_S3_SECRET", "FARFIELD_S3_REGION")
+    names = (
+        "FARFIELD_S3_ENDPOINT",
+        "FARFIELD_S3_BUCKET",
+        "FARFIELD_S3_KEY",
+        "FARFIELD_S3_SECRET",
+        "FARFIELD_S3_REGION",
+    )
     endpoint, bucket, key, secret, region = ((env.get(name) or "").strip() or None for name in names)
     if bucket is None:
         stray = [name for name, value in zip(names[:4], (endpoint, bucket, key, secret)) if value]
         if stray:
-            raise ServiceConfigError(f"{', '.join(stray)} set without FARFIELD_S3_BUCKET; set the bucket too, or unset them to use FARFIELD_BLOB_DIR")
+            raise ServiceConfigError(
+                f"{', '.join(stray)} set without FARFIELD_S3_BUCKET; set the bucket too, or unset them to use FARFIELD_BLOB_DIR"
+            )
         return {}
     if not _BUCKET.fullmatch(bucket):
-        raise ServiceConfigError(f"FARFIELD_S3_BUCKET must be an S3 bucket name (3-63 lowercase letters, digits, '.' and '-'), got {bucket!r}")
+        raise ServiceConfigError(
+            f"FARFIELD_S3_BUCKET must be an S3 bucket name (3-63 lowercase letters, digits, '.' and '-'), got {bucket!r}"
+        )
     missing = [name for name, value in (("FARFIELD_S3_KEY", key), ("FARFIELD_S3_SECRET", secret)) if not value]
     if missing:
-        raise ServiceConfigError(f"FARFIELD_S3_BUCKET is set but {' and '.join(missing)} {'is' if len(missing) == 1 else 'are'} not: the S3 blob store needs an access key and a secret key")
+        raise ServiceConfigError(
+            f"FARFIELD_S3_BUCKET is set but {' and '.join(missing)} {'is' if len(missing) == 1 else 'are'} not: the S3 blob store needs an access key and a secret key"
+        )
     if endpoint is not None and not endpoint.startswith(("http://", "https://")):
         raise ServiceConfigError(f"FARFIELD_S3_ENDPOINT must be an http:// or https:// URL, got {endpoint!r}")
-    return {"s3_endpoint": endpoint, "s3_bucket": bucket, "s3_key": key, "s3_secret": secret, "s3_region": region or "us-east-1"}
+    return {
+        "s3_endpoint": endpoint,
+        "s3_bucket": bucket,
+        "s3_key": key,
+        "s3_secret": secret,
+        "s3_region": region or "us-east-1",
+    }
 
 
 @dataclass(frozen=True, slots=True)
@@ -206,7 +224,9 @@ class Settings:
         home = Path(env.get("FARFIELD_HOME") or "farfield-data").expanduser().resolve()
         database_url = env.get("DATABASE_URL") or f"sqlite:///{home / 'farfield.db'}"
         if "://" not in database_url:
-            raise ServiceConfigError(f"DATABASE_URL must be a SQLAlchemy URL like postgresql+psycopg://..., got {database_url!r}")
+            raise ServiceConfigError(
+                f"DATABASE_URL must be a SQLAlchemy URL like postgresql+psycopg://..., got {database_url!r}"
+            )
         redis_url = env.get("REDIS_URL") or None
         if redis_url is not None and not redis_url.startswith(("redis://", "rediss://", "unix://")):
             raise ServiceConfigError(f"REDIS_URL must start with redis://, rediss:// or unix://, got {redis_url!r}")
@@ -225,7 +245,9 @@ class Settings:
             max_attempts=_int(env, "FARFIELD_MAX_ATTEMPTS", 3),
             visibility_timeout=_visibility_timeout(env, cell_time_limit + CELL_TIME_GRACE),
             requeue_after=_int(env, "FARFIELD_REQUEUE_AFTER", 3600),
-            scene_limits=SceneLimits(**{n: _int(env, f"FARFIELD_MAX_SCENE_{n.upper()}", getattr(DEFAULT_LIMITS, n)) for n in _SCENE_LIMITS}),
+            scene_limits=SceneLimits(
+                **{n: _int(env, f"FARFIELD_MAX_SCENE_{n.upper()}", getattr(DEFAULT_LIMITS, n)) for n in _SCENE_LIMITS}
+            ),
             admission=AdmissionLimits.from_env(env),
             cell_time_limit=cell_time_limit,
             cell_memory_mb=_int(env, "FARFIELD_CELL_MEMORY_MB", CELL_MEMORY_MB),
@@ -257,7 +279,11 @@ class Settings:
         if self.s3_bucket:
             env["FARFIELD_S3_BUCKET"] = self.s3_bucket
             env["FARFIELD_S3_REGION"] = self.s3_region
-            for name, value in (("FARFIELD_S3_ENDPOINT", self.s3_endpoint), ("FARFIELD_S3_KEY", self.s3_key), ("FARFIELD_S3_SECRET", self.s3_secret)):
+            for name, value in (
+                ("FARFIELD_S3_ENDPOINT", self.s3_endpoint),
+                ("FARFIELD_S3_KEY", self.s3_key),
+                ("FARFIELD_S3_SECRET", self.s3_secret),
+            ):
                 if value:
                     env[name] = value
         if self.admin_key:

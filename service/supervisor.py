@@ -93,7 +93,9 @@ class Service:
     @staticmethod
     def _spawn(command: list[str], env: dict, log_path: Path) -> subprocess.Popen:
         with open(log_path, "ab") as log:  # the child keeps its own copy of the descriptor
-            return subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
+            return subprocess.Popen(
+                command, env=env, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True
+            )
 
     def start(self) -> Service:
         settings = self.settings
@@ -115,7 +117,19 @@ class Service:
             device = {"FARFIELD_EGL_DEVICE": str(i % gpus)} if gpus else {}
             self.worker_specs.append((worker_command(f"worker{i}"), {**env, **device}, logs / f"worker{i}.log"))
             self.worker_processes.append(self._spawn(*self.worker_specs[-1]))
-        api = [sys.executable, "-m", "uvicorn", "farfield.api.app:app_from_env", "--factory", "--host", settings.host, "--port", str(port), "--log-level", "warning"]
+        api = [
+            sys.executable,
+            "-m",
+            "uvicorn",
+            "farfield.api.app:app_from_env",
+            "--factory",
+            "--host",
+            settings.host,
+            "--port",
+            str(port),
+            "--log-level",
+            "warning",
+        ]
         self.api = self._spawn(api, env, logs / "api.log")
         self.url = f"http://{settings.host}:{port}"
         self._wait_for_api()
@@ -127,7 +141,9 @@ class Service:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if self.api.poll() is not None:
-                raise RuntimeError(f"the API exited with code {self.api.returncode}; see {self.settings.home / 'logs' / 'api.log'}")
+                raise RuntimeError(
+                    f"the API exited with code {self.api.returncode}; see {self.settings.home / 'logs' / 'api.log'}"
+                )
             try:
                 if httpx.get(self.url + "/v1/health", timeout=2, trust_env=False).status_code == 200:
                     return
@@ -143,7 +159,9 @@ class Service:
                 self.redis.start()
             for i, process in enumerate(self.worker_processes):
                 if process.poll() is not None:
-                    print(f"farfield: worker{i} exited with code {process.returncode}; starting it again", file=sys.stderr)
+                    print(
+                        f"farfield: worker{i} exited with code {process.returncode}; starting it again", file=sys.stderr
+                    )
                     try:  # its pool processes outlive it: stop them rendering cells that are handed out again
                         os.killpg(process.pid, signal.SIGKILL)
                     except ProcessLookupError:
@@ -151,7 +169,9 @@ class Service:
                     self.release_cells_of(f"worker{i}", process.returncode)
                     self.worker_processes[i] = self._spawn(*self.worker_specs[i])
             if self.api.poll() is not None:
-                raise RuntimeError(f"the API exited with code {self.api.returncode}; see {self.settings.home / 'logs' / 'api.log'}")
+                raise RuntimeError(
+                    f"the API exited with code {self.api.returncode}; see {self.settings.home / 'logs' / 'api.log'}"
+                )
             time.sleep(0.5)
 
     def release_cells_of(self, name: str, code: int | None) -> None:
@@ -164,9 +184,14 @@ class Service:
             changed = release_lost_cells(db, blobs, running_cells_of(db, worker), self.settings.max_attempts,
                                          f"worker {worker} exited with code {code}", worker=worker, resend=True)  # fmt: skip
             if changed:
-                print(f"farfield: {len(changed)} cells of {worker} released: {sorted(set(changed.values()))}", file=sys.stderr)
+                print(
+                    f"farfield: {len(changed)} cells of {worker} released: {sorted(set(changed.values()))}",
+                    file=sys.stderr,
+                )
             for job_id in planning_jobs_of(db, worker):  # a placement job it planned: the sweeper sends it again
-                state = release_planning(db, job_id, f"worker {worker} exited with code {code}", worker, self.settings.max_attempts, blobs)
+                state = release_planning(
+                    db, job_id, f"worker {worker} exited with code {code}", worker, self.settings.max_attempts, blobs
+                )
                 print(f"farfield: the planning of job {job_id} on {worker} released: {state}", file=sys.stderr)
         except Exception as error:  # noqa: BLE001 - the cells come back after the visibility timeout anyway
             print(f"farfield: could not release the cells of {worker}: {error}", file=sys.stderr)

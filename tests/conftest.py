@@ -17,7 +17,10 @@ import trimesh
 
 
 def pytest_configure(config):
-    config.addinivalue_line("markers", "invalid_glb: writes broken GLB files on purpose (exempt from the glTF validator run on every GLB a test writes)")
+    config.addinivalue_line(
+        "markers",
+        "invalid_glb: writes broken GLB files on purpose (exempt from the glTF validator run on every GLB a test writes)",
+    )
 
 
 def pytest_report_header(config):
@@ -37,7 +40,10 @@ def pytest_report_header(config):
     from threejs import installed_versions
 
     versions = installed_versions()
-    lines.append("npm (tests/js): " + (", ".join(f"{k} {v}" for k, v in versions.items()) or "not installed (scripts/install-js)"))
+    lines.append(
+        "npm (tests/js): "
+        + (", ".join(f"{k} {v}" for k, v in versions.items()) or "not installed (scripts/install-js)")
+    )
     # Fill numba's cache once here, so the render workers the service tests start load the TDM,
     # point and recording kernels (warm_worker) instead of each compiling them while a test waits.
     from farfield.core.layering import recording
@@ -45,7 +51,9 @@ def pytest_report_header(config):
     from farfield.core.techniques.points import technique as points
     from farfield.core.techniques.tdm import technique as tdm
 
-    lines.append(f"numba kernels ready in {tdm.warm_kernels() + points.warm_kernels() + ldi.warm_kernels() + recording.warm_kernels():.1f} s")
+    lines.append(
+        f"numba kernels ready in {tdm.warm_kernels() + points.warm_kernels() + ldi.warm_kernels() + recording.warm_kernels():.1f} s"
+    )
     return lines
 
 
@@ -96,7 +104,10 @@ def glb_files_are_valid(request, glb_watch):
     bad = glb_watch.check(finished=[str(path) for path in own])
     if bad and request.node.get_closest_marker("invalid_glb") is None:
         lines = [f"{path}:\n  " + "\n  ".join(found) for path, found in sorted(bad.items())]
-        pytest.fail("the glTF validator finds errors or warnings in GLB files written during this test:\n" + "\n".join(lines), pytrace=False)
+        pytest.fail(
+            "the glTF validator finds errors or warnings in GLB files written during this test:\n" + "\n".join(lines),
+            pytrace=False,
+        )
 
 
 @pytest.fixture(scope="session")

@@ -49,7 +49,9 @@ class GltfValidator:
         line = self.process.stdout.readline()
         if not line:
             self.process.wait()
-            raise RuntimeError(f"the glTF validator stopped (exit {self.process.returncode}): {self.process.stderr.read()[-2000:]}")
+            raise RuntimeError(
+                f"the glTF validator stopped (exit {self.process.returncode}): {self.process.stderr.read()[-2000:]}"
+            )
         return line
 
     def validate(self, paths) -> list[dict]:
@@ -75,8 +77,17 @@ def ktx2_gaps(report: dict) -> list[dict]:
     """The warnings that are the validator not knowing ``KHR_texture_basisu`` (2.0.0-dev.3.10): an
     image of mimeType ``image/ktx2`` is "not in the list" and its bytes "not recognized" (each such
     image also draws an UNUSED_OBJECT info and the extension an UNSUPPORTED_EXTENSION info)."""
-    ktx2 = {m["pointer"].rsplit("/", 1)[0] for m in report.get("messages", []) if m["code"] == "VALUE_NOT_IN_LIST" and "'image/ktx2'" in m["message"]}
-    return [m for m in report.get("messages", []) if m["code"] in ("VALUE_NOT_IN_LIST", "IMAGE_UNRECOGNIZED_FORMAT") and m.get("pointer", "").removesuffix("/mimeType") in ktx2]
+    ktx2 = {
+        m["pointer"].rsplit("/", 1)[0]
+        for m in report.get("messages", [])
+        if m["code"] == "VALUE_NOT_IN_LIST" and "'image/ktx2'" in m["message"]
+    }
+    return [
+        m
+        for m in report.get("messages", [])
+        if m["code"] in ("VALUE_NOT_IN_LIST", "IMAGE_UNRECOGNIZED_FORMAT")
+        and m.get("pointer", "").removesuffix("/mimeType") in ktx2
+    ]
 
 
 def problems(report: dict) -> list[str]:
@@ -102,7 +113,9 @@ class GlbWatch:
         self.base = str(base)
         self.validator: GltfValidator | None = None
         self.closed: set[str] = set()  # top-level folders no test writes to any more
-        self.listings: dict[str, tuple[int, tuple[str, ...], tuple[str, ...]]] = {}  # folder -> (mtime_ns, folders, GLBs)
+        self.listings: dict[
+            str, tuple[int, tuple[str, ...], tuple[str, ...]]
+        ] = {}  # folder -> (mtime_ns, folders, GLBs)
         self.seen: dict[str, tuple[int, int]] = {}  # GLB -> (size, mtime_ns) when validated
         self.files_checked = 0
         self.flagged: set[str] = set()  # files found with errors or warnings, exempt tests' included

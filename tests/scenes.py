@@ -45,7 +45,7 @@ REAL_SCENES = (
 )
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def real_scene(path: str) -> Scene:
     """The shared scene at ``SHARED_SCENES / path``, loaded once per test session (scenes are immutable)."""
     return load_scene(SHARED_SCENES / path)
@@ -56,7 +56,7 @@ def real_scene(path: str) -> Scene:
 
 def checker(size: int = 8, squares: int = 2) -> np.ndarray:
     """(size, size, 4) uint8 RGBA checkerboard of dark and light squares, opaque."""
-    index = (np.arange(size) * squares // size)
+    index = np.arange(size) * squares // size
     light = (index[:, None] + index[None, :]) % 2 == 0
     texture = np.empty((size, size, 4), dtype=np.uint8)
     texture[...] = (40, 40, 160, 255)
@@ -103,10 +103,12 @@ def sphere_field(spheres: int = 100, seed: int = 2) -> Scene:
     unit = trimesh.creation.icosphere(subdivisions=2)
     vertices = np.asarray(unit.vertices, dtype=np.float64)
     faces = np.asarray(unit.faces, dtype=np.int64)
-    uv = np.column_stack([
-        np.arctan2(vertices[:, 1], vertices[:, 0]) / (2 * np.pi) + 0.5,
-        np.arcsin(np.clip(vertices[:, 2], -1.0, 1.0)) / np.pi + 0.5,
-    ])
+    uv = np.column_stack(
+        [
+            np.arctan2(vertices[:, 1], vertices[:, 0]) / (2 * np.pi) + 0.5,
+            np.arcsin(np.clip(vertices[:, 2], -1.0, 1.0)) / np.pi + 0.5,
+        ]
+    )
     texture = checker()
     radius = rng.uniform(0.5, 3.0, size=spheres)
     centre = rng.uniform((0.0, 0.0, 0.0), (200.0, 50.0, 200.0), size=(spheres, 3))
@@ -132,9 +134,7 @@ def dense_mesh(subdivisions: int = 6, seed: int = 3) -> Scene:
 
 # A 2 x 2 texture with four distinct texels (top row first): red, green / blue, yellow; the
 # yellow texel is half transparent and the green one fully, for alpha tests.
-QUAD_TEXTURE = np.array(
-    [[[255, 0, 0, 255], [0, 255, 0, 0]], [[0, 0, 255, 255], [255, 255, 0, 128]]], dtype=np.uint8
-)
+QUAD_TEXTURE = np.array([[[255, 0, 0, 255], [0, 255, 0, 0]], [[0, 0, 255, 255], [255, 255, 0, 128]]], dtype=np.uint8)
 
 
 def textured_quad(alpha_cutoff: float | None = None, texture: np.ndarray = QUAD_TEXTURE) -> Scene:
@@ -193,7 +193,9 @@ def bad_obj(kind: str) -> str:
 # ---------------------------------------------------------------------------------- writers
 
 
-def write_obj(scene: Scene, path: Path, texture_names: dict[str, str] | None = None, skip_textures: bool = False) -> Path:
+def write_obj(
+    scene: Scene, path: Path, texture_names: dict[str, str] | None = None, skip_textures: bool = False
+) -> Path:
     """Write ``scene`` as ``path`` (OBJ) + an MTL beside it + one PNG per textured object.
 
     One ``o`` per object with its own material ``<name>_mat`` (``Kd`` sRGB-encoded, as MTL files
@@ -278,7 +280,9 @@ def instanced_nodes_glb(nodes: int) -> bytes:
         "scenes": [{"nodes": list(range(nodes))}],
         "nodes": [{"name": f"node{i:06d}", "mesh": 0, "translation": [i % side, 0, i // side]} for i in range(nodes)],
         "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
-        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [0.5, 0.5, 0]}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [0.5, 0.5, 0]}
+        ],
         "bufferViews": [{"buffer": 0, "byteLength": len(positions)}],
         "buffers": [{"byteLength": len(positions)}],
     }

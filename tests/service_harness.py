@@ -47,7 +47,14 @@ class RunningService:
 
     def cli(self, *args: str) -> subprocess.CompletedProcess:
         """Run ``farfield ARGS`` against this service's settings."""
-        return subprocess.run([sys.executable, "-m", "farfield.cli.main", *args], cwd=ROOT, env=self.env, capture_output=True, text=True, timeout=120)
+        return subprocess.run(
+            [sys.executable, "-m", "farfield.cli.main", *args],
+            cwd=ROOT,
+            env=self.env,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
 
     def descendants(self) -> list[int]:
         found, todo = [], [self.process.pid]
@@ -84,12 +91,21 @@ class RunningService:
 def start_service(home: Path, *args: str, **extra_env: str) -> RunningService:
     """``farfield up`` with ``args`` in ``home``, with a free port and one worker unless ``args`` or
     ``extra_env`` say otherwise; returns once it printed its URL and broker."""
-    env = {k: v for k, v in os.environ.items() if k not in ("REDIS_URL", "DATABASE_URL") and not k.startswith("FARFIELD_")}
+    env = {
+        k: v for k, v in os.environ.items() if k not in ("REDIS_URL", "DATABASE_URL") and not k.startswith("FARFIELD_")
+    }
     env.update({
         "FARFIELD_HOME": str(home), "FARFIELD_PORT": "0", "FARFIELD_WORKERS": "1",
         "FARFIELD_ADMIN_KEY": ADMIN_KEY, "FARFIELD_MAX_UPLOAD_MB": "5", **extra_env,
     })  # fmt: skip
-    process = subprocess.Popen([sys.executable, "-m", "farfield.cli.main", "up", *args], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    process = subprocess.Popen(
+        [sys.executable, "-m", "farfield.cli.main", "up", *args],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     url, broker, lines = None, None, []
     deadline = time.monotonic() + 120
     while broker is None and time.monotonic() < deadline:
@@ -107,7 +123,9 @@ def start_service(home: Path, *args: str, **extra_env: str) -> RunningService:
     return RunningService(process, home, url, env, broker)
 
 
-def wait_for_job(client: httpx.Client, job_id: str, states=("done", "failed", "cancelled"), timeout: float = 300) -> dict:
+def wait_for_job(
+    client: httpx.Client, job_id: str, states=("done", "failed", "cancelled"), timeout: float = 300
+) -> dict:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         job = client.get(f"/v1/jobs/{job_id}").json()
@@ -151,7 +169,9 @@ def service_on_each_database(request, tmp_path_factory):
     if request.param == "postgresql":
         admin_url = os.environ.get("FARFIELD_TEST_DATABASE_URL")
         if not admin_url:
-            pytest.skip("no PostgreSQL server: set FARFIELD_TEST_DATABASE_URL (CI starts one with scripts/postgres-server)")
+            pytest.skip(
+                "no PostgreSQL server: set FARFIELD_TEST_DATABASE_URL (CI starts one with scripts/postgres-server)"
+            )
         extra["DATABASE_URL"], drop = fresh_postgres_database(admin_url)
     running = start_service(tmp_path_factory.mktemp("farfield-home"), **extra)
     yield running

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from farfield.core.layering.atlas import AtlasLayout, bleed_rgb, compose, pack, tile_uv, tile_uvs
 from farfield.core.errors import AtlasOverflowError, LayerPlanError
+from farfield.core.layering.atlas import AtlasLayout, bleed_rgb, compose, pack, tile_uv, tile_uvs
 from farfield.core.layering.quads import grow_quads
 
 
@@ -147,7 +147,12 @@ def test_rotation_is_clockwise_at_the_interior_top_left(padding):
     x, y = layout.x[0], layout.y[0]
     assert np.array_equal(pages[layout.page[0]][y, x + 2], tiles[0][0, 0])
     W, H = layout.page_sizes[layout.page[0]]
-    assert tile_uv(layout, 0).tolist() == [[(x + 3) / W, y / H], [(x + 3) / W, (y + 7) / H], [x / W, (y + 7) / H], [x / W, y / H]]
+    assert tile_uv(layout, 0).tolist() == [
+        [(x + 3) / W, y / H],
+        [(x + 3) / W, (y + 7) / H],
+        [x / W, (y + 7) / H],
+        [x / W, y / H],
+    ]
 
 
 @pytest.mark.parametrize("bleed", [0, 4])
@@ -254,9 +259,7 @@ def test_bad_min_fill_is_refused(min_fill):
         pack([[4, 4]], min_fill=min_fill)
 
 
-@pytest.mark.parametrize(
-    ("size", "padding"), [([9000, 10], 0), ([10, 8193], 0), ([8192, 8], 1), ([8189, 8189], 2)]
-)
+@pytest.mark.parametrize(("size", "padding"), [([9000, 10], 0), ([10, 8193], 0), ([8192, 8], 1), ([8189, 8189], 2)])
 def test_tile_larger_than_a_page_overflows(size, padding):
     with pytest.raises(AtlasOverflowError, match=f"{size[0]}x{size[1]}"):
         pack([[3, 3], size], padding)
@@ -277,9 +280,7 @@ def test_empty_input():
     assert tile_uvs(layout).shape == (0, 4, 2)
 
 
-@pytest.mark.parametrize(
-    "sizes", [[[0, 4]], [[4, -1]], [[2.5, 4]], [[1, 2, 3]], [1, 2], [["a", "b"]]]
-)
+@pytest.mark.parametrize("sizes", [[[0, 4]], [[4, -1]], [[2.5, 4]], [[1, 2, 3]], [1, 2], [["a", "b"]]])
 def test_bad_sizes_are_refused(sizes):
     with pytest.raises(LayerPlanError, match="tile sizes"):
         pack(sizes)

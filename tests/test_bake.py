@@ -125,7 +125,9 @@ def test_guarantee_ends_outside_the_view_cell(ctx):
 
 
 # The box of issue 23: 10 x 8 x 10, its front face 18 units before a 4-unit cell.
-ISSUE_BOX = Scene.from_objects([scenes.box_object("block", (-5.0, 0.0, -5.0), (5.0, 8.0, 5.0), (0.8, 0.35, 0.2, 1.0))], "issue-23-box")
+ISSUE_BOX = Scene.from_objects(
+    [scenes.box_object("block", (-5.0, 0.0, -5.0), (5.0, 8.0, 5.0), (0.8, 0.35, 0.2, 1.0))], "issue-23-box"
+)
 ISSUE_BOX_CELL = BoxCell(np.array([-2.0, 3.0, -27.0]), np.array([2.0, 7.0, -23.0]))
 
 

@@ -44,7 +44,9 @@ def s3_endpoint():
 def _s3_client(endpoint: str):
     import boto3
 
-    return boto3.client("s3", endpoint_url=endpoint, aws_access_key_id=KEY, aws_secret_access_key=SECRET, region_name=REGION)
+    return boto3.client(
+        "s3", endpoint_url=endpoint, aws_access_key_id=KEY, aws_secret_access_key=SECRET, region_name=REGION
+    )
 
 
 @pytest.fixture
@@ -63,7 +65,9 @@ def store(request, tmp_path) -> BlobStore:
     endpoint = request.getfixturevalue("s3_endpoint")
     name = request.getfixturevalue("bucket")
     # The smallest part S3 allows, so that multipart uploads are exercised with small test data.
-    return S3BlobStore(name, endpoint_url=endpoint, access_key=KEY, secret_key=SECRET, region=REGION, part_size=MIN_PART)
+    return S3BlobStore(
+        name, endpoint_url=endpoint, access_key=KEY, secret_key=SECRET, region=REGION, part_size=MIN_PART
+    )
 
 
 def _leftovers(store: BlobStore) -> list[str]:
@@ -230,7 +234,12 @@ def test_factory_gives_the_s3_store_from_the_environment(tmp_path, s3_endpoint, 
         "FARFIELD_S3_KEY": KEY, "FARFIELD_S3_SECRET": SECRET,
     }  # fmt: skip
     settings = Settings.from_env(env)
-    assert (settings.s3_endpoint, settings.s3_bucket, settings.s3_key, settings.s3_region) == (s3_endpoint, bucket, KEY, "us-east-1")
+    assert (settings.s3_endpoint, settings.s3_bucket, settings.s3_key, settings.s3_region) == (
+        s3_endpoint,
+        bucket,
+        KEY,
+        "us-east-1",
+    )
     assert SECRET not in repr(settings)
     store = blob_store(settings)
     assert isinstance(store, S3BlobStore)
@@ -238,7 +247,13 @@ def test_factory_gives_the_s3_store_from_the_environment(tmp_path, s3_endpoint, 
     assert _s3_client(s3_endpoint).get_object(Bucket=bucket, Key="jobs/j/index.json")["Body"].read() == b"[]"
     # A child process (a worker) gets the same settings from settings.environment().
     child = Settings.from_env(settings.environment())
-    assert (child.s3_endpoint, child.s3_bucket, child.s3_key, child.s3_secret, child.s3_region) == (s3_endpoint, bucket, KEY, SECRET, REGION)
+    assert (child.s3_endpoint, child.s3_bucket, child.s3_key, child.s3_secret, child.s3_region) == (
+        s3_endpoint,
+        bucket,
+        KEY,
+        SECRET,
+        REGION,
+    )
     assert isinstance(blob_store(child), S3BlobStore)
 
 
@@ -250,7 +265,15 @@ def test_factory_gives_the_s3_store_from_the_environment(tmp_path, s3_endpoint, 
         ({"FARFIELD_S3_BUCKET": "farfield", "FARFIELD_S3_SECRET": "s"}, "FARFIELD_S3_KEY is not"),
         ({"FARFIELD_S3_ENDPOINT": "http://minio:9000", "FARFIELD_S3_KEY": "k"}, "without FARFIELD_S3_BUCKET"),
         ({"FARFIELD_S3_BUCKET": "Not_A_Bucket", "FARFIELD_S3_KEY": "k", "FARFIELD_S3_SECRET": "s"}, "bucket name"),
-        ({"FARFIELD_S3_BUCKET": "farfield", "FARFIELD_S3_KEY": "k", "FARFIELD_S3_SECRET": "s", "FARFIELD_S3_ENDPOINT": "minio:9000"}, "http:// or https://"),
+        (
+            {
+                "FARFIELD_S3_BUCKET": "farfield",
+                "FARFIELD_S3_KEY": "k",
+                "FARFIELD_S3_SECRET": "s",
+                "FARFIELD_S3_ENDPOINT": "minio:9000",
+            },
+            "http:// or https://",
+        ),
     ],
 )
 def test_incomplete_s3_settings_are_refused(tmp_path, env, message):
@@ -285,7 +308,9 @@ def test_local_publishers_racing_never_mix_their_files(tmp_path):
     store = LocalBlobStore(tmp_path / "blobs")
     sources = [_bundle_dir(tmp_path / f"s{i}", str(i)) for i in range(8)]
     with ThreadPoolExecutor(8) as pool:
-        won = list(pool.map(lambda source: store.publish_directory("impostors/k", source, last="manifest.json"), sources))
+        won = list(
+            pool.map(lambda source: store.publish_directory("impostors/k", source, last="manifest.json"), sources)
+        )
     assert sum(won) == 1
     tags = {store.read_bytes(f"impostors/k/{n}")[:1] for n in store.list_files("impostors/k")}
     assert len(tags) == 1 and len(store.list_files("impostors/k")) == 3

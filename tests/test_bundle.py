@@ -18,6 +18,7 @@ import trimesh
 from PIL import Image
 
 import farfield.core.impostor.bundle
+from farfield.core.errors import BundleFormatError
 from farfield.core.impostor.bundle import (
     FORMAT_VERSION,
     GLB_NAME,
@@ -26,10 +27,9 @@ from farfield.core.impostor.bundle import (
     bundle_zip,
     page_file_name,
     read_bundle,
-    write_bundle,
     stored_stats,
+    write_bundle,
 )
-from farfield.core.errors import BundleFormatError
 from farfield.core.impostor.glb import impostor_glb, page_png
 from farfield.core.impostor.impostor import Impostor, MeshPayload, QuadPayload
 
@@ -58,12 +58,14 @@ def make_impostor(viewpoint=ORIGIN, seed: int = 7, quads=QUADS, page_shapes=PAGE
     for _layer, distance, page, (x0, y0, x1, y1) in quads:
         centre = vp + distance * forward + rng.normal(scale=3.0) * right + rng.normal(scale=2.0) * up
         half_w, half_h = rng.uniform(0.5, 2.0, size=2)
-        corners.append([
-            centre - half_w * right + half_h * up,
-            centre + half_w * right + half_h * up,
-            centre + half_w * right - half_h * up,
-            centre - half_w * right - half_h * up,
-        ])
+        corners.append(
+            [
+                centre - half_w * right + half_h * up,
+                centre + half_w * right + half_h * up,
+                centre + half_w * right - half_h * up,
+                centre - half_w * right - half_h * up,
+            ]
+        )
         h, w = page_shapes[page][:2]
         u0, u1, v0, v1 = x0 / w, x1 / w, y0 / h, y1 / h
         uvs.append([[u0, v0], [u1, v0], [u1, v1], [u0, v1]])
@@ -182,7 +184,11 @@ def test_round_trip_is_exact(tmp_path, viewpoint):
     impostor = make_impostor(viewpoint)
     paths = write_bundle(impostor, tmp_path / "cell-0")
     assert sorted(p.name for p in paths.directory.iterdir()) == [
-        "atlas-000.png", "atlas-001.png", "impostor.glb", "manifest.json", "payload.bin",
+        "atlas-000.png",
+        "atlas-001.png",
+        "impostor.glb",
+        "manifest.json",
+        "payload.bin",
     ]
     assert paths.manifest.is_file() and paths.glb.is_file() and paths.payload.is_file()
     assert all(p.is_file() for p in paths.pages)
@@ -214,7 +220,11 @@ def test_payload_file_layout(tmp_path):
     assert entry["file"] == PAYLOAD_NAME and entry["nbytes"] == len(data)
     assert entry["sha256"] == hashlib.sha256(data).hexdigest()
     assert [(a["name"], a["dtype"]) for a in entry["arrays"]] == [
-        ("vertices", "<f8"), ("uv", "<f8"), ("triangles", "<i4"), ("page", "<i4"), ("mesh", "<i8"),
+        ("vertices", "<f8"),
+        ("uv", "<f8"),
+        ("triangles", "<i4"),
+        ("page", "<i4"),
+        ("mesh", "<i8"),
     ]
     end = 0
     for a in entry["arrays"]:
@@ -234,14 +244,29 @@ def test_manifest_schema(tmp_path):
     manifest = json.loads(write_bundle(impostor, tmp_path / "b").manifest.read_text("utf-8"))
     assert manifest["format"] == "farfield-impostor" and manifest["format_version"] == FORMAT_VERSION == 2
     assert set(manifest) == {
-        "format", "format_version", "code_version", "technique", "viewcell", "reference_viewpoint",
-        "resolution", "fov_deg", "layers", "payload", "pages", "glb", "stats", "parameters",
+        "format",
+        "format_version",
+        "code_version",
+        "technique",
+        "viewcell",
+        "reference_viewpoint",
+        "resolution",
+        "fov_deg",
+        "layers",
+        "payload",
+        "pages",
+        "glb",
+        "stats",
+        "parameters",
     }
     payload = manifest["payload"]
     assert set(payload) == {"kind", "counts", "file", "nbytes", "sha256", "arrays"}
     assert payload["kind"] == "quads" and payload["counts"] == {"quads": 3} and payload["file"] == PAYLOAD_NAME
     assert [(a["name"], a["dtype"], a["shape"]) for a in payload["arrays"]] == [
-        ("corners", "<f8", [3, 4, 3]), ("uv", "<f8", [3, 4, 2]), ("page", "<i4", [3]), ("layer", "<i4", [3]),
+        ("corners", "<f8", [3, 4, 3]),
+        ("uv", "<f8", [3, 4, 2]),
+        ("page", "<i4", [3]),
+        ("layer", "<i4", [3]),
     ]
     assert manifest["pages"] == [
         {"file": "atlas-000.png", "width": 8, "height": 6},
@@ -282,7 +307,9 @@ def test_bundle_zip_is_the_bundle(tmp_path):
     (paths.directory / "stray.txt").write_text("not part of the bundle")
     with zipfile.ZipFile(io.BytesIO(bundle_zip(paths.directory))) as archive:
         infos = archive.infolist()
-        assert [i.filename for i in infos] == sorted([MANIFEST_NAME, GLB_NAME, PAYLOAD_NAME, "atlas-000.png", "atlas-001.png"])
+        assert [i.filename for i in infos] == sorted(
+            [MANIFEST_NAME, GLB_NAME, PAYLOAD_NAME, "atlas-000.png", "atlas-001.png"]
+        )
         for info in infos:
             assert info.date_time == (1980, 1, 1, 0, 0, 0)
             assert archive.read(info) == (paths.directory / info.filename).read_bytes()
@@ -328,7 +355,12 @@ def test_glb_structure(viewpoint):
         assert view["byteOffset"] % 4 == 0
         assert view["byteOffset"] + view["byteLength"] <= document["buffers"][0]["byteLength"]
     sampler = document["samplers"][0]
-    assert (sampler["magFilter"], sampler["minFilter"], sampler["wrapS"], sampler["wrapT"]) == (9729, 9729, 33071, 33071)  # no mipmaps: they erode an alpha-cut silhouette
+    assert (sampler["magFilter"], sampler["minFilter"], sampler["wrapS"], sampler["wrapT"]) == (
+        9729,
+        9729,
+        33071,
+        33071,
+    )  # no mipmaps: they erode an alpha-cut silhouette
     for page_index, primitive in enumerate(mesh["primitives"]):
         assert primitive["material"] == page_index
         material = document["materials"][page_index]
@@ -373,7 +405,9 @@ def test_glb_loads_in_trimesh_at_world_position(tmp_path, viewpoint):
     seen_pages = set()
     for mesh in meshes:
         texture = np.asarray(mesh.visual.material.baseColorTexture.convert("RGBA"))
-        (page_index,) = [i for i, p in enumerate(impostor.pages) if p.shape == texture.shape and np.array_equal(p, texture)]
+        (page_index,) = [
+            i for i, p in enumerate(impostor.pages) if p.shape == texture.shape and np.array_equal(p, texture)
+        ]
         seen_pages.add(page_index)
         quads = np.flatnonzero(impostor.payload.page == page_index)
         world = impostor.payload.corners[quads].reshape(-1, 3)
@@ -436,7 +470,14 @@ def test_manifest_stays_small_for_a_mesh(tmp_path):
     paths = write_bundle(impostor, tmp_path / "m")
     text = paths.manifest.read_text("utf-8")
     manifest = json.loads(text)
-    assert "quads" not in manifest and set(manifest["payload"]) == {"kind", "counts", "file", "nbytes", "sha256", "arrays"}
+    assert "quads" not in manifest and set(manifest["payload"]) == {
+        "kind",
+        "counts",
+        "file",
+        "nbytes",
+        "sha256",
+        "arrays",
+    }
     for key in ('"corners":[', '"uv":[', '"vertices":[', '"triangles":[', '"page":[', '"mesh":['):
         assert key not in text, key
     # Outside the per-layer lists and the parameters, no JSON list longer than the payload's table.
@@ -497,9 +538,18 @@ BAD_BUNDLES = {
     "format_version true": (lambda d: _rewrite_manifest(d, lambda m: m.update(format_version=True)), MANIFEST_NAME),
     "missing key": (lambda d: _rewrite_manifest(d, lambda m: m.pop("technique")), MANIFEST_NAME),
     "missing payload": (lambda d: _rewrite_manifest(d, lambda m: m.pop("payload")), MANIFEST_NAME),
-    "unknown payload kind": (lambda d: _rewrite_manifest(d, lambda m: m["payload"].update(kind="points")), MANIFEST_NAME),
-    "payload count mismatch": (lambda d: _rewrite_manifest(d, lambda m: m["payload"]["counts"].update(quads=4)), MANIFEST_NAME),
-    "array shape mismatch": (lambda d: _rewrite_manifest(d, _array_entry("uv", shape=[3, 4, 3], nbytes=288)), MANIFEST_NAME),
+    "unknown payload kind": (
+        lambda d: _rewrite_manifest(d, lambda m: m["payload"].update(kind="points")),
+        MANIFEST_NAME,
+    ),
+    "payload count mismatch": (
+        lambda d: _rewrite_manifest(d, lambda m: m["payload"]["counts"].update(quads=4)),
+        MANIFEST_NAME,
+    ),
+    "array shape mismatch": (
+        lambda d: _rewrite_manifest(d, _array_entry("uv", shape=[3, 4, 3], nbytes=288)),
+        MANIFEST_NAME,
+    ),
     "array shapes disagree": (lambda d: _rewrite_manifest(d, _array_entry("uv", shape=[2, 6, 2])), MANIFEST_NAME),
     "array big-endian": (lambda d: _rewrite_manifest(d, _array_entry("corners", dtype=">f8")), MANIFEST_NAME),
     "array misaligned": (lambda d: _rewrite_manifest(d, _array_entry("uv", offset=292)), MANIFEST_NAME),
@@ -510,7 +560,10 @@ BAD_BUNDLES = {
     "page out of range": (lambda d: _rewrite_payload(d, "page", lambda a: a.__setitem__(0, 5)), MANIFEST_NAME),
     "corner not finite": (lambda d: _rewrite_payload(d, "corners", lambda a: a.__setitem__(4, np.nan)), MANIFEST_NAME),
     "page size mismatch": (lambda d: _rewrite_manifest(d, lambda m: m["pages"][1].update(width=9)), "atlas-001.png"),
-    "page file renamed": (lambda d: _rewrite_manifest(d, lambda m: m["pages"][0].update(file="../x.png")), MANIFEST_NAME),
+    "page file renamed": (
+        lambda d: _rewrite_manifest(d, lambda m: m["pages"][0].update(file="../x.png")),
+        MANIFEST_NAME,
+    ),
     "truncated PNG": (lambda d: _truncate(d / "atlas-001.png"), "atlas-001.png"),
     "not a PNG": (lambda d: (d / "atlas-000.png").write_bytes(b"hello"), "atlas-000.png"),
     "missing page file": (lambda d: (d / "atlas-000.png").unlink(), "atlas-000.png"),
@@ -606,9 +659,10 @@ def test_bundle_zip_refuses_a_non_bundle(tmp_path):
 
 def _bad_page_impostor() -> Impostor:
     good = make_impostor()
-    return Impostor(**{
-        name: getattr(good, name) for name in Impostor.__dataclass_fields__
-    } | {"pages": (good.pages[0], good.pages[1].astype(np.float32))})
+    return Impostor(
+        **{name: getattr(good, name) for name in Impostor.__dataclass_fields__}
+        | {"pages": (good.pages[0], good.pages[1].astype(np.float32))}
+    )
 
 
 def _siblings(path: Path) -> list[str]:

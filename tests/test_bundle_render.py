@@ -88,7 +88,9 @@ def test_read_bundle_equals_the_baked_impostor(baked):
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "farfield.cli.main", *args], capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "farfield.cli.main", *args], capture_output=True, text=True, timeout=300
+    )
 
 
 def test_cli_bake_then_evaluate_on_a_shared_scene(tmp_path):
@@ -96,7 +98,9 @@ def test_cli_bake_then_evaluate_on_a_shared_scene(tmp_path):
     if not path.exists():
         pytest.skip("../shared/scenes is not beside the checkout")
     out = tmp_path / "duck"
-    baked = run_cli("bake", str(path), "--viewcell", "box-center:-8,0.9,0,1", "--resolution", "192", "--out", str(out), "--json")
+    baked = run_cli(
+        "bake", str(path), "--viewcell", "box-center:-8,0.9,0,1", "--resolution", "192", "--out", str(out), "--json"
+    )
     assert baked.returncode == 0, baked.stderr
     stats = json.loads(baked.stdout)["stats"]
     assert stats["quads"] > 0 and (out / "manifest.json").exists() and (out / "impostor.glb").exists()

@@ -10,16 +10,25 @@ import sys
 
 import numpy as np
 import pytest
-
 from scenes import write_scene
+
 from farfield.core.placement.calibration import CalibrationOptions, calibrate, sample_cases
-from farfield.core.placement.cost_model import DEFAULT_MEMORY, LLVMPIPE_MODEL, CostModel, CostModelError, fit_linear, fit_power
+from farfield.core.placement.cost_model import (
+    DEFAULT_MEMORY,
+    LLVMPIPE_MODEL,
+    CostModel,
+    CostModelError,
+    fit_linear,
+    fit_power,
+)
 from farfield.core.procedural import city
 from farfield.core.render.context import renderer_info
 
 
 def farfield(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "farfield.cli.main", *args], capture_output=True, text=True, timeout=300, check=False)
+    return subprocess.run(
+        [sys.executable, "-m", "farfield.cli.main", *args], capture_output=True, text=True, timeout=300, check=False
+    )
 
 
 def _timings(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -70,7 +79,12 @@ def test_log_fit_recovers_a_memory_power_law(noise):
     else:  # the constant hides in the noise of the small ones; the law does not
         assert p == pytest.approx(0.6, abs=0.03) and h == pytest.approx(120.0, rel=0.35)
         big = texels > 1e4
-        assert np.median(np.abs(h * texels[big] ** p + k - 120.0 * texels[big] ** 0.6 - 300.0) / (120.0 * texels[big] ** 0.6)) < 0.1
+        assert (
+            np.median(
+                np.abs(h * texels[big] ** p + k - 120.0 * texels[big] ** 0.6 - 300.0) / (120.0 * texels[big] ** 0.6)
+            )
+            < 0.1
+        )
     assert fit.holdout_rel_error_median < (1e-6 if noise == 0.0 else 0.15)
     quads = fit_power(texels, 3.0 * texels, ("quads_per_layer",), exponent=1.0, offset=False)
     assert quads.coefficients == pytest.approx((3.0,))
@@ -126,9 +140,13 @@ def test_sampling_is_deterministic_compact_and_spread():
         corners = np.stack([scene.objects[i].bounds for i in case.objects])
         lo, hi = corners[:, 0].min(axis=0), corners[:, 1].max(axis=0)
         radius = 0.5 * np.linalg.norm(hi - lo)
-        assert np.all(np.linalg.norm(case.eyes - 0.5 * (lo + hi), axis=1) > radius)  # outside, so the cluster is in view
+        assert np.all(
+            np.linalg.norm(case.eyes - 0.5 * (lo + hi), axis=1) > radius
+        )  # outside, so the cluster is in view
         if len(case.objects) >= 8 and 0 not in case.objects:  # buildings only (object 0 is the ground)
-            spread.append(np.prod(hi[[0, 2]] - lo[[0, 2]]) / (len(case.objects) * 20.0**2))  # footprint / the lots' area
+            spread.append(
+                np.prod(hi[[0, 2]] - lo[[0, 2]]) / (len(case.objects) * 20.0**2)
+            )  # footprint / the lots' area
     # Morton runs are compact: their footprint is a few lots' area per building (8 random buildings
     # of this 20 x 20-lot city would span ~50 lots each).
     assert spread and np.median(spread) < 4.0
@@ -140,8 +158,11 @@ def test_sampling_is_deterministic_compact_and_spread():
 def test_calibration_measures_llvmpipe_deterministically():
     scene = city(60, seed=4, detail=6)
     # Cells at most 2**3 cluster sizes away, so that every impostor covers pixels at 32 px.
-    options = CalibrationOptions(samples=8, impostors=4, resolution=32, views=2, repeats=1, seed=1, max_distance_exponent=3)
+    options = CalibrationOptions(
+        samples=8, impostors=4, resolution=32, views=2, repeats=1, seed=1, max_distance_exponent=3
+    )
     first, second = calibrate([scene], options), calibrate([scene], options)
+
     def counts(result):
         return ([(s.objects, s.draw_calls, s.triangles, s.pixels) for s in result.geometry],
                 [(s.pixels, s.quads) for s in result.impostors], [(s.layers_est, s.bytes, s.quads) for s in result.memory])  # fmt: skip
@@ -156,7 +177,21 @@ def test_calibration_measures_llvmpipe_deterministically():
 def test_calibrate_command_writes_a_model_that_loads(tmp_path):
     scene_file = write_scene(city(40, seed=1, detail=4), tmp_path, "glb", "city")
     out = tmp_path / "model.json"
-    run = farfield("calibrate", str(scene_file), "--samples", "12", "--impostors", "4", "--resolution", "48", "--seed", "3", "--out", str(out), "--json")
+    run = farfield(
+        "calibrate",
+        str(scene_file),
+        "--samples",
+        "12",
+        "--impostors",
+        "4",
+        "--resolution",
+        "48",
+        "--seed",
+        "3",
+        "--out",
+        str(out),
+        "--json",
+    )
     assert run.returncode == 0, run.stderr
     data = json.loads(run.stdout)
     model = CostModel.load(out)
@@ -168,9 +203,15 @@ def test_calibrate_command_writes_a_model_that_loads(tmp_path):
     for name in ("geometry", "impostor", "memory", "quads"):
         fit = model.fit[name]
         assert isinstance(fit["r2"], float) and fit["holdout"] >= 1
-        assert fit["holdout_rel_error_median"] >= 0.0 and fit["holdout_rel_error_p90"] >= fit["holdout_rel_error_median"]
+        assert (
+            fit["holdout_rel_error_median"] >= 0.0 and fit["holdout_rel_error_p90"] >= fit["holdout_rel_error_median"]
+        )
     samples = data["samples"]
-    assert len(samples["geometry"]) == 12 and len(samples["memory"]) == 4 and len(samples["impostor"]) == 4 * CalibrationOptions().views
+    assert (
+        len(samples["geometry"]) == 12
+        and len(samples["memory"]) == 4
+        and len(samples["impostor"]) == 4 * CalibrationOptions().views
+    )
     assert all(s["pixels"] > 0 for s in samples["geometry"])  # a cluster seen from outside is in view
     assert any(s["pixels"] > 0 for s in samples["impostor"])  # (an impostor 2**8 sizes away may cover none)
     assert model.fit["scenes"][0]["source"] == "city.glb" and model.fit["options"]["resolution"] == 48

@@ -8,11 +8,11 @@ import sys
 from pathlib import Path
 
 import pytest
+import scenes  # tests/ is on sys.path under pytest's default (prepend) import mode
 from click.testing import CliRunner
 
 from farfield.cli.inspect_cmd import inspect
 from farfield.cli.main import cli
-import scenes  # tests/ is on sys.path under pytest's default (prepend) import mode
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -67,9 +67,22 @@ def test_warnings_are_reported_in_the_output_not_on_stderr(tmp_path):
     [
         ("absent.glb", None, 3, "absent.glb: no such file"),
         ("model.fbx", b"x", 2, "unsupported scene format '.fbx'"),
-        pytest.param("broken.glb", b"glTF" + bytes(40), 2, "broken.glb: GLB's first chunk", marks=pytest.mark.invalid_glb),
-        pytest.param("random.glb", b"MQYs" + bytes(96), 2, "random.glb: not a GLB: a GLB starts with the bytes 'glTF', this file with b'MQYs'", marks=pytest.mark.invalid_glb),
-        ("broken.ply", b"ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2\n", 2, "broken.ply: could not parse PLY"),
+        pytest.param(
+            "broken.glb", b"glTF" + bytes(40), 2, "broken.glb: GLB's first chunk", marks=pytest.mark.invalid_glb
+        ),
+        pytest.param(
+            "random.glb",
+            b"MQYs" + bytes(96),
+            2,
+            "random.glb: not a GLB: a GLB starts with the bytes 'glTF', this file with b'MQYs'",
+            marks=pytest.mark.invalid_glb,
+        ),
+        (
+            "broken.ply",
+            b"ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2\n",
+            2,
+            "broken.ply: could not parse PLY",
+        ),
         ("nan.obj", scenes.bad_obj("nan").encode(), 2, "non-finite"),
     ],
     ids=["missing", "unsupported", "corrupt-glb", "not-a-glb", "corrupt-ply", "nan"],

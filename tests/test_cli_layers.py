@@ -15,28 +15,61 @@ SHARED_SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
 
 
 def farfield(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "farfield.cli.main", *args], capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "farfield.cli.main", *args], capture_output=True, text=True, timeout=120
+    )
 
 
 def test_envmap_json_reproduces_the_paper():
-    out = farfield("layers", "envmap", "--cell-size", "10", "--resolution", "512", "--layers", "64", "--alpha", "2.2661e-3", "--json")
+    out = farfield(
+        "layers",
+        "envmap",
+        "--cell-size",
+        "10",
+        "--resolution",
+        "512",
+        "--layers",
+        "64",
+        "--alpha",
+        "2.2661e-3",
+        "--json",
+    )
     assert out.returncode == 0, out.stderr
     data = json.loads(out.stdout)
     assert data["layers"] == 64 and len(data["distances"]) == 64 and len(data["borders"]) == 65
     assert 41.5 <= data["near_field"] <= 42.5
     assert data["borders"][-1] is None  # the outermost layer reaches infinity
-    one = json.loads(farfield("layers", "envmap", "--cell-size", "10", "--layers", "1", "--alpha", "2.2661e-3", "--json").stdout)
+    one = json.loads(
+        farfield("layers", "envmap", "--cell-size", "10", "--layers", "1", "--alpha", "2.2661e-3", "--json").stdout
+    )
     assert one["near_field"] == pytest.approx(1738.0, abs=1.0)
 
 
 def test_envmap_near_field_round_trip():
-    data = json.loads(farfield("layers", "envmap", "--cell-size", "10", "--near-field", "42.5", "--alpha", "2.2661e-3", "--json").stdout)
+    data = json.loads(
+        farfield(
+            "layers", "envmap", "--cell-size", "10", "--near-field", "42.5", "--alpha", "2.2661e-3", "--json"
+        ).stdout
+    )
     assert data["layers"] == 64 and data["near_field"] <= 42.5
 
 
 def test_part_with_bounds_json():
-    out = farfield("layers", "part", "--bounds", "140,-15,-10,185,15,10", "--viewcell", "box-center:0,0,0,100",
-                   "--fov", "45", "--resolution", "512", "--pixel-model", "center", "--json")
+    out = farfield(
+        "layers",
+        "part",
+        "--bounds",
+        "140,-15,-10,185,15,10",
+        "--viewcell",
+        "box-center:0,0,0,100",
+        "--fov",
+        "45",
+        "--resolution",
+        "512",
+        "--pixel-model",
+        "center",
+        "--json",
+    )
     assert out.returncode == 0, out.stderr
     data = json.loads(out.stdout)
     assert abs(data["layers"] - 110) <= 11  # seed 000 Table 4.1 at 90 m
@@ -44,7 +77,10 @@ def test_part_with_bounds_json():
     assert len(data["depth_ranges"]) == data["layers"]
 
 
-@pytest.mark.parametrize("scene", ["stanford_bunny/bun_zipper.ply", "duck/duck.obj", "damaged_helmet/DamagedHelmet.glb", "scrub_pine/scrubPine.obj"])
+@pytest.mark.parametrize(
+    "scene",
+    ["stanford_bunny/bun_zipper.ply", "duck/duck.obj", "damaged_helmet/DamagedHelmet.glb", "scrub_pine/scrubPine.obj"],
+)
 def test_part_on_shared_scenes(scene):
     path = SHARED_SCENES / scene
     if not path.exists():
@@ -66,7 +102,9 @@ def test_points_on_a_shared_scene_json():
     if not path.exists():
         pytest.skip(f"{path} not present (shared/scenes is beside the checkout in CI)")
     # A 200-unit cell 2,000 units in front of the 700-unit pine.
-    out = farfield("layers", "points", str(path), "--viewcell", "box-center:0,450,2500,200", "--resolution", "512", "--json")
+    out = farfield(
+        "layers", "points", str(path), "--viewcell", "box-center:0,450,2500,200", "--resolution", "512", "--json"
+    )
     assert out.returncode == 0, out.stderr
     data = json.loads(out.stdout)
     assert len(data["cameras"]) == 3 and len(data["polygon"]) >= 3
@@ -84,8 +122,14 @@ def test_points_on_a_shared_scene_json():
     ("args", "needle"),
     [
         (["layers", "part", "--bounds", "1,0,0,2,1,1", "--viewcell", "box-center:0,0,0,10"], "touches or overlaps"),
-        (["layers", "part", "--bounds", "50,0,0,60,1,1", "--viewcell", "box-center:0,0,0,10", "--fov", "180"], "field of view"),
-        (["layers", "part", "--bounds", "50,0,0,60,1,1", "--viewcell", "box-center:0,0,0,10", "--resolution", "0"], "resolution"),
+        (
+            ["layers", "part", "--bounds", "50,0,0,60,1,1", "--viewcell", "box-center:0,0,0,10", "--fov", "180"],
+            "field of view",
+        ),
+        (
+            ["layers", "part", "--bounds", "50,0,0,60,1,1", "--viewcell", "box-center:0,0,0,10", "--resolution", "0"],
+            "resolution",
+        ),
         (["layers", "part", "--bounds", "50,0,0", "--viewcell", "box-center:0,0,0,10"], "--bounds"),
         (["layers", "part", "--bounds", "50,0,0,60,1,1", "--viewcell", "box-center:0,0,0,-10"], "view cell"),
         (["layers", "envmap", "--cell-size", "10", "--layers", "4", "--alpha", "0"], "alpha"),
@@ -119,23 +163,51 @@ def test_bake_refuses_an_out_folder_that_is_not_a_bundle_and_bad_numbers_are_err
         "the bundle would replace it whole: give a new or empty folder, or an earlier bundle's"
     ], refused.stderr
     assert sorted(p.name for p in folder.iterdir()) == before
-    here = subprocess.run([sys.executable, "-m", "farfield.cli.main", "bake", scene, *cell, "--out", "."], cwd=folder, capture_output=True, text=True, timeout=120)
-    assert here.returncode == 4 and "the current folder or one above it" in here.stderr and sorted(p.name for p in folder.iterdir()) == before
+    here = subprocess.run(
+        [sys.executable, "-m", "farfield.cli.main", "bake", scene, *cell, "--out", "."],
+        cwd=folder,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert (
+        here.returncode == 4
+        and "the current folder or one above it" in here.stderr
+        and sorted(p.name for p in folder.iterdir()) == before
+    )
     unwritable = farfield("bake", scene, *cell, "--out", "/proc/farfield-nope")
-    assert unwritable.returncode == 2 and unwritable.stderr.strip() == "farfield: error: /proc/farfield-nope: cannot write a bundle there: No such file or directory"
+    assert (
+        unwritable.returncode == 2
+        and unwritable.stderr.strip()
+        == "farfield: error: /proc/farfield-nope: cannot write a bundle there: No such file or directory"
+    )
     for _ in range(2):  # new, then an earlier bundle replaced
         made = farfield("bake", scene, *cell, "--out", str(tmp_path / "bundle"))
         assert made.returncode == 0, made.stderr
     assert (tmp_path / "bundle" / "manifest.json").is_file()
     (tmp_path / "bundle" / "notes.txt").write_text("mine")  # a bundle holding a user's file is not replaced either
     kept = farfield("bake", scene, *cell, "--out", str(tmp_path / "bundle"))
-    assert kept.returncode == 4 and "exists and holds files no bundle has (notes.txt)" in kept.stderr and (tmp_path / "bundle" / "notes.txt").exists()
+    assert (
+        kept.returncode == 4
+        and "exists and holds files no bundle has (notes.txt)" in kept.stderr
+        and (tmp_path / "bundle" / "notes.txt").exists()
+    )
     for flag in ("--random", "--outside", "--seed"):  # were tracebacks (numpy's "negative dimensions")
         bad = farfield("evaluate", str(tmp_path / "bundle"), scene, flag, "-1")
-        assert bad.returncode == 2 and f"Invalid value for '{flag}': -1 is not in the range x>=0" in bad.stderr and "Traceback" not in bad.stderr, bad.stderr
+        assert (
+            bad.returncode == 2
+            and f"Invalid value for '{flag}': -1 is not in the range x>=0" in bad.stderr
+            and "Traceback" not in bad.stderr
+        ), bad.stderr
     (tmp_path / "model.json").write_bytes(bytes(range(128, 256)))
-    corrupt = farfield("place", scene, "--view-space", "-8,0,0,-7,1,1", "--frame-ms", "1", "--cost-model", str(tmp_path / "model.json"))
-    assert corrupt.returncode == 2 and corrupt.stderr.strip() == f"farfield: error: cost model {str(tmp_path / 'model.json')!r} is not JSON: not UTF-8 text"
+    corrupt = farfield(
+        "place", scene, "--view-space", "-8,0,0,-7,1,1", "--frame-ms", "1", "--cost-model", str(tmp_path / "model.json")
+    )
+    assert (
+        corrupt.returncode == 2
+        and corrupt.stderr.strip()
+        == f"farfield: error: cost model {str(tmp_path / 'model.json')!r} is not JSON: not UTF-8 text"
+    )
 
 
 @pytest.mark.invalid_glb  # writes a truncated GLB on purpose
@@ -144,17 +216,41 @@ def test_messages_a_new_user_met_name_the_problem(tmp_path):
     not give, 'not both' when neither was given, Python's warning format) or ignored an option."""
     duck = str(SHARED_SCENES / "duck" / "duck.obj")
     neither = farfield("layers", "part", "--viewcell", "box:0,0,0,1,1,1")
-    assert neither.returncode == 2 and neither.stderr.strip() == "farfield: error: give either a SCENE or --bounds; neither was given"
+    assert (
+        neither.returncode == 2
+        and neither.stderr.strip() == "farfield: error: give either a SCENE or --bounds; neither was given"
+    )
     mb = farfield("place", duck, "--view-space", "2,0,0,3,1,1", "--frame-ms", "5", "--max-impostor-mb", "-1")
     assert mb.returncode == 2 and mb.stderr.strip() == "farfield: error: --max-impostor-mb must be > 0, got -1.0"
     lone = tmp_path / "lone.obj"
     lone.write_text("mtllib nothere.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
-    baked = farfield("bake", str(lone), "--viewcell", "box-center:0.3,0.3,5,0.5", "--resolution", "32", "--out", str(tmp_path / "b"), "--quiet")
+    baked = farfield(
+        "bake",
+        str(lone),
+        "--viewcell",
+        "box-center:0.3,0.3,5,0.5",
+        "--resolution",
+        "32",
+        "--out",
+        str(tmp_path / "b"),
+        "--quiet",
+    )
     assert baked.returncode == 0 and baked.stderr.strip() == (
-        "farfield: warning: lone.obj: material library 'nothere.mtl' not found; objects use the default colour"), baked.stderr
-    codec = farfield("glb", str(tmp_path / "b"), "--out", str(tmp_path / "x.glb"), "--textures", "png", "--codec", "uastc")
-    assert codec.returncode == 2 and "with --textures png there are none" in codec.stderr and not (tmp_path / "x.glb").exists()
+        "farfield: warning: lone.obj: material library 'nothere.mtl' not found; objects use the default colour"
+    ), baked.stderr
+    codec = farfield(
+        "glb", str(tmp_path / "b"), "--out", str(tmp_path / "x.glb"), "--textures", "png", "--codec", "uastc"
+    )
+    assert (
+        codec.returncode == 2
+        and "with --textures png there are none" in codec.stderr
+        and not (tmp_path / "x.glb").exists()
+    )
     glb = (tmp_path / "b" / "impostor.glb").read_bytes()
     (tmp_path / "cut.glb").write_bytes(glb[: len(glb) // 2])
     cut = farfield("glb", str(tmp_path / "cut.glb"), "--out", str(tmp_path / "y.glb"))
-    assert cut.returncode == 2 and cut.stderr.strip() == f"farfield: error: GLB: truncated: its header says {len(glb):,} bytes, the file has {len(glb) // 2:,}"
+    assert (
+        cut.returncode == 2
+        and cut.stderr.strip()
+        == f"farfield: error: GLB: truncated: its header says {len(glb):,} bytes, the file has {len(glb) // 2:,}"
+    )

@@ -177,7 +177,10 @@ def test_objects_sharing_one_texture_draw_and_bake_as_with_copies(cut):
         quads.append(SceneObject(f"q{k}", v, np.array([[0, 1, 2], [0, 2, 3]]), uv=uv, texture=atlas, alpha_cutoff=cut))
     shared = Scene.from_objects(quads, "shared")
     assert all(o.texture is shared.objects[0].texture for o in shared.objects)
-    copies = Scene.from_objects([SceneObject(o.name, o.vertices, o.faces, uv=o.uv, texture=atlas.copy(), alpha_cutoff=cut) for o in quads], "copies")
+    copies = Scene.from_objects(
+        [SceneObject(o.name, o.vertices, o.faces, uv=o.uv, texture=atlas.copy(), alpha_cutoff=cut) for o in quads],
+        "copies",
+    )
     assert shared.objects[1].texture is not copies.objects[1].texture
     np.testing.assert_array_equal(front_view(shared), front_view(copies))
     technique = get_technique("layered")

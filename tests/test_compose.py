@@ -30,7 +30,15 @@ def _compose(*args: str) -> subprocess.CompletedProcess:
     # Without the variables the file interpolates, so that its defaults are what is checked.
     env = {k: v for k, v in os.environ.items() if not k.startswith(("FARFIELD_", "MINIO_", "POSTGRES_", "COMPOSE_"))}
     env["FARFIELD_ADMIN_KEY"] = "ff_admin_test-secret"  # required: the file has no default admin key
-    return subprocess.run([*COMMAND, "-f", str(COMPOSE), *args], cwd=ROOT, env=env, check=False, capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [*COMMAND, "-f", str(COMPOSE), *args],
+        cwd=ROOT,
+        env=env,
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
 
 
 def _runs(command: list[str]) -> subprocess.CompletedProcess | None:
@@ -96,7 +104,15 @@ def test_api_and_workers_share_one_image_and_the_settings(compose_file):
     api, worker, gpu = services["api"], services["worker"], services["worker-gpu"]
     assert api["build"] == worker["build"] == gpu["build"] == "."
     assert api["image"] == worker["image"] == gpu["image"]
-    assert [api["entrypoint"][0], *api["command"]] == ["uvicorn", "farfield.api.app:app_from_env", "--factory", "--host", "0.0.0.0", "--port", "8000"]
+    assert [api["entrypoint"][0], *api["command"]] == [
+        "uvicorn",
+        "farfield.api.app:app_from_env",
+        "--factory",
+        "--host",
+        "0.0.0.0",
+        "--port",
+        "8000",
+    ]
     assert "8000:8000" in api["ports"]
     assert worker["command"][0] == "worker" and gpu["command"][0] == "worker"
     for name in ("api", "worker", "worker-gpu"):

@@ -73,7 +73,9 @@ def test_create_and_release_each_resource_kind(ctx, kind):
 
 
 def test_renderer_releases_everything_it_made(ctx):
-    quad = SceneObject("quad", np.array([[-1.0, -1, 5], [1, -1, 5], [1, 1, 5], [-1, 1, 5]]), np.array([[0, 1, 2], [0, 2, 3]]))
+    quad = SceneObject(
+        "quad", np.array([[-1.0, -1, 5], [1, -1, 5], [1, 1, 5], [-1, 1, 5]]), np.array([[0, 1, 2], [0, 2, 3]])
+    )
     camera = Camera.look_at([0, 0, 0], [0, 0, 5], np.radians(60), 32, 1.0, 10.0)
     for _ in range(3):  # repeated use leaves no error and no stale binding
         with MeshRenderer([quad]) as renderer:

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from farfield.core.layering.culling import hidden_texels
 from farfield.core.errors import LayerPlanError
+from farfield.core.layering.culling import hidden_texels
 
 
 def stack(*layers: np.ndarray) -> np.ndarray:

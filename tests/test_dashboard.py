@@ -15,7 +15,7 @@ import time
 import pytest
 from browser import CHROMIUM, SKIP_REASON, dashboard_page, new_page, tid
 from scenes import instanced_nodes_glb
-from service_harness import ADMIN_KEY, BUNNY, BUNNY_GRID, start_service, upload, wait_for_job, stored_options
+from service_harness import ADMIN_KEY, BUNNY, BUNNY_GRID, start_service, stored_options, upload, wait_for_job
 
 from farfield.api.routes_dashboard import DASHBOARD_DIR
 from farfield.core.techniques import TECHNIQUES
@@ -77,7 +77,11 @@ def test_upload_submit_progress_done_atlas(page, service):
     page.click(tid("upload-submit"))
     result = page.locator(tid("upload-result"))
     result.wait_for()
-    assert "bun_zipper.ply" in result.inner_text() and "69,451 triangles" in result.inner_text() and "1 object(s)" in result.inner_text()
+    assert (
+        "bun_zipper.ply" in result.inner_text()
+        and "69,451 triangles" in result.inner_text()
+        and "1 object(s)" in result.inner_text()
+    )
     scene_id = result.get_attribute("data-scene-id")
     assert page.locator(tid("job-scene")).input_value() == scene_id
 
@@ -159,19 +163,49 @@ def test_upload_submit_progress_done_atlas(page, service):
         record = client.get(f"/v1/jobs/{job_id}").json()
     measured = next(c for c in record["cells"] if c["index"] == 1)["stats"]["evaluation"]
     figures = page.locator(tid("cell-evaluation"))
-    shown = {row.get_attribute("data-figure"): row.locator("td").nth(1).inner_text() for row in figures.locator("tr").all()}
-    assert list(shown) == ["hole_pixels", "bloat_beyond_1px", "colour_error_mean", "colour_error_p99", "colour_error_1px_mean", "ssim", "ssim_min", "viewpoints", "seconds"]
-    assert shown["hole_pixels"] == f"{measured['hole_pixels']:,}" and shown["bloat_beyond_1px"] == f"{measured['bloat_beyond_1px']:,}"
-    for name, places in (("colour_error_mean", 2), ("colour_error_p99", 1), ("colour_error_1px_mean", 2), ("ssim", 3), ("ssim_min", 3)):
+    shown = {
+        row.get_attribute("data-figure"): row.locator("td").nth(1).inner_text() for row in figures.locator("tr").all()
+    }
+    assert list(shown) == [
+        "hole_pixels",
+        "bloat_beyond_1px",
+        "colour_error_mean",
+        "colour_error_p99",
+        "colour_error_1px_mean",
+        "ssim",
+        "ssim_min",
+        "viewpoints",
+        "seconds",
+    ]
+    assert (
+        shown["hole_pixels"] == f"{measured['hole_pixels']:,}"
+        and shown["bloat_beyond_1px"] == f"{measured['bloat_beyond_1px']:,}"
+    )
+    for name, places in (
+        ("colour_error_mean", 2),
+        ("colour_error_p99", 1),
+        ("colour_error_1px_mean", 2),
+        ("ssim", 3),
+        ("ssim_min", 3),
+    ):
         assert abs(float(shown[name]) - measured[name]) <= 0.51 * 10**-places, (name, shown[name], measured[name])
     assert shown["viewpoints"] == "4 × 2²"
     kept = measured["hole_pixels"] == 0 and measured["bloat_beyond_1px"] == 0
     assert page.locator(tid("cell-guarantee")).get_attribute("data-guarantee") == ("kept" if kept else "broken")
-    assert figures.locator('[data-figure="bloat_beyond_1px"]').get_attribute("class") == (None if measured["bloat_beyond_1px"] == 0 else "bad")
+    assert figures.locator('[data-figure="bloat_beyond_1px"]').get_attribute("class") == (
+        None if measured["bloat_beyond_1px"] == 0 else "bad"
+    )
     assert stats.locator('[data-stat^="evaluation"]').count() == 0  # not repeated among the bake's statistics
-    assert "evaluation" in page.locator(tid("cell-seconds")).inner_text() and "bake" in page.locator(tid("cell-seconds")).inner_text()
+    assert (
+        "evaluation" in page.locator(tid("cell-seconds")).inner_text()
+        and "bake" in page.locator(tid("cell-seconds")).inner_text()
+    )
     summary = record["evaluation"]
-    assert page.locator(tid("job-evaluation")).inner_text().startswith(f"4 cells, {summary['cells_broken'] or 'none'} breaking the guarantee")
+    assert (
+        page.locator(tid("job-evaluation"))
+        .inner_text()
+        .startswith(f"4 cells, {summary['cells_broken'] or 'none'} breaking the guarantee")
+    )
     if os.environ.get("FARFIELD_DASHBOARD_SCREENSHOT"):
         page.screenshot(path=os.environ["FARFIELD_DASHBOARD_SCREENSHOT"], full_page=True)
 
@@ -197,16 +231,26 @@ def _changed(option: dict):
         return (not default), lambda page: page.locator(control).click()
     if kind == "array":
         first = default[0]
-        return [c for c in default if c != first], lambda page: page.locator(f'{control} input[value="{first}"]').uncheck()
+        return [c for c in default if c != first], lambda page: page.locator(
+            f'{control} input[value="{first}"]'
+        ).uncheck()
     if option["choices"]:
         other = next(c for c in option["choices"] if c != default)
         return other, lambda page: page.select_option(control, other)
     if kind == "integer":
         low = option["minimum"] if option["minimum"] is not None else 1
-        value = low + 1 if default is None else (default + 1 if option["maximum"] is None or default + 1 <= option["maximum"] else default - 1)
+        value = (
+            low + 1
+            if default is None
+            else (default + 1 if option["maximum"] is None or default + 1 <= option["maximum"] else default - 1)
+        )
     else:
         low = option["minimum"] if option["minimum"] is not None else (option["exclusive_minimum"] or 0.0)
-        value = low + 2.5 if default is None else ((default + option["maximum"]) / 2 if option["maximum"] is not None else default + 2.5)
+        value = (
+            low + 2.5
+            if default is None
+            else ((default + option["maximum"]) / 2 if option["maximum"] is not None else default + 2.5)
+        )
     return value, lambda page: page.fill(control, str(value))
 
 
@@ -252,8 +296,12 @@ def test_job_form_is_built_from_the_technique_registry(page, service):
             page.select_option(tid("technique"), name)
             assert page.locator(tid("technique-help")).inner_text() == technique["help"]
             fields = page.locator(f'{tid("option-fields")}[data-technique="{name}"] {tid("option-field")}')
-            assert fields.evaluate_all("fs => fs.map(f => f.dataset.option)") == [o["name"] for o in technique["options"]]
-            assert [o["name"] for o in technique["options"]] == [o["name"] for o in TECHNIQUES[name].describe()["options"]]
+            assert fields.evaluate_all("fs => fs.map(f => f.dataset.option)") == [
+                o["name"] for o in technique["options"]
+            ]
+            assert [o["name"] for o in technique["options"]] == [
+                o["name"] for o in TECHNIQUES[name].describe()["options"]
+            ]
             for option in technique["options"]:
                 field = page.locator(f'{tid("option-field")}[data-option="{option["name"]}"]')
                 assert field.get_attribute("title") == option["help"] and option["help"] in field.inner_text()
@@ -275,7 +323,10 @@ def test_job_form_is_built_from_the_technique_registry(page, service):
             assert request["technique"] == name and "options" not in request and "job_type" not in request
             assert "evaluate" not in request  # on unless switched off, and only techniques of one part are evaluated
             assert page.locator(tid("job-evaluate")).is_visible() == (technique["scope"] == "part")
-            assert request["resolution"] == image["resolution"]["default"] and request["fov_deg"] == image["fov_deg"]["default"]
+            assert (
+                request["resolution"] == image["resolution"]["default"]
+                and request["fov_deg"] == image["fov_deg"]["default"]
+            )
             expected = {}
             for option in technique["options"]:
                 value, enter = _changed(option)
@@ -303,15 +354,21 @@ def test_job_form_is_built_from_the_technique_registry(page, service):
     page.click(tid("job-submit"))
     page.wait_for_url("**/#/jobs/*")
     job_id = page.url.rsplit("/", 1)[1]
-    page.locator(f'{tid("job-technique-text")}[data-technique="layered"]').filter(has_text=TECHNIQUES["layered"].help).wait_for()
+    page.locator(f'{tid("job-technique-text")}[data-technique="layered"]').filter(
+        has_text=TECHNIQUES["layered"].help
+    ).wait_for()
     with service.client() as client:
         job = client.get(f"/v1/jobs/{job_id}").json()
-        assert job["technique"] == "layered" and job["params"]["options"] == stored_options("layered", grid_cell=16), job["params"]
+        assert job["technique"] == "layered" and job["params"]["options"] == stored_options("layered", grid_cell=16), (
+            job["params"]
+        )
         assert job["params"]["resolution"] == 64 and job["params"]["fov_deg"] == 45.0
         wait = wait_for_job(client, job_id, timeout=60)
         assert wait["state"] == "done", wait
     page.click(tid("back-link"))
-    page.locator(f'{tid("job-row")}[data-job-id="{job_id}"] {tid("job-row-technique")}[data-technique="layered"]').wait_for()
+    page.locator(
+        f'{tid("job-row")}[data-job-id="{job_id}"] {tid("job-row-technique")}[data-technique="layered"]'
+    ).wait_for()
     assert page.js_errors == []
 
 
@@ -347,7 +404,9 @@ def test_scene_info_and_listings_use_the_paged_routes(browser, service):
         info = page.locator(tid("job-scene-info"))
         info.filter(has_text="node000007, …").wait_for()
         assert "2,000 object(s): node000000, node000001" in info.inner_text() and "node000008" not in info.inner_text()
-        assert page.locator(tid("scenes-more")).is_hidden() and page.locator(tid("jobs-more")).is_hidden() == (total_jobs <= 100)
+        assert page.locator(tid("scenes-more")).is_hidden() and page.locator(tid("jobs-more")).is_hidden() == (
+            total_jobs <= 100
+        )
         assert page.js_errors == []
 
 

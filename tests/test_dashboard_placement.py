@@ -42,9 +42,16 @@ def jobs(service, tmp_path_factory):
         made = upload(client, write_scene(city, tmp_path_factory.mktemp("city"), "glb"))
         assert made.status_code == 201, made.text
         scene_id = made.json()["id"]
-        done = submit_placement(client, scene_id, city_request(0.5 * city.triangle_count), tmp_path_factory.mktemp("db"))
+        done = submit_placement(
+            client, scene_id, city_request(0.5 * city.triangle_count), tmp_path_factory.mktemp("db")
+        )
         # At street level with a twentieth of the triangles: the buildings around many regions exceed t_max alone.
-        street = submit_placement(client, scene_id, city_request(0.05 * city.triangle_count, [0.0, 2.0, 0.0], [40.0, 6.0, 40.0]), tmp_path_factory.mktemp("street"))
+        street = submit_placement(
+            client,
+            scene_id,
+            city_request(0.05 * city.triangle_count, [0.0, 2.0, 0.0], [40.0, 6.0, 40.0]),
+            tmp_path_factory.mktemp("street"),
+        )
         assert street[1].summary["cpvs_unsolvable"] and street[1].summary["cpvs_unsolved"] and street[1].unsolvable
         return done, placing_job(client, scene_id), street
 
@@ -59,7 +66,9 @@ def footprints(placement) -> dict[str, list[dict]]:
     out: dict[str, list[dict]] = {}
     for cpv in placement.cpvs:
         (lo, hi) = cpv["region"]
-        key = ",".join(str(int(v)) if float(v).is_integer() else repr(float(v)) for v in (lo[0], lo[2], hi[0], hi[2]))  # as JavaScript writes numbers
+        key = ",".join(
+            str(int(v)) if float(v).is_integer() else repr(float(v)) for v in (lo[0], lo[2], hi[0], hi[2])
+        )  # as JavaScript writes numbers
         out.setdefault(key, []).append(cpv)
     return out
 
@@ -82,14 +91,18 @@ def test_a_placement_job_s_map_regions_cpvs_and_totals(browser, service, jobs, p
             assert float(shown[key].get_attribute("data-time")) == pytest.approx(max(c["time_after"] for c in cpvs))
         over_after = sum(1 for cpvs in groups.values() if max(c["time_after"] for c in cpvs) > t_max)
         over_before = sum(1 for cpvs in groups.values() if max(c["time_before"] for c in cpvs) > t_max)
-        assert over_before > over_after  # (the baked figures may leave a few over: the last round's verdict, shown as it is)
+        assert (
+            over_before > over_after
+        )  # (the baked figures may leave a few over: the last round's verdict, shown as it is)
         assert page.locator(f'{tid("placement-region")}[data-over="true"]').count() == over_after
         fill_after = {r.get_attribute("data-key"): r.get_attribute("fill") for r in regions.all()}
         page.select_option(tid("placement-colour"), "before")
         page.locator(f'{tid("placement-map")}[data-colour="before"]').wait_for(state="attached")
         assert page.locator(f'{tid("placement-region")}[data-over="true"]').count() == over_before
         for r in regions.all():  # over t_max before, within it after: another colour
-            assert float(r.get_attribute("data-time")) == pytest.approx(max(c["time_before"] for c in groups[r.get_attribute("data-key")]))
+            assert float(r.get_attribute("data-time")) == pytest.approx(
+                max(c["time_before"] for c in groups[r.get_attribute("data-key")])
+            )
             if r.get_attribute("data-over") == "true":
                 assert r.get_attribute("fill") != fill_after[r.get_attribute("data-key")]
         # x grows to the right, z downwards.
@@ -101,10 +114,20 @@ def test_a_placement_job_s_map_regions_cpvs_and_totals(browser, service, jobs, p
         # Totals: impostors, memory (baked and estimated), CPVs, unsolvable regions, rounds.
         drawn = [imp for imp in placement.impostors if imp["cpvs"]]
         assert page.locator(tid("placement-impostors")).inner_text().startswith(f"{len(drawn)} drawn")
-        assert int(page.locator(tid("placement-memory")).get_attribute("data-baked")) == sum(impostors[i["id"]].stats["texture_bytes"] for i in drawn)
-        assert page.locator(tid("placement-cpvs")).inner_text().startswith(f"{len(placement.cpvs)} ({placement.summary['cpvs_solved']} solved")
+        assert int(page.locator(tid("placement-memory")).get_attribute("data-baked")) == sum(
+            impostors[i["id"]].stats["texture_bytes"] for i in drawn
+        )
+        assert (
+            page.locator(tid("placement-cpvs"))
+            .inner_text()
+            .startswith(f"{len(placement.cpvs)} ({placement.summary['cpvs_solved']} solved")
+        )
         assert page.locator(tid("placement-unsolvable")).get_attribute("data-regions") == str(len(placement.unsolvable))
-        assert page.locator(tid("placement-rounds")).inner_text().startswith(f"{placement.summary['rounds']} check-and-repair")
+        assert (
+            page.locator(tid("placement-rounds"))
+            .inner_text()
+            .startswith(f"{placement.summary['rounds']} check-and-repair")
+        )
 
         # Click the region with the most CPVs: its CPVs, their impostors and the objects each replaces.
         key = max(groups, key=lambda k: (len(groups[k]), k))
@@ -121,7 +144,9 @@ def test_a_placement_job_s_map_regions_cpvs_and_totals(browser, service, jobs, p
         expected = sorted({i for c in groups[key] for i in c["impostors"]})
         assert [int(li.get_attribute("data-index")) for li in listed.all()] == expected
         for li in listed.all():
-            assert li.locator(tid("region-impostor-objects")).inner_text() == ", ".join(objects[int(li.get_attribute("data-index"))])
+            assert li.locator(tid("region-impostor-objects")).inner_text() == ", ".join(
+                objects[int(li.get_attribute("data-index"))]
+            )
         # An impostor's link opens it in the cell panel: its atlas from the baked bundle.
         first = expected[0]
         page.locator(f'{tid("region-impostor")}[data-index="{first}"] a').click()
@@ -142,13 +167,25 @@ def test_a_placing_job_shows_its_planning_progress(browser, service, jobs):
         box = page.locator(tid("placement-planning"))
         box.wait_for()
         record = client.get(f"/v1/jobs/{placing}").json()["placement"]
-        assert record is not None and box.get_attribute("data-step") in {record["step"], "queued", "hierarchy", "problem views", "candidates", "greedy"}
+        assert record is not None and box.get_attribute("data-step") in {
+            record["step"],
+            "queued",
+            "hierarchy",
+            "problem views",
+            "candidates",
+            "greedy",
+        }
         done, total = int(box.get_attribute("data-done")), int(box.get_attribute("data-total"))
         assert 0 <= done <= max(total, 1) and box.get_attribute("data-round") == str(record.get("round", 0))
         text = page.locator(tid("placement-planning-text")).inner_text()
-        assert text.startswith("planning: ") and "/" in text  # e.g. "planning: problem views, 189/5,000" (it moves on as we read)
+        assert (
+            text.startswith("planning: ") and "/" in text
+        )  # e.g. "planning: problem views, 189/5,000" (it moves on as we read)
         # No database yet: no map, a note saying when it comes; cancel works while it plans.
-        assert page.locator(tid("placement-region")).count() == 0 and "when the planned impostors are baked" in page.locator(tid("placement-note")).inner_text()
+        assert (
+            page.locator(tid("placement-region")).count() == 0
+            and "when the planned impostors are baked" in page.locator(tid("placement-note")).inner_text()
+        )
         page.locator(tid("job-cancel")).click()
         page.locator(f'{tid("job-state")}[data-state="cancelled"]').wait_for()
         assert page.js_errors == []
@@ -164,7 +201,10 @@ def test_unsolvable_and_unsolved_regions_are_shown(browser, service, jobs):
         assert page.locator(tid("placement-unsolvable-region")).count() == len(street.unsolvable)
         assert page.locator(tid("placement-unsolvable")).get_attribute("data-regions") == str(len(street.unsolvable))
         s = street.summary
-        assert page.locator(tid("placement-cpvs")).inner_text() == f"{s['cpvs']} ({s['cpvs_solved']} solved, {s['cpvs_unsolved']} unsolved, {s['cpvs_unsolvable']} unsolvable)"
+        assert (
+            page.locator(tid("placement-cpvs")).inner_text()
+            == f"{s['cpvs']} ({s['cpvs_solved']} solved, {s['cpvs_unsolved']} unsolved, {s['cpvs_unsolvable']} unsolvable)"
+        )
         for r in page.locator(tid("placement-region")).all():
             cpvs = groups[r.get_attribute("data-key")]
             assert r.get_attribute("data-status") == max((c["status"] for c in cpvs), key=rank.get)
@@ -185,10 +225,14 @@ def test_a_primitive_budget_job_s_grid_points_images_and_check(browser, service,
     from farfield.service.placement.primitive_budget import DEFAULT_CHECK_VIEWS
 
     with service.client() as client:
-        client.post(f"/v1/jobs/{jobs[1]}/cancel")  # the slow placing job holds the worker until then (its own test cancels it; run alone, this one does)
+        client.post(
+            f"/v1/jobs/{jobs[1]}/cancel"
+        )  # the slow placing job holds the worker until then (its own test cancels it; run alone, this one does)
         made = upload(client, write_scene(_scene(), tmp_path, "glb", "city25"))
         assert made.status_code == 201, made.text
-        submitted = client.post("/v1/jobs", json={"scene_id": made.json()["id"], "resolution": 32, "placement": REQUEST})
+        submitted = client.post(
+            "/v1/jobs", json={"scene_id": made.json()["id"], "resolution": 32, "placement": REQUEST}
+        )
         assert submitted.status_code == 201, submitted.text
         job = wait_for_job(client, submitted.json()["id"], timeout=300)
         assert job["state"] == "done", job["error"]
@@ -199,16 +243,39 @@ def test_a_primitive_budget_job_s_grid_points_images_and_check(browser, service,
         points.first.wait_for()
         assert points.count() == len(doc["points"])
         assert [int(p.get_attribute("data-images")) for p in points.all()] == [len(p["images"]) for p in doc["points"]]
-        assert page.locator(f'{tid("placement-point")}[data-kind="images"]').count() == sum(1 for p in doc["points"] if p["images"] and not p["failure"])
-        assert page.locator(tid("placement-impostors")).inner_text().startswith(f"{doc['totals']['images']} LDI images ({job['cells_total']} baked")
-        assert int(page.locator(tid("placement-memory")).get_attribute("data-baked")) == doc["totals"]["memory_bytes_baked"] > 0
-        assert page.locator(tid("placement-rounds")).inner_text().startswith(f"{DEFAULT_CHECK_VIEWS:,} random views: 100 % within P")
-        assert page.locator("#placement-cpvs-label").inner_text() == "grid points" and page.locator(tid("region-panel")).is_hidden()
+        assert page.locator(f'{tid("placement-point")}[data-kind="images"]').count() == sum(
+            1 for p in doc["points"] if p["images"] and not p["failure"]
+        )
+        assert (
+            page.locator(tid("placement-impostors"))
+            .inner_text()
+            .startswith(f"{doc['totals']['images']} LDI images ({job['cells_total']} baked")
+        )
+        assert (
+            int(page.locator(tid("placement-memory")).get_attribute("data-baked"))
+            == doc["totals"]["memory_bytes_baked"]
+            > 0
+        )
+        assert (
+            page.locator(tid("placement-rounds"))
+            .inner_text()
+            .startswith(f"{DEFAULT_CHECK_VIEWS:,} random views: 100 % within P")
+        )
+        assert (
+            page.locator("#placement-cpvs-label").inner_text() == "grid points"
+            and page.locator(tid("region-panel")).is_hidden()
+        )
         if os.environ.get("FARFIELD_DASHBOARD_SCREENSHOT"):
-            page.screenshot(path=os.environ["FARFIELD_DASHBOARD_SCREENSHOT"].replace(".png", "-primitive-budget.png"), full_page=True)
+            page.screenshot(
+                path=os.environ["FARFIELD_DASHBOARD_SCREENSHOT"].replace(".png", "-primitive-budget.png"),
+                full_page=True,
+            )
         page.goto(f"{service.url}/#/jobs/{planned[0]}")
         page.locator(tid("placement-region")).first.wait_for()
-        assert page.locator("#placement-cpvs-label").inner_text() == "CPVs" and page.locator(tid("region-panel")).is_visible()
+        assert (
+            page.locator("#placement-cpvs-label").inner_text() == "CPVs"
+            and page.locator(tid("region-panel")).is_visible()
+        )
         assert page.js_errors == []
 
 
@@ -216,7 +283,7 @@ def test_the_job_form_submits_a_placement_job(browser, service, jobs, tmp_path):
     """The form's placement mode: the view space, a budget (one of the two), the algorithm (the
     primitive-budget one switches the technique to ldi) and more knobs as JSON; the job is planned,
     baked and shown."""
-    from test_service_primitive_placement import P, VIEW_SPACE, _scene
+    from test_service_primitive_placement import VIEW_SPACE, P, _scene
 
     with service.client() as client:
         client.post(f"/v1/jobs/{jobs[1]}/cancel")  # the slow placing job would hold the worker
@@ -253,4 +320,8 @@ def test_the_job_form_submits_a_placement_job(browser, service, jobs, tmp_path):
         assert page.js_errors == []
     with service.client() as client:
         job = client.get(f"/v1/jobs/{job_id}").json()
-    assert job["technique"] == "ldi" and job["params"]["placement"]["algorithm"] == "primitive-budget" and job["params"]["resolution"] == 32
+    assert (
+        job["technique"] == "ldi"
+        and job["params"]["placement"]["algorithm"] == "primitive-budget"
+        and job["params"]["resolution"] == 32
+    )

@@ -27,11 +27,18 @@ MODULES = sorted(
 
 
 def test_every_subpackage_is_found():
-    assert {"farfield.core.techniques.layered", "farfield.core.exchange.gltf", "farfield.api.app", "farfield.workers.tasks"} <= set(MODULES)
+    assert {
+        "farfield.core.techniques.layered",
+        "farfield.core.exchange.gltf",
+        "farfield.api.app",
+        "farfield.workers.tasks",
+    } <= set(MODULES)
 
 
 @pytest.mark.parametrize("name", MODULES)
 def test_docstring_examples(name):
     module = importlib.import_module(name)
     result = doctest.testmod(module, optionflags=doctest.ELLIPSIS, report=False)
-    assert result.failed == 0, f"{result.failed} of {result.attempted} examples in {name} failed (run python -m doctest -v on it)"
+    assert result.failed == 0, (
+        f"{result.failed} of {result.attempted} examples in {name} failed (run python -m doctest -v on it)"
+    )

@@ -17,18 +17,26 @@ from click.testing import CliRunner
 from PIL import Image
 
 from farfield.cli.main import _register, cli
-from farfield.core.techniques.envmap.arrangement import near_field_distance
-from farfield.core.techniques.envmap.runtime import NEAR_FIELD_RUN, QUAD_RUN, EnvmapCellRenderer, camera_at, evaluate_envmap, nearest_first, view_directions
 from farfield.core.errors import LayerPlanError, ViewCellError
-from farfield.core.quality.evaluation import impostor_objects
-from farfield.core.techniques.envmap.gap_fill import fill_gaps
 from farfield.core.impostor.database import ImpostorDatabase, write_database
-from farfield.core.techniques.envmap.near_field import NearField, near_field
+from farfield.core.quality.evaluation import impostor_objects
+from farfield.core.quality.walkthrough import generate_path, walkthrough, write_plot
 from farfield.core.render.raster import MeshRenderer
 from farfield.core.scene import Scene, SceneObject
+from farfield.core.techniques.envmap.arrangement import near_field_distance
+from farfield.core.techniques.envmap.gap_fill import fill_gaps
+from farfield.core.techniques.envmap.near_field import NearField, near_field
+from farfield.core.techniques.envmap.runtime import (
+    NEAR_FIELD_RUN,
+    QUAD_RUN,
+    EnvmapCellRenderer,
+    camera_at,
+    evaluate_envmap,
+    nearest_first,
+    view_directions,
+)
 from farfield.core.techniques.envmap.technique import EnvmapOptions, bake_envmap, face_plan, plan_envmap
 from farfield.core.viewcells import BoxCell, grid_boxes
-from farfield.core.quality.walkthrough import generate_path, walkthrough, write_plot
 from tests.scenes import box_object, city, real_scene, write_scene
 
 pytestmark = pytest.mark.filterwarnings("ignore::farfield.core.scene.SceneWarning")
@@ -99,7 +107,18 @@ def test_replicated_real_scene_has_no_holes():
         for j in range(5):
             for obj in duck.objects:
                 offset = np.array([3.0 * i, 0.0, 3.0 * j])
-                objects.append(SceneObject(f"{obj.name}_{i}_{j}", obj.vertices + offset, obj.faces, obj.uv, obj.vertex_colors, obj.base_color, obj.texture, obj.alpha_cutoff))
+                objects.append(
+                    SceneObject(
+                        f"{obj.name}_{i}_{j}",
+                        obj.vertices + offset,
+                        obj.faces,
+                        obj.uv,
+                        obj.vertex_colors,
+                        obj.base_color,
+                        obj.texture,
+                        obj.alpha_cutoff,
+                    )
+                )
     scene = Scene.from_objects(objects, source="duck-5x5")
     cell = BoxCell.from_center([4.5, 0.8, 4.5], 0.5)  # between four ducks
     impostor = bake_envmap(scene, cell, EnvmapOptions(resolution=96, fov_deg=90.0, layers=8))
@@ -116,7 +135,9 @@ def _long_beam() -> tuple[Scene, BoxCell]:
 
 def test_near_field_border_neither_gap_nor_double_drawn():
     scene, cell = _long_beam()
-    impostor = bake_envmap(scene, cell, EnvmapOptions(resolution=128, fov_deg=90.0, layers=6, directions=("+x", "-x", "+y", "-y")))
+    impostor = bake_envmap(
+        scene, cell, EnvmapOptions(resolution=128, fov_deg=90.0, layers=6, directions=("+x", "-x", "+y", "-y"))
+    )
     near = NearField.from_dict(impostor.parameters["near_field"])
     assert 2.0 < near.half_size < 400.0, "the beam must cross the border"
     assert list(near.ranges) == ["beam"] and 0 < near.triangle_count < 12  # the far end cap is outside
@@ -129,7 +150,11 @@ def test_near_field_border_neither_gap_nor_double_drawn():
     camera = camera_at(cell.center + [0.0, 0.9, 0.0], [np.cos(angle), -np.sin(angle), 0.0], 30.0, 128, 0.01, 2000.0)
     objects = near.objects(scene)
     clip = [near.clip] * len(objects)
-    with MeshRenderer(objects, clip) as clipped, MeshRenderer(objects) as unclipped, MeshRenderer(impostor_objects(impostor)) as quads:
+    with (
+        MeshRenderer(objects, clip) as clipped,
+        MeshRenderer(objects) as unclipped,
+        MeshRenderer(impostor_objects(impostor)) as quads,
+    ):
         n_clip, n_all, q = (r.render(camera)[..., 3] > 0 for r in (clipped, unclipped, quads))
     seam = int((n_clip & q).sum())
     # The conservative recording may widen the layer by one face texel: that many camera rows.
@@ -147,7 +172,11 @@ def test_clip_planes_cut_what_the_fragment_clip_cuts():
     beam = scene.objects[0]
     camera = camera_at([0.0, 0.9, 0.0], [1.0, -0.2, 0.3], 60.0, 128, 0.01, 2000.0)
     clip = (np.zeros(3), 5.0)
-    with MeshRenderer([beam], [clip]) as planes, MeshRenderer([beam], [(*clip, ("-x",))]) as discards, MeshRenderer([beam]) as whole:
+    with (
+        MeshRenderer([beam], [clip]) as planes,
+        MeshRenderer([beam], [(*clip, ("-x",))]) as discards,
+        MeshRenderer([beam]) as whole,
+    ):
         by_planes, by_discards, unclipped = (r.render(camera) for r in (planes, discards, whole))
     assert by_planes[..., 3].any()
     # Identical on llvmpipe; a GPU's clipper and fragment test may split pixels whose centre lies
@@ -235,7 +264,9 @@ def test_runtime_draws_nearest_first_and_sees_what_payload_order_sees(coplanar_t
 
 
 def test_directions_subset_records_only_those_faces(town, town_cell):
-    impostor = bake_envmap(town, town_cell, EnvmapOptions(resolution=64, fov_deg=90.0, layers=6, directions=("-z", "+x")))
+    impostor = bake_envmap(
+        town, town_cell, EnvmapOptions(resolution=64, fov_deg=90.0, layers=6, directions=("-z", "+x"))
+    )
     assert impostor.parameters["directions"] == ["+x", "-z"]
     assert {layer["face"] for layer in impostor.layers} <= {"+x", "-z"}
     assert impostor.stats["raw_layer_bytes"] == 2 * 6 * 64 * 64 * 4
@@ -257,7 +288,9 @@ def test_compression_steps_shrink_memory(town_impostor):
 
 def test_near_field_distance_option_round_trips(town_cell):
     wanted = near_field_distance(10.0, 96, 12, EnvmapOptions(**SMALL).alpha)
-    by_distance = plan_envmap(town_cell, EnvmapOptions(resolution=96, fov_deg=90.0, layers=None, near_field=wanted * (1 + 1e-9)))
+    by_distance = plan_envmap(
+        town_cell, EnvmapOptions(resolution=96, fov_deg=90.0, layers=None, near_field=wanted * (1 + 1e-9))
+    )
     assert by_distance.count == 12
     assert by_distance.near_field == pytest.approx(wanted, rel=1e-12)
 
@@ -319,7 +352,10 @@ def test_gap_fill_copies_border_texels_into_the_farther_layer():
 
 def test_grid_database_and_walkthrough(tmp_path, town):
     options = EnvmapOptions(resolution=64, fov_deg=90.0, layers=6, directions=("+x", "-x", "+z", "-z"))
-    cells = [(list(ijk), bake_envmap(town, box, options)) for ijk, box in grid_boxes([160, 0.5, 160], [180, 10.5, 180], [2, 1, 2])]
+    cells = [
+        (list(ijk), bake_envmap(town, box, options))
+        for ijk, box in grid_boxes([160, 0.5, 160], [180, 10.5, 180], [2, 1, 2])
+    ]
     root = write_database(tmp_path / "db", "envmap", {}, cells)
     with ImpostorDatabase(root) as db:
         assert [c.neighbours for c in db.cells] == [(1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2)]
@@ -337,9 +373,25 @@ def test_grid_database_and_walkthrough(tmp_path, town):
     # The CLI on the same database: a scene file, a recorded path, JSON and a plot.
     scene_file = write_scene(town, tmp_path, "glb", "town")
     path_file = tmp_path / "path.json"
-    path_file.write_text(json.dumps([{"position": p.tolist(), "forward": f.tolist()} for p, f in zip(positions[:3], forwards[:3])]))
+    path_file.write_text(
+        json.dumps([{"position": p.tolist(), "forward": f.tolist()} for p, f in zip(positions[:3], forwards[:3])])
+    )
     _register()
-    run = CliRunner().invoke(cli, ["walkthrough", str(root), str(scene_file), "--path", str(path_file), "--repeats", "1", "--plot", str(tmp_path / "cli.png"), "--json"])
+    run = CliRunner().invoke(
+        cli,
+        [
+            "walkthrough",
+            str(root),
+            str(scene_file),
+            "--path",
+            str(path_file),
+            "--repeats",
+            "1",
+            "--plot",
+            str(tmp_path / "cli.png"),
+            "--json",
+        ],
+    )
     assert run.exit_code == 0, run.output
     data = json.loads(run.output)
     assert data["summary"]["frames"] == 3 and data["summary"]["hole_pixels"] == 0
@@ -360,5 +412,17 @@ def test_cli_bake_and_evaluate_envmap(tmp_path, town):
     run = CliRunner().invoke(cli, ["evaluate", str(out), str(scene_file), "--random", "1", "--json"])
     assert run.exit_code == 0, run.output
     assert json.loads(run.output)["totals"]["hole_pixels"] == 0
-    run = CliRunner().invoke(cli, ["bake", str(scene_file), "--technique", "envmap", "--viewcell", "box:0,0,0,10,10,5", "--out", str(tmp_path / "x")])
+    run = CliRunner().invoke(
+        cli,
+        [
+            "bake",
+            str(scene_file),
+            "--technique",
+            "envmap",
+            "--viewcell",
+            "box:0,0,0,10,10,5",
+            "--out",
+            str(tmp_path / "x"),
+        ],
+    )
     assert run.exit_code != 0 and "cubic" in run.output

@@ -12,7 +12,14 @@ import numpy as np
 import pytest
 import scenes
 
-from farfield.core.quality.evaluation import BACKGROUND, compare_images, evaluate_at, fine_samples, spread_corners, ssim_over_union
+from farfield.core.quality.evaluation import (
+    BACKGROUND,
+    compare_images,
+    evaluate_at,
+    fine_samples,
+    spread_corners,
+    ssim_over_union,
+)
 from farfield.core.render.context import gl_context
 from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
 from farfield.core.scene import Scene
@@ -131,9 +138,15 @@ def test_real_renders_see_a_colour_shift_of_the_atlas(baked):
     the mean colour error rises by about 30, coverage stays as it was, SSIM falls."""
     scene, cell, impostor = baked
     brighter = dataclasses.replace(
-        impostor, pages=tuple(np.concatenate([np.clip(p[..., :3].astype(np.int16) + 30, 0, 255).astype(np.uint8), p[..., 3:]], axis=2) for p in impostor.pages)
+        impostor,
+        pages=tuple(
+            np.concatenate([np.clip(p[..., :3].astype(np.int16) + 30, 0, 255).astype(np.uint8), p[..., 3:]], axis=2)
+            for p in impostor.pages
+        ),
     )
-    points = np.concatenate([impostor.reference_viewpoint[None, :], spread_corners(cell, impostor.reference_viewpoint, 2)])
+    points = np.concatenate(
+        [impostor.reference_viewpoint[None, :], spread_corners(cell, impostor.reference_viewpoint, 2)]
+    )
     kinds = ["reference", "corner", "corner"]
     base = evaluate_at(scene, impostor, points, kinds, samples=2).totals
     shifted = evaluate_at(scene, brighter, points, kinds, samples=2).totals
@@ -198,7 +211,9 @@ def thin_forest_case(resolution: int = 128):
     centre[1] += 2.0
     cell = BoxCell.from_center(centre, 0.1 * diameter)
     impostor = bake_layered(scene, cell, BakeOptions(resolution=resolution))
-    points = np.concatenate([impostor.reference_viewpoint[None, :], spread_corners(cell, impostor.reference_viewpoint, 2)])
+    points = np.concatenate(
+        [impostor.reference_viewpoint[None, :], spread_corners(cell, impostor.reference_viewpoint, 2)]
+    )
     return scene, impostor, points, ["reference", "corner", "corner"]
 
 
@@ -237,7 +252,10 @@ def test_real_bloat_and_holes_are_confirmed_and_the_work_is_capped():
     point, kind = big.reference_viewpoint[None, :], ["reference"]
     bloated = evaluate_at(SMALL_BOX, big, point, kind).viewpoints[0]["stats"]
     assert bloated["bloat_beyond_1px_coarse"] > 200, bloated
-    assert bloated["bloat_beyond_1px"] == bloated["bloat_beyond_1px_coarse"] and bloated["bloat_beyond_1px_unconfirmed"] == 0
+    assert (
+        bloated["bloat_beyond_1px"] == bloated["bloat_beyond_1px_coarse"]
+        and bloated["bloat_beyond_1px_unconfirmed"] == 0
+    )
     assert bloated["hole_pixels"] == 0
     holed = evaluate_at(BIG_BOX, small, point, kind).viewpoints[0]["stats"]
     assert holed["hole_pixels_coarse"] > 200, holed
@@ -287,5 +305,7 @@ def test_a_part_smaller_than_every_sample_is_not_bloat_where_its_impostor_shows_
     cell = BoxCell.from_center(np.array([-100_000.0, 0.5, 0.0]), 1.0)
     impostor = bake_layered(part, cell, BakeOptions(resolution=128))
     totals = evaluate(part, impostor, cell, random_count=2).totals
-    assert totals["geometry_pixels"] == 0 and totals["bloat_pixels"] > 0, totals  # the impostor shows it, the samples miss it
+    assert totals["geometry_pixels"] == 0 and totals["bloat_pixels"] > 0, (
+        totals
+    )  # the impostor shows it, the samples miss it
     assert totals["bloat_beyond_1px"] == 0 and totals["hole_pixels"] == 0, totals

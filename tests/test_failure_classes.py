@@ -27,9 +27,9 @@ from farfield.api.app import create_app
 from farfield.cli.main import FarfieldGroup
 from farfield.core.errors import ErrorKind, InternalError, LayerPlanError
 from farfield.service.blobs import LocalBlobStore
-from farfield.service.jobs.runner import RetryCell, run_cell
 from farfield.service.db import CellRow, Database, JobRow
 from farfield.service.jobs.admission import create_job
+from farfield.service.jobs.runner import RetryCell, run_cell
 from farfield.service.jobs.schema import JobSpec
 from farfield.service.keys import tenant_named
 from farfield.service.scenes import ingest_scene
@@ -51,7 +51,9 @@ class Stack:
         tenant = tenant_named(self.db, "failures")
         data = io.BytesIO(trimesh.creation.box(extents=(1.0, 1.0, 1.0)).export(file_type="stl"))
         scene = ingest_scene(self.db, self.blobs, tenant.id, "crate.stl", data, limit=2**20)
-        self.job_id = create_job(self.db, tenant.id, scene, JobSpec(scene_id=scene.id, viewcells=[CELL], resolution=32)).id
+        self.job_id = create_job(
+            self.db, tenant.id, scene, JobSpec(scene_id=scene.id, viewcells=[CELL], resolution=32)
+        ).id
         with self.db.session() as s:
             self.cell_id = s.query(CellRow.id).filter(CellRow.job_id == self.job_id).scalar()
 
@@ -96,7 +98,9 @@ def run_like_the_task(stack: Stack, limit: int = 10) -> tuple[str, list[float]]:
 # 1. Internal errors: retried up to the attempt limit, traceback logged, then failed as internal.
 
 
-@pytest.mark.parametrize("error", [ZeroDivisionError("division by zero"), InternalError("7 voxels left uncovered by the simplified mesh")])
+@pytest.mark.parametrize(
+    "error", [ZeroDivisionError("division by zero"), InternalError("7 voxels left uncovered by the simplified mesh")]
+)
 def test_an_internal_error_fails_the_cell_after_the_attempt_limit(stack, monkeypatch, caplog, error):
     bake = bake_raising(error)
     monkeypatch.setattr(cell_runner, "bake_cell", bake)
@@ -128,7 +132,9 @@ def test_a_transient_error_is_retried_with_backoff_then_failed_without_the_inter
 
 
 def test_bad_input_fails_the_cell_at_once(stack, monkeypatch):
-    monkeypatch.setattr(cell_runner, "bake_cell", bake_raising(LayerPlanError("the part left no visible texel in any layer")))
+    monkeypatch.setattr(
+        cell_runner, "bake_cell", bake_raising(LayerPlanError("the part left no visible texel in any layer"))
+    )
     state, countdowns = run_like_the_task(stack)
     cell = stack.cell()
     assert state == "failed" and countdowns == [] and cell.attempts == 1
@@ -140,10 +146,20 @@ def test_the_failure_classes():
     import redis.exceptions
     import sqlalchemy.exc
 
-    assert cell_runner.failure_class(sqlalchemy.exc.OperationalError("SELECT 1", {}, sqlite3.OperationalError("unable to open database file"))) == "transient"
+    assert (
+        cell_runner.failure_class(
+            sqlalchemy.exc.OperationalError("SELECT 1", {}, sqlite3.OperationalError("unable to open database file"))
+        )
+        == "transient"
+    )
     assert cell_runner.failure_class(redis.exceptions.ConnectionError("refused")) == "transient"
     assert cell_runner.failure_class(IsADirectoryError("scenes/x")) == "transient"
-    assert cell_runner.failure_class(sqlalchemy.exc.ProgrammingError("SELECT nonsense", {}, sqlite3.ProgrammingError("bad"))) == "internal"
+    assert (
+        cell_runner.failure_class(
+            sqlalchemy.exc.ProgrammingError("SELECT nonsense", {}, sqlite3.ProgrammingError("bad"))
+        )
+        == "internal"
+    )
     assert cell_runner.failure_class(KeyError("objects")) == "internal"
     assert cell_runner.failure_class(InternalError("x")) == "internal"
     assert cell_runner.failure_class(LayerPlanError("x")) == "bad input"
@@ -163,6 +179,7 @@ def test_an_internal_error_is_reported_as_500_and_exit_code_1(tmp_path):
     app.add_api_route("/broken", broken)
     response = TestClient(app).get("/broken")
     assert response.status_code == 500 and response.json()["error"] == "InternalError"
+
     # The CLI: exit code 1 and a line that says internal error (not the bad-input 2).
     @click.group(cls=FarfieldGroup)
     def group() -> None:
@@ -216,7 +233,9 @@ def test_the_task_has_a_finite_retry_limit_from_the_attempt_limit():
     assert tasks.max_retries(MAX_ATTEMPTS) == 10 * MAX_ATTEMPTS
 
 
-def test_a_claim_that_cannot_reach_the_database_is_retried_with_backoff_and_counted(tmp_path, monkeypatch, caplog, task_state):
+def test_a_claim_that_cannot_reach_the_database_is_retried_with_backoff_and_counted(
+    tmp_path, monkeypatch, caplog, task_state
+):
     stack, failed = _task_stack(tmp_path, fail_connects=2)
     seen_retries = []
 
@@ -230,7 +249,12 @@ def test_a_claim_that_cannot_reach_the_database_is_retried_with_backoff_and_coun
     assert result.get() == "failed" and len(failed) == 2
     assert seen_retries == [2]  # the third delivery, after two that could not claim
     waits = [r.getMessage() for r in caplog.records if " delivery " in r.getMessage()]
-    assert len(waits) == 2 and "unable to open database file" in waits[0] and "retried in 2 s" in waits[0] and "retried in 4 s" in waits[1]
+    assert (
+        len(waits) == 2
+        and "unable to open database file" in waits[0]
+        and "retried in 2 s" in waits[0]
+        and "retried in 4 s" in waits[1]
+    )
     cell = stack.cell()
     assert cell.state == "failed" and cell.attempts == 1 and cell.error == "LayerPlanError: no texel"
 

@@ -18,8 +18,8 @@ import pytest
 from PIL import Image
 from test_techniques import CASES
 
-from farfield.core.impostor.bundle import write_bundle
 from farfield.core.errors import BundleFormatError
+from farfield.core.impostor.bundle import write_bundle
 from farfield.core.impostor.glb import impostor_glb
 from farfield.core.impostor.glb_compression import BASISU, MESHOPT, compress_glb, decode_ktx2, read_glb, write_glb
 from farfield.core.techniques import TECHNIQUES, get_technique
@@ -51,7 +51,9 @@ def rotated(triangles: np.ndarray) -> np.ndarray:
 
 def images(glb: bytes, mime: str) -> list[bytes]:
     document, blob = read_glb(glb)
-    return [view_bytes(document, blob, img["bufferView"]) for img in document.get("images", []) if img["mimeType"] == mime]
+    return [
+        view_bytes(document, blob, img["bufferView"]) for img in document.get("images", []) if img["mimeType"] == mime
+    ]
 
 
 @pytest.mark.parametrize("name", list(TECHNIQUES))
@@ -61,7 +63,10 @@ def test_meshopt_geometry_decodes_to_the_plain_bytes(name, plain_glbs):
     before, blob_before = read_glb(plain)
     after, blob_after = read_glb(packed)
     assert after["extensionsRequired"] == [MESHOPT] and MESHOPT in after["extensionsUsed"]
-    assert after["buffers"][1] == {"byteLength": after["buffers"][1]["byteLength"], "extensions": {MESHOPT: {"fallback": True}}}
+    assert after["buffers"][1] == {
+        "byteLength": after["buffers"][1]["byteLength"],
+        "extensions": {MESHOPT: {"fallback": True}},
+    }
     assert len(after["bufferViews"]) == len(before["bufferViews"])
     compressed = 0
     for n, view in enumerate(after["bufferViews"]):
@@ -81,7 +86,9 @@ def test_meshopt_geometry_decodes_to_the_plain_bytes(name, plain_glbs):
         assert view["byteLength"] == ext["count"] * ext["byteStride"] and view["buffer"] == 1
         compressed += 1
     assert compressed == sum(1 for v in before["bufferViews"] if v.get("target") in (34962, 34963))
-    assert [a["bufferView"] for a in after.get("accessors", [])] == [a["bufferView"] for a in before.get("accessors", [])]
+    assert [a["bufferView"] for a in after.get("accessors", [])] == [
+        a["bufferView"] for a in before.get("accessors", [])
+    ]
 
 
 # Mean |RGB| error (0..255) on the texels the alpha cut keeps, per codec.  A point impostor's pages
@@ -122,14 +129,27 @@ def test_pages_grown_to_whole_blocks_keep_their_texture_coordinates(plain_glbs):
     for name, plain in {**plain_glbs, "odd page": odd_page_glb()}.items():
         before, blob_before = read_glb(plain)
         after, blob_after = read_glb(compress_glb(plain, "ktx2"))
-        sizes = [Image.open(io.BytesIO(view_bytes(before, blob_before, img["bufferView"]))).size for img in before.get("images", [])]
+        sizes = [
+            Image.open(io.BytesIO(view_bytes(before, blob_before, img["bufferView"]))).size
+            for img in before.get("images", [])
+        ]
         for mesh_before, mesh_after in zip(before.get("meshes", []), after.get("meshes", [])):
             for p, q in zip(mesh_before["primitives"], mesh_after["primitives"]):
                 if "TEXCOORD_0" not in p["attributes"]:
                     continue
-                w, h = sizes[before["textures"][before["materials"][p["material"]]["pbrMetallicRoughness"]["baseColorTexture"]["index"]]["source"]]
-                uv_before = np.frombuffer(view_bytes(before, blob_before, before["accessors"][p["attributes"]["TEXCOORD_0"]]["bufferView"]), "<f4").reshape(-1, 2)
-                uv_after = np.frombuffer(view_bytes(after, blob_after, after["accessors"][q["attributes"]["TEXCOORD_0"]]["bufferView"]), "<f4").reshape(-1, 2)
+                w, h = sizes[
+                    before["textures"][
+                        before["materials"][p["material"]]["pbrMetallicRoughness"]["baseColorTexture"]["index"]
+                    ]["source"]
+                ]
+                uv_before = np.frombuffer(
+                    view_bytes(before, blob_before, before["accessors"][p["attributes"]["TEXCOORD_0"]]["bufferView"]),
+                    "<f4",
+                ).reshape(-1, 2)
+                uv_after = np.frombuffer(
+                    view_bytes(after, blob_after, after["accessors"][q["attributes"]["TEXCOORD_0"]]["bufferView"]),
+                    "<f4",
+                ).reshape(-1, 2)
                 factor = np.array([w / (w + -w % 4), h / (h + -h % 4)], "<f4")
                 assert np.array_equal(uv_after, (uv_before * factor).astype("<f4")), name
                 grown += bool(w % 4 or h % 4)
@@ -148,13 +168,27 @@ def odd_page_glb() -> bytes:
         page[:, 1 + 2 * k + (k > 0) :, :3] = colour
     quad = np.array([[[-2.0, 1.2, 5.0], [2.0, 1.2, 5.0], [2.0, -1.2, 5.0], [-2.0, -1.2, 5.0]]])
     uv = np.array([[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]])
-    return impostor_glb(Impostor("billboard", {}, np.zeros(3), 64, 60.0, (page,), QuadPayload(quad, uv, np.zeros(1, np.int64), np.zeros(1, np.int64))))
+    return impostor_glb(
+        Impostor(
+            "billboard",
+            {},
+            np.zeros(3),
+            64,
+            60.0,
+            (page,),
+            QuadPayload(quad, uv, np.zeros(1, np.int64), np.zeros(1, np.int64)),
+        )
+    )
 
 
 def test_an_empty_point_impostor_compresses_to_a_valid_file(gltf_validator, tmp_path):
     from farfield.core.impostor.impostor import Impostor, PointPayload
 
-    empty = impostor_glb(Impostor("points", {"kind": "box", "lo": [0, 0, 0], "hi": [1, 1, 1]}, np.zeros(3), 64, 45.0, (), PointPayload.empty()))
+    empty = impostor_glb(
+        Impostor(
+            "points", {"kind": "box", "lo": [0, 0, 0], "hi": [1, 1, 1]}, np.zeros(3), 64, 45.0, (), PointPayload.empty()
+        )
+    )
     path = tmp_path / "empty.glb"
     path.write_bytes(compress_glb(empty, "ktx2", "meshopt"))
     document, blob = read_glb(path.read_bytes())
@@ -170,7 +204,9 @@ def test_ktx2_with_the_png_kept_as_fallback(plain_glbs):
     assert BASISU in document["extensionsUsed"] and "extensionsRequired" not in document
     kept = [np.asarray(Image.open(io.BytesIO(d))) for d in images(packed, "image/png")]
     for page, png in zip(kept, (np.asarray(Image.open(io.BytesIO(d))) for d in images(plain, "image/png"))):
-        assert np.array_equal(page[: png.shape[0], : png.shape[1]], png)  # the same texels (grown alike when not whole blocks)
+        assert np.array_equal(
+            page[: png.shape[0], : png.shape[1]], png
+        )  # the same texels (grown alike when not whole blocks)
     for texture in document["textures"]:
         assert document["images"][texture["source"]]["mimeType"] == "image/png"
         assert document["images"][texture["extensions"][BASISU]["source"]]["mimeType"] == "image/ktx2"
@@ -209,20 +245,26 @@ def test_what_cannot_be_compressed_is_refused(plain_glbs):
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "farfield.cli.main", *args], capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "farfield.cli.main", *args], capture_output=True, text=True, timeout=300
+    )
 
 
 def test_the_command_writes_a_compressed_glb_from_a_bundle(tmp_path):
     technique = get_technique("layered")
     make_scene, cell = CASES["part"]
-    bundle = write_bundle(technique.bake(make_scene(), cell, technique.options({}, RESOLUTION), None, None), tmp_path / "bundle")
+    bundle = write_bundle(
+        technique.bake(make_scene(), cell, technique.options({}, RESOLUTION), None, None), tmp_path / "bundle"
+    )
     out = tmp_path / "out" / "cell.glb"
     done = run_cli("glb", str(bundle.directory), "--out", str(out), "--json")
     assert done.returncode == 0, done.stderr
     figures = json.loads(done.stdout)
     assert figures["bytes_after"] == out.stat().st_size and figures["bytes_before"] == bundle.glb.stat().st_size
     assert read_glb(out.read_bytes())[0]["extensionsRequired"] == [MESHOPT, BASISU]
-    done = run_cli("glb", str(bundle.glb), "--out", str(tmp_path / "fallback.glb"), "--textures", "ktx2+png", "--geometry", "plain")
+    done = run_cli(
+        "glb", str(bundle.glb), "--out", str(tmp_path / "fallback.glb"), "--textures", "ktx2+png", "--geometry", "plain"
+    )
     assert done.returncode == 0 and "fallback.glb:" in done.stdout, done.stderr
     assert (out.stat().st_mode & 0o777) == 0o666 & ~current_umask()
     # bad input: one line, a non-zero exit, nothing written
@@ -230,9 +272,13 @@ def test_the_command_writes_a_compressed_glb_from_a_bundle(tmp_path):
     for args in (["glb", str(tmp_path / "missing"), "--out", str(tmp_path / "x.glb")], ["glb", str(out), "--out", str(tmp_path / "y.glb")],
                  ["glb", str(bundle.glb), "--out", str(tmp_path / "folder.glb")]):  # fmt: skip
         failed = run_cli(*args)
-        assert failed.returncode != 0 and failed.stderr.count("\n") == 1 and failed.stderr.startswith("farfield: error:"), failed.stderr
+        assert (
+            failed.returncode != 0 and failed.stderr.count("\n") == 1 and failed.stderr.startswith("farfield: error:")
+        ), failed.stderr
     assert not (tmp_path / "x.glb").exists() and not (tmp_path / "y.glb").exists()
-    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == [] and list((tmp_path / "folder.glb").iterdir()) == []
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == [] and list(
+        (tmp_path / "folder.glb").iterdir()
+    ) == []
 
 
 def current_umask() -> int:

@@ -86,7 +86,12 @@ def test_every_technique_bakes_the_recorded_bytes(name, tmp_path):
 def test_frame_time_placement_gives_the_recorded_bytes():
     scene = procedural.city(36, seed=5, detail=6)
     settings = PlacementSettings(
-        t_max=0.5 * scene.triangle_count, model=primitive_model(), vdi_deg=45.0, options={"resolution": 128}, cpv_size=20.0, cells="both"
+        t_max=0.5 * scene.triangle_count,
+        model=primitive_model(),
+        vdi_deg=45.0,
+        options={"resolution": 128},
+        cpv_size=20.0,
+        cells="both",
     )
     result = place(scene, [20.0, 110.0, 20.0], [100.0, 115.0, 100.0], settings)
     assert result.summary["impostors"] > 0
@@ -97,7 +102,12 @@ def test_primitive_budget_placement_gives_the_recorded_bytes():
     scene = procedural.city(64, seed=1, detail=8)
     lo, hi = scene.bounds
     a, b = 0.75 * lo + 0.25 * hi, 0.25 * lo + 0.75 * hi
-    grid = place_primitives(scene, np.array([a[0], 3.0, a[2]]), np.array([b[0], 7.0, b[2]]), BudgetSettings(primitives=0.3 * scene.triangle_count, max_level=3))
+    grid = place_primitives(
+        scene,
+        np.array([a[0], 3.0, a[2]]),
+        np.array([b[0], 7.0, b[2]]),
+        BudgetSettings(primitives=0.3 * scene.triangle_count, max_level=3),
+    )
     document = grid.to_dict()
     document.pop("seconds")  # run-dependent
     _check("placement/primitive-budget", _sha(json.dumps(document, sort_keys=True).encode()))

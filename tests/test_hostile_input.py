@@ -19,7 +19,9 @@ KEY = "ff-test-hostile-key-0123456789"
 @pytest.fixture(scope="module")
 def api(tmp_path_factory):
     home = tmp_path_factory.mktemp("hostile")
-    settings = Settings.from_env({"FARFIELD_HOME": str(home), "REDIS_URL": "redis://127.0.0.1:1/0", "FARFIELD_ADMIN_KEY": KEY})
+    settings = Settings.from_env(
+        {"FARFIELD_HOME": str(home), "REDIS_URL": "redis://127.0.0.1:1/0", "FARFIELD_ADMIN_KEY": KEY}
+    )
     with TestClient(create_app(settings), headers={"Authorization": f"Bearer {KEY}"}) as client:
         path = write_scene(city(buildings=3), home, "glb")
         response = client.post("/v1/scenes", files={"file": (path.name, path.read_bytes())})
@@ -29,7 +31,11 @@ def api(tmp_path_factory):
 
 
 def job(api, **change) -> dict:
-    body = {"scene_id": api.scene_id, "resolution": 64, "viewcells": [{"kind": "box", "lo": [40, 1, 40], "hi": [44, 5, 44]}]}
+    body = {
+        "scene_id": api.scene_id,
+        "resolution": 64,
+        "viewcells": [{"kind": "box", "lo": [40, 1, 40], "hi": [44, 5, 44]}],
+    }
     body.update(change)
     if "grid" in change:
         del body["viewcells"]
@@ -97,5 +103,9 @@ def test_a_deep_node_chain_upload_is_refused_quickly_with_413(api):
 
 def test_scene_limits_come_from_the_environment():
     settings = Settings.from_env({"FARFIELD_MAX_SCENE_DEPTH": "16", "FARFIELD_MAX_SCENE_TRIANGLES": "1000"})
-    assert (settings.scene_limits.depth, settings.scene_limits.triangles, settings.scene_limits.nodes) == (16, 1000, 50_000)
+    assert (settings.scene_limits.depth, settings.scene_limits.triangles, settings.scene_limits.nodes) == (
+        16,
+        1000,
+        50_000,
+    )
     assert Settings.from_env(settings.environment()).scene_limits == settings.scene_limits  # handed to workers

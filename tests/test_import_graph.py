@@ -17,7 +17,13 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 # The repository's top-level folders are farfield's subpackages (pyproject.toml's package-dir).
-SUBPACKAGES = {"core": "farfield.core", "api": "farfield.api", "service": "farfield.service", "workers": "farfield.workers", "cli": "farfield.cli"}
+SUBPACKAGES = {
+    "core": "farfield.core",
+    "api": "farfield.api",
+    "service": "farfield.service",
+    "workers": "farfield.workers",
+    "cli": "farfield.cli",
+}
 # What farfield.core must never import: the layers built on it.
 ABOVE_CORE = ("farfield.service", "farfield.api", "farfield.workers", "farfield.cli")
 
@@ -44,7 +50,9 @@ def imports_of(name: str, path: Path, modules: set[str]) -> dict[str, int]:
 
     def add(target: str, line: int) -> None:
         if target.startswith("farfield.") and target != name:
-            while target not in modules and "." in target:  # farfield.core.errors.LayerPlanError -> farfield.core.errors
+            while (
+                target not in modules and "." in target
+            ):  # farfield.core.errors.LayerPlanError -> farfield.core.errors
                 target = target.rpartition(".")[0]
             if target in modules and target != name:
                 edges.setdefault(target, line)
@@ -129,22 +137,39 @@ def describe(component: list[str], graph: dict[str, dict[str, int]], files: dict
 
 def test_the_module_walk_finds_the_packages():
     files = module_files()
-    for name in ("farfield.core", "farfield.core.techniques", "farfield.service", "farfield.service.db", "farfield.api.app", "farfield.workers.tasks", "farfield.cli.main"):
+    for name in (
+        "farfield.core",
+        "farfield.core.techniques",
+        "farfield.service",
+        "farfield.service.db",
+        "farfield.api.app",
+        "farfield.workers.tasks",
+        "farfield.cli.main",
+    ):
         assert name in files, name
 
 
 def test_the_walk_counts_function_level_and_relative_imports(tmp_path):
     source = tmp_path / "m.py"
-    source.write_text("import farfield.a\n\ndef f():\n    from farfield.b import thing\n    from .c import other\n    from . import d\n")
+    source.write_text(
+        "import farfield.a\n\ndef f():\n    from farfield.b import thing\n    from .c import other\n    from . import d\n"
+    )
     modules = {"farfield.pkg.m", "farfield.a", "farfield.b", "farfield.pkg.c", "farfield.pkg.d"}
-    assert set(imports_of("farfield.pkg.m", source, modules)) == {"farfield.a", "farfield.b", "farfield.pkg.c", "farfield.pkg.d"}
+    assert set(imports_of("farfield.pkg.m", source, modules)) == {
+        "farfield.a",
+        "farfield.b",
+        "farfield.pkg.c",
+        "farfield.pkg.d",
+    }
     assert cycles({"a": {"b": 1}, "b": {"c": 1}, "c": {"a": 1}, "d": {"a": 1}}) == [["a", "b", "c"]]
 
 
 def test_no_import_cycle_among_farfield_modules():
     graph, files = import_graph(), module_files()
     found = cycles(graph)
-    assert not found, "import cycles among farfield modules (top-level and function-level imports):\n" + "\n".join(describe(c, graph, files) for c in found)
+    assert not found, "import cycles among farfield modules (top-level and function-level imports):\n" + "\n".join(
+        describe(c, graph, files) for c in found
+    )
 
 
 def test_core_imports_none_of_the_layers_above_it():

@@ -7,16 +7,6 @@ import math
 import numpy as np
 import pytest
 
-from farfield.core.techniques.envmap.arrangement import (
-    alpha_for_spacing,
-    envmap_plan,
-    layers_for_near_field,
-    near_field_distance,
-    parallax_factor,
-    parallax_step,
-    tdm_texel_limit,
-    texel_limit,
-)
 from farfield.core.layering.plan import (
     border_offset,
     depth_range,
@@ -27,6 +17,16 @@ from farfield.core.layering.plan import (
     spacing_right,
 )
 from farfield.core.pixel_angles import perspective_factor, pixel_angle, star_shape_distance
+from farfield.core.techniques.envmap.arrangement import (
+    alpha_for_spacing,
+    envmap_plan,
+    layers_for_near_field,
+    near_field_distance,
+    parallax_factor,
+    parallax_step,
+    tdm_texel_limit,
+    texel_limit,
+)
 from farfield.core.viewcells import BoxCell
 
 M = 5.0  # half of a 10 m cubic view cell
@@ -42,7 +42,9 @@ def test_eq_3_2_right_boundary_spacing():
 
 def test_eq_3_4_equals_eq_3_2_at_s_zero():
     t = np.linspace(90.0, 500.0, 50)
-    np.testing.assert_allclose(spacing_left_upper(t, 0.0, 100, 30, 90, 300), spacing_right(t, 0.0, 100, 30, 90, 300), rtol=1e-14)
+    np.testing.assert_allclose(
+        spacing_left_upper(t, 0.0, 100, 30, 90, 300), spacing_right(t, 0.0, 100, 30, 90, 300), rtol=1e-14
+    )
     # ... and not for s > 0, so the equality above is not vacuous.
     assert spacing_left_upper(95, 10, 100, 30, 90, 300) != pytest.approx(spacing_right(95, 10, 100, 30, 90, 300))
 

@@ -9,10 +9,10 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from farfield.core.techniques.envmap.arrangement import envmap_plan, layers_for_near_field, near_field_distance
 from farfield.core.errors import LayerPlanError, ViewCellError
 from farfield.core.layering.plan import layer_spacing, parallax_angles, part_view, plan_layers
 from farfield.core.pixel_angles import pixel_angle, texture_resolution
+from farfield.core.techniques.envmap.arrangement import envmap_plan, layers_for_near_field, near_field_distance
 from farfield.core.viewcells import BoxCell, ShaftCell
 
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -73,7 +73,14 @@ def test_no_nan_negative_or_infinite_spacing(gap, depth, width, res, fov, model)
 
 
 @SETTINGS
-@given(gap=distances, factor=st.floats(1.05, 4.0), depth=st.floats(0.05, 3.0), width=widths, res=st.integers(16, 512), model=models)
+@given(
+    gap=distances,
+    factor=st.floats(1.05, 4.0),
+    depth=st.floats(0.05, 3.0),
+    width=widths,
+    res=st.integers(16, 512),
+    model=models,
+)
 def test_layer_count_falls_with_distance(gap, factor, depth, width, res, model):
     fov = math.radians(45)
     near = plan_layers(*scene(1.0, gap, depth, width), fov, res, model)
@@ -82,7 +89,14 @@ def test_layer_count_falls_with_distance(gap, factor, depth, width, res, model):
 
 
 @SETTINGS
-@given(gap=distances, depth=st.floats(0.05, 3.0), width=widths, res=st.integers(16, 512), factor=st.floats(1.05, 4.0), model=models)
+@given(
+    gap=distances,
+    depth=st.floats(0.05, 3.0),
+    width=widths,
+    res=st.integers(16, 512),
+    factor=st.floats(1.05, 4.0),
+    model=models,
+)
 def test_layer_count_rises_with_resolution(gap, depth, width, res, factor, model):
     fov = math.radians(45)
     cell, bounds = scene(1.0, gap, depth, width)
@@ -92,7 +106,14 @@ def test_layer_count_rises_with_resolution(gap, depth, width, res, factor, model
 
 
 @SETTINGS
-@given(gap=st.floats(2.0, 50.0), depth=st.floats(0.05, 3.0), width=widths, res=st.integers(16, 512), factor=st.floats(1.05, 3.0), model=models)
+@given(
+    gap=st.floats(2.0, 50.0),
+    depth=st.floats(0.05, 3.0),
+    width=widths,
+    res=st.integers(16, 512),
+    factor=st.floats(1.05, 3.0),
+    model=models,
+)
 def test_layer_count_rises_with_view_cell_size(gap, depth, width, res, factor, model):
     """The part stays put; the cell grows about its centre."""
     fov = math.radians(45)
@@ -164,7 +185,9 @@ def worst_parallax_measured(plan, cell) -> float:
 
 
 @SHARED
-@given(gap=st.floats(1.0, 30.0), depth=depths, width=widths, res=st.integers(16, 256), fov=fovs, model=models, share=shares)
+@given(
+    gap=st.floats(1.0, 30.0), depth=depths, width=widths, res=st.integers(16, 256), fov=fovs, model=models, share=shares
+)
 def test_shared_budget_keeps_texels_and_parallax_within_one_pixel(gap, depth, width, res, fov, model, share):
     cell, bounds = scene(1.0, gap, depth, width)
     plan = plan_layers(cell, bounds, math.radians(fov), res, model, texel_share=share)
@@ -188,7 +211,14 @@ def test_shared_budget_is_scale_invariant(gap, depth, width, res, fov, share, k)
 
 
 @SHARED
-@given(gap=st.floats(1.0, 30.0), depth=depths, width=widths, res=st.integers(16, 128), factor=st.floats(1.1, 3.0), share=shares)
+@given(
+    gap=st.floats(1.0, 30.0),
+    depth=depths,
+    width=widths,
+    res=st.integers(16, 128),
+    factor=st.floats(1.1, 3.0),
+    share=shares,
+)
 def test_shared_budget_layer_count_rises_with_resolution(gap, depth, width, res, factor, share):
     cell, bounds = scene(1.0, gap, depth, width)
     low = plan_layers(cell, bounds, math.radians(45), res, texel_share=share)
@@ -211,7 +241,13 @@ def test_thesis_depth_ranges_exceed_the_pixel_seen_from_the_far_corners():
 @pytest.mark.parametrize("share", [0.0, 1.0, -0.5, math.nan])
 def test_texel_share_outside_0_1_is_refused(share):
     with pytest.raises(LayerPlanError, match="texel share"):
-        plan_layers(BoxCell.from_center([0, 0, 0], 10.0), [[50.0, -5.0, -5.0], [60.0, 5.0, 5.0]], math.radians(45), 512, texel_share=share)
+        plan_layers(
+            BoxCell.from_center([0, 0, 0], 10.0),
+            [[50.0, -5.0, -5.0], [60.0, 5.0, 5.0]],
+            math.radians(45),
+            512,
+            texel_share=share,
+        )
 
 
 # --- refusals -------------------------------------------------------------------------------------

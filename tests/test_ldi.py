@@ -11,9 +11,9 @@ import trimesh
 
 from farfield.core.errors import LayerPlanError
 from farfield.core.ldi.image import record_ldi
-from farfield.core.techniques.points.sampling import plan_point_sampling
 from farfield.core.render.raster import Camera
 from farfield.core.scene import SceneObject
+from farfield.core.techniques.points.sampling import plan_point_sampling
 from farfield.core.viewcells import BoxCell
 
 
@@ -62,7 +62,9 @@ def test_back_faces_count_so_a_closed_mesh_gives_two_hits_a_ray():
 def test_alpha_cut_texels_are_not_surfaces():
     texture = np.zeros((8, 8, 4), dtype=np.uint8)
     texture[..., :3] = 200
-    texture[..., 3] = np.where((np.arange(8)[:, None] // 2 + np.arange(8)[None, :] // 2) % 2 == 0, 255, 0)  # 2x2-texel checker
+    texture[..., 3] = np.where(
+        (np.arange(8)[:, None] // 2 + np.arange(8)[None, :] // 2) % 2 == 0, 255, 0
+    )  # 2x2-texel checker
     screen = _quad("screen", 4.0, half=1.0, texture=texture, alpha_cutoff=0.5)
     wall = _quad("wall", 6.0, half=50.0)
     ldi = record_ldi([screen, wall], _camera(96))
@@ -98,19 +100,34 @@ def test_a_conservative_ldi_samples_geometry_thinner_than_a_pixel_in_every_pixel
     camera = _camera(64, 1.0, 10.0)
     pixel = 2.0 * math.tan(0.5 * camera.fov) / 64 * 5.0  # one pixel's width at depth 5
     x0 = 0.6 * pixel
-    sliver = SceneObject("sliver", np.array([[x0, -1.0, 5.0], [x0 + 0.2 * pixel, -1.0, 5.0], [x0 + 0.2 * pixel, 1.0, 5.0], [x0, 1.0, 5.0]]), np.array([[0, 1, 2], [0, 2, 3]]))
+    sliver = SceneObject(
+        "sliver",
+        np.array([[x0, -1.0, 5.0], [x0 + 0.2 * pixel, -1.0, 5.0], [x0 + 0.2 * pixel, 1.0, 5.0], [x0, 1.0, 5.0]]),
+        np.array([[0, 1, 2], [0, 2, 3]]),
+    )
     wall = _quad("wall", 8.0, half=50.0)
     plain = record_ldi([sliver, wall], camera)
     assert not (plain.obj == 0).any()  # missed by every centre ray
     ldi = record_ldi([sliver, wall], camera, conservative=True)
     on_sliver = (ldi.obj == 0) & np.isfinite(ldi.depth)
     rows = np.unique(np.argwhere(on_sliver)[:, 1])
-    expected = np.flatnonzero(np.any(np.abs(camera.project(np.array([[x0, y, 5.0] for y in np.linspace(-1.0, 1.0, 2001)]))[:, 1][:, None] - (np.arange(64) + 0.5)[None, :]) <= 0.5, axis=0))
+    expected = np.flatnonzero(
+        np.any(
+            np.abs(
+                camera.project(np.array([[x0, y, 5.0] for y in np.linspace(-1.0, 1.0, 2001)]))[:, 1][:, None]
+                - (np.arange(64) + 0.5)[None, :]
+            )
+            <= 0.5,
+            axis=0,
+        )
+    )
     assert set(expected.tolist()) <= set(rows.tolist())  # every row the sliver crosses has a sample
     assert on_sliver.sum() <= 2 * len(rows)  # one surface, one sample a pixel (its two triangles merged)
     positions, index = ldi.samples()
     mine = ldi.obj[index[:, 0], index[:, 1], index[:, 2]] == 0
-    assert np.allclose(positions[mine, 2], 5.0) and np.all((positions[mine, 0] >= x0 - 1e-9) & (positions[mine, 0] <= x0 + 0.2 * pixel + 1e-9))
+    assert np.allclose(positions[mine, 2], 5.0) and np.all(
+        (positions[mine, 0] >= x0 - 1e-9) & (positions[mine, 0] <= x0 + 0.2 * pixel + 1e-9)
+    )
     # Within its pixel's square, on the sliver's edge nearest the pixel centre.
     pixels = camera.project(positions[mine]) - index[mine][:, [2, 1]]
     assert np.all((pixels >= -1e-6) & (pixels <= 1.0 + 1e-6))
@@ -135,7 +152,9 @@ def test_a_conservative_ldi_samples_an_alpha_cut_needle_in_every_pixel_it_crosse
     rows, cols = np.argwhere(on_card)[:, 1], np.argwhere(on_card)[:, 2]
     needle_x = (column + 0.5) / 512 * 2.0 * half - half
     expected = int(np.floor(camera.project(np.array([[needle_x, 0.0, 5.0]]))[0, 0]))
-    assert set(range(64)) <= set(rows.tolist()) and set(cols.tolist()) == {expected}  # every row, the column the needle crosses
+    assert set(range(64)) <= set(rows.tolist()) and set(cols.tolist()) == {
+        expected
+    }  # every row, the column the needle crosses
     assert on_card.sum() == 64  # one sample a pixel
     positions, index = ldi.samples()
     mine = ldi.obj[index[:, 0], index[:, 1], index[:, 2]] == 0
@@ -159,7 +178,11 @@ def merge_with_arrays(camera, centre, touched, objects):
     kind, shade, kept_depth = [np.zeros(plain.depth.shape, dtype=bool)], [centre_colours], plain.depth
     for layer, layer_colour in zip(touched, touched_colours):
         d = layer[..., 0]
-        near = np.any(np.abs(kept_depth - d[None]) <= (SAME_SURFACE * pixel * d)[None], axis=0) if kept_depth.shape[0] else np.zeros(d.shape, bool)
+        near = (
+            np.any(np.abs(kept_depth - d[None]) <= (SAME_SURFACE * pixel * d)[None], axis=0)
+            if kept_depth.shape[0]
+            else np.zeros(d.shape, bool)
+        )
         keep = np.isfinite(d) & ~near
         if not keep.any():
             continue
@@ -172,7 +195,12 @@ def merge_with_arrays(camera, centre, touched, objects):
     depth = np.concatenate(depth)
     order = np.argsort(depth, axis=0, kind="stable")
     take = lambda a: np.take_along_axis(a, order, axis=0)  # noqa: E731
-    depth, obj, tri, kind = take(depth), take(np.concatenate(obj)), take(np.concatenate(tri)), take(np.concatenate(kind))
+    depth, obj, tri, kind = (
+        take(depth),
+        take(np.concatenate(obj)),
+        take(np.concatenate(tri)),
+        take(np.concatenate(kind)),
+    )
     positions = np.take_along_axis(np.concatenate(positions), order[..., None], axis=0)
     colour = np.take_along_axis(np.concatenate(shade), order[..., None], axis=0)
     filled = np.isfinite(depth).any(axis=(1, 2))
@@ -188,13 +216,33 @@ def test_the_merge_kernels_keep_the_rule_written_with_arrays():
     pixel = 2.0 * math.tan(0.5 * camera.fov) / 64 * 5.0
     objects = [
         SceneObject("ball", np.asarray(ball.vertices) + [0.3, 0.0, 5.0], np.asarray(ball.faces)),
-        SceneObject("sliver", np.array([[0.6 * pixel, -1.0, 4.0], [0.8 * pixel, -1.0, 4.0], [0.8 * pixel, 1.0, 4.0], [0.6 * pixel, 1.0, 4.0]]), np.array([[0, 1, 2], [0, 2, 3]])),
+        SceneObject(
+            "sliver",
+            np.array(
+                [[0.6 * pixel, -1.0, 4.0], [0.8 * pixel, -1.0, 4.0], [0.8 * pixel, 1.0, 4.0], [0.6 * pixel, 1.0, 4.0]]
+            ),
+            np.array([[0, 1, 2], [0, 2, 3]]),
+        ),
         _quad("wall", 8.0, half=50.0),
     ]
     hits = peel(objects, camera)
-    touched = peel(objects, camera, touching=True, centre=hits[0][..., 0], same_surface=SAME_SURFACE * 2.0 * math.tan(0.5 * camera.fov) / 64)
+    touched = peel(
+        objects,
+        camera,
+        touching=True,
+        centre=hits[0][..., 0],
+        same_surface=SAME_SURFACE * 2.0 * math.tan(0.5 * camera.fov) / 64,
+    )
     fast = _merge(camera, hits, touched, objects)
     depth, obj, tri, kind, positions, colour = merge_with_arrays(camera, hits, touched, objects)
     assert kind.any() and depth.shape[0] >= 3
-    assert np.array_equal(fast.depth, depth, equal_nan=True) and np.array_equal(fast.obj, obj) and np.array_equal(fast.triangle, tri)
-    assert np.array_equal(fast.touched, kind) and np.array_equal(fast.positions, positions, equal_nan=True) and np.array_equal(fast.colour, colour)
+    assert (
+        np.array_equal(fast.depth, depth, equal_nan=True)
+        and np.array_equal(fast.obj, obj)
+        and np.array_equal(fast.triangle, tri)
+    )
+    assert (
+        np.array_equal(fast.touched, kind)
+        and np.array_equal(fast.positions, positions, equal_nan=True)
+        and np.array_equal(fast.colour, colour)
+    )

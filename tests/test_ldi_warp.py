@@ -75,7 +75,7 @@ def _zbuffer_warp(ldi, camera):
             continue
         c0 = int(math.floor(x)) - (s - 1) // 2 if s % 2 else int(math.floor(x + 0.5)) - s // 2
         r0 = int(math.floor(y)) - (s - 1) // 2 if s % 2 else int(math.floor(y + 0.5)) - s // 2
-        block = depth[max(r0, 0):max(r0 + s, 0), max(c0, 0):max(c0 + s, 0)]
+        block = depth[max(r0, 0) : max(r0 + s, 0), max(c0, 0) : max(c0 + s, 0)]
         np.minimum(block, zz, out=block)
     return np.where(np.isfinite(depth), depth, np.nan)
 
@@ -116,7 +116,11 @@ def test_the_epipole_is_the_eye_projected_and_its_sign_says_in_front_or_behind(b
     c, r, w = epipole(cam, cam.eye + 3.0 * cam.forward)
     n = cam.resolution
     t = math.tan(0.5 * cam.fov)
-    assert w == pytest.approx(3.0) and c == pytest.approx((-cam.offset[0] + t) / (2 * t) * n) and r == pytest.approx((t + cam.offset[1]) / (2 * t) * n)
+    assert (
+        w == pytest.approx(3.0)
+        and c == pytest.approx((-cam.offset[0] + t) / (2 * t) * n)
+        and r == pytest.approx((t + cam.offset[1]) / (2 * t) * n)
+    )
     assert epipole(cam, cam.eye - 3.0 * cam.forward)[2] == pytest.approx(-3.0)
     assert epipole(cam, cam.eye + cam.right)[2] > 0  # w = 0 is clamped to a tiny value of its sign
 
@@ -136,7 +140,9 @@ def city_images():
     scene = procedural.city(64, seed=1, detail=8)
     lo, hi = scene.bounds
     a, b = 0.75 * lo + 0.25 * hi, 0.25 * lo + 0.75 * hi
-    placement = place_primitives(scene, [a[0], 3, a[2]], [b[0], 7, b[2]], BudgetSettings(primitives=0.3 * scene.triangle_count, max_level=3))
+    placement = place_primitives(
+        scene, [a[0], 3, a[2]], [b[0], 7, b[2]], BudgetSettings(primitives=0.3 * scene.triangle_count, max_level=3)
+    )
     return scene, placement
 
 
@@ -176,7 +182,9 @@ def test_the_ldi_technique_refuses_a_part_that_reaches_into_its_cell_and_bad_pay
     assert technique.check(far_cell, options, scene.bounds).layers == 1
     one = technique.bake(scene, far_cell, options, None, None)
     assert one.stats["construction_images"] == 1 and one.payload.count == one.stats["samples"] > 0
-    near_cell = BoxCell(np.array([-3.0, -3.0, -6.0]), np.array([3.0, 3.0, 0.0]))  # half-diagonal 5.8, the part starts 6 ahead of -3
+    near_cell = BoxCell(
+        np.array([-3.0, -3.0, -6.0]), np.array([3.0, 3.0, 0.0])
+    )  # half-diagonal 5.8, the part starts 6 ahead of -3
     with pytest.raises(LayerPlanError, match="half-diagonal"):
         technique.check(near_cell, options, scene.bounds)
     with pytest.raises(LayerPlanError, match="1 or 9"):
@@ -188,7 +196,7 @@ def test_the_ldi_technique_refuses_a_part_that_reaches_into_its_cell_and_bad_pay
     with pytest.raises(BundleFormatError, match="pages"):
         good.check(len(one.pages) - 1)
     # the pages hold the LDI: depth and colour come back bit for bit
-    from farfield.core.ldi.pages import ldi_of
+    from farfield.core.ldi.image import ldi_of
 
     back = ldi_of(one)
     assert back.count == one.payload.count and back.layers == one.stats["layers"]

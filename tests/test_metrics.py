@@ -24,7 +24,9 @@ def scenes_shown(client: TestClient) -> int:
 
 
 def test_metrics_show_the_key_s_tenant(tmp_path):
-    settings = Settings.from_env({"FARFIELD_HOME": str(tmp_path), "REDIS_URL": "redis://127.0.0.1:1/0", "FARFIELD_ADMIN_KEY": KEY})
+    settings = Settings.from_env(
+        {"FARFIELD_HOME": str(tmp_path), "REDIS_URL": "redis://127.0.0.1:1/0", "FARFIELD_ADMIN_KEY": KEY}
+    )
     app = create_app(settings)
     other_key, _ = create_key(Database(settings.database_url), "tenant-b")
     path = write_scene(city(buildings=2), tmp_path, "glb")

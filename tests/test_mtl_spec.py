@@ -26,9 +26,23 @@ def quads_obj(folder: Path, materials: dict[str, list[str]], name: str = "scene"
     ``materials`` (material -> its statements)."""
     lines, mtl = [f"mtllib {name}.mtl"], []
     for k, (material, statements) in enumerate(materials.items()):
-        lines += [f"v {k} 0 0", f"v {k + 1} 0 0", f"v {k + 1} 1 0", f"v {k} 1 0", "vt 0 0", "vt 1 0", "vt 1 1", "vt 0 1"]
+        lines += [
+            f"v {k} 0 0",
+            f"v {k + 1} 0 0",
+            f"v {k + 1} 1 0",
+            f"v {k} 1 0",
+            "vt 0 0",
+            "vt 1 0",
+            "vt 1 1",
+            "vt 0 1",
+        ]
         a = 4 * k + 1
-        lines += [f"o {material}", f"usemtl {material}", f"f {a}/{a} {a + 1}/{a + 1} {a + 2}/{a + 2}", f"f {a}/{a} {a + 2}/{a + 2} {a + 3}/{a + 3}"]
+        lines += [
+            f"o {material}",
+            f"usemtl {material}",
+            f"f {a}/{a} {a + 1}/{a + 1} {a + 2}/{a + 2}",
+            f"f {a}/{a} {a + 2}/{a + 2} {a + 3}/{a + 3}",
+        ]
         mtl += [f"newmtl {material}", *statements, ""]
     (folder / f"{name}.mtl").write_text("\n".join(mtl))
     path = folder / f"{name}.obj"
@@ -63,10 +77,14 @@ def test_kd_multiplies_map_kd_and_a_material_without_kd_shows_its_texture(tmp_pa
     """A voxel-world scene's shared atlas is grey and ``Kd`` carries each material's tint: the
     colour is ``Kd`` × ``map_Kd`` (MTL; three.js), in linear light."""
     atlas = grey_atlas(tmp_path)
-    path = quads_obj(tmp_path, {"grass": [f"Kd {' '.join(map(str, GRASS_KD))}", "map_Kd atlas.png"], "plain": ["map_Kd atlas.png"]})
+    path = quads_obj(
+        tmp_path, {"grass": [f"Kd {' '.join(map(str, GRASS_KD))}", "map_Kd atlas.png"], "plain": ["map_Kd atlas.png"]}
+    )
     scene = load_scene(path)
     grass, plain = scene.subset(["grass"]).objects[0], scene.subset(["plain"]).objects[0]
-    np.testing.assert_allclose(grass.base_color[:3], srgb_to_linear(np.round(np.array(GRASS_KD) * 255) / 255), atol=2e-3)
+    np.testing.assert_allclose(
+        grass.base_color[:3], srgb_to_linear(np.round(np.array(GRASS_KD) * 255) / 255), atol=2e-3
+    )
     np.testing.assert_array_equal(plain.base_color, [1.0, 1.0, 1.0, 1.0])
     for obj in (grass, plain):
         np.testing.assert_array_equal(obj.texture, atlas)
@@ -80,7 +98,9 @@ def test_an_rgba_mask_with_constant_alpha_is_read_by_its_luminance_and_multiplie
     expected = (colour[..., 3].astype(np.uint16) * mask[..., 0] + 127) // 255
     assert np.abs(obj.texture[..., 3].astype(int) - expected).max() <= 1
     np.testing.assert_array_equal(obj.texture[..., :3], colour[..., :3])
-    assert obj.texture[8, 8, 3] == 255 and obj.texture[0, 0, 3] == 0 and obj.texture[8, 2, 3] == 0  # disc; outside; the colour's own cut
+    assert (
+        obj.texture[8, 8, 3] == 255 and obj.texture[0, 0, 3] == 0 and obj.texture[8, 2, 3] == 0
+    )  # disc; outside; the colour's own cut
 
 
 @pytest.mark.parametrize("channel, band", [("r", 0), ("g", 1), ("b", 2), ("m", 3)])
@@ -110,7 +130,9 @@ def test_a_mask_that_hides_nothing_and_a_texture_that_never_passes_its_cut_are_w
     grey_atlas(tmp_path)
     PIL.Image.new("L", (4, 4), 255).save(tmp_path / "opaque.png")
     PIL.Image.new("RGBA", (4, 4), (0, 0, 0, 255)).save(tmp_path / "black.png")
-    path = quads_obj(tmp_path, {"a": ["map_Kd atlas.png", "map_d opaque.png"], "b": ["map_Kd atlas.png", "map_d black.png"]})
+    path = quads_obj(
+        tmp_path, {"a": ["map_Kd atlas.png", "map_d opaque.png"], "b": ["map_Kd atlas.png", "map_d black.png"]}
+    )
     with pytest.warns(UserWarning):
         warnings = load_scene(path).warnings
     assert any("'opaque.png'" in w and "opaque everywhere" in w for w in warnings), warnings
@@ -120,7 +142,9 @@ def test_a_mask_that_hides_nothing_and_a_texture_that_never_passes_its_cut_are_w
 
 def test_map_kd_offset_and_scale_move_the_uv_and_unsupported_options_are_named(tmp_path):
     grey_atlas(tmp_path)
-    path = quads_obj(tmp_path, {"moved": ["map_Kd -s 2 3 1 -o 0.5 0.25 0 -clamp on atlas.png"], "still": ["map_Kd atlas.png"]})
+    path = quads_obj(
+        tmp_path, {"moved": ["map_Kd -s 2 3 1 -o 0.5 0.25 0 -clamp on atlas.png"], "still": ["map_Kd atlas.png"]}
+    )
     with pytest.warns(UserWarning):
         scene = load_scene(path)
     moved, still = scene.subset(["moved"]).objects[0], scene.subset(["still"]).objects[0]
@@ -147,14 +171,21 @@ def case_scene(folder: Path) -> Path:
 def test_texture_names_resolve_alike_from_disk_and_from_an_upload(tmp_path):
     path = case_scene(tmp_path)
     from_disk = load_scene(path)
-    assert all(o.texture is not None for o in from_disk.objects if o.name != "flat"), [o.name for o in from_disk.objects if o.texture is None]
-    files = {p.relative_to(tmp_path).as_posix(): p.read_bytes() for p in tmp_path.rglob("*") if p.is_file() and p != path}
+    assert all(o.texture is not None for o in from_disk.objects if o.name != "flat"), [
+        o.name for o in from_disk.objects if o.texture is None
+    ]
+    files = {
+        p.relative_to(tmp_path).as_posix(): p.read_bytes() for p in tmp_path.rglob("*") if p.is_file() and p != path
+    }
     uploaded = load_scene_bytes(path.read_bytes(), "obj", path.name, assets=files)
     assert uploaded.content_hash == from_disk.content_hash
     # what `farfield submit` packs: the files under their own names, found as the loader finds them
     assert sorted(referenced_files(path)) == ["leaf.png", "scene.mtl", "textures/bark.png"]
     packed = read_assets_zip(pack_scene(path))
-    assert load_scene_bytes(packed.pop("scene.obj"), "obj", "scene.obj", assets=packed).content_hash == from_disk.content_hash
+    assert (
+        load_scene_bytes(packed.pop("scene.obj"), "obj", "scene.obj", assets=packed).content_hash
+        == from_disk.content_hash
+    )
 
 
 def test_a_file_index_prefers_the_exact_name_and_refuses_an_ambiguous_base_name():

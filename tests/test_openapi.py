@@ -43,7 +43,12 @@ CONFIG = {
     "seed": 24,
     "headers": AUTH,
     "generation": {"max-examples": 25, "deterministic": True, "database": "none"},
-    "phases": {"examples": {"enabled": True}, "coverage": {"enabled": True}, "fuzzing": {"enabled": True}, "stateful": {"enabled": True}},
+    "phases": {
+        "examples": {"enabled": True},
+        "coverage": {"enabled": True},
+        "fuzzing": {"enabled": True},
+        "stateful": {"enabled": True},
+    },
     "operations": [
         # Whether an upload is a scene, or a job's view cells fit the scene's part, is more than a
         # schema can say: schema-valid bytes or cells are a 422 there.
@@ -69,13 +74,19 @@ def schemathesis_run(app, config: dict) -> tuple[list[str], int, float]:
                     if check.failure_info is not None:
                         failure = check.failure_info.failure
                         response = event.recorder.find_response(case_id=case_id)
-                        answer = f"{response.status_code} {response.text[:200]}" if response is not None else "no response"
-                        failures.add(f"{check.name} | {failure.operation} | {failure.title} | {failure.message.splitlines()[0] if failure.message else ''} | {answer}")
+                        answer = (
+                            f"{response.status_code} {response.text[:200]}" if response is not None else "no response"
+                        )
+                        failures.add(
+                            f"{check.name} | {failure.operation} | {failure.title} | {failure.message.splitlines()[0] if failure.message else ''} | {answer}"
+                        )
         elif isinstance(event, (events.NonFatalError, events.FatalError)):
-            failures.add(f"error | {getattr(event, 'label', '')} | {getattr(event, 'value', getattr(event, 'exception', ''))!r}")
+            failures.add(
+                f"error | {getattr(event, 'label', '')} | {getattr(event, 'value', getattr(event, 'exception', ''))!r}"
+            )
         elif isinstance(event, events.EngineFinished):
             seconds = event.running_time
-    print('checks run:', sorted(names))
+    print("checks run:", sorted(names))
     return sorted(failures), requests, seconds
 
 
@@ -105,7 +116,9 @@ def checked(service, method: str, template: str, path: str | None = None, **requ
     app, client, _scene = service
     response = client.request(method, path or template, **request)
     if not hasattr(app.state, "schemathesis_schema"):
-        app.state.schemathesis_schema = schemathesis.openapi.from_asgi("/openapi.json", app, config=SchemathesisConfig.from_dict(CONFIG))
+        app.state.schemathesis_schema = schemathesis.openapi.from_asgi(
+            "/openapi.json", app, config=SchemathesisConfig.from_dict(CONFIG)
+        )
     # ignored_auth resends the case without its key: this case has none (the client adds it); the
     # schemathesis run checks it
     app.state.schemathesis_schema[template][method].Case().validate_response(response, excluded_checks=[ignored_auth])
@@ -123,7 +136,12 @@ def test_a_job_s_life_answers_as_documented(service, tmp_path):
     other = checked(service, "POST", "/v1/scenes", files={"file": ("other.glb", path.read_bytes())})
     assert other.status_code == 201
     assert checked(service, "GET", "/v1/scenes/{scene_id}", f"/v1/scenes/{scene_id}").status_code == 200
-    spec = {"scene_id": scene_id, "objects": ["building_000"], "resolution": 64, "viewcells": [{"kind": "box", "lo": [60, 2, 60], "hi": [64, 6, 64]}]}
+    spec = {
+        "scene_id": scene_id,
+        "objects": ["building_000"],
+        "resolution": 64,
+        "viewcells": [{"kind": "box", "lo": [60, 2, 60], "hi": [64, 6, 64]}],
+    }
     job = checked(service, "POST", "/v1/jobs", json=spec)
     assert job.status_code == 201, job.text
     job_id = job.json()["id"]
@@ -131,12 +149,28 @@ def test_a_job_s_life_answers_as_documented(service, tmp_path):
     assert checked(service, "GET", "/v1/jobs/{job_id}", f"/v1/jobs/{job_id}").json()["state"] == "queued"
     assert checked(service, "GET", "/v1/jobs/{job_id}/cells/{index}", f"/v1/jobs/{job_id}/cells/0").status_code == 200
     assert checked(service, "GET", "/v1/jobs/{job_id}/cells/{index}", f"/v1/jobs/{job_id}/cells/1").status_code == 404
-    assert checked(service, "GET", "/v1/jobs/{job_id}/cells/{index}/bundle.zip", f"/v1/jobs/{job_id}/cells/0/bundle.zip").status_code == 404
-    assert checked(service, "GET", "/v1/jobs/{job_id}/lookup", f"/v1/jobs/{job_id}/lookup", params={"x": 62, "y": 4, "z": 62}).json()[0]["index"] == 0
-    assert checked(service, "GET", "/v1/jobs/{job_id}/database.zip", f"/v1/jobs/{job_id}/database.zip").status_code == 409
+    assert (
+        checked(
+            service, "GET", "/v1/jobs/{job_id}/cells/{index}/bundle.zip", f"/v1/jobs/{job_id}/cells/0/bundle.zip"
+        ).status_code
+        == 404
+    )
+    assert (
+        checked(
+            service, "GET", "/v1/jobs/{job_id}/lookup", f"/v1/jobs/{job_id}/lookup", params={"x": 62, "y": 4, "z": 62}
+        ).json()[0]["index"]
+        == 0
+    )
+    assert (
+        checked(service, "GET", "/v1/jobs/{job_id}/database.zip", f"/v1/jobs/{job_id}/database.zip").status_code == 409
+    )
     assert checked(service, "POST", "/v1/jobs/{job_id}/retry", f"/v1/jobs/{job_id}/retry").status_code == 409
-    assert checked(service, "DELETE", "/v1/scenes/{scene_id}", f"/v1/scenes/{scene_id}").status_code == 409  # the queued job uses it
-    assert checked(service, "POST", "/v1/jobs/{job_id}/cancel", f"/v1/jobs/{job_id}/cancel").json()["state"] == "cancelled"
+    assert (
+        checked(service, "DELETE", "/v1/scenes/{scene_id}", f"/v1/scenes/{scene_id}").status_code == 409
+    )  # the queued job uses it
+    assert (
+        checked(service, "POST", "/v1/jobs/{job_id}/cancel", f"/v1/jobs/{job_id}/cancel").json()["state"] == "cancelled"
+    )
     assert checked(service, "POST", "/v1/jobs/{job_id}/cancel", f"/v1/jobs/{job_id}/cancel").status_code == 409
     other_id = other.json()["id"]
     assert checked(service, "DELETE", "/v1/scenes/{scene_id}", f"/v1/scenes/{other_id}").status_code == 204
@@ -151,7 +185,9 @@ def test_every_error_response_is_the_one_error_body(document):
         for method, operation in item.items():
             for status, response in operation["responses"].items():
                 if status.startswith("4"):
-                    assert response["content"]["application/json"]["schema"] == {"$ref": "#/components/schemas/ErrorBody"}, (method, path, status)
+                    assert response["content"]["application/json"]["schema"] == {
+                        "$ref": "#/components/schemas/ErrorBody"
+                    }, (method, path, status)
 
 
 def test_the_document_lists_each_operation_s_errors(document):
@@ -164,9 +200,22 @@ def test_the_document_lists_each_operation_s_errors(document):
     assert {"400", "401", "404", "413", "422", "429"} <= set(paths["/v1/jobs"]["post"]["responses"])
     assert {"400", "401", "413", "422"} <= set(paths["/v1/scenes"]["post"]["responses"])
     assert "409" in paths["/v1/scenes/{scene_id}"]["delete"]["responses"]
-    assert document["components"]["securitySchemes"]["BearerKey"] == {"type": "http", "scheme": "bearer", "description": ANY}
-    assert list(paths["/v1/jobs/{job_id}/cells/{index}/atlas/{page}.png"]["get"]["responses"]["200"]["content"]) == ["image/png"]
-    assert paths["/v1/jobs"]["get"]["parameters"][0]["schema"]["enum"] == ["queued", "placing", "running", "done", "failed", "cancelled"]
+    assert document["components"]["securitySchemes"]["BearerKey"] == {
+        "type": "http",
+        "scheme": "bearer",
+        "description": ANY,
+    }
+    assert list(paths["/v1/jobs/{job_id}/cells/{index}/atlas/{page}.png"]["get"]["responses"]["200"]["content"]) == [
+        "image/png"
+    ]
+    assert paths["/v1/jobs"]["get"]["parameters"][0]["schema"]["enum"] == [
+        "queued",
+        "placing",
+        "running",
+        "done",
+        "failed",
+        "cancelled",
+    ]
 
 
 def test_every_extra_status_names_an_operation(document):
@@ -200,12 +249,47 @@ def test_an_undeclared_method_is_a_405_listing_the_path_s_methods(service, metho
     "request_, status, error",
     [
         ({"method": "GET", "url": "/v1/nothing"}, 404, "NotFoundError"),
-        ({"method": "GET", "url": "/v1/scenes", "headers": {"Authorization": "Bearer wrong-key-0123456789"}}, 401, "AuthError"),
+        (
+            {"method": "GET", "url": "/v1/scenes", "headers": {"Authorization": "Bearer wrong-key-0123456789"}},
+            401,
+            "AuthError",
+        ),
         ({"method": "GET", "url": "/v1/scenes", "headers": {"Authorization": "Basic abc"}}, 401, "AuthError"),
-        ({"method": "POST", "url": "/v1/jobs", "content": b"\xff\xfe{", "headers": {"Content-Type": "application/json"}}, 400, "BadRequestError"),
-        ({"method": "POST", "url": "/v1/jobs", "content": b"{", "headers": {"Content-Type": "application/json"}}, 422, "ValidationError"),
-        ({"method": "POST", "url": "/v1/jobs", "content": b"{}", "headers": {"Content-Type": "application/json", "Content-Length": str(2**30)}}, 413, "UploadTooLargeError"),
-        ({"method": "POST", "url": "/v1/scenes", "content": b"--x\r\nbroken", "headers": {"Content-Type": "multipart/form-data"}}, 400, "BadRequestError"),
+        (
+            {
+                "method": "POST",
+                "url": "/v1/jobs",
+                "content": b"\xff\xfe{",
+                "headers": {"Content-Type": "application/json"},
+            },
+            400,
+            "BadRequestError",
+        ),
+        (
+            {"method": "POST", "url": "/v1/jobs", "content": b"{", "headers": {"Content-Type": "application/json"}},
+            422,
+            "ValidationError",
+        ),
+        (
+            {
+                "method": "POST",
+                "url": "/v1/jobs",
+                "content": b"{}",
+                "headers": {"Content-Type": "application/json", "Content-Length": str(2**30)},
+            },
+            413,
+            "UploadTooLargeError",
+        ),
+        (
+            {
+                "method": "POST",
+                "url": "/v1/scenes",
+                "content": b"--x\r\nbroken",
+                "headers": {"Content-Type": "multipart/form-data"},
+            },
+            400,
+            "BadRequestError",
+        ),
         ({"method": "POST", "url": "/v1/scenes", "files": {"other": ("a.txt", b"x")}}, 422, "SceneLoadError"),
     ],
 )
@@ -232,7 +316,12 @@ def test_every_error_has_the_error_body(service, request_, status, error):
 def test_no_loose_coercion(service, change, field):
     """Issue 24, defect 8: the document says integer and number; a string or a boolean is not one."""
     _app, client, scene_id = service
-    body = {"scene_id": scene_id, "resolution": 64, "viewcells": [{"kind": "box", "lo": [40, 1, 40], "hi": [44, 5, 44]}], **change}
+    body = {
+        "scene_id": scene_id,
+        "resolution": 64,
+        "viewcells": [{"kind": "box", "lo": [40, 1, 40], "hi": [44, 5, 44]}],
+        **change,
+    }
     if "grid" in change:
         del body["viewcells"]
     response = client.post("/v1/jobs", json=body)

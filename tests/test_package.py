@@ -12,8 +12,8 @@ import zipfile
 from pathlib import Path
 
 import pytest
-
 from scenes import box_object, write_scene
+
 from farfield.core.scene import Scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -26,7 +26,9 @@ def wheel(tmp_path_factory) -> Path:
     for name in ("pyproject.toml", "README.md"):
         shutil.copy2(ROOT / name, source / name)
     for folder in ("core", "api", "service", "workers", "cli"):
-        shutil.copytree(ROOT / folder, source / folder, ignore=shutil.ignore_patterns("__pycache__", "*.pyc", "*.nbi", "*.nbc"))
+        shutil.copytree(
+            ROOT / folder, source / folder, ignore=shutil.ignore_patterns("__pycache__", "*.pyc", "*.nbi", "*.nbc")
+        )
     built = subprocess.run(
         [sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", "--wheel-dir", str(out), str(source)],
         capture_output=True, text=True, timeout=600,
@@ -53,9 +55,19 @@ def test_the_installed_wheel_runs_outside_the_checkout(wheel, tmp_path):
     python = venv / "bin" / "python"
     # The dependencies come from this interpreter's site-packages (a path entry, so its editable
     # install of the checkout is not activated); farfield itself only from the wheel.
-    site = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], capture_output=True, text=True, check=True)
+    site = subprocess.run(
+        [str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     (Path(site.stdout.strip()) / "farfield-test-deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
-    installed = subprocess.run([str(python), "-m", "pip", "install", "--quiet", "--no-deps", "--no-index", str(wheel)], capture_output=True, text=True, timeout=300)
+    installed = subprocess.run(
+        [str(python), "-m", "pip", "install", "--quiet", "--no-deps", "--no-index", str(wheel)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert installed.returncode == 0, installed.stderr[-3000:]
     work = tmp_path / "elsewhere"
     work.mkdir()
@@ -71,9 +83,28 @@ def test_the_installed_wheel_runs_outside_the_checkout(wheel, tmp_path):
     helped = run(farfield, "--help")
     assert helped.returncode == 0 and "bake" in helped.stdout, helped.stderr
     listed = run(farfield, "techniques", "--json")
-    assert listed.returncode == 0 and [t["name"] for t in json.loads(listed.stdout)["techniques"]] == ["layered", "envmap", "tdm", "points", "ldi"]
-    scene = Scene.from_objects([box_object("block", (-5.0, 0.0, -5.0), (5.0, 8.0, 5.0), (0.8, 0.35, 0.2, 1.0))], source="package")
+    assert listed.returncode == 0 and [t["name"] for t in json.loads(listed.stdout)["techniques"]] == [
+        "layered",
+        "envmap",
+        "tdm",
+        "points",
+        "ldi",
+    ]
+    scene = Scene.from_objects(
+        [box_object("block", (-5.0, 0.0, -5.0), (5.0, 8.0, 5.0), (0.8, 0.35, 0.2, 1.0))], source="package"
+    )
     scene_file = write_scene(scene, work, "glb", "block")
-    baked = run(farfield, "bake", str(scene_file), "--viewcell", "box:-2,3,-27,2,7,-23", "--resolution", "64", "--out", "bundle", "--json")
+    baked = run(
+        farfield,
+        "bake",
+        str(scene_file),
+        "--viewcell",
+        "box:-2,3,-27,2,7,-23",
+        "--resolution",
+        "64",
+        "--out",
+        "bundle",
+        "--json",
+    )
     assert baked.returncode == 0, baked.stderr
     assert json.loads(baked.stdout)["stats"]["quads"] > 0 and (work / "bundle" / "impostor.glb").stat().st_size > 0

@@ -67,7 +67,9 @@ def test_enclosing_frusta_never_miss_an_element_a_view_sees():
             roll = rng.uniform(0, 2 * math.pi)
             for k in np.flatnonzero(~mask):
                 pts = boxes[k, 0] + rng.random((200, 3)) * (boxes[k, 1] - boxes[k, 0])
-                corners = np.array([[boxes[k, i >> 2 & 1, 0], boxes[k, i >> 1 & 1, 1], boxes[k, i & 1, 2]] for i in range(8)])
+                corners = np.array(
+                    [[boxes[k, i >> 2 & 1, 0], boxes[k, i >> 1 & 1, 1], boxes[k, i & 1, 2]] for i in range(8)]
+                )
                 assert not _view_sees(eye, forward, roll, np.concatenate([pts, corners]), FOV), (vdi, k)
             seen_checked += int(mask.sum())
     assert seen_checked > 0
@@ -119,7 +121,11 @@ def _instance(seed: int, candidates: int = 8, cpvs: int = 5):
         s = np.flatnonzero(rng.random(cpvs) < 0.7)
         gn = cum[s, h.end[n]] - cum[s, h.start[n]]
         tn = 0.3 + 0.5 * (pix_cum[s, h.end[n]] - pix_cum[s, h.start[n]])
-        s, gn, tn = s[gn > tn], gn[gn > tn], tn[gn > tn]  # served only where it saves (as generate_candidates keeps them)
+        s, gn, tn = (
+            s[gn > tn],
+            gn[gn > tn],
+            tn[gn > tn],
+        )  # served only where it saves (as generate_candidates keeps them)
         served.append(s), g.append(gn), ti.append(tn)
     cand = Candidates(
         node=nodes, kind=np.zeros(candidates, dtype=np.int64), cells=tuple([None] * candidates),
@@ -189,7 +195,9 @@ def test_greedy_is_valid_and_near_the_brute_force_optimum():
         if optimum is None:
             continue
         solvable += 1
-        assert np.all(g.t <= t_max * (1 + 1e-9)), f"instance {seed}: a valid placement exists but the greedy left {g.t.max()} > {t_max}"
+        assert np.all(g.t <= t_max * (1 + 1e-9)), (
+            f"instance {seed}: a valid placement exists but the greedy left {g.t.max()} > {t_max}"
+        )
         ratios.append(float(cand.memory[kept].sum()) / optimum)
     assert solvable >= 20
     assert max(ratios) <= 1.5, f"greedy / optimum memory: mean {np.mean(ratios):.3f}, worst {max(ratios):.3f}"
@@ -204,7 +212,9 @@ def _small_city(scale: float = 1.0) -> Scene:
     city = procedural.city(36, seed=5, detail=6)
     if scale == 1.0:
         return city
-    return Scene.from_objects([SceneObject(o.name, o.vertices * scale, o.faces, base_color=o.base_color) for o in city.objects], "scaled")
+    return Scene.from_objects(
+        [SceneObject(o.name, o.vertices * scale, o.faces, base_color=o.base_color) for o in city.objects], "scaled"
+    )
 
 
 def _settings(t_max: float, **kw) -> PlacementSettings:
@@ -259,7 +269,12 @@ def test_a_view_space_inside_a_heavy_object_is_unsolvable_and_named():
     v, f = procedural.subdivided_box([30.0, 100.0, 30.0], [60.0, 130.0, 60.0], 40)  # 19200 triangles around the viewer
     heavy = SceneObject("shell", v, f[:, ::-1])
     scene = Scene.from_objects([*city.objects, heavy], "city+shell")
-    result = place(scene, [40.0, 110.0, 40.0], [50.0, 115.0, 50.0], _settings(t_max=5000.0, cpv_size=10.0, cluster_triangles=100_000))
+    result = place(
+        scene,
+        [40.0, 110.0, 40.0],
+        [50.0, 115.0, 50.0],
+        _settings(t_max=5000.0, cpv_size=10.0, cluster_triangles=100_000),
+    )
     s = result.summary
     assert s["cpvs_unsolvable"] > 0 and result.unsolvable
     assert any("shell" in r["elements"] for r in result.unsolvable)
@@ -274,7 +289,9 @@ def test_placement_is_the_same_up_to_scale(scale):
     few in a thousand)."""
     base = place(_small_city(), *VIEW, _settings(t_max=0.5 * _small_city().triangle_count))
     scaled_view = ([c * scale for c in VIEW[0]], [c * scale for c in VIEW[1]])
-    other = place(_small_city(scale), *scaled_view, _settings(t_max=0.5 * _small_city().triangle_count, cpv_size=20.0 * scale))
+    other = place(
+        _small_city(scale), *scaled_view, _settings(t_max=0.5 * _small_city().triangle_count, cpv_size=20.0 * scale)
+    )
     for key in ("cpvs", "candidates", "impostors", "cpvs_solved"):
         assert other.summary[key] == base.summary[key], key
     assert [i["node"] for i in other.impostors] == [i["node"] for i in base.impostors]
@@ -314,7 +331,10 @@ def test_bad_inputs_are_placement_errors():
     with pytest.raises(PlacementError, match="cannot be placed"):
         place(city, *VIEW, _settings(t_max=100.0, technique="envmap", options={}))
     # part techniques without an estimate: not envmap's reason (points and ldi replace a part too)
-    with pytest.raises(PlacementError, match=r"technique 'points' has no memory and frame-time estimate for the frame-time planner; for a frame budget"):
+    with pytest.raises(
+        PlacementError,
+        match=r"technique 'points' has no memory and frame-time estimate for the frame-time planner; for a frame budget",
+    ):
         place(city, *VIEW, _settings(t_max=100.0, technique="points", options={}))
     with pytest.raises(PlacementError, match=r"technique 'ldi' has no .* placed by the primitive-budget algorithm"):
         place(city, *VIEW, _settings(t_max=100.0, technique="ldi", options={}))
@@ -322,7 +342,11 @@ def test_bad_inputs_are_placement_errors():
 
 def test_a_frame_time_model_with_a_per_frame_cost_above_the_budget_is_unsolvable():
     model = CostModel("frame_ms", (0.01, 1e-5, 0.0, 5.0), (0.0, 1e-4, 0.01), (100.0, 0.0, 1.3))
-    result = place(_small_city(), *VIEW, PlacementSettings(t_max=4.0, model=model, vdi_deg=90.0, options={"resolution": 128}, cpv_size=80.0))
+    result = place(
+        _small_city(),
+        *VIEW,
+        PlacementSettings(t_max=4.0, model=model, vdi_deg=90.0, options={"resolution": 128}, cpv_size=80.0),
+    )
     assert result.summary["cpvs"] == result.summary["cpvs_unsolvable"] > 0
 
 
@@ -350,7 +374,11 @@ def test_place_command_writes_a_placement_and_refuses_bad_input(tmp_path):
     both = runner.invoke(cli, ["place", str(path), "--view-space", "0,0,0,1,1,1"])
     assert both.exit_code == 2 and "budget" in both.output
     capped = runner.invoke(cli, [*args[:-1], "--json", "--max-impostor-mb", "0.001"])
-    assert json.loads(capped.output)["summary"]["candidates_refused_by_memory"] > 0 == doc["summary"]["candidates_refused_by_memory"]
+    assert (
+        json.loads(capped.output)["summary"]["candidates_refused_by_memory"]
+        > 0
+        == doc["summary"]["candidates_refused_by_memory"]
+    )
     zero = runner.invoke(cli, [*args[:-1], "--max-impostor-mb", "0"])
     assert zero.exit_code == 2 and "--max-impostor-mb must be > 0, got 0.0" in zero.output
 

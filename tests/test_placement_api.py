@@ -38,7 +38,12 @@ def small_city():
 
 def city_request(t_max: float, lo=VIEW[0], hi=VIEW[1]) -> dict:
     """A placement job's request: the view space, a primitive budget, coarse CPVs (quick to plan)."""
-    return {"view_space": {"lo": list(lo), "hi": list(hi)}, "budget": {"primitives": t_max}, "vdi_deg": 45.0, "cpv_size": 20.0}
+    return {
+        "view_space": {"lo": list(lo), "hi": list(hi)},
+        "budget": {"primitives": t_max},
+        "vdi_deg": 45.0,
+        "cpv_size": 20.0,
+    }
 
 
 def placement_of(index: dict) -> Placement:
@@ -49,13 +54,22 @@ def placement_of(index: dict) -> Placement:
          "memory_bytes_estimated": c["figures"]["estimated"]["memory_bytes_estimated"]}
         for c in index["cells"]
     ]  # fmt: skip
-    return Placement(section["parameters"], section["elements"], impostors, section["cpvs"], section["unsolvable"], section["summary"])
+    return Placement(
+        section["parameters"],
+        section["elements"],
+        impostors,
+        section["cpvs"],
+        section["unsolvable"],
+        section["summary"],
+    )
 
 
 def submit_placement(client, scene_id: str, request: dict, directory: Path) -> tuple[str, Placement, dict, Path]:
     """Submit a placement job over REST and wait for it: (job id, its placement, {impostor id: an
     object whose ``stats`` are the cell's}, its database.zip unpacked into ``directory``)."""
-    made = client.post("/v1/jobs", json={"scene_id": scene_id, "technique": "layered", "resolution": 64, "placement": request})
+    made = client.post(
+        "/v1/jobs", json={"scene_id": scene_id, "technique": "layered", "resolution": 64, "placement": request}
+    )
     assert made.status_code == 201, made.text
     job = wait_for_job(client, made.json()["id"], timeout=600)
     assert job["state"] == "done", (job["error"], job["errors"])
@@ -97,13 +111,23 @@ def scene_id(client, tmp_path_factory):
 @pytest.fixture(scope="module")
 def planned(client, scene_id, tmp_path_factory):
     """The done placement job: (job id, placement, impostors by id, its database folder)."""
-    return submit_placement(client, scene_id, city_request(0.5 * small_city().triangle_count), tmp_path_factory.mktemp("db"))
+    return submit_placement(
+        client, scene_id, city_request(0.5 * small_city().triangle_count), tmp_path_factory.mktemp("db")
+    )
 
 
 @pytest.fixture(scope="module")
 def jobs(client, scene_id, planned):
     """(done placement job id, a placement job still placing or later, grid job id)."""
-    grid = client.post("/v1/jobs", json={"scene_id": scene_id, "resolution": 64, "evaluate": False, "viewcells": [{"kind": "box", "lo": VIEW[0], "hi": VIEW[1]}]})
+    grid = client.post(
+        "/v1/jobs",
+        json={
+            "scene_id": scene_id,
+            "resolution": 64,
+            "evaluate": False,
+            "viewcells": [{"kind": "box", "lo": VIEW[0], "hi": VIEW[1]}],
+        },
+    )
     assert grid.status_code == 201, grid.text
     return planned[0], placing_job(client, scene_id), grid.json()["id"]
 
@@ -122,20 +146,33 @@ def test_every_cpv_centre_is_looked_up_with_its_impostors_cells(client, jobs, pl
         # Each impostor to draw comes with its cell record: done, with a result, its own stats.
         assert [c["index"] for c in found["cells"]] == cpv["impostors"]
         for cell in found["cells"]:
-            assert cell["state"] == "done" and cell["has_result"] and cell["stats"]["quads"] == impostors[cell["index"]].stats["quads"]
+            assert (
+                cell["state"] == "done"
+                and cell["has_result"]
+                and cell["stats"]["quads"] == impostors[cell["index"]].stats["quads"]
+            )
     # A cell the lookup names is served as any cell: its bundle's manifest.
     first = placement.cpvs[0]["impostors"][0]
     manifest = client.get(f"/v1/jobs/{job_id}/cells/{first}/manifest.json")
     assert manifest.status_code == 200 and manifest.json()["stats"]["quads"] == impostors[first].stats["quads"]
     # Looking up into the sky from above the roofs: no CPV, nothing replaced, nothing to draw.
     sky = client.get(f"/v1/jobs/{job_id}/lookup", params=view_params([60.0, 112.0, 60.0], [0.0, 1.0, 0.0])).json()
-    assert sky == {"cpv": None, "status": UNDER_BUDGET, "impostors": [], "replaced": [], "time_estimated": None, "cells": []}
+    assert sky == {
+        "cpv": None,
+        "status": UNDER_BUDGET,
+        "impostors": [],
+        "replaced": [],
+        "time_estimated": None,
+        "cells": [],
+    }
 
 
 def test_bad_views_and_unfinished_or_other_jobs_are_refused_with_their_reason(client, jobs):
     done, placing, grid = jobs
     missing = client.get(f"/v1/jobs/{done}/lookup", params={"x": 60, "y": 112, "z": 60, "dy": 1})
-    assert missing.status_code == 422 and "dx, dz" in missing.json()["detail"] and "direction" in missing.json()["detail"]
+    assert (
+        missing.status_code == 422 and "dx, dz" in missing.json()["detail"] and "direction" in missing.json()["detail"]
+    )
     outside = client.get(f"/v1/jobs/{done}/lookup", params=view_params([60.0, 0.0, 60.0], [1.0, 0.0, 0.0]))
     assert outside.status_code == 422 and "outside the placement's view space" in outside.json()["detail"]
     still = client.get(f"/v1/jobs/{done}/lookup", params=view_params([60.0, 112.0, 60.0], [0.0, 0.0, 0.0]))
@@ -144,12 +181,19 @@ def test_bad_views_and_unfinished_or_other_jobs_are_refused_with_their_reason(cl
     for path in ("lookup", "placement"):
         early = client.get(f"/v1/jobs/{placing}/{path}", params=view_params([60.0, 112.0, 60.0], [1.0, 0.0, 0.0]))
         state = client.get(f"/v1/jobs/{placing}").json()["state"]
-        assert state in ("queued", "placing", "running") and early.status_code == 409 and f"is {state}" in early.json()["detail"], early.text
+        assert (
+            state in ("queued", "placing", "running")
+            and early.status_code == 409
+            and f"is {state}" in early.json()["detail"]
+        ), early.text
     assert client.post(f"/v1/jobs/{placing}/cancel").status_code == 200  # frees the worker
     # A grid job's lookup is by position as before (a direction changes nothing); it has no placement.
     cells = client.get(f"/v1/jobs/{grid}/lookup", params={"x": 60, "y": 112, "z": 60})
     assert cells.status_code == 200 and [c["index"] for c in cells.json()] == [0]
-    assert client.get(f"/v1/jobs/{grid}/lookup", params=view_params([60.0, 112.0, 60.0], [1.0, 0.0, 0.0])).json() == cells.json()
+    assert (
+        client.get(f"/v1/jobs/{grid}/lookup", params=view_params([60.0, 112.0, 60.0], [1.0, 0.0, 0.0])).json()
+        == cells.json()
+    )
     other = client.get(f"/v1/jobs/{grid}/placement")
     assert other.status_code == 404 and "not a placement job" in other.json()["detail"]
     assert client.get(f"/v1/jobs/{uuid.uuid4().hex}/placement").status_code == 404
@@ -169,10 +213,14 @@ def test_the_placement_route_holds_the_cpvs_impostors_and_totals(client, jobs, p
         assert cell["figures"]["baked"]["quads"] == impostors[imp["id"]].stats["quads"]
     totals = doc["totals"]
     drawn = [imp for imp in placement.impostors if imp["cpvs"]]
-    assert totals["impostors"] == len(drawn) == placement.summary["impostors"] and totals["impostors_baked"] == len(placement.impostors)
+    assert totals["impostors"] == len(drawn) == placement.summary["impostors"] and totals["impostors_baked"] == len(
+        placement.impostors
+    )
     assert totals["memory_bytes_baked"] == sum(impostors[imp["id"]].stats["texture_bytes"] for imp in drawn)
     assert totals["memory_bytes_estimated"] == pytest.approx(sum(imp["memory_bytes_estimated"] for imp in drawn))
-    assert totals["cpvs"] == len(placement.cpvs) and totals["cpvs_by_status"]["solved"] == placement.summary["cpvs_solved"]
+    assert (
+        totals["cpvs"] == len(placement.cpvs) and totals["cpvs_by_status"]["solved"] == placement.summary["cpvs_solved"]
+    )
     assert totals["unsolvable_regions"] == len(placement.unsolvable) and totals["rounds"] == len(doc["rounds"]) >= 1
 
 
@@ -209,7 +257,14 @@ def test_the_parsed_database_is_kept_between_lookups(service, client, jobs, plan
 
 
 def _lookup(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "farfield.cli.main", "lookup", *args], cwd=ROOT, capture_output=True, text=True, timeout=120, check=False)
+    return subprocess.run(
+        [sys.executable, "-m", "farfield.cli.main", "lookup", *args],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
 
 
 def test_farfield_lookup_on_a_database_folder_and_zip(planned, tmp_path, client, jobs):
@@ -229,7 +284,10 @@ def test_farfield_lookup_on_a_database_folder_and_zip(planned, tmp_path, client,
     zipped.write_bytes(client.get(f"/v1/jobs/{jobs[0]}/database.zip").content)
     text = _lookup(str(zipped), *at)
     assert text.returncode == 0, text.stderr
-    assert f"CPV {cpv['id']}: {cpv['status']}" in text.stdout and f"impostors to draw: {len(cpv['impostors'])}" in text.stdout
+    assert (
+        f"CPV {cpv['id']}: {cpv['status']}" in text.stdout
+        and f"impostors to draw: {len(cpv['impostors'])}" in text.stdout
+    )
     for i in cpv["impostors"]:
         assert f"cells/{i:05d}/" in text.stdout
     sky = _lookup(str(root), "--at", "60", "112", "60", "--look", "0", "1", "0")
@@ -240,7 +298,9 @@ def test_farfield_lookup_bad_input_is_one_line(planned, tmp_path):
     root = planned[3]
     grid = tmp_path / "grid"
     grid.mkdir()
-    (grid / "index.json").write_text(json.dumps({"format": "farfield-impostor-database", "technique": "layered", "cells": []}))
+    (grid / "index.json").write_text(
+        json.dumps({"format": "farfield-impostor-database", "technique": "layered", "cells": []})
+    )
     cases = [
         ((str(root), "--at", "60", "0", "60", "--look", "1", "0", "0"), "outside the placement's view space"),
         ((str(root), "--at", "60", "112", "60", "--look", "0", "0", "0"), "non-zero"),
@@ -262,12 +322,19 @@ def test_farfield_lookup_bad_input_is_one_line(planned, tmp_path):
     cpv = next(c for c in placement.cpvs if c["impostors"])
     position, direction = cpv_centre_view(cpv)
     bare = _lookup(str(bare_root), "--at", *map(str, position), "--look", *map(str, direction), "--json")
-    assert bare.returncode == 0 and [c["bundle"] for c in json.loads(bare.stdout)["cells"]] == [None] * len(cpv["impostors"])
+    assert bare.returncode == 0 and [c["bundle"] for c in json.loads(bare.stdout)["cells"]] == [None] * len(
+        cpv["impostors"]
+    )
 
 
 def test_database_zip_ships_only_the_bundles_a_placement_index_names():
     from farfield.service.jobs.index import bundled_cells as _bundled_cells
 
-    index = {"kind": "placement", "cells": [{"index": 0, "bundle": "cells/00000/"}, {"index": 1, "bundle": None, "state": "unused"}]}
+    index = {
+        "kind": "placement",
+        "cells": [{"index": 0, "bundle": "cells/00000/"}, {"index": 1, "bundle": None, "state": "unused"}],
+    }
     assert _bundled_cells(json.dumps(index).encode()) == {0}
-    assert _bundled_cells(json.dumps({"cells": [{"index": 0, "bundle": None}]}).encode()) is None  # a grid job's: every baked cell
+    assert (
+        _bundled_cells(json.dumps({"cells": [{"index": 0, "bundle": None}]}).encode()) is None
+    )  # a grid job's: every baked cell

@@ -15,7 +15,15 @@ from farfield.core import procedural
 from farfield.core.errors import ViewCellError
 from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.placement.cost_model import primitive_model
-from farfield.core.placement.database import UNDER_BUDGET, PlacementLookup, bake_impostor, bake_placement, placement_cells, placement_index, write_placement_database
+from farfield.core.placement.database import (
+    UNDER_BUDGET,
+    PlacementLookup,
+    bake_impostor,
+    bake_placement,
+    placement_cells,
+    placement_index,
+    write_placement_database,
+)
 from farfield.core.placement.hierarchy import PlacementError
 from farfield.core.placement.planner import PlacementSettings, place
 from farfield.core.placement.repair import PlannerState
@@ -87,7 +95,9 @@ def test_the_estimates_bias_corrects_the_candidates_not_chosen(planned):
     baked = {state.candidate_of(i) for i in impostors}
     free = [k for k in range(state.cand.count) if k not in baked]
     assert free and np.allclose(state.cand.quads[free], before[free] * ratio)
-    assert np.array_equal(state.cand.quads[sorted(baked)], [impostors[state.ids[k]].stats["quads"] for k in sorted(baked)])
+    assert np.array_equal(
+        state.cand.quads[sorted(baked)], [impostors[state.ids[k]].stats["quads"] for k in sorted(baked)]
+    )
     # However far off, the greedy resumes: its earlier choices stay, in order, and it only adds.
     assert step.mode == "resumed"
     assert [imp.candidate for imp in state.greedy.chosen][: len(chosen)] == chosen
@@ -185,14 +195,21 @@ def test_uncapped_depth_complexity_is_json_null_and_huge_directions_are_views(pl
     assert placement.parameters["depth_complexity"] is None
     json.dumps(placement.to_dict(), allow_nan=False)
     index = {"placement": {"parameters": placement.parameters, "cpvs": placement.cpvs}, "cells": []}
-    assert PlacementLookup(index).find([60.0, 112.0, 60.0], [1e200, 1e200, 0.0])["status"] in ("solved", UNDER_BUDGET, "unsolved")
+    assert PlacementLookup(index).find([60.0, 112.0, 60.0], [1e200, 1e200, 0.0])["status"] in (
+        "solved",
+        UNDER_BUDGET,
+        "unsolved",
+    )
 
 
 def test_an_impostor_no_cpv_draws_ships_without_a_bundle(planned, tmp_path):
     _, placement, impostors = planned
     doc = placement.to_dict()
     doc["impostors"][0]["cpvs"] = 0  # as after a repair round that replaced it by an ancestor
-    cells = [{"index": imp["id"], "state": "done", "bundle": f"cells/{imp['id']:05d}/", "stats": impostors[imp["id"]].stats} for imp in doc["impostors"]]
+    cells = [
+        {"index": imp["id"], "state": "done", "bundle": f"cells/{imp['id']:05d}/", "stats": impostors[imp["id"]].stats}
+        for imp in doc["impostors"]
+    ]
     entries = placement_index(doc, cells)["cells"]
     assert entries[0]["state"] == "unused" and entries[0]["bundle"] is None and entries[0]["figures"]["baked"]
     assert all(e["bundle"] for e in entries[1:]) and {e["state"] for e in entries[1:]} == {"done"}

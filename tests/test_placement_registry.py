@@ -11,7 +11,15 @@ from types import SimpleNamespace
 import pytest
 
 from farfield.core.placement.hierarchy import PlacementError
-from farfield.service.placement import ALGORITHMS, DEFAULT_ALGORITHM, INDEX_KINDS, PLACEMENT_JOB, algorithm_of, get_algorithm, job_algorithm
+from farfield.service.placement import (
+    ALGORITHMS,
+    DEFAULT_ALGORITHM,
+    INDEX_KINDS,
+    PLACEMENT_JOB,
+    algorithm_of,
+    get_algorithm,
+    job_algorithm,
+)
 from farfield.service.placement.base import Algorithm
 from farfield.service.placement.schema import PlacementSpec
 
@@ -22,8 +30,21 @@ def test_every_algorithm_declares_its_parts():
     assert list(ALGORITHMS) == ["frame-time", "primitive-budget"] and DEFAULT_ALGORITHM == "frame-time"
     for name, algorithm in ALGORITHMS.items():
         assert isinstance(algorithm, Algorithm) and algorithm.name == name and algorithm.help and algorithm.fields
-        for method in ("params", "plan", "impostors", "check", "too_many_cells", "bake_cell", "write_index", "read_index", "placement_document", "lookup"):
-            assert getattr(type(algorithm), method) is not getattr(Algorithm, method), f"{name} does not implement {method}"
+        for method in (
+            "params",
+            "plan",
+            "impostors",
+            "check",
+            "too_many_cells",
+            "bake_cell",
+            "write_index",
+            "read_index",
+            "placement_document",
+            "lookup",
+        ):
+            assert getattr(type(algorithm), method) is not getattr(Algorithm, method), (
+                f"{name} does not implement {method}"
+            )
     assert set(INDEX_KINDS) == {"placement", "primitive-placement"}
 
 
@@ -37,7 +58,10 @@ def test_a_stored_job_finds_its_algorithm():
     assert algorithm_of({"placement": {}}).name == "frame-time"  # stored before there were two
     assert algorithm_of({"placement": {"algorithm": "primitive-budget"}}).name == "primitive-budget"
     assert job_algorithm(SimpleNamespace(job_type="layered", params={})) is None
-    assert job_algorithm(SimpleNamespace(job_type=PLACEMENT_JOB, params={"placement": {"algorithm": "primitive-budget"}})) is ALGORITHMS["primitive-budget"]
+    assert (
+        job_algorithm(SimpleNamespace(job_type=PLACEMENT_JOB, params={"placement": {"algorithm": "primitive-budget"}}))
+        is ALGORITHMS["primitive-budget"]
+    )
     with pytest.raises(PlacementError, match="unknown placement algorithm"):
         get_algorithm("nope")
 

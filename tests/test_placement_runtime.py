@@ -18,8 +18,8 @@ from farfield.cli.main import _register, cli
 from farfield.core import procedural
 from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.placement.cost_model import primitive_model
-from farfield.core.placement.hierarchy import PlacementError
 from farfield.core.placement.database import PlacementLookup, bake_placement, write_placement_database
+from farfield.core.placement.hierarchy import PlacementError
 from farfield.core.placement.planner import PlacementSettings, place
 from farfield.core.placement.runtime import PlacementRenderer, boxes_in_frustum
 from farfield.core.quality.walkthrough import placement_walkthrough, random_views

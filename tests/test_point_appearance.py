@@ -15,11 +15,11 @@ import pytest
 from farfield.core.colour_space import linear_to_srgb, srgb_to_linear
 from farfield.core.errors import LayerPlanError, ViewCellError
 from farfield.core.quality.evaluation import downsample, impostor_renderer
-from farfield.core.techniques.points.appearance import plane_coordinates
 from farfield.core.render.points import Appearance, PointRenderer
 from farfield.core.render.raster import Camera, MeshRenderer
 from farfield.core.scene import Scene, SceneObject
 from farfield.core.techniques import get_technique
+from farfield.core.techniques.points.appearance import plane_coordinates
 from farfield.core.viewcells import BoxCell, ShaftCell
 from tests.scenes import box_object as _box
 
@@ -34,8 +34,25 @@ def test_the_runtime_looks_up_the_texel_where_the_eye_ray_crosses_the_sampling_p
     tile[..., 2:] = (200, 255)
     page = np.zeros((4, 16, 4), np.uint8)
     page[2:4, 8:16] = tile  # the tile's first texel at (8, 2)
-    plane = SimpleNamespace(normal=np.array([0.0, 0.0, 1.0]), offset=0.0, u=np.array([1.0, 0.0, 0.0]), v=np.array([0.0, 1.0, 0.0]), rectangle=np.array([[-1.0, -1.0], [1.0, 1.0]]))
-    appearance = Appearance((page,), np.array([0]), np.array([[8, 2]]), (8, 2), plane.normal, 0.0, plane.u, plane.v, plane.rectangle[0], plane.rectangle[1])
+    plane = SimpleNamespace(
+        normal=np.array([0.0, 0.0, 1.0]),
+        offset=0.0,
+        u=np.array([1.0, 0.0, 0.0]),
+        v=np.array([0.0, 1.0, 0.0]),
+        rectangle=np.array([[-1.0, -1.0], [1.0, 1.0]]),
+    )
+    appearance = Appearance(
+        (page,),
+        np.array([0]),
+        np.array([[8, 2]]),
+        (8, 2),
+        plane.normal,
+        0.0,
+        plane.u,
+        plane.v,
+        plane.rectangle[0],
+        plane.rectangle[1],
+    )
     point = np.array([[0.0, 0.0, 10.0]])
     with PointRenderer(point, np.array([[0, 0, 0, 255]], np.uint8), appearance) as renderer:
         for column, row in ((0, 0), (3, 1), (7, 0), (2.5, 1)):  # 2.5: halfway between two texels
@@ -65,7 +82,12 @@ def sawtooth(period: float = 0.02, width: float = 4.0, height: float = 2.0, dept
         vertices, faces = [], []
         for (xa, za), (xb, zb) in pieces:
             base = len(vertices)
-            vertices += [(xa, -0.5 * height, za), (xa, 0.5 * height, za), (xb, 0.5 * height, zb), (xb, -0.5 * height, zb)]
+            vertices += [
+                (xa, -0.5 * height, za),
+                (xa, 0.5 * height, za),
+                (xb, 0.5 * height, zb),
+                (xb, -0.5 * height, zb),
+            ]
             faces += [(base, base + 1, base + 2), (base, base + 2, base + 3)]
         return SceneObject(name, np.array(vertices, float), np.array(faces), base_color=colour)
 
@@ -85,7 +107,11 @@ def test_microgeometry_keeps_its_colour_from_each_side_of_the_cell():
     assert impostor.stats["single_colour_share"] < 0.5 and impostor.payload.counts()["textured"] > 0
     target = np.array([0.0, 0.0, 10.0])
     views = {}
-    with MeshRenderer(scene.objects) as geometry, impostor_renderer(impostor) as points, PointRenderer(impostor.payload.positions, impostor.payload.colour.astype(np.uint8)) as preview:
+    with (
+        MeshRenderer(scene.objects) as geometry,
+        impostor_renderer(impostor) as points,
+        PointRenderer(impostor.payload.positions, impostor.payload.colour.astype(np.uint8)) as preview,
+    ):
         for side, eye in (("left", [-5.0, 0.0, 0.0]), ("right", [5.0, 0.0, 0.0]), ("middle", [0.0, 0.0, 0.0])):
             camera = Camera.look_at(np.array(eye), target, math.radians(45.0), 64, 5.0, 20.0)
             fine = Camera.look_at(np.array(eye), target, math.radians(45.0), 64 * 4, 5.0, 20.0)
@@ -101,7 +127,10 @@ def test_microgeometry_keeps_its_colour_from_each_side_of_the_cell():
     for side in ("left", "right", "middle"):
         found = views[side]
         error = np.abs(found["points"] - found["reference"]).max()
-        assert error <= 35.0 and error < 0.6 * max(np.abs(found["preview"] - found["reference"]).max(), 20.0), (side, found)
+        assert error <= 35.0 and error < 0.6 * max(np.abs(found["preview"] - found["reference"]).max(), 20.0), (
+            side,
+            found,
+        )
     # One colour per point shows the same purple from both sides, far from either.  (The 8 texels
     # of a tile lag behind at the cell's sides: the edge texel averages the viewpoints of a texel
     # and a half, and the bilinear look-up blends in the next.)
@@ -113,11 +142,19 @@ def test_point_impostors_refuse_what_they_cannot_make():
     technique = get_technique("points")
     scene = sawtooth()
     with pytest.raises(LayerPlanError, match="box view cell"):
-        technique.bake(scene, ShaftCell(np.zeros(3), np.array([0.0, 0.0, 1.0]), 0.1, 1.0), technique.options({}, 64), None, None)
+        technique.bake(
+            scene, ShaftCell(np.zeros(3), np.array([0.0, 0.0, 1.0]), 0.1, 1.0), technique.options({}, 64), None, None
+        )
     with pytest.raises(LayerPlanError, match="min_views"):
         technique.options({"min_views": 200, "max_views": 100})
     with pytest.raises(ViewCellError, match="reaches the view cell"):  # a cell touching the part
-        technique.bake(scene, BoxCell(np.array([-1.0, -1.0, 9.0]), np.array([1.0, 1.0, 9.995])), technique.options({}, 64), None, None)
+        technique.bake(
+            scene,
+            BoxCell(np.array([-1.0, -1.0, 9.0]), np.array([1.0, 1.0, 9.995])),
+            technique.options({}, 64),
+            None,
+            None,
+        )
 
 
 def _evaluate(scene: Scene, cell: BoxCell, resolution: int = 64):
@@ -133,7 +170,11 @@ def test_a_sub_pixel_part_and_a_part_seen_nearly_edge_on_keep_every_pixel():
     impostor, totals = _evaluate(speck, cell)
     assert 0 < impostor.payload.count < 50 and totals["hole_pixels"] == 0, (impostor.payload.count, totals)
     # A sheet in the plane y = 0 through the cell's middle: every viewer sees it within 3 degrees of edge-on.
-    sheet = SceneObject("sheet", np.array([[-1.0, 0.0, 9.0], [1.0, 0.0, 9.0], [1.0, 0.0, 11.0], [-1.0, 0.0, 11.0]]), np.array([[0, 1, 2], [0, 2, 3]]))
+    sheet = SceneObject(
+        "sheet",
+        np.array([[-1.0, 0.0, 9.0], [1.0, 0.0, 9.0], [1.0, 0.0, 11.0], [-1.0, 0.0, 11.0]]),
+        np.array([[0, 1, 2], [0, 2, 3]]),
+    )
     impostor, totals = _evaluate(Scene.from_objects([sheet], source="sheet"), cell)
     assert impostor.payload.count > 0 and totals["hole_pixels"] == 0, (impostor.payload.count, totals)
 
@@ -145,7 +186,13 @@ def test_a_part_whose_texels_are_all_cut_away_is_refused():
     )  # fmt: skip
     technique = get_technique("points")
     with pytest.raises(LayerPlanError, match="no surface"):
-        technique.bake(Scene.from_objects([quad], source="glass"), BoxCell.from_center([0.0, 0.0, 0.0], 1.0), technique.options({}, 64), None, None)
+        technique.bake(
+            Scene.from_objects([quad], source="glass"),
+            BoxCell.from_center([0.0, 0.0, 0.0], 1.0),
+            technique.options({}, 64),
+            None,
+            None,
+        )
 
 
 def test_the_cli_bakes_evaluates_and_compares_a_point_impostor(tmp_path):
@@ -158,18 +205,48 @@ def test_the_cli_bakes_evaluates_and_compares_a_point_impostor(tmp_path):
     scene_file = write_scene(sawtooth(), tmp_path, "glb", "sawtooth")
     cell = "box:-5,-0.5,-0.5,5,0.5,0.5"
     common = [str(scene_file), "--viewcell", cell, "--resolution", "64", "--quiet"]
-    baked = CliRunner().invoke(cli, ["bake", *common, "--technique", "points", "--option", "max_views=64", "--out", str(tmp_path / "points"), "--json"])
+    baked = CliRunner().invoke(
+        cli,
+        [
+            "bake",
+            *common,
+            "--technique",
+            "points",
+            "--option",
+            "max_views=64",
+            "--out",
+            str(tmp_path / "points"),
+            "--json",
+        ],
+    )
     assert baked.exit_code == 0, baked.output
     assert CliRunner().invoke(cli, ["bake", *common, "--out", str(tmp_path / "layered")]).exit_code == 0
-    checked = CliRunner().invoke(cli, ["evaluate", str(tmp_path / "points"), str(scene_file), "--random", "4", "--check"])
+    checked = CliRunner().invoke(
+        cli, ["evaluate", str(tmp_path / "points"), str(scene_file), "--random", "4", "--check"]
+    )
     assert checked.exit_code == 0 and "points" in checked.output, checked.output
-    compared = CliRunner().invoke(cli, ["evaluate", str(tmp_path / "layered"), str(tmp_path / "points"), str(scene_file), "--random", "2", "--json"])
+    compared = CliRunner().invoke(
+        cli,
+        ["evaluate", str(tmp_path / "layered"), str(tmp_path / "points"), str(scene_file), "--random", "2", "--json"],
+    )
     assert compared.exit_code == 0, compared.output
     import json
 
     rows = {row["technique"]: row for row in json.loads(compared.output)["bundles"]}
     assert rows["points"]["points"] > 0 and rows["points"]["triangles"] == 0 and rows["layered"]["points"] == 0
-    wrong = CliRunner().invoke(cli, ["bake", *common[:1], "--viewcell", "shaft:0,0,0,0,0,1,5,1", "--technique", "points", "--out", str(tmp_path / "shaft")])
+    wrong = CliRunner().invoke(
+        cli,
+        [
+            "bake",
+            *common[:1],
+            "--viewcell",
+            "shaft:0,0,0,0,0,1,5,1",
+            "--technique",
+            "points",
+            "--out",
+            str(tmp_path / "shaft"),
+        ],
+    )
     assert wrong.exit_code == 2 and "box view cell" in wrong.output and not (tmp_path / "shaft").exists()
 
 
@@ -184,8 +261,13 @@ def test_points_drawn_as_baked_pixels_look_the_same_through_a_window():
         whole = Camera.look_at(np.array([0.3, -0.2, 0.0]), np.array([0.0, 0.0, 10.0]), fov, 64 * 4, 5.0, 15.0)
         image = renderer.render(whole)
         covered = image[..., 3] > 0
-        assert covered.any() and (covered.reshape(64, 4, 64, 4).all(axis=(1, 3)) == covered[::4, ::4]).all()  # whole baked pixels
-        for x0, y0, size, resolution in ((100, 88, 40, 40), (96, 120, 24, 72)):  # windows on whole baked pixels, as the evaluation's
+        assert (
+            covered.any() and (covered.reshape(64, 4, 64, 4).all(axis=(1, 3)) == covered[::4, ::4]).all()
+        )  # whole baked pixels
+        for x0, y0, size, resolution in (
+            (100, 88, 40, 40),
+            (96, 120, 24, 72),
+        ):  # windows on whole baked pixels, as the evaluation's
             window = renderer.render(whole.window(x0, y0, size, resolution))
             scale = resolution // size
             expected = np.repeat(np.repeat(image[y0 : y0 + size, x0 : x0 + size], scale, axis=0), scale, axis=1)
@@ -202,9 +284,15 @@ def test_the_glb_holds_the_points_their_preview_colour_and_their_tiles():
     payload = impostor.payload
     document, binary = parse_glb(impostor_glb(impostor))
     (node,) = document["nodes"]
-    assert node["extras"]["farfield"]["technique"] == "points" and node["extras"]["farfield"]["viewcell"] == cell.to_dict()
+    assert (
+        node["extras"]["farfield"]["technique"] == "points" and node["extras"]["farfield"]["viewcell"] == cell.to_dict()
+    )
     (primitive,) = document["meshes"][0]["primitives"]
-    assert primitive["mode"] == 0 and POINT_APPEARANCE in document["extensionsUsed"] and POINT_APPEARANCE not in document.get("extensionsRequired", [])
+    assert (
+        primitive["mode"] == 0
+        and POINT_APPEARANCE in document["extensionsUsed"]
+        and POINT_APPEARANCE not in document.get("extensionsRequired", [])
+    )
     positions = accessor_array(document, binary, primitive["attributes"]["POSITION"])
     assert np.allclose(positions + np.asarray(node["translation"]), payload.positions, atol=1e-5)
     colour = accessor_array(document, binary, primitive["attributes"]["COLOR_0"])  # glTF: linear

@@ -16,14 +16,14 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
-from farfield.core.techniques.envmap.runtime import camera_at
-from farfield.core.quality.evaluation import compare_images
 from farfield.core.ldi.image import record_ldi
-from farfield.core.techniques.points.sampling import plan_point_sampling
-from farfield.core.techniques.points.samples import CONTINUITY, _lookup, gather_point_samples, ldi_spacing
+from farfield.core.quality.evaluation import compare_images
 from farfield.core.render.points import PointRenderer
 from farfield.core.render.raster import MeshRenderer
 from farfield.core.scene import SceneObject
+from farfield.core.techniques.envmap.runtime import camera_at
+from farfield.core.techniques.points.samples import CONTINUITY, _lookup, gather_point_samples, ldi_spacing
+from farfield.core.techniques.points.sampling import plan_point_sampling
 from farfield.core.viewcells import BoxCell
 from tests.scenes import real_scene
 
@@ -35,13 +35,19 @@ def _mesh(name: str, mesh: trimesh.Trimesh, offset) -> SceneObject:
 
 
 def _ball_and_box() -> list[SceneObject]:
-    return [_mesh("ball", trimesh.creation.icosphere(subdivisions=3, radius=1.5), [0.5, 1.0, 9.0]), _mesh("box", trimesh.creation.box([1.0, 1.0, 1.0]), [-1.2, -0.5, 7.0])]
+    return [
+        _mesh("ball", trimesh.creation.icosphere(subdivisions=3, radius=1.5), [0.5, 1.0, 9.0]),
+        _mesh("box", trimesh.creation.box([1.0, 1.0, 1.0]), [-1.2, -0.5, 7.0]),
+    ]
 
 
 def _trunks() -> list[SceneObject]:
     """Thin trunks in front of a wall: depth discontinuities everywhere."""
     rng = np.random.default_rng(4)
-    trunks = [_mesh(f"trunk{i}", trimesh.creation.box([0.08, 3.0, 0.08]), [x, 0.0, z]) for i, (x, z) in enumerate(zip(rng.uniform(-1.5, 1.5, 12), rng.uniform(6.0, 9.0, 12)))]
+    trunks = [
+        _mesh(f"trunk{i}", trimesh.creation.box([0.08, 3.0, 0.08]), [x, 0.0, z])
+        for i, (x, z) in enumerate(zip(rng.uniform(-1.5, 1.5, 12), rng.uniform(6.0, 9.0, 12)))
+    ]
     return [*trunks, _mesh("wall", trimesh.creation.box([4.0, 4.0, 0.1]), [0.0, 0.0, 10.0])]
 
 
@@ -105,7 +111,11 @@ def test_a_removed_point_has_a_kept_point_within_a_pixel_of_it(scene):
 def test_a_sample_stands_only_for_points_on_its_own_surface():
     # Another LDI's sample covers a point only when it lies on the point's surface there: within
     # the continuity tolerance of the point's depth along that LDI's ray, not merely in its pixel.
-    wall = SceneObject("wall", np.array([[-5.0, -5.0, 8.0], [5.0, -5.0, 8.0], [5.0, 5.0, 8.0], [-5.0, 5.0, 8.0]]), np.array([[0, 1, 2], [0, 2, 3]]))
+    wall = SceneObject(
+        "wall",
+        np.array([[-5.0, -5.0, 8.0], [5.0, -5.0, 8.0], [5.0, 5.0, 8.0], [-5.0, 5.0, 8.0]]),
+        np.array([[0, 1, 2], [0, 2, 3]]),
+    )
     camera = camera_at(np.zeros(3), [0.0, 0.0, 1.0], 45.0, 32, 1.0, 20.0)
     ldi = record_ldi([wall], camera)
     spacing = np.full(ldi.depth.shape, 0.01)
@@ -130,7 +140,10 @@ def test_the_one_colour_preview_draws_the_part_without_holes_and_close_in_colour
     cell = BoxCell.from_center([target[0], target[1], lo[2] - 2.0 * size], 0.25 * size)
     sampling = plan_point_sampling(cell, duck.bounds, 45.0, RESOLUTION)
     points = gather_point_samples(objects, sampling, cell, 45.0, RESOLUTION)
-    with PointRenderer(points.positions[points.kept], points.colour[points.kept]) as preview, MeshRenderer(objects) as geometry:
+    with (
+        PointRenderer(points.positions[points.kept], points.colour[points.kept]) as preview,
+        MeshRenderer(objects) as geometry,
+    ):
         for eye in np.concatenate([cell.corners(), cell.center[None]]):
             camera = camera_at(eye, target - eye, 45.0, RESOLUTION, 0.01 * size, 10.0 * size)
             stats = compare_images(geometry.render(camera), preview.render(camera))
@@ -167,7 +180,9 @@ def spacing_with_arrays(ldi, cell: BoxCell) -> np.ndarray:
             nearest = np.argmin(gap, axis=0)
             best = np.take_along_axis(gap, nearest[None], axis=0)[0]
             same = best <= CONTINUITY * depth[layer] * step
-            q = np.take_along_axis(other_pos, np.broadcast_to(nearest[None, None], (3, 1) + nearest.shape), axis=1)[:, 0]
+            q = np.take_along_axis(other_pos, np.broadcast_to(nearest[None, None], (3, 1) + nearest.shape), axis=1)[
+                :, 0
+            ]
             e = np.moveaxis(q, 0, -1) - positions[layer]
             length = np.linalg.norm(e, axis=-1)
             seen = positions[layer] - centre

@@ -69,7 +69,9 @@ def _exhaustive_perimeter(polygon: np.ndarray, step_deg: float) -> float:
         j = (i + 1) % 3
         n1, n2, h1, h2 = normals[:, i], normals[:, j], h[:, i], h[:, j]
         det = n1[:, 0] * n2[:, 1] - n1[:, 1] * n2[:, 0]
-        vertices.append(np.stack([(h1 * n2[:, 1] - h2 * n1[:, 1]) / det, (n1[:, 0] * h2 - n2[:, 0] * h1) / det], axis=1))
+        vertices.append(
+            np.stack([(h1 * n2[:, 1] - h2 * n1[:, 1]) / det, (n1[:, 0] * h2 - n2[:, 0] * h1) / det], axis=1)
+        )
     v = np.stack(vertices, axis=1)
     return float(np.min(np.sum(np.linalg.norm(v - np.roll(v, -1, axis=1), axis=2), axis=1)))
 
@@ -117,7 +119,10 @@ def test_farthest_point_from_the_cameras_matches_dense_sampling(seed):
     scale = float(np.ptp(polygon, axis=0).max())
     assert nearest.max() <= reach + 1e-9 * scale and reach - nearest.max() < 0.01 * scale
     assert np.min(np.linalg.norm(where - cameras, axis=1)) == pytest.approx(reach)
-    assert max(edge_nearest.max(), np.min(np.linalg.norm(polygon[:, None] - cameras[None], axis=2), axis=1).max()) <= boundary + 1e-9 * scale
+    assert (
+        max(edge_nearest.max(), np.min(np.linalg.norm(polygon[:, None] - cameras[None], axis=2), axis=1).max())
+        <= boundary + 1e-9 * scale
+    )
     assert boundary - edge_nearest.max() < 0.01 * scale and boundary <= reach + 1e-12
 
 
@@ -135,7 +140,9 @@ def test_movement_factor_bounds_the_worst_viewer_and_sample(seed):
     boundary, _ = farthest_from_cameras(polygon, cameras, boundary=True)
     bound = movement_factor(reach, depth, boundary)
     viewers = _sample_polygon(rng, polygon, 4000)
-    feet = np.concatenate([_sample_polygon(rng, polygon, 3000), polygon.mean(axis=0) + rng.normal(size=(3000, 2)) * 3.0 * (scale + depth)])
+    feet = np.concatenate(
+        [_sample_polygon(rng, polygon, 3000), polygon.mean(axis=0) + rng.normal(size=(3000, 2)) * 3.0 * (scale + depth)]
+    )
     heights = depth * (1.0 + rng.exponential(0.2, len(feet)))
     heights[: len(feet) // 3] = depth
     camera_distance = np.sqrt(heights**2 + np.min(np.sum((feet[:, None] - cameras[None]) ** 2, axis=2), axis=1))
@@ -192,7 +199,14 @@ def test_ldi_resolution_follows_the_output_and_the_distance():
     # N = 2 tan(φ/2) √2 F_move F_persp / β, β the centre pixel of the output.
     camera = near.cameras[0]
     beta = 2.0 * math.tan(math.radians(22.5)) / 256
-    expected = 2.0 * camera.half_size * math.sqrt(2.0) * near.factors["movement"] * (1.0 + 2.0 * math.tan(math.radians(22.5)) ** 2) / beta
+    expected = (
+        2.0
+        * camera.half_size
+        * math.sqrt(2.0)
+        * near.factors["movement"]
+        * (1.0 + 2.0 * math.tan(math.radians(22.5)) ** 2)
+        / beta
+    )
     assert camera.resolution == math.ceil(expected)
     assert ldi_resolution(camera.half_size, math.radians(45.0), 256, near.factors["movement"]) == camera.resolution
 

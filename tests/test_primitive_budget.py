@@ -14,14 +14,18 @@ from scenes import write_scene
 
 from farfield.cli.main import _register, cli
 from farfield.core import procedural
-from farfield.core.placement.cell_subsets import B, B1, B2, C, SubsetSearch, place_image, project_cells
+from farfield.core.placement.cell_subsets import B1, B2, B, C, SubsetSearch, place_image, project_cells
 from farfield.core.placement.hierarchy import PlacementError
 from farfield.core.placement.octree_cells import octree_cells
 from farfield.core.placement.solution_grid import (
-    MIN_FOV_DEG, UNSOLVED, BudgetSettings, check_views, place_primitives, star_radius,
+    MIN_FOV_DEG,
+    UNSOLVED,
+    BudgetSettings,
+    check_views,
+    place_primitives,
+    star_radius,
 )  # fmt: skip
 from farfield.core.placement.yaw_ranges import TWO_PI, YawRanges, drawn_cells, forward, right
-
 
 # barycentric weights of points on a triangle: corners, edge points and inside points (6 steps a side)
 WEIGHTS = np.array([(i, j, 6 - i - j) for i in range(7) for j in range(7 - i)], dtype=np.float64) / 6.0
@@ -77,7 +81,7 @@ def test_a_range_counts_every_cell_the_frustum_meets_from_any_eye_inside_it():
     lo, hi = _random_boxes(rng)
     samples = lo[:, None] + rng.random((lo.shape[0], 64, 3)) * (hi - lo)[:, None]
     half = math.radians(30)
-    for trial in range(40):
+    for _trial in range(40):
         apex = rng.uniform(-20, 20, 3)
         ranges = YawRanges.of(lo, hi, apex, half)
         yaw = rng.random() * TWO_PI
@@ -101,7 +105,10 @@ def test_range_sums_agree_with_their_members():
     for i in range(ranges.count):
         assert sums[i] == pytest.approx(w[ranges.members(i) & mask].sum())
     # the range of a yaw is the one whose half-open interval holds it, across the wrap too
-    assert ranges.range_of(ranges.breaks[3]) == 3 and ranges.range_of(ranges.breaks[0] - 1e-12 + TWO_PI) == ranges.count - 1
+    assert (
+        ranges.range_of(ranges.breaks[3]) == 3
+        and ranges.range_of(ranges.breaks[0] - 1e-12 + TWO_PI) == ranges.count - 1
+    )
 
 
 def test_a_six_tuple_subset_is_the_cells_inside_its_borders():
@@ -163,7 +170,9 @@ def test_the_guarantee_holds_on_ten_thousand_views(city_placement):
     s = placement.summary()
     assert s["images"] > 0 and s["unsolved_points"] == 0
     assert s["points_per_level"][1] > 0  # the dense city forced subdivision
-    assert 0.9 <= s["image_drawn_over_p_opt"]["median"] <= 1.0  # solutions sit just under p_opt (the paper: within ~2 %)
+    assert (
+        0.9 <= s["image_drawn_over_p_opt"]["median"] <= 1.0
+    )  # solutions sit just under p_opt (the paper: within ~2 %)
     check = check_views(placement, 10_000, seed=1)
     assert check["within_p"] == 1.0 and check["max"] <= placement.primitives
     assert check["without_grid_point"] == 0 and check["eye_past_quad"] == 0 and check["in_unsolved_range"] == 0
@@ -266,16 +275,48 @@ def test_a_baked_database_is_walked_within_the_budget(tmp_path):
     index = json.loads((db / "placement.json").read_text())
     assert len(index["bundles"]) == index["summary"]["images"] > 0
     assert all((db / b / "impostor.glb").is_file() for b in index["bundles"].values())
-    walked = runner.invoke(cli, ["walkthrough", str(db), str(path), "--random", "12", "--repeats", "1", "--json", "--plot", str(tmp_path / "walk.png")])
+    walked = runner.invoke(
+        cli,
+        [
+            "walkthrough",
+            str(db),
+            str(path),
+            "--random",
+            "12",
+            "--repeats",
+            "1",
+            "--json",
+            "--plot",
+            str(tmp_path / "walk.png"),
+        ],
+    )
     assert (tmp_path / "walk.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert walked.exit_code == 0, walked.output
     result = json.loads(walked.output)
-    assert all(f["drawn_triangles"] == f["primitives"] for f in result["frames"])  # what the GL drew is what was counted
+    assert all(
+        f["drawn_triangles"] == f["primitives"] for f in result["frames"]
+    )  # what the GL drew is what was counted
     s = result["summary"]
     assert s["views"] == 12 and s["share_within_p"] == 1.0 and s["eye_past_quad"] == 0
     assert s["views_with_image"] > 0 and s["primitives_max"] <= s["primitives_budget"]
     other = procedural.city(16, seed=3, detail=8)
-    wrong = runner.invoke(cli, ["walkthrough", str(db), str(write_scene(other, tmp_path, "glb", "other")), "--random", "2"])
+    wrong = runner.invoke(
+        cli, ["walkthrough", str(db), str(write_scene(other, tmp_path, "glb", "other")), "--random", "2"]
+    )
     assert wrong.exit_code == 2 and "another scene" in wrong.output
-    again = runner.invoke(cli, ["place", str(path), "--view-space", space, "--algorithm", "primitive-budget", "--primitives", "5000", "--bake", str(db)])
+    again = runner.invoke(
+        cli,
+        [
+            "place",
+            str(path),
+            "--view-space",
+            space,
+            "--algorithm",
+            "primitive-budget",
+            "--primitives",
+            "5000",
+            "--bake",
+            str(db),
+        ],
+    )
     assert again.exit_code == 2 and "not empty" in again.output

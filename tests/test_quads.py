@@ -81,7 +81,7 @@ def check_quads(cov: np.ndarray, rects: np.ndarray, cell: int, threshold: float)
         assert sub.mean() >= threshold - 1e-12, (sub.mean(), threshold)
     # Never outside the cell-aligned bounding box of the content.
     if rects.size:
-        (bx0, by0, bx1, by1), = single_quad(cov)
+        ((bx0, by0, bx1, by1),) = single_quad(cov)
         assert x0.min() >= bx0 // cell * cell and y0.min() >= by0 // cell * cell
         assert x1.max() <= min(w, -(-bx1 // cell) * cell) and y1.max() <= min(h, -(-by1 // cell) * cell)
 
@@ -198,7 +198,7 @@ def test_single_quad_is_the_tight_bounding_rect(name):
         assert rects.shape == (0, 4)
         return
     check_quads(cov, rects, 1, 0.0)
-    (x0, y0, x1, y1), = rects
+    ((x0, y0, x1, y1),) = rects
     assert cov[y0].any() and cov[y1 - 1].any() and cov[:, x0].any() and cov[:, x1 - 1].any()
 
 

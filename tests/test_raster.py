@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from farfield.core.techniques.envmap.runtime import camera_at
 from farfield.core.render.raster import MeshRenderer, mesh_variant
 from farfield.core.scene import SceneObject
+from farfield.core.techniques.envmap.runtime import camera_at
 
 
 def _sphere() -> SceneObject:
@@ -32,7 +32,16 @@ def _sphere() -> SceneObject:
     texture[12:18, :, 3] = 40  # under the cut: a band of holes
     colours = rng.integers(60, 256, (len(vertices), 4), dtype=np.uint8)
     colours[:, 3] = 255
-    return SceneObject("sphere", vertices, np.asarray(mesh.faces, dtype=np.int64), uv=uv, vertex_colors=colours, texture=texture, alpha_cutoff=0.5, base_color=np.array([0.9, 0.7, 0.8, 1.0]))
+    return SceneObject(
+        "sphere",
+        vertices,
+        np.asarray(mesh.faces, dtype=np.int64),
+        uv=uv,
+        vertex_colors=colours,
+        texture=texture,
+        alpha_cutoff=0.5,
+        base_color=np.array([0.9, 0.7, 0.8, 1.0]),
+    )
 
 
 def _without(obj: SceneObject, colours: bool, texture: bool, cut: bool) -> SceneObject:
@@ -64,16 +73,25 @@ def test_each_variant_draws_what_the_full_shader_draws(clipping):
     camera = camera_at([0.3, 0.4, -3.0], [-0.1, -0.13, 1.0], 50.0, 96, 0.1, 10.0)
     cube = (np.array([0.0, 0.45, 0.0]), 0.85)  # cuts the front, sides and bottom
     clipped = clipping != "whole"
-    clip = None if not clipped else [cube] if clipping == "clip planes" else [(*cube, ("+z",))]  # open behind the sphere
+    clip = (
+        None if not clipped else [cube] if clipping == "clip planes" else [(*cube, ("+z",))]
+    )  # open behind the sphere
     extra = {"whole": (), "clip planes": ("CLIP_PLANES",), "open faces": ("OPEN_FACES",)}[clipping]
     images = {}
     for features in itertools.product([False, True], repeat=3):
         lean = _without(sphere, *features)
         full = _neutral(lean)
-        assert mesh_variant(full, clipping == "clip planes", clipping == "open faces") == ("VERTEX_COLOURS", "TEXTURED", "ALPHA_CUT", *extra)
+        assert mesh_variant(full, clipping == "clip planes", clipping == "open faces") == (
+            "VERTEX_COLOURS",
+            "TEXTURED",
+            "ALPHA_CUT",
+            *extra,
+        )
         with MeshRenderer([lean], clip) as a, MeshRenderer([full], clip) as b:
             images[features] = a.render(camera)
-            np.testing.assert_array_equal(images[features], b.render(camera), err_msg=f"colours, texture, cut = {features}")
+            np.testing.assert_array_equal(
+                images[features], b.render(camera), err_msg=f"colours, texture, cut = {features}"
+            )
     # Every feature shows: dropping any one changes the image, so a variant that ignored it would
     # be caught (the cut shows only with the texture's alpha).
     every = images[(True, True, True)]

@@ -121,6 +121,15 @@ def test_the_offline_examples_run_as_written(tmp_path):
     env = {k: v for k, v in os.environ.items() if not k.startswith("FARFIELD_")}
     for command in offline_commands():
         words = shlex.split(command)
-        done = subprocess.run([sys.executable, "-m", "farfield.cli.main", *words[1:]], cwd=work, env=env, capture_output=True, text=True, timeout=900)
-        assert done.returncode == 0 and "Traceback" not in done.stderr, f"{command}\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}"
+        done = subprocess.run(
+            [sys.executable, "-m", "farfield.cli.main", *words[1:]],
+            cwd=work,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=900,
+        )
+        assert done.returncode == 0 and "Traceback" not in done.stderr, (
+            f"{command}\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}"
+        )
     assert (work / "out" / "layered-compressed.glb").is_file() and (work / "house.glb").is_file()

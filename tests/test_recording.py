@@ -148,7 +148,9 @@ def test_triangles_beyond_an_image_edge_are_dropped_before_pairing_and_would_hav
     # Vertices spread well past the frustum on every side, some behind the eye, and 400 exactly on
     # the image's four edges (texel 0 or the resolution there), in triplets on the same edge.
     n, m = 3000, 400
-    centre = np.stack([rng.uniform(-3.0, 3.0, n // 3), rng.uniform(-3.0, 3.0, n // 3), rng.uniform(-0.5, 4.0, n // 3)], axis=1)
+    centre = np.stack(
+        [rng.uniform(-3.0, 3.0, n // 3), rng.uniform(-3.0, 3.0, n // 3), rng.uniform(-0.5, 4.0, n // 3)], axis=1
+    )
     loose = (centre[:, None, :] + rng.uniform(-0.3, 0.3, (n // 3, 3, 3))).reshape(n, 3)  # small triangles
     z = rng.uniform(0.3, 4.0, m)
     side = rng.integers(0, 4, m // 3).repeat(3)[:m]
@@ -157,7 +159,9 @@ def test_triangles_beyond_an_image_edge_are_dropped_before_pairing_and_would_hav
     on_edge = np.stack([rng.uniform(-0.6, 0.6, m) * z, rng.uniform(-0.4, 0.4, m) * z, z], axis=1)
     on_edge[np.arange(m), axis] = sign * half_tan[axis] * z
     eye = np.concatenate([loose, on_edge])
-    faces = np.concatenate([np.arange(n).reshape(-1, 3), rng.integers(0, n + m, (1000, 3)), n + np.arange(m - m % 3).reshape(-1, 3)])
+    faces = np.concatenate(
+        [np.arange(n).reshape(-1, 3), rng.integers(0, n + m, (1000, 3)), n + np.arange(m - m % 3).reshape(-1, 3)]
+    )
     borders = np.linspace(0.2, 4.2, 17)
     texel = texel_coordinates(eye.T, half_tan, resolution)
     seen = facing_the_image(texel, eye[:, 2], faces, resolution)
@@ -168,7 +172,9 @@ def test_triangles_beyond_an_image_edge_are_dropped_before_pairing_and_would_hav
     assert _reaching(eye, faces, borders, half_tan, resolution, dropped) == set()
     instances = slab_instances(eye, faces, borders, half_tan, resolution)
     layers = np.repeat(np.arange(16), np.diff(instances.offsets))
-    assert set(zip(instances.triangle.tolist(), layers.tolist())) == _reaching(eye, faces, borders, half_tan, resolution, np.arange(faces.shape[0]))
+    assert set(zip(instances.triangle.tolist(), layers.tolist())) == _reaching(
+        eye, faces, borders, half_tan, resolution, np.arange(faces.shape[0])
+    )
 
 
 def test_the_edge_slack_keeps_triangles_whose_clipped_pieces_round_back_onto_the_image():
@@ -178,7 +184,10 @@ def test_the_edge_slack_keeps_triangles_whose_clipped_pieces_round_back_onto_the
     rng = np.random.default_rng(5)
     half_tan, resolution = np.array([0.7, 0.5]), np.array([512, 384])
     z = rng.uniform(0.3, 4.0, 30000)
-    eye = np.stack([half_tan[0] * z * (1.0 + rng.uniform(0.0, 2e-15, z.shape[0])), rng.uniform(-0.4, 0.4, z.shape[0]) * z, z], axis=1)
+    eye = np.stack(
+        [half_tan[0] * z * (1.0 + rng.uniform(0.0, 2e-15, z.shape[0])), rng.uniform(-0.4, 0.4, z.shape[0]) * z, z],
+        axis=1,
+    )
     faces = np.arange(z.shape[0]).reshape(-1, 3)
     borders = np.linspace(0.2, 4.2, 5)
     texel = texel_coordinates(eye.T, half_tan, resolution)
@@ -198,10 +207,15 @@ def test_the_pairing_kernel_gives_the_numpy_clipping_bit_for_bit():
     z = rng.uniform(0.05, 4.5, 6000)
     on_border = rng.random(z.shape[0]) < 0.2  # corners on slab borders (every border), edges in them
     z[on_border] = rng.choice(borders, int(on_border.sum()))
-    eye = np.stack([rng.uniform(-1.3, 1.3, z.shape[0]) * half_tan[0] * z, rng.uniform(-1.3, 1.3, z.shape[0]) * half_tan[1] * z, z], axis=1)
+    eye = np.stack(
+        [rng.uniform(-1.3, 1.3, z.shape[0]) * half_tan[0] * z, rng.uniform(-1.3, 1.3, z.shape[0]) * half_tan[1] * z, z],
+        axis=1,
+    )
     small = (eye[:900, None, :] + rng.uniform(-0.05, 0.05, (900, 3, 3))).reshape(-1, 3)
     eye = np.concatenate([eye, small, [[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]])  # and a point triangle
-    faces = np.concatenate([rng.integers(0, 6000, (3000, 3)), 6000 + np.arange(2700).reshape(-1, 3), [[8700, 8701, 8702]]])
+    faces = np.concatenate(
+        [rng.integers(0, 6000, (3000, 3)), 6000 + np.arange(2700).reshape(-1, 3), [[8700, 8701, 8702]]]
+    )
     inst = slab_instances(eye, faces, borders, half_tan, resolution)
     layer = np.repeat(np.arange(16), np.diff(inst.offsets))
     assert inst.triangle.shape[0] > 3000
@@ -486,7 +500,14 @@ def test_alpha_cut_keeps_exactly_the_texels_where_filtered_alpha_passes_the_cut(
     texture[..., 3] = rng.choice(np.array([0, 0, 0, 96, 160, 255], dtype=np.uint8), size=(size, size))
     half = 4.0
     vertices = np.array([[-half, -half, 0.0], [half, -half, 0.0], [half, half, 0.0], [-half, half, 0.0]])
-    quad = SceneObject("card", vertices, np.array([[0, 1, 2], [0, 2, 3]]), uv=(vertices[:, :2] + half) / (2 * half), texture=texture, alpha_cutoff=0.5)
+    quad = SceneObject(
+        "card",
+        vertices,
+        np.array([[0, 1, 2], [0, 2, 3]]),
+        uv=(vertices[:, :2] + half) / (2 * half),
+        texture=texture,
+        alpha_cutoff=0.5,
+    )
     scene = Scene.from_objects([quad], "card")
     plan = plan_layers(BoxCell.from_center([0.0, 0.0, -60.0], 2.0), scene.bounds, math.radians(45), 384)
     assert plan.count == 1
@@ -496,7 +517,14 @@ def test_alpha_cut_keeps_exactly_the_texels_where_filtered_alpha_passes_the_cut(
     depth = float(-plan.reference_viewpoint @ plan.axis)  # of the plane z = 0, parallel to the layer
 
     def uv_at(tx, ty):  # texel coordinates -> uv on the plane z = 0
-        eye = np.stack([(tx / res[0] * 2 - 1) * plan.frustum_half_tangents[0] * depth, (ty / res[1] * 2 - 1) * plan.frustum_half_tangents[1] * depth, np.full(np.shape(tx), depth)], -1)
+        eye = np.stack(
+            [
+                (tx / res[0] * 2 - 1) * plan.frustum_half_tangents[0] * depth,
+                (ty / res[1] * 2 - 1) * plan.frustum_half_tangents[1] * depth,
+                np.full(np.shape(tx), depth),
+            ],
+            -1,
+        )
         return ((plan.reference_viewpoint + eye @ frame)[..., :2] + half) / (2 * half)
 
     ty, tx = np.indices(kept.shape).astype(np.float64)
@@ -507,7 +535,11 @@ def test_alpha_cut_keeps_exactly_the_texels_where_filtered_alpha_passes_the_cut(
         axes = []
         for k in range(2):
             centres = (np.arange(size) + 0.5) / size
-            axes.append(np.concatenate([[lo[index][k], hi[index][k]], centres[(centres > lo[index][k]) & (centres < hi[index][k])]]))
+            axes.append(
+                np.concatenate(
+                    [[lo[index][k], hi[index][k]], centres[(centres > lo[index][k]) & (centres < hi[index][k])]]
+                )
+            )
         u, v = np.meshgrid(*axes)
         best[index] = _bilinear_alpha(texture, np.column_stack([u.ravel(), v.ravel()])).max()
     sure = np.abs(best - 0.5) > 0.01

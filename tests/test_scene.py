@@ -9,13 +9,13 @@ import warnings
 import numpy as np
 import PIL.Image
 import pytest
+import scenes  # tests/ is on sys.path under pytest's default (prepend) import mode
 import trimesh
 
 from farfield.core.colour_space import srgb_to_linear
 from farfield.core.errors import DegenerateGeometryError, ErrorKind, SceneLoadError, SceneNotFoundError
 from farfield.core.exchange import load_scene, load_scene_bytes, supported_extensions
 from farfield.core.scene import Scene, SceneObject, SceneWarning, sample_texture
-import scenes  # tests/ is on sys.path under pytest's default (prepend) import mode
 
 # --------------------------------------------------------------------------- real scenes
 
@@ -61,7 +61,9 @@ def test_scrub_pine_leaf_cards_are_alpha_cut_and_bark_is_opaque():
 def test_duck_textured_obj_multiplies_kd_into_its_texture():
     duck = scenes.real_scene("duck/duck.obj").objects[0]
     # The MTL says Kd 0.64 and map_Kd: the MTL specification (and three.js) multiply them, in linear light.
-    np.testing.assert_allclose(duck.base_color, [*srgb_to_linear(np.full(3, 163 / 255)), 1.0])  # Kd as trimesh keeps it, in bytes
+    np.testing.assert_allclose(
+        duck.base_color, [*srgb_to_linear(np.full(3, 163 / 255)), 1.0]
+    )  # Kd as trimesh keeps it, in bytes
     assert duck.alpha_cutoff is None
     # The yellow duck: the texels its uv land on are mostly yellow (red and green over blue).
     texels = sample_texture(duck.texture, duck.uv).astype(float)
@@ -258,10 +260,24 @@ def _atlas_obj(tmp_path, materials: int, map_d: bool = False):
     PIL.Image.fromarray(mask, "L").save(tmp_path / "mask.png")
     lines, mtl = ["mtllib m.mtl"], []
     for k in range(materials):
-        lines += [f"v {k} 0 0", f"v {k + 1} 0 0", f"v {k + 1} 1 0", f"v {k} 1 0", "vt 0 0", "vt 1 0", "vt 1 1", "vt 0 1"]
+        lines += [
+            f"v {k} 0 0",
+            f"v {k + 1} 0 0",
+            f"v {k + 1} 1 0",
+            f"v {k} 1 0",
+            "vt 0 0",
+            "vt 1 0",
+            "vt 1 1",
+            "vt 0 1",
+        ]
     for k in range(materials):
         a = 4 * k + 1
-        lines += [f"o part{k}", f"usemtl mat{k}", f"f {a}/{a} {a + 1}/{a + 1} {a + 2}/{a + 2}", f"f {a}/{a} {a + 2}/{a + 2} {a + 3}/{a + 3}"]
+        lines += [
+            f"o part{k}",
+            f"usemtl mat{k}",
+            f"f {a}/{a} {a + 1}/{a + 1} {a + 2}/{a + 2}",
+            f"f {a}/{a} {a + 2}/{a + 2} {a + 3}/{a + 3}",
+        ]
         mtl += [f"newmtl mat{k}", "Kd 1 1 1", "map_Kd atlas.png"] + (["map_d mask.png"] if map_d else []) + [""]
     (tmp_path / "m.mtl").write_text("\n".join(mtl))
     (tmp_path / "scene.obj").write_text("\n".join(lines) + "\n")
@@ -383,12 +399,8 @@ def _glb() -> bytes:
 
 @pytest.mark.parametrize(
     ("extension", "data"),
-    [
-        (ext, b"") for ext in ("glb", "gltf", "obj", "ply", "stl")
-    ]
-    + [
-        (ext, np.random.default_rng(7).bytes(600)) for ext in ("glb", "gltf", "obj", "ply", "stl")
-    ]
+    [(ext, b"") for ext in ("glb", "gltf", "obj", "ply", "stl")]
+    + [(ext, np.random.default_rng(7).bytes(600)) for ext in ("glb", "gltf", "obj", "ply", "stl")]
     + [
         ("glb", _glb()[:100]),  # truncated
         ("glb", b"glTF" + _glb()[4:60]),
@@ -420,8 +432,11 @@ def test_corrupt_bytes_are_one_scene_load_error_naming_the_file(tmp_path, extens
         ("obj", b"# nothing but a comment\n"),
         ("gltf", b'{"asset": {"version": "2.0"}}'),
         ("stl", b"solid empty\nendsolid empty\n"),
-        ("ply", b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
-                b"property float z\nend_header\n0 0 0\n1 1 1\n"),
+        (
+            "ply",
+            b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
+            b"property float z\nend_header\n0 0 0\n1 1 1\n",
+        ),
     ],
 )
 def test_no_triangles_is_degenerate(tmp_path, extension, data):

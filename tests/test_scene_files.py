@@ -72,9 +72,14 @@ def test_member_names_outside_the_archive_are_refused(tmp_path):
 
 def test_an_archive_holds_exactly_one_scene_and_its_folder_s_files(tmp_path):
     files = duck_files()
-    found, scene, assets = unpack(tmp_path, zipped({f"models/{k}": v for k, v in files.items()} | {"readme.txt": b"hi", "__MACOSX/._duck.obj": b"junk"}))
+    found, scene, assets = unpack(
+        tmp_path,
+        zipped({f"models/{k}": v for k, v in files.items()} | {"readme.txt": b"hi", "__MACOSX/._duck.obj": b"junk"}),
+    )
     assert found.name == "duck.obj" and scene == files["duck.obj"] and found.size == sum(len(v) for v in files.values())
-    assert assets == {"duck.mtl": files["duck.mtl"], "duckCM.png": files["duckCM.png"]} and found.skipped == ("readme.txt",)
+    assert assets == {"duck.mtl": files["duck.mtl"], "duckCM.png": files["duckCM.png"]} and found.skipped == (
+        "readme.txt",
+    )
     with pytest.raises(SceneLoadError, match="exactly one scene file.*found none"):
         unpack(tmp_path, zipped({"duck.mtl": files["duck.mtl"]}))
     with pytest.raises(SceneLoadError, match="exactly one scene file.*a.obj, b.glb"):
@@ -105,10 +110,14 @@ def test_bombs_too_many_files_and_the_limit_are_refused_before_inflating(tmp_pat
         unpack(tmp_path, bomb, 1 << 30)
     with pytest.raises(UploadTooLargeError, match=f"more than the {MAX_FILES}"):
         unpack(tmp_path, zipped({f"f{i}.txt": b"" for i in range(MAX_FILES + 1)} | {"a.obj": b""}, zipfile.ZIP_STORED))
-    many = zipped({f"d{i}/": b"" for i in range(3 * MAX_FILES)} | {"a.obj": b""}, zipfile.ZIP_STORED)  # entries counted before zipfile reads them
+    many = zipped(
+        {f"d{i}/": b"" for i in range(3 * MAX_FILES)} | {"a.obj": b""}, zipfile.ZIP_STORED
+    )  # entries counted before zipfile reads them
     with pytest.raises(UploadTooLargeError, match="entries, more than"):
         unpack(tmp_path, many)
-    stored = zipped({"scene.obj": b"v 0 0 0\n", "big.png": bytes(3 << 20)}, zipfile.ZIP_STORED)  # no ratio to catch: the limit does
+    stored = zipped(
+        {"scene.obj": b"v 0 0 0\n", "big.png": bytes(3 << 20)}, zipfile.ZIP_STORED
+    )  # no ratio to catch: the limit does
     with pytest.raises(UploadTooLargeError, match="more than the upload limit uncompressed"):
         unpack(tmp_path, stored, 2 << 20)
 
@@ -116,7 +125,9 @@ def test_bombs_too_many_files_and_the_limit_are_refused_before_inflating(tmp_pat
 def test_references_resolve_among_the_upload_s_files_as_other_tools_name_them():
     from farfield.core.exchange.trimesh_scene import asset_resolver, fetch
 
-    resolver = asset_resolver("scene.gltf", assets={"textures/Tex.png": b"png", "my buffer.bin": b"bin", "café.bin": b"cafe"})
+    resolver = asset_resolver(
+        "scene.gltf", assets={"textures/Tex.png": b"png", "my buffer.bin": b"bin", "café.bin": b"cafe"}
+    )
     for reference, body in (("textures/Tex.png", b"png"), ("./textures/tex.png", b"png"), ("textures\\Tex.png", b"png"), ("Tex.png", b"png"),
                             ("-s 1 1 1 textures/Tex.png", b"png"), ("my%20buffer.bin", b"bin"), ("caf%C3%A9.bin", b"cafe")):  # fmt: skip
         assert fetch(resolver, reference) == body, reference
@@ -163,7 +174,15 @@ def test_a_stored_multi_file_scene_loads_on_a_worker_with_its_texture(tmp_path):
     parts = [(n, io.BytesIO(b)) for n, b in duck_files().items() if n != "duck.obj"]
     again = ingest_scene(db, blobs, tenant, "duck.obj", io.BytesIO(DUCK.read_bytes()), LIMIT, more=parts)
     assert again.content_hash == local.content_hash
-    bare = ingest_scene(db, blobs, tenant, "duck.obj", io.BytesIO(DUCK.read_bytes()), LIMIT, more=[("duck.mtl", io.BytesIO(duck_files()["duck.mtl"]))])
+    bare = ingest_scene(
+        db,
+        blobs,
+        tenant,
+        "duck.obj",
+        io.BytesIO(DUCK.read_bytes()),
+        LIMIT,
+        more=[("duck.mtl", io.BytesIO(duck_files()["duck.mtl"]))],
+    )
     assert bare.content_hash != local.content_hash and any("duckCM.png" in w for w in bare.upload_warnings)
     db.dispose()
 
@@ -184,17 +203,26 @@ def test_multi_file_scenes_over_rest_and_the_cli_and_bad_archives_leave_nothing(
         several = client.post("/v1/scenes", files=[("file", (n, b)) for n, b in duck_files().items()])
         assert several.status_code == 201, several.text
         assert several.json()["content_hash"] == local.content_hash and several.json()["name"] == "duck.obj"
-        missing = client.post("/v1/scenes", files=[("file", (n, b)) for n, b in duck_files().items() if n != "duckCM.png"])
+        missing = client.post(
+            "/v1/scenes", files=[("file", (n, b)) for n, b in duck_files().items() if n != "duckCM.png"]
+        )
         assert missing.status_code == 201 and any("duckCM.png" in w for w in missing.json()["warnings"])
         helmet = load_scene(helmet_gltf)
-        gltf = client.post("/v1/scenes", files=[("file", (p.name, p.read_bytes())) for p in helmet_gltf.parent.iterdir()])
+        gltf = client.post(
+            "/v1/scenes", files=[("file", (p.name, p.read_bytes())) for p in helmet_gltf.parent.iterdir()]
+        )
         assert gltf.status_code == 201, gltf.text
         assert gltf.json()["content_hash"] == helmet.content_hash and gltf.json()["triangles"] == helmet.triangle_count
 
         before = client.get("/v1/scenes").json()
-        slip = client.post("/v1/scenes", files={"file": ("slip.zip", zipped({"duck.obj": DUCK.read_bytes(), "../../evil.png": b"x"}))})
+        slip = client.post(
+            "/v1/scenes", files={"file": ("slip.zip", zipped({"duck.obj": DUCK.read_bytes(), "../../evil.png": b"x"}))}
+        )
         assert slip.status_code == 422 and "outside the archive" in slip.json()["detail"]
-        bomb = client.post("/v1/scenes", files={"file": ("bomb.zip", zipped({"duck.obj": DUCK.read_bytes(), "big.png": bytes(32 << 20)}))})
+        bomb = client.post(
+            "/v1/scenes",
+            files={"file": ("bomb.zip", zipped({"duck.obj": DUCK.read_bytes(), "big.png": bytes(32 << 20)}))},
+        )
         assert bomb.status_code == 413 and "zip bomb" in bomb.json()["detail"]
         two = client.post("/v1/scenes", files=[("file", ("a.obj", b"v 0 0 0")), ("file", ("b.obj", b"v 0 0 0"))])
         assert two.status_code == 422 and "exactly one scene file" in two.json()["detail"]
@@ -202,7 +230,17 @@ def test_multi_file_scenes_over_rest_and_the_cli_and_bad_archives_leave_nothing(
 
         # The CLI packs the OBJ's files; the job's worker loads them (the cell is textured).
         auth = ("--url", service.url, "--key", service.env["FARFIELD_ADMIN_KEY"])
-        done = service.cli("submit", str(DUCK), "--grid", "-0.2,0.7,2.5,0.2,1.1,2.9,1,1,1", "--resolution", "32", "--wait", "--json", *auth)
+        done = service.cli(
+            "submit",
+            str(DUCK),
+            "--grid",
+            "-0.2,0.7,2.5,0.2,1.1,2.9,1,1,1",
+            "--resolution",
+            "32",
+            "--wait",
+            "--json",
+            *auth,
+        )
         assert done.returncode == 0, done.stderr
         job = json.loads(done.stdout.strip().splitlines()[-1])
         assert job["state"] == "done"
@@ -214,7 +252,9 @@ def test_multi_file_scenes_over_rest_and_the_cli_and_bad_archives_leave_nothing(
 # --- farfield scenes demo (issue 30, item 5) -------------------------------------------------
 
 
-@pytest.mark.parametrize("name, extra", [("city", ["--size", "9", "--detail", "4"]), ("house", []), ("forest", ["--size", "12"])])
+@pytest.mark.parametrize(
+    "name, extra", [("city", ["--size", "9", "--detail", "4"]), ("house", []), ("forest", ["--size", "12"])]
+)
 def test_scenes_demo_writes_the_procedural_scene_as_a_glb_that_loads_back(tmp_path, name, extra):
     from click.testing import CliRunner
 
@@ -230,7 +270,10 @@ def test_scenes_demo_writes_the_procedural_scene_as_a_glb_that_loads_back(tmp_pa
     detail = int(extra[extra.index("--detail") + 1]) if "--detail" in extra else 1
     expected = demo_scene(name, size, None, detail)
     loaded = load_scene(out)
-    assert made["triangles"] == loaded.triangle_count == expected.triangle_count and made["objects"] == expected.object_count
+    assert (
+        made["triangles"] == loaded.triangle_count == expected.triangle_count
+        and made["objects"] == expected.object_count
+    )
     assert sorted(loaded.names) == sorted(expected.names)
     assert loaded.bounds == pytest.approx(expected.bounds, abs=1e-4)  # float32 in the GLB
     assert not list(out.parent.glob(".*.part"))

@@ -26,17 +26,26 @@ def gltf_bytes(nodes: list[dict], roots: list[int], primitives: int = 1) -> byte
         "scene": 0,
         "nodes": nodes,
         "meshes": [{"primitives": [{"attributes": {"POSITION": 0}} for _ in range(primitives)]}],
-        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]}],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 0]}
+        ],
         "bufferViews": [{"buffer": 0, "byteLength": len(positions)}],
-        "buffers": [{"byteLength": len(positions), "uri": "data:application/octet-stream;base64," + base64.b64encode(positions).decode()}],
+        "buffers": [
+            {
+                "byteLength": len(positions),
+                "uri": "data:application/octet-stream;base64," + base64.b64encode(positions).decode(),
+            }
+        ],
     }
     return json.dumps(document).encode()
 
 
 def test_a_deep_node_chain_is_refused_at_once():
     """The campaign's 100,000-deep chain took 40 s to parse; now it is refused from its JSON."""
-    for depth, message in ((100_000, r"glTF nodes: 100,000 is beyond the limit of 50,000 \(FARFIELD_MAX_SCENE_NODES\)"),
-                           (1_000, r"glTF node nesting: 129 is beyond the limit of 128 \(FARFIELD_MAX_SCENE_DEPTH\)")):
+    for depth, message in (
+        (100_000, r"glTF nodes: 100,000 is beyond the limit of 50,000 \(FARFIELD_MAX_SCENE_NODES\)"),
+        (1_000, r"glTF node nesting: 129 is beyond the limit of 128 \(FARFIELD_MAX_SCENE_DEPTH\)"),
+    ):
         nodes = [{"children": [i + 1]} for i in range(depth - 1)] + [{"mesh": 0}]
         start = time.perf_counter()
         with pytest.raises(SceneTooCostlyError, match=message) as error:

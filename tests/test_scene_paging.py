@@ -41,7 +41,9 @@ def api(request, tmp_path_factory):
     env, drop = {"FARFIELD_HOME": str(home), "REDIS_URL": "redis://127.0.0.1:1/0", "FARFIELD_ADMIN_KEY": KEY}, None
     if request.param == "postgresql":
         if not os.environ.get("FARFIELD_TEST_DATABASE_URL"):
-            pytest.skip("no PostgreSQL server: set FARFIELD_TEST_DATABASE_URL (CI starts one with scripts/postgres-server)")
+            pytest.skip(
+                "no PostgreSQL server: set FARFIELD_TEST_DATABASE_URL (CI starts one with scripts/postgres-server)"
+            )
         env["DATABASE_URL"], drop = fresh_postgres_database(os.environ["FARFIELD_TEST_DATABASE_URL"])
     app = create_app(Settings.from_env(env))
     with TestClient(app, headers={"Authorization": f"Bearer {KEY}"}) as client:
@@ -50,7 +52,9 @@ def api(request, tmp_path_factory):
         assert response.status_code == 201, response.text
         client.big = response.json()
         small = write_scene(city(buildings=2), home, "glb")
-        client.small = [client.post("/v1/scenes", files={"file": (f"small{i}.glb", small.read_bytes())}).json() for i in range(3)]
+        client.small = [
+            client.post("/v1/scenes", files={"file": (f"small{i}.glb", small.read_bytes())}).json() for i in range(3)
+        ]
         yield client
     app.state.services.db.dispose()
     if drop is not None:
@@ -64,7 +68,9 @@ def test_scene_records_are_summaries_with_the_original_name(api):
     assert len(big["name"]) <= 120 and big["name"].endswith("x.glb") and "é" not in big["name"]
     assert big["bounds"] == [[0.0, 0.0, 0.0], [44.5, 0.5, 44.0]]  # a 45 x 45 grid of half-unit triangles
     # the upload's answer is the scene's record plus what the loader warned of (not stored)
-    assert big["warnings"] == [] and api.get(f"/v1/scenes/{big['id']}").json() == {k: v for k, v in big.items() if k != "warnings"}
+    assert big["warnings"] == [] and api.get(f"/v1/scenes/{big['id']}").json() == {
+        k: v for k, v in big.items() if k != "warnings"
+    }
     assert big["objects_url"] == f"/v1/scenes/{big['id']}/objects"
 
 
@@ -121,7 +127,12 @@ def test_another_tenants_objects_are_not_found(api):
 def test_job_list_has_the_same_paging_headers(api):
     db = api.app.state.services.db
     scene = get_scene_row(db, authenticate(db, KEY), api.big["id"], with_objects=True)
-    spec = JobSpec(scene_id=scene.id, resolution=32, objects=["node000000", "node001999"], viewcells=[{"kind": "box", "lo": [0, 1, -9], "hi": [2, 3, -7]}])
+    spec = JobSpec(
+        scene_id=scene.id,
+        resolution=32,
+        objects=["node000000", "node001999"],
+        viewcells=[{"kind": "box", "lo": [0, 1, -9], "hi": [2, 3, -7]}],
+    )
     made = [create_job(db, scene.tenant_id, scene, spec).id for _ in range(3)]
     first = api.get("/v1/jobs", params={"limit": 2, "scene_id": scene.id})
     assert first.headers["X-Total-Count"] == "3"
@@ -131,7 +142,11 @@ def test_job_list_has_the_same_paging_headers(api):
     assert api.get("/v1/jobs", params={"state": "done"}).headers["X-Total-Count"] == "0"
     with pytest.raises(NotFoundError) as missing:  # names a few of the 2,000 objects, not all
         create_job(db, scene.tenant_id, scene, spec.model_copy(update={"objects": ["nope"]}))
-    assert "node000019, ..." in str(missing.value) and "node000020" not in str(missing.value) and len(str(missing.value)) < 800
+    assert (
+        "node000019, ..." in str(missing.value)
+        and "node000020" not in str(missing.value)
+        and len(str(missing.value)) < 800
+    )
 
 
 def test_a_scene_fetched_without_objects_does_not_load_them(api):
@@ -167,7 +182,14 @@ def cli(url: str, *args: str):
     import sys
 
     env = {**os.environ, "FARFIELD_API_KEY": KEY, "FARFIELD_URL": url}
-    return subprocess.run([sys.executable, "-m", "farfield.cli.main", *args], check=False, env=env, capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "farfield.cli.main", *args],
+        check=False,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
 
 
 def test_cli_pages_scenes_objects_and_jobs(api, served):
@@ -175,7 +197,9 @@ def test_cli_pages_scenes_objects_and_jobs(api, served):
     assert one.returncode == 0, one.stderr
     assert len(one.stdout.splitlines()) == 3 and "scenes 1-3 of 4: --offset 3" in one.stderr
     every = cli(served, "scenes", "--all", "--limit", "3", "--json")
-    assert [s["id"] for s in json.loads(every.stdout)] == [s["id"] for s in api.get("/v1/scenes").json()] and every.stderr == ""
+    assert [s["id"] for s in json.loads(every.stdout)] == [
+        s["id"] for s in api.get("/v1/scenes").json()
+    ] and every.stderr == ""
     objects = cli(served, "scenes", api.big["id"], "--objects", "--all", "--limit", "1000", "--json")
     assert [o["name"] for o in json.loads(objects.stdout)] == [f"node{i:06d}" for i in range(OBJECTS)]
     shown = cli(served, "scenes", api.big["id"])

@@ -17,8 +17,8 @@ import pytest
 import trimesh
 from service_harness import BUNNY, BUNNY_GRID, ROOT, service_client, service_on_each_database, upload, wait_for_job  # noqa: F401 - the service and client fixtures
 
-from farfield.core.impostor.bundle import page_file_name, write_bundle
 from farfield.core.exchange import load_scene
+from farfield.core.impostor.bundle import page_file_name, write_bundle
 from farfield.core.techniques.layered import BakeOptions, bake_layered
 from farfield.core.viewcells import viewcell_from_dict
 
@@ -57,7 +57,10 @@ def test_grid_job_pages_equal_what_core_bakes(client, bunny_id, tmp_path):
     scene = load_scene(BUNNY)
     for cell in job["cells"]:
         manifest = client.get(f"/v1/jobs/{job['id']}/cells/{cell['index']}/manifest.json").json()
-        write_bundle(bake_layered(scene, viewcell_from_dict(cell["viewcell"]), BakeOptions(resolution=256)), tmp_path / str(cell["index"]))
+        write_bundle(
+            bake_layered(scene, viewcell_from_dict(cell["viewcell"]), BakeOptions(resolution=256)),
+            tmp_path / str(cell["index"]),
+        )
         assert len(manifest["pages"]) >= 1
         for page in range(len(manifest["pages"])):
             served = client.get(f"/v1/jobs/{job['id']}/cells/{cell['index']}/atlas/{page}.png")
@@ -105,7 +108,11 @@ def test_bad_uploads_leave_nothing_behind(service, client, name, content, status
     [
         ({"resolution": 0}, 422, "resolution"),
         ({"fov_deg": 200}, 422, "fov_deg must be a number in (0, 180), got 200"),
-        ({"grid": None, "viewcells": [{"kind": "box", "lo": [-0.01, 0.1, -0.01], "hi": [0.01, 0.12, 0.01]}]}, 422, "view cell 0"),
+        (
+            {"grid": None, "viewcells": [{"kind": "box", "lo": [-0.01, 0.1, -0.01], "hi": [0.01, 0.12, 0.01]}]},
+            422,
+            "view cell 0",
+        ),
         ({"scene_id": "0" * 32}, 404, "not found"),
         ({"objects": ["nope"]}, 404, "no objects named"),
         ({"options": {"grid_cell": 0}}, 422, "grid_cell must be an integer in [1, 1024], got 0"),
@@ -113,8 +120,16 @@ def test_bad_uploads_leave_nothing_behind(service, client, name, content, status
         ({"grid": {"lo": [0, 0, 0], "hi": [1, 1, 1], "counts": [2**32, 2**32, 1]}}, 422, "over the limit"),
         ({"options": {"grid_cell": "abc"}}, 422, "grid_cell must be an integer"),
         ({"options": {"grid_cell": 8.0, "padding": 1e18}}, 422, "padding must be an integer in [0, 64]"),
-        ({"options": {"padding": 64, "max_page": 64}}, 422, "padding 64 on both sides of a tile leaves no texel of a page of 64"),
-        ({"objects": []}, 422, "List should have at least 1 item"),  # stored as [], a runtime would read "replace nothing"
+        (
+            {"options": {"padding": 64, "max_page": 64}},
+            422,
+            "padding 64 on both sides of a tile leaves no texel of a page of 64",
+        ),
+        (
+            {"objects": []},
+            422,
+            "List should have at least 1 item",
+        ),  # stored as [], a runtime would read "replace nothing"
     ],
 )
 def test_bad_job_parameters_are_refused(client, bunny_id, change, status, message):
@@ -131,7 +146,11 @@ def test_unknown_ids_are_404(client):
     for path in ("/v1/scenes/nope", "/v1/jobs/nope", "/v1/jobs/nope/cells/0/bundle.zip", "/v1/jobs/nope/database.zip"):
         assert client.get(path).status_code == 404, path
     bogus = client.get("/v1/jobs", params={"state": "bogus"})
-    assert bogus.status_code == 422 and bogus.json()["error"] == "QueryError" and "unknown job state 'bogus'" in bogus.json()["detail"]
+    assert (
+        bogus.status_code == 422
+        and bogus.json()["error"] == "QueryError"
+        and "unknown job state 'bogus'" in bogus.json()["detail"]
+    )
     assert client.get("/v1/jobs", params={"limit": 0}).status_code == 422
 
 
@@ -157,7 +176,9 @@ def test_auth(service, client, bunny_id):
         assert revoked.returncode == 0, revoked.stderr
         assert other.get("/v1/scenes").status_code == 401
     unknown = service.cli("keys", "revoke", "nosuchprefix")
-    assert unknown.returncode == 3 and unknown.stderr.strip() == "farfield: error: no API key with prefix 'nosuchprefix'"
+    assert (
+        unknown.returncode == 3 and unknown.stderr.strip() == "farfield: error: no API key with prefix 'nosuchprefix'"
+    )
 
 
 def test_cancel_stops_the_job(client, bunny_id):
@@ -176,9 +197,15 @@ def test_cancel_stops_the_job(client, bunny_id):
     time.sleep(2)
     assert client.get(f"/v1/jobs/{job_id}").json()["counts"]["done"] == done  # no cell started after the cancel
     assert client.post(f"/v1/jobs/{job_id}/cancel").status_code == 409
-    for path, what in (("index.json", "impostor database index"), ("database.zip", "impostor database")):  # never written: not "when it ends"
+    for path, what in (
+        ("index.json", "impostor database index"),
+        ("database.zip", "impostor database"),
+    ):  # never written: not "when it ends"
         missing = client.get(f"/v1/jobs/{job_id}/{path}")
-        assert missing.status_code == 409 and missing.json()["detail"] == f"job {job_id!r} is cancelled; it ended without an {what}", missing.text
+        assert (
+            missing.status_code == 409
+            and missing.json()["detail"] == f"job {job_id!r} is cancelled; it ended without an {what}"
+        ), missing.text
 
 
 def test_worker_killed_mid_cell_loses_nothing(service, client, bunny_id):
@@ -199,7 +226,9 @@ def test_worker_killed_mid_cell_loses_nothing(service, client, bunny_id):
         os.kill(pid, signal.SIGKILL)
     # Shown at once: the worker's main process queues the cell again (it showed running, attempt 1,
     # until its message came back behind the other cells).
-    seen = poll_cell(client, job_id, victim, lambda c: c["state"] == "queued" and "worker process died" in (c["error"] or ""), 30)
+    seen = poll_cell(
+        client, job_id, victim, lambda c: c["state"] == "queued" and "worker process died" in (c["error"] or ""), 30
+    )
     assert seen["attempts"] == 1, seen
     job = wait_for_job(client, job_id, timeout=300)
     assert job["state"] == "done", job["errors"]
@@ -210,7 +239,9 @@ def test_worker_killed_mid_cell_loses_nothing(service, client, bunny_id):
     # One stored impostor per cell of this job, however often its cell was delivered.
     stored = [json.loads(m.read_text()) for m in (service.home / "blobs" / "impostors").glob("*/manifest.json")]
     ours = [m for m in stored if m["resolution"] == 1024]
-    assert sorted(json.dumps(m["viewcell"], sort_keys=True) for m in ours) == sorted(json.dumps(c["viewcell"], sort_keys=True) for c in job["cells"])
+    assert sorted(json.dumps(m["viewcell"], sort_keys=True) for m in ours) == sorted(
+        json.dumps(c["viewcell"], sort_keys=True) for c in job["cells"]
+    )
 
 
 def poll_cell(client, job_id: str, index: int, condition, timeout: float) -> dict:
@@ -270,7 +301,19 @@ def test_redis_restart_during_a_job(service, client, bunny_id):
 def test_cli_submit_waits_and_downloads(service, tmp_path):
     env_args = ("--url", service.url, "--key", service.env["FARFIELD_ADMIN_KEY"])
     grid = ",".join(str(v) for v in [*BUNNY_GRID["lo"], *BUNNY_GRID["hi"], *BUNNY_GRID["counts"]])
-    done = service.cli("submit", str(BUNNY), "--grid", grid, "--resolution", "256", "--wait", "--download", str(tmp_path / "db"), "--json", *env_args)
+    done = service.cli(
+        "submit",
+        str(BUNNY),
+        "--grid",
+        grid,
+        "--resolution",
+        "256",
+        "--wait",
+        "--download",
+        str(tmp_path / "db"),
+        "--json",
+        *env_args,
+    )
     assert done.returncode == 0, done.stderr
     job = json.loads(done.stdout)
     assert job["state"] == "done" and job["counts"]["done"] == 4
@@ -287,7 +330,9 @@ def test_cli_submit_waits_and_downloads(service, tmp_path):
     for args, named in ((("--grid", "nan," + grid.split(",", 1)[1]), "grid.lo[0] is nan"), (("--grid", grid, "--fov", "inf"), "fov_deg is inf"),
                         (("--placement", "--view-space", "0,0,0,1,1,1", "--frame-ms", "nan"), "placement.budget.frame_ms is nan")):  # fmt: skip
         refused = service.cli("submit", str(BUNNY), *args, *env_args)  # JSON carries no NaN: one line, and no upload
-        assert refused.returncode == 2 and refused.stderr.strip().splitlines() == [f"farfield: error: {named}: the service takes finite numbers only"], refused.stderr
+        assert refused.returncode == 2 and refused.stderr.strip().splitlines() == [
+            f"farfield: error: {named}: the service takes finite numbers only"
+        ], refused.stderr
     assert service.cli("scenes", "--json", *env_args).stdout == scenes
     nobody = service.cli("jobs", "--url", service.url, "--key", "ff_wrong_key")
     assert nobody.returncode == 6 and "unknown API key" in nobody.stderr
@@ -325,7 +370,13 @@ def test_farfield_worker_joins_the_service(service, client, bunny_id, tmp_path):
     env = {**service.env, "REDIS_URL": service.broker}
     log = tmp_path / "joined.log"
     with open(log, "wb") as out:
-        extra = subprocess.Popen([sys.executable, "-m", "farfield.cli.main", "worker", "--name", "joined"], cwd=ROOT, env=env, stdout=out, stderr=subprocess.STDOUT)
+        extra = subprocess.Popen(
+            [sys.executable, "-m", "farfield.cli.main", "worker", "--name", "joined"],
+            cwd=ROOT,
+            env=env,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+        )
     try:
         deadline = time.monotonic() + 60
         while b" ready." not in log.read_bytes():
@@ -365,6 +416,7 @@ def test_a_cell_that_keeps_killing_its_worker_fails_after_the_attempt_limit(serv
 def test_bodies_are_bounded_as_they_arrive(service, client):
     """A chunked body (no Content-Length) over the limit is cut off with 413, and an upload with a
     wrong key is refused before it is read."""
+
     def chunks(total: int):
         for _ in range(total // 2**20):
             yield b"\0" * 2**20
@@ -398,11 +450,19 @@ def test_farfield_up_takes_host_and_port_flags_over_the_environment(tmp_path):
     with socket.socket() as probe:  # a port free now
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
-    running = start_service(tmp_path / "home", "--host", "127.0.0.1", "--port", str(port), "--workers", "1")  # FARFIELD_PORT=0 in its environment
+    running = start_service(
+        tmp_path / "home", "--host", "127.0.0.1", "--port", str(port), "--workers", "1"
+    )  # FARFIELD_PORT=0 in its environment
     try:
         assert running.url == f"http://127.0.0.1:{port}"
         assert httpx.get(f"{running.url}/v1/health", timeout=10).status_code == 200
     finally:
         assert running.stop() == 0
-    bad = subprocess.run([sys.executable, "-m", "farfield.cli.main", "up", "--port", "70000"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    bad = subprocess.run(
+        [sys.executable, "-m", "farfield.cli.main", "up", "--port", "70000"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert bad.returncode == 2 and "70000 is not in the range 0<=x<=65535" in bad.stderr

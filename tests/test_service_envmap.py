@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 from browser import dashboard_page, tid
 from scenes import city, write_scene
-from service_harness import ADMIN_KEY, service_client, service_on_each_database, upload, wait_for_job, stored_options  # noqa: F401 - the service and client fixtures
+from service_harness import ADMIN_KEY, service_client, service_on_each_database, stored_options, upload, wait_for_job  # noqa: F401 - the service and client fixtures
 
-from farfield.core.impostor.bundle import MANIFEST_NAME
 from farfield.core.exchange import load_scene
+from farfield.core.impostor.bundle import MANIFEST_NAME
 from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.techniques.envmap.technique import EnvmapOptions, bake_envmap
 from farfield.core.viewcells import viewcell_from_dict
@@ -52,7 +52,11 @@ def test_envmap_grid_job_makes_an_impostor_database(client, city_id, city_glb, t
     assert job["counts"]["done"] == 9 and job["progress"] == 1.0
     assert job["params"]["options"] == stored_options("envmap", **OPTIONS)
     # The job report evaluates impostors of one part; an envmap cell (the whole scene) is not.
-    assert job["evaluate"] is True and job["evaluation"] is None and all("evaluation" not in c["stats"] for c in job["cells"])
+    assert (
+        job["evaluate"] is True
+        and job["evaluation"] is None
+        and all("evaluation" not in c["stats"] for c in job["cells"])
+    )
 
     # The lookup route serves the cell around a viewpoint, as for layered jobs.
     centre = viewcell_from_dict(job["cells"][CENTRE]["viewcell"]).center
@@ -88,9 +92,16 @@ def test_envmap_grid_job_makes_an_impostor_database(client, city_id, city_glb, t
 
         # What the service baked is what core bakes for that cell.
         cell = db.cell(CENTRE)
-        expected = bake_envmap(load_scene(city_glb), cell.viewcell, EnvmapOptions(resolution=64, fov_deg=90.0, layers=4, directions=("+x", "-x", "+z", "-z")))
+        expected = bake_envmap(
+            load_scene(city_glb),
+            cell.viewcell,
+            EnvmapOptions(resolution=64, fov_deg=90.0, layers=4, directions=("+x", "-x", "+z", "-z")),
+        )
         baked = db.impostor(CENTRE)
-        assert baked.stats["quads"] == expected.stats["quads"] and baked.stats["texels_kept"] == expected.stats["texels_kept"]
+        assert (
+            baked.stats["quads"] == expected.stats["quads"]
+            and baked.stats["texels_kept"] == expected.stats["texels_kept"]
+        )
         assert baked.parameters["plan"] == json.loads(json.dumps(expected.parameters["plan"]))
 
 
@@ -113,7 +124,21 @@ def test_layered_index_has_neighbours_too(client, city_id, tmp_path):
     [
         ({"grid": {**GRID, "hi": [45.0, 35.0, -25.0]}}, "cubic"),  # 10 x 10 x 20 cells
         ({"grid": None, "viewcells": [{"kind": "box", "lo": [0, 5, -40], "hi": [10, 15, -35]}]}, "cubic"),
-        ({"grid": None, "viewcells": [{"kind": "shaft", "apex": [0, 5, -40], "direction": [0, 0, 1], "apex_angle_deg": 10, "min_distance": 1}]}, "cubic box"),
+        (
+            {
+                "grid": None,
+                "viewcells": [
+                    {
+                        "kind": "shaft",
+                        "apex": [0, 5, -40],
+                        "direction": [0, 0, 1],
+                        "apex_angle_deg": 10,
+                        "min_distance": 1,
+                    }
+                ],
+            },
+            "cubic box",
+        ),
         ({"options": {**OPTIONS, "pixel_model": "exact"}}, "unknown envmap options ['pixel_model']"),
         ({"options": {**OPTIONS, "near_field": 200.0}}, "exactly one of 'layers' or 'near_field'"),
         ({"options": {"near_field": "far"}}, "near_field must be a number > 0"),
@@ -164,7 +189,11 @@ def test_cli_submit_envmap(service, city_id, tmp_path):
     manifest = json.loads((tmp_path / "db" / index["cells"][0]["bundle"] / MANIFEST_NAME).read_text())
     assert manifest["technique"] == "envmap" and manifest["parameters"]["directions"] == ["+x", "-x"]
     bad = service.cli("submit", city_id, "--job-type", "envmap", "--grid", grid, "--option", "nope=1", *env_args)
-    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "unknown envmap options ['nope']" in bad.stderr
+    assert (
+        bad.returncode == 2
+        and len(bad.stderr.strip().splitlines()) == 1
+        and "unknown envmap options ['nope']" in bad.stderr
+    )
     wrong = service.cli("submit", city_id, "--job-type", "cubes", "--grid", grid, *env_args)
     assert wrong.returncode != 0 and "cubes" in wrong.stderr
 
@@ -180,7 +209,9 @@ def test_dashboard_submits_an_envmap_job(service, city_id, browser):
         page.select_option(tid("technique"), "envmap")
         assert page.locator(tid("option-layers")).is_visible() and page.locator(tid("job-objects")).is_hidden()
         assert page.locator(tid("job-fov")).input_value() == "90"
-        assert page.locator(tid("option-gap_fill")).is_visible() and not page.locator(tid("option-gap_fill")).is_checked()
+        assert (
+            page.locator(tid("option-gap_fill")).is_visible() and not page.locator(tid("option-gap_fill")).is_checked()
+        )
         page.fill(tid("job-lo"), ", ".join(map(str, GRID["lo"])))
         page.fill(tid("job-hi"), ", ".join(map(str, [45.0, 35.0, -25.0])))  # not cubic: refused by the server
         page.fill(tid("job-counts"), "3, 3, 1")
@@ -208,15 +239,23 @@ def test_dashboard_submits_an_envmap_job(service, city_id, browser):
         assert page.locator(tid("cell-stats")).locator('[data-stat="near_field"]').count() == 1
         with service.client() as client:
             job = client.get(f"/v1/jobs/{job_id}").json()
-        assert job["technique"] == "envmap" and job["params"]["options"] == stored_options("envmap", layers=4, directions=["+z", "-z"])
+        assert job["technique"] == "envmap" and job["params"]["options"] == stored_options(
+            "envmap", layers=4, directions=["+z", "-z"]
+        )
         page.click(tid("back-link"))
         row = page.locator(f'{tid("job-row")}[data-job-id="{job_id}"]')
         row.locator(f'{tid("job-row-technique")}[data-technique="envmap"]').wait_for()
 
         # With 2 layers everything the cell sees lies in its near field: no atlas page, and the panel says so.
         with service.client() as client:
-            spec = {**SPEC, "grid": {**GRID, "counts": [1, 1, 1], "hi": [25.0, 15.0, -35.0]}, "options": {"layers": 2, "directions": ["+z", "-z"]}}
-            near = wait_for_job(client, client.post("/v1/jobs", json={"scene_id": city_id, **spec}).json()["id"], timeout=60)
+            spec = {
+                **SPEC,
+                "grid": {**GRID, "counts": [1, 1, 1], "hi": [25.0, 15.0, -35.0]},
+                "options": {"layers": 2, "directions": ["+z", "-z"]},
+            }
+            near = wait_for_job(
+                client, client.post("/v1/jobs", json={"scene_id": city_id, **spec}).json()["id"], timeout=60
+            )
         assert near["state"] == "done" and near["cells"][0]["stats"]["atlas_pages"] == 0, near
         page.goto(f"{service.url}/#/jobs/{near['id']}")
         page.locator(f'{tid("job-state")}[data-state="done"]').wait_for()

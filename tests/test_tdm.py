@@ -17,13 +17,14 @@ from test_bake import cell_in_front, city_block, dense, needs_shared
 from test_bundle import accessor_array
 
 from farfield.cli.main import _register, cli
-from farfield.core.impostor.bundle import read_bundle, write_bundle
 from farfield.core.errors import InternalError, LayerPlanError
-from farfield.core.quality.evaluation import evaluate
+from farfield.core.impostor.bundle import read_bundle, write_bundle
 from farfield.core.impostor.glb import impostor_glb
 from farfield.core.layering.plan import plan_layers
+from farfield.core.quality.evaluation import evaluate
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import StageClock
+from farfield.core.techniques.layered import BakeOptions, bake_layered
 from farfield.core.techniques.tdm.mesh import (
     _SIDES,
     SLIT_AREA,
@@ -46,8 +47,6 @@ from farfield.core.techniques.tdm.simplify import (
     simplify,
     tri_box,
 )
-from farfield.core.techniques.tdm.texture import rasterize, sample_field
-from farfield.core.techniques.layered import BakeOptions, bake_layered
 from farfield.core.techniques.tdm.technique import (
     SCHEDULE,
     TdmOptions,
@@ -56,8 +55,9 @@ from farfield.core.techniques.tdm.technique import (
     simplify_mesh,
     uncovered_voxels,
 )
-from farfield.core.viewcells import BoxCell
+from farfield.core.techniques.tdm.texture import rasterize, sample_field
 from farfield.core.techniques.tdm.voxel_field import VoxelField, record_voxel_field
+from farfield.core.viewcells import BoxCell
 
 CASES = {
     # name: (scene factory, cell distance in part diameters, cell size in part diameters, lift)
@@ -82,7 +82,9 @@ def house_bake():
 def scenes_cell(centre, near_z):
     from farfield.core.viewcells import BoxCell
 
-    return BoxCell(np.array([centre[0] - 50, centre[1] - 50, near_z - 100]), np.array([centre[0] + 50, centre[1] + 50, near_z]))
+    return BoxCell(
+        np.array([centre[0] - 50, centre[1] - 50, near_z - 100]), np.array([centre[0] + 50, centre[1] + 50, near_z])
+    )
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
@@ -190,7 +192,9 @@ def test_a_pass_skips_only_edges_that_would_fail_again(house_bake, enlargement):
     lo, hi = scene.bounds
     field, mesh = _field_and_mesh(scene, scenes_cell(0.5 * (lo + hi), lo[2] - 90.0))
     args = (field.centres,)
-    triangles, offsets, voxels, _, memory = simplify(mesh.vertices, mesh.triangles, mesh.voxel_offsets, mesh.voxels, *args, enlargement, field.silhouette)
+    triangles, offsets, voxels, _, memory = simplify(
+        mesh.vertices, mesh.triangles, mesh.voxel_offsets, mesh.voxels, *args, enlargement, field.silhouette
+    )
     assert 0 < memory.keys.size and 0 < memory.clock
     fewer = 0
     for factor in (enlargement,) * 3 + (enlargement + 0.5,) * 3 + (enlargement + 1.5,):
@@ -202,7 +206,9 @@ def test_a_pass_skips_only_edges_that_would_fail_again(house_bake, enlargement):
         triangles, offsets, voxels, _, memory = skipping
     assert fewer == 7
     while True:
-        triangles, offsets, voxels, counts, memory = simplify(mesh.vertices, triangles, offsets, voxels, *args, factor, field.silhouette, memory)
+        triangles, offsets, voxels, counts, memory = simplify(
+            mesh.vertices, triangles, offsets, voxels, *args, factor, field.silhouette, memory
+        )
         if counts["ok"] == 0:
             break
     again = simplify(mesh.vertices, triangles, offsets, voxels, *args, factor, field.silhouette, memory)
@@ -224,11 +230,17 @@ def test_the_cascade_with_memory_is_the_cascade_without(house_bake, distance, re
     for factor in schedule(3.0):
         while True:
             before = triangles.shape[0]
-            triangles, offsets, voxels, _, _ = simplify(mesh.vertices, triangles, offsets, voxels, field.centres, factor, field.silhouette)
+            triangles, offsets, voxels, _, _ = simplify(
+                mesh.vertices, triangles, offsets, voxels, field.centres, factor, field.silhouette
+            )
             if triangles.shape[0] == before:
                 break
     cascade = simplify_mesh(mesh, field, 3.0)
-    assert np.array_equal(cascade[0], triangles) and np.array_equal(cascade[1], offsets) and np.array_equal(cascade[2], voxels)
+    assert (
+        np.array_equal(cascade[0], triangles)
+        and np.array_equal(cascade[1], offsets)
+        and np.array_equal(cascade[2], voxels)
+    )
 
 
 def test_meshes_that_store_no_voxel_are_left_out(house_bake):
@@ -291,7 +303,10 @@ def _grid(n: int):
     one voxel per quad, stored with the quad's first triangle."""
     ys, xs = np.mgrid[0 : n + 1, 0 : n + 1]
     vertices = np.stack([xs.ravel() + 0.0, ys.ravel() + 0.0, np.zeros(xs.size)], axis=1)
-    idx = lambda x, y: y * (n + 1) + x
+
+    def idx(x, y):
+        return y * (n + 1) + x
+
     triangles, centres = [], []
     for y in range(n):
         for x in range(n):
@@ -324,7 +339,9 @@ def test_a_boundary_vertex_is_never_contracted_away_from_the_boundary():
     sub_voxels = np.concatenate([voxels[offsets[t] : offsets[t + 1]] for t in np.flatnonzero(keep)])
     # Contracting the reflex corner (3, 1) along the boundary to (2, 1) would run the edge
     # (2, 1)-(4, 1)... no: the new edge would cross the missing voxel.
-    outcome = contraction_outcome(vertices, triangles[keep], sub_offsets, sub_voxels, centres, 1.0, idx(3, 1), idx(3, 0))
+    outcome = contraction_outcome(
+        vertices, triangles[keep], sub_offsets, sub_voxels, centres, 1.0, idx(3, 1), idx(3, 0)
+    )
     assert outcome in ("boundary_interval", "boundary_away")
 
 
@@ -508,7 +525,10 @@ def test_bundle_glb_and_evaluate_cli_read_a_tdm_unchanged(tmp_path, house_bake):
     # The manifest is small: the triangles are in payload.bin, not in JSON lists.
     manifest = paths.manifest.read_text("utf-8")
     assert len(manifest) < 64 * 1024 and '"corners"' not in manifest and '"vertices":[' not in manifest
-    assert json.loads(manifest)["payload"]["counts"] == {"vertices": mesh.vertices.shape[0], "triangles": mesh.triangle_count}
+    assert json.loads(manifest)["payload"]["counts"] == {
+        "vertices": mesh.vertices.shape[0],
+        "triangles": mesh.triangle_count,
+    }
     assert paths.payload.stat().st_size >= mesh.vertices.nbytes + mesh.uv.nbytes + 4 * mesh.triangles.size
     # The GLB holds one indexed triangle per TDM triangle.
     data = impostor_glb(impostor)
@@ -526,12 +546,17 @@ def test_bundle_glb_and_evaluate_cli_read_a_tdm_unchanged(tmp_path, house_bake):
     binary = data[20 + length + 8 :]
     drawn = []
     for p in primitives:
-        positions, uv, index = (accessor_array(gltf, binary, k) for k in (p["attributes"]["POSITION"], p["attributes"]["TEXCOORD_0"], p["indices"]))
+        positions, uv, index = (
+            accessor_array(gltf, binary, k)
+            for k in (p["attributes"]["POSITION"], p["attributes"]["TEXCOORD_0"], p["indices"])
+        )
         index = index.reshape(-1, 3).astype(np.int64)
         drawn += [np.concatenate([positions[t].ravel(), uv[t].ravel()]).tolist() for t in index]
     relative = (mesh.triangle_corners() - impostor.reference_viewpoint).astype(np.float32)
     corner_uv = mesh.triangle_uv().astype(np.float32)
-    expected = [np.concatenate([relative[i].ravel(), corner_uv[i].ravel()]).tolist() for i in range(mesh.triangle_count)]
+    expected = [
+        np.concatenate([relative[i].ravel(), corner_uv[i].ravel()]).tolist() for i in range(mesh.triangle_count)
+    ]
     assert sorted(map(corner_set, drawn)) == sorted(map(corner_set, expected))
     # `farfield evaluate` on the bundle, as for a layered one.
     scene_path = scenes.write_scene(scene, tmp_path, "obj", "house")
@@ -558,7 +583,20 @@ def test_evaluate_puts_a_tdm_and_a_layered_impostor_side_by_side_and_says_which_
     _register()
 
     def run(*args):
-        return CliRunner().invoke(cli, ["evaluate", str(tmp_path / "tdm"), str(tmp_path / "layered"), str(scene_path), "--random", "2", "--outside", "0", *args])
+        return CliRunner().invoke(
+            cli,
+            [
+                "evaluate",
+                str(tmp_path / "tdm"),
+                str(tmp_path / "layered"),
+                str(scene_path),
+                "--random",
+                "2",
+                "--outside",
+                "0",
+                *args,
+            ],
+        )
 
     result = run("--json")
     assert result.exit_code == 0, result.output
@@ -569,19 +607,31 @@ def test_evaluate_puts_a_tdm_and_a_layered_impostor_side_by_side_and_says_which_
         # Measured (llvmpipe): per pixel where both cover, mean 29.3 (tdm) / 27.7 (layered), 99th
         # percentile 171 for both; within one pixel 13.4 / 12.7; SSIM 0.64 / 0.65.  The house's
         # window frames are a pixel or two wide at 128 px: both impostors resample them.
-        assert row["hole_pixels"] == 0 and row["colour_error_mean"] < 40 and row["evaluation"]["totals"]["colour_error_1px_mean"] < 20
-        assert row["colour_error_mean"] >= row["evaluation"]["totals"]["colour_error_1px_mean"] and 0.4 < row["ssim"] < 1
+        assert (
+            row["hole_pixels"] == 0
+            and row["colour_error_mean"] < 40
+            and row["evaluation"]["totals"]["colour_error_1px_mean"] < 20
+        )
+        assert (
+            row["colour_error_mean"] >= row["evaluation"]["totals"]["colour_error_1px_mean"] and 0.4 < row["ssim"] < 1
+        )
     # Both from the same viewpoints, counted as each technique draws and stores them.
     positions = [[v["position"] for v in row["evaluation"]["viewpoints"]] for row in rows.values()]
     assert positions[0] == positions[1] and len(positions[0]) == 11
-    assert rows["tdm"]["triangles"] == tdm.stats["triangles"] and rows["layered"]["triangles"] == 2 * layered.payload.count
+    assert (
+        rows["tdm"]["triangles"] == tdm.stats["triangles"] and rows["layered"]["triangles"] == 2 * layered.payload.count
+    )
     for row, impostor in ((rows["tdm"], tdm), (rows["layered"], layered)):
         assert row["memory_bytes"] == impostor.texture_bytes + impostor.stats["geometry_bytes"]
     # Among the hole-free, the least memory by default (within 5 %, the fewest triangles decide),
     # the fewest triangles when preferred.
     memory = sorted(row["memory_bytes"] for row in rows.values())
-    least = min(rows.values(), key=lambda row: row["memory_bytes"] if memory[1] > 1.05 * memory[0] else row["triangles"])["name"]
-    assert report["choice"] == least and report["reason"].startswith(f"{least}: no hole pixels inside the view cell and ")
+    least = min(
+        rows.values(), key=lambda row: row["memory_bytes"] if memory[1] > 1.05 * memory[0] else row["triangles"]
+    )["name"]
+    assert report["choice"] == least and report["reason"].startswith(
+        f"{least}: no hole pixels inside the view cell and "
+    )
     fewest = min(rows.values(), key=lambda row: row["triangles"])["name"]
     assert json.loads(run("--json", "--prefer", "triangles").output)["choice"] == fewest
     text = run().output.strip().splitlines()
@@ -592,10 +642,14 @@ def test_evaluate_puts_a_tdm_and_a_layered_impostor_side_by_side_and_says_which_
     moved = BoxCell(cell.lo + [5.0, 0.0, 0.0], cell.hi + [5.0, 0.0, 0.0])
     write_bundle(bake_layered(scene, moved, BakeOptions(resolution=RESOLUTION)), tmp_path / "moved")
     result = CliRunner().invoke(cli, ["evaluate", str(tmp_path / "tdm"), str(tmp_path / "moved"), str(scene_path)])
-    assert result.exit_code == 2 and result.output.strip().splitlines() == [f"farfield: error: {tmp_path / 'moved'} and {tmp_path / 'tdm'} differ in their view cell: only bundles of the same part, view cell, resolution and field of view compare"]
+    assert result.exit_code == 2 and result.output.strip().splitlines() == [
+        f"farfield: error: {tmp_path / 'moved'} and {tmp_path / 'tdm'} differ in their view cell: only bundles of the same part, view cell, resolution and field of view compare"
+    ]
 
 
-@pytest.mark.parametrize("bad", [{"enlargement": 0.5}, {"enlargement": True}, {"oversampling": 0}, {"culling": "most"}, {"texel_margin": -1}])
+@pytest.mark.parametrize(
+    "bad", [{"enlargement": 0.5}, {"enlargement": True}, {"oversampling": 0}, {"culling": "most"}, {"texel_margin": -1}]
+)
 def test_bad_options_are_refused(bad):
     with pytest.raises(LayerPlanError):
         TdmOptions(**bad)
@@ -653,7 +707,12 @@ def test_warming_compiles_every_kernel_a_bake_runs_with_the_types_it_runs_them_w
     counts = json.loads(out.stdout.strip().splitlines()[-1])
     assert not any(counts["before"].values())
     assert counts["baked"] == counts["warmed"]
-    for kernel in ("techniques.tdm.simplify._simplify", "techniques.tdm.mask_atlas._pack_from", "techniques.tdm.mesh._ear_clip_kernel", "techniques.tdm.mesh.assign_voxels"):
+    for kernel in (
+        "techniques.tdm.simplify._simplify",
+        "techniques.tdm.mask_atlas._pack_from",
+        "techniques.tdm.mesh._ear_clip_kernel",
+        "techniques.tdm.mesh.assign_voxels",
+    ):
         assert counts["warmed"][f"farfield.core.{kernel}"] == 1
 
 
@@ -704,7 +763,9 @@ def test_steps_one_layer_at_a_time_are_the_steps_of_the_whole_grid():
     written with shifted arrays, on random occupancies."""
     rng = np.random.default_rng(6)
     for _ in range(30):
-        occ = rng.random((int(rng.integers(1, 9)), int(rng.integers(1, 6)), int(rng.integers(1, 6)))) < rng.uniform(0.2, 0.8)
+        occ = rng.random((int(rng.integers(1, 9)), int(rng.integers(1, 6)), int(rng.integers(1, 6)))) < rng.uniform(
+            0.2, 0.8
+        )
         k = occ.shape[0]
         want = np.zeros_like(occ)
         for axis in (1, 2):
@@ -715,7 +776,16 @@ def test_steps_one_layer_at_a_time_are_the_steps_of_the_whole_grid():
                 one[1:] = near[:-1] & ~far[:-1] & far[1:] & ~near[1:]
                 marked = np.zeros_like(a)
                 if k >= 5:
-                    marked[2 : k - 2] = near[: k - 4] & near[1 : k - 3] & ~far[1 : k - 3] & ~near[2 : k - 2] & ~far[2 : k - 2] & far[3 : k - 1] & ~near[3 : k - 1] & far[4:]
+                    marked[2 : k - 2] = (
+                        near[: k - 4]
+                        & near[1 : k - 3]
+                        & ~far[1 : k - 3]
+                        & ~near[2 : k - 2]
+                        & ~far[2 : k - 2]
+                        & far[3 : k - 1]
+                        & ~near[3 : k - 1]
+                        & far[4:]
+                    )
                 index = [slice(None)] * 3
                 index[axis] = slice(0, n - 1)
                 other = list(index)
@@ -766,7 +836,9 @@ def _plain_layer_quads(field):
             back = joined[side] & ~joined[side ^ 1]
             cy, cx = np.nonzero(both & not_filled(before, dy, dx) & ~back)
             for y, x in zip(cy.tolist(), cx.tolist()):
-                quads.append([[x + ax, y + ay, l - 1], [x + bx, y + by, l - 1], [x + bx, y + by, l], [x + ax, y + ay, l]])
+                quads.append(
+                    [[x + ax, y + ay, l - 1], [x + bx, y + by, l - 1], [x + bx, y + by, l], [x + ax, y + ay, l]]
+                )
                 vy, vx = _cell_voxels(np.array([y]), np.array([x]))
                 if dx:
                     vx = np.full((1, 4), (x + 1) // 2 if dx > 0 else x // 2)
@@ -805,13 +877,20 @@ def test_layer_quads_are_the_whole_grid_rules(house_bake):
     ties follow the vertex numbers, so order matters), on random surfaces (some with whole layers
     empty between filled ones), steep walls and the house's recorded field."""
     rng = np.random.default_rng(11)
-    fields = [_random_field(rng, int(rng.integers(1, 12)), int(rng.integers(1, 12)), int(rng.integers(1, 9))) for _ in range(60)]
+    fields = [
+        _random_field(rng, int(rng.integers(1, 12)), int(rng.integers(1, 12)), int(rng.integers(1, 9)))
+        for _ in range(60)
+    ]
     # Whole layers empty between filled ones: the previous layer's cells are then not "before".
     for _ in range(20):
         field = _random_field(rng, int(rng.integers(2, 10)), int(rng.integers(2, 10)), 9)
         gap = int(rng.integers(1, 6))
         keep = (field.layer < gap) | (field.layer > gap + 1)
-        fields.append(voxel_field(field.x[keep], field.y[keep], field.layer[keep], field.rgba[keep], *field.plan.texture_resolution))
+        fields.append(
+            voxel_field(
+                field.x[keep], field.y[keep], field.layer[keep], field.rgba[keep], *field.plan.texture_resolution
+            )
+        )
     fields += [_steep_field(0), _steep_field(1), _field_and_mesh(*house_bake, resolution=64)[0]]
     sealed = 0
     for field in fields:

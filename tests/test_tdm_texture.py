@@ -14,12 +14,13 @@ import scenes
 from scipy.spatial import cKDTree
 
 from farfield.core.errors import AtlasOverflowError, LayerPlanError
-from farfield.core.quality.evaluation import evaluate
 from farfield.core.impostor.impostor import MeshPayload
-from farfield.core.layering.tiles import pack_tiles
 from farfield.core.layering.plan import plan_layers
-from farfield.core.techniques.tdm.mask_atlas import WIDTH_SCALES, pack_masks
+from farfield.core.layering.tiles import pack_tiles
+from farfield.core.quality.evaluation import evaluate
 from farfield.core.stage_clock import StageClock
+from farfield.core.techniques.tdm.mask_atlas import WIDTH_SCALES, pack_masks
+from farfield.core.techniques.tdm.technique import TdmOptions, bake_tdm, geometry_bytes
 from farfield.core.techniques.tdm.texture import (
     MAX_CHART,
     build_charts,
@@ -27,9 +28,8 @@ from farfield.core.techniques.tdm.texture import (
     rasterize,
     sample_field,
 )
-from farfield.core.techniques.tdm.technique import TdmOptions, bake_tdm, geometry_bytes
-from farfield.core.viewcells import BoxCell
 from farfield.core.techniques.tdm.voxel_field import record_voxel_field
+from farfield.core.viewcells import BoxCell
 
 
 def claims(charts, points: np.ndarray, triangles: np.ndarray) -> list[tuple[int, int, int, int]]:
@@ -157,7 +157,12 @@ def test_a_lone_triangle_on_an_edge_of_two_charts_goes_to_the_first_neighbour(wa
 def test_charts_wider_than_the_cap_are_cut():
     length = 5000
     xs = np.linspace(0, length, 51)
-    points = np.concatenate([np.stack([xs, np.zeros_like(xs), np.zeros_like(xs)], 1), np.stack([xs, np.full_like(xs, 10), np.zeros_like(xs)], 1)])
+    points = np.concatenate(
+        [
+            np.stack([xs, np.zeros_like(xs), np.zeros_like(xs)], 1),
+            np.stack([xs, np.full_like(xs, 10), np.zeros_like(xs)], 1),
+        ]
+    )
     triangles = np.concatenate([[[i, i + 1, 51 + i + 1], [i, 51 + i + 1, 51 + i]] for i in range(50)])
     charts = build_charts(points, triangles, 1)
     assert charts.count >= 3
@@ -173,7 +178,10 @@ def cell_before(scene, distance: float, size: float = 100.0) -> BoxCell:
     """As benchmarks/bench_tdm.py: a cubic cell centred on the part's x and y, ``distance`` in front of it."""
     lo, hi = scene.bounds
     c = 0.5 * (lo + hi)
-    return BoxCell(np.array([c[0] - size / 2, c[1] - size / 2, lo[2] - distance - size]), np.array([c[0] + size / 2, c[1] + size / 2, lo[2] - distance]))
+    return BoxCell(
+        np.array([c[0] - size / 2, c[1] - size / 2, lo[2] - distance - size]),
+        np.array([c[0] + size / 2, c[1] + size / 2, lo[2] - distance]),
+    )
 
 
 @pytest.fixture(scope="module", params=[90.0, 140.0])
@@ -314,7 +322,12 @@ def assert_packed_apart(masks, layout, padding: int) -> None:
         r, c = np.nonzero(mask)
         page = owner[layout.page[i]]
         r, c = r + layout.y[i], c + layout.x[i]
-        assert r.min(initial=0) >= 0 and c.min(initial=0) >= 0 and r.max(initial=0) < page.shape[0] and c.max(initial=0) < page.shape[1]
+        assert (
+            r.min(initial=0) >= 0
+            and c.min(initial=0) >= 0
+            and r.max(initial=0) < page.shape[0]
+            and c.max(initial=0) < page.shape[1]
+        )
         assert np.all(page[r, c] == -1), f"mask {i} overlaps another"
         page[r, c] = i
     for page in owner:
@@ -357,12 +370,22 @@ def _plain_first_fit(masks, padding, width, max_page):
         for index in range(len(pages) + 1):
             if index == len(pages):
                 pages.append(np.zeros((max_page, width), bool))
-            at = next(((y, x) for y in range(max_page - h + 1) for x in range(width - w + 1) if not pages[index][y + rows, x + cols].any()), None)
+            at = next(
+                (
+                    (y, x)
+                    for y in range(max_page - h + 1)
+                    for x in range(width - w + 1)
+                    if not pages[index][y + rows, x + cols].any()
+                ),
+                None,
+            )
             if at is not None:
                 break
         y, x = at
         for r, c in zip(rows, cols):  # block the texel's (2 padding + 1)^2 square
-            pages[index][max(y + r - padding, 0) : y + r + padding + 1, max(x + c - padding, 0) : x + c + padding + 1] = True
+            pages[index][
+                max(y + r - padding, 0) : y + r + padding + 1, max(x + c - padding, 0) : x + c + padding + 1
+            ] = True
         placed[int(i)] = (index, y, x)
     return [placed[i] for i in range(len(masks))]
 
@@ -377,7 +400,9 @@ def test_mask_packing_is_the_plain_first_fit(padding):
     for _ in range(80):
         h, w = rng.integers(1, 12, size=2)
         blob = rng.random((h, w)) < 0.7
-        blob[0, rng.integers(w)] = blob[rng.integers(h), 0] = blob[-1, rng.integers(w)] = blob[rng.integers(h), -1] = True
+        blob[0, rng.integers(w)] = blob[rng.integers(h), 0] = blob[-1, rng.integers(w)] = blob[rng.integers(h), -1] = (
+            True
+        )
         masks.append(blob)
     masks += [masks[i].copy() for i in rng.integers(0, 10, size=40)]  # repeats, across pages too
     masks += [np.ones((1, 1), bool), np.array([[False, True]])]  # one mask's last run ends where the next's starts
@@ -422,13 +447,17 @@ def test_house_tiles_are_smaller_and_the_colours_as_good(house_tdm):
     world = impostor.payload.triangle_corners()
     tiles, chart, sizes = per_triangle_tiles(field, world, margin)
     pages, corner_uv, tile_page, old_bytes = pack_tiles(tiles, TdmOptions().padding)
-    per_triangle = MeshPayload.from_triangle_corners(world, tile_corner_uvs(chart, sizes, corner_uv), page=tile_page, mesh=impostor.payload.mesh)
+    per_triangle = MeshPayload.from_triangle_corners(
+        world, tile_corner_uvs(chart, sizes, corner_uv), page=tile_page, mesh=impostor.payload.mesh
+    )
     old = dataclasses.replace(impostor, payload=per_triangle, pages=pages)
     old_pages = sum(p.nbytes for p in pages)
     new_bytes, new_pages = impostor.stats["texture_bytes_tile_area"], impostor.stats["texture_bytes"]
     # Measured at 90 / 140 units: tiles per triangle 48,656 / 18,816 bytes on pages of 131,072 / 41,728;
     # shared charts 17,504 / 6,428 bytes of needed texels on pages of 28,288 / 12,288.
-    print(f"bytes per triangle: {old_bytes} of tiles on {old_pages} of pages; shared charts: {new_bytes} needed on {new_pages} of pages")
+    print(
+        f"bytes per triangle: {old_bytes} of tiles on {old_pages} of pages; shared charts: {new_bytes} needed on {new_pages} of pages"
+    )
     assert new_bytes < 0.75 * old_bytes
     assert new_pages < 0.75 * old_pages
     assert impostor.stats["geometry_bytes"] < impostor.stats["triangles"] * 72  # 72: unshared vertices

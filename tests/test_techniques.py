@@ -13,8 +13,8 @@ from scenes import box_object, city, write_scene
 from service_harness import service_client, service_on_each_database, upload, wait_for_job  # noqa: F401 - the service and client fixtures
 
 from farfield.cli.main import _register, cli
-from farfield.core.impostor.bundle import read_bundle, stored_stats, write_bundle
 from farfield.core.errors import AtlasOverflowError, LayerPlanError
+from farfield.core.impostor.bundle import read_bundle, stored_stats, write_bundle
 from farfield.core.options import describe_options, options_from_mapping
 from farfield.core.scene import Scene
 from farfield.core.techniques import TECHNIQUES, get_technique
@@ -93,7 +93,9 @@ def test_every_technique_keeps_its_pages_within_max_page(name):
     technique = get_technique(name)
     make_scene, cell = CASES[technique.scope]
     scene = make_scene()
-    if "max_page" not in {f.name for f in dataclasses.fields(technique.Options)}:  # an LDI's pages are its layers, as wide as its image
+    if "max_page" not in {
+        f.name for f in dataclasses.fields(technique.Options)
+    }:  # an LDI's pages are its layers, as wide as its image
         pages = technique.bake(scene, cell, technique.options({}, RESOLUTION), None, None).pages
         assert pages and all(page.shape[:2] == (RESOLUTION, RESOLUTION) for page in pages)
         return
@@ -106,7 +108,10 @@ def test_every_technique_keeps_its_pages_within_max_page(name):
     if name == "points":  # its 8 x 2 tiles spread over as many pages as they need: nothing overflows
         assert all(page.shape[1] % 8 == 0 and page.shape[0] % 2 == 0 for page in small.pages)
         return
-    if name in ("layered", "envmap"):  # quads larger than a page are cut into quads that fit (farfield.core.layering.tiles.split_rects)
+    if name in (
+        "layered",
+        "envmap",
+    ):  # quads larger than a page are cut into quads that fit (farfield.core.layering.tiles.split_rects)
         tiny = technique.bake(scene, cell, technique.options({"max_page": 64}, RESOLUTION), None, None)
         assert all(max(page.shape[:2]) <= 64 for page in tiny.pages) and tiny.quad_count > small.quad_count
         return
@@ -122,9 +127,15 @@ def test_every_technique_declares_bounded_documented_options():
         for entry in described["image"] + described["options"]:
             assert entry["help"], (technique.name, entry["name"])
             if entry["type"] in ("integer", "number"):
-                assert entry["minimum"] is not None or entry["exclusive_minimum"] is not None, (technique.name, entry["name"])
+                assert entry["minimum"] is not None or entry["exclusive_minimum"] is not None, (
+                    technique.name,
+                    entry["name"],
+                )
             if entry["type"] == "integer":
-                assert entry["maximum"] is not None or entry["exclusive_maximum"] is not None, (technique.name, entry["name"])
+                assert entry["maximum"] is not None or entry["exclusive_maximum"] is not None, (
+                    technique.name,
+                    entry["name"],
+                )
         # The declared defaults are what an Options made without arguments holds.
         made = dataclasses.asdict(technique.Options())
         for entry in described["options"]:
@@ -175,7 +186,9 @@ def test_cli_bake_takes_options_and_refuses_other_techniques_flags(tmp_path):
     _register()
     scene_file = write_scene(part_scene(), tmp_path, "glb", "block")
     args = ["bake", str(scene_file), "--viewcell", "box:-2,3,-27,2,7,-23", "--resolution", "64", "--quiet"]
-    run = CliRunner().invoke(cli, [*args, "--out", str(tmp_path / "a"), "--option", "grid_cell=4", "--option", "culling=umbra", "--json"])
+    run = CliRunner().invoke(
+        cli, [*args, "--out", str(tmp_path / "a"), "--option", "grid_cell=4", "--option", "culling=umbra", "--json"]
+    )
     assert run.exit_code == 0, run.output
     parameters = read_bundle(tmp_path / "a").parameters
     assert parameters["grid_cell"] == 4 and parameters["culling"] == "umbra" and parameters["fov_deg"] == 45.0
@@ -189,16 +202,34 @@ def test_cli_bake_takes_options_and_refuses_other_techniques_flags(tmp_path):
 def test_evaluate_check_fails_on_a_broken_guarantee(tmp_path):
     _register()
     scene_file = write_scene(part_scene(), tmp_path, "glb", "block")
-    taller = Scene.from_objects([box_object("block", (-5.0, 0.0, -5.0), (5.0, 14.0, 5.0), (0.8, 0.35, 0.2, 1.0))], source="taller")
+    taller = Scene.from_objects(
+        [box_object("block", (-5.0, 0.0, -5.0), (5.0, 14.0, 5.0), (0.8, 0.35, 0.2, 1.0))], source="taller"
+    )
     taller_file = write_scene(taller, tmp_path, "glb", "taller")
-    bake = ["bake", str(scene_file), "--objects", "block", "--viewcell", "box:-2,3,-27,2,7,-23", "--resolution", "256", "--quiet", "--out", str(tmp_path / "b")]
+    bake = [
+        "bake",
+        str(scene_file),
+        "--objects",
+        "block",
+        "--viewcell",
+        "box:-2,3,-27,2,7,-23",
+        "--resolution",
+        "256",
+        "--quiet",
+        "--out",
+        str(tmp_path / "b"),
+    ]
     assert CliRunner().invoke(cli, bake).exit_code == 0
     evaluate = ["evaluate", str(tmp_path / "b"), "--random", "2", "--outside", "0", "--check"]
     kept = CliRunner().invoke(cli, [*evaluate[:2], str(scene_file), *evaluate[2:]])
     assert kept.exit_code == 0, kept.output
     # The same impostor against a taller block: what it lacks shows as hole pixels, and --check says so.
     broken = CliRunner().invoke(cli, [*evaluate[:2], str(taller_file), *evaluate[2:]])
-    assert broken.exit_code == 4 and "hole pixels" in broken.output and "farfield: error: from inside the view cell" in broken.output
+    assert (
+        broken.exit_code == 4
+        and "hole pixels" in broken.output
+        and "farfield: error: from inside the view cell" in broken.output
+    )
 
 
 def test_route_cli_and_registry_agree(service, client, tmp_path):
@@ -217,7 +248,11 @@ def test_route_cli_and_registry_agree(service, client, tmp_path):
     # The OpenAPI document describes the request's technique field with the registry's names.
     schema = client.get("/openapi.json").json()["components"]["schemas"]["JobSpec"]["properties"]
     assert set(TECHNIQUES) <= set(json.dumps(schema["technique"]).replace('"', " ").split())
-    assert schema["evaluate"]["type"] == "boolean" and schema["evaluate"]["default"] is True and "SSIM" in schema["evaluate"]["description"]
+    assert (
+        schema["evaluate"]["type"] == "boolean"
+        and schema["evaluate"]["default"] is True
+        and "SSIM" in schema["evaluate"]["description"]
+    )
     documented = schema["options"]["x-technique-options"]
     for technique in TECHNIQUES.values():
         for option in technique.describe()["options"]:
@@ -226,7 +261,11 @@ def test_route_cli_and_registry_agree(service, client, tmp_path):
 
 def test_jobs_name_their_technique_and_the_former_job_type_still_works(client, tmp_path):
     scene_id = upload(client, write_scene(part_scene(), tmp_path, "glb", "block")).json()["id"]
-    spec = {"scene_id": scene_id, "viewcells": [{"kind": "box", "lo": [-2, 3, -27], "hi": [2, 7, -23]}], "resolution": 64}
+    spec = {
+        "scene_id": scene_id,
+        "viewcells": [{"kind": "box", "lo": [-2, 3, -27], "hi": [2, 7, -23]}],
+        "resolution": 64,
+    }
     new = client.post("/v1/jobs", json={**spec, "technique": "tdm", "options": {"texel_margin": 2}})
     assert new.status_code == 201, new.text
     old = client.post("/v1/jobs", json={**spec, "job_type": "layered", "options": {"grid_cell": 4}})
@@ -235,9 +274,13 @@ def test_jobs_name_their_technique_and_the_former_job_type_still_works(client, t
     assert new.json()["params"]["fov_deg"] == 45.0  # the technique's default, stored explicitly
     clash = client.post("/v1/jobs", json={**spec, "technique": "tdm", "job_type": "layered"})
     assert clash.status_code == 422 and "both given" in clash.text
-    both = client.post("/v1/jobs", json={**spec, "technique": "tdm", "job_type": "tdm"})  # the document allows one of them
+    both = client.post(
+        "/v1/jobs", json={**spec, "technique": "tdm", "job_type": "tdm"}
+    )  # the document allows one of them
     assert both.status_code == 422 and "both given" in both.text
-    points = client.post("/v1/jobs", json={**spec, "technique": "points", "options": {"min_views": 16, "max_views": 16}})
+    points = client.post(
+        "/v1/jobs", json={**spec, "technique": "points", "options": {"min_views": 16, "max_views": 16}}
+    )
     assert points.status_code == 201, points.text
     for job in (new.json(), old.json(), points.json()):
         done = wait_for_job(client, job["id"])
@@ -252,18 +295,29 @@ def test_jobs_name_their_technique_and_the_former_job_type_still_works(client, t
 
 def test_equal_requests_store_equal_options_and_image_fields_are_strict(client, tmp_path):
     scene_id = upload(client, write_scene(part_scene(), tmp_path, "glb", "block")).json()["id"]
-    spec = {"scene_id": scene_id, "viewcells": [{"kind": "box", "lo": [-2, 3, -27], "hi": [2, 7, -23]}], "resolution": 64, "technique": "tdm"}
+    spec = {
+        "scene_id": scene_id,
+        "viewcells": [{"kind": "box", "lo": [-2, 3, -27], "hi": [2, 7, -23]}],
+        "resolution": 64,
+        "technique": "tdm",
+    }
     stored = []
     for options in ({}, {"enlargement": 2}, {"enlargement": 2.0, "culling": "penumbra"}):
         created = client.post("/v1/jobs", json={**spec, "options": options})
         assert created.status_code == 201, created.text
         stored.append(created.json()["params"])
         client.post(f"/v1/jobs/{created.json()['id']}/cancel")
-    assert stored[0] == stored[1] == stored[2] and stored[0]["options"]["enlargement"] == 2.0 and stored[0]["fov_deg"] == 45.0
+    assert (
+        stored[0] == stored[1] == stored[2]
+        and stored[0]["options"]["enlargement"] == 2.0
+        and stored[0]["fov_deg"] == 45.0
+    )
     envmap = [client.post("/v1/jobs", json={**spec, "technique": "envmap", "grid": None, "viewcells": [{"kind": "box", "lo": [100, 0, 100], "hi": [110, 10, 110]}],
                                             "options": {"layers": 4, "directions": d}}) for d in ("+x,-z", ["-z", "+x"])]  # fmt: skip
     assert [e.status_code for e in envmap] == [201, 201], envmap[0].text
-    assert envmap[0].json()["params"] == envmap[1].json()["params"] and envmap[0].json()["params"]["options"]["directions"] == ["+x", "-z"]
+    assert envmap[0].json()["params"] == envmap[1].json()["params"] and envmap[0].json()["params"]["options"][
+        "directions"
+    ] == ["+x", "-z"]
     for job in envmap:
         client.post(f"/v1/jobs/{job.json()['id']}/cancel")
     for field, value in (("resolution", True), ("resolution", "64"), ("fov_deg", True), ("fov_deg", "45")):

@@ -21,22 +21,23 @@ import math
 
 import numpy as np
 import pytest
-from farfield.core.impostor.bundle import read_bundle, write_bundle
-from farfield.core.colour_space import linear_to_srgb, srgb_to_linear
-from farfield.core.techniques.envmap.runtime import camera_at, depth_range_for
-from farfield.core.quality.evaluation import impostor_objects
-from farfield.core.exchange import load_scene
-from farfield.core.impostor.glb_compression import compress_glb
-from farfield.core.ldi.pages import preview_objects
-from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
-from farfield.core.scene import Scene, SceneObject
-from farfield.core.render.points import PointRenderer
-from farfield.core.techniques import TECHNIQUES, get_technique
-from farfield.core.viewcells import BoxCell, box_corners, parse_viewcell
 from glb_validation import problems
 from scenes import SHARED_SCENES, box_object, real_scene, write_scene
 from test_bake import cell_in_front
 from test_techniques import CASES
+
+from farfield.core.colour_space import linear_to_srgb, srgb_to_linear
+from farfield.core.exchange import load_scene
+from farfield.core.impostor.bundle import read_bundle, write_bundle
+from farfield.core.impostor.glb_compression import compress_glb
+from farfield.core.ldi.pages import preview_objects
+from farfield.core.quality.evaluation import impostor_objects
+from farfield.core.render.points import PointRenderer
+from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
+from farfield.core.scene import Scene, SceneObject
+from farfield.core.techniques import TECHNIQUES, get_technique
+from farfield.core.techniques.envmap.runtime import camera_at, depth_range_for
+from farfield.core.viewcells import BoxCell, box_corners, parse_viewcell
 
 pytestmark = pytest.mark.filterwarnings("ignore::farfield.core.scene.SceneWarning")
 
@@ -47,7 +48,9 @@ def dilate(mask: np.ndarray) -> np.ndarray:
     """(h, w) bool grown by one pixel in all eight directions."""
     padded = np.pad(mask, 1)
     h, w = mask.shape
-    return np.logical_or.reduce([padded[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w] for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
+    return np.logical_or.reduce(
+        [padded[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w] for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
+    )
 
 
 def compare(three: np.ndarray, farfield: np.ndarray) -> dict:
@@ -80,7 +83,10 @@ def part_cameras(scene: Scene, impostor, cell: BoxCell) -> list[Camera]:
     field of view, looking at the part's centre (as :func:`farfield.core.quality.evaluation.evaluate` does)."""
     target = 0.5 * (scene.bounds[0] + scene.bounds[1])
     points = np.concatenate([box_corners(scene.bounds), impostor.payload.world_points()])
-    return [look_at(p, target, points, impostor.fov_deg, impostor.resolution) for p in (impostor.reference_viewpoint, cell.corners()[0])]
+    return [
+        look_at(p, target, points, impostor.fov_deg, impostor.resolution)
+        for p in (impostor.reference_viewpoint, cell.corners()[0])
+    ]
 
 
 def envmap_cameras(scene: Scene, impostor, cell: BoxCell) -> list[Camera]:
@@ -115,8 +121,14 @@ def bundles(tmp_path_factory):
             # A viewer shows a point impostor's one-colour preview (COLOR_0), as farfield's point
             # renderer does without the appearance, and an LDI's fallback quad (farfield.core.ldi.pages).
             preview = back.payload.kind == "points"
-            objects = preview_objects(back) if back.payload.kind == "ldi" else None if preview else impostor_objects(back)
-            with (PointRenderer(back.payload.positions, back.payload.colour.astype(np.uint8)) if preview else MeshRenderer(objects)) as renderer:
+            objects = (
+                preview_objects(back) if back.payload.kind == "ldi" else None if preview else impostor_objects(back)
+            )
+            with (
+                PointRenderer(back.payload.positions, back.payload.colour.astype(np.uint8))
+                if preview
+                else MeshRenderer(objects)
+            ) as renderer:
                 made[name] = (paths, back, cameras, [renderer.render(camera) for camera in cameras])
         return made[name]
 
@@ -139,7 +151,9 @@ def test_every_techniques_glb_is_valid_and_three_js_draws_it_as_farfield_does(na
         # them to linear (glTF's rule), farfield's renderer filters the bytes: up to ~15 apart
         # at a few pixels, nothing on average.
         assert stats["colour_mean"] <= 1.0 and stats["colour_p99"] <= 16, (view, stats)
-    assert sum(int((image[..., 3] > 0).sum()) for image in ours) > 1000 * (1 + (impostor.technique == "envmap")), "the views should see the impostor"
+    assert sum(int((image[..., 3] > 0).sum()) for image in ours) > 1000 * (1 + (impostor.technique == "envmap")), (
+        "the views should see the impostor"
+    )
 
 
 @pytest.mark.parametrize("name", list(TECHNIQUES))
@@ -193,7 +207,16 @@ def test_a_page_grown_to_whole_blocks_draws_as_before(threejs, tmp_path):
 # ------------------------------------------------------------------- colour spaces, as viewers see them
 
 
-def source_and_impostor(threejs, source_file, tmp_path, cell: BoxCell, resolution: int, fov_deg: float = 45.0, alpha_cutoff=None, source_mipmaps: bool = True):
+def source_and_impostor(
+    threejs,
+    source_file,
+    tmp_path,
+    cell: BoxCell,
+    resolution: int,
+    fov_deg: float = 45.0,
+    alpha_cutoff=None,
+    source_mipmaps: bool = True,
+):
     """three.js's renders of ``source_file`` and of its layered impostor's GLB (baked by farfield
     from the loaded scene for ``cell``), from the reference viewpoint towards the part's centre;
     ``source_mipmaps=False`` samples the source's textures without mipmaps."""
@@ -225,11 +248,18 @@ def test_glb_factor_and_vertex_colours_keep_their_colour_in_a_gltf_viewer(threej
     # glTF 2.0: baseColorFactor and COLOR_0 are linear; three.js shows 0.502 as sRGB 188.
     factor = box_object("factor", (-6.0, 0.0, -2.0), (-1.0, 5.0, 3.0), (128 / 255, 128 / 255, 128 / 255, 1.0))
     shape = box_object("vertex", (1.0, 0.0, -2.0), (6.0, 5.0, 3.0))
-    painted = SceneObject("vertex", shape.vertices, shape.faces, vertex_colors=np.tile(np.array([[128, 64, 200, 255]], np.uint8), (len(shape.vertices), 1)))
+    painted = SceneObject(
+        "vertex",
+        shape.vertices,
+        shape.faces,
+        vertex_colors=np.tile(np.array([[128, 64, 200, 255]], np.uint8), (len(shape.vertices), 1)),
+    )
     source_file = write_scene(Scene.from_objects([factor, painted], source="two boxes"), tmp_path, "glb", "two-boxes")
     source, stand_in = source_and_impostor(threejs, source_file, tmp_path, CASES["part"][1], 96)
     covered = source[..., 3] > 0
-    assert np.abs(source[covered, :3].astype(int) - [188, 188, 188]).max(axis=1).min() <= 1  # the factor box, as three.js shows it
+    assert (
+        np.abs(source[covered, :3].astype(int) - [188, 188, 188]).max(axis=1).min() <= 1
+    )  # the factor box, as three.js shows it
     found = colour_difference(source, stand_in)
     print("two boxes", found)
     assert found["pixels"] > 1000 and found["mean_abs"] <= 2.0, found
@@ -239,7 +269,9 @@ def test_glb_factor_and_vertex_colours_keep_their_colour_in_a_gltf_viewer(threej
 def test_the_helmets_srgb_texture_keeps_its_colour_in_a_gltf_viewer(threejs, tmp_path):
     source_file = SHARED_SCENES / "damaged_helmet" / "DamagedHelmet.glb"
     scene = real_scene("damaged_helmet/DamagedHelmet.glb")
-    cell = cell_in_front(scene, 4.0, 0.5 * float(np.max(scene.bounds[1] - scene.bounds[0])))  # tests/test_bake.py's helmet cell
+    cell = cell_in_front(
+        scene, 4.0, 0.5 * float(np.max(scene.bounds[1] - scene.bounds[0]))
+    )  # tests/test_bake.py's helmet cell
     source, stand_in = source_and_impostor(threejs, source_file, tmp_path, cell, 128, fov_deg=20.0)
     found = colour_difference(source, stand_in)
     print("helmet", found)
@@ -283,12 +315,25 @@ def test_alpha_cut_foliage_keeps_its_colour_in_a_viewer(threejs, tmp_path):
     # transparent texels of LushPine.png are black.
     source_file = SHARED_SCENES / "scrub_pine" / "scrubPine.obj"
     cell = parse_viewcell("box-center:-2500,470,0,100")
-    source, stand_in = source_and_impostor(threejs, source_file, tmp_path, cell, 128, fov_deg=30.0, alpha_cutoff=0.5, source_mipmaps=False)
+    source, stand_in = source_and_impostor(
+        threejs, source_file, tmp_path, cell, 128, fov_deg=30.0, alpha_cutoff=0.5, source_mipmaps=False
+    )
     covered = [image[..., 3] > 0 for image in (source, stand_in)]
     both = covered[0] & covered[1]
-    shares = [100.0 * float((image[mask, :3].max(axis=1) < 20).mean()) for image, mask in zip((source, stand_in), covered, strict=True)]
+    shares = [
+        100.0 * float((image[mask, :3].max(axis=1) < 20).mean())
+        for image, mask in zip((source, stand_in), covered, strict=True)
+    ]
     means = [linear_light_mean(image[both, :3]) for image in (source, stand_in)]
-    print("pine", {"covered": [int(m.sum()) for m in covered], "both": int(both.sum()), "near_black_percent": shares, "linear_light_mean_where_both_cover": [m.round(1).tolist() for m in means]})
+    print(
+        "pine",
+        {
+            "covered": [int(m.sum()) for m in covered],
+            "both": int(both.sum()),
+            "near_black_percent": shares,
+            "linear_light_mean_where_both_cover": [m.round(1).tolist() for m in means],
+        },
+    )
     assert min(int(m.sum()) for m in covered) > 1000 and both.sum() > 0.9 * covered[0].sum()
     # No black fringe: 35.4 % against 0.0 % before issue 23.  One-sided since issue 54: the pine's
     # Kd 0.5882 now tints its texture (MTL: Kd x map_Kd, as three.js draws it), and the source's

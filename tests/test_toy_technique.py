@@ -13,7 +13,6 @@ import os
 import subprocess
 import sys
 import zipfile
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -25,7 +24,10 @@ from farfield.core.impostor.glb import impostor_glb
 from farfield.core.impostor.impostor import PAYLOAD_KINDS, Payload, QuadPayload
 from farfield.core.techniques import TECHNIQUES, Technique, get_technique, register
 
-TOY_ENV = {"FARFIELD_TECHNIQUE_MODULES": "toy_technique", "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT / "tests"), os.environ.get("PYTHONPATH")]))}
+TOY_ENV = {
+    "FARFIELD_TECHNIQUE_MODULES": "toy_technique",
+    "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT / "tests"), os.environ.get("PYTHONPATH")])),
+}
 # One box cell in front of the bunny (bounds x -0.095..0.061, y 0.033..0.187, z -0.062..0.059).
 CELL = "box:-0.6,0.05,-0.05,-0.4,0.15,0.05"
 ONE_CELL_GRID = {"lo": [-0.6, 0.05, -0.05], "hi": [-0.4, 0.15, 0.05], "counts": [1, 1, 1]}
@@ -38,7 +40,14 @@ def farfield(*args: str, toy: bool = True) -> subprocess.CompletedProcess:
     env = {k: v for k, v in os.environ.items() if k != "FARFIELD_TECHNIQUE_MODULES"}
     if toy:
         env.update(TOY_ENV)
-    return subprocess.run([sys.executable, "-m", "farfield.cli.main", *args], cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "farfield.cli.main", *args],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
 
 
 def test_the_registry_refuses_what_it_cannot_hold_and_an_unknown_name_is_bad_input():
@@ -51,7 +60,9 @@ def test_the_registry_refuses_what_it_cannot_hold_and_an_unknown_name_is_bad_inp
     with pytest.raises(ValueError, match="unknown payload kind 'voxels'"):
         register(dataclasses.replace(layered, name="voxelised", payload_kind="voxels"))
     assert TECHNIQUES == before
-    with pytest.raises(UnknownTechniqueError, match=r"unknown technique 'toy'; one of \['layered', 'envmap', 'tdm', 'points', 'ldi'\]") as raised:
+    with pytest.raises(
+        UnknownTechniqueError, match=r"unknown technique 'toy'; one of \['layered', 'envmap', 'tdm', 'points', 'ldi'\]"
+    ) as raised:
         get_technique("toy")
     assert not isinstance(raised.value, LayerPlanError)
     assert error_kind(raised.value).value == (422, 2)
@@ -85,7 +96,19 @@ def test_the_cli_bakes_and_lists_a_technique_registered_from_outside(tmp_path):
     assert described[:-1] == [t.describe() for t in TECHNIQUES.values()]  # farfield's own, as this process has them
 
     out = tmp_path / "toy"
-    baked = farfield("bake", str(BUNNY), "--viewcell", CELL, "--technique", "toy", "--option", f"shade={SHADE}", "--out", str(out), "--quiet")
+    baked = farfield(
+        "bake",
+        str(BUNNY),
+        "--viewcell",
+        CELL,
+        "--technique",
+        "toy",
+        "--option",
+        f"shade={SHADE}",
+        "--out",
+        str(out),
+        "--quiet",
+    )
     assert baked.returncode == 0, baked.stderr
     assert "toy: 1 quad, 256 texture bytes" in baked.stdout  # the technique's own summary
     impostor = read_bundle(out)
@@ -99,11 +122,16 @@ def test_the_cli_bakes_and_lists_a_technique_registered_from_outside(tmp_path):
     assert [len(m["primitives"]) for m in document["meshes"]] == [1] and len(document["images"]) == 1
 
     # Without the setting the technique is unknown: the CLI refuses its name and its bundles (bad input, exit 2).
-    unknown = farfield("bake", str(BUNNY), "--viewcell", CELL, "--technique", "toy", "--out", str(tmp_path / "no"), toy=False)
+    unknown = farfield(
+        "bake", str(BUNNY), "--viewcell", CELL, "--technique", "toy", "--out", str(tmp_path / "no"), toy=False
+    )
     assert unknown.returncode == 2 and "'toy' is not one of" in unknown.stderr
     evaluated = farfield("evaluate", str(out), str(BUNNY), toy=False)
     assert evaluated.returncode == 2, evaluated.stderr
-    assert "farfield: error: unknown technique 'toy'; one of ['layered', 'envmap', 'tdm', 'points', 'ldi']" in evaluated.stderr
+    assert (
+        "farfield: error: unknown technique 'toy'; one of ['layered', 'envmap', 'tdm', 'points', 'ldi']"
+        in evaluated.stderr
+    )
     broken = subprocess.run([sys.executable, "-m", "farfield.cli.main", "techniques"], cwd=ROOT, capture_output=True, text=True, timeout=300,
                             env={**os.environ, "FARFIELD_TECHNIQUE_MODULES": "no_such_module_here"})  # fmt: skip
     assert broken.returncode == 2 and "technique module 'no_such_module_here' cannot be imported" in broken.stderr
@@ -125,19 +153,35 @@ def test_the_service_lists_and_bakes_a_technique_registered_from_outside(toy_ser
         assert described[:-1] == [t.describe() for t in TECHNIQUES.values()]
         toy = described[-1]
         assert toy["payload"] == "quads" and [o["name"] for o in toy["options"]] == ["shade"]
-        assert "toy" in json.dumps(client.get("/openapi.json").json()["components"]["schemas"]["JobSpec"])  # the job schema names it
+        assert "toy" in json.dumps(
+            client.get("/openapi.json").json()["components"]["schemas"]["JobSpec"]
+        )  # the job schema names it
 
         scene = upload(client, BUNNY)
         assert scene.status_code == 201, scene.text
-        refused = client.post("/v1/jobs", json={"scene_id": scene.json()["id"], "technique": "toy", "grid": ONE_CELL_GRID, "options": {"shade": 300}})
+        refused = client.post(
+            "/v1/jobs",
+            json={"scene_id": scene.json()["id"], "technique": "toy", "grid": ONE_CELL_GRID, "options": {"shade": 300}},
+        )
         assert refused.status_code == 422 and "shade" in refused.text
-        created = client.post("/v1/jobs", json={"scene_id": scene.json()["id"], "technique": "toy", "grid": ONE_CELL_GRID, "resolution": 48, "options": {"shade": SHADE}})
+        created = client.post(
+            "/v1/jobs",
+            json={
+                "scene_id": scene.json()["id"],
+                "technique": "toy",
+                "grid": ONE_CELL_GRID,
+                "resolution": 48,
+                "options": {"shade": SHADE},
+            },
+        )
         assert created.status_code == 201, created.text
         job = wait_for_job(client, created.json()["id"], timeout=600)
         assert job["state"] == "done", job["errors"]
         assert job["job_type"] == "toy" and job["params"]["options"] == {"shade": SHADE}
         cell = job["cells"][0]
-        assert cell["stats"]["quads"] == 1 and cell["stats"]["evaluation"]["viewpoints"] == 4  # evaluated on the worker, drawn by its payload
+        assert (
+            cell["stats"]["quads"] == 1 and cell["stats"]["evaluation"]["viewpoints"] == 4
+        )  # evaluated on the worker, drawn by its payload
         archive = client.get(f"/v1/jobs/{job['id']}/cells/0/bundle.zip")
         assert archive.status_code == 200, archive.text
         glb = client.get(f"/v1/jobs/{job['id']}/cells/0/impostor.glb")
@@ -167,5 +211,9 @@ def test_the_dashboard_job_form_offers_a_technique_registered_from_outside(toy_s
         fields = page.locator(f'{tid("option-fields")}[data-technique="toy"] {tid("option-field")}')
         assert fields.evaluate_all("fs => fs.map(f => f.dataset.option)") == ["shade"]
         shade = page.locator(tid("option-shade"))
-        assert shade.input_value() == "200" and float(shade.get_attribute("min")) == 0 and float(shade.get_attribute("max")) == 255
+        assert (
+            shade.input_value() == "200"
+            and float(shade.get_attribute("min")) == 0
+            and float(shade.get_attribute("max")) == 255
+        )
         assert page.js_errors == []

@@ -119,7 +119,9 @@ def test_refusals_name_what_is_wrong_at_extreme_coordinates():
     message says so, instead of 'not finite, got [nan ...]' or 'needs lo < hi' where lo < hi holds."""
     with pytest.raises(ViewCellError, match=r"grid box's size hi - lo is not finite in float64"):
         grid_boxes([-1e308, 0, 0], [1e308, 1, 1], [2, 1, 1])
-    with pytest.raises(ViewCellError, match=r"too thin for coordinates up to 1e\+15: its size on y 0.5, z 0.5 must exceed 1"):
+    with pytest.raises(
+        ViewCellError, match=r"too thin for coordinates up to 1e\+15: its size on y 0.5, z 0.5 must exceed 1"
+    ):
         BoxCell(np.array([1e15, 0, 0]), np.array([1.0000001e15, 0.5, 0.5]))
     with pytest.raises(ViewCellError, match="needs lo < hi on every axis"):
         BoxCell(np.array([0.0, 0, 0]), np.array([1.0, 0, 1]))

@@ -28,13 +28,13 @@ from service_harness import ADMIN_KEY, start_service, upload, wait_for_job
 from test_threejs import compare
 from threejs import THREE_SKIP_REASON, three_available
 
-from farfield.core.techniques.envmap.runtime import EnvmapCellRenderer, camera_at, depth_range_for
 from farfield.core.exchange import load_scene, load_scene_bytes
-from farfield.core.impostor.glb_compression import BASISU, MESHOPT, read_glb
 from farfield.core.impostor.database import ImpostorDatabase
+from farfield.core.impostor.glb_compression import BASISU, MESHOPT, read_glb
 from farfield.core.placement.runtime import PlacementRenderer
 from farfield.core.procedural import city as procedural_city
 from farfield.core.render.raster import MeshRenderer
+from farfield.core.techniques.envmap.runtime import EnvmapCellRenderer, camera_at, depth_range_for
 
 if not CHROMIUM.exists():
     pytest.skip(SKIP_REASON, allow_module_level=True)
@@ -46,9 +46,19 @@ pytest.importorskip("playwright.sync_api", reason="needs the playwright package 
 # 16-building city, four horizontal faces recorded (so +y and -y are open: the ground below the
 # cell is near-field geometry beyond the cube, in the -y pyramid).
 GRID = {"lo": [15.0, 5.0, -45.0], "hi": [45.0, 35.0, -35.0], "counts": [3, 3, 1]}
-SPEC = {"job_type": "envmap", "grid": GRID, "resolution": 64, "fov_deg": 90.0, "options": {"layers": 4, "directions": ["+x", "-x", "+z", "-z"]}}
+SPEC = {
+    "job_type": "envmap",
+    "grid": GRID,
+    "resolution": 64,
+    "fov_deg": 90.0,
+    "options": {"layers": 4, "directions": ["+x", "-x", "+z", "-z"]},
+}
 CENTRE = 4  # cell (1, 1, 0)
-PLACEMENT = {"view_space": {"lo": [10.0, 2.0, 10.0], "hi": [70.0, 6.0, 70.0]}, "budget": {"primitives": 800}, "cpv_size": 20}
+PLACEMENT = {
+    "view_space": {"lo": [10.0, 2.0, 10.0], "hi": [70.0, 6.0, 70.0]},
+    "budget": {"primitives": 800},
+    "cpv_size": 20,
+}
 SIZE = 128  # the compared frames, square
 
 
@@ -106,7 +116,9 @@ def show(page, camera, mode: str = "impostors", impostors: bool = True) -> tuple
     drawn); ``impostors`` False draws only what stays geometry."""
     spec = {"eye": camera.eye.tolist(), "right": camera.right.tolist(), "up": camera.up.tolist(), "forward": camera.forward.tolist(),
             "fov": camera.fov, "near": camera.near, "far": camera.far}  # fmt: skip
-    answer = page.evaluate("([c, mode, impostors]) => window.farfieldViewer.show(c, mode, impostors)", [spec, mode, impostors])
+    answer = page.evaluate(
+        "([c, mode, impostors]) => window.farfieldViewer.show(c, mode, impostors)", [spec, mode, impostors]
+    )
     assert answer["error"] is None, answer["error"]
     pixels = np.frombuffer(base64.b64decode(answer["pixels"]), np.uint8).reshape(answer["height"], answer["width"], 4)
     return pixels[::-1].copy(), answer
@@ -136,7 +148,11 @@ def test_the_view_draws_what_the_reference_runtime_draws(viewer, envmap_job, tmp
             assert state["key"] == f"cell {CENTRE}" and state["kind"] == "grid"
             figures = compare(drawn, reference)
             # the same triangles: the near field's face ranges and the impostor's quads
-            assert state["triangles"] == runtime.near_triangles + runtime.quad_triangles, (state["triangles"], runtime.near_triangles, runtime.quad_triangles)
+            assert state["triangles"] == runtime.near_triangles + runtime.quad_triangles, (
+                state["triangles"],
+                runtime.near_triangles,
+                runtime.quad_triangles,
+            )
             # what stays geometry alone: the near field, clipped to its cube (and the open faces' pyramids)
             near_objects = runtime.near.objects(scene)
             with MeshRenderer(near_objects, [runtime.near.clip] * len(near_objects)) as near_field:
@@ -148,13 +164,21 @@ def test_the_view_draws_what_the_reference_runtime_draws(viewer, envmap_job, tmp
             assert figures["three_pixels"] > 0.15 * SIZE * SIZE, figures
             if os.environ.get("FARFIELD_VIEWER_SCREENSHOT"):
                 keep({f"view-{forward[0]}": drawn, f"reference-{forward[0]}": reference}, tmp_path)
-            ok = figures["three_beyond_1px"] == 0 and figures["farfield_beyond_1px"] == 0 and figures["colour_mean"] < 6.0
+            ok = (
+                figures["three_beyond_1px"] == 0
+                and figures["farfield_beyond_1px"] == 0
+                and figures["colour_mean"] < 6.0
+            )
             assert ok, f"{figures} (frames: {keep({'view': drawn, 'reference': reference}, tmp_path)}-*.png)"
 
             # The source scene: every triangle, as farfield draws it.
             source, _ = show(viewer, camera, "scene")
             figures = compare(source, full.render(camera))
-            assert figures["three_beyond_1px"] == 0 and figures["farfield_beyond_1px"] == 0 and figures["colour_mean"] < 6.0, figures
+            assert (
+                figures["three_beyond_1px"] == 0
+                and figures["farfield_beyond_1px"] == 0
+                and figures["colour_mean"] < 6.0
+            ), figures
     finally:
         runtime.release()
         full.release()
@@ -162,7 +186,12 @@ def test_the_view_draws_what_the_reference_runtime_draws(viewer, envmap_job, tmp
 
 def test_moving_switches_to_the_cell_holding_the_camera_and_prefetches_its_neighbours(viewer, envmap_job):
     job, db, scene = envmap_job
-    for eye in ((16.0, 6.0, -44.0), (44.0, 34.0, -36.0), (25.0, 10.0, -40.0), (35.0, 20.0, -40.0)):  # cells 0, 8, and shared faces
+    for eye in (
+        (16.0, 6.0, -44.0),
+        (44.0, 34.0, -36.0),
+        (25.0, 10.0, -40.0),
+        (35.0, 20.0, -40.0),
+    ):  # cells 0, 8, and shared faces
         camera = camera_at(eye, (0.0, 0.0, 1.0), 60.0, SIZE, 0.1, 500.0)
         _, state = show(viewer, camera)
         expected = db.find(eye).index
@@ -181,7 +210,11 @@ def test_a_neighbour_is_there_before_the_camera_arrives(browser, service, envmap
     page = open_viewer(browser, service, f"job={job['id']}&size={SIZE}&paused=1&cell=0")
     try:
         state = page.evaluate("window.farfieldViewer.settled()")
-        assert state["key"] == "cell 0" and state["fetched"] == [0] and state["prefetched"] == sorted(db.cell(0).neighbours) == [1, 3, 4], state
+        assert (
+            state["key"] == "cell 0"
+            and state["fetched"] == [0]
+            and state["prefetched"] == sorted(db.cell(0).neighbours) == [1, 3, 4]
+        ), state
         _, state = show(page, camera_at(viewcell_centre(db, CENTRE), (0.0, 0.0, 1.0), 60.0, SIZE, 0.1, 500.0))
         assert state["key"] == f"cell {CENTRE}" and state["fetched"] == [0] and CENTRE in state["prefetched"], state
         assert page.js_errors == []
@@ -200,7 +233,9 @@ def placement_job(client, tmp_path_factory):
     whose buildings the planner splits into clusters; layered impostors at 64 px): (job, database, scene)."""
     path = write_scene(procedural_city(25, seed=1, detail=8), tmp_path_factory.mktemp("placement-city"), "glb", "city")
     scene_id = upload(client, path).json()["id"]
-    created = client.post("/v1/jobs", json={"scene_id": scene_id, "technique": "layered", "resolution": 64, "placement": PLACEMENT})
+    created = client.post(
+        "/v1/jobs", json={"scene_id": scene_id, "technique": "layered", "resolution": 64, "placement": PLACEMENT}
+    )
     assert created.status_code == 201, created.text
     job = wait_for_job(client, created.json()["id"], timeout=300)
     assert job["state"] == "done", (job["error"], job["errors"])
@@ -215,7 +250,9 @@ def test_a_placement_job_is_drawn_as_its_reference_runtime_draws_it(browser, ser
     replace (whole objects, or objects less the replaced clusters: GET .../clusters)."""
     job, db, scene = placement_job
     clusters = client.get(f"/v1/jobs/{job['id']}/clusters").json()
-    assert clusters["clusters"] and all(name.rsplit("#", 1)[0] == c["object"] for name, c in clusters["clusters"].items())
+    assert clusters["clusters"] and all(
+        name.rsplit("#", 1)[0] == c["object"] for name, c in clusters["clusters"].items()
+    )
     page = open_viewer(browser, service, f"job={job['id']}&size={SIZE}&paused=1")
     rng = np.random.default_rng(4)
     lo, hi = (np.array(PLACEMENT["view_space"][k]) for k in ("lo", "hi"))
@@ -286,7 +323,9 @@ def test_the_routes_the_view_reads(client, service, envmap_job, city_glb):
     glb = client.get(f"/v1/scenes/{job['scene_id']}/scene.glb")
     assert glb.status_code == 200 and glb.headers["content-type"] == "model/gltf-binary"
     again = load_scene_bytes(glb.content, ".glb", "scene.glb")
-    assert again.names == scene.names and [o.faces.shape[0] for o in again.objects] == [o.faces.shape[0] for o in scene.objects]
+    assert again.names == scene.names and [o.faces.shape[0] for o in again.objects] == [
+        o.faces.shape[0] for o in scene.objects
+    ]
     assert client.get(f"/v1/scenes/{job['scene_id']}/scene.glb").content == glb.content  # written once, then read back
     assert client.get("/v1/scenes/nosuchscene/scene.glb").status_code == 404
     # an upload called scene.glb is still exported (its objects' names in the extras), not sent back as uploaded
@@ -318,4 +357,3 @@ def test_the_routes_the_view_reads(client, service, envmap_job, city_glb):
         assert anonymous.get("/dashboard/three/examples/jsm/loaders/GLTFLoader.js").status_code == 200
         for outside in ("package.json", "build/../package.json", "src/Three.js", "%2e%2e/%2e%2e/api/app.py"):
             assert anonymous.get(f"/dashboard/three/{outside}").status_code == 404, outside
-

@@ -125,7 +125,9 @@ class ThreeRenderer:
         else:
             route.fulfill(path=str(file))
 
-    def render(self, path, cameras, alpha_cutoff: float | None = None, map_replaces_color: bool = False, mipmaps: bool = True) -> list[np.ndarray]:
+    def render(
+        self, path, cameras, alpha_cutoff: float | None = None, map_replaces_color: bool = False, mipmaps: bool = True
+    ) -> list[np.ndarray]:
         """(h, w, 4) uint8 images of the file at ``path`` (.glb, .gltf, .obj with its MTL, .ply),
         top row first, alpha 255 where drawn, 0 elsewhere; one per camera of ``cameras`` (a
         :class:`farfield.core.render.raster.Camera` or a list of them).

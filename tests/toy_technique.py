@@ -52,7 +52,9 @@ def bake(scene, cell, options, objects=None, progress=None) -> Impostor:
     u = np.cross(up, axis)
     u /= np.linalg.norm(u)
     v = np.cross(axis, u)
-    corners = centre + radius * np.array([[-1.0, 1.0], [1.0, 1.0], [1.0, -1.0], [-1.0, -1.0]]) @ np.stack([u, v])  # TL TR BR BL
+    corners = centre + radius * np.array([[-1.0, 1.0], [1.0, 1.0], [1.0, -1.0], [-1.0, -1.0]]) @ np.stack(
+        [u, v]
+    )  # TL TR BR BL
     uv = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
     page = np.full((PAGE, PAGE, 4), 255, np.uint8)
     page[..., :3] = options.shade
@@ -76,15 +78,17 @@ def summary(stats: dict) -> str:
     return f"toy: {stats['quads']} quad, {stats['texture_bytes']} texture bytes"
 
 
-TECHNIQUE = register(TechniqueDefinition(
-    name=NAME,
-    scope="part",
-    help="a toy: one grey quad across the part (a test of the technique registry)",
-    Options=ToyOptions,
-    payload_kind=QuadPayload.kind,
-    check=check,
-    bake=bake,
-    summary=summary,
-    evaluate=evaluate_part,
-    evaluation_text=part_evaluation_text,
-))
+TECHNIQUE = register(
+    TechniqueDefinition(
+        name=NAME,
+        scope="part",
+        help="a toy: one grey quad across the part (a test of the technique registry)",
+        Options=ToyOptions,
+        payload_kind=QuadPayload.kind,
+        check=check,
+        bake=bake,
+        summary=summary,
+        evaluate=evaluate_part,
+        evaluation_text=part_evaluation_text,
+    )
+)

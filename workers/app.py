@@ -55,7 +55,9 @@ def send_cells(celery: Celery, cell_ids: list[str]) -> None:
 
 def send_planning(celery: Celery, job_id: str, phase: str = "plan") -> None:
     """A placement job's plan (``phase`` "plan") or check task to the render queue."""
-    celery.send_task(PLANNING_TASKS[phase], args=[job_id], queue=RENDER_QUEUE, retry=True, retry_policy=SEND_RETRY_POLICY)
+    celery.send_task(
+        PLANNING_TASKS[phase], args=[job_id], queue=RENDER_QUEUE, retry=True, retry_policy=SEND_RETRY_POLICY
+    )
 
 
 celery_app = make_celery(Settings.from_env())

@@ -45,8 +45,8 @@ import os
 
 from billiard.exceptions import WorkerLostError
 from celery import Task
-from celery.signals import worker_init
 from celery.exceptions import SoftTimeLimitExceeded, TimeLimitExceeded
+from celery.signals import worker_init
 from celery.worker.request import Request
 from sqlalchemy import select, update
 
@@ -54,7 +54,13 @@ from farfield.core.errors import CellLimitError
 from farfield.core.render.context import gl_context
 from farfield.core.techniques import warm_techniques
 from farfield.service.blobs import BlobStore, blob_store
-from farfield.service.cell_limits import PLANNING, MemoryGuard, hard_time_limit_message, memory_limit_message, time_limit_message
+from farfield.service.cell_limits import (
+    PLANNING,
+    MemoryGuard,
+    hard_time_limit_message,
+    memory_limit_message,
+    time_limit_message,
+)
 from farfield.service.db import CellRow, Database, now
 from farfield.service.failures import BAD_INPUT, TRANSIENT, failure_class, failure_message
 from farfield.service.jobs.cells import finish_job_if_complete, release_lost_cells
@@ -99,7 +105,9 @@ def _records() -> tuple[Settings, Database, BlobStore]:
         if "db" in _STATE:  # inherited through a fork: drop its pool without closing the parent's connections
             _STATE["db"].engine.dispose(close=False)
         _STATE.clear()
-        _STATE.update(pid=os.getpid(), settings=settings, db=Database(settings.database_url), blobs=blob_store(settings))
+        _STATE.update(
+            pid=os.getpid(), settings=settings, db=Database(settings.database_url), blobs=blob_store(settings)
+        )
     return _STATE["settings"], _STATE["db"], _STATE["blobs"]
 
 
@@ -129,7 +137,11 @@ def _give_up(db: Database, blobs: BlobStore, cell_id: str, message: str) -> str:
     try:
         with db.session() as s:
             job_id = s.scalar(select(CellRow.job_id).where(CellRow.id == cell_id))
-            changed = s.execute(update(CellRow).where(CellRow.id == cell_id, CellRow.state.in_(("queued", "running"))).values(state="failed", error=message, finished_at=now())).rowcount
+            changed = s.execute(
+                update(CellRow)
+                .where(CellRow.id == cell_id, CellRow.state.in_(("queued", "running")))
+                .values(state="failed", error=message, finished_at=now())
+            ).rowcount
     except Exception:  # noqa: BLE001 - nothing more this message can do
         log.exception("cell %s: could not record its failure either: %s", cell_id, message)
         return "unrecorded"
@@ -180,10 +192,17 @@ class CellTask(Task):
             settings = Settings.from_env()
             db = Database(settings.database_url)
             try:
-                outcome = _give_up(db, blob_store(settings), args[0], f"{CellLimitError.__name__}: {hard_time_limit_message(_DECLARED.cell_hard_time_limit)}")
+                outcome = _give_up(
+                    db,
+                    blob_store(settings),
+                    args[0],
+                    f"{CellLimitError.__name__}: {hard_time_limit_message(_DECLARED.cell_hard_time_limit)}",
+                )
             finally:
                 db.dispose()
-            log.error("cell %s: killed at the hard time limit of %d s (%s)", args[0], _DECLARED.cell_hard_time_limit, outcome)
+            log.error(
+                "cell %s: killed at the hard time limit of %d s (%s)", args[0], _DECLARED.cell_hard_time_limit, outcome
+            )
 
 
 @celery_app.task(
@@ -195,13 +214,23 @@ def bake_cell(self, cell_id: str) -> str:
     settings, db, blobs = _services()
     limit, retries = max_retries(settings.max_attempts), self.request.retries
     try:
-        state = run_cell(db, blobs, cell_id, settings.max_attempts, worker=self.request.hostname, time_limit=settings.cell_time_limit, memory=_STATE["memory"])
+        state = run_cell(
+            db,
+            blobs,
+            cell_id,
+            settings.max_attempts,
+            worker=self.request.hostname,
+            time_limit=settings.cell_time_limit,
+            memory=_STATE["memory"],
+        )
         # Every outcome: a done cell (or a redelivery of one, "skipped") may end its round; a
         # cancelled or failed one may have ended its placement job.
         _send_check_if_due(db, blobs, cell_id)
         return state
     except SoftTimeLimitExceeded:  # outside the attempt (claiming or recording it): the cell is as slow next time
-        return _give_up(db, blobs, cell_id, f"{CellLimitError.__name__}: {time_limit_message(settings.cell_time_limit)}")
+        return _give_up(
+            db, blobs, cell_id, f"{CellLimitError.__name__}: {time_limit_message(settings.cell_time_limit)}"
+        )
     except RetryCell as retry:  # the attempt is counted on the cell, which is queued again
         if retries < limit:
             raise self.retry(countdown=retry.countdown, exc=None, max_retries=limit) from None
@@ -213,10 +242,27 @@ def bake_cell(self, cell_id: str) -> str:
         delivery = retries + 1
         if retries < allowed:
             countdown = backoff(delivery)
-            log.warning("cell %s delivery %d: %s failure outside the attempt: %s (retried in %g s)", cell_id, delivery, klass, message, countdown, exc_info=klass != TRANSIENT)
+            log.warning(
+                "cell %s delivery %d: %s failure outside the attempt: %s (retried in %g s)",
+                cell_id,
+                delivery,
+                klass,
+                message,
+                countdown,
+                exc_info=klass != TRANSIENT,
+            )
             raise self.retry(countdown=countdown, exc=error, max_retries=limit) from error
-        log.error("cell %s delivery %d: %s failure outside the attempt: %s (giving up)", cell_id, delivery, klass, message, exc_info=error)
-        return _give_up(db, blobs, cell_id, f"{message} (gave up after {delivery} deliveries that failed outside the attempt)")
+        log.error(
+            "cell %s delivery %d: %s failure outside the attempt: %s (giving up)",
+            cell_id,
+            delivery,
+            klass,
+            message,
+            exc_info=error,
+        )
+        return _give_up(
+            db, blobs, cell_id, f"{message} (gave up after {delivery} deliveries that failed outside the attempt)"
+        )
 
 
 def _send_check_if_due(db: Database, blobs: BlobStore, cell_id: str) -> None:
@@ -240,7 +286,14 @@ class PlanningRequest(Request):
             settings = Settings.from_env()
             db = Database(settings.database_url)
             try:
-                state = release_planning(db, str(self.args[0]), f"its worker process died: {lost}", self.hostname, settings.max_attempts, blob_store(settings))
+                state = release_planning(
+                    db,
+                    str(self.args[0]),
+                    f"its worker process died: {lost}",
+                    self.hostname,
+                    settings.max_attempts,
+                    blob_store(settings),
+                )
                 log.warning("job %s: its planning process died (%s); now %s", self.args[0], lost, state)
             except Exception:  # noqa: BLE001 - the lease expires and the sweeper sends it again
                 log.exception("job %s: its planning process died, and its hold could not be freed", self.args[0])
@@ -257,7 +310,12 @@ class PlanningTask(Task):
             settings = Settings.from_env()
             db = Database(settings.database_url)
             try:
-                fail_planning(db, args[0], f"{CellLimitError.__name__}: {hard_time_limit_message(_DECLARED.cell_hard_time_limit)}", blobs=blob_store(settings))
+                fail_planning(
+                    db,
+                    args[0],
+                    f"{CellLimitError.__name__}: {hard_time_limit_message(_DECLARED.cell_hard_time_limit)}",
+                    blobs=blob_store(settings),
+                )
             finally:
                 db.dispose()
 
@@ -270,24 +328,40 @@ def _planning(task, job_id: str, phase: str) -> str:
     def over_memory(resident: int) -> None:  # the guard's thread, just before it ends this process
         # Only while this worker holds the job (a stale attempt must not fail a newer one's); no blob
         # deletion here, on the way to the kill: the redelivery finds the job failed and drops them.
-        fail_planning(db, job_id, f"{CellLimitError.__name__}: {memory_limit_message(resident, guard.limit_mb, PLANNING)}", task.request.hostname)
+        fail_planning(
+            db,
+            job_id,
+            f"{CellLimitError.__name__}: {memory_limit_message(resident, guard.limit_mb, PLANNING)}",
+            task.request.hostname,
+        )
 
     try:
         with guard.armed(over_memory):
             state, cell_ids = run_planning(db, blobs, job_id, phase, task.request.hostname, settings.max_attempts)
     except SoftTimeLimitExceeded:
-        fail_planning(db, job_id, f"{CellLimitError.__name__}: {time_limit_message(settings.cell_time_limit)}", blobs=blobs)
+        fail_planning(
+            db, job_id, f"{CellLimitError.__name__}: {time_limit_message(settings.cell_time_limit)}", blobs=blobs
+        )
         return "failed"
     except Exception as error:  # noqa: BLE001 - transient (run_planning freed the hold): retried with backoff
         if retries < limit:
             raise task.retry(countdown=backoff(retries + 1), exc=error, max_retries=limit) from error
-        fail_planning(db, job_id, f"{failure_message(error, failure_class(error))} (gave up after {retries + 1} deliveries)", blobs=blobs)
+        fail_planning(
+            db,
+            job_id,
+            f"{failure_message(error, failure_class(error))} (gave up after {retries + 1} deliveries)",
+            blobs=blobs,
+        )
         return "failed"
     send_cells(celery_app, cell_ids)
     return state
 
 
-_PLANNING_LIMITS = {"soft_time_limit": _DECLARED.cell_time_limit, "time_limit": _DECLARED.cell_hard_time_limit, "max_retries": max_retries(_DECLARED.max_attempts)}
+_PLANNING_LIMITS = {
+    "soft_time_limit": _DECLARED.cell_time_limit,
+    "time_limit": _DECLARED.cell_hard_time_limit,
+    "max_retries": max_retries(_DECLARED.max_attempts),
+}
 
 
 @celery_app.task(bind=True, base=PlanningTask, Request=PlanningRequest, name=PLAN_PLACEMENT, **_PLANNING_LIMITS)

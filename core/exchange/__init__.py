@@ -117,7 +117,10 @@ def load_scene(path: str | Path, limits: SceneLimits = DEFAULT_LIMITS) -> Scene:
 
 
 def load_scene_bytes(
-    data: bytes, extension: str, name: str, assets: Mapping[str, bytes] | None = None,
+    data: bytes,
+    extension: str,
+    name: str,
+    assets: Mapping[str, bytes] | None = None,
     limits: SceneLimits = DEFAULT_LIMITS,
 ) -> Scene:
     """Load a scene from the bytes of its file (an upload).

@@ -66,7 +66,9 @@ def member_path(name: str) -> PurePosixPath:
     text = name.replace("\\", "/")
     path = PurePosixPath(text)
     if text.startswith("/") or _DRIVE.match(text) or ".." in path.parts or "\x00" in text:
-        raise SceneLoadError(f"archive member {name!r}: a path outside the archive (absolute, a drive or '..') is refused")
+        raise SceneLoadError(
+            f"archive member {name!r}: a path outside the archive (absolute, a drive or '..') is refused"
+        )
     return PurePosixPath(*[p for p in path.parts if p not in ("", ".")])
 
 
@@ -81,7 +83,9 @@ def _entries(file, archive_name: str) -> None:
         raise SceneLoadError(f"{archive_name}: not a readable zip archive (no end of central directory)")
     entries, size = end[zipfile._ECD_ENTRIES_TOTAL], end[zipfile._ECD_SIZE]
     if entries > 2 * MAX_FILES or size > 2 * MAX_FILES * 1024:
-        raise UploadTooLargeError(f"{archive_name}: {entries:,} entries, more than the {MAX_FILES} files an archive may hold")
+        raise UploadTooLargeError(
+            f"{archive_name}: {entries:,} entries, more than the {MAX_FILES} files an archive may hold"
+        )
     file.seek(0)
 
 
@@ -98,7 +102,9 @@ def _copy(source, target, budget: int, what: str, archive_name: str) -> int:
                 raise UploadTooLargeError(f"{archive_name}: more than the upload limit uncompressed")
             target.write(chunk)
     except _READ_ERRORS as error:  # encrypted, an unknown method, corrupt data, a bad CRC
-        raise SceneLoadError(f"{archive_name}: member {what} cannot be read ({type(error).__name__}: {error})") from None
+        raise SceneLoadError(
+            f"{archive_name}: member {what} cannot be read ({type(error).__name__}: {error})"
+        ) from None
     return copied
 
 
@@ -113,9 +119,17 @@ def unpack_scene_archive(path: Path, limit: int, work: Path, archive_name: str =
         except (zipfile.BadZipFile, OSError, ValueError) as error:
             raise SceneLoadError(f"{archive_name}: not a readable zip archive ({error})") from None
         with archive:
-            infos = [i for i in archive.infolist() if not i.is_dir() and not i.filename.startswith("__MACOSX/") and not PurePosixPath(i.filename).name.startswith("._")]
+            infos = [
+                i
+                for i in archive.infolist()
+                if not i.is_dir()
+                and not i.filename.startswith("__MACOSX/")
+                and not PurePosixPath(i.filename).name.startswith("._")
+            ]
             if len(infos) > MAX_FILES:
-                raise UploadTooLargeError(f"{archive_name}: {len(infos)} files, more than the {MAX_FILES} an archive may hold")
+                raise UploadTooLargeError(
+                    f"{archive_name}: {len(infos)} files, more than the {MAX_FILES} an archive may hold"
+                )
             paths = [member_path(i.filename) for i in infos]
             scenes = [p for p in paths if p.suffix.lower().lstrip(".") in SCENE_EXTENSIONS]
             if len(scenes) != 1:
@@ -137,12 +151,16 @@ def unpack_scene_archive(path: Path, limit: int, work: Path, archive_name: str =
                         continue
                     key = str(member.relative_to(scene.parent))
                     if key.lower() in names:
-                        raise SceneLoadError(f"{archive_name}: two members are named {key!r} (names differ only in case or in './'); send each file once")
+                        raise SceneLoadError(
+                            f"{archive_name}: two members are named {key!r} (names differ only in case or in './'); send each file once"
+                        )
                     names.add(key.lower())
                     try:
                         source = archive.open(info)
                     except _READ_ERRORS as error:
-                        raise SceneLoadError(f"{archive_name}: member {member} cannot be read ({type(error).__name__}: {error})") from None
+                        raise SceneLoadError(
+                            f"{archive_name}: member {member} cannot be read ({type(error).__name__}: {error})"
+                        ) from None
                     with source:
                         if member == scene:
                             with open(scene_file, "wb") as out:
@@ -202,7 +220,9 @@ def referenced_files(path: Path) -> list[str]:
             document = json.loads(path.read_text(encoding="utf-8"))
         except (OSError, ValueError, UnicodeDecodeError):
             return []
-        uris = [b.get("uri") for b in document.get("buffers", []) if isinstance(b, dict)] + [i.get("uri") for i in document.get("images", []) if isinstance(i, dict)]
+        uris = [b.get("uri") for b in document.get("buffers", []) if isinstance(b, dict)] + [
+            i.get("uri") for i in document.get("images", []) if isinstance(i, dict)
+        ]
         references = [u for u in uris if isinstance(u, str)]
     elif suffix == ".obj":
         from farfield.core.exchange.obj import _MTLLIB, decode_text, texture_maps

@@ -39,7 +39,9 @@ class SceneLimits:
         """Raise :class:`SceneTooCostlyError` when ``count`` of ``what`` exceeds its limit."""
         limit = getattr(self, name)
         if count > limit:
-            raise SceneTooCostlyError(f"{what}: {count:,} is beyond the limit of {limit:,} (FARFIELD_MAX_SCENE_{name.upper()})")
+            raise SceneTooCostlyError(
+                f"{what}: {count:,} is beyond the limit of {limit:,} (FARFIELD_MAX_SCENE_{name.upper()})"
+            )
 
 
 DEFAULT_LIMITS = SceneLimits()

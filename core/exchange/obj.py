@@ -161,7 +161,9 @@ def _uv_transforms(scene: trimesh.Scene, statements: dict[str, MapStatement], wa
             try:
                 values = [float(a) for a in args]
             except ValueError:
-                warnings.append(f"material {material.name!r}: map_Kd option -{key} {' '.join(args)} is not numeric; ignored")
+                warnings.append(
+                    f"material {material.name!r}: map_Kd option -{key} {' '.join(args)} is not numeric; ignored"
+                )
                 values = []
             values += [default if key == "o" or not values else values[0]] * (2 - len(values))
             transform.append(np.array(values[:2]))
@@ -210,10 +212,16 @@ def _textures(scene: trimesh.Scene, maps: dict[str, dict[str, str]], resolver: R
         channel = (opacity.options.get("imfchan") or (None,))[0]
         channel = channel.lower() if channel else None
         if channel not in (None, "r", "g", "b", "m", "l"):
-            warnings.append(f"material {material.name!r}: map_d channel -imfchan {channel} is not supported; using luminance")
+            warnings.append(
+                f"material {material.name!r}: map_d channel -imfchan {channel} is not supported; using luminance"
+            )
             channel = "l"
         colour_file = "map_kd" in files and opacity.file == colour_maps[material.name].file
-        key = (files.get("map_kd") if material.image is not None else tuple(np.asarray(material.diffuse).tolist()), files["map_d"], channel)
+        key = (
+            files.get("map_kd") if material.image is not None else tuple(np.asarray(material.diffuse).tolist()),
+            files["map_d"],
+            channel,
+        )
         if key in composed:
             material.image = composed[key]
             continue
@@ -232,7 +240,9 @@ def _textures(scene: trimesh.Scene, maps: dict[str, dict[str, str]], resolver: R
             continue
         lo, hi = alpha.getextrema()
         if lo == hi == 255:
-            warnings.append(f"opacity map {files['map_d']!r} of material {material.name!r} is opaque everywhere; nothing is cut")
+            warnings.append(
+                f"opacity map {files['map_d']!r} of material {material.name!r} is opaque everywhere; nothing is cut"
+            )
         elif hi == 0:
             warnings.append(f"opacity map {files['map_d']!r} of material {material.name!r} is transparent everywhere")
     return warnings

@@ -64,7 +64,11 @@ def map_statement(rest: str) -> MapStatement:
         key = tokens[i].lower()
         i += 1
         args: list[str] = []
-        while len(args) < MAP_OPTIONS[key] and i < len(tokens) - 1 and (key not in _NUMERIC_OPTIONS or _is_number(tokens[i])):
+        while (
+            len(args) < MAP_OPTIONS[key]
+            and i < len(tokens) - 1
+            and (key not in _NUMERIC_OPTIONS or _is_number(tokens[i]))
+        ):
             args.append(tokens[i])
             i += 1
             if key not in _NUMERIC_OPTIONS:

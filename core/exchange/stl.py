@@ -85,7 +85,9 @@ def load(
         head = data.lstrip()[:5].lower()
         if head != b"solid" or b"\x00" in data:
             count = struct.unpack_from("<I", data, 80)[0] if len(data) >= _HEADER else None
-            expected = "" if count is None else f" (header says {count} triangles = {_HEADER + _TRIANGLE * count} bytes)"
+            expected = (
+                "" if count is None else f" (header says {count} triangles = {_HEADER + _TRIANGLE * count} bytes)"
+            )
             raise SceneLoadError(
                 f"not an STL file: {len(data)} bytes do not make a binary STL{expected} "
                 "and the text does not start with 'solid'"

@@ -214,7 +214,7 @@ class _Texture:
         self.max_alpha = max_alpha  # the largest alpha of any texel
 
     @classmethod
-    def of(cls, rgba: np.ndarray) -> "_Texture":
+    def of(cls, rgba: np.ndarray) -> _Texture:
         rgba = np.array(rgba, dtype=np.uint8, copy=True, order="C")
         rgba.flags.writeable = False  # frozen once: every SceneObject using it shares it (farfield.core.scene._frozen)
         texels = rgba.reshape(-1, 4)
@@ -222,9 +222,7 @@ class _Texture:
         return cls(rgba, single, bool(rgba[..., 3].min() < 255), int(rgba[..., 3].max()))
 
 
-def _texture_colours(
-    mesh: trimesh.Trimesh, name: str, textures: dict, warnings: list[str], linear: bool
-) -> _Colours:
+def _texture_colours(mesh: trimesh.Trimesh, name: str, textures: dict, warnings: list[str], linear: bool) -> _Colours:
     """Colour sources of a mesh with ``TextureVisuals`` (a material, maybe uv and a texture);
     ``linear``: the file's factors and vertex colours are linear (glTF)."""
     visual = mesh.visual
@@ -270,15 +268,19 @@ def _texture_colours(
             textures[key] = _Texture.of(texture_rgba(image))
         except IMAGE_ERRORS as error:
             textures[key] = None
-            warnings.append(f"object {name!r}: texture could not be decoded ({type(error).__name__}: {error}); "
-                            "using the material colour")
+            warnings.append(
+                f"object {name!r}: texture could not be decoded ({type(error).__name__}: {error}); "
+                "using the material colour"
+            )
     texture = textures[key]
     if texture is None:
         return out
     if out.alpha_cutoff is None and not isinstance(material, PBRMaterial) and texture.translucent:
         out.alpha_cutoff = DEFAULT_ALPHA_CUTOFF
     if out.alpha_cutoff is not None and texture.max_alpha * out.base_color[3] < 255.0 * out.alpha_cutoff:
-        warnings.append(f"object {name!r}: no texel of its texture passes its alpha cut ({out.alpha_cutoff:g}); it is invisible")
+        warnings.append(
+            f"object {name!r}: no texel of its texture passes its alpha cut ({out.alpha_cutoff:g}); it is invisible"
+        )
     if texture.single is not None:
         # One colour (e.g. the 2 x 2 placeholder trimesh gives uv without a material): the same
         # as a material colour, which is cheaper and names the colour source truthfully.

@@ -296,7 +296,9 @@ def _swap_into_place(staging: Path, destination: Path) -> None:
     raise BundleFormatError(f"{destination}: could not replace it in {_REPLACE_ATTEMPTS} attempts")
 
 
-_BUNDLE_ENTRY = re.compile(rf"{re.escape(MANIFEST_NAME)}|{re.escape(PAYLOAD_NAME)}|{re.escape(GLB_NAME)}|atlas-\d+\.png")
+_BUNDLE_ENTRY = re.compile(
+    rf"{re.escape(MANIFEST_NAME)}|{re.escape(PAYLOAD_NAME)}|{re.escape(GLB_NAME)}|atlas-\d+\.png"
+)
 
 
 def check_destination(directory: str | os.PathLike) -> None:
@@ -311,11 +313,15 @@ def check_destination(directory: str | os.PathLike) -> None:
     path = Path(directory)
     where = path.resolve()
     if where == Path.cwd().resolve() or where in Path.cwd().resolve().parents:
-        raise ConflictError(f"{directory}: the current folder or one above it would be replaced by the bundle; give a folder of its own")
+        raise ConflictError(
+            f"{directory}: the current folder or one above it would be replaced by the bundle; give a folder of its own"
+        )
     if not path.exists():
         parent = next(p for p in where.parents if p.exists())  # the folder that will hold it, made on writing
         if not (parent.is_dir() and os.access(parent, os.W_OK | os.X_OK)):
-            raise BundleFormatError(f"{directory}: cannot write a bundle there: {parent} is not a folder this process may write")
+            raise BundleFormatError(
+                f"{directory}: cannot write a bundle there: {parent} is not a folder this process may write"
+            )
         return
     if not path.is_dir():
         raise ConflictError(f"{directory}: is a file, not a bundle folder; give a new or empty folder")
@@ -334,7 +340,9 @@ def check_destination(directory: str | os.PathLike) -> None:
         return ", ".join(names[:3]) + (f", ... ({len(names)} in all)" if len(names) > 3 else "")
 
     what = f"holds files no bundle has ({shown(others)})" if bundle else f"is not a bundle (it holds {shown(entries)})"
-    raise ConflictError(f"{directory}: exists and {what}; the bundle would replace it whole: give a new or empty folder, or an earlier bundle's")
+    raise ConflictError(
+        f"{directory}: exists and {what}; the bundle would replace it whole: give a new or empty folder, or an earlier bundle's"
+    )
 
 
 def write_bundle(impostor: Impostor, directory: str | os.PathLike) -> BundlePaths:
@@ -452,9 +460,7 @@ def _read_page(path: Path, width: int, height: int) -> np.ndarray:
         # Pillow reports truncated or corrupt data as OSError, SyntaxError or ValueError.
         raise BundleFormatError(f"{path}: unreadable PNG: {error}") from error
     if page.shape != (height, width, 4):
-        raise BundleFormatError(
-            f"{path}: image is {page.shape[1]}x{page.shape[0]}, manifest says {width}x{height}"
-        )
+        raise BundleFormatError(f"{path}: image is {page.shape[1]}x{page.shape[0]}, manifest says {width}x{height}")
     return page
 
 
@@ -486,7 +492,9 @@ def _payload_v1(manifest: dict, path: Path):
     """A version 1 manifest's ``quads``: a quad payload, or for a technique that bakes meshes (the
     TDM, whose triangles were quads with the fourth corner repeating the third) the mesh payload of
     those triangles."""
-    from farfield.core.techniques import TECHNIQUES  # here: only a version 1 bundle needs the registry (it imports every technique)
+    from farfield.core.techniques import (
+        TECHNIQUES,  # here: only a version 1 bundle needs the registry (it imports every technique)
+    )
 
     count = _field(manifest, path, "quads", "count")
     if isinstance(count, bool) or not isinstance(count, int) or count < 0:
@@ -520,7 +528,12 @@ def _payload_v2(manifest: dict, root: Path, path: Path):
     digest = _field(manifest, path, "payload", "sha256")
     table = _field(manifest, path, "payload", "arrays")
     counts = _field(manifest, path, "payload", "counts")
-    if not _is_count(nbytes) or not isinstance(digest, str) or not isinstance(table, list) or not isinstance(counts, dict):
+    if (
+        not _is_count(nbytes)
+        or not isinstance(digest, str)
+        or not isinstance(table, list)
+        or not isinstance(counts, dict)
+    ):
         raise BundleFormatError(f"{path}: payload needs a byte count, a sha256, an arrays list and counts")
     names = [name for name, _, _ in cls.ARRAYS]
     if [entry.get("name") if isinstance(entry, dict) else None for entry in table] != names:
@@ -534,8 +547,7 @@ def _payload_v2(manifest: dict, root: Path, path: Path):
         raise BundleFormatError(f"{binary}: unreadable: {error}") from error
     if len(data) != nbytes or hashlib.sha256(data).hexdigest() != digest:
         raise BundleFormatError(
-            f"{binary}: {len(data)} bytes that do not match the manifest's payload "
-            f"({nbytes} bytes, sha256 {digest})"
+            f"{binary}: {len(data)} bytes that do not match the manifest's payload ({nbytes} bytes, sha256 {digest})"
         )
     arrays = {}
     offset = 0
@@ -555,7 +567,9 @@ def _payload_v2(manifest: dict, root: Path, path: Path):
                 f"{list(_READ_DTYPES[kind_of])}, shape a list of counts, offset {offset}, nbytes = size x item size)"
             )
         if offset + size > len(data):
-            raise BundleFormatError(f"{path}: payload.arrays {name} runs past the end of {PAYLOAD_NAME} ({len(data)} bytes)")
+            raise BundleFormatError(
+                f"{path}: payload.arrays {name} runs past the end of {PAYLOAD_NAME} ({len(data)} bytes)"
+            )
         array = np.frombuffer(data, dtype=dtype, count=size // np.dtype(dtype).itemsize, offset=offset).reshape(shape)
         arrays[name] = array.astype(np.float64 if kind_of == "f" else np.int64)  # a writable native copy
         offset += size

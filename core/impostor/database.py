@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from farfield.core.impostor.bundle import read_bundle
 from farfield.core.errors import BundleFormatError, NotFoundError
+from farfield.core.impostor.bundle import read_bundle
 from farfield.core.impostor.impostor import Impostor
 from farfield.core.viewcells import BoxCell, ViewCell, viewcell_from_dict
 
@@ -110,7 +110,7 @@ class ImpostorDatabase:
             self._tmp.cleanup()
             self._tmp = None
 
-    def __enter__(self) -> "ImpostorDatabase":
+    def __enter__(self) -> ImpostorDatabase:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -151,7 +151,9 @@ class ImpostorDatabase:
         return np.array([np.min([b.lo for b in boxes], axis=0), np.max([b.hi for b in boxes], axis=0)])
 
 
-def database_index(technique: str, params: dict, cells: list[dict], job: str | None = None, scene: str | None = None) -> dict:
+def database_index(
+    technique: str, params: dict, cells: list[dict], job: str | None = None, scene: str | None = None
+) -> dict:
     """The index document of an impostor database, the one writer of its format (the service's jobs
     and :func:`write_database` both call it).
 
@@ -171,7 +173,9 @@ def database_index(technique: str, params: dict, cells: list[dict], job: str | N
     }  # fmt: skip
 
 
-def write_database(directory: str | Path, technique: str, params: dict, cells: list[tuple[list[int] | None, Impostor]]) -> Path:
+def write_database(
+    directory: str | Path, technique: str, params: dict, cells: list[tuple[list[int] | None, Impostor]]
+) -> Path:
     """Write an impostor database folder from impostors baked in this process (benchmarks, tests,
     local use): ``index.json`` in the service's format plus ``cells/NNNNN/`` bundles.
 
@@ -184,6 +188,8 @@ def write_database(directory: str | Path, technique: str, params: dict, cells: l
     entries = []
     for n, (grid, impostor) in enumerate(cells):
         write_bundle(impostor, root / "cells" / f"{n:05d}")
-        entries.append({"index": n, "grid": grid, "viewcell": impostor.viewcell, "state": "done", "bundle": f"cells/{n:05d}/"})
+        entries.append(
+            {"index": n, "grid": grid, "viewcell": impostor.viewcell, "state": "done", "bundle": f"cells/{n:05d}/"}
+        )
     (root / INDEX_NAME).write_text(json.dumps(database_index(technique, params, entries), sort_keys=True, indent=1))
     return root

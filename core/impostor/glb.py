@@ -218,8 +218,22 @@ def _point_primitive(payload: PointPayload, viewpoint: np.ndarray, binary: _Bin,
         "bufferView": binary.add(positions.tobytes(), _ARRAY_BUFFER), "componentType": _FLOAT, "count": int(positions.shape[0]), "type": "VEC3",
         "min": [float(x) for x in positions.min(axis=0)], "max": [float(x) for x in positions.max(axis=0)],
     })  # fmt: skip
-    accessors.append({"bufferView": binary.add(colour.tobytes(), _ARRAY_BUFFER), "componentType": _FLOAT, "count": int(colour.shape[0]), "type": "VEC3"})
-    accessors.append({"bufferView": binary.add(tile.tobytes(), _ARRAY_BUFFER), "componentType": _FLOAT, "count": int(tile.shape[0]), "type": "VEC3"})
+    accessors.append(
+        {
+            "bufferView": binary.add(colour.tobytes(), _ARRAY_BUFFER),
+            "componentType": _FLOAT,
+            "count": int(colour.shape[0]),
+            "type": "VEC3",
+        }
+    )
+    accessors.append(
+        {
+            "bufferView": binary.add(tile.tobytes(), _ARRAY_BUFFER),
+            "componentType": _FLOAT,
+            "count": int(tile.shape[0]),
+            "type": "VEC3",
+        }
+    )
     return {
         "attributes": {"POSITION": base, "COLOR_0": base + 1, "_FARFIELD_TILE": base + 2},
         "material": 0,
@@ -263,7 +277,11 @@ def _page_material(index: int) -> dict:
     }
 
 
-_POINTS_MATERIAL = {"name": "points", "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0}, "extensions": {_UNLIT: {}}}
+_POINTS_MATERIAL = {
+    "name": "points",
+    "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0},
+    "extensions": {_UNLIT: {}},
+}
 
 
 class GlbBuilder:
@@ -302,33 +320,41 @@ class GlbBuilder:
                 ("<u2", _UNSIGNED_SHORT) if vertex_count < _MAX_UINT16_VERTICES else ("<u4", _UNSIGNED_INT)
             )
             base = len(self.accessors)
-            self.accessors.append({
-                "bufferView": self.binary.add(indices.astype(index_dtype).tobytes(), _ELEMENT_ARRAY_BUFFER),
-                "componentType": component,
-                "count": int(indices.size),
-                "type": "SCALAR",
-            })
-            self.accessors.append({
-                "bufferView": self.binary.add(positions.tobytes(), _ARRAY_BUFFER),
-                "componentType": _FLOAT,
-                "count": int(vertex_count),
-                "type": "VEC3",
-                # float32 values widened exactly to float64, so min/max equal the stored data.
-                "min": [float(x) for x in positions.min(axis=0)],
-                "max": [float(x) for x in positions.max(axis=0)],
-            })
-            self.accessors.append({
-                "bufferView": self.binary.add(texcoords.tobytes(), _ARRAY_BUFFER),
-                "componentType": _FLOAT,
-                "count": int(vertex_count),
-                "type": "VEC2",
-            })
-            primitives.append({
-                "attributes": {"POSITION": base + 1, "TEXCOORD_0": base + 2},
-                "indices": base,
-                "material": page,
-                "mode": _TRIANGLES,
-            })
+            self.accessors.append(
+                {
+                    "bufferView": self.binary.add(indices.astype(index_dtype).tobytes(), _ELEMENT_ARRAY_BUFFER),
+                    "componentType": component,
+                    "count": int(indices.size),
+                    "type": "SCALAR",
+                }
+            )
+            self.accessors.append(
+                {
+                    "bufferView": self.binary.add(positions.tobytes(), _ARRAY_BUFFER),
+                    "componentType": _FLOAT,
+                    "count": int(vertex_count),
+                    "type": "VEC3",
+                    # float32 values widened exactly to float64, so min/max equal the stored data.
+                    "min": [float(x) for x in positions.min(axis=0)],
+                    "max": [float(x) for x in positions.max(axis=0)],
+                }
+            )
+            self.accessors.append(
+                {
+                    "bufferView": self.binary.add(texcoords.tobytes(), _ARRAY_BUFFER),
+                    "componentType": _FLOAT,
+                    "count": int(vertex_count),
+                    "type": "VEC2",
+                }
+            )
+            primitives.append(
+                {
+                    "attributes": {"POSITION": base + 1, "TEXCOORD_0": base + 2},
+                    "indices": base,
+                    "material": page,
+                    "mode": _TRIANGLES,
+                }
+            )
         images = self.images(pages)
         return GlbParts(primitives, [_page_material(index) for index in range(len(pages))], images)
 
@@ -395,9 +421,19 @@ def impostor_glb(impostor: Impostor) -> bytes:
     viewpoint = np.asarray(impostor.reference_viewpoint, dtype=np.float64)
     glb = GlbBuilder(viewpoint)
     parts = impostor.payload.glb_parts(impostor, glb)  # the payload's kind decides what it writes
-    primitives, materials, images, accessors, binary = parts.primitives, parts.materials, parts.images, glb.accessors, glb.binary
+    primitives, materials, images, accessors, binary = (
+        parts.primitives,
+        parts.materials,
+        parts.images,
+        glb.accessors,
+        glb.binary,
+    )
     extensions = [_UNLIT, *parts.extensions]
-    node: dict = {"name": "impostor", "translation": [float(x) for x in viewpoint], "extras": {"farfield": engine_metadata(impostor)}}
+    node: dict = {
+        "name": "impostor",
+        "translation": [float(x) for x in viewpoint],
+        "extras": {"farfield": engine_metadata(impostor)},
+    }
     document: dict = {
         "asset": {"version": "2.0", "generator": f"farfield {impostor.code_version}".rstrip()},
         "extensionsUsed": sorted(extensions),
@@ -414,12 +450,14 @@ def impostor_glb(impostor: Impostor) -> bytes:
         document["materials"] = materials
     if images:
         document["images"] = images
-        document["samplers"] = [{
-            "magFilter": _LINEAR,
-            "minFilter": _LINEAR,
-            "wrapS": _CLAMP_TO_EDGE,
-            "wrapT": _CLAMP_TO_EDGE,
-        }]
+        document["samplers"] = [
+            {
+                "magFilter": _LINEAR,
+                "minFilter": _LINEAR,
+                "wrapS": _CLAMP_TO_EDGE,
+                "wrapT": _CLAMP_TO_EDGE,
+            }
+        ]
         document["textures"] = [{"sampler": 0, "source": index} for index in range(len(images))]
     blob = binary.bytes()
     if blob:

@@ -37,7 +37,14 @@ from PIL import Image, UnidentifiedImageError
 from farfield.core.errors import BundleFormatError
 from farfield.core.impostor.glb import page_png, write_glb
 
-__all__ = ["CODECS", "GEOMETRY", "TEXTURES", "compress_glb", "read_glb", "write_glb"]  # write_glb: farfield.core.impostor.glb's
+__all__ = [
+    "CODECS",
+    "GEOMETRY",
+    "TEXTURES",
+    "compress_glb",
+    "read_glb",
+    "write_glb",
+]  # write_glb: farfield.core.impostor.glb's
 
 TEXTURES = ("png", "ktx2", "ktx2+png")
 GEOMETRY = ("plain", "meshopt")
@@ -100,7 +107,17 @@ def ktx2_page(rgba: np.ndarray, codec: str = "etc1s") -> bytes:
     if h % 4 or w % 4:
         raise ValueError(f"a KTX2 page must be a multiple of 4 texels each way, got {w} x {h}")
     options = {"quality": _ETC1S_QUALITY} if codec == "etc1s" else {"zstd_supercompression_level": _UASTC_ZSTD}
-    return alktx2.encode_raw_rgba_to_ktx2(np.ascontiguousarray(rgba, dtype=np.uint8).tobytes(), w, h, True, codec=codec, srgb=True, mipmaps=False, threads=1, **options)
+    return alktx2.encode_raw_rgba_to_ktx2(
+        np.ascontiguousarray(rgba, dtype=np.uint8).tobytes(),
+        w,
+        h,
+        True,
+        codec=codec,
+        srgb=True,
+        mipmaps=False,
+        threads=1,
+        **options,
+    )
 
 
 def decode_ktx2(data: bytes) -> np.ndarray:
@@ -144,7 +161,12 @@ def _geometry_views(document: dict) -> dict[int, tuple[str, int]]:
     """bufferView -> (meshopt mode, element bytes) for every view an accessor reads; views whose
     elements meshopt cannot take (attributes not a multiple of 4 bytes) are left out."""
     modes: dict[int, tuple[str, int]] = {}
-    triangle_indices = {p["indices"] for m in document.get("meshes", []) for p in m["primitives"] if "indices" in p and p.get("mode", _TRIANGLES) == _TRIANGLES}
+    triangle_indices = {
+        p["indices"]
+        for m in document.get("meshes", [])
+        for p in m["primitives"]
+        if "indices" in p and p.get("mode", _TRIANGLES) == _TRIANGLES
+    }
     for n, accessor in enumerate(document.get("accessors", [])):
         if "bufferView" not in accessor or accessor.get("sparse"):
             continue
@@ -175,11 +197,15 @@ def compress_glb(data: bytes, textures: str = "png", geometry: str = "plain", co
     True
     """
     if len(data) >= 12 and data[:4] == b"glTF" and int.from_bytes(data[8:12], "little") > len(data):
-        raise BundleFormatError(f"GLB: truncated: its header says {int.from_bytes(data[8:12], 'little'):,} bytes, the file has {len(data):,}")
+        raise BundleFormatError(
+            f"GLB: truncated: its header says {int.from_bytes(data[8:12], 'little'):,} bytes, the file has {len(data):,}"
+        )
     try:
         return _compress(data, textures, geometry, codec)
     except UnidentifiedImageError:  # an OSError: before the general case, whose message would name a BytesIO
-        raise BundleFormatError("GLB: not one this can compress (an embedded image is neither a PNG nor a JPEG PIL can read)") from None
+        raise BundleFormatError(
+            "GLB: not one this can compress (an embedded image is neither a PNG nor a JPEG PIL can read)"
+        ) from None
     except (KeyError, IndexError, TypeError, ValueError, OSError) as error:
         raise BundleFormatError(f"GLB: not one this can compress ({type(error).__name__}: {error})") from None
 
@@ -262,7 +288,13 @@ def _compress(data: bytes, textures: str, geometry: str, codec: str) -> bytes:
             offset, length = out.add(ktx2)
             new_views.append({"buffer": 0, "byteOffset": offset, "byteLength": length})
             ktx2_of[n] = len(new_images)
-            new_images.append({"bufferView": len(new_views) - 1, "mimeType": "image/ktx2", "name": f"{image.get('name', f'image-{n}')}-{codec}"})
+            new_images.append(
+                {
+                    "bufferView": len(new_views) - 1,
+                    "mimeType": "image/ktx2",
+                    "name": f"{image.get('name', f'image-{n}')}-{codec}",
+                }
+            )
     for texture in document.get("textures", []) if textures != "png" else []:
         source = texture["source"]
         texture.setdefault("extensions", {})[BASISU] = {"source": ktx2_of[source]}
@@ -313,15 +345,29 @@ def _uv_scales(document: dict, grown: dict[int, tuple[float, float]]) -> dict[in
     out: dict[int, tuple[float, float]] = {}
     if not grown:
         return out
-    materials, textures, accessors = document.get("materials", []), document.get("textures", []), document.get("accessors", [])
+    materials, textures, accessors = (
+        document.get("materials", []),
+        document.get("textures", []),
+        document.get("accessors", []),
+    )
     for mesh in document.get("meshes", []):
         for primitive in mesh["primitives"]:
-            info = materials[primitive["material"]].get("pbrMetallicRoughness", {}).get("baseColorTexture") if "material" in primitive else None
+            info = (
+                materials[primitive["material"]].get("pbrMetallicRoughness", {}).get("baseColorTexture")
+                if "material" in primitive
+                else None
+            )
             if info is None or textures[info["index"]]["source"] not in grown:
                 continue
             accessor = accessors[primitive["attributes"][f"TEXCOORD_{info.get('texCoord', 0)}"]]
-            if accessor["componentType"] != 5126 or accessor["type"] != "VEC2" or "byteStride" in document["bufferViews"][accessor["bufferView"]]:
-                raise BundleFormatError("a grown page's texture coordinates must be a float VEC2 bufferView of their own")
+            if (
+                accessor["componentType"] != 5126
+                or accessor["type"] != "VEC2"
+                or "byteStride" in document["bufferViews"][accessor["bufferView"]]
+            ):
+                raise BundleFormatError(
+                    "a grown page's texture coordinates must be a float VEC2 bufferView of their own"
+                )
             factor = grown[textures[info["index"]]["source"]]
             if out.setdefault(accessor["bufferView"], factor) != factor:
                 raise BundleFormatError("texture coordinates shared by pages of different sizes")

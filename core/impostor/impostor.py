@@ -55,15 +55,15 @@ Conventions:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Protocol, runtime_checkable
-
-import math
 
 import numpy as np
 
 from farfield.core.errors import BundleFormatError
 from farfield.core.layering.plan import LayerPlan
+
 
 def _canonical(value) -> np.ndarray:
     """``value`` as an array; float arrays as float64, integer arrays as int64, others unchanged."""
@@ -93,10 +93,14 @@ def _check_arrays(payload, page_count: int) -> dict[str, int]:
                     ok = ok and axis == length
         if not ok:
             expected = tuple(sizes.get(a, a) if isinstance(a, str) else a for a in shape)
-            raise BundleFormatError(f"{payload.kind} payload: {name} has shape {getattr(array, 'shape', None)}, expected {expected}")
+            raise BundleFormatError(
+                f"{payload.kind} payload: {name} has shape {getattr(array, 'shape', None)}, expected {expected}"
+            )
         if kind == "f":
             if array.dtype != np.float64 or not np.all(np.isfinite(array)):
-                raise BundleFormatError(f"{payload.kind} payload: {name} must be finite floats, got dtype {array.dtype}")
+                raise BundleFormatError(
+                    f"{payload.kind} payload: {name} must be finite floats, got dtype {array.dtype}"
+                )
         elif array.dtype != np.int64:
             raise BundleFormatError(f"{payload.kind} payload: {name} must be integers, got dtype {array.dtype}")
     page = getattr(payload, "page", None)
@@ -157,7 +161,9 @@ def _page_objects(impostor: Impostor, page_triangles) -> list:
             continue
         vertices, faces, uv = page_triangles(sel)
         uv[:, 1] = 1.0 - uv[:, 1]  # glTF (top-left origin) -> scene convention (bottom-left)
-        objects.append(SceneObject(name=f"page{page_index}", vertices=vertices, faces=faces, uv=uv, texture=page, alpha_cutoff=0.5))
+        objects.append(
+            SceneObject(name=f"page{page_index}", vertices=vertices, faces=faces, uv=uv, texture=page, alpha_cutoff=0.5)
+        )
     return objects
 
 
@@ -278,7 +284,9 @@ class MeshPayload(_PayloadBase):
 
     @classmethod
     def empty(cls) -> MeshPayload:
-        return cls(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64))
+        return cls(
+            np.zeros((0, 3)), np.zeros((0, 2)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+        )
 
     @classmethod
     def from_triangle_corners(cls, corners, uv, page, mesh) -> MeshPayload:
@@ -448,13 +456,26 @@ class PointPayload(_PayloadBase):
             shapes = np.array([page.shape[1::-1] for page in pages], dtype=np.int64)  # (width, height)
             beyond = self.texel[textured] + self.tile > shapes[self.page[textured]]
             if beyond.any():
-                raise BundleFormatError(f"points payload: {int(beyond.any(axis=1).sum())} tiles reach beyond their page")
+                raise BundleFormatError(
+                    f"points payload: {int(beyond.any(axis=1).sum())} tiles reach beyond their page"
+                )
 
     def appearance(self, pages: tuple[np.ndarray, ...]):
         """The :class:`farfield.core.render.points.Appearance` of these points' tiles in ``pages``."""
         from farfield.core.render.points import Appearance
 
-        return Appearance(pages, self.page, self.texel, (int(self.tile[0]), int(self.tile[1])), self.plane[:3], float(self.plane[3]), self.axes[0], self.axes[1], self.rectangle[0], self.rectangle[1])
+        return Appearance(
+            pages,
+            self.page,
+            self.texel,
+            (int(self.tile[0]), int(self.tile[1])),
+            self.plane[:3],
+            float(self.plane[3]),
+            self.axes[0],
+            self.axes[1],
+            self.rectangle[0],
+            self.rectangle[1],
+        )
 
     def glb_parts(self, impostor: Impostor, glb) -> Any:
         """One ``POINTS`` primitive with one unlit material; every page an image for the
@@ -465,7 +486,12 @@ class PointPayload(_PayloadBase):
         """A :class:`farfield.core.render.points.PointRenderer`: the points with their directional colours at the baked resolution's pixels."""
         from farfield.core.render.points import PointRenderer
 
-        return PointRenderer(self.positions, self.colour.astype(np.uint8), self.appearance(impostor.pages), grid=(impostor.resolution, math.radians(impostor.fov_deg)))
+        return PointRenderer(
+            self.positions,
+            self.colour.astype(np.uint8),
+            self.appearance(impostor.pages),
+            grid=(impostor.resolution, math.radians(impostor.fov_deg)),
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -503,7 +529,13 @@ class LdiPayload(_PayloadBase):
 
     @classmethod
     def empty(cls) -> LdiPayload:
-        return cls(np.zeros(3), np.eye(3), np.array([1.0, 0.0, 0.0, 1.0, 2.0]), np.array([1, 0, 0]), np.array([[-1.0, 1, 1], [1, 1, 1], [1, -1, 1], [-1, -1, 1]]))
+        return cls(
+            np.zeros(3),
+            np.eye(3),
+            np.array([1.0, 0.0, 0.0, 1.0, 2.0]),
+            np.array([1, 0, 0]),
+            np.array([[-1.0, 1, 1], [1, 1, 1], [1, -1, 1], [-1, -1, 1]]),
+        )
 
     @property
     def count(self) -> int:
@@ -531,7 +563,9 @@ class LdiPayload(_PayloadBase):
         if not (self.window[0] > 0 and 0 < self.window[3] < self.window[4]):
             raise BundleFormatError("ldi payload: window needs a half tangent > 0 and 0 < near < far")
         if self.size[0] < 1 or self.size[1] < 0 or self.size[2] < 0 or page_count != 2 * self.size[1]:
-            raise BundleFormatError(f"ldi payload: {int(self.size[1])} layers need {2 * int(self.size[1])} pages, got {page_count}")
+            raise BundleFormatError(
+                f"ldi payload: {int(self.size[1])} layers need {2 * int(self.size[1])} pages, got {page_count}"
+            )
 
     @property
     def point_count(self) -> int:
@@ -541,12 +575,17 @@ class LdiPayload(_PayloadBase):
         """The fallback a glTF viewer shows: the first layer's colour page on the image quad
         (:mod:`farfield.core.ldi.pages`); the samples stay in the bundle."""
         shown = impostor.pages[:1]
-        quad = QuadPayload(self.quad[None], np.array([[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]]), np.zeros(1, np.int64), np.zeros(1, np.int64))
+        quad = QuadPayload(
+            self.quad[None],
+            np.array([[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]]),
+            np.zeros(1, np.int64),
+            np.zeros(1, np.int64),
+        )
         return glb.textured(glb.quad_pages(quad, len(shown)) if shown else (), shown)
 
     def renderer(self, impostor: Impostor):
         """A :class:`farfield.core.render.splats.SplatRenderer` of the LDI's samples."""
-        from farfield.core.ldi.pages import ldi_of
+        from farfield.core.ldi.image import ldi_of
         from farfield.core.render.splats import SplatRenderer
 
         return SplatRenderer([], [ldi_of(impostor)])
@@ -576,8 +615,10 @@ class Payload(Protocol):
     def point_count(self) -> int: ...
     def glb_parts(self, impostor: Impostor, glb) -> Any:
         """Its part of the impostor's GLB: a :class:`farfield.core.impostor.glb.GlbParts` built with ``glb``'s helpers."""
+
     def renderer(self, impostor: Impostor) -> Any:
         """A renderer (``render(camera)``, ``release()``, a context manager) that draws it as its runtime does."""
+
     def draw_objects(self, impostor: Impostor) -> list | None:
         """Its runtime draw list: textured triangle objects, or None when it is not drawn as triangles."""
 
@@ -668,12 +709,7 @@ def texel_rect_corners(plan: LayerPlan, layer_distance: float, rects: np.ndarray
     ndc_y = 1.0 - y / res[1] * 2.0
     ex = ndc_x * plan.frustum_half_tangents[0] * depth
     ey = ndc_y * plan.frustum_half_tangents[1] * depth
-    return (
-        plan.reference_viewpoint
-        + ex[..., None] * plan.u
-        + ey[..., None] * plan.v
-        + depth * plan.axis
-    )
+    return plan.reference_viewpoint + ex[..., None] * plan.u + ey[..., None] * plan.v + depth * plan.axis
 
 
 def check_impostor(impostor: Impostor) -> None:
@@ -707,8 +743,7 @@ def check_impostor(impostor: Impostor) -> None:
         if not isinstance(page, np.ndarray) or page.dtype != np.uint8 or page.ndim != 3 or page.shape[2] != 4:
             shape = getattr(page, "shape", None)
             raise BundleFormatError(
-                f"page {index} is {shape} {getattr(page, 'dtype', type(page).__name__)}, "
-                "expected (H, W, 4) uint8"
+                f"page {index} is {shape} {getattr(page, 'dtype', type(page).__name__)}, expected (H, W, 4) uint8"
             )
         if page.shape[0] < 1 or page.shape[1] < 1:
             raise BundleFormatError(f"page {index} is empty: {page.shape}")

@@ -255,7 +255,9 @@ def tile_uvs(layout: AtlasLayout, indices=None) -> np.ndarray:
     x0 = layout.x[idx].astype(np.float64)
     y0 = layout.y[idx].astype(np.float64)
     x1, y1 = x0 + ws, y0 + hs
-    plain = np.stack([np.stack([x0, y0], -1), np.stack([x1, y0], -1), np.stack([x1, y1], -1), np.stack([x0, y1], -1)], 1)
+    plain = np.stack(
+        [np.stack([x0, y0], -1), np.stack([x1, y0], -1), np.stack([x1, y1], -1), np.stack([x0, y1], -1)], 1
+    )
     # Clockwise storage: original (TL, TR, BR, BL) sit at stored (TR, BR, BL, TL).
     turned = plain[:, [1, 2, 3, 0]]
     corners = np.where(layout.rotated[idx][:, None, None], turned, plain)

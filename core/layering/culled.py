@@ -38,7 +38,9 @@ class CulledLayer:
     filled: int  # texels the fill added
 
 
-def culled_layers(scene: Scene, plan, culling: CullingMode, clock: StageClock, conservative: bool = True, fill: Fill | None = None) -> Iterator[CulledLayer]:
+def culled_layers(
+    scene: Scene, plan, culling: CullingMode, clock: StageClock, conservative: bool = True, fill: Fill | None = None
+) -> Iterator[CulledLayer]:
     """Record, fill and cull ``plan``'s layers of ``scene`` in order, timing ``record``, ``gap_fill``
     (when ``fill`` is given) and ``cull`` on ``clock``.
 

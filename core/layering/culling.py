@@ -48,9 +48,7 @@ def _blocked_by(blockers: np.ndarray, offsets: tuple[tuple[int, int], ...]) -> n
 # A texel at (y, x) is hidden when blockers sit at (y + dy, x + dx) for every listed offset; _shift
 # by (-dy, -dx) brings the neighbour at (y + dy, x + dx) onto (y, x).
 _UMBRA = tuple((-dy, -dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0))
-_QUADRANTS = tuple(
-    ((-sy, 0), (0, -sx), (-sy, -sx)) for sy in (-1, 1) for sx in (-1, 1)
-)
+_QUADRANTS = tuple(((-sy, 0), (0, -sx), (-sy, -sx)) for sy in (-1, 1) for sx in (-1, 1))
 
 
 def hidden_texels(opaque: np.ndarray, mode: CullingMode = "penumbra") -> np.ndarray:

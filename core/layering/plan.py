@@ -205,7 +205,9 @@ def part_view(cell: ViewCell, bounds, viewpoints: bool = True) -> PartView:
             f"the part touches or overlaps the view cell along the view axis (distance {t0:.6g}); "
             "layered impostors need the part strictly in front of the cell"
         )
-    return PartView(cell.kind, axis, u, v, near_center, cell_width, cell_depth, apex, t0, depth, corners_rel, viewpoints_rel)
+    return PartView(
+        cell.kind, axis, u, v, near_center, cell_width, cell_depth, apex, t0, depth, corners_rel, viewpoints_rel
+    )
 
 
 def _parallax_viewpoints(cell: ViewCell) -> np.ndarray:
@@ -220,7 +222,10 @@ def _parallax_viewpoints(cell: ViewCell) -> np.ndarray:
         return cell.corners()
     u, v, d = cell.frame()
     square = np.array([(-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)])
-    caps = sorted({min(cell.min_distance * f, cell.max_distance) for f in (1.0, 2.0, 4.0, 8.0, 16.0)} | ({cell.max_distance} if cell.bounded else set()))
+    caps = sorted(
+        {min(cell.min_distance * f, cell.max_distance) for f in (1.0, 2.0, 4.0, 8.0, 16.0)}
+        | ({cell.max_distance} if cell.bounded else set())
+    )
     out = [cell.apex + dist * d + cell.half_width(dist) * (square[:, :1] * u + square[:, 1:] * v) for dist in caps]
     return np.concatenate(out, axis=0)
 
@@ -282,7 +287,9 @@ def _section_grid(n: int = 33, edge: int = 129) -> np.ndarray:
     g = np.linspace(-1.0, 1.0, n)
     e = np.linspace(-1.0, 1.0, edge)
     one = np.ones_like(e)
-    sides = np.concatenate([np.stack([e, -one], 1), np.stack([e, one], 1), np.stack([-one, e], 1), np.stack([one, e], 1)])
+    sides = np.concatenate(
+        [np.stack([e, -one], 1), np.stack([e, one], 1), np.stack([-one, e], 1), np.stack([one, e], 1)]
+    )
     return np.unique(np.concatenate([np.stack(np.meshgrid(g, g), -1).reshape(-1, 2), sides]), axis=0)
 
 
@@ -339,14 +346,22 @@ class RayPairs:
         ``budget`` radians of those at ``w`` (``inf`` where no ray limits it)."""
         turned = self.angle(w) + budget
         with np.errstate(over="ignore"):
-            depth = np.where(turned < 0.5 * math.pi, (self.foot + self.dist * np.tan(np.minimum(turned, 0.5 * math.pi - 1e-12))) / self.length, np.inf)
+            depth = np.where(
+                turned < 0.5 * math.pi,
+                (self.foot + self.dist * np.tan(np.minimum(turned, 0.5 * math.pi - 1e-12))) / self.length,
+                np.inf,
+            )
         return float(depth.min())
 
     def nearest(self, w: float, budget: float) -> float:
         """The nearest eye depth whose points every viewpoint sees within ``budget`` radians of
         their images on the plane at eye depth ``w`` (``-inf`` where no ray limits it)."""
         turned = self.angle(w) - budget
-        depth = np.where(turned > -0.5 * math.pi, (self.foot + self.dist * np.tan(np.maximum(turned, -0.5 * math.pi + 1e-12))) / self.length, -np.inf)
+        depth = np.where(
+            turned > -0.5 * math.pi,
+            (self.foot + self.dist * np.tan(np.maximum(turned, -0.5 * math.pi + 1e-12))) / self.length,
+            -np.inf,
+        )
         return float(depth.max())
 
 
@@ -429,7 +444,11 @@ class LayerPlan:
             **(
                 {}
                 if self.texel_share is None
-                else {"texel_share": self.texel_share, "texel_angle_rad": self.texel_angle, "parallax_angle_rad": self.parallax_angle}
+                else {
+                    "texel_share": self.texel_share,
+                    "texel_angle_rad": self.texel_angle,
+                    "parallax_angle_rad": self.parallax_angle,
+                }
             ),
             "part_distance": self.t0,
             "part_depth": self.depth,
@@ -551,7 +570,14 @@ def _over_budget(count: int, res: np.ndarray, cap: int) -> None:
         raise PlanBudgetError(count, (int(res[0]), int(res[1])))
 
 
-def _plan_at_offset(view: PartView, s: float, alpha: float, pixel_model: str, texel_share: float | None = None, max_texels: int | None = None) -> LayerPlan:
+def _plan_at_offset(
+    view: PartView,
+    s: float,
+    alpha: float,
+    pixel_model: str,
+    texel_share: float | None = None,
+    max_texels: int | None = None,
+) -> LayerPlan:
     """The layer plan of ``view`` with the reference viewpoint ``s`` behind the near border."""
     half_tan = _half_tangents(view, s)
     # A flat part seen edge-on has no lateral extent: give it a pixel's worth of frustum so the
@@ -611,7 +637,17 @@ def _plan_at_offset(view: PartView, s: float, alpha: float, pixel_model: str, te
     )
 
 
-def _shared_budget_plan(view: PartView, s: float, alpha: float, pixel_model: str, share: float, half_tan, res, r: float, cap: int = TOL.max_layers) -> LayerPlan:
+def _shared_budget_plan(
+    view: PartView,
+    s: float,
+    alpha: float,
+    pixel_model: str,
+    share: float,
+    half_tan,
+    res,
+    r: float,
+    cap: int = TOL.max_layers,
+) -> LayerPlan:
     """:func:`_plan_at_offset` with texels of ``share * alpha`` and parallax within ``(1 - share) * alpha``
     from every viewpoint (:class:`RayPairs`; see :func:`plan_layers`).
 
@@ -720,7 +756,9 @@ def estimate_layers(
     widths = 2.0 * half_tan * (view.t0 + s)
     res = np.array([texture_resolution(float(wd), view.t0, texel) for wd in widths], dtype=np.int64)
     parallax = alpha if texel_share is None else (1.0 - texel_share) * alpha
-    if view.depth <= 0.0 or view.t0 >= float(single_layer_distance(s, float(np.hypot(*(0.5 * view.cell_width))), parallax)):
+    if view.depth <= 0.0 or view.t0 >= float(
+        single_layer_distance(s, float(np.hypot(*(0.5 * view.cell_width))), parallax)
+    ):
         return 1.0, res  # past the pole one layer holds everything behind it (§3.3.1)
     t = np.geomspace(view.t0, view.t0 + view.depth, _ESTIMATE_SAMPLES)
     inverse = 1.0 / np.asarray(layer_spacing(t, s, view, half_tan, res), dtype=np.float64)

@@ -26,10 +26,10 @@ lower bound").
 
 from __future__ import annotations
 
+import time
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-import time
 
 import moderngl
 import numpy as np
@@ -54,6 +54,7 @@ INSTANCE_ATTRIBUTES = (
     "i_uv01", "i_uv2", "i_color0", "i_color1", "i_color2",
 )  # fmt: skip
 INSTANCE_FLOATS = 43
+
 
 @dataclass(frozen=True, slots=True)
 class RecordedLayers:
@@ -308,7 +309,22 @@ def _lerp_into(out, slot, a, b, plane):
 
 
 @njit(cache=True, error_model="numpy")
-def _pair_kernel(eye, at_vertex, faces, pairs, layers, eye_borders, half_tan, resolution, triangle, layer, rect, polygon, count, vertices):
+def _pair_kernel(
+    eye,
+    at_vertex,
+    faces,
+    pairs,
+    layers,
+    eye_borders,
+    half_tan,
+    resolution,
+    triangle,
+    layer,
+    rect,
+    polygon,
+    count,
+    vertices,
+):
     """Clip, project and bound every (triangle, layer) pair (:func:`clip_to_slab`,
     :func:`texel_coordinates` and :func:`texel_rectangles` fused, the same float64 operations in
     the same order, so the records are bit for bit theirs); writes the kept pairs to the front of
@@ -369,7 +385,12 @@ def _pair_kernel(eye, at_vertex, faces, pairs, layers, eye_borders, half_tan, re
         x0, y0 = np.floor(lo_x), np.floor(lo_y)
         x0 -= x0 == lo_x
         y0 -= y0 == lo_y
-        box = (min(max(x0, 0.0), size_x), min(max(y0, 0.0), size_y), min(max(np.floor(hi_x) + 1.0, 0.0), size_x), min(max(np.floor(hi_y) + 1.0, 0.0), size_y))
+        box = (
+            min(max(x0, 0.0), size_x),
+            min(max(y0, 0.0), size_y),
+            min(max(np.floor(hi_x) + 1.0, 0.0), size_x),
+            min(max(np.floor(hi_y) + 1.0, 0.0), size_y),
+        )
         if not finite or not (box[0] < box[2] and box[1] < box[3]):
             continue
         for c in range(4):
@@ -470,7 +491,13 @@ def warm_kernels() -> float:
     start = time.perf_counter()
     faces = np.array([[0, 1, 2]], dtype=np.int64)
     faces.flags.writeable = False  # as a SceneObject holds them: numba compiles read-only arrays apart
-    slab_instances(np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 2.0]]), faces, np.array([0.5, 1.5, 2.5]), np.ones(2), np.array([4, 4]))
+    slab_instances(
+        np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 2.0]]),
+        faces,
+        np.array([0.5, 1.5, 2.5]),
+        np.ones(2),
+        np.array([4, 4]),
+    )
     return time.perf_counter() - start
 
 
@@ -542,7 +569,9 @@ def _object_textures(ctx: moderngl.Context, obj: SceneObject):
             cut.build_mipmaps()
             cut.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
             alpha = max_alpha_texture(ctx, obj.texture[..., 3])
-            texels = ctx.texture((texture.width, texture.height), 1, np.ascontiguousarray(obj.texture[::-1, :, 3]).tobytes())
+            texels = ctx.texture(
+                (texture.width, texture.height), 1, np.ascontiguousarray(obj.texture[::-1, :, 3]).tobytes()
+            )
             texels.filter = (moderngl.LINEAR, moderngl.LINEAR)  # the footprint a gather reads is GL_LINEAR's
     return texture, cut, alpha, texels
 
@@ -575,7 +604,9 @@ def iter_layers(
     draws = []
     for obj in scene.objects:
         eye = eye_coordinates(plan, obj.vertices)
-        instances = slab_instances(eye, obj.faces, eye_borders, plan.frustum_half_tangents, plan.texture_resolution, faces_with_area(obj))
+        instances = slab_instances(
+            eye, obj.faces, eye_borders, plan.frustum_half_tangents, plan.texture_resolution, faces_with_area(obj)
+        )
         if instances.triangle.size:
             draws.append((obj, instances.offsets, _instance_records(instances, obj)))
     largest = max((int(np.diff(offsets).max()) for _, offsets, _ in draws), default=0)

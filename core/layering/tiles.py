@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from farfield.core.layering.atlas import MAX_PAGE, compose, fill_nearest_rgb, pack, tile_uvs
 from farfield.core.errors import LayerPlanError
+from farfield.core.layering.atlas import MAX_PAGE, compose, fill_nearest_rgb, pack, tile_uvs
 from farfield.core.layering.quads import grow_quads
 
 # Bytes of one quad's geometry as drawn: 4 vertices x (3 position + 2 uv) float32 + 6 uint32 indices.
@@ -88,7 +88,9 @@ def check_pages(max_page: int, padding: int) -> None:
                              f"give padding < {max_page // 2} or a larger max_page")  # fmt: skip
 
 
-def pack_tiles(tiles: list[np.ndarray], padding: int, max_page: int = MAX_PAGE) -> tuple[tuple[np.ndarray, ...], np.ndarray, np.ndarray, int]:
+def pack_tiles(
+    tiles: list[np.ndarray], padding: int, max_page: int = MAX_PAGE
+) -> tuple[tuple[np.ndarray, ...], np.ndarray, np.ndarray, int]:
     """Atlas pages (§3.6) of ``tiles``, none wider or taller than ``max_page``: (pages, quad uv
     (q, 4, 2), quad page (q,), tile bytes)."""
     if not tiles:

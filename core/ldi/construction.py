@@ -97,10 +97,22 @@ def _window(points: np.ndarray, eye: np.ndarray, direction, resolution: int, nea
                   (float(cx), float(cy)))  # fmt: skip
 
 
-def ldi_camera(grid_point: np.ndarray, direction, quad: np.ndarray, depth: float, far: float, resolution: int) -> Camera:
+def ldi_camera(
+    grid_point: np.ndarray, direction, quad: np.ndarray, depth: float, far: float, resolution: int
+) -> Camera:
     """The LDI's camera: at the grid point along ``direction`` (yaw or vector), the square window around ``quad``, near plane the quad's."""
     cam = _window(np.asarray(quad, dtype=np.float64), np.asarray(grid_point, dtype=np.float64), direction, resolution)
-    return Camera(cam.eye, cam.right, cam.up, cam.forward, cam.fov, cam.resolution, float(depth) * (1 - 1e-6), float(far), cam.offset)
+    return Camera(
+        cam.eye,
+        cam.right,
+        cam.up,
+        cam.forward,
+        cam.fov,
+        cam.resolution,
+        float(depth) * (1 - 1e-6),
+        float(far),
+        cam.offset,
+    )
 
 
 def construct_ldi(objects: list[SceneObject], grid_point, direction, quad, depth: float, resolution: int = 256,
@@ -125,7 +137,9 @@ def construct_ldi(objects: list[SceneObject], grid_point, direction, quad, depth
         hits, colours = peel(objects, cam, max_layers=1, truncate=True)
         if hits.shape[0] == 0:
             continue
-        image = LayeredDepthImage(cam, hits[..., 0], hits[..., 1].astype(np.int64), hits[..., 2].astype(np.int64), colour=colours)
+        image = LayeredDepthImage(
+            cam, hits[..., 0], hits[..., 1].astype(np.int64), hits[..., 2].astype(np.int64), colour=colours
+        )
         positions, index = image.samples()
         offered += positions.shape[0]
         if positions.shape[0] == 0:
@@ -146,7 +160,9 @@ def construct_ldi(objects: list[SceneObject], grid_point, direction, quad, depth
 
 
 @numba.njit(cache=True, nogil=True)
-def _merge_samples(rel, obj, tri, col, ox, oy, half, n, near, same, depth_l, obj_l, tri_l, col_l, count):  # pragma: no cover - compiled
+def _merge_samples(
+    rel, obj, tri, col, ox, oy, half, n, near, same, depth_l, obj_l, tri_l, col_l, count
+):  # pragma: no cover - compiled
     """Insert samples (LDI-frame positions) into the LDI's pixels unless one there is the same
     surface; (kept, dropped because the pixel was full)."""
     kept = 0

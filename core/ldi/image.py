@@ -22,12 +22,12 @@ import numba
 import numpy as np
 
 from farfield.core.render.peeling import peel
+from farfield.core.render.raster import Camera
+from farfield.core.scene import SceneObject
 
 # A touched-pixel sample within this many pixel widths (at its depth) of another sample of the
 # same pixel in depth belongs to the same surface and adds nothing.
 SAME_SURFACE = 4.0
-from farfield.core.render.raster import Camera
-from farfield.core.scene import SceneObject
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,16 +77,24 @@ class LayeredDepthImage:
         return self.camera.eye + self.depth[..., None] * self.directions()[None]
 
 
-def record_ldi(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, max_layers: int = 256,
-               conservative: bool = False) -> LayeredDepthImage:
+def record_ldi(
+    objects: list[SceneObject] | tuple[SceneObject, ...],
+    camera: Camera,
+    max_layers: int = 256,
+    conservative: bool = False,
+) -> LayeredDepthImage:
     """The layered depth image of ``objects`` from ``camera`` (see :mod:`farfield.core.render.peeling` for the
     rules: back faces count, alpha-cut texels do not; give a tight depth range); ``conservative``
     adds the samples of touched pixels (module docstring)."""  # fmt: skip
     hits, colours = peel(objects, camera, max_layers)
     if not conservative:
-        return LayeredDepthImage(camera, hits[..., 0], hits[..., 1].astype(np.int64), hits[..., 2].astype(np.int64), colour=colours)
+        return LayeredDepthImage(
+            camera, hits[..., 0], hits[..., 1].astype(np.int64), hits[..., 2].astype(np.int64), colour=colours
+        )
     pixel = 2.0 * math.tan(0.5 * camera.fov) / camera.resolution
-    touched, touched_colours = peel(objects, camera, max_layers, touching=True, centre=hits[..., 0], same_surface=SAME_SURFACE * pixel)
+    touched, touched_colours = peel(
+        objects, camera, max_layers, touching=True, centre=hits[..., 0], same_surface=SAME_SURFACE * pixel
+    )
     return _merge(camera, (hits, colours), (touched, touched_colours), objects)
 
 
@@ -107,7 +115,9 @@ def _merge(camera: Camera, centre: tuple, touched: tuple, objects) -> LayeredDep
     t_tri = np.where(keep, touched[..., 2], -1).astype(np.int64)
     t_pos = np.full(t_depth.shape + (3,), np.nan)
     for layer in np.flatnonzero(keep.any(axis=(1, 2))):
-        t_pos[layer] = _touch_positions(camera, np.where(keep[layer], t_depth[layer], np.nan), t_obj[layer], t_tri[layer], objects)
+        t_pos[layer] = _touch_positions(
+            camera, np.where(keep[layer], t_depth[layer], np.nan), t_obj[layer], t_tri[layer], objects
+        )
     depth, obj, tri, kind, positions, colour = _merge_kernel(
         c_depth, plain.obj, plain.triangle, np.ascontiguousarray(plain.sample_positions()), np.ascontiguousarray(centre_colours, dtype=np.uint8),
         t_depth, t_obj, t_tri, t_pos, np.ascontiguousarray(touched_colours, dtype=np.uint8).reshape(t_depth.shape + (4,)), keep,
@@ -144,7 +154,9 @@ def _touched_kept(c_depth, t_depth, same_surface):  # pragma: no cover - compile
 
 
 @numba.njit(cache=True, nogil=True)
-def _merge_kernel(c_depth, c_obj, c_tri, c_pos, c_col, t_depth, t_obj, t_tri, t_pos, t_col, keep):  # pragma: no cover - compiled
+def _merge_kernel(
+    c_depth, c_obj, c_tri, c_pos, c_col, t_depth, t_obj, t_tri, t_pos, t_col, keep
+):  # pragma: no cover - compiled
     lc, h, w = c_depth.shape
     lt = t_depth.shape[0]
     layers = 0
@@ -208,7 +220,10 @@ def _touch_positions(camera: Camera, depth: np.ndarray, obj: np.ndarray, tri: np
         return out
     n = camera.resolution
     t = math.tan(0.5 * camera.fov)
-    centre = np.stack([camera.offset[0] + (2.0 * (cols + 0.5) / n - 1.0) * t, camera.offset[1] - (2.0 * (rows + 0.5) / n - 1.0) * t], axis=1)
+    centre = np.stack(
+        [camera.offset[0] + (2.0 * (cols + 0.5) / n - 1.0) * t, camera.offset[1] - (2.0 * (rows + 0.5) / n - 1.0) * t],
+        axis=1,
+    )
     frame = np.stack([camera.right, camera.up, camera.forward])
     corners = np.empty((rows.size, 3, 3))
     for index in np.unique(obj[rows, cols]):
@@ -243,3 +258,38 @@ def _touch_positions(camera: Camera, depth: np.ndarray, obj: np.ndarray, tri: np
     k /= k.sum(axis=1, keepdims=True)
     out[rows, cols] = np.einsum("mi,mij->mj", k, corners)
     return out
+
+
+def camera_of(payload) -> Camera:
+    """The camera an ``ldi`` payload (:class:`farfield.core.impostor.impostor.LdiPayload`) records."""
+    t, ox, oy, near, far = (float(x) for x in payload.window)
+    right, up, forward = payload.axes
+    return Camera(
+        payload.eye.copy(),
+        right.copy(),
+        up.copy(),
+        forward.copy(),
+        2.0 * math.atan(t),
+        int(payload.size[0]),
+        near,
+        far,
+        (ox, oy),
+    )
+
+
+def ldi_of(impostor) -> LayeredDepthImage:
+    """The LDI an ``ldi`` impostor's pages hold (two pages per layer: colour, then float32 depth;
+    :mod:`farfield.core.ldi.pages`)."""
+    payload = impostor.payload
+    layers = int(payload.size[1])
+    n = int(payload.size[0])
+    depth = np.full((layers, n, n), np.nan)
+    colour = np.zeros((layers, n, n, 4), np.uint8)
+    for k in range(layers):
+        c, d = impostor.pages[2 * k], impostor.pages[2 * k + 1]
+        present = c[..., 3] > 0
+        values = np.ascontiguousarray(d).view("<f4").reshape(n, n).astype(np.float64)
+        depth[k] = np.where(present, values, np.nan)
+        colour[k] = c
+    missing = np.full(depth.shape, -1, np.int64)
+    return LayeredDepthImage(camera_of(payload), depth, missing, missing.copy(), colour=colour)

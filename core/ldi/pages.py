@@ -40,36 +40,18 @@ def ldi_payload_and_pages(ldi: LayeredDepthImage) -> tuple[LdiPayload, tuple[np.
     return payload, tuple(pages)
 
 
-def camera_of(payload: LdiPayload) -> Camera:
-    t, ox, oy, near, far = (float(x) for x in payload.window)
-    right, up, forward = payload.axes
-    return Camera(payload.eye.copy(), right.copy(), up.copy(), forward.copy(), 2.0 * math.atan(t), int(payload.size[0]), near, far, (ox, oy))
-
-
 def image_quad(camera: Camera) -> np.ndarray:
     """(4, 3) world corners of the LDI's window on its near plane: top-left, top-right, bottom-right,
     bottom-left as seen from its eye."""
     t = math.tan(0.5 * camera.fov)
     ox, oy = camera.offset
     d = camera.near
-    return np.stack([camera.eye + d * (camera.forward + (ox + a) * camera.right + (oy + b) * camera.up) for a, b in ((-t, t), (t, t), (t, -t), (-t, -t))])
-
-
-def ldi_of(impostor: Impostor) -> LayeredDepthImage:
-    """The LDI an ``ldi`` impostor's pages hold."""
-    payload = impostor.payload
-    layers = int(payload.size[1])
-    n = int(payload.size[0])
-    depth = np.full((layers, n, n), np.nan)
-    colour = np.zeros((layers, n, n, 4), np.uint8)
-    for k in range(layers):
-        c, d = impostor.pages[2 * k], impostor.pages[2 * k + 1]
-        present = c[..., 3] > 0
-        values = np.ascontiguousarray(d).view("<f4").reshape(n, n).astype(np.float64)
-        depth[k] = np.where(present, values, np.nan)
-        colour[k] = c
-    missing = np.full(depth.shape, -1, np.int64)
-    return LayeredDepthImage(camera_of(payload), depth, missing, missing.copy(), colour=colour)
+    return np.stack(
+        [
+            camera.eye + d * (camera.forward + (ox + a) * camera.right + (oy + b) * camera.up)
+            for a, b in ((-t, t), (t, t), (t, -t), (-t, -t))
+        ]
+    )
 
 
 def preview_quad(impostor: Impostor) -> tuple[np.ndarray, np.ndarray]:

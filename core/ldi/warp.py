@@ -40,7 +40,12 @@ FILL_NEIGHBOURS = 4  # of 8: a pin hole, not the image's edge
 
 
 def _frame(camera: Camera) -> tuple[np.ndarray, float, float, float]:
-    return np.stack([camera.right, camera.up, camera.forward]), float(camera.offset[0]), float(camera.offset[1]), math.tan(0.5 * camera.fov)
+    return (
+        np.stack([camera.right, camera.up, camera.forward]),
+        float(camera.offset[0]),
+        float(camera.offset[1]),
+        math.tan(0.5 * camera.fov),
+    )
 
 
 def epipole(ldi_camera: Camera, eye) -> tuple[float, float, float]:
@@ -83,7 +88,9 @@ def _splat_bounds(x, n, size):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _warp_sample(z, r, c, colour, layer, ref_eye, ref_frame, rox, roy, rhalf, n, eye, frame, oox, ooy, ohalf, near, image, depth):  # pragma: no cover - compiled
+def _warp_sample(
+    z, r, c, colour, layer, ref_eye, ref_frame, rox, roy, rhalf, n, eye, frame, oox, ooy, ohalf, near, image, depth
+):  # pragma: no cover - compiled
     m = image.shape[0]
     tx = rox + (2.0 * (c + 0.5) / n - 1.0) * rhalf
     ty = roy - (2.0 * (r + 0.5) / n - 1.0) * rhalf
@@ -110,7 +117,26 @@ def _warp_sample(z, r, c, colour, layer, ref_eye, ref_frame, rox, roy, rhalf, n,
 
 
 @numba.njit(cache=True, nogil=True)
-def _warp_kernel(ldi_depth, colour, ref_eye, ref_frame, rox, roy, rhalf, eye, frame, oox, ooy, ohalf, near, col_e, row_e, positive, image, depth):  # pragma: no cover - compiled
+def _warp_kernel(
+    ldi_depth,
+    colour,
+    ref_eye,
+    ref_frame,
+    rox,
+    roy,
+    rhalf,
+    eye,
+    frame,
+    oox,
+    ooy,
+    ohalf,
+    near,
+    col_e,
+    row_e,
+    positive,
+    image,
+    depth,
+):  # pragma: no cover - compiled
     layers, n, _ = ldi_depth.shape
     # The sheets split at the epipole between pixel centres (c + 0.5): columns <= ce lie left of it.
     ce = min(max(int(math.floor(col_e - 0.5)), -1), n)
@@ -136,10 +162,32 @@ def _warp_kernel(ldi_depth, colour, ref_eye, ref_frame, rox, roy, rhalf, eye, fr
                     z = ldi_depth[k, r, c]
                     if not np.isfinite(z):
                         continue
-                    _warp_sample(z, r, c, colour, k, ref_eye, ref_frame, rox, roy, rhalf, n, eye, frame, oox, ooy, ohalf, near, image, depth)
+                    _warp_sample(
+                        z,
+                        r,
+                        c,
+                        colour,
+                        k,
+                        ref_eye,
+                        ref_frame,
+                        rox,
+                        roy,
+                        rhalf,
+                        n,
+                        eye,
+                        frame,
+                        oox,
+                        ooy,
+                        ohalf,
+                        near,
+                        image,
+                        depth,
+                    )
 
 
-def fill_pin_holes(image: np.ndarray, reached: np.ndarray, neighbours: int = FILL_NEIGHBOURS, empty: np.ndarray | None = None) -> np.ndarray:
+def fill_pin_holes(
+    image: np.ndarray, reached: np.ndarray, neighbours: int = FILL_NEIGHBOURS, empty: np.ndarray | None = None
+) -> np.ndarray:
     """The 3x3 pass (module docstring): ``image`` (h, w, 4) uint8 with its unreached pixels (only the
     ``empty`` ones, if given) that have at least ``neighbours`` reached ones among their 8 set to
     those neighbours' mean; returns a copy."""
@@ -152,8 +200,8 @@ def fill_pin_holes(image: np.ndarray, reached: np.ndarray, neighbours: int = FIL
         for dc in (-1, 0, 1):
             if dr == dc == 0:
                 continue
-            hits += pad[1 + dr:1 + dr + h, 1 + dc:1 + dc + w]
-            total += colour[1 + dr:1 + dr + h, 1 + dc:1 + dc + w]
+            hits += pad[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
+            total += colour[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
     fill = ~reached & (hits >= neighbours)
     if empty is not None:
         fill &= empty

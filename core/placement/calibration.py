@@ -40,10 +40,10 @@ from datetime import UTC, datetime
 import numpy as np
 
 from farfield.core.errors import LayerPlanError, ViewCellError
-from farfield.core.quality.evaluation import impostor_objects
 from farfield.core.layering.plan import estimate_layers
 from farfield.core.placement.cost_model import CostModel, CostModelError, fit_linear, fit_power
 from farfield.core.procedural import city
+from farfield.core.quality.evaluation import impostor_objects
 from farfield.core.render.context import renderer_info
 from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
 from farfield.core.scene import Scene
@@ -227,7 +227,9 @@ def _unit(rng: np.random.Generator) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def sample_cases(scenes: list[Scene] | tuple[Scene, ...], options: CalibrationOptions = CalibrationOptions()) -> tuple[list[GeometryCase], list[ImpostorCase], int]:
+def sample_cases(
+    scenes: list[Scene] | tuple[Scene, ...], options: CalibrationOptions = CalibrationOptions()
+) -> tuple[list[GeometryCase], list[ImpostorCase], int]:
     """The clusters, viewpoints and shaft cells a calibration measures, deterministic for
     ``options.seed`` (no GL): geometry cases, impostor cases and the count of drawn cells refused.
 
@@ -268,7 +270,9 @@ def sample_cases(scenes: list[Scene] | tuple[Scene, ...], options: CalibrationOp
         seed = int(rng.integers(2**31))
         try:
             cell = ShaftCell(0.5 * (bounds[0] + bounds[1]), direction, math.radians(angle), (2.0**exponent) * size)
-            layers_est, texture = estimate_layers(cell, bounds, fov, options.resolution, bake.pixel_model, bake.texel_share)
+            layers_est, texture = estimate_layers(
+                cell, bounds, fov, options.resolution, bake.pixel_model, bake.texel_share
+            )
         except (LayerPlanError, ViewCellError):
             skipped += 1
             continue
@@ -320,7 +324,9 @@ def calibrate(
 
     with clock("geometry"):
         with MeshRenderer([]) as empty:
-            probe = Camera.look_at(np.zeros(3), np.array([0.0, 1.0, 0.0]), math.radians(options.fov_deg), target_res, 0.1, 10.0)
+            probe = Camera.look_at(
+                np.zeros(3), np.array([0.0, 1.0, 0.0]), math.radians(options.fov_deg), target_res, 0.1, 10.0
+            )
             empty_ms = _median_ms(empty, probe, max(3 * options.repeats, 9))
         geometry: list[GeometrySample] = []
         total_views = sum(len(c.eyes) for c in geometry_cases)
@@ -335,7 +341,11 @@ def calibrate(
                     camera = _camera(eye, centre, extent, options)
                     ms = _median_ms(renderer, camera, options.repeats)
                     # One draw call per object: MeshRenderer renders each object's vertex array once.
-                    geometry.append(GeometrySample(case.scene, len(objects), len(objects), triangles, _covered(renderer, camera), ms))
+                    geometry.append(
+                        GeometrySample(
+                            case.scene, len(objects), len(objects), triangles, _covered(renderer, camera), ms
+                        )
+                    )
                     clock.report("geometry", len(geometry), total_views)
 
     with clock("impostors"):
@@ -362,16 +372,30 @@ def calibrate(
                 for eye in case.eyes:
                     camera = _camera(eye, centre, extent, options)
                     frame = _median_ms(renderer, camera, options.repeats)
-                    impostors.append(ImpostorSample(n, _covered(renderer, camera), impostor.quad_count, len(drawn), frame - empty_ms, frame))
+                    impostors.append(
+                        ImpostorSample(
+                            n, _covered(renderer, camera), impostor.quad_count, len(drawn), frame - empty_ms, frame
+                        )
+                    )
             clock.report("impostors", n + 1, len(impostor_cases))
 
     with clock("fit"):
         g = np.array([[s.draw_calls, s.triangles, s.pixels, 1.0] for s in geometry], dtype=np.float64)
-        geometry_fit = fit_linear(g, [s.ms for s in geometry], ("draw_call", "triangle", "pixel", "frame"), options.holdout, options.seed)
+        geometry_fit = fit_linear(
+            g, [s.ms for s in geometry], ("draw_call", "triangle", "pixel", "frame"), options.holdout, options.seed
+        )
         i = np.array([[s.pixels, s.quads, 1.0] for s in impostors], dtype=np.float64)
-        impostor_fit = fit_linear(i, [s.ms for s in impostors], ("pixel", "quad", "impostor"), options.holdout, options.seed)
+        impostor_fit = fit_linear(
+            i, [s.ms for s in impostors], ("pixel", "quad", "impostor"), options.holdout, options.seed
+        )
         layer_texels = [s.layers_est * s.texels_per_layer for s in memory]
-        memory_fit = fit_power(layer_texels, [s.bytes for s in memory], ("layer_texel", "exponent", "impostor"), options.holdout, options.seed)
+        memory_fit = fit_power(
+            layer_texels,
+            [s.bytes for s in memory],
+            ("layer_texel", "exponent", "impostor"),
+            options.holdout,
+            options.seed,
+        )
         quads_fit, q, beta = _quads_law(memory, options)
     seconds = clock.totals()
     fit = {
@@ -380,7 +404,12 @@ def calibrate(
         "memory": {**memory_fit.to_dict(), "r2_of": "log(bytes)"},
         "quads": {**quads_fit.to_dict(), "r2_of": "log(quads / layers_est)"},
         "empty_frame_ms": empty_ms,
-        "samples": {"geometry": len(geometry), "impostor": len(impostors), "impostors_baked": len(memory), "cells_refused": skipped},
+        "samples": {
+            "geometry": len(geometry),
+            "impostor": len(impostors),
+            "impostors_baked": len(memory),
+            "cells_refused": skipped,
+        },
         "layers_est_over_planned": _ratio_summary([s.layers_est / s.layers_planned for s in memory]),
         "options": asdict(options),
         "scenes": [{"source": s.source, "objects": s.object_count, "triangles": s.triangle_count} for s in scenes],
@@ -389,7 +418,9 @@ def calibrate(
     }
     h, p, k = memory_fit.coefficients
     if p <= 0.0:
-        raise CostModelError(f"calibration: memory does not grow with the estimated texels (fit {memory_fit.to_dict()}); give more impostors")
+        raise CostModelError(
+            f"calibration: memory does not grow with the estimated texels (fit {memory_fit.to_dict()}); give more impostors"
+        )
     try:
         model = CostModel("frame_ms", geometry_fit.coefficients, impostor_fit.coefficients, (h, k, q),
                           renderer=renderer_info().renderer, fit=fit, source="calibration", memory_exponent=p,

@@ -91,7 +91,17 @@ class Candidates:
         return int(self.node.shape[0])
 
 
-def _shaft_cells(n: int, centre: np.ndarray, size: float, regions: np.ndarray, region_centre, region_radius, grid, halves, distance_steps):
+def _shaft_cells(
+    n: int,
+    centre: np.ndarray,
+    size: float,
+    regions: np.ndarray,
+    region_centre,
+    region_radius,
+    grid,
+    halves,
+    distance_steps,
+):
     """(cell, served regions) of node ``n``'s shafts (see the module docstring), with the dominance
     pruning; ``regions`` are those where the node is in some solvable CPV's frustum."""
     out, considered = [], 0
@@ -133,7 +143,9 @@ def _leaf_box_cells(pv: ProblemViews, lo: np.ndarray, hi: np.ndarray, region_rel
     pad = np.where(span > 0.0, 0.0, np.maximum(1e-6 * span.max(axis=1, keepdims=True), 1e-9))
     apart = box_gap(pv.region_lo, pv.region_hi, lo, hi) > 0.0
     chosen = np.flatnonzero(region_relevant & apart)
-    return [(BoxCell(pv.region_lo[r] - pad[r], pv.region_hi[r] + pad[r]), np.array([r])) for r in chosen], int(chosen.size)
+    return [(BoxCell(pv.region_lo[r] - pad[r], pv.region_hi[r] + pad[r]), np.array([r])) for r in chosen], int(
+        chosen.size
+    )
 
 
 def _box_cells(pv: ProblemViews, lo: np.ndarray, hi: np.ndarray, region_relevant: np.ndarray):
@@ -179,7 +191,9 @@ def generate_candidates(
         raise PlacementError(f"cells must be one of {list(CellKinds)}, got {cells!r}")
     halves = np.radians(np.asarray(apex_angles_deg, dtype=np.float64)) * 0.5
     if halves.size == 0 or np.any(~((halves > 0.0) & (halves < 0.5 * math.pi))) or np.any(np.diff(halves) <= 0):
-        raise PlacementError(f"shaft apex angles must be increasing and lie in (0, 180) degrees, got {list(apex_angles_deg)}")
+        raise PlacementError(
+            f"shaft apex angles must be increasing and lie in (0, 180) degrees, got {list(apex_angles_deg)}"
+        )
     solvable = np.flatnonzero(~pv.unsolvable)
     regions_count = pv.region_lo.shape[0]
     geometry = CpvGeometry(pv, hierarchy)
@@ -200,7 +214,17 @@ def generate_candidates(
         region_relevant = np.bincount(cpv_regions, minlength=regions_count) > 0
         found = []
         if cells in ("shafts", "both"):
-            more, c = _shaft_cells(n, node_centre[n], float(size[n]), np.flatnonzero(region_relevant), region_centre, region_radius, grid, halves, distance_steps)
+            more, c = _shaft_cells(
+                n,
+                node_centre[n],
+                float(size[n]),
+                np.flatnonzero(region_relevant),
+                region_centre,
+                region_radius,
+                grid,
+                halves,
+                distance_steps,
+            )
             found += [(0, cell, served) for cell, served in more]
             considered += c
         if cells in ("boxes", "both", "leaf-boxes"):
@@ -226,12 +250,18 @@ def generate_candidates(
             keep = in_cell & (g_n > ti)
             if not keep.any():
                 continue
-            node_l.append(n), kind_l.append(kind), cell_l.append(cell), layer_l.append(layers), texel_l.append(per_layer)
+            (
+                node_l.append(n),
+                kind_l.append(kind),
+                cell_l.append(cell),
+                layer_l.append(layers),
+                texel_l.append(per_layer),
+            )
             served_l.append(cpvs[keep]), g_l.append(g_n[keep]), ti_l.append(ti[keep])
         if progress is not None:
             progress(n + 1, hierarchy.count)
     layers_a, texels_a = np.asarray(layer_l, dtype=np.float64), np.asarray(texel_l, dtype=np.float64)
-    flat = (lambda rows, dtype: np.concatenate(rows).astype(dtype) if rows else np.empty(0, dtype=dtype))  # noqa: E731
+    flat = lambda rows, dtype: np.concatenate(rows).astype(dtype) if rows else np.empty(0, dtype=dtype)  # noqa: E731
     return Candidates(
         node=np.asarray(node_l, dtype=np.int64),
         kind=np.asarray(kind_l, dtype=np.int64),

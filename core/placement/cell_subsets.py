@@ -79,7 +79,12 @@ class SubsetSearch:
     def __init__(self, screen: dict[str, np.ndarray], triangles: np.ndarray, drawn_before: float, p_opt: float,
                  model_extent: float, lookahead: int = DEFAULT_LOOKAHEAD) -> None:  # fmt: skip
         self.screen, self.tris = screen, np.asarray(triangles, dtype=np.float64)
-        self.total, self.p_opt, self.extent, self.lookahead = float(drawn_before), float(p_opt), float(model_extent), int(lookahead)
+        self.total, self.p_opt, self.extent, self.lookahead = (
+            float(drawn_before),
+            float(p_opt),
+            float(model_extent),
+            int(lookahead),
+        )
         self.lists, self.rank = {}, {}
         for name, key in (("l", "x0"), ("r", "x1"), ("b", "y0"), ("t", "y1"), ("n", "z0")):
             values = np.unique(screen[key])
@@ -119,7 +124,9 @@ class SubsetSearch:
 
         n_end = len(N) - 1
         out.append((l, r, b, t, n + step(n_end - n)))
-        t_end = int(np.searchsorted(T, Bt[b], side="left"))  # lowest top that keeps a cell's top above the bottom border
+        t_end = int(
+            np.searchsorted(T, Bt[b], side="left")
+        )  # lowest top that keeps a cell's top above the bottom border
         out.append((l, r, b, t - step(t - t_end), n))
         b_end = int(np.searchsorted(Bt, T[t], side="right")) - 1
         out.append((l, r, b + step(b_end - b), t, n))
@@ -177,4 +184,11 @@ def place_image(lo: np.ndarray, hi: np.ndarray, triangles: np.ndarray, apex: np.
     y0, y1 = float(screen["y0"][m].min()) * t, float(screen["y1"][m].max()) * t
     f, r, u = forward(yaw), right(yaw), np.array([0.0, 1.0, 0.0])
     quad = np.stack([apex + depth * (f + x * r + y * u) for x, y in ((x0, y0), (x1, y0), (x1, y1), (x0, y1))])
-    return CellSubset(np.flatnonzero(m), drawn_before - float(np.asarray(triangles, dtype=np.float64)[m].sum()), score, depth, quad, len(search.memo))
+    return CellSubset(
+        np.flatnonzero(m),
+        drawn_before - float(np.asarray(triangles, dtype=np.float64)[m].sum()),
+        score,
+        depth,
+        quad,
+        len(search.memo),
+    )

@@ -126,7 +126,9 @@ def _relative_errors(predicted: np.ndarray, measured: np.ndarray) -> tuple[float
     return float(np.median(rel)), float(np.percentile(rel, 90))
 
 
-def fit_power(x, target, names, holdout: float = 0.25, seed: int = 0, exponent: float | None = None, offset: bool = True) -> LinearFit:
+def fit_power(
+    x, target, names, holdout: float = 0.25, seed: int = 0, exponent: float | None = None, offset: bool = True
+) -> LinearFit:
     """``target ~ h * x**p + k`` (``h > 0``, ``0 <= p <= 2``, ``k >= 0``) by least squares of the
     *logarithms*, fitted and judged like :func:`fit_linear`; ``coefficients`` are ``(h, p, k)``, less
     ``p`` when ``exponent`` fixes it and less ``k`` without ``offset``, named by ``names``; ``r2`` is
@@ -168,7 +170,11 @@ def fit_power(x, target, names, holdout: float = 0.25, seed: int = 0, exponent: 
         return h * at**p + k
 
     # Start from the straight line through the log-log points (k = 0).
-    p0 = float(np.clip(np.polyfit(lx, ly, 1)[0], 0.0, 2.0)) if exponent is None and np.ptp(lx) > 0.0 else float(exponent or 1.0)
+    p0 = (
+        float(np.clip(np.polyfit(lx, ly, 1)[0], 0.0, 2.0))
+        if exponent is None and np.ptp(lx) > 0.0
+        else float(exponent or 1.0)
+    )
     start = [float(np.mean(ly - p0 * lx))] + ([p0] if exponent is None else []) + ([0.0] if offset else [])
     lower = [-np.inf] + ([0.0] if exponent is None else []) + ([0.0] if offset else [])
     upper = [np.inf] + ([2.0] if exponent is None else []) + ([np.inf] if offset else [])
@@ -177,9 +183,15 @@ def fit_power(x, target, names, holdout: float = 0.25, seed: int = 0, exponent: 
     coefficients = (h,) + ((p,) if exponent is None else ()) + ((k,) if offset else ())
     residual = np.log(predict(v, x[train])) - ly
     total = float(np.sum((ly - ly.mean()) ** 2))
-    r2 = 1.0 - float(np.sum(residual**2)) / total if total > 0.0 else (1.0 if not np.any(np.abs(residual) > 1e-12) else 0.0)
+    r2 = (
+        1.0 - float(np.sum(residual**2)) / total
+        if total > 0.0
+        else (1.0 if not np.any(np.abs(residual) > 1e-12) else 0.0)
+    )
     median, p90 = _relative_errors(predict(v, x[test]), y[test])
-    return LinearFit(tuple(float(c) for c in coefficients), tuple(names), r2, median, p90, int(train.size), int(test.size))
+    return LinearFit(
+        tuple(float(c) for c in coefficients), tuple(names), r2, median, p90, int(train.size), int(test.size)
+    )
 
 
 def _fit(value) -> dict:
@@ -213,7 +225,11 @@ class CostModel:
     quads_exponent: float = 0.0  # quads per layer = q * texels_per_layer ** this, in [0, 1]
 
     def __post_init__(self) -> None:
-        for name, values, size in (("geometry", self.geometry, 4), ("impostor", self.impostor, 3), ("memory", self.memory, 3)):
+        for name, values, size in (
+            ("geometry", self.geometry, 4),
+            ("impostor", self.impostor, 3),
+            ("memory", self.memory, 3),
+        ):
             values = tuple(float(v) for v in values)
             if len(values) != size or not all(math.isfinite(v) and v >= 0.0 for v in values):
                 raise CostModelError(f"cost model {name} needs {size} finite coefficients >= 0, got {list(values)}")
@@ -240,7 +256,11 @@ class CostModel:
     def geometry_time(self, draw_calls, triangles, pixels):
         """Time of drawing objects (per object; arrays broadcast), without the per-frame ``d``."""
         a, b, c, _ = self.geometry
-        return a * np.asarray(draw_calls, dtype=np.float64) + b * np.asarray(triangles, dtype=np.float64) + c * np.asarray(pixels, dtype=np.float64)
+        return (
+            a * np.asarray(draw_calls, dtype=np.float64)
+            + b * np.asarray(triangles, dtype=np.float64)
+            + c * np.asarray(pixels, dtype=np.float64)
+        )
 
     @property
     def frame_time(self) -> float:
@@ -283,7 +303,11 @@ class CostModel:
             "source": self.source,
             "geometry": dict(zip(GEOMETRY_TERMS, self.geometry)),
             "impostor": dict(zip(IMPOSTOR_TERMS, self.impostor)),
-            "memory": {**dict(zip(MEMORY_TERMS, self.memory)), "exponent": self.memory_exponent, "quads_exponent": self.quads_exponent},
+            "memory": {
+                **dict(zip(MEMORY_TERMS, self.memory)),
+                "exponent": self.memory_exponent,
+                "quads_exponent": self.quads_exponent,
+            },
             "fit": self.fit,
         }
 
@@ -385,11 +409,35 @@ LLVMPIPE_MODEL = CostModel(
     memory=DEFAULT_MEMORY,
     renderer="llvmpipe (LLVM 15.0.6, 256 bits)",
     fit={
-        "geometry": {"r2": 0.965, "holdout_rel_error_median": 0.187, "holdout_rel_error_p90": 0.440, "samples": 600, "holdout": 200},
-        "impostor": {"r2": 0.960, "holdout_rel_error_median": 0.208, "holdout_rel_error_p90": 0.897, "samples": 288, "holdout": 96},
-        "memory": {"r2": 0.975, "r2_of": "log(bytes)", "holdout_rel_error_median": 0.260, "holdout_rel_error_p90": 0.617, "samples": 72, "holdout": 24},
-        "quads": {"r2": 0.328, "r2_of": "log(quads / layers_est)", "samples": 352, "holdout": 0,
-                  "source": "352 impostors of bench_placement.py --walkthrough --size 49 --detail 64 --resolution 128 (DEFAULT_QUADS_EXPONENT)"},
+        "geometry": {
+            "r2": 0.965,
+            "holdout_rel_error_median": 0.187,
+            "holdout_rel_error_p90": 0.440,
+            "samples": 600,
+            "holdout": 200,
+        },
+        "impostor": {
+            "r2": 0.960,
+            "holdout_rel_error_median": 0.208,
+            "holdout_rel_error_p90": 0.897,
+            "samples": 288,
+            "holdout": 96,
+        },
+        "memory": {
+            "r2": 0.975,
+            "r2_of": "log(bytes)",
+            "holdout_rel_error_median": 0.260,
+            "holdout_rel_error_p90": 0.617,
+            "samples": 72,
+            "holdout": 24,
+        },
+        "quads": {
+            "r2": 0.328,
+            "r2_of": "log(quads / layers_est)",
+            "samples": 352,
+            "holdout": 0,
+            "source": "352 impostors of bench_placement.py --walkthrough --size 49 --detail 64 --resolution 128 (DEFAULT_QUADS_EXPONENT)",
+        },
         "empty_frame_ms": 0.105,
         "command": "farfield calibrate --out model.json",
         "machine": "2-core x86-64, Mesa llvmpipe (LLVM 15.0.6, 256 bits), EGL",

@@ -33,8 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from farfield.core.errors import ViewCellError
-from farfield.core.impostor.impostor import Impostor
 from farfield.core.impostor.database import INDEX_NAME, database_index
+from farfield.core.impostor.impostor import Impostor
 from farfield.core.options import IMAGE_FIELDS, public_fields, stored_values
 from farfield.core.placement.hierarchy import Elements, PlacementError
 from farfield.core.placement.result import Placement
@@ -54,8 +54,15 @@ def impostor_params(parameters: dict, objects: list[str]) -> dict:
     technique = get_technique(parameters["technique"])
     given = dict(parameters.get("options") or {})
     public = {f.name for f in public_fields(technique.Options)} - set(IMAGE_FIELDS)  # the document holds every field
-    options = technique.options({k: v for k, v in given.items() if k in public}, given.get("resolution"), given.get("fov_deg"))
-    return {"resolution": options.resolution, "fov_deg": options.fov_deg, "objects": list(objects), "options": stored_values(options)}
+    options = technique.options(
+        {k: v for k, v in given.items() if k in public}, given.get("resolution"), given.get("fov_deg")
+    )
+    return {
+        "resolution": options.resolution,
+        "fov_deg": options.fov_deg,
+        "objects": list(objects),
+        "options": stored_values(options),
+    }
 
 
 def placement_cells(placement: Placement | dict) -> list[dict]:
@@ -69,7 +76,13 @@ def placement_cells(placement: Placement | dict) -> list[dict]:
     ]  # fmt: skip
 
 
-def placement_index(placement: Placement | dict, cells: list[dict], job: str | None = None, scene: str | None = None, rounds: list | None = None) -> dict:
+def placement_index(
+    placement: Placement | dict,
+    cells: list[dict],
+    job: str | None = None,
+    scene: str | None = None,
+    rounds: list | None = None,
+) -> dict:
     """The index document of a placement database (see the module docstring).
 
     ``cells`` holds per impostor, in id order: ``index`` (the impostor's id), ``state`` and
@@ -127,7 +140,10 @@ class PlacementLookup:
         self.cpvs = cpvs
         self.region_lo = np.array([c["region"][0] for c in cpvs], dtype=np.float64).reshape(-1, 3)
         self.region_hi = np.array([c["region"][1] for c in cpvs], dtype=np.float64).reshape(-1, 3)
-        self.vdis = [VDI(FACE_NAMES.index(c["vdi"]["face"]), int(c["vdi"]["level"]), int(c["vdi"]["i"]), int(c["vdi"]["j"])) for c in cpvs]
+        self.vdis = [
+            VDI(FACE_NAMES.index(c["vdi"]["face"]), int(c["vdi"]["level"]), int(c["vdi"]["i"]), int(c["vdi"]["j"]))
+            for c in cpvs
+        ]
         self.objects = {int(cell["index"]): list(cell.get("objects") or []) for cell in index.get("cells", [])}
         span = float(np.max(self.hi - self.lo)) if self.lo.size else 0.0
         self.tol = 1e-9 * max(span, float(np.max(np.abs(np.concatenate([self.lo, self.hi])))), 1.0)
@@ -140,9 +156,13 @@ class PlacementLookup:
             d = d / np.max(np.abs(d))  # scaled first: the norm of (1e200, 1e200, 0) would overflow
         norm = float(np.linalg.norm(d))
         if not (np.all(np.isfinite(p)) and np.isfinite(norm) and norm > 0.0):
-            raise ViewCellError(f"a view needs a finite position and a non-zero finite direction, got {p.tolist()} {np.asarray(direction, dtype=np.float64).reshape(3).tolist()}")
+            raise ViewCellError(
+                f"a view needs a finite position and a non-zero finite direction, got {p.tolist()} {np.asarray(direction, dtype=np.float64).reshape(3).tolist()}"
+            )
         if np.any(p < self.lo - self.tol) or np.any(p > self.hi + self.tol):
-            raise ViewCellError(f"position {p.tolist()} is outside the placement's view space {self.lo.tolist()} .. {self.hi.tolist()}")
+            raise ViewCellError(
+                f"position {p.tolist()} is outside the placement's view space {self.lo.tolist()} .. {self.hi.tolist()}"
+            )
         inside = np.flatnonzero(np.all((self.region_lo - self.tol <= p) & (p <= self.region_hi + self.tol), axis=1))
         d = (d / norm).reshape(1, 3)
         for k in inside:
@@ -160,7 +180,13 @@ class PlacementLookup:
             return {"cpv": None, "status": UNDER_BUDGET, "impostors": [], "replaced": [], "time_estimated": None}
         cpv = self.cpvs[k]
         replaced = sorted({name for i in cpv["impostors"] for name in self.objects.get(int(i), [])})
-        return {"cpv": k, "status": cpv["status"], "impostors": list(cpv["impostors"]), "replaced": replaced, "time_estimated": cpv["time_after"]}
+        return {
+            "cpv": k,
+            "status": cpv["status"],
+            "impostors": list(cpv["impostors"]),
+            "replaced": replaced,
+            "time_estimated": cpv["time_after"],
+        }
 
     def find_many(self, positions, directions) -> np.ndarray:
         """(n,) CPV ids (-1: under budget) of ``n`` views."""
@@ -180,7 +206,9 @@ def impostor_scene(scene: Scene, cluster_triangles: int, objects: list[str]) -> 
     by_name = {name: i for i, name in enumerate(elements.names)}
     missing = [name for name in objects if name not in by_name]
     if missing:
-        raise PlacementError(f"the scene has no elements {missing[:10]} (with objects split at {cluster_triangles} triangles): is it the placement's scene?")
+        raise PlacementError(
+            f"the scene has no elements {missing[:10]} (with objects split at {cluster_triangles} triangles): is it the placement's scene?"
+        )
     return elements.scene_of(scene, [by_name[name] for name in objects]), None
 
 
@@ -193,7 +221,9 @@ def bake_impostor(scene: Scene, entry: dict, cluster_triangles: int, progress: C
     return technique.bake(part, viewcell_from_dict(entry["viewcell"]), options, objects, progress)
 
 
-def bake_placement(scene: Scene, placement: Placement, progress: Callable[[int, int], None] | None = None) -> dict[int, Impostor]:
+def bake_placement(
+    scene: Scene, placement: Placement, progress: Callable[[int, int], None] | None = None
+) -> dict[int, Impostor]:
     """Every impostor of ``placement`` baked in this process (tests, benchmarks, local use)."""
     cells = placement_cells(placement)
     cluster = int(placement.elements["cluster_triangles"])
@@ -205,7 +235,9 @@ def bake_placement(scene: Scene, placement: Placement, progress: Callable[[int, 
     return out
 
 
-def write_placement_database(directory: str | Path, placement: Placement, impostors: dict[int, Impostor], rounds: list | None = None) -> Path:
+def write_placement_database(
+    directory: str | Path, placement: Placement, impostors: dict[int, Impostor], rounds: list | None = None
+) -> Path:
     """Write a placement database folder (``index.json`` and ``cells/NNNNN/`` bundles) from
     impostors baked in this process; impostors missing from ``impostors`` are listed without a bundle."""
     from farfield.core.impostor.bundle import write_bundle

@@ -93,7 +93,12 @@ class Greedy:
             at = np.searchsorted(keys, base + node, side="right") - 1
             found = keys[np.maximum(at, 0)]
             other = found - base
-            blocked = (at >= 0) & (other >= 0) & (other <= node) & (other + self.size[np.clip(other, 0, self.nodes - 1)] > node)
+            blocked = (
+                (at >= 0)
+                & (other >= 0)
+                & (other <= node)
+                & (other + self.size[np.clip(other, 0, self.nodes - 1)] > node)
+            )
             geometry = np.where(blocked, -np.inf, geometry)
         saving = geometry - self.ti[a:b]
         gain = np.maximum(0.0, np.minimum(saving, self.t[cpvs] - self.t_max))

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from farfield.core.errors import FarfieldError
-from farfield.core.techniques.envmap.near_field import face_ranges
 from farfield.core.scene import Scene, SceneObject
+from farfield.core.techniques.envmap.near_field import face_ranges
 
 DEFAULT_LEAF_SIZE = 4  # elements per leaf at most
 OVERSIZED = 0.5  # an element whose diagonal passes this share of its node's is split off (see Hierarchy.build)
@@ -107,8 +107,13 @@ class Elements:
                 bounds.append(np.stack([c.min(axis=0), c.max(axis=0)]))
                 tris.append(piece.size), calls.append(1.0 / len(pieces))
         return cls(
-            tuple(names), np.asarray(owner, dtype=np.int64), tuple(faces), np.asarray(bounds, dtype=np.float64).reshape(-1, 2, 3),
-            np.asarray(tris, dtype=np.int64), np.asarray(calls, dtype=np.float64), limit,
+            tuple(names),
+            np.asarray(owner, dtype=np.int64),
+            tuple(faces),
+            np.asarray(bounds, dtype=np.float64).reshape(-1, 2, 3),
+            np.asarray(tris, dtype=np.int64),
+            np.asarray(calls, dtype=np.float64),
+            limit,
         )
 
     def clusters(self, scene: Scene) -> dict[str, dict]:
@@ -126,7 +131,10 @@ class Elements:
             if piece is not None:
                 selected = np.zeros(scene.objects[int(self.object_index[i])].triangle_count, dtype=bool)
                 selected[piece] = True
-                out[self.names[i]] = {"object": scene.objects[int(self.object_index[i])].name, "faces": face_ranges(selected)}
+                out[self.names[i]] = {
+                    "object": scene.objects[int(self.object_index[i])].name,
+                    "faces": face_ranges(selected),
+                }
         return out
 
     def split_counts(self, scene: Scene) -> dict[str, int]:
@@ -152,10 +160,14 @@ class Elements:
             used, inverse = np.unique(faces, return_inverse=True)
             objects.append(
                 SceneObject(
-                    self.names[i], obj.vertices[used], inverse.reshape(-1, 3),
+                    self.names[i],
+                    obj.vertices[used],
+                    inverse.reshape(-1, 3),
                     None if obj.uv is None else obj.uv[used],
                     None if obj.vertex_colors is None else obj.vertex_colors[used],
-                    obj.base_color, obj.texture, obj.alpha_cutoff,
+                    obj.base_color,
+                    obj.texture,
+                    obj.alpha_cutoff,
                 )
             )
         return Scene.from_objects(objects, scene.source, scene.warnings)
@@ -250,6 +262,16 @@ class Hierarchy:
         position = np.empty_like(order)
         position[order] = np.arange(order.size)
         return cls(
-            order, position, lo, hi, start, end, size, parent, depth, size == 1,
-            tri_cum[end] - tri_cum[start], call_cum[end] - call_cum[start],
+            order,
+            position,
+            lo,
+            hi,
+            start,
+            end,
+            size,
+            parent,
+            depth,
+            size == 1,
+            tri_cum[end] - tri_cum[start],
+            call_cum[end] - call_cum[start],
         )

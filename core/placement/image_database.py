@@ -33,8 +33,9 @@ import numpy as np
 from farfield.core import __version__
 from farfield.core.impostor.bundle import read_bundle, write_bundle
 from farfield.core.impostor.impostor import Impostor
-from farfield.core.ldi.pages import ldi_of, ldi_payload_and_pages
 from farfield.core.ldi.construction import DEFAULT_MAX_LAYERS, construct_ldi
+from farfield.core.ldi.image import ldi_of
+from farfield.core.ldi.pages import ldi_payload_and_pages
 from farfield.core.placement.hierarchy import PlacementError
 from farfield.core.placement.image_frames import cell_objects, view_camera
 from farfield.core.placement.octree_cells import OctreeCells, octree_cells
@@ -50,7 +51,9 @@ INDEX = "placement.json"  # a database written by ``farfield place --bake``
 INDEX_NAMES = (INDEX, "index.json")  # and by a placement job (GET /v1/jobs/{id}/database.zip)
 
 
-def image_entries(placement: PrimitivePlacement, resolution: int, images: int = 9, max_layers: int = DEFAULT_MAX_LAYERS) -> list[dict]:
+def image_entries(
+    placement: PrimitivePlacement, resolution: int, images: int = 9, max_layers: int = DEFAULT_MAX_LAYERS
+) -> list[dict]:
     """Every image of ``placement``, in order, as an entry :func:`bake_image` bakes alone (a job's
     cell each): ``index`` (its number), ``name`` ("<point>-<image>"), ``viewcell`` (the cube around
     its grid point's star sphere) and ``params``, what determines its bundle's bytes."""
@@ -64,11 +67,15 @@ def image_entries(placement: PrimitivePlacement, resolution: int, images: int = 
                 "max_layers": int(max_layers), "position": point.position.tolist(), "yaw": float(im["yaw"]), "depth": float(im["depth"]),
                 "quad": np.asarray(im["quad"]).tolist(), "cells": np.asarray(im["cells"]).tolist(),
             }  # fmt: skip
-            out.append({"index": len(out), "name": f"{pi}-{ii}", "point": pi, "image": ii, "viewcell": cell, "params": params})
+            out.append(
+                {"index": len(out), "name": f"{pi}-{ii}", "point": pi, "image": ii, "viewcell": cell, "params": params}
+            )
     return out
 
 
-_CELLS: OrderedDict[tuple[int, int], tuple[Scene, OctreeCells]] = OrderedDict()  # a worker bakes a job's images one by one
+_CELLS: OrderedDict[tuple[int, int], tuple[Scene, OctreeCells]] = (
+    OrderedDict()
+)  # a worker bakes a job's images one by one
 _CELLS_KEPT = 2
 
 
@@ -85,7 +92,9 @@ def _scene_cells(scene: Scene, depth: int) -> OctreeCells:
     return found[1]
 
 
-def bake_image(scene: Scene, entry: dict, cells: OctreeCells | None = None, progress: Callable | None = None) -> Impostor:
+def bake_image(
+    scene: Scene, entry: dict, cells: OctreeCells | None = None, progress: Callable | None = None
+) -> Impostor:
     """One entry of :func:`image_entries` as an ``ldi`` impostor: its subset's cells (of ``cells``, or
     of the scene's octree at the entry's depth) built into the LDI of its grid point's view."""
     p = entry["params"]
@@ -94,7 +103,9 @@ def bake_image(scene: Scene, entry: dict, cells: OctreeCells | None = None, prog
         cells = _scene_cells(scene, int(p["octree_depth"]))
     chosen = np.asarray(p["cells"], dtype=np.int64)
     if chosen.size and (chosen.min() < 0 or chosen.max() >= cells.count):
-        raise PlacementError(f"image {entry.get('name')}: its cells {chosen.min()}..{chosen.max()} are not cells of this scene's octree ({cells.count} cells)")
+        raise PlacementError(
+            f"image {entry.get('name')}: its cells {chosen.min()}..{chosen.max()} are not cells of this scene's octree ({cells.count} cells)"
+        )
     position, quad = np.asarray(p["position"], dtype=np.float64), np.asarray(p["quad"], dtype=np.float64)
     made = construct_ldi(cell_objects(scene, cells, chosen), position, float(p["yaw"]), quad, float(p["depth"]), int(p["resolution"]),
                          images=int(p["construction_images"]), max_layers=int(p.get("max_layers", DEFAULT_MAX_LAYERS)))  # fmt: skip
@@ -115,9 +126,18 @@ def bake_image(scene: Scene, entry: dict, cells: OctreeCells | None = None, prog
     )  # fmt: skip
 
 
-def image_index(placement: dict, bundles: dict[str, str], resolution: int, images: int, scene_hash: str, **extra) -> dict:
+def image_index(
+    placement: dict, bundles: dict[str, str], resolution: int, images: int, scene_hash: str, **extra
+) -> dict:
     """A database's index: the grid (:meth:`PrimitivePlacement.to_dict`) and where each image's bundle is."""
-    return {**placement, "bundles": bundles, "resolution": int(resolution), "construction_images": int(images), "scene_hash": scene_hash, **extra}
+    return {
+        **placement,
+        "bundles": bundles,
+        "resolution": int(resolution),
+        "construction_images": int(images),
+        "scene_hash": scene_hash,
+        **extra,
+    }
 
 
 def write_image_database(root: Path, scene: Scene, placement: PrimitivePlacement, resolution: int, images: int = 9,
@@ -195,7 +215,9 @@ def image_lookup(index: dict, placement: PrimitivePlacement, eye, direction) -> 
         raise PlacementError(f"the view's position must be 3 finite numbers, got {eye.tolist()}")
     dx, _, dz = (float(v) for v in direction)
     if not (math.isfinite(dx) and math.isfinite(dz) and dx * dx + dz * dz > 0):
-        raise PlacementError("a primitive-budget placement's views look horizontally (pitch 0, seed 004): give a direction with dx or dz not 0")
+        raise PlacementError(
+            "a primitive-budget placement's views look horizontally (pitch 0, seed 004): give a direction with dx or dz not 0"
+        )
     yaw = math.atan2(dx, -dz) % (2 * math.pi)  # forward(yaw) = (sin yaw, 0, -cos yaw)
     view = placement.view(eye, yaw)
     name = f"{view['point']}-{view['image']}" if view["image"] >= 0 else None
@@ -220,12 +242,17 @@ def stored_cells(index: dict) -> OctreeCells:
 def placement_of_index(index: dict, cells: OctreeCells | None = None) -> PrimitivePlacement:
     """The placement a database's index holds, with ``cells`` (default: :func:`stored_cells`)."""
     if index.get("format") != FORMAT or index.get("version") != FORMAT_VERSION:
-        raise PlacementError(f"format {index.get('format')!r} version {index.get('version')!r}, expected {FORMAT!r} {FORMAT_VERSION}")
+        raise PlacementError(
+            f"format {index.get('format')!r} version {index.get('version')!r}, expected {FORMAT!r} {FORMAT_VERSION}"
+        )
     points = []
     for p in index["points"]:
         point = GridPoint(np.asarray(p["position"], dtype=np.float64), int(p["level"]), float(p["radius"]), np.asarray(p["breaks"], dtype=np.float64),
                           np.asarray(p["image"], dtype=np.int64), failure=p["failure"])  # fmt: skip
-        point.images = [{**im, "quad": np.asarray(im["quad"]), "cells": np.asarray(im["cells"], dtype=np.int64)} for im in p["images"]]
+        point.images = [
+            {**im, "quad": np.asarray(im["quad"]), "cells": np.asarray(im["cells"], dtype=np.int64)}
+            for im in p["images"]
+        ]
         points.append(point)
     s = index["summary"]
     lo, hi = (np.asarray(v, dtype=np.float64) for v in index["view_space"])
@@ -246,7 +273,9 @@ class ImageDatabase:
         except (OSError, ValueError) as error:
             raise PlacementError(f"{self.root} is not a primitive-budget placement database: {error}") from None
         if index.get("format") != FORMAT or index.get("version") != FORMAT_VERSION:
-            raise PlacementError(f"{self.root}: format {index.get('format')!r} version {index.get('version')!r}, expected {FORMAT!r} {FORMAT_VERSION}")
+            raise PlacementError(
+                f"{self.root}: format {index.get('format')!r} version {index.get('version')!r}, expected {FORMAT!r} {FORMAT_VERSION}"
+            )
         self.index = index
         stored = index["cells"]
         cells = octree_cells(scene, int(stored["depth"]))
@@ -282,7 +311,14 @@ def image_walkthrough(db: ImageDatabase, eyes: np.ndarray, yaws: np.ndarray, rep
     for n, (eye, yaw) in enumerate(zip(eyes, yaws)):
         view = placement.view(eye, float(yaw))
         size = float(placement.cells.cube_size)
-        camera = view_camera(eye, float(yaw), 2 * placement.half, resolution, 1e-4 * size, 4.0 * size + float(np.linalg.norm(eye - placement.cells.cube_lo)))
+        camera = view_camera(
+            eye,
+            float(yaw),
+            2 * placement.half,
+            resolution,
+            1e-4 * size,
+            4.0 * size + float(np.linalg.norm(eye - placement.cells.cube_lo)),
+        )
         seen = drawn_cells(placement.cells.lo, placement.cells.hi, eye, float(yaw), placement.half)
         geometry = cell_objects(scene, placement.cells, view["cells"]) if view["cells"].any() else []
         ldis = [ldi_of(db.impostor(view["point"], view["image"]))] if view["image"] >= 0 else []
@@ -299,7 +335,11 @@ def image_walkthrough(db: ImageDatabase, eyes: np.ndarray, yaws: np.ndarray, rep
                 full = plain.render(camera)
                 row["hole_pixels"] = int(((full[..., 3] > 0) & (frame[..., 3] == 0)).sum())
                 both = (full[..., 3] > 0) & (frame[..., 3] > 0)
-                row["colour_error_mean"] = float(np.abs(full[..., :3].astype(int) - frame[..., :3].astype(int)).max(axis=-1)[both].mean()) if both.any() else 0.0
+                row["colour_error_mean"] = (
+                    float(np.abs(full[..., :3].astype(int) - frame[..., :3].astype(int)).max(axis=-1)[both].mean())
+                    if both.any()
+                    else 0.0
+                )
         frames.append(row)
         if progress is not None:
             progress(n + 1, len(eyes))

@@ -31,19 +31,36 @@ def cell_objects(scene: Scene, cells: OctreeCells, chosen) -> list[SceneObject]:
     out = []
     for k, faces in cells.faces_of(chosen):
         o = scene.objects[k]
-        out.append(SceneObject(o.name, o.vertices, o.faces[faces], o.uv, o.vertex_colors, o.base_color, o.texture, o.alpha_cutoff))
+        out.append(
+            SceneObject(
+                o.name, o.vertices, o.faces[faces], o.uv, o.vertex_colors, o.base_color, o.texture, o.alpha_cutoff
+            )
+        )
     return out
 
 
 def view_camera(eye, yaw: float, fov: float, resolution: int, near: float, far: float) -> Camera:
     """The square run-time camera at ``eye`` with yaw ``yaw`` (pitch 0)."""
-    return Camera(np.asarray(eye, dtype=np.float64), right(yaw), UP.copy(), forward(yaw), float(fov), int(resolution), float(near), float(far))
+    return Camera(
+        np.asarray(eye, dtype=np.float64),
+        right(yaw),
+        UP.copy(),
+        forward(yaw),
+        float(fov),
+        int(resolution),
+        float(near),
+        float(far),
+    )
 
 
-def image_ldi(scene: Scene, placement: PrimitivePlacement, point: GridPoint, image: dict, resolution: int, images: int = 9) -> ConstructedLdi:
+def image_ldi(
+    scene: Scene, placement: PrimitivePlacement, point: GridPoint, image: dict, resolution: int, images: int = 9
+) -> ConstructedLdi:
     """The LDI of one image of ``point`` (:func:`farfield.core.ldi.construction.construct_ldi`)."""
     objects = cell_objects(scene, placement.cells, image["cells"])
-    return construct_ldi(objects, point.position, image["yaw"], image["quad"], image["depth"], resolution, images=images)
+    return construct_ldi(
+        objects, point.position, image["yaw"], image["quad"], image["depth"], resolution, images=images
+    )
 
 
 @dataclass(frozen=True)
@@ -77,7 +94,7 @@ def _quad_outline(quad: np.ndarray, camera: Camera, shape: tuple[int, int]) -> n
         for s in np.linspace(0.0, 1.0, steps):
             c, r = cols[i] + s * (cols[j] - cols[i]), rows[i] + s * (rows[j] - rows[i])
             r0, c0 = int(math.floor(r)), int(math.floor(c))
-            out[max(r0 - 2, 0):max(r0 + 3, 0), max(c0 - 2, 0):max(c0 + 3, 0)] = True
+            out[max(r0 - 2, 0) : max(r0 + 3, 0), max(c0 - 2, 0) : max(c0 + 3, 0)] = True
     return out
 
 
@@ -98,7 +115,9 @@ def frame_holes(scene: Scene, placement: PrimitivePlacement, eye, yaw: float, po
         reference = full.render(camera)
     with MeshRenderer(cell_objects(scene, placement.cells, image["cells"])) as alone:
         footprint = alone.render(camera)[..., 3] > 0
-    with SplatRenderer(cell_objects(scene, placement.cells, view["cells"]) if view["cells"].any() else [], [ldi]) as hybrid:
+    with SplatRenderer(
+        cell_objects(scene, placement.cells, view["cells"]) if view["cells"].any() else [], [ldi]
+    ) as hybrid:
         frame = hybrid.render(camera)
     covered = reference[..., 3] > 0
     holes = covered & (frame[..., 3] == 0)
@@ -107,7 +126,9 @@ def frame_holes(scene: Scene, placement: PrimitivePlacement, eye, yaw: float, po
     return result, {"reference": reference, "frame": frame, "view": view}
 
 
-def boundary_eyes(point: GridPoint, image: dict, half: float, count: int, rng: np.random.Generator) -> list[tuple[np.ndarray, float]]:
+def boundary_eyes(
+    point: GridPoint, image: dict, half: float, count: int, rng: np.random.Generator
+) -> list[tuple[np.ndarray, float]]:
     """(eye, yaw) pairs on ``point``'s star sphere (the eyes farthest from its images' centre of
     projection) with a yaw that uses ``image`` and a frustum of ``point`` that holds the eye."""
     index = point.images.index(image)
@@ -124,5 +145,3 @@ def boundary_eyes(point: GridPoint, image: dict, half: float, count: int, rng: n
         d = forward(yaw) + u * right(yaw) + v * UP
         out.append((point.position + point.radius * (1 - 1e-9) * d / np.linalg.norm(d), yaw))
     return out
-
-

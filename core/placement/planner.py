@@ -13,7 +13,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from farfield.core.placement.candidates import APEX_ANGLES_DEG, DIRECTION_STEP_DEG, DISTANCE_STEPS, CellKinds, generate_candidates
+from farfield.core.placement.candidates import (
+    APEX_ANGLES_DEG,
+    DIRECTION_STEP_DEG,
+    DISTANCE_STEPS,
+    CellKinds,
+    generate_candidates,
+)
 from farfield.core.placement.cost_model import CostModel
 from farfield.core.placement.greedy import Greedy
 from farfield.core.placement.hierarchy import DEFAULT_LEAF_SIZE, Elements, Hierarchy, PlacementError
@@ -42,14 +48,18 @@ class PlacementSettings:
     options: dict | None = None  # the technique's options (resolution and fov_deg included)
     cpv_size: float | None = None  # None: the view space's longest side / 8
     vdi_deg: float = 11.25
-    depth_complexity: float = 4.0  # a view's rasterised pixels are at most this many frames (farfield.core.placement.view_space)
+    depth_complexity: float = (
+        4.0  # a view's rasterised pixels are at most this many frames (farfield.core.placement.view_space)
+    )
     cells: str = "both"
     leaf_size: int = DEFAULT_LEAF_SIZE
     cluster_triangles: int | None = None
     apex_angles_deg: tuple[float, ...] = APEX_ANGLES_DEG
     direction_step_deg: float = DIRECTION_STEP_DEG
     distance_steps: int = DISTANCE_STEPS
-    max_impostor_bytes: float = DEFAULT_MAX_IMPOSTOR_BYTES  # larger candidates (by the model's memory estimate) are refused
+    max_impostor_bytes: float = (
+        DEFAULT_MAX_IMPOSTOR_BYTES  # larger candidates (by the model's memory estimate) are refused
+    )
 
 
 def _check(settings: PlacementSettings) -> None:
@@ -61,11 +71,15 @@ def _check(settings: PlacementSettings) -> None:
         raise PlacementError(f"distance steps must lie in 1..30, got {settings.distance_steps!r}")
     angles = np.asarray(settings.apex_angles_deg, dtype=np.float64)
     if angles.size == 0 or np.any(~((angles > 0.0) & (angles < 180.0))) or np.any(np.diff(angles) <= 0):
-        raise PlacementError(f"shaft apex angles must be increasing and lie in (0, 180) degrees, got {list(settings.apex_angles_deg)}")
+        raise PlacementError(
+            f"shaft apex angles must be increasing and lie in (0, 180) degrees, got {list(settings.apex_angles_deg)}"
+        )
     if not (isinstance(settings.max_impostor_bytes, (int, float)) and settings.max_impostor_bytes > 0):
         raise PlacementError(f"the largest impostor must be > 0 bytes, got {settings.max_impostor_bytes!r}")
     if not (0.5 <= settings.direction_step_deg <= 90.0):
-        raise PlacementError(f"the shaft direction step must lie in [0.5, 90] degrees, got {settings.direction_step_deg!r}")
+        raise PlacementError(
+            f"the shaft direction step must lie in [0.5, 90] degrees, got {settings.direction_step_deg!r}"
+        )
 
 
 def check_placeable(technique) -> None:
@@ -80,7 +94,9 @@ def check_placeable(technique) -> None:
     if technique.estimate is not None:
         return
     if technique.scope == "scene":
-        raise PlacementError(f"technique {technique.name!r} cannot be placed: it replaces the whole scene around its cell; use a part technique (layered, tdm)")
+        raise PlacementError(
+            f"technique {technique.name!r} cannot be placed: it replaces the whole scene around its cell; use a part technique (layered, tdm)"
+        )
     why = "has no memory and frame-time estimate for the frame-time planner"
     if technique.placement:  # what places it instead
         why += f"; {technique.placement}"

@@ -66,7 +66,13 @@ class RepairRound:
     mode: str = "resumed"  # the greedy resumes (kept in the document for its readers)
 
     def to_dict(self) -> dict:
-        return {"round": self.round, "cpvs_over": self.cpvs_over, "added": list(self.added), "correction": self.correction, "mode": self.mode}
+        return {
+            "round": self.round,
+            "cpvs_over": self.cpvs_over,
+            "added": list(self.added),
+            "correction": self.correction,
+            "mode": self.mode,
+        }
 
 
 @dataclass(eq=False)
@@ -96,20 +102,27 @@ class PlannerState:
     # --- persistence ---------------------------------------------------------------------------
 
     def dumps(self) -> bytes:
-        return pickle.dumps({"format": STATE_FORMAT, "version": STATE_VERSION, "state": self}, protocol=pickle.HIGHEST_PROTOCOL)
+        return pickle.dumps(
+            {"format": STATE_FORMAT, "version": STATE_VERSION, "state": self}, protocol=pickle.HIGHEST_PROTOCOL
+        )
 
     @classmethod
     def loads(cls, data: bytes) -> PlannerState:
         try:
             doc = pickle.loads(data)  # farfield's own blob, never a user's
         except Exception as error:  # noqa: BLE001 - any unpickling failure means the same
-            raise PlacementError(f"the stored planner state could not be read: {type(error).__name__}: {error}") from error
+            raise PlacementError(
+                f"the stored planner state could not be read: {type(error).__name__}: {error}"
+            ) from error
         if not isinstance(doc, dict) or doc.get("format") != STATE_FORMAT or doc.get("version") != STATE_VERSION:
             raise PlacementError(f"the stored planner state is not {STATE_FORMAT} version {STATE_VERSION}")
         state = doc["state"]
         # Fields added since the state was written (slotted dataclasses unpickle without them):
         # the values its candidates were made with.
-        for holder, name, value in ((state.settings, "max_impostor_bytes", math.inf), (state.settings.model, "quads_exponent", 0.0)):
+        for holder, name, value in (
+            (state.settings, "max_impostor_bytes", math.inf),
+            (state.settings.model, "quads_exponent", 0.0),
+        ):
             if not hasattr(holder, name):
                 object.__setattr__(holder, name, value)
         return state
@@ -130,7 +143,9 @@ class PlannerState:
 
     def _drawn(self) -> dict[int, int]:
         """Candidate -> greedy order of every impostor drawn somewhere."""
-        return {imp.candidate: order for order, imp in enumerate(self.greedy.chosen) if order not in self.greedy.deleted}
+        return {
+            imp.candidate: order for order, imp in enumerate(self.greedy.chosen) if order not in self.greedy.deleted
+        }
 
     # --- repair --------------------------------------------------------------------------------
 
@@ -158,8 +173,13 @@ class PlannerState:
                 raise PlacementError(f"the baked stats of impostor {impostor_id} lack {missing}")
             i = self.candidate_of(impostor_id)
             # The estimate before any correction: the bias is measured against what the corrections scale.
-            self.estimated[impostor_id] = {"quads": float(self.first["quads"][i]), "memory_bytes": float(self.first["memory"][i])}
-            delta = float(model.impostor_time(0.0, float(stats["quads"])) - model.impostor_time(0.0, float(cand.quads[i])))
+            self.estimated[impostor_id] = {
+                "quads": float(self.first["quads"][i]),
+                "memory_bytes": float(self.first["memory"][i]),
+            }
+            delta = float(
+                model.impostor_time(0.0, float(stats["quads"])) - model.impostor_time(0.0, float(cand.quads[i]))
+            )
             cand.quads[i] = float(stats["quads"])
             cand.memory[i] = max(float(stats["texture_bytes"]), 1.0)
             a, b = cand.served_offsets[i], cand.served_offsets[i + 1]
@@ -228,7 +248,9 @@ class PlannerState:
         free = np.ones(cand.count, dtype=bool)
         free[[self.candidate_of(i) for i in self.baked]] = False
         quads = np.where(free, self.first["quads"] * ratio["quads"], cand.quads)
-        delta = np.asarray(model.impostor_time(0.0, quads), dtype=np.float64) - np.asarray(model.impostor_time(0.0, cand.quads), dtype=np.float64)
+        delta = np.asarray(model.impostor_time(0.0, quads), dtype=np.float64) - np.asarray(
+            model.impostor_time(0.0, cand.quads), dtype=np.float64
+        )
         cand.ti[:] += np.repeat(np.where(free, delta, 0.0), np.diff(cand.served_offsets))
         cand.quads[:] = quads
         cand.memory[:] = np.where(free, np.maximum(self.first["memory"] * ratio["memory"], 1.0), cand.memory)
@@ -242,7 +264,14 @@ class PlannerState:
     def placement(self) -> Placement:
         """The placement as it stands (:class:`~farfield.core.placement.result.Placement`)."""
         self._assign_ids()
-        greedy, cand, pv, hierarchy, elements, settings = self.greedy, self.cand, self.pv, self.hierarchy, self.elements, self.settings
+        greedy, cand, pv, hierarchy, elements, settings = (
+            self.greedy,
+            self.cand,
+            self.pv,
+            self.hierarchy,
+            self.elements,
+            self.settings,
+        )
         impostors = []
         drawn = self._drawn()
         for i, impostor_id in sorted(self.ids.items(), key=lambda kv: kv[1]):
@@ -258,7 +287,9 @@ class PlannerState:
                 "layers_estimated": float(cand.layers[i]),
                 "texels_per_layer": float(cand.texels[i]),
                 "quads_estimated": self.estimated.get(impostor_id, {}).get("quads", float(cand.quads[i])),
-                "memory_bytes_estimated": self.estimated.get(impostor_id, {}).get("memory_bytes", float(cand.memory[i])),
+                "memory_bytes_estimated": self.estimated.get(impostor_id, {}).get(
+                    "memory_bytes", float(cand.memory[i])
+                ),
                 "memory_bytes": float(cand.memory[i]),  # the baked texture bytes, once baked
                 "cpvs": len(imp.cpvs) if imp else 0,
                 "time_max": max((t for _, t in imp.cpvs.values()), default=0.0) if imp else 0.0,
@@ -333,10 +364,14 @@ class PlannerState:
             "options": {k: (v if not isinstance(v, tuple) else list(v)) for k, v in asdict(self.options).items()},
             "cpv_size": float(self.cpv_size),
             "vdi_deg": float(settings.vdi_deg),
-            "depth_complexity": None if math.isinf(settings.depth_complexity) else float(settings.depth_complexity),  # None: no cap (JSON has no infinity)
+            "depth_complexity": None
+            if math.isinf(settings.depth_complexity)
+            else float(settings.depth_complexity),  # None: no cap (JSON has no infinity)
             "cells": settings.cells,
             "leaf_size": settings.leaf_size,
-            "max_impostor_bytes": None if math.isinf(settings.max_impostor_bytes) else float(settings.max_impostor_bytes),  # None: no cap
+            "max_impostor_bytes": None
+            if math.isinf(settings.max_impostor_bytes)
+            else float(settings.max_impostor_bytes),  # None: no cap
             "apex_angles_deg": [float(a) for a in settings.apex_angles_deg],
             "direction_step_deg": float(settings.direction_step_deg),
             "distance_steps": int(settings.distance_steps),
@@ -344,7 +379,11 @@ class PlannerState:
         }
         return Placement(
             parameters=parameters,
-            elements={"count": elements.count, "cluster_triangles": elements.cluster_triangles, "split": self.scene["split"]},
+            elements={
+                "count": elements.count,
+                "cluster_triangles": elements.cluster_triangles,
+                "split": self.scene["split"],
+            },
             impostors=impostors,
             cpvs=cpvs,
             unsolvable=blame,

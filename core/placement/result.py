@@ -41,7 +41,9 @@ class Placement:
     unsolvable: list[dict]
     summary: dict
     seconds: dict = field(default_factory=dict, compare=False)
-    state: Any = field(default=None, compare=False, repr=False)  # farfield.core.placement.repair.PlannerState, when kept
+    state: Any = field(
+        default=None, compare=False, repr=False
+    )  # farfield.core.placement.repair.PlannerState, when kept
 
     def to_dict(self) -> dict:
         return {
@@ -74,5 +76,7 @@ class Placement:
                 f"{worst['region']} with {names}); a smaller --cpv-size or a larger budget may help"
             )
         if s["cpvs_unsolved"]:
-            parts.append(f"{s['cpvs_unsolved']} problem views stay over t_max with the candidates generated (worst {s['worst_after']:.4g} {s['unit']})")
+            parts.append(
+                f"{s['cpvs_unsolved']} problem views stay over t_max with the candidates generated (worst {s['worst_after']:.4g} {s['unit']})"
+            )
         return "; ".join(parts)

@@ -30,14 +30,15 @@ from typing import Self
 
 import numpy as np
 
-from farfield.core.techniques.envmap.runtime import camera_at
 from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.placement.cost_model import CostModel
 from farfield.core.placement.hierarchy import Elements, PlacementError
 from farfield.core.placement.view_space import element_pixels
 from farfield.core.render.raster import Camera, MeshRenderer
 from farfield.core.scene import Scene
+from farfield.core.techniques.envmap.runtime import camera_at
 from farfield.core.viewcells import box_corners
+
 
 def placement_section(database: ImpostorDatabase) -> dict:
     """The ``placement`` section of a placement database's index (PlacementError when it has none)."""
@@ -72,7 +73,15 @@ def boxes_in_frustum(camera: Camera, lo: np.ndarray, hi: np.ndarray) -> np.ndarr
     return inside
 
 
-def plain_estimate(model: CostModel, elements: Elements, drawn: np.ndarray, position, fov: float, resolution: int, depth_complexity: float = 4.0) -> float:
+def plain_estimate(
+    model: CostModel,
+    elements: Elements,
+    drawn: np.ndarray,
+    position,
+    fov: float,
+    resolution: int,
+    depth_complexity: float = 4.0,
+) -> float:
     """The cost model's time of drawing elements ``drawn`` (indices) as geometry from ``position``:
     ``d + sum(a calls + b triangles) + c pixels``, pixels each element's bounding-sphere disc at its
     distance from the eye (a whole frame where the eye is inside its bounds), their sum capped at
@@ -159,14 +168,23 @@ class PlacementRenderer:
             impostor = self.database.impostor(cell)
             objects = impostor.payload.draw_objects(impostor)  # the payload's runtime draw list
             if objects is None:
-                raise PlacementError(f"impostor {cell}: no drawer for a {impostor.payload.kind!r} payload ({impostor.technique})")
+                raise PlacementError(
+                    f"impostor {cell}: no drawer for a {impostor.payload.kind!r} payload ({impostor.technique})"
+                )
             renderer = MeshRenderer(objects)
             points = impostor.payload.world_points().reshape(-1, 3)
             if points.size:
                 lo, hi = points.min(axis=0), points.max(axis=0)
             else:
                 lo = hi = np.zeros(3)
-            self._impostors[cell] = (renderer, impostor.triangle_count, impostor.quad_count, lo, hi, box_corners(np.stack([lo, hi])))
+            self._impostors[cell] = (
+                renderer,
+                impostor.triangle_count,
+                impostor.quad_count,
+                lo,
+                hi,
+                box_corners(np.stack([lo, hi])),
+            )
             self.uploaded_impostor_bytes += impostor.texture_bytes
         return self._impostors[cell]
 
@@ -183,8 +201,16 @@ class PlacementRenderer:
         near = max(0.5 * float(np.sqrt((gap * gap).sum(axis=1)).min()), far * 1e-5)
         return near, max(far, 2.0 * near)
 
-    def prepare(self, position, forward, fov_deg: float | None = None, resolution: int | None = None, plain: bool = False,
-                cull: bool = True, camera: Camera | None = None) -> tuple[Camera, list, ViewFigures]:
+    def prepare(
+        self,
+        position,
+        forward,
+        fov_deg: float | None = None,
+        resolution: int | None = None,
+        plain: bool = False,
+        cull: bool = True,
+        camera: Camera | None = None,
+    ) -> tuple[Camera, list, ViewFigures]:
         """The camera, the draw list and the figures of one view (nothing drawn yet).
 
         ``plain``: every element as geometry, no impostor (the scene without the placement);
@@ -214,13 +240,17 @@ class PlacementRenderer:
             b = self.elements.bounds[selected]
             selected = selected[boxes_in_frustum(camera, b[:, 0], b[:, 1])]
         draws = [self.element_draws[i] for i in selected]
-        shown = [item for item in loaded if not cull or bool(boxes_in_frustum(camera, item[3][None, :], item[4][None, :])[0])]
+        shown = [
+            item for item in loaded if not cull or bool(boxes_in_frustum(camera, item[3][None, :], item[4][None, :])[0])
+        ]
         for item in shown:
             draws.extend(item[0]._draws)
         geometry_triangles = int(self.elements.triangles[selected].sum())
         estimate = None if plain else found.get("time_estimated")
         if estimate is None:
-            estimate = plain_estimate(self.model, self.elements, selected, position, math.radians(fov_deg), resolution, self.depth_complexity)
+            estimate = plain_estimate(
+                self.model, self.elements, selected, position, math.radians(fov_deg), resolution, self.depth_complexity
+            )
         figures = ViewFigures(
             cpv=None if found.get("cpv") is None else int(found["cpv"]), status="plain" if plain else found["status"],
             estimate=float(estimate), draw_calls=len(draws), triangles=geometry_triangles + sum(item[1] for item in shown),
@@ -245,7 +275,9 @@ class PlacementRenderer:
         """Seconds to draw ``draws`` and finish (no read-back), as :meth:`MeshRenderer.frame_seconds`."""
         return self._with(draws, lambda: self.gpu.frame_seconds(camera))
 
-    def draw(self, position, forward, fov_deg: float | None = None, resolution: int | None = None) -> tuple[np.ndarray, ViewFigures]:
+    def draw(
+        self, position, forward, fov_deg: float | None = None, resolution: int | None = None
+    ) -> tuple[np.ndarray, ViewFigures]:
         """Draw one view as the runtime does; returns the image and its figures."""
         camera, draws, figures = self.prepare(position, forward, fov_deg, resolution)
         return self.render(camera, draws), figures

@@ -106,10 +106,18 @@ class BudgetSettings:
                 f"field of view {self.fov_deg!r}° is below the star-shape bound: the primitive-budget placement needs "
                 f"{MIN_FOV_DEG:.2f}° <= fov < 180° (seed 004 §3.2.1; 60° or more in the paper)"
             )
-        for name, low, high in (("grid_points", 2, MAX_LATTICE_SIDE), ("max_level", 0, MAX_LEVEL), ("lookahead", 0, None)):
+        for name, low, high in (
+            ("grid_points", 2, MAX_LATTICE_SIDE),
+            ("max_level", 0, MAX_LEVEL),
+            ("lookahead", 0, None),
+        ):
             value = getattr(self, name)
             if isinstance(value, bool) or int(value) != value or value < low or (high is not None and value > high):
-                raise PlacementError(f"{name} must be an integer >= {low}" + (f" and <= {high}" if high is not None else "") + f", got {value!r}")
+                raise PlacementError(
+                    f"{name} must be an integer >= {low}"
+                    + (f" and <= {high}" if high is not None else "")
+                    + f", got {value!r}"
+                )
         if self.spacing is not None and not (math.isfinite(self.spacing) and self.spacing > 0):
             raise PlacementError(f"grid spacing must be > 0, got {self.spacing!r}")
         return p, p_opt, math.radians(self.fov_deg) / 2.0
@@ -261,7 +269,18 @@ def solve_point(cells: OctreeCells, position: np.ndarray, radius: float, p: floa
                              f"(p_opt {p_opt:.0f}); no image may come that close")  # fmt: skip
             image[over] = UNSOLVED
             break
-        found = place_image(cells.lo[candidates], cells.hi[candidates], tris[candidates], position, yaw, half, counts[v], p_opt, extent, lookahead)
+        found = place_image(
+            cells.lo[candidates],
+            cells.hi[candidates],
+            tris[candidates],
+            position,
+            yaw,
+            half,
+            counts[v],
+            p_opt,
+            extent,
+            lookahead,
+        )
         if found is None:  # cannot happen after the pre-test, kept for safety
             point.failure = f"yaw {math.degrees(yaw):.1f}: no subset culls enough"
             image[over] = UNSOLVED
@@ -273,7 +292,16 @@ def solve_point(cells: OctreeCells, position: np.ndarray, radius: float, p: floa
         fixed_now = over & (now <= p)
         image[fixed_now] = len(point.images)
         over &= ~fixed_now
-        point.images.append({"yaw": yaw, "depth": found.depth, "quad": found.quad, "cells": culled, "drawn": found.drawn, "score": found.score})
+        point.images.append(
+            {
+                "yaw": yaw,
+                "depth": found.depth,
+                "quad": found.quad,
+                "cells": culled,
+                "drawn": found.drawn,
+                "score": found.score,
+            }
+        )
     point.breaks, point.image = _merge_runs(ranges.breaks, image)
     return point
 
@@ -294,10 +322,16 @@ def place_primitives(scene: Scene, view_lo, view_hi, settings: BudgetSettings,
                      progress: Callable[[str, int, int], None] | None = None, cells: OctreeCells | None = None) -> PrimitivePlacement:  # fmt: skip
     """The primitive-budget placement of ``scene`` over the view space box (seed 004 Fig. 2)."""
     view_lo, view_hi = np.asarray(view_lo, dtype=np.float64), np.asarray(view_hi, dtype=np.float64)
-    if view_lo.shape != (3,) or view_hi.shape != (3,) or not (np.all(np.isfinite(view_lo)) and np.all(np.isfinite(view_hi))):
+    if (
+        view_lo.shape != (3,)
+        or view_hi.shape != (3,)
+        or not (np.all(np.isfinite(view_lo)) and np.all(np.isfinite(view_hi)))
+    ):
         raise PlacementError("the view space needs two finite corners of 3 numbers")
     if np.any(view_hi < view_lo):
-        raise PlacementError(f"the view space is empty: max corner {view_hi.tolist()} below min corner {view_lo.tolist()}")
+        raise PlacementError(
+            f"the view space is empty: max corner {view_hi.tolist()} below min corner {view_lo.tolist()}"
+        )
     p, p_opt, half = settings.checked(scene.triangle_count)
     clock = {}
     t0 = time.perf_counter()
@@ -306,7 +340,11 @@ def place_primitives(scene: Scene, view_lo, view_hi, settings: BudgetSettings,
     clock["cells"] = time.perf_counter() - t0
     extent = float((scene.bounds[1] - scene.bounds[0]).max())
     side = float((view_hi - view_lo).max())
-    r0 = settings.spacing if settings.spacing is not None else (side / (settings.grid_points - 1) if side > 0 else extent / 8.0)
+    r0 = (
+        settings.spacing
+        if settings.spacing is not None
+        else (side / (settings.grid_points - 1) if side > 0 else extent / 8.0)
+    )
     radii = [star_radius(r0 / 2**k, half) for k in range(settings.max_level + 1)]
     # An eye inside a cell's bounds draws the cell from every yaw and no image can replace it (an
     # image lies ahead of its grid point, which lies within reach of the eye): a cell that meets the
@@ -319,7 +357,7 @@ def place_primitives(scene: Scene, view_lo, view_hi, settings: BudgetSettings,
             f"an octree cell that meets the view space holds {worst} triangles, more than P = {p:g}: a view from inside it "
             f"draws them all; raise --primitives, or --octree-depth (now {cells.depth}) for smaller cells"
         )
-    scale = 2 ** settings.max_level  # keys: lattice indices at the finest level
+    scale = 2**settings.max_level  # keys: lattice indices at the finest level
     points: dict[tuple, GridPoint] = {}
     queue: deque[tuple] = deque()
 
@@ -336,7 +374,9 @@ def place_primitives(scene: Scene, view_lo, view_hi, settings: BudgetSettings,
                 points[key] = GridPoint(position=x, level=level, radius=radii[level])
                 queue.append(key)
         if len(points) > MAX_GRID_POINTS:
-            raise PlacementError(f"more than {MAX_GRID_POINTS} grid points: raise the budget, or lower --max-level or the grid resolution")
+            raise PlacementError(
+                f"more than {MAX_GRID_POINTS} grid points: raise the budget, or lower --max-level or the grid resolution"
+            )
 
     add(0, _lattice(view_lo - radii[0], view_hi + radii[0], view_lo, r0))
     t1 = time.perf_counter()
@@ -362,7 +402,12 @@ def place_primitives(scene: Scene, view_lo, view_hi, settings: BudgetSettings,
     return PrimitivePlacement(cells, ordered, view_lo, view_hi, p, p_opt, half, r0, settings.max_level, clock)
 
 
-def check_views(placement: PrimitivePlacement, views: int = 10_000, seed: int = 0, progress: Callable[[str, int, int], None] | None = None) -> dict:
+def check_views(
+    placement: PrimitivePlacement,
+    views: int = 10_000,
+    seed: int = 0,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> dict:
     """Sample (eye, yaw) pairs uniformly in the view space (pitch 0) and count what each draws: the
     guarantee's check (share within ``P``), p99 against ``p_opt``, views without a grid point, eyes
     past their image's quad, views in unsolved ranges."""

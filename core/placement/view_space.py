@@ -87,7 +87,9 @@ def level_for_angle(min_angle_deg: float) -> int:
     (3, 0, 4, 6)
     """
     if not (math.isfinite(min_angle_deg) and MIN_VDI_DEG <= min_angle_deg <= 90.0):
-        raise PlacementError(f"the minimum view-direction interval must lie in [{MIN_VDI_DEG:g}, 90] degrees, got {min_angle_deg!r}")
+        raise PlacementError(
+            f"the minimum view-direction interval must lie in [{MIN_VDI_DEG:g}, 90] degrees, got {min_angle_deg!r}"
+        )
     return max(0, math.ceil(math.log2(90.0 / min_angle_deg) - 1e-9))
 
 
@@ -111,7 +113,11 @@ class VDI:
     def directions(self, x, y) -> np.ndarray:
         """(k, 3) unit directions at tangent coordinates ``x``, ``y`` (k,)."""
         normal, u, v = face_frame(self.face)
-        d = normal[None, :] + np.asarray(x, dtype=np.float64)[:, None] * u + np.asarray(y, dtype=np.float64)[:, None] * v
+        d = (
+            normal[None, :]
+            + np.asarray(x, dtype=np.float64)[:, None] * u
+            + np.asarray(y, dtype=np.float64)[:, None] * v
+        )
         return d / np.linalg.norm(d, axis=1, keepdims=True)
 
     def cone(self) -> tuple[np.ndarray, float]:
@@ -172,7 +178,9 @@ class RegionSight:
         return (cos_d >= limit) | wide | self.always[None, :]
 
 
-def element_pixels(elements: Elements, region_lo, region_hi, fov: float, resolution: int, index: np.ndarray | None = None) -> np.ndarray:
+def element_pixels(
+    elements: Elements, region_lo, region_hi, fov: float, resolution: int, index: np.ndarray | None = None
+) -> np.ndarray:
     """(k,) covered-pixel estimate of each element from the region's nearest point: its bounding
     sphere's disc at the box distance, at most the frame (whole frame where the element meets the region)."""
     b = elements.bounds if index is None else elements.bounds[index]
@@ -211,7 +219,9 @@ class ProblemViews:
     positions: np.ndarray  # (total,) hierarchy positions of the elements, sorted within each CPV
     entry_time: np.ndarray  # (total,)
     entry_pixels: np.ndarray  # (total,)
-    entry_fixed: np.ndarray  # (total,) bool: no impostor may replace the element in this CPV (its leaf meets the region)
+    entry_fixed: (
+        np.ndarray
+    )  # (total,) bool: no impostor may replace the element in this CPV (its leaf meets the region)
     stats: dict = field(default_factory=dict)
 
     @property
@@ -375,7 +385,12 @@ def problem_view_space(
         entry_time=np.concatenate(row_time) if rows else empty_f,
         entry_pixels=np.concatenate(row_pixels) if rows else empty_f,
         entry_fixed=np.concatenate(row_fixed) if rows else np.empty(0, dtype=bool),
-        stats={"t_max": float(t_max), "vdis_evaluated": evaluated, "min_level": min_level, "leaf_regions_with_cpvs": len(regions)},
+        stats={
+            "t_max": float(t_max),
+            "vdis_evaluated": evaluated,
+            "min_level": min_level,
+            "leaf_regions_with_cpvs": len(regions),
+        },
     )
 
 

@@ -55,7 +55,9 @@ def _wrap(angle: np.ndarray) -> np.ndarray:
     return out
 
 
-def azimuth_spans(lo: np.ndarray, hi: np.ndarray, apex: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def azimuth_spans(
+    lo: np.ndarray, hi: np.ndarray, apex: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per box: (over, phi_lo, phi_hi, rho_max): whether the apex lies over its footprint (inclusive),
     the azimuth interval of its footprint (unwrapped about its centre; meaningless when ``over``) and
     the horizontal distance of its farthest footprint corner."""
@@ -120,7 +122,9 @@ class YawRanges:
     def members(self, index: int) -> np.ndarray:
         """(n,) bool: the cells range ``index`` counts."""
         wraps = self.last < self.first
-        inside = np.where(wraps, (index >= self.first) | (index <= self.last), (index >= self.first) & (index <= self.last))
+        inside = np.where(
+            wraps, (index >= self.first) | (index <= self.last), (index >= self.first) & (index <= self.last)
+        )
         return (self.state == ALL) | ((self.state == ARC) & inside)
 
     def sums(self, weights: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:

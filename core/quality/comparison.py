@@ -25,8 +25,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 from farfield.core.errors import ComparisonError
-from farfield.core.quality.evaluation import Evaluation
 from farfield.core.impostor.impostor import Impostor
+from farfield.core.quality.evaluation import Evaluation
 from farfield.core.techniques import get_technique
 
 PREFERENCES = ("memory", "triangles", "error")
@@ -104,10 +104,14 @@ def check_comparable(names: list[str], impostors: list[Impostor]) -> None:
     }
     for name, impostor in zip(names, impostors):
         if get_technique(impostor.technique).scope != "part":
-            raise ComparisonError(f"{name} is an {impostor.technique} bundle (a whole scene around its cell); only impostors of one part compare side by side")
+            raise ComparisonError(
+                f"{name} is an {impostor.technique} bundle (a whole scene around its cell); only impostors of one part compare side by side"
+            )
         for what, key in keys.items():
             if key(impostor) != key(first):
-                raise ComparisonError(f"{name} and {names[0]} differ in their {what}: only bundles of the same part, view cell, resolution and field of view compare")
+                raise ComparisonError(
+                    f"{name} and {names[0]} differ in their {what}: only bundles of the same part, view cell, resolution and field of view compare"
+                )
 
 
 def _say(field: str, value: float) -> str:
@@ -159,7 +163,11 @@ def choose(candidates: list[Candidate], prefer: str = "memory") -> Choice:
     first = _MEASURES[order[0]][0]
     index = min(pool, key=lambda i: (getattr(candidates[i], first), i))
     chosen = candidates[index]
-    holes = "no hole pixels inside the view cell" if fewest == 0 else f"the fewest hole pixels inside the view cell ({fewest}; none has zero)"
+    holes = (
+        "no hole pixels inside the view cell"
+        if fewest == 0
+        else f"the fewest hole pixels inside the view cell ({fewest}; none has zero)"
+    )
     parts = [f"{chosen.name}: {holes}"]
     for p, looked, kept in steps:
         field, merit, _ = _MEASURES[p]
@@ -179,5 +187,7 @@ def choose(candidates: list[Candidate], prefer: str = "memory") -> Choice:
         ahead = [candidates[i] for i in eligible if getattr(candidates[i], field) < getattr(chosen, field)]
         if ahead:
             r = min(ahead, key=lambda c: getattr(c, field))
-            notes.append(f"{r.name} {better} ({_say(field, getattr(r, field))} against {_say(field, getattr(chosen, field))})")
+            notes.append(
+                f"{r.name} {better} ({_say(field, getattr(r, field))} against {_say(field, getattr(chosen, field))})"
+            )
     return Choice(index, "; ".join([reason, *notes]))

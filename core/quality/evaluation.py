@@ -185,7 +185,10 @@ def ssim_over_union(geometry: np.ndarray, impostor: np.ndarray) -> float:
     # Only the union's bounding box and a window's margin: the Gaussian filter (radius 5) reaches no
     # farther, so the values over the union are those of the whole frame, for less work.
     rows, cols = np.flatnonzero(union.any(axis=1)), np.flatnonzero(union.any(axis=0))
-    box = (slice(max(rows[0] - SSIM_WINDOW, 0), rows[-1] + SSIM_WINDOW + 1), slice(max(cols[0] - SSIM_WINDOW, 0), cols[-1] + SSIM_WINDOW + 1))
+    box = (
+        slice(max(rows[0] - SSIM_WINDOW, 0), rows[-1] + SSIM_WINDOW + 1),
+        slice(max(cols[0] - SSIM_WINDOW, 0), cols[-1] + SSIM_WINDOW + 1),
+    )
     union = union[box]
     side = min(union.shape)
     window = min(SSIM_WINDOW, side if side % 2 else side - 1)
@@ -240,7 +243,9 @@ def _covered_window(geometry: np.ndarray, impostor: np.ndarray, samples: int) ->
     h, w = covered.shape[0] // samples, covered.shape[1] // samples
 
     def span(first: int, last: int, size: int) -> slice:
-        return slice(max(first // samples - SSIM_WINDOW, 0) * samples, min(last // samples + 1 + SSIM_WINDOW, size) * samples)
+        return slice(
+            max(first // samples - SSIM_WINDOW, 0) * samples, min(last // samples + 1 + SSIM_WINDOW, size) * samples
+        )
 
     return span(rows[0], rows[-1], h), span(cols[0], cols[-1], w)
 
@@ -270,7 +275,9 @@ def fine_samples(samples: int) -> int:
 Confirm = Callable[[str, int, int, int], np.ndarray]
 
 
-def _confirmed(candidates: np.ndarray, side: str, origin: tuple[int, int], confirm: Confirm | None, windows: int) -> tuple[int, int]:
+def _confirmed(
+    candidates: np.ndarray, side: str, origin: tuple[int, int], confirm: Confirm | None, windows: int
+) -> tuple[int, int]:
     """(counted, unconfirmed) of the (h, w) bool ``candidates`` (pixels with no coarse coverage of
     ``side`` within one pixel; ``origin``: the image pixel (x, y) of their [0, 0]): a candidate
     counts unless ``confirm`` finds ``side`` within one pixel of it; those of the blocks beyond the
@@ -324,14 +331,19 @@ def compare_images(geometry: np.ndarray, impostor: np.ndarray, samples: int = 1,
     """
     window = _covered_window(geometry, impostor, samples)
     geometry, impostor = geometry[window], impostor[window]
-    one = _holes(geometry[samples // 2 :: samples, samples // 2 :: samples, 3] > 0, impostor[samples // 2 :: samples, samples // 2 :: samples, 3] > 0)
+    one = _holes(
+        geometry[samples // 2 :: samples, samples // 2 :: samples, 3] > 0,
+        impostor[samples // 2 :: samples, samples // 2 :: samples, 3] > 0,
+    )
     geometry, impostor = downsample(geometry, samples), downsample(impostor, samples)
     g = geometry[..., 3] > 0
     i = impostor[..., 3] > 0
     holes = _holes(g, i)
     beyond = i & ~_dilate(g)
     origin = (window[1].start // samples, window[0].start // samples)
-    if reach is not None and beyond.any():  # geometry smaller than a sample (a part far away) reaches pixels no sample covers
+    if (
+        reach is not None and beyond.any()
+    ):  # geometry smaller than a sample (a part far away) reaches pixels no sample covers
         beyond &= ~_dilate(reach()[origin[1] : origin[1] + g.shape[0], origin[0] : origin[0] + g.shape[1]])
     hole_count, hole_unconfirmed = _confirmed(holes, "impostor", origin, confirm, confirm_windows)
     beyond_count, beyond_unconfirmed = _confirmed(beyond, "geometry", origin, confirm, confirm_windows)
@@ -422,12 +434,19 @@ class Evaluation:
     """Per-viewpoint results and totals of one evaluation."""
 
     viewpoints: list[dict]  # each: position, kind ("corner" | "reference" | "random" | "outside"), inside, stats
-    totals: dict  # inside the view cell (see _totals): sums, pooled means, maxima, SSIM; outside: the same under "outside"
+    totals: (
+        dict  # inside the view cell (see _totals): sums, pooled means, maxima, SSIM; outside: the same under "outside"
+    )
     impostor: dict = field(default_factory=dict)  # layers, quads, memory, generation seconds
     seconds: float = 0.0
 
     def to_dict(self) -> dict:
-        return {"viewpoints": self.viewpoints, "totals": self.totals, "impostor": self.impostor, "seconds": self.seconds}
+        return {
+            "viewpoints": self.viewpoints,
+            "totals": self.totals,
+            "impostor": self.impostor,
+            "seconds": self.seconds,
+        }
 
 
 def _totals(rows: list[dict]) -> dict:
@@ -484,7 +503,14 @@ def spread_corners(cell: ViewCell, start: np.ndarray, count: int) -> np.ndarray:
 UNBOUNDED_SHAFT_DEPTH = 3.0  # viewpoints of an unbounded shaft lie within 4x its near distance of the apex
 
 
-def viewpoints(cell: ViewCell, reference: np.ndarray, random_count: int = 8, outside_count: int = 0, seed: int = 0, depth: float | None = None) -> tuple[np.ndarray, list[str]]:
+def viewpoints(
+    cell: ViewCell,
+    reference: np.ndarray,
+    random_count: int = 8,
+    outside_count: int = 0,
+    seed: int = 0,
+    depth: float | None = None,
+) -> tuple[np.ndarray, list[str]]:
     """(n, 3) float64 viewpoints and their kinds: the cell's corners, the ``reference`` viewpoint,
     ``random_count`` seeded points inside (``depth`` bounds an unbounded shaft: by default
     ``UNBOUNDED_SHAFT_DEPTH`` times its near distance, beyond which the part is under a quarter of its
@@ -495,7 +521,11 @@ def viewpoints(cell: ViewCell, reference: np.ndarray, random_count: int = 8, out
     points.append(np.asarray(reference, dtype=np.float64)[None, :])
     kinds.append("reference")
     if random_count:
-        random = cell.sample_random(random_count, seed, depth) if isinstance(cell, ShaftCell) else cell.sample_random(random_count, seed)
+        random = (
+            cell.sample_random(random_count, seed, depth)
+            if isinstance(cell, ShaftCell)
+            else cell.sample_random(random_count, seed)
+        )
         points.append(random)
         kinds += ["random"] * random_count
     if outside_count:
@@ -525,7 +555,14 @@ def evaluate(
     return evaluate_at(part, impostor, points, kinds, samples, confirm_windows)
 
 
-def evaluate_at(part: Scene, impostor: Impostor, points: np.ndarray, kinds: list[str], samples: int = 4, confirm_windows: int = CONFIRM_WINDOWS) -> Evaluation:
+def evaluate_at(
+    part: Scene,
+    impostor: Impostor,
+    points: np.ndarray,
+    kinds: list[str],
+    samples: int = 4,
+    confirm_windows: int = CONFIRM_WINDOWS,
+) -> Evaluation:
     """Render ``part`` and ``impostor`` from ``points`` (n, 3) (of ``kinds``; "outside" ones are
     totalled apart) at the impostor's resolution and field of view, towards the part's centre, with
     ``samples`` per pixel side, and compare them (:func:`compare_images`), confirming coarse holes

@@ -21,13 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
-from farfield.core.techniques.envmap.runtime import camera_at, depth_range_for
 from farfield.core.errors import LayerPlanError
-from farfield.core.quality.evaluation import compare_images
 from farfield.core.impostor.database import ImpostorDatabase
+from farfield.core.quality.evaluation import compare_images
 from farfield.core.render.raster import MeshRenderer
 from farfield.core.scene import Scene
 from farfield.core.techniques import TECHNIQUES
+from farfield.core.techniques.envmap.runtime import camera_at, depth_range_for
 
 Progress = Callable[[int, int], None]  # (frames done, frames)
 
@@ -106,7 +106,9 @@ def load_path(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     except (OSError, ValueError, TypeError, KeyError) as error:
         raise LayerPlanError(f"{path}: not a camera path (a JSON list of {{position, forward}}): {error}") from None
     if array.ndim != 2 or array.shape[1] != 6 or array.shape[0] == 0 or not np.all(np.isfinite(array)):
-        raise LayerPlanError(f"{path}: a camera path needs at least one frame of 6 finite numbers, got shape {array.shape}")
+        raise LayerPlanError(
+            f"{path}: a camera path needs at least one frame of 6 finite numbers, got shape {array.shape}"
+        )
     if np.any(np.linalg.norm(array[:, 3:], axis=1) == 0.0):
         raise LayerPlanError(f"{path}: a frame's forward direction is zero")
     return array[:, :3], array[:, 3:]
@@ -142,7 +144,9 @@ def walkthrough(
     runtime = getattr(technique, "runtime", None)  # the technique's cell renderer (environment-map impostors have one)
     if runtime is None:
         walkable = " or ".join(t.name for t in TECHNIQUES.values() if t.runtime is not None)
-        raise LayerPlanError(f"a walkthrough needs an {walkable} impostor database, got technique {database.technique!r}")
+        raise LayerPlanError(
+            f"a walkthrough needs an {walkable} impostor database, got technique {database.technique!r}"
+        )
     report = progress or (lambda done, total: None)
     frames, current, cell_renderer = [], None, None
     first = next((c for c in database.cells if c.bundle is not None), None)
@@ -153,7 +157,12 @@ def walkthrough(
     try:
         for n, (position, forward) in enumerate(zip(positions, forwards)):
             found = database.find(position)
-            row = {"frame": n, "position": position.tolist(), "forward": forward.tolist(), "cell": None if found is None else found.index}
+            row = {
+                "frame": n,
+                "position": position.tolist(),
+                "forward": forward.tolist(),
+                "cell": None if found is None else found.index,
+            }
             switched = found is not None and (current is None or found.index != current)
             if switched:
                 if cell_renderer is not None:
@@ -175,7 +184,12 @@ def walkthrough(
                 row["quad_triangles"] = cell_renderer.quad_triangles
                 if compare:
                     stats = compare_images(full.render(camera), cell_renderer.renderer.render(camera))
-                    row.update({k: stats[k] for k in ("hole_pixels", "geometry_pixels", "colour_error_mean", "colour_error_max")})
+                    row.update(
+                        {
+                            k: stats[k]
+                            for k in ("hole_pixels", "geometry_pixels", "colour_error_mean", "colour_error_max")
+                        }
+                    )
             else:
                 row["impostor_ms"] = None
             frames.append(row)
@@ -304,7 +318,9 @@ def placement_walkthrough(
             if compare:
                 _, everything, _ = runtime.prepare(position, forward, plain=True, cull=False, camera=camera)
                 stats = compare_images(runtime.render(camera, everything), runtime.render(camera, draws))
-                row.update({k: stats[k] for k in ("hole_pixels", "geometry_pixels", "colour_error_mean", "colour_error_max")})
+                row.update(
+                    {k: stats[k] for k in ("hole_pixels", "geometry_pixels", "colour_error_mean", "colour_error_max")}
+                )
             frames.append(row)
             report(n + 1, len(positions))
         memory = runtime.uploaded_impostor_bytes
@@ -387,13 +403,23 @@ def write_placement_plot(result: dict, path: str | Path, title: str = "placement
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 6), sharex=True, gridspec_kw={"height_ratios": [3, 1]})
     if s["unit"] == "ms":
         top.plot(x, [f["plain_ms"] for f in frames], label="plain geometry", color="tab:red", linewidth=0.8)
-        top.plot(x, [f["runtime_ms"] for f in frames], label="runtime (geometry + impostors)", color="tab:blue", linewidth=0.8)
+        top.plot(
+            x,
+            [f["runtime_ms"] for f in frames],
+            label="runtime (geometry + impostors)",
+            color="tab:blue",
+            linewidth=0.8,
+        )
         top.set_ylabel("frame time (ms)")
     else:
         top.plot(x, [f["plain_triangles"] for f in frames], label="plain geometry", color="tab:red", linewidth=0.8)
-        top.plot(x, [f["measured"] for f in frames], label="runtime (geometry + impostors)", color="tab:blue", linewidth=0.8)
+        top.plot(
+            x, [f["measured"] for f in frames], label="runtime (geometry + impostors)", color="tab:blue", linewidth=0.8
+        )
         top.set_ylabel(f"frame cost ({s['unit']})")
-    top.plot(x, [f["estimate"] for f in frames], label="model estimate", color="tab:green", linestyle=":", linewidth=0.8)
+    top.plot(
+        x, [f["estimate"] for f in frames], label="model estimate", color="tab:green", linestyle=":", linewidth=0.8
+    )
     top.axhline(s["t_max"], color="black", linestyle="--", linewidth=1.0, label=f"t_max {s['t_max']:.3g} {s['unit']}")
     top.set_yscale("log")
     top.legend(loc="upper right", fontsize="small")
@@ -421,9 +447,19 @@ def write_image_plot(result: dict, path: str | Path, title: str = "primitive-bud
     frames, s = result["frames"], result["summary"]
     x = np.array([f["frame"] for f in frames])
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 6), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
-    top.plot(x, [f["plain_primitives"] for f in frames], label="view-frustum culling only", color="tab:red", linewidth=0.8)
-    top.plot(x, [f["primitives"] for f in frames], label="image culling + view-frustum culling", color="tab:blue", linewidth=0.8)
-    top.axhline(s["primitives_budget"], color="black", linestyle="--", linewidth=1.0, label=f"P {s['primitives_budget']:.6g}")
+    top.plot(
+        x, [f["plain_primitives"] for f in frames], label="view-frustum culling only", color="tab:red", linewidth=0.8
+    )
+    top.plot(
+        x,
+        [f["primitives"] for f in frames],
+        label="image culling + view-frustum culling",
+        color="tab:blue",
+        linewidth=0.8,
+    )
+    top.axhline(
+        s["primitives_budget"], color="black", linestyle="--", linewidth=1.0, label=f"P {s['primitives_budget']:.6g}"
+    )
     top.axhline(s["p_opt"], color="grey", linestyle=":", linewidth=1.0, label=f"p_opt {s['p_opt']:.6g}")
     top.set_ylabel("primitives drawn")
     top.legend(loc="upper right", fontsize="small")

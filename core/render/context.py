@@ -65,7 +65,9 @@ def gl_context(device_index: int | None = None) -> moderngl.Context:
     try:
         ctx = moderngl.create_context(**kwargs)
     except Exception as error:  # moderngl/glcontext raise bare Exception for every EGL failure
-        raise RenderBackendError(f"no usable EGL OpenGL {REQUIRED_GL // 100}.{REQUIRED_GL % 100 // 10} context: {error}") from error
+        raise RenderBackendError(
+            f"no usable EGL OpenGL {REQUIRED_GL // 100}.{REQUIRED_GL % 100 // 10} context: {error}"
+        ) from error
     ctx.gc_mode = "context_gc"
     _context, _owner_pid, _device_index = ctx, os.getpid(), device_index
     return ctx

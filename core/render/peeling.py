@@ -32,8 +32,15 @@ from farfield.core.render.raster import Camera, upload
 from farfield.core.scene import SceneObject
 
 
-def peel(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, max_layers: int = 256, touching: bool = False,
-         centre: np.ndarray | None = None, same_surface: float = 0.0, truncate: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def peel(
+    objects: list[SceneObject] | tuple[SceneObject, ...],
+    camera: Camera,
+    max_layers: int = 256,
+    touching: bool = False,
+    centre: np.ndarray | None = None,
+    same_surface: float = 0.0,
+    truncate: bool = False,
+) -> tuple[np.ndarray, np.ndarray]:
     """((layers, h, w, 3) float64 hits, (layers, h, w, 4) uint8 colours) of ``camera``'s rays,
     nearest first, rows top first: (eye depth along the camera's forward axis, object index,
     primitive index), NaN / -1 / -1 where a ray has fewer surfaces, and the surface's colour at
@@ -77,7 +84,9 @@ def peel(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, m
             stack = np.full((max(layers_in, 1), size[1], size[0]), -1.0, dtype="f4")
             if layers_in:
                 stack[:layers_in] = np.where(np.isfinite(centre), centre, -1.0)[:, ::-1]  # GL rows bottom first
-            depths = ctx.texture_array((size[0], size[1], stack.shape[0]), 1, np.ascontiguousarray(stack).tobytes(), dtype="f4")
+            depths = ctx.texture_array(
+                (size[0], size[1], stack.shape[0]), 1, np.ascontiguousarray(stack).tobytes(), dtype="f4"
+            )
             depths.filter = (moderngl.NEAREST, moderngl.NEAREST)
             owned.append(depths)
             depths.use(2)
@@ -93,7 +102,9 @@ def peel(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, m
             ctx.viewport = (0, 0, *size)
             # A ray without a surface in this pass has none behind either: r = 2 (beyond any
             # window depth) stops it in the next pass.
-            framebuffers[current].clear(2.0, 0.0, 0.0, 0.0, depth=1.0)  # both attachments: the colour's r saturates, a = 0
+            framebuffers[current].clear(
+                2.0, 0.0, 0.0, 0.0, depth=1.0
+            )  # both attachments: the colour's r saturates, a = 0
             hits[previous].use(1)
             for index, obj, origin, vao, texture in draws:
                 prog["eye_from_local"].write(camera.eye_matrix(origin).tobytes())
@@ -109,7 +120,9 @@ def peel(objects: list[SceneObject] | tuple[SceneObject, ...], camera: Camera, m
             if not drawn.any():
                 break
             if len(layers) == max_layers:
-                raise LayerPlanError(f"more than {max_layers} surfaces along one ray of a {size[0]}-pixel layered depth image (raise max_layers)")
+                raise LayerPlanError(
+                    f"more than {max_layers} surfaces along one ray of a {size[0]}-pixel layered depth image (raise max_layers)"
+                )
             out = np.full(layer.shape[:2] + (3,), -1.0)
             out[..., 0] = np.where(drawn, layer[..., 1], np.nan)
             out[..., 1] = np.where(drawn, layer[..., 2], -1.0)

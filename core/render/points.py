@@ -65,7 +65,13 @@ class PointRenderer(MeshRenderer):
     ``appearance``, the points of a page look their colour up there (module docstring); ``grid``:
     (resolution, fov radians) of the image the points were baked for, or None (module docstring)."""
 
-    def __init__(self, positions: np.ndarray, colours: np.ndarray, appearance: Appearance | None = None, grid: tuple[int, float] | None = None):
+    def __init__(
+        self,
+        positions: np.ndarray,
+        colours: np.ndarray,
+        appearance: Appearance | None = None,
+        grid: tuple[int, float] | None = None,
+    ):
         super().__init__([])
         positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         colours = np.asarray(colours, dtype=np.uint8).reshape(-1, 4)
@@ -91,7 +97,11 @@ class PointRenderer(MeshRenderer):
         self.points_program = program(self.ctx, "points.vert", "points.frag", defines=defines)
         self.id_program = program(self.ctx, "points.vert", "points.frag", defines=("POINT_ID",))
         floats = 7 + 2 * (appearance is not None)  # a vertex: position, colour[, tile]
-        blob = np.ascontiguousarray(np.concatenate(data, axis=1), dtype="<f4").tobytes() if self.count else b"\0" * 4 * floats
+        blob = (
+            np.ascontiguousarray(np.concatenate(data, axis=1), dtype="<f4").tobytes()
+            if self.count
+            else b"\0" * 4 * floats
+        )
         self._vbo = self.ctx.buffer(blob)
         self._vao = self.ctx.vertex_array(self.points_program, [(self._vbo, layout, *attributes)])
         self._id_vao = self.ctx.vertex_array(self.id_program, [(self._vbo, f"3f {4 * (floats - 3)}x", "in_position")])
@@ -134,7 +144,9 @@ class PointRenderer(MeshRenderer):
         prog = self.id_program if ids else self.points_program
         self._frame(prog, camera)
         if prog["point_size"].value > 255.0:
-            raise RenderBackendError(f"points of {prog['point_size'].value:.0f} pixels: the camera's pixels are too fine for the points' grid")
+            raise RenderBackendError(
+                f"points of {prog['point_size'].value:.0f} pixels: the camera's pixels are too fine for the points' grid"
+            )
         a = self.appearance
         if a is not None and not ids:
             width = np.asarray(a.hi, np.float64) - np.asarray(a.lo, np.float64)

@@ -41,7 +41,9 @@ def shader_source(name: str, defines: tuple[str, ...] = ()) -> str:
     return text
 
 
-def program(ctx: moderngl.Context, vertex: str, fragment: str, geometry: str | None = None, defines: tuple[str, ...] = ()) -> moderngl.Program:
+def program(
+    ctx: moderngl.Context, vertex: str, fragment: str, geometry: str | None = None, defines: tuple[str, ...] = ()
+) -> moderngl.Program:
     """The program made of the named shader files (e.g. ``"mesh.vert"``) with ``defines`` (see
     :func:`shader_source`), compiled once per context."""
     key = ("program", vertex, geometry, fragment, tuple(defines))

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+
 import moderngl
 import numpy as np
 
@@ -43,7 +44,7 @@ class Camera:
     offset: tuple[float, float] = (0.0, 0.0)
 
     @classmethod
-    def look_at(cls, eye, target, fov: float, resolution: int, near: float, far: float) -> "Camera":
+    def look_at(cls, eye, target, fov: float, resolution: int, near: float, far: float) -> Camera:
         """A camera at ``eye`` looking at ``target``; world +z is up unless the view is vertical."""
         eye = np.asarray(eye, dtype=np.float64)
         forward = np.asarray(target, dtype=np.float64) - eye
@@ -75,7 +76,17 @@ class Camera:
         scale = 2.0 * t / self.resolution  # tangent per pixel of this camera
         half = 0.5 * size * scale
         centre = (self.offset[0] + (x0 + 0.5 * size) * scale - t, self.offset[1] + t - (y0 + 0.5 * size) * scale)
-        return Camera(self.eye, self.right, self.up, self.forward, 2.0 * math.atan(half), int(resolution), self.near, self.far, centre)
+        return Camera(
+            self.eye,
+            self.right,
+            self.up,
+            self.forward,
+            2.0 * math.atan(half),
+            int(resolution),
+            self.near,
+            self.far,
+            centre,
+        )
 
     def eye_matrix(self, origin: np.ndarray) -> np.ndarray:
         """(4, 4) float32 column-major matrix from coordinates relative to ``origin`` to the eye frame
@@ -112,7 +123,9 @@ class Camera:
         return np.stack([x, y], axis=1)
 
 
-def upload(ctx: moderngl.Context, prog: moderngl.Program, obj: SceneObject, origin: np.ndarray, textures: dict, owned: list):
+def upload(
+    ctx: moderngl.Context, prog: moderngl.Program, obj: SceneObject, origin: np.ndarray, textures: dict, owned: list
+):
     """(vertex array, texture or None) of ``obj`` for ``prog`` (attributes ``in_position`` relative
     to ``origin``, and ``in_uv`` and ``in_color`` where ``prog`` reads them), its base-colour texture shared through ``textures``
     (id of the array -> GL texture) by objects that share the array; every GL object made is
@@ -279,7 +292,7 @@ class MeshRenderer:
         # hoisted: the eye matrices built one by one, the material's uniforms rebuilt every frame).
         matrices = camera.eye_matrices([origin for _, origin, *_ in self._draws])
         try:
-            for (obj, origin, prog, vao, texture, uniforms, clipped), matrix in zip(self._draws, matrices):
+            for (_obj, _origin, prog, vao, texture, uniforms, clipped), matrix in zip(self._draws, matrices):
                 if id(prog) not in framed:
                     framed.add(id(prog))
                     prog["half_tan"].value = (t, t)
@@ -308,7 +321,7 @@ class MeshRenderer:
         self._draws.clear()
         self._targets.clear()
 
-    def __enter__(self) -> "MeshRenderer":
+    def __enter__(self) -> MeshRenderer:
         return self
 
     def __exit__(self, *exc) -> None:

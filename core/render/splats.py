@@ -27,7 +27,11 @@ SPLAT_ALPHA = 254
 def ldi_splats(ldi: LayeredDepthImage) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """((m, 3) world positions, (m, 4) uint8 colours, (m,) world footprint widths) of an LDI's samples."""
     positions, index = ldi.samples()
-    colour = ldi.colour[index[:, 0], index[:, 1], index[:, 2]] if ldi.colour is not None else np.full((positions.shape[0], 4), 255, np.uint8)
+    colour = (
+        ldi.colour[index[:, 0], index[:, 1], index[:, 2]]
+        if ldi.colour is not None
+        else np.full((positions.shape[0], 4), 255, np.uint8)
+    )
     pixel = 2.0 * math.tan(0.5 * ldi.camera.fov) / ldi.camera.resolution
     return positions, colour, pixel * ldi.depth[index[:, 0], index[:, 1], index[:, 2]]
 
@@ -48,7 +52,9 @@ class SplatRenderer(MeshRenderer):
         self.splat_program = program(self.ctx, "splats.vert", "splats.frag")
         data = np.concatenate([positions - self.origin, colours.astype(np.float64) / 255.0, extents[:, None]], axis=1)
         self._vbo = self.ctx.buffer(np.ascontiguousarray(data, dtype="<f4").tobytes() if self.count else b"\0" * 32)
-        self._vao = self.ctx.vertex_array(self.splat_program, [(self._vbo, "3f 4f 1f", "in_position", "in_color", "in_extent")])
+        self._vao = self.ctx.vertex_array(
+            self.splat_program, [(self._vbo, "3f 4f 1f", "in_position", "in_color", "in_extent")]
+        )
         self._owned += [self._vbo, self._vao]
 
     def _draw(self, camera: Camera):

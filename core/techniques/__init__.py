@@ -18,7 +18,16 @@ from farfield.core.errors import UnknownTechniqueError
 from farfield.core.techniques import envmap, layered, ldi, points, tdm
 from farfield.core.techniques.base import Technique, TechniqueDefinition
 
-__all__ = ["DEFAULT_TECHNIQUE", "TECHNIQUES", "Technique", "TechniqueDefinition", "get_technique", "load_technique_modules", "register", "warm_techniques"]
+__all__ = [
+    "DEFAULT_TECHNIQUE",
+    "TECHNIQUES",
+    "Technique",
+    "TechniqueDefinition",
+    "get_technique",
+    "load_technique_modules",
+    "register",
+    "warm_techniques",
+]
 
 TECHNIQUES: dict[str, Technique] = {}
 DEFAULT_TECHNIQUE = "layered"  # what a job or a bake that names none gets
@@ -37,14 +46,20 @@ def register(technique: Technique) -> Technique:
     from farfield.core.impostor.impostor import PAYLOAD_KINDS
 
     if not isinstance(technique, Technique):
-        missing = [m for m in Technique.__protocol_attrs__ if not hasattr(technique, m)] if hasattr(Technique, "__protocol_attrs__") else []
+        missing = (
+            [m for m in Technique.__protocol_attrs__ if not hasattr(technique, m)]
+            if hasattr(Technique, "__protocol_attrs__")
+            else []
+        )
         raise ValueError(f"{technique!r} is not a technique" + (f" (it has no {missing})" if missing else ""))
     if not isinstance(technique.name, str) or not technique.name:
         raise ValueError(f"a technique needs a name, got {technique.name!r}")
     if technique.name in TECHNIQUES:
         raise ValueError(f"a technique named {technique.name!r} is registered already")
     if technique.payload_kind not in PAYLOAD_KINDS:
-        raise ValueError(f"technique {technique.name!r}: unknown payload kind {technique.payload_kind!r}; one of {sorted(PAYLOAD_KINDS)}")
+        raise ValueError(
+            f"technique {technique.name!r}: unknown payload kind {technique.payload_kind!r}; one of {sorted(PAYLOAD_KINDS)}"
+        )
     TECHNIQUES[technique.name] = technique
     return technique
 

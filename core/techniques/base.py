@@ -80,7 +80,9 @@ class Technique(Protocol):
     scope: Scope  # "part": impostors of a scene's objects; "scene": the whole scene around a view cell
     help: str  # one line: what it makes, and the paper
     Options: type  # frozen dataclass; its fields' metadata give defaults, bounds and help
-    payload_kind: str  # the kind of payload its impostors carry (a key of farfield.core.impostor.impostor.PAYLOAD_KINDS)
+    payload_kind: (
+        str  # the kind of payload its impostors carry (a key of farfield.core.impostor.impostor.PAYLOAD_KINDS)
+    )
     # estimate(cell, options, part_bounds) -> (layers, texels per layer): the cheap figures a
     # placement ranks candidates by (seed 000 §5.8.1); raises where the cell can have no impostor.
     # None: the frame-time planner cannot place it.
@@ -98,7 +100,14 @@ class Technique(Protocol):
         ``max_texels``, it may stop planning once past them (a cost that is not ``complete``)."""
         ...
 
-    def bake(self, scene: Scene, cell: ViewCell, options: Any, objects: list[str] | None = None, progress: Progress | None = None) -> Impostor:
+    def bake(
+        self,
+        scene: Scene,
+        cell: ViewCell,
+        options: Any,
+        objects: list[str] | None = None,
+        progress: Progress | None = None,
+    ) -> Impostor:
         """The impostor of ``objects`` of ``scene`` (a part technique; None: every object) or of the
         whole scene around ``cell`` (a scene technique)."""
         ...
@@ -121,7 +130,9 @@ class Technique(Protocol):
         for every registered technique (:func:`farfield.core.techniques.warm_techniques`)."""
         ...
 
-    def options(self, values: Mapping[str, Any] | None = None, resolution: int | None = None, fov_deg: float | None = None) -> Any:
+    def options(
+        self, values: Mapping[str, Any] | None = None, resolution: int | None = None, fov_deg: float | None = None
+    ) -> Any:
         """Validated ``Options`` from a job's or the CLI's option values."""
         ...
 
@@ -172,7 +183,9 @@ class TechniqueDefinition:
         """Compile its numba kernels (every function of ``kernels``); the seconds it took."""
         return float(sum(warm() for warm in self.kernels))
 
-    def options(self, values: Mapping[str, Any] | None = None, resolution: int | None = None, fov_deg: float | None = None) -> Any:
+    def options(
+        self, values: Mapping[str, Any] | None = None, resolution: int | None = None, fov_deg: float | None = None
+    ) -> Any:
         """Validated ``Options`` from a job's or the CLI's option values (unknown names refused);
         ``resolution`` and ``fov_deg`` (``None``: the technique's default) come from the job's top level."""
         return technique_options(self, values, resolution, fov_deg)
@@ -186,7 +199,12 @@ class TechniqueDefinition:
         return describe_technique(self)
 
 
-def technique_options(technique: Technique, values: Mapping[str, Any] | None = None, resolution: int | None = None, fov_deg: float | None = None) -> Any:
+def technique_options(
+    technique: Technique,
+    values: Mapping[str, Any] | None = None,
+    resolution: int | None = None,
+    fov_deg: float | None = None,
+) -> Any:
     """Validated ``technique.Options`` from option values (unknown names refused), with the job's
     ``resolution`` and ``fov_deg`` (``None``: the technique's default): what :meth:`Technique.options` does."""
     given = dict(values or {})

@@ -14,18 +14,18 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from farfield.core import __version__
+from farfield.core.errors import LayerPlanError
+from farfield.core.impostor.impostor import Impostor, QuadPayload, texel_rect_corners
+from farfield.core.layering import recording
 from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.layering.culled import culled_layers
 from farfield.core.layering.culling import CullingMode
-from farfield.core.errors import LayerPlanError
-from farfield.core.impostor.impostor import Impostor, QuadPayload, texel_rect_corners
-from farfield.core.layering.tiles import QUAD_GEOMETRY_BYTES, check_pages, layer_records, layer_tiles, pack_tiles
 from farfield.core.layering.plan import plan_layers
+from farfield.core.layering.tiles import QUAD_GEOMETRY_BYTES, check_pages, layer_records, layer_tiles, pack_tiles
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION, PixelModel
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
-from farfield.core.layering import recording
 from farfield.core.techniques.base import TechniqueDefinition
 from farfield.core.techniques.part import check_part_cell, estimate_part_cell, evaluate_part, part_evaluation_text
 from farfield.core.viewcells import ViewCell
@@ -38,10 +38,16 @@ class BakeOptions:
 
     resolution: int = option(512, "output image pixels per side the impostor serves", ge=1, le=MAX_RESOLUTION)
     fov_deg: float = option(45.0, "output field of view, degrees", gt=0.0, lt=180.0)
-    grid_cell: int = option(8, "box-growing grid cell, texels (seed 000 §3.5): smaller, less texture but more quads", ge=1, le=1024)
-    fill_threshold: float = option(0.8, "box-growing fill ratio (§3.5): lower, fewer quads but more wasted texels", gt=0.0, le=1.0)
+    grid_cell: int = option(
+        8, "box-growing grid cell, texels (seed 000 §3.5): smaller, less texture but more quads", ge=1, le=1024
+    )
+    fill_threshold: float = option(
+        0.8, "box-growing fill ratio (§3.5): lower, fewer quads but more wasted texels", gt=0.0, le=1.0
+    )
     culling: CullingMode = option("penumbra", "hidden-texel culling: penumbra (§3.4.1), umbra (§3.4 3x3 rule) or off")
-    pixel_model: PixelModel = option("min", "error bound from the smallest pixel angle (min) or the thesis's centre pixel (center)")
+    pixel_model: PixelModel = option(
+        "min", "error bound from the smallest pixel angle (min) or the thesis's centre pixel (center)"
+    )
     texel_share: float = option(
         0.7,
         "share of the one-pixel error given to the texel size, the rest to parallax, so that a silhouette grown by one texel "
@@ -51,7 +57,12 @@ class BakeOptions:
     )
     conservative: bool = option(True, "gap-free recording; false only to demonstrate the holes", internal=True)
     padding: int = option(2, "atlas padding between tiles, texels", ge=0, le=64)
-    max_page: int = option(MAX_PAGE, "largest atlas page side, texels (WebGL2 guarantees 2048, many mobile GPUs stop at 4096), a power of two", ge=64, le=16384)
+    max_page: int = option(
+        MAX_PAGE,
+        "largest atlas page side, texels (WebGL2 guarantees 2048, many mobile GPUs stop at 4096), a power of two",
+        ge=64,
+        le=16384,
+    )
 
     def __post_init__(self) -> None:
         check_options(self)
@@ -70,7 +81,14 @@ def bake_layered(
     clock = StageClock(("plan", "record", "cull", "quads"), progress)
 
     with clock("plan"):
-        plan = plan_layers(cell, part.bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model, texel_share=options.texel_share)
+        plan = plan_layers(
+            cell,
+            part.bounds,
+            math.radians(options.fov_deg),
+            options.resolution,
+            options.pixel_model,
+            texel_share=options.texel_share,
+        )
     clock.report("plan", 1, 1)
 
     # Stream: each layer is recorded, culled against the layers before it, cut into quads and
@@ -88,7 +106,9 @@ def bake_layered(
         if not layer.kept.any():  # layers with no visible content are dropped
             continue
         with clock("quads"):
-            rects, new_tiles = layer_tiles(layer.image, layer.kept, options.grid_cell, options.fill_threshold, options.max_page, options.padding)
+            rects, new_tiles = layer_tiles(
+                layer.image, layer.kept, options.grid_cell, options.fill_threshold, options.max_page, options.padding
+            )
             tiles += new_tiles
             quad_layer.append(np.full(len(rects), i, dtype=np.int64))
             quad_corners.append(texel_rect_corners(plan, float(plan.distances[i]), rects))
@@ -128,10 +148,17 @@ def bake_layered(
         resolution=options.resolution,
         fov_deg=options.fov_deg,
         pages=tuple(pages),
-        payload=QuadPayload(corners=np.concatenate(quad_corners), uv=quad_uv, page=quad_page, layer=np.concatenate(quad_layer)),
+        payload=QuadPayload(
+            corners=np.concatenate(quad_corners), uv=quad_uv, page=quad_page, layer=np.concatenate(quad_layer)
+        ),
         layers=layers,
         stats=stats,
-        parameters={**asdict(options), "objects": list(part.names), "scene_hash": scene.content_hash, "plan": plan.to_dict()},
+        parameters={
+            **asdict(options),
+            "objects": list(part.names),
+            "scene_hash": scene.content_hash,
+            "plan": plan.to_dict(),
+        },
         code_version=__version__,
     )
 

@@ -26,13 +26,13 @@ import numpy as np
 
 from farfield.core import __version__
 from farfield.core.errors import LayerPlanError
-from farfield.core.quality.evaluation import Evaluation
 from farfield.core.impostor.impostor import Impostor, LdiPayload
 from farfield.core.ldi.construction import DEFAULT_MAX_LAYERS, _merge_samples, construct_ldi, view_frame
+from farfield.core.ldi.pages import ldi_payload_and_pages
 from farfield.core.ldi.warp import _warp_kernel
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION
-from farfield.core.ldi.pages import ldi_payload_and_pages
+from farfield.core.quality.evaluation import Evaluation
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import CellCost, TechniqueDefinition
@@ -46,9 +46,13 @@ SAMPLE_BYTES = 20  # float32 position, RGBA8 colour, float32 footprint width
 class LdiOptions:
     """The knobs of an LDI bake (all recorded in the impostor's parameters)."""
 
-    resolution: int = option(512, "output image pixels per side; the LDI has as many across its window", ge=1, le=MAX_RESOLUTION)
+    resolution: int = option(
+        512, "output image pixels per side; the LDI has as many across its window", ge=1, le=MAX_RESOLUTION
+    )
     fov_deg: float = option(60.0, "output field of view, degrees", gt=0.0, lt=180.0)
-    images: int = option(9, "construction images: 9 (seed 004 §4.1, Fig. 11) or 1 (the centre's alone, Fig. 10 left)", ge=1, le=9)
+    images: int = option(
+        9, "construction images: 9 (seed 004 §4.1, Fig. 11) or 1 (the centre's alone, Fig. 10 left)", ge=1, le=9
+    )
     max_layers: int = option(DEFAULT_MAX_LAYERS, "most samples an LDI pixel keeps", ge=1, le=64)
 
     def __post_init__(self) -> None:
@@ -88,11 +92,18 @@ def ldi_view(cell: ViewCell, bounds: np.ndarray) -> LdiView:
         )
     x, y = (corners @ r) / z, (corners @ u) / z
     depth = float(z.min())
-    quad = np.stack([eye + depth * (f + a * r + b * u) for a, b in ((x.min(), y.min()), (x.max(), y.min()), (x.max(), y.max()), (x.min(), y.max()))])
+    quad = np.stack(
+        [
+            eye + depth * (f + a * r + b * u)
+            for a, b in ((x.min(), y.min()), (x.max(), y.min()), (x.max(), y.max()), (x.min(), y.max()))
+        ]
+    )
     return LdiView(eye, f, quad, depth)
 
 
-def check_ldi_cell(cell: ViewCell, options: LdiOptions, bounds: np.ndarray | None, max_texels: int | None = None) -> CellCost:
+def check_ldi_cell(
+    cell: ViewCell, options: LdiOptions, bounds: np.ndarray | None, max_texels: int | None = None
+) -> CellCost:
     """The cell's recording work: ``images`` construction images of ``resolution`` pixels; raises where
     the cell can have no LDI of the part; without ``bounds``, only the cell's kind."""
     if bounds is None:
@@ -103,7 +114,13 @@ def check_ldi_cell(cell: ViewCell, options: LdiOptions, bounds: np.ndarray | Non
     return CellCost.of_layers(options.images, (options.resolution, options.resolution))
 
 
-def bake_ldi(scene: Scene, cell: ViewCell, options: LdiOptions = LdiOptions(), objects: list[str] | None = None, progress: Progress | None = None) -> Impostor:
+def bake_ldi(
+    scene: Scene,
+    cell: ViewCell,
+    options: LdiOptions = LdiOptions(),
+    objects: list[str] | None = None,
+    progress: Progress | None = None,
+) -> Impostor:
     """Bake the LDI impostor of ``scene`` (or of its ``objects``) for ``cell`` (a box); technique ``"ldi"``."""
     part = scene.subset(objects) if objects else scene
     clock = StageClock(("plan", "images"), progress)
@@ -111,11 +128,22 @@ def bake_ldi(scene: Scene, cell: ViewCell, options: LdiOptions = LdiOptions(), o
         view = ldi_view(cell, part.bounds)
     clock.report("plan", 1, 1)
     with clock("images"):
-        made = construct_ldi(list(part.objects), view.eye, view.direction, view.quad, view.depth, options.resolution, options.images, options.max_layers)
+        made = construct_ldi(
+            list(part.objects),
+            view.eye,
+            view.direction,
+            view.quad,
+            view.depth,
+            options.resolution,
+            options.images,
+            options.max_layers,
+        )
     clock.report("images", 1, 1)
     ldi = made.ldi
     if ldi.count == 0:
-        raise LayerPlanError("the part has no surface the LDI's construction images see: nothing to make an LDI impostor of")
+        raise LayerPlanError(
+            "the part has no surface the LDI's construction images see: nothing to make an LDI impostor of"
+        )
     payload, pages = ldi_payload_and_pages(ldi)
     n = ldi.count
     stats = {
@@ -135,7 +163,12 @@ def warm_kernels() -> float:
     """Compile (or load from numba's cache) the LDI merge and the CPU warp on tiny arrays, without GL;
     the seconds it took.  A render worker calls it when it starts, beside the other techniques'."""
     start = time.perf_counter()
-    layers = (np.full((1, 1, 1), np.nan), np.full((1, 1, 1), -1, np.int64), np.full((1, 1, 1), -1, np.int64), np.zeros((1, 1, 1, 4), np.uint8))
+    layers = (
+        np.full((1, 1, 1), np.nan),
+        np.full((1, 1, 1), -1, np.int64),
+        np.full((1, 1, 1), -1, np.int64),
+        np.zeros((1, 1, 1, 4), np.uint8),
+    )
     _merge_samples(np.array([[0.0, 0.0, 1.0]]), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros((1, 4), np.uint8), 0.0, 0.0, 1.0, 1, 0.5,
                    0.01, *layers, np.zeros((1, 1), np.int64))  # fmt: skip
     frame = np.eye(3)
@@ -148,8 +181,7 @@ def _summary(stats: dict) -> str:
     return (
         f"LDI: {stats['samples']:,} samples in {stats['layers']} layers from {stats['construction_images']} construction images "
         f"({stats['offered']:,} offered, {stats['dropped_full']:,} dropped by the layer cap)  pages {stats['texture_bytes'] / 1024:.1f} KiB raw, "
-        f"splats {stats['splat_bytes'] / 1024:.1f} KiB\n"
-        + seconds_line(stats)
+        f"splats {stats['splat_bytes'] / 1024:.1f} KiB\n" + seconds_line(stats)
     )
 
 

@@ -9,9 +9,9 @@ import math
 import numpy as np
 
 from farfield.core.errors import PlanBudgetError
-from farfield.core.quality.evaluation import Evaluation, evaluate, evaluate_at, spread_corners
 from farfield.core.impostor.impostor import Impostor
 from farfield.core.layering.plan import estimate_layers, plan_layers
+from farfield.core.quality.evaluation import Evaluation, evaluate, evaluate_at, spread_corners
 from farfield.core.scene import Scene
 from farfield.core.techniques.base import CellCost
 from farfield.core.viewcells import ViewCell, viewcell_from_dict
@@ -35,7 +35,15 @@ def check_part_cell(cell: ViewCell, options, bounds: np.ndarray | None, max_texe
     """
     fov = math.radians(options.fov_deg)
     try:
-        plan = plan_layers(cell, bounds, fov, options.resolution, options.pixel_model, texel_share=getattr(options, "texel_share", None), max_texels=max_texels)
+        plan = plan_layers(
+            cell,
+            bounds,
+            fov,
+            options.resolution,
+            options.pixel_model,
+            texel_share=getattr(options, "texel_share", None),
+            max_texels=max_texels,
+        )
     except PlanBudgetError as over:
         return CellCost.of_layers(over.layers, over.texture, complete=False)
     return CellCost.of_layers(plan.count, plan.texture_resolution)
@@ -44,7 +52,14 @@ def check_part_cell(cell: ViewCell, options, bounds: np.ndarray | None, max_texe
 def estimate_part_cell(cell: ViewCell, options, bounds: np.ndarray) -> tuple[float, float]:
     """The placement's estimate for the part in ``bounds`` seen from ``cell``: layers (estimated,
     :func:`farfield.core.layering.plan.estimate_layers`) and texels per layer (exact), without planning every layer."""
-    layers, res = estimate_layers(cell, bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model, getattr(options, "texel_share", None))
+    layers, res = estimate_layers(
+        cell,
+        bounds,
+        math.radians(options.fov_deg),
+        options.resolution,
+        options.pixel_model,
+        getattr(options, "texel_share", None),
+    )
     return layers, float(res[0]) * float(res[1])
 
 
@@ -88,7 +103,9 @@ def report_part(scene: Scene, impostor: Impostor, corners: int = REPORT_CORNERS,
 def part_evaluation_text(result: Evaluation, impostor: Impostor) -> str:
     """Per viewpoint: geometry pixels, holes, bloat, colour error (per pixel: mean and 99th
     percentile, 0-255; within one pixel: mean), SSIM; then the totals and the impostor's size."""
-    lines = [f"{'kind':<10} {'geometry':>9} {'holes':>6} {'bloat':>6} {'>1px':>6} {'err mean':>9} {'err p99':>8} {'1px mean':>9} {'ssim':>6}"]
+    lines = [
+        f"{'kind':<10} {'geometry':>9} {'holes':>6} {'bloat':>6} {'>1px':>6} {'err mean':>9} {'err p99':>8} {'1px mean':>9} {'ssim':>6}"
+    ]
     for row in result.viewpoints:
         s = row["stats"]
         lines.append(
@@ -102,11 +119,17 @@ def part_evaluation_text(result: Evaluation, impostor: Impostor) -> str:
         f"SSIM {t['ssim']:.3f} (worst view {t['ssim_min']:.3f})"
     )
     if "outside" in t:
-        lines.append(f"outside the view cell: {t['outside']['viewpoints']} viewpoints, {t['outside']['hole_pixels']} hole pixels")
+        lines.append(
+            f"outside the view cell: {t['outside']['viewpoints']} viewpoints, {t['outside']['hole_pixels']} hole pixels"
+        )
     memory = impostor.texture_bytes + impostor.stats.get("geometry_bytes", 0)
     lines.append(
         f"impostor ({impostor.technique}): "
-        + (f"{impostor.stats.get('layers')} layers, {impostor.triangle_count:,} triangles, " if impostor.triangle_count else "".join(f"{v:,} {k}, " for k, v in impostor.payload.counts().items()))
+        + (
+            f"{impostor.stats.get('layers')} layers, {impostor.triangle_count:,} triangles, "
+            if impostor.triangle_count
+            else "".join(f"{v:,} {k}, " for k, v in impostor.payload.counts().items())
+        )
         + f"{memory / 1024:.1f} KiB (atlas pages {impostor.texture_bytes / 1024:.1f} KiB + geometry)"
     )
     return "\n".join(lines)

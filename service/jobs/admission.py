@@ -21,7 +21,15 @@ from farfield.service.jobs.schema import MAX_CELLS, JobSpec, grid_cells
 from farfield.service.placement.admission import create_placement_job
 from farfield.service.settings import AdmissionLimits
 
-__all__ = ["PLAN_BEYOND_LIMIT", "admit_cells", "approx", "create_job", "create_placement_job", "open_tenant_cells", "part_bounds"]
+__all__ = [
+    "PLAN_BEYOND_LIMIT",
+    "admit_cells",
+    "approx",
+    "create_job",
+    "create_placement_job",
+    "open_tenant_cells",
+    "part_bounds",
+]
 
 
 def part_bounds(scene: SceneRow, objects: list[str] | None) -> np.ndarray:
@@ -31,7 +39,9 @@ def part_bounds(scene: SceneRow, objects: list[str] | None) -> np.ndarray:
     missing = [name for name in names if name not in by_name]
     if missing:
         known = sorted(by_name)  # a scene may have 10^5 objects: the message names a few
-        shown = ", ".join(known[:20]) + (f", ... ({len(known)} in all; GET /v1/scenes/{scene.id}/objects)" if len(known) > 20 else "")
+        shown = ", ".join(known[:20]) + (
+            f", ... ({len(known)} in all; GET /v1/scenes/{scene.id}/objects)" if len(known) > 20 else ""
+        )
         raise NotFoundError(f"scene {scene.id!r} has no objects named {missing[:20]}; it has {shown}")
     bounds = np.array([by_name[name]["bounds"] for name in names], dtype=np.float64)
     return np.array([bounds[:, 0].min(axis=0), bounds[:, 1].max(axis=0)])
@@ -87,7 +97,11 @@ def admit_cells(technique, options, cells: list, bounds: np.ndarray | None, limi
             )
         total += cost.texels
         if total > limits.max_job_texels:
-            which = f"its {len(cells)} view cells need" if n == len(cells) - 1 else f"its first {n + 1} of {len(cells)} view cells already need"
+            which = (
+                f"its {len(cells)} view cells need"
+                if n == len(cells) - 1
+                else f"its first {n + 1} of {len(cells)} view cells already need"
+            )
             raise JobTooCostlyError(
                 f"the job is too large: {which} {about} {approx(total)} texels over the limit of {approx(limits.max_job_texels)} per job "
                 f"(FARFIELD_MAX_JOB_TEXELS): split it into smaller jobs, lower the resolution, or raise the limit"
@@ -95,7 +109,9 @@ def admit_cells(technique, options, cells: list, bounds: np.ndarray | None, limi
     return total
 
 
-def create_job(db: Database, tenant_id: str, scene: SceneRow, spec: JobSpec, limits: AdmissionLimits | None = None) -> JobRow:
+def create_job(
+    db: Database, tenant_id: str, scene: SceneRow, spec: JobSpec, limits: AdmissionLimits | None = None
+) -> JobRow:
     """Validate ``spec`` against ``scene`` (every cell is planned by its technique's check) and store
     the job and its cells.  Stored parameters hold every option as validated (the technique's
     defaults filled in, numbers and lists normalised), so equal requests store equal parameters (and
@@ -113,9 +129,16 @@ def create_job(db: Database, tenant_id: str, scene: SceneRow, spec: JobSpec, lim
         return create_placement_job(db, tenant_id, scene, spec)
     technique = get_technique(spec.technique_name)
     options = technique.options(spec.options, spec.resolution, spec.fov_deg)
-    params = {"resolution": options.resolution, "fov_deg": options.fov_deg, "objects": spec.objects, "options": stored_values(options)}
+    params = {
+        "resolution": options.resolution,
+        "fov_deg": options.fov_deg,
+        "objects": spec.objects,
+        "options": stored_values(options),
+    }
     if technique.scope == "scene" and spec.objects is not None:
-        raise LayerPlanError(f"a {technique.name} job represents the whole scene: leave out 'objects' (it is for techniques of one part)")
+        raise LayerPlanError(
+            f"a {technique.name} job represents the whole scene: leave out 'objects' (it is for techniques of one part)"
+        )
     if spec.grid is not None:
         cells = [(list(ijk), box) for ijk, box in grid_cells(spec.grid)]
     else:
@@ -145,5 +168,17 @@ def create_job(db: Database, tenant_id: str, scene: SceneRow, spec: JobSpec, lim
         s.add(job)
         s.flush()
         for n, (grid, cell) in enumerate(cells):
-            s.add(CellRow(id=uuid.uuid4().hex, job_id=job.id, index=n, grid=grid, viewcell=cell.to_dict(), state="queued", attempts=0, progress=0.0, queued_at=now()))
+            s.add(
+                CellRow(
+                    id=uuid.uuid4().hex,
+                    job_id=job.id,
+                    index=n,
+                    grid=grid,
+                    viewcell=cell.to_dict(),
+                    state="queued",
+                    attempts=0,
+                    progress=0.0,
+                    queued_at=now(),
+                )
+            )
     return job

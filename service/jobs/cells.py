@@ -78,9 +78,19 @@ def claim_cell(db: Database, cell_id: str, max_attempts: int, worker: str | None
             return Claim(None, job_id, ended=True)
         if cell.state == "running" and cell.attempts >= max_attempts:
             cell.state, cell.finished_at = "failed", now()
-            cell.error = _never_reported(cell.attempts, max_attempts, "its worker process died: killed, out of memory or crashed; or the database or blob store failed around it")
+            cell.error = _never_reported(
+                cell.attempts,
+                max_attempts,
+                "its worker process died: killed, out of memory or crashed; or the database or blob store failed around it",
+            )
             return Claim(None, job_id, ended=True)
-        cell.state, cell.attempts, cell.started_at, cell.progress, cell.error = "running", cell.attempts + 1, now(), 0.0, None
+        cell.state, cell.attempts, cell.started_at, cell.progress, cell.error = (
+            "running",
+            cell.attempts + 1,
+            now(),
+            0.0,
+            None,
+        )
         cell.worker = worker
         if job.state == "queued":
             job.state, job.started_at = "running", now()
@@ -96,7 +106,16 @@ def _never_reported(attempt: int, max_attempts: int, why: str) -> str:
 RESEND_NOW = 0.0
 
 
-def release_lost_cells(db: Database, blobs: BlobStore, cell_ids: list[str], max_attempts: int, why: str, *, worker: str | None = None, resend: bool = False) -> dict[str, str]:
+def release_lost_cells(
+    db: Database,
+    blobs: BlobStore,
+    cell_ids: list[str],
+    max_attempts: int,
+    why: str,
+    *,
+    worker: str | None = None,
+    resend: bool = False,
+) -> dict[str, str]:
     """The cells of a worker process that died, moved on at once instead of showing ``running``
     until their message comes back (which, for a whole worker, is the visibility timeout later).
 
@@ -144,7 +163,17 @@ def set_progress(db: Database, cell_id: str, fraction: float) -> None:
         s.execute(update(CellRow).where(CellRow.id == cell_id, CellRow.state == "running").values(progress=fraction))
 
 
-def end_cell(db: Database, cell_id: str, attempt: int, state: str, *, result: str | None = None, stats: dict | None = None, error: str | None = None, seconds: float | None = None) -> bool:
+def end_cell(
+    db: Database,
+    cell_id: str,
+    attempt: int,
+    state: str,
+    *,
+    result: str | None = None,
+    stats: dict | None = None,
+    error: str | None = None,
+    seconds: float | None = None,
+) -> bool:
     """Move the cell from running attempt ``attempt`` to ``state`` (done, failed, cancelled, or
     queued for another attempt).  False, and nothing written, when the cell has moved on since (a
     stale duplicate delivery of an older attempt, or a cancel)."""
@@ -158,7 +187,14 @@ def end_cell(db: Database, cell_id: str, attempt: int, state: str, *, result: st
     if result is not None:
         values.update(result_key=result, stats=stats)
     with db.session() as s:
-        return s.execute(update(CellRow).where(CellRow.id == cell_id, CellRow.state == "running", CellRow.attempts == attempt).values(**values)).rowcount == 1
+        return (
+            s.execute(
+                update(CellRow)
+                .where(CellRow.id == cell_id, CellRow.state == "running", CellRow.attempts == attempt)
+                .values(**values)
+            ).rowcount
+            == 1
+        )
 
 
 def finish_job_if_complete(db: Database, blobs: BlobStore, job_id: str) -> bool:
@@ -168,7 +204,11 @@ def finish_job_if_complete(db: Database, blobs: BlobStore, job_id: str) -> bool:
     finish at once may both write it (the same document), and the conditional update lets one win.
     """
     with db.session() as s:
-        open_cells = s.scalar(select(func.count()).select_from(CellRow).where(CellRow.job_id == job_id, CellRow.state.in_(("queued", "running"))))
+        open_cells = s.scalar(
+            select(func.count())
+            .select_from(CellRow)
+            .where(CellRow.job_id == job_id, CellRow.state.in_(("queued", "running")))
+        )
         if open_cells:
             return False
         job = s.get(JobRow, job_id)
@@ -184,7 +224,11 @@ def finish_job_if_complete(db: Database, blobs: BlobStore, job_id: str) -> bool:
         return end_round(db, job_id, final)
     key = write_index(db, blobs, job_id, final)
     with db.session() as s:
-        won = s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state.in_(("queued", "running"))).values(state=final, finished_at=now(), index_key=key)).rowcount
+        won = s.execute(
+            update(JobRow)
+            .where(JobRow.id == job_id, JobRow.state.in_(("queued", "running")))
+            .values(state=final, finished_at=now(), index_key=key)
+        ).rowcount
     return bool(won)
 
 
@@ -197,9 +241,15 @@ def cancel_job(db: Database, blobs: BlobStore, tenant_id: str, job_id: str) -> J
     with db.session() as s:
         # Conditional, and the job row first (the lock order of claim_cell): a job that ended
         # meanwhile stays as it ended.
-        changed = s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state.in_(OPEN_JOB_STATES)).values(state="cancelled")).rowcount
+        changed = s.execute(
+            update(JobRow).where(JobRow.id == job_id, JobRow.state.in_(OPEN_JOB_STATES)).values(state="cancelled")
+        ).rowcount
         if changed:
-            s.execute(update(CellRow).where(CellRow.job_id == job_id, CellRow.state == "queued").values(state="cancelled", finished_at=now()))
+            s.execute(
+                update(CellRow)
+                .where(CellRow.job_id == job_id, CellRow.state == "queued")
+                .values(state="cancelled", finished_at=now())
+            )
     if not changed:
         raise ConflictError(f"job {job_id!r} is already {get_job_row(db, tenant_id, job_id).state}")
     finish_job_if_complete(db, blobs, job_id)
@@ -218,12 +268,22 @@ def retry_job(db: Database, tenant_id: str, job_id: str) -> list[str]:
     if job.job_type == PLACEMENT_JOB and job.state == "failed" and (job.planning or {}).get("phase") != "bake":
         raise ConflictError(f"job {job_id!r} failed while placing ({job.error}); submit it again")
     with db.session() as s:
-        changed = s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state == "failed").values(state="running", finished_at=None, index_key=None)).rowcount
+        changed = s.execute(
+            update(JobRow)
+            .where(JobRow.id == job_id, JobRow.state == "failed")
+            .values(state="running", finished_at=None, index_key=None)
+        ).rowcount
         if changed:
             ids = list(s.scalars(select(CellRow.id).where(CellRow.job_id == job_id, CellRow.state == "failed")))
-            s.execute(update(CellRow).where(CellRow.id.in_(ids)).values(state="queued", attempts=0, error=None, progress=0.0, finished_at=None, queued_at=now()))
+            s.execute(
+                update(CellRow)
+                .where(CellRow.id.in_(ids))
+                .values(state="queued", attempts=0, error=None, progress=0.0, finished_at=None, queued_at=now())
+            )
     if not changed:
-        raise ConflictError(f"only a failed job can be retried; job {job_id!r} is {get_job_row(db, tenant_id, job_id).state}")
+        raise ConflictError(
+            f"only a failed job can be retried; job {job_id!r} is {get_job_row(db, tenant_id, job_id).state}"
+        )
     return ids
 
 
@@ -238,10 +298,16 @@ def lost_queued_cells(db: Database, older_than_s: float) -> list[str]:
     """
     cutoff = now() - older_than_s
     with db.session() as s:
-        candidates = list(s.scalars(select(CellRow.id).where(CellRow.state == "queued", CellRow.queued_at < cutoff).limit(MAX_CELLS)))
+        candidates = list(
+            s.scalars(select(CellRow.id).where(CellRow.state == "queued", CellRow.queued_at < cutoff).limit(MAX_CELLS))
+        )
     claimed = []
     for cell_id in candidates:
         with db.session() as s:
-            if s.execute(update(CellRow).where(CellRow.id == cell_id, CellRow.state == "queued", CellRow.queued_at < cutoff).values(queued_at=now())).rowcount:
+            if s.execute(
+                update(CellRow)
+                .where(CellRow.id == cell_id, CellRow.state == "queued", CellRow.queued_at < cutoff)
+                .values(queued_at=now())
+            ).rowcount:
                 claimed.append(cell_id)
     return claimed

@@ -57,7 +57,9 @@ def lookup_view(db: Database, blobs: BlobStore, job: JobRow, point, direction) -
         return [cell_record(cell) for cell in lookup(job_cells(db, job.id), point)]
     missing = [name for name, value in zip(("dx", "dy", "dz"), direction, strict=True) if value is None]
     if missing:
-        raise ViewCellError(f"a placement job's lookup needs the view direction dx, dy, dz as well as the position; missing: {', '.join(missing)}")
+        raise ViewCellError(
+            f"a placement job's lookup needs the view direction dx, dy, dz as well as the position; missing: {', '.join(missing)}"
+        )
     answer, cells = placement_lookup(blobs, job, tuple(point), tuple(direction))
     return {**answer, "cells": cell_records(db, job.id, cells)}
 

@@ -142,7 +142,14 @@ def _jobs_query(query, tenant_id: str, state: str | None, scene_id: str | None):
     return query
 
 
-def list_job_rows(db: Database, tenant_id: str, state: str | None = None, scene_id: str | None = None, limit: int = 100, offset: int = 0) -> list[JobRow]:
+def list_job_rows(
+    db: Database,
+    tenant_id: str,
+    state: str | None = None,
+    scene_id: str | None = None,
+    limit: int = 100,
+    offset: int = 0,
+) -> list[JobRow]:
     """The tenant's jobs, newest first, ``limit`` from ``offset``."""
     query = _jobs_query(select(JobRow), tenant_id, state, scene_id)
     with db.session() as s:
@@ -157,7 +164,11 @@ def count_job_rows(db: Database, tenant_id: str, state: str | None = None, scene
 
 def queued_cell_ids(db: Database, job_id: str) -> list[str]:
     with db.session() as s:
-        return list(s.scalars(select(CellRow.id).where(CellRow.job_id == job_id, CellRow.state == "queued").order_by(CellRow.index)))
+        return list(
+            s.scalars(
+                select(CellRow.id).where(CellRow.job_id == job_id, CellRow.state == "queued").order_by(CellRow.index)
+            )
+        )
 
 
 def cell_records(db: Database, job_id: str, indices: list[int]) -> list[dict]:
@@ -165,5 +176,7 @@ def cell_records(db: Database, job_id: str, indices: list[int]) -> list[dict]:
     if not indices:
         return []
     with db.session() as s:
-        rows = {c.index: c for c in s.scalars(select(CellRow).where(CellRow.job_id == job_id, CellRow.index.in_(indices)))}
+        rows = {
+            c.index: c for c in s.scalars(select(CellRow).where(CellRow.job_id == job_id, CellRow.index.in_(indices)))
+        }
     return [cell_record(rows[i]) for i in indices if i in rows]

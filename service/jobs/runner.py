@@ -28,8 +28,8 @@ from pathlib import Path
 
 from celery.exceptions import SoftTimeLimitExceeded
 
-from farfield.core.impostor.bundle import MANIFEST_NAME, read_bundle, write_bundle
 from farfield.core.errors import BundleFormatError, CellLimitError, InternalError
+from farfield.core.impostor.bundle import MANIFEST_NAME, read_bundle, write_bundle
 from farfield.core.impostor.impostor import Impostor
 from farfield.core.scene import Scene
 from farfield.core.techniques import get_technique
@@ -39,7 +39,14 @@ from farfield.service.blobs import BlobStore
 from farfield.service.cell_limits import MemoryGuard, memory_limit_message, time_limit_message
 from farfield.service.db import CellRow, Database, JobRow, SceneRow
 from farfield.service.failures import BAD_INPUT, INTERNAL, failure_class, failure_message
-from farfield.service.jobs.cells import claim_cell, end_cell, finish_job_if_complete, job_cancelled, result_key, set_progress
+from farfield.service.jobs.cells import (
+    claim_cell,
+    end_cell,
+    finish_job_if_complete,
+    job_cancelled,
+    result_key,
+    set_progress,
+)
 from farfield.service.placement import job_algorithm
 from farfield.service.scenes import load_stored_scene
 
@@ -81,7 +88,9 @@ def bake_cell(job: JobRow, scene: Scene, viewcell: dict, progress, cell: CellRow
     if algorithm is not None:
         return algorithm.bake_cell(scene, cell, progress)
     technique = get_technique(job.job_type)
-    return technique.bake(scene, viewcell_from_dict(viewcell), technique.options_of(job.params), job.params.get("objects"), progress)
+    return technique.bake(
+        scene, viewcell_from_dict(viewcell), technique.options_of(job.params), job.params.get("objects"), progress
+    )
 
 
 def cell_key(scene_hash: str, job: JobRow, cell: CellRow) -> str:
@@ -95,7 +104,9 @@ def cell_key(scene_hash: str, job: JobRow, cell: CellRow) -> str:
     return result_key(scene_hash, job.job_type, job.params, cell.viewcell)
 
 
-def evaluate_cell(blobs: BlobStore, scene_row: SceneRow, key: str, scene: Scene | None = None, impostor: Impostor | None = None) -> dict:
+def evaluate_cell(
+    blobs: BlobStore, scene_row: SceneRow, key: str, scene: Scene | None = None, impostor: Impostor | None = None
+) -> dict:
     """The job report's evaluation of the bundle under ``key`` (:func:`farfield.core.techniques.part.report_part`):
     of ``impostor`` when this attempt baked it, else of the stored bundle read back (a redelivered
     cell, or equal inputs another job baked); ``scene`` is loaded when not given."""
@@ -188,7 +199,9 @@ def run_cell(
                 with tempfile.TemporaryDirectory(prefix="farfield-cell-") as tmp:
                     try:
                         write_bundle(impostor, Path(tmp) / "bundle")
-                    except BundleFormatError as error:  # the bake's own output does not fit its format: a bug, not bad input
+                    except (
+                        BundleFormatError
+                    ) as error:  # the bake's own output does not fit its format: a bug, not bad input
                         raise InternalError(f"the baked impostor could not be written: {error}") from error
                     blobs.publish_directory(key, Path(tmp) / "bundle", last=MANIFEST_NAME)
                 seconds = impostor.stats.get("seconds")
@@ -204,15 +217,21 @@ def run_cell(
         return "cancelled"
     except Exception as error:  # noqa: BLE001 - every failure is classified and recorded on the cell
         if isinstance(error, SoftTimeLimitExceeded):  # Celery's soft time limit: bad input, never retried
-            error = CellLimitError(time_limit_message(time_limit) if time_limit else "the cell ran past the worker's time limit")
+            error = CellLimitError(
+                time_limit_message(time_limit) if time_limit else "the cell ran past the worker's time limit"
+            )
         klass = failure_class(error)
         message = failure_message(error, klass)
         final = klass == BAD_INPUT or attempt >= max_attempts
         outcome = "failed" if final else f"retried in {backoff(attempt):g} s"
         if klass == INTERNAL:  # a bug: the traceback is what fixes it
-            log.error("cell %s attempt %d of %d: %s (%s)", cell_id, attempt, max_attempts, message, outcome, exc_info=error)
+            log.error(
+                "cell %s attempt %d of %d: %s (%s)", cell_id, attempt, max_attempts, message, outcome, exc_info=error
+            )
         else:
-            log.warning("cell %s attempt %d of %d: %s failure: %s (%s)", cell_id, attempt, max_attempts, klass, message, outcome)
+            log.warning(
+                "cell %s attempt %d of %d: %s failure: %s (%s)", cell_id, attempt, max_attempts, klass, message, outcome
+            )
         if final:
             end("failed", error=message)
             return "failed"

@@ -30,12 +30,15 @@ class GridSpec(BaseModel):
     # Strict: a string or a boolean is not a number (pydantic would coerce "1" and true to 1).
     lo: tuple[StrictFloat | StrictInt, StrictFloat | StrictInt, StrictFloat | StrictInt]
     hi: tuple[StrictFloat | StrictInt, StrictFloat | StrictInt, StrictFloat | StrictInt]
-    counts: tuple[StrictInt, StrictInt, StrictInt] = Field(description=f"cells along x, y, z (each >= 1; {MAX_CELLS} in all at most)")
+    counts: tuple[StrictInt, StrictInt, StrictInt] = Field(
+        description=f"cells along x, y, z (each >= 1; {MAX_CELLS} in all at most)"
+    )
 
 
 def _options_help() -> str:
-    return "technique parameters (GET /v1/techniques lists each technique's options with types, defaults, bounds and help); " + "; ".join(
-        f"{t.name}: " + ", ".join(o["name"] for o in t.describe()["options"]) for t in TECHNIQUES.values()
+    return (
+        "technique parameters (GET /v1/techniques lists each technique's options with types, defaults, bounds and help); "
+        + "; ".join(f"{t.name}: " + ", ".join(o["name"] for o in t.describe()["options"]) for t in TECHNIQUES.values())
     )
 
 
@@ -55,25 +58,41 @@ class JobSpec(BaseModel):
     ]}})  # fmt: skip
     scene_id: str
     technique: Literal[tuple(TECHNIQUES)] | None = Field(  # type: ignore[valid-type]
-        None, description="the impostor technique (default layered): " + "; ".join(f"{t.name}: {t.help}" for t in TECHNIQUES.values())
+        None,
+        description="the impostor technique (default layered): "
+        + "; ".join(f"{t.name}: {t.help}" for t in TECHNIQUES.values()),
     )
     job_type: Literal[tuple(TECHNIQUES)] | None = Field(  # type: ignore[valid-type]
-        None, deprecated=True, description="the former name of 'technique', accepted until format 2 of the API; give one of them, not both"
+        None,
+        deprecated=True,
+        description="the former name of 'technique', accepted until format 2 of the API; give one of them, not both",
     )
-    viewcells: list[dict] | None = Field(None, description="explicit view cells, e.g. {'kind': 'box', 'lo': [..], 'hi': [..]}")
+    viewcells: list[dict] | None = Field(
+        None, description="explicit view cells, e.g. {'kind': 'box', 'lo': [..], 'hi': [..]}"
+    )
     grid: GridSpec | None = Field(None, description="or a grid of box cells over a view-space box")
     placement: PlacementSpec | None = Field(
         None,
         description="or a placement job: a view space, a frame budget and the planner's knobs; a worker plans where impostors of "
         "'technique' (a part technique: layered, tdm) are needed, bakes them, checks and repairs (job state 'placing' while it plans)",
     )
-    objects: list[str] | None = Field(None, min_length=1, description="the represented objects, at least one (default, left out: all; not for scene-scope techniques)")
-    resolution: StrictInt | None = Field(None, description="output image pixels per side (default: the technique's, 512)")
-    fov_deg: StrictFloat | None = Field(None, description="output field of view, degrees (default: the technique's: 45, envmap 90)")
+    objects: list[str] | None = Field(
+        None,
+        min_length=1,
+        description="the represented objects, at least one (default, left out: all; not for scene-scope techniques)",
+    )
+    resolution: StrictInt | None = Field(
+        None, description="output image pixels per side (default: the technique's, 512)"
+    )
+    fov_deg: StrictFloat | None = Field(
+        None, description="output field of view, degrees (default: the technique's: 45, envmap 90)"
+    )
     options: dict = Field(
         default_factory=dict,
         description=_options_help(),
-        json_schema_extra={"x-technique-options": {t.name: options_json_schema(t.Options) for t in TECHNIQUES.values()}},
+        json_schema_extra={
+            "x-technique-options": {t.name: options_json_schema(t.Options) for t in TECHNIQUES.values()}
+        },
     )
     evaluate: StrictBool = Field(
         True,
@@ -91,7 +110,9 @@ class JobSpec(BaseModel):
             raise ValueError("a placement job chooses the objects its impostors replace: leave out 'objects'")
         former = self.__dict__.get("job_type")
         if self.technique is not None and former is not None:
-            raise ValueError(f"'technique' ({self.technique}) and its former name 'job_type' ({former}) are both given; give one")
+            raise ValueError(
+                f"'technique' ({self.technique}) and its former name 'job_type' ({former}) are both given; give one"
+            )
         return self
 
     @property

@@ -20,9 +20,20 @@ from farfield.service.placement.base import PLACEMENT_JOB, Algorithm
 
 ALGORITHMS: dict[str, Algorithm] = {a.name: a for a in (frame_time.ALGORITHM, primitive_budget.ALGORITHM)}
 DEFAULT_ALGORITHM = frame_time.NAME  # what a request that names none gets, and a job stored before there were two
-INDEX_KINDS: dict[str, Algorithm] = {a.index_kind: a for a in ALGORITHMS.values()}  # by the "kind" of the index each writes
+INDEX_KINDS: dict[str, Algorithm] = {
+    a.index_kind: a for a in ALGORITHMS.values()
+}  # by the "kind" of the index each writes
 
-__all__ = ["ALGORITHMS", "DEFAULT_ALGORITHM", "INDEX_KINDS", "PLACEMENT_JOB", "Algorithm", "algorithm_of", "get_algorithm", "job_algorithm"]
+__all__ = [
+    "ALGORITHMS",
+    "DEFAULT_ALGORITHM",
+    "INDEX_KINDS",
+    "PLACEMENT_JOB",
+    "Algorithm",
+    "algorithm_of",
+    "get_algorithm",
+    "job_algorithm",
+]
 
 
 def get_algorithm(name: str) -> Algorithm:

@@ -15,10 +15,14 @@ def _not_given(spec, algorithm) -> None:
     knobs = [name for other in ALGORITHMS.values() if other is not algorithm for name in other.fields]
     given = [k for k in knobs if k in spec.model_fields_set and getattr(spec, k) is not None]
     if given:
-        raise PlacementError(f"{', '.join(given)}: {'not a knob' if len(given) == 1 else 'not knobs'} of the {algorithm.name} placement (algorithm {spec.algorithm!r})")
+        raise PlacementError(
+            f"{', '.join(given)}: {'not a knob' if len(given) == 1 else 'not knobs'} of the {algorithm.name} placement (algorithm {spec.algorithm!r})"
+        )
 
 
-def placement_params(technique_name: str | None, given_options: dict, resolution, fov_deg, spec, model_triangles: int | None = None) -> dict:
+def placement_params(
+    technique_name: str | None, given_options: dict, resolution, fov_deg, spec, model_triangles: int | None = None
+) -> dict:
     """Validate a placement request (``spec``: a :class:`~farfield.service.placement.schema.PlacementSpec`);
     the job's stored params (every option and knob as validated, the cost model as a document), or a
     422 error naming the problem.  ``technique_name`` None: the algorithm's default (layered; ldi for

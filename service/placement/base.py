@@ -64,7 +64,9 @@ class Algorithm:
 
     # --- admission ------------------------------------------------------------------------------
 
-    def params(self, technique_name: str | None, given_options: dict, resolution, fov_deg, spec, model_triangles: int | None) -> dict:
+    def params(
+        self, technique_name: str | None, given_options: dict, resolution, fov_deg, spec, model_triangles: int | None
+    ) -> dict:
         """Validate a request (``spec``: the request's ``placement``); the job's stored params."""
         raise NotImplementedError
 

@@ -62,9 +62,13 @@ def placement_database(blobs: BlobStore, job: JobRow) -> tuple[Algorithm, dict, 
     """A placement job's (algorithm, index, lookup structure): 404 for another kind of job, 409 before its index is written."""
     algorithm = job_algorithm(job)
     if algorithm is None:
-        raise NotFoundError(f"job {job.id!r} is a {job.job_type} job, not a placement job: it has no placement (its cells are looked up by position alone)")
+        raise NotFoundError(
+            f"job {job.id!r} is a {job.job_type} job, not a placement job: it has no placement (its cells are looked up by position alone)"
+        )
     if job.index_key is None:
-        raise ConflictError(f"job {job.id!r} is {job.state}; its placement database is written when its impostors are baked")
+        raise ConflictError(
+            f"job {job.id!r} is {job.state}; its placement database is written when its impostors are baked"
+        )
     index, found = LOOKUPS.get(blobs, job, algorithm)
     return algorithm, index, found
 

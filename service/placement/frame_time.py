@@ -41,7 +41,9 @@ def cost_model_of(budget) -> tuple[CostModel, float, dict]:
     """The budget's cost model, t_max and the stored budget record."""
     if (budget.frame_ms is None) == (budget.primitives is None):
         which = "neither was given" if budget.frame_ms is None else "not both"
-        raise PlacementError(f"give a budget: 'frame_ms' (with 'cost_model', default 'llvmpipe') or 'primitives'; {which}")
+        raise PlacementError(
+            f"give a budget: 'frame_ms' (with 'cost_model', default 'llvmpipe') or 'primitives'; {which}"
+        )
     if budget.primitives is not None:
         if budget.cost_model is not None:
             raise PlacementError("'primitives' counts triangles; 'cost_model' applies to 'frame_ms' only")
@@ -52,7 +54,9 @@ def cost_model_of(budget) -> tuple[CostModel, float, dict]:
         given = "llvmpipe" if budget.cost_model is None else budget.cost_model
         if isinstance(given, str):
             if given not in COST_MODELS:
-                raise PlacementError(f"unknown cost model {given!r}; give one of {sorted(COST_MODELS)} or a cost model document (farfield calibrate --out)")
+                raise PlacementError(
+                    f"unknown cost model {given!r}; give one of {sorted(COST_MODELS)} or a cost model document (farfield calibrate --out)"
+                )
             model, name = COST_MODELS[given], given
         else:
             model, name = CostModel.from_dict(given), "given"  # CostModelError: bad input, names the problem
@@ -81,13 +85,24 @@ def planner_settings(params: dict):
 def cell_params(entry: dict, cluster_triangles: int) -> dict:
     """A placement cell's own parameters (``cells.params``, what determines its bundle's bytes) from
     its entry of :func:`farfield.core.placement.database.placement_cells`."""
-    return {"technique": entry["technique"], "objects": list(entry["objects"]), "params": entry["params"], "cluster_triangles": int(cluster_triangles)}
+    return {
+        "technique": entry["technique"],
+        "objects": list(entry["objects"]),
+        "params": entry["params"],
+        "cluster_triangles": int(cluster_triangles),
+    }
 
 
 def impostor_entry(cell: CellRow) -> dict:
     """The entry :func:`farfield.core.placement.database.bake_impostor` bakes for a placement cell."""
     p = cell.params
-    return {"index": cell.index, "technique": p["technique"], "objects": p["objects"], "params": p["params"], "viewcell": cell.viewcell}
+    return {
+        "index": cell.index,
+        "technique": p["technique"],
+        "objects": p["objects"],
+        "params": p["params"],
+        "viewcell": cell.viewcell,
+    }
 
 
 def placement_cells(placement: dict, ids) -> list[dict]:
@@ -95,11 +110,23 @@ def placement_cells(placement: dict, ids) -> list[dict]:
     from farfield.core.placement.database import placement_cells as cells_of
 
     cluster = placement["elements"]["cluster_triangles"]
-    return [{"index": int(e["index"]), "viewcell": e["viewcell"], "params": cell_params(e, cluster)} for e in cells_of(placement) if e["index"] in ids]
+    return [
+        {"index": int(e["index"]), "viewcell": e["viewcell"], "params": cell_params(e, cluster)}
+        for e in cells_of(placement)
+        if e["index"] in ids
+    ]
 
 
 def _cell_entries(db: Database, job_id: str) -> list[dict]:
-    return [{"index": c.index, "state": c.state, "bundle": f"cells/{c.index:05d}/" if c.result_key else None, "stats": c.stats} for c in job_cells(db, job_id)]
+    return [
+        {
+            "index": c.index,
+            "state": c.state,
+            "bundle": f"cells/{c.index:05d}/" if c.result_key else None,
+            "stats": c.stats,
+        }
+        for c in job_cells(db, job_id)
+    ]
 
 
 class FrameTime(Algorithm):
@@ -133,10 +160,14 @@ class FrameTime(Algorithm):
         size = cpv_size if cpv_size is not None else (max(span) / 8 if max(span) > 0 else 1.0)
         cuts = [s / size for s in span]
         if not all(math.isfinite(c) for c in cuts):  # a size so small the quotient overflows
-            raise PlacementError(f"a view space of {span} in regions of {size:.6g} has too many regions (over {MAX_REGIONS:.0e}); use a larger cpv_size")
+            raise PlacementError(
+                f"a view space of {span} in regions of {size:.6g} has too many regions (over {MAX_REGIONS:.0e}); use a larger cpv_size"
+            )
         regions = math.prod(max(1.0, math.ceil(c)) for c in cuts)
         if regions > MAX_REGIONS:
-            raise PlacementError(f"a view space of {span} in regions of {size:.6g} has {regions:.3g} regions, over {MAX_REGIONS:.0e}; use a larger cpv_size")
+            raise PlacementError(
+                f"a view space of {span} in regions of {size:.6g} has {regions:.3g} regions, over {MAX_REGIONS:.0e}; use a larger cpv_size"
+            )
         vdi = finite(spec.vdi_deg, "vdi_deg")
         if not MIN_VDI_DEG <= vdi <= 90:
             raise PlacementError(f"vdi_deg must lie in [{MIN_VDI_DEG:g}, 90] degrees, got {vdi!r}")
@@ -155,7 +186,14 @@ class FrameTime(Algorithm):
             "depth_complexity": depth, "cells": spec.cells, "leaf_size": spec.leaf_size, "cluster_triangles": None,
             "max_impostor_mb": largest,
         }  # fmt: skip
-        return {"technique": technique.name, "resolution": options.resolution, "fov_deg": options.fov_deg, "objects": None, "options": stored_values(options), "placement": knobs}
+        return {
+            "technique": technique.name,
+            "resolution": options.resolution,
+            "fov_deg": options.fov_deg,
+            "objects": None,
+            "options": stored_values(options),
+            "placement": knobs,
+        }
 
     def plan(self, blobs: BlobStore, job: JobRow, scene, progress) -> tuple[str, dict, list[dict]]:
         """Seed 000's planner: (its state's key, the placement, the cells of its impostors)."""
@@ -188,9 +226,19 @@ class FrameTime(Algorithm):
         if added:
             key = state_key(job.id, round_)
             blobs.put_bytes(key, state.dumps())
-            return Round(key, placement_cells(current, added), self.impostors(current), current.get("summary"), round_, None, rounds)
+            return Round(
+                key,
+                placement_cells(current, added),
+                self.impostors(current),
+                current.get("summary"),
+                round_,
+                None,
+                rounds,
+            )
         index_key = self.write_index(db, blobs, job, current, rounds)
-        return Round(planning["state_key"], [], self.impostors(current), current.get("summary"), round_, index_key, rounds)
+        return Round(
+            planning["state_key"], [], self.impostors(current), current.get("summary"), round_, index_key, rounds
+        )
 
     def too_many_cells(self, cells: int, limit: int) -> str:
         return (
@@ -207,7 +255,11 @@ class FrameTime(Algorithm):
         """:func:`farfield.core.placement.database.placement_index` of the placement and its cells."""
         from farfield.core.placement.database import placement_index
 
-        return put_index(blobs, job.id, placement_index(doc, _cell_entries(db, job.id), job=job.id, scene=job.scene_id, rounds=rounds))
+        return put_index(
+            blobs,
+            job.id,
+            placement_index(doc, _cell_entries(db, job.id), job=job.id, scene=job.scene_id, rounds=rounds),
+        )
 
     def bundled_cells(self, index: dict) -> set[int]:
         """Those its index gives a bundle (an impostor no CPV draws has none)."""
@@ -232,10 +284,14 @@ class FrameTime(Algorithm):
             "impostors": len(drawn),
             "impostors_listed": len(cells),
             "impostors_baked": sum(1 for b in baked if "texture_bytes" in b),
-            "memory_bytes_estimated": sum(float(e.get("memory_bytes_estimated", 0.0)) for c, e in zip(cells, estimated) if c.get("cpvs")),
+            "memory_bytes_estimated": sum(
+                float(e.get("memory_bytes_estimated", 0.0)) for c, e in zip(cells, estimated) if c.get("cpvs")
+            ),
             "memory_bytes_baked": sum(int(b.get("texture_bytes", 0)) for c, b in zip(cells, baked) if c.get("cpvs")),
             "cpvs": len(section["cpvs"]),
-            "cpvs_by_status": {s: sum(1 for c in section["cpvs"] if c["status"] == s) for s in ("solved", "unsolved", "unsolvable")},
+            "cpvs_by_status": {
+                s: sum(1 for c in section["cpvs"] if c["status"] == s) for s in ("solved", "unsolved", "unsolvable")
+            },
             "unsolvable_regions": len(section["unsolvable"]),
             "rounds": len(section.get("rounds") or []),
         }

@@ -39,7 +39,9 @@ class PlanClaim:
     ended: bool = False  # this claim ended the job (attempts used up)
 
 
-def claim_planning(db: Database, blobs: BlobStore, job_id: str, phase: str, worker: str, max_attempts: int) -> PlanClaim:
+def claim_planning(
+    db: Database, blobs: BlobStore, job_id: str, phase: str, worker: str, max_attempts: int
+) -> PlanClaim:
     """Hold the job's planning (``phase`` "plan" or "check") for ``worker``, counting the attempt;
     None when it must not run here (another worker holds it, the phase is over, the job ended)."""
     with db.session() as s:
@@ -69,7 +71,12 @@ def claim_planning(db: Database, blobs: BlobStore, job_id: str, phase: str, work
 
 
 def _held(job_id: str, worker: str, attempt: int):
-    return (JobRow.id == job_id, JobRow.state == "placing", JobRow.plan_worker == worker, JobRow.plan_attempts == attempt)
+    return (
+        JobRow.id == job_id,
+        JobRow.state == "placing",
+        JobRow.plan_worker == worker,
+        JobRow.plan_attempts == attempt,
+    )
 
 
 @contextlib.contextmanager
@@ -104,7 +111,14 @@ def set_planning(db: Database, job_id: str, worker: str, attempt: int, **values)
         return True
 
 
-def fail_planning(db: Database, job_id: str, message: str, worker: str | None = None, attempt: int | None = None, blobs: BlobStore | None = None) -> bool:
+def fail_planning(
+    db: Database,
+    job_id: str,
+    message: str,
+    worker: str | None = None,
+    attempt: int | None = None,
+    blobs: BlobStore | None = None,
+) -> bool:
     """Fail the job (if still held by ``worker``'s ``attempt``, when given) with ``message``; given
     ``blobs``, then delete its planner states (:func:`drop_ended_planning`)."""
     where = [JobRow.id == job_id, JobRow.state.in_(("queued", "placing"))]
@@ -113,26 +127,42 @@ def fail_planning(db: Database, job_id: str, message: str, worker: str | None = 
     if attempt is not None:
         where.append(JobRow.plan_attempts == attempt)
     with db.session() as s:
-        failed = bool(s.execute(update(JobRow).where(*where).values(state="failed", error=message, finished_at=now(), plan_worker=None, lease_until=None)).rowcount)
+        failed = bool(
+            s.execute(
+                update(JobRow)
+                .where(*where)
+                .values(state="failed", error=message, finished_at=now(), plan_worker=None, lease_until=None)
+            ).rowcount
+        )
     if failed and blobs is not None:
         drop_ended_planning(db, blobs, job_id)
     return failed
 
 
-def release_planning(db: Database, job_id: str, why: str, worker: str | None, max_attempts: int, blobs: BlobStore | None = None) -> str:
+def release_planning(
+    db: Database, job_id: str, why: str, worker: str | None, max_attempts: int, blobs: BlobStore | None = None
+) -> str:
     """A planning whose worker process died: free it for the next delivery (or fail the job when
     that was its last attempt, and then, given ``blobs``, delete its planner states).  Returns the
     job's state, or "unchanged"."""
     with db.session() as s:
         job = s.get(JobRow, job_id, with_for_update=True)
-        if job is None or job.state != "placing" or job.plan_worker is None or (worker is not None and job.plan_worker != worker):
+        if (
+            job is None
+            or job.state != "placing"
+            or job.plan_worker is None
+            or (worker is not None and job.plan_worker != worker)
+        ):
             return "unchanged"
         phase = (job.planning or {}).get("phase", "plan")
         if job.plan_attempts >= max_attempts:
             job.state, job.finished_at = "failed", now()
             job.error = f"{phase} attempt {job.plan_attempts} of {max_attempts} never reported back ({why})"
         else:
-            job.planning = {**job.planning, "error": f"{phase} attempt {job.plan_attempts} of {max_attempts} was lost ({why}); sent again"}
+            job.planning = {
+                **job.planning,
+                "error": f"{phase} attempt {job.plan_attempts} of {max_attempts} was lost ({why}); sent again",
+            }
             job.lease_until = 0.0  # the sweeper sends it again at its next sweep
         job.plan_worker = None
         state = job.state

@@ -83,9 +83,13 @@ class PrimitiveBudget(Algorithm):
         from farfield.core.placement.octree_cells import MAX_DEPTH
 
         if technique_name not in (None, TECHNIQUE):
-            raise PlacementError(f"the primitive-budget placement replaces geometry with layered depth images: technique 'ldi' (or none), not {technique_name!r}")
+            raise PlacementError(
+                f"the primitive-budget placement replaces geometry with layered depth images: technique 'ldi' (or none), not {technique_name!r}"
+            )
         if spec.budget.frame_ms is not None or spec.budget.cost_model is not None or spec.budget.primitives is None:
-            raise PlacementError("the primitive-budget placement bounds the triangles a view draws: give budget.primitives (and no frame_ms or cost_model)")
+            raise PlacementError(
+                "the primitive-budget placement bounds the triangles a view draws: give budget.primitives (and no frame_ms or cost_model)"
+            )
         technique = get_technique(TECHNIQUE)
         options = technique.options(given_options, resolution, fov_deg)
         lo, hi, _ = view_space(spec)
@@ -102,8 +106,17 @@ class PrimitiveBudget(Algorithm):
         }  # fmt: skip
         primitives = finite(spec.budget.primitives, "budget.primitives")
         knobs["budget"] = {"primitives": primitives, "t_max": primitives, "unit": "triangles"}
-        params = {"technique": technique.name, "resolution": options.resolution, "fov_deg": options.fov_deg, "objects": None, "options": stored_values(options), "placement": knobs}
-        budget_settings(params).checked(model_triangles if model_triangles is not None else 0)  # P, p_opt, the FOV's star-shape bound, the grid's knobs
+        params = {
+            "technique": technique.name,
+            "resolution": options.resolution,
+            "fov_deg": options.fov_deg,
+            "objects": None,
+            "options": stored_values(options),
+            "placement": knobs,
+        }
+        budget_settings(params).checked(
+            model_triangles if model_triangles is not None else 0
+        )  # P, p_opt, the FOV's star-shape bound, the grid's knobs
         return params
 
     def plan(self, blobs: BlobStore, job: JobRow, scene, progress) -> tuple[str, dict, list[dict]]:
@@ -113,14 +126,20 @@ class PrimitiveBudget(Algorithm):
         from farfield.core.placement.solution_grid import check_views, place_primitives
 
         knobs, options = job.params["placement"], job.params["options"]
-        placement = place_primitives(scene, knobs["view_space"]["lo"], knobs["view_space"]["hi"], budget_settings(job.params), progress=progress)
+        placement = place_primitives(
+            scene, knobs["view_space"]["lo"], knobs["view_space"]["hi"], budget_settings(job.params), progress=progress
+        )
         grid = placement.to_dict()
         if knobs["check_views"]:
             grid["summary"]["check"] = check_views(placement, knobs["check_views"], progress=progress)
         entries = image_entries(placement, job.params["resolution"], options["images"], options["max_layers"])
         key = grid_key(job.id)
         blobs.put_bytes(key, json.dumps(grid, allow_nan=False).encode())
-        return key, grid, [{"index": e["index"], "viewcell": e["viewcell"], "params": image_cell_params(e)} for e in entries]
+        return (
+            key,
+            grid,
+            [{"index": e["index"], "viewcell": e["viewcell"], "params": image_cell_params(e)} for e in entries],
+        )
 
     def impostors(self, doc: dict) -> int:
         return int(doc["summary"]["images"])
@@ -146,7 +165,11 @@ class PrimitiveBudget(Algorithm):
         from farfield.core.placement.image_database import bake_image
 
         try:
-            return bake_image(scene, {"name": cell.params["image"], "viewcell": cell.viewcell, "params": cell.params["params"]}, progress=progress)
+            return bake_image(
+                scene,
+                {"name": cell.params["image"], "viewcell": cell.viewcell, "params": cell.params["params"]},
+                progress=progress,
+            )
         except PlacementError as error:  # the planner made this cell of the same stored scene: a bug, not bad input
             raise InternalError(f"image {cell.params['image']} does not fit its scene: {error}") from error
 
@@ -158,7 +181,16 @@ class PrimitiveBudget(Algorithm):
             scene_hash = s.get(SceneRow, job.scene_id).content_hash
         cells = job_cells(db, job.id)
         bundles = {c.params["image"]: f"cells/{c.index:05d}/" for c in cells if c.result_key}
-        baked = [{"index": c.index, "image": c.params["image"], "state": c.state, "bundle": bundles.get(c.params["image"]), "stats": c.stats} for c in cells]
+        baked = [
+            {
+                "index": c.index,
+                "image": c.params["image"],
+                "state": c.state,
+                "bundle": bundles.get(c.params["image"]),
+                "stats": c.stats,
+            }
+            for c in cells
+        ]
         options = job.params["options"]
         index = image_index(doc, bundles, job.params["resolution"], options["images"], scene_hash, kind=INDEX_KIND, job=job.id,
                             scene=job.scene_id, cells_baked=baked)  # fmt: skip
@@ -181,7 +213,15 @@ class PrimitiveBudget(Algorithm):
                 cell = baked.get(name) or {}
                 images.append({"name": name, "yaw": im["yaw"], "depth": im["depth"], "drawn": im["drawn"], "octree_cells": len(im["cells"]),
                                "cell": cell.get("index"), "bundle": bundles.get(name), "texture_bytes": (cell.get("stats") or {}).get("texture_bytes")})  # fmt: skip
-            points.append({"position": p["position"], "level": p["level"], "radius": p["radius"], "failure": p["failure"], "images": images})
+            points.append(
+                {
+                    "position": p["position"],
+                    "level": p["level"],
+                    "radius": p["radius"],
+                    "failure": p["failure"],
+                    "images": images,
+                }
+            )
         summary = index["summary"]
         sizes = [im["texture_bytes"] or 0 for p in points for im in p["images"]]
         totals = {
@@ -191,18 +231,32 @@ class PrimitiveBudget(Algorithm):
         parameters = {"algorithm": NAME, "technique": TECHNIQUE, "primitives": summary["primitives"], "p_opt": summary["p_opt"],
                       "fov_deg": summary["fov_deg"], "octree_depth": summary["octree_depth"], "resolution": index["resolution"],
                       "construction_images": index["construction_images"], "view_space": index["view_space"]}  # fmt: skip
-        return {"job": job.id, "state": job.state, "algorithm": NAME, "parameters": parameters, "summary": summary, "points": points, "totals": totals}
+        return {
+            "job": job.id,
+            "state": job.state,
+            "algorithm": NAME,
+            "parameters": parameters,
+            "summary": summary,
+            "points": points,
+            "totals": totals,
+        }
 
     def lookup(self, index: dict, found, eye, direction) -> tuple[dict, list[int]]:
         """:func:`farfield.core.placement.image_database.image_lookup`, and the cell that baked the image."""
         from farfield.core.placement.image_database import image_lookup
 
         answer = image_lookup(index, found, eye, direction)
-        cell = next((b["index"] for b in index.get("cells_baked", []) if b["image"] == answer["image"]), None) if answer["image"] else None
+        cell = (
+            next((b["index"] for b in index.get("cells_baked", []) if b["image"] == answer["image"]), None)
+            if answer["image"]
+            else None
+        )
         return answer, [cell] if cell is not None else []
 
     def clusters(self, db: Database, blobs: BlobStore, job: JobRow, index: dict) -> dict:
-        raise NotFoundError(f"job {job.id!r} is a primitive-budget placement: its images replace octree cells, not clusters")
+        raise NotFoundError(
+            f"job {job.id!r} is a primitive-budget placement: its images replace octree cells, not clusters"
+        )
 
 
 ALGORITHM = PrimitiveBudget()

@@ -36,7 +36,14 @@ from farfield.service.db import CellRow, Database, JobRow, SceneRow, now
 from farfield.service.failures import BAD_INPUT, INTERNAL, TRANSIENT, failure_class, failure_message
 from farfield.service.placement import algorithm_of
 from farfield.service.placement.base import add_cells
-from farfield.service.placement.lease import PlanningCancelled, claim_planning, fail_planning, heartbeat, release_planning, set_planning
+from farfield.service.placement.lease import (
+    PlanningCancelled,
+    claim_planning,
+    fail_planning,
+    heartbeat,
+    release_planning,
+    set_planning,
+)
 from farfield.service.placement.states import drop_ended_planning, drop_planner_states
 from farfield.service.scenes import load_stored_scene
 from farfield.service.settings import MAX_CELLS, Settings
@@ -51,7 +58,12 @@ def pending_check(db: Database, job_id: str) -> bool:
     """Whether the job waits for its check task (the caller sends it)."""
     with db.session() as s:
         job = s.get(JobRow, job_id)
-    return job is not None and job.state == "placing" and (job.planning or {}).get("phase") == "check" and job.plan_worker is None
+    return (
+        job is not None
+        and job.state == "placing"
+        and (job.planning or {}).get("phase") == "check"
+        and job.plan_worker is None
+    )
 
 
 def begin_check(session, job: JobRow, requeue_after: float | None = None) -> None:
@@ -63,7 +75,14 @@ def begin_check(session, job: JobRow, requeue_after: float | None = None) -> Non
         requeue_after = Settings.from_env().requeue_after
     k = int((job.planning or {}).get("round", 0)) + 1
     job.state, job.plan_worker, job.plan_attempts, job.lease_until = "placing", None, 0, now() + requeue_after
-    job.planning = {**(job.planning or {}), "phase": "check", "step": f"check round {k}", "done": 0, "total": 1, "check_round": k}
+    job.planning = {
+        **(job.planning or {}),
+        "phase": "check",
+        "step": f"check round {k}",
+        "done": 0,
+        "total": 1,
+        "check_round": k,
+    }
 
 
 def end_round(db: Database, job_id: str, final: str) -> bool:
@@ -127,7 +146,20 @@ def plan_job(db: Database, blobs: BlobStore, job_id: str, worker: str, max_attem
             index_key = algorithm.write_index(db, blobs, job, doc, []) if not cells else None
     except PlanningCancelled:
         return _end_cancelled(db, blobs, job_id), []
-    return _commit_round(db, blobs, job_id, worker, attempt, state_key, cells, algorithm.impostors(doc), doc.get("summary"), 0, index_key, [])
+    return _commit_round(
+        db,
+        blobs,
+        job_id,
+        worker,
+        attempt,
+        state_key,
+        cells,
+        algorithm.impostors(doc),
+        doc.get("summary"),
+        0,
+        index_key,
+        [],
+    )
 
 
 def _end_cancelled(db: Database, blobs: BlobStore, job_id: str) -> str:
@@ -135,20 +167,32 @@ def _end_cancelled(db: Database, blobs: BlobStore, job_id: str) -> str:
     planner states, or leave the job alone when this attempt only lost its hold ("skipped"): a newer
     attempt holds it, and clearing the hold would leave the job ``placing`` with nothing to send it again."""
     with db.session() as s:
-        s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state == "cancelled", JobRow.finished_at.is_(None)).values(finished_at=now()))
-        ended = s.execute(update(JobRow).where(JobRow.id == job_id, JobRow.state == "cancelled").values(plan_worker=None, lease_until=None)).rowcount
+        s.execute(
+            update(JobRow)
+            .where(JobRow.id == job_id, JobRow.state == "cancelled", JobRow.finished_at.is_(None))
+            .values(finished_at=now())
+        )
+        ended = s.execute(
+            update(JobRow)
+            .where(JobRow.id == job_id, JobRow.state == "cancelled")
+            .values(plan_worker=None, lease_until=None)
+        ).rowcount
     if not ended:
         return "skipped"
     drop_ended_planning(db, blobs, job_id)
     return "cancelled"
 
 
-def _commit_round(db, blobs, job_id, worker, attempt, state_key, cells: list[dict], impostors: int, summary, round_, index_key, rounds) -> tuple[str, list[str]]:
+def _commit_round(
+    db, blobs, job_id, worker, attempt, state_key, cells: list[dict], impostors: int, summary, round_, index_key, rounds
+) -> tuple[str, list[str]]:
     """Store a planned or repaired round: its ``cells`` (queued), or the database when none was added.
     Then only the state the next check loads is kept (all are deleted when the job ended).  An
     attempt that finds its job cancelled or failed meanwhile removes the index it wrote (a newer
     attempt that only took its hold writes its own under the same key: that one is left alone)."""
-    committed, state, made = _commit_round_row(db, job_id, worker, attempt, state_key, cells, impostors, summary, round_, index_key, rounds)
+    committed, state, made = _commit_round_row(
+        db, job_id, worker, attempt, state_key, cells, impostors, summary, round_, index_key, rounds
+    )
     if committed and state == "running":
         drop_planner_states(blobs, job_id, keep=state_key)
     elif state in ("failed", "cancelled") or (committed and state == "done"):
@@ -158,7 +202,9 @@ def _commit_round(db, blobs, job_id, worker, attempt, state_key, cells: list[dic
     return state, made
 
 
-def _commit_round_row(db, job_id, worker, attempt, state_key, cells: list[dict], impostors: int, summary, round_, index_key, rounds) -> tuple[bool, str, list[str]]:
+def _commit_round_row(
+    db, job_id, worker, attempt, state_key, cells: list[dict], impostors: int, summary, round_, index_key, rounds
+) -> tuple[bool, str, list[str]]:
     """:func:`_commit_round`'s change of the job's row: (whether this attempt committed, the job's
     state, the cells made)."""
     with db.session() as s:
@@ -207,10 +253,25 @@ def check_job(db: Database, blobs: BlobStore, job_id: str, worker: str, max_atte
     round_ = int(planning.get("check_round", planning.get("round", 0) + 1))
     with heartbeat(db, job_id, worker, attempt):
         done = algorithm_of(job.params).check(db, blobs, job, round_, list(planning.get("rounds", [])))
-    return _commit_round(db, blobs, job_id, worker, attempt, done.state_key, done.cells, done.impostors, done.summary, done.round, done.index_key, done.rounds)
+    return _commit_round(
+        db,
+        blobs,
+        job_id,
+        worker,
+        attempt,
+        done.state_key,
+        done.cells,
+        done.impostors,
+        done.summary,
+        done.round,
+        done.index_key,
+        done.rounds,
+    )
 
 
-def run_planning(db: Database, blobs: BlobStore, job_id: str, phase: str, worker: str, max_attempts: int) -> tuple[str, list[str]]:
+def run_planning(
+    db: Database, blobs: BlobStore, job_id: str, phase: str, worker: str, max_attempts: int
+) -> tuple[str, list[str]]:
     """:func:`plan_job` or :func:`check_job`, a failure sorted as a cell's is
     (:func:`service.failures.failure_class`): bad input fails the job with its message at once;
     a bug fails it as ``internal error: ...`` (a plan is deterministic: running it again would fail

@@ -31,7 +31,8 @@ class BudgetSpec(BaseModel):
     model_config = ConfigDict(extra="forbid")
     frame_ms: Number | None = Field(None, description="t_max in milliseconds by the cost model")
     cost_model: str | dict | None = Field(
-        None, description="with frame_ms: 'llvmpipe' (the builtin model, the default) or a cost model document (CostModel.to_dict(), farfield calibrate --out)"
+        None,
+        description="with frame_ms: 'llvmpipe' (the builtin model, the default) or a cost model document (CostModel.to_dict(), farfield calibrate --out)",
     )
     primitives: Number | None = Field(None, description="or t_max as a triangle count (the primitive model)")
 

@@ -15,7 +15,11 @@ from farfield.service.placement.base import PLACEMENT_JOB
 def planner_state_keys(blobs: BlobStore, job_id: str) -> list[str]:
     """The keys of the job's stored planner states (``jobs/<id>/planner-<round>.pickle``, a primitive-budget
     job's ``planner-grid.json``)."""
-    return [f"jobs/{job_id}/{name}" for name in blobs.list_files(f"jobs/{job_id}") if name.startswith("planner-") and name.endswith((".pickle", ".json"))]
+    return [
+        f"jobs/{job_id}/{name}"
+        for name in blobs.list_files(f"jobs/{job_id}")
+        if name.startswith("planner-") and name.endswith((".pickle", ".json"))
+    ]
 
 
 def drop_planner_states(blobs: BlobStore, job_id: str, keep: str | None = None) -> list[str]:

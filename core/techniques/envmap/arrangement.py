@@ -68,7 +68,12 @@ def parallax_step(F: float, m: float, alpha: float, dims: int = 3) -> float:
     else:
         fx = math.tan(phi - 0.5 * alpha) * (F - m) - m * math.tan(beta)
         gamma = math.atan(fx / F)
-    return m * math.cos(gamma) * math.sin(phi + 0.5 * alpha + beta) / (math.cos(beta) * math.sin(phi + 0.5 * alpha - gamma))
+    return (
+        m
+        * math.cos(gamma)
+        * math.sin(phi + 0.5 * alpha + beta)
+        / (math.cos(beta) * math.sin(phi + 0.5 * alpha - gamma))
+    )
 
 
 def texel_limit(F: float, m: float, resolution: int) -> float:

@@ -48,7 +48,9 @@ def _boxes_meet_pyramid(lo: np.ndarray, hi: np.ndarray, face: str) -> np.ndarray
     ok = np.ones(lo.shape[0], dtype=bool)
     for j in range(3):
         if j != axis:
-            nearest = np.where((lo[:, j] <= 0.0) & (hi[:, j] >= 0.0), 0.0, np.minimum(np.abs(lo[:, j]), np.abs(hi[:, j])))
+            nearest = np.where(
+                (lo[:, j] <= 0.0) & (hi[:, j] >= 0.0), 0.0, np.minimum(np.abs(lo[:, j]), np.abs(hi[:, j]))
+            )
             ok &= reach >= nearest
     return ok
 
@@ -91,9 +93,14 @@ class NearField:
         }
 
     @classmethod
-    def from_dict(cls, data: dict) -> "NearField":
+    def from_dict(cls, data: dict) -> NearField:
         ranges = {entry["name"]: [list(map(int, r)) for r in entry["faces"]] for entry in data["objects"]}
-        return cls(np.asarray(data["centre"], dtype=np.float64), float(data["half_size"]), ranges, tuple(data.get("open_faces", ())))
+        return cls(
+            np.asarray(data["centre"], dtype=np.float64),
+            float(data["half_size"]),
+            ranges,
+            tuple(data.get("open_faces", ())),
+        )
 
     def objects(self, scene: Scene) -> list[SceneObject]:
         """The listed triangles of ``scene`` as objects (the runtime's near-field geometry)."""

@@ -22,18 +22,20 @@ from dataclasses import replace
 import numpy as np
 
 from farfield.core.cube_faces import face_normal
-from farfield.core.quality.evaluation import compare_images, impostor_objects, vertex_pixels
 from farfield.core.impostor.impostor import Impostor
-from farfield.core.techniques.envmap.near_field import NearField
+from farfield.core.quality.evaluation import compare_images, impostor_objects, vertex_pixels
 from farfield.core.render.raster import Camera, MeshRenderer
 from farfield.core.scene import Scene, SceneObject
+from farfield.core.techniques.envmap.near_field import NearField
 from farfield.core.viewcells import BoxCell, box_corners
 
 
 def camera_at(position, forward, fov_deg: float, resolution: int, near: float, far: float) -> Camera:
     """A camera at ``position`` looking along ``forward`` (any length > 0)."""
     position = np.asarray(position, dtype=np.float64)
-    return Camera.look_at(position, position + np.asarray(forward, dtype=np.float64), math.radians(fov_deg), resolution, near, far)
+    return Camera.look_at(
+        position, position + np.asarray(forward, dtype=np.float64), math.radians(fov_deg), resolution, near, far
+    )
 
 
 # Triangles sorted nearest first in runs of this many, each run kept in the mesh's own order: the
@@ -44,7 +46,9 @@ NEAR_FIELD_RUN = 64
 QUAD_RUN = 2
 
 
-def nearest_first(objects: list[SceneObject], centre, keep_object_order: bool = False, run: int = 1) -> list[SceneObject]:
+def nearest_first(
+    objects: list[SceneObject], centre, keep_object_order: bool = False, run: int = 1
+) -> list[SceneObject]:
     """``objects`` with each one's triangles sorted by the distance of their centroid from
     ``centre`` in the cube (maximum) norm, and, unless ``keep_object_order``, the objects by their
     nearest triangle.  With ``run`` > 1 the triangles move in runs of that many consecutive ones,
@@ -90,7 +94,9 @@ class EnvmapCellRenderer:
             raise ValueError(f"an envmap runtime needs an envmap impostor, got {impostor.technique!r}")
         self.impostor = impostor
         self.near = NearField.from_dict(impostor.parameters["near_field"])
-        near_objects = nearest_first(self.near.objects(scene), self.near.centre, keep_object_order=True, run=NEAR_FIELD_RUN)
+        near_objects = nearest_first(
+            self.near.objects(scene), self.near.centre, keep_object_order=True, run=NEAR_FIELD_RUN
+        )
         quads = nearest_first(impostor_objects(impostor), self.near.centre, run=QUAD_RUN)
         self.renderer = MeshRenderer(near_objects + quads, [self.near.clip] * len(near_objects) + [None] * len(quads))
         self.near_triangles = sum(obj.faces.shape[0] for obj in near_objects)
@@ -107,17 +113,30 @@ def depth_range_for(scene: Scene, cell: BoxCell, position, reach: float = 0.0) -
     and the impostor quads (``reach`` from the cell centre)."""
     position = np.asarray(position, dtype=np.float64)
     corners = box_corners(scene.bounds)
-    far = max(float(np.max(np.linalg.norm(corners - position, axis=1))), reach + float(np.linalg.norm(position - cell.center)))
+    far = max(
+        float(np.max(np.linalg.norm(corners - position, axis=1))), reach + float(np.linalg.norm(position - cell.center))
+    )
     near = 0.01 * float(np.min(cell.size))
     return near, max(far * 1.01, 2.0 * near)
 
 
-def compare_views(scene_renderer: MeshRenderer, cell_renderer: EnvmapCellRenderer, camera: Camera, samples: int = 1, objects=None) -> dict:
+def compare_views(
+    scene_renderer: MeshRenderer, cell_renderer: EnvmapCellRenderer, camera: Camera, samples: int = 1, objects=None
+) -> dict:
     """Pixel statistics (:func:`farfield.core.quality.evaluation.compare_images`) of the full scene vs the runtime;
     given the scene's ``objects``, an impostor pixel within one pixel of a vertex is not bloat
     (:func:`farfield.core.quality.evaluation.vertex_pixels`: geometry smaller than a sample is still there)."""
     if samples > 1:
-        camera = Camera(camera.eye, camera.right, camera.up, camera.forward, camera.fov, camera.resolution * samples, camera.near, camera.far)
+        camera = Camera(
+            camera.eye,
+            camera.right,
+            camera.up,
+            camera.forward,
+            camera.fov,
+            camera.resolution * samples,
+            camera.near,
+            camera.far,
+        )
     reach = None if objects is None else (lambda: vertex_pixels(objects, camera, samples))
     return compare_images(scene_renderer.render(camera), cell_renderer.renderer.render(camera), samples, reach=reach)
 
@@ -161,7 +180,9 @@ def evaluate_envmap(
                 for forward in directions:
                     camera = camera_at(position, forward, impostor.fov_deg, impostor.resolution, near, far)
                     stats = compare_views(full, cell_renderer, camera, samples, scene.objects)
-                    rows.append({"position": position.tolist(), "forward": forward.tolist(), "kind": kind, "stats": stats})
+                    rows.append(
+                        {"position": position.tolist(), "forward": forward.tolist(), "kind": kind, "stats": stats}
+                    )
     finally:
         cell_renderer.release()
     stats = [r["stats"] for r in rows]

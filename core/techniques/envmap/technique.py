@@ -32,24 +32,24 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from farfield.core import __version__
-from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.cube_faces import FACES
-from farfield.core.layering.culled import culled_layers
-from farfield.core.layering.culling import CullingMode
-from farfield.core.techniques.envmap.arrangement import EnvmapPlan, envmap_plan, layers_for_near_field
-from farfield.core.techniques.envmap.runtime import EnvmapCellRenderer, evaluate_envmap
 from farfield.core.errors import LayerPlanError, ViewCellError
-from farfield.core.techniques.envmap.gap_fill import fill_gaps
 from farfield.core.impostor.glb import page_png
 from farfield.core.impostor.impostor import Impostor, QuadPayload, texel_rect_corners
+from farfield.core.layering import recording
+from farfield.core.layering.atlas import MAX_PAGE
+from farfield.core.layering.culled import culled_layers
+from farfield.core.layering.culling import CullingMode
 from farfield.core.layering.tiles import QUAD_GEOMETRY_BYTES, check_pages, layer_tiles, pack_tiles
-from farfield.core.techniques.envmap.near_field import near_field
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION, pixel_angle
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
-from farfield.core.layering import recording
 from farfield.core.techniques.base import CellCost, TechniqueDefinition
+from farfield.core.techniques.envmap.arrangement import EnvmapPlan, envmap_plan, layers_for_near_field
+from farfield.core.techniques.envmap.gap_fill import fill_gaps
+from farfield.core.techniques.envmap.near_field import near_field
+from farfield.core.techniques.envmap.runtime import EnvmapCellRenderer, evaluate_envmap
 from farfield.core.viewcells import BoxCell
 
 # Cube faces (farfield.core.cube_faces.FACES): image x and y run along the next two world axes, so a face's
@@ -76,19 +76,44 @@ class EnvmapOptions:
 
     resolution: int = option(512, "output image pixels per side", ge=1, le=MAX_RESOLUTION)
     fov_deg: float = option(90.0, "output field of view, degrees (the paper's 90)", gt=0.0, lt=180.0)
-    layers: int | None = option(None, f"number of layers (seed 002 Eqs. 1-2), default {DEFAULT_LAYERS} unless near_field is given; more bring the near field closer for more memory", ge=1, le=4096)
-    near_field: float | None = option(None, "largest acceptable near-field distance from the cell centre, scene units: the fewest layers that reach it (instead of layers)", gt=0.0)
-    directions: tuple[str, ...] = option(tuple(FACES), "cube faces that get layers, e.g. +x,-x,+z,-z (the others are drawn as geometry)", choices=tuple(FACES))
-    face_resolution: int | None = option(None, "texels per cube-face side (seed 002 Res); default ceil(resolution / tan(fov / 2))", ge=1, le=MAX_RESOLUTION)
+    layers: int | None = option(
+        None,
+        f"number of layers (seed 002 Eqs. 1-2), default {DEFAULT_LAYERS} unless near_field is given; more bring the near field closer for more memory",
+        ge=1,
+        le=4096,
+    )
+    near_field: float | None = option(
+        None,
+        "largest acceptable near-field distance from the cell centre, scene units: the fewest layers that reach it (instead of layers)",
+        gt=0.0,
+    )
+    directions: tuple[str, ...] = option(
+        tuple(FACES),
+        "cube faces that get layers, e.g. +x,-x,+z,-z (the others are drawn as geometry)",
+        choices=tuple(FACES),
+    )
+    face_resolution: int | None = option(
+        None,
+        "texels per cube-face side (seed 002 Res); default ceil(resolution / tan(fov / 2))",
+        ge=1,
+        le=MAX_RESOLUTION,
+    )
     gap_fill: bool = option(False, "seed 002 §5.1 gap filling (off: the conservative recording leaves no gap to fill)")
-    culling: CullingMode = option("penumbra", "invisible-texel removal: penumbra (§5.2 + seed 000 §3.4.1), umbra (§5.2) or off")
+    culling: CullingMode = option(
+        "penumbra", "invisible-texel removal: penumbra (§5.2 + seed 000 §3.4.1), umbra (§5.2) or off"
+    )
     # The paper's grid is 8 (§5.3); at 4 the city walkthrough's nine cells keep 18 % less texture
     # for 12 % more quads, and the runtime rasterises less empty quad area (README, "The runtime's
     # frame, second round").
     grid_cell: int = option(4, "microtexture grid (§5.3; the paper's 8), texels", ge=1, le=1024)
     fill_threshold: float = option(0.8, "microtexture fill ratio (§5.3)", gt=0.0, le=1.0)
     padding: int = option(2, "atlas padding, texels", ge=0, le=64)
-    max_page: int = option(MAX_PAGE, "largest atlas page side, texels (WebGL2 guarantees 2048, many mobile GPUs stop at 4096), a power of two", ge=64, le=16384)
+    max_page: int = option(
+        MAX_PAGE,
+        "largest atlas page side, texels (WebGL2 guarantees 2048, many mobile GPUs stop at 4096), a power of two",
+        ge=64,
+        le=16384,
+    )
     conservative: bool = option(True, "gap-free recording; false only to demonstrate the holes", internal=True)
 
     def __post_init__(self) -> None:
@@ -178,7 +203,9 @@ def face_plan(name: str, plan: EnvmapPlan, centre: np.ndarray, scene_bounds: np.
     return FacePlan(name, plan.distances.copy(), borders, np.asarray(centre, dtype=np.float64), axis, u, v, res)
 
 
-def bake_envmap(scene: Scene, cell: BoxCell, options: EnvmapOptions = EnvmapOptions(), progress: Progress | None = None) -> Impostor:
+def bake_envmap(
+    scene: Scene, cell: BoxCell, options: EnvmapOptions = EnvmapOptions(), progress: Progress | None = None
+) -> Impostor:
     """Bake the layered environment-map impostor of ``scene`` for the cubic ``cell``."""
     clock = StageClock(("plan", "record", "gap_fill", "cull", "quads", "atlas", "png"), progress)
     with clock("plan"):
@@ -210,7 +237,14 @@ def bake_envmap(scene: Scene, cell: BoxCell, options: EnvmapOptions = EnvmapOpti
             if not layer.kept.any():
                 continue
             with clock("quads"):
-                rects, face_tiles = layer_tiles(layer.image, layer.kept, options.grid_cell, options.fill_threshold, options.max_page, options.padding)
+                rects, face_tiles = layer_tiles(
+                    layer.image,
+                    layer.kept,
+                    options.grid_cell,
+                    options.fill_threshold,
+                    options.max_page,
+                    options.padding,
+                )
                 tiles += face_tiles
                 layer_id = face_index * plan.count + i
                 quad_layer.append(np.full(len(rects), layer_id, dtype=np.int64))
@@ -223,7 +257,10 @@ def bake_envmap(scene: Scene, cell: BoxCell, options: EnvmapOptions = EnvmapOpti
                         "face": face.name,
                         "layer": int(i),
                         "distance": float(plan.distances[i]),
-                        "depth_range": [float(plan.borders[i]), float(plan.borders[i + 1]) if math.isfinite(plan.borders[i + 1]) else None],
+                        "depth_range": [
+                            float(plan.borders[i]),
+                            float(plan.borders[i + 1]) if math.isfinite(plan.borders[i + 1]) else None,
+                        ],
                         "texels": kept_count,
                         "quads": int(len(rects)),
                     }
@@ -231,7 +268,9 @@ def bake_envmap(scene: Scene, cell: BoxCell, options: EnvmapOptions = EnvmapOpti
     clock.report("record", total_layers, total_layers)
 
     with clock("atlas"):
-        pages, quad_uv, quad_page, tile_bytes = pack_tiles(tiles, options.padding, options.max_page)  # none: all is near field
+        pages, quad_uv, quad_page, tile_bytes = pack_tiles(
+            tiles, options.padding, options.max_page
+        )  # none: all is near field
     with clock("png"):
         png_bytes = int(sum(len(page_png(page)) for page in pages))
     clock.report("atlas", 1, 1)

@@ -51,10 +51,10 @@ from scipy.stats import qmc
 
 from farfield.core.colour_space import linear_to_srgb, srgb_to_linear
 from farfield.core.errors import LayerPlanError
-from farfield.core.techniques.points.sampling import PointSampling
 from farfield.core.render.points import PointRenderer
 from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
 from farfield.core.scene import SceneObject
+from farfield.core.techniques.points.sampling import PointSampling
 from farfield.core.viewcells import BoxCell, box_corners
 
 MIN_VIEWS = 32
@@ -122,9 +122,11 @@ def footprint_filter(image: np.ndarray, samples: int) -> tuple[np.ndarray, np.nd
     s = int(samples)
     h, w = image.shape[0] // s, image.shape[1] // s
     alpha = (image[..., 3] > 0).astype(np.float64)
-    premultiplied = np.concatenate([srgb_to_linear(image[..., :3] / 255.0) * alpha[..., None], alpha[..., None]], axis=2)
+    premultiplied = np.concatenate(
+        [srgb_to_linear(image[..., :3] / 255.0) * alpha[..., None], alpha[..., None]], axis=2
+    )
     offsets = np.arange(3 * s) - (3 * s - 1) / 2.0  # sample centres relative to the pixel's centre
-    kernel = np.exp(-(offsets / s) ** 2 / (2.0 * PIXEL_SIGMA**2))
+    kernel = np.exp(-((offsets / s) ** 2) / (2.0 * PIXEL_SIGMA**2))
     kernel /= kernel.sum()
     padded = np.pad(premultiplied, ((s, s), (s, s), (0, 0)))
     rows = sum(kernel[k] * padded[k : k + h * s : s] for k in range(3 * s))  # (h, W + 2s, 4)
@@ -135,7 +137,9 @@ def footprint_filter(image: np.ndarray, samples: int) -> tuple[np.ndarray, np.nd
     return np.where(cover[..., None] > 0.0, colour, np.nan), cover
 
 
-def _view_camera(eye: np.ndarray, target: np.ndarray, jitter: np.ndarray, fov: float, resolution: int, extent: np.ndarray) -> Camera:
+def _view_camera(
+    eye: np.ndarray, target: np.ndarray, jitter: np.ndarray, fov: float, resolution: int, extent: np.ndarray
+) -> Camera:
     """The output camera at ``eye`` looking at ``target`` moved by ``jitter`` (2,) pixels."""
     base = Camera.look_at(eye, target, fov, resolution, 1.0, 2.0)
     pixel = 2.0 * math.tan(0.5 * fov) / resolution * float(np.linalg.norm(target - eye))
@@ -173,10 +177,19 @@ def integrate_appearance(
     tu, tv = (int(t) for t in tile)
     texels = tu * tv
     if max_views < 1 or samples < 1 or not error > 0.0:
-        raise LayerPlanError(f"appearance needs max_views >= 1, samples >= 1 and error > 0, got {max_views}, {samples}, {error}")
+        raise LayerPlanError(
+            f"appearance needs max_views >= 1, samples >= 1 and error > 0, got {max_views}, {samples}, {error}"
+        )
     fov = math.radians(float(fov_deg))
     bounds = np.stack([points.min(axis=0), points.max(axis=0)]) if n else np.zeros((2, 3))
-    extent = box_corners(np.stack([np.minimum(bounds[0], np.min([o.bounds[0] for o in objects], axis=0)), np.maximum(bounds[1], np.max([o.bounds[1] for o in objects], axis=0))]))
+    extent = box_corners(
+        np.stack(
+            [
+                np.minimum(bounds[0], np.min([o.bounds[0] for o in objects], axis=0)),
+                np.maximum(bounds[1], np.max([o.bounds[1] for o in objects], axis=0)),
+            ]
+        )
+    )
     target = 0.5 * (extent.min(axis=0) + extent.max(axis=0))
     weight = np.zeros((n, texels))
     weight2 = np.zeros((n, texels))
@@ -188,7 +201,9 @@ def integrate_appearance(
     views = 0
     se95 = float("inf")
     # The cell's corners and centre first (where views differ most), then the Sobol points.
-    fixed = np.concatenate([np.array(np.meshgrid([0.0, 1.0], [0.0, 1.0], [0.0, 1.0], indexing="ij")).reshape(3, -1).T, [[0.5, 0.5, 0.5]]])
+    fixed = np.concatenate(
+        [np.array(np.meshgrid([0.0, 1.0], [0.0, 1.0], [0.0, 1.0], indexing="ij")).reshape(3, -1).T, [[0.5, 0.5, 0.5]]]
+    )
     with MeshRenderer(objects) as geometry, PointRenderer(points, np.zeros((n, 4), np.uint8)) as ids:
         while views < max_views and n:
             batch = sobol.random(BATCH)[: max_views - views]
@@ -200,7 +215,10 @@ def integrate_appearance(
                 pixels = camera.project(extent)
                 x0, y0 = np.floor(pixels.min(axis=0)).astype(int) - 2
                 # Window sides rounded up to WINDOW_STEP, so the renderers keep a few targets.
-                size = -(-(int(np.ceil(float(np.max(pixels.max(axis=0) - pixels.min(axis=0))))) + 5) // WINDOW_STEP) * WINDOW_STEP
+                size = (
+                    -(-(int(np.ceil(float(np.max(pixels.max(axis=0) - pixels.min(axis=0))))) + 5) // WINDOW_STEP)
+                    * WINDOW_STEP
+                )
                 if size > MAX_WINDOW:
                     raise LayerPlanError(
                         f"the part spans {size} pixels from the view cell at {resolution} px (at most {MAX_WINDOW}): "
@@ -273,6 +291,8 @@ def single_colour(tiles: np.ndarray, threshold: float) -> np.ndarray:
 def mean_colour(tiles: np.ndarray) -> np.ndarray:
     """(n, 4) uint8 sRGB: each tile's mean colour, averaged in linear light, and mean alpha."""
     flat = tiles.reshape(tiles.shape[0], -1, 4) / 255.0
-    rgb = np.rint(np.clip(linear_to_srgb(srgb_to_linear(flat[..., :3]).mean(axis=1)), 0.0, 1.0) * 255.0).astype(np.uint8)
+    rgb = np.rint(np.clip(linear_to_srgb(srgb_to_linear(flat[..., :3]).mean(axis=1)), 0.0, 1.0) * 255.0).astype(
+        np.uint8
+    )
     alpha = np.clip(np.rint(flat[..., 3].mean(axis=1) * 255.0), 1, 255).astype(np.uint8)
     return np.concatenate([rgb, alpha[:, None]], axis=1)

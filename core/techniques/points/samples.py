@@ -36,13 +36,14 @@ import numba
 import numpy as np
 
 from farfield.core.ldi.image import LayeredDepthImage, record_ldi
-from farfield.core.techniques.points.sampling import PointSampling, corner_perspective_factor
 from farfield.core.scene import SceneObject
+from farfield.core.techniques.points.sampling import PointSampling, corner_perspective_factor
 from farfield.core.viewcells import BoxCell
 
 # A neighbouring pixel's sample is on the same surface when their depths differ by at most this
 # many times the lateral distance between the two rays (tan 76° ≈ 4).
 CONTINUITY = 4.0
+
 
 def ldi_spacing(ldi: LayeredDepthImage, cell: BoxCell) -> np.ndarray:
     """(layers, h, w) float64: the longest edge from each sample to its 8 same-surface neighbours
@@ -58,8 +59,20 @@ def ldi_spacing(ldi: LayeredDepthImage, cell: BoxCell) -> np.ndarray:
     depth = np.ascontiguousarray(ldi.depth, dtype=np.float64)
     positions = np.ascontiguousarray(ldi.sample_positions(), dtype=np.float64)  # (L, h, w, 3)
     pixel = 2.0 * math.tan(0.5 * ldi.camera.fov) / ldi.camera.resolution  # image tangents per pixel
-    touched = np.zeros(depth.shape, dtype=np.bool_) if ldi.touched is None else np.ascontiguousarray(ldi.touched, dtype=np.bool_)
-    return _spacing_kernel(depth, positions, touched, np.asarray(cell.center, dtype=np.float64), 0.5 * float(np.linalg.norm(cell.size)), pixel, CONTINUITY)
+    touched = (
+        np.zeros(depth.shape, dtype=np.bool_)
+        if ldi.touched is None
+        else np.ascontiguousarray(ldi.touched, dtype=np.bool_)
+    )
+    return _spacing_kernel(
+        depth,
+        positions,
+        touched,
+        np.asarray(cell.center, dtype=np.float64),
+        0.5 * float(np.linalg.norm(cell.size)),
+        pixel,
+        CONTINUITY,
+    )
 
 
 @numba.njit(cache=True, nogil=True)
@@ -99,7 +112,11 @@ def _spacing_kernel(depth, positions, touched, centre, radius, pixel, continuity
                             ey = positions[nearest, rr, cc, 1] - py
                             ez = positions[nearest, rr, cc, 2] - pz
                             length = math.sqrt(ex * ex + ey * ey + ez * ez)
-                            cos_theta = abs(ex * sx + ey * sy + ez * sz) / (length * distance) if length * distance > 0.0 else np.nan
+                            cos_theta = (
+                                abs(ex * sx + ey * sy + ez * sz) / (length * distance)
+                                if length * distance > 0.0
+                                else np.nan
+                            )
                             theta = math.acos(min(max(cos_theta, 0.0), 1.0)) if cos_theta == cos_theta else np.nan
                             angle = theta + gamma
                             across = length * min(1.0, math.sin(min(angle, half_pi))) if angle == angle else np.nan
@@ -141,7 +158,14 @@ class PointSamples:
             "kept": kept,
             "removed_share": (n - kept) / n if n else 0.0,
             "sufficient_share": float(self.sufficient.mean()) if n else 0.0,
-            "per_camera": [{"candidates": int((self.camera == k).sum()), "kept": int((self.kept & (self.camera == k)).sum()), "layers": ldi.layers} for k, ldi in enumerate(self.ldis)],
+            "per_camera": [
+                {
+                    "candidates": int((self.camera == k).sum()),
+                    "kept": int((self.kept & (self.camera == k)).sum()),
+                    "layers": ldi.layers,
+                }
+                for k, ldi in enumerate(self.ldis)
+            ],
         }
 
 
@@ -170,8 +194,14 @@ def _lookup(ldi: LayeredDepthImage, spacing: np.ndarray, points: np.ndarray) -> 
     return out
 
 
-def gather_point_samples(objects: list[SceneObject] | tuple[SceneObject, ...], sampling: PointSampling, cell: BoxCell,
-                         fov_deg: float, resolution: int, max_layers: int = 256) -> PointSamples:
+def gather_point_samples(
+    objects: list[SceneObject] | tuple[SceneObject, ...],
+    sampling: PointSampling,
+    cell: BoxCell,
+    fov_deg: float,
+    resolution: int,
+    max_layers: int = 256,
+) -> PointSamples:
     """Record the three LDIs of ``sampling`` and mark the redundant samples (module docstring);
     ``fov_deg`` and ``resolution`` are the output camera's, as planned."""  # fmt: skip
     fov = math.radians(float(fov_deg))
@@ -205,4 +235,15 @@ def gather_point_samples(objects: list[SceneObject] | tuple[SceneObject, ...], s
     spacing = np.concatenate([p[3] for p in parts])
     sufficient = np.concatenate([p[3] <= p[4] for p in parts])
     colour = np.concatenate([ldis[k].colour[i[:, 0], i[:, 1], i[:, 2]] for k, _, i, _, _ in parts])
-    return PointSamples(np.concatenate([p[1] for p in parts]), ldi_of, index, obj, triangle, spacing, sufficient, np.concatenate(kept_parts), colour, ldis)
+    return PointSamples(
+        np.concatenate([p[1] for p in parts]),
+        ldi_of,
+        index,
+        obj,
+        triangle,
+        spacing,
+        sufficient,
+        np.concatenate(kept_parts),
+        colour,
+        ldis,
+    )

@@ -72,7 +72,9 @@ def cross_section(behind: np.ndarray, beyond: np.ndarray, normal: np.ndarray, of
     a, b = np.asarray(behind, dtype=np.float64), np.asarray(beyond, dtype=np.float64)
     da, db = a @ normal - offset, b @ normal - offset
     if np.any(da > 0.0) or np.any(db <= 0.0):
-        raise ValueError("cross_section needs every 'behind' point at or behind the plane and every 'beyond' point beyond it")
+        raise ValueError(
+            "cross_section needs every 'behind' point at or behind the plane and every 'beyond' point beyond it"
+        )
     t = -da[:, None] / (db[None, :] - da[:, None])  # (na, nb) in [0, 1)
     points = a[:, None, :] + t[..., None] * (b[None, :, :] - a[:, None, :])
     return points.reshape(-1, 3)
@@ -83,7 +85,9 @@ def convex_polygon(points_2d: np.ndarray) -> np.ndarray:
     try:
         hull = ConvexHull(points_2d)
     except QhullError as error:
-        raise ViewCellError(f"the view cell and the part span no area on the sampling plane: {str(error).splitlines()[0]}") from None
+        raise ViewCellError(
+            f"the view cell and the part span no area on the sampling plane: {str(error).splitlines()[0]}"
+        ) from None
     return points_2d[hull.vertices]
 
 
@@ -279,7 +283,17 @@ class LdiCamera:
 
     def camera(self) -> Camera:
         """This LDI's view as a :class:`~farfield.core.render.raster.Camera` (off-axis)."""
-        return Camera(self.position, self.right, self.up, self.forward, 2.0 * math.atan(self.half_size), self.resolution, self.near, self.far, self.centre)
+        return Camera(
+            self.position,
+            self.right,
+            self.up,
+            self.forward,
+            2.0 * math.atan(self.half_size),
+            self.resolution,
+            self.near,
+            self.far,
+            self.centre,
+        )
 
     def to_dict(self) -> dict:
         return {
@@ -312,7 +326,12 @@ class PointSampling:
 
     def to_dict(self) -> dict:
         return {
-            "plane": {"normal": self.normal.tolist(), "offset": self.offset, "u": self.u.tolist(), "v": self.v.tolist()},
+            "plane": {
+                "normal": self.normal.tolist(),
+                "offset": self.offset,
+                "u": self.u.tolist(),
+                "v": self.v.tolist(),
+            },
             "polygon": self.polygon.tolist(),
             "triangle": self.triangle.tolist(),
             "perimeter": _perimeter(self.triangle),
@@ -349,7 +368,9 @@ def ldi_resolution(half_size: float, fov: float, resolution: int, movement: floa
     exact = 2.0 * half_size * math.sqrt(2.0) * movement * corner_perspective_factor(fov) / beta
     n = max(1, math.ceil(exact * (1.0 - TOL.rel_round)))
     if n > TOL.max_texture_resolution:
-        raise LayerPlanError(f"a point impostor's LDI would need {n} pixels per side (> {TOL.max_texture_resolution}): the part is too close to the view cell or too wide for it")
+        raise LayerPlanError(
+            f"a point impostor's LDI would need {n} pixels per side (> {TOL.max_texture_resolution}): the part is too close to the view cell or too wide for it"
+        )
     return n
 
 
@@ -373,7 +394,9 @@ def plan_point_sampling(cell: BoxCell, part_bounds, fov_deg: float, resolution: 
     axis = 0.5 * (bounds[0] + bounds[1]) - cell.center
     length = float(np.linalg.norm(axis))
     if not length > 0.0:
-        raise ViewCellError("the part's centre is the view cell's centre: a point impostor needs the part on one side of the cell")
+        raise ViewCellError(
+            "the part's centre is the view cell's centre: a point impostor needs the part on one side of the cell"
+        )
     normal = axis / length
     offset = float(np.max(corners @ normal))
     depth = float(np.min(part @ normal) - offset)

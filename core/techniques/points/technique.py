@@ -25,19 +25,19 @@ import numpy as np
 
 from farfield.core import __version__
 from farfield.core import ldi as ldi_kernels
-from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.errors import AtlasOverflowError, LayerPlanError
-from farfield.core.quality.evaluation import Evaluation
 from farfield.core.impostor.impostor import Impostor, PointPayload
+from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION
-from farfield.core.techniques.points.appearance import PointAppearance, integrate_appearance, mean_colour, single_colour
-from farfield.core.techniques.points.samples import _spacing_kernel, gather_point_samples
-from farfield.core.techniques.points.sampling import plan_point_sampling
+from farfield.core.quality.evaluation import Evaluation
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import CellCost, TechniqueDefinition
 from farfield.core.techniques.part import evaluate_part, part_evaluation_text
+from farfield.core.techniques.points.appearance import PointAppearance, integrate_appearance, mean_colour, single_colour
+from farfield.core.techniques.points.samples import _spacing_kernel, gather_point_samples
+from farfield.core.techniques.points.sampling import plan_point_sampling
 from farfield.core.viewcells import BoxCell, ViewCell
 
 POINT_BYTES = 16  # float32 position + RGBA8 colour
@@ -50,16 +50,44 @@ class PointOptions:
 
     resolution: int = option(512, "output image pixels per side", ge=1, le=MAX_RESOLUTION)
     fov_deg: float = option(45.0, "output field of view, degrees", gt=0.0, lt=180.0)
-    tile_u: int = option(8, "directional texels per point along the sampling plane's u axis, level unless the plane faces up or down (seed 001 §6: 8 x 2)", ge=1, le=32)
+    tile_u: int = option(
+        8,
+        "directional texels per point along the sampling plane's u axis, level unless the plane faces up or down (seed 001 §6: 8 x 2)",
+        ge=1,
+        le=32,
+    )
     tile_v: int = option(2, "directional texels per point along the plane's v axis", ge=1, le=32)
     samples: int = option(4, "geometry samples per output pixel side in the appearance's pixel footprint", ge=1, le=8)
-    appearance_error: float = option(0.02, "stop adding views when 95 % of the texels' standard errors are below this (linear luminance, 0-1)", gt=0.0, le=1.0)
-    min_views: int = option(64, "fewest Monte Carlo views of the appearance integration (they also judge which points are ever visible)", ge=1, le=4096)
+    appearance_error: float = option(
+        0.02,
+        "stop adding views when 95 % of the texels' standard errors are below this (linear luminance, 0-1)",
+        gt=0.0,
+        le=1.0,
+    )
+    min_views: int = option(
+        64,
+        "fewest Monte Carlo views of the appearance integration (they also judge which points are ever visible)",
+        ge=1,
+        le=4096,
+    )
     max_views: int = option(128, "most Monte Carlo views of the appearance integration", ge=1, le=4096)
-    visible_only: bool = option(True, "drop the points that no appearance view shows (nearer points hide them from the corners, the centre and every sampled viewpoint)")
-    single_colour: float = option(3.0, "a point whose texels' standard deviation stays below this (sRGB levels) stores one colour (seed 001 §5.3); 0: never", ge=0.0, le=255.0)
+    visible_only: bool = option(
+        True,
+        "drop the points that no appearance view shows (nearer points hide them from the corners, the centre and every sampled viewpoint)",
+    )
+    single_colour: float = option(
+        3.0,
+        "a point whose texels' standard deviation stays below this (sRGB levels) stores one colour (seed 001 §5.3); 0: never",
+        ge=0.0,
+        le=255.0,
+    )
     max_layers: int = option(256, "most depth layers each LDI records", ge=1, le=4096)
-    max_page: int = option(MAX_PAGE, "largest atlas page side, texels (WebGL2 guarantees 2048, many mobile GPUs stop at 4096)", ge=64, le=16384)
+    max_page: int = option(
+        MAX_PAGE,
+        "largest atlas page side, texels (WebGL2 guarantees 2048, many mobile GPUs stop at 4096)",
+        ge=64,
+        le=16384,
+    )
 
     def __post_init__(self) -> None:
         check_options(self)
@@ -73,7 +101,9 @@ def _box(cell: ViewCell) -> BoxCell:
     return cell
 
 
-def check_points_cell(cell: ViewCell, options: PointOptions, bounds: np.ndarray | None, max_texels: int | None = None) -> CellCost:
+def check_points_cell(
+    cell: ViewCell, options: PointOptions, bounds: np.ndarray | None, max_texels: int | None = None
+) -> CellCost:
     """The cell's recording work: three LDIs at the planned resolution (:func:`plan_point_sampling`,
     which raises where the cell can have no point impostor); without ``bounds``, only the cell's kind."""
     box = _box(cell)
@@ -84,7 +114,9 @@ def check_points_cell(cell: ViewCell, options: PointOptions, bounds: np.ndarray 
     return CellCost.of_layers(len(sampling.cameras), (side, side))
 
 
-def pack_tiles(count: int, tile: tuple[int, int], max_page: int) -> tuple[list[tuple[int, int]], np.ndarray, np.ndarray]:
+def pack_tiles(
+    count: int, tile: tuple[int, int], max_page: int
+) -> tuple[list[tuple[int, int]], np.ndarray, np.ndarray]:
     """Places for ``count`` tiles of ``tile`` (tu, tv) texels, row by row on pages of at most
     ``max_page`` texels a side: (each page's (width, height), page (count,), first texel (count, 2)).
 
@@ -109,7 +141,13 @@ def pack_tiles(count: int, tile: tuple[int, int], max_page: int) -> tuple[list[t
     return sizes, page, texel
 
 
-def bake_points(scene: Scene, cell: ViewCell, options: PointOptions = PointOptions(), objects: list[str] | None = None, progress: Progress | None = None) -> Impostor:
+def bake_points(
+    scene: Scene,
+    cell: ViewCell,
+    options: PointOptions = PointOptions(),
+    objects: list[str] | None = None,
+    progress: Progress | None = None,
+) -> Impostor:
     """Bake the point-based impostor of ``scene`` (or of its ``objects``) for ``cell`` (a box).
 
     Same contract as :func:`farfield.core.techniques.layered.bake_layered`; technique ``"points"``.
@@ -121,7 +159,9 @@ def bake_points(scene: Scene, cell: ViewCell, options: PointOptions = PointOptio
         sampling = plan_point_sampling(box, part.bounds, options.fov_deg, options.resolution)
     clock.report("plan", 1, 1)
     with clock("points"):
-        samples = gather_point_samples(part.objects, sampling, box, options.fov_deg, options.resolution, options.max_layers)
+        samples = gather_point_samples(
+            part.objects, sampling, box, options.fov_deg, options.resolution, options.max_layers
+        )
     clock.report("points", 1, 1)
     kept = samples.kept
     positions, preview = samples.positions[kept], samples.colour[kept]
@@ -147,11 +187,13 @@ def bake_points(scene: Scene, cell: ViewCell, options: PointOptions = PointOptio
         textured = np.flatnonzero(~one)
         sizes, tile_page, tile_texel = pack_tiles(textured.size, tile, options.max_page)
         pages = [np.zeros((h, w, 4), np.uint8) for w, h in sizes]
-        for p, (w, h) in enumerate(sizes):
+        for p, (_w, _h) in enumerate(sizes):
             mine = np.flatnonzero(tile_page == p)
             x, y = tile_texel[mine, 0], tile_texel[mine, 1]
             rows = (y[:, None, None] + np.arange(options.tile_v)[None, :, None]) * np.ones(options.tile_u, np.int64)
-            cols = (x[:, None, None] + np.arange(options.tile_u)[None, None, :]) * np.ones((options.tile_v, 1), np.int64)
+            cols = (x[:, None, None] + np.arange(options.tile_u)[None, None, :]) * np.ones(
+                (options.tile_v, 1), np.int64
+            )
             pages[p][rows, cols] = appearance.tiles[textured[mine]]
         page = np.full(positions.shape[0], -1, np.int64)
         texel = np.zeros((positions.shape[0], 2), np.int64)
@@ -188,7 +230,12 @@ def bake_points(scene: Scene, cell: ViewCell, options: PointOptions = PointOptio
         payload=payload,
         layers=[],
         stats=stats,
-        parameters={**asdict(options), "objects": list(part.names), "scene_hash": scene.content_hash, "sampling": sampling.to_dict()},
+        parameters={
+            **asdict(options),
+            "objects": list(part.names),
+            "scene_hash": scene.content_hash,
+            "sampling": sampling.to_dict(),
+        },
         code_version=__version__,
     )
 
@@ -201,7 +248,9 @@ def warm_kernels() -> float:
     depth = np.full((1, 2, 2), 1.0)
     keep = ldi_kernels._touched_kept(depth, depth + 1.0, 0.1)
     index, positions, colour = np.zeros((1, 2, 2), np.int64), np.zeros((1, 2, 2, 3)), np.zeros((1, 2, 2, 4), np.uint8)
-    ldi_kernels._merge_kernel(depth, index, index, positions, colour, depth + 1.0, index, index, positions, colour, keep)
+    ldi_kernels._merge_kernel(
+        depth, index, index, positions, colour, depth + 1.0, index, index, positions, colour, keep
+    )
     _spacing_kernel(depth, positions, np.zeros((1, 2, 2), np.bool_), np.zeros(3), 1.0, 0.01, 4.0)
     return time.perf_counter() - start
 
@@ -214,13 +263,16 @@ def _summary(stats: dict) -> str:
         f"LDIs: {'/'.join(str(r) for r in stats['ldi_resolution'])} px, {'/'.join(str(n) for n in stats['ldi_layers'])} layers\n"
         f"appearance: {a['views']} views (standard error p95 {a['standard_error_p95'] if a['standard_error_p95'] is None else round(a['standard_error_p95'], 4)})  "
         f"one colour: {100 * stats['single_colour_share']:.1f} %  {stats['bytes_per_point']:.1f} B/point  "
-        f"texture: {stats['texture_bytes'] / 1024:.1f} KiB  geometry: {stats['geometry_bytes'] / 1024:.1f} KiB\n" + seconds_line(stats)
+        f"texture: {stats['texture_bytes'] / 1024:.1f} KiB  geometry: {stats['geometry_bytes'] / 1024:.1f} KiB\n"
+        + seconds_line(stats)
     )
 
 
 def _evaluation_text(result: Evaluation, impostor: Impostor) -> str:
     text = part_evaluation_text(result, impostor)
-    return text + f"\npoints: {impostor.payload.count:,} ({impostor.stats.get('bytes_per_point', math.nan):.1f} B/point)"
+    return (
+        text + f"\npoints: {impostor.payload.count:,} ({impostor.stats.get('bytes_per_point', math.nan):.1f} B/point)"
+    )
 
 
 TECHNIQUE = TechniqueDefinition(

@@ -42,8 +42,8 @@ import numpy as np
 from numba import njit
 from scipy.ndimage import binary_dilation
 
-from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.errors import AtlasOverflowError, LayerPlanError
+from farfield.core.layering.atlas import MAX_PAGE
 
 
 @dataclass(frozen=True, slots=True)
@@ -182,12 +182,16 @@ def pack_masks(masks: Sequence[np.ndarray], padding: int = 2, max_page: int = MA
     n = len(masks)
     masks = [np.asarray(m, dtype=bool) for m in masks]
     if n == 0:
-        return MaskLayout(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2), np.int64))
+        return MaskLayout(
+            np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 2), np.int64)
+        )
     shapes = np.array([m.shape for m in masks], dtype=np.int64)  # (n, 2) h, w
     big = np.flatnonzero(np.any(shapes > max_page, axis=1))
     if big.size:
         h, w = shapes[big[0]]
-        raise AtlasOverflowError(f"chart {int(big[0])} of {int(w)}x{int(h)} texels does not fit a page of at most {max_page}x{max_page}")
+        raise AtlasOverflowError(
+            f"chart {int(big[0])} of {int(w)}x{int(h)} texels does not fit a page of at most {max_page}x{max_page}"
+        )
     texels = np.array([int(m.sum()) for m in masks], dtype=np.int64)
     order = np.lexsort((-texels, -shapes[:, 0]))
     widest = _round4(shapes[:, 1].max())
@@ -205,7 +209,11 @@ def pack_masks(masks: Sequence[np.ndarray], padding: int = 2, max_page: int = MA
     # cores and five widths of benchmarks/bench_tdm_scale.py, measured in turns in one process:
     # 12.7 and 15.4 s ascending, 11.7 and 13.1 s widest first).
     with ThreadPoolExecutor(max_workers=min(len(widths), os.cpu_count() or 1)) as pool:
-        packed = dict(zip(widths[::-1], pool.map(lambda width: _pack(shapes, flat, kind, order, width, p, max_page), widths[::-1])))
+        packed = dict(
+            zip(
+                widths[::-1], pool.map(lambda width: _pack(shapes, flat, kind, order, width, p, max_page), widths[::-1])
+            )
+        )
     return min((packed[width] for width in widths), key=lambda layout: (layout.page_area, len(layout.page_sizes)))
 
 
@@ -262,7 +270,20 @@ def _pack_from(start, order, shapes, kind, run_at, run_rows, run_cols, run_lens,
         index = first
         while index < span.shape[0]:
             sy, sx = (start_y, start_x) if index == first else (0, 0)
-            at_y, at_x = _first_fit(span[index], free[index], run[index], run_rows[lo:hi], run_cols[lo:hi], run_lens[lo:hi], h, w, need_i, run_i, sy, sx)
+            at_y, at_x = _first_fit(
+                span[index],
+                free[index],
+                run[index],
+                run_rows[lo:hi],
+                run_cols[lo:hi],
+                run_lens[lo:hi],
+                h,
+                w,
+                need_i,
+                run_i,
+                sy,
+                sx,
+            )
             if at_y >= 0:
                 break
             index += 1
@@ -305,7 +326,22 @@ def _pack(shapes, flat, kind, order: np.ndarray, width: int, p: int, max_page: i
         free[pages] = run[pages] = width
         bottoms[pages] = 0
         pages += 1
-        start = _pack_from(start, order, shapes, kind, *flat, p, span[:pages], free[:pages], run[:pages], bottoms[:pages], resume, page, x, y)
+        start = _pack_from(
+            start,
+            order,
+            shapes,
+            kind,
+            *flat,
+            p,
+            span[:pages],
+            free[:pages],
+            run[:pages],
+            bottoms[:pages],
+            resume,
+            page,
+            x,
+            y,
+        )
     sizes = np.array([[width, min(max_page, _round4(b))] for b in bottoms[:pages]], dtype=np.int64)
     return MaskLayout(page, x, y, sizes)
 

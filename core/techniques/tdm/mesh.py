@@ -263,7 +263,9 @@ def layer_quads(field: VoxelField) -> tuple[np.ndarray, np.ndarray, int, int, in
             if len(recent) > 6:
                 recent.pop(min(recent))
             index = np.full((h, w), -1, dtype=index_type)
-            index[field.y[starts[j] : starts[j + 1]] - y0, field.x[starts[j] : starts[j + 1]] - x0] = np.arange(starts[j], starts[j + 1])
+            index[field.y[starts[j] : starts[j + 1]] - y0, field.x[starts[j] : starts[j + 1]] - x0] = np.arange(
+                starts[j], starts[j + 1]
+            )
             recent[j] = (index >= 0, index)
         return recent[j]
 
@@ -306,7 +308,15 @@ def layer_quads(field: VoxelField) -> tuple[np.ndarray, np.ndarray, int, int, in
         # (a) quads in the current layer where the previous layer's cell is not filled.
         if start.size:
             cy, cx = np.divmod(start, grid_w)
-            corner = np.stack([np.stack([cx, cy], 1), np.stack([cx + 1, cy], 1), np.stack([cx + 1, cy + 1], 1), np.stack([cx, cy + 1], 1)], axis=1)
+            corner = np.stack(
+                [
+                    np.stack([cx, cy], 1),
+                    np.stack([cx + 1, cy], 1),
+                    np.stack([cx + 1, cy + 1], 1),
+                    np.stack([cx, cy + 1], 1),
+                ],
+                axis=1,
+            )
             quads.append(np.concatenate([corner, np.full(corner.shape[:2] + (1,), l)], axis=2))
             vy, vx = _cell_voxels(cy, cx)
             touch = grids(int(l))[1][vy, vx].astype(np.int64)
@@ -334,7 +344,9 @@ def layer_quads(field: VoxelField) -> tuple[np.ndarray, np.ndarray, int, int, in
                     vx = np.where(dx > 0, (cx + 1) // 2, cx // 2)[:, None].repeat(4, 1)
                 else:
                     vy = np.where(dy > 0, (cy + 1) // 2, cy // 2)[:, None].repeat(4, 1)
-                touches.append(np.concatenate([grids(int(l))[1][vy, vx], grids(int(l) - 1)[1][vy, vx]], axis=1).astype(np.int64))
+                touches.append(
+                    np.concatenate([grids(int(l))[1][vy, vx], grids(int(l) - 1)[1][vy, vx]], axis=1).astype(np.int64)
+                )
         previous_grid[previous] = False
         previous_grid, current_grid = current_grid, previous_grid
         previous, previous_layer = cells, l
@@ -360,7 +372,15 @@ def initial_mesh(field: VoxelField) -> TdmMesh:
     if missing.size:
         mx, my, ml = field.x[missing] - x0, field.y[missing] - y0, field.layer[missing]
         cx, cy = 2 * mx, 2 * my
-        extra = np.stack([np.stack([cx, cy, ml], 1), np.stack([cx + 1, cy, ml], 1), np.stack([cx + 1, cy + 1, ml], 1), np.stack([cx, cy + 1, ml], 1)], axis=1)
+        extra = np.stack(
+            [
+                np.stack([cx, cy, ml], 1),
+                np.stack([cx + 1, cy, ml], 1),
+                np.stack([cx + 1, cy + 1, ml], 1),
+                np.stack([cx, cy + 1, ml], 1),
+            ],
+            axis=1,
+        )
         quads_arr = np.concatenate([quads_arr, extra])
         corners.add(extra)
         vertices, triangles = corners.mesh(x0, y0)
@@ -385,7 +405,9 @@ def initial_mesh(field: VoxelField) -> TdmMesh:
     stats = {
         "initial_quads": int(quads_arr.shape[0]),
         "initial_triangles": int(triangles.shape[0]),
-        "initial_vertices": int(np.count_nonzero(np.bincount(triangles.ravel(), minlength=vertices.shape[0]))),  # those of the meshes left out stay unused
+        "initial_vertices": int(
+            np.count_nonzero(np.bincount(triangles.ravel(), minlength=vertices.shape[0]))
+        ),  # those of the meshes left out stay unused
         "fallback_quads": fallback,
         "step_voxels": step_count,
         "slits_closed": slits,
@@ -515,7 +537,9 @@ def _ear_clip_kernel(loop, vertices, edge_keys, size, out):
     return True
 
 
-def close_slits(vertices: np.ndarray, triangles: np.ndarray, meshes: np.ndarray, max_area: float = SLIT_AREA, max_width: float = 1.0) -> tuple[int, np.ndarray]:
+def close_slits(
+    vertices: np.ndarray, triangles: np.ndarray, meshes: np.ndarray, max_area: float = SLIT_AREA, max_width: float = 1.0
+) -> tuple[int, np.ndarray]:
     """(number of slits, their closing triangles (s, 3) int64): the boundary loops of the mesh
     that enclose (almost) no area in the image (see the module docstring); ``meshes``: the
     triangles' :func:`mesh_labels`."""
@@ -569,7 +593,9 @@ class _Corners:
         known = at < self.keys.size
         known[known] = self.keys[at[known]] == fresh[known]
         keys = np.insert(self.keys, at[~known], fresh[~known])
-        self.inverse = np.concatenate([np.searchsorted(keys, self.keys)[self.inverse.reshape(-1)], np.searchsorted(keys, extra)])
+        self.inverse = np.concatenate(
+            [np.searchsorted(keys, self.keys)[self.inverse.reshape(-1)], np.searchsorted(keys, extra)]
+        )
         self.keys = keys
 
     def mesh(self, x0: int, y0: int) -> tuple[np.ndarray, np.ndarray]:

@@ -131,7 +131,17 @@ def assign_voxels(vertices, triangles, centres, pair_voxel, pair_quad, voxel_cou
         if owner[v] >= 0:
             continue
         for t in (2 * pair_quad[p], 2 * pair_quad[p] + 1):
-            if _vertex_slab(vertices, triangles[t, 0], triangles[t, 1], triangles[t, 2], centres[v, 0], centres[v, 1], centres[v, 2], 0.5, 0.5):
+            if _vertex_slab(
+                vertices,
+                triangles[t, 0],
+                triangles[t, 1],
+                triangles[t, 2],
+                centres[v, 0],
+                centres[v, 1],
+                centres[v, 2],
+                0.5,
+                0.5,
+            ):
                 owner[v] = t
                 break
     return owner
@@ -144,7 +154,17 @@ def covered_by(vertices, triangles, tri_index, centres, half, voxels):
     out = np.zeros(voxels.shape[0], dtype=np.bool_)
     for i in range(voxels.shape[0]):
         t, v = tri_index[i], voxels[i]
-        out[i] = _vertex_slab(vertices, triangles[t, 0], triangles[t, 1], triangles[t, 2], centres[v, 0], centres[v, 1], centres[v, 2], half[v, 0], half[v, 1])
+        out[i] = _vertex_slab(
+            vertices,
+            triangles[t, 0],
+            triangles[t, 1],
+            triangles[t, 2],
+            centres[v, 0],
+            centres[v, 1],
+            centres[v, 2],
+            half[v, 0],
+            half[v, 1],
+        )
     return out
 
 
@@ -308,7 +328,9 @@ def _normal(vertices, a, b, c):
 def _distance(vertices, a, b):
     """Distance between vertices a and b."""
     return np.sqrt(
-        (vertices[a, 0] - vertices[b, 0]) ** 2 + (vertices[a, 1] - vertices[b, 1]) ** 2 + (vertices[a, 2] - vertices[b, 2]) ** 2
+        (vertices[a, 0] - vertices[b, 0]) ** 2
+        + (vertices[a, 1] - vertices[b, 1]) ** 2
+        + (vertices[a, 2] - vertices[b, 2]) ** 2
     )
 
 
@@ -319,7 +341,18 @@ def _segment_distance(vertices, p, a, b):
     length2 = d0**2 + d1**2 + d2**2
     t = 0.0
     if length2 > 0.0:
-        t = min(1.0, max(0.0, ((vertices[p, 0] - vertices[a, 0]) * d0 + (vertices[p, 1] - vertices[a, 1]) * d1 + (vertices[p, 2] - vertices[a, 2]) * d2) / length2))
+        t = min(
+            1.0,
+            max(
+                0.0,
+                (
+                    (vertices[p, 0] - vertices[a, 0]) * d0
+                    + (vertices[p, 1] - vertices[a, 1]) * d1
+                    + (vertices[p, 2] - vertices[a, 2]) * d2
+                )
+                / length2,
+            ),
+        )
     e0 = vertices[a, 0] + t * d0 - vertices[p, 0]
     e1 = vertices[a, 1] + t * d1 - vertices[p, 1]
     e2 = vertices[a, 2] + t * d2 - vertices[p, 2]
@@ -440,8 +473,34 @@ def _segment_covered(vertices, p, q, centres, half, voxels, n_vox, lo, hi):
 
 
 @njit(cache=True)
-def _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, tv_start, tv_len, tv_pool,
-             centres, half, shrink, scratch_t2, scratch_t1, nbr2, cnt2, nbr1, cnt1, vox, assign, cand, lo, hi, corner):
+def _attempt(
+    v2,
+    v1,
+    vertices,
+    triangles,
+    tri_alive,
+    vt_start,
+    vt_len,
+    vt_pool,
+    tv_start,
+    tv_len,
+    tv_pool,
+    centres,
+    half,
+    shrink,
+    scratch_t2,
+    scratch_t1,
+    nbr2,
+    cnt2,
+    nbr1,
+    cnt1,
+    vox,
+    assign,
+    cand,
+    lo,
+    hi,
+    corner,
+):
     """Try to contract v2 into v1 (v1 stays); returns (outcome, number of voxels re-stored, the
     vertex besides v2 and v1 whose triangles it read or -1 (v2's other boundary neighbour), whether
     the outcome reads no enlargement factor).  A failure that reads none (a stale edge, a non-manifold
@@ -572,7 +631,21 @@ def _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, 
 
 
 @njit(cache=True)
-def _simplify(vertices, triangles, edge_keys, tri_voxel_offsets, tri_voxels, centres, half, shrink, max_valence, touch_before, remembered, clock, new_factor):
+def _simplify(
+    vertices,
+    triangles,
+    edge_keys,
+    tri_voxel_offsets,
+    tri_voxels,
+    centres,
+    half,
+    shrink,
+    max_valence,
+    touch_before,
+    remembered,
+    clock,
+    new_factor,
+):
     nv_total = vertices.shape[0]
     nt = triangles.shape[0]
     triangles = triangles.copy()
@@ -659,7 +732,12 @@ def _simplify(vertices, triangles, edge_keys, tri_voxel_offsets, tri_voxels, cen
         # pushed again in this pass has a vertex just touched.)
         if e >= 0 and remembered[e, 0] >= 0 and (remembered[e, 3] or not new_factor):
             t_e, r0, r1 = remembered[e, 0], remembered[e, 1], remembered[e, 2]
-            if touch_time[a] <= t_e and touch_time[b] <= t_e and (r0 < 0 or touch_time[r0] <= t_e) and (r1 < 0 or touch_time[r1] <= t_e):
+            if (
+                touch_time[a] <= t_e
+                and touch_time[b] <= t_e
+                and (r0 < 0 or touch_time[r0] <= t_e)
+                and (r1 < 0 or touch_time[r1] <= t_e)
+            ):
                 continue
         if vt_len[a] > cap_t // 2 or vt_len[b] > cap_t // 2:
             cap_t = 2 * max(vt_len[a], vt_len[b]) + 16
@@ -759,7 +837,9 @@ def _simplify(vertices, triangles, edge_keys, tri_voxel_offsets, tri_voxels, cen
             m1 = _neighbours(v1, cand, nc, triangles, nbr1, cnt1)
             for j in range(m1):
                 w = nbr1[j]
-                keys, items, size = _heap_push(keys, items, size, _distance(vertices, v1, w), v1, w, version[v1], version[w])
+                keys, items, size = _heap_push(
+                    keys, items, size, _distance(vertices, v1, w), v1, w, version[v1], version[w]
+                )
             done = True
             break
         if not done and e >= 0:
@@ -860,7 +940,9 @@ class PassMemory:
         return PassMemory(self.touch_time[kept], a[keep] * new + b[keep], failures, self.clock, self.enlargement)
 
 
-def simplify(vertices, triangles, voxel_offsets, voxels, centres, enlargement, silhouette=None, memory: PassMemory | None = None):
+def simplify(
+    vertices, triangles, voxel_offsets, voxels, centres, enlargement, silhouette=None, memory: PassMemory | None = None
+):
     """Simplify a covering mesh (see the module docstring); ``silhouette`` flags the voxels whose
     boxes are not enlarged.
 
@@ -898,7 +980,9 @@ def simplify(vertices, triangles, voxel_offsets, voxels, centres, enlargement, s
     if memory is None:
         memory = PassMemory.empty(len(vertices), enlargement)
     elif len(memory.touch_time) != len(vertices) or enlargement < memory.enlargement:
-        raise InternalError(f"a pass memory of {len(memory.touch_time):,} vertices at f = {memory.enlargement} for a mesh of {len(vertices):,} at f = {enlargement}")
+        raise InternalError(
+            f"a pass memory of {len(memory.touch_time):,} vertices at f = {memory.enlargement} for a mesh of {len(vertices):,} at f = {enlargement}"
+        )
     # Each edge's failure, if remembered (one row an edge: the kernel reads it in one cache line).
     remembered = np.full((len(keys), 4), -1, np.int32)  # the kernel writes this pass's into it
     if len(memory.keys):
@@ -924,7 +1008,10 @@ def simplify(vertices, triangles, voxel_offsets, voxels, centres, enlargement, s
     at = np.minimum(np.searchsorted(merged_keys, log_keys), max(len(merged_keys) - 1, 0))
     again = merged_keys[at] == log_keys if len(merged_keys) else np.zeros(len(log_keys), bool)
     failures[at[again]] = log_failures[again]
-    merged_keys, failures = np.concatenate([merged_keys, log_keys[~again]]), np.concatenate([failures, log_failures[~again]])
+    merged_keys, failures = (
+        np.concatenate([merged_keys, log_keys[~again]]),
+        np.concatenate([failures, log_failures[~again]]),
+    )
     order = np.argsort(merged_keys, kind="stable")  # two sorted runs: merged in linear time
     live = np.bincount(tris.ravel(), minlength=n) > 0
     merged_keys, failures = merged_keys[order], failures[order]
@@ -933,7 +1020,9 @@ def simplify(vertices, triangles, voxel_offsets, voxels, centres, enlargement, s
     return tris, offsets, vox, dict(zip(OUTCOMES, (int(c) for c in counts))), memory
 
 
-def contraction_outcome(vertices, triangles, voxel_offsets, voxels, centres, enlargement, v2, v1, silhouette=None) -> str:
+def contraction_outcome(
+    vertices, triangles, voxel_offsets, voxels, centres, enlargement, v2, v1, silhouette=None
+) -> str:
     """The outcome of contracting ``v2`` into ``v1`` in a mesh (without changing it), for tests and
     inspection: one of :data:`OUTCOMES`."""
     vertices = np.ascontiguousarray(vertices, dtype=np.float64)

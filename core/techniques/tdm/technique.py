@@ -36,25 +36,25 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from farfield.core import __version__
-from farfield.core.layering.atlas import MAX_PAGE
-from farfield.core.layering.culling import CullingMode
 from farfield.core.errors import InternalError
 from farfield.core.impostor.impostor import Impostor, MeshPayload
-from farfield.core.layering.tiles import layer_records
+from farfield.core.layering import recording
+from farfield.core.layering.atlas import MAX_PAGE
+from farfield.core.layering.culling import CullingMode
 from farfield.core.layering.plan import plan_layers
-from farfield.core.techniques.tdm.mask_atlas import pack_masks
+from farfield.core.layering.tiles import layer_records
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION, PixelModel
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
+from farfield.core.techniques.base import TechniqueDefinition
+from farfield.core.techniques.part import check_part_cell, estimate_part_cell, evaluate_part, part_evaluation_text
+from farfield.core.techniques.tdm.mask_atlas import pack_masks
 from farfield.core.techniques.tdm.mesh import TdmMesh, ear_clip, initial_mesh, mesh_labels
 from farfield.core.techniques.tdm.simplify import box_half_sizes, covered_by, simplify
 from farfield.core.techniques.tdm.texture import build_charts, chart_masks, chart_pages, chart_uvs
-from farfield.core.layering import recording
-from farfield.core.techniques.base import TechniqueDefinition
-from farfield.core.techniques.part import check_part_cell, estimate_part_cell, evaluate_part, part_evaluation_text
-from farfield.core.viewcells import BoxCell, ViewCell
 from farfield.core.techniques.tdm.voxel_field import VoxelField, record_voxel_field
+from farfield.core.viewcells import BoxCell, ViewCell
 
 
 @dataclass(frozen=True, slots=True)
@@ -63,13 +63,27 @@ class TdmOptions:
 
     resolution: int = option(512, "output image pixels per side", ge=1, le=MAX_RESOLUTION)
     fov_deg: float = option(45.0, "output field of view, degrees", gt=0.0, lt=180.0)
-    enlargement: float = option(2.0, "voxel enlargement factor of the covering test (seed 003 §6): larger, fewer polygons, less accurate", ge=1.0, le=8.0)
+    enlargement: float = option(
+        2.0,
+        "voxel enlargement factor of the covering test (seed 003 §6): larger, fewer polygons, less accurate",
+        ge=1.0,
+        le=8.0,
+    )
     oversampling: int = option(1, "nearest voxels averaged per texel (seed 003 §7)", ge=1, le=64)
     culling: CullingMode = option("penumbra", "hidden-texel culling of the recorded layers: penumbra, umbra or off")
-    pixel_model: PixelModel = option("min", "error bound from the smallest pixel angle (min) or the centre pixel (center)")
+    pixel_model: PixelModel = option(
+        "min", "error bound from the smallest pixel angle (min) or the centre pixel (center)"
+    )
     padding: int = option(2, "atlas padding between charts, texels", ge=0, le=64)
-    max_page: int = option(MAX_PAGE, "largest atlas page side, texels (WebGL2 guarantees 2048, many mobile GPUs stop at 4096)", ge=64, le=16384)
-    texel_margin: int = option(1, "texels around each chart's triangles, for bilinear filtering (seed 003 §7)", ge=0, le=8)
+    max_page: int = option(
+        MAX_PAGE,
+        "largest atlas page side, texels (WebGL2 guarantees 2048, many mobile GPUs stop at 4096)",
+        ge=64,
+        le=16384,
+    )
+    texel_margin: int = option(
+        1, "texels around each chart's triangles, for bilinear filtering (seed 003 §7)", ge=0, le=8
+    )
 
     def __post_init__(self) -> None:
         check_options(self)
@@ -107,7 +121,9 @@ def schedule(enlargement: float) -> tuple[float, ...]:
     return steps + (float(enlargement),)
 
 
-def simplify_mesh(mesh: TdmMesh, field: VoxelField, enlargement: float, silhouette: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+def simplify_mesh(
+    mesh: TdmMesh, field: VoxelField, enlargement: float, silhouette: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """The cascade of :func:`farfield.core.techniques.tdm.simplify.simplify` passes for ``enlargement``, each repeated
     until it changes nothing: (triangles, voxel offsets, voxels, outcome counts summed over every
     pass, repeats included).  ``silhouette``: the field's
@@ -121,7 +137,9 @@ def simplify_mesh(mesh: TdmMesh, field: VoxelField, enlargement: float, silhouet
     for factor in schedule(enlargement):
         while True:
             before = triangles.shape[0]
-            triangles, offsets, voxels, counts, memory = simplify(vertices, triangles, offsets, voxels, centres, factor, silhouette, memory)
+            triangles, offsets, voxels, counts, memory = simplify(
+                vertices, triangles, offsets, voxels, centres, factor, silhouette, memory
+            )
             for key, value in counts.items():
                 totals[key] = totals.get(key, 0) + value
             if triangles.shape[0] == before:
@@ -134,17 +152,32 @@ def simplify_mesh(mesh: TdmMesh, field: VoxelField, enlargement: float, silhouet
             if kept.size < 0.75 * len(vertices):
                 number = np.zeros(len(vertices), np.int64)
                 number[kept] = np.arange(kept.size)
-                triangles, vertices, original, memory = number[triangles], vertices[kept], original[kept], memory.renumbered(kept)
+                triangles, vertices, original, memory = (
+                    number[triangles],
+                    vertices[kept],
+                    original[kept],
+                    memory.renumbered(kept),
+                )
     return original[triangles], offsets, voxels, totals
 
 
-def uncovered_voxels(vertices: np.ndarray, triangles: np.ndarray, offsets: np.ndarray, voxels: np.ndarray, field: VoxelField, enlargement: float, silhouette: np.ndarray | None = None) -> int:
+def uncovered_voxels(
+    vertices: np.ndarray,
+    triangles: np.ndarray,
+    offsets: np.ndarray,
+    voxels: np.ndarray,
+    field: VoxelField,
+    enlargement: float,
+    silhouette: np.ndarray | None = None,
+) -> int:
     """Voxels of ``field`` that no triangle stores, or whose storing triangle misses its box
     enlarged by ``enlargement`` (0 after a correct simplification); ``silhouette`` as for
     :func:`simplify_mesh`."""
     owner = np.repeat(np.arange(triangles.shape[0]), np.diff(offsets))
     silhouette = field.silhouette if silhouette is None else silhouette
-    hits = covered_by(vertices, triangles, owner, field.centres, box_half_sizes(field.count, enlargement, silhouette), voxels)
+    hits = covered_by(
+        vertices, triangles, owner, field.centres, box_half_sizes(field.count, enlargement, silhouette), voxels
+    )
     stored = np.zeros(field.count, dtype=bool)
     stored[voxels[hits]] = True
     return int(field.count - stored.sum())
@@ -212,13 +245,26 @@ def warm_kernels() -> float:
     (:mod:`workers.tasks`), so its first cell does not pay the compilation (some 35 s on a 2-core
     machine with an empty cache, 0.4 s to load a filled one)."""
     start = time.perf_counter()
-    plan = plan_layers(BoxCell(np.array([-0.5, -0.5, -4.0]), np.array([0.5, 0.5, -3.0])), np.array([[-1.0, -1.0, 0.0], [1.0, 1.0, 1.0]]), math.radians(45.0), 64, "min")
+    plan = plan_layers(
+        BoxCell(np.array([-0.5, -0.5, -4.0]), np.array([0.5, 0.5, -3.0])),
+        np.array([[-1.0, -1.0, 0.0], [1.0, 1.0, 1.0]]),
+        math.radians(45.0),
+        64,
+        "min",
+    )
     res_x, res_y = (int(r) for r in plan.texture_resolution)
     y, x = np.mgrid[res_y // 4 : 3 * res_y // 4, res_x // 4 : 3 * res_x // 4]
     layer = np.minimum((x - x.min()) * plan.count // (2 * max(int(np.ptp(x)), 1)), plan.count - 1)
     key = np.argsort((layer * res_y + y) * res_x + x, axis=None)
     rgba = np.full((key.size, 4), 255, np.uint8)
-    field = VoxelField(plan, x.ravel()[key].astype(np.int64), y.ravel()[key].astype(np.int64), layer.ravel()[key].astype(np.int64), rgba, {})
+    field = VoxelField(
+        plan,
+        x.ravel()[key].astype(np.int64),
+        y.ravel()[key].astype(np.int64),
+        layer.ravel()[key].astype(np.int64),
+        rgba,
+        {},
+    )
     mesh_field(field, TdmOptions(resolution=64), StageClock(()))
     # The slit closing's ear clipping, which the slab has no slit to need: a square loop.
     ear_clip(np.arange(4), np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]), np.array([1], np.int64), 4)
@@ -267,7 +313,13 @@ def bake_tdm(
         payload=MeshPayload.from_triangle_corners(corners, uv, page=triangle_page, mesh=meshes),
         layers=layers,
         stats=stats,
-        parameters={**asdict(options), "schedule": list(schedule(options.enlargement)), "objects": list(part.names), "scene_hash": scene.content_hash, "plan": plan.to_dict()},
+        parameters={
+            **asdict(options),
+            "schedule": list(schedule(options.enlargement)),
+            "objects": list(part.names),
+            "scene_hash": scene.content_hash,
+            "plan": plan.to_dict(),
+        },
         code_version=__version__,
     )
 

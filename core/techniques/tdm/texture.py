@@ -317,9 +317,13 @@ def build_charts(points: np.ndarray, triangles: np.ndarray, margin: int) -> Char
         # Oversized charts: cut into cells of half the limit by triangle centroid.
         low, high = _extents(chart, plane, count)
         too_big = np.any(high - low + 2 * margin + 1 > MAX_CHART, axis=1)
-        cell = np.where(too_big[chart][:, None], np.floor((centroid - low[chart]) / (MAX_CHART // 2)), 0).astype(np.int64)
+        cell = np.where(too_big[chart][:, None], np.floor((centroid - low[chart]) / (MAX_CHART // 2)), 0).astype(
+            np.int64
+        )
         cell -= cell.min(axis=0, initial=0)
-        rows = np.ravel_multi_index((chart, evicted, cell[:, 0], cell[:, 1]), (count, 2, *(cell.max(axis=0, initial=0) + 1)))
+        rows = np.ravel_multi_index(
+            (chart, evicted, cell[:, 0], cell[:, 1]), (count, 2, *(cell.max(axis=0, initial=0) + 1))
+        )
         refined = np.unique(rows, return_inverse=True)[1].reshape(-1)  # the (chart, evicted, cell) rows in order
         if int(refined.max(initial=-1)) + 1 == count:
             break
@@ -438,8 +442,15 @@ class _Unfolding:
         # MAX_CHART texels: the keys' window reaches that far beyond every position.
         tri, u, v = claimed
         known = plane[np.isfinite(plane)]
-        self.base = min(int(np.floor(known.min(initial=0.0))), int(u.min(initial=0)), int(v.min(initial=0))) - MAX_CHART - 2
-        self.span = max(int(np.ceil(known.max(initial=0.0))), int(u.max(initial=0)), int(v.max(initial=0))) + MAX_CHART + 3 - self.base
+        self.base = (
+            min(int(np.floor(known.min(initial=0.0))), int(u.min(initial=0)), int(v.min(initial=0))) - MAX_CHART - 2
+        )
+        self.span = (
+            max(int(np.ceil(known.max(initial=0.0))), int(u.max(initial=0)), int(v.max(initial=0)))
+            + MAX_CHART
+            + 3
+            - self.base
+        )
         order = np.argsort(tri, kind="stable")
         self.owned = self.keys(chart[tri[order]], u[order], v[order]).tolist()  # triangle s: from owned_from[s]
         self.owned_from = np.searchsorted(tri[order], np.arange(chart.size + 1)).tolist()
@@ -457,15 +468,29 @@ class _Unfolding:
         tri, u, v = tri[inside], u[inside], v[inside]
         bounds = np.searchsorted(tri, np.arange(lone.size + 1)).tolist()  # rasterize emits by triangle
         source, target = self.chart[lone], self.chart[across]
-        keys = self.keys(target[tri], u, v).tolist()  # those outside the window are of moves past MAX_CHART, never looked up
+        keys = self.keys(
+            target[tri], u, v
+        ).tolist()  # those outside the window are of moves past MAX_CHART, never looked up
         size, extent, uses, claim, n, moved = self.size.tolist(), self.extent, self.uses, self.claim, self.n, []
-        candidates = zip(lone.tolist(), source.tolist(), target.tolist(), third.tolist(), *new.min(axis=1).T.tolist(), *new.max(axis=1).T.tolist())
+        candidates = zip(
+            lone.tolist(),
+            source.tolist(),
+            target.tolist(),
+            third.tolist(),
+            *new.min(axis=1).T.tolist(),
+            *new.max(axis=1).T.tolist(),
+        )
         for i, (s, own, other, apex, new_lu, new_lv, new_hu, new_hv) in enumerate(candidates):
             # Not moved already (its chart would be empty), and the vertex not in that chart.
             if size[own] != 1 or uses.get(other * n + apex, 0) > 0:
                 continue
             at = 4 * other
-            lu, lv, hu, hv = min(extent[at], new_lu), min(extent[at + 1], new_lv), max(extent[at + 2], new_hu), max(extent[at + 3], new_hv)
+            lu, lv, hu, hv = (
+                min(extent[at], new_lu),
+                min(extent[at + 1], new_lv),
+                max(extent[at + 2], new_hu),
+                max(extent[at + 3], new_hv),
+            )
             if hu - lu + 2 * margin + 1 > MAX_CHART or hv - lv + 2 * margin + 1 > MAX_CHART:
                 continue
             mine = keys[bounds[i] : bounds[i + 1]]
@@ -578,7 +603,9 @@ def chart_masks(charts: Charts) -> list[np.ndarray]:
     return masks
 
 
-def chart_pages(field: VoxelField, world: np.ndarray, charts: Charts, layout: MaskLayout, oversampling: int) -> list[np.ndarray]:
+def chart_pages(
+    field: VoxelField, world: np.ndarray, charts: Charts, layout: MaskLayout, oversampling: int
+) -> list[np.ndarray]:
     """The (H, W, 4) uint8 atlas pages of ``charts`` placed by ``layout``: every needed texel
     coloured from the voxel field through the world triangles ``world`` (t, 3, 3) (see the module
     docstring), every other texel copied from the nearest needed one, so that every texel is

@@ -22,9 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from farfield.core.errors import LayerPlanError
 from farfield.core.layering.culled import culled_layers
 from farfield.core.layering.culling import CullingMode
-from farfield.core.errors import LayerPlanError
 from farfield.core.layering.plan import LayerPlan
 from farfield.core.layering.recording import eye_coordinates
 from farfield.core.scene import Scene

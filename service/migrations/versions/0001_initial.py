@@ -23,7 +23,9 @@ def upgrade() -> None:
     op.create_table(
         "api_keys",
         sa.Column("id", sa.String(32), primary_key=True),
-        sa.Column("tenant_id", sa.String(32), sa.ForeignKey("tenants.id", ondelete="CASCADE"), nullable=False, index=True),
+        sa.Column(
+            "tenant_id", sa.String(32), sa.ForeignKey("tenants.id", ondelete="CASCADE"), nullable=False, index=True
+        ),
         sa.Column("prefix", sa.String(32), nullable=False, unique=True),
         sa.Column("digest", sa.String(64), nullable=False),
         sa.Column("created_at", sa.Float, nullable=False),
@@ -32,7 +34,9 @@ def upgrade() -> None:
     op.create_table(
         "scenes",
         sa.Column("id", sa.String(32), primary_key=True),
-        sa.Column("tenant_id", sa.String(32), sa.ForeignKey("tenants.id", ondelete="CASCADE"), nullable=False, index=True),
+        sa.Column(
+            "tenant_id", sa.String(32), sa.ForeignKey("tenants.id", ondelete="CASCADE"), nullable=False, index=True
+        ),
         sa.Column("name", sa.String(500), nullable=False),
         sa.Column("extension", sa.String(16), nullable=False),
         sa.Column("blob_key", sa.String(500), nullable=False),
@@ -46,7 +50,9 @@ def upgrade() -> None:
     op.create_table(
         "jobs",
         sa.Column("id", sa.String(32), primary_key=True),
-        sa.Column("tenant_id", sa.String(32), sa.ForeignKey("tenants.id", ondelete="CASCADE"), nullable=False, index=True),
+        sa.Column(
+            "tenant_id", sa.String(32), sa.ForeignKey("tenants.id", ondelete="CASCADE"), nullable=False, index=True
+        ),
         sa.Column("scene_id", sa.String(32), sa.ForeignKey("scenes.id"), nullable=False, index=True),
         sa.Column("job_type", sa.String(32), nullable=False),
         sa.Column("params", sa.JSON, nullable=False),

@@ -30,7 +30,10 @@ def upgrade() -> None:
     else:
         for scene_id, objects in connection.execute(sa.text("SELECT id, objects FROM scenes")).all():
             count = len(json.loads(objects) if isinstance(objects, str) else objects or [])
-            connection.execute(sa.text("UPDATE scenes SET object_count = :n, original_name = name WHERE id = :id"), {"n": count, "id": scene_id})
+            connection.execute(
+                sa.text("UPDATE scenes SET object_count = :n, original_name = name WHERE id = :id"),
+                {"n": count, "id": scene_id},
+            )
     op.create_index("ix_scenes_tenant_created", "scenes", ["tenant_id", "created_at"])
 
 
