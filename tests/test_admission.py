@@ -188,6 +188,7 @@ def limited_job(tmp_path, resolution: int = 512, **env: str) -> dict:
         assert service.stop() == 0
 
 
+@pytest.mark.service
 def test_a_cell_past_its_time_limit_fails_once_with_the_limit_named(tmp_path):
     """Celery's soft time limit ends the attempt as a failed cell naming FARFIELD_CELL_TIME_LIMIT;
     it is bad input, so there is no retry and the job ends failed."""
@@ -203,6 +204,7 @@ def test_a_cell_past_its_time_limit_fails_once_with_the_limit_named(tmp_path):
     assert cell["error"].startswith("CellLimitError: the cell ran longer than FARFIELD_CELL_TIME_LIMIT (1 s) and was stopped; not retried")
 
 
+@pytest.mark.service
 def test_a_cell_past_its_memory_limit_fails_once_with_the_limit_named(tmp_path):
     """The pool process's memory guard fails the cell naming FARFIELD_CELL_MEMORY_MB and ends the
     process; the redelivered message finds the cell failed, so there is one attempt and the job
@@ -214,6 +216,7 @@ def test_a_cell_past_its_memory_limit_fails_once_with_the_limit_named(tmp_path):
     assert re.fullmatch(r"CellLimitError: the cell's worker process grew to \d+ MiB of memory, over FARFIELD_CELL_MEMORY_MB \(64 MiB\), and was stopped; not retried.*", cell["error"]), cell["error"]
 
 
+@pytest.mark.service
 def test_a_placement_s_planning_past_the_memory_limit_fails_the_job_once(tmp_path):
     """Planning runs under the same guard as a cell: past FARFIELD_CELL_MEMORY_MB the job fails
     naming the limit and what to change, and the planning process's redelivery changes nothing.

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import trimesh
 from scenes import SHARED_SCENES
-from service_harness import start_service, wait_for_job
+from service_harness import wait_for_job, service_on_sqlite  # noqa: F401 - the service fixtures
 
 from farfield.core.errors import SceneLoadError, UploadTooLargeError
 from farfield.core.exchange import load_scene
@@ -166,13 +166,6 @@ def test_a_stored_multi_file_scene_loads_on_a_worker_with_its_texture(tmp_path):
     bare = ingest_scene(db, blobs, tenant, "duck.obj", io.BytesIO(DUCK.read_bytes()), LIMIT, more=[("duck.mtl", io.BytesIO(duck_files()["duck.mtl"]))])
     assert bare.content_hash != local.content_hash and any("duckCM.png" in w for w in bare.upload_warnings)
     db.dispose()
-
-
-@pytest.fixture(scope="module")
-def service(tmp_path_factory):
-    running = start_service(tmp_path_factory.mktemp("farfield-files"))
-    yield running
-    assert running.stop() == 0
 
 
 def test_multi_file_scenes_over_rest_and_the_cli_and_bad_archives_leave_nothing(service, helmet_gltf, tmp_path):

@@ -17,7 +17,7 @@ import zipfile
 
 import pytest
 from scenes import write_scene
-from service_harness import start_service, upload, wait_for_job
+from service_harness import upload, wait_for_job, service_on_sqlite, service_client  # noqa: F401 - the service fixtures
 
 from farfield.core.procedural import city
 
@@ -27,19 +27,6 @@ from farfield.core.procedural import city
 VIEW_SPACE = {"lo": [10.0, 2.0, 10.0], "hi": [70.0, 6.0, 70.0]}
 QUICK = {"view_space": VIEW_SPACE, "budget": {"primitives": 800}, "cpv_size": 20}
 SLOW = {"view_space": VIEW_SPACE, "budget": {"primitives": 600}, "cpv_size": 3}
-
-
-@pytest.fixture(scope="module")
-def service(tmp_path_factory):
-    running = start_service(tmp_path_factory.mktemp("farfield-placement"))
-    yield running
-    assert running.stop() == 0
-
-
-@pytest.fixture(scope="module")
-def client(service):
-    with service.client() as c:
-        yield c
 
 
 @pytest.fixture(scope="module")

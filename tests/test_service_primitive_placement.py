@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scenes import write_scene
-from service_harness import start_service, upload, wait_for_job
+from service_harness import upload, wait_for_job, service_on_sqlite  # noqa: F401 - the service fixtures
 
 from farfield.core.procedural import city
 
@@ -200,13 +200,6 @@ def test_a_technique_other_than_ldi_or_a_fov_below_the_star_shape_bound_is_refus
 
 
 # --- the whole service ------------------------------------------------------------------------
-
-
-@pytest.fixture(scope="module")
-def service(tmp_path_factory):
-    running = start_service(tmp_path_factory.mktemp("farfield-primitive"))
-    yield running
-    assert running.stop() == 0
 
 
 def test_submit_wait_download_walk_look_up_and_refuse_over_the_service(service, tmp_path):

@@ -24,7 +24,7 @@ import PIL.Image
 import pytest
 from browser import CHROMIUM, SKIP_REASON, dashboard_page, new_page, tid
 from scenes import city, write_scene
-from service_harness import ADMIN_KEY, start_service, upload, wait_for_job
+from service_harness import ADMIN_KEY, upload, wait_for_job, service_on_sqlite, service_client  # noqa: F401 - the service fixtures
 from test_threejs import compare
 from threejs import THREE_SKIP_REASON, three_available
 
@@ -50,19 +50,6 @@ SPEC = {"job_type": "envmap", "grid": GRID, "resolution": 64, "fov_deg": 90.0, "
 CENTRE = 4  # cell (1, 1, 0)
 PLACEMENT = {"view_space": {"lo": [10.0, 2.0, 10.0], "hi": [70.0, 6.0, 70.0]}, "budget": {"primitives": 800}, "cpv_size": 20}
 SIZE = 128  # the compared frames, square
-
-
-@pytest.fixture(scope="module")
-def service(tmp_path_factory):
-    running = start_service(tmp_path_factory.mktemp("farfield-home"))
-    yield running
-    assert running.stop() == 0
-
-
-@pytest.fixture(scope="module")
-def client(service):
-    with service.client() as c:
-        yield c
 
 
 @pytest.fixture(scope="module")
