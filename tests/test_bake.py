@@ -7,7 +7,6 @@ import pytest
 import scenes
 
 from farfield.core.quality.evaluation import compare_images, evaluate, impostor_objects
-from farfield.core.render.context import gl_context
 from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
 from farfield.core.scene import Scene
 from farfield.core.techniques.layered import BakeOptions, bake_layered
@@ -57,8 +56,8 @@ def needs_shared(name: str) -> None:
 
 
 @pytest.fixture(scope="module")
-def ctx():
-    context = gl_context()
+def ctx(gl):
+    context = gl
     yield context
     assert context.error == "GL_NO_ERROR"
 

@@ -22,7 +22,6 @@ from farfield.core.layering.recording import (
     texel_coordinates,
     texel_rectangles,
 )
-from farfield.core.render.context import gl_context
 from farfield.core.scene import Scene, SceneObject
 from farfield.core.viewcells import BoxCell
 
@@ -66,8 +65,8 @@ def touched_texels(scene: Scene, plan, spacing: float = 0.2) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def ctx():
-    context = gl_context()
+def ctx(gl):
+    context = gl
     yield context
     assert context.error == "GL_NO_ERROR"
 
