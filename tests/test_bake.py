@@ -63,6 +63,7 @@ def ctx(gl):
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
+@pytest.mark.slow
 def test_no_hole_pixels_from_inside_the_view_cell(name, ctx):
     needs_shared(name)
     factory, distance, size, lift = CASES[name]
@@ -151,6 +152,7 @@ def test_bake_is_deterministic(ctx):
     assert all(np.array_equal(p, q) for p, q in zip(a.pages, b.pages))
 
 
+@pytest.mark.slow
 def test_memory_grows_with_kept_texels_not_layers_times_image(ctx):
     """Peak memory of a many-layer bake of few triangles stays far below holding every layer at
     once (the per-pair clipping temporaries grow with triangles x spans, which this scene keeps small)."""

@@ -83,6 +83,7 @@ def test_a_long_upload_name_is_shortened_not_a_500(api, tmp_path):
     assert response.json()["original_name"] == "b" * 242 + ".glb"  # kept as metadata, never in a path
 
 
+@pytest.mark.slow
 def test_a_deep_node_chain_upload_is_refused_quickly_with_413(api):
     """The campaign's 2.3 MB glTF of a 100,000-deep node chain blocked its upload for 40 s."""
     from test_scene_limits import gltf_bytes

@@ -79,6 +79,7 @@ def schemathesis_run(app, config: dict) -> tuple[list[str], int, float]:
     return sorted(failures), requests, seconds
 
 
+@pytest.mark.slow
 def test_the_api_conforms_to_its_openapi_document(service):
     """Every check of schemathesis passes over every operation of the document: examples, the
     coverage phase (boundary values, missing and wrong-typed fields, undeclared methods, broken

@@ -122,6 +122,7 @@ def test_farthest_point_from_the_cameras_matches_dense_sampling(seed):
 
 
 @pytest.mark.parametrize("seed", range(4))
+@pytest.mark.slow
 def test_movement_factor_bounds_the_worst_viewer_and_sample(seed):
     # Samples anywhere above the plane at height >= D (also far outside the polygon), viewers
     # anywhere on the polygon: the spacing seen from the nearest viewer over the spacing at the

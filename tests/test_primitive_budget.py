@@ -158,6 +158,7 @@ def test_the_star_radius_holds_every_eye_and_the_papers_sphere_does_not_at_54_de
     assert MIN_FOV_DEG == pytest.approx(53.1301, abs=1e-4)
 
 
+@pytest.mark.slow
 def test_the_guarantee_holds_on_ten_thousand_views(city_placement):
     scene, placement = city_placement
     s = placement.summary()
@@ -226,6 +227,7 @@ def test_bad_inputs_are_clear_errors():
         place_primitives(scene, lo, hi, BudgetSettings(primitives=1000, p_opt=2000))
 
 
+@pytest.mark.slow
 def test_place_command_with_the_primitive_budget(tmp_path):
     _register()
     scene = procedural.city(16, seed=2, detail=8)
@@ -250,6 +252,7 @@ def test_place_command_with_the_primitive_budget(tmp_path):
     assert mixed.exit_code == 2 and "--primitives N only" in mixed.output
 
 
+@pytest.mark.slow
 def test_a_baked_database_is_walked_within_the_budget(tmp_path):
     """farfield place --bake writes the grid and an LDI bundle per image; farfield walkthrough reads it
     back against the scene: every view within P, LDIs warped, a few hole pixels at most."""

@@ -169,6 +169,7 @@ def cli(url: str, *args: str):
     return subprocess.run([sys.executable, "-m", "farfield.cli.main", *args], check=False, env=env, capture_output=True, text=True, timeout=120)
 
 
+@pytest.mark.slow
 def test_cli_pages_scenes_objects_and_jobs(api, served):
     one = cli(served, "scenes", "--limit", "3")
     assert one.returncode == 0, one.stderr

@@ -62,6 +62,7 @@ def _equal(a, b, path: str = "impostor") -> None:
 
 
 @pytest.mark.parametrize("name", list(TECHNIQUES))
+@pytest.mark.slow
 def test_every_technique_bakes_round_trips_and_has_no_hole_from_inside_its_cell(name, tmp_path):
     technique = get_technique(name)
     make_scene, cell = CASES[technique.scope]
@@ -89,6 +90,7 @@ def test_every_technique_bakes_round_trips_and_has_no_hole_from_inside_its_cell(
 
 
 @pytest.mark.parametrize("name", list(TECHNIQUES))
+@pytest.mark.slow
 def test_every_technique_keeps_its_pages_within_max_page(name):
     technique = get_technique(name)
     make_scene, cell = CASES[technique.scope]
