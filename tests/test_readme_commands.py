@@ -59,6 +59,7 @@ def test_the_readme_lists_offline_examples():
 
 
 @pytest.mark.skipif(not (SHARED / "scenes").is_dir(), reason="needs ../shared/scenes")
+@pytest.mark.slow
 def test_the_readme_offline_examples_run_as_written(tmp_path):
     work = tmp_path / "checkout"
     work.mkdir()
