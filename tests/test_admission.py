@@ -74,6 +74,7 @@ def create_directly(home, scene_id: str, limits: AdmissionLimits | None = None, 
     return create_job(db, tenant_id, scene, JobSpec(scene_id=scene_id, **spec), limits or AdmissionLimits())
 
 
+@pytest.mark.slow
 def test_a_16384_job_is_refused_with_its_estimate(home):
     """The issue's case: one layered cell at 16384 px was accepted and held a worker for about an
     hour.  With the default limits it is refused at once, with the estimate, the limit and the

@@ -79,6 +79,7 @@ def test_no_hole_pixels_from_inside_the_view_cell(name, ctx):
     assert ctx.error == "GL_NO_ERROR"
 
 
+@pytest.mark.slow
 def test_without_conservative_recording_the_thin_forest_has_holes(ctx):
     scene = thin_forest()
     diameter = float(np.max(scene.bounds[1] - scene.bounds[0]))
@@ -109,6 +110,7 @@ def test_culling_removes_no_texel_seen_from_the_view_cell(ctx):
             assert stats["colour_error_mean"] < 0.2
 
 
+@pytest.mark.slow
 def test_guarantee_ends_outside_the_view_cell(ctx):
     """Seed 000 Fig. 3.18: far enough outside (here, much closer to the part) errors appear.
 
@@ -173,6 +175,7 @@ def test_memory_grows_with_kept_texels_not_layers_times_image(ctx):
     assert peak < 0.25 * all_layers, (peak, all_layers)
 
 
+@pytest.mark.slow
 def test_small_pages_cut_the_quads_that_would_not_fit_and_draw_the_same(ctx):
     """max_page 64 (the option's least) with padding 2: box-grown quads up to a layer wide used to
     end the bake with AtlasOverflowError; they are cut into pieces of at most 60 texels a side,

@@ -74,6 +74,7 @@ def test_loose_types_are_refused(api, value):
     assert response.status_code == 422 and "counts" in response.json()["detail"]
 
 
+@pytest.mark.slow
 def test_a_long_upload_name_is_shortened_not_a_500(api, tmp_path):
     path = write_scene(city(buildings=2), tmp_path, "glb")
     response = api.post("/v1/scenes", files={"file": ("b" * 242 + ".glb", path.read_bytes())})

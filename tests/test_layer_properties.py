@@ -63,6 +63,7 @@ def test_uniform_scaling_changes_no_layer_count(gap, depth, width, res, fov, mod
 
 @SETTINGS
 @given(gap=distances, depth=depths, width=widths, res=st.integers(16, 512), fov=fovs, model=models)
+@pytest.mark.slow
 def test_no_nan_negative_or_infinite_spacing(gap, depth, width, res, fov, model):
     cell, bounds = scene(1.0, gap, depth, width)
     plan = plan_layers(cell, bounds, math.radians(fov), res, model)
@@ -75,6 +76,7 @@ def test_no_nan_negative_or_infinite_spacing(gap, depth, width, res, fov, model)
 
 @SETTINGS
 @given(gap=distances, factor=st.floats(1.05, 4.0), depth=st.floats(0.05, 3.0), width=widths, res=st.integers(16, 512), model=models)
+@pytest.mark.slow
 def test_layer_count_falls_with_distance(gap, factor, depth, width, res, model):
     fov = math.radians(45)
     near = plan_layers(*scene(1.0, gap, depth, width), fov, res, model)
@@ -95,6 +97,7 @@ def test_layer_count_rises_with_resolution(gap, depth, width, res, factor, model
 
 @SETTINGS
 @given(gap=st.floats(2.0, 50.0), depth=st.floats(0.05, 3.0), width=widths, res=st.integers(16, 512), factor=st.floats(1.05, 3.0), model=models)
+@pytest.mark.slow
 def test_layer_count_rises_with_view_cell_size(gap, depth, width, res, factor, model):
     """The part stays put; the cell grows about its centre."""
     fov = math.radians(45)

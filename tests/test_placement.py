@@ -166,6 +166,7 @@ def test_lazy_re_ranking_chooses_what_full_re_ranking_chooses(seed):
     assert np.array_equal(lazy.t, full.t)
 
 
+@pytest.mark.slow
 def test_greedy_is_valid_and_near_the_brute_force_optimum():
     """On 60 random instances small enough to enumerate (8 candidates, 256 subsets): whenever a
     valid placement exists, the greedy's is valid, and its memory stays within 1.5x of the optimum.

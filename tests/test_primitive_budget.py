@@ -199,6 +199,7 @@ def test_what_a_view_does_not_draw_lies_outside_its_frustum_or_in_its_image(city
             assert np.all(covered[cells.face_cell[k][seen]])
 
 
+@pytest.mark.slow
 def test_too_little_subdivision_leaves_unsolved_views_reported():
     scene = _city()
     lo, hi = _view_space(scene)

@@ -141,6 +141,7 @@ def test_layers_draw_only_the_triangles_their_slab_needs():
     assert offsets[-1] == order.shape[0] < faces.shape[0] * 40
 
 
+@pytest.mark.slow
 def test_triangles_beyond_an_image_edge_are_dropped_before_pairing_and_would_have_drawn_nothing():
     rng = np.random.default_rng(3)
     half_tan, resolution = np.array([0.7, 0.5]), np.array([64, 48])

@@ -142,6 +142,7 @@ def test_packing_finds_an_obj_s_mtl_and_texture_and_a_gltf_s_buffer_and_images(h
     assert pack_scene(HELMET) is None  # a .glb holds its files
 
 
+@pytest.mark.slow
 def test_a_stored_multi_file_scene_loads_on_a_worker_with_its_texture(tmp_path):
     from farfield.service.blobs import LocalBlobStore
     from farfield.service.db import Database

@@ -276,6 +276,7 @@ def flow(tmp_path):
     made.db.dispose()
 
 
+@pytest.mark.slow
 def test_only_the_state_the_next_check_needs_is_kept_and_the_check_waits_the_configured_lease(flow, monkeypatch):
     from farfield.service.db import now
     from farfield.service.placement_jobs import check_job, plan_job
@@ -300,6 +301,7 @@ def test_only_the_state_the_next_check_needs_is_kept_and_the_check_waits_the_con
     assert flow.blobs.exists(flow.job().index_key)
 
 
+@pytest.mark.slow
 def test_a_cancel_during_the_check_leaves_no_index_and_no_state(flow, monkeypatch):
     """The user cancels while the last check runs, after it wrote the database index and before it
     commits: the index is removed (and every planner state), the job stays cancelled, no index."""

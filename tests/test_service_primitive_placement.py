@@ -88,6 +88,7 @@ def flow(tmp_path_factory):
     made.db.dispose()
 
 
+@pytest.mark.slow
 def test_the_job_plans_the_grid_bakes_one_ldi_cell_per_image_and_writes_its_database(flow):
     from farfield.service.jobs import job_cells
     from farfield.service.placement_jobs import planner_state_keys
