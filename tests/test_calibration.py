@@ -192,6 +192,7 @@ def test_calibrate_command_writes_a_model_that_loads(tmp_path):
         (("--out", "no/such/folder/model.json"), "cannot write the cost model"),
     ],
 )
+@pytest.mark.slow
 def test_bad_arguments_give_one_line_and_a_non_zero_exit(args, message):
     run = farfield("calibrate", *args)
     assert run.returncode != 0

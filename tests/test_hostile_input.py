@@ -51,6 +51,7 @@ def job(api, **change) -> dict:
         ('"options": {"padding": Infinity}', "padding"),
     ],
 )
+@pytest.mark.slow
 def test_non_finite_numbers_are_a_422_naming_the_field(api, raw, field):
     """JSON has no NaN or infinity, but Python's parser reads them: the 422 used to echo them back
     and fail to encode (a 500, and the client's kept-alive connection reset)."""

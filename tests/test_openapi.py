@@ -113,6 +113,7 @@ def checked(service, method: str, template: str, path: str | None = None, **requ
     return response
 
 
+@pytest.mark.slow
 def test_a_job_s_life_answers_as_documented(service, tmp_path):
     """The requests schemathesis rarely makes (its ids are made up): a real upload, job, cell,
     lookup, the 409s of a queued job, cancel and delete, each response checked against the document."""

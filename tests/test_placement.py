@@ -224,6 +224,7 @@ def test_a_generous_budget_needs_no_impostor():
     assert result.summary["cpvs"] == 0 and result.impostors == [] and result.message() is None
 
 
+@pytest.mark.slow
 def test_a_tight_budget_is_met_with_impostors_and_every_cpv_stays_within_it():
     city = _small_city()
     result = place(city, *VIEW, _settings(t_max=0.5 * city.triangle_count))

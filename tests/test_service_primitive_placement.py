@@ -143,6 +143,7 @@ def test_the_unpacked_database_walks_within_the_budget(flow, tmp_path):
         ImageDatabase(root, city(9, seed=2, detail=8))
 
 
+@pytest.mark.slow
 def test_a_second_job_of_the_same_request_bakes_nothing(flow):
     from farfield.service.jobs import JobSpec, create_placement_job, job_cells
 

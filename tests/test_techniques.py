@@ -188,6 +188,7 @@ def test_cli_bake_takes_options_and_refuses_other_techniques_flags(tmp_path):
     assert not (tmp_path / "b").exists() and not (tmp_path / "c").exists()
 
 
+@pytest.mark.slow
 def test_evaluate_check_fails_on_a_broken_guarantee(tmp_path):
     _register()
     scene_file = write_scene(part_scene(), tmp_path, "glb", "block")
