@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from farfield.core import __version__
-from farfield.core import ldi as ldi_kernels
+from farfield.core.ldi import image as ldi_kernels
 from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.errors import AtlasOverflowError, LayerPlanError
 from farfield.core.quality.evaluation import Evaluation
