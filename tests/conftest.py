@@ -5,8 +5,8 @@ invalid one under pytest's temporary directories fails at teardown with the vali
 unless it is marked ``invalid_glb`` (it writes broken files on purpose).
 
 Tiers.  ``./run-tests`` runs everything (CI: ``.ci/run``); ``./run-tests --fast`` runs
-``-m "not service and not browser and not slow"``: the unit and render tests, in a few minutes on
-a 2-core CPU machine.  The markers (registered in pyproject.toml):
+``-m "not service and not browser and not slow"``: the unit and render tests, about 2 minutes
+on a 2-core CPU machine (llvmpipe).  The markers (registered in pyproject.toml):
 
 - ``service``: starts the service (``farfield up``: redis, celery workers, the API).  Set here on
   every test that uses a fixture of ``tests/service_harness.py`` (``service``, ``client``); a test
@@ -14,8 +14,9 @@ a 2-core CPU machine.  The markers (registered in pyproject.toml):
   run in an unmarked test).
 - ``browser``: needs chromium (Playwright; the dashboard and the three.js harness).  Set here on
   every test that uses the ``browser`` or ``threejs`` fixture.
-- ``slow``: anything else that takes long (over about 5 s here: subprocess CLIs over big scenes,
-  the wheel build, large bakes), set by hand per module or test after a ``--durations=0`` run.
+- ``slow``: anything else that takes long (over about 2 s on that machine: subprocess CLIs, the
+  wheel build, large bakes, the golden bytes, the README's examples), set by hand per module
+  (``pytestmark``) or per test after a ``--durations`` run; mark a new test that takes as long.
 
 Fixtures that cost seconds are session fixtures, made only for the tests that use them:
 ``numba_kernels`` fills numba's cache (the TDM, point, LDI and recording kernels) once, before the
