@@ -1,5 +1,12 @@
 """A real farfield service for tests: ``farfield up`` in a subprocess (embedded redis-server, uvicorn,
-real ``celery worker`` processes, SQLite, a blob directory), and a small HTTP client for it."""
+real ``celery worker`` processes, SQLite, a blob directory), and a small HTTP client for it.
+
+The service fixtures, the one place they are defined: import ``service_on_each_database`` (SQLite and,
+where a server is reachable, PostgreSQL) or ``service_on_sqlite`` (both named ``service``), and
+``service_client`` (``client``) into a test module.  A module overrides the ``service_env`` fixture
+(conftest.py; empty by default) to start its service with more environment.  Every test that uses
+them is marked ``service`` (conftest.py); one that calls :func:`start_service` itself is marked by
+hand (``@pytest.mark.service``), or ``start_service`` refuses to run."""
 
 from __future__ import annotations
 
@@ -31,6 +38,23 @@ def cmdline(pid: int) -> str:
         return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
     except OSError:
         return ""
+
+
+# Whether the running test is marked ``service`` (set by conftest.py before each test; None outside
+# pytest, e.g. benchmarks/hostile_campaign.py).
+SERVICE_TIER: bool | None = None
+_NUMBA_SECONDS: list[float] = []
+
+
+def warm_numba_kernels() -> float:
+    """Compile (or load from numba's cache) every registered technique's numba kernels in this
+    process (:func:`farfield.core.techniques.warm_techniques`, as a render worker does), once: it fills the on-disk cache the service's render workers then load in
+    :func:`farfield.workers.tasks.warm_worker`.  Seconds taken by the first call."""
+    if not _NUMBA_SECONDS:
+        from farfield.core.techniques import warm_techniques
+
+        _NUMBA_SECONDS.append(warm_techniques())
+    return _NUMBA_SECONDS[0]
 
 
 @dataclass
@@ -91,6 +115,11 @@ class RunningService:
 def start_service(home: Path, *args: str, **extra_env: str) -> RunningService:
     """``farfield up`` with ``args`` in ``home``, with a free port and one worker unless ``args`` or
     ``extra_env`` say otherwise; returns once it printed its URL and broker."""
+    if SERVICE_TIER is False:
+        raise RuntimeError(
+            "this test starts the service: mark it @pytest.mark.service (or use the service fixtures), so ./run-tests --fast leaves it out"
+        )
+    warm_numba_kernels()
     env = {
         k: v for k, v in os.environ.items() if k not in ("REDIS_URL", "DATABASE_URL") and not k.startswith("FARFIELD_")
     }
@@ -160,13 +189,9 @@ def fresh_postgres_database(admin_url: str) -> tuple[str, callable]:
     return url, drop
 
 
-@pytest.fixture(name="service", scope="module", params=["sqlite", "postgresql"])
-def service_on_each_database(request, tmp_path_factory):
-    """A running service per test module, on the embedded SQLite database and, where a server is
-    reachable (FARFIELD_TEST_DATABASE_URL; .ci/run starts one with scripts/postgres-server), on
-    PostgreSQL.  Import it (and :func:`service_client`) into a test module to use it."""
-    extra, drop = {}, None
-    if request.param == "postgresql":
+def _module_service(request, tmp_path_factory, database: str, env: dict):
+    extra, drop = dict(env), None
+    if database == "postgresql":
         admin_url = os.environ.get("FARFIELD_TEST_DATABASE_URL")
         if not admin_url:
             pytest.skip(
@@ -178,6 +203,20 @@ def service_on_each_database(request, tmp_path_factory):
     assert running.stop() == 0
     if drop is not None:
         drop()
+
+
+@pytest.fixture(name="service", scope="module", params=["sqlite", "postgresql"])
+def service_on_each_database(request, tmp_path_factory, numba_kernels, service_env):
+    """A running service per test module, on the embedded SQLite database and, where a server is
+    reachable (FARFIELD_TEST_DATABASE_URL; .ci/run starts one with scripts/postgres-server), on
+    PostgreSQL.  Import it (and :func:`service_client`) into a test module to use it."""
+    yield from _module_service(request, tmp_path_factory, request.param, service_env)
+
+
+@pytest.fixture(name="service", scope="module")
+def service_on_sqlite(request, tmp_path_factory, numba_kernels, service_env):
+    """A running service per test module, on the embedded SQLite database only."""
+    yield from _module_service(request, tmp_path_factory, "sqlite", service_env)
 
 
 @pytest.fixture(name="client", scope="module")

@@ -75,6 +75,7 @@ def create_directly(home, scene_id: str, limits: AdmissionLimits | None = None, 
     return create_job(db, tenant_id, scene, JobSpec(scene_id=scene_id, **spec), limits or AdmissionLimits())
 
 
+@pytest.mark.slow
 def test_a_16384_job_is_refused_with_its_estimate(home):
     """The issue's case: one layered cell at 16384 px was accepted and held a worker for about an
     hour.  With the default limits it is refused at once, with the estimate, the limit and the
@@ -205,6 +206,7 @@ def limited_job(tmp_path, resolution: int = 512, **env: str) -> dict:
         assert service.stop() == 0
 
 
+@pytest.mark.service
 def test_a_cell_past_its_time_limit_fails_once_with_the_limit_named(tmp_path):
     """Celery's soft time limit ends the attempt as a failed cell naming FARFIELD_CELL_TIME_LIMIT;
     it is bad input, so there is no retry and the job ends failed."""
@@ -222,6 +224,7 @@ def test_a_cell_past_its_time_limit_fails_once_with_the_limit_named(tmp_path):
     )
 
 
+@pytest.mark.service
 def test_a_cell_past_its_memory_limit_fails_once_with_the_limit_named(tmp_path):
     """The pool process's memory guard fails the cell naming FARFIELD_CELL_MEMORY_MB and ends the
     process; the redelivered message finds the cell failed, so there is one attempt and the job
@@ -236,6 +239,7 @@ def test_a_cell_past_its_memory_limit_fails_once_with_the_limit_named(tmp_path):
     ), cell["error"]
 
 
+@pytest.mark.service
 def test_a_placement_s_planning_past_the_memory_limit_fails_the_job_once(tmp_path):
     """Planning runs under the same guard as a cell: past FARFIELD_CELL_MEMORY_MB the job fails
     naming the limit and what to change, and the planning process's redelivery changes nothing.

@@ -7,7 +7,6 @@ import pytest
 import scenes
 
 from farfield.core.quality.evaluation import compare_images, evaluate, impostor_objects
-from farfield.core.render.context import gl_context
 from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
 from farfield.core.scene import Scene
 from farfield.core.techniques.layered import BakeOptions, bake_layered
@@ -57,13 +56,14 @@ def needs_shared(name: str) -> None:
 
 
 @pytest.fixture(scope="module")
-def ctx():
-    context = gl_context()
+def ctx(gl):
+    context = gl
     yield context
     assert context.error == "GL_NO_ERROR"
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
+@pytest.mark.slow
 def test_no_hole_pixels_from_inside_the_view_cell(name, ctx):
     needs_shared(name)
     factory, distance, size, lift = CASES[name]
@@ -79,6 +79,7 @@ def test_no_hole_pixels_from_inside_the_view_cell(name, ctx):
     assert ctx.error == "GL_NO_ERROR"
 
 
+@pytest.mark.slow
 def test_without_conservative_recording_the_thin_forest_has_holes(ctx):
     scene = thin_forest()
     diameter = float(np.max(scene.bounds[1] - scene.bounds[0]))
@@ -109,6 +110,7 @@ def test_culling_removes_no_texel_seen_from_the_view_cell(ctx):
             assert stats["colour_error_mean"] < 0.2
 
 
+@pytest.mark.slow
 def test_guarantee_ends_outside_the_view_cell(ctx):
     """Seed 000 Fig. 3.18: far enough outside (here, much closer to the part) errors appear.
 
@@ -154,6 +156,7 @@ def test_bake_is_deterministic(ctx):
     assert all(np.array_equal(p, q) for p, q in zip(a.pages, b.pages))
 
 
+@pytest.mark.slow
 def test_memory_grows_with_kept_texels_not_layers_times_image(ctx):
     """Peak memory of a many-layer bake of few triangles stays far below holding every layer at
     once (the per-pair clipping temporaries grow with triangles x spans, which this scene keeps small)."""
@@ -174,6 +177,7 @@ def test_memory_grows_with_kept_texels_not_layers_times_image(ctx):
     assert peak < 0.25 * all_layers, (peak, all_layers)
 
 
+@pytest.mark.slow
 def test_small_pages_cut_the_quads_that_would_not_fit_and_draw_the_same(ctx):
     """max_page 64 (the option's least) with padding 2: box-grown quads up to a layer wide used to
     end the bake with AtlasOverflowError; they are cut into pieces of at most 60 texels a side,

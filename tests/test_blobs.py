@@ -96,6 +96,7 @@ def test_round_trip(store):
 
 
 @pytest.mark.invalid_glb  # stores made-up bytes under .glb names
+@pytest.mark.slow
 def test_put_stream_round_trip_small_and_multipart(store):
     small = bytes(range(256)) * 100
     assert store.put_stream("scenes/s/small.glb", io.BytesIO(small), limit=len(small)) == len(small)
@@ -207,6 +208,7 @@ def test_delete_prefix(store):
     assert _leftovers(store) == []
 
 
+@pytest.mark.slow
 def test_s3_lists_and_deletes_page_by_page(s3_endpoint, bucket):
     store = S3BlobStore(bucket, endpoint_url=s3_endpoint, access_key=KEY, secret_key=SECRET)
     store.page_size = 7  # S3 pages by 1000 keys; the same loops with small pages

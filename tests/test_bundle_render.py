@@ -93,6 +93,7 @@ def run_cli(*args: str) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow
 def test_cli_bake_then_evaluate_on_a_shared_scene(tmp_path):
     path = scenes.SHARED_SCENES / "duck" / "duck.obj"
     if not path.exists():
@@ -121,6 +122,7 @@ def test_cli_bake_then_evaluate_on_a_shared_scene(tmp_path):
         (["evaluate", "no-such-bundle", "__DUCK__"], "manifest"),
     ],
 )
+@pytest.mark.slow
 def test_cli_errors_are_one_line(args, needle, tmp_path):
     path = scenes.SHARED_SCENES / "duck" / "duck.obj"
     if not path.exists():

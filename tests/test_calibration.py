@@ -174,6 +174,7 @@ def test_calibration_measures_llvmpipe_deterministically():
     assert first.model.renderer == renderer_info().renderer and first.model.source == "calibration"
 
 
+@pytest.mark.slow
 def test_calibrate_command_writes_a_model_that_loads(tmp_path):
     scene_file = write_scene(city(40, seed=1, detail=4), tmp_path, "glb", "city")
     out = tmp_path / "model.json"
@@ -232,6 +233,7 @@ def test_calibrate_command_writes_a_model_that_loads(tmp_path):
         (("--out", "no/such/folder/model.json"), "cannot write the cost model"),
     ],
 )
+@pytest.mark.slow
 def test_bad_arguments_give_one_line_and_a_non_zero_exit(args, message):
     run = farfield("calibrate", *args)
     assert run.returncode != 0

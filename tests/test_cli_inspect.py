@@ -24,6 +24,7 @@ def _run(*args: str):
 
 
 @pytest.mark.parametrize("real", scenes.REAL_SCENES, ids=lambda r: r.path.split("/")[-1])
+@pytest.mark.slow
 def test_table_lists_objects_triangles_and_colour_sources(real):
     result = _run(str(scenes.SHARED_SCENES / real.path))
     assert result.exit_code == 0, result.output
@@ -87,6 +88,7 @@ def test_warnings_are_reported_in_the_output_not_on_stderr(tmp_path):
     ],
     ids=["missing", "unsupported", "corrupt-glb", "not-a-glb", "corrupt-ply", "nan"],
 )
+@pytest.mark.slow
 def test_errors_are_one_line_on_stderr_with_the_error_kind_exit_code(tmp_path, name, content, exit_code, message):
     path = tmp_path / name
     if content is not None:

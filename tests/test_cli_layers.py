@@ -11,6 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.slow  # ./run-tests --fast leaves it out (tests/conftest.py: the tiers)
+
 SHARED_SCENES = Path(__file__).resolve().parents[1].parent / "shared" / "scenes"
 
 

@@ -17,8 +17,8 @@ from tests.scenes import checker
 
 
 @pytest.fixture()
-def ctx():
-    context = gl_context()
+def ctx(gl):
+    context = gl
     assert context.error == "GL_NO_ERROR"
     yield context
     assert context.error == "GL_NO_ERROR"

@@ -15,7 +15,7 @@ import time
 import pytest
 from browser import CHROMIUM, SKIP_REASON, dashboard_page, new_page, tid
 from scenes import instanced_nodes_glb
-from service_harness import ADMIN_KEY, BUNNY, BUNNY_GRID, start_service, stored_options, upload, wait_for_job
+from service_harness import ADMIN_KEY, BUNNY, BUNNY_GRID, service_on_sqlite, stored_options, upload, wait_for_job  # noqa: F401 - the service fixtures
 
 from farfield.api.routes_dashboard import DASHBOARD_DIR
 from farfield.core.techniques import TECHNIQUES
@@ -25,13 +25,6 @@ if not CHROMIUM.exists():
 if not BUNNY.exists():
     pytest.skip("needs ../shared/scenes", allow_module_level=True)
 sync_api = pytest.importorskip("playwright.sync_api", reason="needs the playwright package (the test extra)")
-
-
-@pytest.fixture(scope="module")
-def service(tmp_path_factory):
-    running = start_service(tmp_path_factory.mktemp("farfield-home"))
-    yield running
-    assert running.stop() == 0
 
 
 @pytest.fixture(scope="module")

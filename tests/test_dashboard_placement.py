@@ -18,19 +18,12 @@ import os
 import pytest
 from browser import CHROMIUM, SKIP_REASON, dashboard_page, tid
 from scenes import write_scene
-from service_harness import ADMIN_KEY, start_service, upload, wait_for_job
+from service_harness import ADMIN_KEY, service_on_sqlite, upload, wait_for_job  # noqa: F401 - the service fixtures
 from test_placement_api import city_request, placing_job, small_city, submit_placement
 
 if not CHROMIUM.exists():
     pytest.skip(SKIP_REASON, allow_module_level=True)
 pytest.importorskip("playwright.sync_api", reason="needs the playwright package (the test extra)")
-
-
-@pytest.fixture(scope="module")
-def service(tmp_path_factory):
-    running = start_service(tmp_path_factory.mktemp("farfield-home"))
-    yield running
-    assert running.stop() == 0
 
 
 @pytest.fixture(scope="module")

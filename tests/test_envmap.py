@@ -94,12 +94,14 @@ def _assert_faithful(result: dict) -> None:
     assert all(v["colour_error_1px_mean"] < 8.0 for v in views)
 
 
+@pytest.mark.slow
 def test_city_has_no_holes_from_anywhere_in_the_cell(town, town_impostor):
     stats = town_impostor.stats
     assert stats["faces"] == 6 and stats["quads"] > 0 and stats["near_field_triangles"] > 0
     _assert_faithful(evaluate_envmap(town, town_impostor, random_count=2, seed=1))
 
 
+@pytest.mark.slow
 def test_replicated_real_scene_has_no_holes():
     duck = real_scene("duck/duck.obj")
     objects = []
@@ -263,6 +265,7 @@ def test_runtime_draws_nearest_first_and_sees_what_payload_order_sees(coplanar_t
         runtime.release()
 
 
+@pytest.mark.slow
 def test_directions_subset_records_only_those_faces(town, town_cell):
     impostor = bake_envmap(
         town, town_cell, EnvmapOptions(resolution=64, fov_deg=90.0, layers=6, directions=("-z", "+x"))
@@ -350,6 +353,7 @@ def test_gap_fill_copies_border_texels_into_the_farther_layer():
     assert filled[1:4, 0, 3].tolist() == [0, 0, 0]  # not a border of far: stays empty
 
 
+@pytest.mark.slow
 def test_grid_database_and_walkthrough(tmp_path, town):
     options = EnvmapOptions(resolution=64, fov_deg=90.0, layers=6, directions=("+x", "-x", "+z", "-z"))
     cells = [
@@ -401,6 +405,7 @@ def test_grid_database_and_walkthrough(tmp_path, town):
     assert bad.exit_code != 0 and "not an impostor database" in bad.output
 
 
+@pytest.mark.slow
 def test_cli_bake_and_evaluate_envmap(tmp_path, town):
     scene_file = write_scene(town, tmp_path, "glb", "town")
     _register()

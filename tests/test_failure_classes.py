@@ -101,6 +101,7 @@ def run_like_the_task(stack: Stack, limit: int = 10) -> tuple[str, list[float]]:
 @pytest.mark.parametrize(
     "error", [ZeroDivisionError("division by zero"), InternalError("7 voxels left uncovered by the simplified mesh")]
 )
+@pytest.mark.slow
 def test_an_internal_error_fails_the_cell_after_the_attempt_limit(stack, monkeypatch, caplog, error):
     bake = bake_raising(error)
     monkeypatch.setattr(cell_runner, "bake_cell", bake)
@@ -118,6 +119,7 @@ def test_an_internal_error_fails_the_cell_after_the_attempt_limit(stack, monkeyp
     assert stack.cell().attempts == MAX_ATTEMPTS and len(bake.calls) == MAX_ATTEMPTS
 
 
+@pytest.mark.slow
 def test_a_transient_error_is_retried_with_backoff_then_failed_without_the_internal_label(stack, monkeypatch, caplog):
     monkeypatch.setattr(cell_runner, "bake_cell", bake_raising(ConnectionResetError("blob store went away")))
     with caplog.at_level(logging.WARNING, logger="farfield.cells"):
@@ -131,6 +133,7 @@ def test_a_transient_error_is_retried_with_backoff_then_failed_without_the_inter
 # 3. Bad input fails at once; an internal error is never a 4xx.
 
 
+@pytest.mark.slow
 def test_bad_input_fails_the_cell_at_once(stack, monkeypatch):
     monkeypatch.setattr(
         cell_runner, "bake_cell", bake_raising(LayerPlanError("the part left no visible texel in any layer"))
@@ -233,6 +236,7 @@ def test_the_task_has_a_finite_retry_limit_from_the_attempt_limit():
     assert tasks.max_retries(MAX_ATTEMPTS) == 10 * MAX_ATTEMPTS
 
 
+@pytest.mark.slow
 def test_a_claim_that_cannot_reach_the_database_is_retried_with_backoff_and_counted(
     tmp_path, monkeypatch, caplog, task_state
 ):
@@ -259,6 +263,7 @@ def test_a_claim_that_cannot_reach_the_database_is_retried_with_backoff_and_coun
     assert cell.state == "failed" and cell.attempts == 1 and cell.error == "LayerPlanError: no texel"
 
 
+@pytest.mark.slow
 def test_a_task_never_retries_past_its_limit(tmp_path, caplog, task_state):
     stack, failed = _task_stack(tmp_path, fail_connects=None)  # the database never comes back
     with caplog.at_level(logging.WARNING, logger="farfield.worker"):
@@ -271,6 +276,7 @@ def test_a_task_never_retries_past_its_limit(tmp_path, caplog, task_state):
     assert stack.cell().state == "queued" and stack.cell().attempts == 0  # the database never saw it
 
 
+@pytest.mark.slow
 def test_a_bug_in_claim_cell_fails_the_cell_after_the_attempt_limit(tmp_path, caplog, task_state):
     """A cell whose job row is gone (a broken invariant) makes claim_cell raise AttributeError."""
     stack, _ = _task_stack(tmp_path, fail_connects=0)

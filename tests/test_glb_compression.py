@@ -24,6 +24,8 @@ from farfield.core.impostor.glb import impostor_glb
 from farfield.core.impostor.glb_compression import BASISU, MESHOPT, compress_glb, decode_ktx2, read_glb, write_glb
 from farfield.core.techniques import TECHNIQUES, get_technique
 
+pytestmark = pytest.mark.slow  # ./run-tests --fast leaves it out (tests/conftest.py: the tiers)
+
 RESOLUTION = 64
 
 

@@ -76,6 +76,7 @@ def _check(key: str, digests) -> None:
 
 
 @pytest.mark.parametrize("name", list(TECHNIQUES))
+@pytest.mark.slow
 def test_every_technique_bakes_the_recorded_bytes(name, tmp_path):
     technique = TECHNIQUES[name]
     make, cell = CASES[technique.scope]
@@ -83,6 +84,7 @@ def test_every_technique_bakes_the_recorded_bytes(name, tmp_path):
     _check(f"technique/{name}", _bundle_digests(write_bundle(impostor, tmp_path / name).directory))
 
 
+@pytest.mark.slow
 def test_frame_time_placement_gives_the_recorded_bytes():
     scene = procedural.city(36, seed=5, detail=6)
     settings = PlacementSettings(
@@ -98,6 +100,7 @@ def test_frame_time_placement_gives_the_recorded_bytes():
     _check("placement/frame-time", _sha(json.dumps(result.to_dict(), sort_keys=True).encode()))
 
 
+@pytest.mark.slow
 def test_primitive_budget_placement_gives_the_recorded_bytes():
     scene = procedural.city(64, seed=1, detail=8)
     lo, hi = scene.bounds

@@ -57,6 +57,7 @@ def job(api, **change) -> dict:
         ('"options": {"padding": Infinity}', "padding"),
     ],
 )
+@pytest.mark.slow
 def test_non_finite_numbers_are_a_422_naming_the_field(api, raw, field):
     """JSON has no NaN or infinity, but Python's parser reads them: the 422 used to echo them back
     and fail to encode (a 500, and the client's kept-alive connection reset)."""
@@ -80,6 +81,7 @@ def test_loose_types_are_refused(api, value):
     assert response.status_code == 422 and "counts" in response.json()["detail"]
 
 
+@pytest.mark.slow
 def test_a_long_upload_name_is_shortened_not_a_500(api, tmp_path):
     path = write_scene(city(buildings=2), tmp_path, "glb")
     response = api.post("/v1/scenes", files={"file": ("b" * 242 + ".glb", path.read_bytes())})
@@ -89,6 +91,7 @@ def test_a_long_upload_name_is_shortened_not_a_500(api, tmp_path):
     assert response.json()["original_name"] == "b" * 242 + ".glb"  # kept as metadata, never in a path
 
 
+@pytest.mark.slow
 def test_a_deep_node_chain_upload_is_refused_quickly_with_413(api):
     """The campaign's 2.3 MB glTF of a 100,000-deep node chain blocked its upload for 40 s."""
     from test_scene_limits import gltf_bytes

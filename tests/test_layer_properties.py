@@ -49,6 +49,7 @@ def check_plan(plan):
 
 @SETTINGS
 @given(gap=distances, depth=depths, width=widths, res=st.integers(16, 512), fov=fovs, model=models, k=scales)
+@pytest.mark.slow
 def test_uniform_scaling_changes_no_layer_count(gap, depth, width, res, fov, model, k):
     cell1, b1 = scene(1.0, gap, depth, width)
     cellk, bk = scene(k, gap, depth, width)
@@ -62,6 +63,7 @@ def test_uniform_scaling_changes_no_layer_count(gap, depth, width, res, fov, mod
 
 @SETTINGS
 @given(gap=distances, depth=depths, width=widths, res=st.integers(16, 512), fov=fovs, model=models)
+@pytest.mark.slow
 def test_no_nan_negative_or_infinite_spacing(gap, depth, width, res, fov, model):
     cell, bounds = scene(1.0, gap, depth, width)
     plan = plan_layers(cell, bounds, math.radians(fov), res, model)
@@ -81,6 +83,7 @@ def test_no_nan_negative_or_infinite_spacing(gap, depth, width, res, fov, model)
     res=st.integers(16, 512),
     model=models,
 )
+@pytest.mark.slow
 def test_layer_count_falls_with_distance(gap, factor, depth, width, res, model):
     fov = math.radians(45)
     near = plan_layers(*scene(1.0, gap, depth, width), fov, res, model)
@@ -97,6 +100,7 @@ def test_layer_count_falls_with_distance(gap, factor, depth, width, res, model):
     factor=st.floats(1.05, 4.0),
     model=models,
 )
+@pytest.mark.slow
 def test_layer_count_rises_with_resolution(gap, depth, width, res, factor, model):
     fov = math.radians(45)
     cell, bounds = scene(1.0, gap, depth, width)
@@ -114,6 +118,7 @@ def test_layer_count_rises_with_resolution(gap, depth, width, res, factor, model
     factor=st.floats(1.05, 3.0),
     model=models,
 )
+@pytest.mark.slow
 def test_layer_count_rises_with_view_cell_size(gap, depth, width, res, factor, model):
     """The part stays put; the cell grows about its centre."""
     fov = math.radians(45)
@@ -188,6 +193,7 @@ def worst_parallax_measured(plan, cell) -> float:
 @given(
     gap=st.floats(1.0, 30.0), depth=depths, width=widths, res=st.integers(16, 256), fov=fovs, model=models, share=shares
 )
+@pytest.mark.slow
 def test_shared_budget_keeps_texels_and_parallax_within_one_pixel(gap, depth, width, res, fov, model, share):
     cell, bounds = scene(1.0, gap, depth, width)
     plan = plan_layers(cell, bounds, math.radians(fov), res, model, texel_share=share)
@@ -202,6 +208,7 @@ def test_shared_budget_keeps_texels_and_parallax_within_one_pixel(gap, depth, wi
 
 @SHARED
 @given(gap=st.floats(1.0, 30.0), depth=depths, width=widths, res=st.integers(16, 256), fov=fovs, share=shares, k=scales)
+@pytest.mark.slow
 def test_shared_budget_is_scale_invariant(gap, depth, width, res, fov, share, k):
     p1 = plan_layers(*scene(1.0, gap, depth, width), math.radians(fov), res, texel_share=share)
     pk = plan_layers(*scene(k, gap, depth, width), math.radians(fov), res, texel_share=share)
@@ -219,6 +226,7 @@ def test_shared_budget_is_scale_invariant(gap, depth, width, res, fov, share, k)
     factor=st.floats(1.1, 3.0),
     share=shares,
 )
+@pytest.mark.slow
 def test_shared_budget_layer_count_rises_with_resolution(gap, depth, width, res, factor, share):
     cell, bounds = scene(1.0, gap, depth, width)
     low = plan_layers(cell, bounds, math.radians(45), res, texel_share=share)

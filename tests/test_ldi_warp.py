@@ -146,6 +146,7 @@ def city_images():
     return scene, placement
 
 
+@pytest.mark.slow
 def test_hybrid_frames_have_few_holes_and_nine_images_fewer_than_one(city_images):
     scene, placement = city_images
     rng = np.random.default_rng(0)

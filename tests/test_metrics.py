@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import re
 
+import pytest
 from fastapi.testclient import TestClient
 from scenes import city, write_scene
 
@@ -23,6 +24,7 @@ def scenes_shown(client: TestClient) -> int:
     return int(re.search(r"^farfield_scenes (\d+)$", response.text, re.M).group(1))
 
 
+@pytest.mark.slow
 def test_metrics_show_the_key_s_tenant(tmp_path):
     settings = Settings.from_env(
         {"FARFIELD_HOME": str(tmp_path), "REDIS_URL": "redis://127.0.0.1:1/0", "FARFIELD_ADMIN_KEY": KEY}

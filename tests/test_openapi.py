@@ -90,6 +90,7 @@ def schemathesis_run(app, config: dict) -> tuple[list[str], int, float]:
     return sorted(failures), requests, seconds
 
 
+@pytest.mark.slow
 def test_the_api_conforms_to_its_openapi_document(service):
     """Every check of schemathesis passes over every operation of the document: examples, the
     coverage phase (boundary values, missing and wrong-typed fields, undeclared methods, broken
@@ -125,6 +126,7 @@ def checked(service, method: str, template: str, path: str | None = None, **requ
     return response
 
 
+@pytest.mark.slow
 def test_a_job_s_life_answers_as_documented(service, tmp_path):
     """The requests schemathesis rarely makes (its ids are made up): a real upload, job, cell,
     lookup, the 409s of a queued job, cancel and delete, each response checked against the document."""

@@ -16,6 +16,8 @@ from scenes import box_object, write_scene
 
 from farfield.core.scene import Scene
 
+pytestmark = pytest.mark.slow  # ./run-tests --fast leaves it out (tests/conftest.py: the tiers)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

@@ -45,6 +45,7 @@ def _view_sees(eye, forward, roll, points, fov) -> bool:
     return bool(ok.any())
 
 
+@pytest.mark.slow
 def test_enclosing_frusta_never_miss_an_element_a_view_sees():
     """Random boxes, regions, VDIs and views inside them: every element some view sees is in the
     VDI's enclosing frustum (the test is conservative by construction; this checks the code)."""
@@ -171,6 +172,7 @@ def test_lazy_re_ranking_chooses_what_full_re_ranking_chooses(seed):
     assert np.array_equal(lazy.t, full.t)
 
 
+@pytest.mark.slow
 def test_greedy_is_valid_and_near_the_brute_force_optimum():
     """On 60 random instances small enough to enumerate (8 candidates, 256 subsets): whenever a
     valid placement exists, the greedy's is valid, and its memory stays within 1.5x of the optimum.
@@ -232,6 +234,7 @@ def test_a_generous_budget_needs_no_impostor():
     assert result.summary["cpvs"] == 0 and result.impostors == [] and result.message() is None
 
 
+@pytest.mark.slow
 def test_a_tight_budget_is_met_with_impostors_and_every_cpv_stays_within_it():
     city = _small_city()
     result = place(city, *VIEW, _settings(t_max=0.5 * city.triangle_count))
@@ -245,6 +248,7 @@ def test_a_tight_budget_is_met_with_impostors_and_every_cpv_stays_within_it():
         assert imp["cell"]["kind"] in ("shaft", "box") and imp["objects"]
 
 
+@pytest.mark.slow
 def test_memory_grows_as_the_budget_falls():
     city = _small_city()
     runs = [place(city, *VIEW, _settings(t_max=f * city.triangle_count)) for f in (0.8, 0.5)]
@@ -252,6 +256,7 @@ def test_memory_grows_as_the_budget_falls():
     assert all(r.summary["cpvs_solved"] == r.summary["cpvs"] for r in runs)
 
 
+@pytest.mark.slow
 def test_impostors_over_the_largest_size_are_never_candidates():
     city = _small_city()
     free = place(city, *VIEW, _settings(t_max=0.5 * city.triangle_count))
@@ -282,6 +287,7 @@ def test_a_view_space_inside_a_heavy_object_is_unsolvable_and_named():
 
 
 @pytest.mark.parametrize("scale", [2.0**-10, 2.0**17])
+@pytest.mark.slow
 def test_placement_is_the_same_up_to_scale(scale):
     """At about 1e-3 and 1e5 times the size, the same placement scaled.  Powers of two keep every
     product exact, so equality is exact; a scale like 1e-3 moves elements lying exactly on a
@@ -314,6 +320,7 @@ def test_a_single_huge_object_is_split_and_placed():
     assert all(name.startswith("everything#") for imp in result.impostors for name in imp["objects"])
 
 
+@pytest.mark.slow
 def test_two_runs_give_identical_json():
     city = _small_city()
     a = place(city, *VIEW, _settings(t_max=0.5 * city.triangle_count))
@@ -355,6 +362,7 @@ def test_a_frame_time_model_with_a_per_frame_cost_above_the_budget_is_unsolvable
 # --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_place_command_writes_a_placement_and_refuses_bad_input(tmp_path):
     _register()
     path = write_scene(_small_city(), tmp_path, "glb", "city")

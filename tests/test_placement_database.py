@@ -189,6 +189,7 @@ def test_a_last_round_puts_the_figures_in_and_adds_nothing(planned):
     assert all(state.estimated[i]["quads"] == state.first["quads"][state.candidate_of(i)] for i in impostors)
 
 
+@pytest.mark.slow
 def test_uncapped_depth_complexity_is_json_null_and_huge_directions_are_views(planned):
     city, _, _ = planned
     placement = place(city, *VIEW, _settings(0.5 * city.triangle_count, depth_complexity=float("inf")))

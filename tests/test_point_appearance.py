@@ -163,6 +163,7 @@ def _evaluate(scene: Scene, cell: BoxCell, resolution: int = 64):
     return impostor, technique.evaluate(scene, impostor, 8, 0, 0).totals
 
 
+@pytest.mark.slow
 def test_a_sub_pixel_part_and_a_part_seen_nearly_edge_on_keep_every_pixel():
     cell = BoxCell.from_center([0.0, 0.0, 0.0], 1.0)
     # A box a tenth of a pixel wide at 10 units (a 64-pixel image's pixel is 0.13 units there).
@@ -195,6 +196,7 @@ def test_a_part_whose_texels_are_all_cut_away_is_refused():
         )
 
 
+@pytest.mark.slow
 def test_the_cli_bakes_evaluates_and_compares_a_point_impostor(tmp_path):
     from click.testing import CliRunner
 

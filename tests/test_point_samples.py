@@ -82,6 +82,7 @@ def _points(objects):
 
 
 @pytest.mark.parametrize("scene", [_ball_and_box, _trunks])
+@pytest.mark.slow
 def test_kept_points_leave_no_hole_from_anywhere_in_the_cell(scene):
     objects = scene()
     cell, points = _points(objects)
@@ -95,6 +96,7 @@ def test_kept_points_leave_no_hole_from_anywhere_in_the_cell(scene):
 
 
 @pytest.mark.parametrize("scene", [_ball_and_box, _trunks])
+@pytest.mark.slow
 def test_a_removed_point_has_a_kept_point_within_a_pixel_of_it(scene):
     # Redundant means another camera samples the same place finely enough: a kept point lies within
     # the smallest output pixel's footprint there (seen from the nearest point of the cell), or

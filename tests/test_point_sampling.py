@@ -77,6 +77,7 @@ def _exhaustive_perimeter(polygon: np.ndarray, step_deg: float) -> float:
 
 
 @pytest.mark.parametrize("seed", range(6))
+@pytest.mark.slow
 def test_least_perimeter_triangle_encloses_touches_and_beats_an_exhaustive_search(seed):
     rng = np.random.default_rng(seed)
     polygon = _random_polygon(rng, int(rng.integers(3, 12)))
@@ -106,6 +107,7 @@ def _sample_polygon(rng: np.random.Generator, polygon: np.ndarray, count: int) -
 
 
 @pytest.mark.parametrize("seed", range(5))
+@pytest.mark.slow
 def test_farthest_point_from_the_cameras_matches_dense_sampling(seed):
     rng = np.random.default_rng(10 + seed)
     polygon = _random_polygon(rng, 9)
@@ -127,6 +129,7 @@ def test_farthest_point_from_the_cameras_matches_dense_sampling(seed):
 
 
 @pytest.mark.parametrize("seed", range(4))
+@pytest.mark.slow
 def test_movement_factor_bounds_the_worst_viewer_and_sample(seed):
     # Samples anywhere above the plane at height >= D (also far outside the polygon), viewers
     # anywhere on the polygon: the spacing seen from the nearest viewer over the spacing at the

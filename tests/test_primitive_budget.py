@@ -142,6 +142,7 @@ def test_the_cost_benefit_weights_are_the_papers_and_the_search_stops_near_p_opt
     assert place_image(lo, hi, tris, np.zeros(3), 0.0, math.radians(30), total + 1e9, 0.5 * total, 200.0) is None
 
 
+@pytest.mark.slow
 def test_the_star_radius_holds_every_eye_and_the_papers_sphere_does_not_at_54_degrees():
     """Closest lattice point in the reverse frustum, sampled: within the proved radius at every FOV;
     the paper's 2 r is passed at 54° in 3D (why farfield does not use it)."""
@@ -165,6 +166,7 @@ def test_the_star_radius_holds_every_eye_and_the_papers_sphere_does_not_at_54_de
     assert MIN_FOV_DEG == pytest.approx(53.1301, abs=1e-4)
 
 
+@pytest.mark.slow
 def test_the_guarantee_holds_on_ten_thousand_views(city_placement):
     scene, placement = city_placement
     s = placement.summary()
@@ -207,6 +209,7 @@ def test_what_a_view_does_not_draw_lies_outside_its_frustum_or_in_its_image(city
             assert np.all(covered[cells.face_cell[k][seen]])
 
 
+@pytest.mark.slow
 def test_too_little_subdivision_leaves_unsolved_views_reported():
     scene = _city()
     lo, hi = _view_space(scene)
@@ -235,6 +238,7 @@ def test_bad_inputs_are_clear_errors():
         place_primitives(scene, lo, hi, BudgetSettings(primitives=1000, p_opt=2000))
 
 
+@pytest.mark.slow
 def test_place_command_with_the_primitive_budget(tmp_path):
     _register()
     scene = procedural.city(16, seed=2, detail=8)
@@ -259,6 +263,7 @@ def test_place_command_with_the_primitive_budget(tmp_path):
     assert mixed.exit_code == 2 and "--primitives N only" in mixed.output
 
 
+@pytest.mark.slow
 def test_a_baked_database_is_walked_within_the_budget(tmp_path):
     """farfield place --bake writes the grid and an LDI bundle per image; farfield walkthrough reads it
     back against the scene: every view within P, LDIs warped, a few hole pixels at most."""

@@ -114,6 +114,7 @@ def test_the_docs_links_lead_somewhere():
 
 
 @pytest.mark.skipif(not (SHARED / "scenes").is_dir(), reason="needs ../shared/scenes")
+@pytest.mark.slow
 def test_the_offline_examples_run_as_written(tmp_path):
     work = tmp_path / "checkout"
     work.mkdir()

@@ -22,7 +22,6 @@ from farfield.core.layering.recording import (
     texel_coordinates,
     texel_rectangles,
 )
-from farfield.core.render.context import gl_context
 from farfield.core.scene import Scene, SceneObject
 from farfield.core.viewcells import BoxCell
 
@@ -66,8 +65,8 @@ def touched_texels(scene: Scene, plan, spacing: float = 0.2) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def ctx():
-    context = gl_context()
+def ctx(gl):
+    context = gl
     yield context
     assert context.error == "GL_NO_ERROR"
 
@@ -142,6 +141,7 @@ def test_layers_draw_only_the_triangles_their_slab_needs():
     assert offsets[-1] == order.shape[0] < faces.shape[0] * 40
 
 
+@pytest.mark.slow
 def test_triangles_beyond_an_image_edge_are_dropped_before_pairing_and_would_have_drawn_nothing():
     rng = np.random.default_rng(3)
     half_tan, resolution = np.array([0.7, 0.5]), np.array([64, 48])

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import trimesh
 from scenes import SHARED_SCENES
-from service_harness import start_service, wait_for_job
+from service_harness import service_on_sqlite, wait_for_job  # noqa: F401 - the service fixtures
 
 from farfield.core.errors import SceneLoadError, UploadTooLargeError
 from farfield.core.exchange import load_scene
@@ -153,6 +153,7 @@ def test_packing_finds_an_obj_s_mtl_and_texture_and_a_gltf_s_buffer_and_images(h
     assert pack_scene(HELMET) is None  # a .glb holds its files
 
 
+@pytest.mark.slow
 def test_a_stored_multi_file_scene_loads_on_a_worker_with_its_texture(tmp_path):
     from farfield.service.blobs import LocalBlobStore
     from farfield.service.db import Database
@@ -185,13 +186,6 @@ def test_a_stored_multi_file_scene_loads_on_a_worker_with_its_texture(tmp_path):
     )
     assert bare.content_hash != local.content_hash and any("duckCM.png" in w for w in bare.upload_warnings)
     db.dispose()
-
-
-@pytest.fixture(scope="module")
-def service(tmp_path_factory):
-    running = start_service(tmp_path_factory.mktemp("farfield-files"))
-    yield running
-    assert running.stop() == 0
 
 
 def test_multi_file_scenes_over_rest_and_the_cli_and_bad_archives_leave_nothing(service, helmet_gltf, tmp_path):

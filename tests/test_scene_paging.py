@@ -192,6 +192,7 @@ def cli(url: str, *args: str):
     )
 
 
+@pytest.mark.slow
 def test_cli_pages_scenes_objects_and_jobs(api, served):
     one = cli(served, "scenes", "--limit", "3")
     assert one.returncode == 0, one.stderr

@@ -441,6 +441,7 @@ def test_bodies_are_bounded_as_they_arrive(service, client):
     assert client.get("/v1/health").json()["status"] == "ok"
 
 
+@pytest.mark.service
 def test_farfield_up_takes_host_and_port_flags_over_the_environment(tmp_path):
     import socket
 

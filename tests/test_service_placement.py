@@ -17,7 +17,7 @@ import zipfile
 
 import pytest
 from scenes import write_scene
-from service_harness import start_service, upload, wait_for_job
+from service_harness import service_client, service_on_sqlite, upload, wait_for_job  # noqa: F401 - the service fixtures
 
 from farfield.core.procedural import city
 
@@ -27,19 +27,6 @@ from farfield.core.procedural import city
 VIEW_SPACE = {"lo": [10.0, 2.0, 10.0], "hi": [70.0, 6.0, 70.0]}
 QUICK = {"view_space": VIEW_SPACE, "budget": {"primitives": 800}, "cpv_size": 20}
 SLOW = {"view_space": VIEW_SPACE, "budget": {"primitives": 600}, "cpv_size": 3}
-
-
-@pytest.fixture(scope="module")
-def service(tmp_path_factory):
-    running = start_service(tmp_path_factory.mktemp("farfield-placement"))
-    yield running
-    assert running.stop() == 0
-
-
-@pytest.fixture(scope="module")
-def client(service):
-    with service.client() as c:
-        yield c
 
 
 @pytest.fixture(scope="module")
@@ -335,6 +322,7 @@ def flow(tmp_path):
     made.db.dispose()
 
 
+@pytest.mark.slow
 def test_only_the_state_the_next_check_needs_is_kept_and_the_check_waits_the_configured_lease(flow, monkeypatch):
     from farfield.service.db import now
     from farfield.service.placement.rounds import check_job, plan_job
@@ -361,6 +349,7 @@ def test_only_the_state_the_next_check_needs_is_kept_and_the_check_waits_the_con
     assert flow.blobs.exists(flow.job().index_key)
 
 
+@pytest.mark.slow
 def test_a_cancel_during_the_check_leaves_no_index_and_no_state(flow, monkeypatch):
     """The user cancels while the last check runs, after it wrote the database index and before it
     commits: the index is removed (and every planner state), the job stays cancelled, no index."""

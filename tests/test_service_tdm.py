@@ -341,6 +341,7 @@ def test_cli_bake_tdm(tmp_path):
         (["--viewcell", "box:-1,2,-1,1,4,1"], "the part touches or overlaps the view cell"),
     ],
 )
+@pytest.mark.slow
 def test_cli_bake_tdm_refuses_bad_options(tmp_path, extra, message):
     scene_file = write_scene(block_scene(), tmp_path, "glb", "block")
     bad = _farfield(

@@ -512,6 +512,7 @@ def corner_set(row: list[float]) -> list[list[float]]:
     return sorted(row[3 * k : 3 * k + 3] + row[9 + 2 * k : 11 + 2 * k] for k in range(3))
 
 
+@pytest.mark.slow
 def test_bundle_glb_and_evaluate_cli_read_a_tdm_unchanged(tmp_path, house_bake):
     scene, cell = house_bake
     impostor = bake_tdm(scene, cell, TdmOptions(resolution=RESOLUTION))

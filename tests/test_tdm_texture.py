@@ -391,6 +391,7 @@ def _plain_first_fit(masks, padding, width, max_page):
 
 
 @pytest.mark.parametrize("padding", [0, 2])
+@pytest.mark.slow
 def test_mask_packing_is_the_plain_first_fit(padding):
     """The packer's row skips, run tests and column jumps (``_first_fit``) and its searches resumed
     where the same mask went last change its speed, not its answer: on random blobs with holes, some of them

@@ -62,6 +62,7 @@ def _equal(a, b, path: str = "impostor") -> None:
 
 
 @pytest.mark.parametrize("name", list(TECHNIQUES))
+@pytest.mark.slow
 def test_every_technique_bakes_round_trips_and_has_no_hole_from_inside_its_cell(name, tmp_path):
     technique = get_technique(name)
     make_scene, cell = CASES[technique.scope]
@@ -89,6 +90,7 @@ def test_every_technique_bakes_round_trips_and_has_no_hole_from_inside_its_cell(
 
 
 @pytest.mark.parametrize("name", list(TECHNIQUES))
+@pytest.mark.slow
 def test_every_technique_keeps_its_pages_within_max_page(name):
     technique = get_technique(name)
     make_scene, cell = CASES[technique.scope]
@@ -199,6 +201,7 @@ def test_cli_bake_takes_options_and_refuses_other_techniques_flags(tmp_path):
     assert not (tmp_path / "b").exists() and not (tmp_path / "c").exists()
 
 
+@pytest.mark.slow
 def test_evaluate_check_fails_on_a_broken_guarantee(tmp_path):
     _register()
     scene_file = write_scene(part_scene(), tmp_path, "glb", "block")

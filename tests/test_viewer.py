@@ -24,7 +24,7 @@ import PIL.Image
 import pytest
 from browser import CHROMIUM, SKIP_REASON, dashboard_page, new_page, tid
 from scenes import city, write_scene
-from service_harness import ADMIN_KEY, start_service, upload, wait_for_job
+from service_harness import ADMIN_KEY, service_client, service_on_sqlite, upload, wait_for_job  # noqa: F401 - the service fixtures
 from test_threejs import compare
 from threejs import THREE_SKIP_REASON, three_available
 
@@ -60,19 +60,6 @@ PLACEMENT = {
     "cpv_size": 20,
 }
 SIZE = 128  # the compared frames, square
-
-
-@pytest.fixture(scope="module")
-def service(tmp_path_factory):
-    running = start_service(tmp_path_factory.mktemp("farfield-home"))
-    yield running
-    assert running.stop() == 0
-
-
-@pytest.fixture(scope="module")
-def client(service):
-    with service.client() as c:
-        yield c
 
 
 @pytest.fixture(scope="module")

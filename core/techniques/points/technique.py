@@ -24,10 +24,10 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from farfield.core import __version__
-from farfield.core import ldi as ldi_kernels
 from farfield.core.errors import AtlasOverflowError, LayerPlanError
 from farfield.core.impostor.impostor import Impostor, PointPayload
 from farfield.core.layering.atlas import MAX_PAGE
+from farfield.core.ldi import image as ldi_kernels
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION
 from farfield.core.quality.evaluation import Evaluation
