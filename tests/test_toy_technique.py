@@ -85,6 +85,7 @@ def test_every_technique_and_payload_kind_has_the_members_consumers_call():
 
 
 @needs_bunny
+@pytest.mark.slow
 def test_the_cli_bakes_and_lists_a_technique_registered_from_outside(tmp_path):
     listed = farfield("techniques", "--json")
     assert listed.returncode == 0, listed.stderr
@@ -146,6 +147,7 @@ def toy_service(tmp_path_factory):
     assert running.stop() == 0
 
 
+@pytest.mark.service
 def test_the_service_lists_and_bakes_a_technique_registered_from_outside(toy_service, tmp_path):
     with toy_service.client() as client:
         described = client.get("/v1/techniques").json()["techniques"]
@@ -197,6 +199,7 @@ def test_the_service_lists_and_bakes_a_technique_registered_from_outside(toy_ser
     assert glb.content == impostor_glb(impostor)
 
 
+@pytest.mark.service
 def test_the_dashboard_job_form_offers_a_technique_registered_from_outside(toy_service, browser):
     from browser import dashboard_page, tid
 
