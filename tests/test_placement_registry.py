@@ -98,7 +98,7 @@ def test_no_algorithm_name_is_compared_outside_the_registry_s_package():
             continue
         for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
             code = line.split("//")[0] if path.suffix == ".js" else line
-            if re.search("|".join(rf"""["'`]{re.escape(n)}["'`]""" for n in ALGORITHMS), code):
+            if re.search("|".join(rf"""["'`]{re.escape(n)}["'`]""" for n in names), code):
                 found.append(f"{path.relative_to(ROOT)}:{number}: {line.strip()}")
     assert not found, "an algorithm's name (or index kind) outside service/placement:\n" + "\n".join(found)
 
