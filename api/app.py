@@ -12,7 +12,15 @@ from contextlib import asynccontextmanager
 from celery import Celery
 from fastapi import FastAPI
 
-from farfield.api import routes_dashboard, routes_jobs, routes_ops, routes_results, routes_scenes, routes_techniques
+from farfield.api import (
+    routes_dashboard,
+    routes_jobs,
+    routes_ops,
+    routes_placement_algorithms,
+    routes_results,
+    routes_scenes,
+    routes_techniques,
+)
 from farfield.api.deps import Services
 from farfield.api.errors import install_error_handlers
 from farfield.api.limits import BodyLimit
@@ -53,7 +61,15 @@ def create_app(settings: Settings, celery: Celery | None = None, migrate: bool =
     install_error_handlers(app)
     app.add_middleware(BodyLimit, services=app.state.services)
 
-    for module in (routes_scenes, routes_jobs, routes_results, routes_techniques, routes_ops, routes_dashboard):
+    for module in (
+        routes_scenes,
+        routes_jobs,
+        routes_results,
+        routes_techniques,
+        routes_placement_algorithms,
+        routes_ops,
+        routes_dashboard,
+    ):
         app.include_router(module.router)
     app.openapi = lambda: openapi_document(app)
     return app

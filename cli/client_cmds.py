@@ -20,6 +20,7 @@ from tqdm import tqdm
 
 from farfield.core.errors import ErrorKind, FarfieldError
 from farfield.core.viewcells import parse_viewcell
+from farfield.service.placement import ALGORITHMS
 from farfield.service.settings import Settings
 
 STATUS_KINDS = {
@@ -383,7 +384,7 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
 )
 @click.option(
     "--algorithm",
-    type=click.Choice(["frame-time", "primitive-budget"]),
+    type=click.Choice(list(ALGORITHMS)),
     default=None,
     help="With --placement: frame-time (seed 000, the default) or primitive-budget (seed 004: LDIs on a solution grid, technique ldi, "
     "every view within --primitives).",

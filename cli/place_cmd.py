@@ -19,6 +19,7 @@ from farfield.core.placement.planner import PlacementSettings, place
 from farfield.core.placement.solution_grid import BudgetSettings, place_primitives
 from farfield.core.placement.solution_grid import check_views as count_views
 from farfield.core.techniques import DEFAULT_TECHNIQUE, TECHNIQUES, get_technique
+from farfield.service.placement import ALGORITHMS, DEFAULT_ALGORITHM
 
 
 def _numbers(text: str, count: int, what: str) -> list[float]:
@@ -137,8 +138,8 @@ def summary_lines(result) -> list[str]:
 )
 @click.option(
     "--algorithm",
-    type=click.Choice(["frame-time", "primitive-budget"]),
-    default="frame-time",
+    type=click.Choice(list(ALGORITHMS)),
+    default=DEFAULT_ALGORITHM,
     show_default=True,
     help="frame-time: impostors of --technique at least memory (seed 000 ch. 5); primitive-budget: a grid of solution points "
     "with one image per view so that no view draws more than --primitives (seed 004).",
@@ -231,15 +232,29 @@ def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, op
     named; the exit status is 0 either way (see "status" per CPV in the JSON).  With --algorithm
     primitive-budget: seed 004's grid of solution points and images instead."""
     corners = _numbers(view_space, 6, "--view-space")
-    if algorithm == "primitive-budget":
-        if primitives is None or frame_ms is not None or cost_model:
-            raise PlacementError(
-                "--algorithm primitive-budget takes a budget of --primitives N only (no --frame-ms, no --cost-model)"
-            )
-        settings = BudgetSettings(primitives=primitives, p_opt=p_opt, fov_deg=60.0 if fov is None else fov, octree_depth=octree_depth,
-                                  grid_points=grid_points, max_level=max_level)  # fmt: skip
-        _place_primitive_budget(scene, corners, settings, check_views, out, as_json, quiet, bake_dir, ldi_resolution)
-        return
+    offline = _OFFLINE[ALGORITHMS[algorithm].offline]
+    offline(scene, corners, frame_ms=frame_ms, cost_model=cost_model, primitives=primitives, technique=technique, options=options,
+            resolution=resolution, fov=fov, p_opt=p_opt, octree_depth=octree_depth, grid_points=grid_points, max_level=max_level,
+            check_views=check_views, bake_dir=bake_dir, ldi_resolution=ldi_resolution, cpv_size=cpv_size, vdi_deg=vdi_deg, cells=cells,
+            depth_complexity=depth_complexity, leaf_size=leaf_size, max_impostor_mb=max_impostor_mb, out=out, as_json=as_json,
+            quiet=quiet)  # fmt: skip
+
+
+def _place_solution_grid(scene, corners, *, frame_ms, cost_model, primitives, fov, p_opt, octree_depth, grid_points, max_level,
+                         check_views, bake_dir, ldi_resolution, out, as_json, quiet, **_) -> None:  # fmt: skip
+    """``farfield place`` with an algorithm whose offline placement is a solution grid of images (seed 004)."""
+    if primitives is None or frame_ms is not None or cost_model:
+        raise PlacementError(
+            "--algorithm primitive-budget takes a budget of --primitives N only (no --frame-ms, no --cost-model)"
+        )
+    settings = BudgetSettings(primitives=primitives, p_opt=p_opt, fov_deg=60.0 if fov is None else fov, octree_depth=octree_depth,
+                              grid_points=grid_points, max_level=max_level)  # fmt: skip
+    _place_primitive_budget(scene, corners, settings, check_views, out, as_json, quiet, bake_dir, ldi_resolution)
+
+
+def _place_cost_model(scene, corners, *, frame_ms, cost_model, primitives, technique, options, resolution, fov, bake_dir, cpv_size,
+                      vdi_deg, cells, depth_complexity, leaf_size, max_impostor_mb, out, as_json, quiet, **_) -> None:  # fmt: skip
+    """``farfield place`` with an algorithm whose offline placement is by a cost model (seed 000 ch. 5)."""
     if bake_dir:
         raise PlacementError(
             "--bake writes a primitive-budget placement's database (--algorithm primitive-budget); a frame-time placement is baked as a job"
@@ -272,6 +287,10 @@ def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, op
     else:
         click.echo("\n".join(summary_lines(result)))
         click.echo(f"placement written to {out}" if out else "placement not written (--out FILE writes it)")
+
+
+# How `farfield place` places offline, by what the algorithm says of it (Algorithm.offline).
+_OFFLINE = {"cost-model": _place_cost_model, "solution-grid": _place_solution_grid}
 
 
 def primitive_summary_lines(summary: dict, check: dict | None) -> list[str]:

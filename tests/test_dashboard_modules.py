@@ -1,8 +1,8 @@
 """The dashboard's JavaScript as ES modules (no browser, no service): every page loads one entry
 module, every relative import names a module of the folder and a name it exports, the key and the
-request helpers live once (``api.js``), and no module knows a technique by its name (what a page
-knows of a technique comes from ``GET /v1/techniques``; how the 3D view draws a cell, from its
-bundle's manifest)."""
+request helpers live once (``api.js``), and no module knows a technique or a placement algorithm
+by its name (what a page knows of a technique comes from ``GET /v1/techniques``, of an algorithm
+from ``GET /v1/placement-algorithms``; how the 3D view draws a cell, from its bundle's manifest)."""
 
 from __future__ import annotations
 
@@ -12,14 +12,12 @@ from pathlib import Path
 import pytest
 
 from farfield.core.techniques import TECHNIQUES
+from farfield.service.placement import ALGORITHMS
 
 DASHBOARD = Path(__file__).resolve().parents[1] / "api" / "dashboard"
 MODULES = sorted(DASHBOARD.glob("*.js"))
 IMPORT = re.compile(r"^import\s*\{([^}]*)\}\s*from\s*\"\./([\w.-]+)\";", re.M)
 EXPORT = re.compile(r"^export (?:async function|function|const|class) ([\w$]+)", re.M)
-# The one technique a page still names: the primitive-budget placement's (GET /v1/techniques does
-# not say which placement algorithms can place a technique).
-NAMED = {("job-form.js", "ldi")}
 
 
 def _code(path: Path) -> str:
@@ -61,6 +59,11 @@ def test_the_key_and_the_requests_live_in_api_js():
 def test_no_module_compares_a_technique_name(module):
     code = _code(module)
     for name in TECHNIQUES:
-        if (module.name, name) in NAMED:
-            continue
         assert not re.search(rf"[\"'`]{re.escape(name)}[\"'`]", code), f"{module.name} names the technique {name!r}"
+
+
+@pytest.mark.parametrize("page", [*MODULES, DASHBOARD / "index.html", DASHBOARD / "viewer.html"], ids=lambda p: p.name)
+def test_no_page_names_a_placement_algorithm(page):
+    code = _code(page) if page.suffix == ".js" else page.read_text(encoding="utf-8")
+    for name in ALGORITHMS:
+        assert not re.search(rf"[\"'`]{re.escape(name)}[\"'`]", code), f"{page.name} names the algorithm {name!r}"

@@ -16,6 +16,7 @@ from schemathesis.specs.openapi.checks import ignored_auth
 
 from farfield.api.app import create_app
 from farfield.service.embedded_redis import EmbeddedRedis
+from farfield.service.placement import ALGORITHMS, DEFAULT_ALGORITHM
 from farfield.service.settings import Settings
 
 KEY = "ff-test-openapi-key-0123456789"
@@ -132,6 +133,8 @@ def test_a_job_s_life_answers_as_documented(service, tmp_path):
     lookup, the 409s of a queued job, cancel and delete, each response checked against the document."""
     _app, _client, scene_id = service
     assert checked(service, "GET", "/v1/techniques").status_code == 200
+    listed = checked(service, "GET", "/v1/placement-algorithms").json()
+    assert [a["name"] for a in listed["algorithms"]] == list(ALGORITHMS) and listed["default"] == DEFAULT_ALGORITHM
     assert checked(service, "GET", "/v1/health").json()["broker"] is True
     assert checked(service, "GET", "/metrics").headers["content-type"].startswith("text/plain")
     path = write_scene(city(buildings=2), tmp_path, "glb")

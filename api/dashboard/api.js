@@ -97,6 +97,14 @@ export async function fetchTechniques() {
   return new Map(body.techniques.map((t) => [t.name, t]));
 }
 
+// The placement algorithms (GET /v1/placement-algorithms): {default, algorithms: name -> {name, help,
+// technique, index_kind, noun, choice, summary, images, labels, fields}}.  What the pages know of an
+// algorithm comes from here, never from its name.
+export async function fetchPlacementAlgorithms() {
+  const body = await api("/v1/placement-algorithms");
+  return {default: body.default, algorithms: new Map(body.algorithms.map((a) => [a.name, a]))};
+}
+
 // A file the API serves, saved by the browser as ``filename``.  Throws ApiError.
 export async function download(path, filename) {
   const response = await api(path, {raw: true});

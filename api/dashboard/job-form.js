@@ -1,16 +1,11 @@
 // The job form: a grid, explicit view cells or a placement; the technique and its options, all
 // from GET /v1/techniques.
 
-import {api, apiKey, fetchTechniques} from "./api.js";
-import {state} from "./state.js";
+import {api, apiKey, fetchPlacementAlgorithms, fetchTechniques} from "./api.js";
+import {placementAlgorithm, state} from "./state.js";
 import {$, el, showBox} from "./dom.js";
 import {parseVec} from "./format.js";
 import {renderJob} from "./job.js";
-
-// The technique the primitive-budget placement places (layered depth images, seed 004).  GET
-// /v1/techniques does not say yet which placement algorithms can place a technique: until it
-// does, this is the one technique the page knows by name.
-const PRIMITIVE_BUDGET_TECHNIQUE = "ldi";
 
 function jobMode() { return document.querySelector('#job-form input[name="mode"]:checked').value; }
 
@@ -24,9 +19,10 @@ export function onModeChange() {
 }
 
 export function onAlgorithmChange() {
-  // The primitive-budget placement places layered depth images: technique ldi.
-  if ($("job-placement-algorithm").value === "primitive-budget" && state.techniques.has(PRIMITIVE_BUDGET_TECHNIQUE)) {
-    $("job-technique").value = PRIMITIVE_BUDGET_TECHNIQUE;
+  // An algorithm that bakes one technique (GET /v1/placement-algorithms: its "technique") switches the form to it.
+  const algorithm = placementAlgorithm($("job-placement-algorithm").value);
+  if (algorithm && algorithm.technique && state.techniques.has(algorithm.technique)) {
+    $("job-technique").value = algorithm.technique;
     onTechniqueChange();
   }
 }
@@ -54,9 +50,15 @@ function placementRequest() {
 export async function refreshTechniques() {
   if (!apiKey()) return;
   const key = apiKey();
-  const techniques = await fetchTechniques();
+  const [techniques, algorithms] = await Promise.all([fetchTechniques(), fetchPlacementAlgorithms()]);
   if (key !== apiKey()) return; // the key changed meanwhile: its own call fills the form
   state.techniques = techniques;
+  state.algorithms = algorithms.algorithms;
+  state.defaultAlgorithm = algorithms.default;
+  const algorithmSelect = $("job-placement-algorithm");
+  const chosen = algorithmSelect.value;
+  algorithmSelect.replaceChildren(...[...algorithms.algorithms.values()].map((a) => el("option", {value: a.name, title: a.help, text: `${a.name} ${a.choice}`})));
+  algorithmSelect.value = chosen && algorithms.algorithms.has(chosen) ? chosen : algorithms.default;
   state.optionFields = new Map(); // built again for the new descriptions
   const select = $("job-technique");
   const previous = select.value;

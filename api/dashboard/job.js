@@ -2,7 +2,7 @@
 // statistics, atlas page) and the job's actions.
 
 import {api, download} from "./api.js";
-import {FINAL, partTechniques, PLACEMENT, state, techniqueHelp, techniqueScope} from "./state.js";
+import {FINAL, partTechniques, PLACEMENT, placementAlgorithm, state, techniqueHelp, techniqueScope} from "./state.js";
 import {$, el, setBar, setState, showBox, svg} from "./dom.js";
 import {countsText, fmtBytes, fmtNum, fmtSeconds, fmtTime, fmtVec, pct, shortId} from "./format.js";
 import {refreshScenes} from "./scenes.js";
@@ -35,9 +35,8 @@ export function renderJob(job) {
   $("job-id").textContent = job.id;
   const name = job.technique || job.job_type;
   const placed = job.job_type === PLACEMENT ? (job.params || {}) : null;
-  const help = !placed ? techniqueHelp(name)
-    : (placed.placement || {}).algorithm === "primitive-budget" ? "layered depth images on a solution grid, so that no view draws more than the primitive budget (seed 004)"
-    : `impostors of ${placed.technique} where the frame budget needs them`;
+  const algorithm = placed ? placementAlgorithm((placed.placement || {}).algorithm) : null;
+  const help = !placed ? techniqueHelp(name) : algorithm ? algorithm.summary.replaceAll("{technique}", placed.technique) : "";
   $("job-technique-text").textContent = help ? `${name}: ${help}` : name;
   $("job-technique-text").dataset.technique = name;
   setState($("job-state"), job.state);

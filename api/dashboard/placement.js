@@ -1,7 +1,7 @@
 // A placement job's part of the job page.
 
 import {api} from "./api.js";
-import {FINAL, PLACEMENT, state} from "./state.js";
+import {FINAL, PLACEMENT, placementAlgorithm, state} from "./state.js";
 import {$, el, showBox, svg} from "./dom.js";
 import {countsText, fmtBytes, fmtNum, fmtVec, pct} from "./format.js";
 import {selectCell} from "./job.js";
@@ -98,19 +98,21 @@ function timeColour(ratio) {
 const FACTS = ["budget", "impostors", "memory", "cpvs", "unsolvable", "rounds"];
 
 function factLabels(labels) {
-  // The totals' labels: a primitive-budget placement has grid points where a frame-time one has CPVs.
+  // The totals' labels: an algorithm's own (GET /v1/placement-algorithms: "labels", e.g. grid points for CPVs), else the page's.
   for (const k of FACTS) $(`placement-${k}-label`).textContent = (labels && labels[k]) || $(`placement-${k}-label`).dataset.label;
 }
 
 function drawPlacement(doc) {
-  $("placement-body").hidden = false;
-  const images = doc.algorithm === "primitive-budget";
+  const algorithm = placementAlgorithm(doc.algorithm);
+  $("placement-body").hidden = !algorithm;
+  if (!algorithm) return; // GET /v1/placement-algorithms not answered yet: drawn when it is
+  const images = algorithm.images;
   $("placement-colour-label").hidden = images;
   $("placement-legend").hidden = images;
   $("placement-point-legend").hidden = !images;
   $("region-panel").hidden = images;
+  factLabels(algorithm.labels);
   if (images) return drawImagePlacement(doc);
-  factLabels(null);
   const t = doc.totals, s = doc.summary, unit = s.unit;
   const tMax = doc.parameters.t_max;
   $("placement-budget").textContent = `t_max ${fmtNum(tMax, 4)} ${unit} (cost model: ${doc.parameters.cost_model.kind || doc.parameters.cost_model.source || "given"}); ` +
@@ -174,7 +176,6 @@ function drawPlacement(doc) {
 function drawImagePlacement(doc) {
   // Seed 004's solution grid: its points over the view space's two longest axes, marked by whether
   // their views warp LDI images; the budget, the images and the check of the guarantee.
-  factLabels({cpvs: "grid points", unsolvable: "unsolved", rounds: "check"});
   const t = doc.totals, s = doc.summary, par = doc.parameters, check = s.check;
   $("placement-budget").textContent = `P ${fmtNum(par.primitives)} triangles a view (p_opt ${fmtNum(par.p_opt)}; the model ${fmtNum(s.model_triangles)}), FOV ${fmtNum(par.fov_deg)}°`;
   $("placement-impostors").textContent = `${fmtNum(t.images)} LDI images (${fmtNum(t.images_baked)} baked, ${par.construction_images} construction images, ${par.resolution} px), ${par.technique}`;

@@ -16,6 +16,8 @@ export const state = {
   atlas: {key: null, url: null}, // what the thumbnail shows
   polling: false,
   techniques: new Map(), // name -> GET /v1/techniques entry
+  algorithms: new Map(), // name -> GET /v1/placement-algorithms entry
+  defaultAlgorithm: null, // the algorithm of a placement that names none
   optionFields: new Map(), // technique name -> its option fields (kept across switches)
   placement: {key: null, doc: null, error: null}, // a placement job's GET /v1/jobs/{id}/placement, fetched once per end
   region: null, // the footprint key of the region selected on the placement map
@@ -31,6 +33,12 @@ export function techniqueScope(name) {
 export function techniqueHelp(name) {
   const t = state.techniques.get(name);
   return t ? t.help : "";
+}
+
+// What GET /v1/placement-algorithms says of a placement's algorithm (its name; null or absent: the
+// default); null: not listed, or not fetched yet.
+export function placementAlgorithm(name) {
+  return state.algorithms.get(name || state.defaultAlgorithm) || null;
 }
 
 // The techniques that make impostors of one part (scope "part"), by name.

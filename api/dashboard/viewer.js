@@ -28,7 +28,7 @@
 import * as THREE from "three";
 import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
 
-import {api as request} from "./api.js";
+import {api as request, fetchPlacementAlgorithms} from "./api.js";
 
 const CACHED_CELLS = 64; // cells kept loaded (the active one and its neighbours always are)
 const CACHED_GROUPS = 32; // what-to-draw groups kept built (a placement job makes one per lookup answer)
@@ -41,7 +41,7 @@ const query = new URLSearchParams(location.search);
 const number = (name) => (query.has(name) && query.get(name) !== "" && Number.isFinite(Number(query.get(name))) ? Number(query.get(name)) : null);
 
 const view = {
-  job: null, index: null, kind: "grid", // grid | placement | primitive-placement
+  job: null, index: null, kind: "grid", algorithm: null, // kind: "grid" or a placement index's kind; algorithm: its GET /v1/placement-algorithms entry
   sceneRoot: null, objects: new Map(), // object name -> its meshes in the scene GLB
   clusters: {}, // a placement job's clusters of split objects: name -> {object, faces}
   bounds: new THREE.Box3(),
@@ -160,9 +160,12 @@ async function loadJob(jobId) {
     api(`/v1/scenes/${encodeURIComponent(view.job.scene_id)}/scene.glb`, {binary: true}),
   ]);
   view.index = index;
-  view.kind = index.kind === "placement" ? "placement" : index.kind === "primitive-placement" ? "primitive-placement" : "grid";
+  // A placement's index has its algorithm's kind (GET /v1/placement-algorithms: "index_kind"); any other is a grid's.
+  const algorithms = index.kind ? (await fetchPlacementAlgorithms()).algorithms : new Map();
+  view.algorithm = [...algorithms.values()].find((a) => a.index_kind === index.kind) || null;
+  view.kind = view.algorithm ? index.kind : "grid";
   for (const cell of index.cells || []) view.cells.set(cell.index, cell);
-  if (view.kind === "placement") view.clusters = (await api(`/v1/jobs/${encodeURIComponent(jobId)}/clusters`)).clusters;
+  if (view.algorithm && !view.algorithm.images) view.clusters = (await api(`/v1/jobs/${encodeURIComponent(jobId)}/clusters`)).clusters;
   view.sceneRoot = await parseGlb(sceneGlb);
   view.sceneRoot.updateMatrixWorld(true);
   view.sceneRoot.traverse((node) => {
@@ -396,12 +399,12 @@ function update(force = false) {
 }
 
 async function doUpdate(force) {
-  if (view.kind === "primitive-placement") {
-    view.activeInfo = "a primitive-budget job's LDIs are drawn by a warper (farfield walkthrough): this view shows its source scene";
+  if (view.algorithm && view.algorithm.images) {
+    view.activeInfo = `a ${view.algorithm.name} job's LDIs are drawn by a warper (farfield walkthrough): this view shows its source scene`;
     return;
   }
-  if (view.kind === "placement") await lookupPlacement(force);
-  const wanted = view.kind === "placement" ? placementWanted() : gridWanted();
+  if (view.algorithm) await lookupPlacement(force);
+  const wanted = view.algorithm ? placementWanted() : gridWanted();
   if (wanted === null) return;
   view.wantedKey = wanted.key;
   if (wanted.key === view.activeKey) return;
@@ -525,7 +528,7 @@ function draw() {
   renderer.setSize(w, h, false);
   if (!query.has("size")) { canvas.style.width = `${w}px`; canvas.style.height = `${h}px`; }
   setDepthRange();
-  const runtime = view.activeKey === "outside" || view.kind === "primitive-placement" ? sourceScene : runtimeScene;
+  const runtime = view.activeKey === "outside" || (view.algorithm && view.algorithm.images) ? sourceScene : runtimeScene;
   renderer.setScissorTest(view.mode === "split");
   if (view.mode === "split") {
     const half = Math.floor(w / 2);

@@ -61,6 +61,27 @@ class Algorithm:
     fields: dict[str, tuple[Any, Any]]
     index_kind: str
     noun: str = "impostors"  # what its cells are, in messages
+    technique: str | None = None  # the one technique it bakes; None: any placeable (part) technique
+    choice: str  # its option's text in the dashboard's algorithm select, after its name
+    summary: str  # the sentence a job page shows of a job of it; "{technique}": the job's technique
+    images: bool = False  # its placement document lists images on a solution grid (else impostors of CPVs)
+    labels: dict[str, str] | None = None  # the dashboard's totals' labels it changes (key -> label)
+    offline: str  # how `farfield place` places with it offline: "cost-model" or "solution-grid"
+
+    def describe(self) -> dict:
+        """``GET /v1/placement-algorithms``: what a client (the dashboard) knows of the algorithm, JSON-ready."""
+        return {
+            "name": self.name,
+            "help": self.help,
+            "technique": self.technique,
+            "index_kind": self.index_kind,
+            "noun": self.noun,
+            "choice": self.choice,
+            "summary": self.summary,
+            "images": self.images,
+            "labels": dict(self.labels) if self.labels else None,
+            "fields": list(self.fields),
+        }
 
     # --- admission ------------------------------------------------------------------------------
 

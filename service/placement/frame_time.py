@@ -134,6 +134,9 @@ class FrameTime(Algorithm):
     help = "seed 000: impostors of a part technique wherever a view is too slow by the cost model"
     index_kind = INDEX_KIND
     noun = "impostors"
+    choice = "(seed 000): impostors of the technique where a view is too slow"
+    summary = "impostors of {technique} where the frame budget needs them"
+    offline = "cost-model"
     # The request's fields of this placement, in the request schema's order (farfield place --help).
     fields = {
         "cpv_size": (Number | None, Field(None, description="smallest 3D region of a problem view (default: the view space's longest side / 8)")),

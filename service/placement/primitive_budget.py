@@ -65,6 +65,12 @@ class PrimitiveBudget(Algorithm):
     )
     index_kind = INDEX_KIND
     noun = "images"
+    technique = TECHNIQUE
+    choice = "(seed 004): layered depth images on a grid, technique ldi"
+    summary = "layered depth images on a solution grid, so that no view draws more than the primitive budget (seed 004)"
+    images = True
+    labels = {"cpvs": "grid points", "unsolvable": "unsolved", "rounds": "check"}
+    offline = "solution-grid"
     # The request's fields of this placement (seed 004 §5; farfield place --algorithm primitive-budget).
     fields = {
         "p_opt": (Number | None, Field(None, description="primitive-budget: the optimisation budget in (0, P] (default: P less 5 % of the model, at least P / 2)")),
