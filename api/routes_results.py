@@ -1,6 +1,6 @@
 """Results: per-cell bundle (zip), manifest, atlas pages, GLB; a job's whole impostor database; lookup;
-a placement job's map and clusters.  The documents are the service's (:mod:`service.jobs.index`,
-:mod:`service.placement.documents`, each placement algorithm's own); a route validates, authorises
+a placement job's map and clusters.  The documents are the service's (:mod:`farfield.service.jobs.index`,
+:mod:`farfield.service.placement.documents`, each placement algorithm's own); a route validates, authorises
 and calls."""
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """The API's background sweep: cells queued too long without starting are sent to the queue again, and so
-are placement jobs whose planning message or planning worker is lost (:func:`service.placement.lease.lost_planning_jobs`)."""
+are placement jobs whose planning message or planning worker is lost (:func:`farfield.service.placement.lease.lost_planning_jobs`)."""
 
 from __future__ import annotations
 

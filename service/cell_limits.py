@@ -1,10 +1,10 @@
 """A worker's limits per cell: the time a cell may run and the memory its pool process may hold.
 
 **Time** (``FARFIELD_CELL_TIME_LIMIT``): Celery's soft time limit raises
-``SoftTimeLimitExceeded`` in the task, which :func:`service.jobs.runner.run_cell` records as a
+``SoftTimeLimitExceeded`` in the task, which :func:`farfield.service.jobs.runner.run_cell` records as a
 failed cell (:func:`time_limit_message`); its hard limit, ``CELL_TIME_GRACE`` seconds later, kills
 a pool process stuck where Python cannot raise (a long call into the GL driver or numba), and the
-task's ``on_failure`` in the worker's main process fails the cell (:mod:`workers.tasks`).
+task's ``on_failure`` in the worker's main process fails the cell (:mod:`farfield.workers.tasks`).
 
 **Memory** (``FARFIELD_CELL_MEMORY_MB``): :class:`MemoryGuard`, a daemon thread in each pool
 process that reads the process's resident set (``/proc/self/statm``) every ``interval`` seconds

@@ -1,6 +1,6 @@
 """The job database: tenants, API keys, scenes, jobs and cells (SQLAlchemy; SQLite or PostgreSQL).
 
-The job state machine lives here, not in Celery results (see :mod:`service.jobs`).  The schema is
+The job state machine lives here, not in Celery results (see :mod:`farfield.service.jobs`).  The schema is
 made by Alembic migrations (``service/migrations``), run by :func:`migrate`; tables are never
 created behind Alembic's back.  Times are float seconds since the epoch.
 """

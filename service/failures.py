@@ -5,8 +5,8 @@
 - **bad input**: a :class:`~farfield.core.errors.FarfieldError` of kind BAD_INPUT or MISSING: no retry can help;
 - **internal**: a bug (any other exception) or a broken invariant (:class:`~farfield.core.errors.InternalError`).
 
-:func:`service.jobs.runner.run_cell`, :func:`service.placement.rounds.run_planning` and the worker
-tasks (:mod:`workers.tasks`) sort their failures with :func:`failure_class`.
+:func:`farfield.service.jobs.runner.run_cell`, :func:`farfield.service.placement.rounds.run_planning` and the worker
+tasks (:mod:`farfield.workers.tasks`) sort their failures with :func:`failure_class`.
 """
 
 from __future__ import annotations

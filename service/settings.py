@@ -101,7 +101,7 @@ MAX_CELLS = 10_000  # cells of one job at most (a grid's, a list's, a placement'
 
 @dataclass(frozen=True, slots=True)
 class AdmissionLimits:
-    """What a job may cost when it is created (:func:`service.jobs.admission.create_job`): texels per cell and
+    """What a job may cost when it is created (:func:`farfield.service.jobs.admission.create_job`): texels per cell and
     per job (estimated from the cells' layer plans), and cells a tenant may have queued or running."""
 
     max_cell_texels: int = MAX_CELL_TEXELS

@@ -3,7 +3,7 @@ texels per cell and per job (413) and on open cells per tenant (429), with nothi
 
 The API app runs in-process on a real SQLite database and blob folder, with a scene uploaded through
 the route; no broker is needed, since every job sent through the API here is refused.  Jobs that
-pass are created with :func:`service.jobs.admission.create_job` on the same database (their cells stay
+pass are created with :func:`farfield.service.jobs.admission.create_job` on the same database (their cells stay
 queued: nothing sends them).
 """
 

@@ -1,7 +1,7 @@
 """Failure classes of a cell (issue 22): transient, bad input and internal failures.
 
 The cells live in a real SQLite database and a local blob store.  Cells are run the way a worker
-runs them: ``service.jobs.runner.run_cell`` in a loop (as the task does, without its countdowns),
+runs them: ``farfield.service.jobs.runner.run_cell`` in a loop (as the task does, without its countdowns),
 or the Celery task itself executed eagerly (``apply``: each retry runs at once, with the message's
 retry count, instead of after its countdown).  Only the bake is replaced where a test needs it to
 fail in a given way; the classification, counting and retry limits are the real ones.

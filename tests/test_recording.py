@@ -294,7 +294,7 @@ print(json.dumps({"before": before, "warmed": warmed, "baked": len(recording._pa
 
 
 def test_warming_compiles_the_pairing_kernel_with_the_types_a_bake_runs_it_with():
-    """What a render worker does when it starts (``workers.tasks.warm_worker``), in a fresh process:
+    """What a render worker does when it starts (``farfield.workers.tasks.warm_worker``), in a fresh process:
     after :func:`warm_kernels` a real layered bake adds no compiled signature to the pairing
     kernel, so none compiles (or loads from the cache) during a cell."""
     out = subprocess.run([sys.executable, "-c", WARM_CHECK], capture_output=True, text=True, timeout=600)

@@ -700,7 +700,7 @@ print(json.dumps({"before": before, "warmed": warmed, "baked": compiled()}))
 
 
 def test_warming_compiles_every_kernel_a_bake_runs_with_the_types_it_runs_them_with():
-    """What a render worker does when it starts (``workers.tasks.warm_worker``), in a fresh process:
+    """What a render worker does when it starts (``farfield.workers.tasks.warm_worker``), in a fresh process:
     after :func:`warm_kernels` a real TDM bake adds no compiled signature to any numba kernel, so
     none compiles (or loads from the cache) during a cell."""
     out = subprocess.run([sys.executable, "-c", WARM_CHECK], capture_output=True, text=True, timeout=600)

@@ -1,6 +1,6 @@
 """Celery tasks: each is a few lines around a function of ``service``.
 
-:func:`bake_cell` runs :func:`service.jobs.runner.run_cell`, which sorts a failed attempt into one of
+:func:`bake_cell` runs :func:`farfield.service.jobs.runner.run_cell`, which sorts a failed attempt into one of
 three classes and counts it on the cell:
 
 - **transient** (the database, broker, blob store or renderer failed; any OSError): retried with
@@ -19,14 +19,14 @@ deliveries, a bad-input one never.  Then the task gives up and fails the cell wi
 database takes the write (else it logs that it could not).  No message is retried forever: the task's
 ``max_retries`` is :func:`max_retries` of the attempt limit.
 
-Limits per cell (:mod:`service.cell_limits`): the decorator's soft and hard time limits are
+Limits per cell (:mod:`farfield.service.cell_limits`): the decorator's soft and hard time limits are
 ``FARFIELD_CELL_TIME_LIMIT`` and that plus ``CELL_TIME_GRACE`` seconds; the soft one fails the cell
 (no retry), and the hard one, where the pool process did not stop, is recorded by
 :meth:`CellTask.on_failure` in the worker's main process.  Each pool process runs a
 :class:`~farfield.service.cell_limits.MemoryGuard` of ``FARFIELD_CELL_MEMORY_MB``.
 
 A placement job's :func:`plan_placement` and :func:`check_placement` run
-:func:`service.placement.rounds.run_planning` (plan, or check and repair) under the same time limits and
+:func:`farfield.service.placement.rounds.run_planning` (plan, or check and repair) under the same time limits and
 memory guard (past it the job fails, naming the limit) and send the cells it made; a bake whose cell ended the last open cell of a placement job's round sends
 the job's check.  A pool process that dies while it plans frees the job's hold from the worker's
 main process at once (:class:`PlanningRequest`), so the redelivery plans again (each time an
@@ -268,7 +268,7 @@ def bake_cell(self, cell_id: str) -> str:
 def _send_check_if_due(db: Database, blobs: BlobStore, cell_id: str) -> None:
     """The cell ended its placement job's round: send the job's check (a duplicate is harmless; a
     lost one is sent again by the API's sweeper); a placement job that has ended (cancelled while
-    its cells ran, failed) drops its planner states (:func:`service.placement.rounds.after_cell`)."""
+    its cells ran, failed) drops its planner states (:func:`farfield.service.placement.rounds.after_cell`)."""
     with db.session() as s:
         job_id = s.scalar(select(CellRow.job_id).where(CellRow.id == cell_id))
     if job_id is not None and after_cell(db, blobs, job_id):

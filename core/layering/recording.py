@@ -487,7 +487,7 @@ def slab_instances(
 def warm_kernels() -> float:
     """Compile (or load from numba's cache) the bucketing and pairing kernels of :func:`slab_instances` on one
     triangle, without GL; the seconds it took.  A render worker calls it when it starts, beside the
-    other techniques' (:mod:`workers.tasks`), so the first layered or envmap cell does not pay it."""
+    other techniques' (:mod:`farfield.workers.tasks`), so the first layered or envmap cell does not pay it."""
     start = time.perf_counter()
     faces = np.array([[0, 1, 2]], dtype=np.int64)
     faces.flags.writeable = False  # as a SceneObject holds them: numba compiles read-only arrays apart

@@ -115,7 +115,7 @@ def create_job(
     """Validate ``spec`` against ``scene`` (every cell is planned by its technique's check) and store
     the job and its cells.  Stored parameters hold every option as validated (the technique's
     defaults filled in, numbers and lists normalised), so equal requests store equal parameters (and
-    share their bundles, :func:`service.jobs.cells.result_key`) and a job means the same thing if a default changes.
+    share their bundles, :func:`farfield.service.jobs.cells.result_key`) and a job means the same thing if a default changes.
 
     Cost admission (``limits``; None: :meth:`AdmissionLimits.from_env`): a tenant whose queued and
     running cells would pass ``max_tenant_cells`` with this job's is refused with

@@ -10,8 +10,8 @@ States (kept in SQL, never in Celery results):
 
 A job ends when its last cell does: ``done`` when every cell is done, ``failed`` when some cell
 failed, ``cancelled`` when cancelled.  The worker that ends the last cell builds the job's
-impostor database index (:func:`service.jobs.index.write_index`); a placement job's round ends
-instead (:func:`service.placement.rounds.end_round`: its check writes its database).
+impostor database index (:func:`farfield.service.jobs.index.write_index`); a placement job's round ends
+instead (:func:`farfield.service.placement.rounds.end_round`: its check writes its database).
 """
 
 from __future__ import annotations

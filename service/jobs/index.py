@@ -2,7 +2,7 @@
 
 The worker that ends a job of view cells writes its index (:func:`write_index`): every cell's view
 cell, state and bundle key, and its neighbours on the grid (what a runtime prefetches).  A
-placement job's index is its algorithm's (:mod:`service.placement`), and so is its answer to a
+placement job's index is its algorithm's (:mod:`farfield.service.placement`), and so is its answer to a
 lookup (:func:`lookup_view`) and the cells its ``database.zip`` ships (:func:`bundled_cells`).
 """
 

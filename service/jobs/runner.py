@@ -5,14 +5,14 @@ of one part (layered, tdm) is then evaluated against the part's real geometry fr
 (:func:`farfield.core.techniques.part.report_part`), unless the job says ``evaluate: false``; the figures
 and the time they took go in the cell's record (``stats.evaluation``), never in the bundle, beside
 this attempt's bake timings (``stats.seconds``) and whether this attempt baked the bundle or found it
-(``stats.baked``).  A placement job's cell (``cells.params``, :mod:`service.placement`) is of its
+(``stats.baked``).  A placement job's cell (``cells.params``, :mod:`farfield.service.placement`) is of its
 algorithm's kind: keyed (:meth:`~farfield.service.placement.base.Algorithm.cell_inputs`) and baked
 (:meth:`~farfield.service.placement.base.Algorithm.bake_cell`) by the job's algorithm with its own
 technique, objects and options, and not evaluated here (the walkthrough measures a placement).
 
 This is everything a worker task does (``workers/tasks.py`` is a few lines around it).  The bundle
 is published under a key derived from everything that determines its bytes
-(:func:`service.jobs.cells.result_key`) all at once (the local store renames a staging folder into
+(:func:`farfield.service.jobs.cells.result_key`) all at once (the local store renames a staging folder into
 place; S3 writes the manifest last), so a bundle whose manifest exists is complete, a redelivered
 cell finds it and does not bake again, and two workers baking the same key never mix their files.
 """
@@ -141,7 +141,7 @@ def run_cell(
       the worker), its traceback logged at each attempt; after ``max_attempts`` the cell is failed
       with ``internal error: Type: message``.
 
-    Past the worker's limits (:mod:`service.cell_limits`) the cell is failed at once, as bad input
+    Past the worker's limits (:mod:`farfield.service.cell_limits`) the cell is failed at once, as bad input
     (a :class:`~farfield.core.errors.CellLimitError`): Celery's soft time limit (``time_limit``
     seconds, named in the message) raises ``SoftTimeLimitExceeded`` here, and ``memory``, armed
     while the cell bakes and is evaluated, fails the cell and ends the process past its limit.
@@ -149,7 +149,7 @@ def run_cell(
     Every state change names the attempt it ends, so a stale duplicate delivery changes nothing.
     An exception that escapes (claiming the cell or recording its outcome failed, so no attempt or
     not its end was recorded) is the caller's to retry and count: the worker task
-    (:mod:`workers.tasks`) counts it in the Celery message's retries, within a bounded limit.
+    (:mod:`farfield.workers.tasks`) counts it in the Celery message's retries, within a bounded limit.
     """
     claim = claim_cell(db, cell_id, max_attempts, worker)
     if claim.cell is None and claim.job_id is not None:

@@ -2,7 +2,7 @@
 
 A placement job (SQL ``job_type`` :data:`PLACEMENT_JOB`; its algorithm in
 ``params["placement"]["algorithm"]``, absent for a job stored before there were two) is planned,
-baked and checked by :mod:`service.placement.rounds`, which asks the job's algorithm (the registry,
+baked and checked by :mod:`farfield.service.placement.rounds`, which asks the job's algorithm (the registry,
 :data:`farfield.service.placement.ALGORITHMS`) for everything that differs between algorithms: the
 request fields it reads, its admission (the job's stored params), its plan, the cells it makes and
 how one is keyed and baked, its check of a baked round, its database index, and the documents the
@@ -27,7 +27,7 @@ PLACEMENT_JOB = "placement"  # the job_type column of a placement job
 
 @dataclass(frozen=True)
 class Round:
-    """What a plan or a check leaves to commit (:func:`service.placement.rounds._commit_round`): the
+    """What a plan or a check leaves to commit (:func:`farfield.service.placement.rounds._commit_round`): the
     planner state's key, the cells to add (dicts of index, viewcell and params; none: the job ends
     with ``index_key``, its database), how many impostors (or images) the placement holds, its
     summary, the round's number and the check rounds' records so far."""
@@ -45,7 +45,7 @@ class Algorithm:
     """A placement algorithm: subclasses fill in the class attributes and the methods that raise here.
 
     - request: :attr:`fields` (the ``placement`` object's fields only this algorithm reads, as
-      ``name: (annotation, pydantic Field)``; the request schema, :class:`service.placement.schema.PlacementSpec`,
+      ``name: (annotation, pydantic Field)``; the request schema, :class:`farfield.service.placement.schema.PlacementSpec`,
       is made of every algorithm's) and :attr:`help` (its line in the field ``algorithm``'s description);
     - admission: :meth:`params` (the job's stored params, or a PlacementError naming the problem);
     - planning: :meth:`plan` (on the worker: the planner state, the placement, its cells);
@@ -112,7 +112,7 @@ class Algorithm:
     # --- its cells --------------------------------------------------------------------------------
 
     def cell_inputs(self, cell: CellRow) -> tuple[str, dict]:
-        """(type, params) of :func:`service.jobs.cells.result_key` for one of its cells: what makes the
+        """(type, params) of :func:`farfield.service.jobs.cells.result_key` for one of its cells: what makes the
         bundle's bytes, so that equal impostors of another job are found, not baked again."""
         return f"placement/{cell.params['technique']}", dict(cell.params)
 
@@ -131,7 +131,7 @@ class Algorithm:
         return None
 
     def read_index(self, index: dict):
-        """The lookup structure of a parsed index (kept parsed by :mod:`service.placement.documents`)."""
+        """The lookup structure of a parsed index (kept parsed by :mod:`farfield.service.placement.documents`)."""
         raise NotImplementedError
 
     def placement_document(self, job: JobRow, index: dict) -> dict:

@@ -10,10 +10,10 @@ impostors' technique in ``params["technique"]``, its algorithm in ``params["plac
   job's ``planning`` record (``GET /v1/jobs/{id}`` shows it as ``"placement"``), cancellation is
   looked at between progress calls, a :class:`~farfield.core.errors.FarfieldError` of bad input fails
   the job with its message, anything else as ``internal error: ...``.  The planner state is kept as a
-  blob (:mod:`service.placement.states`) and every impostor becomes one cell that carries its own
+  blob (:mod:`farfield.service.placement.states`) and every impostor becomes one cell that carries its own
   parameters (``cells.params``).  A placement of no impostors ends ``done`` at once with its
   database.  An attempt that finds its job cancelled or failed removes the index it wrote.
-- **bake**: the cells go to the render workers as a grid job's do (:func:`service.jobs.runner.run_cell`
+- **bake**: the cells go to the render workers as a grid job's do (:func:`farfield.service.jobs.runner.run_cell`
   bakes a placement cell with its algorithm's :meth:`~farfield.service.placement.base.Algorithm.bake_cell`;
   its result key is made of its own parameters, so equal impostors of another job are found, not baked again).
 - **check** (:func:`check_job`, ``farfield.check_placement``), when the last cell of a round ends
@@ -21,7 +21,7 @@ impostors' technique in ``params["technique"]``, its algorithm in ``params["plac
   repairs the round (the impostors it adds become cells of the next round) or writes the database
   index (``jobs/<id>/index.json``) and the job ends done.
 
-Planning and checking are held by one worker at a time (:mod:`service.placement.lease`).
+Planning and checking are held by one worker at a time (:mod:`farfield.service.placement.lease`).
 """
 
 from __future__ import annotations
@@ -86,7 +86,7 @@ def begin_check(session, job: JobRow, requeue_after: float | None = None) -> Non
 
 
 def end_round(db: Database, job_id: str, final: str) -> bool:
-    """A placement job's round ended (:func:`service.jobs.cells.finish_job_if_complete`): all done ->
+    """A placement job's round ended (:func:`farfield.service.jobs.cells.finish_job_if_complete`): all done ->
     placing, to be checked (its worker sends the check task, :func:`pending_check`); else the job ends
     ``final`` (no database: it is written by the check).  True if this call ended the job."""
     with db.session() as s:
@@ -273,7 +273,7 @@ def run_planning(
     db: Database, blobs: BlobStore, job_id: str, phase: str, worker: str, max_attempts: int
 ) -> tuple[str, list[str]]:
     """:func:`plan_job` or :func:`check_job`, a failure sorted as a cell's is
-    (:func:`service.failures.failure_class`): bad input fails the job with its message at once;
+    (:func:`farfield.service.failures.failure_class`): bad input fails the job with its message at once;
     a bug fails it as ``internal error: ...`` (a plan is deterministic: running it again would fail
     again); a transient failure frees the hold and is raised for the task to retry."""
     from celery.exceptions import SoftTimeLimitExceeded

@@ -243,7 +243,7 @@ def bake_points(
 def warm_kernels() -> float:
     """Compile (or load from numba's cache) the numba kernels of a point bake (the conservative
     LDI's merge, the sampling spacing) on tiny arrays, without GL; the seconds it took.  A render
-    worker calls it when it starts, beside the TDM's (:mod:`workers.tasks`)."""
+    worker calls it when it starts, beside the TDM's (:mod:`farfield.workers.tasks`)."""
     start = time.perf_counter()
     depth = np.full((1, 2, 2), 1.0)
     keep = ldi_kernels._touched_kept(depth, depth + 1.0, 0.1)

@@ -242,7 +242,7 @@ def warm_kernels() -> float:
     """Compile (or load from numba's cache) every numba kernel a TDM bake runs, by meshing a small
     synthetic voxel field (a tilted slab: steps, boundaries, several charts) the way a bake does;
     no GL.  Returns the seconds it took.  A render worker calls it when it starts
-    (:mod:`workers.tasks`), so its first cell does not pay the compilation (some 35 s on a 2-core
+    (:mod:`farfield.workers.tasks`), so its first cell does not pay the compilation (some 35 s on a 2-core
     machine with an empty cache, 0.4 s to load a filled one)."""
     start = time.perf_counter()
     plan = plan_layers(
