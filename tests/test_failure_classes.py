@@ -17,6 +17,7 @@ import sqlite3
 import click
 import pytest
 import trimesh
+from celery.exceptions import SoftTimeLimitExceeded
 from click.testing import CliRunner
 from fastapi.testclient import TestClient
 from sqlalchemy import event
@@ -25,7 +26,7 @@ import farfield.service.jobs.runner as cell_runner
 import farfield.workers.tasks as tasks
 from farfield.api.app import create_app
 from farfield.cli.main import FarfieldGroup
-from farfield.core.errors import ErrorKind, InternalError, LayerPlanError
+from farfield.core.errors import ErrorKind, InternalError, LayerPlanError, RenderBackendError
 from farfield.service.blobs import LocalBlobStore
 from farfield.service.db import CellRow, Database, JobRow
 from farfield.service.jobs.admission import create_job
@@ -131,6 +132,29 @@ def test_a_transient_error_is_retried_with_backoff_then_failed_without_the_inter
 
 
 # 3. Bad input fails at once; an internal error is never a 4xx.
+
+
+def _wrapped_time_limit() -> RenderBackendError:
+    """What moderngl's context creation made of the soft time limit striking inside it."""
+    try:
+        try:
+            raise SoftTimeLimitExceeded()
+        except SoftTimeLimitExceeded as limit:
+            raise RenderBackendError(f"no usable EGL OpenGL 3.3 context: {limit!r}") from limit
+    except RenderBackendError as error:
+        return error
+
+
+@pytest.mark.slow
+def test_the_time_limit_wrapped_by_a_library_still_fails_the_cell_once(stack, monkeypatch):
+    """The soft time limit striking while the GL context is created came back as a RenderBackendError
+    (transient): the cell past its limit was attempted three times (tests/test_admission.py's time
+    limit test, failed with attempts 3).  An error raised while handling the limit is the limit."""
+    monkeypatch.setattr(cell_runner, "bake_cell", bake_raising(_wrapped_time_limit()))
+    state, countdowns = run_like_the_task(stack)
+    cell = stack.cell()
+    assert state == "failed" and countdowns == [] and cell.attempts == 1
+    assert cell.error.startswith("CellLimitError: the cell ran past the worker's time limit"), cell.error
 
 
 @pytest.mark.slow

@@ -121,6 +121,20 @@ def evaluate_cell(
     return report_part(scene, impostor)
 
 
+def _raised_by_time_limit(error: BaseException) -> bool:
+    """Whether ``error`` is Celery's soft time limit, or was raised while handling it: a library that
+    wraps every exception (moderngl's context creation: ``RenderBackendError: no usable EGL OpenGL 3.3
+    context: SoftTimeLimitExceeded()``) would otherwise turn the limit into a transient failure, and
+    the cell past its limit would be retried up to the attempt limit."""
+    seen: set[int] = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, SoftTimeLimitExceeded):
+            return True
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return False
+
+
 def run_cell(
     db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, worker: str | None = None,
     *, time_limit: int | None = None, memory: MemoryGuard | None = None,
@@ -216,7 +230,7 @@ def run_cell(
         end("cancelled")
         return "cancelled"
     except Exception as error:  # noqa: BLE001 - every failure is classified and recorded on the cell
-        if isinstance(error, SoftTimeLimitExceeded):  # Celery's soft time limit: bad input, never retried
+        if _raised_by_time_limit(error):  # Celery's soft time limit: bad input, never retried
             error = CellLimitError(
                 time_limit_message(time_limit) if time_limit else "the cell ran past the worker's time limit"
             )
