@@ -105,6 +105,10 @@ class SceneObject:
         Base-colour RGBA image, RGB sRGB-encoded, top row first.  Requires ``uv``.
     alpha_cutoff : float or None
         Alpha-mask threshold in 0..1, or None for opaque.
+    double_sided : bool
+        Seen from both sides (True, the default for built scenes) or from its front side only
+        (False: a viewer behind a triangle's plane does not see it, as an engine culls back faces;
+        glTF ``doubleSided: false``, and OBJ/PLY/STL by default, see :mod:`farfield.core.exchange`).
 
     Raises
     ------
@@ -122,6 +126,7 @@ class SceneObject:
     base_color: np.ndarray = DEFAULT_BASE_COLOR  # (4,) float64 RGBA in 0..1, linear
     texture: np.ndarray | None = None  # (h, w, 4) uint8 RGBA, sRGB-encoded RGB, top row first
     alpha_cutoff: float | None = None
+    double_sided: bool = True
     bounds: np.ndarray = field(init=False, repr=False)  # (2, 3) float64: min, max corner
 
     def __post_init__(self) -> None:
@@ -148,6 +153,7 @@ class SceneObject:
             set_(self, "texture", texture)
         if self.alpha_cutoff is not None:
             set_(self, "alpha_cutoff", float(self.alpha_cutoff))
+        set_(self, "double_sided", bool(self.double_sided))
         _check_geometry(name, vertices, faces)
         _check_colour(name, self.base_color, self.uv, self.alpha_cutoff)
         bounds = np.stack([vertices.min(axis=0), vertices.max(axis=0)])
@@ -179,6 +185,7 @@ class SceneObject:
             "base_color": self.base_color.tolist(),
             "texture_size": None if self.texture is None else [self.texture.shape[1], self.texture.shape[0]],
             "alpha_cutoff": self.alpha_cutoff,
+            "double_sided": self.double_sided,
         }
 
 
@@ -241,8 +248,8 @@ def _texture_digest(texture: np.ndarray | None, memo: dict | None) -> np.ndarray
 
 
 def object_hash(obj: SceneObject, memo: dict | None = None) -> bytes:
-    """SHA-256 digest (32 bytes) of one object's geometry and colour arrays, name left out
-    (the texture by its digest, :func:`_texture_digest`)."""
+    """SHA-256 digest (32 bytes) of one object's geometry, colour arrays and sidedness, name left
+    out (the texture by its digest, :func:`_texture_digest`)."""
     digest = hashlib.sha256(HASH_VERSION)
     # Adding 0.0 maps -0.0 to +0.0, so equal coordinates give equal bytes.
     _update_hash(digest, b"vertices", obj.vertices + 0.0)
@@ -253,6 +260,9 @@ def object_hash(obj: SceneObject, memo: dict | None = None) -> bytes:
     _update_hash(digest, b"texture", _texture_digest(obj.texture, memo))
     cutoff = None if obj.alpha_cutoff is None else np.array([obj.alpha_cutoff], dtype=np.float64)
     _update_hash(digest, b"alpha_cutoff", cutoff)
+    if not obj.double_sided:
+        # Only a one-sided object adds a tag, so the hashes of double-sided objects stay as they were.
+        digest.update(b"one-sided;")
     return digest.digest()
 
 

@@ -40,6 +40,7 @@ def to_trimesh(scene: Scene) -> trimesh.Scene:
                 baseColorTexture=None if obj.texture is None else texture_image(obj.texture),
                 alphaMode=None if obj.alpha_cutoff is None else "MASK",
                 alphaCutoff=obj.alpha_cutoff,
+                doubleSided=obj.double_sided,
             )
             visual = trimesh.visual.TextureVisuals(uv=None if obj.uv is None else np.array(obj.uv), material=material)
         else:

@@ -168,6 +168,7 @@ class Elements:
                     obj.base_color,
                     obj.texture,
                     obj.alpha_cutoff,
+                    obj.double_sided,
                 )
             )
         return Scene.from_objects(objects, scene.source, scene.warnings)

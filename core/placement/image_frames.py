@@ -33,7 +33,15 @@ def cell_objects(scene: Scene, cells: OctreeCells, chosen) -> list[SceneObject]:
         o = scene.objects[k]
         out.append(
             SceneObject(
-                o.name, o.vertices, o.faces[faces], o.uv, o.vertex_colors, o.base_color, o.texture, o.alpha_cutoff
+                o.name,
+                o.vertices,
+                o.faces[faces],
+                o.uv,
+                o.vertex_colors,
+                o.base_color,
+                o.texture,
+                o.alpha_cutoff,
+                o.double_sided,
             )
         )
     return out
