@@ -372,3 +372,25 @@ def test_obj_mtl_colours_opacity_maps_and_uv_options_draw_as_three_js_draws_them
     print("obj/mtl", stats)
     assert stats["three_pixels"] > 2000 and stats["three_beyond_1px"] == 0 and stats["farfield_beyond_1px"] == 0, stats
     assert stats["colour_mean"] <= 2.0, stats
+
+
+def test_gltf_samplers_texture_transform_uv_sets_and_accessor_encodings_draw_as_three_js_draws_them(threejs, tmp_path):
+    """Issue 54: a validator-clean glTF (``tests/gltf_files.py``) of one quad per rule drawn by
+    three.js's GLTFLoader and by farfield from its loaded scene, without mipmaps: CLAMP_TO_EDGE and
+    MIRRORED_REPEAT samplers over uv -0.5..1.5, KHR_texture_transform, ``texCoord`` 1, COLOR_0 as
+    normalized bytes, KHR_mesh_quantization positions and a sparse POSITION accessor.  trimesh's
+    reader (farfield's before issue 54) repeated every texture, ignored the transform and the
+    second uv set, and drew the quantized and sparse quads collapsed."""
+    from gltf_files import sampler_scene
+
+    path = sampler_scene(tmp_path / "samplers.glb")
+    scene = load_scene(path)
+    camera = look_at([1.6, 1.6, 3.2], np.array([1.6, 1.6, 0.0]), box_corners(scene.bounds), 60.0, 192)
+    (three,) = threejs.render(path, camera, mipmaps=False)
+    with MeshRenderer(scene.objects) as renderer:
+        ours = renderer.render(camera)
+    stats = compare(three, ours)
+    print("gltf samplers", stats)
+    assert stats["three_pixels"] > 0.5 * 192**2, stats
+    assert stats["three_beyond_1px"] == 0 and stats["farfield_beyond_1px"] == 0, stats
+    assert stats["colour_mean"] <= 2.0 and stats["colour_p99"] <= 16.0, stats

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 
 from farfield.core.errors import SceneLoadError, UploadTooLargeError
+from farfield.core.exchange.gltf.document import uri_path
 from farfield.core.exchange.references import FileIndex
 
 SCENE_EXTENSIONS = ("glb", "gltf", "obj", "ply", "stl")
@@ -223,7 +224,8 @@ def referenced_files(path: Path) -> list[str]:
         uris = [b.get("uri") for b in document.get("buffers", []) if isinstance(b, dict)] + [
             i.get("uri") for i in document.get("images", []) if isinstance(i, dict)
         ]
-        references = [u for u in uris if isinstance(u, str)]
+        # A URI is percent-encoded (RFC 3986): "my%20file.bin" is the file "my file.bin".
+        references = [uri_path(u) for u in uris if isinstance(u, str) and not u.startswith("data:")]
     elif suffix == ".obj":
         from farfield.core.exchange.obj import _MTLLIB, decode_text, texture_maps
 

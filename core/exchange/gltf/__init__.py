@@ -1,0 +1,403 @@
+"""glTF 2.0 (.glb binary, .gltf JSON) -> (k,) SceneObject: one per primitive of every mesh node of the scene, world transforms applied.
+
+farfield reads glTF itself, following the specification (Khronos, glTF 2.0): trimesh's reader
+takes sparse accessors as zeros, normalized and quantized attributes as raw integers, only
+``TEXCOORD_0``, no samplers, no texture transforms, and names a mesh's second primitive with a
+random suffix.  The modules of this package:
+
+* :mod:`~farfield.core.exchange.gltf.document`: the GLB container, buffers, buffer views, images;
+* :mod:`~farfield.core.exchange.gltf.accessors`: accessors (strides, normalized integers, sparse);
+* :mod:`~farfield.core.exchange.gltf.materials`: materials, textures, samplers, texture transforms;
+* here: the node hierarchy (matrix or TRS, float64), primitives (triangles, strips, fans;
+  points and lines skipped with a warning), morph targets at their default weights,
+  ``EXT_mesh_gpu_instancing`` instances, and the objects.
+
+Object names: the node's name (else its mesh's, else ``node<i>``); a mesh of several primitives
+gives ``<name>.p<k>`` for its k-th primitive; names met again (a node instanced along two paths,
+two nodes of one name) get ``_1``, ``_2`` ... in traversal order; an instance of
+``EXT_mesh_gpu_instancing`` gets ``@<i>``.
+
+Extensions: ``KHR_texture_transform``, ``KHR_mesh_quantization``,
+``KHR_materials_pbrSpecularGlossiness`` (its diffuse colour), ``EXT_texture_webp`` and
+``EXT_mesh_gpu_instancing`` are read; the other ``KHR_materials_*`` change lighting, not the base
+colour farfield draws, and are ignored.  A file that *requires* another extension (Draco or
+meshopt compression, KTX2 textures) is refused with a message naming it.  Skins are drawn in their
+bind pose, with a warning.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from trimesh.resolvers import Resolver
+
+from farfield.core.colour_space import linear_to_srgb, srgb_to_linear
+from farfield.core.errors import SceneLoadError
+from farfield.core.exchange.gltf import accessors
+from farfield.core.exchange.gltf.document import Buffers, array, header_json, item, split_glb
+from farfield.core.exchange.gltf.materials import NEAREST, Images, Material, material
+from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits, check_gltf
+from farfield.core.scene import SceneObject
+
+EXTENSIONS = ("glb", "gltf")
+
+__all__ = ["EXTENSIONS", "header_json", "load"]
+
+# Extensions whose meaning farfield draws (or that do not change what it draws).
+READ_EXTENSIONS = frozenset(
+    {
+        "KHR_texture_transform",
+        "KHR_mesh_quantization",
+        "KHR_materials_pbrSpecularGlossiness",
+        "KHR_materials_unlit",
+        "EXT_texture_webp",
+        "EXT_mesh_gpu_instancing",
+    }
+)
+
+_TRIANGLES, _STRIP, _FAN = 4, 5, 6
+_MODE_NAMES = {0: "POINTS", 1: "LINES", 2: "LINE_LOOP", 3: "LINE_STRIP"}
+
+
+def _unsupported_required(document: dict) -> list[str]:
+    required = document.get("extensionsRequired", [])
+    if not isinstance(required, list):
+        raise SceneLoadError("glTF 'extensionsRequired' is not an array")
+    return sorted(
+        str(name) for name in required if name not in READ_EXTENSIONS and not str(name).startswith("KHR_materials_")
+    )
+
+
+def _node_matrix(node: dict, index: int) -> np.ndarray:
+    """(4, 4) float64 local transform of a node: ``matrix`` (column-major) or T x R x S."""
+    where = f"glTF node {index}"
+    try:
+        if "matrix" in node:
+            matrix = np.array(node["matrix"], dtype=np.float64)
+            if matrix.shape != (16,):
+                raise SceneLoadError(f"{where}: matrix has {matrix.size} numbers, not 16")
+            return matrix.reshape(4, 4).T
+        out = np.eye(4)
+        translation = np.array(node.get("translation", (0.0, 0.0, 0.0)), dtype=np.float64)
+        rotation = np.array(node.get("rotation", (0.0, 0.0, 0.0, 1.0)), dtype=np.float64)
+        scale = np.array(node.get("scale", (1.0, 1.0, 1.0)), dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise SceneLoadError(f"{where}: transform is not numbers: {error}") from error
+    if translation.shape != (3,) or rotation.shape != (4,) or scale.shape != (3,):
+        raise SceneLoadError(f"{where}: translation/rotation/scale have the wrong number of values")
+    x, y, z, w = rotation / (np.linalg.norm(rotation) or 1.0)  # unit quaternion, (x, y, z, w)
+    rot = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+    out[:3, :3] = rot * scale[None, :]
+    out[:3, 3] = translation
+    if not np.isfinite(out).all():
+        raise SceneLoadError(f"{where}: transform is not finite")
+    return out
+
+
+def _instances(document: dict, buffers: Buffers, node: dict, index: int) -> list[np.ndarray] | None:
+    """EXT_mesh_gpu_instancing: (4, 4) local matrices of the node's instances, or None."""
+    extensions = node.get("extensions")
+    spec = extensions.get("EXT_mesh_gpu_instancing") if isinstance(extensions, dict) else None
+    if not isinstance(spec, dict) or not isinstance(spec.get("attributes"), dict):
+        return None
+    attributes = spec["attributes"]
+    read = {
+        key: accessors.read(document, buffers, value)
+        for key, value in attributes.items()
+        if key in ("TRANSLATION", "ROTATION", "SCALE")
+    }
+    counts = {len(v) for v in read.values()}
+    if len(counts) != 1:
+        raise SceneLoadError(f"glTF node {index}: EXT_mesh_gpu_instancing attributes have different counts")
+    out = []
+    for i in range(counts.pop()):
+        local = {"translation": read["TRANSLATION"][i].tolist()} if "TRANSLATION" in read else {}
+        if "ROTATION" in read:
+            local["rotation"] = read["ROTATION"][i].tolist()
+        if "SCALE" in read:
+            local["scale"] = read["SCALE"][i].tolist()
+        out.append(_node_matrix(local, index))
+    return out
+
+
+def _faces(mode: int, indices: np.ndarray, where: str) -> np.ndarray:
+    """(f, 3) int64 triangles of a primitive's vertex sequence (glTF 2.0 §3.7.2.1, topology types)."""
+    n = len(indices)
+    if mode == _TRIANGLES:
+        return indices[: n - n % 3].reshape(-1, 3)
+    if n < 3:
+        return np.zeros((0, 3), dtype=np.int64)
+    i = np.arange(n - 2)
+    if mode == _STRIP:  # p_i, p_{i+1+i%2}, p_{i+2-i%2}
+        return np.stack([indices[i], indices[i + 1 + i % 2], indices[i + 2 - i % 2]], axis=1)
+    if mode == _FAN:  # p_{i+1}, p_{i+2}, p_0
+        return np.stack([indices[i + 1], indices[i + 2], np.full(n - 2, indices[0])], axis=1)
+    raise SceneLoadError(f"{where}: mode {mode!r} is not a glTF primitive mode")
+
+
+def _vertex_colours(values: np.ndarray) -> np.ndarray:
+    """(v, 4) uint8 sRGB-encoded RGBA of COLOR_0 (linear floats, (v, 3) or (v, 4))."""
+    rgba = np.ones((len(values), 4))
+    rgba[:, : values.shape[1]] = np.clip(values, 0.0, 1.0)
+    rgba[:, :3] = linear_to_srgb(rgba[:, :3])
+    return np.round(rgba * 255.0).astype(np.uint8)
+
+
+class _Reader:
+    """One document's objects as they are gathered (the mutable state of :func:`load`)."""
+
+    def __init__(self, document: dict, buffers: Buffers, limits: SceneLimits) -> None:
+        self.document = document
+        self.buffers = buffers
+        self.images = Images(buffers)
+        self.limits = limits
+        self.objects: list[SceneObject] = []
+        self.warnings: list[str] = []
+        self.names: dict[str, int] = {}
+        self.materials: dict[object, Material] = {}
+        self.nearest_warned = False
+        self.triangles = 0
+
+    def unique(self, name: str) -> str:
+        count = self.names.get(name, 0)
+        self.names[name] = count + 1
+        out = name if count == 0 else f"{name}_{count}"
+        while count and out in self.names:
+            count += 1
+            out = f"{name}_{count}"
+        self.names.setdefault(out, 1)
+        return out
+
+    def material(self, index: object) -> Material:
+        key = (
+            index if isinstance(index, int) and not isinstance(index, bool) else None if index is None else repr(index)
+        )
+        if key not in self.materials:
+            found = material(self.document, index, self.warnings)
+            if found.blend:
+                self.warnings.append(
+                    f"material {found.name!r}: alphaMode BLEND is approximated as an alpha mask at {found.alpha_cutoff:g}"
+                )
+            if found.texture is not None and found.texture.nearest and not self.nearest_warned:
+                self.nearest_warned = True
+                self.warnings.append(
+                    f"material {found.name!r}: sampler magFilter NEAREST ({NEAREST}) is drawn with bilinear filtering"
+                )
+            self.materials[key] = found
+        return self.materials[key]
+
+    def walk(self, roots: list[int]) -> None:
+        stack = [(root, np.eye(4)) for root in reversed(roots)]
+        while stack:
+            index, parent = stack.pop()
+            node = item(self.document, "nodes", index)
+            world = parent @ _node_matrix(node, index)
+            if "mesh" in node:
+                if "skin" in node:
+                    self.warnings.append(f"node {index}: skinning is not applied; the mesh is drawn in its bind pose")
+                    world_of_mesh = [np.eye(4)]  # a skinned mesh ignores its node's transform (glTF §3.7.3)
+                else:
+                    instances = _instances(self.document, self.buffers, node, index)
+                    world_of_mesh = [world] if instances is None else [world @ m for m in instances]
+                self.mesh(node, index, world_of_mesh)
+            children = node.get("children", [])
+            if isinstance(children, list):
+                stack += [(child, world) for child in reversed(children)]
+
+    def mesh(self, node: dict, index: int, worlds: list[np.ndarray]) -> None:
+        mesh_index = node["mesh"]
+        mesh = item(self.document, "meshes", mesh_index)
+        primitives = mesh.get("primitives")
+        if not isinstance(primitives, list) or not primitives:
+            raise SceneLoadError(f"glTF mesh {mesh_index} has no primitives")
+        base = node.get("name") or mesh.get("name") or f"node{index}"
+        base = str(base)
+        weights = node.get("weights", mesh.get("weights"))
+        parts = [self.primitive(p, f"glTF mesh {mesh_index} primitive {k}", weights) for k, p in enumerate(primitives)]
+        many_instances = len(worlds) > 1
+        for k, part in enumerate(parts):
+            if part is None:
+                continue
+            name = base if len(primitives) == 1 else f"{base}.p{k}"
+            for i, world in enumerate(worlds):
+                self.add(self.unique(f"{name}@{i}" if many_instances else name), part, world)
+
+    def primitive(self, spec: object, where: str, weights: object) -> dict | None:
+        if not isinstance(spec, dict) or not isinstance(spec.get("attributes"), dict):
+            raise SceneLoadError(f"{where}: has no attributes object")
+        attributes = spec["attributes"]
+        mode = spec.get("mode", _TRIANGLES)
+        if isinstance(mode, bool) or not isinstance(mode, int):
+            raise SceneLoadError(f"{where}: mode {mode!r} is not a glTF primitive mode")
+        if mode in _MODE_NAMES:
+            self.warnings.append(f"{where}: skipped {_MODE_NAMES[mode]} (not triangles)")
+            return None
+        if "POSITION" not in attributes:
+            self.warnings.append(f"{where}: skipped, it has no POSITION")
+            return None
+        positions = accessors.read(self.document, self.buffers, attributes["POSITION"])
+        if positions.shape[1] != 3:
+            raise SceneLoadError(f"{where}: POSITION is not VEC3")
+        positions = positions + self.morph(spec, weights, len(positions), where)
+        count = len(positions)
+        if "indices" in spec:
+            indices = accessors.read(self.document, self.buffers, spec["indices"], as_float=False)[:, 0]
+            if len(indices) and (indices.min() < 0 or indices.max() >= count):
+                raise SceneLoadError(f"{where}: an index reaches vertex {int(indices.max())} of {count}")
+        else:
+            indices = np.arange(count, dtype=np.int64)
+        faces = _faces(mode, indices, where)
+        if len(faces) == 0:
+            self.warnings.append(f"{where}: skipped a primitive without triangles")
+            return None
+        found = self.material(spec.get("material"))
+        part = {"positions": positions, "faces": faces, "material": found, "colours": None, "uv": None, "where": where}
+        if "COLOR_0" in attributes:
+            colours = accessors.read(self.document, self.buffers, attributes["COLOR_0"])
+            if len(colours) != count or colours.shape[1] not in (3, 4):
+                raise SceneLoadError(
+                    f"{where}: COLOR_0 has {len(colours)} elements of {colours.shape[1]}, expected {count} of 3 or 4"
+                )
+            part["colours"] = _vertex_colours(colours)
+        ref = found.texture
+        if ref is not None:
+            key = f"TEXCOORD_{ref.tex_coord}"
+            if key not in attributes:
+                self.warnings.append(
+                    f"{where}: its texture uses {key}, which it does not have; using the material colour"
+                )
+            else:
+                uv = accessors.read(self.document, self.buffers, attributes[key])
+                if len(uv) != count or uv.shape[1] != 2:
+                    raise SceneLoadError(f"{where}: {key} has {len(uv)} elements, expected {count} of 2")
+                if ref.transform is not None:
+                    uv = uv @ ref.transform[:2, :2].T + ref.transform[:2, 2]
+                part["uv"] = uv
+        return part
+
+    def morph(self, spec: dict, weights: object, count: int, where: str) -> np.ndarray:
+        """Sum of the morph targets' POSITION offsets at the default weights (0 without targets)."""
+        targets = spec.get("targets")
+        if not isinstance(targets, list) or not targets or not isinstance(weights, list):
+            return np.zeros((count, 3))
+        out = np.zeros((count, 3))
+        for target, weight in zip(targets, weights):
+            if isinstance(target, dict) and "POSITION" in target and isinstance(weight, int | float) and weight:
+                offsets = accessors.read(self.document, self.buffers, target["POSITION"])
+                if offsets.shape != (count, 3):
+                    raise SceneLoadError(
+                        f"{where}: a morph target's POSITION has {len(offsets)} elements, expected {count}"
+                    )
+                out += float(weight) * offsets
+        return out
+
+    def add(self, name: str, part: dict, world: np.ndarray) -> None:
+        found: Material = part["material"]
+        positions, faces = part["positions"], part["faces"]
+        vertices = positions @ world[:3, :3].T + world[:3, 3]
+        if np.linalg.det(world[:3, :3]) < 0.0:
+            faces = faces[:, ::-1]  # a mirroring transform turns counter-clockwise faces clockwise
+        base_color = found.base_color.copy()
+        texture = uv = None
+        if part["uv"] is not None:
+            wrapped = self.images.wrapped(found.texture, part["uv"], name, self.warnings)
+            if wrapped is not None:
+                decoded, uv = wrapped
+                uv = np.column_stack([uv[:, 0], 1.0 - uv[:, 1]])  # glTF's v down -> farfield's v up
+                if found.alpha_cutoff is not None and decoded.max_alpha * base_color[3] < 255.0 * found.alpha_cutoff:
+                    self.warnings.append(
+                        f"object {name!r}: no texel of its texture passes its alpha cut ({found.alpha_cutoff:g}); it is invisible"
+                    )
+                if decoded.single is not None:
+                    # One colour: the same as a material colour, cheaper.
+                    base_color = base_color * _srgb_unit(decoded.single)
+                    uv = None
+                else:
+                    texture = decoded.rgba
+        self.triangles += len(faces)
+        self.limits.check("objects", len(self.objects) + 1, "nodes")
+        self.limits.check("triangles once node instancing is applied", self.triangles, "triangles")
+        self.objects.append(
+            SceneObject(
+                name=name,
+                vertices=vertices,
+                faces=faces,
+                uv=uv,
+                vertex_colors=part["colours"],
+                base_color=base_color,
+                texture=texture,
+                alpha_cutoff=found.alpha_cutoff,
+                double_sided=found.double_sided,
+            )
+        )
+
+
+def _srgb_unit(rgba_u8: np.ndarray) -> np.ndarray:
+    """(4,) float64 linear RGBA of (4,) uint8 sRGB-encoded RGBA."""
+    out = np.asarray(rgba_u8, dtype=np.float64) / 255.0
+    out[:3] = srgb_to_linear(out[:3])
+    return out
+
+
+def _roots(document: dict) -> list[int]:
+    scenes = array(document, "scenes")
+    if scenes:
+        chosen = document.get("scene", 0)
+        scene = item(document, "scenes", chosen)
+        roots = scene.get("nodes", [])
+        if not isinstance(roots, list):
+            raise SceneLoadError(f"glTF scene {chosen}: nodes is not an array")
+        return roots
+    nodes = array(document, "nodes")
+    children = {c for node in nodes if isinstance(node, dict) for c in node.get("children", []) if isinstance(c, int)}
+    return [i for i in range(len(nodes)) if i not in children]
+
+
+def load(
+    data: bytes, extension: str, name: str, resolver: Resolver, limits: SceneLimits = DEFAULT_LIMITS, **_options
+) -> tuple[tuple[SceneObject, ...], tuple[str, ...]]:
+    """Objects and warnings of a .glb / .gltf file (see the module docstring).
+
+    Parameters
+    ----------
+    data : bytes
+        The file.
+    extension : str
+        ``"glb"`` or ``"gltf"``, lower case without the dot.
+    name : str
+        The file's name, for messages.
+    resolver : trimesh.resolvers.Resolver
+        Finds external buffers and images of a ``.gltf``.
+    limits : SceneLimits
+        The most structure the file may have, checked from its JSON before buffers are read.
+
+    Raises
+    ------
+    SceneLoadError
+        Not glTF 2.0, malformed, an extension it requires that farfield does not read, a buffer
+        that cannot be found.
+    SceneTooCostlyError
+        Its node hierarchy, primitives, instances or triangles are beyond ``limits``.
+    """
+    binary = split_glb(data)[1] if extension == "glb" else None
+    document = header_json(data)
+    asset = document.get("asset")
+    version = asset.get("version") if isinstance(asset, dict) else None
+    if isinstance(version, str) and not version.startswith("2."):
+        raise SceneLoadError(f"glTF version {version}: farfield reads glTF 2.0")
+    missing = _unsupported_required(document)
+    if missing:
+        raise SceneLoadError(
+            f"the file requires the glTF extension{'s' if len(missing) > 1 else ''} {', '.join(missing)}, "
+            "which farfield does not read; export it without them (e.g. gltf-transform copy, or an exporter's "
+            "option to turn compression off)"
+        )
+    check_gltf(document, limits)
+    reader = _Reader(document, Buffers(document, binary, resolver), limits)
+    reader.walk(_roots(document))
+    return tuple(reader.objects), tuple(dict.fromkeys(reader.warnings))
