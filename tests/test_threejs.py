@@ -394,3 +394,39 @@ def test_gltf_samplers_texture_transform_uv_sets_and_accessor_encodings_draw_as_
     assert stats["three_pixels"] > 0.5 * 192**2, stats
     assert stats["three_beyond_1px"] == 0 and stats["farfield_beyond_1px"] == 0, stats
     assert stats["colour_mean"] <= 2.0 and stats["colour_p99"] <= 16.0, stats
+
+
+@pytest.mark.skipif(not SHARED_SCENES.exists(), reason="needs ../shared/scenes")
+@pytest.mark.parametrize(
+    "relative",
+    ["duck/duck.obj", "scrub_pine/scrubPine.obj", "stanford_bunny/bun_zipper.ply", "damaged_helmet/DamagedHelmet.glb"],
+)
+def test_every_shared_scene_draws_as_three_js_draws_it(relative, threejs):
+    """Issue 54: each third-party scene, loaded by farfield and drawn by its renderer, against
+    three.js's own loader drawing the file (OBJLoader/MTLLoader, PLYLoader, GLTFLoader), unlit and
+    without mipmaps, from three sides: coverage within one pixel, colours within the bounds
+    asserted (an alpha-cut OBJ is cut at 0.5 in both, as farfield reads an OBJ texture's alpha)."""
+    path = SHARED_SCENES / relative
+    scene = load_scene(path)
+    centre = 0.5 * (scene.bounds[0] + scene.bounds[1])
+    radius = 0.5 * float(np.linalg.norm(scene.bounds[1] - scene.bounds[0]))
+    directions = np.array([[0.3, 0.4, 1.0], [1.0, 0.2, -0.4], [-0.7, 0.6, -0.5]])
+    directions /= np.linalg.norm(directions, axis=1)[:, None]
+    corners = box_corners(scene.bounds)
+    cameras = [look_at(centre + 2.2 * radius * d, centre, corners, 50.0, 160) for d in directions]
+    cutoff = 0.5 if relative.endswith(".obj") else None
+    three = threejs.render(path, cameras, alpha_cutoff=cutoff, mipmaps=False)
+    with MeshRenderer(scene.objects) as renderer:
+        ours = [renderer.render(camera) for camera in cameras]
+    for k, (a, b) in enumerate(zip(three, ours)):
+        stats = compare(a, b)
+        print(relative, k, stats)
+        assert stats["three_pixels"] > 2000, stats
+        # The pine's alpha-cut cards overlap: where two cards are within a depth step or a texel
+        # sits at the cut, the two rasterisers pick differently, single pixels scattered over the
+        # crown (measured at 160 px: up to 5 of 2,570 pixels beyond one pixel, colour mean 6.2;
+        # duck 0 and 0.9, helmet 0 and 2.1, bunny 0 and 0).
+        foliage = "pine" in relative
+        stray = 0.005 * stats["three_pixels"] if foliage else 2
+        assert stats["three_beyond_1px"] <= stray and stats["farfield_beyond_1px"] <= stray, stats
+        assert stats["colour_mean"] <= (8.0 if foliage else 3.0), stats
