@@ -34,7 +34,7 @@ def _bounds(o: dict) -> str:
 @click.command("techniques")
 @click.option("--json", "as_json", is_flag=True, help="The same document as GET /v1/techniques.")
 def techniques(as_json):
-    """List the impostor techniques, their scope and their options (types, defaults, bounds, help)."""
+    """List the impostor techniques, their scope, what each promises and their options (types, defaults, bounds, help)."""
     described = [t.describe() for t in TECHNIQUES.values()]
     if as_json:
         click.echo(json.dumps({"techniques": described}, indent=2))
@@ -43,7 +43,7 @@ def techniques(as_json):
         if n:
             click.echo()
         image = ", ".join(f"{f['name']} {f['default']:g}" for f in t["image"])
-        click.echo(f"{t['name']} ({t['scope']}): {t['help']}\n  defaults: {image}")
+        click.echo(f"{t['name']} ({t['scope']}): {t['help']}\n  promises: {t['promise']['text']}\n  defaults: {image}")
         for o in t["options"]:
             default = ",".join(o["default"]) if isinstance(o["default"], list) else o["default"]
             click.echo(f"  {o['name']:<16} {o['type']:<8} default {str(default):<20} {_bounds(o):<22} {o['help']}")

@@ -22,6 +22,8 @@ from farfield.core.constants import TOL
 from farfield.core.errors import LayerPlanError
 
 PixelModel = Literal["center", "min"]
+# How a part technique spends its error budget (farfield.core.techniques.part.layer_budget).
+ErrorBudgetKind = Literal["strict", "thesis"]
 PIXEL_MODELS: tuple[str, ...] = ("center", "min")
 
 
@@ -35,6 +37,18 @@ def check_fov(fov: float) -> float:
     if not (math.isfinite(fov) and 0.0 < fov < math.pi):
         raise LayerPlanError(f"field of view must lie in (0°, 180°), got {math.degrees(fov)!r}°")
     return float(fov)
+
+
+# The largest error budget a bake takes, in output pixels: beyond it an impostor is no stand-in.
+MAX_ERROR_PX = 64.0
+
+
+def check_error_px(max_error_px: float) -> float:
+    """Return the error budget ``max_error_px`` (output pixels) if it lies in (0, MAX_ERROR_PX],
+    else raise LayerPlanError."""
+    if isinstance(max_error_px, bool) or not (math.isfinite(max_error_px) and 0.0 < max_error_px <= MAX_ERROR_PX):
+        raise LayerPlanError(f"error budget must lie in (0, {MAX_ERROR_PX:g}] pixels, got {max_error_px!r}")
+    return float(max_error_px)
 
 
 def check_resolution(resolution: int, what: str = "output resolution") -> int:

@@ -21,13 +21,20 @@ bounds of a part into a :class:`LayerPlan`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from farfield.core.constants import TOL
 from farfield.core.errors import LayerPlanError, PlanBudgetError
-from farfield.core.pixel_angles import PixelModel, check_fov, check_resolution, pixel_angle, texture_resolution
+from farfield.core.pixel_angles import (
+    PixelModel,
+    check_error_px,
+    check_fov,
+    check_resolution,
+    pixel_angle,
+    texture_resolution,
+)
 from farfield.core.viewcells import BoxCell, ShaftCell, ViewCell, _orthonormal_frame, box_corners
 
 # ---------------------------------------------------------------------------------------------
@@ -418,6 +425,7 @@ class LayerPlan:
     texel_share: float | None = None
     texel_angle: float = math.nan
     parallax_angle: float = math.nan
+    max_error_px: float = 1.0  # the budget in output pixels: alpha is this many pixel angles
 
     @property
     def count(self) -> int:
@@ -441,6 +449,7 @@ class LayerPlan:
             "texture_resolution": self.texture_resolution.tolist(),
             "alpha_rad": self.alpha,
             "pixel_model": self.pixel_model,
+            **({} if self.max_error_px == 1.0 else {"max_error_px": self.max_error_px}),
             **(
                 {}
                 if self.texel_share is None
@@ -495,6 +504,7 @@ def plan_layers(
     reference_offset: float | None = None,
     texel_share: float | None = None,
     max_texels: int | None = None,
+    max_error_px: float = 1.0,
 ) -> LayerPlan:
     """Plan the layers of a layered impostor for the part in ``bounds`` seen from ``cell``.
 
@@ -533,14 +543,14 @@ def plan_layers(
     fov = check_fov(float(fov))
     resolution = check_resolution(resolution)
     view = part_view(cell, bounds)
-    alpha = pixel_angle(fov, resolution, pixel_model)
+    alpha = check_error_px(max_error_px) * pixel_angle(fov, resolution, pixel_model)
     if texel_share is not None and not (math.isfinite(texel_share) and 0.0 < texel_share < 1.0):
         raise LayerPlanError(f"texel share must lie in (0, 1), got {texel_share!r}")
     if reference_offset is not None:
         s = float(reference_offset)
         if not (math.isfinite(s) and 0.0 <= s <= view.cell_depth):
             raise LayerPlanError(f"reference offset s must lie in [0, cell depth {view.cell_depth:.6g}], got {s!r}")
-        return _plan_at_offset(view, s, alpha, pixel_model, texel_share, max_texels)
+        return replace(_plan_at_offset(view, s, alpha, pixel_model, texel_share, max_texels), max_error_px=max_error_px)
     best, over = None, None
     for s in reference_offset_candidates(view):
         try:
@@ -553,7 +563,7 @@ def plan_layers(
             best = plan
     if best is None:
         raise over
-    return best
+    return best if max_error_px == 1.0 else replace(best, max_error_px=float(max_error_px))
 
 
 def _layer_cap(res: np.ndarray, max_texels: int | None) -> int:
@@ -726,6 +736,7 @@ def estimate_layers(
     resolution: int,
     pixel_model: PixelModel = "min",
     texel_share: float | None = None,
+    max_error_px: float = 1.0,
 ) -> tuple[float, np.ndarray]:
     """Estimated layer count (float) and the exact texture resolution (2,) of :func:`plan_layers`'s
     plan, at a small fixed cost (no layer loop): what a placement ranks its candidates by
@@ -749,7 +760,7 @@ def estimate_layers(
     check_fov(fov)
     check_resolution(resolution)
     view = part_view(cell, bounds, viewpoints=False)
-    alpha = pixel_angle(fov, resolution, pixel_model)
+    alpha = check_error_px(max_error_px) * pixel_angle(fov, resolution, pixel_model)
     s = reference_offset_candidates(view)[0]
     half_tan = np.maximum(_half_tangents(view, s), 0.5 * alpha)
     texel = alpha if texel_share is None else texel_share * alpha

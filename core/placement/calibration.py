@@ -49,6 +49,7 @@ from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import Progress, StageClock
 from farfield.core.techniques.layered import BakeOptions, bake_layered
+from farfield.core.techniques.part import layer_budget
 from farfield.core.viewcells import ShaftCell, box_corners
 
 # Shaft apex angles of the thesis's candidates (seed 000 §5.8.1), degrees.
@@ -270,9 +271,7 @@ def sample_cases(
         seed = int(rng.integers(2**31))
         try:
             cell = ShaftCell(0.5 * (bounds[0] + bounds[1]), direction, math.radians(angle), (2.0**exponent) * size)
-            layers_est, texture = estimate_layers(
-                cell, bounds, fov, options.resolution, bake.pixel_model, bake.texel_share
-            )
+            layers_est, texture = estimate_layers(cell, bounds, fov, options.resolution, **layer_budget(bake))
         except (LayerPlanError, ViewCellError):
             skipped += 1
             continue

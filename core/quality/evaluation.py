@@ -108,6 +108,13 @@ def point_appearance(impostor: Impostor) -> Appearance:
     return impostor.payload.appearance(impostor.pages)
 
 
+def _grow(mask: np.ndarray, pixels: int) -> np.ndarray:
+    """(h, w) bool grown by ``pixels`` in all eight directions (a square of side 2 pixels + 1)."""
+    for _ in range(pixels):
+        mask = _dilate(mask)
+    return mask
+
+
 def _dilate(mask: np.ndarray) -> np.ndarray:
     """(h, w) bool grown by one pixel in all eight directions."""
     out = mask.copy()
@@ -303,13 +310,19 @@ def _confirmed(
 
 
 def compare_images(geometry: np.ndarray, impostor: np.ndarray, samples: int = 1, confirm: Confirm | None = None, confirm_windows: int = CONFIRM_WINDOWS,
-                   reach: Callable[[], np.ndarray] | None = None) -> dict:  # fmt: skip
+                   reach: Callable[[], np.ndarray] | None = None, budget_px: float = 1.0) -> dict:  # fmt: skip
     """Pixel statistics of two (h*s, w*s, 4) uint8 renders (geometry first) with ``samples`` s per
     pixel side; see the module docstring.  ``confirm`` draws either side finely around coarse holes
     and bloat beyond one pixel (at most ``confirm_windows`` blocks per side); without it they count
     as found, all unconfirmed.  ``reach`` gives the (h, w) pixels the geometry reaches however small
     it is (:func:`vertex_pixels`); called only when there are candidates for bloat beyond one pixel,
     whose geometry side it widens.
+
+    ``budget_px`` is the error budget the impostor was baked for (``max_error_px``):
+    ``hole_pixels_beyond_budget`` counts geometry pixels with no impostor pixel within
+    ``ceil(budget_px) - 1`` pixels and ``bloat_beyond_budget`` impostor pixels with no geometry
+    within ``ceil(budget_px)``; at 1 they are ``hole_pixels`` and ``bloat_beyond_1px`` (confirmed),
+    above it coarse counts (an overestimate at worst).
 
     An impostor whose colours are all 30 darker, over a ramp that rises by 30 a column: each
     pixel's right-hand neighbour holds its old colour, so the within-one-pixel figure sees an error
@@ -347,6 +360,14 @@ def compare_images(geometry: np.ndarray, impostor: np.ndarray, samples: int = 1,
         beyond &= ~_dilate(reach()[origin[1] : origin[1] + g.shape[0], origin[0] : origin[0] + g.shape[1]])
     hole_count, hole_unconfirmed = _confirmed(holes, "impostor", origin, confirm, confirm_windows)
     beyond_count, beyond_unconfirmed = _confirmed(beyond, "geometry", origin, confirm, confirm_windows)
+    holes_budget, beyond_budget = hole_count, beyond_count
+    if budget_px > 1.0:
+        k = math.ceil(budget_px - 1e-9)
+        holes_budget = int((g & ~_grow(i, k - 1)).sum())
+        widened = _grow(g, k)
+        if reach is not None:
+            widened |= _grow(reach()[origin[1] : origin[1] + g.shape[0], origin[0] : origin[0] + g.shape[1]], k)
+        beyond_budget = int((i & ~widened).sum())
     bloat = i & ~g
     both = g & i
     errors = _difference(_channels(geometry), _channels(impostor))[both]
@@ -363,6 +384,9 @@ def compare_images(geometry: np.ndarray, impostor: np.ndarray, samples: int = 1,
         "bloat_beyond_1px": beyond_count,
         "bloat_beyond_1px_coarse": int(beyond.sum()),
         "bloat_beyond_1px_unconfirmed": beyond_unconfirmed,
+        "error_budget_px": float(budget_px),
+        "hole_pixels_beyond_budget": holes_budget,
+        "bloat_beyond_budget": beyond_budget,
         "colour_error_mean": float(errors.mean()) if errors.size else 0.0,
         "colour_error_p99": float(np.percentile(errors, 99)) if errors.size else 0.0,
         "colour_error_max": int(errors.max()) if errors.size else 0,
@@ -472,6 +496,9 @@ def _totals(rows: list[dict]) -> dict:
         "bloat_beyond_1px": sum(s["bloat_beyond_1px"] for s in stats),
         "bloat_beyond_1px_coarse": sum(s["bloat_beyond_1px_coarse"] for s in stats),
         "bloat_beyond_1px_unconfirmed": sum(s["bloat_beyond_1px_unconfirmed"] for s in stats),
+        "error_budget_px": max(s.get("error_budget_px", 1.0) for s in stats),
+        "hole_pixels_beyond_budget": sum(s.get("hole_pixels_beyond_budget", s["hole_pixels"]) for s in stats),
+        "bloat_beyond_budget": sum(s.get("bloat_beyond_budget", s["bloat_beyond_1px"]) for s in stats),
         "geometry_pixels": sum(s["geometry_pixels"] for s in stats),
         "both_pixels": both,
         "colour_error_mean": pooled("colour_error_mean"),
@@ -555,6 +582,13 @@ def evaluate(
     return evaluate_at(part, impostor, points, kinds, samples, confirm_windows)
 
 
+def error_budget_px(impostor: Impostor) -> float:
+    """The error budget, in output pixels, ``impostor`` was baked for (``max_error_px``; 1 for a
+    technique without one and for bundles baked before the option existed)."""
+    value = impostor.parameters.get("max_error_px", 1.0)
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) and value > 0 else 1.0
+
+
 def evaluate_at(
     part: Scene,
     impostor: Impostor,
@@ -573,6 +607,7 @@ def evaluate_at(
     extent = np.concatenate([box_corners(part.bounds), impostor.payload.world_points()])
     fov = math.radians(impostor.fov_deg)
     rows = []
+    budget = error_budget_px(impostor)
     with MeshRenderer(part.objects) as geometry, impostor_renderer(impostor) as stand_in:
         for position, kind in zip(np.asarray(points, dtype=np.float64), kinds):
             forward = (target - position) / np.linalg.norm(target - position)
@@ -580,7 +615,7 @@ def evaluate_at(
             camera = Camera.look_at(position, target, fov, impostor.resolution * samples, near, far)
             confirm = _window_coverage({"geometry": geometry, "impostor": stand_in}, camera, samples)
             stats = compare_images(geometry.render(camera), stand_in.render(camera), samples, confirm, confirm_windows,
-                                   reach=lambda camera=camera: vertex_pixels(part.objects, camera, samples))  # fmt: skip
+                                   reach=lambda camera=camera: vertex_pixels(part.objects, camera, samples), budget_px=budget)  # fmt: skip
             rows.append({"position": position.tolist(), "kind": kind, "inside": kind != "outside", "stats": stats})
     totals = _totals([r for r in rows if r["inside"]])
     outside = _totals([r for r in rows if not r["inside"]])

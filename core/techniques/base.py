@@ -67,6 +67,33 @@ class CellCost:
         return layers if self.complete else f"at least {layers}"
 
 
+@dataclass(frozen=True)
+class Promise:
+    """What a technique guarantees, in output pixels, from every viewpoint inside its view cell, at
+    the error budget its impostor was baked for (``max_error_px``, 1 when it has none): what
+    ``farfield techniques`` states and ``farfield evaluate --check`` checks.
+
+    ``holes``: no hole pixel (geometry with no impostor pixel within ``budget - 1``); ``bloat``: no
+    impostor pixel farther than the budget from the geometry.  A technique promising neither has
+    nothing to check (``checked`` is false), as ``ldi``, whose splats serve a triangle budget.
+    """
+
+    text: str  # one sentence, for people
+    holes: bool = False
+    bloat: bool = False
+
+    @property
+    def checked(self) -> bool:
+        """Whether ``evaluate --check`` has anything to check."""
+        return self.holes or self.bloat
+
+    def to_dict(self) -> dict:
+        return {"text": self.text, "holes": self.holes, "bloat": self.bloat}
+
+
+NO_PROMISE = Promise("none in pixels")
+
+
 @runtime_checkable
 class Technique(Protocol):
     """One impostor technique, as every consumer sees it: what the registry
@@ -93,6 +120,8 @@ class Technique(Protocol):
     # runtime(scene, impostor) -> a cell renderer (``renderer``, ``reach``, ``near_triangles``,
     # ``quad_triangles``, ``release()``) for ``farfield walkthrough`` of an impostor database; None: no walk-through runtime.
     runtime: Callable[[Scene, Impostor], Any] | None
+    # What it guarantees in pixels, and what ``farfield evaluate --check`` checks (NO_PROMISE: nothing).
+    promise: Promise
 
     def check(self, cell: ViewCell, options: Any, bounds: np.ndarray | None, max_texels: int | None = None) -> CellCost:
         """The cell's :class:`CellCost` from the planning a job runs for every cell at creation;
@@ -178,6 +207,8 @@ class TechniqueDefinition:
     # Its numba kernels' warm-ups: each compiles some kernels on tiny inputs and returns the seconds
     # it took (Technique.warm); shared ones (the slab recording's) appear in several techniques.
     kernels: tuple[Callable[[], float], ...] = ()
+    # What it guarantees in pixels (Technique.promise)
+    promise: Promise = NO_PROMISE
 
     def warm(self) -> float:
         """Compile its numba kernels (every function of ``kernels``); the seconds it took."""
@@ -221,7 +252,8 @@ def technique_options(
 def describe_technique(technique: Technique) -> dict:
     """JSON-ready: name, scope, help, the kind of payload it bakes (``payload``), whether the
     frame-time planner can place it (``placeable``), whether it has a walk-through runtime
-    (``runtime``), the image fields' defaults and every option.  A client (the dashboard) reads
+    (``runtime``), what it guarantees (``promise``: :class:`Promise`), the image fields' defaults
+    and every option.  A client (the dashboard) reads
     these fields instead of comparing technique names."""
     fields = describe_options(technique.Options)
     return {
@@ -231,6 +263,7 @@ def describe_technique(technique: Technique) -> dict:
         "payload": technique.payload_kind,
         "placeable": technique.estimate is not None,
         "runtime": technique.runtime is not None,
+        "promise": technique.promise.to_dict(),
         "image": [f for f in fields if f["name"] in IMAGE_FIELDS],
         "options": [f for f in fields if f["name"] not in IMAGE_FIELDS],
     }

@@ -23,11 +23,17 @@ from farfield.core.layering.culling import CullingMode
 from farfield.core.layering.plan import plan_layers
 from farfield.core.layering.tiles import QUAD_GEOMETRY_BYTES, check_pages, layer_records, layer_tiles, pack_tiles
 from farfield.core.options import check_options, option
-from farfield.core.pixel_angles import MAX_RESOLUTION, PixelModel
+from farfield.core.pixel_angles import MAX_ERROR_PX, MAX_RESOLUTION, ErrorBudgetKind, PixelModel
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
-from farfield.core.techniques.base import TechniqueDefinition
-from farfield.core.techniques.part import check_part_cell, estimate_part_cell, evaluate_part, part_evaluation_text
+from farfield.core.techniques.base import Promise, TechniqueDefinition
+from farfield.core.techniques.part import (
+    check_part_cell,
+    estimate_part_cell,
+    evaluate_part,
+    layer_budget,
+    part_evaluation_text,
+)
 from farfield.core.viewcells import ViewCell
 
 
@@ -45,13 +51,27 @@ class BakeOptions:
         0.8, "box-growing fill ratio (§3.5): lower, fewer quads but more wasted texels", gt=0.0, le=1.0
     )
     culling: CullingMode = option("penumbra", "hidden-texel culling: penumbra (§3.4.1), umbra (§3.4 3x3 rule) or off")
+    max_error_px: float = option(
+        1.0,
+        "error budget, output pixels: no hole, and no pixel bloated or moved beyond this many, from anywhere in the cell; "
+        "larger, fewer layers and texels",
+        gt=0.0,
+        le=MAX_ERROR_PX,
+    )
+    budget: ErrorBudgetKind = option(
+        "strict",
+        "strict (the guarantee of max_error_px at every pixel) or thesis (seed 000 §3.3: texels and parallax each within "
+        "the centre pixel, reproducing its Table 4.1 with fewer layers and up to twice the error at the edge)",
+    )
     pixel_model: PixelModel = option(
-        "min", "error bound from the smallest pixel angle (min) or the thesis's centre pixel (center)"
+        "min",
+        "expert: error bound from the smallest pixel angle (min) or the centre pixel (center); strict budget only",
     )
     texel_share: float = option(
         0.7,
-        "share of the one-pixel error given to the texel size, the rest to parallax, so that a silhouette grown by one texel "
-        "(gap-free recording, §3.3.2) and moved by parallax stays within one pixel: larger, fewer texels but more layers",
+        "expert: share of the budget given to the texel size, the rest to parallax, so that a silhouette grown by one "
+        "texel (gap-free recording, §3.3.2) and moved by parallax stays within it: larger, fewer texels but more layers; "
+        "strict budget only",
         gt=0.0,
         lt=1.0,
     )
@@ -82,12 +102,7 @@ def bake_layered(
 
     with clock("plan"):
         plan = plan_layers(
-            cell,
-            part.bounds,
-            math.radians(options.fov_deg),
-            options.resolution,
-            options.pixel_model,
-            texel_share=options.texel_share,
+            cell, part.bounds, math.radians(options.fov_deg), options.resolution, **layer_budget(options)
         )
     clock.report("plan", 1, 1)
 
@@ -185,4 +200,9 @@ TECHNIQUE = TechniqueDefinition(
     summary=_summary,
     evaluate=evaluate_part,
     evaluation_text=part_evaluation_text,
+    promise=Promise(
+        "no hole pixel and no pixel bloated or moved beyond max_error_px (default 1) from anywhere in the view cell",
+        holes=True,
+        bloat=True,
+    ),
 )

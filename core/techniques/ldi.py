@@ -35,7 +35,7 @@ from farfield.core.pixel_angles import MAX_RESOLUTION
 from farfield.core.quality.evaluation import Evaluation
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
-from farfield.core.techniques.base import CellCost, TechniqueDefinition
+from farfield.core.techniques.base import NO_PROMISE, CellCost, TechniqueDefinition
 from farfield.core.techniques.part import evaluate_part, part_evaluation_text
 from farfield.core.viewcells import BoxCell, ViewCell
 
@@ -202,4 +202,5 @@ TECHNIQUE = TechniqueDefinition(
     summary=_summary,
     evaluate=evaluate_part,
     evaluation_text=_evaluation_text,
+    promise=NO_PROMISE,
 )

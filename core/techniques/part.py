@@ -17,6 +17,29 @@ from farfield.core.techniques.base import CellCost
 from farfield.core.viewcells import ViewCell, viewcell_from_dict
 
 
+def layer_budget(options) -> dict:
+    """The error budget of a part technique's ``options`` as :func:`~farfield.core.layering.plan.plan_layers`
+    takes it: ``pixel_model``, ``texel_share`` and ``max_error_px``.
+
+    ``budget="thesis"`` is seed 000's own (§3.3): texels and parallax each within the centre
+    pixel's angle, which reproduces Table 4.1; ``"strict"`` (the default) bounds the error from
+    the smallest pixel angle and, where the technique shares the budget (``texel_share``), keeps
+    the grown silhouette and its parallax together within ``max_error_px``.
+
+    >>> from farfield.core.techniques.layered import BakeOptions
+    >>> layer_budget(BakeOptions()), layer_budget(BakeOptions(budget="thesis", max_error_px=2.0))
+    ({'pixel_model': 'min', 'texel_share': 0.7, 'max_error_px': 1.0}, {'pixel_model': 'center', 'texel_share': None, 'max_error_px': 2.0})
+    """
+    max_error_px = float(getattr(options, "max_error_px", 1.0))
+    if getattr(options, "budget", "strict") == "thesis":
+        return {"pixel_model": "center", "texel_share": None, "max_error_px": max_error_px}
+    return {
+        "pixel_model": options.pixel_model,
+        "texel_share": getattr(options, "texel_share", None),
+        "max_error_px": max_error_px,
+    }
+
+
 def check_part_cell(cell: ViewCell, options, bounds: np.ndarray | None, max_texels: int | None = None) -> CellCost:
     """Plan the layers of the part (``bounds``) seen from ``cell`` as the bake will (raises when
     there is no answer); the cell's cost is the plan's layers of its texture resolution.  Past
@@ -35,15 +58,7 @@ def check_part_cell(cell: ViewCell, options, bounds: np.ndarray | None, max_texe
     """
     fov = math.radians(options.fov_deg)
     try:
-        plan = plan_layers(
-            cell,
-            bounds,
-            fov,
-            options.resolution,
-            options.pixel_model,
-            texel_share=getattr(options, "texel_share", None),
-            max_texels=max_texels,
-        )
+        plan = plan_layers(cell, bounds, fov, options.resolution, max_texels=max_texels, **layer_budget(options))
     except PlanBudgetError as over:
         return CellCost.of_layers(over.layers, over.texture, complete=False)
     return CellCost.of_layers(plan.count, plan.texture_resolution)
@@ -53,12 +68,7 @@ def estimate_part_cell(cell: ViewCell, options, bounds: np.ndarray) -> tuple[flo
     """The placement's estimate for the part in ``bounds`` seen from ``cell``: layers (estimated,
     :func:`farfield.core.layering.plan.estimate_layers`) and texels per layer (exact), without planning every layer."""
     layers, res = estimate_layers(
-        cell,
-        bounds,
-        math.radians(options.fov_deg),
-        options.resolution,
-        options.pixel_model,
-        getattr(options, "texel_share", None),
+        cell, bounds, math.radians(options.fov_deg), options.resolution, **layer_budget(options)
     )
     return layers, float(res[0]) * float(res[1])
 

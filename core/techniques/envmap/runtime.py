@@ -23,7 +23,7 @@ import numpy as np
 
 from farfield.core.cube_faces import face_normal
 from farfield.core.impostor.impostor import Impostor
-from farfield.core.quality.evaluation import compare_images, impostor_objects, vertex_pixels
+from farfield.core.quality.evaluation import compare_images, error_budget_px, impostor_objects, vertex_pixels
 from farfield.core.render.raster import Camera, MeshRenderer
 from farfield.core.scene import Scene, SceneObject
 from farfield.core.techniques.envmap.near_field import NearField
@@ -121,7 +121,12 @@ def depth_range_for(scene: Scene, cell: BoxCell, position, reach: float = 0.0) -
 
 
 def compare_views(
-    scene_renderer: MeshRenderer, cell_renderer: EnvmapCellRenderer, camera: Camera, samples: int = 1, objects=None
+    scene_renderer: MeshRenderer,
+    cell_renderer: EnvmapCellRenderer,
+    camera: Camera,
+    samples: int = 1,
+    objects=None,
+    budget_px: float = 1.0,
 ) -> dict:
     """Pixel statistics (:func:`farfield.core.quality.evaluation.compare_images`) of the full scene vs the runtime;
     given the scene's ``objects``, an impostor pixel within one pixel of a vertex is not bloat
@@ -138,7 +143,9 @@ def compare_views(
             camera.far,
         )
     reach = None if objects is None else (lambda: vertex_pixels(objects, camera, samples))
-    return compare_images(scene_renderer.render(camera), cell_renderer.renderer.render(camera), samples, reach=reach)
+    return compare_images(
+        scene_renderer.render(camera), cell_renderer.renderer.render(camera), samples, reach=reach, budget_px=budget_px
+    )
 
 
 def view_directions(directions: list[str] | tuple[str, ...]) -> np.ndarray:
@@ -172,6 +179,7 @@ def evaluate_envmap(
     if directions is None:
         directions = view_directions(impostor.parameters["directions"])
     rows = []
+    budget = error_budget_px(impostor)
     cell_renderer = EnvmapCellRenderer(scene, impostor)
     try:
         with MeshRenderer(scene.objects) as full:
@@ -179,7 +187,7 @@ def evaluate_envmap(
                 near, far = depth_range_for(scene, cell, position, cell_renderer.reach)
                 for forward in directions:
                     camera = camera_at(position, forward, impostor.fov_deg, impostor.resolution, near, far)
-                    stats = compare_views(full, cell_renderer, camera, samples, scene.objects)
+                    stats = compare_views(full, cell_renderer, camera, samples, scene.objects, budget)
                     rows.append(
                         {"position": position.tolist(), "forward": forward.tolist(), "kind": kind, "stats": stats}
                     )
@@ -192,6 +200,9 @@ def evaluate_envmap(
         "max_hole_pixels": max(s["hole_pixels"] for s in stats),
         "geometry_pixels": sum(s["geometry_pixels"] for s in stats),
         "bloat_beyond_1px": sum(s["bloat_beyond_1px"] for s in stats),
+        "error_budget_px": budget,
+        "hole_pixels_beyond_budget": sum(s["hole_pixels_beyond_budget"] for s in stats),
+        "bloat_beyond_budget": sum(s["bloat_beyond_budget"] for s in stats),
         "colour_error_mean": float(np.mean([s["colour_error_mean"] for s in stats])),
         "colour_error_p99": float(np.max([s["colour_error_p99"] for s in stats])),
         "colour_error_max": max(s["colour_error_max"] for s in stats),

@@ -42,10 +42,10 @@ from farfield.core.layering.culled import culled_layers
 from farfield.core.layering.culling import CullingMode
 from farfield.core.layering.tiles import QUAD_GEOMETRY_BYTES, check_pages, layer_tiles, pack_tiles
 from farfield.core.options import check_options, option
-from farfield.core.pixel_angles import MAX_RESOLUTION, pixel_angle
+from farfield.core.pixel_angles import MAX_ERROR_PX, MAX_RESOLUTION, pixel_angle
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
-from farfield.core.techniques.base import CellCost, TechniqueDefinition
+from farfield.core.techniques.base import CellCost, Promise, TechniqueDefinition
 from farfield.core.techniques.envmap.arrangement import EnvmapPlan, envmap_plan, layers_for_near_field
 from farfield.core.techniques.envmap.gap_fill import fill_gaps
 from farfield.core.techniques.envmap.near_field import near_field
@@ -98,6 +98,12 @@ class EnvmapOptions:
         ge=1,
         le=MAX_RESOLUTION,
     )
+    max_error_px: float = option(
+        1.0,
+        "error budget, output pixels: the parallax the layers may show from anywhere in the cell",
+        gt=0.0,
+        le=MAX_ERROR_PX,
+    )
     gap_fill: bool = option(False, "seed 002 §5.1 gap filling (off: the conservative recording leaves no gap to fill)")
     culling: CullingMode = option(
         "penumbra", "invisible-texel removal: penumbra (§5.2 + seed 000 §3.4.1), umbra (§5.2) or off"
@@ -133,12 +139,12 @@ class EnvmapOptions:
         """Seed 002's Res."""
         if self.face_resolution is not None:
             return int(self.face_resolution)
-        return int(math.ceil(self.resolution / math.tan(0.5 * math.radians(self.fov_deg)) - 1e-9))
+        return int(math.ceil(self.resolution / (self.max_error_px * math.tan(0.5 * math.radians(self.fov_deg))) - 1e-9))
 
     @property
     def alpha(self) -> float:
-        """The parallax angle: the smallest angle of an output pixel (seed 002 §4.3)."""
-        return pixel_angle(math.radians(self.fov_deg), self.resolution, "min")
+        """The parallax angle: ``max_error_px`` times the smallest angle of an output pixel (seed 002 §4.3)."""
+        return self.max_error_px * pixel_angle(math.radians(self.fov_deg), self.resolution, "min")
 
 
 def cubic_cell_size(cell: BoxCell) -> float:
@@ -397,4 +403,9 @@ TECHNIQUE = TechniqueDefinition(
     summary=_summary,
     evaluate=_evaluate,
     evaluation_text=_evaluation_text,
+    promise=Promise(
+        "no hole pixel from anywhere in the cubic view cell: the near field, and every face without layers, are geometry; "
+        "layer parallax within max_error_px (default 1)",
+        holes=True,
+    ),
 )

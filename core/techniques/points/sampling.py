@@ -34,7 +34,7 @@ from scipy.spatial import ConvexHull, QhullError
 
 from farfield.core.constants import TOL
 from farfield.core.errors import LayerPlanError, ViewCellError
-from farfield.core.pixel_angles import check_fov, check_resolution
+from farfield.core.pixel_angles import check_error_px, check_fov, check_resolution
 from farfield.core.render.raster import Camera
 from farfield.core.viewcells import BoxCell, box_corners
 
@@ -344,7 +344,7 @@ class PointSampling:
         }
 
 
-def ldi_resolution(half_size: float, fov: float, resolution: int, movement: float) -> int:
+def ldi_resolution(half_size: float, fov: float, resolution: int, movement: float, max_error_px: float = 1.0) -> int:
     """Pixels per side of an LDI camera whose window is ``half_size`` image tangents either side
     of its centre, so that, seen from any
     viewer in the cell through an output camera of ``fov`` and ``resolution``, no edge of the
@@ -361,10 +361,12 @@ def ldi_resolution(half_size: float, fov: float, resolution: int, movement: floa
     - F_move (:func:`movement_factor`) bounds how much larger that spacing looks from the nearest
       viewer in the cell than from the camera that took it.
 
+    With an error budget of ``max_error_px`` pixels, β is that many pixels' angle.
+
     >>> ldi_resolution(math.tan(math.radians(20.0)), math.radians(45.0), 256, 1.0)
     428
     """
-    beta = 2.0 * math.tan(0.5 * check_fov(fov)) / check_resolution(resolution)
+    beta = 2.0 * math.tan(0.5 * check_fov(fov)) / check_resolution(resolution) * check_error_px(max_error_px)
     exact = 2.0 * half_size * math.sqrt(2.0) * movement * corner_perspective_factor(fov) / beta
     n = max(1, math.ceil(exact * (1.0 - TOL.rel_round)))
     if n > TOL.max_texture_resolution:
@@ -374,7 +376,9 @@ def ldi_resolution(half_size: float, fov: float, resolution: int, movement: floa
     return n
 
 
-def plan_point_sampling(cell: BoxCell, part_bounds, fov_deg: float, resolution: int) -> PointSampling:
+def plan_point_sampling(
+    cell: BoxCell, part_bounds, fov_deg: float, resolution: int, max_error_px: float = 1.0
+) -> PointSampling:
     """The sampling plane, polygon, cameras and LDI resolutions for ``part_bounds`` ((2, 3) lo, hi)
     seen from ``cell`` through an output camera of ``fov_deg`` and ``resolution`` (module docstring).
 
@@ -430,6 +434,6 @@ def plan_point_sampling(cell: BoxCell, part_bounds, fov_deg: float, resolution: 
             )
         centre = (float(0.5 * (lo[0] + hi[0])), float(0.5 * (lo[1] + hi[1])))
         near, far = float(local[:, 2].min()), float(local[:, 2].max())
-        n = ldi_resolution(half, fov, resolution, movement)
+        n = ldi_resolution(half, fov, resolution, movement, max_error_px)
         cameras.append(LdiCamera(position, normal, u, v, centre, half, n, near * (1.0 - 1e-6), far * (1.0 + 1e-6)))
     return replace(sampling, cameras=tuple(cameras))

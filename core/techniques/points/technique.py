@@ -29,11 +29,11 @@ from farfield.core.impostor.impostor import Impostor, PointPayload
 from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.ldi import image as ldi_kernels
 from farfield.core.options import check_options, option
-from farfield.core.pixel_angles import MAX_RESOLUTION
+from farfield.core.pixel_angles import MAX_ERROR_PX, MAX_RESOLUTION
 from farfield.core.quality.evaluation import Evaluation
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
-from farfield.core.techniques.base import CellCost, TechniqueDefinition
+from farfield.core.techniques.base import CellCost, Promise, TechniqueDefinition
 from farfield.core.techniques.part import evaluate_part, part_evaluation_text
 from farfield.core.techniques.points.appearance import PointAppearance, integrate_appearance, mean_colour, single_colour
 from farfield.core.techniques.points.samples import _spacing_kernel, gather_point_samples
@@ -50,6 +50,12 @@ class PointOptions:
 
     resolution: int = option(512, "output image pixels per side", ge=1, le=MAX_RESOLUTION)
     fov_deg: float = option(45.0, "output field of view, degrees", gt=0.0, lt=180.0)
+    max_error_px: float = option(
+        1.0,
+        "error budget, output pixels: no sample spacing looks larger than this from anywhere in the cell",
+        gt=0.0,
+        le=MAX_ERROR_PX,
+    )
     tile_u: int = option(
         8,
         "directional texels per point along the sampling plane's u axis, level unless the plane faces up or down (seed 001 §6: 8 x 2)",
@@ -109,7 +115,7 @@ def check_points_cell(
     box = _box(cell)
     if bounds is None:
         return CellCost.of_layers(0, (0, 0))
-    sampling = plan_point_sampling(box, bounds, options.fov_deg, options.resolution)
+    sampling = plan_point_sampling(box, bounds, options.fov_deg, options.resolution, options.max_error_px)
     side = max(c.resolution for c in sampling.cameras)
     return CellCost.of_layers(len(sampling.cameras), (side, side))
 
@@ -156,7 +162,7 @@ def bake_points(
     box = _box(cell)
     clock = StageClock(("plan", "points", "appearance", "pack"), progress)
     with clock("plan"):
-        sampling = plan_point_sampling(box, part.bounds, options.fov_deg, options.resolution)
+        sampling = plan_point_sampling(box, part.bounds, options.fov_deg, options.resolution, options.max_error_px)
     clock.report("plan", 1, 1)
     with clock("points"):
         samples = gather_point_samples(
@@ -287,4 +293,8 @@ TECHNIQUE = TechniqueDefinition(
     summary=_summary,
     evaluate=evaluate_part,
     evaluation_text=_evaluation_text,
+    promise=Promise(
+        "no hole pixel from anywhere in the box view cell: no sample spacing looks larger than max_error_px (default 1)",
+        holes=True,
+    ),
 )

@@ -44,11 +44,17 @@ from farfield.core.layering.culling import CullingMode
 from farfield.core.layering.plan import plan_layers
 from farfield.core.layering.tiles import layer_records
 from farfield.core.options import check_options, option
-from farfield.core.pixel_angles import MAX_RESOLUTION, PixelModel
+from farfield.core.pixel_angles import MAX_ERROR_PX, MAX_RESOLUTION, ErrorBudgetKind, PixelModel
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
-from farfield.core.techniques.base import TechniqueDefinition
-from farfield.core.techniques.part import check_part_cell, estimate_part_cell, evaluate_part, part_evaluation_text
+from farfield.core.techniques.base import Promise, TechniqueDefinition
+from farfield.core.techniques.part import (
+    check_part_cell,
+    estimate_part_cell,
+    evaluate_part,
+    layer_budget,
+    part_evaluation_text,
+)
 from farfield.core.techniques.tdm.mask_atlas import pack_masks
 from farfield.core.techniques.tdm.mesh import TdmMesh, ear_clip, initial_mesh, mesh_labels
 from farfield.core.techniques.tdm.simplify import box_half_sizes, covered_by, simplify
@@ -71,8 +77,18 @@ class TdmOptions:
     )
     oversampling: int = option(1, "nearest voxels averaged per texel (seed 003 §7)", ge=1, le=64)
     culling: CullingMode = option("penumbra", "hidden-texel culling of the recorded layers: penumbra, umbra or off")
+    max_error_px: float = option(
+        1.0,
+        "error budget of the recorded layers, output pixels (their texel size and depth ranges)",
+        gt=0.0,
+        le=MAX_ERROR_PX,
+    )
+    budget: ErrorBudgetKind = option(
+        "strict", "strict (max_error_px from the smallest pixel angle) or thesis (seed 000 §3.3, the centre pixel)"
+    )
     pixel_model: PixelModel = option(
-        "min", "error bound from the smallest pixel angle (min) or the centre pixel (center)"
+        "min",
+        "expert: error bound from the smallest pixel angle (min) or the centre pixel (center); strict budget only",
     )
     padding: int = option(2, "atlas padding between charts, texels", ge=0, le=64)
     max_page: int = option(
@@ -286,7 +302,9 @@ def bake_tdm(
     clock = StageClock(("plan",), progress)
 
     with clock("plan"):
-        plan = plan_layers(cell, part.bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model)
+        plan = plan_layers(
+            cell, part.bounds, math.radians(options.fov_deg), options.resolution, **layer_budget(options)
+        )
     clock.report("plan", 1, 1)
 
     field = record_voxel_field(part, plan, options.culling, clock)
@@ -346,4 +364,9 @@ TECHNIQUE = TechniqueDefinition(
     summary=_summary,
     evaluate=evaluate_part,
     evaluation_text=part_evaluation_text,
+    promise=Promise(
+        "no hole pixel from anywhere in the view cell at max_error_px (default 1); the simplified mesh may stray up to "
+        "(enlargement - 1) / 2 voxels beyond the part, so bloat is not bounded",
+        holes=True,
+    ),
 )
