@@ -46,6 +46,7 @@ from farfield.core.layering.tiles import layer_records
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION, PixelModel
 from farfield.core.scene import Scene
+from farfield.core.sidedness import seen_from_cell
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import TechniqueDefinition
 from farfield.core.techniques.part import check_part_cell, estimate_part_cell, evaluate_part, part_evaluation_text
@@ -289,7 +290,7 @@ def bake_tdm(
         plan = plan_layers(cell, part.bounds, math.radians(options.fov_deg), options.resolution, options.pixel_model)
     clock.report("plan", 1, 1)
 
-    field = record_voxel_field(part, plan, options.culling, clock)
+    field = record_voxel_field(seen_from_cell(part.objects, cell), plan, options.culling, clock)
     corners, uv, triangle_page, meshes, pages, stats = mesh_field(field, options, clock)
     stats = {
         "layers_planned": plan.count,
