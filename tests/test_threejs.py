@@ -379,3 +379,22 @@ def test_obj_mtl_colours_opacity_maps_and_uv_options_draw_as_three_js_draws_them
     print("obj/mtl", stats)
     assert stats["three_pixels"] > 2000 and stats["three_beyond_1px"] == 0 and stats["farfield_beyond_1px"] == 0, stats
     assert stats["colour_mean"] <= 2.0, stats
+
+
+@pytest.mark.parametrize("sides", ["one", "both"])
+def test_an_interior_room_from_outside_draws_as_three_js_draws_it(threejs, tmp_path, sides):
+    """Issue 54: a room whose walls face inward (tests/test_sidedness.py's), seen from outside.
+    three.js's OBJLoader culls the near wall's back and shows the room's inside, and so does
+    farfield's drawing of the file loaded one-sided (its default); with ``sides="both"`` both draw
+    the closed box."""
+    from test_sidedness import colours, outside_camera, write_room
+
+    path = write_room(tmp_path)
+    camera = outside_camera()
+    (three,) = threejs.render(path, camera, mipmaps=False, sides=None if sides == "one" else "both")
+    with MeshRenderer(load_scene(path, sides=sides).objects) as renderer:
+        ours = renderer.render(camera)
+    stats = compare(three, ours)
+    print("room", sides, stats, colours(three), colours(ours))
+    assert stats["three_beyond_1px"] == 0 and stats["farfield_beyond_1px"] == 0 and stats["colour_mean"] <= 2.0, stats
+    assert (colours(three)["red"] == 0) == (sides == "one") and (colours(ours)["red"] == 0) == (sides == "one")
