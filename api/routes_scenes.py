@@ -7,11 +7,12 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, File, Request, Response, UploadFile
+from fastapi import APIRouter, Depends, File, Form, Request, Response, UploadFile
 
 from farfield.api.deps import Services, services, tenant
 from farfield.api.paging import DEFAULT_PAGE, PAGED, Limit, Offset, set_page_headers
 from farfield.core.errors import SceneLoadError
+from farfield.core.sidedness import DEFAULT_SIDES, SIDES_HELP
 from farfield.service.scenes import (
     count_scenes,
     delete_scene,
@@ -32,6 +33,7 @@ router = APIRouter(prefix="/v1/scenes", tags=["scenes"])
 )  # fmt: skip
 def upload_scene(
     file: Annotated[list[UploadFile] | None, File(description="the scene file; or a .zip of it and its MTL, textures, buffers; or one field per file")] = None,
+    sides: Annotated[str, Form(description=SIDES_HELP)] = DEFAULT_SIDES,
     tenant_id: str = Depends(tenant), svc: Services = Depends(services),
 ) -> dict:  # fmt: skip
     if not file:
@@ -48,6 +50,7 @@ def upload_scene(
         svc.settings.max_upload_bytes,
         svc.settings.scene_limits,
         more,
+        sides,
     )
     return {**scene_record(row), "warnings": getattr(row, "upload_warnings", [])}
 

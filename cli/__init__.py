@@ -10,3 +10,19 @@ class ArgumentError(FarfieldError):
     ``--option``, ``--layers`` with ``--near-field``, a flag the chosen technique has no use for).
     Bad input (exit code 2): reported by :class:`farfield.cli.main.FarfieldGroup` as one line, like
     every :class:`~farfield.core.errors.FarfieldError`."""
+
+
+def sides_option(command):
+    """The ``--sides`` option (``one`` or ``both``, :mod:`farfield.core.sidedness`) of a command that
+    loads a scene file: the sidedness of the objects of OBJ, PLY and STL, which state none."""
+    import click
+
+    from farfield.core.sidedness import DEFAULT_SIDES, SIDES, SIDES_HELP
+
+    return click.option(
+        "--sides",
+        type=click.Choice(SIDES),
+        default=DEFAULT_SIDES,
+        show_default=True,
+        help=SIDES_HELP[0].upper() + SIDES_HELP[1:] + ".",
+    )(command)

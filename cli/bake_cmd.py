@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 from tqdm import tqdm
 
-from farfield.cli import ArgumentError
+from farfield.cli import ArgumentError, sides_option
 from farfield.core.exchange import load_scene
 from farfield.core.impostor.bundle import check_destination, write_bundle
 from farfield.core.layering.culling import CULLING_MODES
@@ -135,8 +135,9 @@ def _shortcuts(
 )
 @click.option("--json", "as_json", is_flag=True, help="Print the bundle's statistics as JSON.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
+@sides_option
 def bake(scene, viewcell, out, objects, technique, options, resolution, fov, layers, near_field, directions, gap_fill, enlargement, oversampling,
-         grid_cell, fill_threshold, culling, pixel_model, as_json, quiet):  # fmt: skip
+         grid_cell, fill_threshold, culling, pixel_model, as_json, quiet, sides):  # fmt: skip
     """Bake the impostor of SCENE for a view cell and write its bundle to --out.
 
     The per-technique flags (--layers, --enlargement, ...) are shortcuts for --option NAME=VALUE."""
@@ -165,7 +166,7 @@ def bake(scene, viewcell, out, objects, technique, options, resolution, fov, lay
     names = [n.strip() for n in objects.split(",") if n.strip()] if objects else None
     if chosen.scope == "scene" and names:
         raise ArgumentError(f"a {chosen.name} impostor represents the whole scene; --objects does not apply")
-    loaded = load_scene(scene)
+    loaded = load_scene(scene, sides=sides)
     bar = _Bar(not quiet and not as_json)
     try:
         impostor = chosen.bake(loaded, cell, settings, names, bar)

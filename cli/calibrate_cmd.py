@@ -8,6 +8,7 @@ from pathlib import Path
 
 import click
 
+from farfield.cli import sides_option
 from farfield.cli.bake_cmd import _Bar
 from farfield.core.exchange import load_scene
 from farfield.core.placement.calibration import Calibration, CalibrationOptions, calibrate, default_scene
@@ -102,7 +103,8 @@ def report_lines(result: Calibration, written: str | None) -> list[str]:
     "--out", default=None, type=click.Path(dir_okay=False), help="Write the model (JSON, for --cost-model) here."
 )
 @click.option("--json", "as_json", is_flag=True, help="The model, where it was written and every sample, as JSON.")
-def calibrate_cmd(scenes, samples, impostors, resolution, fov, seed, out, as_json):
+@sides_option
+def calibrate_cmd(scenes, samples, impostors, resolution, fov, seed, out, as_json, sides):
     """Fit the rendering-time and memory models of impostor placement on the renderer this runs on
     (seed 000 §5.8.1): draw random object clusters of SCENEs (default: a procedural city) from random
     viewpoints, bake and draw layered impostors for random shaft cells, and fit the coefficients by
@@ -110,7 +112,7 @@ def calibrate_cmd(scenes, samples, impostors, resolution, fov, seed, out, as_jso
     options = CalibrationOptions(samples=samples, impostors=impostors, resolution=resolution, fov_deg=fov, seed=seed)
     if out and not Path(out).resolve().parent.is_dir():  # before minutes of measuring, not after
         raise CostModelError(f"cannot write the cost model to {out!r}: no folder {str(Path(out).resolve().parent)!r}")
-    loaded = [load_scene(path) for path in scenes] if scenes else [default_scene()]
+    loaded = [load_scene(path, sides=sides) for path in scenes] if scenes else [default_scene()]
     bar = _Bar(enabled=True)
     try:
         result = calibrate(loaded, options, progress=bar)

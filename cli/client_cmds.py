@@ -18,7 +18,9 @@ from pathlib import Path
 import click
 from tqdm import tqdm
 
+from farfield.cli import sides_option
 from farfield.core.errors import ErrorKind, FarfieldError
+from farfield.core.sidedness import DEFAULT_SIDES
 from farfield.core.viewcells import parse_viewcell
 from farfield.service.placement import ALGORITHMS
 from farfield.service.settings import Settings
@@ -229,20 +231,22 @@ def placement_request(view_space: str, frame_ms, cost_model, primitives, cpv_siz
     }  # fmt: skip
 
 
-def upload_scene(client: Client, path: Path) -> str:
+def upload_scene(client: Client, path: Path, sides: str = DEFAULT_SIDES) -> str:
     """Upload the scene file at ``path``; a ``.gltf`` or ``.obj`` that refers to files beside it (buffers,
     images; MTL, textures) goes as a zip of them all (:func:`farfield.core.exchange.archive.pack_scene`).
+    ``sides`` is the loader's option (the form field ``sides``, :mod:`farfield.core.sidedness`).
     Returns the scene's id; the loader's warnings (a missing texture) are printed to stderr."""
     from farfield.core.exchange.archive import pack_scene
 
     packed = pack_scene(path)
+    form = {"sides": sides}
     if packed is not None:
         made = client.request(
-            "POST", "/v1/scenes", files={"file": (f"{path.stem}.zip", packed, "application/zip")}
+            "POST", "/v1/scenes", files={"file": (f"{path.stem}.zip", packed, "application/zip")}, data=form
         ).json()
     else:
         with open(path, "rb") as f:
-            made = client.request("POST", "/v1/scenes", files={"file": (path.name, f)}).json()
+            made = client.request("POST", "/v1/scenes", files={"file": (path.name, f)}, data=form).json()
     for warning in made.get("warnings", []):
         click.echo(f"warning: {warning}", err=True)
     return made["id"]
@@ -434,12 +438,14 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
     help="After --wait, unpack the impostor database here.",
 )
 @click.option("--json", "as_json", is_flag=True, help="Print the job record as JSON.")
+@sides_option
 @_client_options
 def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov, options, placement, view_space, frame_ms, cost_model, primitives,
            cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, max_impostor_mb, algorithm, p_opt, octree_depth, grid_points, max_level,
-           check_views, evaluate, wait, download, as_json, url, key):  # fmt: skip
+           check_views, evaluate, wait, download, as_json, sides, url, key):  # fmt: skip
     """Submit a job for SCENE (a file to upload, or the id of an uploaded scene).  A .gltf or .obj is
-    uploaded with the files it refers to (buffers, images; MTL, textures), zipped."""
+    uploaded with the files it refers to (buffers, images; MTL, textures), zipped; --sides goes with
+    the upload (an uploaded scene keeps the sidedness it was uploaded with)."""
     client = Client(url, key or _default_key())
     if placement:
         if grid is not None or viewcells:
@@ -480,7 +486,7 @@ def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov
     where = non_finite(spec)
     if where is not None:  # before the upload: a request that cannot be sent leaves nothing behind
         raise ServiceError(f"{where[0]} is {where[1]!r}: the service takes finite numbers only")
-    spec["scene_id"] = upload_scene(client, Path(scene)) if Path(scene).is_file() else scene
+    spec["scene_id"] = upload_scene(client, Path(scene), sides) if Path(scene).is_file() else scene
     job = client.request("POST", "/v1/jobs", json=spec).json()
     if not as_json:
         click.echo(f"job {job['id']}: {job['cells_total']} cells, {job['state']}")

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import click
 
+from farfield.cli import sides_option
 from farfield.core.errors import GuaranteeError
 from farfield.core.exchange import load_scene
 from farfield.core.impostor.bundle import read_bundle
@@ -53,11 +54,12 @@ from farfield.core.techniques import get_technique
     help="Exit non-zero (4) when a view inside the cell breaks what the bundle's technique promises (farfield "
     "techniques) at the error budget it was baked for (max_error_px): hole pixels, pixels bloated beyond the budget.",
 )
-def evaluate(bundles, scene, random_count, outside_count, seed, prefer, as_json, check):
+@sides_option
+def evaluate(bundles, scene, random_count, outside_count, seed, prefer, as_json, check, sides):
     """Render SCENE's part and the impostor in each BUNDLE from sampled viewpoints and report the
     errors; with several bundles of one part and view cell, side by side and which to use."""
     impostors = [read_bundle(Path(b)) for b in bundles]
-    part = load_scene(scene)
+    part = load_scene(scene, sides=sides)
     if len(impostors) > 1:
         results = _compare(list(bundles), impostors, part, random_count, outside_count, seed, prefer, as_json)
     else:

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import click
 
+from farfield.cli import sides_option
 from farfield.core.exchange import load_scene
 from farfield.core.scene import Scene, SceneWarning
 
@@ -75,12 +76,13 @@ def format_table(scene: Scene) -> str:
 @click.command("inspect")
 @click.argument("scene_path", metavar="SCENE", type=click.Path(path_type=Path, dir_okay=True))
 @click.option("--json", "as_json", is_flag=True, help="Print the scene summary as JSON.")
-def inspect(scene_path: Path, as_json: bool) -> None:
+@sides_option
+def inspect(scene_path: Path, as_json: bool, sides: str) -> None:
     """Load SCENE (.glb, .gltf, .obj, .ply, .stl) and describe its objects."""
     with warnings.catch_warnings():
         # Warnings are part of the report below; do not also print them as Python warnings.
         warnings.simplefilter("ignore", SceneWarning)
-        scene = load_scene(scene_path)
+        scene = load_scene(scene_path, sides=sides)
     if as_json:
         click.echo(json.dumps(scene.summary(), indent=2))
     else:

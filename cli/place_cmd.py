@@ -9,6 +9,7 @@ from pathlib import Path
 
 import click
 
+from farfield.cli import sides_option
 from farfield.cli.bake_cmd import _Bar
 from farfield.core.exchange import load_scene
 from farfield.core.options import parse_option_text
@@ -18,6 +19,7 @@ from farfield.core.placement.image_database import write_image_database
 from farfield.core.placement.planner import PlacementSettings, place
 from farfield.core.placement.solution_grid import BudgetSettings, place_primitives
 from farfield.core.placement.solution_grid import check_views as count_views
+from farfield.core.sidedness import DEFAULT_SIDES
 from farfield.core.techniques import DEFAULT_TECHNIQUE, TECHNIQUES, get_technique
 from farfield.service.placement import ALGORITHMS, DEFAULT_ALGORITHM
 
@@ -224,16 +226,17 @@ def summary_lines(result) -> list[str]:
     "--json", "as_json", is_flag=True, help="Print the summary, seconds and where the placement went as JSON."
 )
 @click.option("--quiet", is_flag=True, help="No progress bar.")
+@sides_option
 def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, options, resolution, fov, algorithm, p_opt, octree_depth,
               grid_points, max_level, check_views, bake_dir, ldi_resolution, cpv_size, vdi_deg, cells, depth_complexity, leaf_size, max_impostor_mb, out, as_json,
-              quiet) -> None:  # fmt: skip
+              quiet, sides) -> None:  # fmt: skip
     """Decide where impostors go so that every view from VIEW-SPACE meets the budget at least memory
     (seed 000 ch. 5): problem views, candidates, greedy choice.  Views no placement can serve are
     named; the exit status is 0 either way (see "status" per CPV in the JSON).  With --algorithm
     primitive-budget: seed 004's grid of solution points and images instead."""
     corners = _numbers(view_space, 6, "--view-space")
     offline = _OFFLINE[ALGORITHMS[algorithm].offline]
-    offline(scene, corners, frame_ms=frame_ms, cost_model=cost_model, primitives=primitives, technique=technique, options=options,
+    offline(scene, corners, sides=sides, frame_ms=frame_ms, cost_model=cost_model, primitives=primitives, technique=technique, options=options,
             resolution=resolution, fov=fov, p_opt=p_opt, octree_depth=octree_depth, grid_points=grid_points, max_level=max_level,
             check_views=check_views, bake_dir=bake_dir, ldi_resolution=ldi_resolution, cpv_size=cpv_size, vdi_deg=vdi_deg, cells=cells,
             depth_complexity=depth_complexity, leaf_size=leaf_size, max_impostor_mb=max_impostor_mb, out=out, as_json=as_json,
@@ -241,7 +244,7 @@ def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, op
 
 
 def _place_solution_grid(scene, corners, *, frame_ms, cost_model, primitives, fov, p_opt, octree_depth, grid_points, max_level,
-                         check_views, bake_dir, ldi_resolution, out, as_json, quiet, **_) -> None:  # fmt: skip
+                         check_views, bake_dir, ldi_resolution, out, as_json, quiet, sides, **_) -> None:  # fmt: skip
     """``farfield place`` with an algorithm whose offline placement is a solution grid of images (seed 004)."""
     if primitives is None or frame_ms is not None or cost_model:
         raise PlacementError(
@@ -249,11 +252,11 @@ def _place_solution_grid(scene, corners, *, frame_ms, cost_model, primitives, fo
         )
     settings = BudgetSettings(primitives=primitives, p_opt=p_opt, fov_deg=60.0 if fov is None else fov, octree_depth=octree_depth,
                               grid_points=grid_points, max_level=max_level)  # fmt: skip
-    _place_primitive_budget(scene, corners, settings, check_views, out, as_json, quiet, bake_dir, ldi_resolution)
+    _place_primitive_budget(scene, corners, settings, check_views, out, as_json, quiet, bake_dir, ldi_resolution, sides)
 
 
 def _place_cost_model(scene, corners, *, frame_ms, cost_model, primitives, technique, options, resolution, fov, bake_dir, cpv_size,
-                      vdi_deg, cells, depth_complexity, leaf_size, max_impostor_mb, out, as_json, quiet, **_) -> None:  # fmt: skip
+                      vdi_deg, cells, depth_complexity, leaf_size, max_impostor_mb, out, as_json, quiet, sides, **_) -> None:  # fmt: skip
     """``farfield place`` with an algorithm whose offline placement is by a cost model (seed 000 ch. 5)."""
     if bake_dir:
         raise PlacementError(
@@ -275,7 +278,7 @@ def _place_cost_model(scene, corners, *, frame_ms, cost_model, primitives, techn
         t_max=t_max, model=model, technique=technique, options=values, cpv_size=cpv_size, vdi_deg=vdi_deg, cells=cells,
         depth_complexity=depth_complexity, leaf_size=leaf_size, max_impostor_bytes=max_impostor_mb * 2**20,
     )  # fmt: skip
-    loaded = load_scene(scene)
+    loaded = load_scene(scene, sides=sides)
     result = _with_bar(quiet, lambda bar: place(loaded, corners[:3], corners[3:], settings, progress=bar))
     if out:
         _write_out(out, result.to_dict())
@@ -318,7 +321,7 @@ def primitive_summary_lines(summary: dict, check: dict | None) -> list[str]:
 
 
 def _place_primitive_budget(
-    scene, corners, settings, views, out, as_json, quiet, bake_dir=None, ldi_resolution=256
+    scene, corners, settings, views, out, as_json, quiet, bake_dir=None, ldi_resolution=256, sides=DEFAULT_SIDES
 ) -> None:
     if isinstance(views, bool) or views < 0:
         raise PlacementError(f"--check-views must be >= 0, got {views!r}")
@@ -327,7 +330,7 @@ def _place_primitive_budget(
     if bake_dir and Path(bake_dir).exists() and any(Path(bake_dir).iterdir()):
         raise PlacementError(f"--bake {bake_dir!r}: the folder is not empty")
     _check_out(out)
-    loaded = load_scene(scene)
+    loaded = load_scene(scene, sides=sides)
     result = _with_bar(quiet, lambda bar: place_primitives(loaded, corners[:3], corners[3:], settings, progress=bar))
     check = count_views(result, views) if views else None
     if bake_dir:

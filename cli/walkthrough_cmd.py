@@ -17,6 +17,7 @@ import click
 import numpy as np
 from tqdm import tqdm
 
+from farfield.cli import sides_option
 from farfield.core.errors import FarfieldError
 from farfield.core.exchange import load_scene
 from farfield.core.impostor.database import ImpostorDatabase
@@ -65,13 +66,14 @@ from farfield.core.quality.walkthrough import (
 )
 @click.option("--no-compare", is_flag=True, help="Frame times only (no image comparison).")
 @click.option("--json", "as_json", is_flag=True, help="Every frame and the summary as JSON.")
-def walkthrough_cmd(database, scene, path_file, frames, random_count, seed, repeats, plot, no_compare, as_json):
+@sides_option
+def walkthrough_cmd(database, scene, path_file, frames, random_count, seed, repeats, plot, no_compare, as_json, sides):
     """Walk a camera path through DATABASE (a job's database.zip or its unpacked folder) and compare
     the reference runtime with SCENE drawn in full: an envmap database's near field + impostors, or
     a placement database's impostors + remaining geometry against its frame budget."""
     if plot and not Path(plot).resolve().parent.is_dir():  # before the walk, not after it
         raise FarfieldError(f"--plot {plot}: the folder {Path(plot).resolve().parent} does not exist")
-    loaded = load_scene(scene)
+    loaded = load_scene(scene, sides=sides)
     with image_database_folder(Path(database)) as images:
         if images is not None:  # a primitive-budget database (farfield place --bake, or a job's)
             _walk_images(

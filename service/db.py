@@ -85,6 +85,9 @@ class SceneRow(Base):
     # by a listing or a worker's row; service.scenes.scene_objects pages it in SQL).
     objects: Mapped[list] = mapped_column(JSON, deferred=True)
     created_at: Mapped[float] = mapped_column(Float, default=now)
+    # The loader's ``sides`` option (farfield.core.sidedness): "one" or "both", the sidedness of the
+    # objects of a format that states none (OBJ, PLY, STL); a worker loads the file with it again.
+    sides: Mapped[str] = mapped_column(String(8), default="one")
 
 
 class JobRow(Base):

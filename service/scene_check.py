@@ -2,7 +2,7 @@
 
 The API validates uploads by parsing them, but a 200 MB mesh parsed inside the API process would
 raise its memory by gigabytes (and a loader crash would take it down).  :func:`check_scene_file`
-runs ``python -m service.scene_check FILE EXTENSION NAME [LIMITS_JSON [ASSETS_ZIP]]`` instead: the child checks
+runs ``python -m service.scene_check [--sides one|both] FILE EXTENSION NAME [LIMITS_JSON [ASSETS_ZIP]]`` instead: the child checks
 the file against the scene limits (:mod:`farfield.core.exchange.limits`), prints the scene's summary (or the
 error's type and message) as one JSON line and exits.
 """
@@ -19,22 +19,29 @@ from pathlib import Path
 from farfield.core import errors
 from farfield.core.errors import FarfieldError, SceneLoadError
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
+from farfield.core.sidedness import DEFAULT_SIDES
 
 TIMEOUT_S = 600
 
 
 def summarize(
-    path: Path, extension: str, name: str, limits: SceneLimits = DEFAULT_LIMITS, assets: Path | None = None
+    path: Path,
+    extension: str,
+    name: str,
+    limits: SceneLimits = DEFAULT_LIMITS,
+    assets: Path | None = None,
+    sides: str = DEFAULT_SIDES,
 ) -> dict:
     """The summary the service stores for a scene file (run in the child); ``assets``: a zip of the
-    files it refers to (:func:`farfield.core.exchange.archive.unpack_scene_archive`)."""
+    files it refers to (:func:`farfield.core.exchange.archive.unpack_scene_archive`); ``sides``: the
+    loader's option (:mod:`farfield.core.sidedness`)."""
     from farfield.core.exchange import load_scene_bytes
     from farfield.core.exchange.archive import read_assets_zip
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         files = read_assets_zip(assets.read_bytes()) if assets is not None else None
-        scene = load_scene_bytes(path.read_bytes(), extension, name, files, limits=limits)
+        scene = load_scene_bytes(path.read_bytes(), extension, name, files, limits=limits, sides=sides)
     return {
         "content_hash": scene.content_hash,
         "triangles": scene.triangle_count,
@@ -45,13 +52,18 @@ def summarize(
 
 
 def check_scene_file(
-    path: Path, extension: str, name: str, limits: SceneLimits = DEFAULT_LIMITS, assets: Path | None = None
+    path: Path,
+    extension: str,
+    name: str,
+    limits: SceneLimits = DEFAULT_LIMITS,
+    assets: Path | None = None,
+    sides: str = DEFAULT_SIDES,
 ) -> dict:
-    """Parse ``path`` (with the files of the ``assets`` zip) in a child process; its summary, or the
-    loader's error raised here."""
+    """Parse ``path`` (with the files of the ``assets`` zip, with the loader's ``sides`` option) in a
+    child process; its summary, or the loader's error raised here."""
     try:
         done = subprocess.run(
-            [sys.executable, "-m", "farfield.service.scene_check", str(path), extension, name, json.dumps(asdict(limits)), *([str(assets)] if assets else [])],
+            [sys.executable, "-m", "farfield.service.scene_check", "--sides", sides, str(path), extension, name, json.dumps(asdict(limits)), *([str(assets)] if assets else [])],
             capture_output=True, text=True, timeout=TIMEOUT_S,
         )  # fmt: skip
     except subprocess.TimeoutExpired:
@@ -72,11 +84,14 @@ def check_scene_file(
 
 
 def main(argv: list[str]) -> int:
+    sides = DEFAULT_SIDES
+    if argv[:1] == ["--sides"]:
+        sides, argv = argv[1], argv[2:]
     path, extension, name = Path(argv[0]), argv[1], argv[2]
     limits = SceneLimits(**json.loads(argv[3])) if len(argv) > 3 else DEFAULT_LIMITS
     assets = Path(argv[4]) if len(argv) > 4 else None
     try:
-        print(json.dumps(summarize(path, extension, name, limits, assets)))
+        print(json.dumps(summarize(path, extension, name, limits, assets, sides)))
         return 0
     except FarfieldError as error:
         print(json.dumps({"error": type(error).__name__, "message": str(error)}))

@@ -32,6 +32,7 @@ from farfield.core.exchange.archive import (
 )
 from farfield.core.exchange.export import scene_glb
 from farfield.core.scene import Scene
+from farfield.core.sidedness import DEFAULT_SIDES, double_sided
 from farfield.service.blobs import BlobStore
 from farfield.service.db import CELL_FINAL, Database, JobRow, SceneRow, now, owned_row
 from farfield.service.scene_check import check_scene_file
@@ -85,7 +86,7 @@ def scene_record(row: SceneRow) -> dict:
     return {
         "id": row.id, "name": row.name, "original_name": row.original_name, "size_bytes": row.size_bytes,
         "content_hash": row.content_hash, "object_count": row.object_count, "triangles": row.triangles,
-        "bounds": row.bounds, "created_at": row.created_at, "objects_url": f"/v1/scenes/{row.id}/objects",
+        "bounds": row.bounds, "sides": row.sides, "created_at": row.created_at, "objects_url": f"/v1/scenes/{row.id}/objects",
     }  # fmt: skip
 
 
@@ -111,9 +112,14 @@ def ingest_scene(
     limit: int,
     scene_limits: SceneLimits = DEFAULT_LIMITS,
     more: list[tuple[str, BinaryIO]] | None = None,
+    sides: str = DEFAULT_SIDES,
 ) -> SceneRow:
     """Validate and store one uploaded scene; returns its row (``row.upload_warnings``: what the
     loader warned of, e.g. a missing texture).
+
+    ``sides`` is the loader's option (``"one"`` or ``"both"``, :mod:`farfield.core.sidedness`): the
+    sidedness of the objects of a format that states none (OBJ, PLY, STL).  It is kept on the row,
+    and a worker loads the file with it again.
 
     The upload is one scene file, a zip of a scene file and the files it refers to
     (:mod:`farfield.core.exchange.archive`), or, with ``more``, several files (name, stream) of which one is
@@ -121,9 +127,10 @@ def ingest_scene(
     stored beside it as ``scenes/<id>/assets.zip``.
 
     Raises :class:`SceneLoadError` (bad format, empty, unparsable, an archive without exactly one
-    scene file or with a name outside it), :class:`SceneTooCostlyError` (structure beyond
-    ``scene_limits``), :class:`UploadTooLargeError`.
+    scene file or with a name outside it, a ``sides`` other than ``"one"`` or ``"both"``),
+    :class:`SceneTooCostlyError` (structure beyond ``scene_limits``), :class:`UploadTooLargeError`.
     """
+    double_sided(sides)  # a bad value is refused before anything is read
     scene_id = uuid.uuid4().hex
     prefix = f"scenes/{scene_id}"
     work = tempfile.mkdtemp(prefix="farfield-ingest-")
@@ -155,7 +162,7 @@ def ingest_scene(
             )
         if size == 0 or path.stat().st_size == 0:
             raise SceneLoadError(f"{name}: the file is empty")
-        summary = check_scene_file(path, extension, name, scene_limits, assets)
+        summary = check_scene_file(path, extension, name, scene_limits, assets, sides)
         key = f"{prefix}/{name}"
         with open(path, "rb") as f:
             blobs.put_stream(key, f)
@@ -166,6 +173,7 @@ def ingest_scene(
             id=scene_id, tenant_id=tenant_id, name=name, original_name=original_file_name(file_name), extension=extension,
             blob_key=key, size_bytes=size, content_hash=summary["content_hash"], triangles=summary["triangles"],
             bounds=summary["bounds"], object_count=len(summary["objects"]), objects=summary["objects"], created_at=now(),
+            sides=sides,
         )  # fmt: skip
         with db.session() as s:
             s.add(row)
@@ -272,7 +280,9 @@ def load_stored_scene(blobs: BlobStore, row: SceneRow) -> Scene:
     if scene is None:
         assets_key = f"{row.blob_key.rsplit('/', 1)[0]}/{ASSETS}"
         assets = read_assets_zip(blobs.read_bytes(assets_key)) if blobs.exists(assets_key) else None
-        scene = load_scene_bytes(blobs.read_bytes(row.blob_key), row.extension, row.name, assets, limits=ADMITTED)
+        scene = load_scene_bytes(
+            blobs.read_bytes(row.blob_key), row.extension, row.name, assets, limits=ADMITTED, sides=row.sides
+        )
         _remember(row, scene)
     return scene
 

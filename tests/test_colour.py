@@ -159,7 +159,13 @@ def test_pine_atlas_has_no_black_fringes():
     impostor = technique.bake(scene, cell, technique.options({}, 256, 45.0), None, None)
     texels = np.concatenate([page[page[..., 3] > 0][:, :3] for page in impostor.pages])
     assert len(texels) > 5000
-    assert (texels.max(axis=1) < 20).mean() < 0.01
+    # One-sided since issue 54's sidedness (an OBJ is drawn front faces only, as three.js's
+    # OBJLoader draws it): the cell sees 268 of the 527 triangles' fronts, and 1.4 % of the 13,328
+    # texels are near black, against 0.25 % of 17,311 double-sided (--sides both).  They are the
+    # conservative recording's texels that a needle only touches (151 in the needles' layers, none
+    # recorded by texel centres); 54 of them are near black double-sided too, and the other 97 were
+    # covered there by the back of a nearer card, which the cell does not see.
+    assert (texels.max(axis=1) < 20).mean() < 0.02
 
 
 @pytest.mark.parametrize("cut", [None, 0.5])

@@ -27,7 +27,7 @@ def test_upgrade_keeps_rows_and_adds_columns(tmp_path):
     assert "worker" in {c["name"] for c in sa.inspect(db.engine).get_columns("cells")}
     with db.engine.connect() as connection:
         assert connection.execute(sa.text("SELECT name FROM tenants")).scalars().all() == ["acme"]
-        assert connection.execute(sa.text("SELECT version_num FROM alembic_version")).scalar() == "0006"
+        assert connection.execute(sa.text("SELECT version_num FROM alembic_version")).scalar() == "0007"
 
 
 def test_jobs_made_before_evaluate_existed_are_evaluated(tmp_path):
@@ -63,3 +63,23 @@ def test_scenes_made_before_0005_get_their_object_count_and_original_name(tmp_pa
     assert (rows["s"].object_count, rows["e"].object_count) == (3, 0)
     assert rows["s"].original_name == "my_scene.glb"
     assert "ix_scenes_tenant_created" in {i["name"] for i in sa.inspect(db.engine).get_indexes("scenes")}
+
+
+def test_scenes_made_before_0007_were_read_double_sided_and_keep_it(tmp_path):
+    """A stored scene is loaded again with its row's ``sides``; those uploaded before the option
+    were read with every object double-sided, which their content hash records."""
+    db = Database(f"sqlite:///{tmp_path / 'old.db'}")
+    with db.engine.begin() as connection:
+        command.upgrade(_config(connection), "0006")
+        connection.execute(sa.text("INSERT INTO tenants (id, name, created_at) VALUES ('t', 'acme', 1.0)"))
+        connection.execute(sa.text(
+            "INSERT INTO scenes (id, tenant_id, name, extension, blob_key, size_bytes, content_hash, triangles, bounds, objects, created_at) "
+            "VALUES ('s', 't', 'room.obj', 'obj', 'k', 1, 'h', 1, '[]', '[]', 1.0)"
+        ))  # fmt: skip
+    db.migrate()
+    with db.session() as s:
+        assert s.get(SceneRow, "s").sides == "both"
+        s.add(SceneRow(id="n", tenant_id="t", name="new.obj", extension="obj", blob_key="k2", size_bytes=1, content_hash="h2",
+                       triangles=1, bounds=[], objects=[]))  # fmt: skip
+    with db.session() as s:
+        assert s.get(SceneRow, "n").sides == "one"

@@ -126,7 +126,13 @@ class ThreeRenderer:
             route.fulfill(path=str(file))
 
     def render(
-        self, path, cameras, alpha_cutoff: float | None = None, map_replaces_color: bool = False, mipmaps: bool = True
+        self,
+        path,
+        cameras,
+        alpha_cutoff: float | None = None,
+        map_replaces_color: bool = False,
+        mipmaps: bool = True,
+        sides: str | None = None,
     ) -> list[np.ndarray]:
         """(h, w, 4) uint8 images of the file at ``path`` (.glb, .gltf, .obj with its MTL, .ply),
         top row first, alpha 255 where drawn, 0 elsewhere; one per camera of ``cameras`` (a
@@ -138,7 +144,10 @@ class ThreeRenderer:
         default ``Kd`` × ``map_Kd``, as the MTL specification, three.js and farfield read it);
         ``mipmaps=False`` samples every texture without
         mipmaps whatever its sampler asks (as farfield's renderer does), to tell the sampler's part
-        in a difference.
+        in a difference.  Sidedness is the source's, as three.js's loaders read it (glTF's
+        ``doubleSided``; OBJ and PLY front faces only, their loaders' default and farfield's
+        ``sides="one"``); ``sides="both"`` draws every face from both sides (farfield's
+        ``sides="both"``).
         """
         path = Path(path)
         cameras = list(cameras) if isinstance(cameras, (list, tuple)) else [cameras]
@@ -153,6 +162,7 @@ class ThreeRenderer:
             "alphaCutoff": alpha_cutoff,
             "mapReplacesColor": bool(map_replaces_color),
             "mipmaps": bool(mipmaps),
+            "sides": sides,
             "cameras": [camera_spec(c) for c in cameras],
         }
         before = len(self.errors)

@@ -6,6 +6,12 @@ One module per format family (``gltf``, ``obj``, ``ply``, ``stl``), each with ``
 :func:`load_scene_bytes` reads uploaded bytes (referenced files from ``assets``).  Objects come
 sorted by name (trimesh's node order is an implementation detail).
 
+Sidedness: glTF states it per material (``doubleSided``) and is read as it says.  OBJ, PLY and STL
+state none; their objects are one-sided by default (``sides="one"``, as engines and three.js's
+loaders draw them) or double-sided with ``sides="both"`` (:mod:`farfield.core.sidedness`): the
+``sides`` argument of :func:`load_scene` and :func:`load_scene_bytes`, which formats that state
+their sidedness ignore.
+
 Every failure is a typed :class:`farfield.core.errors.FarfieldError` whose message starts with the file's
 name; recoverable problems (a missing texture) are warnings: emitted as :class:`SceneWarning`
 and kept in ``Scene.warnings``.
@@ -24,15 +30,35 @@ from farfield.core.exchange import gltf, obj, ply, stl
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
 from farfield.core.exchange.trimesh_scene import asset_resolver
 from farfield.core.scene import Scene, SceneObject, SceneWarning
+from farfield.core.sidedness import DEFAULT_SIDES, SIDES, double_sided
 
-Loader = Callable[..., tuple[tuple[SceneObject, ...], tuple[str, ...]]]  # (data, extension, name, resolver, limits)
+Loader = Callable[
+    ..., tuple[tuple[SceneObject, ...], tuple[str, ...]]
+]  # (data, extension, name, resolver, limits[, sides])
 
 # Lower-case extension without the dot -> loader.
 LOADERS: dict[str, Loader] = {
     extension: module.load for module in (gltf, obj, ply, stl) for extension in module.EXTENSIONS
 }
+# The extensions of formats that state no sidedness: their loaders take the ``sides`` option.
+SIDES_OPTION: frozenset[str] = frozenset(
+    extension
+    for module in (gltf, obj, ply, stl)
+    if getattr(module, "SIDES_OPTION", False)
+    for extension in module.EXTENSIONS
+)
 
-__all__ = ["DEFAULT_LIMITS", "LOADERS", "SceneLimits", "load_scene", "load_scene_bytes", "supported_extensions"]
+__all__ = [
+    "DEFAULT_LIMITS",
+    "DEFAULT_SIDES",
+    "LOADERS",
+    "SIDES",
+    "SIDES_OPTION",
+    "SceneLimits",
+    "load_scene",
+    "load_scene_bytes",
+    "supported_extensions",
+]
 
 
 def supported_extensions() -> tuple[str, ...]:
@@ -52,12 +78,15 @@ def _extension(extension: str, name: str) -> str:
     return key
 
 
-def _load(data: bytes, extension: str, name: str, resolver: Resolver, limits: SceneLimits) -> Scene:
-    """Run the loader for ``extension``; prefix errors with ``name``; emit the warnings."""
+def _load(data: bytes, extension: str, name: str, resolver: Resolver, limits: SceneLimits, sides: str) -> Scene:
+    """Run the loader for ``extension`` (with ``sides`` where the format states no sidedness);
+    prefix errors with ``name``; emit the warnings."""
+    double_sided(sides)  # refused whatever the format, so a bad value never passes unnoticed
     if not data:
         raise SceneLoadError(f"{name}: file is empty (0 bytes)")
     try:
-        objects, warnings = LOADERS[extension](data, extension, name, resolver, limits)
+        extra = {"sides": sides} if extension in SIDES_OPTION else {}
+        objects, warnings = LOADERS[extension](data, extension, name, resolver, limits, **extra)
         limits.check("objects", len(objects), "nodes")
         limits.check("triangles", sum(o.triangle_count for o in objects), "triangles")
         # trimesh's node order is an implementation detail (it reverses OBJ and glTF order); name
@@ -72,7 +101,7 @@ def _load(data: bytes, extension: str, name: str, resolver: Resolver, limits: Sc
     return scene
 
 
-def load_scene(path: str | Path, limits: SceneLimits = DEFAULT_LIMITS) -> Scene:
+def load_scene(path: str | Path, limits: SceneLimits = DEFAULT_LIMITS, sides: str = DEFAULT_SIDES) -> Scene:
     """Load the scene file at ``path``; files it refers to are looked up beside it.
 
     Parameters
@@ -81,6 +110,9 @@ def load_scene(path: str | Path, limits: SceneLimits = DEFAULT_LIMITS) -> Scene:
         A ``.glb``, ``.gltf``, ``.obj``, ``.ply`` or ``.stl`` file.
     limits : SceneLimits
         The most structure the file may have (:mod:`farfield.core.exchange.limits`).
+    sides : str
+        ``"one"`` (the default) or ``"both"``: the sidedness of the objects of a format that states
+        none (OBJ, PLY, STL); glTF follows its materials' ``doubleSided``.
 
     Returns
     -------
@@ -92,7 +124,8 @@ def load_scene(path: str | Path, limits: SceneLimits = DEFAULT_LIMITS) -> Scene:
     SceneNotFoundError
         No file at ``path``.
     SceneLoadError
-        Unsupported extension, unreadable or corrupt file, absurd coordinates.
+        Unsupported extension, unreadable or corrupt file, absurd coordinates, a ``sides`` other
+        than ``"one"`` or ``"both"``.
     SceneTooCostlyError
         Structure beyond ``limits``.
     DegenerateGeometryError
@@ -113,7 +146,7 @@ def load_scene(path: str | Path, limits: SceneLimits = DEFAULT_LIMITS) -> Scene:
         data = path.read_bytes()
     except OSError as error:
         raise SceneLoadError(f"{path}: cannot read: {error.strerror or error}") from error
-    return _load(data, extension, path.name, asset_resolver(path.name, directory=str(path.parent)), limits)
+    return _load(data, extension, path.name, asset_resolver(path.name, directory=str(path.parent)), limits, sides)
 
 
 def load_scene_bytes(
@@ -122,6 +155,7 @@ def load_scene_bytes(
     name: str,
     assets: Mapping[str, bytes] | None = None,
     limits: SceneLimits = DEFAULT_LIMITS,
+    sides: str = DEFAULT_SIDES,
 ) -> Scene:
     """Load a scene from the bytes of its file (an upload).
 
@@ -138,11 +172,14 @@ def load_scene_bytes(
         Without them, such references are reported as missing (a warning for textures).
     limits : SceneLimits
         As :func:`load_scene`.
+    sides : str
+        As :func:`load_scene`.
 
     Returns
     -------
     Scene
-        Equal to ``load_scene`` of the same file and its referenced files (same content hash).
+        Equal to ``load_scene`` of the same file and its referenced files with the same ``sides``
+        (same content hash).
 
     Raises
     ------
@@ -150,4 +187,4 @@ def load_scene_bytes(
         As :func:`load_scene`.
     """
     key = _extension(extension, name)
-    return _load(bytes(data), key, name, asset_resolver(name, assets=assets), limits)
+    return _load(bytes(data), key, name, asset_resolver(name, assets=assets), limits, sides)

@@ -1,7 +1,7 @@
 """Scenes written as GLB: :func:`to_trimesh` (one node per object, glTF materials) and :func:`scene_glb`.
 
 What ``farfield scenes demo`` writes and what tests upload: every object keeps its name, geometry,
-UVs, vertex colours, base colour, texture and alpha cutoff, so a GLB written here loads back as the
+UVs, vertex colours, base colour, texture, alpha cutoff and sidedness, so a GLB written here loads back as the
 same scene (vertex colours within their 8-bit quantisation).
 """
 
@@ -26,27 +26,30 @@ def to_trimesh(scene: Scene) -> trimesh.Scene:
     ``extras`` hold ``{"farfield_object": name}`` (viewers rename nodes: three.js drops dots,
     colons and slashes, so a runtime matches a database's object names through the extras).
 
-    Textured objects get a glTF material with ``baseColorTexture`` (and ``alphaMode: MASK`` when
-    ``alpha_cutoff`` is set), vertex-coloured ones vertex colours, the rest a ``baseColorFactor``.
+    Every object gets a glTF material with its ``baseColorFactor`` and ``doubleSided`` as the object
+    is (:attr:`farfield.core.scene.SceneObject.double_sided`), a ``baseColorTexture`` where it is
+    textured (and ``alphaMode: MASK`` when ``alpha_cutoff`` is set), and vertex colours as
+    ``COLOR_0`` where it has them.
     Colours go in glTF's spaces: the factor linear as it is, vertex colours decoded from sRGB to
     linear bytes (so they come back within the 8-bit quantisation, not bit for bit).
     """
     out = trimesh.Scene()
     for obj in scene.objects:
-        if obj.texture is not None or obj.vertex_colors is None:
-            material = PBRMaterial(
-                name=f"{obj.name}_material",
-                baseColorFactor=np.array(obj.base_color),  # trimesh writes into its inputs
-                baseColorTexture=None if obj.texture is None else texture_image(obj.texture),
-                alphaMode=None if obj.alpha_cutoff is None else "MASK",
-                alphaCutoff=obj.alpha_cutoff,
-                doubleSided=obj.double_sided,
-            )
-            visual = trimesh.visual.TextureVisuals(uv=None if obj.uv is None else np.array(obj.uv), material=material)
-        else:
+        # Every object gets a material, vertex-coloured ones too: without one a glTF primitive takes
+        # the default material, which is one-sided (doubleSided false) and white.
+        material = PBRMaterial(
+            name=f"{obj.name}_material",
+            baseColorFactor=np.array(obj.base_color),  # trimesh writes into its inputs
+            baseColorTexture=None if obj.texture is None else texture_image(obj.texture),
+            alphaMode=None if obj.alpha_cutoff is None else "MASK",
+            alphaCutoff=obj.alpha_cutoff,
+            doubleSided=obj.double_sided,
+        )
+        visual = trimesh.visual.TextureVisuals(uv=None if obj.uv is None else np.array(obj.uv), material=material)
+        if obj.vertex_colors is not None:
             linear = np.array(obj.vertex_colors)
             linear[:, :3] = np.round(srgb_to_linear(linear[:, :3] / 255.0) * 255.0)
-            visual = trimesh.visual.ColorVisuals(vertex_colors=linear)
+            visual.vertex_attributes["color"] = linear  # written as COLOR_0
         mesh = trimesh.Trimesh(np.array(obj.vertices), np.array(obj.faces), visual=visual, process=False)
         mesh.metadata["farfield_object"] = obj.name
         out.add_geometry(mesh, geom_name=obj.name, node_name=obj.name)

@@ -20,6 +20,10 @@ coordinates already have their origin at the bottom-left and are kept as they ar
 
 trimesh only logs (at debug level) a material library or texture it cannot find; :func:`load`
 looks them up itself and returns a warning for each, and the objects keep the material colour.
+
+Sidedness: the format states none, so every object is one-sided by default (``sides="one"``: seen
+from the front of each triangle only, counter-clockwise, as engines and three.js's OBJLoader draw the
+file) or double-sided with ``sides="both"`` (:mod:`farfield.core.sidedness`).
 """
 
 from __future__ import annotations
@@ -40,7 +44,10 @@ from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
 from farfield.core.exchange.references import MapStatement, map_statement
 from farfield.core.exchange.trimesh_scene import IMAGE_ERRORS, fetch, objects_from_trimesh, parse
 from farfield.core.scene import SceneObject
+from farfield.core.sidedness import DEFAULT_SIDES, double_sided
 
+# The format states no sidedness: load takes the ``sides`` option (farfield.core.exchange.load_scene).
+SIDES_OPTION = True
 EXTENSIONS = ("obj",)
 
 _MTLLIB = re.compile(r"^[ \t]*mtllib[ \t]+(.*\S)", re.MULTILINE)
@@ -262,7 +269,12 @@ def _short_names(scene: trimesh.Scene) -> dict[str, str]:
 
 
 def load(
-    data: bytes, extension: str, name: str, resolver: Resolver, limits: SceneLimits = DEFAULT_LIMITS
+    data: bytes,
+    extension: str,
+    name: str,
+    resolver: Resolver,
+    limits: SceneLimits = DEFAULT_LIMITS,
+    sides: str = DEFAULT_SIDES,
 ) -> tuple[tuple[SceneObject, ...], tuple[str, ...]]:
     """Objects and warnings of an OBJ file (see the module docstring).
 
@@ -276,6 +288,9 @@ def load(
         The file's name; trimesh names an unnamed single-material object after it.
     resolver : trimesh.resolvers.Resolver
         Finds the MTL file and the textures.
+
+    sides : str
+        ``"one"`` (the default: one-sided objects, as engines draw the format) or ``"both"``.
 
     Raises
     ------
@@ -298,5 +313,5 @@ def load(
             maps = texture_maps(decode_text(mtl))
     scene = parse(text.encode("utf-8"), extension, resolver, split_objects=True, group_material=True)
     warnings.extend(_textures(scene, maps, resolver))
-    objects, more = objects_from_trimesh(scene, rename=_short_names(scene))
+    objects, more = objects_from_trimesh(scene, rename=_short_names(scene), double_sided=double_sided(sides))
     return objects, tuple(warnings) + more

@@ -3,6 +3,10 @@
 A PLY file holds one mesh.  ``red, green, blue[, alpha]`` vertex properties become vertex colours;
 face colours become the material colour when uniform, else per-corner vertex colours.  A file with
 vertices but no faces is a point cloud and has no triangles.
+
+Sidedness: the format states none, so every object is one-sided by default (``sides="one"``: seen
+from the front of each triangle only, counter-clockwise, as engines and three.js's PLYLoader draw the
+file) or double-sided with ``sides="both"`` (:mod:`farfield.core.sidedness`).
 """
 
 from __future__ import annotations
@@ -14,12 +18,20 @@ from trimesh.resolvers import Resolver
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
 from farfield.core.exchange.trimesh_scene import objects_from_trimesh, parse
 from farfield.core.scene import SceneObject
+from farfield.core.sidedness import DEFAULT_SIDES, double_sided
 
+# The format states no sidedness: load takes the ``sides`` option (farfield.core.exchange.load_scene).
+SIDES_OPTION = True
 EXTENSIONS = ("ply",)
 
 
 def load(
-    data: bytes, extension: str, name: str, resolver: Resolver, limits: SceneLimits = DEFAULT_LIMITS
+    data: bytes,
+    extension: str,
+    name: str,
+    resolver: Resolver,
+    limits: SceneLimits = DEFAULT_LIMITS,
+    sides: str = DEFAULT_SIDES,
 ) -> tuple[tuple[SceneObject, ...], tuple[str, ...]]:
     """Objects and warnings of a PLY file.
 
@@ -34,6 +46,9 @@ def load(
     resolver : trimesh.resolvers.Resolver
         Finds a texture named by a ``comment TextureFile`` header line.
 
+    sides : str
+        ``"one"`` (the default: one-sided objects, as engines draw the format) or ``"both"``.
+
     Raises
     ------
     SceneLoadError
@@ -42,4 +57,4 @@ def load(
     scene = parse(data, extension, resolver)
     nodes = list(scene.graph.nodes_geometry)
     rename = {nodes[0]: PurePath(name).stem or name} if len(nodes) == 1 else None
-    return objects_from_trimesh(scene, rename=rename)
+    return objects_from_trimesh(scene, rename=rename, double_sided=double_sided(sides))

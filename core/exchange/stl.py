@@ -4,6 +4,10 @@ A binary STL is an 80-byte header, a little-endian uint32 triangle count ``n`` a
 of triangles; anything else must be ASCII text starting with ``solid``.  The check is done here
 because trimesh falls back from a failed binary parse to a text parse that needs an optional
 package (charset_normalizer) to decode arbitrary bytes.
+
+Sidedness: the format states none, so every object is one-sided by default (``sides="one"``: seen
+from the front of each triangle only, counter-clockwise, as engines and three.js's STLLoader draw the
+file) or double-sided with ``sides="both"`` (:mod:`farfield.core.sidedness`).
 """
 
 from __future__ import annotations
@@ -17,7 +21,10 @@ from farfield.core.errors import SceneLoadError
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
 from farfield.core.exchange.trimesh_scene import objects_from_trimesh, parse
 from farfield.core.scene import SceneObject
+from farfield.core.sidedness import DEFAULT_SIDES, double_sided
 
+# The format states no sidedness: load takes the ``sides`` option (farfield.core.exchange.load_scene).
+SIDES_OPTION = True
 EXTENSIONS = ("stl",)
 
 _HEADER = 84  # bytes: 80 free-form + uint32 triangle count
@@ -61,7 +68,12 @@ def check_ascii(text: str) -> None:
 
 
 def load(
-    data: bytes, extension: str, name: str, resolver: Resolver, limits: SceneLimits = DEFAULT_LIMITS
+    data: bytes,
+    extension: str,
+    name: str,
+    resolver: Resolver,
+    limits: SceneLimits = DEFAULT_LIMITS,
+    sides: str = DEFAULT_SIDES,
 ) -> tuple[tuple[SceneObject, ...], tuple[str, ...]]:
     """Objects and warnings of an STL file.
 
@@ -75,6 +87,9 @@ def load(
         The file's name; its stem names a single object.
     resolver : trimesh.resolvers.Resolver
         Unused (STL refers to no other files).
+
+    sides : str
+        ``"one"`` (the default: one-sided objects, as engines draw the format) or ``"both"``.
 
     Raises
     ------
@@ -102,4 +117,4 @@ def load(
     scene = parse(data, extension, resolver)
     nodes = list(scene.graph.nodes_geometry)
     rename = {nodes[0]: PurePath(name).stem or name} if len(nodes) == 1 else None
-    return objects_from_trimesh(scene, rename=rename)
+    return objects_from_trimesh(scene, rename=rename, double_sided=double_sided(sides))

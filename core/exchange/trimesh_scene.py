@@ -320,7 +320,10 @@ def _mesh_colours(mesh: trimesh.Trimesh, name: str, textures: dict, warnings: li
 
 
 def objects_from_trimesh(
-    scene: trimesh.Scene, rename: Mapping[str, str] | None = None, linear_colours: bool = False
+    scene: trimesh.Scene,
+    rename: Mapping[str, str] | None = None,
+    linear_colours: bool = False,
+    double_sided: bool = True,
 ) -> tuple[tuple[SceneObject, ...], tuple[str, ...]]:
     """World-space :class:`SceneObject` s, one per geometry node of ``scene``, and warnings.
 
@@ -333,6 +336,10 @@ def objects_from_trimesh(
     linear_colours : bool
         The file's colour factors and vertex colours are linear (glTF); otherwise sRGB values
         (OBJ/MTL, PLY, STL).  See the module docstring.
+    double_sided : bool
+        Every object's sidedness (:attr:`farfield.core.scene.SceneObject.double_sided`): for OBJ,
+        PLY and STL, which state none, the loader's ``sides`` option
+        (:mod:`farfield.core.sidedness`).
 
     Returns
     -------
@@ -374,6 +381,7 @@ def objects_from_trimesh(
                 base_color=colours.base_color,
                 texture=colours.texture,
                 alpha_cutoff=colours.alpha_cutoff,
+                double_sided=double_sided,
             )
         )
     return tuple(objects), tuple(warnings)

@@ -11,14 +11,14 @@ the caller keeps, not with layers x image.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from farfield.core.layering.culling import CullingMode, LayerCuller
 from farfield.core.layering.recording import iter_layers
-from farfield.core.scene import Scene
+from farfield.core.scene import Scene, SceneObject
 from farfield.core.stage_clock import StageClock
 
 # fill(closer, image) -> (filled image, texels added): ``closer`` is the layer before as recorded.
@@ -39,13 +39,19 @@ class CulledLayer:
 
 
 def culled_layers(
-    scene: Scene, plan, culling: CullingMode, clock: StageClock, conservative: bool = True, fill: Fill | None = None
+    scene: Scene | Sequence[SceneObject],
+    plan,
+    culling: CullingMode,
+    clock: StageClock,
+    conservative: bool = True,
+    fill: Fill | None = None,
 ) -> Iterator[CulledLayer]:
     """Record, fill and cull ``plan``'s layers of ``scene`` in order, timing ``record``, ``gap_fill``
     (when ``fill`` is given) and ``cull`` on ``clock``.
 
     ``plan`` is anything :func:`farfield.core.layering.recording.iter_layers` records (a part's
-    :class:`~farfield.core.layering.plan.LayerPlan` or an environment-map face).
+    :class:`~farfield.core.layering.plan.LayerPlan` or an environment-map face); ``scene`` a scene
+    or its objects as the view cell sees them (:func:`farfield.core.sidedness.seen_from_cell`).
     """
     res_x, res_y = (int(r) for r in plan.texture_resolution)
     culler = LayerCuller((res_y, res_x), culling)

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import time
 from collections import OrderedDict
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import moderngl
@@ -577,11 +577,16 @@ def _object_textures(ctx: moderngl.Context, obj: SceneObject):
 
 
 def iter_layers(
-    scene: Scene,
+    scene: Scene | Sequence[SceneObject],
     plan: LayerPlan,
     conservative: bool = True,
 ) -> Iterator[tuple[int, np.ndarray, int]]:
     """Record the layers of ``plan`` one at a time: yields ``(i, rgba, drawn)`` nearest first.
+
+    ``scene`` is a :class:`Scene` or its objects as a view cell sees them
+    (:func:`farfield.core.sidedness.seen_from_cell`, which every technique applies before it
+    records: a one-sided triangle whose back faces the whole cell is not recorded); every
+    triangle given is recorded from both sides.
 
     ``plan`` is a :class:`LayerPlan` or anything with its recording fields (``count``, ``borders``,
     ``reference_offset``, ``reference_viewpoint``, ``axis``, ``u``, ``v``,
@@ -602,7 +607,7 @@ def iter_layers(
     slabs = eye_borders.astype("<f4")
 
     draws = []
-    for obj in scene.objects:
+    for obj in scene.objects if isinstance(scene, Scene) else scene:
         eye = eye_coordinates(plan, obj.vertices)
         instances = slab_instances(
             eye, obj.faces, eye_borders, plan.frustum_half_tangents, plan.texture_resolution, faces_with_area(obj)
@@ -689,7 +694,7 @@ def iter_layers(
 
 
 def record_layers(
-    scene: Scene,
+    scene: Scene | Sequence[SceneObject],
     plan: LayerPlan,
     conservative: bool = True,
     on_layer: Callable[[int], None] | None = None,

@@ -36,6 +36,8 @@ from farfield.core.placement.yaw_ranges import forward, right
 from farfield.core.render.peeling import peel
 from farfield.core.render.raster import Camera
 from farfield.core.scene import SceneObject
+from farfield.core.sidedness import seen_from_cell
+from farfield.core.viewcells import ViewCell
 
 SAME_SURFACE = 2.0  # pixel widths (at the sample's depth) within which two samples of a pixel are one surface
 DEFAULT_MAX_LAYERS = 8
@@ -116,11 +118,16 @@ def ldi_camera(
 
 
 def construct_ldi(objects: list[SceneObject], grid_point, direction, quad, depth: float, resolution: int = 256,
-                  images: int = 9, max_layers: int = DEFAULT_MAX_LAYERS) -> ConstructedLdi:  # fmt: skip
+                  images: int = 9, max_layers: int = DEFAULT_MAX_LAYERS, cell: ViewCell | None = None) -> ConstructedLdi:  # fmt: skip
     """The LDI of ``objects`` (the subset's triangles) for the image at ``grid_point`` looking along
-    ``direction`` (a yaw, radians, or a 3-vector) through ``quad`` at ``depth`` (module docstring)."""
+    ``direction`` (a yaw, radians, or a 3-vector) through ``quad`` at ``depth`` (module docstring).
+
+    ``cell``: the view cell the LDI serves; a one-sided triangle whose back faces the whole of it is
+    not recorded (:func:`farfield.core.sidedness.seen_from_cell`; the samples' object indices are
+    then those of the objects it keeps), while the LDI's frame is still that of all ``objects``."""
     g = np.asarray(grid_point, dtype=np.float64)
     vertices = np.concatenate([o.vertices[np.unique(o.faces)] for o in objects])
+    drawn = list(objects) if cell is None else list(seen_from_cell(objects, cell))
     far = float(((vertices - g) @ view_frame(direction)[2]).max()) * (1 + 1e-6)
     camera = ldi_camera(g, direction, quad, depth, far, resolution)
     cops = construction_cops(g, quad, images)
@@ -134,7 +141,9 @@ def construct_ldi(objects: list[SceneObject], grid_point, direction, quad, depth
     offered = kept = dropped = 0
     for cop in cops:
         cam = camera if np.array_equal(cop, g) else _window(vertices, cop, direction, resolution)
-        hits, colours = peel(objects, cam, max_layers=1, truncate=True)
+        if not drawn:
+            break
+        hits, colours = peel(drawn, cam, max_layers=1, truncate=True)
         if hits.shape[0] == 0:
             continue
         image = LayeredDepthImage(

@@ -44,7 +44,7 @@ from farfield.core.placement.yaw_ranges import drawn_cells
 from farfield.core.render.raster import MeshRenderer
 from farfield.core.render.splats import SplatRenderer
 from farfield.core.scene import Scene
-from farfield.core.viewcells import BoxCell
+from farfield.core.viewcells import BoxCell, viewcell_from_dict
 
 FORMAT = "farfield.primitive_placement"
 INDEX = "placement.json"  # a database written by ``farfield place --bake``
@@ -108,7 +108,8 @@ def bake_image(
         )
     position, quad = np.asarray(p["position"], dtype=np.float64), np.asarray(p["quad"], dtype=np.float64)
     made = construct_ldi(cell_objects(scene, cells, chosen), position, float(p["yaw"]), quad, float(p["depth"]), int(p["resolution"]),
-                         images=int(p["construction_images"]), max_layers=int(p.get("max_layers", DEFAULT_MAX_LAYERS)))  # fmt: skip
+                         images=int(p["construction_images"]), max_layers=int(p.get("max_layers", DEFAULT_MAX_LAYERS)),
+                         cell=viewcell_from_dict(entry["viewcell"]))  # fmt: skip
     if progress is not None:
         progress("record", 1, 1)
     ldi = made.ldi

@@ -22,6 +22,7 @@ from farfield.core.placement.yaw_ranges import drawn_cells, forward, right
 from farfield.core.render.raster import Camera, MeshRenderer
 from farfield.core.render.splats import SplatRenderer
 from farfield.core.scene import Scene, SceneObject
+from farfield.core.viewcells import BoxCell
 
 UP = np.array([0.0, 1.0, 0.0])
 
@@ -66,8 +67,9 @@ def image_ldi(
 ) -> ConstructedLdi:
     """The LDI of one image of ``point`` (:func:`farfield.core.ldi.construction.construct_ldi`)."""
     objects = cell_objects(scene, placement.cells, image["cells"])
+    cell = BoxCell(point.position - point.radius, point.position + point.radius)  # as image_entries bakes it
     return construct_ldi(
-        objects, point.position, image["yaw"], image["quad"], image["depth"], resolution, images=images
+        objects, point.position, image["yaw"], image["quad"], image["depth"], resolution, images=images, cell=cell
     )
 
 

@@ -19,6 +19,7 @@ from farfield.core.errors import RenderBackendError, ViewCellError
 from farfield.core.render.context import gl_context
 from farfield.core.render.programs import material_uniforms, park_framebuffer, program, srgb_texture
 from farfield.core.scene import SceneObject
+from farfield.core.sidedness import front_winding
 
 GL_CLIP_DISTANCE0 = 0x3000
 _CLIP_PLANES = tuple(GL_CLIP_DISTANCE0 + i for i in range(6))
@@ -207,6 +208,10 @@ class MeshRenderer:
         cut by the GL's clip planes; with open faces the region is not convex and the fragment
         shader discards instead.
 
+        A one-sided object (``double_sided`` False) is drawn with back faces culled: a triangle
+        shows only where the eye is on its front side (:mod:`farfield.core.sidedness`; the front
+        winding follows each camera's handedness).
+
         Objects are drawn in the order given, each with the cheapest variant of ``mesh.vert`` and
         ``mesh.frag`` that draws it (:func:`mesh_variant`: a discard only for an alpha cut or open
         faces, so opaque geometry listed front to back is shaded about once per pixel; no vertex
@@ -238,7 +243,7 @@ class MeshRenderer:
                     "clip_open_neg": tuple(float(f"-{axis}" in opened) for axis in "xyz"),
                 }
             uniforms |= material_uniforms(prog, obj, texture)
-            self._draws.append((obj, origin, prog, vao, texture, uniforms, planes))
+            self._draws.append((obj, origin, prog, vao, texture, uniforms, planes, not obj.double_sided))
         self._targets: dict[int, tuple] = {}
 
     def _target(self, resolution: int):
@@ -288,11 +293,16 @@ class MeshRenderer:
         # in 4.8 ms with them on, 2.1 ms off, in one run, when every draw wrote them).  Other
         # programs of the context write no clip distances, so the planes are off between frames.
         planes = False
+        # One-sided objects cull their back faces; the others draw both sides.  The GL decides by
+        # the winding in the image, which turns where the eye crosses a triangle's plane, so the
+        # front winding is the camera's (a mirroring frame swaps it).
+        ctx.front_face = front_winding(camera.right, camera.up, camera.forward)
+        culling = False
         # A draw's own work in Python is most of its cost on llvmpipe (18 us before these were
         # hoisted: the eye matrices built one by one, the material's uniforms rebuilt every frame).
         matrices = camera.eye_matrices([origin for _, origin, *_ in self._draws])
         try:
-            for (_obj, _origin, prog, vao, texture, uniforms, clipped), matrix in zip(self._draws, matrices):
+            for (_obj, _origin, prog, vao, texture, uniforms, clipped, one_sided), matrix in zip(self._draws, matrices):
                 if id(prog) not in framed:
                     framed.add(id(prog))
                     prog["half_tan"].value = (t, t)
@@ -304,6 +314,9 @@ class MeshRenderer:
                     planes = not planes
                     for plane in _CLIP_PLANES:
                         (ctx.enable_direct if planes else ctx.disable_direct)(plane)
+                if one_sided != culling:
+                    culling = one_sided
+                    (ctx.enable if culling else ctx.disable)(moderngl.CULL_FACE)
                 if texture is not None:
                     texture.use(0)
                 vao.render(moderngl.TRIANGLES)
@@ -311,6 +324,9 @@ class MeshRenderer:
             if planes:
                 for plane in _CLIP_PLANES:
                     ctx.disable_direct(plane)
+            if culling:
+                ctx.disable(moderngl.CULL_FACE)
+            ctx.front_face = "ccw"  # the GL default, which every other pass on this context assumes
         return colour
 
     def release(self) -> None:

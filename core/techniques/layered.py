@@ -25,6 +25,7 @@ from farfield.core.layering.tiles import QUAD_GEOMETRY_BYTES, check_pages, layer
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_ERROR_PX, MAX_RESOLUTION, ErrorBudgetKind, PixelModel
 from farfield.core.scene import Scene
+from farfield.core.sidedness import seen_from_cell
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import Promise, TechniqueDefinition
 from farfield.core.techniques.part import (
@@ -112,7 +113,9 @@ def bake_layered(
     tiles, quad_layer, quad_corners, layer_ids = [], [], [], []
     counts = {"covered": 0, "culled": 0, "kept": 0, "drawn": 0}
     kept_per_layer: dict[int, int] = {}
-    for layer in culled_layers(part, plan, options.culling, clock, options.conservative):
+    # One-sided triangles whose back faces the whole cell are not recorded (the plan keeps the part's bounds).
+    seen = seen_from_cell(part.objects, cell)
+    for layer in culled_layers(seen, plan, options.culling, clock, options.conservative):
         i = layer.index
         counts["covered"] += layer.covered
         counts["culled"] += layer.culled

@@ -137,6 +137,7 @@ def bake_ldi(
             options.resolution,
             options.images,
             options.max_layers,
+            cell=cell,  # one-sided triangles whose back faces the whole cell are not recorded
         )
     clock.report("images", 1, 1)
     ldi = made.ldi

@@ -2,8 +2,11 @@
 // file with three.js's own loaders and draw it unlit from a farfield camera.
 //
 // Every material becomes a MeshBasicMaterial (glTF's KHR_materials_unlit rule: base colour =
-// map x color x vertex colour) keeping map, color, opacity, vertexColors and alphaTest, drawn
-// double-sided and opaque (alpha 1 where drawn); no tone mapping, sRGB output, no antialiasing.
+// map x color x vertex colour) keeping map, color, opacity, vertexColors, alphaTest and side, drawn
+// opaque (alpha 1 where drawn); no tone mapping, sRGB output, no antialiasing.  Sidedness is the
+// source's as three.js's loaders read it: glTF's doubleSided (DoubleSide or FrontSide), FrontSide for
+// OBJ (OBJLoader's and MTLLoader's default) and PLY, unless spec.sides === "both" (DoubleSide, as
+// farfield draws a file loaded with --sides both).
 // Colour spaces are three.js's own (glTF factors and COLOR_0 linear, textures sRGB; MTL and PLY
 // colours sRGB).  window.farfieldRender(spec) returns the canvas's RGBA bytes, bottom row first,
 // as base64.
@@ -59,7 +62,7 @@ function unlit(material, spec) {
     opacity: material.opacity === undefined ? 1 : material.opacity,
     vertexColors: !!material.vertexColors,
     alphaTest,
-    side: THREE.DoubleSide,
+    side: spec.sides === "both" ? THREE.DoubleSide : material.side === undefined ? THREE.FrontSide : material.side,
     transparent: false,
   });
 }
@@ -79,7 +82,7 @@ function unlitAll(root, spec) {
 }
 
 async function load(spec) {
-  const key = JSON.stringify([spec.url, spec.mtl, spec.alphaCutoff, spec.mapReplacesColor, spec.mipmaps]);
+  const key = JSON.stringify([spec.url, spec.mtl, spec.alphaCutoff, spec.mapReplacesColor, spec.mipmaps, spec.sides]);
   if (loaded.has(key)) return loaded.get(key);
   let root;
   if (spec.kind === "gltf") {

@@ -44,6 +44,7 @@ from farfield.core.layering.tiles import QUAD_GEOMETRY_BYTES, check_pages, layer
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_ERROR_PX, MAX_RESOLUTION, pixel_angle
 from farfield.core.scene import Scene
+from farfield.core.sidedness import seen_from_cell
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import CellCost, Promise, TechniqueDefinition
 from farfield.core.techniques.envmap.arrangement import EnvmapPlan, envmap_plan, layers_for_near_field
@@ -219,6 +220,9 @@ def bake_envmap(
         centre = cell.center
         near = near_field(scene, centre, plan.near_field, [f for f in FACES if f not in options.directions])
         faces = [face_plan(name, plan, centre, scene.bounds) for name in options.directions]
+        # One-sided triangles whose back faces the whole cell are not recorded; the near field
+        # (drawn per camera by the runtime) keeps its face indices of the scene.
+        seen = seen_from_cell(scene.objects, cell)
     clock.report("plan", 1, 1)
 
     res = plan.resolution
@@ -232,7 +236,7 @@ def bake_envmap(
             clock.report("record", done, total_layers)
             continue
         fill = fill_gaps if options.gap_fill else None
-        for layer in culled_layers(scene, face, options.culling, clock, options.conservative, fill):
+        for layer in culled_layers(seen, face, options.culling, clock, options.conservative, fill):
             i = layer.index
             done += 1
             counts["drawn"] += layer.drawn

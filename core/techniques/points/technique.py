@@ -32,6 +32,7 @@ from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_ERROR_PX, MAX_RESOLUTION
 from farfield.core.quality.evaluation import Evaluation
 from farfield.core.scene import Scene
+from farfield.core.sidedness import seen_from_cell
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import CellCost, Promise, TechniqueDefinition
 from farfield.core.techniques.part import evaluate_part, part_evaluation_text
@@ -164,10 +165,12 @@ def bake_points(
     with clock("plan"):
         sampling = plan_point_sampling(box, part.bounds, options.fov_deg, options.resolution, options.max_error_px)
     clock.report("plan", 1, 1)
+    # One-sided triangles whose back faces the whole cell are neither sampled nor drawn.
+    seen = seen_from_cell(part.objects, box)
+    if not seen:
+        raise LayerPlanError("the part shows the view cell no front face: nothing to make a point impostor of")
     with clock("points"):
-        samples = gather_point_samples(
-            part.objects, sampling, box, options.fov_deg, options.resolution, options.max_layers
-        )
+        samples = gather_point_samples(seen, sampling, box, options.fov_deg, options.resolution, options.max_layers)
     clock.report("points", 1, 1)
     kept = samples.kept
     positions, preview = samples.positions[kept], samples.colour[kept]
@@ -179,7 +182,7 @@ def bake_points(
     tile = (options.tile_u, options.tile_v)
     with clock("appearance"):
         appearance = integrate_appearance(
-            part.objects, positions, preview, sampling, box, options.fov_deg, options.resolution, tile, options.samples,
+            seen, positions, preview, sampling, box, options.fov_deg, options.resolution, tile, options.samples,
             options.appearance_error, options.max_views, options.min_views, progress=lambda done, total: clock.report("appearance", done, total),
         )  # fmt: skip
     with clock("pack"):

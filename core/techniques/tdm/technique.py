@@ -46,6 +46,7 @@ from farfield.core.layering.tiles import layer_records
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_ERROR_PX, MAX_RESOLUTION, ErrorBudgetKind, PixelModel
 from farfield.core.scene import Scene
+from farfield.core.sidedness import seen_from_cell
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import Promise, TechniqueDefinition
 from farfield.core.techniques.part import (
@@ -307,7 +308,7 @@ def bake_tdm(
         )
     clock.report("plan", 1, 1)
 
-    field = record_voxel_field(part, plan, options.culling, clock)
+    field = record_voxel_field(seen_from_cell(part.objects, cell), plan, options.culling, clock)
     corners, uv, triangle_page, meshes, pages, stats = mesh_field(field, options, clock)
     stats = {
         "layers_planned": plan.count,

@@ -18,6 +18,7 @@ the kept voxels, not with layers x image.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,7 +28,7 @@ from farfield.core.layering.culled import culled_layers
 from farfield.core.layering.culling import CullingMode
 from farfield.core.layering.plan import LayerPlan
 from farfield.core.layering.recording import eye_coordinates
-from farfield.core.scene import Scene
+from farfield.core.scene import Scene, SceneObject
 from farfield.core.stage_clock import StageClock
 
 
@@ -126,8 +127,11 @@ class VoxelField:
         return np.stack([x, y, z], axis=1)
 
 
-def record_voxel_field(part: Scene, plan: LayerPlan, culling: CullingMode, clock: StageClock) -> VoxelField:
-    """Record ``plan``'s layers of ``part`` (gap-free, seed 000 §3.3.2), cull the texels hidden from
+def record_voxel_field(
+    part: Scene | Sequence[SceneObject], plan: LayerPlan, culling: CullingMode, clock: StageClock
+) -> VoxelField:
+    """Record ``plan``'s layers of ``part`` (a scene, or its objects as the view cell sees them:
+    :func:`farfield.core.sidedness.seen_from_cell`) (gap-free, seed 000 §3.3.2), cull the texels hidden from
     the whole view cell (seed 003 §4.2 via seed 000 §3.4.1) and keep the rest as voxels.
 
     Times ``record`` and ``cull`` on ``clock`` and reports each recorded layer.
