@@ -97,7 +97,8 @@ def main() -> None:
     parser.add_argument("--resolution", type=int, default=256)
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
-    print(f"renderer: {renderer_info()}; resolution {args.resolution}, fov 45°", flush=True)
+    info = renderer_info()
+    print(f"renderer: {info.renderer} ({info.version}); resolution {args.resolution}, fov 45°", flush=True)
     print(HEADER, flush=True)
     rows = run(args.resolution)
     if args.json:

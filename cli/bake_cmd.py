@@ -51,11 +51,14 @@ def _shortcuts(
     fill_threshold,
     culling,
     pixel_model,
+    max_error_px=None,
+    budget=None,
 ) -> dict:
     """The documented per-technique flags that were given, as option values (only the technique's own)."""
     given = {
         "layers": layers, "near_field": near_field, "directions": directions, "gap_fill": gap_fill, "enlargement": enlargement,
         "oversampling": oversampling, "grid_cell": grid_cell, "fill_threshold": fill_threshold, "culling": culling, "pixel_model": pixel_model,
+        "max_error_px": max_error_px, "budget": budget,
     }  # fmt: skip
     known = {o["name"] for o in technique.describe()["options"]}
     wrong = sorted(k for k, v in given.items() if v is not None and k not in known)
@@ -133,11 +136,24 @@ def _shortcuts(
     default=None,
     help="layered, tdm: pixel angle of the error bound [default: min].",
 )
+@click.option(
+    "--max-error-px",
+    type=float,
+    default=None,
+    help="layered, tdm, points, envmap: the error budget in output pixels, what the technique promises "
+    "(farfield techniques) holds within it [default: 1].",
+)
+@click.option(
+    "--budget",
+    type=click.Choice(["strict", "thesis"]),
+    default=None,
+    help="layered, tdm: strict (max-error-px at every pixel) or thesis (seed 000 §3.3, Table 4.1) [default: strict].",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the bundle's statistics as JSON.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @sides_option
 def bake(scene, viewcell, out, objects, technique, options, resolution, fov, layers, near_field, directions, gap_fill, enlargement, oversampling,
-         grid_cell, fill_threshold, culling, pixel_model, as_json, quiet, sides):  # fmt: skip
+         grid_cell, fill_threshold, culling, pixel_model, max_error_px, budget, as_json, quiet, sides):  # fmt: skip
     """Bake the impostor of SCENE for a view cell and write its bundle to --out.
 
     The per-technique flags (--layers, --enlargement, ...) are shortcuts for --option NAME=VALUE."""
@@ -154,6 +170,8 @@ def bake(scene, viewcell, out, objects, technique, options, resolution, fov, lay
         fill_threshold,
         culling,
         pixel_model,
+        max_error_px,
+        budget,
     )
     for item in options:
         name, sep, text = item.partition("=")
