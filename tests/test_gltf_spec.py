@@ -11,12 +11,13 @@ node of a node reached along two paths.  three.js draws the same files alike
 from __future__ import annotations
 
 import json
+import struct
 
 import numpy as np
 import pytest
 from gltf_files import CLAMP, MIRROR, SHORT, SQUARE_UV, UBYTE, USHORT, GltfBuilder, gradient, sampler_scene
 
-from farfield.core.errors import SceneLoadError
+from farfield.core.errors import DegenerateGeometryError, SceneLoadError
 from farfield.core.exchange import load_scene, load_scene_bytes
 from farfield.core.scene import sample_texture
 
@@ -200,3 +201,107 @@ def test_quantized_texture_coordinates_are_normalized(component, tmp_path):
     assert obj.colour_source == "texture"
     centre = sample_texture(obj.texture, obj.uv.mean(axis=0)[None])[0]
     assert abs(int(centre[0]) - int(gradient()[8, 8, 0])) <= 16
+
+
+def _quad_document() -> tuple[dict, bytes]:
+    b = GltfBuilder()
+    b.quad("q", [0, 0, 0], 1.0, b.material(texture=b.texture(b.image(gradient()), (CLAMP, CLAMP))), uv=SQUARE_UV)
+    return b._document(), bytes(b.blob)
+
+
+def _glb(document: dict, blob: bytes) -> bytes:
+    """A GLB of ``document`` (any JSON, however malformed) over ``blob``."""
+    text = json.dumps({**document, "buffers": [{"byteLength": len(blob)}]}).encode()
+    text += b" " * (-len(text) % 4)
+    blob += b"\0" * (-len(blob) % 4)
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(blob), 0x004E4942) + blob
+    return b"glTF" + struct.pack("<II", 2, 12 + len(body)) + body
+
+
+HOSTILE = {
+    "accessor without a view, 10^12 elements": lambda d: d["accessors"].append({"componentType": 5126, "count": 10**12, "type": "VEC3"})
+    or d["meshes"][0]["primitives"][0]["attributes"].update(POSITION=len(d["accessors"]) - 1),
+    "sparse byteOffset not a number": lambda d: d["accessors"][0].update(
+        sparse={"count": 1, "indices": {"bufferView": 0, "componentType": 5123, "byteOffset": "x"}, "values": {"bufferView": 0}}
+    ),
+    "wrapS a list": lambda d: d["samplers"][0].update(wrapS=[1]),
+    "extensionsRequired holds a list": lambda d: d.update(extensionsRequired=[[1]]),
+    "indices of floats": lambda d: d["meshes"][0]["primitives"][0].update(indices=0),
+    "empty scenes over a cycle": lambda d: (
+        d.update(scenes=[]),
+        d.pop("scene"),
+        d["nodes"].extend([{"children": [2]}, {"children": [1]}]),
+        d["nodes"][0].update(children=[1]),
+    ),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", sorted(HOSTILE))
+def test_malformed_files_are_refused_with_a_scene_error_not_a_crash(case):
+    """Found by an independent review of the reader (each raised TypeError, ValueError, MemoryError
+    or OverflowError, or hung, before): a clear scene error, at once (an empty scene list draws
+    nothing: no triangles)."""
+    document, blob = _quad_document()
+    HOSTILE[case](document)
+    with pytest.raises((SceneLoadError, DegenerateGeometryError)):
+        load_scene_bytes(_glb(document, blob), "glb", "hostile.glb")
+
+
+def test_a_node_whose_children_are_not_an_array_has_none():
+    document, blob = _quad_document()
+    document.pop("scenes"), document.pop("scene"), document["nodes"][0].update(children=5)
+    assert load_scene_bytes(_glb(document, blob), "glb", "children.glb").names == ("q",)
+
+
+def test_infinite_uv_under_a_clamping_sampler_is_a_scene_error():
+    document, blob = _quad_document()
+    uv = np.frombuffer(blob, dtype=np.uint8).copy()
+    view = document["bufferViews"][
+        document["accessors"][document["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_0"]]["bufferView"]
+    ]
+    floats = uv[view["byteOffset"] : view["byteOffset"] + view["byteLength"]].view(np.float32)
+    floats[0] = np.inf
+    uv[view["byteOffset"] : view["byteOffset"] + view["byteLength"]] = floats.view(np.uint8)
+    with pytest.raises(SceneLoadError, match="non-finite"):
+        load_scene_bytes(_glb(document, uv.tobytes()), "glb", "inf.glb")
+
+
+def test_specular_glossiness_is_drawn_even_beside_metallic_roughness(tmp_path):
+    """KHR_materials_pbrSpecularGlossiness, "Best practices": a client that reads it renders it."""
+    b = GltfBuilder()
+    material = b.material(
+        color=(1.0, 0.0, 0.0, 1.0),
+        extensions={"KHR_materials_pbrSpecularGlossiness": {"diffuseFactor": [0.0, 0.0, 1.0, 1.0]}},
+    )
+    b.used.add("KHR_materials_pbrSpecularGlossiness")
+    b.quad("q", [0, 0, 0], 1.0, material)
+    (obj,) = _load(b, tmp_path, "gloss.glb").objects
+    assert obj.base_color.tolist() == [0.0, 0.0, 1.0, 1.0]
+
+
+def test_gpu_instancing_with_only_custom_attributes_draws_identity_instances(tmp_path):
+    b = GltfBuilder()
+    mesh = b.mesh(
+        [
+            {
+                "attributes": {"POSITION": b.accessor(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), bounds=True)},
+                "material": b.material(),
+            }
+        ]
+    )
+    ids = b.accessor(np.arange(3, dtype=np.float32))
+    b.node(name="tuft", mesh=mesh, extensions={"EXT_mesh_gpu_instancing": {"attributes": {"_ID": ids}}})
+    b.used.add("EXT_mesh_gpu_instancing")
+    scene = _load(b, tmp_path, "ids.glb")
+    assert scene.names == ("tuft@0", "tuft@1", "tuft@2")
+
+
+def test_clamped_objects_of_one_image_share_a_few_padded_copies(tmp_path):
+    """Padding comes in powers of two texels, so 40 quads whose uv reach past the edge by 40
+    different amounts share a few copies of the image, not 40."""
+    b = GltfBuilder()
+    material = b.material(texture=b.texture(b.image(gradient(64)), (CLAMP, CLAMP)))
+    for k in range(40):
+        b.quad(f"q{k:02d}", [2.0 * k, 0, 0], 1.0, material, uv=SQUARE_UV * (1.0 + 0.05 * k))
+    scene = _load(b, tmp_path, "copies.glb")
+    assert len({id(obj.texture) for obj in scene.objects}) <= 8

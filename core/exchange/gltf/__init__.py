@@ -62,9 +62,8 @@ def _unsupported_required(document: dict) -> list[str]:
     required = document.get("extensionsRequired", [])
     if not isinstance(required, list):
         raise SceneLoadError("glTF 'extensionsRequired' is not an array")
-    return sorted(
-        str(name) for name in required if name not in READ_EXTENSIONS and not str(name).startswith("KHR_materials_")
-    )
+    names = [name if isinstance(name, str) else repr(name) for name in required]
+    return sorted(name for name in names if name not in READ_EXTENSIONS and not name.startswith("KHR_materials_"))
 
 
 def _node_matrix(node: dict, index: int) -> np.ndarray:
@@ -99,28 +98,24 @@ def _node_matrix(node: dict, index: int) -> np.ndarray:
     return out
 
 
-def _instances(document: dict, buffers: Buffers, node: dict, index: int) -> list[np.ndarray] | None:
+def _instances(
+    document: dict, buffers: Buffers, node: dict, index: int, limits: SceneLimits
+) -> list[np.ndarray] | None:
     """EXT_mesh_gpu_instancing: (4, 4) local matrices of the node's instances, or None."""
     extensions = node.get("extensions")
     spec = extensions.get("EXT_mesh_gpu_instancing") if isinstance(extensions, dict) else None
     if not isinstance(spec, dict) or not isinstance(spec.get("attributes"), dict):
         return None
     attributes = spec["attributes"]
-    read = {
-        key: accessors.read(document, buffers, value)
-        for key, value in attributes.items()
-        if key in ("TRANSLATION", "ROTATION", "SCALE")
-    }
+    read = {key: accessors.read(document, buffers, value) for key, value in attributes.items()}
     counts = {len(v) for v in read.values()}
     if len(counts) != 1:
         raise SceneLoadError(f"glTF node {index}: EXT_mesh_gpu_instancing attributes have different counts")
+    count = counts.pop()
+    limits.check("glTF instances (EXT_mesh_gpu_instancing)", count, "nodes")
     out = []
-    for i in range(counts.pop()):
-        local = {"translation": read["TRANSLATION"][i].tolist()} if "TRANSLATION" in read else {}
-        if "ROTATION" in read:
-            local["rotation"] = read["ROTATION"][i].tolist()
-        if "SCALE" in read:
-            local["scale"] = read["SCALE"][i].tolist()
+    for i in range(count):  # attributes other than the transform's (custom _ID ...) only count
+        local = {key.lower(): read[key][i].tolist() for key in ("TRANSLATION", "ROTATION", "SCALE") if key in read}
         out.append(_node_matrix(local, index))
     return out
 
@@ -202,7 +197,7 @@ class _Reader:
                     self.warnings.append(f"node {index}: skinning is not applied; the mesh is drawn in its bind pose")
                     world_of_mesh = [np.eye(4)]  # a skinned mesh ignores its node's transform (glTF §3.7.3)
                 else:
-                    instances = _instances(self.document, self.buffers, node, index)
+                    instances = _instances(self.document, self.buffers, node, index, self.limits)
                     world_of_mesh = [world] if instances is None else [world @ m for m in instances]
                 self.mesh(node, index, world_of_mesh)
             children = node.get("children", [])
@@ -246,7 +241,7 @@ class _Reader:
         positions = positions + self.morph(spec, weights, len(positions), where)
         count = len(positions)
         if "indices" in spec:
-            indices = accessors.read(self.document, self.buffers, spec["indices"], as_float=False)[:, 0]
+            indices = accessors.read(self.document, self.buffers, spec["indices"], as_float=False, indices=True)[:, 0]
             if len(indices) and (indices.min() < 0 or indices.max() >= count):
                 raise SceneLoadError(f"{where}: an index reaches vertex {int(indices.max())} of {count}")
         else:
@@ -345,8 +340,13 @@ def _srgb_unit(rgba_u8: np.ndarray) -> np.ndarray:
 
 
 def _roots(document: dict) -> list[int]:
-    scenes = array(document, "scenes")
-    if scenes:
+    """The root nodes to draw: the default scene's (``scene``, else the first); with no ``scenes``
+    at all, every node that is no node's child (``check_gltf`` then checked every node as a root,
+    so the walk meets no cycle).  An empty ``scenes`` array draws nothing."""
+    if "scenes" in document:
+        scenes = array(document, "scenes")
+        if not scenes:
+            return []
         chosen = document.get("scene", 0)
         scene = item(document, "scenes", chosen)
         roots = scene.get("nodes", [])
@@ -354,7 +354,10 @@ def _roots(document: dict) -> list[int]:
             raise SceneLoadError(f"glTF scene {chosen}: nodes is not an array")
         return roots
     nodes = array(document, "nodes")
-    children = {c for node in nodes if isinstance(node, dict) for c in node.get("children", []) if isinstance(c, int)}
+    children = set()
+    for node in nodes:
+        listed = node.get("children", []) if isinstance(node, dict) else []
+        children.update(c for c in (listed if isinstance(listed, list) else []) if isinstance(c, int))
     return [i for i in range(len(nodes)) if i not in children]
 
 

@@ -65,9 +65,20 @@ def _normalized(values: np.ndarray) -> np.ndarray:
     return np.maximum(values.astype(np.float64) / float(info.max), -1.0)
 
 
-def read(document: dict, buffers: Buffers, index: object, as_float: bool = True) -> np.ndarray:
+# The most elements an accessor without a buffer view (zeros, maybe sparse) may have: its count is
+# otherwise bounded by nothing but the JSON (a count of 10^12 in a 1 KB file).
+MAX_ZERO_ELEMENTS = 1 << 26
+
+
+def _size(value: object, what: str, where: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise SceneLoadError(f"{where}: {what} {value!r} is not a size")
+    return value
+
+
+def read(document: dict, buffers: Buffers, index: object, as_float: bool = True, indices: bool = False) -> np.ndarray:
     """Accessor ``index`` as a (count, width) array: float64 (normalized integers converted) or,
-    with ``as_float=False`` (indices), int64.
+    with ``as_float=False``, int64; ``indices``: it must be unsigned integer scalars (§3.7.2.1).
 
     Raises
     ------
@@ -80,16 +91,19 @@ def read(document: dict, buffers: Buffers, index: object, as_float: bool = True)
     kind, count = spec.get("type"), spec.get("count")
     if not isinstance(kind, str) or kind not in WIDTHS:
         raise SceneLoadError(f"{where}: type {kind!r} is not one of {sorted(WIDTHS)}")
-    if isinstance(count, bool) or not isinstance(count, int) or count < 0:
-        raise SceneLoadError(f"{where}: count {count!r} is not a size")
+    count = _size(count, "count", where)
     dtype = _dtype(spec.get("componentType"), where)
-    offset = spec.get("byteOffset", 0)
-    if isinstance(offset, bool) or not isinstance(offset, int) or offset < 0:
-        raise SceneLoadError(f"{where}: byteOffset {offset!r} is not a size")
+    offset = _size(spec.get("byteOffset", 0), "byteOffset", where)
+    if indices and (kind != "SCALAR" or dtype.kind != "u"):
+        raise SceneLoadError(f"{where}: indices must be unsigned integer scalars, not {kind} of {dtype.name}")
     if "bufferView" in spec:
         data, stride = buffers.view(spec["bufferView"])
         values = np.array(_elements(data, offset, count, kind, dtype, stride, where))
     else:
+        if count * WIDTHS[kind] > MAX_ZERO_ELEMENTS:
+            raise SceneLoadError(
+                f"{where}: {count} elements without a bufferView (at most {MAX_ZERO_ELEMENTS} components)"
+            )
         values = np.zeros((count, WIDTHS[kind]), dtype=dtype)
     sparse = spec.get("sparse")
     if isinstance(sparse, dict):
@@ -113,8 +127,10 @@ def _apply_sparse(document, buffers, sparse: dict, values: np.ndarray, kind: str
     if index_type.kind != "u":
         raise SceneLoadError(f"{where}: sparse indices must be unsigned integers")
     data, _ = buffers.view(indices.get("bufferView"))
-    at = _elements(data, indices.get("byteOffset", 0), count, "SCALAR", index_type, None, where)[:, 0].astype(np.int64)
+    start = _size(indices.get("byteOffset", 0), "sparse indices byteOffset", where)
+    at = _elements(data, start, count, "SCALAR", index_type, None, where)[:, 0].astype(np.int64)
     if len(at) and (at.min() < 0 or at.max() >= len(values)):
         raise SceneLoadError(f"{where}: sparse index {int(at.max())} is out of range for {len(values)} elements")
     data, _ = buffers.view(substitutes.get("bufferView"))
-    values[at] = _elements(data, substitutes.get("byteOffset", 0), count, kind, dtype, None, where)
+    start = _size(substitutes.get("byteOffset", 0), "sparse values byteOffset", where)
+    values[at] = _elements(data, start, count, kind, dtype, None, where)

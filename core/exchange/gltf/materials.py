@@ -12,10 +12,12 @@ farfield does with it:
 * sampler wrap modes: a farfield texture repeats, so the other modes are expressed in repeat's
   terms on load, exactly at full resolution: ``MIRRORED_REPEAT`` appends the image's mirror
   image along that axis and halves the coordinate; ``CLAMP_TO_EDGE`` pads the image with copies of
-  its edge texels over the range the object's uv reach (at least one texel, so bilinear
+  its edge texels over the range the object's uv reach (a power of two texels, at least one, so
+  that the objects of one image share a few copies and bilinear
   filtering at the edge does not wrap) and maps the coordinate into it.  Where padding would make
-  the image more than :data:`MAX_CLAMP_GROWTH` times larger the uv are clamped instead (exact
-  but for triangles that straddle the edge), with a warning.
+  the image both more than :data:`MAX_CLAMP_GROWTH` times larger and larger than
+  :data:`MAX_CLAMP_TEXELS` the uv are clamped instead (exact but for triangles that straddle the
+  edge), with a warning.
 * ``alphaMode``: ``OPAQUE`` ignores alpha, ``MASK`` cuts at ``alphaCutoff`` (0.5), ``BLEND`` is
   drawn as a mask at 0.5 with a warning (an impostor is opaque or cut).
 * ``doubleSided`` (default false) becomes :attr:`SceneObject.double_sided`.
@@ -40,8 +42,12 @@ REPEAT, CLAMP_TO_EDGE, MIRRORED_REPEAT = 10497, 33071, 33648
 NEAREST = 9728
 WRAP_NAMES = {REPEAT: "REPEAT", CLAMP_TO_EDGE: "CLAMP_TO_EDGE", MIRRORED_REPEAT: "MIRRORED_REPEAT"}
 
-# The most a CLAMP_TO_EDGE image may grow by padding before its uv are clamped instead.
+# The most a CLAMP_TO_EDGE image may grow by padding before its uv are clamped instead: both more
+# than this factor and more than MAX_CLAMP_TEXELS (a small image is always padded exactly).
 MAX_CLAMP_GROWTH = 4.0
+MAX_CLAMP_TEXELS = 1 << 22
+# How far a colour factor may stray outside 0..1 (exporters' float rounding) before it is refused.
+FACTOR_SLACK = 1e-3
 
 # Image sources of texture extensions that PIL decodes (EXT_texture_webp); KTX2 (KHR_texture_basisu)
 # and DDS are not decodable here, so their textures fall back to ``source``.
@@ -62,9 +68,9 @@ def _factor(value: object, default: tuple, where: str) -> np.ndarray:
     if not isinstance(value, list) or len(value) != len(default):
         raise SceneLoadError(f"{where} is {value!r}, not {len(default)} numbers")
     out = np.array([_number(v, 0.0, where) for v in value], dtype=np.float64)
-    if out.min() < 0.0 or out.max() > 1.0:
+    if out.min() < -FACTOR_SLACK or out.max() > 1.0 + FACTOR_SLACK:
         raise SceneLoadError(f"{where} {value!r} is not in 0..1")
-    return out
+    return np.clip(out, 0.0, 1.0)  # exporters' rounding (1.0000001) is not worth refusing a file
 
 
 @dataclass(frozen=True)
@@ -143,7 +149,7 @@ def _texture_ref(document: dict, info: object, where: str, warnings: list[str]) 
     if "sampler" in texture:
         sampler = item(document, "samplers", texture["sampler"])
         wrap = (sampler.get("wrapS", REPEAT), sampler.get("wrapT", REPEAT))
-        if any(w not in WRAP_NAMES for w in wrap):
+        if any(isinstance(w, bool) or not isinstance(w, int) or w not in WRAP_NAMES for w in wrap):
             raise SceneLoadError(
                 f"glTF sampler {texture['sampler']}: wrap mode {wrap!r} is not one of {sorted(WRAP_NAMES)}"
             )
@@ -176,7 +182,7 @@ def material(document: dict, index: object, warnings: list[str]) -> Material:
     pbr = spec.get("pbrMetallicRoughness")
     extensions = spec.get("extensions") if isinstance(spec.get("extensions"), dict) else {}
     gloss = extensions.get("KHR_materials_pbrSpecularGlossiness")
-    if pbr is None and isinstance(gloss, dict):
+    if isinstance(gloss, dict):  # a client that reads it draws it, even beside a metallic-roughness block
         factor = _factor(gloss.get("diffuseFactor"), (1.0, 1.0, 1.0, 1.0), f"{where} diffuseFactor")
         texture = _texture_ref(document, gloss.get("diffuseTexture"), f"{where} diffuseTexture", warnings)
     else:
@@ -197,6 +203,14 @@ def material(document: dict, index: object, warnings: list[str]) -> Material:
     if not isinstance(double, bool):
         raise SceneLoadError(f"{where}: doubleSided {double!r} is not true or false")
     return Material(name, factor, texture, cutoff, double, mode == "BLEND")
+
+
+def _pad(texels: float) -> int:
+    """Texels of padding for ``texels`` beyond an edge: the next power of two, at least 1 (one texel
+    keeps bilinear filtering at the edge from wrapping)."""
+    if texels <= 1.0:
+        return 1
+    return 1 << min(62, math.ceil(math.log2(texels)))
 
 
 class Images:
@@ -248,14 +262,20 @@ class Images:
             if mode == MIRRORED_REPEAT:
                 plan.append(("mirror", axis, 0, 0))
             elif mode == CLAMP_TO_EDGE:
-                low = int(math.ceil(max(0.0, -float(uv[:, axis].min())) * size)) + 1
-                high = int(math.ceil(max(0.0, float(uv[:, axis].max()) - 1.0) * size)) + 1
-                if (size + low + high) > MAX_CLAMP_GROWTH * size:
+                reach = uv[:, axis]
+                if not np.isfinite(reach).all():
+                    raise SceneLoadError(f"object {name!r}: non-finite texture coordinates")
+                # Padding in whole powers of two texels, so the objects of one image share a few copies.
+                low = _pad(max(0.0, -float(reach.min())) * size)
+                high = _pad(max(0.0, float(reach.max()) - 1.0) * size)
+                across = rgba.shape[axis]  # texels along the other axis
+                grown = (size + low + high) * across
+                if grown > MAX_CLAMP_GROWTH * size * across and grown > MAX_CLAMP_TEXELS:
                     warnings.append(
                         f"object {name!r}: its uv reach far beyond a CLAMP_TO_EDGE texture "
-                        f"({float(uv[:, axis].min()):.3g}..{float(uv[:, axis].max()):.3g}); uv are clamped to 0..1 instead"
+                        f"({float(reach.min()):.3g}..{float(reach.max()):.3g}); uv are clamped to 0..1 instead"
                     )
-                    uv[:, axis] = np.clip(uv[:, axis], 0.0, 1.0)
+                    uv[:, axis] = np.clip(reach, 0.0, 1.0)
                     low = high = 1
                 plan.append(("clamp", axis, low, high))
         key += plan
