@@ -128,6 +128,22 @@ class BoxCell:
         return {"kind": "box", "lo": self.lo.tolist(), "hi": self.hi.tolist()}
 
 
+def length_and_unit(vector: np.ndarray) -> tuple[float, np.ndarray]:
+    """(length, unit vector) of a (3,) float64 vector without overflow or underflow: scaled by its
+    largest component first, so a difference of coordinates near 1e300 (whose squares overflow)
+    still has a direction.  (0, zeros) for the zero vector.
+
+    >>> length_and_unit(np.array([3e300, 4e300, 0.0]))[1].tolist()
+    [0.6, 0.8, 0.0]
+    """
+    largest = float(np.max(np.abs(vector)))
+    if largest == 0.0 or not math.isfinite(largest):
+        return largest, np.zeros(3)
+    scaled = np.asarray(vector, dtype=np.float64) / largest
+    norm = float(np.linalg.norm(scaled))
+    return largest * norm, scaled / norm
+
+
 def _orthonormal_frame(direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors (3,) perpendicular to unit ``direction`` and to each other, deterministic.
 
@@ -173,7 +189,7 @@ class ShaftCell:
     def __post_init__(self) -> None:
         apex = _vec3(self.apex, "shaft apex")
         d = _vec3(self.direction, "shaft direction")
-        norm = float(np.linalg.norm(d))
+        norm, _ = length_and_unit(d)
         if norm == 0.0:
             raise ViewCellError("shaft direction must be non-zero")
         if not (math.isfinite(self.apex_angle) and 0.0 < self.apex_angle < math.pi):

@@ -456,3 +456,30 @@ def test_an_interior_room_from_outside_draws_as_three_js_draws_it(threejs, tmp_p
     print("room", sides, stats, colours(three), colours(ours))
     assert stats["three_beyond_1px"] == 0 and stats["farfield_beyond_1px"] == 0 and stats["colour_mean"] <= 2.0, stats
     assert (colours(three)["red"] == 0) == (sides == "one") and (colours(ours)["red"] == 0) == (sides == "one")
+
+
+@pytest.mark.parametrize("kind", ["uchar", "ushort", "float"])
+def test_ply_colour_properties_of_every_type_draw_as_three_js_draws_them(threejs, tmp_path, kind):
+    """Issue 54: PLY vertex colours stored as uchar (0..255), ushort (0..65535) and float (0..1),
+    read by farfield and by three.js's PLYLoader (which scales by type the same way), two-sided."""
+    top = {"uchar": 255, "ushort": 65535, "float": 1.0}[kind]
+    corners = [(0.0, 0.0, 0.0, (1.0, 0.5, 0.0)), (1.0, 0.0, 0.0, (0.0, 0.25, 1.0)), (0.0, 1.0, 0.0, (0.2, 0.9, 0.4)),
+               (1.0, 1.0, 0.0, (0.6, 0.6, 0.6))]  # fmt: skip
+    rows = []
+    for x, y, z, rgb in corners:
+        values = [c * top for c in rgb] if kind == "float" else [round(c * top) for c in rgb]
+        rows.append(f"{x} {y} {z} " + " ".join(f"{v:g}" for v in values))
+    header = ["ply", "format ascii 1.0", "element vertex 4", "property float x", "property float y", "property float z"]
+    header += [f"property {kind} {c}" for c in ("red", "green", "blue")]
+    header += ["element face 2", "property list uchar int vertex_indices", "end_header"]
+    path = tmp_path / f"colours_{kind}.ply"
+    path.write_text("\n".join(header + rows + ["3 0 1 2", "3 1 3 2"]) + "\n")
+    scene = load_scene(path, sides="both")
+    camera = look_at([0.5, 0.5, 1.5], np.array([0.5, 0.5, 0.0]), box_corners(scene.bounds), 60.0, RESOLUTION)
+    (three,) = threejs.render(path, camera, mipmaps=False, sides="both")
+    with MeshRenderer(scene.objects) as renderer:
+        ours = renderer.render(camera)
+    stats = compare(three, ours)
+    print("ply", kind, stats)
+    assert stats["three_pixels"] > 1000 and stats["three_beyond_1px"] == 0 and stats["farfield_beyond_1px"] == 0, stats
+    assert stats["colour_mean"] <= 2.0, stats

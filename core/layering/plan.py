@@ -35,7 +35,7 @@ from farfield.core.pixel_angles import (
     pixel_angle,
     texture_resolution,
 )
-from farfield.core.viewcells import BoxCell, ShaftCell, ViewCell, _orthonormal_frame, box_corners
+from farfield.core.viewcells import BoxCell, ShaftCell, ViewCell, _orthonormal_frame, box_corners, length_and_unit
 
 # ---------------------------------------------------------------------------------------------
 # The equations
@@ -181,11 +181,10 @@ def part_view(cell: ViewCell, bounds, viewpoints: bool = True) -> PartView:
     scale = float(np.max(np.abs(np.concatenate([b.ravel(), cell.corners().ravel()]))))
     touch = TOL.rel_touch * max(scale, TOL.min_extent)
     if isinstance(cell, BoxCell):
-        towards = 0.5 * (b[0] + b[1]) - cell.center
-        dist = float(np.linalg.norm(towards))
+        towards = (0.5 * b[0] + 0.5 * b[1]) - cell.center
+        dist, axis = length_and_unit(towards)  # coordinates near 1e300: their squares overflow
         if dist <= touch:
             raise LayerPlanError("the part is centred inside the view cell; a layered impostor needs it in front")
-        axis = towards / dist
         u, v = _orthonormal_frame(axis)
         frame = np.stack([u, v, axis])
         rel = (cell.corners() - cell.center) @ frame.T

@@ -37,7 +37,7 @@ from farfield.core.scene import Scene
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import NO_PROMISE, CellCost, TechniqueDefinition
 from farfield.core.techniques.part import evaluate_part, part_evaluation_text
-from farfield.core.viewcells import BoxCell, ViewCell
+from farfield.core.viewcells import BoxCell, ViewCell, length_and_unit
 
 SAMPLE_BYTES = 20  # float32 position, RGBA8 colour, float32 footprint width
 
@@ -78,13 +78,13 @@ def ldi_view(cell: ViewCell, bounds: np.ndarray) -> LdiView:
         raise LayerPlanError(f"an LDI impostor needs a box view cell, got a {cell.kind} cell")
     eye = np.asarray(cell.center, dtype=np.float64)
     lo, hi = np.asarray(bounds, dtype=np.float64)
-    direction = 0.5 * (lo + hi) - eye
-    if not np.linalg.norm(direction) > 0:
+    length, direction = length_and_unit((0.5 * lo + 0.5 * hi) - eye)  # no overflow near 1e300
+    if not length > 0:
         raise LayerPlanError("the part's centre is the view cell's centre: an LDI needs the part ahead of the cell")
     r, u, f = view_frame(direction)
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]) - eye
     z = corners @ f
-    reach = 0.5 * float(np.linalg.norm(np.asarray(cell.hi) - np.asarray(cell.lo)))
+    reach = 0.5 * length_and_unit(np.asarray(cell.hi) - np.asarray(cell.lo))[0]
     if z.min() <= reach:
         raise LayerPlanError(
             f"the part comes within {max(z.min(), 0.0):.6g} of the view cell's centre along its view, inside the cell's "

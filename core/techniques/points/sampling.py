@@ -36,7 +36,7 @@ from farfield.core.constants import TOL
 from farfield.core.errors import LayerPlanError, ViewCellError
 from farfield.core.pixel_angles import check_error_px, check_fov, check_resolution
 from farfield.core.render.raster import Camera
-from farfield.core.viewcells import BoxCell, box_corners
+from farfield.core.viewcells import BoxCell, box_corners, length_and_unit
 
 # An LDI window wider than this (half side in image tangents, the tangent of 80°) samples too
 # obliquely at its border to be of use.
@@ -395,13 +395,11 @@ def plan_point_sampling(
         raise LayerPlanError(f"part bounds must be finite with lo <= hi, got {bounds.tolist()}")
     part = box_corners(bounds)
     corners = cell.corners()
-    axis = 0.5 * (bounds[0] + bounds[1]) - cell.center
-    length = float(np.linalg.norm(axis))
+    length, normal = length_and_unit((0.5 * bounds[0] + 0.5 * bounds[1]) - cell.center)  # no overflow near 1e300
     if not length > 0.0:
         raise ViewCellError(
             "the part's centre is the view cell's centre: a point impostor needs the part on one side of the cell"
         )
-    normal = axis / length
     offset = float(np.max(corners @ normal))
     depth = float(np.min(part @ normal) - offset)
     scale = max(float(np.max(np.abs(np.concatenate([corners, part])))), 1.0)
