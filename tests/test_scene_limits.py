@@ -94,3 +94,45 @@ def test_limits_must_be_positive_integers():
         with pytest.raises(ValueError, match="positive integer"):
             SceneLimits(nodes=bad)
     assert DEFAULT_LIMITS.depth == 128
+
+
+def _png_header(width: int, height: int) -> bytes:
+    """A PNG that declares ``width`` x ``height`` RGBA texels (its header; the data is a stub): what a
+    decompression bomb shows before it is decoded."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 6, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b"")
+
+
+def test_a_texture_bomb_is_refused_from_its_header_before_it_is_decoded(tmp_path):
+    """Issue 59, item 4: a 421 KB GLB held a 12000 x 12000 PNG whose decoding took 2.3 GiB.  The
+    texel count is read from the image's header and refused (HTTP 413) before decoding, in glTF and
+    OBJ alike; the limit is FARFIELD_MAX_SCENE_TEXTURE_PIXELS (SceneLimits.texture_pixels)."""
+    from gltf_files import SQUARE_UV, GltfBuilder
+
+    bomb = _png_header(12000, 12000)
+    b = GltfBuilder()
+    image = b._add("images", {"bufferView": b.view(bomb), "mimeType": "image/png"})
+    b.quad("q", [0, 0, 0], 1.0, b.material(texture=b.texture(image)), uv=SQUARE_UV)
+    with pytest.raises(SceneTooCostlyError, match="12000 x 12000 texels.*FARFIELD_MAX_SCENE_TEXTURE_PIXELS"):
+        load_scene_bytes(b.glb(), "glb", "bomb.glb")
+    obj = "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nusemtl a\nf 1/1 2/2 3/3\n"
+    assets = {"m.mtl": b"newmtl a\nmap_Kd bomb.png\n", "bomb.png": bomb}
+    with pytest.raises(SceneTooCostlyError, match="12000 x 12000"):
+        load_scene_bytes(obj.encode(), "obj", "bomb.obj", assets)
+    small = SceneLimits(texture_pixels=100)
+    with pytest.raises(SceneTooCostlyError, match="16 x 16"):
+        load_scene_bytes(_textured_glb(), "glb", "small.glb", limits=small)
+
+
+def _textured_glb() -> bytes:
+    from gltf_files import SQUARE_UV, GltfBuilder, gradient
+
+    b = GltfBuilder()
+    b.quad("q", [0, 0, 0], 1.0, b.material(texture=b.texture(b.image(gradient(16)))), uv=SQUARE_UV)
+    return b.glb()

@@ -28,9 +28,12 @@ class SceneLimits:
     primitives: int = 50_000  # glTF mesh primitives, counted once per instancing node
     accessors: int = 200_000  # glTF accessors
     triangles: int = 50_000_000  # triangles once node instancing is applied
+    # Texels of one texture, read from its header before it is decoded: a 421 KB PNG can hold
+    # 12000 x 12000 texels that decode to 2.3 GiB (issue 59).  8192 x 8192 passes.
+    texture_pixels: int = 1 << 26
 
     def __post_init__(self) -> None:
-        for name in ("nodes", "depth", "primitives", "accessors", "triangles"):
+        for name in ("nodes", "depth", "primitives", "accessors", "triangles", "texture_pixels"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"scene limit {name} must be a positive integer, got {value!r}")

@@ -42,7 +42,7 @@ from trimesh.visual.material import SimpleMaterial
 from farfield.core.errors import SceneLoadError
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
 from farfield.core.exchange.references import MapStatement, map_statement
-from farfield.core.exchange.trimesh_scene import IMAGE_ERRORS, fetch, objects_from_trimesh, parse
+from farfield.core.exchange.trimesh_scene import IMAGE_ERRORS, check_texels, fetch, objects_from_trimesh, parse
 from farfield.core.scene import SceneObject
 from farfield.core.sidedness import DEFAULT_SIDES, double_sided
 
@@ -129,7 +129,9 @@ def _opacity(image: PIL.Image.Image, channel: str | None, colour_file: bool) -> 
     return luminance
 
 
-def _apply_opacity(material: SimpleMaterial, data: bytes, channel: str | None, colour_file: bool) -> PIL.Image.Image:
+def _apply_opacity(
+    material: SimpleMaterial, data: bytes, channel: str | None, colour_file: bool, max_pixels: int | None = None
+) -> PIL.Image.Image:
     """Multiply ``map_d`` (``data``) into the alpha of the material's texture (a flat ``Kd`` one if
     none); returns the opacity image.
 
@@ -138,7 +140,11 @@ def _apply_opacity(material: SimpleMaterial, data: bytes, channel: str | None, c
     OSError, ValueError, SyntaxError, ...
         See :data:`farfield.core.exchange.trimesh_scene.IMAGE_ERRORS`.
     """
-    alpha = _opacity(PIL.Image.open(io.BytesIO(data)), channel, colour_file)
+    opacity = PIL.Image.open(io.BytesIO(data))
+    check_texels(opacity.size, max_pixels, f"material {material.name!r}'s opacity map")
+    if material.image is not None:
+        check_texels(material.image.size, max_pixels, f"material {material.name!r}'s texture")
+    alpha = _opacity(opacity, channel, colour_file)
     if material.image is not None:
         base = material.image.convert("RGBA")
     else:
@@ -179,7 +185,9 @@ def _uv_transforms(scene: trimesh.Scene, statements: dict[str, MapStatement], wa
             visual.uv = np.asarray(visual.uv, dtype=np.float64) * scale + offset
 
 
-def _textures(scene: trimesh.Scene, maps: dict[str, dict[str, str]], resolver: Resolver) -> list[str]:
+def _textures(
+    scene: trimesh.Scene, maps: dict[str, dict[str, str]], resolver: Resolver, max_pixels: int | None = None
+) -> list[str]:
     """Apply ``map_d`` maps and ``map_Kd``'s uv options to the parsed materials; warn about maps that
     could not be loaded and options that are not applied.
 
@@ -237,7 +245,7 @@ def _textures(scene: trimesh.Scene, maps: dict[str, dict[str, str]], resolver: R
             warnings.append(f"opacity map {files['map_d']!r} of material {material.name!r} not found; ignored")
             continue
         try:
-            alpha = _apply_opacity(material, data, channel, colour_file)
+            alpha = _apply_opacity(material, data, channel, colour_file, max_pixels)
             composed[key] = material.image
         except IMAGE_ERRORS as error:
             warnings.append(
@@ -312,6 +320,8 @@ def load(
         else:
             maps = texture_maps(decode_text(mtl))
     scene = parse(text.encode("utf-8"), extension, resolver, split_objects=True, group_material=True)
-    warnings.extend(_textures(scene, maps, resolver))
-    objects, more = objects_from_trimesh(scene, rename=_short_names(scene), double_sided=double_sided(sides))
+    warnings.extend(_textures(scene, maps, resolver, limits.texture_pixels))
+    objects, more = objects_from_trimesh(
+        scene, rename=_short_names(scene), double_sided=double_sided(sides), max_texture_pixels=limits.texture_pixels
+    )
     return objects, tuple(warnings) + more

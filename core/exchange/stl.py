@@ -117,4 +117,6 @@ def load(
     scene = parse(data, extension, resolver)
     nodes = list(scene.graph.nodes_geometry)
     rename = {nodes[0]: PurePath(name).stem or name} if len(nodes) == 1 else None
-    return objects_from_trimesh(scene, rename=rename, double_sided=double_sided(sides))
+    return objects_from_trimesh(
+        scene, rename=rename, double_sided=double_sided(sides), max_texture_pixels=limits.texture_pixels
+    )

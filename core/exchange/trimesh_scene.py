@@ -40,7 +40,7 @@ from trimesh.resolvers import FilePathResolver, Resolver, ZipResolver
 from trimesh.visual.material import PBRMaterial, SimpleMaterial
 
 from farfield.core.colour_space import encode_rgba_u8, srgb_to_linear
-from farfield.core.errors import SceneLoadError
+from farfield.core.errors import SceneLoadError, SceneTooCostlyError
 from farfield.core.exchange.references import FileIndex
 from farfield.core.scene import SceneObject
 
@@ -152,14 +152,31 @@ def parse(data: bytes, file_type: str, resolver: Resolver, **kwargs) -> trimesh.
         raise SceneLoadError(f"could not parse {file_type.upper()} data: {type(error).__name__}: {error}") from error
 
 
-def texture_rgba(image: PIL.Image.Image) -> np.ndarray:
+def check_texels(size: tuple[int, int], max_pixels: int | None, name: str) -> None:
+    """Raise :class:`SceneTooCostlyError` when an image of ``size`` (w, h) has more than
+    ``max_pixels`` texels (None: no limit)."""
+    width, height = (int(v) for v in size)
+    if max_pixels is not None and width * height > max_pixels:
+        raise SceneTooCostlyError(
+            f"{name}: {width} x {height} texels is beyond the limit of {max_pixels:,} texels per texture "
+            "(FARFIELD_MAX_SCENE_TEXTURE_PIXELS); scale it down"
+        )
+
+
+def texture_rgba(image: PIL.Image.Image, max_pixels: int | None = None, name: str = "texture") -> np.ndarray:
     """(h, w, 4) uint8 RGBA array of a PIL image, top row first.
+
+    ``max_pixels``: the most texels it may have, checked from its header before it is decoded
+    (:attr:`farfield.core.exchange.limits.SceneLimits.texture_pixels`).
 
     Raises
     ------
+    SceneTooCostlyError
+        More than ``max_pixels`` texels.
     OSError, ValueError, SyntaxError, zlib.error, PIL.Image.DecompressionBombError
         The image data is broken (PIL decodes lazily, here).
     """
+    check_texels(image.size, max_pixels, name)
     if image.mode != "RGBA":
         image = image.convert("RGBA")
     return np.asarray(image, dtype=np.uint8)
@@ -222,7 +239,9 @@ class _Texture:
         return cls(rgba, single, bool(rgba[..., 3].min() < 255), int(rgba[..., 3].max()))
 
 
-def _texture_colours(mesh: trimesh.Trimesh, name: str, textures: dict, warnings: list[str], linear: bool) -> _Colours:
+def _texture_colours(
+    mesh: trimesh.Trimesh, name: str, textures: dict, warnings: list[str], linear: bool, max_pixels: int | None = None
+) -> _Colours:
     """Colour sources of a mesh with ``TextureVisuals`` (a material, maybe uv and a texture);
     ``linear``: the file's factors and vertex colours are linear (glTF)."""
     visual = mesh.visual
@@ -265,7 +284,7 @@ def _texture_colours(mesh: trimesh.Trimesh, name: str, textures: dict, warnings:
     key = id(image)
     if key not in textures:
         try:
-            textures[key] = _Texture.of(texture_rgba(image))
+            textures[key] = _Texture.of(texture_rgba(image, max_pixels, f"object {name!r}'s texture"))
         except IMAGE_ERRORS as error:
             textures[key] = None
             warnings.append(
@@ -291,14 +310,16 @@ def _texture_colours(mesh: trimesh.Trimesh, name: str, textures: dict, warnings:
     return out
 
 
-def _mesh_colours(mesh: trimesh.Trimesh, name: str, textures: dict, warnings: list[str], linear: bool):
+def _mesh_colours(
+    mesh: trimesh.Trimesh, name: str, textures: dict, warnings: list[str], linear: bool, max_pixels: int | None = None
+):
     """(vertices, faces, colours) of a mesh in its own frame; face colours may unshare vertices.
     ``linear``: the file's factors and vertex colours are linear (glTF)."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64)
     visual = mesh.visual
     if isinstance(visual, trimesh.visual.TextureVisuals):
-        return vertices, faces, _texture_colours(mesh, name, textures, warnings, linear)
+        return vertices, faces, _texture_colours(mesh, name, textures, warnings, linear, max_pixels)
     out = _Colours()
     kind = getattr(visual, "kind", None)
     if kind == "vertex":
@@ -324,6 +345,7 @@ def objects_from_trimesh(
     rename: Mapping[str, str] | None = None,
     linear_colours: bool = False,
     double_sided: bool = True,
+    max_texture_pixels: int | None = None,
 ) -> tuple[tuple[SceneObject, ...], tuple[str, ...]]:
     """World-space :class:`SceneObject` s, one per geometry node of ``scene``, and warnings.
 
@@ -340,6 +362,8 @@ def objects_from_trimesh(
         Every object's sidedness (:attr:`farfield.core.scene.SceneObject.double_sided`): for OBJ,
         PLY and STL, which state none, the loader's ``sides`` option
         (:mod:`farfield.core.sidedness`).
+    max_texture_pixels : int or None
+        The most texels a texture may have, checked before it is decoded (SceneTooCostlyError).
 
     Returns
     -------
@@ -362,7 +386,7 @@ def objects_from_trimesh(
         if len(mesh.faces) == 0:
             warnings.append(f"node {name!r}: skipped a mesh without triangles")
             continue
-        vertices, faces, colours = _mesh_colours(mesh, name, textures, warnings, linear_colours)
+        vertices, faces, colours = _mesh_colours(mesh, name, textures, warnings, linear_colours, max_texture_pixels)
         if vertices.ndim != 2 or vertices.shape[1] != 3:
             # trimesh keeps OBJ ``v`` lines of two numbers as (v, 2) vertices.
             raise SceneLoadError(f"object {name!r}: vertices have shape {vertices.shape}, expected (v, 3)")

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 import PIL.Image
 
-from farfield.core.errors import SceneLoadError
+from farfield.core.errors import SceneLoadError, SceneTooCostlyError
 from farfield.core.exchange.gltf.document import Buffers, item
 from farfield.core.exchange.trimesh_scene import DEFAULT_ALPHA_CUTOFF, IMAGE_ERRORS, _Texture, texture_rgba
 
@@ -222,8 +222,9 @@ class Images:
         Where the images' bytes are.
     """
 
-    def __init__(self, buffers: Buffers) -> None:
+    def __init__(self, buffers: Buffers, max_pixels: int | None = None) -> None:
         self.buffers = buffers
+        self.max_pixels = max_pixels
         self._decoded: dict[int, _Texture | None] = {}
         self._wrapped: dict[tuple, _Texture] = {}
 
@@ -236,15 +237,23 @@ class Images:
                 uri = self.buffers.document["images"][index].get("uri", "")
                 warnings.append(f"texture {uri!r} not found; objects using it fall back to their material colour")
             else:
-                try:
-                    texture = _Texture.of(texture_rgba(PIL.Image.open(io.BytesIO(data))))
-                except IMAGE_ERRORS as error:
-                    warnings.append(
-                        f"glTF image {index} could not be decoded ({type(error).__name__}: {error}); "
-                        "objects using it fall back to their material colour"
-                    )
+                texture = self._decode(index, data, warnings)
             self._decoded[index] = texture
         return self._decoded[index]
+
+    def _decode(self, index: int, data: bytes, warnings: list[str]) -> _Texture | None:
+        """Image ``index`` from its bytes; its size is checked from its header before it is decoded."""
+        try:
+            image = PIL.Image.open(io.BytesIO(data))
+            return _Texture.of(texture_rgba(image, self.max_pixels, f"glTF image {index}"))
+        except PIL.Image.DecompressionBombError as error:  # PIL's own bound, past ours
+            raise SceneTooCostlyError(f"glTF image {index}: {error}") from error
+        except IMAGE_ERRORS as error:
+            warnings.append(
+                f"glTF image {index} could not be decoded ({type(error).__name__}: {error}); "
+                "objects using it fall back to their material colour"
+            )
+            return None
 
     def wrapped(
         self, ref: TextureRef, uv: np.ndarray, name: str, warnings: list[str]
