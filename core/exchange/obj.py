@@ -276,6 +276,24 @@ def _short_names(scene: trimesh.Scene) -> dict[str, str]:
     return {node: short for node, short in stripped.items() if counts[short] == 1 and short not in taken}
 
 
+# A 0 among a face's (or line's) indices: OBJ counts from 1 (negative indices count back from the end),
+# so 0 names no vertex; trimesh would read it as the last one, a silent wrong triangle.
+_ZERO_INDEX = re.compile(r"^[ \t]*[fl][ \t][^\n]*?(?<![\w.+-])0(?=[/ \t\r]|$)", re.MULTILINE)
+
+
+def _check_indices(text: str) -> None:
+    """Raise SceneLoadError naming the first face with a 0 index (module docstring of the rule)."""
+    found = _ZERO_INDEX.search(text)
+    if found is not None:
+        line = text.count("\n", 0, found.start()) + 1
+        end = text.find("\n", found.start())
+        statement = text[found.start() : end if end >= 0 else len(text)].strip()
+        raise SceneLoadError(
+            f"line {line}: {statement[:60]!r} has the index 0; OBJ indices start at 1 "
+            "(negative ones count back from the last vertex)"
+        )
+
+
 def load(
     data: bytes,
     extension: str,
@@ -306,6 +324,7 @@ def load(
         Binary data, or trimesh could not parse it (e.g. a face index beyond the vertices).
     """
     text = decode_text(data)
+    _check_indices(text)
     warnings: list[str] = []
     maps: dict[str, dict[str, str]] = {}
     libraries = _MTLLIB.findall(text)

@@ -11,10 +11,12 @@ file) or double-sided with ``sides="both"`` (:mod:`farfield.core.sidedness`).
 
 from __future__ import annotations
 
+import re
 from pathlib import PurePath
 
 from trimesh.resolvers import Resolver
 
+from farfield.core.errors import SceneLoadError
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
 from farfield.core.exchange.trimesh_scene import objects_from_trimesh, parse
 from farfield.core.scene import SceneObject
@@ -23,6 +25,16 @@ from farfield.core.sidedness import DEFAULT_SIDES, double_sided
 # The format states no sidedness: load takes the ``sides`` option (farfield.core.exchange.load_scene).
 SIDES_OPTION = True
 EXTENSIONS = ("ply",)
+
+
+_ELEMENT = re.compile(rb"^element[ \t]+(\w+)[ \t]+(\d+)[ \t]*$", re.MULTILINE)
+
+
+def _declared_counts(data: bytes) -> dict[str, int]:
+    """``element`` counts of a PLY header, by name (the header ends at ``end_header``)."""
+    end = data.find(b"end_header")
+    header = data[: end if end >= 0 else 4096]
+    return {name.decode("ascii", "replace"): int(count) for name, count in _ELEMENT.findall(header)}
 
 
 def load(
@@ -54,7 +66,18 @@ def load(
     SceneLoadError
         Not a PLY file, or a header that does not match the data.
     """
+    declared = _declared_counts(data)
     scene = parse(data, extension, resolver)
+    held = {"vertex": 0, "face": 0}
+    for geometry in scene.geometry.values():
+        held["vertex"] += len(getattr(geometry, "vertices", ()))
+        held["face"] += len(getattr(geometry, "faces", ()) if hasattr(geometry, "faces") else ())
+    for element, count in declared.items():
+        if element in held and held[element] < count:
+            raise SceneLoadError(
+                f"the header declares {count:,} {element} elements but the file holds {held[element]:,} "
+                "(truncated or a corrupt header)"
+            )
     nodes = list(scene.graph.nodes_geometry)
     rename = {nodes[0]: PurePath(name).stem or name} if len(nodes) == 1 else None
     return objects_from_trimesh(
