@@ -16,7 +16,7 @@ from fastapi import HTTPException
 from starlette.concurrency import run_in_threadpool
 
 from farfield.core.errors import AuthError
-from farfield.service.keys import authenticate
+from farfield.service.keys import authenticate, bearer_key
 
 JSON_BODY_LIMIT = 8 * 2**20  # job specs: 10,000 explicit view cells fit with room to spare
 MULTIPART_ENVELOPE = 64 * 1024
@@ -56,11 +56,9 @@ class BodyLimit:
             )
             return
         if scope["method"] == "POST" and scope["path"] == "/v1/scenes":
-            scheme, _, key = headers.get(b"authorization", b"").decode(errors="replace").partition(" ")
+            values = [v.decode(errors="replace") for k, v in scope["headers"] if k.lower() == b"authorization"]
             try:
-                await run_in_threadpool(
-                    authenticate, self.services.db, key.strip() if scheme.lower() == "bearer" else None
-                )
+                await run_in_threadpool(authenticate, self.services.db, bearer_key(values))
             except AuthError as error:
                 await self._reply(send, 401, str(error), "AuthError")
                 return

@@ -94,8 +94,37 @@ def list_keys(db: Database) -> list[dict]:
         ]
 
 
+# The one message for a key that does not authenticate, unknown or revoked alike: telling them apart
+# tells a guesser which prefixes exist (issue 59, item 11).
+INVALID_KEY = "invalid API key"
+
+
+def bearer_key(values: list[str]) -> str | None:
+    """The API key of a request's ``Authorization`` header values (every one of them, in order): the
+    one place that reads credentials, for the upload's early check and every route alike.
+
+    Raises
+    ------
+    AuthError
+        More than one ``Authorization`` header (two readers could take different ones: issue 59,
+        item 7), or one whose scheme is not ``Bearer``.
+
+    >>> bearer_key(["Bearer ff_abc "]), bearer_key([])
+    ('ff_abc', None)
+    """
+    if len(values) > 1:
+        raise AuthError("send one Authorization header, not several")
+    if not values:
+        return None
+    scheme, _, key = values[0].partition(" ")
+    if scheme.lower() != "bearer":
+        raise AuthError("use 'Authorization: Bearer <key>'")
+    return key.strip() or None
+
+
 def authenticate(db: Database, key: str | None) -> str:
-    """The tenant id of a valid, unrevoked ``key``; :class:`AuthError` otherwise."""
+    """The tenant id of a valid, unrevoked ``key``; :class:`AuthError` otherwise (one message,
+    :data:`INVALID_KEY`, for an unknown and a revoked key)."""
     if not key:
         raise AuthError("missing API key: send 'Authorization: Bearer <key>'")
     digest = _digest(key)
@@ -103,8 +132,6 @@ def authenticate(db: Database, key: str | None) -> str:
         row = s.scalar(select(ApiKey).where(ApiKey.prefix == _prefix_of(key))) if _prefix_of(key) else None
         if row is None or not hmac.compare_digest(row.digest, digest):
             row = s.scalar(select(ApiKey).where(ApiKey.prefix == _bootstrap_prefix(key)))
-    if row is None or not hmac.compare_digest(row.digest, digest):
-        raise AuthError("unknown API key")
-    if row.revoked_at is not None:
-        raise AuthError("this API key has been revoked")
+    if row is None or not hmac.compare_digest(row.digest, digest) or row.revoked_at is not None:
+        raise AuthError(INVALID_KEY)
     return row.tenant_id

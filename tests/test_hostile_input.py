@@ -112,3 +112,32 @@ def test_scene_limits_come_from_the_environment():
         50_000,
     )
     assert Settings.from_env(settings.environment()).scene_limits == settings.scene_limits  # handed to workers
+
+
+def test_two_authorization_headers_are_refused_alike_by_the_upload_check_and_every_route(api):
+    """Issue 59, item 7: the upload's early check read the last Authorization header and the route
+    the first, so an upload sent with one tenant's key and then another's passed the check as one
+    and was stored as the other's.  One reader now refuses several headers, before any body."""
+    import httpx
+
+    other = [("Authorization", f"Bearer {KEY}"), ("Authorization", "Bearer ff-someone-else")]
+    transport = api._transport
+    with httpx.Client(transport=transport, base_url=str(api.base_url)) as raw:
+        listing = raw.get("/v1/scenes", headers=other)
+        upload = raw.post("/v1/scenes", headers=other, files={"file": ("x.glb", b"glTF")})
+    for response in (listing, upload):
+        assert response.status_code == 401, response.text
+        assert response.json()["detail"] == "send one Authorization header, not several"
+
+
+def test_unknown_and_revoked_keys_get_one_message(api):
+    """Issue 59, item 11: telling an unknown key from a revoked one tells a guesser which exist."""
+    from farfield.service.keys import create_key, revoke_key
+
+    db = api.app.state.services.db
+    key, prefix = create_key(db, "guessed")
+    revoke_key(db, prefix)
+    revoked = api.get("/v1/scenes", headers={"Authorization": f"Bearer {key}"})
+    unknown = api.get("/v1/scenes", headers={"Authorization": "Bearer ff_not_a_key_at_all"})
+    assert revoked.status_code == unknown.status_code == 401
+    assert revoked.json()["detail"] == unknown.json()["detail"] == "invalid API key"

@@ -335,7 +335,7 @@ def test_cli_submit_waits_and_downloads(service, tmp_path):
         ], refused.stderr
     assert service.cli("scenes", "--json", *env_args).stdout == scenes
     nobody = service.cli("jobs", "--url", service.url, "--key", "ff_wrong_key")
-    assert nobody.returncode == 6 and "unknown API key" in nobody.stderr
+    assert nobody.returncode == 6 and "invalid API key" in nobody.stderr
 
 
 def test_failing_cell_is_retried_then_failed_and_a_retry_completes_it(service, client, tmp_path):
