@@ -186,11 +186,21 @@ class Database:
         self.engine.dispose()
 
 
+def storable(text: str) -> bool:
+    """Whether ``text`` can be stored and looked up in every backend: PostgreSQL's text holds no NUL
+    (psycopg raises DataError, a 500 where SQLite answers "not found": issue 59, item 2), so an id
+    with one names no row anywhere and is not sent to the database."""
+    return isinstance(text, str) and "\x00" not in text
+
+
 def owned_row(db: Database, model: type, tenant_id: str, row_id: str, what: str):
     """The ``model`` row ``row_id`` of tenant ``tenant_id``.  Another tenant's row is "not found"
-    (404, never 403), so ids do not leak across tenants."""
+    (404, never 403), so ids do not leak across tenants; so is an id no backend can hold
+    (:func:`storable`)."""
     from farfield.core.errors import NotFoundError
 
+    if not storable(row_id):
+        raise NotFoundError(f"{what} {row_id!r} not found")
     with db.session() as s:
         row = s.get(model, row_id)
     if row is None or row.tenant_id != tenant_id:

@@ -34,7 +34,7 @@ from farfield.core.exchange.export import scene_glb
 from farfield.core.scene import Scene
 from farfield.core.sidedness import DEFAULT_SIDES, double_sided
 from farfield.service.blobs import BlobStore
-from farfield.service.db import CELL_FINAL, Database, JobRow, SceneRow, now, owned_row
+from farfield.service.db import CELL_FINAL, Database, JobRow, SceneRow, now, owned_row, storable
 from farfield.service.scene_check import check_scene_file
 
 # beside a stored scene file, in a folder (an upload's own name never holds a "/", so no upload
@@ -196,7 +196,7 @@ def ingest_scene(
 def get_scene_row(db: Database, tenant_id: str, scene_id: str, with_objects: bool = False) -> SceneRow:
     """The tenant's scene ``scene_id``; another tenant's id is not found.  Its deferred ``objects``
     are loaded only ``with_objects`` (reading them on a row fetched without raises)."""
-    if not with_objects:
+    if not with_objects or not storable(scene_id):
         return owned_row(db, SceneRow, tenant_id, scene_id, "scene")
     with db.session() as s:
         row = s.get(SceneRow, scene_id, options=[undefer(SceneRow.objects)])

@@ -141,3 +141,52 @@ def test_unknown_and_revoked_keys_get_one_message(api):
     unknown = api.get("/v1/scenes", headers={"Authorization": "Bearer ff_not_a_key_at_all"})
     assert revoked.status_code == unknown.status_code == 401
     assert revoked.json()["detail"] == unknown.json()["detail"] == "invalid API key"
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def api_on_each_database(request, tmp_path):
+    """An API (no workers) on SQLite and on a fresh PostgreSQL database where one is reachable."""
+    import os
+
+    from service_harness import fresh_postgres_database
+
+    env = {"FARFIELD_HOME": str(tmp_path), "REDIS_URL": "redis://127.0.0.1:1/0", "FARFIELD_ADMIN_KEY": KEY}
+    drop = None
+    if request.param == "postgresql":
+        admin_url = os.environ.get("FARFIELD_TEST_DATABASE_URL")
+        if not admin_url:
+            pytest.skip(
+                "no PostgreSQL server: set FARFIELD_TEST_DATABASE_URL (CI starts one with scripts/postgres-server)"
+            )
+        env["DATABASE_URL"], drop = fresh_postgres_database(admin_url)
+    try:
+        with TestClient(create_app(Settings.from_env(env)), headers={"Authorization": f"Bearer {KEY}"}) as client:
+            yield client
+    finally:
+        if drop is not None:
+            drop()
+
+
+NUL_ROUTES = [
+    ("GET", "/v1/scenes/a%00b"), ("GET", "/v1/scenes/a%00b/objects"), ("DELETE", "/v1/scenes/a%00b"),
+    ("GET", "/v1/jobs/a%00b"), ("GET", "/v1/jobs/a%00b/cells"), ("POST", "/v1/jobs/a%00b/cancel"),
+    ("GET", "/v1/jobs/a%00b/index.json"),
+]  # fmt: skip
+
+
+def test_an_id_with_a_nul_byte_is_not_found_on_every_database(api_on_each_database):
+    """Issue 59, item 2: PostgreSQL cannot hold a NUL in text; nine routes answered 500
+    (psycopg.DataError) where SQLite answered 404.  Such an id names no row on any backend."""
+    api = api_on_each_database
+    for method, path in NUL_ROUTES:
+        response = api.request(method, path)
+        assert response.status_code == 404 and response.json()["error"] == "NotFoundError", (
+            method,
+            path,
+            response.text,
+        )
+    listed = api.get("/v1/jobs", params={"scene_id": "a\x00b"})
+    assert listed.status_code == 200 and listed.json() == [], listed.text
+    body = {"scene_id": "a\x00b", "resolution": 64, "viewcells": [{"kind": "box", "lo": [0, 0, 0], "hi": [1, 1, 1]}]}
+    created = api.post("/v1/jobs", json=body)
+    assert created.status_code == 404 and created.json()["error"] == "NotFoundError", created.text

@@ -8,10 +8,10 @@ planning record as ``"placement"``.
 
 from __future__ import annotations
 
-from sqlalchemy import func, select
+from sqlalchemy import false, func, select
 
 from farfield.core.errors import NotFoundError, QueryError
-from farfield.service.db import JOB_STATES, CellRow, Database, JobRow, job_cells, now, owned_row
+from farfield.service.db import JOB_STATES, CellRow, Database, JobRow, job_cells, now, owned_row, storable
 from farfield.service.placement import PLACEMENT_JOB
 
 __all__ = [
@@ -138,7 +138,8 @@ def _jobs_query(query, tenant_id: str, state: str | None, scene_id: str | None):
     if state:
         query = query.where(JobRow.state == state)
     if scene_id:
-        query = query.where(JobRow.scene_id == scene_id)
+        # An id no backend can hold names no scene: no jobs (not a DataError on PostgreSQL).
+        query = query.where(JobRow.scene_id == scene_id) if storable(scene_id) else query.where(false())
     return query
 
 
