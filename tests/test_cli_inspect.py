@@ -69,7 +69,11 @@ def test_warnings_are_reported_in_the_output_not_on_stderr(tmp_path):
         ("absent.glb", None, 3, "absent.glb: no such file"),
         ("model.fbx", b"x", 2, "unsupported scene format '.fbx'"),
         pytest.param(
-            "broken.glb", b"glTF" + bytes(40), 2, "broken.glb: GLB's first chunk", marks=pytest.mark.invalid_glb
+            "broken.glb",
+            b"glTF" + bytes(40),
+            2,
+            "broken.glb: GLB version 0: farfield reads glTF 2.0",
+            marks=pytest.mark.invalid_glb,
         ),
         pytest.param(
             "random.glb",

@@ -88,7 +88,17 @@ def test_tdm_options_of_stored_parameters():
     assert options == TdmOptions(resolution=96, fov_deg=45.0, enlargement=3, oversampling=4, culling="umbra", padding=1)
     assert tdm_options({**params, "options": {}}) == TdmOptions(resolution=96, fov_deg=45.0)
     names = {o["name"] for o in get_technique("tdm").describe()["options"]}
-    assert names == {"enlargement", "oversampling", "culling", "pixel_model", "padding", "texel_margin", "max_page"}
+    assert names == {
+        "enlargement",
+        "oversampling",
+        "culling",
+        "max_error_px",
+        "budget",
+        "pixel_model",
+        "padding",
+        "texel_margin",
+        "max_page",
+    }
     assert (
         tdm_options({**params, "options": {"texel_margin": 2}}).texel_margin == 2
     )  # it was missing from the API's list
