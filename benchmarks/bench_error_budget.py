@@ -147,7 +147,8 @@ def main() -> None:
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     info = renderer_info()
-    print(f"renderer: {info.renderer} ({info.version}); resolution {args.resolution}, fov 45°", flush=True)
+    resolution = 512 if args.table_4_1 else args.resolution
+    print(f"renderer: {info.renderer} ({info.version}); resolution {resolution}, fov 45°", flush=True)
     if args.table_4_1:
         print(
             f"{'dist':>5} {'budget':<7} {'layers':>6} {'thesis':>6} {'quads':>7} {'thesis':>7} {'memory kB':>9} {'thesis':>9} {'bake s':>7}"
