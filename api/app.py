@@ -25,6 +25,7 @@ from farfield.api.deps import Services
 from farfield.api.errors import install_error_handlers
 from farfield.api.limits import BodyLimit
 from farfield.api.openapi import openapi_document
+from farfield.api.security_headers import SecurityHeaders
 from farfield.api.sweeper import LostCellSweeper
 from farfield.core import __version__
 from farfield.service.blobs import blob_store
@@ -60,6 +61,7 @@ def create_app(settings: Settings, celery: Celery | None = None, migrate: bool =
 
     install_error_handlers(app)
     app.add_middleware(BodyLimit, services=app.state.services)
+    app.add_middleware(SecurityHeaders)  # outermost: on every response, refusals included
 
     for module in (
         routes_scenes,

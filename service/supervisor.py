@@ -129,6 +129,7 @@ class Service:
             str(port),
             "--log-level",
             "warning",
+            "--no-server-header",  # no "Server: uvicorn" banner (issue 59, item 11)
         ]
         self.api = self._spawn(api, env, logs / "api.log")
         self.url = f"http://{settings.host}:{port}"

@@ -190,3 +190,19 @@ def test_an_id_with_a_nul_byte_is_not_found_on_every_database(api_on_each_databa
     body = {"scene_id": "a\x00b", "resolution": 64, "viewcells": [{"kind": "box", "lo": [0, 0, 0], "hi": [1, 1, 1]}]}
     created = api.post("/v1/jobs", json=body)
     assert created.status_code == 404 and created.json()["error"] == "NotFoundError", created.text
+
+
+def test_every_response_carries_the_security_headers(api):
+    """Issue 59, item 11: the dashboard keeps a key in localStorage; no framing, no sniffing, no
+    script from elsewhere; the viewer's import map is allowed by its hash."""
+    from farfield.api.security_headers import inline_script_hashes
+
+    for path in ("/dashboard/", "/dashboard/viewer.html", "/v1/health", "/v1/scenes/nope"):
+        response = api.get(path)
+        assert response.headers["x-frame-options"] == "DENY", path
+        assert response.headers["x-content-type-options"] == "nosniff", path
+        assert response.headers["referrer-policy"] == "no-referrer", path
+        policy = response.headers["content-security-policy"]
+        assert "script-src 'self'" in policy and "frame-ancestors 'none'" in policy and "unsafe" not in policy
+    viewer = api.get("/dashboard/viewer.html").text
+    assert all(h in policy for h in inline_script_hashes(viewer)) and inline_script_hashes(viewer)
