@@ -243,7 +243,9 @@ def scene_objects(
 
 
 def delete_scene(db: Database, blobs: BlobStore, tenant_id: str, scene_id: str) -> None:
-    """Delete a scene and its finished jobs' rows; refused while one of its jobs still runs."""
+    """Delete a scene, its finished jobs' rows and their blobs (``jobs/<id>/``: a job's index, its
+    placement documents); refused while one of its jobs still runs.  Cell results are content
+    addressed and may serve other jobs: they stay."""
     row = get_scene_row(db, tenant_id, scene_id)
     with db.session() as s:
         jobs = list(s.scalars(select(JobRow).where(JobRow.scene_id == scene_id)))
@@ -254,6 +256,8 @@ def delete_scene(db: Database, blobs: BlobStore, tenant_id: str, scene_id: str) 
             s.delete(job)
         s.delete(s.get(SceneRow, scene_id))
     blobs.delete_prefix(row.blob_key.rsplit("/", 1)[0])
+    for job in jobs:  # after the rows: a job without its row is never read (issue 59, item 10)
+        blobs.delete_prefix(f"jobs/{job.id}")
 
 
 # A stored scene passed the limits in force when it was uploaded; a worker loads it whatever they are now.

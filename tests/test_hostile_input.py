@@ -206,3 +206,23 @@ def test_every_response_carries_the_security_headers(api):
         assert "script-src 'self'" in policy and "frame-ancestors 'none'" in policy and "unsafe" not in policy
     viewer = api.get("/dashboard/viewer.html").text
     assert all(h in policy for h in inline_script_hashes(viewer)) and inline_script_hashes(viewer)
+
+
+def test_deleting_a_scene_deletes_its_jobs_blobs(api, tmp_path):
+    """Issue 59, item 10: deleting a scene deleted its jobs' rows but left each job's
+    ``jobs/<id>/index.json`` in the blob store, read by nothing ever again."""
+    import uuid
+
+    from farfield.service.db import JobRow, SceneRow, now
+
+    path = write_scene(city(buildings=2), tmp_path, "glb", "doomed")
+    scene_id = api.post("/v1/scenes", files={"file": (path.name, path.read_bytes())}).json()["id"]
+    services = api.app.state.services
+    job_id = uuid.uuid4().hex
+    with services.db.session() as s:  # a finished job of the scene, as a worker leaves it
+        tenant_id = s.get(SceneRow, scene_id).tenant_id
+        s.add(JobRow(id=job_id, tenant_id=tenant_id, scene_id=scene_id, job_type="grid", params={}, state="done",
+                     created_at=now(), finished_at=now()))  # fmt: skip
+    services.blobs.put_bytes(f"jobs/{job_id}/index.json", b"[]")
+    assert api.delete(f"/v1/scenes/{scene_id}").status_code in (200, 204)
+    assert not services.blobs.exists(f"jobs/{job_id}/index.json")
