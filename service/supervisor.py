@@ -2,7 +2,8 @@
 
 Children run as separate processes, each in its own session (so a Ctrl-C on the terminal reaches
 only the supervisor), with the same settings in their environment.  The supervisor restarts Redis
-(its append-only file keeps the queue) and workers that die, and on SIGINT/SIGTERM, which it
+(its append-only file keeps the queue), workers and the API when they die (the API on its port,
+after a back-off that doubles while it keeps dying young), and on SIGINT/SIGTERM, which it
 handles from its first moment, stops the API, then the workers (warm shutdown: a running cell
 finishes or is delivered again later), then Redis; a child that does not stop in time is killed
 with its whole process group (a worker's pool processes included).
@@ -29,6 +30,10 @@ from farfield.service.placement.lease import planning_jobs_of, release_planning
 from farfield.service.settings import Settings
 
 STOP_GRACE_S = 20.0
+# The API's restart back-off: this long after a death, doubling (to the maximum) while it keeps
+# dying within a minute of its start.
+API_BACKOFF_S = 0.5
+API_BACKOFF_MAX_S = 30.0
 
 
 def gpu_count() -> int:
@@ -84,6 +89,9 @@ class Service:
     key: str = ""
     url: str = ""
     stop_requested: list = field(default_factory=list)
+    api_spec: tuple[list[str], dict, Path] | None = None
+    api_started: float = 0.0
+    api_backoff: float = API_BACKOFF_S / 2.0  # the first death within a minute waits API_BACKOFF_S
 
     def handle_signals(self) -> None:
         """From now on SIGINT and SIGTERM ask :meth:`watch` to return (call before :meth:`start`)."""
@@ -131,10 +139,29 @@ class Service:
             "warning",
             "--no-server-header",  # no "Server: uvicorn" banner (issue 59, item 11)
         ]
-        self.api = self._spawn(api, env, logs / "api.log")
+        self.api_spec = (api, env, logs / "api.log")
+        self.api = self._spawn(*self.api_spec)
+        self.api_started = time.monotonic()
         self.url = f"http://{settings.host}:{port}"
         self._wait_for_api()
         return self
+
+    def _restart_api(self) -> None:
+        """Start the API again on its port after it died (issue 59, item 5: it took the whole service
+        down), with a back-off that doubles while it keeps dying within a minute of its start."""
+        lived = time.monotonic() - self.api_started
+        self.api_backoff = API_BACKOFF_S if lived > 60.0 else min(2.0 * self.api_backoff, API_BACKOFF_MAX_S)
+        print(
+            f"farfield: the API exited with code {self.api.returncode} after {lived:.0f} s; starting it again "
+            f"in {self.api_backoff:.1f} s (see {self.settings.home / 'logs' / 'api.log'})",
+            file=sys.stderr,
+        )
+        deadline = time.monotonic() + self.api_backoff
+        while time.monotonic() < deadline and not self.stop_requested:
+            time.sleep(0.1)
+        if not self.stop_requested:
+            self.api = self._spawn(*self.api_spec)
+            self.api_started = time.monotonic()
 
     def _wait_for_api(self, timeout: float = 60.0) -> None:
         import httpx
@@ -154,7 +181,7 @@ class Service:
         raise RuntimeError(f"the API did not answer at {self.url} within {timeout:.0f} s")
 
     def watch(self) -> None:
-        """Keep Redis and the workers alive until a signal arrives (see :meth:`handle_signals`)."""
+        """Keep Redis, the workers and the API alive until a signal arrives (see :meth:`handle_signals`)."""
         while not self.stop_requested:
             if self.redis is not None and not self.redis.alive():
                 self.redis.start()
@@ -170,9 +197,7 @@ class Service:
                     self.release_cells_of(f"worker{i}", process.returncode)
                     self.worker_processes[i] = self._spawn(*self.worker_specs[i])
             if self.api.poll() is not None:
-                raise RuntimeError(
-                    f"the API exited with code {self.api.returncode}; see {self.settings.home / 'logs' / 'api.log'}"
-                )
+                self._restart_api()
             time.sleep(0.5)
 
     def release_cells_of(self, name: str, code: int | None) -> None:

@@ -97,6 +97,9 @@ class RunningService:
         """Pids of the celery worker main processes farfield up started."""
         return [p for p in _children(self.process.pid) if "celery" in cmdline(p)]
 
+    def api_pid(self) -> int:
+        return next(p for p in _children(self.process.pid) if "uvicorn" in cmdline(p))
+
     def redis_pid(self) -> int:
         return next(p for p in _children(self.process.pid) if "redis-server" in cmdline(p))
 

@@ -279,6 +279,28 @@ def test_a_dead_worker_s_cell_is_queued_again_at_once(service, client, bunny_id)
     assert job["cells"][running[0]["index"]]["attempts"] == 2
 
 
+def test_the_api_is_started_again_when_it_dies_and_nothing_else_stops(service, client):
+    """Issue 59, item 5: the supervisor raised when the API process died and stopped Redis and the
+    workers with it.  Now it starts the API again on its port, within seconds; the rest runs on."""
+    import httpx
+
+    old, redis, workers = service.api_pid(), service.redis_pid(), sorted(service.worker_mains())
+    os.kill(old, signal.SIGKILL)
+    killed = time.monotonic()
+    back = None
+    while time.monotonic() < killed + 30 and back is None:
+        try:
+            if service.api_pid() != old and client.get("/v1/health").status_code == 200:
+                back = time.monotonic() - killed
+        except (StopIteration, httpx.HTTPError):
+            pass
+        time.sleep(0.1)
+    assert back is not None and back < 10.0, back
+    assert service.process.poll() is None
+    assert service.redis_pid() == redis and sorted(service.worker_mains()) == workers
+    assert client.get("/v1/scenes").status_code == 200
+
+
 def test_redis_restart_during_a_job(service, client, bunny_id):
     grid = {"lo": [-0.6, 0.05, -0.05], "hi": [-0.4, 0.15, 0.05], "counts": [3, 2, 1]}
     job_id = client.post("/v1/jobs", json={"scene_id": bunny_id, "grid": grid, "resolution": 384}).json()["id"]
