@@ -129,17 +129,23 @@ class BoxCell:
 
 
 def length_and_unit(vector: np.ndarray) -> tuple[float, np.ndarray]:
-    """(length, unit vector) of a (3,) float64 vector without overflow or underflow: scaled by its
-    largest component first, so a difference of coordinates near 1e300 (whose squares overflow)
-    still has a direction.  (0, zeros) for the zero vector.
+    """(length, unit vector) of a (3,) float64 vector, also where its squares overflow or underflow
+    (a difference of coordinates near 1e300): then scaled by its largest component first.  Where
+    they do not, exactly ``norm`` and ``vector / norm``, so the results of ordinary inputs stay bit
+    for bit what they were.  (0, zeros) for the zero vector.
 
     >>> length_and_unit(np.array([3e300, 4e300, 0.0]))[1].tolist()
     [0.6, 0.8, 0.0]
     """
+    vector = np.asarray(vector, dtype=np.float64)
+    with np.errstate(over="ignore", under="ignore"):
+        norm = float(np.linalg.norm(vector))
+    if math.isfinite(norm) and norm > 0.0:
+        return norm, vector / norm
     largest = float(np.max(np.abs(vector)))
     if largest == 0.0 or not math.isfinite(largest):
         return largest, np.zeros(3)
-    scaled = np.asarray(vector, dtype=np.float64) / largest
+    scaled = vector / largest
     norm = float(np.linalg.norm(scaled))
     return largest * norm, scaled / norm
 

@@ -25,9 +25,9 @@ def test_keys_are_stored_hashed_and_revocable(db):
     assert all(key not in row.digest for row in stored) and prefix in [row.prefix for row in stored]
     assert authenticate(db, create_key(db, "acme")[0]) == tenant
     revoke_key(db, prefix)
-    with pytest.raises(AuthError, match="revoked"):
+    with pytest.raises(AuthError, match="invalid API key"):  # one message for revoked and unknown keys
         authenticate(db, key)
-    with pytest.raises(AuthError, match="unknown"):
+    with pytest.raises(AuthError, match="invalid API key"):
         authenticate(db, key[:-1] + ("x" if key[-1] != "x" else "y"))
 
 
@@ -39,10 +39,10 @@ def test_a_new_admin_key_rotates_the_old_one(db):
     assert authenticate(db, first) == admin
     ensure_admin_key(db, second)
     assert authenticate(db, second) == admin
-    with pytest.raises(AuthError, match="revoked"):
+    with pytest.raises(AuthError, match="invalid API key"):  # one message for revoked and unknown keys
         authenticate(db, first)
     key, _ = create_key(db, "admin")  # keys made with `farfield keys create` are not bootstrap keys
     ensure_admin_key(db, first)  # going back re-enables the first and revokes the second
     assert authenticate(db, first) == admin and authenticate(db, key) == admin
-    with pytest.raises(AuthError, match="revoked"):
+    with pytest.raises(AuthError, match="invalid API key"):  # one message for revoked and unknown keys
         authenticate(db, second)

@@ -12,12 +12,14 @@ file) or double-sided with ``sides="both"`` (:mod:`farfield.core.sidedness`).
 from __future__ import annotations
 
 import re
+from dataclasses import replace
 from pathlib import PurePath
 
 from trimesh.resolvers import Resolver
 
 from farfield.core.errors import SceneLoadError
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
+from farfield.core.exchange.ply_colours import vertex_colours
 from farfield.core.exchange.trimesh_scene import objects_from_trimesh, parse
 from farfield.core.scene import SceneObject
 from farfield.core.sidedness import DEFAULT_SIDES, double_sided
@@ -80,6 +82,15 @@ def load(
             )
     nodes = list(scene.graph.nodes_geometry)
     rename = {nodes[0]: PurePath(name).stem or name} if len(nodes) == 1 else None
-    return objects_from_trimesh(
+    objects, warnings = objects_from_trimesh(
         scene, rename=rename, double_sided=double_sided(sides), max_texture_pixels=limits.texture_pixels
     )
+    colours = vertex_colours(data)  # by their declared type: trimesh truncates ushort colours to a byte
+    if colours is not None:
+        objects = tuple(
+            replace(obj, vertex_colors=colours)
+            if obj.vertex_colors is not None and len(obj.vertex_colors) == len(colours)
+            else obj
+            for obj in objects
+        )
+    return objects, warnings

@@ -181,7 +181,7 @@ def part_view(cell: ViewCell, bounds, viewpoints: bool = True) -> PartView:
     scale = float(np.max(np.abs(np.concatenate([b.ravel(), cell.corners().ravel()]))))
     touch = TOL.rel_touch * max(scale, TOL.min_extent)
     if isinstance(cell, BoxCell):
-        towards = (0.5 * b[0] + 0.5 * b[1]) - cell.center
+        towards = 0.5 * (b[0] + b[1]) - cell.center
         dist, axis = length_and_unit(towards)  # coordinates near 1e300: their squares overflow
         if dist <= touch:
             raise LayerPlanError("the part is centred inside the view cell; a layered impostor needs it in front")

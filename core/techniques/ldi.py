@@ -19,6 +19,7 @@ billboard (:func:`farfield.core.ldi.pages.preview_quad`), not the splatted LDI.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import asdict, dataclass
 
@@ -78,10 +79,13 @@ def ldi_view(cell: ViewCell, bounds: np.ndarray) -> LdiView:
         raise LayerPlanError(f"an LDI impostor needs a box view cell, got a {cell.kind} cell")
     eye = np.asarray(cell.center, dtype=np.float64)
     lo, hi = np.asarray(bounds, dtype=np.float64)
-    length, direction = length_and_unit((0.5 * lo + 0.5 * hi) - eye)  # no overflow near 1e300
+    towards = 0.5 * (lo + hi) - eye
+    length, unit = length_and_unit(towards)  # no overflow near 1e300
     if not length > 0:
         raise LayerPlanError("the part's centre is the view cell's centre: an LDI needs the part ahead of the cell")
-    r, u, f = view_frame(direction)
+    with np.errstate(over="ignore"):
+        ordinary = math.isfinite(float(np.linalg.norm(towards)))
+    r, u, f = view_frame(towards if ordinary else unit)  # the frame of old for every ordinary cell
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]) - eye
     z = corners @ f
     reach = 0.5 * length_and_unit(np.asarray(cell.hi) - np.asarray(cell.lo))[0]

@@ -395,7 +395,7 @@ def plan_point_sampling(
         raise LayerPlanError(f"part bounds must be finite with lo <= hi, got {bounds.tolist()}")
     part = box_corners(bounds)
     corners = cell.corners()
-    length, normal = length_and_unit((0.5 * bounds[0] + 0.5 * bounds[1]) - cell.center)  # no overflow near 1e300
+    length, normal = length_and_unit(0.5 * (bounds[0] + bounds[1]) - cell.center)  # no overflow near 1e300
     if not length > 0.0:
         raise ViewCellError(
             "the part's centre is the view cell's centre: a point impostor needs the part on one side of the cell"
