@@ -219,7 +219,7 @@ class _Colours:
         self.alpha_cutoff: float | None = None
 
 
-class _Texture:
+class DecodedTexture:
     """A decoded texture and what every object using it needs to know, found once per image."""
 
     __slots__ = ("rgba", "single", "translucent", "max_alpha")
@@ -231,7 +231,7 @@ class _Texture:
         self.max_alpha = max_alpha  # the largest alpha of any texel
 
     @classmethod
-    def of(cls, rgba: np.ndarray) -> _Texture:
+    def of(cls, rgba: np.ndarray) -> DecodedTexture:
         rgba = np.array(rgba, dtype=np.uint8, copy=True, order="C")
         rgba.flags.writeable = False  # frozen once: every SceneObject using it shares it (farfield.core.scene._frozen)
         texels = rgba.reshape(-1, 4)
@@ -284,7 +284,7 @@ def _texture_colours(
     key = id(image)
     if key not in textures:
         try:
-            textures[key] = _Texture.of(texture_rgba(image, max_pixels, f"object {name!r}'s texture"))
+            textures[key] = DecodedTexture.of(texture_rgba(image, max_pixels, f"object {name!r}'s texture"))
         except IMAGE_ERRORS as error:
             textures[key] = None
             warnings.append(
@@ -375,7 +375,7 @@ def objects_from_trimesh(
     rename = rename or {}
     objects: list[SceneObject] = []
     warnings: list[str] = []
-    textures: dict = {}  # id(PIL image) -> _Texture or None: an image shared by materials is decoded once
+    textures: dict = {}  # id(PIL image) -> DecodedTexture or None: an image shared by materials is decoded once
     for node in scene.graph.nodes_geometry:
         transform, geometry_name = scene.graph[node]
         name = rename.get(node, str(node))

@@ -387,8 +387,8 @@ def load(
     SceneTooCostlyError
         Its node hierarchy, primitives, instances or triangles are beyond ``limits``.
     """
-    binary = split_glb(data)[1] if extension == "glb" else None
-    document = header_json(data)
+    text, binary = split_glb(data) if extension == "glb" else (data, None)
+    document = header_json(text)  # the GLB split once
     asset = document.get("asset")
     version = asset.get("version") if isinstance(asset, dict) else None
     if isinstance(version, str) and not version.startswith("2."):

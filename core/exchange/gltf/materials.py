@@ -36,7 +36,7 @@ import PIL.Image
 
 from farfield.core.errors import SceneLoadError, SceneTooCostlyError
 from farfield.core.exchange.gltf.document import Buffers, item
-from farfield.core.exchange.trimesh_scene import DEFAULT_ALPHA_CUTOFF, IMAGE_ERRORS, _Texture, texture_rgba
+from farfield.core.exchange.trimesh_scene import DEFAULT_ALPHA_CUTOFF, IMAGE_ERRORS, DecodedTexture, texture_rgba
 
 REPEAT, CLAMP_TO_EDGE, MIRRORED_REPEAT = 10497, 33071, 33648
 NEAREST = 9728
@@ -225,10 +225,10 @@ class Images:
     def __init__(self, buffers: Buffers, max_pixels: int | None = None) -> None:
         self.buffers = buffers
         self.max_pixels = max_pixels
-        self._decoded: dict[int, _Texture | None] = {}
-        self._wrapped: dict[tuple, _Texture] = {}
+        self._decoded: dict[int, DecodedTexture | None] = {}
+        self._wrapped: dict[tuple, DecodedTexture] = {}
 
-    def decoded(self, index: int, warnings: list[str]) -> _Texture | None:
+    def decoded(self, index: int, warnings: list[str]) -> DecodedTexture | None:
         """Image ``index`` decoded (None, with a warning, where missing or undecodable)."""
         if index not in self._decoded:
             data = self.buffers.image(index)
@@ -241,11 +241,11 @@ class Images:
             self._decoded[index] = texture
         return self._decoded[index]
 
-    def _decode(self, index: int, data: bytes, warnings: list[str]) -> _Texture | None:
+    def _decode(self, index: int, data: bytes, warnings: list[str]) -> DecodedTexture | None:
         """Image ``index`` from its bytes; its size is checked from its header before it is decoded."""
         try:
             image = PIL.Image.open(io.BytesIO(data))
-            return _Texture.of(texture_rgba(image, self.max_pixels, f"glTF image {index}"))
+            return DecodedTexture.of(texture_rgba(image, self.max_pixels, f"glTF image {index}"))
         except PIL.Image.DecompressionBombError as error:  # PIL's own bound, past ours
             raise SceneTooCostlyError(f"glTF image {index}: {error}") from error
         except IMAGE_ERRORS as error:
@@ -257,7 +257,7 @@ class Images:
 
     def wrapped(
         self, ref: TextureRef, uv: np.ndarray, name: str, warnings: list[str]
-    ) -> tuple[_Texture, np.ndarray] | None:
+    ) -> tuple[DecodedTexture, np.ndarray] | None:
         """(texture, uv) for an object: ``uv`` (glTF space, (v, 2), already transformed) with the
         sampler's wrap modes expressed as repeat (module docstring); uv still in glTF space."""
         base = self.decoded(ref.image, warnings) if ref.image is not None else None
@@ -304,5 +304,5 @@ class Images:
                     pad = [(0, 0), (0, 0), (0, 0)]
                     pad[along] = (low, high)
                     rgba = np.pad(rgba, pad, mode="edge")
-            self._wrapped[key] = base if not plan else _Texture.of(rgba)
+            self._wrapped[key] = base if not plan else DecodedTexture.of(rgba)
         return self._wrapped[key], uv
