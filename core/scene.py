@@ -105,6 +105,10 @@ class SceneObject:
         Base-colour RGBA image, RGB sRGB-encoded, top row first.  Requires ``uv``.
     alpha_cutoff : float or None
         Alpha-mask threshold in 0..1, or None for opaque.
+    normals : (v, 3) float64 or None
+        World-space unit shading normals per vertex (glTF ``NORMAL``, OBJ ``vn``, PLY ``nx ny nz``),
+        on the front side of the counter-clockwise winding; None where the source has none, and
+        then each triangle is shaded with its face normal (flat), as glTF prescribes.
     double_sided : bool
         Seen from both sides (True, the default for built scenes) or from its front side only
         (False: a viewer behind a triangle's plane does not see it, as an engine culls back faces;
@@ -127,6 +131,7 @@ class SceneObject:
     texture: np.ndarray | None = None  # (h, w, 4) uint8 RGBA, sRGB-encoded RGB, top row first
     alpha_cutoff: float | None = None
     double_sided: bool = True
+    normals: np.ndarray | None = None  # (v, 3) float64 unit shading normals, world space
     bounds: np.ndarray = field(init=False, repr=False)  # (2, 3) float64: min, max corner
 
     def __post_init__(self) -> None:
@@ -154,6 +159,8 @@ class SceneObject:
         if self.alpha_cutoff is not None:
             set_(self, "alpha_cutoff", float(self.alpha_cutoff))
         set_(self, "double_sided", bool(self.double_sided))
+        if self.normals is not None:
+            set_(self, "normals", _unit_normals(self.normals, name, n))
         _check_geometry(name, vertices, faces)
         _check_colour(name, self.base_color, self.uv, self.alpha_cutoff)
         bounds = np.stack([vertices.min(axis=0), vertices.max(axis=0)])
@@ -221,6 +228,21 @@ def _check_colour(name: str, base_color: np.ndarray, uv: np.ndarray | None, alph
         raise SceneLoadError(f"object {name!r}: alpha_cutoff {alpha_cutoff} is not in 0..1")
 
 
+def _unit_normals(normals, name: str, n: int) -> np.ndarray:
+    """``normals`` (n, 3) as read-only float64 unit vectors; a zero or non-finite one raises."""
+    array = np.array(normals, dtype=np.float64)
+    if array.shape != (n, 3):
+        raise SceneLoadError(f"object {name!r}: normals has shape {array.shape}, expected ({n}, 3)")
+    with np.errstate(invalid="ignore", over="ignore"):
+        length = np.sqrt(np.einsum("ij,ij->i", array, array))
+    bad = ~(np.isfinite(length) & (length > 0.0))
+    if bad.any():
+        raise SceneLoadError(f"object {name!r}: {int(bad.sum())} of {n} normals are zero or not finite")
+    array /= length[:, None]
+    array.flags.writeable = False
+    return array
+
+
 def _update_hash(digest: hashlib._Hash, tag: bytes, array: np.ndarray | None) -> None:
     """Feed a tagged array into ``digest``: tag, dtype, shape, then little-endian bytes."""
     digest.update(tag)
@@ -263,6 +285,8 @@ def object_hash(obj: SceneObject, memo: dict | None = None) -> bytes:
     if not obj.double_sided:
         # Only a one-sided object adds a tag, so the hashes of double-sided objects stay as they were.
         digest.update(b"one-sided;")
+    if obj.normals is not None:  # likewise: objects without shading normals hash as they did
+        _update_hash(digest, b"normals", obj.normals + 0.0)
     return digest.digest()
 
 
