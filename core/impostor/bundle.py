@@ -39,6 +39,10 @@ The bundle is the on-disk form of one :class:`farfield.core.impostor.impostor.Im
         widens to float64 / int64.
     ``pages``
         List of ``{"file": "atlas-000.png", "width": W, "height": H}``, in page order.
+    ``channels`` (only where the impostor keeps channels beside its colour)
+        ``{"normal": [{"file": "normal-000.png", "width": W, "height": H}, ...]}``: per channel,
+        pages laid out as ``pages`` (:data:`farfield.core.impostor.impostor.PAGE_CHANNELS`: world
+        normals encoded n * 0.5 + 0.5, linear).
     ``glb``
         ``"impostor.glb"``.
     ``stats``, ``parameters``
@@ -108,6 +112,7 @@ __all__ = [
     "bundle_zip",
     "encode_payload",
     "manifest_bytes",
+    "channel_file_name",
     "page_file_name",
     "read_bundle",
     "write_bundle",
@@ -151,6 +156,15 @@ def page_file_name(index: int) -> str:
     ('atlas-000.png', 'atlas-012.png')
     """
     return f"atlas-{index:03d}.png"
+
+
+def channel_file_name(channel: str, index: int) -> str:
+    """File name of page ``index`` of ``channel``.
+
+    >>> channel_file_name("normal", 3)
+    'normal-003.png'
+    """
+    return f"{channel}-{index:03d}.png"
 
 
 def _json_default(value):
@@ -238,7 +252,19 @@ def _manifest(impostor: Impostor, payload_entry: dict) -> dict:
         "glb": GLB_NAME,
         "stats": stored_stats(impostor.stats),
         "parameters": impostor.parameters,
-    }
+    } | (
+        {
+            "channels": {
+                name: [
+                    {"file": channel_file_name(name, i), "width": int(p.shape[1]), "height": int(p.shape[0])}
+                    for i, p in enumerate(pages)
+                ]
+                for name, pages in sorted(impostor.channels.items())
+            }
+        }
+        if impostor.channels
+        else {}
+    )
 
 
 def _manifest_bytes(impostor: Impostor, payload_entry: dict) -> bytes:
@@ -373,6 +399,9 @@ def write_bundle(impostor: Impostor, directory: str | os.PathLike) -> BundlePath
     files = {MANIFEST_NAME: _manifest_bytes(impostor, payload_entry), PAYLOAD_NAME: payload}
     for index, page in enumerate(impostor.pages):
         files[page_file_name(index)] = page_png(page)
+    for name, pages in sorted(impostor.channels.items()):
+        for index, page in enumerate(pages):
+            files[channel_file_name(name, index)] = page_png(page)
     files[GLB_NAME] = impostor_glb(impostor)
 
     try:
@@ -485,6 +514,39 @@ def _page_entries(manifest: dict, path: Path) -> list[tuple[str, int, int]]:
                 f"{{'file': {page_file_name(index)!r}, 'width': W, 'height': H}}"
             )
         result.append((name, width, height))
+    return result
+
+
+def _channel_entries(manifest: dict, path: Path) -> dict[str, list[tuple[str, int, int]]]:
+    """The manifest's ``channels`` (absent: none) as name -> [(file, width, height)] per page."""
+    from farfield.core.impostor.impostor import PAGE_CHANNELS
+
+    channels = manifest.get("channels", {})
+    if not isinstance(channels, dict):
+        raise BundleFormatError(f"{path}: channels is a {type(channels).__name__}, expected an object")
+    result = {}
+    for name, entries in channels.items():
+        if name not in PAGE_CHANNELS or not isinstance(entries, list):
+            raise BundleFormatError(
+                f"{path}: channels has {name!r}, expected a list under one of {list(PAGE_CHANNELS)}"
+            )
+        result[name] = []
+        for index, entry in enumerate(entries):
+            width = entry.get("width") if isinstance(entry, dict) else None
+            height = entry.get("height") if isinstance(entry, dict) else None
+            if (
+                not isinstance(entry, dict)
+                or entry.get("file") != channel_file_name(name, index)
+                or not isinstance(width, int)
+                or not isinstance(height, int)
+                or width < 1
+                or height < 1
+            ):
+                raise BundleFormatError(
+                    f"{path}: channels.{name}[{index}] is {entry!r}, expected "
+                    f"{{'file': {channel_file_name(name, index)!r}, 'width': W, 'height': H}}"
+                )
+            result[name].append((entry["file"], width, height))
     return result
 
 
@@ -617,6 +679,10 @@ def read_bundle(directory: str | os.PathLike) -> Impostor:
     if not glb.is_file():
         raise BundleFormatError(f"{glb}: missing")
     pages = tuple(_read_page(root / name, width, height) for name, width, height in _page_entries(manifest, path))
+    channels = {
+        channel: tuple(_read_page(root / name, width, height) for name, width, height in entries)
+        for channel, entries in _channel_entries(manifest, path).items()
+    }
     impostor = Impostor(
         technique=_field(manifest, path, "technique"),
         viewcell=_field(manifest, path, "viewcell"),
@@ -629,6 +695,7 @@ def read_bundle(directory: str | os.PathLike) -> Impostor:
         stats=_field(manifest, path, "stats"),
         parameters=_field(manifest, path, "parameters"),
         code_version=_field(manifest, path, "code_version"),
+        channels=channels,
     )
     try:
         check_impostor(impostor)
@@ -654,6 +721,7 @@ def bundle_zip(directory: str | os.PathLike) -> bytes:
     manifest = _read_manifest(root)
     path = root / MANIFEST_NAME
     names = [MANIFEST_NAME, GLB_NAME] + [name for name, _, _ in _page_entries(manifest, path)]
+    names += [name for entries in _channel_entries(manifest, path).values() for name, _, _ in entries]
     if manifest["format_version"] >= 2:
         names.append(PAYLOAD_NAME)
     buffer = io.BytesIO()

@@ -52,7 +52,15 @@ import numpy as np
 from PIL import Image
 
 from farfield.core.colour_space import srgb_to_linear
-from farfield.core.impostor.impostor import Impostor, MeshPayload, PointPayload, QuadPayload, check_impostor
+from farfield.core.impostor.impostor import (
+    Impostor,
+    MeshPayload,
+    PointPayload,
+    QuadPayload,
+    check_impostor,
+    decode_normals,
+    encode_normals,
+)
 
 __all__ = ["GlbBuilder", "GlbParts", "engine_metadata", "impostor_glb", "page_png", "write_glb"]
 
@@ -130,14 +138,17 @@ class _Bin:
         return b"".join(self.parts)
 
 
-def _weld(positions: np.ndarray, uv: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _weld(
+    positions: np.ndarray, uv: np.ndarray, indices: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The vertices (float32 ``positions`` (n, 3), ``uv`` (n, 2)) that ``indices`` use, each
     distinct (position, uv) pair once, in the order of its first copy among the given vertices,
-    and the indices remapped to them (vertices all distinct and all used: unchanged).
+    and the indices remapped to them (vertices all distinct and all used: unchanged), and which of
+    the given vertices each kept one is (for attributes that follow them).
 
     >>> p = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 1, 0]], "<f4")
     >>> t = np.array([[0, 0], [1, 0], [0, 1], [0, 1]], "<f4")
-    >>> q, _, i = _weld(p, t, np.array([0, 3, 1, 0, 2, 1]))
+    >>> q, _, i, _ = _weld(p, t, np.array([0, 3, 1, 0, 2, 1]))
     >>> len(q), i.tolist()
     (3, [0, 2, 1, 0, 2, 1])
     """
@@ -150,11 +161,12 @@ def _weld(positions: np.ndarray, uv: np.ndarray, indices: np.ndarray) -> tuple[n
     slot = np.empty(first.size, np.int64)
     slot[order] = np.arange(order.size)
     kept = first[order]
-    return positions[kept], uv[kept], slot[key_of[indices]]
+    return positions[kept], uv[kept], slot[key_of[indices]], kept
 
 
-def _quad_pages(payload: QuadPayload, viewpoint: np.ndarray, page_count: int):
-    """Per page with quads: (page, float32 positions relative to ``viewpoint``, float32 UVs, indices)."""
+def _quad_pages(payload: QuadPayload, viewpoint: np.ndarray, page_count: int, frames: np.ndarray | None = None):
+    """Per page with quads: (page, float32 positions relative to ``viewpoint``, float32 UVs, indices),
+    and with ``frames`` (q, 3, 3) (:func:`quad_frames`) float32 NORMAL (n, 3) and TANGENT (n, 4) too."""
     # Narrowed to float32 here, after the float64 subtraction, so only the local offset is rounded.
     relative = (payload.corners - viewpoint).astype("<f4")
     uv = payload.uv.astype("<f4")
@@ -163,7 +175,73 @@ def _quad_pages(payload: QuadPayload, viewpoint: np.ndarray, page_count: int):
         if quads.size == 0:
             continue  # glTF accessors need count >= 1; the page keeps its material and image
         indices = (np.arange(quads.size, dtype=np.int64)[:, None] * 4 + _QUAD_TRIANGLES).ravel()
-        yield (page, *_weld(relative[quads].reshape(-1, 3), uv[quads].reshape(-1, 2), indices))
+        positions, texcoords, indices, kept = _weld(relative[quads].reshape(-1, 3), uv[quads].reshape(-1, 2), indices)
+        if frames is None:
+            yield page, positions, texcoords, indices
+            continue
+        frame = frames[quads[kept // 4]]  # (n, 3, 3) rows tangent, bitangent, normal of each vertex's quad
+        handed = np.sign(np.einsum("ij,ij->i", np.cross(frame[:, 2], frame[:, 0]), frame[:, 1]))
+        tangent = np.concatenate([frame[:, 0], np.where(handed < 0, -1.0, 1.0)[:, None]], axis=1)
+        yield page, positions, texcoords, indices, frame[:, 2].astype("<f4"), tangent.astype("<f4")
+
+
+def quad_frames(payload: QuadPayload, viewpoint: np.ndarray) -> np.ndarray:
+    """(q, 3, 3) float64 unit rows T, B, N of each quad's tangent frame, world space: T along the
+    page's +x (increasing u), B along the page's up (decreasing glTF v, the image's top; glTF
+    2.0 §3.9.3: a normal texture's +Y is up), N the quad's normal on ``viewpoint``'s side.
+
+    >>> quad = np.array([[[-1, 5, 1], [1, 5, 1], [1, 5, -1], [-1, 5, -1]]], dtype=np.float64)
+    >>> uv = np.array([[[0, 0], [1, 0], [1, 1], [0, 1]]], dtype=np.float64)
+    >>> (quad_frames(QuadPayload(quad, uv, np.zeros(1, np.int64), np.zeros(1, np.int64)), np.zeros(3))[0] + 0.0).tolist()
+    [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]]
+    """
+    c, t = payload.corners, payload.uv
+    e1, e2 = c[:, 1] - c[:, 0], c[:, 3] - c[:, 0]  # TL -> TR, TL -> BL
+    d1, d2 = t[:, 1] - t[:, 0], t[:, 3] - t[:, 0]
+    det = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
+    det = np.where(det == 0.0, 1.0, det)
+    # e = du * dP/du + dv * dP/dv for both edges, solved for the two derivatives.
+    dpdu = (d2[:, 1, None] * e1 - d1[:, 1, None] * e2) / det[:, None]
+    dpdv = (d1[:, 0, None] * e2 - d2[:, 0, None] * e1) / det[:, None]
+    normal = np.cross(e1, e2)
+    towards = np.einsum("ij,ij->i", normal, viewpoint - c[:, 0]) < 0.0
+    normal[towards] *= -1.0
+
+    def unit(a):
+        length = np.linalg.norm(a, axis=1, keepdims=True)
+        return np.divide(a, length, out=np.zeros_like(a), where=length > 0.0)
+
+    return np.stack([unit(dpdu), unit(-dpdv), unit(normal)], axis=1)
+
+
+def tangent_space_pages(payload: QuadPayload, frames: np.ndarray, pages) -> list[np.ndarray]:
+    """The normal pages (world normals, :data:`farfield.core.impostor.impostor.PAGE_CHANNELS`) as
+    tangent-space normal textures (glTF ``normalTexture``): each texel in the frame (``frames``,
+    :func:`quad_frames`) of the quad whose tile holds it, the texels between tiles in that of the
+    nearest tile (their padding)."""
+    from scipy.ndimage import distance_transform_edt
+
+    out = []
+    for index, page in enumerate(pages):
+        h, w = page.shape[:2]
+        owner = np.full((h, w), -1, np.int64)
+        for q in np.flatnonzero(payload.page == index):
+            u, v = payload.uv[q, :, 0] * w, payload.uv[q, :, 1] * h
+            x0, x1 = int(np.floor(u.min() + 0.5)), int(np.floor(u.max() + 0.5))
+            y0, y1 = int(np.floor(v.min() + 0.5)), int(np.floor(v.max() + 0.5))
+            owner[max(y0, 0) : y1, max(x0, 0) : x1] = q
+        if (owner < 0).all():
+            out.append(encode_normals(np.broadcast_to([0.0, 0.0, 1.0], (h, w, 3))))
+            continue
+        if (owner < 0).any():
+            iy, ix = distance_transform_edt(owner < 0, return_distances=False, return_indices=True)
+            owner = owner[iy, ix]
+        world = decode_normals(page)
+        local = np.einsum("hwij,hwj->hwi", frames[owner], world)
+        blank = ~(np.linalg.norm(world, axis=-1) > 0.0)
+        local[blank] = (0.0, 0.0, 1.0)
+        out.append(encode_normals(local))
+    return out
 
 
 def _mesh_pages(payload: MeshPayload, viewpoint: np.ndarray, page_count: int):
@@ -260,8 +338,14 @@ class GlbParts:
     extensions: tuple[str, ...] = ()
 
 
-def _page_material(index: int) -> dict:
-    """The material of atlas page ``index``: its texture, unlit, alpha-cut at 0.5, double-sided."""
+def _page_material(index: int, normal: int | None = None) -> dict:
+    """The material of atlas page ``index``: its texture, unlit, alpha-cut at 0.5, double-sided;
+    with the texture ``normal`` (a tangent-space normal texture), lit: glTF's metallic-roughness,
+    a rough dielectric (metallic 0, roughness 1: the colour is the diffuse albedo)."""
+    if normal is not None:
+        material = _page_material(index)
+        del material["extensions"]
+        return material | {"normalTexture": {"index": normal, "texCoord": 0}}
     return {
         "name": f"atlas-{index:03d}",
         "pbrMetallicRoughness": {
@@ -298,6 +382,13 @@ class GlbBuilder:
         """Per page with quads: (page, float32 positions, float32 UVs, indices), vertices welded."""
         return _quad_pages(payload, self.viewpoint, page_count)
 
+    def lit_quads(self, payload: QuadPayload, pages, normal_pages) -> GlbParts:
+        """:meth:`textured` quads with NORMAL, TANGENT and each page's world normals (``normal_pages``)
+        as a tangent-space normal texture in the frames of its quads (:func:`quad_frames`)."""
+        frames = quad_frames(payload, self.viewpoint)
+        geometry = _quad_pages(payload, self.viewpoint, len(pages), frames)
+        return self.textured(geometry, pages, tangent_space_pages(payload, frames, normal_pages))
+
     def mesh_pages(self, payload: MeshPayload, page_count: int):
         """Per page with triangles: (page, float32 positions, float32 UVs, indices)."""
         return _mesh_pages(payload, self.viewpoint, page_count)
@@ -309,11 +400,16 @@ class GlbBuilder:
             for index, page in enumerate(pages)
         ]
 
-    def textured(self, page_geometry: Iterable, pages) -> GlbParts:
+    def textured(self, page_geometry: Iterable, pages, normal_pages=None) -> GlbParts:
         """One ``TRIANGLES`` primitive per item of ``page_geometry`` ((page, positions, UVs, indices),
-        each triangle turned to face the viewpoint), then every page of ``pages`` as an image and a material."""
+        each triangle turned to face the viewpoint), then every page of ``pages`` as an image and a material.
+
+        With ``normal_pages`` (tangent-space normal textures, one per page) each item also carries
+        float32 NORMAL (n, 3) and TANGENT (n, 4), written as attributes, and the materials are
+        glTF's metallic-roughness (dielectric, roughness 1) with the page's ``normalTexture``,
+        lit by the viewer, instead of unlit: their images follow the colour pages'."""
         primitives = []
-        for page, positions, texcoords, indices in page_geometry:
+        for page, positions, texcoords, indices, *lit in page_geometry:
             indices = _face_viewpoint(positions, indices)
             vertex_count = positions.shape[0]
             index_dtype, component = (
@@ -347,16 +443,27 @@ class GlbBuilder:
                     "type": "VEC2",
                 }
             )
-            primitives.append(
-                {
-                    "attributes": {"POSITION": base + 1, "TEXCOORD_0": base + 2},
-                    "indices": base,
-                    "material": page,
-                    "mode": _TRIANGLES,
-                }
-            )
+            attributes = {"POSITION": base + 1, "TEXCOORD_0": base + 2}
+            for name, values, kind in zip(("NORMAL", "TANGENT"), lit, ("VEC3", "VEC4")):
+                attributes[name] = len(self.accessors)
+                self.accessors.append(
+                    {
+                        "bufferView": self.binary.add(np.ascontiguousarray(values).tobytes(), _ARRAY_BUFFER),
+                        "componentType": _FLOAT,
+                        "count": int(vertex_count),
+                        "type": kind,
+                    }
+                )
+            primitives.append({"attributes": attributes, "indices": base, "material": page, "mode": _TRIANGLES})
         images = self.images(pages)
-        return GlbParts(primitives, [_page_material(index) for index in range(len(pages))], images)
+        if normal_pages is None:
+            return GlbParts(primitives, [_page_material(index) for index in range(len(pages))], images)
+        images += [
+            {"bufferView": self.binary.add(page_png(page)), "mimeType": "image/png", "name": f"normal-{index:03d}"}
+            for index, page in enumerate(normal_pages)
+        ]
+        materials = [_page_material(index, normal=len(pages) + index) for index in range(len(pages))]
+        return GlbParts(primitives, materials, images)
 
     def points(self, payload: PointPayload, pages) -> GlbParts:
         """A point impostor: every page as an image (the directional colours' tiles), then one
@@ -428,7 +535,8 @@ def impostor_glb(impostor: Impostor) -> bytes:
         glb.accessors,
         glb.binary,
     )
-    extensions = [_UNLIT, *parts.extensions]
+    unlit = any(_UNLIT in m.get("extensions", {}) for m in materials) or not materials
+    extensions = [_UNLIT] * unlit + [*parts.extensions]
     node: dict = {
         "name": "impostor",
         "translation": [float(x) for x in viewpoint],
@@ -436,11 +544,12 @@ def impostor_glb(impostor: Impostor) -> bytes:
     }
     document: dict = {
         "asset": {"version": "2.0", "generator": f"farfield {impostor.code_version}".rstrip()},
-        "extensionsUsed": sorted(extensions),
         "scene": 0,
         "scenes": [{"nodes": [0]}],
         "nodes": [node],
     }
+    if extensions:
+        document = {"asset": document["asset"], "extensionsUsed": sorted(extensions)} | document
     if primitives:
         node["mesh"] = 0
         document["meshes"] = [{"name": f"impostor-{impostor.technique}", "primitives": primitives}]

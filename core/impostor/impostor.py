@@ -57,7 +57,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Protocol, runtime_checkable
+from typing import Any, ClassVar, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -148,6 +148,16 @@ class _PayloadBase:
         return None
 
 
+def page_of(obj) -> int:
+    """The atlas page a draw object of :meth:`Payload.draw_objects` shows (its name, ``page<k>``).
+
+    >>> from farfield.core.scene import SceneObject
+    >>> page_of(SceneObject("page12", np.eye(3), np.array([[0, 1, 2]])))
+    12
+    """
+    return int(obj.name.removeprefix("page"))
+
+
 def _page_objects(impostor: Impostor, page_triangles) -> list:
     """Textured alpha-cut (0.5) objects, one per atlas page with geometry: ``page_triangles(selected)``
     gives the (vertices, faces, uv in glTF's convention) of the payload's elements ``selected`` on a page."""
@@ -229,8 +239,12 @@ class QuadPayload(_PayloadBase):
         _check_arrays(self, page_count)
 
     def glb_parts(self, impostor: Impostor, glb) -> Any:
-        """Per page with quads one primitive of two triangles per quad, every page an image and a material."""
-        return glb.textured(glb.quad_pages(self, len(impostor.pages)), impostor.pages)
+        """Per page with quads one primitive of two triangles per quad, every page an image and a
+        material; with a normal channel, lit materials with tangent-space normal textures."""
+        normals = impostor.channels.get("normal")
+        if normals is None:
+            return glb.textured(glb.quad_pages(self, len(impostor.pages)), impostor.pages)
+        return glb.lit_quads(self, impostor.pages, normals)
 
     def draw_objects(self, impostor: Impostor) -> list:
         """A page's quads as two triangles each, one after the other (corners 0, 1, 2 and 0, 2, 3)."""
@@ -654,6 +668,9 @@ class Impostor:
     stats: dict = field(default_factory=dict)  # counts, memory, timings per stage
     parameters: dict = field(default_factory=dict)  # every knob that made it
     code_version: str = ""
+    # Channels kept beside the colour (:data:`PAGE_CHANNELS`): name -> pages laid out as ``pages``
+    # (same count and sizes, the same texel for the same surface point).  Empty: colour only.
+    channels: dict = field(default_factory=dict)
 
     @property
     def quad_count(self) -> int:
@@ -691,6 +708,43 @@ class Impostor:
     @property
     def quad_layer(self) -> np.ndarray:
         return self._quads().layer
+
+
+# The channels a texel can keep beside its colour, each as pages parallel to the colour pages:
+# ``normal``, the world-space unit shading normal encoded n * 0.5 + 0.5 in RGB (linear, not sRGB),
+# alpha 255 inside a tile.  World space keeps a bundle independent of how its geometry is drawn;
+# the GLB writer turns it into each quad's tangent space (:mod:`farfield.core.impostor.glb`).
+PAGE_CHANNELS = ("normal",)
+# What a technique's ``channels`` option takes: the colour alone (unlit, for baked lighting), or with normals.
+ChannelSet = Literal["albedo", "albedo+normal"]
+
+
+def wants_normals(channels: str) -> bool:
+    """Whether the channel set ``channels`` (:data:`ChannelSet`) keeps normals."""
+    return "normal" in str(channels).split("+")
+
+
+def decode_normals(page: np.ndarray) -> np.ndarray:
+    """(..., 3) float64 unit world normals of a normal page's texels (..., 4) uint8 (zero length
+    where the texel holds none).
+
+    >>> decode_normals(np.array([[128, 128, 255, 255]], np.uint8)).round(3).tolist()
+    [[0.004, 0.004, 1.0]]
+    """
+    n = np.asarray(page)[..., :3].astype(np.float64) / 127.5 - 1.0
+    length = np.linalg.norm(n, axis=-1, keepdims=True)
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 0.25)
+
+
+def encode_normals(normals: np.ndarray) -> np.ndarray:
+    """(..., 4) uint8 texels of (..., 3) unit normals: n * 0.5 + 0.5 rounded, alpha 255.
+
+    >>> encode_normals(np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])).tolist()
+    [[128, 128, 255, 255], [0, 128, 128, 255]]
+    """
+    n = np.asarray(normals, dtype=np.float64)
+    rgb = np.clip(np.floor((n * 0.5 + 0.5) * 255.0 + 0.5), 0, 255).astype(np.uint8)
+    return np.concatenate([rgb, np.full(n.shape[:-1] + (1,), 255, np.uint8)], axis=-1)
 
 
 def texel_rect_corners(plan: LayerPlan, layer_distance: float, rects: np.ndarray) -> np.ndarray:
@@ -747,6 +801,19 @@ def check_impostor(impostor: Impostor) -> None:
             )
         if page.shape[0] < 1 or page.shape[1] < 1:
             raise BundleFormatError(f"page {index} is empty: {page.shape}")
+    if not isinstance(impostor.channels, dict):
+        raise BundleFormatError(f"channels is a {type(impostor.channels).__name__}, expected a dict")
+    for name, pages in impostor.channels.items():
+        if name not in PAGE_CHANNELS:
+            raise BundleFormatError(f"unknown channel {name!r}; known: {', '.join(PAGE_CHANNELS)}")
+        if not isinstance(pages, tuple) or len(pages) != len(impostor.pages):
+            raise BundleFormatError(f"channel {name!r} has {len(pages)} pages, the colour {len(impostor.pages)}")
+        for index, (page, colour) in enumerate(zip(pages, impostor.pages)):
+            if not isinstance(page, np.ndarray) or page.dtype != np.uint8 or page.shape != colour.shape:
+                raise BundleFormatError(
+                    f"channel {name!r} page {index} is {getattr(page, 'shape', None)} {getattr(page, 'dtype', '')}, "
+                    f"expected {colour.shape} uint8 like colour page {index}"
+                )
     payload = impostor.payload
     if PAYLOAD_KINDS.get(getattr(payload, "kind", None)) is not type(payload):
         raise BundleFormatError(f"payload is a {type(payload).__name__}, expected one of {sorted(PAYLOAD_KINDS)}")

@@ -272,6 +272,9 @@ def tile_uv(layout: AtlasLayout, i: int) -> np.ndarray:
 def bleed_rgb(tile: np.ndarray, iterations: int) -> np.ndarray:
     """(h, w, 4) uint8 copy of ``tile`` whose fully transparent texels take their neighbours' RGB.
 
+    A tile with more channels (a normal channel after the colour, (h, w, 8)) has every channel but
+    the colour's alpha (3) bled the same way.
+
     Each iteration gives every still-uncoloured alpha-0 texel the alpha-weighted mean RGB of its 8
     neighbours that have colour (opaque texels weigh their alpha, texels coloured in an earlier
     iteration weigh 1).  Alpha is unchanged.  Without this, bilinear filtering and mipmapping mix
@@ -286,7 +289,8 @@ def bleed_rgb(tile: np.ndarray, iterations: int) -> np.ndarray:
     weight = out[..., 3].astype(np.int64)
     if iterations <= 0 or weight.all() or not weight.any():
         return out
-    rgb = out[..., :3].astype(np.int64)
+    colours = [c for c in range(out.shape[2]) if c != 3]
+    rgb = out[..., colours].astype(np.int64)
     h, w = weight.shape
     for _ in range(iterations):
         todo = weight == 0
@@ -295,7 +299,7 @@ def bleed_rgb(tile: np.ndarray, iterations: int) -> np.ndarray:
         wp = np.pad(weight, 1)
         cp = np.pad(rgb * weight[..., None], ((1, 1), (1, 1), (0, 0)))
         den = np.zeros((h, w), dtype=np.int64)
-        num = np.zeros((h, w, 3), dtype=np.int64)
+        num = np.zeros((h, w, len(colours)), dtype=np.int64)
         for dy in (0, 1, 2):
             for dx in (0, 1, 2):
                 if dy == 1 and dx == 1:
@@ -308,7 +312,7 @@ def bleed_rgb(tile: np.ndarray, iterations: int) -> np.ndarray:
         d = den[new][:, None]
         rgb[new] = (num[new] + d // 2) // d  # rounded integer mean
         weight[new] = 1
-    out[..., :3] = rgb.astype(np.uint8)
+    out[..., colours] = rgb.astype(np.uint8)
     return out
 
 
@@ -317,7 +321,9 @@ def fill_nearest_rgb(image: np.ndarray) -> np.ndarray:
 
     The whole-layer form of :func:`bleed_rgb` (one Euclidean distance transform instead of
     iterations), so bilinear filtering and every mip level see opaque colours around content.
-    Ties between equally near texels are broken by scipy's deterministic scan order.
+    Ties between equally near texels are broken by scipy's deterministic scan order.  An image
+    with more channels (a normal channel after the colour) has every channel but the colour's
+    alpha (3) filled the same way.
 
     >>> t = np.zeros((1, 3, 4), dtype=np.uint8); t[0, 0] = (200, 100, 50, 255)
     >>> fill_nearest_rgb(t)[0].tolist()
@@ -330,7 +336,8 @@ def fill_nearest_rgb(image: np.ndarray) -> np.ndarray:
     if opaque.all() or not opaque.any():
         return out
     iy, ix = distance_transform_edt(~opaque, return_distances=False, return_indices=True)
-    out[..., :3] = out[iy, ix, :3]
+    colours = [c for c in range(out.shape[2]) if c != 3]
+    out[..., colours] = out[iy, ix][..., colours]
     return out
 
 
@@ -347,7 +354,8 @@ def compose(layout: AtlasLayout, tiles, padding: int | None = None, bleed: int =
     layout : AtlasLayout
         From :func:`pack`.
     tiles : sequence of n (h_i, w_i, 4) uint8
-        RGBA tiles, top row first, in the order of the sizes given to :func:`pack`.
+        RGBA tiles, top row first, in the order of the sizes given to :func:`pack`; (h_i, w_i, 4c)
+        for c channels of four (colour, then normals), every tile alike: the pages have as many.
     padding : int or None
         Must equal ``layout.padding`` when given (the layout was packed for it).
     bleed : int
@@ -375,12 +383,14 @@ def compose(layout: AtlasLayout, tiles, padding: int | None = None, bleed: int =
     if len(tiles) != n:
         raise LayerPlanError(f"layout has {n} tiles, got {len(tiles)} images")
     p = layout.padding
-    pages = [np.zeros((int(hh), int(ww), 4), dtype=np.uint8) for ww, hh in layout.page_sizes]
+    depth = int(np.asarray(tiles[0]).shape[-1]) if tiles and np.asarray(tiles[0]).ndim == 3 else 4
+    depth = depth if depth in (4, 8) else 4
+    pages = [np.zeros((int(hh), int(ww), depth), dtype=np.uint8) for ww, hh in layout.page_sizes]
     for i, tile in enumerate(tiles):
         t = np.asarray(tile)
         w, h = layout.sizes[i]
-        if t.shape != (h, w, 4) or t.dtype != np.uint8:
-            raise LayerPlanError(f"tile {i} must be ({h}, {w}, 4) uint8, got {t.shape} {t.dtype}")
+        if t.shape != (h, w, depth) or t.dtype != np.uint8:
+            raise LayerPlanError(f"tile {i} must be ({h}, {w}, {depth}) uint8, got {t.shape} {t.dtype}")
         if layout.rotated[i]:
             t = np.rot90(t, k=-1)
         t = bleed_rgb(t, bleed)

@@ -30,7 +30,7 @@ class CulledLayer:
     """One recorded layer after culling."""
 
     index: int  # the layer's index in the plan
-    image: np.ndarray  # (H, W, 4) uint8, top row first (after the fill, if any)
+    image: np.ndarray  # (H, W, 4) uint8 (8 with the normal channel), top row first (after the fill, if any)
     kept: np.ndarray  # (H, W) bool: covered and not hidden from the whole view cell
     covered: int  # texels covered
     culled: int  # covered texels hidden from the whole view cell
@@ -45,6 +45,7 @@ def culled_layers(
     clock: StageClock,
     conservative: bool = True,
     fill: Fill | None = None,
+    normals: bool = False,
 ) -> Iterator[CulledLayer]:
     """Record, fill and cull ``plan``'s layers of ``scene`` in order, timing ``record``, ``gap_fill``
     (when ``fill`` is given) and ``cull`` on ``clock``.
@@ -52,10 +53,12 @@ def culled_layers(
     ``plan`` is anything :func:`farfield.core.layering.recording.iter_layers` records (a part's
     :class:`~farfield.core.layering.plan.LayerPlan` or an environment-map face); ``scene`` a scene
     or its objects as the view cell sees them (:func:`farfield.core.sidedness.seen_from_cell`).
+    ``normals`` records the normal channel too: each image is then (H, W, 8), the world shading
+    normals in its last four channels (:func:`~farfield.core.layering.recording.iter_layers`).
     """
     res_x, res_y = (int(r) for r in plan.texture_resolution)
     culler = LayerCuller((res_y, res_x), culling)
-    layers = iter_layers(scene, plan, conservative)
+    layers = iter_layers(scene, plan, conservative, normals)
     previous = None
     while True:
         with clock("record"):

@@ -54,13 +54,15 @@ INSTANCE_ATTRIBUTES = (
     "i_uv01", "i_uv2", "i_color0", "i_color1", "i_color2",
 )  # fmt: skip
 INSTANCE_FLOATS = 43
+# With the normal channel (the NORMALS variant): three world shading normals appended.
+NORMAL_FORMAT, NORMAL_ATTRIBUTES, NORMAL_FLOATS = ("3f", "3f", "3f"), ("i_normal0", "i_normal1", "i_normal2"), 9
 
 
 @dataclass(frozen=True, slots=True)
 class RecordedLayers:
     """The recorded layers of one plan, nearest first."""
 
-    rgba: np.ndarray  # (k, h, w, 4) uint8; row 0 is the bottom image row (GL order), alpha 255 = covered
+    rgba: np.ndarray  # (k, h, w, 4) uint8 (8 with normals); row 0 the bottom image row (GL order), alpha 255 = covered
     eye_borders: np.ndarray  # (k + 1,) float64 slab borders, eye depth from the reference viewpoint
     drawn_triangles: np.ndarray  # (k,) int64 triangles drawn per layer (clipped pairs with a rectangle)
 
@@ -501,11 +503,45 @@ def warm_kernels() -> float:
     return time.perf_counter() - start
 
 
-def _instance_records(instances: SlabInstances, obj: SceneObject) -> np.ndarray:
-    """(n, 43) float32 records for the GL upload, in the layout of INSTANCE_FORMAT."""
+def pair_normals(obj: SceneObject, triangle: np.ndarray, viewpoint: np.ndarray) -> np.ndarray:
+    """(3, 3, n) float64 world shading normals (coordinate, corner, pair) of ``obj``'s triangles
+    ``triangle`` (n,), on the side a viewer at ``viewpoint`` sees.
+
+    The vertex normals where the object has them, else each triangle's face normal (glTF: flat
+    shading where ``NORMAL`` is missing).  A double-sided triangle whose back faces ``viewpoint``
+    has them reversed, as glTF draws the back of a double-sided material; a one-sided one keeps
+    its front's.
+
+    >>> tri = SceneObject("t", np.array([[0.0, 0, 5], [1, 0, 5], [0, 1, 5]]), np.array([[0, 1, 2]]))
+    >>> (pair_normals(tri, np.array([0]), np.zeros(3))[:, 0, 0] + 0.0).tolist()  # its front (+z) faces away
+    [0.0, 0.0, -1.0]
+    >>> from dataclasses import replace
+    >>> pair_normals(replace(tri, double_sided=False), np.array([0]), np.zeros(3))[:, 0, 0].tolist()
+    [0.0, 0.0, 1.0]
+    """
+    corners = obj.faces[triangle].T  # (3, n)
+    v = obj.vertices
+    a, b, c = v[corners[0]], v[corners[1]], v[corners[2]]
+    face = np.cross(b - a, c - a)  # (n, 3)
+    if obj.normals is not None:
+        normals = np.take(obj.normals.T, corners, axis=1)  # (3, 3, n)
+    else:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            unit = face / np.linalg.norm(face, axis=1, keepdims=True)
+        normals = np.repeat(np.nan_to_num(unit).T[:, None, :], 3, axis=1)
+    if obj.double_sided:
+        behind = np.einsum("ij,ij->i", face, (a + b + c) / 3.0 - viewpoint) > 0.0
+        normals = np.where(behind[None, None, :], -normals, normals)
+    return normals
+
+
+def _instance_records(instances: SlabInstances, obj: SceneObject, viewpoint: np.ndarray | None = None) -> np.ndarray:
+    """(n, 43) float32 records for the GL upload, in the layout of INSTANCE_FORMAT; (n, 52) with
+    the normals seen from ``viewpoint`` appended (:func:`pair_normals`) when it is given."""
     n = instances.triangle.shape[0]
     corners = obj.faces[instances.triangle].T  # (3, n)
-    records = np.empty((INSTANCE_FLOATS, n), dtype="<f4")  # filled row by row, transposed once
+    extra = NORMAL_FLOATS if viewpoint is not None else 0
+    records = np.empty((INSTANCE_FLOATS + extra, n), dtype="<f4")  # filled row by row, transposed once
     records[0:4] = instances.rect
     records[4:14] = instances.polygon.transpose(1, 0, 2).reshape(10, n)  # x0, y0, x1, y1, ...
     records[14] = instances.count
@@ -519,6 +555,8 @@ def _instance_records(instances: SlabInstances, obj: SceneObject) -> np.ndarray:
         records[31:43] = (np.take(obj.vertex_colors.T, corners, axis=1) / 255.0).transpose(1, 0, 2).reshape(12, n)
     else:
         records[31:43] = 1.0
+    if viewpoint is not None:
+        records[43:52] = pair_normals(obj, instances.triangle, viewpoint).transpose(1, 0, 2).reshape(9, n)
     return np.ascontiguousarray(records.T)
 
 
@@ -539,11 +577,13 @@ def slab_variant(obj: SceneObject) -> tuple[str, ...]:
     return tuple(d for d in mesh_variant(obj, planes=False, open_faces=False) if d in ("TEXTURED", "ALPHA_CUT"))
 
 
-def _instance_format(prog: moderngl.Program) -> tuple[str, ...]:
-    """INSTANCE_FORMAT and the attribute names for ``prog``: attributes its variant does not read
-    (the compiler removed them) become padding."""
+def _instance_format(prog: moderngl.Program, normals: bool = False) -> tuple[str, ...]:
+    """INSTANCE_FORMAT (with the normals when ``normals``) and the attribute names for ``prog``:
+    attributes its variant does not read (the compiler removed them) become padding."""
     formats, names = [], []
-    for fmt, name in zip(INSTANCE_FORMAT.split()[:-1], INSTANCE_ATTRIBUTES, strict=True):
+    fields = (*INSTANCE_FORMAT.split()[:-1], *(NORMAL_FORMAT if normals else ()))
+    attributes = (*INSTANCE_ATTRIBUTES, *(NORMAL_ATTRIBUTES if normals else ()))
+    for fmt, name in zip(fields, attributes, strict=True):
         if name in prog:
             formats.append(fmt)
             names.append(name)
@@ -580,6 +620,7 @@ def iter_layers(
     scene: Scene | Sequence[SceneObject],
     plan: LayerPlan,
     conservative: bool = True,
+    normals: bool = False,
 ) -> Iterator[tuple[int, np.ndarray, int]]:
     """Record the layers of ``plan`` one at a time: yields ``(i, rgba, drawn)`` nearest first.
 
@@ -599,6 +640,10 @@ def iter_layers(
     kept texels, not with layers x image.  GL resources are released when the generator finishes
     or is closed.  ``conservative=False`` uses the standard "texel centre inside" rule instead; it
     exists to show (in tests) the holes the conservative rule prevents.
+
+    ``normals=True`` records the normal channel too: ``rgba`` is then (h, w, 8), its last four
+    channels the world shading normal of the point each texel shows (:func:`pair_normals`, the
+    same point as its colour), encoded ``n * 0.5 + 0.5`` in RGB, alpha 255 where covered.
     """
     ctx = gl_context()
     res_x, res_y = (int(r) for r in plan.texture_resolution)
@@ -613,27 +658,30 @@ def iter_layers(
             eye, obj.faces, eye_borders, plan.frustum_half_tangents, plan.texture_resolution, faces_with_area(obj)
         )
         if instances.triangle.size:
-            draws.append((obj, instances.offsets, _instance_records(instances, obj)))
+            viewpoint = np.asarray(plan.reference_viewpoint, dtype=np.float64) if normals else None
+            draws.append((obj, instances.offsets, _instance_records(instances, obj, viewpoint)))
     largest = max((int(np.diff(offsets).max()) for _, offsets, _ in draws), default=0)
+    floats = INSTANCE_FLOATS + (NORMAL_FLOATS if normals else 0)
 
     colour = ctx.texture((res_x, res_y), 4)
+    targets = [colour] + ([ctx.texture((res_x, res_y), 4)] if normals else [])
     depth = ctx.depth_texture((res_x, res_y))
-    fbo = ctx.framebuffer([colour], depth)
-    owned = [colour, depth, fbo]
+    fbo = ctx.framebuffer(targets, depth)
+    owned = [*targets, depth, fbo]
     try:
         # One buffer for every draw: moderngl has no base instance, so each (object, layer) draw
         # writes its own instances to the start of a freshly orphaned store.
-        stream = ctx.buffer(reserve=max(largest, 1) * INSTANCE_FLOATS * 4, dynamic=True)
+        stream = ctx.buffer(reserve=max(largest, 1) * floats * 4, dynamic=True)
         owned.append(stream)
         variants = {}  # defines -> (program, its vertex array over the stream)
         passes, uploaded = [], {}  # objects sharing a texture (and its cut) share its GL textures
         for obj, _, _ in draws:
-            defines = slab_variant(obj)
+            defines = slab_variant(obj) + (("NORMALS",) if normals else ())
             if defines not in variants:
                 prog = program(ctx, "slab_instanced.vert", "slab.frag", defines=defines)
                 prog["resolution"].value = (float(res_x), float(res_y))
                 prog["conservative"].value = bool(conservative)
-                vao = ctx.vertex_array(prog, [(stream, *_instance_format(prog))])
+                vao = ctx.vertex_array(prog, [(stream, *_instance_format(prog, normals))])
                 owned.append(vao)
                 variants[defines] = (prog, vao)
             key = None if obj.texture is None else (id(obj.texture), obj.alpha_cutoff, float(obj.base_color[3]))
@@ -644,7 +692,7 @@ def iter_layers(
         per_layer = np.zeros(k, dtype=np.int64)
         for _, offsets, _ in draws:
             per_layer += np.diff(offsets)
-        empty = np.zeros((res_y, res_x, 4), dtype=np.uint8)
+        empty = np.zeros((res_y, res_x, 4 * len(targets)), dtype=np.uint8)
         empty.flags.writeable = False
         for i in range(k):
             if per_layer[i] == 0:  # nothing meets this slab: no draw, no read-back
@@ -684,6 +732,10 @@ def iter_layers(
                 vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
                 drawn += count
             layer = np.frombuffer(colour.read(), dtype=np.uint8).reshape(res_y, res_x, 4)
+            if normals:
+                layer = np.concatenate(
+                    [layer, np.frombuffer(targets[1].read(), dtype=np.uint8).reshape(res_y, res_x, 4)], axis=2
+                )
             ctx.depth_func = "<"  # the GL default, which every other pass on this context assumes
             yield i, layer, drawn
     finally:
@@ -698,15 +750,17 @@ def record_layers(
     plan: LayerPlan,
     conservative: bool = True,
     on_layer: Callable[[int], None] | None = None,
+    normals: bool = False,
 ) -> RecordedLayers:
-    """Every layer of ``plan`` at once (see :func:`iter_layers`; this holds k x h x w x 4 bytes).
+    """Every layer of ``plan`` at once (see :func:`iter_layers`; this holds k x h x w x 4 bytes,
+    8 with ``normals``).
 
     ``on_layer(i)`` is called after layer i.
     """
     res_x, res_y = (int(r) for r in plan.texture_resolution)
-    out = np.zeros((plan.count, res_y, res_x, 4), dtype=np.uint8)
+    out = np.zeros((plan.count, res_y, res_x, 8 if normals else 4), dtype=np.uint8)
     drawn = np.zeros(plan.count, dtype=np.int64)
-    for i, layer, count in iter_layers(scene, plan, conservative):
+    for i, layer, count in iter_layers(scene, plan, conservative, normals):
         out[i], drawn[i] = layer, count
         if on_layer is not None:
             on_layer(i)

@@ -88,6 +88,20 @@ def check_pages(max_page: int, padding: int) -> None:
                              f"give padding < {max_page // 2} or a larger max_page")  # fmt: skip
 
 
+def split_channels(pages: tuple[np.ndarray, ...]) -> tuple[tuple[np.ndarray, ...], dict]:
+    """Pages of 8 channels (colour, then normals: tiles cut from layers recorded with normals) as
+    the colour pages and the impostor's ``channels`` (``{"normal": pages}``); pages of 4 as they are.
+
+    >>> colour, channels = split_channels((np.zeros((2, 2, 8), np.uint8),))
+    >>> colour[0].shape, channels["normal"][0].shape
+    ((2, 2, 4), (2, 2, 4))
+    """
+    if not pages or pages[0].shape[2] == 4:
+        return tuple(pages), {}
+    colour = tuple(np.ascontiguousarray(p[..., :4]) for p in pages)
+    return colour, {"normal": tuple(np.ascontiguousarray(p[..., 4:]) for p in pages)}
+
+
 def pack_tiles(
     tiles: list[np.ndarray], padding: int, max_page: int = MAX_PAGE
 ) -> tuple[tuple[np.ndarray, ...], np.ndarray, np.ndarray, int]:

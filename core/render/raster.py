@@ -145,6 +145,10 @@ def upload(
         columns.append(obj.vertex_colors / 255.0 if obj.vertex_colors is not None else np.ones((n, 4)))
         names.append("in_color")
         layout.append("4f")
+    if prog.get("in_normal", None) is not None:
+        columns.append(obj.normals)
+        names.append("in_normal")
+        layout.append("3f")
     data = np.concatenate(columns, axis=1).astype("<f4")
     vbo = ctx.buffer(np.ascontiguousarray(data).tobytes())
     ibo = ctx.buffer(obj.faces.astype("<u4").tobytes())
@@ -201,7 +205,13 @@ class MeshRenderer:
     Use as a context manager; ``release()`` frees every GL resource it made.
     """
 
-    def __init__(self, objects: list[SceneObject] | tuple[SceneObject, ...], clips=None):
+    def __init__(
+        self,
+        objects: list[SceneObject] | tuple[SceneObject, ...],
+        clips=None,
+        normals: bool = False,
+        normal_maps=None,
+    ):
         """``clips``: per object None or ``(centre (3,), half_size[, open_faces])``: what lies
         outside that cube is not drawn, except in the face pyramids named in ``open_faces`` (e.g.
         ``("+y",)``) (the reference runtime clips near-field geometry this way).  A closed cube is
@@ -211,6 +221,11 @@ class MeshRenderer:
         A one-sided object (``double_sided`` False) is drawn with back faces culled: a triangle
         shows only where the eye is on its front side (:mod:`farfield.core.sidedness`; the front
         winding follows each camera's handedness).
+
+        ``normals=True`` makes a G-buffer renderer: :meth:`render_normals` gives each pixel's world
+        shading normal beside its colour (mesh.frag's NORMALS output: the object's vertex normals,
+        else its flat normals; ``normal_maps``, per object None or a (h, w, 4) uint8 world-space
+        normal texture over its uv, an impostor's normal page, in their place).
 
         Objects are drawn in the order given, each with the cheapest variant of ``mesh.vert`` and
         ``mesh.frag`` that draws it (:func:`mesh_variant`: a discard only for an alpha cut or open
@@ -223,15 +238,36 @@ class MeshRenderer:
         self._owned: list = []
         self._draws = []
         uploaded: dict[int, moderngl.Texture] = {}  # objects sharing a texture array share its GL texture
-        for obj, clip in zip(objects, clips, strict=True):
+        self.normals = bool(normals)
+        normal_maps = list(normal_maps) if normal_maps is not None else [None] * len(objects)
+        for obj, clip, normal_map in zip(objects, clips, normal_maps, strict=True):
             origin = 0.5 * (obj.bounds[0] + obj.bounds[1])
             opened = tuple(clip[2]) if clip is not None and len(clip) > 2 else ()
             clip_half = float(clip[1]) if clip is not None else 0.0
             planes, open_faces = clip_half > 0.0 and not opened, clip_half > 0.0 and bool(opened)
             defines = mesh_variant(obj, planes, open_faces)
+            if self.normals:
+                defines += ("NORMALS",) + (
+                    ("NORMAL_MAP",)
+                    if normal_map is not None
+                    else ("VERTEX_NORMALS",)
+                    if obj.normals is not None
+                    else ()
+                )
             prog = program(ctx, "mesh.vert", "mesh.frag", defines=defines)
             vao, texture = upload(ctx, prog, obj, origin, uploaded, self._owned)
             uniforms = {}
+            if normal_map is not None:
+                if obj.uv is None or "TEXTURED" not in defines:
+                    raise ValueError(f"object {obj.name!r}: a normal map needs a textured object")
+                normal_texture = self.ctx.texture(
+                    (normal_map.shape[1], normal_map.shape[0]), 4, np.ascontiguousarray(normal_map[::-1]).tobytes()
+                )
+                normal_texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
+                self._owned.append(normal_texture)
+                uniforms["normal_texture"] = 1
+            else:
+                normal_texture = None
             if clip_half > 0.0:  # the difference in float64, so large world offsets cancel before narrowing
                 uniforms["clip_offset"] = tuple(float(c) for c in origin - np.asarray(clip[0], dtype=np.float64))
             if planes:
@@ -243,17 +279,31 @@ class MeshRenderer:
                     "clip_open_neg": tuple(float(f"-{axis}" in opened) for axis in "xyz"),
                 }
             uniforms |= material_uniforms(prog, obj, texture)
-            self._draws.append((obj, origin, prog, vao, texture, uniforms, planes, not obj.double_sided))
+            self._draws.append(
+                (obj, origin, prog, vao, (texture, normal_texture), uniforms, planes, not obj.double_sided)
+            )
         self._targets: dict[int, tuple] = {}
 
     def _target(self, resolution: int):
         if resolution not in self._targets:
             colour = self.ctx.texture((resolution, resolution), 4)
             depth = self.ctx.depth_texture((resolution, resolution))
-            fbo = self.ctx.framebuffer([colour], depth)
-            self._targets[resolution] = (colour, depth, fbo)
-            self._owned += [colour, depth, fbo]
+            targets = [colour] + ([self.ctx.texture((resolution, resolution), 4, dtype="f4")] if self.normals else [])
+            fbo = self.ctx.framebuffer(targets, depth)
+            self._targets[resolution] = (colour, depth, fbo, *targets[1:])
+            self._owned += [*targets, depth, fbo]
         return self._targets[resolution]
+
+    def render_normals(self, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+        """The (h, w, 4) uint8 image (:meth:`render`) and the (h, w, 3) float32 world shading normals
+        of the same pixels (zero where nothing was drawn), top row first; a renderer made with
+        ``normals=True`` only."""
+        if not self.normals:
+            raise ValueError("this renderer was made without normals")
+        image = self.render(camera)
+        normal = self._targets[camera.resolution][3]
+        data = np.frombuffer(normal.read(), dtype=np.float32).reshape(camera.resolution, camera.resolution, 4)
+        return image, data[::-1, :, :3].copy()
 
     def render(self, camera: Camera) -> np.ndarray:
         """(h, w, 4) uint8 image, top row first; alpha 255 where something was drawn."""
@@ -278,7 +328,7 @@ class MeshRenderer:
         return int(sum(obj.faces.shape[0] for obj, *_ in self._draws))
 
     def _draw(self, camera: Camera):
-        colour, _, fbo = self._target(camera.resolution)
+        colour, _, fbo, *_ = self._target(camera.resolution)
         ctx = self.ctx
         fbo.use()
         ctx.viewport = (0, 0, camera.resolution, camera.resolution)
@@ -302,7 +352,9 @@ class MeshRenderer:
         # hoisted: the eye matrices built one by one, the material's uniforms rebuilt every frame).
         matrices = camera.eye_matrices([origin for _, origin, *_ in self._draws])
         try:
-            for (_obj, _origin, prog, vao, texture, uniforms, clipped, one_sided), matrix in zip(self._draws, matrices):
+            for (_obj, _origin, prog, vao, (texture, normal_texture), uniforms, clipped, one_sided), matrix in zip(
+                self._draws, matrices
+            ):
                 if id(prog) not in framed:
                     framed.add(id(prog))
                     prog["half_tan"].value = (t, t)
@@ -319,6 +371,8 @@ class MeshRenderer:
                     (ctx.enable if culling else ctx.disable)(moderngl.CULL_FACE)
                 if texture is not None:
                     texture.use(0)
+                if normal_texture is not None:
+                    normal_texture.use(1)
                 vao.render(moderngl.TRIANGLES)
         finally:
             if planes:

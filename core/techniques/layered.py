@@ -15,13 +15,20 @@ import numpy as np
 
 from farfield.core import __version__
 from farfield.core.errors import LayerPlanError
-from farfield.core.impostor.impostor import Impostor, QuadPayload, texel_rect_corners
+from farfield.core.impostor.impostor import ChannelSet, Impostor, QuadPayload, texel_rect_corners, wants_normals
 from farfield.core.layering import recording
 from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.layering.culled import culled_layers
 from farfield.core.layering.culling import CullingMode
 from farfield.core.layering.plan import plan_layers
-from farfield.core.layering.tiles import QUAD_GEOMETRY_BYTES, check_pages, layer_records, layer_tiles, pack_tiles
+from farfield.core.layering.tiles import (
+    QUAD_GEOMETRY_BYTES,
+    check_pages,
+    layer_records,
+    layer_tiles,
+    pack_tiles,
+    split_channels,
+)
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_ERROR_PX, MAX_RESOLUTION, ErrorBudgetKind, PixelModel
 from farfield.core.scene import Scene
@@ -76,6 +83,11 @@ class BakeOptions:
         gt=0.0,
         lt=1.0,
     )
+    channels: ChannelSet = option(
+        "albedo",
+        "what each texel keeps: albedo (unlit colour, for baked lighting) or albedo+normal (world shading normals too, "
+        "so that an engine can light the impostor; a second set of atlas pages)",
+    )
     conservative: bool = option(True, "gap-free recording; false only to demonstrate the holes", internal=True)
     padding: int = option(2, "atlas padding between tiles, texels", ge=0, le=64)
     max_page: int = option(
@@ -115,7 +127,8 @@ def bake_layered(
     kept_per_layer: dict[int, int] = {}
     # One-sided triangles whose back faces the whole cell are not recorded (the plan keeps the part's bounds).
     seen = seen_from_cell(part.objects, cell)
-    for layer in culled_layers(seen, plan, options.culling, clock, options.conservative):
+    normals = wants_normals(options.channels)
+    for layer in culled_layers(seen, plan, options.culling, clock, options.conservative, normals=normals):
         i = layer.index
         counts["covered"] += layer.covered
         counts["culled"] += layer.culled
@@ -138,6 +151,7 @@ def bake_layered(
 
     with clock("atlas"):
         pages, quad_uv, quad_page, tile_bytes = pack_tiles(tiles, options.padding, options.max_page)
+        pages, channels = split_channels(pages)
     clock.report("atlas", 1, 1)
 
     quad_count = len(tiles)
@@ -158,6 +172,10 @@ def bake_layered(
         "texture_resolution": [res_x, res_y],
         "seconds": clock.totals(),
     }
+    if channels:  # memory per channel; a colour-only bake's stats stay as they were
+        stats["channel_bytes"] = {"albedo": texture_bytes} | {
+            name: int(sum(p.nbytes for p in channel)) for name, channel in channels.items()
+        }
     layers = layer_records(plan, layer_ids, [kept_per_layer[i] for i in layer_ids])
     return Impostor(
         technique="layered",
@@ -178,6 +196,7 @@ def bake_layered(
             "plan": plan.to_dict(),
         },
         code_version=__version__,
+        channels=channels,
     )
 
 

@@ -25,7 +25,23 @@ uniform vec3 clip_open_pos;  // except (1) beyond the cube in the face pyramids 
 uniform vec3 clip_open_neg;  // and -x, -y, -z that are drawn as geometry there
 in vec3 v_clip;
 #endif
-out vec4 frag_color;
+layout(location = 0) out vec4 frag_color;
+#ifdef NORMALS
+// The G-buffer's second target (float): the world shading normal of the pixel, on the viewer's
+// side where the surface is seen from its back (glTF: a double-sided material's back faces have
+// their normals reversed).  From NORMAL_MAP, a world-space normal texture (an impostor's normal
+// pages, encoded n * 0.5 + 0.5), else the interpolated VERTEX_NORMALS, else the flat normal of
+// the triangle (glTF's rule where NORMAL is missing).
+uniform mat4 eye_from_local;
+in vec3 v_eye;
+layout(location = 1) out vec4 frag_normal;
+#ifdef NORMAL_MAP
+uniform sampler2D normal_texture;
+#endif
+#ifdef VERTEX_NORMALS
+in vec3 v_normal;
+#endif
+#endif
 
 #include "colour.glsl"
 
@@ -51,4 +67,17 @@ void main() {
     if (c.a < alpha_cutoff) { discard; }
 #endif
     frag_color = vec4(linear_to_srgb(c.rgb), 1.0);
+#ifdef NORMALS
+    mat3 world_from_eye = transpose(mat3(eye_from_local));  // a rotation
+    vec3 flat_eye = cross(dFdx(v_eye), dFdy(v_eye));
+    flat_eye *= dot(flat_eye, v_eye) > 0.0 ? -1.0 : 1.0;  // towards the eye (at the eye frame's origin)
+    vec3 n = world_from_eye * flat_eye;
+#if defined(NORMAL_MAP)
+    n = texture(normal_texture, v_uv).rgb * 2.0 - 1.0;
+#elif defined(VERTEX_NORMALS)
+    n = gl_FrontFacing ? v_normal : -v_normal;
+#endif
+    float len = length(n);
+    frag_normal = vec4(len > 0.0 ? n / len : vec3(0.0), 1.0);
+#endif
 }

@@ -6,6 +6,8 @@
 // TEXTURED its texture coordinates, CLIP_PLANES writes the six clip distances of a closed clip
 // cube (the GL cuts there), OPEN_FACES passes the position in the clip cube's frame for
 // mesh.frag's discard.  What an object lacks is neither computed per vertex nor interpolated.
+// NORMALS (a G-buffer render, core/render/raster.py) passes the eye-frame position, and
+// VERTEX_NORMALS the object's shading normals, for mesh.frag's normal output.
 uniform mat4 eye_from_local;  // eye frame: x right, y up, z forward (depth)
 uniform vec2 half_tan;
 uniform vec2 depth_range;     // near, far eye depth
@@ -29,6 +31,13 @@ out vec4 v_color;
 #ifdef OPEN_FACES
 out vec3 v_clip;              // position relative to the clip cube's centre
 #endif
+#ifdef NORMALS
+out vec3 v_eye;               // eye-frame position, for the flat normal where there is no other
+#endif
+#ifdef VERTEX_NORMALS
+in vec3 in_normal;            // world shading normal (the local frame is the world's, translated)
+out vec3 v_normal;
+#endif
 
 #include "colour.glsl"
 
@@ -36,6 +45,12 @@ void main() {
     vec3 e = (eye_from_local * vec4(in_position, 1.0)).xyz;
     float n = depth_range.x, f = depth_range.y;
     gl_Position = vec4(e.x / half_tan.x, e.y / half_tan.y, (f + n) / (f - n) * e.z - 2.0 * f * n / (f - n), e.z);
+#ifdef NORMALS
+    v_eye = e;
+#endif
+#ifdef VERTEX_NORMALS
+    v_normal = in_normal;
+#endif
 #ifdef TEXTURED
     v_uv = in_uv;
 #endif

@@ -9,6 +9,11 @@
 // mean colour of the texels under its footprint that pass the cut (cut_texture), never the RGB of
 // texels the cut removes, which the source never shows.
 //
+// NORMALS (core/layering/recording.py, a layer recorded with its normal channel) writes, beside the
+// colour, the world shading normal of the same point (the vertex normals interpolated with the
+// same perspective-correct barycentrics, turned to the reference viewpoint's side on the CPU),
+// encoded n * 0.5 + 0.5 in a second RGBA8 target.
+//
 // Variants (core/recording.py::slab_variant): TEXTURED for an object with a base-colour texture,
 // ALPHA_CUT for one with an alpha cut.  llvmpipe runs both sides of a branch on a uniform (the
 // texture reads included, with their lanes masked off), so a branch no object of the variant can
@@ -20,6 +25,10 @@ flat in int g_solid;
 flat in vec3 g_tri[3];
 flat in vec2 g_uv[3];
 flat in vec4 g_color[3];
+#ifdef NORMALS
+flat in vec3 g_normal[3];
+layout(location = 1) out vec4 frag_normal;
+#endif
 
 uniform bool conservative;
 uniform vec2 slab;
@@ -37,7 +46,7 @@ uniform vec2 alpha_mip_size;
 uniform int alpha_mip_levels;
 uniform vec2 texture_size;
 
-out vec4 frag_color;
+layout(location = 0) out vec4 frag_color;
 
 #include "colour.glsl"
 
@@ -390,4 +399,10 @@ void main() {
     // colour is read back, so the bands change no coverage.
     gl_FragDepth = 0.5 * (depth - slab.x) / max(slab.y - slab.x, 1e-30) + (shown ? 0.0 : 0.5);
     frag_color = vec4(linear_to_srgb(colour.rgb), 1.0);
+#ifdef NORMALS
+    vec3 n = pb.x * g_normal[0] + pb.y * g_normal[1] + pb.z * g_normal[2];
+    float len = length(n);
+    n = len > 1e-12 ? n / len : normalize(g_normal[0] + g_normal[1] + g_normal[2] + vec3(0.0, 0.0, 1e-30));
+    frag_normal = vec4(n * 0.5 + 0.5, 1.0);
+#endif
 }

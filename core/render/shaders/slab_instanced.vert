@@ -17,6 +17,12 @@ in vec2 i_uv2;
 in vec4 i_color0;
 in vec4 i_color1;
 in vec4 i_color2;
+#ifdef NORMALS
+in vec3 i_normal0;   // world shading normals at the triangle's vertices, turned to the reference viewpoint's side
+in vec3 i_normal1;
+in vec3 i_normal2;
+flat out vec3 g_normal[3];
+#endif
 
 flat out vec2 g_poly[5];
 flat out vec3 g_edge[5];  // inward unit normal n and offset d of each edge: n . x + d >= 0 inside
@@ -67,4 +73,9 @@ void main() {
     g_color[0] = i_color0;
     g_color[1] = i_color1;
     g_color[2] = i_color2;
+#ifdef NORMALS
+    g_normal[0] = i_normal0;
+    g_normal[1] = i_normal1;
+    g_normal[2] = i_normal2;
+#endif
 }
