@@ -263,7 +263,9 @@ def test_obj_without_vn_is_flat_and_unchanged():
     assert scene.objects[0].normals is None and len(scene.objects[0].vertices) == 4
 
 
-@pytest.mark.parametrize("face", ["f 1//1 2//1 3//3", "f 1//1 2//-5 3//1", "f 1/1/1 2/1/9 3/1/1"])
+@pytest.mark.parametrize(
+    "face", ["f 1//1 2//1 3//3", "f 1//1 2//-5 3//1", "f 1/1/1 2/1/9 3/1/1", "f 1//1 2//1 3//99999999999999999999999"]
+)
 def test_obj_vn_index_out_of_range_is_refused(face):
     text = SQUARE_V + "vt 0 0\nvn 0 0 1\nvn 0 1 0\n" + face + "\n"
     with pytest.raises(

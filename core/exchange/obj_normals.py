@@ -80,7 +80,10 @@ def complete_normals(text: str) -> str:
     named = _FULL_CORNER.findall(" ".join(corners))
     if not named:
         return text  # no face names a normal: trimesh reads the file as before
-    indices = np.array(named, dtype=np.int64)
+    try:
+        indices = np.array(named, dtype=np.int64)
+    except (OverflowError, ValueError):  # an index of 20 digits: the loop below names it
+        indices = np.array([-1 - count], dtype=np.int64)
     resolved = np.where(indices > 0, indices - 1, count + indices)
     if len(named) == len(corners) and resolved.min() >= 0 and resolved.max() < count:
         return text  # every corner names a normal that exists
