@@ -75,6 +75,16 @@ class GltfBuilder:
             spec["max"] = stored.max(axis=0).tolist()
         return self._add("accessors", spec)
 
+    def normal_accessor(self, normals) -> int:
+        """A NORMAL accessor: float32, or normalized BYTE/SHORT for int8/int16 ``normals``
+        (KHR_mesh_quantization, which the file then requires)."""
+        normals = np.asarray(normals)
+        component = {np.dtype(np.int8): BYTE, np.dtype(np.int16): SHORT}.get(normals.dtype, FLOAT)
+        if component != FLOAT:
+            self.used.add("KHR_mesh_quantization")
+            self.required.add("KHR_mesh_quantization")
+        return self.accessor(normals, component, normalized=component != FLOAT)
+
     def sparse(self, accessor: int, indices, values, component: int = FLOAT) -> None:
         """Give ``accessor`` a sparse substitution of ``values`` at ``indices``."""
         indices = np.asarray(indices, dtype=np.uint16)
@@ -123,8 +133,9 @@ class GltfBuilder:
         return index
 
     def quad(self, name: str, corner, size: float, material: int, uv=None, uv1=None, colours=None,
-             position_component: int = FLOAT, **node) -> int:  # fmt: skip
-        """A node with a square facing +z, lower-left ``corner``, side ``size``."""
+             position_component: int = FLOAT, normals=None, **node) -> int:  # fmt: skip
+        """A node with a square facing +z, lower-left ``corner``, side ``size``; ``normals`` (4, 3):
+        its NORMAL, float, or normalized BYTE/SHORT when given as int8/int16 (KHR_mesh_quantization)."""
         corner = np.asarray(corner, dtype=np.float64)
         square = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=np.float64)
         attributes = {}
@@ -143,6 +154,8 @@ class GltfBuilder:
             colours = np.asarray(colours)
             component = UBYTE if colours.dtype == np.uint8 else USHORT if colours.dtype == np.uint16 else FLOAT
             attributes["COLOR_0"] = self.accessor(colours, component, normalized=component != FLOAT)
+        if normals is not None:
+            attributes["NORMAL"] = self.normal_accessor(normals)
         indices = self.accessor(np.array([0, 1, 2, 0, 2, 3]), USHORT, target=ELEMENT_ARRAY_BUFFER)
         mesh = self.mesh([{"attributes": attributes, "indices": indices, "material": material}])
         return self.node(name=name, mesh=mesh, **node)

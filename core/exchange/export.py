@@ -1,8 +1,9 @@
 """Scenes written as GLB: :func:`to_trimesh` (one node per object, glTF materials) and :func:`scene_glb`.
 
 What ``farfield scenes demo`` writes and what tests upload: every object keeps its name, geometry,
-UVs, vertex colours, base colour, texture, alpha cutoff and sidedness, so a GLB written here loads back as the
-same scene (vertex colours within their 8-bit quantisation).
+UVs, vertex colours, shading normals (where it has them), base colour, texture, alpha cutoff and
+sidedness, so a GLB written here loads back as the same scene (vertex colours within their 8-bit
+quantisation, normals within float32).
 """
 
 from __future__ import annotations
@@ -50,7 +51,13 @@ def to_trimesh(scene: Scene) -> trimesh.Scene:
             linear = np.array(obj.vertex_colors)
             linear[:, :3] = np.round(srgb_to_linear(linear[:, :3] / 255.0) * 255.0)
             visual.vertex_attributes["color"] = linear  # written as COLOR_0
-        mesh = trimesh.Trimesh(np.array(obj.vertices), np.array(obj.faces), visual=visual, process=False)
+        mesh = trimesh.Trimesh(
+            np.array(obj.vertices),
+            np.array(obj.faces),
+            visual=visual,
+            vertex_normals=None if obj.normals is None else np.array(obj.normals),  # written as NORMAL
+            process=False,
+        )
         mesh.metadata["farfield_object"] = obj.name
         out.add_geometry(mesh, geom_name=obj.name, node_name=obj.name)
     return out

@@ -18,6 +18,11 @@ options that change what is shown (``-t``, ``-clamp on``, ``-mm``, ``-cc on``, `
 on ``map_d`` but ``-imfchan``) are not supported and each gives a warning naming it.  OBJ ``vt``
 coordinates already have their origin at the bottom-left and are kept as they are.
 
+Shading normals: ``vn`` as the face corners name them (``f v/vt/vn``, ``f v//vn``), a position
+with several normals split into several vertices; a face without normal indices in a file whose
+other faces have them gets its face normal, and a ``vn`` index out of range is refused
+(:mod:`farfield.core.exchange.obj_normals`).  A file without them is shaded flat.
+
 trimesh only logs (at debug level) a material library or texture it cannot find; :func:`load`
 looks them up itself and returns a warning for each, and the objects keep the material colour.
 
@@ -41,8 +46,16 @@ from trimesh.visual.material import SimpleMaterial
 
 from farfield.core.errors import SceneLoadError
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
+from farfield.core.exchange.obj_normals import complete_normals
 from farfield.core.exchange.references import MapStatement, map_statement
-from farfield.core.exchange.trimesh_scene import IMAGE_ERRORS, check_texels, fetch, objects_from_trimesh, parse
+from farfield.core.exchange.trimesh_scene import (
+    IMAGE_ERRORS,
+    check_texels,
+    fetch,
+    file_normals,
+    objects_from_trimesh,
+    parse,
+)
 from farfield.core.scene import SceneObject
 from farfield.core.sidedness import DEFAULT_SIDES, double_sided
 
@@ -325,6 +338,7 @@ def load(
     """
     text = decode_text(data)
     _check_indices(text)
+    text = complete_normals(text)
     warnings: list[str] = []
     maps: dict[str, dict[str, str]] = {}
     libraries = _MTLLIB.findall(text)
@@ -340,7 +354,12 @@ def load(
             maps = texture_maps(decode_text(mtl))
     scene = parse(text.encode("utf-8"), extension, resolver, split_objects=True, group_material=True)
     warnings.extend(_textures(scene, maps, resolver, limits.texture_pixels))
+    normals = {key: found for key, mesh in scene.geometry.items() if (found := file_normals(mesh)) is not None}
     objects, more = objects_from_trimesh(
-        scene, rename=_short_names(scene), double_sided=double_sided(sides), max_texture_pixels=limits.texture_pixels
+        scene,
+        rename=_short_names(scene),
+        double_sided=double_sided(sides),
+        max_texture_pixels=limits.texture_pixels,
+        normals=normals,
     )
     return objects, tuple(warnings) + more

@@ -4,6 +4,12 @@ A PLY file holds one mesh.  ``red, green, blue[, alpha]`` vertex properties beco
 face colours become the material colour when uniform, else per-corner vertex colours.  A file with
 vertices but no faces is a point cloud and has no triangles.
 
+Shading normals: ``nx ny nz`` vertex properties when all three are declared, of any numeric type
+(the format states no range: a float is taken as it is, an integer type scaled to -1..1 by its
+range as glTF scales normalized integers, §3.11; the direction is what counts, since they are
+renormalised), and zero or non-finite ones repaired with a warning
+(:mod:`farfield.core.exchange.normals`).  Without them the object is shaded flat.
+
 Sidedness: the format states none, so every object is one-sided by default (``sides="one"``: seen
 from the front of each triangle only, counter-clockwise, as engines and three.js's PLYLoader draw the
 file) or double-sided with ``sides="both"`` (:mod:`farfield.core.sidedness`).
@@ -15,6 +21,8 @@ import re
 from dataclasses import replace
 from pathlib import PurePath
 
+import numpy as np
+import trimesh
 from trimesh.resolvers import Resolver
 
 from farfield.core.errors import SceneLoadError
@@ -37,6 +45,31 @@ def _declared_counts(data: bytes) -> dict[str, int]:
     end = data.find(b"end_header")
     header = data[: end if end >= 0 else 4096]
     return {name.decode("ascii", "replace"): int(count) for name, count in _ELEMENT.findall(header)}
+
+
+def _normals(mesh: trimesh.Trimesh, warnings: list[str]) -> np.ndarray | None:
+    """(v, 3) float64 normals of the file's ``nx ny nz`` (trimesh keeps the vertex element as read,
+    by declared type, in ``metadata["_ply_raw"]``), integer types scaled by their range; None when
+    the file has none."""
+    raw = mesh.metadata.get("_ply_raw", {}).get("vertex", {}).get("data")
+    try:
+        columns = [np.asarray(raw[axis]) for axis in ("nx", "ny", "nz")]
+    except (KeyError, ValueError, IndexError, TypeError):
+        return None
+    scaled = []
+    for column in columns:
+        if column.dtype.kind in "iu":
+            info = np.iinfo(column.dtype)
+            scaled.append(np.maximum(column.astype(np.float64) / float(info.max), -1.0))
+        else:
+            scaled.append(column.astype(np.float64))
+    normals = np.column_stack(scaled)
+    if normals.shape != mesh.vertices.shape:
+        # trimesh unmerges the vertices of a file with per-face texture coordinates (its face
+        # ``texcoord`` lists); which vertex came from which it does not say.
+        warnings.append("the file's vertex normals do not match the vertices of its per-face uv; shaded flat")
+        return None
+    return normals
 
 
 def load(
@@ -82,9 +115,20 @@ def load(
             )
     nodes = list(scene.graph.nodes_geometry)
     rename = {nodes[0]: PurePath(name).stem or name} if len(nodes) == 1 else None
-    objects, warnings = objects_from_trimesh(
-        scene, rename=rename, double_sided=double_sided(sides), max_texture_pixels=limits.texture_pixels
+    warnings: list[str] = []
+    normals = {
+        key: found
+        for key, mesh in scene.geometry.items()
+        if isinstance(mesh, trimesh.Trimesh) and (found := _normals(mesh, warnings)) is not None
+    }
+    objects, more = objects_from_trimesh(
+        scene,
+        rename=rename,
+        double_sided=double_sided(sides),
+        max_texture_pixels=limits.texture_pixels,
+        normals=normals,
     )
+    warnings.extend(more)
     colours = vertex_colours(data)  # by their declared type: trimesh truncates ushort colours to a byte
     if colours is not None:
         objects = tuple(
@@ -93,4 +137,4 @@ def load(
             else obj
             for obj in objects
         )
-    return objects, warnings
+    return objects, tuple(warnings)

@@ -41,6 +41,7 @@ from trimesh.visual.material import PBRMaterial, SimpleMaterial
 
 from farfield.core.colour_space import encode_rgba_u8, srgb_to_linear
 from farfield.core.errors import SceneLoadError, SceneTooCostlyError
+from farfield.core.exchange.normals import repair_normals, transform_normals
 from farfield.core.exchange.references import FileIndex
 from farfield.core.scene import SceneObject
 
@@ -310,16 +311,33 @@ def _texture_colours(
     return out
 
 
+def file_normals(mesh: trimesh.Trimesh) -> np.ndarray | None:
+    """(v, 3) float64 vertex normals the parser read from the file (OBJ ``vn``, PLY ``nx ny nz``), or
+    None.  trimesh keeps them in the mesh's cache, and its ``vertex_normals`` property computes
+    smooth ones where the file had none, so the cache is asked (as trimesh's own exporters do)."""
+    if not isinstance(mesh, trimesh.Trimesh) or "vertex_normals" not in mesh._cache:
+        return None
+    normals = np.asarray(mesh._cache["vertex_normals"], dtype=np.float64)
+    return normals if normals.shape == np.shape(mesh.vertices) else None
+
+
 def _mesh_colours(
-    mesh: trimesh.Trimesh, name: str, textures: dict, warnings: list[str], linear: bool, max_pixels: int | None = None
+    mesh: trimesh.Trimesh,
+    name: str,
+    textures: dict,
+    warnings: list[str],
+    linear: bool,
+    max_pixels: int | None = None,
+    normals: np.ndarray | None = None,
 ):
-    """(vertices, faces, colours) of a mesh in its own frame; face colours may unshare vertices.
-    ``linear``: the file's factors and vertex colours are linear (glTF)."""
+    """(vertices, faces, colours, normals) of a mesh in its own frame; face colours may unshare
+    vertices (and ``normals``, (v, 3) per vertex or None, with them).  ``linear``: the file's
+    factors and vertex colours are linear (glTF)."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64)
     visual = mesh.visual
     if isinstance(visual, trimesh.visual.TextureVisuals):
-        return vertices, faces, _texture_colours(mesh, name, textures, warnings, linear, max_pixels)
+        return vertices, faces, _texture_colours(mesh, name, textures, warnings, linear, max_pixels), normals
     out = _Colours()
     kind = getattr(visual, "kind", None)
     if kind == "vertex":
@@ -333,11 +351,12 @@ def _mesh_colours(
         else:
             # The model has no face colours: give every face its own three corners.
             vertices = vertices[faces].reshape(-1, 3)
+            normals = None if normals is None else normals[faces].reshape(-1, 3)
             faces = np.arange(len(vertices), dtype=np.int64).reshape(-1, 3)
             out.vertex_colors = np.repeat(face_colors, 3, axis=0)
             if linear:
                 out.vertex_colors = encode_rgba_u8(out.vertex_colors)
-    return vertices, faces, out
+    return vertices, faces, out, normals
 
 
 def objects_from_trimesh(
@@ -346,6 +365,7 @@ def objects_from_trimesh(
     linear_colours: bool = False,
     double_sided: bool = True,
     max_texture_pixels: int | None = None,
+    normals: Mapping[str, np.ndarray] | None = None,
 ) -> tuple[tuple[SceneObject, ...], tuple[str, ...]]:
     """World-space :class:`SceneObject` s, one per geometry node of ``scene``, and warnings.
 
@@ -364,6 +384,12 @@ def objects_from_trimesh(
         (:mod:`farfield.core.sidedness`).
     max_texture_pixels : int or None
         The most texels a texture may have, checked before it is decoded (SceneTooCostlyError).
+    normals : mapping of str to (v, 3) float64, or None
+        The shading normals the file gives each geometry (by geometry name, in its mesh's vertex
+        order; :func:`file_normals`), for the formats that have them; a geometry not in it is
+        shaded flat (``normals`` None).  They are moved by the inverse transpose of the node's
+        transform and zero or non-finite ones repaired, with one warning per object
+        (:mod:`farfield.core.exchange.normals`).
 
     Returns
     -------
@@ -386,7 +412,10 @@ def objects_from_trimesh(
         if len(mesh.faces) == 0:
             warnings.append(f"node {name!r}: skipped a mesh without triangles")
             continue
-        vertices, faces, colours = _mesh_colours(mesh, name, textures, warnings, linear_colours, max_texture_pixels)
+        given = None if normals is None else normals.get(geometry_name)
+        vertices, faces, colours, given = _mesh_colours(
+            mesh, name, textures, warnings, linear_colours, max_texture_pixels, given
+        )
         if vertices.ndim != 2 or vertices.shape[1] != 3:
             # trimesh keeps OBJ ``v`` lines of two numbers as (v, 2) vertices.
             raise SceneLoadError(f"object {name!r}: vertices have shape {vertices.shape}, expected (v, 3)")
@@ -395,6 +424,10 @@ def objects_from_trimesh(
         if np.linalg.det(matrix[:3, :3]) < 0.0:
             # A mirroring transform turns counter-clockwise faces clockwise; restore the winding.
             faces = faces[:, ::-1]
+        if given is not None:
+            given, warning = repair_normals(name, vertices, faces, transform_normals(given, matrix[:3, :3]))
+            if warning is not None:
+                warnings.append(warning)
         objects.append(
             SceneObject(
                 name=name,
@@ -406,6 +439,7 @@ def objects_from_trimesh(
                 texture=colours.texture,
                 alpha_cutoff=colours.alpha_cutoff,
                 double_sided=double_sided,
+                normals=given,
             )
         )
     return tuple(objects), tuple(warnings)

@@ -169,6 +169,7 @@ class Elements:
                     obj.texture,
                     obj.alpha_cutoff,
                     obj.double_sided,
+                    None if obj.normals is None else obj.normals[used],
                 )
             )
         return Scene.from_objects(objects, scene.source, scene.warnings)

@@ -43,6 +43,7 @@ def cell_objects(scene: Scene, cells: OctreeCells, chosen) -> list[SceneObject]:
                 o.texture,
                 o.alpha_cutoff,
                 o.double_sided,
+                o.normals,
             )
         )
     return out

@@ -12,6 +12,15 @@ random suffix.  The modules of this package:
   points and lines skipped with a warning), morph targets at their default weights,
   ``EXT_mesh_gpu_instancing`` instances, and the objects.
 
+Shading normals: a primitive's ``NORMAL`` (float, or byte/short normalized under
+``KHR_mesh_quantization``; sparse like any accessor), plus its morph targets' ``NORMAL``
+displacements at the default weights and then renormalised (§3.7.2.2, "Morph Targets"), moved by
+the inverse transpose of each world matrix (instances' included), so they stay perpendicular under
+non-uniform scale and on the front of the winding under a mirroring transform
+(:mod:`farfield.core.exchange.normals`); zero or non-finite ones are repaired with one warning per
+object.  A primitive without ``NORMAL`` is shaded flat (§3.7.2.1: "When normals are not specified,
+client implementations MUST calculate flat normals"): ``normals`` is None.
+
 Object names: the node's name (else its mesh's, else ``node<i>``); a mesh of several primitives
 gives ``<name>.p<k>`` for its k-th primitive; names met again (a node instanced along two paths,
 two nodes of one name) get ``_1``, ``_2`` ... in traversal order; an instance of
@@ -36,6 +45,7 @@ from farfield.core.exchange.gltf import accessors
 from farfield.core.exchange.gltf.document import Buffers, array, header_json, item, split_glb
 from farfield.core.exchange.gltf.materials import NEAREST, Images, Material, material
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits, check_gltf
+from farfield.core.exchange.normals import repair_normals, transform_normals
 from farfield.core.scene import SceneObject
 
 EXTENSIONS = ("glb", "gltf")
@@ -238,8 +248,8 @@ class _Reader:
         positions = accessors.read(self.document, self.buffers, attributes["POSITION"])
         if positions.shape[1] != 3:
             raise SceneLoadError(f"{where}: POSITION is not VEC3")
-        positions = positions + self.morph(spec, weights, len(positions), where)
         count = len(positions)
+        positions = positions + self.morph(spec, weights, count, where, "POSITION")
         if "indices" in spec:
             indices = accessors.read(self.document, self.buffers, spec["indices"], as_float=False, indices=True)[:, 0]
             if len(indices) and (indices.min() < 0 or indices.max() >= count):
@@ -252,6 +262,7 @@ class _Reader:
             return None
         found = self.material(spec.get("material"))
         part = {"positions": positions, "faces": faces, "material": found, "colours": None, "uv": None, "where": where}
+        part["normals"] = self.normals(spec, weights, count, where)
         if "COLOR_0" in attributes:
             colours = accessors.read(self.document, self.buffers, attributes["COLOR_0"])
             if len(colours) != count or colours.shape[1] not in (3, 4):
@@ -275,18 +286,32 @@ class _Reader:
                 part["uv"] = uv
         return part
 
-    def morph(self, spec: dict, weights: object, count: int, where: str) -> np.ndarray:
-        """Sum of the morph targets' POSITION offsets at the default weights (0 without targets)."""
+    def normals(self, spec: dict, weights: object, count: int, where: str) -> np.ndarray | None:
+        """(v, 3) float64 model-space ``NORMAL`` of a primitive with its morph targets' displacements
+        at the default weights (§3.7.2.2: added, then renormalised, which the object does), or None."""
+        attributes = spec["attributes"]
+        if "NORMAL" not in attributes:
+            return None
+        normals = accessors.read(self.document, self.buffers, attributes["NORMAL"])
+        if normals.shape != (count, 3):
+            raise SceneLoadError(
+                f"{where}: NORMAL has {len(normals)} elements of {normals.shape[1]}, expected {count} of 3"
+            )
+        return normals + self.morph(spec, weights, count, where, "NORMAL")
+
+    def morph(self, spec: dict, weights: object, count: int, where: str, attribute: str) -> np.ndarray:
+        """Sum of the morph targets' ``attribute`` (POSITION or NORMAL) displacements at the default
+        weights (0 without targets), glTF 2.0 §3.7.2.2."""
         targets = spec.get("targets")
         if not isinstance(targets, list) or not targets or not isinstance(weights, list):
             return np.zeros((count, 3))
         out = np.zeros((count, 3))
         for target, weight in zip(targets, weights):
-            if isinstance(target, dict) and "POSITION" in target and isinstance(weight, int | float) and weight:
-                offsets = accessors.read(self.document, self.buffers, target["POSITION"])
+            if isinstance(target, dict) and attribute in target and isinstance(weight, int | float) and weight:
+                offsets = accessors.read(self.document, self.buffers, target[attribute])
                 if offsets.shape != (count, 3):
                     raise SceneLoadError(
-                        f"{where}: a morph target's POSITION has {len(offsets)} elements, expected {count}"
+                        f"{where}: a morph target's {attribute} has {len(offsets)} elements, expected {count}"
                     )
                 out += float(weight) * offsets
         return out
@@ -297,6 +322,11 @@ class _Reader:
         vertices = positions @ world[:3, :3].T + world[:3, 3]
         if np.linalg.det(world[:3, :3]) < 0.0:
             faces = faces[:, ::-1]  # a mirroring transform turns counter-clockwise faces clockwise
+        normals = None
+        if part["normals"] is not None:
+            normals, warning = repair_normals(name, vertices, faces, transform_normals(part["normals"], world[:3, :3]))
+            if warning is not None:
+                self.warnings.append(warning)
         base_color = found.base_color.copy()
         texture = uv = None
         if part["uv"] is not None:
@@ -328,6 +358,7 @@ class _Reader:
                 texture=texture,
                 alpha_cutoff=found.alpha_cutoff,
                 double_sided=found.double_sided,
+                normals=normals,
             )
         )
 
