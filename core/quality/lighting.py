@@ -133,7 +133,7 @@ def f_schlick(f0, f90, dot_vh: np.ndarray) -> np.ndarray:
     return np.asarray(f0) * (1.0 - fresnel) + f90 * fresnel
 
 
-def shade(
+def radiance(
     albedo: np.ndarray,
     normal: np.ndarray,
     view: np.ndarray,
@@ -143,33 +143,13 @@ def shade(
     metallic=0.0,
     geometry_roughness=0.0,
 ) -> np.ndarray:
-    """(h, w, 3) uint8 sRGB: the G-buffer lit by ``light`` and ``ambient`` as three.js's
-    ``MeshStandardMaterial`` lights it (the module docstring lists where that departs from glTF).
+    """(h, w, 3) float64 linear outgoing radiance, unclamped, of the G-buffer lit by ``light`` and
+    ``ambient``: what :func:`shade` encodes (its parameters are :func:`shade`'s).
 
-    Parameters
-    ----------
-    albedo : (h, w, 3) uint8, sRGB-encoded base colour (texture × factor × vertex colour)
-    normal : (h, w, 3) float, world-space unit shading normals
-    view : (h, w, 3) float, world-space unit vectors from the surface toward the eye
-        (:func:`view_directions`)
-    light : DirectionalLight
-    ambient : (3,) float, linear RGB irradiance (three.js AmbientLight colour × intensity)
-    roughness, metallic : float or (h, w) float, glTF's perceptual roughness and metalness in 0..1
-    geometry_roughness : float or (h, w) float
-        three.js's screen-space ``geometryRoughness`` added to the roughness (0 for a flat
-        normal-mapped quad; :func:`geometry_roughness` for a curved mesh).
-
-    The light's term is 0 where N·L ≤ 0; a pixel there gets the ambient term only.
-
-    >>> n = np.array([[[0.0, 0.0, 1.0]]]); white = np.full((1, 1, 3), 255, np.uint8)
-    >>> up = DirectionalLight(np.array([0.0, 0.0, 1.0]), np.ones(3), math.pi)
-    >>> shade(white, n, n, up, ambient=np.zeros(3)).tolist()  # white facing light and eye
-    [[[252, 252, 252]]]
-    >>> shade(white, n, n, up, ambient=np.zeros(3), roughness=0.2).tolist()  # the highlight clips
-    [[[255, 255, 255]]]
-    >>> down = DirectionalLight(np.array([0.0, 0.0, -1.0]), np.ones(3), math.pi)
-    >>> shade(white, n, n, down, ambient=np.zeros(3)).tolist()  # lit from behind
-    [[[0, 0, 0]]]
+    >>> n = np.array([[[0.0, 0.0, 1.0]]]); grey = np.full((1, 1, 3), 128, np.uint8)
+    >>> behind = DirectionalLight(np.array([0.0, 0.0, -1.0]), np.ones(3), math.pi)
+    >>> radiance(grey, n, n, behind, ambient=np.zeros(3)).tolist()
+    [[[0.0, 0.0, 0.0]]]
     """
     base = srgb_to_linear(np.asarray(albedo, dtype=np.float64) / 255.0)  # (h, w, 3) material.diffuseColor
     n = np.asarray(normal, dtype=np.float64)
@@ -215,7 +195,49 @@ def shade(
     multi = single * F_AVERAGE / (1.0 - lost * F_AVERAGE) * lost  # Fms * Ems
     indirect = np.asarray(ambient, dtype=np.float64) * diffuse / math.pi * (1.0 - single - multi)[..., None]
 
-    return np.round(linear_to_srgb(direct + indirect) * 255.0).astype(np.uint8)
+    return direct + indirect
+
+
+def shade(
+    albedo: np.ndarray,
+    normal: np.ndarray,
+    view: np.ndarray,
+    light: DirectionalLight,
+    ambient=AMBIENT,
+    roughness=1.0,
+    metallic=0.0,
+    geometry_roughness=0.0,
+) -> np.ndarray:
+    """(h, w, 3) uint8 sRGB: the G-buffer lit by ``light`` and ``ambient`` as three.js's
+    ``MeshStandardMaterial`` lights it (the module docstring lists where that departs from glTF).
+
+    Parameters
+    ----------
+    albedo : (h, w, 3) uint8, sRGB-encoded base colour (texture × factor × vertex colour)
+    normal : (h, w, 3) float, world-space unit shading normals
+    view : (h, w, 3) float, world-space unit vectors from the surface toward the eye
+        (:func:`view_directions`)
+    light : DirectionalLight
+    ambient : (3,) float, linear RGB irradiance (three.js AmbientLight colour × intensity)
+    roughness, metallic : float or (h, w) float, glTF's perceptual roughness and metalness in 0..1
+    geometry_roughness : float or (h, w) float
+        three.js's screen-space ``geometryRoughness`` added to the roughness (0 for a flat
+        normal-mapped quad; :func:`geometry_roughness` for a curved mesh).
+
+    The light's term is 0 where N·L ≤ 0; a pixel there gets the ambient term only.
+
+    >>> n = np.array([[[0.0, 0.0, 1.0]]]); white = np.full((1, 1, 3), 255, np.uint8)
+    >>> up = DirectionalLight(np.array([0.0, 0.0, 1.0]), np.ones(3), math.pi)
+    >>> shade(white, n, n, up, ambient=np.zeros(3)).tolist()  # white facing light and eye
+    [[[252, 252, 252]]]
+    >>> shade(white, n, n, up, ambient=np.zeros(3), roughness=0.2).tolist()  # the highlight clips
+    [[[255, 255, 255]]]
+    >>> down = DirectionalLight(np.array([0.0, 0.0, -1.0]), np.ones(3), math.pi)
+    >>> shade(white, n, n, down, ambient=np.zeros(3)).tolist()  # lit from behind
+    [[[0, 0, 0]]]
+    """
+    linear = radiance(albedo, normal, view, light, ambient, roughness, metallic, geometry_roughness)
+    return np.round(linear_to_srgb(linear) * 255.0).astype(np.uint8)
 
 
 def view_directions(camera) -> np.ndarray:
