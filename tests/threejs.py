@@ -16,7 +16,12 @@ three.js
     ``--enable-unsafe-swiftshader`` (in :data:`browser.CHROMIUM_ARGS`) keeps it allowed where
     chromium no longer falls back to it automatically.  What the page draws: see
     ``tests/js/render.mjs`` (glTF's unlit rule with every material, no antialiasing, no tone
-    mapping, sRGB output, alpha 255 where drawn, three.js's own colour management).
+    mapping, sRGB output, alpha 255 where drawn, three.js's own colour management).  Two optional
+    modes of :meth:`ThreeRenderer.render`: ``lights=`` (with ``ambient=``) draws the file lit, every
+    material a ``MeshStandardMaterial`` (glTF's own; others with roughness 1, metalness 0) under
+    ``THREE.DirectionalLight`` s and an ``AmbientLight``, as
+    :func:`farfield.core.quality.lighting.shade` shades a G-buffer; ``output="normal"`` draws
+    world-space shading normals (normal maps applied) as ``n * 0.5 + 0.5`` bytes, not sRGB-encoded.
 validator
     see ``tests/glb_validation.py``.
 """
@@ -73,6 +78,33 @@ def camera_spec(camera) -> dict:
         "fov": float(camera.fov), "near": float(camera.near), "far": float(camera.far),
         "resolution": int(camera.resolution),
     }  # fmt: skip
+
+
+def lit_spec(lights, ambient=None) -> dict:
+    """The page's ``lit`` field: ``lights`` (DirectionalLight-like: ``direction`` toward the light,
+    ``colour`` linear RGB, ``intensity``) and ``ambient`` (3,) linear RGB (default
+    :data:`farfield.core.quality.lighting.AMBIENT`)."""
+    from farfield.core.quality.lighting import AMBIENT
+
+    return {
+        "lights": [
+            {
+                "direction": [float(x) for x in light.direction],
+                "color": [float(x) for x in light.colour],
+                "intensity": float(light.intensity),
+            }
+            for light in lights
+        ],
+        "ambient": [float(x) for x in (AMBIENT if ambient is None else ambient)],
+    }
+
+
+def decode_normals(image: np.ndarray) -> np.ndarray:
+    """(h, w, 3) float64 unit normals of an ``output="normal"`` render (h, w, 4) uint8 (0 where
+    nothing was drawn)."""
+    n = image[..., :3].astype(np.float64) / 255.0 * 2.0 - 1.0
+    length = np.linalg.norm(n, axis=-1, keepdims=True)
+    return np.where((image[..., 3:] > 0) & (length > 0), n / np.where(length > 0, length, 1.0), 0.0)
 
 
 def file_url(path: Path) -> str:
@@ -133,6 +165,9 @@ class ThreeRenderer:
         map_replaces_color: bool = False,
         mipmaps: bool = True,
         sides: str | None = None,
+        lights=None,
+        ambient=None,
+        output: str = "colour",
     ) -> list[np.ndarray]:
         """(h, w, 4) uint8 images of the file at ``path`` (.glb, .gltf, .obj with its MTL, .ply),
         top row first, alpha 255 where drawn, 0 elsewhere; one per camera of ``cameras`` (a
@@ -148,12 +183,25 @@ class ThreeRenderer:
         ``doubleSided``; OBJ and PLY front faces only, their loaders' default and farfield's
         ``sides="one"``); ``sides="both"`` draws every face from both sides (farfield's
         ``sides="both"``).
+
+        ``lights`` (a sequence of :class:`farfield.core.quality.lighting.DirectionalLight`, or of
+        objects with the same ``direction``, ``colour``, ``intensity``) draws the file lit: every
+        material a ``MeshStandardMaterial`` (a glTF material's own parameters; an OBJ or PLY one
+        with roughness 1 and metalness 0, keeping its colour, textures, alpha test and side), one
+        ``THREE.DirectionalLight`` per light (placed at ``direction``, aimed at the origin) and an
+        ``AmbientLight`` of linear RGB ``ambient`` (3,) (default
+        :data:`farfield.core.quality.lighting.AMBIENT`), no environment map, no tone mapping, sRGB
+        output.  ``output="normal"`` instead writes each drawn pixel's world-space shading normal
+        ``n`` (after the material's normal map; flipped on the back of a double-sided face) as
+        ``round((n * 0.5 + 0.5) * 255)``, with no sRGB encoding; :func:`decode_normals` reads it.
         """
         path = Path(path)
         cameras = list(cameras) if isinstance(cameras, (list, tuple)) else [cameras]
         kind = _KINDS.get(path.suffix.lower())
         if kind is None:
             raise ValueError(f"three.js harness: no loader for {path.name}")
+        if output not in ("colour", "normal"):
+            raise ValueError(f"three.js harness: output must be 'colour' or 'normal', got {output!r}")
         mtl = _mtl_of(path) if kind == "obj" else None
         spec = {
             "kind": kind,
@@ -165,6 +213,10 @@ class ThreeRenderer:
             "sides": sides,
             "cameras": [camera_spec(c) for c in cameras],
         }
+        if lights is not None:
+            spec["lit"] = lit_spec(lights, ambient)
+        if output == "normal":
+            spec["output"] = "normal"
         before = len(self.errors)
         encoded = self.page.evaluate("spec => window.farfieldRender(spec)", spec)
         if len(self.errors) > before:

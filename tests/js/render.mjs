@@ -10,6 +10,17 @@
 // Colour spaces are three.js's own (glTF factors and COLOR_0 linear, textures sRGB; MTL and PLY
 // colours sRGB).  window.farfieldRender(spec) returns the canvas's RGBA bytes, bottom row first,
 // as base64.
+//
+// Two optional modes (the default above is unchanged when neither is asked for):
+// spec.lit = {lights: [{direction, color, intensity}], ambient: [r, g, b]} draws every material as a
+//   MeshStandardMaterial (glTF's own, cloned; any other converted with roughness 1, metalness 0,
+//   keeping map, color, alphaMap, opacity, vertexColors, alphaTest and side), lit by one
+//   THREE.DirectionalLight per light (direction: unit, from the surface toward the light, world;
+//   color: linear RGB; intensity: three.js's) and an AmbientLight of linear colour `ambient`, no
+//   environment, no tone mapping, sRGB output (farfield.core.quality.lighting shades the same way).
+// spec.output === "normal" draws each pixel's world-space shading normal n (after the material's
+//   normalMap and normalScale, flipped on back faces of double-sided materials) as n * 0.5 + 0.5,
+//   written raw (no sRGB encoding), keeping alphaTest, map alpha and side.
 import * as THREE from "three";
 import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
 import { KTX2Loader } from "three/addons/loaders/KTX2Loader.js";
@@ -67,14 +78,66 @@ function unlit(material, spec) {
   });
 }
 
-function unlitAll(root, spec) {
+function materialOptions(material, spec) {
+  // What every mode keeps of a loaded material: sampled textures, alpha test, sidedness.
+  let alphaTest = material.alphaTest || 0;
+  if (spec.alphaCutoff !== null && spec.alphaCutoff !== undefined) alphaTest = spec.alphaCutoff;
+  else if (material.transparent) alphaTest = 0.5;  // glTF BLEND drawn as a mask at 0.5, as farfield does
+  return {
+    map: spec.mipmaps === false ? unmipped(material.map) : material.map || null,
+    alphaMap: spec.mipmaps === false ? unmipped(material.alphaMap) : material.alphaMap || null,
+    alphaTest,
+    side: spec.sides === "both" ? THREE.DoubleSide : material.side === undefined ? THREE.FrontSide : material.side,
+    transparent: false,
+  };
+}
+
+function standard(material, spec) {
+  // spec.lit or spec.output === "normal": glTF's MeshStandardMaterial as the loader made it (clone),
+  // anything else as a rough dielectric with the same colour inputs.
+  const options = materialOptions(material, spec);
+  if (material.isMeshStandardMaterial) {
+    const copy = material.clone();
+    copy.setValues(options);
+    return copy;
+  }
+  const color = material.color ? material.color.clone() : new THREE.Color(1, 1, 1);
+  if (spec.mapReplacesColor && material.map) color.setRGB(1, 1, 1);
+  return new THREE.MeshStandardMaterial({
+    ...options,
+    color,
+    opacity: material.opacity === undefined ? 1 : material.opacity,
+    vertexColors: !!material.vertexColors,
+    roughness: 1,
+    metalness: 0,
+  });
+}
+
+function normalOutput(material) {
+  // The standard material's own normal (normal_fragment_begin/maps: vertex normal, DoubleSide flip,
+  // normal map) taken from view to world space (viewMatrix is a rotation: its transpose inverts it),
+  // written as n * 0.5 + 0.5 with no colour-space conversion; alpha test and map alpha still apply.
+  material.onBeforeCompile = (shader) => {
+    shader.fragmentShader = shader.fragmentShader
+      .replace("#include <opaque_fragment>",
+        "gl_FragColor = vec4( inverseTransformDirection( normal, viewMatrix ) * 0.5 + 0.5, 1.0 );")
+      .replace("#include <colorspace_fragment>", "");
+  };
+  material.customProgramCacheKey = () => "farfield-world-normal";
+  return material;
+}
+
+function convertAll(root, spec) {
+  // Every mesh's materials, per mode: unlit (default), lit, or world normals.
+  const lit = !!spec.lit || spec.output === "normal";
   root.traverse((node) => {
     if (!node.isMesh) return;
     const hasColors = !!node.geometry.getAttribute("color");
     const one = (m) => {
-      const basic = unlit(m || {}, spec);
-      basic.vertexColors = basic.vertexColors || (spec.kind === "ply" && hasColors);
-      return basic;
+      let made = lit ? standard(m || {}, spec) : unlit(m || {}, spec);
+      made.vertexColors = made.vertexColors || (spec.kind === "ply" && hasColors);
+      if (spec.output === "normal") made = normalOutput(made);
+      return made;
     };
     node.material = Array.isArray(node.material) ? node.material.map(one) : one(node.material);
   });
@@ -82,7 +145,8 @@ function unlitAll(root, spec) {
 }
 
 async function load(spec) {
-  const key = JSON.stringify([spec.url, spec.mtl, spec.alphaCutoff, spec.mapReplacesColor, spec.mipmaps, spec.sides]);
+  const key = JSON.stringify([spec.url, spec.mtl, spec.alphaCutoff, spec.mapReplacesColor, spec.mipmaps, spec.sides,
+    !!spec.lit, spec.output || "color"]);
   if (loaded.has(key)) return loaded.get(key);
   let root;
   if (spec.kind === "gltf") {
@@ -103,7 +167,7 @@ async function load(spec) {
   } else {
     throw new Error(`unknown kind ${spec.kind}`);
   }
-  unlitAll(root, spec);
+  convertAll(root, spec);
   root.updateMatrixWorld(true);
   loaded.set(key, root);
   return root;
@@ -142,6 +206,15 @@ window.farfieldRender = async (spec) => {
   const root = await load(spec);
   const scene = new THREE.Scene();
   scene.add(root);
+  if (spec.lit) {
+    for (const l of spec.lit.lights) {
+      // position - target is the direction toward the light; the target stays at the origin
+      const light = new THREE.DirectionalLight(new THREE.Color().setRGB(...l.color, THREE.LinearSRGBColorSpace), l.intensity);
+      light.position.set(...l.direction);
+      scene.add(light);
+    }
+    scene.add(new THREE.AmbientLight(new THREE.Color().setRGB(...spec.lit.ambient, THREE.LinearSRGBColorSpace), 1));
+  }
   const images = [];
   for (const c of spec.cameras) {
     renderer.setSize(c.resolution, c.resolution, false);
