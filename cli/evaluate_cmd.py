@@ -17,6 +17,7 @@ from farfield.core.errors import GuaranteeError
 from farfield.core.exchange import load_scene
 from farfield.core.impostor.bundle import read_bundle
 from farfield.core.quality.comparison import PREFERENCES, Candidate, check_comparable, choose
+from farfield.core.quality.lit import evaluate_lit, lit_text
 from farfield.core.techniques import get_technique
 
 
@@ -54,10 +55,26 @@ from farfield.core.techniques import get_technique
     help="Exit non-zero (4) when a view inside the cell breaks what the bundle's technique promises (farfield "
     "techniques) at the error budget it was baked for (max_error_px): hole pixels, pixels bloated beyond the budget.",
 )
+@click.option(
+    "--lit",
+    is_flag=True,
+    help="Also light the geometry and the impostor alike (glTF's BRDF as three.js draws it, five test lights, grazing "
+    "ones included) and report the lit colour error per light, the normal error, and the impostor lit as flat cards.",
+)
+@click.option(
+    "--max-lit-error",
+    type=click.FloatRange(min=0.0),
+    default=None,
+    help="With --lit and --check: also fail (4) when the lit colour error's mean under any light exceeds this (0-255).",
+)
 @sides_option
-def evaluate(bundles, scene, random_count, outside_count, seed, prefer, as_json, check, sides):
+def evaluate(bundles, scene, random_count, outside_count, seed, prefer, as_json, check, lit, max_lit_error, sides):
     """Render SCENE's part and the impostor in each BUNDLE from sampled viewpoints and report the
     errors; with several bundles of one part and view cell, side by side and which to use."""
+    if max_lit_error is not None and not (lit and check):
+        raise click.UsageError("--max-lit-error goes with --lit and --check")
+    if lit and len(bundles) > 1:
+        raise click.UsageError("--lit evaluates one bundle at a time")
     impostors = [read_bundle(Path(b)) for b in bundles]
     part = load_scene(scene, sides=sides)
     if len(impostors) > 1:
@@ -66,11 +83,27 @@ def evaluate(bundles, scene, random_count, outside_count, seed, prefer, as_json,
         impostor = impostors[0]
         technique = get_technique(impostor.technique)
         result = technique.evaluate(part, impostor, random_count, outside_count, seed)
+        lit_result = None
+        if lit:
+            names = impostor.parameters.get("objects")
+            try:
+                lit_result = evaluate_lit(part.subset(names) if names else part, impostor, random_count, seed)
+            except ValueError as error:  # a payload drawn otherwise than as triangles
+                raise click.UsageError(f"--lit: {error}") from error
         if as_json:
-            click.echo(json.dumps(result.to_dict() if hasattr(result, "to_dict") else result, indent=2))
+            payload = result.to_dict() if hasattr(result, "to_dict") else result
+            click.echo(json.dumps(payload | ({"lit": lit_result.to_dict()} if lit_result else {}), indent=2))
         else:
             click.echo(technique.evaluation_text(result, impostor))
+            if lit_result is not None:
+                click.echo(lit_text(lit_result))
         results = [result]
+        if check and max_lit_error is not None:
+            worst = max(row["lit_error_mean"] for row in lit_result.totals["lights"])
+            if worst > max_lit_error:
+                raise GuaranteeError(
+                    f"{bundles[0]}: lit colour error mean {worst:.2f} under the worst test light exceeds {max_lit_error:g}"
+                )
     if check:
         _check(list(bundles), impostors, results)
 
