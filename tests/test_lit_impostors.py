@@ -177,3 +177,40 @@ def test_a_double_sided_triangle_seen_from_behind_records_its_reversed_normal():
         page = impostor.channels["normal"][0]
         normals = decode_normals(page)[page[..., 3] > 0]
         assert normals.size and np.allclose(normals[:, 2], expected, atol=0.02), sided
+
+
+def impostor_cameras(impostor, resolution: int) -> list[Camera]:
+    """The reference viewpoint and two far corners of the cell, looking at the sphere."""
+    points = [impostor.reference_viewpoint, np.array([0.5, 0.5, -0.5]), np.array([-0.5, -0.5, 0.5])]
+    return [Camera.look_at(p, CENTRE, math.radians(impostor.fov_deg), resolution, 5.0, 15.0) for p in points]
+
+
+def test_three_js_reads_the_glbs_tangent_space_normals_and_lights_them_as_the_lit_evaluation(lit_layered, tmp_path, threejs):
+    """three.js (GLTFLoader, MeshStandardMaterial: none of farfield's code) draws the lit GLB's
+    world normals and its lit colours under each test light; farfield's G-buffer of the bundle,
+    shaded by :func:`~farfield.core.quality.lighting.shade`, must agree: the tangent frames, the
+    handedness of the TANGENT's w and the normal texture's +Y convention all show here."""
+    from farfield.core.quality.lighting import AMBIENT, default_lights, shade
+    from farfield.core.quality.lit import impostor_gbuffer
+    from threejs import decode_normals as three_normals
+
+    path = tmp_path / "lit.glb"
+    path.write_bytes(impostor_glb(lit_layered))
+    cameras = impostor_cameras(lit_layered, 160)
+    with impostor_gbuffer(lit_layered) as renderer:
+        ours = [renderer.render_normals(camera) for camera in cameras]
+    theirs = threejs.render(path, cameras, mipmaps=False, output="normal")
+    for (image, normals), three in zip(ours, theirs, strict=True):
+        both = (image[..., 3] > 0) & (three[..., 3] > 0)
+        assert both.sum() > 1000
+        error = angles(normals[both], three_normals(three)[both])
+        print("normal angle", np.median(error), np.percentile(error, 95))
+        assert np.median(error) <= 0.5 and np.percentile(error, 95) <= 2.0
+    for light in default_lights():
+        lit = threejs.render(path, cameras, mipmaps=False, lights=[light], ambient=AMBIENT)
+        for camera, (image, normals), three in zip(cameras, ours, lit, strict=True):
+            both = (image[..., 3] > 0) & (three[..., 3] > 0)
+            mine = shade(image[..., :3], normals, view_directions(camera), light, AMBIENT)
+            difference = np.abs(mine.astype(int) - three[..., :3].astype(int)).max(axis=-1)[both]
+            print("lit", light.direction.round(2), difference.mean(), np.percentile(difference, 99))
+            assert difference.mean() <= 1.0 and np.percentile(difference, 99) <= 4, light
