@@ -23,7 +23,8 @@ Where three.js departs from the glTF appendix, this module follows three.js:
    ``common``): at most 0.0038 apart (near V·H = 0.055), 0.00017 at normal incidence.
 3. Multi-scattering.  glTF has none.  three.js multiplies direct specular by
    ``1 + F0 (1 / (scale + bias) - 1)`` (Turquin 2019) from its DFG table at (roughness, N·V),
-   :mod:`farfield.core.quality.dfg`.
+   :mod:`farfield.core.quality.dfg`, read bilinearly with clamp-to-edge as the GPU reads it (so
+   roughness 1 reads the table's last texel centre, roughness 31/32).
 4. Roughness.  Clamped to at least 0.045 (Filament's minimum), then three.js adds
    ``geometryRoughness``, the largest screen-space derivative of the unperturbed view-space normal
    (lights_physical_fragment), and clamps to 1.  That term depends on the mesh drawn, not on the
@@ -34,7 +35,9 @@ Where three.js departs from the glTF appendix, this module follows three.js:
 5. Ambient.  glTF defines no ambient light.  three.js's AmbientLight colour × intensity is an
    irradiance: it reaches the diffuse layer through Lambert's 1/π (RE_IndirectDiffuse_Physical),
    less the share the specular layer keeps, ``F_ss E_ss + F_ms E_ms`` with F0 0.04 (Fdez-Agüera
-   2019, from the DFG table at N·V).  With no environment map the indirect specular term is 0.
+   2019, from the DFG table at N·V; three.js takes that share with F0 0.04 whatever the
+   metalness).  With no environment map the indirect specular term is 0, so a metal (no diffuse
+   layer) lit by ambient alone is black.
 6. Directional light.  Irradiance is ``colour * intensity * saturate(N·L)`` (no π); N·L, N·V, N·H
    and V·H are clamped to 0..1 (``saturate``), so a normal facing away from the light gets
    ambient only and one facing away from the viewer is shaded as if seen at grazing (N·V = 0).
