@@ -185,14 +185,17 @@ def impostor_cameras(impostor, resolution: int) -> list[Camera]:
     return [Camera.look_at(p, CENTRE, math.radians(impostor.fov_deg), resolution, 5.0, 15.0) for p in points]
 
 
-def test_three_js_reads_the_glbs_tangent_space_normals_and_lights_them_as_the_lit_evaluation(lit_layered, tmp_path, threejs):
+def test_three_js_reads_the_glbs_tangent_space_normals_and_lights_them_as_the_lit_evaluation(
+    lit_layered, tmp_path, threejs
+):
     """three.js (GLTFLoader, MeshStandardMaterial: none of farfield's code) draws the lit GLB's
     world normals and its lit colours under each test light; farfield's G-buffer of the bundle,
     shaded by :func:`~farfield.core.quality.lighting.shade`, must agree: the tangent frames, the
     handedness of the TANGENT's w and the normal texture's +Y convention all show here."""
+    from threejs import decode_normals as three_normals
+
     from farfield.core.quality.lighting import AMBIENT, default_lights, shade
     from farfield.core.quality.lit import impostor_gbuffer
-    from threejs import decode_normals as three_normals
 
     path = tmp_path / "lit.glb"
     path.write_bytes(impostor_glb(lit_layered))

@@ -493,28 +493,33 @@ def _read_page(path: Path, width: int, height: int) -> np.ndarray:
     return page
 
 
-def _page_entries(manifest: dict, path: Path) -> list[tuple[str, int, int]]:
-    entries = _field(manifest, path, "pages")
+def _image_entries(entries, path: Path, where: str, file_name) -> list[tuple[str, int, int]]:
+    """A manifest list of page images (``pages``, or a channel's) as [(file, width, height)]: each
+    ``{"file": file_name(index), "width": W, "height": H}`` with W, H >= 1."""
     if not isinstance(entries, list):
-        raise BundleFormatError(f"{path}: pages is a {type(entries).__name__}, expected a list")
+        raise BundleFormatError(f"{path}: {where} is a {type(entries).__name__}, expected a list")
     result = []
     for index, entry in enumerate(entries):
         name = entry.get("file") if isinstance(entry, dict) else None
         width = entry.get("width") if isinstance(entry, dict) else None
         height = entry.get("height") if isinstance(entry, dict) else None
         if (
-            name != page_file_name(index)
+            name != file_name(index)
             or not isinstance(width, int)
             or not isinstance(height, int)
             or width < 1
             or height < 1
         ):
             raise BundleFormatError(
-                f"{path}: pages[{index}] is {entry!r}, expected "
-                f"{{'file': {page_file_name(index)!r}, 'width': W, 'height': H}}"
+                f"{path}: {where}[{index}] is {entry!r}, expected "
+                f"{{'file': {file_name(index)!r}, 'width': W, 'height': H}}"
             )
         result.append((name, width, height))
     return result
+
+
+def _page_entries(manifest: dict, path: Path) -> list[tuple[str, int, int]]:
+    return _image_entries(_field(manifest, path, "pages"), path, "pages", page_file_name)
 
 
 def _channel_entries(manifest: dict, path: Path) -> dict[str, list[tuple[str, int, int]]]:
@@ -524,30 +529,13 @@ def _channel_entries(manifest: dict, path: Path) -> dict[str, list[tuple[str, in
     channels = manifest.get("channels", {})
     if not isinstance(channels, dict):
         raise BundleFormatError(f"{path}: channels is a {type(channels).__name__}, expected an object")
-    result = {}
-    for name, entries in channels.items():
-        if name not in PAGE_CHANNELS or not isinstance(entries, list):
-            raise BundleFormatError(
-                f"{path}: channels has {name!r}, expected a list under one of {list(PAGE_CHANNELS)}"
-            )
-        result[name] = []
-        for index, entry in enumerate(entries):
-            width = entry.get("width") if isinstance(entry, dict) else None
-            height = entry.get("height") if isinstance(entry, dict) else None
-            if (
-                not isinstance(entry, dict)
-                or entry.get("file") != channel_file_name(name, index)
-                or not isinstance(width, int)
-                or not isinstance(height, int)
-                or width < 1
-                or height < 1
-            ):
-                raise BundleFormatError(
-                    f"{path}: channels.{name}[{index}] is {entry!r}, expected "
-                    f"{{'file': {channel_file_name(name, index)!r}, 'width': W, 'height': H}}"
-                )
-            result[name].append((entry["file"], width, height))
-    return result
+    unknown = sorted(set(channels) - set(PAGE_CHANNELS))
+    if unknown:
+        raise BundleFormatError(f"{path}: channels has {unknown[0]!r}, expected one of {list(PAGE_CHANNELS)}")
+    return {
+        name: _image_entries(entries, path, f"channels.{name}", lambda i, name=name: channel_file_name(name, i))
+        for name, entries in channels.items()
+    }
 
 
 def _payload_v1(manifest: dict, path: Path):
