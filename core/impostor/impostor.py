@@ -30,6 +30,8 @@ A payload draws and writes itself (:class:`Payload`): besides its arrays (``kind
   as images, extensions), built with the writer's helpers (:class:`farfield.core.impostor.glb.GlbBuilder`);
 * ``renderer(impostor)``: the renderer that draws it as its runtime does, for the evaluation and the
   comparison (:func:`farfield.core.quality.evaluation.impostor_renderer`);
+* ``gbuffer(impostor, normals)``: its G-buffer renderer for the lit evaluation
+  (:mod:`farfield.core.quality.lit`; triangle kinds by default: :meth:`draw_objects` with the normal pages);
 * ``draw_objects(impostor)``: its runtime draw list, textured alpha-cut triangle objects, one per
   atlas page with geometry (the placement and environment-map runtimes draw these), or None
   when it is not drawn as triangles.
@@ -146,6 +148,21 @@ class _PayloadBase:
     def draw_objects(self, impostor: Impostor) -> list | None:
         """The runtime's draw list (textured triangle objects); None: not drawn as triangles."""
         return None
+
+    def gbuffer(self, impostor: Impostor, normals: bool = True):
+        """The G-buffer renderer of the impostor for the lit evaluation (:mod:`farfield.core.quality.lit`):
+        a :class:`farfield.core.render.raster.MeshRenderer` made with ``normals=True`` (its
+        ``render_normals`` gives colour and world normals), drawing :meth:`draw_objects` with the
+        impostor's normal pages as world-space normal maps when ``normals`` and it keeps them, else
+        as flat cards.  A kind not drawn as triangles overrides it, or raises ValueError."""
+        from farfield.core.render.raster import MeshRenderer
+
+        objects = self.draw_objects(impostor)
+        if objects is None:
+            raise ValueError(f"no lit evaluation for a {self.kind!r} payload yet")
+        pages = impostor.channels.get("normal") if normals else None
+        maps = [pages[page_of(obj)] for obj in objects] if pages is not None else None
+        return MeshRenderer(objects, normals=True, normal_maps=maps)
 
 
 def page_of(obj) -> int:
@@ -635,6 +652,9 @@ class Payload(Protocol):
 
     def draw_objects(self, impostor: Impostor) -> list | None:
         """Its runtime draw list: textured triangle objects, or None when it is not drawn as triangles."""
+
+    def gbuffer(self, impostor: Impostor, normals: bool = True) -> Any:
+        """Its G-buffer renderer for the lit evaluation (``render_normals(camera)``: colour and world normals)."""
 
 
 # Payload kind -> class: what the bundle reader builds from a manifest's ``payload.kind``.

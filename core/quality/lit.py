@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from farfield.core.impostor.impostor import Impostor, page_of
+from farfield.core.impostor.impostor import Impostor
 from farfield.core.quality.evaluation import downsample, ssim_over_union, viewpoints
 from farfield.core.quality.lighting import AMBIENT, DirectionalLight, default_lights, shade, view_directions
 from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
@@ -66,14 +66,9 @@ class LitEvaluation:
 
 
 def impostor_gbuffer(impostor: Impostor, normals: bool = True) -> MeshRenderer:
-    """The G-buffer renderer of ``impostor``'s triangles (quads and meshes): with its normal pages
-    as world-space normal maps when ``normals`` and it has them, else as flat cards."""
-    objects = impostor.payload.draw_objects(impostor)
-    if objects is None:
-        raise ValueError(f"no lit evaluation for a {impostor.payload.kind!r} payload yet")
-    pages = impostor.channels.get("normal") if normals else None
-    maps = [pages[page_of(obj)] for obj in objects] if pages is not None else None
-    return MeshRenderer(objects, normals=True, normal_maps=maps)
+    """The G-buffer renderer of ``impostor``: its payload's (:meth:`~farfield.core.impostor.impostor.Payload.gbuffer`),
+    with its normal channel when ``normals`` and it keeps one, else lit as flat cards."""
+    return impostor.payload.gbuffer(impostor, normals)
 
 
 def _errors(geometry: np.ndarray, impostor: np.ndarray, both: np.ndarray) -> np.ndarray:
