@@ -6,7 +6,7 @@ For each scene (the shared helmet, pine and duck, and the procedural house: curv
 normal-rich, alpha-cut leaves, a smooth textured mesh, flat façades) one layered bake with
 ``channels=albedo`` and one with ``channels=albedo+normal`` of the same part and view cell (a cubic
 cell a fifth of the part's size, three part sizes in front of it along +z), side by side in one
-run: bake seconds and memory per channel set; then the lit evaluation of the normal bake
+run: bake seconds (best of two, alternating) and memory per channel set; then the lit evaluation of the normal bake
 (:mod:`farfield.core.quality.lit`, five test lights incl. a grazing one) from the cell's corners,
 its reference viewpoint and ``--random`` seeded points inside: the unlit colour error, the lit
 colour error under the worst light, the same impostor lit as flat cards, the normal error, and
@@ -56,10 +56,13 @@ def run(resolution: int, random_count: int) -> list[dict]:
         centre = 0.5 * (lo + hi)
         cell = BoxCell.from_center(centre + np.array([0.0, 0.0, 3.0 * size]), 0.2 * size)
         bakes = {}
-        for channels in ("albedo", "albedo+normal"):
-            start = time.perf_counter()
-            impostor = bake_layered(scene, cell, BakeOptions(resolution=resolution, channels=channels))
-            bakes[channels] = (impostor, time.perf_counter() - start)
+        for _ in range(2):  # best of two, alternating: the first bake of a run also compiles and warms up
+            for channels in ("albedo", "albedo+normal"):
+                start = time.perf_counter()
+                impostor = bake_layered(scene, cell, BakeOptions(resolution=resolution, channels=channels))
+                seconds = time.perf_counter() - start
+                if channels not in bakes or seconds < bakes[channels][1]:
+                    bakes[channels] = (impostor, seconds)
         impostor = bakes["albedo+normal"][0]
         lit = evaluate_lit(scene, impostor, random_count=random_count)
         t = lit.totals
