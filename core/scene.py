@@ -30,6 +30,7 @@ Conventions
 from __future__ import annotations
 
 import hashlib
+import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
@@ -109,6 +110,18 @@ class SceneObject:
         World-space unit shading normals per vertex (glTF ``NORMAL``, OBJ ``vn``, PLY ``nx ny nz``),
         on the front side of the counter-clockwise winding; None where the source has none, and
         then each triangle is shaded with its face normal (flat), as glTF prescribes.
+    normal_texture : (h, w, 4) uint8 or None
+        Tangent-space normal map (glTF ``normalTexture``), RGB linear, ``n * 0.5 + 0.5``, top row
+        first: +X along increasing u, +Y up the image (increasing v), +Z along the shading normal.
+        Requires ``normal_uv`` and ``tangents``.
+    normal_uv : (v, 2) float64 or None
+        The normal map's texture coordinates (same convention as ``uv``).
+    tangents : (v, 4) float64 or None
+        World-space unit tangents (along increasing u of ``normal_uv``) and the handedness ``w`` =
+        +-1: the bitangent (up the normal map) is ``cross(normal, tangent) * w`` (glTF ``TANGENT``,
+        or derived from the uv where the file has none).
+    normal_scale : float
+        glTF ``normalTexture.scale``: the map's X and Y are multiplied by it.
     double_sided : bool
         Seen from both sides (True, the default for built scenes) or from its front side only
         (False: a viewer behind a triangle's plane does not see it, as an engine culls back faces;
@@ -132,6 +145,10 @@ class SceneObject:
     alpha_cutoff: float | None = None
     double_sided: bool = True
     normals: np.ndarray | None = None  # (v, 3) float64 unit shading normals, world space
+    normal_texture: np.ndarray | None = None  # (h, w, 4) uint8 tangent-space normal map, linear, top row first
+    normal_uv: np.ndarray | None = None  # (v, 2) float64 the normal map's uv, origin bottom-left
+    tangents: np.ndarray | None = None  # (v, 4) float64 world tangents (xyz unit) and handedness w = +-1
+    normal_scale: float = 1.0
     bounds: np.ndarray = field(init=False, repr=False)  # (2, 3) float64: min, max corner
 
     def __post_init__(self) -> None:
@@ -161,6 +178,7 @@ class SceneObject:
         set_(self, "double_sided", bool(self.double_sided))
         if self.normals is not None:
             set_(self, "normals", _unit_normals(self.normals, name, n))
+        _check_normal_map(self, name, n)
         _check_geometry(name, vertices, faces)
         _check_colour(name, self.base_color, self.uv, self.alpha_cutoff)
         bounds = np.stack([vertices.min(axis=0), vertices.max(axis=0)])
@@ -228,6 +246,30 @@ def _check_colour(name: str, base_color: np.ndarray, uv: np.ndarray | None, alph
         raise SceneLoadError(f"object {name!r}: alpha_cutoff {alpha_cutoff} is not in 0..1")
 
 
+def _check_normal_map(obj: SceneObject, name: str, n: int) -> None:
+    """Freeze and check a normal map's parts: all of texture, uv and tangents, or none."""
+    parts = (obj.normal_texture, obj.normal_uv, obj.tangents)
+    if all(p is None for p in parts):
+        return
+    if any(p is None for p in parts):
+        raise SceneLoadError(f"object {name!r}: a normal map needs normal_texture, normal_uv and tangents together")
+    set_ = object.__setattr__
+    texture = _frozen(obj.normal_texture, np.uint8, "normal_texture", name, (None, None, 4))
+    if texture.shape[0] == 0 or texture.shape[1] == 0:
+        raise SceneLoadError(f"object {name!r}: normal_texture has shape {texture.shape}")
+    uv = _frozen(obj.normal_uv, np.float64, "normal_uv", name, (n, 2))
+    tangents = _frozen(obj.tangents, np.float64, "tangents", name, (n, 4))
+    if not (np.isfinite(uv).all() and np.isfinite(tangents).all()):
+        raise SceneLoadError(f"object {name!r}: non-finite normal-map uv or tangents")
+    scale = float(obj.normal_scale)
+    if not math.isfinite(scale):
+        raise SceneLoadError(f"object {name!r}: normal_scale {obj.normal_scale!r} is not finite")
+    set_(obj, "normal_texture", texture)
+    set_(obj, "normal_uv", uv)
+    set_(obj, "tangents", tangents)
+    set_(obj, "normal_scale", scale)
+
+
 def _unit_normals(normals, name: str, n: int) -> np.ndarray:
     """``normals`` (n, 3) as read-only float64 unit vectors; a zero or non-finite one raises."""
     array = np.array(normals, dtype=np.float64)
@@ -287,6 +329,11 @@ def object_hash(obj: SceneObject, memo: dict | None = None) -> bytes:
         digest.update(b"one-sided;")
     if obj.normals is not None:  # likewise: objects without shading normals hash as they did
         _update_hash(digest, b"normals", obj.normals + 0.0)
+    if obj.normal_texture is not None:
+        _update_hash(digest, b"normal_texture", _texture_digest(obj.normal_texture, memo))
+        _update_hash(digest, b"normal_uv", obj.normal_uv + 0.0)
+        _update_hash(digest, b"tangents", obj.tangents + 0.0)
+        _update_hash(digest, b"normal_scale", np.array([obj.normal_scale], dtype=np.float64))
     return digest.digest()
 
 

@@ -131,3 +131,79 @@ def repair_normals(
         "replaced by the area-weighted mean of their triangles' face normals"
     )
     return normals, warning
+
+
+def uv_tangents(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None, uv: np.ndarray) -> np.ndarray:
+    """(v, 4) float64 tangents for a normal map over ``uv`` (v, 2) (origin bottom-left, v up) where
+    a file has none: per vertex, the area-weighted sum of its triangles' dP/du, made orthogonal to
+    the vertex normal (``normals``, or the area-weighted face normal where None), and the
+    handedness w = +-1 that points ``cross(normal, tangent) * w`` along its triangles' dP/dv (up
+    the image, glTF 2.0 §3.9.3's +Y).  A vertex whose triangles give no direction (no uv extent)
+    gets any unit vector orthogonal to its normal.
+
+    The glTF specification asks for MikkTSpace tangents when ``TANGENT`` is missing; this is the
+    per-vertex average MikkTSpace reduces to where charts are not split by angle, and it agrees
+    with the per-pixel frame three.js derives from screen-space derivatives on smooth meshes
+    (``tests/test_normal_maps.py``).
+
+    >>> quad = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]); faces = np.array([[0, 1, 2], [0, 2, 3]])
+    >>> uv_tangents(quad, faces, None, quad[:, :2])[0].tolist()
+    [1.0, 0.0, 0.0, 1.0]
+    >>> uv_tangents(quad, faces, None, np.column_stack([quad[:, 0], -quad[:, 1]]))[0].tolist()  # v flipped
+    [1.0, 0.0, 0.0, -1.0]
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.asarray(uv, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    e1, e2 = v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
+    d1, d2 = t[f[:, 1]] - t[f[:, 0]], t[f[:, 2]] - t[f[:, 0]]
+    det = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
+    sign = np.where(det < 0.0, -1.0, 1.0)
+    # dP/du and dP/dv scaled by det (and its sign), so each triangle weighs by its area in space.
+    dpdu = (d2[:, 1, None] * e1 - d1[:, 1, None] * e2) * sign[:, None]
+    dpdv = (d1[:, 0, None] * e2 - d2[:, 0, None] * e1) * sign[:, None]
+    dpdu[det == 0.0] = 0.0
+    dpdv[det == 0.0] = 0.0
+    count = v.shape[0]
+    tangent, bitangent = np.zeros((count, 3)), np.zeros((count, 3))
+    for corner in range(3):
+        np.add.at(tangent, f[:, corner], dpdu)
+        np.add.at(bitangent, f[:, corner], dpdv)
+    if normals is None:
+        face = np.cross(e1, e2)
+        normal = np.zeros((count, 3))
+        for corner in range(3):
+            np.add.at(normal, f[:, corner], face)
+    else:
+        normal = np.asarray(normals, dtype=np.float64).copy()
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = np.divide(normal, length, out=np.tile([0.0, 0.0, 1.0], (count, 1)), where=length > 0.0)
+    tangent -= np.einsum("ij,ij->i", tangent, normal)[:, None] * normal
+    length = np.linalg.norm(tangent, axis=1, keepdims=True)
+    # Where no triangle gives a direction: the world axis least along the normal, made orthogonal.
+    axis = np.eye(3)[np.argmin(np.abs(normal), axis=1)]
+    fallback = axis - np.einsum("ij,ij->i", axis, normal)[:, None] * normal
+    fallback /= np.linalg.norm(fallback, axis=1, keepdims=True)
+    scale = np.maximum(np.abs(tangent).max(axis=1, keepdims=True), 1e-300)
+    usable = length > 1e-12 * scale
+    tangent = np.where(usable, tangent / np.where(usable, length, 1.0), fallback)
+    w = np.where(np.einsum("ij,ij->i", np.cross(normal, tangent), bitangent) < 0.0, -1.0, 1.0)
+    return np.column_stack([tangent, w])
+
+
+def transform_tangents(tangents: np.ndarray, linear: np.ndarray) -> np.ndarray:
+    """(v, 4) float64 glTF ``TANGENT`` moved by the column-vector transform ``linear`` (3, 3):
+    the direction as positions move (renormalised; a zero one becomes +x, never used by a
+    degenerate triangle), ``w`` negated by a mirroring transform, whose normals (inverse transpose)
+    keep their side while ``cross(normal, tangent)`` turns (glTF 2.0 §3.7.2.1).
+
+    >>> transform_tangents(np.array([[1.0, 0, 0, 1]]), np.diag([-2.0, 1.0, 1.0])).tolist()
+    [[-1.0, 0.0, 0.0, -1.0]]
+    """
+    tangents = np.asarray(tangents, dtype=np.float64)
+    linear = np.asarray(linear, dtype=np.float64)
+    direction = tangents[:, :3] @ linear.T
+    length = np.linalg.norm(direction, axis=1, keepdims=True)
+    direction = np.divide(direction, length, out=np.tile([1.0, 0.0, 0.0], (len(direction), 1)), where=length > 0.0)
+    w = np.where(tangents[:, 3] < 0.0, -1.0, 1.0) * (-1.0 if np.linalg.det(linear) < 0.0 else 1.0)
+    return np.column_stack([direction, w])

@@ -39,7 +39,7 @@ from farfield.core.layering.plan import LayerPlan
 from farfield.core.render.alpha_mips import max_alpha_texture
 from farfield.core.render.context import gl_context
 from farfield.core.render.cut_colours import cut_weighted_linear
-from farfield.core.render.programs import park_framebuffer, program, set_material, srgb_texture
+from farfield.core.render.programs import linear_texture, park_framebuffer, program, set_material, srgb_texture
 from farfield.core.render.raster import mesh_variant
 from farfield.core.scene import Scene, SceneObject
 
@@ -56,6 +56,10 @@ INSTANCE_ATTRIBUTES = (
 INSTANCE_FLOATS = 43
 # With the normal channel (the NORMALS variant): three world shading normals appended.
 NORMAL_FORMAT, NORMAL_ATTRIBUTES, NORMAL_FLOATS = ("3f", "3f", "3f"), ("i_normal0", "i_normal1", "i_normal2"), 9
+# With a normal map besides (the NORMAL_MAP variant): its uv and the tangents at the three vertices
+# after the normals, and one float of padding, read as seven vec4 (a GL guarantees 16 vertex inputs;
+# the variant does not read the vertex colours, whose floats it skips).
+MAP_FORMAT, MAP_ATTRIBUTES, MAP_FLOATS = ("4f",) * 7, tuple(f"i_map{k}" for k in range(7)), 19
 
 
 @dataclass(frozen=True, slots=True)
@@ -529,10 +533,35 @@ def pair_normals(obj: SceneObject, triangle: np.ndarray, viewpoint: np.ndarray) 
         with np.errstate(invalid="ignore", divide="ignore"):
             unit = face / np.linalg.norm(face, axis=1, keepdims=True)
         normals = np.repeat(np.nan_to_num(unit).T[:, None, :], 3, axis=1)
-    if obj.double_sided:
-        behind = np.einsum("ij,ij->i", face, (a + b + c) / 3.0 - viewpoint) > 0.0
-        normals = np.where(behind[None, None, :], -normals, normals)
-    return normals
+    return np.where(_behind(obj, face, (a + b + c) / 3.0, viewpoint)[None, None, :], -normals, normals)
+
+
+def records_normal_map(obj: SceneObject) -> bool:
+    """Whether the normal channel of ``obj`` is recorded through its normal map: where it has one
+    and no vertex colours (the NORMAL_MAP variant reuses their vertex inputs; such an object keeps
+    its vertex normals, which the docs say)."""
+    return obj.normal_texture is not None and obj.normals is not None and obj.vertex_colors is None
+
+
+def _behind(obj: SceneObject, face: np.ndarray, centre: np.ndarray, viewpoint: np.ndarray) -> np.ndarray:
+    """(n,) bool: the double-sided triangles (face normals (n, 3), centres (n, 3)) whose back faces
+    ``viewpoint``, whose shading frame is reversed (glTF: the back of a double-sided material)."""
+    if not obj.double_sided:
+        return np.zeros(face.shape[0], dtype=bool)
+    return np.einsum("ij,ij->i", face, centre - viewpoint) > 0.0
+
+
+def pair_tangents(obj: SceneObject, triangle: np.ndarray, viewpoint: np.ndarray) -> np.ndarray:
+    """(4, 3, n) float64 tangents and handedness (coordinate, corner, pair) of ``obj``'s normal map
+    at its triangles ``triangle``, all four reversed where :func:`pair_normals` reverses the
+    normals: three.js and glTF turn the whole tangent frame of a back face, so the mapped normal
+    is reversed as a whole."""
+    corners = obj.faces[triangle].T
+    v = obj.vertices
+    a, b, c = v[corners[0]], v[corners[1]], v[corners[2]]
+    tangents = np.take(obj.tangents.T, corners, axis=1)  # (4, 3, n)
+    behind = _behind(obj, np.cross(b - a, c - a), (a + b + c) / 3.0, viewpoint)
+    return np.where(behind[None, None, :], -tangents, tangents)
 
 
 def _instance_records(instances: SlabInstances, obj: SceneObject, viewpoint: np.ndarray | None = None) -> np.ndarray:
@@ -540,7 +569,8 @@ def _instance_records(instances: SlabInstances, obj: SceneObject, viewpoint: np.
     the normals seen from ``viewpoint`` appended (:func:`pair_normals`) when it is given."""
     n = instances.triangle.shape[0]
     corners = obj.faces[instances.triangle].T  # (3, n)
-    extra = NORMAL_FLOATS if viewpoint is not None else 0
+    mapped = viewpoint is not None and records_normal_map(obj)
+    extra = (NORMAL_FLOATS if viewpoint is not None else 0) + (MAP_FLOATS if mapped else 0)
     records = np.empty((INSTANCE_FLOATS + extra, n), dtype="<f4")  # filled row by row, transposed once
     records[0:4] = instances.rect
     records[4:14] = instances.polygon.transpose(1, 0, 2).reshape(10, n)  # x0, y0, x1, y1, ...
@@ -557,6 +587,10 @@ def _instance_records(instances: SlabInstances, obj: SceneObject, viewpoint: np.
         records[31:43] = 1.0
     if viewpoint is not None:
         records[43:52] = pair_normals(obj, instances.triangle, viewpoint).transpose(1, 0, 2).reshape(9, n)
+    if mapped:
+        records[52:58] = np.take(obj.normal_uv.T, corners, axis=1).transpose(1, 0, 2).reshape(6, n)
+        records[58:70] = pair_tangents(obj, instances.triangle, viewpoint).transpose(1, 0, 2).reshape(12, n)
+        records[70] = 0.0
     return np.ascontiguousarray(records.T)
 
 
@@ -577,12 +611,16 @@ def slab_variant(obj: SceneObject) -> tuple[str, ...]:
     return tuple(d for d in mesh_variant(obj, planes=False, open_faces=False) if d in ("TEXTURED", "ALPHA_CUT"))
 
 
-def _instance_format(prog: moderngl.Program, normals: bool = False) -> tuple[str, ...]:
-    """INSTANCE_FORMAT (with the normals when ``normals``) and the attribute names for ``prog``:
-    attributes its variant does not read (the compiler removed them) become padding."""
+def _instance_format(prog: moderngl.Program, normals: bool = False, mapped: bool = False) -> tuple[str, ...]:
+    """INSTANCE_FORMAT (with the normals when ``normals``, and the normal map's uv and tangents
+    when ``mapped``) and the attribute names for ``prog``: attributes its variant does not read
+    (the compiler removed them) become padding."""
     formats, names = [], []
-    fields = (*INSTANCE_FORMAT.split()[:-1], *(NORMAL_FORMAT if normals else ()))
-    attributes = (*INSTANCE_ATTRIBUTES, *(NORMAL_ATTRIBUTES if normals else ()))
+    extra, named = (
+        (MAP_FORMAT, MAP_ATTRIBUTES) if mapped else (NORMAL_FORMAT, NORMAL_ATTRIBUTES) if normals else ((), ())
+    )
+    fields = (*INSTANCE_FORMAT.split()[:-1], *extra)
+    attributes = (*INSTANCE_ATTRIBUTES, *named)
     for fmt, name in zip(fields, attributes, strict=True):
         if name in prog:
             formats.append(fmt)
@@ -661,7 +699,7 @@ def iter_layers(
             viewpoint = np.asarray(plan.reference_viewpoint, dtype=np.float64) if normals else None
             draws.append((obj, instances.offsets, _instance_records(instances, obj, viewpoint)))
     largest = max((int(np.diff(offsets).max()) for _, offsets, _ in draws), default=0)
-    floats = INSTANCE_FLOATS + (NORMAL_FLOATS if normals else 0)
+    floats = max((records.shape[1] for _, _, records in draws), default=INSTANCE_FLOATS)
 
     colour = ctx.texture((res_x, res_y), 4)
     targets = [colour] + ([ctx.texture((res_x, res_y), 4)] if normals else [])
@@ -674,16 +712,21 @@ def iter_layers(
         stream = ctx.buffer(reserve=max(largest, 1) * floats * 4, dynamic=True)
         owned.append(stream)
         variants = {}  # defines -> (program, its vertex array over the stream)
+        normal_maps = {}  # id of a normal map array -> its GL texture
         passes, uploaded = [], {}  # objects sharing a texture (and its cut) share its GL textures
         for obj, _, _ in draws:
-            defines = slab_variant(obj) + (("NORMALS",) if normals else ())
+            mapped = normals and records_normal_map(obj)
+            defines = slab_variant(obj) + (("NORMALS",) if normals else ()) + (("NORMAL_MAP",) if mapped else ())
             if defines not in variants:
                 prog = program(ctx, "slab_instanced.vert", "slab.frag", defines=defines)
                 prog["resolution"].value = (float(res_x), float(res_y))
                 prog["conservative"].value = bool(conservative)
-                vao = ctx.vertex_array(prog, [(stream, *_instance_format(prog, normals))])
+                vao = ctx.vertex_array(prog, [(stream, *_instance_format(prog, normals, mapped))])
                 owned.append(vao)
                 variants[defines] = (prog, vao)
+            if mapped and id(obj.normal_texture) not in normal_maps:
+                normal_maps[id(obj.normal_texture)] = linear_texture(ctx, obj.normal_texture, mipmaps=True)
+                owned.append(normal_maps[id(obj.normal_texture)])
             key = None if obj.texture is None else (id(obj.texture), obj.alpha_cutoff, float(obj.base_color[3]))
             if key not in uploaded:
                 uploaded[key] = _object_textures(ctx, obj)
@@ -716,6 +759,12 @@ def iter_layers(
                 if count == 0:
                     continue
                 set_material(prog, obj, texture)
+                if normals and records_normal_map(obj):
+                    normal_map = normal_maps[id(obj.normal_texture)]
+                    normal_map.use(4)
+                    prog["normal_map"].value = 4
+                    prog["normal_map_size"].value = (float(normal_map.width), float(normal_map.height))
+                    prog["normal_scale"].value = float(obj.normal_scale)
                 if cut is not None:
                     prog["texture_size"].value = (float(texture.width), float(texture.height))
                     cut.use(2)

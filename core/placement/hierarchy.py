@@ -170,6 +170,10 @@ class Elements:
                     obj.alpha_cutoff,
                     obj.double_sided,
                     None if obj.normals is None else obj.normals[used],
+                    obj.normal_texture,
+                    None if obj.normal_uv is None else obj.normal_uv[used],
+                    None if obj.tangents is None else obj.tangents[used],
+                    obj.normal_scale,
                 )
             )
         return Scene.from_objects(objects, scene.source, scene.warnings)

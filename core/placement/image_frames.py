@@ -44,6 +44,10 @@ def cell_objects(scene: Scene, cells: OctreeCells, chosen) -> list[SceneObject]:
                 o.alpha_cutoff,
                 o.double_sided,
                 o.normals,
+                o.normal_texture,
+                o.normal_uv,
+                o.tangents,
+                o.normal_scale,
             )
         )
     return out

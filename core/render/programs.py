@@ -87,6 +87,19 @@ def srgb_texture(ctx: moderngl.Context, rgba: np.ndarray, mipmaps: bool = False)
     return texture
 
 
+def linear_texture(ctx: moderngl.Context, rgba: np.ndarray, mipmaps: bool = False) -> moderngl.Texture:
+    """A data texture (a normal map) of (h, w, 4) uint8, top row first, not colour-managed: rows
+    flipped to GL's order, bilinear (trilinear over mipmaps built when ``mipmaps``), repeating."""
+    image = np.ascontiguousarray(rgba[::-1])
+    texture = ctx.texture((image.shape[1], image.shape[0]), 4, image.tobytes())
+    if mipmaps:
+        texture.build_mipmaps()
+        texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+    else:
+        texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
+    return texture
+
+
 def material_uniforms(prog: moderngl.Program, obj, texture: moderngl.Texture | None) -> dict:
     """The unlit-material uniforms every farfield shader shares (glTF's base colour rule), as
     name -> value: ``base_color`` (linear), ``alpha_cutoff`` (-1: opaque) and ``has_texture``

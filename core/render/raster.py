@@ -17,7 +17,7 @@ import numpy as np
 
 from farfield.core.errors import RenderBackendError, ViewCellError
 from farfield.core.render.context import gl_context
-from farfield.core.render.programs import material_uniforms, park_framebuffer, program, srgb_texture
+from farfield.core.render.programs import linear_texture, material_uniforms, park_framebuffer, program, srgb_texture
 from farfield.core.scene import SceneObject
 from farfield.core.sidedness import front_winding
 
@@ -149,6 +149,10 @@ def upload(
         columns.append(obj.normals)
         names.append("in_normal")
         layout.append("3f")
+    if prog.get("in_tangent", None) is not None:
+        columns += [obj.normal_uv, obj.tangents]
+        names += ["in_normal_uv", "in_tangent"]
+        layout += ["2f", "4f"]
     data = np.concatenate(columns, axis=1).astype("<f4")
     vbo = ctx.buffer(np.ascontiguousarray(data).tobytes())
     ibo = ctx.buffer(obj.faces.astype("<u4").tobytes())
@@ -237,7 +241,7 @@ class MeshRenderer:
         ctx = self.ctx
         self._owned: list = []
         self._draws = []
-        uploaded: dict[int, moderngl.Texture] = {}  # objects sharing a texture array share its GL texture
+        uploaded: dict = {}  # objects sharing a texture array (or normal map) share its GL texture
         self.normals = bool(normals)
         normal_maps = list(normal_maps) if normal_maps is not None else [None] * len(objects)
         for obj, clip, normal_map in zip(objects, clips, normal_maps, strict=True):
@@ -246,14 +250,15 @@ class MeshRenderer:
             clip_half = float(clip[1]) if clip is not None else 0.0
             planes, open_faces = clip_half > 0.0 and not opened, clip_half > 0.0 and bool(opened)
             defines = mesh_variant(obj, planes, open_faces)
+            tangent_map = self.normals and normal_map is None and obj.normals is not None
+            tangent_map = tangent_map and obj.normal_texture is not None
             if self.normals:
-                defines += ("NORMALS",) + (
-                    ("NORMAL_MAP",)
-                    if normal_map is not None
-                    else ("VERTEX_NORMALS",)
-                    if obj.normals is not None
-                    else ()
-                )
+                if normal_map is not None:
+                    defines += ("NORMALS", "WORLD_NORMAL_MAP")
+                elif obj.normals is not None:
+                    defines += ("NORMALS", "VERTEX_NORMALS") + (("TANGENT_NORMAL_MAP",) if tangent_map else ())
+                else:
+                    defines += ("NORMALS",)
             prog = program(ctx, "mesh.vert", "mesh.frag", defines=defines)
             vao, texture = upload(ctx, prog, obj, origin, uploaded, self._owned)
             uniforms = {}
@@ -266,6 +271,14 @@ class MeshRenderer:
                 normal_texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
                 self._owned.append(normal_texture)
                 uniforms["normal_texture"] = 1
+            elif tangent_map:  # the source's own normal map (glTF normalTexture), mipmapped as an engine samples it
+                normal_texture = uploaded.get(("normal", id(obj.normal_texture)))
+                if normal_texture is None:
+                    normal_texture = linear_texture(self.ctx, obj.normal_texture, mipmaps=True)
+                    uploaded[("normal", id(obj.normal_texture))] = normal_texture
+                    self._owned.append(normal_texture)
+                uniforms["tangent_normal_map"] = 1
+                uniforms["normal_scale"] = float(obj.normal_scale)
             else:
                 normal_texture = None
             if clip_half > 0.0:  # the difference in float64, so large world offsets cancel before narrowing

@@ -45,7 +45,7 @@ from farfield.core.exchange.gltf import accessors
 from farfield.core.exchange.gltf.document import Buffers, array, header_json, item, split_glb
 from farfield.core.exchange.gltf.materials import NEAREST, Images, Material, material
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits, check_gltf
-from farfield.core.exchange.normals import repair_normals, transform_normals
+from farfield.core.exchange.normals import repair_normals, transform_normals, transform_tangents, uv_tangents
 from farfield.core.scene import SceneObject
 
 EXTENSIONS = ("glb", "gltf")
@@ -284,6 +284,23 @@ class _Reader:
                 if ref.transform is not None:
                     uv = uv @ ref.transform[:2, :2].T + ref.transform[:2, 2]
                 part["uv"] = uv
+        part["normal_uv"] = part["tangents"] = None
+        if found.normal is not None and part["normals"] is not None:
+            key = f"TEXCOORD_{found.normal.tex_coord}"
+            if key in attributes:
+                uv = accessors.read(self.document, self.buffers, attributes[key])
+                if len(uv) != count or uv.shape[1] != 2:
+                    raise SceneLoadError(f"{where}: {key} has {len(uv)} elements, expected {count} of 2")
+                if found.normal.transform is not None:
+                    uv = uv @ found.normal.transform[:2, :2].T + found.normal.transform[:2, 2]
+                part["normal_uv"] = uv
+                if "TANGENT" in attributes:
+                    tangents = accessors.read(self.document, self.buffers, attributes["TANGENT"])
+                    if tangents.shape != (count, 4):
+                        raise SceneLoadError(f"{where}: TANGENT has {len(tangents)} elements, expected {count} of 4")
+                    part["tangents"] = tangents
+            else:
+                self.warnings.append(f"{where}: its normal texture uses {key}, which it does not have; ignored")
         return part
 
     def normals(self, spec: dict, weights: object, count: int, where: str) -> np.ndarray | None:
@@ -344,6 +361,7 @@ class _Reader:
                     uv = None
                 else:
                     texture = decoded.rgba
+        normal_map = self.normal_map(name, found, part, vertices, faces, normals, world)
         self.triangles += len(faces)
         self.limits.check("objects", len(self.objects) + 1, "nodes")
         self.limits.check("triangles once node instancing is applied", self.triangles, "triangles")
@@ -359,8 +377,34 @@ class _Reader:
                 alpha_cutoff=found.alpha_cutoff,
                 double_sided=found.double_sided,
                 normals=normals,
+                **normal_map,
             )
         )
+
+    def normal_map(self, name, found: Material, part: dict, vertices, faces, normals, world) -> dict:
+        """The object's normal map (``normal_texture``, ``normal_uv``, ``tangents``, ``normal_scale``)
+        from its material's ``normalTexture`` (glTF 2.0 §3.9.3), or {}: the texture's sampler wraps
+        as the base colour's do (:meth:`Images.wrapped`), ``TANGENT`` is moved by the node
+        (:func:`~farfield.core.exchange.normals.transform_tangents`) or, where missing, derived from
+        the uv (:func:`~farfield.core.exchange.normals.uv_tangents`).  A primitive without
+        ``NORMAL`` has no normal map (flat shading has no tangent frame to perturb)."""
+        if part.get("normal_uv") is None or normals is None:
+            return {}
+        wrapped = self.images.wrapped(found.normal, part["normal_uv"], name, self.warnings)
+        if wrapped is None:
+            return {}
+        decoded, uv = wrapped
+        uv = np.column_stack([uv[:, 0], 1.0 - uv[:, 1]])  # glTF's v down -> farfield's v up
+        if part["tangents"] is not None:
+            tangents = transform_tangents(part["tangents"], world[:3, :3])
+        else:
+            tangents = uv_tangents(vertices, faces, normals, uv)
+        return {
+            "normal_texture": decoded.rgba,
+            "normal_uv": uv,
+            "tangents": tangents,
+            "normal_scale": found.normal_scale,
+        }
 
 
 def _srgb_unit(rgba_u8: np.ndarray) -> np.ndarray:

@@ -95,6 +95,8 @@ class Material:
     alpha_cutoff: float | None
     double_sided: bool
     blend: bool  # alphaMode BLEND, drawn as a mask
+    normal: TextureRef | None = None  # normalTexture (§3.9.3): tangent space, linear
+    normal_scale: float = 1.0
 
 
 DEFAULT_MATERIAL = Material("default", np.ones(4), None, None, False, False)
@@ -202,7 +204,12 @@ def material(document: dict, index: object, warnings: list[str]) -> Material:
     double = spec.get("doubleSided", False)
     if not isinstance(double, bool):
         raise SceneLoadError(f"{where}: doubleSided {double!r} is not true or false")
-    return Material(name, factor, texture, cutoff, double, mode == "BLEND")
+    normal_info = spec.get("normalTexture")
+    normal = _texture_ref(document, normal_info, f"{where} normalTexture", warnings)
+    scale = _number(
+        normal_info.get("scale") if isinstance(normal_info, dict) else None, 1.0, f"{where} normalTexture scale"
+    )
+    return Material(name, factor, texture, cutoff, double, mode == "BLEND", normal, scale)
 
 
 def _pad(texels: float) -> int:

@@ -30,16 +30,23 @@ layout(location = 0) out vec4 frag_color;
 // The G-buffer's second target (float): the world shading normal of the pixel, on the viewer's
 // side where the surface is seen from its back (glTF: a double-sided material's back faces have
 // their normals reversed).  From NORMAL_MAP, a world-space normal texture (an impostor's normal
-// pages, encoded n * 0.5 + 0.5), else the interpolated VERTEX_NORMALS, else the flat normal of
-// the triangle (glTF's rule where NORMAL is missing).
+// pages, encoded n * 0.5 + 0.5), else the interpolated VERTEX_NORMALS (perturbed by the object's
+// TANGENT_NORMAL_MAP where it has one: glTF's normalTexture, mipmapped, with the vertex tangents),
+// else the flat normal of the triangle (glTF's rule where NORMAL is missing).
 uniform mat4 eye_from_local;
 in vec3 v_eye;
 layout(location = 1) out vec4 frag_normal;
-#ifdef NORMAL_MAP
+#ifdef WORLD_NORMAL_MAP
 uniform sampler2D normal_texture;
 #endif
 #ifdef VERTEX_NORMALS
 in vec3 v_normal;
+#endif
+#ifdef TANGENT_NORMAL_MAP
+uniform sampler2D tangent_normal_map;
+uniform float normal_scale;
+in vec2 v_normal_uv;
+in vec4 v_tangent;
 #endif
 #endif
 
@@ -72,10 +79,23 @@ void main() {
     vec3 flat_eye = cross(dFdx(v_eye), dFdy(v_eye));
     flat_eye *= dot(flat_eye, v_eye) > 0.0 ? -1.0 : 1.0;  // towards the eye (at the eye frame's origin)
     vec3 n = world_from_eye * flat_eye;
-#if defined(NORMAL_MAP)
+#if defined(WORLD_NORMAL_MAP)
     n = texture(normal_texture, v_uv).rgb * 2.0 - 1.0;
 #elif defined(VERTEX_NORMALS)
-    n = gl_FrontFacing ? v_normal : -v_normal;
+    n = normalize(v_normal);
+#ifdef TANGENT_NORMAL_MAP
+    {
+        vec3 t = v_tangent.xyz - n * dot(n, v_tangent.xyz);
+        if (dot(t, t) > 1e-24) {
+            t = normalize(t);
+            vec3 m = texture(tangent_normal_map, v_normal_uv).rgb * 2.0 - 1.0;
+            m.xy *= normal_scale;
+            vec3 mapped = t * m.x + cross(n, t) * (v_tangent.w < 0.0 ? -1.0 : 1.0) * m.y + n * m.z;
+            if (dot(mapped, mapped) > 1e-24) { n = mapped; }
+        }
+    }
+#endif
+    n = gl_FrontFacing ? n : -n;
 #endif
     float len = length(n);
     frag_normal = vec4(len > 0.0 ? n / len : vec3(0.0), 1.0);

@@ -38,6 +38,12 @@ out vec3 v_eye;               // eye-frame position, for the flat normal where t
 in vec3 in_normal;            // world shading normal (the local frame is the world's, translated)
 out vec3 v_normal;
 #endif
+#ifdef TANGENT_NORMAL_MAP
+in vec2 in_normal_uv;         // the normal map's uv
+in vec4 in_tangent;           // world tangent and handedness
+out vec2 v_normal_uv;
+out vec4 v_tangent;
+#endif
 
 #include "colour.glsl"
 
@@ -50,6 +56,10 @@ void main() {
 #endif
 #ifdef VERTEX_NORMALS
     v_normal = in_normal;
+#endif
+#ifdef TANGENT_NORMAL_MAP
+    v_normal_uv = in_normal_uv;
+    v_tangent = in_tangent;
 #endif
 #ifdef TEXTURED
     v_uv = in_uv;

@@ -29,6 +29,16 @@ flat in vec4 g_color[3];
 flat in vec3 g_normal[3];
 layout(location = 1) out vec4 frag_normal;
 #endif
+#ifdef NORMAL_MAP
+// The object's tangent-space normal map (glTF normalTexture: +X along u, +Y up the image), linear,
+// mipmapped: read at the level whose texels are as wide as the layer texel's footprint, so that a
+// texel keeps the mean normal of the map under it (renormalised) rather than one texel's.
+flat in vec2 g_nuv[3];
+flat in vec4 g_tangent[3];
+uniform sampler2D normal_map;
+uniform vec2 normal_map_size;
+uniform float normal_scale;
+#endif
 
 uniform bool conservative;
 uniform vec2 slab;
@@ -122,6 +132,21 @@ bool footprint(vec2 c, out vec2 lo, out vec2 hi) {
     lo = min(min(uv[0], uv[1]), min(uv[2], uv[3]));
     hi = max(max(uv[0], uv[1]), max(uv[2], uv[3]));
     return true;
+}
+
+// The mip level of a texture of ``size`` texels, mapped by the uv ``t`` at the triangle's vertices,
+// whose texels are as wide as the texel square centred at c (0 where that cannot be bounded).
+float footprint_level(vec2 c, vec2 t[3], vec2 size) {
+    vec2 lo = vec2(1e30), hi = vec2(-1e30);
+    for (int k = 0; k < 4; ++k) {
+        vec4 bw = barycentric(c + vec2((k & 1) == 0 ? -0.5 : 0.5, (k & 2) == 0 ? -0.5 : 0.5));
+        if (!(bw.w > 0.0)) { return 0.0; }
+        vec2 at = bw.x * t[0] + bw.y * t[1] + bw.z * t[2];
+        lo = min(lo, at);
+        hi = max(hi, at);
+    }
+    vec2 extent = (hi - lo) * size;
+    return log2(max(max(extent.x, extent.y), 1.0));
 }
 
 // The mip level of the texture whose texels are as wide as the footprint (0 where unbounded).
@@ -403,6 +428,21 @@ void main() {
     vec3 n = pb.x * g_normal[0] + pb.y * g_normal[1] + pb.z * g_normal[2];
     float len = length(n);
     n = len > 1e-12 ? n / len : normalize(g_normal[0] + g_normal[1] + g_normal[2] + vec3(0.0, 0.0, 1e-30));
+#ifdef NORMAL_MAP
+    {
+        vec2 nuv = pb.x * g_nuv[0] + pb.y * g_nuv[1] + pb.z * g_nuv[2];
+        vec3 t = pb.x * g_tangent[0].xyz + pb.y * g_tangent[1].xyz + pb.z * g_tangent[2].xyz;
+        t -= n * dot(n, t);
+        if (dot(t, t) > 1e-24) {
+            t = normalize(t);
+            vec3 b = cross(n, t) * g_tangent[0].w;
+            vec3 m = textureLod(normal_map, nuv, footprint_level(c, g_nuv, normal_map_size)).rgb * 2.0 - 1.0;
+            m.xy *= normal_scale;
+            vec3 mapped = t * m.x + b * m.y + n * m.z;
+            if (dot(mapped, mapped) > 1e-24) { n = normalize(mapped); }
+        }
+    }
+#endif
     frag_normal = vec4(n * 0.5 + 0.5, 1.0);
 #endif
 }

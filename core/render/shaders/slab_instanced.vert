@@ -14,14 +14,32 @@ in vec3 i_tri1;
 in vec3 i_tri2;
 in vec4 i_uv01;
 in vec2 i_uv2;
+#ifndef NORMAL_MAP
 in vec4 i_color0;
 in vec4 i_color1;
 in vec4 i_color2;
-#ifdef NORMALS
+#endif
+#if defined(NORMALS) && !defined(NORMAL_MAP)
 in vec3 i_normal0;   // world shading normals at the triangle's vertices, turned to the reference viewpoint's side
 in vec3 i_normal1;
 in vec3 i_normal2;
+#endif
+#ifdef NORMALS
 flat out vec3 g_normal[3];
+#endif
+#ifdef NORMAL_MAP
+// A GL guarantees 16 vertex inputs: an object with a normal map (and no vertex colours, whose
+// inputs it reuses) packs its normals (9 floats), the map's uv (6) and the tangents with their
+// handedness (12) into seven vec4 (core/layering/recording.py).
+in vec4 i_map0;
+in vec4 i_map1;
+in vec4 i_map2;
+in vec4 i_map3;
+in vec4 i_map4;
+in vec4 i_map5;
+in vec4 i_map6;
+flat out vec2 g_nuv[3];
+flat out vec4 g_tangent[3];
 #endif
 
 flat out vec2 g_poly[5];
@@ -70,6 +88,20 @@ void main() {
     g_uv[0] = i_uv01.xy;
     g_uv[1] = i_uv01.zw;
     g_uv[2] = i_uv2;
+#ifdef NORMAL_MAP
+    g_color[0] = vec4(1.0);
+    g_color[1] = vec4(1.0);
+    g_color[2] = vec4(1.0);
+    g_normal[0] = i_map0.xyz;
+    g_normal[1] = vec3(i_map0.w, i_map1.xy);
+    g_normal[2] = vec3(i_map1.zw, i_map2.x);
+    g_nuv[0] = i_map2.yz;
+    g_nuv[1] = vec2(i_map2.w, i_map3.x);
+    g_nuv[2] = i_map3.yz;
+    g_tangent[0] = vec4(i_map3.w, i_map4.xyz);
+    g_tangent[1] = vec4(i_map4.w, i_map5.xyz);
+    g_tangent[2] = vec4(i_map5.w, i_map6.xyz);
+#else
     g_color[0] = i_color0;
     g_color[1] = i_color1;
     g_color[2] = i_color2;
@@ -77,5 +109,6 @@ void main() {
     g_normal[0] = i_normal0;
     g_normal[1] = i_normal1;
     g_normal[2] = i_normal2;
+#endif
 #endif
 }
