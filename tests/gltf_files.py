@@ -133,9 +133,10 @@ class GltfBuilder:
         return index
 
     def quad(self, name: str, corner, size: float, material: int, uv=None, uv1=None, colours=None,
-             position_component: int = FLOAT, normals=None, **node) -> int:  # fmt: skip
+             position_component: int = FLOAT, normals=None, tangents=None, **node) -> int:  # fmt: skip
         """A node with a square facing +z, lower-left ``corner``, side ``size``; ``normals`` (4, 3):
-        its NORMAL, float, or normalized BYTE/SHORT when given as int8/int16 (KHR_mesh_quantization)."""
+        its NORMAL, float, or normalized BYTE/SHORT when given as int8/int16 (KHR_mesh_quantization);
+        ``tangents`` (4, 4): its TANGENT."""
         corner = np.asarray(corner, dtype=np.float64)
         square = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=np.float64)
         attributes = {}
@@ -156,6 +157,8 @@ class GltfBuilder:
             attributes["COLOR_0"] = self.accessor(colours, component, normalized=component != FLOAT)
         if normals is not None:
             attributes["NORMAL"] = self.normal_accessor(normals)
+        if tangents is not None:
+            attributes["TANGENT"] = self.accessor(np.asarray(tangents, dtype=np.float64))
         indices = self.accessor(np.array([0, 1, 2, 0, 2, 3]), USHORT, target=ELEMENT_ARRAY_BUFFER)
         mesh = self.mesh([{"attributes": attributes, "indices": indices, "material": material}])
         return self.node(name=name, mesh=mesh, **node)

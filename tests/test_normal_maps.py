@@ -59,7 +59,10 @@ def test_three_js_draws_the_helmets_mapped_normals_as_farfields_g_buffer(threejs
     scene = load_scene(HELMET)
     cameras = helmet_cameras(scene, 160)
     theirs = threejs.render(HELMET, cameras, output="normal")
-    with MeshRenderer(scene.objects, normals=True) as mapped, MeshRenderer(unmapped(scene).objects, normals=True) as plain:
+    with (
+        MeshRenderer(scene.objects, normals=True) as mapped,
+        MeshRenderer(unmapped(scene).objects, normals=True) as plain,
+    ):
         for camera, three in zip(cameras, theirs, strict=True):
             image, ours = mapped.render_normals(camera)
             _, flat = plain.render_normals(camera)
@@ -87,3 +90,86 @@ def test_a_lit_layered_impostor_of_the_helmet_keeps_its_mapped_normals():
     # The same impostor's normals against the geometry without its map: the map is what it kept.
     plain = evaluate_lit(unmapped(scene), impostor, random_count=0).totals
     assert plain["normal_error_interior_median"] > 1.5 * t["normal_error_interior_median"]
+
+
+def bumps(size: int = 32) -> np.ndarray:
+    """(size, size, 4) uint8 tangent-space normal map, glTF's image (top row first): X varies
+    across, Y down the rows, so a wrong axis, sign or handedness shows."""
+    u = (np.arange(size) + 0.5) / size
+    x = 0.6 * np.sin(2.0 * np.pi * u)[None, :] * np.ones((size, 1))
+    y = 0.5 * np.cos(2.0 * np.pi * u)[:, None] * np.ones((1, size)) + 0.2
+    z = np.sqrt(np.clip(1.0 - x * x - y * y, 0.05, 1.0))
+    n = np.stack([x, y, z], axis=-1)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    rgba = np.full((size, size, 4), 255, np.uint8)
+    rgba[..., :3] = np.round((n * 0.5 + 0.5) * 255.0).astype(np.uint8)
+    return rgba
+
+
+def bumps_file(path: Path, quads) -> Path:
+    """A GLB of quads facing +z with the one normal map of :func:`bumps`; ``quads``: (name, corner,
+    uv, tangents or None, node spec)."""
+    from gltf_files import GltfBuilder
+
+    builder = GltfBuilder()
+    texture = builder.texture(builder.image(bumps()))
+    material = builder.material(texture=None, normalTexture={"index": texture})
+    up = np.tile([0.0, 0.0, 1.0], (4, 1))
+    for name, corner, uv, tangents, node in quads:
+        builder.quad(name, corner, 1.0, material, uv=uv, normals=up, tangents=tangents, **node)
+    return builder.write(path)
+
+
+def three_and_farfield_normals(threejs, path: Path, camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(pixels both draw, farfield's normals there, three.js's) of the file at ``path``."""
+    from threejs import decode_normals
+
+    (three,) = threejs.render(path, [camera], output="normal", mipmaps=False)
+    with MeshRenderer(load_scene(path).objects, normals=True) as renderer:
+        image, ours = renderer.render_normals(camera)
+    both = (image[..., 3] > 0) & (three[..., 3] > 0)
+    return both, ours[both], decode_normals(three)[both]
+
+
+# A primitive without TANGENT under a normal map draws a validator warning
+# (MESH_PRIMITIVE_GENERATED_TANGENT_SPACE): that quad is written on purpose.
+@pytest.mark.invalid_glb
+def test_normal_maps_with_given_derived_flipped_rotated_and_mirrored_tangents_draw_as_three_js_draws_them(
+    threejs, tmp_path, gltf_validator
+):
+    """Quads facing +z with one normal map: TANGENT given (w = 1), given with w = -1 over v-flipped
+    uv, derived from the uv, and under a rotated node; three.js's world normals against farfield's
+    G-buffer of the same file.  Under a mirroring node, farfield turns TANGENT's w (so that the
+    bitangent stays up the image, as the tangents derived from the mirrored uv have it); three.js
+    does not, and is checked against the derived tangents of the same mirrored quad instead."""
+    from gltf_files import SQUARE_UV
+
+    along = np.tile([1.0, 0.0, 0.0, 1.0], (4, 1))
+    against = np.tile([1.0, 0.0, 0.0, -1.0], (4, 1))
+    flipped_uv = np.column_stack([SQUARE_UV[:, 0], 1.0 - SQUARE_UV[:, 1]])
+    spin = {"translation": [1.0, 0.6, 0.0], "rotation": [0.0, 0.0, math.sin(0.3), math.cos(0.3)]}
+    path = bumps_file(tmp_path / "bumps.glb", [
+        ("given", [-2.7, 0.1, 0.0], SQUARE_UV, along, {}),
+        ("flipped", [-1.5, 0.1, 0.0], flipped_uv, against, {}),
+        ("derived", [-0.3, 0.1, 0.0], SQUARE_UV, None, {}),
+        ("rotated", [0.0, 0.0, 0.0], SQUARE_UV, along, spin),
+    ])  # fmt: skip
+    (report,) = gltf_validator.validate([path])
+    assert {m["code"] for m in report["messages"] if m["severity"] <= 1} == {"MESH_PRIMITIVE_GENERATED_TANGENT_SPACE"}
+    assert all(o.normal_texture is not None for o in load_scene(path).objects)
+    camera = Camera.look_at(np.array([-0.6, 0.6, 5.0]), np.array([-0.6, 0.6, 0.0]), math.radians(60.0), 256, 1.0, 20.0)
+    both, ours, theirs = three_and_farfield_normals(threejs, path, camera)
+    error = angles(ours, theirs)
+    print("bumps", both.sum(), np.median(error), np.percentile(error, 95))
+    assert both.sum() > 5000
+    assert np.median(error) <= 1.0 and np.percentile(error, 95) <= 2.0
+    assert np.median(angles(ours, np.array([0.0, 0.0, 1.0]))) > 15.0  # the map bends them
+    mirror = {"translation": [0.5, 0.1, 0.0], "scale": [-1.0, 1.0, 1.0]}
+    derived = bumps_file(tmp_path / "mirrored-derived.glb", [("m", [0.0, 0.0, 0.0], SQUARE_UV, None, mirror)])
+    given = bumps_file(tmp_path / "mirrored-given.glb", [("m", [0.0, 0.0, 0.0], SQUARE_UV, along, mirror)])
+    near = Camera.look_at(np.array([0.0, 0.6, 2.0]), np.array([0.0, 0.6, 0.0]), math.radians(60.0), 128, 0.5, 10.0)
+    both, ours_derived, theirs_derived = three_and_farfield_normals(threejs, derived, near)
+    assert both.sum() > 3000 and np.median(angles(ours_derived, theirs_derived)) <= 1.0
+    with MeshRenderer(load_scene(given).objects, normals=True) as renderer:
+        image, ours_given = renderer.render_normals(near)
+    assert np.median(angles(ours_given[both], ours_derived)) <= 1.0
