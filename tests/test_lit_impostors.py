@@ -217,3 +217,42 @@ def test_three_js_reads_the_glbs_tangent_space_normals_and_lights_them_as_the_li
             difference = np.abs(mine.astype(int) - three[..., :3].astype(int)).max(axis=-1)[both]
             print("lit", light.direction.round(2), difference.mean(), np.percentile(difference, 99))
             assert difference.mean() <= 1.0 and np.percentile(difference, 99) <= 4, light
+
+
+def test_a_compressed_lit_glb_keeps_its_normals_in_linear_uastc(lit_layered, tmp_path, gltf_validator, threejs):
+    """KTX2 pages: the colour pages in the codec asked for, the normal textures in UASTC with a
+    linear transfer function whatever it was; three.js draws the same normals from it."""
+    import alktx2
+    from glb_validation import problems
+    from threejs import decode_normals as three_normals
+
+    from farfield.core.impostor.glb_compression import compress_glb, decode_ktx2, read_glb
+
+    plain = tmp_path / "plain.glb"
+    plain.write_bytes(impostor_glb(lit_layered))
+    packed = tmp_path / "packed.glb"
+    packed.write_bytes(compress_glb(plain.read_bytes(), "ktx2", "meshopt", "etc1s"))
+    (report,) = gltf_validator.validate([packed])
+    assert problems(report) == []  # beyond the validator not knowing KHR_texture_basisu
+    document, blob = read_glb(packed.read_bytes())
+    textures = document["textures"]
+    normal_sources = {
+        textures[m["normalTexture"]["index"]]["extensions"]["KHR_texture_basisu"]["source"]
+        for m in document["materials"]
+    }
+    for index in normal_sources:
+        view = document["bufferViews"][document["images"][index]["bufferView"]]
+        data = blob[view["byteOffset"] : view["byteOffset"] + view["byteLength"]]
+        info = alktx2.inspect_ktx2(data)
+        assert info["is_uastc"] and not info["is_srgb"], info
+        assert "uastc" in document["images"][index]["name"]
+        decoded = decode_ktx2(data)
+        assert decoded.shape[0] >= lit_layered.channels["normal"][0].shape[0]
+    cameras = impostor_cameras(lit_layered, 128)
+    before = threejs.render(plain, cameras, mipmaps=False, output="normal")
+    after = threejs.render(packed, cameras, mipmaps=False, output="normal")
+    for a, b in zip(before, after, strict=True):
+        both = (a[..., 3] > 0) & (b[..., 3] > 0)
+        error = angles(three_normals(a)[both], three_normals(b)[both])
+        print("ktx2 normals", np.median(error), np.percentile(error, 95))
+        assert both.sum() > 500 and np.median(error) <= 1.5 and np.percentile(error, 95) <= 6.0

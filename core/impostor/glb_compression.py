@@ -6,7 +6,8 @@ bufferViews; the plain GLB stays the default everywhere):
 
 ``textures``
     ``"png"``: as they are.  ``"ktx2"``: each PNG page re-encoded as KTX2 by Basis Universal
-    (``codec`` ``"etc1s"``, small, or ``"uastc"``, near-lossless, Zstandard-supercompressed), the
+    (``codec`` ``"etc1s"``, small, or ``"uastc"``, near-lossless, Zstandard-supercompressed; normal
+    textures always UASTC with a linear transfer function), the
     texture's ``extensions.KHR_texture_basisu.source``; the PNG is dropped and the extension is
     required.  ``"ktx2+png"``: the same with the PNG kept as the texture's ``source``, a fallback for
     viewers without the extension (the extension is then only used; the file is larger than the
@@ -98,9 +99,9 @@ def block_padded(rgba: np.ndarray) -> np.ndarray:
     return np.pad(rgba, ((0, -h % 4), (0, -w % 4), (0, 0)), mode="edge")
 
 
-def ktx2_page(rgba: np.ndarray, codec: str = "etc1s") -> bytes:
-    """KTX2 bytes (Basis Universal, sRGB, no mipmaps) of one (H, W, 4) uint8 RGBA page, top row
-    first; H and W multiples of 4 (:func:`block_padded`)."""
+def ktx2_page(rgba: np.ndarray, codec: str = "etc1s", srgb: bool = True) -> bytes:
+    """KTX2 bytes (Basis Universal, sRGB unless ``srgb`` is False, no mipmaps) of one (H, W, 4)
+    uint8 RGBA page, top row first; H and W multiples of 4 (:func:`block_padded`)."""
     import alktx2
 
     h, w = rgba.shape[:2]
@@ -113,7 +114,7 @@ def ktx2_page(rgba: np.ndarray, codec: str = "etc1s") -> bytes:
         h,
         True,
         codec=codec,
-        srgb=True,
+        srgb=srgb,
         mipmaps=False,
         threads=1,
         **options,
@@ -235,6 +236,9 @@ def _compress(data: bytes, textures: str, geometry: str, codec: str) -> bytes:
     required = set(document.get("extensionsRequired", []))
     keep_png = textures == "ktx2+png"
 
+    # Normal textures (a lit impostor's, glTF normalTexture) hold directions, not colours: UASTC
+    # whatever the codec asked (ETC1S's shared endpoints bend normals by degrees), linear transfer.
+    normal_images = _normal_images(document)
     # The pages first: a page grown to whole 4 x 4 blocks scales the texture coordinates that use it.
     pages: list[tuple[bytes, bytes | None]] = []  # per image: (PNG to keep or b"", KTX2 or None)
     grown: dict[int, tuple[float, float]] = {}  # image -> (u, v) scale
@@ -248,7 +252,8 @@ def _compress(data: bytes, textures: str, geometry: str, codec: str) -> bytes:
         if padded.shape != rgba.shape:
             grown[n] = (rgba.shape[1] / padded.shape[1], rgba.shape[0] / padded.shape[0])
             png = page_png(padded) if keep_png else png  # the fallback shares the scaled coordinates
-        pages.append((png if keep_png else b"", ktx2_page(padded, codec)))
+        normal = n in normal_images
+        pages.append((png if keep_png else b"", ktx2_page(padded, "uastc" if normal else codec, srgb=not normal)))
     scale = _uv_scales(document, grown)
 
     out, fallback = _Blob(), _Blob()
@@ -292,7 +297,7 @@ def _compress(data: bytes, textures: str, geometry: str, codec: str) -> bytes:
                 {
                     "bufferView": len(new_views) - 1,
                     "mimeType": "image/ktx2",
-                    "name": f"{image.get('name', f'image-{n}')}-{codec}",
+                    "name": f"{image.get('name', f'image-{n}')}-{'uastc' if n in normal_images else codec}",
                 }
             )
     for texture in document.get("textures", []) if textures != "png" else []:
@@ -337,6 +342,19 @@ def _compress(data: bytes, textures: str, geometry: str, codec: str) -> bytes:
     if required:
         document["extensionsRequired"] = sorted(required)
     return write_glb(document, out.bytes())
+
+
+def _normal_images(document: dict) -> set[int]:
+    """The images that materials use as ``normalTexture``."""
+    textures = document.get("textures", [])
+    found = set()
+    for material in document.get("materials", []):
+        info = material.get("normalTexture")
+        if isinstance(info, dict) and isinstance(info.get("index"), int) and info["index"] < len(textures):
+            source = textures[info["index"]].get("source")
+            if isinstance(source, int):
+                found.add(source)
+    return found
 
 
 def _uv_scales(document: dict, grown: dict[int, tuple[float, float]]) -> dict[int, tuple[float, float]]:
