@@ -85,6 +85,9 @@ def run(resolution: int, random_count: int) -> list[dict]:
                 "normal_p95": t["normal_error_p95"],
                 "normal_interior_median": t["normal_error_interior_median"],
                 "normal_interior_p95": t["normal_error_interior_p95"],
+                "normal_smooth_median": t["normal_error_smooth_median"],
+                "normal_smooth_p95": t["normal_error_smooth_p95"],
+                "smooth_share": t["smooth_share"],
                 "lights": t["lights"],
                 "eval_s": lit.seconds,
             }
@@ -105,7 +108,7 @@ def main() -> None:
     print(f"renderer: {renderer_info()}; layered at {args.resolution} px")
     print(
         f"{'scene':<7} {'tris':>7} {'vn':>3} {'bake s':>7} {'+n s':>6} {'KiB':>7} {'+n KiB':>7} {'unlit':>6} "
-        f"{'lit':>6} {'flat':>6} {'lit/unlit':>9} {'flat/lit':>8} {'n med':>6} {'n p95':>6} {'in med':>6} {'in p95':>6}"
+        f"{'lit':>6} {'flat':>6} {'lit/unlit':>9} {'flat/lit':>8} {'n med':>6} {'n p95':>6} {'sm med':>6} {'sm p95':>6} {'smooth':>6}"
     )
     for r in rows:
         print(
@@ -113,7 +116,7 @@ def main() -> None:
             f"{r['bake_s_normal']:>6.2f} {r['kib_albedo']:>7.0f} {r['kib_normal']:>7.0f} {r['unlit_mean']:>6.2f} "
             f"{r['lit_mean_worst']:>6.2f} {r['flat_mean_worst']:>6.2f} {r['lit_to_unlit_worst']:>9.2f} "
             f"{r['flat_to_lit_least']:>8.2f} {r['normal_median']:>6.1f} {r['normal_p95']:>6.1f} "
-            f"{r['normal_interior_median']:>6.1f} {r['normal_interior_p95']:>6.1f}"
+            f"{r['normal_smooth_median']:>6.1f} {r['normal_smooth_p95']:>6.1f} {100 * r['smooth_share']:>5.0f}%"
         )
 
 

@@ -256,3 +256,14 @@ def test_a_compressed_lit_glb_keeps_its_normals_in_linear_uastc(lit_layered, tmp
         error = angles(three_normals(a)[both], three_normals(b)[both])
         print("ktx2 normals", np.median(error), np.percentile(error, 95))
         assert both.sum() > 500 and np.median(error) <= 1.5 and np.percentile(error, 95) <= 6.0
+
+
+def test_a_lit_rebake_is_byte_identical(tmp_path):
+    first = write_bundle(
+        bake_layered(sphere(), CELL, BakeOptions(resolution=64, channels="albedo+normal")), tmp_path / "a"
+    )
+    again = write_bundle(
+        bake_layered(sphere(), CELL, BakeOptions(resolution=64, channels="albedo+normal")), tmp_path / "b"
+    )
+    for name in ("manifest.json", "payload.bin", "atlas-000.png", "normal-000.png", "impostor.glb"):
+        assert (first.directory / name).read_bytes() == (again.directory / name).read_bytes(), name

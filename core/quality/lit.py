@@ -27,8 +27,10 @@ an engine does with an impostor that has no normals) and unlit.  Per light and v
 
 Per viewpoint, over the samples both cover: ``normal_error_median`` and ``normal_error_p95``
 (degrees between the impostor's normal and the geometry's), the same over ``interior`` samples
-(whose 3 x 3 neighbourhood both cover: silhouettes and sub-sample detail left out), and
-``flat_normal_error_median`` for the flat cards.
+(whose 3 x 3 neighbourhood both cover: silhouettes left out) and over ``smooth`` samples, on
+surfaces larger than a pixel (interior samples whose geometry normals within one output pixel
+turn by less than :data:`SMOOTH_DEGREES`: no edge, crease or sub-pixel detail; ``smooth_share`` of
+the samples both cover), and ``flat_normal_error_median`` for the flat cards.
 """
 
 from __future__ import annotations
@@ -95,6 +97,29 @@ def _interior(mask: np.ndarray) -> np.ndarray:
     return inner
 
 
+# A sample lies on a surface larger than an output pixel where the geometry's normals within one
+# pixel around it turn by less than this (degrees): no edge, crease or sub-pixel detail there.
+SMOOTH_DEGREES = 10.0
+
+
+def _smooth(normals: np.ndarray, covered: np.ndarray, samples: int) -> np.ndarray:
+    """(h, w) bool: covered samples whose geometry normals within ``samples`` samples (one output
+    pixel) each way, all covered, turn by less than :data:`SMOOTH_DEGREES` from theirs."""
+    cosine = math.cos(math.radians(SMOOTH_DEGREES))
+    out = covered.copy()
+    h, w = covered.shape
+    for dy in (-samples, 0, samples):
+        for dx in (-samples, 0, samples):
+            if dy == 0 and dx == 0:
+                continue
+            ys, yd = slice(max(dy, 0), h + min(dy, 0)), slice(max(-dy, 0), h + min(-dy, 0))
+            xs, xd = slice(max(dx, 0), w + min(dx, 0)), slice(max(-dx, 0), w + min(-dx, 0))
+            near = np.zeros_like(covered)
+            near[yd, xd] = covered[ys, xs] & (np.einsum("ijk,ijk->ij", normals[ys, xs], normals[yd, xd]) > cosine)
+            out &= near
+    return out
+
+
 def _percentiles(values: np.ndarray) -> tuple[float, float]:
     return (float(np.median(values)), float(np.percentile(values, 95))) if values.size else (0.0, 0.0)
 
@@ -141,9 +166,12 @@ def compare_lit(
     angles = _angles(geometry[1][both_samples], impostor[1][both_samples])
     inner = _interior(covered_g) & _interior(covered_i)
     inner_angles = _angles(geometry[1][inner], impostor[1][inner])
+    smooth = inner & _smooth(geometry[1], covered_g, samples)
+    smooth_angles = _angles(geometry[1][smooth], impostor[1][smooth])
     flat_angles = _angles(geometry[1][both_samples], flat[1][both_samples])
     median, p95 = _percentiles(angles)
     inner_median, inner_p95 = _percentiles(inner_angles)
+    smooth_median, smooth_p95 = _percentiles(smooth_angles)
     return {
         "both_pixels": int(both.sum()),
         "lights": rows,
@@ -151,6 +179,9 @@ def compare_lit(
         "normal_error_p95": p95,
         "normal_error_interior_median": inner_median,
         "normal_error_interior_p95": inner_p95,
+        "normal_error_smooth_median": smooth_median,
+        "normal_error_smooth_p95": smooth_p95,
+        "smooth_share": float(smooth.sum() / max(int(both_samples.sum()), 1)),
         "flat_normal_error_median": _percentiles(flat_angles)[0],
     }
 
@@ -190,6 +221,9 @@ def _totals(rows: list[dict], light_count: int) -> dict:
         "normal_error_p95": max(r["normal_error_p95"] for r in rows),
         "normal_error_interior_median": float(np.mean([r["normal_error_interior_median"] for r in rows])),
         "normal_error_interior_p95": max(r["normal_error_interior_p95"] for r in rows),
+        "normal_error_smooth_median": float(np.mean([r["normal_error_smooth_median"] for r in rows])),
+        "normal_error_smooth_p95": max(r["normal_error_smooth_p95"] for r in rows),
+        "smooth_share": float(np.mean([r["smooth_share"] for r in rows])),
         "flat_normal_error_median": float(np.mean([r["flat_normal_error_median"] for r in rows])),
     }
 
@@ -263,6 +297,8 @@ def lit_text(result: LitEvaluation) -> str:
     lines.append(
         f"normal error: median {t['normal_error_median']:.1f}°, 95th percentile {t['normal_error_p95']:.1f}° "
         f"(away from silhouettes: {t['normal_error_interior_median']:.1f}°, {t['normal_error_interior_p95']:.1f}°; "
+        f"on surfaces larger than a pixel, {100 * t['smooth_share']:.0f} % of them: "
+        f"{t['normal_error_smooth_median']:.1f}°, {t['normal_error_smooth_p95']:.1f}°; "
         f"flat cards: median {t['flat_normal_error_median']:.1f}°)"
     )
     lines.append(

@@ -93,21 +93,38 @@ REPORT_FIGURES = (
 )  # fmt: skip
 
 
+# The lit evaluation's totals a lit impostor's cell record keeps (under ``lit``), beside the worst
+# light's mean lit colour error.
+LIT_REPORT_FIGURES = ("lit_to_unlit_worst", "flat_to_lit_least", "normal_error_median", "normal_error_smooth_p95")
+
+
 def report_part(scene: Scene, impostor: Impostor, corners: int = REPORT_CORNERS, samples: int = REPORT_SAMPLES) -> dict:
     """The evaluation a job records for one baked cell: the impostor against its part from its
     reference viewpoint and ``corners`` corners of its cell far apart (:func:`farfield.core.quality.evaluation.spread_corners`),
     with ``samples`` per pixel side.
 
     Returns the totals named in :data:`REPORT_FIGURES` (see :mod:`farfield.core.quality.evaluation`), plus
-    ``samples`` and ``seconds`` (the time the evaluation took, apart from the bake's).
+    ``samples`` and ``seconds`` (the time the evaluation took, apart from the bake's); for an
+    impostor with normals also ``lit``: :data:`LIT_REPORT_FIGURES` and ``lit_error_mean_worst`` of
+    the same views lit (:mod:`farfield.core.quality.lit`).
     """
     names = impostor.parameters.get("objects")
     part = scene.subset(names) if names else scene
     reference = np.asarray(impostor.reference_viewpoint, dtype=np.float64)
     chosen = spread_corners(viewcell_from_dict(impostor.viewcell), reference, corners)
     points = np.concatenate([reference[None, :], chosen])
-    result = evaluate_at(part, impostor, points, ["reference"] + ["corner"] * len(chosen), samples)
-    return {**{k: result.totals[k] for k in REPORT_FIGURES}, "samples": samples, "seconds": result.seconds}
+    kinds = ["reference"] + ["corner"] * len(chosen)
+    result = evaluate_at(part, impostor, points, kinds, samples)
+    report = {**{k: result.totals[k] for k in REPORT_FIGURES}, "samples": samples, "seconds": result.seconds}
+    if "normal" in impostor.channels:  # a lit impostor: the same views, lit (farfield.core.quality.lit)
+        from farfield.core.quality.lit import evaluate_lit_at
+
+        lit = evaluate_lit_at(part, impostor, points, kinds, samples)
+        report["lit"] = {k: lit.totals[k] for k in LIT_REPORT_FIGURES} | {
+            "lit_error_mean_worst": max(row["lit_error_mean"] for row in lit.totals["lights"])
+        }
+        report["seconds"] += lit.seconds
+    return report
 
 
 def part_evaluation_text(result: Evaluation, impostor: Impostor) -> str:

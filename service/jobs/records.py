@@ -90,6 +90,22 @@ def evaluation_summary(cells: list[CellRow]) -> dict | None:
         "colour_error_mean": max(e["colour_error_mean"] for e in found),  # the worst cell's
         "ssim_min": min(e["ssim_min"] for e in found),
         "seconds": sum(e["seconds"] for e in found),
+    } | _lit_summary([e["lit"] for e in found if e.get("lit")])
+
+
+def _lit_summary(lit: list[dict]) -> dict:
+    """The worst lit figures over the cells with lit impostors (``{}`` when none has one)."""
+    if not lit:
+        return {}
+    return {
+        "lit": {
+            "cells": len(lit),
+            "lit_error_mean_worst": max(e["lit_error_mean_worst"] for e in lit),
+            "lit_to_unlit_worst": max(e["lit_to_unlit_worst"] for e in lit),
+            "flat_to_lit_least": min(e["flat_to_lit_least"] for e in lit),
+            "normal_error_median": max(e["normal_error_median"] for e in lit),
+            "normal_error_smooth_p95": max(e["normal_error_smooth_p95"] for e in lit),
+        }
     }
 
 
