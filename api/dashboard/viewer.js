@@ -23,8 +23,15 @@
 // The page is also the dashboard's "3D view" of a job (?job=ID) and of one cell (?job=ID&cell=N:
 // the camera starts at that cell's centre).  ?x=&y=&z=&dx=&dy=&dz= place the camera, ?fov= sets
 // the vertical field of view in degrees (default: the job's), ?size=N draws an N x N canvas,
-// ?mode=impostors|scene|split picks what is drawn.  window.farfieldViewer is the hook the tests
-// drive (tests/test_viewer.py).
+// ?mode=impostors|scene|split picks what is drawn, ?light=lit draws both sides lit (?azimuth=,
+// ?elevation= in degrees place the light), unlit by default.  window.farfieldViewer is the hook the
+// tests drive (tests/test_viewer.py, tests/test_service_lit.py).
+//
+// Lighting.  Unlit (the default) draws every material as glTF's KHR_materials_unlit rule does.
+// Lit draws the scene's own glTF materials and a lit impostor's (channels=albedo+normal:
+// metallic-roughness with a tangent-space normal map, docs/lit-impostors.md) under one directional
+// light and an ambient light of farfield's lit evaluation (core/quality/lighting.py: 0.85π and
+// 0.15π, y up); an unlit impostor (KHR_materials_unlit) stays unlit, as an engine draws it.
 import * as THREE from "three";
 import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
 
@@ -56,6 +63,8 @@ const view = {
   lookup: {at: 0, pose: "", answer: null},
   showImpostors: query.get("impostors") !== "0", // off: only what stays geometry (near field, kept objects)
   mode: ["impostors", "scene", "split"].includes(query.get("mode")) ? query.get("mode") : "impostors",
+  lighting: query.get("light") === "lit" ? "lit" : "unlit",
+  light: {azimuth: number("azimuth") ?? 60, elevation: number("elevation") ?? 35}, // degrees, y up
   error: null,
 };
 
@@ -87,6 +96,59 @@ renderer.outputColorSpace = THREE.SRGBColorSpace;
 const camera = new THREE.PerspectiveCamera(60, 1, 0.1, 1000);
 const runtimeScene = new THREE.Scene();
 const sourceScene = new THREE.Scene();
+
+// ---------------------------------------------------------------- lighting
+
+const DIRECT_INTENSITY = 0.85 * Math.PI; // core/quality/lighting.py's DIRECT_INTENSITY and AMBIENT
+const AMBIENT_INTENSITY = 0.15 * Math.PI;
+function lightRig() {
+  const rig = new THREE.Group();
+  const sun = new THREE.DirectionalLight(0xffffff, DIRECT_INTENSITY);
+  rig.add(sun, sun.target, new THREE.AmbientLight(0xffffff, AMBIENT_INTENSITY));
+  rig.userData.sun = sun;
+  return rig;
+}
+const rigs = [lightRig(), lightRig()]; // the runtime's and the source scene's (an object has one parent)
+sourceScene.add(rigs[1]);
+
+function placeLight() {
+  const a = (view.light.azimuth * Math.PI) / 180, e = (view.light.elevation * Math.PI) / 180;
+  const direction = new THREE.Vector3(Math.cos(e) * Math.cos(a), Math.sin(e), Math.cos(e) * Math.sin(a)); // toward the light
+  const centre = view.bounds.isEmpty() ? new THREE.Vector3() : view.bounds.getCenter(new THREE.Vector3());
+  for (const rig of rigs) {
+    rig.userData.sun.position.copy(centre).add(direction);
+    rig.userData.sun.target.position.copy(centre);
+    rig.userData.sun.target.updateMatrixWorld(true);
+  }
+}
+
+const shading = new WeakMap(); // mesh -> {lit, unlit}: its material (or materials) each way
+
+function unlitOf(material) {
+  return material.isMeshBasicMaterial ? material : unlit(material);
+}
+
+function shadeBoth(mesh, lit, unlitMaterial) {
+  // Register ``mesh``'s two looks and give it the current one.
+  shading.set(mesh, {lit, unlit: unlitMaterial});
+  mesh.material = view.lighting === "lit" ? lit : unlitMaterial;
+}
+
+function applyLighting(root) {
+  root.traverse((node) => {
+    const looks = node.isMesh && shading.get(node);
+    if (looks) node.material = looks[view.lighting];
+  });
+}
+
+function setLighting(lighting) {
+  view.lighting = lighting === "lit" ? "lit" : "unlit";
+  applyLighting(sourceScene);
+  applyLighting(runtimeScene);
+  for (const group of view.groups.values()) applyLighting(group);
+  $("viewer-light").checked = view.lighting === "lit";
+  for (const id of ["viewer-azimuth", "viewer-elevation"]) $(id).disabled = view.lighting !== "lit";
+}
 
 function unlit(material) {
   // farfield draws unlit (glTF's KHR_materials_unlit rule: base colour = map x colour x vertex
@@ -142,8 +204,11 @@ function faceRanges(geometry, ranges) {
   return part;
 }
 
-function objectMesh(mesh, geometry = mesh.geometry, material = mesh.material) {
-  const copy = new THREE.Mesh(geometry, material);
+function objectMesh(mesh, geometry = mesh.geometry, material = null) {
+  // A copy of a scene mesh (its buffers shared) with ``material``, or with the mesh's own two looks.
+  const copy = new THREE.Mesh(geometry, material || mesh.material);
+  const looks = shading.get(mesh);
+  if (!material && looks) shadeBoth(copy, looks.lit, looks.unlit);
   copy.matrixAutoUpdate = false;
   copy.matrix.copy(mesh.matrixWorld);
   copy.matrixWorld.copy(mesh.matrixWorld);
@@ -170,13 +235,15 @@ async function loadJob(jobId) {
   view.sceneRoot.updateMatrixWorld(true);
   view.sceneRoot.traverse((node) => {
     if (!node.isMesh) return;
-    node.material = Array.isArray(node.material) ? node.material.map(unlit) : unlit(node.material);
+    const own = node.material;
+    shadeBoth(node, own, Array.isArray(own) ? own.map(unlitOf) : unlitOf(own));
     const name = node.userData.farfield_object ?? node.name;
     if (!view.objects.has(name)) view.objects.set(name, []);
     view.objects.get(name).push(node);
   });
   view.bounds.setFromObject(view.sceneRoot);
   sourceScene.add(view.sceneRoot);
+  placeLight();
 }
 
 function cellAt(p) {
@@ -225,8 +292,10 @@ function nearField(near) {
   const meshes = [];
   for (const {name, faces} of near.objects) {
     for (const mesh of view.objects.get(name) || []) {
-      const materials = Array.isArray(mesh.material) ? mesh.material.map((m) => nearFieldMaterial(m, near)) : nearFieldMaterial(mesh.material, near);
-      const part = objectMesh(mesh, faceRanges(mesh.geometry, faces), materials);
+      const clipped = (m) => (Array.isArray(m) ? m.map((one) => nearFieldMaterial(one, near)) : nearFieldMaterial(m, near));
+      const looks = shading.get(mesh);
+      const part = objectMesh(mesh, faceRanges(mesh.geometry, faces), clipped(looks.unlit));
+      shadeBoth(part, clipped(looks.lit), part.material);
       part.userData.ownsIndex = part.userData.ownsMaterial = true; // freed with the cell
       meshes.push(part);
     }
@@ -281,7 +350,10 @@ function release(mesh) {
     for (const name of Object.keys(mesh.geometry.attributes)) mesh.geometry.deleteAttribute(name);
     mesh.geometry.dispose();
   }
-  if (mesh.userData.ownsMaterial) for (const m of [].concat(mesh.material)) m.dispose();
+  if (mesh.userData.ownsMaterial) {
+    const looks = shading.get(mesh);
+    for (const m of (looks ? [looks.lit, looks.unlit] : [mesh.material]).flat()) m.dispose();
+  }
 }
 
 function dropGroup(key) {
@@ -335,6 +407,11 @@ function groupFor(key, cells, replaced) {
       for (const {root, near} of loaded) {
         const impostor = root.clone(); // shares the impostor's geometry and textures
         impostor.userData.impostor = true;
+        impostor.traverse((node) => {
+          if (!node.isMesh) return;
+          const own = node.material;
+          shadeBoth(node, own, Array.isArray(own) ? own.map(unlitOf) : unlitOf(own));
+        });
         impostor.visible = view.showImpostors;
         group.add(impostor);
         if (near) for (const mesh of near) group.add(mesh);
@@ -413,12 +490,13 @@ async function doUpdate(force) {
     view.activeInfo = wanted.info;
     view.activeBounds = null;
     runtimeScene.clear();
+    runtimeScene.add(rigs[0]);
     return;
   }
   const group = await groupFor(wanted.key, wanted.cells, wanted.replaced);
   if (view.wantedKey !== wanted.key) return; // the camera moved on meanwhile
   runtimeScene.clear();
-  runtimeScene.add(group);
+  runtimeScene.add(rigs[0], group);
   view.activeKey = wanted.key;
   view.activeInfo = wanted.info;
   view.activeBounds = group.userData.bounds;
@@ -592,6 +670,11 @@ function setMode(mode) {
   for (const b of document.querySelectorAll("[data-mode]")) b.classList.toggle("active", b.dataset.mode === mode);
 }
 for (const b of document.querySelectorAll("[data-mode]")) b.addEventListener("click", () => setMode(b.dataset.mode));
+$("viewer-light").addEventListener("change", (e) => setLighting(e.target.checked ? "lit" : "unlit"));
+for (const [id, key] of [["viewer-azimuth", "azimuth"], ["viewer-elevation", "elevation"]]) {
+  $(id).value = String(view.light[key]);
+  $(id).addEventListener("input", (e) => { view.light[key] = Number(e.target.value); placeLight(); });
+}
 
 function listedTriangles(scene) {
   // Triangles of the visible meshes of ``scene``, before three.js's frustum culling.
@@ -613,7 +696,13 @@ function base64(bytes) {
 window.farfieldViewer = {
   paused: query.get("paused") === "1",
   ready: null,
-  async show(c, mode = "impostors", impostors = true) {
+  async show(c, mode = "impostors", impostors = true, lighting = null) {
+    if (lighting) { // {lit: bool, azimuth, elevation}: the light as the page's controls set it
+      if (lighting.azimuth !== undefined) view.light.azimuth = lighting.azimuth;
+      if (lighting.elevation !== undefined) view.light.elevation = lighting.elevation;
+      placeLight();
+      setLighting(lighting.lit ? "lit" : "unlit");
+    }
     const basis = new THREE.Matrix4().makeBasis(new THREE.Vector3(...c.right), new THREE.Vector3(...c.up), new THREE.Vector3(...c.forward).negate());
     camera.position.set(...c.eye);
     camera.quaternion.setFromRotationMatrix(basis);
@@ -652,6 +741,7 @@ async function main() {
   startPose();
   setMode(view.mode);
   showImpostors(view.showImpostors);
+  setLighting(view.lighting);
   await update();
   requestAnimationFrame(frame);
 }

@@ -27,7 +27,8 @@ def to_trimesh(scene: Scene) -> trimesh.Scene:
     ``extras`` hold ``{"farfield_object": name}`` (viewers rename nodes: three.js drops dots,
     colons and slashes, so a runtime matches a database's object names through the extras).
 
-    Every object gets a glTF material with its ``baseColorFactor`` and ``doubleSided`` as the object
+    Every object gets a glTF material with its ``baseColorFactor``, ``metallicFactor`` 0 and
+    ``roughnessFactor`` 1 (a rough dielectric, as the lit evaluation shades it) and ``doubleSided`` as the object
     is (:attr:`farfield.core.scene.SceneObject.double_sided`), a ``baseColorTexture`` where it is
     textured (and ``alphaMode: MASK`` when ``alpha_cutoff`` is set), and vertex colours as
     ``COLOR_0`` where it has them.
@@ -41,6 +42,10 @@ def to_trimesh(scene: Scene) -> trimesh.Scene:
         material = PBRMaterial(
             name=f"{obj.name}_material",
             baseColorFactor=np.array(obj.base_color),  # trimesh writes into its inputs
+            # farfield keeps no material channels yet: every object is a rough dielectric, as the lit
+            # evaluation shades it (glTF's defaults, metallic 1 and roughness 1, would make it metal)
+            metallicFactor=0.0,
+            roughnessFactor=1.0,
             baseColorTexture=None if obj.texture is None else texture_image(obj.texture),
             alphaMode=None if obj.alpha_cutoff is None else "MASK",
             alphaCutoff=obj.alpha_cutoff,
