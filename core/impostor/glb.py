@@ -61,6 +61,7 @@ from farfield.core.impostor.impostor import (
     decode_normals,
     encode_normals,
 )
+from farfield.core.impostor.mesh_frames import VertexFrames, texel_frames, triangle_frames, vertex_frames
 
 __all__ = ["GlbBuilder", "GlbParts", "engine_metadata", "impostor_glb", "page_png", "write_glb"]
 
@@ -180,9 +181,16 @@ def _quad_pages(payload: QuadPayload, viewpoint: np.ndarray, page_count: int, fr
             yield page, positions, texcoords, indices
             continue
         frame = frames[quads[kept // 4]]  # (n, 3, 3) rows tangent, bitangent, normal of each vertex's quad
-        handed = np.sign(np.einsum("ij,ij->i", np.cross(frame[:, 2], frame[:, 0]), frame[:, 1]))
-        tangent = np.concatenate([frame[:, 0], np.where(handed < 0, -1.0, 1.0)[:, None]], axis=1)
-        yield page, positions, texcoords, indices, frame[:, 2].astype("<f4"), tangent.astype("<f4")
+        yield page, positions, texcoords, indices, *_normal_tangent(frame)
+
+
+def _normal_tangent(frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """float32 NORMAL (n, 3) and TANGENT (n, 4) of vertices whose frames are ``frame`` (n, 3, 3)
+    (rows T, B, N): the tangent's w is the handedness a viewer rebuilds B with (glTF 2.0 §3.7.2.1:
+    B = cross(N, T) * w)."""
+    handed = np.sign(np.einsum("ij,ij->i", np.cross(frame[:, 2], frame[:, 0]), frame[:, 1]))
+    tangent = np.concatenate([frame[:, 0], np.where(handed < 0, -1.0, 1.0)[:, None]], axis=1)
+    return frame[:, 2].astype("<f4"), tangent.astype("<f4")
 
 
 def quad_frames(payload: QuadPayload, viewpoint: np.ndarray) -> np.ndarray:
@@ -214,38 +222,58 @@ def quad_frames(payload: QuadPayload, viewpoint: np.ndarray) -> np.ndarray:
     return np.stack([unit(dpdu), unit(-dpdv), unit(normal)], axis=1)
 
 
-def tangent_space_pages(payload: QuadPayload, frames: np.ndarray, pages) -> list[np.ndarray]:
+def tangent_space_pages(payload: QuadPayload | MeshPayload, frames, pages) -> list[np.ndarray]:
     """The normal pages (world normals, :data:`farfield.core.impostor.impostor.PAGE_CHANNELS`) as
-    tangent-space normal textures (glTF ``normalTexture``): each texel in the frame (``frames``,
-    :func:`quad_frames`) of the quad whose tile holds it, the texels between tiles in that of the
-    nearest tile (their padding)."""
+    tangent-space normal textures (glTF ``normalTexture``).  Quads: each texel in the frame
+    (``frames``, :func:`quad_frames`) of the quad whose tile holds it, the texels between tiles in
+    that of the nearest tile (their padding).  A mesh: each texel in the frame a viewer
+    interpolates at its centre from the vertex frames (``frames``,
+    :func:`farfield.core.impostor.mesh_frames.vertex_frames`) of the triangle that holds it
+    (:func:`farfield.core.impostor.mesh_frames.texel_frames`)."""
     from scipy.ndimage import distance_transform_edt
 
     out = []
     for index, page in enumerate(pages):
         h, w = page.shape[:2]
-        owner = np.full((h, w), -1, np.int64)
-        for q in np.flatnonzero(payload.page == index):
-            u, v = payload.uv[q, :, 0] * w, payload.uv[q, :, 1] * h
-            x0, x1 = int(np.floor(u.min() + 0.5)), int(np.floor(u.max() + 0.5))
-            y0, y1 = int(np.floor(v.min() + 0.5)), int(np.floor(v.max() + 0.5))
-            owner[max(y0, 0) : y1, max(x0, 0) : x1] = q
-        if (owner < 0).all():
+        if isinstance(payload, MeshPayload):
+            to_local = texel_frames(payload, frames, index, h, w)
+        else:
+            owner = _quad_owners(payload, index, h, w)
+            to_local = None
+            if not (owner < 0).all():
+                if (owner < 0).any():
+                    iy, ix = distance_transform_edt(owner < 0, return_distances=False, return_indices=True)
+                    owner = owner[iy, ix]
+                to_local = frames[owner]
+        if to_local is None:
             out.append(encode_normals(np.broadcast_to([0.0, 0.0, 1.0], (h, w, 3))))
             continue
-        if (owner < 0).any():
-            iy, ix = distance_transform_edt(owner < 0, return_distances=False, return_indices=True)
-            owner = owner[iy, ix]
         world = decode_normals(page)
-        local = np.einsum("hwij,hwj->hwi", frames[owner], world)
+        local = np.einsum("hwij,hwj->hwi", to_local, world)
         blank = ~(np.linalg.norm(world, axis=-1) > 0.0)
         local[blank] = (0.0, 0.0, 1.0)
         out.append(encode_normals(local))
     return out
 
 
-def _mesh_pages(payload: MeshPayload, viewpoint: np.ndarray, page_count: int):
-    """Per page with triangles: (page, float32 positions relative to ``viewpoint``, float32 UVs, indices)."""
+def _quad_owners(payload: QuadPayload, index: int, h: int, w: int) -> np.ndarray:
+    """(h, w) int64 the quad whose tile holds each texel of page ``index``, -1 for none."""
+    owner = np.full((h, w), -1, np.int64)
+    for q in np.flatnonzero(payload.page == index):
+        u, v = payload.uv[q, :, 0] * w, payload.uv[q, :, 1] * h
+        x0, x1 = int(np.floor(u.min() + 0.5)), int(np.floor(u.max() + 0.5))
+        y0, y1 = int(np.floor(v.min() + 0.5)), int(np.floor(v.max() + 0.5))
+        owner[max(y0, 0) : y1, max(x0, 0) : x1] = q
+    return owner
+
+
+def _mesh_pages(payload: MeshPayload, viewpoint: np.ndarray, page_count: int, frames: VertexFrames | None = None):
+    """Per page with triangles: (page, float32 positions relative to ``viewpoint``, float32 UVs, indices),
+    and with ``frames`` (:func:`farfield.core.impostor.mesh_frames.vertex_frames`) float32 NORMAL
+    (n, 3) and TANGENT (n, 4) too (:func:`_lit_mesh_pages`)."""
+    if frames is not None:
+        yield from _lit_mesh_pages(payload, viewpoint, page_count, frames)
+        return
     for page in range(page_count):
         triangles = payload.triangles[payload.page == page].ravel()
         if triangles.size == 0:
@@ -257,6 +285,27 @@ def _mesh_pages(payload: MeshPayload, viewpoint: np.ndarray, page_count: int):
         kept = used[order]
         positions = (payload.vertices[kept] - viewpoint).astype("<f4")
         yield page, positions, payload.uv[kept].astype("<f4"), slot[local.reshape(-1)]
+
+
+def _lit_mesh_pages(payload: MeshPayload, viewpoint: np.ndarray, page_count: int, frames: VertexFrames):
+    """:func:`_mesh_pages` with ``frames``: each page's vertices are its frame vertices (a payload
+    vertex once per handedness of its triangles), with their NORMAL and TANGENT, in the order of
+    their first use."""
+    relative = (payload.vertices - viewpoint).astype("<f4")
+    uv = payload.uv.astype("<f4")
+    position = np.unique(frames.corner.reshape(-1), return_index=True)[1]  # a corner of each frame vertex
+    vertex = payload.triangles.reshape(-1)[position]  # the payload vertex of each frame vertex
+    frame = np.stack([frames.tangent, frames.bitangent, frames.normal], axis=1)
+    for page in range(page_count):
+        corners = frames.corner[payload.page == page].ravel()
+        if corners.size == 0:
+            continue
+        used, first, local = np.unique(corners, return_index=True, return_inverse=True)
+        order = np.argsort(first, kind="stable")  # vertices in the order of their first use
+        slot = np.empty(used.size, np.int64)
+        slot[order] = np.arange(used.size)
+        kept = used[order]
+        yield page, relative[vertex[kept]], uv[vertex[kept]], slot[local.reshape(-1)], *_normal_tangent(frame[kept])
 
 
 def _face_viewpoint(positions: np.ndarray, indices: np.ndarray) -> np.ndarray:
@@ -392,6 +441,14 @@ class GlbBuilder:
     def mesh_pages(self, payload: MeshPayload, page_count: int):
         """Per page with triangles: (page, float32 positions, float32 UVs, indices)."""
         return _mesh_pages(payload, self.viewpoint, page_count)
+
+    def lit_mesh(self, payload: MeshPayload, pages, normal_pages) -> GlbParts:
+        """:meth:`textured` triangles with NORMAL, TANGENT and each page's world normals
+        (``normal_pages``) as a tangent-space normal texture in the frames a viewer interpolates
+        from the vertices' (:mod:`farfield.core.impostor.mesh_frames`)."""
+        frames = vertex_frames(payload, triangle_frames(payload, self.viewpoint))
+        geometry = _mesh_pages(payload, self.viewpoint, len(pages), frames)
+        return self.textured(geometry, pages, tangent_space_pages(payload, frames, normal_pages))
 
     def images(self, pages) -> list[dict]:
         """Each page's PNG in the BIN chunk, as glTF images in page order."""

@@ -369,8 +369,12 @@ class MeshPayload(_PayloadBase):
         return self.uv[self.triangles]
 
     def glb_parts(self, impostor: Impostor, glb) -> Any:
-        """Per page with triangles one primitive of its indexed triangles, every page an image and a material."""
-        return glb.textured(glb.mesh_pages(self, len(impostor.pages)), impostor.pages)
+        """Per page with triangles one primitive of its indexed triangles, every page an image and a
+        material; with a normal channel, lit materials with tangent-space normal textures."""
+        normals = impostor.channels.get("normal")
+        if normals is None:
+            return glb.textured(glb.mesh_pages(self, len(impostor.pages)), impostor.pages)
+        return glb.lit_mesh(self, impostor.pages, normals)
 
     def draw_objects(self, impostor: Impostor) -> list:
         """A page's triangles in payload order, with the vertices they use."""

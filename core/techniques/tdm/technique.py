@@ -37,12 +37,12 @@ import numpy as np
 
 from farfield.core import __version__
 from farfield.core.errors import InternalError
-from farfield.core.impostor.impostor import Impostor, MeshPayload
+from farfield.core.impostor.impostor import ChannelSet, Impostor, MeshPayload, wants_normals
 from farfield.core.layering import recording
 from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.layering.culling import CullingMode
 from farfield.core.layering.plan import plan_layers
-from farfield.core.layering.tiles import layer_records
+from farfield.core.layering.tiles import layer_records, split_channels
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_ERROR_PX, MAX_RESOLUTION, ErrorBudgetKind, PixelModel
 from farfield.core.scene import Scene
@@ -100,6 +100,11 @@ class TdmOptions:
     )
     texel_margin: int = option(
         1, "texels around each chart's triangles, for bilinear filtering (seed 003 §7)", ge=0, le=8
+    )
+    channels: ChannelSet = option(
+        "albedo",
+        "what each texel keeps: albedo (unlit colour, for baked lighting) or albedo+normal (world shading normals too, "
+        "so that an engine can light the impostor; a second set of atlas pages)",
     )
 
     def __post_init__(self) -> None:
@@ -202,8 +207,9 @@ def uncovered_voxels(
 
 def mesh_field(field: VoxelField, options: TdmOptions, clock: StageClock) -> tuple:
     """The textured mesh of a recorded ``field`` (stages ``mesh`` to ``texture`` on ``clock``):
-    (world triangle corners (t, 3, 3), their uvs, page and mesh per triangle, the atlas pages, and
-    the stats of those stages)."""
+    (world triangle corners (t, 3, 3), their uvs, page and mesh per triangle, the atlas pages, the
+    pages of the other channels the field keeps (``{"normal": pages}`` parallel to the colour
+    pages, or none), and the stats of those stages)."""
     with clock("mesh"):
         mesh = initial_mesh(field)
     clock.report("mesh", 1, 1)
@@ -231,13 +237,14 @@ def mesh_field(field: VoxelField, options: TdmOptions, clock: StageClock) -> tup
     clock.report("atlas", 1, 1)
 
     with clock("texture"):
-        pages = chart_pages(field, corners, charts, layout, options.oversampling)
+        pages, channels = split_channels(tuple(chart_pages(field, corners, charts, layout, options.oversampling)))
         uv = chart_uvs(charts, layout)
         triangle_page = layout.page[charts.chart]
     clock.report("texture", 1, 1)
 
     meshes = mesh_labels(len(used), triangles)
     count = triangles.shape[0]
+    texture_bytes = int(sum(p.shape[0] * p.shape[1] * 4 for p in pages))
     stats = {
         **mesh.stats,
         "triangles": int(count),
@@ -246,13 +253,17 @@ def mesh_field(field: VoxelField, options: TdmOptions, clock: StageClock) -> tup
         "quads": int(count),
         "contractions": outcomes,
         "voxels_uncovered": uncovered,
-        "texture_bytes": int(sum(p.shape[0] * p.shape[1] * 4 for p in pages)),
+        "texture_bytes": texture_bytes,
         "texture_bytes_tile_area": 4 * int(charts.texel_chart.size),  # the charts' needed texels
         "geometry_bytes": geometry_bytes(triangles, charts.chart),
         "atlas_pages": len(pages),
         "texture_charts": charts.count,
     }
-    return corners, uv, triangle_page, meshes, tuple(pages), stats
+    if channels:  # memory per channel; a colour-only bake's stats stay as they were
+        stats["channel_bytes"] = {"albedo": texture_bytes} | {
+            name: int(sum(p.nbytes for p in channel)) for name, channel in channels.items()
+        }
+    return corners, uv, triangle_page, meshes, tuple(pages), channels, stats
 
 
 def warm_kernels() -> float:
@@ -308,8 +319,10 @@ def bake_tdm(
         )
     clock.report("plan", 1, 1)
 
-    field = record_voxel_field(seen_from_cell(part.objects, cell), plan, options.culling, clock)
-    corners, uv, triangle_page, meshes, pages, stats = mesh_field(field, options, clock)
+    field = record_voxel_field(
+        seen_from_cell(part.objects, cell), plan, options.culling, clock, wants_normals(options.channels)
+    )
+    corners, uv, triangle_page, meshes, pages, channels, stats = mesh_field(field, options, clock)
     stats = {
         "layers_planned": plan.count,
         "layers": field.stats["layers"],
@@ -340,6 +353,7 @@ def bake_tdm(
             "plan": plan.to_dict(),
         },
         code_version=__version__,
+        channels=channels,
     )
 
 

@@ -63,6 +63,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from farfield.core.impostor.impostor import decode_normals, encode_normals
 from farfield.core.techniques.tdm.mask_atlas import MaskLayout
 from farfield.core.techniques.tdm.voxel_field import VoxelField
 
@@ -609,7 +610,11 @@ def chart_pages(
     """The (H, W, 4) uint8 atlas pages of ``charts`` placed by ``layout``: every needed texel
     coloured from the voxel field through the world triangles ``world`` (t, 3, 3) (see the module
     docstring), every other texel copied from the nearest needed one, so that every texel is
-    opaque and coarser mip levels bleed a chart's own colours into its gap."""
+    opaque and coarser mip levels bleed a chart's own colours into its gap.
+
+    Where the field keeps normals (:attr:`VoxelField.normal`) the pages are (H, W, 8): colour, then
+    the normal channel sampled alike (:func:`sample_field`), for
+    :func:`farfield.core.layering.tiles.split_channels`."""
     owner = charts.texel_triangle
     p = charts.position[owner]  # (m, 3, 2)
     cx, cy = charts.texel_col + 0.5, charts.texel_row + 0.5
@@ -631,7 +636,7 @@ def chart_pages(
     cols = layout.x[charts.texel_chart] + charts.texel_col
     pages = []
     for k, (w, h) in enumerate(layout.page_sizes.tolist()):
-        page = np.zeros((h, w, 4), np.uint8)
+        page = np.zeros((h, w, colours.shape[1]), np.uint8)
         here = page_of == k
         page[rows[here], cols[here]] = colours[here]
         empty = np.ones((h, w), bool)
@@ -645,7 +650,11 @@ def chart_pages(
 
 def sample_field(field: VoxelField, positions: np.ndarray, n: int) -> np.ndarray:
     """(m, 4) uint8 colours at voxel-space ``positions`` (m, 3): the ``n`` nearest voxel centres
-    averaged with inverse-distance weights; alpha 255."""
+    averaged with inverse-distance weights; alpha 255.
+
+    Where the field keeps normals, (m, 8): the colour, then the normal (encoded as
+    :func:`~farfield.core.impostor.impostor.encode_normals`) of the same voxels with the same
+    weights, renormalized (one voxel's normal is copied as recorded)."""
     tree = cKDTree(field.centres)
     k = min(int(n), field.count)
     distance, index = tree.query(positions, k=k)
@@ -658,7 +667,19 @@ def sample_field(field: VoxelField, positions: np.ndarray, n: int) -> np.ndarray
     out = np.empty((positions.shape[0], 4), dtype=np.uint8)
     out[:, :3] = np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
     out[:, 3] = 255
-    return out
+    if field.normal is None:
+        return out
+    if k == 1:
+        normal = field.normal[index]
+    else:  # the mean direction (a zero mean, opposite normals cancelling, decodes as none)
+        normal = encode_normals(_unit(np.einsum("mk,mkc->mc", weight, decode_normals(field.normal[index]))))
+    return np.concatenate([out, normal], axis=1)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    """Rows of ``v`` (m, 3) scaled to unit length; zero rows stay zero."""
+    length = np.linalg.norm(v, axis=1, keepdims=True)
+    return np.divide(v, length, out=np.zeros_like(v), where=length > 0.0)
 
 
 def chart_uvs(charts: Charts, layout: MaskLayout) -> np.ndarray:

@@ -42,6 +42,9 @@ class VoxelField:
     layer: np.ndarray  # (n,) int64 layer index, nearest first
     rgba: np.ndarray  # (n, 4) uint8 colour of each voxel
     stats: dict  # covered / culled / kept texels, triangles drawn, layers with voxels
+    # (n, 4) uint8 world shading normal of each voxel's surface (encode_normals: n * 0.5 + 0.5,
+    # alpha 255), or None where the recording kept no normal channel
+    normal: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -128,17 +131,19 @@ class VoxelField:
 
 
 def record_voxel_field(
-    part: Scene | Sequence[SceneObject], plan: LayerPlan, culling: CullingMode, clock: StageClock
+    part: Scene | Sequence[SceneObject], plan: LayerPlan, culling: CullingMode, clock: StageClock, normals: bool = False
 ) -> VoxelField:
     """Record ``plan``'s layers of ``part`` (a scene, or its objects as the view cell sees them:
     :func:`farfield.core.sidedness.seen_from_cell`) (gap-free, seed 000 §3.3.2), cull the texels hidden from
     the whole view cell (seed 003 §4.2 via seed 000 §3.4.1) and keep the rest as voxels.
 
-    Times ``record`` and ``cull`` on ``clock`` and reports each recorded layer.
+    Times ``record`` and ``cull`` on ``clock`` and reports each recorded layer.  ``normals`` records
+    the normal channel too (:func:`farfield.core.layering.culled.culled_layers`): each voxel then
+    keeps the world shading normal of the surface its texel shows (:attr:`VoxelField.normal`).
     """
-    xs, ys, ls, colours = [], [], [], []
+    xs, ys, ls, colours, normal = [], [], [], [], []
     covered = culled = drawn = 0
-    for layer in culled_layers(part, plan, culling, clock):
+    for layer in culled_layers(part, plan, culling, clock, normals=normals):
         with clock("cull"):
             covered += layer.covered
             culled += layer.culled
@@ -147,7 +152,9 @@ def record_voxel_field(
             xs.append(col.astype(np.int64))
             ys.append(row.astype(np.int64))
             ls.append(np.full(row.shape, layer.index, dtype=np.int64))
-            colours.append(layer.image[row, col])
+            texels = layer.image[row, col]
+            colours.append(texels[:, :4])
+            normal.append(texels[:, 4:])
         clock.report("record", layer.index + 1, plan.count)
     x = np.concatenate(xs) if xs else np.zeros(0, np.int64)
     if x.size == 0:
@@ -160,4 +167,6 @@ def record_voxel_field(
         "triangles_drawn": drawn,
         "layers": int(np.unique(layer).size),
     }
-    return VoxelField(plan, x, np.concatenate(ys), layer, np.concatenate(colours), stats)
+    return VoxelField(
+        plan, x, np.concatenate(ys), layer, np.concatenate(colours), stats, np.concatenate(normal) if normals else None
+    )
