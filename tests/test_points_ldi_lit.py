@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from test_lit_impostors import CELL, CENTRE, angles, glb_json, sphere
 
-from farfield.core.errors import BundleFormatError
-from farfield.core.impostor.bundle import read_bundle, write_bundle
+from farfield.core.errors import BundleFormatError, ConflictError
+from farfield.core.impostor.bundle import check_destination, read_bundle, write_bundle
 from farfield.core.impostor.glb import POINT_APPEARANCE, impostor_glb
 from farfield.core.impostor.impostor import decode_normals
 from farfield.core.ldi.image import ldi_of
@@ -144,9 +144,13 @@ def test_the_point_bundle_keeps_the_normals_bit_for_bit_and_refuses_a_misplaced_
         read_bundle(paths.directory)
 
 
-def test_the_ldi_bundle_keeps_the_normal_pages(lit_ldi, tmp_path):
+def test_the_ldi_bundle_keeps_the_normal_pages_and_a_rebake_may_replace_it(lit_ldi, tmp_path):
     back = read_bundle(write_bundle(lit_ldi, tmp_path / "b").directory)
     assert all(np.array_equal(a, b) for a, b in zip(back.channels["normal"], lit_ldi.channels["normal"], strict=True))
+    check_destination(tmp_path / "b")  # normal-NNN.png are a bundle's files: --out may name it again
+    (tmp_path / "b" / "notes.txt").write_text("mine")
+    with pytest.raises(ConflictError, match="notes.txt"):
+        check_destination(tmp_path / "b")
 
 
 def test_the_lit_point_glb_has_normals_and_a_lit_material_and_validates(lit_points, tmp_path, gltf_validator):

@@ -102,7 +102,14 @@ from PIL import Image
 
 from farfield.core.errors import BundleFormatError, ConflictError
 from farfield.core.impostor.glb import impostor_glb, page_png
-from farfield.core.impostor.impostor import PAYLOAD_KINDS, Impostor, MeshPayload, QuadPayload, check_impostor
+from farfield.core.impostor.impostor import (
+    PAGE_CHANNELS,
+    PAYLOAD_KINDS,
+    Impostor,
+    MeshPayload,
+    QuadPayload,
+    check_impostor,
+)
 
 __all__ = [
     "FORMAT",
@@ -327,6 +334,7 @@ def _swap_into_place(staging: Path, destination: Path) -> None:
 
 _BUNDLE_ENTRY = re.compile(
     rf"{re.escape(MANIFEST_NAME)}|{re.escape(PAYLOAD_NAME)}|{re.escape(GLB_NAME)}|atlas-\d+\.png"
+    rf"|(?:{'|'.join(PAGE_CHANNELS)})-\d+\.png"  # a channel's pages (channel_file_name)
 )
 
 
