@@ -59,6 +59,9 @@ The bundle is the on-disk form of one :class:`farfield.core.impostor.impostor.Im
     (q, 4, 2) page coordinates of the same corners in glTF convention ((0, 0) is the top-left of
     the page); ``page`` (q,) atlas page; ``layer`` (q,) layer.
 
+    A kind's optional arrays (``OPTIONAL_ARRAYS``: a points payload's ``normal`` (n, 3)) follow
+    its arrays where the payload keeps them, and are absent (not listed, no bytes) where it does not.
+
     ``"mesh"``: ``vertices`` (v, 3) world metres; ``uv`` (v, 2) page coordinates, glTF
     convention; ``triangles`` (t, 3) vertex indices; ``page`` (t,) atlas page and ``mesh`` (t,)
     connected component of each triangle.
@@ -99,7 +102,14 @@ from PIL import Image
 
 from farfield.core.errors import BundleFormatError, ConflictError
 from farfield.core.impostor.glb import impostor_glb, page_png
-from farfield.core.impostor.impostor import PAYLOAD_KINDS, Impostor, MeshPayload, QuadPayload, check_impostor
+from farfield.core.impostor.impostor import (
+    PAGE_CHANNELS,
+    PAYLOAD_KINDS,
+    Impostor,
+    MeshPayload,
+    QuadPayload,
+    check_impostor,
+)
 
 __all__ = [
     "FORMAT",
@@ -197,7 +207,7 @@ def encode_payload(payload) -> tuple[bytes, dict]:
     parts: list[bytes] = []
     table = []
     offset = 0
-    for name, kind, _ in payload.ARRAYS:
+    for name, kind, _ in payload.stored_arrays():  # the kind's arrays, then the optional ones it keeps
         array = getattr(payload, name)
         dtype = _stored_dtype(kind, array)
         data = np.ascontiguousarray(array, dtype=dtype).tobytes()
@@ -324,6 +334,7 @@ def _swap_into_place(staging: Path, destination: Path) -> None:
 
 _BUNDLE_ENTRY = re.compile(
     rf"{re.escape(MANIFEST_NAME)}|{re.escape(PAYLOAD_NAME)}|{re.escape(GLB_NAME)}|atlas-\d+\.png"
+    rf"|(?:{'|'.join(PAGE_CHANNELS)})-\d+\.png"  # a channel's pages (channel_file_name)
 )
 
 
@@ -586,8 +597,15 @@ def _payload_v2(manifest: dict, root: Path, path: Path):
     ):
         raise BundleFormatError(f"{path}: payload needs a byte count, a sha256, an arrays list and counts")
     names = [name for name, _, _ in cls.ARRAYS]
-    if [entry.get("name") if isinstance(entry, dict) else None for entry in table] != names:
-        raise BundleFormatError(f"{path}: payload.arrays must list a {kind} payload's arrays {names}, in this order")
+    listed = [entry.get("name") if isinstance(entry, dict) else None for entry in table]
+    # After the kind's arrays, the optional ones it keeps (cls.OPTIONAL_ARRAYS), in their order.
+    specs = list(cls.ARRAYS) + [spec for spec in cls.OPTIONAL_ARRAYS if spec[0] in listed[len(names) :]]
+    if listed != [name for name, _, _ in specs]:
+        optional = [name for name, _, _ in cls.OPTIONAL_ARRAYS]
+        raise BundleFormatError(
+            f"{path}: payload.arrays must list a {kind} payload's arrays {names}, in this order"
+            + (f", then any of {optional}" if optional else "")
+        )
     binary = root / PAYLOAD_NAME
     try:
         data = binary.read_bytes()
@@ -601,7 +619,7 @@ def _payload_v2(manifest: dict, root: Path, path: Path):
         )
     arrays = {}
     offset = 0
-    for entry, (name, kind_of, _) in zip(table, cls.ARRAYS):
+    for entry, (name, kind_of, _) in zip(table, specs):
         dtype, shape, start, size = entry.get("dtype"), entry.get("shape"), entry.get("offset"), entry.get("nbytes")
         offset += -offset % _ALIGNMENT
         if (

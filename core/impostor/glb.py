@@ -330,7 +330,8 @@ def _point_primitive(payload: PointPayload, viewpoint: np.ndarray, binary: _Bin,
     relative to the node's translation), ``COLOR_0`` (float32 linear RGB, glTF's rule: the
     single-colour preview of seed 001 §5.3, what any viewer shows as one-pixel points) and
     ``_FARFIELD_TILE`` (float32 VEC3: the point's page, -1 for one colour, and its tile's first
-    texel x, y).  The extension :data:`POINT_APPEARANCE` on the primitive names the textures of the
+    texel x, y), and where the points keep them ``NORMAL`` (float32 unit world normals, one per
+    point).  The extension :data:`POINT_APPEARANCE` on the primitive names the textures of the
     pages (``textures``, one per atlas page, in page order; sRGB like a base-colour texture), the tile's texels ``tile`` (along u,
     along v), the sampling ``plane`` (unit normal, offset; world coordinates: normal · x = offset),
     its ``axes`` u, v and the ``rectangle`` [[lo u, lo v], [hi u, hi v]] of plane coordinates
@@ -361,8 +362,15 @@ def _point_primitive(payload: PointPayload, viewpoint: np.ndarray, binary: _Bin,
             "type": "VEC3",
         }
     )
+    attributes = {"POSITION": base, "COLOR_0": base + 1, "_FARFIELD_TILE": base + 2}
+    if payload.normal is not None:  # kept normals (channels albedo+normal): unit float32, as glTF's NORMAL
+        normal = np.ascontiguousarray(payload.normal, dtype="<f4")
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True)  # unit after the narrowing too (the validator checks)
+        attributes["NORMAL"] = len(accessors)
+        accessors.append({"bufferView": binary.add(normal.tobytes(), _ARRAY_BUFFER), "componentType": _FLOAT,
+                          "count": int(normal.shape[0]), "type": "VEC3"})  # fmt: skip
     return {
-        "attributes": {"POSITION": base, "COLOR_0": base + 1, "_FARFIELD_TILE": base + 2},
+        "attributes": attributes,
         "material": 0,
         "mode": _POINTS,
         "extensions": {POINT_APPEARANCE: {
@@ -415,6 +423,9 @@ _POINTS_MATERIAL = {
     "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0},
     "extensions": {_UNLIT: {}},
 }
+# Points with normals: the same material lit, glTF's metallic-roughness (a rough dielectric: the
+# points' colour is the diffuse albedo), for a viewer that lights points by their NORMAL.
+_LIT_POINTS_MATERIAL = {k: v for k, v in _POINTS_MATERIAL.items() if k != "extensions"}
 
 
 class GlbBuilder:
@@ -524,10 +535,12 @@ class GlbBuilder:
 
     def points(self, payload: PointPayload, pages) -> GlbParts:
         """A point impostor: every page as an image (the directional colours' tiles), then one
-        ``POINTS`` primitive (none without points, :func:`_point_primitive`) and one unlit opaque material."""
+        ``POINTS`` primitive (none without points, :func:`_point_primitive`) and one opaque material:
+        unlit, or lit (metallic-roughness, metallic 0, roughness 1) where the points keep normals."""
         images = self.images(pages)
         primitives = [_point_primitive(payload, self.viewpoint, self.binary, self.accessors)] if payload.count else []
-        return GlbParts(primitives, [json.loads(json.dumps(_POINTS_MATERIAL))], images, (POINT_APPEARANCE,))
+        material = _POINTS_MATERIAL if payload.normal is None else _LIT_POINTS_MATERIAL
+        return GlbParts(primitives, [json.loads(json.dumps(material))], images, (POINT_APPEARANCE,))
 
 
 def engine_metadata(impostor: Impostor) -> dict:

@@ -14,8 +14,8 @@ never on the technique's name:
 
 ``"points"`` (:class:`PointPayload`)
     Points (n, 3) float64, each with one sRGB colour and, unless that colour is all it needs, a tile
-    of directional colours in an atlas page over the sampling plane's rectangle: point-based
-    impostors (seed 001).
+    of directional colours in an atlas page over the sampling plane's rectangle, and optionally a
+    normal each: point-based impostors (seed 001).
 
 ``"ldi"`` (:class:`LdiPayload`)
     A layered depth image (seed 004 §4): its camera; its layers are the pages, a colour page and a
@@ -31,7 +31,8 @@ A payload draws and writes itself (:class:`Payload`): besides its arrays (``kind
 * ``renderer(impostor)``: the renderer that draws it as its runtime does, for the evaluation and the
   comparison (:func:`farfield.core.quality.evaluation.impostor_renderer`);
 * ``gbuffer(impostor, normals)``: its G-buffer renderer for the lit evaluation
-  (:mod:`farfield.core.quality.lit`; triangle kinds by default: :meth:`draw_objects` with the normal pages);
+  (:mod:`farfield.core.quality.lit`; triangle kinds by default: :meth:`draw_objects` with the normal pages;
+  points and LDIs their own renderers, each point or sample with its normal);
 * ``draw_objects(impostor)``: its runtime draw list, textured alpha-cut triangle objects, one per
   atlas page with geometry (the placement and environment-map runtimes draw these), or None
   when it is not drawn as triangles.
@@ -84,7 +85,7 @@ def _check_arrays(payload, page_count: int) -> dict[str, int]:
     shape a tuple of ints and axis names; every array naming an axis must agree on its length.
     """
     sizes: dict[str, int] = {}
-    for name, kind, shape in payload.ARRAYS:
+    for name, kind, shape in payload.stored_arrays():
         array = getattr(payload, name)
         ok = isinstance(array, np.ndarray) and array.ndim == len(shape)
         if ok:
@@ -122,14 +123,23 @@ class _PayloadBase:
 
     __slots__ = ()
     ARRAYS: ClassVar[tuple]
+    # Arrays a payload may keep or not (a channel kept per element, such as points' normals):
+    # ``(name, kind, shape)`` as ``ARRAYS``; the field is None where it is not kept, and then it
+    # is neither checked nor written, so a payload without it is stored as before it existed.
+    OPTIONAL_ARRAYS: ClassVar[tuple] = ()
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray]):
-        return cls(**{name: arrays[name] for name, _, _ in cls.ARRAYS})
+        names = [name for name, _, _ in cls.ARRAYS] + [name for name, _, _ in cls.OPTIONAL_ARRAYS if name in arrays]
+        return cls(**{name: arrays[name] for name in names})
+
+    def stored_arrays(self) -> tuple:
+        """``ARRAYS`` and the optional arrays this payload keeps: what the bundle writes, in its order."""
+        return tuple(self.ARRAYS) + tuple(a for a in self.OPTIONAL_ARRAYS if getattr(self, a[0]) is not None)
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The payload's arrays by name, in the bundle's order."""
-        return {name: getattr(self, name) for name, _, _ in self.ARRAYS}
+        return {name: getattr(self, name) for name, _, _ in self.stored_arrays()}
 
     @property
     def quad_count(self) -> int:
@@ -411,6 +421,11 @@ class PointPayload(_PayloadBase):
     (lo, hi) the tiles span.  Row r, column c of a tile is the texel at the rectangle's (c + ½) / tu
     along u and (r + ½) / tv along v, where the ray from the eye to the point crosses the plane.
 
+    ``normal`` (n, 3) float64, optional (None: not kept, ``channels="albedo"``): each point's unit
+    world shading normal, on the side the view cell sees (:mod:`farfield.core.ldi.normals`).  One
+    per point, also for a point with a tile of directional colours: the tile varies the colour
+    with the viewing direction, not the normal.
+
     >>> p = PointPayload.empty()
     >>> p.kind, p.count, p.triangle_count, p.counts()
     ('points', 0, 0, {'points': 0, 'textured': 0})
@@ -424,6 +439,7 @@ class PointPayload(_PayloadBase):
     plane: np.ndarray
     axes: np.ndarray
     rectangle: np.ndarray
+    normal: np.ndarray | None = None
 
     kind: ClassVar[str] = "points"
     NO_PAGE: ClassVar[int] = -1
@@ -437,9 +453,10 @@ class PointPayload(_PayloadBase):
         ("axes", "f", (2, 3)),
         ("rectangle", "f", (2, 2)),
     )
+    OPTIONAL_ARRAYS: ClassVar[tuple] = (("normal", "f", ("n", 3)),)
 
     def __post_init__(self) -> None:
-        for name, _, _ in self.ARRAYS:
+        for name, _, _ in self.stored_arrays():
             object.__setattr__(self, name, _canonical(getattr(self, name)))
 
     @classmethod
@@ -479,6 +496,8 @@ class PointPayload(_PayloadBase):
         textured = self.page >= 0
         if textured.any() and self.texel[textured].min() < 0:
             raise BundleFormatError("points payload: a textured point's texel must be >= 0")
+        if self.normal is not None and self.count and np.abs(np.linalg.norm(self.normal, axis=1) - 1.0).max() > 1e-6:
+            raise BundleFormatError("points payload: every normal must be a unit vector")
 
     @property
     def point_count(self) -> int:
@@ -513,8 +532,9 @@ class PointPayload(_PayloadBase):
         )
 
     def glb_parts(self, impostor: Impostor, glb) -> Any:
-        """One ``POINTS`` primitive with one unlit material; every page an image for the
-        directional colours (:data:`farfield.core.impostor.glb.POINT_APPEARANCE`)."""
+        """One ``POINTS`` primitive with one unlit material (with normals: ``NORMAL`` and a lit
+        material); every page an image for the directional colours
+        (:data:`farfield.core.impostor.glb.POINT_APPEARANCE`)."""
         return glb.points(self, impostor.pages)
 
     def renderer(self, impostor: Impostor):
@@ -526,6 +546,21 @@ class PointPayload(_PayloadBase):
             self.colour.astype(np.uint8),
             self.appearance(impostor.pages),
             grid=(impostor.resolution, math.radians(impostor.fov_deg)),
+        )
+
+    def gbuffer(self, impostor: Impostor, normals: bool = True):
+        """:meth:`renderer` as a G-buffer (``render_normals``): each point's pixels show its ``normal``
+        when ``normals`` and it keeps them, else (flat cards) a normal facing the viewer, against
+        the camera's forward axis, as a sprite's."""
+        from farfield.core.render.points import PointRenderer
+
+        return PointRenderer(
+            self.positions,
+            self.colour.astype(np.uint8),
+            self.appearance(impostor.pages),
+            grid=(impostor.resolution, math.radians(impostor.fov_deg)),
+            gbuffer=True,
+            normals=self.normal if normals else None,
         )
 
 
@@ -608,7 +643,9 @@ class LdiPayload(_PayloadBase):
 
     def glb_parts(self, impostor: Impostor, glb) -> Any:
         """The fallback a glTF viewer shows: the first layer's colour page on the image quad
-        (:mod:`farfield.core.ldi.pages`); the samples stay in the bundle."""
+        (:mod:`farfield.core.ldi.pages`); the samples stay in the bundle.  With a normal channel
+        the quad is lit: its first normal page as a tangent-space normal texture (:meth:`GlbBuilder.lit_quads
+        <farfield.core.impostor.glb.GlbBuilder.lit_quads>`)."""
         shown = impostor.pages[:1]
         quad = QuadPayload(
             self.quad[None],
@@ -616,6 +653,9 @@ class LdiPayload(_PayloadBase):
             np.zeros(1, np.int64),
             np.zeros(1, np.int64),
         )
+        normals = impostor.channels.get("normal")
+        if normals is not None and shown:
+            return glb.lit_quads(quad, shown, normals[:1])
         return glb.textured(glb.quad_pages(quad, len(shown)) if shown else (), shown)
 
     def renderer(self, impostor: Impostor):
@@ -624,6 +664,25 @@ class LdiPayload(_PayloadBase):
         from farfield.core.render.splats import SplatRenderer
 
         return SplatRenderer([], [ldi_of(impostor)])
+
+    def gbuffer(self, impostor: Impostor, normals: bool = True):
+        """:meth:`renderer` as a G-buffer (``render_normals``): each splat shows its sample's normal
+        (the normal channel's page ``2k`` for layer ``k``) when ``normals`` and the impostor keeps
+        them, else (flat cards) a normal facing the viewer, as a sprite's."""
+        from dataclasses import replace
+
+        from farfield.core.ldi.image import ldi_of
+        from farfield.core.render.splats import SplatRenderer
+
+        ldi = ldi_of(impostor)
+        pages = impostor.channels.get("normal") if normals else None
+        if pages is not None:
+            layers = int(self.size[1])
+            ldi = replace(
+                ldi,
+                normal=np.stack([decode_normals(pages[2 * k]) for k in range(layers)]).reshape(ldi.depth.shape + (3,)),
+            )
+        return SplatRenderer([], [ldi], gbuffer=True)
 
 
 @runtime_checkable

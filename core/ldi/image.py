@@ -43,6 +43,7 @@ class LayeredDepthImage:
     positions: np.ndarray | None = None  # (layers, h, w, 3) world, where samples leave their centre ray
     touched: np.ndarray | None = None  # (layers, h, w) bool: a touched-pixel sample (conservative LDIs)
     colour: np.ndarray | None = None  # (layers, h, w, 4) uint8 sRGB: the surface's colour at the sample
+    normal: np.ndarray | None = None  # (layers, h, w, 3) float64 unit world shading normal (0 where no sample)
 
     @property
     def layers(self) -> int:

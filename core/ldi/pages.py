@@ -6,6 +6,13 @@ eye depth along the LDI's forward axis, little-endian, and zero where there is n
 bundle stores pages as PNG, so both are compressed losslessly.  The payload
 (:class:`farfield.core.impostor.impostor.LdiPayload`) holds the LDI's camera.
 
+With normals (``channels="albedo+normal"``) the impostor's ``normal`` channel
+(:attr:`farfield.core.impostor.impostor.Impostor.channels`) holds pages parallel to these
+(:func:`normal_pages`): page ``2k`` layer ``k``'s samples' world normals, encoded n * 0.5 + 0.5 with
+alpha 255 where the layer has a sample (as the colour page's alpha), page ``2k + 1`` empty (all
+zero: a depth page has no normals of its own; it stays for the channel's pages to pair with the
+colour pages one to one).
+
 For standard viewers the GLB holds only the first layer, as one textured quad in the LDI's image
 plane (:func:`preview_quad`).  That is a billboard, right from the LDI's centre of projection and
 flat from anywhere else.  The splatted LDI is what farfield's drawer shows.
@@ -17,7 +24,7 @@ import math
 
 import numpy as np
 
-from farfield.core.impostor.impostor import Impostor, LdiPayload
+from farfield.core.impostor.impostor import Impostor, LdiPayload, encode_normals
 from farfield.core.ldi.image import LayeredDepthImage
 from farfield.core.render.raster import Camera
 from farfield.core.scene import SceneObject
@@ -38,6 +45,16 @@ def ldi_payload_and_pages(ldi: LayeredDepthImage) -> tuple[LdiPayload, tuple[np.
         np.array([cam.resolution, ldi.layers, ldi.count]), image_quad(cam),
     )  # fmt: skip
     return payload, tuple(pages)
+
+
+def normal_pages(ldi: LayeredDepthImage, normals: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The ``normal`` channel's pages (module docstring) of ``ldi`` whose samples (in the order of
+    :meth:`~farfield.core.ldi.image.LayeredDepthImage.samples`) have unit world ``normals`` (m, 3)."""
+    present = np.isfinite(ldi.depth)
+    encoded = np.zeros(ldi.depth.shape + (4,), np.uint8)
+    encoded[present] = encode_normals(normals)  # argwhere's order: layer, row, column, as samples()
+    empty = np.zeros(ldi.depth.shape[1:] + (4,), np.uint8)
+    return tuple(page for k in range(ldi.layers) for page in (np.ascontiguousarray(encoded[k]), empty.copy()))
 
 
 def image_quad(camera: Camera) -> np.ndarray:

@@ -63,7 +63,12 @@ class Appearance:
 class PointRenderer(MeshRenderer):
     """``positions`` (n, 3) float64 world and ``colours`` (n, 4) uint8 sRGB, uploaded once; with an
     ``appearance``, the points of a page look their colour up there (module docstring); ``grid``:
-    (resolution, fov radians) of the image the points were baked for, or None (module docstring)."""
+    (resolution, fov radians) of the image the points were baked for, or None (module docstring).
+
+    ``gbuffer=True`` makes a G-buffer renderer for the lit evaluation (:meth:`render_normals`, as
+    :class:`~farfield.core.render.raster.MeshRenderer`'s): each point's pixels hold its ``normals``
+    (n, 3) float64 unit world normal, or without them the normal of a sprite facing the viewer
+    (minus the camera's forward axis: a point lit as a flat card)."""
 
     def __init__(
         self,
@@ -71,8 +76,12 @@ class PointRenderer(MeshRenderer):
         colours: np.ndarray,
         appearance: Appearance | None = None,
         grid: tuple[int, float] | None = None,
+        gbuffer: bool = False,
+        normals: np.ndarray | None = None,
     ):
-        super().__init__([])
+        super().__init__([], normals=gbuffer)
+        if normals is not None and not gbuffer:
+            raise ValueError("point normals are drawn by a G-buffer renderer only (gbuffer=True)")
         positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         colours = np.asarray(colours, dtype=np.uint8).reshape(-1, 4)
         if positions.shape[0] != colours.shape[0]:
@@ -94,9 +103,17 @@ class PointRenderer(MeshRenderer):
             layout += " 2f"
             attributes.append("in_tile")
             defines = ("APPEARANCE",)
+        if gbuffer:
+            defines += ("NORMALS",)
+        if normals is not None:
+            data.append(np.asarray(normals, dtype=np.float64).reshape(self.count, 3)[self.order])
+            layout += " 3f"
+            attributes.append("in_normal")
+            defines += ("POINT_NORMALS",)
         self.points_program = program(self.ctx, "points.vert", "points.frag", defines=defines)
         self.id_program = program(self.ctx, "points.vert", "points.frag", defines=("POINT_ID",))
-        floats = 7 + 2 * (appearance is not None)  # a vertex: position, colour[, tile]
+        # a vertex: position, colour[, tile][, normal]
+        floats = 7 + 2 * (appearance is not None) + 3 * (normals is not None)
         blob = (
             np.ascontiguousarray(np.concatenate(data, axis=1), dtype="<f4").tobytes()
             if self.count
@@ -156,6 +173,10 @@ class PointRenderer(MeshRenderer):
             prog["rect_u"].value = (*(float(x) for x in u / width[0]), float((u @ self.origin - a.lo[0]) / width[0]))
             prog["rect_v"].value = (*(float(x) for x in v / width[1]), float((v @ self.origin - a.lo[1]) / width[1]))
             prog["tile"].value = tuple(float(x) for x in a.tile)
+        if (
+            not ids and prog.get("facing", None) is not None
+        ):  # a G-buffer without point normals: sprites facing the viewer
+            prog["facing"].value = tuple(float(-x) for x in camera.forward)
         self.ctx.enable(moderngl.PROGRAM_POINT_SIZE)
         try:
             if ids:

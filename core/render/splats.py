@@ -36,25 +36,44 @@ def ldi_splats(ldi: LayeredDepthImage) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return positions, colour, pixel * ldi.depth[index[:, 0], index[:, 1], index[:, 2]]
 
 
+def ldi_splat_normals(ldi: LayeredDepthImage) -> np.ndarray:
+    """(m, 3) float64 world normals of an LDI's samples (in :func:`ldi_splats`' order); the LDI must keep them."""
+    index = np.argwhere(np.isfinite(ldi.depth))
+    return ldi.normal[index[:, 0], index[:, 1], index[:, 2]]
+
+
 class SplatRenderer(MeshRenderer):
     """``objects`` drawn as geometry, then the ``ldis``' samples and the ``splats`` (positions, colours,
-    footprint widths: :func:`ldi_splats`'s arrays) as splats (module docstring)."""
+    footprint widths: :func:`ldi_splats`'s arrays) as splats (module docstring).
+
+    ``gbuffer=True`` makes a G-buffer renderer for the lit evaluation (:meth:`render_normals`): the
+    geometry's shading normals, and each splat's pixels its sample's normal where every LDI keeps
+    normals (:attr:`~farfield.core.ldi.image.LayeredDepthImage.normal`; ``splats`` then have none),
+    else the normal of a sprite facing the viewer (minus the camera's forward axis: flat cards)."""
 
     def __init__(self, objects: list[SceneObject] | tuple[SceneObject, ...], ldis: list[LayeredDepthImage] | tuple = (),
-                 splats: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None):  # fmt: skip
-        super().__init__(objects)
+                 splats: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, gbuffer: bool = False):  # fmt: skip
+        super().__init__(objects, normals=gbuffer)
         parts = [ldi_splats(ldi) for ldi in ldis] + ([splats] if splats is not None else [])
         positions = np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3))
         colours = np.concatenate([p[1] for p in parts]) if parts else np.zeros((0, 4), np.uint8)
         extents = np.concatenate([p[2] for p in parts]) if parts else np.zeros(0)
         self.count = int(positions.shape[0])
         self.origin = 0.5 * (positions.min(axis=0) + positions.max(axis=0)) if self.count else np.zeros(3)
-        self.splat_program = program(self.ctx, "splats.vert", "splats.frag")
-        data = np.concatenate([positions - self.origin, colours.astype(np.float64) / 255.0, extents[:, None]], axis=1)
-        self._vbo = self.ctx.buffer(np.ascontiguousarray(data, dtype="<f4").tobytes() if self.count else b"\0" * 32)
-        self._vao = self.ctx.vertex_array(
-            self.splat_program, [(self._vbo, "3f 4f 1f", "in_position", "in_color", "in_extent")]
+        own_normals = gbuffer and bool(ldis) and splats is None and all(ldi.normal is not None for ldi in ldis)
+        defines = ("NORMALS",) * gbuffer + ("SPLAT_NORMALS",) * own_normals
+        self.splat_program = program(self.ctx, "splats.vert", "splats.frag", defines=defines)
+        columns = [positions - self.origin, colours.astype(np.float64) / 255.0, extents[:, None]]
+        layout, names = "3f 4f 1f", ["in_position", "in_color", "in_extent"]
+        if own_normals:
+            columns.append(np.concatenate([ldi_splat_normals(ldi) for ldi in ldis]))
+            layout, names = layout + " 3f", names + ["in_normal"]
+        data = np.concatenate(columns, axis=1)
+        floats = data.shape[1]
+        self._vbo = self.ctx.buffer(
+            np.ascontiguousarray(data, dtype="<f4").tobytes() if self.count else b"\0" * 4 * floats
         )
+        self._vao = self.ctx.vertex_array(self.splat_program, [(self._vbo, layout, *names)])
         self._owned += [self._vbo, self._vao]
 
     def _draw(self, camera: Camera):
@@ -67,6 +86,8 @@ class SplatRenderer(MeshRenderer):
         prog["depth_range"].value = (camera.near, camera.far)
         prog["eye_from_local"].write(camera.eye_matrix(self.origin).tobytes())
         prog["pixel_tan"].value = 2.0 * t / camera.resolution
+        if prog.get("facing", None) is not None:  # a G-buffer without sample normals: sprites facing the viewer
+            prog["facing"].value = tuple(float(-x) for x in camera.forward)
         self.ctx.enable(moderngl.PROGRAM_POINT_SIZE)
         try:
             self._vao.render(moderngl.POINTS, vertices=self.count)
@@ -86,3 +107,28 @@ class SplatRenderer(MeshRenderer):
         filled = fill_pin_holes(image, splat, empty=empty)
         filled[..., 3] = np.where(empty & (filled[..., 3] == 0), 0, 255)
         return filled
+
+    def render_normals(self, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+        """(:meth:`render`'s image, (h, w, 3) float32 world normals): the 3x3 pass fills a pin hole's
+        normal with the renormalised mean of its splat neighbours', as it fills its colour."""
+        if not self.normals:
+            raise ValueError("this renderer was made without normals")
+        image = self.render_raw(camera)
+        raw = self._targets[camera.resolution][3]
+        normals = np.frombuffer(raw.read(), dtype=np.float32).reshape(camera.resolution, camera.resolution, 4)
+        normals = normals[::-1, :, :3].copy()
+        splat = image[..., 3] == SPLAT_ALPHA
+        empty = image[..., 3] == 0
+        filled = fill_pin_holes(image, splat, empty=empty)
+        holes = empty & (filled[..., 3] > 0)
+        if holes.any():
+            total = np.zeros_like(normals, dtype=np.float64)
+            pad = np.pad(np.where(splat[..., None], normals, 0.0), ((1, 1), (1, 1), (0, 0)))
+            h, w = splat.shape
+            for dr in (-1, 0, 1):
+                for dc in (-1, 0, 1):
+                    total += pad[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
+            length = np.linalg.norm(total[holes], axis=1, keepdims=True)
+            normals[holes] = total[holes] / np.maximum(length, 1e-12)
+        filled[..., 3] = np.where(empty & (filled[..., 3] == 0), 0, 255)
+        return filled, normals

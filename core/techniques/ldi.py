@@ -13,6 +13,12 @@ central one alone (``images=1``, the single-image LDI of Fig. 10).
 bundle).  ``texture_bytes`` counts those pages raw; ``splat_bytes`` what the GPU drawer uploads,
 20 bytes a sample (a float32 position, an RGBA8 colour, a float32 footprint width).
 
+**Normals** (``channels="albedo+normal"``): each sample keeps its world shading normal
+(:mod:`farfield.core.ldi.normals`), stored as the impostor's ``normal`` channel, a page beside each
+layer's colour page (:func:`farfield.core.ldi.pages.normal_pages`); ``channel_bytes`` gives the
+pages' raw bytes per channel and ``splat_normal_bytes`` what a splat drawer uploads for them (12 bytes
+a sample).
+
 **For standard viewers** the GLB holds the first layer as one textured quad on the image plane, a
 billboard (:func:`farfield.core.ldi.pages.preview_quad`), not the splatted LDI.
 """
@@ -27,20 +33,23 @@ import numpy as np
 
 from farfield.core import __version__
 from farfield.core.errors import LayerPlanError
-from farfield.core.impostor.impostor import Impostor, LdiPayload
+from farfield.core.impostor.impostor import ChannelSet, Impostor, LdiPayload, wants_normals
 from farfield.core.ldi.construction import DEFAULT_MAX_LAYERS, _merge_samples, construct_ldi, view_frame
-from farfield.core.ldi.pages import ldi_payload_and_pages
+from farfield.core.ldi.normals import sample_normals
+from farfield.core.ldi.pages import ldi_payload_and_pages, normal_pages
 from farfield.core.ldi.warp import _warp_kernel
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION
 from farfield.core.quality.evaluation import Evaluation
 from farfield.core.scene import Scene
+from farfield.core.sidedness import seen_from_cell
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import NO_PROMISE, CellCost, TechniqueDefinition
 from farfield.core.techniques.part import evaluate_part, part_evaluation_text
 from farfield.core.viewcells import BoxCell, ViewCell, length_and_unit
 
 SAMPLE_BYTES = 20  # float32 position, RGBA8 colour, float32 footprint width
+NORMAL_BYTES = 12  # a sample's float32 normal, for a splat drawer that lights it (channels albedo+normal)
 
 
 @dataclass(frozen=True, slots=True)
@@ -55,6 +64,11 @@ class LdiOptions:
         9, "construction images: 9 (seed 004 §4.1, Fig. 11) or 1 (the centre's alone, Fig. 10 left)", ge=1, le=9
     )
     max_layers: int = option(DEFAULT_MAX_LAYERS, "most samples an LDI pixel keeps", ge=1, le=64)
+    channels: ChannelSet = option(
+        "albedo",
+        "what each sample keeps: albedo (unlit colour, for baked lighting) or albedo+normal (its world shading normal "
+        "too, so that an engine can light the impostor; a normal page beside each layer's colour page)",
+    )
 
     def __post_init__(self) -> None:
         check_options(self)
@@ -156,9 +170,24 @@ def bake_ldi(
         "construction_images": options.images, "quad_depth": view.depth, "splat_bytes": n * SAMPLE_BYTES,
         "texture_bytes": int(sum(p.nbytes for p in pages)), "seconds": clock.totals(),
     }  # fmt: skip
+    channels = {}
+    if wants_normals(options.channels):
+        with clock("normals"):
+            # The objects construct_ldi drew (its samples' object indices are theirs), the side the cell sees.
+            positions, index = ldi.samples()
+            at = (index[:, 0], index[:, 1], index[:, 2])
+            normals = sample_normals(
+                seen_from_cell(part.objects, cell), ldi.obj[at], ldi.triangle[at], positions, cell.corners()
+            )
+            channels = {"normal": normal_pages(ldi, normals)}
+        stats["seconds"] = clock.totals()
+        # memory per channel (a colour-only bake's stats stay as they were): the normal pages of the layers, and
+        # what a splat drawer uploads per sample (a float32 normal)
+        stats["channel_bytes"] = {"albedo": stats["texture_bytes"], "normal": ldi.layers * int(ldi.depth[0].size) * 4}
+        stats["splat_normal_bytes"] = n * NORMAL_BYTES
     return Impostor(
         technique="ldi", viewcell=cell.to_dict(), reference_viewpoint=view.eye, resolution=options.resolution, fov_deg=options.fov_deg,
-        pages=pages, payload=payload, layers=[], stats=stats,
+        pages=pages, payload=payload, layers=[], stats=stats, channels=channels,
         parameters={**asdict(options), "objects": list(part.names), "scene_hash": scene.content_hash, "quad": view.quad.tolist()},
         code_version=__version__,
     )  # fmt: skip

@@ -127,16 +127,34 @@ function normalOutput(material) {
   return material;
 }
 
+function pointSized(material) {
+  // A glTF POINTS primitive drawn lit or as normals: GLTFLoader gives points an unlit PointsMaterial
+  // whatever the glTF material says, so three.js by itself never lights points nor shows their
+  // NORMAL.  Here they get the standard material above (three.js's own BRDF, the points' NORMAL
+  // attribute as its vertex normal) drawn as one-pixel points (glTF: points are 1 px).
+  const key = material.customProgramCacheKey();
+  const before = material.onBeforeCompile;
+  material.onBeforeCompile = (shader, renderer) => {
+    before.call(material, shader, renderer);
+    shader.vertexShader = shader.vertexShader.replace(
+      "#include <project_vertex>", "#include <project_vertex>\n\tgl_PointSize = 1.0;");
+  };
+  material.customProgramCacheKey = () => "farfield-point:" + key;
+  return material;
+}
+
 function convertAll(root, spec) {
-  // Every mesh's materials, per mode: unlit (default), lit, or world normals.
+  // Every mesh's materials, per mode: unlit (default), lit, or world normals; points too when lit
+  // or as normals (pointSized), else GLTFLoader's own PointsMaterial.
   const lit = !!spec.lit || spec.output === "normal";
   root.traverse((node) => {
-    if (!node.isMesh) return;
+    if (!node.isMesh && !(node.isPoints && lit)) return;
     const hasColors = !!node.geometry.getAttribute("color");
     const one = (m) => {
       let made = lit ? standard(m || {}, spec) : unlit(m || {}, spec);
       made.vertexColors = made.vertexColors || (spec.kind === "ply" && hasColors);
       if (spec.output === "normal") made = normalOutput(made);
+      if (node.isPoints) made = pointSized(made);
       return made;
     };
     node.material = Array.isArray(node.material) ? node.material.map(one) : one(node.material);

@@ -2,9 +2,17 @@
 // A point's colour, or (POINT_ID) its index + 1 as four bytes, least significant first.
 flat in vec4 v_color;
 flat in int v_id;
-out vec4 frag_color;
+layout(location = 0) out vec4 frag_color;
+#ifdef NORMALS
+// The G-buffer's second target: the point's world normal (points.vert).
+flat in vec3 v_normal;
+layout(location = 1) out vec4 frag_normal;
+#endif
 
 void main() {
+#ifdef NORMALS
+    frag_normal = vec4(normalize(v_normal), 1.0);
+#endif
 #ifdef POINT_ID
     uint id = uint(v_id) + 1u;
     frag_color = vec4(float(id & 255u), float((id >> 8) & 255u), float((id >> 16) & 255u), float((id >> 24) & 255u)) / 255.0;

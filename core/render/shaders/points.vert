@@ -16,6 +16,16 @@ in vec3 in_position;
 in vec4 in_color;
 flat out vec4 v_color;
 flat out int v_id;
+#ifdef NORMALS
+// A G-buffer render (core/render/points.py): each point's world normal (POINT_NORMALS), else the
+// normal of a sprite facing the viewer (facing: minus the camera's forward axis, world).
+flat out vec3 v_normal;
+#ifdef POINT_NORMALS
+in vec3 in_normal;
+#else
+uniform vec3 facing;
+#endif
+#endif
 
 #ifdef APPEARANCE
 // §5.3: "the texture coordinates of a point are calculated as the intersection of a viewing ray to
@@ -40,6 +50,13 @@ void main() {
     gl_PointSize = point_size;
     v_id = gl_VertexID;
     v_color = in_color;
+#ifdef NORMALS
+#ifdef POINT_NORMALS
+    v_normal = in_normal;
+#else
+    v_normal = facing;
+#endif
+#endif
 #ifdef APPEARANCE
     if (in_tile.x >= 0.0) {
         vec3 d = in_position - eye_local;

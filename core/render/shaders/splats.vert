@@ -10,6 +10,16 @@ in vec3 in_position;
 in vec4 in_color;
 in float in_extent;          // the LDI pixel's footprint at the sample, world units
 flat out vec4 v_color;
+#ifdef NORMALS
+// A G-buffer render (core/render/splats.py): each sample's world normal (SPLAT_NORMALS), else the
+// normal of a sprite facing the viewer (facing: minus the camera's forward axis, world).
+flat out vec3 v_normal;
+#ifdef SPLAT_NORMALS
+in vec3 in_normal;
+#else
+uniform vec3 facing;
+#endif
+#endif
 
 void main() {
     vec3 e = (eye_from_local * vec4(in_position, 1.0)).xyz;
@@ -17,4 +27,11 @@ void main() {
     gl_Position = vec4(e.x / half_tan.x, e.y / half_tan.y, (f + n) / (f - n) * e.z - 2.0 * f * n / (f - n), e.z);
     gl_PointSize = clamp(ceil(in_extent / (e.z * pixel_tan) - 1e-6), 1.0, 8.0);
     v_color = in_color;
+#ifdef NORMALS
+#ifdef SPLAT_NORMALS
+    v_normal = in_normal;
+#else
+    v_normal = facing;
+#endif
+#endif
 }

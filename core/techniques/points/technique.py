@@ -12,6 +12,9 @@ atlas pages (:func:`pack_tiles`).
 **Memory** (``geometry_bytes``, ``texture_bytes``), as a runtime holds it: per point a float32
 position and an RGBA8 colour (16 bytes), per textured point a tile reference (4 bytes: its page
 texel as two uint16; its page is that of the draw it is in), and the pages' texels; ``bytes_per_point`` is their sum over the points.
+With ``channels="albedo+normal"`` each point also keeps its world shading normal (12 bytes, float32;
+one per point whatever its tile: :mod:`farfield.core.ldi.normals`): ``channel_bytes`` gives the memory
+per channel, ``albedo`` (the figures above: ``geometry_bytes`` + ``texture_bytes``) and ``normal``.
 The paper's ≈ 20 bytes per point assumes 8:1 compressed textures, which farfield does not apply.
 """
 
@@ -25,9 +28,10 @@ import numpy as np
 
 from farfield.core import __version__
 from farfield.core.errors import AtlasOverflowError, LayerPlanError
-from farfield.core.impostor.impostor import Impostor, PointPayload
+from farfield.core.impostor.impostor import ChannelSet, Impostor, PointPayload, wants_normals
 from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.ldi import image as ldi_kernels
+from farfield.core.ldi.normals import sample_normals
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_ERROR_PX, MAX_RESOLUTION
 from farfield.core.quality.evaluation import Evaluation
@@ -42,6 +46,7 @@ from farfield.core.techniques.points.sampling import plan_point_sampling
 from farfield.core.viewcells import BoxCell, ViewCell
 
 POINT_BYTES = 16  # float32 position + RGBA8 colour
+NORMAL_BYTES = 12  # a point's float32 normal (channels albedo+normal), as the GLB's NORMAL holds it
 TILE_REFERENCE_BYTES = 4  # a textured point's tile: two uint16 texel coordinates
 
 
@@ -94,6 +99,11 @@ class PointOptions:
         "largest atlas page side, texels (WebGL2 guarantees 2048, many mobile GPUs stop at 4096)",
         ge=64,
         le=16384,
+    )
+    channels: ChannelSet = option(
+        "albedo",
+        "what each point keeps: albedo (unlit colour, for baked lighting) or albedo+normal (its world shading normal "
+        "too, one per point, so that an engine can light the impostor)",
     )
 
     def __post_init__(self) -> None:
@@ -174,6 +184,10 @@ def bake_points(
     clock.report("points", 1, 1)
     kept = samples.kept
     positions, preview = samples.positions[kept], samples.colour[kept]
+    normals = None
+    if wants_normals(options.channels):
+        with clock("normals"):  # on the side the cell sees (core/ldi/normals.py)
+            normals = sample_normals(seen, samples.obj[kept], samples.triangle[kept], positions, box.corners())
     sample_stats = {k: v for k, v in samples.stats.items() if k != "per_camera"}
     ldi_layers = [ldi.layers for ldi in samples.ldis]
     del samples  # the three LDIs (about 1.4 GB for the bunny at 512 px) are not needed past here
@@ -190,6 +204,7 @@ def bake_points(
         if options.visible_only and appearance.seen.any():
             shown = appearance.seen
             positions, preview = positions[shown], preview[shown]
+            normals = normals[shown] if normals is not None else None
             appearance = PointAppearance(appearance.tiles[shown], appearance.seen[shown], appearance.stats)
         one = single_colour(appearance.tiles, options.single_colour)
         colour = np.where(appearance.seen[:, None], mean_colour(appearance.tiles), preview).astype(np.int64)
@@ -210,11 +225,14 @@ def bake_points(
     clock.report("pack", 1, 1)
     payload = PointPayload(
         positions, colour, page, texel, np.array(tile), np.concatenate([sampling.normal, [sampling.offset]]),
-        np.stack([sampling.u, sampling.v]), sampling.rectangle,
+        np.stack([sampling.u, sampling.v]), sampling.rectangle, normals,
     )  # fmt: skip
     n = positions.shape[0]
     geometry_bytes = n * POINT_BYTES + int(textured.size) * TILE_REFERENCE_BYTES
     texture_bytes = int(sum(w * h * 4 for w, h in sizes))
+    channel_bytes = {}
+    if normals is not None:  # memory per channel; the other figures (and a colour-only bake's stats) stay as they were
+        channel_bytes = {"channel_bytes": {"albedo": geometry_bytes + texture_bytes, "normal": n * NORMAL_BYTES}}
     stats = {
         **sample_stats,
         "points": n,
@@ -227,6 +245,7 @@ def bake_points(
         "texture_bytes": texture_bytes,
         "bytes_per_point": (geometry_bytes + texture_bytes) / n,
         "atlas_pages": len(pages),
+        **channel_bytes,
         "seconds": clock.totals(),
     }
     return Impostor(
