@@ -383,3 +383,11 @@ def test_content_hash_counts_normals_and_is_stable():
     first, second = (load_scene_bytes(text.encode(), "obj", "t.obj").content_hash for _ in range(2))
     without = load_scene_bytes((SQUARE_V + "f 1 2 3\n").encode(), "obj", "t.obj").content_hash
     assert first == second != without
+
+
+def test_negative_normal_indices_keep_their_normals_when_faces_without_any_get_appended_ones():
+    """``f 1//-1`` names the last ``vn`` before the faces; the face normals appended for a face
+    without normals must not move what it names (written absolute first)."""
+    text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 0 1 1\nvn 0 0 1\nf 1//-1 2//-1 3//-1\nf 4 6 5\n"
+    (obj,) = load_scene_bytes(text.encode(), "obj", "t.obj").objects
+    assert np.allclose(obj.normals[:3], [0.0, 0.0, 1.0]) and np.allclose(obj.normals[3:], [0.0, 0.0, -1.0])

@@ -94,20 +94,24 @@ def complete_normals(text: str) -> str:
         nonlocal positions
         parts = [corner.split("/") for corner in match.group(2).split("#", 1)[0].split()]
         out, missing = [], []
+        relative = False
         for corner in parts:
             if len(corner) >= 3 and corner[2]:
                 try:
-                    ok = _resolve(int(corner[2]), count) >= 0
+                    at = _resolve(int(corner[2]), count)
                 except ValueError:
-                    ok = False
-                if not ok:
+                    at = -1
+                if at < 0:
                     raise _bad_normal(text, match, "/".join(corner), count)
-                out.append("/".join(corner))
+                # Normals appended below would move what a negative index (counted from the end)
+                # names: every one is written absolute.
+                relative = relative or int(corner[2]) < 0
+                out.append("/".join([*corner[:2], str(at + 1), *corner[3:]]))
             else:
                 missing.append(len(out))
                 out.append(None)
         if not missing or len(parts) < 3:
-            return match.group(0)
+            return match.group(1) + " ".join(out) if relative and not missing else match.group(0)
         if positions is None:
             positions = _positions(text)
         try:
