@@ -61,7 +61,14 @@ from farfield.core.impostor.impostor import (
     decode_normals,
     encode_normals,
 )
-from farfield.core.impostor.mesh_frames import VertexFrames, texel_frames, triangle_frames, vertex_frames
+from farfield.core.impostor.mesh_frames import (
+    VertexFrames,
+    filled_owners,
+    texel_frames,
+    triangle_frames,
+    triangle_owners,
+    vertex_frames,
+)
 
 __all__ = ["GlbBuilder", "GlbParts", "engine_metadata", "impostor_glb", "page_png", "write_glb"]
 
@@ -222,6 +229,11 @@ def quad_frames(payload: QuadPayload, viewpoint: np.ndarray) -> np.ndarray:
     return np.stack([unit(dpdu), unit(-dpdv), unit(normal)], axis=1)
 
 
+# Rows of a page turned into tangent space at a time: the per-texel frames of a band, not of the
+# page, are held (a 4096 x 4096 page at once took 2 GB for quads and 6 GB for a mesh).
+BAND_ROWS = 128
+
+
 def tangent_space_pages(payload: QuadPayload | MeshPayload, frames, pages) -> list[np.ndarray]:
     """The normal pages (world normals, :data:`farfield.core.impostor.impostor.PAGE_CHANNELS`) as
     tangent-space normal textures (glTF ``normalTexture``).  Quads: each texel in the frame
@@ -229,36 +241,30 @@ def tangent_space_pages(payload: QuadPayload | MeshPayload, frames, pages) -> li
     that of the nearest tile (their padding).  A mesh: each texel in the frame a viewer
     interpolates at its centre from the vertex frames (``frames``,
     :func:`farfield.core.impostor.mesh_frames.vertex_frames`) of the triangle that holds it
-    (:func:`farfield.core.impostor.mesh_frames.texel_frames`)."""
-    from scipy.ndimage import distance_transform_edt
-
+    (:func:`farfield.core.impostor.mesh_frames.texel_frames`).  :data:`BAND_ROWS` rows at a time."""
     out = []
+    mesh = isinstance(payload, MeshPayload)
     for index, page in enumerate(pages):
         h, w = page.shape[:2]
-        if isinstance(payload, MeshPayload):
-            to_local = texel_frames(payload, frames, index, h, w)
-        else:
-            owner = _quad_owners(payload, index, h, w)
-            to_local = None
-            if not (owner < 0).all():
-                if (owner < 0).any():
-                    iy, ix = distance_transform_edt(owner < 0, return_distances=False, return_indices=True)
-                    owner = owner[iy, ix]
-                to_local = frames[owner]
-        if to_local is None:
+        owner = filled_owners(triangle_owners(payload, index, h, w) if mesh else _quad_owners(payload, index, h, w))
+        if owner is None:
             out.append(encode_normals(np.broadcast_to([0.0, 0.0, 1.0], (h, w, 3))))
             continue
-        world = decode_normals(page)
-        local = np.einsum("hwij,hwj->hwi", to_local, world)
-        blank = ~(np.linalg.norm(world, axis=-1) > 0.0)
-        local[blank] = (0.0, 0.0, 1.0)
-        out.append(encode_normals(local))
+        converted = np.empty((h, w, 4), np.uint8)
+        for start in range(0, h, BAND_ROWS):
+            rows = slice(start, min(start + BAND_ROWS, h))
+            to_local = texel_frames(payload, frames, owner, rows) if mesh else frames[owner[rows]]
+            world = decode_normals(page[rows])
+            local = np.einsum("hwij,hwj->hwi", to_local, world)
+            local[~(np.linalg.norm(world, axis=-1) > 0.0)] = (0.0, 0.0, 1.0)
+            converted[rows] = encode_normals(local)
+        out.append(converted)
     return out
 
 
 def _quad_owners(payload: QuadPayload, index: int, h: int, w: int) -> np.ndarray:
-    """(h, w) int64 the quad whose tile holds each texel of page ``index``, -1 for none."""
-    owner = np.full((h, w), -1, np.int64)
+    """(h, w) int32 the quad whose tile holds each texel of page ``index``, -1 for none."""
+    owner = np.full((h, w), -1, np.int32)
     for q in np.flatnonzero(payload.page == index):
         u, v = payload.uv[q, :, 0] * w, payload.uv[q, :, 1] * h
         x0, x1 = int(np.floor(u.min() + 0.5)), int(np.floor(u.max() + 0.5))

@@ -135,8 +135,11 @@ def vertex_frames(payload: MeshPayload, frames: np.ndarray) -> VertexFrames:
     return VertexFrames(group.reshape(t, 3), normal, tangent, handed[first[order] // 3])
 
 
+OWNER_TEXELS = 1 << 20  # box texels tested per run of triangles (:func:`triangle_owners`)
+
+
 def triangle_owners(payload: MeshPayload, index: int, h: int, w: int) -> np.ndarray:
-    """(h, w) int64 the triangle of ``payload`` on page ``index`` (h x w texels) whose UV footprint
+    """(h, w) int32 the triangle of ``payload`` on page ``index`` (h x w texels) whose UV footprint
     holds each texel's centre, -1 for none (a centre on an edge shared by two goes to the later).
 
     >>> m = MeshPayload.from_triangle_corners(np.zeros((2, 3, 3)), np.array([[[0, 0], [1, 0], [0, 1]],
@@ -144,7 +147,7 @@ def triangle_owners(payload: MeshPayload, index: int, h: int, w: int) -> np.ndar
     >>> triangle_owners(m, 0, 2, 2).tolist()
     [[0, 1], [1, 1]]
     """
-    owner = np.full((h, w), -1, np.int64)
+    owner = np.full((h, w), -1, np.int32)
     triangles = np.flatnonzero(payload.page == index)
     if triangles.size == 0:
         return owner
@@ -153,43 +156,56 @@ def triangle_owners(payload: MeshPayload, index: int, h: int, w: int) -> np.ndar
     hi = np.clip(np.ceil(p.max(axis=1) - 0.5).astype(np.int64), 0, [w - 1, h - 1])
     size = hi - lo + 1  # (t, 2) columns, rows of each triangle's box
     count = size.prod(axis=1)
-    which = np.repeat(np.arange(triangles.size), count)
-    k = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)  # texel within its box
-    x, y = lo[which, 0] + k % size[which, 0], lo[which, 1] + k // size[which, 0]
-    centre = np.stack([x + 0.5, y + 0.5], axis=1)
-    q = p[which]
-    area = _cross2(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0])
-    sign = np.where(area < 0, -1.0, 1.0)
-    inside = np.abs(area) > 0
-    for a, b in ((0, 1), (1, 2), (2, 0)):
-        edge = sign * _cross2(q[:, b] - q[:, a], centre - q[:, a])
-        inside &= edge >= -OWNER_SLACK * np.linalg.norm(q[:, b] - q[:, a], axis=1)
-    owner[y[inside], x[inside]] = triangles[which[inside]]
+    # Triangles in runs of about OWNER_TEXELS box texels, so memory grows with a run, not the page.
+    run = np.cumsum(count) // OWNER_TEXELS
+    for chosen in np.split(np.arange(triangles.size), np.flatnonzero(np.diff(run)) + 1):
+        n = count[chosen]
+        which = np.repeat(chosen, n)
+        k = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)  # texel within its box
+        x, y = lo[which, 0] + k % size[which, 0], lo[which, 1] + k // size[which, 0]
+        centre = np.stack([x + 0.5, y + 0.5], axis=1)
+        q = p[which]
+        area = _cross2(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0])
+        sign = np.where(area < 0, -1.0, 1.0)
+        inside = np.abs(area) > 0
+        for a, b in ((0, 1), (1, 2), (2, 0)):
+            edge = sign * _cross2(q[:, b] - q[:, a], centre - q[:, a])
+            inside &= edge >= -OWNER_SLACK * np.linalg.norm(q[:, b] - q[:, a], axis=1)
+        owner[y[inside], x[inside]] = triangles[which[inside]]
     return owner
 
 
-def texel_frames(payload: MeshPayload, frames: VertexFrames, index: int, h: int, w: int) -> np.ndarray | None:
-    """(h, w, 3, 3) float64 per texel of page ``index`` the matrix taking a world normal to the
-    texel direction a viewer decodes back to it (the inverse of its interpolated [T B N], module
-    docstring), in the triangle that holds the texel's centre (:func:`triangle_owners`), the other
-    texels in the nearest such triangle's at their clamped barycentric coordinates; None where no
-    triangle is on the page."""
-    owner = triangle_owners(payload, index, h, w)
+def filled_owners(owner: np.ndarray) -> np.ndarray | None:
+    """``owner`` (h, w) (:func:`triangle_owners`, or a quad payload's) with every texel that has none
+    given its nearest owner's (the texels between tiles or charts: their padding); None when the
+    page has no owner at all."""
     if (owner < 0).all():
         return None
     if (owner < 0).any():
         iy, ix = distance_transform_edt(owner < 0, return_distances=False, return_indices=True)
         owner = owner[iy, ix]
-    ys, xs = np.mgrid[0:h, 0:w]
+    return owner
+
+
+def texel_frames(payload: MeshPayload, frames: VertexFrames, owner: np.ndarray, rows: slice) -> np.ndarray:
+    """(r, w, 3, 3) float64 per texel of the page's ``rows`` the matrix taking a world normal to the
+    texel direction a viewer decodes back to it (the inverse of its interpolated [T B N], module
+    docstring), in the triangle that holds the texel's centre, the other texels in the nearest such
+    triangle's at their clamped barycentric coordinates (``owner``: :func:`filled_owners` of
+    :func:`triangle_owners`, (h, w)).  A band of rows at a time, so memory grows with the band,
+    not with the page."""
+    h, w = owner.shape
+    band = owner[rows]
+    ys, xs = np.mgrid[rows, 0:w]
     centre = np.stack([(xs + 0.5) / w, (ys + 0.5) / h], axis=-1).reshape(-1, 2)
-    p = payload.uv[payload.triangles[owner.reshape(-1)]]  # (m, 3, 2)
+    p = payload.uv[payload.triangles[band.reshape(-1)]]  # (m, 3, 2)
     d1, d2, q = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], centre - p[:, 0]
     det = _cross2(d1, d2)
     det = np.where(det == 0.0, 1.0, det)
     b1, b2 = _cross2(q, d2) / det, _cross2(d1, q) / det
     b = np.clip(np.stack([1.0 - b1 - b2, b1, b2], axis=1), 0.0, None)
     b /= np.maximum(b.sum(axis=1, keepdims=True), 1e-300)
-    corner = frames.corner[owner.reshape(-1)]  # (m, 3) frame vertices
+    corner = frames.corner[band.reshape(-1)]  # (m, 3) frame vertices
     columns = [
         unit_rows(np.einsum("mk,mkc->mc", b, attribute[corner]))
         for attribute in (frames.tangent, frames.bitangent, frames.normal)
@@ -200,7 +216,7 @@ def texel_frames(payload: MeshPayload, frames: VertexFrames, index: int, h: int,
     inverse = np.linalg.inv(tbn)
     # Where interpolation left no frame (opposite vertex frames cancelling): the transpose of the owner's.
     inverse[singular] = np.stack([frames.tangent, frames.bitangent, frames.normal], axis=1)[corner[singular, 0]]
-    return inverse.reshape(h, w, 3, 3)
+    return inverse.reshape(band.shape[0], w, 3, 3)
 
 
 def _cross2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
