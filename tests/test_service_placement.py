@@ -209,6 +209,7 @@ def test_a_worker_killed_while_planning_plans_again(service, client, scene_id):
         ({"cells": "spheres"}, "cells"),
         ({"technique": "envmap"}, "technique 'envmap' cannot be placed"),
         ({"options": {"no_such_option": 1}}, "no_such_option"),
+        ({"options": {"channels": "albedo+normal"}}, "placement jobs bake colour only for now"),
         ({"resolution": 0}, "resolution"),
         ({"grid": {"lo": [0, 0, 0], "hi": [1, 1, 1], "counts": [1, 1, 1]}}, "exactly one of"),
         ({"objects": ["building_0000"]}, "leave out 'objects'"),

@@ -13,6 +13,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from farfield.core.impostor.impostor import wants_normals
 from farfield.core.placement.candidates import (
     APEX_ANGLES_DEG,
     DIRECTION_STEP_DEG,
@@ -103,6 +104,17 @@ def check_placeable(technique) -> None:
     raise PlacementError(f"technique {technique.name!r} {why}; for a frame budget use layered or tdm")
 
 
+def check_colour_only(options) -> None:
+    """Refuse technique ``options`` that keep a normal channel: the cost model and the memory
+    budget of placement count colour texels (4 bytes each), and a normal channel doubles them,
+    which they do not know yet (issue 55)."""
+    if wants_normals(getattr(options, "channels", "albedo")):
+        raise PlacementError(
+            "placement jobs bake colour only for now (channels=albedo): their memory model does not count a normal "
+            "channel's pages; bake lit impostors with a grid job"
+        )
+
+
 def place(
     scene: Scene,
     view_lo,
@@ -124,6 +136,7 @@ def place(
     check_placeable(technique)
     options = technique.options({k: v for k, v in (settings.options or {}).items() if k not in ("resolution", "fov_deg")},
                                 (settings.options or {}).get("resolution"), (settings.options or {}).get("fov_deg"))  # fmt: skip
+    check_colour_only(options)
     fov, resolution = math.radians(options.fov_deg), int(options.resolution)
     lo, hi = np.asarray(view_lo, dtype=np.float64).reshape(-1), np.asarray(view_hi, dtype=np.float64).reshape(-1)
     if lo.shape != (3,) or hi.shape != (3,):

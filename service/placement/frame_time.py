@@ -22,7 +22,7 @@ from pydantic import Field, StrictFloat, StrictInt
 from farfield.core.options import stored_values
 from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, primitive_model
 from farfield.core.placement.hierarchy import Elements, PlacementError
-from farfield.core.placement.planner import DEFAULT_MAX_IMPOSTOR_BYTES, check_placeable
+from farfield.core.placement.planner import DEFAULT_MAX_IMPOSTOR_BYTES, check_colour_only, check_placeable
 from farfield.core.placement.view_space import MAX_REGIONS, MIN_VDI_DEG
 from farfield.core.techniques import DEFAULT_TECHNIQUE, get_technique
 from farfield.service.blobs import BlobStore
@@ -155,6 +155,7 @@ class FrameTime(Algorithm):
         technique = get_technique(technique_name or DEFAULT_TECHNIQUE)
         check_placeable(technique)
         options = technique.options(given_options, resolution, fov_deg)
+        check_colour_only(options)
         lo, hi, span = view_space(spec)
         model, t_max, budget = cost_model_of(spec.budget)
         cpv_size = None if spec.cpv_size is None else finite(spec.cpv_size, "cpv_size")

@@ -22,6 +22,7 @@ from farfield.core.errors import InternalError, NotFoundError
 from farfield.core.options import stored_values
 from farfield.core.placement.hierarchy import PlacementError
 from farfield.core.placement.octree_cells import DEFAULT_DEPTH
+from farfield.core.placement.planner import check_colour_only
 from farfield.core.techniques import get_technique
 from farfield.service.blobs import BlobStore
 from farfield.service.db import CellRow, Database, JobRow, SceneRow, job_cells
@@ -98,6 +99,7 @@ class PrimitiveBudget(Algorithm):
             )
         technique = get_technique(TECHNIQUE)
         options = technique.options(given_options, resolution, fov_deg)
+        check_colour_only(options)
         lo, hi, _ = view_space(spec)
         depth = DEFAULT_DEPTH if spec.octree_depth is None else spec.octree_depth
         if not 0 <= depth <= MAX_DEPTH:
