@@ -259,6 +259,10 @@ def _check_normal_map(obj: SceneObject, name: str, n: int) -> None:
         raise SceneLoadError(f"object {name!r}: normal_texture has shape {texture.shape}")
     uv = _frozen(obj.normal_uv, np.float64, "normal_uv", name, (n, 2))
     tangents = _frozen(obj.tangents, np.float64, "tangents", name, (n, 4))
+    if not np.isin(tangents[:, 3], (-1.0, 1.0)).all():  # the handedness is a sign: +-1 (glTF's TANGENT.w)
+        tangents = tangents.copy()
+        tangents[:, 3] = np.where(tangents[:, 3] < 0.0, -1.0, 1.0)
+        tangents.flags.writeable = False
     if not (np.isfinite(uv).all() and np.isfinite(tangents).all()):
         raise SceneLoadError(f"object {name!r}: non-finite normal-map uv or tangents")
     scale = float(obj.normal_scale)

@@ -173,3 +173,38 @@ def test_normal_maps_with_given_derived_flipped_rotated_and_mirrored_tangents_dr
     with MeshRenderer(load_scene(given).objects, normals=True) as renderer:
         image, ours_given = renderer.render_normals(near)
     assert np.median(angles(ours_given[both], ours_derived)) <= 1.0
+
+
+@pytest.mark.parametrize(
+    "case, map_kept, message",
+    [
+        ("tangent_nan", True, "TANGENT is not 4 finite VEC4 elements; tangents are derived"),
+        ("tangent_vec3", True, "TANGENT is not 4 finite VEC4 elements; tangents are derived"),
+        ("missing_image", False, "the normal texture is ignored"),
+        ("uv_nan", False, "TEXCOORD_1 of its normal texture is not 4 finite pairs; the map is ignored"),
+    ],
+)
+def test_a_normal_map_that_does_not_fit_is_left_out_or_its_tangents_derived_with_a_warning(case, map_kept, message):
+    """A normal map only shades: what does not fit costs the map or its given tangents, never the file."""
+    from gltf_files import SQUARE_UV, GltfBuilder
+
+    from farfield.core.exchange import load_scene_bytes
+    from farfield.core.scene import SceneWarning
+
+    builder = GltfBuilder()
+    texture = (
+        builder.texture(builder.image(bumps(4))) if case != "missing_image" else builder._add("textures", {"source": 7})
+    )
+    info = {"index": texture} | ({"texCoord": 1} if case == "uv_nan" else {})
+    material = builder.material(normalTexture=info)
+    tangents = {"tangent_nan": np.array([[np.nan, 0, 0, 1]] + [[1.0, 0, 0, 1]] * 3),
+                "tangent_vec3": np.tile([1.0, 0, 0], (4, 1))}.get(case, np.tile([1.0, 0, 0, 1], (4, 1)))  # fmt: skip
+    uv1 = np.array([[np.nan, 0.0], [1, 0], [1, 1], [0, 1]]) if case == "uv_nan" else None
+    builder.quad(
+        "q", [0, 0, 0], 1.0, material, uv=SQUARE_UV, uv1=uv1, normals=np.tile([0.0, 0, 1], (4, 1)), tangents=tangents
+    )
+    with pytest.warns(SceneWarning, match=message):
+        (obj,) = load_scene_bytes(builder.glb(), "glb", "q.glb").objects
+    assert (obj.normal_texture is not None) == map_kept and obj.normals is not None
+    if map_kept:
+        assert np.isfinite(obj.tangents).all() and set(obj.tangents[:, 3]) <= {-1.0, 1.0}

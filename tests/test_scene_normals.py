@@ -184,13 +184,15 @@ def test_gltf_zero_and_nan_normals_are_repaired_with_one_warning():
     assert scene.warnings == (messages[0].split(": ", 1)[1],)
 
 
-def test_gltf_normal_count_must_match_positions():
+def test_a_gltf_normal_count_that_does_not_match_positions_is_shaded_flat_with_a_warning():
+    """Normals only shade: a NORMAL of the wrong count leaves the primitive flat, not the file refused."""
     b = GltfBuilder()
     node = b.quad("q", [0, 0, 0], 1.0, b.material())
     mesh = b.doc["meshes"][b.doc["nodes"][node]["mesh"]]
     mesh["primitives"][0]["attributes"]["NORMAL"] = b.accessor(TILTED[:3])
-    with pytest.raises(SceneLoadError, match="NORMAL has 3 elements of 3, expected 4 of 3"):
-        load_scene_bytes(b.glb(), "glb", "t.glb")
+    with pytest.warns(SceneWarning, match="NORMAL has 3 elements of 3, expected 4 of 3; shaded flat"):
+        scene = load_scene_bytes(b.glb(), "glb", "t.glb")
+    assert scene.objects[0].normals is None
 
 
 # --- OBJ ----------------------------------------------------------------------------------------------

@@ -121,7 +121,20 @@ def _smooth(normals: np.ndarray, covered: np.ndarray, samples: int) -> np.ndarra
 
 
 def _percentiles(values: np.ndarray) -> tuple[float, float]:
-    return (float(np.median(values)), float(np.percentile(values, 95))) if values.size else (0.0, 0.0)
+    """(median, 95th percentile) of ``values``; None for none (a viewpoint with no such sample),
+    which the totals leave out."""
+    return (float(np.median(values)), float(np.percentile(values, 95))) if values.size else (None, None)
+
+
+def _mean_of(rows: list[dict], name: str) -> float:
+    """The mean of a per-viewpoint figure over the viewpoints that measured it (0 when none did)."""
+    values = [r[name] for r in rows if r[name] is not None]
+    return float(np.mean(values)) if values else 0.0
+
+
+def _max_of(rows: list[dict], name: str) -> float:
+    values = [r[name] for r in rows if r[name] is not None]
+    return max(values) if values else 0.0
 
 
 def compare_lit(
@@ -217,14 +230,14 @@ def _totals(rows: list[dict], light_count: int) -> dict:
         "lights": lights,
         "lit_to_unlit_worst": max(ratio),
         "flat_to_lit_least": min(gain),
-        "normal_error_median": float(np.mean([r["normal_error_median"] for r in rows])),
-        "normal_error_p95": max(r["normal_error_p95"] for r in rows),
-        "normal_error_interior_median": float(np.mean([r["normal_error_interior_median"] for r in rows])),
-        "normal_error_interior_p95": max(r["normal_error_interior_p95"] for r in rows),
-        "normal_error_smooth_median": float(np.mean([r["normal_error_smooth_median"] for r in rows])),
-        "normal_error_smooth_p95": max(r["normal_error_smooth_p95"] for r in rows),
+        "normal_error_median": _mean_of(rows, "normal_error_median"),
+        "normal_error_p95": _max_of(rows, "normal_error_p95"),
+        "normal_error_interior_median": _mean_of(rows, "normal_error_interior_median"),
+        "normal_error_interior_p95": _max_of(rows, "normal_error_interior_p95"),
+        "normal_error_smooth_median": _mean_of(rows, "normal_error_smooth_median"),
+        "normal_error_smooth_p95": _max_of(rows, "normal_error_smooth_p95"),
         "smooth_share": float(np.mean([r["smooth_share"] for r in rows])),
-        "flat_normal_error_median": float(np.mean([r["flat_normal_error_median"] for r in rows])),
+        "flat_normal_error_median": _mean_of(rows, "flat_normal_error_median"),
     }
 
 

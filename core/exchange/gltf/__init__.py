@@ -286,22 +286,34 @@ class _Reader:
                 part["uv"] = uv
         part["normal_uv"] = part["tangents"] = None
         if found.normal is not None and part["normals"] is not None:
-            key = f"TEXCOORD_{found.normal.tex_coord}"
-            if key in attributes:
-                uv = accessors.read(self.document, self.buffers, attributes[key])
-                if len(uv) != count or uv.shape[1] != 2:
-                    raise SceneLoadError(f"{where}: {key} has {len(uv)} elements, expected {count} of 2")
-                if found.normal.transform is not None:
-                    uv = uv @ found.normal.transform[:2, :2].T + found.normal.transform[:2, 2]
-                part["normal_uv"] = uv
-                if "TANGENT" in attributes:
-                    tangents = accessors.read(self.document, self.buffers, attributes["TANGENT"])
-                    if tangents.shape != (count, 4):
-                        raise SceneLoadError(f"{where}: TANGENT has {len(tangents)} elements, expected {count} of 4")
-                    part["tangents"] = tangents
-            else:
-                self.warnings.append(f"{where}: its normal texture uses {key}, which it does not have; ignored")
+            self.normal_attributes(part, found.normal, attributes, count, where)
         return part
+
+    def normal_attributes(self, part: dict, ref, attributes: dict, count: int, where: str) -> None:
+        """The normal map's uv and ``TANGENT`` of a primitive into ``part``.  A normal map only
+        shades: where its attributes do not fit, it is left out (or its tangents derived) with a
+        warning, never the file refused."""
+        key = f"TEXCOORD_{ref.tex_coord}"
+        if key not in attributes:
+            self.warnings.append(f"{where}: its normal texture uses {key}, which it does not have; ignored")
+            return
+        uv = accessors.read(self.document, self.buffers, attributes[key])
+        if uv.ndim != 2 or uv.shape != (count, 2) or not np.isfinite(uv).all():
+            self.warnings.append(
+                f"{where}: {key} of its normal texture is not {count} finite pairs; the map is ignored"
+            )
+            return
+        if ref.transform is not None:
+            uv = uv @ ref.transform[:2, :2].T + ref.transform[:2, 2]
+        part["normal_uv"] = uv
+        if "TANGENT" in attributes:
+            tangents = accessors.read(self.document, self.buffers, attributes["TANGENT"])
+            if tangents.ndim == 2 and tangents.shape == (count, 4) and np.isfinite(tangents).all():
+                part["tangents"] = tangents
+            else:
+                self.warnings.append(
+                    f"{where}: TANGENT is not {count} finite VEC4 elements; tangents are derived from the uv instead"
+                )
 
     def normals(self, spec: dict, weights: object, count: int, where: str) -> np.ndarray | None:
         """(v, 3) float64 model-space ``NORMAL`` of a primitive with its morph targets' displacements
@@ -310,10 +322,13 @@ class _Reader:
         if "NORMAL" not in attributes:
             return None
         normals = accessors.read(self.document, self.buffers, attributes["NORMAL"])
-        if normals.shape != (count, 3):
-            raise SceneLoadError(
-                f"{where}: NORMAL has {len(normals)} elements of {normals.shape[1]}, expected {count} of 3"
+        if normals.ndim != 2 or normals.shape != (count, 3):
+            # Shading only: the primitive is drawn flat (with a warning) rather than refused.
+            self.warnings.append(
+                f"{where}: NORMAL has {len(normals)} elements of {normals.shape[1] if normals.ndim == 2 else '?'}, "
+                f"expected {count} of 3; shaded flat"
             )
+            return None
         return normals + self.morph(spec, weights, count, where, "NORMAL")
 
     def morph(self, spec: dict, weights: object, count: int, where: str, attribute: str) -> np.ndarray:

@@ -205,7 +205,11 @@ def material(document: dict, index: object, warnings: list[str]) -> Material:
     if not isinstance(double, bool):
         raise SceneLoadError(f"{where}: doubleSided {double!r} is not true or false")
     normal_info = spec.get("normalTexture")
-    normal = _texture_ref(document, normal_info, f"{where} normalTexture", warnings)
+    try:  # a normal map only shades: one that cannot be read is left out, with a warning
+        normal = _texture_ref(document, normal_info, f"{where} normalTexture", warnings)
+    except SceneLoadError as error:
+        warnings.append(f"{error}; the normal texture is ignored")
+        normal = None
     scale = _number(
         normal_info.get("scale") if isinstance(normal_info, dict) else None, 1.0, f"{where} normalTexture scale"
     )

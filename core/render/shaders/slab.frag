@@ -435,7 +435,8 @@ void main() {
         t -= n * dot(n, t);
         if (dot(t, t) > 1e-24) {
             t = normalize(t);
-            vec3 b = cross(n, t) * g_tangent[0].w;
+            float w = pb.x * g_tangent[0].w + pb.y * g_tangent[1].w + pb.z * g_tangent[2].w;
+            vec3 b = cross(n, t) * (w < 0.0 ? -1.0 : 1.0);  // as mesh.frag: the interpolated handedness's sign
             vec3 m = textureLod(normal_map, nuv, footprint_level(c, g_nuv, normal_map_size)).rgb * 2.0 - 1.0;
             m.xy *= normal_scale;
             vec3 mapped = t * m.x + b * m.y + n * m.z;
