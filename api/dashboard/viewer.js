@@ -113,7 +113,8 @@ sourceScene.add(rigs[1]);
 
 function placeLight() {
   const a = (view.light.azimuth * Math.PI) / 180, e = (view.light.elevation * Math.PI) / 180;
-  const direction = new THREE.Vector3(Math.cos(e) * Math.cos(a), Math.sin(e), Math.cos(e) * Math.sin(a)); // toward the light
+  // toward the light; azimuth 0 along +x, 90° along up × x = -z, as core/quality/lighting.py's default_lights
+  const direction = new THREE.Vector3(Math.cos(e) * Math.cos(a), Math.sin(e), -Math.cos(e) * Math.sin(a));
   const centre = view.bounds.isEmpty() ? new THREE.Vector3() : view.bounds.getCenter(new THREE.Vector3());
   for (const rig of rigs) {
     rig.userData.sun.position.copy(centre).add(direction);
@@ -124,8 +125,11 @@ function placeLight() {
 
 const shading = new WeakMap(); // mesh -> {lit, unlit}: its material (or materials) each way
 
+const unlitLooks = new WeakMap(); // a lit material -> its unlit look, made once (the clones of a cell share it)
 function unlitOf(material) {
-  return material.isMeshBasicMaterial ? material : unlit(material);
+  if (material.isMeshBasicMaterial) return material;
+  if (!unlitLooks.has(material)) unlitLooks.set(material, unlit(material));
+  return unlitLooks.get(material);
 }
 
 function shadeBoth(mesh, lit, unlitMaterial) {
@@ -378,7 +382,7 @@ function evict(keep, active) {
       root.traverse((node) => {
         if (!node.isMesh) return;
         node.geometry.dispose();
-        for (const m of [].concat(node.material)) { m.map?.dispose(); m.dispose(); }
+        for (const m of [].concat(node.material)) { m.map?.dispose(); m.normalMap?.dispose(); unlitLooks.get(m)?.dispose(); m.dispose(); }
       });
       for (const mesh of near || []) release(mesh);
     }).catch(() => {});
