@@ -56,6 +56,7 @@ from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import CellCost, Promise, TechniqueDefinition
 from farfield.core.techniques.envmap.arrangement import EnvmapPlan, envmap_plan, layers_for_near_field
 from farfield.core.techniques.envmap.gap_fill import fill_gaps
+from farfield.core.techniques.envmap.lit import evaluate_envmap_lit
 from farfield.core.techniques.envmap.near_field import near_field
 from farfield.core.techniques.envmap.runtime import EnvmapCellRenderer, evaluate_envmap
 from farfield.core.viewcells import BoxCell
@@ -394,6 +395,11 @@ def _evaluate(scene, impostor, random_count: int, outside_count: int, seed: int)
     return evaluate_envmap(scene, impostor, random_count=random_count, seed=seed)
 
 
+def _evaluate_lit(scene, impostor, random_count: int, seed: int):
+    # What the envmap stands in for: the scene beyond the near field, from the unlit evaluation's views.
+    return evaluate_envmap_lit(scene, impostor, random_count=random_count, seed=seed)
+
+
 def _evaluation_text(result: dict, impostor) -> str:
     lines = [f"{'kind':<7} {'forward':<20} {'geometry':>9} {'holes':>6} {'>1px':>6} {'err mean':>9} {'err max':>8}"]
     for row in result["views"]:
@@ -426,6 +432,7 @@ TECHNIQUE = TechniqueDefinition(
     bake=_bake,
     summary=_summary,
     evaluate=_evaluate,
+    evaluate_lit=_evaluate_lit,
     evaluation_text=_evaluation_text,
     promise=Promise(
         "no hole pixel from anywhere in the cubic view cell: the near field, and every face without layers, are geometry; "
