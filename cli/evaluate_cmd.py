@@ -86,8 +86,12 @@ def evaluate(bundles, scene, random_count, outside_count, seed, prefer, as_json,
         lit_result = None
         if lit:
             names = impostor.parameters.get("objects")
+            own = getattr(technique, "evaluate_lit", None)  # what the impostor stands in for, its technique says
             try:
-                lit_result = evaluate_lit(part.subset(names) if names else part, impostor, random_count, seed)
+                if own is not None:
+                    lit_result = own(part, impostor, random_count, seed)
+                else:
+                    lit_result = evaluate_lit(part.subset(names) if names else part, impostor, random_count, seed)
             except ValueError as error:  # a payload drawn otherwise than as triangles
                 raise click.UsageError(f"--lit: {error}") from error
         if as_json:

@@ -284,6 +284,35 @@ def evaluate_lit_at(
     return LitEvaluation(rows, totals, described, time.perf_counter() - start)
 
 
+def evaluate_lit_views(
+    geometry, stand_in, cards, views, samples: int = 2, lights=None, ambient=AMBIENT
+) -> LitEvaluation:
+    """The lit figures (module docstring) from ``views``: (camera, row) pairs, each camera drawing
+    ``samples`` per output pixel side and ``row`` a dict of what to report of the view (its
+    ``kind`` at least; "outside" ones are left out of the totals).  ``geometry``, ``stand_in`` and
+    ``cards`` are G-buffer renderers (``render_normals(camera)``, as :class:`MeshRenderer` made with
+    ``normals=True`` and :func:`impostor_gbuffer`) of the geometry, the impostor with its normals
+    and the impostor as flat cards.  A technique whose impostor stands in for part of what a view
+    shows (an environment map's far field) gives renderers that leave the rest uncovered."""
+    start = time.perf_counter()
+    lights = default_lights() if lights is None else tuple(lights)
+    rows = []
+    for camera, row in views:
+        stats = compare_lit(
+            geometry.render_normals(camera),
+            stand_in.render_normals(camera),
+            cards.render_normals(camera),
+            camera,
+            lights,
+            ambient,
+            samples,
+        )
+        rows.append(row | {"inside": row["kind"] != "outside", "stats": stats})
+    totals = _totals([r["stats"] for r in rows if r["inside"]], len(lights))
+    described = [{"direction": light.direction.tolist(), "intensity": float(light.intensity)} for light in lights]
+    return LitEvaluation(rows, totals, described, time.perf_counter() - start)
+
+
 def evaluate_lit(
     part: Scene, impostor: Impostor, random_count: int = 8, seed: int = 0, samples: int = 2, lights=None
 ) -> LitEvaluation:

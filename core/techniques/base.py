@@ -209,6 +209,10 @@ class TechniqueDefinition:
     kernels: tuple[Callable[[], float], ...] = ()
     # What it guarantees in pixels (Technique.promise)
     promise: Promise = NO_PROMISE
+    # evaluate_lit(scene, impostor, random_count, seed) -> a LitEvaluation (farfield.core.quality.lit) of
+    # what the impostor stands in for, from the views its own evaluation uses; None: evaluate_lit of its
+    # part (the impostor's objects) from its cell's viewpoints, what a part technique stands in for
+    evaluate_lit: Callable[[Scene, Impostor, int, int], Any] | None = None
 
     def warm(self) -> float:
         """Compile its numba kernels (every function of ``kernels``); the seconds it took."""

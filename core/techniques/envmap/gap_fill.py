@@ -1,4 +1,5 @@
-"""Gap filling between two adjacent impostor layers: (h, w, 4) uint8 RGBA layers in, the farther one filled, out.
+"""Gap filling between two adjacent impostor layers: (h, w, 4) uint8 RGBA layers (or (h, w, 8): RGBA
+then the encoded normal, recorded with the normal channel) in, the farther one filled, out.
 
 Seed 002 (Jeschke, Wimmer, Schumann, GI 2002) §5.1: a continuous surface sampled in two layers may
 leave a transparent texel in the farther layer right behind the closer layer's last opaque texel,
@@ -11,6 +12,9 @@ farfield's conservative recording (seed 000 §3.3.2, :mod:`farfield.core.layerin
 that crosses a border into both layers, so with it this step only ever touches texels that the
 recording covered too; it is kept as the paper's step (and as a knob) because it also closes gaps
 left by a non-conservative recording.
+
+A texel is copied whole: with the normal channel the closer layer's normal goes where its colour
+goes, so every filled texel shows the normal of the surface whose colour it shows.
 """
 
 from __future__ import annotations
@@ -47,7 +51,9 @@ def border_texels(opaque: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def fill_gaps(closer: np.ndarray, farther: np.ndarray) -> tuple[np.ndarray, int]:
-    """Copy ``closer``'s opaque border texels into ``farther`` (both (h, w, 4) uint8) where §5.1 allows.
+    """Copy ``closer``'s opaque border texels into ``farther`` (both (h, w, 4) uint8, or both (h, w, 8)
+    with the normal channel: the texels are copied whole) where §5.1 allows.  Coverage is the
+    colour's alpha (channel 3).
 
     Returns the filled copy of ``farther`` and the number of texels that were transparent before
     (the texels the step added; overwritten opaque texels are not counted).
@@ -60,6 +66,14 @@ def fill_gaps(closer: np.ndarray, farther: np.ndarray) -> tuple[np.ndarray, int]
     >>> far[0, 2] = (5, 5, 5, 255); filled, added = fill_gaps(near, far)
     >>> filled[0, :, 0].tolist(), added
     ([0, 9, 5, 5], 1)
+
+    With the normal channel, the normal travels with the colour, and only there:
+
+    >>> near8 = np.concatenate([near, np.full_like(near, 200)], axis=-1)
+    >>> far8 = np.concatenate([far, np.full_like(far, 50)], axis=-1)
+    >>> filled8, added8 = fill_gaps(near8, far8)
+    >>> filled8[0, :, 0].tolist(), filled8[0, :, 4].tolist(), added8
+    ([0, 9, 5, 5], [50, 200, 50, 50], 1)
     """
     near_opaque = closer[..., 3] > 0
     far_opaque = farther[..., 3] > 0

@@ -160,6 +160,13 @@ def view_directions(directions: list[str] | tuple[str, ...]) -> np.ndarray:
     return np.array(out)
 
 
+def envmap_viewpoints(cell: BoxCell, random_count: int, seed: int) -> tuple[np.ndarray, list[str]]:
+    """(n, 3) float64 viewpoints of ``cell`` an envmap evaluation looks from (its 8 corners, its
+    centre and ``random_count`` seeded random points inside) and their kinds."""
+    points = np.concatenate([cell.corners(), cell.center[None, :], cell.sample_random(random_count, seed)])
+    return points, ["corner"] * 8 + ["centre"] + ["random"] * random_count
+
+
 def evaluate_envmap(
     scene: Scene,
     impostor: Impostor,
@@ -174,8 +181,7 @@ def evaluate_envmap(
     totals (hole pixels, colour error per pixel: mean over views, worst view's 99th percentile,
     maximum; within one pixel; SSIM), as :func:`farfield.core.quality.evaluation.evaluate` does for one part."""
     cell = BoxCell(np.asarray(impostor.viewcell["lo"]), np.asarray(impostor.viewcell["hi"]))
-    points = np.concatenate([cell.corners(), cell.center[None, :], cell.sample_random(random_count, seed)])
-    kinds = ["corner"] * 8 + ["centre"] + ["random"] * random_count
+    points, kinds = envmap_viewpoints(cell, random_count, seed)
     if directions is None:
         directions = view_directions(impostor.parameters["directions"])
     rows = []

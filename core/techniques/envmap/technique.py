@@ -18,6 +18,13 @@ Seed 002 (Jeschke, Wimmer, Schumann, GI 2002), per cubic view cell:
 4. the cell's output: quads and atlas pages for all faces, the near-field list, and the three byte
    counts of seed 002 Table 2 (raw layers, macrotextures, PNG).
 
+With ``channels=albedo+normal`` every face records the world shading normal of the point each
+texel shows beside its colour (:func:`farfield.core.layering.recording.pair_normals`, double-sided back
+faces reversed towards the cell centre); gap filling copies a texel's normal with its colour, and
+the normals become a second set of atlas pages parallel to the colour pages (``channels`` of the
+impostor), which the GLB turns into lit materials with tangent-space normal textures.  The colour
+bytes are those of a colour-only bake.
+
 Layers are streamed face by face: memory grows with the kept texels, not with faces x layers x
 image.  Macrotexture packing uses farfield's seed 000 §3.6 packer, the thesis's refinement of
 §5.4 (same sort by decreasing height, power-of-two pages, lowest-position placement; it spills
@@ -35,12 +42,12 @@ from farfield.core import __version__
 from farfield.core.cube_faces import FACES
 from farfield.core.errors import LayerPlanError, ViewCellError
 from farfield.core.impostor.glb import page_png
-from farfield.core.impostor.impostor import Impostor, QuadPayload, texel_rect_corners
+from farfield.core.impostor.impostor import ChannelSet, Impostor, QuadPayload, texel_rect_corners, wants_normals
 from farfield.core.layering import recording
 from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.layering.culled import culled_layers
 from farfield.core.layering.culling import CullingMode
-from farfield.core.layering.tiles import QUAD_GEOMETRY_BYTES, check_pages, layer_tiles, pack_tiles
+from farfield.core.layering.tiles import QUAD_GEOMETRY_BYTES, check_pages, layer_tiles, pack_tiles, split_channels
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_ERROR_PX, MAX_RESOLUTION, pixel_angle
 from farfield.core.scene import Scene
@@ -49,6 +56,7 @@ from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import CellCost, Promise, TechniqueDefinition
 from farfield.core.techniques.envmap.arrangement import EnvmapPlan, envmap_plan, layers_for_near_field
 from farfield.core.techniques.envmap.gap_fill import fill_gaps
+from farfield.core.techniques.envmap.lit import evaluate_envmap_lit
 from farfield.core.techniques.envmap.near_field import near_field
 from farfield.core.techniques.envmap.runtime import EnvmapCellRenderer, evaluate_envmap
 from farfield.core.viewcells import BoxCell
@@ -115,6 +123,11 @@ class EnvmapOptions:
     grid_cell: int = option(4, "microtexture grid (§5.3; the paper's 8), texels", ge=1, le=1024)
     fill_threshold: float = option(0.8, "microtexture fill ratio (§5.3)", gt=0.0, le=1.0)
     padding: int = option(2, "atlas padding, texels", ge=0, le=64)
+    channels: ChannelSet = option(
+        "albedo",
+        "what each texel keeps: albedo (unlit colour, for baked lighting) or albedo+normal (world shading normals too, "
+        "so that an engine can light the impostor; a second set of atlas pages)",
+    )
     max_page: int = option(
         MAX_PAGE,
         "largest atlas page side, texels (WebGL2 guarantees 2048, many mobile GPUs stop at 4096), a power of two",
@@ -226,6 +239,7 @@ def bake_envmap(
     clock.report("plan", 1, 1)
 
     res = plan.resolution
+    normals = wants_normals(options.channels)
     total_layers = len(options.directions) * plan.count
     tiles, quad_layer, quad_corners, layers = [], [], [], []
     counts = {"covered": 0, "culled": 0, "kept": 0, "drawn": 0, "gap_filled": 0}
@@ -236,7 +250,8 @@ def bake_envmap(
             clock.report("record", done, total_layers)
             continue
         fill = fill_gaps if options.gap_fill else None
-        for layer in culled_layers(seen, face, options.culling, clock, options.conservative, fill):
+        layers_of_face = culled_layers(seen, face, options.culling, clock, options.conservative, fill, normals=normals)
+        for layer in layers_of_face:
             i = layer.index
             done += 1
             counts["drawn"] += layer.drawn
@@ -281,6 +296,7 @@ def bake_envmap(
         pages, quad_uv, quad_page, tile_bytes = pack_tiles(
             tiles, options.padding, options.max_page
         )  # none: all is near field
+        pages, channels = split_channels(pages)
     with clock("png"):
         png_bytes = int(sum(len(page_png(page)) for page in pages))
     clock.report("atlas", 1, 1)
@@ -309,6 +325,10 @@ def bake_envmap(
         "texture_resolution": [res, res],
         "seconds": clock.totals(),
     }
+    if channels:  # memory per channel; a colour-only bake's stats stay as they were
+        stats["channel_bytes"] = {"albedo": texture_bytes} | {
+            name: int(sum(p.nbytes for p in channel)) for name, channel in channels.items()
+        }
     parameters = {
         **asdict(options),
         "directions": list(options.directions),
@@ -334,6 +354,7 @@ def bake_envmap(
         stats=stats,
         parameters=parameters,
         code_version=__version__,
+        channels=channels,
     )
 
 
@@ -374,6 +395,11 @@ def _evaluate(scene, impostor, random_count: int, outside_count: int, seed: int)
     return evaluate_envmap(scene, impostor, random_count=random_count, seed=seed)
 
 
+def _evaluate_lit(scene, impostor, random_count: int, seed: int):
+    # What the envmap stands in for: the scene beyond the near field, from the unlit evaluation's views.
+    return evaluate_envmap_lit(scene, impostor, random_count=random_count, seed=seed)
+
+
 def _evaluation_text(result: dict, impostor) -> str:
     lines = [f"{'kind':<7} {'forward':<20} {'geometry':>9} {'holes':>6} {'>1px':>6} {'err mean':>9} {'err max':>8}"]
     for row in result["views"]:
@@ -406,6 +432,7 @@ TECHNIQUE = TechniqueDefinition(
     bake=_bake,
     summary=_summary,
     evaluate=_evaluate,
+    evaluate_lit=_evaluate_lit,
     evaluation_text=_evaluation_text,
     promise=Promise(
         "no hole pixel from anywhere in the cubic view cell: the near field, and every face without layers, are geometry; "
