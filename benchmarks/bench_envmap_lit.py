@@ -29,6 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from farfield.core import procedural  # noqa: E402
 from farfield.core.impostor.glb import page_png  # noqa: E402
+from farfield.core.quality.lit import lit_figures  # noqa: E402
 from farfield.core.render.context import renderer_info  # noqa: E402
 from farfield.core.techniques.envmap.lit import evaluate_envmap_lit  # noqa: E402
 from farfield.core.techniques.envmap.technique import EnvmapOptions, bake_envmap  # noqa: E402
@@ -77,15 +78,7 @@ def run(buildings: int, cells: int, size: float, resolution: int, layers: int, r
                 "png_kib_normal": sum(len(page_png(p)) for p in normal_pages) / 1024,
                 "same_colour": all(np.array_equal(a, b) for a, b in zip(plain.pages, lit.pages, strict=True)),
                 "views": t["viewpoints"],
-                "lights": t["lights"],
-                "lit_to_unlit_worst": t["lit_to_unlit_worst"],
-                "flat_to_lit_least": t["flat_to_lit_least"],
-                "normal_median": t["normal_error_median"],
-                "normal_p95": t["normal_error_p95"],
-                "normal_interior_median": t["normal_error_interior_median"],
-                "normal_interior_p95": t["normal_error_interior_p95"],
-                "flat_normal_median": t["flat_normal_error_median"],
-                "eval_s": result.seconds,
+                **lit_figures(result),
             }
         )
     return rows

@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from farfield.core import procedural  # noqa: E402
 from farfield.core.exchange import load_scene  # noqa: E402
-from farfield.core.quality.lit import evaluate_lit  # noqa: E402
+from farfield.core.quality.lit import evaluate_lit, lit_figures  # noqa: E402
 from farfield.core.render.context import renderer_info  # noqa: E402
 from farfield.core.techniques.layered import BakeOptions, bake_layered  # noqa: E402
 from farfield.core.viewcells import BoxCell  # noqa: E402
@@ -65,8 +65,6 @@ def run(resolution: int, random_count: int) -> list[dict]:
                     bakes[channels] = (impostor, seconds)
         impostor = bakes["albedo+normal"][0]
         lit = evaluate_lit(scene, impostor, random_count=random_count)
-        t = lit.totals
-        worst = max(t["lights"], key=lambda row: row["lit_error_mean"])
         rows.append(
             {
                 "scene": name,
@@ -76,20 +74,7 @@ def run(resolution: int, random_count: int) -> list[dict]:
                 "bake_s_normal": bakes["albedo+normal"][1],
                 "kib_albedo": bakes["albedo"][0].texture_bytes / 1024,
                 "kib_normal": sum(p.nbytes for p in impostor.channels["normal"]) / 1024,
-                "unlit_mean": worst["unlit_error_mean"],
-                "lit_mean_worst": worst["lit_error_mean"],
-                "flat_mean_worst": max(row["flat_error_mean"] for row in t["lights"]),
-                "lit_to_unlit_worst": t["lit_to_unlit_worst"],
-                "flat_to_lit_least": t["flat_to_lit_least"],
-                "normal_median": t["normal_error_median"],
-                "normal_p95": t["normal_error_p95"],
-                "normal_interior_median": t["normal_error_interior_median"],
-                "normal_interior_p95": t["normal_error_interior_p95"],
-                "normal_smooth_median": t["normal_error_smooth_median"],
-                "normal_smooth_p95": t["normal_error_smooth_p95"],
-                "smooth_share": t["smooth_share"],
-                "lights": t["lights"],
-                "eval_s": lit.seconds,
+                **lit_figures(lit),
             }
         )
     return rows

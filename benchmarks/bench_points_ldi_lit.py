@@ -27,7 +27,7 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from farfield.core import procedural  # noqa: E402
-from farfield.core.quality.lit import evaluate_lit  # noqa: E402
+from farfield.core.quality.lit import evaluate_lit, lit_figures  # noqa: E402
 from farfield.core.render.context import renderer_info  # noqa: E402
 from farfield.core.scene import Scene, SceneObject  # noqa: E402
 from farfield.core.techniques.ldi import LdiOptions, bake_ldi  # noqa: E402
@@ -96,8 +96,6 @@ def run(resolution: int, random_count: int, only: tuple[str, ...] = ()) -> list[
                 bakes[channels] = (bake(scene, cell, channels), time.perf_counter() - start)
             impostor = bakes["albedo+normal"][0]
             lit = evaluate_lit(scene, impostor, random_count=random_count)
-            t = lit.totals
-            worst = max(t["lights"], key=lambda row: row["lit_error_mean"])
             rows.append(
                 {
                     "scene": name,
@@ -108,17 +106,7 @@ def run(resolution: int, random_count: int, only: tuple[str, ...] = ()) -> list[
                     "normal_stage_s": impostor.stats["seconds"].get("normals", 0.0),
                     "kib_albedo": memory(bakes["albedo"][0])[0] / 1024,
                     "kib_normal": memory(impostor)[1] / 1024,
-                    "unlit_mean": worst["unlit_error_mean"],
-                    "lit_mean_worst": worst["lit_error_mean"],
-                    "flat_mean_worst": max(row["flat_error_mean"] for row in t["lights"]),
-                    "lit_to_unlit_worst": t["lit_to_unlit_worst"],
-                    "flat_to_lit_least": t["flat_to_lit_least"],
-                    "normal_median": t["normal_error_median"],
-                    "normal_p95": t["normal_error_p95"],
-                    "normal_interior_median": t["normal_error_interior_median"],
-                    "normal_interior_p95": t["normal_error_interior_p95"],
-                    "lights": t["lights"],
-                    "eval_s": lit.seconds,
+                    **lit_figures(lit),
                 }
             )
     return rows

@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_lit import scenes  # noqa: E402
 
 from farfield.core.impostor.glb import impostor_glb  # noqa: E402
-from farfield.core.quality.lit import evaluate_lit  # noqa: E402
+from farfield.core.quality.lit import evaluate_lit, lit_figures  # noqa: E402
 from farfield.core.render.context import renderer_info  # noqa: E402
 from farfield.core.techniques.tdm.technique import TdmOptions, bake_tdm  # noqa: E402
 from farfield.core.viewcells import BoxCell  # noqa: E402
@@ -61,8 +61,6 @@ def run(resolution: int, random_count: int, names: list[str] | None) -> list[dic
             bakes[channels] = (impostor, seconds, glb, time.perf_counter() - start)
         impostor = bakes["albedo+normal"][0]
         lit = evaluate_lit(scene, impostor, random_count=random_count)
-        t = lit.totals
-        worst = max(t["lights"], key=lambda row: row["lit_error_mean"])
         rows.append(
             {
                 "scene": name,
@@ -78,18 +76,7 @@ def run(resolution: int, random_count: int, names: list[str] | None) -> list[dic
                 "glb_kib_normal": len(bakes["albedo+normal"][2]) / 1024,
                 "glb_vertices_albedo": glb_vertices(bakes["albedo"][2]),
                 "glb_vertices_normal": glb_vertices(bakes["albedo+normal"][2]),
-                "unlit_mean": worst["unlit_error_mean"],
-                "lit_mean_worst": worst["lit_error_mean"],
-                "flat_mean_worst": max(row["flat_error_mean"] for row in t["lights"]),
-                "lit_to_unlit_worst": t["lit_to_unlit_worst"],
-                "flat_to_lit_least": t["flat_to_lit_least"],
-                "normal_median": t["normal_error_median"],
-                "normal_p95": t["normal_error_p95"],
-                "normal_interior_median": t["normal_error_interior_median"],
-                "normal_interior_p95": t["normal_error_interior_p95"],
-                "flat_normal_median": t["flat_normal_error_median"],
-                "lights": t["lights"],
-                "eval_s": lit.seconds,
+                **lit_figures(lit),
             }
         )
     return rows

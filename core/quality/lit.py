@@ -323,6 +323,31 @@ def evaluate_lit(
     return evaluate_lit_at(part, impostor, points, kinds, samples, lights)
 
 
+def lit_figures(result: LitEvaluation) -> dict:
+    """The figures a benchmark's row shows of a lit evaluation, flat: the worst light's unlit, lit
+    and flat-card mean errors, the two ratios, the normal errors (all, interior, smooth), the flat
+    cards' normal error, the per-light totals and the seconds."""
+    t = result.totals
+    worst = max(t["lights"], key=lambda row: row["lit_error_mean"])
+    return {
+        "unlit_mean": worst["unlit_error_mean"],
+        "lit_mean_worst": worst["lit_error_mean"],
+        "flat_mean_worst": max(row["flat_error_mean"] for row in t["lights"]),
+        "lit_to_unlit_worst": t["lit_to_unlit_worst"],
+        "flat_to_lit_least": t["flat_to_lit_least"],
+        "normal_median": t["normal_error_median"],
+        "normal_p95": t["normal_error_p95"],
+        "normal_interior_median": t["normal_error_interior_median"],
+        "normal_interior_p95": t["normal_error_interior_p95"],
+        "normal_smooth_median": t["normal_error_smooth_median"],
+        "normal_smooth_p95": t["normal_error_smooth_p95"],
+        "smooth_share": t["smooth_share"],
+        "flat_normal_median": t["flat_normal_error_median"],
+        "lights": t["lights"],
+        "eval_s": result.seconds,
+    }
+
+
 def lit_text(result: LitEvaluation) -> str:
     """The lit evaluation's totals as a table, a line per light."""
     t = result.totals
