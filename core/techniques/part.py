@@ -149,7 +149,8 @@ def part_evaluation_text(result: Evaluation, impostor: Impostor) -> str:
         lines.append(
             f"outside the view cell: {t['outside']['viewpoints']} viewpoints, {t['outside']['hole_pixels']} hole pixels"
         )
-    memory = impostor.texture_bytes + impostor.stats.get("geometry_bytes", 0)
+    channel = sum(p.nbytes for pages in impostor.channels.values() for p in pages)  # normal pages, where kept
+    memory = impostor.texture_bytes + channel + impostor.stats.get("geometry_bytes", 0)
     lines.append(
         f"impostor ({impostor.technique}): "
         + (
@@ -157,6 +158,8 @@ def part_evaluation_text(result: Evaluation, impostor: Impostor) -> str:
             if impostor.triangle_count
             else "".join(f"{v:,} {k}, " for k, v in impostor.payload.counts().items())
         )
-        + f"{memory / 1024:.1f} KiB (atlas pages {impostor.texture_bytes / 1024:.1f} KiB + geometry)"
+        + f"{memory / 1024:.1f} KiB (atlas pages {impostor.texture_bytes / 1024:.1f} KiB"
+        + (f" + normal pages {channel / 1024:.1f} KiB" if channel else "")
+        + " + geometry)"
     )
     return "\n".join(lines)
