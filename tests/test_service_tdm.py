@@ -89,6 +89,7 @@ def test_tdm_options_of_stored_parameters():
     assert tdm_options({**params, "options": {}}) == TdmOptions(resolution=96, fov_deg=45.0)
     names = {o["name"] for o in get_technique("tdm").describe()["options"]}
     assert names == {
+        "channels",
         "enlargement",
         "oversampling",
         "culling",
