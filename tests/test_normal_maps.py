@@ -8,6 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import PIL.Image
 import pytest
 
 from farfield.core.exchange import load_scene
@@ -208,3 +209,31 @@ def test_a_normal_map_that_does_not_fit_is_left_out_or_its_tangents_derived_with
     assert (obj.normal_texture is not None) == map_kept and obj.normals is not None
     if map_kept:
         assert np.isfinite(obj.tangents).all() and set(obj.tangents[:, 3]) <= {-1.0, 1.0}
+
+
+def test_an_obj_norm_map_draws_as_three_js_draws_it(threejs, tmp_path):
+    """MTL's ``norm`` (a tangent-space normal map, as three.js's MTLLoader reads it) over the OBJ's
+    ``vt`` with its ``vn``, tangents derived from the uv; a ``bump`` height map is warned about."""
+    from threejs import decode_normals
+
+    from farfield.core.scene import SceneWarning
+
+    PIL.Image.fromarray(bumps(32)).save(tmp_path / "bumps.png")
+    (tmp_path / "quad.mtl").write_text("newmtl m\nKd 0.8 0.8 0.8\nnorm bumps.png\nbump bumps.png\n")
+    (tmp_path / "quad.obj").write_text(
+        "mtllib quad.mtl\nv -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvn 0 0 1\n"
+        "usemtl m\nf 1/1/1 2/2/1 3/3/1\nf 1/1/1 3/3/1 4/4/1\n"
+    )
+    with pytest.warns(SceneWarning, match="bump is a height map"):
+        scene = load_scene(tmp_path / "quad.obj")
+    (obj,) = scene.objects
+    assert obj.normal_texture is not None and obj.normal_texture.shape == (32, 32, 4)
+    camera = Camera.look_at(np.array([0.0, 0.0, 3.0]), np.zeros(3), math.radians(50.0), 160, 0.5, 10.0)
+    (three,) = threejs.render(tmp_path / "quad.obj", [camera], output="normal", mipmaps=False)
+    with MeshRenderer(scene.objects, normals=True) as renderer:
+        image, ours = renderer.render_normals(camera)
+    both = (image[..., 3] > 0) & (three[..., 3] > 0)
+    error = angles(ours[both], decode_normals(three)[both])
+    print("obj norm", both.sum(), np.median(error), np.percentile(error, 95))
+    assert both.sum() > 5000 and np.median(error) <= 1.0 and np.percentile(error, 95) <= 3.0
+    assert np.median(angles(ours[both], np.array([0.0, 0.0, 1.0]))) > 15.0  # the map bends them

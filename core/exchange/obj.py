@@ -55,6 +55,7 @@ from farfield.core.exchange.trimesh_scene import (
     file_normals,
     objects_from_trimesh,
     parse,
+    texture_rgba,
 )
 from farfield.core.scene import SceneObject
 from farfield.core.sidedness import DEFAULT_SIDES, double_sided
@@ -83,7 +84,9 @@ def decode_text(data: bytes) -> str:
 
 
 def texture_maps(mtl: str) -> dict[str, dict[str, str]]:
-    """``{material: {"map_kd": file, "map_d": file}}`` for the texture maps an MTL file names.
+    """``{material: {"map_kd": file, "map_d": file, "norm": file, ...}}`` for the texture maps an MTL
+    file names (``norm``: a tangent-space normal map, the PBR extension of MTL; ``map_bump`` and
+    ``bump``: height maps, which farfield does not apply and warns about).
 
     File names are the rest of the line after the keyword, as trimesh reads them.
 
@@ -99,7 +102,7 @@ def texture_maps(mtl: str) -> dict[str, dict[str, str]]:
         key = split[0].lower()
         if key == "newmtl":
             current = maps.setdefault(" ".join(split[1:]), {})
-        elif key in ("map_kd", "map_d") and current is not None:
+        elif key in ("map_kd", "map_d", "norm", "map_bump", "bump") and current is not None:
             start = line.lower().index(key) + len(key)
             current[key] = line[start:].strip()
     return {name: files for name, files in maps.items() if files}
@@ -276,6 +279,64 @@ def _textures(
     return warnings
 
 
+def _normal_maps(
+    scene: trimesh.Scene,
+    maps: dict[str, dict[str, str]],
+    normals: dict,
+    resolver: Resolver,
+    max_pixels: int | None,
+    warnings: list[str],
+) -> dict[str, tuple[np.ndarray, float]]:
+    """Per geometry, its material's ``norm`` map (RGBA, linear, top row first) and scale (``-bm``,
+    default 1), decoded once per file, for the geometries with ``vt`` and ``vn``; a warning for a
+    map that cannot be used and, once per material, for ``bump`` height maps (not applied)."""
+    out: dict[str, tuple[np.ndarray, float]] = {}
+    decoded: dict[str, np.ndarray | None] = {}
+    told: set[str] = set()
+    for key, mesh in scene.geometry.items():
+        material = getattr(getattr(mesh, "visual", None), "material", None)
+        name = getattr(material, "name", None)
+        files = maps.get(name, {}) if isinstance(name, str) else {}
+        for bump in ("map_bump", "bump"):
+            if bump in files and name not in told:
+                told.add(name)
+                warnings.append(f"material {name!r}: {bump} is a height map, which farfield does not apply; ignored")
+        if "norm" not in files:
+            continue
+        statement = map_statement(files["norm"])
+        uv = getattr(mesh.visual, "uv", None)
+        if uv is None or key not in normals:
+            warnings.append(
+                f"material {name!r}: its normal map {statement.file!r} needs texture coordinates (vt) and normals (vn); ignored"
+            )
+            continue
+        if statement.file not in decoded:
+            data = fetch(resolver, statement.file)
+            image = None
+            if data is None:
+                warnings.append(f"normal map {statement.file!r} of material {name!r} not found; ignored")
+            else:
+                try:
+                    image = texture_rgba(PIL.Image.open(io.BytesIO(data)), max_pixels, f"normal map {statement.file!r}")
+                except IMAGE_ERRORS as error:
+                    warnings.append(
+                        f"normal map {statement.file!r} of material {name!r} could not be decoded ({type(error).__name__}: {error}); ignored"
+                    )
+            decoded[statement.file] = image
+        if decoded[statement.file] is None:
+            continue
+        scale = 1.0
+        if "bm" in statement.options:
+            try:
+                scale = float(statement.options["bm"][0])
+            except ValueError:
+                warnings.append(
+                    f"material {name!r}: norm option -bm {statement.options['bm'][0]!r} is not a number; 1 used"
+                )
+        out[key] = (decoded[statement.file], scale)
+    return out
+
+
 def _short_names(scene: trimesh.Scene) -> dict[str, str]:
     """Node -> object name with the ``_<material>`` suffix dropped where the rest is unique."""
     stripped = {}
@@ -355,11 +416,13 @@ def load(
     scene = parse(text.encode("utf-8"), extension, resolver, split_objects=True, group_material=True)
     warnings.extend(_textures(scene, maps, resolver, limits.texture_pixels))
     normals = {key: found for key, mesh in scene.geometry.items() if (found := file_normals(mesh)) is not None}
+    normal_maps = _normal_maps(scene, maps, normals, resolver, limits.texture_pixels, warnings)
     objects, more = objects_from_trimesh(
         scene,
         rename=_short_names(scene),
         double_sided=double_sided(sides),
         max_texture_pixels=limits.texture_pixels,
         normals=normals,
+        normal_maps=normal_maps,
     )
     return objects, tuple(warnings) + more

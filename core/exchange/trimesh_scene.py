@@ -41,7 +41,7 @@ from trimesh.visual.material import PBRMaterial, SimpleMaterial
 
 from farfield.core.colour_space import encode_rgba_u8, srgb_to_linear
 from farfield.core.errors import SceneLoadError, SceneTooCostlyError
-from farfield.core.exchange.normals import repair_normals, transform_normals
+from farfield.core.exchange.normals import repair_normals, transform_normals, uv_tangents
 from farfield.core.exchange.references import FileIndex
 from farfield.core.scene import SceneObject
 
@@ -366,6 +366,7 @@ def objects_from_trimesh(
     double_sided: bool = True,
     max_texture_pixels: int | None = None,
     normals: Mapping[str, np.ndarray] | None = None,
+    normal_maps: Mapping[str, tuple[np.ndarray, float]] | None = None,
 ) -> tuple[tuple[SceneObject, ...], tuple[str, ...]]:
     """World-space :class:`SceneObject` s, one per geometry node of ``scene``, and warnings.
 
@@ -390,6 +391,12 @@ def objects_from_trimesh(
         shaded flat (``normals`` None).  They are moved by the inverse transpose of the node's
         transform and zero or non-finite ones repaired, with one warning per object
         (:mod:`farfield.core.exchange.normals`).
+
+    normal_maps : mapping of str to ((h, w, 4) uint8, float), or None
+        A tangent-space normal map (linear, top row first) and its scale per geometry name, over
+        the mesh's own texture coordinates (an OBJ's ``norm``); applied where the geometry has
+        normals and uv, with tangents derived from them
+        (:func:`farfield.core.exchange.normals.uv_tangents`).
 
     Returns
     -------
@@ -428,6 +435,14 @@ def objects_from_trimesh(
             given, warning = repair_normals(name, vertices, faces, transform_normals(given, matrix[:3, :3]))
             if warning is not None:
                 warnings.append(warning)
+        mapped = {}
+        found_map = None if normal_maps is None else normal_maps.get(geometry_name)
+        visual_uv = getattr(mesh.visual, "uv", None)
+        if found_map is not None and given is not None and visual_uv is not None and len(visual_uv) == len(vertices):
+            map_uv = np.asarray(visual_uv, dtype=np.float64)
+            if np.isfinite(map_uv).all():
+                mapped = {"normal_texture": found_map[0], "normal_uv": map_uv,
+                          "tangents": uv_tangents(vertices, faces, given, map_uv), "normal_scale": found_map[1]}  # fmt: skip
         objects.append(
             SceneObject(
                 name=name,
@@ -440,6 +455,7 @@ def objects_from_trimesh(
                 alpha_cutoff=colours.alpha_cutoff,
                 double_sided=double_sided,
                 normals=given,
+                **mapped,
             )
         )
     return tuple(objects), tuple(warnings)

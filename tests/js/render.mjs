@@ -13,7 +13,7 @@
 //
 // Two optional modes (the default above is unchanged when neither is asked for):
 // spec.lit = {lights: [{direction, color, intensity}], ambient: [r, g, b]} draws every material as a
-//   MeshStandardMaterial (glTF's own, cloned; any other converted with roughness 1, metalness 0,
+//   MeshStandardMaterial (glTF's own, cloned; any other converted with roughness 1, metalness 0, its normalMap kept,
 //   keeping map, color, alphaMap, opacity, vertexColors, alphaTest and side), lit by one
 //   THREE.DirectionalLight per light (direction: unit, from the surface toward the light, world;
 //   color: linear RGB; intensity: three.js's) and an AmbientLight of linear colour `ambient`, no
@@ -110,6 +110,9 @@ function standard(material, spec) {
     vertexColors: !!material.vertexColors,
     roughness: 1,
     metalness: 0,
+    // MTLLoader's ``norm`` (a tangent-space normal map); its ``bump`` height maps are left out, as farfield does
+    normalMap: spec.mipmaps === false ? unmipped(material.normalMap) : material.normalMap || null,
+    normalScale: material.normalScale ? material.normalScale.clone() : new THREE.Vector2(1, 1),
   });
 }
 
@@ -175,7 +178,7 @@ async function load(spec) {
       const base = spec.mtl.slice(0, spec.mtl.lastIndexOf("/") + 1);
       const materials = await new MTLLoader().setResourcePath(base).loadAsync(spec.mtl);
       materials.preload();
-      await Promise.all(Object.values(materials.materials).flatMap((m) => [textureReady(m.map), textureReady(m.alphaMap)]));
+      await Promise.all(Object.values(materials.materials).flatMap((m) => [textureReady(m.map), textureReady(m.alphaMap), textureReady(m.normalMap)]));
       obj.setMaterials(materials);
     }
     root = await obj.loadAsync(spec.url);
