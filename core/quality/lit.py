@@ -259,29 +259,22 @@ def evaluate_lit_at(
     target = 0.5 * (part.bounds[0] + part.bounds[1])
     extent = np.concatenate([box_corners(part.bounds), impostor.payload.world_points()])
     fov = math.radians(impostor.fov_deg)
-    rows = []
     with (
         MeshRenderer(part.objects, normals=True) as geometry,
         impostor_gbuffer(impostor) as stand_in,
         impostor_gbuffer(impostor, normals=False) as cards,
     ):
-        for position, kind in zip(np.asarray(points, dtype=np.float64), kinds):
-            forward = (target - position) / np.linalg.norm(target - position)
-            near, far = depth_bounds(position, forward, extent)
-            camera = Camera.look_at(position, target, fov, impostor.resolution * samples, near, far)
-            stats = compare_lit(
-                geometry.render_normals(camera),
-                stand_in.render_normals(camera),
-                cards.render_normals(camera),
-                camera,
-                lights,
-                ambient,
-                samples,
-            )
-            rows.append({"position": position.tolist(), "kind": kind, "inside": kind != "outside", "stats": stats})
-    totals = _totals([r["stats"] for r in rows if r["inside"]], len(lights))
-    described = [{"direction": light.direction.tolist(), "intensity": float(light.intensity)} for light in lights]
-    return LitEvaluation(rows, totals, described, time.perf_counter() - start)
+
+        def views():
+            for position, kind in zip(np.asarray(points, dtype=np.float64), kinds):
+                forward = (target - position) / np.linalg.norm(target - position)
+                near, far = depth_bounds(position, forward, extent)
+                camera = Camera.look_at(position, target, fov, impostor.resolution * samples, near, far)
+                yield camera, {"position": position.tolist(), "kind": kind}
+
+        result = evaluate_lit_views(geometry, stand_in, cards, views(), samples, lights, ambient)
+    result.seconds = time.perf_counter() - start
+    return result
 
 
 def evaluate_lit_views(

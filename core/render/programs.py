@@ -73,31 +73,30 @@ def park_framebuffer(ctx: moderngl.Context) -> None:
 SRGB8_ALPHA8 = 0x8C43
 
 
-def srgb_texture(ctx: moderngl.Context, rgba: np.ndarray, mipmaps: bool = False) -> moderngl.Texture:
-    """A base-colour texture of (h, w, 4) uint8 sRGB-encoded RGBA, top row first: rows flipped to
-    GL's order, sampled as linear light, bilinear (trilinear over mipmaps built when ``mipmaps``),
-    repeating (glTF's default sampler)."""
+def _texture(ctx: moderngl.Context, rgba: np.ndarray, mipmaps: bool, internal_format: int | None) -> moderngl.Texture:
+    """(h, w, 4) uint8 ``rgba``, top row first, as a GL texture: rows flipped to GL's order, bilinear
+    (trilinear over mipmaps built when ``mipmaps``), repeating."""
     image = np.ascontiguousarray(rgba[::-1])
-    texture = ctx.texture((image.shape[1], image.shape[0]), 4, image.tobytes(), internal_format=SRGB8_ALPHA8)
+    texture = ctx.texture((image.shape[1], image.shape[0]), 4, image.tobytes(), internal_format=internal_format)
     if mipmaps:
         texture.build_mipmaps()
         texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
     else:
         texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
     return texture
+
+
+def srgb_texture(ctx: moderngl.Context, rgba: np.ndarray, mipmaps: bool = False) -> moderngl.Texture:
+    """A base-colour texture of (h, w, 4) uint8 sRGB-encoded RGBA, top row first: rows flipped to
+    GL's order, sampled as linear light, bilinear (trilinear over mipmaps built when ``mipmaps``),
+    repeating (glTF's default sampler)."""
+    return _texture(ctx, rgba, mipmaps, SRGB8_ALPHA8)
 
 
 def linear_texture(ctx: moderngl.Context, rgba: np.ndarray, mipmaps: bool = False) -> moderngl.Texture:
     """A data texture (a normal map) of (h, w, 4) uint8, top row first, not colour-managed: rows
     flipped to GL's order, bilinear (trilinear over mipmaps built when ``mipmaps``), repeating."""
-    image = np.ascontiguousarray(rgba[::-1])
-    texture = ctx.texture((image.shape[1], image.shape[0]), 4, image.tobytes())
-    if mipmaps:
-        texture.build_mipmaps()
-        texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
-    else:
-        texture.filter = (moderngl.LINEAR, moderngl.LINEAR)
-    return texture
+    return _texture(ctx, rgba, mipmaps, None)
 
 
 def material_uniforms(prog: moderngl.Program, obj, texture: moderngl.Texture | None) -> dict:
