@@ -32,7 +32,7 @@ from __future__ import annotations
 import hashlib
 import math
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -47,6 +47,7 @@ HASH_VERSION = b"farfield-scene-hash-v3"  # v3: a texture enters its objects' di
 
 # glTF's default baseColorFactor (glTF 2.0, material.pbrMetallicRoughness): opaque white.
 DEFAULT_BASE_COLOR = (1.0, 1.0, 1.0, 1.0)
+NO_EMISSION = (0.0, 0.0, 0.0)
 
 
 class SceneWarning(UserWarning):
@@ -122,6 +123,26 @@ class SceneObject:
         or derived from the uv where the file has none).
     normal_scale : float
         glTF ``normalTexture.scale``: the map's X and Y are multiplied by it.
+    metallic_factor, roughness_factor : float
+        glTF ``pbrMetallicRoughness`` factors in 0..1.  The defaults (metallic 0, roughness 1) are a
+        matte dielectric, what a format without materials (OBJ without PBR keys, PLY, STL) means; the
+        glTF loader sets the file's values (the specification's default there is metallic 1).
+    metallic_roughness_texture : (h, w, 4) uint8 or None
+        glTF ``metallicRoughnessTexture``, linear, top row first: roughness in G, metallic in B
+        (multiplied by the factors).  Requires ``material_uv``.
+    occlusion_texture : (h, w, 4) uint8 or None
+        glTF ``occlusionTexture``, linear, occlusion in R, top row first.  Requires ``material_uv``.
+    occlusion_strength : float
+        glTF ``occlusionTexture.strength`` in 0..1: occlusion = 1 + strength * (R - 1).
+    emissive_factor : (3,) float64
+        glTF ``emissiveFactor``, linear RGB, >= 0 (zeros: no emission).
+    emissive_texture : (h, w, 4) uint8 or None
+        glTF ``emissiveTexture``, RGB sRGB-encoded, top row first (multiplied by the factor).
+        Requires ``material_uv``.
+    material_uv : (v, 2) float64 or None
+        The texture coordinates the three material textures share (same convention as ``uv``; it
+        may be the very array ``uv`` is).  A loader whose file maps them through different sets
+        keeps those on the first texture's set and drops the others with a warning.
     double_sided : bool
         Seen from both sides (True, the default for built scenes) or from its front side only
         (False: a viewer behind a triangle's plane does not see it, as an engine culls back faces;
@@ -149,6 +170,14 @@ class SceneObject:
     normal_uv: np.ndarray | None = None  # (v, 2) float64 the normal map's uv, origin bottom-left
     tangents: np.ndarray | None = None  # (v, 4) float64 world tangents (xyz unit) and handedness w = +-1
     normal_scale: float = 1.0
+    metallic_factor: float = 0.0
+    roughness_factor: float = 1.0
+    metallic_roughness_texture: np.ndarray | None = None  # (h, w, 4) uint8, linear: G roughness, B metallic
+    occlusion_texture: np.ndarray | None = None  # (h, w, 4) uint8, linear: R occlusion
+    occlusion_strength: float = 1.0
+    emissive_factor: np.ndarray = NO_EMISSION  # (3,) float64 linear RGB
+    emissive_texture: np.ndarray | None = None  # (h, w, 4) uint8, sRGB-encoded RGB
+    material_uv: np.ndarray | None = None  # (v, 2) float64 the material textures' uv
     bounds: np.ndarray = field(init=False, repr=False)  # (2, 3) float64: min, max corner
 
     def __post_init__(self) -> None:
@@ -179,11 +208,35 @@ class SceneObject:
         if self.normals is not None:
             set_(self, "normals", _unit_normals(self.normals, name, n))
         _check_normal_map(self, name, n)
+        _check_material(self, name, n)
         _check_geometry(name, vertices, faces)
         _check_colour(name, self.base_color, self.uv, self.alpha_cutoff)
         bounds = np.stack([vertices.min(axis=0), vertices.max(axis=0)])
         bounds.flags.writeable = False
         set_(self, "bounds", bounds)
+
+    # Fields with one row per vertex: what :meth:`with_faces` compacts.
+    PER_VERTEX = ("vertices", "uv", "vertex_colors", "normals", "normal_uv", "tangents", "material_uv")
+
+    def with_faces(self, faces: np.ndarray, name: str | None = None) -> SceneObject:
+        """The object of its triangles ``faces`` (indices, a mask or an (f, 3) array of its vertex
+        indices), vertices compacted, every per-vertex array, texture and material factor kept.
+
+        >>> o = SceneObject("quad", np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0.0]]), np.array([[0, 1, 2], [0, 2, 3]]))
+        >>> o.with_faces([1], "half").faces.tolist(), len(o.with_faces([1]).vertices)
+        ([[0, 1, 2]], 3)
+        """
+        chosen = np.asarray(faces)
+        triangles = chosen if chosen.ndim == 2 else self.faces[chosen]
+        used, inverse = np.unique(triangles, return_inverse=True)
+        changes = {"name": self.name if name is None else name, "faces": inverse.reshape(-1, 3)}
+        for key in self.PER_VERTEX:
+            array = getattr(self, key)
+            if array is not None and not (key == "material_uv" and array is self.uv):
+                changes[key] = array[used]
+        if self.material_uv is not None and self.material_uv is self.uv:
+            changes["material_uv"] = changes["uv"]
+        return replace(self, **changes)
 
     @property
     def triangle_count(self) -> int:
@@ -274,6 +327,38 @@ def _check_normal_map(obj: SceneObject, name: str, n: int) -> None:
     set_(obj, "normal_scale", scale)
 
 
+def _check_material(obj: SceneObject, name: str, n: int) -> None:
+    """Freeze and check the metallic-roughness material: factors in range, textures RGBA8 with ``material_uv``."""
+    set_ = object.__setattr__
+    for key in ("metallic_factor", "roughness_factor", "occlusion_strength"):
+        value = float(getattr(obj, key))
+        if not 0.0 <= value <= 1.0:  # NaN fails too
+            raise SceneLoadError(f"object {name!r}: {key} {getattr(obj, key)!r} is not in 0..1")
+        set_(obj, key, value)
+    emissive = _frozen(obj.emissive_factor, np.float64, "emissive_factor", name, (3,))
+    if not (np.isfinite(emissive).all() and emissive.min() >= 0.0):
+        raise SceneLoadError(f"object {name!r}: emissive_factor {emissive.tolist()} is not finite and >= 0")
+    set_(obj, "emissive_factor", emissive)
+    textures = ("metallic_roughness_texture", "occlusion_texture", "emissive_texture")
+    for key in textures:
+        if getattr(obj, key) is not None:
+            texture = _frozen(getattr(obj, key), np.uint8, key, name, (None, None, 4))
+            if texture.shape[0] == 0 or texture.shape[1] == 0:
+                raise SceneLoadError(f"object {name!r}: {key} has shape {texture.shape}")
+            set_(obj, key, texture)
+    if obj.material_uv is not None:
+        uv = (
+            obj.material_uv
+            if obj.material_uv is obj.uv
+            else _frozen(obj.material_uv, np.float64, "material_uv", name, (n, 2))
+        )
+        if not np.isfinite(uv).all():
+            raise SceneLoadError(f"object {name!r}: non-finite material uv")
+        set_(obj, "material_uv", uv)
+    elif any(getattr(obj, key) is not None for key in textures):
+        raise SceneLoadError(f"object {name!r}: a material texture needs material_uv")
+
+
 def _unit_normals(normals, name: str, n: int) -> np.ndarray:
     """``normals`` (n, 3) as read-only float64 unit vectors; a zero or non-finite one raises."""
     array = np.array(normals, dtype=np.float64)
@@ -338,7 +423,32 @@ def object_hash(obj: SceneObject, memo: dict | None = None) -> bytes:
         _update_hash(digest, b"normal_uv", obj.normal_uv + 0.0)
         _update_hash(digest, b"tangents", obj.tangents + 0.0)
         _update_hash(digest, b"normal_scale", np.array([obj.normal_scale], dtype=np.float64))
+    if has_material(obj):  # likewise: a matte dielectric without material textures hashes as it did
+        factors = [obj.metallic_factor, obj.roughness_factor, obj.occlusion_strength, *obj.emissive_factor]
+        _update_hash(digest, b"material", np.array(factors, dtype=np.float64) + 0.0)
+        _update_hash(digest, b"metallic_roughness", _texture_digest(obj.metallic_roughness_texture, memo))
+        _update_hash(digest, b"occlusion", _texture_digest(obj.occlusion_texture, memo))
+        _update_hash(digest, b"emissive", _texture_digest(obj.emissive_texture, memo))
+        _update_hash(digest, b"material_uv", None if obj.material_uv is None else obj.material_uv + 0.0)
     return digest.digest()
+
+
+def has_material(obj: SceneObject) -> bool:
+    """Whether ``obj`` has more material than the default matte dielectric (metallic 0, roughness 1,
+    no occlusion, no emission, no material texture)."""
+    return (
+        obj.metallic_factor != 0.0
+        or obj.roughness_factor != 1.0
+        or obj.metallic_roughness_texture is not None
+        or obj.occlusion_texture is not None
+        or obj.emissive_texture is not None
+        or bool(obj.emissive_factor.any())
+    )
+
+
+def emits(obj: SceneObject) -> bool:
+    """Whether ``obj`` emits light (a non-zero ``emissive_factor``; glTF multiplies the texture by it)."""
+    return bool(obj.emissive_factor.any())
 
 
 def content_hash(objects: Iterable[SceneObject]) -> str:

@@ -795,16 +795,47 @@ class Impostor:
 
 # The channels a texel can keep beside its colour, each as pages parallel to the colour pages:
 # ``normal``, the world-space unit shading normal encoded n * 0.5 + 0.5 in RGB (linear, not sRGB),
-# alpha 255 inside a tile.  World space keeps a bundle independent of how its geometry is drawn;
-# the GLB writer turns it into each quad's tangent space (:mod:`farfield.core.impostor.glb`).
-PAGE_CHANNELS = ("normal",)
-# What a technique's ``channels`` option takes: the colour alone (unlit, for baked lighting), or with normals.
-ChannelSet = Literal["albedo", "albedo+normal"]
+# alpha 255 inside a tile (or, where the channel set keeps ``depth``, the texel's depth: see the
+# technique's docs).  World space keeps a bundle independent of how its geometry is drawn; the GLB
+# writer turns it into each quad's tangent space (:mod:`farfield.core.impostor.glb`).
+# ``material``, glTF's packing of occlusion (R), roughness (G) and metallic (B), linear, alpha 255
+# inside a tile: one page serves as both the GLB's ``occlusionTexture`` and its
+# ``metallicRoughnessTexture``.  ``emissive``, linear emission encoded sRGB in RGB, kept only where
+# an object of the part emits (:func:`farfield.core.scene.emits`).
+PAGE_CHANNELS = ("normal", "material", "emissive")
+# What a technique's ``channels`` option takes: the colour alone (unlit, for baked lighting), with
+# normals, and with the glTF material (occlusion, roughness, metallic, emission) and the depth.
+ChannelSet = Literal[
+    "albedo",
+    "albedo+normal",
+    "albedo+normal+depth",
+    "albedo+normal+material",
+    "albedo+normal+material+depth",
+]
+
+
+def channel_names(channels: str) -> frozenset[str]:
+    """The names in the channel set ``channels`` (:data:`ChannelSet`).
+
+    >>> sorted(channel_names("albedo+normal+material"))
+    ['albedo', 'material', 'normal']
+    """
+    return frozenset(str(channels).split("+"))
 
 
 def wants_normals(channels: str) -> bool:
     """Whether the channel set ``channels`` (:data:`ChannelSet`) keeps normals."""
-    return "normal" in str(channels).split("+")
+    return "normal" in channel_names(channels)
+
+
+def wants_material(channels: str) -> bool:
+    """Whether the channel set ``channels`` keeps the material (occlusion, roughness, metallic, emission)."""
+    return "material" in channel_names(channels)
+
+
+def wants_depth(channels: str) -> bool:
+    """Whether the channel set ``channels`` keeps each texel's depth."""
+    return "depth" in channel_names(channels)
 
 
 def decode_normals(page: np.ndarray) -> np.ndarray:

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from farfield.core.errors import FarfieldError
-from farfield.core.scene import Scene, SceneObject
+from farfield.core.scene import Scene
 from farfield.core.techniques.envmap.near_field import face_ranges
 
 DEFAULT_LEAF_SIZE = 4  # elements per leaf at most
@@ -156,26 +156,7 @@ class Elements:
             if piece is None:
                 objects.append(obj)
                 continue
-            faces = obj.faces[piece]
-            used, inverse = np.unique(faces, return_inverse=True)
-            objects.append(
-                SceneObject(
-                    self.names[i],
-                    obj.vertices[used],
-                    inverse.reshape(-1, 3),
-                    None if obj.uv is None else obj.uv[used],
-                    None if obj.vertex_colors is None else obj.vertex_colors[used],
-                    obj.base_color,
-                    obj.texture,
-                    obj.alpha_cutoff,
-                    obj.double_sided,
-                    None if obj.normals is None else obj.normals[used],
-                    obj.normal_texture,
-                    None if obj.normal_uv is None else obj.normal_uv[used],
-                    None if obj.tangents is None else obj.tangents[used],
-                    obj.normal_scale,
-                )
-            )
+            objects.append(obj.with_faces(piece, self.names[i]))
         return Scene.from_objects(objects, scene.source, scene.warnings)
 
 

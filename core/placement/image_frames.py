@@ -31,25 +31,7 @@ def cell_objects(scene: Scene, cells: OctreeCells, chosen) -> list[SceneObject]:
     """The scene's triangles held by ``chosen`` cells (indices or a mask), as objects (materials kept)."""
     out = []
     for k, faces in cells.faces_of(chosen):
-        o = scene.objects[k]
-        out.append(
-            SceneObject(
-                o.name,
-                o.vertices,
-                o.faces[faces],
-                o.uv,
-                o.vertex_colors,
-                o.base_color,
-                o.texture,
-                o.alpha_cutoff,
-                o.double_sided,
-                o.normals,
-                o.normal_texture,
-                o.normal_uv,
-                o.tangents,
-                o.normal_scale,
-            )
-        )
+        out.append(scene.objects[k].with_faces(faces))
     return out
 
 
