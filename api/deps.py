@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Annotated
 
 from celery import Celery
@@ -12,6 +12,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from farfield.service.blobs import BlobStore
 from farfield.service.db import Database
 from farfield.service.keys import authenticate, bearer_key
+from farfield.service.scene_check import SceneCheckGate
 from farfield.service.settings import Settings
 from farfield.workers.app import BAKE_CELL, RENDER_QUEUE
 
@@ -24,6 +25,11 @@ class Services:
     db: Database
     blobs: BlobStore
     celery: Celery
+    # Bounds the scene checks of uploads in this process (service/scene_check.py).
+    scene_checks: SceneCheckGate = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.scene_checks = SceneCheckGate(self.settings.scene_checks, self.settings.scene_check_queue)
 
     def enqueue(self, cell_ids: list[str]) -> None:
         """Send one bake task per cell to the render queue (retrying while Redis is away)."""

@@ -79,7 +79,7 @@ def install_error_handlers(app: FastAPI) -> None:
             logging.getLogger("farfield.api").error("internal error: %s", error, exc_info=error)
         headers = {"WWW-Authenticate": "Bearer"} if error.kind is ErrorKind.UNAUTHORIZED else None
         if error.kind is ErrorKind.OVER_QUOTA:  # the tenant's open work has to end first: a hint, not a promise
-            headers = {"Retry-After": str(QUOTA_RETRY_AFTER_S)}
+            headers = {"Retry-After": str(getattr(error, "retry_after_s", QUOTA_RETRY_AFTER_S))}
         return error_response(error.kind.http_status, str(error), type(error).__name__, headers)
 
     @app.exception_handler(RequestValidationError)

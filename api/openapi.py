@@ -47,11 +47,12 @@ ERROR_DESCRIPTIONS = {
     409: "Not allowed in the current state of the job or scene",
     413: "The body, the upload or the scene's structure is over its limit",
     422: "The request is invalid; the detail names each offending field and value",
-    429: "Over the tenant's limit of queued work; retry later",
+    429: "Over the tenant's limit of queued work, or every scene-check place taken; retry after Retry-After seconds",
 }
 # Statuses that the shape of an operation does not tell, by (method, path).
 EXTRA_STATUSES = {
     ("post", "/v1/jobs"): {404, 429},  # the scene or an object the body names; cost admission
+    ("post", "/v1/scenes"): {429},  # every scene-check slot and queue place taken (FARFIELD_SCENE_CHECKS)
     ("delete", "/v1/scenes/{scene_id}"): {409},  # unfinished jobs use the scene
     ("post", "/v1/jobs/{job_id}/cancel"): {409},  # the job has ended
     ("post", "/v1/jobs/{job_id}/retry"): {409},  # the job has not failed

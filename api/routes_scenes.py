@@ -51,6 +51,7 @@ def upload_scene(
         svc.settings.scene_limits,
         more,
         sides,
+        svc.scene_checks,
     )
     return {**scene_record(row), "warnings": getattr(row, "upload_warnings", [])}
 

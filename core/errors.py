@@ -121,6 +121,14 @@ class QuotaError(FarfieldError):
     kind = ErrorKind.OVER_QUOTA
 
 
+class BusyError(QuotaError):
+    """A request refused because the service is at capacity for that kind of work (e.g. every
+    scene-check slot and queue place taken); the same request may pass in a few seconds (HTTP 429
+    with a short ``Retry-After``)."""
+
+    retry_after_s = 5
+
+
 class CellLimitError(FarfieldError):
     """A cell that ran past the worker's limit of time or memory per cell.  Bad input: the same cell
     would take as long or as much again, so it is failed, not retried."""

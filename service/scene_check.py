@@ -5,6 +5,13 @@ raise its memory by gigabytes (and a loader crash would take it down).  :func:`c
 runs ``python -m service.scene_check [--sides one|both] FILE EXTENSION NAME [LIMITS_JSON [ASSETS_ZIP]]`` instead: the child checks
 the file against the scene limits (:mod:`farfield.core.exchange.limits`), prints the scene's summary (or the
 error's type and message) as one JSON line and exits.
+
+:class:`SceneCheckGate` bounds those children per API process: at most ``running`` parse at once
+(``FARFIELD_SCENE_CHECKS``) and at most ``waiting`` more uploads wait for a slot
+(``FARFIELD_SCENE_CHECK_QUEUE``); an upload past both is refused at once with a 429 and a short
+``Retry-After`` (:class:`~farfield.core.errors.BusyError`), before its body is spooled, so that a
+burst of uploads neither runs dozens of parsers (each may take gigabytes) nor holds the request
+threads that every other route, ``/v1/health`` included, needs.
 """
 
 from __future__ import annotations
@@ -12,12 +19,15 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import threading
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict
 from pathlib import Path
 
 from farfield.core import errors
-from farfield.core.errors import FarfieldError, SceneLoadError
+from farfield.core.errors import BusyError, FarfieldError, SceneLoadError
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
 from farfield.core.sidedness import DEFAULT_SIDES
 
@@ -81,6 +91,56 @@ def check_scene_file(
         cls = kind if isinstance(kind, type) and issubclass(kind, FarfieldError) else SceneLoadError
         raise cls(result["message"])
     return result
+
+
+class SceneCheckGate:
+    """At most ``running`` scene checks at once and ``waiting`` more admitted uploads (the module
+    docstring); thread-safe, one per API process.
+
+    >>> gate = SceneCheckGate(running=1, waiting=0)
+    >>> with gate.admitted():
+    ...     try:
+    ...         with gate.admitted():
+    ...             pass
+    ...     except BusyError as error:
+    ...         print(error)
+    the service is checking 1 scene upload(s), its limit (FARFIELD_SCENE_CHECKS=1, FARFIELD_SCENE_CHECK_QUEUE=0); try again in a few seconds
+    """
+
+    def __init__(self, running: int, waiting: int) -> None:
+        if running < 1 or waiting < 0:
+            raise ValueError(f"a scene-check gate needs running >= 1 and waiting >= 0, got {running}, {waiting}")
+        self.running, self.waiting = running, waiting
+        self._slots = threading.BoundedSemaphore(running)
+        self._lock = threading.Lock()
+        self._admitted = 0
+
+    @property
+    def admitted_count(self) -> int:
+        """Uploads admitted now (checking or waiting to)."""
+        return self._admitted
+
+    @contextmanager
+    def admitted(self) -> Iterator[SceneCheckGate]:
+        """Hold one of the ``running + waiting`` places for an upload, or raise :class:`BusyError`."""
+        with self._lock:
+            if self._admitted >= self.running + self.waiting:
+                raise BusyError(
+                    f"the service is checking {self._admitted} scene upload(s), its limit "
+                    f"(FARFIELD_SCENE_CHECKS={self.running}, FARFIELD_SCENE_CHECK_QUEUE={self.waiting}); "
+                    "try again in a few seconds"
+                )
+            self._admitted += 1
+        try:
+            yield self
+        finally:
+            with self._lock:
+                self._admitted -= 1
+
+    def check(self, *args, **kwargs) -> dict:
+        """:func:`check_scene_file` once a running slot is free (call it inside :meth:`admitted`)."""
+        with self._slots:
+            return check_scene_file(*args, **kwargs)
 
 
 def main(argv: list[str]) -> int:

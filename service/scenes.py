@@ -35,7 +35,7 @@ from farfield.core.scene import Scene
 from farfield.core.sidedness import DEFAULT_SIDES, double_sided
 from farfield.service.blobs import BlobStore
 from farfield.service.db import CELL_FINAL, Database, JobRow, SceneRow, now, owned_row, storable
-from farfield.service.scene_check import check_scene_file
+from farfield.service.scene_check import SceneCheckGate, check_scene_file
 
 # beside a stored scene file, in a folder (an upload's own name never holds a "/", so no upload
 # can be called this): the loaded scene as GLB, written on first request
@@ -113,6 +113,7 @@ def ingest_scene(
     scene_limits: SceneLimits = DEFAULT_LIMITS,
     more: list[tuple[str, BinaryIO]] | None = None,
     sides: str = DEFAULT_SIDES,
+    gate: SceneCheckGate | None = None,
 ) -> SceneRow:
     """Validate and store one uploaded scene; returns its row (``row.upload_warnings``: what the
     loader warned of, e.g. a missing texture).
@@ -126,11 +127,23 @@ def ingest_scene(
     the scene; ``limit`` bounds their bytes together, uncompressed.  The files a scene refers to are
     stored beside it as ``scenes/<id>/assets.zip``.
 
+    ``gate`` (the API's :class:`~farfield.service.scene_check.SceneCheckGate`) bounds the uploads
+    checked at once; without it the file is checked at once.
+
     Raises :class:`SceneLoadError` (bad format, empty, unparsable, an archive without exactly one
     scene file or with a name outside it, a ``sides`` other than ``"one"`` or ``"both"``),
-    :class:`SceneTooCostlyError` (structure beyond ``scene_limits``), :class:`UploadTooLargeError`.
+    :class:`SceneTooCostlyError` (structure beyond ``scene_limits``), :class:`UploadTooLargeError`,
+    :class:`BusyError` (``gate`` full: nothing was read).
     """
     double_sided(sides)  # a bad value is refused before anything is read
+    if gate is None:
+        return _ingest(db, blobs, tenant_id, file_name, source, limit, scene_limits, more, sides, check_scene_file)
+    with gate.admitted():
+        return _ingest(db, blobs, tenant_id, file_name, source, limit, scene_limits, more, sides, gate.check)
+
+
+def _ingest(db, blobs, tenant_id, file_name, source, limit, scene_limits, more, sides, check) -> SceneRow:
+    """:func:`ingest_scene`'s work, the file checked by ``check`` (:func:`check_scene_file`'s signature)."""
     scene_id = uuid.uuid4().hex
     prefix = f"scenes/{scene_id}"
     work = tempfile.mkdtemp(prefix="farfield-ingest-")
@@ -162,7 +175,7 @@ def ingest_scene(
             )
         if size == 0 or path.stat().st_size == 0:
             raise SceneLoadError(f"{name}: the file is empty")
-        summary = check_scene_file(path, extension, name, scene_limits, assets, sides)
+        summary = check(path, extension, name, scene_limits, assets, sides)
         key = f"{prefix}/{name}"
         with open(path, "rb") as f:
             blobs.put_stream(key, f)

@@ -61,6 +61,10 @@ CELL_TIME_LIMIT = 1800
 CELL_TIME_GRACE = 60  # seconds between the soft limit (the cell fails) and the hard one (the process is killed)
 CELL_MEMORY_MB = 8192
 VISIBILITY_TIMEOUT = 3600
+# Scene checks (a child process parsing an upload, service/scene_check.py) at once per API process:
+# half the cores, 1 to 4; and uploads that may wait for one.
+SCENE_CHECKS = min(4, max(1, (os.cpu_count() or 2) // 2))
+SCENE_CHECK_QUEUE = 8
 
 
 def _int(env: Mapping[str, str], name: str, default: int, minimum: int = 1) -> int:
@@ -211,6 +215,8 @@ class Settings:
     admission: AdmissionLimits = AdmissionLimits()  # what a job may cost when it is created
     cell_time_limit: int = CELL_TIME_LIMIT  # seconds; past it the cell fails (Celery's soft limit)
     cell_memory_mb: int = CELL_MEMORY_MB  # resident MiB of a pool process running a cell
+    scene_checks: int = SCENE_CHECKS  # scene uploads parsed at once per API process
+    scene_check_queue: int = SCENE_CHECK_QUEUE  # uploads that may wait for a parse slot (429 past it)
 
     @property
     def cell_hard_time_limit(self) -> int:
@@ -251,6 +257,8 @@ class Settings:
             admission=AdmissionLimits.from_env(env),
             cell_time_limit=cell_time_limit,
             cell_memory_mb=_int(env, "FARFIELD_CELL_MEMORY_MB", CELL_MEMORY_MB),
+            scene_checks=_int(env, "FARFIELD_SCENE_CHECKS", SCENE_CHECKS),
+            scene_check_queue=_int(env, "FARFIELD_SCENE_CHECK_QUEUE", SCENE_CHECK_QUEUE, minimum=0),
         )
 
     def with_redis(self, url: str) -> Settings:
@@ -272,6 +280,8 @@ class Settings:
             "FARFIELD_MAX_TENANT_CELLS": str(self.admission.max_tenant_cells),
             "FARFIELD_CELL_TIME_LIMIT": str(self.cell_time_limit),
             "FARFIELD_CELL_MEMORY_MB": str(self.cell_memory_mb),
+            "FARFIELD_SCENE_CHECKS": str(self.scene_checks),
+            "FARFIELD_SCENE_CHECK_QUEUE": str(self.scene_check_queue),
             **{f"FARFIELD_MAX_SCENE_{n.upper()}": str(getattr(self.scene_limits, n)) for n in _SCENE_LIMITS},
         }
         if self.redis_url:
