@@ -6,7 +6,7 @@ from fastapi import APIRouter, Depends, Request, Response
 
 from farfield.api.deps import Services, services, tenant
 from farfield.api.paging import DEFAULT_PAGE, PAGED, Limit, Offset, set_page_headers
-from farfield.service.jobs.admission import create_job, create_placement_job
+from farfield.service.jobs.admission import create_job
 from farfield.service.jobs.cells import cancel_job, retry_job
 from farfield.service.jobs.records import (
     count_job_rows,
@@ -32,7 +32,7 @@ router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 def submit_job(spec: JobSpec, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
     if spec.placement is not None:
         scene = get_scene_row(svc.db, tenant_id, spec.scene_id)
-        job = create_placement_job(svc.db, tenant_id, scene, spec, svc.settings.requeue_after)
+        job = create_job(svc.db, tenant_id, scene, spec, svc.settings.admission, svc.settings.requeue_after)
         send_planning(svc.celery, job.id, "plan")
         return full_job_record(svc.db, job)
     scene = get_scene_row(svc.db, tenant_id, spec.scene_id, with_objects=True)  # a part's bounds are its objects'

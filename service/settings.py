@@ -24,6 +24,7 @@ shared services instead, so API and workers can run on several machines.
 | ``FARFIELD_MAX_CELL_TEXELS`` | 4e9 | most texels one cell of a job may record (its plan's layers x texture resolution), checked when the job is created (413) |
 | ``FARFIELD_MAX_JOB_TEXELS`` | 2.5e11 | most texels all cells of one job may record together (413) |
 | ``FARFIELD_MAX_TENANT_CELLS`` | 20,000 | most cells a tenant may have queued or running at once; a job that would pass it is refused (429) |
+| ``FARFIELD_MAX_TENANT_PLACEMENTS`` | 8 | most placement jobs a tenant may have open (queued, placing or running) at once; one more is refused (429) |
 | ``FARFIELD_CELL_TIME_LIMIT`` | 1800 | seconds a cell may run on a worker; past it the cell fails (no retry), and 60 s later its pool process is killed |
 | ``FARFIELD_CELL_MEMORY_MB`` | 8192 | resident memory a worker's pool process may reach while it runs a cell; past it the cell fails (no retry) and the process is killed |
 | ``FARFIELD_VISIBILITY_TIMEOUT`` | 3600, and above the cell's hard time limit | seconds before Redis redelivers an unacknowledged cell; must be longer than ``FARFIELD_CELL_TIME_LIMIT`` + 60 |
@@ -57,6 +58,7 @@ _SCENE_LIMITS = ("nodes", "depth", "primitives", "accessors", "triangles", "text
 MAX_CELL_TEXELS = 4 * 10**9
 MAX_JOB_TEXELS = 25 * 10**10
 MAX_TENANT_CELLS = 20_000
+MAX_TENANT_PLACEMENTS = 8
 CELL_TIME_LIMIT = 1800
 CELL_TIME_GRACE = 60  # seconds between the soft limit (the cell fails) and the hard one (the process is killed)
 CELL_MEMORY_MB = 8192
@@ -111,6 +113,7 @@ class AdmissionLimits:
     max_cell_texels: int = MAX_CELL_TEXELS
     max_job_texels: int = MAX_JOB_TEXELS
     max_tenant_cells: int = MAX_TENANT_CELLS
+    max_tenant_placements: int = MAX_TENANT_PLACEMENTS
 
     @classmethod
     def from_env(cls, env: Mapping[str, str] | None = None) -> AdmissionLimits:
@@ -124,6 +127,7 @@ class AdmissionLimits:
             max_cell_texels=_count(env, "FARFIELD_MAX_CELL_TEXELS", MAX_CELL_TEXELS),
             max_job_texels=_count(env, "FARFIELD_MAX_JOB_TEXELS", MAX_JOB_TEXELS),
             max_tenant_cells=_count(env, "FARFIELD_MAX_TENANT_CELLS", MAX_TENANT_CELLS),
+            max_tenant_placements=_int(env, "FARFIELD_MAX_TENANT_PLACEMENTS", MAX_TENANT_PLACEMENTS),
         )
 
 
@@ -278,6 +282,7 @@ class Settings:
             "FARFIELD_MAX_CELL_TEXELS": str(self.admission.max_cell_texels),
             "FARFIELD_MAX_JOB_TEXELS": str(self.admission.max_job_texels),
             "FARFIELD_MAX_TENANT_CELLS": str(self.admission.max_tenant_cells),
+            "FARFIELD_MAX_TENANT_PLACEMENTS": str(self.admission.max_tenant_placements),
             "FARFIELD_CELL_TIME_LIMIT": str(self.cell_time_limit),
             "FARFIELD_CELL_MEMORY_MB": str(self.cell_memory_mb),
             "FARFIELD_SCENE_CHECKS": str(self.scene_checks),

@@ -16,9 +16,10 @@ from farfield.core.errors import JobTooCostlyError, LayerPlanError, NotFoundErro
 from farfield.core.options import stored_values
 from farfield.core.techniques import get_technique
 from farfield.core.viewcells import viewcell_from_dict
-from farfield.service.db import CellRow, Database, JobRow, SceneRow, now
+from farfield.service.db import OPEN_JOB_STATES, CellRow, Database, JobRow, SceneRow, Tenant, now
 from farfield.service.jobs.schema import MAX_CELLS, JobSpec, grid_cells
 from farfield.service.placement.admission import create_placement_job
+from farfield.service.placement.base import PLACEMENT_JOB
 from farfield.service.settings import AdmissionLimits
 
 __all__ = [
@@ -29,6 +30,7 @@ __all__ = [
     "create_placement_job",
     "open_tenant_cells",
     "part_bounds",
+    "reserve_tenant_work",
 ]
 
 
@@ -62,10 +64,46 @@ def approx(n: float) -> str:
 def open_tenant_cells(db: Database, tenant_id: str) -> int:
     """Cells of the tenant's jobs that are queued or running."""
     with db.session() as s:
-        return s.scalar(
-            select(func.count()).select_from(CellRow).join(JobRow, CellRow.job_id == JobRow.id)
-            .where(JobRow.tenant_id == tenant_id, CellRow.state.in_(("queued", "running")))
+        return _open_cells(s, tenant_id)
+
+
+def _open_cells(s, tenant_id: str) -> int:
+    return s.scalar(
+        select(func.count()).select_from(CellRow).join(JobRow, CellRow.job_id == JobRow.id)
+        .where(JobRow.tenant_id == tenant_id, CellRow.state.in_(("queued", "running")))
+    )  # fmt: skip
+
+
+def _check_cells(open_cells: int, cells: int, limits: AdmissionLimits) -> None:
+    if open_cells + cells > limits.max_tenant_cells:
+        raise QuotaError(
+            f"tenant has {open_cells:,} cells queued or running; this job's {cells:,} would pass the limit of "
+            f"{limits.max_tenant_cells:,} (FARFIELD_MAX_TENANT_CELLS): wait for some to end, or cancel a job"
+        )
+
+
+def reserve_tenant_work(s, tenant_id: str, cells: int, limits: AdmissionLimits, placement: bool = False) -> None:
+    """In the session ``s`` that stores a new job: serialise the tenant's admissions and refuse
+    (:class:`~farfield.core.errors.QuotaError`, 429; the session rolls back, nothing is stored) when
+    its open cells with this job's ``cells`` pass ``max_tenant_cells``, or, for a ``placement``
+    job, when it has ``max_tenant_placements`` placement jobs open already.
+
+    On PostgreSQL the tenant's row is locked (``SELECT ... FOR UPDATE``) until the session commits,
+    so a second admission of the same tenant waits for the first to be stored and counts its cells;
+    SQLite begins every transaction with ``BEGIN IMMEDIATE`` (:mod:`farfield.service.db`), which
+    serialises all writers already."""
+    s.execute(select(Tenant.id).where(Tenant.id == tenant_id).with_for_update())
+    _check_cells(_open_cells(s, tenant_id), cells, limits)
+    if placement:
+        placing = s.scalar(
+            select(func.count()).select_from(JobRow)
+            .where(JobRow.tenant_id == tenant_id, JobRow.job_type == PLACEMENT_JOB, JobRow.state.in_(OPEN_JOB_STATES))
         )  # fmt: skip
+        if placing >= limits.max_tenant_placements:
+            raise QuotaError(
+                f"tenant has {placing:,} placement jobs open, the limit (FARFIELD_MAX_TENANT_PLACEMENTS="
+                f"{limits.max_tenant_placements}): wait for one to end, or cancel one"
+            )
 
 
 # How far past the limits admission plans a cell before it stops and refuses with a lower bound.
@@ -110,23 +148,34 @@ def admit_cells(technique, options, cells: list, bounds: np.ndarray | None, limi
 
 
 def create_job(
-    db: Database, tenant_id: str, scene: SceneRow, spec: JobSpec, limits: AdmissionLimits | None = None
+    db: Database,
+    tenant_id: str,
+    scene: SceneRow,
+    spec: JobSpec,
+    limits: AdmissionLimits | None = None,
+    requeue_after: float = 3600.0,
 ) -> JobRow:
     """Validate ``spec`` against ``scene`` (every cell is planned by its technique's check) and store
     the job and its cells.  Stored parameters hold every option as validated (the technique's
     defaults filled in, numbers and lists normalised), so equal requests store equal parameters (and
     share their bundles, :func:`farfield.service.jobs.cells.result_key`) and a job means the same thing if a default changes.
 
+    A placement job (``spec.placement``) is stored by
+    :func:`~farfield.service.placement.admission.create_placement_job` (``requeue_after``: its
+    planning lease), within the tenant's quota of open placement jobs.
+
     Cost admission (``limits``; None: :meth:`AdmissionLimits.from_env`): a tenant whose queued and
     running cells would pass ``max_tenant_cells`` with this job's is refused with
     :class:`~farfield.core.errors.QuotaError` (429) before anything is planned; a job whose cells'
     plans pass the texel limits with :class:`~farfield.core.errors.JobTooCostlyError` (413,
-    :func:`admit_cells`).  Nothing is stored for a refused job.  Two requests of one tenant at the
-    same moment may both pass the cell count (it is read, not locked): the cap is a bound on work in
-    flight, not an exact quota."""
+    :func:`admit_cells`).  Nothing is stored for a refused job.  The count is read once before
+    planning (a cheap early refusal) and again, authoritatively, in the transaction that stores the
+    cells, with the tenant's admissions serialised (:func:`reserve_tenant_work`), so two requests of
+    one tenant at the same moment cannot both pass it."""
     limits = AdmissionLimits.from_env() if limits is None else limits
     if spec.placement is not None:
-        return create_placement_job(db, tenant_id, scene, spec)
+        reserve = lambda s: reserve_tenant_work(s, tenant_id, 0, limits, placement=True)  # noqa: E731
+        return create_placement_job(db, tenant_id, scene, spec, requeue_after, reserve)
     technique = get_technique(spec.technique_name)
     options = technique.options(spec.options, spec.resolution, spec.fov_deg)
     params = {
@@ -153,18 +202,14 @@ def create_job(
             f"the job's {len(cells):,} view cells are more than a tenant may have queued or running, {limits.max_tenant_cells:,} "
             "(FARFIELD_MAX_TENANT_CELLS): split it into smaller jobs, or raise the limit"
         )
-    open_cells = open_tenant_cells(db, tenant_id)
-    if open_cells + len(cells) > limits.max_tenant_cells:
-        raise QuotaError(
-            f"tenant has {open_cells:,} cells queued or running; this job's {len(cells):,} would pass the limit of "
-            f"{limits.max_tenant_cells:,} (FARFIELD_MAX_TENANT_CELLS): wait for some to end, or cancel a job"
-        )
+    _check_cells(open_tenant_cells(db, tenant_id), len(cells), limits)
     admit_cells(technique, options, cells, bounds, limits)
     job = JobRow(
         id=uuid.uuid4().hex, tenant_id=tenant_id, scene_id=scene.id, job_type=technique.name, params=params,
         evaluate=spec.evaluate, state="queued", created_at=now(),
     )  # fmt: skip
     with db.session() as s:
+        reserve_tenant_work(s, tenant_id, len(cells), limits)
         s.add(job)
         s.flush()
         for n, (grid, cell) in enumerate(cells):

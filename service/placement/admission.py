@@ -41,14 +41,20 @@ def new_placement_job(tenant_id: str, scene: SceneRow, params: dict, requeue_aft
     )  # fmt: skip
 
 
-def create_placement_job(db: Database, tenant_id: str, scene: SceneRow, spec, requeue_after: float = 3600.0) -> JobRow:
+def create_placement_job(
+    db: Database, tenant_id: str, scene: SceneRow, spec, requeue_after: float = 3600.0, reserve=None
+) -> JobRow:
     """Validate a placement request (``spec``: a :class:`~farfield.service.jobs.schema.JobSpec` with
     ``placement``; :func:`placement_params`: 422 naming the problem) and store the job, queued for
-    planning, without cells (the planner makes them).  Its cells are not known yet, so the texel and
-    tenant-cell admission of a grid job does not apply."""
+    planning, without cells (the planner makes them).  Its cells are not known yet, so the texel
+    admission of a grid job does not apply; ``reserve(session)``, called in the transaction that
+    stores it, refuses it past the tenant's quotas
+    (:func:`farfield.service.jobs.admission.reserve_tenant_work`)."""
     technique = spec.technique or spec.__dict__.get("job_type")  # None: the algorithm's default
     params = placement_params(technique, spec.options, spec.resolution, spec.fov_deg, spec.placement, scene.triangles)
     job = new_placement_job(tenant_id, scene, params, requeue_after)
     with db.session() as s:
+        if reserve is not None:
+            reserve(s)
         s.add(job)
     return job
