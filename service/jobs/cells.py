@@ -34,14 +34,19 @@ from farfield.service.placement.states import drop_ended_planning
 from farfield.service.settings import MAX_CELLS
 
 
-def result_key(scene_hash: str, job_type: str, params: dict, viewcell: dict) -> str:
-    """Blob prefix of a cell's bundle: a digest of everything that determines its bytes.
+def result_key(scene_hash: str, job_type: str, params: dict, viewcell: dict, tenant_id: str) -> str:
+    """Blob prefix of a cell's bundle: a digest of everything that determines its bytes, and of the
+    tenant that asked for it.
 
-    Equal inputs (even in another job) give the same key, so a redelivered or repeated cell
-    overwrites identical bytes and never makes a second impostor.
+    Equal inputs of one tenant (even in another job) give the same key, so a redelivered or
+    repeated cell overwrites identical bytes and never makes a second impostor.  Results are shared
+    within a tenant only: were they shared across tenants, a tenant submitting a scene it holds
+    with another's parameters would see the cell found (``stats.baked`` false, a cell of
+    milliseconds) and learn that someone else had baked that content (issue 59, item 9).
     """
     blob = json.dumps(
-        {"scene": scene_hash, "type": job_type, "params": params, "viewcell": viewcell, "code": __version__},
+        {"scene": scene_hash, "type": job_type, "params": params, "viewcell": viewcell, "code": __version__,
+         "tenant": tenant_id},
         sort_keys=True, separators=(",", ":"),
     )  # fmt: skip
     return "impostors/" + hashlib.sha256(blob.encode()).hexdigest()

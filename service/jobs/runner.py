@@ -96,12 +96,12 @@ def bake_cell(job: JobRow, scene: Scene, viewcell: dict, progress, cell: CellRow
 def cell_key(scene_hash: str, job: JobRow, cell: CellRow) -> str:
     """The blob prefix of a cell's bundle (:func:`~farfield.service.jobs.cells.result_key`): of the job's
     technique and params, or, a placement job's cell, of what its algorithm says makes its bytes (its
-    own parameters: equal impostors of another job are found)."""
+    own parameters: equal impostors of another job are found), within the job's tenant."""
     algorithm = job_algorithm(job)
     if algorithm is not None:
         kind, own = algorithm.cell_inputs(cell)
-        return result_key(scene_hash, kind, own, cell.viewcell)
-    return result_key(scene_hash, job.job_type, job.params, cell.viewcell)
+        return result_key(scene_hash, kind, own, cell.viewcell, job.tenant_id)
+    return result_key(scene_hash, job.job_type, job.params, cell.viewcell, job.tenant_id)
 
 
 def evaluate_cell(
