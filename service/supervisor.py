@@ -138,6 +138,8 @@ class Service:
             "--log-level",
             "warning",
             "--no-server-header",  # no "Server: uvicorn" banner (issue 59, item 11)
+            "--http",  # header and body read timeouts (issue 59, item 11)
+            "farfield.api.read_timeouts:TimedH11Protocol",
         ]
         self.api_spec = (api, env, logs / "api.log")
         self.api = self._spawn(*self.api_spec)

@@ -1,0 +1,105 @@
+"""Slow clients are cut off (issue 59, item 11): a connection whose headers never finish, or whose
+body stops arriving, gets a JSON 408 and is closed after its deadline, where uvicorn's own protocol
+held it open indefinitely.  The real API app behind a real uvicorn server using
+:class:`farfield.api.read_timeouts.TimedH11Protocol`, spoken to over raw sockets."""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+import time
+
+import pytest
+import uvicorn
+
+from farfield.api.app import create_app
+from farfield.api.read_timeouts import TimedH11Protocol
+from farfield.service.settings import Settings
+
+HEADER_S, BODY_S = 1.0, 1.5
+KEY = "ff-test-timeouts-key-0123456789"
+
+
+@pytest.fixture(scope="module")
+def port(tmp_path_factory):
+    mp = pytest.MonkeyPatch()
+    mp.setenv("FARFIELD_HEADER_TIMEOUT_S", str(HEADER_S))
+    mp.setenv("FARFIELD_BODY_IDLE_TIMEOUT_S", str(BODY_S))
+    home = tmp_path_factory.mktemp("timeouts")
+    app = create_app(
+        Settings.from_env({"FARFIELD_HOME": str(home), "REDIS_URL": "redis://127.0.0.1:1/0", "FARFIELD_ADMIN_KEY": KEY})
+    )
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        free = s.getsockname()[1]
+    config = uvicorn.Config(app, host="127.0.0.1", port=free, lifespan="off", log_level="error", http=TimedH11Protocol)
+    server = uvicorn.Server(config)
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    while not server.started:
+        time.sleep(0.05)
+    yield free
+    server.should_exit = True
+    thread.join(10)
+    mp.undo()
+
+
+def exchange(port: int, data: bytes, wait: float = 20.0) -> tuple[bytes, float]:
+    """Send ``data`` and read until the server closes; what came back and the seconds it took."""
+    start = time.monotonic()
+    with socket.create_connection(("127.0.0.1", port)) as s:
+        s.settimeout(wait)
+        s.sendall(data)
+        got = b""
+        while True:
+            try:
+                chunk = s.recv(65536)
+            except TimeoutError:
+                break
+            if not chunk:
+                break
+            got += chunk
+    return got, time.monotonic() - start
+
+
+def test_half_sent_headers_get_a_408_after_the_header_deadline(port):
+    got, seconds = exchange(port, b"GET /v1/health HTTP/1.1\r\nHost: farfield\r\nX-Slow: ")
+    assert got.startswith(b"HTTP/1.1 408 "), got
+    body = json.loads(got.split(b"\r\n\r\n", 1)[1])
+    assert body["error"] == "RequestTimeoutError" and "FARFIELD_HEADER_TIMEOUT_S" in body["detail"]
+    assert HEADER_S * 0.9 <= seconds < 15.0  # closed at the deadline, not held for the read's 20 s
+
+
+def test_a_connection_that_sends_nothing_is_closed(port):
+    got, seconds = exchange(port, b"")
+    assert got.startswith(b"HTTP/1.1 408 ") and seconds < 15.0
+
+
+def test_a_body_that_stops_arriving_is_cut_off(port):
+    head = (
+        b"POST /v1/scenes HTTP/1.1\r\nHost: farfield\r\nContent-Type: multipart/form-data; boundary=b\r\n"
+        b"Authorization: Bearer " + KEY.encode() + b"\r\nContent-Length: 1000\r\n\r\n"
+    )
+    part = b'--b\r\nContent-Disposition: form-data; name="file"; filename="a.glb"\r\n\r\nglTF'
+    got, seconds = exchange(port, head + part)
+    assert got.startswith(b"HTTP/1.1 408 ") and b"FARFIELD_BODY_IDLE_TIMEOUT_S" in got, got
+    assert BODY_S * 0.9 <= seconds < 15.0  # uvicorn alone waited for the other 990 bytes for ever
+
+
+def test_a_prompt_client_is_answered_and_kept_alive(port):
+    with socket.create_connection(("127.0.0.1", port)) as s:
+        s.settimeout(10)
+        for _ in range(2):  # two requests on one connection, each well within the deadline
+            s.sendall(b"GET /v1/health HTTP/1.1\r\nHost: farfield\r\n\r\n")
+            got = b""
+            while b"\r\n\r\n" not in got:
+                got += s.recv(65536)
+            head, body = got.split(b"\r\n\r\n", 1)
+            length = int(
+                next(h for h in head.split(b"\r\n") if h.lower().startswith(b"content-length:")).split(b":")[1]
+            )
+            while len(body) < length:
+                body += s.recv(65536)
+            assert head.startswith(b"HTTP/1.1 200 ") and json.loads(body)["database"] is True, got
+            time.sleep(HEADER_S * 1.5)  # idle between requests: uvicorn's keep-alive (5 s) applies, not ours
