@@ -9,6 +9,8 @@ from celery import Celery
 from fastapi import Request, Security
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
+from farfield.api.auth_failures import FailedAuthLimiter
+from farfield.core.errors import AuthError
 from farfield.service.blobs import BlobStore
 from farfield.service.db import Database
 from farfield.service.keys import authenticate, bearer_key
@@ -27,9 +29,25 @@ class Services:
     celery: Celery
     # Bounds the scene checks of uploads in this process (service/scene_check.py).
     scene_checks: SceneCheckGate = field(init=False)
+    # Counts failed authentication per client (api/auth_failures.py).
+    auth_failures: FailedAuthLimiter = field(init=False)
 
     def __post_init__(self) -> None:
         self.scene_checks = SceneCheckGate(self.settings.scene_checks, self.settings.scene_check_queue)
+        self.auth_failures = FailedAuthLimiter(self.settings.auth_failures)
+
+    def authenticate(self, client: str, values: list[str]) -> str:
+        """The tenant of a request from ``client`` (its address) with these ``Authorization`` header
+        values: the one path every route and the upload's early check take.  A client past its
+        failed attempts is refused (429) before its key is read; a key that does not authenticate
+        is counted against it (:class:`AuthError`, 401)."""
+        self.auth_failures.check(client)
+        try:
+            return authenticate(self.db, bearer_key(values))
+        except AuthError:
+            if values:  # credentials were presented: a guess
+                self.auth_failures.record(client)
+            raise
 
     def enqueue(self, cell_ids: list[str]) -> None:
         """Send one bake task per cell to the render queue (retrying while Redis is away)."""
@@ -54,4 +72,10 @@ def tenant(request: Request, credentials: Annotated[HTTPAuthorizationCredentials
     """The tenant id of the request's Bearer key (401 without a valid one).  ``credentials`` only
     documents the scheme in the OpenAPI document; the key is read by :func:`bearer_key`, as the
     upload's early check reads it."""
-    return authenticate(services(request).db, bearer_key(request.headers.getlist("authorization")))
+    return services(request).authenticate(client_address(request.scope), request.headers.getlist("authorization"))
+
+
+def client_address(scope) -> str:
+    """The client's address of an ASGI ``scope`` (what failed authentication is counted by)."""
+    client = scope.get("client")
+    return str(client[0]) if client else "unknown"

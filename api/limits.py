@@ -15,8 +15,8 @@ import json
 from fastapi import HTTPException
 from starlette.concurrency import run_in_threadpool
 
-from farfield.core.errors import AuthError
-from farfield.service.keys import authenticate, bearer_key
+from farfield.api.deps import client_address
+from farfield.core.errors import AuthError, AuthRateError
 
 JSON_BODY_LIMIT = 8 * 2**20  # job specs: 10,000 explicit view cells fit with room to spare
 MULTIPART_ENVELOPE = 64 * 1024
@@ -33,8 +33,8 @@ class BodyLimit:
             return self.services.settings.max_upload_bytes + MULTIPART_ENVELOPE
         return JSON_BODY_LIMIT
 
-    async def _reply(self, send, status: int, detail: str, error: str) -> None:
-        headers = [(b"content-type", b"application/json")]
+    async def _reply(self, send, status: int, detail: str, error: str, extra: dict | None = None) -> None:
+        headers = [(b"content-type", b"application/json"), *(extra or {}).items()]
         if status == 401:
             headers.append((b"www-authenticate", b"Bearer"))
         await send({"type": "http.response.start", "status": status, "headers": headers})
@@ -58,7 +58,12 @@ class BodyLimit:
         if scope["method"] == "POST" and scope["path"] == "/v1/scenes":
             values = [v.decode(errors="replace") for k, v in scope["headers"] if k.lower() == b"authorization"]
             try:
-                await run_in_threadpool(authenticate, self.services.db, bearer_key(values))
+                await run_in_threadpool(self.services.authenticate, client_address(scope), values)
+            except AuthRateError as error:
+                await self._reply(
+                    send, 429, str(error), "AuthRateError", {b"retry-after": str(error.retry_after_s).encode()}
+                )
+                return
             except AuthError as error:
                 await self._reply(send, 401, str(error), "AuthError")
                 return

@@ -47,12 +47,11 @@ ERROR_DESCRIPTIONS = {
     409: "Not allowed in the current state of the job or scene",
     413: "The body, the upload or the scene's structure is over its limit",
     422: "The request is invalid; the detail names each offending field and value",
-    429: "Over the tenant's limit of queued work, or every scene-check place taken; retry after Retry-After seconds",
+    429: "Too many requests with keys that do not authenticate from this address, over the tenant's limit of queued work, or every scene-check place taken; retry after Retry-After seconds",
 }
 # Statuses that the shape of an operation does not tell, by (method, path).
 EXTRA_STATUSES = {
-    ("post", "/v1/jobs"): {404, 429},  # the scene or an object the body names; cost admission
-    ("post", "/v1/scenes"): {429},  # every scene-check slot and queue place taken (FARFIELD_SCENE_CHECKS)
+    ("post", "/v1/jobs"): {404},  # the scene or an object the body names
     ("delete", "/v1/scenes/{scene_id}"): {409},  # unfinished jobs use the scene
     ("post", "/v1/jobs/{job_id}/cancel"): {409},  # the job has ended
     ("post", "/v1/jobs/{job_id}/retry"): {409},  # the job has not failed
@@ -85,6 +84,8 @@ def _error_response(status: int) -> dict:
     }
     if status == 401:
         response["headers"] = {"WWW-Authenticate": {"description": "Bearer", "schema": {"type": "string"}}}
+    if status == 429:
+        response["headers"] = {"Retry-After": {"description": "seconds to wait", "schema": {"type": "string"}}}
     return response
 
 
@@ -92,11 +93,11 @@ def error_statuses(method: str, path: str, operation: dict) -> set[int]:
     """The error statuses of an operation of the document (besides 405 and 500).
 
     >>> sorted(error_statuses("get", "/v1/scenes/{scene_id}", {"parameters": [{"name": "scene_id"}], "security": [{"BearerKey": []}]}))
-    [401, 404, 422]
+    [401, 404, 422, 429]
     """
     statuses = set(EXTRA_STATUSES.get((method, path), ()))
     if operation.get("security"):
-        statuses.add(401)
+        statuses |= {401, 429}  # 429: the client's failed authentication (api/auth_failures.py)
     if "{" in path:
         statuses.add(404)
     if operation.get("parameters") or "requestBody" in operation:

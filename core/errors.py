@@ -129,6 +129,15 @@ class BusyError(QuotaError):
     retry_after_s = 5
 
 
+class AuthRateError(BusyError):
+    """A client refused for a while after too many requests whose keys did not authenticate
+    (HTTP 429; ``retry_after_s``: the seconds until it may try again)."""
+
+    def __init__(self, message: str, retry_after_s: int = 60) -> None:
+        super().__init__(message)
+        self.retry_after_s = retry_after_s
+
+
 class CellLimitError(FarfieldError):
     """A cell that ran past the worker's limit of time or memory per cell.  Bad input: the same cell
     would take as long or as much again, so it is failed, not retried."""

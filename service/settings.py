@@ -67,6 +67,7 @@ VISIBILITY_TIMEOUT = 3600
 # half the cores, 1 to 4; and uploads that may wait for one.
 SCENE_CHECKS = min(4, max(1, (os.cpu_count() or 2) // 2))
 SCENE_CHECK_QUEUE = 8
+AUTH_FAILURES = 20  # per client per minute (api/auth_failures.py)
 
 
 def _int(env: Mapping[str, str], name: str, default: int, minimum: int = 1) -> int:
@@ -221,6 +222,7 @@ class Settings:
     cell_memory_mb: int = CELL_MEMORY_MB  # resident MiB of a pool process running a cell
     scene_checks: int = SCENE_CHECKS  # scene uploads parsed at once per API process
     scene_check_queue: int = SCENE_CHECK_QUEUE  # uploads that may wait for a parse slot (429 past it)
+    auth_failures: int = AUTH_FAILURES  # keys that fail to authenticate per client per minute (429 past it)
 
     @property
     def cell_hard_time_limit(self) -> int:
@@ -263,6 +265,7 @@ class Settings:
             cell_memory_mb=_int(env, "FARFIELD_CELL_MEMORY_MB", CELL_MEMORY_MB),
             scene_checks=_int(env, "FARFIELD_SCENE_CHECKS", SCENE_CHECKS),
             scene_check_queue=_int(env, "FARFIELD_SCENE_CHECK_QUEUE", SCENE_CHECK_QUEUE, minimum=0),
+            auth_failures=_int(env, "FARFIELD_AUTH_FAILURES", AUTH_FAILURES),
         )
 
     def with_redis(self, url: str) -> Settings:
@@ -287,6 +290,7 @@ class Settings:
             "FARFIELD_CELL_MEMORY_MB": str(self.cell_memory_mb),
             "FARFIELD_SCENE_CHECKS": str(self.scene_checks),
             "FARFIELD_SCENE_CHECK_QUEUE": str(self.scene_check_queue),
+            "FARFIELD_AUTH_FAILURES": str(self.auth_failures),
             **{f"FARFIELD_MAX_SCENE_{n.upper()}": str(getattr(self.scene_limits, n)) for n in _SCENE_LIMITS},
         }
         if self.redis_url:

@@ -201,6 +201,7 @@ def test_the_document_lists_each_operation_s_errors(document):
         for method, operation in item.items():
             keyed = (path.startswith("/v1/") and path != "/v1/health") or path == "/metrics"
             assert ("401" in operation["responses"]) == keyed == bool(operation.get("security")), (method, path)
+            assert ("429" in operation["responses"]) == keyed, (method, path)  # failed authentication
             assert ("404" in operation["responses"]) >= ("{" in path), (method, path)
     assert {"400", "401", "404", "413", "422", "429"} <= set(paths["/v1/jobs"]["post"]["responses"])
     assert {"400", "401", "413", "422"} <= set(paths["/v1/scenes"]["post"]["responses"])
