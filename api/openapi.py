@@ -56,6 +56,8 @@ EXTRA_STATUSES = {
     ("post", "/v1/jobs/{job_id}/cancel"): {409},  # the job has ended
     ("post", "/v1/jobs/{job_id}/retry"): {409},  # the job has not failed
     ("get", "/v1/jobs/{job_id}/database.zip"): {409},  # the job has not ended
+    ("get", "/v1/jobs/{job_id}/index.json"): {409},  # the index is written when the job ends
+    ("get", "/v1/jobs/{job_id}/clusters"): {409},  # a placement job before its index is written
     ("get", "/v1/jobs/{job_id}/lookup"): {409},  # a placement job without its database yet
     ("get", "/v1/jobs/{job_id}/placement"): {409},  # the job has no database yet
 }
@@ -142,10 +144,33 @@ def describe(document: dict) -> dict:
     return document
 
 
+BOUND_KEYS = ("minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum", "multipleOf")
+
+
+def integral_bounds(node):
+    """Bounds written back as integers where they are whole: FastAPI's document model types them as
+    floats (``minimum: 1.0``), and a generator then makes ``108574.0`` for an integer field, which
+    the API's strict integers refuse.
+
+    >>> integral_bounds({"type": "integer", "minimum": 1.0, "items": [{"maximum": 2.5}]})
+    {'type': 'integer', 'minimum': 1, 'items': [{'maximum': 2.5}]}
+    """
+    if isinstance(node, dict):
+        for key, value in node.items():
+            if key in BOUND_KEYS and isinstance(value, float) and value.is_integer():
+                node[key] = int(value)
+            else:
+                integral_bounds(value)
+    elif isinstance(node, list):
+        for value in node:
+            integral_bounds(value)
+    return node
+
+
 def openapi_document(app: FastAPI) -> dict:
     """``app.openapi``: the completed document, built once."""
     if app.openapi_schema is None:
-        describe(FastAPI.openapi(app))  # FastAPI's own, which it keeps as app.openapi_schema
+        integral_bounds(describe(FastAPI.openapi(app)))  # FastAPI's own, which it keeps as app.openapi_schema
     return app.openapi_schema
 
 

@@ -9,9 +9,9 @@ made of every placement algorithm's fields.
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictFloat, StrictInt, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, StrictBool, StrictFloat, StrictInt, model_validator
 
 from farfield.core.errors import ViewCellError
 from farfield.core.options import options_json_schema
@@ -23,6 +23,20 @@ from farfield.service.settings import MAX_CELLS
 __all__ = ["MAX_CELLS", "GridSpec", "JobSpec", "grid_cells"]
 
 
+def _whole_number(value):
+    """A JSON integer: an int, or a number with no fractional part (JSON Schema's ``integer`` holds
+    ``3.0``); never a boolean or a string (pydantic's lax mode took ``"1"`` and ``true`` as 1)."""
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError(f"must be a whole number, got {value!r}")
+    return value
+
+
+# A count of the document's ``{"type": "integer", "minimum": 1}``.
+Count = Annotated[int, BeforeValidator(_whole_number)]
+
+
 class GridSpec(BaseModel):
     """A grid of equal box view cells over a view-space box."""
 
@@ -30,8 +44,10 @@ class GridSpec(BaseModel):
     # Strict: a string or a boolean is not a number (pydantic would coerce "1" and true to 1).
     lo: tuple[StrictFloat | StrictInt, StrictFloat | StrictInt, StrictFloat | StrictInt]
     hi: tuple[StrictFloat | StrictInt, StrictFloat | StrictInt, StrictFloat | StrictInt]
-    counts: tuple[StrictInt, StrictInt, StrictInt] = Field(
-        description=f"cells along x, y, z (each >= 1; {MAX_CELLS} in all at most)"
+    counts: tuple[Count, Count, Count] = Field(
+        description=f"cells along x, y, z (each >= 1; {MAX_CELLS} in all at most)",
+        # The document says what grid_cells refuses (ViewCellError, 422): a count below 1.
+        json_schema_extra={"prefixItems": [{"type": "integer", "minimum": 1}] * 3},
     )
 
 

@@ -25,10 +25,20 @@ class ViewSpaceSpec(BaseModel):
     hi: tuple[Number, Number, Number]
 
 
+# What the algorithms accept (service/placement/frame_time.py, primitive_budget.py), for the
+# document: exactly one of frame_ms and primitives, a positive number; cost_model only with frame_ms.
+_ONE_BUDGET = {
+    "oneOf": [
+        {"required": ["frame_ms"], "properties": {"frame_ms": {"type": "number", "exclusiveMinimum": 0}, "primitives": {"type": "null"}}},
+        {"required": ["primitives"], "properties": {"primitives": {"type": "number", "exclusiveMinimum": 0}, "frame_ms": {"type": "null"}, "cost_model": {"type": "null"}}},
+    ]
+}  # fmt: skip
+
+
 class BudgetSpec(BaseModel):
     """Every view within ``frame_ms`` by a cost model, or at most ``primitives`` triangles."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", json_schema_extra=_ONE_BUDGET)
     frame_ms: Number | None = Field(None, description="t_max in milliseconds by the cost model")
     cost_model: str | dict | None = Field(
         None,
