@@ -688,6 +688,7 @@ def iter_layers(
     (:mod:`farfield.core.impostor.depth`).
     """
     ctx = gl_context()
+    depth_channel = bool(normals and depth)  # before ``depth`` names the depth texture below
     res_x, res_y = (int(r) for r in plan.texture_resolution)
     k = plan.count
     eye_borders = plan.borders + plan.reference_offset
@@ -721,7 +722,7 @@ def iter_layers(
         for obj, _, _ in draws:
             mapped = normals and records_normal_map(obj)
             defines = slab_variant(obj) + (("NORMALS",) if normals else ()) + (("NORMAL_MAP",) if mapped else ())
-            defines += ("DEPTH",) if normals and depth else ()
+            defines += ("DEPTH_CHANNEL",) if depth_channel else ()
             if defines not in variants:
                 prog = program(ctx, "slab_instanced.vert", "slab.frag", defines=defines)
                 prog["resolution"].value = (float(res_x), float(res_y))
