@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -231,3 +232,41 @@ def test_envmap_depth_puts_the_far_field_on_its_spheres():
         on_quad.append(at[impostor.pages[int(impostor.payload.page[q])][r, c, 3] > 0])
     flat = np.abs(np.linalg.norm(np.concatenate(on_quad)[:, None] - centres[None], axis=2).min(axis=1) - 3.0)
     assert len(points) > 1000 and np.median(radial) < 0.02 and np.median(flat) > 10 * np.median(radial)
+
+
+def test_a_pixel_depth_offset_cuts_the_impostor_where_the_plane_cuts_the_sphere():
+    """A plane through a sphere, drawn with the impostor from three viewpoints of the cell (CPU ray
+    casting, :mod:`farfield.core.render.depth_offset`) against the analytic sphere: with the depth
+    channel's pixel depth offset the plane hides the impostor on the pixels where it hides the
+    sphere but for a few along the intersection (at most a fifth of those the flat layers miss),
+    and the depth of the impostor is a centimetre off where the quads are eleven."""
+    from farfield.core.render.depth_offset import camera_rays, impostor_depth
+    from farfield.core.render.raster import Camera
+
+    mesh = trimesh.creation.icosphere(subdivisions=4, radius=1.0)
+    ball = SceneObject(
+        "ball", np.asarray(mesh.vertices) + CENTRE, np.asarray(mesh.faces), normals=np.asarray(mesh.vertices)
+    )
+    impostor = bake_layered(Scene((ball,), "s"), CELL, BakeOptions(resolution=96, channels="albedo+normal+depth"))
+    normal = np.array([0.3, 0.8, 0.5]) / np.linalg.norm([0.3, 0.8, 0.5])
+    on_plane = CENTRE + [0.0, 0.1, 0.0]
+    for eye in ([0.0, 0.0, 0.0], [0.5, 0.5, -0.5], [-0.5, 0.3, 0.5]):
+        camera = Camera.look_at(np.array(eye), CENTRE, math.radians(16.0), 128, 0.1, 100.0)
+        rays = camera_rays(camera).reshape(-1, 3)
+        o = camera.eye - CENTRE
+        a, b = np.einsum("ij,ij->i", rays, rays), rays @ o
+        disc = b * b - a * (o @ o - 1.0)
+        sphere = np.where(disc > 0, (-b - np.sqrt(np.maximum(disc, 0.0))) / a, np.inf).reshape(128, 128)
+        plane = (((on_plane - camera.eye) @ normal) / (rays @ normal)).reshape(128, 128)
+        plane = np.where(plane > 0, plane, np.inf)
+        wrong, error = {}, {}
+        for offset in (False, True):
+            depth = impostor_depth(impostor, camera, offset)
+            both = np.isfinite(sphere) & np.isfinite(depth)
+            wrong[offset] = int((((plane < sphere) != (plane < depth)) & both).sum())
+            error[offset] = float(np.median(np.abs(depth[both] - sphere[both])))
+        assert wrong[True] * 4 < wrong[False] and wrong[False] > 100, wrong
+        assert error[True] < 0.015 and error[False] > 0.08, error
+    plain = replace(impostor, payload=replace(impostor.payload, depth_range=None))
+    with pytest.raises(ValueError, match="no depth"):
+        impostor_depth(plain, camera)
