@@ -270,3 +270,35 @@ def test_a_pixel_depth_offset_cuts_the_impostor_where_the_plane_cuts_the_sphere(
     plain = replace(impostor, payload=replace(impostor.payload, depth_range=None))
     with pytest.raises(ValueError, match="no depth"):
         impostor_depth(plain, camera)
+
+
+def test_depth_changes_nothing_else_and_three_js_draws_the_lit_cards(square_depth, tmp_path, threejs):
+    """The same bake without depth: the same colour pages, quads and normals (the normal pages
+    differ in alpha alone). three.js, which knows no FARFIELD_impostor_depth, draws both GLBs lit
+    alike: the fallback is the lit cards."""
+    from farfield.core.quality.lighting import AMBIENT, default_lights
+    from farfield.core.render.raster import Camera
+
+    plain = bake_layered(tilted_square(), CELL, BakeOptions(resolution=96, channels="albedo+normal"))
+    assert all(np.array_equal(a, b) for a, b in zip(plain.pages, square_depth.pages, strict=True))
+    assert all(
+        np.array_equal(getattr(plain.payload, n), getattr(square_depth.payload, n))
+        for n in ("corners", "uv", "page", "layer")
+    )
+    for a, b in zip(plain.channels["normal"], square_depth.channels["normal"], strict=True):
+        assert np.array_equal(a[..., :3], b[..., :3]) and not np.array_equal(a[..., 3], b[..., 3])
+    paths = []
+    for name, impostor in (("plain", plain), ("depth", square_depth)):
+        paths.append(tmp_path / f"{name}.glb")
+        paths[-1].write_bytes(impostor_glb(impostor))
+    cameras = [
+        Camera.look_at(np.array(eye), CENTRE, math.radians(30.0), 96, 0.1, 100.0)
+        for eye in ([0.0, 0.0, 0.0], [0.5, -0.5, 0.5])
+    ]
+    light = default_lights()[1]
+    plain_frames, depth_frames = (
+        threejs.render(path, cameras, mipmaps=False, lights=[light], ambient=AMBIENT) for path in paths
+    )
+    for a, b in zip(plain_frames, depth_frames, strict=True):
+        assert (a[..., 3] > 0).sum() > 1000
+        assert np.abs(a.astype(int) - b.astype(int)).max() <= 1
