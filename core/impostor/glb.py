@@ -479,7 +479,7 @@ class GlbBuilder:
             converted[..., 3] = world[..., 3]
         parts = self.textured(geometry, pages, tangent)
         for material in parts.materials:
-            material["extensions"] = {DEPTH_EXTENSION: {"alpha": "depth", "attribute": DEPTH_ATTRIBUTE}}
+            material.setdefault("extensions", {})[DEPTH_EXTENSION] = {"alpha": "depth", "attribute": DEPTH_ATTRIBUTE}
         return GlbParts(parts.primitives, parts.materials, parts.images, (*parts.extensions, DEPTH_EXTENSION))
 
     def mesh_pages(self, payload: MeshPayload, page_count: int):
