@@ -42,7 +42,8 @@ The bundle is the on-disk form of one :class:`farfield.core.impostor.impostor.Im
     ``channels`` (only where the impostor keeps channels beside its colour)
         ``{"normal": [{"file": "normal-000.png", "width": W, "height": H}, ...]}``: per channel,
         pages laid out as ``pages`` (:data:`farfield.core.impostor.impostor.PAGE_CHANNELS`: world
-        normals encoded n * 0.5 + 0.5, linear).
+        normals encoded n * 0.5 + 0.5, linear); a normal entry's ``"alpha": "depth"`` says its
+        alpha holds the depth channel (:mod:`farfield.core.impostor.depth`).
     ``glb``
         ``"impostor.glb"``.
     ``stats``, ``parameters``
@@ -59,7 +60,8 @@ The bundle is the on-disk form of one :class:`farfield.core.impostor.impostor.Im
     (q, 4, 2) page coordinates of the same corners in glTF convention ((0, 0) is the top-left of
     the page); ``page`` (q,) atlas page; ``layer`` (q,) layer.
 
-    A kind's optional arrays (``OPTIONAL_ARRAYS``: a points payload's ``normal`` (n, 3)) follow
+    A kind's optional arrays (``OPTIONAL_ARRAYS``: a points payload's ``normal`` (n, 3), a quads
+    payload's ``depth_range`` (q, 2) with the depth channel) follow
     its arrays where the payload keeps them, and are absent (not listed, no bytes) where it does not.
 
     ``"mesh"``: ``vertices`` (v, 3) world metres; ``uv`` (v, 2) page coordinates, glTF
@@ -267,6 +269,7 @@ def _manifest(impostor: Impostor, payload_entry: dict) -> dict:
             "channels": {
                 name: [
                     {"file": channel_file_name(name, i), "width": int(p.shape[1]), "height": int(p.shape[0])}
+                    | _alpha_entry(impostor, name)
                     for i, p in enumerate(pages)
                 ]
                 for name, pages in sorted(impostor.channels.items())
@@ -275,6 +278,14 @@ def _manifest(impostor: Impostor, payload_entry: dict) -> dict:
         if impostor.channels
         else {}
     )
+
+
+def _alpha_entry(impostor: Impostor, channel: str) -> dict:
+    """What a channel page's alpha holds where it is not 255 inside a tile: ``{"alpha": "depth"}``
+    for the normal pages of an impostor with the depth channel (:mod:`farfield.core.impostor.depth`)."""
+    from farfield.core.impostor.depth import keeps_depth
+
+    return {"alpha": "depth"} if channel == "normal" and keeps_depth(impostor) else {}
 
 
 def _manifest_bytes(impostor: Impostor, payload_entry: dict) -> bytes:

@@ -52,6 +52,7 @@ import numpy as np
 from PIL import Image
 
 from farfield.core.colour_space import srgb_to_linear
+from farfield.core.impostor.depth import DEPTH_ATTRIBUTE, DEPTH_EXTENSION
 from farfield.core.impostor.impostor import (
     Impostor,
     MeshPayload,
@@ -172,9 +173,16 @@ def _weld(
     return positions[kept], uv[kept], slot[key_of[indices]], kept
 
 
-def _quad_pages(payload: QuadPayload, viewpoint: np.ndarray, page_count: int, frames: np.ndarray | None = None):
+def _quad_pages(
+    payload: QuadPayload,
+    viewpoint: np.ndarray,
+    page_count: int,
+    frames: np.ndarray | None = None,
+    ranges: np.ndarray | None = None,
+):
     """Per page with quads: (page, float32 positions relative to ``viewpoint``, float32 UVs, indices),
-    and with ``frames`` (q, 3, 3) (:func:`quad_frames`) float32 NORMAL (n, 3) and TANGENT (n, 4) too."""
+    and with ``frames`` (q, 3, 3) (:func:`quad_frames`) float32 NORMAL (n, 3) and TANGENT (n, 4) too,
+    and with ``ranges`` (q, 2) (the depth channel's) each vertex's quad's, float32 (n, 2), after them."""
     # Narrowed to float32 here, after the float64 subtraction, so only the local offset is rounded.
     relative = (payload.corners - viewpoint).astype("<f4")
     uv = payload.uv.astype("<f4")
@@ -188,6 +196,9 @@ def _quad_pages(payload: QuadPayload, viewpoint: np.ndarray, page_count: int, fr
             yield page, positions, texcoords, indices
             continue
         frame = frames[quads[kept // 4]]  # (n, 3, 3) rows tangent, bitangent, normal of each vertex's quad
+        if ranges is not None:
+            yield page, positions, texcoords, indices, *_normal_tangent(frame), ranges[quads[kept // 4]].astype("<f4")
+            continue
         yield page, positions, texcoords, indices, *_normal_tangent(frame)
 
 
@@ -452,8 +463,24 @@ class GlbBuilder:
         """:meth:`textured` quads with NORMAL, TANGENT and each page's world normals (``normal_pages``)
         as a tangent-space normal texture in the frames of its quads (:func:`quad_frames`)."""
         frames = quad_frames(payload, self.viewpoint)
+        if payload.depth_range is not None:
+            return self._depth_quads(payload, pages, normal_pages, frames)
         geometry = _quad_pages(payload, self.viewpoint, len(pages), frames)
         return self.textured(geometry, pages, tangent_space_pages(payload, frames, normal_pages))
+
+    def _depth_quads(self, payload: QuadPayload, pages, normal_pages, frames) -> GlbParts:
+        """:meth:`lit_quads` of quads with the depth channel (:mod:`farfield.core.impostor.depth`):
+        the normal textures keep the depth in their alpha, every vertex carries its quad's ray
+        scales as ``_DEPTH_RANGE`` (float32 VEC2), and each material says so with the extension
+        ``FARFIELD_impostor_depth`` (used, not required: a viewer without it draws the lit cards)."""
+        geometry = _quad_pages(payload, self.viewpoint, len(pages), frames, payload.depth_range)
+        tangent = tangent_space_pages(payload, frames, normal_pages)
+        for converted, world in zip(tangent, normal_pages):
+            converted[..., 3] = world[..., 3]
+        parts = self.textured(geometry, pages, tangent)
+        for material in parts.materials:
+            material.setdefault("extensions", {})[DEPTH_EXTENSION] = {"alpha": "depth", "attribute": DEPTH_ATTRIBUTE}
+        return GlbParts(parts.primitives, parts.materials, parts.images, (*parts.extensions, DEPTH_EXTENSION))
 
     def mesh_pages(self, payload: MeshPayload, page_count: int):
         """Per page with triangles: (page, float32 positions, float32 UVs, indices)."""
@@ -518,7 +545,7 @@ class GlbBuilder:
                 }
             )
             attributes = {"POSITION": base + 1, "TEXCOORD_0": base + 2}
-            for name, values, kind in zip(("NORMAL", "TANGENT"), lit, ("VEC3", "VEC4")):
+            for name, values, kind in zip(("NORMAL", "TANGENT", DEPTH_ATTRIBUTE), lit, ("VEC3", "VEC4", "VEC2")):
                 attributes[name] = len(self.accessors)
                 self.accessors.append(
                     {

@@ -36,6 +36,7 @@ import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from farfield.core.errors import BundleFormatError
+from farfield.core.impostor.depth import DEPTH_EXTENSION
 from farfield.core.impostor.glb import page_png, write_glb
 
 __all__ = [
@@ -58,6 +59,7 @@ _COMPONENT_BYTES = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
 _TYPE_COUNT = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 _TRIANGLES = 4
 _ETC1S_QUALITY = 100  # alktx2's ETC1S quality, 1..100 (its highest)
+_UASTC_DEPTH_QUALITY = 100  # UASTC quality of normal textures holding depth in their alpha
 _UASTC_ZSTD = 18  # Zstandard level of UASTC's supercompression (basisu's -ktx2 default)
 
 
@@ -99,15 +101,18 @@ def block_padded(rgba: np.ndarray) -> np.ndarray:
     return np.pad(rgba, ((0, -h % 4), (0, -w % 4), (0, 0)), mode="edge")
 
 
-def ktx2_page(rgba: np.ndarray, codec: str = "etc1s", srgb: bool = True) -> bytes:
+def ktx2_page(rgba: np.ndarray, codec: str = "etc1s", srgb: bool = True, uastc_quality: int | None = None) -> bytes:
     """KTX2 bytes (Basis Universal, sRGB unless ``srgb`` is False, no mipmaps) of one (H, W, 4)
-    uint8 RGBA page, top row first; H and W multiples of 4 (:func:`block_padded`)."""
+    uint8 RGBA page, top row first; H and W multiples of 4 (:func:`block_padded`).
+    ``uastc_quality`` (UASTC only) overrides the encoder's default quality (50)."""
     import alktx2
 
     h, w = rgba.shape[:2]
     if h % 4 or w % 4:
         raise ValueError(f"a KTX2 page must be a multiple of 4 texels each way, got {w} x {h}")
     options = {"quality": _ETC1S_QUALITY} if codec == "etc1s" else {"zstd_supercompression_level": _UASTC_ZSTD}
+    if codec == "uastc" and uastc_quality is not None:
+        options["quality"] = uastc_quality
     return alktx2.encode_raw_rgba_to_ktx2(
         np.ascontiguousarray(rgba, dtype=np.uint8).tobytes(),
         w,
@@ -239,6 +244,9 @@ def _compress(data: bytes, textures: str, geometry: str, codec: str) -> bytes:
     # Normal textures (a lit impostor's, glTF normalTexture) hold directions, not colours: UASTC
     # whatever the codec asked (ETC1S's shared endpoints bend normals by degrees), linear transfer.
     normal_images = _normal_images(document)
+    # Normal textures whose alpha holds depth (farfield.core.impostor.depth): UASTC at quality 100,
+    # which keeps the alpha within 3 levels at the 99th percentile (the default 50: 20).
+    depth_images = _normal_images(document, DEPTH_EXTENSION)
     # The pages first: a page grown to whole 4 x 4 blocks scales the texture coordinates that use it.
     pages: list[tuple[bytes, bytes | None]] = []  # per image: (PNG to keep or b"", KTX2 or None)
     grown: dict[int, tuple[float, float]] = {}  # image -> (u, v) scale
@@ -253,7 +261,13 @@ def _compress(data: bytes, textures: str, geometry: str, codec: str) -> bytes:
             grown[n] = (rgba.shape[1] / padded.shape[1], rgba.shape[0] / padded.shape[0])
             png = page_png(padded) if keep_png else png  # the fallback shares the scaled coordinates
         normal = n in normal_images
-        pages.append((png if keep_png else b"", ktx2_page(padded, "uastc" if normal else codec, srgb=not normal)))
+        quality = _UASTC_DEPTH_QUALITY if n in depth_images else None
+        pages.append(
+            (
+                png if keep_png else b"",
+                ktx2_page(padded, "uastc" if normal else codec, srgb=not normal, uastc_quality=quality),
+            )
+        )
     scale = _uv_scales(document, grown)
 
     out, fallback = _Blob(), _Blob()
@@ -344,11 +358,13 @@ def _compress(data: bytes, textures: str, geometry: str, codec: str) -> bytes:
     return write_glb(document, out.bytes())
 
 
-def _normal_images(document: dict) -> set[int]:
-    """The images that materials use as ``normalTexture``."""
+def _normal_images(document: dict, extension: str | None = None) -> set[int]:
+    """The images that materials use as ``normalTexture`` (only materials with ``extension``, when given)."""
     textures = document.get("textures", [])
     found = set()
     for material in document.get("materials", []):
+        if extension is not None and extension not in material.get("extensions", {}):
+            continue
         info = material.get("normalTexture")
         if isinstance(info, dict) and isinstance(info.get("index"), int) and info["index"] < len(textures):
             source = textures[info["index"]].get("source")

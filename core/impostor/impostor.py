@@ -223,6 +223,10 @@ class QuadPayload(_PayloadBase):
     uv: np.ndarray  # (q, 4, 2) float64 page UV, glTF convention, same corner order
     page: np.ndarray  # (q,) int64 atlas page of each quad
     layer: np.ndarray  # (q,) int64 layer of each quad
+    # (q, 2) float64, optional (None: no depth kept): the ray scales s0 < s1 between which each
+    # quad's normal-page alpha a (0-255) places its texels' points, V + (P - V) (s0 + a / 255 (s1 - s0))
+    # for the reference viewpoint V and the texel's point P on the quad (:mod:`farfield.core.impostor.depth`).
+    depth_range: np.ndarray | None = None
 
     kind: ClassVar[str] = "quads"
     ARRAYS: ClassVar[tuple] = (
@@ -231,9 +235,10 @@ class QuadPayload(_PayloadBase):
         ("page", "i", ("q",)),
         ("layer", "i", ("q",)),
     )
+    OPTIONAL_ARRAYS: ClassVar[tuple] = (("depth_range", "f", ("q", 2)),)
 
     def __post_init__(self) -> None:
-        for name, _, _ in self.ARRAYS:
+        for name, _, _ in self.stored_arrays():
             object.__setattr__(self, name, _canonical(getattr(self, name)))
 
     @classmethod

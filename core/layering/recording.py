@@ -659,6 +659,7 @@ def iter_layers(
     plan: LayerPlan,
     conservative: bool = True,
     normals: bool = False,
+    depth: bool = False,
 ) -> Iterator[tuple[int, np.ndarray, int]]:
     """Record the layers of ``plan`` one at a time: yields ``(i, rgba, drawn)`` nearest first.
 
@@ -682,8 +683,12 @@ def iter_layers(
     ``normals=True`` records the normal channel too: ``rgba`` is then (h, w, 8), its last four
     channels the world shading normal of the point each texel shows (:func:`pair_normals`, the
     same point as its colour), encoded ``n * 0.5 + 0.5`` in RGB, alpha 255 where covered.
+    ``depth=True`` (with ``normals``; channel sets with depth) writes in that alpha instead the
+    point's eye depth within layer i's slab, ``round(255 (d - near) / (far - near))``
+    (:mod:`farfield.core.impostor.depth`).
     """
     ctx = gl_context()
+    depth_channel = bool(normals and depth)  # before ``depth`` names the depth texture below
     res_x, res_y = (int(r) for r in plan.texture_resolution)
     k = plan.count
     eye_borders = plan.borders + plan.reference_offset
@@ -717,6 +722,7 @@ def iter_layers(
         for obj, _, _ in draws:
             mapped = normals and records_normal_map(obj)
             defines = slab_variant(obj) + (("NORMALS",) if normals else ()) + (("NORMAL_MAP",) if mapped else ())
+            defines += ("DEPTH_CHANNEL",) if depth_channel else ()
             if defines not in variants:
                 prog = program(ctx, "slab_instanced.vert", "slab.frag", defines=defines)
                 prog["resolution"].value = (float(res_x), float(res_y))
@@ -800,6 +806,7 @@ def record_layers(
     conservative: bool = True,
     on_layer: Callable[[int], None] | None = None,
     normals: bool = False,
+    depth: bool = False,
 ) -> RecordedLayers:
     """Every layer of ``plan`` at once (see :func:`iter_layers`; this holds k x h x w x 4 bytes,
     8 with ``normals``).
@@ -809,7 +816,7 @@ def record_layers(
     res_x, res_y = (int(r) for r in plan.texture_resolution)
     out = np.zeros((plan.count, res_y, res_x, 8 if normals else 4), dtype=np.uint8)
     drawn = np.zeros(plan.count, dtype=np.int64)
-    for i, layer, count in iter_layers(scene, plan, conservative, normals):
+    for i, layer, count in iter_layers(scene, plan, conservative, normals, depth):
         out[i], drawn[i] = layer, count
         if on_layer is not None:
             on_layer(i)

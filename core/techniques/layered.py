@@ -15,7 +15,15 @@ import numpy as np
 
 from farfield.core import __version__
 from farfield.core.errors import LayerPlanError
-from farfield.core.impostor.impostor import ChannelSet, Impostor, QuadPayload, texel_rect_corners, wants_normals
+from farfield.core.impostor.depth import layer_depth_ranges
+from farfield.core.impostor.impostor import (
+    ChannelSet,
+    Impostor,
+    QuadPayload,
+    texel_rect_corners,
+    wants_depth,
+    wants_normals,
+)
 from farfield.core.layering import recording
 from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.layering.culled import culled_layers
@@ -128,7 +136,12 @@ def bake_layered(
     # One-sided triangles whose back faces the whole cell are not recorded (the plan keeps the part's bounds).
     seen = seen_from_cell(part.objects, cell)
     normals = wants_normals(options.channels)
-    for layer in culled_layers(seen, plan, options.culling, clock, options.conservative, normals=normals):
+    depth = wants_depth(options.channels)
+    depth_ranges = []  # per quad, ray scales of its slab (farfield.core.impostor.depth), with depth
+    layers_of_plan = culled_layers(
+        seen, plan, options.culling, clock, options.conservative, normals=normals, depth=depth
+    )
+    for layer in layers_of_plan:
         i = layer.index
         counts["covered"] += layer.covered
         counts["culled"] += layer.culled
@@ -143,6 +156,7 @@ def bake_layered(
             tiles += new_tiles
             quad_layer.append(np.full(len(rects), i, dtype=np.int64))
             quad_corners.append(texel_rect_corners(plan, float(plan.distances[i]), rects))
+            depth_ranges.append(layer_depth_ranges(plan, i, len(rects)))
             layer_ids.append(i)
             kept_per_layer[i] = int(layer.kept.sum())
             counts["kept"] += kept_per_layer[i]
@@ -185,7 +199,11 @@ def bake_layered(
         fov_deg=options.fov_deg,
         pages=tuple(pages),
         payload=QuadPayload(
-            corners=np.concatenate(quad_corners), uv=quad_uv, page=quad_page, layer=np.concatenate(quad_layer)
+            corners=np.concatenate(quad_corners),
+            uv=quad_uv,
+            page=quad_page,
+            layer=np.concatenate(quad_layer),
+            depth_range=np.concatenate(depth_ranges) if depth else None,
         ),
         layers=layers,
         stats=stats,

@@ -13,6 +13,7 @@
 // colour, the world shading normal of the same point (the vertex normals interpolated with the
 // same perspective-correct barycentrics, turned to the reference viewpoint's side on the CPU),
 // encoded n * 0.5 + 0.5 in a second RGBA8 target.
+// DEPTH_CHANNEL (with NORMALS, channel sets with depth) writes the point's depth in that target's alpha.
 //
 // Variants (core/recording.py::slab_variant): TEXTURED for an object with a base-colour texture,
 // ALPHA_CUT for one with an alpha cut.  llvmpipe runs both sides of a branch on a uniform (the
@@ -444,6 +445,12 @@ void main() {
         }
     }
 #endif
+#ifdef DEPTH_CHANNEL
+    // The depth channel (core/impostor/depth.py): the point's eye depth within the slab, 0 at its
+    // near border and 1 at its far one, quantised to 8 bits by the target, in the normal's alpha.
+    frag_normal = vec4(n * 0.5 + 0.5, (depth - slab.x) / max(slab.y - slab.x, 1e-30));
+#else
     frag_normal = vec4(n * 0.5 + 0.5, 1.0);
+#endif
 #endif
 }

@@ -41,8 +41,16 @@ import numpy as np
 from farfield.core import __version__
 from farfield.core.cube_faces import FACES
 from farfield.core.errors import LayerPlanError, ViewCellError
+from farfield.core.impostor.depth import fill_gaps_with_depth, layer_depth_ranges
 from farfield.core.impostor.glb import page_png
-from farfield.core.impostor.impostor import ChannelSet, Impostor, QuadPayload, texel_rect_corners, wants_normals
+from farfield.core.impostor.impostor import (
+    ChannelSet,
+    Impostor,
+    QuadPayload,
+    texel_rect_corners,
+    wants_depth,
+    wants_normals,
+)
 from farfield.core.layering import recording
 from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.layering.culled import culled_layers
@@ -240,6 +248,8 @@ def bake_envmap(
 
     res = plan.resolution
     normals = wants_normals(options.channels)
+    depth = wants_depth(options.channels)
+    depth_ranges = []  # per quad, ray scales of its slab (farfield.core.impostor.depth), with depth
     total_layers = len(options.directions) * plan.count
     tiles, quad_layer, quad_corners, layers = [], [], [], []
     counts = {"covered": 0, "culled": 0, "kept": 0, "drawn": 0, "gap_filled": 0}
@@ -249,8 +259,10 @@ def bake_envmap(
             done += plan.count
             clock.report("record", done, total_layers)
             continue
-        fill = fill_gaps if options.gap_fill else None
-        layers_of_face = culled_layers(seen, face, options.culling, clock, options.conservative, fill, normals=normals)
+        fill = (fill_gaps_with_depth if depth else fill_gaps) if options.gap_fill else None
+        layers_of_face = culled_layers(
+            seen, face, options.culling, clock, options.conservative, fill, normals=normals, depth=depth
+        )
         for layer in layers_of_face:
             i = layer.index
             done += 1
@@ -274,6 +286,7 @@ def bake_envmap(
                 layer_id = face_index * plan.count + i
                 quad_layer.append(np.full(len(rects), layer_id, dtype=np.int64))
                 quad_corners.append(texel_rect_corners(face, float(face.distances[i]), rects))
+                depth_ranges.append(layer_depth_ranges(face, i, len(rects)))
                 kept_count = int(layer.kept.sum())
                 counts["kept"] += kept_count
                 layers.append(
@@ -349,6 +362,7 @@ def bake_envmap(
             uv=quad_uv,
             page=quad_page,
             layer=np.concatenate(quad_layer) if quad_layer else np.zeros(0, np.int64),
+            depth_range=(np.concatenate(depth_ranges) if depth_ranges else np.zeros((0, 2))) if depth else None,
         ),
         layers=layers,
         stats=stats,

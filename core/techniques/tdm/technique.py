@@ -37,6 +37,7 @@ import numpy as np
 
 from farfield.core import __version__
 from farfield.core.errors import InternalError
+from farfield.core.impostor.depth import refuse_depth
 from farfield.core.impostor.impostor import ChannelSet, Impostor, MeshPayload, wants_normals
 from farfield.core.layering import recording
 from farfield.core.layering.atlas import MAX_PAGE
@@ -109,6 +110,7 @@ class TdmOptions:
 
     def __post_init__(self) -> None:
         check_options(self)
+        refuse_depth("tdm", self.channels)  # its geometry is exact (farfield.core.impostor.depth)
 
 
 # The cascade of enlargement factors (see the module docstring).
