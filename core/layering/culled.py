@@ -46,6 +46,7 @@ def culled_layers(
     conservative: bool = True,
     fill: Fill | None = None,
     normals: bool = False,
+    material: bool = False,
 ) -> Iterator[CulledLayer]:
     """Record, fill and cull ``plan``'s layers of ``scene`` in order, timing ``record``, ``gap_fill``
     (when ``fill`` is given) and ``cull`` on ``clock``.
@@ -54,11 +55,13 @@ def culled_layers(
     :class:`~farfield.core.layering.plan.LayerPlan` or an environment-map face); ``scene`` a scene
     or its objects as the view cell sees them (:func:`farfield.core.sidedness.seen_from_cell`).
     ``normals`` records the normal channel too: each image is then (H, W, 8), the world shading
-    normals in its last four channels (:func:`~farfield.core.layering.recording.iter_layers`).
+    normals in its last four channels (:func:`~farfield.core.layering.recording.iter_layers`);
+    ``material`` (with ``normals``) the material channel after them, (H, W, 12), and the emissive
+    channel where an object emits, (H, W, 16).
     """
     res_x, res_y = (int(r) for r in plan.texture_resolution)
     culler = LayerCuller((res_y, res_x), culling)
-    layers = iter_layers(scene, plan, conservative, normals)
+    layers = iter_layers(scene, plan, conservative, normals, material)
     previous = None
     while True:
         with clock("record"):

@@ -15,7 +15,14 @@ import numpy as np
 
 from farfield.core import __version__
 from farfield.core.errors import LayerPlanError
-from farfield.core.impostor.impostor import ChannelSet, Impostor, QuadPayload, texel_rect_corners, wants_normals
+from farfield.core.impostor.impostor import (
+    ChannelSet,
+    Impostor,
+    QuadPayload,
+    texel_rect_corners,
+    wants_material,
+    wants_normals,
+)
 from farfield.core.layering import recording
 from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.layering.culled import culled_layers
@@ -128,7 +135,10 @@ def bake_layered(
     # One-sided triangles whose back faces the whole cell are not recorded (the plan keeps the part's bounds).
     seen = seen_from_cell(part.objects, cell)
     normals = wants_normals(options.channels)
-    for layer in culled_layers(seen, plan, options.culling, clock, options.conservative, normals=normals):
+    material = wants_material(options.channels)
+    for layer in culled_layers(
+        seen, plan, options.culling, clock, options.conservative, normals=normals, material=material
+    ):
         i = layer.index
         counts["covered"] += layer.covered
         counts["culled"] += layer.culled

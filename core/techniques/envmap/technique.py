@@ -42,7 +42,14 @@ from farfield.core import __version__
 from farfield.core.cube_faces import FACES
 from farfield.core.errors import LayerPlanError, ViewCellError
 from farfield.core.impostor.glb import page_png
-from farfield.core.impostor.impostor import ChannelSet, Impostor, QuadPayload, texel_rect_corners, wants_normals
+from farfield.core.impostor.impostor import (
+    ChannelSet,
+    Impostor,
+    QuadPayload,
+    texel_rect_corners,
+    wants_material,
+    wants_normals,
+)
 from farfield.core.layering import recording
 from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.layering.culled import culled_layers
@@ -240,6 +247,7 @@ def bake_envmap(
 
     res = plan.resolution
     normals = wants_normals(options.channels)
+    material = wants_material(options.channels)
     total_layers = len(options.directions) * plan.count
     tiles, quad_layer, quad_corners, layers = [], [], [], []
     counts = {"covered": 0, "culled": 0, "kept": 0, "drawn": 0, "gap_filled": 0}
@@ -250,7 +258,9 @@ def bake_envmap(
             clock.report("record", done, total_layers)
             continue
         fill = fill_gaps if options.gap_fill else None
-        layers_of_face = culled_layers(seen, face, options.culling, clock, options.conservative, fill, normals=normals)
+        layers_of_face = culled_layers(
+            seen, face, options.culling, clock, options.conservative, fill, normals=normals, material=material
+        )
         for layer in layers_of_face:
             i = layer.index
             done += 1
