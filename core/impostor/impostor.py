@@ -172,7 +172,35 @@ class _PayloadBase:
             raise ValueError(f"no lit evaluation for a {self.kind!r} payload yet")
         pages = impostor.channels.get("normal") if normals else None
         maps = [pages[page_of(obj)] for obj in objects] if pages is not None else None
+        if "material" in impostor.channels:
+            objects = with_material_pages(objects, impostor.channels)
         return MeshRenderer(objects, normals=True, normal_maps=maps)
+
+
+def with_material_pages(objects: list, channels: dict) -> list:
+    """The draw objects (one per atlas page, :func:`page_of`) with their page's material channels as
+    their material: the ORM page as ``metallic_roughness_texture`` and ``occlusion_texture`` (factors
+    1, occlusion strength 1, ``material_uv`` their ``uv``) and the emissive page, where kept, as
+    ``emissive_texture`` (factor 1, 1, 1), for the G-buffer's MeshRenderer."""
+    from dataclasses import replace
+
+    out = []
+    for obj in objects:
+        page = page_of(obj)
+        orm = channels["material"][page]
+        emissive = channels.get("emissive")
+        out.append(replace(
+            obj,
+            metallic_factor=1.0,
+            roughness_factor=1.0,
+            metallic_roughness_texture=orm,
+            occlusion_texture=orm,
+            occlusion_strength=1.0,
+            emissive_factor=np.ones(3) if emissive is not None else np.zeros(3),
+            emissive_texture=emissive[page] if emissive is not None else None,
+            material_uv=obj.uv,
+        ))  # fmt: skip
+    return out
 
 
 def page_of(obj) -> int:
@@ -271,6 +299,9 @@ class QuadPayload(_PayloadBase):
         normals = impostor.channels.get("normal")
         if normals is None:
             return glb.textured(glb.quad_pages(self, len(impostor.pages)), impostor.pages)
+        if "material" in impostor.channels:  # metallic-roughness and occlusion (and emission) textures too
+            material, emissive = impostor.channels["material"], impostor.channels.get("emissive")
+            return glb.lit_quads(self, impostor.pages, normals, material, emissive)
         return glb.lit_quads(self, impostor.pages, normals)
 
     def draw_objects(self, impostor: Impostor) -> list:
@@ -384,6 +415,9 @@ class MeshPayload(_PayloadBase):
         normals = impostor.channels.get("normal")
         if normals is None:
             return glb.textured(glb.mesh_pages(self, len(impostor.pages)), impostor.pages)
+        if "material" in impostor.channels:  # metallic-roughness and occlusion (and emission) textures too
+            material, emissive = impostor.channels["material"], impostor.channels.get("emissive")
+            return glb.lit_mesh(self, impostor.pages, normals, material, emissive)
         return glb.lit_mesh(self, impostor.pages, normals)
 
     def draw_objects(self, impostor: Impostor) -> list:
