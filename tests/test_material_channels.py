@@ -243,3 +243,22 @@ def test_a_normal_maps_spread_under_a_texel_widens_its_roughness_and_stops_the_s
     with_toksvig, without = error(roughness), error(0.2)
     print("Toksvig: mirror-light sRGB error", with_toksvig, "without", without)
     assert with_toksvig < 0.25 * without and with_toksvig < 15.0
+
+
+def test_a_tdm_keeps_the_material_channels_and_the_other_techniques_refuse_them(tmp_path, gltf_validator):
+    from farfield.core.errors import LayerPlanError
+    from farfield.core.techniques.ldi import LdiOptions
+    from farfield.core.techniques.points.technique import PointOptions
+    from farfield.core.techniques.tdm.technique import TdmOptions, bake_tdm
+
+    obj = quad(metallic_factor=0.25, roughness_factor=0.5, emissive_factor=np.array([0.5, 0.2, 0.0]))
+    impostor = bake_tdm(Scene((obj,), "q"), CELL, TdmOptions(resolution=32, channels=MATERIAL))
+    assert sorted(impostor.channels) == ["emissive", "material", "normal"]
+    assert {tuple(t) for t in covered(impostor, "material").tolist()} == {(255, 128, 64, 255)}
+    assert {tuple(t) for t in covered(impostor, "emissive").tolist()} == {(188, 124, 0, 255)}
+    (tmp_path / "tdm.glb").write_bytes(impostor_glb(impostor))
+    (report,) = gltf_validator.validate([tmp_path / "tdm.glb"])
+    assert report.get("errors") == 0 and report.get("warnings") == 0, report
+    for options in (PointOptions, LdiOptions):
+        with pytest.raises(LayerPlanError, match="does not record the material channels yet"):
+            options(channels=MATERIAL)

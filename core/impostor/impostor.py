@@ -64,7 +64,7 @@ from typing import Any, ClassVar, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
-from farfield.core.errors import BundleFormatError
+from farfield.core.errors import BundleFormatError, LayerPlanError
 from farfield.core.layering.plan import LayerPlan
 
 
@@ -865,6 +865,23 @@ def wants_normals(channels: str) -> bool:
 def wants_material(channels: str) -> bool:
     """Whether the channel set ``channels`` keeps the material (occlusion, roughness, metallic, emission)."""
     return "material" in channel_names(channels)
+
+
+def refuse_material(channels: str, technique: str) -> None:
+    """Raise :class:`LayerPlanError` where the channel set ``channels`` keeps the material and
+    ``technique`` does not record it yet (its options' ``__post_init__`` calls this).
+
+    >>> refuse_material("albedo+normal", "points")
+    >>> refuse_material("albedo+normal+material", "points")
+    Traceback (most recent call last):
+    ...
+    farfield.core.errors.LayerPlanError: points does not record the material channels yet: channels 'albedo+normal+material'; it takes albedo or albedo+normal (layered and envmap record the material)
+    """
+    if wants_material(channels):
+        raise LayerPlanError(
+            f"{technique} does not record the material channels yet: channels {channels!r}; "
+            "it takes albedo or albedo+normal (layered and envmap record the material)"
+        )
 
 
 def wants_depth(channels: str) -> bool:

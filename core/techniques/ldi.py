@@ -33,7 +33,7 @@ import numpy as np
 
 from farfield.core import __version__
 from farfield.core.errors import LayerPlanError
-from farfield.core.impostor.impostor import ChannelSet, Impostor, LdiPayload, wants_normals
+from farfield.core.impostor.impostor import ChannelSet, Impostor, LdiPayload, refuse_material, wants_normals
 from farfield.core.ldi.construction import DEFAULT_MAX_LAYERS, _merge_samples, construct_ldi, view_frame
 from farfield.core.ldi.normals import sample_normals
 from farfield.core.ldi.pages import ldi_payload_and_pages, normal_pages
@@ -72,6 +72,7 @@ class LdiOptions:
 
     def __post_init__(self) -> None:
         check_options(self)
+        refuse_material(self.channels, "ldi")
         if self.images not in (1, 9):
             raise LayerPlanError(f"images must be 1 or 9, got {self.images}")
 

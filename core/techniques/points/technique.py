@@ -28,7 +28,7 @@ import numpy as np
 
 from farfield.core import __version__
 from farfield.core.errors import AtlasOverflowError, LayerPlanError
-from farfield.core.impostor.impostor import ChannelSet, Impostor, PointPayload, wants_normals
+from farfield.core.impostor.impostor import ChannelSet, Impostor, PointPayload, refuse_material, wants_normals
 from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.ldi import image as ldi_kernels
 from farfield.core.ldi.normals import sample_normals
@@ -108,6 +108,7 @@ class PointOptions:
 
     def __post_init__(self) -> None:
         check_options(self)
+        refuse_material(self.channels, "points")
         if self.min_views > self.max_views:
             raise LayerPlanError(f"min_views ({self.min_views}) must not exceed max_views ({self.max_views})")
 
