@@ -262,3 +262,34 @@ def test_a_tdm_keeps_the_material_channels_and_the_other_techniques_refuse_them(
     for options in (PointOptions, LdiOptions):
         with pytest.raises(LayerPlanError, match="does not record the material channels yet"):
             options(channels=MATERIAL)
+
+
+def test_a_compressed_glb_keeps_the_orm_in_linear_uastc_and_the_emission_in_srgb(emitting, tmp_path, gltf_validator):
+    import alktx2
+    from glb_validation import problems
+
+    from farfield.core.impostor.glb_compression import compress_glb, decode_ktx2, read_glb
+
+    packed = tmp_path / "packed.glb"
+    packed.write_bytes(compress_glb(impostor_glb(emitting), "ktx2", "plain", "etc1s"))
+    (report,) = gltf_validator.validate([packed])
+    assert problems(report) == []
+    document, blob = read_glb(packed.read_bytes())
+    textures, images = document["textures"], document["images"]
+
+    def ktx2(info):
+        index = textures[info["index"]]["extensions"]["KHR_texture_basisu"]["source"]
+        view = document["bufferViews"][images[index]["bufferView"]]
+        return alktx2.inspect_ktx2(blob[view["byteOffset"] : view["byteOffset"] + view["byteLength"]]), index
+
+    for material in document["materials"]:
+        (orm, index), (emission, _) = ktx2(material["occlusionTexture"]), ktx2(material["emissiveTexture"])
+        assert orm["is_uastc"] and not orm["is_srgb"], orm
+        assert emission["is_srgb"] and not emission["is_uastc"], emission
+        view = document["bufferViews"][images[index]["bufferView"]]
+        decoded = decode_ktx2(blob[view["byteOffset"] : view["byteOffset"] + view["byteLength"]])
+        page = emitting.channels["material"][0]
+        inside = page[..., 3] > 0
+        # UASTC is near-lossless: a few steps where the occlusion's halves meet, none elsewhere.
+        error = np.abs(decoded[: page.shape[0], : page.shape[1]][inside].astype(int) - page[inside])
+        assert error.mean() <= 1.0 and np.percentile(error, 95) <= 2 and error.max() <= 12
