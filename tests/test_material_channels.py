@@ -245,10 +245,7 @@ def test_a_normal_maps_spread_under_a_texel_widens_its_roughness_and_stops_the_s
     assert with_toksvig < 0.25 * without and with_toksvig < 15.0
 
 
-def test_a_tdm_keeps_the_material_channels_and_the_other_techniques_refuse_them(tmp_path, gltf_validator):
-    from farfield.core.errors import LayerPlanError
-    from farfield.core.techniques.ldi import LdiOptions
-    from farfield.core.techniques.points.technique import PointOptions
+def test_a_tdm_keeps_the_material_channels(tmp_path, gltf_validator):
     from farfield.core.techniques.tdm.technique import TdmOptions, bake_tdm
 
     obj = quad(metallic_factor=0.25, roughness_factor=0.5, emissive_factor=np.array([0.5, 0.2, 0.0]))
@@ -259,9 +256,42 @@ def test_a_tdm_keeps_the_material_channels_and_the_other_techniques_refuse_them(
     (tmp_path / "tdm.glb").write_bytes(impostor_glb(impostor))
     (report,) = gltf_validator.validate([tmp_path / "tdm.glb"])
     assert report.get("errors") == 0 and report.get("warnings") == 0, report
-    for options in (PointOptions, LdiOptions):
-        with pytest.raises(LayerPlanError, match="does not record the material channels yet"):
-            options(channels=MATERIAL)
+
+
+def test_points_and_ldi_samples_keep_the_material_where_they_lie(tmp_path):
+    """Each point and LDI sample: the ORM of the texture half it lies on (nearest texel), its
+    emission where the part emits; the point arrays and LDI pages survive the bundle."""
+    from farfield.core.techniques.ldi import LdiOptions, bake_ldi
+    from farfield.core.techniques.points.technique import PointOptions, bake_points
+
+    textured = quad(
+        metallic_factor=1.0,
+        metallic_roughness_texture=halves((0, 200, 100, 255), (0, 50, 250, 255)),
+        material_uv=quad().uv,
+        emissive_factor=np.array([0.5, 0.2, 0.0]),
+    )
+    scene = Scene((textured,), "q")
+    points = bake_points(scene, CELL, PointOptions(resolution=48, min_views=4, max_views=4, channels=MATERIAL))
+    payload = points.payload
+    x = payload.positions[:, 0]  # u = (x + 1) / 2 on the quad; the seams (u = 0.5, and 1 wrapping to 0) left out
+    left, right = (x > -0.9) & (x < -0.1), (x > 0.1) & (x < 0.9)
+    assert left.sum() > 10 and right.sum() > 10
+    assert {tuple(t) for t in payload.material[left].tolist()} == {(255, 200, 100, 255)}
+    assert {tuple(t) for t in payload.material[right].tolist()} == {(255, 50, 250, 255)}
+    assert {tuple(t) for t in payload.emissive.tolist()} == {(188, 124, 0, 255)}
+    assert set(points.stats["channel_bytes"]) == {"albedo", "normal", "material", "emissive"}
+    back = read_bundle(write_bundle(points, tmp_path / "points").directory)
+    assert np.array_equal(back.payload.material, payload.material)
+    assert np.array_equal(back.payload.emissive, payload.emissive)
+
+    ldi = bake_ldi(Scene((replace(textured, emissive_factor=np.zeros(3)),), "q"), CELL,
+                   LdiOptions(resolution=48, channels=MATERIAL))  # fmt: skip
+    assert sorted(ldi.channels) == ["material", "normal"]  # nothing emits
+    page = ldi.channels["material"][0]
+    values = {tuple(t) for t in page[ldi.pages[0][..., 3] > 0].tolist()}
+    assert values == {(255, 200, 100, 255), (255, 50, 250, 255)}
+    back = read_bundle(write_bundle(ldi, tmp_path / "ldi").directory)
+    assert all(np.array_equal(a, b) for a, b in zip(back.channels["material"], ldi.channels["material"]))
 
 
 def test_a_compressed_glb_keeps_the_orm_in_linear_uastc_and_the_emission_in_srgb(emitting, tmp_path, gltf_validator):

@@ -64,7 +64,7 @@ from typing import Any, ClassVar, Literal, Protocol, runtime_checkable
 
 import numpy as np
 
-from farfield.core.errors import BundleFormatError, LayerPlanError
+from farfield.core.errors import BundleFormatError
 from farfield.core.layering.plan import LayerPlan
 
 
@@ -474,6 +474,11 @@ class PointPayload(_PayloadBase):
     axes: np.ndarray
     rectangle: np.ndarray
     normal: np.ndarray | None = None
+    # (n, 4) int64 bytes, optional (channels albedo+normal+material): each point's glTF ORM packing
+    # (occlusion, roughness, metallic, 255) and, where an object of the part emits, its emission
+    # sRGB-encoded (:mod:`farfield.core.ldi.materials`)
+    material: np.ndarray | None = None
+    emissive: np.ndarray | None = None
 
     kind: ClassVar[str] = "points"
     NO_PAGE: ClassVar[int] = -1
@@ -487,7 +492,11 @@ class PointPayload(_PayloadBase):
         ("axes", "f", (2, 3)),
         ("rectangle", "f", (2, 2)),
     )
-    OPTIONAL_ARRAYS: ClassVar[tuple] = (("normal", "f", ("n", 3)),)
+    OPTIONAL_ARRAYS: ClassVar[tuple] = (
+        ("normal", "f", ("n", 3)),
+        ("material", "i", ("n", 4)),
+        ("emissive", "i", ("n", 4)),
+    )
 
     def __post_init__(self) -> None:
         for name, _, _ in self.stored_arrays():
@@ -532,6 +541,10 @@ class PointPayload(_PayloadBase):
             raise BundleFormatError("points payload: a textured point's texel must be >= 0")
         if self.normal is not None and self.count and np.abs(np.linalg.norm(self.normal, axis=1) - 1.0).max() > 1e-6:
             raise BundleFormatError("points payload: every normal must be a unit vector")
+        for name in ("material", "emissive"):
+            values = getattr(self, name)
+            if values is not None and values.size and (values.min() < 0 or values.max() > 255):
+                raise BundleFormatError(f"points payload: {name} must be bytes, 0-255")
 
     @property
     def point_count(self) -> int:
@@ -688,6 +701,9 @@ class LdiPayload(_PayloadBase):
             np.zeros(1, np.int64),
         )
         normals = impostor.channels.get("normal")
+        if normals is not None and shown and "material" in impostor.channels:  # the first layer's material too
+            emissive = impostor.channels.get("emissive")
+            return glb.lit_quads(quad, shown, normals[:1], impostor.channels["material"][:1], emissive and emissive[:1])
         if normals is not None and shown:
             return glb.lit_quads(quad, shown, normals[:1])
         return glb.textured(glb.quad_pages(quad, len(shown)) if shown else (), shown)
@@ -865,23 +881,6 @@ def wants_normals(channels: str) -> bool:
 def wants_material(channels: str) -> bool:
     """Whether the channel set ``channels`` keeps the material (occlusion, roughness, metallic, emission)."""
     return "material" in channel_names(channels)
-
-
-def refuse_material(channels: str, technique: str) -> None:
-    """Raise :class:`LayerPlanError` where the channel set ``channels`` keeps the material and
-    ``technique`` does not record it yet (its options' ``__post_init__`` calls this).
-
-    >>> refuse_material("albedo+normal", "points")
-    >>> refuse_material("albedo+normal+material", "points")
-    Traceback (most recent call last):
-    ...
-    farfield.core.errors.LayerPlanError: points does not record the material channels yet: channels 'albedo+normal+material'; it takes albedo or albedo+normal (layered and envmap record the material)
-    """
-    if wants_material(channels):
-        raise LayerPlanError(
-            f"{technique} does not record the material channels yet: channels {channels!r}; "
-            "it takes albedo or albedo+normal (layered and envmap record the material)"
-        )
 
 
 def wants_depth(channels: str) -> bool:
