@@ -102,16 +102,24 @@ def test_textured_materials_are_read_at_the_material_uv_with_their_factors_and_s
     assert near(other[right_texels], (177, 200, 80, 255)).mean() > 0.9
 
 
-def test_a_material_uv_the_recording_cannot_carry_is_warned_of_and_read_at_the_base_uv():
-    textured = quad(
-        texture=np.full((2, 2, 4), 255, np.uint8),
-        metallic_roughness_texture=halves((0, 200, 0, 255), (0, 50, 0, 255)),
-        material_uv=quad().uv[::-1].copy(),
-    )
-    assert material_uv_source(textured) == "fallback"
+def test_a_material_uv_of_its_own_is_packed_with_the_normals_or_warned_of_where_nothing_is_left():
+    left, right = (0, 200, 0, 255), (0, 50, 0, 255)
+    mirrored = quad().uv * [-1.0, 1.0] + [1.0, 0.0]
+    white = np.full((2, 2, 4), 255, np.uint8)
+    plain = quad(texture=white, metallic_roughness_texture=halves(left, right), material_uv=quad().uv)
+    own = replace(plain, material_uv=mirrored)
+    assert material_uv_source(plain) == "uv" and material_uv_source(own) == "own"
+    a, b = covered(bake([plain]), "material"), covered(bake([own]), "material")
+    at_left = near(a, (255, 200, 0, 255))
+    assert at_left.sum() >= 8 and near(b[at_left], (255, 50, 0, 255)).mean() > 0.9  # the halves swap
+
+    # With a normal map recorded too, a third uv has no vertex input left: read at the base uv, warned of.
+    mapped = replace(own, normal_texture=np.full((2, 2, 4), (128, 128, 255, 255), np.uint8), normal_uv=quad().uv,
+                     tangents=np.tile([1.0, 0.0, 0.0, 1.0], (4, 1)))  # fmt: skip
+    assert material_uv_source(mapped) == "fallback"
     with pytest.warns(UserWarning, match="material textures are read at the base-colour uv"):
-        impostor = bake([textured])
-    assert "material" in impostor.channels
+        c = covered(bake([mapped]), "material")
+    assert near(c[at_left], (255, 200, 0, 255)).mean() > 0.9
 
 
 def test_other_channel_sets_are_untouched_by_the_material():

@@ -61,6 +61,9 @@ NORMAL_FORMAT, NORMAL_ATTRIBUTES, NORMAL_FLOATS = ("3f", "3f", "3f"), ("i_normal
 # after the normals, and one float of padding, read as seven vec4 (a GL guarantees 16 vertex inputs;
 # the variant does not read the vertex colours, whose floats it skips).
 MAP_FORMAT, MAP_ATTRIBUTES, MAP_FLOATS = ("4f",) * 7, tuple(f"i_map{k}" for k in range(7)), 19
+# With a material uv of its own and no normal map (the MATERIAL_UV_OWN variant): that uv after the
+# normals and one float of padding, the normals and it read as four vec4 in the normals' place.
+OWN_FORMAT, OWN_ATTRIBUTES, OWN_FLOATS = ("4f",) * 4, tuple(f"i_own{k}" for k in range(4)), 7
 
 
 @dataclass(frozen=True, slots=True)
@@ -575,7 +578,8 @@ def _instance_records(
     n = instances.triangle.shape[0]
     corners = obj.faces[instances.triangle].T  # (3, n)
     mapped = viewpoint is not None and records_normal_map(obj)
-    extra = (NORMAL_FLOATS if viewpoint is not None else 0) + (MAP_FLOATS if mapped else 0)
+    own = material and viewpoint is not None and material_uv_source(obj) == "own"
+    extra = (NORMAL_FLOATS if viewpoint is not None else 0) + (MAP_FLOATS if mapped else 0) + (OWN_FLOATS if own else 0)
     records = np.empty((INSTANCE_FLOATS + extra, n), dtype="<f4")  # filled row by row, transposed once
     records[0:4] = instances.rect
     records[4:14] = instances.polygon.transpose(1, 0, 2).reshape(10, n)  # x0, y0, x1, y1, ...
@@ -597,6 +601,9 @@ def _instance_records(
         records[52:58] = np.take(obj.normal_uv.T, corners, axis=1).transpose(1, 0, 2).reshape(6, n)
         records[58:70] = pair_tangents(obj, instances.triangle, viewpoint).transpose(1, 0, 2).reshape(12, n)
         records[70] = 0.0
+    if own:
+        records[52:58] = np.take(obj.material_uv.T, corners, axis=1).transpose(1, 0, 2).reshape(6, n)
+        records[58] = 0.0
     return np.ascontiguousarray(records.T)
 
 
@@ -609,10 +616,11 @@ def material_uv_source(obj: SceneObject) -> str:
     """Which of the recorded uvs ``obj``'s material textures are read at (:func:`iter_layers` with
     ``material``): ``"uv"`` (its ``material_uv`` is its ``uv``, or equal to it, or it has no material
     texture), ``"uv slot"`` (it has no base-colour texture, so the material uv takes the uv's
-    fields), ``"normal uv"`` (its normal map is recorded and shares the material uv) or
-    ``"fallback"``: none of these, and a GL guarantees only 16 vertex inputs, which the recording
-    already fills (slab_instanced.vert), so the material textures are read at the base-colour uv,
-    which :func:`iter_layers` warns of.
+    fields), ``"normal uv"`` (its normal map is recorded and shares the material uv), ``"own"`` (no
+    normal map is recorded: the material uv is packed with the normals, the MATERIAL_UV_OWN
+    variant) or ``"fallback"``: a recorded normal map with a third uv; a GL guarantees only 16
+    vertex inputs, which the recording then fills (slab_instanced.vert), so the material textures
+    are read at the base-colour uv, which :func:`iter_layers` warns of.
 
     >>> quad = SceneObject("q", np.zeros((3, 3)), np.array([[0, 1, 2]]))
     >>> material_uv_source(quad)
@@ -624,7 +632,9 @@ def material_uv_source(obj: SceneObject) -> str:
         return "uv"
     if obj.texture is None:
         return "uv slot"
-    if records_normal_map(obj) and np.array_equal(obj.material_uv, obj.normal_uv):
+    if not records_normal_map(obj):
+        return "own"
+    if np.array_equal(obj.material_uv, obj.normal_uv):
         return "normal uv"
     return "fallback"
 
@@ -635,8 +645,8 @@ def material_variant(obj: SceneObject, emissive: bool) -> tuple[str, ...]:
     defines = ("MATERIAL",) + (("EMISSIVE",) if emissive else ())
     if has_material_textures(obj):
         defines += ("MATERIAL_MAPS",)
-        if material_uv_source(obj) == "normal uv":
-            defines += ("MATERIAL_UV_NORMAL",)
+        source = material_uv_source(obj)
+        defines += ("MATERIAL_UV_NORMAL",) if source == "normal uv" else ("MATERIAL_UV_OWN",) if source == "own" else ()
     return defines
 
 
@@ -706,7 +716,9 @@ def slab_variant(obj: SceneObject) -> tuple[str, ...]:
     return tuple(d for d in mesh_variant(obj, planes=False, open_faces=False) if d in ("TEXTURED", "ALPHA_CUT"))
 
 
-def _instance_format(prog: moderngl.Program, normals: bool = False, mapped: bool = False) -> tuple[str, ...]:
+def _instance_format(
+    prog: moderngl.Program, normals: bool = False, mapped: bool = False, own: bool = False
+) -> tuple[str, ...]:
     """INSTANCE_FORMAT (with the normals when ``normals``, and the normal map's uv and tangents
     when ``mapped``) and the attribute names for ``prog``: attributes its variant does not read
     (the compiler removed them) become padding."""
@@ -714,6 +726,8 @@ def _instance_format(prog: moderngl.Program, normals: bool = False, mapped: bool
     extra, named = (
         (MAP_FORMAT, MAP_ATTRIBUTES) if mapped else (NORMAL_FORMAT, NORMAL_ATTRIBUTES) if normals else ((), ())
     )
+    if own:  # the normals and the material uv, four vec4 (MATERIAL_UV_OWN)
+        extra, named = OWN_FORMAT, OWN_ATTRIBUTES
     fields = (*INSTANCE_FORMAT.split()[:-1], *extra)
     attributes = (*INSTANCE_ATTRIBUTES, *named)
     for fmt, name in zip(fields, attributes, strict=True):
@@ -869,7 +883,8 @@ def iter_layers(
                 prog = program(ctx, "slab_instanced.vert", "slab.frag", defines=defines)
                 prog["resolution"].value = (float(res_x), float(res_y))
                 prog["conservative"].value = bool(conservative)
-                vao = ctx.vertex_array(prog, [(stream, *_instance_format(prog, normals, mapped))])
+                own = "MATERIAL_UV_OWN" in defines
+                vao = ctx.vertex_array(prog, [(stream, *_instance_format(prog, normals, mapped, own))])
                 owned.append(vao)
                 variants[defines] = (prog, vao)
             if mapped and material and _map_key(obj, material) not in normal_maps:

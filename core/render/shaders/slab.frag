@@ -46,7 +46,7 @@ uniform float normal_scale;
 // when an object of the part emits, its linear emission (factor x sRGB-decoded texture) written
 // sRGB-encoded in a fourth.  MATERIAL_MAPS for an object with a material texture: the three are
 // read (a missing one bound to a 1x1 white texture) at the footprint's mip level, as the normal
-// map is, at the uv MATERIAL_UV names (g_uv, or g_nuv with MATERIAL_UV_NORMAL).
+// map is, at the uv MATERIAL_UV names (g_uv, g_nuv with MATERIAL_UV_NORMAL, g_muv with MATERIAL_UV_OWN).
 uniform float metallic_factor;
 uniform float roughness_factor;
 uniform float occlusion_strength;
@@ -54,6 +54,9 @@ uniform vec3 emissive_factor;
 layout(location = 2) out vec4 frag_material;
 #ifdef EMISSIVE
 layout(location = 3) out vec4 frag_emissive;
+#endif
+#ifdef MATERIAL_UV_OWN
+flat in vec2 g_muv[3];  // the material uv, where it has inputs of its own (slab_instanced.vert)
 #endif
 #ifdef MATERIAL_MAPS
 uniform sampler2D metallic_roughness_map;  // linear: G roughness, B metallic
@@ -489,8 +492,10 @@ void main() {
         vec3 emission = emissive_factor;
 #ifdef MATERIAL_MAPS
         vec2 t3[3];
-#ifdef MATERIAL_UV_NORMAL
+#if defined(MATERIAL_UV_NORMAL)
         t3[0] = g_nuv[0]; t3[1] = g_nuv[1]; t3[2] = g_nuv[2];
+#elif defined(MATERIAL_UV_OWN)
+        t3[0] = g_muv[0]; t3[1] = g_muv[1]; t3[2] = g_muv[2];
 #else
         t3[0] = g_uv[0]; t3[1] = g_uv[1]; t3[2] = g_uv[2];
 #endif
