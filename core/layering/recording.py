@@ -574,7 +574,8 @@ def _instance_records(
     """(n, 43) float32 records for the GL upload, in the layout of INSTANCE_FORMAT; (n, 52) with
     the normals seen from ``viewpoint`` appended (:func:`pair_normals`) when it is given.  With
     ``material``, an object whose material textures take the uv's place (:func:`material_uv_source`
-    ``"uv slot"``) has its material uv in the uv fields."""
+    ``"uv slot"``) has its material uv in the uv fields, and one with a uv of its own (``"own"``)
+    has it after the normals, (n, 59)."""
     n = instances.triangle.shape[0]
     corners = obj.faces[instances.triangle].T  # (3, n)
     mapped = viewpoint is not None and records_normal_map(obj)
