@@ -435,6 +435,29 @@ def _page_material(index: int, normal: int | None = None) -> dict:
     }
 
 
+def _add_material_pages(binary, images: list, materials: list, material_pages, emissive_pages=None) -> None:
+    """Append each page's material page (glTF's ORM packing, linear) and emissive page (sRGB, where
+    kept) to ``images`` and light ``materials`` (one per page, in page order) with them: the ORM
+    image as both ``metallicRoughnessTexture`` and ``occlusionTexture``, factors 1 (the page holds
+    the values), and ``emissiveTexture`` with ``emissiveFactor`` [1, 1, 1]."""
+    kinds = [("material", material_pages)] + ([("emissive", emissive_pages)] if emissive_pages is not None else [])
+    for kind, kind_pages in kinds:
+        first = len(images)
+        images += [
+            {"bufferView": binary.add(page_png(page)), "mimeType": "image/png", "name": f"{kind}-{index:03d}"}
+            for index, page in enumerate(kind_pages)
+        ]
+        for index, material in enumerate(materials):
+            if kind == "material":
+                pbr = material["pbrMetallicRoughness"]
+                pbr["metallicFactor"], pbr["roughnessFactor"] = 1.0, 1.0
+                pbr["metallicRoughnessTexture"] = {"index": first + index, "texCoord": 0}
+                material["occlusionTexture"] = {"index": first + index, "texCoord": 0}
+            else:
+                material["emissiveTexture"] = {"index": first + index, "texCoord": 0}
+                material["emissiveFactor"] = [1.0, 1.0, 1.0]
+
+
 _POINTS_MATERIAL = {
     "name": "points",
     "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0},
@@ -459,14 +482,18 @@ class GlbBuilder:
         """Per page with quads: (page, float32 positions, float32 UVs, indices), vertices welded."""
         return _quad_pages(payload, self.viewpoint, page_count)
 
-    def lit_quads(self, payload: QuadPayload, pages, normal_pages) -> GlbParts:
+    def lit_quads(
+        self, payload: QuadPayload, pages, normal_pages, material_pages=None, emissive_pages=None
+    ) -> GlbParts:
         """:meth:`textured` quads with NORMAL, TANGENT and each page's world normals (``normal_pages``)
-        as a tangent-space normal texture in the frames of its quads (:func:`quad_frames`)."""
+        as a tangent-space normal texture in the frames of its quads (:func:`quad_frames`), and
+        the material and emissive pages where given (:meth:`textured`)."""
         frames = quad_frames(payload, self.viewpoint)
         if payload.depth_range is not None:
             return self._depth_quads(payload, pages, normal_pages, frames)
         geometry = _quad_pages(payload, self.viewpoint, len(pages), frames)
-        return self.textured(geometry, pages, tangent_space_pages(payload, frames, normal_pages))
+        normal = tangent_space_pages(payload, frames, normal_pages)
+        return self.textured(geometry, pages, normal, material_pages, emissive_pages)
 
     def _depth_quads(self, payload: QuadPayload, pages, normal_pages, frames) -> GlbParts:
         """:meth:`lit_quads` of quads with the depth channel (:mod:`farfield.core.impostor.depth`):
@@ -486,13 +513,15 @@ class GlbBuilder:
         """Per page with triangles: (page, float32 positions, float32 UVs, indices)."""
         return _mesh_pages(payload, self.viewpoint, page_count)
 
-    def lit_mesh(self, payload: MeshPayload, pages, normal_pages) -> GlbParts:
+    def lit_mesh(self, payload: MeshPayload, pages, normal_pages, material_pages=None, emissive_pages=None) -> GlbParts:
         """:meth:`textured` triangles with NORMAL, TANGENT and each page's world normals
         (``normal_pages``) as a tangent-space normal texture in the frames a viewer interpolates
-        from the vertices' (:mod:`farfield.core.impostor.mesh_frames`)."""
+        from the vertices' (:mod:`farfield.core.impostor.mesh_frames`), and the material and
+        emissive pages where given (:meth:`textured`)."""
         frames = vertex_frames(payload, triangle_frames(payload, self.viewpoint))
         geometry = _mesh_pages(payload, self.viewpoint, len(pages), frames)
-        return self.textured(geometry, pages, tangent_space_pages(payload, frames, normal_pages))
+        normal = tangent_space_pages(payload, frames, normal_pages)
+        return self.textured(geometry, pages, normal, material_pages, emissive_pages)
 
     def images(self, pages) -> list[dict]:
         """Each page's PNG in the BIN chunk, as glTF images in page order."""
@@ -501,7 +530,9 @@ class GlbBuilder:
             for index, page in enumerate(pages)
         ]
 
-    def textured(self, page_geometry: Iterable, pages, normal_pages=None) -> GlbParts:
+    def textured(
+        self, page_geometry: Iterable, pages, normal_pages=None, material_pages=None, emissive_pages=None
+    ) -> GlbParts:
         """One ``TRIANGLES`` primitive per item of ``page_geometry`` ((page, positions, UVs, indices),
         each triangle turned to face the viewpoint), then every page of ``pages`` as an image and a material.
 
@@ -564,6 +595,8 @@ class GlbBuilder:
             for index, page in enumerate(normal_pages)
         ]
         materials = [_page_material(index, normal=len(pages) + index) for index in range(len(pages))]
+        if material_pages is not None:
+            _add_material_pages(self.binary, images, materials, material_pages, emissive_pages)
         return GlbParts(primitives, materials, images)
 
     def points(self, payload: PointPayload, pages) -> GlbParts:

@@ -243,7 +243,9 @@ def _compress(data: bytes, textures: str, geometry: str, codec: str) -> bytes:
 
     # Normal textures (a lit impostor's, glTF normalTexture) hold directions, not colours: UASTC
     # whatever the codec asked (ETC1S's shared endpoints bend normals by degrees), linear transfer.
-    normal_images = _normal_images(document)
+    # So do the material pages (glTF's ORM packing: occlusion, roughness, metallic), linear data
+    # too; an emissive page is a colour, sRGB in the codec asked.
+    normal_images = _normal_images(document) | _material_images(document)
     # Normal textures whose alpha holds depth (farfield.core.impostor.depth): UASTC at quality 100,
     # which keeps the alpha within 3 levels at the 99th percentile (the default 50: 20).
     depth_images = _normal_images(document, DEPTH_EXTENSION)
@@ -370,6 +372,23 @@ def _normal_images(document: dict, extension: str | None = None) -> set[int]:
             source = textures[info["index"]].get("source")
             if isinstance(source, int):
                 found.add(source)
+    return found
+
+
+def _material_images(document: dict) -> set[int]:
+    """The images that materials use as ``metallicRoughnessTexture`` or ``occlusionTexture`` (linear data)."""
+    textures = document.get("textures", [])
+    found = set()
+    for material in document.get("materials", []):
+        pbr = material.get("pbrMetallicRoughness", {})
+        for info in (
+            pbr.get("metallicRoughnessTexture") if isinstance(pbr, dict) else None,
+            material.get("occlusionTexture"),
+        ):
+            if isinstance(info, dict) and isinstance(info.get("index"), int) and info["index"] < len(textures):
+                source = textures[info["index"]].get("source")
+                if isinstance(source, int):
+                    found.add(source)
     return found
 
 

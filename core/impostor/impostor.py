@@ -172,7 +172,35 @@ class _PayloadBase:
             raise ValueError(f"no lit evaluation for a {self.kind!r} payload yet")
         pages = impostor.channels.get("normal") if normals else None
         maps = [pages[page_of(obj)] for obj in objects] if pages is not None else None
+        if "material" in impostor.channels:
+            objects = with_material_pages(objects, impostor.channels)
         return MeshRenderer(objects, normals=True, normal_maps=maps)
+
+
+def with_material_pages(objects: list, channels: dict) -> list:
+    """The draw objects (one per atlas page, :func:`page_of`) with their page's material channels as
+    their material: the ORM page as ``metallic_roughness_texture`` and ``occlusion_texture`` (factors
+    1, occlusion strength 1, ``material_uv`` their ``uv``) and the emissive page, where kept, as
+    ``emissive_texture`` (factor 1, 1, 1), for the G-buffer's MeshRenderer."""
+    from dataclasses import replace
+
+    out = []
+    for obj in objects:
+        page = page_of(obj)
+        orm = channels["material"][page]
+        emissive = channels.get("emissive")
+        out.append(replace(
+            obj,
+            metallic_factor=1.0,
+            roughness_factor=1.0,
+            metallic_roughness_texture=orm,
+            occlusion_texture=orm,
+            occlusion_strength=1.0,
+            emissive_factor=np.ones(3) if emissive is not None else np.zeros(3),
+            emissive_texture=emissive[page] if emissive is not None else None,
+            material_uv=obj.uv,
+        ))  # fmt: skip
+    return out
 
 
 def page_of(obj) -> int:
@@ -276,6 +304,9 @@ class QuadPayload(_PayloadBase):
         normals = impostor.channels.get("normal")
         if normals is None:
             return glb.textured(glb.quad_pages(self, len(impostor.pages)), impostor.pages)
+        if "material" in impostor.channels:  # metallic-roughness and occlusion (and emission) textures too
+            material, emissive = impostor.channels["material"], impostor.channels.get("emissive")
+            return glb.lit_quads(self, impostor.pages, normals, material, emissive)
         return glb.lit_quads(self, impostor.pages, normals)
 
     def draw_objects(self, impostor: Impostor) -> list:
@@ -389,6 +420,9 @@ class MeshPayload(_PayloadBase):
         normals = impostor.channels.get("normal")
         if normals is None:
             return glb.textured(glb.mesh_pages(self, len(impostor.pages)), impostor.pages)
+        if "material" in impostor.channels:  # metallic-roughness and occlusion (and emission) textures too
+            material, emissive = impostor.channels["material"], impostor.channels.get("emissive")
+            return glb.lit_mesh(self, impostor.pages, normals, material, emissive)
         return glb.lit_mesh(self, impostor.pages, normals)
 
     def draw_objects(self, impostor: Impostor) -> list:
@@ -445,6 +479,11 @@ class PointPayload(_PayloadBase):
     axes: np.ndarray
     rectangle: np.ndarray
     normal: np.ndarray | None = None
+    # (n, 4) int64 bytes, optional (channels albedo+normal+material): each point's glTF ORM packing
+    # (occlusion, roughness, metallic, 255) and, where an object of the part emits, its emission
+    # sRGB-encoded (:mod:`farfield.core.ldi.materials`)
+    material: np.ndarray | None = None
+    emissive: np.ndarray | None = None
 
     kind: ClassVar[str] = "points"
     NO_PAGE: ClassVar[int] = -1
@@ -458,7 +497,11 @@ class PointPayload(_PayloadBase):
         ("axes", "f", (2, 3)),
         ("rectangle", "f", (2, 2)),
     )
-    OPTIONAL_ARRAYS: ClassVar[tuple] = (("normal", "f", ("n", 3)),)
+    OPTIONAL_ARRAYS: ClassVar[tuple] = (
+        ("normal", "f", ("n", 3)),
+        ("material", "i", ("n", 4)),
+        ("emissive", "i", ("n", 4)),
+    )
 
     def __post_init__(self) -> None:
         for name, _, _ in self.stored_arrays():
@@ -503,6 +546,10 @@ class PointPayload(_PayloadBase):
             raise BundleFormatError("points payload: a textured point's texel must be >= 0")
         if self.normal is not None and self.count and np.abs(np.linalg.norm(self.normal, axis=1) - 1.0).max() > 1e-6:
             raise BundleFormatError("points payload: every normal must be a unit vector")
+        for name in ("material", "emissive"):
+            values = getattr(self, name)
+            if values is not None and values.size and (values.min() < 0 or values.max() > 255):
+                raise BundleFormatError(f"points payload: {name} must be bytes, 0-255")
 
     @property
     def point_count(self) -> int:
@@ -659,6 +706,9 @@ class LdiPayload(_PayloadBase):
             np.zeros(1, np.int64),
         )
         normals = impostor.channels.get("normal")
+        if normals is not None and shown and "material" in impostor.channels:  # the first layer's material too
+            emissive = impostor.channels.get("emissive")
+            return glb.lit_quads(quad, shown, normals[:1], impostor.channels["material"][:1], emissive and emissive[:1])
         if normals is not None and shown:
             return glb.lit_quads(quad, shown, normals[:1])
         return glb.textured(glb.quad_pages(quad, len(shown)) if shown else (), shown)

@@ -384,7 +384,7 @@ def compose(layout: AtlasLayout, tiles, padding: int | None = None, bleed: int =
         raise LayerPlanError(f"layout has {n} tiles, got {len(tiles)} images")
     p = layout.padding
     depth = int(np.asarray(tiles[0]).shape[-1]) if tiles and np.asarray(tiles[0]).ndim == 3 else 4
-    depth = depth if depth in (4, 8) else 4
+    depth = depth if depth in (4, 8, 12, 16) else 4
     pages = [np.zeros((int(hh), int(ww), depth), dtype=np.uint8) for ww, hh in layout.page_sizes]
     for i, tile in enumerate(tiles):
         t = np.asarray(tile)

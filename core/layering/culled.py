@@ -47,6 +47,7 @@ def culled_layers(
     fill: Fill | None = None,
     normals: bool = False,
     depth: bool = False,
+    material: bool = False,
 ) -> Iterator[CulledLayer]:
     """Record, fill and cull ``plan``'s layers of ``scene`` in order, timing ``record``, ``gap_fill``
     (when ``fill`` is given) and ``cull`` on ``clock``.
@@ -56,11 +57,12 @@ def culled_layers(
     or its objects as the view cell sees them (:func:`farfield.core.sidedness.seen_from_cell`).
     ``normals`` records the normal channel too: each image is then (H, W, 8), the world shading
     normals in its last four channels (:func:`~farfield.core.layering.recording.iter_layers`);
-    ``depth`` writes the depth in their alpha.
+    ``depth`` writes the depth in their alpha; ``material`` (with ``normals``) the material channel after them, (H, W, 12), and the emissive
+    channel where an object emits, (H, W, 16).
     """
     res_x, res_y = (int(r) for r in plan.texture_resolution)
     culler = LayerCuller((res_y, res_x), culling)
-    layers = iter_layers(scene, plan, conservative, normals, depth)
+    layers = iter_layers(scene, plan, conservative, normals, depth=depth, material=material)
     previous = None
     while True:
         with clock("record"):

@@ -27,6 +27,7 @@ lower bound").
 from __future__ import annotations
 
 import time
+import warnings
 from collections import OrderedDict
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -41,7 +42,7 @@ from farfield.core.render.context import gl_context
 from farfield.core.render.cut_colours import cut_weighted_linear
 from farfield.core.render.programs import linear_texture, park_framebuffer, program, set_material, srgb_texture
 from farfield.core.render.raster import mesh_variant
-from farfield.core.scene import Scene, SceneObject
+from farfield.core.scene import Scene, SceneObject, emits
 
 # Most vertices a triangle keeps after clipping to a slab: each of the two planes adds at most one.
 MAX_POLYGON = 5
@@ -60,6 +61,9 @@ NORMAL_FORMAT, NORMAL_ATTRIBUTES, NORMAL_FLOATS = ("3f", "3f", "3f"), ("i_normal
 # after the normals, and one float of padding, read as seven vec4 (a GL guarantees 16 vertex inputs;
 # the variant does not read the vertex colours, whose floats it skips).
 MAP_FORMAT, MAP_ATTRIBUTES, MAP_FLOATS = ("4f",) * 7, tuple(f"i_map{k}" for k in range(7)), 19
+# With a material uv of its own and no normal map (the MATERIAL_UV_OWN variant): that uv after the
+# normals and one float of padding, the normals and it read as four vec4 in the normals' place.
+OWN_FORMAT, OWN_ATTRIBUTES, OWN_FLOATS = ("4f",) * 4, tuple(f"i_own{k}" for k in range(4)), 7
 
 
 @dataclass(frozen=True, slots=True)
@@ -564,21 +568,28 @@ def pair_tangents(obj: SceneObject, triangle: np.ndarray, viewpoint: np.ndarray)
     return np.where(behind[None, None, :], -tangents, tangents)
 
 
-def _instance_records(instances: SlabInstances, obj: SceneObject, viewpoint: np.ndarray | None = None) -> np.ndarray:
+def _instance_records(
+    instances: SlabInstances, obj: SceneObject, viewpoint: np.ndarray | None = None, material: bool = False
+) -> np.ndarray:
     """(n, 43) float32 records for the GL upload, in the layout of INSTANCE_FORMAT; (n, 52) with
-    the normals seen from ``viewpoint`` appended (:func:`pair_normals`) when it is given."""
+    the normals seen from ``viewpoint`` appended (:func:`pair_normals`) when it is given.  With
+    ``material``, an object whose material textures take the uv's place (:func:`material_uv_source`
+    ``"uv slot"``) has its material uv in the uv fields, and one with a uv of its own (``"own"``)
+    has it after the normals, (n, 59)."""
     n = instances.triangle.shape[0]
     corners = obj.faces[instances.triangle].T  # (3, n)
     mapped = viewpoint is not None and records_normal_map(obj)
-    extra = (NORMAL_FLOATS if viewpoint is not None else 0) + (MAP_FLOATS if mapped else 0)
+    own = material and viewpoint is not None and material_uv_source(obj) == "own"
+    extra = (NORMAL_FLOATS if viewpoint is not None else 0) + (MAP_FLOATS if mapped else 0) + (OWN_FLOATS if own else 0)
     records = np.empty((INSTANCE_FLOATS + extra, n), dtype="<f4")  # filled row by row, transposed once
     records[0:4] = instances.rect
     records[4:14] = instances.polygon.transpose(1, 0, 2).reshape(10, n)  # x0, y0, x1, y1, ...
     records[14] = instances.count
     records[15] = 0.0
     records[16:25] = instances.vertices.transpose(1, 0, 2).reshape(9, n)
-    if obj.uv is not None:
-        records[25:31] = np.take(obj.uv.T, corners, axis=1).transpose(1, 0, 2).reshape(6, n)
+    uv = obj.material_uv if material and material_uv_source(obj) == "uv slot" else obj.uv
+    if uv is not None:
+        records[25:31] = np.take(uv.T, corners, axis=1).transpose(1, 0, 2).reshape(6, n)
     else:
         records[25:31] = 0.0
     if obj.vertex_colors is not None:
@@ -591,7 +602,102 @@ def _instance_records(instances: SlabInstances, obj: SceneObject, viewpoint: np.
         records[52:58] = np.take(obj.normal_uv.T, corners, axis=1).transpose(1, 0, 2).reshape(6, n)
         records[58:70] = pair_tangents(obj, instances.triangle, viewpoint).transpose(1, 0, 2).reshape(12, n)
         records[70] = 0.0
+    if own:
+        records[52:58] = np.take(obj.material_uv.T, corners, axis=1).transpose(1, 0, 2).reshape(6, n)
+        records[58] = 0.0
     return np.ascontiguousarray(records.T)
+
+
+def has_material_textures(obj: SceneObject) -> bool:
+    """Whether ``obj`` has a metallic-roughness, occlusion or emissive texture."""
+    return any(t is not None for t in (obj.metallic_roughness_texture, obj.occlusion_texture, obj.emissive_texture))
+
+
+def material_uv_source(obj: SceneObject) -> str:
+    """Which of the recorded uvs ``obj``'s material textures are read at (:func:`iter_layers` with
+    ``material``): ``"uv"`` (its ``material_uv`` is its ``uv``, or equal to it, or it has no material
+    texture), ``"uv slot"`` (it has no base-colour texture, so the material uv takes the uv's
+    fields), ``"normal uv"`` (its normal map is recorded and shares the material uv), ``"own"`` (no
+    normal map is recorded: the material uv is packed with the normals, the MATERIAL_UV_OWN
+    variant) or ``"fallback"``: a recorded normal map with a third uv; a GL guarantees only 16
+    vertex inputs, which the recording then fills (slab_instanced.vert), so the material textures
+    are read at the base-colour uv, which :func:`iter_layers` warns of.
+
+    >>> quad = SceneObject("q", np.zeros((3, 3)), np.array([[0, 1, 2]]))
+    >>> material_uv_source(quad)
+    'uv'
+    """
+    if not has_material_textures(obj) or obj.material_uv is None:
+        return "uv"
+    if obj.uv is not None and (obj.material_uv is obj.uv or np.array_equal(obj.material_uv, obj.uv)):
+        return "uv"
+    if obj.texture is None:
+        return "uv slot"
+    if not records_normal_map(obj):
+        return "own"
+    if np.array_equal(obj.material_uv, obj.normal_uv):
+        return "normal uv"
+    return "fallback"
+
+
+def material_variant(obj: SceneObject, emissive: bool) -> tuple[str, ...]:
+    """The ``slab.frag`` defines that record ``obj``'s material channel (and, with ``emissive``,
+    the emissive channel), after :func:`slab_variant`'s and the normals'."""
+    defines = ("MATERIAL",) + (("EMISSIVE",) if emissive else ())
+    if has_material_textures(obj):
+        defines += ("MATERIAL_MAPS",)
+        source = material_uv_source(obj)
+        defines += ("MATERIAL_UV_NORMAL",) if source == "normal uv" else ("MATERIAL_UV_OWN",) if source == "own" else ()
+    return defines
+
+
+def recorded_emission(objects: Sequence[SceneObject]) -> bool:
+    """Whether a recording of ``objects`` with the material keeps the emissive channel: where one emits."""
+    return any(emits(obj) for obj in objects)
+
+
+def _unit_normal_map(normal_map: np.ndarray, scale: float) -> np.ndarray:
+    """(h, w, 4) float32 normal map of unit normals, ``scale`` applied to x and y, encoded
+    n * 0.5 + 0.5: the upload of a material recording, whose mips average the normals themselves
+    (an 8-bit texel's normal is a hundredth off unit length, which the Toksvig roughness would
+    take for spread)."""
+    m = normal_map[..., :3].astype(np.float64) / 255.0 * 2.0 - 1.0
+    m[..., :2] *= scale
+    length = np.linalg.norm(m, axis=-1, keepdims=True)
+    m = np.where(length > 1e-12, m / np.maximum(length, 1e-12), np.array([0.0, 0.0, 1.0]))
+    out = np.ones(normal_map.shape[:2] + (4,), dtype=np.float32)
+    out[..., :3] = m * 0.5 + 0.5
+    return out
+
+
+def _float_texture(ctx: moderngl.Context, rgba: np.ndarray) -> moderngl.Texture:
+    """(h, w, 4) float32 ``rgba``, top row first, as a mipmapped, trilinear, repeating float texture."""
+    image = np.ascontiguousarray(rgba[::-1], dtype="<f4")
+    texture = ctx.texture((image.shape[1], image.shape[0]), 4, image.tobytes(), dtype="f4")
+    texture.build_mipmaps()
+    texture.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+    return texture
+
+
+WHITE = np.full((1, 1, 4), 255, dtype=np.uint8)
+
+
+def _material_textures(ctx: moderngl.Context, obj: SceneObject, cache: dict, owned: list) -> tuple:
+    """The GL textures of ``obj``'s metallic-roughness, occlusion and emissive textures (mipmapped;
+    a missing one a 1x1 white), shared through ``cache`` by id, each appended to ``owned`` once."""
+    out = []
+    for array, srgb in (
+        (obj.metallic_roughness_texture, False),
+        (obj.occlusion_texture, False),
+        (obj.emissive_texture, True),
+    ):
+        array = WHITE if array is None else array
+        key = (id(array), srgb)
+        if key not in cache:
+            cache[key] = (srgb_texture if srgb else linear_texture)(ctx, array, mipmaps=True)
+            owned.append(cache[key])
+        out.append(cache[key])
+    return tuple(out)
 
 
 def slab_variant(obj: SceneObject) -> tuple[str, ...]:
@@ -611,7 +717,9 @@ def slab_variant(obj: SceneObject) -> tuple[str, ...]:
     return tuple(d for d in mesh_variant(obj, planes=False, open_faces=False) if d in ("TEXTURED", "ALPHA_CUT"))
 
 
-def _instance_format(prog: moderngl.Program, normals: bool = False, mapped: bool = False) -> tuple[str, ...]:
+def _instance_format(
+    prog: moderngl.Program, normals: bool = False, mapped: bool = False, own: bool = False
+) -> tuple[str, ...]:
     """INSTANCE_FORMAT (with the normals when ``normals``, and the normal map's uv and tangents
     when ``mapped``) and the attribute names for ``prog``: attributes its variant does not read
     (the compiler removed them) become padding."""
@@ -619,6 +727,8 @@ def _instance_format(prog: moderngl.Program, normals: bool = False, mapped: bool
     extra, named = (
         (MAP_FORMAT, MAP_ATTRIBUTES) if mapped else (NORMAL_FORMAT, NORMAL_ATTRIBUTES) if normals else ((), ())
     )
+    if own:  # the normals and the material uv, four vec4 (MATERIAL_UV_OWN)
+        extra, named = OWN_FORMAT, OWN_ATTRIBUTES
     fields = (*INSTANCE_FORMAT.split()[:-1], *extra)
     attributes = (*INSTANCE_ATTRIBUTES, *named)
     for fmt, name in zip(fields, attributes, strict=True):
@@ -628,6 +738,31 @@ def _instance_format(prog: moderngl.Program, normals: bool = False, mapped: bool
         else:
             formats.append(f"{4 * int(fmt[:-1])}x")
     return (" ".join(formats) + " /i", *names)
+
+
+def _map_key(obj: SceneObject, material: bool):
+    """The key of ``obj``'s uploaded normal map: its array's id (the 8-bit upload), with its scale
+    in a material recording (:func:`_unit_normal_map`)."""
+    return (id(obj.normal_texture), float(obj.normal_scale)) if material else id(obj.normal_texture)
+
+
+def _set_material_channel(prog: moderngl.Program, obj: SceneObject, ctx, cache: dict, owned: list) -> None:
+    """Set the MATERIAL uniforms of ``obj`` on ``prog`` and bind its material textures (units 5-7)."""
+    prog["metallic_factor"].value = float(obj.metallic_factor)
+    prog["roughness_factor"].value = float(obj.roughness_factor)
+    if "occlusion_strength" in prog:
+        prog["occlusion_strength"].value = float(obj.occlusion_strength)
+    if "emissive_factor" in prog:
+        prog["emissive_factor"].value = tuple(float(e) for e in obj.emissive_factor)
+    if not has_material_textures(obj):
+        return
+    names = ("metallic_roughness", "occlusion", "emissive")
+    for unit, (name, texture) in enumerate(zip(names, _material_textures(ctx, obj, cache, owned)), start=5):
+        if f"{name}_map" not in prog:  # the emissive map without EMISSIVE
+            continue
+        texture.use(unit)
+        prog[f"{name}_map"].value = unit
+        prog[f"{name}_size"].value = (float(texture.width), float(texture.height))
 
 
 def _object_textures(ctx: moderngl.Context, obj: SceneObject):
@@ -660,6 +795,7 @@ def iter_layers(
     conservative: bool = True,
     normals: bool = False,
     depth: bool = False,
+    material: bool = False,
 ) -> Iterator[tuple[int, np.ndarray, int]]:
     """Record the layers of ``plan`` one at a time: yields ``(i, rgba, drawn)`` nearest first.
 
@@ -686,7 +822,21 @@ def iter_layers(
     ``depth=True`` (with ``normals``; channel sets with depth) writes in that alpha instead the
     point's eye depth within layer i's slab, ``round(255 (d - near) / (far - near))``
     (:mod:`farfield.core.impostor.depth`).
+
+    ``material=True`` (with ``normals``) records the material channel after it: (h, w, 12), glTF's
+    ORM packing of the same point (occlusion ``1 + strength * (R - 1)``, roughness ``G * factor``,
+    metallic ``B * factor``, linear; the textures read at the footprint's mip level, as the normal
+    map is; alpha 255), and, where an object of ``scene`` emits (:func:`recorded_emission`),
+    (h, w, 16) with its linear emission (factor x texture) sRGB-encoded in the last four.  An object
+    without material records the defaults (occlusion 1, its factors).  Where a texel's normal comes
+    from a normal map's mip, the normals' spread under it raises the recorded roughness (Toksvig,
+    the vMF form: slab.frag).  The material textures are read at the material uv where the
+    recording's vertex inputs can carry it (:func:`material_uv_source`), else, with a warning, at
+    the base-colour uv.
     """
+    material = bool(material and normals)
+    objects = list(scene.objects if isinstance(scene, Scene) else scene)
+    emissive = material and recorded_emission(objects)
     ctx = gl_context()
     depth_channel = bool(normals and depth)  # before ``depth`` names the depth texture below
     res_x, res_y = (int(r) for r in plan.texture_resolution)
@@ -695,19 +845,20 @@ def iter_layers(
     slabs = eye_borders.astype("<f4")
 
     draws = []
-    for obj in scene.objects if isinstance(scene, Scene) else scene:
+    for obj in objects:
         eye = eye_coordinates(plan, obj.vertices)
         instances = slab_instances(
             eye, obj.faces, eye_borders, plan.frustum_half_tangents, plan.texture_resolution, faces_with_area(obj)
         )
         if instances.triangle.size:
             viewpoint = np.asarray(plan.reference_viewpoint, dtype=np.float64) if normals else None
-            draws.append((obj, instances.offsets, _instance_records(instances, obj, viewpoint)))
+            draws.append((obj, instances.offsets, _instance_records(instances, obj, viewpoint, material)))
     largest = max((int(np.diff(offsets).max()) for _, offsets, _ in draws), default=0)
     floats = max((records.shape[1] for _, _, records in draws), default=INSTANCE_FLOATS)
 
     colour = ctx.texture((res_x, res_y), 4)
-    targets = [colour] + ([ctx.texture((res_x, res_y), 4)] if normals else [])
+    extra = int(normals) + int(material) + int(emissive)
+    targets = [colour] + [ctx.texture((res_x, res_y), 4) for _ in range(extra)]
     depth = ctx.depth_texture((res_x, res_y))
     fbo = ctx.framebuffer(targets, depth)
     owned = [*targets, depth, fbo]
@@ -718,19 +869,36 @@ def iter_layers(
         owned.append(stream)
         variants = {}  # defines -> (program, its vertex array over the stream)
         normal_maps = {}  # id of a normal map array -> its GL texture
+        material_maps = {}  # (id of a material texture, sRGB) -> its GL texture
+        warned = set()
         passes, uploaded = [], {}  # objects sharing a texture (and its cut) share its GL textures
         for obj, _, _ in draws:
             mapped = normals and records_normal_map(obj)
             defines = slab_variant(obj) + (("NORMALS",) if normals else ()) + (("NORMAL_MAP",) if mapped else ())
             defines += ("DEPTH_CHANNEL",) if depth_channel else ()
+            if material:
+                defines += material_variant(obj, emissive)
+                if material_uv_source(obj) == "fallback" and obj.name not in warned:
+                    warned.add(obj.name)
+                    warnings.warn(
+                        f"object {obj.name!r}: its material textures' uv differs from its base-colour uv "
+                        "(and its normal map's), and the recording has no vertex input left for a third: "
+                        "its material textures are read at the base-colour uv",
+                        stacklevel=2,
+                    )
             if defines not in variants:
                 prog = program(ctx, "slab_instanced.vert", "slab.frag", defines=defines)
                 prog["resolution"].value = (float(res_x), float(res_y))
                 prog["conservative"].value = bool(conservative)
-                vao = ctx.vertex_array(prog, [(stream, *_instance_format(prog, normals, mapped))])
+                own = "MATERIAL_UV_OWN" in defines
+                vao = ctx.vertex_array(prog, [(stream, *_instance_format(prog, normals, mapped, own))])
                 owned.append(vao)
                 variants[defines] = (prog, vao)
-            if mapped and id(obj.normal_texture) not in normal_maps:
+            if mapped and material and _map_key(obj, material) not in normal_maps:
+                texture = _float_texture(ctx, _unit_normal_map(obj.normal_texture, float(obj.normal_scale)))
+                normal_maps[_map_key(obj, material)] = texture
+                owned.append(texture)
+            if mapped and _map_key(obj, material) not in normal_maps:
                 normal_maps[id(obj.normal_texture)] = linear_texture(ctx, obj.normal_texture, mipmaps=True)
                 owned.append(normal_maps[id(obj.normal_texture)])
             key = None if obj.texture is None else (id(obj.texture), obj.alpha_cutoff, float(obj.base_color[3]))
@@ -766,11 +934,14 @@ def iter_layers(
                     continue
                 set_material(prog, obj, texture)
                 if normals and records_normal_map(obj):
-                    normal_map = normal_maps[id(obj.normal_texture)]
+                    normal_map = normal_maps[_map_key(obj, material)]
                     normal_map.use(4)
                     prog["normal_map"].value = 4
                     prog["normal_map_size"].value = (float(normal_map.width), float(normal_map.height))
-                    prog["normal_scale"].value = float(obj.normal_scale)
+                    # A material recording's map has the scale applied (_unit_normal_map).
+                    prog["normal_scale"].value = 1.0 if material else float(obj.normal_scale)
+                if material:
+                    _set_material_channel(prog, obj, ctx, material_maps, owned)
                 if cut is not None:
                     prog["texture_size"].value = (float(texture.width), float(texture.height))
                     cut.use(2)
@@ -789,7 +960,8 @@ def iter_layers(
             layer = np.frombuffer(colour.read(), dtype=np.uint8).reshape(res_y, res_x, 4)
             if normals:
                 layer = np.concatenate(
-                    [layer, np.frombuffer(targets[1].read(), dtype=np.uint8).reshape(res_y, res_x, 4)], axis=2
+                    [layer, *(np.frombuffer(t.read(), dtype=np.uint8).reshape(res_y, res_x, 4) for t in targets[1:])],
+                    axis=2,
                 )
             ctx.depth_func = "<"  # the GL default, which every other pass on this context assumes
             yield i, layer, drawn
@@ -807,6 +979,7 @@ def record_layers(
     on_layer: Callable[[int], None] | None = None,
     normals: bool = False,
     depth: bool = False,
+    material: bool = False,
 ) -> RecordedLayers:
     """Every layer of ``plan`` at once (see :func:`iter_layers`; this holds k x h x w x 4 bytes,
     8 with ``normals``).
@@ -814,9 +987,11 @@ def record_layers(
     ``on_layer(i)`` is called after layer i.
     """
     res_x, res_y = (int(r) for r in plan.texture_resolution)
-    out = np.zeros((plan.count, res_y, res_x, 8 if normals else 4), dtype=np.uint8)
+    objects = scene.objects if isinstance(scene, Scene) else scene
+    channels = 4 * (1 + int(normals) + int(material and normals) * (1 + int(recorded_emission(objects))))
+    out = np.zeros((plan.count, res_y, res_x, channels), dtype=np.uint8)
     drawn = np.zeros(plan.count, dtype=np.int64)
-    for i, layer, count in iter_layers(scene, plan, conservative, normals, depth):
+    for i, layer, count in iter_layers(scene, plan, conservative, normals, depth=depth, material=material):
         out[i], drawn[i] = layer, count
         if on_layer is not None:
             on_layer(i)

@@ -90,7 +90,9 @@ def check_pages(max_page: int, padding: int) -> None:
 
 def split_channels(pages: tuple[np.ndarray, ...]) -> tuple[tuple[np.ndarray, ...], dict]:
     """Pages of 8 channels (colour, then normals: tiles cut from layers recorded with normals) as
-    the colour pages and the impostor's ``channels`` (``{"normal": pages}``); pages of 4 as they are.
+    the colour pages and the impostor's ``channels`` (``{"normal": pages}``); pages of 4 as they are;
+    of 12 (the material after the normals) or 16 (and the emission), ``{"normal": ..., "material":
+    ..., "emissive": ...}``.
 
     >>> colour, channels = split_channels((np.zeros((2, 2, 8), np.uint8),))
     >>> colour[0].shape, channels["normal"][0].shape
@@ -99,6 +101,11 @@ def split_channels(pages: tuple[np.ndarray, ...]) -> tuple[tuple[np.ndarray, ...
     if not pages or pages[0].shape[2] == 4:
         return tuple(pages), {}
     colour = tuple(np.ascontiguousarray(p[..., :4]) for p in pages)
+    if pages[0].shape[2] > 8:  # the material channel (and the emissive one) after the normals
+        names = ("normal", "material", "emissive")[: pages[0].shape[2] // 4 - 1]
+        return colour, {
+            n: tuple(np.ascontiguousarray(p[..., 4 * k + 4 : 4 * k + 8]) for p in pages) for k, n in enumerate(names)
+        }
     return colour, {"normal": tuple(np.ascontiguousarray(p[..., 4:]) for p in pages)}
 
 

@@ -57,6 +57,17 @@ def normal_pages(ldi: LayeredDepthImage, normals: np.ndarray) -> tuple[np.ndarra
     return tuple(page for k in range(ldi.layers) for page in (np.ascontiguousarray(encoded[k]), empty.copy()))
 
 
+def sample_pages(ldi: LayeredDepthImage, values: np.ndarray) -> tuple[np.ndarray, ...]:
+    """A channel's pages laid out as :func:`normal_pages` (layer ``k``'s on page ``2k``, an empty page
+    after it) of ``ldi`` whose samples (in the order of :meth:`~farfield.core.ldi.image.LayeredDepthImage.samples`)
+    have the (m, 4) uint8 ``values`` (the material and emissive channels, :mod:`farfield.core.ldi.materials`)."""
+    present = np.isfinite(ldi.depth)
+    encoded = np.zeros(ldi.depth.shape + (4,), np.uint8)
+    encoded[present] = values
+    empty = np.zeros(ldi.depth.shape[1:] + (4,), np.uint8)
+    return tuple(page for k in range(ldi.layers) for page in (np.ascontiguousarray(encoded[k]), empty.copy()))
+
+
 def image_quad(camera: Camera) -> np.ndarray:
     """(4, 3) world corners of the LDI's window on its near plane: top-left, top-right, bottom-right,
     bottom-left as seen from its eye."""

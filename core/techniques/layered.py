@@ -22,6 +22,7 @@ from farfield.core.impostor.impostor import (
     QuadPayload,
     texel_rect_corners,
     wants_depth,
+    wants_material,
     wants_normals,
 )
 from farfield.core.layering import recording
@@ -136,10 +137,11 @@ def bake_layered(
     # One-sided triangles whose back faces the whole cell are not recorded (the plan keeps the part's bounds).
     seen = seen_from_cell(part.objects, cell)
     normals = wants_normals(options.channels)
+    material = wants_material(options.channels)
     depth = wants_depth(options.channels)
     depth_ranges = []  # per quad, ray scales of its slab (farfield.core.impostor.depth), with depth
     layers_of_plan = culled_layers(
-        seen, plan, options.culling, clock, options.conservative, normals=normals, depth=depth
+        seen, plan, options.culling, clock, options.conservative, normals=normals, depth=depth, material=material
     )
     for layer in layers_of_plan:
         i = layer.index

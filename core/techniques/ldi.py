@@ -34,15 +34,16 @@ import numpy as np
 from farfield.core import __version__
 from farfield.core.errors import LayerPlanError
 from farfield.core.impostor.depth import refuse_depth
-from farfield.core.impostor.impostor import ChannelSet, Impostor, LdiPayload, wants_normals
+from farfield.core.impostor.impostor import ChannelSet, Impostor, LdiPayload, wants_material, wants_normals
 from farfield.core.ldi.construction import DEFAULT_MAX_LAYERS, _merge_samples, construct_ldi, view_frame
+from farfield.core.ldi.materials import sample_material
 from farfield.core.ldi.normals import sample_normals
-from farfield.core.ldi.pages import ldi_payload_and_pages, normal_pages
+from farfield.core.ldi.pages import ldi_payload_and_pages, normal_pages, sample_pages
 from farfield.core.ldi.warp import _warp_kernel
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION
 from farfield.core.quality.evaluation import Evaluation
-from farfield.core.scene import Scene
+from farfield.core.scene import Scene, emits
 from farfield.core.sidedness import seen_from_cell
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import NO_PROMISE, CellCost, TechniqueDefinition
@@ -182,10 +183,19 @@ def bake_ldi(
                 seen_from_cell(part.objects, cell), ldi.obj[at], ldi.triangle[at], positions, cell.corners()
             )
             channels = {"normal": normal_pages(ldi, normals)}
+            if wants_material(options.channels):  # the material (and emission) of the same samples
+                objects = seen_from_cell(part.objects, cell)
+                orm, emissive = sample_material(objects, ldi.obj[at], ldi.triangle[at], positions)
+                channels["material"] = sample_pages(ldi, orm)
+                if any(emits(o) for o in objects):
+                    channels["emissive"] = sample_pages(ldi, emissive)
         stats["seconds"] = clock.totals()
         # memory per channel (a colour-only bake's stats stay as they were): the normal pages of the layers, and
         # what a splat drawer uploads per sample (a float32 normal)
         stats["channel_bytes"] = {"albedo": stats["texture_bytes"], "normal": ldi.layers * int(ldi.depth[0].size) * 4}
+        for name in ("material", "emissive"):
+            if name in channels:
+                stats["channel_bytes"][name] = ldi.layers * int(ldi.depth[0].size) * 4
         stats["splat_normal_bytes"] = n * NORMAL_BYTES
     return Impostor(
         technique="ldi", viewcell=cell.to_dict(), reference_viewpoint=view.eye, resolution=options.resolution, fov_deg=options.fov_deg,

@@ -40,6 +40,34 @@ uniform sampler2D normal_map;
 uniform vec2 normal_map_size;
 uniform float normal_scale;
 #endif
+#ifdef MATERIAL
+// MATERIAL (a layer recorded with the material channel, core/layering/recording.py): glTF's
+// metallic-roughness material of the same point in a third RGBA8 target, packed as glTF's ORM
+// (R occlusion = 1 + strength * (R - 1), G roughness, B metallic, linear, A 1); EMISSIVE besides,
+// when an object of the part emits, its linear emission (factor x sRGB-decoded texture) written
+// sRGB-encoded in a fourth.  MATERIAL_MAPS for an object with a material texture: the three are
+// read (a missing one bound to a 1x1 white texture) at the footprint's mip level, as the normal
+// map is, at the uv MATERIAL_UV names (g_uv, g_nuv with MATERIAL_UV_NORMAL, g_muv with MATERIAL_UV_OWN).
+uniform float metallic_factor;
+uniform float roughness_factor;
+uniform float occlusion_strength;
+uniform vec3 emissive_factor;
+layout(location = 2) out vec4 frag_material;
+#ifdef EMISSIVE
+layout(location = 3) out vec4 frag_emissive;
+#endif
+#ifdef MATERIAL_UV_OWN
+flat in vec2 g_muv[3];  // the material uv, where it has inputs of its own (slab_instanced.vert)
+#endif
+#ifdef MATERIAL_MAPS
+uniform sampler2D metallic_roughness_map;  // linear: G roughness, B metallic
+uniform sampler2D occlusion_map;           // linear: R occlusion
+uniform sampler2D emissive_map;            // sRGB
+uniform vec2 metallic_roughness_size;
+uniform vec2 occlusion_size;
+uniform vec2 emissive_size;
+#endif
+#endif
 
 uniform bool conservative;
 uniform vec2 slab;
@@ -425,6 +453,11 @@ void main() {
     // colour is read back, so the bands change no coverage.
     gl_FragDepth = 0.5 * (depth - slab.x) / max(slab.y - slab.x, 1e-30) + (shown ? 0.0 : 0.5);
     frag_color = vec4(linear_to_srgb(colour.rgb), 1.0);
+#ifdef MATERIAL
+    // The normals' spread under the texel's footprint: |mean| of the unit normals a normal map's
+    // mip averages (1 where there is none); it widens the recorded roughness (Toksvig below).
+    float mean_length = 1.0;
+#endif
 #ifdef NORMALS
     vec3 n = pb.x * g_normal[0] + pb.y * g_normal[1] + pb.z * g_normal[2];
     float len = length(n);
@@ -440,6 +473,11 @@ void main() {
             vec3 b = cross(n, t) * (w < 0.0 ? -1.0 : 1.0);  // as mesh.frag: the interpolated handedness's sign
             vec3 m = textureLod(normal_map, nuv, footprint_level(c, g_nuv, normal_map_size)).rgb * 2.0 - 1.0;
             m.xy *= normal_scale;
+#ifdef MATERIAL
+            // The material recording uploads the map as float unit normals, normal_scale applied
+            // (recording.py, _unit_normal_map), so the mip's mean is the normals' true mean.
+            mean_length = min(length(m), 1.0);
+#endif
             vec3 mapped = t * m.x + b * m.y + n * m.z;
             if (dot(mapped, mapped) > 1e-24) { n = normalize(mapped); }
         }
@@ -452,5 +490,43 @@ void main() {
 #else
     frag_normal = vec4(n * 0.5 + 0.5, 1.0);
 #endif
+#ifdef MATERIAL
+    {
+        float occlusion = 1.0;
+        float roughness = roughness_factor;
+        float metallic = metallic_factor;
+        vec3 emission = emissive_factor;
+#ifdef MATERIAL_MAPS
+        vec2 t3[3];
+#if defined(MATERIAL_UV_NORMAL)
+        t3[0] = g_nuv[0]; t3[1] = g_nuv[1]; t3[2] = g_nuv[2];
+#elif defined(MATERIAL_UV_OWN)
+        t3[0] = g_muv[0]; t3[1] = g_muv[1]; t3[2] = g_muv[2];
+#else
+        t3[0] = g_uv[0]; t3[1] = g_uv[1]; t3[2] = g_uv[2];
+#endif
+        vec2 muv = pb.x * t3[0] + pb.y * t3[1] + pb.z * t3[2];
+        vec4 mr = textureLod(metallic_roughness_map, muv, footprint_level(c, t3, metallic_roughness_size));
+        roughness *= mr.g;
+        metallic *= mr.b;
+        occlusion = 1.0 + occlusion_strength * (textureLod(occlusion_map, muv, footprint_level(c, t3, occlusion_size)).r - 1.0);
+        emission *= textureLod(emissive_map, muv, footprint_level(c, t3, emissive_size)).rgb;
+#endif
+        // Toksvig (2005, "Mipmapping normal maps") in the von Mises-Fisher form of Neubelt and
+        // Pettineo (2013, "Crafting a next-gen material pipeline for The Order: 1886"): a mean of
+        // unit normals of length r fits a vMF lobe of sharpness kappa ~ r (3 - r^2) / (1 - r^2)
+        // (Banerjee et al. 2005), a Beckmann/GGX lobe of alpha^2 ~ 2 / kappa, whose width adds to
+        // the material's in alpha^2 (as Filament's specular anti-aliasing adds its kernel
+        // roughness): alpha = roughness^2, so roughness' = (roughness^4 + 2 / kappa)^(1/4).
+        // Written as 2 (1 - r^2) / (r (3 - r^2)) rather than through kappa, which is infinite at r = 1.
+        float r = max(mean_length, 1e-4);
+        float spread = 2.0 * (1.0 - r * r) / (r * (3.0 - r * r));
+        float alpha = roughness * roughness;
+        roughness = min(sqrt(sqrt(alpha * alpha + spread)), 1.0);
+        frag_material = vec4(clamp(occlusion, 0.0, 1.0), clamp(roughness, 0.0, 1.0), clamp(metallic, 0.0, 1.0), 1.0);
+#ifdef EMISSIVE
+        frag_emissive = vec4(linear_to_srgb(clamp(emission, 0.0, 1.0)), 1.0);
+#endif
+    }
 #endif
 }

@@ -19,13 +19,23 @@ in vec4 i_color0;
 in vec4 i_color1;
 in vec4 i_color2;
 #endif
-#if defined(NORMALS) && !defined(NORMAL_MAP)
+#if defined(NORMALS) && !defined(NORMAL_MAP) && !defined(MATERIAL_UV_OWN)
 in vec3 i_normal0;   // world shading normals at the triangle's vertices, turned to the reference viewpoint's side
 in vec3 i_normal1;
 in vec3 i_normal2;
 #endif
 #ifdef NORMALS
 flat out vec3 g_normal[3];
+#endif
+#ifdef MATERIAL_UV_OWN
+// An object whose material textures have a uv of their own (core/layering/recording.py,
+// material_uv_source "own"): its normals (9 floats) and that uv (6) packed into four vec4, one
+// float of padding, in the three vec3 inputs' place (the 16 vertex inputs allow no more).
+in vec4 i_own0;
+in vec4 i_own1;
+in vec4 i_own2;
+in vec4 i_own3;
+flat out vec2 g_muv[3];
 #endif
 #ifdef NORMAL_MAP
 // A GL guarantees 16 vertex inputs: an object with a normal map (and no vertex colours, whose
@@ -105,7 +115,14 @@ void main() {
     g_color[0] = i_color0;
     g_color[1] = i_color1;
     g_color[2] = i_color2;
-#ifdef NORMALS
+#if defined(MATERIAL_UV_OWN)
+    g_normal[0] = i_own0.xyz;
+    g_normal[1] = vec3(i_own0.w, i_own1.xy);
+    g_normal[2] = vec3(i_own1.zw, i_own2.x);
+    g_muv[0] = i_own2.yz;
+    g_muv[1] = vec2(i_own2.w, i_own3.x);
+    g_muv[2] = i_own3.yz;
+#elif defined(NORMALS)
     g_normal[0] = i_normal0;
     g_normal[1] = i_normal1;
     g_normal[2] = i_normal2;

@@ -49,6 +49,7 @@ from farfield.core.impostor.impostor import (
     QuadPayload,
     texel_rect_corners,
     wants_depth,
+    wants_material,
     wants_normals,
 )
 from farfield.core.layering import recording
@@ -250,6 +251,7 @@ def bake_envmap(
     normals = wants_normals(options.channels)
     depth = wants_depth(options.channels)
     depth_ranges = []  # per quad, ray scales of its slab (farfield.core.impostor.depth), with depth
+    material = wants_material(options.channels)
     total_layers = len(options.directions) * plan.count
     tiles, quad_layer, quad_corners, layers = [], [], [], []
     counts = {"covered": 0, "culled": 0, "kept": 0, "drawn": 0, "gap_filled": 0}
@@ -261,7 +263,15 @@ def bake_envmap(
             continue
         fill = (fill_gaps_with_depth if depth else fill_gaps) if options.gap_fill else None
         layers_of_face = culled_layers(
-            seen, face, options.culling, clock, options.conservative, fill, normals=normals, depth=depth
+            seen,
+            face,
+            options.culling,
+            clock,
+            options.conservative,
+            fill,
+            normals=normals,
+            depth=depth,
+            material=material,
         )
         for layer in layers_of_face:
             i = layer.index

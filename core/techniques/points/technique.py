@@ -22,21 +22,22 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
 from farfield.core import __version__
 from farfield.core.errors import AtlasOverflowError, LayerPlanError
 from farfield.core.impostor.depth import refuse_depth
-from farfield.core.impostor.impostor import ChannelSet, Impostor, PointPayload, wants_normals
+from farfield.core.impostor.impostor import ChannelSet, Impostor, PointPayload, wants_material, wants_normals
 from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.ldi import image as ldi_kernels
+from farfield.core.ldi.materials import sample_material
 from farfield.core.ldi.normals import sample_normals
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_ERROR_PX, MAX_RESOLUTION
 from farfield.core.quality.evaluation import Evaluation
-from farfield.core.scene import Scene
+from farfield.core.scene import Scene, emits
 from farfield.core.sidedness import seen_from_cell
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import CellCost, Promise, TechniqueDefinition
@@ -190,6 +191,11 @@ def bake_points(
     if wants_normals(options.channels):
         with clock("normals"):  # on the side the cell sees (core/ldi/normals.py)
             normals = sample_normals(seen, samples.obj[kept], samples.triangle[kept], positions, box.corners())
+    material = emissive = None
+    if wants_material(options.channels):
+        with clock("material"):  # glTF's ORM bytes (and the emission where something emits) of each point
+            material, emissive = sample_material(seen, samples.obj[kept], samples.triangle[kept], positions)
+            emissive = emissive if any(emits(o) for o in seen) else None
     sample_stats = {k: v for k, v in samples.stats.items() if k != "per_camera"}
     ldi_layers = [ldi.layers for ldi in samples.ldis]
     del samples  # the three LDIs (about 1.4 GB for the bunny at 512 px) are not needed past here
@@ -207,6 +213,8 @@ def bake_points(
             shown = appearance.seen
             positions, preview = positions[shown], preview[shown]
             normals = normals[shown] if normals is not None else None
+            material = material[shown] if material is not None else None
+            emissive = emissive[shown] if emissive is not None else None
             appearance = PointAppearance(appearance.tiles[shown], appearance.seen[shown], appearance.stats)
         one = single_colour(appearance.tiles, options.single_colour)
         colour = np.where(appearance.seen[:, None], mean_colour(appearance.tiles), preview).astype(np.int64)
@@ -229,12 +237,19 @@ def bake_points(
         positions, colour, page, texel, np.array(tile), np.concatenate([sampling.normal, [sampling.offset]]),
         np.stack([sampling.u, sampling.v]), sampling.rectangle, normals,
     )  # fmt: skip
+    if material is not None:  # the optional per-point material arrays (bytes, as the colour)
+        payload = replace(payload, material=material.astype(np.int64),
+                          emissive=emissive.astype(np.int64) if emissive is not None else None)  # fmt: skip
     n = positions.shape[0]
     geometry_bytes = n * POINT_BYTES + int(textured.size) * TILE_REFERENCE_BYTES
     texture_bytes = int(sum(w * h * 4 for w, h in sizes))
     channel_bytes = {}
     if normals is not None:  # memory per channel; the other figures (and a colour-only bake's stats) stay as they were
         channel_bytes = {"channel_bytes": {"albedo": geometry_bytes + texture_bytes, "normal": n * NORMAL_BYTES}}
+        if material is not None:  # four bytes a point each
+            channel_bytes["channel_bytes"]["material"] = n * 4
+            if emissive is not None:
+                channel_bytes["channel_bytes"]["emissive"] = n * 4
     stats = {
         **sample_stats,
         "points": n,

@@ -38,7 +38,7 @@ import numpy as np
 from farfield.core import __version__
 from farfield.core.errors import InternalError
 from farfield.core.impostor.depth import refuse_depth
-from farfield.core.impostor.impostor import ChannelSet, Impostor, MeshPayload, wants_normals
+from farfield.core.impostor.impostor import ChannelSet, Impostor, MeshPayload, wants_material, wants_normals
 from farfield.core.layering import recording
 from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.layering.culling import CullingMode
@@ -322,7 +322,12 @@ def bake_tdm(
     clock.report("plan", 1, 1)
 
     field = record_voxel_field(
-        seen_from_cell(part.objects, cell), plan, options.culling, clock, wants_normals(options.channels)
+        seen_from_cell(part.objects, cell),
+        plan,
+        options.culling,
+        clock,
+        wants_normals(options.channels),
+        wants_material(options.channels),
     )
     corners, uv, triangle_page, meshes, pages, channels, stats = mesh_field(field, options, clock)
     stats = {

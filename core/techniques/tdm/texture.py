@@ -654,7 +654,10 @@ def sample_field(field: VoxelField, positions: np.ndarray, n: int) -> np.ndarray
 
     Where the field keeps normals, (m, 8): the colour, then the normal (encoded as
     :func:`~farfield.core.impostor.impostor.encode_normals`) of the same voxels with the same
-    weights, renormalized (one voxel's normal is copied as recorded)."""
+    weights, renormalized (one voxel's normal is copied as recorded); where it keeps the material,
+    (m, 12) or (m, 16): then the material (and emissive) channels, the same weighted mean of the
+    stored bytes (the emission's sRGB bytes averaged as they are, which errs by at most the sRGB
+    curve's bend between neighbouring voxels)."""
     tree = cKDTree(field.centres)
     k = min(int(n), field.count)
     distance, index = tree.query(positions, k=k)
@@ -673,7 +676,15 @@ def sample_field(field: VoxelField, positions: np.ndarray, n: int) -> np.ndarray
         normal = field.normal[index]
     else:  # the mean direction (a zero mean, opposite normals cancelling, decodes as none)
         normal = encode_normals(_unit(np.einsum("mk,mkc->mc", weight, decode_normals(field.normal[index]))))
-    return np.concatenate([out, normal], axis=1)
+    if field.material is None:
+        return np.concatenate([out, normal], axis=1)
+    # The material (and emissive) channels: the same weighted mean of the stored values, alpha 255.
+    if k == 1:
+        material = field.material[index]
+    else:
+        mean = np.einsum("mk,mkc->mc", weight, field.material[index].astype(np.float64))
+        material = np.clip(np.rint(mean), 0, 255).astype(np.uint8)
+    return np.concatenate([out, normal, material], axis=1)
 
 
 def _unit(v: np.ndarray) -> np.ndarray:

@@ -45,6 +45,9 @@ class VoxelField:
     # (n, 4) uint8 world shading normal of each voxel's surface (encode_normals: n * 0.5 + 0.5,
     # alpha 255), or None where the recording kept no normal channel
     normal: np.ndarray | None = None
+    # (n, 4) uint8 material channel of each voxel (glTF's ORM packing), (n, 8) with the emissive
+    # channel after it (recording.iter_layers), or None where the recording kept no material
+    material: np.ndarray | None = None
 
     @property
     def count(self) -> int:
@@ -131,7 +134,12 @@ class VoxelField:
 
 
 def record_voxel_field(
-    part: Scene | Sequence[SceneObject], plan: LayerPlan, culling: CullingMode, clock: StageClock, normals: bool = False
+    part: Scene | Sequence[SceneObject],
+    plan: LayerPlan,
+    culling: CullingMode,
+    clock: StageClock,
+    normals: bool = False,
+    material: bool = False,
 ) -> VoxelField:
     """Record ``plan``'s layers of ``part`` (a scene, or its objects as the view cell sees them:
     :func:`farfield.core.sidedness.seen_from_cell`) (gap-free, seed 000 §3.3.2), cull the texels hidden from
@@ -139,11 +147,12 @@ def record_voxel_field(
 
     Times ``record`` and ``cull`` on ``clock`` and reports each recorded layer.  ``normals`` records
     the normal channel too (:func:`farfield.core.layering.culled.culled_layers`): each voxel then
-    keeps the world shading normal of the surface its texel shows (:attr:`VoxelField.normal`).
+    keeps the world shading normal of the surface its texel shows (:attr:`VoxelField.normal`);
+    ``material`` (with ``normals``) its material and emission too (:attr:`VoxelField.material`).
     """
-    xs, ys, ls, colours, normal = [], [], [], [], []
+    xs, ys, ls, colours, normal, materials = [], [], [], [], [], []
     covered = culled = drawn = 0
-    for layer in culled_layers(part, plan, culling, clock, normals=normals):
+    for layer in culled_layers(part, plan, culling, clock, normals=normals, material=material):
         with clock("cull"):
             covered += layer.covered
             culled += layer.culled
@@ -154,7 +163,8 @@ def record_voxel_field(
             ls.append(np.full(row.shape, layer.index, dtype=np.int64))
             texels = layer.image[row, col]
             colours.append(texels[:, :4])
-            normal.append(texels[:, 4:])
+            normal.append(texels[:, 4:8])
+            materials.append(texels[:, 8:])
         clock.report("record", layer.index + 1, plan.count)
     x = np.concatenate(xs) if xs else np.zeros(0, np.int64)
     if x.size == 0:
@@ -168,5 +178,12 @@ def record_voxel_field(
         "layers": int(np.unique(layer).size),
     }
     return VoxelField(
-        plan, x, np.concatenate(ys), layer, np.concatenate(colours), stats, np.concatenate(normal) if normals else None
+        plan,
+        x,
+        np.concatenate(ys),
+        layer,
+        np.concatenate(colours),
+        stats,
+        np.concatenate(normal) if normals else None,
+        np.concatenate(materials) if material and normals else None,
     )
