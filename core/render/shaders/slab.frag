@@ -490,6 +490,7 @@ void main() {
 #else
     frag_normal = vec4(n * 0.5 + 0.5, 1.0);
 #endif
+#endif
 #ifdef MATERIAL
     {
         float occlusion = 1.0;
