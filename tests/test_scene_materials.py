@@ -139,6 +139,49 @@ def test_bad_material_inputs_warn_and_never_refuse_the_file(tmp_path, case):
     assert q.roughness_factor == 1.0
 
 
+QUAD_OBJ = """mtllib q.mtl
+v 0 0 0
+v 1 0 0
+v 1 1 0
+v 0 1 0
+vt 0 0
+vt 1 0
+vt 1 1
+vt 0 1
+vn 0 0 1
+usemtl steel
+f 1/1/1 2/2/1 3/3/1
+f 1/1/1 3/3/1 4/4/1
+"""
+
+
+def test_the_obj_loader_reads_the_pbr_extension_of_mtl_composing_scalar_maps_into_one_image(tmp_path):
+    import PIL.Image
+
+    (tmp_path / "q.obj").write_text(QUAD_OBJ)
+    (tmp_path / "q.mtl").write_text(
+        "newmtl steel\nKd 1 1 1\nmap_Kd base.png\nPr 0.5\nmap_Pr rough.png\nmap_Pm -imfchan r metal.png\n"
+        "Ke 0.5 0.25 1\nmap_Ke glow.png\n"
+    )
+    PIL.Image.fromarray(gradient()[..., :3]).save(tmp_path / "base.png")
+    PIL.Image.fromarray(np.full((4, 4), 128, np.uint8)).save(tmp_path / "rough.png")
+    PIL.Image.fromarray(np.full((4, 4, 3), [200, 0, 0], np.uint8)).save(tmp_path / "metal.png")
+    PIL.Image.fromarray(halves((255, 255, 255, 255), (0, 0, 0, 255), 4)[..., :3]).save(tmp_path / "glow.png")
+    objects, warnings = load(tmp_path / "q.obj")
+    assert warnings == []
+    (quad,) = objects.values()
+    assert (quad.roughness_factor, quad.metallic_factor) == (0.5, 1.0)  # Pm defaults to 1 beside its map
+    assert quad.metallic_roughness_texture[0, 0].tolist() == [255, 128, 200, 255]  # G rough, B metal (-imfchan r)
+    assert quad.emissive_factor.tolist() == [0.5, 0.25, 1.0]
+    assert quad.emissive_texture[0, :, 0].tolist() == [255, 255, 0, 0]
+    assert quad.material_uv is quad.uv
+    (tmp_path / "q.mtl").write_text("newmtl steel\nKd 1 1 1\nmap_Pr missing.png\n")
+    objects, warnings = load(tmp_path / "q.obj")
+    (quad,) = objects.values()
+    assert quad.metallic_roughness_texture is None and len(warnings) == 1 and "missing.png" in warnings[0]
+    assert (quad.roughness_factor, quad.metallic_factor) == (1.0, 0.0)  # the matte default
+
+
 def _camera(resolution: int = 64) -> Camera:
     return Camera.look_at([2.0, 0.0, 7.0], [2.0, 0.0, 0.0], math.radians(50.0), resolution, 0.1, 20.0)
 
