@@ -369,3 +369,22 @@ def test_three_js_lights_the_helmets_material_as_farfield_shades_its_g_buffer(th
             assert difference.mean() <= 4.0 and np.percentile(difference, 95) <= 12
             assert np.median(everywhere) <= 2
             assert matte_difference.mean() > 10.0 * difference.mean()  # the material is what matches
+
+
+def test_a_scene_glb_written_by_farfield_loads_back_with_its_material(tmp_path):
+    from farfield.core.exchange.export import scene_glb
+    from farfield.core.scene import Scene
+
+    source = Scene.from_objects(material_quads(), source="materials")
+    path = tmp_path / "written.glb"
+    path.write_bytes(scene_glb(source))
+    back = {o.name: o for o in load_scene(path).objects}
+    textured, plain = back["textured"], back["plain"]
+    assert (textured.metallic_factor, textured.roughness_factor) == (1.0, 0.5)
+    assert (
+        textured.metallic_roughness_texture[..., 1:3] == material_quads()[0].metallic_roughness_texture[..., 1:3]
+    ).all()
+    # occlusion strength 0.5 baked into the image: 1 + 0.5 (100/255 - 1) = 0.696 -> 177.5 -> 178
+    assert textured.occlusion_strength == 1.0 and textured.occlusion_texture[0, 0, 0] == 178
+    assert np.allclose(textured.emissive_factor, [0.5, 0.25, 1.0]) and textured.emissive_texture is not None
+    assert (plain.metallic_factor, plain.roughness_factor) == (0.3, 0.6) and not plain.emissive_factor.any()
