@@ -243,21 +243,6 @@ def test_occlusion_darkens_the_ambient_term_only_and_emission_is_added():
     assert np.allclose(black, 0.0)
 
 
-class _Fixed:
-    """A G-buffer renderer of hand-made impostor-like quads (what a payload's gbuffer gives once the
-    impostor keeps its material channel): the same objects, optionally without their material."""
-
-    def __init__(self, objects, materials: bool):
-        self.renderer = MeshRenderer(objects, normals=True, materials=materials)
-        self.materials = materials
-
-    def render_normals(self, camera):
-        return self.renderer.render_normals(camera)
-
-    def render_material(self, camera):
-        return self.renderer.render_material(camera)
-
-
 def test_the_lit_evaluation_shades_source_and_impostor_with_their_materials_and_says_which():
     source = material_quads()
     # The impostor-like stand-in: the same quads with their material in ORM/emissive pages (factors 1)
@@ -276,17 +261,17 @@ def test_the_lit_evaluation_shades_source_and_impostor_with_their_materials_and_
         )  # fmt: skip
     camera = _camera(96)
     lights = default_lights((0.0, 0.0, 1.0))[:2]
-    with MeshRenderer(source, normals=True, materials=True) as geometry:
-        kept = _Fixed(pages, True)
-        matte = _Fixed(pages, False)
-        try:
-            views = [(camera, {"kind": "corner"})]
-            with_material = evaluate_lit_views(geometry, kept.renderer, matte.renderer, views, 1, lights)
-            without = evaluate_lit_views(geometry, matte.renderer, matte.renderer, views, 1, lights)
-        finally:
-            kept.renderer.release()
-            matte.renderer.release()
+    # the impostor-like quads drawn as a payload's gbuffer draws them, with and without their material
+    with (
+        MeshRenderer(source, normals=True, materials=True) as geometry,
+        MeshRenderer(pages, normals=True, materials=True) as kept,
+        MeshRenderer(pages, normals=True) as matte,
+    ):
+        views = [(camera, {"kind": "corner"})]
+        with_material = evaluate_lit_views(geometry, kept, matte, views, 1, lights)
+        without = evaluate_lit_views(geometry, matte, matte, views, 1, lights)
     t, u = with_material.totals, without.totals
+    print(lit_text(with_material), lit_text(without), sep="\n")
     assert t["source_material"] and t["impostor_material"] == "kept" and u["impostor_material"] == "matte"
     assert t["roughness_error_mean"] < 0.01 and t["metallic_error_mean"] < 0.01 and t["occlusion_error_mean"] < 0.01
     assert u["metallic_error_mean"] > 0.3  # the metal half is drawn matte
