@@ -332,7 +332,7 @@ class MeshRenderer:
             bound = (texture, normal_texture)
             if self.materials:
                 maps = self._material_maps(obj, defines, uploaded)
-                uniforms |= {name: unit for unit, (name, _) in enumerate(maps, start=2) if _ is not None}
+                uniforms |= {name: unit for unit, (name, found) in enumerate(maps, start=2) if found is not None}
                 uniforms |= {
                     "metallic_factor": obj.metallic_factor,
                     "roughness_factor": obj.roughness_factor,
