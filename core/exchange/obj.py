@@ -23,6 +23,14 @@ with several normals split into several vertices; a face without normal indices 
 other faces have them gets its face normal, and a ``vn`` index out of range is refused
 (:mod:`farfield.core.exchange.obj_normals`).  A file without them is shaded flat.
 
+Materials (the PBR extension of MTL, as Blender writes it): ``Pr`` roughness and ``Pm`` metallic
+(0..1; default 1 and 0, the matte dielectric of a file without them), ``Ke`` emission (linear RGB),
+and their maps ``map_Pr`` and ``map_Pm`` (scalar: the channel ``-imfchan`` names, luminance by
+default; composed into the G and B channels of one metallic-roughness image, glTF's packing, and
+multiplied by ``Pr``/``Pm``, which default to 1 beside a map) and ``map_Ke`` (sRGB RGB, multiplied
+by ``Ke``, default 1 beside the map); over the object's ``vt``.  A map that cannot be read, or whose
+size differs from the other scalar map's, is left out with a warning.
+
 trimesh only logs (at debug level) a material library or texture it cannot find; :func:`load`
 looks them up itself and returns a warning for each, and the objects keep the material colour.
 
@@ -83,6 +91,40 @@ def decode_text(data: bytes) -> str:
         return data.decode("latin-1")
 
 
+# The PBR extension's maps farfield reads (roughness, metallic: scalar; emission: sRGB colour).
+PBR_MAPS = ("map_pr", "map_pm", "map_ke")
+
+
+def pbr_values(mtl: str) -> dict[str, dict[str, object]]:
+    """``{material: {"pr": float, "pm": float, "ke": (r, g, b)}}`` of the PBR extension's values
+    an MTL file gives (malformed ones left out).
+
+    >>> pbr_values("newmtl steel\\nPr 0.25\\nPm 1\\nKe 0 0.5 1\\nnewmtl plain\\nKd 1 1 1\\n")
+    {'steel': {'pr': 0.25, 'pm': 1.0, 'ke': (0.0, 0.5, 1.0)}}
+    """
+    out: dict[str, dict[str, object]] = {}
+    current = None
+    for line in mtl.splitlines():
+        split = line.strip().split()
+        if len(split) <= 1:
+            continue
+        key = split[0].lower()
+        if key == "newmtl":
+            current = out.setdefault(" ".join(split[1:]), {})
+            continue
+        if current is None or key not in ("pr", "pm", "ke"):
+            continue
+        try:
+            numbers = [float(x) for x in split[1:4]]
+        except ValueError:
+            continue
+        if key == "ke":
+            current[key] = tuple(numbers + numbers[-1:] * (3 - len(numbers)))  # "Ke 1" is grey
+        else:
+            current[key] = numbers[0]
+    return {name: values for name, values in out.items() if values}
+
+
 def texture_maps(mtl: str) -> dict[str, dict[str, str]]:
     """``{material: {"map_kd": file, "map_d": file, "norm": file, ...}}`` for the texture maps an MTL
     file names (``norm``: a tangent-space normal map, the PBR extension of MTL; ``map_bump`` and
@@ -102,7 +144,7 @@ def texture_maps(mtl: str) -> dict[str, dict[str, str]]:
         key = split[0].lower()
         if key == "newmtl":
             current = maps.setdefault(" ".join(split[1:]), {})
-        elif key in ("map_kd", "map_d", "norm", "map_bump", "bump") and current is not None:
+        elif key in ("map_kd", "map_d", "norm", "map_bump", "bump", *PBR_MAPS) and current is not None:
             start = line.lower().index(key) + len(key)
             current[key] = line[start:].strip()
     return {name: files for name, files in maps.items() if files}
@@ -337,6 +379,82 @@ def _normal_maps(
     return out
 
 
+def _scalar_map(image: PIL.Image.Image, channel: str | None) -> np.ndarray:
+    """(h, w) uint8 of a scalar MTL map: the channel ``-imfchan`` names (r, g, b, m), else luminance."""
+    rgba = image.convert("RGBA")
+    if channel in ("r", "g", "b", "m"):
+        return np.asarray(rgba)[..., "rgbm".index(channel)].copy()
+    return np.asarray(rgba.convert("L")).copy()
+
+
+def _materials(
+    scene: trimesh.Scene,
+    maps: dict[str, dict[str, str]],
+    values: dict[str, dict[str, object]],
+    resolver: Resolver,
+    max_pixels: int | None,
+    warnings: list[str],
+) -> dict[str, dict]:
+    """Per geometry, the :class:`SceneObject` material fields of its material's PBR values and maps
+    (module docstring; without ``material_uv``, which the object's uv gives), images decoded once."""
+    out: dict[str, dict] = {}
+    decoded: dict[tuple, object] = {}
+    made: dict[str, dict] = {}
+
+    def image(name: str, key: str):
+        statement = map_statement(maps[name][key])
+        cache = (statement.file, key)
+        if cache not in decoded:
+            data = fetch(resolver, statement.file)
+            found = None
+            if data is None:
+                warnings.append(f"{key} {statement.file!r} of material {name!r} not found; ignored")
+            else:
+                try:
+                    opened = PIL.Image.open(io.BytesIO(data))
+                    texture_rgba(opened, max_pixels, f"{key} {statement.file!r}")  # checks its size
+                    channel = statement.options.get("imfchan", ("l",))[0].lower()
+                    found = _scalar_map(opened, channel) if key != "map_ke" else texture_rgba(opened, max_pixels, key)
+                except IMAGE_ERRORS as error:
+                    warnings.append(
+                        f"{key} {statement.file!r} of material {name!r} could not be decoded "
+                        f"({type(error).__name__}: {error}); ignored"
+                    )
+            decoded[cache] = found
+        return decoded[cache]
+
+    for key, mesh in scene.geometry.items():
+        material = getattr(getattr(mesh, "visual", None), "material", None)
+        name = getattr(material, "name", None)
+        if not isinstance(name, str) or (name not in values and not any(k in maps.get(name, {}) for k in PBR_MAPS)):
+            continue
+        if name not in made:
+            given, files = values.get(name, {}), maps.get(name, {})
+            fields: dict = {}
+            scalars = {k: image(name, k) for k in ("map_pr", "map_pm") if k in files}
+            scalars = {k: v for k, v in scalars.items() if v is not None}
+            if len(scalars) == 2 and scalars["map_pr"].shape != scalars["map_pm"].shape:
+                warnings.append(f"material {name!r}: map_Pm's size differs from map_Pr's; map_Pm ignored")
+                del scalars["map_pm"]
+            fields["roughness_factor"] = float(np.clip(given.get("pr", 1.0), 0.0, 1.0))
+            fields["metallic_factor"] = float(np.clip(given.get("pm", 1.0 if "map_pm" in scalars else 0.0), 0.0, 1.0))
+            if scalars:
+                shape = next(iter(scalars.values())).shape
+                packed = np.full(shape + (4,), 255, dtype=np.uint8)
+                packed[..., 1] = scalars.get("map_pr", 255)
+                packed[..., 2] = scalars.get("map_pm", 255)
+                packed.flags.writeable = False
+                fields["metallic_roughness_texture"] = packed
+            glow = image(name, "map_ke") if "map_ke" in files else None
+            ke = given.get("ke", (1.0, 1.0, 1.0) if glow is not None else (0.0, 0.0, 0.0))
+            fields["emissive_factor"] = np.maximum(np.asarray(ke, dtype=np.float64), 0.0)
+            if glow is not None and fields["emissive_factor"].any():
+                fields["emissive_texture"] = glow
+            made[name] = fields
+        out[key] = made[name]
+    return out
+
+
 def _short_names(scene: trimesh.Scene) -> dict[str, str]:
     """Node -> object name with the ``_<material>`` suffix dropped where the rest is unique."""
     stripped = {}
@@ -402,6 +520,7 @@ def load(
     text = complete_normals(text)
     warnings: list[str] = []
     maps: dict[str, dict[str, str]] = {}
+    values: dict[str, dict[str, object]] = {}
     libraries = _MTLLIB.findall(text)
     if libraries:
         if len(libraries) > 1:
@@ -413,10 +532,12 @@ def load(
             warnings.append(f"material library {libraries[0]!r} is binary, not MTL text; texture maps not checked")
         else:
             maps = texture_maps(decode_text(mtl))
+            values = pbr_values(decode_text(mtl))
     scene = parse(text.encode("utf-8"), extension, resolver, split_objects=True, group_material=True)
     warnings.extend(_textures(scene, maps, resolver, limits.texture_pixels))
     normals = {key: found for key, mesh in scene.geometry.items() if (found := file_normals(mesh)) is not None}
     normal_maps = _normal_maps(scene, maps, normals, resolver, limits.texture_pixels, warnings)
+    materials = _materials(scene, maps, values, resolver, limits.texture_pixels, warnings)
     objects, more = objects_from_trimesh(
         scene,
         rename=_short_names(scene),
@@ -424,5 +545,6 @@ def load(
         max_texture_pixels=limits.texture_pixels,
         normals=normals,
         normal_maps=normal_maps,
+        materials=materials,
     )
     return objects, tuple(warnings) + more

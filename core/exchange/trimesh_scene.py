@@ -367,6 +367,7 @@ def objects_from_trimesh(
     max_texture_pixels: int | None = None,
     normals: Mapping[str, np.ndarray] | None = None,
     normal_maps: Mapping[str, tuple[np.ndarray, float]] | None = None,
+    materials: Mapping[str, dict] | None = None,
 ) -> tuple[tuple[SceneObject, ...], tuple[str, ...]]:
     """World-space :class:`SceneObject` s, one per geometry node of ``scene``, and warnings.
 
@@ -396,6 +397,10 @@ def objects_from_trimesh(
         A tangent-space normal map (linear, top row first) and its scale per geometry name, over
         the mesh's own texture coordinates (an OBJ's ``norm``); applied where the geometry has
         normals and uv, with tangents derived from them
+    materials : mapping of str to dict, or None
+        :class:`SceneObject` material fields per geometry name (an OBJ's PBR extension of MTL);
+        its textures map through the mesh's own texture coordinates (``material_uv``, the very
+        ``uv`` array where that is the same) and are left out, with a warning, without them
         (:func:`farfield.core.exchange.normals.uv_tangents`).
 
     Returns
@@ -443,12 +448,28 @@ def objects_from_trimesh(
             if np.isfinite(map_uv).all():
                 mapped = {"normal_texture": found_map[0], "normal_uv": map_uv,
                           "tangents": uv_tangents(vertices, faces, given, map_uv), "normal_scale": found_map[1]}  # fmt: skip
+        uv = colours.uv
+        shading = dict(materials.get(geometry_name, {})) if materials is not None else {}
+        textured = [k for k in ("metallic_roughness_texture", "emissive_texture") if k in shading]
+        if textured:
+            material_uv = None
+            if visual_uv is not None and len(visual_uv) == len(vertices):
+                material_uv = np.array(visual_uv, dtype=np.float64, order="C")
+            if material_uv is None or not np.isfinite(material_uv).all():
+                warnings.append(f"object {name!r}: its material maps need texture coordinates (vt); ignored")
+                for k in textured:
+                    del shading[k]
+            else:
+                if uv is not None and np.array_equal(uv, material_uv):
+                    uv = material_uv  # one array, as SceneObject shares it
+                material_uv.flags.writeable = False
+                shading["material_uv"] = material_uv
         objects.append(
             SceneObject(
                 name=name,
                 vertices=vertices,
                 faces=faces,
-                uv=colours.uv,
+                uv=uv,
                 vertex_colors=colours.vertex_colors,
                 base_color=colours.base_color,
                 texture=colours.texture,
@@ -456,6 +477,7 @@ def objects_from_trimesh(
                 double_sided=double_sided,
                 normals=given,
                 **mapped,
+                **shading,
             )
         )
     return tuple(objects), tuple(warnings)

@@ -43,7 +43,14 @@ Where three.js departs from the glTF appendix, this module follows three.js:
    ambient only and one facing away from the viewer is shaded as if seen at grazing (N·V = 0).
    three.js flips the normal of a back face of a double-sided material before shading; a
    G-buffer's normal is taken as given (flip it there if that is meant).
-7. Output.  Linear radiance clamped to 0..1 and encoded with the sRGB curve
+7. Occlusion and emission.  glTF's ``occlusionTexture`` is three.js's ``aoMap`` (channel R,
+   ``aoMapIntensity`` = ``strength``; aomap_fragment): ``1 + strength (R - 1)`` multiplies the
+   *indirect diffuse* term only (the ambient light's; indirect specular is 0 without an environment
+   map), never direct light.  Emission (``emissive`` × ``emissiveMap`` × ``emissiveIntensity``,
+   emissivemap_fragment) is added to the outgoing radiance, unlit and unoccluded.
+   :func:`shade` takes both per pixel (``occlusion``, ``emissive``); with neither given the
+   result is what it was before they existed, bit for bit.
+8. Output.  Linear radiance clamped to 0..1 and encoded with the sRGB curve
    (:func:`farfield.core.colour_space.linear_to_srgb`; three.js's sRGBTransferOETF writes the
    exponent as 0.41666, within 1e-5 of 1/2.4), rounded to 8 bits as the canvas stores it.
 
@@ -145,6 +152,8 @@ def radiance(
     roughness=1.0,
     metallic=0.0,
     geometry_roughness=0.0,
+    occlusion=None,
+    emissive=None,
 ) -> np.ndarray:
     """(h, w, 3) float64 linear outgoing radiance, unclamped, of the G-buffer lit by ``light`` and
     ``ambient``: what :func:`shade` encodes (its parameters are :func:`shade`'s).
@@ -197,8 +206,12 @@ def radiance(
     lost = 1.0 - energy  # Ems
     multi = single * F_AVERAGE / (1.0 - lost * F_AVERAGE) * lost  # Fms * Ems
     indirect = np.asarray(ambient, dtype=np.float64) * diffuse / math.pi * (1.0 - single - multi)[..., None]
-
-    return direct + indirect
+    if occlusion is not None:  # aomap_fragment: reflectedLight.indirectDiffuse *= ambientOcclusion
+        indirect = indirect * np.asarray(occlusion, dtype=np.float64)[..., None]
+    out = direct + indirect
+    if emissive is not None:  # totalEmissiveRadiance, added unlit
+        out = out + np.asarray(emissive, dtype=np.float64)
+    return out
 
 
 def shade(
@@ -210,6 +223,8 @@ def shade(
     roughness=1.0,
     metallic=0.0,
     geometry_roughness=0.0,
+    occlusion=None,
+    emissive=None,
 ) -> np.ndarray:
     """(h, w, 3) uint8 sRGB: the G-buffer lit by ``light`` and ``ambient`` as three.js's
     ``MeshStandardMaterial`` lights it (the module docstring lists where that departs from glTF).
@@ -226,6 +241,12 @@ def shade(
     geometry_roughness : float or (h, w) float
         three.js's screen-space ``geometryRoughness`` added to the roughness (0 for a flat
         normal-mapped quad; :func:`geometry_roughness` for a curved mesh).
+    occlusion : None, float or (h, w) float
+        Ambient occlusion in 0..1 (glTF ``1 + strength (R - 1)``), multiplying the ambient
+        (indirect diffuse) term only, as three.js's aoMap does; None: 1.
+    emissive : None or (3,) or (h, w, 3) float
+        Linear emitted radiance (glTF ``emissiveFactor`` × decoded ``emissiveTexture``), added;
+        None: 0.
 
     The light's term is 0 where N·L ≤ 0; a pixel there gets the ambient term only.
 
@@ -239,7 +260,9 @@ def shade(
     >>> shade(white, n, n, down, ambient=np.zeros(3)).tolist()  # lit from behind
     [[[0, 0, 0]]]
     """
-    linear = radiance(albedo, normal, view, light, ambient, roughness, metallic, geometry_roughness)
+    linear = radiance(
+        albedo, normal, view, light, ambient, roughness, metallic, geometry_roughness, occlusion, emissive
+    )
     return np.round(linear_to_srgb(linear) * 255.0).astype(np.uint8)
 
 

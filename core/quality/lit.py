@@ -6,9 +6,15 @@ geometry and the impostor are drawn as G-buffers (:meth:`MeshRenderer.render_nor
 <farfield.core.render.raster.MeshRenderer.render_normals>`: the sRGB base colour and the world
 shading normal of every sample) and each is shaded, sample by sample, under each test light
 (:func:`farfield.core.quality.lighting.default_lights`, with the ambient term) by the same BRDF
-(:func:`farfield.core.quality.lighting.shade`: glTF's metallic-roughness BRDF as three.js draws it;
-rough dielectrics on both sides, roughness 1, metallic 0, since farfield's scenes keep no
-material channels yet).  The shaded samples are resolved into pixels as the unlit evaluation's
+(:func:`farfield.core.quality.lighting.shade`: glTF's metallic-roughness BRDF as three.js draws it).
+A part with a material (:func:`~farfield.core.scene.has_material`: glTF's metallic and roughness
+factors and textures, occlusion, emission) is drawn with its material G-buffer
+(:meth:`MeshRenderer.render_material <farfield.core.render.raster.MeshRenderer.render_material>`)
+and shaded with it; an impostor is shaded with its own material channels where its G-buffer
+renderer draws them (one made with ``materials=True``: a payload's ``gbuffer`` of an impostor
+that keeps its material channel), else as a rough dielectric (roughness 1, metallic 0, no
+occlusion or emission, the matte default), and ``impostor_material`` says which ("kept",
+"matte"; ``source_material`` whether the part has one).  The shaded samples are resolved into pixels as the unlit evaluation's
 (:func:`~farfield.core.quality.evaluation.downsample`).
 
 The impostor is drawn three ways: with its normal channel (what an engine lights, where it has
@@ -30,7 +36,11 @@ Per viewpoint, over the samples both cover: ``normal_error_median`` and ``normal
 (whose 3 x 3 neighbourhood both cover: silhouettes left out) and over ``smooth`` samples, on
 surfaces larger than a pixel (interior samples whose geometry normals within one output pixel
 turn by less than :data:`SMOOTH_DEGREES`: no edge, crease or sub-pixel detail; ``smooth_share`` of
-the samples both cover), and ``flat_normal_error_median`` for the flat cards.
+the samples both cover), and ``flat_normal_error_median`` for the flat cards.  Where the part has a
+material, per viewpoint over the samples both cover: ``occlusion_error_mean``,
+``roughness_error_mean``, ``metallic_error_mean`` (mean absolute differences of the channels,
+0..1) and ``emissive_error_mean`` (of linear emission, the largest over RGB), the impostor's
+material against the part's (the matte default's values where the impostor keeps none).
 """
 
 from __future__ import annotations
@@ -45,7 +55,7 @@ from farfield.core.impostor.impostor import Impostor
 from farfield.core.quality.evaluation import downsample, ssim_over_union, viewpoints
 from farfield.core.quality.lighting import AMBIENT, DirectionalLight, default_lights, shade, view_directions
 from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
-from farfield.core.scene import Scene
+from farfield.core.scene import Scene, has_material
 from farfield.core.viewcells import box_corners, viewcell_from_dict
 
 # The figures per light, pooled over viewpoints in the totals (means weighted by pixels both cover).
@@ -71,6 +81,50 @@ def impostor_gbuffer(impostor: Impostor, normals: bool = True) -> MeshRenderer:
     """The G-buffer renderer of ``impostor``: its payload's (:meth:`~farfield.core.impostor.impostor.Payload.gbuffer`),
     with its normal channel when ``normals`` and it keeps one, else lit as flat cards."""
     return impostor.payload.gbuffer(impostor, normals)
+
+
+# The channels of a material G-buffer (MeshRenderer.render_material) a viewpoint reports errors of.
+MATERIAL_FIGURES = ("occlusion_error_mean", "roughness_error_mean", "metallic_error_mean", "emissive_error_mean")
+# The material of a pixel drawn without one: no occlusion, roughness 1, metallic 0, no emission.
+MATTE = np.array([1.0, 1.0, 0.0, 0.0, 0.0, 0.0], dtype=np.float32)
+
+
+def gbuffer_of(renderer, camera: Camera) -> tuple:
+    """(image, normals, material or None) of ``renderer`` from ``camera``: its material G-buffer
+    (:meth:`MeshRenderer.render_material`) where it was made with materials, else its
+    ``render_normals`` and None."""
+    if getattr(renderer, "materials", False):
+        return renderer.render_material(camera)
+    return (*renderer.render_normals(camera), None)
+
+
+def _shading(material: np.ndarray | None) -> dict:
+    """The material arguments of :func:`~farfield.core.quality.lighting.shade` of an (h, w, 6)
+    material G-buffer (none: the matte default, shade's own defaults)."""
+    if material is None:
+        return {}
+    return {
+        "occlusion": material[..., 0],
+        "roughness": material[..., 1],
+        "metallic": material[..., 2],
+        "emissive": material[..., 3:6],
+    }
+
+
+def _material_errors(geometry: np.ndarray, impostor: np.ndarray | None, both: np.ndarray) -> dict:
+    """:data:`MATERIAL_FIGURES` over the samples ``both`` cover (the matte default's values where the
+    impostor has no material)."""
+    g = geometry[both].astype(np.float64)
+    i = np.broadcast_to(MATTE, g.shape) if impostor is None else impostor[both].astype(np.float64)
+    if not g.size:
+        return dict.fromkeys(MATERIAL_FIGURES, None)
+    diff = np.abs(g - i)
+    return {
+        "occlusion_error_mean": float(diff[:, 0].mean()),
+        "roughness_error_mean": float(diff[:, 1].mean()),
+        "metallic_error_mean": float(diff[:, 2].mean()),
+        "emissive_error_mean": float(diff[:, 3:6].max(axis=1).mean()),
+    }
 
 
 def _errors(geometry: np.ndarray, impostor: np.ndarray, both: np.ndarray) -> np.ndarray:
@@ -146,9 +200,14 @@ def compare_lit(
     ambient,
     samples: int,
 ) -> dict:
-    """The figures of one viewpoint (module docstring) from the three G-buffers (image, normals) of
-    the geometry, the impostor with its normals and the impostor as flat cards, drawn by ``camera``
-    at ``samples`` per pixel side."""
+    """The figures of one viewpoint (module docstring) from the three G-buffers (image, normals[,
+    material]) of the geometry, the impostor with its normals and the impostor as flat cards,
+    drawn by ``camera`` at ``samples`` per pixel side; each is shaded with its material where it
+    has one (:func:`gbuffer_of`), else as the matte default."""
+    materials = {
+        name: (buffer[2] if len(buffer) > 2 else None)
+        for name, buffer in (("geometry", geometry), ("impostor", impostor), ("flat", flat))
+    }
     view = view_directions(camera)
     covered_g, covered_i = geometry[0][..., 3] > 0, impostor[0][..., 3] > 0
     both_samples = covered_g & covered_i
@@ -158,9 +217,10 @@ def compare_lit(
     rows = []
     for light in lights:
         lit = {}
-        for name, (image, normal) in (("geometry", geometry), ("impostor", impostor), ("flat", flat)):
+        for name, (image, normal, *_) in (("geometry", geometry), ("impostor", impostor), ("flat", flat)):
             covered = image[..., 3] > 0
-            lit[name] = downsample(_rgba(shade(image[..., :3], normal, view, light, ambient), covered), samples)
+            shaded = shade(image[..., :3], normal, view, light, ambient, **_shading(materials[name]))
+            lit[name] = downsample(_rgba(shaded, covered), samples)
         errors, flat_errors = (
             _errors(lit["geometry"], lit["impostor"], both),
             _errors(lit["geometry"], lit["flat"], both),
@@ -185,7 +245,11 @@ def compare_lit(
     median, p95 = _percentiles(angles)
     inner_median, inner_p95 = _percentiles(inner_angles)
     smooth_median, smooth_p95 = _percentiles(smooth_angles)
-    return {
+    material = {}
+    if materials["geometry"] is not None:
+        material = {"impostor_material": "kept" if materials["impostor"] is not None else "matte"}
+        material |= _material_errors(materials["geometry"], materials["impostor"], both_samples)
+    return material | {
         "both_pixels": int(both.sum()),
         "lights": rows,
         "normal_error_median": median,
@@ -238,6 +302,18 @@ def _totals(rows: list[dict], light_count: int) -> dict:
         "normal_error_smooth_p95": _max_of(rows, "normal_error_smooth_p95"),
         "smooth_share": float(np.mean([r["smooth_share"] for r in rows])),
         "flat_normal_error_median": _mean_of(rows, "flat_normal_error_median"),
+    } | _material_totals(rows)
+
+
+def _material_totals(rows: list[dict]) -> dict:
+    """``source_material`` (whether the part was shaded with its material), and where it was,
+    ``impostor_material`` ("kept" where every viewpoint shaded the impostor with its own, else
+    "matte") and the channel errors' means over the viewpoints."""
+    if not any("impostor_material" in r for r in rows):
+        return {"source_material": False}
+    kept = all(r.get("impostor_material") == "kept" for r in rows)
+    return {"source_material": True, "impostor_material": "kept" if kept else "matte"} | {
+        name: _mean_of(rows, name) for name in MATERIAL_FIGURES
     }
 
 
@@ -260,7 +336,7 @@ def evaluate_lit_at(
     extent = np.concatenate([box_corners(part.bounds), impostor.payload.world_points()])
     fov = math.radians(impostor.fov_deg)
     with (
-        MeshRenderer(part.objects, normals=True) as geometry,
+        MeshRenderer(part.objects, normals=True, materials=any(has_material(o) for o in part.objects)) as geometry,
         impostor_gbuffer(impostor) as stand_in,
         impostor_gbuffer(impostor, normals=False) as cards,
     ):
@@ -284,7 +360,8 @@ def evaluate_lit_views(
     ``samples`` per output pixel side and ``row`` a dict of what to report of the view (its
     ``kind`` at least; "outside" ones are left out of the totals).  ``geometry``, ``stand_in`` and
     ``cards`` are G-buffer renderers (``render_normals(camera)``, as :class:`MeshRenderer` made with
-    ``normals=True`` and :func:`impostor_gbuffer`) of the geometry, the impostor with its normals
+    ``normals=True`` and :func:`impostor_gbuffer`; shaded with their material where made with
+    ``materials=True``, :func:`gbuffer_of`) of the geometry, the impostor with its normals
     and the impostor as flat cards.  A technique whose impostor stands in for part of what a view
     shows (an environment map's far field) gives renderers that leave the rest uncovered."""
     start = time.perf_counter()
@@ -292,9 +369,9 @@ def evaluate_lit_views(
     rows = []
     for camera, row in views:
         stats = compare_lit(
-            geometry.render_normals(camera),
-            stand_in.render_normals(camera),
-            cards.render_normals(camera),
+            gbuffer_of(geometry, camera),
+            gbuffer_of(stand_in, camera),
+            gbuffer_of(cards, camera),
             camera,
             lights,
             ambient,
@@ -338,7 +415,7 @@ def lit_figures(result: LitEvaluation) -> dict:
         "flat_normal_median": t["flat_normal_error_median"],
         "lights": t["lights"],
         "eval_s": result.seconds,
-    }
+    } | {name: t[name] for name in ("source_material", "impostor_material", *MATERIAL_FIGURES) if name in t}
 
 
 def lit_text(result: LitEvaluation) -> str:
@@ -361,6 +438,12 @@ def lit_text(result: LitEvaluation) -> str:
         f"{t['normal_error_smooth_median']:.1f}°, {t['normal_error_smooth_p95']:.1f}°; "
         f"flat cards: median {t['flat_normal_error_median']:.1f}°)"
     )
+    if t.get("source_material"):
+        lines.append(
+            f"material: the part's shaded with its material, the impostor's {t['impostor_material']} "
+            f"(mean abs error: occlusion {t['occlusion_error_mean']:.3f}, roughness {t['roughness_error_mean']:.3f}, "
+            f"metallic {t['metallic_error_mean']:.3f}, emission {t['emissive_error_mean']:.3f})"
+        )
     lines.append(
         f"lit error / unlit error, worst light: {t['lit_to_unlit_worst']:.2f}; "
         f"flat cards' lit error / the impostor's, least: {t['flat_to_lit_least']:.2f}"

@@ -153,6 +153,10 @@ def upload(
         columns += [obj.normal_uv, obj.tangents]
         names += ["in_normal_uv", "in_tangent"]
         layout += ["2f", "4f"]
+    if prog.get("in_material_uv", None) is not None:
+        columns.append(obj.material_uv)
+        names.append("in_material_uv")
+        layout.append("2f")
     data = np.concatenate(columns, axis=1).astype("<f4")
     vbo = ctx.buffer(np.ascontiguousarray(data).tobytes())
     ibo = ctx.buffer(obj.faces.astype("<u4").tobytes())
@@ -203,6 +207,26 @@ def mesh_variant(obj: SceneObject, planes: bool, open_faces: bool) -> tuple[str,
     return tuple(defines)
 
 
+def material_variant(obj: SceneObject) -> tuple[str, ...]:
+    """The defines a material G-buffer adds for ``obj``: MATERIAL, and MATERIAL_UV with the map of
+    each material texture it has.
+
+    >>> quad = SceneObject("q", np.zeros((3, 3)), np.array([[0, 1, 2]]))
+    >>> material_variant(quad)
+    ('MATERIAL',)
+    """
+    maps = tuple(
+        define
+        for define, key in (
+            ("METALLIC_ROUGHNESS_MAP", "metallic_roughness_texture"),
+            ("OCCLUSION_MAP", "occlusion_texture"),
+            ("EMISSIVE_MAP", "emissive_texture"),
+        )
+        if getattr(obj, key) is not None
+    )
+    return ("MATERIAL",) + (("MATERIAL_UV",) + maps if maps else ())
+
+
 class MeshRenderer:
     """Objects uploaded once to the process's context, drawn from any :class:`Camera`.
 
@@ -215,6 +239,7 @@ class MeshRenderer:
         clips=None,
         normals: bool = False,
         normal_maps=None,
+        materials: bool = False,
     ):
         """``clips``: per object None or ``(centre (3,), half_size[, open_faces])``: what lies
         outside that cube is not drawn, except in the face pyramids named in ``open_faces`` (e.g.
@@ -231,6 +256,13 @@ class MeshRenderer:
         else its flat normals; ``normal_maps``, per object None or a (h, w, 4) uint8 world-space
         normal texture over its uv, an impostor's normal page, in their place).
 
+        ``materials=True`` (with ``normals``) adds the material G-buffer, :meth:`render_material`:
+        each pixel's occlusion, roughness, metallic and linear emission from its object's glTF
+        metallic-roughness material (mesh.frag's MATERIAL outputs; the factors times the
+        ``metallic_roughness_texture``, ``occlusion_texture`` and ``emissive_texture`` over
+        ``material_uv``, sampled trilinearly over mipmaps as an engine samples them; an object
+        without material gives 1, its roughness and metallic factors, its emissive factor).
+
         Objects are drawn in the order given, each with the cheapest variant of ``mesh.vert`` and
         ``mesh.frag`` that draws it (:func:`mesh_variant`: a discard only for an alpha cut or open
         faces, so opaque geometry listed front to back is shaded about once per pixel; no vertex
@@ -243,6 +275,9 @@ class MeshRenderer:
         self._draws = []
         uploaded: dict = {}  # objects sharing a texture array (or normal map) share its GL texture
         self.normals = bool(normals)
+        self.materials = bool(materials)
+        if self.materials and not self.normals:
+            raise ValueError("a material G-buffer needs normals=True")
         normal_maps = list(normal_maps) if normal_maps is not None else [None] * len(objects)
         for obj, clip, normal_map in zip(objects, clips, normal_maps, strict=True):
             origin = 0.5 * (obj.bounds[0] + obj.bounds[1])
@@ -259,6 +294,8 @@ class MeshRenderer:
                     defines += ("NORMALS", "VERTEX_NORMALS") + (("TANGENT_NORMAL_MAP",) if tangent_map else ())
                 else:
                     defines += ("NORMALS",)
+            if self.materials:
+                defines += material_variant(obj)
             prog = program(ctx, "mesh.vert", "mesh.frag", defines=defines)
             vao, texture = upload(ctx, prog, obj, origin, uploaded, self._owned)
             uniforms = {}
@@ -292,16 +329,50 @@ class MeshRenderer:
                     "clip_open_neg": tuple(float(f"-{axis}" in opened) for axis in "xyz"),
                 }
             uniforms |= material_uniforms(prog, obj, texture)
-            self._draws.append(
-                (obj, origin, prog, vao, (texture, normal_texture), uniforms, planes, not obj.double_sided)
-            )
+            bound = (texture, normal_texture)
+            if self.materials:
+                maps = self._material_maps(obj, defines, uploaded)
+                uniforms |= {name: unit for unit, (name, found) in enumerate(maps, start=2) if found is not None}
+                uniforms |= {
+                    "metallic_factor": obj.metallic_factor,
+                    "roughness_factor": obj.roughness_factor,
+                    "emissive_factor": tuple(float(c) for c in obj.emissive_factor),
+                }
+                if "OCCLUSION_MAP" in defines:
+                    uniforms["occlusion_strength"] = obj.occlusion_strength
+                bound = bound + tuple(t for _, t in maps)
+            self._draws.append((obj, origin, prog, vao, bound, uniforms, planes, not obj.double_sided))
         self._targets: dict[int, tuple] = {}
+
+    def _material_maps(self, obj: SceneObject, defines: tuple[str, ...], uploaded: dict) -> list:
+        """(sampler name, GL texture or None) of units 2, 3, 4: the object's metallic-roughness,
+        occlusion and emissive textures (mipmapped; linear, linear, sRGB), shared between objects
+        (and between the first two, an ORM image) through ``uploaded``."""
+        out = []
+        for define, name, key, srgb in (
+            ("METALLIC_ROUGHNESS_MAP", "metallic_roughness_map", "metallic_roughness_texture", False),
+            ("OCCLUSION_MAP", "occlusion_map", "occlusion_texture", False),
+            ("EMISSIVE_MAP", "emissive_map", "emissive_texture", True),
+        ):
+            if define not in defines:
+                out.append((name, None))
+                continue
+            array = getattr(obj, key)
+            found = uploaded.get(("material", srgb, id(array)))
+            if found is None:
+                found = (srgb_texture if srgb else linear_texture)(self.ctx, array, mipmaps=True)
+                uploaded[("material", srgb, id(array))] = found
+                self._owned.append(found)
+            out.append((name, found))
+        return out
 
     def _target(self, resolution: int):
         if resolution not in self._targets:
             colour = self.ctx.texture((resolution, resolution), 4)
             depth = self.ctx.depth_texture((resolution, resolution))
             targets = [colour] + ([self.ctx.texture((resolution, resolution), 4, dtype="f4")] if self.normals else [])
+            if self.materials:
+                targets += [self.ctx.texture((resolution, resolution), 4, dtype="f4") for _ in range(2)]
             fbo = self.ctx.framebuffer(targets, depth)
             self._targets[resolution] = (colour, depth, fbo, *targets[1:])
             self._owned += [*targets, depth, fbo]
@@ -317,6 +388,20 @@ class MeshRenderer:
         normal = self._targets[camera.resolution][3]
         data = np.frombuffer(normal.read(), dtype=np.float32).reshape(camera.resolution, camera.resolution, 4)
         return image, data[::-1, :, :3].copy()
+
+    def render_material(self, camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The (h, w, 4) uint8 image and (h, w, 3) float32 normals (:meth:`render_normals`) and the
+        (h, w, 6) float32 material of the same pixels, top row first: occlusion, roughness,
+        metallic, linear emitted RGB (zero where nothing was drawn); a renderer made with
+        ``materials=True`` only (the constructor says what each channel is)."""
+        if not self.materials:
+            raise ValueError("this renderer was made without materials")
+        image, normals = self.render_normals(camera)
+        size = camera.resolution
+        _, _, _, _, material, emissive = self._targets[size]
+        orm = np.frombuffer(material.read(), dtype=np.float32).reshape(size, size, 4)[::-1, :, :3]
+        light = np.frombuffer(emissive.read(), dtype=np.float32).reshape(size, size, 4)[::-1, :, :3]
+        return image, normals, np.concatenate([orm, light], axis=-1)
 
     def render(self, camera: Camera) -> np.ndarray:
         """(h, w, 4) uint8 image, top row first; alpha 255 where something was drawn."""
@@ -365,9 +450,7 @@ class MeshRenderer:
         # hoisted: the eye matrices built one by one, the material's uniforms rebuilt every frame).
         matrices = camera.eye_matrices([origin for _, origin, *_ in self._draws])
         try:
-            for (_obj, _origin, prog, vao, (texture, normal_texture), uniforms, clipped, one_sided), matrix in zip(
-                self._draws, matrices
-            ):
+            for (_obj, _origin, prog, vao, bound, uniforms, clipped, one_sided), matrix in zip(self._draws, matrices):
                 if id(prog) not in framed:
                     framed.add(id(prog))
                     prog["half_tan"].value = (t, t)
@@ -382,10 +465,9 @@ class MeshRenderer:
                 if one_sided != culling:
                     culling = one_sided
                     (ctx.enable if culling else ctx.disable)(moderngl.CULL_FACE)
-                if texture is not None:
-                    texture.use(0)
-                if normal_texture is not None:
-                    normal_texture.use(1)
+                for unit, texture in enumerate(bound):  # base colour, normal map, then material maps
+                    if texture is not None:
+                        texture.use(unit)
                 vao.render(moderngl.TRIANGLES)
         finally:
             if planes:

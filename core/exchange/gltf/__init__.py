@@ -28,8 +28,9 @@ two nodes of one name) get ``_1``, ``_2`` ... in traversal order; an instance of
 
 Extensions: ``KHR_texture_transform``, ``KHR_mesh_quantization``,
 ``KHR_materials_pbrSpecularGlossiness`` (its diffuse colour), ``EXT_texture_webp`` and
-``EXT_mesh_gpu_instancing`` are read; the other ``KHR_materials_*`` change lighting, not the base
-colour farfield draws, and are ignored.  A file that *requires* another extension (Draco or
+``EXT_mesh_gpu_instancing`` are read, and ``KHR_materials_emissive_strength`` (the emissive
+factor's multiplier, :mod:`~farfield.core.exchange.gltf.materials`); the other ``KHR_materials_*``
+change lighting beyond the metallic-roughness material farfield keeps, and are ignored.  A file that *requires* another extension (Draco or
 meshopt compression, KTX2 textures) is refused with a message naming it.  Skins are drawn in their
 bind pose, with a warning.
 """
@@ -287,7 +288,38 @@ class _Reader:
         part["normal_uv"] = part["tangents"] = None
         if found.normal is not None and part["normals"] is not None:
             self.normal_attributes(part, found.normal, attributes, count, where)
+        self.material_attributes(part, found, attributes, count, where)
         return part
+
+    def material_attributes(self, part: dict, found: Material, attributes: dict, count: int, where: str) -> None:
+        """The material textures' uv into ``part`` (``material_uv``, glTF space, transformed) and
+        which textures map through it (``material_keys``): the first texture's set and transform;
+        a texture on another set or transform, or on a set the primitive lacks, is left out with a
+        warning (its factor kept)."""
+        part["material_uv"], part["material_keys"] = None, ()
+        chosen, keys = None, []
+        for key, ref in found.material_textures():
+            set_name = f"TEXCOORD_{ref.tex_coord}"
+            matrix = np.eye(3) if ref.transform is None else ref.transform
+            if chosen is None:
+                if set_name not in attributes:
+                    self.warnings.append(f"{where}: its {key} uses {set_name}, which it does not have; ignored")
+                    continue
+                uv = accessors.read(self.document, self.buffers, attributes[set_name])
+                if uv.ndim != 2 or uv.shape != (count, 2) or not np.isfinite(uv).all():
+                    self.warnings.append(f"{where}: {set_name} of its {key} is not {count} finite pairs; ignored")
+                    continue
+                chosen = (ref.tex_coord, matrix)
+                part["material_uv"] = uv @ matrix[:2, :2].T + matrix[:2, 2]
+            elif ref.tex_coord != chosen[0] or not np.array_equal(matrix, chosen[1]):
+                self.warnings.append(
+                    f"material {found.name!r}: its {key} maps through other texture coordinates than its "
+                    f"{keys[0]} (texCoord or KHR_texture_transform); farfield keeps one material uv, so it is "
+                    "ignored (its factor kept)"
+                )
+                continue
+            keys.append(key)
+        part["material_keys"] = tuple(keys)
 
     def normal_attributes(self, part: dict, ref, attributes: dict, count: int, where: str) -> None:
         """The normal map's uv and ``TANGENT`` of a primitive into ``part``.  A normal map only
@@ -377,6 +409,10 @@ class _Reader:
                 else:
                     texture = decoded.rgba
         normal_map = self.normal_map(name, found, part, vertices, faces, normals, world)
+        if uv is not None:  # frozen as SceneObject keeps it, so that material_uv can be the very array
+            uv = np.array(uv, dtype=np.float64, order="C")
+            uv.flags.writeable = False
+        shading = self.shading(name, found, part, uv)
         self.triangles += len(faces)
         self.limits.check("objects", len(self.objects) + 1, "nodes")
         self.limits.check("triangles once node instancing is applied", self.triangles, "triangles")
@@ -393,8 +429,47 @@ class _Reader:
                 double_sided=found.double_sided,
                 normals=normals,
                 **normal_map,
+                **shading,
             )
         )
+
+    def shading(self, name: str, found: Material, part: dict, uv: np.ndarray | None) -> dict:
+        """The object's metallic-roughness material fields (:class:`SceneObject`'s): the factors,
+        and the textures of ``part["material_keys"]`` over one ``material_uv`` (the very array
+        ``uv`` is where they map the same).  Each texture's sampler wraps as the base colour's do;
+        one whose wrap modes move the uv elsewhere than the first's is left out with a warning."""
+        out = {
+            "metallic_factor": found.metallic,
+            "roughness_factor": found.roughness,
+            "occlusion_strength": found.occlusion_strength,
+            "emissive_factor": found.emissive_factor,
+        }
+        material_uv = None
+        refs = {
+            "metallic_roughness_texture": found.metallic_roughness,
+            "occlusion_texture": found.occlusion,
+            "emissive_texture": found.emissive,
+        }
+        for key in part.get("material_keys", ()):
+            if key == "emissive_texture" and not found.emissive_factor.any():
+                continue  # multiplied by a zero factor: no emission
+            wrapped = self.images.wrapped(refs[key], part["material_uv"], name, self.warnings)
+            if wrapped is None:
+                continue
+            decoded, wrapped_uv = wrapped
+            wrapped_uv = np.column_stack([wrapped_uv[:, 0], 1.0 - wrapped_uv[:, 1]])  # glTF's v down -> v up
+            if material_uv is None:
+                material_uv = uv if uv is not None and np.array_equal(uv, wrapped_uv) else wrapped_uv
+            elif not np.array_equal(material_uv, wrapped_uv):
+                self.warnings.append(
+                    f"material {found.name!r}: its {key} wraps (sampler) otherwise than its other material "
+                    "textures; farfield keeps one material uv, so it is ignored (its factor kept)"
+                )
+                continue
+            out[key] = decoded.rgba
+        if material_uv is not None:
+            out["material_uv"] = material_uv
+        return out
 
     def normal_map(self, name, found: Material, part: dict, vertices, faces, normals, world) -> dict:
         """The object's normal map (``normal_texture``, ``normal_uv``, ``tangents``, ``normal_scale``)

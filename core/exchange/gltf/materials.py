@@ -23,6 +23,14 @@ farfield does with it:
 * ``doubleSided`` (default false) becomes :attr:`SceneObject.double_sided`.
 * Filters: farfield filters bilinearly (trilinear where it builds mipmaps) whatever the sampler
   says; a ``NEAREST`` magnification filter is warned about.
+* The metallic-roughness material (§3.9.2, §3.9.4, §3.9.5): ``metallicFactor`` and
+  ``roughnessFactor`` (default 1 and 1, the default material's too), ``metallicRoughnessTexture``
+  (linear, B metallic, G roughness), ``occlusionTexture`` (linear, R) with its ``strength``
+  (default 1), ``emissiveTexture`` (sRGB) and ``emissiveFactor`` (default 0), multiplied by
+  ``KHR_materials_emissive_strength``'s ``emissiveStrength``.  These only shade: a texture that
+  cannot be read is left out with a warning (its factor kept), a factor out of range is clamped
+  with a warning.  ``KHR_materials_pbrSpecularGlossiness`` materials keep the matte default
+  (metallic 0, roughness 1, farfield's reading of a diffuse colour).
 """
 
 from __future__ import annotations
@@ -97,6 +105,23 @@ class Material:
     blend: bool  # alphaMode BLEND, drawn as a mask
     normal: TextureRef | None = None  # normalTexture (§3.9.3): tangent space, linear
     normal_scale: float = 1.0
+    metallic: float = 1.0  # metallicFactor (the specification's default)
+    roughness: float = 1.0  # roughnessFactor
+    metallic_roughness: TextureRef | None = None  # metallicRoughnessTexture: B metallic, G roughness, linear
+    occlusion: TextureRef | None = None  # occlusionTexture: R, linear
+    occlusion_strength: float = 1.0
+    emissive: TextureRef | None = None  # emissiveTexture: sRGB
+    emissive_factor: np.ndarray = (0.0, 0.0, 0.0)  # emissiveFactor x emissiveStrength, linear
+
+    def material_textures(self) -> tuple[tuple[str, TextureRef], ...]:
+        """(field, ref) of the material textures it has, in the order the first one sets the
+        material uv: metallic-roughness, occlusion, emissive."""
+        found = (
+            ("metallic_roughness_texture", self.metallic_roughness),
+            ("occlusion_texture", self.occlusion),
+            ("emissive_texture", self.emissive),
+        )
+        return tuple((key, ref) for key, ref in found if ref is not None and ref.image is not None)
 
 
 DEFAULT_MATERIAL = Material("default", np.ones(4), None, None, False, False)
@@ -213,7 +238,71 @@ def material(document: dict, index: object, warnings: list[str]) -> Material:
     scale = _number(
         normal_info.get("scale") if isinstance(normal_info, dict) else None, 1.0, f"{where} normalTexture scale"
     )
-    return Material(name, factor, texture, cutoff, double, mode == "BLEND", normal, scale)
+    shading = _shading(document, spec, pbr if not isinstance(gloss, dict) else None, extensions, where, warnings)
+    return Material(name, factor, texture, cutoff, double, mode == "BLEND", normal, scale, **shading)
+
+
+def _unit(value: object, default: float, where: str, warnings: list[str]) -> float:
+    """A shading factor in 0..1 (default ``default``): one out of range is clamped with a warning,
+    one that is not a number is replaced by the default with a warning (it only shades)."""
+    try:
+        number = _number(value, default, where)
+    except SceneLoadError as error:
+        warnings.append(f"{error}; {default:g} is used")
+        return default
+    if not 0.0 <= number <= 1.0:
+        warnings.append(f"{where} {number:g} is not in 0..1; clamped")
+    return min(max(number, 0.0), 1.0)
+
+
+def _shading_texture(document: dict, info: object, where: str, warnings: list[str]) -> TextureRef | None:
+    """A material texture's reference, or None with a warning where it cannot be read."""
+    try:
+        return _texture_ref(document, info, where, warnings)
+    except SceneLoadError as error:
+        warnings.append(f"{error}; the texture is ignored")
+        return None
+
+
+def _shading(document: dict, spec: dict, pbr: dict | None, extensions: dict, where: str, warnings: list[str]) -> dict:
+    """The metallic-roughness fields of :class:`Material` (module docstring); ``pbr`` None for a
+    specular-glossiness material (matte)."""
+    out: dict = {}
+    if pbr is None:
+        out["metallic"], out["roughness"] = 0.0, 1.0
+    else:
+        out["metallic"] = _unit(pbr.get("metallicFactor"), 1.0, f"{where} metallicFactor", warnings)
+        out["roughness"] = _unit(pbr.get("roughnessFactor"), 1.0, f"{where} roughnessFactor", warnings)
+        out["metallic_roughness"] = _shading_texture(
+            document, pbr.get("metallicRoughnessTexture"), f"{where} metallicRoughnessTexture", warnings
+        )
+    occlusion = spec.get("occlusionTexture")
+    out["occlusion"] = _shading_texture(document, occlusion, f"{where} occlusionTexture", warnings)
+    if isinstance(occlusion, dict):
+        out["occlusion_strength"] = _unit(
+            occlusion.get("strength"), 1.0, f"{where} occlusionTexture strength", warnings
+        )
+    out["emissive"] = _shading_texture(document, spec.get("emissiveTexture"), f"{where} emissiveTexture", warnings)
+    emissive = spec.get("emissiveFactor")
+    factor = np.zeros(3)
+    if emissive is not None:
+        if isinstance(emissive, list) and len(emissive) == 3:
+            factor = np.array([_unit(v, 0.0, f"{where} emissiveFactor", warnings) for v in emissive])
+        else:
+            warnings.append(f"{where} emissiveFactor is {emissive!r}, not 3 numbers; no emission")
+    strength = extensions.get("KHR_materials_emissive_strength")
+    if isinstance(strength, dict):
+        try:
+            value = _number(strength.get("emissiveStrength"), 1.0, f"{where} emissiveStrength")
+        except SceneLoadError as error:
+            warnings.append(f"{error}; 1 is used")
+            value = 1.0
+        if value < 0.0:
+            warnings.append(f"{where} emissiveStrength {value:g} is negative; 0 is used")
+            value = 0.0
+        factor = factor * value
+    out["emissive_factor"] = factor
+    return out
 
 
 def _pad(texels: float) -> int:

@@ -49,6 +49,30 @@ in vec2 v_normal_uv;
 in vec4 v_tangent;
 #endif
 #endif
+#ifdef MATERIAL
+// The material G-buffer's targets (float): (occlusion, roughness, metallic, 1) and (linear
+// emission, 1) of the pixel, glTF's metallic-roughness material: the factors times the
+// METALLIC_ROUGHNESS_MAP's G and B, 1 + strength (OCCLUSION_MAP's R - 1), the factor times the
+// EMISSIVE_MAP (an sRGB texture, decoded by the GL), each over the material uv, mipmapped.
+uniform float metallic_factor;
+uniform float roughness_factor;
+uniform float occlusion_strength;
+uniform vec3 emissive_factor;
+layout(location = 2) out vec4 frag_material;
+layout(location = 3) out vec4 frag_emissive;
+#ifdef MATERIAL_UV
+in vec2 v_material_uv;
+#endif
+#ifdef METALLIC_ROUGHNESS_MAP
+uniform sampler2D metallic_roughness_map;
+#endif
+#ifdef OCCLUSION_MAP
+uniform sampler2D occlusion_map;
+#endif
+#ifdef EMISSIVE_MAP
+uniform sampler2D emissive_map;
+#endif
+#endif
 
 #include "colour.glsl"
 
@@ -99,5 +123,22 @@ void main() {
 #endif
     float len = length(n);
     frag_normal = vec4(len > 0.0 ? n / len : vec3(0.0), 1.0);
+#endif
+#ifdef MATERIAL
+    float occlusion = 1.0, roughness = roughness_factor, metallic = metallic_factor;
+    vec3 emission = emissive_factor;
+#ifdef METALLIC_ROUGHNESS_MAP
+    vec4 mr = texture(metallic_roughness_map, v_material_uv);
+    roughness *= mr.g;
+    metallic *= mr.b;
+#endif
+#ifdef OCCLUSION_MAP
+    occlusion = 1.0 + occlusion_strength * (texture(occlusion_map, v_material_uv).r - 1.0);
+#endif
+#ifdef EMISSIVE_MAP
+    emission *= texture(emissive_map, v_material_uv).rgb;
+#endif
+    frag_material = vec4(occlusion, roughness, metallic, 1.0);
+    frag_emissive = vec4(emission, 1.0);
 #endif
 }

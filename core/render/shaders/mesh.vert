@@ -7,7 +7,8 @@
 // cube (the GL cuts there), OPEN_FACES passes the position in the clip cube's frame for
 // mesh.frag's discard.  What an object lacks is neither computed per vertex nor interpolated.
 // NORMALS (a G-buffer render, core/render/raster.py) passes the eye-frame position, and
-// VERTEX_NORMALS the object's shading normals, for mesh.frag's normal output.
+// VERTEX_NORMALS the object's shading normals, for mesh.frag's normal output.  MATERIAL_UV (a
+// material G-buffer of an object with material textures) passes the material textures' uv.
 uniform mat4 eye_from_local;  // eye frame: x right, y up, z forward (depth)
 uniform vec2 half_tan;
 uniform vec2 depth_range;     // near, far eye depth
@@ -44,6 +45,10 @@ in vec4 in_tangent;           // world tangent and handedness
 out vec2 v_normal_uv;
 out vec4 v_tangent;
 #endif
+#ifdef MATERIAL_UV
+in vec2 in_material_uv;       // the uv the metallic-roughness, occlusion and emissive textures share
+out vec2 v_material_uv;
+#endif
 
 #include "colour.glsl"
 
@@ -63,6 +68,9 @@ void main() {
 #endif
 #ifdef TEXTURED
     v_uv = in_uv;
+#endif
+#ifdef MATERIAL_UV
+    v_material_uv = in_material_uv;
 #endif
 #ifdef VERTEX_COLOURS
     v_color = vec4(srgb_to_linear(in_color.rgb), in_color.a);  // interpolated in linear light
