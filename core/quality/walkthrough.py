@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -24,9 +25,19 @@ import numpy as np
 from farfield.core.errors import LayerPlanError
 from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.quality.evaluation import compare_images
+from farfield.core.quality.lighting import (
+    AMBIENT,
+    DIRECT_INTENSITY,
+    DirectionalLight,
+    shade,
+    view_directions,
+)
+from farfield.core.quality.lit import _totals as lit_totals
+from farfield.core.quality.lit import compare_lit
 from farfield.core.render.raster import MeshRenderer
 from farfield.core.scene import Scene
 from farfield.core.techniques import TECHNIQUES
+from farfield.core.techniques.envmap.lit import FarField, NearFieldMask
 from farfield.core.techniques.envmap.runtime import camera_at, depth_range_for
 
 Progress = Callable[[int, int], None]  # (frames done, frames)
@@ -135,10 +146,20 @@ def walkthrough(
     repeats: int = 3,
     compare: bool = True,
     progress: Progress | None = None,
+    lights=None,
 ) -> dict:
     """Walk the path; returns ``{"frames": [...], "summary": {...}}`` (see the module docstring).
-    A placement database is walked by :func:`placement_walkthrough`."""
+    A placement database is walked by :func:`placement_walkthrough`.
+
+    Given ``lights`` (DirectionalLights, :func:`farfield.core.quality.lighting.default_lights` or
+    :func:`sun`), every served frame is also drawn lit (:func:`lit_frame`), and the summary has a
+    ``lit`` section (:func:`lit_summary`)."""
     if database.placement:
+        if lights is not None:
+            raise LayerPlanError(
+                "a lit walkthrough needs an envmap database: placement databases hold colour-only impostors "
+                "(placement jobs bake channels=albedo)"
+            )
         return placement_walkthrough(scene, database, positions, forwards, repeats, compare, progress)
     technique = TECHNIQUES.get(database.technique)
     runtime = getattr(technique, "runtime", None)  # the technique's cell renderer (environment-map impostors have one)
@@ -154,6 +175,8 @@ def walkthrough(
         raise LayerPlanError("the impostor database has no cell with a result")
     resolution, fov_deg = int(database.impostor(first.index).resolution), float(database.impostor(first.index).fov_deg)
     full = MeshRenderer(scene.objects)
+    lit = lights is not None
+    full_lit = MeshRenderer(scene.objects, normals=True) if lit else None
     try:
         for n, (position, forward) in enumerate(zip(positions, forwards)):
             found = database.find(position)
@@ -169,7 +192,7 @@ def walkthrough(
                     cell_renderer.release()
                     cell_renderer = None
                 if found.bundle is not None:
-                    cell_renderer = runtime(scene, database.impostor(found.index))
+                    cell_renderer = runtime(scene, database.impostor(found.index), **({"lit": True} if lit else {}))
                     database.prefetch(found.index)
                 current = found.index
             row["switched"] = bool(switched and n > 0)
@@ -190,6 +213,8 @@ def walkthrough(
                             for k in ("hole_pixels", "geometry_pixels", "colour_error_mean", "colour_error_max")
                         }
                     )
+                if lit:
+                    row["lit"] = lit_frame(full_lit, cell_renderer, camera, lights, repeats, compare)
             else:
                 row["impostor_ms"] = None
             frames.append(row)
@@ -198,7 +223,12 @@ def walkthrough(
         if cell_renderer is not None:
             cell_renderer.release()
         full.release()
-    return {"frames": frames, "summary": summarize(frames)}
+        if full_lit is not None:
+            full_lit.release()
+    summary = summarize(frames)
+    if lit:
+        summary["lit"] = lit_summary(frames, lights)
+    return {"frames": frames, "summary": summary}
 
 
 def summarize(frames: list[dict]) -> dict:
@@ -231,6 +261,107 @@ def image_errors(frames: list[dict]) -> dict:
     }
 
 
+def sun(azimuth_deg: float = 60.0, elevation_deg: float = 35.0) -> DirectionalLight:
+    """One white sun of the lit evaluation's intensity (:data:`~farfield.core.quality.lighting.DIRECT_INTENSITY`),
+    +y up, toward ``(cos e cos a, sin e, -cos e sin a)``: azimuth 0 along +x, 90° along up × x =
+    -z, as :func:`~farfield.core.quality.lighting.default_lights` and the 3D view's ``?azimuth=`` and
+    ``?elevation=`` (api/dashboard/viewer.js; its defaults, 60° and 35°, are these).
+
+    >>> from farfield.core.quality.lighting import default_lights
+    >>> [bool(np.allclose(sun(a, 35.0).direction, d.direction)) for a, d in zip((0, 120, 240), default_lights()[1:4])]
+    [True, True, True]
+    >>> sun(0.0, 90.0).direction.round(6).tolist()
+    [0.0, 1.0, -0.0]
+    """
+    a, e = math.radians(azimuth_deg), math.radians(elevation_deg)
+    direction = np.array([math.cos(e) * math.cos(a), math.sin(e), -math.cos(e) * math.sin(a)])
+    return DirectionalLight(direction / np.linalg.norm(direction), np.ones(3), DIRECT_INTENSITY)
+
+
+def _seconds(work: Callable[[], object]) -> float:
+    start = time.perf_counter()
+    work()
+    return time.perf_counter() - start
+
+
+def lit_frame(full: MeshRenderer, cell, camera, lights, repeats: int = 3, compare: bool = True) -> dict:
+    """One frame drawn lit: the full scene's G-buffer (``full``, a :class:`MeshRenderer` made with
+    ``normals=True``) and the cell runtime's (``cell``, an :class:`EnvmapCellRenderer
+    <farfield.core.techniques.envmap.runtime.EnvmapCellRenderer>` made with ``lit=True``: its quads
+    with their normal pages, and as flat cards), each shaded by
+    :func:`~farfield.core.quality.lighting.shade` under ``lights`` and the ambient term.
+
+    Times (milliseconds, :func:`frame_ms`): ``full_gbuffer_ms`` and ``impostor_gbuffer_ms``, the GL
+    drawing the two G-buffers (colour and world normals, no read-back: what a deferred renderer's
+    geometry pass costs); ``shade_ms``, :func:`~farfield.core.quality.lighting.shade` of the
+    runtime's G-buffer under the first light, in numpy on the CPU.  The shading is a measurement
+    artefact, not the runtime's cost: an engine shades in a fragment shader, per pixel, the same
+    for the impostors as for the full scene.  ``normals``: whether the quads had normal pages (if
+    not, the impostor is drawn as flat cards and its lit error is the cards').
+
+    With ``compare``, ``stats`` holds :func:`~farfield.core.quality.lit.compare_lit`'s figures of
+    the frame (per light, the lit error of the impostor, of the flat cards and the unlit error,
+    over the pixels both cover; the normal errors), and ``lit_error_mean``, ``flat_error_mean``
+    and ``unlit_error_mean`` the worst light's (of each); ``far_stats`` and the ``far_`` figures
+    are the same over the samples the near field does not cover (the envmap lit evaluation's
+    mask, :class:`~farfield.core.techniques.envmap.lit.NearFieldMask`): what the impostor draws.
+    The near field is the same geometry on both sides, so the whole frame's figures dilute the
+    impostor's with the share of the frame the near field covers."""
+    row = {
+        "normals": bool(cell.has_normals),
+        "full_gbuffer_ms": frame_ms(lambda: full.frame_seconds(camera), repeats),
+        "impostor_gbuffer_ms": frame_ms(lambda: cell.gbuffer.frame_seconds(camera), repeats),
+    }
+    image, normals = cell.gbuffer.render_normals(camera)
+    view = view_directions(camera)
+    row["shade_ms"] = frame_ms(lambda: _seconds(lambda: shade(image[..., :3], normals, view, lights[0])), repeats)
+    if compare:
+        stats = compare_lit(
+            full.render_normals(camera), (image, normals), cell.cards.render_normals(camera), camera, lights, AMBIENT, 1
+        )
+        mask = NearFieldMask(cell.near_field)
+        far = compare_lit(
+            *(FarField(renderer, mask).render_normals(camera) for renderer in (full, cell.gbuffer, cell.cards)),
+            camera,
+            lights,
+            AMBIENT,
+            1,
+        )
+        for prefix, figures in (("", stats), ("far_", far)):
+            row |= {
+                f"{prefix}{name}_error_mean": max(light[f"{name}_error_mean"] for light in figures["lights"])
+                for name in ("lit", "flat", "unlit")
+            }
+        row |= {"stats": stats, "far_stats": far}
+    return row
+
+
+def lit_summary(frames: list[dict], lights) -> dict:
+    """The lit totals of a walkthrough's frames (their ``lit`` rows, :func:`lit_frame`): the
+    ``sources`` (each light's direction and intensity), the frames drawn lit and how many of them
+    as flat cards (impostors without normal pages; then ``note`` says so), the mean times, and,
+    where compared, the lit evaluation's totals over the frames
+    (:func:`farfield.core.quality.lit` ``_totals``: per light the errors pooled over the pixels
+    both cover, the ratios, the normal errors), and ``far``, the same over the far field only."""
+    rows = [f["lit"] for f in frames if "lit" in f]
+    out = {
+        "sources": [{"direction": light.direction.tolist(), "intensity": float(light.intensity)} for light in lights],
+        "frames_lit": len(rows),
+        "frames_flat_cards": sum(not r["normals"] for r in rows),
+    }
+    for name in ("full_gbuffer_ms", "impostor_gbuffer_ms", "shade_ms"):
+        out[f"{name}_mean"] = float(np.mean([r[name] for r in rows])) if rows else None
+    if out["frames_flat_cards"]:
+        out["note"] = (
+            f"{out['frames_flat_cards']} of {len(rows)} frames were served by impostors without normal pages "
+            "(baked with channels=albedo): drawn lit as flat cards"
+        )
+    if rows and "stats" in rows[0]:
+        out |= lit_totals([r["stats"] for r in rows], len(lights))
+        out["far"] = lit_totals([r["far_stats"] for r in rows], len(lights))
+    return out
+
+
 def write_plot(result: dict, path: str | Path, title: str = "walkthrough") -> None:
     """A PNG of frame time (full scene vs impostors, log scale) and image error along the path;
     vertical lines mark cell switches (like seed 002 Fig. 8)."""
@@ -246,6 +377,9 @@ def write_plot(result: dict, path: str | Path, title: str = "walkthrough") -> No
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
     top.plot(x, full, label="full scene", color="tab:red")
     top.plot(x, fast, label="near field + impostors", color="tab:blue")
+    if any("lit" in f for f in frames):  # the G-buffer draws (the GL's part of a lit frame)
+        lit = np.array([f["lit"]["impostor_gbuffer_ms"] if "lit" in f else np.nan for f in frames], dtype=float)
+        top.plot(x, lit, label="near field + impostors, G-buffer", color="tab:blue", linestyle="--")
     top.set_yscale("log")
     top.set_ylabel("frame time (ms)")
     top.legend(loc="upper right")
@@ -255,6 +389,14 @@ def write_plot(result: dict, path: str | Path, title: str = "walkthrough") -> No
         error = np.array([f.get("colour_error_mean", np.nan) for f in frames], dtype=float)
         bottom.plot(x, error, label="colour error, mean (0-255)", color="tab:green")
         bottom.plot(x, holes, label="hole pixels", color="black", linestyle="--")
+        if any("lit_error_mean" in f.get("lit", {}) for f in frames):  # a lit walkthrough's, worst light
+            for name, label, style in (
+                ("lit_error_mean", "lit error, mean (worst light)", dict(color="tab:orange")),
+                ("far_lit_error_mean", "lit error, far field", dict(color="tab:orange", linestyle="--")),
+                ("far_flat_error_mean", "flat cards' lit error, far field", dict(color="tab:purple", linestyle=":")),
+            ):
+                values = np.array([f.get("lit", {}).get(name, np.nan) for f in frames], dtype=float)
+                bottom.plot(x, values, label=label, **style)
         bottom.legend(loc="upper right")
     bottom.set_xlabel("frame")
     bottom.set_ylabel("error")
