@@ -10,7 +10,8 @@ baked twice, with ``channels=albedo+normal`` and with ``channels=albedo`` (the f
 faces), and walked twice under the five test lights (:func:`farfield.core.quality.lighting.default_lights`)
 by :func:`farfield.core.quality.walkthrough.walkthrough`: per light the lit error of the whole frame
 and of the far field (what the near field leaves), the flat cards' and the unlit error; the frame
-times of the unlit draw, of the G-buffer draw (GL) and of the numpy shading of one light.
+times of the unlit draw, of the G-buffer draw (GL), of the GL's shading pass and of the numpy
+shading of one light.
 """
 
 from __future__ import annotations
@@ -62,7 +63,7 @@ def run(args) -> dict:
             print(f"\n{channels}: baked in {bake_s:.1f} s; {s['frames_served']} of {s['frames']} frames served")
             print(f"  unlit frame {s['impostor_ms_mean']:.2f} ms runtime vs {s['full_ms_mean']:.2f} ms full scene; "
                   f"G-buffer {lit['impostor_gbuffer_ms_mean']:.2f} ms runtime vs {lit['full_gbuffer_ms_mean']:.2f} ms full; "
-                  f"numpy shading {lit['shade_ms_mean']:.2f} ms a light")  # fmt: skip
+                  f"shading pass (GL) {lit['shade_gl_ms_mean']:.2f} ms, numpy {lit['shade_ms_mean']:.2f} ms a light")  # fmt: skip
             print(f"  far field: {lit['far']['both_pixels']} of {lit['both_pixels']} pixels both cover")
             print(f"  {'light':<24} {'lit':>6} {'flat':>6} {'unlit':>6} | far: {'lit':>6} {'flat':>6} {'unlit':>6}")
             for source, whole, far in zip(lit["sources"], lit["lights"], lit["far"]["lights"]):

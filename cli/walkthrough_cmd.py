@@ -181,7 +181,7 @@ _NOT_LIT = (
     "(placement jobs bake channels=albedo)"
 )
 # The lit columns of a frame (worst light): the lit error of the whole frame and of the far field
-# alone, the flat cards' (far field), and the G-buffer draw and numpy shading times.
+# alone, the flat cards' (far field), and the G-buffer draw and GL shading pass times.
 _LIT_HEAD = f" {'lit err':>7} {'far lit':>7} {'far flat':>8} {'gbuf ms':>7} {'shade ms':>8}"
 
 
@@ -208,7 +208,7 @@ def _lit_columns(row: dict | None) -> str:
         + num("far_lit_error_mean", 7)
         + num("far_flat_error_mean", 8)
         + num("impostor_gbuffer_ms", 7)
-        + num("shade_ms", 8)
+        + num("shade_gl_ms", 8)
     )
 
 
@@ -221,9 +221,10 @@ def _print_lit(lit: dict) -> None:
             click.echo(f"lit, {title}, {totals['viewpoints']} frames; " + text.splitlines()[0].split("; ", 1)[1])
             click.echo("\n".join(text.splitlines()[1:]))
     click.echo(
-        f"lit frame: G-buffer draw {lit['impostor_gbuffer_ms_mean']:.2f} ms near field + impostors vs "
-        f"{lit['full_gbuffer_ms_mean']:.2f} ms full scene (GL); shading {lit['shade_ms_mean']:.2f} ms per light "
-        "(numpy on the CPU: a measurement artefact, an engine shades in a fragment shader, per pixel, alike for both)"
+        f"lit frame (GL): G-buffer draw {lit['impostor_gbuffer_ms_mean']:.2f} ms near field + impostors vs "
+        f"{lit['full_gbuffer_ms_mean']:.2f} ms full scene, then a shading pass of {lit['shade_gl_ms_mean']:.2f} ms "
+        f"a light (per pixel, the same for both); numpy's shading of the figures {lit['shade_ms_mean']:.2f} ms a "
+        "light (a measurement artefact, not a runtime cost)"
     )
     if "note" in lit:
         click.echo(f"note: {lit['note']}")

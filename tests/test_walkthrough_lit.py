@@ -21,7 +21,11 @@ from click.testing import CliRunner
 from farfield.cli.main import _register, cli
 from farfield.core.impostor.database import INDEX_NAME, ImpostorDatabase, write_database
 from farfield.core.procedural import city
+from farfield.core.quality.lighting import default_lights, shade, view_directions
 from farfield.core.quality.walkthrough import generate_path, sun, walkthrough
+from farfield.core.render.context import gl_context
+from farfield.core.render.deferred import DeferredShader
+from farfield.core.render.raster import Camera, MeshRenderer
 from farfield.core.techniques.envmap.technique import EnvmapOptions, bake_envmap
 from farfield.core.viewcells import grid_boxes
 from tests.scenes import write_scene
@@ -90,6 +94,7 @@ def test_normal_pages_light_the_far_field_closer_than_flat_cards(scene, database
     # Times: the G-buffer draws (GL) and the numpy shading, each per frame.
     for f in lit["frames"]:
         assert f["lit"]["impostor_gbuffer_ms"] > 0 and f["lit"]["full_gbuffer_ms"] > 0 and f["lit"]["shade_ms"] > 0
+        assert f["lit"]["shade_gl_ms"] > 0
     assert s["sources"][0]["direction"] == pytest.approx(SUN.direction.tolist())
 
 
@@ -104,11 +109,11 @@ def test_cli_lit_walkthrough(scene, databases, tmp_path):
     data = json.loads(run.output)
     lit = data["summary"]["lit"]
     assert {"sources", "frames_lit", "frames_flat_cards", "lights", "far", "impostor_gbuffer_ms_mean",
-            "full_gbuffer_ms_mean", "shade_ms_mean", "lit_to_unlit_worst", "flat_to_lit_least"} <= set(lit)  # fmt: skip
+            "full_gbuffer_ms_mean", "shade_ms_mean", "shade_gl_ms_mean", "lit_to_unlit_worst", "flat_to_lit_least"} <= set(lit)  # fmt: skip
     assert np.allclose(lit["sources"][0]["direction"], SUN.direction) and len(lit["lights"]) == 1
     frame = data["frames"][0]["lit"]
     assert {"normals", "lit_error_mean", "flat_error_mean", "far_lit_error_mean", "far_flat_error_mean",
-            "impostor_gbuffer_ms", "full_gbuffer_ms", "shade_ms", "stats", "far_stats"} <= set(frame)  # fmt: skip
+            "impostor_gbuffer_ms", "full_gbuffer_ms", "shade_ms", "shade_gl_ms", "stats", "far_stats"} <= set(frame)  # fmt: skip
     # The five test lights by default; the table, the lit totals and a plot.
     plot = tmp_path / "lit.png"
     run = runner.invoke(cli, [*common, "--lit", "--plot", str(plot)])
@@ -129,3 +134,24 @@ def test_cli_lit_walkthrough(scene, databases, tmp_path):
     (placement / INDEX_NAME).write_text(json.dumps(index | {"kind": "placement", "placement": {"parameters": {}}}))
     run = runner.invoke(cli, ["walkthrough", str(placement), str(scene_file), "--lit"])
     assert run.exit_code == 2 and "colour-only" in run.output
+
+
+@pytest.mark.parametrize("roughness, metallic", [(1.0, 0.0), (0.3, 0.5)])
+def test_the_shading_pass_lights_as_shade_does(scene, roughness, metallic):
+    """The GL's deferred pass (what the walkthrough times) and numpy's ``shade`` (what it measures
+    with) agree to a level on the city's G-buffer, under every test light."""
+    camera = Camera.look_at(np.array([30.0, 3.0, 30.0]), np.array([80.0, 12.0, 70.0]), np.radians(90.0), 64, 0.1, 500.0)
+    with MeshRenderer(scene.objects, normals=True) as renderer, DeferredShader(64, roughness, metallic) as deferred:
+        image, normals = renderer.render_normals(camera)
+        deferred.load(image, normals)
+        for light in default_lights():
+            expected = shade(
+                image[..., :3], normals, view_directions(camera), light, roughness=roughness, metallic=metallic
+            )
+            got = deferred.shade(camera, light)
+            difference = np.abs(expected.astype(np.int16) - got.astype(np.int16)).max(axis=-1)
+            assert difference.max() <= 1 and (difference > 0).mean() < 0.01, (light.direction, difference.max())
+        assert deferred.frame_seconds(camera, light) > 0
+        with pytest.raises(ValueError, match="64 x 64"):
+            deferred.load(image[:32], normals)
+    assert deferred._owned == [] and gl_context().error == "GL_NO_ERROR"

@@ -34,6 +34,7 @@ from farfield.core.quality.lighting import (
 )
 from farfield.core.quality.lit import _totals as lit_totals
 from farfield.core.quality.lit import compare_lit
+from farfield.core.render.deferred import DeferredShader
 from farfield.core.render.raster import MeshRenderer
 from farfield.core.scene import Scene
 from farfield.core.techniques import TECHNIQUES
@@ -177,6 +178,7 @@ def walkthrough(
     full = MeshRenderer(scene.objects)
     lit = lights is not None
     full_lit = MeshRenderer(scene.objects, normals=True) if lit else None
+    deferred = DeferredShader(resolution) if lit else None
     try:
         for n, (position, forward) in enumerate(zip(positions, forwards)):
             found = database.find(position)
@@ -214,7 +216,7 @@ def walkthrough(
                         }
                     )
                 if lit:
-                    row["lit"] = lit_frame(full_lit, cell_renderer, camera, lights, repeats, compare)
+                    row["lit"] = lit_frame(full_lit, cell_renderer, camera, lights, repeats, compare, deferred)
             else:
                 row["impostor_ms"] = None
             frames.append(row)
@@ -225,6 +227,7 @@ def walkthrough(
         full.release()
         if full_lit is not None:
             full_lit.release()
+            deferred.release()
     summary = summarize(frames)
     if lit:
         summary["lit"] = lit_summary(frames, lights)
@@ -284,7 +287,15 @@ def _seconds(work: Callable[[], object]) -> float:
     return time.perf_counter() - start
 
 
-def lit_frame(full: MeshRenderer, cell, camera, lights, repeats: int = 3, compare: bool = True) -> dict:
+def lit_frame(
+    full: MeshRenderer,
+    cell,
+    camera,
+    lights,
+    repeats: int = 3,
+    compare: bool = True,
+    deferred: DeferredShader | None = None,
+) -> dict:
     """One frame drawn lit: the full scene's G-buffer (``full``, a :class:`MeshRenderer` made with
     ``normals=True``) and the cell runtime's (``cell``, an :class:`EnvmapCellRenderer
     <farfield.core.techniques.envmap.runtime.EnvmapCellRenderer>` made with ``lit=True``: its quads
@@ -293,11 +304,12 @@ def lit_frame(full: MeshRenderer, cell, camera, lights, repeats: int = 3, compar
 
     Times (milliseconds, :func:`frame_ms`): ``full_gbuffer_ms`` and ``impostor_gbuffer_ms``, the GL
     drawing the two G-buffers (colour and world normals, no read-back: what a deferred renderer's
-    geometry pass costs); ``shade_ms``, :func:`~farfield.core.quality.lighting.shade` of the
-    runtime's G-buffer under the first light, in numpy on the CPU.  The shading is a measurement
-    artefact, not the runtime's cost: an engine shades in a fragment shader, per pixel, the same
-    for the impostors as for the full scene.  ``normals``: whether the quads had normal pages (if
-    not, the impostor is drawn as flat cards and its lit error is the cards').
+    geometry pass costs); ``shade_gl_ms`` (given ``deferred``), the GL's shading pass over the
+    runtime's G-buffer under the first light (:class:`~farfield.core.render.deferred.DeferredShader`:
+    the same arithmetic in a fragment shader, per pixel, so the full scene's costs the same);
+    ``shade_ms``, :func:`~farfield.core.quality.lighting.shade` of it in numpy on the CPU, which
+    gives the figures: a measurement artefact, not a runtime's cost.  ``normals``: whether the quads
+    had normal pages (if not, the impostor is drawn as flat cards and its lit error is the cards').
 
     With ``compare``, ``stats`` holds :func:`~farfield.core.quality.lit.compare_lit`'s figures of
     the frame (per light, the lit error of the impostor, of the flat cards and the unlit error,
@@ -315,6 +327,9 @@ def lit_frame(full: MeshRenderer, cell, camera, lights, repeats: int = 3, compar
     image, normals = cell.gbuffer.render_normals(camera)
     view = view_directions(camera)
     row["shade_ms"] = frame_ms(lambda: _seconds(lambda: shade(image[..., :3], normals, view, lights[0])), repeats)
+    if deferred is not None:
+        deferred.load(image, normals)
+        row["shade_gl_ms"] = frame_ms(lambda: deferred.frame_seconds(camera, lights[0]), repeats)
     if compare:
         stats = compare_lit(
             full.render_normals(camera), (image, normals), cell.cards.render_normals(camera), camera, lights, AMBIENT, 1
@@ -349,8 +364,9 @@ def lit_summary(frames: list[dict], lights) -> dict:
         "frames_lit": len(rows),
         "frames_flat_cards": sum(not r["normals"] for r in rows),
     }
-    for name in ("full_gbuffer_ms", "impostor_gbuffer_ms", "shade_ms"):
-        out[f"{name}_mean"] = float(np.mean([r[name] for r in rows])) if rows else None
+    for name in ("full_gbuffer_ms", "impostor_gbuffer_ms", "shade_gl_ms", "shade_ms"):
+        values = [r[name] for r in rows if name in r]
+        out[f"{name}_mean"] = float(np.mean(values)) if values else None
     if out["frames_flat_cards"]:
         out["note"] = (
             f"{out['frames_flat_cards']} of {len(rows)} frames were served by impostors without normal pages "
@@ -377,9 +393,17 @@ def write_plot(result: dict, path: str | Path, title: str = "walkthrough") -> No
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
     top.plot(x, full, label="full scene", color="tab:red")
     top.plot(x, fast, label="near field + impostors", color="tab:blue")
-    if any("lit" in f for f in frames):  # the G-buffer draws (the GL's part of a lit frame)
-        lit = np.array([f["lit"]["impostor_gbuffer_ms"] if "lit" in f else np.nan for f in frames], dtype=float)
-        top.plot(x, lit, label="near field + impostors, G-buffer", color="tab:blue", linestyle="--")
+    if any("lit" in f for f in frames):  # a lit frame on the GL: the G-buffer draw and the shading pass
+        lit = np.array(
+            [
+                f["lit"]["impostor_gbuffer_ms"] + f["lit"].get("shade_gl_ms", 0.0) if "lit" in f else np.nan
+                for f in frames
+            ],
+            dtype=float,
+        )
+        top.plot(
+            x, lit, label="near field + impostors, lit (G-buffer + shading pass)", color="tab:blue", linestyle="--"
+        )
     top.set_yscale("log")
     top.set_ylabel("frame time (ms)")
     top.legend(loc="upper right")
