@@ -22,10 +22,13 @@ from farfield.core.errors import FarfieldError
 from farfield.core.exchange import load_scene
 from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.placement.image_database import ImageDatabase, image_database_folder, image_walkthrough
+from farfield.core.quality.lighting import default_lights
+from farfield.core.quality.lit import LitEvaluation, lit_text
 from farfield.core.quality.walkthrough import (
     generate_path,
     load_path,
     random_views,
+    sun,
     walkthrough,
     write_image_plot,
     write_placement_plot,
@@ -65,16 +68,40 @@ from farfield.core.quality.walkthrough import (
     "--plot", default=None, type=click.Path(dir_okay=False), help="Write a PNG of frame time and error along the path."
 )
 @click.option("--no-compare", is_flag=True, help="Frame times only (no image comparison).")
+@click.option(
+    "--lit",
+    is_flag=True,
+    help="Envmap databases: also draw every served frame lit (G-buffers shaded under the lit evaluation's "
+    "lights) and report the lit error beside the unlit one, the flat cards' and the far field's, with the "
+    "G-buffer draw and shading times.",
+)
+@click.option(
+    "--light-azimuth",
+    default=None,
+    type=float,
+    help="With --lit: one sun at this azimuth (degrees; 0 along +x, 90 along -z, y up, as the 3D view's) instead "
+    "of the five test lights.  [default with --light-elevation alone: 60]",
+)
+@click.option(
+    "--light-elevation",
+    default=None,
+    type=click.FloatRange(-90.0, 90.0),
+    help="With --lit: the sun's elevation (degrees above the horizon).  [default with --light-azimuth alone: 35]",
+)
 @click.option("--json", "as_json", is_flag=True, help="Every frame and the summary as JSON.")
 @sides_option
-def walkthrough_cmd(database, scene, path_file, frames, random_count, seed, repeats, plot, no_compare, as_json, sides):
+def walkthrough_cmd(database, scene, path_file, frames, random_count, seed, repeats, plot, no_compare, lit,
+                    light_azimuth, light_elevation, as_json, sides):  # fmt: skip
     """Walk a camera path through DATABASE (a job's database.zip or its unpacked folder) and compare
     the reference runtime with SCENE drawn in full: an envmap database's near field + impostors, or
     a placement database's impostors + remaining geometry against its frame budget."""
     if plot and not Path(plot).resolve().parent.is_dir():  # before the walk, not after it
         raise FarfieldError(f"--plot {plot}: the folder {Path(plot).resolve().parent} does not exist")
+    lights = _lights(lit, light_azimuth, light_elevation)
     loaded = load_scene(scene, sides=sides)
     with image_database_folder(Path(database)) as images:
+        if images is not None and lights is not None:
+            raise click.UsageError(_NOT_LIT)
         if images is not None:  # a primitive-budget database (farfield place --bake, or a job's)
             _walk_images(
                 images,
@@ -96,6 +123,8 @@ def walkthrough_cmd(database, scene, path_file, frames, random_count, seed, repe
             raise click.UsageError("--random needs a placement database (an envmap database is walked along a path)")
         if random_count is not None and path_file:
             raise click.UsageError("give --random or --path, not both")
+        if placement and lights is not None:
+            raise click.UsageError(_NOT_LIT)
         if random_count is not None:
             lo, hi = np.asarray(placement["parameters"]["view_space"], dtype=np.float64).reshape(2, 3)
             positions, forwards = random_views(lo, hi, random_count, seed)
@@ -104,7 +133,7 @@ def walkthrough_cmd(database, scene, path_file, frames, random_count, seed, repe
         bar = tqdm(total=len(positions), desc="frames", unit="frame", leave=False, disable=True if as_json else None)
         try:
             result = walkthrough(loaded, db, positions, forwards, repeats=repeats, compare=not no_compare,
-                                 progress=lambda done, total: bar.update(done - bar.n))  # fmt: skip
+                                 progress=lambda done, total: bar.update(done - bar.n), lights=lights)  # fmt: skip
         finally:
             bar.close()
     if placement:
@@ -122,6 +151,7 @@ def walkthrough_cmd(database, scene, path_file, frames, random_count, seed, repe
         return
     click.echo(
         f"{'frame':>5} {'cell':>5} {'full ms':>8} {'imp ms':>8} {'speedup':>7} {'holes':>6} {'err mean':>8} {'err max':>7}"
+        + (_LIT_HEAD if lights is not None else "")
     )
     for f in result["frames"]:
         fast = f.get("impostor_ms")
@@ -130,6 +160,7 @@ def walkthrough_cmd(database, scene, path_file, frames, random_count, seed, repe
             f"{f['frame']:>5} {'-' if f['cell'] is None else f['cell']:>5} {f['full_ms']:>8.2f} "
             f"{'-' if fast is None else f'{fast:.2f}':>8} {speedup:>7} "
             f"{f.get('hole_pixels', '-'):>6} {f.get('colour_error_mean', float('nan')):>8.3f} {f.get('colour_error_max', '-'):>7}"
+            + (_lit_columns(f.get("lit")) if lights is not None else "")
             + ("  <- cell switch" if f["switched"] else "")
         )
     s = result["summary"]
@@ -139,8 +170,64 @@ def walkthrough_cmd(database, scene, path_file, frames, random_count, seed, repe
     if "hole_pixels" in s:
         line += f"; {s['hole_pixels']} hole pixels, colour error mean {s['colour_error_mean']:.3f}, max {s['colour_error_max']}"
     click.echo(line)
+    if "lit" in s:
+        _print_lit(s["lit"])
     if plot:
         click.echo(f"plot: {plot}")
+
+
+_NOT_LIT = (
+    "--lit needs an envmap database: placement and primitive-budget databases hold colour-only impostors "
+    "(placement jobs bake channels=albedo)"
+)
+# The lit columns of a frame (worst light): the lit error of the whole frame and of the far field
+# alone, the flat cards' (far field), and the G-buffer draw and GL shading pass times.
+_LIT_HEAD = f" {'lit err':>7} {'far lit':>7} {'far flat':>8} {'gbuf ms':>7} {'shade ms':>8}"
+
+
+def _lights(lit: bool, azimuth: float | None, elevation: float | None):
+    """The lights of ``--lit``: the five test lights, or one sun where an angle is given; None unlit."""
+    if not lit:
+        if azimuth is not None or elevation is not None:
+            raise click.UsageError("--light-azimuth and --light-elevation need --lit")
+        return None
+    if azimuth is None and elevation is None:
+        return default_lights()
+    return (sun(60.0 if azimuth is None else azimuth, 35.0 if elevation is None else elevation),)
+
+
+def _lit_columns(row: dict | None) -> str:
+    if row is None:
+        return ""
+
+    def num(name, width, fmt=".2f"):
+        return f" {format(row[name], fmt) if name in row else '-':>{width}}"
+
+    return (
+        num("lit_error_mean", 7)
+        + num("far_lit_error_mean", 7)
+        + num("far_flat_error_mean", 8)
+        + num("impostor_gbuffer_ms", 7)
+        + num("shade_gl_ms", 8)
+    )
+
+
+def _print_lit(lit: dict) -> None:
+    """The lit totals: per light the whole frame's and the far field's (the lit evaluation's table,
+    :func:`farfield.core.quality.lit.lit_text`), the times, and the flat-cards note."""
+    if "lights" in lit:
+        for title, totals in (("whole frames", lit), ("far field (what the near field leaves)", lit["far"])):
+            text = lit_text(LitEvaluation([], totals, lit["sources"]))
+            click.echo(f"lit, {title}, {totals['viewpoints']} frames; " + text.splitlines()[0].split("; ", 1)[1])
+            click.echo("\n".join(text.splitlines()[1:]))
+    click.echo(
+        f"lit frame (GL): G-buffer draw {lit['impostor_gbuffer_ms_mean']:.2f} ms near field + impostors vs "
+        f"{lit['full_gbuffer_ms_mean']:.2f} ms full scene, then a shading pass of {lit['shade_gl_ms_mean']:.2f} ms "
+        f"a light (per pixel, the same for both); numpy's shading of the figures {lit['shade_ms_mean']:.2f} ms a "
+        "light (a measurement artefact, not a runtime cost)"
+    )
+    if "note" in lit:
+        click.echo(f"note: {lit['note']}")
 
 
 def _print_placement(result: dict, plot: str | None) -> None:

@@ -22,7 +22,7 @@ from dataclasses import replace
 import numpy as np
 
 from farfield.core.cube_faces import face_normal
-from farfield.core.impostor.impostor import Impostor
+from farfield.core.impostor.impostor import Impostor, page_of
 from farfield.core.quality.evaluation import compare_images, error_budget_px, impostor_objects, vertex_pixels
 from farfield.core.render.raster import Camera, MeshRenderer
 from farfield.core.scene import Scene, SceneObject
@@ -87,9 +87,16 @@ def nearest_first(
 
 
 class EnvmapCellRenderer:
-    """One cell's near-field geometry (clipped to its cube) and impostor quads, uploaded once."""
+    """One cell's near-field geometry (clipped to its cube) and impostor quads, uploaded once.
 
-    def __init__(self, scene: Scene, impostor: Impostor):
+    With ``lit`` it also uploads the same draw as two G-buffer renderers (``render_normals``, the
+    lit evaluation's, :mod:`farfield.core.quality.lit`): ``gbuffer``, the quads with the impostor's
+    normal pages as world-space normal maps, and ``cards``, the quads as flat cards (the near
+    field with its own normals in both); and ``near_field``, the near field alone (None where the
+    cell has none), which masks it out of the lit walkthrough's far-field figures.  An impostor
+    without normal pages (``has_normals`` False) has only the cards, and ``gbuffer`` is ``cards``."""
+
+    def __init__(self, scene: Scene, impostor: Impostor, lit: bool = False):
         if impostor.technique != "envmap":
             raise ValueError(f"an envmap runtime needs an envmap impostor, got {impostor.technique!r}")
         self.impostor = impostor
@@ -98,7 +105,19 @@ class EnvmapCellRenderer:
             self.near.objects(scene), self.near.centre, keep_object_order=True, run=NEAR_FIELD_RUN
         )
         quads = nearest_first(impostor_objects(impostor), self.near.centre, run=QUAD_RUN)
-        self.renderer = MeshRenderer(near_objects + quads, [self.near.clip] * len(near_objects) + [None] * len(quads))
+        clips = [self.near.clip] * len(near_objects) + [None] * len(quads)
+        self.renderer = MeshRenderer(near_objects + quads, clips)
+        self.has_normals = "normal" in impostor.channels
+        self.gbuffer = self.cards = self.near_field = None
+        if lit:
+            if near_objects:  # drawn alone, the samples the near field covers (the lit walkthrough's far-field figures)
+                self.near_field = MeshRenderer(near_objects, clips[: len(near_objects)])
+            self.cards = MeshRenderer(near_objects + quads, clips, normals=True)
+            self.gbuffer = self.cards
+            if self.has_normals:
+                pages = impostor.channels["normal"]
+                maps = [None] * len(near_objects) + [pages[page_of(quad)] for quad in quads]
+                self.gbuffer = MeshRenderer(near_objects + quads, clips, normals=True, normal_maps=maps)
         self.near_triangles = sum(obj.faces.shape[0] for obj in near_objects)
         self.quad_triangles = impostor.triangle_count  # the impostor's triangles, whatever its payload
         corners = impostor.payload.world_points()
@@ -106,6 +125,8 @@ class EnvmapCellRenderer:
 
     def release(self) -> None:
         self.renderer.release()
+        for renderer in {id(r): r for r in (self.gbuffer, self.cards, self.near_field) if r is not None}.values():
+            renderer.release()
 
 
 def depth_range_for(scene: Scene, cell: BoxCell, position, reach: float = 0.0) -> tuple[float, float]:
