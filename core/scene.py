@@ -185,6 +185,7 @@ class SceneObject:
             raise SceneLoadError(f"object name must be a non-empty string, got {self.name!r}")
         name = self.name
         set_ = object.__setattr__
+        shares_uv = self.material_uv is not None and self.material_uv is self.uv  # kept shared once frozen
         vertices = _frozen(self.vertices, np.float64, "vertices", name, (None, 3))
         faces = _frozen(self.faces, np.int64, "faces", name, (None, 3))
         n = len(vertices)
@@ -208,6 +209,8 @@ class SceneObject:
         if self.normals is not None:
             set_(self, "normals", _unit_normals(self.normals, name, n))
         _check_normal_map(self, name, n)
+        if shares_uv:
+            set_(self, "material_uv", self.uv)
         _check_material(self, name, n)
         _check_geometry(name, vertices, faces)
         _check_colour(name, self.base_color, self.uv, self.alpha_cutoff)

@@ -164,7 +164,8 @@ class _PayloadBase:
         a :class:`farfield.core.render.raster.MeshRenderer` made with ``normals=True`` (its
         ``render_normals`` gives colour and world normals), drawing :meth:`draw_objects` with the
         impostor's normal pages as world-space normal maps when ``normals`` and it keeps them, else
-        as flat cards.  A kind not drawn as triangles overrides it, or raises ValueError."""
+        as flat cards, and with ``materials=True`` and its material pages (:func:`with_material_pages`)
+        where it keeps them.  A kind not drawn as triangles overrides it, or raises ValueError."""
         from farfield.core.render.raster import MeshRenderer
 
         objects = self.draw_objects(impostor)
@@ -172,9 +173,10 @@ class _PayloadBase:
             raise ValueError(f"no lit evaluation for a {self.kind!r} payload yet")
         pages = impostor.channels.get("normal") if normals else None
         maps = [pages[page_of(obj)] for obj in objects] if pages is not None else None
-        if "material" in impostor.channels:
+        kept = "material" in impostor.channels
+        if kept:
             objects = with_material_pages(objects, impostor.channels)
-        return MeshRenderer(objects, normals=True, normal_maps=maps)
+        return MeshRenderer(objects, normals=True, normal_maps=maps, materials=kept)
 
 
 def with_material_pages(objects: list, channels: dict) -> list:

@@ -22,7 +22,7 @@ import numpy as np
 from farfield.core.impostor.impostor import Impostor
 from farfield.core.quality.lit import LitEvaluation, evaluate_lit_views, impostor_gbuffer
 from farfield.core.render.raster import Camera, MeshRenderer
-from farfield.core.scene import Scene
+from farfield.core.scene import Scene, has_material
 from farfield.core.techniques.envmap.near_field import NearField
 from farfield.core.techniques.envmap.runtime import camera_at, depth_range_for, envmap_viewpoints, view_directions
 from farfield.core.viewcells import BoxCell
@@ -52,6 +52,7 @@ class FarField:
 
     def __init__(self, renderer, mask: NearFieldMask):
         self.renderer, self.mask = renderer, mask
+        self.materials = getattr(renderer, "materials", False)  # what gbuffer_of asks
 
     def render_normals(self, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
         image, normals = self.renderer.render_normals(camera)
@@ -59,6 +60,14 @@ class FarField:
         image[hidden] = 0
         normals[hidden] = 0.0
         return image, normals
+
+    def render_material(self, camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        image, normals, material = self.renderer.render_material(camera)
+        hidden = self.mask(camera)
+        image[hidden] = 0
+        normals[hidden] = 0.0
+        material[hidden] = 0.0
+        return image, normals, material
 
 
 def evaluate_envmap_lit(
@@ -96,7 +105,8 @@ def evaluate_envmap_lit(
             stack.enter_context(MeshRenderer(near_objects, [near.clip] * len(near_objects))) if near_objects else None
         )
         mask = NearFieldMask(near_renderer)
-        geometry = stack.enter_context(MeshRenderer(scene.objects, normals=True))
+        materials = any(has_material(obj) for obj in scene.objects)
+        geometry = stack.enter_context(MeshRenderer(scene.objects, normals=True, materials=materials))
         stand_in = stack.enter_context(impostor_gbuffer(impostor))
         cards = stack.enter_context(impostor_gbuffer(impostor, normals=False))
         return evaluate_lit_views(
