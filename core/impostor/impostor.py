@@ -871,6 +871,16 @@ ChannelSet = Literal[
 ]
 
 
+# The ``channels`` option's help, for every technique (quad techniques keep depth; the others refuse it).
+CHANNELS_HELP = (
+    "what each texel (point, sample) keeps: albedo (unlit colour, for baked lighting); albedo+normal (world "
+    "shading normals too, so that an engine can light the impostor: normal pages); +material (glTF's occlusion, "
+    "roughness and metallic, and emission where the part emits: material and emissive pages, what a glTF "
+    "metallic-roughness material with maps needs); +depth (layered and envmap: each texel's depth in its slab, "
+    "in the normal pages' alpha, for a pixel depth offset)"
+)
+
+
 def channel_names(channels: str) -> frozenset[str]:
     """The names in the channel set ``channels`` (:data:`ChannelSet`).
 

@@ -17,6 +17,7 @@ from farfield.core import __version__
 from farfield.core.errors import LayerPlanError
 from farfield.core.impostor.depth import layer_depth_ranges
 from farfield.core.impostor.impostor import (
+    CHANNELS_HELP,
     ChannelSet,
     Impostor,
     QuadPayload,
@@ -94,8 +95,7 @@ class BakeOptions:
     )
     channels: ChannelSet = option(
         "albedo",
-        "what each texel keeps: albedo (unlit colour, for baked lighting) or albedo+normal (world shading normals too, "
-        "so that an engine can light the impostor; a second set of atlas pages)",
+        CHANNELS_HELP,
     )
     conservative: bool = option(True, "gap-free recording; false only to demonstrate the holes", internal=True)
     padding: int = option(2, "atlas padding between tiles, texels", ge=0, le=64)

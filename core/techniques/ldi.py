@@ -34,7 +34,14 @@ import numpy as np
 from farfield.core import __version__
 from farfield.core.errors import LayerPlanError
 from farfield.core.impostor.depth import refuse_depth
-from farfield.core.impostor.impostor import ChannelSet, Impostor, LdiPayload, wants_material, wants_normals
+from farfield.core.impostor.impostor import (
+    CHANNELS_HELP,
+    ChannelSet,
+    Impostor,
+    LdiPayload,
+    wants_material,
+    wants_normals,
+)
 from farfield.core.ldi.construction import DEFAULT_MAX_LAYERS, _merge_samples, construct_ldi, view_frame
 from farfield.core.ldi.materials import sample_material
 from farfield.core.ldi.normals import sample_normals
@@ -68,8 +75,7 @@ class LdiOptions:
     max_layers: int = option(DEFAULT_MAX_LAYERS, "most samples an LDI pixel keeps", ge=1, le=64)
     channels: ChannelSet = option(
         "albedo",
-        "what each sample keeps: albedo (unlit colour, for baked lighting) or albedo+normal (its world shading normal "
-        "too, so that an engine can light the impostor; a normal page beside each layer's colour page)",
+        CHANNELS_HELP,
     )
 
     def __post_init__(self) -> None:

@@ -44,6 +44,7 @@ from farfield.core.errors import LayerPlanError, ViewCellError
 from farfield.core.impostor.depth import fill_gaps_with_depth, layer_depth_ranges
 from farfield.core.impostor.glb import page_png
 from farfield.core.impostor.impostor import (
+    CHANNELS_HELP,
     ChannelSet,
     Impostor,
     QuadPayload,
@@ -134,8 +135,7 @@ class EnvmapOptions:
     padding: int = option(2, "atlas padding, texels", ge=0, le=64)
     channels: ChannelSet = option(
         "albedo",
-        "what each texel keeps: albedo (unlit colour, for baked lighting) or albedo+normal (world shading normals too, "
-        "so that an engine can light the impostor; a second set of atlas pages)",
+        CHANNELS_HELP,
     )
     max_page: int = option(
         MAX_PAGE,

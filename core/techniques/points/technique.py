@@ -29,7 +29,14 @@ import numpy as np
 from farfield.core import __version__
 from farfield.core.errors import AtlasOverflowError, LayerPlanError
 from farfield.core.impostor.depth import refuse_depth
-from farfield.core.impostor.impostor import ChannelSet, Impostor, PointPayload, wants_material, wants_normals
+from farfield.core.impostor.impostor import (
+    CHANNELS_HELP,
+    ChannelSet,
+    Impostor,
+    PointPayload,
+    wants_material,
+    wants_normals,
+)
 from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.ldi import image as ldi_kernels
 from farfield.core.ldi.materials import sample_material
@@ -104,8 +111,7 @@ class PointOptions:
     )
     channels: ChannelSet = option(
         "albedo",
-        "what each point keeps: albedo (unlit colour, for baked lighting) or albedo+normal (its world shading normal "
-        "too, one per point, so that an engine can light the impostor)",
+        CHANNELS_HELP,
     )
 
     def __post_init__(self) -> None:

@@ -38,7 +38,14 @@ import numpy as np
 from farfield.core import __version__
 from farfield.core.errors import InternalError
 from farfield.core.impostor.depth import refuse_depth
-from farfield.core.impostor.impostor import ChannelSet, Impostor, MeshPayload, wants_material, wants_normals
+from farfield.core.impostor.impostor import (
+    CHANNELS_HELP,
+    ChannelSet,
+    Impostor,
+    MeshPayload,
+    wants_material,
+    wants_normals,
+)
 from farfield.core.layering import recording
 from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.layering.culling import CullingMode
@@ -104,8 +111,7 @@ class TdmOptions:
     )
     channels: ChannelSet = option(
         "albedo",
-        "what each texel keeps: albedo (unlit colour, for baked lighting) or albedo+normal (world shading normals too, "
-        "so that an engine can light the impostor; a second set of atlas pages)",
+        CHANNELS_HELP,
     )
 
     def __post_init__(self) -> None:
