@@ -26,6 +26,7 @@ from farfield.service.db import Database
 from farfield.service.embedded_redis import EmbeddedRedis, free_port
 from farfield.service.jobs.cells import release_lost_cells, running_cells_of
 from farfield.service.keys import ensure_admin_key
+from farfield.service.leftovers import HomeLock, forget_children, reap, record_child, temp_dir
 from farfield.service.placement.lease import planning_jobs_of, release_planning
 from farfield.service.settings import Settings
 
@@ -92,6 +93,7 @@ class Service:
     api_spec: tuple[list[str], dict, Path] | None = None
     api_started: float = 0.0
     api_backoff: float = API_BACKOFF_S / 2.0  # the first death within a minute waits API_BACKOFF_S
+    lock: HomeLock | None = None  # one farfield up per home (service/leftovers.py)
 
     def handle_signals(self) -> None:
         """From now on SIGINT and SIGTERM ask :meth:`watch` to return (call before :meth:`start`)."""
@@ -108,15 +110,20 @@ class Service:
     def start(self) -> Service:
         settings = self.settings
         settings.home.mkdir(parents=True, exist_ok=True)
+        self.lock = HomeLock(settings.home).acquire()
+        for line in reap(settings.home):  # what a killed farfield up on this home left
+            print(f"farfield: {line}", file=sys.stderr)
         db = Database(settings.database_url)
         db.migrate()
         self.key = admin_key(settings, db)
         db.dispose()
         if settings.redis_url is None:
             self.redis = EmbeddedRedis(settings.home / "redis").start()
+            record_child(settings.home, "redis", self.redis.process.pid)
             settings = self.settings = settings.with_redis(self.redis.url)
         port = settings.port or free_port()
-        env = {**os.environ, **settings.environment(), "FARFIELD_ADMIN_KEY": self.key}
+        # TMPDIR: what killed children leave there is reaped by the next start (service/leftovers.py).
+        env = {**os.environ, **settings.environment(), "FARFIELD_ADMIN_KEY": self.key, "TMPDIR": str(temp_dir(settings.home))}
         logs = settings.home / "logs"
         logs.mkdir(exist_ok=True)
         gpus = gpu_count()
@@ -125,6 +132,7 @@ class Service:
             device = {"FARFIELD_EGL_DEVICE": str(i % gpus)} if gpus else {}
             self.worker_specs.append((worker_command(f"worker{i}"), {**env, **device}, logs / f"worker{i}.log"))
             self.worker_processes.append(self._spawn(*self.worker_specs[-1]))
+            record_child(settings.home, f"worker{i}", self.worker_processes[-1].pid)
         api = [
             sys.executable,
             "-m",
@@ -143,6 +151,7 @@ class Service:
         ]
         self.api_spec = (api, env, logs / "api.log")
         self.api = self._spawn(*self.api_spec)
+        record_child(settings.home, "api", self.api.pid)
         self.api_started = time.monotonic()
         self.url = f"http://{settings.host}:{port}"
         self._wait_for_api()
@@ -163,6 +172,7 @@ class Service:
             time.sleep(0.1)
         if not self.stop_requested:
             self.api = self._spawn(*self.api_spec)
+            record_child(self.settings.home, "api", self.api.pid)
             self.api_started = time.monotonic()
 
     def _wait_for_api(self, timeout: float = 60.0) -> None:
@@ -187,6 +197,7 @@ class Service:
         while not self.stop_requested:
             if self.redis is not None and not self.redis.alive():
                 self.redis.start()
+                record_child(self.settings.home, "redis", self.redis.process.pid)
             for i, process in enumerate(self.worker_processes):
                 if process.poll() is not None:
                     print(
@@ -198,6 +209,7 @@ class Service:
                         pass
                     self.release_cells_of(f"worker{i}", process.returncode)
                     self.worker_processes[i] = self._spawn(*self.worker_specs[i])
+                    record_child(self.settings.home, f"worker{i}", self.worker_processes[i].pid)
             if self.api.poll() is not None:
                 self._restart_api()
             time.sleep(0.5)
@@ -242,3 +254,7 @@ class Service:
                     p.wait()
         if self.redis is not None:
             self.redis.stop()
+        if self.lock is not None:  # this start held the home: every child it recorded is stopped
+            forget_children(self.settings.home)
+            self.lock.release()
+            self.lock = None
