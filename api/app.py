@@ -23,7 +23,7 @@ from farfield.api import (
 )
 from farfield.api.deps import Services
 from farfield.api.errors import install_error_handlers
-from farfield.api.limits import BodyLimit
+from farfield.api.limits import FORM_LIMITS, BodyLimit
 from farfield.api.openapi import openapi_document
 from farfield.api.security_headers import SecurityHeaders
 from farfield.api.sweeper import LostCellSweeper
@@ -56,6 +56,7 @@ def create_app(settings: Settings, celery: Celery | None = None, migrate: bool =
         version=__version__,
         description="Impostor baking service: scenes, placement jobs, impostor databases.",
         lifespan=lifespan,
+        form_limits=FORM_LIMITS,  # parts and fields of a multipart request (api/limits.py)
     )
     app.state.services = services
 

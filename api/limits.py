@@ -14,12 +14,22 @@ import json
 
 from fastapi import HTTPException
 from starlette.concurrency import run_in_threadpool
+from starlette.formparsers import MultiPartParser
 
 from farfield.api.deps import client_address
 from farfield.core.errors import AuthError, AuthRateError
 
 JSON_BODY_LIMIT = 8 * 2**20  # job specs: 10,000 explicit view cells fit with room to spare
 MULTIPART_ENVELOPE = 64 * 1024
+
+# Memory per multipart request (issue 59, item 8).  Starlette keeps each file part in memory up to
+# 1 MiB before it spools it to disk, and takes 1,000 of them: 300 parts of 1 MiB raised the API's
+# resident memory by 304 MiB.  A part now goes to disk past SPOOL_BYTES, and an upload has at most
+# FORM_LIMITS["max_files"] parts (a scene, its MTL, buffers and textures; more in a .zip) and a few
+# small text fields, so one request holds at most about 256 x 64 KiB = 16 MiB of parts in memory.
+SPOOL_BYTES = 64 * 1024
+FORM_LIMITS = {"max_files": 256, "max_fields": 16, "max_part_size": 64 * 1024}
+MultiPartParser.spool_max_size = SPOOL_BYTES  # a class attribute: every form this process parses
 
 
 class BodyLimit:
