@@ -123,7 +123,12 @@ class Service:
             settings = self.settings = settings.with_redis(self.redis.url)
         port = settings.port or free_port()
         # TMPDIR: what killed children leave there is reaped by the next start (service/leftovers.py).
-        env = {**os.environ, **settings.environment(), "FARFIELD_ADMIN_KEY": self.key, "TMPDIR": str(temp_dir(settings.home))}
+        env = {
+            **os.environ,
+            **settings.environment(),
+            "FARFIELD_ADMIN_KEY": self.key,
+            "TMPDIR": str(temp_dir(settings.home)),
+        }
         logs = settings.home / "logs"
         logs.mkdir(exist_ok=True)
         gpus = gpu_count()

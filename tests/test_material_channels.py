@@ -400,3 +400,13 @@ def test_the_lit_evaluation_shades_a_material_bake_with_its_own_material():
     worst = {k: max(row["lit_error_mean"] for row in t["lights"]) for k, t in figures.items()}
     # Measured (llvmpipe): 1.5 sRGB levels kept, 67 matte, under the worst light.
     assert worst[MATERIAL] < 3.0 and worst[MATERIAL] * 10.0 < worst["albedo+normal"], worst
+
+
+def test_a_matte_part_keeps_no_material_pages():
+    """A part without any material (metallic 0, roughness 1, no maps, no emission: an OBJ's or a
+    PLY's) would fill every material texel with (1, 1, 0), what the GLB's default factors say:
+    its +material bake keeps the normal pages only, as a colour-and-normal bake does."""
+    matte = bake([quad()])
+    assert set(matte.channels) == {"normal"}
+    assert matte.channels["normal"][0].tobytes() == bake([quad()], "albedo+normal").channels["normal"][0].tobytes()
+    assert set(bake([quad(roughness_factor=0.5)]).channels) == {"normal", "material"}

@@ -48,9 +48,13 @@ def body(parts: int, boundary: str):
     block = b"x" * PART
     for k in range(parts):
         yield (
-            f'--{boundary}\r\nContent-Disposition: form-data; name="junk"; filename="part{k}.bin"\r\n'
-            "Content-Type: application/octet-stream\r\n\r\n"
-        ).encode() + block + b"\r\n"
+            (
+                f'--{boundary}\r\nContent-Disposition: form-data; name="junk"; filename="part{k}.bin"\r\n'
+                "Content-Type: application/octet-stream\r\n\r\n"
+            ).encode()
+            + block
+            + b"\r\n"
+        )
     yield f"--{boundary}--\r\n".encode()
 
 
@@ -89,10 +93,13 @@ def test_many_file_parts_do_not_sit_in_memory(server):
 def test_an_upload_of_more_parts_than_the_limit_is_refused_with_a_json_400(server):
     url, _ = server
     boundary = "farfieldboundary"
-    many = b"".join(
-        f'--{boundary}\r\nContent-Disposition: form-data; name="file"; filename="p{k}.obj"\r\n\r\nv 0 0 0\r\n'.encode()
-        for k in range(300)
-    ) + f"--{boundary}--\r\n".encode()
+    many = (
+        b"".join(
+            f'--{boundary}\r\nContent-Disposition: form-data; name="file"; filename="p{k}.obj"\r\n\r\nv 0 0 0\r\n'.encode()
+            for k in range(300)
+        )
+        + f"--{boundary}--\r\n".encode()
+    )
     answer = httpx.post(
         url + "/v1/scenes", content=many, timeout=60,
         headers={"Authorization": f"Bearer {KEY}", "Content-Type": f"multipart/form-data; boundary={boundary}"},

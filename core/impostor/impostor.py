@@ -900,6 +900,17 @@ def wants_material(channels: str) -> bool:
     return "material" in channel_names(channels)
 
 
+def keeps_material(channels: str, objects) -> bool:
+    """Whether a bake with the channel set ``channels`` of ``objects`` records the material pages:
+    asked for, and some object has a material other than the matte default
+    (:func:`farfield.core.scene.has_material`).  A matte part's pages would hold (1, 1, 0) in every
+    texel, which the GLB's default metallic-roughness factors (metallic 0, roughness 1) say already:
+    they are left out, as the emissive pages are where nothing emits."""
+    from farfield.core.scene import has_material
+
+    return wants_material(channels) and any(has_material(obj) for obj in objects)
+
+
 def wants_depth(channels: str) -> bool:
     """Whether the channel set ``channels`` keeps each texel's depth."""
     return "depth" in channel_names(channels)

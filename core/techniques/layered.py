@@ -21,9 +21,9 @@ from farfield.core.impostor.impostor import (
     ChannelSet,
     Impostor,
     QuadPayload,
+    keeps_material,
     texel_rect_corners,
     wants_depth,
-    wants_material,
     wants_normals,
 )
 from farfield.core.layering import recording
@@ -137,7 +137,7 @@ def bake_layered(
     # One-sided triangles whose back faces the whole cell are not recorded (the plan keeps the part's bounds).
     seen = seen_from_cell(part.objects, cell)
     normals = wants_normals(options.channels)
-    material = wants_material(options.channels)
+    material = keeps_material(options.channels, seen)
     depth = wants_depth(options.channels)
     depth_ranges = []  # per quad, ray scales of its slab (farfield.core.impostor.depth), with depth
     layers_of_plan = culled_layers(

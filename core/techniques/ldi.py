@@ -39,7 +39,7 @@ from farfield.core.impostor.impostor import (
     ChannelSet,
     Impostor,
     LdiPayload,
-    wants_material,
+    keeps_material,
     wants_normals,
 )
 from farfield.core.ldi.construction import DEFAULT_MAX_LAYERS, _merge_samples, construct_ldi, view_frame
@@ -189,8 +189,8 @@ def bake_ldi(
                 seen_from_cell(part.objects, cell), ldi.obj[at], ldi.triangle[at], positions, cell.corners()
             )
             channels = {"normal": normal_pages(ldi, normals)}
-            if wants_material(options.channels):  # the material (and emission) of the same samples
-                objects = seen_from_cell(part.objects, cell)
+            objects = seen_from_cell(part.objects, cell)
+            if keeps_material(options.channels, objects):  # the material (and emission) of the same samples
                 orm, emissive = sample_material(objects, ldi.obj[at], ldi.triangle[at], positions)
                 channels["material"] = sample_pages(ldi, orm)
                 if any(emits(o) for o in objects):

@@ -48,9 +48,9 @@ from farfield.core.impostor.impostor import (
     ChannelSet,
     Impostor,
     QuadPayload,
+    keeps_material,
     texel_rect_corners,
     wants_depth,
-    wants_material,
     wants_normals,
 )
 from farfield.core.layering import recording
@@ -251,7 +251,7 @@ def bake_envmap(
     normals = wants_normals(options.channels)
     depth = wants_depth(options.channels)
     depth_ranges = []  # per quad, ray scales of its slab (farfield.core.impostor.depth), with depth
-    material = wants_material(options.channels)
+    material = keeps_material(options.channels, seen)
     total_layers = len(options.directions) * plan.count
     tiles, quad_layer, quad_corners, layers = [], [], [], []
     counts = {"covered": 0, "culled": 0, "kept": 0, "drawn": 0, "gap_filled": 0}

@@ -34,7 +34,7 @@ from farfield.core.impostor.impostor import (
     ChannelSet,
     Impostor,
     PointPayload,
-    wants_material,
+    keeps_material,
     wants_normals,
 )
 from farfield.core.layering.atlas import MAX_PAGE
@@ -198,7 +198,7 @@ def bake_points(
         with clock("normals"):  # on the side the cell sees (core/ldi/normals.py)
             normals = sample_normals(seen, samples.obj[kept], samples.triangle[kept], positions, box.corners())
     material = emissive = None
-    if wants_material(options.channels):
+    if keeps_material(options.channels, seen):
         with clock("material"):  # glTF's ORM bytes (and the emission where something emits) of each point
             material, emissive = sample_material(seen, samples.obj[kept], samples.triangle[kept], positions)
             emissive = emissive if any(emits(o) for o in seen) else None

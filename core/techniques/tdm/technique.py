@@ -43,7 +43,7 @@ from farfield.core.impostor.impostor import (
     ChannelSet,
     Impostor,
     MeshPayload,
-    wants_material,
+    keeps_material,
     wants_normals,
 )
 from farfield.core.layering import recording
@@ -327,13 +327,9 @@ def bake_tdm(
         )
     clock.report("plan", 1, 1)
 
+    seen = seen_from_cell(part.objects, cell)
     field = record_voxel_field(
-        seen_from_cell(part.objects, cell),
-        plan,
-        options.culling,
-        clock,
-        wants_normals(options.channels),
-        wants_material(options.channels),
+        seen, plan, options.culling, clock, wants_normals(options.channels), keeps_material(options.channels, seen)
     )
     corners, uv, triangle_page, meshes, pages, channels, stats = mesh_field(field, options, clock)
     stats = {
