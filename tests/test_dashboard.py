@@ -77,6 +77,10 @@ def test_upload_submit_progress_done_atlas(page, service):
     )
     scene_id = result.get_attribute("data-scene-id")
     assert page.locator(tid("job-scene")).input_value() == scene_id
+    # The grid's corners start at the chosen scene's bounds (a fixed default suited one scale only).
+    lo = [float(v) for v in page.locator(tid("job-lo")).input_value().split(",")]
+    hi = [float(v) for v in page.locator(tid("job-hi")).input_value().split(",")]
+    assert abs(lo[0] - (-0.0946)) < 1e-3 and abs(hi[1] - 0.187) < 2e-3, (lo, hi)
 
     # A bad job: the server's message is shown on the form, and no job is made.
     page.fill(tid("job-lo"), ", ".join(map(str, BUNNY_GRID["lo"])))

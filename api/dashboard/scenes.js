@@ -29,11 +29,25 @@ export async function refreshScenes() {
 
 const SCENE_INFO_OBJECTS = 8;
 
+// The grid's (or view space's) corners follow the chosen scene's bounds until the user edits them:
+// a fixed default suited one scene's scale and not another's (a 1,200-unit park was offered a
+// 0.2-unit grid).
+function suggestBox(lo, hi) {
+  for (const [id, corner] of [["job-lo", lo], ["job-hi", hi]]) {
+    const input = $(id);
+    const text = corner.map((x) => String(Number(Number(x).toPrecision(6)))).join(", ");
+    input.placeholder = text;
+    if (!input.value || input.value === input.dataset.suggested) input.value = text;
+    input.dataset.suggested = text;
+  }
+}
+
 export function showSceneInfo() {
   const scene = state.scenes.get($("job-scene").value);
   const info = $("job-scene-info");
   if (!scene) { info.textContent = ""; return; }
   const [lo, hi] = scene.bounds;
+  suggestBox(lo, hi);
   const text = (names) => `bounds ${fmtVec(lo)} – ${fmtVec(hi)}; ${fmtNum(scene.object_count)} object(s)` +
     (names ? `: ${names.join(", ")}${scene.object_count > names.length ? ", …" : ""}` : "");
   const known = state.sceneObjects.get(scene.id);

@@ -117,7 +117,8 @@ def job_record(job: JobRow, summary: dict, cells: list[CellRow] | None = None) -
     # The share of the work that was carried out: a cancelled cell was not, so a job cancelled with 7
     # of 27 cells done shows 26 %, not 100 %.
     finished = counts["done"] + counts["failed"]
-    progress = (finished + summary["running_progress"]) / max(total, 1)
+    # A done job did all its work, cells or none (a placement that needed no impostor: 0 cells).
+    progress = 1.0 if job.state == "done" else (finished + summary["running_progress"]) / max(total, 1)
     mean = summary["done_seconds"] / summary["done_timed"] if summary["done_timed"] else None
     eta = None
     if job.state in ("queued", "running") and mean is not None:
