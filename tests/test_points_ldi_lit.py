@@ -343,3 +343,20 @@ def test_point_and_splat_material_g_buffers_keep_mesh_renderers_contract():
     covered = image[..., 3] > 0
     assert np.allclose(material[covered, :3], [200 / 255, 100 / 255, 50 / 255], atol=1e-6)
     assert not material[~covered].any() and not material[..., 3:].any()
+
+
+@pytest.mark.parametrize("bake, options", [(bake_points, PointOptions(**POINTS)), (bake_ldi, LdiOptions(**LDI))], ids=["points", "ldi"])  # fmt: skip
+def test_the_g_buffer_of_an_emitting_bake_draws_each_elements_material_and_emission(bake, options):
+    (ball,) = metal_sphere().objects
+    from farfield.core.scene import Scene
+
+    glowing = Scene((replace(ball, emissive_factor=np.array([0.5, 0.2, 0.0])),), "glowing sphere")
+    impostor = bake(glowing, CELL, replace(options, channels=MATERIAL))
+    with impostor.payload.gbuffer(impostor) as renderer:
+        assert renderer.materials
+        image, _, material = renderer.render_material(reference_camera(impostor, impostor.resolution))
+    covered = image[..., 3] > 0
+    assert covered.sum() > 200  # the sphere, about 20 pixels across
+    assert np.allclose(material[covered, :3], [1.0, 0.35, 0.7], atol=1.0 / 255)  # ORM bytes / 255
+    assert np.allclose(material[covered, 3:], [0.5, 0.2, 0.0], atol=0.004)  # sRGB bytes, decoded
+    assert not material[~covered].any()
