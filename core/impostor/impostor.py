@@ -605,9 +605,11 @@ class PointPayload(_PayloadBase):
     def gbuffer(self, impostor: Impostor, normals: bool = True):
         """:meth:`renderer` as a G-buffer (``render_normals``): each point's pixels show its ``normal``
         when ``normals`` and it keeps them, else (flat cards) a normal facing the viewer, against
-        the camera's forward axis, as a sprite's."""
+        the camera's forward axis, as a sprite's; with ``materials=True`` and each point's ``material``
+        and ``emissive`` bytes where it keeps them (a material G-buffer, ``render_material``)."""
         from farfield.core.render.points import PointRenderer
 
+        kept = self.material is not None
         return PointRenderer(
             self.positions,
             self.colour.astype(np.uint8),
@@ -615,6 +617,8 @@ class PointPayload(_PayloadBase):
             grid=(impostor.resolution, math.radians(impostor.fov_deg)),
             gbuffer=True,
             normals=self.normal if normals else None,
+            materials=self.material.astype(np.uint8) if kept else None,
+            emissive=self.emissive.astype(np.uint8) if kept and self.emissive is not None else None,
         )
 
 
@@ -725,13 +729,27 @@ class LdiPayload(_PayloadBase):
     def gbuffer(self, impostor: Impostor, normals: bool = True):
         """:meth:`renderer` as a G-buffer (``render_normals``): each splat shows its sample's normal
         (the normal channel's page ``2k`` for layer ``k``) when ``normals`` and the impostor keeps
-        them, else (flat cards) a normal facing the viewer, as a sprite's."""
+        them, else (flat cards) a normal facing the viewer, as a sprite's; with ``materials`` (a
+        material G-buffer, ``render_material``) each sample's bytes of the material (and emissive)
+        channel's page ``2k`` where it keeps them."""
         from dataclasses import replace
 
         from farfield.core.ldi.image import ldi_of
         from farfield.core.render.splats import SplatRenderer
 
         ldi = ldi_of(impostor)
+        materials = None
+        if "material" in impostor.channels:
+            index = np.argwhere(np.isfinite(ldi.depth))  # the samples' order, as the splats are drawn
+
+            def per_sample(name: str) -> np.ndarray | None:
+                pages = impostor.channels.get(name)
+                if pages is None:
+                    return None
+                stacked = np.stack([pages[2 * k] for k in range(ldi.layers)])
+                return stacked[index[:, 0], index[:, 1], index[:, 2]]
+
+            materials = (per_sample("material"), per_sample("emissive"))
         pages = impostor.channels.get("normal") if normals else None
         if pages is not None:
             layers = int(self.size[1])
@@ -739,7 +757,7 @@ class LdiPayload(_PayloadBase):
                 ldi,
                 normal=np.stack([decode_normals(pages[2 * k]) for k in range(layers)]).reshape(ldi.depth.shape + (3,)),
             )
-        return SplatRenderer([], [ldi], gbuffer=True)
+        return SplatRenderer([], [ldi], gbuffer=True, materials=materials)
 
 
 @runtime_checkable

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import moderngl
 import numpy as np
 
+from farfield.core.colour_space import srgb_to_linear
 from farfield.core.errors import RenderBackendError
 from farfield.core.render.programs import program, srgb_texture
 from farfield.core.render.raster import Camera, MeshRenderer
@@ -60,6 +61,19 @@ class Appearance:
     hi: np.ndarray
 
 
+def material_columns(materials: np.ndarray, emissive: np.ndarray | None, count: int) -> list[np.ndarray]:
+    """[(n, 3) float64 occlusion, roughness, metallic in 0..1, (n, 3) float64 linear emission] of
+    ``count`` elements from their (n, 4) uint8 ORM bytes and sRGB emission bytes (None: no emission),
+    the vertex columns of a material G-buffer's points and splats (the values the GL reads from a
+    linear ORM page and an sRGB emissive page at a texel's centre)."""
+    orm = np.asarray(materials, dtype=np.float64).reshape(count, 4)[:, :3] / 255.0
+    if emissive is None:
+        light = np.zeros((count, 3))
+    else:
+        light = srgb_to_linear(np.asarray(emissive, dtype=np.float64).reshape(count, 4)[:, :3] / 255.0)
+    return [orm, light]
+
+
 class PointRenderer(MeshRenderer):
     """``positions`` (n, 3) float64 world and ``colours`` (n, 4) uint8 sRGB, uploaded once; with an
     ``appearance``, the points of a page look their colour up there (module docstring); ``grid``:
@@ -68,7 +82,14 @@ class PointRenderer(MeshRenderer):
     ``gbuffer=True`` makes a G-buffer renderer for the lit evaluation (:meth:`render_normals`, as
     :class:`~farfield.core.render.raster.MeshRenderer`'s): each point's pixels hold its ``normals``
     (n, 3) float64 unit world normal, or without them the normal of a sprite facing the viewer
-    (minus the camera's forward axis: a point lit as a flat card)."""
+    (minus the camera's forward axis: a point lit as a flat card).
+
+    ``materials`` (n, 4) uint8 (with ``gbuffer``): each point's glTF ORM bytes (occlusion, roughness,
+    metallic; :mod:`farfield.core.ldi.materials`), and ``emissive`` (n, 4) uint8 its sRGB-encoded
+    emission (None: none), make the renderer a material G-buffer (``materials`` true,
+    :meth:`~farfield.core.render.raster.MeshRenderer.render_material`, the same contract): each
+    point's pixels hold its bytes / 255 and its emission decoded to linear light, zero where
+    nothing is drawn."""
 
     def __init__(
         self,
@@ -78,10 +99,14 @@ class PointRenderer(MeshRenderer):
         grid: tuple[int, float] | None = None,
         gbuffer: bool = False,
         normals: np.ndarray | None = None,
+        materials: np.ndarray | None = None,
+        emissive: np.ndarray | None = None,
     ):
-        super().__init__([], normals=gbuffer)
+        super().__init__([], normals=gbuffer, materials=materials is not None and gbuffer)
         if normals is not None and not gbuffer:
             raise ValueError("point normals are drawn by a G-buffer renderer only (gbuffer=True)")
+        if (materials is not None or emissive is not None) and not self.materials:
+            raise ValueError("point materials are drawn by a G-buffer renderer only (gbuffer=True, materials given)")
         positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         colours = np.asarray(colours, dtype=np.uint8).reshape(-1, 4)
         if positions.shape[0] != colours.shape[0]:
@@ -110,10 +135,15 @@ class PointRenderer(MeshRenderer):
             layout += " 3f"
             attributes.append("in_normal")
             defines += ("POINT_NORMALS",)
+        if self.materials:
+            data += [column[self.order] for column in material_columns(materials, emissive, self.count)]
+            layout += " 3f 3f"
+            attributes += ["in_material", "in_emissive"]
+            defines += ("MATERIAL",)
         self.points_program = program(self.ctx, "points.vert", "points.frag", defines=defines)
         self.id_program = program(self.ctx, "points.vert", "points.frag", defines=("POINT_ID",))
-        # a vertex: position, colour[, tile][, normal]
-        floats = 7 + 2 * (appearance is not None) + 3 * (normals is not None)
+        # a vertex: position, colour[, tile][, normal][, material, emission]
+        floats = 7 + 2 * (appearance is not None) + 3 * (normals is not None) + 6 * self.materials
         blob = (
             np.ascontiguousarray(np.concatenate(data, axis=1), dtype="<f4").tobytes()
             if self.count

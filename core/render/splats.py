@@ -17,6 +17,7 @@ import numpy as np
 
 from farfield.core.ldi.image import LayeredDepthImage
 from farfield.core.ldi.warp import fill_pin_holes
+from farfield.core.render.points import material_columns
 from farfield.core.render.programs import program
 from farfield.core.render.raster import Camera, MeshRenderer
 from farfield.core.scene import SceneObject
@@ -49,11 +50,20 @@ class SplatRenderer(MeshRenderer):
     ``gbuffer=True`` makes a G-buffer renderer for the lit evaluation (:meth:`render_normals`): the
     geometry's shading normals, and each splat's pixels its sample's normal where every LDI keeps
     normals (:attr:`~farfield.core.ldi.image.LayeredDepthImage.normal`; ``splats`` then have none),
-    else the normal of a sprite facing the viewer (minus the camera's forward axis: flat cards)."""
+    else the normal of a sprite facing the viewer (minus the camera's forward axis: flat cards).
+
+    ``materials`` (with ``gbuffer``): ((m, 4) uint8 ORM bytes, (m, 4) uint8 sRGB emission bytes or
+    None) of the m splats in the order drawn (the ``ldis``' samples, :func:`ldi_splats`' order, then
+    ``splats``), makes a material G-buffer (``materials`` true, :meth:`render_material`, the
+    contract of :meth:`~farfield.core.render.raster.MeshRenderer.render_material`); the geometry is
+    drawn with its own material."""
 
     def __init__(self, objects: list[SceneObject] | tuple[SceneObject, ...], ldis: list[LayeredDepthImage] | tuple = (),
-                 splats: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, gbuffer: bool = False):  # fmt: skip
-        super().__init__(objects, normals=gbuffer)
+                 splats: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None, gbuffer: bool = False,
+                 materials: tuple[np.ndarray, np.ndarray | None] | None = None):  # fmt: skip
+        if materials is not None and not gbuffer:
+            raise ValueError("splat materials are drawn by a G-buffer renderer only (gbuffer=True)")
+        super().__init__(objects, normals=gbuffer, materials=materials is not None)
         parts = [ldi_splats(ldi) for ldi in ldis] + ([splats] if splats is not None else [])
         positions = np.concatenate([p[0] for p in parts]) if parts else np.zeros((0, 3))
         colours = np.concatenate([p[1] for p in parts]) if parts else np.zeros((0, 4), np.uint8)
@@ -62,12 +72,16 @@ class SplatRenderer(MeshRenderer):
         self.origin = 0.5 * (positions.min(axis=0) + positions.max(axis=0)) if self.count else np.zeros(3)
         own_normals = gbuffer and bool(ldis) and splats is None and all(ldi.normal is not None for ldi in ldis)
         defines = ("NORMALS",) * gbuffer + ("SPLAT_NORMALS",) * own_normals
-        self.splat_program = program(self.ctx, "splats.vert", "splats.frag", defines=defines)
         columns = [positions - self.origin, colours.astype(np.float64) / 255.0, extents[:, None]]
         layout, names = "3f 4f 1f", ["in_position", "in_color", "in_extent"]
         if own_normals:
             columns.append(np.concatenate([ldi_splat_normals(ldi) for ldi in ldis]))
             layout, names = layout + " 3f", names + ["in_normal"]
+        if materials is not None:
+            columns += material_columns(materials[0], materials[1], self.count)
+            layout, names = layout + " 3f 3f", names + ["in_material", "in_emissive"]
+            defines += ("MATERIAL",)
+        self.splat_program = program(self.ctx, "splats.vert", "splats.frag", defines=defines)
         data = np.concatenate(columns, axis=1)
         floats = data.shape[1]
         self._vbo = self.ctx.buffer(
@@ -111,6 +125,39 @@ class SplatRenderer(MeshRenderer):
     def render_normals(self, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
         """(:meth:`render`'s image, (h, w, 3) float32 world normals): the 3x3 pass fills a pin hole's
         normal with the renormalised mean of its splat neighbours', as it fills its colour."""
+        image, normals, _, _ = self._gbuffer(camera)
+        return image, normals
+
+    def render_material(self, camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`render_normals` and the (h, w, 6) float32 material of the same pixels (occlusion,
+        roughness, metallic, linear emitted RGB; zero where nothing was drawn): the 3x3 pass fills a
+        pin hole's material with the mean of its splat neighbours'.  A renderer made with
+        ``materials`` only."""
+        if not self.materials:
+            raise ValueError("this renderer was made without materials")
+        image, normals, splat, holes = self._gbuffer(camera)
+        size = camera.resolution
+        _, _, _, _, orm, light = self._targets[size]
+        material = np.concatenate(
+            [np.frombuffer(t.read(), dtype=np.float32).reshape(size, size, 4)[::-1, :, :3] for t in (orm, light)],
+            axis=-1,
+        )
+        if holes.any():
+            total = np.zeros(material.shape, dtype=np.float64)
+            count = np.zeros(splat.shape)
+            pad = np.pad(np.where(splat[..., None], material, 0.0), ((1, 1), (1, 1), (0, 0)))
+            hits = np.pad(splat, 1).astype(np.float64)
+            h, w = splat.shape
+            for dr in (-1, 0, 1):
+                for dc in (-1, 0, 1):
+                    total += pad[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
+                    count += hits[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
+            material[holes] = total[holes] / np.maximum(count[holes], 1.0)[:, None]
+        return image, normals, material
+
+    def _gbuffer(self, camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(:meth:`render_normals`' image and normals, (h, w) bool the splats' pixels, (h, w) bool
+        the pin holes the 3x3 pass filled)."""
         if not self.normals:
             raise ValueError("this renderer was made without normals")
         image = self.render_raw(camera)
@@ -131,4 +178,4 @@ class SplatRenderer(MeshRenderer):
             length = np.linalg.norm(total[holes], axis=1, keepdims=True)
             normals[holes] = total[holes] / np.maximum(length, 1e-12)
         filled[..., 3] = np.where(empty & (filled[..., 3] == 0), 0, 255)
-        return filled, normals
+        return filled, normals, splat, holes

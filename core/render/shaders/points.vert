@@ -41,6 +41,15 @@ in vec2 in_tile;             // the tile's first texel in the page; x < 0: one c
 #include "colour.glsl"
 #endif
 
+#ifdef MATERIAL
+// A material G-buffer (core/render/points.py): each point's occlusion, roughness, metallic and
+// linear emission, decoded on the CPU from its ORM and sRGB emission bytes.
+in vec3 in_material;
+in vec3 in_emissive;
+flat out vec3 v_material;
+flat out vec3 v_emissive;
+#endif
+
 void main() {
     vec3 e = (eye_from_local * vec4(in_position, 1.0)).xyz;
     float n = depth_range.x, f = depth_range.y;
@@ -66,5 +75,9 @@ void main() {
         vec4 c = textureLod(page, texel / page_size, 0.0);
         v_color = vec4(linear_to_srgb(c.rgb), c.a);
     }
+#endif
+#ifdef MATERIAL
+    v_material = in_material;
+    v_emissive = in_emissive;
 #endif
 }

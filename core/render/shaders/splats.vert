@@ -21,6 +21,15 @@ uniform vec3 facing;
 #endif
 #endif
 
+#ifdef MATERIAL
+// A material G-buffer (core/render/splats.py): each sample's occlusion, roughness, metallic and
+// linear emission, decoded on the CPU from its ORM and sRGB emission bytes.
+in vec3 in_material;
+in vec3 in_emissive;
+flat out vec3 v_material;
+flat out vec3 v_emissive;
+#endif
+
 void main() {
     vec3 e = (eye_from_local * vec4(in_position, 1.0)).xyz;
     float n = depth_range.x, f = depth_range.y;
@@ -33,5 +42,9 @@ void main() {
 #else
     v_normal = facing;
 #endif
+#endif
+#ifdef MATERIAL
+    v_material = in_material;
+    v_emissive = in_emissive;
 #endif
 }
