@@ -410,3 +410,19 @@ def test_a_matte_part_keeps_no_material_pages():
     assert set(matte.channels) == {"normal"}
     assert matte.channels["normal"][0].tobytes() == bake([quad()], "albedo+normal").channels["normal"][0].tobytes()
     assert set(bake([quad(roughness_factor=0.5)]).channels) == {"normal", "material"}
+
+
+def test_material_and_depth_together_keep_both_in_the_glb(tmp_path, gltf_validator):
+    """albedo+normal+material+depth: the GLB's materials carry the ORM and emissive textures and the
+    depth extension together (the depth path wrote a matte card: the material was dropped)."""
+    obj = quad(metallic_factor=0.8, roughness_factor=0.3, emissive_factor=np.array([0.2, 0.4, 0.0]))
+    impostor = bake([obj], MATERIAL + "+depth")
+    assert impostor.payload.depth_range is not None and {"material", "emissive"} <= set(impostor.channels)
+    data = impostor_glb(impostor)
+    path = tmp_path / "material-depth.glb"
+    path.write_bytes(data)
+    (report,) = gltf_validator.validate([path])
+    assert report.get("errors") == 0 and report.get("warnings") == 0, report
+    for material in glb_json(data)["materials"]:
+        assert "metallicRoughnessTexture" in material["pbrMetallicRoughness"] and "occlusionTexture" in material
+        assert "emissiveTexture" in material and "FARFIELD_impostor_depth" in material["extensions"]

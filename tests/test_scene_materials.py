@@ -87,6 +87,19 @@ def test_the_gltf_loader_reads_factors_textures_strengths_and_the_specifications
     assert (default.metallic_factor, default.roughness_factor) == (1.0, 1.0)
 
 
+def test_an_unlit_material_is_read_as_matte_not_as_the_default_metal(tmp_path):
+    """KHR_materials_unlit: the author wants the base colour as it is; without metallicFactor the
+    specification's default would make it metal (dark under ambient light alone)."""
+    b = GltfBuilder()
+    flat = b.material()
+    del b.doc["materials"][flat]["pbrMetallicRoughness"]["metallicFactor"]
+    b.doc["materials"][flat]["extensions"] = {"KHR_materials_unlit": {}}
+    b.used.add("KHR_materials_unlit")
+    b.quad("flat", [0, 0, 0], 1.0, flat, uv=SQUARE_UV)
+    objects, _ = load(b.write(tmp_path / "unlit.glb"))
+    assert (objects["flat"].metallic_factor, objects["flat"].roughness_factor) == (0.0, 1.0)
+
+
 def test_tex_coord_and_transform_are_applied_and_a_texture_on_other_coordinates_is_dropped_with_one_warning(
     tmp_path,
 ):

@@ -490,12 +490,14 @@ class GlbBuilder:
         the material and emissive pages where given (:meth:`textured`)."""
         frames = quad_frames(payload, self.viewpoint)
         if payload.depth_range is not None:
-            return self._depth_quads(payload, pages, normal_pages, frames)
+            return self._depth_quads(payload, pages, normal_pages, frames, material_pages, emissive_pages)
         geometry = _quad_pages(payload, self.viewpoint, len(pages), frames)
         normal = tangent_space_pages(payload, frames, normal_pages)
         return self.textured(geometry, pages, normal, material_pages, emissive_pages)
 
-    def _depth_quads(self, payload: QuadPayload, pages, normal_pages, frames) -> GlbParts:
+    def _depth_quads(
+        self, payload: QuadPayload, pages, normal_pages, frames, material_pages=None, emissive_pages=None
+    ) -> GlbParts:
         """:meth:`lit_quads` of quads with the depth channel (:mod:`farfield.core.impostor.depth`):
         the normal textures keep the depth in their alpha, every vertex carries its quad's ray
         scales as ``_DEPTH_RANGE`` (float32 VEC2), and each material says so with the extension
@@ -504,7 +506,7 @@ class GlbBuilder:
         tangent = tangent_space_pages(payload, frames, normal_pages)
         for converted, world in zip(tangent, normal_pages):
             converted[..., 3] = world[..., 3]
-        parts = self.textured(geometry, pages, tangent)
+        parts = self.textured(geometry, pages, tangent, material_pages, emissive_pages)
         for material in parts.materials:
             material.setdefault("extensions", {})[DEPTH_EXTENSION] = {"alpha": "depth", "attribute": DEPTH_ATTRIBUTE}
         return GlbParts(parts.primitives, parts.materials, parts.images, (*parts.extensions, DEPTH_EXTENSION))

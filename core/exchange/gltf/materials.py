@@ -238,7 +238,10 @@ def material(document: dict, index: object, warnings: list[str]) -> Material:
     scale = _number(
         normal_info.get("scale") if isinstance(normal_info, dict) else None, 1.0, f"{where} normalTexture scale"
     )
-    shading = _shading(document, spec, pbr if not isinstance(gloss, dict) else None, extensions, where, warnings)
+    # Specular-glossiness and unlit materials (KHR_materials_unlit: the author wants the base colour
+    # as it is, and a glTF that leaves metallicFactor out would otherwise be metal) are matte.
+    matte = isinstance(gloss, dict) or "KHR_materials_unlit" in extensions
+    shading = _shading(document, spec, None if matte else pbr, extensions, where, warnings)
     return Material(name, factor, texture, cutoff, double, mode == "BLEND", normal, scale, **shading)
 
 
@@ -266,7 +269,7 @@ def _shading_texture(document: dict, info: object, where: str, warnings: list[st
 
 def _shading(document: dict, spec: dict, pbr: dict | None, extensions: dict, where: str, warnings: list[str]) -> dict:
     """The metallic-roughness fields of :class:`Material` (module docstring); ``pbr`` None for a
-    specular-glossiness material (matte)."""
+    specular-glossiness or unlit material (matte)."""
     out: dict = {}
     if pbr is None:
         out["metallic"], out["roughness"] = 0.0, 1.0
