@@ -16,7 +16,6 @@ from farfield.service.db import Database
 from farfield.service.keys import authenticate, bearer_key
 from farfield.service.scene_check import SceneCheckGate
 from farfield.service.settings import Settings
-from farfield.workers.app import BAKE_CELL, RENDER_QUEUE
 
 RETRY_POLICY = {"max_retries": 30, "interval_start": 0.2, "interval_step": 0.5, "interval_max": 2.0}
 
@@ -38,21 +37,16 @@ class Services:
 
     def authenticate(self, client: str, values: list[str]) -> str:
         """The tenant of a request from ``client`` (its address) with these ``Authorization`` header
-        values: the one path every route and the upload's early check take.  A client past its
-        failed attempts is refused (429) before its key is read; a key that does not authenticate
-        is counted against it (:class:`AuthError`, 401)."""
-        self.auth_failures.check(client)
+        values: the one path every route and the upload's early check take.  A key that does not
+        authenticate is :class:`AuthError` (401), or, past the client's allowance of failures,
+        :class:`~farfield.core.errors.AuthRateError` (429, api/auth_failures.py); a valid key
+        always passes."""
         try:
             return authenticate(self.db, bearer_key(values))
         except AuthError:
             if values:  # credentials were presented: a guess
-                self.auth_failures.record(client)
+                self.auth_failures.failed(client)
             raise
-
-    def enqueue(self, cell_ids: list[str]) -> None:
-        """Send one bake task per cell to the render queue (retrying while Redis is away)."""
-        for cell_id in cell_ids:
-            self.celery.send_task(BAKE_CELL, args=[cell_id], queue=RENDER_QUEUE, retry=True, retry_policy=RETRY_POLICY)
 
 
 def services(request: Request) -> Services:

@@ -17,7 +17,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.formparsers import MultiPartParser
 
 from farfield.api.deps import client_address
-from farfield.core.errors import AuthError, AuthRateError
+from farfield.core.errors import AuthError, AuthRateError, BusyError
 
 JSON_BODY_LIMIT = 8 * 2**20  # job specs: 10,000 explicit view cells fit with room to spare
 MULTIPART_ENVELOPE = 64 * 1024
@@ -77,6 +77,26 @@ class BodyLimit:
             except AuthError as error:
                 await self._reply(send, 401, str(error), "AuthError")
                 return
+            # A place among the scene checks (service/scene_check.py) before a byte of the body is
+            # read: a full gate refuses at once, and the upload is neither received nor spooled.
+            try:
+                place = self.services.scene_checks.admitted()
+                place.__enter__()
+            except BusyError as error:
+                await self._reply(
+                    send, 429, str(error), "BusyError", {b"retry-after": str(error.retry_after_s).encode()}
+                )
+                return
+            try:
+                await self.app(scope, self._counted(receive, limit), send)
+            finally:
+                place.__exit__(None, None, None)
+            return
+        await self.app(scope, self._counted(receive, limit), send)
+
+    @staticmethod
+    def _counted(receive, limit: int):
+        """``receive`` counting the body's bytes: past ``limit``, a 413."""
         received = 0
 
         async def counted():
@@ -89,4 +109,4 @@ class BodyLimit:
                     raise HTTPException(413, f"request body is larger than the limit of {limit} bytes")
             return message
 
-        await self.app(scope, counted, send)
+        return counted

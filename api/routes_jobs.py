@@ -74,6 +74,6 @@ def cancel(job_id: str, tenant_id: str = Depends(tenant), svc: Services = Depend
 
 @router.post("/{job_id}/retry", summary="Queue a failed job's failed cells again")
 def retry(job_id: str, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
-    svc.enqueue(retry_job(svc.db, tenant_id, job_id))
+    svc.enqueue(retry_job(svc.db, tenant_id, job_id, svc.settings.admission))
     job = get_job_row(svc.db, tenant_id, job_id)
     return full_job_record(svc.db, job)

@@ -105,10 +105,11 @@ def _recorded(home: Path) -> list[tuple[str, psutil.Process]]:
     return found
 
 
-def reap(home: Path) -> list[str]:
+def reap(home: Path) -> tuple[list[str], list[str]]:
     """Kill what an earlier ``farfield up`` on ``home`` left running and empty its temporary
-    directory (call with the :class:`HomeLock` held); one line per thing reaped."""
-    done = []
+    directory (call with the :class:`HomeLock` held): (one line per thing reaped, the roles of the
+    children stopped, e.g. ``worker0``, whose cells the caller releases)."""
+    done, roles = [], []
     alive = _recorded(home)
     for _role, process in alive:
         try:
@@ -122,14 +123,14 @@ def reap(home: Path) -> list[str]:
     for role, process in alive:
         try:
             process.wait(max(0.0, deadline - time.monotonic()))
-        except psutil.TimeoutExpired:
-            try:
-                os.killpg(process.pid, signal.SIGKILL)
-            except (ProcessLookupError, PermissionError):
-                pass
-        except psutil.Error:
+        except (psutil.TimeoutExpired, psutil.Error):
+            pass
+        try:  # the whole group, also where its leader ended within the grace and its children did not
+            os.killpg(process.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
             pass
         done.append(f"{role} (pid {process.pid}) left running by an earlier farfield up: stopped")
+        roles.append(role)
     forget_children(home)
     temporary = temp_dir(home)
     if temporary.exists():
@@ -138,4 +139,4 @@ def reap(home: Path) -> list[str]:
         if left:
             done.append(f"{len(left)} temporary folder(s) left in {temporary} removed")
     temporary.mkdir(parents=True, exist_ok=True)
-    return done
+    return done, roles

@@ -9,9 +9,12 @@ error's type and message) as one JSON line and exits.
 :class:`SceneCheckGate` bounds those children per API process: at most ``running`` parse at once
 (``FARFIELD_SCENE_CHECKS``) and at most ``waiting`` more uploads wait for a slot
 (``FARFIELD_SCENE_CHECK_QUEUE``); an upload past both is refused at once with a 429 and a short
-``Retry-After`` (:class:`~farfield.core.errors.BusyError`), before its body is spooled, so that a
-burst of uploads neither runs dozens of parsers (each may take gigabytes) nor holds the request
-threads that every other route, ``/v1/health`` included, needs.
+``Retry-After`` (:class:`~farfield.core.errors.BusyError`) by the API's body middleware
+(:class:`farfield.api.limits.BodyLimit`) before a byte of its body is read, so that a burst of
+uploads neither runs dozens of parsers (each may take gigabytes) nor is spooled to disk, and holds
+at most ``running + waiting`` of the request threads every other route, ``/v1/health``
+included, needs (the settings keep that sum within
+:data:`farfield.service.settings.MAX_SCENE_CHECK_PLACES`).
 """
 
 from __future__ import annotations
@@ -122,7 +125,8 @@ class SceneCheckGate:
 
     @contextmanager
     def admitted(self) -> Iterator[SceneCheckGate]:
-        """Hold one of the ``running + waiting`` places for an upload, or raise :class:`BusyError`."""
+        """Hold one of the ``running + waiting`` places for an upload, or raise :class:`BusyError`
+        (the API takes it in :class:`farfield.api.limits.BodyLimit`, before the body is read)."""
         with self._lock:
             if self._admitted >= self.running + self.waiting:
                 raise BusyError(

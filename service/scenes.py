@@ -127,19 +127,17 @@ def ingest_scene(
     the scene; ``limit`` bounds their bytes together, uncompressed.  The files a scene refers to are
     stored beside it as ``scenes/<id>/assets.zip``.
 
-    ``gate`` (the API's :class:`~farfield.service.scene_check.SceneCheckGate`) bounds the uploads
-    checked at once; without it the file is checked at once.
+    ``gate`` (the API's :class:`~farfield.service.scene_check.SceneCheckGate`, whose place for this
+    upload the API's body middleware took) bounds the uploads checked at once; without it the file
+    is checked at once.
 
     Raises :class:`SceneLoadError` (bad format, empty, unparsable, an archive without exactly one
     scene file or with a name outside it, a ``sides`` other than ``"one"`` or ``"both"``),
-    :class:`SceneTooCostlyError` (structure beyond ``scene_limits``), :class:`UploadTooLargeError`,
-    :class:`BusyError` (``gate`` full: nothing was read).
+    :class:`SceneTooCostlyError` (structure beyond ``scene_limits``), :class:`UploadTooLargeError`.
     """
     double_sided(sides)  # a bad value is refused before anything is read
-    if gate is None:
-        return _ingest(db, blobs, tenant_id, file_name, source, limit, scene_limits, more, sides, check_scene_file)
-    with gate.admitted():
-        return _ingest(db, blobs, tenant_id, file_name, source, limit, scene_limits, more, sides, gate.check)
+    check = check_scene_file if gate is None else gate.check
+    return _ingest(db, blobs, tenant_id, file_name, source, limit, scene_limits, more, sides, check)
 
 
 def _ingest(db, blobs, tenant_id, file_name, source, limit, scene_limits, more, sides, check) -> SceneRow:
@@ -278,16 +276,22 @@ ADMITTED = SceneLimits(
     nodes=2**62, depth=2**62, primitives=2**62, accessors=2**62, triangles=2**62, texture_pixels=2**62
 )
 
-# Scenes parsed in this process, by content hash: a worker loads each scene once, not once per cell.
+# Scenes parsed in this process, by tenant and content hash: a worker loads each scene once, not once
+# per cell.  The tenant is in the key so that a cell's time never says whether another tenant's
+# cell loaded the same content just before (issue 59, item 9).
 _CACHE: OrderedDict[str, Scene] = OrderedDict()
 _CACHE_LOCK = threading.Lock()
 CACHED_SCENES = 2
 
 
+def _cache_key(row: SceneRow) -> str:
+    return f"{row.tenant_id}:{row.content_hash}"
+
+
 def _remember(row: SceneRow, scene: Scene) -> None:
     with _CACHE_LOCK:
-        _CACHE[row.content_hash] = scene
-        _CACHE.move_to_end(row.content_hash)
+        _CACHE[_cache_key(row)] = scene
+        _CACHE.move_to_end(_cache_key(row))
         while len(_CACHE) > CACHED_SCENES:
             _CACHE.popitem(last=False)
 
@@ -295,7 +299,7 @@ def _remember(row: SceneRow, scene: Scene) -> None:
 def load_stored_scene(blobs: BlobStore, row: SceneRow) -> Scene:
     """The parsed scene of ``row`` (parsed once per process)."""
     with _CACHE_LOCK:
-        scene = _CACHE.get(row.content_hash)
+        scene = _CACHE.get(_cache_key(row))
     if scene is None:
         assets_key = f"{row.blob_key.rsplit('/', 1)[0]}/{ASSETS}"
         assets = read_assets_zip(blobs.read_bytes(assets_key)) if blobs.exists(assets_key) else None

@@ -67,6 +67,9 @@ VISIBILITY_TIMEOUT = 3600
 # half the cores, 1 to 4; and uploads that may wait for one.
 SCENE_CHECKS = min(4, max(1, (os.cpu_count() or 2) // 2))
 SCENE_CHECK_QUEUE = 8
+# Scene-check places (running + waiting) at most: each holds a request thread while it waits or
+# parses, and the API's thread pool has 40 (anyio's default), which every other route shares.
+MAX_SCENE_CHECK_PLACES = 24
 AUTH_FAILURES = 20  # per client per minute (api/auth_failures.py)
 
 
@@ -244,6 +247,13 @@ class Settings:
             raise ServiceConfigError(f"REDIS_URL must start with redis://, rediss:// or unix://, got {redis_url!r}")
         s3 = _s3(env)
         cell_time_limit = _int(env, "FARFIELD_CELL_TIME_LIMIT", CELL_TIME_LIMIT)
+        scene_checks = _int(env, "FARFIELD_SCENE_CHECKS", SCENE_CHECKS)
+        scene_check_queue = _int(env, "FARFIELD_SCENE_CHECK_QUEUE", SCENE_CHECK_QUEUE, minimum=0)
+        if scene_checks + scene_check_queue > MAX_SCENE_CHECK_PLACES:
+            raise ServiceConfigError(
+                f"FARFIELD_SCENE_CHECKS + FARFIELD_SCENE_CHECK_QUEUE must be <= {MAX_SCENE_CHECK_PLACES} (each place holds "
+                f"one of the API's 40 request threads), got {scene_checks} + {scene_check_queue}"
+            )
         return cls(
             home=home,
             redis_url=redis_url,
@@ -263,8 +273,8 @@ class Settings:
             admission=AdmissionLimits.from_env(env),
             cell_time_limit=cell_time_limit,
             cell_memory_mb=_int(env, "FARFIELD_CELL_MEMORY_MB", CELL_MEMORY_MB),
-            scene_checks=_int(env, "FARFIELD_SCENE_CHECKS", SCENE_CHECKS),
-            scene_check_queue=_int(env, "FARFIELD_SCENE_CHECK_QUEUE", SCENE_CHECK_QUEUE, minimum=0),
+            scene_checks=scene_checks,
+            scene_check_queue=scene_check_queue,
             auth_failures=_int(env, "FARFIELD_AUTH_FAILURES", AUTH_FAILURES),
         )
 

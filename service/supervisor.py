@@ -111,7 +111,8 @@ class Service:
         settings = self.settings
         settings.home.mkdir(parents=True, exist_ok=True)
         self.lock = HomeLock(settings.home).acquire()
-        for line in reap(settings.home):  # what a killed farfield up on this home left
+        reaped, roles = reap(settings.home)  # what a killed farfield up on this home left
+        for line in reaped:
             print(f"farfield: {line}", file=sys.stderr)
         db = Database(settings.database_url)
         db.migrate()
@@ -121,6 +122,9 @@ class Service:
             self.redis = EmbeddedRedis(settings.home / "redis").start()
             record_child(settings.home, "redis", self.redis.process.pid)
             settings = self.settings = settings.with_redis(self.redis.url)
+        for role in roles:  # a reaped worker's cells were running: queue them again now, not in an hour
+            if role.startswith("worker"):
+                self.release_cells_of(role, None)
         port = settings.port or free_port()
         # TMPDIR: what killed children leave there is reaped by the next start (service/leftovers.py).
         env = {
@@ -175,6 +179,10 @@ class Service:
         deadline = time.monotonic() + self.api_backoff
         while time.monotonic() < deadline and not self.stop_requested:
             time.sleep(0.1)
+        try:  # what the dead API started (scene checks parse in its process group) goes with it
+            os.killpg(self.api.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
         if not self.stop_requested:
             self.api = self._spawn(*self.api_spec)
             record_child(self.settings.home, "api", self.api.pid)

@@ -100,3 +100,22 @@ def test_placement_jobs_count_against_their_own_quota(stack):
     with db.session() as s:
         s.query(JobRow).filter(JobRow.id == passed[0].id).update({"state": "done"})
     assert isinstance(create_job(db, tenant_id, scene, spec, limits), JobRow)  # one ended: room for one more
+
+
+def test_retrying_a_failed_job_counts_against_the_cell_quota(stack):
+    """A retry queued the failed cells again whatever the tenant had open."""
+    from farfield.service.jobs.cells import retry_job
+
+    db, tenant_id, scene = stack
+    limits = AdmissionLimits(max_tenant_cells=4)
+    spec = JobSpec(scene_id=scene.id, viewcells=[CELL] * 3, resolution=16)
+    failed = create_job(db, tenant_id, scene, spec, limits)
+    with db.session() as s:
+        s.query(CellRow).filter(CellRow.job_id == failed.id).update({"state": "failed"})
+        s.query(JobRow).filter(JobRow.id == failed.id).update({"state": "failed"})
+    create_job(db, tenant_id, scene, spec, limits)  # 3 open cells: a retry of 3 more would make 6
+    with pytest.raises(QuotaError, match="FARFIELD_MAX_TENANT_CELLS"):
+        retry_job(db, tenant_id, failed.id, limits)
+    with db.session() as s:  # nothing changed
+        assert s.get(JobRow, failed.id).state == "failed"
+        assert {c.state for c in s.query(CellRow).filter(CellRow.job_id == failed.id)} == {"failed"}

@@ -81,3 +81,34 @@ def test_a_burst_of_uploads_past_the_pool_is_refused_with_429_and_stores_nothing
     assert app.state.services.scene_checks.admitted_count == 0
     # The burst over, the same upload passes.
     assert upload(url, data).status_code == 201
+
+
+def test_a_refused_upload_is_answered_before_its_body_is_read(served):
+    """The refusal comes from the body middleware before a byte of the body is read: a client that
+    sent only the headers and 1 KiB of a 64 MiB upload gets its 429 at once (the route's own check
+    answered only once the whole body had arrived and been spooled)."""
+    import socket
+
+    url, _data, app = served
+    gate = app.state.services.scene_checks
+    host, port = url.removeprefix("http://").split(":")
+    held = [gate.admitted() for _ in range(gate.running + gate.waiting)]
+    for place in held:  # every place taken, as by uploads being checked
+        place.__enter__()
+    try:
+        with socket.create_connection((host, int(port)), timeout=20) as s:
+            s.sendall(
+                b"POST /v1/scenes HTTP/1.1\r\nHost: farfield\r\nAuthorization: Bearer " + KEY.encode()
+                + b"\r\nContent-Type: multipart/form-data; boundary=b\r\nContent-Length: 67108864\r\n\r\n" + b"x" * 1024
+            )  # fmt: skip
+            answer = b""
+            while b"BusyError" not in answer:  # the head, then the JSON body
+                chunk = s.recv(65536)
+                if not chunk:
+                    break
+                answer += chunk
+        assert answer.startswith(b"HTTP/1.1 429 "), answer
+        assert b"BusyError" in answer and b"retry-after: 5" in answer.lower()
+    finally:
+        for place in held:
+            place.__exit__(None, None, None)

@@ -88,11 +88,13 @@ def reserve_tenant_work(s, tenant_id: str, cells: int, limits: AdmissionLimits, 
     its open cells with this job's ``cells`` pass ``max_tenant_cells``, or, for a ``placement``
     job, when it has ``max_tenant_placements`` placement jobs open already.
 
-    On PostgreSQL the tenant's row is locked (``SELECT ... FOR UPDATE``) until the session commits,
+    On PostgreSQL the tenant's row is locked (``SELECT ... FOR NO KEY UPDATE``) until the session commits,
     so a second admission of the same tenant waits for the first to be stored and counts its cells;
     SQLite begins every transaction with ``BEGIN IMMEDIATE`` (:mod:`farfield.service.db`), which
     serialises all writers already."""
-    s.execute(select(Tenant.id).where(Tenant.id == tenant_id).with_for_update())
+    # FOR NO KEY UPDATE: serialises admissions without blocking the tenant's other inserts (their
+    # foreign keys take FOR KEY SHARE on the row, which FOR UPDATE would block).
+    s.execute(select(Tenant.id).where(Tenant.id == tenant_id).with_for_update(key_share=True))
     _check_cells(_open_cells(s, tenant_id), cells, limits)
     if placement:
         placing = s.scalar(

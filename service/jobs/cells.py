@@ -266,9 +266,16 @@ def cancel_job(db: Database, blobs: BlobStore, tenant_id: str, job_id: str) -> J
     return job
 
 
-def retry_job(db: Database, tenant_id: str, job_id: str) -> list[str]:
+def retry_job(db: Database, tenant_id: str, job_id: str, limits=None) -> list[str]:
     """Queue the failed cells of a failed job again (attempts reset); returns their ids.  A placement
-    job that failed before its cells were baked (planning or checking) is not retried: submit it again."""
+    job that failed before its cells were baked (planning or checking) is not retried: submit it again.
+    The cells count against the tenant's quota (``limits``, an
+    :class:`~farfield.service.settings.AdmissionLimits`; None: from the environment): past it,
+    :class:`~farfield.core.errors.QuotaError` (429) and nothing changes."""
+    from farfield.service.jobs.admission import reserve_tenant_work
+    from farfield.service.settings import AdmissionLimits
+
+    limits = AdmissionLimits.from_env() if limits is None else limits
     job = get_job_row(db, tenant_id, job_id)
     if job.job_type == PLACEMENT_JOB and job.state == "failed" and (job.planning or {}).get("phase") != "bake":
         raise ConflictError(f"job {job_id!r} failed while placing ({job.error}); submit it again")
@@ -280,6 +287,7 @@ def retry_job(db: Database, tenant_id: str, job_id: str) -> list[str]:
         ).rowcount
         if changed:
             ids = list(s.scalars(select(CellRow.id).where(CellRow.job_id == job_id, CellRow.state == "failed")))
+            reserve_tenant_work(s, tenant_id, len(ids), limits)  # raises: the session rolls the job back
             s.execute(
                 update(CellRow)
                 .where(CellRow.id.in_(ids))

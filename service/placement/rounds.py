@@ -31,6 +31,7 @@ import time
 
 from sqlalchemy import func, select, update
 
+from farfield.core.errors import QuotaError
 from farfield.service.blobs import BlobStore
 from farfield.service.db import CellRow, Database, JobRow, SceneRow, now
 from farfield.service.failures import BAD_INPUT, INTERNAL, TRANSIENT, failure_class, failure_message
@@ -46,7 +47,7 @@ from farfield.service.placement.lease import (
 )
 from farfield.service.placement.states import drop_ended_planning, drop_planner_states
 from farfield.service.scenes import load_stored_scene
-from farfield.service.settings import MAX_CELLS, Settings
+from farfield.service.settings import MAX_CELLS, AdmissionLimits, Settings
 
 log = logging.getLogger("farfield.placement")
 
@@ -216,6 +217,15 @@ def _commit_round_row(
             if have + len(cells) > MAX_CELLS:
                 job.state, job.finished_at, job.plan_worker, job.lease_until = "failed", now(), None, None
                 job.error = algorithm_of(job.params).too_many_cells(have + len(cells), MAX_CELLS)
+                return True, job.state, []
+        if index_key is None and cells:
+            from farfield.service.jobs.admission import reserve_tenant_work  # admission imports the placement package
+
+            try:  # the placement's cells count against the tenant's quota as any job's (issue 59, item 6)
+                reserve_tenant_work(s, job.tenant_id, len(cells), AdmissionLimits.from_env())
+            except QuotaError as error:
+                job.state, job.finished_at, job.plan_worker, job.lease_until = "failed", now(), None, None
+                job.error = f"the planned impostors were not queued: {error}; submit the job again then"
                 return True, job.state, []
         made = add_cells(s, job, cells) if index_key is None else []
         record = {
