@@ -17,8 +17,8 @@ its covered samples', stored as the height above the card plane through ``c`` al
 direction, ``h in [-r, r]``, in the normal page's alpha: ``round((h / r * 0.5 + 0.5) * 254) + 1``
 (0: nothing there).
 
-Atlas cell ``(i, j)`` (column i, row j: the frame's grid point) is ``frame_resolution + 2 *
-padding`` texels a side, the frame in its middle; the colour is dilated into every empty texel of
+Atlas cells are ``frame_resolution + 2 * padding`` texels a side, the frame in its middle, laid
+out in frame order on as few pages of at most ``max_page`` texels as hold them (:func:`pages_layout`); the colour is dilated into every empty texel of
 the cell (alpha stays 0: :func:`farfield.core.layering.atlas.fill_nearest_rgb`), so bilinear
 filtering and mip levels up to ``log2(padding)`` never mix two frames (docs/techniques/octahedral.md).
 """
@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from farfield.core.errors import AtlasOverflowError
 from farfield.core.impostor.impostor import encode_normals
 from farfield.core.layering.atlas import fill_nearest_rgb
 from farfield.core.quality.evaluation import downsample
@@ -157,32 +158,61 @@ def cell_size(resolution: int, padding: int) -> int:
     return int(resolution) + 2 * int(padding)
 
 
-def frame_texels(n: int, resolution: int, padding: int) -> np.ndarray:
-    """(n*n, 2) int64 atlas texel (x right, y down) of each frame's first (top-left) texel; frame
-    ``j * n + i`` lies in cell column i, row j.
+def pages_layout(n: int, resolution: int, padding: int, max_page: int) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """Where the ``n * n`` frames go: ((n*n,) int64 page, (n*n, 2) int64 first texel of each frame
+    in its page (x right, y down), each page's side).  Frame ``j * n + i`` takes its place in
+    frame order, row by row, ``max_page // s`` cells of ``s`` (:func:`cell_size`) a row; a page
+    holds as many rows as fit, the last page as many as it needs (square pages).
 
-    >>> frame_texels(2, 8, 1).tolist()
-    [[1, 1], [11, 1], [1, 11], [11, 11]]
+    >>> page, texel, sides = pages_layout(2, 8, 1, 64)
+    >>> page.tolist(), texel.tolist(), sides
+    ([0, 0, 0, 0], [[1, 1], [11, 1], [1, 11], [11, 11]], [20])
+    >>> page, texel, sides = pages_layout(3, 8, 1, 25)
+    >>> page.tolist(), sides
+    ([0, 0, 0, 0, 1, 1, 1, 1, 2], [20, 20, 10])
+    >>> pages_layout(2, 64, 4, 64)
+    Traceback (most recent call last):
+    ...
+    farfield.core.errors.AtlasOverflowError: a frame of 64 texels with 4 padding needs a cell of 72 texels, more than a page of 64
     """
-    j, i = np.divmod(np.arange(n * n, dtype=np.int64), n)
     s = cell_size(resolution, padding)
-    return np.stack([i * s + padding, j * s + padding], axis=1)
+    if s > max_page:
+        raise AtlasOverflowError(
+            f"a frame of {resolution} texels with {padding} padding needs a cell of {s} texels, more than a page of {max_page}"
+        )
+    across = min(max_page // s, n)
+    per_page = across * across
+    index = np.arange(n * n, dtype=np.int64)
+    page, slot = np.divmod(index, per_page)
+    texel = np.stack([slot % across * s + padding, slot // across * s + padding], axis=1)
+    sides = []
+    for p in range(int(page.max()) + 1):
+        count = int((page == p).sum())
+        sides.append(s * max(min(count, across), -(-count // across)))
+    return page, texel, sides
 
 
-def compose_atlas(frames: np.ndarray, n: int, padding: int, mask: np.ndarray | None = None) -> np.ndarray:
-    """One (n*s, n*s, 4) uint8 page of ``frames`` (n*n, f, f, 4), s = f + 2 * padding, each frame
-    in its cell with its RGB dilated over the whole cell (alpha kept; ``mask`` (n*n, f, f) bool,
-    default the frames' own alpha, says which texels hold a surface).
+def compose_atlas(
+    frames: np.ndarray,
+    page: np.ndarray,
+    texel: np.ndarray,
+    sides: list[int],
+    padding: int,
+    mask: np.ndarray | None = None,
+) -> tuple[np.ndarray, ...]:
+    """The (side, side, 4) uint8 pages of ``frames`` (k, f, f, 4) laid out by :func:`pages_layout`
+    (``page``, ``texel``, ``sides``), each frame in its cell of ``s = f + 2 * padding`` with its
+    RGB dilated over the whole cell (alpha kept; ``mask`` (k, f, f) bool, default the frames' own
+    alpha, says which texels hold a surface).
 
     >>> f = np.zeros((1, 2, 2, 4), np.uint8); f[0, 0, 0] = (10, 20, 30, 255)
-    >>> page = compose_atlas(f, 1, 1)
-    >>> page.shape, int(page[..., 3].sum()) // 255, page[3, 3].tolist()
+    >>> (out,) = compose_atlas(f, np.zeros(1, int), np.array([[1, 1]]), [4], 1)
+    >>> out.shape, int(out[..., 3].sum()) // 255, out[3, 3].tolist()
     ((4, 4, 4), 1, [10, 20, 30, 0])
     """
     k, res = frames.shape[0], frames.shape[1]
     s = cell_size(res, padding)
-    page = np.zeros((n * s, n * s, 4), np.uint8)
-    origins = frame_texels(n, res, padding)
+    pages = [np.zeros((side, side, 4), np.uint8) for side in sides]
     for index in range(k):
         cell = np.zeros((s, s, 4), np.uint8)
         cell[padding : padding + res, padding : padding + res] = frames[index]
@@ -194,6 +224,6 @@ def compose_atlas(frames: np.ndarray, n: int, padding: int, mask: np.ndarray | N
         cell[..., 3] = np.where(covered, 255, 0)
         cell = fill_nearest_rgb(cell)
         cell[..., 3] = alpha
-        x, y = origins[index] - padding
-        page[y : y + s, x : x + s] = cell
-    return page
+        x, y = texel[index] - padding
+        pages[int(page[index])][y : y + s, x : x + s] = cell
+    return tuple(pages)

@@ -142,27 +142,20 @@ class OctahedralPayload(_PayloadBase):
             ):
                 raise BundleFormatError(f"octahedral payload: a frame's cell lies outside page {index} {page.shape}")
 
-    def card(self, frame: int) -> QuadPayload:
+    def card(self, frame: int, page_size: tuple[int, int]) -> QuadPayload:
         """Frame ``frame`` as one quad through the centre, facing its direction, textured with its
-        texel rectangle: what a viewer without the runtime draws (the GLB's fallback)."""
+        texel rectangle of its page (``page_size``: (width, height)), page index 0: what a viewer
+        without the runtime draws (the GLB's fallback)."""
         right, up, _ = self.axes[frame]
         c, r = self.centre, self.radius
         corners = np.array(
             [c - r * right + r * up, c + r * right + r * up, c + r * right - r * up, c - r * right - r * up]
         )
-        return QuadPayload(corners[None], self._uv(frame)[None], self.page[frame : frame + 1], np.zeros(1, np.int64))
-
-    def _uv(self, frame: int, size: tuple[int, int] | None = None) -> np.ndarray:
-        """(4, 2) float64 glTF uv of a frame's texel rectangle, TL TR BR BL (``size``: the page's (w, h))."""
-        w, h = size if size is not None else self._page_size
+        w, h = page_size
         x0, y0 = self.texel[frame].astype(np.float64)
         x1, y1 = x0 + self.frame_resolution, y0 + self.frame_resolution
-        return np.array([[x0 / w, y0 / h], [x1 / w, y0 / h], [x1 / w, y1 / h], [x0 / w, y1 / h]])
-
-    @property
-    def _page_size(self) -> tuple[int, int]:
-        side = self.n * cell_size(self.frame_resolution, self.padding)
-        return side, side
+        uv = np.array([[x0 / w, y0 / h], [x1 / w, y0 / h], [x1 / w, y1 / h], [x0 / w, y1 / h]])
+        return QuadPayload(corners[None], uv[None], np.zeros(1, np.int64), np.zeros(1, np.int64))
 
     def nearest_frame(self, direction) -> int:
         """The frame whose direction is nearest ``direction`` (3,)."""
@@ -173,11 +166,13 @@ class OctahedralPayload(_PayloadBase):
         """The fallback a glTF viewer draws: the frame nearest the reference viewpoint's direction
         as one card (:meth:`card`) over the atlas page; lit with the normal page where kept."""
         frame = self.nearest_frame(np.asarray(impostor.reference_viewpoint) - self.centre)
-        quad = self.card(frame)
+        index = int(self.page[frame])
+        pages = impostor.pages[index : index + 1]
+        quad = self.card(frame, pages[0].shape[1::-1])
         normals = impostor.channels.get("normal")
         if normals is not None:
-            return glb.lit_quads(quad, impostor.pages, normals)
-        return glb.textured(glb.quad_pages(quad, len(impostor.pages)), impostor.pages)
+            return glb.lit_quads(quad, pages, normals[index : index + 1])
+        return glb.textured(glb.quad_pages(quad, 1), pages)
 
     def renderer(self, impostor: Impostor):
         """The reference runtime: :class:`farfield.core.techniques.octahedral.runtime.OctahedralRenderer`."""

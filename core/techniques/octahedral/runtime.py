@@ -49,7 +49,7 @@ def card_program(ctx: moderngl.Context) -> moderngl.Program:
 def card_corners(eye: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
     """(4, 3) float64 the card's corners relative to ``centre``, seen from ``eye`` (module docstring).
 
-    >>> card_corners(np.array([0.0, -2.0, 0.0]), np.zeros(3), 1.0).round(4).tolist()[0]
+    >>> (card_corners(np.array([0.0, -2.0, 0.0]), np.zeros(3), 1.0) + 0.0).round(4).tolist()[0]
     [-1.1547, 0.0, -1.1547]
     """
     offset = np.asarray(centre, dtype=np.float64) - np.asarray(eye, dtype=np.float64)
@@ -78,20 +78,22 @@ class OctahedralRenderer:
         self.ctx = ctx = gl_context()
         self.payload = payload
         self.prog = card_program(ctx)
-        page = impostor.pages[0]
         self._owned: list = []
-        self.atlas = srgb_texture(ctx, page)
-        self.atlas.repeat_x = self.atlas.repeat_y = False
-        heights = impostor.channels.get("normal", (np.zeros((1, 1, 4), np.uint8),))[0]
-        self.heights = linear_texture(ctx, heights)
-        self.heights.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self.atlases = [srgb_texture(ctx, page) for page in impostor.pages]
+        for texture in self.atlases:
+            texture.repeat_x = texture.repeat_y = False
+        self.use_depth = payload.depth and "normal" in impostor.channels
+        blank = np.zeros((1, 1, 4), np.uint8)  # no depth kept: never read
+        heights = impostor.channels["normal"] if self.use_depth else [blank] * len(impostor.pages)
+        self.heights = [linear_texture(ctx, page) for page in heights]
+        for texture in self.heights:
+            texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self.sizes = [(float(page.shape[1]), float(page.shape[0])) for page in impostor.pages]
         self.vbo = ctx.buffer(reserve=4 * 3 * 4)
         self.ibo = ctx.buffer(np.array([0, 1, 2, 0, 2, 3], "<u4").tobytes())
         self.vao = ctx.vertex_array(self.prog, [(self.vbo, "3f", "in_position")], self.ibo)
-        self._owned += [self.atlas, self.heights, self.vbo, self.ibo, self.vao]
+        self._owned += [*self.atlases, *self.heights, self.vbo, self.ibo, self.vao]
         self._targets: dict[int, tuple] = {}
-        self.use_depth = payload.depth and "normal" in impostor.channels
-        self.atlas_size = (float(page.shape[1]), float(page.shape[0]))
 
     def _target(self, resolution: int):
         if resolution not in self._targets:
@@ -130,12 +132,14 @@ class OctahedralRenderer:
         prog["f_weight"].value = [float(w) for w in weights]
         prog["radius"].value = p.radius
         prog["frame_res"].value = float(p.frame_resolution)
-        prog["atlas_size"].value = self.atlas_size
+        pages = [int(p.page[f]) for f in frames]
+        prog["f_size"].value = [self.sizes[page] for page in pages]
         prog["use_depth"].value = int(self.use_depth)
-        prog["atlas"].value = 0
-        prog["heights"].value = 1
-        self.atlas.use(0)
-        self.heights.use(1)
+        for slot, page in enumerate(pages):
+            prog[f"atlas{slot}"].value = slot
+            self.atlases[page].use(slot)
+            prog[f"heights{slot}"].value = 3 + slot
+            self.heights[page].use(3 + slot)
         self.vao.render(moderngl.TRIANGLES)
         return colour
 

@@ -33,10 +33,9 @@ from farfield.core.techniques.base import CellCost, Promise, TechniqueDefinition
 from farfield.core.techniques.octahedral.accuracy import accuracy_distance
 from farfield.core.techniques.octahedral.frames import (
     Sphere,
-    cell_size,
     compose_atlas,
     frame_axes,
-    frame_texels,
+    pages_layout,
     record_frames,
 )
 from farfield.core.techniques.octahedral.mapping import frame_directions
@@ -56,7 +55,10 @@ class OctahedralOptions:
         45.0, "output field of view the accuracy distance is computed for, degrees", gt=0.0, lt=180.0
     )
     grid: int = option(12, "frames per side of the octahedral grid (grid x grid frames)", ge=2, le=64)
-    frame_resolution: int = option(128, "texels per side of each frame", ge=4, le=4096)
+    frame_resolution: int = option(
+        64, "texels per side of each frame (at the accuracy distance a part is a few pixels wide: more texels serve nearer views)",
+        ge=4, le=4096,
+    )  # fmt: skip
     hemisphere: bool = option(
         False, "frames of the upper hemisphere only (the hemi-octahedral map), for a part never seen from below"
     )
@@ -72,7 +74,9 @@ class OctahedralOptions:
         "what each texel keeps: albedo, albedo+normal (world normals on a second page) or albedo+normal+depth "
         "(the normal page's alpha holds each texel's height: the runtime corrects the frames' parallax with it)",
     )
-    max_page: int = option(MAX_PAGE, "largest atlas page side, texels", ge=64, le=16384)
+    max_page: int = option(
+        MAX_PAGE, "largest atlas page side, texels: the frames take as many pages as they need", ge=64, le=16384
+    )
 
     def __post_init__(self) -> None:
         check_options(self)
@@ -80,12 +84,6 @@ class OctahedralOptions:
             raise LayerPlanError(
                 f"octahedral impostors keep albedo, albedo+normal or albedo+normal+depth, not {self.channels!r} "
                 "(the material channel is not baked into frames yet)"
-            )
-        side = self.grid * cell_size(self.frame_resolution, self.padding)
-        if side > self.max_page:
-            raise LayerPlanError(
-                f"{self.grid} x {self.grid} frames of {self.frame_resolution} texels and {self.padding} padding need an "
-                f"atlas of {side} texels a side, more than max_page {self.max_page}"
             )
 
 
@@ -133,35 +131,36 @@ def bake_octahedral(
     n, res, pad = options.grid, options.frame_resolution, options.padding
     directions = frame_directions(n, options.hemisphere)
     normals, depth = wants_normals(options.channels), wants_depth(options.channels)
+    page_of, texel, sides = pages_layout(n, res, pad, options.max_page)  # an overflow before any work
     with clock("frames"):
         frames = record_frames(part.objects, sphere, directions, res, options.samples, normals=normals)
     clock.report("frames", 1, 1)
     with clock("atlas"):
         covered = frames.colour[..., 3] > 0
-        page = compose_atlas(frames.colour, n, pad)
+        pages = compose_atlas(frames.colour, page_of, texel, sides, pad)
         channels = {}
         if frames.normal is not None:
             normal = frames.normal.copy()
             if not depth:
                 normal[..., 3] = np.where(covered, 255, 0)
-            channels["normal"] = (compose_atlas(normal, n, pad, mask=covered),)
+            channels["normal"] = compose_atlas(normal, page_of, texel, sides, pad, mask=covered)
     clock.report("atlas", 1, 1)
     accuracy = accuracy_distance(sphere.radius, frames.depth_extent, n, options.hemisphere, res, options.resolution,
                                  options.fov_deg, depth)  # fmt: skip
     payload = OctahedralPayload(
         axes=frame_axes(directions),
-        texel=frame_texels(n, res, pad),
-        page=np.zeros(n * n, np.int64),
+        texel=texel,
+        page=page_of,
         sphere=np.concatenate([sphere.centre, [sphere.radius]]),
         grid=np.array([n, res, pad, int(options.hemisphere), int(depth)]),
     )
-    texture_bytes = int(page.nbytes)
+    texture_bytes = int(sum(p.nbytes for p in pages))
     stats = {
         "frames": n * n,
         "grid": n,
         "frame_resolution": res,
-        "atlas_size": [int(page.shape[1]), int(page.shape[0])],
-        "atlas_pages": 1,
+        "atlas_size": [int(pages[0].shape[1]), int(pages[0].shape[0])],
+        "atlas_pages": len(pages),
         "texels_covered": int(covered.sum()),
         "texture_bytes": texture_bytes,
         "geometry_bytes": 0,
@@ -172,14 +171,14 @@ def bake_octahedral(
         "seconds": clock.totals(),
     }
     if channels:
-        stats["channel_bytes"] = {"albedo": texture_bytes, "normal": int(channels["normal"][0].nbytes)}
+        stats["channel_bytes"] = {"albedo": texture_bytes, "normal": int(sum(p.nbytes for p in channels["normal"]))}
     return Impostor(
         technique="octahedral",
         viewcell=cell.to_dict(),
         reference_viewpoint=np.asarray(cell.center, dtype=np.float64),
         resolution=options.resolution,
         fov_deg=options.fov_deg,
-        pages=(page,),
+        pages=pages,
         payload=payload,
         layers=[],
         stats=stats,

@@ -4,8 +4,12 @@
 // on the card plane through the centre (no depth) or on the frame's height field (ray marched,
 // with depth: the parallax correction); their colours are blended by the barycentric weights,
 // cut at 0.5, and the blended hit point's depth is written (the pixel depth offset).
-uniform sampler2D atlas;          // sRGB colour, alpha 0 | 1
-uniform sampler2D heights;        // the normal page: alpha = depth byte (0: nothing)
+uniform sampler2D atlas0;         // each blended frame's page: sRGB colour, alpha 0 | 1
+uniform sampler2D atlas1;
+uniform sampler2D atlas2;
+uniform sampler2D heights0;       // and its normal page: alpha = depth byte (0: nothing)
+uniform sampler2D heights1;
+uniform sampler2D heights2;
 uniform mat4 eye_from_local;
 uniform vec2 depth_range;
 uniform vec3 eye_local;           // the eye relative to the centre, world units
@@ -16,7 +20,7 @@ uniform vec2 f_origin[3];         // first texel of each frame (x right, y down)
 uniform float f_weight[3];
 uniform float radius;
 uniform float frame_res;
-uniform vec2 atlas_size;
+uniform vec2 f_size[3];          // each frame's page, texels (width, height)
 uniform int use_depth;
 in vec3 v_local;
 layout(location = 0) out vec4 frag_color;
@@ -34,13 +38,17 @@ bool in_frame(vec2 t) {
 
 vec4 colour_at(int k, vec2 t) {  // bilinear, linear light (an sRGB texture)
     vec2 a = f_origin[k] + t;
-    return texture(atlas, vec2(a.x / atlas_size.x, 1.0 - a.y / atlas_size.y));
+    vec2 uv = vec2(a.x / f_size[k].x, 1.0 - a.y / f_size[k].y);
+    if (k == 0) return texture(atlas0, uv);  // GLSL 3.30 indexes sampler arrays by constants only
+    if (k == 1) return texture(atlas1, uv);
+    return texture(atlas2, uv);
 }
 
 float height_at(int k, vec2 t) {  // the surface's height above the card plane; -1e30 where none
     if (!in_frame(t)) return -1e30;
     ivec2 a = ivec2(floor(f_origin[k] + t));
-    float level = texelFetch(heights, ivec2(a.x, int(atlas_size.y) - 1 - a.y), 0).a * 255.0;
+    ivec2 at = ivec2(a.x, int(f_size[k].y) - 1 - a.y);
+    float level = (k == 0 ? texelFetch(heights0, at, 0).a : k == 1 ? texelFetch(heights1, at, 0).a : texelFetch(heights2, at, 0).a) * 255.0;
     if (level < 0.5) return -1e30;
     return ((level - 1.0) / 254.0 * 2.0 - 1.0) * radius;
 }
