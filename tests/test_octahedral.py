@@ -203,3 +203,33 @@ def test_the_technique_evaluates_from_its_cell_and_the_runtime_releases_cleanly(
     assert result.totals["hole_pixels"] == 0 and "accuracy distance" in technique.evaluation_text(result, impostor)
     with OctahedralRenderer(impostor) as renderer:
         assert renderer.triangle_count == 2 and renderer.ctx.error == "GL_NO_ERROR"
+
+
+def test_the_g_buffer_blends_the_frames_normals_and_depth_corrects_their_parallax():
+    """The lit evaluation's G-buffer (Payload.gbuffer): the blended normal pages against the
+    geometry's normals, 4 radii away, between grid points; the depth-corrected frames put each
+    normal where the part has it (the median error falls from degrees to a fraction of one)."""
+    from farfield.core.quality.evaluation import depth_bounds
+    from farfield.core.render.raster import Camera, MeshRenderer
+
+    medians = {}
+    for channels in ("albedo+normal", "albedo+normal+depth"):
+        scene, impostor = bake(channels, grid=8)
+        centre, radius = impostor.payload.centre, impostor.payload.radius
+        eye = centre + 4.0 * radius * np.array([0.62, -0.55, 0.56]) / np.linalg.norm([0.62, -0.55, 0.56])
+        near, far = depth_bounds(eye, (centre - eye) / np.linalg.norm(centre - eye), impostor.payload.world_points())
+        camera = Camera.look_at(eye, centre, math.radians(45.0), 96, near, far)
+        with (
+            MeshRenderer(scene.objects, normals=True) as geometry,
+            impostor.payload.gbuffer(impostor) as stand_in,
+            impostor.payload.gbuffer(impostor, normals=False) as cards,
+        ):
+            (g_image, g_normal), (i_image, i_normal) = geometry.render_normals(camera), stand_in.render_normals(camera)
+            flat_image, flat_normal = cards.render_normals(camera)
+        both = (g_image[..., 3] > 0) & (i_image[..., 3] > 0)
+        assert both.sum() > 500 and np.array_equal(flat_image[..., 3] > 0, i_image[..., 3] > 0)
+        cosine = np.clip(np.sum(g_normal[both] * i_normal[both], axis=1), -1.0, 1.0)
+        medians[channels] = float(np.degrees(np.median(np.arccos(cosine))))
+        to_eye = (eye - centre) / np.linalg.norm(eye - centre)
+        assert np.allclose(flat_normal[both] @ to_eye, 1.0, atol=0.05)  # flat cards face the eye
+    assert medians["albedo+normal+depth"] < 1.0 < medians["albedo+normal"], medians

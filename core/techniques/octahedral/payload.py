@@ -162,23 +162,38 @@ class OctahedralPayload(_PayloadBase):
         d = np.asarray(direction, dtype=np.float64)
         return int(np.argmax(self.axes[:, 2] @ (d / np.linalg.norm(d))))
 
-    def glb_parts(self, impostor: Impostor, glb) -> Any:
-        """The fallback a glTF viewer draws: the frame nearest the reference viewpoint's direction
-        as one card (:meth:`card`) over the atlas page; lit with the normal page where kept."""
+    def fallback(self, impostor: Impostor) -> Impostor:
+        """What a glTF viewer without the runtime draws, as an impostor of its own: the frame nearest
+        the reference viewpoint's direction as one card (:meth:`card`) over its page (and its
+        normal page), a quad payload; what the GLB holds."""
+        from dataclasses import replace
+
         frame = self.nearest_frame(np.asarray(impostor.reference_viewpoint) - self.centre)
         index = int(self.page[frame])
         pages = impostor.pages[index : index + 1]
-        quad = self.card(frame, pages[0].shape[1::-1])
-        normals = impostor.channels.get("normal")
-        if normals is not None:
-            return glb.lit_quads(quad, pages, normals[index : index + 1])
-        return glb.textured(glb.quad_pages(quad, 1), pages)
+        channels = {name: pages_[index : index + 1] for name, pages_ in impostor.channels.items()}
+        return replace(impostor, pages=pages, payload=self.card(frame, pages[0].shape[1::-1]), channels=channels)
+
+    def glb_parts(self, impostor: Impostor, glb) -> Any:
+        """The fallback a glTF viewer draws (:meth:`fallback`): one card, lit with the normal page
+        where kept."""
+        shown = self.fallback(impostor)
+        return shown.payload.glb_parts(shown, glb)
 
     def renderer(self, impostor: Impostor):
         """The reference runtime: :class:`farfield.core.techniques.octahedral.runtime.OctahedralRenderer`."""
         from farfield.core.techniques.octahedral.runtime import OctahedralRenderer
 
         return OctahedralRenderer(impostor)
+
+    def gbuffer(self, impostor: Impostor, normals: bool = True):
+        """The runtime as a G-buffer (:meth:`OctahedralRenderer.render_normals
+        <farfield.core.techniques.octahedral.runtime.OctahedralRenderer.render_normals>`): the
+        three frames' normals blended as their colours are, where ``normals`` and the impostor keeps
+        them, else the card's, facing the eye."""
+        from farfield.core.techniques.octahedral.runtime import OctahedralRenderer
+
+        return OctahedralRenderer(impostor, gbuffer=True, normal_pages=normals)
 
 
 if OctahedralPayload.kind not in PAYLOAD_KINDS:

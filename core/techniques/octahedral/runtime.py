@@ -73,7 +73,10 @@ class OctahedralRenderer:
     Use as a context manager; ``release()`` frees every GL resource it made.
     """
 
-    def __init__(self, impostor: Impostor):
+    def __init__(self, impostor: Impostor, gbuffer: bool = False, normal_pages: bool = True):
+        """``gbuffer``: :meth:`render_normals` gives each pixel's world normal beside its colour, the
+        blended normal pages' where ``normal_pages`` and the impostor keeps them, else the card's
+        (facing the eye: a flat card's, as :mod:`farfield.core.quality.lit` compares)."""
         payload = impostor.payload
         self.ctx = ctx = gl_context()
         self.payload = payload
@@ -83,8 +86,11 @@ class OctahedralRenderer:
         for texture in self.atlases:
             texture.repeat_x = texture.repeat_y = False
         self.use_depth = payload.depth and "normal" in impostor.channels
-        blank = np.zeros((1, 1, 4), np.uint8)  # no depth kept: never read
-        heights = impostor.channels["normal"] if self.use_depth else [blank] * len(impostor.pages)
+        blank = np.zeros((1, 1, 4), np.uint8)  # no normal page: never read
+        kept = "normal" in impostor.channels
+        heights = impostor.channels["normal"] if kept else [blank] * len(impostor.pages)
+        self.normals = bool(gbuffer)
+        self.normal_mode = (1 if kept and normal_pages else 2) if gbuffer else 0
         self.heights = [linear_texture(ctx, page) for page in heights]
         for texture in self.heights:
             texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
@@ -99,15 +105,16 @@ class OctahedralRenderer:
         if resolution not in self._targets:
             colour = self.ctx.texture((resolution, resolution), 4)
             depth = self.ctx.depth_texture((resolution, resolution))
-            fbo = self.ctx.framebuffer([colour], depth)
-            self._targets[resolution] = (colour, depth, fbo)
-            self._owned += [colour, depth, fbo]
+            targets = [colour] + ([self.ctx.texture((resolution, resolution), 4, dtype="f4")] if self.normals else [])
+            fbo = self.ctx.framebuffer(targets, depth)
+            self._targets[resolution] = (colour, depth, fbo, *targets[1:])
+            self._owned += [*targets, depth, fbo]
         return self._targets[resolution]
 
     def _draw(self, camera: Camera):
         p = self.payload
         centre = p.centre
-        colour, _, fbo = self._target(camera.resolution)
+        colour, _, fbo, *_ = self._target(camera.resolution)
         ctx = self.ctx
         fbo.use()
         ctx.viewport = (0, 0, camera.resolution, camera.resolution)
@@ -135,6 +142,7 @@ class OctahedralRenderer:
         pages = [int(p.page[f]) for f in frames]
         prog["f_size"].value = [self.sizes[page] for page in pages]
         prog["use_depth"].value = int(self.use_depth)
+        prog["normal_mode"].value = self.normal_mode
         for slot, page in enumerate(pages):
             prog[f"atlas{slot}"].value = slot
             self.atlases[page].use(slot)
@@ -153,6 +161,16 @@ class OctahedralRenderer:
 
             raise RenderBackendError(f"OpenGL error while rendering an octahedral impostor: {error}")
         return image[::-1].copy()
+
+    def render_normals(self, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+        """The (h, w, 4) uint8 image (:meth:`render`) and the (h, w, 3) float32 world normals of the
+        same pixels (zero where nothing was drawn), top row first; a renderer made with ``gbuffer=True``."""
+        if not self.normals:
+            raise ValueError("this renderer was made without normals")
+        image = self.render(camera)
+        normal = self._targets[camera.resolution][3]
+        data = np.frombuffer(normal.read(), dtype=np.float32).reshape(camera.resolution, camera.resolution, 4)
+        return image, data[::-1, :, :3].copy()
 
     def frame_seconds(self, camera: Camera) -> float:
         """Seconds to draw one frame from ``camera`` and wait for it (no read-back)."""

@@ -201,7 +201,8 @@ def _summary(stats: dict) -> str:
 
 def _evaluation_text(result: Evaluation, impostor: Impostor) -> str:
     distance = impostor.stats.get("accuracy_distance", math.nan)
-    return part_evaluation_text(result, impostor) + f"\naccuracy distance: {distance:.4g} from the part's centre"
+    text = part_evaluation_text(result, impostor).replace("None layers, ", f"{impostor.payload.count} frames, ")
+    return text + f"\naccuracy distance: {distance:.4g} from the part's centre"
 
 
 TECHNIQUE = TechniqueDefinition(

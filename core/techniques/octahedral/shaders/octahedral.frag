@@ -22,8 +22,10 @@ uniform float radius;
 uniform float frame_res;
 uniform vec2 f_size[3];          // each frame's page, texels (width, height)
 uniform int use_depth;
+uniform int normal_mode;          // G-buffer normals: 0 none, 1 the normal pages', 2 the card's (facing the eye)
 in vec3 v_local;
 layout(location = 0) out vec4 frag_color;
+layout(location = 1) out vec4 frag_normal;  // world normal (a G-buffer render; core/quality/lit.py)
 
 #include "colour.glsl"
 
@@ -44,6 +46,13 @@ vec4 colour_at(int k, vec2 t) {  // bilinear, linear light (an sRGB texture)
     return texture(atlas2, uv);
 }
 
+vec3 normal_at(int k, vec2 t) {  // the normal page's world normal, nearest texel
+    ivec2 a = ivec2(floor(f_origin[k] + clamp(t, vec2(0.0), vec2(frame_res - 0.5))));
+    ivec2 at = ivec2(a.x, int(f_size[k].y) - 1 - a.y);
+    vec3 n = (k == 0 ? texelFetch(heights0, at, 0).rgb : k == 1 ? texelFetch(heights1, at, 0).rgb : texelFetch(heights2, at, 0).rgb);
+    return n * 2.0 - 1.0;
+}
+
 float height_at(int k, vec2 t) {  // the surface's height above the card plane; -1e30 where none
     if (!in_frame(t)) return -1e30;
     ivec2 a = ivec2(floor(f_origin[k] + t));
@@ -56,6 +65,7 @@ float height_at(int k, vec2 t) {  // the surface's height above the card plane; 
 void main() {
     vec3 ray = normalize(v_local - eye_local);
     vec3 rgb = vec3(0.0);
+    vec3 normal = vec3(0.0);
     float weight = 0.0, along = 0.0;
     for (int k = 0; k < 3; ++k) {
         if (f_weight[k] <= 0.0) continue;
@@ -99,6 +109,7 @@ void main() {
             c = colour_at(k, frame_texel(k, eye_local + t * ray)).rgb;
         }
         rgb += f_weight[k] * alpha * c;
+        if (normal_mode == 1) normal += f_weight[k] * alpha * normal_at(k, frame_texel(k, eye_local + t * ray));
         weight += f_weight[k] * alpha;
         along += f_weight[k] * alpha * t;
     }
@@ -108,4 +119,7 @@ void main() {
     float n = depth_range.x, f = depth_range.y;
     gl_FragDepth = 0.5 * ((f + n) / (f - n) - 2.0 * f * n / ((f - n) * z)) + 0.5;
     frag_color = vec4(linear_to_srgb(rgb / weight), 1.0);
+    vec3 shading = normal_mode == 2 ? -ray : normal;
+    bool none = normal_mode == 0 || dot(shading, shading) == 0.0;
+    frag_normal = vec4(none ? vec3(0.0) : normalize(shading), 1.0);
 }
