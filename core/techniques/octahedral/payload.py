@@ -43,9 +43,9 @@ from farfield.core.techniques.octahedral.frames import cell_size
 class OctahedralPayload(_PayloadBase):
     """A frame grid (module docstring).
 
-    >>> p = OctahedralPayload.empty(2)
+    >>> p = OctahedralPayload.empty()
     >>> p.kind, p.counts(), p.triangle_count, list(p.arrays())
-    ('octahedral', {'frames': 4}, 2, ['axes', 'texel', 'page', 'sphere', 'grid'])
+    ('octahedral', {'frames': 0}, 0, ['axes', 'texel', 'page', 'sphere', 'grid'])
     """
 
     axes: np.ndarray  # (k, 3, 3) float64 right, up, direction per frame
@@ -68,12 +68,10 @@ class OctahedralPayload(_PayloadBase):
             object.__setattr__(self, name, _canonical(getattr(self, name)))
 
     @classmethod
-    def empty(cls, n: int = 2) -> OctahedralPayload:
-        """A payload of ``n x n`` frames looking along +z (for doctests and format tests)."""
-        k = n * n
-        axes = np.tile(np.eye(3), (k, 1, 1))
-        return cls(axes, np.zeros((k, 2), np.int64), np.zeros(k, np.int64), np.array([0.0, 0.0, 0.0, 1.0]),
-                   np.array([n, 1, 0, 0, 0]))  # fmt: skip
+    def empty(cls) -> OctahedralPayload:
+        """A payload of no frames (nothing drawn), as every kind's ``empty()``."""
+        return cls(np.zeros((0, 3, 3)), np.zeros((0, 2), np.int64), np.zeros(0, np.int64), np.array([0.0, 0.0, 0.0, 1.0]),
+                   np.zeros(5, np.int64))  # fmt: skip
 
     @property
     def n(self) -> int:
@@ -110,8 +108,8 @@ class OctahedralPayload(_PayloadBase):
 
     @property
     def triangle_count(self) -> int:
-        """Triangles drawn: one card of two."""
-        return 2
+        """Triangles drawn: one card of two (none without frames)."""
+        return 2 if self.count else 0
 
     def counts(self) -> dict[str, int]:
         return {"frames": self.count}
