@@ -61,7 +61,8 @@ def test_the_registry_refuses_what_it_cannot_hold_and_an_unknown_name_is_bad_inp
         register(dataclasses.replace(layered, name="voxelised", payload_kind="voxels"))
     assert TECHNIQUES == before
     with pytest.raises(
-        UnknownTechniqueError, match=r"unknown technique 'toy'; one of \['layered', 'envmap', 'tdm', 'points', 'ldi', 'octahedral'\]"
+        UnknownTechniqueError,
+        match=r"unknown technique 'toy'; one of \['layered', 'envmap', 'tdm', 'points', 'ldi', 'octahedral'\]",
     ) as raised:
         get_technique("toy")
     assert not isinstance(raised.value, LayerPlanError)
