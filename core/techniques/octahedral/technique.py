@@ -217,5 +217,7 @@ TECHNIQUE = TechniqueDefinition(
     summary=_summary,
     evaluate=evaluate_part,
     evaluation_text=_evaluation_text,
+    placement="an octahedral candidate (an estimate for parts whose problem region lies beyond the accuracy "
+    "distance) is not there yet",
     promise=Promise("within one pixel beyond the accuracy distance the bake reports (stats accuracy_distance)"),
 )
