@@ -233,3 +233,27 @@ def test_the_g_buffer_blends_the_frames_normals_and_depth_corrects_their_paralla
         to_eye = (eye - centre) / np.linalg.norm(eye - centre)
         assert np.allclose(flat_normal[both] @ to_eye, 1.0, atol=0.05)  # flat cards face the eye
     assert medians["albedo+normal+depth"] < 1.0 < medians["albedo+normal"], medians
+
+
+def test_the_runtime_writes_the_depth_where_the_part_is():
+    """The pixel depth offset: with depth kept, the card's depth is the part's (within a texel or
+    two, the height fields' quantisation and the blend), so it meets other geometry where the part
+    would; without depth it is the card plane's, up to the part's extent off."""
+    from farfield.core.quality.evaluation import depth_bounds
+    from farfield.core.render.raster import Camera, MeshRenderer
+    from farfield.core.techniques.octahedral.frames import _eye_depth
+
+    errors = {}
+    for channels in ("albedo", "albedo+normal+depth"):
+        scene, impostor = bake(channels, grid=8)
+        centre, radius = impostor.payload.centre, impostor.payload.radius
+        eye = centre + 4.0 * radius * np.array([-0.5, 0.7, 0.5]) / np.linalg.norm([-0.5, 0.7, 0.5])
+        near, far = depth_bounds(eye, (centre - eye) / np.linalg.norm(centre - eye), impostor.payload.world_points())
+        camera = Camera.look_at(eye, centre, math.radians(45.0), 96, near, far)
+        with MeshRenderer(scene.objects) as geometry, OctahedralRenderer(impostor) as stand_in:
+            g, i = geometry.render(camera), stand_in.render(camera)
+            g_depth, i_depth = _eye_depth(geometry, camera), _eye_depth(stand_in, camera)
+        both = (g[..., 3] > 0) & (i[..., 3] > 0)
+        errors[channels] = float(np.median(np.abs(g_depth[both] - i_depth[both]))) / radius
+    texel = 2.0 / 32  # of a frame, in radii
+    assert errors["albedo+normal+depth"] < texel < 5 * texel < errors["albedo"], errors

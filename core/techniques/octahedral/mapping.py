@@ -40,13 +40,17 @@ def encode(directions: np.ndarray, hemisphere: bool = False) -> np.ndarray:
     [[0.5, 0.5], [1.0, 0.5], [1.0, 1.0]]
     >>> encode(np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]), hemisphere=True).tolist()
     [[0.5, 0.5], [1.0, 1.0], [0.0, 1.0]]
+    >>> encode(np.array([[1.0, 0.0, -1.0], [0.0, 0.0, -1.0]]), hemisphere=True).tolist()  # below: onto the horizon
+    [[1.0, 1.0], [1.0, 1.0]]
     """
     d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
     p = d / np.sum(np.abs(d), axis=1, keepdims=True)
     if hemisphere:
-        x, y = p[:, 0], p[:, 1]
-        scale = np.maximum(np.abs(x) + np.abs(y), 1.0)  # below the horizon: clamped onto it
-        x, y = x / scale, y / scale
+        x, y = p[:, 0].copy(), p[:, 1].copy()
+        below = p[:, 2] < 0.0  # clamped onto the horizon, straight down onto its +x point
+        ring = np.abs(x) + np.abs(y)
+        x[below & (ring == 0.0)], ring[below & (ring == 0.0)] = 1.0, 1.0
+        x[below], y[below] = x[below] / ring[below], y[below] / ring[below]
         uv = np.stack([x + y, x - y], axis=1)
     else:
         xy = p[:, :2].copy()
