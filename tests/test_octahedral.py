@@ -177,9 +177,13 @@ def _views(impostor, scene, distance: float, seed: int) -> tuple[np.ndarray, lis
     return points, ["corner"] * len(cell.corners()) + ["random"] * len(random)
 
 
-@pytest.mark.parametrize("channels", ["albedo", "albedo+normal+depth"])
-def test_beyond_the_accuracy_distance_no_pixel_is_off_by_more_than_one_and_closer_in_some_are(channels):
-    scene, impostor = bake(channels, grid=8)
+@pytest.mark.parametrize(
+    "channels, grid",
+    [("albedo", 8), ("albedo+normal+depth", 8), ("albedo+normal+depth", 9)],
+    ids=["albedo", "depth", "two-sided"],
+)
+def test_beyond_the_accuracy_distance_no_pixel_is_off_by_more_than_one_and_closer_in_some_are(channels, grid):
+    scene, impostor = bake(channels, grid=grid)
     distance = impostor.stats["accuracy_distance"]
     for factor, seed in ((1.0, 1), (1.6, 2)):
         points, kinds = _views(impostor, scene, factor * distance, seed)
@@ -257,3 +261,22 @@ def test_the_runtime_writes_the_depth_where_the_part_is():
         errors[channels] = float(np.median(np.abs(g_depth[both] - i_depth[both]))) / radius
     texel = 2.0 / 32  # of a frame, in radii
     assert errors["albedo+normal+depth"] < texel < 5 * texel < errors["albedo"], errors
+
+
+def test_opposite_frames_bound_the_columns_and_bring_the_accuracy_distance_in():
+    """A full grid of odd size has every frame's opposite: with depth, a texel's column runs only
+    between the two frames' surfaces, so its walls stray at most half the part's longest internal
+    gap; for a convex part (one box: no gap) the distance falls to what the texels and the depth
+    steps allow."""
+    _, albedo = bake("albedo", grid=9)
+    _, one_sided = bake("albedo+normal+depth", grid=8)
+    _, two_sided = bake("albedo+normal+depth", grid=9)
+    assert one_sided.stats["accuracy"]["gap"] is None and two_sided.stats["accuracy"]["gap"] > 0.0
+    assert (
+        two_sided.stats["accuracy_distance"] < albedo.stats["accuracy_distance"] < one_sided.stats["accuracy_distance"]
+    )
+    technique = get_technique("octahedral")
+    box = Scene.from_objects([box_object("box", [0.0, 0.0, 0.0], [1.0, 0.6, 0.4], (0.5, 0.5, 0.9, 1.0))], "box")
+    options = technique.options({"grid": 9, "frame_resolution": 32, "channels": "albedo+normal+depth"}, RESOLUTION)
+    convex = technique.bake(box, SphereOutsideCell([0.5, 0.3, 0.2], 2.0), options, None, None)
+    assert convex.stats["accuracy"]["gap"] == 0.0 and convex.stats["accuracy"]["radii"] < 10.0

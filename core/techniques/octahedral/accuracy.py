@@ -14,7 +14,10 @@ sin(theta)`` in the image; ``theta`` is the grid's weighted-median angle
 more than half the weight decide every pixel.  ``extent`` is the part's depth extent: the largest
 height of a recorded surface above any frame's card plane (at most ``r``); with depth kept the
 height field's walls (the part extruded behind the surface each frame sees) can reach the whole
-slab, so ``extent`` is doubled there (a bound, not an estimate).
+slab, so ``extent`` is doubled there (a bound, not an estimate), unless every frame has an opposite
+frame (a full-sphere grid of odd ``n``): then a texel's column runs only between the two frames'
+surfaces, every point of it is within half the part's longest internal ``gap`` of the part along
+the line, and the parallax height is ``gap / 2`` plus the depth's half step ``r / 254``.
 """
 
 from __future__ import annotations
@@ -34,11 +37,14 @@ class AccuracyDistance:
     radius: float  # the bounding sphere's
     grid_angle_deg: float  # theta: the grid's weighted-median angle
     texel: float  # a frame texel, world units
-    extent: float  # the parallax height used (doubled with depth)
+    extent: (
+        float  # the parallax height used (doubled with one-sided depth; half the gap and a depth step with two-sided)
+    )
     displacement: float  # delta, world units
     pixel_angle: float  # radians at the image centre
     resolution: int
     fov_deg: float
+    gap: float | None = None  # the part's longest internal gap (two-sided depth), world units
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -68,7 +74,7 @@ def solve_distance(radius: float, displacement: float, pixel_angle: float) -> fl
 
 def accuracy_distance(
     radius: float, extent: float, n: int, hemisphere: bool, frame_resolution: int, resolution: int, fov_deg: float,
-    depth: bool,
+    depth: bool, gap: float | None = None,
 ) -> AccuracyDistance:  # fmt: skip
     """The accuracy distance of a bake (module docstring).
 
@@ -77,13 +83,19 @@ def accuracy_distance(
     (21.4, 60.9)
     >>> accuracy_distance(1.0, 1.0, 24, False, 128, 128, 45.0, depth=False).radii < a.radii
     True
+    >>> round(accuracy_distance(1.0, 1.0, 13, False, 128, 128, 45.0, depth=True, gap=0.0).radii, 1)  # a convex part
+    4.8
     """
     theta = grid_angle(n, hemisphere)
     texel = 2.0 * radius / frame_resolution
-    height = (2.0 if depth else 1.0) * extent
+    if depth and gap is not None:  # two-sided columns
+        height = 0.5 * gap + radius / 254.0
+    else:
+        height = (2.0 if depth else 1.0) * extent
     delta = math.sqrt(2.0) * texel + height * math.sin(theta)
     pixel = 2.0 * math.tan(0.5 * math.radians(fov_deg)) / resolution
     d = solve_distance(radius, delta, pixel)
+    used = gap if depth else None
     return AccuracyDistance(
-        d, d / radius, radius, math.degrees(theta), texel, height, delta, pixel, resolution, fov_deg
+        d, d / radius, radius, math.degrees(theta), texel, height, delta, pixel, resolution, fov_deg, used
     )

@@ -227,3 +227,42 @@ def compose_atlas(
         x, y = texel[index] - padding
         pages[int(page[index])][y : y + s, x : x + s] = cell
     return tuple(pages)
+
+
+def closed(objects) -> bool:
+    """Whether every object is a closed surface drawn whole (watertight once its vertices are
+    merged, no alpha cut): then along any line the surfaces alternate entering and leaving solid.
+
+    >>> from farfield.core.procedural import box_object
+    >>> closed([box_object("b", [0, 0, 0], [1, 1, 1])])
+    True
+    """
+    import trimesh
+
+    return all(obj.alpha_cutoff is None and trimesh.Trimesh(obj.vertices, obj.faces).is_watertight for obj in objects)
+
+
+def internal_gap(objects, sphere: Sphere, directions: np.ndarray, resolution: int) -> float:
+    """World units: the longest stretch, along the lines of the frames of ``directions`` (k, 3) at
+    ``resolution`` rays a side, between two consecutive surfaces of the part with nothing solid in
+    between (:func:`farfield.core.render.peeling.peel`): every surface gap, or for a part of
+    :func:`closed` objects only the gaps outside its solids (from an exit to the next entry; where
+    solids overlap, a stretch inside both may count too, never the other way round).  A point of a
+    frame pair's column (docs/techniques/octahedral.md) is within half of it of the part, along the
+    line.  0 where no line meets two surfaces with a gap."""
+    from farfield.core.render.peeling import peel
+
+    solid = closed(objects)
+    gap = 0.0
+    for direction in directions:
+        camera = frame_camera(sphere, direction, resolution)
+        hits, _ = peel(objects, camera, max_layers=1024)
+        depth = hits[..., 0]  # (layers, h, w) eye depth, NaN past a ray's last surface
+        if depth.shape[0] < 2:
+            continue
+        spans = np.diff(depth, axis=0)
+        if solid:
+            spans = spans[1::2]  # exit -> next entry
+        if np.isfinite(spans).any():
+            gap = max(gap, float(np.nanmax(spans)))
+    return gap

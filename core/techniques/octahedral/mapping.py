@@ -170,3 +170,20 @@ def grid_angle(n: int, hemisphere: bool = False, samples: int = 20000) -> float:
     True
     """
     return float(median_angle(fibonacci_directions(samples, hemisphere), n, hemisphere).max())
+
+
+def opposite_frames(n: int, hemisphere: bool = False) -> np.ndarray:
+    """(n*n,) int64: for each frame of the grid, a frame looking the opposite way (direction ``-d``),
+    or -1 where the grid has none.  On the full sphere every frame has one when ``n`` is odd (the
+    map sends ``-d`` of a grid point to a grid point then); on the hemisphere only the horizon's.
+
+    >>> bool((opposite_frames(5) >= 0).all()), int((opposite_frames(4) >= 0).sum())
+    (True, 0)
+    >>> d = frame_directions(5); o = opposite_frames(5)
+    >>> bool(np.allclose(d[o], -d))
+    True
+    """
+    d = frame_directions(n, hemisphere)
+    dots = d @ d.T
+    best = np.argmin(dots, axis=1)
+    return np.where(dots[np.arange(len(d)), best] < -1.0 + 1e-9, best, -1).astype(np.int64)

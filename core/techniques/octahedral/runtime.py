@@ -95,6 +95,10 @@ class OctahedralRenderer:
         for texture in self.heights:
             texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self.sizes = [(float(page.shape[1]), float(page.shape[0])) for page in impostor.pages]
+        # Each frame's opposite frame (direction -d), -1 where none: its depth bounds the columns.
+        dots = payload.axes[:, 2] @ payload.axes[:, 2].T if payload.count else np.zeros((0, 0))
+        best = np.argmin(dots, axis=1) if payload.count else np.zeros(0, np.int64)
+        self.opposite = np.where(dots[np.arange(payload.count), best] < -1.0 + 1e-9, best, -1)
         self.vbo = ctx.buffer(reserve=4 * 3 * 4)
         self.ibo = ctx.buffer(np.array([0, 1, 2, 0, 2, 3], "<u4").tobytes())
         self.vao = ctx.vertex_array(self.prog, [(self.vbo, "3f", "in_position")], self.ibo)
@@ -148,6 +152,17 @@ class OctahedralRenderer:
             self.atlases[page].use(slot)
             prog[f"heights{slot}"].value = 3 + slot
             self.heights[page].use(3 + slot)
+        opposite = [int(self.opposite[f]) for f in frames]
+        two_sided = [o >= 0 and self.use_depth for o in opposite]
+        prog["o_valid"].value = [int(v) for v in two_sided]
+        other = [o if v else f for o, v, f in zip(opposite, two_sided, frames)]
+        prog["o_right"].value = [tuple(map(float, p.axes[o, 0])) for o in other]
+        prog["o_up"].value = [tuple(map(float, p.axes[o, 1])) for o in other]
+        prog["o_origin"].value = [tuple(map(float, p.texel[o])) for o in other]
+        prog["o_size"].value = [self.sizes[int(p.page[o])] for o in other]
+        for slot, o in enumerate(other):
+            prog[f"opposite{slot}"].value = 6 + slot
+            self.heights[int(p.page[o])].use(6 + slot)
         self.vao.render(moderngl.TRIANGLES)
         return colour
 

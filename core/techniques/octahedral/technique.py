@@ -35,10 +35,11 @@ from farfield.core.techniques.octahedral.frames import (
     Sphere,
     compose_atlas,
     frame_axes,
+    internal_gap,
     pages_layout,
     record_frames,
 )
-from farfield.core.techniques.octahedral.mapping import frame_directions
+from farfield.core.techniques.octahedral.mapping import frame_directions, opposite_frames
 from farfield.core.techniques.octahedral.payload import OctahedralPayload
 from farfield.core.techniques.part import evaluate_part, part_evaluation_text
 from farfield.core.viewcells import SphereOutsideCell, ViewCell
@@ -54,7 +55,10 @@ class OctahedralOptions:
     fov_deg: float = option(
         45.0, "output field of view the accuracy distance is computed for, degrees", gt=0.0, lt=180.0
     )
-    grid: int = option(12, "frames per side of the octahedral grid (grid x grid frames)", ge=2, le=64)
+    grid: int = option(
+        13, "frames per side of the octahedral grid (grid x grid frames); an odd grid gives every frame its opposite, "
+        "which bounds the depth channel's columns (docs/techniques/octahedral.md)", ge=2, le=64,
+    )  # fmt: skip
     frame_resolution: int = option(
         64, "texels per side of each frame (at the accuracy distance a part is a few pixels wide: more texels serve nearer views)",
         ge=4, le=4096,
@@ -125,7 +129,7 @@ def bake_octahedral(
     """Bake the octahedral impostor of ``scene`` (or of its ``objects``) for ``cell`` (any cell
     beyond the part's bounding sphere; :class:`~farfield.core.viewcells.SphereOutsideCell` is its own)."""
     part = scene.subset(objects) if objects else scene
-    clock = StageClock(("frames", "atlas"), progress)
+    clock = StageClock(("frames", "atlas", "gaps"), progress)
     sphere = Sphere.of_objects(part.objects)
     _check_cell(cell, sphere.centre, sphere.radius, options)
     n, res, pad = options.grid, options.frame_resolution, options.padding
@@ -145,8 +149,15 @@ def bake_octahedral(
                 normal[..., 3] = np.where(covered, 255, 0)
             channels["normal"] = compose_atlas(normal, page_of, texel, sides, pad, mask=covered)
     clock.report("atlas", 1, 1)
+    gap = None
+    opposite = opposite_frames(n, options.hemisphere)
+    if depth and (opposite >= 0).all():  # two-sided columns: the part's longest internal gap bounds their walls
+        with clock("gaps"):
+            lines = [k for k in range(n * n) if k < opposite[k]]  # one frame of each opposite pair
+            gap = internal_gap(part.objects, sphere, directions[lines], res * options.samples)
+        clock.report("gaps", 1, 1)
     accuracy = accuracy_distance(sphere.radius, frames.depth_extent, n, options.hemisphere, res, options.resolution,
-                                 options.fov_deg, depth)  # fmt: skip
+                                 options.fov_deg, depth, gap)  # fmt: skip
     payload = OctahedralPayload(
         axes=frame_axes(directions),
         texel=texel,

@@ -21,6 +21,14 @@ uniform float f_weight[3];
 uniform float radius;
 uniform float frame_res;
 uniform vec2 f_size[3];          // each frame's page, texels (width, height)
+uniform sampler2D opposite0;      // the normal page of each blended frame's opposite frame (its depth)
+uniform sampler2D opposite1;
+uniform sampler2D opposite2;
+uniform int o_valid[3];           // 1: the frame has an opposite frame (a two-sided column)
+uniform vec3 o_right[3];
+uniform vec3 o_up[3];
+uniform vec2 o_origin[3];
+uniform vec2 o_size[3];
 uniform int use_depth;
 uniform int normal_mode;          // G-buffer normals: 0 none, 1 the normal pages', 2 the card's (facing the eye)
 in vec3 v_local;
@@ -62,6 +70,17 @@ float height_at(int k, vec2 t) {  // the surface's height above the card plane; 
     return ((level - 1.0) / 254.0 * 2.0 - 1.0) * radius;
 }
 
+float bottom_at(int k, vec3 p) {  // the column's bottom: the opposite frame's surface, as a height along f_dir[k]
+    if (o_valid[k] == 0) return -1e30;
+    vec2 t = vec2((dot(p, o_right[k]) / radius * 0.5 + 0.5) * frame_res, (0.5 - dot(p, o_up[k]) / radius * 0.5) * frame_res);
+    if (!in_frame(t)) return -1e30;
+    ivec2 a = ivec2(floor(o_origin[k] + t));
+    ivec2 at = ivec2(a.x, int(o_size[k].y) - 1 - a.y);
+    float level = (k == 0 ? texelFetch(opposite0, at, 0).a : k == 1 ? texelFetch(opposite1, at, 0).a : texelFetch(opposite2, at, 0).a) * 255.0;
+    if (level < 0.5) return -1e30;  // the opposite frame saw nothing here: a one-sided column
+    return -((level - 1.0) / 254.0 * 2.0 - 1.0) * radius;
+}
+
 void main() {
     vec3 ray = normalize(v_local - eye_local);
     vec3 rgb = vec3(0.0);
@@ -98,9 +117,14 @@ void main() {
                         vec3 q = eye_local + mid * ray;
                         if (dot(q, f_dir[k]) <= height_at(k, frame_texel(k, q))) hi = mid; else lo = mid;
                     }
-                    t = hi;
-                    hit = true;
-                    break;
+                    vec3 q = eye_local + hi * ray;
+                    // Two-sided: a crossing under the column's bottom (the opposite frame's surface,
+                    // less a depth step) passes beneath the part there; march on.
+                    if (dot(q, f_dir[k]) >= bottom_at(k, q) - 2.0 * radius / 254.0) {
+                        t = hi;
+                        hit = true;
+                        break;
+                    }
                 }
                 before = ts;
             }
