@@ -7,8 +7,9 @@ frames around it on the octahedral grid and their barycentric weights
 (:func:`farfield.core.techniques.octahedral.mapping.blend_frames`); the card is the square
 through the centre perpendicular to the line to the eye, ``r D / sqrt(D² - r²)`` a half side (it
 covers the bounding sphere's silhouette from distance ``D``).  Per fragment the eye ray meets
-each frame (its card plane, or with depth its height field: the parallax correction) and the three
-colours are blended, cut at a blended alpha of 0.5, and the hit point's depth written.
+each frame (its card plane, or with depth its height field: the parallax correction; between the
+frame's and its opposite frame's surfaces where the grid has one) and the three colours are
+blended, cut at a blended alpha of 0.5, and the hit point's depth written.
 """
 
 from __future__ import annotations

@@ -5,6 +5,8 @@ page out, drawn as one camera-facing card blending the three frames around the v
 frame directions on the (hemi-)octahedral grid (:mod:`~farfield.core.techniques.octahedral.mapping`)
 -> frames drawn by the evaluation's renderer (:mod:`~farfield.core.techniques.octahedral.frames`)
 -> one atlas page (colour dilated, alpha kept; normals and depth on a parallel page)
+-> with depth on a grid whose frames all have opposites, the part's longest internal gap
+(:func:`~farfield.core.techniques.octahedral.frames.internal_gap`, peeled)
 -> the payload (:mod:`~farfield.core.techniques.octahedral.payload`) and the accuracy distance
 (:mod:`~farfield.core.techniques.octahedral.accuracy`), in the stats and the manifest.
 

@@ -2,7 +2,8 @@
 // The octahedral impostor's blend (core/techniques/octahedral/runtime.py, docs/techniques/octahedral.md):
 // the eye ray through this fragment meets each of the three frames around the view direction,
 // on the card plane through the centre (no depth) or on the frame's height field (ray marched,
-// with depth: the parallax correction); their colours are blended by the barycentric weights,
+// with depth: the parallax correction; a column ends at the opposite frame's surface where there
+// is one); their colours are blended by the barycentric weights,
 // cut at 0.5, and the blended hit point's depth is written (the pixel depth offset).
 uniform sampler2D atlas0;         // each blended frame's page: sRGB colour, alpha 0 | 1
 uniform sampler2D atlas1;
