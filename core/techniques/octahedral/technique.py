@@ -208,7 +208,10 @@ def _summary(stats: dict) -> str:
         f"{stats['atlas_size'][0]}x{stats['atlas_size'][1]}  texture: {stats['texture_bytes'] / 1024:.1f} KiB\n"
         f"accuracy distance: {a['distance']:.4g} ({a['radii']:.1f} bounding radii) for {a['resolution']} px at "
         f"{a['fov_deg']:g}° (grid angle {a['grid_angle_deg']:.2f}°, texel {a['texel']:.3g}, depth extent "
-        f"{stats['depth_extent']:.3g})\n" + seconds_line(stats)
+        f"{stats['depth_extent']:.3g}"
+        + (f", two-sided depth: internal gap {a['gap']:.3g}" if a.get("gap") is not None else "")
+        + ")\n"
+        + seconds_line(stats)
     )
 
 
