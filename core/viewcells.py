@@ -8,6 +8,8 @@ A view cell is the region a viewer may be in while an impostor is valid (seed 00
   ``min_distance`` from the apex.  In 3D farfield uses a *square* cross-section (a pyramid with the
   apex angle on both image axes), so the 2D shaft of the thesis holds on each axis independently,
   exactly as the layer spacing of §3.3.1 treats the x and y axes.  ``max_distance`` may be infinite.
+* :class:`SphereOutsideCell` — everything at least ``radius`` from a centre (optionally only above
+  its horizon): the cell of an impostor that serves every direction from far enough away.
 
 All geometry is float64; points are ``(n, 3)`` arrays in world units.
 """
@@ -314,7 +316,111 @@ class ShaftCell:
         }
 
 
-ViewCell = BoxCell | ShaftCell
+@dataclass(frozen=True, slots=True)
+class SphereOutsideCell:
+    """Everything beyond a distance from a point: the view cell of an impostor that serves every
+    direction from far enough away (an octahedral impostor, docs/techniques/octahedral.md).
+
+    Parameters
+    ----------
+    centre : (3,) float64, world units
+        The centre of the part (its bounding sphere's).
+    radius : float
+        The nearest a viewpoint comes to ``centre``, world units, > 0.
+    hemisphere : bool
+        Only viewpoints at or above the horizontal plane through ``centre`` (world +z up): the
+        cell of an impostor never seen from below.
+    """
+
+    centre: np.ndarray  # (3,) float64
+    radius: float
+    hemisphere: bool = False
+    kind: str = field(default="outside-sphere", init=False)
+
+    def __post_init__(self) -> None:
+        centre = _vec3(self.centre, "outside-sphere view cell centre")
+        if not (isinstance(self.radius, int | float) and math.isfinite(self.radius) and self.radius > 0.0):
+            raise ViewCellError(f"outside-sphere view cell radius must be finite and > 0, got {self.radius!r}")
+        object.__setattr__(self, "centre", centre)
+        object.__setattr__(self, "radius", float(self.radius))
+        object.__setattr__(self, "hemisphere", bool(self.hemisphere))
+
+    @property
+    def center(self) -> np.ndarray:
+        """(3,) float64 a viewpoint of the cell standing for it (the reference viewpoint): on the
+        sphere, 45° above the horizon towards +x."""
+        return self.centre + self.radius * np.array([math.sqrt(0.5), 0.0, math.sqrt(0.5)])
+
+    def corners(self) -> np.ndarray:
+        """(k, 3) float64 viewpoints on the sphere an evaluation always takes: straight down from
+        above, grazing (on the horizon, 1° above it for a hemisphere) from four sides, four at
+        45°, and for a full sphere straight up from below and four at 45° below.
+
+        >>> SphereOutsideCell([0.0, 0.0, 0.0], 2.0, hemisphere=True).corners()[:2].round(3).tolist()
+        [[0.0, 0.0, 2.0], [2.0, 0.0, 0.035]]
+        """
+        graze = math.radians(1.0) if self.hemisphere else 0.0
+        elevations = [math.pi / 2, graze, math.pi / 4] + ([] if self.hemisphere else [-math.pi / 2, -math.pi / 4])
+        directions = []
+        for elevation in elevations:
+            azimuths = (
+                [0.0] if abs(abs(elevation) - math.pi / 2) < 1e-12 else [0.0, math.pi / 2, math.pi, 1.5 * math.pi]
+            )
+            offset = (
+                math.pi / 4 if abs(elevation - math.pi / 4) < 1e-12 or abs(elevation + math.pi / 4) < 1e-12 else 0.0
+            )
+            for azimuth in azimuths:
+                a = azimuth + offset
+                directions.append(
+                    [math.cos(elevation) * math.cos(a), math.cos(elevation) * math.sin(a), math.sin(elevation)]
+                )
+        return self.centre + self.radius * np.round(np.array(directions), 15)
+
+    def contains(self, points, tol: float = 0.0) -> np.ndarray:
+        """(n,) bool: which ``points`` (n, 3) lie at least ``radius - tol`` from the centre (and, for
+        a hemisphere, no more than ``tol`` below its horizontal plane)."""
+        p = _points(points) - self.centre
+        inside = np.linalg.norm(p, axis=1) >= self.radius * (1.0 - 1e-12) - tol
+        if self.hemisphere:
+            inside &= p[:, 2] >= -tol - 1e-12 * self.radius
+        return inside
+
+    def distance_to_box(self, bounds) -> float:
+        """Distance from the cell to an axis-aligned ``bounds`` (2, 3): 0 where the box reaches
+        beyond the sphere, else the radius less the box's farthest corner's distance from the centre
+        (a lower bound for a hemisphere)."""
+        corners = box_corners(bounds)
+        return max(0.0, self.radius - float(np.linalg.norm(corners - self.centre, axis=1).max()))
+
+    def sample_random(self, count: int, seed: int, depth: float | None = None) -> np.ndarray:
+        """(count, 3) float64 viewpoints, deterministic for ``seed``: directions uniform over the
+        sphere (or the upper hemisphere), distances uniform in ``[radius, radius + depth]``
+        (``depth`` by default the radius: out to twice the nearest distance).
+
+        >>> cell = SphereOutsideCell([1.0, 2.0, 3.0], 5.0, hemisphere=True)
+        >>> bool(cell.contains(cell.sample_random(100, 0)).all())
+        True
+        """
+        rng = np.random.default_rng(seed)
+        direction = rng.normal(size=(int(count), 3))
+        direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+        if self.hemisphere:
+            direction[:, 2] = np.abs(direction[:, 2])
+        far = self.radius if depth is None else float(depth)
+        distance = self.radius + rng.random(int(count)) * far
+        return self.centre + distance[:, None] * direction
+
+    def to_dict(self) -> dict:
+        """JSON-ready description."""
+        return {
+            "kind": "outside-sphere",
+            "centre": self.centre.tolist(),
+            "radius": self.radius,
+            "hemisphere": self.hemisphere,
+        }
+
+
+ViewCell = BoxCell | ShaftCell | SphereOutsideCell
 
 
 def sample_viewpoints(cell: ViewCell, random_count: int = 0, seed: int = 0, depth: float | None = None) -> np.ndarray:
@@ -336,6 +442,7 @@ def parse_viewcell(spec: str) -> ViewCell:
     * ``box:x0,y0,z0,x1,y1,z1`` — corners;
     * ``box-center:cx,cy,cz,size`` — a cube;
     * ``shaft:ax,ay,az,dx,dy,dz,apex_deg,min_distance[,max_distance]``.
+    * ``outside:cx,cy,cz,radius`` (``outside-hemi:...``: above the centre's horizon only).
 
     >>> parse_viewcell("box-center:0,0,0,10").size.tolist()
     [10.0, 10.0, 10.0]
@@ -351,9 +458,11 @@ def parse_viewcell(spec: str) -> ViewCell:
         return BoxCell.from_center(nums[:3], nums[3])
     if kind == "shaft" and len(nums) in (8, 9):
         return ShaftCell(nums[:3], nums[3:6], math.radians(nums[6]), nums[7], nums[8] if len(nums) == 9 else math.inf)
+    if kind in ("outside", "outside-hemi") and len(nums) == 4:
+        return SphereOutsideCell(nums[:3], nums[3], hemisphere=kind == "outside-hemi")
     raise ViewCellError(
         f"view cell {spec!r} not understood; use box:x0,y0,z0,x1,y1,z1 | box-center:cx,cy,cz,size | "
-        "shaft:ax,ay,az,dx,dy,dz,apex_deg,min_distance[,max_distance]"
+        "shaft:ax,ay,az,dx,dy,dz,apex_deg,min_distance[,max_distance] | outside[-hemi]:cx,cy,cz,radius"
     )
 
 
@@ -363,6 +472,8 @@ def viewcell_from_dict(data: dict) -> ViewCell:
         kind = data["kind"]
         if kind == "box":
             return BoxCell(data["lo"], data["hi"])
+        if kind == "outside-sphere":
+            return SphereOutsideCell(data["centre"], float(data["radius"]), bool(data.get("hemisphere", False)))
         if kind == "shaft":
             far = data.get("max_distance")
             return ShaftCell(

@@ -45,7 +45,7 @@ def test_the_wheel_holds_one_package_and_its_data_files(wheel):
     assert {n.split("/")[0] for n in names if not n.split("/")[0].endswith(".dist-info")} == {"farfield"}
     for data in ("farfield/core/render/shaders/slab.frag", "farfield/service/migrations/env.py",
                  "farfield/service/migrations/versions/0001_initial.py", "farfield/api/dashboard/index.html",
-                 "farfield/api/dashboard/app.js"):  # fmt: skip
+                 "farfield/api/dashboard/app.js", "farfield/core/techniques/octahedral/shaders/octahedral.frag"):  # fmt: skip
         assert data in names, data
     entry_points = zipfile.ZipFile(wheel).read(next(n for n in names if n.endswith("entry_points.txt"))).decode()
     assert "farfield = farfield.cli.main:main" in entry_points
@@ -91,6 +91,7 @@ def test_the_installed_wheel_runs_outside_the_checkout(wheel, tmp_path):
         "tdm",
         "points",
         "ldi",
+        "octahedral",
     ]
     scene = Scene.from_objects(
         [box_object("block", (-5.0, 0.0, -5.0), (5.0, 8.0, 5.0), (0.8, 0.35, 0.2, 1.0))], source="package"

@@ -61,7 +61,8 @@ def test_the_registry_refuses_what_it_cannot_hold_and_an_unknown_name_is_bad_inp
         register(dataclasses.replace(layered, name="voxelised", payload_kind="voxels"))
     assert TECHNIQUES == before
     with pytest.raises(
-        UnknownTechniqueError, match=r"unknown technique 'toy'; one of \['layered', 'envmap', 'tdm', 'points', 'ldi'\]"
+        UnknownTechniqueError,
+        match=r"unknown technique 'toy'; one of \['layered', 'envmap', 'tdm', 'points', 'ldi', 'octahedral'\]",
     ) as raised:
         get_technique("toy")
     assert not isinstance(raised.value, LayerPlanError)
@@ -75,7 +76,7 @@ def test_every_technique_and_payload_kind_has_the_members_consumers_call():
         assert isinstance(technique, Technique) and technique.payload_kind in PAYLOAD_KINDS
         assert technique.describe()["payload"] == technique.payload_kind
         assert technique.describe()["placeable"] == (technique.estimate is not None)
-    assert sorted(PAYLOAD_KINDS) == ["ldi", "mesh", "points", "quads"]
+    assert sorted(PAYLOAD_KINDS) == ["ldi", "mesh", "octahedral", "points", "quads"]
     for kind, cls in PAYLOAD_KINDS.items():
         payload = cls.empty()
         assert isinstance(payload, Payload) and payload.kind == kind
@@ -130,7 +131,7 @@ def test_the_cli_bakes_and_lists_a_technique_registered_from_outside(tmp_path):
     evaluated = farfield("evaluate", str(out), str(BUNNY), toy=False)
     assert evaluated.returncode == 2, evaluated.stderr
     assert (
-        "farfield: error: unknown technique 'toy'; one of ['layered', 'envmap', 'tdm', 'points', 'ldi']"
+        "farfield: error: unknown technique 'toy'; one of ['layered', 'envmap', 'tdm', 'points', 'ldi', 'octahedral']"
         in evaluated.stderr
     )
     broken = subprocess.run([sys.executable, "-m", "farfield.cli.main", "techniques"], cwd=ROOT, capture_output=True, text=True, timeout=300,

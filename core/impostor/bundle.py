@@ -591,6 +591,8 @@ def _is_count(value) -> bool:
 def _payload_v2(manifest: dict, root: Path, path: Path):
     """The payload a version 2 manifest describes, read from ``payload.bin`` (see the module docstring)."""
     kind = _field(manifest, path, "payload", "kind")
+    if isinstance(kind, str) and kind not in PAYLOAD_KINDS:  # a technique's own kind registers with the technique
+        import farfield.core.techniques  # noqa: F401
     cls = PAYLOAD_KINDS.get(kind) if isinstance(kind, str) else None
     if cls is None:
         raise BundleFormatError(f"{path}: payload.kind is {kind!r}, expected one of {sorted(PAYLOAD_KINDS)}")

@@ -78,7 +78,7 @@ from farfield.core.impostor.impostor import Impostor
 from farfield.core.render.points import Appearance
 from farfield.core.render.raster import Camera, MeshRenderer, depth_bounds
 from farfield.core.scene import Scene, SceneObject
-from farfield.core.viewcells import BoxCell, ShaftCell, ViewCell, box_corners
+from farfield.core.viewcells import BoxCell, ShaftCell, SphereOutsideCell, ViewCell, box_corners
 
 
 def impostor_objects(impostor: Impostor) -> list[SceneObject]:
@@ -441,8 +441,15 @@ def _window_coverage(renderers: dict[str, MeshRenderer], camera: Camera, samples
 
 
 def outside_viewpoints(cell: ViewCell, count: int, seed: int = 0) -> np.ndarray:
-    """(count, 3) float64 points just outside ``cell``: its centre pushed 0.6-1.5 cell sizes sideways."""
+    """(count, 3) float64 points just outside ``cell``: its centre pushed 0.6-1.5 cell sizes sideways
+    (an outside-sphere cell's: nearer its centre than its radius)."""
     rng = np.random.default_rng(seed)
+    if isinstance(cell, SphereOutsideCell):  # nearer than its radius: 0.6-0.95 of it
+        direction = rng.normal(size=(count, 3))
+        direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+        if cell.hemisphere:
+            direction[:, 2] = np.abs(direction[:, 2])
+        return cell.centre + direction * cell.radius * rng.uniform(0.6, 0.95, size=(count, 1))
     if isinstance(cell, BoxCell):
         centre, size = cell.center, float(np.max(cell.size))
     else:

@@ -15,7 +15,7 @@ import importlib
 from collections.abc import Iterable
 
 from farfield.core.errors import UnknownTechniqueError
-from farfield.core.techniques import envmap, layered, ldi, points, tdm
+from farfield.core.techniques import envmap, layered, ldi, octahedral, points, tdm
 from farfield.core.techniques.base import Technique, TechniqueDefinition
 
 __all__ = [
@@ -66,6 +66,7 @@ def register(technique: Technique) -> Technique:
 
 for _technique in (layered.TECHNIQUE, envmap.TECHNIQUE, tdm.TECHNIQUE, points.TECHNIQUE, ldi.TECHNIQUE):
     register(_technique)
+register(octahedral.TECHNIQUE)
 
 
 def get_technique(name: str) -> Technique:
@@ -76,7 +77,7 @@ def get_technique(name: str) -> Technique:
     >>> get_technique("nope")
     Traceback (most recent call last):
     ...
-    farfield.core.errors.UnknownTechniqueError: unknown technique 'nope'; one of ['layered', 'envmap', 'tdm', 'points', 'ldi']
+    farfield.core.errors.UnknownTechniqueError: unknown technique 'nope'; one of ['layered', 'envmap', 'tdm', 'points', 'ldi', 'octahedral']
     """
     try:
         return TECHNIQUES[name]

@@ -1,0 +1,150 @@
+#version 330
+// The octahedral impostor's blend (core/techniques/octahedral/runtime.py, docs/techniques/octahedral.md):
+// the eye ray through this fragment meets each of the three frames around the view direction,
+// on the card plane through the centre (no depth) or on the frame's height field (ray marched,
+// with depth: the parallax correction; a column ends at the opposite frame's surface where there
+// is one); their colours are blended by the barycentric weights,
+// cut at 0.5, and the blended hit point's depth is written (the pixel depth offset).
+uniform sampler2D atlas0;         // each blended frame's page: sRGB colour, alpha 0 | 1
+uniform sampler2D atlas1;
+uniform sampler2D atlas2;
+uniform sampler2D heights0;       // and its normal page: alpha = depth byte (0: nothing)
+uniform sampler2D heights1;
+uniform sampler2D heights2;
+uniform mat4 eye_from_local;
+uniform vec2 depth_range;
+uniform vec3 eye_local;           // the eye relative to the centre, world units
+uniform vec3 f_right[3];
+uniform vec3 f_up[3];
+uniform vec3 f_dir[3];
+uniform vec2 f_origin[3];         // first texel of each frame (x right, y down)
+uniform float f_weight[3];
+uniform float radius;
+uniform float frame_res;
+uniform vec2 f_size[3];          // each frame's page, texels (width, height)
+uniform sampler2D opposite0;      // the normal page of each blended frame's opposite frame (its depth)
+uniform sampler2D opposite1;
+uniform sampler2D opposite2;
+uniform int o_valid[3];           // 1: the frame has an opposite frame (a two-sided column)
+uniform vec3 o_right[3];
+uniform vec3 o_up[3];
+uniform vec2 o_origin[3];
+uniform vec2 o_size[3];
+uniform int use_depth;
+uniform int normal_mode;          // G-buffer normals: 0 none, 1 the normal pages', 2 the card's (facing the eye)
+in vec3 v_local;
+layout(location = 0) out vec4 frag_color;
+layout(location = 1) out vec4 frag_normal;  // world normal (a G-buffer render; core/quality/lit.py)
+
+#include "colour.glsl"
+
+vec2 frame_texel(int k, vec3 p) {  // continuous texel position in frame k (0..frame_res, y down)
+    return vec2((dot(p, f_right[k]) / radius * 0.5 + 0.5) * frame_res,
+                (0.5 - dot(p, f_up[k]) / radius * 0.5) * frame_res);
+}
+
+bool in_frame(vec2 t) {
+    return all(greaterThanEqual(t, vec2(0.0))) && all(lessThan(t, vec2(frame_res)));
+}
+
+vec4 colour_at(int k, vec2 t) {  // bilinear, linear light (an sRGB texture)
+    vec2 a = f_origin[k] + t;
+    vec2 uv = vec2(a.x / f_size[k].x, 1.0 - a.y / f_size[k].y);
+    if (k == 0) return texture(atlas0, uv);  // GLSL 3.30 indexes sampler arrays by constants only
+    if (k == 1) return texture(atlas1, uv);
+    return texture(atlas2, uv);
+}
+
+vec3 normal_at(int k, vec2 t) {  // the normal page's world normal, nearest texel
+    ivec2 a = ivec2(floor(f_origin[k] + clamp(t, vec2(0.0), vec2(frame_res - 0.5))));
+    ivec2 at = ivec2(a.x, int(f_size[k].y) - 1 - a.y);
+    vec3 n = (k == 0 ? texelFetch(heights0, at, 0).rgb : k == 1 ? texelFetch(heights1, at, 0).rgb : texelFetch(heights2, at, 0).rgb);
+    return n * 2.0 - 1.0;
+}
+
+float height_at(int k, vec2 t) {  // the surface's height above the card plane; -1e30 where none
+    if (!in_frame(t)) return -1e30;
+    ivec2 a = ivec2(floor(f_origin[k] + t));
+    ivec2 at = ivec2(a.x, int(f_size[k].y) - 1 - a.y);
+    float level = (k == 0 ? texelFetch(heights0, at, 0).a : k == 1 ? texelFetch(heights1, at, 0).a : texelFetch(heights2, at, 0).a) * 255.0;
+    if (level < 0.5) return -1e30;
+    return ((level - 1.0) / 254.0 * 2.0 - 1.0) * radius;
+}
+
+float bottom_at(int k, vec3 p) {  // the column's bottom: the opposite frame's surface, as a height along f_dir[k]
+    if (o_valid[k] == 0) return -1e30;
+    vec2 t = vec2((dot(p, o_right[k]) / radius * 0.5 + 0.5) * frame_res, (0.5 - dot(p, o_up[k]) / radius * 0.5) * frame_res);
+    if (!in_frame(t)) return -1e30;
+    ivec2 a = ivec2(floor(o_origin[k] + t));
+    ivec2 at = ivec2(a.x, int(o_size[k].y) - 1 - a.y);
+    float level = (k == 0 ? texelFetch(opposite0, at, 0).a : k == 1 ? texelFetch(opposite1, at, 0).a : texelFetch(opposite2, at, 0).a) * 255.0;
+    if (level < 0.5) return -1e30;  // the opposite frame saw nothing here: a one-sided column
+    return -((level - 1.0) / 254.0 * 2.0 - 1.0) * radius;
+}
+
+void main() {
+    vec3 ray = normalize(v_local - eye_local);
+    vec3 rgb = vec3(0.0);
+    vec3 normal = vec3(0.0);
+    float weight = 0.0, along = 0.0;
+    for (int k = 0; k < 3; ++k) {
+        if (f_weight[k] <= 0.0) continue;
+        float dn = dot(ray, f_dir[k]);
+        if (dn > -1e-6) continue;  // the ray does not go into this frame's image
+        float e0 = dot(eye_local, f_dir[k]);
+        float t;
+        float alpha;
+        vec3 c;
+        if (use_depth == 0) {
+            t = -e0 / dn;  // the card plane through the centre
+            vec2 tx = frame_texel(k, eye_local + t * ray);
+            if (!in_frame(tx)) continue;
+            vec4 s = colour_at(k, tx);
+            alpha = s.a;
+            c = s.rgb;
+        } else {
+            float t_top = (radius - e0) / dn, t_bottom = (-radius - e0) / dn;
+            vec3 lateral = (ray - dn * f_dir[k]) * (t_bottom - t_top);
+            int steps = clamp(int(ceil(length(lateral) / radius * 0.5 * frame_res * 2.0)) + 2, 2, 1024);
+            float before = t_top;
+            bool hit = false;
+            for (int s = 1; s <= steps; ++s) {
+                float ts = mix(t_top, t_bottom, float(s) / float(steps));
+                vec3 p = eye_local + ts * ray;
+                if (dot(p, f_dir[k]) <= height_at(k, frame_texel(k, p))) {
+                    float lo = before, hi = ts;  // the crossing lies between: bisect
+                    for (int b = 0; b < 8; ++b) {
+                        float mid = 0.5 * (lo + hi);
+                        vec3 q = eye_local + mid * ray;
+                        if (dot(q, f_dir[k]) <= height_at(k, frame_texel(k, q))) hi = mid; else lo = mid;
+                    }
+                    vec3 q = eye_local + hi * ray;
+                    // Two-sided: a crossing under the column's bottom (the opposite frame's surface,
+                    // less a depth step) passes beneath the part there; march on.
+                    if (dot(q, f_dir[k]) >= bottom_at(k, q) - 2.0 * radius / 254.0) {
+                        t = hi;
+                        hit = true;
+                        break;
+                    }
+                }
+                before = ts;
+            }
+            if (!hit) continue;
+            alpha = 1.0;
+            c = colour_at(k, frame_texel(k, eye_local + t * ray)).rgb;
+        }
+        rgb += f_weight[k] * alpha * c;
+        if (normal_mode == 1) normal += f_weight[k] * alpha * normal_at(k, frame_texel(k, eye_local + t * ray));
+        weight += f_weight[k] * alpha;
+        along += f_weight[k] * alpha * t;
+    }
+    if (weight < 0.5) discard;
+    vec3 p = eye_local + along / weight * ray;
+    float z = (eye_from_local * vec4(p, 1.0)).z;
+    float n = depth_range.x, f = depth_range.y;
+    gl_FragDepth = 0.5 * ((f + n) / (f - n) - 2.0 * f * n / ((f - n) * z)) + 0.5;
+    frag_color = vec4(linear_to_srgb(rgb / weight), 1.0);
+    vec3 shading = normal_mode == 2 ? -ray : normal;
+    bool none = normal_mode == 0 || dot(shading, shading) == 0.0;
+    frag_normal = vec4(none ? vec3(0.0) : normalize(shading), 1.0);
+}
