@@ -16,6 +16,7 @@ from farfield.service.db import Database
 from farfield.service.keys import authenticate, bearer_key
 from farfield.service.scene_check import SceneCheckGate
 from farfield.service.settings import Settings
+from farfield.workers.app import BAKE_CELL, RENDER_QUEUE
 
 RETRY_POLICY = {"max_retries": 30, "interval_start": 0.2, "interval_step": 0.5, "interval_max": 2.0}
 
@@ -47,6 +48,11 @@ class Services:
             if values:  # credentials were presented: a guess
                 self.auth_failures.failed(client)
             raise
+
+    def enqueue(self, cell_ids: list[str]) -> None:
+        """Send one bake task per cell to the render queue (retrying while Redis is away)."""
+        for cell_id in cell_ids:
+            self.celery.send_task(BAKE_CELL, args=[cell_id], queue=RENDER_QUEUE, retry=True, retry_policy=RETRY_POLICY)
 
 
 def services(request: Request) -> Services:

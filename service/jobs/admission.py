@@ -10,16 +10,15 @@ from __future__ import annotations
 import uuid
 
 import numpy as np
-from sqlalchemy import func, select
 
-from farfield.core.errors import JobTooCostlyError, LayerPlanError, NotFoundError, QuotaError, ViewCellError
+from farfield.core.errors import JobTooCostlyError, LayerPlanError, NotFoundError, ViewCellError
 from farfield.core.options import stored_values
 from farfield.core.techniques import get_technique
 from farfield.core.viewcells import viewcell_from_dict
-from farfield.service.db import OPEN_JOB_STATES, CellRow, Database, JobRow, SceneRow, Tenant, now
+from farfield.service.db import CellRow, Database, JobRow, SceneRow, now
 from farfield.service.jobs.schema import MAX_CELLS, JobSpec, grid_cells
 from farfield.service.placement.admission import create_placement_job
-from farfield.service.placement.base import PLACEMENT_JOB
+from farfield.service.quotas import check_cells, open_cells, reserve_tenant_work
 from farfield.service.settings import AdmissionLimits
 
 __all__ = [
@@ -64,48 +63,7 @@ def approx(n: float) -> str:
 def open_tenant_cells(db: Database, tenant_id: str) -> int:
     """Cells of the tenant's jobs that are queued or running."""
     with db.session() as s:
-        return _open_cells(s, tenant_id)
-
-
-def _open_cells(s, tenant_id: str) -> int:
-    return s.scalar(
-        select(func.count()).select_from(CellRow).join(JobRow, CellRow.job_id == JobRow.id)
-        .where(JobRow.tenant_id == tenant_id, CellRow.state.in_(("queued", "running")))
-    )  # fmt: skip
-
-
-def _check_cells(open_cells: int, cells: int, limits: AdmissionLimits) -> None:
-    if open_cells + cells > limits.max_tenant_cells:
-        raise QuotaError(
-            f"tenant has {open_cells:,} cells queued or running; this job's {cells:,} would pass the limit of "
-            f"{limits.max_tenant_cells:,} (FARFIELD_MAX_TENANT_CELLS): wait for some to end, or cancel a job"
-        )
-
-
-def reserve_tenant_work(s, tenant_id: str, cells: int, limits: AdmissionLimits, placement: bool = False) -> None:
-    """In the session ``s`` that stores a new job: serialise the tenant's admissions and refuse
-    (:class:`~farfield.core.errors.QuotaError`, 429; the session rolls back, nothing is stored) when
-    its open cells with this job's ``cells`` pass ``max_tenant_cells``, or, for a ``placement``
-    job, when it has ``max_tenant_placements`` placement jobs open already.
-
-    On PostgreSQL the tenant's row is locked (``SELECT ... FOR NO KEY UPDATE``) until the session commits,
-    so a second admission of the same tenant waits for the first to be stored and counts its cells;
-    SQLite begins every transaction with ``BEGIN IMMEDIATE`` (:mod:`farfield.service.db`), which
-    serialises all writers already."""
-    # FOR NO KEY UPDATE: serialises admissions without blocking the tenant's other inserts (their
-    # foreign keys take FOR KEY SHARE on the row, which FOR UPDATE would block).
-    s.execute(select(Tenant.id).where(Tenant.id == tenant_id).with_for_update(key_share=True))
-    _check_cells(_open_cells(s, tenant_id), cells, limits)
-    if placement:
-        placing = s.scalar(
-            select(func.count()).select_from(JobRow)
-            .where(JobRow.tenant_id == tenant_id, JobRow.job_type == PLACEMENT_JOB, JobRow.state.in_(OPEN_JOB_STATES))
-        )  # fmt: skip
-        if placing >= limits.max_tenant_placements:
-            raise QuotaError(
-                f"tenant has {placing:,} placement jobs open, the limit (FARFIELD_MAX_TENANT_PLACEMENTS="
-                f"{limits.max_tenant_placements}): wait for one to end, or cancel one"
-            )
+        return open_cells(s, tenant_id)
 
 
 # How far past the limits admission plans a cell before it stops and refuses with a lower bound.
@@ -204,7 +162,7 @@ def create_job(
             f"the job's {len(cells):,} view cells are more than a tenant may have queued or running, {limits.max_tenant_cells:,} "
             "(FARFIELD_MAX_TENANT_CELLS): split it into smaller jobs, or raise the limit"
         )
-    _check_cells(open_tenant_cells(db, tenant_id), len(cells), limits)
+    check_cells(open_tenant_cells(db, tenant_id), len(cells), limits)
     admit_cells(technique, options, cells, bounds, limits)
     job = JobRow(
         id=uuid.uuid4().hex, tenant_id=tenant_id, scene_id=scene.id, job_type=technique.name, params=params,

@@ -272,7 +272,7 @@ def retry_job(db: Database, tenant_id: str, job_id: str, limits=None) -> list[st
     The cells count against the tenant's quota (``limits``, an
     :class:`~farfield.service.settings.AdmissionLimits`; None: from the environment): past it,
     :class:`~farfield.core.errors.QuotaError` (429) and nothing changes."""
-    from farfield.service.jobs.admission import reserve_tenant_work
+    from farfield.service.quotas import reserve_tenant_work
     from farfield.service.settings import AdmissionLimits
 
     limits = AdmissionLimits.from_env() if limits is None else limits

@@ -46,6 +46,7 @@ from farfield.service.placement.lease import (
     set_planning,
 )
 from farfield.service.placement.states import drop_ended_planning, drop_planner_states
+from farfield.service.quotas import reserve_tenant_work
 from farfield.service.scenes import load_stored_scene
 from farfield.service.settings import MAX_CELLS, AdmissionLimits, Settings
 
@@ -219,8 +220,6 @@ def _commit_round_row(
                 job.error = algorithm_of(job.params).too_many_cells(have + len(cells), MAX_CELLS)
                 return True, job.state, []
         if index_key is None and cells:
-            from farfield.service.jobs.admission import reserve_tenant_work  # admission imports the placement package
-
             try:  # the placement's cells count against the tenant's quota as any job's (issue 59, item 6)
                 reserve_tenant_work(s, job.tenant_id, len(cells), AdmissionLimits.from_env())
             except QuotaError as error:
