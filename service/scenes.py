@@ -273,7 +273,13 @@ def delete_scene(db: Database, blobs: BlobStore, tenant_id: str, scene_id: str) 
 
 # A stored scene passed the limits in force when it was uploaded; a worker loads it whatever they are now.
 ADMITTED = SceneLimits(
-    nodes=2**62, depth=2**62, primitives=2**62, accessors=2**62, triangles=2**62, texture_pixels=2**62
+    nodes=2**62,
+    depth=2**62,
+    primitives=2**62,
+    accessors=2**62,
+    triangles=2**62,
+    texture_pixels=2**62,
+    texture_pixels_total=2**62,
 )
 
 # Scenes parsed in this process, by tenant and content hash: a worker loads each scene once, not once

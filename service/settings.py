@@ -44,7 +44,7 @@ from pathlib import Path
 from farfield.core.errors import ServiceConfigError
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
 
-_SCENE_LIMITS = ("nodes", "depth", "primitives", "accessors", "triangles", "texture_pixels")
+_SCENE_LIMITS = ("nodes", "depth", "primitives", "accessors", "triangles", "texture_pixels", "texture_pixels_total")
 
 # Admission defaults, measured on this 2-core machine with Mesa llvmpipe (README, "Limits").  Layered
 # bakes recorded 0.8-1.2e7 planned texels a second in front of a small city (1.9e7 texels at 512 px in

@@ -136,3 +136,39 @@ def _textured_glb() -> bytes:
     b = GltfBuilder()
     b.quad("q", [0, 0, 0], 1.0, b.material(texture=b.texture(b.image(gradient(16)))), uv=SQUARE_UV)
     return b.glb()
+
+
+def test_all_of_a_scenes_textures_together_are_bounded_too(tmp_path):
+    """Issue 59, item 4: textures that pass one by one can still decode to gigabytes together
+    (forty of 8192 x 8192: 10 GiB).  Their sum is bounded as they are read, in glTF and OBJ alike
+    (FARFIELD_MAX_SCENE_TEXTURE_PIXELS_TOTAL, SceneLimits.texture_pixels_total); a texture used
+    twice counts once."""
+    from gltf_files import SQUARE_UV, GltfBuilder, gradient
+
+    b = GltfBuilder()
+    for k in range(4):  # four textures of 16 x 16 = 256 texels
+        image = b.image(gradient(16) // 2 + k)  # four different images
+        b.quad(f"q{k}", [2.0 * k, 0, 0], 1.0, b.material(texture=b.texture(image)), uv=SQUARE_UV)
+    shared = b.material(texture=b.texture(0))  # the first image again
+    b.quad("again", [10.0, 0, 0], 1.0, shared, uv=SQUARE_UV)
+    data = b.glb()
+    assert len(load_scene_bytes(data, "glb", "four.glb", limits=SceneLimits(texture_pixels_total=256 * 4)).objects) == 5
+    with pytest.raises(SceneTooCostlyError, match="1,023 for all of a scene's textures together"):
+        load_scene_bytes(data, "glb", "four.glb", limits=SceneLimits(texture_pixels_total=256 * 4 - 1))
+    import io
+
+    from PIL import Image
+
+    def png(k: int) -> bytes:
+        out = io.BytesIO()
+        Image.fromarray(gradient(16) // 2 + k).save(out, format="PNG")
+        return out.getvalue()
+
+    obj = "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\n" + "".join(
+        f"o t{k}\nusemtl m{k}\nf 1/1 2/2 3/3\n" for k in range(3)
+    )
+    mtl = "".join(f"newmtl m{k}\nmap_Kd t{k}.png\n" for k in range(3)).encode()
+    assets = {"m.mtl": mtl, **{f"t{k}.png": png(k) for k in range(3)}}
+    load_scene_bytes(obj.encode(), "obj", "three.obj", assets, limits=SceneLimits(texture_pixels_total=256 * 3))
+    with pytest.raises(SceneTooCostlyError, match="FARFIELD_MAX_SCENE_TEXTURE_PIXELS_TOTAL"):
+        load_scene_bytes(obj.encode(), "obj", "three.obj", assets, limits=SceneLimits(texture_pixels_total=256 * 3 - 1))

@@ -31,9 +31,20 @@ class SceneLimits:
     # Texels of one texture, read from its header before it is decoded: a 421 KB PNG can hold
     # 12000 x 12000 texels that decode to 2.3 GiB (issue 59).  8192 x 8192 passes.
     texture_pixels: int = 1 << 26
+    # Texels of all the textures of one scene together (read from their headers as they come):
+    # forty 8192 x 8192 textures pass one by one and decode to 10 GiB (issue 59, item 4).
+    texture_pixels_total: int = 1 << 28
 
     def __post_init__(self) -> None:
-        for name in ("nodes", "depth", "primitives", "accessors", "triangles", "texture_pixels"):
+        for name in (
+            "nodes",
+            "depth",
+            "primitives",
+            "accessors",
+            "triangles",
+            "texture_pixels",
+            "texture_pixels_total",
+        ):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"scene limit {name} must be a positive integer, got {value!r}")
@@ -45,6 +56,46 @@ class SceneLimits:
             raise SceneTooCostlyError(
                 f"{what}: {count:,} is beyond the limit of {limit:,} (FARFIELD_MAX_SCENE_{name.upper()})"
             )
+
+    def texel_budget(self) -> TexelBudget:
+        """A fresh :class:`TexelBudget` of these limits, for one load of one scene."""
+        return TexelBudget(self.texture_pixels, self.texture_pixels_total)
+
+
+class TexelBudget:
+    """The texels one scene's load may decode: each texture at most ``per_texture`` and all together
+    at most ``total``, checked from each image's header before it is decoded (:meth:`take`).  One
+    budget is passed through a load wherever a texture limit goes (the loaders' ``max_pixels``).
+
+    >>> budget = TexelBudget(per_texture=100, total=150)
+    >>> budget.take((10, 10), "a")
+    >>> try:
+    ...     budget.take((10, 6), "b")
+    ... except SceneTooCostlyError as error:
+    ...     print(error)
+    b: the scene's textures reach 160 texels with it, beyond the limit of 150 for all of a scene's textures together (FARFIELD_MAX_SCENE_TEXTURE_PIXELS_TOTAL)
+    """
+
+    def __init__(self, per_texture: int | None, total: int | None) -> None:
+        self.per_texture, self.total, self.used = per_texture, total, 0
+
+    def take(self, size: tuple[int, int], name: str, count: bool = True) -> None:
+        """Count an image of ``size`` (w, h) about to be decoded (``count`` False: only check it,
+        for an image read on the way to another that is counted); raise past either limit."""
+        width, height = (int(v) for v in size)
+        texels = width * height
+        if self.per_texture is not None and texels > self.per_texture:
+            raise SceneTooCostlyError(
+                f"{name}: {width} x {height} texels is beyond the limit of {self.per_texture:,} texels per texture "
+                "(FARFIELD_MAX_SCENE_TEXTURE_PIXELS); scale it down"
+            )
+        if self.total is not None and self.used + texels > self.total:
+            raise SceneTooCostlyError(
+                f"{name}: the scene's textures reach {self.used + texels:,} texels with it, beyond the limit of "
+                f"{self.total:,} for all of a scene's textures together (FARFIELD_MAX_SCENE_TEXTURE_PIXELS_TOTAL)"
+            )
+        if count:
+            self.used += texels
 
 
 DEFAULT_LIMITS = SceneLimits()

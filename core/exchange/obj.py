@@ -412,7 +412,8 @@ def _materials(
             else:
                 try:
                     opened = PIL.Image.open(io.BytesIO(data))
-                    texture_rgba(opened, max_pixels, f"{key} {statement.file!r}")  # checks its size
+                    # its size, from the header; a scalar map is counted here, an emissive one as it is kept
+                    check_texels(opened.size, max_pixels, f"{key} {statement.file!r}", count=key != "map_ke")
                     channel = statement.options.get("imfchan", ("l",))[0].lower()
                     found = _scalar_map(opened, channel) if key != "map_ke" else texture_rgba(opened, max_pixels, key)
                 except IMAGE_ERRORS as error:
@@ -534,15 +535,16 @@ def load(
             maps = texture_maps(decode_text(mtl))
             values = pbr_values(decode_text(mtl))
     scene = parse(text.encode("utf-8"), extension, resolver, split_objects=True, group_material=True)
-    warnings.extend(_textures(scene, maps, resolver, limits.texture_pixels))
+    budget = limits.texel_budget()  # every texture of this load counts against one total
+    warnings.extend(_textures(scene, maps, resolver, budget))
     normals = {key: found for key, mesh in scene.geometry.items() if (found := file_normals(mesh)) is not None}
-    normal_maps = _normal_maps(scene, maps, normals, resolver, limits.texture_pixels, warnings)
-    materials = _materials(scene, maps, values, resolver, limits.texture_pixels, warnings)
+    normal_maps = _normal_maps(scene, maps, normals, resolver, budget, warnings)
+    materials = _materials(scene, maps, values, resolver, budget, warnings)
     objects, more = objects_from_trimesh(
         scene,
         rename=_short_names(scene),
         double_sided=double_sided(sides),
-        max_texture_pixels=limits.texture_pixels,
+        max_texture_pixels=budget,
         normals=normals,
         normal_maps=normal_maps,
         materials=materials,

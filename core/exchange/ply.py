@@ -125,7 +125,7 @@ def load(
         scene,
         rename=rename,
         double_sided=double_sided(sides),
-        max_texture_pixels=limits.texture_pixels,
+        max_texture_pixels=limits.texel_budget(),
         normals=normals,
     )
     warnings.extend(more)

@@ -118,5 +118,5 @@ def load(
     nodes = list(scene.graph.nodes_geometry)
     rename = {nodes[0]: PurePath(name).stem or name} if len(nodes) == 1 else None
     return objects_from_trimesh(
-        scene, rename=rename, double_sided=double_sided(sides), max_texture_pixels=limits.texture_pixels
+        scene, rename=rename, double_sided=double_sided(sides), max_texture_pixels=limits.texel_budget()
     )

@@ -41,6 +41,7 @@ from trimesh.visual.material import PBRMaterial, SimpleMaterial
 
 from farfield.core.colour_space import encode_rgba_u8, srgb_to_linear
 from farfield.core.errors import SceneLoadError, SceneTooCostlyError
+from farfield.core.exchange.limits import TexelBudget
 from farfield.core.exchange.normals import repair_normals, transform_normals, uv_tangents
 from farfield.core.exchange.references import FileIndex
 from farfield.core.scene import SceneObject
@@ -153,9 +154,14 @@ def parse(data: bytes, file_type: str, resolver: Resolver, **kwargs) -> trimesh.
         raise SceneLoadError(f"could not parse {file_type.upper()} data: {type(error).__name__}: {error}") from error
 
 
-def check_texels(size: tuple[int, int], max_pixels: int | None, name: str) -> None:
+def check_texels(size: tuple[int, int], max_pixels, name: str, count: bool = False) -> None:
     """Raise :class:`SceneTooCostlyError` when an image of ``size`` (w, h) has more than
-    ``max_pixels`` texels (None: no limit)."""
+    ``max_pixels`` texels (None: no limit), or, ``max_pixels`` a
+    :class:`~farfield.core.exchange.limits.TexelBudget`, when it passes that budget (counted
+    there where ``count``: the texture kept, :func:`texture_rgba`)."""
+    if isinstance(max_pixels, TexelBudget):
+        max_pixels.take(size, name, count)
+        return
     width, height = (int(v) for v in size)
     if max_pixels is not None and width * height > max_pixels:
         raise SceneTooCostlyError(
@@ -177,7 +183,7 @@ def texture_rgba(image: PIL.Image.Image, max_pixels: int | None = None, name: st
     OSError, ValueError, SyntaxError, zlib.error, PIL.Image.DecompressionBombError
         The image data is broken (PIL decodes lazily, here).
     """
-    check_texels(image.size, max_pixels, name)
+    check_texels(image.size, max_pixels, name, count=True)
     if image.mode != "RGBA":
         image = image.convert("RGBA")
     return np.asarray(image, dtype=np.uint8)

@@ -160,7 +160,7 @@ class _Reader:
     def __init__(self, document: dict, buffers: Buffers, limits: SceneLimits) -> None:
         self.document = document
         self.buffers = buffers
-        self.images = Images(buffers, limits.texture_pixels)
+        self.images = Images(buffers, limits.texel_budget())
         self.limits = limits
         self.objects: list[SceneObject] = []
         self.warnings: list[str] = []
