@@ -227,6 +227,15 @@ def material_variant(obj: SceneObject) -> tuple[str, ...]:
     return ("MATERIAL",) + (("MATERIAL_UV",) + maps if maps else ())
 
 
+def eye_depth(depth_texture, camera: Camera) -> np.ndarray:
+    """(h, w) float64 eye depth of a depth attachment rendered from ``camera`` with mesh.vert's
+    projection (top row first; ``camera.far`` where nothing was drawn), undone in float64."""
+    window = np.frombuffer(depth_texture.read(), dtype=np.float32).reshape(camera.resolution, camera.resolution)[::-1]
+    ndc = window.astype(np.float64) * 2.0 - 1.0
+    n, f = camera.near, camera.far
+    return 2.0 * f * n / ((f + n) - ndc * (f - n))
+
+
 class MeshRenderer:
     """Objects uploaded once to the process's context, drawn from any :class:`Camera`.
 
@@ -402,6 +411,12 @@ class MeshRenderer:
         orm = np.frombuffer(material.read(), dtype=np.float32).reshape(size, size, 4)[::-1, :, :3]
         light = np.frombuffer(emissive.read(), dtype=np.float32).reshape(size, size, 4)[::-1, :, :3]
         return image, normals, np.concatenate([orm, light], axis=-1)
+
+    def last_depth(self, camera: Camera) -> np.ndarray:
+        """(h, w) float64 eye depth of the last render from ``camera`` (top row first; ``camera.far``
+        where nothing was drawn), read back from the depth attachment and mesh.vert's projection
+        undone in float64 (call after :meth:`render` or a G-buffer render at that resolution)."""
+        return eye_depth(self._target(camera.resolution)[1], camera)
 
     def render(self, camera: Camera) -> np.ndarray:
         """(h, w, 4) uint8 image, top row first; alpha 255 where something was drawn."""

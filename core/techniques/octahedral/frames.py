@@ -91,16 +91,8 @@ def frame_camera(sphere: Sphere, direction: np.ndarray, resolution: int) -> Came
 
 
 def _eye_depth(renderer: MeshRenderer, camera: Camera) -> np.ndarray:
-    """(h, w) float64 eye depth of the last render from ``camera`` (top row first; ``far`` where
-    nothing was drawn), read back from the renderer's depth attachment.
-
-    ``MeshRenderer`` has no public depth read-back yet; this reads its render target for the
-    camera's resolution (raster.py ``_target``), and undoes mesh.vert's projection in float64."""
-    depth = renderer._target(camera.resolution)[1]  # noqa: SLF001 - see the docstring
-    window = np.frombuffer(depth.read(), dtype=np.float32).reshape(camera.resolution, camera.resolution)[::-1]
-    ndc = window.astype(np.float64) * 2.0 - 1.0
-    n, f = camera.near, camera.far
-    return 2.0 * f * n / ((f + n) - ndc * (f - n))
+    """(h, w) float64 eye depth of the last render from ``camera`` (:meth:`MeshRenderer.last_depth`)."""
+    return renderer.last_depth(camera)
 
 
 @dataclass(frozen=True, slots=True)

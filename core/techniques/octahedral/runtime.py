@@ -24,7 +24,7 @@ import numpy as np
 from farfield.core.impostor.impostor import Impostor
 from farfield.core.render.context import gl_context
 from farfield.core.render.programs import SHADERS, context_cache, linear_texture, park_framebuffer, srgb_texture
-from farfield.core.render.raster import Camera
+from farfield.core.render.raster import Camera, eye_depth
 from farfield.core.techniques.octahedral.mapping import blend_frames
 
 HERE = Path(__file__).resolve().parent / "shaders"
@@ -105,6 +105,11 @@ class OctahedralRenderer:
         self.vao = ctx.vertex_array(self.prog, [(self.vbo, "3f", "in_position")], self.ibo)
         self._owned += [*self.atlases, *self.heights, self.vbo, self.ibo, self.vao]
         self._targets: dict[int, tuple] = {}
+
+    def last_depth(self, camera: Camera) -> np.ndarray:
+        """(h, w) float64 eye depth the card wrote in the last render from ``camera``
+        (:func:`farfield.core.render.raster.eye_depth`)."""
+        return eye_depth(self._target(camera.resolution)[1], camera)
 
     def _target(self, resolution: int):
         if resolution not in self._targets:
