@@ -103,17 +103,10 @@ def pbr_values(mtl: str) -> dict[str, dict[str, object]]:
     {'steel': {'pr': 0.25, 'pm': 1.0, 'ke': (0.0, 0.5, 1.0)}}
     """
     out: dict[str, dict[str, object]] = {}
-    current = None
-    for line in mtl.splitlines():
-        split = line.strip().split()
-        if len(split) <= 1:
+    for material, key, _line, split in mtl_statements(mtl):
+        if key not in ("pr", "pm", "ke"):
             continue
-        key = split[0].lower()
-        if key == "newmtl":
-            current = out.setdefault(" ".join(split[1:]), {})
-            continue
-        if current is None or key not in ("pr", "pm", "ke"):
-            continue
+        current = out.setdefault(material, {})
         try:
             numbers = [float(x) for x in split[1:4]]
         except ValueError:
@@ -136,6 +129,20 @@ def texture_maps(mtl: str) -> dict[str, dict[str, str]]:
     {'leaf': {'map_kd': 'leaf.png', 'map_d': 'leaf mask.png'}}
     """
     maps: dict[str, dict[str, str]] = {}
+    for material, key, line, _split in mtl_statements(mtl):
+        if key in ("map_kd", "map_d", "norm", "map_bump", "bump", *PBR_MAPS):
+            start = line.lower().index(key) + len(key)
+            maps.setdefault(material, {})[key] = line[start:].strip()
+    return maps
+
+
+def mtl_statements(mtl: str):
+    """(material, keyword in lower case, line, its words) of each statement with an argument inside
+    a ``newmtl`` block of an MTL file, in order.
+
+    >>> list(mtl_statements("Kd 1 1 1\\nnewmtl a b\\nPr 0.5\\n"))
+    [('a b', 'pr', 'Pr 0.5', ['Pr', '0.5'])]
+    """
     current = None
     for line in mtl.splitlines():
         split = line.strip().split()
@@ -143,11 +150,9 @@ def texture_maps(mtl: str) -> dict[str, dict[str, str]]:
             continue
         key = split[0].lower()
         if key == "newmtl":
-            current = maps.setdefault(" ".join(split[1:]), {})
-        elif key in ("map_kd", "map_d", "norm", "map_bump", "bump", *PBR_MAPS) and current is not None:
-            start = line.lower().index(key) + len(key)
-            current[key] = line[start:].strip()
-    return {name: files for name, files in maps.items() if files}
+            current = " ".join(split[1:])
+        elif current is not None:
+            yield current, key, line, split
 
 
 # map options that change what a texture shows and that farfield does not apply (warned about)
