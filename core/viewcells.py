@@ -34,6 +34,36 @@ def _vec3(value, what: str) -> np.ndarray:
     return arr
 
 
+def within_range(values, what: str) -> None:
+    """Refuse (:class:`ViewCellError`) a view cell's coordinates or distances past
+    ``TOL.max_coordinate`` (1e12), the bound a scene's coordinates have: an impostor's output is
+    written in float32 relative to its viewpoint, and a cell at 1e300 planned, then failed as an
+    internal error when its GLB was written (issue 59's campaign).
+
+    >>> within_range([1e300, 0.0, 0.0], "box lo")
+    Traceback (most recent call last):
+    ...
+    farfield.core.errors.ViewCellError: box lo: coordinate magnitude 1e+300 exceeds the limit 1e+12 (scene coordinates are bounded alike)
+    """
+    arr = np.abs(np.asarray(values, dtype=np.float64).reshape(-1))
+    arr = arr[np.isfinite(arr)]  # infinities (an unbounded shaft) are each kind's own to judge
+    if arr.size and float(arr.max()) > TOL.max_coordinate:
+        raise ViewCellError(
+            f"{what}: coordinate magnitude {float(arr.max()):.6g} exceeds the limit {TOL.max_coordinate:.6g} "
+            "(scene coordinates are bounded alike)"
+        )
+
+
+def _checked(cell):
+    """``cell`` once its coordinates are within range (:func:`within_range`); what a request or a
+    command line gives passes here."""
+    for name in ("lo", "hi", "apex", "centre", "min_distance", "max_distance", "radius"):
+        value = getattr(cell, name, None)
+        if value is not None:
+            within_range(value, f"view cell {name}")
+    return cell
+
+
 def _points(points) -> np.ndarray:
     arr = np.asarray(points, dtype=np.float64)
     return arr.reshape(-1, 3)
@@ -447,6 +477,10 @@ def parse_viewcell(spec: str) -> ViewCell:
     >>> parse_viewcell("box-center:0,0,0,10").size.tolist()
     [10.0, 10.0, 10.0]
     """
+    return _checked(_parse_viewcell(spec))
+
+
+def _parse_viewcell(spec: str) -> ViewCell:
     kind, _, rest = spec.partition(":")
     try:
         nums = [float(x) for x in rest.split(",")] if rest else []
@@ -467,7 +501,12 @@ def parse_viewcell(spec: str) -> ViewCell:
 
 
 def viewcell_from_dict(data: dict) -> ViewCell:
-    """Inverse of ``BoxCell.to_dict`` / ``ShaftCell.to_dict`` (bundle manifests, API payloads)."""
+    """Inverse of ``BoxCell.to_dict`` / ``ShaftCell.to_dict`` (bundle manifests, API payloads);
+    coordinates past ``TOL.max_coordinate`` are refused (:func:`within_range`)."""
+    return _checked(_viewcell_from_dict(data))
+
+
+def _viewcell_from_dict(data: dict) -> ViewCell:
     try:
         kind = data["kind"]
         if kind == "box":
@@ -505,6 +544,7 @@ def grid_boxes(lo, hi, counts) -> list[tuple[tuple[int, int, int], BoxCell]]:
         overflow = not np.isfinite(hi - lo).all()
     if overflow:
         raise ViewCellError(f"grid box's size hi - lo is not finite in float64, got lo={lo.tolist()}, hi={hi.tolist()}")
+    within_range(np.concatenate([lo, hi]), "grid")
     step = (hi - lo) / counts
     cells = []
     for k in range(counts[2]):
