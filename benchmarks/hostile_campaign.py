@@ -452,7 +452,7 @@ def hardened_phases(
                 f"{technique} {kind}: 201, job {ended['state']}" + (f" ({'; '.join(errors)})" if errors else "")
             ] += 1
             if errors and any("internal error" in e for e in errors):
-                tally.note(phase, f"{technique} {kind}: an accepted far cell fails as an internal error: {errors[0]}")
+                tally.note(phase, f"{technique} {kind}: an accepted far cell fails in the worker: {errors[0]}")
             if ended["state"] not in ("done", "failed", "cancelled"):
                 client.post(f"/v1/jobs/{ended['id']}/cancel")
         else:
