@@ -112,6 +112,9 @@ def test_api_and_workers_share_one_image_and_the_settings(compose_file):
         "0.0.0.0",
         "--port",
         "8000",
+        "--no-server-header",
+        "--http",  # header and body read timeouts (api/read_timeouts.py), as farfield up runs it
+        "farfield.api.read_timeouts:TimedH11Protocol",
     ]
     assert "8000:8000" in api["ports"]
     assert worker["command"][0] == "worker" and gpu["command"][0] == "worker"
