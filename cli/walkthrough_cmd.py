@@ -22,13 +22,12 @@ from farfield.core.errors import FarfieldError
 from farfield.core.exchange import load_scene
 from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.placement.image_database import ImageDatabase, image_database_folder, image_walkthrough
-from farfield.core.quality.lighting import default_lights
+from farfield.core.quality.lighting import default_lights, sun
 from farfield.core.quality.lit import LitEvaluation, lit_text
 from farfield.core.quality.walkthrough import (
     generate_path,
     load_path,
     random_views,
-    sun,
     walkthrough,
     write_image_plot,
     write_placement_plot,

@@ -270,7 +270,7 @@ def test_a_lit_rebake_is_byte_identical(tmp_path):
 
 
 def test_a_viewpoint_with_nothing_both_cover_is_left_out_of_the_normal_totals():
-    from farfield.core.quality.lit import _totals
+    from farfield.core.quality.lit import lit_totals
 
     light = {"lit_error_mean": 1.0, "lit_error_p99": 2.0, "lit_ssim": 1.0, "flat_error_mean": 3.0,
              "flat_error_p99": 4.0, "unlit_error_mean": 1.0, "unlit_error_p99": 2.0}  # fmt: skip
@@ -278,6 +278,6 @@ def test_a_viewpoint_with_nothing_both_cover_is_left_out_of_the_normal_totals():
             "normal_error_interior_median": 4.0, "normal_error_interior_p95": 9.0, "normal_error_smooth_median": 2.0,
             "normal_error_smooth_p95": 5.0, "smooth_share": 0.5, "flat_normal_error_median": 30.0}  # fmt: skip
     empty = seen | {"both_pixels": 0} | {k: None for k in seen if k.startswith(("normal_error", "flat_normal"))}
-    totals = _totals([seen, empty], 1)
+    totals = lit_totals([seen, empty], 1)
     assert totals["normal_error_median"] == 4.0 and totals["normal_error_smooth_median"] == 2.0
     assert totals["flat_normal_error_median"] == 30.0 and totals["normal_error_p95"] == 9.0

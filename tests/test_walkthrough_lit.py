@@ -21,8 +21,8 @@ from click.testing import CliRunner
 from farfield.cli.main import _register, cli
 from farfield.core.impostor.database import INDEX_NAME, ImpostorDatabase, write_database
 from farfield.core.procedural import city
-from farfield.core.quality.lighting import default_lights, shade, view_directions
-from farfield.core.quality.walkthrough import generate_path, sun, walkthrough
+from farfield.core.quality.lighting import default_lights, shade, sun, view_directions
+from farfield.core.quality.walkthrough import generate_path, walkthrough
 from farfield.core.render.context import gl_context
 from farfield.core.render.deferred import DeferredShader
 from farfield.core.render.raster import Camera, MeshRenderer

@@ -318,3 +318,19 @@ def geometry_roughness(normal: np.ndarray, camera) -> np.ndarray:
     dx = np.abs(nv[:, right] - nv[:, left])
     dy = np.abs(nv[high] - nv[low])
     return np.maximum(dx, dy).max(axis=-1)[::-1]
+
+
+def sun(azimuth_deg: float = 60.0, elevation_deg: float = 35.0) -> DirectionalLight:
+    """One white sun of the lit evaluation's intensity (:data:`DIRECT_INTENSITY`),
+    +y up, toward ``(cos e cos a, sin e, -cos e sin a)``: azimuth 0 along +x, 90° along up × x =
+    -z, as :func:`default_lights` and the 3D view's ``?azimuth=`` and
+    ``?elevation=`` (api/dashboard/viewer.js; its defaults, 60° and 35°, are these).
+
+    >>> [bool(np.allclose(sun(a, 35.0).direction, d.direction)) for a, d in zip((0, 120, 240), default_lights()[1:4])]
+    [True, True, True]
+    >>> sun(0.0, 90.0).direction.round(6).tolist()
+    [0.0, 1.0, -0.0]
+    """
+    a, e = math.radians(azimuth_deg), math.radians(elevation_deg)
+    direction = np.array([math.cos(e) * math.cos(a), math.sin(e), -math.cos(e) * math.sin(a)])
+    return DirectionalLight(direction / np.linalg.norm(direction), np.ones(3), DIRECT_INTENSITY)

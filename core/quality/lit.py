@@ -263,7 +263,7 @@ def compare_lit(
     }
 
 
-def _totals(rows: list[dict], light_count: int) -> dict:
+def lit_totals(rows: list[dict], light_count: int) -> dict:
     """Per light, the figures pooled over ``rows`` (means weighted by the pixels both cover, p99
     the worst viewpoint's, SSIM averaged); the normal errors' worst viewpoint and their mean; and
     the ratios the issue's targets are stated in: the worst ``lit_to_unlit`` (lit error over
@@ -378,7 +378,7 @@ def evaluate_lit_views(
             samples,
         )
         rows.append(row | {"inside": row["kind"] != "outside", "stats": stats})
-    totals = _totals([r["stats"] for r in rows if r["inside"]], len(lights))
+    totals = lit_totals([r["stats"] for r in rows if r["inside"]], len(lights))
     described = [{"direction": light.direction.tolist(), "intensity": float(light.intensity)} for light in lights]
     return LitEvaluation(rows, totals, described, time.perf_counter() - start)
 

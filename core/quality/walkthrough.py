@@ -30,13 +30,10 @@ from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.quality.evaluation import compare_images
 from farfield.core.quality.lighting import (
     AMBIENT,
-    DIRECT_INTENSITY,
-    DirectionalLight,
     shade,
     view_directions,
 )
-from farfield.core.quality.lit import _totals as lit_totals
-from farfield.core.quality.lit import compare_lit
+from farfield.core.quality.lit import compare_lit, lit_totals
 from farfield.core.render.deferred import DeferredShader
 from farfield.core.render.raster import MeshRenderer
 from farfield.core.scene import Scene
@@ -267,23 +264,6 @@ def image_errors(frames: list[dict]) -> dict:
     }
 
 
-def sun(azimuth_deg: float = 60.0, elevation_deg: float = 35.0) -> DirectionalLight:
-    """One white sun of the lit evaluation's intensity (:data:`~farfield.core.quality.lighting.DIRECT_INTENSITY`),
-    +y up, toward ``(cos e cos a, sin e, -cos e sin a)``: azimuth 0 along +x, 90° along up × x =
-    -z, as :func:`~farfield.core.quality.lighting.default_lights` and the 3D view's ``?azimuth=`` and
-    ``?elevation=`` (api/dashboard/viewer.js; its defaults, 60° and 35°, are these).
-
-    >>> from farfield.core.quality.lighting import default_lights
-    >>> [bool(np.allclose(sun(a, 35.0).direction, d.direction)) for a, d in zip((0, 120, 240), default_lights()[1:4])]
-    [True, True, True]
-    >>> sun(0.0, 90.0).direction.round(6).tolist()
-    [0.0, 1.0, -0.0]
-    """
-    a, e = math.radians(azimuth_deg), math.radians(elevation_deg)
-    direction = np.array([math.cos(e) * math.cos(a), math.sin(e), -math.cos(e) * math.sin(a)])
-    return DirectionalLight(direction / np.linalg.norm(direction), np.ones(3), DIRECT_INTENSITY)
-
-
 def _seconds(work: Callable[[], object]) -> float:
     start = time.perf_counter()
     work()
@@ -359,7 +339,7 @@ def lit_summary(frames: list[dict], lights) -> dict:
     ``sources`` (each light's direction and intensity), the frames drawn lit and how many of them
     as flat cards (impostors without normal pages; then ``note`` says so), the mean times, and,
     where compared, the lit evaluation's totals over the frames
-    (:func:`farfield.core.quality.lit` ``_totals``: per light the errors pooled over the pixels
+    (:func:`farfield.core.quality.lit.lit_totals`: per light the errors pooled over the pixels
     both cover, the ratios, the normal errors), and ``far``, the same over the far field only."""
     rows = [f["lit"] for f in frames if "lit" in f]
     out = {
