@@ -93,6 +93,9 @@ _UNLIT = "KHR_materials_unlit"
 # A point impostor's directional colours (seed 001 §5.3), for a runtime that knows them (see
 # :func:`_point_primitive`); viewers that do not show the points' COLOR_0.
 POINT_APPEARANCE = "FARFIELD_point_appearance"
+# An octahedral impostor's frame grid on its fallback card's primitive
+# (farfield.core.techniques.octahedral.payload.octahedral_extension), for a runtime that blends frames.
+OCTAHEDRAL_EXTENSION = "FARFIELD_octahedral_impostor"
 
 # Corner order TL, TR, BR, BL (0..3): the triangles TL-BL-BR and TL-BR-TR (their winding as seen
 # from the reference viewpoint is then set by _face_viewpoint).

@@ -37,7 +37,7 @@ from PIL import Image, UnidentifiedImageError
 
 from farfield.core.errors import BundleFormatError
 from farfield.core.impostor.depth import DEPTH_EXTENSION
-from farfield.core.impostor.glb import page_png, write_glb
+from farfield.core.impostor.glb import OCTAHEDRAL_EXTENSION, page_png, write_glb
 
 __all__ = [
     "CODECS",
@@ -245,10 +245,13 @@ def _compress(data: bytes, textures: str, geometry: str, codec: str) -> bytes:
     # whatever the codec asked (ETC1S's shared endpoints bend normals by degrees), linear transfer.
     # So do the material pages (glTF's ORM packing: occlusion, roughness, metallic), linear data
     # too; an emissive page is a colour, sRGB in the codec asked.
-    normal_images = _normal_images(document) | _material_images(document)
+    # An octahedral impostor's frame pages of normals (world, depth in alpha) and materials, which
+    # only its extension names, are such data too.
+    frame_data = _octahedral_images(document, ("normal", "material"))
+    normal_images = _normal_images(document) | _material_images(document) | frame_data
     # Normal textures whose alpha holds depth (farfield.core.impostor.depth): UASTC at quality 100,
     # which keeps the alpha within 3 levels at the 99th percentile (the default 50: 20).
-    depth_images = _normal_images(document, DEPTH_EXTENSION)
+    depth_images = _normal_images(document, DEPTH_EXTENSION) | _octahedral_images(document, ("normal",))
     # The pages first: a page grown to whole 4 x 4 blocks scales the texture coordinates that use it.
     pages: list[tuple[bytes, bytes | None]] = []  # per image: (PNG to keep or b"", KTX2 or None)
     grown: dict[int, tuple[float, float]] = {}  # image -> (u, v) scale
@@ -372,6 +375,25 @@ def _normal_images(document: dict, extension: str | None = None) -> set[int]:
             source = textures[info["index"]].get("source")
             if isinstance(source, int):
                 found.add(source)
+    return found
+
+
+def _octahedral_images(document: dict, sets: tuple[str, ...]) -> set[int]:
+    """The images of the page ``sets`` (e.g. ``"normal"``) that an octahedral impostor's extension
+    (:data:`farfield.core.impostor.glb.OCTAHEDRAL_EXTENSION`, on a primitive) names by texture."""
+    textures = document.get("textures", [])
+    found = set()
+    for mesh in document.get("meshes", []):
+        for primitive in mesh.get("primitives", []):
+            pages = primitive.get("extensions", {}).get(OCTAHEDRAL_EXTENSION, {}).get("pages", {})
+            for name in sets:
+                for index in pages.get(name, []) if isinstance(pages, dict) else []:
+                    if (
+                        isinstance(index, int)
+                        and 0 <= index < len(textures)
+                        and isinstance(textures[index].get("source"), int)
+                    ):
+                        found.add(textures[index]["source"])
     return found
 
 

@@ -27,6 +27,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from farfield.core.errors import BundleFormatError
+from farfield.core.impostor.glb import OCTAHEDRAL_EXTENSION  # on the fallback card's primitive, used, never required
 from farfield.core.impostor.impostor import (
     PAYLOAD_KINDS,
     Impostor,
@@ -140,10 +141,10 @@ class OctahedralPayload(_PayloadBase):
             ):
                 raise BundleFormatError(f"octahedral payload: a frame's cell lies outside page {index} {page.shape}")
 
-    def card(self, frame: int, page_size: tuple[int, int]) -> QuadPayload:
+    def card(self, frame: int, page_size: tuple[int, int], page: int = 0) -> QuadPayload:
         """Frame ``frame`` as one quad through the centre, facing its direction, textured with its
-        texel rectangle of its page (``page_size``: (width, height)), page index 0: what a viewer
-        without the runtime draws (the GLB's fallback)."""
+        texel rectangle of its page (``page_size``: (width, height)), page index ``page``: what a
+        viewer without the runtime draws (the GLB's fallback)."""
         right, up, _ = self.axes[frame]
         c, r = self.centre, self.radius
         corners = np.array(
@@ -153,7 +154,7 @@ class OctahedralPayload(_PayloadBase):
         x0, y0 = self.texel[frame].astype(np.float64)
         x1, y1 = x0 + self.frame_resolution, y0 + self.frame_resolution
         uv = np.array([[x0 / w, y0 / h], [x1 / w, y0 / h], [x1 / w, y1 / h], [x0 / w, y1 / h]])
-        return QuadPayload(corners[None], uv[None], np.zeros(1, np.int64), np.zeros(1, np.int64))
+        return QuadPayload(corners[None], uv[None], np.full(1, page, np.int64), np.zeros(1, np.int64))
 
     def nearest_frame(self, direction) -> int:
         """The frame whose direction is nearest ``direction`` (3,)."""
@@ -173,10 +174,16 @@ class OctahedralPayload(_PayloadBase):
         return replace(impostor, pages=pages, payload=self.card(frame, pages[0].shape[1::-1]), channels=channels)
 
     def glb_parts(self, impostor: Impostor, glb) -> Any:
-        """The fallback a glTF viewer draws (:meth:`fallback`): one card, lit with the normal page
-        where kept."""
-        shown = self.fallback(impostor)
-        return shown.payload.glb_parts(shown, glb)
+        """The fallback a glTF viewer draws (:meth:`fallback`: one card, lit with the normal page
+        where kept) over every page, its primitive carrying the frame grid for a runtime that blends
+        (:data:`OCTAHEDRAL_EXTENSION`, :func:`octahedral_extension`)."""
+        from dataclasses import replace
+
+        frame = self.nearest_frame(np.asarray(impostor.reference_viewpoint) - self.centre)
+        page = int(self.page[frame])
+        card = self.card(frame, impostor.pages[page].shape[1::-1], page)
+        parts = card.glb_parts(replace(impostor, payload=card), glb)
+        return octahedral_extension(self, impostor, glb, parts)
 
     def renderer(self, impostor: Impostor):
         """The reference runtime: :class:`farfield.core.techniques.octahedral.runtime.OctahedralRenderer`."""
@@ -192,6 +199,65 @@ class OctahedralPayload(_PayloadBase):
         from farfield.core.techniques.octahedral.runtime import OctahedralRenderer
 
         return OctahedralRenderer(impostor, gbuffer=True, normal_pages=normals)
+
+
+# glTF enums (spec, "accessor.componentType").
+_UNSIGNED_SHORT, _FLOAT = 5123, 5126
+# The GLB's image names (core/impostor/glb.py) -> the extension's page sets: the colour pages are
+# the fallback's base-colour textures, the material and emissive pages (where kept) its own.
+_PAGE_SETS = (("atlas-", "colour"), ("material-", "material"), ("emissive-", "emissive"))
+
+
+def _accessor(glb, values: np.ndarray, dtype: str, component: int, kind: str) -> int:
+    """A glTF accessor of ``values`` (count rows of ``kind``) in the GLB's BIN chunk; its index."""
+    view = glb.binary.add(np.ascontiguousarray(values, dtype=dtype).tobytes())
+    glb.accessors.append({"bufferView": view, "componentType": component, "count": int(values.shape[0]), "type": kind})
+    return len(glb.accessors) - 1
+
+
+def octahedral_extension(payload: OctahedralPayload, impostor: Impostor, glb, parts):
+    """``parts`` (the fallback card's :class:`farfield.core.impostor.glb.GlbParts` over every page)
+    with the frame grid as :data:`OCTAHEDRAL_EXTENSION` on the card's primitive (as ``FARFIELD_point_appearance``: the validator warns of an unlit material with another extension):
+    the grid's figures, the sphere in the node's frame, per frame its axes (``MAT3`` float32, columns
+    right, up, direction), first texel (``VEC2`` uint16) and page (``SCALAR`` uint16) as accessors,
+    and the texture indices of each page set (textures are the images, one to one): ``colour``,
+    ``material``, ``emissive`` as the fallback's images, and ``normal``, the raw normal pages (world
+    normals ``n * 0.5 + 0.5``, alpha the depth byte with depth), added here, as the fallback's
+    normal textures are tangent-space."""
+    from farfield.core.impostor.glb import GlbParts, page_png
+
+    images = list(parts.images)
+    sets: dict[str, list[int]] = {}
+    for prefix, name in _PAGE_SETS:
+        found = [index for index, image in enumerate(images) if image.get("name", "").startswith(prefix)]
+        if found:
+            sets[name] = found
+    if "normal" in impostor.channels:
+        first = len(images)
+        images += [
+            {"bufferView": glb.binary.add(page_png(p)), "mimeType": "image/png", "name": f"frames-normal-{i:03d}"}
+            for i, p in enumerate(impostor.channels["normal"])
+        ]
+        sets["normal"] = list(range(first, len(images)))
+    extension = {
+        "grid": payload.n,
+        "hemisphere": payload.hemisphere,
+        "frameResolution": payload.frame_resolution,
+        "padding": payload.padding,
+        "depth": payload.depth and "normal" in impostor.channels,
+        "centre": [float(x) for x in payload.centre - glb.viewpoint],
+        "radius": payload.radius,
+        "frames": {
+            "axes": _accessor(glb, payload.axes.reshape(-1, 9), "<f4", _FLOAT, "MAT3"),
+            "texels": _accessor(glb, payload.texel, "<u2", _UNSIGNED_SHORT, "VEC2"),
+            "pages": _accessor(glb, payload.page, "<u2", _UNSIGNED_SHORT, "SCALAR"),
+        },
+        "pages": sets,
+    }
+    primitives = [dict(p) for p in parts.primitives]  # one: the card's
+    for primitive in primitives:
+        primitive["extensions"] = {**primitive.get("extensions", {}), OCTAHEDRAL_EXTENSION: extension}
+    return GlbParts(primitives, parts.materials, images, (*parts.extensions, OCTAHEDRAL_EXTENSION))
 
 
 if OctahedralPayload.kind not in PAYLOAD_KINDS:
