@@ -67,3 +67,17 @@ def test_no_page_names_a_placement_algorithm(page):
     code = _code(page) if page.suffix == ".js" else page.read_text(encoding="utf-8")
     for name in ALGORITHMS:
         assert not re.search(rf"[\"'`]{re.escape(name)}[\"'`]", code), f"{page.name} names the algorithm {name!r}"
+
+
+def test_the_octahedral_runtime_is_a_module_a_three_js_engine_can_copy():
+    """``octahedral-impostor.js`` imports three.js alone (no dashboard module: a user copies it into
+    an engine), exports what the docs show, and the 3D view draws a GLB's octahedral cards with it."""
+    code = _code(DASHBOARD / "octahedral-impostor.js")
+    assert re.findall(r"^import .*? from \"([^\"]+)\";", code, re.M) == ["three"]
+    exported = set(EXPORT.findall(code))
+    assert {"octahedralImpostors", "OctahedralImpostor", "readGrid", "blendFrames", "OCTAHEDRAL_EXTENSION"} <= exported
+    viewer = _code(DASHBOARD / "viewer.js")
+    assert (
+        '{octahedralImpostors} from "./octahedral-impostor.js"' in viewer
+        and "await octahedralImpostors(gltf)" in viewer
+    )

@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 JS_DIR = Path(__file__).resolve().parent / "js"
+DASHBOARD_DIR = Path(__file__).resolve().parents[1] / "api" / "dashboard"
 NODE_MODULES = JS_DIR / "node_modules"
 THREE_MODULE = NODE_MODULES / "three" / "build" / "three.module.js"
 VALIDATOR_MODULE = NODE_MODULES / "gltf-validator" / "index.js"
@@ -148,6 +149,8 @@ class ThreeRenderer:
             file = NODE_MODULES / "three" / path[len("/three/") :]
         elif path.startswith("/js/"):
             file = JS_DIR / path[len("/js/") :]
+        elif path.startswith("/dashboard/"):  # the modules the service ships (octahedral-impostor.js)
+            file = DASHBOARD_DIR / path[len("/dashboard/") :]
         elif path.startswith("/file/"):
             file = Path(path[len("/file") :])
         else:
@@ -168,6 +171,8 @@ class ThreeRenderer:
         lights=None,
         ambient=None,
         output: str = "colour",
+        octahedral: bool = False,
+        occluder: dict | None = None,
     ) -> list[np.ndarray]:
         """(h, w, 4) uint8 images of the file at ``path`` (.glb, .gltf, .obj with its MTL, .ply),
         top row first, alpha 255 where drawn, 0 elsewhere; one per camera of ``cameras`` (a
@@ -194,6 +199,12 @@ class ThreeRenderer:
         output.  ``output="normal"`` instead writes each drawn pixel's world-space shading normal
         ``n`` (after the material's normal map; flipped on the back of a double-sided face) as
         ``round((n * 0.5 + 0.5) * 255)``, with no sRGB encoding; :func:`decode_normals` reads it.
+
+        ``octahedral=True`` draws a GLB's ``FARFIELD_octahedral_impostor`` cards with the module
+        the service ships (``api/dashboard/octahedral-impostor.js``, served as ``/dashboard/``),
+        as an engine would, instead of their fallback card.  ``occluder`` (``centre``, ``normal``,
+        ``size``: world) adds an opaque unlit magenta square there, to see where what is drawn
+        writes its depth.
         """
         path = Path(path)
         cameras = list(cameras) if isinstance(cameras, (list, tuple)) else [cameras]
@@ -217,6 +228,10 @@ class ThreeRenderer:
             spec["lit"] = lit_spec(lights, ambient)
         if output == "normal":
             spec["output"] = "normal"
+        if octahedral:
+            spec["octahedral"] = True
+        if occluder is not None:
+            spec["occluder"] = {k: [float(x) for x in v] if k != "size" else float(v) for k, v in occluder.items()}
         before = len(self.errors)
         encoded = self.page.evaluate("spec => window.farfieldRender(spec)", spec)
         if len(self.errors) > before:

@@ -36,6 +36,7 @@ import * as THREE from "three";
 import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
 
 import {api as request, fetchPlacementAlgorithms} from "./api.js";
+import {octahedralImpostors} from "./octahedral-impostor.js";
 
 const CACHED_CELLS = 64; // cells kept loaded (the active one and its neighbours always are)
 const CACHED_GROUPS = 32; // what-to-draw groups kept built (a placement job makes one per lookup answer)
@@ -82,7 +83,11 @@ async function api(path, {binary = false} = {}) {
 }
 
 async function parseGlb(buffer) {
-  return (await new GLTFLoader().parseAsync(buffer, "")).scene;
+  // A card carrying FARFIELD_octahedral_impostor is drawn by the module the service ships
+  // (octahedral-impostor.js: the three frames around the view direction blended), not as its fallback.
+  const gltf = await new GLTFLoader().parseAsync(buffer, "");
+  await octahedralImpostors(gltf);
+  return gltf.scene;
 }
 
 // ---------------------------------------------------------------- drawing
@@ -127,7 +132,7 @@ const shading = new WeakMap(); // mesh -> {lit, unlit}: its material (or materia
 
 const unlitLooks = new WeakMap(); // a lit material -> its unlit look, made once (the clones of a cell share it)
 function unlitOf(material) {
-  if (material.isMeshBasicMaterial) return material;
+  if (material.isMeshBasicMaterial || material.isShaderMaterial) return material; // a runtime's own program (octahedral-impostor.js) stays
   if (!unlitLooks.has(material)) unlitLooks.set(material, unlit(material));
   return unlitLooks.get(material);
 }
@@ -381,6 +386,7 @@ function evict(keep, active) {
     load.then(({root, near}) => {
       root.traverse((node) => {
         if (!node.isMesh) return;
+        if (node.isOctahedralImpostor) { node.dispose(); return; }
         node.geometry.dispose();
         for (const m of [].concat(node.material)) { m.map?.dispose(); m.normalMap?.dispose(); unlitLooks.get(m)?.dispose(); m.dispose(); }
       });

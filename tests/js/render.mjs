@@ -18,6 +18,11 @@
 //   THREE.DirectionalLight per light (direction: unit, from the surface toward the light, world;
 //   color: linear RGB; intensity: three.js's) and an AmbientLight of linear colour `ambient`, no
 //   environment, no tone mapping, sRGB output (farfield.core.quality.lighting shades the same way).
+// spec.octahedral === true draws a GLB's FARFIELD_octahedral_impostor cards with farfield's three.js
+//   module (api/dashboard/octahedral-impostor.js, its own ShaderMaterial, left as it is), not their
+//   fallback card.
+// spec.occluder = {centre, normal, size} adds an opaque square (unlit magenta, both sides) of side
+//   `size` through `centre` facing `normal` (world): what writes depth meets it where it lies.
 // spec.output === "normal" draws each pixel's world-space shading normal n (after the material's
 //   normalMap and normalScale, flipped on back faces of double-sided materials) as n * 0.5 + 0.5,
 //   written raw (no sRGB encoding), keeping alphaTest, map alpha and side.
@@ -28,6 +33,7 @@ import { MeshoptDecoder } from "three/addons/libs/meshopt_decoder.module.js";
 import { MTLLoader } from "three/addons/loaders/MTLLoader.js";
 import { OBJLoader } from "three/addons/loaders/OBJLoader.js";
 import { PLYLoader } from "three/addons/loaders/PLYLoader.js";
+import { octahedralImpostors } from "/dashboard/octahedral-impostor.js";
 
 const canvas = document.createElement("canvas");
 document.body.appendChild(canvas);
@@ -151,6 +157,7 @@ function convertAll(root, spec) {
   // or as normals (pointSized), else GLTFLoader's own PointsMaterial.
   const lit = !!spec.lit || spec.output === "normal";
   root.traverse((node) => {
+    if (node.isOctahedralImpostor) return; // its own program
     if (!node.isMesh && !(node.isPoints && lit)) return;
     const hasColors = !!node.geometry.getAttribute("color");
     const one = (m) => {
@@ -167,11 +174,13 @@ function convertAll(root, spec) {
 
 async function load(spec) {
   const key = JSON.stringify([spec.url, spec.mtl, spec.alphaCutoff, spec.mapReplacesColor, spec.mipmaps, spec.sides,
-    !!spec.lit, spec.output || "color"]);
+    !!spec.lit, spec.output || "color", !!spec.octahedral]);
   if (loaded.has(key)) return loaded.get(key);
   let root;
   if (spec.kind === "gltf") {
-    root = (await new GLTFLoader().setKTX2Loader(ktx2).setMeshoptDecoder(MeshoptDecoder).loadAsync(spec.url)).scene;
+    const gltf = await new GLTFLoader().setKTX2Loader(ktx2).setMeshoptDecoder(MeshoptDecoder).loadAsync(spec.url);
+    if (spec.octahedral) await octahedralImpostors(gltf);
+    root = gltf.scene;
   } else if (spec.kind === "obj") {
     const obj = new OBJLoader();
     if (spec.mtl) {
@@ -236,6 +245,16 @@ window.farfieldRender = async (spec) => {
     }
     scene.add(new THREE.AmbientLight(new THREE.Color().setRGB(...spec.lit.ambient, THREE.LinearSRGBColorSpace), 1));
   }
+  let occluder = null;
+  if (spec.occluder) {
+    const o = spec.occluder;
+    occluder = new THREE.Mesh(new THREE.PlaneGeometry(o.size, o.size),
+      new THREE.MeshBasicMaterial({color: new THREE.Color().setRGB(1, 0, 1, THREE.LinearSRGBColorSpace), side: THREE.DoubleSide}));
+    occluder.position.set(...o.centre);
+    occluder.quaternion.setFromUnitVectors(new THREE.Vector3(0, 0, 1), new THREE.Vector3(...o.normal).normalize());
+    occluder.updateMatrixWorld(true);
+    scene.add(occluder);
+  }
   const images = [];
   for (const c of spec.cameras) {
     renderer.setSize(c.resolution, c.resolution, false);
@@ -245,6 +264,7 @@ window.farfieldRender = async (spec) => {
     images.push(base64(pixels));
   }
   scene.remove(root);
+  if (occluder) { occluder.geometry.dispose(); occluder.material.dispose(); }
   return images;
 };
 
