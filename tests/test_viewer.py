@@ -344,3 +344,58 @@ def test_the_routes_the_view_reads(client, service, envmap_job, city_glb):
         assert anonymous.get("/dashboard/three/examples/jsm/loaders/GLTFLoader.js").status_code == 200
         for outside in ("package.json", "build/../package.json", "src/Three.js", "%2e%2e/%2e%2e/api/app.py"):
             assert anonymous.get(f"/dashboard/three/{outside}").status_code == 404, outside
+
+
+def test_an_octahedral_job_is_drawn_by_the_shipped_module_as_its_reference_runtime(browser, service, client, tmp_path):
+    """A part job of technique ``octahedral`` (one outside-sphere cell): the view finds the cell
+    holding the camera, draws the GLB's card with ``octahedral-impostor.js`` (the three frames
+    blended, depth marched), as ``Payload.renderer`` draws the bundle, within one pixel."""
+    from test_octahedral import tree
+    from test_octahedral_threejs import cameras
+
+    from farfield.core.techniques.octahedral.frames import Sphere
+
+    scene_path = write_scene(tree(), tmp_path, "glb", stem="tree")
+    scene_id = upload(client, scene_path).json()["id"]
+    sphere = Sphere.of_objects(load_scene(scene_path).objects)
+    cell = {
+        "kind": "outside-sphere",
+        "centre": sphere.centre.tolist(),
+        "radius": 3.0 * sphere.radius,
+        "hemisphere": False,
+    }
+    options = {"grid": 9, "frame_resolution": 32, "channels": "albedo+normal+depth"}
+    created = client.post(
+        "/v1/jobs",
+        json={
+            "scene_id": scene_id,
+            "job_type": "octahedral",
+            "viewcells": [cell],
+            "resolution": 64,
+            "options": options,
+        },
+    )
+    assert created.status_code == 201, created.text
+    job = wait_for_job(client, created.json()["id"], timeout=180)
+    assert job["state"] == "done", job["errors"]
+    path = tmp_path / "database.zip"
+    path.write_bytes(client.get(f"/v1/jobs/{job['id']}/database.zip").content)
+    page = open_viewer(browser, service, f"job={job['id']}&size={SIZE}&paused=1")
+    try:
+        with ImpostorDatabase(path) as db:
+            impostor = db.impostor(0)
+            views = cameras(impostor, 3.5 * sphere.radius, SIZE, 7)[5:9]  # four at 45°, 3.5 radii away
+            with impostor.payload.renderer(impostor) as reference:
+                for camera in views:
+                    drawn, state = show(page, camera)
+                    assert state["key"] == "cell 0" and state["triangles"] == 2, state  # one card, not the scene
+                    figures = compare(drawn, reference.render(camera))
+                    assert figures["farfield_pixels"] > 1000, figures
+                    assert (
+                        figures["three_beyond_1px"] + figures["farfield_beyond_1px"]
+                        <= 0.002 * figures["farfield_pixels"]
+                    ), figures
+                    assert figures["colour_mean"] < 1.0, figures
+        assert page.js_errors == []
+    finally:
+        page.context.close()

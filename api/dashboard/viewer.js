@@ -255,17 +255,32 @@ async function loadJob(jobId) {
   placeLight();
 }
 
+function cellHolds(vc, p) {
+  // Whether view cell ``vc`` holds p, as core/viewcells.py's contains: a box (closed), or the
+  // outside of a sphere (an octahedral impostor's cell: at least its radius from the centre; a
+  // hemisphere's, not below the horizontal plane through the centre, world +z up).
+  if (vc?.kind === "box") return p.x >= vc.lo[0] && p.x <= vc.hi[0] && p.y >= vc.lo[1] && p.y <= vc.hi[1] && p.z >= vc.lo[2] && p.z <= vc.hi[2];
+  if (vc?.kind === "outside-sphere") {
+    const d = [p.x - vc.centre[0], p.y - vc.centre[1], p.z - vc.centre[2]];
+    return Math.hypot(...d) >= vc.radius * (1 - 1e-12) && (!vc.hemisphere || d[2] >= -1e-12 * vc.radius);
+  }
+  return false;
+}
+
+function cellCentre(vc) {
+  // Where the view starts in a cell: a box's centre; outside a sphere, its nearest distance 45°
+  // above the horizon towards +x (core/viewcells.py's SphereOutsideCell.center).
+  if (vc.kind === "box") return vc.lo.map((l, i) => 0.5 * (l + vc.hi[i]));
+  return [vc.centre[0] + vc.radius * Math.SQRT1_2, vc.centre[1], vc.centre[2] + vc.radius * Math.SQRT1_2];
+}
+
 function cellAt(p) {
-  // The cell whose box holds p (boxes are closed: the lowest index where they share a face), as
+  // The cell that holds p (boxes are closed: the lowest index where they share a face), as
   // core/impostor/database.py's find; a cell without a result too (the caller says so).  Shaft
   // view cells (explicit cells of a part job) are not looked up here.
   let best = null;
   for (const cell of view.cells.values()) {
-    const vc = cell.viewcell;
-    if (!vc || vc.kind !== "box") continue;
-    if (p.x >= vc.lo[0] && p.x <= vc.hi[0] && p.y >= vc.lo[1] && p.y <= vc.hi[1] && p.z >= vc.lo[2] && p.z <= vc.hi[2]) {
-      if (best === null || cell.index < best.index) best = cell;
-    }
+    if (cellHolds(cell.viewcell, p) && (best === null || cell.index < best.index)) best = cell;
   }
   return best;
 }
@@ -527,7 +542,7 @@ function setDepthRange() {
   for (const x of [box.min.x, box.max.x]) for (const y of [box.min.y, box.max.y]) for (const z of [box.min.z, box.max.z]) corners.push(new THREE.Vector3(x, y, z));
   const far = Math.max(...corners.map((c) => c.distanceTo(camera.position)), 1e-6) * 1.5;
   const cell = view.kind === "grid" ? cellAt(camera.position) : null;
-  const size = cell ? Math.min(...cell.viewcell.hi.map((h, i) => h - cell.viewcell.lo[i])) : 0;
+  const size = cell?.viewcell.kind === "box" ? Math.min(...cell.viewcell.hi.map((h, i) => h - cell.viewcell.lo[i])) : 0;
   camera.near = size > 0 ? 0.01 * size : far * 1e-5;
   camera.far = Math.max(far, 2 * camera.near);
 }
@@ -544,10 +559,11 @@ function startPose() {
   controls.speed = Math.max(scale / 20, 1e-6);
   const given = ["x", "y", "z"].map(number);
   const cellIndex = number("cell");
-  const first = [...view.cells.values()].find((c) => c.viewcell?.kind === "box" && c.bundle);
+  const known = (c) => ["box", "outside-sphere"].includes(c?.viewcell?.kind);
+  const first = [...view.cells.values()].find((c) => known(c) && c.bundle);
   const cell = cellIndex !== null ? view.cells.get(cellIndex) : first;
   if (given.every((v) => v !== null)) camera.position.set(...given);
-  else if (cell?.viewcell?.kind === "box") camera.position.set(...cell.viewcell.lo.map((l, i) => 0.5 * (l + cell.viewcell.hi[i])));
+  else if (known(cell)) camera.position.set(...cellCentre(cell.viewcell));
   else if (view.index.placement?.parameters?.view_space || view.index.view_space) {
     const [lo, hi] = view.index.placement?.parameters?.view_space || view.index.view_space; // [lo, hi]
     camera.position.set(...lo.map((l, i) => 0.5 * (l + hi[i])));
