@@ -131,6 +131,11 @@ def _instances(
     return out
 
 
+def _primitive_name(base: str, k: int, count: int) -> str:
+    """The object name of a mesh's k-th of ``count`` primitives (module docstring)."""
+    return base if count == 1 else f"{base}.p{k}"
+
+
 def _mesh_use(node: dict) -> tuple:
     """What makes two nodes' objects the same prototype before any geometry is read: the mesh and
     the node's morph weights (which change its vertices)."""
@@ -287,14 +292,19 @@ class _Reader:
             ]
             locals_, key = [], None
             if shared:  # the mesh in its own space, once: what its instances share
-                locals_ = [None if part is None else self.build(f"{base}.local", part, np.eye(4)) for part in parts]
+                locals_ = [
+                    None
+                    if part is None
+                    else self.build(f"{_primitive_name(base, k, len(parts))}.local", part, np.eye(4))
+                    for k, part in enumerate(parts)
+                ]
                 key = prototype_key([obj for obj in locals_ if obj is not None])
                 self.prototypes[use] = (parts, locals_, key)
         many_instances = len(worlds) > 1
         for k, part in enumerate(parts):
             if part is None:
                 continue
-            name = base if len(primitives) == 1 else f"{base}.p{k}"
+            name = _primitive_name(base, k, len(primitives))
             for i, world in enumerate(worlds):
                 instance = None if key is None else (key, world, locals_[k])
                 self.add(self.unique(f"{name}@{i}" if many_instances else name), part, world, instance)
