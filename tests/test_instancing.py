@@ -122,3 +122,41 @@ def test_a_moved_impostor_draws_its_instance_as_the_instance_s_own_bake_does():
             truth, drawn = geometry.render(camera)[..., 3] > 0, stand_in.render(camera)[..., 3] > 0
         misses[name] = int((truth != drawn).sum()) / int(truth.sum())
     assert misses["moved"] < 1.5 * misses["own"] + 0.01, misses
+
+
+def test_the_glb_draws_one_card_for_every_instance(tmp_path, gltf_validator, threejs):
+    """A prototype's bundle records its instances once; its GLB is one card mesh drawn by
+    ``EXT_mesh_gpu_instancing`` (valid: 0 errors, 0 warnings) and three.js draws it where the
+    instances' own moved impostors' GLBs draw."""
+    import math
+
+    from farfield.core.impostor.bundle import read_bundle, write_bundle
+    from farfield.core.impostor.glb import impostor_glb
+    from farfield.core.render.raster import Camera
+    from farfield.core.techniques import get_technique
+    from farfield.core.techniques.instances import bake_prototypes
+    from farfield.core.techniques.octahedral.instancing import moved_impostor
+    from farfield.core.viewcells import SphereOutsideCell
+
+    scene = _instances(3)
+    octahedral = get_technique("octahedral")
+    options = octahedral.options({"grid": 5, "frame_resolution": 32, "padding": 1})
+    (prototype,) = bake_prototypes(scene, octahedral, SphereOutsideCell([0.0, 0.0, 0.0], 2.0), options)
+    write_bundle(prototype, tmp_path / "bundle")
+    back = read_bundle(tmp_path / "bundle")
+    assert len(back.parameters["instances"]["matrices"]) == 3  # the instance list, once in the manifest
+    glb = tmp_path / "instanced.glb"
+    glb.write_bytes(impostor_glb(back))
+    (report,) = gltf_validator.validate([glb])
+    assert report.get("errors") == 0 and report.get("warnings") == 0, report
+    eyes = []
+    for k, matrix in enumerate(back.parameters["instances"]["matrices"]):
+        one = tmp_path / f"instance{k}.glb"
+        one.write_bytes(impostor_glb(moved_impostor(back, np.reshape(matrix, (4, 4)))))
+        eyes.append(one)
+    camera = Camera.look_at([8.0, -3.0, 12.0], [4.0, 0.0, 0.0], math.radians(40.0), 256, 1.0, 60.0)
+    (together,) = threejs.render(glb, [camera], mipmaps=False)
+    apart = [threejs.render(path, [camera], mipmaps=False)[0] for path in eyes]
+    drawn, expected = together[..., 3] > 0, np.any([image[..., 3] > 0 for image in apart], axis=0)
+    assert all((image[..., 3] > 0).sum() > 20 for image in apart)
+    assert (drawn != expected).sum() <= 0.02 * expected.sum(), int((drawn != expected).sum())

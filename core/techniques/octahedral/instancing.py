@@ -115,7 +115,7 @@ def moved_impostor(
         stats["accuracy"] = {
             k: s * v if k in SCALED_ACCURACY and v is not None else v for k, v in stats["accuracy"].items()
         }
-    parameters = dict(impostor.parameters)
+    parameters = {k: v for k, v in impostor.parameters.items() if k != "instances"}  # one instance now
     if objects is not None:
         parameters["prototype_objects"] = parameters.get("objects")
         parameters["objects"] = list(objects)
