@@ -160,3 +160,30 @@ def test_the_glb_draws_one_card_for_every_instance(tmp_path, gltf_validator, thr
     drawn, expected = together[..., 3] > 0, np.any([image[..., 3] > 0 for image in apart], axis=0)
     assert all((image[..., 3] > 0).sum() > 20 for image in apart)
     assert (drawn != expected).sum() <= 0.02 * expected.sum(), int((drawn != expected).sum())
+
+
+def test_farfield_bake_instances_bakes_a_thousand_instances_once(tmp_path):
+    """``farfield bake --instances`` of a glTF of 1,000 ``EXT_mesh_gpu_instancing`` instances of one
+    mesh (and a quad mesh two nodes share): one bundle per prototype, each recording its instances."""
+    import json
+
+    from click.testing import CliRunner
+
+    from farfield.cli.main import _register, cli
+    from farfield.core.impostor.bundle import read_bundle
+
+    _register()
+    path = instanced_scene(tmp_path / "many.glb", count=1000, texture=False)
+    run = CliRunner().invoke(cli, ["bake", str(path), "--technique", "octahedral", "--instances", "--viewcell",
+                                   "outside:0,0,0,3", "--option", "grid=5", "--option", "frame_resolution=8",
+                                   "--out", str(tmp_path / "out"), "--json"])  # fmt: skip
+    assert run.exit_code == 0, run.output
+    written = json.loads(run.output)["prototypes"]
+    assert sorted(entry["instances"] for entry in written) == [2, 1000]  # two bakes: the box's and the quad's
+    bundles = sorted((tmp_path / "out").iterdir())
+    assert len(bundles) == 2
+    box = next(read_bundle(b) for b in bundles if len(read_bundle(b).parameters["instances"]["objects"]) == 1000)
+    assert box.parameters["instances"]["objects"][999] == ["box@999"]
+    refused = CliRunner().invoke(cli, ["bake", str(path), "--technique", "layered", "--instances", "--objects", "box@0",
+                                       "--viewcell", "box:-9,-9,5,9,9,6", "--out", str(tmp_path / "no")])  # fmt: skip
+    assert refused.exit_code != 0 and "--objects does not apply" in refused.output
