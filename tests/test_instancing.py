@@ -25,7 +25,7 @@ def test_the_loader_keeps_prototypes_and_their_instances(tmp_path):
         moved = local.vertices @ obj.instance_matrix[:3, :3].T + obj.instance_matrix[:3, 3]
         np.testing.assert_allclose(obj.vertices, moved, atol=1e-12)
         assert obj.texture is local.texture  # shared by reference, never copied per instance
-        assert obj.faces is local.faces
+        assert obj.faces is local.faces and obj.uv is local.uv
     assert by_name["box@3"].instance_matrix[0, 3] == pytest.approx(12.0)
 
 
@@ -187,3 +187,12 @@ def test_farfield_bake_instances_bakes_a_thousand_instances_once(tmp_path):
     refused = CliRunner().invoke(cli, ["bake", str(path), "--technique", "layered", "--instances", "--objects", "box@0",
                                        "--viewcell", "box:-9,-9,5,9,9,6", "--out", str(tmp_path / "no")])  # fmt: skip
     assert refused.exit_code != 0 and "--objects does not apply" in refused.output
+
+
+def test_placement_counts_every_instance_s_triangles_and_draws():
+    from farfield.core.placement.hierarchy import Elements
+
+    scene = _instances(50)
+    elements = Elements.of(scene, cluster_triangles=10_000)
+    assert elements.count == 50 and int(elements.triangles.sum()) == 50 * 12  # a box's 12 triangles, 50 times
+    assert float(elements.draw_calls.sum()) == 50.0

@@ -477,27 +477,11 @@ class _Reader:
             normals, warning = repair_normals(name, vertices, faces, transform_normals(part["normals"], world[:3, :3]))
             if warning is not None:
                 self.warnings.append(warning)
-        base_color = found.base_color.copy()
-        texture = uv = None
-        if part["uv"] is not None:
-            wrapped = self.images.wrapped(found.texture, part["uv"], name, self.warnings)
-            if wrapped is not None:
-                decoded, uv = wrapped
-                uv = np.column_stack([uv[:, 0], 1.0 - uv[:, 1]])  # glTF's v down -> farfield's v up
-                if found.alpha_cutoff is not None and decoded.max_alpha * base_color[3] < 255.0 * found.alpha_cutoff:
-                    self.warnings.append(
-                        f"object {name!r}: no texel of its texture passes its alpha cut ({found.alpha_cutoff:g}); it is invisible"
-                    )
-                if decoded.single is not None:
-                    # One colour: the same as a material colour, cheaper.
-                    base_color = base_color * _srgb_unit(decoded.single)
-                    uv = None
-                else:
-                    texture = decoded.rgba
+        if "colour" not in part:  # the same for every instance of the part: computed once, shared
+            part["colour"] = self.colour(name, found, part)
+        base_color, texture, uv = part["colour"]
+        base_color = base_color.copy()
         normal_map = self.normal_map(name, found, part, vertices, faces, normals, world)
-        if uv is not None:  # frozen as SceneObject keeps it, so that material_uv can be the very array
-            uv = np.array(uv, dtype=np.float64, order="C")
-            uv.flags.writeable = False
         shading = self.shading(name, found, part, uv)
         prototype, matrix, local = (None, None, None) if instance is None else instance
         return SceneObject(
@@ -517,6 +501,31 @@ class _Reader:
             **normal_map,
             **shading,
         )
+
+    def colour(self, name: str, found: Material, part: dict) -> tuple:
+        """(base colour, texture or None, uv or None) of a part: its texture wrapped by its sampler
+        (:meth:`Images.wrapped`), uv in farfield's v-up convention, frozen so that its objects share it."""
+        base_color = found.base_color.copy()
+        texture = uv = None
+        if part["uv"] is not None:
+            wrapped = self.images.wrapped(found.texture, part["uv"], name, self.warnings)
+            if wrapped is not None:
+                decoded, uv = wrapped
+                uv = np.column_stack([uv[:, 0], 1.0 - uv[:, 1]])  # glTF's v down -> farfield's v up
+                if found.alpha_cutoff is not None and decoded.max_alpha * base_color[3] < 255.0 * found.alpha_cutoff:
+                    self.warnings.append(
+                        f"object {name!r}: no texel of its texture passes its alpha cut ({found.alpha_cutoff:g}); it is invisible"
+                    )
+                if decoded.single is not None:
+                    # One colour: the same as a material colour, cheaper.
+                    base_color = base_color * _srgb_unit(decoded.single)
+                    uv = None
+                else:
+                    texture = decoded.rgba
+        if uv is not None:  # frozen as SceneObject keeps it, so that material_uv can be the very array
+            uv = np.array(uv, dtype=np.float64, order="C")
+            uv.flags.writeable = False
+        return base_color, texture, uv
 
     def shading(self, name: str, found: Material, part: dict, uv: np.ndarray | None) -> dict:
         """The object's metallic-roughness material fields (:class:`SceneObject`'s): the factors,
