@@ -2,7 +2,7 @@
 instance of a mesh the scene draws several times, :meth:`farfield.core.scene.Scene.instances`) is
 its prototype's, baked once in the prototype's local space and moved by the instance's matrix,
 for a technique that says how (:class:`~farfield.core.techniques.base.Instancing`: today
-``octahedral``); docs/scenes.md, "Instancing".
+``octahedral``); docs/formats.md, "Scene files: instancing".
 """
 
 from __future__ import annotations

@@ -2,8 +2,8 @@
 scene draws several times, and its technique shares a prototype's bake
 (:class:`~farfield.core.techniques.base.Instancing`), so the prototype is baked once in its local
 space for the cell moved there, stored under a key of the prototype's content (not the scene's),
-and each instance's bundle is that impostor moved by the instance's matrix (docs/scenes.md,
-"Instancing").  The second instance of a tenant (in this scene, another job, or another scene
+and each instance's bundle is that impostor moved by the instance's matrix (docs/formats.md,
+"Scene files: instancing").  The second instance of a tenant (in this scene, another job, or another scene
 holding the same mesh) bakes nothing.
 """
 
