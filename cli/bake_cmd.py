@@ -149,11 +149,18 @@ def _shortcuts(
     default=None,
     help="layered, tdm: strict (max-error-px at every pixel) or thesis (seed 000 §3.3, Table 4.1) [default: strict].",
 )
+@click.option(
+    "--instances",
+    is_flag=True,
+    help="Bake each prototype of an instanced scene once (glTF meshes several nodes share, EXT_mesh_gpu_instancing; "
+    "--viewcell in the prototype's own space): one bundle per prototype under --out/<prototype>/, recording its "
+    "instances, its GLB one card drawn per instance.",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the bundle's statistics as JSON.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @sides_option
 def bake(scene, viewcell, out, objects, technique, options, resolution, fov, layers, near_field, directions, gap_fill, enlargement, oversampling,
-         grid_cell, fill_threshold, culling, pixel_model, max_error_px, budget, as_json, quiet, sides):  # fmt: skip
+         grid_cell, fill_threshold, culling, pixel_model, max_error_px, budget, instances, as_json, quiet, sides):  # fmt: skip
     """Bake the impostor of SCENE for a view cell and write its bundle to --out.
 
     The per-technique flags (--layers, --enlargement, ...) are shortcuts for --option NAME=VALUE."""
@@ -185,6 +192,9 @@ def bake(scene, viewcell, out, objects, technique, options, resolution, fov, lay
     if chosen.scope == "scene" and names:
         raise ArgumentError(f"a {chosen.name} impostor represents the whole scene; --objects does not apply")
     loaded = load_scene(scene, sides=sides)
+    if instances:
+        _bake_instances(chosen, loaded, cell, settings, names, Path(out), as_json, quiet)
+        return
     bar = _Bar(not quiet and not as_json)
     try:
         impostor = chosen.bake(loaded, cell, settings, names, bar)
@@ -195,3 +205,31 @@ def bake(scene, viewcell, out, objects, technique, options, resolution, fov, lay
         click.echo(json.dumps({"bundle": str(out), "stats": impostor.stats}, indent=2))
         return
     click.echo(f"bundle: {out}\n" + chosen.summary(impostor.stats))
+
+
+def _bake_instances(chosen, loaded, cell, settings, names, out: Path, as_json: bool, quiet: bool) -> None:
+    """``farfield bake --instances``: one bundle per prototype (:func:`farfield.core.techniques.instances.bake_prototypes`)."""
+    from farfield.core.techniques.instances import bake_prototypes
+
+    if chosen.scope != "part":
+        raise ArgumentError(f"--instances bakes parts; the {chosen.name} technique represents the whole scene")
+    if names:
+        raise ArgumentError("--instances bakes every prototype of the scene; --objects does not apply")
+    if not loaded.instances():
+        raise ArgumentError(f"{loaded.source}: no instanced mesh (no glTF mesh drawn twice or more)")
+    bar = _Bar(not quiet and not as_json)
+    try:
+        impostors = bake_prototypes(loaded, chosen, cell, settings, bar)
+    finally:
+        bar.close()
+    written = []
+    for impostor in impostors:
+        folder = out / impostor.parameters["prototype"][:16]
+        write_bundle(impostor, folder)
+        written.append({"bundle": str(folder), "instances": len(impostor.parameters["instances"]["matrices"]),
+                        "stats": impostor.stats})  # fmt: skip
+    if as_json:
+        click.echo(json.dumps({"prototypes": written}, indent=2))
+        return
+    for entry, impostor in zip(written, impostors):
+        click.echo(f"bundle: {entry['bundle']} ({entry['instances']} instances)\n" + chosen.summary(impostor.stats))

@@ -147,6 +147,16 @@ class SceneObject:
         Seen from both sides (True, the default for built scenes) or from its front side only
         (False: a viewer behind a triangle's plane does not see it, as an engine culls back faces;
         glTF ``doubleSided: false``, and OBJ/PLY/STL by default, see :mod:`farfield.core.exchange`).
+    prototype : str or None
+        The object is one instance of a mesh the scene draws several times (glTF nodes sharing a
+        mesh, ``EXT_mesh_gpu_instancing``): a key of the mesh's local content (every primitive's
+        geometry and material, :func:`prototype_key`), shared by the objects of all its instances.
+        None: not instanced.  Set together with ``instance_matrix`` and ``local``.
+    instance_matrix : (4, 4) float64 or None
+        The instance's local -> world transform: ``vertices`` are ``local.vertices`` moved by it.
+    local : SceneObject or None
+        This primitive of the prototype in its mesh's own (local) space, one object shared by
+        reference by every instance (:meth:`Scene.prototype_objects`).
 
     Raises
     ------
@@ -178,6 +188,9 @@ class SceneObject:
     emissive_factor: np.ndarray = NO_EMISSION  # (3,) float64 linear RGB
     emissive_texture: np.ndarray | None = None  # (h, w, 4) uint8, sRGB-encoded RGB
     material_uv: np.ndarray | None = None  # (v, 2) float64 the material textures' uv
+    prototype: str | None = None  # key of the instanced mesh's local content, None: not instanced
+    instance_matrix: np.ndarray | None = field(default=None, repr=False)  # (4, 4) float64 local -> world
+    local: SceneObject | None = field(default=None, repr=False)  # this primitive in the prototype's space
     bounds: np.ndarray = field(init=False, repr=False)  # (2, 3) float64: min, max corner
 
     def __post_init__(self) -> None:
@@ -214,6 +227,7 @@ class SceneObject:
         _check_material(self, name, n)
         _check_geometry(name, vertices, faces)
         _check_colour(name, self.base_color, self.uv, self.alpha_cutoff)
+        _check_instance(self, name)
         bounds = np.stack([vertices.min(axis=0), vertices.max(axis=0)])
         bounds.flags.writeable = False
         set_(self, "bounds", bounds)
@@ -239,7 +253,7 @@ class SceneObject:
                 changes[key] = array[used]
         if self.material_uv is not None and self.material_uv is self.uv:
             changes["material_uv"] = changes["uv"]
-        return replace(self, **changes)
+        return replace(self, **changes, prototype=None, instance_matrix=None, local=None)  # no longer the mesh
 
     @property
     def triangle_count(self) -> int:
@@ -300,6 +314,62 @@ def _check_colour(name: str, base_color: np.ndarray, uv: np.ndarray | None, alph
         raise SceneLoadError(f"object {name!r}: {int((~np.isfinite(uv)).any(axis=1).sum())} non-finite uv coordinates")
     if alpha_cutoff is not None and not 0.0 <= alpha_cutoff <= 1.0:
         raise SceneLoadError(f"object {name!r}: alpha_cutoff {alpha_cutoff} is not in 0..1")
+
+
+def _check_instance(obj: SceneObject, name: str) -> None:
+    """Freeze and check the instancing fields: ``prototype``, ``instance_matrix`` and ``local``
+    together or none.  An object whose triangles or vertices no longer match its ``local`` (a later
+    stage kept some of its faces) is no longer an instance: its instancing fields are dropped."""
+    parts = (obj.prototype, obj.instance_matrix, obj.local)
+    if all(p is None for p in parts):
+        return
+    set_ = object.__setattr__
+    if any(p is None for p in parts) or not isinstance(obj.prototype, str) or not isinstance(obj.local, SceneObject):
+        raise SceneLoadError(f"object {name!r}: an instance needs prototype (str), instance_matrix and local together")
+    matrix = _frozen(obj.instance_matrix, np.float64, "instance_matrix", name, (4, 4))
+    if not np.isfinite(matrix).all() or not np.array_equal(matrix[3], [0.0, 0.0, 0.0, 1.0]):
+        raise SceneLoadError(f"object {name!r}: instance_matrix is not a finite affine 4 x 4 matrix")
+    if obj.local.faces.shape != obj.faces.shape or obj.local.vertices.shape != obj.vertices.shape:
+        for key in ("prototype", "instance_matrix", "local"):
+            set_(obj, key, None)
+        return
+    set_(obj, "instance_matrix", matrix)
+
+
+def prototype_key(locals_: Iterable[SceneObject]) -> str:
+    """The prototype key of a mesh of primitives ``locals_`` (in their local space, in order): 32 hex
+    digits of a digest of their :func:`object_hash` es.  Equal content gives equal keys, whichever
+    file, node or mesh index it came from."""
+    digest = hashlib.sha256(HASH_VERSION + b":prototype;")
+    memo: dict = {}
+    for obj in locals_:
+        digest.update(object_hash(obj, memo))
+    return digest.hexdigest()[:32]
+
+
+def instance_of(local: SceneObject, name: str, matrix, prototype: str) -> SceneObject:
+    """The instance called ``name`` of ``local`` (a primitive in its prototype's space) moved by
+    ``matrix`` (4, 4) local -> world: vertices, normals and tangents moved (normals by the inverse
+    transpose), faces reversed under a mirroring matrix; textures, uv and colours shared by reference.
+
+    >>> quad = SceneObject("q", np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0.0]]), np.array([[0, 1, 2]]))
+    >>> moved = np.eye(4); moved[:3, 3] = (5, 0, 0)
+    >>> o = instance_of(quad, "q@1", moved, "k")
+    >>> o.vertices[1].tolist(), o.prototype, o.local is quad
+    ([6.0, 0.0, 0.0], 'k', True)
+    """
+    from farfield.core.exchange.normals import transform_normals, transform_tangents
+
+    matrix = np.asarray(matrix, dtype=np.float64)
+    linear = matrix[:3, :3]
+    changes: dict = {"vertices": local.vertices @ linear.T + matrix[:3, 3]}
+    if np.linalg.det(linear) < 0.0:
+        changes["faces"] = local.faces[:, ::-1]
+    if local.normals is not None:
+        changes["normals"] = transform_normals(local.normals, linear)
+    if local.tangents is not None:
+        changes["tangents"] = transform_tangents(local.tangents, linear)
+    return replace(local, name=name, **changes, prototype=prototype, instance_matrix=matrix, local=local)
 
 
 def _check_normal_map(obj: SceneObject, name: str, n: int) -> None:
@@ -553,6 +623,40 @@ class Scene:
     def extents(self) -> np.ndarray:
         """(3,) float64 size of the bounding box, scene units."""
         return self.bounds[1] - self.bounds[0]
+
+    def instances(self) -> dict[str, list[tuple[str, ...]]]:
+        """The scene's instancing: each prototype key (:attr:`SceneObject.prototype`) -> its
+        instances, each the names of its objects (one per primitive of the mesh), in scene order.
+        Objects of one prototype with equal instance matrices are one instance.  Objects that are
+        not instanced are left out; a scene without instancing gives ``{}``.
+
+        >>> tri = SceneObject("t", np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.0]]), np.array([[0, 1, 2]]))
+        >>> key = prototype_key([tri])
+        >>> far = np.eye(4); far[:3, 3] = 3.0
+        >>> scene = Scene((instance_of(tri, "t@0", np.eye(4), key), instance_of(tri, "t@1", far, key)), "demo")
+        >>> scene.instances() == {key: [("t@0",), ("t@1",)]}
+        True
+        """
+        grouped: dict[str, dict[bytes, list[str]]] = {}
+        for obj in self.objects:
+            if obj.prototype is not None:
+                grouped.setdefault(obj.prototype, {}).setdefault(obj.instance_matrix.tobytes(), []).append(obj.name)
+        return {key: [tuple(names) for names in by_matrix.values()] for key, by_matrix in grouped.items()}
+
+    def prototype_objects(self, key: str) -> tuple[SceneObject, ...]:
+        """The objects of prototype ``key`` in its local space (one per primitive of its mesh, those
+        of its first instance), shared by reference with every instance.
+
+        Raises
+        ------
+        SceneLoadError
+            The scene has no prototype ``key``.
+        """
+        found = self.instances().get(key)
+        if not found:
+            raise SceneLoadError(f"{self.source}: no prototype {key!r}")
+        by_name = {obj.name: obj for obj in self.objects}
+        return tuple(by_name[name].local for name in found[0])
 
     def subset(self, names: Iterable[str]) -> Scene:
         """The scene restricted to the objects called ``names`` (kept in scene order).

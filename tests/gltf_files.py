@@ -231,3 +231,32 @@ def sampler_scene(path: Path) -> Path:
     indices = b.accessor(np.array([0, 1, 2, 0, 2, 3]), USHORT, target=ELEMENT_ARRAY_BUFFER)
     b.node(name="sparse", mesh=b.mesh([{"attributes": {"POSITION": positions}, "indices": indices, "material": plain}]))
     return b.write(path)
+
+
+def instanced_scene(path: Path, count: int = 3, texture: bool = True) -> Path:
+    """A GLB drawing one textured box ``count`` times with ``EXT_mesh_gpu_instancing`` (node
+    "box", instances translated 4 apart along x, turned about z and uniformly scaled), and one
+    quad mesh used by two nodes ("left", "right"): both kinds of instancing a loader keeps."""
+    import trimesh
+
+    b = GltfBuilder()
+    box = trimesh.creation.box(extents=(1.0, 0.6, 0.8))
+    vertices = np.asarray(box.vertices)
+    uv = (vertices[:, :2] - vertices[:, :2].min(axis=0)) / np.ptp(vertices[:, :2], axis=0)
+    material = b.material(texture=b.texture(b.image(gradient()))) if texture else b.material((0.8, 0.3, 0.2, 1.0))
+    attributes = {"POSITION": b.accessor(vertices, bounds=True), "NORMAL": b.accessor(np.asarray(box.vertex_normals))}
+    if texture:
+        attributes["TEXCOORD_0"] = b.accessor(uv)
+    indices = b.accessor(np.asarray(box.faces).reshape(-1), USHORT, target=ELEMENT_ARRAY_BUFFER)
+    mesh = b.mesh([{"attributes": attributes, "indices": indices, "material": material}], name="box")
+    k = np.arange(count, dtype=np.float64)
+    angles = 0.3 * k
+    translation = np.column_stack([4.0 * k, np.zeros(count), np.zeros(count)])
+    rotation = np.column_stack([np.zeros(count), np.zeros(count), np.sin(angles / 2), np.cos(angles / 2)])
+    scale = np.repeat((1.0 + 0.1 * (k % 3))[:, None], 3, axis=1)
+    spec = {"TRANSLATION": b.accessor(translation), "ROTATION": b.accessor(rotation), "SCALE": b.accessor(scale)}
+    b.node(name="box", mesh=mesh, extensions={"EXT_mesh_gpu_instancing": {"attributes": spec}})
+    b.used.add("EXT_mesh_gpu_instancing")
+    quad = b.doc["nodes"][b.quad("left", [0, 0, 0], 1.0, b.material((0.2, 0.6, 0.2, 1.0)), translation=[0, 5, 0])]
+    b.node(name="right", mesh=quad["mesh"], translation=[3.0, 5.0, 0.0])
+    return b.write(path)

@@ -52,6 +52,7 @@ import numpy as np
 from PIL import Image
 
 from farfield.core.colour_space import srgb_to_linear
+from farfield.core.errors import BundleFormatError
 from farfield.core.impostor.depth import DEPTH_ATTRIBUTE, DEPTH_EXTENSION
 from farfield.core.impostor.impostor import (
     Impostor,
@@ -90,6 +91,7 @@ _TRIANGLES = 4
 _POINTS = 0
 
 _UNLIT = "KHR_materials_unlit"
+_INSTANCING = "EXT_mesh_gpu_instancing"
 # A point impostor's directional colours (seed 001 §5.3), for a runtime that knows them (see
 # :func:`_point_primitive`); viewers that do not show the points' COLOR_0.
 POINT_APPEARANCE = "FARFIELD_point_appearance"
@@ -634,6 +636,42 @@ def engine_metadata(impostor: Impostor) -> dict:
     }, default=lambda v: v.tolist() if isinstance(v, np.ndarray) else float(v), allow_nan=False))  # fmt: skip
 
 
+def instance_attributes(matrices, viewpoint: np.ndarray, binary: _Bin, accessors: list[dict]) -> dict:
+    """The ``EXT_mesh_gpu_instancing`` object of a node at ``viewpoint`` (its translation) drawn once
+    per instance: each of ``matrices`` ((m, 16) row-major, or (m, 4, 4): the prototype's local ->
+    world) as float ``TRANSLATION``, unit-quaternion ``ROTATION`` (x, y, z, w) and ``SCALE``
+    accessors.  The extension applies each instance's transform before the node's
+    (Khronos, EXT_mesh_gpu_instancing), so instance ``i`` is ``T(-viewpoint) M_i T(viewpoint)``: the
+    card, stored relative to the viewpoint, lands where ``M_i`` puts the prototype's.
+
+    Raises
+    ------
+    BundleFormatError
+        A matrix that is not translation x rotation x axis scale (a shear).
+    """
+    from scipy.spatial.transform import Rotation
+
+    m = np.asarray(matrices, dtype=np.float64).reshape(-1, 4, 4)
+    linear = m[:, :3, :3]
+    scale = np.linalg.norm(linear, axis=1)  # (m, 3): each column's length
+    scale[np.linalg.det(linear) < 0.0, 0] *= -1.0  # a mirror as a negative x scale
+    if not (np.abs(scale) > 0.0).all():
+        raise BundleFormatError("an instance matrix collapses an axis")
+    rotation = linear / scale[:, None, :]
+    if not np.allclose(np.einsum("kab,kac->kbc", rotation, rotation), np.eye(3), atol=1e-6):
+        raise BundleFormatError("an instance matrix shears: EXT_mesh_gpu_instancing keeps translation, rotation, scale")
+    translation = linear @ viewpoint + m[:, :3, 3] - viewpoint
+    quaternion = Rotation.from_matrix(rotation).as_quat()  # (x, y, z, w), glTF's order
+    quaternion *= np.where(quaternion[:, 3:] < 0.0, -1.0, 1.0)  # one of the two signs, for equal bytes
+    out = {}
+    for name, values in (("TRANSLATION", translation), ("ROTATION", quaternion), ("SCALE", scale)):
+        data = np.ascontiguousarray(values, dtype="<f4")
+        accessors.append({"bufferView": binary.add(data.tobytes()), "componentType": _FLOAT, "count": len(data),
+                          "type": f"VEC{data.shape[1]}"})  # fmt: skip
+        out[name] = len(accessors) - 1
+    return {"attributes": out}
+
+
 def impostor_glb(impostor: Impostor) -> bytes:
     """GLB bytes of ``impostor``: one node at the reference viewpoint, one primitive per page.
 
@@ -683,6 +721,10 @@ def impostor_glb(impostor: Impostor) -> bytes:
         "translation": [float(x) for x in viewpoint],
         "extras": {"farfield": engine_metadata(impostor)},
     }
+    instances = impostor.parameters.get("instances")
+    if instances and primitives:  # one card for every instance of a prototype (instances.bake_prototypes)
+        node["extensions"] = {_INSTANCING: instance_attributes(instances["matrices"], viewpoint, binary, accessors)}
+        extensions.append(_INSTANCING)
     document: dict = {
         "asset": {"version": "2.0", "generator": f"farfield {impostor.code_version}".rstrip()},
         "scene": 0,

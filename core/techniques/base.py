@@ -174,6 +174,18 @@ class Technique(Protocol):
         ...
 
 
+@dataclass(frozen=True, slots=True)
+class Instancing:
+    """How a part technique's impostor of one instance is its prototype's, baked once in the
+    prototype's local space and moved (:mod:`farfield.core.techniques.instances`)."""
+
+    # local_cell(cell, matrix, options) -> the prototype's view cell whose impostor, moved by the
+    # instance's (4, 4) matrix, serves ``cell``; None: this instance is baked as an object of its own
+    local_cell: Callable[[ViewCell, np.ndarray, Any], ViewCell | None]
+    # moved(impostor, matrix, objects, scene_hash) -> the prototype's impostor moved to the instance
+    moved: Callable[[Impostor, np.ndarray, list[str] | None, str | None], Impostor]
+
+
 @dataclass(frozen=True)
 class TechniqueDefinition:
     """A :class:`Technique` made of plain functions: what each technique module exposes as ``TECHNIQUE``.
@@ -213,6 +225,9 @@ class TechniqueDefinition:
     # what the impostor stands in for, from the views its own evaluation uses; None: evaluate_lit of its
     # part (the impostor's objects) from its cell's viewpoints, what a part technique stands in for
     evaluate_lit: Callable[[Scene, Impostor, int, int], Any] | None = None
+    # How an instance's impostor is its prototype's, moved (farfield.core.techniques.instances); None:
+    # every instance is baked as an object of its own
+    instancing: Instancing | None = None
 
     def warm(self) -> float:
         """Compile its numba kernels (every function of ``kernels``); the seconds it took."""

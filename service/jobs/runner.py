@@ -47,6 +47,7 @@ from farfield.service.jobs.cells import (
     result_key,
     set_progress,
 )
+from farfield.service.jobs.instances import prototype_bake
 from farfield.service.placement import job_algorithm
 from farfield.service.scenes import load_stored_scene
 
@@ -207,9 +208,14 @@ def run_cell(
             seconds = None  # this attempt's bake timings (a bundle stores none: its bytes depend on its inputs alone)
             scene = impostor = None
             baked = not blobs.exists(f"{key}/{MANIFEST_NAME}")
+            prototype = None  # (key, whether this attempt baked it) of an instance's shared prototype
             if baked:
                 scene = load_stored_scene(blobs, scene_row)
-                impostor = bake_cell(job, scene, cell.viewcell, progress, cell)
+                shared = None if job_algorithm(job) else prototype_bake(blobs, job, scene, cell.viewcell, progress)
+                if shared is None:
+                    impostor = bake_cell(job, scene, cell.viewcell, progress, cell)
+                else:
+                    impostor, prototype = shared[0], shared[1:]
                 with tempfile.TemporaryDirectory(prefix="farfield-cell-") as tmp:
                     try:
                         write_bundle(impostor, Path(tmp) / "bundle")
@@ -223,6 +229,8 @@ def run_cell(
             if seconds is not None:
                 stats["seconds"] = seconds
             stats["baked"] = baked  # False: the bundle was found (a redelivery, or equal inputs of another job)
+            if prototype is not None:  # an instance's bundle: its prototype's impostor moved (jobs/instances.py)
+                stats["prototype"], stats["baked"] = prototype
             if job.evaluate and job_algorithm(job) is None and get_technique(job.job_type).scope == "part":
                 set_progress(db, cell_id, EVALUATION_PROGRESS)
                 stats["evaluation"] = evaluate_cell(blobs, scene_row, key, scene, impostor)

@@ -47,7 +47,7 @@ from farfield.core.exchange.gltf.document import Buffers, array, header_json, it
 from farfield.core.exchange.gltf.materials import NEAREST, Images, Material, material
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits, check_gltf
 from farfield.core.exchange.normals import repair_normals, transform_normals, transform_tangents, uv_tangents
-from farfield.core.scene import SceneObject
+from farfield.core.scene import SceneObject, prototype_key
 
 EXTENSIONS = ("glb", "gltf")
 
@@ -131,6 +131,39 @@ def _instances(
     return out
 
 
+def _primitive_name(base: str, k: int, count: int) -> str:
+    """The object name of a mesh's k-th of ``count`` primitives (module docstring)."""
+    return base if count == 1 else f"{base}.p{k}"
+
+
+def _mesh_use(node: dict) -> tuple:
+    """What makes two nodes' objects the same prototype before any geometry is read: the mesh and
+    the node's morph weights (which change its vertices)."""
+    weights = node.get("weights")
+    return (repr(node.get("mesh")), repr(weights) if weights is not None else None)
+
+
+def _instance_count(document: dict, node: dict) -> int:
+    """Instances a mesh node draws: its ``EXT_mesh_gpu_instancing`` accessors' count, else 1 (a
+    malformed extension counts 1 here: reading it later says what is wrong)."""
+    extensions = node.get("extensions")
+    spec = extensions.get("EXT_mesh_gpu_instancing") if isinstance(extensions, dict) else None
+    attributes = spec.get("attributes") if isinstance(spec, dict) else None
+    if not isinstance(attributes, dict) or not attributes:
+        return 1
+    index = next(iter(attributes.values()))
+    found = document.get("accessors")
+    if (
+        isinstance(index, int)
+        and isinstance(found, list)
+        and 0 <= index < len(found)
+        and isinstance(found[index], dict)
+    ):
+        count = found[index].get("count")
+        return count if isinstance(count, int) and count > 0 else 1
+    return 1
+
+
 def _faces(mode: int, indices: np.ndarray, where: str) -> np.ndarray:
     """(f, 3) int64 triangles of a primitive's vertex sequence (glTF 2.0 §3.7.2.1, topology types)."""
     n = len(indices)
@@ -144,6 +177,14 @@ def _faces(mode: int, indices: np.ndarray, where: str) -> np.ndarray:
     if mode == _FAN:  # p_{i+1}, p_{i+2}, p_0
         return np.stack([indices[i + 1], indices[i + 2], np.full(n - 2, indices[0])], axis=1)
     raise SceneLoadError(f"{where}: mode {mode!r} is not a glTF primitive mode")
+
+
+def _shared(values: np.ndarray, dtype: type) -> np.ndarray:
+    """``values`` as a read-only C-contiguous array owning its data: what :class:`SceneObject` keeps
+    without copying, so the objects of a mesh's instances share it."""
+    out = np.array(values, dtype=dtype, order="C")
+    out.flags.writeable = False
+    return out
 
 
 def _vertex_colours(values: np.ndarray) -> np.ndarray:
@@ -168,6 +209,8 @@ class _Reader:
         self.materials: dict[object, Material] = {}
         self.nearest_warned = False
         self.triangles = 0
+        self.uses: dict[tuple, int] = {}  # instances per mesh use (count_uses)
+        self.prototypes: dict[tuple, tuple[list, list, str]] = {}  # mesh use -> (parts, local objects, key)
 
     def unique(self, name: str) -> str:
         count = self.names.get(name, 0)
@@ -197,6 +240,21 @@ class _Reader:
             self.materials[key] = found
         return self.materials[key]
 
+    def count_uses(self, roots: list[int]) -> None:
+        """How many instances each mesh has (:attr:`uses`, by :func:`_mesh_use`), from the node
+        hierarchy and the instancing accessors' counts alone, before any geometry is read: a mesh
+        of two or more instances gives objects that keep their prototype (:class:`SceneObject`)."""
+        stack = list(roots)
+        while stack:
+            index = stack.pop()
+            node = item(self.document, "nodes", index)
+            if "mesh" in node and "skin" not in node:
+                key = _mesh_use(node)
+                self.uses[key] = self.uses.get(key, 0) + _instance_count(self.document, node)
+            children = node.get("children", [])
+            if isinstance(children, list):
+                stack += children
+
     def walk(self, roots: list[int]) -> None:
         stack = [(root, np.eye(4)) for root in reversed(roots)]
         while stack:
@@ -224,14 +282,32 @@ class _Reader:
         base = node.get("name") or mesh.get("name") or f"node{index}"
         base = str(base)
         weights = node.get("weights", mesh.get("weights"))
-        parts = [self.primitive(p, f"glTF mesh {mesh_index} primitive {k}", weights) for k, p in enumerate(primitives)]
+        use = _mesh_use(node)
+        shared = "skin" not in node and self.uses.get(use, 0) > 1
+        if shared and use in self.prototypes:
+            parts, locals_, key = self.prototypes[use]  # read once for every node that uses the mesh
+        else:
+            parts = [
+                self.primitive(p, f"glTF mesh {mesh_index} primitive {k}", weights) for k, p in enumerate(primitives)
+            ]
+            locals_, key = [], None
+            if shared:  # the mesh in its own space, once: what its instances share
+                locals_ = [
+                    None
+                    if part is None
+                    else self.build(f"{_primitive_name(base, k, len(parts))}.local", part, np.eye(4))
+                    for k, part in enumerate(parts)
+                ]
+                key = prototype_key([obj for obj in locals_ if obj is not None])
+                self.prototypes[use] = (parts, locals_, key)
         many_instances = len(worlds) > 1
         for k, part in enumerate(parts):
             if part is None:
                 continue
-            name = base if len(primitives) == 1 else f"{base}.p{k}"
+            name = _primitive_name(base, k, len(primitives))
             for i, world in enumerate(worlds):
-                self.add(self.unique(f"{name}@{i}" if many_instances else name), part, world)
+                instance = None if key is None else (key, world, locals_[k])
+                self.add(self.unique(f"{name}@{i}" if many_instances else name), part, world, instance)
 
     def primitive(self, spec: object, where: str, weights: object) -> dict | None:
         if not isinstance(spec, dict) or not isinstance(spec.get("attributes"), dict):
@@ -262,6 +338,7 @@ class _Reader:
             self.warnings.append(f"{where}: skipped a primitive without triangles")
             return None
         found = self.material(spec.get("material"))
+        faces = _shared(faces, np.int64)  # one array for every instance of the mesh (none mirrored)
         part = {"positions": positions, "faces": faces, "material": found, "colours": None, "uv": None, "where": where}
         part["normals"] = self.normals(spec, weights, count, where)
         if "COLOR_0" in attributes:
@@ -270,7 +347,7 @@ class _Reader:
                 raise SceneLoadError(
                     f"{where}: COLOR_0 has {len(colours)} elements of {colours.shape[1]}, expected {count} of 3 or 4"
                 )
-            part["colours"] = _vertex_colours(colours)
+            part["colours"] = _shared(_vertex_colours(colours), np.uint8)
         ref = found.texture
         if ref is not None:
             key = f"TEXCOORD_{ref.tex_coord}"
@@ -380,7 +457,16 @@ class _Reader:
                 out += float(weight) * offsets
         return out
 
-    def add(self, name: str, part: dict, world: np.ndarray) -> None:
+    def add(self, name: str, part: dict, world: np.ndarray, instance: tuple | None = None) -> None:
+        """Append the object ``name`` of ``part`` moved by ``world``; ``instance``: (prototype key,
+        world, local object) of an instanced mesh."""
+        obj = self.build(name, part, world, instance)
+        self.triangles += len(obj.faces)
+        self.limits.check("objects", len(self.objects) + 1, "nodes")
+        self.limits.check("triangles once node instancing is applied", self.triangles, "triangles")
+        self.objects.append(obj)
+
+    def build(self, name: str, part: dict, world: np.ndarray, instance: tuple | None = None) -> SceneObject:
         found: Material = part["material"]
         positions, faces = part["positions"], part["faces"]
         vertices = positions @ world[:3, :3].T + world[:3, 3]
@@ -391,6 +477,34 @@ class _Reader:
             normals, warning = repair_normals(name, vertices, faces, transform_normals(part["normals"], world[:3, :3]))
             if warning is not None:
                 self.warnings.append(warning)
+        if "colour" not in part:  # the same for every instance of the part: computed once, shared
+            part["colour"] = self.colour(name, found, part)
+        base_color, texture, uv = part["colour"]
+        base_color = base_color.copy()
+        normal_map = self.normal_map(name, found, part, vertices, faces, normals, world)
+        shading = self.shading(name, found, part, uv)
+        prototype, matrix, local = (None, None, None) if instance is None else instance
+        return SceneObject(
+            prototype=prototype,
+            instance_matrix=matrix,
+            local=local,
+            name=name,
+            vertices=vertices,
+            faces=faces,
+            uv=uv,
+            vertex_colors=part["colours"],
+            base_color=base_color,
+            texture=texture,
+            alpha_cutoff=found.alpha_cutoff,
+            double_sided=found.double_sided,
+            normals=normals,
+            **normal_map,
+            **shading,
+        )
+
+    def colour(self, name: str, found: Material, part: dict) -> tuple:
+        """(base colour, texture or None, uv or None) of a part: its texture wrapped by its sampler
+        (:meth:`Images.wrapped`), uv in farfield's v-up convention, frozen so that its objects share it."""
         base_color = found.base_color.copy()
         texture = uv = None
         if part["uv"] is not None:
@@ -408,30 +522,10 @@ class _Reader:
                     uv = None
                 else:
                     texture = decoded.rgba
-        normal_map = self.normal_map(name, found, part, vertices, faces, normals, world)
         if uv is not None:  # frozen as SceneObject keeps it, so that material_uv can be the very array
             uv = np.array(uv, dtype=np.float64, order="C")
             uv.flags.writeable = False
-        shading = self.shading(name, found, part, uv)
-        self.triangles += len(faces)
-        self.limits.check("objects", len(self.objects) + 1, "nodes")
-        self.limits.check("triangles once node instancing is applied", self.triangles, "triangles")
-        self.objects.append(
-            SceneObject(
-                name=name,
-                vertices=vertices,
-                faces=faces,
-                uv=uv,
-                vertex_colors=part["colours"],
-                base_color=base_color,
-                texture=texture,
-                alpha_cutoff=found.alpha_cutoff,
-                double_sided=found.double_sided,
-                normals=normals,
-                **normal_map,
-                **shading,
-            )
-        )
+        return base_color, texture, uv
 
     def shading(self, name: str, found: Material, part: dict, uv: np.ndarray | None) -> dict:
         """The object's metallic-roughness material fields (:class:`SceneObject`'s): the factors,
@@ -567,5 +661,7 @@ def load(
         )
     check_gltf(document, limits)
     reader = _Reader(document, Buffers(document, binary, resolver), limits)
-    reader.walk(_roots(document))
+    roots = _roots(document)
+    reader.count_uses(roots)
+    reader.walk(roots)
     return tuple(reader.objects), tuple(dict.fromkeys(reader.warnings))

@@ -25,6 +25,7 @@ from farfield.core.impostor.impostor import Impostor
 from farfield.core.render.context import gl_context
 from farfield.core.render.programs import SHADERS, context_cache, linear_texture, park_framebuffer, srgb_texture
 from farfield.core.render.raster import Camera, eye_depth
+from farfield.core.techniques.octahedral.instancing import grid_rotation
 from farfield.core.techniques.octahedral.mapping import blend_frames
 
 HERE = Path(__file__).resolve().parent / "shaders"
@@ -100,6 +101,7 @@ class OctahedralRenderer:
         dots = payload.axes[:, 2] @ payload.axes[:, 2].T if payload.count else np.zeros((0, 0))
         best = np.argmin(dots, axis=1) if payload.count else np.zeros(0, np.int64)
         self.opposite = np.where(dots[np.arange(payload.count), best] < -1.0 + 1e-9, best, -1)
+        self.grid_rotation = grid_rotation(payload)  # a moved instance's grid (instancing.py), else None
         self.vbo = ctx.buffer(reserve=4 * 3 * 4)
         self.ibo = ctx.buffer(np.array([0, 1, 2, 0, 2, 3], "<u4").tobytes())
         self.vao = ctx.vertex_array(self.prog, [(self.vbo, "3f", "in_position")], self.ibo)
@@ -132,7 +134,8 @@ class OctahedralRenderer:
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
         view = np.asarray(camera.eye, dtype=np.float64) - centre
-        frames, weights = blend_frames(view[None], p.n, p.hemisphere)
+        grid_view = view if self.grid_rotation is None else self.grid_rotation.T @ view
+        frames, weights = blend_frames(grid_view[None], p.n, p.hemisphere)
         frames, weights = frames[0], weights[0]
         self.vbo.write(card_corners(camera.eye, centre, p.radius).astype("<f4").tobytes())
         prog = self.prog

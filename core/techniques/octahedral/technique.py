@@ -41,6 +41,7 @@ from farfield.core.techniques.octahedral.frames import (
     pages_layout,
     record_frames,
 )
+from farfield.core.techniques.octahedral.instancing import instancing
 from farfield.core.techniques.octahedral.mapping import frame_directions, opposite_frames
 from farfield.core.techniques.octahedral.payload import OctahedralPayload
 from farfield.core.techniques.part import evaluate_part, part_evaluation_text
@@ -236,4 +237,5 @@ TECHNIQUE = TechniqueDefinition(
     placement="an octahedral candidate (an estimate for parts whose problem region lies beyond the accuracy "
     "distance) is not there yet",
     promise=Promise("within one pixel beyond the accuracy distance the bake reports (stats accuracy_distance)"),
+    instancing=instancing(),  # an instance's impostor is its prototype's moved (instancing.py)
 )
