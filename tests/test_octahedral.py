@@ -340,6 +340,18 @@ def test_the_material_channel_is_recorded_per_frame_and_blended_by_the_g_buffer(
     assert (error.max(axis=1) < 0.05).mean() > 0.9
     assert np.abs(i_material[~(i_image[..., 3] > 0)]).max() == 0.0
 
+    # The lit evaluation shades the impostor with its material: closer to the metal tree than matte.
+    from farfield.core.quality.lit import evaluate_lit_at
+
+    plain = technique.bake(scene, SphereOutsideCell([0.0, 0.0, 1.1], 3.0), technique.options(
+        {"grid": 9, "frame_resolution": 32, "channels": "albedo+normal+depth"}, 64), None, None)  # fmt: skip
+    worst = {}
+    for name, baked in (("kept", impostor), ("matte", plain)):
+        totals = evaluate_lit_at(scene, baked, eye[None], ["random"], samples=1).totals
+        assert totals["impostor_material"] == name
+        worst[name] = max(light["lit_error_mean"] for light in totals["lights"])
+    assert 2.0 * worst["kept"] < worst["matte"], worst
+
     back = read_bundle(write_bundle(impostor, tmp_path / "octa").directory)
     for name in ("material", "emissive"):
         assert np.array_equal(back.channels[name][0], impostor.channels[name][0])
