@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from farfield.core.errors import AtlasOverflowError, LayerPlanError, ViewCellError
+from farfield.core.errors import AtlasOverflowError, ViewCellError
 from farfield.core.impostor.bundle import read_bundle, write_bundle
 from farfield.core.procedural import box_object
 from farfield.core.quality.evaluation import evaluate_at
@@ -125,10 +125,8 @@ def test_a_bake_records_every_frame_conservatively_with_padding_that_mips_cannot
     assert "accuracy distance" in get_technique("octahedral").summary(stats)
 
 
-def test_options_refuse_the_material_channel_and_cells_inside_the_part(tmp_path):
+def test_options_refuse_cells_inside_the_part(tmp_path):
     technique = get_technique("octahedral")
-    with pytest.raises(LayerPlanError, match="material"):
-        technique.options({"channels": "albedo+normal+material"})
     scene = tree()
     with pytest.raises(ViewCellError, match="bounding sphere"):
         technique.check(SphereOutsideCell([0.0, 0.0, 1.0], 1.0), technique.options(), scene.bounds)
@@ -245,7 +243,6 @@ def test_the_runtime_writes_the_depth_where_the_part_is():
     would; without depth it is the card plane's, up to the part's extent off."""
     from farfield.core.quality.evaluation import depth_bounds
     from farfield.core.render.raster import Camera, MeshRenderer
-    from farfield.core.techniques.octahedral.frames import _eye_depth
 
     errors = {}
     for channels in ("albedo", "albedo+normal+depth"):
@@ -256,7 +253,7 @@ def test_the_runtime_writes_the_depth_where_the_part_is():
         camera = Camera.look_at(eye, centre, math.radians(45.0), 96, near, far)
         with MeshRenderer(scene.objects) as geometry, OctahedralRenderer(impostor) as stand_in:
             g, i = geometry.render(camera), stand_in.render(camera)
-            g_depth, i_depth = _eye_depth(geometry, camera), _eye_depth(stand_in, camera)
+            g_depth, i_depth = geometry.last_depth(camera), stand_in.last_depth(camera)  # the public read-back
         both = (g[..., 3] > 0) & (i[..., 3] > 0)
         errors[channels] = float(np.median(np.abs(g_depth[both] - i_depth[both]))) / radius
     texel = 2.0 / 32  # of a frame, in radii
@@ -280,3 +277,87 @@ def test_opposite_frames_bound_the_columns_and_bring_the_accuracy_distance_in():
     options = technique.options({"grid": 9, "frame_resolution": 32, "channels": "albedo+normal+depth"}, RESOLUTION)
     convex = technique.bake(box, SphereOutsideCell([0.5, 0.3, 0.2], 2.0), options, None, None)
     assert convex.stats["accuracy"]["gap"] == 0.0 and convex.stats["accuracy"]["radii"] < 10.0
+
+
+def metal_tree() -> Scene:
+    """The tree with a material: a glossy metal crown, a half-rough trunk, an emitting branch."""
+    from dataclasses import replace
+
+    trunk, crown, branch = tree().objects
+    return Scene.from_objects(
+        [
+            replace(trunk, roughness_factor=0.6),
+            replace(crown, metallic_factor=0.9, roughness_factor=0.25),
+            replace(branch, emissive_factor=np.array([1.0, 0.5, 0.0])),
+        ],
+        "metal tree",
+    )
+
+
+def test_the_material_channel_is_recorded_per_frame_and_blended_by_the_g_buffer(tmp_path):
+    """+material: ORM and emissive pages laid out as the colour (a matte part keeps none); the
+    runtime's material G-buffer gives the geometry's material where both cover (4 radii away, between
+    grid points), the bundle keeps the pages and the GLB's fallback card carries them (validated)."""
+    from farfield.core.impostor.glb import impostor_glb
+    from farfield.core.quality.evaluation import depth_bounds
+    from farfield.core.render.raster import Camera, MeshRenderer
+
+    technique = get_technique("octahedral")
+    options = technique.options({"grid": 9, "frame_resolution": 32, "channels": "albedo+normal+material+depth"}, 64)
+    matte = technique.bake(tree(), SphereOutsideCell([0.0, 0.0, 1.1], 3.0), options, None, None)
+    assert set(matte.channels) == {"normal"}  # nothing to say beyond the default factors
+    scene = metal_tree()
+    impostor = technique.bake(scene, SphereOutsideCell([0.0, 0.0, 1.1], 3.0), options, None, None)
+    assert set(impostor.channels) == {"normal", "material", "emissive"}
+    page, material, emissive = impostor.pages[0], impostor.channels["material"][0], impostor.channels["emissive"][0]
+    assert material.shape == emissive.shape == page.shape
+    assert np.array_equal(material[..., 3] > 0, page[..., 3] > 0) and np.array_equal(emissive[..., 3], material[..., 3])
+    assert impostor.stats["channel_bytes"]["material"] == material.nbytes
+    covered = material[..., 3] > 0
+    assert (material[~covered][..., :3].max(axis=-1) > 0).all()  # dilated into the padding, as the colour
+    glossy = (
+        (material[..., 1] == 64) & (np.abs(material[..., 2].astype(int) - 230) <= 1) & covered
+    )  # the crown: roughness 0.25, metal 0.9
+    assert glossy.sum() > 0.2 * covered.sum()
+    assert (emissive[covered][:, 0] == 255).sum() > 0 and (emissive[covered][:, 2] == 0).all()
+
+    centre, radius = impostor.payload.centre, impostor.payload.radius
+    eye = centre + 4.0 * radius * np.array([0.62, -0.55, 0.56]) / np.linalg.norm([0.62, -0.55, 0.56])
+    near, far = depth_bounds(eye, (centre - eye) / np.linalg.norm(centre - eye), impostor.payload.world_points())
+    camera = Camera.look_at(eye, centre, math.radians(45.0), 96, near, far)
+    with (
+        MeshRenderer(scene.objects, normals=True, materials=True) as geometry,
+        impostor.payload.gbuffer(impostor) as stand_in,
+        matte.payload.gbuffer(matte) as without,
+    ):
+        g_image, _, g_material = geometry.render_material(camera)
+        i_image, _, i_material = stand_in.render_material(camera)
+        assert not without.materials
+    both = (g_image[..., 3] > 0) & (i_image[..., 3] > 0)
+    assert both.sum() > 500
+    error = np.abs(g_material[both] - i_material[both])
+    assert np.median(error, axis=0).max() < 0.01, np.median(error, axis=0)
+    assert (error.max(axis=1) < 0.05).mean() > 0.9
+    assert np.abs(i_material[~(i_image[..., 3] > 0)]).max() == 0.0
+
+    # The lit evaluation shades the impostor with its material: closer to the metal tree than matte.
+    from farfield.core.quality.lit import evaluate_lit_at
+
+    plain = technique.bake(scene, SphereOutsideCell([0.0, 0.0, 1.1], 3.0), technique.options(
+        {"grid": 9, "frame_resolution": 32, "channels": "albedo+normal+depth"}, 64), None, None)  # fmt: skip
+    worst = {}
+    for name, baked in (("kept", impostor), ("matte", plain)):
+        totals = evaluate_lit_at(scene, baked, eye[None], ["random"], samples=1).totals
+        assert totals["impostor_material"] == name
+        worst[name] = max(light["lit_error_mean"] for light in totals["lights"])
+    assert 2.0 * worst["kept"] < worst["matte"], worst
+
+    back = read_bundle(write_bundle(impostor, tmp_path / "octa").directory)
+    for name in ("material", "emissive"):
+        assert np.array_equal(back.channels[name][0], impostor.channels[name][0])
+    glb = impostor_glb(impostor)
+    (tmp_path / "octa.glb").write_bytes(glb)  # the session's validator checks it
+    document = json.loads(glb[20 : 20 + int.from_bytes(glb[12:16], "little")])
+    (lit,) = document["materials"]
+    assert {"metallicRoughnessTexture", "baseColorTexture"} <= set(lit["pbrMetallicRoughness"])
+    assert {"occlusionTexture", "emissiveTexture", "normalTexture"} <= set(lit)

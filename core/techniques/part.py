@@ -149,7 +149,7 @@ def part_evaluation_text(result: Evaluation, impostor: Impostor) -> str:
         lines.append(
             f"outside the view cell: {t['outside']['viewpoints']} viewpoints, {t['outside']['hole_pixels']} hole pixels"
         )
-    channel = sum(p.nbytes for pages in impostor.channels.values() for p in pages)  # normal pages, where kept
+    channel = sum(p.nbytes for pages in impostor.channels.values() for p in pages)  # the channels' pages, where kept
     memory = impostor.texture_bytes + channel + impostor.stats.get("geometry_bytes", 0)
     lines.append(
         f"impostor ({impostor.technique}): "
@@ -159,7 +159,7 @@ def part_evaluation_text(result: Evaluation, impostor: Impostor) -> str:
             else "".join(f"{v:,} {k}, " for k, v in impostor.payload.counts().items())
         )
         + f"{memory / 1024:.1f} KiB (atlas pages {impostor.texture_bytes / 1024:.1f} KiB"
-        + (f" + normal pages {channel / 1024:.1f} KiB" if channel else "")
+        + (f" + {' + '.join(impostor.channels)} pages {channel / 1024:.1f} KiB" if channel else "")
         + " + geometry)"
     )
     return "\n".join(lines)

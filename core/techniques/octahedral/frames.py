@@ -17,6 +17,11 @@ its covered samples', stored as the height above the card plane through ``c`` al
 direction, ``h in [-r, r]``, in the normal page's alpha: ``round((h / r * 0.5 + 0.5) * 254) + 1``
 (0: nothing there).
 
+With the material (``materials``), each texel keeps glTF's ORM packing of the same samples
+(:meth:`MeshRenderer.render_material`: occlusion, roughness, metallic; their mean over the covered
+samples, linear bytes, alpha 255 where covered) and, with ``emissive``, their mean linear emission,
+sRGB-encoded: the material and emissive pages of docs/lit-impostors.md, laid out as the colour.
+
 Atlas cells are ``frame_resolution + 2 * padding`` texels a side, the frame in its middle, laid
 out in frame order on as few pages of at most ``max_page`` texels as hold them (:func:`pages_layout`); the colour is dilated into every empty texel of
 the cell (alpha stays 0: :func:`farfield.core.layering.atlas.fill_nearest_rgb`), so bilinear
@@ -30,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from farfield.core.colour_space import linear_to_srgb
 from farfield.core.errors import AtlasOverflowError
 from farfield.core.impostor.impostor import encode_normals
 from farfield.core.layering.atlas import fill_nearest_rgb
@@ -90,11 +96,6 @@ def frame_camera(sphere: Sphere, direction: np.ndarray, resolution: int) -> Came
     return Camera.look_at(eye, sphere.centre, fov, resolution, (ORTHO_DISTANCE - 1.5) * r, (ORTHO_DISTANCE + 1.5) * r)
 
 
-def _eye_depth(renderer: MeshRenderer, camera: Camera) -> np.ndarray:
-    """(h, w) float64 eye depth of the last render from ``camera`` (:meth:`MeshRenderer.last_depth`)."""
-    return renderer.last_depth(camera)
-
-
 @dataclass(frozen=True, slots=True)
 class Frames:
     """The recorded frames of one part."""
@@ -102,25 +103,64 @@ class Frames:
     colour: np.ndarray  # (k, f, f, 4) uint8 sRGB colour + alpha (0 or 255), top row first
     normal: np.ndarray | None  # (k, f, f, 4) uint8 world normals (encode_normals), alpha = depth byte; None: not kept
     depth_extent: float  # world units: the largest |height| of a covered texel over every frame
+    material: np.ndarray | None = (
+        None  # (k, f, f, 4) uint8 linear occlusion, roughness, metallic, alpha 255 where covered
+    )
+    emissive: np.ndarray | None = None  # (k, f, f, 4) uint8 sRGB-encoded linear emission, alpha 255 where covered
+
+
+def _block_sum(values: np.ndarray, covered: np.ndarray, samples: int) -> np.ndarray:
+    """(f, f, c) float64 sums of the covered ``values`` (f*s, f*s, c) over each texel's ``samples``² samples."""
+    f = covered.shape[0] // samples
+    masked = values.astype(np.float64) * covered[..., None]
+    return masked.reshape(f, samples, f, samples, values.shape[-1]).sum(axis=(1, 3))
+
+
+def _material_texels(material: np.ndarray, covered: np.ndarray, samples: int, emissive: bool):
+    """((f, f, 4) uint8 ORM, (f, f, 4) uint8 sRGB emission or None) of one frame's (f*s, f*s, 6)
+    material G-buffer: the mean of each texel's covered samples (module docstring)."""
+    count = _block_sum(np.ones(covered.shape + (1,)), covered, samples)
+    mean = _block_sum(material, covered, samples) / np.maximum(count, 1.0)
+    hit = count[..., 0] > 0
+    alpha = np.where(hit, 255, 0).astype(np.uint8)[..., None]
+    orm = np.concatenate([np.rint(np.clip(mean[..., :3], 0.0, 1.0) * 255.0).astype(np.uint8), alpha], axis=-1)
+    if not emissive:
+        return orm, None
+    light = np.rint(linear_to_srgb(mean[..., 3:6]) * 255.0).astype(np.uint8)
+    return orm, np.concatenate([light, alpha], axis=-1)
 
 
 def record_frames(
-    objects, sphere: Sphere, directions: np.ndarray, resolution: int, samples: int = 2, normals: bool = False
+    objects,
+    sphere: Sphere,
+    directions: np.ndarray,
+    resolution: int,
+    samples: int = 2,
+    normals: bool = False,
+    materials: bool = False,
+    emissive: bool = False,
 ) -> Frames:
-    """Draw the part's ``objects`` in every frame of ``directions`` (k, 3) (module docstring)."""
+    """Draw the part's ``objects`` in every frame of ``directions`` (k, 3) (module docstring);
+    ``materials`` (with ``normals``) keeps the ORM frames, ``emissive`` (with ``materials``) the
+    emission frames too."""
     k = directions.shape[0]
     fine = resolution * samples
+    materials = bool(materials and normals)
     colour = np.zeros((k, resolution, resolution, 4), np.uint8)
     normal = np.zeros((k, resolution, resolution, 4), np.uint8) if normals else None
+    orm = np.zeros((k, resolution, resolution, 4), np.uint8) if materials else None
+    light = np.zeros((k, resolution, resolution, 4), np.uint8) if materials and emissive else None
     extent = 0.0
-    with MeshRenderer(objects, normals=normals) as renderer:
+    with MeshRenderer(objects, normals=normals, materials=materials) as renderer:
         for index, direction in enumerate(directions):
             camera = frame_camera(sphere, direction, fine)
-            if normals:
+            if materials:
+                image, world, material = renderer.render_material(camera)
+            elif normals:
                 image, world = renderer.render_normals(camera)
             else:
                 image, world = renderer.render(camera), None
-            height = ORTHO_DISTANCE * sphere.radius - _eye_depth(renderer, camera)
+            height = ORTHO_DISTANCE * sphere.radius - renderer.last_depth(camera)
             covered = image[..., 3] > 0
             colour[index] = downsample(image, samples)
             blocks = (resolution, samples, resolution, samples)
@@ -128,17 +168,20 @@ def record_frames(
             hit = np.isfinite(top)
             if hit.any():
                 extent = max(extent, float(np.abs(top[hit]).max()))
+            if orm is not None:
+                texels, emitted = _material_texels(material, covered, samples, light is not None)
+                orm[index] = texels
+                if light is not None:
+                    light[index] = emitted
             if normal is not None:
-                summed = (
-                    (world * covered[..., None]).reshape(resolution, samples, resolution, samples, 3).sum(axis=(1, 3))
-                )
+                summed = _block_sum(world, covered, samples)
                 length = np.linalg.norm(summed, axis=-1, keepdims=True)
                 unit = np.divide(summed, length, out=np.zeros_like(summed), where=length > 0)
                 texels = encode_normals(unit)
                 level = np.clip(np.round((top / sphere.radius * 0.5 + 0.5) * DEPTH_LEVELS), 0, DEPTH_LEVELS) + 1
                 texels[..., 3] = np.where(hit, level, 0).astype(np.uint8)
                 normal[index] = texels
-    return Frames(colour, normal, extent)
+    return Frames(colour, normal, extent, orm, light)
 
 
 def cell_size(resolution: int, padding: int) -> int:

@@ -195,7 +195,8 @@ class OctahedralPayload(_PayloadBase):
         """The runtime as a G-buffer (:meth:`OctahedralRenderer.render_normals
         <farfield.core.techniques.octahedral.runtime.OctahedralRenderer.render_normals>`): the
         three frames' normals blended as their colours are, where ``normals`` and the impostor keeps
-        them, else the card's, facing the eye."""
+        them, else the card's, facing the eye; a material G-buffer (``render_material``, their
+        material and emissive pages blended alike) where the impostor keeps the material channel."""
         from farfield.core.techniques.octahedral.runtime import OctahedralRenderer
 
         return OctahedralRenderer(impostor, gbuffer=True, normal_pages=normals)

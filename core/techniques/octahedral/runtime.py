@@ -9,7 +9,8 @@ through the centre perpendicular to the line to the eye, ``r D / sqrt(D² - r²)
 covers the bounding sphere's silhouette from distance ``D``).  Per fragment the eye ray meets
 each frame (its card plane, or with depth its height field: the parallax correction; between the
 frame's and its opposite frame's surfaces where the grid has one) and the three colours are
-blended, cut at a blended alpha of 0.5, and the hit point's depth written.
+blended, cut at a blended alpha of 0.5, and the hit point's depth written.  A G-buffer renderer
+blends the frames' normals, and where the impostor keeps them their materials, alike.
 """
 
 from __future__ import annotations
@@ -78,7 +79,10 @@ class OctahedralRenderer:
     def __init__(self, impostor: Impostor, gbuffer: bool = False, normal_pages: bool = True):
         """``gbuffer``: :meth:`render_normals` gives each pixel's world normal beside its colour, the
         blended normal pages' where ``normal_pages`` and the impostor keeps them, else the card's
-        (facing the eye: a flat card's, as :mod:`farfield.core.quality.lit` compares)."""
+        (facing the eye: a flat card's, as :mod:`farfield.core.quality.lit` compares); where the
+        impostor keeps the material channel, ``materials`` is true and :meth:`render_material`
+        gives its blended material pages too (as :meth:`MeshRenderer.render_material
+        <farfield.core.render.raster.MeshRenderer.render_material>` gives the geometry's)."""
         payload = impostor.payload
         self.ctx = ctx = gl_context()
         self.payload = payload
@@ -97,6 +101,17 @@ class OctahedralRenderer:
         for texture in self.heights:
             texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self.sizes = [(float(page.shape[1]), float(page.shape[0])) for page in impostor.pages]
+        # The material pages (ORM linear, emission sRGB: sampled as the colour is, bilinear), a black
+        # page where nothing emits; the material G-buffer only.
+        self.materials = bool(gbuffer) and "material" in impostor.channels
+        if self.materials:
+            emissive = impostor.channels.get("emissive") or [blank] * len(impostor.pages)
+            self.orm = [linear_texture(ctx, page) for page in impostor.channels["material"]]
+            self.emission = [srgb_texture(ctx, page) for page in emissive]
+        else:
+            self.orm, self.emission = [], []
+        for texture in self.orm + self.emission:
+            texture.repeat_x = texture.repeat_y = False
         # Each frame's opposite frame (direction -d), -1 where none: its depth bounds the columns.
         dots = payload.axes[:, 2] @ payload.axes[:, 2].T if payload.count else np.zeros((0, 0))
         best = np.argmin(dots, axis=1) if payload.count else np.zeros(0, np.int64)
@@ -105,7 +120,7 @@ class OctahedralRenderer:
         self.vbo = ctx.buffer(reserve=4 * 3 * 4)
         self.ibo = ctx.buffer(np.array([0, 1, 2, 0, 2, 3], "<u4").tobytes())
         self.vao = ctx.vertex_array(self.prog, [(self.vbo, "3f", "in_position")], self.ibo)
-        self._owned += [*self.atlases, *self.heights, self.vbo, self.ibo, self.vao]
+        self._owned += [*self.atlases, *self.heights, *self.orm, *self.emission, self.vbo, self.ibo, self.vao]
         self._targets: dict[int, tuple] = {}
 
     def last_depth(self, camera: Camera) -> np.ndarray:
@@ -118,6 +133,8 @@ class OctahedralRenderer:
             colour = self.ctx.texture((resolution, resolution), 4)
             depth = self.ctx.depth_texture((resolution, resolution))
             targets = [colour] + ([self.ctx.texture((resolution, resolution), 4, dtype="f4")] if self.normals else [])
+            if self.materials:  # occlusion, roughness, metallic; linear emission
+                targets += [self.ctx.texture((resolution, resolution), 4, dtype="f4") for _ in range(2)]
             fbo = self.ctx.framebuffer(targets, depth)
             self._targets[resolution] = (colour, depth, fbo, *targets[1:])
             self._owned += [*targets, depth, fbo]
@@ -156,11 +173,17 @@ class OctahedralRenderer:
         prog["f_size"].value = [self.sizes[page] for page in pages]
         prog["use_depth"].value = int(self.use_depth)
         prog["normal_mode"].value = self.normal_mode
+        prog["material_mode"].value = int(self.materials)
         for slot, page in enumerate(pages):
             prog[f"atlas{slot}"].value = slot
             self.atlases[page].use(slot)
             prog[f"heights{slot}"].value = 3 + slot
             self.heights[page].use(3 + slot)
+            if self.materials:
+                prog[f"orm{slot}"].value = 9 + slot
+                self.orm[page].use(9 + slot)
+                prog[f"emission{slot}"].value = 12 + slot
+                self.emission[page].use(12 + slot)
         opposite = [int(self.opposite[f]) for f in frames]
         two_sided = [o >= 0 and self.use_depth for o in opposite]
         prog["o_valid"].value = [int(v) for v in two_sided]
@@ -195,6 +218,20 @@ class OctahedralRenderer:
         normal = self._targets[camera.resolution][3]
         data = np.frombuffer(normal.read(), dtype=np.float32).reshape(camera.resolution, camera.resolution, 4)
         return image, data[::-1, :, :3].copy()
+
+    def render_material(self, camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The (h, w, 4) uint8 image, (h, w, 3) float32 normals (:meth:`render_normals`) and (h, w, 6)
+        float32 material of the same pixels, top row first: occlusion, roughness, metallic, linear
+        emitted RGB, the three frames' material pages blended as their colours (zero where nothing
+        was drawn); a renderer whose impostor keeps the material channel, made with ``gbuffer=True``."""
+        if not self.materials:
+            raise ValueError("this renderer was made without materials (a G-buffer of an impostor that keeps them)")
+        image, normals = self.render_normals(camera)
+        size = camera.resolution
+        _, _, _, _, orm, emission = self._targets[size]
+        material = np.frombuffer(orm.read(), dtype=np.float32).reshape(size, size, 4)[::-1, :, :3]
+        light = np.frombuffer(emission.read(), dtype=np.float32).reshape(size, size, 4)[::-1, :, :3]
+        return image, normals, np.concatenate([material, light], axis=-1)
 
     def frame_seconds(self, camera: Camera) -> float:
         """Seconds to draw one frame from ``camera`` and wait for it (no read-back)."""

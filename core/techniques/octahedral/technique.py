@@ -23,13 +23,13 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from farfield.core import __version__
-from farfield.core.errors import LayerPlanError, ViewCellError
-from farfield.core.impostor.impostor import ChannelSet, Impostor, wants_depth, wants_material, wants_normals
+from farfield.core.errors import ViewCellError
+from farfield.core.impostor.impostor import ChannelSet, Impostor, keeps_material, wants_depth, wants_normals
 from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.options import check_options, option
 from farfield.core.pixel_angles import MAX_RESOLUTION
 from farfield.core.quality.evaluation import Evaluation
-from farfield.core.scene import Scene
+from farfield.core.scene import Scene, emits
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import CellCost, Promise, TechniqueDefinition
 from farfield.core.techniques.octahedral.accuracy import accuracy_distance
@@ -78,8 +78,10 @@ class OctahedralOptions:
     )
     channels: ChannelSet = option(
         "albedo",
-        "what each texel keeps: albedo, albedo+normal (world normals on a second page) or albedo+normal+depth "
-        "(the normal page's alpha holds each texel's height: the runtime corrects the frames' parallax with it)",
+        "what each texel keeps: albedo, albedo+normal (world normals on a second page), albedo+normal+depth "
+        "(the normal page's alpha holds each texel's height: the runtime corrects the frames' parallax with it); "
+        "+material (glTF occlusion, roughness, metallic and emission on material and emissive pages, where the "
+        "part has a material)",
     )
     max_page: int = option(
         MAX_PAGE, "largest atlas page side, texels: the frames take as many pages as they need", ge=64, le=16384
@@ -87,11 +89,6 @@ class OctahedralOptions:
 
     def __post_init__(self) -> None:
         check_options(self)
-        if wants_material(self.channels):
-            raise LayerPlanError(
-                f"octahedral impostors keep albedo, albedo+normal or albedo+normal+depth, not {self.channels!r} "
-                "(the material channel is not baked into frames yet)"
-            )
 
 
 def _nearest(cell: ViewCell, centre: np.ndarray) -> float:
@@ -139,8 +136,10 @@ def bake_octahedral(
     directions = frame_directions(n, options.hemisphere)
     normals, depth = wants_normals(options.channels), wants_depth(options.channels)
     page_of, texel, sides = pages_layout(n, res, pad, options.max_page)  # an overflow before any work
+    material = keeps_material(options.channels, part.objects)  # a matte part keeps no material pages
+    emissive = material and any(emits(obj) for obj in part.objects)
     with clock("frames"):
-        frames = record_frames(part.objects, sphere, directions, res, options.samples, normals=normals)
+        frames = record_frames(part.objects, sphere, directions, res, options.samples, normals, material, emissive)
     clock.report("frames", 1, 1)
     with clock("atlas"):
         covered = frames.colour[..., 3] > 0
@@ -151,6 +150,9 @@ def bake_octahedral(
             if not depth:
                 normal[..., 3] = np.where(covered, 255, 0)
             channels["normal"] = compose_atlas(normal, page_of, texel, sides, pad, mask=covered)
+        for name, kept in (("material", frames.material), ("emissive", frames.emissive)):
+            if kept is not None:  # laid out and dilated as the colour
+                channels[name] = compose_atlas(kept, page_of, texel, sides, pad)
     clock.report("atlas", 1, 1)
     gap = None
     opposite = opposite_frames(n, options.hemisphere)
@@ -185,7 +187,9 @@ def bake_octahedral(
         "seconds": clock.totals(),
     }
     if channels:
-        stats["channel_bytes"] = {"albedo": texture_bytes, "normal": int(sum(p.nbytes for p in channels["normal"]))}
+        stats["channel_bytes"] = {"albedo": texture_bytes} | {
+            name: int(sum(p.nbytes for p in kept)) for name, kept in channels.items()
+        }
     return Impostor(
         technique="octahedral",
         viewcell=cell.to_dict(),

@@ -32,9 +32,18 @@ uniform vec2 o_origin[3];
 uniform vec2 o_size[3];
 uniform int use_depth;
 uniform int normal_mode;          // G-buffer normals: 0 none, 1 the normal pages', 2 the card's (facing the eye)
+uniform int material_mode;        // 1: a material G-buffer (the material pages blended as the colour)
+uniform sampler2D orm0;           // each blended frame's material page: occlusion, roughness, metallic (linear)
+uniform sampler2D orm1;
+uniform sampler2D orm2;
+uniform sampler2D emission0;      // and its emissive page (sRGB: read as linear emission; black where none)
+uniform sampler2D emission1;
+uniform sampler2D emission2;
 in vec3 v_local;
 layout(location = 0) out vec4 frag_color;
 layout(location = 1) out vec4 frag_normal;  // world normal (a G-buffer render; core/quality/lit.py)
+layout(location = 2) out vec4 frag_material;  // occlusion, roughness, metallic (a material G-buffer)
+layout(location = 3) out vec4 frag_emission;  // linear emission
 
 #include "colour.glsl"
 
@@ -53,6 +62,21 @@ vec4 colour_at(int k, vec2 t) {  // bilinear, linear light (an sRGB texture)
     if (k == 0) return texture(atlas0, uv);  // GLSL 3.30 indexes sampler arrays by constants only
     if (k == 1) return texture(atlas1, uv);
     return texture(atlas2, uv);
+}
+
+vec2 page_uv(int k, vec2 t) {  // frame k's texel position t as its page's texture coordinate
+    vec2 a = f_origin[k] + t;
+    return vec2(a.x / f_size[k].x, 1.0 - a.y / f_size[k].y);
+}
+
+vec3 orm_at(int k, vec2 t) {  // bilinear, as the colour
+    vec2 uv = page_uv(k, t);
+    return (k == 0 ? texture(orm0, uv) : k == 1 ? texture(orm1, uv) : texture(orm2, uv)).rgb;
+}
+
+vec3 emission_at(int k, vec2 t) {
+    vec2 uv = page_uv(k, t);
+    return (k == 0 ? texture(emission0, uv) : k == 1 ? texture(emission1, uv) : texture(emission2, uv)).rgb;
 }
 
 vec3 normal_at(int k, vec2 t) {  // the normal page's world normal, nearest texel
@@ -86,6 +110,7 @@ void main() {
     vec3 ray = normalize(v_local - eye_local);
     vec3 rgb = vec3(0.0);
     vec3 normal = vec3(0.0);
+    vec3 orm = vec3(0.0), emission = vec3(0.0);
     float weight = 0.0, along = 0.0;
     for (int k = 0; k < 3; ++k) {
         if (f_weight[k] <= 0.0) continue;
@@ -134,7 +159,12 @@ void main() {
             c = colour_at(k, frame_texel(k, eye_local + t * ray)).rgb;
         }
         rgb += f_weight[k] * alpha * c;
-        if (normal_mode == 1) normal += f_weight[k] * alpha * normal_at(k, frame_texel(k, eye_local + t * ray));
+        vec2 at = frame_texel(k, eye_local + t * ray);
+        if (normal_mode == 1) normal += f_weight[k] * alpha * normal_at(k, at);
+        if (material_mode == 1) {
+            orm += f_weight[k] * alpha * orm_at(k, at);
+            emission += f_weight[k] * alpha * emission_at(k, at);
+        }
         weight += f_weight[k] * alpha;
         along += f_weight[k] * alpha * t;
     }
@@ -147,4 +177,6 @@ void main() {
     vec3 shading = normal_mode == 2 ? -ray : normal;
     bool none = normal_mode == 0 || dot(shading, shading) == 0.0;
     frag_normal = vec4(none ? vec3(0.0) : normalize(shading), 1.0);
+    frag_material = vec4(orm / weight, 1.0);
+    frag_emission = vec4(emission / weight, 1.0);
 }
