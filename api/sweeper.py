@@ -1,5 +1,5 @@
 """The API's background sweep: running cells whose lease expired (their worker died, whichever host it ran
-on: :func:`farfield.service.jobs.leases.release_expired_leases`) are queued again and sent at once;
+on: :func:`farfield.service.jobs.cells.release_expired_leases`) are queued again and sent at once;
 cells queued too long without starting are sent to the queue again, and so are placement jobs whose
 planning message or planning worker is lost (:func:`farfield.service.placement.lease.lost_planning_jobs`).
 
@@ -10,8 +10,7 @@ from __future__ import annotations
 import logging
 import threading
 
-from farfield.service.jobs.cells import lost_queued_cells
-from farfield.service.jobs.leases import release_expired_leases
+from farfield.service.jobs.cells import lost_queued_cells, release_expired_leases
 from farfield.service.placement.lease import lost_planning_jobs
 from farfield.workers.app import send_planning
 

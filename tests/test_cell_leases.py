@@ -12,8 +12,14 @@ from test_failure_classes import MAX_ATTEMPTS, Stack
 
 import farfield.service.jobs.runner as cell_runner
 from farfield.service.db import JobRow, WorkerRow
-from farfield.service.jobs.cells import cancel_job, claim_cell, end_cell, finish_job_if_complete
-from farfield.service.jobs.leases import Heartbeat, release_expired_leases, renew_leases, worker_records
+from farfield.service.jobs.cells import (
+    cancel_job,
+    claim_cell,
+    end_cell,
+    finish_job_if_complete,
+    release_expired_leases,
+)
+from farfield.service.jobs.leases import Heartbeat, renew_leases, worker_records
 from farfield.service.jobs.runner import run_cell
 
 LEASE = 30.0

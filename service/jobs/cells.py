@@ -172,6 +172,32 @@ def release_lost_cells(
     return changed
 
 
+def expired_cells(db: Database, limit: int = 1000) -> list[str]:
+    """Ids of running cells whose lease ran out."""
+    with db.session() as s:
+        return list(
+            s.scalars(
+                select(CellRow.id)
+                .where(CellRow.state == "running", CellRow.lease_until < now())
+                .order_by(CellRow.lease_until)
+                .limit(limit)
+            )
+        )
+
+
+def release_expired_leases(db: Database, blobs: BlobStore, max_attempts: int, lease_s: float) -> dict[str, str]:
+    """Queue again (or fail at the last attempt, or cancel in a cancelled job) every running cell whose
+    lease ran out; returns the new state by cell id.  Queued ones are marked to be sent at the next
+    look for lost messages (:func:`lost_queued_cells`)."""
+    found = expired_cells(db)
+    if not found:
+        return {}
+    return release_lost_cells(
+        db, blobs, found, max_attempts, f"its lease expired: its worker stopped renewing it for {lease_s:g} s",
+        resend=True, expired_only=True,
+    )  # fmt: skip
+
+
 def running_cells_of(db: Database, worker: str) -> list[str]:
     """Ids of the cells that ``worker`` (a Celery node name, ``name@host``) is running."""
     with db.session() as s:

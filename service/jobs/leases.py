@@ -9,7 +9,7 @@ now, and records the worker itself (``workers``: host, kind, renderer, last hear
 holds the GIL in a long numba or GL call does not lose its lease, while a node that is killed whole
 (or stopped, or cut off from the database) stops renewing it.
 
-The API's sweeper (:func:`release_expired_leases`) queues again each running cell whose lease ran
+The API's sweeper (:func:`farfield.service.jobs.cells.release_expired_leases`) queues again each running cell whose lease ran
 out, whichever host held it, counting the attempt (failed at the last one; cancelled when its job
 was), and sends it again at once.  Every write of an attempt names its token, compared in the SQL
 ``UPDATE``'s ``WHERE`` (:func:`~farfield.service.jobs.cells.end_cell`,
@@ -66,34 +66,6 @@ def lease_lost(db: Database, cell_id: str, token: str) -> bool:
     with db.session() as s:
         held = s.scalar(select(CellRow.lease_token).where(CellRow.id == cell_id, CellRow.state == "running"))
     return held != token
-
-
-def expired_cells(db: Database, limit: int = 1000) -> list[str]:
-    """Ids of running cells whose lease ran out."""
-    with db.session() as s:
-        return list(
-            s.scalars(
-                select(CellRow.id)
-                .where(CellRow.state == "running", CellRow.lease_until < now())
-                .order_by(CellRow.lease_until)
-                .limit(limit)
-            )
-        )
-
-
-def release_expired_leases(db: Database, blobs, max_attempts: int, lease_s: float) -> dict[str, str]:
-    """Queue again (or fail at the last attempt, or cancel in a cancelled job) every running cell whose
-    lease ran out; returns the new state by cell id.  Queued ones are marked to be sent at the next
-    look for lost messages (:func:`~farfield.service.jobs.cells.lost_queued_cells`)."""
-    from farfield.service.jobs.cells import release_lost_cells
-
-    found = expired_cells(db)
-    if not found:
-        return {}
-    return release_lost_cells(
-        db, blobs, found, max_attempts, f"its lease expired: its worker stopped renewing it for {lease_s:g} s",
-        resend=True, expired_only=True,
-    )  # fmt: skip
 
 
 # --- the worker registry ------------------------------------------------------------------------
