@@ -147,7 +147,9 @@ def run_cell(
     *, time_limit: int | None = None, memory: MemoryGuard | None = None, lease_s: float = LEASE_S,
 ) -> str:  # fmt: skip
     """Run one cell; returns its new state ("done", "failed", "cancelled"), "skipped", or "lost"
-    (its lease expired while it ran: :mod:`farfield.service.jobs.leases`; nothing recorded).
+    (the cell went on without this attempt: its lease expired while it ran,
+    :mod:`farfield.service.jobs.leases`, or the worker's main process failed it at the time limit;
+    nothing recorded).
 
     A failed attempt is counted on the cell and falls in one of three classes
     (:func:`failure_class`):
