@@ -133,12 +133,40 @@ def test_a_paused_node_s_late_result_is_discarded(cluster, bunny):
         assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "done"
 
 
-def test_workers_report_host_kind_renderer_and_heartbeat(cluster):
+def test_cancelling_a_job_whose_node_died_leaves_no_cell_running(cluster, bunny):
+    """The node baking a cell is killed and the job cancelled: once the cell's lease runs out the sweep
+    cancels it, the job ends (finished, nothing running) and its index answers for good (a cancelled
+    job has none: 409 "ended without", never "written when it ends")."""
     two_live_workers(cluster)
     with cluster.client() as client:
-        listed = client.get("/v1/workers").json()
+        created = client.post(
+            "/v1/jobs", json={"scene_id": bunny, "viewcells": [_cell_of_grid()], "resolution": 1040, "evaluate": False}
+        )
+        assert created.status_code == 201, created.text
+        job_id = created.json()["id"]
+        cluster.worker(running_mid_cell(client, job_id)["worker"]).kill()
+        assert client.post(f"/v1/jobs/{job_id}/cancel").status_code == 200
+        cell = wait_for_cell(client, job_id, 0, lambda c: c["state"] != "running", RECOVERY_S, "ended")
+        job = client.get(f"/v1/jobs/{job_id}").json()
+        assert cell["state"] == "cancelled" and job["state"] == "cancelled" and job["finished_at"] is not None
+        assert job["counts"]["running"] == 0 and job["counts"]["queued"] == 0
+        index = client.get(f"/v1/jobs/{job_id}/index.json")
+        assert index.status_code == 409 and index.json()["detail"] == (
+            f"job {job_id!r} is cancelled; it ended without an impostor database index"
+        )
+
+
+def test_workers_report_host_kind_renderer_and_heartbeat(cluster):
+    two_live_workers(cluster)
+    deadline = time.monotonic() + 60
+    with cluster.client() as client:
+        while True:  # a node's renderer is probed (a second or so) after its first heartbeat
+            listed = client.get("/v1/workers").json()
+            alive = [w for w in listed["workers"] if w["alive"]]
+            if all(w["renderer"] for w in alive) or time.monotonic() > deadline:
+                break
+            time.sleep(0.2)
     assert listed["lease_s"] == 4 and listed["heartbeat_s"] == 1
-    alive = [w for w in listed["workers"] if w["alive"]]
     assert len(alive) >= 2
     for worker in alive:
         assert worker["kind"] == "cpu" and "llvmpipe" in worker["renderer"], worker  # this machine's Mesa EGL
