@@ -32,10 +32,11 @@ MIGRATIONS = Path(__file__).resolve().parent / "migrations"
 
 CELL_STATES = ("queued", "running", "done", "failed", "cancelled")
 CELL_FINAL = ("done", "failed", "cancelled")
-JOB_STATES = ("queued", "placing", "running", "done", "failed", "cancelled")
-# A placement job is ``placing`` while a worker plans it and while it checks (and repairs) the baked
-# impostors; its other states are a grid job's (service.placement).
-OPEN_JOB_STATES = ("queued", "placing", "running")
+JOB_STATES = ("admitting", "queued", "placing", "running", "done", "failed", "cancelled")
+# A job of view cells is ``admitting`` while a worker checks its cells' full plans before any is
+# baked (service.jobs.admitting).  A placement job is ``placing`` while a worker plans it and while
+# it checks (and repairs) the baked impostors; its other states are a grid job's (service.placement).
+OPEN_JOB_STATES = ("admitting", "queued", "placing", "running")
 
 
 def now() -> float:
