@@ -179,6 +179,19 @@ class Database:
                 session.rollback()
                 raise
 
+    def ping(self) -> None:
+        """``SELECT 1`` on a pooled connection, outside the sessions' transactions: a health check
+        that never waits for a writer (a session on SQLite begins ``BEGIN IMMEDIATE``, which queues
+        behind the transaction storing a 10,000-cell job).  Raises when the database is unreachable."""
+        connection = self.engine.raw_connection()
+        try:
+            cursor = connection.cursor()
+            cursor.execute("SELECT 1")
+            cursor.fetchone()
+            cursor.close()
+        finally:
+            connection.close()
+
     def migrate(self) -> None:
         """Bring the schema to the newest migration."""
         migrate(self.engine)
