@@ -40,8 +40,8 @@ export function renderJob(job) {
   $("job-technique-text").textContent = help ? `${name}: ${help}` : name;
   $("job-technique-text").dataset.technique = name;
   setState($("job-state"), job.state);
+  setBar($("job-progress"), job); // the cells' progress: 0 while they are checked
   const checking = admitting(job); // its cells' full checks, before any is baked
-  setBar($("job-progress"), checking || job);
   $("job-progress-text").textContent = checking ? checking.text : pct(job.progress);
   $("job-counts-text").textContent = countsText(job.counts, job.cells_total);
   $("job-eta").textContent = FINAL.has(job.state) ? "finished" : (job.eta_s != null ? fmtSeconds(job.eta_s) : "estimating…");

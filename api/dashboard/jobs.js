@@ -34,7 +34,7 @@ export async function refreshJobs() {
     sceneCell.textContent = scene ? scene.name : shortId(job.scene_id);
     setState(stateCell.firstChild, job.state);
     const checking = admitting(job);
-    setBar(progressCell.querySelector(".fill"), checking || job);
+    setBar(progressCell.querySelector(".fill"), job);
     progressCell.querySelector(".bar-label").textContent = checking ? checking.text
       : pct(job.progress) + (job.eta_s != null ? `, ETA ${fmtSeconds(job.eta_s)}` : "");
     countsCell.replaceChildren(countsText(job.counts, job.cells_total));
