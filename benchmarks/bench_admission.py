@@ -1,6 +1,9 @@
 """``POST /v1/jobs`` latency by cell count, and ``GET /v1/health`` while it runs (issue 58, item 3).
 
-Usage: ``.venv/bin/python benchmarks/bench_admission.py [--sizes 1,100,1000,10000] [--repeats 3] [--workers 0] [--json]``
+Usage: ``.venv/bin/python benchmarks/bench_admission.py [--sizes 1,100,1000,10000] [--repeats 3] [--workers 0] [--json] [--checks-only]``
+
+First, in this process, each technique's full check per cell (what the request ran for every cell
+before issue 58; a worker runs it now) and its ``bound`` per cell (what the request runs now).
 
 A real ``farfield up`` (embedded redis-server, uvicorn, SQLite, blob directory; ``--workers`` Celery
 workers, none by default so that the admission tasks wait in the queue and only the request is
@@ -112,13 +115,58 @@ def run(sizes: list[int], repeats: int, workers: int) -> list[dict]:
             service.stop()
 
 
+def check_costs(cells: int = 5, bound_cells: int = 10_000) -> list[dict]:
+    """Each technique's full check (what the request ran per cell before issue 58; a worker runs it
+    now) per cell, and its ``bound`` (what the request runs now) per cell over ``bound_cells``
+    cells, in this process: 4-unit box cells about 80 units in front of the 3-building city, the
+    techniques' default options (an octahedral impostor its own outside-the-sphere cell)."""
+    from farfield.core.techniques import TECHNIQUES
+    from farfield.core.viewcells import BoxCell, SphereOutsideCell
+
+    scene = city(buildings=3)
+    bounds = np.asarray(scene.bounds, dtype=np.float64)
+    boxes = [BoxCell([28.0 + 0.01 * i, 3.0, -80.0], [32.0 + 0.01 * i, 7.0, -76.0]) for i in range(bound_cells)]
+    rows = []
+    for name, technique in TECHNIQUES.items():
+        options = technique.options({})
+        if name == "octahedral":
+            centre = 0.5 * (bounds[0] + bounds[1])
+            radius = float(np.linalg.norm(bounds[1] - bounds[0]))
+            many = [SphereOutsideCell(centre, radius) for _ in range(bound_cells)]
+        else:
+            many = boxes
+        part = bounds if technique.scope == "part" else None
+        start = time.perf_counter()
+        for cell in many[:cells]:
+            cost = technique.check(cell, options, part)
+        check_s = (time.perf_counter() - start) / cells
+        bound = getattr(technique, "bound", None)
+        bound_s = None
+        if bound is not None:
+            start = time.perf_counter()
+            bound(many, options, part)
+            bound_s = (time.perf_counter() - start) / len(many)
+        rows.append({"technique": name, "check_ms": 1e3 * check_s, "cost": cost.describe(),
+                     "bound_us": None if bound_s is None else 1e6 * bound_s})  # fmt: skip
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", default="1,100,1000,10000")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--workers", type=int, default=0)
     parser.add_argument("--json", action="store_true")
+    parser.add_argument("--checks-only", action="store_true", help="only the techniques' check and bound costs")
     args = parser.parse_args()
+    checks = check_costs()
+    print("per cell: the full check (a worker runs it) and the request's bound (10,000 cells at once)")
+    print(f"{'technique':<11} {'check ms':>9} {'bound us':>9}  cost of one cell")
+    for r in checks:
+        bound = f"{r['bound_us']:>9.1f}" if r["bound_us"] is not None else f"{'none':>9}"
+        print(f"{r['technique']:<11} {r['check_ms']:>9.2f} {bound}  {r['cost']}")
+    if args.checks_only:
+        return
     rows = run([int(s) for s in args.sizes.split(",")], args.repeats, args.workers)
     if args.json:
         print(json.dumps(rows, indent=2))

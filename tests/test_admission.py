@@ -307,6 +307,35 @@ def test_a_job_over_the_tenant_cap_on_its_own_is_413_not_429(home):
     assert stored(home) == before
 
 
+def test_the_sweeper_sends_a_lost_admission_again_and_never_its_cells(tmp_path):
+    """An admitting job whose lease ran out (its message or its worker lost) is claimed once for
+    sending again; its queued cells are not sent by the lost-cell sweep, however old: they go out
+    when their checks pass."""
+    from farfield.service.jobs.admitting import lost_admissions
+    from farfield.service.jobs.cells import lost_queued_cells
+
+    with api_client(tmp_path) as client:
+        path = write_scene(city(buildings=3), tmp_path, "glb")
+        scene_id = client.post("/v1/scenes", files={"file": (path.name, path.read_bytes())}).json()["id"]
+    db = Database(Settings.from_env({"FARFIELD_HOME": str(tmp_path)}).database_url)
+    tenant_id = authenticate(db, KEY)
+    scene = get_scene_row(db, tenant_id, scene_id, with_objects=True)
+    job = create_job(
+        db, tenant_id, scene, JobSpec(scene_id=scene_id, resolution=64, viewcells=[CELL]), AdmissionLimits(), 60
+    )
+    assert lost_admissions(db, 60) == []  # its lease runs
+    with db.session() as s:
+        s.get(JobRow, job.id).lease_until = 0.0
+        s.query(CellRow).filter(CellRow.job_id == job.id).update({"queued_at": 0.0})
+    assert lost_queued_cells(db, 1.0) == []
+    assert lost_admissions(db, 60) == [job.id] and lost_admissions(db, 60) == []
+    assert admit(tmp_path, job.id)[0] == "queued"
+    with db.session() as s:
+        (cell_id,) = s.query(CellRow.id).filter(CellRow.job_id == job.id).all()[0]
+        s.query(CellRow).filter(CellRow.job_id == job.id).update({"queued_at": 0.0})
+    assert lost_queued_cells(db, 1.0) == [cell_id]  # admitted: an old queued cell is sent again
+
+
 def test_a_refused_plan_costs_no_more_than_the_limit(home, broker):
     """A cell's check stops planning at 8 times the limit: with a limit of 1e8 texels the 4096-px
     cell (260 layers of 5153x7291 when planned in full, 9.8e9 texels) fails after 22 layers."""
