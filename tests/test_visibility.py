@@ -177,3 +177,14 @@ def test_a_placement_with_visibility_places_nothing_for_a_hidden_block():
     assert with_vis.summary["cpvs"] == 0 and with_vis.impostors == []
     assert with_vis.parameters["visibility"]["kind"] == "sampled potentially visible sets"
     assert isinstance(without.parameters["visibility"], str)
+
+
+def test_the_service_stores_visibility_only_when_asked_and_the_planner_reads_it():
+    from farfield.service.placement.frame_time import FrameTime, planner_settings
+    from farfield.service.placement.schema import PlacementSpec
+
+    box = {"view_space": {"lo": [0, 0, 0], "hi": [10, 1, 10]}, "budget": {"primitives": 1000}}
+    on = FrameTime().params("layered", {}, 64, 45.0, PlacementSpec(**box, visibility=True))
+    off = FrameTime().params("layered", {}, 64, 45.0, PlacementSpec(**box))
+    assert on["placement"]["visibility"] is True and planner_settings(on)[0].visibility is True
+    assert "visibility" not in off["placement"] and planner_settings(off)[0].visibility is False
