@@ -3,6 +3,7 @@ planner counting only a region's PVS when ``visibility`` is on."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -188,3 +189,22 @@ def test_the_service_stores_visibility_only_when_asked_and_the_planner_reads_it(
     off = FrameTime().params("layered", {}, 64, 45.0, PlacementSpec(**box))
     assert on["placement"]["visibility"] is True and planner_settings(on)[0].visibility is True
     assert "visibility" not in off["placement"] and planner_settings(off)[0].visibility is False
+
+
+def test_place_command_takes_visibility_and_refuses_it_for_the_primitive_budget(tmp_path):
+    from click.testing import CliRunner
+    from scenes import write_scene
+
+    from farfield.cli.main import _register, cli
+
+    _register()
+    scene = _walled()
+    path = write_scene(scene, tmp_path, "glb", "walled")
+    args = ["place", str(path), "--view-space", "-10,-2,-10,0,2,10", "--primitives", str(0.5 * scene.triangle_count),
+            "--resolution", "64", "--vdi-deg", "45", "--cpv-size", "10", "--json", "--quiet"]  # fmt: skip
+    runner = CliRunner()
+    plain, culled = runner.invoke(cli, args), runner.invoke(cli, [*args, "--visibility"])
+    assert plain.exit_code == 0 and culled.exit_code == 0, plain.output + culled.output
+    assert json.loads(plain.output)["summary"]["impostors"] > 0 == json.loads(culled.output)["summary"]["impostors"]
+    refused = runner.invoke(cli, [*args, "--visibility", "--algorithm", "primitive-budget"])
+    assert refused.exit_code != 0 and "--visibility applies to the frame-time placement" in refused.output
