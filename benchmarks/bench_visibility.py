@@ -45,6 +45,7 @@ from bench_placement import (  # noqa: E402
     downtown_scene,
     envmap_grid_memory,
     mib,
+    problem_view_times,
 )
 
 from farfield.core.placement.cost_model import LLVMPIPE_MODEL  # noqa: E402
@@ -149,12 +150,7 @@ def estimate_ratios(scene, lo, hi, cpv: float, resolution: int, views: int, seed
         )
         if visible is not None:
             visible.release()
-        est = np.zeros(len(frames))
-        for n, (p, d) in enumerate(zip(positions, forwards)):
-            inside = np.all((pv.region_lo <= p + 1e-9) & (p <= pv.region_hi + 1e-9), axis=1)
-            for c in np.flatnonzero(inside[pv.cpv_region]):
-                if pv.cpv_vdi[c].contains(d[None, :])[0]:
-                    est[n] = max(est[n], pv.time[c])
+        est = problem_view_times(pv, positions, forwards)
         ratio = est / measured
         key = "visibility" if vis else "none"
         out[key] = {
@@ -249,7 +245,7 @@ def main() -> None:
                 m = r[key]
                 print(f"   placement ({key}) at t_max {r['t_max']:.3g} ms: {mib(m['memory_bytes']):.1f} MiB, {m['impostors']} impostors, {m['cpvs']} CPVs "
                       f"({m['cpvs_unsolved']} unsolved, {m['cpvs_unsolvable']} unsolvable), {m['seconds']:.0f} s; grid ÷ placement "
-                      f"{g['memory_bytes'] / max(m['memory_bytes'], 1):.2f}", flush=True)  # fmt: skip
+                      + (f"{g['memory_bytes'] / m['memory_bytes']:.2f}" if m["memory_bytes"] > 0 else "inf (no impostor needed)"), flush=True)  # fmt: skip
             print(
                 f"   envmap grid: {g['cells']} cells of {g['cell']:.3g} ({g['over']} over), {mib(g['memory_bytes']):.1f} MiB (estimated)",
                 flush=True,
