@@ -34,6 +34,7 @@ GL_CLIP_DISTANCE0 = 0x3000
 MAX_IDS = (1 << 24) - 2
 MAX_ATLAS_SIDE = 8192  # texels; llvmpipe and the NVIDIA driver allow 16384
 MAX_FACE_RESOLUTION = 1024
+MAX_CULL_ENTRIES = 4_000_000  # (point, face, element) frustum tests of one batch
 NEAR_SHARE = 1e-4  # near plane at this share of the far distance (24-bit depth)
 
 
@@ -99,7 +100,8 @@ class IdCubeRenderer:
         bounds = np.asarray(scene.bounds, dtype=np.float64)
         self.origin = 0.5 * (bounds[0] + bounds[1])
         self.scene_lo, self.scene_hi = bounds[0], bounds[1]
-        self.batch = max(1, MAX_ATLAS_SIDE // self.face)
+        # Points per draw: the atlas's height, and the culling's (points, 6, elements) arrays bounded.
+        self.batch = max(1, min(MAX_ATLAS_SIDE // self.face, MAX_CULL_ENTRIES // (6 * max(1, elements.count))))
         self.prog = program(ctx, "id_cube.vert", "id_cube.frag")
         self.prog["face_frames"].write(np.ascontiguousarray(face_frames().transpose(0, 2, 1)).astype("f4").tobytes())
         self.instances = ctx.buffer(reserve=self.batch * 6 * 20)  # eye (3 floats), face, row
