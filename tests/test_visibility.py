@@ -189,6 +189,11 @@ def test_the_service_stores_visibility_only_when_asked_and_the_planner_reads_it(
     off = FrameTime().params("layered", {}, 64, 45.0, PlacementSpec(**box))
     assert on["placement"]["visibility"] is True and planner_settings(on)[0].visibility is True
     assert "visibility" not in off["placement"] and planner_settings(off)[0].visibility is False
+    from farfield.core.placement.hierarchy import PlacementError
+    from farfield.service.placement.admission import placement_params
+
+    with pytest.raises(PlacementError, match="visibility: not a knob of the primitive-budget placement"):
+        placement_params(None, {}, 64, 45.0, PlacementSpec(**box, visibility=True, algorithm="primitive-budget"))
 
 
 def test_place_command_takes_visibility_and_refuses_it_for_the_primitive_budget(tmp_path):
