@@ -7,11 +7,12 @@ lattice points see, plus every element whose bounds lie within ``margin`` of the
 
 **The lattice** follows the problem view space's regions (:func:`farfield.core.placement.view_space.problem_view_space`
 halves the view space along its longest side down to the CPV size, so along each axis the smallest
-regions are ``span / 2^m``): along each axis the points divide every smallest region into
-``samples_per_side`` steps, so a region holds its corners, and with 2 (the default) the centres of its
-edges and faces and its own centre.  A parent region is the union of its children, and so is its
-PVS: the planner's children test only elements their parent kept.  Points are rendered on first use
-and kept.
+regions are ``span / 2^m``): its step is the longest side of a smallest region / ``samples_per_side``,
+rounded down per axis so that each region's side holds whole steps.  Every region's corners are
+lattice points, and with 2 (the default) the centres of its long edges, faces and itself.  A parent
+region is the union of its children, and so is its PVS: the planner's children test only elements
+their parent kept.  Points are rendered on first use and kept.  ``levels`` > 0 refines a lattice
+cell whose corners disagree at its midpoints (:class:`RegionVisibility`).
 
 **Density from the output resolution.**  A cube face has ``face_resolution_for(resolution, fov,
 texel_pixels)`` texels a side, so that one of its texels spans ``texel_pixels`` pixels of the output
