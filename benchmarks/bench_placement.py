@@ -558,6 +558,18 @@ def walkthrough_rows(
     return rows
 
 
+def problem_view_times(pv, positions, forwards) -> np.ndarray:
+    """(n,) time of the problem view each view (position, forward) lies in (the largest where
+    regions or intervals share a boundary; 0 in none)."""
+    est = np.zeros(len(positions))
+    for n, (p, d) in enumerate(zip(positions, forwards)):
+        inside = np.all((pv.region_lo <= p + 1e-9) & (p <= pv.region_hi + 1e-9), axis=1)
+        for c in np.flatnonzero(inside[pv.cpv_region]):
+            if pv.cpv_vdi[c].contains(d[None, :])[0]:
+                est[n] = max(est[n], pv.time[c])
+    return est
+
+
 def estimate_rows(
     scene: Scene,
     lo,
@@ -604,13 +616,7 @@ def estimate_rows(
     columns = {"per view (its frustum)": np.array([f["plain_estimate"] for f in frames])}
     for deg in vdi_degs:  # every region and interval is a problem view for a budget nothing meets
         pv = problem_view_space(elements, hierarchy, lo, hi, model, 1e-12, math.radians(45.0), resolution, cpv, deg)
-        est = np.zeros(len(frames))
-        for n, (p, d) in enumerate(zip(positions, forwards)):
-            inside = np.all((pv.region_lo <= p + 1e-9) & (p <= pv.region_hi + 1e-9), axis=1)
-            for c in np.flatnonzero(inside[pv.cpv_region]):
-                if pv.cpv_vdi[c].contains(d[None, :])[0]:
-                    est[n] = max(est[n], pv.time[c])
-        columns[f"its problem view, {deg:g}° intervals"] = est
+        columns[f"its problem view, {deg:g}° intervals"] = problem_view_times(pv, positions, forwards)
     print(f"{views} random views, seed {seed}, {resolution} px, 45°; CPV size {cpv:.4g}; plain frame measured p50 {np.median(measured):.2f} ms, "
           f"p99 {np.percentile(measured, 99):.2f} ms")  # fmt: skip
     print(f"{'estimate':<36} {'est. p99 ms':>11} {'est./measured, median':>22} {'slowest quarter':>16}")

@@ -424,6 +424,12 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
     help="primitive-budget: random views the planner checks the guarantee on [default: 2000].",
 )
 @click.option(
+    "--visibility",
+    is_flag=True,
+    default=None,
+    help="With --placement (frame-time): problem views count only their region's potentially visible set (not conservative).",
+)
+@click.option(
     "--evaluate/--no-evaluate",
     default=True,
     show_default=True,
@@ -442,7 +448,7 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
 @_client_options
 def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov, options, placement, view_space, frame_ms, cost_model, primitives,
            cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, max_impostor_mb, algorithm, p_opt, octree_depth, grid_points, max_level,
-           check_views, evaluate, wait, download, as_json, sides, url, key):  # fmt: skip
+           check_views, visibility, evaluate, wait, download, as_json, sides, url, key):  # fmt: skip
     """Submit a job for SCENE (a file to upload, or the id of an uploaded scene).  A .gltf or .obj is
     uploaded with the files it refers to (buffers, images; MTL, textures), zipped; --sides goes with
     the upload (an uploaded scene keeps the sidedness it was uploaded with)."""
@@ -453,10 +459,13 @@ def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov
         if view_space is None:
             raise ServiceError("--placement needs --view-space X0,Y0,Z0,X1,Y1,Z1")
         request = placement_request(view_space, frame_ms, cost_model, primitives, cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, max_impostor_mb,
-                                    algorithm, p_opt=p_opt, octree_depth=octree_depth, grid_points=grid_points, max_level=max_level, check_views=check_views)  # fmt: skip
-    elif any(v is not None for v in (algorithm, p_opt, octree_depth, grid_points, max_level, check_views)):
+                                    algorithm, p_opt=p_opt, octree_depth=octree_depth, grid_points=grid_points, max_level=max_level, check_views=check_views,
+                                    visibility=True if visibility else None)  # fmt: skip
+    elif (
+        any(v is not None for v in (algorithm, p_opt, octree_depth, grid_points, max_level, check_views)) or visibility
+    ):
         raise ServiceError(
-            "--algorithm, --p-opt, --octree-depth, --grid-points, --max-level and --check-views go with --placement"
+            "--algorithm, --p-opt, --octree-depth, --grid-points, --max-level, --check-views and --visibility go with --placement"
         )
     elif (grid is None) == (not viewcells):
         raise ServiceError("give --grid, one or more --viewcell, or --placement")

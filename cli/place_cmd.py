@@ -221,6 +221,11 @@ def summary_lines(result) -> list[str]:
     show_default=True,
     help="Largest impostor considered, MiB by the cost model's memory estimate.",
 )
+@click.option(
+    "--visibility",
+    is_flag=True,
+    help="Problem views count only their region's potentially visible set (sampled with id cube maps on the GL; not conservative).",
+)
 @click.option("--out", type=click.Path(dir_okay=False), default=None, help="Write the placement JSON here.")
 @click.option(
     "--json", "as_json", is_flag=True, help="Print the summary, seconds and where the placement went as JSON."
@@ -228,8 +233,8 @@ def summary_lines(result) -> list[str]:
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @sides_option
 def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, options, resolution, fov, algorithm, p_opt, octree_depth,
-              grid_points, max_level, check_views, bake_dir, ldi_resolution, cpv_size, vdi_deg, cells, depth_complexity, leaf_size, max_impostor_mb, out, as_json,
-              quiet, sides) -> None:  # fmt: skip
+              grid_points, max_level, check_views, bake_dir, ldi_resolution, cpv_size, vdi_deg, cells, depth_complexity, leaf_size, max_impostor_mb, visibility,
+              out, as_json, quiet, sides) -> None:  # fmt: skip
     """Decide where impostors go so that every view from VIEW-SPACE meets the budget at least memory
     (seed 000 ch. 5): problem views, candidates, greedy choice.  Views no placement can serve are
     named; the exit status is 0 either way (see "status" per CPV in the JSON).  With --algorithm
@@ -239,13 +244,17 @@ def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, op
     offline(scene, corners, sides=sides, frame_ms=frame_ms, cost_model=cost_model, primitives=primitives, technique=technique, options=options,
             resolution=resolution, fov=fov, p_opt=p_opt, octree_depth=octree_depth, grid_points=grid_points, max_level=max_level,
             check_views=check_views, bake_dir=bake_dir, ldi_resolution=ldi_resolution, cpv_size=cpv_size, vdi_deg=vdi_deg, cells=cells,
-            depth_complexity=depth_complexity, leaf_size=leaf_size, max_impostor_mb=max_impostor_mb, out=out, as_json=as_json,
+            depth_complexity=depth_complexity, leaf_size=leaf_size, max_impostor_mb=max_impostor_mb, visibility=visibility, out=out, as_json=as_json,
             quiet=quiet)  # fmt: skip
 
 
 def _place_solution_grid(scene, corners, *, frame_ms, cost_model, primitives, fov, p_opt, octree_depth, grid_points, max_level,
-                         check_views, bake_dir, ldi_resolution, out, as_json, quiet, sides, **_) -> None:  # fmt: skip
+                         check_views, bake_dir, ldi_resolution, out, as_json, quiet, sides, visibility=False, **_) -> None:  # fmt: skip
     """``farfield place`` with an algorithm whose offline placement is a solution grid of images (seed 004)."""
+    if visibility:
+        raise PlacementError(
+            "--visibility applies to the frame-time placement (its problem views), not to --algorithm primitive-budget"
+        )
     if primitives is None or frame_ms is not None or cost_model:
         raise PlacementError(
             "--algorithm primitive-budget takes a budget of --primitives N only (no --frame-ms, no --cost-model)"
@@ -256,7 +265,7 @@ def _place_solution_grid(scene, corners, *, frame_ms, cost_model, primitives, fo
 
 
 def _place_cost_model(scene, corners, *, frame_ms, cost_model, primitives, technique, options, resolution, fov, bake_dir, cpv_size,
-                      vdi_deg, cells, depth_complexity, leaf_size, max_impostor_mb, out, as_json, quiet, sides, **_) -> None:  # fmt: skip
+                      vdi_deg, cells, depth_complexity, leaf_size, max_impostor_mb, out, as_json, quiet, sides, visibility=False, **_) -> None:  # fmt: skip
     """``farfield place`` with an algorithm whose offline placement is by a cost model (seed 000 ch. 5)."""
     if bake_dir:
         raise PlacementError(
@@ -276,7 +285,7 @@ def _place_cost_model(scene, corners, *, frame_ms, cost_model, primitives, techn
         raise PlacementError(f"--max-impostor-mb must be > 0, got {max_impostor_mb!r}")
     settings = PlacementSettings(
         t_max=t_max, model=model, technique=technique, options=values, cpv_size=cpv_size, vdi_deg=vdi_deg, cells=cells,
-        depth_complexity=depth_complexity, leaf_size=leaf_size, max_impostor_bytes=max_impostor_mb * 2**20,
+        depth_complexity=depth_complexity, leaf_size=leaf_size, max_impostor_bytes=max_impostor_mb * 2**20, visibility=visibility,
     )  # fmt: skip
     loaded = load_scene(scene, sides=sides)
     result = _with_bar(quiet, lambda bar: place(loaded, corners[:3], corners[3:], settings, progress=bar))

@@ -61,6 +61,10 @@ class PlacementSettings:
     max_impostor_bytes: float = (
         DEFAULT_MAX_IMPOSTOR_BYTES  # larger candidates (by the model's memory estimate) are refused
     )
+    # Problem views count only their region's potentially visible set (farfield.core.visibility.pvs,
+    # sampled with id cube maps; docs/placement/visibility.md).  Off by default: the PVS is sampled,
+    # not conservative, and the reference runtime still draws every element in the frustum.
+    visibility: bool = False
 
 
 def _check(settings: PlacementSettings) -> None:
@@ -81,6 +85,14 @@ def _check(settings: PlacementSettings) -> None:
         raise PlacementError(
             f"the shaft direction step must lie in [0.5, 90] degrees, got {settings.direction_step_deg!r}"
         )
+
+
+def region_visibility(scene: Scene, elements: Elements, lo, hi, cpv_size: float, resolution: int, fov: float):
+    """The sampled PVS hook of ``settings.visibility`` (:class:`farfield.core.visibility.pvs.RegionVisibility`,
+    imported here: only a placement with visibility needs a GL context while planning)."""
+    from farfield.core.visibility.pvs import RegionVisibility
+
+    return RegionVisibility(scene, elements, lo, hi, cpv_size, resolution, fov)
 
 
 def check_placeable(technique) -> None:
@@ -156,10 +168,21 @@ def place(
         hierarchy = Hierarchy.build(elements, settings.leaf_size)
     clock.report("hierarchy", 1, 1)
     with clock("problem views"):
-        pv = problem_view_space(
-            elements, hierarchy, lo, hi, settings.model, settings.t_max, fov, resolution, cpv_size, settings.vdi_deg, settings.depth_complexity, visible,
-            lambda done, total: clock.report("problem views", done, total),
-        )  # fmt: skip
+        pvs = (
+            region_visibility(scene, elements, lo, hi, float(cpv_size), resolution, fov)
+            if settings.visibility and visible is None
+            else None
+        )
+        try:
+            pv = problem_view_space(
+                elements, hierarchy, lo, hi, settings.model, settings.t_max, fov, resolution, cpv_size, settings.vdi_deg, settings.depth_complexity,
+                pvs if pvs is not None else visible, lambda done, total: clock.report("problem views", done, total),
+            )  # fmt: skip
+        finally:
+            if pvs is not None:
+                pvs.release()
+        if pvs is not None:
+            pv.stats["visibility"] = pvs.stats()
 
     def estimate(cell, bounds):
         return technique.estimate(cell, options, bounds)

@@ -121,6 +121,7 @@ class PlannerState:
         # the values its candidates were made with.
         for holder, name, value in (
             (state.settings, "max_impostor_bytes", math.inf),
+            (state.settings, "visibility", False),
             (state.settings.model, "quads_exponent", 0.0),
         ):
             if not hasattr(holder, name):
@@ -375,7 +376,9 @@ class PlannerState:
             "apex_angles_deg": [float(a) for a in settings.apex_angles_deg],
             "direction_step_deg": float(settings.direction_step_deg),
             "distance_steps": int(settings.distance_steps),
-            "visibility": "none (no occlusion culling; seed 000 Table 5.1 test 16 setting)",
+            "visibility": {"kind": "sampled potentially visible sets", **pv.stats["visibility"]}
+            if "visibility" in pv.stats
+            else "none (no occlusion culling; seed 000 Table 5.1 test 16 setting)",
         }
         return Placement(
             parameters=parameters,

@@ -23,8 +23,10 @@ and no occlusion culling is applied (the setting of Table 5.1 test 16).
 
 **Visibility hook.**  ``visible(region_lo, region_hi, element_indices) -> element_indices`` may be
 given to :func:`problem_view_space`: a *conservative from-region* visibility step (§5.5.1,
-[Wonk00]) that removes elements hidden from the whole region before the VDI estimate.  None is
-built in, and a sampled, non-conservative one must not be plugged in: it would hide problem views.
+[Wonk00]) that removes elements hidden from the whole region before the VDI estimate.  The planner's
+``visibility`` setting plugs in :class:`farfield.core.visibility.pvs.RegionVisibility`, sampled
+from points with id cube maps: not conservative (its measured false-invisible rate is in
+docs/placement/visibility.md), so a problem view it hides may still be slow; off by default.
 
 **Pixels.**  An element's covered pixels are estimated as its bounding sphere's disc seen from the
 region's nearest point, at most a frame.  Summed over a frustum without occlusion culling, these

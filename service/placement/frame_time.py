@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from typing import Literal
 
-from pydantic import Field, StrictFloat, StrictInt
+from pydantic import Field, StrictBool, StrictFloat, StrictInt
 
 from farfield.core.options import stored_values
 from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, primitive_model
@@ -78,6 +78,7 @@ def planner_settings(params: dict):
         cpv_size=knobs["cpv_size"], vdi_deg=knobs["vdi_deg"], cells=knobs["cells"], leaf_size=knobs["leaf_size"],
         depth_complexity=math.inf if knobs["depth_complexity"] is None else knobs["depth_complexity"],
         cluster_triangles=knobs["cluster_triangles"], max_impostor_bytes=float(knobs.get("max_impostor_mb", math.inf)) * 2**20,  # a job stored before the cap: none
+        visibility=bool(knobs.get("visibility", False)),
     )  # fmt: skip
     return settings, knobs["view_space"]["lo"], knobs["view_space"]["hi"]
 
@@ -147,6 +148,9 @@ class FrameTime(Algorithm):
         "max_impostor_mb": (
             Number, Field(DEFAULT_MAX_IMPOSTOR_BYTES / 2**20, description="largest impostor a placement considers, MiB by the cost model's memory estimate (> 0)")
         ),
+        "visibility": (
+            StrictBool, Field(False, description="problem views count only the potentially visible set of their region (sampled from points with id cube maps; not conservative: docs/placement/visibility.md)")
+        ),
     }  # fmt: skip
 
     def params(self, technique_name, given_options, resolution, fov_deg, spec, model_triangles=None) -> dict:
@@ -190,6 +194,8 @@ class FrameTime(Algorithm):
             "depth_complexity": depth, "cells": spec.cells, "leaf_size": spec.leaf_size, "cluster_triangles": None,
             "max_impostor_mb": largest,
         }  # fmt: skip
+        if spec.visibility:  # stored only when on: the params (and keys) of every other job stay as they were
+            knobs["visibility"] = True
         return {
             "technique": technique.name,
             "resolution": options.resolution,

@@ -1,0 +1,259 @@
+"""From-region visibility (issue 57 item 1): sampled potentially visible sets on the benchmark cities, and what they do to a placement.
+
+Usage: ``.venv/bin/python benchmarks/bench_visibility.py [--scene city,dense,downtown,street] [--views 100] [--json OUT]``
+
+Per scene (the scenes and view spaces of ``bench_placement.py``; ``street`` is the 400-building city
+with the view space at street level, 1.5..2.5 m, over the same square), with the CPV size the view
+space's longest side / ``--cpv-divisions`` and 45° view-direction intervals, at ``--resolution``:
+
+1. **The PVS** (:class:`farfield.core.visibility.pvs.RegionVisibility`, defaults: 2 samples per
+   region side, one adaptive level, cube faces of one texel per 2 output pixels, margin one lattice step): points
+   rendered and seconds; the mean PVS of a smallest region as a share of the elements and of the
+   triangles; and the **false-invisible rate** against the same lattice twice as dense along each
+   axis (``--dense-samples``, default 8 per side, uniform): elements the dense sampling sees and
+   the PVS lacks, and the most cube-map texels (and nominal output pixels) they cover from one
+   dense point (:func:`farfield.core.visibility.pvs.false_invisible`).
+2. **Estimate ÷ measured** on ``--views`` random views (``bench_placement.estimate_rows``'s): the
+   time of each view's problem view with no impostor (what the planner budgets), without and with
+   visibility, over the measured plain frame (the runtime draws every element in its frustum).
+3. **Memory**: the placement at t_max = half the worst view's estimate (the walkthrough's reference
+   budget), without and with visibility (the cost model's memory estimate; nothing baked), beside
+   the coarsest envmap grid meeting the same t_max by the model (``bench_placement``'s estimate,
+   without visibility).
+
+Everything on one process; GL through EGL (llvmpipe on the CPU machine).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_placement import (  # noqa: E402
+    _worst_view,
+    city_scene,
+    coarsest_envmap_cell,
+    downtown_scene,
+    envmap_grid_memory,
+    mib,
+    problem_view_times,
+)
+
+from farfield.core.placement.cost_model import LLVMPIPE_MODEL  # noqa: E402
+from farfield.core.placement.hierarchy import Elements, Hierarchy  # noqa: E402
+from farfield.core.placement.planner import PlacementSettings, place  # noqa: E402
+from farfield.core.placement.view_space import problem_view_space  # noqa: E402
+from farfield.core.render.context import renderer_info  # noqa: E402
+from farfield.core.visibility.pvs import RegionVisibility, false_invisible  # noqa: E402
+
+FOV = math.radians(45.0)
+
+
+def scene_of(name: str):
+    if name == "city":
+        return city_scene(True, 400, 16)
+    if name == "dense":
+        return city_scene(True, 49, 64)
+    if name == "downtown":
+        return downtown_scene(False)
+    if name == "street":
+        scene, lo, hi = city_scene(True, 400, 16)
+        ground = float(scene.bounds[0][1])
+        lo, hi = lo.copy(), hi.copy()
+        lo[1], hi[1] = ground + 1.5, ground + 2.5
+        return scene, lo, hi
+    raise SystemExit(f"unknown scene {name!r}")
+
+
+def leaf_regions(lo, hi, cpv: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The smallest regions of the problem view space (every one, solved or not)."""
+    from farfield.core.visibility.pvs import halvings
+
+    counts = [2 ** halvings(float(s), cpv) if s > 0 else 1 for s in hi - lo]
+    size = (hi - lo) / np.array(counts)
+    return [(lo + np.array(ijk) * size, lo + (np.array(ijk) + 1) * size) for ijk in np.ndindex(*counts)]
+
+
+def pvs_rows(scene, lo, hi, cpv: float, resolution: int, samples: int, levels: int, dense_samples: int) -> dict:
+    elements = Elements.of(scene)
+    sparse = RegionVisibility(scene, elements, lo, hi, cpv, resolution, FOV, samples_per_side=samples, levels=levels)
+    dense = RegionVisibility(
+        scene,
+        elements,
+        lo,
+        hi,
+        cpv,
+        resolution,
+        FOV,
+        samples_per_side=dense_samples,
+        levels=0,
+        renderer=sparse.renderer,
+    )
+    regions = leaf_regions(lo, hi, cpv)
+    started = time.perf_counter()
+    sizes = [sparse.pvs(a, b) for a, b in regions]
+    sparse_s = time.perf_counter() - started
+    share = float(np.mean([s.size for s in sizes])) / elements.count
+    tri_share = float(np.mean([elements.triangles[s].sum() for s in sizes])) / float(elements.triangles.sum())
+    fi = false_invisible(sparse, dense, regions)
+    row = {
+        "elements": elements.count, "triangles": int(elements.triangles.sum()), "regions": len(regions),
+        "samples_per_side": samples, "levels": levels, "dense_samples_per_side": dense_samples,
+        "lattice": sparse.lattice.counts.tolist(), "points": sparse.points_rendered, "face": sparse.renderer.face,
+        "margin": sparse.margin, "pvs_s": sparse_s, "pvs_element_share": share, "pvs_triangle_share": tri_share,
+        "dense_points": dense.points_rendered, "false_invisible": fi,
+    }  # fmt: skip
+    sparse.release()
+    return row
+
+
+def estimate_ratios(scene, lo, hi, cpv: float, resolution: int, views: int, seed: int) -> dict:
+    """Per random view: its problem view's time (no impostor) without / with visibility, over the
+    measured plain frame; as ``bench_placement.estimate_rows`` measures it."""
+    import tempfile
+
+    from farfield.core.impostor.database import ImpostorDatabase
+    from farfield.core.placement.database import write_placement_database
+    from farfield.core.quality.walkthrough import placement_walkthrough, random_views
+
+    positions, forwards = random_views(lo, hi, views, seed)
+    empty = place(
+        scene,
+        lo,
+        hi,
+        PlacementSettings(
+            t_max=1e12, model=LLVMPIPE_MODEL, options={"resolution": resolution}, cpv_size=cpv, vdi_deg=45.0
+        ),
+    )
+    with tempfile.TemporaryDirectory(prefix="farfield-bench-") as tmp:
+        write_placement_database(Path(tmp) / "db", empty, {})
+        with ImpostorDatabase(Path(tmp) / "db") as db:
+            frames = placement_walkthrough(scene, db, positions, forwards, repeats=3, compare=False)["frames"]
+    measured = np.array([f["plain_ms"] for f in frames])
+    slow = measured >= np.percentile(measured, 75)
+    elements = Elements.of(scene)
+    hierarchy = Hierarchy.build(elements)
+    out = {"plain_ms_p50": float(np.median(measured)), "plain_ms_p99": float(np.percentile(measured, 99))}
+    for vis in (False, True):
+        visible = RegionVisibility(scene, elements, lo, hi, cpv, resolution, FOV) if vis else None
+        pv = problem_view_space(
+            elements, hierarchy, lo, hi, LLVMPIPE_MODEL, 1e-12, FOV, resolution, cpv, 45.0, 4.0, visible
+        )
+        if visible is not None:
+            visible.release()
+        est = problem_view_times(pv, positions, forwards)
+        ratio = est / measured
+        key = "visibility" if vis else "none"
+        out[key] = {
+            "ratio_p50": float(np.median(ratio)), "ratio_p95": float(np.percentile(ratio, 95)),
+            "ratio_p50_slowest_quarter": float(np.median(ratio[slow])), "under_30pct": float(np.mean(ratio < 0.7)),
+            "estimate_p99_ms": float(np.percentile(est, 99)),
+        }  # fmt: skip
+    return out
+
+
+def memory_rows(scene, lo, hi, cpv: float, resolution: int) -> dict:
+    worst = _worst_view(scene, lo, hi, LLVMPIPE_MODEL, resolution)
+    t_max = 0.5 * worst
+    out = {"t_max": t_max}
+    for vis in (False, True):
+        settings = PlacementSettings(
+            t_max=t_max,
+            model=LLVMPIPE_MODEL,
+            options={"resolution": resolution},
+            cpv_size=cpv,
+            vdi_deg=45.0,
+            visibility=vis,
+        )
+        started = time.perf_counter()
+        p = place(scene, lo, hi, settings)
+        out["visibility" if vis else "none"] = {
+            "memory_bytes": p.summary["memory_bytes"], "impostors": p.summary["impostors"], "cpvs": p.summary["cpvs"],
+            "cpvs_unsolved": p.summary["cpvs_unsolved"], "cpvs_unsolvable": p.summary["cpvs_unsolvable"],
+            "seconds": time.perf_counter() - started, "steps": p.seconds,
+        }  # fmt: skip
+    cell, over = coarsest_envmap_cell(Elements.of(scene), lo, hi, t_max, LLVMPIPE_MODEL, resolution, max_cells=1024)
+    grid = envmap_grid_memory(scene, lo, hi, cell, t_max, LLVMPIPE_MODEL, resolution)
+    out["envmap_grid"] = {"cell": cell, "over": over, **grid}
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scene", default="city,dense,downtown,street")
+    parser.add_argument("--resolution", type=int, default=128)
+    parser.add_argument("--cpv-divisions", type=int, default=4)
+    parser.add_argument("--views", type=int, default=100)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--parts", default="pvs,estimates,memory")
+    parser.add_argument("--samples", type=int, default=2, help="PVS: samples per smallest region side")
+    parser.add_argument("--levels", type=int, default=1, help="PVS: adaptive refinement levels")
+    parser.add_argument(
+        "--dense-samples", type=int, default=8, help="the denser uniform sampling the PVS is compared with"
+    )
+    parser.add_argument("--json", default=None)
+    args = parser.parse_args()
+    parts = args.parts.split(",")
+    print(
+        f"# {renderer_info().renderer}; {args.resolution} px, 45°, CPV = side / {args.cpv_divisions}, 45° intervals",
+        flush=True,
+    )
+    rows = []
+    for name in args.scene.split(","):
+        scene, lo, hi = scene_of(name)
+        cpv = float(np.max(hi - lo)) / args.cpv_divisions
+        row = {
+            "scene": name,
+            "triangles": scene.triangle_count,
+            "objects": scene.object_count,
+            "view_space": [lo.tolist(), hi.tolist()],
+            "cpv": cpv,
+        }
+        print(
+            f"## {name}: {scene.triangle_count:,} triangles, {scene.object_count} objects; view space {lo.round(1).tolist()} .. {hi.round(1).tolist()}, CPV {cpv:.4g}",
+            flush=True,
+        )
+        if "pvs" in parts:
+            r = row["pvs"] = pvs_rows(
+                scene, lo, hi, cpv, args.resolution, args.samples, args.levels, args.dense_samples
+            )
+            fi = r["false_invisible"]
+            print(f"   PVS ({args.samples} per side, {args.levels} levels): lattice {r['lattice']} ({r['points']} points, faces {r['face']} px, margin {r['margin']:.3g}) in {r['pvs_s']:.1f} s; "
+                  f"mean PVS {100 * r['pvs_element_share']:.1f} % of {r['elements']} elements, {100 * r['pvs_triangle_share']:.1f} % of triangles; "
+                  f"against {r['dense_points']} points: {fi['missing']} missing in {fi['regions_missing']}/{fi['regions']} regions "
+                  f"({100 * fi['missing_share']:.2f} % of dense PVS entries), at most {fi['max_missing_texels']} texels "
+                  f"(~{fi['max_missing_pixels']:.0f} output px) from one point", flush=True)  # fmt: skip
+        if "estimates" in parts:
+            r = row["estimates"] = estimate_ratios(scene, lo, hi, cpv, args.resolution, args.views, args.seed)
+            for key in ("none", "visibility"):
+                e = r[key]
+                print(f"   estimate ÷ measured ({key}): p50 {e['ratio_p50']:.2f}, p95 {e['ratio_p95']:.2f}, slowest quarter p50 {e['ratio_p50_slowest_quarter']:.2f}, "
+                      f"under by > 30 %: {100 * e['under_30pct']:.1f} %; plain p50 {r['plain_ms_p50']:.2f} ms, p99 {r['plain_ms_p99']:.2f} ms", flush=True)  # fmt: skip
+        if "memory" in parts:
+            r = row["memory"] = memory_rows(scene, lo, hi, cpv, args.resolution)
+            g = r["envmap_grid"]
+            for key in ("none", "visibility"):
+                m = r[key]
+                print(f"   placement ({key}) at t_max {r['t_max']:.3g} ms: {mib(m['memory_bytes']):.1f} MiB, {m['impostors']} impostors, {m['cpvs']} CPVs "
+                      f"({m['cpvs_unsolved']} unsolved, {m['cpvs_unsolvable']} unsolvable), {m['seconds']:.0f} s; grid ÷ placement "
+                      + (f"{g['memory_bytes'] / m['memory_bytes']:.2f}" if m["memory_bytes"] > 0 else "inf (no impostor needed)"), flush=True)  # fmt: skip
+            print(
+                f"   envmap grid: {g['cells']} cells of {g['cell']:.3g} ({g['over']} over), {mib(g['memory_bytes']):.1f} MiB (estimated)",
+                flush=True,
+            )
+        rows.append(row)
+        if args.json:
+            Path(args.json).write_text(json.dumps(rows, indent=1, default=float))
+
+
+if __name__ == "__main__":
+    main()
