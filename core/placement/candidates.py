@@ -89,7 +89,7 @@ class Candidates:
 
     node: np.ndarray  # (m,)
     kind: np.ndarray  # (m,) 0 shaft, 1 box, 2 outside-sphere (KIND_NAMES)
-    cells: tuple  # (m,) ShaftCell | BoxCell
+    cells: tuple  # (m,) ShaftCell | BoxCell | SphereOutsideCell
     memory: np.ndarray  # (m,) bytes, estimated
     layers: np.ndarray  # (m,) estimated
     texels: np.ndarray  # (m,) per layer
