@@ -107,6 +107,9 @@ def main(argv=None) -> int:
     parser.add_argument("--cpv-size", type=float, default=None, help="default: the view space's side / 4")
     parser.add_argument("--vdi-deg", type=float, default=22.5)
     parser.add_argument("--cells", default="both")
+    parser.add_argument(
+        "--leaf-size", type=int, default=4, help="elements per leaf of the object hierarchy (1: a node per tree)"
+    )
     parser.add_argument("--octahedral", default="grid=9,frame_resolution=16,padding=2")
     parser.add_argument("--walkthrough", type=int, default=0, metavar="FRAMES")
     parser.add_argument("--json", type=Path, default=None)
@@ -119,11 +122,11 @@ def main(argv=None) -> int:
     cpv = args.cpv_size or float(hi[0] - lo[0]) / 4.0
     print(f"forest: {args.trees} trees of {args.prototypes} prototypes, {scene.triangle_count:,} triangles, {args.size:g} m; "
           f"view space {lo.tolist()} .. {hi.tolist()}; t_max {args.frame_ms} ms (builtin llvmpipe model); {args.resolution} px at "
-          f"{args.fov:g} deg; CPVs {cpv:g} m x {args.vdi_deg:g} deg; cells {args.cells}; octahedral {args.octahedral}", flush=True)  # fmt: skip
+          f"{args.fov:g} deg; CPVs {cpv:g} m x {args.vdi_deg:g} deg; cells {args.cells}; leaf size {args.leaf_size}; octahedral {args.octahedral}", flush=True)  # fmt: skip
     rows, first = [], None
     for label, also in (("layered", None), ("layered + octahedral", {"octahedral": _octahedral(args.octahedral)})):
         settings = PlacementSettings(t_max=args.frame_ms, model=LLVMPIPE_MODEL, options={"resolution": args.resolution, "fov_deg": args.fov},
-                                     also=also, cpv_size=cpv, vdi_deg=args.vdi_deg, cells=args.cells)  # fmt: skip
+                                     also=also, cpv_size=cpv, vdi_deg=args.vdi_deg, cells=args.cells, leaf_size=args.leaf_size)  # fmt: skip
         start = time.perf_counter()
         placement = place(scene, lo, hi, settings)
         seconds = time.perf_counter() - start
