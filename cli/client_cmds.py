@@ -387,6 +387,13 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
     help="With --placement: largest impostor considered, MiB by the cost model [default: 32].",
 )
 @click.option(
+    "--also",
+    multiple=True,
+    metavar="TECHNIQUE[:NAME=VALUE,...]",
+    help="With --placement: candidates of another technique beside --technique's (repeatable; as farfield place --also), "
+    "e.g. octahedral:grid=9,frame_resolution=16.",
+)
+@click.option(
     "--algorithm",
     type=click.Choice(list(ALGORITHMS)),
     default=None,
@@ -447,25 +454,27 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
 @sides_option
 @_client_options
 def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov, options, placement, view_space, frame_ms, cost_model, primitives,
-           cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, max_impostor_mb, algorithm, p_opt, octree_depth, grid_points, max_level,
+           cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, max_impostor_mb, also, algorithm, p_opt, octree_depth, grid_points, max_level,
            check_views, visibility, evaluate, wait, download, as_json, sides, url, key):  # fmt: skip
     """Submit a job for SCENE (a file to upload, or the id of an uploaded scene).  A .gltf or .obj is
     uploaded with the files it refers to (buffers, images; MTL, textures), zipped; --sides goes with
     the upload (an uploaded scene keeps the sidedness it was uploaded with)."""
     client = Client(url, key or _default_key())
     if placement:
+        from farfield.cli.place_cmd import parse_also
+
         if grid is not None or viewcells:
             raise ServiceError("--placement chooses the view cells: leave out --grid and --viewcell")
         if view_space is None:
             raise ServiceError("--placement needs --view-space X0,Y0,Z0,X1,Y1,Z1")
         request = placement_request(view_space, frame_ms, cost_model, primitives, cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, max_impostor_mb,
                                     algorithm, p_opt=p_opt, octree_depth=octree_depth, grid_points=grid_points, max_level=max_level, check_views=check_views,
-                                    visibility=True if visibility else None)  # fmt: skip
+                                    visibility=True if visibility else None, also=parse_also(also) or None)  # fmt: skip
     elif (
-        any(v is not None for v in (algorithm, p_opt, octree_depth, grid_points, max_level, check_views)) or visibility
+        any(v is not None for v in (algorithm, p_opt, octree_depth, grid_points, max_level, check_views)) or visibility or also
     ):
         raise ServiceError(
-            "--algorithm, --p-opt, --octree-depth, --grid-points, --max-level, --check-views and --visibility go with --placement"
+            "--algorithm, --also, --p-opt, --octree-depth, --grid-points, --max-level, --check-views and --visibility go with --placement"
         )
     elif (grid is None) == (not viewcells):
         raise ServiceError("give --grid, one or more --viewcell, or --placement")

@@ -88,6 +88,11 @@ def summary_lines(result) -> list[str]:
         f"worst CPV: {s['worst_before']:.4g} {unit} before, {s['worst_after']:.4g} {unit} after (solvable ones: {s['worst_after_solvable']:.4g})",
         "seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in result.seconds.items()),
     ]
+    if "by_technique" in s:  # mixed candidates: what was chosen of each technique
+        rows = [f"{name} {row['impostors']} ({row['memory_bytes'] / 2**20:.2f} MiB, drawn in {row['cpvs']} CPVs)"
+                for name, row in s["by_technique"].items()]  # fmt: skip
+        unused = sorted(set(result.parameters.get("also", {})) - set(s["by_technique"]))
+        lines.insert(4, "impostors by technique: " + "; ".join(rows + [f"{name} 0" for name in unused]))
     message = result.message()
     if message:
         lines.append("not every view meets the budget: " + message)
@@ -130,6 +135,15 @@ def summary_lines(result) -> list[str]:
     multiple=True,
     metavar="NAME=VALUE",
     help="A technique option (repeatable; see farfield techniques).",
+)
+@click.option(
+    "--also",
+    "also",
+    multiple=True,
+    metavar="TECHNIQUE[:NAME=VALUE,...]",
+    help="frame-time: candidates of another technique compete with --technique's in the same greedy, by memory per "
+    "millisecond saved (repeatable), e.g. --also octahedral:grid=9,frame_resolution=16: an octahedral impostor per "
+    "element wherever its problem views lie beyond its accuracy distance.",
 )
 @click.option("--resolution", default=512, show_default=True, type=int, help="Output image pixels per side.")
 @click.option(
@@ -232,7 +246,7 @@ def summary_lines(result) -> list[str]:
 )
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @sides_option
-def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, options, resolution, fov, algorithm, p_opt, octree_depth,
+def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, options, also, resolution, fov, algorithm, p_opt, octree_depth,
               grid_points, max_level, check_views, bake_dir, ldi_resolution, cpv_size, vdi_deg, cells, depth_complexity, leaf_size, max_impostor_mb, visibility,
               out, as_json, quiet, sides) -> None:  # fmt: skip
     """Decide where impostors go so that every view from VIEW-SPACE meets the budget at least memory
@@ -242,18 +256,22 @@ def place_cmd(scene, view_space, frame_ms, cost_model, primitives, technique, op
     corners = _numbers(view_space, 6, "--view-space")
     offline = _OFFLINE[ALGORITHMS[algorithm].offline]
     offline(scene, corners, sides=sides, frame_ms=frame_ms, cost_model=cost_model, primitives=primitives, technique=technique, options=options,
-            resolution=resolution, fov=fov, p_opt=p_opt, octree_depth=octree_depth, grid_points=grid_points, max_level=max_level,
+            also=also, resolution=resolution, fov=fov, p_opt=p_opt, octree_depth=octree_depth, grid_points=grid_points, max_level=max_level,
             check_views=check_views, bake_dir=bake_dir, ldi_resolution=ldi_resolution, cpv_size=cpv_size, vdi_deg=vdi_deg, cells=cells,
             depth_complexity=depth_complexity, leaf_size=leaf_size, max_impostor_mb=max_impostor_mb, visibility=visibility, out=out, as_json=as_json,
             quiet=quiet)  # fmt: skip
 
 
 def _place_solution_grid(scene, corners, *, frame_ms, cost_model, primitives, fov, p_opt, octree_depth, grid_points, max_level,
-                         check_views, bake_dir, ldi_resolution, out, as_json, quiet, sides, visibility=False, **_) -> None:  # fmt: skip
+                         check_views, bake_dir, ldi_resolution, out, as_json, quiet, sides, visibility=False, also=(), **_) -> None:  # fmt: skip
     """``farfield place`` with an algorithm whose offline placement is a solution grid of images (seed 004)."""
     if visibility:
         raise PlacementError(
             "--visibility applies to the frame-time placement (its problem views), not to --algorithm primitive-budget"
+        )
+    if also:
+        raise PlacementError(
+            "--also adds candidates to a frame-time placement; --algorithm primitive-budget places LDIs only"
         )
     if primitives is None or frame_ms is not None or cost_model:
         raise PlacementError(
@@ -264,8 +282,37 @@ def _place_solution_grid(scene, corners, *, frame_ms, cost_model, primitives, fo
     _place_primitive_budget(scene, corners, settings, check_views, out, as_json, quiet, bake_dir, ldi_resolution, sides)
 
 
+def parse_also(items) -> dict[str, dict]:
+    """``--also`` values (``TECHNIQUE[:NAME=VALUE,...]``) as ``PlacementSettings.also``: technique
+    name -> its option values, parsed by the technique's option types.
+
+    >>> parse_also(["octahedral:grid=9,frame_resolution=16"])
+    {'octahedral': {'grid': 9, 'frame_resolution': 16}}
+    >>> parse_also(["octahedral", "octahedral:grid=9"])
+    Traceback (most recent call last):
+    ...
+    farfield.core.placement.hierarchy.PlacementError: --also octahedral given twice
+    """
+    out: dict[str, dict] = {}
+    for item in items:
+        name, _, rest = item.partition(":")
+        name = name.strip()
+        if name not in TECHNIQUES:
+            raise PlacementError(f"--also {item!r}: unknown technique {name!r}; one of {', '.join(TECHNIQUES)}")
+        if name in out:
+            raise PlacementError(f"--also {name} given twice")
+        values = {}
+        for pair in filter(None, (p.strip() for p in rest.split(","))):
+            key, sep, text = pair.partition("=")
+            if not sep or not key.strip():
+                raise PlacementError(f"--also {item!r}: expected TECHNIQUE:NAME=VALUE,...")
+            values[key.strip()] = parse_option_text(get_technique(name).Options, key.strip(), text)
+        out[name] = values
+    return out
+
+
 def _place_cost_model(scene, corners, *, frame_ms, cost_model, primitives, technique, options, resolution, fov, bake_dir, cpv_size,
-                      vdi_deg, cells, depth_complexity, leaf_size, max_impostor_mb, out, as_json, quiet, sides, visibility=False, **_) -> None:  # fmt: skip
+                      vdi_deg, cells, depth_complexity, leaf_size, max_impostor_mb, out, as_json, quiet, sides, visibility=False, also=(), **_) -> None:  # fmt: skip
     """``farfield place`` with an algorithm whose offline placement is by a cost model (seed 000 ch. 5)."""
     if bake_dir:
         raise PlacementError(
@@ -286,6 +333,7 @@ def _place_cost_model(scene, corners, *, frame_ms, cost_model, primitives, techn
     settings = PlacementSettings(
         t_max=t_max, model=model, technique=technique, options=values, cpv_size=cpv_size, vdi_deg=vdi_deg, cells=cells,
         depth_complexity=depth_complexity, leaf_size=leaf_size, max_impostor_bytes=max_impostor_mb * 2**20, visibility=visibility,
+        also=parse_also(also),
     )  # fmt: skip
     loaded = load_scene(scene, sides=sides)
     result = _with_bar(quiet, lambda bar: place(loaded, corners[:3], corners[3:], settings, progress=bar))

@@ -139,6 +139,58 @@ def forest(trees: int = 200, seed: int = 1) -> Scene:
     return Scene.from_objects(objects, source=f"forest-{trees}-{seed}")
 
 
+def _tree_prototypes(count: int, rng, detail: int = 1) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """``count`` tree meshes (vertices with the foot at the origin, world +y up; faces; vertex
+    colours): a trunk (a cylinder) under a crown (a cone, or a sphere for every third), of seeded
+    sizes, ``6..12 x detail`` sections (a sphere subdivided ``1 + log2(detail)`` times, at most 4)."""
+    out = []
+    for k in range(count):
+        sections = int(rng.integers(6, 13)) * int(detail)
+        height, crown = float(rng.uniform(6.0, 14.0)), float(rng.uniform(1.5, 3.5))
+        trunk = trimesh.creation.cylinder(
+            radius=float(rng.uniform(0.15, 0.35)), height=0.45 * height, sections=sections
+        )
+        trunk.apply_translation([0.0, 0.0, 0.225 * height])
+        if k % 3 == 2:
+            top = trimesh.creation.icosphere(subdivisions=min(1 + int(np.log2(detail)), 4), radius=crown)
+            top.apply_translation([0.0, 0.0, height - crown])
+        else:
+            top = trimesh.creation.cone(radius=crown, height=0.65 * height, sections=sections)
+            top.apply_translation([0.0, 0.0, 0.35 * height])
+        v = np.concatenate([trunk.vertices, top.vertices])
+        f = np.concatenate([trunk.faces, top.faces + len(trunk.vertices)])
+        c = np.empty((len(v), 4), dtype=np.uint8)
+        c[: len(trunk.vertices)] = (110, 75, 45, 255)
+        c[len(trunk.vertices) :] = (40 + 12 * k, 120 + 8 * k, 50, 255)
+        out.append((np.column_stack([v[:, 0], v[:, 2], -v[:, 1]]), np.asarray(f, dtype=np.int64), c))  # z-up -> y-up
+    return out
+
+
+def tree_forest(
+    instances: int = 10_000, prototypes: int = 5, size: float = 1000.0, seed: int = 2, detail: int = 1
+) -> Scene:
+    """A forest of ``instances`` trees of ``prototypes`` tree meshes (:func:`_tree_prototypes`: trunk
+    and crown, 6-14 m tall, about 60-180 triangles times ``detail``), each turned about the vertical and scaled 0.8-1.2,
+    scattered over a ``size`` x ``size`` m terrain plane (``ground``, y = 0); world +y up.  Every
+    instance is its own object (``tree<k>_<i>``: prototype ``k``), with world coordinates: the scene
+    the octahedral placement benchmark measures (benchmarks/bench_forest_placement.py)."""
+    rng = np.random.default_rng(seed)
+    shapes = _tree_prototypes(prototypes, rng, detail)
+    kind = rng.integers(0, prototypes, instances)
+    where = rng.uniform(0.0, size, (instances, 2))
+    turn = rng.uniform(0.0, 2.0 * np.pi, instances)
+    scale = rng.uniform(0.8, 1.2, instances)
+    objects = [SceneObject("ground", np.array([[0.0, 0.0, 0.0], [size, 0.0, 0.0], [size, 0.0, size], [0.0, 0.0, size]]),
+                           np.array([[0, 2, 1], [0, 3, 2]]), base_color=(0.35, 0.3, 0.2, 1.0))]  # fmt: skip
+    for i in range(instances):
+        v, f, c = shapes[kind[i]]
+        cos, sin = np.cos(turn[i]), np.sin(turn[i])
+        x, z = cos * v[:, 0] - sin * v[:, 2], sin * v[:, 0] + cos * v[:, 2]
+        world = scale[i] * np.column_stack([x, v[:, 1], z]) + [where[i, 0], 0.0, where[i, 1]]
+        objects.append(SceneObject(f"tree{kind[i]}_{i:05d}", world, f, vertex_colors=c))
+    return Scene.from_objects(objects, source=f"tree-forest-{instances}-{prototypes}-{seed}-{detail}")
+
+
 def house(seed: int = 4) -> Scene:
     """A building-like object, 20 x 10 x 12 units under a gable roof, with window frames and a door
     standing out of its walls, a chimney and a porch roof: 1,220 triangles, material colours.

@@ -115,21 +115,25 @@ def test_a_corrected_candidate_over_the_largest_size_is_not_chosen(planned):
 def test_a_state_pickled_before_the_newer_fields_still_loads(planned, monkeypatch):
     from dataclasses import fields
 
+    from farfield.core.placement.candidates import Candidates
     from farfield.core.placement.cost_model import CostModel
     from farfield.core.placement.planner import PlacementSettings
 
     _, placement, _ = planned
 
-    def without_last_field(self):  # what these slotted dataclasses pickled before their last field existed
-        return [getattr(self, f.name) for f in fields(self)][:-1]
+    def before(name):  # what these slotted dataclasses pickled before their field ``name`` (and those after it) existed
+        return lambda self: [getattr(self, f.name) for f in fields(self)][: [f.name for f in fields(self)].index(name)]
 
-    assert fields(PlacementSettings)[-1].name == "max_impostor_bytes" and fields(CostModel)[-1].name == "quads_exponent"
-    monkeypatch.setattr(PlacementSettings, "__getstate__", without_last_field)
-    monkeypatch.setattr(CostModel, "__getstate__", without_last_field)
+    assert [f.name for f in fields(PlacementSettings)][-2:] == ["max_impostor_bytes", "also"]
+    assert fields(CostModel)[-1].name == "quads_exponent" and fields(Candidates)[-1].name == "source"
+    monkeypatch.setattr(PlacementSettings, "__getstate__", before("max_impostor_bytes"))
+    monkeypatch.setattr(CostModel, "__getstate__", before("quads_exponent"))
+    monkeypatch.setattr(Candidates, "__getstate__", before("source"))
     data = placement.state.dumps()
     monkeypatch.undo()
     old = PlannerState.loads(data)
     assert old.settings.max_impostor_bytes == math.inf and old.settings.model.quads_exponent == 0.0
+    assert old.settings.also is None and old.cand.source is None
     parameters = old.placement().parameters
     assert parameters["cost_model"]["memory"]["quads_exponent"] == 0.0 and parameters["max_impostor_bytes"] is None
 

@@ -21,6 +21,15 @@ the regions it serves.
 
 Every kept candidate carries its estimated memory and quads (the cost model over the technique's
 layer estimate: layers x texels per layer, §5.8.1); no rendering and no full layer plan.
+
+**Outside-sphere candidates** (not in the thesis): a technique whose impostor serves every view
+beyond a distance from its part (octahedral, ``Technique.outside_estimate``) gives each node one
+candidate, the outside-sphere cell of that distance around the node's centre, serving every CPV
+whose whole region lies in it; its memory and quads are the technique's own (exact for octahedral:
+its atlas, one card), not the cost model's layer law, and it covers the square card around the
+node's bounding sphere (``4 / pi`` of the disc the CPV's pixels count, at most a frame).  Several
+sources of candidates compete in one greedy (``source``: 0 for ``estimate``'s shafts and boxes,
+``k + 1`` for ``outside[k]``).
 """
 
 from __future__ import annotations
@@ -46,6 +55,11 @@ DISTANCE_STEPS = 11  # minimum distances 2^0 .. 2^10 x the node's size
 CellKinds = ("shafts", "boxes", "both", "leaf-boxes")
 # estimate(cell, bounds) -> (layers, texels per layer); raises FarfieldError where no impostor exists
 Estimate = Callable[[object, np.ndarray], tuple[float, float]]
+# outside(bounds) -> an estimate with ``cell``, ``serves(lo, hi)``, ``memory_bytes``, ``quads``, ``layers``,
+# ``texels`` (farfield.core.techniques.octahedral.estimate.OutsideEstimate); raises FarfieldError where none exists
+Outside = Callable[[np.ndarray], object]
+KIND_NAMES = ("shaft", "box", "outside-sphere")  # Candidates.kind
+OUTSIDE_SPHERE = 2  # the kind of an outside candidate (KIND_NAMES)
 
 
 def direction_grid(step_deg: float = DIRECTION_STEP_DEG) -> np.ndarray:
@@ -74,8 +88,8 @@ class Candidates:
     where the impostor saves nothing is never served, and savings only fall, §5.7.4)."""
 
     node: np.ndarray  # (m,)
-    kind: np.ndarray  # (m,) 0 shaft, 1 box
-    cells: tuple  # (m,) ShaftCell | BoxCell
+    kind: np.ndarray  # (m,) 0 shaft, 1 box, 2 outside-sphere (KIND_NAMES)
+    cells: tuple  # (m,) ShaftCell | BoxCell | SphereOutsideCell
     memory: np.ndarray  # (m,) bytes, estimated
     layers: np.ndarray  # (m,) estimated
     texels: np.ndarray  # (m,) per layer
@@ -85,10 +99,15 @@ class Candidates:
     g: np.ndarray  # (total,) the node's geometry time in that CPV
     ti: np.ndarray  # (total,) the impostor's time there
     stats: dict
+    source: np.ndarray | None = None  # (m,) 0: the estimate's shafts and boxes, k + 1: outside[k]; None: all 0
 
     @property
     def count(self) -> int:
         return int(self.node.shape[0])
+
+    def source_of(self, i: int) -> int:
+        """Which source candidate ``i`` came from (see the module docstring)."""
+        return 0 if self.source is None else int(self.source[i])
 
 
 def _shaft_cells(
@@ -181,12 +200,14 @@ def generate_candidates(
     distance_steps: int = DISTANCE_STEPS,
     progress: Callable[[int, int], None] | None = None,
     max_bytes: float = math.inf,
+    outside: tuple[Outside, ...] = (),
 ) -> Candidates:
     """The candidates of every hierarchy node for the solvable CPVs of ``pv`` (see the module docstring).
 
     ``max_bytes``: a cell whose impostor the model expects to take more memory than this is not a
     candidate (counted in ``stats["refused_by_memory"]``): its bake would take long and its memory
-    would be most of the placement's."""
+    would be most of the placement's.  ``estimate`` None: no shafts or boxes (only ``outside``'s
+    candidates, one per node and source)."""
     if cells not in CellKinds:
         raise PlacementError(f"cells must be one of {list(CellKinds)}, got {cells!r}")
     halves = np.radians(np.asarray(apex_angles_deg, dtype=np.float64)) * 0.5
@@ -203,6 +224,7 @@ def generate_candidates(
     size = np.maximum(hierarchy.diagonal, 1e-300)
     grid = direction_grid(direction_step_deg)
     node_l, kind_l, cell_l, layer_l, texel_l, served_l, g_l, ti_l = [], [], [], [], [], [], [], []
+    source_l, memory_l, quads_l = [], [], []
     considered = refused = too_large = 0
     for n in range(hierarchy.count):
         g_all, pixels_all = geometry.of(np.full(solvable.size, n), solvable)
@@ -213,7 +235,7 @@ def generate_candidates(
         cpv_regions = pv.cpv_region[cpvs]
         region_relevant = np.bincount(cpv_regions, minlength=regions_count) > 0
         found = []
-        if cells in ("shafts", "both"):
+        if estimate is not None and cells in ("shafts", "both"):
             more, c = _shaft_cells(
                 n,
                 node_centre[n],
@@ -227,7 +249,7 @@ def generate_candidates(
             )
             found += [(0, cell, served) for cell, served in more]
             considered += c
-        if cells in ("boxes", "both", "leaf-boxes"):
+        if estimate is not None and cells in ("boxes", "both", "leaf-boxes"):
             boxes = _leaf_box_cells if cells == "leaf-boxes" else _box_cells
             more, c = boxes(pv, hierarchy.lo[n], hierarchy.hi[n], region_relevant)
             found += [(1, cell, served) for cell, served in more]
@@ -257,22 +279,55 @@ def generate_candidates(
                 layer_l.append(layers),
                 texel_l.append(per_layer),
             )
+            source_l.append(0), memory_l.append(np.nan), quads_l.append(np.nan)
+            served_l.append(cpvs[keep]), g_l.append(g_n[keep]), ti_l.append(ti[keep])
+        for k, reach in enumerate(outside):
+            considered += 1
+            try:
+                far = reach(bounds)
+            except FarfieldError:
+                refused += 1
+                continue
+            if float(far.memory_bytes) > max_bytes:
+                too_large += 1
+                continue
+            in_cell = np.isin(cpv_regions, np.flatnonzero(far.serves(pv.region_lo, pv.region_hi)))
+            card = np.minimum(pixels_n * (4.0 / math.pi), frame_pixels)  # the square card around the disc
+            ti = np.asarray(model.impostor_time(card, float(far.quads)), dtype=np.float64).reshape(-1)
+            keep = in_cell & (g_n > ti)
+            if not keep.any():
+                continue
+            node_l.append(n), kind_l.append(OUTSIDE_SPHERE), cell_l.append(far.cell), layer_l.append(far.layers)
+            (
+                texel_l.append(far.texels),
+                source_l.append(k + 1),
+                memory_l.append(far.memory_bytes),
+                quads_l.append(far.quads),
+            )
             served_l.append(cpvs[keep]), g_l.append(g_n[keep]), ti_l.append(ti[keep])
         if progress is not None:
             progress(n + 1, hierarchy.count)
     layers_a, texels_a = np.asarray(layer_l, dtype=np.float64), np.asarray(texel_l, dtype=np.float64)
     flat = lambda rows, dtype: np.concatenate(rows).astype(dtype) if rows else np.empty(0, dtype=dtype)  # noqa: E731
+    own_memory, own_quads = np.asarray(memory_l, dtype=np.float64), np.asarray(quads_l, dtype=np.float64)
     return Candidates(
         node=np.asarray(node_l, dtype=np.int64),
         kind=np.asarray(kind_l, dtype=np.int64),
         cells=tuple(cell_l),
-        memory=np.asarray(model.memory_bytes(layers_a, texels_a), dtype=np.float64).reshape(-1),
+        memory=np.where(
+            np.isnan(own_memory),
+            np.asarray(model.memory_bytes(layers_a, texels_a), dtype=np.float64).reshape(-1),
+            own_memory,
+        ),
         layers=layers_a,
         texels=texels_a,
-        quads=np.asarray(model.quads(layers_a, texels_a), dtype=np.float64).reshape(-1),
+        quads=np.where(
+            np.isnan(own_quads), np.asarray(model.quads(layers_a, texels_a), dtype=np.float64).reshape(-1), own_quads
+        ),
         served_offsets=np.concatenate([[0], np.cumsum([r.size for r in served_l])]).astype(np.int64),
         served=flat(served_l, np.int64),
         g=flat(g_l, np.float64),
         ti=flat(ti_l, np.float64),
         stats={"considered": considered, "refused_by_technique": refused, "refused_by_memory": too_large},
+        source=np.asarray(source_l, dtype=np.int64),
     )

@@ -6,6 +6,7 @@ placement's impostors (cell index = impostor id) and whose index has ``"kind": "
 ``placement`` section::
 
     placement.parameters   scene, view space, t_max, cost model, technique and options, the planner's knobs
+                           (``also``: the other techniques whose candidates competed, with their options)
     placement.summary      CPV counts by status, impostors, memory (estimated and baked), worst times, rounds
     placement.elements     the element split (objects over ``cluster_triangles`` triangles cut into ``name#k``)
     placement.cpvs         per conservative problem view: its 3D region [lo, hi], its view-direction
@@ -15,7 +16,8 @@ placement's impostors (cell index = impostor id) and whose index has ``"kind": "
     placement.rounds       the check-and-repair rounds (farfield.core.placement.repair)
 
 and each cell entry, beside the usual ``index``, ``viewcell``, ``state`` and ``bundle``, has its own
-``technique``, ``objects`` (the elements it replaces), ``params`` (``resolution``, ``fov_deg``,
+``technique`` (with mixed candidates, ``layered`` or ``octahedral`` cell by cell, and ``kind``: shaft,
+box or outside-sphere), ``objects`` (the elements it replaces), ``params`` (``resolution``, ``fov_deg``,
 ``options``: what its bake takes) and ``figures`` (estimated, and baked once it is).
 
 A view (a position in the view space and a direction) falls in at most a few CPVs (on shared
@@ -48,11 +50,19 @@ VERSION = 1
 UNDER_BUDGET = "under budget"
 
 
-def impostor_params(parameters: dict, objects: list[str]) -> dict:
+def impostor_params(parameters: dict, objects: list[str], technique: str | None = None) -> dict:
     """What one impostor's bake takes, in a job's stored form: ``resolution``, ``fov_deg``,
-    ``objects`` and the technique's other ``options`` (validated, defaults filled in)."""
-    technique = get_technique(parameters["technique"])
+    ``objects`` and the technique's other ``options`` (validated, defaults filled in).  ``technique``
+    (None: the placement's own) may be one of its mixed candidates' (``parameters["also"]``), whose
+    options are its own with the placement's resolution and field of view."""
+    name = technique or parameters["technique"]
     given = dict(parameters.get("options") or {})
+    if name != parameters["technique"]:
+        also = parameters.get("also") or {}
+        if name not in also:
+            raise PlacementError(f"the placement has no candidates of technique {name!r}")
+        given = {**also[name], "resolution": given.get("resolution"), "fov_deg": given.get("fov_deg")}
+    technique = get_technique(name)
     public = {f.name for f in public_fields(technique.Options)} - set(IMAGE_FIELDS)  # the document holds every field
     options = technique.options(
         {k: v for k, v in given.items() if k in public}, given.get("resolution"), given.get("fov_deg")
@@ -71,7 +81,7 @@ def placement_cells(placement: Placement | dict) -> list[dict]:
     doc = placement.to_dict() if isinstance(placement, Placement) else placement
     parameters = doc["parameters"]
     return [
-        {"index": imp["id"], "technique": imp["technique"], "objects": imp["objects"], "params": impostor_params(parameters, imp["objects"]), "viewcell": imp["cell"]}
+        {"index": imp["id"], "technique": imp["technique"], "objects": imp["objects"], "params": impostor_params(parameters, imp["objects"], imp["technique"]), "viewcell": imp["cell"]}
         for imp in doc["impostors"]
     ]  # fmt: skip
 
@@ -107,9 +117,9 @@ def placement_index(
         entries.append({
             "index": imp["id"], "grid": None, "viewcell": imp["cell"], "state": "unused" if unused else cell["state"],
             "bundle": None if unused else cell.get("bundle"),
-            "technique": imp["technique"], "objects": imp["objects"], "params": impostor_params(parameters, imp["objects"]),
+            "technique": imp["technique"], "objects": imp["objects"], "params": impostor_params(parameters, imp["objects"], imp["technique"]),
             "cpvs": imp["cpvs"], "figures": figures,
-        })  # fmt: skip
+        } | ({"kind": imp["kind"]} if "kind" in imp else {}))  # fmt: skip
     opts = impostor_params(parameters, [])
     params = {"resolution": opts["resolution"], "fov_deg": opts["fov_deg"], "objects": None, "options": opts["options"]}
     index = database_index(parameters["technique"], params, entries, job=job, scene=scene)

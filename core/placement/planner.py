@@ -65,6 +65,10 @@ class PlacementSettings:
     # sampled with id cube maps; docs/placement/visibility.md).  Off by default: the PVS is sampled,
     # not conservative, and the reference runtime still draws every element in the frustum.
     visibility: bool = False
+    # Other techniques whose candidates compete with ``technique``'s in the same greedy: name ->
+    # its options (the job's resolution and fov_deg apply), e.g. {"octahedral": {"grid": 9}}
+    # (docs/placement/frame-time.md, "Mixed candidates").  None or {}: ``technique``'s alone.
+    also: dict | None = None
 
 
 def _check(settings: PlacementSettings) -> None:
@@ -127,6 +131,59 @@ def check_colour_only(options) -> None:
         )
 
 
+def candidate_techniques(settings: PlacementSettings) -> list[tuple[object, object]]:
+    """(technique, validated options) of the placement's main technique, then of each of
+    ``settings.also`` (the job's ``resolution`` and ``fov_deg`` for all), each placeable and
+    colour-only; raises PlacementError naming what cannot be used.
+
+    >>> from farfield.core.placement.cost_model import LLVMPIPE_MODEL
+    >>> s = PlacementSettings(1.0, LLVMPIPE_MODEL, options={"resolution": 128}, also={"octahedral": {"grid": 9}})
+    >>> [(t.name, o.resolution, getattr(o, "grid", None)) for t, o in candidate_techniques(s)]
+    [('layered', 128, None), ('octahedral', 128, 9)]
+    >>> candidate_techniques(PlacementSettings(1.0, LLVMPIPE_MODEL, also={"layered": {}}))
+    Traceback (most recent call last):
+    ...
+    farfield.core.placement.hierarchy.PlacementError: 'also' names the placement's own technique 'layered'
+    """
+    given = dict(settings.options or {})
+    image = {k: given.pop(k) for k in ("resolution", "fov_deg") if k in given}
+    also = settings.also or {}
+    if not isinstance(also, dict):
+        raise PlacementError(f"'also' must map technique names to their options, got {also!r}")
+    if settings.technique in also:
+        raise PlacementError(f"'also' names the placement's own technique {settings.technique!r}")
+    out = []
+    for name, values in [(settings.technique, given), *also.items()]:
+        technique = get_technique(name)
+        check_placeable(technique)
+        values = {k: v for k, v in dict(values or {}).items() if k not in ("resolution", "fov_deg")}
+        options = technique.options(values, image.get("resolution"), image.get("fov_deg"))
+        check_colour_only(options)
+        out.append((technique, options))
+    return out
+
+
+def technique_sources(techniques: list[tuple[object, object]]):
+    """(estimate or None, outside estimates, the technique name of each candidate source) for
+    :func:`~farfield.core.placement.candidates.generate_candidates`: the first technique without an
+    ``outside_estimate`` gives the shafts and boxes (source 0), every one with it an outside-sphere
+    candidate per node (sources 1 ..)."""
+    estimate, outside, names = None, [], [None]
+    for technique, options in techniques:
+        reach = getattr(technique, "outside_estimate", None)
+        if reach is not None:
+            outside.append(lambda bounds, reach=reach, options=options: reach(options, bounds))
+            names.append(technique.name)
+        elif estimate is None:
+            estimate = lambda cell, bounds, t=technique, o=options: t.estimate(cell, o, bounds)  # noqa: E731
+            names[0] = technique.name
+        else:
+            raise PlacementError(
+                f"one technique of shaft and box candidates per placement ({names[0]!r}), not {technique.name!r} too"
+            )
+    return estimate, tuple(outside), tuple(names)
+
+
 def place(
     scene: Scene,
     view_lo,
@@ -144,11 +201,9 @@ def place(
     ``keep_state``: the result's ``state`` is the :class:`~farfield.core.placement.repair.PlannerState`
     (hierarchy, problem views, candidates, greedy) that check-and-repair rounds resume."""
     _check(settings)
-    technique = get_technique(settings.technique)
-    check_placeable(technique)
-    options = technique.options({k: v for k, v in (settings.options or {}).items() if k not in ("resolution", "fov_deg")},
-                                (settings.options or {}).get("resolution"), (settings.options or {}).get("fov_deg"))  # fmt: skip
-    check_colour_only(options)
+    techniques = candidate_techniques(settings)
+    technique, options = techniques[0]
+    estimate, outside, sources = technique_sources(techniques)
     fov, resolution = math.radians(options.fov_deg), int(options.resolution)
     lo, hi = np.asarray(view_lo, dtype=np.float64).reshape(-1), np.asarray(view_hi, dtype=np.float64).reshape(-1)
     if lo.shape != (3,) or hi.shape != (3,):
@@ -184,20 +239,18 @@ def place(
         if pvs is not None:
             pv.stats["visibility"] = pvs.stats()
 
-    def estimate(cell, bounds):
-        return technique.estimate(cell, options, bounds)
-
     with clock("candidates"):
         cand = generate_candidates(
             hierarchy, pv, settings.model, estimate, float(resolution) ** 2, settings.cells, settings.apex_angles_deg, settings.direction_step_deg,
-            settings.distance_steps, lambda done, total: clock.report("candidates", done, total), settings.max_impostor_bytes,
+            settings.distance_steps, lambda done, total: clock.report("candidates", done, total), settings.max_impostor_bytes, outside,
         )  # fmt: skip
     with clock("greedy"):
         greedy = Greedy(hierarchy, pv, cand, settings.t_max)
         greedy.run(progress=lambda chosen, worst: clock.report("greedy", chosen, cand.count))
     clock.report("greedy", 1, 1)
     state = PlannerState(
-        scene_summary(scene, elements), elements, hierarchy, pv, cand, greedy, settings, options, technique.name, lo, hi, float(cpv_size), clock.totals()
+        scene_summary(scene, elements), elements, hierarchy, pv, cand, greedy, settings, options, technique.name, lo, hi, float(cpv_size), clock.totals(),
+        sources=sources, also={t.name: o for t, o in techniques[1:]},
     )  # fmt: skip
     placement = state.placement()
     return replace(placement, state=state) if keep_state else placement

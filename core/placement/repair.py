@@ -31,7 +31,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from farfield.core.placement.candidates import Candidates
+from farfield.core.placement.candidates import KIND_NAMES, OUTSIDE_SPHERE, Candidates
 from farfield.core.placement.greedy import Greedy
 from farfield.core.placement.hierarchy import Elements, Hierarchy, PlacementError
 from farfield.core.placement.result import Placement
@@ -50,6 +50,11 @@ def scene_summary(scene: Scene, elements: Elements) -> dict:
         "source": scene.source, "content_hash": scene.content_hash, "objects": scene.object_count, "triangles": scene.triangle_count,
         "split": elements.split_counts(scene),
     }  # fmt: skip
+
+
+def _plain(options) -> dict:
+    """A technique's Options as the placement document holds them (tuples as lists)."""
+    return {k: (v if not isinstance(v, tuple) else list(v)) for k, v in asdict(options).items()}
 
 
 @dataclass(frozen=True, slots=True)
@@ -98,6 +103,8 @@ class PlannerState:
     rounds: list = field(default_factory=list)
     first: dict | None = None  # every candidate's first estimates (quads, memory), before any correction
     correction: dict | None = None  # the last ratios of baked to estimated figures
+    sources: tuple = ()  # the technique of each candidate source (Candidates.source); (): all ``technique``
+    also: dict | None = None  # the other techniques' Options by name (PlacementSettings.also)
 
     # --- persistence ---------------------------------------------------------------------------
 
@@ -123,6 +130,8 @@ class PlannerState:
             (state.settings, "max_impostor_bytes", math.inf),
             (state.settings, "visibility", False),
             (state.settings.model, "quads_exponent", 0.0),
+            (state.cand, "source", None),
+            (state.settings, "also", None),
         ):
             if not hasattr(holder, name):
                 object.__setattr__(holder, name, value)
@@ -169,10 +178,12 @@ class PlannerState:
             impostor_id = int(impostor_id)
             if impostor_id in self.baked:
                 continue  # its figures are in place already (a round repeated after a lost worker)
+            i = self.candidate_of(impostor_id)
+            if int(cand.kind[i]) == OUTSIDE_SPHERE and "quads" not in stats:  # one card: its estimate is its figure
+                stats = {**stats, "quads": float(cand.quads[i])}
             missing = [k for k in BAKED_FIGURES if not isinstance(stats.get(k), (int, float))]
             if missing:
                 raise PlacementError(f"the baked stats of impostor {impostor_id} lack {missing}")
-            i = self.candidate_of(impostor_id)
             # The estimate before any correction: the bias is measured against what the corrections scale.
             self.estimated[impostor_id] = {
                 "quads": float(self.first["quads"][i]),
@@ -242,23 +253,41 @@ class PlannerState:
         if not self.baked:
             return
         cand, model = self.cand, self.settings.model
-        ratio = {
-            k: float(np.median([self.baked[i][b] / max(self.estimated[i][e], 1e-12) for i in self.baked]))
-            for k, b, e in (("quads", "quads", "quads"), ("memory", "texture_bytes", "memory_bytes"))
-        }  # fmt: skip
+        source = cand.source if cand.source is not None else np.zeros(cand.count, dtype=np.int64)
         free = np.ones(cand.count, dtype=bool)
         free[[self.candidate_of(i) for i in self.baked]] = False
-        quads = np.where(free, self.first["quads"] * ratio["quads"], cand.quads)
+        # Per source of candidates (a technique): its own bias; a source with nothing baked keeps its estimates.
+        scale = {"quads": np.ones(cand.count), "memory": np.ones(cand.count)}
+        ratios = {}
+        for s in np.unique(source):
+            mine = [i for i in self.baked if source[self.candidate_of(i)] == s]
+            if not mine:
+                continue
+            ratio = {
+                k: float(np.median([self.baked[i][b] / max(self.estimated[i][e], 1e-12) for i in mine]))
+                for k, b, e in (("quads", "quads", "quads"), ("memory", "texture_bytes", "memory_bytes"))
+            }  # fmt: skip
+            for k in scale:
+                scale[k][source == s] = ratio[k]
+            ratios[self.technique_of_source(int(s))] = ratio
+        quads = np.where(free, self.first["quads"] * scale["quads"], cand.quads)
         delta = np.asarray(model.impostor_time(0.0, quads), dtype=np.float64) - np.asarray(
             model.impostor_time(0.0, cand.quads), dtype=np.float64
         )
         cand.ti[:] += np.repeat(np.where(free, delta, 0.0), np.diff(cand.served_offsets))
         cand.quads[:] = quads
-        cand.memory[:] = np.where(free, np.maximum(self.first["memory"] * ratio["memory"], 1.0), cand.memory)
+        cand.memory[:] = np.where(free, np.maximum(self.first["memory"] * scale["memory"], 1.0), cand.memory)
         # A candidate the correction makes larger than max_impostor_bytes gains nothing any more.
         over = np.repeat(free & (cand.memory > self.settings.max_impostor_bytes), np.diff(cand.served_offsets))
         cand.ti[:] = np.where(over, np.maximum(cand.ti, cand.g), cand.ti)
-        self.correction = ratio
+        # The placement's own technique's ratios (as before mixed candidates), and every technique's.
+        self.correction = dict(ratios.get(self.technique) or next(iter(ratios.values())))
+        if len(self.sources) > 1:
+            self.correction["by_technique"] = ratios
+
+    def technique_of_source(self, source: int) -> str:
+        """The technique whose candidates ``source`` (Candidates.source) holds."""
+        return (self.sources[source] if source < len(self.sources) else None) or self.technique
 
     # --- the result ----------------------------------------------------------------------------
 
@@ -284,7 +313,7 @@ class PlannerState:
                 "node": node,
                 "objects": names,
                 "cell": cand.cells[i].to_dict(),
-                "technique": self.technique,
+                "technique": self.technique_of_source(cand.source_of(i)),
                 "layers_estimated": float(cand.layers[i]),
                 "texels_per_layer": float(cand.texels[i]),
                 "quads_estimated": self.estimated.get(impostor_id, {}).get("quads", float(cand.quads[i])),
@@ -297,6 +326,8 @@ class PlannerState:
             }
             if impostor_id in self.baked:
                 entry["baked"] = dict(self.baked[impostor_id])
+            if self.also:  # mixed candidates: which kind of cell each is (an octahedral one's: outside-sphere)
+                entry["kind"] = KIND_NAMES[int(cand.kind[i])]
             impostors.append(entry)
         solvable = ~pv.unsolvable
         after = np.where(solvable, greedy.t, pv.time)
@@ -331,6 +362,12 @@ class PlannerState:
                 "elements": sorted(elements.names[e] for e in ids),
             })  # fmt: skip
         drawn = [imp for imp in impostors if imp["cpvs"]]
+        by_technique: dict[str, dict] = {}
+        for imp in drawn:
+            row = by_technique.setdefault(imp["technique"], {"impostors": 0, "memory_bytes": 0.0, "cpvs": 0})
+            row["impostors"] += 1
+            row["memory_bytes"] += float(imp["memory_bytes"])
+            row["cpvs"] += int(imp["cpvs"])
         summary = {
             "t_max": float(settings.t_max),
             "unit": settings.model.unit,
@@ -356,13 +393,15 @@ class PlannerState:
             "rescored": greedy.rescored,
             "rounds": len(self.rounds),
         }
+        if self.also:  # mixed candidates: what was chosen of each technique
+            summary["by_technique"] = dict(sorted(by_technique.items()))
         parameters = {
             "scene": {k: v for k, v in self.scene.items() if k != "split"},
             "view_space": [self.lo.tolist(), self.hi.tolist()],
             "t_max": float(settings.t_max),
             "cost_model": settings.model.to_dict(),
             "technique": self.technique,
-            "options": {k: (v if not isinstance(v, tuple) else list(v)) for k, v in asdict(self.options).items()},
+            "options": _plain(self.options),
             "cpv_size": float(self.cpv_size),
             "vdi_deg": float(settings.vdi_deg),
             "depth_complexity": None
@@ -380,6 +419,8 @@ class PlannerState:
             if "visibility" in pv.stats
             else "none (no occlusion culling; seed 000 Table 5.1 test 16 setting)",
         }
+        if self.also:  # the other techniques whose candidates competed, with their options
+            parameters["also"] = {name: _plain(o) for name, o in self.also.items()}
         return Placement(
             parameters=parameters,
             elements={

@@ -8,6 +8,10 @@ object, :class:`farfield.core.placement.hierarchy.Elements`) is its own draw cal
 impostor replaces is exactly what is left out; each impostor bundle is read and uploaded once,
 when a view first needs it, and drawn as its payload draws itself everywhere else
 (:meth:`farfield.core.impostor.impostor.Payload.draw_objects`: quads or meshes textured from the atlas pages).
+A payload not drawn as triangles that has a renderer drawing into the bound framebuffer
+(``draw_card``: an octahedral impostor's :class:`~farfield.core.techniques.octahedral.runtime.OctahedralRenderer`,
+its camera-facing card blending three frames) is drawn by that renderer after the geometry, depth-tested
+against it, in the same framebuffer: a draw list holds the geometry's draws, then such cards.
 
 Frustum culling is conservative: an element (or impostor) is left out only when every corner of
 its bounding box lies outside one of the camera's four side planes, or behind the eye; no far
@@ -25,11 +29,13 @@ bounding-sphere disc at the eye, capped at ``depth_complexity`` frames).
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import asdict, dataclass
 from typing import Self
 
 import numpy as np
 
+from farfield.core.errors import RenderBackendError
 from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.placement.cost_model import CostModel
 from farfield.core.placement.hierarchy import Elements, PlacementError
@@ -163,15 +169,20 @@ class PlacementRenderer:
 
     def impostor(self, cell: int) -> tuple[MeshRenderer, int, int, np.ndarray, np.ndarray, np.ndarray]:
         """(renderer, triangles, quads, bounds lo, bounds hi, bounds corners) of impostor ``cell``,
-        read and uploaded once."""
+        read and uploaded once; the renderer is a MeshRenderer of its payload's draw objects, or
+        the payload's own renderer where it draws a card (``draw_card``, module docstring)."""
         if cell not in self._impostors:
             impostor = self.database.impostor(cell)
             objects = impostor.payload.draw_objects(impostor)  # the payload's runtime draw list
-            if objects is None:
-                raise PlacementError(
-                    f"impostor {cell}: no drawer for a {impostor.payload.kind!r} payload ({impostor.technique})"
-                )
-            renderer = MeshRenderer(objects)
+            if objects is not None:
+                renderer = MeshRenderer(objects)
+            else:
+                renderer = impostor.payload.renderer(impostor)
+                if not hasattr(renderer, "draw_card"):
+                    renderer.release()
+                    raise PlacementError(
+                        f"impostor {cell}: no drawer for a {impostor.payload.kind!r} payload ({impostor.technique})"
+                    )
             points = impostor.payload.world_points().reshape(-1, 3)
             if points.size:
                 lo, hi = points.min(axis=0), points.max(axis=0)
@@ -244,7 +255,7 @@ class PlacementRenderer:
             item for item in loaded if not cull or bool(boxes_in_frustum(camera, item[3][None, :], item[4][None, :])[0])
         ]
         for item in shown:
-            draws.extend(item[0]._draws)
+            draws.extend(item[0]._draws if isinstance(item[0], MeshRenderer) else [item[0]])
         geometry_triangles = int(self.elements.triangles[selected].sum())
         estimate = None if plain else found.get("time_estimated")
         if estimate is None:
@@ -259,21 +270,35 @@ class PlacementRenderer:
         )  # fmt: skip
         return camera, draws, figures
 
-    def _with(self, draws: list, action):
+    def _draw(self, camera: Camera, draws: list):
+        """Draw ``draws``: the geometry's (MeshRenderer draw tuples) first, then the cards
+        (renderers with ``draw_card``) into the same framebuffer; the colour texture."""
         saved = self.gpu._draws
-        self.gpu._draws = draws
+        self.gpu._draws = [d for d in draws if isinstance(d, tuple)]
         try:
-            return action()
+            colour = self.gpu._draw(camera)
         finally:
             self.gpu._draws = saved
+        for card in (d for d in draws if not isinstance(d, tuple)):
+            card.draw_card(camera)
+        return colour
 
     def render(self, camera: Camera, draws: list) -> np.ndarray:
-        """(h, w, 4) uint8 image of ``draws`` (from :meth:`prepare`) from ``camera``."""
-        return self._with(draws, lambda: self.gpu.render(camera))
+        """(h, w, 4) uint8 image of ``draws`` (from :meth:`prepare`) from ``camera``, top row first."""
+        colour = self._draw(camera, draws)
+        image = np.frombuffer(colour.read(), dtype=np.uint8).reshape(camera.resolution, camera.resolution, 4)
+        error = self.gpu.ctx.error
+        if error != "GL_NO_ERROR":
+            raise RenderBackendError(f"OpenGL error while rendering a placement's view: {error}")
+        return image[::-1].copy()
 
     def frame_seconds(self, camera: Camera, draws: list) -> float:
         """Seconds to draw ``draws`` and finish (no read-back), as :meth:`MeshRenderer.frame_seconds`."""
-        return self._with(draws, lambda: self.gpu.frame_seconds(camera))
+        self.gpu.ctx.finish()
+        start = time.perf_counter()
+        self._draw(camera, draws)
+        self.gpu.ctx.finish()
+        return time.perf_counter() - start
 
     def draw(
         self, position, forward, fov_deg: float | None = None, resolution: int | None = None

@@ -223,6 +223,12 @@ class TechniqueDefinition:
     bound: Callable[[list[ViewCell], Any, np.ndarray | None], np.ndarray] | None = None
     # what places it instead, when the frame-time planner cannot (Technique.placement)
     placement: str = ""
+    # outside_estimate(options, part_bounds) -> an OutsideEstimate (farfield.core.techniques.octahedral.estimate):
+    # for an impostor that serves every view beyond a distance from its part (octahedral), the frame-time
+    # planner's one candidate per element (that outside-sphere cell, its exact memory and quads) instead
+    # of shafts and boxes; None: shafts and boxes, ranked by ``estimate`` (optional in Technique: read
+    # it with getattr(technique, "outside_estimate", None))
+    outside_estimate: Callable[[Any, np.ndarray], Any] | None = None
     # runtime(scene, impostor) -> its walk-through cell renderer (Technique.runtime); None: none
     runtime: Callable[[Scene, Impostor], Any] | None = None
     # Its numba kernels' warm-ups: each compiles some kernels on tiny inputs and returns the seconds

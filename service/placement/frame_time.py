@@ -24,7 +24,7 @@ from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, primit
 from farfield.core.placement.hierarchy import Elements, PlacementError
 from farfield.core.placement.planner import DEFAULT_MAX_IMPOSTOR_BYTES, check_colour_only, check_placeable
 from farfield.core.placement.view_space import MAX_REGIONS, MIN_VDI_DEG
-from farfield.core.techniques import DEFAULT_TECHNIQUE, get_technique
+from farfield.core.techniques import DEFAULT_TECHNIQUE, TECHNIQUES, get_technique
 from farfield.service.blobs import BlobStore
 from farfield.service.db import CellRow, Database, JobRow, job_cells
 from farfield.service.placement.base import Algorithm, Round, finite, put_index, state_key, view_space
@@ -67,6 +67,26 @@ def cost_model_of(budget) -> tuple[CostModel, float, dict]:
     return model, t_max, {**record, "t_max": t_max, "unit": model.unit}
 
 
+def also_options(technique: str, also: dict | None, resolution: int, fov_deg: float) -> dict:
+    """A request's ``also`` (technique name -> options) as stored: every technique's options
+    validated (defaults filled in; the job's ``resolution`` and ``fov_deg``), or a 422 naming the problem."""
+    from farfield.core.placement.planner import PlacementSettings, candidate_techniques
+
+    if not also:
+        return {}
+    unknown = sorted(set(also) - set(TECHNIQUES))
+    if unknown:
+        raise PlacementError(f"also: unknown techniques {unknown}; known: {sorted(TECHNIQUES)}")
+    for name, values in also.items():
+        image = sorted(set(values or {}) & {"resolution", "fov_deg"})
+        if image:
+            raise PlacementError(f"also.{name}: {image} are the job's own fields, not technique options")
+    settings = PlacementSettings(
+        1.0, LLVMPIPE_MODEL, technique, {"resolution": resolution, "fov_deg": fov_deg}, also=also
+    )
+    return {t.name: stored_values(o) for t, o in candidate_techniques(settings)[1:]}
+
+
 def planner_settings(params: dict):
     """The job's :class:`~farfield.core.placement.planner.PlacementSettings` and view-space corners."""
     from farfield.core.placement.planner import PlacementSettings
@@ -79,6 +99,7 @@ def planner_settings(params: dict):
         depth_complexity=math.inf if knobs["depth_complexity"] is None else knobs["depth_complexity"],
         cluster_triangles=knobs["cluster_triangles"], max_impostor_bytes=float(knobs.get("max_impostor_mb", math.inf)) * 2**20,  # a job stored before the cap: none
         visibility=bool(knobs.get("visibility", False)),
+        also=knobs.get("also"),
     )  # fmt: skip
     return settings, knobs["view_space"]["lo"], knobs["view_space"]["hi"]
 
@@ -151,6 +172,13 @@ class FrameTime(Algorithm):
         "visibility": (
             StrictBool, Field(False, description="problem views count only the potentially visible set of their region (sampled from points with id cube maps; not conservative: docs/placement/visibility.md)")
         ),
+        "also": (
+            dict[str, dict] | None,
+            Field(None, description="other techniques whose candidates compete with the job's technique's in the same greedy, by memory "
+                  "per millisecond saved: technique name -> its options (the job's resolution and fov_deg apply), e.g. "
+                  "{\"octahedral\": {\"grid\": 9, \"frame_resolution\": 16}}: an octahedral impostor per element wherever its "
+                  "problem views lie beyond its accuracy distance (docs/placement/frame-time.md, mixed candidates)"),
+        ),
     }  # fmt: skip
 
     def params(self, technique_name, given_options, resolution, fov_deg, spec, model_triangles=None) -> dict:
@@ -160,6 +188,7 @@ class FrameTime(Algorithm):
         check_placeable(technique)
         options = technique.options(given_options, resolution, fov_deg)
         check_colour_only(options)
+        also = also_options(technique.name, spec.also, options.resolution, options.fov_deg)
         lo, hi, span = view_space(spec)
         model, t_max, budget = cost_model_of(spec.budget)
         cpv_size = None if spec.cpv_size is None else finite(spec.cpv_size, "cpv_size")
@@ -196,6 +225,8 @@ class FrameTime(Algorithm):
         }  # fmt: skip
         if spec.visibility:  # stored only when on: the params (and keys) of every other job stay as they were
             knobs["visibility"] = True
+        if also:  # only when given: a job without mixed candidates stores what it always did
+            knobs["also"] = also
         return {
             "technique": technique.name,
             "resolution": options.resolution,

@@ -141,13 +141,20 @@ class OctahedralRenderer:
         return self._targets[resolution]
 
     def _draw(self, camera: Camera):
+        colour, _, fbo, *_ = self._target(camera.resolution)
+        fbo.use()
+        self.ctx.viewport = (0, 0, camera.resolution, camera.resolution)
+        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        self.draw_card(camera)
+        return colour
+
+    def draw_card(self, camera: Camera) -> None:
+        """Draw the card from ``camera`` into the framebuffer bound now (depth-tested against what
+        it holds, nothing cleared): how a placement's runtime draws it among the scene's geometry
+        (:class:`farfield.core.placement.runtime.PlacementRenderer`)."""
         p = self.payload
         centre = p.centre
-        colour, _, fbo, *_ = self._target(camera.resolution)
         ctx = self.ctx
-        fbo.use()
-        ctx.viewport = (0, 0, camera.resolution, camera.resolution)
-        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         ctx.enable(moderngl.DEPTH_TEST)
         ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
         view = np.asarray(camera.eye, dtype=np.float64) - centre
@@ -196,7 +203,6 @@ class OctahedralRenderer:
             prog[f"opposite{slot}"].value = 6 + slot
             self.heights[int(p.page[o])].use(6 + slot)
         self.vao.render(moderngl.TRIANGLES)
-        return colour
 
     def render(self, camera: Camera) -> np.ndarray:
         """(h, w, 4) uint8 image, top row first; alpha 255 where the impostor shows."""

@@ -33,6 +33,7 @@ from farfield.core.scene import Scene, emits
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import CellCost, Promise, TechniqueDefinition
 from farfield.core.techniques.octahedral.accuracy import accuracy_distance
+from farfield.core.techniques.octahedral.estimate import estimate_octahedral, outside_estimate
 from farfield.core.techniques.octahedral.frames import (
     Sphere,
     compose_atlas,
@@ -245,8 +246,8 @@ TECHNIQUE = TechniqueDefinition(
     summary=_summary,
     evaluate=evaluate_part,
     evaluation_text=_evaluation_text,
-    placement="an octahedral candidate (an estimate for parts whose problem region lies beyond the accuracy "
-    "distance) is not there yet",
+    estimate=estimate_octahedral,
+    outside_estimate=outside_estimate,
     promise=Promise("within one pixel beyond the accuracy distance the bake reports (stats accuracy_distance)"),
     instancing=instancing(),  # an instance's impostor is its prototype's moved (instancing.py)
 )
