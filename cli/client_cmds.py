@@ -471,7 +471,9 @@ def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov
                                     algorithm, p_opt=p_opt, octree_depth=octree_depth, grid_points=grid_points, max_level=max_level, check_views=check_views,
                                     visibility=True if visibility else None, also=parse_also(also) or None)  # fmt: skip
     elif (
-        any(v is not None for v in (algorithm, p_opt, octree_depth, grid_points, max_level, check_views)) or visibility or also
+        any(v is not None for v in (algorithm, p_opt, octree_depth, grid_points, max_level, check_views))
+        or visibility
+        or also
     ):
         raise ServiceError(
             "--algorithm, --also, --p-opt, --octree-depth, --grid-points, --max-level, --check-views and --visibility go with --placement"
