@@ -124,7 +124,7 @@ def test_a_state_pickled_before_the_newer_fields_still_loads(planned, monkeypatc
     def before(name):  # what these slotted dataclasses pickled before their field ``name`` (and those after it) existed
         return lambda self: [getattr(self, f.name) for f in fields(self)][: [f.name for f in fields(self)].index(name)]
 
-    assert [f.name for f in fields(PlacementSettings)][-2:] == ["max_impostor_bytes", "also"]
+    assert [f.name for f in fields(PlacementSettings)][-3:] == ["max_impostor_bytes", "visibility", "also"]
     assert fields(CostModel)[-1].name == "quads_exponent" and fields(Candidates)[-1].name == "source"
     monkeypatch.setattr(PlacementSettings, "__getstate__", before("max_impostor_bytes"))
     monkeypatch.setattr(CostModel, "__getstate__", before("quads_exponent"))
@@ -133,7 +133,7 @@ def test_a_state_pickled_before_the_newer_fields_still_loads(planned, monkeypatc
     monkeypatch.undo()
     old = PlannerState.loads(data)
     assert old.settings.max_impostor_bytes == math.inf and old.settings.model.quads_exponent == 0.0
-    assert old.settings.also is None and old.cand.source is None
+    assert old.settings.also is None and old.settings.visibility is False and old.cand.source is None
     parameters = old.placement().parameters
     assert parameters["cost_model"]["memory"]["quads_exponent"] == 0.0 and parameters["max_impostor_bytes"] is None
 
