@@ -100,6 +100,7 @@ uniform int grid_n;
 uniform int hemisphere;      // 1: the hemi-octahedral map
 uniform vec3 eye_object;        // the eye in the card node's frame (before any instance's matrix), float64 on the CPU
 uniform mat3 grid_from_object;  // R^T: a turned grid's frames (R d_k) are picked by the view turned back
+uniform float pixel_angle;      // a pixel's side per unit of distance: 2 tan(fov / 2) / the target's height
 varying vec3 v_local;           // the card point relative to the centre, the instance's frame
 flat varying vec3 v_eye;        // the eye relative to the centre, the instance's frame
 flat varying ivec3 v_frames;    // the three blended frames
@@ -137,8 +138,9 @@ void main() {
   vec3 hint = abs(w.z) < 0.99 ? vec3(0.0, 0.0, 1.0) : vec3(0.0, 1.0, 0.0);
   vec3 a = normalize(cross(w, hint));
   vec3 b = cross(a, w);
-  float half_side = distance > radius * 1.0001 ? radius * distance / sqrt(distance * distance - radius * radius)
-                                               : ${INSIDE_HALF_SIDE.toFixed(1)} * radius;
+  // grown by a pixel: a part smaller than a pixel still meets a pixel centre
+  float half_side = (distance > radius * 1.0001 ? radius * distance / sqrt(distance * distance - radius * radius)
+                                                : ${INSIDE_HALF_SIDE.toFixed(1)} * radius) + distance * pixel_angle;
   v_local = half_side * (position.x * a + position.y * b);
   v_eye = eye;
   // the three frames around the view direction and their weights (mapping.blend_frames)
@@ -190,6 +192,7 @@ uniform int grid_n;
 uniform vec3 centre;
 uniform float radius;
 uniform float frame_res;
+uniform float pixel_angle;
 varying vec3 v_local;
 flat varying vec3 v_eye;
 flat varying ivec3 v_frames;
@@ -220,6 +223,47 @@ bool in_frame(vec2 t) {
 
 vec4 colour_at(Frame f, vec2 t) { return colour_sample(f.page, (f.origin + t) / page_size(f.page)); }
 
+float footprint(vec3 p, float dn) { // the side of a square of frame texels holding a pixel's beam at p
+  // (a pixel's side turned by any angle: sqrt(2); seen along a frame dn = cos away: 1 / dn)
+  return length(p - v_eye) * pixel_angle / (2.0 * radius / frame_res) * 1.41421356 / max(-dn, 0.1);
+}
+
+#ifdef USE_DEPTH
+float level_of(vec4 texel, float covered);
+#endif
+
+// The texels of frame f within the footprint (side texels a side) at t that hold the part (with
+// depth: whose surface is at height h or above): their linear colour and count summed, each
+// weighted by its share of the footprint (mean), or (0, 0, 0, 1) at the first one (else 0); where a
+// pixel spans more than a texel.
+vec4 footprint_scan(Frame f, vec2 t, float side, float h, bool mean) {
+  vec2 lo = max(t - 0.5 * side, vec2(0.0)), hi = min(t + 0.5 * side, vec2(frame_res - 1e-3));
+  if (any(greaterThan(lo, hi))) return vec4(0.0);
+  ivec2 a0 = ivec2(floor(f.origin + lo)), a1 = ivec2(floor(f.origin + hi));
+#ifdef USE_DEPTH
+  float need = max(ceil((h / radius * 0.5 + 0.5) * ${DEPTH_LEVELS.toFixed(1)}) + 1.0, 1.0) - 0.5; // the least byte at height h
+#endif
+  vec4 sum = vec4(0.0);
+  for (int y = a0.y; y <= a1.y; ++y)
+    for (int x = a0.x; x <= a1.x; ++x) {
+      ivec2 at = ivec2(x, y);
+      vec4 c = colour_texel(f.page, at);
+#ifdef USE_DEPTH
+      bool held = level_of(normal_texel(f.page, at), c.a) >= need;
+#else
+      bool held = c.a >= 0.5;
+#endif
+      if (held) {
+        if (!mean) return vec4(0.0, 0.0, 0.0, 1.0);
+        vec2 cover = max(min(vec2(x, y) + 1.0, f.origin + hi) - max(vec2(x, y), f.origin + lo), vec2(0.0));
+        sum += (cover.x * cover.y + 1e-6) * vec4(c.rgb, 1.0);  // weighted by the texel's share of the footprint
+      }
+    }
+  return sum;
+}
+
+bool footprint_hit(Frame f, vec2 t, float side, float h) { return footprint_scan(f, t, side, h, false).a > 0.0; }
+
 #ifdef USE_DEPTH
 // A texel holds a surface where its colour's alpha says so (its depth byte is then 1..255, 0
 // elsewhere): the same as the depth byte's 0 for PNG pages, and robust where a KTX2 page's codec
@@ -236,6 +280,12 @@ float height_at(Frame f, vec2 t) { // the surface's height above the card plane;
   float level = level_at(f, t);
   if (level < 0.5) return -1e30;
   return ((level - 1.0) / ${DEPTH_LEVELS.toFixed(1)} * 2.0 - 1.0) * radius;
+}
+
+bool under_surface(Frame f, vec3 p, float dn) { // p at or below f's surface (over the pixel's footprint where it spans more than a texel)
+  float side = footprint(p, dn);
+  if (side <= 1.0) return dot(p, f.dir) <= height_at(f, frame_texel(f, p));
+  return footprint_hit(f, frame_texel(f, p), side, dot(p, f.dir));
 }
 
 float bottom_at(Frame o, bool valid, vec3 p) { // the column's bottom: the opposite frame's surface, as a height along the frame's direction
@@ -263,10 +313,18 @@ void main() {
 #ifndef USE_DEPTH
     t = -e0 / dn; // the card plane through the centre
     vec2 tx = frame_texel(f, v_eye + t * ray);
-    if (!in_frame(tx)) continue;
-    vec4 s = colour_at(f, tx);
-    alpha = s.a;
+    float side = footprint(v_eye + t * ray, dn);
+    if (!in_frame(tx) && side <= 1.0) continue; // a wider footprint may reach the frame's edge
+    vec4 s = colour_at(f, clamp(tx, vec2(0.0), vec2(frame_res)));
+    alpha = in_frame(tx) ? s.a : 0.0;
     c = s.rgb;
+    if (side > 1.0 && alpha < 0.5) { // not covered at the point: the mean colour of the covered texels over the footprint
+      vec4 m = footprint_scan(f, tx, side, 0.0, true);
+      if (m.a > 0.0) {
+        alpha = 1.0;
+        c = m.rgb / m.a;
+      }
+    }
 #else
     // the height field: march from the slab's top to its bottom, half a texel a step, then bisect
     bool two_sided = f.opposite >= 0;
@@ -279,12 +337,12 @@ void main() {
     for (int s = 1; s <= steps; ++s) {
       float ts = mix(t_top, t_bottom, float(s) / float(steps));
       vec3 p = v_eye + ts * ray;
-      if (dot(p, f.dir) <= height_at(f, frame_texel(f, p))) {
+      if (under_surface(f, p, dn)) {
         float lo = before, hi = ts;
         for (int b = 0; b < 8; ++b) {
           float mid = 0.5 * (lo + hi);
           vec3 q = v_eye + mid * ray;
-          if (dot(q, f.dir) <= height_at(f, frame_texel(f, q))) hi = mid; else lo = mid;
+          if (under_surface(f, q, dn)) hi = mid; else lo = mid;
         }
         vec3 q = v_eye + hi * ray;
         // two-sided: a crossing under the column's bottom (less a depth step) passes beneath the part
@@ -298,7 +356,11 @@ void main() {
     }
     if (!hit) continue;
     alpha = 1.0;
-    c = colour_at(f, frame_texel(f, v_eye + t * ray)).rgb;
+    vec3 q = v_eye + t * ray;
+    float side = footprint(q, dn);
+    bool held = level_at(f, frame_texel(f, q)) > 0.5; // the hit's own texel holds the part
+    vec4 m = side > 1.0 && !held ? footprint_scan(f, frame_texel(f, q), side, dot(q, f.dir), true) : vec4(0.0);
+    c = m.a > 0.0 ? m.rgb / m.a : colour_at(f, frame_texel(f, q)).rgb; // else far: the mean of the texels it hit
 #endif
     rgb += wk * alpha * c;
     weight += wk * alpha;
@@ -423,7 +485,7 @@ function cardMaterial(grid) {
   const uniforms = {
     centre: {value: grid.centre.clone()}, radius: {value: grid.radius}, frame_res: {value: grid.frameResolution},
     grid_n: {value: grid.n}, hemisphere: {value: grid.hemisphere ? 1 : 0},
-    eye_object: {value: new THREE.Vector3()}, grid_from_object: {value: grid.rotation.clone().transpose()}, frame_table: {value: grid.table},
+    eye_object: {value: new THREE.Vector3()}, pixel_angle: {value: 0.0}, grid_from_object: {value: grid.rotation.clone().transpose()}, frame_table: {value: grid.table},
   };
   grid.colour.forEach((page, p) => { uniforms[`colour${p}`] = {value: page}; });
   if (grid.depth) grid.normal.forEach((page, p) => { uniforms[`normal${p}`] = {value: page}; });
@@ -477,6 +539,10 @@ export class OctahedralImpostor extends THREE.InstancedMesh {
     }
     // the eye in the object's frame, in float64 (a view direction on a grid line stays on it)
     this.worldToLocal(this.material.uniforms.eye_object.value.setFromMatrixPosition(camera.matrixWorld));
+    // a pixel's side per unit of distance (a perspective camera: projectionMatrix[5] = 1 / tan(fov / 2))
+    const target = renderer.getRenderTarget();
+    const height = target ? target.height : renderer.getDrawingBufferSize(new THREE.Vector2()).y;
+    this.material.uniforms.pixel_angle.value = 2.0 / (camera.projectionMatrix.elements[5] * height);
     this.material.uniformsNeedUpdate = true; // clones share the material: upload it for this draw
   }
 }

@@ -9,7 +9,11 @@ through the centre perpendicular to the line to the eye, ``r D / sqrt(D² - r²)
 covers the bounding sphere's silhouette from distance ``D``).  Per fragment the eye ray meets
 each frame (its card plane, or with depth its height field: the parallax correction; between the
 frame's and its opposite frame's surfaces where the grid has one) and the three colours are
-blended, cut at a blended alpha of 0.5, and the hit point's depth written.  A G-buffer renderer
+blended, cut at a blended alpha of 0.5, and the hit point's depth written.  Where a pixel spans more
+than a frame texel (far away), a frame's coverage is tested over the pixel's footprint instead of at
+one point: a frame covers the pixel where any of its texels the footprint touches holds the part
+(with depth: a surface at the ray's height or above), so a twig thinner than a pixel is not missed;
+the card is grown by a pixel so that a part smaller than a pixel still meets a pixel centre.  A G-buffer renderer
 blends the frames' normals, and where the impostor keeps them their materials, alike.
 """
 
@@ -49,8 +53,10 @@ def card_program(ctx: moderngl.Context) -> moderngl.Program:
     return cache[key]
 
 
-def card_corners(eye: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
-    """(4, 3) float64 the card's corners relative to ``centre``, seen from ``eye`` (module docstring).
+def card_corners(eye: np.ndarray, centre: np.ndarray, radius: float, pixel_angle: float = 0.0) -> np.ndarray:
+    """(4, 3) float64 the card's corners relative to ``centre``, seen from ``eye`` (module docstring),
+    grown by one pixel (``pixel_angle`` radians at the distance of the centre) so that a part smaller
+    than a pixel still reaches every pixel centre its footprint test may cover.
 
     >>> (card_corners(np.array([0.0, -2.0, 0.0]), np.zeros(3), 1.0) + 0.0).round(4).tolist()[0]
     [-1.1547, 0.0, -1.1547]
@@ -66,7 +72,7 @@ def card_corners(eye: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarr
         radius * distance / math.sqrt(distance**2 - radius**2)
         if distance > radius * 1.0001
         else INSIDE_HALF_SIDE * radius
-    )
+    ) + distance * pixel_angle
     return half * np.array([-a - b, a - b, a + b, -a + b])
 
 
@@ -161,9 +167,9 @@ class OctahedralRenderer:
         grid_view = view if self.grid_rotation is None else self.grid_rotation.T @ view
         frames, weights = blend_frames(grid_view[None], p.n, p.hemisphere)
         frames, weights = frames[0], weights[0]
-        self.vbo.write(card_corners(camera.eye, centre, p.radius).astype("<f4").tobytes())
-        prog = self.prog
         t = math.tan(0.5 * camera.fov)
+        self.vbo.write(card_corners(camera.eye, centre, p.radius, 2.0 * t / camera.resolution).astype("<f4").tobytes())
+        prog = self.prog
         prog["half_tan"].value = (t, t)
         prog["depth_range"].value = (camera.near, camera.far)
         prog["eye_from_local"].write(camera.eye_matrices([centre])[0])
@@ -176,6 +182,7 @@ class OctahedralRenderer:
         prog["f_weight"].value = [float(w) for w in weights]
         prog["radius"].value = p.radius
         prog["frame_res"].value = float(p.frame_resolution)
+        prog["pixel_angle"].value = 2.0 * t / camera.resolution
         pages = [int(p.page[f]) for f in frames]
         prog["f_size"].value = [self.sizes[page] for page in pages]
         prog["use_depth"].value = int(self.use_depth)

@@ -4,7 +4,9 @@
 // on the card plane through the centre (no depth) or on the frame's height field (ray marched,
 // with depth: the parallax correction; a column ends at the opposite frame's surface where there
 // is one); their colours are blended by the barycentric weights,
-// cut at 0.5, and the blended hit point's depth is written (the pixel depth offset).
+// cut at 0.5, and the blended hit point's depth is written (the pixel depth offset). Where a pixel
+// spans more than a frame texel, a frame's coverage (alpha, or with depth its height) is the largest
+// over the texels the pixel's footprint touches.
 uniform sampler2D atlas0;         // each blended frame's page: sRGB colour, alpha 0 | 1
 uniform sampler2D atlas1;
 uniform sampler2D atlas2;
@@ -31,6 +33,7 @@ uniform vec3 o_up[3];
 uniform vec2 o_origin[3];
 uniform vec2 o_size[3];
 uniform int use_depth;
+uniform float pixel_angle;        // 2 tan(fov / 2) / resolution: a pixel's size per unit of distance
 uniform int normal_mode;          // G-buffer normals: 0 none, 1 the normal pages', 2 the card's (facing the eye)
 uniform int material_mode;        // 1: a material G-buffer (the material pages blended as the colour)
 uniform sampler2D orm0;           // each blended frame's material page: occlusion, roughness, metallic (linear)
@@ -95,6 +98,46 @@ float height_at(int k, vec2 t) {  // the surface's height above the card plane; 
     return ((level - 1.0) / 254.0 * 2.0 - 1.0) * radius;
 }
 
+float footprint(vec3 p, float dn) {  // the side of a square of frame texels holding a pixel's beam at p
+    // (a pixel's side turned by any angle: sqrt(2); seen along a frame dn = cos away: 1 / dn)
+    return length(p - eye_local) * pixel_angle / (2.0 * radius / frame_res) * 1.41421356 / max(-dn, 0.1);
+}
+
+vec4 footprint_scan(int k, vec2 t, float side, float h, bool depth, bool mean) {
+    // the texels of frame k within the footprint (side texels a side) at t that hold the part (with
+    // depth: whose surface is at height h or above): their linear colour and count summed, each
+    // weighted by its share of the footprint (mean), or (0, 0, 0, 1) at the first one (else 0)
+    vec2 lo = max(t - 0.5 * side, vec2(0.0)), hi = min(t + 0.5 * side, vec2(frame_res - 1e-3));
+    if (any(greaterThan(lo, hi))) return vec4(0.0);
+    ivec2 a0 = ivec2(floor(f_origin[k] + lo)), a1 = ivec2(floor(f_origin[k] + hi));
+    int rows = int(f_size[k].y);
+    float need = depth ? max(ceil((h / radius * 0.5 + 0.5) * 254.0) + 1.0, 1.0) - 0.5 : 0.5;  // the least byte at height h
+    vec4 sum = vec4(0.0);
+    for (int y = a0.y; y <= a1.y; ++y)
+        for (int x = a0.x; x <= a1.x; ++x) {
+            ivec2 at = ivec2(x, rows - 1 - y);
+            vec4 c = k == 0 ? texelFetch(atlas0, at, 0) : k == 1 ? texelFetch(atlas1, at, 0) : texelFetch(atlas2, at, 0);
+            float level = depth ? (k == 0 ? texelFetch(heights0, at, 0).a : k == 1 ? texelFetch(heights1, at, 0).a : texelFetch(heights2, at, 0).a)
+                                : c.a;
+            if (level * 255.0 >= need) {
+                if (!mean) return vec4(0.0, 0.0, 0.0, 1.0);
+                vec2 cover = max(min(vec2(x, y) + 1.0, f_origin[k] + hi) - max(vec2(x, y), f_origin[k] + lo), vec2(0.0));
+                sum += (cover.x * cover.y + 1e-6) * vec4(c.rgb, 1.0);  // weighted by the texel's share of the footprint
+            }
+        }
+    return sum;
+}
+
+bool footprint_hit(int k, vec2 t, float side, float h, bool depth) {
+    return footprint_scan(k, t, side, h, depth, false).a > 0.0;
+}
+
+bool under_surface(int k, vec3 p, float dn) {  // p at or below frame k's surface (over the pixel's footprint where it spans more than a texel)
+    float side = footprint(p, dn);
+    if (side <= 1.0) return dot(p, f_dir[k]) <= height_at(k, frame_texel(k, p));
+    return footprint_hit(k, frame_texel(k, p), side, dot(p, f_dir[k]), true);
+}
+
 float bottom_at(int k, vec3 p) {  // the column's bottom: the opposite frame's surface, as a height along f_dir[k]
     if (o_valid[k] == 0) return -1e30;
     vec2 t = vec2((dot(p, o_right[k]) / radius * 0.5 + 0.5) * frame_res, (0.5 - dot(p, o_up[k]) / radius * 0.5) * frame_res);
@@ -123,10 +166,18 @@ void main() {
         if (use_depth == 0) {
             t = -e0 / dn;  // the card plane through the centre
             vec2 tx = frame_texel(k, eye_local + t * ray);
-            if (!in_frame(tx)) continue;
-            vec4 s = colour_at(k, tx);
-            alpha = s.a;
+            float side = footprint(eye_local + t * ray, dn);
+            if (!in_frame(tx) && side <= 1.0) continue;  // a wider footprint may reach the frame's edge
+            vec4 s = colour_at(k, clamp(tx, vec2(0.0), vec2(frame_res)));
+            alpha = in_frame(tx) ? s.a : 0.0;
             c = s.rgb;
+            if (side > 1.0 && alpha < 0.5) {  // not covered at the point: the mean colour of the covered texels over the footprint
+                vec4 m = footprint_scan(k, tx, side, 0.0, false, true);
+                if (m.a > 0.0) {
+                    alpha = 1.0;
+                    c = m.rgb / m.a;
+                }
+            }
         } else {
             float t_top = (radius - e0) / dn, t_bottom = (-radius - e0) / dn;
             vec3 lateral = (ray - dn * f_dir[k]) * (t_bottom - t_top);
@@ -136,12 +187,12 @@ void main() {
             for (int s = 1; s <= steps; ++s) {
                 float ts = mix(t_top, t_bottom, float(s) / float(steps));
                 vec3 p = eye_local + ts * ray;
-                if (dot(p, f_dir[k]) <= height_at(k, frame_texel(k, p))) {
+                if (under_surface(k, p, dn)) {
                     float lo = before, hi = ts;  // the crossing lies between: bisect
                     for (int b = 0; b < 8; ++b) {
                         float mid = 0.5 * (lo + hi);
                         vec3 q = eye_local + mid * ray;
-                        if (dot(q, f_dir[k]) <= height_at(k, frame_texel(k, q))) hi = mid; else lo = mid;
+                        if (under_surface(k, q, dn)) hi = mid; else lo = mid;
                     }
                     vec3 q = eye_local + hi * ray;
                     // Two-sided: a crossing under the column's bottom (the opposite frame's surface,
@@ -156,7 +207,11 @@ void main() {
             }
             if (!hit) continue;
             alpha = 1.0;
-            c = colour_at(k, frame_texel(k, eye_local + t * ray)).rgb;
+            vec3 q = eye_local + t * ray;
+            float side = footprint(q, dn);
+            bool held = height_at(k, frame_texel(k, q)) > -1e29;  // the hit's own texel holds the part
+            vec4 m = side > 1.0 && !held ? footprint_scan(k, frame_texel(k, q), side, dot(q, f_dir[k]), true, true) : vec4(0.0);
+            c = m.a > 0.0 ? m.rgb / m.a : colour_at(k, frame_texel(k, q)).rgb;  // else far: the mean of the texels it hit
         }
         rgb += f_weight[k] * alpha * c;
         vec2 at = frame_texel(k, eye_local + t * ray);
