@@ -129,9 +129,10 @@ def test_three_js_draws_the_octahedral_glb_as_the_reference_runtime(case, bundle
     pixels: the module and the reference are the same algorithm at every distance."""
     paths, impostor = bundles(case)
     distance = impostor.stats["accuracy_distance"]
-    distances = ((1.0, 64, 1), (1.5, 64, 2), (0.25, 64, 3), (0.1, 96, 4))
+    # far beyond it (5x), the coverage over a pixel's footprint decides every pixel (issue 56)
+    distances = ((1.0, 64, 1), (1.5, 64, 2), (5.0, 64, 5), (0.25, 64, 3), (0.1, 96, 4))
     if case == "depth-four-pages":  # the pages' bookkeeping: two distances suffice
-        distances = (distances[0], distances[3])
+        distances = (distances[0], distances[4])
     groups = {factor: cameras(impostor, factor * distance, resolution, seed) for factor, resolution, seed in distances}
     views = [camera for group in groups.values() for camera in group]
     with impostor.payload.renderer(impostor) as reference:
