@@ -19,6 +19,7 @@ import pytest
 from farfield.core import procedural
 from farfield.core.placement.cost_model import CostModel, primitive_model
 from farfield.core.placement.database import placement_index
+from farfield.core.placement.greedy import Greedy
 from farfield.core.placement.planner import PlacementSettings, place
 from farfield.core.scene import Scene
 from farfield.core.techniques import get_technique
@@ -38,11 +39,11 @@ def _model() -> CostModel:
                      memory_exponent=m.memory_exponent, quads_exponent=m.quads_exponent)  # fmt: skip
 
 
-def _place(scene: Scene, also):
+def _place(scene: Scene, also, keep_state: bool = False):
     settings = PlacementSettings(t_max=0.3 * scene.triangle_count, model=_model(), options={"resolution": RESOLUTION},
                                  also=also, vdi_deg=45.0, cpv_size=10.0, cells="both", cluster_triangles=10**6,
                                  leaf_size=1)  # fmt: skip
-    return place(scene, *VIEW, settings)
+    return place(scene, *VIEW, settings, keep_state=keep_state)
 
 
 @pytest.fixture(scope="module")
@@ -61,7 +62,7 @@ def test_the_procedural_forest_is_instanced(forest):
 def test_instances_share_their_prototypes_atlas_and_memory_falls(forest):
     atlas = atlas_bytes(get_technique("octahedral").options(OCTAHEDRAL, resolution=RESOLUTION))
     layered = _place(forest, None)
-    shared = _place(forest, {"octahedral": OCTAHEDRAL})
+    shared = _place(forest, {"octahedral": OCTAHEDRAL}, keep_state=True)
     plain = Scene.from_objects(
         [replace(o, prototype=None, instance_matrix=None, local=None) for o in forest.objects], "no instancing"
     )
@@ -105,3 +106,12 @@ def test_instances_share_their_prototypes_atlas_and_memory_falls(forest):
     index = placement_index(doc, [{"index": imp["id"], "state": "done", "bundle": None} for imp in doc["impostors"]])
     entries = {c["index"]: c for c in index["cells"]}
     assert all(entries[imp["id"]]["atlas"]["owner"] == imp["atlas"]["owner"] for imp in drawn)
+
+    # The lazy heap (free candidates pushed again when an atlas is paid) chooses as re-scoring all does.
+    state = shared.state
+    runs = []
+    for lazy in (True, False):
+        greedy = Greedy(state.hierarchy, state.pv, state.cand, state.greedy.t_max)
+        greedy.run(lazy=lazy)
+        runs.append([imp.candidate for imp in greedy.chosen])
+    assert runs[0] == runs[1] == [imp.candidate for imp in state.greedy.chosen]
