@@ -5,11 +5,13 @@ Usage: ``.venv/bin/python benchmarks/bench_forest_placement.py [--trees 10000] [
 [--walkthrough FRAMES] [--json OUT]``
 
 The scene is :func:`farfield.core.procedural.tree_forest` (``--trees`` instances of ``--prototypes``
-tree meshes on a ``--size`` m terrain plane; every instance its own object: no instancing).  The view
+tree meshes on a ``--size`` m terrain plane; every tree an instance of its prototype).  The view
 space is the forest's square inset by ``--inset`` of its side, flat at ``--altitude`` m (2: walking
 through it; higher: flying over it).  Two placements with the builtin llvmpipe cost model, the same
 knobs (``--resolution``, ``--fov``, ``--cpv-size``, ``--vdi-deg``, ``--cells``): layered candidates
-alone, and layered beside octahedral ones (``PlacementSettings.also``).  Columns: planning seconds,
+alone; layered beside octahedral ones (``PlacementSettings.also``) on the forest with its
+instancing dropped (every tree its own object: one atlas per octahedral impostor); and the same on
+the instanced forest (every instance of a prototype shares its atlas: counted once).  Columns: planning seconds,
 CPVs (solved / unsolved / unsolvable), impostors of each technique, estimated memory, candidates.
 
 Whether the two placements chose the same impostors (technique, elements, view cell) is printed;
@@ -30,6 +32,7 @@ import json
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +50,7 @@ from farfield.core.placement.database import (
 from farfield.core.placement.planner import PlacementSettings, place
 from farfield.core.procedural import tree_forest
 from farfield.core.quality.walkthrough import loop_path, placement_walkthrough
+from farfield.core.scene import Scene
 from farfield.core.techniques import get_technique
 
 
@@ -124,11 +128,19 @@ def main(argv=None) -> int:
           f"view space {lo.tolist()} .. {hi.tolist()}; t_max {args.frame_ms} ms (builtin llvmpipe model); {args.resolution} px at "
           f"{args.fov:g} deg; CPVs {cpv:g} m x {args.vdi_deg:g} deg; cells {args.cells}; leaf size {args.leaf_size}; octahedral {args.octahedral}", flush=True)  # fmt: skip
     rows, first = [], None
-    for label, also in (("layered", None), ("layered + octahedral", {"octahedral": _octahedral(args.octahedral)})):
+    octahedral = {"octahedral": _octahedral(args.octahedral)}
+    plain = Scene.from_objects(
+        [replace(o, prototype=None, instance_matrix=None, local=None) for o in scene.objects], scene.source
+    )
+    for label, also, where in (
+        ("layered", None, scene),
+        ("layered + octahedral, no instancing", octahedral, plain),
+        ("layered + octahedral, shared atlases", octahedral, scene),
+    ):
         settings = PlacementSettings(t_max=args.frame_ms, model=LLVMPIPE_MODEL, options={"resolution": args.resolution, "fov_deg": args.fov},
                                      also=also, cpv_size=cpv, vdi_deg=args.vdi_deg, cells=args.cells, leaf_size=args.leaf_size)  # fmt: skip
         start = time.perf_counter()
-        placement = place(scene, lo, hi, settings)
+        placement = place(where, lo, hi, settings)
         seconds = time.perf_counter() - start
         s = placement.summary
         by = s.get("by_technique") or {"layered": {"impostors": s["impostors"], "memory_bytes": s["memory_bytes"]}}
@@ -137,6 +149,7 @@ def main(argv=None) -> int:
             "unsolved": s["cpvs_unsolved"], "unsolvable": s["cpvs_unsolvable"], "candidates": s["candidates"],
             "impostors": s["impostors"], "memory_bytes": s["memory_bytes"],
             "by_technique": {k: {"impostors": v["impostors"], "memory_bytes": v["memory_bytes"]} for k, v in by.items()},
+            "shared_atlases": len(s.get("shared_atlases", [])),
         }  # fmt: skip
         chosen = json.dumps(
             sorted(
@@ -149,21 +162,21 @@ def main(argv=None) -> int:
         row["same_as_layered"] = bool(rows) and chosen == rows[0]["chosen"]
         if args.walkthrough:  # the same impostors drawn in the same CPVs walk the same: measured once
             same = row["same_as_layered"] and placement.cpvs == first.cpvs
-            row["walkthrough"] = rows[0]["walkthrough"] if same else walk(scene, placement, lo, hi, args.walkthrough)
+            row["walkthrough"] = rows[0]["walkthrough"] if same else walk(where, placement, lo, hi, args.walkthrough)
         first = first if rows else placement
         row["chosen"] = chosen
         rows.append(row)
         print(json.dumps({k: v for k, v in row.items() if k != "chosen"}), flush=True)
 
     print(
-        "\n| placement | plan s | CPVs solved / unsolved / unsolvable | candidates | impostors (layered / octahedral) | memory MiB (octahedral) |"
+        "\n| placement | plan s | CPVs solved / unsolved / unsolvable | candidates | impostors (layered / octahedral) | atlases shared | memory MiB (octahedral) |"
     )
-    print("|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|")
     for r in rows:
         oc = r["by_technique"].get("octahedral", {"impostors": 0, "memory_bytes": 0.0})
         la = r["by_technique"].get("layered", {"impostors": 0})
         print(f"| {r['placement']} | {r['plan_seconds']:.1f} | {r['solved']} / {r['unsolved']} / {r['unsolvable']} | {r['candidates']:,} | "
-              f"{la['impostors']} / {oc['impostors']} | {r['memory_bytes'] / 2**20:.2f} ({oc['memory_bytes'] / 2**20:.2f}) |")  # fmt: skip
+              f"{la['impostors']} / {oc['impostors']} | {r['shared_atlases']} | {r['memory_bytes'] / 2**20:.2f} ({oc['memory_bytes'] / 2**20:.2f}) |")  # fmt: skip
     if args.walkthrough:
         print(
             "\n| placement | frames within t_max | by the estimate | runtime ms p50 / max | plain ms p50 | hole pixels / geometry pixels | baked (octahedral) | baked MiB |"
@@ -174,7 +187,9 @@ def main(argv=None) -> int:
             print(f"| {r['placement']} | {100 * w['share_within_t_max']:.0f} % | {100 * w['share_estimate_within_t_max']:.0f} % | "
                   f"{w['runtime_ms_p50']:.2f} / {w['runtime_ms_max']:.2f} | {w['plain_ms_p50']:.2f} | {w['hole_pixels']} / {w['geometry_pixels']} | "
                   f"{w['baked']} ({w['baked_by_technique'].get('octahedral', 0)}) | {w['baked_bytes'] / 2**20:.2f} |")  # fmt: skip
-    print(f"\nthe same impostors chosen with octahedral candidates as without: {rows[1]['same_as_layered']}")
+    print(
+        f"\nthe same impostors chosen with octahedral candidates as without: {[r['same_as_layered'] for r in rows[1:]]}"
+    )
     if args.json:
         rows = [{k: v for k, v in r.items() if k != "chosen"} for r in rows]
         args.json.write_text(json.dumps({"arguments": vars(args) | {"json": str(args.json)}, "rows": rows}, indent=1))

@@ -117,6 +117,7 @@ def test_a_state_pickled_before_the_newer_fields_still_loads(planned, monkeypatc
 
     from farfield.core.placement.candidates import Candidates
     from farfield.core.placement.cost_model import CostModel
+    from farfield.core.placement.greedy import Greedy
     from farfield.core.placement.planner import PlacementSettings
 
     _, placement, _ = planned
@@ -125,15 +126,24 @@ def test_a_state_pickled_before_the_newer_fields_still_loads(planned, monkeypatc
         return lambda self: [getattr(self, f.name) for f in fields(self)][: [f.name for f in fields(self)].index(name)]
 
     assert [f.name for f in fields(PlacementSettings)][-3:] == ["max_impostor_bytes", "visibility", "also"]
-    assert fields(CostModel)[-1].name == "quads_exponent" and fields(Candidates)[-1].name == "source"
+    assert fields(CostModel)[-1].name == "quads_exponent" and [f.name for f in fields(Candidates)][-4:] == [
+        "source",
+        "prototype",
+        "prototypes",
+        "scale",
+    ]
     monkeypatch.setattr(PlacementSettings, "__getstate__", before("max_impostor_bytes"))
     monkeypatch.setattr(CostModel, "__getstate__", before("quads_exponent"))
     monkeypatch.setattr(Candidates, "__getstate__", before("source"))
+    monkeypatch.setattr(Greedy, "__getstate__", lambda self: {k: v for k, v in vars(self).items() if "atlas" not in k})
     data = placement.state.dumps()
     monkeypatch.undo()
     old = PlannerState.loads(data)
     assert old.settings.max_impostor_bytes == math.inf and old.settings.model.quads_exponent == 0.0
     assert old.settings.also is None and old.settings.visibility is False and old.cand.source is None
+    assert (
+        old.cand.prototype is None and old.cand.atlas_of(0) == -1 and old.greedy.memory_now().shape == (old.cand.count,)
+    )
     parameters = old.placement().parameters
     assert parameters["cost_model"]["memory"]["quads_exponent"] == 0.0 and parameters["max_impostor_bytes"] is None
 

@@ -30,13 +30,23 @@ its atlas, one card), not the cost model's layer law, and it covers the square c
 node's bounding sphere (``4 / pi`` of the disc the CPV's pixels count, at most a frame).  Several
 sources of candidates compete in one greedy (``source``: 0 for ``estimate``'s shafts and boxes,
 ``k + 1`` for ``outside[k]``).
+
+**Instances share an atlas** (issue 56; :mod:`farfield.core.placement.node_instances`): a node
+that is exactly one instance of a prototype gets, from an outside source that moves with instances
+(``outside_instances``), the prototype's candidate moved by the instance matrix: the estimate of
+the prototype's local bounds, its cell's centre moved and its radius scaled by the matrix's
+uniform scale (the accuracy distance scales with the instance,
+:mod:`farfield.core.techniques.octahedral.instancing`), so every instance's cell is the same cell
+of the prototype and one bake serves them all.  Such a candidate records its atlas
+(``prototype``: an index into ``prototypes``, one per source and prototype key) and its scale;
+the greedy charges each atlas once.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -44,7 +54,7 @@ from farfield.core.errors import FarfieldError
 from farfield.core.placement.cost_model import CostModel
 from farfield.core.placement.hierarchy import Hierarchy, PlacementError
 from farfield.core.placement.view_space import CpvGeometry, ProblemViews, box_gap
-from farfield.core.viewcells import BoxCell, ShaftCell
+from farfield.core.viewcells import BoxCell, ShaftCell, SphereOutsideCell
 
 APEX_ANGLES_DEG = (11.25, 22.5, 45.0, 90.0)
 DIRECTION_STEP_DEG = 11.25
@@ -100,6 +110,9 @@ class Candidates:
     ti: np.ndarray  # (total,) the impostor's time there
     stats: dict
     source: np.ndarray | None = None  # (m,) 0: the estimate's shafts and boxes, k + 1: outside[k]; None: all 0
+    prototype: np.ndarray | None = None  # (m,) the shared atlas (index into ``prototypes``), -1: its own; None: all -1
+    prototypes: tuple = ()  # (source, prototype key) of each shared atlas
+    scale: np.ndarray | None = None  # (m,) the instance's uniform scale of a shared candidate, else 1
 
     @property
     def count(self) -> int:
@@ -108,6 +121,10 @@ class Candidates:
     def source_of(self, i: int) -> int:
         """Which source candidate ``i`` came from (see the module docstring)."""
         return 0 if self.source is None else int(self.source[i])
+
+    def atlas_of(self, i: int) -> int:
+        """The shared atlas candidate ``i`` draws from (an index into ``prototypes``), -1: its own."""
+        return -1 if getattr(self, "prototype", None) is None else int(self.prototype[i])
 
 
 def _shaft_cells(
@@ -201,13 +218,16 @@ def generate_candidates(
     progress: Callable[[int, int], None] | None = None,
     max_bytes: float = math.inf,
     outside: tuple[Outside, ...] = (),
+    outside_instances: tuple[dict, ...] = (),
 ) -> Candidates:
     """The candidates of every hierarchy node for the solvable CPVs of ``pv`` (see the module docstring).
 
     ``max_bytes``: a cell whose impostor the model expects to take more memory than this is not a
     candidate (counted in ``stats["refused_by_memory"]``): its bake would take long and its memory
     would be most of the placement's.  ``estimate`` None: no shafts or boxes (only ``outside``'s
-    candidates, one per node and source)."""
+    candidates, one per node and source).  ``outside_instances[k]``: node -> NodeInstance
+    (:func:`~farfield.core.placement.node_instances.node_instances`) of the nodes whose
+    ``outside[k]`` candidate is their prototype's, moved (module docstring)."""
     if cells not in CellKinds:
         raise PlacementError(f"cells must be one of {list(CellKinds)}, got {cells!r}")
     halves = np.radians(np.asarray(apex_angles_deg, dtype=np.float64)) * 0.5
@@ -224,7 +244,7 @@ def generate_candidates(
     size = np.maximum(hierarchy.diagonal, 1e-300)
     grid = direction_grid(direction_step_deg)
     node_l, kind_l, cell_l, layer_l, texel_l, served_l, g_l, ti_l = [], [], [], [], [], [], [], []
-    source_l, memory_l, quads_l = [], [], []
+    source_l, memory_l, quads_l, atlas_l, scale_l, atlases = [], [], [], [], [], {}
     considered = refused = too_large = 0
     for n in range(hierarchy.count):
         g_all, pixels_all = geometry.of(np.full(solvable.size, n), solvable)
@@ -279,12 +299,13 @@ def generate_candidates(
                 layer_l.append(layers),
                 texel_l.append(per_layer),
             )
-            source_l.append(0), memory_l.append(np.nan), quads_l.append(np.nan)
+            source_l.append(0), memory_l.append(np.nan), quads_l.append(np.nan), atlas_l.append(-1), scale_l.append(1.0)
             served_l.append(cpvs[keep]), g_l.append(g_n[keep]), ti_l.append(ti[keep])
         for k, reach in enumerate(outside):
             considered += 1
+            inst = outside_instances[k].get(n) if k < len(outside_instances) else None
             try:
-                far = reach(bounds)
+                far = reach(bounds) if inst is None else _moved(reach(inst.local_bounds), inst)
             except FarfieldError:
                 refused += 1
                 continue
@@ -305,6 +326,8 @@ def generate_candidates(
                 quads_l.append(far.quads),
             )
             served_l.append(cpvs[keep]), g_l.append(g_n[keep]), ti_l.append(ti[keep])
+            atlas_l.append(-1 if inst is None else atlases.setdefault((k + 1, inst.prototype), len(atlases)))
+            scale_l.append(1.0 if inst is None else inst.scale)
         if progress is not None:
             progress(n + 1, hierarchy.count)
     layers_a, texels_a = np.asarray(layer_l, dtype=np.float64), np.asarray(texel_l, dtype=np.float64)
@@ -330,4 +353,16 @@ def generate_candidates(
         ti=flat(ti_l, np.float64),
         stats={"considered": considered, "refused_by_technique": refused, "refused_by_memory": too_large},
         source=np.asarray(source_l, dtype=np.int64),
+        prototype=np.asarray(atlas_l, dtype=np.int64),
+        prototypes=tuple(atlases),
+        scale=np.asarray(scale_l, dtype=np.float64),
+    )
+
+
+def _moved(far, inst):
+    """The outside estimate ``far`` of a prototype (in its local space) moved to instance ``inst``:
+    its cell's centre moved by the matrix, its radius scaled by the matrix's uniform scale."""
+    cell = far.cell
+    return replace(
+        far, cell=SphereOutsideCell(inst.world_point(cell.centre), cell.radius * inst.scale, cell.hemisphere)
     )

@@ -119,7 +119,7 @@ def placement_index(
             "bundle": None if unused else cell.get("bundle"),
             "technique": imp["technique"], "objects": imp["objects"], "params": impostor_params(parameters, imp["objects"], imp["technique"]),
             "cpvs": imp["cpvs"], "figures": figures,
-        } | ({"kind": imp["kind"]} if "kind" in imp else {}))  # fmt: skip
+        } | ({"kind": imp["kind"]} if "kind" in imp else {}) | ({"atlas": imp["atlas"]} if "atlas" in imp else {}))  # fmt: skip
     opts = impostor_params(parameters, [])
     params = {"resolution": opts["resolution"], "fov_deg": opts["fov_deg"], "objects": None, "options": opts["options"]}
     index = database_index(parameters["technique"], params, entries, job=job, scene=scene)

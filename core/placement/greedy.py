@@ -23,6 +23,13 @@ of the candidates serving them fall too: no score ever increases (§5.7.4), so a
 scores is re-ranked lazily: the top is re-scored and chosen if it is still on top, else pushed
 back.  Ties go to the smaller candidate index.  ``lazy=False`` re-scores every candidate at every
 step (the reference the lazy form must equal; tested).
+
+**Shared atlases** (issue 56): candidates of instances of one prototype draw from one atlas
+(``Candidates.prototype``).  The first of them chosen pays the atlas's memory; while an impostor
+of that atlas is drawn, every other candidate of it costs 0 bytes, so its score is infinite
+(ranked among such free candidates by its saving).  That is the one way a score rises: when a
+choice pays an atlas, its other candidates are pushed on the heap again with their new scores
+(their old entries, popped later, are re-scored and found stale).
 """
 
 from __future__ import annotations
@@ -65,6 +72,21 @@ class Greedy:
         self.chosen: list[Chosen] = []
         self.deleted: set[int] = set()
         self.rescored = 0
+        atlas = getattr(cand, "prototype", None)
+        self.atlas = np.full(cand.count, -1, dtype=np.int64) if atlas is None else atlas
+        self.atlas_users: dict[int, list[int]] = {}  # shared atlas -> chosen impostor ids drawing from it
+
+    def paid(self, atlas: int) -> bool:
+        """Whether an impostor drawing from shared ``atlas`` is drawn: its memory is counted."""
+        return atlas >= 0 and any(o not in self.deleted for o in self.atlas_users.get(atlas, ()))
+
+    def memory_now(self) -> np.ndarray:
+        """(m,) every candidate's memory now: 0 for one whose shared atlas is paid."""
+        memory = self.cand.memory.astype(np.float64, copy=True)
+        for atlas in self.atlas_users:
+            if self.paid(atlas):
+                memory[self.atlas == atlas] = 0.0
+        return memory
 
     def _drawn_index(self) -> tuple[np.ndarray, np.ndarray]:
         """Sorted keys ``cpv * nodes + node`` of every drawn impostor and the running sum of what
@@ -104,22 +126,48 @@ class Greedy:
         gain = np.maximum(0.0, np.minimum(saving, self.t[cpvs] - self.t_max))
         return cpvs, saving, gain
 
-    def score(self, i: int) -> float:
+    def rank(self, i: int) -> tuple[float, float]:
+        """(score, tie-break) of candidate ``i`` now: gain per byte and 0, or, for a candidate whose
+        shared atlas is paid (0 bytes), infinity and its gain; (0, 0) where it gains nothing."""
         self.rescored += 1
-        return float(self._gains(i)[2].sum()) / float(self.cand.memory[i])
+        gain = float(self._gains(i)[2].sum())
+        if gain <= 0.0:
+            return 0.0, 0.0
+        if self.paid(int(self.atlas[i])):
+            return np.inf, gain
+        return gain / float(self.cand.memory[i]), 0.0
+
+    def score(self, i: int) -> float:
+        return self.rank(i)[0]
+
+    def initial_ranks(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every candidate's :meth:`rank` (vectorised; with what is chosen so far only as far as
+        scores go: they are upper bounds, the lazy heap re-scores)."""
+        gain = np.maximum(0.0, np.minimum(self.g - self.ti, self.t[self.cand.served] - self.t_max))
+        owner = np.repeat(np.arange(self.cand.count), np.diff(self.cand.served_offsets))
+        total = np.bincount(owner, weights=gain, minlength=self.cand.count)
+        memory = self.memory_now()
+        free = (memory <= 0.0) & (total > 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            score = np.where(free, np.inf, total / np.where(memory > 0.0, memory, 1.0))
+        return score, np.where(free, total, 0.0)
 
     def initial_scores(self) -> np.ndarray:
         """Every candidate's score with nothing chosen (vectorised)."""
-        gain = np.maximum(0.0, np.minimum(self.g - self.ti, self.t[self.cand.served] - self.t_max))
-        owner = np.repeat(np.arange(self.cand.count), np.diff(self.cand.served_offsets))
-        return np.bincount(owner, weights=gain, minlength=self.cand.count) / self.cand.memory
+        return self.initial_ranks()[0]
 
-    def choose(self, i: int) -> None:
+    def choose(self, i: int) -> int:
+        """Choose candidate ``i``; returns the shared atlas this choice pays (its other candidates'
+        memory falls to 0), else -1."""
         cpvs, saving, _ = self._gains(i)
+        atlas = int(self.atlas[i])
+        pays = atlas >= 0 and not self.paid(atlas)
         a = self.cand.served_offsets[i]
         node, me = int(self.cand.node[i]), len(self.chosen)
         imp = Chosen(i, node, {}, me)
         self.chosen.append(imp)
+        if atlas >= 0:
+            self.atlas_users.setdefault(atlas, []).append(me)
         removed, added, added_saved = [], [], []
         for k in np.flatnonzero(saving > 0.0):
             p = int(cpvs[k])
@@ -149,29 +197,34 @@ class Greedy:
             self._keys = np.insert(self._keys, at, new)
             self._saved = np.insert(self._saved, at, np.asarray(added_saved, dtype=np.float64))
         self._cum = None
+        return atlas if pays else -1
 
     def run(self, lazy: bool = True, progress: Callable[[int, float], None] | None = None) -> None:
-        scores = self.initial_scores()
+        scores, ties = self.initial_ranks()
         if not lazy:
-            alive = scores > 0.0
-            while alive.any():
-                best = max(np.flatnonzero(alive), key=lambda j: (scores[j], -j))
-                self.choose(int(best))
-                alive[best] = False
-                for j in np.flatnonzero(alive):
-                    scores[j] = self.score(int(j))
-                alive &= scores > 0.0
+            ranks = {int(j): (scores[j], ties[j]) for j in np.flatnonzero(scores > 0.0)}
+            while ranks:
+                best = max(ranks, key=lambda j: (*ranks[j], -j))
+                self.choose(best)
+                del ranks[best]
+                ranks = {j: r for j in ranks if (r := self.rank(j))[0] > 0.0}
             return
-        heap = [(-float(s), int(j)) for j, s in enumerate(scores) if s > 0.0]
+        heap = [(-float(s), -float(t), int(j)) for j, (s, t) in enumerate(zip(scores, ties)) if s > 0.0]
         heapq.heapify(heap)
         while heap:
-            _, j = heapq.heappop(heap)
-            s = self.score(j)
+            _, _, j = heapq.heappop(heap)
+            s, t = self.rank(j)
             if s <= 0.0:
                 continue  # every CPV it serves is solved, or taken by an ancestor (§5.7.4)
-            if heap and (-s, j) > heap[0]:
-                heapq.heappush(heap, (-s, j))
+            if heap and (-s, -t, j) > heap[0]:
+                heapq.heappush(heap, (-s, -t, j))
                 continue
-            self.choose(j)
+            paid = self.choose(j)
+            if paid >= 0:  # its other candidates cost nothing now: their scores rose
+                for k in np.flatnonzero(self.atlas == paid):
+                    if k != j:
+                        s, t = self.rank(int(k))
+                        if s > 0.0:
+                            heapq.heappush(heap, (-s, -t, int(k)))
             if progress is not None:
                 progress(len(self.chosen), float(np.max(self.t, initial=-np.inf)))

@@ -24,6 +24,7 @@ from farfield.core.placement.candidates import (
 from farfield.core.placement.cost_model import CostModel
 from farfield.core.placement.greedy import Greedy
 from farfield.core.placement.hierarchy import DEFAULT_LEAF_SIZE, Elements, Hierarchy, PlacementError
+from farfield.core.placement.node_instances import node_instances
 from farfield.core.placement.repair import PlannerState, scene_summary
 from farfield.core.placement.result import Placement
 from farfield.core.placement.view_space import Visibility, problem_view_space
@@ -184,6 +185,18 @@ def technique_sources(techniques: list[tuple[object, object]]):
     return estimate, tuple(outside), tuple(names)
 
 
+def instance_sources(techniques: list[tuple[object, object]], instanced: dict) -> tuple[dict, ...]:
+    """Per outside source (:func:`technique_sources`' order): the nodes (``instanced``,
+    :func:`~farfield.core.placement.node_instances.node_instances`) whose candidate is their
+    prototype's moved, sharing its atlas: all of them, but for a hemisphere bake only the
+    instances that keep the prototype's up axis (:mod:`farfield.core.techniques.octahedral.instancing`)."""
+    return tuple(
+        {n: i for n, i in instanced.items() if not getattr(o, "hemisphere", False) or i.keeps_up()}
+        for t, o in techniques
+        if getattr(t, "outside_estimate", None) is not None
+    )
+
+
 def place(
     scene: Scene,
     view_lo,
@@ -240,9 +253,10 @@ def place(
             pv.stats["visibility"] = pvs.stats()
 
     with clock("candidates"):
+        shared = instance_sources(techniques, node_instances(scene, elements, hierarchy) if outside else {})
         cand = generate_candidates(
             hierarchy, pv, settings.model, estimate, float(resolution) ** 2, settings.cells, settings.apex_angles_deg, settings.direction_step_deg,
-            settings.distance_steps, lambda done, total: clock.report("candidates", done, total), settings.max_impostor_bytes, outside,
+            settings.distance_steps, lambda done, total: clock.report("candidates", done, total), settings.max_impostor_bytes, outside, shared,
         )  # fmt: skip
     with clock("greedy"):
         greedy = Greedy(hierarchy, pv, cand, settings.t_max)

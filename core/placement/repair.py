@@ -132,9 +132,15 @@ class PlannerState:
             (state.settings.model, "quads_exponent", 0.0),
             (state.cand, "source", None),
             (state.settings, "also", None),
+            (state.cand, "prototype", None),
+            (state.cand, "prototypes", ()),
+            (state.cand, "scale", None),
         ):
             if not hasattr(holder, name):
                 object.__setattr__(holder, name, value)
+        if not hasattr(state.greedy, "atlas"):  # a greedy from before shared atlases: none
+            state.greedy.atlas = np.full(state.cand.count, -1, dtype=np.int64)
+            state.greedy.atlas_users = {}
         return state
 
     # --- ids ---------------------------------------------------------------------------------
@@ -328,7 +334,11 @@ class PlannerState:
                 entry["baked"] = dict(self.baked[impostor_id])
             if self.also:  # mixed candidates: which kind of cell each is (an octahedral one's: outside-sphere)
                 entry["kind"] = KIND_NAMES[int(cand.kind[i])]
+            if cand.atlas_of(i) >= 0:  # an instance drawing from its prototype's atlas (owner: below)
+                key = cand.prototypes[cand.atlas_of(i)][1]
+                entry["atlas"] = {"prototype": key, "scale": float(cand.scale[i]), "shared": cand.atlas_of(i)}
             impostors.append(entry)
+        shared_atlases = _share_atlases(impostors)
         solvable = ~pv.unsolvable
         after = np.where(solvable, greedy.t, pv.time)
         unsolved = solvable & (after > settings.t_max * (1.0 + 1e-9))
@@ -366,7 +376,7 @@ class PlannerState:
         for imp in drawn:
             row = by_technique.setdefault(imp["technique"], {"impostors": 0, "memory_bytes": 0.0, "cpvs": 0})
             row["impostors"] += 1
-            row["memory_bytes"] += float(imp["memory_bytes"])
+            row["memory_bytes"] += _charged(imp)
             row["cpvs"] += int(imp["cpvs"])
         summary = {
             "t_max": float(settings.t_max),
@@ -382,7 +392,7 @@ class PlannerState:
             "impostors": len(drawn),
             "impostors_unused": len(impostors) - len(drawn),
             "impostors_deleted": len(greedy.deleted),
-            "memory_bytes": float(sum(imp["memory_bytes"] for imp in drawn)),
+            "memory_bytes": float(sum(_charged(imp) for imp in drawn)),  # each shared atlas once
             "worst_before": float(pv.time.max()) if pv.count else 0.0,
             "worst_after": float(after.max()) if pv.count else 0.0,
             "worst_after_solvable": float(after[solvable].max()) if solvable.any() else 0.0,
@@ -395,6 +405,8 @@ class PlannerState:
         }
         if self.also:  # mixed candidates: what was chosen of each technique
             summary["by_technique"] = dict(sorted(by_technique.items()))
+        if shared_atlases:
+            summary["shared_atlases"] = shared_atlases
         parameters = {
             "scene": {k: v for k, v in self.scene.items() if k != "split"},
             "view_space": [self.lo.tolist(), self.hi.tolist()],
@@ -434,3 +446,33 @@ class PlannerState:
             summary=summary,
             seconds=self.seconds,
         )
+
+
+def _share_atlases(impostors: list[dict]) -> list[dict]:
+    """Give every impostor drawing from a shared atlas (its ``atlas`` entry) the id of the drawn
+    impostor that holds the atlas (``atlas["owner"]``: the first drawn one of that atlas by id; the
+    others' memory is not counted again, :func:`_charged`); returns one row per shared atlas drawn:
+    its prototype, owner, the ids drawing from it and its bytes."""
+    rows: dict[int, dict] = {}
+    for imp in impostors:
+        atlas = imp.get("atlas")
+        if atlas is None or not imp["cpvs"]:
+            continue
+        row = rows.setdefault(atlas["shared"], {"prototype": atlas["prototype"], "technique": imp["technique"],
+                                                "owner": imp["id"], "impostors": [],
+                                                "memory_bytes": float(imp["memory_bytes"])})  # fmt: skip
+        row["impostors"].append(imp["id"])
+    for imp in impostors:
+        atlas = imp.get("atlas")
+        if atlas is not None:
+            atlas["owner"] = rows[atlas["shared"]]["owner"] if atlas["shared"] in rows else None
+    return [rows[k] for k in sorted(rows)]
+
+
+def _charged(imp: dict) -> float:
+    """The memory impostor ``imp`` adds to its placement: its bytes, or 0 where it draws from a
+    shared atlas another impostor holds."""
+    atlas = imp.get("atlas")
+    if atlas is not None and atlas.get("owner") not in (None, imp["id"]):
+        return 0.0
+    return float(imp["memory_bytes"])

@@ -316,19 +316,26 @@ class FrameTime(Algorithm):
         section = index["placement"]
         cells = [
             {k: c.get(k) for k in ("index", "state", "technique", "objects", "viewcell", "cpvs", "figures", "bundle")}
+            | ({"atlas": c["atlas"]} if "atlas" in c else {})
             for c in index.get("cells", [])
         ]  # fmt: skip
         estimated = [(c["figures"] or {}).get("estimated") or {} for c in cells]
         baked = [(c["figures"] or {}).get("baked") or {} for c in cells]
         drawn = [c for c in cells if c.get("cpvs")]
+        # An instance drawing from a prototype's atlas another impostor holds adds no memory (issue 56).
+        own = [not c.get("atlas") or c["atlas"].get("owner") in (None, c["index"]) for c in cells]
         totals = {
             "impostors": len(drawn),
             "impostors_listed": len(cells),
             "impostors_baked": sum(1 for b in baked if "texture_bytes" in b),
             "memory_bytes_estimated": sum(
-                float(e.get("memory_bytes_estimated", 0.0)) for c, e in zip(cells, estimated) if c.get("cpvs")
+                float(e.get("memory_bytes_estimated", 0.0))
+                for c, e, o in zip(cells, estimated, own)
+                if c.get("cpvs") and o
             ),
-            "memory_bytes_baked": sum(int(b.get("texture_bytes", 0)) for c, b in zip(cells, baked) if c.get("cpvs")),
+            "memory_bytes_baked": sum(
+                int(b.get("texture_bytes", 0)) for c, b, o in zip(cells, baked, own) if c.get("cpvs") and o
+            ),
             "cpvs": len(section["cpvs"]),
             "cpvs_by_status": {
                 s: sum(1 for c in section["cpvs"] if c["status"] == s) for s in ("solved", "unsolved", "unsolvable")
