@@ -29,8 +29,10 @@ from __future__ import annotations
 import time
 import warnings
 from collections import OrderedDict
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import closing
 from dataclasses import dataclass
+from itertools import chain
 
 import moderngl
 import numpy as np
@@ -43,6 +45,7 @@ from farfield.core.render.cut_colours import cut_weighted_linear
 from farfield.core.render.programs import linear_texture, park_framebuffer, program, set_material, srgb_texture
 from farfield.core.render.raster import mesh_variant
 from farfield.core.scene import Scene, SceneObject, emits
+from farfield.core.sidedness import faces_seen
 
 # Most vertices a triangle keeps after clipping to a slab: each of the two planes adds at most one.
 MAX_POLYGON = 5
@@ -834,27 +837,38 @@ def iter_layers(
     recording's vertex inputs can carry it (:func:`material_uv_source`), else, with a warning, at
     the base-colour uv.
     """
+    with closing(iter_views(scene, (plan,), conservative, normals, depth, material)) as views:
+        for _, i, layer, drawn in views:
+            yield i, layer, drawn
+
+
+def iter_views(
+    scene: Scene | Sequence[SceneObject],
+    plans: Iterable,
+    conservative: bool = True,
+    normals: bool = False,
+    depth: bool = False,
+    material: bool = False,
+    cull: bool = False,
+) -> Iterator[tuple[int, int, np.ndarray, int]]:
+    """The layers of several ``plans`` (each as :func:`iter_layers` records one; all of one
+    ``texture_resolution``) on one set of GL resources: yields ``(view, i, rgba, drawn)``, plan by
+    plan, nearest layer first, each object's programs and textures made once for every plan (the
+    octahedral frames record many one-slab plans of one part: :mod:`farfield.core.techniques.octahedral.frames`).
+    ``cull`` leaves out the triangles of a one-sided object whose back faces the plan's reference
+    viewpoint, as a camera there draws the object (:mod:`farfield.core.sidedness`); without it every
+    triangle given is recorded from both sides.
+    """
     material = bool(material and normals)
     objects = list(scene.objects if isinstance(scene, Scene) else scene)
     emissive = material and recorded_emission(objects)
     ctx = gl_context()
     depth_channel = bool(normals and depth)  # before ``depth`` names the depth texture below
-    res_x, res_y = (int(r) for r in plan.texture_resolution)
-    k = plan.count
-    eye_borders = plan.borders + plan.reference_offset
-    slabs = eye_borders.astype("<f4")
-
-    draws = []
-    for obj in objects:
-        eye = eye_coordinates(plan, obj.vertices)
-        instances = slab_instances(
-            eye, obj.faces, eye_borders, plan.frustum_half_tangents, plan.texture_resolution, faces_with_area(obj)
-        )
-        if instances.triangle.size:
-            viewpoint = np.asarray(plan.reference_viewpoint, dtype=np.float64) if normals else None
-            draws.append((obj, instances.offsets, _instance_records(instances, obj, viewpoint, material)))
-    largest = max((int(np.diff(offsets).max()) for _, offsets, _ in draws), default=0)
-    floats = max((records.shape[1] for _, _, records in draws), default=INSTANCE_FLOATS)
+    plans = iter(plans)
+    first = next(plans, None)
+    if first is None:
+        return
+    res_x, res_y = (int(r) for r in first.texture_resolution)
 
     colour = ctx.texture((res_x, res_y), 4)
     extra = int(normals) + int(material) + int(emissive)
@@ -862,113 +876,155 @@ def iter_layers(
     depth = ctx.depth_texture((res_x, res_y))
     fbo = ctx.framebuffer(targets, depth)
     owned = [*targets, depth, fbo]
+    # One buffer for every draw: moderngl has no base instance, so each (object, layer) draw
+    # writes its own instances to the start of a freshly orphaned store.  It grows (and the
+    # vertex arrays over it are made again) when a plan needs more than the plans before.
+    stream, arrays = None, {}  # the buffer; defines -> the vertex array of that variant over it
     try:
-        # One buffer for every draw: moderngl has no base instance, so each (object, layer) draw
-        # writes its own instances to the start of a freshly orphaned store.
-        stream = ctx.buffer(reserve=max(largest, 1) * floats * 4, dynamic=True)
-        owned.append(stream)
-        variants = {}  # defines -> (program, its vertex array over the stream)
+        variants = {}  # defines -> (program, its vertex array's format)
         normal_maps = {}  # id of a normal map array -> its GL texture
         material_maps = {}  # (id of a material texture, sRGB) -> its GL texture
         warned = set()
-        passes, uploaded = [], {}  # objects sharing a texture (and its cut) share its GL textures
-        for obj, _, _ in draws:
-            mapped = normals and records_normal_map(obj)
-            defines = slab_variant(obj) + (("NORMALS",) if normals else ()) + (("NORMAL_MAP",) if mapped else ())
-            defines += ("DEPTH_CHANNEL",) if depth_channel else ()
-            if material:
-                defines += material_variant(obj, emissive)
-                if material_uv_source(obj) == "fallback" and obj.name not in warned:
-                    warned.add(obj.name)
-                    warnings.warn(
-                        f"object {obj.name!r}: its material textures' uv differs from its base-colour uv "
-                        "(and its normal map's), and the recording has no vertex input left for a third: "
-                        "its material textures are read at the base-colour uv",
-                        stacklevel=2,
-                    )
-            if defines not in variants:
-                prog = program(ctx, "slab_instanced.vert", "slab.frag", defines=defines)
-                prog["resolution"].value = (float(res_x), float(res_y))
-                prog["conservative"].value = bool(conservative)
-                own = "MATERIAL_UV_OWN" in defines
-                vao = ctx.vertex_array(prog, [(stream, *_instance_format(prog, normals, mapped, own))])
-                owned.append(vao)
-                variants[defines] = (prog, vao)
-            if mapped and material and _map_key(obj, material) not in normal_maps:
-                texture = _float_texture(ctx, _unit_normal_map(obj.normal_texture, float(obj.normal_scale)))
-                normal_maps[_map_key(obj, material)] = texture
-                owned.append(texture)
-            if mapped and _map_key(obj, material) not in normal_maps:
-                normal_maps[id(obj.normal_texture)] = linear_texture(ctx, obj.normal_texture, mipmaps=True)
-                owned.append(normal_maps[id(obj.normal_texture)])
-            key = None if obj.texture is None else (id(obj.texture), obj.alpha_cutoff, float(obj.base_color[3]))
-            if key not in uploaded:
-                uploaded[key] = _object_textures(ctx, obj)
-                owned += [t for t in uploaded[key] if t is not None]
-            passes.append((*variants[defines], uploaded[key]))
-        per_layer = np.zeros(k, dtype=np.int64)
-        for _, offsets, _ in draws:
-            per_layer += np.diff(offsets)
-        empty = np.zeros((res_y, res_x, 4 * len(targets)), dtype=np.uint8)
-        empty.flags.writeable = False
-        for i in range(k):
-            if per_layer[i] == 0:  # nothing meets this slab: no draw, no read-back
-                yield i, empty, 0
-                continue
-            # Re-established every layer: the consumer may render on this context between layers.
-            fbo.use()
-            ctx.viewport = (0, 0, res_x, res_y)
-            ctx.enable(moderngl.DEPTH_TEST)
-            # slab.frag clamps depth into the slab, so a texel whose nearest polygon point lies on
-            # the far plane gets depth 1.0, the cleared value: with "<" it would fail the test and
-            # the far clipping edge would lose texels.  Ties keep the last fragment drawn.
-            ctx.depth_func = "<="
-            ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
-            fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-            for prog, _ in variants.values():
-                prog["slab"].value = (float(slabs[i]), float(slabs[i + 1]))
-            drawn = 0
-            for (obj, offsets, records), (prog, vao, (texture, cut, alpha, texels)) in zip(draws, passes):
-                count = int(offsets[i + 1] - offsets[i])
-                if count == 0:
-                    continue
-                set_material(prog, obj, texture)
-                if normals and records_normal_map(obj):
-                    normal_map = normal_maps[_map_key(obj, material)]
-                    normal_map.use(4)
-                    prog["normal_map"].value = 4
-                    prog["normal_map_size"].value = (float(normal_map.width), float(normal_map.height))
-                    # A material recording's map has the scale applied (_unit_normal_map).
-                    prog["normal_scale"].value = 1.0 if material else float(obj.normal_scale)
-                if material:
-                    _set_material_channel(prog, obj, ctx, material_maps, owned)
-                if cut is not None:
-                    prog["texture_size"].value = (float(texture.width), float(texture.height))
-                    cut.use(2)
-                    prog["cut_texture"].value = 2
-                if alpha is not None:
-                    texels.use(3)
-                    prog["alpha_texels"].value = 3
-                    alpha.use(1)
-                    prog["alpha_mip"].value = 1
-                    prog["alpha_mip_size"].value = (float(alpha.width), float(alpha.height))
-                    prog["alpha_mip_levels"].value = int(np.log2(max(alpha.width, alpha.height))) + 1
-                stream.orphan()
-                stream.write(records[offsets[i] : offsets[i + 1]])
-                vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
-                drawn += count
-            layer = np.frombuffer(colour.read(), dtype=np.uint8).reshape(res_y, res_x, 4)
-            if normals:
-                layer = np.concatenate(
-                    [layer, *(np.frombuffer(t.read(), dtype=np.uint8).reshape(res_y, res_x, 4) for t in targets[1:])],
-                    axis=2,
+        passes, uploaded = {}, {}  # objects sharing a texture (and its cut) share its GL textures
+        for view, plan in enumerate(chain((first,), plans)):
+            if tuple(int(r) for r in plan.texture_resolution) != (res_x, res_y):
+                raise ValueError(
+                    f"plans of one recording share a texture resolution; {(res_x, res_y)} then {tuple(plan.texture_resolution)}"
                 )
-            ctx.depth_func = "<"  # the GL default, which every other pass on this context assumes
-            yield i, layer, drawn
+            k = plan.count
+            eye_borders = plan.borders + plan.reference_offset
+            slabs = eye_borders.astype("<f4")
+            draws = []
+            for index, obj in enumerate(objects):
+                eye = eye_coordinates(plan, obj.vertices)
+                drawn_faces = faces_with_area(obj)
+                if cull and not obj.double_sided:
+                    seen = np.flatnonzero(
+                        faces_seen(obj.vertices, obj.faces, np.asarray(plan.reference_viewpoint, np.float64)[None])
+                    )
+                    drawn_faces = seen if drawn_faces is None else np.intersect1d(seen, drawn_faces, assume_unique=True)
+                instances = slab_instances(
+                    eye, obj.faces, eye_borders, plan.frustum_half_tangents, plan.texture_resolution, drawn_faces
+                )
+                if instances.triangle.size:
+                    viewpoint = np.asarray(plan.reference_viewpoint, dtype=np.float64) if normals else None
+                    draws.append(
+                        (index, obj, instances.offsets, _instance_records(instances, obj, viewpoint, material))
+                    )
+            largest = max((int(np.diff(offsets).max()) for _, _, offsets, _ in draws), default=0)
+            floats = max((records.shape[1] for _, _, _, records in draws), default=INSTANCE_FLOATS)
+            if stream is None or stream.size < max(largest, 1) * floats * 4:
+                for array in arrays.values():
+                    array.release()
+                if stream is not None:
+                    stream.release()
+                stream, arrays = ctx.buffer(reserve=max(largest, 1) * floats * 4, dynamic=True), {}
+            for index, obj, _, _ in draws:
+                if index in passes:
+                    continue
+                mapped = normals and records_normal_map(obj)
+                defines = slab_variant(obj) + (("NORMALS",) if normals else ()) + (("NORMAL_MAP",) if mapped else ())
+                defines += ("DEPTH_CHANNEL",) if depth_channel else ()
+                if material:
+                    defines += material_variant(obj, emissive)
+                    if material_uv_source(obj) == "fallback" and obj.name not in warned:
+                        warned.add(obj.name)
+                        warnings.warn(
+                            f"object {obj.name!r}: its material textures' uv differs from its base-colour uv "
+                            "(and its normal map's), and the recording has no vertex input left for a third: "
+                            "its material textures are read at the base-colour uv",
+                            stacklevel=3,
+                        )
+                if defines not in variants:
+                    prog = program(ctx, "slab_instanced.vert", "slab.frag", defines=defines)
+                    prog["resolution"].value = (float(res_x), float(res_y))
+                    prog["conservative"].value = bool(conservative)
+                    own = "MATERIAL_UV_OWN" in defines
+                    variants[defines] = (prog, _instance_format(prog, normals, mapped, own))
+                if mapped and material and _map_key(obj, material) not in normal_maps:
+                    texture = _float_texture(ctx, _unit_normal_map(obj.normal_texture, float(obj.normal_scale)))
+                    normal_maps[_map_key(obj, material)] = texture
+                    owned.append(texture)
+                if mapped and _map_key(obj, material) not in normal_maps:
+                    normal_maps[id(obj.normal_texture)] = linear_texture(ctx, obj.normal_texture, mipmaps=True)
+                    owned.append(normal_maps[id(obj.normal_texture)])
+                key = None if obj.texture is None else (id(obj.texture), obj.alpha_cutoff, float(obj.base_color[3]))
+                if key not in uploaded:
+                    uploaded[key] = _object_textures(ctx, obj)
+                    owned += [t for t in uploaded[key] if t is not None]
+                passes[index] = (defines, uploaded[key])
+            for defines, _ in passes.values():
+                if defines not in arrays:
+                    prog, fmt = variants[defines]
+                    arrays[defines] = ctx.vertex_array(prog, [(stream, *fmt)])
+            per_layer = np.zeros(k, dtype=np.int64)
+            for _, _, offsets, _ in draws:
+                per_layer += np.diff(offsets)
+            empty = np.zeros((res_y, res_x, 4 * len(targets)), dtype=np.uint8)
+            empty.flags.writeable = False
+            for i in range(k):
+                if per_layer[i] == 0:  # nothing meets this slab: no draw, no read-back
+                    yield view, i, empty, 0
+                    continue
+                # Re-established every layer: the consumer may render on this context between layers.
+                fbo.use()
+                ctx.viewport = (0, 0, res_x, res_y)
+                ctx.enable(moderngl.DEPTH_TEST)
+                # slab.frag clamps depth into the slab, so a texel whose nearest polygon point lies on
+                # the far plane gets depth 1.0, the cleared value: with "<" it would fail the test and
+                # the far clipping edge would lose texels.  Ties keep the last fragment drawn.
+                ctx.depth_func = "<="
+                ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+                fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+                for prog, _ in variants.values():
+                    prog["slab"].value = (float(slabs[i]), float(slabs[i + 1]))
+                drawn = 0
+                for index, obj, offsets, records in draws:
+                    count = int(offsets[i + 1] - offsets[i])
+                    if count == 0:
+                        continue
+                    defines, (texture, cut, alpha, texels) = passes[index]
+                    prog, vao = variants[defines][0], arrays[defines]
+                    set_material(prog, obj, texture)
+                    if normals and records_normal_map(obj):
+                        normal_map = normal_maps[_map_key(obj, material)]
+                        normal_map.use(4)
+                        prog["normal_map"].value = 4
+                        prog["normal_map_size"].value = (float(normal_map.width), float(normal_map.height))
+                        # A material recording's map has the scale applied (_unit_normal_map).
+                        prog["normal_scale"].value = 1.0 if material else float(obj.normal_scale)
+                    if material:
+                        _set_material_channel(prog, obj, ctx, material_maps, owned)
+                    if cut is not None:
+                        prog["texture_size"].value = (float(texture.width), float(texture.height))
+                        cut.use(2)
+                        prog["cut_texture"].value = 2
+                    if alpha is not None:
+                        texels.use(3)
+                        prog["alpha_texels"].value = 3
+                        alpha.use(1)
+                        prog["alpha_mip"].value = 1
+                        prog["alpha_mip_size"].value = (float(alpha.width), float(alpha.height))
+                        prog["alpha_mip_levels"].value = int(np.log2(max(alpha.width, alpha.height))) + 1
+                    stream.orphan()
+                    stream.write(records[offsets[i] : offsets[i + 1]])
+                    vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
+                    drawn += count
+                layer = np.frombuffer(colour.read(), dtype=np.uint8).reshape(res_y, res_x, 4)
+                if normals:
+                    layer = np.concatenate(
+                        [
+                            layer,
+                            *(np.frombuffer(t.read(), dtype=np.uint8).reshape(res_y, res_x, 4) for t in targets[1:]),
+                        ],
+                        axis=2,
+                    )
+                ctx.depth_func = "<"  # the GL default, which every other pass on this context assumes
+                yield view, i, layer, drawn
     finally:
         ctx.depth_func = "<"
         park_framebuffer(ctx)
-        for resource in owned:
+        for resource in (*arrays.values(), *([stream] if stream is not None else []), *owned):
             resource.release()
 
 

@@ -244,7 +244,7 @@ vec4 cell_alphas(ivec2 cell, ivec2 size) {
 // centres; returns -1 beyond MAX_EXACT_STEPS steps (a footprint spanning many texels).
 const int MAX_EXACT_STEPS = 1024;
 
-float exact_polygon_alpha(vec2 p[9], int n, ivec2 size) {
+float exact_polygon_alpha(vec2 p[9], int n, ivec2 size, float enough) {
     float best = 0.0;
     int steps = 0;
     for (int k = 0; k < 9; ++k) {
@@ -275,6 +275,7 @@ float exact_polygon_alpha(vec2 p[9], int n, ivec2 size) {
                 }
                 vec2 r = r0 + s * d;
                 best = max(best, a00 + bx * r.x + by * r.y + dd * r.x * r.y);
+                if (best >= enough) { return best; }
             }
             if (end >= 1.0) { break; }
             if (next.x <= next.y) { cell.x += d.x > 0.0 ? 1 : -1; }
@@ -305,6 +306,7 @@ float exact_polygon_alpha(vec2 p[9], int n, ivec2 size) {
             steps += 1;
             if (steps > MAX_EXACT_STEPS) { return -1.0; }
             best = max(best, texel_alpha(ivec2(i, j), size));
+            if (best >= enough) { return best; }
         }
     }
     return best;
@@ -320,10 +322,11 @@ float exact_polygon_alpha(vec2 p[9], int n, ivec2 size) {
 // texel of that level.  Footprints of grazing triangles are long, thin and diagonal: a bounding
 // box or coarse texels would take in texture many texels across them, texels of the layer pixels
 // away from any opaque point (as an earlier, coarser read did).  Returns 1 where the footprint
-// cannot be bounded.
+// cannot be bounded.  It stops at the first alpha reaching ``enough`` (the texel is kept whatever
+// the rest is: only the cut reads it), returning that alpha.
 const int MAX_FOOTPRINT_TEXELS = 1024;
 
-float footprint_alpha(vec2 c) {
+float footprint_alpha(vec2 c, float enough) {
     vec2 a = g_tri[0].xy, b = g_tri[1].xy, d = g_tri[2].xy;
     if (abs(cross2(b - a, d - a)) <= 1e-9) { return 1.0; }
     vec2 part[9];
@@ -343,9 +346,20 @@ float footprint_alpha(vec2 c) {
         lo = min(lo, uv[k]);
         hi = max(hi, uv[k]);
     }
-    float exact = exact_polygon_alpha(texels, n, size0);
-    // One step of 8-bit filter weights (a fixed-point GL_LINEAR) above the exact value.
-    if (exact >= 0.0) { return exact + 1.0 / 256.0; }
+    // The walk steps through at least max(|dx|, |dy|) - 1 cells along each edge: where they pass
+    // MAX_EXACT_STEPS (with a margin) it would give up, so it is not started (a footprint of many
+    // texels: an octahedral frame's texel over a leaf card's texture).
+    float least = 0.0;
+    for (int k = 0; k < 9; ++k) {
+        if (k >= n) { break; }
+        vec2 e = abs(texels[k + 1 == n ? 0 : k + 1] - texels[k]);
+        least += max(max(e.x, e.y) - 1.0, 0.0);
+    }
+    if (least <= float(MAX_EXACT_STEPS + 8)) {
+        float exact = exact_polygon_alpha(texels, n, size0, enough - 1.0 / 256.0);
+        // One step of 8-bit filter weights (a fixed-point GL_LINEAR) above the exact value.
+        if (exact >= 0.0) { return exact + 1.0 / 256.0; }
+    }
     // The level: texels met ~ area / side^2 + perimeter / side + rows.
     float area = 0.0, perimeter = 0.0;
     for (int k = 0; k < 9; ++k) {
@@ -390,6 +404,7 @@ float footprint_alpha(vec2 c) {
             if (fetched > 4 * MAX_FOOTPRINT_TEXELS) { return 1.0; }
             ivec2 at = ivec2(((x % size.x) + size.x) % size.x, ((y % size.y) + size.y) % size.y);
             best = max(best, texelFetch(alpha_mip, at, level).r);
+            if (best >= enough) { return best; }
         }
     }
     return best;
@@ -442,7 +457,8 @@ void main() {
         // Conservative alpha cut: keep the texel if any point under it may be opaque.
         float most = base_color.a * max(g_color[0].a, max(g_color[1].a, g_color[2].a));
 #ifdef TEXTURED
-        most *= footprint_alpha(c);
+        // The walk stops once the alpha keeps the texel (a little above the cut: the product's rounding).
+        most *= footprint_alpha(c, most > 0.0 ? alpha_cutoff / most * (1.0 + 1e-5) : 1e30);
 #endif
         if (most < alpha_cutoff) { discard; }
     }
