@@ -30,8 +30,11 @@ CASES = {  # id: (channels, grid, hemisphere, more options)
     "depth-four-pages": ("albedo+normal+depth", 9, False, {"max_page": 200}),
 }
 # The colour error the module keeps against the reference where both cover (bytes, sRGB): the two
-# software rasterisers (SwiftShader, llvmpipe) sample and round differently at a few pixels.
-COLOUR_MEAN, COLOUR_P99 = 1.0, 8
+# software rasterisers (SwiftShader, llvmpipe) sample and round differently at a few pixels.  The
+# frames' rim texels that only the exact coverage keeps hold the nearest surface's own colour (not
+# a blend of samples), so a bilinear read a fraction of a texel off can differ by tens of levels
+# there: the 99th percentile of the tree's 199 pixels at the distance reached 8.02 (was under 8).
+COLOUR_MEAN, COLOUR_P99 = 1.0, 10
 
 
 def cameras(impostor, distance: float, resolution: int, seed: int) -> list[Camera]:
@@ -253,10 +256,12 @@ def test_a_compressed_glb_keeps_the_frames_normals_and_depth(bundles, threejs, g
         s = compare(three, farfield)
         print(view, s)
         # At the accuracy distance, not one pixel beyond one.  A tenth of it away (thousands of
-        # pixels a view), at most 1 %: the depth's few levels of UASTC error (up to 9) move a
-        # grazing ray's hit by a texel or two at the silhouette.
+        # pixels a view), at most 3 %: the depth's few levels of UASTC error (up to 9) move a
+        # grazing ray's hit by a texel or two at the silhouette, more often since the rim texels
+        # only the exact coverage keeps hold their nearest point's depth, a step from their
+        # neighbours' (93 of 3941 pixels from below; at most 1 % before).
         beyond = s["three_beyond_1px"] + s["farfield_beyond_1px"]
-        assert beyond == 0 if view < 6 else beyond <= 0.01 * s["farfield_pixels"], (view, s)
+        assert beyond == 0 if view < 6 else beyond <= 0.03 * s["farfield_pixels"], (view, s)
         assert s["colour_mean"] <= 6.0, (view, s)
 
 

@@ -9,13 +9,20 @@ orientation :meth:`farfield.core.render.raster.Camera.look_at` gives a camera lo
 :data:`ORTHO_DISTANCE` radii away, whose magnification varies by ``±1 / ORTHO_DISTANCE`` over the
 sphere's depth (0.06 texel at the edge of a 128-texel frame): orthographic for every purpose here.
 
-Recording is conservative (as the layered recording, seed 000 §3.3.2, in spirit): each texel is
-drawn with ``samples x samples`` samples and counts as covered when any of them is, its colour the
-mean of the covered ones in linear light (:func:`farfield.core.quality.evaluation.downsample`), so a
-twig thinner than a texel is kept, at most one texel too wide.  A texel's depth is the nearest of
-its covered samples', stored as the height above the card plane through ``c`` along the frame's
-direction, ``h in [-r, r]``, in the normal page's alpha: ``round((h / r * 0.5 + 0.5) * 254) + 1``
-(0: nothing there).
+Recording is exactly conservative, as the layered recording is (seed 000 §3.3.2): besides the
+frame's image, each frame is recorded as one slab of the layer recording
+(:func:`farfield.core.layering.recording.iter_views`, :func:`frame_plan`), whose fragment shader
+(``slab.frag``) writes a texel exactly where the texel's closed square meets a triangle (and, for
+an alpha-cut material, where a point of the triangle under it may pass the cut), so a twig of any
+width is kept, at most one texel too wide.  The image is drawn with ``samples x samples`` samples
+per texel, which only antialias: a texel a sample covers takes their colour, the mean of the
+covered ones in linear light (:func:`farfield.core.quality.evaluation.downsample`), and their
+normal and depth; a texel only the exact test covers (a feature between the samples) takes the
+slab's, the triangle's at the point nearest the texel's centre.  A texel's depth is the nearest of
+its covered samples' (or the slab's), stored as the height above the card plane through ``c``
+along the frame's direction, ``h in [-r, r]``, in the normal page's alpha:
+``round((h / r * 0.5 + 0.5) * 254) + 1`` (0: nothing there); the slab spans ``255`` such steps from
+the sphere's near side (:func:`frame_plan`), so its 8-bit depth ``g`` is the level ``255 - g``.
 
 With the material (``materials``), each texel keeps glTF's ORM packing of the same samples
 (:meth:`MeshRenderer.render_material`: occlusion, roughness, metallic; their mean over the covered
@@ -31,7 +38,8 @@ filtering and mip levels up to ``log2(padding)`` never mix two frames (docs/tech
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from contextlib import closing
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -39,6 +47,7 @@ from farfield.core.colour_space import linear_to_srgb
 from farfield.core.errors import AtlasOverflowError
 from farfield.core.impostor.impostor import encode_normals
 from farfield.core.layering.atlas import fill_nearest_rgb
+from farfield.core.layering.recording import iter_views
 from farfield.core.quality.evaluation import downsample
 from farfield.core.render.raster import Camera, MeshRenderer
 
@@ -46,6 +55,8 @@ from farfield.core.render.raster import Camera, MeshRenderer
 ORTHO_DISTANCE = 1000.0
 # A depth byte: 0 = no surface; 1..255 = height -r..r above the card plane.
 DEPTH_LEVELS = 254
+# Slabs across the sphere that bound the columns of texels only the exact test covers (column_gap).
+GAP_SLABS = 127
 
 
 @dataclass(frozen=True, slots=True)
@@ -97,6 +108,44 @@ def frame_camera(sphere: Sphere, direction: np.ndarray, resolution: int) -> Came
 
 
 @dataclass(frozen=True, slots=True)
+class CameraPlan:
+    """A camera's view as one slab of the layer recording (what
+    :func:`farfield.core.layering.recording.iter_views` records): eye depths ``borders`` (2,)."""
+
+    reference_viewpoint: np.ndarray  # (3,) float64 world: the eye
+    axis: np.ndarray  # (3,) forward
+    u: np.ndarray  # (3,) image x (right)
+    v: np.ndarray  # (3,) image y (up)
+    borders: np.ndarray  # (2,) float64 near, far eye depth
+    frustum_half_tangents: np.ndarray  # (2,) float64
+    texture_resolution: np.ndarray  # (2,) int64
+    reference_offset: float = 0.0
+    count: int = 1
+
+    @classmethod
+    def of_camera(cls, camera: Camera, near: float | None = None, far: float | None = None) -> CameraPlan:
+        """The slab ``near``..``far`` (default the camera's) of ``camera`` (square, on axis)."""
+        half = math.tan(0.5 * camera.fov)
+        borders = np.array([camera.near if near is None else near, camera.far if far is None else far], np.float64)
+        res = np.array([camera.resolution, camera.resolution], np.int64)
+        return cls(camera.eye, camera.forward, camera.right, camera.up, borders, np.array([half, half]), res)
+
+
+def frame_plan(sphere: Sphere, direction: np.ndarray, resolution: int) -> CameraPlan:
+    """Frame ``direction``'s slab (module docstring): from the sphere's near side ``255`` depth
+    steps of ``2 r / 254``, so that 8-bit depth ``g`` in it is height ``r - 2 r g / 254``.
+
+    >>> p = frame_plan(Sphere(np.zeros(3), 1.0), np.array([0.0, 0.0, 1.0]), 16)
+    >>> (p.borders - ORTHO_DISTANCE).round(6).tolist(), p.axis.tolist()
+    ([-1.0, 1.007874], [0.0, 0.0, -1.0])
+    """
+    r = sphere.radius
+    near = (ORTHO_DISTANCE - 1.0) * r
+    far = near + 2.0 * r * (DEPTH_LEVELS + 1) / DEPTH_LEVELS
+    return CameraPlan.of_camera(frame_camera(sphere, direction, resolution), near, far)
+
+
+@dataclass(frozen=True, slots=True)
 class Frames:
     """The recorded frames of one part."""
 
@@ -107,6 +156,7 @@ class Frames:
         None  # (k, f, f, 4) uint8 linear occlusion, roughness, metallic, alpha 255 where covered
     )
     emissive: np.ndarray | None = None  # (k, f, f, 4) uint8 sRGB-encoded linear emission, alpha 255 where covered
+    exact_only: np.ndarray | None = None  # (k, f, f) bool: texels the exact test covers and no sample does
 
 
 def _block_sum(values: np.ndarray, covered: np.ndarray, samples: int) -> np.ndarray:
@@ -150,8 +200,12 @@ def record_frames(
     normal = np.zeros((k, resolution, resolution, 4), np.uint8) if normals else None
     orm = np.zeros((k, resolution, resolution, 4), np.uint8) if materials else None
     light = np.zeros((k, resolution, resolution, 4), np.uint8) if materials and emissive else None
+    exact_only = np.zeros((k, resolution, resolution), bool)
     extent = 0.0
-    with MeshRenderer(objects, normals=normals, materials=materials) as renderer:
+    r = sphere.radius
+    plans = (frame_plan(sphere, direction, resolution) for direction in directions)
+    exact_frames = iter_views(objects, plans, normals=True, depth=True, material=materials, cull=True)
+    with MeshRenderer(objects, normals=normals, materials=materials) as renderer, closing(exact_frames):
         for index, direction in enumerate(directions):
             camera = frame_camera(sphere, direction, fine)
             if materials:
@@ -160,28 +214,99 @@ def record_frames(
                 image, world = renderer.render_normals(camera)
             else:
                 image, world = renderer.render(camera), None
-            height = ORTHO_DISTANCE * sphere.radius - renderer.last_depth(camera)
+            height = ORTHO_DISTANCE * r - renderer.last_depth(camera)
             covered = image[..., 3] > 0
-            colour[index] = downsample(image, samples)
+            _, _, layer, _ = next(exact_frames)
+            exact = layer[::-1]  # top row first: colour, normal + depth, ORM, emission (iter_views)
+            sampled = downsample(image, samples)
+            shown = sampled[..., 3] > 0  # a sample covers it: the samples' colour, normal and depth
+            missed = (exact[..., 3] > 0) & ~shown  # between the samples: the exact slab's
+            exact_only[index] = missed
+            colour[index] = np.where(shown[..., None], sampled, np.where(missed[..., None], exact[..., :4], 0))
             blocks = (resolution, samples, resolution, samples)
             top = np.where(covered, height, -np.inf).reshape(blocks).max(axis=(1, 3))
+            top = np.where(missed, r - 2.0 * r * exact[..., 7] / DEPTH_LEVELS, top)
             hit = np.isfinite(top)
             if hit.any():
                 extent = max(extent, float(np.abs(top[hit]).max()))
             if orm is not None:
                 texels, emitted = _material_texels(material, covered, samples, light is not None)
-                orm[index] = texels
+                orm[index] = np.where(missed[..., None], exact[..., 8:12], texels)
                 if light is not None:
-                    light[index] = emitted
+                    light[index] = np.where(missed[..., None], exact[..., 12:16], emitted)
             if normal is not None:
                 summed = _block_sum(world, covered, samples)
                 length = np.linalg.norm(summed, axis=-1, keepdims=True)
                 unit = np.divide(summed, length, out=np.zeros_like(summed), where=length > 0)
-                texels = encode_normals(unit)
-                level = np.clip(np.round((top / sphere.radius * 0.5 + 0.5) * DEPTH_LEVELS), 0, DEPTH_LEVELS) + 1
+                texels = np.where(missed[..., None], exact[..., 4:8], encode_normals(unit))
+                level = np.clip(np.round((top / r * 0.5 + 0.5) * DEPTH_LEVELS), 0, DEPTH_LEVELS) + 1
                 texels[..., 3] = np.where(hit, level, 0).astype(np.uint8)
                 normal[index] = texels
-    return Frames(colour, normal, extent, orm, light)
+    return Frames(colour, normal, extent, orm, light, exact_only)
+
+
+def column_gap(objects, sphere: Sphere, directions: np.ndarray, resolution: int, frames: Frames, pairs) -> float:
+    """World units: a gap that bounds, along the line, how far a point of a frame pair's column
+    lies from the part, at the texels of the frame pairs ``pairs`` ((k, opposite k) indices into
+    ``directions`` and ``frames``) that the exact test alone covers in either frame
+    (:attr:`Frames.exact_only`: a feature between the samples, which the lines
+    :func:`internal_gap` peels pass by).  Each such pair's frame ``k`` is recorded again as
+    :data:`GAP_SLABS` slabs of ``δ = 2r / GAP_SLABS`` across the sphere (every triangle, both
+    sides), each exactly conservative: a texel of a slab is covered where the part meets the
+    slab's part of the texel's column.  A point of the column in slab ``i`` lies within
+    ``(j + 1) δ`` of the part along the line (and within the texel across it), ``j`` the slabs to
+    the nearest covered one, so the gap is twice the largest such distance over the column's slabs,
+    or the column's length where shorter (its ends are points of the part): at most ``2r``, the
+    bound :func:`~farfield.core.techniques.octahedral.estimate.estimate_octahedral` assumes.  For a
+    missed texel of one convex solid (every slab of its column covered): ``2δ`` at most.  0 without
+    depth or such texels.
+
+    The opposite frame's texel grid mirrors this one's across its vertical middle line (its
+    ``right`` axis is reversed, its ``up`` the same: :func:`frame_axes`).
+    """
+    if frames.normal is None or frames.exact_only is None:
+        return 0.0
+    r, f = sphere.radius, resolution
+    step = 2.0 * r / GAP_SLABS
+    chosen = []
+    for k, o in pairs:
+        only = (frames.exact_only[k] | frames.exact_only[o, :, ::-1]) & (frames.normal[k, ..., 3] > 0)
+        if only.any():
+            chosen.append((k, o, only))
+    if not chosen:
+        return 0.0
+    plans = []
+    for k, _, _ in chosen:
+        plan = frame_plan(sphere, directions[k], f)
+        near = plan.borders[0]
+        plans.append(replace(plan, borders=near + step * np.arange(GAP_SLABS + 1), count=GAP_SLABS))
+    occupied = np.zeros((GAP_SLABS, f, f), bool)
+    gap = 0.0
+    slab = np.arange(GAP_SLABS, dtype=np.float64)[:, None]
+    with closing(iter_views(objects, plans)) as views:
+        for view, i, layer, _ in views:
+            occupied[i] = layer[::-1, :, 3] > 0
+            if i + 1 < GAP_SLABS:
+                continue
+            k, o, only = chosen[view]
+            # Slabs from each slab to the nearest occupied one, down the column and up it.
+            far = float(GAP_SLABS)
+            down, up = np.full((f, f), far), np.full((f, f), far)
+            to_near, to_far = np.empty((GAP_SLABS, f, f)), np.empty((GAP_SLABS, f, f))
+            for j in range(GAP_SLABS):
+                down = np.where(occupied[j], 0.0, down + 1.0)
+                to_near[j] = down
+                up = np.where(occupied[GAP_SLABS - 1 - j], 0.0, up + 1.0)
+                to_far[GAP_SLABS - 1 - j] = up
+            nearest = np.minimum(to_near, to_far)[:, only]  # (slabs, texels)
+            top = ((frames.normal[k, ..., 3][only] - 1.0) / DEPTH_LEVELS * 2.0 - 1.0) * r
+            bottom = -((frames.normal[o, :, ::-1, 3][only] - 1.0) / DEPTH_LEVELS * 2.0 - 1.0) * r
+            # Slab j spans heights r - (j + 1) δ .. r - j δ: those the column [bottom, top] meets.
+            inside = (slab * step <= r - bottom) & ((slab + 1.0) * step >= r - top)
+            worst = np.where(inside, nearest, 0.0).max(axis=0)
+            # The column's ends are points of the part: no point of it is farther than half its length.
+            gap = max(gap, float(np.minimum(2.0 * step * (worst + 1.0), np.maximum(top - bottom, 0.0)).max()))
+    return gap
 
 
 def cell_size(resolution: int, padding: int) -> int:

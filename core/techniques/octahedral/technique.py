@@ -36,6 +36,7 @@ from farfield.core.techniques.octahedral.accuracy import accuracy_distance
 from farfield.core.techniques.octahedral.estimate import estimate_octahedral, outside_estimate
 from farfield.core.techniques.octahedral.frames import (
     Sphere,
+    column_gap,
     compose_atlas,
     frame_axes,
     internal_gap,
@@ -161,6 +162,9 @@ def bake_octahedral(
         with clock("gaps"):
             lines = [k for k in range(n * n) if k < opposite[k]]  # one frame of each opposite pair
             gap = internal_gap(part.objects, sphere, directions[lines], res * options.samples)
+            gap = max(
+                gap, column_gap(part.objects, sphere, directions, res, frames, [(k, int(opposite[k])) for k in lines])
+            )
         clock.report("gaps", 1, 1)
     accuracy = accuracy_distance(sphere.radius, frames.depth_extent, n, options.hemisphere, res, options.resolution,
                                  options.fov_deg, depth, gap)  # fmt: skip
