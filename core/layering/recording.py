@@ -850,6 +850,7 @@ def iter_views(
     depth: bool = False,
     material: bool = False,
     cull: bool = False,
+    skip_known: bool = False,
 ) -> Iterator[tuple[int, int, np.ndarray, int]]:
     """The layers of several ``plans`` (each as :func:`iter_layers` records one; all of one
     ``texture_resolution``) on one set of GL resources: yields ``(view, i, rgba, drawn)``, plan by
@@ -857,7 +858,9 @@ def iter_views(
     octahedral frames record many one-slab plans of one part: :mod:`farfield.core.techniques.octahedral.frames`).
     ``cull`` leaves out the triangles of a one-sided object whose back faces the plan's reference
     viewpoint, as a camera there draws the object (:mod:`farfield.core.sidedness`); without it every
-    triangle given is recorded from both sides.
+    triangle given is recorded from both sides.  ``skip_known``: each plan has a ``known`` (h, w)
+    bool mask (row 0 the bottom row), read when its layers are drawn; its texels are left empty
+    without running the fragment shader's tests (the SKIP_KNOWN variant).
     """
     material = bool(material and normals)
     objects = list(scene.objects if isinstance(scene, Scene) else scene)
@@ -880,6 +883,7 @@ def iter_views(
     # writes its own instances to the start of a freshly orphaned store.  It grows (and the
     # vertex arrays over it are made again) when a plan needs more than the plans before.
     stream, arrays = None, {}  # the buffer; defines -> the vertex array of that variant over it
+    known = None  # the skip_known mask's texture
     try:
         variants = {}  # defines -> (program, its vertex array's format)
         normal_maps = {}  # id of a normal map array -> its GL texture
@@ -925,6 +929,7 @@ def iter_views(
                 mapped = normals and records_normal_map(obj)
                 defines = slab_variant(obj) + (("NORMALS",) if normals else ()) + (("NORMAL_MAP",) if mapped else ())
                 defines += ("DEPTH_CHANNEL",) if depth_channel else ()
+                defines += ("SKIP_KNOWN",) if skip_known else ()
                 if material:
                     defines += material_variant(obj, emissive)
                     if material_uv_source(obj) == "fallback" and obj.name not in warned:
@@ -957,6 +962,16 @@ def iter_views(
                 if defines not in arrays:
                     prog, fmt = variants[defines]
                     arrays[defines] = ctx.vertex_array(prog, [(stream, *fmt)])
+            if skip_known:
+                mask = np.ascontiguousarray(np.where(plan.known, 255, 0).astype(np.uint8))
+                if known is None:
+                    known = ctx.texture((res_x, res_y), 1)
+                    known.filter = (moderngl.NEAREST, moderngl.NEAREST)
+                    owned.append(known)
+                known.write(mask.tobytes())
+                known.use(8)
+                for prog, _ in variants.values():
+                    prog["known"].value = 8
             per_layer = np.zeros(k, dtype=np.int64)
             for _, _, offsets, _ in draws:
                 per_layer += np.diff(offsets)
@@ -976,6 +991,8 @@ def iter_views(
                 ctx.depth_func = "<="
                 ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
                 fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+                if known is not None:
+                    known.use(8)
                 for prog, _ in variants.values():
                     prog["slab"].value = (float(slabs[i]), float(slabs[i + 1]))
                 drawn = 0

@@ -84,6 +84,11 @@ uniform sampler2D alpha_texels;  // the texture's alpha alone (R8), for the exac
 uniform vec2 alpha_mip_size;
 uniform int alpha_mip_levels;
 uniform vec2 texture_size;
+#ifdef SKIP_KNOWN
+// SKIP_KNOWN (iter_views with a plan's ``known`` mask: the octahedral frames, whose samples already
+// decided those texels): texels whose R is 1 are not recorded (discarded before any work).
+uniform sampler2D known;
+#endif
 
 layout(location = 0) out vec4 frag_color;
 
@@ -413,6 +418,9 @@ float footprint_alpha(vec2 c, float enough) {
 
 void main() {
     vec2 c = gl_FragCoord.xy;
+#ifdef SKIP_KNOWN
+    if (texelFetch(known, ivec2(c), 0).r > 0.5) { discard; }
+#endif
     // Most covered texels have their centre inside the polygon: decide those with the cheap test
     // and run the separating-axis test and the nearest-point search only at the polygon's rim.
     vec2 x = c;

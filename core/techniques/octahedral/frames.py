@@ -18,7 +18,8 @@ width is kept, at most one texel too wide.  The image is drawn with ``samples x 
 per texel, which only antialias: a texel a sample covers takes their colour, the mean of the
 covered ones in linear light (:func:`farfield.core.quality.evaluation.downsample`), and their
 normal and depth; a texel only the exact test covers (a feature between the samples) takes the
-slab's, the triangle's at the point nearest the texel's centre.  A texel's depth is the nearest of
+slab's, the triangle's at the point nearest the texel's centre (the slab is drawn after the
+samples, skipping the texels they cover: ``skip_known``).  A texel's depth is the nearest of
 its covered samples' (or the slab's), stored as the height above the card plane through ``c``
 along the frame's direction, ``h in [-r, r]``, in the normal page's alpha:
 ``round((h / r * 0.5 + 0.5) * 254) + 1`` (0: nothing there); the slab spans ``255`` such steps from
@@ -121,6 +122,7 @@ class CameraPlan:
     texture_resolution: np.ndarray  # (2,) int64
     reference_offset: float = 0.0
     count: int = 1
+    known: np.ndarray | None = None  # (h, w) bool, row 0 the bottom row: texels iter_views(skip_known=True) leaves out
 
     @classmethod
     def of_camera(cls, camera: Camera, near: float | None = None, far: float | None = None) -> CameraPlan:
@@ -203,8 +205,15 @@ def record_frames(
     exact_only = np.zeros((k, resolution, resolution), bool)
     extent = 0.0
     r = sphere.radius
-    plans = (frame_plan(sphere, direction, resolution) for direction in directions)
-    exact_frames = iter_views(objects, plans, normals=True, depth=True, material=materials, cull=True)
+    shown = np.zeros((resolution, resolution), bool)  # the frame's texels a sample covers, set below
+
+    def plans():  # drawn lazily, each after its frame's samples: their texels are skipped
+        for direction in directions:
+            yield replace(frame_plan(sphere, direction, resolution), known=shown[::-1].copy())
+
+    exact_frames = iter_views(
+        objects, plans(), normals=True, depth=True, material=materials, cull=True, skip_known=True
+    )
     with MeshRenderer(objects, normals=normals, materials=materials) as renderer, closing(exact_frames):
         for index, direction in enumerate(directions):
             camera = frame_camera(sphere, direction, fine)
@@ -216,10 +225,10 @@ def record_frames(
                 image, world = renderer.render(camera), None
             height = ORTHO_DISTANCE * r - renderer.last_depth(camera)
             covered = image[..., 3] > 0
+            sampled = downsample(image, samples)
+            shown[:] = sampled[..., 3] > 0  # a sample covers it: the samples' colour, normal and depth
             _, _, layer, _ = next(exact_frames)
             exact = layer[::-1]  # top row first: colour, normal + depth, ORM, emission (iter_views)
-            sampled = downsample(image, samples)
-            shown = sampled[..., 3] > 0  # a sample covers it: the samples' colour, normal and depth
             missed = (exact[..., 3] > 0) & ~shown  # between the samples: the exact slab's
             exact_only[index] = missed
             colour[index] = np.where(shown[..., None], sampled, np.where(missed[..., None], exact[..., :4], 0))
