@@ -76,7 +76,10 @@ class OctahedralOptions:
         "never mix two frames", ge=0, le=64,
     )  # fmt: skip
     samples: int = option(
-        2, "samples per texel side of the conservative recording (a texel is covered when any is)", ge=1, le=8
+        2,
+        "samples per texel side: they antialias the colour, normal and depth (coverage is exact whatever this is)",
+        ge=1,
+        le=8,
     )
     channels: ChannelSet = option(
         "albedo",
