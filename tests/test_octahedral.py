@@ -452,3 +452,34 @@ def test_twigs_a_twentieth_of_a_texel_thin_keep_every_pixel_with_the_default_sam
                 bloat[factor] += int((drawn & ~_grow(reach, 1)).sum())
     assert covered[1.0] > 50 and covered[5.0] > 0  # the part is seen: the sweep tests something
     assert holes == dict.fromkeys(holes, 0) and bloat == dict.fromkeys(bloat, 0), (holes, bloat, covered)
+
+
+def test_an_alpha_cut_card_is_covered_where_its_texture_passes_the_cut_not_over_its_whole_square():
+    """The exact coverage keeps the alpha cut (slab.frag's conservative cut, as the layers'): a card
+    whose texture is opaque on a band (u from 1/8 to 1/2) and transparent elsewhere (its edges too:
+    the renderers' repeat wrap reads across them), seen head-on in a frame, covers the band to
+    within a texel and nothing of the rest beyond a texel, with one sample per texel or four."""
+    from farfield.core.scene import SceneObject
+    from farfield.core.techniques.octahedral.frames import Sphere, record_frames
+
+    texture = np.zeros((64, 64, 4), np.uint8)
+    texture[:, 8:32] = (200, 60, 40, 255)
+    card = SceneObject(
+        "leaf",
+        np.array([[-1.0, 0.0, -1.0], [1.0, 0.0, -1.0], [1.0, 0.0, 1.0], [-1.0, 0.0, 1.0]]),
+        np.array([[0, 1, 2], [0, 2, 3]]),
+        uv=np.array([[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]]),
+        texture=texture,
+        alpha_cutoff=0.5,
+    )
+    sphere = Sphere(np.zeros(3), math.sqrt(2.0))
+    # The frame looks along +y: its right is world +x (u = (x + 1) / 2), 16 texels over [-r, r].
+    x = (np.arange(16) + 0.5) / 16 * 2 * sphere.radius - sphere.radius
+    texel = 2 * sphere.radius / 16
+    rows = np.abs(x)[:, None] < 1.0 - texel  # rows well inside the card
+    band = (x > -0.75 + texel) & (x < -texel)
+    clear = (x > texel) | (x < -0.75 - texel)
+    for samples in (1, 2):
+        covered = record_frames([card], sphere, np.array([[0.0, -1.0, 0.0]]), 16, samples=samples).colour[0, ..., 3] > 0
+        assert covered[rows & band[None, :]].all(), samples
+        assert not covered[:, clear].any(), samples
