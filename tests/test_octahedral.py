@@ -483,3 +483,21 @@ def test_an_alpha_cut_card_is_covered_where_its_texture_passes_the_cut_not_over_
         covered = record_frames([card], sphere, np.array([[0.0, -1.0, 0.0]]), 16, samples=samples).colour[0, ..., 3] > 0
         assert covered[rows & band[None, :]].all(), samples
         assert not covered[:, clear].any(), samples
+
+
+def test_sampled_coverage_is_the_fast_knob_that_loses_what_falls_between_the_samples():
+    """``coverage=sampled`` skips the slab pass: the twentieth-of-a-texel twigs keep fewer texels
+    (some fall between the samples), every texel it keeps the exact bake keeps too, and the option
+    reaches the bake."""
+    scene = twig(0.0065)
+    technique = get_technique("octahedral")
+    centre = 0.5 * (scene.bounds[0] + scene.bounds[1])
+    kept = {}
+    for coverage in ("exact", "sampled"):
+        options = technique.options({"grid": 5, "frame_resolution": 16, "coverage": coverage}, RESOLUTION)
+        impostor = technique.bake(scene, SphereOutsideCell(centre, 3.0, False), options, None, None)
+        kept[coverage] = impostor.pages[0][..., 3] > 0
+    assert (kept["sampled"] <= kept["exact"]).all()
+    assert kept["exact"].sum() > kept["sampled"].sum()
+    with pytest.raises(Exception, match="coverage"):
+        technique.options({"coverage": "rough"}, RESOLUTION)

@@ -191,10 +191,11 @@ def record_frames(
     normals: bool = False,
     materials: bool = False,
     emissive: bool = False,
+    exact: bool = True,
 ) -> Frames:
     """Draw the part's ``objects`` in every frame of ``directions`` (k, 3) (module docstring);
     ``materials`` (with ``normals``) keeps the ORM frames, ``emissive`` (with ``materials``) the
-    emission frames too."""
+    emission frames too; ``exact=False`` keeps only the texels a sample covers (no slab pass)."""
     k = directions.shape[0]
     fine = resolution * samples
     materials = bool(materials and normals)
@@ -211,8 +212,10 @@ def record_frames(
         for direction in directions:
             yield replace(frame_plan(sphere, direction, resolution), known=shown[::-1].copy())
 
-    exact_frames = iter_views(
-        objects, plans(), normals=True, depth=True, material=materials, cull=True, skip_known=True
+    exact_frames = (
+        iter_views(objects, plans(), normals=True, depth=True, material=materials, cull=True, skip_known=True)
+        if exact
+        else _no_slabs(len(directions), resolution, 16 if materials else 8)
     )
     with MeshRenderer(objects, normals=normals, materials=materials) as renderer, closing(exact_frames):
         for index, direction in enumerate(directions):
@@ -252,6 +255,13 @@ def record_frames(
                 texels[..., 3] = np.where(hit, level, 0).astype(np.uint8)
                 normal[index] = texels
     return Frames(colour, normal, extent, orm, light, exact_only)
+
+
+def _no_slabs(count: int, resolution: int, channels: int):
+    """What :func:`iter_views` yields for ``count`` views when no slab pass runs: empty layers."""
+    empty = np.zeros((resolution, resolution, channels), np.uint8)
+    for view in range(count):
+        yield view, 0, empty, None
 
 
 def column_gap(objects, sphere: Sphere, directions: np.ndarray, resolution: int, frames: Frames, pairs) -> float:

@@ -77,9 +77,17 @@ class OctahedralOptions:
     )  # fmt: skip
     samples: int = option(
         2,
-        "samples per texel side: they antialias the colour, normal and depth (coverage is exact whatever this is)",
+        "samples per texel side: they antialias the colour, normal and depth (with coverage=exact, coverage is "
+        "exact whatever this is; with coverage=sampled, a texel is covered only where a sample is)",
         ge=1,
         le=8,
+    )
+    coverage: str = option(
+        "exact",
+        "exact: a texel is covered wherever the part touches it (the layered recording's slab test; features "
+        "thinner than a sample are kept, the one-pixel guarantee holds for any part); sampled: only where one of "
+        "the samples is (2-13x faster bakes; a feature thinner than texel/samples may be lost in some frames)",
+        choices=("exact", "sampled"),
     )
     channels: ChannelSet = option(
         "albedo",
@@ -144,7 +152,10 @@ def bake_octahedral(
     material = keeps_material(options.channels, part.objects)  # a matte part keeps no material pages
     emissive = material and any(emits(obj) for obj in part.objects)
     with clock("frames"):
-        frames = record_frames(part.objects, sphere, directions, res, options.samples, normals, material, emissive)
+        frames = record_frames(
+            part.objects, sphere, directions, res, options.samples, normals, material, emissive,
+            exact=options.coverage == "exact",
+        )  # fmt: skip
     clock.report("frames", 1, 1)
     with clock("atlas"):
         covered = frames.colour[..., 3] > 0
