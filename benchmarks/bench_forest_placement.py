@@ -1,7 +1,7 @@
 """A frame-time placement of a procedural forest with octahedral candidates allowed and not (issue 56, Measure).
 
 Usage: ``.venv/bin/python benchmarks/bench_forest_placement.py [--trees 10000] [--prototypes 5] [--size 1000]
-[--detail 8] [--frame-ms 6] [--altitude 2] [--octahedral grid=9,frame_resolution=16,padding=2]
+[--detail 8] [--frame-ms 6 | --primitives SHARE] [--altitude 2] [--octahedral grid=9,frame_resolution=16,padding=2]
 [--walkthrough FRAMES] [--skip-plain] [--json OUT]``
 
 The scene is :func:`farfield.core.procedural.tree_forest` (``--trees`` instances of ``--prototypes``
@@ -40,7 +40,7 @@ import numpy as np
 from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.options import parse_option_text
 from farfield.core.placement.candidates import OUTSIDE_SPHERE
-from farfield.core.placement.cost_model import LLVMPIPE_MODEL
+from farfield.core.placement.cost_model import LLVMPIPE_MODEL, primitive_model
 from farfield.core.placement.database import (
     PlacementLookup,
     bake_impostor,
@@ -125,6 +125,13 @@ def main(argv=None) -> int:
     parser.add_argument("--altitude", type=float, default=2.0)
     parser.add_argument("--inset", type=float, default=0.2)
     parser.add_argument("--frame-ms", type=float, default=6.0)
+    parser.add_argument(
+        "--primitives",
+        type=float,
+        default=None,
+        metavar="SHARE",
+        help="bound every view's triangles by SHARE of the forest's instead of --frame-ms (the primitive model)",
+    )
     parser.add_argument("--resolution", type=int, default=128)
     parser.add_argument("--fov", type=float, default=60.0)
     parser.add_argument("--cpv-size", type=float, default=None, help="default: the view space's side / 4")
@@ -147,9 +154,13 @@ def main(argv=None) -> int:
     hi = np.array([args.size - inset, args.altitude, args.size - inset])
     cpv = args.cpv_size or float(hi[0] - lo[0]) / 4.0
     print(f"forest: {args.trees} trees of {args.prototypes} prototypes, {scene.triangle_count:,} triangles, {args.size:g} m; "
-          f"view space {lo.tolist()} .. {hi.tolist()}; t_max {args.frame_ms} ms (builtin llvmpipe model); {args.resolution} px at "
+          f"view space {lo.tolist()} .. {hi.tolist()}; t_max {args.frame_ms} ms (builtin llvmpipe model) or primitives {args.primitives}; {args.resolution} px at "
           f"{args.fov:g} deg; CPVs {cpv:g} m x {args.vdi_deg:g} deg; cells {args.cells}; leaf size {args.leaf_size}; octahedral {args.octahedral}", flush=True)  # fmt: skip
     rows, first, first_solved = [], None, []
+    if args.primitives is None:
+        budget, model = args.frame_ms, LLVMPIPE_MODEL
+    else:
+        budget, model = args.primitives * scene.triangle_count, primitive_model()
     octahedral = {"octahedral": _octahedral(args.octahedral)}
     plain = Scene.from_objects(
         [replace(o, prototype=None, instance_matrix=None, local=None) for o in scene.objects], scene.source
@@ -161,7 +172,7 @@ def main(argv=None) -> int:
     ):
         if args.skip_plain and where is plain:
             continue
-        settings = PlacementSettings(t_max=args.frame_ms, model=LLVMPIPE_MODEL, options={"resolution": args.resolution, "fov_deg": args.fov},
+        settings = PlacementSettings(t_max=budget, model=model, options={"resolution": args.resolution, "fov_deg": args.fov},
                                      also=also, cpv_size=cpv, vdi_deg=args.vdi_deg, cells=args.cells, leaf_size=args.leaf_size)  # fmt: skip
         start = time.perf_counter()
         placement = place(where, lo, hi, settings, keep_state=True)
