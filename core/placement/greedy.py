@@ -27,9 +27,21 @@ step (the reference the lazy form must equal; tested).
 **Shared atlases** (issue 56): candidates of instances of one prototype draw from one atlas
 (``Candidates.prototype``).  The first of them chosen pays the atlas's memory; while an impostor
 of that atlas is drawn, every other candidate of it costs 0 bytes, so its score is infinite
-(ranked among such free candidates by its saving).  That is the one way a score rises: when a
-choice pays an atlas, its other candidates are pushed on the heap again with their new scores
-(their old entries, popped later, are re-scored and found stale).
+(ranked among such free candidates by its saving).  While no impostor of an atlas is drawn, its
+candidates are ranked **as a group**, not one by one (one by one, the first instance would pay the
+whole atlas for its own saving, and an atlas no single instance justifies would never be taken,
+however many instances would share it): the group's gain is, per CPV its candidates serve, their
+savings there summed and clipped at ``t_p - t_max`` (Eq. 5.4 for the set), over the atlas's bytes
+(the members' memory: an octahedral candidate's memory is its atlas, its card adds no texture).
+Its gain only falls while the atlas is unpaid (each member's saving and every ``t_p`` do), so the
+group sits on the lazy heap like a candidate.  When the group is on top, its member of the largest
+gain is chosen: that pays the atlas, and its other candidates, now free, are pushed on the heap
+again with their new scores and taken next wherever they still gain (their old entries, popped
+later, are re-scored and found stale).  A group's gain is at least any member's, and a member of
+an unpaid atlas is ranked only through its group (its own rank is 0).  Should every impostor of a
+paid atlas be deleted (replaced everywhere by ancestors'), the atlas is unpaid again and its group
+goes back on the heap.  The stopping rule is the thesis's: the greedy ends when no candidate gains
+anything, so a CPV stays unsolved only where no candidate left can lower it.
 """
 
 from __future__ import annotations
@@ -58,7 +70,13 @@ class Chosen:
 class Greedy:
     """The optimisation state: CPV times, the impostors drawn in each CPV, the chosen impostors."""
 
-    def __init__(self, hierarchy: Hierarchy, pv: ProblemViews, cand: Candidates, t_max: float) -> None:
+    # Defaults for a state pickled before groups (PlannerState.loads): grouped, nothing pending.
+    groups: bool = True
+    unpaid_again: tuple[int, ...] = ()
+
+    def __init__(
+        self, hierarchy: Hierarchy, pv: ProblemViews, cand: Candidates, t_max: float, groups: bool = True
+    ) -> None:
         self.h, self.pv, self.cand, self.t_max = hierarchy, pv, cand, float(t_max)
         self.size = hierarchy.size
         self.g, self.ti = cand.g, cand.ti  # flat, aligned with cand.served
@@ -75,6 +93,19 @@ class Greedy:
         atlas = getattr(cand, "prototype", None)
         self.atlas = np.full(cand.count, -1, dtype=np.int64) if atlas is None else atlas
         self.atlas_users: dict[int, list[int]] = {}  # shared atlas -> chosen impostor ids drawing from it
+        self.groups = groups  # False: an unpaid atlas's candidates ranked one by one, each paying it (myopic)
+        self.unpaid_again = ()  # shared atlases whose last drawn impostor :meth:`choose` deleted
+
+    def members(self, atlas: int) -> np.ndarray:
+        """The candidates drawing from shared ``atlas`` (ascending; found once)."""
+        cache = self.__dict__.setdefault("_members", {})
+        if atlas not in cache:
+            cache[atlas] = np.flatnonzero(self.atlas == atlas)
+        return cache[atlas]
+
+    def atlases(self) -> np.ndarray:
+        """Every shared atlas some candidate draws from."""
+        return np.unique(self.atlas[self.atlas >= 0])
 
     def paid(self, atlas: int) -> bool:
         """Whether an impostor drawing from shared ``atlas`` is drawn: its memory is counted."""
@@ -88,6 +119,13 @@ class Greedy:
                 memory[self.atlas == atlas] = 0.0
         return memory
 
+    def memory_bytes(self) -> float:
+        """The memory of the impostors drawn now: each one's own, each shared atlas once."""
+        drawn = [c.candidate for k, c in enumerate(self.chosen) if k not in self.deleted]
+        own = sum(float(self.cand.memory[i]) for i in drawn if self.atlas[i] < 0)
+        atlases = {int(self.atlas[i]) for i in drawn if self.atlas[i] >= 0}
+        return own + sum(float(self.cand.memory[self.members(a)].max()) for a in atlases)
+
     def _drawn_index(self) -> tuple[np.ndarray, np.ndarray]:
         """Sorted keys ``cpv * nodes + node`` of every drawn impostor and the running sum of what
         each saves there (``g - t``), kept up to date by :meth:`choose` in time linear in the keys
@@ -100,16 +138,25 @@ class Greedy:
     def _gains(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(cpvs, saving, gain) of candidate ``i`` now; saving is -inf where an ancestor's impostor
         (or the node's own) is drawn, and the gain is 0 where it saves nothing."""
-        a, b = self.cand.served_offsets[i], self.cand.served_offsets[i + 1]
-        cpvs = self.cand.served[a:b]
-        geometry = self.g[a:b]
-        node = int(self.cand.node[i])
+        return self._gains_of(np.array([i], dtype=np.int64))[1:]
+
+    def _gains_of(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(owner, cpvs, saving, gain) of the candidates ``idx`` now, one row per CPV each serves,
+        ``owner`` the row's position in ``idx`` (:meth:`_gains`, for several candidates at once)."""
+        a, b = self.cand.served_offsets[idx], self.cand.served_offsets[idx + 1]
+        lengths = b - a
+        owner = np.repeat(np.arange(idx.size), lengths)
+        flat = np.arange(int(lengths.sum()), dtype=np.int64) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+        flat += np.repeat(a, lengths)
+        cpvs = self.cand.served[flat]
+        geometry = self.g[flat]
+        node = np.repeat(self.cand.node[idx], lengths)
         if self.chosen:
             keys, cum = self._drawn_index()
             base = cpvs * self.nodes
             # descendants drawn here: what they already save is no longer the node's to save
             lo = np.searchsorted(keys, base + node + 1)
-            hi = np.searchsorted(keys, base + node + int(self.size[node]))
+            hi = np.searchsorted(keys, base + node + self.size[node])
             geometry = geometry - (cum[hi] - cum[lo])
             # the nearest drawn node at or before this one in preorder: an ancestor (or itself) if its subtree holds it
             at = np.searchsorted(keys, base + node, side="right") - 1
@@ -122,20 +169,58 @@ class Greedy:
                 & (other + self.size[np.clip(other, 0, self.nodes - 1)] > node)
             )
             geometry = np.where(blocked, -np.inf, geometry)
-        saving = geometry - self.ti[a:b]
+        saving = geometry - self.ti[flat]
         gain = np.maximum(0.0, np.minimum(saving, self.t[cpvs] - self.t_max))
-        return cpvs, saving, gain
+        return owner, cpvs, saving, gain
 
     def rank(self, i: int) -> tuple[float, float]:
         """(score, tie-break) of candidate ``i`` now: gain per byte and 0, or, for a candidate whose
-        shared atlas is paid (0 bytes), infinity and its gain; (0, 0) where it gains nothing."""
+        shared atlas is paid (0 bytes), infinity and its gain; (0, 0) where it gains nothing, and
+        for a candidate of an unpaid shared atlas (its group ranks it: :meth:`group_rank`)."""
         self.rescored += 1
+        atlas = int(self.atlas[i])
+        paid = self.paid(atlas)
+        if atlas >= 0 and not paid and self.groups:
+            return 0.0, 0.0
         gain = float(self._gains(i)[2].sum())
         if gain <= 0.0:
             return 0.0, 0.0
-        if self.paid(int(self.atlas[i])):
+        if paid:
             return np.inf, gain
         return gain / float(self.cand.memory[i]), 0.0
+
+    def group_gain(self, atlas: int) -> tuple[np.ndarray, float]:
+        """(members, gain) of unpaid shared ``atlas``: per CPV its members serve, their savings
+        there summed and clipped at ``t_p - t_max``, summed over the CPVs (module docstring)."""
+        members = self.members(atlas)
+        _, cpvs, saving, _ = self._gains_of(members)
+        cpv, at = np.unique(cpvs, return_inverse=True)
+        total = np.bincount(at, weights=np.maximum(saving, 0.0), minlength=cpv.size)
+        return members, float(np.maximum(0.0, np.minimum(total, self.t[cpv] - self.t_max)).sum())
+
+    def group_rank(self, atlas: int) -> tuple[float, float]:
+        """(score, 0) of unpaid shared ``atlas`` as a group: its :meth:`group_gain` over its bytes;
+        (0, 0) once paid (its members are ranked one by one then) or where it gains nothing."""
+        self.rescored += 1
+        if self.paid(atlas) or not self.groups:
+            return 0.0, 0.0
+        members, gain = self.group_gain(atlas)
+        if gain <= 0.0:
+            return 0.0, 0.0
+        return gain / float(self.cand.memory[members].max()), 0.0
+
+    def group_pick(self, atlas: int) -> int:
+        """The member of unpaid ``atlas`` to choose when its group wins: the largest gain, ties to
+        the smaller index."""
+        members = self.members(atlas)
+        owner, _, _, gain = self._gains_of(members)
+        return int(members[int(np.argmax(np.bincount(owner, weights=gain, minlength=members.size)))])
+
+    def rank_item(self, x: int) -> tuple[float, float]:
+        """The rank of a heap item: candidate ``x`` below ``cand.count``, else the group of shared
+        atlas ``x - cand.count``."""
+        m = self.cand.count
+        return self.rank(x) if x < m else self.group_rank(x - m)
 
     def score(self, i: int) -> float:
         return self.rank(i)[0]
@@ -150,7 +235,8 @@ class Greedy:
         free = (memory <= 0.0) & (total > 0.0)
         with np.errstate(divide="ignore", invalid="ignore"):
             score = np.where(free, np.inf, total / np.where(memory > 0.0, memory, 1.0))
-        return score, np.where(free, total, 0.0)
+        grouped = (self.atlas >= 0) & (memory > 0.0) & self.groups  # an unpaid shared atlas's: ranked by its group
+        return np.where(grouped, 0.0, score), np.where(free, total, 0.0)
 
     def initial_scores(self) -> np.ndarray:
         """Every candidate's score with nothing chosen (vectorised)."""
@@ -179,6 +265,9 @@ class Greedy:
                     removed.append(p * self.nodes + other.node)
                     if not other.cpvs:
                         self.deleted.add(other_id)
+                        lost = int(self.atlas[other.candidate])
+                        if lost >= 0 and lost != atlas and not self.paid(lost):
+                            self.unpaid_again = (*self.unpaid_again, lost)
                 else:
                     kept.append(other_id)
             kept.append(me)
@@ -199,32 +288,48 @@ class Greedy:
         self._cum = None
         return atlas if pays else -1
 
+    def _take(self, x: int) -> list[int]:
+        """Choose heap item ``x`` (a candidate, or a group's :meth:`group_pick`); returns the items
+        whose rank rose: the other candidates of the atlas the choice paid, and the groups of
+        atlases it left unpaid."""
+        m = self.cand.count
+        j = x if x < m else self.group_pick(x - m)
+        paid = self.choose(j)
+        rose = [int(k) for k in self.members(paid) if k != j] if paid >= 0 else []
+        rose += [m + a for a in self.unpaid_again]
+        self.unpaid_again = ()
+        return rose
+
     def run(self, lazy: bool = True, progress: Callable[[int, float], None] | None = None) -> None:
         scores, ties = self.initial_ranks()
+        m = self.cand.count
+        items = [(float(s), float(t), int(j)) for j, (s, t) in enumerate(zip(scores, ties)) if s > 0.0]
+        items += [(*self.group_rank(int(a)), m + int(a)) for a in self.atlases()]
         if not lazy:
-            ranks = {int(j): (scores[j], ties[j]) for j in np.flatnonzero(scores > 0.0)}
+            # Every item's rank again at every step; one that may rise (a candidate of a shared
+            # atlas, a group) stays in the pool at 0.
+            may_rise = {int(j) for j in np.flatnonzero(self.atlas >= 0)} | {m + int(a) for a in self.atlases()}
+            pool = {x for s, _, x in items if s > 0.0} | may_rise
+            ranks = {x: r for x in pool if (r := self.rank_item(x))[0] > 0.0}
             while ranks:
-                best = max(ranks, key=lambda j: (*ranks[j], -j))
-                self.choose(best)
-                del ranks[best]
-                ranks = {j: r for j in ranks if (r := self.rank(j))[0] > 0.0}
+                best = max(ranks, key=lambda x: (*ranks[x], -x))
+                self._take(best)
+                pool = {x for x in pool if x in ranks or x in may_rise}
+                ranks = {x: r for x in pool if (r := self.rank_item(x))[0] > 0.0}
             return
-        heap = [(-float(s), -float(t), int(j)) for j, (s, t) in enumerate(zip(scores, ties)) if s > 0.0]
+        heap = [(-s, -t, x) for s, t, x in items if s > 0.0]
         heapq.heapify(heap)
         while heap:
-            _, _, j = heapq.heappop(heap)
-            s, t = self.rank(j)
+            _, _, x = heapq.heappop(heap)
+            s, t = self.rank_item(x)
             if s <= 0.0:
                 continue  # every CPV it serves is solved, or taken by an ancestor (§5.7.4)
-            if heap and (-s, -t, j) > heap[0]:
-                heapq.heappush(heap, (-s, -t, j))
+            if heap and (-s, -t, x) > heap[0]:
+                heapq.heappush(heap, (-s, -t, x))
                 continue
-            paid = self.choose(j)
-            if paid >= 0:  # its other candidates cost nothing now: their scores rose
-                for k in np.flatnonzero(self.atlas == paid):
-                    if k != j:
-                        s, t = self.rank(int(k))
-                        if s > 0.0:
-                            heapq.heappush(heap, (-s, -t, int(k)))
+            for k in self._take(x):  # their ranks rose: pushed again (older entries are found stale)
+                s, t = self.rank_item(k)
+                if s > 0.0:
+                    heapq.heappush(heap, (-s, -t, k))
             if progress is not None:
                 progress(len(self.chosen), float(np.max(self.t, initial=-np.inf)))
