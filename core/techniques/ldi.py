@@ -30,6 +30,7 @@ import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from farfield.core import __version__
 from farfield.core.errors import LayerPlanError
@@ -150,29 +151,30 @@ def bake_ldi(
 ) -> Impostor:
     """Bake the LDI impostor of ``scene`` (or of its ``objects``) for ``cell`` (a box); technique ``"ldi"``."""
     part = scene.subset(objects) if objects else scene
-    clock = StageClock(("plan", "images"), progress)
+    clock = StageClock(("plan",), progress)
     with clock("plan"):
         view = ldi_view(cell, part.bounds)
     clock.report("plan", 1, 1)
-    with clock("images"):
-        made = construct_ldi(
-            list(part.objects),
-            view.eye,
-            view.direction,
-            view.quad,
-            view.depth,
-            options.resolution,
-            options.images,
-            options.max_layers,
-            cell=cell,  # one-sided triangles whose back faces the whole cell are not recorded
-        )
+    made = construct_ldi(
+        list(part.objects),
+        view.eye,
+        view.direction,
+        view.quad,
+        view.depth,
+        options.resolution,
+        options.images,
+        options.max_layers,
+        cell=cell,  # one-sided triangles whose back faces the whole cell are not recorded
+        clock=clock,  # its stages: frame, upload, draw, read, merge, sort
+    )
     clock.report("images", 1, 1)
     ldi = made.ldi
     if ldi.count == 0:
         raise LayerPlanError(
             "the part has no surface the LDI's construction images see: nothing to make an LDI impostor of"
         )
-    payload, pages = ldi_payload_and_pages(ldi)
+    with clock("pages"):
+        payload, pages = ldi_payload_and_pages(ldi)
     n = ldi.count
     stats = {
         "samples": n, "layers": ldi.layers, "offered": made.offered, "dropped_full": made.dropped_full,
@@ -181,7 +183,7 @@ def bake_ldi(
     }  # fmt: skip
     channels = {}
     if wants_normals(options.channels):
-        with clock("normals"):
+        with clock("normals"), threadpool_limits(1, user_api="blas"):  # as construct_ldi
             # The objects construct_ldi drew (its samples' object indices are theirs), the side the cell sees.
             positions, index = ldi.samples()
             at = (index[:, 0], index[:, 1], index[:, 2])
