@@ -3,11 +3,14 @@ plain computations they replace: the same cameras, vertices, sorted layers and p
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
 from farfield.core import procedural
 from farfield.core.ldi.construction import (
+    _image_samples,
     _sorted_layers,
     _window,
     construction_cameras,
@@ -16,6 +19,7 @@ from farfield.core.ldi.construction import (
     subset_vertices,
     view_frame,
 )
+from farfield.core.ldi.image import LayeredDepthImage
 from farfield.core.render.peeling import Peeler, peel
 from farfield.core.scene import SceneObject
 
@@ -110,4 +114,15 @@ def test_one_upload_peels_every_camera_as_a_fresh_one():
             fresh_hits, fresh_colours = peel(objects, camera, max_layers=1, truncate=True)
             assert np.isfinite(hits[..., 0]).sum() > 100
             assert np.array_equal(hits, fresh_hits, equal_nan=True) and np.array_equal(colours, fresh_colours)
+            # the compiled gather of the image's samples is LayeredDepthImage's, to the bit
+            image = LayeredDepthImage(
+                camera, hits[..., 0], hits[..., 1].astype(np.int64), hits[..., 2].astype(np.int64)
+            )
+            index = np.argwhere(np.isfinite(image.depth))
+            at = (index[:, 0], index[:, 1], index[:, 2])
+            positions, obj, tri, col = _image_samples(hits, colours, camera.eye, camera.right, camera.up, camera.forward,
+                                                      *map(float, camera.offset), math.tan(0.5 * camera.fov), camera.resolution)  # fmt: skip
+            assert np.array_equal(positions, image.sample_positions()[at])
+            assert np.array_equal(obj, image.obj[at]) and np.array_equal(tri, image.triangle[at])
+            assert np.array_equal(col, colours[at])
         assert peeler.seconds["draw"] > 0.0

@@ -170,19 +170,17 @@ def _construct(
                 if hits.shape[0] == 0:
                     continue
                 with clock("merge"):
-                    # The image's samples, row by row (LayeredDepthImage.samples of its one layer, pixel work
-                    # only where a sample is)
-                    image = LayeredDepthImage(cam, hits[..., 0], hits[..., 1], hits[..., 2])
-                    rows, cols = np.nonzero(np.isfinite(hits[0, :, :, 0]))
-                    offered += rows.size
-                    if rows.size == 0:
+                    positions, obj, tri, col = _image_samples(
+                        hits, colours, cam.eye, cam.right, cam.up, cam.forward, float(cam.offset[0]), float(cam.offset[1]),
+                        math.tan(0.5 * cam.fov), cam.resolution,
+                    )  # fmt: skip
+                    offered += obj.size
+                    if obj.size == 0:
                         continue
-                    positions = cam.eye + hits[0, rows, cols, 0][:, None] * image.directions_at(rows, cols)
                     rel = (positions - camera.eye) @ frame.T  # (m, 3) in the LDI's frame
                     k, d = _merge_samples(
-                        rel, hits[0, rows, cols, 1].astype(np.int64), hits[0, rows, cols, 2].astype(np.int64), colours[0, rows, cols],
-                        float(camera.offset[0]), float(camera.offset[1]), math.tan(0.5 * camera.fov), resolution, float(camera.near),
-                        SAME_SURFACE * pixel, depth_l, obj_l, tri_l, col_l, count,
+                        rel, obj, tri, col, float(camera.offset[0]), float(camera.offset[1]), math.tan(0.5 * camera.fov), resolution,
+                        float(camera.near), SAME_SURFACE * pixel, depth_l, obj_l, tri_l, col_l, count,
                     )  # fmt: skip
                 kept += k
                 dropped += d
@@ -273,6 +271,40 @@ def _window_candidates(points, eyes, r, u, f):  # pragma: no cover - compiled
             if keep[i]:
                 break
     return np.flatnonzero(keep)
+
+
+@numba.njit(cache=True, nogil=True)
+def _image_samples(hits, colours, eye, right, up, forward, ox, oy, t, n):  # pragma: no cover - compiled
+    """The samples of a one-layer image (peel's ``hits`` (1, h, w, 3) and ``colours``), row by row:
+    (m, 3) world positions, object and triangle indices, (m, 4) colours.  The positions are
+    :meth:`LayeredDepthImage.samples`' (eye + depth x the pixel-centre direction), by the same float64
+    operations in the same order."""
+    h, w = hits.shape[1], hits.shape[2]
+    m = 0
+    for r in range(h):
+        for c in range(w):
+            if np.isfinite(hits[0, r, c, 0]):
+                m += 1
+    positions = np.empty((m, 3))
+    obj = np.empty(m, np.int64)
+    tri = np.empty(m, np.int64)
+    col = np.empty((m, 4), np.uint8)
+    i = 0
+    for r in range(h):
+        y = oy - (2.0 * (r + 0.5) / n - 1.0) * t
+        for c in range(w):
+            d = hits[0, r, c, 0]
+            if not np.isfinite(d):
+                continue
+            x = ox + (2.0 * (c + 0.5) / n - 1.0) * t
+            for k in range(3):
+                positions[i, k] = eye[k] + d * (x * right[k] + y * up[k] + forward[k])
+            obj[i] = np.int64(hits[0, r, c, 1])
+            tri[i] = np.int64(hits[0, r, c, 2])
+            for k in range(4):
+                col[i, k] = colours[0, r, c, k]
+            i += 1
+    return positions, obj, tri, col
 
 
 @numba.njit(cache=True, nogil=True)

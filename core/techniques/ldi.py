@@ -43,7 +43,13 @@ from farfield.core.impostor.impostor import (
     keeps_material,
     wants_normals,
 )
-from farfield.core.ldi.construction import DEFAULT_MAX_LAYERS, _merge_samples, construct_ldi, view_frame
+from farfield.core.ldi.construction import (
+    DEFAULT_MAX_LAYERS,
+    _image_samples,
+    _merge_samples,
+    construct_ldi,
+    view_frame,
+)
 from farfield.core.ldi.materials import sample_material
 from farfield.core.ldi.normals import sample_normals
 from farfield.core.ldi.pages import ldi_payload_and_pages, normal_pages, sample_pages
@@ -225,6 +231,7 @@ def warm_kernels() -> float:
     )
     _merge_samples(np.array([[0.0, 0.0, 1.0]]), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros((1, 4), np.uint8), 0.0, 0.0, 1.0, 1, 0.5,
                    0.01, *layers, np.zeros((1, 1), np.int64))  # fmt: skip
+    _image_samples(np.zeros((1, 1, 1, 3)), np.zeros((1, 1, 1, 4), np.uint8), *np.eye(3), np.zeros(3), 0.0, 0.0, 1.0, 1)
     frame = np.eye(3)
     _warp_kernel(np.ones((1, 1, 1)), np.zeros((1, 1, 1, 4), np.uint8), np.zeros(3), frame, 0.0, 0.0, 1.0, np.zeros(3), frame, 0.0, 0.0, 1.0,
                  0.1, 0.5, 0.5, True, np.zeros((1, 1, 4), np.uint8), np.full((1, 1), np.nan))  # fmt: skip
