@@ -155,16 +155,17 @@ def _construct(
         cameras = construction_cameras(vertices, cops if drawn else cops[:1], camera, direction, resolution)
     pixel = 2.0 * math.tan(0.5 * camera.fov) / resolution
     frame = np.stack([camera.right, camera.up, camera.forward])
-    depth_l = np.full((max_layers, resolution, resolution), np.nan)
-    obj_l = np.full((max_layers, resolution, resolution), -1, np.int64)
-    tri_l = np.full((max_layers, resolution, resolution), -1, np.int64)
-    col_l = np.zeros((max_layers, resolution, resolution, 4), np.uint8)
-    count = np.zeros((resolution, resolution), np.int64)
+    with clock("merge"):
+        depth_l = np.full((max_layers, resolution, resolution), np.nan)
+        obj_l = np.full((max_layers, resolution, resolution), -1, np.int64)
+        tri_l = np.full((max_layers, resolution, resolution), -1, np.int64)
+        col_l = np.zeros((max_layers, resolution, resolution, 4), np.uint8)
+        count = np.zeros((resolution, resolution), np.int64)
     offered = kept = dropped = 0
     if drawn:
         with clock("upload"):
             peeler = Peeler(drawn)
-        with peeler:
+        try:
             for cam in cameras:
                 hits, colours = peeler.peel(cam, max_layers=1, truncate=True)
                 if hits.shape[0] == 0:
@@ -184,6 +185,9 @@ def _construct(
                     )  # fmt: skip
                 kept += k
                 dropped += d
+        finally:
+            with clock("upload"):  # and its release
+                peeler.release()
         for stage, seconds in peeler.seconds.items():
             clock.seconds[stage] = clock.seconds.get(stage, 0.0) + seconds
     with clock("sort"):

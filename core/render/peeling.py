@@ -69,7 +69,8 @@ class Peeler:
         self._owned: list = []
         textures: dict = {}
         self._draws = []
-        self.seconds = {"draw": 0.0, "read": 0.0}  # the passes' draw calls (to their end) and read-back
+        self._by_size: dict = {}  # render targets per image size
+        self.seconds = {"draw": 0.0, "read": 0.0}  # the passes' draw calls (to their end), and the rest of peel
         try:
             for index, obj in enumerate(objects):
                 origin = 0.5 * (obj.bounds[0] + obj.bounds[1])
@@ -78,6 +79,20 @@ class Peeler:
         except BaseException:
             self.release()
             raise
+
+    def _targets(self, size: tuple[int, int]) -> tuple[list, list, list]:
+        """(hits, colours, framebuffers) of ``size``: two of each, made once per size and kept."""
+        if size not in self._by_size:
+            ctx = self.ctx
+            hits = [ctx.texture(size, 4, dtype="f4") for _ in range(2)]
+            colours = [ctx.texture(size, 4) for _ in range(2)]
+            depth = ctx.depth_texture(size)
+            for texture in hits:
+                texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            framebuffers = [ctx.framebuffer([h, c], depth) for h, c in zip(hits, colours)]
+            self._owned += [*hits, *colours, depth, *framebuffers]
+            self._by_size[size] = (hits, colours, framebuffers)
+        return self._by_size[size]
 
     def __enter__(self) -> Peeler:
         return self
@@ -91,6 +106,7 @@ class Peeler:
             resource.release()
         self._owned = []
         self._draws = []
+        self._by_size = {}
 
     def peel(
         self,
@@ -101,19 +117,20 @@ class Peeler:
         truncate: bool = False,
     ) -> tuple[np.ndarray, np.ndarray]:
         """:func:`peel` of the uploaded objects from ``camera``."""
+        called = time.perf_counter()
+        drew = self.seconds["draw"]
+        try:
+            return self._peel(camera, max_layers, centre, same_surface, truncate)
+        finally:
+            self.seconds["read"] += time.perf_counter() - called - (self.seconds["draw"] - drew)
+
+    def _peel(self, camera, max_layers, centre, same_surface, truncate) -> tuple[np.ndarray, np.ndarray]:
         ctx, prog, touching, draws = self.ctx, self.prog, self.touching, self._draws
         owned: list = []
         size = (camera.resolution, camera.resolution)
         layers, shades = [], []
         try:
-            hits = [ctx.texture(size, 4, dtype="f4") for _ in range(2)]
-            colours = [ctx.texture(size, 4) for _ in range(2)]
-            depth = ctx.depth_texture(size)
-            owned += [*hits, *colours, depth]
-            for texture in hits:
-                texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            framebuffers = [ctx.framebuffer([h, c], depth) for h, c in zip(hits, colours)]
-            owned += framebuffers
+            hits, colours, framebuffers = self._targets(size)
             hits[1].write(np.full(size + (4,), -1.0, dtype="f4").tobytes())  # "previous" of the first pass
             t = math.tan(0.5 * camera.fov)
             prog["half_tan"].value = (t, t)
@@ -157,10 +174,9 @@ class Peeler:
                     vao.render(moderngl.TRIANGLES)
                 ctx.finish()
                 drawn_at = time.perf_counter()
+                self.seconds["draw"] += drawn_at - start
                 layer = np.frombuffer(hits[current].read(), dtype="f4").reshape(size[1], size[0], 4)[::-1]
                 colour = np.frombuffer(colours[current].read(), dtype=np.uint8).reshape(size[1], size[0], 4)[::-1]
-                self.seconds["draw"] += drawn_at - start
-                self.seconds["read"] += time.perf_counter() - drawn_at
                 error = ctx.error
                 if error != "GL_NO_ERROR":
                     raise RenderBackendError(f"OpenGL error while peeling depth layers: {error}")
