@@ -245,7 +245,12 @@ class SceneObject:
         """
         chosen = np.asarray(faces)
         triangles = chosen if chosen.ndim == 2 else self.faces[chosen]
-        used, inverse = np.unique(triangles, return_inverse=True)
+        # np.unique(triangles, return_inverse=True) without its sort: the used vertices in index
+        # order, and each corner's rank among them
+        mask = np.zeros(len(self.vertices), dtype=bool)
+        mask[triangles.ravel()] = True
+        used = np.flatnonzero(mask)
+        inverse = (np.cumsum(mask) - 1)[triangles]
         changes = {"name": self.name if name is None else name, "faces": inverse.reshape(-1, 3)}
         for key in self.PER_VERTEX:
             array = getattr(self, key)

@@ -69,7 +69,20 @@ class LayeredDepthImage:
         """((m, 3) float64 world positions, (m, 3) int64 (layer, row, column)) of every sample,
         ordered by layer, then row, then column."""
         index = np.argwhere(np.isfinite(self.depth))
-        return self.sample_positions()[index[:, 0], index[:, 1], index[:, 2]], index
+        if self.positions is not None:
+            return self.positions[index[:, 0], index[:, 1], index[:, 2]], index
+        # sample_positions() at the samples alone: the same float64 operations, element by element
+        depth = self.depth[index[:, 0], index[:, 1], index[:, 2]]
+        return self.camera.eye + depth[:, None] * self.directions_at(index[:, 1], index[:, 2]), index
+
+    def directions_at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """(m, 3) :meth:`directions` of the pixels (``rows``, ``cols``) alone, computed as it computes them."""
+        c = self.camera
+        n = c.resolution
+        t = math.tan(0.5 * c.fov)
+        x = c.offset[0] + (2.0 * (cols + 0.5) / n - 1.0) * t
+        y = c.offset[1] - (2.0 * (rows + 0.5) / n - 1.0) * t
+        return x[:, None] * c.right + y[:, None] * c.up + c.forward
 
     def sample_positions(self) -> np.ndarray:
         """(layers, h, w, 3) float64 world position of every sample (NaN where none)."""

@@ -21,6 +21,7 @@ as the LDI cameras of a point impostor do.
 from __future__ import annotations
 
 import math
+import time
 
 import moderngl
 import numpy as np
@@ -48,94 +49,157 @@ def peel(
     unless ``truncate``: then the nearest ``max_layers`` are returned (``max_layers=1``: a plain image with depth and ids).
     ``touching``: the samples of touched, not covered, pixels instead (module docstring), skipping
     those within ``same_surface`` times their depth of one of the ``centre`` eye depths (layers, h,
-    w; NaN where none) of their pixel or of the touched sample peeled before them there."""
-    ctx = gl_context()
-    if touching:
-        prog = program(ctx, "peel_touch.vert", "peel_touch.frag", "peel_touch.geom")
-    else:
-        prog = program(ctx, "peel.vert", "peel.frag")
-    owned: list = []
-    textures: dict = {}
-    size = (camera.resolution, camera.resolution)
-    layers, shades = [], []
-    try:
-        draws = []
-        for index, obj in enumerate(objects):
-            origin = 0.5 * (obj.bounds[0] + obj.bounds[1])
-            vao, texture = upload(ctx, prog, obj, origin, textures, owned)
-            draws.append((index, obj, origin, vao, texture))
-        hits = [ctx.texture(size, 4, dtype="f4") for _ in range(2)]
-        colours = [ctx.texture(size, 4) for _ in range(2)]
-        depth = ctx.depth_texture(size)
-        owned += [*hits, *colours, depth]
-        for texture in hits:
-            texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        framebuffers = [ctx.framebuffer([h, c], depth) for h, c in zip(hits, colours)]
-        owned += framebuffers
-        hits[1].write(np.full(size + (4,), -1.0, dtype="f4").tobytes())  # "previous" of the first pass
-        t = math.tan(0.5 * camera.fov)
-        prog["half_tan"].value = (t, t)
-        prog["depth_range"].value = (camera.near, camera.far)
-        prog["previous"].value = 1
+    w; NaN where none) of their pixel or of the touched sample peeled before them there.
+    (One camera; :class:`Peeler` uploads the objects once for many.)"""
+    with Peeler(objects, touching) as peeler:
+        return peeler.peel(camera, max_layers, centre, same_surface, truncate)
+
+
+class Peeler:
+    """``objects`` uploaded once to the process's context and peeled from any number of cameras
+    (:meth:`peel`, the rules of :func:`peel`); a context manager that frees what it made."""
+
+    def __init__(self, objects: list[SceneObject] | tuple[SceneObject, ...], touching: bool = False):
+        self.ctx = ctx = gl_context()
+        self.touching = bool(touching)
         if touching:
-            prog["pixel_ndc"].value = 2.0 / camera.resolution
-            prog["resolution"].value = float(camera.resolution)
-            layers_in = 0 if centre is None else int(centre.shape[0])
-            stack = np.full((max(layers_in, 1), size[1], size[0]), -1.0, dtype="f4")
-            if layers_in:
-                stack[:layers_in] = np.where(np.isfinite(centre), centre, -1.0)[:, ::-1]  # GL rows bottom first
-            depths = ctx.texture_array(
-                (size[0], size[1], stack.shape[0]), 1, np.ascontiguousarray(stack).tobytes(), dtype="f4"
-            )
-            depths.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            owned.append(depths)
-            depths.use(2)
-            prog["centre_depths"].value = 2
-            prog["centre_layers"].value = layers_in
-            prog["same_surface"].value = float(same_surface)
-        ctx.enable(moderngl.DEPTH_TEST)
-        ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
-        current = 0
-        while True:
-            previous = 1 - current
-            framebuffers[current].use()
-            ctx.viewport = (0, 0, *size)
-            # A ray without a surface in this pass has none behind either: r = 2 (beyond any
-            # window depth) stops it in the next pass.
-            framebuffers[current].clear(
-                2.0, 0.0, 0.0, 0.0, depth=1.0
-            )  # both attachments: the colour's r saturates, a = 0
-            hits[previous].use(1)
-            for index, obj, origin, vao, texture in draws:
-                prog["eye_from_local"].write(camera.eye_matrix(origin).tobytes())
-                prog["object_index"].value = float(index)
-                set_material(prog, obj, texture)
-                vao.render(moderngl.TRIANGLES)
-            layer = np.frombuffer(hits[current].read(), dtype="f4").reshape(size[1], size[0], 4)[::-1]
-            colour = np.frombuffer(colours[current].read(), dtype=np.uint8).reshape(size[1], size[0], 4)[::-1]
-            error = ctx.error
-            if error != "GL_NO_ERROR":
-                raise RenderBackendError(f"OpenGL error while peeling depth layers: {error}")
-            drawn = layer[..., 3] > 0.0
-            if not drawn.any():
-                break
-            if len(layers) == max_layers:
-                raise LayerPlanError(
-                    f"more than {max_layers} surfaces along one ray of a {size[0]}-pixel layered depth image (raise max_layers)"
-                )
-            out = np.full(layer.shape[:2] + (3,), -1.0)
-            out[..., 0] = np.where(drawn, layer[..., 1], np.nan)
-            out[..., 1] = np.where(drawn, layer[..., 2], -1.0)
-            out[..., 2] = np.where(drawn, layer[..., 3] - 1.0, -1.0)
-            layers.append(out)
-            shades.append(np.where(drawn[..., None], colour, 0).astype(np.uint8))
-            if truncate and len(layers) == max_layers:
-                break  # the nearest max_layers are all that was asked for: no pass to look past them
-            current = previous
-    finally:
-        park_framebuffer(ctx)
-        for resource in owned:
+            self.prog = program(ctx, "peel_touch.vert", "peel_touch.frag", "peel_touch.geom")
+        else:
+            self.prog = program(ctx, "peel.vert", "peel.frag")
+        self._owned: list = []
+        textures: dict = {}
+        self._draws = []
+        self._by_size: dict = {}  # render targets per image size
+        self.seconds = {"draw": 0.0, "read": 0.0}  # the passes' draw calls (to their end), and the rest of peel
+        try:
+            for index, obj in enumerate(objects):
+                origin = 0.5 * (obj.bounds[0] + obj.bounds[1])
+                vao, texture = upload(ctx, self.prog, obj, origin, textures, self._owned)
+                self._draws.append((index, obj, origin, vao, texture))
+        except BaseException:
+            self.release()
+            raise
+
+    def _targets(self, size: tuple[int, int]) -> tuple[list, list, list]:
+        """(hits, colours, framebuffers) of ``size``: two of each, made once per size and kept."""
+        if size not in self._by_size:
+            ctx = self.ctx
+            hits = [ctx.texture(size, 4, dtype="f4") for _ in range(2)]
+            colours = [ctx.texture(size, 4) for _ in range(2)]
+            depth = ctx.depth_texture(size)
+            for texture in hits:
+                texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            framebuffers = [ctx.framebuffer([h, c], depth) for h, c in zip(hits, colours)]
+            self._owned += [*hits, *colours, depth, *framebuffers]
+            self._by_size[size] = (hits, colours, framebuffers)
+        return self._by_size[size]
+
+    def __enter__(self) -> Peeler:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+    def release(self) -> None:
+        park_framebuffer(self.ctx)
+        for resource in self._owned:
             resource.release()
-    if not layers:
-        return np.zeros((0, size[1], size[0], 3)), np.zeros((0, size[1], size[0], 4), dtype=np.uint8)
-    return np.stack(layers), np.stack(shades)
+        self._owned = []
+        self._draws = []
+        self._by_size = {}
+
+    def peel(
+        self,
+        camera: Camera,
+        max_layers: int = 256,
+        centre: np.ndarray | None = None,
+        same_surface: float = 0.0,
+        truncate: bool = False,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`peel` of the uploaded objects from ``camera``."""
+        called = time.perf_counter()
+        drew = self.seconds["draw"]
+        try:
+            return self._peel(camera, max_layers, centre, same_surface, truncate)
+        finally:
+            self.seconds["read"] += time.perf_counter() - called - (self.seconds["draw"] - drew)
+
+    def _peel(self, camera, max_layers, centre, same_surface, truncate) -> tuple[np.ndarray, np.ndarray]:
+        ctx, prog, touching, draws = self.ctx, self.prog, self.touching, self._draws
+        owned: list = []
+        size = (camera.resolution, camera.resolution)
+        layers, shades = [], []
+        try:
+            hits, colours, framebuffers = self._targets(size)
+            hits[1].write(np.full(size + (4,), -1.0, dtype="f4").tobytes())  # "previous" of the first pass
+            t = math.tan(0.5 * camera.fov)
+            prog["half_tan"].value = (t, t)
+            prog["depth_range"].value = (camera.near, camera.far)
+            prog["previous"].value = 1
+            if touching:
+                prog["pixel_ndc"].value = 2.0 / camera.resolution
+                prog["resolution"].value = float(camera.resolution)
+                layers_in = 0 if centre is None else int(centre.shape[0])
+                stack = np.full((max(layers_in, 1), size[1], size[0]), -1.0, dtype="f4")
+                if layers_in:
+                    stack[:layers_in] = np.where(np.isfinite(centre), centre, -1.0)[:, ::-1]  # GL rows bottom first
+                depths = ctx.texture_array(
+                    (size[0], size[1], stack.shape[0]), 1, np.ascontiguousarray(stack).tobytes(), dtype="f4"
+                )
+                depths.filter = (moderngl.NEAREST, moderngl.NEAREST)
+                owned.append(depths)
+                depths.use(2)
+                prog["centre_depths"].value = 2
+                prog["centre_layers"].value = layers_in
+                prog["same_surface"].value = float(same_surface)
+            ctx.enable(moderngl.DEPTH_TEST)
+            ctx.disable(moderngl.CULL_FACE | moderngl.BLEND)
+            matrices = camera.eye_matrices([origin for _, _, origin, _, _ in draws])
+            current = 0
+            while True:
+                previous = 1 - current
+                framebuffers[current].use()
+                ctx.viewport = (0, 0, *size)
+                # A ray without a surface in this pass has none behind either: r = 2 (beyond any
+                # window depth) stops it in the next pass.
+                framebuffers[current].clear(
+                    2.0, 0.0, 0.0, 0.0, depth=1.0
+                )  # both attachments: the colour's r saturates, a = 0
+                hits[previous].use(1)
+                start = time.perf_counter()
+                for (index, obj, _, vao, texture), matrix in zip(draws, matrices):
+                    prog["eye_from_local"].write(matrix)
+                    prog["object_index"].value = float(index)
+                    set_material(prog, obj, texture)
+                    vao.render(moderngl.TRIANGLES)
+                ctx.finish()
+                drawn_at = time.perf_counter()
+                self.seconds["draw"] += drawn_at - start
+                layer = np.frombuffer(hits[current].read(), dtype="f4").reshape(size[1], size[0], 4)[::-1]
+                colour = np.frombuffer(colours[current].read(), dtype=np.uint8).reshape(size[1], size[0], 4)[::-1]
+                error = ctx.error
+                if error != "GL_NO_ERROR":
+                    raise RenderBackendError(f"OpenGL error while peeling depth layers: {error}")
+                drawn = layer[..., 3] > 0.0
+                if not drawn.any():
+                    break
+                if len(layers) == max_layers:
+                    raise LayerPlanError(
+                        f"more than {max_layers} surfaces along one ray of a {size[0]}-pixel layered depth image (raise max_layers)"
+                    )
+                out = np.full(layer.shape[:2] + (3,), -1.0)
+                out[..., 0] = np.where(drawn, layer[..., 1], np.nan)
+                out[..., 1] = np.where(drawn, layer[..., 2], -1.0)
+                out[..., 2] = np.where(drawn, layer[..., 3] - 1.0, -1.0)
+                layers.append(out)
+                shades.append(np.where(drawn[..., None], colour, 0).astype(np.uint8))
+                if truncate and len(layers) == max_layers:
+                    break  # the nearest max_layers are all that was asked for: no pass to look past them
+                current = previous
+        finally:
+            park_framebuffer(ctx)
+            for resource in owned:
+                resource.release()
+        if not layers:
+            return np.zeros((0, size[1], size[0], 3)), np.zeros((0, size[1], size[0], 4), dtype=np.uint8)
+        return np.stack(layers), np.stack(shades)

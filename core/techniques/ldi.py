@@ -30,6 +30,7 @@ import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from farfield.core import __version__
 from farfield.core.errors import LayerPlanError
@@ -42,7 +43,13 @@ from farfield.core.impostor.impostor import (
     keeps_material,
     wants_normals,
 )
-from farfield.core.ldi.construction import DEFAULT_MAX_LAYERS, _merge_samples, construct_ldi, view_frame
+from farfield.core.ldi.construction import (
+    DEFAULT_MAX_LAYERS,
+    _image_samples,
+    _merge_samples,
+    construct_ldi,
+    view_frame,
+)
 from farfield.core.ldi.materials import sample_material
 from farfield.core.ldi.normals import sample_normals
 from farfield.core.ldi.pages import ldi_payload_and_pages, normal_pages, sample_pages
@@ -150,29 +157,30 @@ def bake_ldi(
 ) -> Impostor:
     """Bake the LDI impostor of ``scene`` (or of its ``objects``) for ``cell`` (a box); technique ``"ldi"``."""
     part = scene.subset(objects) if objects else scene
-    clock = StageClock(("plan", "images"), progress)
+    clock = StageClock(("plan",), progress)
     with clock("plan"):
         view = ldi_view(cell, part.bounds)
     clock.report("plan", 1, 1)
-    with clock("images"):
-        made = construct_ldi(
-            list(part.objects),
-            view.eye,
-            view.direction,
-            view.quad,
-            view.depth,
-            options.resolution,
-            options.images,
-            options.max_layers,
-            cell=cell,  # one-sided triangles whose back faces the whole cell are not recorded
-        )
+    made = construct_ldi(
+        list(part.objects),
+        view.eye,
+        view.direction,
+        view.quad,
+        view.depth,
+        options.resolution,
+        options.images,
+        options.max_layers,
+        cell=cell,  # one-sided triangles whose back faces the whole cell are not recorded
+        clock=clock,  # its stages: frame, upload, draw, read, merge, sort
+    )
     clock.report("images", 1, 1)
     ldi = made.ldi
     if ldi.count == 0:
         raise LayerPlanError(
             "the part has no surface the LDI's construction images see: nothing to make an LDI impostor of"
         )
-    payload, pages = ldi_payload_and_pages(ldi)
+    with clock("pages"):
+        payload, pages = ldi_payload_and_pages(ldi)
     n = ldi.count
     stats = {
         "samples": n, "layers": ldi.layers, "offered": made.offered, "dropped_full": made.dropped_full,
@@ -181,7 +189,7 @@ def bake_ldi(
     }  # fmt: skip
     channels = {}
     if wants_normals(options.channels):
-        with clock("normals"):
+        with clock("normals"), threadpool_limits(1, user_api="blas"):  # as construct_ldi
             # The objects construct_ldi drew (its samples' object indices are theirs), the side the cell sees.
             positions, index = ldi.samples()
             at = (index[:, 0], index[:, 1], index[:, 2])
@@ -223,6 +231,7 @@ def warm_kernels() -> float:
     )
     _merge_samples(np.array([[0.0, 0.0, 1.0]]), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros((1, 4), np.uint8), 0.0, 0.0, 1.0, 1, 0.5,
                    0.01, *layers, np.zeros((1, 1), np.int64))  # fmt: skip
+    _image_samples(np.zeros((1, 1, 1, 3)), np.zeros((1, 1, 1, 4), np.uint8), *np.eye(3), np.zeros(3), 0.0, 0.0, 1.0, 1)
     frame = np.eye(3)
     _warp_kernel(np.ones((1, 1, 1)), np.zeros((1, 1, 1, 4), np.uint8), np.zeros(3), frame, 0.0, 0.0, 1.0, np.zeros(3), frame, 0.0, 0.0, 1.0,
                  0.1, 0.5, 0.5, True, np.zeros((1, 1, 4), np.uint8), np.full((1, 1), np.nan))  # fmt: skip
