@@ -21,8 +21,13 @@ than a pixel in any view".  Here, for a sample ``s`` of one LDI:
   at most the smallest angle of an output pixel (the radial angle of a corner pixel,
   :func:`farfield.core.techniques.points.sampling.corner_perspective_factor`);
 - ``s`` is **redundant** when another camera's sample at the same place (``s`` projected into that
-  LDI's pixel, the layer within the continuity tolerance of ``s``'s depth there) has a sufficient
-  spacing smaller than ``s``'s (ties: the lower camera index keeps its point);
+  LDI's pixel, the layer within the continuity tolerance of ``s``'s depth there) has a finite
+  spacing smaller than ``s``'s (ties: the lower camera index keeps its point); with
+  ``sufficient_only``, only when that spacing is also sufficient, as §5.1 words it.  Where no
+  camera is sufficient (folds finer than an LDI pixel, as a scan's noise makes them) the rule as
+  written keeps all three cameras' samples, about 1.3 times the points, and they are no more
+  sufficient together (issue 60: the points kept either way leave no hole pixel on a
+  327,680-triangle rough sphere from 17 views of the cell; docs/measurements/points.md);
 - a sample of a pixel its surface only touches (the conservative LDI's extra samples, for
   geometry thinner than a pixel) is always kept and never stands for another.
 """
