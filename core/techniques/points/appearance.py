@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,6 +62,7 @@ BATCH = 16
 TEXEL_SIGMA = 0.5  # texels: the Gaussian of the viewpoint basis b_i
 PIXEL_SIGMA = 0.5  # output pixels: the Gaussian of the pixel footprint q_j
 MIN_WEIGHT = 1e-3  # a texel's Gaussian weight below this adds nothing
+CHUNK = 65536  # points whose sums are turned into tiles (and standard errors) at a time
 MAX_WINDOW = 4096  # pixels per side of one supersampled geometry window
 WINDOW_STEP = 32  # window sides are multiples of this
 _LUMA = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709 / sRGB primaries
@@ -149,6 +150,84 @@ def _view_camera(
     return Camera.look_at(eye, moved, fov, resolution, near, far)
 
 
+def _extent(objects, points: np.ndarray) -> np.ndarray:
+    """(8, 3) the corners of the box holding ``objects`` and ``points``."""
+    bounds = np.stack([points.min(axis=0), points.max(axis=0)]) if points.shape[0] else np.zeros((2, 3))
+    return box_corners(
+        np.stack(
+            [
+                np.minimum(bounds[0], np.min([o.bounds[0] for o in objects], axis=0)),
+                np.maximum(bounds[1], np.max([o.bounds[1] for o in objects], axis=0)),
+            ]
+        )
+    )
+
+
+def _views(cell: BoxCell, seed: int, max_views: int) -> Iterator[np.ndarray]:
+    """Batches (k, 5) of the Monte Carlo views, each a viewpoint in the cell (3, box units) and a
+    jitter (2, pixels + 0.5): the cell's corners and centre first (where views differ most), then
+    a scrambled Sobol sequence seeded by ``seed``, :data:`BATCH` at a time, ``max_views`` in all."""
+    sobol = qmc.Sobol(5, scramble=True, seed=seed)
+    fixed = np.concatenate(
+        [np.array(np.meshgrid([0.0, 1.0], [0.0, 1.0], [0.0, 1.0], indexing="ij")).reshape(3, -1).T, [[0.5, 0.5, 0.5]]]
+    )
+    views = 0
+    while views < max_views:
+        batch = sobol.random(BATCH)[: max_views - views]
+        if views < fixed.shape[0]:
+            batch[: fixed.shape[0] - views, :3] = fixed[views : views + batch.shape[0]]
+        yield batch
+        views += batch.shape[0]
+
+
+def _window(q: np.ndarray, cell: BoxCell, target: np.ndarray, fov: float, resolution: int, extent: np.ndarray):
+    """(eye, camera, x0, y0, size) of view ``q``: the square window of its image around the part."""
+    eye = cell.lo + q[:3] * (cell.hi - cell.lo)
+    camera = _view_camera(eye, target, q[3:] - 0.5, fov, resolution, extent)
+    pixels = camera.project(extent)
+    x0, y0 = np.floor(pixels.min(axis=0)).astype(int) - 2
+    # Window sides rounded up to WINDOW_STEP, so the renderers keep a few targets.
+    size = -(-(int(np.ceil(float(np.max(pixels.max(axis=0) - pixels.min(axis=0))))) + 5) // WINDOW_STEP) * WINDOW_STEP
+    if size > MAX_WINDOW:
+        raise LayerPlanError(
+            f"the part spans {size} pixels from the view cell at {resolution} px (at most {MAX_WINDOW}): "
+            "lower the resolution, or split the part"
+        )
+    return eye, camera, int(x0), int(y0), size
+
+
+def visible_points(
+    objects: list[SceneObject] | tuple[SceneObject, ...],
+    points: np.ndarray,
+    cell: BoxCell,
+    fov_deg: float,
+    resolution: int,
+    views: int = MIN_VIEWS,
+    seed: int = 0,
+) -> np.ndarray:
+    """(n,) bool: the ``points`` (n, 3) that win a pixel, drawn as one-pixel points with a z-buffer,
+    in any of the first ``views`` views of :func:`integrate_appearance` (same viewpoints, jitter and
+    windows): the points those views show.  A point that wins no pixel in them adds nothing to
+    them, so dropping it before the appearance changes none of their winners, and the appearance's
+    sums need hold only the points kept (before, the same test ran inside the appearance, over
+    every candidate)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    n = points.shape[0]
+    shown = np.zeros(n, dtype=bool)
+    if n == 0:
+        return shown
+    fov = math.radians(float(fov_deg))
+    extent = _extent(objects, points)
+    target = 0.5 * (extent.min(axis=0) + extent.max(axis=0))
+    with PointRenderer(points, np.zeros((n, 4), np.uint8)) as ids:
+        for batch in _views(cell, seed, views):
+            for q in batch:
+                _eye, camera, x0, y0, size = _window(q, cell, target, fov, resolution, extent)
+                drawn = ids.render_ids(camera.window(x0, y0, size, size))
+                shown[drawn[drawn >= 0]] = True
+    return shown
+
+
 def integrate_appearance(
     objects: list[SceneObject] | tuple[SceneObject, ...],
     points: np.ndarray,
@@ -170,7 +249,8 @@ def integrate_appearance(
     :func:`farfield.core.techniques.points.samples.gather_point_samples`; ``samples`` per pixel side of the footprint's
     geometry, ``error`` the standard error to stop at (linear luminance, 0-1), ``max_views`` the
     most views, ``min_views`` the fewest (every view also judges which points are ever visible:
-    :attr:`PointAppearance.seen`)."""
+    :attr:`PointAppearance.seen`).  The accumulators are float32, 28 bytes per texel (weight, its
+    square, colour, coverage and its weight, luminance squared): 448 bytes a point at 8 x 2 texels."""
     start = time.perf_counter()
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     n = points.shape[0]
@@ -181,49 +261,22 @@ def integrate_appearance(
             f"appearance needs max_views >= 1, samples >= 1 and error > 0, got {max_views}, {samples}, {error}"
         )
     fov = math.radians(float(fov_deg))
-    bounds = np.stack([points.min(axis=0), points.max(axis=0)]) if n else np.zeros((2, 3))
-    extent = box_corners(
-        np.stack(
-            [
-                np.minimum(bounds[0], np.min([o.bounds[0] for o in objects], axis=0)),
-                np.maximum(bounds[1], np.max([o.bounds[1] for o in objects], axis=0)),
-            ]
-        )
-    )
+    extent = _extent(objects, points)
     target = 0.5 * (extent.min(axis=0) + extent.max(axis=0))
-    weight = np.zeros((n, texels))
-    weight2 = np.zeros((n, texels))
-    colour = np.zeros((n, texels, 3))
-    coverage = np.zeros((n, texels))
-    coverage_weight = np.zeros((n, texels))
-    luma2 = np.zeros((n, texels))
-    sobol = qmc.Sobol(5, scramble=True, seed=seed)
+    f32 = np.float32
+    weight = np.zeros((n, texels), f32)
+    weight2 = np.zeros((n, texels), f32)
+    colour = np.zeros((n, texels, 3), f32)
+    coverage = np.zeros((n, texels), f32)
+    coverage_weight = np.zeros((n, texels), f32)
+    luma2 = np.zeros((n, texels), f32)
+    luma = _LUMA.astype(f32)
     views = 0
     se95 = float("inf")
-    # The cell's corners and centre first (where views differ most), then the Sobol points.
-    fixed = np.concatenate(
-        [np.array(np.meshgrid([0.0, 1.0], [0.0, 1.0], [0.0, 1.0], indexing="ij")).reshape(3, -1).T, [[0.5, 0.5, 0.5]]]
-    )
     with MeshRenderer(objects) as geometry, PointRenderer(points, np.zeros((n, 4), np.uint8)) as ids:
-        while views < max_views and n:
-            batch = sobol.random(BATCH)[: max_views - views]
-            if views < fixed.shape[0]:
-                batch[: fixed.shape[0] - views, :3] = fixed[views : views + batch.shape[0]]
+        for batch in _views(cell, seed, max_views if n else 0):
             for q in batch:
-                eye = cell.lo + q[:3] * (cell.hi - cell.lo)
-                camera = _view_camera(eye, target, q[3:] - 0.5, fov, resolution, extent)
-                pixels = camera.project(extent)
-                x0, y0 = np.floor(pixels.min(axis=0)).astype(int) - 2
-                # Window sides rounded up to WINDOW_STEP, so the renderers keep a few targets.
-                size = (
-                    -(-(int(np.ceil(float(np.max(pixels.max(axis=0) - pixels.min(axis=0))))) + 5) // WINDOW_STEP)
-                    * WINDOW_STEP
-                )
-                if size > MAX_WINDOW:
-                    raise LayerPlanError(
-                        f"the part spans {size} pixels from the view cell at {resolution} px (at most {MAX_WINDOW}): "
-                        "lower the resolution, or split the part"
-                    )
+                eye, camera, x0, y0, size = _window(q, cell, target, fov, resolution, extent)
                 s = max(1, min(int(samples), MAX_WINDOW // size))
                 drawn = ids.render_ids(camera.window(x0, y0, size, size))
                 linear, cover = footprint_filter(geometry.render(camera.window(x0, y0, size, size * s)), s)
@@ -241,15 +294,49 @@ def integrate_appearance(
             views += batch.shape[0]
             if progress is not None:
                 progress(views, max_views)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                mean_luma = (colour @ _LUMA) / weight
-                variance = np.maximum(luma2 / weight - mean_luma**2, 0.0)
-                effective = weight**2 / weight2
-                standard = np.sqrt(variance / effective)
-            judged = effective >= 2.0
-            se95 = float(np.percentile(standard[judged], 95)) if judged.any() else float("inf")
+            se95 = _standard_error_p95(weight, weight2, colour, luma2, luma)
             if views >= min_views and se95 <= error:
                 break
+    fallback_linear = srgb_to_linear(np.asarray(fallback, dtype=np.float64)[:, :3] / 255.0)
+    tiles = np.zeros((n, texels, 4), np.uint8)
+    seen = np.zeros(n, dtype=bool)
+    for lo in range(0, n, CHUNK):  # the float64 arithmetic a chunk of points at a time
+        part = slice(lo, lo + CHUNK)
+        tiles[part], seen[part] = _tiles(
+            weight[part].astype(np.float64), colour[part].astype(np.float64),
+            coverage[part].astype(np.float64), coverage_weight[part].astype(np.float64), fallback_linear[part],
+        )  # fmt: skip
+    stats = {
+        "views": views,
+        "standard_error_p95": se95 if math.isfinite(se95) else None,
+        "points_seen_share": float(seen.mean()) if n else 0.0,
+        "texels_reached_share": float((weight > 0.0).mean()) if n else 0.0,
+        "seconds": time.perf_counter() - start,
+    }
+    return PointAppearance(tiles.reshape(n, tv, tu, 4), seen, stats)
+
+
+def _standard_error_p95(weight, weight2, colour, luma2, luma) -> float:
+    """The 95th percentile of the texels' standard errors of the linear luminance, over texels
+    with at least two samples' worth of weight (module docstring), a chunk of points at a time."""
+    judged = []
+    for lo in range(0, weight.shape[0], CHUNK):
+        part = slice(lo, lo + CHUNK)
+        w = weight[part].astype(np.float64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean_luma = (colour[part] @ luma).astype(np.float64) / w
+            variance = np.maximum(luma2[part] / w - mean_luma**2, 0.0)
+            effective = w**2 / weight2[part]
+            standard = np.sqrt(variance / effective)
+        judged.append(standard[effective >= 2.0])
+    values = np.concatenate(judged) if judged else np.zeros(0)
+    return float(np.percentile(values, 95)) if values.size else float("inf")
+
+
+def _tiles(weight, colour, coverage, coverage_weight, fallback_linear) -> tuple[np.ndarray, np.ndarray]:
+    """((m, texels, 4) uint8 sRGB tiles, (m,) bool seen) of a chunk of points' sums (module
+    docstring: texels never reached keep the mean of the point's reached texels; points never
+    visible keep their fallback colour)."""
     reached = weight > 0.0
     seen = reached.any(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -257,22 +344,13 @@ def integrate_appearance(
         texel_cover = coverage / coverage_weight
         point_mean = colour.sum(axis=1) / weight.sum(axis=1)[:, None]  # the point's mean over its samples
         point_cover = coverage.sum(axis=1) / coverage_weight.sum(axis=1)
-    fallback_linear = srgb_to_linear(np.asarray(fallback, dtype=np.float64)[:, :3] / 255.0)
     point_mean = np.where(seen[:, None], point_mean, fallback_linear)
     point_cover = np.where(seen, point_cover, 1.0)
     texel_colour = np.where(reached[..., None], texel_colour, point_mean[:, None, :])
     texel_cover = np.where(coverage_weight > 0.0, texel_cover, point_cover[:, None])
     rgb = np.rint(np.clip(linear_to_srgb(texel_colour), 0.0, 1.0) * 255.0).astype(np.uint8)
     alpha = np.clip(np.rint(texel_cover * 255.0), 1, 255).astype(np.uint8)  # a point covers at least 1/255
-    tiles = np.concatenate([rgb, alpha[..., None]], axis=2).reshape(n, tv, tu, 4)
-    stats = {
-        "views": views,
-        "standard_error_p95": se95 if math.isfinite(se95) else None,
-        "points_seen_share": float(seen.mean()) if n else 0.0,
-        "texels_reached_share": float(reached.mean()) if n else 0.0,
-        "seconds": time.perf_counter() - start,
-    }
-    return PointAppearance(tiles, seen, stats)
+    return np.concatenate([rgb, alpha[..., None]], axis=2), seen
 
 
 def single_colour(tiles: np.ndarray, threshold: float) -> np.ndarray:

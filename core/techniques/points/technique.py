@@ -49,8 +49,13 @@ from farfield.core.sidedness import seen_from_cell
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import CellCost, Promise, TechniqueDefinition
 from farfield.core.techniques.part import evaluate_part, part_evaluation_text
-from farfield.core.techniques.points.appearance import PointAppearance, integrate_appearance, mean_colour, single_colour
-from farfield.core.techniques.points.samples import _spacing_kernel, gather_point_samples
+from farfield.core.techniques.points.appearance import (
+    integrate_appearance,
+    mean_colour,
+    single_colour,
+    visible_points,
+)
+from farfield.core.techniques.points.samples import _lookup_kernel, _spacing_kernel, gather_point_samples
 from farfield.core.techniques.points.sampling import plan_point_sampling
 from farfield.core.viewcells import BoxCell, ViewCell
 
@@ -94,7 +99,7 @@ class PointOptions:
     max_views: int = option(128, "most Monte Carlo views of the appearance integration", ge=1, le=4096)
     visible_only: bool = option(
         True,
-        "drop the points that no appearance view shows (nearer points hide them from the corners, the centre and every sampled viewpoint)",
+        "drop the points that win no pixel in the first min_views appearance views (nearer points hide them from the corners, the centre and every sampled viewpoint), before the appearance",
     )
     single_colour: float = option(
         3.0,
@@ -103,6 +108,11 @@ class PointOptions:
         le=255.0,
     )
     max_layers: int = option(256, "most depth layers each LDI records", ge=1, le=4096)
+    sufficient_only: bool = option(
+        False,
+        "remove a point only where another camera samples its surface better and sufficiently (seed 001 §5.1 as written); "
+        "off: wherever another camera samples the same surface more finely",
+    )
     max_page: int = option(
         MAX_PAGE,
         "largest atlas page side, texels (WebGL2 guarantees 2048, many mobile GPUs stop at 4096)",
@@ -189,9 +199,26 @@ def bake_points(
     if not seen:
         raise LayerPlanError("the part shows the view cell no front face: nothing to make a point impostor of")
     with clock("points"):
-        samples = gather_point_samples(seen, sampling, box, options.fov_deg, options.resolution, options.max_layers)
+        samples = gather_point_samples(
+            seen,
+            sampling,
+            box,
+            options.fov_deg,
+            options.resolution,
+            options.max_layers,
+            sufficient_only=options.sufficient_only,
+        )
     clock.report("points", 1, 1)
     kept = samples.kept
+    sample_stats = {k: v for k, v in samples.stats.items() if k != "per_camera"}
+    ldi_layers = list(samples.layers)
+    if options.visible_only:  # the points the cell's views show: only they reach the appearance's sums
+        with clock("visibility"):
+            shown = visible_points(
+                seen, samples.positions[kept], box, options.fov_deg, options.resolution, options.min_views
+            )
+        if shown.any():
+            kept = np.flatnonzero(kept)[shown]
     positions, preview = samples.positions[kept], samples.colour[kept]
     normals = None
     if wants_normals(options.channels):
@@ -202,9 +229,8 @@ def bake_points(
         with clock("material"):  # glTF's ORM bytes (and the emission where something emits) of each point
             material, emissive = sample_material(seen, samples.obj[kept], samples.triangle[kept], positions)
             emissive = emissive if any(emits(o) for o in seen) else None
-    sample_stats = {k: v for k, v in samples.stats.items() if k != "per_camera"}
-    ldi_layers = [ldi.layers for ldi in samples.ldis]
-    del samples  # the three LDIs (about 1.4 GB for the bunny at 512 px) are not needed past here
+    candidates = int(samples.kept.sum())  # not redundant
+    del samples
     if positions.shape[0] == 0:
         raise LayerPlanError("the part has no surface the LDI cameras see: nothing to make a point impostor of")
     tile = (options.tile_u, options.tile_v)
@@ -214,14 +240,6 @@ def bake_points(
             options.appearance_error, options.max_views, options.min_views, progress=lambda done, total: clock.report("appearance", done, total),
         )  # fmt: skip
     with clock("pack"):
-        candidates = positions.shape[0]
-        if options.visible_only and appearance.seen.any():
-            shown = appearance.seen
-            positions, preview = positions[shown], preview[shown]
-            normals = normals[shown] if normals is not None else None
-            material = material[shown] if material is not None else None
-            emissive = emissive[shown] if emissive is not None else None
-            appearance = PointAppearance(appearance.tiles[shown], appearance.seen[shown], appearance.stats)
         one = single_colour(appearance.tiles, options.single_colour)
         colour = np.where(appearance.seen[:, None], mean_colour(appearance.tiles), preview).astype(np.int64)
         textured = np.flatnonzero(~one)
@@ -303,6 +321,7 @@ def warm_kernels() -> float:
         depth, index, index, positions, colour, depth + 1.0, index, index, positions, colour, keep
     )
     _spacing_kernel(depth, positions, np.zeros((1, 2, 2), np.bool_), np.zeros(3), 1.0, 0.01, 4.0)
+    _lookup_kernel(np.zeros(2, np.int64), np.ones(1), np.ones(1), np.zeros(1, np.int64), np.ones(1), np.ones(1))
     return time.perf_counter() - start
 
 
