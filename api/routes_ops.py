@@ -1,4 +1,4 @@
-"""Health (no key needed) and Prometheus-style metrics (a key needed).
+"""Health (no key needed), the render workers and Prometheus-style metrics (a key needed).
 
 ``/metrics`` answers with the figures of the caller's tenant: a tenant's key sees its own jobs,
 cells and scenes, the admin tenant's key the whole service's.  Counts across tenants tell a stranger
@@ -14,6 +14,7 @@ from sqlalchemy import func, select, text
 
 from farfield.api.deps import Services, services, tenant
 from farfield.service.db import CellRow, JobRow, SceneRow, Tenant
+from farfield.service.jobs.leases import worker_records
 from farfield.service.keys import ADMIN_TENANT
 
 router = APIRouter(tags=["operations"])
@@ -38,6 +39,17 @@ def health(svc: Services = Depends(services)) -> dict:
         database = False
     broker = _broker_ok(svc)
     return {"status": "ok" if database and broker else "degraded", "database": database, "broker": broker}
+
+
+@router.get("/v1/workers", summary="The render workers: host, kind, renderer, current cells, last heartbeat")
+def workers(tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
+    """Every worker that ever sent a heartbeat, newest first; ``alive`` while its last heartbeat is
+    within the lease (``FARFIELD_LEASE_S``).  A worker's cells of other tenants' jobs are only counted
+    (``other_cells``); the admin key sees them all."""
+    with svc.db.session() as s:
+        admin = s.scalar(select(Tenant.id).where(Tenant.name == ADMIN_TENANT)) == tenant_id
+    found = worker_records(svc.db, None if admin else tenant_id, svc.settings.lease_s)
+    return {"workers": found, "lease_s": svc.settings.lease_s, "heartbeat_s": svc.settings.heartbeat_s}
 
 
 @router.get(

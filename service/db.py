@@ -135,6 +135,24 @@ class CellRow(Base):
     started_at: Mapped[float | None] = mapped_column(Float, nullable=True)
     finished_at: Mapped[float | None] = mapped_column(Float, nullable=True)
     seconds: Mapped[float | None] = mapped_column(Float, nullable=True)
+    # The running attempt's lease (service.jobs.leases): its token, checked by every write of the
+    # attempt (a result under a lost lease is discarded), and until when its worker's heartbeat holds it.
+    lease_token: Mapped[str | None] = mapped_column(String(32), nullable=True)
+    lease_until: Mapped[float | None] = mapped_column(Float, nullable=True, index=True)
+
+
+class WorkerRow(Base):
+    """A Celery worker node (``name@host``) as its heartbeat last reported it (service.jobs.leases)."""
+
+    __tablename__ = "workers"
+    name: Mapped[str] = mapped_column(String(200), primary_key=True)
+    host: Mapped[str] = mapped_column(String(200))
+    pid: Mapped[int] = mapped_column(Integer)
+    kind: Mapped[str] = mapped_column(String(8))  # "gpu" or "cpu" (a software renderer such as llvmpipe)
+    renderer: Mapped[str | None] = mapped_column(String(500), nullable=True)  # GL_RENDERER; None until known
+    concurrency: Mapped[int] = mapped_column(Integer)
+    started_at: Mapped[float] = mapped_column(Float)
+    heartbeat_at: Mapped[float] = mapped_column(Float)
 
 
 def _sqlite_pragmas(dbapi_connection, _record) -> None:

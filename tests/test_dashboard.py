@@ -369,6 +369,20 @@ def test_job_form_is_built_from_the_technique_registry(page, service):
     assert page.js_errors == []
 
 
+def test_the_workers_panel_shows_each_worker_s_kind_renderer_and_heartbeat(page, service):
+    """GET /v1/workers on the home view: the service's one worker, a CPU one rendering on llvmpipe here."""
+    page.goto(f"{service.url}/#/")
+    if page.locator(tid("key-needed")).is_visible():
+        page.fill(tid("api-key"), ADMIN_KEY)
+        page.click(tid("api-key-save"))
+    page.locator(tid("worker-renderer")).filter(has_text="llvmpipe").first.wait_for(timeout=60_000)
+    row = page.locator(tid("worker-row")).first
+    assert row.get_attribute("data-alive") == "true" and row.get_attribute("data-worker").startswith("worker0@")
+    assert row.locator(tid("worker-kind")).inner_text() == "CPU"
+    assert row.locator(tid("worker-heartbeat")).inner_text().endswith(" ago")
+    assert page.js_errors == []
+
+
 def test_retry_is_refused_with_the_message_and_cancel_ends_a_job(page, service):
     with service.client() as client:
         scene_id = upload(client, BUNNY).json()["id"]

@@ -2,8 +2,9 @@
 
 ``celery -A farfield.workers.app worker`` (what ``farfield worker`` runs) reads the settings from the
 environment.  A cell is acknowledged only after it ends, so a worker that dies mid-cell leaves it
-to be delivered again: at once when a pool child is killed (``task_reject_on_worker_lost``), after
-the visibility timeout when the whole worker is.  The visibility timeout is longer than the
+to be delivered again: at once when a pool child is killed (``task_reject_on_worker_lost``); when
+the whole worker is, its cell's lease runs out and the API's sweep queues and sends it again
+(:mod:`farfield.service.jobs.leases`), long before the visibility timeout would bring the message back.  The visibility timeout is longer than the
 longest cell (the settings refuse one shorter than the task's hard time limit,
 ``FARFIELD_CELL_TIME_LIMIT`` + 60 s), so a slow cell is not handed to a second worker while the
 first still runs.
