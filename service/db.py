@@ -32,10 +32,11 @@ MIGRATIONS = Path(__file__).resolve().parent / "migrations"
 
 CELL_STATES = ("queued", "running", "done", "failed", "cancelled")
 CELL_FINAL = ("done", "failed", "cancelled")
-JOB_STATES = ("queued", "placing", "running", "done", "failed", "cancelled")
-# A placement job is ``placing`` while a worker plans it and while it checks (and repairs) the baked
-# impostors; its other states are a grid job's (service.placement).
-OPEN_JOB_STATES = ("queued", "placing", "running")
+JOB_STATES = ("admitting", "queued", "placing", "running", "done", "failed", "cancelled")
+# A job of view cells is ``admitting`` while a worker checks its cells' full plans before any is
+# baked (service.jobs.admitting).  A placement job is ``placing`` while a worker plans it and while
+# it checks (and repairs) the baked impostors; its other states are a grid job's (service.placement).
+OPEN_JOB_STATES = ("admitting", "queued", "placing", "running")
 
 
 def now() -> float:
@@ -195,6 +196,19 @@ class Database:
             except BaseException:
                 session.rollback()
                 raise
+
+    def ping(self) -> None:
+        """``SELECT 1`` on a pooled connection, outside the sessions' transactions: a health check
+        that never waits for a writer (a session on SQLite begins ``BEGIN IMMEDIATE``, which queues
+        behind the transaction storing a 10,000-cell job).  Raises when the database is unreachable."""
+        connection = self.engine.raw_connection()
+        try:
+            cursor = connection.cursor()
+            cursor.execute("SELECT 1")
+            cursor.fetchone()
+            cursor.close()
+        finally:
+            connection.close()
 
     def migrate(self) -> None:
         """Bring the schema to the newest migration."""

@@ -121,7 +121,7 @@ def test_upload_submit_progress_done_atlas(page, service):
     seen = page.evaluate("window.__seen")
     states = [state for state, _ in seen]
     progress = [p for _, p in seen]
-    assert states[0] in ("queued", "running") and states[-1] == "done", seen
+    assert states[0] in ("admitting", "queued", "running") and states[-1] == "done", seen
     assert progress[-1] == 1.0 and len(set(progress)) >= 2, seen  # the bar moved while we watched
     assert progress == sorted(progress), seen
     assert page.locator(tid("job-progress")).evaluate("e => e.style.width") == "100%"

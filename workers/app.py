@@ -25,6 +25,8 @@ BAKE_CELL = "farfield.bake_cell"
 PLAN_PLACEMENT = "farfield.plan_placement"
 CHECK_PLACEMENT = "farfield.check_placement"
 PLANNING_TASKS = {"plan": PLAN_PLACEMENT, "check": CHECK_PLACEMENT}
+# A job's admission (service.jobs.admitting: every cell's full check before any is baked) goes there too.
+ADMIT_JOB = "farfield.admit_job"
 # Sending while Redis restarts (the API's and a worker's sends alike).
 SEND_RETRY_POLICY = {"max_retries": 30, "interval_start": 0.2, "interval_step": 0.5, "interval_max": 2.0}
 
@@ -34,7 +36,7 @@ def make_celery(settings: Settings) -> Celery:
     app = Celery("farfield", broker=settings.redis_url, include=["farfield.workers.tasks"])
     app.conf.update(
         task_default_queue=RENDER_QUEUE,
-        task_routes={name: {"queue": RENDER_QUEUE} for name in (BAKE_CELL, PLAN_PLACEMENT, CHECK_PLACEMENT)},
+        task_routes={name: {"queue": RENDER_QUEUE} for name in (BAKE_CELL, PLAN_PLACEMENT, CHECK_PLACEMENT, ADMIT_JOB)},
         task_acks_late=True,
         task_reject_on_worker_lost=True,
         worker_prefetch_multiplier=1,
@@ -59,6 +61,11 @@ def send_planning(celery: Celery, job_id: str, phase: str = "plan") -> None:
     celery.send_task(
         PLANNING_TASKS[phase], args=[job_id], queue=RENDER_QUEUE, retry=True, retry_policy=SEND_RETRY_POLICY
     )
+
+
+def send_admission(celery: Celery, job_id: str) -> None:
+    """A job's admission task (its cells' full checks) to the render queue."""
+    celery.send_task(ADMIT_JOB, args=[job_id], queue=RENDER_QUEUE, retry=True, retry_policy=SEND_RETRY_POLICY)
 
 
 celery_app = make_celery(Settings.from_env())

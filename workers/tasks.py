@@ -40,6 +40,7 @@ fork, so no cell pays the compilation.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 
@@ -64,13 +65,23 @@ from farfield.service.cell_limits import (
 )
 from farfield.service.db import CellRow, Database, now
 from farfield.service.failures import BAD_INPUT, TRANSIENT, failure_class, failure_message
+from farfield.service.jobs.admitting import admit_job, release_admission
 from farfield.service.jobs.cells import finish_job_if_complete, release_lost_cells
 from farfield.service.jobs.leases import Heartbeat
 from farfield.service.jobs.runner import RetryCell, backoff, run_cell
 from farfield.service.placement.lease import fail_planning, release_planning
 from farfield.service.placement.rounds import after_cell, run_planning
-from farfield.service.settings import Settings
-from farfield.workers.app import BAKE_CELL, CHECK_PLACEMENT, PLAN_PLACEMENT, celery_app, send_cells, send_planning
+from farfield.service.settings import CELL_TIME_GRACE, Settings
+from farfield.workers.app import (
+    ADMIT_JOB,
+    BAKE_CELL,
+    CHECK_PLACEMENT,
+    PLAN_PLACEMENT,
+    celery_app,
+    send_admission,
+    send_cells,
+    send_planning,
+)
 
 _STATE: dict = {}
 _MAIN: dict = {}  # the worker's main process: its heartbeat (apart from _STATE, which a fork clears)
@@ -443,3 +454,42 @@ def plan_placement(self, job_id: str) -> str:
 def check_placement(self, job_id: str) -> str:
     """Check a placement job's baked round, repair it and send the additions, or end it with its database."""
     return _planning(self, job_id, "check")
+
+
+# An admission's delivery stops after ADMISSION_DELIVERY_S and sends itself again, its progress kept.
+# Its time limits are its own, not a cell's (a cell limit of seconds must not end an admission of
+# 10,000 cells, whose checks the request ran before issue 58 with no limit): one check is bounded by
+# its texel budget (service.jobs.admission.PLAN_BEYOND_LIMIT), these only catch a hang.
+ADMISSION_DELIVERY_S = 30.0
+ADMISSION_TIME_LIMIT = max(_DECLARED.cell_time_limit, 300)
+
+
+@celery_app.task(
+    bind=True, name=ADMIT_JOB, soft_time_limit=ADMISSION_TIME_LIMIT, time_limit=ADMISSION_TIME_LIMIT + CELL_TIME_GRACE
+)
+def admit_job_task(self, job_id: str) -> str:
+    """Check every cell of an admitting job and send those that pass (service.jobs.admitting.admit_job).
+    Each delivery stops after ``ADMISSION_DELIVERY_S`` and sends itself again, its progress kept; a delivery
+    that fails frees its hold, and the API's sweeper sends it again (a run of ``FARFIELD_MAX_ATTEMPTS``
+    deliveries without progress fails the job)."""
+    settings, db, blobs = _records()
+    worker = self.request.hostname
+    try:
+        state, cell_ids = admit_job(
+            db,
+            blobs,
+            job_id,
+            worker,
+            settings.max_attempts,
+            settings.admission,
+            deadline_s=ADMISSION_DELIVERY_S,
+        )
+    except Exception as error:  # noqa: BLE001 - the sweeper sends it again; stalled deliveries are counted
+        log.warning("job %s: admission failed (%s); its hold is freed", job_id, error, exc_info=True)
+        with contextlib.suppress(Exception):
+            release_admission(db, job_id, worker)
+        return "released"
+    if state == "continue":
+        send_admission(celery_app, job_id)
+    send_cells(celery_app, cell_ids)
+    return state

@@ -4,7 +4,8 @@ States (kept in SQL, never in Celery results):
 
     cell: queued -> running -> done | failed | cancelled;  running -> queued (a failed attempt that
           will be retried, or one whose lease expired: its worker died; the attempt is counted)
-    job:  queued -> running -> done | failed | cancelled
+    job:  admitting -> queued -> running -> done | failed | cancelled  (admitting: a worker checks
+          every cell's full plan first, service.jobs.admitting; a cell over the limits fails there)
           a placement job (service.placement): queued -> placing -> running -> placing (check)
           -> running (repairs) ... -> done | failed | cancelled
 
@@ -331,7 +332,9 @@ def cancel_job(db: Database, blobs: BlobStore, tenant_id: str, job_id: str) -> J
 
 
 def retry_job(db: Database, tenant_id: str, job_id: str, limits=None) -> list[str]:
-    """Queue the failed cells of a failed job again (attempts reset); returns their ids.  A placement
+    """Queue the failed cells of a failed job again (attempts reset); returns their ids (to send, unless
+    the job is ``admitting`` again: when a cell failed its full check, the retried cells are checked
+    again first, and the caller sends the job's admission instead).  A placement
     job that failed before its cells were baked (planning or checking) is not retried: submit it again.
     The cells count against the tenant's quota (``limits``, an
     :class:`~farfield.service.settings.AdmissionLimits`; None: from the environment): past it,
@@ -350,8 +353,29 @@ def retry_job(db: Database, tenant_id: str, job_id: str, limits=None) -> list[st
             .values(state="running", finished_at=None, index_key=None)
         ).rowcount
         if changed:
-            ids = list(s.scalars(select(CellRow.id).where(CellRow.job_id == job_id, CellRow.state == "failed")))
+            failed = list(
+                s.execute(
+                    select(CellRow.id, CellRow.attempts).where(CellRow.job_id == job_id, CellRow.state == "failed")
+                )
+            )
+            ids = [cell_id for cell_id, _ in failed]
             reserve_tenant_work(s, tenant_id, len(ids), limits)  # raises: the session rolls the job back
+            if job.job_type != PLACEMENT_JOB and any(attempts == 0 for _, attempts in failed):
+                # A cell failed before it ran (its full check refused it): they are all checked again
+                # (service.jobs.admitting), never baked past the limits.
+                from farfield.service.jobs.admission import admission_record
+
+                s.execute(
+                    update(JobRow)
+                    .where(JobRow.id == job_id)
+                    .values(
+                        state="admitting",
+                        error=None,
+                        planning=admission_record(len(ids), 0),
+                        plan_worker=None,
+                        lease_until=0.0,
+                    )
+                )
             s.execute(
                 update(CellRow)
                 .where(CellRow.id.in_(ids))
@@ -376,7 +400,12 @@ def lost_queued_cells(db: Database, older_than_s: float) -> list[str]:
     cutoff = now() - older_than_s
     with db.session() as s:
         candidates = list(
-            s.scalars(select(CellRow.id).where(CellRow.state == "queued", CellRow.queued_at < cutoff).limit(MAX_CELLS))
+            s.scalars(
+                select(CellRow.id)
+                .join(JobRow, CellRow.job_id == JobRow.id)  # an admitting job's cells are sent when admitted
+                .where(CellRow.state == "queued", CellRow.queued_at < cutoff, JobRow.state != "admitting")
+                .limit(MAX_CELLS)
+            )
         )
     claimed = []
     for cell_id in candidates:
