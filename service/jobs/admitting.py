@@ -108,10 +108,17 @@ def _commit(db: Database, job_id: str, worker: str, attempt: int, failed: dict[s
         return True
 
 
+def _stopped_in(s, job_id: str) -> str:
+    """What a delivery that lost its hold reports: "cancelled" when the job was, else "skipped";
+    read in the open session ``s`` (a second session here would wait on the first's SQLite write
+    lock until the busy timeout: the API's writes behind it answered 500)."""
+    return "cancelled" if s.scalar(select(JobRow.state).where(JobRow.id == job_id)) == "cancelled" else "skipped"
+
+
 def _stopped(db: Database, job_id: str) -> str:
-    """What a delivery that lost its hold reports: "cancelled" when the job was, else "skipped"."""
+    """:func:`_stopped_in` in a session of its own (no other open)."""
     with db.session() as s:
-        return "cancelled" if s.scalar(select(JobRow.state).where(JobRow.id == job_id)) == "cancelled" else "skipped"
+        return _stopped_in(s, job_id)
 
 
 def admit_job(
@@ -163,7 +170,7 @@ def admit_job(
                 with db.session() as s:
                     held = _held(s, job_id, worker, attempt)
                     if held is None:
-                        return _stopped(db, job_id), []
+                        return _stopped_in(s, job_id), []
                     _fail_cells(s, failed)
                     held.planning = {**held.planning, **progress}
                     _fail_job_in(s, held, message)
@@ -185,7 +192,7 @@ def admit_job(
     with db.session() as s:
         held = _held(s, job_id, worker, attempt)
         if held is None:
-            return _stopped(db, job_id), []
+            return _stopped_in(s, job_id), []
         _fail_cells(s, failed)
         planning = {**held.planning, **progress, "phase": "admitted", "stalled": 0}
         planning.pop("worker", None)
