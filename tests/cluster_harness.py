@@ -31,6 +31,7 @@ from pathlib import Path
 import httpx
 from service_harness import ADMIN_KEY, ROOT, fresh_postgres_database, warm_numba_kernels
 
+from farfield.service.db import Database
 from farfield.service.embedded_redis import EmbeddedRedis, free_port
 from farfield.service.supervisor import worker_command
 
@@ -127,11 +128,15 @@ class Cluster:
         return f"sqlite:///{shared / 'farfield.db'}"
 
     def _start_s3(self) -> str:
+        """Start the S3 server's process (its bucket is made by :meth:`_make_bucket` once it answers)."""
         port = free_port()
         self.s3 = Node("s3", [sys.executable, "-m", "moto.server", "-H", "127.0.0.1", "-p", str(port)],
                        _base_env(self.root / "s3"), self.root / "s3").start()  # fmt: skip
-        endpoint = f"http://127.0.0.1:{port}"
-        deadline = time.monotonic() + 60
+        self.bucket = f"farfield-{uuid.uuid4().hex[:12]}"
+        return f"http://127.0.0.1:{port}"
+
+    def _make_bucket(self, endpoint: str, timeout: float = 60.0) -> None:
+        deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             try:
                 httpx.get(endpoint, timeout=1, trust_env=False)
@@ -142,16 +147,13 @@ class Cluster:
             raise RuntimeError(f"the S3 server did not start:\n{self.s3.log_text()}")
         import boto3
 
-        bucket = f"farfield-{uuid.uuid4().hex[:12]}"
         boto3.client(
             "s3",
             endpoint_url=endpoint,
             aws_access_key_id=S3_KEY,
             aws_secret_access_key=S3_SECRET,
             region_name=S3_REGION,
-        ).create_bucket(Bucket=bucket)
-        self.bucket = bucket
-        return endpoint
+        ).create_bucket(Bucket=self.bucket)
 
     def shared_env(self) -> dict:
         """What every node shares: the broker, the database, the blob store, the admin key, ``env``."""
@@ -163,7 +165,9 @@ class Cluster:
     # --- the nodes -----------------------------------------------------------------------------
 
     def start(self) -> Cluster:
-        warm_numba_kernels()  # the workers load the kernels from numba's cache instead of compiling them
+        """Start everything at once (the nodes boot in parallel: a Python process with farfield's
+        imports takes seconds here): the database is migrated first, from this process, so that the
+        workers start on the schema without waiting for the API node (which finds it migrated)."""
         self.root.mkdir(parents=True, exist_ok=True)
         self.redis = EmbeddedRedis(self.root / "redis").start()
         endpoint = self._start_s3()
@@ -178,11 +182,17 @@ class Cluster:
         self.api = Node("api", [
             sys.executable, "-m", "uvicorn", "farfield.api.app:app_from_env", "--factory", "--host", "127.0.0.1",
             "--port", str(port), "--log-level", "warning",
-        ], self._node_env(api_home), api_home).start()  # fmt: skip
+        ], self._node_env(api_home), api_home)  # fmt: skip
         self.url = f"http://127.0.0.1:{port}"
-        self._wait_for_api()  # the API migrates the database: the workers start on the schema
+        schema = Database(self._shared["DATABASE_URL"])
+        schema.migrate()
+        schema.dispose()
+        self.api.start()
+        warm_numba_kernels()  # the workers load the kernels from numba's cache instead of compiling them
         for i in range(self.worker_count):
             self.add_worker(f"node{i}")
+        self._make_bucket(endpoint)
+        self._wait_for_api()
         return self
 
     def add_worker(self, name: str) -> Node:

@@ -6,6 +6,12 @@ not the default 30 s lease; benchmarks/bench_cluster_recovery.py measures the de
 killed whole (its process group, SIGKILL) or paused (SIGSTOP) mid-cell, as a host that loses power
 or stalls: the cell runs again on the other node, the job completes, and no cell's result is
 applied twice.
+
+One cluster of two worker nodes serves the module, its tests in the order written: the workers'
+records, a node paused and resumed, a node killed (one node left), a job cancelled while its node
+dies (none left).  Each test starts the nodes it needs if one before left too few (run alone, it
+pays their start).  The cells are small (520 and 640 px: a bake of a few seconds here) but longer than
+the half second before a cell first records progress, which is when a node is stopped.
 """
 
 from __future__ import annotations
@@ -39,12 +45,12 @@ def bunny(cluster):
         return response.json()["id"]
 
 
-def two_live_workers(cluster: Cluster) -> None:
-    """At least two live worker nodes (a test before may have killed one)."""
+def live_workers(cluster: Cluster, count: int = 2) -> None:
+    """At least ``count`` live worker nodes (a test before may have killed some)."""
     live = [n for n in cluster.workers if n.alive()]
-    for i in range(2 - len(live)):
-        cluster.add_worker(f"node{len(cluster.workers) + i}")
-    cluster.wait_for_workers(2)
+    for _ in range(count - len(live)):
+        cluster.add_worker(f"node{len(cluster.workers)}")
+    cluster.wait_for_workers(count)
 
 
 def wait_for_cell(client, job_id: str, index: int, check, timeout: float, what: str) -> dict:
@@ -74,38 +80,28 @@ def done_by(node_log: str) -> int:
     return len(re.findall(r"Task farfield\.bake_cell\[[^]]+\] succeeded in [0-9.e-]+s: 'done'", node_log))
 
 
-def test_a_worker_node_killed_mid_cell_has_its_cell_run_again_on_the_other(cluster, bunny):
-    two_live_workers(cluster)
+def test_workers_report_host_kind_renderer_and_heartbeat(cluster):
+    live_workers(cluster)
+    deadline = time.monotonic() + 60
     with cluster.client() as client:
-        grid = {**BUNNY_GRID, "counts": [2, 1, 1]}
-        created = client.post("/v1/jobs", json={"scene_id": bunny, "grid": grid, "resolution": 1024, "evaluate": False})
-        assert created.status_code == 201, created.text
-        job_id = created.json()["id"]
-        victim_cell = running_mid_cell(client, job_id)
-        victim = cluster.worker(victim_cell["worker"])
-        victim.kill()
-        # Its lease runs out (4 s), the API's sweep queues the cell again and sends it: the other node takes it.
-        again = wait_for_cell(
-            client, job_id, victim_cell["index"],
-            lambda c: c["state"] in ("running", "done") and c["attempts"] == 2, RECOVERY_S, "running again",
-        )  # fmt: skip
-        assert again["worker"] != victim_cell["worker"]
-        job = wait_for_job(client, job_id, timeout=300)
-        assert job["state"] == "done" and job["counts"]["done"] == 2, job
-        attempts = {c["index"]: c["attempts"] for c in job["cells"]}
-        assert attempts == {victim_cell["index"]: 2, 1 - victim_cell["index"]: 1}, attempts
-        survivors = [n for n in cluster.workers if n is not victim]
-        assert {c["worker"].split("@")[0] for c in job["cells"]} <= {n.name for n in survivors}
-        # No cell done twice: the killed node ended none, the others ended each cell once.
-        assert done_by(victim.log_text()) == 0 and sum(done_by(n.log_text()) for n in survivors) == 2
-        assert client.get(f"/v1/jobs/{job_id}/index.json").status_code == 200
+        while True:  # a node's renderer is probed (a second or so) after its first heartbeat
+            listed = client.get("/v1/workers").json()
+            alive = [w for w in listed["workers"] if w["alive"]]
+            if all(w["renderer"] for w in alive) or time.monotonic() > deadline:
+                break
+            time.sleep(0.2)
+    assert listed["lease_s"] == 4 and listed["heartbeat_s"] == 1
+    assert len(alive) >= 2
+    for worker in alive:
+        assert worker["kind"] == "cpu" and "llvmpipe" in worker["renderer"], worker  # this machine's Mesa EGL
+        assert worker["host"] and worker["heartbeat_age_s"] < 4 and re.fullmatch(r"node\d+@.+", worker["name"])
 
 
 def test_a_paused_node_s_late_result_is_discarded(cluster, bunny):
-    two_live_workers(cluster)
+    live_workers(cluster)
     with cluster.client() as client:
         created = client.post(
-            "/v1/jobs", json={"scene_id": bunny, "viewcells": [_cell_of_grid()], "resolution": 1024, "evaluate": False}
+            "/v1/jobs", json={"scene_id": bunny, "viewcells": [_cell_of_grid()], "resolution": 640, "evaluate": False}
         )
         assert created.status_code == 201, created.text
         job_id = created.json()["id"]
@@ -133,14 +129,43 @@ def test_a_paused_node_s_late_result_is_discarded(cluster, bunny):
         assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "done"
 
 
+def test_a_worker_node_killed_mid_cell_has_its_cell_run_again_on_the_other(cluster, bunny):
+    live_workers(cluster)
+    done_before = {n.name: done_by(n.log_text()) for n in cluster.workers}  # by cells of earlier tests
+    with cluster.client() as client:
+        grid = {**BUNNY_GRID, "counts": [2, 1, 1]}
+        created = client.post("/v1/jobs", json={"scene_id": bunny, "grid": grid, "resolution": 640, "evaluate": False})
+        assert created.status_code == 201, created.text
+        job_id = created.json()["id"]
+        victim_cell = running_mid_cell(client, job_id)
+        victim = cluster.worker(victim_cell["worker"])
+        victim.kill()
+        # Its lease runs out (4 s), the API's sweep queues the cell again and sends it: the other node takes it.
+        again = wait_for_cell(
+            client, job_id, victim_cell["index"],
+            lambda c: c["state"] in ("running", "done") and c["attempts"] == 2, RECOVERY_S, "running again",
+        )  # fmt: skip
+        assert again["worker"] != victim_cell["worker"]
+        job = wait_for_job(client, job_id, timeout=300)
+        assert job["state"] == "done" and job["counts"]["done"] == 2, job
+        attempts = {c["index"]: c["attempts"] for c in job["cells"]}
+        assert attempts == {victim_cell["index"]: 2, 1 - victim_cell["index"]: 1}, attempts
+        survivors = [n for n in cluster.workers if n is not victim]
+        assert {c["worker"].split("@")[0] for c in job["cells"]} <= {n.name for n in survivors}
+        # No cell done twice: the killed node ended none, the others ended each cell once.
+        done = {n.name: done_by(n.log_text()) - done_before.get(n.name, 0) for n in cluster.workers}
+        assert done[victim.name] == 0 and sum(done[n.name] for n in survivors) == 2, done
+        assert client.get(f"/v1/jobs/{job_id}/index.json").status_code == 200
+
+
 def test_cancelling_a_job_whose_node_died_leaves_no_cell_running(cluster, bunny):
     """The node baking a cell is killed and the job cancelled: once the cell's lease runs out the sweep
     cancels it, the job ends (finished, nothing running) and its index answers for good (a cancelled
     job has none: 409 "ended without", never "written when it ends")."""
-    two_live_workers(cluster)
+    live_workers(cluster, 1)
     with cluster.client() as client:
         created = client.post(
-            "/v1/jobs", json={"scene_id": bunny, "viewcells": [_cell_of_grid()], "resolution": 1040, "evaluate": False}
+            "/v1/jobs", json={"scene_id": bunny, "viewcells": [_cell_of_grid()], "resolution": 520, "evaluate": False}
         )
         assert created.status_code == 201, created.text
         job_id = created.json()["id"]
@@ -154,23 +179,6 @@ def test_cancelling_a_job_whose_node_died_leaves_no_cell_running(cluster, bunny)
         assert index.status_code == 409 and index.json()["detail"] == (
             f"job {job_id!r} is cancelled; it ended without an impostor database index"
         )
-
-
-def test_workers_report_host_kind_renderer_and_heartbeat(cluster):
-    two_live_workers(cluster)
-    deadline = time.monotonic() + 60
-    with cluster.client() as client:
-        while True:  # a node's renderer is probed (a second or so) after its first heartbeat
-            listed = client.get("/v1/workers").json()
-            alive = [w for w in listed["workers"] if w["alive"]]
-            if all(w["renderer"] for w in alive) or time.monotonic() > deadline:
-                break
-            time.sleep(0.2)
-    assert listed["lease_s"] == 4 and listed["heartbeat_s"] == 1
-    assert len(alive) >= 2
-    for worker in alive:
-        assert worker["kind"] == "cpu" and "llvmpipe" in worker["renderer"], worker  # this machine's Mesa EGL
-        assert worker["host"] and worker["heartbeat_age_s"] < 4 and re.fullmatch(r"node\d+@.+", worker["name"])
 
 
 def _cell_of_grid() -> dict:
