@@ -499,6 +499,55 @@ def test_the_soft_time_limit_fails_the_cell_from_the_main_process_whatever_the_p
         )
 
 
+def test_the_soft_time_limit_waits_for_a_claim_in_flight_and_ends_the_cell_once(home):
+    """The limit strikes while the pool process is inside its claim (its transaction open, holding
+    SQLite's write lock): the main process's failure waits for the claim to commit, then fails the
+    attempt it made (attempts 1), and what that attempt does after the signal (records the limit,
+    renews its lease, dies and is swept) changes nothing."""
+    import threading
+
+    from sqlalchemy import event
+
+    from farfield.service.jobs.cells import claim_cell, end_cell, release_expired_leases, release_lost_cells
+    from farfield.service.jobs.leases import renew_leases
+    from farfield.workers import tasks
+
+    home, scene_id = home
+    job = create_directly(home, scene_id, resolution=64, viewcells=[CELL])
+    pool = Database(Settings.from_env({"FARFIELD_HOME": str(home)}).database_url)  # the pool process's
+    with pool.session() as s:
+        cell_id = s.query(CellRow.id).filter(CellRow.job_id == job.id).scalar()
+    in_claim, outcome = threading.Event(), {}
+
+    def hold_the_lock(_connection):  # the claim's UPDATE is written, its commit not yet made
+        in_claim.set()
+        time.sleep(1.5)
+
+    event.listen(pool.engine, "commit", hold_the_lock, once=True)
+    claiming = threading.Thread(target=lambda: outcome.update(claim=claim_cell(pool, cell_id, 3, "worker0@host")))
+    claiming.start()
+    assert in_claim.wait(30)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("FARFIELD_HOME", str(home))
+        patch.setenv("FARFIELD_CELL_TIME_LIMIT", "7")
+        assert tasks.fail_at_time_limit(cell_id) == "failed"  # it waited for the claim: it found the cell running
+        blobs = tasks.blob_store(Settings.from_env())
+    claiming.join(30)
+    attempt = outcome["claim"].cell
+    assert attempt is not None and attempt.attempts == 1
+    assert renew_leases(pool, "worker0@host", [cell_id], 0.01) == 0  # the heartbeat holds nothing now
+    assert not end_cell(pool, cell_id, 1, "failed", error="late", token=attempt.lease_token)
+    time.sleep(0.05)
+    assert release_expired_leases(pool, blobs, 3, 0.01) == {}  # no lease left for the sweep to re-queue
+    assert release_lost_cells(pool, blobs, [cell_id], 3, "its worker process died") == {}
+    assert claim_cell(pool, cell_id, 3, "worker1@host").cell is None  # a redelivery elsewhere
+    with pool.session() as s:
+        cell, ended = s.get(CellRow, cell_id), s.get(JobRow, job.id)
+        assert cell.state == "failed" and cell.attempts == 1 and cell.lease_token is None and ended.state == "failed"
+        assert cell.error.startswith("CellLimitError: the cell ran longer than FARFIELD_CELL_TIME_LIMIT (7 s)")
+    pool.dispose()
+
+
 def test_a_cell_killed_at_the_hard_time_limit_is_failed_by_the_main_process(home):
     """Where the pool process does not stop at the soft limit (a long call into the driver), Celery
     kills it at the hard one and calls the task's on_failure in the worker's main process, which
