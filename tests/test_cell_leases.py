@@ -158,3 +158,30 @@ def test_the_heartbeat_renews_the_active_cells_and_records_its_worker(stack):
     assert record["kind"] == "cpu" and "llvmpipe" in record["renderer"]  # this machine's Mesa EGL
     assert record["cells"] == [{"job_id": stack.job_id, "index": 0, "progress": 0.0}]
     assert worker_records(stack.db, "another-tenant", LEASE)[0]["other_cells"] == 1
+
+
+def test_a_fork_of_the_worker_waits_for_the_heartbeat_in_flight(stack):
+    """The worker's main process forks its pool processes while the heartbeat thread may be inside
+    the database driver, holding mutexes a child would find held for ever (a pool process that hangs
+    on its first query): a fork waits until the beat in flight has ended."""
+    import os
+    import threading
+
+    inside, ended = threading.Event(), []
+
+    def slow_active():  # called inside the beat, before its queries
+        inside.set()
+        time.sleep(0.5)
+        ended.append(True)
+        return []
+
+    beat = Heartbeat(stack.db, "node-a@host", 1, LEASE, 60.0, slow_active).start()
+    try:
+        assert inside.wait(30)
+        pid = os.fork()
+        if pid == 0:  # the child: the beat had ended before the fork, and its lock is free here
+            os._exit(0 if ended and beat._beating.acquire(blocking=False) else 1)
+        _, status = os.waitpid(pid, 0)
+        assert os.waitstatus_to_exitcode(status) == 0
+    finally:
+        beat.stop()

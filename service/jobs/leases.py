@@ -36,6 +36,7 @@ from farfield.service.db import CellRow, Database, JobRow, WorkerRow, now
 log = logging.getLogger("farfield.leases")
 
 RENDERER_PROBE_S = 60  # the renderer probe (a child process that opens an EGL context) gives up after this
+FORK_WAIT_S = 10.0  # the longest a fork of the worker's main process waits for a heartbeat in flight
 
 
 def new_token() -> str:
@@ -149,9 +150,26 @@ class Heartbeat:
         self.started_at, self.renderer = now(), None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="farfield-heartbeat", daemon=True)
-        # A pool process forked later inherits this object, never its thread: its copy of the engine's
-        # connections must not be closed there (they are the main process's).
-        os.register_at_fork(after_in_child=lambda: self.db.engine.dispose(close=False))
+        # The worker's main process forks its pool processes while this thread may be inside the
+        # database driver (with the GIL released, holding the driver's or SQLite's own mutexes, which
+        # a forked child would find held for ever): a fork waits for the beat in flight (at most
+        # FORK_WAIT_S).  A pool process inherits this object, never its thread: its copy of the
+        # engine's connections must not be closed there (they are the main process's).
+        self._beating = threading.Lock()
+        self._held = False
+        os.register_at_fork(before=self._before_fork, after_in_parent=self._after_fork, after_in_child=self._in_child)
+
+    def _before_fork(self) -> None:
+        self._held = self._beating.acquire(timeout=FORK_WAIT_S)
+
+    def _after_fork(self) -> None:
+        if self._held:
+            self._held = False
+            self._beating.release()
+
+    def _in_child(self) -> None:
+        self._beating, self._held = threading.Lock(), False
+        self.db.engine.dispose(close=False)
 
     def start(self) -> Heartbeat:
         self._thread.start()
@@ -171,7 +189,8 @@ class Heartbeat:
         probed = False
         while True:
             try:
-                self.beat()
+                with self._beating:
+                    self.beat()
             except Exception:  # noqa: BLE001 - the next beat tries again
                 log.warning("worker %s: heartbeat failed", self.name, exc_info=True)
             if not probed:  # after the first beat (the probe takes a second or so): beat again with it
