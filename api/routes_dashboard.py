@@ -4,7 +4,7 @@
 sends it as ``Authorization: Bearer <key>`` on every ``/v1`` call.  Its JavaScript is ES modules
 (``text/javascript``, which a module script needs), loaded by the pages' one ``<script
 type="module">`` each: ``app.js`` (the dashboard: routing, polling, the controls) imports one
-module per part of the page (``scenes.js``, ``job-form.js``, ``jobs.js``, ``job.js``,
+module per part of the page (``scenes.js``, ``job-form.js``, ``jobs.js``, ``workers.js``, ``job.js``,
 ``placement.js``, ``key.js``) and the shared ``api.js`` (the key and the request helpers, which
 the 3D view's ``viewer.js`` imports too), ``state.js``, ``dom.js`` and ``format.js``.
 

@@ -15,11 +15,10 @@ from farfield.service.jobs.records import (
     job_record,
     job_summaries,
     list_job_rows,
-    queued_cell_ids,
 )
 from farfield.service.jobs.schema import JobSpec
 from farfield.service.scenes import get_scene_row
-from farfield.workers.app import send_planning
+from farfield.workers.app import send_admission, send_planning
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 
@@ -27,7 +26,8 @@ router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 @router.post(
     "",
     status_code=201,
-    summary="Create a job: one impostor per view cell, or a placement job (planned on a worker: state 'placing')",
+    summary="Create a job: one impostor per view cell (its cells checked on a worker first: state 'admitting'; "
+    "answers the job's record without its cells), or a placement job (planned on a worker: state 'placing')",
 )
 def submit_job(spec: JobSpec, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
     if spec.placement is not None:
@@ -36,9 +36,11 @@ def submit_job(spec: JobSpec, tenant_id: str = Depends(tenant), svc: Services = 
         send_planning(svc.celery, job.id, "plan")
         return full_job_record(svc.db, job)
     scene = get_scene_row(svc.db, tenant_id, spec.scene_id, with_objects=True)  # a part's bounds are its objects'
-    job = create_job(svc.db, tenant_id, scene, spec, svc.settings.admission)
-    svc.enqueue(queued_cell_ids(svc.db, job.id))
-    return full_job_record(svc.db, job)
+    # O(cells), no plan: the job is stored "admitting" and a worker checks its cells, then sends them.
+    job = create_job(svc.db, tenant_id, scene, spec, svc.settings.admission, svc.settings.requeue_after)
+    send_admission(svc.celery, job.id)
+    # The record without its cells (GET /v1/jobs/{id} has them): 10,000 cells would be megabytes.
+    return job_record(job, job_summaries(svc.db, [job.id])[job.id])
 
 
 @router.get(
@@ -74,6 +76,10 @@ def cancel(job_id: str, tenant_id: str = Depends(tenant), svc: Services = Depend
 
 @router.post("/{job_id}/retry", summary="Queue a failed job's failed cells again")
 def retry(job_id: str, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
-    svc.enqueue(retry_job(svc.db, tenant_id, job_id, svc.settings.admission))
+    ids = retry_job(svc.db, tenant_id, job_id, svc.settings.admission)
     job = get_job_row(svc.db, tenant_id, job_id)
+    if job.state == "admitting":  # a cell had failed its full check: the retried cells are checked again
+        send_admission(svc.celery, job.id)
+    else:
+        svc.enqueue(ids)
     return full_job_record(svc.db, job)

@@ -1,4 +1,4 @@
-"""Health (no key needed) and Prometheus-style metrics (a key needed).
+"""Health (no key needed), the render workers and Prometheus-style metrics (a key needed).
 
 ``/metrics`` answers with the figures of the caller's tenant: a tenant's key sees its own jobs,
 cells and scenes, the admin tenant's key the whole service's.  Counts across tenants tell a stranger
@@ -10,10 +10,11 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Depends
 from fastapi.responses import PlainTextResponse
-from sqlalchemy import func, select, text
+from sqlalchemy import func, select
 
 from farfield.api.deps import Services, services, tenant
 from farfield.service.db import CellRow, JobRow, SceneRow, Tenant
+from farfield.service.jobs.leases import worker_records
 from farfield.service.keys import ADMIN_TENANT
 
 router = APIRouter(tags=["operations"])
@@ -31,13 +32,23 @@ def _broker_ok(svc: Services) -> bool:
 @router.get("/v1/health", summary="Database and broker reachability")
 def health(svc: Services = Depends(services)) -> dict:
     try:
-        with svc.db.session() as s:
-            s.execute(text("SELECT 1"))
+        svc.db.ping()  # never behind a writer's lock
         database = True
     except Exception:  # noqa: BLE001
         database = False
     broker = _broker_ok(svc)
     return {"status": "ok" if database and broker else "degraded", "database": database, "broker": broker}
+
+
+@router.get("/v1/workers", summary="The render workers: host, kind, renderer, current cells, last heartbeat")
+def workers(tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
+    """Every worker that ever sent a heartbeat, newest first; ``alive`` while its last heartbeat is
+    within the lease (``FARFIELD_LEASE_S``).  A worker's cells of other tenants' jobs are only counted
+    (``other_cells``); the admin key sees them all."""
+    with svc.db.session() as s:
+        admin = s.scalar(select(Tenant.id).where(Tenant.name == ADMIN_TENANT)) == tenant_id
+    found = worker_records(svc.db, None if admin else tenant_id, svc.settings.lease_s)
+    return {"workers": found, "lease_s": svc.settings.lease_s, "heartbeat_s": svc.settings.heartbeat_s}
 
 
 @router.get(

@@ -1,26 +1,33 @@
-"""The API's background sweep: cells queued too long without starting are sent to the queue again, and so
-are placement jobs whose planning message or planning worker is lost (:func:`farfield.service.placement.lease.lost_planning_jobs`)."""
+"""The API's background sweep: running cells whose lease expired (their worker died, whichever host it ran
+on: :func:`farfield.service.jobs.cells.release_expired_leases`) are queued again and sent at once;
+cells queued too long without starting are sent to the queue again, and so are placement jobs whose
+planning message or planning worker is lost (:func:`farfield.service.placement.lease.lost_planning_jobs`)
+and jobs whose admission is (:func:`farfield.service.jobs.admitting.lost_admissions`).
+
+Every API process sweeps; each change is a conditional update, so two sweeping at once send a cell once."""
 
 from __future__ import annotations
 
 import logging
 import threading
 
-from farfield.service.jobs.cells import lost_queued_cells
+from farfield.service.jobs.admitting import lost_admissions
+from farfield.service.jobs.cells import lost_queued_cells, release_expired_leases
 from farfield.service.placement.lease import lost_planning_jobs
-from farfield.workers.app import send_planning
+from farfield.workers.app import send_admission, send_planning
 
 log = logging.getLogger("farfield.sweeper")
 
 
 class LostCellSweeper:
-    """A daemon thread that every ``every_s`` sends again the cells :func:`lost_queued_cells` finds."""
+    """A daemon thread that every ``every_s`` (``FARFIELD_SWEEP_S``) releases the cells whose lease
+    expired and sends again the cells :func:`lost_queued_cells` finds (those included)."""
 
     def __init__(self, services, every_s: float | None = None) -> None:
         self.services = services
         after = services.settings.requeue_after
         # Often enough that a dead worker's cells (service.jobs.cells.release_lost_cells) go out again within seconds.
-        self.every_s = every_s or min(5.0, max(1.0, after / 4))
+        self.every_s = every_s or min(float(services.settings.sweep_s), max(1.0, after / 4))
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="farfield-sweeper", daemon=True)
 
@@ -34,6 +41,14 @@ class LostCellSweeper:
     def _run(self) -> None:
         while not self._stop.wait(self.every_s):
             try:
+                settings = self.services.settings
+                expired = release_expired_leases(
+                    self.services.db, self.services.blobs, settings.max_attempts, settings.lease_s
+                )
+                if expired:
+                    log.warning(
+                        "%d running cells whose lease expired released: %s", len(expired), sorted(set(expired.values()))
+                    )
                 lost = lost_queued_cells(self.services.db, self.services.settings.requeue_after)
                 if lost:
                     log.warning(
@@ -45,5 +60,8 @@ class LostCellSweeper:
                 for job_id, phase in lost_planning_jobs(self.services.db, self.services.settings.requeue_after):
                     log.warning("job %s: its %s was lost (message or worker); sending it again", job_id, phase)
                     send_planning(self.services.celery, job_id, phase)
+                for job_id in lost_admissions(self.services.db, self.services.settings.requeue_after):
+                    log.warning("job %s: its admission was lost (message or worker); sending it again", job_id)
+                    send_admission(self.services.celery, job_id)
             except Exception:  # noqa: BLE001 - the next sweep tries again (e.g. Redis is restarting)
                 log.exception("sweep failed")

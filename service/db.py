@@ -32,10 +32,11 @@ MIGRATIONS = Path(__file__).resolve().parent / "migrations"
 
 CELL_STATES = ("queued", "running", "done", "failed", "cancelled")
 CELL_FINAL = ("done", "failed", "cancelled")
-JOB_STATES = ("queued", "placing", "running", "done", "failed", "cancelled")
-# A placement job is ``placing`` while a worker plans it and while it checks (and repairs) the baked
-# impostors; its other states are a grid job's (service.placement).
-OPEN_JOB_STATES = ("queued", "placing", "running")
+JOB_STATES = ("admitting", "queued", "placing", "running", "done", "failed", "cancelled")
+# A job of view cells is ``admitting`` while a worker checks its cells' full plans before any is
+# baked (service.jobs.admitting).  A placement job is ``placing`` while a worker plans it and while
+# it checks (and repairs) the baked impostors; its other states are a grid job's (service.placement).
+OPEN_JOB_STATES = ("admitting", "queued", "placing", "running")
 
 
 def now() -> float:
@@ -135,6 +136,24 @@ class CellRow(Base):
     started_at: Mapped[float | None] = mapped_column(Float, nullable=True)
     finished_at: Mapped[float | None] = mapped_column(Float, nullable=True)
     seconds: Mapped[float | None] = mapped_column(Float, nullable=True)
+    # The running attempt's lease (service.jobs.leases): its token, checked by every write of the
+    # attempt (a result under a lost lease is discarded), and until when its worker's heartbeat holds it.
+    lease_token: Mapped[str | None] = mapped_column(String(32), nullable=True)
+    lease_until: Mapped[float | None] = mapped_column(Float, nullable=True, index=True)
+
+
+class WorkerRow(Base):
+    """A Celery worker node (``name@host``) as its heartbeat last reported it (service.jobs.leases)."""
+
+    __tablename__ = "workers"
+    name: Mapped[str] = mapped_column(String(200), primary_key=True)
+    host: Mapped[str] = mapped_column(String(200))
+    pid: Mapped[int] = mapped_column(Integer)
+    kind: Mapped[str] = mapped_column(String(8))  # "gpu" or "cpu" (a software renderer such as llvmpipe)
+    renderer: Mapped[str | None] = mapped_column(String(500), nullable=True)  # GL_RENDERER; None until known
+    concurrency: Mapped[int] = mapped_column(Integer)
+    started_at: Mapped[float] = mapped_column(Float)
+    heartbeat_at: Mapped[float] = mapped_column(Float)
 
 
 def _sqlite_pragmas(dbapi_connection, _record) -> None:
@@ -177,6 +196,19 @@ class Database:
             except BaseException:
                 session.rollback()
                 raise
+
+    def ping(self) -> None:
+        """``SELECT 1`` on a pooled connection, outside the sessions' transactions: a health check
+        that never waits for a writer (a session on SQLite begins ``BEGIN IMMEDIATE``, which queues
+        behind the transaction storing a 10,000-cell job).  Raises when the database is unreachable."""
+        connection = self.engine.raw_connection()
+        try:
+            cursor = connection.cursor()
+            cursor.execute("SELECT 1")
+            cursor.fetchone()
+            cursor.close()
+        finally:
+            connection.close()
 
     def migrate(self) -> None:
         """Bring the schema to the newest migration."""

@@ -121,7 +121,7 @@ def test_upload_submit_progress_done_atlas(page, service):
     seen = page.evaluate("window.__seen")
     states = [state for state, _ in seen]
     progress = [p for _, p in seen]
-    assert states[0] in ("queued", "running") and states[-1] == "done", seen
+    assert states[0] in ("admitting", "queued", "running") and states[-1] == "done", seen
     assert progress[-1] == 1.0 and len(set(progress)) >= 2, seen  # the bar moved while we watched
     assert progress == sorted(progress), seen
     assert page.locator(tid("job-progress")).evaluate("e => e.style.width") == "100%"
@@ -366,6 +366,20 @@ def test_job_form_is_built_from_the_technique_registry(page, service):
     page.locator(
         f'{tid("job-row")}[data-job-id="{job_id}"] {tid("job-row-technique")}[data-technique="layered"]'
     ).wait_for()
+    assert page.js_errors == []
+
+
+def test_the_workers_panel_shows_each_worker_s_kind_renderer_and_heartbeat(page, service):
+    """GET /v1/workers on the home view: the service's one worker, a CPU one rendering on llvmpipe here."""
+    page.goto(f"{service.url}/#/")
+    if page.locator(tid("key-needed")).is_visible():
+        page.fill(tid("api-key"), ADMIN_KEY)
+        page.click(tid("api-key-save"))
+    page.locator(tid("worker-renderer")).filter(has_text="llvmpipe").first.wait_for(timeout=60_000)
+    row = page.locator(tid("worker-row")).first
+    assert row.get_attribute("data-alive") == "true" and row.get_attribute("data-worker").startswith("worker0@")
+    assert row.locator(tid("worker-kind")).inner_text() == "CPU"
+    assert row.locator(tid("worker-heartbeat")).inner_text().endswith(" ago")
     assert page.js_errors == []
 
 

@@ -27,7 +27,25 @@ def test_upgrade_keeps_rows_and_adds_columns(tmp_path):
     assert "worker" in {c["name"] for c in sa.inspect(db.engine).get_columns("cells")}
     with db.engine.connect() as connection:
         assert connection.execute(sa.text("SELECT name FROM tenants")).scalars().all() == ["acme"]
-        assert connection.execute(sa.text("SELECT version_num FROM alembic_version")).scalar() == "0007"
+        assert connection.execute(sa.text("SELECT version_num FROM alembic_version")).scalar() == "0008"
+
+
+def test_0008_adds_cell_leases_and_the_worker_registry_and_goes_back(tmp_path):
+    db = Database(f"sqlite:///{tmp_path / 'old.db'}")
+    with db.engine.begin() as connection:
+        command.upgrade(_config(connection), "0007")
+    db.migrate()
+    inspector = sa.inspect(db.engine)
+    assert {"lease_token", "lease_until"} <= {c["name"] for c in inspector.get_columns("cells")}
+    assert "ix_cells_lease_until" in {i["name"] for i in inspector.get_indexes("cells")}
+    assert {c["name"] for c in inspector.get_columns("workers")} == {
+        "name", "host", "pid", "kind", "renderer", "concurrency", "started_at", "heartbeat_at",
+    }  # fmt: skip
+    with db.engine.begin() as connection:
+        command.downgrade(_config(connection), "0007")
+    inspector = sa.inspect(db.engine)
+    assert "lease_token" not in {c["name"] for c in inspector.get_columns("cells")}
+    assert "workers" not in inspector.get_table_names()
 
 
 def test_jobs_made_before_evaluate_existed_are_evaluated(tmp_path):

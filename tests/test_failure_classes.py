@@ -30,6 +30,7 @@ from farfield.core.errors import ErrorKind, InternalError, LayerPlanError, Rende
 from farfield.service.blobs import LocalBlobStore
 from farfield.service.db import CellRow, Database, JobRow
 from farfield.service.jobs.admission import create_job
+from farfield.service.jobs.admitting import admit_job
 from farfield.service.jobs.runner import RetryCell, run_cell
 from farfield.service.jobs.schema import JobSpec
 from farfield.service.keys import tenant_named
@@ -55,6 +56,8 @@ class Stack:
         self.job_id = create_job(
             self.db, tenant.id, scene, JobSpec(scene_id=scene.id, viewcells=[CELL], resolution=32)
         ).id
+        # Its admission, as a worker runs it: the job is queued with its cell.
+        assert admit_job(self.db, self.blobs, self.job_id, "admission@here", MAX_ATTEMPTS)[0] == "queued"
         with self.db.session() as s:
             self.cell_id = s.query(CellRow.id).filter(CellRow.job_id == self.job_id).scalar()
 

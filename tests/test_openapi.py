@@ -130,7 +130,8 @@ def checked(service, method: str, template: str, path: str | None = None, **requ
 @pytest.mark.slow
 def test_a_job_s_life_answers_as_documented(service, tmp_path):
     """The requests schemathesis rarely makes (its ids are made up): a real upload, job, cell,
-    lookup, the 409s of a queued job, cancel and delete, each response checked against the document."""
+    lookup, the 409s of a job still admitting (no worker runs here), cancel and delete, each response
+    checked against the document."""
     _app, _client, scene_id = service
     assert checked(service, "GET", "/v1/techniques").status_code == 200
     listed = checked(service, "GET", "/v1/placement-algorithms").json()
@@ -150,8 +151,8 @@ def test_a_job_s_life_answers_as_documented(service, tmp_path):
     job = checked(service, "POST", "/v1/jobs", json=spec)
     assert job.status_code == 201, job.text
     job_id = job.json()["id"]
-    assert checked(service, "GET", "/v1/jobs", params={"state": "queued"}).status_code == 200
-    assert checked(service, "GET", "/v1/jobs/{job_id}", f"/v1/jobs/{job_id}").json()["state"] == "queued"
+    assert checked(service, "GET", "/v1/jobs", params={"state": "admitting"}).status_code == 200
+    assert checked(service, "GET", "/v1/jobs/{job_id}", f"/v1/jobs/{job_id}").json()["state"] == "admitting"
     assert checked(service, "GET", "/v1/jobs/{job_id}/cells/{index}", f"/v1/jobs/{job_id}/cells/0").status_code == 200
     assert checked(service, "GET", "/v1/jobs/{job_id}/cells/{index}", f"/v1/jobs/{job_id}/cells/1").status_code == 404
     assert (
@@ -215,6 +216,7 @@ def test_the_document_lists_each_operation_s_errors(document):
         "image/png"
     ]
     assert paths["/v1/jobs"]["get"]["parameters"][0]["schema"]["enum"] == [
+        "admitting",
         "queued",
         "placing",
         "running",

@@ -105,6 +105,15 @@ def test_a_placement_job_plans_bakes_and_serves_a_database(client, scene_id):
     )
 
 
+def test_a_placement_needing_no_impostor_is_done_at_100_percent_with_no_bake_round(client, scene_id):
+    """A budget the geometry already meets: the job ends done with 0 cells, and its record says
+    what is true (issue 58, item 2, seen in the dashboard: 0 % progress, "bake round 0, 0/0")."""
+    job = wait_for_job(client, submit(client, scene_id, {**QUICK, "budget": {"primitives": 5000}})["id"], timeout=300)
+    assert job["state"] == "done" and job["cells_total"] == 0 and job["has_index"], job
+    assert job["progress"] == 1.0
+    assert job["placement"]["step"] == "done" and job["placement"]["impostors"] == 0, job["placement"]
+
+
 def test_resubmission_bakes_nothing_and_a_smaller_budget_only_the_additions(service, client, scene_id):
     first = wait_for_job(client, submit(client, scene_id, QUICK)["id"], timeout=300)
     assert first["state"] == "done"

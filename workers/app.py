@@ -2,8 +2,9 @@
 
 ``celery -A farfield.workers.app worker`` (what ``farfield worker`` runs) reads the settings from the
 environment.  A cell is acknowledged only after it ends, so a worker that dies mid-cell leaves it
-to be delivered again: at once when a pool child is killed (``task_reject_on_worker_lost``), after
-the visibility timeout when the whole worker is.  The visibility timeout is longer than the
+to be delivered again: at once when a pool child is killed (``task_reject_on_worker_lost``); when
+the whole worker is, its cell's lease runs out and the API's sweep queues and sends it again
+(:mod:`farfield.service.jobs.leases`), long before the visibility timeout would bring the message back.  The visibility timeout is longer than the
 longest cell (the settings refuse one shorter than the task's hard time limit,
 ``FARFIELD_CELL_TIME_LIMIT`` + 60 s), so a slow cell is not handed to a second worker while the
 first still runs.
@@ -24,6 +25,8 @@ BAKE_CELL = "farfield.bake_cell"
 PLAN_PLACEMENT = "farfield.plan_placement"
 CHECK_PLACEMENT = "farfield.check_placement"
 PLANNING_TASKS = {"plan": PLAN_PLACEMENT, "check": CHECK_PLACEMENT}
+# A job's admission (service.jobs.admitting: every cell's full check before any is baked) goes there too.
+ADMIT_JOB = "farfield.admit_job"
 # Sending while Redis restarts (the API's and a worker's sends alike).
 SEND_RETRY_POLICY = {"max_retries": 30, "interval_start": 0.2, "interval_step": 0.5, "interval_max": 2.0}
 
@@ -33,7 +36,7 @@ def make_celery(settings: Settings) -> Celery:
     app = Celery("farfield", broker=settings.redis_url, include=["farfield.workers.tasks"])
     app.conf.update(
         task_default_queue=RENDER_QUEUE,
-        task_routes={name: {"queue": RENDER_QUEUE} for name in (BAKE_CELL, PLAN_PLACEMENT, CHECK_PLACEMENT)},
+        task_routes={name: {"queue": RENDER_QUEUE} for name in (BAKE_CELL, PLAN_PLACEMENT, CHECK_PLACEMENT, ADMIT_JOB)},
         task_acks_late=True,
         task_reject_on_worker_lost=True,
         worker_prefetch_multiplier=1,
@@ -58,6 +61,11 @@ def send_planning(celery: Celery, job_id: str, phase: str = "plan") -> None:
     celery.send_task(
         PLANNING_TASKS[phase], args=[job_id], queue=RENDER_QUEUE, retry=True, retry_policy=SEND_RETRY_POLICY
     )
+
+
+def send_admission(celery: Celery, job_id: str) -> None:
+    """A job's admission task (its cells' full checks) to the render queue."""
+    celery.send_task(ADMIT_JOB, args=[job_id], queue=RENDER_QUEUE, retry=True, retry_policy=SEND_RETRY_POLICY)
 
 
 celery_app = make_celery(Settings.from_env())

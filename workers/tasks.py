@@ -40,13 +40,15 @@ fork, so no cell pays the compilation.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 
 from billiard.exceptions import WorkerLostError
 from celery import Task
 from celery.exceptions import SoftTimeLimitExceeded, TimeLimitExceeded
-from celery.signals import worker_init
+from celery.signals import worker_init, worker_ready, worker_shutdown
+from celery.worker import state as worker_state
 from celery.worker.request import Request
 from sqlalchemy import select, update
 
@@ -63,14 +65,26 @@ from farfield.service.cell_limits import (
 )
 from farfield.service.db import CellRow, Database, now
 from farfield.service.failures import BAD_INPUT, TRANSIENT, failure_class, failure_message
+from farfield.service.jobs.admitting import admit_job, release_admission
 from farfield.service.jobs.cells import finish_job_if_complete, release_lost_cells
+from farfield.service.jobs.leases import Heartbeat
 from farfield.service.jobs.runner import RetryCell, backoff, run_cell
 from farfield.service.placement.lease import fail_planning, release_planning
 from farfield.service.placement.rounds import after_cell, run_planning
-from farfield.service.settings import Settings
-from farfield.workers.app import BAKE_CELL, CHECK_PLACEMENT, PLAN_PLACEMENT, celery_app, send_cells, send_planning
+from farfield.service.settings import CELL_TIME_GRACE, Settings
+from farfield.workers.app import (
+    ADMIT_JOB,
+    BAKE_CELL,
+    CHECK_PLACEMENT,
+    PLAN_PLACEMENT,
+    celery_app,
+    send_admission,
+    send_cells,
+    send_planning,
+)
 
 _STATE: dict = {}
+_MAIN: dict = {}  # the worker's main process: its heartbeat (apart from _STATE, which a fork clears)
 TRANSIENT_RETRIES_PER_ATTEMPT = 10
 _DECLARED = Settings.from_env()  # the settings the task is declared with (retries, time limits)
 
@@ -86,6 +100,40 @@ def warm_worker(**_) -> None:
         log.info("numba kernels ready in %.1f s", warm_techniques())
     except Exception:  # noqa: BLE001 - a bake reports the same failure with its cell
         log.exception("could not warm the numba kernels")
+
+
+def active_cells() -> list[str]:
+    """Ids of the cells this worker's pool processes are running now (the main process's view)."""
+    for _ in range(3):  # the consumer's thread may change the set while it is copied
+        try:
+            requests = list(worker_state.active_requests)
+            break
+        except RuntimeError:
+            continue
+    else:
+        return []
+    return [str(r.args[0]) for r in requests if r.name == BAKE_CELL and r.args]
+
+
+@worker_ready.connect
+def start_heartbeat(sender=None, **_) -> None:
+    """The worker's heartbeat thread (:class:`farfield.service.jobs.leases.Heartbeat`), in its main
+    process: renews the leases of the cells its pool runs and its row in ``workers``."""
+    settings = Settings.from_env()
+    hostname = getattr(sender, "hostname", None) or celery_app.conf.get("worker_hostname") or "worker"
+    concurrency = getattr(getattr(sender, "controller", None), "concurrency", None) or 1
+    beat = Heartbeat(
+        Database(settings.database_url), hostname, int(concurrency), settings.lease_s, settings.heartbeat_s,
+        active_cells,
+    )  # fmt: skip
+    _MAIN["heartbeat"] = beat.start()
+
+
+@worker_shutdown.connect
+def stop_heartbeat(**_) -> None:
+    beat = _MAIN.pop("heartbeat", None)
+    if beat is not None:
+        beat.stop()
 
 
 def max_retries(max_attempts: int) -> int:
@@ -140,7 +188,7 @@ def _give_up(db: Database, blobs: BlobStore, cell_id: str, message: str) -> str:
             changed = s.execute(
                 update(CellRow)
                 .where(CellRow.id == cell_id, CellRow.state.in_(("queued", "running")))
-                .values(state="failed", error=message, finished_at=now())
+                .values(state="failed", error=message, finished_at=now(), lease_token=None, lease_until=None)
             ).rowcount
     except Exception:  # noqa: BLE001 - nothing more this message can do
         log.exception("cell %s: could not record its failure either: %s", cell_id, message)
@@ -158,13 +206,44 @@ class CellRequest(Request):
     """A bake request as the worker's main process sees it: when the pool process running it dies
     (killed, out of memory, a driver crash), the cell is queued again (or failed, if that was its
     last attempt) at once, before Celery puts the message back on the queue; without this it would
-    show ``running`` until its redelivery came up, behind every cell queued meanwhile."""
+    show ``running`` until its redelivery came up, behind every cell queued meanwhile.
+
+    At the soft time limit the main process fails the cell itself (:meth:`on_timeout`), before the
+    pool process is signalled: the limit then ends the cell once wherever the signal lands in the
+    pool process.  (Before, the pool process alone recorded it, and on a loaded machine the limit
+    could strike where that failed: while the cell was claimed, its transaction left open and the
+    failure not recordable, or while the process set up its GL context, a crash there losing the
+    worker process, so that the cell was released and ran a second attempt; issue 58.)"""
+
+    def on_timeout(self, soft, timeout):
+        if soft and self.args:
+            fail_at_time_limit(str(self.args[0]))
+        return super().on_timeout(soft, timeout)
 
     def on_failure(self, exc_info, send_failed_event=True, return_ok=False):
         lost = getattr(exc_info.exception, "exc", exc_info.exception)  # ExceptionWithTraceback wraps it
         if isinstance(lost, WorkerLostError) and self.args:
             release_in_main_process(str(self.args[0]), f"its worker process died: {lost}", self.hostname)
         return super().on_failure(exc_info, send_failed_event=send_failed_event, return_ok=return_ok)
+
+
+def fail_at_time_limit(cell_id: str) -> str:
+    """Fail the cell (if still queued or running) naming ``FARFIELD_CELL_TIME_LIMIT``, from the worker's
+    main process, on connections of its own that are closed again; "failed", "skipped" (it had
+    ended) or "unrecorded"."""
+    settings = Settings.from_env()
+    db = Database(settings.database_url)
+    try:
+        outcome = _give_up(
+            db,
+            blob_store(settings),
+            cell_id,
+            f"{CellLimitError.__name__}: {time_limit_message(settings.cell_time_limit)}",
+        )
+    finally:
+        db.dispose()
+    log.warning("cell %s: past FARFIELD_CELL_TIME_LIMIT (%d s): %s", cell_id, settings.cell_time_limit, outcome)
+    return outcome
 
 
 def release_in_main_process(cell_id: str, why: str, worker: str) -> None:
@@ -222,6 +301,7 @@ def bake_cell(self, cell_id: str) -> str:
             worker=self.request.hostname,
             time_limit=settings.cell_time_limit,
             memory=_STATE["memory"],
+            lease_s=settings.lease_s,
         )
         # Every outcome: a done cell (or a redelivery of one, "skipped") may end its round; a
         # cancelled or failed one may have ended its placement job.
@@ -374,3 +454,42 @@ def plan_placement(self, job_id: str) -> str:
 def check_placement(self, job_id: str) -> str:
     """Check a placement job's baked round, repair it and send the additions, or end it with its database."""
     return _planning(self, job_id, "check")
+
+
+# An admission's delivery stops after ADMISSION_DELIVERY_S and sends itself again, its progress kept.
+# Its time limits are its own, not a cell's (a cell limit of seconds must not end an admission of
+# 10,000 cells, whose checks the request ran before issue 58 with no limit): one check is bounded by
+# its texel budget (service.jobs.admission.PLAN_BEYOND_LIMIT), these only catch a hang.
+ADMISSION_DELIVERY_S = 30.0
+ADMISSION_TIME_LIMIT = max(_DECLARED.cell_time_limit, 300)
+
+
+@celery_app.task(
+    bind=True, name=ADMIT_JOB, soft_time_limit=ADMISSION_TIME_LIMIT, time_limit=ADMISSION_TIME_LIMIT + CELL_TIME_GRACE
+)
+def admit_job_task(self, job_id: str) -> str:
+    """Check every cell of an admitting job and send those that pass (service.jobs.admitting.admit_job).
+    Each delivery stops after ``ADMISSION_DELIVERY_S`` and sends itself again, its progress kept; a delivery
+    that fails frees its hold, and the API's sweeper sends it again (a run of ``FARFIELD_MAX_ATTEMPTS``
+    deliveries without progress fails the job)."""
+    settings, db, blobs = _records()
+    worker = self.request.hostname
+    try:
+        state, cell_ids = admit_job(
+            db,
+            blobs,
+            job_id,
+            worker,
+            settings.max_attempts,
+            settings.admission,
+            deadline_s=ADMISSION_DELIVERY_S,
+        )
+    except Exception as error:  # noqa: BLE001 - the sweeper sends it again; stalled deliveries are counted
+        log.warning("job %s: admission failed (%s); its hold is freed", job_id, error, exc_info=True)
+        with contextlib.suppress(Exception):
+            release_admission(db, job_id, worker)
+        return "released"
+    if state == "continue":
+        send_admission(celery_app, job_id)
+    send_cells(celery_app, cell_ids)
+    return state

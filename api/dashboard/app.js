@@ -10,6 +10,7 @@ import {applyKey, refreshHealth} from "./key.js";
 import {onUpload, refreshScenes, showSceneInfo} from "./scenes.js";
 import {onAlgorithmChange, onModeChange, onSubmitJob, onTechniqueChange, refreshTechniques} from "./job-form.js";
 import {refreshJobs} from "./jobs.js";
+import {refreshWorkers} from "./workers.js";
 import {jobAction, refreshJob, renderCellPanel, renderMap, saveFile} from "./job.js";
 import {renderPlacement} from "./placement.js";
 
@@ -51,6 +52,7 @@ async function tick(force = false) {
   try {
     if (state.view === "home") {
       await refreshJobs();
+      await refreshWorkers();
     } else if (state.jobId) {
       const finished = state.job && FINAL.has(state.job.state);
       if (force || !finished || Date.now() - state.jobFetchedAt > 5000) await refreshJob();

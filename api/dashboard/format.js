@@ -35,6 +35,16 @@ export function pct(p) { return (100 * Math.max(0, Math.min(1, p || 0))).toFixed
 
 export function shortId(id) { return id ? id.slice(0, 8) : ""; }
 
+// A job while a worker checks its cells' full plans (state "admitting"): what its record's
+// "admission" says (the progress bar stays the cells', 0 until they are baked).
+export function admitting(job) {
+  const a = job.state === "admitting" ? job.admission : null;
+  if (!a) return null;
+  const text = `admitting: ${a.done.toLocaleString("en")} of ${a.total.toLocaleString("en")} cells checked` +
+    (a.failed ? `, ${a.failed.toLocaleString("en")} failed` : "");
+  return {text};
+}
+
 export function countsText(counts, total) {
   const parts = [`${counts.done}/${total} done`];
   for (const name of ["running", "queued", "failed", "cancelled"]) if (counts[name]) parts.push(`${counts[name]} ${name}`);

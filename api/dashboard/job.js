@@ -4,7 +4,7 @@
 import {api, download} from "./api.js";
 import {FINAL, partTechniques, PLACEMENT, placementAlgorithm, state, techniqueHelp, techniqueScope} from "./state.js";
 import {$, el, setBar, setState, showBox, svg} from "./dom.js";
-import {countsText, fmtBytes, fmtNum, fmtSeconds, fmtTime, fmtVec, pct, shortId} from "./format.js";
+import {admitting, countsText, fmtBytes, fmtNum, fmtSeconds, fmtTime, fmtVec, pct, shortId} from "./format.js";
 import {refreshScenes} from "./scenes.js";
 import {renderPlacement} from "./placement.js";
 
@@ -40,8 +40,9 @@ export function renderJob(job) {
   $("job-technique-text").textContent = help ? `${name}: ${help}` : name;
   $("job-technique-text").dataset.technique = name;
   setState($("job-state"), job.state);
-  setBar($("job-progress"), job);
-  $("job-progress-text").textContent = pct(job.progress);
+  setBar($("job-progress"), job); // the cells' progress: 0 while they are checked
+  const checking = admitting(job); // its cells' full checks, before any is baked
+  $("job-progress-text").textContent = checking ? checking.text : pct(job.progress);
   $("job-counts-text").textContent = countsText(job.counts, job.cells_total);
   $("job-eta").textContent = FINAL.has(job.state) ? "finished" : (job.eta_s != null ? fmtSeconds(job.eta_s) : "estimating…");
   const scene = state.scenes.get(job.scene_id);

@@ -3,7 +3,7 @@
 import {apiKey, apiPage} from "./api.js";
 import {state, techniqueHelp} from "./state.js";
 import {$, el, setBar, setState, showMore} from "./dom.js";
-import {countsText, fmtSeconds, fmtTime, pct, shortId} from "./format.js";
+import {admitting, countsText, fmtSeconds, fmtTime, pct, shortId} from "./format.js";
 
 export async function refreshJobs() {
   if (!apiKey()) return;
@@ -33,8 +33,10 @@ export async function refreshJobs() {
     typeCell.dataset.technique = name;
     sceneCell.textContent = scene ? scene.name : shortId(job.scene_id);
     setState(stateCell.firstChild, job.state);
+    const checking = admitting(job);
     setBar(progressCell.querySelector(".fill"), job);
-    progressCell.querySelector(".bar-label").textContent = pct(job.progress) + (job.eta_s != null ? `, ETA ${fmtSeconds(job.eta_s)}` : "");
+    progressCell.querySelector(".bar-label").textContent = checking ? checking.text
+      : pct(job.progress) + (job.eta_s != null ? `, ETA ${fmtSeconds(job.eta_s)}` : "");
     countsCell.replaceChildren(countsText(job.counts, job.cells_total));
     const message = job.error || (job.errors.length ? `cell ${job.errors[0].index}: ${job.errors[0].error}` : null);
     if (message) countsCell.append(el("span", {class: "err", title: message, "data-testid": "job-row-error", text: message}));

@@ -779,3 +779,112 @@ def estimate_layers(
             f"over {TOL.max_layers}; use a smaller view cell or a lower resolution"
         )
     return count, res
+
+
+# ---------------------------------------------------------------------------------------------
+# A lower bound for admission: the first layer's texels, for many cells at once
+# ---------------------------------------------------------------------------------------------
+
+
+def first_layer_texels(
+    cell: ViewCell,
+    bounds,
+    fov: float,
+    resolution: int,
+    pixel_model: PixelModel = "min",
+    texel_share: float | None = None,
+    max_error_px: float = 1.0,
+) -> int:
+    """A lower bound of the texels of :func:`plan_layers`'s plan: one layer (every plan has at
+    least one) of the smaller texture of the reference-offset candidates
+    (:func:`reference_offset_candidates`; the texture is the plan's, exactly, for each).  Raises
+    LayerPlanError where :func:`plan_layers` would for the part's geometry (touching the cell,
+    texture over ``TOL.max_texture_resolution``).
+
+    Not :func:`estimate_layers`: its integral runs over the part's whole depth where the plan
+    skips what its first and last layers reach in front and behind, so it can exceed the plan, and
+    a refusal by it could refuse a cell that the plan admits.
+
+    >>> from farfield.core.viewcells import BoxCell
+    >>> cell, part = BoxCell([-1.0, 0.0, -1.0], [1.0, 2.0, 1.0]), np.array([[-5.0, 0.0, 20.0], [5.0, 10.0, 30.0]])
+    >>> plan = plan_layers(cell, part, math.radians(60), 256, "center")
+    >>> first_layer_texels(cell, part, math.radians(60), 256, "center"), plan.count * int(np.prod(plan.texture_resolution))
+    (15367, 92928)
+    """
+    check_fov(fov)
+    check_resolution(resolution)
+    view = part_view(cell, bounds, viewpoints=False)
+    alpha = check_error_px(max_error_px) * pixel_angle(fov, resolution, pixel_model)
+    texel = alpha if texel_share is None else texel_share * alpha
+    least = None
+    for s in reference_offset_candidates(view):
+        half_tan = np.maximum(_half_tangents(view, s), 0.5 * alpha)
+        widths = 2.0 * half_tan * (view.t0 + s)
+        x, y = (texture_resolution(float(wd), view.t0, texel) for wd in widths)
+        least = x * y if least is None else min(least, x * y)
+    return least
+
+
+def first_layer_texels_of_boxes(
+    lo: np.ndarray,
+    hi: np.ndarray,
+    bounds,
+    fov: float,
+    resolution: int,
+    pixel_model: PixelModel = "min",
+    texel_share: float | None = None,
+    max_error_px: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`first_layer_texels` of the box cells ``lo``, ``hi`` (n, 3) at once, in numpy:
+    (texels (n,) int64, trouble (n,) bool).  A cell marked in ``trouble`` got no bound here (the
+    part touches it, its texture passes ``TOL.max_texture_resolution``, a coordinate so large its
+    squares overflow): ask :func:`first_layer_texels` for it, which raises or answers exactly.
+
+    The same arithmetic as :func:`part_view` and :func:`_plan_at_offset`'s texture, per cell; the
+    texture's ceiling is taken of the quotient shrunk by a further 1e-9 so that a last-bit
+    difference of the vectorised sums can only lower it: the result is never above the scalar one.
+    """
+    check_fov(fov)
+    check_resolution(resolution)
+    lo = np.asarray(lo, dtype=np.float64).reshape(-1, 3)
+    hi = np.asarray(hi, dtype=np.float64).reshape(-1, 3)
+    b = np.asarray(bounds, dtype=np.float64).reshape(2, 3)
+    if not np.all(np.isfinite(b)) or np.any(b[1] < b[0]):
+        raise LayerPlanError(f"part bounds must be finite with lo <= hi, got {b.tolist()}")
+    alpha = check_error_px(max_error_px) * pixel_angle(fov, resolution, pixel_model)
+    texel = alpha if texel_share is None else texel_share * alpha
+    corners = np.where(_CELL_CORNER_PICK[None], hi[:, None, :], lo[:, None, :])  # (n, 8, 3)
+    center = 0.5 * (lo + hi)
+    with np.errstate(all="ignore"):
+        scale = np.maximum(np.max(np.abs(b)), np.max(np.abs(corners), axis=(1, 2)))
+        touch = TOL.rel_touch * np.maximum(scale, TOL.min_extent)
+        towards = 0.5 * (b[0] + b[1]) - center
+        dist = np.sqrt(np.sum(towards * towards, axis=1))
+        axis = towards / np.where(dist > 0.0, dist, 1.0)[:, None]
+        x, y, z = axis.T
+        vertical = np.abs(z) >= 0.9  # _orthonormal_frame's helper axis
+        u = np.stack([np.where(vertical, 0.0, -y), np.where(vertical, -z, x), np.where(vertical, y, 0.0)], axis=1)
+        u /= np.sqrt(np.sum(u * u, axis=1))[:, None]
+        v = np.stack([y * u[:, 2] - z * u[:, 1], z * u[:, 0] - x * u[:, 2], x * u[:, 1] - y * u[:, 0]], axis=1)
+        frame = np.stack([u, v, axis], axis=1)  # (n, 3, 3)
+        rel = np.einsum("nkj,nij->nki", corners - center[:, None, :], frame)
+        lo_rel, hi_rel = rel.min(axis=1), rel.max(axis=1)
+        near_center = center + hi_rel[:, 2:3] * axis
+        depth = hi_rel[:, 2] - lo_rel[:, 2]
+        part = np.einsum("nkj,nij->nki", box_corners(b)[None] - near_center[:, None, :], frame)  # (n, 8, 3)
+        t0 = part[..., 2].min(axis=1)
+        trouble = ~np.isfinite(dist) | ~np.isfinite(scale) | (dist <= touch) | ~(t0 > touch)
+        least = None
+        for s in (np.zeros_like(depth), 0.5 * depth):  # reference_offset_candidates of a box
+            half_tan = np.max(np.abs(part[..., :2]) / (part[..., 2:] + s[:, None, None]), axis=1)
+            half_tan = np.maximum(half_tan, 0.5 * alpha)
+            exact = 2.0 * half_tan * (t0 + s)[:, None] / (t0[:, None] * texel)
+            shrunk = exact * (1.0 - TOL.rel_round) * (1.0 - 1e-9)
+            trouble |= ~np.all(shrunk <= TOL.max_texture_resolution, axis=1)
+            res = np.maximum(1, np.ceil(np.where(np.isfinite(shrunk), shrunk, 1.0))).astype(np.int64)
+            texels = res[:, 0] * res[:, 1]
+            least = texels if least is None else np.minimum(least, texels)
+    return np.where(trouble, 0, least), trouble
+
+
+_CELL_CORNER_PICK = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=bool)

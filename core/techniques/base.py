@@ -2,7 +2,8 @@
 
 A :class:`Technique` names its ``Options`` (a frozen dataclass of :func:`farfield.core.options.option`
 fields), its scope (``part``: impostors of a scene's objects; ``scene``: the whole scene around a
-view cell), the check that runs when a job is created (``check``: the layer planning that proves
+view cell), the cheap lower bound of a job's cells' cost its request is refused by (``bound``), the
+check that runs on a worker before a job's cells are baked (``check``: the layer planning that proves
 every cell can have an impostor, returning the cell's :class:`CellCost` from that plan), the bake, the evaluation against the real geometry, and the
 text the CLI prints of its statistics and its evaluation.  The registry
 (:data:`farfield.core.techniques.TECHNIQUES`) holds one of each; the service, the CLI and the dashboard read
@@ -123,8 +124,14 @@ class Technique(Protocol):
     # What it guarantees in pixels, and what ``farfield evaluate --check`` checks (NO_PROMISE: nothing).
     promise: Promise
 
+    # bound(cells, options, part_bounds or None) -> (n,) int64: per cell a lower bound of the texels
+    # its check finds, for many cells at once in well under a millisecond each: what ``POST /v1/jobs``
+    # refuses by (service.jobs.admission); raises LayerPlanError/ViewCellError naming the cell.
+    # None, or absent (an optional member: a technique of its own need not have it): nothing is
+    # refused by cost in the request, the checks on a worker decide.
+
     def check(self, cell: ViewCell, options: Any, bounds: np.ndarray | None, max_texels: int | None = None) -> CellCost:
-        """The cell's :class:`CellCost` from the planning a job runs for every cell at creation;
+        """The cell's :class:`CellCost` from the planning a job runs for every cell on a worker before it bakes any (state ``admitting``);
         raises LayerPlanError/ViewCellError when the cell cannot have an impostor.  Given
         ``max_texels``, it may stop planning once past them (a cost that is not ``complete``)."""
         ...
@@ -212,6 +219,8 @@ class TechniqueDefinition:
     evaluation_text: Callable[[Any, Impostor], str]
     # estimate(cell, options, part_bounds) -> (layers, texels per layer) for the frame-time planner; None: not placeable there
     estimate: Callable[[ViewCell, Any, np.ndarray], tuple[float, float]] | None = None
+    # bound(cells, options, part_bounds or None) -> (n,) int64 lower bounds of the cells' texels (Technique.bound); None: none
+    bound: Callable[[list[ViewCell], Any, np.ndarray | None], np.ndarray] | None = None
     # what places it instead, when the frame-time planner cannot (Technique.placement)
     placement: str = ""
     # outside_estimate(options, part_bounds) -> an OutsideEstimate (farfield.core.techniques.octahedral.estimate):

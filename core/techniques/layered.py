@@ -46,6 +46,7 @@ from farfield.core.sidedness import seen_from_cell
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import Promise, TechniqueDefinition
 from farfield.core.techniques.part import (
+    bound_part_cells,
     check_part_cell,
     estimate_part_cell,
     evaluate_part,
@@ -237,6 +238,7 @@ TECHNIQUE = TechniqueDefinition(
     help="layered impostors of a scene's objects for any view cell (seed 000 ch. 3)",
     Options=BakeOptions,
     check=check_part_cell,
+    bound=bound_part_cells,
     estimate=estimate_part_cell,
     bake=bake_layered,
     summary=_summary,

@@ -148,6 +148,13 @@ def check_ldi_cell(
     return CellCost.of_layers(options.images, (options.resolution, options.resolution))
 
 
+def bound_ldi_cells(cells: list[ViewCell], options: LdiOptions, bounds: np.ndarray | None) -> np.ndarray:
+    """(n,) int64: :func:`check_ldi_cell`'s texels of each cell, which do not depend on the cell
+    (``images`` of ``resolution``; 0 without ``bounds``): the geometry is checked on a worker."""
+    each = options.images * options.resolution**2 if bounds is not None else 0
+    return np.full(len(cells), each, dtype=np.int64)
+
+
 def bake_ldi(
     scene: Scene,
     cell: ViewCell,
@@ -259,6 +266,7 @@ TECHNIQUE = TechniqueDefinition(
     help="layered-depth-image impostors of a scene's objects for a box view cell: nine construction images, splatted (seed 004)",
     Options=LdiOptions,
     check=check_ldi_cell,
+    bound=bound_ldi_cells,
     bake=bake_ldi,
     summary=_summary,
     evaluate=evaluate_part,

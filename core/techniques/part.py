@@ -8,13 +8,13 @@ import math
 
 import numpy as np
 
-from farfield.core.errors import PlanBudgetError
+from farfield.core.errors import LayerPlanError, PlanBudgetError, ViewCellError
 from farfield.core.impostor.impostor import Impostor
-from farfield.core.layering.plan import estimate_layers, plan_layers
+from farfield.core.layering.plan import estimate_layers, first_layer_texels, first_layer_texels_of_boxes, plan_layers
 from farfield.core.quality.evaluation import Evaluation, evaluate, evaluate_at, spread_corners
 from farfield.core.scene import Scene
 from farfield.core.techniques.base import CellCost
-from farfield.core.viewcells import ViewCell, viewcell_from_dict
+from farfield.core.viewcells import BoxCell, BoxCells, ViewCell, viewcell_from_dict
 
 
 def layer_budget(options) -> dict:
@@ -62,6 +62,41 @@ def check_part_cell(cell: ViewCell, options, bounds: np.ndarray | None, max_texe
     except PlanBudgetError as over:
         return CellCost.of_layers(over.layers, over.texture, complete=False)
     return CellCost.of_layers(plan.count, plan.texture_resolution)
+
+
+def bound_part_cells(cells: list[ViewCell] | BoxCells, options, bounds: np.ndarray | None) -> np.ndarray:
+    """(n,) int64: per cell a lower bound of :func:`check_part_cell`'s texels, one layer of the
+    plan's texture (:func:`farfield.core.layering.plan.first_layer_texels`), the box cells (or a
+    grid's :class:`~farfield.core.viewcells.BoxCells`) at once in numpy (some 4 µs a cell against the plan's tens of milliseconds); raises LayerPlanError
+    naming the first cell whose part geometry has no plan (0 for every cell without ``bounds``).
+
+    >>> from farfield.core.techniques.layered import BakeOptions
+    >>> cells, part = [BoxCell([-1.0, 0.0, -1.0], [1.0, 2.0, 1.0])], np.array([[-5.0, 0.0, 20.0], [5.0, 10.0, 30.0]])
+    >>> bound = bound_part_cells(cells, BakeOptions(resolution=256), part)
+    >>> bound.tolist(), check_part_cell(cells[0], BakeOptions(resolution=256), part).texels >= int(bound[0])
+    ([93258], True)
+    """
+    out = np.zeros(len(cells), dtype=np.int64)
+    if bounds is None or not cells:
+        return out
+    fov, budget = math.radians(options.fov_deg), layer_budget(options)
+    if isinstance(cells, BoxCells):  # a grid's, as arrays
+        boxes, others, lo, hi = np.arange(len(cells)), [], cells.lo, cells.hi
+    else:
+        boxes = [n for n, cell in enumerate(cells) if isinstance(cell, BoxCell)]
+        others = [n for n, cell in enumerate(cells) if not isinstance(cell, BoxCell)]
+        lo = np.array([cells[n].lo for n in boxes]).reshape(-1, 3)
+        hi = np.array([cells[n].hi for n in boxes]).reshape(-1, 3)
+    if len(boxes):
+        texels, trouble = first_layer_texels_of_boxes(lo, hi, bounds, fov, options.resolution, **budget)
+        out[boxes] = texels
+        others += [boxes[k] for k in np.flatnonzero(trouble)]
+    for n in sorted(others):  # one at a time: it answers, or raises the plan's own error
+        try:
+            out[n] = first_layer_texels(cells[n], bounds, fov, options.resolution, **budget)
+        except (LayerPlanError, ViewCellError) as error:
+            raise type(error)(f"view cell {n} ({cells[n].to_dict()}): {error}") from None
+    return out
 
 
 def estimate_part_cell(cell: ViewCell, options, bounds: np.ndarray) -> tuple[float, float]:

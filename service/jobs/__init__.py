@@ -1,8 +1,9 @@
 """Jobs and their cells: one impostor per view cell of a scene, or a placement job's impostors.
 
 - :mod:`.schema`: the request (:class:`~farfield.service.jobs.schema.JobSpec`, a grid, the cell limit);
-- :mod:`.admission`: a job from a request, or a refusal (every cell planned by its technique's check,
+- :mod:`.admission`: a job from a request in O(cells), or a refusal (a lower bound of its cells' cost,
   the tenant's cells in flight capped; a placement job admitted by its algorithm, :mod:`farfield.service.placement`);
+- :mod:`.admitting`: a job ``admitting``: every cell's full check on a worker before any is baked;
 - :mod:`.cells`: the cell state machine (claim, attempts, end; a job's end), the API's cancel and retry;
 - :mod:`.runner`: one cell on a worker, start to end (what the bake task runs), its failures sorted
   (:mod:`farfield.service.failures`);

@@ -3,8 +3,9 @@
 States (kept in SQL, never in Celery results):
 
     cell: queued -> running -> done | failed | cancelled;  running -> queued (a failed attempt that
-          will be retried; the attempt is counted)
-    job:  queued -> running -> done | failed | cancelled
+          will be retried, or one whose lease expired: its worker died; the attempt is counted)
+    job:  admitting -> queued -> running -> done | failed | cancelled  (admitting: a worker checks
+          every cell's full plan first, service.jobs.admitting; a cell over the limits fails there)
           a placement job (service.placement): queued -> placing -> running -> placing (check)
           -> running (repairs) ... -> done | failed | cancelled
 
@@ -27,11 +28,12 @@ from farfield.core.errors import ConflictError
 from farfield.service.blobs import BlobStore
 from farfield.service.db import CELL_FINAL, OPEN_JOB_STATES, CellRow, Database, JobRow, now
 from farfield.service.jobs.index import write_index
+from farfield.service.jobs.leases import new_token
 from farfield.service.jobs.records import get_job_row
 from farfield.service.placement import PLACEMENT_JOB
 from farfield.service.placement.rounds import end_round
 from farfield.service.placement.states import drop_ended_planning
-from farfield.service.settings import MAX_CELLS
+from farfield.service.settings import LEASE_S, MAX_CELLS
 
 
 def result_key(scene_hash: str, job_type: str, params: dict, viewcell: dict, tenant_id: str) -> str:
@@ -62,13 +64,17 @@ class Claim:
     ended: bool = False
 
 
-def claim_cell(db: Database, cell_id: str, max_attempts: int, worker: str | None = None) -> Claim:
-    """Mark the cell running and count the attempt, unless it must not run.
+def claim_cell(
+    db: Database, cell_id: str, max_attempts: int, worker: str | None = None, lease_s: float = LEASE_S
+) -> Claim:
+    """Mark the cell running and count the attempt, unless it must not run; the attempt holds a new
+    lease (``cell.lease_token``, for ``lease_s``: :mod:`farfield.service.jobs.leases`).
 
-    A cell found ``running`` is one whose earlier attempt never reported back: its worker process
-    died (killed, out of memory, a driver crash) and the broker delivered it again.  Such a cell
-    runs again until ``max_attempts``, then is failed here, so a cell that kills its worker cannot
-    loop forever.  Locks the job row before the cell row, as :func:`cancel_job` does.
+    A cell found ``running`` under a live lease of another worker is left to it (a duplicate
+    delivery).  One found ``running`` otherwise is one whose earlier attempt never reported back: its
+    worker process died (killed, out of memory, a driver crash) and the broker delivered it again.
+    Such a cell runs again until ``max_attempts``, then is failed here, so a cell that kills its
+    worker cannot loop forever.  Locks the job row before the cell row, as :func:`cancel_job` does.
     """
     with db.session() as s:
         job_id = s.scalar(select(CellRow.job_id).where(CellRow.id == cell_id))
@@ -81,6 +87,13 @@ def claim_cell(db: Database, cell_id: str, max_attempts: int, worker: str | None
         if job.state == "cancelled":
             cell.state, cell.finished_at = "cancelled", now()
             return Claim(None, job_id, ended=True)
+        if (
+            cell.state == "running"
+            and cell.worker != worker
+            and cell.lease_until is not None
+            and cell.lease_until >= now()
+        ):
+            return Claim(None, job_id)  # held by a live worker: a duplicate delivery
         if cell.state == "running" and cell.attempts >= max_attempts:
             cell.state, cell.finished_at = "failed", now()
             cell.error = _never_reported(
@@ -96,7 +109,7 @@ def claim_cell(db: Database, cell_id: str, max_attempts: int, worker: str | None
             0.0,
             None,
         )
-        cell.worker = worker
+        cell.worker, cell.lease_token, cell.lease_until = worker, new_token(), now() + lease_s
         if job.state == "queued":
             job.state, job.started_at = "running", now()
         return Claim(cell, job_id)
@@ -120,26 +133,34 @@ def release_lost_cells(
     *,
     worker: str | None = None,
     resend: bool = False,
+    expired_only: bool = False,
 ) -> dict[str, str]:
     """The cells of a worker process that died, moved on at once instead of showing ``running``
     until their message comes back (which, for a whole worker, is the visibility timeout later).
 
     Each of ``cell_ids`` still running (on ``worker``, when given) is queued again with ``why`` as
     its error, or failed when its attempt was the last (:func:`claim_cell` would fail it on the
-    next delivery); a job left without open cells ends.  ``resend``: its message is not coming
-    back soon (the whole worker died with it unacknowledged), so the API's sweeper sends it again.
-    Returns the new state by cell id (cells that had moved on are left out)."""
+    next delivery), or cancelled when its job was; a job left without open cells ends.  ``resend``:
+    its message is not coming back soon (the whole worker died with it unacknowledged), so the API's
+    sweeper sends it again.  ``expired_only``: only cells whose lease has run out (a heartbeat may
+    have renewed one since it was found).  Returns the new state by cell id (cells that had moved
+    on are left out)."""
     changed: dict[str, str] = {}
     for cell_id in cell_ids:
         with db.session() as s:
             job_id = s.scalar(select(CellRow.job_id).where(CellRow.id == cell_id))
             if job_id is None:
                 continue
-            s.get(JobRow, job_id, with_for_update=True)  # the lock order of claim_cell
+            job = s.get(JobRow, job_id, with_for_update=True)  # the lock order of claim_cell
             cell = s.get(CellRow, cell_id, with_for_update=True, populate_existing=True)
             if cell.state != "running" or (worker is not None and cell.worker != worker):
                 continue
-            if cell.attempts >= max_attempts:
+            if expired_only and (cell.lease_until is None or cell.lease_until >= now()):
+                continue
+            cell.lease_token, cell.lease_until = None, None  # whatever the attempt still sends is discarded
+            if job.state == "cancelled":
+                cell.state, cell.finished_at = "cancelled", now()
+            elif cell.attempts >= max_attempts:
                 cell.state, cell.finished_at = "failed", now()
                 cell.error = _never_reported(cell.attempts, max_attempts, why)
             else:
@@ -147,9 +168,35 @@ def release_lost_cells(
                 cell.queued_at = RESEND_NOW if resend else now()
                 cell.error = f"attempt {cell.attempts} of {max_attempts} was lost ({why}); queued again"
             changed[cell_id] = cell.state
-        if changed[cell_id] == "failed":
+        if changed.get(cell_id) in ("failed", "cancelled"):
             finish_job_if_complete(db, blobs, job_id)
     return changed
+
+
+def expired_cells(db: Database, limit: int = 1000) -> list[str]:
+    """Ids of running cells whose lease ran out."""
+    with db.session() as s:
+        return list(
+            s.scalars(
+                select(CellRow.id)
+                .where(CellRow.state == "running", CellRow.lease_until < now())
+                .order_by(CellRow.lease_until)
+                .limit(limit)
+            )
+        )
+
+
+def release_expired_leases(db: Database, blobs: BlobStore, max_attempts: int, lease_s: float) -> dict[str, str]:
+    """Queue again (or fail at the last attempt, or cancel in a cancelled job) every running cell whose
+    lease ran out; returns the new state by cell id.  Queued ones are marked to be sent at the next
+    look for lost messages (:func:`lost_queued_cells`)."""
+    found = expired_cells(db)
+    if not found:
+        return {}
+    return release_lost_cells(
+        db, blobs, found, max_attempts, f"its lease expired: its worker stopped renewing it for {lease_s:g} s",
+        resend=True, expired_only=True,
+    )  # fmt: skip
 
 
 def running_cells_of(db: Database, worker: str) -> list[str]:
@@ -158,14 +205,25 @@ def running_cells_of(db: Database, worker: str) -> list[str]:
         return list(s.scalars(select(CellRow.id).where(CellRow.state == "running", CellRow.worker == worker)))
 
 
-def job_cancelled(db: Database, job_id: str) -> bool:
+def attempt_stopped(db: Database, cell: CellRow) -> str | None:
+    """Why the running attempt ``cell`` (as claimed) must stop: "cancelled" (its job was), "lost" (its
+    lease expired and the cell was queued again or went to another worker), or None: carry on."""
     with db.session() as s:
-        return s.scalar(select(JobRow.state).where(JobRow.id == job_id)) == "cancelled"
+        job_state, token = s.execute(
+            select(JobRow.state, CellRow.lease_token).join(CellRow, CellRow.job_id == JobRow.id).where(CellRow.id == cell.id)
+        ).one()  # fmt: skip
+    if job_state == "cancelled":
+        return "cancelled"
+    return "lost" if cell.lease_token is not None and token != cell.lease_token else None
 
 
-def set_progress(db: Database, cell_id: str, fraction: float) -> None:
+def set_progress(db: Database, cell_id: str, fraction: float, token: str | None = None) -> None:
+    """The running cell's progress; given its attempt's lease ``token``, only while that attempt holds it."""
+    where = [CellRow.id == cell_id, CellRow.state == "running"]
+    if token is not None:
+        where.append(CellRow.lease_token == token)
     with db.session() as s:
-        s.execute(update(CellRow).where(CellRow.id == cell_id, CellRow.state == "running").values(progress=fraction))
+        s.execute(update(CellRow).where(*where).values(progress=fraction))
 
 
 def end_cell(
@@ -178,11 +236,14 @@ def end_cell(
     stats: dict | None = None,
     error: str | None = None,
     seconds: float | None = None,
+    token: str | None = None,
 ) -> bool:
-    """Move the cell from running attempt ``attempt`` to ``state`` (done, failed, cancelled, or
-    queued for another attempt).  False, and nothing written, when the cell has moved on since (a
-    stale duplicate delivery of an older attempt, or a cancel)."""
-    values: dict = {"state": state, "error": error}
+    """Move the cell from running attempt ``attempt`` (holding the lease ``token``, when given) to
+    ``state`` (done, failed, cancelled, or queued for another attempt), in one conditional ``UPDATE``.
+    False, and nothing written, when the cell has moved on since (a stale duplicate delivery of an
+    older attempt, a cancel, or a lease that expired and went to another attempt: its late result
+    is discarded, never applied twice)."""
+    values: dict = {"state": state, "error": error, "lease_token": None, "lease_until": None}
     if state == "queued":
         values.update(progress=0.0, queued_at=now())
     else:
@@ -191,15 +252,11 @@ def end_cell(
             values["progress"] = 1.0
     if result is not None:
         values.update(result_key=result, stats=stats)
+    where = [CellRow.id == cell_id, CellRow.state == "running", CellRow.attempts == attempt]
+    if token is not None:
+        where.append(CellRow.lease_token == token)
     with db.session() as s:
-        return (
-            s.execute(
-                update(CellRow)
-                .where(CellRow.id == cell_id, CellRow.state == "running", CellRow.attempts == attempt)
-                .values(**values)
-            ).rowcount
-            == 1
-        )
+        return s.execute(update(CellRow).where(*where).values(**values)).rowcount == 1
 
 
 def finish_job_if_complete(db: Database, blobs: BlobStore, job_id: str) -> bool:
@@ -241,7 +298,8 @@ def finish_job_if_complete(db: Database, blobs: BlobStore, job_id: str) -> bool:
 
 
 def cancel_job(db: Database, blobs: BlobStore, tenant_id: str, job_id: str) -> JobRow:
-    """Cancel: queued cells never run; running cells stop at their next layer."""
+    """Cancel: queued cells never run; running cells stop at their next layer (a running cell whose
+    worker died is cancelled when its lease runs out)."""
     get_job_row(db, tenant_id, job_id)
     with db.session() as s:
         # Conditional, and the job row first (the lock order of claim_cell): a job that ended
@@ -255,6 +313,13 @@ def cancel_job(db: Database, blobs: BlobStore, tenant_id: str, job_id: str) -> J
                 .where(CellRow.job_id == job_id, CellRow.state == "queued")
                 .values(state="cancelled", finished_at=now())
             )
+            # A running cell whose lease ran out has no worker left to see the cancel (its node died):
+            # cancelled now (one whose lease runs out later is cancelled by the sweeper).
+            s.execute(
+                update(CellRow)
+                .where(CellRow.job_id == job_id, CellRow.state == "running", CellRow.lease_until < now())
+                .values(state="cancelled", finished_at=now(), lease_token=None, lease_until=None)
+            )
     if not changed:
         raise ConflictError(f"job {job_id!r} is already {get_job_row(db, tenant_id, job_id).state}")
     finish_job_if_complete(db, blobs, job_id)
@@ -267,7 +332,9 @@ def cancel_job(db: Database, blobs: BlobStore, tenant_id: str, job_id: str) -> J
 
 
 def retry_job(db: Database, tenant_id: str, job_id: str, limits=None) -> list[str]:
-    """Queue the failed cells of a failed job again (attempts reset); returns their ids.  A placement
+    """Queue the failed cells of a failed job again (attempts reset); returns their ids (to send, unless
+    the job is ``admitting`` again: when a cell failed its full check, the retried cells are checked
+    again first, and the caller sends the job's admission instead).  A placement
     job that failed before its cells were baked (planning or checking) is not retried: submit it again.
     The cells count against the tenant's quota (``limits``, an
     :class:`~farfield.service.settings.AdmissionLimits`; None: from the environment): past it,
@@ -286,8 +353,29 @@ def retry_job(db: Database, tenant_id: str, job_id: str, limits=None) -> list[st
             .values(state="running", finished_at=None, index_key=None)
         ).rowcount
         if changed:
-            ids = list(s.scalars(select(CellRow.id).where(CellRow.job_id == job_id, CellRow.state == "failed")))
+            failed = list(
+                s.execute(
+                    select(CellRow.id, CellRow.attempts).where(CellRow.job_id == job_id, CellRow.state == "failed")
+                )
+            )
+            ids = [cell_id for cell_id, _ in failed]
             reserve_tenant_work(s, tenant_id, len(ids), limits)  # raises: the session rolls the job back
+            if job.job_type != PLACEMENT_JOB and any(attempts == 0 for _, attempts in failed):
+                # A cell failed before it ran (its full check refused it): they are all checked again
+                # (service.jobs.admitting), never baked past the limits.
+                from farfield.service.jobs.admission import admission_record
+
+                s.execute(
+                    update(JobRow)
+                    .where(JobRow.id == job_id)
+                    .values(
+                        state="admitting",
+                        error=None,
+                        planning=admission_record(len(ids), 0),
+                        plan_worker=None,
+                        lease_until=0.0,
+                    )
+                )
             s.execute(
                 update(CellRow)
                 .where(CellRow.id.in_(ids))
@@ -312,7 +400,12 @@ def lost_queued_cells(db: Database, older_than_s: float) -> list[str]:
     cutoff = now() - older_than_s
     with db.session() as s:
         candidates = list(
-            s.scalars(select(CellRow.id).where(CellRow.state == "queued", CellRow.queued_at < cutoff).limit(MAX_CELLS))
+            s.scalars(
+                select(CellRow.id)
+                .join(JobRow, CellRow.job_id == JobRow.id)  # an admitting job's cells are sent when admitted
+                .where(CellRow.state == "queued", CellRow.queued_at < cutoff, JobRow.state != "admitting")
+                .limit(MAX_CELLS)
+            )
         )
     claimed = []
     for cell_id in candidates:

@@ -3,7 +3,7 @@
 A job's record (:func:`job_record`) has its state, counts by cell state, progress, timings, the
 first cell errors and an ETA, and, given its cells, each cell's record (:func:`cell_record`) and
 the evaluation summary of those evaluated so far; a placement job's shows its technique and its
-planning record as ``"placement"``.
+planning record as ``"placement"``, a job of view cells its admission (``"admission"``, :data:`ADMISSION_FIELDS`).
 """
 
 from __future__ import annotations
@@ -109,6 +109,12 @@ def _lit_summary(lit: list[dict]) -> dict:
     }
 
 
+# What a job's record shows of its admission (service.jobs.admitting): "admit" while its cells are
+# checked, "admitted" after; cells checked (done) of total, their texels, the cells that failed, the
+# request's lower bound of the job's texels.
+ADMISSION_FIELDS = ("phase", "done", "total", "texels", "failed", "bound_texels")
+
+
 def job_record(job: JobRow, summary: dict, cells: list[CellRow] | None = None) -> dict:
     """The API's view of a job: state, counts, progress, timings, errors, ETA (and, given its cells,
     each cell's record and the :func:`evaluation_summary` of them)."""
@@ -137,6 +143,8 @@ def job_record(job: JobRow, summary: dict, cells: list[CellRow] | None = None) -
     }  # fmt: skip
     if placement:  # phase, step, done, total, round, rounds, summary (service.placement)
         record["placement"] = job.planning
+    elif job.planning is not None:  # the cells' full checks: done, total, texels, failed (service.jobs.admitting)
+        record["admission"] = {k: job.planning.get(k) for k in ADMISSION_FIELDS}
     if cells is not None:
         record["cells"] = [cell_record(c) for c in cells]
         record["evaluation"] = evaluation_summary(cells)

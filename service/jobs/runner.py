@@ -40,16 +40,17 @@ from farfield.service.cell_limits import MemoryGuard, memory_limit_message, time
 from farfield.service.db import CellRow, Database, JobRow, SceneRow
 from farfield.service.failures import BAD_INPUT, INTERNAL, failure_class, failure_message
 from farfield.service.jobs.cells import (
+    attempt_stopped,
     claim_cell,
     end_cell,
     finish_job_if_complete,
-    job_cancelled,
     result_key,
     set_progress,
 )
 from farfield.service.jobs.instances import prototype_bake
 from farfield.service.placement import job_algorithm
 from farfield.service.scenes import load_stored_scene
+from farfield.service.settings import LEASE_S
 
 # A running cell looks at its job's state at the first layer after CANCEL_CHECK_S since its last
 # look (checking at every layer cost ~6% of a cell: ~1.7 ms a query against ~10 ms a layer at
@@ -62,6 +63,12 @@ EVALUATION_PROGRESS = 0.95
 
 class CellCancelled(Exception):
     """The cell's job was cancelled while it ran."""
+
+
+class LeaseLost(Exception):
+    """The attempt no longer holds the cell: its lease expired while it ran (its worker stopped
+    renewing it: paused, cut off) and the cell was queued again, or the worker's main process ended
+    the cell at its time limit.  This attempt stops, and records nothing."""
 
 
 class RetryCell(Exception):
@@ -138,9 +145,12 @@ def _raised_by_time_limit(error: BaseException) -> bool:
 
 def run_cell(
     db: Database, blobs: BlobStore, cell_id: str, max_attempts: int, worker: str | None = None,
-    *, time_limit: int | None = None, memory: MemoryGuard | None = None,
+    *, time_limit: int | None = None, memory: MemoryGuard | None = None, lease_s: float = LEASE_S,
 ) -> str:  # fmt: skip
-    """Run one cell; returns its new state ("done", "failed", "cancelled") or "skipped".
+    """Run one cell; returns its new state ("done", "failed", "cancelled"), "skipped", or "lost"
+    (the cell went on without this attempt: its lease expired while it ran,
+    :mod:`farfield.service.jobs.leases`, or the worker's main process failed it at the time limit;
+    nothing recorded).
 
     A failed attempt is counted on the cell and falls in one of three classes
     (:func:`failure_class`):
@@ -161,25 +171,33 @@ def run_cell(
     seconds, named in the message) raises ``SoftTimeLimitExceeded`` here, and ``memory``, armed
     while the cell bakes and is evaluated, fails the cell and ends the process past its limit.
 
-    Every state change names the attempt it ends, so a stale duplicate delivery changes nothing.
+    Every state change names the attempt it ends and its lease token, so a stale duplicate delivery,
+    or an attempt whose lease expired meanwhile, changes nothing.
     An exception that escapes (claiming the cell or recording its outcome failed, so no attempt or
     not its end was recorded) is the caller's to retry and count: the worker task
     (:mod:`farfield.workers.tasks`) counts it in the Celery message's retries, within a bounded limit.
     """
-    claim = claim_cell(db, cell_id, max_attempts, worker)
+    claim = claim_cell(db, cell_id, max_attempts, worker, lease_s)
     if claim.cell is None and claim.job_id is not None:
         # Ended here, or found ended: a redelivery after the outcome was recorded but its job's end
         # was not (the database failed between them) ends the job now (idempotent).
         finish_job_if_complete(db, blobs, claim.job_id)
     if claim.cell is None:
         return "skipped"
-    cell, attempt = claim.cell, claim.cell.attempts
+    cell, attempt, token = claim.cell, claim.cell.attempts, claim.cell.lease_token
     start = time.perf_counter()
     last_check, last_progress = [start], [start]
 
-    def end(state: str, **values) -> None:
-        if end_cell(db, cell_id, attempt, state, seconds=time.perf_counter() - start, **values) and state != "queued":
+    def end(state: str, **values) -> bool:
+        ended = end_cell(db, cell_id, attempt, state, seconds=time.perf_counter() - start, token=token, **values)
+        if ended and state != "queued":
             finish_job_if_complete(db, blobs, cell.job_id)
+        if not ended:
+            log.warning(
+                "cell %s attempt %d: the cell went on without it (its lease was lost, or its time limit or job ended it); "
+                "its outcome (%s) is discarded", cell_id, attempt, state,
+            )  # fmt: skip
+        return ended
 
     def progress(stage: str, done: int, total: int) -> None:
         # Called after each recorded layer: a cancelled job's running cells stop within
@@ -189,11 +207,14 @@ def run_cell(
         clock = time.perf_counter()
         if clock - last_check[0] >= CANCEL_CHECK_S:
             last_check[0] = clock
-            if job_cancelled(db, cell.job_id):
+            stopped = attempt_stopped(db, cell)
+            if stopped == "cancelled":
                 raise CellCancelled(f"job {cell.job_id} was cancelled")
+            if stopped == "lost":
+                raise LeaseLost(f"cell {cell_id} attempt {attempt} no longer holds the cell")
         if clock - last_progress[0] >= PROGRESS_EVERY_S:
             last_progress[0] = clock
-            set_progress(db, cell_id, 0.9 * done / max(total, 1))  # recording is most of a cell
+            set_progress(db, cell_id, 0.9 * done / max(total, 1), token)  # recording is most of a cell
 
     def over_memory(resident: int) -> None:  # the guard's thread, just before it ends this process
         end("failed", error=f"{CellLimitError.__name__}: {memory_limit_message(resident, memory.limit_mb)}")
@@ -232,11 +253,17 @@ def run_cell(
             if prototype is not None:  # an instance's bundle: its prototype's impostor moved (jobs/instances.py)
                 stats["prototype"], stats["baked"] = prototype
             if job.evaluate and job_algorithm(job) is None and get_technique(job.job_type).scope == "part":
-                set_progress(db, cell_id, EVALUATION_PROGRESS)
+                set_progress(db, cell_id, EVALUATION_PROGRESS, token)
                 stats["evaluation"] = evaluate_cell(blobs, scene_row, key, scene, impostor)
     except CellCancelled:
         end("cancelled")
         return "cancelled"
+    except LeaseLost:
+        log.warning(
+            "cell %s attempt %d: the cell went on without it (its lease was lost, or its time limit ended it); stopped, "
+            "nothing recorded", cell_id, attempt,
+        )  # fmt: skip
+        return "lost"
     except Exception as error:  # noqa: BLE001 - every failure is classified and recorded on the cell
         if _raised_by_time_limit(error):  # Celery's soft time limit: bad input, never retried
             error = CellLimitError(
@@ -255,9 +282,8 @@ def run_cell(
                 "cell %s attempt %d of %d: %s failure: %s (%s)", cell_id, attempt, max_attempts, klass, message, outcome
             )
         if final:
-            end("failed", error=message)
-            return "failed"
-        end("queued", error=message)
+            return "failed" if end("failed", error=message) else "lost"
+        if not end("queued", error=message):
+            return "lost"  # the cell went on without this attempt: no retry of its own
         raise RetryCell(message, backoff(attempt)) from error
-    end("done", result=key, stats=stats)
-    return "done"
+    return "done" if end("done", result=key, stats=stats) else "lost"

@@ -11,16 +11,17 @@ from __future__ import annotations
 import math
 from typing import Annotated, Literal
 
+import numpy as np
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, StrictBool, StrictFloat, StrictInt, model_validator
 
 from farfield.core.errors import ViewCellError
 from farfield.core.options import options_json_schema
 from farfield.core.techniques import DEFAULT_TECHNIQUE, TECHNIQUES
-from farfield.core.viewcells import BoxCell, grid_boxes
+from farfield.core.viewcells import BoxCell, BoxCells, grid_box_cells, grid_boxes
 from farfield.service.placement.schema import PlacementSpec
 from farfield.service.settings import MAX_CELLS
 
-__all__ = ["MAX_CELLS", "GridSpec", "JobSpec", "grid_cells"]
+__all__ = ["MAX_CELLS", "GridSpec", "JobSpec", "grid_cell_arrays", "grid_cells"]
 
 
 def _whole_number(value):
@@ -137,12 +138,22 @@ class JobSpec(BaseModel):
         return self.technique or self.__dict__.get("job_type") or DEFAULT_TECHNIQUE
 
 
-def grid_cells(grid: GridSpec) -> list[tuple[tuple[int, int, int], BoxCell]]:
-    """The boxes of ``grid``, x fastest, with their (i, j, k)."""
+def _check_counts(grid: GridSpec) -> None:
     # Counts are checked as Python integers first: numpy's int64 product of huge ones would wrap.
     if min(grid.counts) < 1:
         raise ViewCellError(f"grid counts must be >= 1, got {list(grid.counts)}")
     total = math.prod(grid.counts)
     if total > MAX_CELLS:
         raise ViewCellError(f"grid of {total} cells is over the limit of {MAX_CELLS}")
+
+
+def grid_cells(grid: GridSpec) -> list[tuple[tuple[int, int, int], BoxCell]]:
+    """The boxes of ``grid``, x fastest, with their (i, j, k)."""
+    _check_counts(grid)
     return grid_boxes(grid.lo, grid.hi, grid.counts)
+
+
+def grid_cell_arrays(grid: GridSpec) -> tuple[np.ndarray, BoxCells]:
+    """:func:`grid_cells` as arrays ((n, 3) (i, j, k), :class:`~farfield.core.viewcells.BoxCells`), in numpy."""
+    _check_counts(grid)
+    return grid_box_cells(grid.lo, grid.hi, grid.counts)

@@ -400,6 +400,12 @@ def _check(cell, options, bounds, max_texels: int | None = None) -> CellCost:
     return envmap_cost(cell, options)  # closed form (seed 002 Eqs. 1-2): no budget needed
 
 
+def _bound(cells, options, bounds) -> np.ndarray:
+    """(n,) int64: each cell's texels by :func:`envmap_cost`, the worker's own check (closed form,
+    about 0.1 ms a cell), so the request refuses what the worker would, a non-cubic cell included."""
+    return np.array([envmap_cost(cell, options).texels for cell in cells], dtype=np.int64)
+
+
 def _bake(scene, cell, options, objects, progress):
     _check(cell, options, None)
     return bake_envmap(scene, cell, options, progress)
@@ -453,6 +459,7 @@ TECHNIQUE = TechniqueDefinition(
     help="layered environment-map impostors of the whole scene around cubic box view cells (seed 002)",
     Options=EnvmapOptions,
     check=_check,
+    bound=_bound,
     bake=_bake,
     summary=_summary,
     evaluate=_evaluate,

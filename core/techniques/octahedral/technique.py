@@ -132,6 +132,12 @@ def check_octahedral_cell(
     return CellCost.of_layers(options.grid**2, (options.frame_resolution, options.frame_resolution))
 
 
+def bound_octahedral_cells(cells: list[ViewCell], options: OctahedralOptions, bounds: np.ndarray | None) -> np.ndarray:
+    """(n,) int64: :func:`check_octahedral_cell`'s texels of each cell, the same for every cell
+    (``grid²`` frames of ``frame_resolution²``): the bounding sphere is checked on a worker."""
+    return np.full(len(cells), options.grid**2 * options.frame_resolution**2, dtype=np.int64)
+
+
 def bake_octahedral(
     scene: Scene,
     cell: ViewCell,
@@ -253,6 +259,7 @@ TECHNIQUE = TechniqueDefinition(
     "for any viewpoint beyond the part's bounding sphere (Cigolle et al. 2014's octahedral map)",
     Options=OctahedralOptions,
     check=check_octahedral_cell,
+    bound=bound_octahedral_cells,
     bake=bake_octahedral,
     summary=_summary,
     evaluate=evaluate_part,

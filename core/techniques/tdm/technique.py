@@ -58,6 +58,7 @@ from farfield.core.sidedness import seen_from_cell
 from farfield.core.stage_clock import Progress, StageClock, seconds_line
 from farfield.core.techniques.base import Promise, TechniqueDefinition
 from farfield.core.techniques.part import (
+    bound_part_cells,
     check_part_cell,
     estimate_part_cell,
     evaluate_part,
@@ -383,6 +384,7 @@ TECHNIQUE = TechniqueDefinition(
     help="textured depth meshes of a scene's objects for any view cell (seed 003; planned like layered)",
     Options=TdmOptions,
     check=check_part_cell,
+    bound=bound_part_cells,
     estimate=estimate_part_cell,
     bake=bake_tdm,
     summary=_summary,
