@@ -22,6 +22,7 @@ from farfield.core.impostor.bundle import GLB_NAME, MANIFEST_NAME, PAYLOAD_NAME,
 from farfield.core.impostor.glb_compression import compress_glb
 from farfield.service.db import JobRow
 from farfield.service.jobs.index import bundled_cells, lookup_view
+from farfield.service.jobs.instances import bundle_file, bundle_members, copy_bundle
 from farfield.service.jobs.records import cell_record, get_cell_row, get_job_row, job_cells
 from farfield.service.placement import documents
 
@@ -46,7 +47,7 @@ def cell_bundle(
 ) -> Response:
     key = _result(svc, tenant_id, job_id, index)
     with tempfile.TemporaryDirectory(prefix="farfield-zip-") as tmp:
-        data = bundle_zip(svc.blobs.copy_to_directory(key, tmp))
+        data = bundle_zip(copy_bundle(svc.blobs, key, tmp))
     return Response(
         data,
         media_type="application/zip",
@@ -84,8 +85,9 @@ def cell_atlas(
     tenant_id: str = Depends(tenant),
     svc: Services = Depends(services),
 ) -> Response:
-    key = f"{_result(svc, tenant_id, job_id, index)}/{page_file_name(page)}"
-    return Response(svc.blobs.read_bytes(key), media_type="image/png")
+    return Response(
+        bundle_file(svc.blobs, _result(svc, tenant_id, job_id, index), page_file_name(page)), media_type="image/png"
+    )
 
 
 @router.get(
@@ -100,14 +102,14 @@ def cell_glb(
 ) -> Response:  # fmt: skip
     result = _result(svc, tenant_id, job_id, index)
     if textures == "png" and geometry == "plain":
-        data = svc.blobs.read_bytes(f"{result}/{GLB_NAME}")
+        data = bundle_file(svc.blobs, result, GLB_NAME)
     else:  # encoded on first request, then kept beside the bundle (a folder its listing leaves out)
         variant = f"{result}/variants/{textures}-{geometry}-{codec}.glb"
         if svc.blobs.exists(variant):
             data = svc.blobs.read_bytes(variant)
         else:
             try:
-                data = compress_glb(svc.blobs.read_bytes(f"{result}/{GLB_NAME}"), textures, geometry, codec)
+                data = compress_glb(bundle_file(svc.blobs, result, GLB_NAME), textures, geometry, codec)
             except BundleFormatError as error:  # farfield wrote this GLB: one that does not compress is a bug
                 raise InternalError(f"cell {index} of job {job_id!r}: its GLB does not compress: {error}") from error
             svc.blobs.put_bytes(variant, data)
@@ -157,9 +159,9 @@ def job_database(job_id: str, tenant_id: str = Depends(tenant), svc: Services = 
             for cell in job_cells(svc.db, job_id):
                 if cell.result_key is None or (shipped is not None and cell.index not in shipped):
                     continue
-                for name in svc.blobs.list_files(cell.result_key):
+                for name, chunks in bundle_members(svc.blobs, cell.result_key):
                     with archive.open(f"cells/{cell.index:05d}/{name}", "w") as member:
-                        for chunk in svc.blobs.iter_chunks(f"{cell.result_key}/{name}"):
+                        for chunk in chunks:
                             member.write(chunk)
     except BaseException:
         Path(out.name).unlink(missing_ok=True)

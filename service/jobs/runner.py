@@ -29,7 +29,7 @@ from pathlib import Path
 from celery.exceptions import SoftTimeLimitExceeded
 
 from farfield.core.errors import BundleFormatError, CellLimitError, InternalError
-from farfield.core.impostor.bundle import MANIFEST_NAME, read_bundle, write_bundle
+from farfield.core.impostor.bundle import MANIFEST_NAME, write_bundle
 from farfield.core.impostor.impostor import Impostor
 from farfield.core.scene import Scene
 from farfield.core.techniques import get_technique
@@ -47,7 +47,7 @@ from farfield.service.jobs.cells import (
     result_key,
     set_progress,
 )
-from farfield.service.jobs.instances import prototype_bake
+from farfield.service.jobs.instances import bundle_stored, prototype_bake, publish_instance, read_cell_impostor
 from farfield.service.placement import job_algorithm
 from farfield.service.scenes import load_stored_scene
 from farfield.service.settings import LEASE_S
@@ -123,7 +123,7 @@ def evaluate_cell(
     if impostor is None:
         with tempfile.TemporaryDirectory(prefix="farfield-cell-") as tmp:
             try:
-                impostor = read_bundle(blobs.copy_to_directory(key, Path(tmp) / "bundle"))
+                impostor = read_cell_impostor(blobs, key, Path(tmp) / "bundle")
             except BundleFormatError as error:  # a bundle this service published: a bug, not bad input
                 raise InternalError(f"the stored bundle {key} could not be read: {error}") from error
     return report_part(scene, impostor)
@@ -228,23 +228,24 @@ def run_cell(
             key = cell_key(scene_row.content_hash, job, cell)
             seconds = None  # this attempt's bake timings (a bundle stores none: its bytes depend on its inputs alone)
             scene = impostor = None
-            baked = not blobs.exists(f"{key}/{MANIFEST_NAME}")
+            baked = not bundle_stored(blobs, key)
             prototype = None  # (key, whether this attempt baked it) of an instance's shared prototype
             if baked:
                 scene = load_stored_scene(blobs, scene_row)
                 shared = None if job_algorithm(job) else prototype_bake(blobs, job, scene, cell.viewcell, progress)
-                if shared is None:
-                    impostor = bake_cell(job, scene, cell.viewcell, progress, cell)
+                if shared is not None:  # an instance's bundle: its own manifest and payload, its prototype's pages
+                    impostor, prototype = shared.impostor, (shared.key, shared.baked)
+                    publish_instance(blobs, key, shared)
                 else:
-                    impostor, prototype = shared[0], shared[1:]
-                with tempfile.TemporaryDirectory(prefix="farfield-cell-") as tmp:
-                    try:
-                        write_bundle(impostor, Path(tmp) / "bundle")
-                    except (
-                        BundleFormatError
-                    ) as error:  # the bake's own output does not fit its format: a bug, not bad input
-                        raise InternalError(f"the baked impostor could not be written: {error}") from error
-                    blobs.publish_directory(key, Path(tmp) / "bundle", last=MANIFEST_NAME)
+                    impostor = bake_cell(job, scene, cell.viewcell, progress, cell)
+                    with tempfile.TemporaryDirectory(prefix="farfield-cell-") as tmp:
+                        try:
+                            write_bundle(impostor, Path(tmp) / "bundle")
+                        except (
+                            BundleFormatError
+                        ) as error:  # the bake's own output does not fit its format: a bug, not bad input
+                            raise InternalError(f"the baked impostor could not be written: {error}") from error
+                        blobs.publish_directory(key, Path(tmp) / "bundle", last=MANIFEST_NAME)
                 seconds = impostor.stats.get("seconds")
             stats = json.loads(blobs.read_bytes(f"{key}/{MANIFEST_NAME}"))["stats"]
             if seconds is not None:
