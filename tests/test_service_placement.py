@@ -17,7 +17,7 @@ import zipfile
 
 import pytest
 from scenes import write_scene
-from service_harness import service_client, service_on_sqlite, upload, wait_for_job  # noqa: F401 - the service fixtures
+from service_harness import assert_timing_adds_up, service_client, service_on_sqlite, upload, wait_for_job  # noqa: F401 - the service fixtures
 
 from farfield.core.procedural import city
 
@@ -78,6 +78,10 @@ def test_a_placement_job_plans_bakes_and_serves_a_database(client, scene_id):
     assert record["impostors"] >= 1 and job["cells_total"] >= record["impostors"]
     assert [r["round"] for r in record["rounds"]] == list(range(1, len(record["rounds"]) + 1))
     assert all(c["state"] == "done" and c["stats"]["baked"] for c in job["cells"])
+    # Its time, broken down: planned and checked on a worker (no admission), the cells' bakes summed.
+    timing = assert_timing_adds_up(job)
+    assert timing["planning_s"] > 0 and timing["checking_s"] > 0 and timing["admission_s"] == 0
+    assert "record" in timing["stages"] and timing["cells"] == job["cells_total"]
     # Each cell carries its own impostor: the view cell the planner chose (a box or a shaft).
     assert {c["viewcell"]["kind"] for c in job["cells"]} <= {"box", "shaft"}
     archive = zipfile.ZipFile(io.BytesIO(client.get(f"/v1/jobs/{job['id']}/database.zip").content))
