@@ -373,11 +373,15 @@ def test_a_cancel_during_the_check_leaves_no_index_and_no_state(flow, monkeypatc
 
     commit = placement_jobs._commit_round_row
 
-    def cancelled_first(db, job_id, worker, attempt, state_key, cells, impostors, summary, round_, index_key, rounds):
+    def cancelled_first(
+        db, job_id, worker, attempt, state_key, cells, impostors, summary, round_, index_key, rounds, *timed
+    ):
         if index_key is not None:  # the round that ends the job: the cancel arrives now
             assert flow.blobs.exists(index_key)
             assert cancel_job(flow.db, flow.blobs, flow.tenant, flow.job_id).state == "cancelled"
-        return commit(db, job_id, worker, attempt, state_key, cells, impostors, summary, round_, index_key, rounds)
+        return commit(
+            db, job_id, worker, attempt, state_key, cells, impostors, summary, round_, index_key, rounds, *timed
+        )
 
     monkeypatch.setattr(placement_jobs, "_commit_round_row", cancelled_first)
     state, cells = placement_jobs.plan_job(flow.db, flow.blobs, flow.job_id, "W", 3)
