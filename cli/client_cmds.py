@@ -523,6 +523,8 @@ def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov
         )
         if job.get("evaluation"):
             click.echo(evaluation_line(job["evaluation"]))
+        if job.get("timing"):
+            click.echo("\n".join(timing_lines(job["timing"])))
     if (wait or download) and job["state"] != "done":
         first = job["errors"][0]["error"] if job["errors"] else job["state"]
         raise JobEndedBadly(f"job {job['id']} ended {job['state']}: {first}")
@@ -540,6 +542,35 @@ def evaluation_line(summary: dict) -> str:
         f"{summary['bloat_beyond_1px']} pixels bloated beyond 1 px); worst colour error mean {summary['colour_error_mean']:.2f}, "
         f"worst SSIM {summary['ssim_min']:.3f}; {summary['seconds']:.2f} s"
     )
+
+
+def timing_lines(timing: dict) -> list[str]:
+    """A job's time broken down (``timing`` of its record, :mod:`farfield.service.jobs.timing`), a short table.
+
+    >>> print("\\n".join(timing_lines({"wall_s": 10.0, "admission_s": 0.5, "planning_s": 0.0, "checking_s": 0.0,
+    ...     "cells": 2, "cells_s": 12.0, "cells_busy_s": 8.0, "stages": {"plan": 1.0, "record": 6.0}, "bake_s": 7.0,
+    ...     "evaluation_s": 3.0, "overhead_s": 1.5})))
+    time                       seconds
+      wall                      10.000
+      admission                  0.500
+      cells (2, summed)         12.000  (busy 8.000: 1.5 at once on average)
+        bake: plan               1.000
+        bake: record             6.000
+        evaluation               3.000
+      overhead                   1.500
+    """
+    rows = [("wall", timing["wall_s"], "")]
+    rows += [(name, timing[f"{name}_s"], "") for name in ("admission", "planning") if timing[f"{name}_s"]]
+    busy = timing["cells_busy_s"]
+    at_once = f"  (busy {busy:.3f}: {timing['cells_s'] / busy:.1f} at once on average)" if busy > 0 else ""
+    rows.append((f"cells ({timing['cells']}, summed)", timing["cells_s"], at_once))
+    rows += [(f"  bake: {name}", seconds, "") for name, seconds in timing["stages"].items()]
+    if timing["evaluation_s"]:
+        rows.append(("  evaluation", timing["evaluation_s"], ""))
+    if timing["checking_s"]:
+        rows.append(("checking", timing["checking_s"], ""))
+    rows.append(("overhead", timing["overhead_s"], ""))
+    return [f"{'time':<25}{'seconds':>9}"] + [f"  {label:<22} {seconds:>9.3f}{note}" for label, seconds, note in rows]
 
 
 @click.command("jobs")
@@ -563,6 +594,8 @@ def jobs(job_id, state, as_json, limit, offset, every, url, key):
             click.echo(f"  error: {job['error']}")
         if job.get("evaluation"):
             click.echo(f"  {evaluation_line(job['evaluation'])}")
+        if job.get("timing"):
+            click.echo("\n".join(f"  {line}" for line in timing_lines(job["timing"])))
         for error in job["errors"]:
             click.echo(f"  cell {error['index']}: {error['error']}")
         return

@@ -236,3 +236,30 @@ def stored_options(technique: str, **given) -> dict:
     from farfield.core.techniques import get_technique
 
     return stored_values(get_technique(technique).options(given))
+
+
+def assert_timing_adds_up(job: dict, workers: int = 1) -> dict:
+    """The job record's ``timing`` (:mod:`farfield.service.jobs.timing`) against its own cells: the
+    stages are the cells' ``stats.seconds`` summed, each within its cell's wall seconds, the cells
+    within their busy span times ``workers``, the phases within the job's wall and the overhead the
+    rest of it; returns it."""
+    timing = job["timing"]
+    timed = [c for c in job["cells"] if c["seconds"] is not None]
+    assert timing["cells"] == len(timed) and timing["cells_s"] == pytest.approx(sum(c["seconds"] for c in timed))
+    stages: dict[str, float] = {}
+    for cell in timed:
+        seconds = (cell["stats"] or {}).get("seconds") or {}
+        assert seconds.get("total", 0.0) <= cell["seconds"], cell  # the bake is part of its cell
+        for name, value in seconds.items():
+            if name != "total":
+                stages[name] = stages.get(name, 0.0) + value
+    assert timing["stages"] == pytest.approx(stages) and timing["bake_s"] == pytest.approx(sum(stages.values()))
+    assert timing["bake_s"] + timing["evaluation_s"] <= timing["cells_s"] + 1e-6
+    assert (
+        timing["cells_s"] <= timing["cells_busy_s"] * workers + 1e-3
+    )  # cells.seconds within [started_at, finished_at]
+    phases = timing["admission_s"] + timing["planning_s"] + timing["checking_s"] + timing["cells_busy_s"]
+    assert phases <= timing["wall_s"] + 1e-3, timing
+    assert timing["wall_s"] == pytest.approx(job["finished_at"] - job["created_at"])
+    assert timing["overhead_s"] == pytest.approx(max(timing["wall_s"] - phases, 0.0), abs=1e-6)
+    return timing

@@ -203,6 +203,11 @@ def test_upload_submit_progress_done_atlas(page, service):
         .inner_text()
         .startswith(f"4 cells, {summary['cells_broken'] or 'none'} breaking the guarantee")
     )
+    # The job's time, broken down: a row per figure, a bake stage per stage the record sums.
+    rows = page.locator(tid("job-timing-row"))
+    labels = [rows.nth(i).locator("td").first.inner_text() for i in range(rows.count())]
+    assert labels[0] == "wall" and labels[-1] == "overhead" and "admission" in labels, labels
+    assert [lab for lab in labels if lab.startswith("bake: ")] == [f"bake: {s}" for s in record["timing"]["stages"]]
     if os.environ.get("FARFIELD_DASHBOARD_SCREENSHOT"):
         page.screenshot(path=os.environ["FARFIELD_DASHBOARD_SCREENSHOT"], full_page=True)
 

@@ -17,7 +17,7 @@ import zipfile
 
 import pytest
 from scenes import write_scene
-from service_harness import service_client, service_on_sqlite, upload, wait_for_job  # noqa: F401 - the service fixtures
+from service_harness import assert_timing_adds_up, service_client, service_on_sqlite, upload, wait_for_job  # noqa: F401 - the service fixtures
 
 from farfield.core.procedural import city
 
@@ -78,6 +78,10 @@ def test_a_placement_job_plans_bakes_and_serves_a_database(client, scene_id):
     assert record["impostors"] >= 1 and job["cells_total"] >= record["impostors"]
     assert [r["round"] for r in record["rounds"]] == list(range(1, len(record["rounds"]) + 1))
     assert all(c["state"] == "done" and c["stats"]["baked"] for c in job["cells"])
+    # Its time, broken down: planned and checked on a worker (no admission), the cells' bakes summed.
+    timing = assert_timing_adds_up(job)
+    assert timing["planning_s"] > 0 and timing["checking_s"] > 0 and timing["admission_s"] == 0
+    assert "record" in timing["stages"] and timing["cells"] == job["cells_total"]
     # Each cell carries its own impostor: the view cell the planner chose (a box or a shaft).
     assert {c["viewcell"]["kind"] for c in job["cells"]} <= {"box", "shaft"}
     archive = zipfile.ZipFile(io.BytesIO(client.get(f"/v1/jobs/{job['id']}/database.zip").content))
@@ -369,11 +373,15 @@ def test_a_cancel_during_the_check_leaves_no_index_and_no_state(flow, monkeypatc
 
     commit = placement_jobs._commit_round_row
 
-    def cancelled_first(db, job_id, worker, attempt, state_key, cells, impostors, summary, round_, index_key, rounds):
+    def cancelled_first(
+        db, job_id, worker, attempt, state_key, cells, impostors, summary, round_, index_key, rounds, *timed
+    ):
         if index_key is not None:  # the round that ends the job: the cancel arrives now
             assert flow.blobs.exists(index_key)
             assert cancel_job(flow.db, flow.blobs, flow.tenant, flow.job_id).state == "cancelled"
-        return commit(db, job_id, worker, attempt, state_key, cells, impostors, summary, round_, index_key, rounds)
+        return commit(
+            db, job_id, worker, attempt, state_key, cells, impostors, summary, round_, index_key, rounds, *timed
+        )
 
     monkeypatch.setattr(placement_jobs, "_commit_round_row", cancelled_first)
     state, cells = placement_jobs.plan_job(flow.db, flow.blobs, flow.job_id, "W", 3)

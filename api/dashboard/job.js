@@ -55,6 +55,7 @@ export function renderJob(job) {
   $("job-times").textContent = `created ${fmtTime(job.created_at)}; wall ${fmtSeconds(s.wall)}; cells ${fmtSeconds(s.cells_total)} in all` +
     (s.cell_mean != null ? `, ${fmtSeconds(s.cell_mean)} each` : "");
   $("job-evaluation").textContent = evaluationText(job);
+  renderTiming(job.timing);
   $("job-cancel").disabled = FINAL.has(job.state);
   $("job-retry").disabled = job.state !== "failed";
   $("job-download").disabled = !job.has_index;
@@ -206,6 +207,27 @@ export function selectCell(index, switchLevel = false) {
   }
   if (job) renderMap(job);
   renderCellPanel();
+}
+
+// The job's time broken down (its record's "timing"), as [label, seconds] rows; the bake's stages
+// are summed over the cells, inside "cells".
+function timingRows(t) {
+  const rows = [["wall", t.wall_s]];
+  for (const name of ["admission", "planning"]) if (t[`${name}_s`]) rows.push([name, t[`${name}_s`]]);
+  const busy = t.cells_busy_s > 0 ? ` (busy ${fmtSeconds(t.cells_busy_s)})` : "";
+  rows.push([`cells (${t.cells}, summed)${busy}`, t.cells_s]);
+  for (const [stage, seconds] of Object.entries(t.stages || {})) rows.push([`bake: ${stage}`, seconds]);
+  if (t.evaluation_s) rows.push(["evaluation", t.evaluation_s]);
+  if (t.checking_s) rows.push(["checking", t.checking_s]);
+  rows.push(["overhead", t.overhead_s]);
+  return rows;
+}
+
+function renderTiming(timing) {
+  $("job-timing-box").hidden = !timing;
+  if (!timing) return;
+  $("job-timing").replaceChildren(...timingRows(timing).map(([label, seconds]) =>
+    el("tr", {"data-testid": "job-timing-row"}, el("td", {text: label}), el("td", {text: fmtSeconds(seconds)}))));
 }
 
 function evaluationText(job) {

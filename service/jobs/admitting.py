@@ -13,7 +13,8 @@ will use):
 - otherwise the job becomes ``queued`` and the cells that passed are sent to the render queue.
 
 Progress (the job's ``planning`` record, ``GET /v1/jobs/{id}`` shows it as ``admission``: ``done`` of
-``total`` cells checked, ``texels`` found, ``failed``) is committed about every ``COMMIT_EVERY_S``
+``total`` cells checked, ``texels`` found, ``failed``, and the ``seconds`` the deliveries spent checking, the
+job's ``timing.admission_s``: :mod:`farfield.service.jobs.timing`) is committed about every ``COMMIT_EVERY_S``
 together with the cells failed meanwhile, so a delivery that dies loses at most that much work and
 the next one goes on from ``next``.  One worker at a time holds the admission under a lease
 (``jobs.plan_worker``, ``jobs.lease_until``, renewed at each commit); an admission whose lease runs
@@ -134,6 +135,7 @@ def admit_job(
     the ids of the cells to send).  "continue" (and no ids): ``deadline_s`` seconds passed, the
     progress is committed and the hold freed, and the caller sends the admission again (so that a
     10,000-cell admission never meets a worker's time limit); "skipped": not this delivery's to run."""
+    begun = time.perf_counter()  # the delivery's seconds, claim to commit, count as admission
     limits = AdmissionLimits.from_env() if limits is None else limits
     job, attempt, bounds = _claim(db, job_id, worker, max_attempts)
     if job is None:
@@ -152,6 +154,11 @@ def admit_job(
     progress = {k: record[k] for k in ("done", "texels", "failed", "next")}
     failed: dict[str, str] = {}
     start = last = time.perf_counter()
+    spent = float(record.get("seconds", 0.0))  # the earlier deliveries' (the job's timing: service.jobs.timing)
+
+    def timed() -> dict:
+        return {**progress, "seconds": spent + time.perf_counter() - begun}
+
     for cell_id, n, viewcell in rows:
         cost, error = check_cell(
             technique, options, n, viewcell_from_dict(viewcell), bounds, limits, progress["texels"]
@@ -172,13 +179,13 @@ def admit_job(
                     if held is None:
                         return _stopped_in(s, job_id), []
                     _fail_cells(s, failed)
-                    held.planning = {**held.planning, **progress}
+                    held.planning = {**held.planning, **timed()}
                     _fail_job_in(s, held, message)
                 return "failed", []
         progress["next"] = n + 1
         clock = time.perf_counter()
         if clock - last >= COMMIT_EVERY_S:
-            if not _commit(db, job_id, worker, attempt, failed, progress):
+            if not _commit(db, job_id, worker, attempt, failed, timed()):
                 return _stopped(db, job_id), []
             failed, last = {}, clock
             if deadline_s is not None and clock - start >= deadline_s and progress["done"] < record["total"]:
@@ -194,7 +201,7 @@ def admit_job(
         if held is None:
             return _stopped_in(s, job_id), []
         _fail_cells(s, failed)
-        planning = {**held.planning, **progress, "phase": "admitted", "stalled": 0}
+        planning = {**held.planning, **timed(), "phase": "admitted", "stalled": 0}
         planning.pop("worker", None)
         held.planning, held.state, held.plan_worker, held.lease_until = planning, "queued", None, None
         # Sent now: their queue time starts now, not when the job was created (the sweeper's clock).

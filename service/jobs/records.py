@@ -1,8 +1,9 @@
 """A job's and its cells' records as the API shows them, and the queries behind them.
 
 A job's record (:func:`job_record`) has its state, counts by cell state, progress, timings, the
-first cell errors and an ETA, and, given its cells, each cell's record (:func:`cell_record`) and
-the evaluation summary of those evaluated so far; a placement job's shows its technique and its
+first cell errors and an ETA, and, given its cells, each cell's record (:func:`cell_record`),
+the evaluation summary of those evaluated so far and the breakdown of the job's time
+(``timing``, :func:`farfield.service.jobs.timing.job_timing`); a placement job's shows its technique and its
 planning record as ``"placement"``, a job of view cells its admission (``"admission"``, :data:`ADMISSION_FIELDS`).
 """
 
@@ -12,6 +13,7 @@ from sqlalchemy import false, func, select
 
 from farfield.core.errors import NotFoundError, QueryError
 from farfield.service.db import JOB_STATES, CellRow, Database, JobRow, job_cells, now, owned_row, storable
+from farfield.service.jobs.timing import job_timing
 from farfield.service.placement import PLACEMENT_JOB
 
 __all__ = [
@@ -117,7 +119,7 @@ ADMISSION_FIELDS = ("phase", "done", "total", "texels", "failed", "bound_texels"
 
 def job_record(job: JobRow, summary: dict, cells: list[CellRow] | None = None) -> dict:
     """The API's view of a job: state, counts, progress, timings, errors, ETA (and, given its cells,
-    each cell's record and the :func:`evaluation_summary` of them)."""
+    each cell's record, the :func:`evaluation_summary` of them and the job's ``timing``)."""
     counts = summary["counts"]
     total = sum(counts.values())
     # The share of the work that was carried out: a cancelled cell was not, so a job cancelled with 7
@@ -148,6 +150,7 @@ def job_record(job: JobRow, summary: dict, cells: list[CellRow] | None = None) -
     if cells is not None:
         record["cells"] = [cell_record(c) for c in cells]
         record["evaluation"] = evaluation_summary(cells)
+        record["timing"] = job_timing(job, cells, placement)
     return record
 
 

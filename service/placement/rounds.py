@@ -54,6 +54,9 @@ log = logging.getLogger("farfield.placement")
 
 CANCEL_CHECK_S = 0.2  # a planning job looks at its state at the first progress call after this
 PROGRESS_EVERY_S = 0.5  # and writes its progress record
+# The planning record's seconds of each phase, summed over the attempts that committed one (written
+# with the round, so a job is never seen ended without them): the job's timing (service.jobs.timing).
+PHASE_SECONDS = {"plan": "planning_s", "check": "checking_s"}
 
 
 def pending_check(db: Database, job_id: str) -> bool:
@@ -132,6 +135,7 @@ def _progress(db: Database, job_id: str, worker: str, attempt: int, round_: int)
 
 def plan_job(db: Database, blobs: BlobStore, job_id: str, worker: str, max_attempts: int) -> tuple[str, list[str]]:
     """Plan a placement job (see the module docstring): (its state after, cell ids to send)."""
+    started = time.perf_counter()
     claim = claim_planning(db, blobs, job_id, "plan", worker, max_attempts)
     if claim.job is None:
         drop_ended_planning(db, blobs, job_id)
@@ -161,6 +165,7 @@ def plan_job(db: Database, blobs: BlobStore, job_id: str, worker: str, max_attem
         0,
         index_key,
         [],
+        timed=("plan", started),
     )
 
 
@@ -186,14 +191,16 @@ def _end_cancelled(db: Database, blobs: BlobStore, job_id: str) -> str:
 
 
 def _commit_round(
-    db, blobs, job_id, worker, attempt, state_key, cells: list[dict], impostors: int, summary, round_, index_key, rounds
-) -> tuple[str, list[str]]:
+    db, blobs, job_id, worker, attempt, state_key, cells: list[dict], impostors: int, summary, round_, index_key, rounds,
+    timed: tuple[str, float] | None = None,
+) -> tuple[str, list[str]]:  # fmt: skip
     """Store a planned or repaired round: its ``cells`` (queued), or the database when none was added.
     Then only the state the next check loads is kept (all are deleted when the job ended).  An
     attempt that finds its job cancelled or failed meanwhile removes the index it wrote (a newer
-    attempt that only took its hold writes its own under the same key: that one is left alone)."""
+    attempt that only took its hold writes its own under the same key: that one is left alone).
+    ``timed``: (the phase, its ``time.perf_counter()`` at the start), its seconds added to the record."""
     committed, state, made = _commit_round_row(
-        db, job_id, worker, attempt, state_key, cells, impostors, summary, round_, index_key, rounds
+        db, job_id, worker, attempt, state_key, cells, impostors, summary, round_, index_key, rounds, timed
     )
     if committed and state == "running":
         drop_planner_states(blobs, job_id, keep=state_key)
@@ -205,8 +212,9 @@ def _commit_round(
 
 
 def _commit_round_row(
-    db, job_id, worker, attempt, state_key, cells: list[dict], impostors: int, summary, round_, index_key, rounds
-) -> tuple[bool, str, list[str]]:
+    db, job_id, worker, attempt, state_key, cells: list[dict], impostors: int, summary, round_, index_key, rounds,
+    timed: tuple[str, float] | None = None,
+) -> tuple[bool, str, list[str]]:  # fmt: skip
     """:func:`_commit_round`'s change of the job's row: (whether this attempt committed, the job's
     state, the cells made)."""
     with db.session() as s:
@@ -232,6 +240,9 @@ def _commit_round_row(
             "impostors": impostors, "summary": _summary_of(summary), "rounds": rounds, "done": 0, "total": 0,
         }  # fmt: skip
         record.pop("worker", None)
+        if timed is not None:
+            key = PHASE_SECONDS[timed[0]]
+            record[key] = float(record.get(key, 0.0)) + time.perf_counter() - timed[1]
         job.planning, job.plan_worker, job.lease_until, job.plan_attempts = record, None, None, 0
         if index_key is not None:
             job.state, job.finished_at, job.index_key = "done", now(), index_key
@@ -253,6 +264,7 @@ def _summary_of(summary: dict | None) -> dict | None:
 def check_job(db: Database, blobs: BlobStore, job_id: str, worker: str, max_attempts: int) -> tuple[str, list[str]]:
     """Check a placement job's baked round and repair it (see the module docstring): (its state
     after, the cell ids of the added impostors, to send)."""
+    started = time.perf_counter()
     claim = claim_planning(db, blobs, job_id, "check", worker, max_attempts)
     if claim.job is None:
         drop_ended_planning(db, blobs, job_id)
@@ -275,6 +287,7 @@ def check_job(db: Database, blobs: BlobStore, job_id: str, worker: str, max_atte
         done.round,
         done.index_key,
         done.rounds,
+        timed=("check", started),
     )
 
 
