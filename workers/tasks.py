@@ -227,21 +227,24 @@ class CellRequest(Request):
         return super().on_failure(exc_info, send_failed_event=send_failed_event, return_ok=return_ok)
 
 
+def _give_up_in_main_process(cell_id: str, message: str) -> str:
+    """:func:`_give_up` on ``cell_id`` with a :class:`CellLimitError` saying ``message``, from the
+    worker's main process, on connections of its own that are closed again (pool processes forked
+    later must not inherit them)."""
+    settings = Settings.from_env()
+    db = Database(settings.database_url)
+    try:
+        return _give_up(db, blob_store(settings), cell_id, f"{CellLimitError.__name__}: {message}")
+    finally:
+        db.dispose()
+
+
 def fail_at_time_limit(cell_id: str) -> str:
     """Fail the cell (if still queued or running) naming ``FARFIELD_CELL_TIME_LIMIT``, from the worker's
     main process, on connections of its own that are closed again; "failed", "skipped" (it had
     ended) or "unrecorded"."""
     settings = Settings.from_env()
-    db = Database(settings.database_url)
-    try:
-        outcome = _give_up(
-            db,
-            blob_store(settings),
-            cell_id,
-            f"{CellLimitError.__name__}: {time_limit_message(settings.cell_time_limit)}",
-        )
-    finally:
-        db.dispose()
+    outcome = _give_up_in_main_process(cell_id, time_limit_message(settings.cell_time_limit))
     log.warning("cell %s: past FARFIELD_CELL_TIME_LIMIT (%d s): %s", cell_id, settings.cell_time_limit, outcome)
     return outcome
 
@@ -267,18 +270,7 @@ class CellTask(Task):
         # Celery calls this in the worker's main process when a pool process is killed at the hard
         # time limit (its cell could record nothing); other failures end in the task body.
         if isinstance(exc, TimeLimitExceeded) and args:
-            # On connections of its own, closed again: pool processes forked later must not inherit them.
-            settings = Settings.from_env()
-            db = Database(settings.database_url)
-            try:
-                outcome = _give_up(
-                    db,
-                    blob_store(settings),
-                    args[0],
-                    f"{CellLimitError.__name__}: {hard_time_limit_message(_DECLARED.cell_hard_time_limit)}",
-                )
-            finally:
-                db.dispose()
+            outcome = _give_up_in_main_process(args[0], hard_time_limit_message(_DECLARED.cell_hard_time_limit))
             log.error(
                 "cell %s: killed at the hard time limit of %d s (%s)", args[0], _DECLARED.cell_hard_time_limit, outcome
             )
