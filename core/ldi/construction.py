@@ -233,6 +233,17 @@ def construction_cameras(
     return out
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _seen_from(points, i, eyes, e, r, u, f, v):  # pragma: no cover - compiled
+    """``v`` = point ``i`` seen from eye ``e``: its depth along ``f`` and its tangents along ``r``
+    and ``u`` (over the depth)."""
+    d0, d1, d2 = points[i, 0] - eyes[e, 0], points[i, 1] - eyes[e, 1], points[i, 2] - eyes[e, 2]
+    z = d0 * f[0] + d1 * f[1] + d2 * f[2]
+    v[0] = z
+    v[1] = (d0 * r[0] + d1 * r[1] + d2 * r[2]) / z
+    v[2] = (d0 * u[0] + d1 * u[1] + d2 * u[2]) / z
+
+
 @numba.njit(cache=True, nogil=True)
 def _window_candidates(points, eyes, r, u, f):  # pragma: no cover - compiled
     """Indices of the ``points`` that may hold, for some eye, the least or greatest depth along
@@ -243,11 +254,7 @@ def _window_candidates(points, eyes, r, u, f):  # pragma: no cover - compiled
     v = np.empty(3)
     for i in range(n):
         for e in range(k):
-            d0, d1, d2 = points[i, 0] - eyes[e, 0], points[i, 1] - eyes[e, 1], points[i, 2] - eyes[e, 2]
-            z = d0 * f[0] + d1 * f[1] + d2 * f[2]
-            v[0] = z
-            v[1] = (d0 * r[0] + d1 * r[1] + d2 * r[2]) / z
-            v[2] = (d0 * u[0] + d1 * u[1] + d2 * u[2]) / z
+            _seen_from(points, i, eyes, e, r, u, f, v)
             for a in range(3):
                 lo[e, a] = min(lo[e, a], v[a])
                 hi[e, a] = max(hi[e, a], v[a])
@@ -264,11 +271,7 @@ def _window_candidates(points, eyes, r, u, f):  # pragma: no cover - compiled
     keep = np.zeros(n, dtype=np.bool_)
     for i in range(n):
         for e in range(k):
-            d0, d1, d2 = points[i, 0] - eyes[e, 0], points[i, 1] - eyes[e, 1], points[i, 2] - eyes[e, 2]
-            z = d0 * f[0] + d1 * f[1] + d2 * f[2]
-            v[0] = z
-            v[1] = (d0 * r[0] + d1 * r[1] + d2 * r[2]) / z
-            v[2] = (d0 * u[0] + d1 * u[1] + d2 * u[2]) / z
+            _seen_from(points, i, eyes, e, r, u, f, v)
             for a in range(3):
                 if not (v[a] > lo[e, a] + tol[e, a] and v[a] < hi[e, a] - tol[e, a]):
                     keep[i] = True
