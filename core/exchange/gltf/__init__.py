@@ -47,7 +47,7 @@ from farfield.core.exchange.gltf.document import Buffers, array, header_json, it
 from farfield.core.exchange.gltf.materials import NEAREST, Images, Material, material
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits, check_gltf
 from farfield.core.exchange.normals import repair_normals, transform_normals, transform_tangents, uv_tangents
-from farfield.core.scene import SceneObject, prototype_key
+from farfield.core.scene import SceneObject, instances_of, prototype_key
 
 EXTENSIONS = ("glb", "gltf")
 
@@ -86,7 +86,6 @@ def _node_matrix(node: dict, index: int) -> np.ndarray:
             if matrix.shape != (16,):
                 raise SceneLoadError(f"{where}: matrix has {matrix.size} numbers, not 16")
             return matrix.reshape(4, 4).T
-        out = np.eye(4)
         translation = np.array(node.get("translation", (0.0, 0.0, 0.0)), dtype=np.float64)
         rotation = np.array(node.get("rotation", (0.0, 0.0, 0.0, 1.0)), dtype=np.float64)
         scale = np.array(node.get("scale", (1.0, 1.0, 1.0)), dtype=np.float64)
@@ -94,25 +93,33 @@ def _node_matrix(node: dict, index: int) -> np.ndarray:
         raise SceneLoadError(f"{where}: transform is not numbers: {error}") from error
     if translation.shape != (3,) or rotation.shape != (4,) or scale.shape != (3,):
         raise SceneLoadError(f"{where}: translation/rotation/scale have the wrong number of values")
-    x, y, z, w = rotation / (np.linalg.norm(rotation) or 1.0)  # unit quaternion, (x, y, z, w)
-    rot = np.array(
+    return _trs_matrices(translation[None], rotation[None], scale[None], where)[0]
+
+
+def _trs_matrices(translation: np.ndarray, rotation: np.ndarray, scale: np.ndarray, where: str) -> np.ndarray:
+    """(n, 4, 4) float64 T x R x S of (n, 3) translations, (n, 4) quaternions (x, y, z, w;
+    normalised here) and (n, 3) scales: every instance of a node at once."""
+    length = np.sqrt(np.einsum("ij,ij->i", rotation, rotation))
+    x, y, z, w = (rotation / np.where(length > 0.0, length, 1.0)[:, None]).T  # unit quaternions
+    rot = np.stack(
         [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], axis=1),
+            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], axis=1),
+            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], axis=1),
+        ],
+        axis=1,
     )
-    out[:3, :3] = rot * scale[None, :]
-    out[:3, 3] = translation
+    out = np.zeros((len(translation), 4, 4))
+    out[:, :3, :3] = rot * scale[:, None, :]
+    out[:, :3, 3] = translation
+    out[:, 3, 3] = 1.0
     if not np.isfinite(out).all():
         raise SceneLoadError(f"{where}: transform is not finite")
     return out
 
 
-def _instances(
-    document: dict, buffers: Buffers, node: dict, index: int, limits: SceneLimits
-) -> list[np.ndarray] | None:
-    """EXT_mesh_gpu_instancing: (4, 4) local matrices of the node's instances, or None."""
+def _instances(document: dict, buffers: Buffers, node: dict, index: int, limits: SceneLimits) -> np.ndarray | None:
+    """EXT_mesh_gpu_instancing: (n, 4, 4) local matrices of the node's instances, or None."""
     extensions = node.get("extensions")
     spec = extensions.get("EXT_mesh_gpu_instancing") if isinstance(extensions, dict) else None
     if not isinstance(spec, dict) or not isinstance(spec.get("attributes"), dict):
@@ -124,11 +131,18 @@ def _instances(
         raise SceneLoadError(f"glTF node {index}: EXT_mesh_gpu_instancing attributes have different counts")
     count = counts.pop()
     limits.check("glTF instances (EXT_mesh_gpu_instancing)", count, "nodes")
-    out = []
-    for i in range(count):  # attributes other than the transform's (custom _ID ...) only count
-        local = {key.lower(): read[key][i].tolist() for key in ("TRANSLATION", "ROTATION", "SCALE") if key in read}
-        out.append(_node_matrix(local, index))
-    return out
+    # attributes other than the transform's (custom _ID ...) only count
+    parts = []
+    for key, default in (
+        ("TRANSLATION", (0.0, 0.0, 0.0)),
+        ("ROTATION", (0.0, 0.0, 0.0, 1.0)),
+        ("SCALE", (1.0, 1.0, 1.0)),
+    ):
+        values = np.asarray(read[key], dtype=np.float64) if key in read else np.tile(default, (count, 1))
+        if values.shape != (count, len(default)):
+            raise SceneLoadError(f"glTF node {index}: translation/rotation/scale have the wrong number of values")
+        parts.append(values)
+    return _trs_matrices(*parts, f"glTF node {index}")
 
 
 def _primitive_name(base: str, k: int, count: int) -> str:
@@ -267,7 +281,7 @@ class _Reader:
                     world_of_mesh = [np.eye(4)]  # a skinned mesh ignores its node's transform (glTF §3.7.3)
                 else:
                     instances = _instances(self.document, self.buffers, node, index, self.limits)
-                    world_of_mesh = [world] if instances is None else [world @ m for m in instances]
+                    world_of_mesh = [world] if instances is None else list(world @ instances)
                 self.mesh(node, index, world_of_mesh)
             children = node.get("children", [])
             if isinstance(children, list):
@@ -305,9 +319,13 @@ class _Reader:
             if part is None:
                 continue
             name = _primitive_name(base, k, len(primitives))
+            names = [self.unique(f"{name}@{i}" if many_instances else name) for i in range(len(worlds))]
+            moved = None if key is None else self.moved(names, part, worlds, key, locals_[k])
             for i, world in enumerate(worlds):
-                instance = None if key is None else (key, world, locals_[k])
-                self.add(self.unique(f"{name}@{i}" if many_instances else name), part, world, instance)
+                if moved is not None:
+                    self.add(moved[i])
+                else:
+                    self.add(self.build(names[i], part, world, None if key is None else (key, world, locals_[k])))
 
     def primitive(self, spec: object, where: str, weights: object) -> dict | None:
         if not isinstance(spec, dict) or not isinstance(spec.get("attributes"), dict):
@@ -457,14 +475,25 @@ class _Reader:
                 out += float(weight) * offsets
         return out
 
-    def add(self, name: str, part: dict, world: np.ndarray, instance: tuple | None = None) -> None:
-        """Append the object ``name`` of ``part`` moved by ``world``; ``instance``: (prototype key,
-        world, local object) of an instanced mesh."""
-        obj = self.build(name, part, world, instance)
+    def add(self, obj: SceneObject) -> None:
+        """Append ``obj``, counted against the limits."""
         self.triangles += len(obj.faces)
         self.limits.check("objects", len(self.objects) + 1, "nodes")
         self.limits.check("triangles once node instancing is applied", self.triangles, "triangles")
         self.objects.append(obj)
+
+    def moved(self, names: list[str], part: dict, worlds: list, key: str, local: SceneObject) -> list | None:
+        """The instances ``names`` of ``part`` at ``worlds``: its mesh's ``local`` object moved, all
+        at once (:func:`~farfield.core.scene.instances_of`: what the instances share is not built
+        and checked again), or None where :meth:`build` must make each: a normal map (its tangents
+        may be derived from an instance's own vertices) or normals a move makes zero (repaired with
+        a warning)."""
+        if part.get("normal_uv") is not None and part["normals"] is not None:
+            return None
+        try:
+            return instances_of(local, names, np.stack(worlds), key, part["normals"])
+        except SceneLoadError:
+            return None  # build says what is wrong, or repairs it
 
     def build(self, name: str, part: dict, world: np.ndarray, instance: tuple | None = None) -> SceneObject:
         found: Material = part["material"]
