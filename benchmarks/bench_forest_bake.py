@@ -13,7 +13,8 @@ its prototype's mesh.  COLOR_0 is the trees' vertex colours.
 Each measurement runs in a process of its own (``--phase``), so its peak resident memory
 (``ru_maxrss``) is its own:
 
-* load: ``load_scene`` of each file; seconds, peak RSS and the RSS the process had before it.
+* load: ``load_scene`` of each file; seconds, peak RSS and the RSS the process had before it (after
+  its imports), and the peak of a second load's allocations under ``tracemalloc``.
   ``--baseline PATH``: the same load with the ``farfield`` package found under ``PATH`` (a copy of
   an older commit, ``git archive``), in the same run, for a ratio.
 * bake with instancing: every tree's octahedral impostor (default options; its cell the space
@@ -37,6 +38,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -133,6 +135,11 @@ def phase(args) -> dict:
     out = {"load_s": loaded, "rss_before_mib": before, "objects": scene.object_count}
     if args.phase == "load":
         out["peak_mib"] = _rss_mib()
+        del scene
+        tracemalloc.start()  # a second load, traced: the most its allocations held at once
+        load_scene(args.file)
+        out["traced_mib"] = tracemalloc.get_traced_memory()[1] / 2**20
+        tracemalloc.stop()
         return out
     from farfield.core.techniques import get_technique
     from farfield.core.techniques.instances import InstanceBakes
@@ -195,12 +202,13 @@ def main() -> None:
         files = forest_files(Path(tmp), args.trees, args.prototypes)
         print(f"forest of {args.trees} trees, {args.prototypes} prototypes written in {time.perf_counter() - start:.1f} s: "
               + ", ".join(f"{k} {p.stat().st_size / 2**20:.1f} MiB" for k, p in files.items()))  # fmt: skip
-        print(f"\n{'file':<10} {'code':<9} {'objects':>7} {'load s':>7} {'RSS before MiB':>14} {'peak RSS MiB':>12}")
+        print(f"\n{'file':<10} {'code':<9} {'objects':>7} {'load s':>7} {'traced peak MiB':>15} {'RSS before MiB':>14} "
+              f"{'peak RSS MiB':>12}")  # fmt: skip
         for kind, path in files.items():
             rows = [("this", None)] + ([("baseline", args.baseline)] if args.baseline else [])
             for code, where in rows:
                 r = run(path, "load", [], where)
-                print(f"{kind:<10} {code:<9} {r['objects']:>7} {r['load_s']:>7.2f} {r['rss_before_mib']:>14.0f} "
+                print(f"{kind:<10} {code:<9} {r['objects']:>7} {r['load_s']:>7.2f} {r['traced_mib']:>15.1f} {r['rss_before_mib']:>14.0f} "
                       f"{r['peak_mib']:>12.0f}")  # fmt: skip
         shared = run(files["instanced"], "shared", [])
         alone = run(files["instanced"], "alone", ["--alone", str(args.alone)])

@@ -410,7 +410,8 @@ def instances_of(
         raise SceneLoadError(f"object {name!r}: instance_matrix is not a finite affine 4 x 4 matrix")
     matrices.flags.writeable = False
     linear = matrices[:, :3, :3]
-    vertices = local.vertices @ linear.transpose(0, 2, 1) + matrices[:, None, :3, 3]  # (n, v, 3)
+    vertices = local.vertices @ linear.transpose(0, 2, 1)  # (n, v, 3)
+    vertices += matrices[:, None, :3, 3]  # in place: no second (n, v, 3) array at the peak
     vertices.flags.writeable = False
     flat = vertices.reshape(len(names), -1)  # x, y, z of each instance as strided columns: reduced fast
     low = np.stack([flat[:, axis::3].min(axis=1) for axis in range(3)], axis=1)
@@ -427,15 +428,17 @@ def instances_of(
     source = local.normals if normals is None else np.asarray(normals, dtype=np.float64)
     if local.normals is not None and source is not None:
         moved_normals = source @ normal_matrices(linear).transpose(0, 2, 1)  # (n, v, 3)
-        with np.errstate(invalid="ignore", over="ignore"):
-            length = np.sqrt(np.einsum("nij,nij->ni", moved_normals, moved_normals))  # as _unit_normals
-        bad = ~(np.isfinite(length) & (length > 0.0))
-        if bad.any():
-            i = int(np.argmax(bad.any(axis=1)))
-            raise SceneLoadError(
-                f"object {names[i]!r}: {int(bad[i].sum())} of {bad.shape[1]} normals are zero or not finite"
-            )
-        moved_normals /= length[:, :, None]
+        step = max(1, 2**18 // max(1, len(source)))  # instances a block: temporaries of about 2**18 vertices
+        for start in range(0, len(names), step):
+            block = moved_normals[start : start + step]
+            with np.errstate(invalid="ignore", over="ignore"):
+                length = np.sqrt(np.einsum("nij,nij->ni", block, block))  # as _unit_normals
+            bad = ~(np.isfinite(length) & (length > 0.0))
+            if bad.any():
+                i = int(np.argmax(bad.any(axis=1)))
+                count = f"{int(bad[i].sum())} of {bad.shape[1]}"
+                raise SceneLoadError(f"object {names[start + i]!r}: {count} normals are zero or not finite")
+            block /= length[:, :, None]
         moved_normals.flags.writeable = False
     set_ = object.__setattr__
     shared = [(key, getattr(local, key)) for key in SceneObject.__dataclass_fields__]
