@@ -8,7 +8,9 @@ Scene: :func:`farfield.core.procedural.tree_forest` (``--trees`` trees of ``--pr
 meshes, 60-180 triangles each, turned about +y, scaled 0.8-1.2, on a 1 km ground quad), written
 with the tests' glTF builder two ways: ``instanced``, one node per prototype drawing its trees by
 ``EXT_mesh_gpu_instancing`` (TRANSLATION, ROTATION, SCALE); ``nodes``, one node per tree sharing
-its prototype's mesh.  COLOR_0 is the trees' vertex colours.
+its prototype's mesh.  COLOR_0 is the trees' vertex colours.  ``rocks``: ``--rocks`` instances of
+benchmarks/bench_instancing.py's textured 5,120-triangle icosphere (1024 x 1024 texture), loaded
+only.
 
 Each measurement runs in a process of its own (``--phase``), so its peak resident memory
 (``ru_maxrss``) is its own:
@@ -127,17 +129,19 @@ def _page_bytes(impostors) -> int:
 def phase(args) -> dict:
     """One measurement in this process (see the module docstring)."""
     from farfield.core.exchange import load_scene  # imported before the clock starts
+    from farfield.core.exchange.limits import SceneLimits
 
+    limits = SceneLimits(triangles=10**8)  # the rocks' 51 million are past the default
     before = _rss_mib()
     start = time.perf_counter()
-    scene = load_scene(args.file)
+    scene = load_scene(args.file, limits=limits)
     loaded = time.perf_counter() - start
     out = {"load_s": loaded, "rss_before_mib": before, "objects": scene.object_count}
     if args.phase == "load":
         out["peak_mib"] = _rss_mib()
         del scene
         tracemalloc.start()  # a second load, traced: the most its allocations held at once
-        load_scene(args.file)
+        load_scene(args.file, limits=limits)
         out["traced_mib"] = tracemalloc.get_traced_memory()[1] / 2**20
         tracemalloc.stop()
         return out
@@ -190,6 +194,9 @@ def main() -> None:
     parser.add_argument("--prototypes", type=int, default=5)
     parser.add_argument("--alone", type=int, default=50, help="trees baked alone (the rest extrapolated)")
     parser.add_argument("--baseline", default=None, help="a folder holding an older farfield package, to load with")
+    parser.add_argument(
+        "--rocks", type=int, default=10_000, help="instances of bench_instancing's icosphere to load too"
+    )
     parser.add_argument("--phase", choices=("load", "shared", "alone"), help=argparse.SUPPRESS)
     parser.add_argument("--file", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -200,11 +207,15 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
         files = forest_files(Path(tmp), args.trees, args.prototypes)
+        if args.rocks:
+            from bench_instancing import instanced_file
+
+            files["rocks"] = instanced_file(Path(tmp) / "rocks.glb", args.rocks, 1024)
         print(f"forest of {args.trees} trees, {args.prototypes} prototypes written in {time.perf_counter() - start:.1f} s: "
               + ", ".join(f"{k} {p.stat().st_size / 2**20:.1f} MiB" for k, p in files.items()))  # fmt: skip
         print(f"\n{'file':<10} {'code':<9} {'objects':>7} {'load s':>7} {'traced peak MiB':>15} {'RSS before MiB':>14} "
               f"{'peak RSS MiB':>12}")  # fmt: skip
-        for kind, path in files.items():
+        for kind, path in files.items():  # each load twice: timed, then traced
             rows = [("this", None)] + ([("baseline", args.baseline)] if args.baseline else [])
             for code, where in rows:
                 r = run(path, "load", [], where)
