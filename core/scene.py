@@ -408,6 +408,8 @@ def instances_of(
     if not affine.all():
         name = names[int(np.argmin(affine))]
         raise SceneLoadError(f"object {name!r}: instance_matrix is not a finite affine 4 x 4 matrix")
+    if not names:
+        return []
     matrices.flags.writeable = False
     linear = matrices[:, :3, :3]
     vertices = local.vertices @ linear.transpose(0, 2, 1)  # (n, v, 3)

@@ -253,6 +253,7 @@ def test_instances_of_refuses_what_a_move_can_break():
         instances_of(tri, ["a", "b"], np.stack([np.eye(4), flat]), "k")
     with pytest.raises(SceneLoadError, match="2 names"):
         instances_of(tri, ["a", "b"], np.eye(4)[None], "k")
+    assert instances_of(tri, [], np.zeros((0, 4, 4)), "k") == []  # a prototype no tree of a forest drew
 
 
 def test_a_gltf_instance_whose_move_zeroes_its_normals_is_repaired_with_a_warning(tmp_path):
