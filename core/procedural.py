@@ -15,7 +15,7 @@ import functools
 import numpy as np
 import trimesh
 
-from farfield.core.scene import Scene, SceneObject, instance_of, prototype_key
+from farfield.core.scene import Scene, SceneObject, instances_of, prototype_key
 
 # Face of the unit cube as (fixed axis, value 0 or 1, axis u, axis v), with u x v pointing outward.
 _FACES = ((0, 1, 1, 2), (0, 0, 2, 1), (1, 1, 2, 0), (1, 0, 0, 2), (2, 1, 0, 1), (2, 0, 1, 0))
@@ -172,7 +172,7 @@ def tree_forest(
     """A forest of ``instances`` trees of ``prototypes`` tree meshes (:func:`_tree_prototypes`: trunk
     and crown, 6-14 m tall, about 60-180 triangles times ``detail``), each turned about the vertical and scaled 0.8-1.2,
     scattered over a ``size`` x ``size`` m terrain plane (``ground``, y = 0); world +y up.  Every
-    tree is an instance of its prototype (``tree<k>_<i>``: prototype ``k``; :func:`~farfield.core.scene.instance_of`,
+    tree is an instance of its prototype (``tree<k>_<i>``: prototype ``k``; :func:`~farfield.core.scene.instances_of`,
     its ``instance_matrix`` a turn about +y, a uniform scale and a move), with world coordinates: the scene
     the octahedral placement benchmark measures (benchmarks/bench_forest_placement.py)."""
     rng = np.random.default_rng(seed)
@@ -184,13 +184,18 @@ def tree_forest(
     objects = [SceneObject("ground", np.array([[0.0, 0.0, 0.0], [size, 0.0, 0.0], [size, 0.0, size], [0.0, 0.0, size]]),
                            np.array([[0, 2, 1], [0, 3, 2]]), base_color=(0.35, 0.3, 0.2, 1.0))]  # fmt: skip
     locals_ = [SceneObject(f"tree{k}", v, f, vertex_colors=c) for k, (v, f, c) in enumerate(shapes)]
-    keys = [prototype_key([local]) for local in locals_]
-    for i in range(instances):
-        cos, sin, s = np.cos(turn[i]), np.sin(turn[i]), scale[i]
-        matrix = np.array([[s * cos, 0.0, -s * sin, where[i, 0]], [0.0, s, 0.0, 0.0], [s * sin, 0.0, s * cos, where[i, 1]],
-                           [0.0, 0.0, 0.0, 1.0]])  # fmt: skip
-        objects.append(instance_of(locals_[kind[i]], f"tree{kind[i]}_{i:05d}", matrix, keys[kind[i]]))
-    return Scene.from_objects(objects, source=f"tree-forest-{instances}-{prototypes}-{seed}-{detail}")
+    cos, sin = np.cos(turn) * scale, np.sin(turn) * scale
+    matrices = np.zeros((instances, 4, 4))
+    matrices[:, 0, 0], matrices[:, 0, 2], matrices[:, 0, 3] = cos, -sin, where[:, 0]
+    matrices[:, 1, 1], matrices[:, 2, 0], matrices[:, 2, 2], matrices[:, 2, 3] = scale, sin, cos, where[:, 1]
+    matrices[:, 3, 3] = 1.0
+    trees: list = [None] * instances
+    for k, local in enumerate(locals_):  # each prototype's trees moved at once, then in tree order
+        chosen = np.flatnonzero(kind == k)
+        names = [f"tree{k}_{i:05d}" for i in chosen]
+        for i, obj in zip(chosen, instances_of(local, names, matrices[chosen], prototype_key([local]))):
+            trees[i] = obj
+    return Scene.from_objects(objects + trees, source=f"tree-forest-{instances}-{prototypes}-{seed}-{detail}")
 
 
 def house(seed: int = 4) -> Scene:

@@ -355,7 +355,8 @@ def prototype_key(locals_: Iterable[SceneObject]) -> str:
 def instance_of(local: SceneObject, name: str, matrix, prototype: str) -> SceneObject:
     """The instance called ``name`` of ``local`` (a primitive in its prototype's space) moved by
     ``matrix`` (4, 4) local -> world: vertices, normals and tangents moved (normals by the inverse
-    transpose), faces reversed under a mirroring matrix; textures, uv and colours shared by reference.
+    transpose), faces reversed under a mirroring matrix; textures, uv and colours shared by reference
+    (:func:`instances_of` of one).
 
     >>> quad = SceneObject("q", np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0.0]]), np.array([[0, 1, 2]]))
     >>> moved = np.eye(4); moved[:3, 3] = (5, 0, 0)
@@ -363,18 +364,107 @@ def instance_of(local: SceneObject, name: str, matrix, prototype: str) -> SceneO
     >>> o.vertices[1].tolist(), o.prototype, o.local is quad
     ([6.0, 0.0, 0.0], 'k', True)
     """
-    from farfield.core.exchange.normals import transform_normals, transform_tangents
+    return instances_of(local, [name], np.asarray(matrix, dtype=np.float64)[None], prototype)[0]
 
-    matrix = np.asarray(matrix, dtype=np.float64)
-    linear = matrix[:3, :3]
-    changes: dict = {"vertices": local.vertices @ linear.T + matrix[:3, 3]}
-    if np.linalg.det(linear) < 0.0:
-        changes["faces"] = local.faces[:, ::-1]
-    if local.normals is not None:
-        changes["normals"] = transform_normals(local.normals, linear)
-    if local.tangents is not None:
-        changes["tangents"] = transform_tangents(local.tangents, linear)
-    return replace(local, name=name, **changes, prototype=prototype, instance_matrix=matrix, local=local)
+
+def instances_of(
+    local: SceneObject, names: list[str], matrices: np.ndarray, prototype: str, normals: np.ndarray | None = None
+) -> list[SceneObject]:
+    """The instances ``names`` of ``local`` moved by ``matrices`` (n, 4, 4), as :func:`instance_of`
+    makes each, all at once: the moves are one array operation per field, and only what a move can
+    change is checked again (coordinates finite and in range, normals non-zero), the rest being
+    ``local``'s, validated when it was made.  So n instances cost their arrays, not n validations
+    of every field (a forest of 10,000 trees, an ``EXT_mesh_gpu_instancing`` node).  The instances'
+    vertices (and normals, tangents) are read-only views of one array per field.
+
+    ``normals``: (v, 3) local-space normals to move instead of ``local.normals`` (a loader's as
+    read, not yet unit; the results are made unit).
+
+    >>> tri = SceneObject("t", np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.0]]), np.array([[0, 1, 2]]))
+    >>> m = np.stack([np.eye(4), np.diag([-1.0, 1.0, 1.0, 1.0])])
+    >>> a, b = instances_of(tri, ["a", "b"], m, "k")
+    >>> b.vertices[1].tolist(), b.faces.tolist(), a.faces is tri.faces
+    ([-1.0, 0.0, 0.0], [[2, 1, 0]], True)
+
+    Raises
+    ------
+    SceneLoadError
+        A name that is no non-empty string, a matrix that is not finite and affine, coordinates
+        beyond ``TOL.max_coordinate``, a normal the move makes zero.
+    DegenerateGeometryError
+        Non-finite coordinates.
+    """
+    from farfield.core.exchange.normals import normal_matrices, transform_tangents
+
+    if not isinstance(prototype, str) or not isinstance(local, SceneObject):
+        raise SceneLoadError("an instance needs prototype (str), instance_matrix and local together")
+    for name in names:
+        if not isinstance(name, str) or not name:
+            raise SceneLoadError(f"object name must be a non-empty string, got {name!r}")
+    matrices = np.array(matrices, dtype=np.float64)  # owned: each instance keeps a view
+    if matrices.shape != (len(names), 4, 4):
+        raise SceneLoadError(f"instances of {local.name!r}: {matrices.shape} matrices for {len(names)} names")
+    affine = np.isfinite(matrices).all(axis=(1, 2)) & (matrices[:, 3] == (0.0, 0.0, 0.0, 1.0)).all(axis=1)
+    if not affine.all():
+        name = names[int(np.argmin(affine))]
+        raise SceneLoadError(f"object {name!r}: instance_matrix is not a finite affine 4 x 4 matrix")
+    if not names:
+        return []
+    matrices.flags.writeable = False
+    linear = matrices[:, :3, :3]
+    vertices = local.vertices @ linear.transpose(0, 2, 1)  # (n, v, 3)
+    vertices += matrices[:, None, :3, 3]  # in place: no second (n, v, 3) array at the peak
+    vertices.flags.writeable = False
+    flat = vertices.reshape(len(names), -1)  # x, y, z of each instance as strided columns: reduced fast
+    low = np.stack([flat[:, axis::3].min(axis=1) for axis in range(3)], axis=1)
+    high = np.stack([flat[:, axis::3].max(axis=1) for axis in range(3)], axis=1)
+    bounds = np.stack([low, high], axis=1)  # (n, 2, 3)
+    bounds.flags.writeable = False
+    good = np.isfinite(bounds).all(axis=(1, 2)) & (np.abs(bounds).max(axis=(1, 2)) <= TOL.max_coordinate)
+    if not good.all():
+        i = int(np.argmin(good))
+        _check_geometry(names[i], vertices[i], local.faces)  # raises, saying which
+    mirrored = np.linalg.det(linear) < 0.0
+    reversed_faces = _frozen(local.faces[:, ::-1], np.int64, "faces", local.name, (None, 3)) if mirrored.any() else None
+    moved_normals = None
+    source = local.normals if normals is None else np.asarray(normals, dtype=np.float64)
+    if local.normals is not None and source is not None:
+        moved_normals = source @ normal_matrices(linear).transpose(0, 2, 1)  # (n, v, 3)
+        step = max(1, 2**18 // max(1, len(source)))  # instances a block: temporaries of about 2**18 vertices
+        for start in range(0, len(names), step):
+            block = moved_normals[start : start + step]
+            with np.errstate(invalid="ignore", over="ignore"):
+                length = np.sqrt(np.einsum("nij,nij->ni", block, block))  # as _unit_normals
+            bad = ~(np.isfinite(length) & (length > 0.0))
+            if bad.any():
+                i = int(np.argmax(bad.any(axis=1)))
+                count = f"{int(bad[i].sum())} of {bad.shape[1]}"
+                raise SceneLoadError(f"object {names[start + i]!r}: {count} normals are zero or not finite")
+            block /= length[:, :, None]
+        moved_normals.flags.writeable = False
+    set_ = object.__setattr__
+    shared = [(key, getattr(local, key)) for key in SceneObject.__dataclass_fields__]
+    out = []
+    for i, name in enumerate(names):
+        obj = object.__new__(SceneObject)
+        for key, value in shared:
+            set_(obj, key, value)
+        set_(obj, "name", name)
+        set_(obj, "vertices", vertices[i])
+        set_(obj, "bounds", bounds[i])
+        if mirrored[i]:
+            set_(obj, "faces", reversed_faces)
+        if moved_normals is not None:
+            set_(obj, "normals", moved_normals[i])
+        if local.tangents is not None:
+            tangents = transform_tangents(local.tangents, linear[i])
+            tangents.flags.writeable = False
+            set_(obj, "tangents", tangents)
+        set_(obj, "prototype", prototype)
+        set_(obj, "instance_matrix", matrices[i])
+        set_(obj, "local", local)
+        out.append(obj)
+    return out
 
 
 def _check_normal_map(obj: SceneObject, name: str, n: int) -> None:

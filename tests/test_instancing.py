@@ -196,3 +196,84 @@ def test_placement_counts_every_instance_s_triangles_and_draws():
     elements = Elements.of(scene, cluster_triangles=10_000)
     assert elements.count == 50 and int(elements.triangles.sum()) == 50 * 12  # a box's 12 triangles, 50 times
     assert float(elements.draw_calls.sum()) == 50.0
+
+
+def test_instances_of_moves_every_instance_as_a_validated_object_of_its_own_would_be():
+    """All instances at once (the loader's and the forest's path) give what building each instance
+    as an object of its own (every field validated) gives: vertices, unit normals moved by the
+    inverse transpose, tangents, faces reversed by a mirror; what does not move shared."""
+    from farfield.core.exchange.normals import transform_normals, transform_tangents
+    from farfield.core.scene import instances_of
+
+    rng = np.random.default_rng(3)
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0.2]])
+    local = SceneObject("q", vertices, np.array([[0, 1, 2], [0, 2, 3]]), uv=rng.random((4, 2)),
+                        texture=rng.integers(0, 255, (2, 2, 4), dtype=np.uint8), normals=rng.normal(size=(4, 3)),
+                        normal_texture=np.full((1, 1, 4), 128, np.uint8), normal_uv=rng.random((4, 2)),
+                        tangents=np.column_stack([rng.normal(size=(4, 3)), np.ones(4)]))  # fmt: skip
+    matrices = np.stack([np.eye(4)] * 3)
+    matrices[1, :3, :3] = np.diag([2.0, 0.5, 1.0]) @ np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1.0]])
+    matrices[2, :3, :3], matrices[2, :3, 3] = np.diag([-1.0, 1.0, 3.0]), (5.0, -2.0, 1.0)  # a mirror
+    moved = instances_of(local, ["a", "b", "c"], matrices, "key")
+    for obj, m in zip(moved, matrices):
+        linear = m[:3, :3]
+        mirrored = np.linalg.det(linear) < 0.0
+        reference = SceneObject(obj.name, local.vertices @ linear.T + m[:3, 3],
+                                local.faces[:, ::-1] if mirrored else local.faces, uv=local.uv, texture=local.texture,
+                                normals=transform_normals(local.normals, linear), normal_texture=local.normal_texture,
+                                normal_uv=local.normal_uv, tangents=transform_tangents(local.tangents, linear))  # fmt: skip
+        for field in ("vertices", "faces", "normals", "tangents", "bounds"):
+            np.testing.assert_allclose(getattr(obj, field), getattr(reference, field), rtol=0, atol=1e-15)
+        assert obj.texture is local.texture and obj.uv is local.uv and obj.local is local
+        assert (obj.faces is local.faces) != mirrored and not obj.vertices.flags.writeable
+        assert obj.prototype == "key" and np.array_equal(obj.instance_matrix, m)
+    assert Scene(tuple(moved), "m").instances() == {"key": [("a",), ("b",), ("c",)]}
+
+
+def test_instances_of_refuses_what_a_move_can_break():
+    from farfield.core.errors import DegenerateGeometryError, SceneLoadError
+    from farfield.core.scene import instances_of
+
+    tri = SceneObject("t", np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.0]]), np.array([[0, 1, 2]]),
+                      normals=np.tile([0.0, 0.0, 1.0], (3, 1)))  # fmt: skip
+    far = np.eye(4)
+    far[0, 3] = 1e300
+    with pytest.raises(SceneLoadError, match="coordinate magnitude"):
+        instances_of(tri, ["a", "b"], np.stack([np.eye(4), far]), "k")
+    infinite = np.eye(4)
+    infinite[1, 1] = np.inf
+    with pytest.raises(SceneLoadError, match="'b': instance_matrix is not a finite affine"):
+        instances_of(tri, ["a", "b"], np.stack([np.eye(4), infinite]), "k")
+    overflow = np.eye(4)  # finite, but a vertex moved by it is not
+    overflow[0, 0] = overflow[0, 3] = 1e308
+    with pytest.raises(DegenerateGeometryError, match="'b': 1 of 3 vertices have non-finite"):
+        instances_of(tri, ["a", "b"], np.stack([np.eye(4), overflow]), "k")
+    flat = np.diag([0.0, 1.0, 1.0, 1.0])  # the +z normals become zero
+    with pytest.raises(SceneLoadError, match="'b': 3 of 3 normals are zero"):
+        instances_of(tri, ["a", "b"], np.stack([np.eye(4), flat]), "k")
+    with pytest.raises(SceneLoadError, match="2 names"):
+        instances_of(tri, ["a", "b"], np.eye(4)[None], "k")
+    assert instances_of(tri, [], np.zeros((0, 4, 4)), "k") == []  # a prototype no tree of a forest drew
+
+
+def test_a_gltf_instance_whose_move_zeroes_its_normals_is_repaired_with_a_warning(tmp_path):
+    """The loader moves an instanced mesh's instances at once; an instance that flattens its normals
+    to zero is built on its own instead, repaired as any file's zero normals are."""
+    import warnings
+
+    from gltf_files import GltfBuilder
+
+    b = GltfBuilder()
+    node = b.quad("leaf", [0, 0, 0], 1.0, b.material(), normals=np.tile([0.0, 0.0, 1.0], (4, 1)))
+    spec = {"SCALE": b.accessor(np.array([[1.0, 1.0, 1.0], [0.0, 1.0, 1.0], [2.0, 2.0, 2.0]]), target=None)}
+    b.doc["nodes"][node]["extensions"] = {"EXT_mesh_gpu_instancing": {"attributes": spec}}
+    b.used.add("EXT_mesh_gpu_instancing")
+    with warnings.catch_warnings(record=True):
+        warnings.simplefilter("always")
+        scene = load_scene(b.write(tmp_path / "flat.glb"))
+    by_name = {obj.name: obj for obj in scene.objects}
+    assert len(scene.instances()) == 1 and len(next(iter(scene.instances().values()))) == 3
+    np.testing.assert_allclose(by_name["leaf@2"].normals, np.tile([0.0, 0.0, 1.0], (4, 1)), atol=1e-7)
+    assert np.isfinite(by_name["leaf@1"].normals).all()
+    assert any("'leaf@1': 4 of 4 shading normals were zero" in w for w in scene.warnings)
+    assert not any("leaf@0" in w or "leaf@2" in w for w in scene.warnings)

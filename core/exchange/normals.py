@@ -47,9 +47,33 @@ def normal_matrix(linear: np.ndarray) -> np.ndarray:
     >>> (normal_matrix(np.diag([-1.0, 1.0, 1.0])) @ [0.0, 0.0, 1.0]).tolist()  # a mirror in x keeps +z
     [0.0, 0.0, 1.0]
     """
-    a, b, c = np.asarray(linear, dtype=np.float64).T
-    cofactor = np.column_stack([np.cross(b, c), np.cross(c, a), np.cross(a, b)])
-    return -cofactor if np.linalg.det(linear) < 0.0 else cofactor
+    return normal_matrices(np.asarray(linear, dtype=np.float64)[None])[0]
+
+
+def normal_matrices(linear: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) :func:`normal_matrix` of each of ``linear`` (n, 3, 3) at once (an instanced mesh's
+    transforms): the cofactors written out, ``b x c = (b1 c2 - b2 c1, b2 c0 - b0 c2, b0 c1 - b1 c0)``.
+
+    >>> (normal_matrices(np.stack([np.eye(3), np.diag([-1.0, 2.0, 1.0])]))[1] + 0.0).tolist()  # a mirror in x
+    [[-2.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 2.0]]
+    """
+    m = np.asarray(linear, dtype=np.float64)
+    a, b, c = m[..., :, 0], m[..., :, 1], m[..., :, 2]  # the columns, (n, 3) each
+
+    def cross(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+        return np.stack(
+            [
+                p[:, 1] * q[:, 2] - p[:, 2] * q[:, 1],
+                p[:, 2] * q[:, 0] - p[:, 0] * q[:, 2],
+                p[:, 0] * q[:, 1] - p[:, 1] * q[:, 0],
+            ],
+            axis=1,
+        )
+
+    cofactor = np.stack([cross(b, c), cross(c, a), cross(a, b)], axis=2)  # columns b x c, c x a, a x b
+    flip = np.linalg.det(m) < 0.0
+    cofactor[flip] *= -1.0
+    return cofactor
 
 
 def transform_normals(normals: np.ndarray, linear: np.ndarray) -> np.ndarray:

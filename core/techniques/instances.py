@@ -19,16 +19,26 @@ from farfield.core.techniques.base import TechniqueDefinition
 from farfield.core.viewcells import ViewCell
 
 
-def instance_part(scene: Scene, names: list[str] | None) -> tuple[str, np.ndarray, tuple[str, ...]] | None:
+def instance_index(scene: Scene) -> dict[frozenset, tuple[str, np.ndarray, tuple[str, ...]]]:
+    """Every instance of ``scene`` by the set of its object names: (prototype key, (4, 4) instance
+    matrix, the instance's object names); built once for a scene whose many instances are looked up
+    (:class:`InstanceBakes`), one pass over the objects."""
+    by_name = {obj.name: obj for obj in scene.objects}
+    return {
+        frozenset(instance): (key, by_name[instance[0]].instance_matrix, instance)
+        for key, instances in scene.instances().items()
+        for instance in instances
+    }
+
+
+def instance_part(
+    scene: Scene, names: list[str] | None, index: dict | None = None
+) -> tuple[str, np.ndarray, tuple[str, ...]] | None:
     """(prototype key, (4, 4) instance matrix, the instance's object names) when the part of
-    ``names`` (None: every object) is exactly one instance of a prototype; else None."""
-    chosen = set(scene.names if names is None else names)
-    for key, instances in scene.instances().items():
-        for instance in instances:
-            if set(instance) == chosen:
-                first = next(obj for obj in scene.objects if obj.name == instance[0])
-                return key, first.instance_matrix, instance
-    return None
+    ``names`` (None: every object) is exactly one instance of a prototype; else None.  ``index``:
+    the scene's :func:`instance_index`, where the caller keeps it."""
+    index = instance_index(scene) if index is None else index
+    return index.get(frozenset(scene.names if names is None else names))
 
 
 def prototype_scene(scene: Scene, key: str) -> Scene:
@@ -48,6 +58,7 @@ class InstanceBakes:
         self.technique = technique
         self.bakes = 0
         self._prototypes: dict[tuple, Impostor] = {}
+        self._index: tuple[Scene, dict] | None = None  # the last scene's instance_index
 
     def bake(
         self, scene: Scene, cell: ViewCell, options, names: list[str] | None = None, progress: Progress | None = None
@@ -55,7 +66,9 @@ class InstanceBakes:
         """The impostor of the part ``names`` of ``scene`` for ``cell``: its prototype's moved, when
         it is an instance the technique can share, else its own bake."""
         technique = self.technique
-        found = None if technique.instancing is None else instance_part(scene, names)
+        if technique.instancing is not None and (self._index is None or self._index[0] is not scene):
+            self._index = (scene, instance_index(scene))
+        found = None if technique.instancing is None else instance_part(scene, names, self._index[1])
         local = None if found is None else technique.instancing.local_cell(cell, found[1], options)
         if local is None:
             self.bakes += 1

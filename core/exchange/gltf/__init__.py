@@ -47,7 +47,7 @@ from farfield.core.exchange.gltf.document import Buffers, array, header_json, it
 from farfield.core.exchange.gltf.materials import NEAREST, Images, Material, material
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits, check_gltf
 from farfield.core.exchange.normals import repair_normals, transform_normals, transform_tangents, uv_tangents
-from farfield.core.scene import SceneObject, prototype_key
+from farfield.core.scene import SceneObject, instances_of, prototype_key
 
 EXTENSIONS = ("glb", "gltf")
 
@@ -86,7 +86,6 @@ def _node_matrix(node: dict, index: int) -> np.ndarray:
             if matrix.shape != (16,):
                 raise SceneLoadError(f"{where}: matrix has {matrix.size} numbers, not 16")
             return matrix.reshape(4, 4).T
-        out = np.eye(4)
         translation = np.array(node.get("translation", (0.0, 0.0, 0.0)), dtype=np.float64)
         rotation = np.array(node.get("rotation", (0.0, 0.0, 0.0, 1.0)), dtype=np.float64)
         scale = np.array(node.get("scale", (1.0, 1.0, 1.0)), dtype=np.float64)
@@ -94,25 +93,41 @@ def _node_matrix(node: dict, index: int) -> np.ndarray:
         raise SceneLoadError(f"{where}: transform is not numbers: {error}") from error
     if translation.shape != (3,) or rotation.shape != (4,) or scale.shape != (3,):
         raise SceneLoadError(f"{where}: translation/rotation/scale have the wrong number of values")
-    x, y, z, w = rotation / (np.linalg.norm(rotation) or 1.0)  # unit quaternion, (x, y, z, w)
-    rot = np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-    out[:3, :3] = rot * scale[None, :]
+    x, y, z, w = (rotation / (np.linalg.norm(rotation) or 1.0)).tolist()  # unit quaternion, (x, y, z, w)
+    out = np.eye(4)
+    out[:3, :3] = np.array(_rotation(x, y, z, w)) * scale[None, :]
     out[:3, 3] = translation
     if not np.isfinite(out).all():
         raise SceneLoadError(f"{where}: transform is not finite")
     return out
 
 
-def _instances(
-    document: dict, buffers: Buffers, node: dict, index: int, limits: SceneLimits
-) -> list[np.ndarray] | None:
-    """EXT_mesh_gpu_instancing: (4, 4) local matrices of the node's instances, or None."""
+def _rotation(x, y, z, w) -> list:
+    """The rows of the rotation matrix of the unit quaternion (x, y, z, w): numbers, or arrays of
+    many quaternions' components."""
+    return [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ]
+
+
+def _trs_matrices(translation: np.ndarray, rotation: np.ndarray, scale: np.ndarray, where: str) -> np.ndarray:
+    """(n, 4, 4) float64 T x R x S of (n, 3) translations, (n, 4) quaternions (x, y, z, w;
+    normalised here) and (n, 3) scales: every instance of a node at once."""
+    length = np.sqrt((rotation * rotation).sum(axis=1))
+    x, y, z, w = (rotation / np.where(length > 0.0, length, 1.0)[:, None]).T  # unit quaternions
+    out = np.zeros((len(translation), 4, 4))
+    out[:, :3, :3] = np.array(_rotation(x, y, z, w)).transpose(2, 0, 1) * scale[:, None, :]
+    out[:, :3, 3] = translation
+    out[:, 3, 3] = 1.0
+    if not np.isfinite(out).all():
+        raise SceneLoadError(f"{where}: transform is not finite")
+    return out
+
+
+def _instances(document: dict, buffers: Buffers, node: dict, index: int, limits: SceneLimits) -> np.ndarray | None:
+    """EXT_mesh_gpu_instancing: (n, 4, 4) local matrices of the node's instances, or None."""
     extensions = node.get("extensions")
     spec = extensions.get("EXT_mesh_gpu_instancing") if isinstance(extensions, dict) else None
     if not isinstance(spec, dict) or not isinstance(spec.get("attributes"), dict):
@@ -124,11 +139,18 @@ def _instances(
         raise SceneLoadError(f"glTF node {index}: EXT_mesh_gpu_instancing attributes have different counts")
     count = counts.pop()
     limits.check("glTF instances (EXT_mesh_gpu_instancing)", count, "nodes")
-    out = []
-    for i in range(count):  # attributes other than the transform's (custom _ID ...) only count
-        local = {key.lower(): read[key][i].tolist() for key in ("TRANSLATION", "ROTATION", "SCALE") if key in read}
-        out.append(_node_matrix(local, index))
-    return out
+    # attributes other than the transform's (custom _ID ...) only count
+    parts = []
+    for key, default in (
+        ("TRANSLATION", (0.0, 0.0, 0.0)),
+        ("ROTATION", (0.0, 0.0, 0.0, 1.0)),
+        ("SCALE", (1.0, 1.0, 1.0)),
+    ):
+        values = np.asarray(read[key], dtype=np.float64) if key in read else np.tile(default, (count, 1))
+        if values.shape != (count, len(default)):
+            raise SceneLoadError(f"glTF node {index}: translation/rotation/scale have the wrong number of values")
+        parts.append(values)
+    return _trs_matrices(*parts, f"glTF node {index}")
 
 
 def _primitive_name(base: str, k: int, count: int) -> str:
@@ -211,6 +233,8 @@ class _Reader:
         self.triangles = 0
         self.uses: dict[tuple, int] = {}  # instances per mesh use (count_uses)
         self.prototypes: dict[tuple, tuple[list, list, str]] = {}  # mesh use -> (parts, local objects, key)
+        # (mesh use, primitive) -> (part, key, local object, places in objects, names, worlds): flush
+        self.pending: dict[tuple, tuple] = {}
 
     def unique(self, name: str) -> str:
         count = self.names.get(name, 0)
@@ -264,16 +288,19 @@ class _Reader:
             if "mesh" in node:
                 if "skin" in node:
                     self.warnings.append(f"node {index}: skinning is not applied; the mesh is drawn in its bind pose")
-                    world_of_mesh = [np.eye(4)]  # a skinned mesh ignores its node's transform (glTF §3.7.3)
+                    world_of_mesh = np.eye(4)[None]  # a skinned mesh ignores its node's transform (glTF §3.7.3)
                 else:
                     instances = _instances(self.document, self.buffers, node, index, self.limits)
-                    world_of_mesh = [world] if instances is None else [world @ m for m in instances]
+                    world_of_mesh = world[None] if instances is None else world @ instances
                 self.mesh(node, index, world_of_mesh)
             children = node.get("children", [])
             if isinstance(children, list):
                 stack += [(child, world) for child in reversed(children)]
 
-    def mesh(self, node: dict, index: int, worlds: list[np.ndarray]) -> None:
+    def mesh(self, node: dict, index: int, worlds: np.ndarray) -> None:
+        """The objects of a mesh node drawn at ``worlds`` (n, 4, 4): built now, or, for a mesh of
+        several instances, named and counted now and moved at once with all the mesh's other
+        instances in :meth:`flush`."""
         mesh_index = node["mesh"]
         mesh = item(self.document, "meshes", mesh_index)
         primitives = mesh.get("primitives")
@@ -306,8 +333,27 @@ class _Reader:
                 continue
             name = _primitive_name(base, k, len(primitives))
             for i, world in enumerate(worlds):
-                instance = None if key is None else (key, world, locals_[k])
-                self.add(self.unique(f"{name}@{i}" if many_instances else name), part, world, instance)
+                unique = self.unique(f"{name}@{i}" if many_instances else name)
+                if key is None:
+                    self.add(self.build(unique, part, world))
+                    continue
+                self.add(None, len(part["faces"]))  # its place, filled by flush
+                pending = self.pending.setdefault((use, k), (part, key, locals_[k], [], [], []))
+                pending[3].append(len(self.objects) - 1)
+                pending[4].append(unique)
+                pending[5].append(world)
+
+    def flush(self) -> None:
+        """The instances :meth:`mesh` left pending, each primitive's moved at once (:meth:`moved`)
+        or, where it cannot be, built one by one."""
+        for part, key, local, places, names, worlds in self.pending.values():
+            worlds = np.stack(worlds)
+            moved = self.moved(names, part, worlds, key, local)
+            for i, place in enumerate(places):
+                self.objects[place] = (
+                    moved[i] if moved is not None else self.build(names[i], part, worlds[i], (key, worlds[i], local))
+                )
+        self.pending.clear()
 
     def primitive(self, spec: object, where: str, weights: object) -> dict | None:
         if not isinstance(spec, dict) or not isinstance(spec.get("attributes"), dict):
@@ -457,14 +503,26 @@ class _Reader:
                 out += float(weight) * offsets
         return out
 
-    def add(self, name: str, part: dict, world: np.ndarray, instance: tuple | None = None) -> None:
-        """Append the object ``name`` of ``part`` moved by ``world``; ``instance``: (prototype key,
-        world, local object) of an instanced mesh."""
-        obj = self.build(name, part, world, instance)
-        self.triangles += len(obj.faces)
+    def add(self, obj: SceneObject | None, triangles: int | None = None) -> None:
+        """Append ``obj`` (None: a place :meth:`flush` fills with an object of ``triangles``),
+        counted against the limits."""
+        self.triangles += len(obj.faces) if obj is not None else triangles
         self.limits.check("objects", len(self.objects) + 1, "nodes")
         self.limits.check("triangles once node instancing is applied", self.triangles, "triangles")
         self.objects.append(obj)
+
+    def moved(self, names: list[str], part: dict, worlds: np.ndarray, key: str, local: SceneObject) -> list | None:
+        """The instances ``names`` of ``part`` at ``worlds``: its mesh's ``local`` object moved, all
+        at once (:func:`~farfield.core.scene.instances_of`: what the instances share is not built
+        and checked again), or None where :meth:`build` must make each: a normal map (its tangents
+        may be derived from an instance's own vertices) or normals a move makes zero (repaired with
+        a warning)."""
+        if part.get("normal_uv") is not None and part["normals"] is not None:
+            return None
+        try:
+            return instances_of(local, names, worlds, key, part["normals"])
+        except SceneLoadError:
+            return None  # build says what is wrong, or repairs it
 
     def build(self, name: str, part: dict, world: np.ndarray, instance: tuple | None = None) -> SceneObject:
         found: Material = part["material"]
@@ -664,4 +722,5 @@ def load(
     roots = _roots(document)
     reader.count_uses(roots)
     reader.walk(roots)
+    reader.flush()
     return tuple(reader.objects), tuple(dict.fromkeys(reader.warnings))
