@@ -27,7 +27,7 @@ import numpy as np
 
 from farfield.core.errors import LayerPlanError
 from farfield.core.impostor.database import ImpostorDatabase
-from farfield.core.quality.evaluation import compare_images
+from farfield.core.quality.evaluation import _holes, compare_images
 from farfield.core.quality.lighting import (
     AMBIENT,
     shade,
@@ -449,10 +449,11 @@ def placement_walkthrough(
     **What the PVS dropped** (a frame whose eye has a stored PVS, ``compare``): the full scene is
     drawn unculled a second time with only the PVS's elements; ``pvs_dropped_pixels`` counts the
     pixels where the two differ, i.e. where an element the PVS left out is visible.  They are hole
-    pixels: ``hole_pixels`` is the comparison's holes (full scene covered, runtime not) plus the
-    dropped pixels the runtime's image covers with something else (an element behind, or an
-    impostor), which the comparison cannot tell from a colour error.  A PVS that dropped nothing
-    visible gives 0.
+    pixels: ``hole_pixels`` is the comparison's holes (full scene covered, runtime not within one
+    pixel) plus the dropped pixels it did not count: those the runtime's image covers with
+    something else (an element behind, or an impostor), which the comparison cannot tell from a
+    colour error, or within a pixel of its coverage.  So ``hole_pixels >= pvs_dropped_pixels``, and
+    a PVS that dropped nothing visible adds 0.
     """
     from farfield.core.placement.runtime import PlacementRenderer
 
@@ -488,7 +489,8 @@ def placement_walkthrough(
                     _, kept, _ = runtime.prepare(position, forward, plain=True, cull=False, camera=camera, pvs=True)
                     lost = np.any(runtime.render(camera, kept) != full, axis=-1)
                     row["pvs_dropped_pixels"] = int(lost.sum())
-                    row["hole_pixels"] += int((lost & (drawn[..., 3] > 0)).sum())
+                    counted = _holes(full[..., 3] > 0, drawn[..., 3] > 0)  # what compare_images counted
+                    row["hole_pixels"] += int((lost & ~counted).sum())
             frames.append(row)
             report(n + 1, len(positions))
         memory = runtime.uploaded_impostor_bytes

@@ -55,7 +55,7 @@ def decode_set(text: str, count: int) -> np.ndarray:
     >>> decode_set("not base64!", 4)
     Traceback (most recent call last):
     ...
-    farfield.core.placement.hierarchy.PlacementError: a stored potentially visible set does not decode: Incorrect padding
+    farfield.core.placement.hierarchy.PlacementError: a stored potentially visible set does not decode: Only base64 data is allowed
     """
     try:
         raw = zlib.decompress(base64.b64decode(text.encode("ascii"), validate=True))
