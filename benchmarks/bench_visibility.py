@@ -1,6 +1,6 @@
 """From-region visibility (issue 57 item 1): sampled potentially visible sets on the benchmark cities, and what they do to a placement.
 
-Usage: ``.venv/bin/python benchmarks/bench_visibility.py [--scene city,dense,downtown,street] [--parts pvs,estimates,runtime,memory] [--views 100] [--json OUT]``
+Usage: ``.venv/bin/python benchmarks/bench_visibility.py [--scene city,dense,downtown,street] [--parts pvs,estimates,runtime,walk,memory] [--views 100] [--json OUT]``
 
 Per scene (the scenes and view spaces of ``bench_placement.py``; ``street`` is the 400-building city
 with the view space at street level, 1.5..2.5 m, over the same square), with the CPV size the view
@@ -24,7 +24,13 @@ space's longest side / ``--cpv-divisions`` and 45° view-direction intervals, at
    other (medians of 3 draws); triangles drawn; hole pixels and PVS-dropped pixels against the
    full scene; and estimate ÷ measured: the problem view's time with visibility over the
    PVS-culled frame, beside the time without visibility over the plain frame.
-4. **Memory**: the placement at t_max = half the worst view's estimate (the walkthrough's reference
+4. **A placement walked** (``--parts walk``): the placement with visibility at t_max = half the
+   worst view's estimate (as part 5), its impostors baked here, walked along ``--views`` random
+   views with the runtime drawing the PVS: the share of views within t_max (measured, and by the
+   estimate), hole pixels and PVS-dropped pixels against the full scene, and estimate ÷ measured
+   of the frames (the CPV's time after placement, or the model over the PVS in the frustum, over
+   the runtime's frame).
+5. **Memory**: the placement at t_max = half the worst view's estimate (the walkthrough's reference
    budget), without and with visibility (the cost model's memory estimate; nothing baked), beside
    the coarsest envmap grid meeting the same t_max by the model (``bench_placement``'s estimate,
    without visibility).
@@ -226,6 +232,42 @@ def runtime_rows(scene, lo, hi, cpv: float, resolution: int, views: int, seed: i
     return out
 
 
+def walk_rows(scene, lo, hi, cpv: float, resolution: int, views: int, seed: int) -> dict:
+    """A placement with visibility, baked and walked (module docstring, part 4)."""
+    import tempfile
+
+    from farfield.core.impostor.database import ImpostorDatabase
+    from farfield.core.placement.database import bake_placement, write_placement_database
+    from farfield.core.quality.walkthrough import placement_walkthrough, random_views
+
+    t_max = 0.5 * _worst_view(scene, lo, hi, LLVMPIPE_MODEL, resolution)
+    settings = PlacementSettings(t_max=t_max, model=LLVMPIPE_MODEL, options={"resolution": resolution}, cpv_size=cpv,
+                                 vdi_deg=45.0, visibility=True)  # fmt: skip
+    started = time.perf_counter()
+    placement = place(scene, lo, hi, settings)
+    plan_s = time.perf_counter() - started
+    started = time.perf_counter()
+    impostors = bake_placement(scene, placement)
+    bake_s = time.perf_counter() - started
+    positions, forwards = random_views(lo, hi, views, seed)
+    with tempfile.TemporaryDirectory(prefix="farfield-bench-") as tmp:
+        write_placement_database(Path(tmp) / "db", placement, impostors)
+        with ImpostorDatabase(Path(tmp) / "db") as db:
+            result = placement_walkthrough(scene, db, positions, forwards, repeats=3, compare=True)
+    frames, s = result["frames"], result["summary"]
+    ratio = np.array([f["estimate"] / f["runtime_ms"] for f in frames])
+    return {
+        "t_max": t_max, "plan_s": plan_s, "bake_s": bake_s, "impostors": placement.summary["impostors"],
+        "memory_bytes": placement.summary["memory_bytes"], "cpvs": placement.summary["cpvs"],
+        "share_within_t_max": s["share_within_t_max"], "share_estimate_within_t_max": s["share_estimate_within_t_max"],
+        "runtime_ms_p50": s["runtime_ms_p50"], "runtime_ms_p99": s["runtime_ms_p99"], "plain_ms_p99": s["plain_ms_p99"],
+        "hole_pixels": s.get("hole_pixels"), "max_hole_pixels": s.get("max_hole_pixels"),
+        "pvs_dropped_pixels": s.get("pvs_dropped_pixels"), "frames_with_pvs": s.get("frames_with_pvs"),
+        "ratio_p50": float(np.median(ratio)), "ratio_p95": float(np.percentile(ratio, 95)),
+        "under_30pct": float(np.mean(ratio < 0.7)), "frames": len(frames),
+    }  # fmt: skip
+
+
 def memory_rows(scene, lo, hi, cpv: float, resolution: int) -> dict:
     worst = _worst_view(scene, lo, hi, LLVMPIPE_MODEL, resolution)
     t_max = 0.5 * worst
@@ -315,6 +357,14 @@ def main() -> None:
                 e = r[key]
                 print(f"   estimate ÷ measured ({key}; measured: {'PVS-culled' if key == 'visibility' else 'frustum-only'} frame): p50 {e['ratio_p50']:.2f}, "
                       f"p95 {e['ratio_p95']:.2f}, slowest quarter p50 {e['ratio_p50_slowest_quarter']:.2f}, under by > 30 %: {100 * e['under_30pct']:.1f} %", flush=True)  # fmt: skip
+        if "walk" in parts:
+            r = row["walk"] = walk_rows(scene, lo, hi, cpv, args.resolution, args.views, args.seed)
+            print(f"   placement with visibility at t_max {r['t_max']:.3g} ms: {r['impostors']} impostors, {mib(r['memory_bytes']):.1f} MiB, {r['cpvs']} CPVs; "
+                  f"planned in {r['plan_s']:.0f} s, baked in {r['bake_s']:.0f} s; walked {r['frames']} views ({r['frames_with_pvs']} PVS-culled): "
+                  f"{100 * r['share_within_t_max']:.0f} % within t_max measured, {100 * r['share_estimate_within_t_max']:.0f} % by the estimate; "
+                  f"runtime ms p50 {r['runtime_ms_p50']:.2f}, p99 {r['runtime_ms_p99']:.2f} (plain p99 {r['plain_ms_p99']:.2f}); "
+                  f"hole pixels {r['hole_pixels']} (max {r['max_hole_pixels']}), PVS-dropped {r['pvs_dropped_pixels']}; "
+                  f"estimate ÷ measured p50 {r['ratio_p50']:.2f}, p95 {r['ratio_p95']:.2f}, under by > 30 %: {100 * r['under_30pct']:.0f} %", flush=True)  # fmt: skip
         if "memory" in parts:
             r = row["memory"] = memory_rows(scene, lo, hi, cpv, args.resolution)
             g = r["envmap_grid"]
