@@ -12,6 +12,7 @@ import json
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from scenes import write_scene
 
 from farfield.cli.main import _register, cli
 from farfield.core import procedural
@@ -174,3 +175,27 @@ def test_stored_sets_refuse_what_does_not_read():
     ):
         with pytest.raises(PlacementError, match=message):
             StoredSets(copy.deepcopy(bad))
+
+
+def test_walkthrough_command_culls_unless_told_not_to(walled, tmp_path):
+    """From the scene written as GLB (its objects perhaps in another order: the runtime maps the
+    stored sets by element name)."""
+    scene, _, root = walled
+    _register()
+    path = write_scene(scene, tmp_path, "glb", "walled")
+    runner = CliRunner()
+    views = tmp_path / "path.json"
+    views.write_text(
+        json.dumps([{"position": p.tolist(), "forward": d.tolist()} for p, d in zip(POSITIONS[:3], FORWARDS)])
+    )
+    args = ["walkthrough", str(root), str(path), "--path", str(views), "--repeats", "1"]
+    culled = runner.invoke(cli, [*args, "--json"])
+    assert culled.exit_code == 0, culled.output
+    s = json.loads(culled.output)["summary"]
+    assert s["frames_with_pvs"] == 3 and s["hole_pixels"] == 0 and s["pvs_dropped_pixels"] == 0
+    every = runner.invoke(cli, [*args, "--json", "--no-pvs"])
+    assert every.exit_code == 0, every.output
+    assert "frames_with_pvs" not in json.loads(every.output)["summary"]
+    assert json.loads(every.output)["summary"]["triangles_mean"] > s["triangles_mean"]
+    text = runner.invoke(cli, args)
+    assert text.exit_code == 0 and "visibility: 3 frames drew only their region's PVS" in text.output

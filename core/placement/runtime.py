@@ -156,15 +156,19 @@ class PlacementRenderer:
         self.elements = Elements.of(scene, cluster)
         self.lookup = PlacementLookup(database.index)
         names = self.elements.names
-        sets = self.lookup.sets
-        if sets is not None and (
-            sets.count != self.elements.count or (sets.names and tuple(sets.names) != tuple(names))
-        ):
-            raise PlacementError(
-                f"the placement's stored potentially visible sets are of {sets.count} elements, the scene has {self.elements.count} "
-                "(or other names): is it the placement's scene?"
-            )
         self.element_of = {name: i for i, name in enumerate(names)}
+        # The stored sets' element indices -> this scene's (the same elements, perhaps in another
+        # order: a scene read from another file format lists its objects in its own order).
+        sets = self.lookup.sets
+        self.pvs_elements = None
+        if sets is not None:
+            stored_names = sets.names or (list(names) if sets.count == self.elements.count else [])
+            if sets.count != self.elements.count or set(stored_names) != set(names):
+                raise PlacementError(
+                    f"the placement's stored potentially visible sets are of {sets.count} elements, the scene has {self.elements.count} "
+                    "(or other names): is it the placement's scene?"
+                )
+            self.pvs_elements = np.array([self.element_of[name] for name in stored_names], dtype=np.int64)
         missing = sorted({name for objects in self.lookup.objects.values() for name in objects} - set(names))
         if missing:
             raise PlacementError(
@@ -263,6 +267,8 @@ class PlacementRenderer:
         for name in replaced:
             keep[self.element_of[name]] = False
         stored = self.lookup.visible_set(position) if (not plain if pvs is None else pvs) else None
+        if stored is not None:
+            stored = self.pvs_elements[stored]
         dropped = np.zeros(self.elements.count, dtype=bool)
         if stored is not None:
             dropped[:] = keep
