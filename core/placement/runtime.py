@@ -17,7 +17,8 @@ against it, in the same framebuffer: a draw list holds the geometry's draws, the
 **Visibility culling.**  A database planned with visibility stores the potentially visible set of
 every smallest region of its view space (:mod:`farfield.core.visibility.region_sets`); the runtime
 then draws as geometry only the elements of the PVS of the region holding the eye (as a
-thesis-era engine with from-region culling did, seed 000 §5.8), plus the impostors.  A view outside
+thesis-era engine with from-region culling did: seed 000 §5.8.1, "Visibility culling was done
+for the model using a conservative from-region visibility algorithm [Wonk00]"), plus the impostors.  A view outside
 every stored region, or a database without a PVS, draws every element as before.  The PVS is
 sampled, not conservative: a visible element it lacks is missing from the frame, which the
 walkthrough counts against the full scene (:func:`farfield.core.quality.walkthrough.placement_walkthrough`).
@@ -267,10 +268,9 @@ class PlacementRenderer:
         for name in replaced:
             keep[self.element_of[name]] = False
         stored = self.lookup.visible_set(position) if (not plain if pvs is None else pvs) else None
+        dropped = np.zeros(self.elements.count, dtype=bool)  # what the PVS leaves out of ``keep``
         if stored is not None:
             stored = self.pvs_elements[stored]
-        dropped = np.zeros(self.elements.count, dtype=bool)
-        if stored is not None:
             dropped[:] = keep
             keep[:] = False
             keep[stored] = dropped[stored]
