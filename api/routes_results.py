@@ -199,7 +199,10 @@ def lookup_viewpoint(
     """A grid job's answer is the cells whose view cell holds (x, y, z).  A placement job's is
     :meth:`PlacementLookup.find` for the view (``cpv``, ``status``, ``impostors``, ``replaced``,
     ``time_estimated``) plus ``cells``: the record of each impostor to draw; everything not in
-    ``replaced`` is drawn as geometry."""
+    ``replaced`` is drawn as geometry.  A placement planned with visibility adds ``pvs``: the
+    potentially visible set of the smallest region holding (x, y, z) (``region``, ``box``, ``count``,
+    ``of``, element ``ids`` and ``elements`` names; null outside every region): only those elements
+    are drawn as geometry."""
     job = get_job_row(svc.db, tenant_id, job_id)
     given = (("x", x), ("y", y), ("z", z), ("dx", dx), ("dy", dy), ("dz", dz))
     not_finite = [f"{name}={value!r}" for name, value in given if value is not None and not math.isfinite(value)]

@@ -1,6 +1,6 @@
 """From-region visibility (issue 57 item 1): sampled potentially visible sets on the benchmark cities, and what they do to a placement.
 
-Usage: ``.venv/bin/python benchmarks/bench_visibility.py [--scene city,dense,downtown,street] [--views 100] [--json OUT]``
+Usage: ``.venv/bin/python benchmarks/bench_visibility.py [--scene city,dense,downtown,street] [--parts pvs,estimates,runtime,walk,memory] [--views 100] [--json OUT]``
 
 Per scene (the scenes and view spaces of ``bench_placement.py``; ``street`` is the 400-building city
 with the view space at street level, 1.5..2.5 m, over the same square), with the CPV size the view
@@ -16,7 +16,21 @@ space's longest side / ``--cpv-divisions`` and 45° view-direction intervals, at
 2. **Estimate ÷ measured** on ``--views`` random views (``bench_placement.estimate_rows``'s): the
    time of each view's problem view with no impostor (what the planner budgets), without and with
    visibility, over the measured plain frame (the runtime draws every element in its frustum).
-3. **Memory**: the placement at t_max = half the worst view's estimate (the walkthrough's reference
+3. **The runtime culling to the PVS** (``--parts runtime``, issue 57 item 2): the PVS of every
+   smallest region stored in a placement database (:mod:`farfield.core.visibility.region_sets`; the
+   placement at an unreachable t_max, so no impostor: every frame is geometry), then a walkthrough
+   of ``--views`` random views: per frame the runtime drawing only the PVS of the eye's region and
+   the plain geometry (every element in the frustum), timed from the same camera one after the
+   other (medians of 3 draws); triangles drawn; hole pixels and PVS-dropped pixels against the
+   full scene; and estimate ÷ measured: the problem view's time with visibility over the
+   PVS-culled frame, beside the time without visibility over the plain frame.
+4. **A placement walked** (``--parts walk``): the placement with visibility at t_max = half the
+   worst view's estimate (as part 5), its impostors baked here, walked along ``--views`` random
+   views with the runtime drawing the PVS: the share of views within t_max (measured, and by the
+   estimate), hole pixels and PVS-dropped pixels against the full scene, and estimate ÷ measured
+   of the frames (the CPV's time after placement, or the model over the PVS in the frustum, over
+   the runtime's frame).
+5. **Memory**: the placement at t_max = half the worst view's estimate (the walkthrough's reference
    budget), without and with visibility (the cost model's memory estimate; nothing baked), beside
    the coarsest envmap grid meeting the same t_max by the model (``bench_placement``'s estimate,
    without visibility).
@@ -161,6 +175,99 @@ def estimate_ratios(scene, lo, hi, cpv: float, resolution: int, views: int, seed
     return out
 
 
+def runtime_rows(scene, lo, hi, cpv: float, resolution: int, views: int, seed: int) -> dict:
+    """The runtime culling to the stored PVS against drawing the frustum (module docstring, part 3)."""
+    import tempfile
+    from dataclasses import replace
+
+    from farfield.core.impostor.database import ImpostorDatabase
+    from farfield.core.placement.database import write_placement_database
+    from farfield.core.quality.walkthrough import placement_walkthrough, random_views
+    from farfield.core.visibility.region_sets import raw_size, region_sets, stored_size
+
+    positions, forwards = random_views(lo, hi, views, seed)
+    elements = Elements.of(scene)
+    hierarchy = Hierarchy.build(elements)
+    args = (elements, hierarchy, lo, hi, LLVMPIPE_MODEL, 1e-12, FOV, resolution, cpv, 45.0, 4.0)
+    visible = RegionVisibility(scene, elements, lo, hi, cpv, resolution, FOV)
+    started = time.perf_counter()
+    try:
+        with_vis = problem_view_space(*args, visible)
+        sets = region_sets(visible, elements.names, lo, hi, cpv)
+    finally:
+        visible.release()
+    pvs_s = time.perf_counter() - started
+    without = problem_view_space(*args)
+    empty = place(scene, lo, hi, PlacementSettings(t_max=1e12, model=LLVMPIPE_MODEL, options={"resolution": resolution},
+                                                   cpv_size=cpv, vdi_deg=45.0))  # fmt: skip
+    with tempfile.TemporaryDirectory(prefix="farfield-bench-") as tmp:
+        write_placement_database(Path(tmp) / "db", replace(empty, visibility=sets), {})
+        with ImpostorDatabase(Path(tmp) / "db") as db:
+            result = placement_walkthrough(scene, db, positions, forwards, repeats=3, compare=True)
+    frames, summary = result["frames"], result["summary"]
+    run = np.array([f["runtime_ms"] for f in frames])
+    plain = np.array([f["plain_ms"] for f in frames])
+    out = {
+        "pvs_s": pvs_s, "regions": len(sets["sets"]), "stored_bytes": stored_size(sets), "raw_bytes": raw_size(sets),
+        "frames": len(frames), "frames_with_pvs": summary.get("frames_with_pvs", 0),
+        "culled_ms_p50": float(np.median(run)), "culled_ms_p95": float(np.percentile(run, 95)),
+        "plain_ms_p50": float(np.median(plain)), "plain_ms_p95": float(np.percentile(plain, 95)),
+        "speedup_median": float(np.median(plain / run)),
+        "culled_triangles_mean": float(np.mean([f["triangles"] for f in frames])),
+        "plain_triangles_mean": float(np.mean([f["plain_triangles"] for f in frames])),
+        "culled_elements_mean": float(np.mean([f["elements"] for f in frames])),
+        "plain_elements_mean": float(np.mean([f["plain_draw_calls"] for f in frames])),
+        "hole_pixels": summary.get("hole_pixels"), "max_hole_pixels": summary.get("max_hole_pixels"),
+        "pvs_dropped_pixels": summary.get("pvs_dropped_pixels"), "max_pvs_dropped_pixels": summary.get("max_pvs_dropped_pixels"),
+        "frames_with_holes": int(sum(f["hole_pixels"] > 0 for f in frames)),
+        "pixels": int(resolution) ** 2,
+    }  # fmt: skip
+    for key, pv, measured in (("none", without, plain), ("visibility", with_vis, run)):
+        ratio = problem_view_times(pv, positions, forwards) / measured
+        slow = measured >= np.percentile(measured, 75)
+        out[key] = {
+            "ratio_p50": float(np.median(ratio)), "ratio_p95": float(np.percentile(ratio, 95)),
+            "ratio_p50_slowest_quarter": float(np.median(ratio[slow])), "under_30pct": float(np.mean(ratio < 0.7)),
+        }  # fmt: skip
+    return out
+
+
+def walk_rows(scene, lo, hi, cpv: float, resolution: int, views: int, seed: int) -> dict:
+    """A placement with visibility, baked and walked (module docstring, part 4)."""
+    import tempfile
+
+    from farfield.core.impostor.database import ImpostorDatabase
+    from farfield.core.placement.database import bake_placement, write_placement_database
+    from farfield.core.quality.walkthrough import placement_walkthrough, random_views
+
+    t_max = 0.5 * _worst_view(scene, lo, hi, LLVMPIPE_MODEL, resolution)
+    settings = PlacementSettings(t_max=t_max, model=LLVMPIPE_MODEL, options={"resolution": resolution}, cpv_size=cpv,
+                                 vdi_deg=45.0, visibility=True)  # fmt: skip
+    started = time.perf_counter()
+    placement = place(scene, lo, hi, settings)
+    plan_s = time.perf_counter() - started
+    started = time.perf_counter()
+    impostors = bake_placement(scene, placement)
+    bake_s = time.perf_counter() - started
+    positions, forwards = random_views(lo, hi, views, seed)
+    with tempfile.TemporaryDirectory(prefix="farfield-bench-") as tmp:
+        write_placement_database(Path(tmp) / "db", placement, impostors)
+        with ImpostorDatabase(Path(tmp) / "db") as db:
+            result = placement_walkthrough(scene, db, positions, forwards, repeats=3, compare=True)
+    frames, s = result["frames"], result["summary"]
+    ratio = np.array([f["estimate"] / f["runtime_ms"] for f in frames])
+    return {
+        "t_max": t_max, "plan_s": plan_s, "bake_s": bake_s, "impostors": placement.summary["impostors"],
+        "memory_bytes": placement.summary["memory_bytes"], "cpvs": placement.summary["cpvs"],
+        "share_within_t_max": s["share_within_t_max"], "share_estimate_within_t_max": s["share_estimate_within_t_max"],
+        "runtime_ms_p50": s["runtime_ms_p50"], "runtime_ms_p99": s["runtime_ms_p99"], "plain_ms_p99": s["plain_ms_p99"],
+        "hole_pixels": s.get("hole_pixels"), "max_hole_pixels": s.get("max_hole_pixels"),
+        "pvs_dropped_pixels": s.get("pvs_dropped_pixels"), "frames_with_pvs": s.get("frames_with_pvs"),
+        "ratio_p50": float(np.median(ratio)), "ratio_p95": float(np.percentile(ratio, 95)),
+        "under_30pct": float(np.mean(ratio < 0.7)), "frames": len(frames),
+    }  # fmt: skip
+
+
 def memory_rows(scene, lo, hi, cpv: float, resolution: int) -> dict:
     worst = _worst_view(scene, lo, hi, LLVMPIPE_MODEL, resolution)
     t_max = 0.5 * worst
@@ -238,6 +345,26 @@ def main() -> None:
                 e = r[key]
                 print(f"   estimate ÷ measured ({key}): p50 {e['ratio_p50']:.2f}, p95 {e['ratio_p95']:.2f}, slowest quarter p50 {e['ratio_p50_slowest_quarter']:.2f}, "
                       f"under by > 30 %: {100 * e['under_30pct']:.1f} %; plain p50 {r['plain_ms_p50']:.2f} ms, p99 {r['plain_ms_p99']:.2f} ms", flush=True)  # fmt: skip
+        if "runtime" in parts:
+            r = row["runtime"] = runtime_rows(scene, lo, hi, cpv, args.resolution, args.views, args.seed)
+            print(f"   runtime with the stored PVS ({r['regions']} regions, {r['stored_bytes']:,} B stored vs {r['raw_bytes']:,} B raw bits; PVS {r['pvs_s']:.1f} s): "
+                  f"{r['frames_with_pvs']}/{r['frames']} frames culled; frame ms p50 {r['culled_ms_p50']:.2f} / p95 {r['culled_ms_p95']:.2f} "
+                  f"vs frustum only {r['plain_ms_p50']:.2f} / {r['plain_ms_p95']:.2f} (speed-up median {r['speedup_median']:.2f}x); "
+                  f"triangles mean {r['culled_triangles_mean']:,.0f} vs {r['plain_triangles_mean']:,.0f}, elements {r['culled_elements_mean']:.1f} vs {r['plain_elements_mean']:.1f}; "
+                  f"hole pixels {r['hole_pixels']} (max {r['max_hole_pixels']} of {r['pixels']} in a frame, {r['frames_with_holes']} frames), "
+                  f"PVS-dropped pixels {r['pvs_dropped_pixels']} (max {r['max_pvs_dropped_pixels']})", flush=True)  # fmt: skip
+            for key in ("none", "visibility"):
+                e = r[key]
+                print(f"   estimate ÷ measured ({key}; measured: {'PVS-culled' if key == 'visibility' else 'frustum-only'} frame): p50 {e['ratio_p50']:.2f}, "
+                      f"p95 {e['ratio_p95']:.2f}, slowest quarter p50 {e['ratio_p50_slowest_quarter']:.2f}, under by > 30 %: {100 * e['under_30pct']:.1f} %", flush=True)  # fmt: skip
+        if "walk" in parts:
+            r = row["walk"] = walk_rows(scene, lo, hi, cpv, args.resolution, args.views, args.seed)
+            print(f"   placement with visibility at t_max {r['t_max']:.3g} ms: {r['impostors']} impostors, {mib(r['memory_bytes']):.1f} MiB, {r['cpvs']} CPVs; "
+                  f"planned in {r['plan_s']:.0f} s, baked in {r['bake_s']:.0f} s; walked {r['frames']} views ({r['frames_with_pvs']} PVS-culled): "
+                  f"{100 * r['share_within_t_max']:.0f} % within t_max measured, {100 * r['share_estimate_within_t_max']:.0f} % by the estimate; "
+                  f"runtime ms p50 {r['runtime_ms_p50']:.2f}, p99 {r['runtime_ms_p99']:.2f} (plain p99 {r['plain_ms_p99']:.2f}); "
+                  f"hole pixels {r['hole_pixels']} (max {r['max_hole_pixels']}), PVS-dropped {r['pvs_dropped_pixels']}; "
+                  f"estimate ÷ measured p50 {r['ratio_p50']:.2f}, p95 {r['ratio_p95']:.2f}, under by > 30 %: {100 * r['under_30pct']:.0f} %", flush=True)  # fmt: skip
         if "memory" in parts:
             r = row["memory"] = memory_rows(scene, lo, hi, cpv, args.resolution)
             g = r["envmap_grid"]

@@ -1,6 +1,7 @@
 """``farfield lookup``: what a runtime draws for one view of a placement database (offline): the CPV
 holding the view, its status, the impostors to draw (with their bundle folders) and the elements
-they replace; everything else is drawn as geometry (:class:`farfield.core.placement.database.PlacementLookup`).
+they replace; everything else is drawn as geometry, or with visibility only the region's
+potentially visible set (``pvs``) (:class:`farfield.core.placement.database.PlacementLookup`).
 A primitive-budget database's answer is its grid point, the image to warp and the triangles left
 (:func:`farfield.core.placement.image_database.image_lookup`)."""
 
@@ -43,15 +44,32 @@ def lookup_answer(database: ImpostorDatabase, position, direction, folder: Path 
     }  # fmt: skip
 
 
+def pvs_lines(answer: dict) -> list[str]:
+    """The potentially visible set of the view's region, where the database stores one."""
+    pvs = answer.get("pvs")
+    if "pvs" not in answer:
+        return []
+    if pvs is None:
+        return ["potentially visible set: none stored for this position; every element is drawn"]
+    names = pvs["elements"] or [str(i) for i in pvs["ids"]]
+    shown = ", ".join(names[:20]) + (f" ... (+{len(names) - 20})" if len(names) > 20 else "")
+    lo, hi = pvs["box"]
+    return [
+        f"potentially visible set of region {pvs['region']} {lo} .. {hi}: {pvs['count']} of {pvs['of']} elements "
+        f"(only these are drawn as geometry): {shown}"
+    ]
+
+
 def answer_lines(answer: dict) -> list[str]:
-    """The answer for a person: the CPV and its status, each impostor's bundle and what it replaces."""
+    """The answer for a person: the CPV and its status, each impostor's bundle and what it replaces,
+    and the region's potentially visible set where one is stored."""
     unit = answer["unit"]
     lines = [f"view at {answer['position']} looking {answer['direction']} (t_max {answer['t_max']:.6g} {unit})"]
     if answer["cpv"] is None:
         lines.append(
             f"CPV: none ({answer['status']}): the whole scene as geometry is within t_max by the cost model; draw no impostor"
         )
-        return lines
+        return lines + pvs_lines(answer)
     lines.append(
         f"CPV {answer['cpv']}: {answer['status']}, estimated {answer['time_estimated']:.6g} {unit} with its impostors"
     )
@@ -60,7 +78,7 @@ def answer_lines(answer: dict) -> list[str]:
         where = cell["bundle"] or f"no bundle (cell {cell['state']})"
         lines.append(f"  {cell['index']:5d}  {cell['technique']}  {where}  replaces {', '.join(cell['objects'])}")
     lines.append(f"geometry: every element but the {len(answer['replaced'])} replaced (of {answer['elements']})")
-    return lines
+    return lines + pvs_lines(answer)
 
 
 def image_answer_lines(answer: dict) -> list[str]:

@@ -87,10 +87,16 @@ from farfield.core.quality.walkthrough import (
     type=click.FloatRange(-90.0, 90.0),
     help="With --lit: the sun's elevation (degrees above the horizon).  [default with --light-azimuth alone: 35]",
 )
+@click.option(
+    "--no-pvs",
+    is_flag=True,
+    help="Placement databases planned with visibility: draw every element in the frustum, not only the "
+    "stored potentially visible set of the eye's region (to compare).",
+)
 @click.option("--json", "as_json", is_flag=True, help="Every frame and the summary as JSON.")
 @sides_option
 def walkthrough_cmd(database, scene, path_file, frames, random_count, seed, repeats, plot, no_compare, lit,
-                    light_azimuth, light_elevation, as_json, sides):  # fmt: skip
+                    light_azimuth, light_elevation, no_pvs, as_json, sides):  # fmt: skip
     """Walk a camera path through DATABASE (a job's database.zip or its unpacked folder) and compare
     the reference runtime with SCENE drawn in full: an envmap database's near field + impostors, or
     a placement database's impostors + remaining geometry against its frame budget."""
@@ -132,7 +138,8 @@ def walkthrough_cmd(database, scene, path_file, frames, random_count, seed, repe
         bar = tqdm(total=len(positions), desc="frames", unit="frame", leave=False, disable=True if as_json else None)
         try:
             result = walkthrough(loaded, db, positions, forwards, repeats=repeats, compare=not no_compare,
-                                 progress=lambda done, total: bar.update(done - bar.n), lights=lights)  # fmt: skip
+                                 progress=lambda done, total: bar.update(done - bar.n), lights=lights,
+                                 visibility=not no_pvs)  # fmt: skip
         finally:
             bar.close()
     if placement:
@@ -263,6 +270,16 @@ def _print_placement(result: dict, plot: str | None) -> None:
     if "hole_pixels" in s:
         click.echo(
             f"{s['hole_pixels']} hole pixels, colour error mean {s['colour_error_mean']:.3f}, max {s['colour_error_max']}"
+        )
+    if "frames_with_pvs" in s:
+        dropped = (
+            f"; {s['pvs_dropped_pixels']} pixels of visible elements it dropped (counted as holes)"
+            if "pvs_dropped_pixels" in s
+            else ""
+        )
+        click.echo(
+            f"visibility: {s['frames_with_pvs']} frames drew only their region's PVS, {s['pvs_culled_mean']:.1f} elements "
+            f"in the frustum left out per frame (mean){dropped}"
         )
     if s["over_t_max"]:
         click.echo(f"{len(s['over_t_max'])} frames over t_max:")

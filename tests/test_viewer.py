@@ -399,3 +399,39 @@ def test_an_octahedral_job_is_drawn_by_the_shipped_module_as_its_reference_runti
         assert page.js_errors == []
     finally:
         page.context.close()
+
+
+def test_a_placement_with_visibility_hides_what_its_pvs_lacks(browser, service, client, tmp_path):
+    """Issue 57 item 2: a wall between the view space and a dense block (split into clusters);
+    planned with visibility, the lookup answers the region's PVS (the wall and a box beside) and
+    the view draws those alone, as the reference runtime does."""
+    from farfield.core import procedural
+    from farfield.core.scene import Scene, SceneObject
+
+    def box(name, low, high, n=1):
+        return SceneObject(name, *procedural.subdivided_box(low, high, n))
+
+    scene = Scene.from_objects([box("wall", (10, -50, -50), (11, 50, 50)), box("hidden", (20, -2, -2), (24, 2, 2), 24),
+                                box("beside", (-5, 0, 30), (-4, 1, 31))], "walled")  # fmt: skip
+    path = write_scene(scene, tmp_path, "glb", "walled")
+    request = {"view_space": {"lo": [-10.0, -2.0, -10.0], "hi": [0.0, 2.0, 10.0]}, "budget": {"primitives": 0.5 * scene.triangle_count},
+               "cpv_size": 10, "vdi_deg": 45.0, "visibility": True}  # fmt: skip
+    created = client.post("/v1/jobs", json={"scene_id": upload(client, path).json()["id"], "technique": "layered",
+                                            "resolution": 64, "placement": request})  # fmt: skip
+    assert created.status_code == 201, created.text
+    job = wait_for_job(client, created.json()["id"], timeout=300)
+    assert job["state"] == "done", (job["error"], job["errors"])
+    database = tmp_path / "database.zip"
+    database.write_bytes(client.get(f"/v1/jobs/{job['id']}/database.zip").content)
+    page = open_viewer(browser, service, f"job={job['id']}&size={SIZE}&paused=1")
+    with ImpostorDatabase(database) as db, PlacementRenderer(load_scene(path), db) as runtime:
+        for eye, forward in (([-5.0, 0.0, 0.0], [1.0, 0.0, 0.0]), ([-8.0, 1.0, 6.0], [1.0, 0.1, -0.2])):
+            camera, draws, figures = runtime.prepare(eye, forward, fov_deg=60.0, resolution=SIZE, cull=False)
+            assert figures.pvs == 2 and figures.triangles == 24  # the wall and the box beside, 12 triangles each
+            drawn, state = show(page, camera)
+            assert state["kind"] == "placement" and " pvs " in state["key"], state
+            assert state["triangles"] == figures.triangles, (state["triangles"], figures)
+            result = compare(drawn, runtime.render(camera, draws))
+            assert result["three_beyond_1px"] == 0 and result["farfield_beyond_1px"] == 0, result
+    assert page.js_errors == []
+    page.context.close()

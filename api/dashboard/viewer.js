@@ -17,7 +17,9 @@
 //        none     (an impostor of a part: layered, tdm, points, ldi, ...) every object not in
 //                 the job's "objects" (none when the job names no objects: the impostor
 //                 replaces the whole scene);
-//        placement every object not in the lookup's "replaced".
+//        placement every object not in the lookup's "replaced"; where the lookup has a "pvs"
+//                 (planned with visibility), only the elements it names (objects, or clusters
+//                 name#k of split objects): the rest is hidden from this region.
 //   4. Prefetch the neighbours' bundles (the index's "neighbours") so the next switch is instant.
 //
 // The page is also the dashboard's "3D view" of a job (?job=ID) and of one cell (?job=ID&cell=N:
@@ -327,19 +329,24 @@ function nearField(near) {
   return meshes;
 }
 
-function keptObjects(replaced) {
+function keptObjects(replaced, visible = null) {
   // Every element of the scene not in ``replaced`` (a Set of names), as meshes sharing the scene's
-  // buffers: a whole object, or an object less the clusters of it that are replaced.
-  const hidden = new Map(); // object name -> face ranges of its replaced clusters
-  for (const name of replaced) {
+  // buffers: a whole object, or an object less the clusters of it that are replaced.  ``visible``
+  // (a Set of element names: a lookup's potentially visible set, or null): only those are kept.
+  const hidden = new Map(); // object name -> face ranges of its replaced (or not visible) clusters
+  const cut = (name) => {
     const cluster = view.clusters[name];
-    if (!cluster) continue;
+    if (!cluster) return;
     if (!hidden.has(cluster.object)) hidden.set(cluster.object, []);
     hidden.get(cluster.object).push(...cluster.faces);
-  }
+  };
+  for (const name of replaced) cut(name);
+  const split = new Set(Object.values(view.clusters).map((c) => c.object));
+  if (visible) for (const name of Object.keys(view.clusters)) if (!visible.has(name) && !replaced.has(name)) cut(name);
   const meshes = [];
   for (const [name, list] of view.objects) {
     if (replaced.has(name)) continue;
+    if (visible && !split.has(name) && !visible.has(name)) continue; // outside the region's PVS
     for (const mesh of list) {
       const cut = hidden.get(name);
       if (!cut) { meshes.push(objectMesh(mesh)); continue; }
@@ -414,7 +421,7 @@ function evict(keep, active) {
   }
 }
 
-function groupFor(key, cells, replaced) {
+function groupFor(key, cells, replaced, visible = null) {
   // What to draw for one cell (grid) or one lookup answer (placement): impostors + kept geometry;
   // built once per key (the promise is shared while it builds).
   if (view.groups.has(key)) {
@@ -442,7 +449,7 @@ function groupFor(key, cells, replaced) {
         if (near) for (const mesh of near) group.add(mesh);
       }
       // a bundle with a near field replaces the whole scene but its near field: nothing more is kept
-      if (replaced && !loaded.some(({near}) => near)) for (const mesh of keptObjects(replaced)) group.add(mesh);
+      if (replaced && !loaded.some(({near}) => near)) for (const mesh of keptObjects(replaced, visible)) group.add(mesh);
       group.userData.bounds = new THREE.Box3().setFromObject(group); // impostors may reach past the scene
       view.groups.set(key, group);
       return group;
@@ -470,7 +477,11 @@ function placementWanted() {
   if (answer === null) return null;
   const cells = answer.impostors || [];
   const info = answer.cpv === null ? "under budget: drawing the geometry" : `CPV ${answer.cpv} (${answer.status}), ${cells.length} impostors`;
-  return {key: `cpv ${answer.cpv} ${cells.join(",")}`, cells, replaced: new Set(answer.replaced || []), info, cpv: answer.cpv};
+  // A placement planned with visibility: only its region's potentially visible set is drawn as geometry.
+  const pvs = answer.pvs && answer.pvs.elements ? answer.pvs : null;
+  const visible = pvs ? new Set(pvs.elements) : null;
+  const culled = pvs ? `; PVS of region ${pvs.region}: ${pvs.count} of ${pvs.of} elements` : "";
+  return {key: `cpv ${answer.cpv} ${cells.join(",")}${pvs ? ` pvs ${pvs.region}` : ""}`, cells, replaced: new Set(answer.replaced || []), visible, info: info + culled, cpv: answer.cpv};
 }
 
 function poseKey() {
@@ -518,7 +529,7 @@ async function doUpdate(force) {
     runtimeScene.add(rigs[0]);
     return;
   }
-  const group = await groupFor(wanted.key, wanted.cells, wanted.replaced);
+  const group = await groupFor(wanted.key, wanted.cells, wanted.replaced, wanted.visible || null);
   if (view.wantedKey !== wanted.key) return; // the camera moved on meanwhile
   runtimeScene.clear();
   runtimeScene.add(rigs[0], group);

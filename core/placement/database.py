@@ -14,6 +14,9 @@ placement's impostors (cell index = impostor id) and whose index has ``"kind": "
                            before and after, the impostors drawn there (cell indices), its status
     placement.unsolvable   regions no placement can serve, with the elements to blame
     placement.rounds       the check-and-repair rounds (farfield.core.placement.repair)
+    placement.visibility   only when planned with visibility: the potentially visible set of every smallest
+                           region of the view space (farfield.core.visibility.region_sets: compressed bitsets);
+                           a runtime draws only those elements there (a database without it: every element)
 
 and each cell entry, beside the usual ``index``, ``viewcell``, ``state`` and ``bundle``, has its own
 ``technique`` (with mixed candidates, ``layered`` or ``octahedral`` cell by cell, and ``kind``: shaft,
@@ -44,6 +47,7 @@ from farfield.core.placement.view_space import FACE_NAMES, VDI
 from farfield.core.scene import Scene
 from farfield.core.techniques import get_technique
 from farfield.core.viewcells import viewcell_from_dict
+from farfield.core.visibility.region_sets import StoredSets
 
 KIND = "placement"
 VERSION = 1
@@ -133,6 +137,8 @@ def placement_index(
         "unsolvable": doc["unsolvable"],
         "rounds": list(rounds or []),
     }
+    if doc.get("visibility"):  # planned with visibility: the PVS a runtime draws in each smallest region
+        index["placement"]["visibility"] = doc["visibility"]
     return index
 
 
@@ -157,6 +163,28 @@ class PlacementLookup:
         self.objects = {int(cell["index"]): list(cell.get("objects") or []) for cell in index.get("cells", [])}
         span = float(np.max(self.hi - self.lo)) if self.lo.size else 0.0
         self.tol = 1e-9 * max(span, float(np.max(np.abs(np.concatenate([self.lo, self.hi])))), 1.0)
+        stored = section.get("visibility")
+        self.sets = StoredSets(stored) if stored else None  # None: no PVS stored, every element drawn
+
+    def visible_set(self, position) -> np.ndarray | None:
+        """Sorted element indices of the stored PVS of the smallest region holding ``position``;
+        None where none is stored (planned without visibility, or outside every region)."""
+        return None if self.sets is None else self.sets.at(position)
+
+    def pvs_answer(self, position) -> dict | None:
+        """The lookup's ``pvs``: the region (its grid index and box), the element ids and names of
+        its PVS and the element count; None where no PVS is stored for the position."""
+        if self.sets is None:
+            return None
+        region = self.sets.region_of(position)
+        if region is None:
+            return None
+        ids = self.sets.pvs(region)
+        r_lo, r_hi = self.sets.region_box(region)
+        return {
+            "region": region, "box": [r_lo, r_hi], "count": int(ids.size), "of": self.sets.count, "ids": ids.tolist(),
+            "elements": [self.sets.names[i] for i in ids.tolist()] if self.sets.names else None,
+        }  # fmt: skip
 
     def cpv_of(self, position, direction) -> int:
         """The id of the first CPV holding the view, or -1 (under budget)."""
@@ -183,11 +211,13 @@ class PlacementLookup:
     def find(self, position, direction) -> dict:
         """``cpv`` (id or None), ``status`` (solved, unsolved, unsolvable or ``under budget``),
         ``impostors`` (cell indices to draw), ``replaced`` (the elements they stand for: everything
-        else is drawn as geometry) and ``time_estimated`` (the CPV's time after placement; None
-        under budget)."""
+        else is drawn as geometry, or with a stored PVS only what ``pvs`` holds) and
+        ``time_estimated`` (the CPV's time after placement; None under budget); a database planned
+        with visibility adds ``pvs`` (:meth:`pvs_answer`)."""
         k = self.cpv_of(position, direction)
+        pvs = {} if self.sets is None else {"pvs": self.pvs_answer(position)}
         if k < 0:
-            return {"cpv": None, "status": UNDER_BUDGET, "impostors": [], "replaced": [], "time_estimated": None}
+            return {"cpv": None, "status": UNDER_BUDGET, "impostors": [], "replaced": [], "time_estimated": None} | pvs
         cpv = self.cpvs[k]
         replaced = sorted({name for i in cpv["impostors"] for name in self.objects.get(int(i), [])})
         return {
@@ -196,7 +226,7 @@ class PlacementLookup:
             "impostors": list(cpv["impostors"]),
             "replaced": replaced,
             "time_estimated": cpv["time_after"],
-        }
+        } | pvs
 
     def find_many(self, positions, directions) -> np.ndarray:
         """(n,) CPV ids (-1: under budget) of ``n`` views."""

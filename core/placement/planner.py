@@ -31,6 +31,7 @@ from farfield.core.placement.view_space import Visibility, problem_view_space
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import StageClock
 from farfield.core.techniques import get_technique
+from farfield.core.visibility.region_sets import region_sets
 
 STEPS = ("hierarchy", "problem views", "candidates", "greedy")
 DEFAULT_CPV_DIVISIONS = 8  # default CPV size: the view space's longest side / 8
@@ -246,11 +247,12 @@ def place(
                 elements, hierarchy, lo, hi, settings.model, settings.t_max, fov, resolution, cpv_size, settings.vdi_deg, settings.depth_complexity,
                 pvs if pvs is not None else visible, lambda done, total: clock.report("problem views", done, total),
             )  # fmt: skip
+            if pvs is not None:  # what the runtime draws: the PVS of every smallest region (docs/formats.md)
+                pv.stats["pvs"] = region_sets(pvs, elements.names, lo, hi, float(cpv_size))
+                pv.stats["visibility"] = pvs.stats()
         finally:
             if pvs is not None:
                 pvs.release()
-        if pvs is not None:
-            pv.stats["visibility"] = pvs.stats()
 
     with clock("candidates"):
         shared = instance_sources(techniques, node_instances(scene, elements, hierarchy) if outside else {})

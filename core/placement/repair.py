@@ -445,6 +445,7 @@ class PlannerState:
             unsolvable=blame,
             summary=summary,
             seconds=self.seconds,
+            visibility=pv.stats.get("pvs"),  # the stored PVS of a placement planned with visibility
         )
 
 

@@ -13,7 +13,10 @@ in bytes, lengths in scene units.
   after, the impostors drawn in it (ids into ``impostors``), and ``status``: ``solved``,
   ``unsolved`` (no candidate set reaches ``t_max``) or ``unsolvable`` (what no impostor may
   replace, the elements meeting the region, exceeds ``t_max`` alone);
-* ``unsolvable``: per region with unsolvable CPVs, the worst such time and the elements to blame.
+* ``unsolvable``: per region with unsolvable CPVs, the worst such time and the elements to blame;
+* ``visibility`` (only when planned with visibility): the potentially visible set of every smallest
+  region of the view space, compressed bitsets (:mod:`farfield.core.visibility.region_sets`), what a
+  runtime draws as geometry there.
 
 An impostor's ``id`` is stable across check-and-repair rounds (:mod:`farfield.core.placement.repair`): one
 that no CPV draws any more after a round keeps its id with ``"cpvs": 0``, and new ones take the
@@ -41,6 +44,9 @@ class Placement:
     unsolvable: list[dict]
     summary: dict
     seconds: dict = field(default_factory=dict, compare=False)
+    visibility: dict | None = (
+        None  # the PVS per smallest region (farfield.core.visibility.region_sets), with visibility only
+    )
     state: Any = field(
         default=None, compare=False, repr=False
     )  # farfield.core.placement.repair.PlannerState, when kept
@@ -55,7 +61,7 @@ class Placement:
             "impostors": self.impostors,
             "cpvs": self.cpvs,
             "unsolvable": self.unsolvable,
-        }
+        } | ({"visibility": self.visibility} if self.visibility is not None else {})
 
     @property
     def memory_bytes(self) -> float:

@@ -1,5 +1,6 @@
 """The reference runtime of a placement database (beside :mod:`farfield.core.techniques.envmap.runtime`): for a view,
-the CPV's impostors plus every element no impostor of that CPV replaces, frustum-culled.
+the CPV's impostors plus every element no impostor of that CPV replaces, culled to the stored
+potentially visible set and to the frustum.
 
 Seed 000 §5.7: the runtime looks up the view's conservative problem view (CPV, a 3D region x a
 view-direction interval), draws the impostors chosen for it and, as geometry, the rest of the
@@ -12,6 +13,15 @@ A payload not drawn as triangles that has a renderer drawing into the bound fram
 (``draw_card``: an octahedral impostor's :class:`~farfield.core.techniques.octahedral.runtime.OctahedralRenderer`,
 its camera-facing card blending three frames) is drawn by that renderer after the geometry, depth-tested
 against it, in the same framebuffer: a draw list holds the geometry's draws, then such cards.
+
+**Visibility culling.**  A database planned with visibility stores the potentially visible set of
+every smallest region of its view space (:mod:`farfield.core.visibility.region_sets`); the runtime
+then draws as geometry only the elements of the PVS of the region holding the eye (as a
+thesis-era engine with from-region culling did: seed 000 §5.8.1, "Visibility culling was done
+for the model using a conservative from-region visibility algorithm [Wonk00]"), plus the impostors.  A view outside
+every stored region, or a database without a PVS, draws every element as before.  The PVS is
+sampled, not conservative: a visible element it lacks is missing from the frame, which the
+walkthrough counts against the full scene (:func:`farfield.core.quality.walkthrough.placement_walkthrough`).
 
 Frustum culling is conservative: an element (or impostor) is left out only when every corner of
 its bounding box lies outside one of the camera's four side planes, or behind the eye; no far
@@ -116,6 +126,8 @@ class ViewFigures:
     elements: int  # elements drawn as geometry (after culling)
     near: float
     far: float
+    pvs: int | None = None  # elements in the PVS of the eye's region (None: no PVS used)
+    pvs_culled: int = 0  # elements in the frustum, not replaced, that the PVS left out
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -146,6 +158,18 @@ class PlacementRenderer:
         self.lookup = PlacementLookup(database.index)
         names = self.elements.names
         self.element_of = {name: i for i, name in enumerate(names)}
+        # The stored sets' element indices -> this scene's (the same elements, perhaps in another
+        # order: a scene read from another file format lists its objects in its own order).
+        sets = self.lookup.sets
+        self.pvs_elements = None
+        if sets is not None:
+            stored_names = sets.names or (list(names) if sets.count == self.elements.count else [])
+            if sets.count != self.elements.count or set(stored_names) != set(names):
+                raise PlacementError(
+                    f"the placement's stored potentially visible sets are of {sets.count} elements, the scene has {self.elements.count} "
+                    "(or other names): is it the placement's scene?"
+                )
+            self.pvs_elements = np.array([self.element_of[name] for name in stored_names], dtype=np.int64)
         missing = sorted({name for objects in self.lookup.objects.values() for name in objects} - set(names))
         if missing:
             raise PlacementError(
@@ -221,12 +245,15 @@ class PlacementRenderer:
         plain: bool = False,
         cull: bool = True,
         camera: Camera | None = None,
+        pvs: bool | None = None,
     ) -> tuple[Camera, list, ViewFigures]:
         """The camera, the draw list and the figures of one view (nothing drawn yet).
 
         ``plain``: every element as geometry, no impostor (the scene without the placement);
         ``cull``: False draws everything selected whether in the frustum or not (a reference image);
-        ``camera``: draw from this camera (another view's, to compare images) instead of a new one.
+        ``camera``: draw from this camera (another view's, to compare images) instead of a new one;
+        ``pvs``: draw only the stored PVS of the eye's region (None: unless ``plain``; no effect
+        where none is stored).
         The depth range counts every element and the view's impostors, whichever are drawn, so the
         runtime's camera also serves the plain geometry and the full scene.
         """
@@ -240,6 +267,14 @@ class PlacementRenderer:
         keep = np.ones(self.elements.count, dtype=bool)
         for name in replaced:
             keep[self.element_of[name]] = False
+        stored = self.lookup.visible_set(position) if (not plain if pvs is None else pvs) else None
+        dropped = np.zeros(self.elements.count, dtype=bool)  # what the PVS leaves out of ``keep``
+        if stored is not None:
+            stored = self.pvs_elements[stored]
+            dropped[:] = keep
+            keep[:] = False
+            keep[stored] = dropped[stored]
+            dropped &= ~keep
         loaded = [self.impostor(c) for c in cells]
         if camera is None:
             near, far = self._depth(position, [item[5] for item in loaded])
@@ -250,6 +285,10 @@ class PlacementRenderer:
         if cull and selected.size:
             b = self.elements.bounds[selected]
             selected = selected[boxes_in_frustum(camera, b[:, 0], b[:, 1])]
+        pvs_culled = np.flatnonzero(dropped)
+        if cull and pvs_culled.size:
+            b = self.elements.bounds[pvs_culled]
+            pvs_culled = pvs_culled[boxes_in_frustum(camera, b[:, 0], b[:, 1])]
         draws = [self.element_draws[i] for i in selected]
         shown = [
             item for item in loaded if not cull or bool(boxes_in_frustum(camera, item[3][None, :], item[4][None, :])[0])
@@ -267,6 +306,7 @@ class PlacementRenderer:
             estimate=float(estimate), draw_calls=len(draws), triangles=geometry_triangles + sum(item[1] for item in shown),
             geometry_triangles=geometry_triangles, quads=sum(item[2] for item in shown), impostors=len(shown),
             impostors_in_cpv=0 if plain else len(cells), elements=int(selected.size), near=camera.near, far=camera.far,
+            pvs=None if stored is None else int(stored.size), pvs_culled=int(pvs_culled.size),
         )  # fmt: skip
         return camera, draws, figures
 

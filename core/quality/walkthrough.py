@@ -27,7 +27,7 @@ import numpy as np
 
 from farfield.core.errors import LayerPlanError
 from farfield.core.impostor.database import ImpostorDatabase
-from farfield.core.quality.evaluation import compare_images
+from farfield.core.quality.evaluation import _holes, compare_images
 from farfield.core.quality.lighting import (
     AMBIENT,
     shade,
@@ -148,9 +148,11 @@ def walkthrough(
     compare: bool = True,
     progress: Progress | None = None,
     lights=None,
+    visibility: bool = True,
 ) -> dict:
     """Walk the path; returns ``{"frames": [...], "summary": {...}}`` (see the module docstring).
-    A placement database is walked by :func:`placement_walkthrough`.
+    A placement database is walked by :func:`placement_walkthrough` (``visibility``: its runtime
+    culls to the stored PVS, where there is one).
 
     Given ``lights`` (DirectionalLights, :func:`farfield.core.quality.lighting.default_lights` or
     :func:`sun`), every served frame is also drawn lit (:func:`lit_frame`), and the summary has a
@@ -161,7 +163,7 @@ def walkthrough(
                 "a lit walkthrough needs an envmap database: placement databases hold colour-only impostors "
                 "(placement jobs bake channels=albedo)"
             )
-        return placement_walkthrough(scene, database, positions, forwards, repeats, compare, progress)
+        return placement_walkthrough(scene, database, positions, forwards, repeats, compare, progress, visibility)
     technique = TECHNIQUES.get(database.technique)
     runtime = getattr(technique, "runtime", None)  # the technique's cell renderer (environment-map impostors have one)
     if runtime is None:
@@ -429,10 +431,12 @@ def placement_walkthrough(
     repeats: int = 3,
     compare: bool = True,
     progress: Progress | None = None,
+    visibility: bool = True,
 ) -> dict:
     """Walk ``positions``/``forwards`` through a placement database: per frame the runtime
     (:class:`farfield.core.placement.runtime.PlacementRenderer`: the CPV's impostors and the elements they do
-    not replace, frustum-culled) and the plain geometry (every element, culled alike), both timed
+    not replace, culled to the stored PVS of the eye's region where the database has one
+    (``visibility`` False: not) and to the frustum) and the plain geometry (every element, culled alike), both timed
     from the same camera (median of ``repeats`` draws, no read-back, after one untimed draw of each,
     :func:`frame_ms`; the runtime's also uploads an impostor before it is needed, as a runtime
     does), the model's estimate, what was
@@ -441,6 +445,15 @@ def placement_walkthrough(
 
     ``measured`` is the frame in the cost model's unit: milliseconds of the runtime, or for a
     primitive budget the triangles it drew (an impostor's quads two each).
+
+    **What the PVS dropped** (a frame whose eye has a stored PVS, ``compare``): the full scene is
+    drawn unculled a second time with only the PVS's elements; ``pvs_dropped_pixels`` counts the
+    pixels where the two differ, i.e. where an element the PVS left out is visible.  They are hole
+    pixels: ``hole_pixels`` is the comparison's holes (full scene covered, runtime not within one
+    pixel) plus the dropped pixels it did not count: those the runtime's image covers with
+    something else (an element behind, or an impostor), which the comparison cannot tell from a
+    colour error, or within a pixel of its coverage.  So ``hole_pixels >= pvs_dropped_pixels``, and
+    a PVS that dropped nothing visible adds 0.
     """
     from farfield.core.placement.runtime import PlacementRenderer
 
@@ -449,7 +462,7 @@ def placement_walkthrough(
     with PlacementRenderer(scene, database) as runtime:
         unit = runtime.unit
         for n, (position, forward) in enumerate(zip(positions, forwards)):
-            camera, draws, fig = runtime.prepare(position, forward)
+            camera, draws, fig = runtime.prepare(position, forward, pvs=visibility)
             _, plain_draws, plain = runtime.prepare(position, forward, plain=True, camera=camera)
             # The untimed first draw also uploads a new impostor's pages, as a runtime does before it needs them.
             runtime_ms = frame_ms(lambda: runtime.frame_seconds(camera, draws), repeats)
@@ -463,13 +476,21 @@ def placement_walkthrough(
                 "draw_calls": fig.draw_calls, "triangles": fig.triangles, "quads": fig.quads, "impostors": fig.impostors,
                 "impostors_in_cpv": fig.impostors_in_cpv, "elements": fig.elements,
                 "plain_draw_calls": plain.draw_calls, "plain_triangles": plain.triangles,
+                "pvs": fig.pvs, "pvs_culled": fig.pvs_culled,
             }  # fmt: skip
             if compare:
                 _, everything, _ = runtime.prepare(position, forward, plain=True, cull=False, camera=camera)
-                stats = compare_images(runtime.render(camera, everything), runtime.render(camera, draws))
+                full, drawn = runtime.render(camera, everything), runtime.render(camera, draws)
+                stats = compare_images(full, drawn)
                 row.update(
                     {k: stats[k] for k in ("hole_pixels", "geometry_pixels", "colour_error_mean", "colour_error_max")}
                 )
+                if fig.pvs is not None:
+                    _, kept, _ = runtime.prepare(position, forward, plain=True, cull=False, camera=camera, pvs=True)
+                    lost = np.any(runtime.render(camera, kept) != full, axis=-1)
+                    row["pvs_dropped_pixels"] = int(lost.sum())
+                    counted = _holes(full[..., 3] > 0, drawn[..., 3] > 0)  # what compare_images counted
+                    row["hole_pixels"] += int((lost & ~counted).sum())
             frames.append(row)
             report(n + 1, len(positions))
         memory = runtime.uploaded_impostor_bytes
@@ -536,6 +557,15 @@ def summarize_placement(frames: list[dict], t_max: float, unit: str) -> dict:
             for f, m in zip(frames, measured) if m > t_max
         ],
     }  # fmt: skip
+    if n and all("triangles" in f for f in frames):
+        out["triangles_mean"] = float(np.mean([f["triangles"] for f in frames]))
+    culled = [f for f in frames if f.get("pvs") is not None]
+    if culled:  # frames whose eye had a stored PVS (farfield.core.placement.runtime's visibility culling)
+        out["frames_with_pvs"] = len(culled)
+        out["pvs_culled_mean"] = float(np.mean([f["pvs_culled"] for f in culled]))
+        if "pvs_dropped_pixels" in culled[0]:
+            out["pvs_dropped_pixels"] = int(sum(f["pvs_dropped_pixels"] for f in culled))
+            out["max_pvs_dropped_pixels"] = int(max(f["pvs_dropped_pixels"] for f in culled))
     return out | image_errors(frames)
 
 

@@ -51,7 +51,9 @@ def lookup_view(db: Database, blobs: BlobStore, job: JobRow, point, direction) -
     """``GET /v1/jobs/{id}/lookup``: a job of view cells answers with the records of the cells whose
     view cell holds ``point``; a placement job with its algorithm's answer for the view (``point``
     and ``direction``, which it needs) plus ``cells``, the records of the cells it names
-    (:meth:`~farfield.service.placement.base.Algorithm.lookup`)."""
+    (:meth:`~farfield.service.placement.base.Algorithm.lookup`); a frame-time placement planned
+    with visibility answers its region's potentially visible set too (``pvs``,
+    :meth:`~farfield.core.placement.database.PlacementLookup.pvs_answer`)."""
     algorithm = job_algorithm(job)
     if algorithm is None:
         return [cell_record(cell) for cell in lookup(job_cells(db, job.id), point)]
