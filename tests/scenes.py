@@ -132,6 +132,41 @@ def dense_mesh(subdivisions: int = 6, seed: int = 3) -> Scene:
     return Scene.from_objects([SceneObject("dense", vertices, np.asarray(sphere.faces, dtype=np.int64))], "dense")
 
 
+def scan_mesh(rows: int = 302, seed: int = 5) -> Scene:
+    """A closed-ish scanned-looking blob: a latitude-longitude sphere of ``2 * rows * (rows + 1)``
+    minus its hole faces (364,800 before the holes, 351,682 after, at 302: the size of the scan
+    of issue 60), radius about 1.
+
+    A scan's character, unlike :func:`dense_mesh`'s smooth bumps: 9 octaves of ridged noise from
+    lumps of a fifth of the radius down to a wavelength of 0.006 (below the voxel of a 512-px bake
+    from a 2-unit cell 0.6 units in front), sharp creases where a ridged octave folds, per-vertex
+    jitter of 0.002, and 24 holes where the scanner saw nothing (boundary loops, so many small
+    charts).  Deterministic for a ``seed``."""
+    rng = np.random.default_rng(seed)
+    sphere = trimesh.creation.uv_sphere(radius=1.0, count=[rows, rows + 1])
+    p = np.asarray(sphere.vertices, dtype=np.float64)
+    direction = p / np.linalg.norm(p, axis=1, keepdims=True)
+    radius = np.ones(len(p))
+    for octave in range(9):  # wavelengths 2 pi / (3 * 2**octave): 2.1 down to 0.008
+        frequency, amplitude = 3.0 * 2.0**octave, 0.06 * 0.55**octave
+        waves = rng.normal(size=(6, 3))
+        waves *= frequency / np.linalg.norm(waves, axis=1, keepdims=True)
+        phase = rng.uniform(0.0, 2.0 * np.pi, size=6)
+        value = np.sin(direction @ waves.T + phase).mean(axis=1)
+        radius += amplitude * (np.abs(value) if octave % 2 else value)  # odd octaves ridged: creases
+    radius += rng.uniform(-0.002, 0.002, size=len(p))
+    vertices = direction * radius[:, None]
+    faces = np.asarray(sphere.faces, dtype=np.int64)
+    centre = vertices[faces].mean(axis=1)
+    holes = rng.normal(size=(24, 3))
+    holes /= np.linalg.norm(holes, axis=1, keepdims=True)
+    size = rng.uniform(0.03, 0.12, size=24)
+    distance = np.linalg.norm(centre[:, None, :] / np.linalg.norm(centre, axis=1)[:, None, None] - holes[None], axis=2)
+    faces = faces[~(distance < size).any(axis=1)]
+    used, faces = np.unique(faces, return_inverse=True)
+    return Scene.from_objects([SceneObject("scan", vertices[used], faces.reshape(-1, 3))], "scan")
+
+
 # A 2 x 2 texture with four distinct texels (top row first): red, green / blue, yellow; the
 # yellow texel is half transparent and the green one fully, for alpha tests.
 QUAD_TEXTURE = np.array([[[255, 0, 0, 255], [0, 255, 0, 0]], [[0, 0, 255, 255], [255, 255, 0, 128]]], dtype=np.uint8)
