@@ -1,6 +1,6 @@
 """Canonical test scenes: procedural :class:`farfield.core.scene.Scene` s from a seeded ``np.random.default_rng``, bad inputs, and file writers.
 
-Good scenes (``city``, ``forest``, ``sphere_field``, ``dense_mesh``, ``textured_quad``) are
+Good scenes (``city``, ``forest``, ``sphere_field``, ``dense_mesh``, ``scan_mesh``, ``textured_quad``) are
 returned as validated ``Scene`` s; the bad ones cannot be ``Scene`` s, so they come as raw arrays
 (``bad_arrays``) or as file text (``bad_obj``) for the loader tests.  ``write_scene`` writes a
 ``Scene`` as .glb / .obj / .ply / .stl with trimesh (OBJ with a small writer of our own, so that
@@ -133,15 +133,16 @@ def dense_mesh(subdivisions: int = 6, seed: int = 3) -> Scene:
 
 
 def scan_mesh(rows: int = 302, seed: int = 5) -> Scene:
-    """A closed-ish scanned-looking blob: a latitude-longitude sphere of ``2 * rows * (rows + 1)``
-    minus its hole faces (364,800 before the holes, 351,682 after, at 302: the size of the scan
-    of issue 60), radius about 1.
+    """A scanned-looking blob of radius about 1: a latitude-longitude sphere (trimesh's ``uv_sphere``
+    of ``rows`` by ``rows + 1``) minus its hole faces (364,800 triangles before the holes, 351,682
+    after, at 302: the size of the scan of issue 60).
 
-    A scan's character, unlike :func:`dense_mesh`'s smooth bumps: 9 octaves of ridged noise from
-    lumps of a fifth of the radius down to a wavelength of 0.006 (below the voxel of a 512-px bake
-    from a 2-unit cell 0.6 units in front), sharp creases where a ridged octave folds, per-vertex
-    jitter of 0.002, and 24 holes where the scanner saw nothing (boundary loops, so many small
-    charts).  Deterministic for a ``seed``."""
+    A scan's character, unlike :func:`dense_mesh`'s smooth bumps: 9 octaves of noise, every second
+    one ridged (sharp creases where it folds), from a wavelength of 2.1 (amplitude 0.06) down to
+    0.008 (0.0006), per-vertex jitter of +-0.002 (about one voxel of
+    ``benchmarks/bench_tdm_scale.py --scene scan``, whose voxels at the front are about 0.002 across
+    and whose triangles about 0.01), and 24 holes where the scanner saw nothing (boundary loops,
+    many small charts).  Deterministic for a ``seed``."""
     rng = np.random.default_rng(seed)
     sphere = trimesh.creation.uv_sphere(radius=1.0, count=[rows, rows + 1])
     p = np.asarray(sphere.vertices, dtype=np.float64)
