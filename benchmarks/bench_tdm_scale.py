@@ -56,7 +56,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 from scenes import dense_mesh, scan_mesh  # noqa: E402
 
 from farfield.core.render.context import gl_context, renderer_info  # noqa: E402
-from farfield.core.techniques import tdm as tdm_module  # noqa: E402
+from farfield.core.techniques.tdm import technique as tdm_module  # noqa: E402
 from farfield.core.techniques.tdm.technique import TdmOptions, bake_tdm, warm_kernels  # noqa: E402
 from farfield.core.viewcells import BoxCell  # noqa: E402
 
