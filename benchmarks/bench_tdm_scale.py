@@ -2,8 +2,22 @@
 stages of one large bake, the atlas packer before and after on that bake's own charts, and what a
 fresh worker pays for the numba kernels.
 
-Usage: ``.venv/bin/python benchmarks/bench_tdm_scale.py [--subdivisions 7] [--before REV]
-[--before-limit SECONDS] [--no-warm] [--json]``
+Usage: ``.venv/bin/python benchmarks/bench_tdm_scale.py [--scene dense|scan] [--subdivisions 7]
+[--before REV] [--before-limit SECONDS] [--no-warm] [--json]``, or
+``.venv/bin/python benchmarks/bench_tdm_scale.py --scene scan --bake-before REV [--rounds 2]``.
+
+Scenes: **dense** (default), ``tests/scenes.py::dense_mesh`` from the cell below; **scan**,
+``tests/scenes.py::scan_mesh`` (351,682 triangles of ridged multi-octave noise down to below the
+voxel, creases and 24 holes: a laser scan's character) from the *large near cell* of issue 60: a
+cube of side 2 whose far face lies 1.5 units in front of it, which plans 363 layers, over a
+million voxels and some 9 M initial triangles, as the issue's 346k-triangle scan did.
+
+``--bake-before REV``: instead of 1-3, the whole bake of the scene by ``core/techniques/tdm/`` as
+it is and as it was at ``REV`` (its files loaded from ``git show`` in place of the package, the rest
+of the tree as it is), each in a fresh process with its numba kernels loaded first, ``--rounds``
+times in turns (before, after, before, after): each stage's seconds, the triangles, charts, bytes,
+the process's peak resident memory, and the holes and bloat of the job report's evaluation
+(``report_part``: the reference viewpoint and three cell corners, 2 samples per pixel side).
 
 1. **The bake**: ``tests/scenes.py::dense_mesh`` (a bumpy icosphere of radius 1, 327,680
    triangles at 7 subdivisions: the size of the 346k-triangle scan the issue measured) from a
@@ -39,10 +53,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from scenes import dense_mesh  # noqa: E402
+from scenes import dense_mesh, scan_mesh  # noqa: E402
 
 from farfield.core.render.context import gl_context, renderer_info  # noqa: E402
-from farfield.core.techniques import tdm as tdm_module  # noqa: E402
+from farfield.core.techniques.tdm import technique as tdm_module  # noqa: E402
 from farfield.core.techniques.tdm.technique import TdmOptions, bake_tdm, warm_kernels  # noqa: E402
 from farfield.core.viewcells import BoxCell  # noqa: E402
 
@@ -78,6 +92,108 @@ with gl_context():
     bake_tdm(scene, BoxCell(np.array([lo[0] - 60, lo[1], lo[2]]), np.array([lo[0] - 40, lo[1] + 20, lo[2] + 20])), TdmOptions(resolution=64))
     print(warm, time.perf_counter() - start)
 """
+
+
+BAKE = """
+import importlib.util, json, resource, sys, time
+source = sys.argv[3]
+if source:  # the tdm package of another revision, loaded in place of this tree's
+    name = "farfield.core.techniques.tdm"
+
+    class Before:
+        def find_spec(self, full, path=None, target=None):
+            if full == name:
+                return importlib.util.spec_from_file_location(full, source + "/__init__.py", submodule_search_locations=[source])
+            if full.startswith(name + "."):
+                return importlib.util.spec_from_file_location(full, source + "/" + full.rsplit(".", 1)[1] + ".py")
+            return None
+
+    sys.meta_path.insert(0, Before())
+sys.path.insert(0, "benchmarks")
+sys.path.insert(0, "tests")
+from bench_tdm_scale import scene_and_cell
+from farfield.core.render.context import gl_context
+from farfield.core.techniques.part import report_part
+from farfield.core.techniques.tdm.technique import TdmOptions, bake_tdm, warm_kernels
+import farfield.core.techniques.tdm.technique as technique
+assert (not source) == (not technique.__file__.startswith(source or "?")), technique.__file__
+warm_kernels()
+scene, cell = scene_and_cell(sys.argv[1], int(sys.argv[2]))
+with gl_context():
+    cpu = time.process_time()
+    impostor = bake_tdm(scene, cell, TdmOptions())
+    cpu = time.process_time() - cpu
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    report = report_part(scene, impostor)
+s = impostor.stats
+print(json.dumps({"peak_mib": peak, "cpu_seconds": cpu, "report": report, **{k: s[k] for k in (
+    "layers", "voxels", "initial_triangles", "triangles", "texture_charts", "atlas_pages", "texture_bytes", "geometry_bytes", "seconds")}}))
+"""
+
+
+def scene_and_cell(name: str, subdivisions: int = 7):
+    """The benchmark's scene and view cell (see the module docstring)."""
+    if name == "scan":
+        scene = scan_mesh()
+        return scene, close_cell(scene, 2.0, 1.5)
+    scene = dense_mesh(subdivisions)
+    return scene, close_cell(scene)
+
+
+def bake_in_process(scene: str, subdivisions: int, source: str | None) -> dict:
+    """One whole bake (and its evaluation) in a fresh process, by the tdm package in the folder
+    ``source`` (None: this tree's)."""
+    out = subprocess.run(
+        [sys.executable, "-c", BAKE, scene, str(subdivisions), source or ""],
+        check=True, capture_output=True, text=True, cwd=ROOT,
+    )  # fmt: skip
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def bakes_before_after(args) -> None:
+    """``--bake-before``: whole bakes by the tdm package of ``args.bake_before`` and of this tree."""
+    folder = Path(tempfile.gettempdir()) / f"farfield_tdm_{args.bake_before}"  # kept: numba caches there
+    folder.mkdir(exist_ok=True)
+    names = subprocess.run(
+        ["git", "ls-tree", "--name-only", args.bake_before, "core/techniques/tdm/"],
+        check=True, capture_output=True, text=True, cwd=ROOT,
+    ).stdout.split()  # fmt: skip
+    for path in names:
+        text = subprocess.run(["git", "show", f"{args.bake_before}:{path}"], check=True, capture_output=True, text=True, cwd=ROOT).stdout  # fmt: skip
+        target = folder / Path(path).name
+        if not target.exists() or target.read_text() != text:
+            target.write_text(text)
+    runs = {"before": [], "after": []}
+    for _ in range(args.rounds):
+        runs["before"].append(bake_in_process(args.scene, args.subdivisions, str(folder)))
+        runs["after"].append(bake_in_process(args.scene, args.subdivisions, None))
+    if args.json:
+        print(json.dumps(runs, indent=2))
+        return
+    print(f"renderer: {renderer_info().renderer}; load average at the end {os.getloadavg()[0]:.2f}")
+    print(f"\n## Whole bakes of the {args.scene} scene: before = {args.bake_before}, after = this tree, in turns")
+    columns = [(f"{args.bake_before} #{i + 1}", r) for i, r in enumerate(runs["before"])] + [
+        (f"this tree #{i + 1}", r) for i, r in enumerate(runs["after"])
+    ]
+    print("| | " + " | ".join(c for c, _ in columns) + " |\n|---|" + "---:|" * len(columns))
+    stages = [k for k in dict.fromkeys(k for _, r in columns for k in r["seconds"]) if k != "total"]
+    for stage in stages:
+        print(f"| {stage} s | " + " | ".join(f"{r['seconds'].get(stage, 0.0):.1f}" for _, r in columns) + " |")
+    print("| total s | " + " | ".join(f"**{r['seconds']['total']:.1f}**" for _, r in columns) + " |")
+    print("| CPU s of the bake (all threads) | " + " | ".join(f"{r['cpu_seconds']:.1f}" for _, r in columns) + " |")
+    rows = [("layers", lambda r: r["layers"]), ("voxels", lambda r: r["voxels"]),
+            ("initial triangles", lambda r: r["initial_triangles"]), ("triangles kept", lambda r: r["triangles"]),
+            ("charts", lambda r: r["texture_charts"]), ("pages", lambda r: r["atlas_pages"]),
+            ("texture MiB", lambda r: f"{r['texture_bytes'] / 2**20:.1f}"), ("geometry MiB", lambda r: f"{r['geometry_bytes'] / 2**20:.1f}"),
+            ("peak resident MiB", lambda r: f"{r['peak_mib']:,.0f}"),
+            ("hole pixels (4 views)", lambda r: r["report"]["hole_pixels"]), ("bloat beyond 1 px", lambda r: r["report"]["bloat_beyond_1px"]),
+            ("colour error mean", lambda r: f"{r['report']['colour_error_mean']:.2f}"), ("ssim", lambda r: f"{r['report']['ssim']:.3f}")]  # fmt: skip
+    for label, value in rows:
+        print(
+            f"| {label} | "
+            + " | ".join(f"{value(r):,}" if isinstance(value(r), int) else str(value(r)) for _, r in columns)
+            + " |"
+        )
 
 
 def close_cell(scene, size: float = 1.0, distance: float = 2.0) -> BoxCell:
@@ -141,7 +257,10 @@ def first_cell(mode: str, env: dict) -> tuple[float, float]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scene", choices=("dense", "scan"), default="dense", help="the mesh and cell (see above)")
     parser.add_argument("--subdivisions", type=int, default=7, help="icosphere subdivisions (7: 327,680 triangles)")
+    parser.add_argument("--bake-before", default=None, help="git revision: whole bakes before and after instead")
+    parser.add_argument("--rounds", type=int, default=1, help="rounds of --bake-before's bakes, in turns")
     parser.add_argument("--before", default="85137ad", help="git revision of the packer to compare against")
     parser.add_argument("--before-limit", type=float, default=900.0, help="seconds the old packer may take")
     parser.add_argument(
@@ -149,12 +268,15 @@ def main() -> None:
     )
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
+    if args.bake_before:
+        bakes_before_after(args)
+        return
 
     info = renderer_info()
     warm_kernels()  # numba compiles (or loads) its kernels here, not in a stage of the bake
-    scene = dense_mesh(args.subdivisions)
+    scene, cell = scene_and_cell(args.scene, args.subdivisions)
     options = TdmOptions()
-    impostor, masks = bake_with_masks(scene, close_cell(scene), options)
+    impostor, masks = bake_with_masks(scene, cell, options)
     s = impostor.stats
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # MiB (Linux reports KiB)
     report = {"renderer": info.renderer, "peak_mib": peak, "triangles_in": int(sum(len(o.faces) for o in scene.objects)), "stats": {k: s[k] for k in (
@@ -195,7 +317,7 @@ def main() -> None:
         return
     print(f"renderer: {info.renderer}")
     print(
-        f"\n## The bake: dense_mesh({args.subdivisions}), {report['triangles_in']:,} triangles, 1-unit cell 2 units in front, 512 px, f = 2"
+        f"\n## The bake: {'scan_mesh(), 2-unit cell 1.5 units' if args.scene == 'scan' else f'dense_mesh({args.subdivisions}), 1-unit cell 2 units'} in front, {report['triangles_in']:,} triangles, 512 px, f = 2"
     )
     st = report["stats"]
     print(f"layers {st['layers']} (planned {st['layers_planned']}), texture {st['texture_resolution'][0]} x {st['texture_resolution'][1]}, voxels {st['voxels']:,}, "

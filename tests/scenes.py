@@ -1,6 +1,6 @@
 """Canonical test scenes: procedural :class:`farfield.core.scene.Scene` s from a seeded ``np.random.default_rng``, bad inputs, and file writers.
 
-Good scenes (``city``, ``forest``, ``sphere_field``, ``dense_mesh``, ``textured_quad``) are
+Good scenes (``city``, ``forest``, ``sphere_field``, ``dense_mesh``, ``scan_mesh``, ``textured_quad``) are
 returned as validated ``Scene`` s; the bad ones cannot be ``Scene`` s, so they come as raw arrays
 (``bad_arrays``) or as file text (``bad_obj``) for the loader tests.  ``write_scene`` writes a
 ``Scene`` as .glb / .obj / .ply / .stl with trimesh (OBJ with a small writer of our own, so that
@@ -130,6 +130,42 @@ def dense_mesh(subdivisions: int = 6, seed: int = 3) -> Scene:
     vertices = np.asarray(sphere.vertices, dtype=np.float64)
     vertices = vertices * rng.uniform(0.98, 1.02, size=(len(vertices), 1))
     return Scene.from_objects([SceneObject("dense", vertices, np.asarray(sphere.faces, dtype=np.int64))], "dense")
+
+
+def scan_mesh(rows: int = 302, seed: int = 5) -> Scene:
+    """A scanned-looking blob of radius about 1: a latitude-longitude sphere (trimesh's ``uv_sphere``
+    of ``rows`` by ``rows + 1``) minus its hole faces (364,800 triangles before the holes, 351,682
+    after, at 302: the size of the scan of issue 60).
+
+    A scan's character, unlike :func:`dense_mesh`'s smooth bumps: 9 octaves of noise, every second
+    one ridged (sharp creases where it folds), from a wavelength of 2.1 (amplitude 0.06) down to
+    0.008 (0.0006), per-vertex jitter of +-0.002 (about one voxel of
+    ``benchmarks/bench_tdm_scale.py --scene scan``, whose voxels at the front are about 0.002 across
+    and whose triangles about 0.01), and 24 holes where the scanner saw nothing (boundary loops,
+    many small charts).  Deterministic for a ``seed``."""
+    rng = np.random.default_rng(seed)
+    sphere = trimesh.creation.uv_sphere(radius=1.0, count=[rows, rows + 1])
+    p = np.asarray(sphere.vertices, dtype=np.float64)
+    direction = p / np.linalg.norm(p, axis=1, keepdims=True)
+    radius = np.ones(len(p))
+    for octave in range(9):  # wavelengths 2 pi / (3 * 2**octave): 2.1 down to 0.008
+        frequency, amplitude = 3.0 * 2.0**octave, 0.06 * 0.55**octave
+        waves = rng.normal(size=(6, 3))
+        waves *= frequency / np.linalg.norm(waves, axis=1, keepdims=True)
+        phase = rng.uniform(0.0, 2.0 * np.pi, size=6)
+        value = np.sin(direction @ waves.T + phase).mean(axis=1)
+        radius += amplitude * (np.abs(value) if octave % 2 else value)  # odd octaves ridged: creases
+    radius += rng.uniform(-0.002, 0.002, size=len(p))
+    vertices = direction * radius[:, None]
+    faces = np.asarray(sphere.faces, dtype=np.int64)
+    centre = vertices[faces].mean(axis=1)
+    holes = rng.normal(size=(24, 3))
+    holes /= np.linalg.norm(holes, axis=1, keepdims=True)
+    size = rng.uniform(0.03, 0.12, size=24)
+    distance = np.linalg.norm(centre[:, None, :] / np.linalg.norm(centre, axis=1)[:, None, None] - holes[None], axis=2)
+    faces = faces[~(distance < size).any(axis=1)]
+    used, faces = np.unique(faces, return_inverse=True)
+    return Scene.from_objects([SceneObject("scan", vertices[used], faces.reshape(-1, 3))], "scan")
 
 
 # A 2 x 2 texture with four distinct texels (top row first): red, green / blue, yellow; the

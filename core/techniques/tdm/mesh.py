@@ -464,9 +464,15 @@ def _loops(keys: np.ndarray, count: np.ndarray, size: int) -> list[np.ndarray]:
 
 
 def _edge_keys(triangles: np.ndarray, size: int) -> np.ndarray:
-    """(3t,) int64 key min * size + max of every triangle edge (vertices below ``size``)."""
-    edges = np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    return edges[:, 0] * size + edges[:, 1]
+    """(3t,) int64 key min * size + max of every triangle edge (vertices below ``size``), edges
+    (0, 1), (1, 2), (2, 0) of each triangle in turn (minimum and maximum: a row sort of the 26 M
+    edges of ``benchmarks/bench_tdm_scale.py --scene scan`` took 2 s).
+
+    >>> _edge_keys(np.array([[2, 0, 1]]), 3).tolist()
+    [2, 1, 5]
+    """
+    a, b = triangles.reshape(-1), triangles[:, [1, 2, 0]].reshape(-1)
+    return np.minimum(a, b) * size + np.maximum(a, b)
 
 
 def _image_area(vertices: np.ndarray, triangles: np.ndarray) -> float:
@@ -616,17 +622,50 @@ def mesh_labels(vertex_count: int, triangles: np.ndarray) -> np.ndarray:
     """(t,) int64 mesh of each triangle: its connected component through shared vertices, numbered
     from 0 in order of first appearance.
 
+    Union-find over the vertices in one numba pass (:func:`_component_labels`): on the 8.8 M initial
+    triangles of ``benchmarks/bench_tdm_scale.py --scene scan`` the sparse graph and scipy's
+    connected components it replaces (with a sort to number them) took several seconds.
+
     >>> mesh_labels(7, np.array([[4, 5, 6], [0, 1, 2], [1, 2, 3]])).tolist()
     [0, 1, 1]
     """
     if triangles.shape[0] == 0:
         return np.zeros(0, np.int64)
-    a = np.concatenate([triangles[:, 0], triangles[:, 1]])
-    b = np.concatenate([triangles[:, 1], triangles[:, 2]])
-    graph = coo_matrix((np.ones(a.size), (a, b)), shape=(vertex_count, vertex_count))
-    _, labels = connected_components(graph, directed=False)
-    label = labels[triangles[:, 0]]
-    _, first, inverse = np.unique(label, return_index=True, return_inverse=True)
-    rank = np.empty(first.size, np.int64)
-    rank[np.argsort(first)] = np.arange(first.size)
-    return rank[inverse.reshape(-1)]
+    return _component_labels(int(vertex_count), np.ascontiguousarray(triangles, dtype=np.int64))
+
+
+@njit(cache=True)
+def _find(parent, v):
+    root = v
+    while parent[root] != root:
+        root = parent[root]
+    while parent[v] != root:  # path compression
+        parent[v], v = root, parent[v]
+    return root
+
+
+@njit(cache=True)
+def _component_labels(vertex_count, triangles):
+    """:func:`mesh_labels`' kernel: union the corners of each triangle, then number the roots in
+    the order their first triangle comes."""
+    parent = np.arange(vertex_count)
+    for t in range(triangles.shape[0]):
+        a = _find(parent, triangles[t, 0])
+        for k in (1, 2):
+            b = _find(parent, triangles[t, k])
+            if a != b:
+                if a < b:
+                    parent[b] = a
+                else:
+                    parent[a] = b
+                    a = b
+    number = np.full(vertex_count, -1, np.int64)
+    labels = np.empty(triangles.shape[0], np.int64)
+    count = 0
+    for t in range(triangles.shape[0]):
+        root = _find(parent, triangles[t, 0])
+        if number[root] < 0:
+            number[root] = count
+            count += 1
+        labels[t] = number[root]
+    return labels
