@@ -251,9 +251,14 @@ void main() {
         float depth = clamp(1.0 / wc, 1.0 / near_w, 1.0 / far_w);
         float key_depth = 0.5 * (depth - 1.0 / near_w) / (1.0 / far_w - 1.0 / near_w) + (shown ? 0.0 : 0.5);
         uint key = uint(clamp(key_depth, 0.0, 1.0) * 16777215.0 + 0.5);
+#ifdef ONE_PASS  // plain load and store: right only where one thread shades a texel's fragments in draw order
+        if (key <= imageLoad(keys, ivec3(c, i)).r) {
+            imageStore(keys, ivec3(c, i), uvec4(key));
+#else
         if (!colour_pass) {
             imageAtomicMin(keys, ivec3(c, i), key);
         } else if (imageLoad(keys, ivec3(c, i)).r == key) {
+#endif
             vec3 b = max(bary, vec3(0.0)) * w3;
             b /= b.x + b.y + b.z;
             vec4 colour = b.x * g_color[0] + b.y * g_color[1] + b.z * g_color[2];
@@ -343,6 +348,18 @@ class DrawOnce:
         self.group = max(1, min(self.k, self.GROUP_BYTES // (8 * rx * ry)))
         records, self.n = draw_once_records(scene.objects if hasattr(scene, "objects") else scene, plan)
         self.buffer = self.ctx.buffer(records.tobytes())
+        # Each group of image layers draws only the triangles whose depth range meets its slabs.
+        borders = plan.borders + plan.reference_offset
+        first = records[:, 21].astype(np.int64)
+        far = 1.0 / records[:, [2, 5, 8]].astype(np.float64).min(axis=1) * (1.0 + 1e-5)  # float32 w: a margin
+        last = np.clip(np.searchsorted(borders[:-1], far, side="right") - 1, first, self.k - 1)
+        self.groups = []  # (first layer, layers, triangles, buffer)
+        for start in range(0, self.k, self.group):
+            count = min(self.group, self.k - start)
+            meets = (first < start + count) & (last >= start)
+            self.groups.append(
+                (start, count, int(meets.sum()), self.ctx.buffer(np.ascontiguousarray(records[meets]).tobytes()))
+            )
         inverse = (1.0 / (plan.borders + plan.reference_offset)).astype("<f4")
         self.borders = self.ctx.texture((inverse.shape[0], 1), 1, inverse.tobytes(), dtype="f4")
         self.keys = self.ctx.texture_array((rx, ry, self.group), 1, dtype="u4")
@@ -350,25 +367,43 @@ class DrawOnce:
         self.target = self.ctx.renderbuffer((rx, ry), 4)
         self.fbo = self.ctx.framebuffer([self.target])
         self.query = self.ctx.query(samples=True)
-        self.arrays = {name: self._array(name) for name in ("CONSTANT", "PASSES")}
+        self.programs = {}
+        self.arrays = {name: self._array(name) for name in ("CONSTANT", "PASSES", "ONE_PASS")}
         self.arrays["PLAIN"] = self._array("CONSTANT", "PLAIN")
+        self.group_arrays = [
+            {name: self._array(name, buffer=buffer)[1] for name in ("CONSTANT", "PASSES", "ONE_PASS")}
+            for *_, buffer in self.groups
+        ]
         self.clear_keys = b"\xff" * (rx * ry * self.group * 4)
         self.clear_colours = bytes(rx * ry * self.group * 4)
 
-    def _array(self, define: str, vertex_define: str = ""):
-        prog = self.ctx.program(
-            vertex_shader=ONCE_VERTEX.replace("#version 450", f"#version 450\n#define {vertex_define}", 1)
+    def _array(self, define: str, vertex_define: str = "", buffer=None):
+        """(program, vertex array over ``buffer``, default every triangle); one program per variant."""
+        key = (define, vertex_define)
+        if key in self.programs:
+            prog = self.programs[key]
+            return prog, self._vertex_array(prog, buffer)
+        vertex = (
+            ONCE_VERTEX.replace("#version 450", f"#version 450\n#define {vertex_define}", 1)
             if vertex_define
-            else ONCE_VERTEX,
+            else ONCE_VERTEX
+        )
+        prog = self.ctx.program(
+            vertex_shader=vertex,
             fragment_shader=ONCE_FRAGMENT.replace("#version 450", f"#version 450\n#define {define}", 1),
         )
+        self.programs[key] = prog
         prog["resolution"].value = tuple(float(r) for r in self.res)
         if "inverse_borders" in prog:
             prog["inverse_borders"].value = 5
+        return prog, self._vertex_array(prog, buffer)
+
+    def _vertex_array(self, prog, buffer):
         fields = "3f 3f 3f 4f 4f 4f 1f".split()
         names = ("i_tri0", "i_tri1", "i_tri2", "i_color0", "i_color1", "i_color2", "i_first")
         fmt = " ".join(f if name in prog else f"{4 * int(f[:-1])}x" for f, name in zip(fields, names))
-        return prog, self.ctx.vertex_array(prog, [(self.buffer, fmt + " /i", *(n for n in names if n in prog))])
+        buffer = self.buffer if buffer is None else buffer
+        return self.ctx.vertex_array(prog, [(buffer, fmt + " /i", *(n for n in names if n in prog))])
 
     def _begin(self) -> None:
         self.fbo.use()
@@ -392,30 +427,40 @@ class DrawOnce:
         """One conservative draw with a constant fragment shader per group of layers, and the
         read-back of every layer: what any draw-once scheme pays before it decides a texel."""
         self._begin()
-        for _ in range(0, self.k, self.group):
-            self.arrays["CONSTANT"][1].render(self.moderngl.TRIANGLE_STRIP, vertices=4, instances=self.n)
+        for (*_, n, _), arrays in zip(self.groups, self.group_arrays):
+            arrays["CONSTANT"].render(self.moderngl.TRIANGLE_STRIP, vertices=4, instances=n)
             self.colours.read()
 
-    def record(self) -> np.ndarray:
+    def exact_fragments(self) -> int:
+        """The fragments the prototype's coverage test keeps (texel squares meeting a triangle,
+        whatever their slabs): one key pass over every triangle with no image layer to write."""
+        self._begin()
+        prog, array = self.arrays["PASSES"]
+        prog["group_first"].value, prog["group_count"].value, prog["colour_pass"].value = 0, 0, False
+        with self.query:
+            array.render(self.moderngl.TRIANGLE_STRIP, vertices=4, instances=self.n)
+        self.ctx.finish()
+        return int(self.query.samples)
+
+    def record(self, one_pass: bool = False) -> np.ndarray:
+        """The layers, (k, h, w, 4) uint8; ``one_pass``: keys and colours in one pass of plain image
+        loads and stores, which is right only where one thread shades each texel's fragments in draw
+        order (llvmpipe's tiles, it seems; never a GPU's)."""
         rx, ry = self.res
         out = np.empty((self.k, ry, rx, 4), np.uint8)
         self._begin()
-        for first in range(0, self.k, self.group):
-            count = min(self.group, self.k - first)
+        name = "ONE_PASS" if one_pass else "PASSES"
+        prog = self.arrays[name][0]
+        for (first, count, n, _), arrays in zip(self.groups, self.group_arrays):
             self.keys.write(self.clear_keys)
             self.colours.write(self.clear_colours)
             self.keys.bind_to_image(0, read=True, write=True)
             self.colours.bind_to_image(1, read=False, write=True)
-            prog, array = self.arrays["PASSES"]
             prog["group_first"].value, prog["group_count"].value = first, count
-            for colour_pass in (False, True):
-                prog["colour_pass"].value = colour_pass
-                if first == 0 and not colour_pass:  # fragments past the discard: texel squares meeting a triangle
-                    with self.query:
-                        array.render(self.moderngl.TRIANGLE_STRIP, vertices=4, instances=self.n)
-                    self.conservative_fragments = int(self.query.samples)
-                    continue
-                array.render(self.moderngl.TRIANGLE_STRIP, vertices=4, instances=self.n)
+            for colour_pass in (False,) if one_pass else (False, True):
+                if "colour_pass" in prog:
+                    prog["colour_pass"].value = colour_pass
+                arrays[name].render(self.moderngl.TRIANGLE_STRIP, vertices=4, instances=n)
                 self.ctx.memory_barrier()
             out[first : first + count] = np.frombuffer(self.colours.read(), np.uint8).reshape(self.group, ry, rx, 4)[
                 :count
@@ -427,7 +472,8 @@ class DrawOnce:
 
         self.ctx.finish()
         park_framebuffer(self.ctx)  # never release the bound framebuffer (core/render/programs.py)
-        for resource in (*(a for _, a in self.arrays.values()), *(p for p, _ in self.arrays.values()), self.buffer,
+        for resource in (*(a for _, a in self.arrays.values()), *self.programs.values(), self.buffer,
+                         *(a for arrays in self.group_arrays for a in arrays.values()), *(g[3] for g in self.groups),
                          self.borders, self.keys, self.colours, self.fbo, self.target):  # fmt: skip
             resource.release()
 
@@ -492,7 +538,7 @@ def once_cases() -> dict:
     return cases
 
 
-def measure_once(rounds: int) -> dict:
+def measure_once(rounds: int, only: tuple[str, ...] = ()) -> dict:
     """The draw-once prototype beside the reference recording and the lower bound, in this process:
     per part of a case, the best of ``rounds`` interleaved runs (after a warm-up) of the bound,
     ``record_layers``, the draw-once floor and the draw-once prototype, summed over the case's parts;
@@ -503,10 +549,12 @@ def measure_once(rounds: int) -> dict:
 
     report = {"renderer": renderer_info().renderer, "rounds": rounds}
     for name, parts in once_cases().items():
+        if only and not any(word in name for word in only):
+            continue
         print(f"draw once: {name} ...", file=sys.stderr, flush=True)
         case = dict.fromkeys(
             ("reference_fragments", "once_fragments", "plain_fragments", "conservative_fragments", "covered", "missed", "extra", "bound_s",
-             "reference_s", "floor_s", "once_s", "layers"), 0)  # fmt: skip
+             "reference_s", "floor_s", "once_s", "one_pass_s", "layers"), 0)  # fmt: skip
         case["triangles"] = int(sum(len(o.faces) for o in parts[0][0]))
         case["texels"] = [int(r) for r in parts[0][1].texture_resolution]
         for objects, plan, bound in parts:
@@ -521,6 +569,7 @@ def measure_once(rounds: int) -> dict:
                 "reference": lambda objects=objects, plan=plan: record_layers(objects, plan),
                 "floor": once.floor,
                 "once": once.record,
+                "one_pass": lambda once=once: once.record(one_pass=True),
             }
             times = {run: [] for run in runs}
             results = {run: call() for run, call in runs.items()}  # warm-up
@@ -531,10 +580,13 @@ def measure_once(rounds: int) -> dict:
                     times[run].append(result if run == "bound" else time.perf_counter() - start)
                     results[run] = result
             reference, recorded = results["reference"].coverage, results["once"][..., 3] > 0
+            case["one_pass_same"] = bool(
+                case.get("one_pass_same", True) and np.array_equal(results["once"], results["one_pass"])
+            )
             case["layers"] += once.k
             case["once_fragments"] += once.draw_constant()
             case["plain_fragments"] += once.draw_constant(plain=True)
-            case["conservative_fragments"] += once.conservative_fragments
+            case["conservative_fragments"] += once.exact_fragments()
             case["covered"] += int(reference.sum())
             case["missed"] += int((reference & ~recorded).sum())
             case["extra"] += int((recorded & ~reference).sum())
@@ -551,7 +603,7 @@ def print_once(report: dict) -> None:
     print("once = the draw-once rectangles; reference = the (triangle, slab) rectangles of record_layers")
     print(
         f"{'case':<15} {'tris':>7} {'layers':>6} {'texels':>9} {'plain':>6} {'exact':>6} {'once':>6} {'refer.':>6} "
-        f"{'bound s':>7} {'ref s':>6} {'floor s':>7} {'once s':>6} {'ref/b':>6} {'floor/b':>7} {'once/b':>6} {'missed':>6} {'extra':>5}"
+        f"{'bound s':>7} {'ref s':>6} {'floor s':>7} {'once s':>6} {'1-pass s':>8} {'ref/b':>6} {'floor/b':>7} {'once/b':>6} {'1-pass/b':>8} {'missed':>6} {'extra':>5}"
     )
     for name, case in report.items():
         if not isinstance(case, dict):
@@ -564,8 +616,8 @@ def print_once(report: dict) -> None:
         print(
             f"{name:<15} {case['triangles']:>7} {case['layers']:>6} {'x'.join(map(str, case['texels'])):>9} "
             + " ".join(f"{f:>6}" for f in frags)
-            + f" {b:>7.3f} {case['reference_s']:>6.3f} {case['floor_s']:>7.3f} {case['once_s']:>6.3f}"
-            f" {case['reference_s'] / b:>5.1f}x {case['floor_s'] / b:>6.1f}x {case['once_s'] / b:>5.1f}x"
+            + f" {b:>7.3f} {case['reference_s']:>6.3f} {case['floor_s']:>7.3f} {case['once_s']:>6.3f} {case.get('one_pass_s', 0):>8.3f}"
+            f" {case['reference_s'] / b:>5.1f}x {case['floor_s'] / b:>6.1f}x {case['once_s'] / b:>5.1f}x {case.get('one_pass_s', 0) / b:>7.1f}x"
             f" {case['missed']:>6} {case['extra']:>5}"
         )
 
@@ -586,11 +638,14 @@ def main() -> None:
         action="store_true",
         help="instead: the draw-once prototype (issue 60 item 1) beside the reference and the bound",
     )
+    parser.add_argument(
+        "--cases", nargs="*", default=[], help="with --once: only the cases whose name has one of these words"
+    )
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--measure", action="store_true", help=argparse.SUPPRESS)  # internal: one tree, JSON out
     args = parser.parse_args()
     if args.once:
-        report = measure_once(max(args.rounds, 1) + 1)
+        report = measure_once(max(args.rounds, 1) + 1, tuple(args.cases))
         if args.json:
             print(json.dumps(report, indent=1))
         else:
