@@ -331,8 +331,10 @@ def draw_once_records(objects, plan) -> tuple[np.ndarray, int]:
 
 class DrawOnce:
     """The draw-once prototype on the process's GL context: :meth:`record` gives (k, h, w, 4) uint8
-    layers; :meth:`draw_constant` times the bare rectangles (a constant fragment shader), the
-    floor of any scheme that visits each triangle's conservative texels once."""
+    layers (two atomic passes, or one pass of plain loads and stores); :meth:`floor` draws the bare
+    rectangles (a constant fragment shader) and reads the layers back, the floor of any scheme that
+    visits each triangle's conservative texels once; :meth:`draw_constant` and
+    :meth:`exact_fragments` count fragments."""
 
     GROUP_BYTES = 256 << 20  # image layers per group: keys and colours of at most this many bytes
 
