@@ -21,7 +21,9 @@ bit the numpy functions below).  Each object is drawn with the slab.frag variant
 (:func:`slab_variant`).  On llvmpipe, the benchmark's untextured 100k-triangle part at 512 (61
 layers of 685 x 590 texels, 152k pairs) spends ~0.045 s pairing and ~0.25 s in the GL, of which
 ~0.05 s draws the rectangles with a constant fragment shader (README, "Recording against its
-lower bound").
+lower bound").  Drawing each triangle once instead, and sorting its texels into slabs with image
+atomics, keeps this coverage but was 1.1-1.7x slower on llvmpipe (``benchmarks/bench_recording.py
+--once``; docs/measurements/layered.md, "Drawing each triangle once").
 """
 
 from __future__ import annotations
