@@ -412,8 +412,9 @@ def instances_of(
         return []
     matrices.flags.writeable = False
     linear = matrices[:, :3, :3]
-    vertices = local.vertices @ linear.transpose(0, 2, 1)  # (n, v, 3)
-    vertices += matrices[:, None, :3, 3]  # in place: no second (n, v, 3) array at the peak
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused below, by name
+        vertices = local.vertices @ linear.transpose(0, 2, 1)  # (n, v, 3)
+        vertices += matrices[:, None, :3, 3]  # in place: no second (n, v, 3) array at the peak
     vertices.flags.writeable = False
     flat = vertices.reshape(len(names), -1)  # x, y, z of each instance as strided columns: reduced fast
     low = np.stack([flat[:, axis::3].min(axis=1) for axis in range(3)], axis=1)
