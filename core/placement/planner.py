@@ -31,6 +31,7 @@ from farfield.core.placement.view_space import Visibility, problem_view_space
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import StageClock
 from farfield.core.techniques import get_technique
+from farfield.core.techniques.part import estimate_part_cell
 
 STEPS = ("hierarchy", "problem views", "candidates", "greedy")
 DEFAULT_CPV_DIVISIONS = 8  # default CPV size: the view space's longest side / 8
@@ -103,11 +104,12 @@ def region_visibility(scene: Scene, elements: Elements, lo, hi, cpv_size: float,
 def check_placeable(technique) -> None:
     """Refuse a technique the frame-time planner cannot place, saying why.
 
-    >>> from farfield.core.techniques import get_technique
-    >>> check_placeable(get_technique("ldi"))
-    Traceback (most recent call last):
-    ...
-    farfield.core.placement.hierarchy.PlacementError: technique 'ldi' has no memory and frame-time estimate for the frame-time planner; layered depth images are placed by the primitive-budget algorithm (algorithm primitive-budget, a primitives budget); for a frame budget use layered or tdm
+        >>> from farfield.core.techniques import get_technique
+    from farfield.core.techniques.part import estimate_part_cell
+        >>> check_placeable(get_technique("ldi"))
+        Traceback (most recent call last):
+        ...
+        farfield.core.placement.hierarchy.PlacementError: technique 'ldi' has no memory and frame-time estimate for the frame-time planner; layered depth images are placed by the primitive-budget algorithm (algorithm primitive-budget, a primitives budget); for a frame budget use layered or tdm
     """
     if technique.estimate is not None:
         return
@@ -185,6 +187,16 @@ def technique_sources(techniques: list[tuple[object, object]]):
     return estimate, tuple(outside), tuple(names)
 
 
+def part_options(techniques: list[tuple[object, object]]):
+    """The options of the shafts' and boxes' technique (:func:`technique_sources`' source 0) where
+    its estimate is the layered part estimate, which candidates compute for many cells at once
+    (:mod:`farfield.core.placement.part_estimates`); else None (one cell at a time)."""
+    for technique, options in techniques:
+        if getattr(technique, "outside_estimate", None) is None:
+            return options if technique.estimate is estimate_part_cell else None
+    return None
+
+
 def instance_sources(techniques: list[tuple[object, object]], instanced: dict) -> tuple[dict, ...]:
     """Per outside source (:func:`technique_sources`' order): the nodes (``instanced``,
     :func:`~farfield.core.placement.node_instances.node_instances`) whose candidate is their
@@ -257,6 +269,7 @@ def place(
         cand = generate_candidates(
             hierarchy, pv, settings.model, estimate, float(resolution) ** 2, settings.cells, settings.apex_angles_deg, settings.direction_step_deg,
             settings.distance_steps, lambda done, total: clock.report("candidates", done, total), settings.max_impostor_bytes, outside, shared,
+            part_options(techniques),
         )  # fmt: skip
     with clock("greedy"):
         greedy = Greedy(hierarchy, pv, cand, settings.t_max)
