@@ -304,7 +304,7 @@ def generate_candidates(
         if part_options is None or estimate is None
         else (ShaftFrames.of(grid), [math.tan(0.5 * float(2.0 * h)) for h in halves])
     )
-    rows, atlases = _Rows(), {}
+    rows, atlases, reached = _Rows(), {}, {}
     counts = {"considered": 0, "refused_by_technique": 0, "refused_by_memory": 0}
     for n in range(hierarchy.count):
         g_all, pixels_all = geometry.of(np.full(solvable.size, n), solvable)
@@ -354,7 +354,7 @@ def generate_candidates(
             counts["considered"] += 1
             inst = outside_instances[k].get(n) if k < len(outside_instances) else None
             try:
-                far = reach(bounds) if inst is None else _moved(reach(inst.local_bounds), inst)
+                far = reach(bounds) if inst is None else _moved(_once(reached, k, reach, inst.local_bounds), inst)
             except FarfieldError:
                 counts["refused_by_technique"] += 1
                 continue
@@ -489,6 +489,22 @@ def _node_batch(rows: _Rows, counts: dict, node, shafts, boxes, batch, shape, mo
     ]
     rows.add(made, cpvs[entry[keep]], g_n[entry[keep]], ti[keep], node=n, kind=(which[good] >= ns).astype(np.int64),
              layers=layers[good], texels=texels[good], source=0, memory=np.nan, quads=np.nan, atlas=-1, scale=1.0, count=kept[good])  # fmt: skip
+
+
+def _once(memo: dict, k: int, reach: Outside, bounds: np.ndarray):
+    """``reach(bounds)`` of outside source ``k``, computed once per source and bounds (every
+    instance of a prototype asks with its local bounds; an octahedral accuracy distance takes a
+    tenth of a second), its FarfieldError raised again each time."""
+    key = (k, np.asarray(bounds, dtype=np.float64).tobytes())
+    if key not in memo:
+        try:
+            memo[key] = reach(bounds)
+        except FarfieldError as error:
+            memo[key] = error
+    found = memo[key]
+    if isinstance(found, FarfieldError):
+        raise found
+    return found
 
 
 def _moved(far, inst):

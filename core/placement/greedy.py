@@ -135,10 +135,43 @@ class Greedy:
             self._cum = np.concatenate([[0.0], np.cumsum(self._saved)])
         return self._keys, self._cum
 
+    def _key_owners(self) -> dict[int, int]:
+        """Key ``cpv * nodes + node`` of :meth:`_drawn_index` -> the chosen impostor drawn there
+        (entries for keys no longer drawn may linger: only keys found in ``_keys`` are looked up)."""
+        owners = self.__dict__.get("_owners")
+        if owners is None:  # a state pickled before it: from what is drawn
+            owners = {p * int(self.nodes) + self.chosen[o].node: o for p, ids in enumerate(self.drawn) for o in ids}
+            self._owners = owners
+        return owners
+
     def _gains(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(cpvs, saving, gain) of candidate ``i`` now; saving is -inf where an ancestor's impostor
         (or the node's own) is drawn, and the gain is 0 where it saves nothing."""
-        return self._gains_of(np.array([i], dtype=np.int64))[1:]
+        # _gains_of for one candidate, on slices (the lazy heap re-scores one at a time: most of the greedy)
+        a, b = int(self.cand.served_offsets[i]), int(self.cand.served_offsets[i + 1])
+        cpvs, geometry, node = self.cand.served[a:b], self.g[a:b], int(self.cand.node[i])
+        if self.chosen:
+            geometry = self._drawn_less(cpvs, geometry, node)
+        saving = geometry - self.ti[a:b]
+        return cpvs, saving, np.maximum(0.0, np.minimum(saving, self.t[cpvs] - self.t_max))
+
+    def _drawn_less(self, cpvs: np.ndarray, geometry: np.ndarray, node) -> np.ndarray:
+        """``geometry`` of ``node`` (a number, or one per row) in ``cpvs`` less what its drawn
+        descendants save there, -inf where an ancestor's impostor (or its own) is drawn."""
+        keys, cum = self._drawn_index()
+        base = cpvs * self.nodes
+        # descendants drawn here: what they already save is no longer the node's to save
+        lo = np.searchsorted(keys, base + node + 1)
+        hi = np.searchsorted(keys, base + node + self.size[node])
+        geometry = geometry - (cum[hi] - cum[lo])
+        # the nearest drawn node at or before this one in preorder: an ancestor (or itself) if its subtree holds it
+        at = np.searchsorted(keys, base + node, side="right") - 1
+        found = keys[np.maximum(at, 0)]
+        other = found - base
+        blocked = (
+            (at >= 0) & (other >= 0) & (other <= node) & (other + self.size[np.clip(other, 0, self.nodes - 1)] > node)
+        )
+        return np.where(blocked, -np.inf, geometry)
 
     def _gains_of(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(owner, cpvs, saving, gain) of the candidates ``idx`` now, one row per CPV each serves,
@@ -152,23 +185,7 @@ class Greedy:
         geometry = self.g[flat]
         node = np.repeat(self.cand.node[idx], lengths)
         if self.chosen:
-            keys, cum = self._drawn_index()
-            base = cpvs * self.nodes
-            # descendants drawn here: what they already save is no longer the node's to save
-            lo = np.searchsorted(keys, base + node + 1)
-            hi = np.searchsorted(keys, base + node + self.size[node])
-            geometry = geometry - (cum[hi] - cum[lo])
-            # the nearest drawn node at or before this one in preorder: an ancestor (or itself) if its subtree holds it
-            at = np.searchsorted(keys, base + node, side="right") - 1
-            found = keys[np.maximum(at, 0)]
-            other = found - base
-            blocked = (
-                (at >= 0)
-                & (other >= 0)
-                & (other <= node)
-                & (other + self.size[np.clip(other, 0, self.nodes - 1)] > node)
-            )
-            geometry = np.where(blocked, -np.inf, geometry)
+            geometry = self._drawn_less(cpvs, geometry, node)
         saving = geometry - self.ti[flat]
         gain = np.maximum(0.0, np.minimum(saving, self.t[cpvs] - self.t_max))
         return owner, cpvs, saving, gain
@@ -255,23 +272,28 @@ class Greedy:
         if atlas >= 0:
             self.atlas_users.setdefault(atlas, []).append(me)
         removed, added, added_saved = [], [], []
+        keys, owners = self._keys, self._key_owners()
         for k in np.flatnonzero(saving > 0.0):
             p = int(cpvs[k])
-            kept = []
-            for other_id in self.drawn[p]:
+            base = p * int(self.nodes)
+            # the impostors drawn here for this node's descendants (keys base + node + 1 .. + size - 1): replaced here
+            lo, hi = np.searchsorted(keys, [base + node + 1, base + node + int(self.size[node])])
+            gone = set()
+            for key in keys[lo:hi].tolist():
+                other_id = owners[key]
                 other = self.chosen[other_id]
-                if node < other.node < node + self.size[node]:  # replaced by this impostor here
-                    del other.cpvs[p]
-                    removed.append(p * self.nodes + other.node)
-                    if not other.cpvs:
-                        self.deleted.add(other_id)
-                        lost = int(self.atlas[other.candidate])
-                        if lost >= 0 and lost != atlas and not self.paid(lost):
-                            self.unpaid_again = (*self.unpaid_again, lost)
-                else:
-                    kept.append(other_id)
-            kept.append(me)
-            self.drawn[p] = kept
+                del other.cpvs[p]
+                removed.append(key)
+                gone.add(other_id)
+                if not other.cpvs:
+                    self.deleted.add(other_id)
+                    lost = int(self.atlas[other.candidate])
+                    if lost >= 0 and lost != atlas and not self.paid(lost):
+                        self.unpaid_again = (*self.unpaid_again, lost)
+            if gone:
+                self.drawn[p] = [o for o in self.drawn[p] if o not in gone]
+            self.drawn[p].append(me)
+            owners[base + node] = me
             g_p, t_p = float(self.g[a + k]), float(self.ti[a + k])
             imp.cpvs[p] = (g_p, t_p)
             added.append(p * self.nodes + node)

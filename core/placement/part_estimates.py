@@ -121,8 +121,8 @@ def box_views(bounds, lo, hi) -> Views:
     for i in range(k):  # the scalar norm and frame, as part_view takes them (a few microseconds each)
         dist[i], axis = length_and_unit(towards[i])
         if dist[i] > 0.0:
-            u, v = _orthonormal_frame(axis)
-            frame[i] = np.stack([u, v, axis])
+            frame[i, 0], frame[i, 1] = _orthonormal_frame(axis)
+            frame[i, 2] = axis
     ok = dist > touch
     frame_t = np.swapaxes(frame, 1, 2)
     cell_corners = np.where(_BOX_PICK[None, :, :], hi[:, None, :], lo[:, None, :])  # BoxCell.corners
