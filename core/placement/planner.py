@@ -104,12 +104,11 @@ def region_visibility(scene: Scene, elements: Elements, lo, hi, cpv_size: float,
 def check_placeable(technique) -> None:
     """Refuse a technique the frame-time planner cannot place, saying why.
 
-        >>> from farfield.core.techniques import get_technique
-    from farfield.core.techniques.part import estimate_part_cell
-        >>> check_placeable(get_technique("ldi"))
-        Traceback (most recent call last):
-        ...
-        farfield.core.placement.hierarchy.PlacementError: technique 'ldi' has no memory and frame-time estimate for the frame-time planner; layered depth images are placed by the primitive-budget algorithm (algorithm primitive-budget, a primitives budget); for a frame budget use layered or tdm
+    >>> from farfield.core.techniques import get_technique
+    >>> check_placeable(get_technique("ldi"))
+    Traceback (most recent call last):
+    ...
+    farfield.core.placement.hierarchy.PlacementError: technique 'ldi' has no memory and frame-time estimate for the frame-time planner; layered depth images are placed by the primitive-budget algorithm (algorithm primitive-budget, a primitives budget); for a frame budget use layered or tdm
     """
     if technique.estimate is not None:
         return
