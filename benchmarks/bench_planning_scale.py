@@ -110,7 +110,7 @@ def main(argv=None) -> int:
         return 0
     rows = []
     for name in filter(None, args.scenes.split(",")):
-        for label, package in (("older", args.against), ("this", None)):
+        for label, package in (("this", None), ("older", args.against)):
             if label == "older" and package is None:
                 continue
             row = {"version": label, **run_in(package, name)}
