@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import resource
 import sys
 import tempfile
 import time
@@ -187,6 +188,7 @@ def main(argv=None) -> int:
             "shared_atlases": len(s.get("shared_atlases", [])),
             "octahedral_candidates": int(np.sum(placement.state.cand.kind == OUTSIDE_SPHERE)),
             "start_scores": start_scores(placement.state),
+            "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,  # the process's so far
         }  # fmt: skip
         chosen = json.dumps(
             sorted(
@@ -210,14 +212,14 @@ def main(argv=None) -> int:
         print(json.dumps({k: v for k, v in row.items() if k != "chosen"}), flush=True)
 
     print(
-        "\n| placement | plan s | CPVs solved / unsolved / unsolvable | solved by layered, not here | candidates | octahedral candidates | impostors (layered / octahedral) | atlases shared | memory MiB (octahedral) |"
+        "\n| placement | plan s | CPVs solved / unsolved / unsolvable | solved by layered, not here | candidates | octahedral candidates | impostors (layered / octahedral) | atlases shared | memory MiB (octahedral) | peak RSS MiB (process, so far) |"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         oc = r["by_technique"].get("octahedral", {"impostors": 0, "memory_bytes": 0.0})
         la = r["by_technique"].get("layered", {"impostors": 0})
         print(f"| {r['placement']} | {r['plan_seconds']:.1f} | {r['solved']} / {r['unsolved']} / {r['unsolvable']} | {r['lost']} | {r['candidates']:,} | {r['octahedral_candidates']} | "
-              f"{la['impostors']} / {oc['impostors']} | {r['shared_atlases']} | {r['memory_bytes'] / 2**20:.2f} ({oc['memory_bytes'] / 2**20:.2f}) |")  # fmt: skip
+              f"{la['impostors']} / {oc['impostors']} | {r['shared_atlases']} | {r['memory_bytes'] / 2**20:.2f} ({oc['memory_bytes'] / 2**20:.2f}) | {r['peak_rss_mib']:.0f} |")  # fmt: skip
     if args.walkthrough:
         print(
             "\n| placement | frames within t_max | by the estimate | runtime ms p50 / max | plain ms p50 | hole pixels / geometry pixels | baked (octahedral) | baked MiB |"

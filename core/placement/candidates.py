@@ -53,6 +53,7 @@ import numpy as np
 from farfield.core.errors import FarfieldError
 from farfield.core.placement.cost_model import CostModel
 from farfield.core.placement.hierarchy import Hierarchy, PlacementError
+from farfield.core.placement.part_estimates import ShaftFrames, Views, box_views, estimate_views, shaft_views
 from farfield.core.placement.view_space import CpvGeometry, ProblemViews, box_gap
 from farfield.core.viewcells import BoxCell, ShaftCell, SphereOutsideCell
 
@@ -138,8 +139,9 @@ def _shaft_cells(
     halves,
     distance_steps,
 ):
-    """(cell, served regions) of node ``n``'s shafts (see the module docstring), with the dominance
-    pruning; ``regions`` are those where the node is in some solvable CPV's frustum."""
+    """(apex angle index, direction index, distance step, served regions) of node ``n``'s shafts
+    (see the module docstring; :func:`_shaft_cell` makes one a cell), with the dominance pruning;
+    ``regions`` are those where the node is in some solvable CPV's frustum."""
     out, considered = [], 0
     vec = region_centre[regions] - centre
     dist = np.linalg.norm(vec, axis=1)
@@ -157,35 +159,43 @@ def _shaft_cells(
         k_index = np.floor(np.log2(np.clip(np.where(along > 0.0, along / size, 0.5), 0.5, 2.0**62))).astype(np.int64)
     k_index = np.minimum(k_index, distance_steps - 1)  # the largest k with 2^k size <= along, or -1
     ok = (a_index < len(halves)) & (k_index >= 0)
+    steps = np.int64(distance_steps + 1)
     for a in range(len(halves)):
         fits = ok & (a_index <= a)
-        for d in np.flatnonzero(fits.any(axis=0)):
-            col = fits[:, d]
-            ks, exact_a = k_index[col, d], a_index[col, d] == a
-            # (a, d, k) serves the regions with k_index >= k: only the k some region has exactly
-            # differ from k + 1's, and unless a region needs angle a, the next smaller angle serves the same.
-            for k in np.unique(ks):
-                considered += 1
-                sel = ks >= k
-                if a > 0 and not np.any(exact_a & sel):
-                    continue
-                out.append((ShaftCell(centre, grid[d], 2.0 * halves[a], float(2.0**k) * size), regions[col][sel]))
+        # (a, d, k) serves the regions with k_index >= k: only the k some region has exactly differ
+        # from k + 1's (each (d, k) a region of direction d has, ascending), and unless a region
+        # needing angle a has k_index >= k, the next smaller angle serves the same.
+        rows, cols = np.nonzero(fits)
+        pairs = np.unique(cols * steps + k_index[rows, cols])
+        considered += int(pairs.size)
+        ds, ks = pairs // steps, pairs % steps
+        if a > 0:
+            reach = np.where(fits & (a_index == a), k_index, -1).max(axis=0)
+            keep = reach[ds] >= ks
+            ds, ks = ds[keep], ks[keep]
+        for d, k in zip(ds.tolist(), ks.tolist()):
+            out.append((a, d, k, regions[fits[:, d] & (k_index[:, d] >= k)]))
     return out, considered
 
 
+def _shaft_cell(
+    centre: np.ndarray, size: float, grid: np.ndarray, halves: np.ndarray, a: int, d: int, k: int
+) -> ShaftCell:
+    """The shaft ``(a, d, k)`` of :func:`_shaft_cells` of a node at ``centre`` of ``size``."""
+    return ShaftCell(centre, grid[d], 2.0 * halves[a], float(2.0**k) * size)
+
+
 def _leaf_box_cells(pv: ProblemViews, lo: np.ndarray, hi: np.ndarray, region_relevant: np.ndarray):
-    """(cell, [region]) for every leaf region apart from the node where it is relevant."""
+    """(lo, hi, [region]) of a box cell for every leaf region apart from the node where it is relevant."""
     span = pv.region_hi - pv.region_lo
     pad = np.where(span > 0.0, 0.0, np.maximum(1e-6 * span.max(axis=1, keepdims=True), 1e-9))
     apart = box_gap(pv.region_lo, pv.region_hi, lo, hi) > 0.0
     chosen = np.flatnonzero(region_relevant & apart)
-    return [(BoxCell(pv.region_lo[r] - pad[r], pv.region_hi[r] + pad[r]), np.array([r])) for r in chosen], int(
-        chosen.size
-    )
+    return [(pv.region_lo[r] - pad[r], pv.region_hi[r] + pad[r], np.array([r])) for r in chosen], int(chosen.size)
 
 
 def _box_cells(pv: ProblemViews, lo: np.ndarray, hi: np.ndarray, region_relevant: np.ndarray):
-    """(cell, served regions) of a node's box candidates: view-space hierarchy regions apart from
+    """(lo, hi, served regions) of a node's box candidates: view-space hierarchy regions apart from
     the node holding relevant leaf regions, unless one of their halves holds them all."""
     counts = np.concatenate([[0], np.cumsum(region_relevant)])
     cnt = counts[pv.tree_last] - counts[pv.tree_first]
@@ -201,8 +211,48 @@ def _box_cells(pv: ProblemViews, lo: np.ndarray, hi: np.ndarray, region_relevant
     pad = np.where(span > 0.0, 0.0, np.maximum(1e-6 * span.max(axis=1, keepdims=True), 1e-9))
     for q in np.flatnonzero((cnt > 0) & apart & ~dominated):
         served = pv.tree_first[q] + np.flatnonzero(region_relevant[pv.tree_first[q] : pv.tree_last[q]])
-        out.append((BoxCell(pv.tree_lo[q] - pad[q], pv.tree_hi[q] + pad[q]), served))
+        out.append((pv.tree_lo[q] - pad[q], pv.tree_hi[q] + pad[q], served))
     return out, int(np.sum((cnt > 0) & apart))
+
+
+class _Rows:
+    """The kept candidates, gathered in chunks (one candidate or a node's batch at a time)."""
+
+    FIELDS = ("node", "kind", "layers", "texels", "source", "memory", "quads", "atlas", "scale", "count")
+
+    def __init__(self) -> None:
+        self.chunks = {f: [] for f in self.FIELDS}
+        self.cells: list = []
+        self.served, self.g, self.ti = [], [], []
+
+    def add(self, cells: list, served: np.ndarray, g: np.ndarray, ti: np.ndarray, **columns) -> None:
+        """Candidates ``cells`` (their ``columns``, arrays or scalars; ``count``: each one's served
+        CPVs, whose rows ``served``, ``g``, ``ti`` follow one another)."""
+        k = len(cells)
+        for f in self.FIELDS:
+            self.chunks[f].append(np.broadcast_to(np.asarray(columns[f]), (k,)))
+        self.cells += cells
+        self.served.append(served), self.g.append(g), self.ti.append(ti)
+
+    def column(self, name: str, dtype) -> np.ndarray:
+        parts = self.chunks[name]
+        return np.concatenate(parts).astype(dtype) if parts else np.empty(0, dtype=dtype)
+
+    def flat(self, rows: list, dtype) -> np.ndarray:
+        return np.concatenate(rows).astype(dtype) if rows else np.empty(0, dtype=dtype)
+
+
+def _region_rows(cpv_regions: np.ndarray, regions_count: int) -> tuple[np.ndarray, np.ndarray]:
+    """(start, end) of each region's rows in ``cpv_regions`` (non-decreasing: a leaf region's CPVs
+    follow one another, :func:`~farfield.core.placement.view_space.problem_view_space`)."""
+    at = np.arange(regions_count)
+    return np.searchsorted(cpv_regions, at, side="left"), np.searchsorted(cpv_regions, at, side="right")
+
+
+def _ragged(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """The concatenation of ``arange(starts[i], starts[i] + lengths[i])`` over ``i``."""
+    total = int(lengths.sum())
+    return np.arange(total, dtype=np.int64) - np.repeat(np.cumsum(lengths) - lengths - starts, lengths)
 
 
 def generate_candidates(
@@ -219,6 +269,7 @@ def generate_candidates(
     max_bytes: float = math.inf,
     outside: tuple[Outside, ...] = (),
     outside_instances: tuple[dict, ...] = (),
+    part_options=None,
 ) -> Candidates:
     """The candidates of every hierarchy node for the solvable CPVs of ``pv`` (see the module docstring).
 
@@ -227,7 +278,12 @@ def generate_candidates(
     would be most of the placement's.  ``estimate`` None: no shafts or boxes (only ``outside``'s
     candidates, one per node and source).  ``outside_instances[k]``: node -> NodeInstance
     (:func:`~farfield.core.placement.node_instances.node_instances`) of the nodes whose
-    ``outside[k]`` candidate is their prototype's, moved (module docstring)."""
+    ``outside[k]`` candidate is their prototype's, moved (module docstring).
+
+    ``part_options``: when ``estimate`` is :func:`~farfield.core.techniques.part.estimate_part_cell`
+    with these options, a node's shafts and boxes are estimated together
+    (:mod:`farfield.core.placement.part_estimates`, the same numbers) and only the kept ones become
+    cells; None: ``estimate`` is called cell by cell (the reference the tests compare with)."""
     if cells not in CellKinds:
         raise PlacementError(f"cells must be one of {list(CellKinds)}, got {cells!r}")
     halves = np.radians(np.asarray(apex_angles_deg, dtype=np.float64)) * 0.5
@@ -243,9 +299,13 @@ def generate_candidates(
     node_centre = 0.5 * (hierarchy.lo + hierarchy.hi)
     size = np.maximum(hierarchy.diagonal, 1e-300)
     grid = direction_grid(direction_step_deg)
-    node_l, kind_l, cell_l, layer_l, texel_l, served_l, g_l, ti_l = [], [], [], [], [], [], [], []
-    source_l, memory_l, quads_l, atlas_l, scale_l, atlases = [], [], [], [], [], {}
-    considered = refused = too_large = 0
+    batch = (
+        None
+        if part_options is None or estimate is None
+        else (ShaftFrames.of(grid), [math.tan(0.5 * float(2.0 * h)) for h in halves])
+    )
+    rows, atlases, reached = _Rows(), {}, {}
+    counts = {"considered": 0, "refused_by_technique": 0, "refused_by_memory": 0}
     for n in range(hierarchy.count):
         g_all, pixels_all = geometry.of(np.full(solvable.size, n), solvable)
         seen = g_all > 0.0
@@ -254,63 +314,52 @@ def generate_candidates(
         cpvs, g_n, pixels_n = solvable[seen], g_all[seen], np.minimum(pixels_all[seen], frame_pixels)
         cpv_regions = pv.cpv_region[cpvs]
         region_relevant = np.bincount(cpv_regions, minlength=regions_count) > 0
-        found = []
+        shafts, boxes = [], []
         if estimate is not None and cells in ("shafts", "both"):
-            more, c = _shaft_cells(
-                n,
-                node_centre[n],
-                float(size[n]),
-                np.flatnonzero(region_relevant),
-                region_centre,
-                region_radius,
-                grid,
-                halves,
-                distance_steps,
-            )
-            found += [(0, cell, served) for cell, served in more]
-            considered += c
+            shafts, c = _shaft_cells(
+                n, node_centre[n], float(size[n]), np.flatnonzero(region_relevant), region_centre, region_radius, grid, halves, distance_steps,
+            )  # fmt: skip
+            counts["considered"] += c
         if estimate is not None and cells in ("boxes", "both", "leaf-boxes"):
-            boxes = _leaf_box_cells if cells == "leaf-boxes" else _box_cells
-            more, c = boxes(pv, hierarchy.lo[n], hierarchy.hi[n], region_relevant)
-            found += [(1, cell, served) for cell, served in more]
-            considered += c
+            more, c = (_leaf_box_cells if cells == "leaf-boxes" else _box_cells)(
+                pv, hierarchy.lo[n], hierarchy.hi[n], region_relevant
+            )
+            boxes = more
+            counts["considered"] += c
         bounds = np.stack([hierarchy.lo[n], hierarchy.hi[n]])
         floor = np.asarray(model.impostor_time(pixels_n, 0.0), dtype=np.float64).reshape(-1)  # no quads: a lower bound
-        for kind, cell, served_regions in found:
-            in_cell = np.isin(cpv_regions, served_regions)
-            if not np.any(in_cell & (g_n > floor)):
-                continue  # saves nothing in any CPV it serves, whatever its layers: not worth estimating
-            try:
-                layers, per_layer = estimate(cell, bounds)
-            except FarfieldError:
-                refused += 1
-                continue
-            if float(model.memory_bytes(layers, per_layer)) > max_bytes:
-                too_large += 1
-                continue
-            ti = np.asarray(model.impostor_time(pixels_n, model.quads(layers, per_layer)), dtype=np.float64).reshape(-1)
-            keep = in_cell & (g_n > ti)
-            if not keep.any():
-                continue
-            (
-                node_l.append(n),
-                kind_l.append(kind),
-                cell_l.append(cell),
-                layer_l.append(layers),
-                texel_l.append(per_layer),
+        node = (n, cpvs, g_n, pixels_n, cpv_regions, bounds, floor)
+        if batch is not None:
+            _node_batch(
+                rows,
+                counts,
+                node,
+                shafts,
+                boxes,
+                batch,
+                (node_centre[n], float(size[n]), grid, halves),
+                model,
+                part_options,
+                max_bytes,
+                regions_count,
             )
-            source_l.append(0), memory_l.append(np.nan), quads_l.append(np.nan), atlas_l.append(-1), scale_l.append(1.0)
-            served_l.append(cpvs[keep]), g_l.append(g_n[keep]), ti_l.append(ti[keep])
+        else:
+            found = [
+                (0, _shaft_cell(node_centre[n], float(size[n]), grid, halves, a, d, k), served)
+                for a, d, k, served in shafts
+            ]
+            found += [(1, BoxCell(lo, hi), served) for lo, hi, served in boxes]
+            _node_cells(rows, counts, node, found, model, estimate, max_bytes)
         for k, reach in enumerate(outside):
-            considered += 1
+            counts["considered"] += 1
             inst = outside_instances[k].get(n) if k < len(outside_instances) else None
             try:
-                far = reach(bounds) if inst is None else _moved(reach(inst.local_bounds), inst)
+                far = reach(bounds) if inst is None else _moved(_once(reached, k, reach, inst.local_bounds), inst)
             except FarfieldError:
-                refused += 1
+                counts["refused_by_technique"] += 1
                 continue
             if float(far.memory_bytes) > max_bytes:
-                too_large += 1
+                counts["refused_by_memory"] += 1
                 continue
             in_cell = np.isin(cpv_regions, np.flatnonzero(far.serves(pv.region_lo, pv.region_hi)))
             card = np.minimum(pixels_n * (4.0 / math.pi), frame_pixels)  # the square card around the disc
@@ -318,25 +367,18 @@ def generate_candidates(
             keep = in_cell & (g_n > ti)
             if not keep.any():
                 continue
-            node_l.append(n), kind_l.append(OUTSIDE_SPHERE), cell_l.append(far.cell), layer_l.append(far.layers)
-            (
-                texel_l.append(far.texels),
-                source_l.append(k + 1),
-                memory_l.append(far.memory_bytes),
-                quads_l.append(far.quads),
-            )
-            served_l.append(cpvs[keep]), g_l.append(g_n[keep]), ti_l.append(ti[keep])
-            atlas_l.append(-1 if inst is None else atlases.setdefault((k + 1, inst.prototype), len(atlases)))
-            scale_l.append(1.0 if inst is None else inst.scale)
+            atlas = -1 if inst is None else atlases.setdefault((k + 1, inst.prototype), len(atlases))
+            rows.add([far.cell], cpvs[keep], g_n[keep], ti[keep], node=n, kind=OUTSIDE_SPHERE, layers=far.layers, texels=far.texels,
+                     source=k + 1, memory=far.memory_bytes, quads=far.quads, atlas=atlas, scale=1.0 if inst is None else inst.scale,
+                     count=int(keep.sum()))  # fmt: skip
         if progress is not None:
             progress(n + 1, hierarchy.count)
-    layers_a, texels_a = np.asarray(layer_l, dtype=np.float64), np.asarray(texel_l, dtype=np.float64)
-    flat = lambda rows, dtype: np.concatenate(rows).astype(dtype) if rows else np.empty(0, dtype=dtype)  # noqa: E731
-    own_memory, own_quads = np.asarray(memory_l, dtype=np.float64), np.asarray(quads_l, dtype=np.float64)
+    layers_a, texels_a = rows.column("layers", np.float64), rows.column("texels", np.float64)
+    own_memory, own_quads = rows.column("memory", np.float64), rows.column("quads", np.float64)
     return Candidates(
-        node=np.asarray(node_l, dtype=np.int64),
-        kind=np.asarray(kind_l, dtype=np.int64),
-        cells=tuple(cell_l),
+        node=rows.column("node", np.int64),
+        kind=rows.column("kind", np.int64),
+        cells=tuple(rows.cells),
         memory=np.where(
             np.isnan(own_memory),
             np.asarray(model.memory_bytes(layers_a, texels_a), dtype=np.float64).reshape(-1),
@@ -347,16 +389,122 @@ def generate_candidates(
         quads=np.where(
             np.isnan(own_quads), np.asarray(model.quads(layers_a, texels_a), dtype=np.float64).reshape(-1), own_quads
         ),
-        served_offsets=np.concatenate([[0], np.cumsum([r.size for r in served_l])]).astype(np.int64),
-        served=flat(served_l, np.int64),
-        g=flat(g_l, np.float64),
-        ti=flat(ti_l, np.float64),
-        stats={"considered": considered, "refused_by_technique": refused, "refused_by_memory": too_large},
-        source=np.asarray(source_l, dtype=np.int64),
-        prototype=np.asarray(atlas_l, dtype=np.int64),
+        served_offsets=np.concatenate([[0], np.cumsum(rows.column("count", np.int64))]).astype(np.int64),
+        served=rows.flat(rows.served, np.int64),
+        g=rows.flat(rows.g, np.float64),
+        ti=rows.flat(rows.ti, np.float64),
+        stats=counts,
+        source=rows.column("source", np.int64),
+        prototype=rows.column("atlas", np.int64),
         prototypes=tuple(atlases),
-        scale=np.asarray(scale_l, dtype=np.float64),
+        scale=rows.column("scale", np.float64),
     )
+
+
+def _node_cells(rows: _Rows, counts: dict, node, found, model: CostModel, estimate: Estimate, max_bytes: float) -> None:
+    """Node ``node``'s shafts and boxes ``found`` ((kind, cell, served regions)), estimated one
+    cell at a time by ``estimate``."""
+    n, cpvs, g_n, pixels_n, cpv_regions, bounds, floor = node
+    for kind, cell, served_regions in found:
+        in_cell = np.isin(cpv_regions, served_regions)
+        if not np.any(in_cell & (g_n > floor)):
+            continue  # saves nothing in any CPV it serves, whatever its layers: not worth estimating
+        try:
+            layers, per_layer = estimate(cell, bounds)
+        except FarfieldError:
+            counts["refused_by_technique"] += 1
+            continue
+        if float(model.memory_bytes(layers, per_layer)) > max_bytes:
+            counts["refused_by_memory"] += 1
+            continue
+        ti = np.asarray(model.impostor_time(pixels_n, model.quads(layers, per_layer)), dtype=np.float64).reshape(-1)
+        keep = in_cell & (g_n > ti)
+        if not keep.any():
+            continue
+        rows.add([cell], cpvs[keep], g_n[keep], ti[keep], node=n, kind=kind, layers=layers, texels=per_layer, source=0,
+                 memory=np.nan, quads=np.nan, atlas=-1, scale=1.0, count=int(keep.sum()))  # fmt: skip
+
+
+def _node_batch(rows: _Rows, counts: dict, node, shafts, boxes, batch, shape, model: CostModel, options, max_bytes: float,
+                regions_count: int) -> None:  # fmt: skip
+    """What :func:`_node_cells` does, for all of a node's shafts (``(a, d, k, served regions)``)
+    and boxes (``(lo, hi, served regions)``) at once (:mod:`farfield.core.placement.part_estimates`):
+    the same candidates, the same numbers, in the same order."""
+    n, cpvs, g_n, pixels_n, cpv_regions, bounds, floor = node
+    frames, half_tans = batch
+    centre, size, grid, halves = shape
+    served = [s for *_, s in shafts] + [s for *_, s in boxes]
+    if not served:
+        return
+    lengths = np.array([s.size for s in served], dtype=np.int64)
+    flat = np.concatenate(served)
+    owner = np.repeat(np.arange(len(served)), lengths)
+    # Pruned as cell by cell: a cell saving nothing where it serves, whatever its layers, is not estimated.
+    helps = np.bincount(cpv_regions[g_n > floor], minlength=regions_count) > 0
+    worth = np.bincount(owner, weights=helps[flat], minlength=len(served)) > 0
+    ns = len(shafts)
+    si = np.flatnonzero(worth[:ns])
+    bi = np.flatnonzero(worth[ns:])
+    if si.size + bi.size == 0:
+        return
+    parts = []
+    if si.size:
+        abk = np.array([shafts[i][:3] for i in si], dtype=np.int64).reshape(-1, 3)
+        angle = 2.0 * halves[abk[:, 0]]
+        parts.append(
+            shaft_views(
+                bounds, centre, frames, abk[:, 1], angle, np.asarray(half_tans)[abk[:, 0]], (2.0 ** abk[:, 2]) * size
+            )
+        )
+    if bi.size:
+        parts.append(box_views(bounds, np.array([boxes[i][0] for i in bi]), np.array([boxes[i][1] for i in bi])))
+    which = np.concatenate([si, ns + bi])
+    layers, texels, ok = estimate_views(Views.concat(parts), options)
+    counts["refused_by_technique"] += int(np.sum(~ok))
+    memory = np.asarray(model.memory_bytes(layers, texels), dtype=np.float64).reshape(-1)
+    large = ok & (memory > max_bytes)
+    counts["refused_by_memory"] += int(np.sum(large))
+    use = np.flatnonzero(ok & ~large)
+    if use.size == 0:
+        return
+    which, layers, texels = which[use], layers[use], texels[use]
+    quads = np.asarray(model.quads(layers, texels), dtype=np.float64).reshape(-1)
+    # Every (cell, CPV) row of the cells left: the node's CPVs of each served region, in order.
+    start, end = _region_rows(cpv_regions, regions_count)
+    cell_regions = [served[i] for i in which]
+    reg = np.concatenate(cell_regions)
+    reg_owner = np.repeat(np.arange(which.size), [r.size for r in cell_regions])
+    span = end[reg] - start[reg]
+    entry = _ragged(start[reg], span)
+    entry_owner = np.repeat(reg_owner, span)
+    ti = np.asarray(model.impostor_time(pixels_n[entry], quads[entry_owner]), dtype=np.float64).reshape(-1)
+    keep = g_n[entry] > ti
+    kept = np.bincount(entry_owner[keep], minlength=which.size)
+    good = kept > 0
+    if not good.any():
+        return
+    made = [
+        _shaft_cell(centre, size, grid, halves, *shafts[i][:3]) if i < ns else BoxCell(*boxes[i - ns][:2])
+        for i in which[good]
+    ]
+    rows.add(made, cpvs[entry[keep]], g_n[entry[keep]], ti[keep], node=n, kind=(which[good] >= ns).astype(np.int64),
+             layers=layers[good], texels=texels[good], source=0, memory=np.nan, quads=np.nan, atlas=-1, scale=1.0, count=kept[good])  # fmt: skip
+
+
+def _once(memo: dict, k: int, reach: Outside, bounds: np.ndarray):
+    """``reach(bounds)`` of outside source ``k``, computed once per source and bounds (every
+    instance of a prototype asks with its local bounds; an octahedral accuracy distance takes a
+    tenth of a second), its FarfieldError raised again each time."""
+    key = (k, np.asarray(bounds, dtype=np.float64).tobytes())
+    if key not in memo:
+        try:
+            memo[key] = reach(bounds)
+        except FarfieldError as error:
+            memo[key] = error
+    found = memo[key]
+    if isinstance(found, FarfieldError):
+        raise found
+    return found
 
 
 def _moved(far, inst):

@@ -50,11 +50,96 @@ import heapq
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from farfield.core.placement.candidates import Candidates
 from farfield.core.placement.hierarchy import Hierarchy
 from farfield.core.placement.view_space import ProblemViews
+
+
+@numba.njit(cache=True, nogil=True)
+def _block_sum(a: np.ndarray, lo: int, n: int) -> float:
+    """numpy's sum of ``a[lo:lo + n]`` for ``n <= 128``: eight accumulators, then the rest in order."""
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += a[lo + i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    while i < n - (n % 8):
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@numba.njit(cache=True, nogil=True)
+def _pairwise_sum(a: np.ndarray) -> float:
+    """``a.sum()`` as numpy sums a contiguous float64 array (pairwise: halves cut at multiples of 8
+    down to blocks of 128, :func:`_block_sum`), to the bit; without recursion."""
+    n = a.size
+    if n <= 128:
+        return _block_sum(a, 0, n)
+    todo_lo, todo_n, todo_join = np.empty(256, np.int64), np.empty(256, np.int64), np.empty(256, np.bool_)
+    sums = np.empty(128)
+    top, done = 0, 0
+    todo_lo[0], todo_n[0], todo_join[0] = 0, n, False
+    top = 1
+    while top > 0:
+        top -= 1
+        lo, m, join = todo_lo[top], todo_n[top], todo_join[top]
+        if join:  # both halves summed: left + right
+            done -= 1
+            sums[done - 1] = sums[done - 1] + sums[done]
+        elif m <= 128:
+            sums[done] = _block_sum(a, lo, m)
+            done += 1
+        else:
+            half = m // 2
+            half -= half % 8
+            todo_lo[top], todo_n[top], todo_join[top] = lo, m, True
+            todo_lo[top + 1], todo_n[top + 1], todo_join[top + 1] = lo + half, m - half, False
+            todo_lo[top + 2], todo_n[top + 2], todo_join[top + 2] = lo, half, False
+            top += 3
+    return sums[0]
+
+
+@numba.njit(cache=True, nogil=True)
+def _gain_total(served, g, ti, a, b, node, keys, cum, size, nodes, t, t_max, chosen) -> float:
+    """``Greedy._gains(i)[2].sum()`` of the candidate whose rows are ``a:b``, in one pass and the
+    same floating-point operations (the lazy heap's re-scoring, most of the greedy's time)."""
+    gain = np.empty(b - a)
+    for r in range(a, b):
+        cpv = served[r]
+        geometry = g[r]
+        if chosen:
+            base = cpv * nodes
+            lo = np.searchsorted(keys, base + node + 1)
+            hi = np.searchsorted(keys, base + node + size[node])
+            geometry = geometry - (cum[hi] - cum[lo])
+            at = np.searchsorted(keys, base + node, side="right") - 1
+            if at >= 0:
+                other = keys[at] - base
+                if other >= 0 and other <= node and other + size[min(max(other, 0), nodes - 1)] > node:
+                    geometry = -np.inf
+        saving = geometry - ti[r]
+        over = t[cpv] - t_max
+        low = saving if saving < over else over
+        gain[r - a] = low if low > 0.0 else 0.0
+    return _pairwise_sum(gain)
 
 
 @dataclass(slots=True)
@@ -135,10 +220,43 @@ class Greedy:
             self._cum = np.concatenate([[0.0], np.cumsum(self._saved)])
         return self._keys, self._cum
 
+    def _key_owners(self) -> dict[int, int]:
+        """Key ``cpv * nodes + node`` of :meth:`_drawn_index` -> the chosen impostor drawn there
+        (entries for keys no longer drawn may linger: only keys found in ``_keys`` are looked up)."""
+        owners = self.__dict__.get("_owners")
+        if owners is None:  # a state pickled before it: from what is drawn
+            owners = {p * int(self.nodes) + self.chosen[o].node: o for p, ids in enumerate(self.drawn) for o in ids}
+            self._owners = owners
+        return owners
+
     def _gains(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(cpvs, saving, gain) of candidate ``i`` now; saving is -inf where an ancestor's impostor
         (or the node's own) is drawn, and the gain is 0 where it saves nothing."""
-        return self._gains_of(np.array([i], dtype=np.int64))[1:]
+        # _gains_of for one candidate, on slices (the lazy heap re-scores one at a time: most of the greedy)
+        a, b = int(self.cand.served_offsets[i]), int(self.cand.served_offsets[i + 1])
+        cpvs, geometry, node = self.cand.served[a:b], self.g[a:b], int(self.cand.node[i])
+        if self.chosen:
+            geometry = self._drawn_less(cpvs, geometry, node)
+        saving = geometry - self.ti[a:b]
+        return cpvs, saving, np.maximum(0.0, np.minimum(saving, self.t[cpvs] - self.t_max))
+
+    def _drawn_less(self, cpvs: np.ndarray, geometry: np.ndarray, node) -> np.ndarray:
+        """``geometry`` of ``node`` (a number, or one per row) in ``cpvs`` less what its drawn
+        descendants save there, -inf where an ancestor's impostor (or its own) is drawn."""
+        keys, cum = self._drawn_index()
+        base = cpvs * self.nodes
+        # descendants drawn here: what they already save is no longer the node's to save
+        lo = np.searchsorted(keys, base + node + 1)
+        hi = np.searchsorted(keys, base + node + self.size[node])
+        geometry = geometry - (cum[hi] - cum[lo])
+        # the nearest drawn node at or before this one in preorder: an ancestor (or itself) if its subtree holds it
+        at = np.searchsorted(keys, base + node, side="right") - 1
+        found = keys[np.maximum(at, 0)]
+        other = found - base
+        blocked = (
+            (at >= 0) & (other >= 0) & (other <= node) & (other + self.size[np.clip(other, 0, self.nodes - 1)] > node)
+        )
+        return np.where(blocked, -np.inf, geometry)
 
     def _gains_of(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(owner, cpvs, saving, gain) of the candidates ``idx`` now, one row per CPV each serves,
@@ -152,23 +270,7 @@ class Greedy:
         geometry = self.g[flat]
         node = np.repeat(self.cand.node[idx], lengths)
         if self.chosen:
-            keys, cum = self._drawn_index()
-            base = cpvs * self.nodes
-            # descendants drawn here: what they already save is no longer the node's to save
-            lo = np.searchsorted(keys, base + node + 1)
-            hi = np.searchsorted(keys, base + node + self.size[node])
-            geometry = geometry - (cum[hi] - cum[lo])
-            # the nearest drawn node at or before this one in preorder: an ancestor (or itself) if its subtree holds it
-            at = np.searchsorted(keys, base + node, side="right") - 1
-            found = keys[np.maximum(at, 0)]
-            other = found - base
-            blocked = (
-                (at >= 0)
-                & (other >= 0)
-                & (other <= node)
-                & (other + self.size[np.clip(other, 0, self.nodes - 1)] > node)
-            )
-            geometry = np.where(blocked, -np.inf, geometry)
+            geometry = self._drawn_less(cpvs, geometry, node)
         saving = geometry - self.ti[flat]
         gain = np.maximum(0.0, np.minimum(saving, self.t[cpvs] - self.t_max))
         return owner, cpvs, saving, gain
@@ -182,7 +284,10 @@ class Greedy:
         paid = self.paid(atlas)
         if atlas >= 0 and not paid and self.groups:
             return 0.0, 0.0
-        gain = float(self._gains(i)[2].sum())
+        keys, cum = self._drawn_index() if self.chosen else (self._keys, self._saved)
+        a, b = int(self.cand.served_offsets[i]), int(self.cand.served_offsets[i + 1])
+        gain = _gain_total(self.cand.served, self.g, self.ti, a, b, int(self.cand.node[i]), keys, cum, self.size,
+                           int(self.nodes), self.t, self.t_max, bool(self.chosen))  # fmt: skip
         if gain <= 0.0:
             return 0.0, 0.0
         if paid:
@@ -255,23 +360,28 @@ class Greedy:
         if atlas >= 0:
             self.atlas_users.setdefault(atlas, []).append(me)
         removed, added, added_saved = [], [], []
+        keys, owners = self._keys, self._key_owners()
         for k in np.flatnonzero(saving > 0.0):
             p = int(cpvs[k])
-            kept = []
-            for other_id in self.drawn[p]:
+            base = p * int(self.nodes)
+            # the impostors drawn here for this node's descendants (keys base + node + 1 .. + size - 1): replaced here
+            lo, hi = np.searchsorted(keys, [base + node + 1, base + node + int(self.size[node])])
+            gone = set()
+            for key in keys[lo:hi].tolist():
+                other_id = owners[key]
                 other = self.chosen[other_id]
-                if node < other.node < node + self.size[node]:  # replaced by this impostor here
-                    del other.cpvs[p]
-                    removed.append(p * self.nodes + other.node)
-                    if not other.cpvs:
-                        self.deleted.add(other_id)
-                        lost = int(self.atlas[other.candidate])
-                        if lost >= 0 and lost != atlas and not self.paid(lost):
-                            self.unpaid_again = (*self.unpaid_again, lost)
-                else:
-                    kept.append(other_id)
-            kept.append(me)
-            self.drawn[p] = kept
+                del other.cpvs[p]
+                removed.append(key)
+                gone.add(other_id)
+                if not other.cpvs:
+                    self.deleted.add(other_id)
+                    lost = int(self.atlas[other.candidate])
+                    if lost >= 0 and lost != atlas and not self.paid(lost):
+                        self.unpaid_again = (*self.unpaid_again, lost)
+            if gone:
+                self.drawn[p] = [o for o in self.drawn[p] if o not in gone]
+            self.drawn[p].append(me)
+            owners[base + node] = me
             g_p, t_p = float(self.g[a + k]), float(self.ti[a + k])
             imp.cpvs[p] = (g_p, t_p)
             added.append(p * self.nodes + node)

@@ -31,6 +31,7 @@ from farfield.core.placement.view_space import Visibility, problem_view_space
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import StageClock
 from farfield.core.techniques import get_technique
+from farfield.core.techniques.part import estimate_part_cell
 from farfield.core.visibility.region_sets import region_sets
 
 STEPS = ("hierarchy", "problem views", "candidates", "greedy")
@@ -186,6 +187,16 @@ def technique_sources(techniques: list[tuple[object, object]]):
     return estimate, tuple(outside), tuple(names)
 
 
+def part_options(techniques: list[tuple[object, object]]):
+    """The options of the shafts' and boxes' technique (:func:`technique_sources`' source 0) where
+    its estimate is the layered part estimate, which candidates compute for many cells at once
+    (:mod:`farfield.core.placement.part_estimates`); else None (one cell at a time)."""
+    for technique, options in techniques:
+        if getattr(technique, "outside_estimate", None) is None:
+            return options if technique.estimate is estimate_part_cell else None
+    return None
+
+
 def instance_sources(techniques: list[tuple[object, object]], instanced: dict) -> tuple[dict, ...]:
     """Per outside source (:func:`technique_sources`' order): the nodes (``instanced``,
     :func:`~farfield.core.placement.node_instances.node_instances`) whose candidate is their
@@ -259,6 +270,7 @@ def place(
         cand = generate_candidates(
             hierarchy, pv, settings.model, estimate, float(resolution) ** 2, settings.cells, settings.apex_angles_deg, settings.direction_step_deg,
             settings.distance_steps, lambda done, total: clock.report("candidates", done, total), settings.max_impostor_bytes, outside, shared,
+            part_options(techniques),
         )  # fmt: skip
     with clock("greedy"):
         greedy = Greedy(hierarchy, pv, cand, settings.t_max)

@@ -45,6 +45,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
@@ -124,6 +125,10 @@ class VDI:
 
     def cone(self) -> tuple[np.ndarray, float]:
         """(axis (3,), half-angle): the smallest cone about the VDI's centre direction holding all of it."""
+        axis, half = _cone(self)  # every region asks again for the same few hundred intervals
+        return axis.copy(), half
+
+    def _cone(self) -> tuple[np.ndarray, float]:
         x0, x1, y0, y1 = self.ranges()
         axis = self.directions([0.5 * (x0 + x1)], [0.5 * (y0 + y1)])[0]
         corners = self.directions([x0, x1, x0, x1], [y0, y0, y1, y1])
@@ -141,6 +146,11 @@ class VDI:
 
     def children(self) -> list[VDI]:
         return [VDI(self.face, self.level + 1, 2 * self.i + a, 2 * self.j + b) for b in (0, 1) for a in (0, 1)]
+
+
+@lru_cache(maxsize=1 << 16)
+def _cone(vdi: VDI) -> tuple[np.ndarray, float]:
+    return vdi._cone()
 
 
 def box_gap(lo_a: np.ndarray, hi_a: np.ndarray, lo_b, hi_b) -> np.ndarray:

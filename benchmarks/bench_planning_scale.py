@@ -1,0 +1,139 @@
+"""Planning time of the frame-time placement (issue 57 item 5), this checkout beside an older one, in one run.
+
+Usage: ``.venv/bin/python benchmarks/bench_planning_scale.py [--against DIR] [--scenes helmet,city] [--json OUT]``
+
+Scenes (each planned in a fresh process, so its peak memory is its own):
+
+* ``helmet``: ``farfield place DamagedHelmet.glb --view-space -10,0,-10,10,0,10 --primitives 1000``
+  (the shared scene, 15,452 triangles cut into 256 clusters; 512 px, 45°, the CLI's defaults);
+* ``city``: ``benchmarks/bench_placement.py``'s city test 1 (``procedural.city(900, seed=0,
+  detail=16)``, 75,674 triangles; a 225 × 10 × 225 view space above its roofs; primitives, t_max
+  half the worst view's; 256 px; CPVs of a side / 8; shafts and boxes).
+
+``--against DIR``: also plan each scene with the farfield package in DIR (e.g. ``git archive`` of an
+older commit unpacked there), imported in place of this one; the table puts the two side by side
+and says whether the placements are the same (their JSON, byte for byte).  Columns: seconds of each
+planner step and in all, candidates, impostors, estimated memory, peak resident memory of the
+process.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+SHARED = HERE.parent.parent / "shared" / "scenes"
+
+
+def plan(scene_name: str) -> dict:
+    """Plan ``scene_name`` with whichever farfield this process imports; a row of the table."""
+    import resource
+
+    import numpy as np
+
+    from farfield.core import procedural
+    from farfield.core.exchange import load_scene
+    from farfield.core.placement.cost_model import primitive_model
+    from farfield.core.placement.hierarchy import Elements, Hierarchy
+    from farfield.core.placement.planner import PlacementSettings, place
+    from farfield.core.placement.view_space import problem_view_space
+
+    model = primitive_model()
+    if scene_name == "helmet":
+        scene = load_scene(str(SHARED / "damaged_helmet" / "DamagedHelmet.glb"))
+        lo, hi = np.array([-10.0, 0.0, -10.0]), np.array([10.0, 0.0, 10.0])
+        settings = PlacementSettings(t_max=1000.0, model=model, options={"resolution": 512, "fov_deg": 45.0})
+    elif scene_name == "city":
+        scene = procedural.city(900, seed=0, detail=16)
+        c, top, half = (
+            0.5 * (scene.bounds[0] + scene.bounds[1]),
+            float(scene.bounds[1][1]),
+            0.1875 * float(scene.extents[0]),
+        )
+        lo, hi = np.array([c[0] - half, top + 10.0, c[2] - half]), np.array([c[0] + half, top + 20.0, c[2] + half])
+        cpv = float(np.max(hi - lo)) / 8.0
+        elements = Elements.of(scene)
+        pv = problem_view_space(
+            elements, Hierarchy.build(elements), lo, hi, model, 1e-9, math.radians(45.0), 256, cpv, 11.25
+        )
+        settings = PlacementSettings(
+            t_max=0.5 * float(pv.time.max()), model=model, options={"resolution": 256}, cpv_size=cpv, cells="both"
+        )
+    else:
+        raise SystemExit(f"unknown scene {scene_name!r}")
+    started = time.perf_counter()
+    result = place(scene, lo, hi, settings)
+    wall = time.perf_counter() - started
+    s = result.summary
+    digest = hashlib.sha256(json.dumps(result.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
+    return {
+        "scene": scene_name, "triangles": scene.triangle_count, "t_max": settings.t_max, "wall_s": wall,
+        "seconds": {k: round(v, 2) for k, v in result.seconds.items()}, "cpvs": s["cpvs"], "candidates": s["candidates"],
+        "impostors": s["impostors"], "memory_mib": s["memory_bytes"] / 2**20, "unsolved": s["cpvs_unsolved"],
+        "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "placement_sha256": digest,
+    }  # fmt: skip
+
+
+def run_in(package: Path | None, scene_name: str) -> dict:
+    """:func:`plan` in a fresh process importing farfield from ``package`` (None: this checkout)."""
+    env = dict(os.environ)
+    with tempfile.TemporaryDirectory(prefix="farfield-against-") as tmp:
+        if package is not None:
+            (Path(tmp) / "farfield").symlink_to(package.resolve(), target_is_directory=True)
+            env["PYTHONPATH"] = tmp + os.pathsep + env.get("PYTHONPATH", "")  # before the editable install
+        out = subprocess.run(
+            [sys.executable, __file__, "--one", scene_name], env=env, capture_output=True, text=True, check=False
+        )
+    if out.returncode != 0:
+        raise SystemExit(f"planning {scene_name} failed:\n{out.stderr[-2000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--against", type=Path, default=None, help="an older farfield package to plan with too")
+    parser.add_argument("--scenes", default="helmet,city")
+    parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--one", default=None, help=argparse.SUPPRESS)  # a child process: one scene, a JSON line
+    args = parser.parse_args(argv)
+    if args.one:
+        print(json.dumps(plan(args.one)))
+        return 0
+    rows = []
+    for name in filter(None, args.scenes.split(",")):
+        for label, package in (("this", None), ("older", args.against)):
+            if label == "older" and package is None:
+                continue
+            row = {"version": label, **run_in(package, name)}
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    print(f"\nload average at the end: {os.getloadavg()[0]:.1f} (this machine: {os.cpu_count()} CPUs)")
+    print(
+        "\n| scene | version | plan s (hierarchy / problem views / candidates / greedy) | CPVs | candidates | impostors | memory MiB (est.) | peak RSS MiB | placement |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        s = r["seconds"]
+        steps = " / ".join(f"{s.get(k, 0.0):.1f}" for k in ("hierarchy", "problem views", "candidates", "greedy"))
+        same = next(
+            (o["placement_sha256"] == r["placement_sha256"] for o in rows if o["scene"] == r["scene"] and o is not r),
+            None,
+        )
+        print(f"| {r['scene']} ({r['triangles']:,} triangles) | {r['version']} | {r['wall_s']:.1f} ({steps}) | {r['cpvs']:,} | {r['candidates']:,} | "
+              f"{r['impostors']} | {r['memory_mib']:.2f} | {r['peak_rss_mib']:.0f} | {r['placement_sha256']}{'' if same is None else (' (same)' if same else ' (differs)')} |")  # fmt: skip
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
