@@ -103,7 +103,6 @@ def test_scenes_made_before_0007_were_read_double_sided_and_keep_it(tmp_path):
         assert s.get(SceneRow, "n").sides == "one"
 
 
-
 def test_a_reading_session_neither_waits_for_nor_holds_up_a_writer(tmp_path):
     # SQLite: a reading session begins deferred (a snapshot, no write lock).  Were it BEGIN IMMEDIATE,
     # as a writing session is, the write below (another connection, as another process's, with a
