@@ -49,10 +49,11 @@ PACKAGES = ("api", "cli", "core", "service", "workers")
 
 
 def grid(cells: int) -> dict:
-    """``cells`` boxes of 1 unit in a square (or a row) some 60 units in front of the one-building city."""
+    """``cells`` boxes of 1 unit in a square (or a row) 90 units or more in front of the one-building
+    city (the square reaches away from it)."""
     side = int(round(cells**0.5))
     counts = [cells // side, 1, side] if cells % side == 0 else [cells, 1, 1]
-    return {"lo": [-40.0, 5.0, -100.0], "hi": [-40.0 + counts[0], 6.0, -100.0 + counts[2]], "counts": counts}
+    return {"lo": [-40.0, 5.0, -99.0 - counts[2]], "hi": [-40.0 + counts[0], 6.0, -99.0], "counts": counts}
 
 
 class Poller:
