@@ -118,7 +118,9 @@ def one_run(cells: int, workers: int, database_url: str | None) -> dict:
     from farfield.service.settings import Settings
     from farfield.service.supervisor import Service
 
-    with tempfile.TemporaryDirectory(prefix="farfield-bench-orch-") as tmp:
+    # A process of the stopped service may still write under the home while it is deleted: the
+    # figures are not lost to that.
+    with tempfile.TemporaryDirectory(prefix="farfield-bench-orch-", ignore_cleanup_errors=True) as tmp:
         env = {"FARFIELD_HOME": str(Path(tmp) / "home"), "FARFIELD_PORT": "0", "FARFIELD_ADMIN_KEY": KEY}
         if database_url:
             env["DATABASE_URL"] = database_url
