@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Request, Response
+from fastapi.responses import JSONResponse
 
 from farfield.api.deps import Services, services, tenant
 from farfield.api.paging import DEFAULT_PAGE, PAGED, Limit, Offset, set_page_headers
@@ -21,6 +22,13 @@ from farfield.service.scenes import get_scene_row
 from farfield.workers.app import send_admission, send_planning
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
+
+
+def _full_record(svc: Services, job) -> JSONResponse:
+    """A job's record with all its cells, encoded straight to JSON: it holds nothing but JSON's own
+    types (its columns are JSON or plain), and FastAPI's ``jsonable_encoder``, which walks every value
+    first, took 2.7 s of the API's only core for a 10,000-cell job (bench_orchestration.py)."""
+    return JSONResponse(full_job_record(svc.db, job))
 
 
 @router.post(
@@ -62,10 +70,9 @@ def list_jobs(
     return [job_record(job, summaries[job.id]) for job in jobs]
 
 
-@router.get("/{job_id}", summary="One job: state, per-cell progress, counts, timings, errors, ETA")
-def get_job(job_id: str, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> dict:
-    job = get_job_row(svc.db, tenant_id, job_id)
-    return full_job_record(svc.db, job)
+@router.get("/{job_id}", response_model=dict, summary="One job: state, per-cell progress, counts, timings, errors, ETA")
+def get_job(job_id: str, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> JSONResponse:
+    return _full_record(svc, get_job_row(svc.db, tenant_id, job_id))
 
 
 @router.post("/{job_id}/cancel", summary="Cancel: queued cells never run, running cells stop at the next layer")

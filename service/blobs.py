@@ -75,6 +75,17 @@ def blob_store(settings: Settings) -> BlobStore:
     return LocalBlobStore(settings.blob_dir)
 
 
+def _link_or_copy(source: Path, destination: Path) -> None:
+    """A hard link of ``source`` at ``destination`` (no second write of the bytes: a worker's bundle
+    is written to its temporary folder, on the same disk as the blob directory under ``farfield
+    up``), else a copy (another file system, or one without hard links).  The caller's files are
+    never written again (a link shares them)."""
+    try:
+        os.link(source, destination)
+    except OSError:
+        shutil.copyfile(source, destination)
+
+
 def _too_large(limit: int) -> UploadTooLargeError:
     return UploadTooLargeError(f"upload is larger than the limit of {limit // 2**20} MiB")
 
@@ -145,7 +156,7 @@ class LocalBlobStore:
         try:
             for file in Path(directory).iterdir():
                 if file.is_file():
-                    shutil.copyfile(file, staging / file.name)
+                    _link_or_copy(file, staging / file.name)
             if target.is_dir() and not (target / last).is_file():
                 shutil.rmtree(target, ignore_errors=True)  # an incomplete set from before this scheme
             os.rename(staging, target)  # fails when another publisher's set is already in place

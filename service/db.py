@@ -164,13 +164,27 @@ def _sqlite_pragmas(dbapi_connection, _record) -> None:
     dbapi_connection.isolation_level = None
     cursor = dbapi_connection.cursor()
     cursor.execute("PRAGMA journal_mode=WAL")  # readers (the API) never block the writer (a worker)
+    # WAL's NORMAL syncs at checkpoints, not at every commit: a commit survives a crash of any
+    # process, and the database is never corrupted, but a power loss may take back the last commits
+    # (as the embedded Redis's append-only file, synced every second, may lose its last second).
+    # What that can take back the service already recovers from: a cell shown running again has its
+    # lease expire and runs again (its bundle's key is its inputs'), a queued one is sent again.
+    # FULL's fsync at every commit was a third of a trivial cell's time (bench_orchestration.py).
+    cursor.execute("PRAGMA synchronous=NORMAL")
     cursor.execute("PRAGMA busy_timeout=30000")
     cursor.execute("PRAGMA foreign_keys=ON")
     cursor.close()
 
 
 def _sqlite_begin(connection) -> None:
-    connection.exec_driver_sql("BEGIN IMMEDIATE")
+    # A reading session (Database.reading) begins deferred: in WAL mode it reads a snapshot and
+    # never takes the write lock, so a long read (a 10,000-cell job's record) does not hold up the
+    # workers' claims and commits, nor wait for them.
+    deferred = connection.get_execution_options().get(_READING, False)
+    connection.exec_driver_sql("BEGIN" if deferred else "BEGIN IMMEDIATE")
+
+
+_READING = "farfield_reading"
 
 
 class Database:
@@ -185,6 +199,8 @@ class Database:
             event.listen(self.engine, "connect", _sqlite_pragmas)
             event.listen(self.engine, "begin", _sqlite_begin)
         self.sessions = sessionmaker(self.engine, expire_on_commit=False)
+        # The same pool, its transactions marked as reading (SQLite: a deferred BEGIN, _sqlite_begin).
+        self.readers = sessionmaker(self.engine.execution_options(**{_READING: True}), expire_on_commit=False)
 
     @contextmanager
     def session(self):
@@ -196,6 +212,15 @@ class Database:
             except BaseException:
                 session.rollback()
                 raise
+
+    @contextmanager
+    def reading(self):
+        """A session for reads alone: on SQLite its transaction begins deferred (a snapshot, no write
+        lock: it neither waits for a writer nor holds one up), on PostgreSQL it is a :meth:`session`.
+        What it reads may be stale by the time it is used: a decision to write is taken again in the
+        write's own conditional ``UPDATE`` or locked :meth:`session`, never on this read alone."""
+        with self.readers() as session:  # closing it ends the transaction; its rows stay loaded
+            yield session
 
     def ping(self) -> None:
         """``SELECT 1`` on a pooled connection, outside the sessions' transactions: a health check
@@ -233,7 +258,7 @@ def owned_row(db: Database, model: type, tenant_id: str, row_id: str, what: str)
 
     if not storable(row_id):
         raise NotFoundError(f"{what} {row_id!r} not found")
-    with db.session() as s:
+    with db.reading() as s:
         row = s.get(model, row_id)
     if row is None or row.tenant_id != tenant_id:
         raise NotFoundError(f"{what} {row_id!r} not found")
@@ -242,7 +267,7 @@ def owned_row(db: Database, model: type, tenant_id: str, row_id: str, what: str)
 
 def job_cells(db: Database, job_id: str) -> list[CellRow]:
     """The job's cells, by index."""
-    with db.session() as s:
+    with db.reading() as s:
         return list(s.scalars(select(CellRow).where(CellRow.job_id == job_id).order_by(CellRow.index)))
 
 

@@ -192,6 +192,19 @@ def test_publish_directory_and_copy_to_directory(store, tmp_path):
     assert (out / "page-0000.png").read_bytes() == b"\x89PNG" + bytes(1000)
 
 
+def test_a_local_store_publishes_a_folder_by_hard_links(tmp_path):
+    # The bytes are not written twice (a worker's bundle, written to its temporary folder on the
+    # same disk); the published file is the source's inode, whose folder can then be deleted.
+    store = LocalBlobStore(tmp_path / "blobs")
+    source = tmp_path / "bundle"
+    source.mkdir()
+    (source / "manifest.json").write_bytes(b'{"a": 1}')
+    assert store.publish_directory("impostors/l", source, last="manifest.json")
+    assert store.path("impostors/l/manifest.json").stat().st_ino == (source / "manifest.json").stat().st_ino
+    (source / "manifest.json").unlink()
+    assert store.read_bytes("impostors/l/manifest.json") == b'{"a": 1}'
+
+
 def test_delete_prefix(store):
     for name in ("scene.glb", "a.png", "b.png"):
         store.put_bytes(f"scenes/one/{name}", name.encode())

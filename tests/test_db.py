@@ -6,7 +6,7 @@ import sqlalchemy as sa
 from alembic import command
 from alembic.config import Config
 
-from farfield.service.db import MIGRATIONS, Database, JobRow, SceneRow
+from farfield.service.db import MIGRATIONS, Database, JobRow, SceneRow, Tenant
 
 
 def _config(connection) -> Config:
@@ -101,3 +101,27 @@ def test_scenes_made_before_0007_were_read_double_sided_and_keep_it(tmp_path):
                        triangles=1, bounds=[], objects=[]))  # fmt: skip
     with db.session() as s:
         assert s.get(SceneRow, "n").sides == "one"
+
+
+def test_a_reading_session_neither_waits_for_nor_holds_up_a_writer(tmp_path):
+    # SQLite: a reading session begins deferred (a snapshot, no write lock).  Were it BEGIN IMMEDIATE,
+    # as a writing session is, the write below (another connection, as another process's, with a
+    # 0.5 s busy timeout) would fail "database is locked", as the workers' claims waited behind the
+    # API's reads of a large job before (benchmarks/bench_orchestration.py).
+    path = tmp_path / "read.db"
+    db = Database(f"sqlite:///{path}")
+    db.migrate()
+    with db.session() as s:
+        s.add(Tenant(id="t1", name="one", created_at=1.0))
+    other = sa.create_engine(f"sqlite:///{path}", connect_args={"timeout": 0.5})
+    with db.reading() as reader:
+        first = reader.get(Tenant, "t1")
+        assert reader.execute(sa.text("SELECT count(*) FROM tenants")).scalar() == 1
+        with other.begin() as connection:
+            connection.execute(sa.text("INSERT INTO tenants (id, name, created_at) VALUES ('t2', 'two', 2.0)"))
+        assert reader.execute(sa.text("SELECT count(*) FROM tenants")).scalar() == 1  # its own snapshot
+    assert first.name == "one"  # rows it loaded stay usable after it ends (nothing expired)
+    with db.reading() as reader:
+        assert reader.execute(sa.text("SELECT count(*) FROM tenants")).scalar() == 2
+    other.dispose()
+    db.dispose()

@@ -63,12 +63,13 @@ from farfield.service.cell_limits import (
     memory_limit_message,
     time_limit_message,
 )
-from farfield.service.db import CellRow, Database, now
+from farfield.service.db import CellRow, Database, JobRow, now
 from farfield.service.failures import BAD_INPUT, TRANSIENT, failure_class, failure_message
 from farfield.service.jobs.admitting import admit_job, release_admission
 from farfield.service.jobs.cells import finish_job_if_complete, release_lost_cells
 from farfield.service.jobs.leases import Heartbeat
 from farfield.service.jobs.runner import RetryCell, backoff, run_cell
+from farfield.service.placement import PLACEMENT_JOB
 from farfield.service.placement.lease import fail_planning, release_planning
 from farfield.service.placement.rounds import after_cell, run_planning
 from farfield.service.settings import CELL_TIME_GRACE, Settings
@@ -341,9 +342,16 @@ def _send_check_if_due(db: Database, blobs: BlobStore, cell_id: str) -> None:
     """The cell ended its placement job's round: send the job's check (a duplicate is harmless; a
     lost one is sent again by the API's sweeper); a placement job that has ended (cancelled while
     its cells ran, failed) drops its planner states (:func:`farfield.service.placement.rounds.after_cell`)."""
-    with db.session() as s:
-        job_id = s.scalar(select(CellRow.job_id).where(CellRow.id == cell_id))
-    if job_id is not None and after_cell(db, blobs, job_id):
+    with db.reading() as s:
+        found = s.execute(
+            select(CellRow.job_id, JobRow.job_type)
+            .join(JobRow, CellRow.job_id == JobRow.id)
+            .where(CellRow.id == cell_id)
+        ).first()
+    if found is None or found.job_type != PLACEMENT_JOB:  # rounds are a placement job's alone
+        return
+    job_id = found.job_id
+    if after_cell(db, blobs, job_id):
         send_planning(celery_app, job_id, "check")
 
 

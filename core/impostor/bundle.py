@@ -393,7 +393,7 @@ def check_destination(directory: str | os.PathLike) -> None:
     )
 
 
-def write_bundle(impostor: Impostor, directory: str | os.PathLike) -> BundlePaths:
+def write_bundle(impostor: Impostor, directory: str | os.PathLike, *, sync: bool = True) -> BundlePaths:
     """Write ``impostor`` as a bundle directory, replacing any file or directory already there.
 
     Parameters
@@ -402,6 +402,9 @@ def write_bundle(impostor: Impostor, directory: str | os.PathLike) -> BundlePath
         The impostor; its arrays must pass :func:`farfield.core.impostor.impostor.check_impostor`.
     directory : path
         The bundle directory to create.  Its parent is created if missing.
+    sync : bool
+        Flush each file to the disk (``fsync``) before the bundle is renamed into place.  False for
+        a bundle written only to be handed on (a service worker's, published to the blob store).
 
     Returns
     -------
@@ -433,7 +436,10 @@ def write_bundle(impostor: Impostor, directory: str | os.PathLike) -> BundlePath
         raise BundleFormatError(f"{destination}: cannot write a bundle there: {error.strerror or error}") from error
     try:
         for name, data in files.items():
-            _write_file(staging / name, data)
+            if sync:
+                _write_file(staging / name, data)
+            else:
+                (staging / name).write_bytes(data)
         os.chmod(staging, 0o755)  # mkdtemp makes it 0o700; a bundle is as readable as any file
         _swap_into_place(staging, destination)
     finally:

@@ -26,7 +26,7 @@ from sqlalchemy import func, select, update
 from farfield.core import __version__
 from farfield.core.errors import ConflictError
 from farfield.service.blobs import BlobStore
-from farfield.service.db import CELL_FINAL, OPEN_JOB_STATES, CellRow, Database, JobRow, now
+from farfield.service.db import CELL_FINAL, OPEN_JOB_STATES, CellRow, Database, JobRow, SceneRow, now
 from farfield.service.jobs.index import write_index
 from farfield.service.jobs.leases import new_token
 from farfield.service.jobs.records import get_job_row
@@ -56,12 +56,16 @@ def result_key(scene_hash: str, job_type: str, params: dict, viewcell: dict, ten
 
 @dataclass(frozen=True)
 class Claim:
-    """What :func:`claim_cell` decided: run ``cell`` (attempt ``cell.attempts``), or not; ``ended``
-    when it ended the cell itself (cancelled job, attempts used up), so the job may be complete."""
+    """What :func:`claim_cell` decided: run ``cell`` (attempt ``cell.attempts``) of ``job`` on
+    ``scene`` (read in the claim's transaction, so the attempt needs no other before it bakes), or
+    not; ``ended`` when it ended the cell itself (cancelled job, attempts used up), so the job may be
+    complete."""
 
     cell: CellRow | None
     job_id: str | None = None
     ended: bool = False
+    job: JobRow | None = None
+    scene: SceneRow | None = None
 
 
 def claim_cell(
@@ -112,7 +116,7 @@ def claim_cell(
         cell.worker, cell.lease_token, cell.lease_until = worker, new_token(), now() + lease_s
         if job.state == "queued":
             job.state, job.started_at = "running", now()
-        return Claim(cell, job_id)
+        return Claim(cell, job_id, job=job, scene=s.get(SceneRow, job.scene_id))
 
 
 def _never_reported(attempt: int, max_attempts: int, why: str) -> str:
@@ -175,7 +179,7 @@ def release_lost_cells(
 
 def expired_cells(db: Database, limit: int = 1000) -> list[str]:
     """Ids of running cells whose lease ran out."""
-    with db.session() as s:
+    with db.reading() as s:
         return list(
             s.scalars(
                 select(CellRow.id)
@@ -201,14 +205,14 @@ def release_expired_leases(db: Database, blobs: BlobStore, max_attempts: int, le
 
 def running_cells_of(db: Database, worker: str) -> list[str]:
     """Ids of the cells that ``worker`` (a Celery node name, ``name@host``) is running."""
-    with db.session() as s:
+    with db.reading() as s:
         return list(s.scalars(select(CellRow.id).where(CellRow.state == "running", CellRow.worker == worker)))
 
 
 def attempt_stopped(db: Database, cell: CellRow) -> str | None:
     """Why the running attempt ``cell`` (as claimed) must stop: "cancelled" (its job was), "lost" (its
     lease expired and the cell was queued again or went to another worker), or None: carry on."""
-    with db.session() as s:
+    with db.reading() as s:
         job_state, token = s.execute(
             select(JobRow.state, CellRow.lease_token).join(CellRow, CellRow.job_id == JobRow.id).where(CellRow.id == cell.id)
         ).one()  # fmt: skip
@@ -265,7 +269,7 @@ def finish_job_if_complete(db: Database, blobs: BlobStore, job_id: str) -> bool:
     The index is written before the state flips, so a ``done`` job always has one; workers that
     finish at once may both write it (the same document), and the conditional update lets one win.
     """
-    with db.session() as s:
+    with db.reading() as s:  # no write lock: a worker ends a cell while others commit theirs
         open_cells = s.scalar(
             select(func.count())
             .select_from(CellRow)
@@ -274,13 +278,18 @@ def finish_job_if_complete(db: Database, blobs: BlobStore, job_id: str) -> bool:
         if open_cells:
             return False
         job = s.get(JobRow, job_id)
-        if job.state == "cancelled":
-            if job.finished_at is None:
-                job.finished_at = now()
-            return False
-        if job.state not in ("queued", "running"):
-            return False
-        states = set(s.scalars(select(CellRow.state).where(CellRow.job_id == job_id)))
+        states = set(s.scalars(select(CellRow.state).where(CellRow.job_id == job_id).distinct()))
+    if job.state == "cancelled":
+        if job.finished_at is None:
+            with db.session() as s:
+                s.execute(
+                    update(JobRow)
+                    .where(JobRow.id == job_id, JobRow.state == "cancelled", JobRow.finished_at.is_(None))
+                    .values(finished_at=now())
+                )
+        return False
+    if job.state not in ("queued", "running"):
+        return False
     final = "failed" if "failed" in states else "done" if states <= {"done"} else "cancelled"
     if job.job_type == PLACEMENT_JOB:
         return end_round(db, job_id, final)
@@ -398,7 +407,7 @@ def lost_queued_cells(db: Database, older_than_s: float) -> list[str]:
     it once.
     """
     cutoff = now() - older_than_s
-    with db.session() as s:
+    with db.reading() as s:
         candidates = list(
             s.scalars(
                 select(CellRow.id)

@@ -17,12 +17,12 @@ from farfield.core.impostor.database import database_index
 from farfield.core.viewcells import viewcell_from_dict
 from farfield.service.blobs import BlobStore
 from farfield.service.db import CellRow, Database, JobRow, job_cells
-from farfield.service.jobs.records import cell_record, cell_records
+from farfield.service.jobs.records import CellView, cell_record, cell_records, cell_views
 from farfield.service.placement import INDEX_KINDS, job_algorithm
 from farfield.service.placement.documents import placement_lookup
 
 
-def index_document(job: JobRow, cells: list[CellRow]) -> dict:
+def index_document(job: JobRow, cells: list[CellRow] | list[CellView]) -> dict:
     """The impostor database index of a job (:func:`farfield.core.impostor.database.database_index`)."""
     entries = [
         {"index": c.index, "grid": c.grid, "viewcell": c.viewcell, "state": c.state, "bundle": f"cells/{c.index:05d}/" if c.result_key else None}
@@ -33,11 +33,11 @@ def index_document(job: JobRow, cells: list[CellRow]) -> dict:
 
 def write_index(db: Database, blobs: BlobStore, job_id: str, final_state: str) -> str:
     """Write the job's impostor database index (as it ends in ``final_state``); returns its key."""
-    with db.session() as s:
+    with db.reading() as s:
         job = s.get(JobRow, job_id)
     job.state = final_state  # the state the index describes; the row itself changes after the write
     key = f"jobs/{job_id}/index.json"
-    blobs.put_bytes(key, json.dumps(index_document(job, job_cells(db, job_id)), sort_keys=True, indent=1).encode())
+    blobs.put_bytes(key, json.dumps(index_document(job, cell_views(db, job_id)), sort_keys=True, indent=1).encode())
     return key
 
 

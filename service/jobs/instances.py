@@ -83,7 +83,7 @@ def prototype_bake(blobs: BlobStore, job: JobRow, scene: Scene, viewcell: dict, 
         if baked:
             impostor = technique.bake(prototype_scene(scene, key), local, options, None, progress)
             impostor.parameters["prototype"] = key
-            write_bundle(impostor, Path(tmp) / "bundle")
+            write_bundle(impostor, Path(tmp) / "bundle", sync=False)  # the blob store's copy counts
             blobs.publish_directory(shared, Path(tmp) / "bundle", last=MANIFEST_NAME)
         else:
             impostor = read_bundle(blobs.copy_to_directory(shared, Path(tmp) / "bundle"))

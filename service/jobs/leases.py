@@ -64,7 +64,7 @@ def renew_leases(db: Database, worker: str, cell_ids: list[str], lease_s: float)
 def lease_lost(db: Database, cell_id: str, token: str) -> bool:
     """Whether the attempt holding ``token`` no longer holds the cell (its lease expired and the cell
     was queued again, or it ended)."""
-    with db.session() as s:
+    with db.reading() as s:
         held = s.scalar(select(CellRow.lease_token).where(CellRow.id == cell_id, CellRow.state == "running"))
     return held != token
 

@@ -222,9 +222,7 @@ def run_cell(
     guard = memory.armed(over_memory) if memory is not None else contextlib.nullcontext()
     try:
         with guard:
-            with db.session() as s:
-                job = s.get(JobRow, cell.job_id)
-                scene_row = s.get(SceneRow, job.scene_id)
+            job, scene_row = claim.job, claim.scene
             key = cell_key(scene_row.content_hash, job, cell)
             seconds = None  # this attempt's bake timings (a bundle stores none: its bytes depend on its inputs alone)
             scene = impostor = None
@@ -240,7 +238,8 @@ def run_cell(
                     impostor = bake_cell(job, scene, cell.viewcell, progress, cell)
                     with tempfile.TemporaryDirectory(prefix="farfield-cell-") as tmp:
                         try:
-                            write_bundle(impostor, Path(tmp) / "bundle")
+                            # Not synced: the blob store's copy is what counts (a local store links these files).
+                            write_bundle(impostor, Path(tmp) / "bundle", sync=False)
                         except (
                             BundleFormatError
                         ) as error:  # the bake's own output does not fit its format: a bug, not bad input
