@@ -47,6 +47,11 @@ def test_the_wheel_holds_one_package_and_its_data_files(wheel):
                  "farfield/service/migrations/versions/0001_initial.py", "farfield/api/dashboard/index.html",
                  "farfield/api/dashboard/app.js", "farfield/core/techniques/octahedral/shaders/octahedral.frag"):  # fmt: skip
         assert data in names, data
+    for init in sorted(
+        p for folder in ("core", "api", "service", "workers", "cli") for p in (ROOT / folder).rglob("__init__.py")
+    ):
+        module = "farfield/" + init.relative_to(ROOT).as_posix()  # every package of the checkout is shipped
+        assert module in names, f"{module}: add its package to pyproject.toml's [tool.setuptools] packages"
     entry_points = zipfile.ZipFile(wheel).read(next(n for n in names if n.endswith("entry_points.txt"))).decode()
     assert "farfield = farfield.cli.main:main" in entry_points
 
