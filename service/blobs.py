@@ -17,9 +17,11 @@ use only that interface (``list_files`` instead of looking at directories), so t
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import shutil
 import tempfile
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, BinaryIO, Protocol, runtime_checkable
@@ -30,6 +32,7 @@ if TYPE_CHECKING:
     from farfield.service.settings import Settings
 
 CHUNK = 1 << 20
+log = logging.getLogger("farfield.blobs")
 
 
 def check_key(key: str) -> str:
@@ -65,12 +68,13 @@ class BlobStore(Protocol):
     def copy_to_directory(self, prefix: str, directory: str | os.PathLike) -> Path: ...
 
 
-def blob_store(settings: Settings) -> BlobStore:
-    """The blob store of ``settings``: the S3 bucket when ``FARFIELD_S3_BUCKET`` is set, else the local directory."""
+def blob_store(settings: Settings, outage_s: float = 0.0) -> BlobStore:
+    """The blob store of ``settings``: the S3 bucket when ``FARFIELD_S3_BUCKET`` is set (each request
+    waiting up to ``outage_s`` for a server it cannot reach: :class:`S3BlobStore`), else the local directory."""
     if settings.s3_bucket:
         return S3BlobStore(
             bucket=settings.s3_bucket, endpoint_url=settings.s3_endpoint, access_key=settings.s3_key,
-            secret_key=settings.s3_secret, region=settings.s3_region or "us-east-1",
+            secret_key=settings.s3_secret, region=settings.s3_region or "us-east-1", outage_s=outage_s,
         )  # fmt: skip
     return LocalBlobStore(settings.blob_dir)
 
@@ -228,19 +232,26 @@ class S3BlobStore:
     Keys are object keys as they are.  ``endpoint_url`` ``None`` means AWS itself; with an endpoint
     (MinIO) the client uses path-style addressing (``http://host:9000/bucket/key``), which needs no
     wildcard DNS.  The boto3 client is thread-safe; make the store after any ``fork``.
+
+    ``outage_s``: how long each request waits for a server it cannot reach (refused or cut
+    connections, timeouts: botocore's connection errors, after botocore's own few retries), trying
+    again with backoff (0.5 s doubling to 5 s), before it raises.  Workers wait
+    (``FARFIELD_S3_OUTAGE_S``): an S3 server restarting for half a minute would otherwise fail every
+    attempt of the cells that start or end meanwhile.  0 (the API's): fail at once.
     """
 
     page_size = 1000  # keys per ListObjectsV2 page and per DeleteObjects request (the S3 maximum)
 
     def __init__(
         self, bucket: str, endpoint_url: str | None = None, access_key: str | None = None, secret_key: str | None = None,
-        region: str = "us-east-1", part_size: int = PART, client: Any = None,
+        region: str = "us-east-1", part_size: int = PART, client: Any = None, outage_s: float = 0.0,
     ) -> None:  # fmt: skip
         if part_size < MIN_PART:
             raise ValueError(f"part_size must be at least {MIN_PART} bytes (the S3 minimum), got {part_size}")
         self.bucket = bucket
         self.endpoint_url = endpoint_url
         self.part_size = part_size
+        self.outage_s = outage_s
         if client is None:
             import boto3
             from botocore.config import Config
@@ -280,6 +291,23 @@ class S3BlobStore:
             return NotFoundError(f"blob {key!r} not found")
         return error
 
+    def _call(self, operation: str, **arguments: Any) -> Any:
+        """``self.client.<operation>(**arguments)``, tried again while the server cannot be reached,
+        for up to ``outage_s`` seconds (class docstring)."""
+        from botocore.exceptions import ConnectionError as Unreachable
+        from botocore.exceptions import HTTPClientError  # a cut connection, a read timeout
+
+        deadline, delay = time.monotonic() + self.outage_s, 0.5
+        while True:
+            try:
+                return getattr(self.client, operation)(**arguments)
+            except (Unreachable, HTTPClientError) as error:
+                if time.monotonic() + delay > deadline:
+                    raise
+                log.warning("S3 %s: %s; tried again in %g s", operation, error, delay)
+                time.sleep(delay)
+                delay = min(2 * delay, 5.0)
+
     def _client_error(self) -> type[Exception]:
         from botocore.exceptions import ClientError
 
@@ -289,7 +317,7 @@ class S3BlobStore:
 
     def put_bytes(self, key: str, data: bytes) -> None:
         try:
-            self.client.put_object(Bucket=self.bucket, Key=check_key(key), Body=bytes(data))
+            self._call("put_object", Bucket=self.bucket, Key=check_key(key), Body=bytes(data))
         except self._client_error() as error:
             raise self._translate(error, key) from error
 
@@ -314,17 +342,18 @@ class S3BlobStore:
                 buffer += chunk
                 while len(buffer) >= self.part_size:
                     if upload_id is None:
-                        upload_id = self.client.create_multipart_upload(Bucket=self.bucket, Key=key)["UploadId"]
+                        upload_id = self._call("create_multipart_upload", Bucket=self.bucket, Key=key)["UploadId"]
                     body, buffer = bytes(buffer[: self.part_size]), buffer[self.part_size :]
                     self._upload_part(key, upload_id, parts, body)
             if upload_id is None:
-                self.client.put_object(Bucket=self.bucket, Key=key, Body=bytes(buffer))
+                self._call("put_object", Bucket=self.bucket, Key=key, Body=bytes(buffer))
             else:
                 if buffer:  # the last part, shorter than the others
                     self._upload_part(key, upload_id, parts, bytes(buffer))
-                self.client.complete_multipart_upload(
-                    Bucket=self.bucket, Key=key, UploadId=upload_id, MultipartUpload={"Parts": parts}
-                )
+                self._call(
+                    "complete_multipart_upload",
+                    Bucket=self.bucket, Key=key, UploadId=upload_id, MultipartUpload={"Parts": parts},
+                )  # fmt: skip
         except BaseException as error:
             if upload_id is not None:
                 with contextlib.suppress(Exception):  # the first error is the one to report
@@ -336,7 +365,7 @@ class S3BlobStore:
 
     def _upload_part(self, key: str, upload_id: str, parts: list[dict], body: bytes) -> None:
         number = len(parts) + 1
-        etag = self.client.upload_part(Bucket=self.bucket, Key=key, UploadId=upload_id, PartNumber=number, Body=body)[
+        etag = self._call("upload_part", Bucket=self.bucket, Key=key, UploadId=upload_id, PartNumber=number, Body=body)[
             "ETag"
         ]
         parts.append({"ETag": etag, "PartNumber": number})
@@ -358,7 +387,7 @@ class S3BlobStore:
 
     def exists(self, key: str) -> bool:
         try:
-            self.client.head_object(Bucket=self.bucket, Key=check_key(key))
+            self._call("head_object", Bucket=self.bucket, Key=check_key(key))
         except self._client_error() as error:
             translated = self._translate(error, key)
             if isinstance(translated, NotFoundError):
@@ -369,7 +398,7 @@ class S3BlobStore:
     def open(self, key: str) -> BinaryIO:
         """A readable binary stream of ``key`` (botocore's streaming body; close it when done)."""
         try:
-            return self.client.get_object(Bucket=self.bucket, Key=check_key(key))["Body"]
+            return self._call("get_object", Bucket=self.bucket, Key=check_key(key))["Body"]
         except self._client_error() as error:
             raise self._translate(error, key) from error
 
@@ -384,16 +413,17 @@ class S3BlobStore:
 
     def _keys(self, prefix: str, delimiter: bool) -> Iterator[str]:
         """Every key under ``prefix`` (only those directly under it with ``delimiter``)."""
-        arguments = {"Bucket": self.bucket, "Prefix": prefix}
+        arguments = {"Bucket": self.bucket, "Prefix": prefix, "MaxKeys": self.page_size}
         if delimiter:
             arguments["Delimiter"] = "/"
         try:
-            pages = self.client.get_paginator("list_objects_v2").paginate(
-                **arguments, PaginationConfig={"PageSize": self.page_size}
-            )
-            for page in pages:
+            while True:
+                page = self._call("list_objects_v2", **arguments)
                 for item in page.get("Contents", ()):
                     yield item["Key"]
+                if not page.get("IsTruncated"):
+                    break
+                arguments["ContinuationToken"] = page["NextContinuationToken"]
         except self._client_error() as error:
             raise self._translate(error, prefix) from error
 
@@ -410,7 +440,7 @@ class S3BlobStore:
         try:
             for i in range(0, len(keys), self.page_size):  # missing keys are no error
                 batch = [{"Key": k} for k in keys[i : i + self.page_size]]
-                response = self.client.delete_objects(Bucket=self.bucket, Delete={"Objects": batch, "Quiet": True})
+                response = self._call("delete_objects", Bucket=self.bucket, Delete={"Objects": batch, "Quiet": True})
                 if response.get("Errors"):
                     failed = response["Errors"][0]
                     raise OSError(

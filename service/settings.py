@@ -16,6 +16,7 @@ shared services instead, so API and workers can run on several machines.
 | ``FARFIELD_S3_ENDPOINT`` | unset (AWS S3) | the S3 server's URL, e.g. ``http://minio:9000`` (path-style addressing) |
 | ``FARFIELD_S3_KEY``, ``FARFIELD_S3_SECRET`` | unset | access key and secret key; required with ``FARFIELD_S3_BUCKET`` |
 | ``FARFIELD_S3_REGION`` | ``us-east-1`` | the bucket's region (MinIO accepts the default) |
+| ``FARFIELD_S3_OUTAGE_S`` | 120 | seconds a worker's blob operation waits for an S3 server it cannot reach (tried again with backoff) before it fails; the API fails at once |
 | ``FARFIELD_MAX_UPLOAD_MB`` | 512 | largest scene upload |
 | ``FARFIELD_MAX_SCENE_NODES``, ``_DEPTH``, ``_PRIMITIVES``, ``_ACCESSORS``, ``_TRIANGLES`` | 50,000, 128, 50,000, 200,000, 50,000,000 | most structure an upload may have (``core/exchange/limits.py``): glTF nodes (and objects of any format), node nesting, primitives and accessors, triangles once instancing is applied |
 | ``FARFIELD_ADMIN_KEY`` | unset | API key of the bootstrap tenant ``admin`` |
@@ -72,6 +73,9 @@ VISIBILITY_TIMEOUT = 3600
 LEASE_S = 30
 HEARTBEAT_S = 5
 SWEEP_S = 5
+# An S3 server restarting (or refusing for a while): a worker's blob operations wait this long for
+# it, instead of failing the cell's attempts one after another (benchmarks/bench_cluster_faults.py).
+S3_OUTAGE_S = 120
 # Scene checks (a child process parsing an upload, service/scene_check.py) at once per API process:
 # half the cores, 1 to 4; and uploads that may wait for one.
 SCENE_CHECKS = min(4, max(1, (os.cpu_count() or 2) // 2))
@@ -238,6 +242,7 @@ class Settings:
     lease_s: int = LEASE_S  # a running cell's lease, renewed by its worker's heartbeat
     heartbeat_s: int = HEARTBEAT_S  # seconds between a worker's heartbeats
     sweep_s: int = SWEEP_S  # seconds between the API's sweeps
+    s3_outage_s: int = S3_OUTAGE_S  # seconds a worker's blob operation waits for an unreachable S3 server
 
     @property
     def cell_hard_time_limit(self) -> int:
@@ -297,6 +302,7 @@ class Settings:
             lease_s=lease_s,
             heartbeat_s=heartbeat_s,
             sweep_s=_int(env, "FARFIELD_SWEEP_S", SWEEP_S),
+            s3_outage_s=_int(env, "FARFIELD_S3_OUTAGE_S", S3_OUTAGE_S, minimum=0),
         )
 
     def with_redis(self, url: str) -> Settings:
@@ -332,6 +338,7 @@ class Settings:
         if self.s3_bucket:
             env["FARFIELD_S3_BUCKET"] = self.s3_bucket
             env["FARFIELD_S3_REGION"] = self.s3_region
+            env["FARFIELD_S3_OUTAGE_S"] = str(self.s3_outage_s)
             for name, value in (
                 ("FARFIELD_S3_ENDPOINT", self.s3_endpoint),
                 ("FARFIELD_S3_KEY", self.s3_key),

@@ -6,7 +6,11 @@ S3 endpoint (moto's server, the S3 server the tests already use, in a process of
 The database is a SQLite file (in the cluster's shared folder: the one thing on a shared disk) or, where
 ``FARFIELD_TEST_DATABASE_URL`` names a PostgreSQL server (``scripts/postgres-server``), a fresh
 database on it.  A node can be killed whole (``killpg`` SIGKILL: its pool processes with it) or paused
-(SIGSTOP) and resumed (SIGCONT).  ``docs/operations.md`` ("Scaling out") describes the same layout on
+(SIGSTOP) and resumed (SIGCONT).  The shared services can fail too (benchmarks/bench_cluster_faults.py):
+Redis stopped and started again on its port (:meth:`Cluster.stop_redis`, :meth:`Cluster.start_redis`;
+its queue kept in its append-only file), and, with ``s3_gate=True``, the S3 endpoint closed and opened
+again (:class:`TcpGate` in front of moto's server, whose buckets live in its memory and would not
+survive a restart of it).  ``docs/operations.md`` ("Scaling out") describes the same layout on
 real machines: this harness runs it.
 
 Usage::
@@ -19,10 +23,13 @@ Usage::
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
+import socket
 import subprocess
 import sys
+import threading
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -101,11 +108,84 @@ class Node:
         return self.log.read_text(errors="replace") if self.log.exists() else ""
 
 
+class TcpGate:
+    """A TCP forwarder from a port of its own to ``target_port``, that can be closed and opened again.
+
+    Closed, nothing listens on its port (a connection is refused, as by a server that is down) and
+    every connection it forwarded is cut; opened, it listens on the same port again and the server
+    behind it, never stopped, has kept its state."""
+
+    def __init__(self, target_port: int) -> None:
+        self.target_port, self.port = target_port, free_port()
+        self._listener: socket.socket | None = None
+        self._open: set[socket.socket] = set()
+        self._lock = threading.Lock()
+
+    def open(self) -> TcpGate:
+        listener = socket.socket()
+        listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        listener.bind(("127.0.0.1", self.port))
+        listener.listen(64)
+        self._listener = listener
+        threading.Thread(target=self._accept, args=(listener,), daemon=True).start()
+        return self
+
+    def close(self) -> None:
+        listener, self._listener = self._listener, None
+        if listener is not None:
+            with contextlib.suppress(OSError):
+                listener.shutdown(socket.SHUT_RDWR)
+            listener.close()
+        with self._lock:
+            cut, self._open = self._open, set()
+        for sock in cut:
+            with contextlib.suppress(OSError):
+                sock.shutdown(socket.SHUT_RDWR)
+            sock.close()
+
+    def _accept(self, listener: socket.socket) -> None:
+        while True:
+            try:
+                client, _ = listener.accept()
+            except OSError:
+                return  # closed
+            try:
+                server = socket.create_connection(("127.0.0.1", self.target_port))
+            except OSError:
+                client.close()
+                continue
+            with self._lock:
+                if self._listener is not listener:  # closed meanwhile
+                    client.close()
+                    server.close()
+                    return
+                self._open |= {client, server}
+            for source, sink in ((client, server), (server, client)):
+                threading.Thread(target=self._pump, args=(source, sink), daemon=True).start()
+
+    def _pump(self, source: socket.socket, sink: socket.socket) -> None:
+        try:
+            while data := source.recv(1 << 16):
+                sink.sendall(data)
+        except OSError:
+            pass
+        for sock in (source, sink):
+            with contextlib.suppress(OSError):
+                sock.shutdown(socket.SHUT_RDWR)
+        with self._lock:
+            self._open -= {source, sink}
+
+
 class Cluster:
     """Redis, the database, an S3 server, one API node and ``workers`` worker nodes (module docstring).
-    ``env``: more settings for every node (e.g. a short lease)."""
+    ``env``: more settings for every node (e.g. a short lease); ``s3_gate``: the nodes reach S3 through
+    a :class:`TcpGate` (``cluster.s3_gate``) that can be closed."""
 
-    def __init__(self, root: Path, workers: int = 2, env: dict | None = None, concurrency: int = 1) -> None:
+    def __init__(
+        self, root: Path, workers: int = 2, env: dict | None = None, concurrency: int = 1, s3_gate: bool = False
+    ) -> None:
+        self.use_gate = s3_gate
+        self.s3_gate: TcpGate | None = None
         self.root = Path(root)
         self.extra = dict(env or {})
         self.worker_count, self.concurrency = workers, concurrency
@@ -133,7 +213,8 @@ class Cluster:
         self.s3 = Node("s3", [sys.executable, "-m", "moto.server", "-H", "127.0.0.1", "-p", str(port)],
                        _base_env(self.root / "s3"), self.root / "s3").start()  # fmt: skip
         self.bucket = f"farfield-{uuid.uuid4().hex[:12]}"
-        return f"http://127.0.0.1:{port}"
+        self.s3_endpoint = f"http://127.0.0.1:{port}"
+        return self.s3_endpoint
 
     def _make_bucket(self, endpoint: str, timeout: float = 60.0) -> None:
         deadline = time.monotonic() + timeout
@@ -171,9 +252,11 @@ class Cluster:
         self.root.mkdir(parents=True, exist_ok=True)
         self.redis = EmbeddedRedis(self.root / "redis").start()
         endpoint = self._start_s3()
+        if self.use_gate:
+            self.s3_gate = TcpGate(int(endpoint.rsplit(":", 1)[1])).open()
         self._shared = {
             "REDIS_URL": self.redis.url, "DATABASE_URL": self._database_url(),
-            "FARFIELD_S3_ENDPOINT": endpoint, "FARFIELD_S3_BUCKET": self.bucket, "FARFIELD_S3_KEY": S3_KEY,
+            "FARFIELD_S3_ENDPOINT": f"http://127.0.0.1:{self.s3_gate.port}" if self.s3_gate else endpoint, "FARFIELD_S3_BUCKET": self.bucket, "FARFIELD_S3_KEY": S3_KEY,
             "FARFIELD_S3_SECRET": S3_SECRET, "FARFIELD_S3_REGION": S3_REGION, "FARFIELD_ADMIN_KEY": ADMIN_KEY,
             **self.extra,
         }  # fmt: skip
@@ -227,6 +310,14 @@ class Cluster:
         logs = "\n".join(f"--- {n.name}\n{n.log_text()[-3000:]}" for n in self.workers)
         raise RuntimeError(f"fewer than {count} workers came up within {timeout:.0f} s:\n{logs}")
 
+    def stop_redis(self) -> None:
+        """Redis goes down (SIGTERM: it writes its append-only file and exits); nothing listens on its port."""
+        self.redis.stop()
+
+    def start_redis(self) -> None:
+        """Redis again on the same port, from its append-only file (the queued messages it held)."""
+        self.redis.start()
+
     def client(self) -> httpx.Client:
         return httpx.Client(base_url=self.url, headers={"Authorization": f"Bearer {ADMIN_KEY}"}, timeout=60,
                             trust_env=False)  # fmt: skip
@@ -239,6 +330,8 @@ class Cluster:
         for node in [self.api, *self.workers]:
             if node is not None:
                 node.stop()
+        if self.s3_gate is not None:
+            self.s3_gate.close()
         if self.s3 is not None:
             self.s3.stop(grace=5)
         if self.redis is not None:

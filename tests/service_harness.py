@@ -179,7 +179,8 @@ def fresh_postgres_database(admin_url: str) -> tuple[str, callable]:
     import sqlalchemy as sa
 
     name = f"farfield_test_{uuid.uuid4().hex[:12]}"
-    engine = sa.create_engine(admin_url, isolation_level="AUTOCOMMIT")
+    # No connection kept between uses: the server may have restarted (bench_cluster_faults.py).
+    engine = sa.create_engine(admin_url, isolation_level="AUTOCOMMIT", poolclass=sa.pool.NullPool)
     with engine.connect() as connection:
         connection.execute(sa.text(f'CREATE DATABASE "{name}"'))
     url = sa.engine.make_url(admin_url).set(database=name).render_as_string(hide_password=False)

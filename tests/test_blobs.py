@@ -234,6 +234,34 @@ def test_s3_lists_and_deletes_page_by_page(s3_endpoint, bucket):
     assert _leftovers(store) == []
 
 
+def test_s3_waits_out_a_server_that_refuses_for_a_while(s3_endpoint, bucket):
+    """A worker's store (``outage_s``) waits for a server that refuses connections and goes on when it
+    answers again; the API's (no ``outage_s``) fails at once.  The server is behind a TCP gate that
+    is closed (refusing, as a server restarting) and opened again 2 s later, its objects kept."""
+    import threading
+
+    from botocore.exceptions import EndpointConnectionError
+    from cluster_harness import TcpGate
+
+    gate = TcpGate(int(s3_endpoint.rsplit(":", 1)[1])).open()
+    through = f"http://127.0.0.1:{gate.port}"
+    patient = S3BlobStore(bucket, endpoint_url=through, access_key=KEY, secret_key=SECRET, outage_s=30)
+    at_once = S3BlobStore(bucket, endpoint_url=through, access_key=KEY, secret_key=SECRET)
+    try:
+        patient.put_bytes("scenes/s/scene.glb", b"before")
+        gate.close()
+        with pytest.raises(EndpointConnectionError):
+            at_once.read_bytes("scenes/s/scene.glb")
+        reopen = threading.Timer(2.0, gate.open)
+        reopen.start()
+        patient.put_bytes("impostors/d/manifest.json", b"during")  # waits for the gate
+        reopen.join()
+        assert patient.read_bytes("scenes/s/scene.glb") == b"before"
+        assert at_once.list_files("impostors/d") == ["manifest.json"]
+    finally:
+        gate.close()
+
+
 # -- settings and the factory -------------------------------------------------------------
 
 

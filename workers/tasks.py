@@ -155,7 +155,10 @@ def _records() -> tuple[Settings, Database, BlobStore]:
             _STATE["db"].engine.dispose(close=False)
         _STATE.clear()
         _STATE.update(
-            pid=os.getpid(), settings=settings, db=Database(settings.database_url), blobs=blob_store(settings)
+            pid=os.getpid(),
+            settings=settings,
+            db=Database(settings.database_url),
+            blobs=blob_store(settings, outage_s=settings.s3_outage_s),
         )
     return _STATE["settings"], _STATE["db"], _STATE["blobs"]
 
