@@ -10,6 +10,7 @@ from fastapi import Request, Security
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from farfield.api.auth_failures import FailedAuthLimiter
+from farfield.api.broker_probe import BrokerProbe
 from farfield.core.errors import AuthError
 from farfield.service.blobs import BlobStore
 from farfield.service.db import Database
@@ -31,10 +32,13 @@ class Services:
     scene_checks: SceneCheckGate = field(init=False)
     # Counts failed authentication per client (api/auth_failures.py).
     auth_failures: FailedAuthLimiter = field(init=False)
+    # The broker's reachability for the health check, on kept connections (api/broker_probe.py).
+    broker: BrokerProbe = field(init=False)
 
     def __post_init__(self) -> None:
         self.scene_checks = SceneCheckGate(self.settings.scene_checks, self.settings.scene_check_queue)
         self.auth_failures = FailedAuthLimiter(self.settings.auth_failures)
+        self.broker = BrokerProbe(self.celery.conf.broker_url)
 
     def authenticate(self, client: str, values: list[str]) -> str:
         """The tenant of a request from ``client`` (its address) with these ``Authorization`` header
@@ -55,7 +59,10 @@ class Services:
             self.celery.send_task(BAKE_CELL, args=[cell_id], queue=RENDER_QUEUE, retry=True, retry_policy=RETRY_POLICY)
 
 
-def services(request: Request) -> Services:
+async def services(request: Request) -> Services:
+    """The process's services.  ``async`` though it awaits nothing: FastAPI runs a plain function
+    dependency in its thread pool, one more hop between the event loop and a thread (each waiting
+    for the GIL) on every request, ``GET /v1/health`` included (issue 58, item 5)."""
     return request.app.state.services
 
 
@@ -72,7 +79,9 @@ def tenant(request: Request, credentials: Annotated[HTTPAuthorizationCredentials
     """The tenant id of the request's Bearer key (401 without a valid one).  ``credentials`` only
     documents the scheme in the OpenAPI document; the key is read by :func:`bearer_key`, as the
     upload's early check reads it."""
-    return services(request).authenticate(client_address(request.scope), request.headers.getlist("authorization"))
+    return request.app.state.services.authenticate(
+        client_address(request.scope), request.headers.getlist("authorization")
+    )
 
 
 def client_address(scope) -> str:

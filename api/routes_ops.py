@@ -20,15 +20,6 @@ from farfield.service.keys import ADMIN_TENANT
 router = APIRouter(tags=["operations"])
 
 
-def _broker_ok(svc: Services) -> bool:
-    try:
-        with svc.celery.connection_for_write() as connection:
-            connection.ensure_connection(max_retries=1, timeout=1)
-        return True
-    except Exception:  # noqa: BLE001 - any failure means "not reachable"
-        return False
-
-
 @router.get("/v1/health", summary="Database and broker reachability")
 def health(svc: Services = Depends(services)) -> dict:
     try:
@@ -36,7 +27,7 @@ def health(svc: Services = Depends(services)) -> dict:
         database = True
     except Exception:  # noqa: BLE001
         database = False
-    broker = _broker_ok(svc)
+    broker = svc.broker.reachable()  # a PING on a kept connection (api/broker_probe.py)
     return {"status": "ok" if database and broker else "degraded", "database": database, "broker": broker}
 
 

@@ -117,6 +117,9 @@ class JobRow(Base):
 
 class CellRow(Base):
     __tablename__ = "cells"
+    # A job's open cells (queued or running) counted after each cell: the index entries alone
+    # (migration 0009), not every row of the job.
+    __table_args__ = (Index("ix_cells_job_state", "job_id", "state"),)
     id: Mapped[str] = mapped_column(String(32), primary_key=True)
     job_id: Mapped[str] = mapped_column(ForeignKey("jobs.id", ondelete="CASCADE"), index=True)
     index: Mapped[int] = mapped_column(Integer)

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import os
+
+import pytest
 import sqlalchemy as sa
 from alembic import command
 from alembic.config import Config
 
 from farfield.service.db import MIGRATIONS, Database, JobRow, SceneRow, Tenant
+from farfield.service.jobs.cells import has_open_cells
 
 
 def _config(connection) -> Config:
@@ -27,7 +31,7 @@ def test_upgrade_keeps_rows_and_adds_columns(tmp_path):
     assert "worker" in {c["name"] for c in sa.inspect(db.engine).get_columns("cells")}
     with db.engine.connect() as connection:
         assert connection.execute(sa.text("SELECT name FROM tenants")).scalars().all() == ["acme"]
-        assert connection.execute(sa.text("SELECT version_num FROM alembic_version")).scalar() == "0008"
+        assert connection.execute(sa.text("SELECT version_num FROM alembic_version")).scalar() == "0009"
 
 
 def test_0008_adds_cell_leases_and_the_worker_registry_and_goes_back(tmp_path):
@@ -46,6 +50,41 @@ def test_0008_adds_cell_leases_and_the_worker_registry_and_goes_back(tmp_path):
     inspector = sa.inspect(db.engine)
     assert "lease_token" not in {c["name"] for c in inspector.get_columns("cells")}
     assert "workers" not in inspector.get_table_names()
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def database_url(request, tmp_path):
+    """An empty database's URL: SQLite, and PostgreSQL where ``FARFIELD_TEST_DATABASE_URL`` names a server."""
+    if request.param == "sqlite":
+        yield f"sqlite:///{tmp_path / 'old.db'}"
+        return
+    from service_harness import fresh_postgres_database
+
+    admin_url = os.environ.get("FARFIELD_TEST_DATABASE_URL")
+    if not admin_url:
+        pytest.skip("no PostgreSQL server: set FARFIELD_TEST_DATABASE_URL (CI starts one with scripts/postgres-server)")
+    url, drop = fresh_postgres_database(admin_url)
+    yield url
+    drop()
+
+
+def test_0009_indexes_a_job_s_cells_by_state_and_goes_back(database_url):
+    db = Database(database_url)
+    with db.engine.begin() as connection:
+        command.upgrade(_config(connection), "0008")
+    db.migrate()
+    assert "ix_cells_job_state" in {i["name"] for i in sa.inspect(db.engine).get_indexes("cells")}
+    if db.engine.dialect.name == "sqlite":
+        # What finish_job_if_complete asks after each cell: answered from the index alone, every
+        # column it needs in it (a "covering" index), never by reading the job's cell rows.
+        open_cell = has_open_cells("j").compile(db.engine, compile_kwargs={"literal_binds": True})
+        with db.engine.connect() as connection:
+            plan = " ".join(row[-1] for row in connection.exec_driver_sql(f"EXPLAIN QUERY PLAN {open_cell}"))
+        assert "COVERING INDEX ix_cells_job_state" in plan, plan
+    with db.engine.begin() as connection:
+        command.downgrade(_config(connection), "0008")
+    assert "ix_cells_job_state" not in {i["name"] for i in sa.inspect(db.engine).get_indexes("cells")}
+    db.dispose()
 
 
 def test_jobs_made_before_evaluate_existed_are_evaluated(tmp_path):
