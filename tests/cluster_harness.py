@@ -221,7 +221,9 @@ class Postgres:
         self._ctl("-l", str(self.folder / "log"), "-o", options, "start")
 
     def remove(self) -> None:
-        subprocess.run([str(ROOT / "scripts/postgres-server"), "stop", str(self.folder)], capture_output=True)
+        """The server and its data gone (stopped without a checkpoint: nothing of it is kept)."""
+        with contextlib.suppress(subprocess.CalledProcessError):
+            self._ctl("-m", "immediate", "stop")
         shutil.rmtree(self.parent, ignore_errors=True)
 
 
@@ -431,11 +433,13 @@ class Cluster:
         return next(n for n in self.workers if n.name == name.split("@")[0])
 
     def stop(self) -> None:
-        """Every node stopped at once (SIGTERM to all, then each waited for: a Celery worker's warm
-        shutdown takes seconds, which the nodes spend together), then the shared services."""
-        nodes = [node for node in [self.api, *self.workers] if node is not None]
-        with ThreadPoolExecutor(max(len(nodes), 1)) as pool:
-            list(pool.map(Node.stop, nodes))
+        """The cluster gone: the worker nodes killed whole (nothing they hold outlives the cluster, and
+        a Celery worker's warm shutdown costs seconds), the API node stopped, then the shared services."""
+        for node in self.workers:
+            if node.alive():
+                node.kill()
+        if self.api is not None:
+            self.api.stop()
         if self.s3_gate is not None:
             self.s3_gate.close()
         if self.s3 is not None:
