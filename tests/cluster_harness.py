@@ -194,8 +194,9 @@ class Postgres:
     data.  :func:`postgres_unavailable` says first whether one can start here."""
 
     def __init__(self) -> None:
-        # Under /tmp, readable by the server's user (pytest's folders are the test user's alone).
-        self.parent = Path(tempfile.mkdtemp(prefix="farfield-cluster-pg-"))
+        # Readable by the server's user (pytest's folders are the test user's alone), in memory where
+        # there is room: on this machine's disk its start took 4.7 to 6.7 s and removing its 38 MB 4.2 s (in memory 4.0 and 0.1 s).
+        self.parent = Path(tempfile.mkdtemp(prefix="farfield-cluster-pg-", dir=_memory_folder()))
         os.chmod(self.parent, 0o755)
         self.folder = self.parent / "pg"
         started = subprocess.run([str(ROOT / "scripts/postgres-server"), "start", str(self.folder)],
@@ -225,6 +226,14 @@ class Postgres:
         with contextlib.suppress(subprocess.CalledProcessError):
             self._ctl("-m", "immediate", "stop")
         shutil.rmtree(self.parent, ignore_errors=True)
+
+
+def _memory_folder(room: int = 1 << 30) -> str | None:
+    """/dev/shm where it is a folder with ``room`` bytes free (a container's may have 64 MiB), else None (/tmp)."""
+    try:
+        return "/dev/shm" if shutil.disk_usage("/dev/shm").free >= room else None
+    except OSError:
+        return None
 
 
 def _postgres_bindir() -> Path | None:
