@@ -195,7 +195,8 @@ class Postgres:
 
     def __init__(self) -> None:
         # Readable by the server's user (pytest's folders are the test user's alone), in memory where
-        # there is room: on this machine's disk its start took 4.7 to 6.7 s and removing its 38 MB 4.2 s (in memory 4.0 and 0.1 s).
+        # there is room: on this machine's disk its start took 4.7 to 6.7 s and removing its 38 MB
+        # 4.2 s (in memory 4.0 and 0.1 s).
         self.parent = Path(tempfile.mkdtemp(prefix="farfield-cluster-pg-", dir=_memory_folder()))
         os.chmod(self.parent, 0o755)
         self.folder = self.parent / "pg"

@@ -123,9 +123,9 @@ def test_workers_report_host_kind_renderer_and_heartbeat(cluster):
 
 
 def test_a_job_across_three_nodes_without_a_shared_disk_equals_the_single_host_one(cluster, bunny, tmp_path):
-    """A grid job of 3 cells at 16 px baked by three worker nodes that share no disk (each its own
-    FARFIELD_HOME and TMPDIR, the bundles in S3, the database on PostgreSQL where the cluster has one)
-    against the same job run on a single host: SQLite and a blob directory on this test's disk, its
+    """A grid job of 3 cells at 16 px baked by a cluster of three worker nodes that share no disk
+    (each its own FARFIELD_HOME and TMPDIR, the bundles in S3, the database on PostgreSQL where the
+    cluster has one; at least two nodes take its cells) against the same job run on a single host: SQLite and a blob directory on this test's disk, its
     cells run one after another in this process by the code a worker runs (``admit_job``, then
     ``run_cell``), on the same stored scene (its row and blobs copied from the cluster, under the same
     tenant id: a bundle's key digests its tenant).  Equal byte for byte:
