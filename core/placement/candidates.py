@@ -42,8 +42,8 @@ of the prototype and one bake serves them all.  Such a candidate records its atl
 the greedy charges each atlas once.
 
 **Simplified geometry** (issue 57 item 3; :mod:`farfield.core.placement.lod`): with ``lod``, a
-node some solvable CPV sees gets one candidate per QEM level of detail of its mesh (built when the
-node is first seen), kind ``lod``: the outside-sphere cell beyond which the level's measured error
+node of one element that some solvable CPV sees gets one candidate per QEM level of detail of its
+mesh (built when the node is first seen), kind ``lod``: the outside-sphere cell beyond which the level's measured error
 is within the impostors' pixel budget, serving the CPVs whose whole region lies in it; its memory is
 the level's vertex and index bytes, its time in a CPV the cost model's geometry time of one draw call
 of its triangles over the node's pixels there (``layers`` holds the level, ``texels`` its

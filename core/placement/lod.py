@@ -1,9 +1,11 @@
-"""Simplified geometry as a placement candidate: QEM levels of detail of a hierarchy node (issue 57, item 3).
+"""Simplified geometry as a placement candidate: QEM levels of detail of an element (issue 57, item 3).
 
-Seed 000 §1.2 and ch. 6 name geometric simplification beside impostors and visibility as the third
-way to bound a frame; the thesis's placement (ch. 5) chooses impostors only.  Here a node of the
-object hierarchy (its elements merged into one mesh, equal positions welded) gets a chain of levels
-from a maintained quadric-error simplifier (``fast-simplification``, Garland and Heckbert's QEM as in
+Seed 000 §2.2.3 surveys geometric simplification (the quadric error metric of Garland and Heckbert,
+[Garl97], "most widely used today") and §1.5.2 asks that impostor placement combine with visibility
+culling and geometric simplification; the thesis's placement (ch. 5) chooses impostors only.  Here a node of the
+object hierarchy that holds one element (an object, or a cluster of a split object, simplified with
+its open border kept so that it meets its neighbours without a crack; equal positions welded) gets a
+chain of levels from a maintained quadric-error simplifier (``fast-simplification``, Garland and Heckbert's QEM as in
 Sven Forstmann's Fast-Quadric-Mesh-Simplification), each level a quarter of the previous one's
 triangles, each simplified from the one before.
 
@@ -60,7 +62,7 @@ NEAR_TRIANGLES = 8  # triangles of nearest centroids searched besides the fan (e
 @dataclass(frozen=True, slots=True, eq=False)
 class LodLevel:
     """One level of detail of a node's mesh: its vertices, triangles and per-vertex colours, and
-    the farthest a full-mesh vertex moved (``error``, world units)."""
+    ``error`` (world units): a bound of the farthest a full-mesh vertex lies from its surface."""
 
     level: int  # 1: the first simplification
     vertices: np.ndarray  # (v, 3) float64
@@ -118,8 +120,12 @@ def node_mesh(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return v[first[order]], slot[inverse.reshape(-1)][f], c[first[order]]
 
 
-def lod_chain(vertices: np.ndarray, faces: np.ndarray, colours: np.ndarray) -> list[LodLevel]:
-    """The levels of detail of a mesh, finest first (module docstring); [] below ``MIN_TRIANGLES``."""
+def lod_chain(
+    vertices: np.ndarray, faces: np.ndarray, colours: np.ndarray, keep_border: bool = False
+) -> list[LodLevel]:
+    """The levels of detail of a mesh, finest first (module docstring); [] below ``MIN_TRIANGLES``.
+    ``keep_border``: no edge at an open border collapses (a cluster of a split object, whose cut
+    edges meet its neighbours' drawn at full detail or at another level: no crack between them)."""
     import fast_simplification
 
     if faces.shape[0] < MIN_TRIANGLES:
@@ -129,7 +135,9 @@ def lod_chain(vertices: np.ndarray, faces: np.ndarray, colours: np.ndarray) -> l
     owner = np.arange(full.shape[0])  # full-mesh vertex -> vertex of the current level
     out: list[LodLevel] = []
     while tris.shape[0] >= 4 * FLOOR_TRIANGLES:
-        _, _, collapses = fast_simplification.simplify(points, tris, target_reduction=REDUCTION, return_collapses=True)
+        _, _, collapses = fast_simplification.simplify(
+            points, tris, target_reduction=REDUCTION, return_collapses=True, preserve_border=keep_border
+        )
         points_next, tris_next, mapping = fast_simplification.replay_simplification(
             points, tris.astype(np.int32), collapses
         )
@@ -248,12 +256,17 @@ class NodeLods:
         ]
 
     def of(self, node: int) -> list[LodLevel]:
+        """The levels of node ``node``: of its element where it holds one (an element's level of
+        detail, as the runtime draws it), else none."""
         if node not in self._chains:
             ids = self.hierarchy.elements_of(node)
-            if int(self.elements.triangles[ids].sum()) < MIN_TRIANGLES:
+            if ids.size != 1 or int(self.elements.triangles[ids[0]]) < MIN_TRIANGLES:
                 self._chains[node] = []
             else:
-                self._chains[node] = lod_chain(*node_mesh(self.elements.scene_of(self.scene, ids)))
+                part = self.elements.scene_of(self.scene, ids)
+                self._chains[node] = lod_chain(
+                    *node_mesh(part), keep_border=self.elements.faces[int(ids[0])] is not None
+                )
                 self.built += 1
         return self._chains[node]
 
@@ -264,10 +277,10 @@ def lod_cell_radius(level: LodLevel, bounds: np.ndarray, fov: float, resolution:
     return max(level.distance(fov, resolution, max_error_px) + half, 1e-9)
 
 
-def level_for(scene: Scene, level: int) -> LodLevel:
-    """Level ``level`` (1-based) of the merged mesh of ``scene`` (the elements a LOD replaces), as
-    the planner built it: the same chain from the same triangles."""
-    chain = lod_chain(*node_mesh(scene))
+def level_for(scene: Scene, level: int, keep_border: bool = False) -> LodLevel:
+    """Level ``level`` (1-based) of the merged mesh of ``scene`` (the element a LOD replaces), as
+    the planner built it: the same chain from the same triangles (``keep_border`` for a cluster)."""
+    chain = lod_chain(*node_mesh(scene), keep_border=keep_border)
     if not 1 <= level <= len(chain):
         from farfield.core.placement.hierarchy import PlacementError
 

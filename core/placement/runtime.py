@@ -239,8 +239,9 @@ class PlacementRenderer:
         """:meth:`impostor`'s tuple for a cell of simplified geometry: its level of detail of its
         elements' merged mesh (:func:`farfield.core.placement.lod.level_for`), one vertex-coloured draw."""
         entry = self.lod_cells[cell]
-        part = self.elements.scene_of(self.scene, [self.element_of[name] for name in entry["objects"]])
-        level = level_for(part, int(entry["params"]["options"]["level"]))
+        ids = [self.element_of[name] for name in entry["objects"]]
+        cluster = any(self.elements.faces[i] is not None for i in ids)
+        level = level_for(self.elements.scene_of(self.scene, ids), int(entry["params"]["options"]["level"]), cluster)
         lo, hi = level.vertices.min(axis=0), level.vertices.max(axis=0)
         self.uploaded_lod_bytes += level.memory_bytes
         renderer = MeshRenderer([level.scene_object(f"lod-{cell}")])

@@ -1,0 +1,133 @@
+"""Layered-only against mixed (layered + simplified geometry) placement on a statue park (issue 57, item 3).
+
+Usage: ``.venv/bin/python benchmarks/bench_mixed_candidates.py [--statues 4] [--subdivisions 7]
+[--spacing 14] [--half 5] [--resolution 256] [--fov 60] [--cpv-size 2.5] [--vdi-deg 22.5]
+[--budget-share 0.3] [--cluster-triangles N] [--leaf-size 1] [--views 40] [--json OUT]``
+
+The scene is :func:`farfield.core.procedural.statue_park` (``--statues`` bumpy statues of
+``20 * 4**subdivisions`` triangles each, ``--spacing`` m apart on a grid around the origin); the view
+space is the street-level square ``[-half, half]`` at 1.7 m between them.  The budget is
+``--budget-share`` of the plain frame (the worst problem view's geometry by the builtin llvmpipe
+model, found by planning at a vanishing budget).  Two placements with the same knobs: layered
+candidates alone, and layered beside levels of detail (``PlacementSettings.lod``,
+:mod:`farfield.core.placement.lod`).  Columns: planning seconds, CPVs (solved / unsolved), what was
+chosen of each kind, estimated memory, and the share of ``--views`` random views (position in the view
+space, direction on the sphere) within t_max by the placement's estimate (the lookup's CPV time).
+
+The mixed placement's levels of detail need no bake, so its database is written and walked with the
+reference runtime (:func:`farfield.core.quality.walkthrough.placement_walkthrough`): measured frames
+against t_max, the plain geometry and the full scene (hole pixels, colour error).  Layered
+impostors are not baked here (their bake is the time this benchmark cannot spend), so the
+layered-only row has estimates only, and the mixed walkthrough draws a view whose CPV holds a
+layered impostor without it only where the placement chose none (asserted: the mixed placement
+must have chosen only levels of detail to be walked).  Everything runs on this machine (CPU,
+Mesa llvmpipe); times are this machine's and its load's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from farfield.core.impostor.database import ImpostorDatabase
+from farfield.core.placement.cost_model import LLVMPIPE_MODEL
+from farfield.core.placement.database import PlacementLookup, placement_index, write_placement_database
+from farfield.core.placement.lod import LOD_TECHNIQUE
+from farfield.core.placement.planner import PlacementSettings, place
+from farfield.core.procedural import statue_park
+from farfield.core.quality.walkthrough import placement_walkthrough, random_views
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--statues", type=int, default=4)
+    ap.add_argument("--subdivisions", type=int, default=7)
+    ap.add_argument("--spacing", type=float, default=14.0)
+    ap.add_argument("--half", type=float, default=5.0)
+    ap.add_argument("--resolution", type=int, default=256)
+    ap.add_argument("--fov", type=float, default=60.0)
+    ap.add_argument("--cpv-size", type=float, default=2.5)
+    ap.add_argument("--vdi-deg", type=float, default=22.5)
+    ap.add_argument("--budget-share", type=float, default=0.3)
+    ap.add_argument("--cluster-triangles", type=int, default=None, help="default: a statue is one element")
+    ap.add_argument("--leaf-size", type=int, default=1)
+    ap.add_argument("--views", type=int, default=40)
+    ap.add_argument("--json", default=None)
+    args = ap.parse_args(argv)
+
+    scene = statue_park(args.statues, args.subdivisions, args.spacing)
+    per_statue = scene.triangle_count // args.statues
+    cluster = per_statue if args.cluster_triangles is None else args.cluster_triangles
+    lo, hi = np.array([-args.half, 1.7, -args.half]), np.array([args.half, 1.7, args.half])
+
+    def settings(t_max: float, lod: bool) -> PlacementSettings:
+        return PlacementSettings(t_max, LLVMPIPE_MODEL, options={"resolution": args.resolution, "fov_deg": args.fov},
+                                 cpv_size=args.cpv_size, vdi_deg=args.vdi_deg, leaf_size=args.leaf_size,
+                                 cluster_triangles=cluster, lod=lod)  # fmt: skip
+
+    plain = place(scene, lo, hi, settings(1e-6, False)).summary["worst_before"]
+    t_max = args.budget_share * plain
+    print(f"statue park: {args.statues} statues x {per_statue:,} triangles = {scene.triangle_count:,}; elements of "
+          f"<= {cluster:,} triangles; view space {lo.tolist()} .. {hi.tolist()}; {args.resolution} px, {args.fov:g} deg; "
+          f"plain worst {plain:.3f} ms, t_max {t_max:.3f} ms ({args.budget_share:g} of it)", flush=True)  # fmt: skip
+    positions, forwards = random_views(lo, hi, args.views, seed=7)
+    rows, placements = [], {}
+    for name, lod in (("layered", False), ("layered + lod", True)):
+        start = time.perf_counter()
+        result = place(scene, lo, hi, settings(t_max, lod))
+        seconds = time.perf_counter() - start
+        s = result.summary
+        lookup = PlacementLookup(
+            placement_index(result, [{"index": imp["id"], "state": "done", "bundle": None} for imp in result.impostors])
+        )
+        estimates = np.array([lookup.find(p, d).get("time_estimated") or 0.0 for p, d in zip(positions, forwards)])
+        kinds = s.get("by_technique") or {
+            result.parameters["technique"]: {"impostors": s["impostors"], "memory_bytes": s["memory_bytes"]}
+        }
+        row = {
+            "placement": name, "plan_s": round(seconds, 1), "cpvs": s["cpvs"], "solved": s["cpvs_solved"], "unsolved": s["cpvs_unsolved"],
+            "unsolvable": s["cpvs_unsolvable"], "candidates": s["candidates"], "memory_bytes": s["memory_bytes"],
+            "by_kind": {k: {"count": v["impostors"], "memory_bytes": v["memory_bytes"]} for k, v in kinds.items()},
+            "views_within_t_max_estimated": float(np.mean(estimates <= t_max * (1 + 1e-9))),
+            "lod_nodes_simplified": s.get("lod_nodes_simplified", 0), "seconds": result.seconds,
+        }  # fmt: skip
+        rows.append(row)
+        placements[name] = result
+        print(json.dumps(row), flush=True)
+
+    mixed = placements["layered + lod"]
+    walk = None
+    if all(imp["technique"] == LOD_TECHNIQUE for imp in mixed.impostors if imp["cpvs"]):
+        with tempfile.TemporaryDirectory() as tmp:
+            root = write_placement_database(Path(tmp) / "db", mixed, {})
+            with ImpostorDatabase(root) as db:
+                walk = placement_walkthrough(scene, db, positions, forwards, repeats=3)["summary"]
+        print(json.dumps({"mixed walkthrough": walk}, default=str), flush=True)
+    else:
+        print("the mixed placement chose layered impostors too: not walked (they would need baking)")
+
+    layered, both = rows
+    print()
+    print("| placement | plan s | CPVs solved / unsolved | chosen | memory (est.) | views within t_max (est.) |")
+    print("|---|---|---|---|---|---|")
+    for r in rows:
+        chosen = ", ".join(f"{k} {v['count']}" for k, v in r["by_kind"].items())
+        print(f"| {r['placement']} | {r['plan_s']:.1f} | {r['solved']:,} / {r['unsolved']:,} | {chosen} | "
+              f"{r['memory_bytes'] / 2**20:.3f} MiB | {100 * r['views_within_t_max_estimated']:.1f} % |")  # fmt: skip
+    if both["memory_bytes"] > 0:
+        print(f"\nmemory layered-only / mixed: {layered['memory_bytes'] / both['memory_bytes']:.1f}x")
+    if args.json:
+        Path(args.json).write_text(
+            json.dumps({"rows": rows, "walkthrough": walk, "t_max": t_max, "plain": plain}, indent=1, default=str)
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
