@@ -43,8 +43,8 @@ the greedy charges each atlas once.
 
 **Simplified geometry** (issue 57 item 3; :mod:`farfield.core.placement.lod`): with ``lod``, a
 node of one element that some solvable CPV sees gets one candidate per QEM level of detail of its
-mesh (built when the node is first seen), kind ``lod``: the outside-sphere cell beyond which the level's measured error
-is within the impostors' pixel budget, serving the CPVs whose whole region lies in it; its memory is
+mesh (built when the node is first seen), kind ``lod``, serving the CPVs whose region's nearest point to the node's
+bounds is far enough for the level's measured error to be within the impostors' pixel budget; its memory is
 the level's vertex and index bytes, its time in a CPV the cost model's geometry time of one draw call
 of its triangles over the node's pixels there (``layers`` holds the level, ``texels`` its
 triangles, ``quads`` 0).  A finer level serving exactly the CPVs a coarser one serves is dropped.
@@ -515,13 +515,12 @@ def _lod_cells(
     if not np.any(g_n > floor):
         return  # nothing is faster than its geometry anywhere: not worth simplifying
     served = None
-    for level, cell in reversed(lod.cells(n, bounds)):
+    for level, distance, cell in reversed(lod.cells(n, bounds)):
         counts["considered"] += 1
         if float(level.memory_bytes) > max_bytes:
             counts["refused_by_memory"] += 1
             continue
-        c = cell.centre
-        outside = box_gap(pv.region_lo, pv.region_hi, c, c) >= cell.radius
+        outside = box_gap(pv.region_lo, pv.region_hi, bounds[0], bounds[1]) >= distance  # nearest point of each region
         ti = np.asarray(model.geometry_time(1.0, float(level.triangles), pixels_n), dtype=np.float64).reshape(-1)
         keep = outside[cpv_regions] & (g_n > ti)
         if not keep.any() or (served is not None and np.array_equal(cpvs[keep], served)):

@@ -21,10 +21,13 @@ compare images against the full scene.
 **Where a level may be drawn.**  A displacement ``e`` seen from at least ``d`` away spans at most
 ``e / d`` radians; held to the impostors' pixel budget ``max_error_px`` (seed 000 §3.3's budget, the
 technique's option) at the output resolution and field of view, with the smallest pixel angle of
-the image (:func:`farfield.core.pixel_angles.pixel_angle`), a level serves every view at least
-``d = e / (max_error_px * pixel_angle)`` from the node's bounds.  Its view cell is the outside of
-the sphere around the node's centre of radius ``d`` plus half the node's diagonal (every viewpoint
-in it is at least ``d`` from the bounds): the cell of :class:`~farfield.core.viewcells.SphereOutsideCell`.
+the image (:func:`farfield.core.pixel_angles.pixel_angle`), a level serves every problem view whose
+region's nearest point is at least ``d = e / (max_error_px * pixel_angle)`` from the node's bounds.
+Its recorded view cell is the outside of the sphere of radius ``d`` around the node's centre
+(:class:`~farfield.core.viewcells.SphereOutsideCell`): it holds every view the level serves, but
+also views nearer than ``d`` to the bounds where the level is not within the budget; no
+:mod:`farfield.core.viewcells` kind is "beyond a distance from a box", and a runtime draws a level
+only in the problem views it was chosen for.
 
 **Memory** is the level's vertex and index bytes as a runtime uploads them: per vertex a float32
 position and normal and an RGBA8 colour (28 bytes), per triangle three uint32 indices (12 bytes).
@@ -244,16 +247,15 @@ class NodeLods:
         self._chains: dict[int, list[LodLevel]] = {}
         self.built = 0  # nodes simplified
 
-    def cells(self, node: int, bounds: np.ndarray) -> list[tuple[LodLevel, SphereOutsideCell]]:
-        """(level, its outside-sphere cell around the centre of ``bounds``) of node ``node``, finest first."""
+    def cells(self, node: int, bounds: np.ndarray) -> list[tuple[LodLevel, float, SphereOutsideCell]]:
+        """(level, the nearest distance from ``bounds`` (2, 3) it may be seen from, its recorded
+        cell) of node ``node``, finest first (module docstring)."""
         centre = 0.5 * (bounds[0] + bounds[1])
-        return [
-            (
-                level,
-                SphereOutsideCell(centre, lod_cell_radius(level, bounds, self.fov, self.resolution, self.max_error_px)),
-            )
-            for level in self.of(node)
-        ]
+        out = []
+        for level in self.of(node):
+            d = level.distance(self.fov, self.resolution, self.max_error_px)
+            out.append((level, d, SphereOutsideCell(centre, max(d, 1e-9))))
+        return out
 
     def of(self, node: int) -> list[LodLevel]:
         """The levels of node ``node``: of its element where it holds one (an element's level of
@@ -269,12 +271,6 @@ class NodeLods:
                 )
                 self.built += 1
         return self._chains[node]
-
-
-def lod_cell_radius(level: LodLevel, bounds: np.ndarray, fov: float, resolution: int, max_error_px: float) -> float:
-    """The radius of a level's outside-sphere cell around the centre of ``bounds`` (2, 3)."""
-    half = 0.5 * float(np.linalg.norm(bounds[1] - bounds[0]))
-    return max(level.distance(fov, resolution, max_error_px) + half, 1e-9)
 
 
 def level_for(scene: Scene, level: int, keep_border: bool = False) -> LodLevel:
