@@ -340,7 +340,7 @@ class PlannerState:
                 entry["baked"] = dict(self.baked[impostor_id])
             if self.mixed:  # mixed candidates: which kind of cell each is (an octahedral one's: outside-sphere)
                 entry["kind"] = KIND_NAMES[int(cand.kind[i])]
-            if int(cand.kind[i]) == LOD:  # simplified geometry: its level, triangles and error bound
+            if int(cand.kind[i]) == LOD:  # simplified geometry: its level and triangles
                 entry |= {"level": int(cand.layers[i]), "triangles": int(cand.texels[i])}
             if cand.atlas_of(i) >= 0:  # an instance drawing from its prototype's atlas (owner: below)
                 key = cand.prototypes[cand.atlas_of(i)][1]
