@@ -119,3 +119,17 @@ def test_runtime_draws_the_lod_within_the_pixel_budget(placed, tmp_path):
             if drawn == 3:
                 break
         assert drawn > 0
+
+
+def test_lazy_greedy_with_replacement_chooses_what_full_reranking_chooses(placed):
+    from farfield.core.placement.greedy import Greedy
+
+    scene, t_max, _, _ = placed
+    state = place(scene, *VIEW, _settings(t_max, True), keep_state=True).state
+    chosen = []
+    for lazy in (True, False):
+        greedy = Greedy(state.hierarchy, state.pv, state.cand, t_max)
+        greedy.own = 1  # a candidate may replace its node's own drawn level of detail (or impostor)
+        greedy.run(lazy=lazy)
+        chosen.append([(c.candidate, sorted(c.cpvs)) for c in greedy.chosen])
+    assert chosen[0] == chosen[1] and chosen[0]
