@@ -16,6 +16,7 @@ from farfield.core.options import parse_option_text
 from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, primitive_model
 from farfield.core.placement.hierarchy import PlacementError
 from farfield.core.placement.image_database import write_image_database
+from farfield.core.placement.lod import LOD_TECHNIQUE
 from farfield.core.placement.planner import PlacementSettings, place
 from farfield.core.placement.solution_grid import BudgetSettings, place_primitives
 from farfield.core.placement.solution_grid import check_views as count_views
@@ -91,7 +92,8 @@ def summary_lines(result) -> list[str]:
     if "by_technique" in s:  # mixed candidates: what was chosen of each technique
         rows = [f"{name} {row['impostors']} ({row['memory_bytes'] / 2**20:.2f} MiB, drawn in {row['cpvs']} CPVs)"
                 for name, row in s["by_technique"].items()]  # fmt: skip
-        unused = sorted(set(result.parameters.get("also", {})) - set(s["by_technique"]))
+        offered = set(result.parameters.get("also", {})) | ({LOD_TECHNIQUE} if result.parameters.get("lod") else set())
+        unused = sorted(offered - set(s["by_technique"]))
         lines.insert(4, "impostors by technique: " + "; ".join(rows + [f"{name} 0" for name in unused]))
     message = result.message()
     if message:
@@ -143,7 +145,8 @@ def summary_lines(result) -> list[str]:
     metavar="TECHNIQUE[:NAME=VALUE,...]",
     help="frame-time: candidates of another technique compete with --technique's in the same greedy, by memory per "
     "millisecond saved (repeatable), e.g. --also octahedral:grid=9,frame_resolution=16: an octahedral impostor per "
-    "element wherever its problem views lie beyond its accuracy distance.",
+    "element wherever its problem views lie beyond its accuracy distance; --also lod: simplified geometry, QEM levels of "
+    "detail of the hierarchy's nodes whose error is within max_error_px where they are drawn.",
 )
 @click.option("--resolution", default=512, show_default=True, type=int, help="Output image pixels per side.")
 @click.option(
@@ -292,11 +295,22 @@ def parse_also(items) -> dict[str, dict]:
     Traceback (most recent call last):
     ...
     farfield.core.placement.hierarchy.PlacementError: --also octahedral given twice
+
+    ``lod`` (simplified geometry, :mod:`farfield.core.placement.lod`) takes no options; the caller
+    turns it into ``PlacementSettings.lod``:
+
+    >>> parse_also(["lod"])
+    {'lod': {}}
     """
     out: dict[str, dict] = {}
     for item in items:
         name, _, rest = item.partition(":")
         name = name.strip()
+        if name == LOD_TECHNIQUE:
+            if rest.strip() or name in out:
+                raise PlacementError(f"--also {item!r}: lod takes no options, once (it keeps --option max_error_px)")
+            out[name] = {}
+            continue
         if name not in TECHNIQUES:
             raise PlacementError(f"--also {item!r}: unknown technique {name!r}; one of {', '.join(TECHNIQUES)}")
         if name in out:
@@ -330,10 +344,11 @@ def _place_cost_model(scene, corners, *, frame_ms, cost_model, primitives, techn
     _check_out(out)
     if not max_impostor_mb > 0:  # said in the unit given, not in the bytes it becomes
         raise PlacementError(f"--max-impostor-mb must be > 0, got {max_impostor_mb!r}")
+    chosen = parse_also(also)  # --also lod: simplified geometry (PlacementSettings.lod)
     settings = PlacementSettings(
         t_max=t_max, model=model, technique=technique, options=values, cpv_size=cpv_size, vdi_deg=vdi_deg, cells=cells,
         depth_complexity=depth_complexity, leaf_size=leaf_size, max_impostor_bytes=max_impostor_mb * 2**20, visibility=visibility,
-        also=parse_also(also),
+        also={k: v for k, v in chosen.items() if k != LOD_TECHNIQUE}, lod=LOD_TECHNIQUE in chosen,
     )  # fmt: skip
     loaded = load_scene(scene, sides=sides)
     result = _with_bar(quiet, lambda bar: place(loaded, corners[:3], corners[3:], settings, progress=bar))

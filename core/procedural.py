@@ -198,6 +198,33 @@ def tree_forest(
     return Scene.from_objects(objects + trees, source=f"tree-forest-{instances}-{prototypes}-{seed}-{detail}")
 
 
+def statue_park(statues: int = 9, subdivisions: int = 7, spacing: float = 14.0, seed: int = 6) -> Scene:
+    """A park of ``statues`` dense statues on a square grid ``spacing`` m apart around the origin
+    (issue 57's statue park, in small): each an icosphere of ``20 * 4**subdivisions`` triangles
+    (327,680 at 7) stretched to 2 m wide and 4 m tall, its surface moved by smooth bumps (up to 8 %
+    of its radius, a product of sines of random phase: detail a simplifier can keep with few
+    triangles, as an oversampled scan has), standing on y = 0 and coloured from the seed; world +y up.
+
+    >>> park = statue_park(4, 2)
+    >>> park.object_count, park.triangle_count
+    (4, 1280)
+    """
+    rng = np.random.default_rng(seed)
+    unit = trimesh.creation.icosphere(subdivisions=subdivisions)
+    v0, faces = np.asarray(unit.vertices, dtype=np.float64), np.asarray(unit.faces, dtype=np.int64)
+    side = int(np.ceil(np.sqrt(statues)))
+    objects = []
+    for i in range(statues):
+        phase = rng.uniform(0.0, 2.0 * np.pi, 3)
+        bumps = 1.0 + 0.08 * np.sin(4 * v0[:, 0] + phase[0]) * np.sin(5 * v0[:, 1] + phase[1]) * np.sin(
+            3 * v0[:, 2] + phase[2]
+        )
+        centre = np.array([(i % side - 0.5 * (side - 1)) * spacing, 2.0, (i // side - 0.5 * (side - 1)) * spacing])
+        vertices = v0 * bumps[:, None] * np.array([1.0, 2.0, 1.0]) + centre
+        objects.append(SceneObject(f"statue_{i}", vertices, faces, base_color=(*rng.uniform(0.3, 0.9, 3), 1.0)))
+    return Scene.from_objects(objects, source=f"statue-park-{statues}-{subdivisions}-{seed}")
+
+
 def house(seed: int = 4) -> Scene:
     """A building-like object, 20 x 10 x 12 units under a gable roof, with window frames and a door
     standing out of its walls, a chimney and a porch roof: 1,220 triangles, material colours.

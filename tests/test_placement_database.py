@@ -125,7 +125,7 @@ def test_a_state_pickled_before_the_newer_fields_still_loads(planned, monkeypatc
     def before(name):  # what these slotted dataclasses pickled before their field ``name`` (and those after it) existed
         return lambda self: [getattr(self, f.name) for f in fields(self)][: [f.name for f in fields(self)].index(name)]
 
-    assert [f.name for f in fields(PlacementSettings)][-3:] == ["max_impostor_bytes", "visibility", "also"]
+    assert [f.name for f in fields(PlacementSettings)][-4:] == ["max_impostor_bytes", "visibility", "also", "lod"]
     assert fields(CostModel)[-1].name == "quads_exponent" and [f.name for f in fields(Candidates)][-4:] == [
         "source",
         "prototype",
@@ -141,6 +141,7 @@ def test_a_state_pickled_before_the_newer_fields_still_loads(planned, monkeypatc
     old = PlannerState.loads(data)
     assert old.settings.max_impostor_bytes == math.inf and old.settings.model.quads_exponent == 0.0
     assert old.settings.also is None and old.settings.visibility is False and old.cand.source is None
+    assert old.settings.lod is False and old.greedy.own == 0
     assert (
         old.cand.prototype is None and old.cand.atlas_of(0) == -1 and old.greedy.memory_now().shape == (old.cand.count,)
     )

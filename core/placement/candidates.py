@@ -40,6 +40,15 @@ uniform scale (the accuracy distance scales with the instance,
 of the prototype and one bake serves them all.  Such a candidate records its atlas
 (``prototype``: an index into ``prototypes``, one per source and prototype key) and its scale;
 the greedy charges each atlas once.
+
+**Simplified geometry** (issue 57 item 3; :mod:`farfield.core.placement.lod`): with ``lod``, a
+node of one element that some solvable CPV sees gets one candidate per QEM level of detail of its
+mesh (built when the node is first seen), kind ``lod``, serving the CPVs whose region's nearest point to the node's
+bounds is far enough for the level's measured error to be within the impostors' pixel budget; its memory is
+the level's vertex and index bytes, its time in a CPV the cost model's geometry time of one draw call
+of its triangles over the node's pixels there (``layers`` holds the level, ``texels`` its
+triangles, ``quads`` 0).  A finer level serving exactly the CPVs a coarser one serves is dropped.
+It is the last source (``len(outside) + 1``).
 """
 
 from __future__ import annotations
@@ -69,8 +78,9 @@ Estimate = Callable[[object, np.ndarray], tuple[float, float]]
 # outside(bounds) -> an estimate with ``cell``, ``serves(lo, hi)``, ``memory_bytes``, ``quads``, ``layers``,
 # ``texels`` (farfield.core.techniques.octahedral.estimate.OutsideEstimate); raises FarfieldError where none exists
 Outside = Callable[[np.ndarray], object]
-KIND_NAMES = ("shaft", "box", "outside-sphere")  # Candidates.kind
+KIND_NAMES = ("shaft", "box", "outside-sphere", "lod")  # Candidates.kind
 OUTSIDE_SPHERE = 2  # the kind of an outside candidate (KIND_NAMES)
+LOD = 3  # the kind of a simplified-geometry candidate (KIND_NAMES)
 
 
 def direction_grid(step_deg: float = DIRECTION_STEP_DEG) -> np.ndarray:
@@ -99,7 +109,7 @@ class Candidates:
     where the impostor saves nothing is never served, and savings only fall, §5.7.4)."""
 
     node: np.ndarray  # (m,)
-    kind: np.ndarray  # (m,) 0 shaft, 1 box, 2 outside-sphere (KIND_NAMES)
+    kind: np.ndarray  # (m,) 0 shaft, 1 box, 2 outside-sphere, 3 lod (KIND_NAMES)
     cells: tuple  # (m,) ShaftCell | BoxCell | SphereOutsideCell
     memory: np.ndarray  # (m,) bytes, estimated
     layers: np.ndarray  # (m,) estimated
@@ -270,6 +280,7 @@ def generate_candidates(
     outside: tuple[Outside, ...] = (),
     outside_instances: tuple[dict, ...] = (),
     part_options=None,
+    lod=None,
 ) -> Candidates:
     """The candidates of every hierarchy node for the solvable CPVs of ``pv`` (see the module docstring).
 
@@ -283,7 +294,10 @@ def generate_candidates(
     ``part_options``: when ``estimate`` is :func:`~farfield.core.techniques.part.estimate_part_cell`
     with these options, a node's shafts and boxes are estimated together
     (:mod:`farfield.core.placement.part_estimates`, the same numbers) and only the kept ones become
-    cells; None: ``estimate`` is called cell by cell (the reference the tests compare with)."""
+    cells; None: ``estimate`` is called cell by cell (the reference the tests compare with).
+
+    ``lod``: a :class:`~farfield.core.placement.lod.NodeLods` whose levels of detail compete too
+    (module docstring); None: none."""
     if cells not in CellKinds:
         raise PlacementError(f"cells must be one of {list(CellKinds)}, got {cells!r}")
     halves = np.radians(np.asarray(apex_angles_deg, dtype=np.float64)) * 0.5
@@ -371,6 +385,8 @@ def generate_candidates(
             rows.add([far.cell], cpvs[keep], g_n[keep], ti[keep], node=n, kind=OUTSIDE_SPHERE, layers=far.layers, texels=far.texels,
                      source=k + 1, memory=far.memory_bytes, quads=far.quads, atlas=atlas, scale=1.0 if inst is None else inst.scale,
                      count=int(keep.sum()))  # fmt: skip
+        if lod is not None:
+            _lod_cells(rows, counts, node, lod, model, max_bytes, pv, len(outside) + 1)
         if progress is not None:
             progress(n + 1, hierarchy.count)
     layers_a, texels_a = rows.column("layers", np.float64), rows.column("texels", np.float64)
@@ -489,6 +505,29 @@ def _node_batch(rows: _Rows, counts: dict, node, shafts, boxes, batch, shape, mo
     ]
     rows.add(made, cpvs[entry[keep]], g_n[entry[keep]], ti[keep], node=n, kind=(which[good] >= ns).astype(np.int64),
              layers=layers[good], texels=texels[good], source=0, memory=np.nan, quads=np.nan, atlas=-1, scale=1.0, count=kept[good])  # fmt: skip
+
+
+def _lod_cells(
+    rows: _Rows, counts: dict, node, lod, model: CostModel, max_bytes: float, pv: ProblemViews, source: int
+) -> None:
+    """Node ``node``'s levels of detail as candidates (module docstring), coarsest first."""
+    n, cpvs, g_n, pixels_n, cpv_regions, bounds, floor = node
+    if not np.any(g_n > floor):
+        return  # nothing is faster than its geometry anywhere: not worth simplifying
+    served = None
+    for level, distance, cell in reversed(lod.cells(n, bounds)):
+        counts["considered"] += 1
+        if float(level.memory_bytes) > max_bytes:
+            counts["refused_by_memory"] += 1
+            continue
+        outside = box_gap(pv.region_lo, pv.region_hi, bounds[0], bounds[1]) >= distance  # nearest point of each region
+        ti = np.asarray(model.geometry_time(1.0, float(level.triangles), pixels_n), dtype=np.float64).reshape(-1)
+        keep = outside[cpv_regions] & (g_n > ti)
+        if not keep.any() or (served is not None and np.array_equal(cpvs[keep], served)):
+            continue
+        served = cpvs[keep]
+        rows.add([cell], served, g_n[keep], ti[keep], node=n, kind=LOD, layers=float(level.level), texels=float(level.triangles),
+                 source=source, memory=float(level.memory_bytes), quads=0.0, atlas=-1, scale=1.0, count=int(keep.sum()))  # fmt: skip
 
 
 def _once(memo: dict, k: int, reach: Outside, bounds: np.ndarray):

@@ -19,9 +19,12 @@ placement's impostors (cell index = impostor id) and whose index has ``"kind": "
                            a runtime draws only those elements there (a database without it: every element)
 
 and each cell entry, beside the usual ``index``, ``viewcell``, ``state`` and ``bundle``, has its own
-``technique`` (with mixed candidates, ``layered`` or ``octahedral`` cell by cell, and ``kind``: shaft,
-box or outside-sphere), ``objects`` (the elements it replaces), ``params`` (``resolution``, ``fov_deg``,
-``options``: what its bake takes) and ``figures`` (estimated, and baked once it is).
+``technique`` (with mixed candidates, ``layered``, ``octahedral`` or ``lod`` cell by cell, and ``kind``: shaft,
+box, outside-sphere or lod), ``objects`` (the elements it replaces), ``params`` (``resolution``, ``fov_deg``,
+``options``: what its bake takes) and ``figures`` (estimated, and baked once it is).  A cell of simplified
+geometry (technique ``lod``, :mod:`farfield.core.placement.lod`) has no bundle: its ``params.options``
+name the level of detail (``level``, ``triangles``) of its objects' merged mesh, which a runtime
+simplifies from the scene as the planner did (the same chain from the same triangles).
 
 A view (a position in the view space and a direction) falls in at most a few CPVs (on shared
 borders); :class:`PlacementLookup` returns the first.  A view in no CPV is *under budget*: the
@@ -42,6 +45,7 @@ from farfield.core.impostor.database import INDEX_NAME, database_index
 from farfield.core.impostor.impostor import Impostor
 from farfield.core.options import IMAGE_FIELDS, public_fields, stored_values
 from farfield.core.placement.hierarchy import Elements, PlacementError
+from farfield.core.placement.lod import LOD_TECHNIQUE
 from farfield.core.placement.result import Placement
 from farfield.core.placement.view_space import FACE_NAMES, VDI
 from farfield.core.scene import Scene
@@ -79,13 +83,24 @@ def impostor_params(parameters: dict, objects: list[str], technique: str | None 
     }
 
 
+def cell_params(parameters: dict, imp: dict) -> dict:
+    """:func:`impostor_params` of impostor ``imp`` of a placement; for simplified geometry
+    (technique ``lod``, :mod:`farfield.core.placement.lod`) the placement's image fields and the
+    level of detail (``level``, ``triangles``) of its objects' merged mesh."""
+    if imp["technique"] != LOD_TECHNIQUE:
+        return impostor_params(parameters, imp["objects"], imp["technique"])
+    image = impostor_params(parameters, [])
+    return {"resolution": image["resolution"], "fov_deg": image["fov_deg"], "objects": list(imp["objects"]),
+            "options": {"level": imp["level"], "triangles": imp["triangles"]}}  # fmt: skip
+
+
 def placement_cells(placement: Placement | dict) -> list[dict]:
     """Per impostor, in id order, what a cell of the placement is: ``index`` (= id), ``technique``,
     ``objects``, ``params`` and ``viewcell``."""
     doc = placement.to_dict() if isinstance(placement, Placement) else placement
     parameters = doc["parameters"]
     return [
-        {"index": imp["id"], "technique": imp["technique"], "objects": imp["objects"], "params": impostor_params(parameters, imp["objects"], imp["technique"]), "viewcell": imp["cell"]}
+        {"index": imp["id"], "technique": imp["technique"], "objects": imp["objects"], "params": cell_params(parameters, imp), "viewcell": imp["cell"]}
         for imp in doc["impostors"]
     ]  # fmt: skip
 
@@ -121,7 +136,7 @@ def placement_index(
         entries.append({
             "index": imp["id"], "grid": None, "viewcell": imp["cell"], "state": "unused" if unused else cell["state"],
             "bundle": None if unused else cell.get("bundle"),
-            "technique": imp["technique"], "objects": imp["objects"], "params": impostor_params(parameters, imp["objects"], imp["technique"]),
+            "technique": imp["technique"], "objects": imp["objects"], "params": cell_params(parameters, imp),
             "cpvs": imp["cpvs"], "figures": figures,
         } | ({"kind": imp["kind"]} if "kind" in imp else {}) | ({"atlas": imp["atlas"]} if "atlas" in imp else {}))  # fmt: skip
     opts = impostor_params(parameters, [])
@@ -265,7 +280,7 @@ def bake_placement(
     scene: Scene, placement: Placement, progress: Callable[[int, int], None] | None = None
 ) -> dict[int, Impostor]:
     """Every impostor of ``placement`` baked in this process (tests, benchmarks, local use)."""
-    cells = placement_cells(placement)
+    cells = [c for c in placement_cells(placement) if c["technique"] != LOD_TECHNIQUE]  # a runtime simplifies those
     cluster = int(placement.elements["cluster_triangles"])
     out = {}
     for n, cell in enumerate(cells):
@@ -287,7 +302,9 @@ def write_placement_database(
     cells = []
     for imp in placement.impostors:
         i = imp["id"]
-        if i in impostors and imp["cpvs"]:
+        if imp["technique"] == LOD_TECHNIQUE:  # simplified geometry: built from the scene by the runtime
+            cells.append({"index": i, "state": "done" if imp["cpvs"] else "unused", "bundle": None})
+        elif i in impostors and imp["cpvs"]:
             write_bundle(impostors[i], root / "cells" / f"{i:05d}")
             cells.append({"index": i, "state": "done", "bundle": f"cells/{i:05d}/", "stats": impostors[i].stats})
         else:

@@ -118,7 +118,7 @@ def _pairwise_sum(a: np.ndarray) -> float:
 
 
 @numba.njit(cache=True, nogil=True)
-def _gain_total(served, g, ti, a, b, node, keys, cum, size, nodes, t, t_max, chosen) -> float:
+def _gain_total(served, g, ti, a, b, node, keys, cum, size, nodes, t, t_max, chosen, own=0) -> float:
     """``Greedy._gains(i)[2].sum()`` of the candidate whose rows are ``a:b``, in one pass and the
     same floating-point operations (the lazy heap's re-scoring, most of the greedy's time)."""
     gain = np.empty(b - a)
@@ -127,13 +127,13 @@ def _gain_total(served, g, ti, a, b, node, keys, cum, size, nodes, t, t_max, cho
         geometry = g[r]
         if chosen:
             base = cpv * nodes
-            lo = np.searchsorted(keys, base + node + 1)
+            lo = np.searchsorted(keys, base + node + 1 - own)
             hi = np.searchsorted(keys, base + node + size[node])
             geometry = geometry - (cum[hi] - cum[lo])
-            at = np.searchsorted(keys, base + node, side="right") - 1
+            at = np.searchsorted(keys, base + node - own, side="right") - 1
             if at >= 0:
                 other = keys[at] - base
-                if other >= 0 and other <= node and other + size[min(max(other, 0), nodes - 1)] > node:
+                if other >= 0 and other <= node - own and other + size[min(max(other, 0), nodes - 1)] > node:
                     geometry = -np.inf
         saving = geometry - ti[r]
         over = t[cpv] - t_max
@@ -158,6 +158,10 @@ class Greedy:
     # Defaults for a state pickled before groups (PlannerState.loads): grouped, nothing pending.
     groups: bool = True
     unpaid_again: tuple[int, ...] = ()
+    # 1: a candidate may replace the node's own drawn impostor in a CPV where it is faster (its
+    # saving counted from the drawn one's time, as from descendants'), as simplified geometry needs
+    # (farfield.core.placement.lod); 0: the node's own drawn impostor blocks it, as an ancestor's does.
+    own: int = 0
 
     def __init__(
         self, hierarchy: Hierarchy, pv: ProblemViews, cand: Candidates, t_max: float, groups: bool = True
@@ -246,15 +250,18 @@ class Greedy:
         keys, cum = self._drawn_index()
         base = cpvs * self.nodes
         # descendants drawn here: what they already save is no longer the node's to save
-        lo = np.searchsorted(keys, base + node + 1)
+        lo = np.searchsorted(keys, base + node + 1 - self.own)
         hi = np.searchsorted(keys, base + node + self.size[node])
         geometry = geometry - (cum[hi] - cum[lo])
         # the nearest drawn node at or before this one in preorder: an ancestor (or itself) if its subtree holds it
-        at = np.searchsorted(keys, base + node, side="right") - 1
+        at = np.searchsorted(keys, base + node - self.own, side="right") - 1
         found = keys[np.maximum(at, 0)]
         other = found - base
         blocked = (
-            (at >= 0) & (other >= 0) & (other <= node) & (other + self.size[np.clip(other, 0, self.nodes - 1)] > node)
+            (at >= 0)
+            & (other >= 0)
+            & (other <= node - self.own)
+            & (other + self.size[np.clip(other, 0, self.nodes - 1)] > node)
         )
         return np.where(blocked, -np.inf, geometry)
 
@@ -287,7 +294,7 @@ class Greedy:
         keys, cum = self._drawn_index() if self.chosen else (self._keys, self._saved)
         a, b = int(self.cand.served_offsets[i]), int(self.cand.served_offsets[i + 1])
         gain = _gain_total(self.cand.served, self.g, self.ti, a, b, int(self.cand.node[i]), keys, cum, self.size,
-                           int(self.nodes), self.t, self.t_max, bool(self.chosen))  # fmt: skip
+                           int(self.nodes), self.t, self.t_max, bool(self.chosen), self.own)  # fmt: skip
         if gain <= 0.0:
             return 0.0, 0.0
         if paid:
@@ -365,7 +372,7 @@ class Greedy:
             p = int(cpvs[k])
             base = p * int(self.nodes)
             # the impostors drawn here for this node's descendants (keys base + node + 1 .. + size - 1): replaced here
-            lo, hi = np.searchsorted(keys, [base + node + 1, base + node + int(self.size[node])])
+            lo, hi = np.searchsorted(keys, [base + node + 1 - self.own, base + node + int(self.size[node])])
             gone = set()
             for key in keys[lo:hi].tolist():
                 other_id = owners[key]

@@ -24,6 +24,7 @@ from farfield.core.placement.candidates import (
 from farfield.core.placement.cost_model import CostModel
 from farfield.core.placement.greedy import Greedy
 from farfield.core.placement.hierarchy import DEFAULT_LEAF_SIZE, Elements, Hierarchy, PlacementError
+from farfield.core.placement.lod import LOD_TECHNIQUE, NodeLods
 from farfield.core.placement.node_instances import node_instances
 from farfield.core.placement.repair import PlannerState, scene_summary
 from farfield.core.placement.result import Placement
@@ -72,6 +73,9 @@ class PlacementSettings:
     # its options (the job's resolution and fov_deg apply), e.g. {"octahedral": {"grid": 9}}
     # (docs/placement/frame-time.md, "Mixed candidates").  None or {}: ``technique``'s alone.
     also: dict | None = None
+    # Simplified geometry competes too: QEM levels of detail of the hierarchy's nodes, held to the
+    # technique's max_error_px (farfield.core.placement.lod; docs/placement/frame-time.md).
+    lod: bool = False
 
 
 def _check(settings: PlacementSettings) -> None:
@@ -267,13 +271,20 @@ def place(
 
     with clock("candidates"):
         shared = instance_sources(techniques, node_instances(scene, elements, hierarchy) if outside else {})
+        lods = None
+        if settings.lod:  # the last source of candidates (farfield.core.placement.candidates)
+            lods = NodeLods(scene, elements, hierarchy, fov, resolution, float(getattr(options, "max_error_px", 1.0)))
+            sources = (*sources, LOD_TECHNIQUE)
         cand = generate_candidates(
             hierarchy, pv, settings.model, estimate, float(resolution) ** 2, settings.cells, settings.apex_angles_deg, settings.direction_step_deg,
             settings.distance_steps, lambda done, total: clock.report("candidates", done, total), settings.max_impostor_bytes, outside, shared,
-            part_options(techniques),
+            part_options(techniques), lods,
         )  # fmt: skip
+        if lods is not None:
+            cand.stats["lod_nodes_simplified"] = lods.built
     with clock("greedy"):
         greedy = Greedy(hierarchy, pv, cand, settings.t_max)
+        greedy.own = int(settings.lod)  # a faster candidate may replace a node's own level of detail
         greedy.run(progress=lambda chosen, worst: clock.report("greedy", chosen, cand.count))
     clock.report("greedy", 1, 1)
     state = PlannerState(

@@ -31,7 +31,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from farfield.core.placement.candidates import KIND_NAMES, OUTSIDE_SPHERE, Candidates
+from farfield.core.placement.candidates import KIND_NAMES, LOD, OUTSIDE_SPHERE, Candidates
 from farfield.core.placement.greedy import Greedy
 from farfield.core.placement.hierarchy import Elements, Hierarchy, PlacementError
 from farfield.core.placement.result import Placement
@@ -132,6 +132,7 @@ class PlannerState:
             (state.settings.model, "quads_exponent", 0.0),
             (state.cand, "source", None),
             (state.settings, "also", None),
+            (state.settings, "lod", False),
             (state.cand, "prototype", None),
             (state.cand, "prototypes", ()),
             (state.cand, "scale", None),
@@ -291,6 +292,11 @@ class PlannerState:
         if len(self.sources) > 1:
             self.correction["by_technique"] = ratios
 
+    @property
+    def mixed(self) -> bool:
+        """Whether candidates of several kinds competed (``also``, or simplified geometry)."""
+        return bool(self.also) or bool(getattr(self.settings, "lod", False))
+
     def technique_of_source(self, source: int) -> str:
         """The technique whose candidates ``source`` (Candidates.source) holds."""
         return (self.sources[source] if source < len(self.sources) else None) or self.technique
@@ -332,8 +338,10 @@ class PlannerState:
             }
             if impostor_id in self.baked:
                 entry["baked"] = dict(self.baked[impostor_id])
-            if self.also:  # mixed candidates: which kind of cell each is (an octahedral one's: outside-sphere)
+            if self.mixed:  # mixed candidates: which kind of cell each is (an octahedral one's: outside-sphere)
                 entry["kind"] = KIND_NAMES[int(cand.kind[i])]
+            if int(cand.kind[i]) == LOD:  # simplified geometry: its level and triangles
+                entry |= {"level": int(cand.layers[i]), "triangles": int(cand.texels[i])}
             if cand.atlas_of(i) >= 0:  # an instance drawing from its prototype's atlas (owner: below)
                 key = cand.prototypes[cand.atlas_of(i)][1]
                 entry["atlas"] = {"prototype": key, "scale": float(cand.scale[i]), "shared": cand.atlas_of(i)}
@@ -403,8 +411,10 @@ class PlannerState:
             "rescored": greedy.rescored,
             "rounds": len(self.rounds),
         }
-        if self.also:  # mixed candidates: what was chosen of each technique
+        if self.mixed:  # mixed candidates: what was chosen of each technique
             summary["by_technique"] = dict(sorted(by_technique.items()))
+        if "lod_nodes_simplified" in cand.stats:
+            summary["lod_nodes_simplified"] = int(cand.stats["lod_nodes_simplified"])
         if shared_atlases:
             summary["shared_atlases"] = shared_atlases
         parameters = {
@@ -433,6 +443,8 @@ class PlannerState:
         }
         if self.also:  # the other techniques whose candidates competed, with their options
             parameters["also"] = {name: _plain(o) for name, o in self.also.items()}
+        if getattr(settings, "lod", False):  # simplified geometry competed (farfield.core.placement.lod)
+            parameters["lod"] = True
         return Placement(
             parameters=parameters,
             elements={

@@ -23,6 +23,11 @@ every stored region, or a database without a PVS, draws every element as before.
 sampled, not conservative: a visible element it lacks is missing from the frame, which the
 walkthrough counts against the full scene (:func:`farfield.core.quality.walkthrough.placement_walkthrough`).
 
+**Simplified geometry.**  A cell of technique ``lod`` (:mod:`farfield.core.placement.lod`) is drawn
+in place of the elements it replaces as its level of detail of their merged mesh, simplified from
+the scene when a view first needs it (the placement's chain, rebuilt from the same triangles), one
+vertex-coloured draw call; its triangles count as an impostor's (``ViewFigures.triangles``).
+
 Frustum culling is conservative: an element (or impostor) is left out only when every corner of
 its bounding box lies outside one of the camera's four side planes, or behind the eye; no far
 plane (the depth range reaches past the scene).  Plain geometry for comparison is the same
@@ -49,6 +54,7 @@ from farfield.core.errors import RenderBackendError
 from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.placement.cost_model import CostModel
 from farfield.core.placement.hierarchy import Elements, PlacementError
+from farfield.core.placement.lod import LOD_TECHNIQUE, level_for
 from farfield.core.placement.view_space import element_pixels
 from farfield.core.render.raster import Camera, MeshRenderer
 from farfield.core.scene import Scene
@@ -183,6 +189,10 @@ class PlacementRenderer:
         self.scene_corners = box_corners(scene.bounds)
         self._impostors: dict[int, tuple] = {}
         self.uploaded_impostor_bytes = 0
+        self.scene = scene
+        # Cells of simplified geometry: no bundle, simplified from the scene when first drawn.
+        self.lod_cells = {int(e["index"]): e for e in database.index["cells"] if e.get("technique") == LOD_TECHNIQUE}
+        self.uploaded_lod_bytes = 0
 
     @staticmethod
     def element_names(scene: Scene, database: ImpostorDatabase) -> tuple[str, ...]:
@@ -195,6 +205,8 @@ class PlacementRenderer:
         """(renderer, triangles, quads, bounds lo, bounds hi, bounds corners) of impostor ``cell``,
         read and uploaded once; the renderer is a MeshRenderer of its payload's draw objects, or
         the payload's own renderer where it draws a card (``draw_card``, module docstring)."""
+        if cell in self.lod_cells and cell not in self._impostors:
+            self._impostors[cell] = self._lod(cell)
         if cell not in self._impostors:
             impostor = self.database.impostor(cell)
             objects = impostor.payload.draw_objects(impostor)  # the payload's runtime draw list
@@ -222,6 +234,18 @@ class PlacementRenderer:
             )
             self.uploaded_impostor_bytes += impostor.texture_bytes
         return self._impostors[cell]
+
+    def _lod(self, cell: int) -> tuple:
+        """:meth:`impostor`'s tuple for a cell of simplified geometry: its level of detail of its
+        elements' merged mesh (:func:`farfield.core.placement.lod.level_for`), one vertex-coloured draw."""
+        entry = self.lod_cells[cell]
+        ids = [self.element_of[name] for name in entry["objects"]]
+        cluster = any(self.elements.faces[i] is not None for i in ids)
+        level = level_for(self.elements.scene_of(self.scene, ids), int(entry["params"]["options"]["level"]), cluster)
+        lo, hi = level.vertices.min(axis=0), level.vertices.max(axis=0)
+        self.uploaded_lod_bytes += level.memory_bytes
+        renderer = MeshRenderer([level.scene_object(f"lod-{cell}")])
+        return renderer, level.triangles, 0, lo, hi, box_corners(np.stack([lo, hi]))
 
     # -- drawing --------------------------------------------------------------------------
 

@@ -1,0 +1,284 @@
+"""Simplified geometry as a placement candidate: QEM levels of detail of an element (issue 57, item 3).
+
+Seed 000 §2.2.3 surveys geometric simplification (the quadric error metric of Garland and Heckbert,
+[Garl97], "most widely used today") and §1.5.2 asks that impostor placement combine with visibility
+culling and geometric simplification; the thesis's placement (ch. 5) chooses impostors only.  Here a node of the
+object hierarchy that holds one element (an object, or a cluster of a split object, simplified with
+its open border kept so that it meets its neighbours without a crack; equal positions welded) gets a
+chain of levels from a maintained quadric-error simplifier (``fast-simplification``, Garland and Heckbert's QEM as in
+Sven Forstmann's Fast-Quadric-Mesh-Simplification), each level a quarter of the previous one's
+triangles, each simplified from the one before.
+
+**Error.**  The simplifier does not report its error, so each level measures it: the farthest any
+vertex of the full mesh lies from the simplified surface, bounded above by its distance to the
+nearest of the triangles around the simplified vertex it was collapsed into and the eight triangles
+of nearest centroids (``scipy.spatial.cKDTree``) (the collapses are
+replayed, ``fast_simplification.replay_simplification``, and the mappings of the chain composed;
+point-triangle distances after Ericson's *Real-Time Collision Detection* §5.1.5, in numba).  It is one-sided (the full mesh's
+vertices to the simplified surface), not the Hausdorff distance of the two surfaces: the tests
+compare images against the full scene.
+
+**Where a level may be drawn.**  A displacement ``e`` seen from at least ``d`` away spans at most
+``e / d`` radians; held to the impostors' pixel budget ``max_error_px`` (seed 000 §3.3's budget, the
+technique's option) at the output resolution and field of view, with the smallest pixel angle of
+the image (:func:`farfield.core.pixel_angles.pixel_angle`), a level serves every problem view whose
+region's nearest point is at least ``d = e / (max_error_px * pixel_angle)`` from the node's bounds.
+Its recorded view cell is the outside of the sphere of radius ``d`` around the node's centre
+(:class:`~farfield.core.viewcells.SphereOutsideCell`): it holds every view the level serves, but
+also views nearer than ``d`` to the bounds where the level is not within the budget; no
+:mod:`farfield.core.viewcells` kind is "beyond a distance from a box", and a runtime draws a level
+only in the problem views it was chosen for.
+
+**Memory** is the level's vertex and index bytes as a runtime uploads them: per vertex a float32
+position and normal and an RGBA8 colour (28 bytes), per triangle three uint32 indices (12 bytes).
+**Time** is the cost model's for geometry: one draw call, the level's triangles and the node's
+pixels in the CPV (:meth:`farfield.core.placement.cost_model.CostModel.geometry_time`).
+
+Colour: the simplified mesh carries per-vertex colours, each the mean of the full mesh's vertices
+collapsed into it (an object's vertex colours, else its base colour; a texture is reduced to its
+mean colour: a weakness for textured scenes).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+from scipy.spatial import cKDTree
+
+from farfield.core.colour_space import linear_to_srgb, srgb_to_linear
+from farfield.core.pixel_angles import pixel_angle
+from farfield.core.scene import Scene, SceneObject
+from farfield.core.viewcells import SphereOutsideCell
+
+LOD_TECHNIQUE = "lod"  # what a placement's entry of simplified geometry names as its technique
+VERTEX_BYTES = 28  # float32 position and normal, RGBA8 colour
+TRIANGLE_BYTES = 12  # three uint32 indices
+REDUCTION = 0.75  # each level keeps a quarter of the previous one's triangles
+MIN_TRIANGLES = 256  # a node with fewer triangles gets no level of detail
+FLOOR_TRIANGLES = 32  # the chain stops below this many triangles
+NEAR_TRIANGLES = 8  # triangles of nearest centroids searched besides the fan (error bound)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class LodLevel:
+    """One level of detail of a node's mesh: its vertices, triangles and per-vertex colours, and
+    ``error`` (world units): a bound of the farthest a full-mesh vertex lies from its surface."""
+
+    level: int  # 1: the first simplification
+    vertices: np.ndarray  # (v, 3) float64
+    faces: np.ndarray  # (t, 3) int64
+    colours: np.ndarray  # (v, 4) uint8, RGB sRGB-encoded
+    error: float
+
+    @property
+    def triangles(self) -> int:
+        return int(self.faces.shape[0])
+
+    @property
+    def memory_bytes(self) -> int:
+        """Vertex and index bytes (module docstring)."""
+        return VERTEX_BYTES * int(self.vertices.shape[0]) + TRIANGLE_BYTES * self.triangles
+
+    def distance(self, fov: float, resolution: int, max_error_px: float) -> float:
+        """The nearest distance from the node's bounds at which this level is within ``max_error_px``
+        (module docstring)."""
+        return self.error / (max_error_px * pixel_angle(fov, resolution, "min"))
+
+    def scene_object(self, name: str) -> SceneObject:
+        """The level as a scene object (vertex-coloured) for a renderer."""
+        return SceneObject(name, self.vertices, self.faces, vertex_colors=self.colours)
+
+
+def _object_colours(obj: SceneObject) -> np.ndarray:
+    """(v, 4) uint8 sRGB colour of each vertex of ``obj`` (module docstring)."""
+    n = obj.vertices.shape[0]
+    if obj.vertex_colors is not None:
+        return np.asarray(obj.vertex_colors, dtype=np.uint8)
+    linear = np.asarray(obj.base_color, dtype=np.float64).copy()
+    if obj.texture is not None:  # its mean colour (decoded), times the factor
+        texel = np.asarray(obj.texture, dtype=np.float64).reshape(-1, 4) / 255.0
+        linear[:3] *= srgb_to_linear(texel[:, :3]).mean(axis=0)
+        linear[3] *= texel[:, 3].mean()
+    rgba = np.concatenate([np.asarray(linear_to_srgb(np.clip(linear[:3], 0.0, 1.0))), np.clip(linear[3:], 0.0, 1.0)])
+    return np.broadcast_to(np.round(255.0 * rgba).astype(np.uint8), (n, 4)).copy()
+
+
+def node_mesh(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(vertices, faces, colours) of every object of ``scene`` merged, vertices of equal position
+    welded (the first one's colour kept), so that the simplifier sees connected surfaces."""
+    vertices, faces, colours, offset = [], [], [], 0
+    for obj in scene.objects:
+        vertices.append(np.asarray(obj.vertices, dtype=np.float64))
+        faces.append(np.asarray(obj.faces, dtype=np.int64) + offset)
+        colours.append(_object_colours(obj))
+        offset += obj.vertices.shape[0]
+    v, f, c = np.concatenate(vertices), np.concatenate(faces), np.concatenate(colours)
+    _, first, inverse = np.unique(v, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first, kind="stable")  # welded vertices in order of first appearance
+    slot = np.empty(first.size, dtype=np.int64)
+    slot[order] = np.arange(first.size)
+    return v[first[order]], slot[inverse.reshape(-1)][f], c[first[order]]
+
+
+def lod_chain(
+    vertices: np.ndarray, faces: np.ndarray, colours: np.ndarray, keep_border: bool = False
+) -> list[LodLevel]:
+    """The levels of detail of a mesh, finest first (module docstring); [] below ``MIN_TRIANGLES``.
+    ``keep_border``: no edge at an open border collapses (a cluster of a split object, whose cut
+    edges meet its neighbours' drawn at full detail or at another level: no crack between them)."""
+    import fast_simplification
+
+    if faces.shape[0] < MIN_TRIANGLES:
+        return []
+    full = np.asarray(vertices, dtype=np.float64)
+    points, tris = full, np.ascontiguousarray(faces, dtype=np.int64)
+    owner = np.arange(full.shape[0])  # full-mesh vertex -> vertex of the current level
+    out: list[LodLevel] = []
+    while tris.shape[0] >= 4 * FLOOR_TRIANGLES:
+        _, _, collapses = fast_simplification.simplify(
+            points, tris, target_reduction=REDUCTION, return_collapses=True, preserve_border=keep_border
+        )
+        points_next, tris_next, mapping = fast_simplification.replay_simplification(
+            points, tris.astype(np.int32), collapses
+        )
+        tris_next = np.asarray(tris_next, dtype=np.int64)
+        if tris_next.shape[0] == 0 or tris_next.shape[0] >= tris.shape[0]:
+            break
+        owner = np.asarray(mapping, dtype=np.int64)[owner]
+        points = np.asarray(points_next, dtype=np.float64)
+        count = np.bincount(owner, minlength=points.shape[0]).astype(np.float64)
+        mean = np.stack(
+            [np.bincount(owner, weights=colours[:, k], minlength=points.shape[0]) for k in range(4)], axis=1
+        )
+        shade = np.round(mean / np.maximum(count, 1.0)[:, None]).astype(np.uint8)
+        used, tris = np.unique(tris_next, return_inverse=True)  # drop vertices no triangle uses
+        tris = tris.reshape(-1, 3)
+        remap = np.full(points.shape[0], -1, dtype=np.int64)
+        remap[used] = np.arange(used.size)
+        points, shade = points[used], shade[used]
+        owner = remap[owner]
+        if np.any(owner < 0):  # a full-mesh vertex collapsed into a vertex no triangle keeps: not a level
+            break
+        out.append(LodLevel(len(out) + 1, points, tris, shade, _surface_error(full, owner, points, tris)))
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _point_triangle(p, a, b, c) -> float:
+    """Distance from point ``p`` to triangle ``abc`` ((3,) each; Ericson, *Real-Time Collision
+    Detection*, §5.1.5), in scalars (no temporaries)."""
+    abx, aby, abz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    acx, acy, acz = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+    apx, apy, apz = p[0] - a[0], p[1] - a[1], p[2] - a[2]
+    d1 = abx * apx + aby * apy + abz * apz
+    d2 = acx * apx + acy * apy + acz * apz
+    bpx, bpy, bpz = p[0] - b[0], p[1] - b[1], p[2] - b[2]
+    d3 = abx * bpx + aby * bpy + abz * bpz
+    d4 = acx * bpx + acy * bpy + acz * bpz
+    cpx, cpy, cpz = p[0] - c[0], p[1] - c[1], p[2] - c[2]
+    d5 = abx * cpx + aby * cpy + abz * cpz
+    d6 = acx * cpx + acy * cpy + acz * cpz
+    vc, vb, va = d1 * d4 - d3 * d2, d5 * d2 - d1 * d6, d3 * d6 - d5 * d4
+    u, v = 0.0, 0.0  # the closest point a + u ab + v ac
+    if d1 <= 0.0 and d2 <= 0.0:
+        pass
+    elif d3 >= 0.0 and d4 <= d3:
+        u = 1.0
+    elif vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        u = d1 / (d1 - d3)
+    elif d6 >= 0.0 and d5 <= d6:
+        v = 1.0
+    elif vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        v = d2 / (d2 - d6)
+    elif va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        u, v = 1.0 - w, w
+    else:
+        denom = 1.0 / (va + vb + vc)
+        u, v = vb * denom, vc * denom
+    dx = apx - u * abx - v * acx
+    dy = apy - u * aby - v * acy
+    dz = apz - u * abz - v * acz
+    return math.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+@njit(cache=True, nogil=True)
+def _fan_error(full, owner, points, tris, starts, fan, near) -> float:
+    """max over the vertices of ``full`` of their distance to the nearest of the triangles around
+    ``points[owner]`` and the triangles ``near`` (one row per vertex)."""
+    worst = 0.0
+    for i in range(full.shape[0]):
+        v = owner[i]
+        best = np.inf
+        for k in range(starts[v], starts[v + 1]):
+            t = fan[k]
+            best = min(best, _point_triangle(full[i], points[tris[t, 0]], points[tris[t, 1]], points[tris[t, 2]]))
+        for t in near[i]:
+            best = min(best, _point_triangle(full[i], points[tris[t, 0]], points[tris[t, 1]], points[tris[t, 2]]))
+        worst = max(worst, best)
+    return worst
+
+
+def _surface_error(full: np.ndarray, owner: np.ndarray, points: np.ndarray, tris: np.ndarray) -> float:
+    """The farthest a vertex of ``full`` lies from the nearest triangle around ``points[owner]``
+    (module docstring: an upper bound of its distance to the simplified surface)."""
+    corner = tris.reshape(-1)
+    order = np.argsort(corner, kind="stable")
+    starts = np.searchsorted(corner[order], np.arange(points.shape[0] + 1))
+    fan = order // 3  # the triangles around each simplified vertex, vertex by vertex
+    centroids = points[tris].mean(axis=1)
+    k = min(NEAR_TRIANGLES, tris.shape[0])
+    near = cKDTree(centroids).query(full, k=k)[1].reshape(full.shape[0], k).astype(np.int64)
+    return float(_fan_error(full, owner, points, np.ascontiguousarray(tris), starts, fan, near))
+
+
+class NodeLods:
+    """Levels of detail of hierarchy nodes, built when first asked (only nodes some solvable
+    problem view sees are asked: :func:`farfield.core.placement.candidates.generate_candidates`),
+    and their view cells for output images of ``resolution`` pixels over ``fov`` radians held to
+    ``max_error_px``."""
+
+    def __init__(self, scene: Scene, elements, hierarchy, fov: float, resolution: int, max_error_px: float) -> None:
+        self.scene, self.elements, self.hierarchy = scene, elements, hierarchy
+        self.fov, self.resolution, self.max_error_px = float(fov), int(resolution), float(max_error_px)
+        self._chains: dict[int, list[LodLevel]] = {}
+        self.built = 0  # nodes simplified
+
+    def cells(self, node: int, bounds: np.ndarray) -> list[tuple[LodLevel, float, SphereOutsideCell]]:
+        """(level, the nearest distance from ``bounds`` (2, 3) it may be seen from, its recorded
+        cell) of node ``node``, finest first (module docstring)."""
+        centre = 0.5 * (bounds[0] + bounds[1])
+        out = []
+        for level in self.of(node):
+            d = level.distance(self.fov, self.resolution, self.max_error_px)
+            out.append((level, d, SphereOutsideCell(centre, max(d, 1e-9))))
+        return out
+
+    def of(self, node: int) -> list[LodLevel]:
+        """The levels of node ``node``: of its element where it holds one (an element's level of
+        detail, as the runtime draws it), else none."""
+        if node not in self._chains:
+            ids = self.hierarchy.elements_of(node)
+            if ids.size != 1 or int(self.elements.triangles[ids[0]]) < MIN_TRIANGLES:
+                self._chains[node] = []
+            else:
+                part = self.elements.scene_of(self.scene, ids)
+                self._chains[node] = lod_chain(
+                    *node_mesh(part), keep_border=self.elements.faces[int(ids[0])] is not None
+                )
+                self.built += 1
+        return self._chains[node]
+
+
+def level_for(scene: Scene, level: int, keep_border: bool = False) -> LodLevel:
+    """Level ``level`` (1-based) of the merged mesh of ``scene`` (the element a LOD replaces), as
+    the planner built it: the same chain from the same triangles (``keep_border`` for a cluster)."""
+    chain = lod_chain(*node_mesh(scene), keep_border=keep_border)
+    if not 1 <= level <= len(chain):
+        from farfield.core.placement.hierarchy import PlacementError
+
+        raise PlacementError(f"the elements have {len(chain)} levels of detail, not level {level}")
+    return chain[level - 1]
