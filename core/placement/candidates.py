@@ -270,8 +270,12 @@ def generate_candidates(
     outside: tuple[Outside, ...] = (),
     outside_instances: tuple[dict, ...] = (),
     part_options=None,
+    nodes: range | None = None,
 ) -> Candidates:
     """The candidates of every hierarchy node for the solvable CPVs of ``pv`` (see the module docstring).
+
+    ``nodes``: only these hierarchy nodes' candidates (a part of the planning that another process
+    may compute, :mod:`farfield.core.placement.candidate_parts`); None: every node.
 
     ``max_bytes``: a cell whose impostor the model expects to take more memory than this is not a
     candidate (counted in ``stats["refused_by_memory"]``): its bake would take long and its memory
@@ -306,7 +310,8 @@ def generate_candidates(
     )
     rows, atlases, reached = _Rows(), {}, {}
     counts = {"considered": 0, "refused_by_technique": 0, "refused_by_memory": 0}
-    for n in range(hierarchy.count):
+    nodes = range(hierarchy.count) if nodes is None else nodes
+    for done, n in enumerate(nodes, 1):
         g_all, pixels_all = geometry.of(np.full(solvable.size, n), solvable)
         seen = g_all > 0.0
         if not seen.any():
@@ -372,7 +377,7 @@ def generate_candidates(
                      source=k + 1, memory=far.memory_bytes, quads=far.quads, atlas=atlas, scale=1.0 if inst is None else inst.scale,
                      count=int(keep.sum()))  # fmt: skip
         if progress is not None:
-            progress(n + 1, hierarchy.count)
+            progress(done, len(nodes))
     layers_a, texels_a = rows.column("layers", np.float64), rows.column("texels", np.float64)
     own_memory, own_quads = rows.column("memory", np.float64), rows.column("quads", np.float64)
     return Candidates(

@@ -14,10 +14,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from farfield.core.impostor.impostor import wants_normals
+from farfield.core.placement.candidate_parts import PartInputs
 from farfield.core.placement.candidates import (
     APEX_ANGLES_DEG,
     DIRECTION_STEP_DEG,
     DISTANCE_STEPS,
+    Candidates,
     CellKinds,
     generate_candidates,
 )
@@ -217,6 +219,7 @@ def place(
     progress: Callable[[str, int, int], None] | None = None,
     visible: Visibility | None = None,
     keep_state: bool = False,
+    candidates: Callable[[PartInputs, Callable[[int, int], None]], Candidates] | None = None,
 ) -> Placement:
     """The impostor placement of ``scene`` for the view space box ``view_lo``..``view_hi`` (may be
     flat or a point) so that every view takes at most ``settings.t_max`` by the cost model, at
@@ -224,7 +227,12 @@ def place(
     placement can serve are reported in the result (``Placement.message``), not raised.
 
     ``keep_state``: the result's ``state`` is the :class:`~farfield.core.placement.repair.PlannerState`
-    (hierarchy, problem views, candidates, greedy) that check-and-repair rounds resume."""
+    (hierarchy, problem views, candidates, greedy) that check-and-repair rounds resume.
+
+    ``candidates``: computes the candidate step from its :class:`~farfield.core.placement.candidate_parts.PartInputs`
+    and a progress callback ``(done, total)`` (a placement job fans its parts out to the render
+    workers and merges them, :mod:`farfield.service.placement.candidate_fanout`); it must return
+    what the in-process step gives.  None: generated here."""
     _check(settings)
     techniques = candidate_techniques(settings)
     technique, options = techniques[0]
@@ -267,11 +275,14 @@ def place(
 
     with clock("candidates"):
         shared = instance_sources(techniques, node_instances(scene, elements, hierarchy) if outside else {})
-        cand = generate_candidates(
-            hierarchy, pv, settings.model, estimate, float(resolution) ** 2, settings.cells, settings.apex_angles_deg, settings.direction_step_deg,
-            settings.distance_steps, lambda done, total: clock.report("candidates", done, total), settings.max_impostor_bytes, outside, shared,
-            part_options(techniques),
-        )  # fmt: skip
+        report = lambda done, total: clock.report("candidates", done, total)  # noqa: E731
+        if candidates is not None:  # parts computed elsewhere, merged (farfield.core.placement.candidate_parts)
+            cand = candidates(PartInputs(settings, hierarchy, pv, shared, resolution), report)
+        else:
+            cand = generate_candidates(
+                hierarchy, pv, settings.model, estimate, float(resolution) ** 2, settings.cells, settings.apex_angles_deg, settings.direction_step_deg,
+                settings.distance_steps, report, settings.max_impostor_bytes, outside, shared, part_options(techniques),
+            )  # fmt: skip
     with clock("greedy"):
         greedy = Greedy(hierarchy, pv, cand, settings.t_max)
         greedy.run(progress=lambda chosen, worst: clock.report("greedy", chosen, cand.count))
