@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from farfield.core import procedural
-from farfield.core.placement.candidate_parts import PartInputs, candidate_part, merge_candidates, node_ranges
+from farfield.core.placement.candidate_parts import candidate_part, merge_candidates, node_ranges
 from farfield.core.placement.cost_model import CostModel, primitive_model
+from farfield.core.placement.part_inputs import PartInputs
 from farfield.core.placement.planner import PlacementSettings, place
 
 

@@ -14,7 +14,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from farfield.core.impostor.impostor import wants_normals
-from farfield.core.placement.candidate_parts import PartInputs
 from farfield.core.placement.candidates import (
     APEX_ANGLES_DEG,
     DIRECTION_STEP_DEG,
@@ -27,6 +26,7 @@ from farfield.core.placement.cost_model import CostModel
 from farfield.core.placement.greedy import Greedy
 from farfield.core.placement.hierarchy import DEFAULT_LEAF_SIZE, Elements, Hierarchy, PlacementError
 from farfield.core.placement.node_instances import node_instances
+from farfield.core.placement.part_inputs import PartInputs
 from farfield.core.placement.repair import PlannerState, scene_summary
 from farfield.core.placement.result import Placement
 from farfield.core.placement.view_space import Visibility, problem_view_space
@@ -229,7 +229,7 @@ def place(
     ``keep_state``: the result's ``state`` is the :class:`~farfield.core.placement.repair.PlannerState`
     (hierarchy, problem views, candidates, greedy) that check-and-repair rounds resume.
 
-    ``candidates``: computes the candidate step from its :class:`~farfield.core.placement.candidate_parts.PartInputs`
+    ``candidates``: computes the candidate step from its :class:`~farfield.core.placement.part_inputs.PartInputs`
     and a progress callback ``(done, total)`` (a placement job fans its parts out to the render
     workers and merges them, :mod:`farfield.service.placement.candidate_fanout`); it must return
     what the in-process step gives.  None: generated here."""
