@@ -20,6 +20,7 @@ from collections.abc import Callable
 import numpy as np
 
 from farfield.core.placement.candidates import Candidates, generate_candidates
+from farfield.core.placement.cell_table import CellTable
 from farfield.core.placement.hierarchy import Hierarchy
 from farfield.core.placement.part_inputs import PartInputs
 from farfield.core.placement.view_space import ProblemViews
@@ -96,7 +97,7 @@ def merge_candidates(parts: list[Candidates]) -> Candidates:
             stats[key] = stats.get(key, 0) + value
     cat = lambda name, dtype: np.concatenate([getattr(p, name) for p in parts]).astype(dtype)  # noqa: E731
     return Candidates(
-        node=cat("node", np.int64), kind=cat("kind", np.int64), cells=tuple(c for p in parts for c in p.cells),
+        node=cat("node", np.int64), kind=cat("kind", np.int64), cells=CellTable.concat([p.cells if isinstance(p.cells, CellTable) else CellTable.of(list(p.cells)) for p in parts]),
         memory=cat("memory", np.float64), layers=cat("layers", np.float64), texels=cat("texels", np.float64),
         quads=cat("quads", np.float64), served_offsets=np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64),
         served=cat("served", np.int64), g=cat("g", np.float64), ti=cat("ti", np.float64), stats=stats,

@@ -45,12 +45,13 @@ the greedy charges each atlas once.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from farfield.core.errors import FarfieldError
+from farfield.core.placement.cell_table import CellTable
 from farfield.core.placement.cost_model import CostModel
 from farfield.core.placement.hierarchy import Hierarchy, PlacementError
 from farfield.core.placement.part_estimates import ShaftFrames, Views, box_views, estimate_views, shaft_views
@@ -100,7 +101,7 @@ class Candidates:
 
     node: np.ndarray  # (m,)
     kind: np.ndarray  # (m,) 0 shaft, 1 box, 2 outside-sphere (KIND_NAMES)
-    cells: tuple  # (m,) ShaftCell | BoxCell | SphereOutsideCell
+    cells: Sequence  # (m,) ShaftCell | BoxCell | SphereOutsideCell (a CellTable: each made when read)
     memory: np.ndarray  # (m,) bytes, estimated
     layers: np.ndarray  # (m,) estimated
     texels: np.ndarray  # (m,) per layer
@@ -222,16 +223,16 @@ class _Rows:
 
     def __init__(self) -> None:
         self.chunks = {f: [] for f in self.FIELDS}
-        self.cells: list = []
+        self.cells: list[CellTable] = []
         self.served, self.g, self.ti = [], [], []
 
-    def add(self, cells: list, served: np.ndarray, g: np.ndarray, ti: np.ndarray, **columns) -> None:
+    def add(self, cells: list | CellTable, served: np.ndarray, g: np.ndarray, ti: np.ndarray, **columns) -> None:
         """Candidates ``cells`` (their ``columns``, arrays or scalars; ``count``: each one's served
         CPVs, whose rows ``served``, ``g``, ``ti`` follow one another)."""
         k = len(cells)
         for f in self.FIELDS:
             self.chunks[f].append(np.broadcast_to(np.asarray(columns[f]), (k,)))
-        self.cells += cells
+        self.cells.append(cells if isinstance(cells, CellTable) else CellTable.of(cells))
         self.served.append(served), self.g.append(g), self.ti.append(ti)
 
     def column(self, name: str, dtype) -> np.ndarray:
@@ -383,7 +384,7 @@ def generate_candidates(
     return Candidates(
         node=rows.column("node", np.int64),
         kind=rows.column("kind", np.int64),
-        cells=tuple(rows.cells),
+        cells=CellTable.concat(rows.cells),
         memory=np.where(
             np.isnan(own_memory),
             np.asarray(model.memory_bytes(layers_a, texels_a), dtype=np.float64).reshape(-1),
@@ -488,10 +489,13 @@ def _node_batch(rows: _Rows, counts: dict, node, shafts, boxes, batch, shape, mo
     good = kept > 0
     if not good.any():
         return
-    made = [
-        _shaft_cell(centre, size, grid, halves, *shafts[i][:3]) if i < ns else BoxCell(*boxes[i - ns][:2])
-        for i in which[good]
-    ]
+    made = which[good]  # shafts first, then boxes (as ``which``): their cells made when read (CellTable)
+    abk = np.array([shafts[i][:3] for i in made[made < ns]], dtype=np.int64).reshape(-1, 3)
+    corners = [boxes[i - ns][:2] for i in made[made >= ns]]
+    made = CellTable.concat([
+        CellTable.shafts(centre, grid[abk[:, 1]], 2.0 * halves[abk[:, 0]], (2.0 ** abk[:, 2]) * size),
+        CellTable.boxes(np.array([c[0] for c in corners]).reshape(-1, 3), np.array([c[1] for c in corners]).reshape(-1, 3)),
+    ])  # fmt: skip
     rows.add(made, cpvs[entry[keep]], g_n[entry[keep]], ti[keep], node=n, kind=(which[good] >= ns).astype(np.int64),
              layers=layers[good], texels=texels[good], source=0, memory=np.nan, quads=np.nan, atlas=-1, scale=1.0, count=kept[good])  # fmt: skip
 
