@@ -43,7 +43,6 @@ POLL_S = 0.05
 log = logging.getLogger("farfield.planning")
 # (prefix, part, start, stop) -> send a part's task to the render queue; set by farfield.workers.tasks
 _SEND: list[Callable[[str, int, int, int], None]] = []
-_INPUTS: dict = {}  # this process's last part inputs: prefix -> PartInputs (a worker computes several parts)
 
 
 def register_sender(send: Callable[[str, int, int, int], None]) -> None:
@@ -153,8 +152,8 @@ def _fan_out(blobs, claims, send, prefix: str, inputs: PartInputs, ranges: list[
     try:
         for k, r in enumerate(ranges):
             send(prefix, k, r.start, r.stop)
-        for k in range(len(ranges)):  # every part no worker has claimed yet
-            if claims.set(_claim_key(prefix, k), me, nx=True, ex=CLAIM_S):
+        for k in range(len(ranges)):  # every part no worker has claimed (or stored) yet
+            if claims.set(_claim_key(prefix, k), me, nx=True, ex=CLAIM_S) and not blobs.exists(_part_key(prefix, k)):
                 compute(k)
         while len(results) < len(ranges):
             for k in range(len(ranges)):
@@ -189,15 +188,11 @@ def run_part(blobs: BlobStore, prefix: str, part: int, start: int, stop: int, cl
     if not claims.set(key, f"worker-{os.getpid()}".encode(), nx=True, ex=CLAIM_S):
         return "taken"
     with _held(claims, key):
-        inputs = _INPUTS.get(prefix)
-        if inputs is None:
-            try:
-                inputs = PartInputs.loads(blobs.read_bytes(_inputs_key(prefix)))
-            except NotFoundError:
-                claims.delete(key)
-                return "gone"
-            _INPUTS.clear()
-            _INPUTS[prefix] = inputs
+        try:  # read for each part, not kept: the process goes on to bake cells within its memory limit
+            inputs = PartInputs.loads(blobs.read_bytes(_inputs_key(prefix)))
+        except NotFoundError:
+            claims.delete(key)
+            return "gone"
         found = candidate_part(inputs, range(start, stop))
         if not blobs.exists(_inputs_key(prefix)):  # ended meanwhile: store nothing
             return "gone"
