@@ -160,8 +160,8 @@ def run_in(package: Path | None, scene_name: str, extra: tuple = ()) -> list[dic
             text=True,
             check=False,
         )
-    if out.returncode != 0:
-        raise SystemExit(f"planning {scene_name} failed:\n{out.stderr[-2000:]}")
+    if out.returncode != 0 or not out.stdout.strip():
+        raise SystemExit(f"planning {scene_name} failed (exit {out.returncode}):\n{out.stderr[-3000:]}")
     found = json.loads(out.stdout.strip().splitlines()[-1])
     return found if isinstance(found, list) else [found]  # an older checkout's plan gives one row
 
