@@ -47,7 +47,7 @@ def _hook(blobs, claims, prefix, before=None, progress=None):
     return candidates
 
 
-def test_a_part_whose_claim_lapsed_is_planned_here_and_a_stored_part_is_read(claims, tmp_path):
+def test_a_part_whose_claim_lapsed_is_planned_here_and_a_stored_part_is_read(claims, tmp_path, caplog):
     blobs = LocalBlobStore(tmp_path / "blobs")
     prefix = "jobs/j/candidate-parts/lapsed"
 
@@ -65,6 +65,7 @@ def test_a_part_whose_claim_lapsed_is_planned_here_and_a_stored_part_is_read(cla
     one = place(SCENE, *VIEW, SETTINGS)
     split = place(SCENE, *VIEW, SETTINGS, candidates=candidates)
     assert one.summary["candidates"] > 5
+    assert "part 0 was left by its worker" in caplog.text  # taken over after the claim lapsed
     assert json.dumps(split.to_dict(), sort_keys=True) == json.dumps(one.to_dict(), sort_keys=True)
     assert not blobs.list_files(prefix) and not claims.keys(f"farfield:{prefix}:*")
     assert run_part(blobs, prefix, 2, 0, 1, claims) == "gone"  # a late part task does nothing
