@@ -70,6 +70,7 @@ from farfield.service.jobs.cells import finish_job_if_complete, release_lost_cel
 from farfield.service.jobs.leases import Heartbeat
 from farfield.service.jobs.runner import RetryCell, backoff, run_cell
 from farfield.service.placement import PLACEMENT_JOB
+from farfield.service.placement.candidate_fanout import register_sender, run_part
 from farfield.service.placement.lease import fail_planning, release_planning
 from farfield.service.placement.rounds import after_cell, run_planning
 from farfield.service.settings import CELL_TIME_GRACE, Settings
@@ -78,6 +79,8 @@ from farfield.workers.app import (
     BAKE_CELL,
     CHECK_PLACEMENT,
     PLAN_PLACEMENT,
+    RENDER_QUEUE,
+    SEND_RETRY_POLICY,
     celery_app,
     send_admission,
     send_cells,
@@ -457,6 +460,30 @@ def plan_placement(self, job_id: str) -> str:
 def check_placement(self, job_id: str) -> str:
     """Check a placement job's baked round, repair it and send the additions, or end it with its database."""
     return _planning(self, job_id, "check")
+
+
+# A part of a placement job's candidate step (FARFIELD_PLANNING_PARTS > 1): claimed, computed and
+# stored for the planning task that sent it, which merges the parts (service.placement.candidate_fanout).
+PLAN_CANDIDATE_PART = "farfield.plan_candidate_part"
+
+
+@celery_app.task(name=PLAN_CANDIDATE_PART, **{k: v for k, v in _PLANNING_LIMITS.items() if k != "max_retries"})
+def plan_candidate_part(prefix: str, part: int, start: int, stop: int) -> str:
+    """Compute part ``part`` (hierarchy nodes ``start``..``stop``) of the planning at ``prefix``, unless
+    another process claimed it or the planning ended (its planning task then plans it itself)."""
+    _, _, blobs = _records()
+    return run_part(blobs, prefix, part, start, stop)
+
+
+register_sender(
+    lambda prefix, part, start, stop: celery_app.send_task(
+        PLAN_CANDIDATE_PART,
+        args=[prefix, part, start, stop],
+        queue=RENDER_QUEUE,
+        retry=True,
+        retry_policy=SEND_RETRY_POLICY,
+    )
+)
 
 
 # An admission's delivery stops after ADMISSION_DELIVERY_S and sends itself again, its progress kept.

@@ -54,12 +54,13 @@ It is the last source (``len(outside) + 1``).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from farfield.core.errors import FarfieldError
+from farfield.core.placement.cell_table import CellTable
 from farfield.core.placement.cost_model import CostModel
 from farfield.core.placement.hierarchy import Hierarchy, PlacementError
 from farfield.core.placement.part_estimates import ShaftFrames, Views, box_views, estimate_views, shaft_views
@@ -110,7 +111,7 @@ class Candidates:
 
     node: np.ndarray  # (m,)
     kind: np.ndarray  # (m,) 0 shaft, 1 box, 2 outside-sphere, 3 lod (KIND_NAMES)
-    cells: tuple  # (m,) ShaftCell | BoxCell | SphereOutsideCell
+    cells: Sequence  # (m,) ShaftCell | BoxCell | SphereOutsideCell (a CellTable: each made when read)
     memory: np.ndarray  # (m,) bytes, estimated
     layers: np.ndarray  # (m,) estimated
     texels: np.ndarray  # (m,) per layer
@@ -232,16 +233,16 @@ class _Rows:
 
     def __init__(self) -> None:
         self.chunks = {f: [] for f in self.FIELDS}
-        self.cells: list = []
+        self.cells: list[CellTable] = []
         self.served, self.g, self.ti = [], [], []
 
-    def add(self, cells: list, served: np.ndarray, g: np.ndarray, ti: np.ndarray, **columns) -> None:
+    def add(self, cells: list | CellTable, served: np.ndarray, g: np.ndarray, ti: np.ndarray, **columns) -> None:
         """Candidates ``cells`` (their ``columns``, arrays or scalars; ``count``: each one's served
         CPVs, whose rows ``served``, ``g``, ``ti`` follow one another)."""
         k = len(cells)
         for f in self.FIELDS:
             self.chunks[f].append(np.broadcast_to(np.asarray(columns[f]), (k,)))
-        self.cells += cells
+        self.cells.append(cells if isinstance(cells, CellTable) else CellTable.of(cells))
         self.served.append(served), self.g.append(g), self.ti.append(ti)
 
     def column(self, name: str, dtype) -> np.ndarray:
@@ -281,8 +282,12 @@ def generate_candidates(
     outside_instances: tuple[dict, ...] = (),
     part_options=None,
     lod=None,
+    nodes: range | None = None,
 ) -> Candidates:
     """The candidates of every hierarchy node for the solvable CPVs of ``pv`` (see the module docstring).
+
+    ``nodes``: only these hierarchy nodes' candidates (a part of the planning that another process
+    may compute, :mod:`farfield.core.placement.candidate_parts`); None: every node.
 
     ``max_bytes``: a cell whose impostor the model expects to take more memory than this is not a
     candidate (counted in ``stats["refused_by_memory"]``): its bake would take long and its memory
@@ -320,7 +325,8 @@ def generate_candidates(
     )
     rows, atlases, reached = _Rows(), {}, {}
     counts = {"considered": 0, "refused_by_technique": 0, "refused_by_memory": 0}
-    for n in range(hierarchy.count):
+    nodes = range(hierarchy.count) if nodes is None else nodes
+    for done, n in enumerate(nodes, 1):
         g_all, pixels_all = geometry.of(np.full(solvable.size, n), solvable)
         seen = g_all > 0.0
         if not seen.any():
@@ -388,13 +394,13 @@ def generate_candidates(
         if lod is not None:
             _lod_cells(rows, counts, node, lod, model, max_bytes, pv, len(outside) + 1)
         if progress is not None:
-            progress(n + 1, hierarchy.count)
+            progress(done, len(nodes))
     layers_a, texels_a = rows.column("layers", np.float64), rows.column("texels", np.float64)
     own_memory, own_quads = rows.column("memory", np.float64), rows.column("quads", np.float64)
     return Candidates(
         node=rows.column("node", np.int64),
         kind=rows.column("kind", np.int64),
-        cells=tuple(rows.cells),
+        cells=CellTable.concat(rows.cells),
         memory=np.where(
             np.isnan(own_memory),
             np.asarray(model.memory_bytes(layers_a, texels_a), dtype=np.float64).reshape(-1),
@@ -499,10 +505,13 @@ def _node_batch(rows: _Rows, counts: dict, node, shafts, boxes, batch, shape, mo
     good = kept > 0
     if not good.any():
         return
-    made = [
-        _shaft_cell(centre, size, grid, halves, *shafts[i][:3]) if i < ns else BoxCell(*boxes[i - ns][:2])
-        for i in which[good]
-    ]
+    made = which[good]  # shafts first, then boxes (as ``which``): their cells made when read (CellTable)
+    abk = np.array([shafts[i][:3] for i in made[made < ns]], dtype=np.int64).reshape(-1, 3)
+    corners = [boxes[i - ns][:2] for i in made[made >= ns]]
+    made = CellTable.concat([
+        CellTable.shafts(centre, grid[abk[:, 1]], 2.0 * halves[abk[:, 0]], (2.0 ** abk[:, 2]) * size),
+        CellTable.boxes(np.array([c[0] for c in corners]).reshape(-1, 3), np.array([c[1] for c in corners]).reshape(-1, 3)),
+    ])  # fmt: skip
     rows.add(made, cpvs[entry[keep]], g_n[entry[keep]], ti[keep], node=n, kind=(which[good] >= ns).astype(np.int64),
              layers=layers[good], texels=texels[good], source=0, memory=np.nan, quads=np.nan, atlas=-1, scale=1.0, count=kept[good])  # fmt: skip
 

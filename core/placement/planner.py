@@ -18,6 +18,7 @@ from farfield.core.placement.candidates import (
     APEX_ANGLES_DEG,
     DIRECTION_STEP_DEG,
     DISTANCE_STEPS,
+    Candidates,
     CellKinds,
     generate_candidates,
 )
@@ -26,6 +27,7 @@ from farfield.core.placement.greedy import Greedy
 from farfield.core.placement.hierarchy import DEFAULT_LEAF_SIZE, Elements, Hierarchy, PlacementError
 from farfield.core.placement.lod import LOD_TECHNIQUE, NodeLods
 from farfield.core.placement.node_instances import node_instances
+from farfield.core.placement.part_inputs import PartInputs
 from farfield.core.placement.repair import PlannerState, scene_summary
 from farfield.core.placement.result import Placement
 from farfield.core.placement.view_space import Visibility, problem_view_space
@@ -221,6 +223,7 @@ def place(
     progress: Callable[[str, int, int], None] | None = None,
     visible: Visibility | None = None,
     keep_state: bool = False,
+    candidates: Callable[[PartInputs, Callable[[int, int], None]], Candidates] | None = None,
 ) -> Placement:
     """The impostor placement of ``scene`` for the view space box ``view_lo``..``view_hi`` (may be
     flat or a point) so that every view takes at most ``settings.t_max`` by the cost model, at
@@ -228,7 +231,12 @@ def place(
     placement can serve are reported in the result (``Placement.message``), not raised.
 
     ``keep_state``: the result's ``state`` is the :class:`~farfield.core.placement.repair.PlannerState`
-    (hierarchy, problem views, candidates, greedy) that check-and-repair rounds resume."""
+    (hierarchy, problem views, candidates, greedy) that check-and-repair rounds resume.
+
+    ``candidates``: computes the candidate step from its :class:`~farfield.core.placement.part_inputs.PartInputs`
+    and a progress callback ``(done, total)`` (a placement job fans its parts out to the render
+    workers and merges them, :mod:`farfield.service.placement.candidate_fanout`); it must return
+    what the in-process step gives.  None: generated here."""
     _check(settings)
     techniques = candidate_techniques(settings)
     technique, options = techniques[0]
@@ -275,11 +283,16 @@ def place(
         if settings.lod:  # the last source of candidates (farfield.core.placement.candidates)
             lods = NodeLods(scene, elements, hierarchy, fov, resolution, float(getattr(options, "max_error_px", 1.0)))
             sources = (*sources, LOD_TECHNIQUE)
-        cand = generate_candidates(
-            hierarchy, pv, settings.model, estimate, float(resolution) ** 2, settings.cells, settings.apex_angles_deg, settings.direction_step_deg,
-            settings.distance_steps, lambda done, total: clock.report("candidates", done, total), settings.max_impostor_bytes, outside, shared,
-            part_options(techniques), lods,
-        )  # fmt: skip
+        report = lambda done, total: clock.report("candidates", done, total)  # noqa: E731
+        if (
+            candidates is not None and lods is None
+        ):  # parts computed elsewhere, merged (farfield.core.placement.candidate_parts)
+            cand = candidates(PartInputs(settings, hierarchy, pv, shared, resolution), report)
+        else:  # levels of detail simplify the scene's meshes: computed here, not in parts
+            cand = generate_candidates(
+                hierarchy, pv, settings.model, estimate, float(resolution) ** 2, settings.cells, settings.apex_angles_deg, settings.direction_step_deg,
+                settings.distance_steps, report, settings.max_impostor_bytes, outside, shared, part_options(techniques), lods,
+            )  # fmt: skip
         if lods is not None:
             cand.stats["lod_nodes_simplified"] = lods.built
     with clock("greedy"):

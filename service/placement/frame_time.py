@@ -28,6 +28,7 @@ from farfield.core.techniques import DEFAULT_TECHNIQUE, TECHNIQUES, get_techniqu
 from farfield.service.blobs import BlobStore
 from farfield.service.db import CellRow, Database, JobRow, job_cells
 from farfield.service.placement.base import Algorithm, Round, finite, put_index, state_key, view_space
+from farfield.service.placement.candidate_fanout import for_job
 from farfield.service.scenes import get_scene_row, load_stored_scene
 
 NAME = "frame-time"
@@ -241,7 +242,9 @@ class FrameTime(Algorithm):
         from farfield.core.placement.planner import place
 
         settings, lo, hi = planner_settings(job.params)
-        placement = place(scene, lo, hi, settings, progress=progress, keep_state=True)
+        placement = place(
+            scene, lo, hi, settings, progress=progress, keep_state=True, candidates=for_job(blobs, job.id)
+        )
         key = state_key(job.id, 0)
         blobs.put_bytes(key, placement.state.dumps())
         as_dict = placement.to_dict()
