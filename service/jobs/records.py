@@ -42,6 +42,7 @@ def cell_record(cell: CellRow) -> dict:
         "index": cell.index, "grid": cell.grid, "viewcell": cell.viewcell, "state": cell.state,
         "attempts": cell.attempts, "worker": cell.worker, "error": cell.error, "progress": cell.progress, "seconds": cell.seconds,
         "stats": cell.stats, "has_result": cell.result_key is not None,
+        "texels": cell.texels,  # what its admission planned (None: not planned); its queue's (service.pools)
         "params": cell.params,  # a placement cell's own impostor (technique, objects, options); None: the job's
     }  # fmt: skip
 
@@ -174,6 +175,7 @@ class CellView:
     stats: dict | None
     result_key: str | None
     params: dict | None
+    texels: float | None
     started_at: float | None
     finished_at: float | None
 
