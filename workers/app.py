@@ -18,11 +18,10 @@ from __future__ import annotations
 
 from celery import Celery
 
-from farfield.service.pools import HEAVY_QUEUE, LIGHT_QUEUE
+from farfield.service.pools import LIGHT_QUEUE
 from farfield.service.settings import Settings
 
-RENDER_QUEUE = LIGHT_QUEUE
-__all__ = ["HEAVY_QUEUE", "RENDER_QUEUE"]
+RENDER_QUEUE = LIGHT_QUEUE  # the light queue (service.pools); heavy cells go to render.heavy
 BAKE_CELL = "farfield.bake_cell"
 # A placement job's planning and its check-and-repair rounds (service.placement) go to the same
 # render queue: every worker farfield up starts takes them with no queue of its own to configure, and
