@@ -15,11 +15,10 @@ from farfield.core.errors import AuthError
 from farfield.service.blobs import BlobStore
 from farfield.service.db import Database
 from farfield.service.keys import authenticate, bearer_key
+from farfield.service.pools import cell_queues
 from farfield.service.scene_check import SceneCheckGate
 from farfield.service.settings import Settings
-from farfield.workers.app import BAKE_CELL, RENDER_QUEUE
-
-RETRY_POLICY = {"max_retries": 30, "interval_start": 0.2, "interval_step": 0.5, "interval_max": 2.0}
+from farfield.workers.app import send_cells
 
 
 @dataclass
@@ -54,9 +53,9 @@ class Services:
             raise
 
     def enqueue(self, cell_ids: list[str]) -> None:
-        """Send one bake task per cell to the render queue (retrying while Redis is away)."""
-        for cell_id in cell_ids:
-            self.celery.send_task(BAKE_CELL, args=[cell_id], queue=RENDER_QUEUE, retry=True, retry_policy=RETRY_POLICY)
+        """Send one bake task per cell to its queue (its planned texels': service/pools.py), retrying
+        while Redis is away."""
+        send_cells(self.celery, cell_ids, cell_queues(self.db, cell_ids, self.settings.heavy_texels))
 
 
 async def services(request: Request) -> Services:

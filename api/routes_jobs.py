@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Request, Response
+from typing import Literal
+
+from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.responses import JSONResponse
 
 from farfield.api.deps import Services, services, tenant
@@ -10,6 +12,8 @@ from farfield.api.paging import DEFAULT_PAGE, PAGED, Limit, Offset, set_page_hea
 from farfield.service.jobs.admission import create_job
 from farfield.service.jobs.cells import cancel_job, retry_job
 from farfield.service.jobs.records import (
+    cell_page,
+    count_cells,
     count_job_rows,
     full_job_record,
     get_job_row,
@@ -70,9 +74,46 @@ def list_jobs(
     return [job_record(job, summaries[job.id]) for job in jobs]
 
 
+CELLS = Query(
+    "all",
+    description="all: the record with every cell, its evaluation and timing; none: without them (counts, progress, "
+    "errors and ETA come from SQL, no cell row is read: what a poller of a large job asks for; the cells are "
+    "paged at /v1/jobs/{id}/cells)",
+)
+
+
 @router.get("/{job_id}", response_model=dict, summary="One job: state, per-cell progress, counts, timings, errors, ETA")
-def get_job(job_id: str, tenant_id: str = Depends(tenant), svc: Services = Depends(services)) -> JSONResponse:
-    return _full_record(svc, get_job_row(svc.db, tenant_id, job_id))
+def get_job(
+    job_id: str,
+    cells: Literal["all", "none"] = CELLS,
+    tenant_id: str = Depends(tenant),
+    svc: Services = Depends(services),
+) -> JSONResponse:
+    job = get_job_row(svc.db, tenant_id, job_id)
+    if cells == "none":
+        return JSONResponse(job_record(job, job_summaries(svc.db, [job.id])[job.id]))
+    return _full_record(svc, job)
+
+
+@router.get(
+    "/{job_id}/cells",
+    response_model=list[dict],
+    summary="A job's cells by index: state, progress, attempts, errors, statistics; paged (X-Total-Count, Link)",
+    responses=PAGED,
+)
+def list_cells(
+    request: Request,
+    job_id: str,
+    limit: Limit = DEFAULT_PAGE,
+    offset: Offset = 0,
+    tenant_id: str = Depends(tenant),
+    svc: Services = Depends(services),
+) -> JSONResponse:
+    get_job_row(svc.db, tenant_id, job_id)
+    # Encoded straight to JSON, as the job's record is (_full_record): the records hold JSON's own types.
+    response = JSONResponse(cell_page(svc.db, job_id, limit, offset))
+    set_page_headers(request, response, count_cells(svc.db, job_id), limit, offset)
+    return response
 
 
 @router.post("/{job_id}/cancel", summary="Cancel: queued cells never run, running cells stop at the next layer")

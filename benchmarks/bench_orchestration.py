@@ -1,7 +1,7 @@
 """Throughput of the orchestration itself: trivial cells through API + database + broker + blob store (issue 58, item 5).
 
 Usage: ``.venv/bin/python benchmarks/bench_orchestration.py [--cells 2000] [--workers 1,2] [--repeats 1]
-[--database sqlite|postgres] [--before REV] [--json]``
+[--database sqlite|postgres] [--job-poll none|all] [--before REV] [--after REV] [--json]``
 
 A real ``farfield up`` (embedded redis-server, uvicorn, ``--workers`` Celery workers of one pool
 process each, SQLite by default or a fresh database of a ``scripts/postgres-server`` PostgreSQL, a
@@ -18,7 +18,10 @@ Measured, all from the service's own records (the job's and cells' SQL rows, rea
   cell's own stored seconds (``cells.seconds``: claim to outcome) and the bake's stages
   (``stats.seconds``); what lies between is the orchestration's (messages, claims, commits);
 - **API latency while the job runs**: a thread asks ``GET /v1/health`` every 50 ms, another
-  ``GET /v1/jobs/{id}`` (the job's record with every cell) every 0.5 s; p50 and p95 of each.
+  ``GET /v1/jobs/{id}?cells=none`` (the job's record without its cells, what ``farfield submit --wait``
+  and the dashboard poll a large job with; ``--job-poll all``: ``GET /v1/jobs/{id}``, with every
+  cell) every 0.5 s; p50 and p95 of each.  A revision before ``?cells=`` ignores the parameter and
+  answers every cell, as its clients polled.
 
 ``--before REV`` runs the same measurements on a checkout of ``REV`` (``git archive``d to a temporary folder,
 imported through ``PYTHONPATH`` ahead of this checkout's editable install), interleaved with this
@@ -108,7 +111,7 @@ def cell_rows(database_url: str, job_id: str) -> list[tuple]:
     return [tuple(r) for r in rows]
 
 
-def one_run(cells: int, workers: int, database_url: str | None) -> dict:
+def one_run(cells: int, workers: int, database_url: str | None, job_poll: str = "none") -> dict:
     """One service, one warm job, one measured job (this process imports whichever farfield is first on the path)."""
     import httpx
 
@@ -144,7 +147,7 @@ def one_run(cells: int, workers: int, database_url: str | None) -> dict:
                 raise SystemExit(f"{response.status_code} {response.text}")
             job_id = response.json()["id"]
             health = Poller(service.url, "/v1/health", HEALTH_EVERY_S)
-            job_poll = Poller(service.url, f"/v1/jobs/{job_id}", JOB_EVERY_S)
+            job_poll = Poller(service.url, f"/v1/jobs/{job_id}?cells={job_poll}", JOB_EVERY_S)
             while True:
                 time.sleep(0.5)
                 newest = client.get("/v1/jobs", params={"limit": 1}).json()[0]  # the record without its cells
@@ -228,23 +231,27 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--database", choices=("sqlite", "postgres"), default="sqlite")
     parser.add_argument("--before", help="a git revision to measure beside this checkout, interleaved")
+    parser.add_argument("--after", help="a git revision to measure instead of this checkout's working tree")
+    parser.add_argument("--job-poll", choices=("none", "all"), default="none", help="the job GET's ?cells=")
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--one", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--database-url", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.one:
-        print(json.dumps(one_run(args.cells, int(args.workers), args.database_url)))
+        print(json.dumps(one_run(args.cells, int(args.workers), args.database_url, args.job_poll)))
         return
     tmp = Path(tempfile.mkdtemp(prefix="farfield-bench-orch-rev-"))
     versions: list[tuple[str, Path | None]] = [("this checkout", None)]
     try:
+        if args.after:  # the working tree may change while the runs go on
+            versions = [(f"after ({args.after})", checkout(args.after, tmp / "after"))]
         if args.before:
-            versions.insert(0, (f"before ({args.before})", checkout(args.before, tmp)))
+            versions.insert(0, (f"before ({args.before})", checkout(args.before, tmp / "before")))
         rows = []
         for _ in range(args.repeats):
             for workers in [int(w) for w in args.workers.split(",")]:
                 for name, path in versions:
-                    child = ["--cells", str(args.cells), "--workers", str(workers)]
+                    child = ["--cells", str(args.cells), "--workers", str(workers), "--job-poll", args.job_poll]
                     if args.database == "postgres":
                         child += ["--database-url", postgres_url()]
                     rows.append({"version": name, **run_child(child, path)})
@@ -254,7 +261,10 @@ def main() -> None:
     if args.json:
         print(json.dumps(rows, indent=1))
         return
-    print(f"{args.cells} trivial cells (layered, {RESOLUTION} px, no evaluation), {args.database}; ms are per cell")
+    print(
+        f"{args.cells} trivial cells (layered, {RESOLUTION} px, no evaluation), {args.database}; ms are per cell; "
+        f"job GET ?cells={args.job_poll}"
+    )
     print("| version | workers | cells/s (bake) | cells/s (job) | admission s | worker-ms per cell | cell's own ms | bake ms "
           "| health p50/p95 ms | job GET p50/p95 ms | attempts | load before/after |")  # fmt: skip
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")

@@ -271,16 +271,18 @@ def placement_line(job: dict) -> str | None:
 
 
 def wait_for(client: Client, job_id: str, show_bar: bool) -> dict:
-    """Poll the job until it ends, with a progress bar (cells) on a terminal."""
+    """Poll the job until it ends, with a progress bar (cells) on a terminal; the job's record
+    without its cells while it runs (``?cells=none``: the API does not read a large job's every cell
+    twice a second), the whole record once it has ended."""
     bar = tqdm(total=None, desc="cells", unit="cell", disable=None if show_bar else True)
     try:
         while True:
-            job = client.request("GET", f"/v1/jobs/{job_id}").json()
+            job = client.request("GET", f"/v1/jobs/{job_id}", params={"cells": "none"}).json()
             bar.total = job["cells_total"]
             bar.update(job["counts"]["done"] + job["counts"]["failed"] + job["counts"]["cancelled"] - bar.n)
             bar.set_postfix_str(placement_line(job) if job["state"] == "placing" else job["state"])
             if job["state"] in ("done", "failed", "cancelled"):
-                return job
+                return client.request("GET", f"/v1/jobs/{job_id}").json()
             time.sleep(0.5)
     finally:
         bar.close()

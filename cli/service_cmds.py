@@ -57,12 +57,22 @@ def up(workers, host, port):
 
 @click.command("worker", context_settings={"ignore_unknown_options": True})
 @click.option(
-    "--concurrency", "-c", type=int, default=1, show_default=True, help="Cells rendered at once (one per EGL device)."
+    "--concurrency",
+    "-c",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Cells rendered at once: one per EGL device (default: one per NVIDIA GPU, each pool process on its own "
+    "GPU, FARFIELD_EGL_DEVICES; one without GPUs).",
 )
 @click.option("--name", default="worker", show_default=True)
 def worker(concurrency, name):
     """Join this machine to a running service as a render worker (needs REDIS_URL and DATABASE_URL)."""
-    from farfield.service.supervisor import worker_command
+    from farfield.service.supervisor import gpu_count, worker_command
+
+    gpus = gpu_count()
+    if gpus and not (os.environ.get("FARFIELD_EGL_DEVICES") or os.environ.get("FARFIELD_EGL_DEVICE")):
+        os.environ["FARFIELD_EGL_DEVICES"] = ",".join(str(i) for i in range(gpus))  # pool process i on GPU i
+    concurrency = concurrency or max(1, gpus)
 
     settings = Settings.from_env()
     if settings.redis_url is None:

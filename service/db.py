@@ -143,6 +143,9 @@ class CellRow(Base):
     # attempt (a result under a lost lease is discarded), and until when its worker's heartbeat holds it.
     lease_token: Mapped[str | None] = mapped_column(String(32), nullable=True)
     lease_until: Mapped[float | None] = mapped_column(Float, nullable=True, index=True)
+    # Texels its admission's full check planned (migration 0010); the queue it is sent to is chosen
+    # from it (service.pools). None: not planned before it was sent (a placement job's cell).
+    texels: Mapped[float | None] = mapped_column(Float, nullable=True)
 
 
 class WorkerRow(Base):
@@ -157,6 +160,9 @@ class WorkerRow(Base):
     concurrency: Mapped[int] = mapped_column(Integer)
     started_at: Mapped[float] = mapped_column(Float)
     heartbeat_at: Mapped[float] = mapped_column(Float)
+    queues: Mapped[str | None] = mapped_column(
+        String(200), nullable=True
+    )  # consumed now, comma-separated (service.pools)
 
 
 def _sqlite_pragmas(dbapi_connection, _record) -> None:

@@ -33,6 +33,8 @@ shared services instead, so API and workers can run on several machines.
 | ``FARFIELD_LEASE_S`` | 30 | seconds a running cell's lease lasts unless its worker's heartbeat renews it; past it the API's sweeper queues the cell again (an attempt) and the late result is discarded |
 | ``FARFIELD_HEARTBEAT_S`` | 5 | seconds between a worker's heartbeats (lease renewals); at most half of ``FARFIELD_LEASE_S`` |
 | ``FARFIELD_SWEEP_S`` | 5 | seconds between the API's sweeps (expired leases, lost messages) |
+| ``FARFIELD_HEAVY_TEXELS`` | 1e8 | a cell whose admission planned more texels than this is heavy: sent to ``render.heavy``, which GPU workers consume (CPU workers too while no GPU worker is live: :mod:`farfield.service.pools`) |
+| ``FARFIELD_WORKER_KIND`` | unset (the renderer's) | ``cpu`` or ``gpu``: the kind a worker announces and serves as, instead of the one its GL renderer tells (tests and operations: a GPU worker declared on a machine without one) |
 | ``FARFIELD_TECHNIQUE_MODULES`` | unset | comma-separated importable modules whose import registers more techniques (:func:`farfield.core.techniques.register`); the CLI, the API and every worker import them before they read the registry |
 """
 
@@ -76,6 +78,12 @@ SWEEP_S = 5
 # An S3 server restarting (or refusing for a while): a worker's blob operations wait this long for
 # it, instead of failing the cell's attempts one after another (benchmarks/bench_cluster_faults.py).
 S3_OUTAGE_S = 120
+# GPU and CPU pools (service.pools): a cell that plans more texels than this is heavy, sent to the
+# GPU workers' queue while any is live.  Layered bakes record about 1e7 planned texels a second on
+# this machine's llvmpipe (the admission defaults above): 1e8 is a cell of some 10 s here (a city
+# cell at 1024 px plans 1.5e8), a fraction of a second on a GPU.
+HEAVY_TEXELS = 100_000_000
+WORKER_KINDS = ("cpu", "gpu")
 # Scene checks (a child process parsing an upload, service/scene_check.py) at once per API process:
 # half the cores, 1 to 4; and uploads that may wait for one.
 SCENE_CHECKS = min(4, max(1, (os.cpu_count() or 2) // 2))
@@ -146,6 +154,18 @@ class AdmissionLimits:
             max_tenant_cells=_count(env, "FARFIELD_MAX_TENANT_CELLS", MAX_TENANT_CELLS),
             max_tenant_placements=_int(env, "FARFIELD_MAX_TENANT_PLACEMENTS", MAX_TENANT_PLACEMENTS),
         )
+
+
+def _worker_kind(env: Mapping[str, str]) -> str | None:
+    """``FARFIELD_WORKER_KIND``: "cpu", "gpu" or None (unset: the worker's renderer tells).
+
+    >>> _worker_kind({"FARFIELD_WORKER_KIND": "GPU"}), _worker_kind({})
+    ('gpu', None)
+    """
+    raw = (env.get("FARFIELD_WORKER_KIND") or "").strip().lower()
+    if raw and raw not in WORKER_KINDS:
+        raise ServiceConfigError(f"FARFIELD_WORKER_KIND must be one of {list(WORKER_KINDS)}, got {raw!r}")
+    return raw or None
 
 
 def _visibility_timeout(env: Mapping[str, str], hard_limit: int) -> int:
@@ -243,6 +263,8 @@ class Settings:
     heartbeat_s: int = HEARTBEAT_S  # seconds between a worker's heartbeats
     sweep_s: int = SWEEP_S  # seconds between the API's sweeps
     s3_outage_s: int = S3_OUTAGE_S  # seconds a worker's blob operation waits for an unreachable S3 server
+    heavy_texels: int = HEAVY_TEXELS  # a cell planning more is heavy: the GPU workers' queue (service.pools)
+    worker_kind: str | None = None  # FARFIELD_WORKER_KIND: this worker's kind, instead of its renderer's
 
     @property
     def cell_hard_time_limit(self) -> int:
@@ -303,6 +325,8 @@ class Settings:
             heartbeat_s=heartbeat_s,
             sweep_s=_int(env, "FARFIELD_SWEEP_S", SWEEP_S),
             s3_outage_s=_int(env, "FARFIELD_S3_OUTAGE_S", S3_OUTAGE_S, minimum=0),
+            heavy_texels=_count(env, "FARFIELD_HEAVY_TEXELS", HEAVY_TEXELS, minimum=0),
+            worker_kind=_worker_kind(env),
         )
 
     def with_redis(self, url: str) -> Settings:
@@ -331,6 +355,7 @@ class Settings:
             "FARFIELD_LEASE_S": str(self.lease_s),
             "FARFIELD_HEARTBEAT_S": str(self.heartbeat_s),
             "FARFIELD_SWEEP_S": str(self.sweep_s),
+            "FARFIELD_HEAVY_TEXELS": str(self.heavy_texels),
             **{f"FARFIELD_MAX_SCENE_{n.upper()}": str(getattr(self.scene_limits, n)) for n in _SCENE_LIMITS},
         }
         if self.redis_url:

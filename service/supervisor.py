@@ -28,6 +28,7 @@ from farfield.service.jobs.cells import release_lost_cells, running_cells_of
 from farfield.service.keys import ensure_admin_key
 from farfield.service.leftovers import HomeLock, forget_children, reap, record_child, temp_dir
 from farfield.service.placement.lease import planning_jobs_of, release_planning
+from farfield.service.pools import QUEUES
 from farfield.service.settings import Settings
 
 STOP_GRACE_S = 20.0
@@ -54,9 +55,10 @@ def render_devices() -> int:
 
 
 def worker_command(name: str, concurrency: int = 1) -> list[str]:
-    """The celery worker command line for the render queue."""
+    """The celery worker command line: both render queues (its heartbeat then keeps those of its kind:
+    service/pools.py)."""
     return [
-        sys.executable, "-m", "celery", "-A", "farfield.workers.app", "worker", "-Q", "render", "--pool", "prefork",
+        sys.executable, "-m", "celery", "-A", "farfield.workers.app", "worker", "-Q", ",".join(QUEUES), "--pool", "prefork",
         "-c", str(concurrency), "-n", f"{name}@%h", "--loglevel", "INFO", "--without-gossip", "--without-mingle",
     ]  # fmt: skip
 

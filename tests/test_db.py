@@ -31,7 +31,7 @@ def test_upgrade_keeps_rows_and_adds_columns(tmp_path):
     assert "worker" in {c["name"] for c in sa.inspect(db.engine).get_columns("cells")}
     with db.engine.connect() as connection:
         assert connection.execute(sa.text("SELECT name FROM tenants")).scalars().all() == ["acme"]
-        assert connection.execute(sa.text("SELECT version_num FROM alembic_version")).scalar() == "0009"
+        assert connection.execute(sa.text("SELECT version_num FROM alembic_version")).scalar() == "0010"
 
 
 def test_0008_adds_cell_leases_and_the_worker_registry_and_goes_back(tmp_path):
@@ -42,7 +42,7 @@ def test_0008_adds_cell_leases_and_the_worker_registry_and_goes_back(tmp_path):
     inspector = sa.inspect(db.engine)
     assert {"lease_token", "lease_until"} <= {c["name"] for c in inspector.get_columns("cells")}
     assert "ix_cells_lease_until" in {i["name"] for i in inspector.get_indexes("cells")}
-    assert {c["name"] for c in inspector.get_columns("workers")} == {
+    assert {c["name"] for c in inspector.get_columns("workers")} >= {
         "name", "host", "pid", "kind", "renderer", "concurrency", "started_at", "heartbeat_at",
     }  # fmt: skip
     with db.engine.begin() as connection:
@@ -84,6 +84,22 @@ def test_0009_indexes_a_job_s_cells_by_state_and_goes_back(database_url):
     with db.engine.begin() as connection:
         command.downgrade(_config(connection), "0008")
     assert "ix_cells_job_state" not in {i["name"] for i in sa.inspect(db.engine).get_indexes("cells")}
+    db.dispose()
+
+
+def test_0010_adds_cell_texels_and_worker_queues_and_goes_back(database_url):
+    db = Database(database_url)
+    with db.engine.begin() as connection:
+        command.upgrade(_config(connection), "0009")
+    db.migrate()
+    inspector = sa.inspect(db.engine)
+    assert "texels" in {c["name"] for c in inspector.get_columns("cells")}
+    assert "queues" in {c["name"] for c in inspector.get_columns("workers")}
+    with db.engine.begin() as connection:
+        command.downgrade(_config(connection), "0009")
+    inspector = sa.inspect(db.engine)
+    assert "texels" not in {c["name"] for c in inspector.get_columns("cells")}
+    assert "queues" not in {c["name"] for c in inspector.get_columns("workers")}
     db.dispose()
 
 

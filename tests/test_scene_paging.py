@@ -149,6 +149,32 @@ def test_job_list_has_the_same_paging_headers(api):
     )
 
 
+def test_a_job_s_cells_are_paged_and_its_record_can_omit_them(api):
+    """GET /v1/jobs/{id}/cells pages the cells by index with the listings' headers, and
+    ?cells=none answers the record without its cells (what a poller asks for: issue 58)."""
+    db = api.app.state.services.db
+    scene = get_scene_row(db, authenticate(db, KEY), api.small[0]["id"], with_objects=True)
+    grid = {"lo": [-40, 5, -110], "hi": [-35, 6, -99], "counts": [5, 1, 2]}
+    job = create_job(db, scene.tenant_id, scene, JobSpec(scene_id=scene.id, resolution=16, grid=grid)).id
+    first = api.get(f"/v1/jobs/{job}/cells", params={"limit": 4})
+    assert first.status_code == 200 and first.headers["X-Total-Count"] == "10"
+    assert next_link(first) == f"/v1/jobs/{job}/cells?limit=4&offset=4"
+    pages, link = [first.json()], next_link(first)
+    while link:
+        page = api.get(link)
+        pages.append(page.json())
+        link = next_link(page)
+    full = api.get(f"/v1/jobs/{job}").json()
+    assert [len(p) for p in pages] == [4, 4, 2] and sum(pages, []) == full["cells"]
+    brief = api.get(f"/v1/jobs/{job}", params={"cells": "none"}).json()
+    assert "cells" not in brief and brief["counts"] == full["counts"] and brief["cells_total"] == 10
+    assert {k: v for k, v in full.items() if k not in ("cells", "evaluation", "timing", "seconds")} == {
+        k: v for k, v in brief.items() if k != "seconds"
+    }
+    assert api.get(f"/v1/jobs/{job}", params={"cells": "some"}).status_code == 422
+    assert api.get("/v1/jobs/nope/cells").status_code == 404
+
+
 def test_a_scene_fetched_without_objects_does_not_load_them(api):
     """``objects`` is deferred: the rows of listings and of workers never carry it."""
     row = get_scene_row(api.app.state.services.db, authenticate(api.app.state.services.db, KEY), api.big["id"])

@@ -1,4 +1,4 @@
-"""The Celery application: Redis broker, one ``render`` queue, late acknowledgement, prefetch 1.
+"""The Celery application: Redis broker, the ``render`` and ``render.heavy`` queues, late acknowledgement, prefetch 1.
 
 ``celery -A farfield.workers.app worker`` (what ``farfield worker`` runs) reads the settings from the
 environment.  A cell is acknowledged only after it ends, so a worker that dies mid-cell leaves it
@@ -8,15 +8,20 @@ the whole worker is, its cell's lease runs out and the API's sweep queues and se
 longest cell (the settings refuse one shorter than the task's hard time limit,
 ``FARFIELD_CELL_TIME_LIMIT`` + 60 s), so a slow cell is not handed to a second worker while the
 first still runs.
+
+A cell whose admission planned more than ``FARFIELD_HEAVY_TEXELS`` goes to ``render.heavy``, every
+other task to ``render`` (:mod:`farfield.service.pools`: GPU workers consume the first, CPU workers the
+second, each the other's too while no worker of that kind is live).
 """
 
 from __future__ import annotations
 
 from celery import Celery
 
+from farfield.service.pools import LIGHT_QUEUE
 from farfield.service.settings import Settings
 
-RENDER_QUEUE = "render"
+RENDER_QUEUE = LIGHT_QUEUE  # the light queue (service.pools); heavy cells go to render.heavy
 BAKE_CELL = "farfield.bake_cell"
 # A placement job's planning and its check-and-repair rounds (service.placement) go to the same
 # render queue: every worker farfield up starts takes them with no queue of its own to configure, and
@@ -50,10 +55,12 @@ def make_celery(settings: Settings) -> Celery:
     return app
 
 
-def send_cells(celery: Celery, cell_ids: list[str]) -> None:
-    """One bake task per cell to the render queue."""
+def send_cells(celery: Celery, cell_ids: list[str], queues: dict[str, str] | None = None) -> None:
+    """One bake task per cell to its queue in ``queues`` (:func:`farfield.service.pools.cell_queues`;
+    a cell not named there, to the render queue)."""
     for cell_id in cell_ids:
-        celery.send_task(BAKE_CELL, args=[cell_id], queue=RENDER_QUEUE, retry=True, retry_policy=SEND_RETRY_POLICY)
+        queue = (queues or {}).get(cell_id, RENDER_QUEUE)
+        celery.send_task(BAKE_CELL, args=[cell_id], queue=queue, retry=True, retry_policy=SEND_RETRY_POLICY)
 
 
 def send_planning(celery: Celery, job_id: str, phase: str = "plan") -> None:

@@ -45,6 +45,7 @@ import logging
 import os
 
 from billiard.exceptions import WorkerLostError
+from billiard.process import current_process
 from celery import Task
 from celery.exceptions import SoftTimeLimitExceeded, TimeLimitExceeded
 from celery.signals import worker_init, worker_ready, worker_shutdown
@@ -73,6 +74,7 @@ from farfield.service.placement import PLACEMENT_JOB
 from farfield.service.placement.candidate_fanout import register_sender, run_part
 from farfield.service.placement.lease import fail_planning, release_planning
 from farfield.service.placement.rounds import after_cell, run_planning
+from farfield.service.pools import QUEUES, QueueSwitch, cell_queues, pool_egl_device
 from farfield.service.settings import CELL_TIME_GRACE, Settings
 from farfield.workers.app import (
     ADMIT_JOB,
@@ -126,9 +128,14 @@ def start_heartbeat(sender=None, **_) -> None:
     settings = Settings.from_env()
     hostname = getattr(sender, "hostname", None) or celery_app.conf.get("worker_hostname") or "worker"
     concurrency = getattr(getattr(sender, "controller", None), "concurrency", None) or 1
+    # The queues of its kind (service.pools), switched in the consumer's thread (sender: the Consumer).
+    switch = None
+    if hasattr(sender, "call_soon") and hasattr(sender, "add_task_queue"):
+        consumed = tuple(q for q in QUEUES if q in celery_app.amqp.queues.consume_from)
+        switch = QueueSwitch(sender.call_soon, sender.add_task_queue, sender.cancel_task_queue, consumed)
     beat = Heartbeat(
         Database(settings.database_url), hostname, int(concurrency), settings.lease_s, settings.heartbeat_s,
-        active_cells,
+        active_cells, settings.worker_kind, switch,
     )  # fmt: skip
     _MAIN["heartbeat"] = beat.start()
 
@@ -179,8 +186,10 @@ def _services() -> tuple[Settings, Database, BlobStore]:
     _memory_guard(settings)
     if "gl" not in _STATE:
         _STATE["gl"] = True
-        if os.environ.get("FARFIELD_EGL_DEVICE"):  # one worker per GPU: farfield up pins each to its device
-            gl_context(int(os.environ["FARFIELD_EGL_DEVICE"]))
+        # One cell per EGL device: this pool process's own device (service.pools.pool_egl_device).
+        device = pool_egl_device(os.environ, getattr(current_process(), "index", 0) or 0)
+        if device is not None:
+            gl_context(device)
     return settings, db, blobs
 
 
@@ -521,5 +530,5 @@ def admit_job_task(self, job_id: str) -> str:
         return "released"
     if state == "continue":
         send_admission(celery_app, job_id)
-    send_cells(celery_app, cell_ids)
+    send_cells(celery_app, cell_ids, cell_queues(db, cell_ids, settings.heavy_texels))  # by cost: service.pools
     return state

@@ -8,11 +8,27 @@ import {admitting, countsText, fmtBytes, fmtNum, fmtSeconds, fmtTime, fmtVec, pc
 import {refreshScenes} from "./scenes.js";
 import {renderPlacement} from "./placement.js";
 
+// A job of more cells than this is polled without its cells (GET /v1/jobs/{id}?cells=none: counts,
+// progress, errors from SQL), its whole record (cells, evaluation, timing) fetched at most every
+// CELLS_EVERY_MS, and once more when its state changes: a 1,000-cell job's record every second took
+// most of the API's time (issue 58).
+const FEW_CELLS = 200;
+const CELLS_EVERY_MS = 5000;
+
+async function fetchJob(id) {
+  const path = `/v1/jobs/${encodeURIComponent(id)}`;
+  const old = state.job && state.job.id === id ? state.job : null;
+  if (!old || old.cells_total <= FEW_CELLS) return api(path);
+  const brief = await api(`${path}?cells=none`);
+  if (brief.state !== old.state || brief.cells_total <= FEW_CELLS || Date.now() - state.jobCellsAt > CELLS_EVERY_MS) return api(path);
+  return {...brief, cells: old.cells, evaluation: old.evaluation, timing: old.timing};
+}
+
 export async function refreshJob() {
   const id = state.jobId;
   let job;
   try {
-    job = await api(`/v1/jobs/${encodeURIComponent(id)}`);
+    job = await fetchJob(id);
   } catch (error) {
     if (id !== state.jobId) return;
     if (error.status === 404 || error.status === 422) {
@@ -24,6 +40,7 @@ export async function refreshJob() {
   }
   if (id !== state.jobId) return; // navigated away meanwhile
   if (!state.scenes.has(job.scene_id)) await refreshScenes().catch(() => {});
+  if (job !== state.job && (!state.job || job.cells !== state.job.cells)) state.jobCellsAt = Date.now();
   state.job = job;
   state.jobFetchedAt = Date.now();
   showBox($("job-missing"), "");

@@ -8,6 +8,7 @@ export const state = {
   jobId: null,
   job: null,
   jobFetchedAt: 0,
+  jobCellsAt: 0, // when the job's cells were last fetched (job.js: a large job is polled without them)
   scenes: new Map(), // id -> scene record (a summary: its objects are GET objects_url, paged)
   sceneObjects: new Map(), // id -> the names of its first objects, for the job form
   map: null, // {key, rects: Map(index -> {rect, title, bar, w})}

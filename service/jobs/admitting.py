@@ -10,7 +10,8 @@ will use):
   message the request's 413 gave before issue 58 (``JobTooCostlyError: view cell 3 needs about ...``);
 - when the cells' texels together pass ``FARFIELD_MAX_JOB_TEXELS`` the job fails with the job's
   413 message, every cell not yet failed with it;
-- otherwise the job becomes ``queued`` and the cells that passed are sent to the render queue.
+- otherwise the job becomes ``queued`` and the cells that passed are sent, each to the queue of its
+  planned texels (stored as ``cells.texels``: :mod:`farfield.service.pools`, GPU and CPU pools).
 
 Progress (the job's ``planning`` record, ``GET /v1/jobs/{id}`` shows it as ``admission``: ``done`` of
 ``total`` cells checked, ``texels`` found, ``failed``, and the ``seconds`` the deliveries spent checking, the
@@ -86,6 +87,12 @@ def _fail_cells(s, failed: dict[str, str]) -> None:
         )
 
 
+def _store_texels(s, texels: dict[str, float]) -> None:
+    """Each passed cell's planned texels (``cells.texels``: the queue it is sent to, service.pools)."""
+    if texels:
+        s.execute(update(CellRow), [{"id": cell_id, "texels": float(t)} for cell_id, t in texels.items()])
+
+
 def _fail_job_in(s, job: JobRow, message: str) -> None:
     """Fail the job and its cells still queued with ``message``, in the session ``s``."""
     job.state, job.error, job.finished_at, job.plan_worker, job.lease_until = "failed", message, now(), None, None
@@ -96,14 +103,18 @@ def _fail_job_in(s, job: JobRow, message: str) -> None:
     )
 
 
-def _commit(db: Database, job_id: str, worker: str, attempt: int, failed: dict[str, str], progress: dict) -> bool:
-    """Store the cells ``failed`` since the last commit and the ``progress`` (merged into the
-    planning record), renewing the lease; False when this delivery no longer holds the job."""
+def _commit(
+    db: Database, job_id: str, worker: str, attempt: int, failed: dict[str, str], progress: dict, texels: dict
+) -> bool:
+    """Store the cells ``failed`` since the last commit, the ``texels`` of those that passed and the
+    ``progress`` (merged into the planning record), renewing the lease; False when this delivery no
+    longer holds the job."""
     with db.session() as s:
         job = _held(s, job_id, worker, attempt)
         if job is None:
             return False
         _fail_cells(s, failed)
+        _store_texels(s, texels)
         job.planning = {**job.planning, **progress, "stalled": 0}
         job.lease_until = now() + ADMISSION_LEASE_S
         return True
@@ -153,6 +164,7 @@ def admit_job(
         )
     progress = {k: record[k] for k in ("done", "texels", "failed", "next")}
     failed: dict[str, str] = {}
+    passed: dict[str, float] = {}  # texels of the cells that passed since the last commit
     start = last = time.perf_counter()
     spent = float(record.get("seconds", 0.0))  # the earlier deliveries' (the job's timing: service.jobs.timing)
 
@@ -169,6 +181,7 @@ def admit_job(
             progress["failed"] += 1
         else:
             progress["texels"] += cost.texels
+            passed[cell_id] = cost.texels
             if progress["texels"] > limits.max_job_texels:
                 about = "about" if cost.complete else "more than"
                 message = f"{JobTooCostlyError.__name__}: " + job_too_costly(
@@ -185,9 +198,9 @@ def admit_job(
         progress["next"] = n + 1
         clock = time.perf_counter()
         if clock - last >= COMMIT_EVERY_S:
-            if not _commit(db, job_id, worker, attempt, failed, timed()):
+            if not _commit(db, job_id, worker, attempt, failed, timed(), passed):
                 return _stopped(db, job_id), []
-            failed, last = {}, clock
+            failed, passed, last = {}, {}, clock
             if deadline_s is not None and clock - start >= deadline_s and progress["done"] < record["total"]:
                 with db.session() as s:  # free the hold: the caller sends the admission again
                     s.execute(
@@ -201,6 +214,7 @@ def admit_job(
         if held is None:
             return _stopped_in(s, job_id), []
         _fail_cells(s, failed)
+        _store_texels(s, passed)
         planning = {**held.planning, **timed(), "phase": "admitted", "stalled": 0}
         planning.pop("worker", None)
         held.planning, held.state, held.plan_worker, held.lease_until = planning, "queued", None, None

@@ -32,6 +32,7 @@ import uuid
 from sqlalchemy import select, update
 
 from farfield.service.db import CellRow, Database, JobRow, WorkerRow, now
+from farfield.service.pools import QueueSwitch
 
 log = logging.getLogger("farfield.leases")
 
@@ -99,11 +100,21 @@ def renderer_kind(renderer: str | None) -> str:
     return "cpu" if any(s in renderer.lower() for s in ("llvmpipe", "softpipe", "swiftshader")) else "gpu"
 
 
-def record_worker(db: Database, name: str, concurrency: int, renderer: str | None, started_at: float) -> None:
-    """Insert or refresh the worker's row (its heartbeat)."""
+def record_worker(
+    db: Database,
+    name: str,
+    concurrency: int,
+    renderer: str | None,
+    started_at: float,
+    kind: str | None = None,
+    queues: tuple[str, ...] | None = None,
+) -> None:
+    """Insert or refresh the worker's row (its heartbeat); ``kind`` (``FARFIELD_WORKER_KIND``) instead of
+    the renderer's, and the ``queues`` it consumes (:mod:`farfield.service.pools`)."""
     values = {
-        "host": socket.gethostname(), "pid": os.getpid(), "kind": renderer_kind(renderer), "renderer": renderer,
+        "host": socket.gethostname(), "pid": os.getpid(), "kind": kind or renderer_kind(renderer), "renderer": renderer,
         "concurrency": concurrency, "started_at": started_at, "heartbeat_at": now(),
+        "queues": ",".join(queues) if queues is not None else None,
     }  # fmt: skip
     with db.session() as s:
         if not s.execute(update(WorkerRow).where(WorkerRow.name == name).values(**values)).rowcount:
@@ -130,7 +141,8 @@ def worker_records(db: Database, tenant_id: str | None, lease_s: float) -> list[
         shown = [r for r in mine if tenant_id is None or r.tenant_id == tenant_id]
         out.append({
             "name": w.name, "host": w.host, "pid": w.pid, "kind": w.kind, "renderer": w.renderer,
-            "concurrency": w.concurrency, "started_at": w.started_at, "heartbeat_at": w.heartbeat_at,
+            "concurrency": w.concurrency, "queues": None if w.queues is None else [q for q in w.queues.split(",") if q],
+            "started_at": w.started_at, "heartbeat_at": w.heartbeat_at,
             "heartbeat_age_s": round(clock - w.heartbeat_at, 3), "alive": clock - w.heartbeat_at <= lease_s,
             "cells": [{"job_id": r.job_id, "index": r.index, "progress": r.progress} for r in shown],
             "other_cells": len(mine) - len(shown),
@@ -142,11 +154,24 @@ class Heartbeat:
     """The heartbeat thread of a worker's main process: every ``every_s`` it renews the leases of the
     cells ``active`` (a function: the cell ids the pool runs now) returns and refreshes the worker's
     row; the first beat probes the renderer.  A failed beat is logged and the next one tries again
-    (a lease that runs out meanwhile is the sweeper's)."""
+    (a lease that runs out meanwhile is the sweeper's).  ``kind``: the worker's kind
+    (``FARFIELD_WORKER_KIND``) instead of its renderer's; ``switch``: its
+    :class:`~farfield.service.pools.QueueSwitch`, asked after each beat which queues to consume."""
 
-    def __init__(self, db: Database, name: str, concurrency: int, lease_s: float, every_s: float, active) -> None:
+    def __init__(
+        self,
+        db: Database,
+        name: str,
+        concurrency: int,
+        lease_s: float,
+        every_s: float,
+        active,
+        kind: str | None = None,
+        switch: QueueSwitch | None = None,
+    ) -> None:
         self.db, self.name, self.concurrency = db, name, concurrency
         self.lease_s, self.every_s, self.active = lease_s, every_s, active
+        self.kind, self.switch = kind, switch
         self.started_at, self.renderer = now(), None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="farfield-heartbeat", daemon=True)
@@ -176,13 +201,24 @@ class Heartbeat:
         return self
 
     def stop(self) -> None:
+        """Stop beating; a worker with a switch records that it consumes no queue any more, so that
+        the others take its kind's queue at their next beat, not after its lease (service.pools)."""
         self._stop.set()
         self._thread.join(timeout=10)
+        if self.switch is not None:
+            try:
+                with self._beating:
+                    record_worker(self.db, self.name, self.concurrency, self.renderer, self.started_at, self.kind, ())
+            except Exception:  # noqa: BLE001 - its lease runs out instead
+                log.warning("worker %s: could not record its stop", self.name, exc_info=True)
 
     def beat(self) -> int:
         """One heartbeat: renew the active cells' leases and the worker's row; how many leases were renewed."""
         renewed = renew_leases(self.db, self.name, self.active(), self.lease_s)
-        record_worker(self.db, self.name, self.concurrency, self.renderer, self.started_at)
+        queues = self.switch.queues if self.switch is not None else None
+        record_worker(self.db, self.name, self.concurrency, self.renderer, self.started_at, self.kind, queues)
+        if self.switch is not None:
+            self.switch.update(self.db, self.name, self.kind or renderer_kind(self.renderer), self.lease_s)
         return renewed
 
     def _run(self) -> None:

@@ -20,7 +20,7 @@ from farfield.service.placement import PLACEMENT_JOB
 
 __all__ = [
     "ERRORS_SHOWN", "CellView", "cell_record", "cell_views", "cell_records", "count_job_rows", "evaluation_summary", "full_job_record", "get_cell_row", "get_job_row",
-    "job_cells", "job_record", "job_summaries", "list_job_rows", "queued_cell_ids",
+    "cell_page", "count_cells", "job_cells", "job_record", "job_summaries", "list_job_rows", "queued_cell_ids",
 ]  # fmt: skip
 
 
@@ -42,6 +42,7 @@ def cell_record(cell: CellRow) -> dict:
         "index": cell.index, "grid": cell.grid, "viewcell": cell.viewcell, "state": cell.state,
         "attempts": cell.attempts, "worker": cell.worker, "error": cell.error, "progress": cell.progress, "seconds": cell.seconds,
         "stats": cell.stats, "has_result": cell.result_key is not None,
+        "texels": cell.texels,  # what its admission planned (None: not planned); its queue's (service.pools)
         "params": cell.params,  # a placement cell's own impostor (technique, objects, options); None: the job's
     }  # fmt: skip
 
@@ -174,6 +175,7 @@ class CellView:
     stats: dict | None
     result_key: str | None
     params: dict | None
+    texels: float | None
     started_at: float | None
     finished_at: float | None
 
@@ -194,6 +196,21 @@ def cell_views(db: Database, job_id: str) -> list[CellView]:
 def full_job_record(db: Database, job: JobRow) -> dict:
     """A job's record with all its cells."""
     return job_record(job, job_summaries(db, [job.id])[job.id], cell_views(db, job.id))
+
+
+def cell_page(db: Database, job_id: str, limit: int, offset: int) -> list[dict]:
+    """The records of the job's cells ``offset`` to ``offset + limit`` by index (``GET
+    /v1/jobs/{id}/cells``): a client that polls a large job pages through its cells, or asks for the
+    record without them (``?cells=none``), instead of the whole list every time."""
+    query = select(*_VIEW_COLUMNS).where(CellRow.job_id == job_id).order_by(CellRow.index).limit(limit).offset(offset)
+    with db.reading() as s:
+        return [cell_record(CellView(*row)) for row in s.execute(query)]
+
+
+def count_cells(db: Database, job_id: str) -> int:
+    """How many cells :func:`cell_page` pages through."""
+    with db.reading() as s:
+        return s.scalar(select(func.count()).select_from(CellRow).where(CellRow.job_id == job_id))
 
 
 def _jobs_query(query, tenant_id: str, state: str | None, scene_id: str | None):
