@@ -97,9 +97,13 @@ def leaf_regions(lo, hi, cpv: float) -> list[tuple[np.ndarray, np.ndarray]]:
     return [(lo + np.array(ijk) * size, lo + (np.array(ijk) + 1) * size) for ijk in np.ndindex(*counts)]
 
 
-def pvs_rows(scene, lo, hi, cpv: float, resolution: int, samples: int, levels: int, dense_samples: int) -> dict:
+def pvs_rows(
+    scene, lo, hi, cpv: float, resolution: int, samples: int, levels: int, dense_samples: int, erosion, peels: int
+) -> dict:
     elements = Elements.of(scene)
-    sparse = RegionVisibility(scene, elements, lo, hi, cpv, resolution, FOV, samples_per_side=samples, levels=levels)
+    sparse = RegionVisibility(scene, elements, lo, hi, cpv, resolution, FOV, samples_per_side=samples, levels=levels,
+                              erosion=erosion, peels=peels)  # fmt: skip
+    plain = RegionVisibility(scene, elements, lo, hi, cpv, resolution, FOV, samples_per_side=dense_samples, erosion=0.0)
     dense = RegionVisibility(
         scene,
         elements,
@@ -110,7 +114,7 @@ def pvs_rows(scene, lo, hi, cpv: float, resolution: int, samples: int, levels: i
         FOV,
         samples_per_side=dense_samples,
         levels=0,
-        renderer=sparse.renderer,
+        renderer=plain.renderer,  # the reference: points without erosion
     )
     regions = leaf_regions(lo, hi, cpv)
     started = time.perf_counter()
@@ -125,8 +129,10 @@ def pvs_rows(scene, lo, hi, cpv: float, resolution: int, samples: int, levels: i
         "lattice": sparse.lattice.counts.tolist(), "points": sparse.points_rendered, "face": sparse.renderer.face,
         "margin": sparse.margin, "pvs_s": sparse_s, "pvs_element_share": share, "pvs_triangle_share": tri_share,
         "dense_points": dense.points_rendered, "false_invisible": fi,
+        "erosion": sparse.renderer.erosion, "peels": sparse.renderer.peels,
     }  # fmt: skip
     sparse.release()
+    plain.release()
     return row
 
 
@@ -303,7 +309,15 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--parts", default="pvs,estimates,memory")
     parser.add_argument("--samples", type=int, default=2, help="PVS: samples per smallest region side")
-    parser.add_argument("--levels", type=int, default=1, help="PVS: adaptive refinement levels")
+    parser.add_argument("--levels", type=int, default=0, help="PVS: adaptive refinement levels")
+    parser.add_argument(
+        "--erosion",
+        default="auto",
+        help="PVS: occluder erosion in scene units (auto: half a lattice cell's diagonal; 0: none)",
+    )
+    parser.add_argument(
+        "--peels", type=int, default=2, help="PVS: layers peeled behind an eroded point's first surfaces"
+    )
     parser.add_argument(
         "--dense-samples", type=int, default=8, help="the denser uniform sampling the PVS is compared with"
     )
@@ -331,10 +345,11 @@ def main() -> None:
         )
         if "pvs" in parts:
             r = row["pvs"] = pvs_rows(
-                scene, lo, hi, cpv, args.resolution, args.samples, args.levels, args.dense_samples
-            )
+                scene, lo, hi, cpv, args.resolution, args.samples, args.levels, args.dense_samples,
+                None if args.erosion == "auto" else float(args.erosion), args.peels,
+            )  # fmt: skip
             fi = r["false_invisible"]
-            print(f"   PVS ({args.samples} per side, {args.levels} levels): lattice {r['lattice']} ({r['points']} points, faces {r['face']} px, margin {r['margin']:.3g}) in {r['pvs_s']:.1f} s; "
+            print(f"   PVS ({args.samples} per side, {args.levels} levels, erosion {r['erosion']:.3g}, {r['peels']} peels): lattice {r['lattice']} ({r['points']} points, faces {r['face']} px, margin {r['margin']:.3g}) in {r['pvs_s']:.1f} s; "
                   f"mean PVS {100 * r['pvs_element_share']:.1f} % of {r['elements']} elements, {100 * r['pvs_triangle_share']:.1f} % of triangles; "
                   f"against {r['dense_points']} points: {fi['missing']} missing in {fi['regions_missing']}/{fi['regions']} regions "
                   f"({100 * fi['missing_share']:.2f} % of dense PVS entries), at most {fi['max_missing_texels']} texels "
