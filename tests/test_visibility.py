@@ -134,9 +134,12 @@ def test_a_region_pvs_drops_the_hidden_block_and_keeps_the_rest():
             samples_per_side=4,
             levels=0,
             margin=0.0,
-            renderer=vis.renderer,
+            erosion=0.0,
         )
-        report = false_invisible(vis, dense, [([-10, -2, -10], [0, 2, 10])])
+        try:
+            report = false_invisible(vis, dense, [([-10, -2, -10], [0, 2, 10])])
+        finally:
+            dense.release()
         assert report["missing"] == 0 and report["dense_pvs"] == report["sparse_pvs"] == len(pvs)
     finally:
         vis.release()
