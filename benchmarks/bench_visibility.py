@@ -7,10 +7,12 @@ with the view space at street level, 1.5..2.5 m, over the same square), with the
 space's longest side / ``--cpv-divisions`` and 45° view-direction intervals, at ``--resolution``:
 
 1. **The PVS** (:class:`farfield.core.visibility.pvs.RegionVisibility`, defaults: 2 samples per
-   region side, one adaptive level, cube faces of one texel per 2 output pixels, margin one lattice step): points
+   region side, no adaptive level, occluder erosion of half a lattice cell's diagonal with 2 peels
+   (``--erosion``, ``--peels``; ``--erosion 0 --levels 1`` is the earlier default), cube faces of one
+   texel per 2 output pixels, margin one lattice step): points
    rendered and seconds; the mean PVS of a smallest region as a share of the elements and of the
-   triangles; and the **false-invisible rate** against the same lattice twice as dense along each
-   axis (``--dense-samples``, default 8 per side, uniform): elements the dense sampling sees and
+   triangles; and the **false-invisible rate** against a uniform lattice of plain points (no
+   erosion; ``--dense-samples``, default 8 per side): elements the dense sampling sees and
    the PVS lacks, and the most cube-map texels (and nominal output pixels) they cover from one
    dense point (:func:`farfield.core.visibility.pvs.false_invisible`).
 2. **Estimate ÷ measured** on ``--views`` random views (``bench_placement.estimate_rows``'s): the
@@ -181,7 +183,7 @@ def estimate_ratios(scene, lo, hi, cpv: float, resolution: int, views: int, seed
     return out
 
 
-def runtime_rows(scene, lo, hi, cpv: float, resolution: int, views: int, seed: int) -> dict:
+def runtime_rows(scene, lo, hi, cpv: float, resolution: int, views: int, seed: int, **pvs_options) -> dict:
     """The runtime culling to the stored PVS against drawing the frustum (module docstring, part 3)."""
     import tempfile
     from dataclasses import replace
@@ -195,7 +197,7 @@ def runtime_rows(scene, lo, hi, cpv: float, resolution: int, views: int, seed: i
     elements = Elements.of(scene)
     hierarchy = Hierarchy.build(elements)
     args = (elements, hierarchy, lo, hi, LLVMPIPE_MODEL, 1e-12, FOV, resolution, cpv, 45.0, 4.0)
-    visible = RegionVisibility(scene, elements, lo, hi, cpv, resolution, FOV)
+    visible = RegionVisibility(scene, elements, lo, hi, cpv, resolution, FOV, **pvs_options)
     started = time.perf_counter()
     try:
         with_vis = problem_view_space(*args, visible)
@@ -361,7 +363,10 @@ def main() -> None:
                 print(f"   estimate ÷ measured ({key}): p50 {e['ratio_p50']:.2f}, p95 {e['ratio_p95']:.2f}, slowest quarter p50 {e['ratio_p50_slowest_quarter']:.2f}, "
                       f"under by > 30 %: {100 * e['under_30pct']:.1f} %; plain p50 {r['plain_ms_p50']:.2f} ms, p99 {r['plain_ms_p99']:.2f} ms", flush=True)  # fmt: skip
         if "runtime" in parts:
-            r = row["runtime"] = runtime_rows(scene, lo, hi, cpv, args.resolution, args.views, args.seed)
+            r = row["runtime"] = runtime_rows(
+                scene, lo, hi, cpv, args.resolution, args.views, args.seed, samples_per_side=args.samples,
+                levels=args.levels, erosion=None if args.erosion == "auto" else float(args.erosion), peels=args.peels,
+            )  # fmt: skip
             print(f"   runtime with the stored PVS ({r['regions']} regions, {r['stored_bytes']:,} B stored vs {r['raw_bytes']:,} B raw bits; PVS {r['pvs_s']:.1f} s): "
                   f"{r['frames_with_pvs']}/{r['frames']} frames culled; frame ms p50 {r['culled_ms_p50']:.2f} / p95 {r['culled_ms_p95']:.2f} "
                   f"vs frustum only {r['plain_ms_p50']:.2f} / {r['plain_ms_p95']:.2f} (speed-up median {r['speedup_median']:.2f}x); "
