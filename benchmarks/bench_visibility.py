@@ -7,10 +7,12 @@ with the view space at street level, 1.5..2.5 m, over the same square), with the
 space's longest side / ``--cpv-divisions`` and 45° view-direction intervals, at ``--resolution``:
 
 1. **The PVS** (:class:`farfield.core.visibility.pvs.RegionVisibility`, defaults: 2 samples per
-   region side, one adaptive level, cube faces of one texel per 2 output pixels, margin one lattice step): points
+   region side, no adaptive level, occluder erosion of half a lattice cell's diagonal with 2 peels
+   (``--erosion``, ``--peels``; ``--erosion 0 --levels 1`` is the earlier default), cube faces of one
+   texel per 2 output pixels, margin one lattice step): points
    rendered and seconds; the mean PVS of a smallest region as a share of the elements and of the
-   triangles; and the **false-invisible rate** against the same lattice twice as dense along each
-   axis (``--dense-samples``, default 8 per side, uniform): elements the dense sampling sees and
+   triangles; and the **false-invisible rate** against a uniform lattice of plain points (no
+   erosion; ``--dense-samples``, default 8 per side): elements the dense sampling sees and
    the PVS lacks, and the most cube-map texels (and nominal output pixels) they cover from one
    dense point (:func:`farfield.core.visibility.pvs.false_invisible`).
 2. **Estimate ÷ measured** on ``--views`` random views (``bench_placement.estimate_rows``'s): the
@@ -97,9 +99,13 @@ def leaf_regions(lo, hi, cpv: float) -> list[tuple[np.ndarray, np.ndarray]]:
     return [(lo + np.array(ijk) * size, lo + (np.array(ijk) + 1) * size) for ijk in np.ndindex(*counts)]
 
 
-def pvs_rows(scene, lo, hi, cpv: float, resolution: int, samples: int, levels: int, dense_samples: int) -> dict:
+def pvs_rows(
+    scene, lo, hi, cpv: float, resolution: int, samples: int, levels: int, dense_samples: int, erosion, peels: int
+) -> dict:
     elements = Elements.of(scene)
-    sparse = RegionVisibility(scene, elements, lo, hi, cpv, resolution, FOV, samples_per_side=samples, levels=levels)
+    sparse = RegionVisibility(scene, elements, lo, hi, cpv, resolution, FOV, samples_per_side=samples, levels=levels,
+                              erosion=erosion, peels=peels)  # fmt: skip
+    plain = RegionVisibility(scene, elements, lo, hi, cpv, resolution, FOV, samples_per_side=dense_samples, erosion=0.0)
     dense = RegionVisibility(
         scene,
         elements,
@@ -110,7 +116,7 @@ def pvs_rows(scene, lo, hi, cpv: float, resolution: int, samples: int, levels: i
         FOV,
         samples_per_side=dense_samples,
         levels=0,
-        renderer=sparse.renderer,
+        renderer=plain.renderer,  # the reference: points without erosion
     )
     regions = leaf_regions(lo, hi, cpv)
     started = time.perf_counter()
@@ -125,8 +131,10 @@ def pvs_rows(scene, lo, hi, cpv: float, resolution: int, samples: int, levels: i
         "lattice": sparse.lattice.counts.tolist(), "points": sparse.points_rendered, "face": sparse.renderer.face,
         "margin": sparse.margin, "pvs_s": sparse_s, "pvs_element_share": share, "pvs_triangle_share": tri_share,
         "dense_points": dense.points_rendered, "false_invisible": fi,
+        "erosion": sparse.renderer.erosion, "peels": sparse.renderer.peels,
     }  # fmt: skip
     sparse.release()
+    plain.release()
     return row
 
 
@@ -175,7 +183,7 @@ def estimate_ratios(scene, lo, hi, cpv: float, resolution: int, views: int, seed
     return out
 
 
-def runtime_rows(scene, lo, hi, cpv: float, resolution: int, views: int, seed: int) -> dict:
+def runtime_rows(scene, lo, hi, cpv: float, resolution: int, views: int, seed: int, **pvs_options) -> dict:
     """The runtime culling to the stored PVS against drawing the frustum (module docstring, part 3)."""
     import tempfile
     from dataclasses import replace
@@ -189,7 +197,7 @@ def runtime_rows(scene, lo, hi, cpv: float, resolution: int, views: int, seed: i
     elements = Elements.of(scene)
     hierarchy = Hierarchy.build(elements)
     args = (elements, hierarchy, lo, hi, LLVMPIPE_MODEL, 1e-12, FOV, resolution, cpv, 45.0, 4.0)
-    visible = RegionVisibility(scene, elements, lo, hi, cpv, resolution, FOV)
+    visible = RegionVisibility(scene, elements, lo, hi, cpv, resolution, FOV, **pvs_options)
     started = time.perf_counter()
     try:
         with_vis = problem_view_space(*args, visible)
@@ -303,7 +311,15 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--parts", default="pvs,estimates,memory")
     parser.add_argument("--samples", type=int, default=2, help="PVS: samples per smallest region side")
-    parser.add_argument("--levels", type=int, default=1, help="PVS: adaptive refinement levels")
+    parser.add_argument("--levels", type=int, default=0, help="PVS: adaptive refinement levels")
+    parser.add_argument(
+        "--erosion",
+        default="auto",
+        help="PVS: occluder erosion in scene units (auto: half a lattice cell's diagonal; 0: none)",
+    )
+    parser.add_argument(
+        "--peels", type=int, default=2, help="PVS: layers peeled behind an eroded point's first surfaces"
+    )
     parser.add_argument(
         "--dense-samples", type=int, default=8, help="the denser uniform sampling the PVS is compared with"
     )
@@ -331,10 +347,11 @@ def main() -> None:
         )
         if "pvs" in parts:
             r = row["pvs"] = pvs_rows(
-                scene, lo, hi, cpv, args.resolution, args.samples, args.levels, args.dense_samples
-            )
+                scene, lo, hi, cpv, args.resolution, args.samples, args.levels, args.dense_samples,
+                None if args.erosion == "auto" else float(args.erosion), args.peels,
+            )  # fmt: skip
             fi = r["false_invisible"]
-            print(f"   PVS ({args.samples} per side, {args.levels} levels): lattice {r['lattice']} ({r['points']} points, faces {r['face']} px, margin {r['margin']:.3g}) in {r['pvs_s']:.1f} s; "
+            print(f"   PVS ({args.samples} per side, {args.levels} levels, erosion {r['erosion']:.3g}, {r['peels']} peels): lattice {r['lattice']} ({r['points']} points, faces {r['face']} px, margin {r['margin']:.3g}) in {r['pvs_s']:.1f} s; "
                   f"mean PVS {100 * r['pvs_element_share']:.1f} % of {r['elements']} elements, {100 * r['pvs_triangle_share']:.1f} % of triangles; "
                   f"against {r['dense_points']} points: {fi['missing']} missing in {fi['regions_missing']}/{fi['regions']} regions "
                   f"({100 * fi['missing_share']:.2f} % of dense PVS entries), at most {fi['max_missing_texels']} texels "
@@ -346,7 +363,10 @@ def main() -> None:
                 print(f"   estimate ÷ measured ({key}): p50 {e['ratio_p50']:.2f}, p95 {e['ratio_p95']:.2f}, slowest quarter p50 {e['ratio_p50_slowest_quarter']:.2f}, "
                       f"under by > 30 %: {100 * e['under_30pct']:.1f} %; plain p50 {r['plain_ms_p50']:.2f} ms, p99 {r['plain_ms_p99']:.2f} ms", flush=True)  # fmt: skip
         if "runtime" in parts:
-            r = row["runtime"] = runtime_rows(scene, lo, hi, cpv, args.resolution, args.views, args.seed)
+            r = row["runtime"] = runtime_rows(
+                scene, lo, hi, cpv, args.resolution, args.views, args.seed, samples_per_side=args.samples,
+                levels=args.levels, erosion=None if args.erosion == "auto" else float(args.erosion), peels=args.peels,
+            )  # fmt: skip
             print(f"   runtime with the stored PVS ({r['regions']} regions, {r['stored_bytes']:,} B stored vs {r['raw_bytes']:,} B raw bits; PVS {r['pvs_s']:.1f} s): "
                   f"{r['frames_with_pvs']}/{r['frames']} frames culled; frame ms p50 {r['culled_ms_p50']:.2f} / p95 {r['culled_ms_p95']:.2f} "
                   f"vs frustum only {r['plain_ms_p50']:.2f} / {r['plain_ms_p95']:.2f} (speed-up median {r['speedup_median']:.2f}x); "

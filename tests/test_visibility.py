@@ -134,9 +134,12 @@ def test_a_region_pvs_drops_the_hidden_block_and_keeps_the_rest():
             samples_per_side=4,
             levels=0,
             margin=0.0,
-            renderer=vis.renderer,
+            erosion=0.0,
         )
-        report = false_invisible(vis, dense, [([-10, -2, -10], [0, 2, 10])])
+        try:
+            report = false_invisible(vis, dense, [([-10, -2, -10], [0, 2, 10])])
+        finally:
+            dense.release()
         assert report["missing"] == 0 and report["dense_pvs"] == report["sparse_pvs"] == len(pvs)
     finally:
         vis.release()
@@ -213,3 +216,46 @@ def test_place_command_takes_visibility_and_refuses_it_for_the_primitive_budget(
     assert json.loads(plain.output)["summary"]["impostors"] > 0 == json.loads(culled.output)["summary"]["impostors"]
     refused = runner.invoke(cli, [*args, "--visibility", "--algorithm", "primitive-budget"])
     assert refused.exit_code != 0 and "--visibility applies to the frame-time placement" in refused.output
+
+
+def _slit() -> Scene:
+    """A wall at x = 20..20.5 with a 0.5 m slit at z = 2.25..2.75, a thin post behind the slit (x = 40)
+    that only eyes near z = 2.5 see through it, a back wall every eye sees through the slit, and a
+    block behind the wall far from the slit that no eye of the region sees."""
+    return Scene.from_objects(
+        [
+            _box("wall_low", (20, -50, -100), (20.5, 50, 2.25)),
+            _box("wall_high", (20, -50, 2.75), (20.5, 50, 100)),
+            _box("post", (40, -2, 2.2), (40.6, 3, 2.8)),
+            _box("back", (60, -50, -100), (61, 50, 100)),
+            _box("hidden", (40, -2, -60), (44, 2, -56)),
+        ],
+        "slit",
+    )
+
+
+def test_the_eroded_pvs_keeps_a_post_seen_only_through_a_slit_between_the_lattice_points():
+    """The region x, z = 0..10 has lattice points at x, z in {0, 5, 10}: none sees the post through
+    the slit (their lines through it reach x = 40 at z = 4.5..8.3 or -0.5..0.5), an eye at z = 2.5
+    does.  Point sampling drops it even refined; occluder erosion keeps it, and still drops the block
+    the wall hides from every eye of the region."""
+    scene = _slit()
+    elements = Elements.of(scene)
+    post, hidden = _index(elements, "post"), _index(elements, "hidden")
+    lo, hi = [0.0, 0.0, 0.0], [10.0, 1.0, 10.0]
+    with IdCubeRenderer(scene, elements, 256) as truth:
+        assert post in truth.see([[5.0, 0.5, 2.5]]).of(0)[0].tolist()  # a view of the region sees it
+    sampled = RegionVisibility(scene, elements, lo, hi, 10.0, 64, FOV, levels=1, erosion=0.0)
+    try:
+        assert sampled.lattice.counts.tolist() == [3, 2, 3]
+        assert post not in sampled.pvs(lo, hi).tolist()  # the points alone miss it
+    finally:
+        sampled.release()
+    eroded = RegionVisibility(scene, elements, lo, hi, 10.0, 64, FOV)
+    try:
+        assert eroded.erosion == pytest.approx(0.5 * math.sqrt(5**2 + 1**2 + 5**2))
+        pvs = eroded.pvs(lo, hi).tolist()
+        assert post in pvs and _index(elements, "back") in pvs
+        assert hidden not in pvs
+    finally:
+        eroded.release()

@@ -13,6 +13,21 @@ back faces are culled, as a runtime draws them).  Objects with an alpha mask or 
 below 1 are drawn without writing depth: they are seen where they are in front, but hide nothing
 (an item buffer cannot know which texels a mask keeps).  Ids are index + 1 in 24 bits of an RGBA8
 colour (exact), so up to 16,777,214 elements.
+
+**Occluder erosion** (``erosion`` > 0; seed 000 §2.2.2 and §3.4.1 on [Wonk00], Wonka, Wimmer and
+Schmalstieg 2000: what a point sees past occluders shrunk by ``e`` is a superset of what every eye
+within ``e`` of it sees past the real ones; done in image space on the depth map, after Décoret,
+Debunne and Sillion, *Erosion based visibility preprocessing*, EGSR 2003).  The occluders' depth map
+of each face is eroded: a texel at distance ``z`` takes the farthest depth seen just past an
+occluder's silhouette within ``e / z`` radians of it (a square of texels, :func:`erode_depth`), so
+a gap or a silhouette that a nearby eye could see past opens by the parallax it could have.  Then ``peels``
+further passes draw every element again, keeping per texel the nearest fragment behind the previous
+layer and in front of the eroded depth (depth peeling, ``PEEL`` in ``shaders/id_cube.frag``): the
+elements a nearby eye may see behind what this point sees.  Not strictly conservative: only the first
+surface erodes (an occluder behind it is never shrunk, which only keeps more), more than ``peels``
+layers in an opened texel lose the deeper ones, a feature that covers no texel centre is lost, and an
+element hidden by another part of one element (its own silhouette: a hill of one terrain mesh) opens
+only where the element's texels neighbour another element's.
 """
 
 from __future__ import annotations
@@ -36,6 +51,8 @@ MAX_ATLAS_SIDE = 8192  # texels; llvmpipe and the NVIDIA driver allow 16384
 MAX_FACE_RESOLUTION = 1024
 MAX_CULL_ENTRIES = 4_000_000  # (point, face, element) frustum tests of one batch
 NEAR_SHARE = 1e-4  # near plane at this share of the far distance (24-bit depth)
+GUARD = 1.5  # an eroded face spans tan -1.5..1.5 (112.6°): the erosion's neighbourhood past its 90°
+PEEL_DEPTH_BIAS = 2.0**-20  # window-depth units: a peeled fragment lies this far behind the layer above
 
 
 class VisibilityError(FarfieldError):
@@ -72,6 +89,91 @@ def face_resolution_for(resolution: int, fov: float, texel_pixels: float) -> int
     return int(min(MAX_FACE_RESOLUTION, max(8, math.ceil(resolution * (0.5 * math.pi) / fov / texel_pixels))))
 
 
+def linear_depth(window: np.ndarray, near: float, far: float) -> np.ndarray:
+    """Eye-space depth along a face's axis of window depths ``window`` (0..1) of the id cubes' projection.
+
+    >>> linear_depth(np.array([0.0, 1.0]), 0.5, 100.0).round(6).tolist()
+    [0.5, 100.0]
+    """
+    ndc = 2.0 * np.asarray(window, dtype=np.float64) - 1.0
+    return 2.0 * far * near / ((far + near) - ndc * (far - near))
+
+
+def silhouettes(depth: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """The depths seen just past an occluder's silhouette, 0 elsewhere: ``depth`` and ``ids``
+    (..., face, face) of the first surfaces; a texel keeps its depth where a neighbour (of the four) is
+    nearer and of another element (or the texel is empty, depth 1).  A surface next to more of
+    itself (a slanted wall, a box's crease) is no silhouette, so it does not erode into itself.
+
+    >>> d = np.full((1, 4, 4), 0.9, dtype=np.float32); i = np.full((1, 4, 4), 2)
+    >>> d[0, :, :2], i[0, :, :2] = 0.5, 1
+    >>> silhouettes(d, i)[0].tolist()[0]
+    [0.0, 0.0, 0.8999999761581421, 0.0]
+    """
+    depth = np.asarray(depth, dtype=np.float32)
+    out = np.zeros_like(depth)
+    for axis in (-1, -2):
+        n = depth.shape[axis]
+        a = (slice(None),) * (depth.ndim + axis) + (slice(0, n - 1),)
+        b = (slice(None),) * (depth.ndim + axis) + (slice(1, n),)
+        other = ids[a] != ids[b]
+        for far, near in ((b, a), (a, b)):
+            edge = other & (depth[near] < depth[far])
+            out[far] = np.where(edge, depth[far], out[far])
+    return out
+
+
+RADII = np.unique(np.ceil(np.sqrt(2.0) ** np.arange(0, 25)).astype(np.int64))  # 1, 2, 3, 4, 6, 8, 12, 16, 23, ...
+
+
+def erode_depth(
+    depth: np.ndarray, ids: np.ndarray, erosion: float, near: float, far: float, guard: float = 1.0
+) -> np.ndarray:
+    """Occluder erosion of cube faces' depth maps (module docstring): ``depth`` and ``ids`` (...,
+    face, face) window depths and element codes of the first surfaces, on faces spanning tan
+    ``-guard..guard``.  Each texel takes the farthest depth seen just past a silhouette
+    (:func:`silhouettes`) within ``r = erosion * face / (2 guard z) * sqrt(1 + x² + y²)`` texels of it
+    (a square), if farther than its own: ``z`` is its eye-space depth along the face's axis (its
+    distance is ``z sqrt(1 + x² + y²)``) and ``x, y`` its tan position, so ``r`` is ``erosion /
+    distance`` radians of parallax in texels of the gnomonic face, which narrow by ``1 + x² + y²``
+    away from its centre.  The guard band beyond tan 1 holds the neighbouring faces' directions; past
+    it nothing opens.  Radii are rounded up to :data:`RADII`, each one ``scipy.ndimage.maximum_filter``
+    (separable, linear in the texels).
+
+    >>> d = np.full((1, 16, 16), 0.5, dtype=np.float32); i = np.ones((1, 16, 16), dtype=np.int64)
+    >>> d[0, :, 12:], i[0, :, 12:] = 0.9, 2
+    >>> e = erode_depth(d, i, 0.0, 0.1, 10.0); bool(np.allclose(e, d))
+    True
+    >>> e = erode_depth(d, i, 0.01, 0.1, 10.0); [round(float(v), 2) for v in e[0, 8, [8, 10, 11, 12]]]
+    [0.5, 0.5, 0.9, 0.9]
+    >>> e = erode_depth(d, i, 0.05, 0.1, 10.0); [round(float(v), 2) for v in e[0, 8, [8, 9, 10, 12]]]
+    [0.5, 0.9, 0.9, 0.9]
+    """
+    from scipy.ndimage import maximum_filter
+
+    depth = np.asarray(depth, dtype=np.float32)
+    face = depth.shape[-1]
+    if erosion <= 0.0:
+        return depth
+    c = ((np.arange(face) + 0.5) * (2.0 / face) - 1.0) * guard
+    stretch = np.sqrt(1.0 + c[:, None] ** 2 + c[None, :] ** 2)
+    z = np.maximum(linear_depth(depth, near, far), near)
+    radius = np.minimum(np.ceil(erosion * face / (2.0 * guard * z) * stretch), face)
+    edges = silhouettes(depth, ids)
+    out = depth.copy()
+    size = (1,) * (depth.ndim - 2)
+    low = 0
+    for high in RADII.tolist():
+        pick = (radius > low) & (radius <= high)
+        if np.any(pick):
+            wide = maximum_filter(edges, size=(*size, 2 * high + 1, 2 * high + 1), mode="constant", cval=0.0)
+            out[pick] = np.maximum(out[pick], wide[pick])
+        low = high
+        if low >= face:
+            break
+    return out
+
+
 @dataclass(frozen=True, slots=True)
 class PointSight:
     """What each of some points sees, in a flat CSR layout: point ``i``'s elements are
@@ -89,12 +191,22 @@ class PointSight:
 class IdCubeRenderer:
     """Element-id cube maps of ``elements`` of ``scene`` from any points (see the module docstring)."""
 
-    def __init__(self, scene: Scene, elements: Elements, face_resolution: int) -> None:
+    def __init__(
+        self, scene: Scene, elements: Elements, face_resolution: int, erosion: float = 0.0, peels: int = 2
+    ) -> None:
+        if not (math.isfinite(erosion) and erosion >= 0.0):
+            raise VisibilityError(f"the occluder erosion must be >= 0, got {erosion!r}")
+        if not (isinstance(peels, int) and 0 <= peels <= 16):
+            raise VisibilityError(f"peels must be an integer in 0..16, got {peels!r}")
+        self.erosion, self.peels = float(erosion), int(peels) if erosion > 0.0 else 0
         if elements.count > MAX_IDS:
             raise VisibilityError(f"{elements.count} elements: an id buffer holds {MAX_IDS} at most")
-        self.face = int(face_resolution)
-        if not 1 <= self.face <= MAX_FACE_RESOLUTION:
+        if not 1 <= int(face_resolution) <= MAX_FACE_RESOLUTION:
             raise VisibilityError(f"a cube face needs 1..{MAX_FACE_RESOLUTION} texels a side, got {face_resolution!r}")
+        # Eroded faces are drawn wider (a guard band of the neighbouring faces' directions, so the
+        # erosion near a face's border sees across it), with as many texels per tan unit.
+        self.guard = GUARD if self.peels else 1.0
+        self.face = int(math.ceil(int(face_resolution) * self.guard))
         self.elements = elements
         self.ctx = ctx = gl_context()
         bounds = np.asarray(scene.bounds, dtype=np.float64)
@@ -103,7 +215,10 @@ class IdCubeRenderer:
         # Points per draw: the atlas's height, and the culling's (points, 6, elements) arrays bounded.
         self.batch = max(1, min(MAX_ATLAS_SIDE // self.face, MAX_CULL_ENTRIES // (6 * max(1, elements.count))))
         self.prog = program(ctx, "id_cube.vert", "id_cube.frag")
-        self.prog["face_frames"].write(np.ascontiguousarray(face_frames().transpose(0, 2, 1)).astype("f4").tobytes())
+        self.peel_prog = program(ctx, "id_cube.vert", "id_cube.frag", defines=("PEEL",)) if self.peels else None
+        for prog in (self.prog, self.peel_prog):
+            if prog is not None:
+                prog["face_frames"].write(np.ascontiguousarray(face_frames().transpose(0, 2, 1)).astype("f4").tobytes())
         self.instances = ctx.buffer(reserve=self.batch * 6 * 20)  # eye (3 floats), face, row
         self._owned: list = [self.instances]
         b = elements.bounds
@@ -132,14 +247,18 @@ class IdCubeRenderer:
             first = np.concatenate([[0], np.cumsum(counts)[:-1]])
             vbo = ctx.buffer(np.concatenate(vertices).tobytes())
             ibo = ctx.buffer(np.concatenate(indices).tobytes())
-            vao = ctx.vertex_array(
-                self.prog,
-                [(vbo, "3f 1u", "in_position", "in_id"), (self.instances, "3f 2f/i", "in_eye", "in_tile")],
-                index_buffer=ibo,
-                index_element_size=4,
-            )
-            self._owned += [vbo, ibo, vao]
-            self.passes.append((vao, np.asarray(members, dtype=np.int64), first, counts, cull, depth))
+            vaos = [
+                ctx.vertex_array(
+                    prog,
+                    [(vbo, "3f 1u", "in_position", "in_id"), (self.instances, "3f 2f/i", "in_eye", "in_tile")],
+                    index_buffer=ibo,
+                    index_element_size=4,
+                )
+                for prog in (self.prog, self.peel_prog)
+                if prog is not None
+            ]
+            self._owned += [vbo, ibo, *vaos]
+            self.passes.append((vaos, np.asarray(members, dtype=np.int64), first, counts, cull, depth))
         self.commands = None
         side = (6 * self.face, self.batch * self.face)
         self.colour = ctx.renderbuffer(side, 4)
@@ -154,7 +273,7 @@ class IdCubeRenderer:
         done = 0
         for start in range(0, pts.shape[0], self.batch):
             batch = pts[start : start + self.batch]
-            rows = np.concatenate([r.reshape(batch.shape[0], -1) for r in self._draw(batch)], axis=1)
+            rows = np.concatenate([r.reshape(batch.shape[0], -1) for r in self._draw_eroded(batch)], axis=1)
             m = self.elements.count + 1
             counts = np.bincount(
                 (np.arange(batch.shape[0], dtype=np.int64)[:, None] * m + rows.reshape(batch.shape[0], -1)).ravel(),
@@ -171,17 +290,63 @@ class IdCubeRenderer:
             np.concatenate(texels) if texels else np.empty(0, dtype=np.int64),
         )
 
-    def _draw(self, batch: np.ndarray) -> list[np.ndarray]:
+    def _draw_eroded(self, batch: np.ndarray) -> list[np.ndarray]:
+        """The batch's id images (:meth:`_draw`), and with ``erosion`` the layers peeled behind the
+        occluders' depth up to its erosion (module docstring)."""
+        images, depth, (near, far) = self._draw(batch)
+        if not self.peels:
+            return images
+        n, face = batch.shape[0], self.face
+        tiles = depth.reshape(n, face, 6, face).transpose(0, 2, 1, 3)  # (points, face, rows, columns)
+        codes = images[0].reshape(n, face, 6, face).transpose(0, 2, 1, 3)
+        upper = (
+            erode_depth(tiles, codes, self.erosion, near, far, self.guard)
+            .transpose(0, 2, 1, 3)
+            .reshape(n, face, 6 * face)
+        )
+        textures = [self._texture(upper, "f4"), self._texture(depth, "f4"), self._texture(images[0], "u4")]
+        try:
+            self.peel_prog["upper_depth"].value, self.peel_prog["lower_depth"].value = 0, 1
+            self.peel_prog["lower_id"].value = 2
+            self.peel_prog["depth_bias"].value = PEEL_DEPTH_BIAS
+            for _ in range(self.peels):
+                for unit, texture in enumerate(textures):
+                    texture.use(location=unit)
+                layer, depth, _ = self._draw(batch, peel=True)
+                if not np.any(layer[0]):
+                    break
+                images += layer
+                textures[1].write(np.ascontiguousarray(depth, dtype=np.float32).tobytes())
+                textures[2].write(np.ascontiguousarray(layer[0], dtype=np.uint32).tobytes())
+        finally:
+            for texture in textures:
+                texture.release()
+        return images
+
+    def _texture(self, image: np.ndarray, dtype: str) -> moderngl.Texture:
+        """(points, face, 6 * face) ``image`` as a one-channel texture of the atlas (rows as read)."""
+        texture = self.ctx.texture(
+            (image.shape[2], image.shape[0] * image.shape[1]), 1, np.ascontiguousarray(image, dtype=dtype).tobytes(),
+            dtype=dtype,
+        )  # fmt: skip
+        texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        return texture
+
+    def _draw(self, batch: np.ndarray, peel: bool = False) -> tuple[list[np.ndarray], np.ndarray, tuple[float, float]]:
         """(points, face, 6 * face) uint32 codes (element index + 1; 0 nothing) of the batch's cube
         maps: one image of the occluders, and one of the elements that hide nothing where there are
-        any (drawn after the colour alone is cleared, against the occluders' depth)."""
-        ctx, prog, n = self.ctx, self.prog, batch.shape[0]
+        any (drawn after the colour alone is cleared, against the occluders' depth); the occluders'
+        (points, face, 6 * face) window depths; and the (near, far) of the projection.  With ``peel``
+        the program discards what is not between the bound textures' layer and eroded depth."""
+        ctx, n = self.ctx, batch.shape[0]
+        prog = self.peel_prog if peel else self.prog
         # Far: the farthest scene corner from any point; near: a share of it (24-bit depth).
         corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)])
         corners = np.where(corners == 0, self.scene_lo, self.scene_hi)
         far = 1.01 * float(np.max(np.linalg.norm(batch[:, None, :] - corners[None], axis=2))) + 1e-9
         prog["depth_range"].value = (NEAR_SHARE * far, far)
         prog["tiles"].value = (6.0, float(self.batch))
+        prog["guard"].value = self.guard
         # Instance k: face k % 6 of point k // 6, in row k // 6 of the atlas.
         tiles = np.column_stack([np.tile(np.arange(6), n), np.repeat(np.arange(n), 6)]).astype(np.float64)
         eyes = np.repeat(batch - self.origin, 6, axis=0)
@@ -195,19 +360,21 @@ class IdCubeRenderer:
         for k in range(4):
             ctx.enable_direct(GL_CLIP_DISTANCE0 + k)
         ctx.front_face = "cw"  # every face frame has right x up = forward: a mirror image
-        images = []
+        images, occluder_depth = [], None
         try:
-            for vao, members, first, counts, cull, depth in self.passes:
+            for vaos, members, first, counts, cull, depth in self.passes:
+                vao = vaos[1 if peel else 0]
                 if not depth and self.fbo.depth_mask:  # the occluders are done: keep their image
                     images.append(self._read(n))
+                    occluder_depth = self._read_depth(n) if self.peels else None
                     self.fbo.depth_mask = False
                     self.fbo.clear(0.0, 0.0, 0.0, 0.0)  # colour alone: the depth mask is off
                 # Per face of every point, the elements whose bounding sphere meets its frustum
-                # (|x| - z <= r sqrt 2 and |y| - z <= r sqrt 2 in the face's frame).
+                # (|x| - g z <= r sqrt(1 + g²) and the same for y in the face's frame, g the guard).
                 d = self.centre[members][None, :, :] - batch[:, None, :]  # (n, m, 3)
                 local = np.einsum("fij,nmj->nfmi", frames, d)  # (n, 6, m, 3)
-                reach = math.sqrt(2.0) * self.radius[members]
-                z = local[..., 2]
+                reach = math.sqrt(1.0 + self.guard**2) * self.radius[members]
+                z = self.guard * local[..., 2]
                 inside = (np.abs(local[..., 0]) - z <= reach) & (np.abs(local[..., 1]) - z <= reach)
                 inst, elem = np.nonzero(inside.reshape(6 * n, -1))
                 if inst.size == 0:
@@ -232,8 +399,14 @@ class IdCubeRenderer:
             ctx.front_face = "ccw"
             for k in range(4):
                 ctx.disable_direct(GL_CLIP_DISTANCE0 + k)
+        if occluder_depth is None and self.peels:
+            occluder_depth = self._read_depth(n)
         images.append(self._read(n))
-        return images
+        return images, occluder_depth, (NEAR_SHARE * far, far)
+
+    def _read_depth(self, n: int) -> np.ndarray:
+        raw = self.fbo.read(viewport=(0, 0, 6 * self.face, n * self.face), components=1, attachment=-1, dtype="f4")
+        return np.frombuffer(raw, dtype=np.float32).reshape(n, self.face, 6 * self.face)
 
     def _read(self, n: int) -> np.ndarray:
         raw = np.frombuffer(self.fbo.read(viewport=(0, 0, 6 * self.face, n * self.face), components=4), dtype=np.uint8)

@@ -12,7 +12,7 @@ rounded down per axis so that each region's side holds whole steps.  Every regio
 lattice points, and with 2 (the default) the centres of its long edges, faces and itself.  A parent
 region is the union of its children, and so is its PVS: the planner's children test only elements
 their parent kept.  Points are rendered on first use and kept.  ``levels`` > 0 refines a lattice
-cell whose corners disagree at its midpoints (:class:`RegionVisibility`).
+cell whose corners disagree at its midpoints (:class:`RegionVisibility`; off by default).
 
 **Density from the output resolution.**  A cube face has ``face_resolution_for(resolution, fov,
 texel_pixels)`` texels a side, so that one of its texels spans ``texel_pixels`` pixels of the output
@@ -20,13 +20,21 @@ frame (2 by default: 128 texels for 128 px at 45°); a feature that covers no te
 sample's cube map is lost, so a missing element covers little more than ``texel_pixels²`` output
 pixels from the sampled points.
 
-**How conservative.**  Not strictly: point sampling misses what is seen only through gaps smaller
-than the lattice step (an element at distance ``d`` shifts by ``step / d`` radians between
-neighbouring points), and what covers no texel centre.  Near the region, where parallax is largest,
-the ``margin`` (default: one lattice step) keeps every element regardless of the samples.  The
-false-invisible rate is measured against a denser lattice (:func:`false_invisible`), reported in
-docs/placement/visibility.md.  Conservative object-space methods (occluder shadows, Wonka et al.
-2000, the thesis's §5.8) only work for 2.5D scenes; this works for any triangles.
+**Occluder erosion** (the default): each point's cube map is drawn with its occluders shrunk in
+image space by ``erosion`` (default: half the diagonal of a lattice cell, so that every eye of the
+view space is within it of a lattice point) and ``peels`` layers drawn behind them
+(:mod:`farfield.core.visibility.id_cubes`; seed 000 §2.2.2, [Wonk00]'s occluder shrinking): a point
+then sees what any eye near it may see, so elements seen only through gaps between the points are
+kept.  ``erosion=0`` is plain point sampling (the earlier default, refined with ``levels=1``).
+
+**How conservative.**  Not strictly: the erosion is done on the first surfaces' depth map (see
+:mod:`~farfield.core.visibility.id_cubes` for what it misses), and a feature that covers no texel
+centre of any sample's cube map is lost.  Near the region, where parallax is largest, the ``margin``
+(default: one lattice step) keeps every element regardless of the samples.  The false-invisible rate
+is measured against a denser lattice of plain points (:func:`false_invisible`), and hole pixels on
+walkthroughs, reported in docs/placement/visibility.md.  Conservative object-space methods (occluder
+shadows, Wonka et al. 2000, the thesis's §5.8) only work for 2.5D scenes; this works for any
+triangles.
 """
 
 from __future__ import annotations
@@ -44,7 +52,8 @@ from farfield.core.visibility.id_cubes import IdCubeRenderer, VisibilityError, f
 
 DEFAULT_SAMPLES_PER_SIDE = 2  # lattice steps per side of a smallest region: corners, edge/face centres, centre
 DEFAULT_TEXEL_PIXELS = 2.0  # output pixels per cube-map texel (a side)
-DEFAULT_LEVELS = 1  # adaptive refinements of a lattice cell whose corners disagree
+DEFAULT_LEVELS = 0  # adaptive refinements of a lattice cell whose corners disagree (eroded samples need none)
+DEFAULT_PEELS = 2  # layers drawn behind an eroded point's first surfaces
 DEFAULT_REFINE_TEXELS = 16  # texels an element seen by some corners only must cover to refine
 MAX_POINTS = 200_000  # a guard against a lattice no machine renders in reasonable time
 _TOL = 1e-9
@@ -180,16 +189,20 @@ class RegionVisibility:
         levels: int = DEFAULT_LEVELS,
         refine_texels: int = DEFAULT_REFINE_TEXELS,
         renderer: IdCubeRenderer | None = None,
+        erosion: float | None = None,
+        peels: int = DEFAULT_PEELS,
     ) -> None:
         self.elements = elements
         self.lattice = SampleLattice.for_regions(view_lo, view_hi, region_size, samples_per_side, levels)
+        # Every eye of a lattice cell is within half its diagonal of one of its corners.
+        self.erosion = 0.5 * float(np.linalg.norm(self.lattice.step)) if erosion is None else float(erosion)
         self.margin = float(np.max(self.lattice.step)) if margin is None else float(margin)
         if not (math.isfinite(self.margin) and self.margin >= 0.0):
             raise VisibilityError(f"the margin must be >= 0, got {margin!r}")
         self.refine_texels = int(refine_texels)
         self.texel_pixels = float(texel_pixels)
         face = face_resolution_for(resolution, fov, texel_pixels)
-        self.renderer = renderer if renderer is not None else IdCubeRenderer(scene, elements, face)
+        self.renderer = renderer if renderer is not None else IdCubeRenderer(scene, elements, face, self.erosion, peels)
         self._owns_renderer = renderer is None
         self._seen: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # finest key -> (ids, texels)
         self._split: dict[tuple[int, int], bool] = {}  # (level, key of the cell's low corner) -> refine
@@ -286,6 +299,8 @@ class RegionVisibility:
             "points_rendered": self.points_rendered,
             "face_resolution": self.renderer.face,
             "margin": self.margin,
+            "erosion": self.renderer.erosion,
+            "peels": self.renderer.peels,
             "queries": self.queries,
             "seconds": self.seconds,
         }

@@ -7,6 +7,7 @@
 uniform mat3 face_frames[6];  // rows: right, up, forward of each face (world -> face eye frame)
 uniform vec2 depth_range;     // near, far
 uniform vec2 tiles;           // atlas columns (6), rows (points in the batch)
+uniform float guard;          // a face spans -guard..guard in tan (1: 90 degrees; more: a guard band)
 in vec3 in_position;          // relative to the scene's origin (float64-built)
 in uint in_id;                // element index + 1
 in vec3 in_eye;               // per instance: the sample point, relative to the same origin
@@ -17,6 +18,7 @@ void main() {
     int face = int(in_tile.x);
     float row = in_tile.y;
     vec3 e = face_frames[face] * (in_position - in_eye);  // x right, y up, z forward
+    e.xy /= guard;
     float n = depth_range.x, f = depth_range.y;
     vec4 clip = vec4(e.x, e.y, (f + n) / (f - n) * e.z - 2.0 * f * n / (f - n), e.z);
     gl_ClipDistance[0] = clip.w + clip.x;
