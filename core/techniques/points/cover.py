@@ -79,33 +79,32 @@ def covering_points(
     target = 0.5 * (extent.min(axis=0) + extent.max(axis=0))
     chosen = np.concatenate(list(_views(cell, seed, views)))
     eyes = cell.lo + chosen[:, :3] * (cell.hi - cell.lo)
-    order = np.argsort(
-        np.linalg.norm(eyes - target, axis=1), kind="stable"
-    )  # the nearest first: its windows are the finest
-    grids, fronts = [], []
+    order = np.argsort(np.linalg.norm(eyes - target, axis=1), kind="stable")  # the nearest first: the finest windows
+    grids = []
     for q in chosen[order]:
         _eye, camera, x0, y0, size = _window(q, cell, target, fov, resolution, extent)
-        grid = camera.window(x0, y0, size, size * cells)
-        pixel, depth = _cells(grid, points, size * cells)
-        _added, front = _cover_view(pixel[:, 0], pixel[:, 1], depth, kept, size * cells, block, tolerance)
-        grids.append((grid, size * cells))
-        fronts.append(front.astype(np.float32) if prune else None)
+        grids.append((camera.window(x0, y0, size, size * cells), size * cells))
+    # Every view's window fronts, float32, held for the pruning (one array: no second copy).
+    side = max(grid_side for _grid, grid_side in grids) - block + 1
+    fronts = np.full((len(grids), side, side), np.inf, np.float32) if prune else None
+    for v, (grid, grid_side) in enumerate(grids):
+        pixel, depth = _cells(grid, points, grid_side)
+        _added, front = _cover_view(pixel[:, 0], pixel[:, 1], depth, kept, grid_side, block, tolerance)
+        if prune:
+            fronts[v, : front.shape[0], : front.shape[1]] = front
+        del pixel, depth, front
     if not prune:
         return kept
     # Drop the points every window of theirs can spare (the greedy's choices of earlier views that
     # later views' points made redundant), over all views at once.
     index = np.flatnonzero(kept)
-    side = max(f.shape[0] for f in fronts)
-    front_all = np.full((len(fronts), side, side), np.inf, np.float32)
-    xs = np.full((len(fronts), index.size), -1, np.int64)
-    ys = np.full((len(fronts), index.size), -1, np.int64)
-    zs = np.zeros((len(fronts), index.size), np.float64)
-    for v, ((grid, grid_side), front) in enumerate(zip(grids, fronts)):
-        front_all[v, : front.shape[0], : front.shape[1]] = front
+    xs = np.full((len(grids), index.size), -1, np.int64)
+    ys = np.full((len(grids), index.size), -1, np.int64)
+    zs = np.zeros((len(grids), index.size), np.float64)
+    for v, (grid, grid_side) in enumerate(grids):
         pixel, depth = _cells(grid, points[index], grid_side)
         xs[v], ys[v], zs[v] = pixel[:, 0], pixel[:, 1], depth
-    del fronts
-    keep = _prune(xs, ys, zs, front_all, block, tolerance)
+    keep = _prune(xs, ys, zs, fronts, block, tolerance)
     kept[index[~keep]] = False
     return kept
 
