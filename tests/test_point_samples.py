@@ -263,6 +263,7 @@ def test_a_rough_dense_surface_keeps_at_most_four_points_per_bounding_box_pixel_
 
 
 @pytest.mark.parametrize("scene", [_ball_and_box, _trunks])
+@pytest.mark.slow
 def test_the_covering_points_leave_no_hole_from_views_the_cover_never_used(scene):
     # The cover keeps a fraction of the points and still leaves no hole pixel, nor a pixel whose
     # nearest point lies behind the first surface, from the cell's corners, centre and 16 random
