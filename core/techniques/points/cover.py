@@ -45,9 +45,8 @@ from farfield.core.scene import SceneObject
 from farfield.core.techniques.points.appearance import _extent, _views, _window
 from farfield.core.viewcells import BoxCell
 
-VIEWS = (
-    17  # the cell's corners, its centre and 8 Sobol points: no hole pixel from views between them (module docstring)
-)
+# The cell's corners, its centre and 8 Sobol points: no hole pixel from views between them (module docstring).
+VIEWS = 17
 CELLS = 8  # grid cells per output pixel side
 BLOCK = 7  # grid cells per window side: CELLS - 1, so a pixel at any offset holds a whole window
 DEPTH_TOLERANCE = 0.005  # relative depth behind a window's front that still shows its surface (the hole tests' 0.5 %)
