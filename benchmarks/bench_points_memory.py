@@ -18,7 +18,8 @@ of the part drawn from the cell's centre at the output resolution) and per cover
 per source vertex; the LDI candidates, the redundant ones and those no view of the cell shows; the
 peak resident memory; the seconds per stage and the wall time; and the **hole pixels** of the
 kept points drawn as one-pixel points with a numpy z-buffer from the cell's 8 corners, its centre
-and 8 random points, against each view's first surface (depth peeled, one layer).
+and 8 random points, against each view's first surface (depth peeled, one layer), and the same
+from ``--unseen`` more random points of the cell (seed 7), views the points' selection never used.
 
 ``--before REV`` also bakes with ``core/techniques/points/`` as it was at git revision REV (loaded
 from ``git archive`` in the child process, the rest of the package as it is now), side by side.
@@ -41,7 +42,7 @@ CHILD = r"""
 import importlib.util, json, math, resource, sys, time
 sys.path.insert(0, sys.argv[1] + "/tests")
 import numpy as np
-scene_name, resolution, subdivisions, old = sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), sys.argv[5]
+scene_name, resolution, subdivisions, old, UNSEEN = sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), sys.argv[5], int(sys.argv[6])
 import farfield.core.techniques  # registers the current techniques first
 if old:  # the points package as it was, in place of the current one
     for name in [m for m in sys.modules if m.startswith("farfield.core.techniques.points")]:
@@ -85,7 +86,9 @@ camera, depth = first_surface(cell.center)
 ys, xs = np.nonzero(np.isfinite(depth))
 box = int((np.ptp(ys) + 1) * (np.ptp(xs) + 1))
 holes = covered = 0
-for eye in np.concatenate([cell.corners(), cell.center[None], cell.sample_random(8, 1)]):
+unseen = []  # hole pixels from random points of the cell that no selection view used
+eyes = np.concatenate([cell.corners(), cell.center[None], cell.sample_random(8, 1), cell.sample_random(UNSEEN, 7)])
+for k, eye in enumerate(eyes):
     camera, depth = first_surface(eye)
     pixels = np.floor(camera.project(points)).astype(np.int64)
     z = (points - camera.eye) @ camera.forward
@@ -93,6 +96,9 @@ for eye in np.concatenate([cell.corners(), cell.center[None], cell.sample_random
     hit = np.zeros((resolution, resolution), bool)
     hit[pixels[inside, 1], pixels[inside, 0]] = True
     first = np.isfinite(depth)
+    if k >= 17:
+        unseen.append(int((first & ~hit).sum()))
+        continue
     holes += int((first & ~hit).sum())
     covered += int(first.sum())
 s = impostor.stats
@@ -101,7 +107,7 @@ print(json.dumps({
     "points": s["points"], "candidates": s["candidates"], "redundant_share": s["removed_share"], "unseen_dropped": s["unseen_dropped"],
     "ldi_resolution": s["ldi_resolution"], "ldi_layers": s["ldi_layers"], "box_pixels": box, "covered_pixels": len(ys),
     "peak_rss_gb": peak / 1e6, "before_bake_rss_gb": base / 1e6, "seconds": s["seconds"], "wall_seconds": wall,
-    "hole_pixels": holes, "hole_views_covered": covered,
+    "hole_pixels": holes, "hole_views_covered": covered, "unseen_hole_pixels": sum(unseen), "unseen_views": len(unseen),
 }))
 """
 
@@ -115,9 +121,9 @@ def before_package(rev: str, folder: str) -> str:
     return str(Path(folder) / "core" / "techniques" / "points")
 
 
-def bake(scene: str, resolution: int, subdivisions: int, old: str) -> dict:
+def bake(scene: str, resolution: int, subdivisions: int, old: str, unseen: int) -> dict:
     run = subprocess.run(
-        [sys.executable, "-c", CHILD, str(ROOT), scene, str(resolution), str(subdivisions), old],
+        [sys.executable, "-c", CHILD, str(ROOT), scene, str(resolution), str(subdivisions), old, str(unseen)],
         capture_output=True, text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)},
     )  # fmt: skip
     if run.returncode != 0:
@@ -131,6 +137,12 @@ def main() -> None:
     parser.add_argument("--resolutions", default="256,512", help="comma-separated output pixels per side")
     parser.add_argument("--subdivisions", type=int, default=7, help="dense mesh: 20 * 4**n triangles")
     parser.add_argument("--before", default=None, help="git revision of core/techniques/points/ to bake beside")
+    parser.add_argument(
+        "--unseen",
+        type=int,
+        default=32,
+        help="random viewpoints of the cell (seed 7) for the hole pixels of views no selection used",
+    )
     parser.add_argument("--before-only", action="store_true", help="with --before: bake only the old code")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
@@ -142,14 +154,14 @@ def main() -> None:
         versions = versions[1:] if args.before and args.before_only else versions
         print(
             f"{'scene':<7} {'px':>4} {'code':<14} {'tris':>8} {'points':>9} {'/box px':>7} {'/cov px':>7} {'/vertex':>7} "
-            f"{'candidates':>10} {'redund.':>7} {'unseen':>9} {'LDI px':>5} {'layers':>9} {'peak GB':>7} {'holes':>5} "
+            f"{'candidates':>10} {'redund.':>7} {'unseen':>9} {'LDI px':>5} {'layers':>9} {'peak GB':>7} {'holes':>5} {'new-view holes':>14} "
             f"{'points s':>8} {'vis s':>6} {'app s':>6} {'wall s':>7}",
             flush=True,
         )
         for scene in args.scenes.split(","):
             for resolution in map(int, args.resolutions.split(",")):
                 for label, old in versions:
-                    r = bake(scene, resolution, args.subdivisions, old)
+                    r = bake(scene, resolution, args.subdivisions, old, args.unseen)
                     r.update(scene=scene, resolution=resolution, code=label)
                     rows.append(r)
                     if "error" in r:
@@ -160,7 +172,7 @@ def main() -> None:
                         f"{scene:<7} {resolution:>4} {label:<14} {r['triangles']:>8,} {r['points']:>9,} {r['points'] / r['box_pixels']:>7.2f} "
                         f"{r['points'] / r['covered_pixels']:>7.2f} {r['points'] / r['vertices']:>7.2f} {r['candidates']:>10,} "
                         f"{100 * r['redundant_share']:>6.1f}% {r['unseen_dropped']:>9,} {r['ldi_resolution'][0]:>5} "
-                        f"{'/'.join(map(str, r['ldi_layers'])):>9} {r['peak_rss_gb']:>7.2f} {r['hole_pixels']:>5} "
+                        f"{'/'.join(map(str, r['ldi_layers'])):>9} {r['peak_rss_gb']:>7.2f} {r['hole_pixels']:>5} {r['unseen_hole_pixels']:>14} "
                         f"{sec['points']:>8.1f} {sec.get('visibility', 0.0):>6.1f} {sec['appearance']:>6.1f} {r['wall_seconds']:>7.1f}",
                         flush=True,
                     )

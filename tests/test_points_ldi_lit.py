@@ -59,8 +59,10 @@ def test_each_point_keeps_the_normal_of_the_sphere_where_it_lies(lit_points):
     assert np.allclose(np.linalg.norm(payload.normal, axis=1), 1.0)
     error = angles(payload.normal, outward(payload.positions))
     # All but the rim: a double-sided rim facet whose back faces the whole cell keeps its reversed
-    # normal (glTF's double-sided rule), and a conservative sample there can win a pixel (0.4 %).
-    assert np.median(error) < 0.01 and (error < 0.1).mean() > 0.99, np.percentile(error, [50, 99])
+    # normal (glTF's double-sided rule), and a conservative sample there can be the only point of a
+    # silhouette window the cover must fill (3.9 % of the points since the cover of
+    # core/techniques/points/cover.py; 0.4 % when only the points that won a pixel stayed).
+    assert np.median(error) < 0.01 and (error < 0.1).mean() > 0.95, np.percentile(error, [50, 99])
     assert (error[error >= 0.1] > 170.0).all()
     stats = lit_points.stats
     assert stats["channel_bytes"] == {
@@ -84,7 +86,7 @@ def test_a_flat_shaded_source_gives_its_points_the_facet_normals():
     on = near & (off_plane < 1e-4)  # float32 depths
     assert on.any(axis=1).all()
     error = np.where(on, angles(payload.normal[:, None], face[None]), np.inf).min(axis=1)
-    assert (error < 0.01).mean() > 0.99, np.percentile(error, [50, 99])
+    assert (error < 0.01).mean() > 0.95, np.percentile(error, [50, 99])  # the rim's, as above
 
 
 def test_each_ldi_sample_keeps_its_normal_in_a_page_beside_its_colour(lit_ldi):

@@ -53,8 +53,8 @@ from farfield.core.techniques.points.appearance import (
     integrate_appearance,
     mean_colour,
     single_colour,
-    visible_points,
 )
+from farfield.core.techniques.points.cover import covering_points, warm_cover
 from farfield.core.techniques.points.samples import _lookup_kernel, _spacing_kernel, gather_point_samples
 from farfield.core.techniques.points.sampling import plan_point_sampling
 from farfield.core.viewcells import BoxCell, ViewCell
@@ -99,7 +99,13 @@ class PointOptions:
     max_views: int = option(128, "most Monte Carlo views of the appearance integration", ge=1, le=4096)
     visible_only: bool = option(
         True,
-        "drop the points that win no pixel in the first min_views appearance views (nearer points hide them from the corners, the centre and every sampled viewpoint), before the appearance",
+        "keep only the points the cell's views need, before the appearance: a greedy cover of every pixel-sized window of cover_views views by points on the surface each window shows (core/techniques/points/cover.py)",
+    )
+    cover_views: int = option(
+        17,
+        "views of the cell (its corners, its centre, then Sobol points) whose windows the kept points cover (visible_only)",
+        ge=1,
+        le=4096,
     )
     single_colour: float = option(
         3.0,
@@ -212,10 +218,10 @@ def bake_points(
     kept = samples.kept
     sample_stats = {k: v for k, v in samples.stats.items() if k != "per_camera"}
     ldi_layers = list(samples.layers)
-    if options.visible_only:  # the points the cell's views show: only they reach the appearance's sums
+    if options.visible_only:  # the points the cell's views need: only they reach the appearance's sums
         with clock("visibility"):
-            shown = visible_points(
-                seen, samples.positions[kept], box, options.fov_deg, options.resolution, options.min_views
+            shown = covering_points(
+                seen, samples.positions[kept], box, options.fov_deg, options.resolution, options.cover_views
             )
         if shown.any():
             kept = np.flatnonzero(kept)[shown]
@@ -311,7 +317,7 @@ def bake_points(
 
 def warm_kernels() -> float:
     """Compile (or load from numba's cache) the numba kernels of a point bake (the conservative
-    LDI's merge, the sampling spacing) on tiny arrays, without GL; the seconds it took.  A render
+    LDI's merge, the sampling spacing, the points' cover) on tiny arrays, without GL; the seconds it took.  A render
     worker calls it when it starts, beside the TDM's (:mod:`farfield.workers.tasks`)."""
     start = time.perf_counter()
     depth = np.full((1, 2, 2), 1.0)
@@ -322,6 +328,7 @@ def warm_kernels() -> float:
     )
     _spacing_kernel(depth, positions, np.zeros((1, 2, 2), np.bool_), np.zeros(3), 1.0, 0.01, 4.0)
     _lookup_kernel(np.zeros(2, np.int64), np.ones(1), np.ones(1), np.zeros(1, np.int64), np.ones(1), np.ones(1))
+    warm_cover()
     return time.perf_counter() - start
 
 
