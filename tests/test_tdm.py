@@ -45,6 +45,7 @@ from farfield.core.techniques.tdm.simplify import (
     contraction_outcome,
     covered_by_any,
     simplify,
+    strip_pass,
     tri_box,
 )
 from farfield.core.techniques.tdm.technique import (
@@ -241,6 +242,40 @@ def test_the_cascade_with_memory_is_the_cascade_without(house_bake, distance, re
         and np.array_equal(cascade[1], offsets)
         and np.array_equal(cascade[2], voxels)
     )
+
+
+@pytest.mark.parametrize("enlargement", [1.0, 2.0])
+def test_a_strip_pass_keeps_the_borders_and_the_cover(house_bake, enlargement):
+    """:func:`strip_pass` (the first pass of a large mesh, its strips in threads) leaves every
+    triangle across a strip border as it was, contracts inside the strips, stores every voxel once
+    with a triangle that meets its box, keeps the mesh a mesh, and leaves a memory of its failures
+    that skips only attempts that would fail again on the whole mesh; the cascade after it covers
+    every voxel with about as many triangles as the cascade alone (the house at 90 units, 128 px)."""
+    scene, _ = house_bake
+    lo, hi = scene.bounds
+    field, mesh = _field_and_mesh(scene, scenes_cell(0.5 * (lo + hi), lo[2] - 90.0))
+    triangles, offsets, voxels, counts, memory = strip_pass(
+        mesh.vertices, mesh.triangles, mesh.voxel_offsets, mesh.voxels, field.centres, enlargement, field.silhouette, 4
+    )
+    cuts = np.quantile(mesh.vertices[mesh.triangles[:, 0], 0], [0.25, 0.5, 0.75])
+    side = np.searchsorted(cuts, mesh.vertices[:, 0])[mesh.triangles]
+    across = mesh.triangles[side.min(axis=1) != side.max(axis=1)]
+    assert len(across) > 0 and counts["ok"] > 0 and triangles.shape[0] < mesh.triangle_count / 4
+    kept = {tuple(t) for t in triangles.tolist()}
+    assert all(tuple(t) in kept for t in across.tolist())
+    assert np.array_equal(np.sort(voxels), np.arange(field.count))
+    assert uncovered_voxels(mesh.vertices, triangles, offsets, voxels, field, enlargement) == 0
+    use = _edge_use(triangles)  # a mesh, and no crack: no boundary edge the initial mesh lacked
+    assert use.max() <= 2 and (use == 1).sum() <= (_edge_use(mesh.triangles) == 1).sum()
+    # The strips' failures, merged, skip only what would fail again on the whole mesh.
+    full = simplify(mesh.vertices, triangles, offsets, voxels, field.centres, enlargement, field.silhouette)
+    skipping = simplify(mesh.vertices, triangles, offsets, voxels, field.centres, enlargement, field.silhouette, memory)
+    assert all(np.array_equal(a, b) for a, b in zip(full[:3], skipping[:3]))
+    assert sum(skipping[3].values()) < sum(full[3].values())
+    whole = simplify_mesh(mesh, field, enlargement)[0]
+    strips = simplify_mesh(mesh, field, enlargement, strip_min=0)
+    assert uncovered_voxels(mesh.vertices, *strips[:3], field, enlargement) == 0
+    assert abs(strips[0].shape[0] - whole.shape[0]) <= 0.1 * whole.shape[0], (strips[0].shape[0], whole.shape[0])
 
 
 def test_meshes_that_store_no_voxel_are_left_out(house_bake):

@@ -34,6 +34,8 @@ Akenine-Möller (2001): the box's three axes, the triangle's normal and the nine
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -630,7 +632,7 @@ def _attempt(
     return OK, nv, read, False
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # nogil: the strips of :func:`strip_pass` run in threads
 def _simplify(
     vertices,
     triangles,
@@ -645,6 +647,7 @@ def _simplify(
     remembered,
     clock,
     new_factor,
+    locked,
 ):
     nv_total = vertices.shape[0]
     nt = triangles.shape[0]
@@ -724,6 +727,8 @@ def _simplify(
         if va < 0:
             e, va = -va - 1, 0
         if not vert_alive[a] or not vert_alive[b] or version[a] != va or version[b] != vb:
+            continue
+        if locked[a] or locked[b]:  # (strip_pass) an edge near a strip's border waits for the whole mesh
             continue
         # An edge whose last attempts failed fails again if nothing they read changed since (and,
         # at a larger factor, if neither outcome read the factor): the triangles and their voxels
@@ -941,7 +946,15 @@ class PassMemory:
 
 
 def simplify(
-    vertices, triangles, voxel_offsets, voxels, centres, enlargement, silhouette=None, memory: PassMemory | None = None
+    vertices,
+    triangles,
+    voxel_offsets,
+    voxels,
+    centres,
+    enlargement,
+    silhouette=None,
+    memory: PassMemory | None = None,
+    locked: np.ndarray | None = None,
 ):
     """Simplify a covering mesh (see the module docstring); ``silhouette`` flags the voxels whose
     boxes are not enlarged.
@@ -961,6 +974,9 @@ def simplify(
     kept, 23 passes): skipping in the repeats at one factor the edges with no vertex around them
     touched in the previous pass or this one (the memory of earlier versions), the cascade took 54 s
     instead of 80 s; see the README for each edge's own memory.
+
+    ``locked``: (v,) bool, vertices no contraction may touch (an edge with one is skipped, not
+    attempted): :func:`strip_pass` locks the vertices near its strips' borders.
 
     Returns (triangles (t, 3) int64 into the same vertices, voxel_offsets, voxels, outcome counts
     as a dict, the pass's :class:`PassMemory`).
@@ -995,6 +1011,7 @@ def simplify(
         np.ascontiguousarray(centres, dtype=np.float64), box_half_sizes(len(centres), enlargement, silhouette),
         corner_shrink(enlargement), int(4 * valence + 64), np.ascontiguousarray(memory.touch_time, dtype=np.int32),
         remembered, int(memory.clock), bool(enlargement > memory.enlargement),
+        np.zeros(len(vertices), np.bool_) if locked is None else np.ascontiguousarray(locked, dtype=np.bool_),
     )  # fmt: skip
     # The memory after: each edge's last failure (the log's last, else ``remembered``'s), between
     # live vertices.
@@ -1018,6 +1035,102 @@ def simplify(
     between = live[merged_keys // n] & live[merged_keys % n]
     memory = PassMemory(touch_time, merged_keys[between], failures[between], int(clock), float(enlargement))
     return tris, offsets, vox, dict(zip(OUTCOMES, (int(c) for c in counts))), memory
+
+
+# The first pass of a large mesh runs on this many strips, in threads (:func:`strip_pass`).  A fixed
+# count, not the machine's cores: the mesh must not depend on where it was baked.
+STRIPS = 8
+STRIP_MIN_TRIANGLES = 1_000_000  # below this the first pass runs on the whole mesh (the house: 0.3 M)
+
+
+def strip_pass(vertices, triangles, voxel_offsets, voxels, centres, enlargement, silhouette=None, strips=STRIPS):
+    """One pass of :func:`simplify` on ``strips`` strips of the mesh at once, in threads: the
+    contractions of a first pass that do not need the whole mesh.
+
+    The strips are ranges of x (the image's columns) holding equal numbers of triangles (by their
+    first vertex).  A triangle with vertices in two strips is in none and is kept as it is; its
+    vertices and their neighbours are locked (:func:`simplify`'s ``locked``).  A contraction of two
+    unlocked vertices reads only triangles of its own strip: the triangles around the two vertices
+    and around their neighbours (the boundary test's other neighbour), with the voxels they store.
+    So each strip's pass makes only contractions the whole mesh allows, every voxel stays stored with
+    a triangle that meets its box, and the strips change disjoint triangles.  The edges left (at
+    the borders, and those the strips' order did not reach) are the next pass's, on the whole mesh.
+
+    Returns (triangles, voxel_offsets, voxels, outcome counts summed over the strips, the
+    :class:`PassMemory` of the strips' failures for the next pass), the triangles indexing the same
+    ``vertices``: each strip's, in order, then those across borders.
+    """
+    triangles = np.asarray(triangles, dtype=np.int64)
+    voxel_offsets = np.asarray(voxel_offsets, dtype=np.int64)
+    n = len(vertices)
+    cuts = np.quantile(vertices[triangles[:, 0], 0], np.arange(1, strips) / strips)
+    side = np.searchsorted(cuts, vertices[:, 0])
+    corner_side = side[triangles]
+    strip = np.where(corner_side.min(axis=1) == corner_side.max(axis=1), corner_side[:, 0], -1)
+    border = np.zeros(n, bool)
+    border[triangles[strip < 0].ravel()] = True
+    locked = border.copy()
+    locked[triangles[border[triangles].any(axis=1)].ravel()] = True
+    lengths = np.diff(voxel_offsets)
+
+    def rows_of(rows):
+        """The triangles ``rows`` with their voxels: (triangles, offsets, voxels)."""
+        counts = lengths[rows]
+        offsets = np.concatenate([[0], np.cumsum(counts)])
+        gather = np.repeat(voxel_offsets[rows] - offsets[:-1], counts) + np.arange(offsets[-1])
+        return triangles[rows], offsets, voxels[gather]
+
+    def one(k):
+        tri, offsets, vox = rows_of(np.flatnonzero(strip == k))
+        used = np.zeros(n, bool)
+        used[tri.ravel()] = True
+        used = np.flatnonzero(used)
+        number = np.zeros(n, np.int64)
+        number[used] = np.arange(used.size)  # ascending: the same edge order as in the whole mesh
+        out, offsets, vox, counts, memory = simplify(
+            vertices[used], number[tri], offsets, vox, centres, enlargement, silhouette, None, locked[used]
+        )
+        return used[out], offsets, vox, counts, (used, memory)
+
+    with ThreadPoolExecutor(max_workers=min(strips, os.cpu_count() or 1)) as pool:
+        parts = list(pool.map(one, range(strips)))
+    parts.append((*rows_of(np.flatnonzero(strip < 0)), {}, None))
+    totals: dict[str, int] = {}
+    for _, _, _, counts, _ in parts:
+        for key, value in counts.items():
+            totals[key] = totals.get(key, 0) + value
+    lengths = np.concatenate([np.diff(offsets) for _, offsets, _, _, _ in parts])
+    return (
+        np.concatenate([tri for tri, *_ in parts]),
+        np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64),
+        np.concatenate([vox for _, _, vox, _, _ in parts]),
+        totals,
+        _merged_memory(n, [memory for *_, memory in parts[:-1]], enlargement),
+    )
+
+
+def _merged_memory(n: int, strips: list, enlargement: float) -> PassMemory:
+    """One :class:`PassMemory` for the whole mesh from the strips' (``(used, memory)`` each, in
+    their own vertex numbers): the strips' clocks laid one after the other.  Their vertices are
+    disjoint (a vertex is in its own strip's triangles only), and each failure read only its own
+    strip, so a failure stays true until the whole mesh's passes touch what it read."""
+    touch = np.zeros(n, np.int32)
+    keys, failures = [], []
+    clock = 0
+    for used, memory in strips:
+        m = len(used)
+        touch[used] = np.where(memory.touch_time > 0, memory.touch_time + clock, 0)
+        a, b = used[memory.keys // m], used[memory.keys % m]
+        failed = memory.failures.copy()
+        failed[:, 0] = np.where(failed[:, 0] >= 0, failed[:, 0] + clock, -1)
+        failed[:, 1:3] = np.where(failed[:, 1:3] >= 0, used[np.maximum(failed[:, 1:3], 0)], -1)
+        keys.append(a * n + b)
+        failures.append(failed)
+        clock += memory.clock
+    keys = np.concatenate(keys) if keys else np.zeros(0, np.int64)
+    failures = np.concatenate(failures) if failures else np.zeros((0, 4), np.int32)
+    order = np.argsort(keys, kind="stable")
+    return PassMemory(touch, keys[order], failures[order].astype(np.int32), clock, float(enlargement))
 
 
 def contraction_outcome(

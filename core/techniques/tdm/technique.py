@@ -67,7 +67,7 @@ from farfield.core.techniques.part import (
 )
 from farfield.core.techniques.tdm.mask_atlas import pack_masks
 from farfield.core.techniques.tdm.mesh import TdmMesh, ear_clip, initial_mesh, mesh_labels
-from farfield.core.techniques.tdm.simplify import box_half_sizes, covered_by, simplify
+from farfield.core.techniques.tdm.simplify import STRIP_MIN_TRIANGLES, box_half_sizes, covered_by, simplify, strip_pass
 from farfield.core.techniques.tdm.texture import build_charts, chart_masks, chart_pages, chart_uvs
 from farfield.core.techniques.tdm.voxel_field import VoxelField, record_voxel_field
 from farfield.core.viewcells import BoxCell, ViewCell
@@ -153,18 +153,39 @@ def schedule(enlargement: float) -> tuple[float, ...]:
 
 
 def simplify_mesh(
-    mesh: TdmMesh, field: VoxelField, enlargement: float, silhouette: np.ndarray | None = None
+    mesh: TdmMesh,
+    field: VoxelField,
+    enlargement: float,
+    silhouette: np.ndarray | None = None,
+    strip_min: int = STRIP_MIN_TRIANGLES,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """The cascade of :func:`farfield.core.techniques.tdm.simplify.simplify` passes for ``enlargement``, each repeated
     until it changes nothing: (triangles, voxel offsets, voxels, outcome counts summed over every
     pass, repeats included).  ``silhouette``: the field's
-    :attr:`~farfield.core.techniques.tdm.voxel_field.VoxelField.silhouette`, if the caller has it already."""
+    :attr:`~farfield.core.techniques.tdm.voxel_field.VoxelField.silhouette`, if the caller has it already.
+    A mesh of ``strip_min`` triangles or more first has a
+    :func:`~farfield.core.techniques.tdm.simplify.strip_pass` at the cascade's first factor."""
     triangles, offsets, voxels = mesh.triangles, mesh.voxel_offsets, mesh.voxels
     vertices, original = mesh.vertices, np.arange(len(mesh.vertices), dtype=np.int64)
     centres = field.centres
     silhouette = field.silhouette if silhouette is None else silhouette
     totals: dict[str, int] = {}
     memory = None  # each pass skips the edges that would fail again (farfield.core.techniques.tdm.simplify.simplify)
+    if triangles.shape[0] >= strip_min:
+        # The first pass's contractions inside strips of the mesh, in threads; the passes below
+        # take the rest (see strip_pass).
+        triangles, offsets, voxels, totals, memory = strip_pass(
+            vertices, triangles, offsets, voxels, centres, schedule(enlargement)[0], silhouette
+        )
+        kept = np.flatnonzero(np.bincount(triangles.ravel(), minlength=len(vertices)))
+        number = np.zeros(len(vertices), np.int64)
+        number[kept] = np.arange(kept.size)
+        triangles, vertices, original, memory = (
+            number[triangles],
+            vertices[kept],
+            original[kept],
+            memory.renumbered(kept),
+        )
     for factor in schedule(enlargement):
         while True:
             before = triangles.shape[0]
