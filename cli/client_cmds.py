@@ -270,6 +270,24 @@ def placement_line(job: dict) -> str | None:
     return line
 
 
+def chosen_line(job: dict) -> str | None:
+    """What a placement of mixed candidates chose of each technique (its summary's ``by_technique``:
+    layered, octahedral, lod...), one line; None for any other job.
+
+    >>> print(chosen_line({"placement": {"summary": {"by_technique": {
+    ...     "layered": {"impostors": 2, "memory_bytes": 3 * 2**20, "cpvs": 5},
+    ...     "lod": {"impostors": 4, "memory_bytes": 2**19, "cpvs": 9}}}}}))
+    chosen: layered 2 (3.00 MiB, drawn in 5 CPVs); lod 4 (0.50 MiB, drawn in 9 CPVs)
+    """
+    rows = ((job.get("placement") or {}).get("summary") or {}).get("by_technique")
+    if not rows:
+        return None
+    return "chosen: " + "; ".join(
+        f"{name} {row['impostors']} ({row['memory_bytes'] / 2**20:.2f} MiB, drawn in {row['cpvs']} CPVs)"
+        for name, row in rows.items()
+    )
+
+
 def wait_for(client: Client, job_id: str, show_bar: bool) -> dict:
     """Poll the job until it ends, with a progress bar (cells) on a terminal."""
     bar = tqdm(total=None, desc="cells", unit="cell", disable=None if show_bar else True)
@@ -521,6 +539,8 @@ def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov
             f"job {job['id']}: {job['state']} ({job['counts']['done']}/{job['cells_total']} cells done)"
             + (f", database in {download}" if download and job["state"] == "done" else "")
         )
+        if chosen_line(job):
+            click.echo(chosen_line(job))
         if job.get("evaluation"):
             click.echo(evaluation_line(job["evaluation"]))
         if job.get("timing"):
@@ -590,6 +610,8 @@ def jobs(job_id, state, as_json, limit, offset, every, url, key):
         click.echo(f"{job['id']}  {job['state']}  {job['counts']}  progress {job['progress']:.0%}")
         if placement_line(job):
             click.echo(f"  {placement_line(job)}")
+        if chosen_line(job):
+            click.echo(f"  {chosen_line(job)}")
         if job.get("error"):
             click.echo(f"  error: {job['error']}")
         if job.get("evaluation"):
