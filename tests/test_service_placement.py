@@ -199,6 +199,42 @@ def test_a_worker_killed_while_planning_plans_again(service, client, scene_id):
     assert job["state"] == "cancelled" and job["cells_total"] == 0
 
 
+# One statue of 5,120 triangles (statue_park(1, 4)), kept whole (cluster_triangles), seen from a
+# street-level view space 4-8 m away at a third of its plain frame by the llvmpipe model (0.67 ms):
+# its level of detail serves every problem view (0.8 s of planning here), so nothing is baked.
+LOD_PLACEMENT = {
+    "view_space": {"lo": [-4.0, 1.7, 4.0], "hi": [4.0, 1.7, 8.0]}, "budget": {"frame_ms": 0.25}, "cpv_size": 4.0,
+    "vdi_deg": 45.0, "cluster_triangles": 10**6, "also": {"lod": {}},
+}  # fmt: skip
+
+
+def test_a_placement_job_with_simplified_geometry_serves_its_levels_of_detail(client, tmp_path):
+    from farfield.core.procedural import statue_park
+
+    response = upload(client, write_scene(statue_park(1, 4), tmp_path, "glb", "statue"))
+    assert response.status_code == 201, response.text
+    job = wait_for_job(client, submit(client, response.json()["id"], LOD_PLACEMENT, fov_deg=60.0)["id"], timeout=300)
+    assert job["state"] == "done" and job["has_index"], (job["error"], job["errors"])
+    chosen = job["placement"]["summary"]["by_technique"]
+    assert chosen["lod"]["impostors"] >= 1 and chosen["lod"]["memory_bytes"] > 0, chosen
+    # A level of detail is no cell: nothing to bake for it, no bundle in the database.
+    assert job["cells_total"] == sum(row["impostors"] for name, row in chosen.items() if name != "lod")
+    totals = client.get(f"/v1/jobs/{job['id']}/placement").json()["totals"]
+    assert totals["by_technique"]["lod"]["impostors"] == chosen["lod"]["impostors"]
+    archive = zipfile.ZipFile(io.BytesIO(client.get(f"/v1/jobs/{job['id']}/database.zip").content))
+    lods = [c for c in json.loads(archive.read("index.json"))["cells"] if c["technique"] == "lod" and c["cpvs"]]
+    assert lods and all(c["bundle"] is None and c["state"] == "done" for c in lods)
+    # The lookup of a view at the statue names the level: its elements, level, triangles, how to get the mesh.
+    answer = client.get(
+        f"/v1/jobs/{job['id']}/lookup", params={"x": 0.0, "y": 1.7, "z": 6.0, "dx": 0.0, "dy": 0.0, "dz": -1.0}
+    ).json()
+    assert answer["status"] == "solved" and answer["lods"], answer
+    lod = answer["lods"][0]
+    assert lod["index"] in answer["impostors"] and lod["objects"] == ["statue_0"] and lod["level"] >= 1
+    assert 0 < lod["triangles"] < 5120 and "level_for" in lod["mesh"]
+    assert lod["index"] not in [c["index"] for c in answer["cells"]]
+
+
 @pytest.mark.parametrize(
     "change, message",
     [
@@ -220,6 +256,9 @@ def test_a_worker_killed_while_planning_plans_again(service, client, scene_id):
         ({"leaf_size": 0}, "leaf_size must be >= 1"),
         ({"max_impostor_mb": 0}, "max_impostor_mb must be > 0"),
         ({"cells": "spheres"}, "cells"),
+        ({"also": {"lod": {"level": 2}}}, "simplified geometry takes no options"),
+        ({"also": {"lodd": {}}}, "unknown techniques ['lodd']"),
+        ({"cluster_triangles": 0}, "cluster_triangles must be >= 1"),
         ({"technique": "envmap"}, "technique 'envmap' cannot be placed"),
         ({"options": {"no_such_option": 1}}, "no_such_option"),
         ({"options": {"channels": "albedo+normal"}}, "placement jobs bake colour only for now"),
@@ -245,6 +284,8 @@ def test_bad_placement_requests_are_refused(service, client, scene_id, change, m
                 "leaf_size",
                 "cells",
                 "max_impostor_mb",
+                "also",
+                "cluster_triangles",
             )
         },
     }
