@@ -233,6 +233,32 @@ def test_a_placement_job_with_simplified_geometry_serves_its_levels_of_detail(cl
     assert lod["index"] in answer["impostors"] and lod["objects"] == ["statue_0"] and lod["level"] >= 1
     assert 0 < lod["triangles"] < 5120 and "level_for" in lod["mesh"]
     assert lod["index"] not in [c["index"] for c in answer["cells"]]
+    # farfield walkthrough of the downloaded database draws the level (fewer triangles than the statue's).
+    from click.testing import CliRunner
+
+    from farfield.cli.main import _register, cli
+
+    archive.extractall(tmp_path / "db")
+    path = tmp_path / "path.json"
+    path.write_text(json.dumps([{"position": [0.0, 1.7, 6.0], "forward": [0.0, 0.0, -1.0]},
+                                {"position": [2.0, 1.7, 5.0], "forward": [-0.37, 0.0, -0.93]}]))  # fmt: skip
+    _register()
+    result = CliRunner().invoke(
+        cli,
+        [
+            "walkthrough",
+            str(tmp_path / "db"),
+            str(tmp_path / "statue.glb"),
+            "--path",
+            str(path),
+            "--repeats",
+            "1",
+            "--json",
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    frames = json.loads(result.output)["frames"]
+    assert len(frames) == 2 and all(f["impostors"] >= 1 and 0 < f["triangles"] < 5120 for f in frames), frames
 
 
 @pytest.mark.parametrize(
