@@ -412,6 +412,13 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
     "e.g. octahedral:grid=9,frame_resolution=16.",
 )
 @click.option(
+    "--cluster-triangles",
+    type=int,
+    default=None,
+    help="With --placement (frame-time): objects over this many triangles are split into elements "
+    "[default: max(64, triangles / 256)]; --also lod needs elements of 256 triangles or more.",
+)
+@click.option(
     "--algorithm",
     type=click.Choice(list(ALGORITHMS)),
     default=None,
@@ -472,7 +479,7 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
 @sides_option
 @_client_options
 def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov, options, placement, view_space, frame_ms, cost_model, primitives,
-           cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, max_impostor_mb, also, algorithm, p_opt, octree_depth, grid_points, max_level,
+           cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, max_impostor_mb, also, cluster_triangles, algorithm, p_opt, octree_depth, grid_points, max_level,
            check_views, visibility, evaluate, wait, download, as_json, sides, url, key):  # fmt: skip
     """Submit a job for SCENE (a file to upload, or the id of an uploaded scene).  A .gltf or .obj is
     uploaded with the files it refers to (buffers, images; MTL, textures), zipped; --sides goes with
@@ -487,14 +494,19 @@ def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov
             raise ServiceError("--placement needs --view-space X0,Y0,Z0,X1,Y1,Z1")
         request = placement_request(view_space, frame_ms, cost_model, primitives, cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, max_impostor_mb,
                                     algorithm, p_opt=p_opt, octree_depth=octree_depth, grid_points=grid_points, max_level=max_level, check_views=check_views,
-                                    visibility=True if visibility else None, also=parse_also(also) or None)  # fmt: skip
+                                    visibility=True if visibility else None, also=parse_also(also) or None,
+                                    cluster_triangles=cluster_triangles)  # fmt: skip
     elif (
-        any(v is not None for v in (algorithm, p_opt, octree_depth, grid_points, max_level, check_views))
+        any(
+            v is not None
+            for v in (algorithm, p_opt, octree_depth, grid_points, max_level, check_views, cluster_triangles)
+        )
         or visibility
         or also
     ):
         raise ServiceError(
-            "--algorithm, --also, --p-opt, --octree-depth, --grid-points, --max-level, --check-views and --visibility go with --placement"
+            "--algorithm, --also, --cluster-triangles, --p-opt, --octree-depth, --grid-points, --max-level, --check-views and "
+            "--visibility go with --placement"
         )
     elif (grid is None) == (not viewcells):
         raise ServiceError("give --grid, one or more --viewcell, or --placement")
