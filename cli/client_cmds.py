@@ -270,6 +270,24 @@ def placement_line(job: dict) -> str | None:
     return line
 
 
+def chosen_line(job: dict) -> str | None:
+    """What a placement of mixed candidates chose of each technique (its summary's ``by_technique``:
+    layered, octahedral, lod...), one line; None for any other job.
+
+    >>> print(chosen_line({"placement": {"summary": {"by_technique": {
+    ...     "layered": {"impostors": 2, "memory_bytes": 3 * 2**20, "cpvs": 5},
+    ...     "lod": {"impostors": 4, "memory_bytes": 2**19, "cpvs": 9}}}}}))
+    chosen: layered 2 (3.00 MiB, drawn in 5 CPVs); lod 4 (0.50 MiB, drawn in 9 CPVs)
+    """
+    rows = ((job.get("placement") or {}).get("summary") or {}).get("by_technique")
+    if not rows:
+        return None
+    return "chosen: " + "; ".join(
+        f"{name} {row['impostors']} ({row['memory_bytes'] / 2**20:.2f} MiB, drawn in {row['cpvs']} CPVs)"
+        for name, row in rows.items()
+    )
+
+
 def wait_for(client: Client, job_id: str, show_bar: bool) -> dict:
     """Poll the job until it ends, with a progress bar (cells) on a terminal; the job's record
     without its cells while it runs (``?cells=none``: the API does not read a large job's every cell
@@ -396,6 +414,13 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
     "e.g. octahedral:grid=9,frame_resolution=16.",
 )
 @click.option(
+    "--cluster-triangles",
+    type=int,
+    default=None,
+    help="With --placement (frame-time): objects over this many triangles are split into elements "
+    "[default: max(64, triangles / 256)]; --also lod needs elements of 256 triangles or more.",
+)
+@click.option(
     "--algorithm",
     type=click.Choice(list(ALGORITHMS)),
     default=None,
@@ -456,7 +481,7 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
 @sides_option
 @_client_options
 def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov, options, placement, view_space, frame_ms, cost_model, primitives,
-           cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, max_impostor_mb, also, algorithm, p_opt, octree_depth, grid_points, max_level,
+           cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, max_impostor_mb, also, cluster_triangles, algorithm, p_opt, octree_depth, grid_points, max_level,
            check_views, visibility, evaluate, wait, download, as_json, sides, url, key):  # fmt: skip
     """Submit a job for SCENE (a file to upload, or the id of an uploaded scene).  A .gltf or .obj is
     uploaded with the files it refers to (buffers, images; MTL, textures), zipped; --sides goes with
@@ -471,14 +496,19 @@ def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov
             raise ServiceError("--placement needs --view-space X0,Y0,Z0,X1,Y1,Z1")
         request = placement_request(view_space, frame_ms, cost_model, primitives, cpv_size, vdi_deg, cell_kinds, depth_complexity, leaf_size, max_impostor_mb,
                                     algorithm, p_opt=p_opt, octree_depth=octree_depth, grid_points=grid_points, max_level=max_level, check_views=check_views,
-                                    visibility=True if visibility else None, also=parse_also(also) or None)  # fmt: skip
+                                    visibility=True if visibility else None, also=parse_also(also) or None,
+                                    cluster_triangles=cluster_triangles)  # fmt: skip
     elif (
-        any(v is not None for v in (algorithm, p_opt, octree_depth, grid_points, max_level, check_views))
+        any(
+            v is not None
+            for v in (algorithm, p_opt, octree_depth, grid_points, max_level, check_views, cluster_triangles)
+        )
         or visibility
         or also
     ):
         raise ServiceError(
-            "--algorithm, --also, --p-opt, --octree-depth, --grid-points, --max-level, --check-views and --visibility go with --placement"
+            "--algorithm, --also, --cluster-triangles, --p-opt, --octree-depth, --grid-points, --max-level, --check-views and "
+            "--visibility go with --placement"
         )
     elif (grid is None) == (not viewcells):
         raise ServiceError("give --grid, one or more --viewcell, or --placement")
@@ -523,6 +553,8 @@ def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov
             f"job {job['id']}: {job['state']} ({job['counts']['done']}/{job['cells_total']} cells done)"
             + (f", database in {download}" if download and job["state"] == "done" else "")
         )
+        if chosen_line(job):
+            click.echo(chosen_line(job))
         if job.get("evaluation"):
             click.echo(evaluation_line(job["evaluation"]))
         if job.get("timing"):
@@ -592,6 +624,8 @@ def jobs(job_id, state, as_json, limit, offset, every, url, key):
         click.echo(f"{job['id']}  {job['state']}  {job['counts']}  progress {job['progress']:.0%}")
         if placement_line(job):
             click.echo(f"  {placement_line(job)}")
+        if chosen_line(job):
+            click.echo(f"  {chosen_line(job)}")
         if job.get("error"):
             click.echo(f"  error: {job['error']}")
         if job.get("evaluation"):

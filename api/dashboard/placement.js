@@ -117,7 +117,10 @@ function drawPlacement(doc) {
   const tMax = doc.parameters.t_max;
   $("placement-budget").textContent = `t_max ${fmtNum(tMax, 4)} ${unit} (cost model: ${doc.parameters.cost_model.kind || doc.parameters.cost_model.source || "given"}); ` +
     `worst CPV ${fmtNum(s.worst_before, 4)} → ${fmtNum(s.worst_after, 4)} ${unit}`;
-  $("placement-impostors").textContent = `${fmtNum(t.impostors)} drawn (${fmtNum(t.impostors_baked)} of ${fmtNum(t.impostors_listed)} baked), ${doc.parameters.technique}`;
+  // Mixed candidates (also / lod): how many of each kind were chosen, and their memory (totals.by_technique).
+  const kinds = t.by_technique ? "; " + Object.entries(t.by_technique)
+    .map(([name, row]) => `${name} ${fmtNum(row.impostors)} (${fmtBytes(row.memory_bytes_baked || Math.round(row.memory_bytes_estimated))})`).join(", ") : "";
+  $("placement-impostors").textContent = `${fmtNum(t.impostors)} drawn (${fmtNum(t.impostors_baked)} of ${fmtNum(t.impostors_listed)} baked), ${doc.parameters.technique}${kinds}`;
   $("placement-memory").textContent = `${fmtBytes(t.memory_bytes_baked)} baked, ${fmtBytes(Math.round(t.memory_bytes_estimated))} estimated`;
   $("placement-memory").dataset.baked = String(t.memory_bytes_baked);
   const by = t.cpvs_by_status;

@@ -495,9 +495,12 @@ def placement_walkthrough(
             report(n + 1, len(positions))
         memory = runtime.uploaded_impostor_bytes
         impostors_used = len(runtime._impostors)
+        lods_used = sum(1 for cell in runtime._impostors if cell in runtime.lod_cells)  # simplified geometry
     summary = summarize_placement(frames, runtime.t_max, unit)
     summary.update({"impostors_uploaded": impostors_used, "impostor_texture_bytes": memory, "resolution": runtime.resolution,
                     "fov_deg": runtime.fov_deg})  # fmt: skip
+    if runtime.lod_cells:  # a placement with simplified geometry: the levels built and their mesh bytes
+        summary.update({"lods_uploaded": lods_used, "lod_mesh_bytes": runtime.uploaded_lod_bytes})
     placement = database.placement or {}
     if placement.get("summary"):
         summary["impostors"] = placement["summary"].get("impostors")

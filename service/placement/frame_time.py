@@ -22,6 +22,7 @@ from pydantic import Field, StrictBool, StrictFloat, StrictInt
 from farfield.core.options import stored_values
 from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, primitive_model
 from farfield.core.placement.hierarchy import Elements, PlacementError
+from farfield.core.placement.lod import LOD_TECHNIQUE
 from farfield.core.placement.planner import DEFAULT_MAX_IMPOSTOR_BYTES, check_colour_only, check_placeable
 from farfield.core.placement.view_space import MAX_REGIONS, MIN_VDI_DEG
 from farfield.core.techniques import DEFAULT_TECHNIQUE, TECHNIQUES, get_technique
@@ -75,9 +76,12 @@ def also_options(technique: str, also: dict | None, resolution: int, fov_deg: fl
 
     if not also:
         return {}
+    also = {k: v for k, v in also.items() if k != LOD_TECHNIQUE}  # simplified geometry: lod_of
     unknown = sorted(set(also) - set(TECHNIQUES))
     if unknown:
-        raise PlacementError(f"also: unknown techniques {unknown}; known: {sorted(TECHNIQUES)}")
+        raise PlacementError(
+            f"also: unknown techniques {unknown}; known: {sorted(TECHNIQUES)} and {LOD_TECHNIQUE!r} (simplified geometry)"
+        )
     for name, values in also.items():
         image = sorted(set(values or {}) & {"resolution", "fov_deg"})
         if image:
@@ -86,6 +90,20 @@ def also_options(technique: str, also: dict | None, resolution: int, fov_deg: fl
         1.0, LLVMPIPE_MODEL, technique, {"resolution": resolution, "fov_deg": fov_deg}, also=also
     )
     return {t.name: stored_values(o) for t, o in candidate_techniques(settings)[1:]}
+
+
+def lod_of(also: dict | None) -> bool:
+    """Whether a request's ``also`` asks for simplified geometry (``"lod": {}``, as ``farfield place
+    --also lod``: :mod:`farfield.core.placement.lod`); it takes no options (the technique's
+    ``max_error_px`` holds its error), else a 422 naming the problem."""
+    if not also or LOD_TECHNIQUE not in also:
+        return False
+    if also[LOD_TECHNIQUE]:
+        raise PlacementError(
+            f"also.{LOD_TECHNIQUE}: simplified geometry takes no options (give {{}}; the technique's max_error_px "
+            f"holds its error), got {sorted(also[LOD_TECHNIQUE])}"
+        )
+    return True
 
 
 def planner_settings(params: dict):
@@ -100,7 +118,7 @@ def planner_settings(params: dict):
         depth_complexity=math.inf if knobs["depth_complexity"] is None else knobs["depth_complexity"],
         cluster_triangles=knobs["cluster_triangles"], max_impostor_bytes=float(knobs.get("max_impostor_mb", math.inf)) * 2**20,  # a job stored before the cap: none
         visibility=bool(knobs.get("visibility", False)),
-        also=knobs.get("also"),
+        also=knobs.get("also"), lod=bool(knobs.get("lod", False)),
     )  # fmt: skip
     return settings, knobs["view_space"]["lo"], knobs["view_space"]["hi"]
 
@@ -136,8 +154,39 @@ def placement_cells(placement: dict, ids) -> list[dict]:
     return [
         {"index": int(e["index"]), "viewcell": e["viewcell"], "params": cell_params(e, cluster)}
         for e in cells_of(placement)
-        if e["index"] in ids
+        if e["index"] in ids and e["technique"] != LOD_TECHNIQUE  # simplified geometry is not baked
     ]
+
+
+def lod_entries(placement: dict) -> list[dict]:
+    """The index entries (:func:`farfield.core.placement.database.placement_index`'s ``cells``) of a
+    placement's simplified geometry: no cell, no bundle (a runtime simplifies it from the scene)."""
+    return [
+        {"index": int(imp["id"]), "state": "done", "bundle": None}
+        for imp in placement["impostors"]
+        if imp["technique"] == LOD_TECHNIQUE
+    ]
+
+
+def lod_answer(entry: dict) -> dict:
+    """A lookup's ``lods`` item: which elements a simplified-geometry entry replaces, its level,
+    triangles and bytes, and how a client gets the mesh (docs/formats.md, "Simplified geometry")."""
+    options = entry["params"]["options"]
+    return {
+        "index": int(entry["index"]),
+        "objects": list(entry["objects"]),
+        "level": int(options["level"]),
+        "triangles": int(options["triangles"]),
+        "memory_bytes_estimated": (entry.get("figures") or {}).get("estimated", {}).get("memory_bytes_estimated"),
+        "mesh": LOD_MESH,
+    }
+
+
+# How a client gets a level of detail's mesh: the service stores none (docs/formats.md).
+LOD_MESH = (
+    "not served: rebuilt from the job's scene, deterministically, as the planner built it: "
+    "farfield.core.placement.lod.level_for(the objects' elements' scene, level, keep_border for a cluster)"
+)
 
 
 def _cell_entries(db: Database, job_id: str) -> list[dict]:
@@ -150,6 +199,32 @@ def _cell_entries(db: Database, job_id: str) -> list[dict]:
         }
         for c in job_cells(db, job_id)
     ]
+
+
+def by_technique(
+    parameters: dict, cells: list[dict], estimated: list[dict], baked: list[dict], own: list[bool]
+) -> dict:
+    """Mixed candidates: per technique offered (the job's, ``also``'s, ``lod``), the impostors a CPV
+    draws and their memory, estimated and baked (simplified geometry's bytes are its mesh's, exact:
+    :attr:`farfield.core.placement.lod.LodLevel.memory_bytes`, counted as baked)."""
+    names = [
+        parameters["technique"],
+        *(parameters.get("also") or {}),
+        *([LOD_TECHNIQUE] if parameters.get("lod") else []),
+    ]
+    out = {name: {"impostors": 0, "memory_bytes_estimated": 0.0, "memory_bytes_baked": 0} for name in names}
+    for c, e, b, o in zip(cells, estimated, baked, own):
+        if not c.get("cpvs"):
+            continue
+        row = out.setdefault(c["technique"], {"impostors": 0, "memory_bytes_estimated": 0.0, "memory_bytes_baked": 0})
+        row["impostors"] += 1
+        if o:
+            row["memory_bytes_estimated"] += float(e.get("memory_bytes_estimated", 0.0))
+            lod = c["technique"] == LOD_TECHNIQUE
+            row["memory_bytes_baked"] += (
+                int(e.get("memory_bytes_estimated", 0)) if lod else int(b.get("texture_bytes", 0))
+            )
+    return out
 
 
 class FrameTime(Algorithm):
@@ -173,12 +248,17 @@ class FrameTime(Algorithm):
         "visibility": (
             StrictBool, Field(False, description="problem views count only the potentially visible set of their region (sampled from points with id cube maps; not conservative: docs/placement/visibility.md)")
         ),
+        "cluster_triangles": (
+            StrictInt | None, Field(None, description="objects over this many triangles are split into elements of at most as many "
+                                    "(default: max(64, the scene's triangles / 256)); a level of detail (also: {\"lod\": {}}) needs an element of 256 or more")
+        ),
         "also": (
             dict[str, dict] | None,
             Field(None, description="other techniques whose candidates compete with the job's technique's in the same greedy, by memory "
                   "per millisecond saved: technique name -> its options (the job's resolution and fov_deg apply), e.g. "
                   "{\"octahedral\": {\"grid\": 9, \"frame_resolution\": 16}}: an octahedral impostor per element wherever its "
-                  "problem views lie beyond its accuracy distance (docs/placement/frame-time.md, mixed candidates)"),
+                  "problem views lie beyond its accuracy distance; {\"lod\": {}}: simplified geometry, QEM levels of detail of "
+                  "each element within the technique's max_error_px (docs/placement/frame-time.md, mixed candidates)"),
         ),
     }  # fmt: skip
 
@@ -214,6 +294,8 @@ class FrameTime(Algorithm):
             raise PlacementError(f"depth_complexity must be >= 1 (null: no cap), got {depth!r}")
         if depth is not None and math.isinf(depth):
             depth = None  # JSON (and PostgreSQL) hold no infinity: null is no cap
+        if spec.cluster_triangles is not None and spec.cluster_triangles < 1:
+            raise PlacementError(f"cluster_triangles must be >= 1, got {spec.cluster_triangles!r}")
         if spec.leaf_size < 1:
             raise PlacementError(f"leaf_size must be >= 1, got {spec.leaf_size!r}")
         largest = finite(spec.max_impostor_mb, "max_impostor_mb")
@@ -221,9 +303,11 @@ class FrameTime(Algorithm):
             raise PlacementError(f"max_impostor_mb must be > 0, got {largest!r}")
         knobs = {
             "view_space": {"lo": lo, "hi": hi}, "budget": budget, "cost_model": model.to_dict(), "cpv_size": cpv_size, "vdi_deg": vdi,
-            "depth_complexity": depth, "cells": spec.cells, "leaf_size": spec.leaf_size, "cluster_triangles": None,
+            "depth_complexity": depth, "cells": spec.cells, "leaf_size": spec.leaf_size, "cluster_triangles": spec.cluster_triangles,
             "max_impostor_mb": largest,
         }  # fmt: skip
+        if lod_of(spec.also):  # only when asked: simplified geometry competes (farfield.core.placement.lod)
+            knobs["lod"] = True
         if spec.visibility:  # stored only when on: the params (and keys) of every other job stay as they were
             knobs["visibility"] = True
         if also:  # only when given: a job without mixed candidates stores what it always did
@@ -267,12 +351,13 @@ class FrameTime(Algorithm):
         rounds = [*rounds, {**repaired.to_dict(), "round": round_}]
         added = {int(i) for i in repaired.added}
         current = state.placement().to_dict()
-        if added:
+        cells = placement_cells(current, added)  # simplified geometry added needs no bake: none of them
+        if cells:
             key = state_key(job.id, round_)
             blobs.put_bytes(key, state.dumps())
             return Round(
                 key,
-                placement_cells(current, added),
+                cells,
                 self.impostors(current),
                 current.get("summary"),
                 round_,
@@ -299,11 +384,8 @@ class FrameTime(Algorithm):
         """:func:`farfield.core.placement.database.placement_index` of the placement and its cells."""
         from farfield.core.placement.database import placement_index
 
-        return put_index(
-            blobs,
-            job.id,
-            placement_index(doc, _cell_entries(db, job.id), job=job.id, scene=job.scene_id, rounds=rounds),
-        )
+        cells = sorted([*_cell_entries(db, job.id), *lod_entries(doc)], key=lambda c: c["index"])
+        return put_index(blobs, job.id, placement_index(doc, cells, job=job.id, scene=job.scene_id, rounds=rounds))
 
     def bundled_cells(self, index: dict) -> set[int]:
         """Those its index gives a bundle (an impostor no CPV draws has none)."""
@@ -336,8 +418,12 @@ class FrameTime(Algorithm):
                 for c, e, o in zip(cells, estimated, own)
                 if c.get("cpvs") and o
             ),
-            "memory_bytes_baked": sum(
-                int(b.get("texture_bytes", 0)) for c, b, o in zip(cells, baked, own) if c.get("cpvs") and o
+            "memory_bytes_baked": sum(  # simplified geometry's bytes are exact (by_technique): counted here too
+                int(e.get("memory_bytes_estimated", 0))
+                if c.get("technique") == LOD_TECHNIQUE
+                else int(b.get("texture_bytes", 0))
+                for c, e, b, o in zip(cells, estimated, baked, own)
+                if c.get("cpvs") and o
             ),
             "cpvs": len(section["cpvs"]),
             "cpvs_by_status": {
@@ -346,13 +432,20 @@ class FrameTime(Algorithm):
             "unsolvable_regions": len(section["unsolvable"]),
             "rounds": len(section.get("rounds") or []),
         }
+        if section["parameters"].get("also") or section["parameters"].get("lod"):
+            totals["by_technique"] = by_technique(section["parameters"], cells, estimated, baked, own)
         return {"job": job.id, "state": job.state, **section, "cells": cells, "totals": totals}
 
     def lookup(self, index: dict, found, eye, direction) -> tuple[dict, list[int]]:
         """:meth:`PlacementLookup.find` of the view (``cpv``, ``status``, ``impostors``, ``replaced``,
         ``time_estimated``), and the cells of the impostors to draw."""
         answer = found.find(eye, direction)
-        return answer, answer["impostors"]
+        lods = {int(c["index"]): c for c in index.get("cells", []) if c.get("technique") == LOD_TECHNIQUE}
+        if not lods:
+            return answer, answer["impostors"]
+        drawn = [i for i in answer["impostors"] if int(i) in lods]
+        answer["lods"] = [lod_answer(lods[int(i)]) for i in drawn]  # simplified geometry: no cell, no bundle
+        return answer, [i for i in answer["impostors"] if int(i) not in lods]
 
     def clusters(self, db: Database, blobs: BlobStore, job: JobRow, index: dict) -> dict:
         """Its clusters of split objects (:meth:`farfield.core.placement.hierarchy.Elements.clusters`)."""

@@ -257,6 +257,7 @@ def _summary_of(summary: dict | None) -> dict | None:
     keep = (
         "t_max", "unit", "cpvs", "cpvs_solved", "cpvs_unsolved", "cpvs_unsolvable", "impostors", "memory_bytes", "worst_before", "worst_after",
         "primitives", "p_opt", "model_triangles", "grid_points", "points_per_level", "images", "points_with_images", "unsolved_points", "check",
+        "by_technique",  # mixed candidates: impostors and memory of each technique (and lod) chosen
     )  # fmt: skip
     return {k: summary[k] for k in keep if k in summary}
 
