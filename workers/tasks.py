@@ -530,5 +530,10 @@ def admit_job_task(self, job_id: str) -> str:
         return "released"
     if state == "continue":
         send_admission(celery_app, job_id)
-    send_cells(celery_app, cell_ids, cell_queues(db, cell_ids, settings.heavy_texels))  # by cost: service.pools
+    try:  # by cost: service.pools
+        queues = cell_queues(db, cell_ids, settings.heavy_texels)
+    except Exception as error:  # noqa: BLE001 - admitted cells must be sent now, not at the sweeper's requeue (an hour)
+        log.warning("job %s: cell queues not read (%s); its cells go to the render queue", job_id, error)
+        queues = None
+    send_cells(celery_app, cell_ids, queues)
     return state
