@@ -337,7 +337,11 @@ def test_cancelling_a_job_whose_node_died_leaves_no_cell_running(cluster, bunny)
         cluster.worker(running_mid_cell(client, job_id)["worker"]).kill()
         assert client.post(f"/v1/jobs/{job_id}/cancel").status_code == 200
         cell = wait_for_cell(client, job_id, 0, lambda c: c["state"] != "running", RECOVERY_S, "ended")
-        job = client.get(f"/v1/jobs/{job_id}").json()
+        # The sweep ends the cell, then the job in a transaction of its own (service.jobs.cells.release_lost_cells):
+        # a read between the two sees the cell cancelled and the job not yet finished.
+        deadline = time.monotonic() + 10
+        while (job := client.get(f"/v1/jobs/{job_id}").json())["finished_at"] is None and time.monotonic() < deadline:
+            time.sleep(0.1)
         assert cell["state"] == "cancelled" and job["state"] == "cancelled" and job["finished_at"] is not None
         assert job["counts"]["running"] == 0 and job["counts"]["queued"] == 0
         index = client.get(f"/v1/jobs/{job_id}/index.json")
