@@ -196,38 +196,6 @@ def _window(q: np.ndarray, cell: BoxCell, target: np.ndarray, fov: float, resolu
     return eye, camera, int(x0), int(y0), size
 
 
-def visible_points(
-    objects: list[SceneObject] | tuple[SceneObject, ...],
-    points: np.ndarray,
-    cell: BoxCell,
-    fov_deg: float,
-    resolution: int,
-    views: int = MIN_VIEWS,
-    seed: int = 0,
-) -> np.ndarray:
-    """(n,) bool: the ``points`` (n, 3) that win a pixel, drawn as one-pixel points with a z-buffer,
-    in any of the first ``views`` views of :func:`integrate_appearance` (same viewpoints, jitter and
-    windows): the points those views show.  A point that wins no pixel in them adds nothing to
-    them, so dropping it before the appearance changes none of their winners, and the appearance's
-    sums need hold only the points kept (before, the same test ran inside the appearance, over
-    every candidate)."""
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    n = points.shape[0]
-    shown = np.zeros(n, dtype=bool)
-    if n == 0:
-        return shown
-    fov = math.radians(float(fov_deg))
-    extent = _extent(objects, points)
-    target = 0.5 * (extent.min(axis=0) + extent.max(axis=0))
-    with PointRenderer(points, np.zeros((n, 4), np.uint8)) as ids:
-        for batch in _views(cell, seed, views):
-            for q in batch:
-                _eye, camera, x0, y0, size = _window(q, cell, target, fov, resolution, extent)
-                drawn = ids.render_ids(camera.window(x0, y0, size, size))
-                shown[drawn[drawn >= 0]] = True
-    return shown
-
-
 def integrate_appearance(
     objects: list[SceneObject] | tuple[SceneObject, ...],
     points: np.ndarray,
