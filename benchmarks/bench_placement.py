@@ -1,6 +1,6 @@
 """Placement for a frame-time budget (seed 000 ch. 5): the shape of Table 5.1 on two seeded scenes, measured in one run.
 
-Usage: ``.venv/bin/python benchmarks/bench_placement.py [--scene city|helmets|both] [--quick] [--json OUT]``
+Usage: ``.venv/bin/python benchmarks/bench_placement.py [--scene city|helmets|downtown|street|both] [--quick] [--visibility] [--rows 1,7,8,16] [--json OUT]``
        ``.venv/bin/python benchmarks/bench_placement.py --walkthrough [--size N] [--views 200] [--json OUT]``
        ``.venv/bin/python benchmarks/bench_placement.py --estimates 45,11.25 [--scene downtown] [--json OUT]``
 
@@ -9,6 +9,8 @@ model (the builtin one ``farfield calibrate`` measured on this machine's llvmpip
 ``--cost-model FILE``) and the layered technique:
 
 * t_max varied (Table 5.1 tests 2-6): memory should grow faster than linearly as t_max falls;
+* the output resolution x 1/2 and x 2 at the same t_max (tests 7-8), and at half the worst view's
+  time at that resolution (7s, 8s: under a model with pixel terms the frame itself grows with it);
 * CPV size x2 and x1/2 (tests 9-10);
 * fewer candidates (apex angles 22.5/90°, directions every 22.5°, 6 distances) and more
   (directions every 5.625°) (tests 11-12);
@@ -19,7 +21,16 @@ model (the builtin one ``farfield calibrate`` measured on this machine's llvmpip
   whose geometry (every element within it, all directions) fits t_max, its layers from
   :func:`farfield.core.techniques.envmap.arrangement.layers_for_near_field` for the same output as the placement (the
   resolution at 45°: face resolution ``ceil(res / tan 22.5°)``, the parallax angle of a 45° pixel),
-  and its memory the cost model's memory law applied to each of the six faces' layers.
+  and its memory the cost model's memory law applied to each of the six faces' layers;
+  15g: the coarsest such grid (cells of side / 2^k) that meets t_max by the model;
+* ``--visibility``: every row plans with one sampled PVS of the view space (issue 57 item 1,
+  :class:`farfield.core.visibility.pvs.RegionVisibility` at the reference resolution and CPV size),
+  as the thesis's reference did, and the grids count each cell's PVS (15g beside 15g-, the same
+  grid without); added: test 16 (no visibility at t_max x 50/16, the thesis's 50 ms against 16 ms)
+  and 1- (no visibility at the reference t_max: the on/off pair of seed 000 Figures 5.8/5.9).
+
+``--resolution``, ``--cpv-divisions`` and ``--vdi-deg`` set the reference (default 256 px, side /
+8, 11.25°); ``--scene street`` is the city with the view space at street level (1.5..2.5 m).
 
 Columns: # CPV, # candidates, # impostors, estimated memory (MiB), CPVs left unsolved/unsolvable,
 and the seconds of each step.  Memory is the cost model's estimate (layers x texels law); nothing
