@@ -831,7 +831,7 @@ def main() -> None:
         "--detail",
         type=int,
         default=16,
-        help="--walkthrough: the city's most quads per building face side (farfield.core.procedural.city)",
+        help="the city's most quads per building face side (farfield.core.procedural.city; planning table and --walkthrough)",
     )
     parser.add_argument("--keep", default=None, help="--walkthrough: write the placement databases under this folder")
     parser.add_argument(
@@ -894,7 +894,9 @@ def main() -> None:
     builders = {"city": city_scene, "helmets": helmet_scene, "downtown": downtown_scene, "street": street_scene}
     for name in ["city", "helmets"] if args.scene == "both" else [args.scene]:
         try:
-            scene, lo, hi = builders[name](args.quick, args.size)
+            scene, lo, hi = builders[name](
+                args.quick, args.size, *([args.detail] if name in ("city", "street") else [])
+            )
         except FarfieldError as error:
             print(f"{name}: cannot build the scene: {error}")
             continue
