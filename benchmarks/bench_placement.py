@@ -409,19 +409,21 @@ def run(
     cpv_divisions: int = 8,
     vdi_deg: float = 11.25,
     visibility: bool = False,
+    lod: bool = False,
 ) -> list[dict]:
     """The planning table's rows for one scene (see the module docstring).  ``visibility``: every
     row but 16 and 1- plans with one sampled PVS (:class:`farfield.core.visibility.pvs.RegionVisibility`
     at ``resolution`` and the reference CPV size, its defaults; rendered on first use and shared by
     the rows, tests 7 and 8 included), as the thesis's reference did; test 16 plans without it at
     t_max x 50/16 (the thesis's 50 ms against 16 ms), 1- without it at the reference t_max (the
-    on/off pair), and test 15's envmap grid counts each cell's PVS (:func:`cell_pvs`)."""
+    on/off pair), and test 15's envmap grid counts each cell's PVS (:func:`cell_pvs`).  ``lod``:
+    simplified geometry competes with the impostors in every row (``PlacementSettings.lod``)."""
     # The reference budget: half the worst view's time without impostors.
     worst = _worst_view(scene, lo, hi, model, resolution)
     t_ref = 0.5 * worst
     cpv = float(np.max(hi - lo)) / cpv_divisions
     base = {"t_max": t_ref, "model": model, "options": {"resolution": resolution}, "cpv_size": cpv, "cells": "both",
-            "vdi_deg": vdi_deg}  # fmt: skip
+            "vdi_deg": vdi_deg, "lod": lod}  # fmt: skip
     visible = None
     if visibility:
         from farfield.core.visibility.pvs import RegionVisibility
@@ -789,6 +791,11 @@ def main() -> None:
         help="the planning table's scenes (both: city and helmets; street: the city with the view space at 1.5..2.5 m), or the --walkthrough scene (default city)",
     )
     parser.add_argument(
+        "--lod",
+        action="store_true",
+        help="planning table: simplified geometry (QEM levels of detail) competes with the layered impostors (issue 57 item 3)",
+    )
+    parser.add_argument(
         "--visibility",
         action="store_true",
         help="planning table: plan with a sampled PVS shared by the rows, as the thesis's reference (adds test 16, no visibility at t_max x 50/16, and 1-, no visibility at the reference t_max)",
@@ -904,7 +911,7 @@ def main() -> None:
             f"# {name}: {scene.object_count} objects, {scene.triangle_count:,} triangles; view space {lo.round(2).tolist()} .. {hi.round(2).tolist()}"
         )
         rows += run(name, scene, lo, hi, model, args.quick, args.rows.split(",") if args.rows else None, args.resolution,
-                    args.cpv_divisions, args.vdi_deg, args.visibility)  # fmt: skip
+                    args.cpv_divisions, args.vdi_deg, args.visibility, args.lod)  # fmt: skip
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
 
