@@ -1,6 +1,6 @@
 """Placement for a frame-time budget (seed 000 ch. 5): the shape of Table 5.1 on two seeded scenes, measured in one run.
 
-Usage: ``.venv/bin/python benchmarks/bench_placement.py [--scene city|helmets|both] [--quick] [--json OUT]``
+Usage: ``.venv/bin/python benchmarks/bench_placement.py [--scene city|helmets|downtown|street|both] [--quick] [--visibility] [--rows 1,7,8,16] [--json OUT]``
        ``.venv/bin/python benchmarks/bench_placement.py --walkthrough [--size N] [--views 200] [--json OUT]``
        ``.venv/bin/python benchmarks/bench_placement.py --estimates 45,11.25 [--scene downtown] [--json OUT]``
 
@@ -9,6 +9,8 @@ model (the builtin one ``farfield calibrate`` measured on this machine's llvmpip
 ``--cost-model FILE``) and the layered technique:
 
 * t_max varied (Table 5.1 tests 2-6): memory should grow faster than linearly as t_max falls;
+* the output resolution x 1/2 and x 2 at the same t_max (tests 7-8), and at half the worst view's
+  time at that resolution (7s, 8s: under a model with pixel terms the frame itself grows with it);
 * CPV size x2 and x1/2 (tests 9-10);
 * fewer candidates (apex angles 22.5/90°, directions every 22.5°, 6 distances) and more
   (directions every 5.625°) (tests 11-12);
@@ -19,7 +21,16 @@ model (the builtin one ``farfield calibrate`` measured on this machine's llvmpip
   whose geometry (every element within it, all directions) fits t_max, its layers from
   :func:`farfield.core.techniques.envmap.arrangement.layers_for_near_field` for the same output as the placement (the
   resolution at 45°: face resolution ``ceil(res / tan 22.5°)``, the parallax angle of a 45° pixel),
-  and its memory the cost model's memory law applied to each of the six faces' layers.
+  and its memory the cost model's memory law applied to each of the six faces' layers;
+  15g: the coarsest such grid (cells of side / 2^k) that meets t_max by the model;
+* ``--visibility``: every row plans with one sampled PVS of the view space (issue 57 item 1,
+  :class:`farfield.core.visibility.pvs.RegionVisibility` at the reference resolution and CPV size),
+  as the thesis's reference did, and the grids count each cell's PVS (15g beside 15g-, the same
+  grid without); added: test 16 (no visibility at t_max x 50/16, the thesis's 50 ms against 16 ms)
+  and 1- (no visibility at the reference t_max: the on/off pair of seed 000 Figures 5.8/5.9).
+
+``--resolution``, ``--cpv-divisions`` and ``--vdi-deg`` set the reference (default 256 px, side /
+8, 11.25°); ``--scene street`` is the city with the view space at street level (1.5..2.5 m).
 
 Columns: # CPV, # candidates, # impostors, estimated memory (MiB), CPVs left unsolved/unsolvable,
 and the seconds of each step.  Memory is the cost model's estimate (layers x texels law); nothing
@@ -89,6 +100,16 @@ def city_scene(quick: bool, size: int | None = None, detail: int = 16) -> tuple[
     top = float(scene.bounds[1][1])
     half = 0.1875 * float(scene.extents[0])
     return scene, np.array([c[0] - half, top + 10.0, c[2] - half]), np.array([c[0] + half, top + 20.0, c[2] + half])
+
+
+def street_scene(quick: bool, size: int | None = None, detail: int = 16) -> tuple[Scene, np.ndarray, np.ndarray]:
+    """The city of :func:`city_scene` with the view space at street level, 1.5..2.5 m over its
+    ground (the same square): where occlusion matters, as in the thesis's walkthrough of Vienna."""
+    scene, lo, hi = city_scene(quick, size, detail)
+    ground = float(scene.bounds[0][1])
+    lo, hi = lo.copy(), hi.copy()
+    lo[1], hi[1] = ground + 1.5, ground + 2.5
+    return scene, lo, hi
 
 
 def downtown_scene(quick: bool, size: int | None = None, detail: int = 20) -> tuple[Scene, np.ndarray, np.ndarray]:
@@ -162,7 +183,7 @@ def _grid_counts(lo, hi, cell: float) -> np.ndarray:
 
 
 def _envmap_near_field(elements: Elements, c_lo, c_hi, t_max: float, model: CostModel, resolution: int,
-                       depth_complexity: float = 4.0) -> tuple[float, float]:  # fmt: skip
+                       depth_complexity: float = 4.0, keep: np.ndarray | None = None) -> tuple[float, float]:  # fmt: skip
     """(near field, frame estimate) of an envmap cell for ``t_max``: the largest near field (the
     half-size of a cube about the cell's centre, as the envmap bake cuts it,
     :func:`farfield.core.techniques.envmap.near_field.near_field`; one of the elements' distances) at which the cell's frame
@@ -176,12 +197,19 @@ def _envmap_near_field(elements: Elements, c_lo, c_hi, t_max: float, model: Cost
     capped at ``depth_complexity`` frames; plus the layers the near field needs
     (:func:`farfield.core.techniques.envmap.arrangement.layers_for_near_field`) drawn as impostors by the model's impostor
     terms: ``ENVMAP_FACES_IN_VIEW`` faces, each ``g`` plus ``f`` per quad (the model's quads law at a
-    whole face's texels per layer), and one frame of layer pixels (``e``)."""
+    whole face's texels per layer), and one frame of layer pixels (``e``).
+
+    ``keep``: (e,) bool, the cell's potentially visible set (:func:`cell_pvs`): the near field draws
+    only those elements, so the others add neither time nor pixels (the grid with visibility, as
+    the thesis's test 15 culled each cell, seed 000 §5.8.2).  The layers are the envmap plan's for
+    the near field whatever they image (the memory law counts layers and texels, not content)."""
     c_lo, c_hi = np.asarray(c_lo, dtype=np.float64), np.asarray(c_hi, dtype=np.float64)
     centre = 0.5 * (c_lo + c_hi)
     cell = float(np.max(c_hi - c_lo))
     pixels = element_pixels(elements, c_lo, c_hi, math.radians(45.0), resolution)
     cost = model.geometry_time(elements.draw_calls, elements.triangles, 0.0)
+    if keep is not None:  # hidden from every view of the cell: not drawn
+        pixels, cost = np.where(keep, pixels, 0.0), np.where(keep, cost, 0.0)
     b = elements.bounds
     dist = np.max(
         np.maximum(0.0, np.maximum(b[:, 0] - centre, centre - b[:, 1])), axis=1
@@ -216,34 +244,74 @@ def _envmap_near_field(elements: Elements, c_lo, c_hi, t_max: float, model: Cost
 
 
 def coarsest_envmap_cell(
-    elements: Elements, lo, hi, t_max: float, model: CostModel, resolution: int, max_cells: int = 4096
+    elements: Elements, lo, hi, t_max: float, model: CostModel, resolution: int, max_cells: int = 4096, pvs=None
 ) -> tuple[float, int]:
     """(cell side, cells over t_max by the model) of the coarsest grid of cubic envmap cells over
     the view space, of side ``longest side / 2^k``, in which every cell's frame fits t_max by the
     model (:func:`_envmap_near_field`): the grid the placement's memory is compared with, planned by
     the same model as the placement.  Halving stops at ``max_cells`` cells; the count says how many
-    cells of that grid are still over (0: it fits)."""
+    cells of that grid are still over (0: it fits).  ``pvs``: a cell's potentially visible set
+    (:func:`cell_pvs`; None: every element)."""
     from farfield.core.viewcells import grid_boxes
 
     lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
     cell = float(np.max(hi - lo))
     while True:
         counts = _grid_counts(lo, hi, cell)
-        over = sum(_envmap_near_field(elements, box.lo, box.hi, t_max, model, resolution)[1] > t_max
+        over = sum(_envmap_near_field(elements, box.lo, box.hi, t_max, model, resolution,
+                                      keep=None if pvs is None else pvs(box.lo, box.hi))[1] > t_max
                    for _, box in grid_boxes(lo, lo + counts * cell, counts))  # fmt: skip
         if over == 0 or int(np.prod(_grid_counts(lo, hi, 0.5 * cell))) > max_cells:
             return cell, int(over)
         cell *= 0.5
 
 
+def leaf_regions(lo, hi, cpv: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The smallest regions of the problem view space of CPV size ``cpv`` (each axis halved
+    ``halvings`` times, as :func:`farfield.core.placement.view_space.problem_view_space` splits it)."""
+    from farfield.core.visibility.pvs import halvings
+
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    counts = [2 ** halvings(float(s), cpv) if s > 0 else 1 for s in hi - lo]
+    size = (hi - lo) / np.array(counts)
+    return [(lo + np.array(ijk) * size, lo + (np.array(ijk) + 1) * size) for ijk in np.ndindex(*counts)]
+
+
+def cell_pvs(visible, count: int, lo, hi, cpv: float):
+    """A grid cell's potentially visible set, for the envmap grid with visibility: ``(c_lo, c_hi)
+    -> (count,) bool``, the union of the PVS (``visible.pvs``, a
+    :class:`farfield.core.visibility.pvs.RegionVisibility`) of every smallest region of the view space
+    ``lo``..``hi`` (CPV size ``cpv``) that the cell meets with more than a face: what some view of the
+    cell can see, as the runtime culls a view to its region's PVS.  Regions' sets are computed once."""
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    regions = leaf_regions(lo, hi, cpv)
+    r_lo, r_hi = np.array([r[0] for r in regions]), np.array([r[1] for r in regions])
+    solid = hi - lo > 0  # a flat axis of the view space: every region meets the cell's slab
+    tol = 1e-9 * max(1.0, float(np.max(hi - lo)))
+    sets: dict[int, np.ndarray] = {}
+
+    def pvs(c_lo, c_hi) -> np.ndarray:
+        c_lo, c_hi = np.asarray(c_lo, dtype=np.float64), np.asarray(c_hi, dtype=np.float64)
+        meets = np.all(~solid | ((r_lo < c_hi - tol) & (r_hi > c_lo + tol)), axis=1)
+        out = np.zeros(count, dtype=bool)
+        for k in np.flatnonzero(meets).tolist():
+            if k not in sets:
+                sets[k] = visible.pvs(r_lo[k], r_hi[k])
+            out[sets[k]] = True
+        return out
+
+    return pvs
+
+
 def envmap_grid_memory(
-    scene: Scene, lo, hi, cell: float, t_max: float, model: CostModel, resolution: int = RESOLUTION
+    scene: Scene, lo, hi, cell: float, t_max: float, model: CostModel, resolution: int = RESOLUTION, pvs=None
 ) -> dict:
     """Estimated memory of a grid of layered environment maps (seed 002) over the view space with
     cubic cells of side ``cell``, for the same output as the placement's impostors (``resolution``
     pixels, 45 degrees: the envmap's face resolution and parallax angle follow from both): per cell,
     the near field of :func:`_envmap_near_field`, its layers from the envmap layer plan, and memory
-    the model's law per face (see the module docstring)."""
+    the model's law per face (see the module docstring).  ``pvs``: a cell's potentially visible set
+    (:func:`cell_pvs`), the grid with visibility; None: without."""
     elements = Elements.of(scene)
     counts = _grid_counts(lo, hi, cell)
     options = EnvmapOptions(resolution=resolution, fov_deg=45.0)
@@ -251,7 +319,8 @@ def envmap_grid_memory(
     total, cells, layers_all, near_all = 0.0, 0, [], []
     for idx in np.ndindex(*counts):
         c_lo = lo + np.array(idx) * cell
-        near, _ = _envmap_near_field(elements, c_lo, c_lo + cell, t_max, model, resolution)
+        keep = None if pvs is None else pvs(c_lo, c_lo + cell)
+        near, _ = _envmap_near_field(elements, c_lo, c_lo + cell, t_max, model, resolution, keep=keep)
         if math.isinf(near):
             continue
         layers = layers_for_near_field(cell, face, near, options.alpha, 3)
@@ -324,18 +393,65 @@ def envmap_grid_walkthrough(
     }  # fmt: skip
 
 
-def run(name: str, scene: Scene, lo, hi, model: CostModel, quick: bool, only: list[str] | None = None) -> list[dict]:
+# Table 5.1 test 16: no visibility at 50 ms against the reference's 16 ms (seed 000 §5.8.2).
+NO_VISIBILITY_FACTOR = 50.0 / 16.0
+
+
+def run(
+    name: str,
+    scene: Scene,
+    lo,
+    hi,
+    model: CostModel,
+    quick: bool,
+    only: list[str] | None = None,
+    resolution: int = RESOLUTION,
+    cpv_divisions: int = 8,
+    vdi_deg: float = 11.25,
+    visibility: bool = False,
+    lod: bool = False,
+) -> list[dict]:
+    """The planning table's rows for one scene (see the module docstring).  ``visibility``: every
+    row but 16 and 1- plans with one sampled PVS (:class:`farfield.core.visibility.pvs.RegionVisibility`
+    at ``resolution`` and the reference CPV size, its defaults; rendered on first use and shared by
+    the rows, tests 7 and 8 included), as the thesis's reference did; test 16 plans without it at
+    t_max x 50/16 (the thesis's 50 ms against 16 ms), 1- without it at the reference t_max (the
+    on/off pair), and test 15's envmap grid counts each cell's PVS (:func:`cell_pvs`).  ``lod``:
+    simplified geometry competes with the impostors in every row (``PlacementSettings.lod``)."""
     # The reference budget: half the worst view's time without impostors.
-    worst = _worst_view(scene, lo, hi, model)
+    worst = _worst_view(scene, lo, hi, model, resolution)
     t_ref = 0.5 * worst
-    cpv = float(np.max(hi - lo)) / 8.0
-    base = {"t_max": t_ref, "model": model, "options": {"resolution": RESOLUTION}, "cpv_size": cpv, "cells": "both"}
+    cpv = float(np.max(hi - lo)) / cpv_divisions
+    base = {"t_max": t_ref, "model": model, "options": {"resolution": resolution}, "cpv_size": cpv, "cells": "both",
+            "vdi_deg": vdi_deg, "lod": lod}  # fmt: skip
+    visible = None
+    if visibility:
+        from farfield.core.visibility.pvs import RegionVisibility
+
+        visible = RegionVisibility(scene, Elements.of(scene), lo, hi, cpv, resolution, math.radians(45.0))
     rows = [
         ("1", f"reference (t_max {t_ref:.4g} {model.unit})", {}),
         ("2", "t_max x 1.5", {"t_max": 1.5 * t_ref}),
         ("3", "t_max x 1.25", {"t_max": 1.25 * t_ref}),
         ("5", "t_max x 0.8", {"t_max": 0.8 * t_ref}),
         ("6", "t_max x 0.65", {"t_max": 0.65 * t_ref}),
+        ("7", f"{resolution // 2} px (resolution x 1/2)", {"options": {"resolution": resolution // 2}}),
+        ("8", f"{2 * resolution} px (resolution x 2)", {"options": {"resolution": 2 * resolution}}),
+    ]
+    # 7 and 8 with the budget as tight for their frame as the reference's for its own: half the worst
+    # view's time at their resolution (the model's pixel terms grow with the frame; the thesis's
+    # draw-call-bound model did not, so its CPVs were the same for 7, 8 and 1).
+    for test, res in (("7s", resolution // 2), ("8s", 2 * resolution)):
+        if not only or test in only:
+            t_res = 0.5 * _worst_view(scene, lo, hi, model, res)
+            rows.append(
+                (
+                    test,
+                    f"{res} px, t_max {t_res:.4g} (half its worst view)",
+                    {"options": {"resolution": res}, "t_max": t_res},
+                )
+            )
+    rows += [
         ("9", "CPV size x 2", {"cpv_size": 2 * cpv}),
         ("10", "CPV size x 1/2", {"cpv_size": 0.5 * cpv}),
         ("11", "fewer candidates", {"apex_angles_deg": (22.5, 90.0), "direction_step_deg": 22.5, "distance_steps": 6}),
@@ -344,33 +460,62 @@ def run(name: str, scene: Scene, lo, hi, model: CostModel, quick: bool, only: li
         ("13s", "shaft view cells only", {"cells": "shafts"}),
         ("14", "per leaf box cell", {"cells": "leaf-boxes"}),
     ]
+    if visible is not None:
+        rows += [
+            ("16", f"no visibility, t_max x {NO_VISIBILITY_FACTOR:.4g}", {"t_max": NO_VISIBILITY_FACTOR * t_ref}),
+            ("1-", "no visibility, reference t_max", {}),
+        ]
     if quick:
         rows = [r for r in rows if r[0] in ("1", "2", "6", "13", "13s", "14")]
     if only:
         rows = [r for r in rows if r[0] in only]
     out = []
-    for test, label, change in rows:
-        settings = PlacementSettings(**{**base, **change})
-        started = time.perf_counter()
-        result = place(scene, lo, hi, settings)
-        s = result.summary
-        out.append({
-            "scene": name, "test": test, "parameter": label, "t_max": settings.t_max, "cpvs": s["cpvs"], "candidates": s["candidates"],
-            "impostors": s["impostors"], "memory_mib": s["memory_bytes"] / 2**20, "unsolved": s["cpvs_unsolved"],
-            "unsolvable": s["cpvs_unsolvable"], "worst_before": s["worst_before"], "worst_after": s["worst_after"],
-            "seconds": {k: round(v, 2) for k, v in result.seconds.items()}, "wall": time.perf_counter() - started,
-        })  # fmt: skip
-        print(_line(out[-1]), flush=True)
-    if only and "15" not in only:
+    try:
+        for test, label, change in rows:
+            settings = PlacementSettings(**{**base, **change})
+            started = time.perf_counter()
+            culled = visible is not None and test not in ("16", "1-")
+            result = place(scene, lo, hi, settings, visible=visible if culled else None)
+            s = result.summary
+            out.append({
+                "scene": name, "test": test, "parameter": label, "t_max": settings.t_max, "visibility": culled, "cpvs": s["cpvs"],
+                "candidates": s["candidates"], "impostors": s["impostors"], "memory_mib": s["memory_bytes"] / 2**20, "unsolved": s["cpvs_unsolved"],
+                "unsolvable": s["cpvs_unsolvable"], "worst_before": s["worst_before"], "worst_after": s["worst_after"],
+                "seconds": {k: round(v, 2) for k, v in result.seconds.items()}, "wall": time.perf_counter() - started,
+            })  # fmt: skip
+            if culled:
+                out[-1]["pvs"] = {**visible.stats(), "elements": visible.elements.count}
+            print(_line(out[-1]), flush=True)
+        pvs = None if visible is None else cell_pvs(visible, visible.elements.count, lo, hi, cpv)
+        if not only or "15" in only:  # a grid of CPV-sized cells
+            env = envmap_grid_memory(scene, lo, hi, cpv, t_ref, model, resolution, pvs=pvs)
+            out.append({
+                "scene": name, "test": "15", "parameter": f"envmap grid, {env['cells']} cells of {cpv:.3g} (estimated)", "t_max": t_ref,
+                "visibility": visible is not None, "cpvs": None, "candidates": None, "impostors": env["cells"], "memory_mib": env["memory_bytes"] / 2**20,
+                "unsolved": None, "unsolvable": None, "worst_before": None, "worst_after": None, "seconds": {}, "wall": 0.0, "envmap": env,
+            })  # fmt: skip
+            print(_line(out[-1]), flush=True)
+        if not only or "15g" in only:  # the coarsest grid meeting t_max by the model, with and without visibility
+            for grid_pvs in [pvs, None] if pvs is not None else [None]:
+                grid, over = coarsest_envmap_cell(
+                    Elements.of(scene), lo, hi, t_ref, model, resolution, AUTO_MAX_CELLS, grid_pvs
+                )
+                env = envmap_grid_memory(scene, lo, hi, grid, t_ref, model, resolution, pvs=grid_pvs)
+                out.append({
+                    "scene": name, "test": "15g" if grid_pvs is not None or pvs is None else "15g-", "t_max": t_ref,
+                    "parameter": f"coarsest envmap grid, {env['cells']} of {int(np.prod(_grid_counts(lo, hi, grid)))} cells of {grid:.3g}" + (f" ({over} over)" if over else ""),
+                    "visibility": grid_pvs is not None, "cpvs": None, "candidates": None, "impostors": env["cells"], "memory_mib": env["memory_bytes"] / 2**20,
+                    "unsolved": over, "unsolvable": None, "worst_before": None, "worst_after": None, "seconds": {}, "wall": 0.0,
+                    "envmap": {**env, "cell": grid, "over": over},
+                })  # fmt: skip
+                print(_line(out[-1]), flush=True)
+        if visible is not None:
+            print(f"# PVS: {visible.points_rendered} points rendered in {visible.seconds:.1f} s, lattice {visible.lattice.counts.tolist()}, "
+                  f"faces {visible.renderer.face} texels, erosion {visible.renderer.erosion:.3g}, {visible.renderer.peels} peels", flush=True)  # fmt: skip
         return out
-    env = envmap_grid_memory(scene, lo, hi, cpv, t_ref, model)
-    out.append({
-        "scene": name, "test": "15", "parameter": f"envmap grid, {env['cells']} cells of {cpv:.3g} (estimated)", "t_max": t_ref,
-        "cpvs": None, "candidates": None, "impostors": env["cells"], "memory_mib": env["memory_bytes"] / 2**20, "unsolved": None,
-        "unsolvable": None, "worst_before": None, "worst_after": None, "seconds": {}, "wall": 0.0, "envmap": env,
-    })  # fmt: skip
-    print(_line(out[-1]), flush=True)
-    return out
+    finally:
+        if visible is not None:
+            visible.release()
 
 
 def _renderer() -> str:
@@ -399,7 +544,8 @@ def _worst_view(scene, lo, hi, model, resolution: int = RESOLUTION) -> float:
 def _line(r: dict) -> str:
     steps = " ".join(f"{k[:4]} {v:.1f}" for k, v in r["seconds"].items() if k != "total")
     num = lambda x: "-" if x is None else str(x)  # noqa: E731
-    return (f"{r['scene']:<8} {r['test']:>4} {r['parameter']:<44} {num(r['cpvs']):>7} {num(r['candidates']):>9} {num(r['impostors']):>7} "
+    label = r["parameter"] + (" [PVS]" if r.get("visibility") else "")
+    return (f"{r['scene']:<8} {r['test']:>4} {label:<44} {num(r['cpvs']):>7} {num(r['candidates']):>9} {num(r['impostors']):>7} "
             f"{r['memory_mib']:>10.2f} {num(r['unsolved']):>6}/{num(r['unsolvable']):<6} {steps}")  # fmt: skip
 
 
@@ -640,9 +786,19 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--scene",
-        choices=["city", "helmets", "downtown", "both"],
+        choices=["city", "helmets", "downtown", "street", "both"],
         default="both",
-        help="the planning table's scenes (both: city and helmets), or the --walkthrough scene (default city)",
+        help="the planning table's scenes (both: city and helmets; street: the city with the view space at 1.5..2.5 m), or the --walkthrough scene (default city)",
+    )
+    parser.add_argument(
+        "--lod",
+        action="store_true",
+        help="planning table: simplified geometry (QEM levels of detail) competes with the layered impostors (issue 57 item 3)",
+    )
+    parser.add_argument(
+        "--visibility",
+        action="store_true",
+        help="planning table: plan with a sampled PVS shared by the rows, as the thesis's reference (adds test 16, no visibility at t_max x 50/16, and 1-, no visibility at the reference t_max)",
     )
     parser.add_argument("--quick", action="store_true", help="smaller scenes, fewer rows")
     parser.add_argument(
@@ -672,22 +828,30 @@ def main() -> None:
     )
     parser.add_argument("--repeats", type=int, default=3, help="--walkthrough: draws per frame (median)")
     parser.add_argument("--seed", type=int, default=0, help="--walkthrough: seed of the random views")
-    parser.add_argument("--resolution", type=int, default=RESOLUTION, help="--walkthrough: output resolution")
+    parser.add_argument(
+        "--resolution",
+        type=int,
+        default=RESOLUTION,
+        help="output resolution (the planning table's reference, or --walkthrough's)",
+    )
     parser.add_argument(
         "--detail",
         type=int,
         default=16,
-        help="--walkthrough: the city's most quads per building face side (farfield.core.procedural.city)",
+        help="the city's most quads per building face side (farfield.core.procedural.city; planning table and --walkthrough)",
     )
     parser.add_argument("--keep", default=None, help="--walkthrough: write the placement databases under this folder")
     parser.add_argument(
         "--vdi-deg",
         type=float,
         default=11.25,
-        help="--walkthrough: the planner's smallest view-direction interval, degrees",
+        help="the planner's smallest view-direction interval, degrees (planning table and --walkthrough)",
     )
     parser.add_argument(
-        "--cpv-divisions", type=int, default=8, help="--walkthrough: CPV size = the view space's longest side / this"
+        "--cpv-divisions",
+        type=int,
+        default=8,
+        help="CPV size = the view space's longest side / this (planning table's reference and --walkthrough)",
     )
     parser.add_argument(
         "--envmap-cells",
@@ -700,8 +864,8 @@ def main() -> None:
     )
     if args.estimates is not None:
         name = "city" if args.scene == "both" else args.scene
-        scene, lo, hi = {"city": city_scene, "downtown": downtown_scene}[name](
-            args.quick, args.size, args.detail if name == "city" or args.detail != 16 else 20
+        scene, lo, hi = {"city": city_scene, "downtown": downtown_scene, "street": street_scene}[name](
+            args.quick, args.size, args.detail if name != "downtown" or args.detail != 16 else 20
         )
         print(
             f"cost model: {model.renderer} ({model.source}); EGL {_renderer()}; # {name}: {scene.object_count} objects, {scene.triangle_count:,} triangles"
@@ -715,8 +879,8 @@ def main() -> None:
         name = "city" if args.scene == "both" else args.scene
         if name == "helmets":
             parser.error("--walkthrough runs on --scene city or downtown")
-        scene, lo, hi = {"city": city_scene, "downtown": downtown_scene}[name](
-            args.quick, args.size, args.detail if name == "city" or args.detail != 16 else 20
+        scene, lo, hi = {"city": city_scene, "downtown": downtown_scene, "street": street_scene}[name](
+            args.quick, args.size, args.detail if name != "downtown" or args.detail != 16 else 20
         )
         print(f"cost model: {model.renderer} ({model.source}); layered impostors, baked here; EGL {_renderer()}")
         print(
@@ -728,24 +892,26 @@ def main() -> None:
         if args.json:
             Path(args.json).write_text(json.dumps(rows, indent=1))
         return
-    print(
-        f"cost model: {model.renderer} ({model.source}); layered impostors at {RESOLUTION} px, 45°; CPU only (no rendering)"
-    )
+    print(f"cost model: {model.renderer} ({model.source}); layered impostors at {args.resolution} px, 45°; CPV = side / {args.cpv_divisions}, "
+          f"{args.vdi_deg:g}° intervals; " + (f"PVS sampled on EGL {_renderer()}" if args.visibility else "CPU only (no rendering)"))  # fmt: skip
     print(
         f"{'scene':<8} {'test':>4} {'parameter':<44} {'# CPV':>7} {'# cand.':>9} {'# imp.':>7} {'MiB':>10} {'unsolved/unsolvable':<13} seconds per step"
     )
     rows = []
-    builders = {"city": city_scene, "helmets": helmet_scene, "downtown": downtown_scene}
+    builders = {"city": city_scene, "helmets": helmet_scene, "downtown": downtown_scene, "street": street_scene}
     for name in ["city", "helmets"] if args.scene == "both" else [args.scene]:
         try:
-            scene, lo, hi = builders[name](args.quick, args.size)
+            scene, lo, hi = builders[name](
+                args.quick, args.size, *([args.detail] if name in ("city", "street") else [])
+            )
         except FarfieldError as error:
             print(f"{name}: cannot build the scene: {error}")
             continue
         print(
             f"# {name}: {scene.object_count} objects, {scene.triangle_count:,} triangles; view space {lo.round(2).tolist()} .. {hi.round(2).tolist()}"
         )
-        rows += run(name, scene, lo, hi, model, args.quick, args.rows.split(",") if args.rows else None)
+        rows += run(name, scene, lo, hi, model, args.quick, args.rows.split(",") if args.rows else None, args.resolution,
+                    args.cpv_divisions, args.vdi_deg, args.visibility, args.lod)  # fmt: skip
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
 

@@ -34,8 +34,9 @@ space's longest side / ``--cpv-divisions`` and 45° view-direction intervals, at
    the runtime's frame).
 5. **Memory**: the placement at t_max = half the worst view's estimate (the walkthrough's reference
    budget), without and with visibility (the cost model's memory estimate; nothing baked), beside
-   the coarsest envmap grid meeting the same t_max by the model (``bench_placement``'s estimate,
-   without visibility).
+   the coarsest envmap grid meeting the same t_max by the model (``bench_placement``'s estimate),
+   without and with visibility (each cell's near field counts only the PVS of the smallest regions
+   it meets, ``bench_placement.cell_pvs``); one PVS serves both.
 
 Everything on one process; GL through EGL (llvmpipe on the CPU machine).
 """
@@ -56,10 +57,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_placement import (  # noqa: E402
     _worst_view,
+    cell_pvs,
     city_scene,
     coarsest_envmap_cell,
     downtown_scene,
     envmap_grid_memory,
+    leaf_regions,
     mib,
     problem_view_times,
 )
@@ -88,15 +91,6 @@ def scene_of(name: str):
         lo[1], hi[1] = ground + 1.5, ground + 2.5
         return scene, lo, hi
     raise SystemExit(f"unknown scene {name!r}")
-
-
-def leaf_regions(lo, hi, cpv: float) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The smallest regions of the problem view space (every one, solved or not)."""
-    from farfield.core.visibility.pvs import halvings
-
-    counts = [2 ** halvings(float(s), cpv) if s > 0 else 1 for s in hi - lo]
-    size = (hi - lo) / np.array(counts)
-    return [(lo + np.array(ijk) * size, lo + (np.array(ijk) + 1) * size) for ijk in np.ndindex(*counts)]
 
 
 def pvs_rows(
@@ -277,28 +271,34 @@ def walk_rows(scene, lo, hi, cpv: float, resolution: int, views: int, seed: int)
 
 
 def memory_rows(scene, lo, hi, cpv: float, resolution: int) -> dict:
+    """Part 5: the placement and the coarsest envmap grid at the same t_max, each without and with
+    visibility (one PVS, the planner's defaults, shared by both; the grid's cells count the PVS of
+    the smallest regions they meet, ``bench_placement.cell_pvs``)."""
     worst = _worst_view(scene, lo, hi, LLVMPIPE_MODEL, resolution)
     t_max = 0.5 * worst
     out = {"t_max": t_max}
-    for vis in (False, True):
-        settings = PlacementSettings(
-            t_max=t_max,
-            model=LLVMPIPE_MODEL,
-            options={"resolution": resolution},
-            cpv_size=cpv,
-            vdi_deg=45.0,
-            visibility=vis,
-        )
-        started = time.perf_counter()
-        p = place(scene, lo, hi, settings)
-        out["visibility" if vis else "none"] = {
-            "memory_bytes": p.summary["memory_bytes"], "impostors": p.summary["impostors"], "cpvs": p.summary["cpvs"],
-            "cpvs_unsolved": p.summary["cpvs_unsolved"], "cpvs_unsolvable": p.summary["cpvs_unsolvable"],
-            "seconds": time.perf_counter() - started, "steps": p.seconds,
-        }  # fmt: skip
-    cell, over = coarsest_envmap_cell(Elements.of(scene), lo, hi, t_max, LLVMPIPE_MODEL, resolution, max_cells=1024)
-    grid = envmap_grid_memory(scene, lo, hi, cell, t_max, LLVMPIPE_MODEL, resolution)
-    out["envmap_grid"] = {"cell": cell, "over": over, **grid}
+    elements = Elements.of(scene)
+    visible = RegionVisibility(scene, elements, lo, hi, cpv, resolution, FOV)
+    try:
+        for vis in (False, True):
+            settings = PlacementSettings(
+                t_max=t_max, model=LLVMPIPE_MODEL, options={"resolution": resolution}, cpv_size=cpv, vdi_deg=45.0
+            )
+            started = time.perf_counter()
+            p = place(scene, lo, hi, settings, visible=visible if vis else None)
+            out["visibility" if vis else "none"] = {
+                "memory_bytes": p.summary["memory_bytes"], "impostors": p.summary["impostors"], "cpvs": p.summary["cpvs"],
+                "cpvs_unsolved": p.summary["cpvs_unsolved"], "cpvs_unsolvable": p.summary["cpvs_unsolvable"],
+                "seconds": time.perf_counter() - started, "steps": p.seconds,
+            }  # fmt: skip
+        pvs = cell_pvs(visible, elements.count, lo, hi, cpv)
+        for key, grid_pvs in (("envmap_grid", None), ("envmap_grid_visibility", pvs)):
+            cell, over = coarsest_envmap_cell(elements, lo, hi, t_max, LLVMPIPE_MODEL, resolution, 1024, grid_pvs)
+            grid = envmap_grid_memory(scene, lo, hi, cell, t_max, LLVMPIPE_MODEL, resolution, pvs=grid_pvs)
+            out[key] = {"cell": cell, "over": over, **grid}
+        out["pvs"] = visible.stats()
+    finally:
+        visible.release()
     return out
 
 
@@ -387,16 +387,15 @@ def main() -> None:
                   f"estimate ÷ measured p50 {r['ratio_p50']:.2f}, p95 {r['ratio_p95']:.2f}, under by > 30 %: {100 * r['under_30pct']:.0f} %", flush=True)  # fmt: skip
         if "memory" in parts:
             r = row["memory"] = memory_rows(scene, lo, hi, cpv, args.resolution)
-            g = r["envmap_grid"]
             for key in ("none", "visibility"):
-                m = r[key]
+                m, g = r[key], r["envmap_grid" if key == "none" else "envmap_grid_visibility"]
                 print(f"   placement ({key}) at t_max {r['t_max']:.3g} ms: {mib(m['memory_bytes']):.1f} MiB, {m['impostors']} impostors, {m['cpvs']} CPVs "
                       f"({m['cpvs_unsolved']} unsolved, {m['cpvs_unsolvable']} unsolvable), {m['seconds']:.0f} s; grid ÷ placement "
                       + (f"{g['memory_bytes'] / m['memory_bytes']:.2f}" if m["memory_bytes"] > 0 else "inf (no impostor needed)"), flush=True)  # fmt: skip
-            print(
-                f"   envmap grid: {g['cells']} cells of {g['cell']:.3g} ({g['over']} over), {mib(g['memory_bytes']):.1f} MiB (estimated)",
-                flush=True,
-            )
+            for key in ("envmap_grid", "envmap_grid_visibility"):
+                g = r[key]
+                print(f"   {key.replace('_', ' ')}: {g['cells']} cells of {g['cell']:.3g} ({g['over']} over), {mib(g['memory_bytes']):.1f} MiB (estimated)",
+                      flush=True)  # fmt: skip
         rows.append(row)
         if args.json:
             Path(args.json).write_text(json.dumps(rows, indent=1, default=float))
