@@ -26,6 +26,7 @@ from __future__ import annotations
 import json
 import re
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 from cluster_harness import BAKE_OUTCOME, Cluster, wait_through_faults
@@ -210,15 +211,18 @@ def _made(database: Database, job_id: str) -> list[dict]:
 def test_a_job_completes_through_a_shared_service_failing(cluster, bunny, fault):
     """A shared service fails for FAULT_S seconds while a job of small cells is in flight, and comes back:
     Redis stopped and started again on its port from its append-only file, or the S3 endpoint
-    refusing (its TCP gate closed: connections cut and refused) then open, both as the job is
-    submitted (its admission and its cells meet them); or the cluster's own PostgreSQL server
-    stopped and started again on its port and data, as the job's cells are sent (once admitted: an
-    admission whose database fails under it is sent again when its 60 s hold runs out,
-    ``ADMISSION_LEASE_S``; 9 cells, so that the job is far from its end when the server stops).
-    The job ends after the service is back, with every cell done and none
-    lost (each with its bundle) or done twice (bake tasks ended ``done``, by the nodes' logs, as many as
-    the cells; no bundle uploaded more often than its cell was attempted; Redis and S3 cost no
-    attempt).  The 30 s faults of the campaign are benchmarks/bench_cluster_faults.py."""
+    refusing (its TCP gate closed: connections cut and refused) then open, both from before the job
+    is submitted (the POST's send of its admission waits for Redis, ``SEND_RETRY_POLICY``; its cells
+    cannot store their bundles without S3); or the cluster's own PostgreSQL server stopped and
+    started again on its port and data, once the job's 9 cells are sent (once admitted: an admission
+    whose database fails under it is the admission test's), held from ending until then by S3
+    refusing from before the job is submitted to just after the server has stopped (no cell can be
+    ``done`` before its bundle is stored).  So the fault is certain to meet the job, however fast the
+    machine: before, with the fault begun after the POST, an idle machine's job of 3 small cells could
+    end before Redis's stop took effect.  The job ends after the service is back, with every cell
+    done and none lost (each with its bundle) or done twice (bake tasks ended ``done``, by the nodes'
+    logs, as many as the cells; no bundle uploaded more often than its cell was attempted; Redis and
+    S3 cost no attempt).  The 30 s faults of the campaign are benchmarks/bench_cluster_faults.py."""
     if fault == "postgres" and cluster.postgres is None:
         pytest.skip(cluster.postgres_missing)
     live_workers(cluster, 3)
@@ -228,20 +232,34 @@ def test_a_job_completes_through_a_shared_service_failing(cluster, bunny, fault)
         "postgres": (lambda: cluster.postgres.stop(), lambda: cluster.postgres.start()),
     }[fault]
     resolution = {"redis": 20, "s3": 24, "postgres": 28}[fault]  # a job of its own: no bundle found from another
+    grid = {**BUNNY_GRID, "counts": [3, 3 if fault == "postgres" else 1, 1]}
+    request = {**SMALL, "grid": grid, "scene_id": bunny, "resolution": resolution}
     marks = cluster.log_marks()
-    with cluster.client() as client:
-        grid = {**BUNNY_GRID, "counts": [3, 3 if fault == "postgres" else 1, 1]}
-        created = client.post("/v1/jobs", json={**SMALL, "grid": grid, "scene_id": bunny, "resolution": resolution})
-        assert created.status_code == 201, created.text
-        job_id = created.json()["id"]
+    with cluster.client() as client, ThreadPoolExecutor(1) as pool:
+
+        def submit() -> str:
+            created = client.post("/v1/jobs", json=request)
+            assert created.status_code == 201, created.text
+            return created.json()["id"]
+
         if fault == "postgres":
-            _wait_admitted(client, job_id)
-        down()
+            cluster.s3_gate.close()  # the hold: no cell ends before the server stops
+            try:
+                job_id = submit()
+                _wait_admitted(client, job_id)
+                down()
+            finally:
+                cluster.s3_gate.open()
+        else:
+            down()
+            posting = pool.submit(submit)  # answered once Redis is back (the send waits for it)
         try:
             time.sleep(FAULT_S)
         finally:
             up()
             restored = time.time()
+        if fault != "postgres":
+            job_id = posting.result(timeout=120)
         job, _ = wait_through_faults(client, job_id, timeout=120)
     assert job is not None and job["state"] == "done", job
     assert job["finished_at"] > restored, "the job ended before the fault did: it met no fault"
