@@ -3,8 +3,9 @@ the database and an S3 endpoint (tests/cluster_harness.py), and leases on runnin
 
 The lease is lowered to 4 s (heartbeat every 1 s, a sweep every 1 s) so that the tests wait seconds,
 not the default 30 s lease; benchmarks/bench_cluster_recovery.py measures the defaults.  A node is
-killed whole (its process group, SIGKILL) or paused (SIGSTOP) mid-cell, as a host that loses power
-or stalls: the cell runs again on another node, the job completes, and no cell's result is
+killed whole (its process group, SIGKILL), paused (SIGSTOP) or partitioned away (its network
+namespace's link cut) mid-cell, as a host that loses power, stalls or loses its network: the cell
+runs again on another node, the job completes, and no cell's result is
 applied twice.  A job across the three nodes equals the same job run on a single host, byte for
 byte; and a job completes through each shared service failing for a few seconds (Redis, S3 and,
 where the cluster could start its own server, PostgreSQL; the 30 s campaign is
@@ -12,11 +13,13 @@ benchmarks/bench_cluster_faults.py).
 
 One cluster of three worker nodes serves the module, on a PostgreSQL server of its own where
 ``scripts/postgres-server`` can start one (CI: .ci/run installs it), the nodes reaching S3 through a
-gate that can close; its tests run in the order written: the workers' records, the job across the
-nodes against a single host, the three faults, a node paused and resumed, a node killed, a job
+gate that can close, each worker node in a network namespace of its own where one can be made
+(root, ``ip netns``; with a server database), reaching the shared services through gates on its
+veth pair, so that it can be partitioned away; its tests run in the order written: the workers'
+records, the job across the nodes against a single host, the three faults, a node paused and resumed, a node partitioned and healed, a node killed, a job
 cancelled while its node dies.  Each test starts the nodes it needs if one before left too few
 (run alone, it pays their start).  The jobs that only need to cross the nodes have the smallest
-cells (16 to 28 px); those that stop a node mid-cell are larger (520 and 640 px: a bake of a few
+cells (16 to 28 px); those that stop a node mid-cell are larger (520 to 800 px: a bake of a few
 seconds here), longer than the half second before a cell first records progress, which is when a
 node is stopped.
 """
@@ -58,7 +61,8 @@ RUN_COLUMNS = ("id", "job_id", "worker", "queued_at", "started_at", "finished_at
 
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory):
-    with Cluster(tmp_path_factory.mktemp("cluster"), workers=3, env=LEASE, s3_gate=True, own_postgres=True) as running:
+    root = tmp_path_factory.mktemp("cluster")
+    with Cluster(root, workers=3, env=LEASE, s3_gate=True, own_postgres=True, netns=True) as running:
         running.wait_for_workers()
         yield running
 
@@ -310,6 +314,50 @@ def test_a_paused_node_s_late_result_is_discarded(cluster, bunny):
         assert client.get(f"/v1/jobs/{job_id}/cells/0").json() == settled  # the other node's result stands
         assert done_by(paused.log_text()) == done_before
         assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "done"
+
+
+def test_a_node_partitioned_mid_cell_has_its_cell_run_again_and_its_late_result_discarded(cluster, bunny):
+    """The node baking a cell (800 px) is cut off from the broker, the database and the blob store
+    alike (its network namespace's link cut: its packets dropped, its connections hanging, as behind
+    a switch that fails), running on; once its lease runs out (4 s) the API's sweep queues the cell
+    again and another node takes it (attempt 2), and the link is healed.  The partitioned node's
+    connections go on where they hung: its attempt finds its lease gone and stops, or its outcome is
+    refused by the lease token, and says so; the other node's result stands, the job completes, and
+    the cell is done once (one bake task ended ``done`` in the nodes' logs, no bundle uploaded more
+    often than the cell was attempted)."""
+    if cluster.netns_missing:
+        pytest.skip(cluster.netns_missing)
+    live_workers(cluster)
+    marks = cluster.log_marks()
+    with cluster.client() as client:
+        # 800 px: a bundle of its own (the paused node's test bakes this view cell at 640 px).
+        created = client.post(
+            "/v1/jobs", json={"scene_id": bunny, "viewcells": [_cell_of_grid()], "resolution": 800, "evaluate": False}
+        )
+        assert created.status_code == 201, created.text
+        job_id = created.json()["id"]
+        first = running_mid_cell(client, job_id)
+        cut = cluster.worker(first["worker"])
+        cut.partition()
+        try:
+            again = wait_for_cell(client, job_id, 0, lambda c: c["attempts"] == 2 and c["state"] in ("running", "done"),
+                                  RECOVERY_S, "taken by another node")  # fmt: skip
+        finally:
+            cut.heal()
+        assert again["worker"] != first["worker"], again
+        job = wait_for_job(client, job_id, timeout=300)
+        assert job["state"] == "done", job
+        settled = client.get(f"/v1/jobs/{job_id}/cells/0").json()
+        assert settled["worker"] == again["worker"] and settled["attempts"] == 2 and settled["has_result"], settled
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and LATE not in cluster.logs_since(marks)[cut.name]:
+            time.sleep(0.2)
+        assert LATE in cluster.logs_since(marks)[cut.name], cut.log_text()[-3000:]
+        assert client.get(f"/v1/jobs/{job_id}/cells/0").json() == settled  # the other node's result stands
+        assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "done"
+    outcomes = cluster.bake_outcomes(marks)
+    assert outcomes["done"] == 1 and done_by(cluster.logs_since(marks)[cut.name]) == 0, outcomes
+    assert 1 <= cluster.manifest_puts(marks) <= 2, cluster.manifest_puts(marks)
 
 
 def test_a_worker_node_killed_mid_cell_has_its_cell_run_again_on_the_other(cluster, bunny):
