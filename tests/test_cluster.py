@@ -16,10 +16,11 @@ One cluster of three worker nodes serves the module, on a PostgreSQL server of i
 gate that can close, each worker node in a network namespace of its own where one can be made
 (root, ``ip netns``; with a server database), reaching the shared services through gates on its
 veth pair, so that it can be partitioned away; its tests run in the order written: the workers'
-records, the job across the nodes against a single host, the three faults, a node paused and resumed, a node partitioned and healed, a node killed, a job
+records, the job across the nodes against a single host, the three faults, PostgreSQL failing
+under an admission, a node paused and resumed, a node partitioned and healed, a node killed, a job
 cancelled while its node dies.  Each test starts the nodes it needs if one before left too few
 (run alone, it pays their start).  The jobs that only need to cross the nodes have the smallest
-cells (16 to 28 px); those that stop a node mid-cell are larger (520 to 800 px: a bake of a few
+cells (16 to 32 px); those that stop a node mid-cell are larger (520 to 800 px: a bake of a few
 seconds here), longer than the half second before a cell first records progress, which is when a
 node is stopped.
 """
@@ -273,6 +274,49 @@ def test_a_job_completes_through_a_shared_service_failing(cluster, bunny, fault)
     assert attempts == [1] * cells or fault == "postgres", attempts
     assert cells <= cluster.manifest_puts(marks) <= sum(attempts), (cluster.manifest_puts(marks), attempts)
     assert cluster.bake_outcomes(marks)["done"] == cells, cluster.bake_outcomes(marks)
+
+
+def test_a_job_s_admission_completes_through_postgresql_failing(cluster, bunny):
+    """PostgreSQL stops as a job's admission is delivered, for FAULT_S seconds: the worker nodes are
+    paused while the job is submitted (the admission message waits) and the server stopped, then
+    resumed, so the admission's first delivery meets the database down, certainly.  It can neither
+    claim the job nor free a hold, so it is retried with backoff (``admit_job_task``: 2, 4, ... s), not
+    left to the hold's lease (``FARFIELD_ADMISSION_LEASE_S``) or the job's first
+    ``FARFIELD_REQUEUE_AFTER``: a node's log says so.  The job ends after the server is back, its 3
+    cells done once each at their first attempt (bake tasks ended ``done`` as many as the cells, no
+    bundle uploaded more often), nothing lost."""
+    if cluster.postgres is None:
+        pytest.skip(cluster.postgres_missing)
+    live_workers(cluster, 3)
+    nodes = [n for n in cluster.workers if n.alive()]
+    grid = {**BUNNY_GRID, "counts": [3, 1, 1]}
+    marks = cluster.log_marks()
+    with cluster.client() as client:
+        for node in nodes:
+            node.pause()
+        try:
+            created = client.post("/v1/jobs", json={**SMALL, "grid": grid, "scene_id": bunny, "resolution": 32})
+            assert created.status_code == 201 and created.json()["state"] == "admitting", created.text
+            job_id = created.json()["id"]
+            cluster.postgres.stop()
+        finally:
+            for node in nodes:
+                node.resume()
+        try:
+            time.sleep(FAULT_S)
+        finally:
+            cluster.postgres.start()
+            restored = time.time()
+        job, _ = wait_through_faults(client, job_id, timeout=120)
+    assert job is not None and job["state"] == "done", job
+    assert job["finished_at"] > restored
+    cells = len(job["cells"])
+    assert [c["state"] for c in job["cells"]] == ["done"] * cells and all(c["has_result"] for c in job["cells"]), job
+    assert [c["attempts"] for c in job["cells"]] == [1] * cells, job["cells"]
+    assert cells <= cluster.manifest_puts(marks) <= cells, cluster.manifest_puts(marks)
+    assert cluster.bake_outcomes(marks)["done"] == cells, cluster.bake_outcomes(marks)
+    logs = cluster.logs_since(marks)
+    assert any(f"job {job_id}: its hold could not be freed either; admission retried" in logs[n.name] for n in nodes)
 
 
 def _wait_admitted(client, job_id: str, timeout: float = 60) -> None:
