@@ -14,6 +14,7 @@ from farfield.api.broker_probe import BrokerProbe
 from farfield.core.errors import AuthError
 from farfield.service.blobs import BlobStore
 from farfield.service.db import Database
+from farfield.service.jobs.cells import resend_at_next_sweep
 from farfield.service.keys import authenticate, bearer_key
 from farfield.service.pools import cell_queues
 from farfield.service.scene_check import SceneCheckGate
@@ -54,8 +55,14 @@ class Services:
 
     def enqueue(self, cell_ids: list[str]) -> None:
         """Send one bake task per cell to its queue (its planned texels': service/pools.py), retrying
-        while Redis is away."""
-        send_cells(self.celery, cell_ids, cell_queues(self.db, cell_ids, self.settings.heavy_texels))
+        while Redis is away; the cells a send that fails past its retries left unsent are marked for
+        the next sweep (:func:`~farfield.service.jobs.cells.resend_at_next_sweep`) before it raises."""
+        send_cells(
+            self.celery,
+            cell_ids,
+            cell_queues(self.db, cell_ids, self.settings.heavy_texels),
+            unsent=lambda ids: resend_at_next_sweep(self.db, ids),
+        )
 
 
 async def services(request: Request) -> Services:

@@ -1,6 +1,7 @@
 """The API's background sweep: running cells whose lease expired (their worker died, whichever host it ran
 on: :func:`farfield.service.jobs.cells.release_expired_leases`) are queued again and sent at once;
-cells queued too long without starting are sent to the queue again, and so are placement jobs whose
+cells queued too long without starting, or left unsent by a send that failed past its retries
+(:func:`farfield.service.jobs.cells.resend_at_next_sweep`), are sent to the queue again, and so are placement jobs whose
 planning message or planning worker is lost (:func:`farfield.service.placement.lease.lost_planning_jobs`)
 and jobs whose admission is (:func:`farfield.service.jobs.admitting.lost_admissions`).
 

@@ -66,7 +66,7 @@ from farfield.service.cell_limits import (
 from farfield.service.db import CellRow, Database, JobRow, now
 from farfield.service.failures import BAD_INPUT, TRANSIENT, failure_class, failure_message
 from farfield.service.jobs.admitting import admit_job, release_admission
-from farfield.service.jobs.cells import finish_job_if_complete, release_lost_cells
+from farfield.service.jobs.cells import finish_job_if_complete, release_lost_cells, resend_at_next_sweep
 from farfield.service.jobs.leases import Heartbeat
 from farfield.service.jobs.runner import RetryCell, backoff, run_cell
 from farfield.service.placement import PLACEMENT_JOB
@@ -447,7 +447,7 @@ def _planning(task, job_id: str, phase: str) -> str:
             blobs=blobs,
         )
         return "failed"
-    send_cells(celery_app, cell_ids)
+    _send_cells(db, cell_ids)
     return state
 
 
@@ -556,5 +556,22 @@ def admit_job_task(self, job_id: str, held_by: list[str] | None = None) -> str:
     except Exception as error:  # noqa: BLE001 - admitted cells must be sent now, not at the sweeper's requeue (an hour)
         log.warning("job %s: cell queues not read (%s); its cells go to the render queue", job_id, error)
         queues = None
-    send_cells(celery_app, cell_ids, queues)
+    _send_cells(db, cell_ids, queues)
     return state
+
+
+def _send_cells(db: Database, cell_ids: list[str], queues: dict[str, str] | None = None) -> None:
+    """:func:`send_cells`; where Redis stays away past the sends' retries (``SEND_RETRY_POLICY``, about
+    a minute), the cells not sent are left to the API's next sweep
+    (:func:`~farfield.service.jobs.cells.resend_at_next_sweep`), not to ``FARFIELD_REQUEUE_AFTER``."""
+
+    def unsent(ids: list[str]) -> None:
+        try:
+            log.warning("%d cells not sent; the API's next sweep sends them", resend_at_next_sweep(db, ids))
+        except Exception:  # noqa: BLE001 - then FARFIELD_REQUEUE_AFTER brings them back
+            log.exception("%d cells not sent, and not marked for the next sweep either", len(ids))
+
+    try:
+        send_cells(celery_app, cell_ids, queues, unsent=unsent)
+    except Exception as error:  # noqa: BLE001 - the cells are queued in the database: the sweep sends them
+        log.warning("sending %d cells failed past its retries: %s", len(cell_ids), error)
