@@ -15,7 +15,7 @@ import threading
 from farfield.service.jobs.admitting import lost_admissions
 from farfield.service.jobs.cells import lost_queued_cells, release_expired_leases
 from farfield.service.placement.lease import lost_planning_jobs
-from farfield.workers.app import send_admission, send_planning
+from farfield.workers.app import send_planning
 
 log = logging.getLogger("farfield.sweeper")
 
@@ -63,6 +63,6 @@ class LostCellSweeper:
                     send_planning(self.services.celery, job_id, phase)
                 for job_id in lost_admissions(self.services.db, self.services.settings.requeue_after):
                     log.warning("job %s: its admission was lost (message or worker); sending it again", job_id)
-                    send_admission(self.services.celery, job_id)
+                    self.services.send_admission(job_id)
             except Exception:  # noqa: BLE001 - the next sweep tries again (e.g. Redis is restarting)
                 log.exception("sweep failed")

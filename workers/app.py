@@ -86,9 +86,9 @@ def send_planning(celery: Celery, job_id: str, phase: str = "plan") -> None:
     )
 
 
-def send_admission(celery: Celery, job_id: str) -> None:
+def send_admission(celery: Celery, job_id: str, retry_policy: dict = SEND_RETRY_POLICY) -> None:
     """A job's admission task (its cells' full checks) to the render queue."""
-    celery.send_task(ADMIT_JOB, args=[job_id], queue=RENDER_QUEUE, retry=True, retry_policy=SEND_RETRY_POLICY)
+    celery.send_task(ADMIT_JOB, args=[job_id], queue=RENDER_QUEUE, retry=True, retry_policy=retry_policy)
 
 
 celery_app = make_celery(Settings.from_env())

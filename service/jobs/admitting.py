@@ -252,6 +252,21 @@ def release_admission(db: Database, job_id: str, worker: str) -> bool:
         )
 
 
+def resend_admission_at_next_sweep(db: Database, job_id: str) -> bool:
+    """An admitting job whose admission task could not be sent (the broker away longer than the
+    send's retries) and that no worker holds: its lease ended now, so that the API's next sweep
+    (:func:`lost_admissions`) sends it again, not ``FARFIELD_REQUEUE_AFTER`` (an hour by default)
+    after the job was created.  False when it had moved on."""
+    with db.session() as s:
+        return bool(
+            s.execute(
+                update(JobRow)
+                .where(JobRow.id == job_id, JobRow.state == "admitting", JobRow.plan_worker.is_(None))
+                .values(lease_until=0.0)
+            ).rowcount
+        )
+
+
 def lost_admissions(db: Database, requeue_after: float) -> list[str]:
     """Ids of admitting jobs whose admission message or holder is lost (the lease ran out), claimed
     for sending again: their lease pushed ``requeue_after`` on and the hold dropped, each by a
