@@ -20,7 +20,7 @@ records, the job across the nodes against a single host, the three faults, Postg
 under an admission, a node paused and resumed, a node partitioned and healed, a node killed, a job
 cancelled while its node dies.  Each test starts the nodes it needs if one before left too few
 (run alone, it pays their start).  The jobs that only need to cross the nodes have the smallest
-cells (16 to 32 px); those that stop a node mid-cell are larger (520 to 800 px: a bake of a few
+cells (16 to 32 px); those that stop a node mid-cell are larger (640 to 1024 px: a bake of a few
 seconds here), longer than the half second before a cell first records progress, which is when a
 node is stopped.
 """
@@ -434,13 +434,14 @@ def test_a_worker_node_killed_mid_cell_has_its_cell_run_again_on_the_other(clust
 
 
 def test_cancelling_a_job_whose_node_died_leaves_no_cell_running(cluster, bunny):
-    """The node baking a cell is killed and the job cancelled: once the cell's lease runs out the sweep
-    cancels it, the job ends (finished, nothing running) and its index answers for good (a cancelled
+    """The node baking a cell (1024 px: killed at its first progress, so the size costs nothing, and
+    a bake that lasts; at 520 px an idle machine's bake of 0.9 s could end between two looks for its
+    progress) is killed and the job cancelled: once the cell's lease runs out the sweep cancels it, the job ends (finished, nothing running) and its index answers for good (a cancelled
     job has none: 409 "ended without", never "written when it ends")."""
     live_workers(cluster, 1)
     with cluster.client() as client:
         created = client.post(
-            "/v1/jobs", json={"scene_id": bunny, "viewcells": [_cell_of_grid()], "resolution": 520, "evaluate": False}
+            "/v1/jobs", json={"scene_id": bunny, "viewcells": [_cell_of_grid()], "resolution": 1024, "evaluate": False}
         )
         assert created.status_code == 201, created.text
         job_id = created.json()["id"]
