@@ -284,8 +284,11 @@ def netns_unavailable() -> str | None:
     made = subprocess.run(["ip", "netns", "add", probe], capture_output=True, text=True)
     if made.returncode != 0:
         return f"ip netns add failed here: {made.stderr.strip()}"
-    subprocess.run(["ip", "netns", "del", probe], capture_output=True)
-    return None
+    try:  # a process must run in it too (ip netns exec mounts a /sys of its own)
+        ran = subprocess.run(["ip", "netns", "exec", probe, sys.executable, "-c", ""], capture_output=True, text=True)
+    finally:
+        subprocess.run(["ip", "netns", "del", probe], capture_output=True)
+    return None if ran.returncode == 0 else f"ip netns exec failed here: {ran.stderr.strip()}"
 
 
 class Postgres:
