@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from typing import Annotated
 
@@ -14,11 +15,15 @@ from farfield.api.broker_probe import BrokerProbe
 from farfield.core.errors import AuthError
 from farfield.service.blobs import BlobStore
 from farfield.service.db import Database
+from farfield.service.jobs.admitting import resend_admission_at_next_sweep
+from farfield.service.jobs.cells import resend_at_next_sweep
 from farfield.service.keys import authenticate, bearer_key
 from farfield.service.pools import cell_queues
 from farfield.service.scene_check import SceneCheckGate
 from farfield.service.settings import Settings
-from farfield.workers.app import send_cells
+from farfield.workers.app import SEND_RETRY_POLICY, send_admission, send_cells
+
+log = logging.getLogger("farfield.api")
 
 
 @dataclass
@@ -33,6 +38,8 @@ class Services:
     auth_failures: FailedAuthLimiter = field(init=False)
     # The broker's reachability for the health check, on kept connections (api/broker_probe.py).
     broker: BrokerProbe = field(init=False)
+    # How a send to Redis is retried while it is away (workers/app.py); past it the send fails.
+    send_retry_policy: dict = field(default_factory=lambda: dict(SEND_RETRY_POLICY))
 
     def __post_init__(self) -> None:
         self.scene_checks = SceneCheckGate(self.settings.scene_checks, self.settings.scene_check_queue)
@@ -54,8 +61,27 @@ class Services:
 
     def enqueue(self, cell_ids: list[str]) -> None:
         """Send one bake task per cell to its queue (its planned texels': service/pools.py), retrying
-        while Redis is away."""
-        send_cells(self.celery, cell_ids, cell_queues(self.db, cell_ids, self.settings.heavy_texels))
+        while Redis is away; the cells a send that fails past its retries left unsent are marked for
+        the next sweep (:func:`~farfield.service.jobs.cells.resend_at_next_sweep`) before it raises."""
+        send_cells(
+            self.celery,
+            cell_ids,
+            cell_queues(self.db, cell_ids, self.settings.heavy_texels),
+            unsent=lambda ids: resend_at_next_sweep(self.db, ids),
+            retry_policy=self.send_retry_policy,
+        )
+
+    def send_admission(self, job_id: str) -> bool:
+        """Send the admitting job's admission task, retrying while Redis is away; where the send fails
+        past its retries, the job (stored) is left to the next sweep
+        (:func:`~farfield.service.jobs.admitting.resend_admission_at_next_sweep`) and False returned."""
+        try:
+            send_admission(self.celery, job_id, self.send_retry_policy)
+            return True
+        except Exception as error:  # noqa: BLE001 - the job is stored: the sweep sends its admission
+            log.warning("job %s: its admission was not sent (%s); the next sweep sends it", job_id, error)
+            resend_admission_at_next_sweep(self.db, job_id)
+            return False
 
 
 async def services(request: Request) -> Services:

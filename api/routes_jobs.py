@@ -23,7 +23,7 @@ from farfield.service.jobs.records import (
 )
 from farfield.service.jobs.schema import JobSpec
 from farfield.service.scenes import get_scene_row
-from farfield.workers.app import send_admission, send_planning
+from farfield.workers.app import send_planning
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 
@@ -50,7 +50,7 @@ def submit_job(spec: JobSpec, tenant_id: str = Depends(tenant), svc: Services = 
     scene = get_scene_row(svc.db, tenant_id, spec.scene_id, with_objects=True)  # a part's bounds are its objects'
     # O(cells), no plan: the job is stored "admitting" and a worker checks its cells, then sends them.
     job = create_job(svc.db, tenant_id, scene, spec, svc.settings.admission, svc.settings.requeue_after)
-    send_admission(svc.celery, job.id)
+    svc.send_admission(job.id)  # Redis away past the send's retries: the job is stored, the next sweep sends it
     # The record without its cells (GET /v1/jobs/{id} has them): 10,000 cells would be megabytes.
     return job_record(job, job_summaries(svc.db, [job.id])[job.id])
 
@@ -127,7 +127,7 @@ def retry(job_id: str, tenant_id: str = Depends(tenant), svc: Services = Depends
     ids = retry_job(svc.db, tenant_id, job_id, svc.settings.admission)
     job = get_job_row(svc.db, tenant_id, job_id)
     if job.state == "admitting":  # a cell had failed its full check: the retried cells are checked again
-        send_admission(svc.celery, job.id)
+        svc.send_admission(job.id)
     else:
         svc.enqueue(ids)
     return full_job_record(svc.db, job)

@@ -1,6 +1,7 @@
 """The API's background sweep: running cells whose lease expired (their worker died, whichever host it ran
 on: :func:`farfield.service.jobs.cells.release_expired_leases`) are queued again and sent at once;
-cells queued too long without starting are sent to the queue again, and so are placement jobs whose
+cells queued too long without starting, or left unsent by a send that failed past its retries
+(:func:`farfield.service.jobs.cells.resend_at_next_sweep`), are sent to the queue again, and so are placement jobs whose
 planning message or planning worker is lost (:func:`farfield.service.placement.lease.lost_planning_jobs`)
 and jobs whose admission is (:func:`farfield.service.jobs.admitting.lost_admissions`).
 
@@ -14,7 +15,7 @@ import threading
 from farfield.service.jobs.admitting import lost_admissions
 from farfield.service.jobs.cells import lost_queued_cells, release_expired_leases
 from farfield.service.placement.lease import lost_planning_jobs
-from farfield.workers.app import send_admission, send_planning
+from farfield.workers.app import send_planning
 
 log = logging.getLogger("farfield.sweeper")
 
@@ -62,6 +63,6 @@ class LostCellSweeper:
                     send_planning(self.services.celery, job_id, phase)
                 for job_id in lost_admissions(self.services.db, self.services.settings.requeue_after):
                     log.warning("job %s: its admission was lost (message or worker); sending it again", job_id)
-                    send_admission(self.services.celery, job_id)
+                    self.services.send_admission(job_id)
             except Exception:  # noqa: BLE001 - the next sweep tries again (e.g. Redis is restarting)
                 log.exception("sweep failed")

@@ -33,6 +33,7 @@ shared services instead, so API and workers can run on several machines.
 | ``FARFIELD_LEASE_S`` | 30 | seconds a running cell's lease lasts unless its worker's heartbeat renews it; past it the API's sweeper queues the cell again (an attempt) and the late result is discarded |
 | ``FARFIELD_HEARTBEAT_S`` | 5 | seconds between a worker's heartbeats (lease renewals); at most half of ``FARFIELD_LEASE_S`` |
 | ``FARFIELD_SWEEP_S`` | 5 | seconds between the API's sweeps (expired leases, lost messages) |
+| ``FARFIELD_ADMISSION_LEASE_S`` | 60 | seconds a worker's hold of a job's admission lasts unless it commits progress (every half second); past it the API's sweeper sends the admission again (its worker died, or the database failed under it and it could neither retry nor free the hold) |
 | ``FARFIELD_HEAVY_TEXELS`` | 1e8 | a cell whose admission planned more texels than this is heavy: sent to ``render.heavy``, which GPU workers consume (CPU workers too while no GPU worker is live: :mod:`farfield.service.pools`) |
 | ``FARFIELD_WORKER_KIND`` | unset (the renderer's) | ``cpu`` or ``gpu``: the kind a worker announces and serves as, instead of the one its GL renderer tells (tests and operations: a GPU worker declared on a machine without one) |
 | ``FARFIELD_TECHNIQUE_MODULES`` | unset | comma-separated importable modules whose import registers more techniques (:func:`farfield.core.techniques.register`); the CLI, the API and every worker import them before they read the registry |
@@ -75,6 +76,9 @@ VISIBILITY_TIMEOUT = 3600
 LEASE_S = 30
 HEARTBEAT_S = 5
 SWEEP_S = 5
+# A job's admission (service.jobs.admitting) is held under a lease of its own, renewed at each commit
+# of its progress (every half second): longer than a cell's, since a check of one cell may take a while.
+ADMISSION_LEASE_S = 60
 # An S3 server restarting (or refusing for a while): a worker's blob operations wait this long for
 # it, instead of failing the cell's attempts one after another (benchmarks/bench_cluster_faults.py).
 S3_OUTAGE_S = 120
@@ -262,6 +266,7 @@ class Settings:
     lease_s: int = LEASE_S  # a running cell's lease, renewed by its worker's heartbeat
     heartbeat_s: int = HEARTBEAT_S  # seconds between a worker's heartbeats
     sweep_s: int = SWEEP_S  # seconds between the API's sweeps
+    admission_lease_s: int = ADMISSION_LEASE_S  # a held admission not committed for this long is lost
     s3_outage_s: int = S3_OUTAGE_S  # seconds a worker's blob operation waits for an unreachable S3 server
     heavy_texels: int = HEAVY_TEXELS  # a cell planning more is heavy: the GPU workers' queue (service.pools)
     worker_kind: str | None = None  # FARFIELD_WORKER_KIND: this worker's kind, instead of its renderer's
@@ -324,6 +329,7 @@ class Settings:
             lease_s=lease_s,
             heartbeat_s=heartbeat_s,
             sweep_s=_int(env, "FARFIELD_SWEEP_S", SWEEP_S),
+            admission_lease_s=_int(env, "FARFIELD_ADMISSION_LEASE_S", ADMISSION_LEASE_S),
             s3_outage_s=_int(env, "FARFIELD_S3_OUTAGE_S", S3_OUTAGE_S, minimum=0),
             heavy_texels=_count(env, "FARFIELD_HEAVY_TEXELS", HEAVY_TEXELS, minimum=0),
             worker_kind=_worker_kind(env),
@@ -355,6 +361,7 @@ class Settings:
             "FARFIELD_LEASE_S": str(self.lease_s),
             "FARFIELD_HEARTBEAT_S": str(self.heartbeat_s),
             "FARFIELD_SWEEP_S": str(self.sweep_s),
+            "FARFIELD_ADMISSION_LEASE_S": str(self.admission_lease_s),
             "FARFIELD_HEAVY_TEXELS": str(self.heavy_texels),
             **{f"FARFIELD_MAX_SCENE_{n.upper()}": str(getattr(self.scene_limits, n)) for n in _SCENE_LIMITS},
         }

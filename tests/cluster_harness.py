@@ -12,8 +12,11 @@ Redis stopped and started again on its port (:meth:`Cluster.stop_redis`, :meth:`
 its queue kept in its append-only file), and, with ``s3_gate=True``, the S3 endpoint closed and opened
 again (:class:`TcpGate` in front of moto's server, whose buckets live in its memory and would not
 survive a restart of it), and the cluster's own PostgreSQL server stopped and started again
-(``cluster.postgres``).  ``docs/operations.md`` ("Scaling out") describes the same layout on
-real machines: this harness runs it.
+(``cluster.postgres``).  With ``netns=True`` each worker node sits in a network namespace of its own
+(:class:`NetNamespace`, made by the harness and removed with the cluster; root and ``ip netns``),
+reaching Redis, the database and S3 through gates on its veth pair, so that a network partition
+between it and all of them can be made and healed (:meth:`Node.partition`, :meth:`Node.heal`).
+``docs/operations.md`` ("Scaling out") describes the same layout on real machines: this harness runs it.
 
 Usage::
 
@@ -28,6 +31,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import os
+import random
 import re
 import shutil
 import signal
@@ -37,6 +41,7 @@ import sys
 import tempfile
 import threading
 import time
+import urllib.parse
 import uuid
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -66,6 +71,7 @@ class Node:
     env: dict
     home: Path
     process: subprocess.Popen | None = None
+    netns: NetNamespace | None = None  # its own network namespace, where it has one (Cluster(netns=True))
     log: Path = field(init=False)
 
     def __post_init__(self) -> None:
@@ -105,6 +111,14 @@ class Node:
     def resume(self) -> None:
         self._signal(signal.SIGCONT)
 
+    def partition(self) -> None:
+        """The node cut off from the broker, the database and the blob store (its namespace's link
+        cut: :meth:`NetNamespace.cut`), running on; :meth:`heal` joins it again."""
+        self.netns.cut()
+
+    def heal(self) -> None:
+        self.netns.heal()
+
     def stop(self, grace: float = 20.0) -> None:
         if not self.alive():
             return
@@ -127,8 +141,9 @@ class TcpGate:
     every connection it forwarded is cut; opened, it listens on the same port again and the server
     behind it, never stopped, has kept its state."""
 
-    def __init__(self, target_port: int) -> None:
+    def __init__(self, target_port: int, host: str = "127.0.0.1", target_host: str = "127.0.0.1") -> None:
         self.target_port, self.port = target_port, free_port()
+        self.host, self.target_host = host, target_host  # where it listens, where it forwards to
         self._listener: socket.socket | None = None
         self._open: set[socket.socket] = set()
         self._lock = threading.Lock()
@@ -136,7 +151,7 @@ class TcpGate:
     def open(self) -> TcpGate:
         listener = socket.socket()
         listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        listener.bind(("127.0.0.1", self.port))
+        listener.bind((self.host, self.port))
         listener.listen(64)
         self._listener = listener
         threading.Thread(target=self._accept, args=(listener,), daemon=True).start()
@@ -162,7 +177,7 @@ class TcpGate:
             except OSError:
                 return  # closed
             try:
-                server = socket.create_connection(("127.0.0.1", self.target_port))
+                server = socket.create_connection((self.target_host, self.target_port))
             except OSError:
                 client.close()
                 continue
@@ -186,6 +201,94 @@ class TcpGate:
                 sock.shutdown(socket.SHUT_RDWR)
         with self._lock:
             self._open -= {source, sink}
+
+
+class NetNamespace:
+    """A network namespace of its own for one worker node (``ip netns``), joined to this machine's
+    by a veth pair on a /30 of its own: the node sees nothing but the host's end of the pair
+    (``host_address``), where :class:`TcpGate` s listen that forward to the shared services.  A
+    partition cuts the pair (:meth:`cut`: the host's end down, so that every packet either way is
+    dropped, as on a switch that fails: the node's connections hang, nothing is refused) and
+    :meth:`heal` joins it again (the connections go on where TCP's retransmissions find them).
+    Made by the test itself and removed by :meth:`remove` (the pair goes with the namespace)."""
+
+    def __init__(self) -> None:
+        tag = uuid.uuid4().hex[:8]
+        self.name, self.host_link, self.node_link = f"farfield-{tag}", f"ffh{tag}", f"ffn{tag}"
+        self.host_address, self.node_address = _free_slash30()
+        self._gates: list[TcpGate] = []
+        try:
+            _ip("netns", "add", self.name)
+            _ip("link", "add", self.host_link, "type", "veth", "peer", "name", self.node_link)
+            _ip("link", "set", self.node_link, "netns", self.name)
+            _ip("addr", "add", f"{self.host_address}/30", "dev", self.host_link)
+            _ip("link", "set", self.host_link, "up")
+            _ip("-n", self.name, "addr", "add", f"{self.node_address}/30", "dev", self.node_link)
+            _ip("-n", self.name, "link", "set", self.node_link, "up")
+            _ip("-n", self.name, "link", "set", "lo", "up")
+        except BaseException:
+            self.remove()
+            raise
+
+    def command(self, command: list[str]) -> list[str]:
+        """``command`` run in the namespace (``ip netns exec`` execs it: its process id is the command's)."""
+        return ["ip", "netns", "exec", self.name, *command]
+
+    def gate(self, host: str, port: int) -> str:
+        """``host:port`` as the node reaches it: a gate on the host's end of the pair forwarding to it."""
+        gate = TcpGate(port, host=self.host_address, target_host=host).open()
+        self._gates.append(gate)
+        return f"{self.host_address}:{gate.port}"
+
+    def cut(self) -> None:
+        """The partition: the pair's host end down (the node's packets, and the host's to it, dropped)."""
+        _ip("link", "set", self.host_link, "down")
+
+    def heal(self) -> None:
+        _ip("link", "set", self.host_link, "up")
+
+    def remove(self) -> None:
+        for gate in self._gates:
+            gate.close()
+        subprocess.run(["ip", "netns", "del", self.name], capture_output=True)  # the pair with it
+        subprocess.run(["ip", "link", "del", self.host_link], capture_output=True)  # if the namespace never got it
+
+
+def _ip(*args: str) -> None:
+    done = subprocess.run(["ip", *args], capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"ip {' '.join(args)}: {done.stderr.strip()}")
+
+
+def _free_slash30() -> tuple[str, str]:
+    """The two addresses of a /30 in 10.200.0.0/13 that no interface here uses (other test runs on
+    this machine make namespaces of their own)."""
+    used = subprocess.run(["ip", "-o", "-4", "addr"], capture_output=True, text=True).stdout
+    while True:
+        base = f"10.{random.randint(200, 207)}.{random.randint(0, 255)}.{random.randrange(0, 256, 4)}"
+        prefix = base.rsplit(".", 1)[0] + "."
+        last = int(base.rsplit(".", 1)[1])
+        host, node = f"{prefix}{last + 1}", f"{prefix}{last + 2}"
+        if f" {host}/" not in used and f" {node}/" not in used:
+            return host, node
+
+
+def netns_unavailable() -> str | None:
+    """Why a worker node cannot have a network namespace of its own here (None: it can): making one
+    (``ip netns add``) needs root and the ``ip`` tool, and the sandbox must allow it (tried)."""
+    if os.geteuid() != 0:
+        return "a network namespace (ip netns add) needs root"
+    if shutil.which("ip") is None:
+        return "no 'ip' tool (iproute2) to make a network namespace"
+    probe = f"farfield-probe-{uuid.uuid4().hex[:8]}"
+    made = subprocess.run(["ip", "netns", "add", probe], capture_output=True, text=True)
+    if made.returncode != 0:
+        return f"ip netns add failed here: {made.stderr.strip()}"
+    try:  # a process must run in it too (ip netns exec mounts a /sys of its own)
+        ran = subprocess.run(["ip", "netns", "exec", probe, sys.executable, "-c", ""], capture_output=True, text=True)
+    finally:
+        subprocess.run(["ip", "netns", "del", probe], capture_output=True)
+    return None if ran.returncode == 0 else f"ip netns exec failed here: {ran.stderr.strip()}"
 
 
 class Postgres:
@@ -259,13 +362,20 @@ class Cluster:
     ``env``: more settings for every node (e.g. a short lease); ``s3_gate``: the nodes reach S3 through
     a :class:`TcpGate` (``cluster.s3_gate``) that can be closed; ``own_postgres``: the database on a
     PostgreSQL server of the cluster's own (``cluster.postgres``, None where it cannot start:
-    ``cluster.postgres_missing`` says why), which can be stopped and started again."""
+    ``cluster.postgres_missing`` says why), which can be stopped and started again; ``netns``: each
+    worker node in a network namespace of its own (``node.netns``: :class:`NetNamespace`, reaching
+    Redis, the database and S3, the S3 gate included, through gates on its veth pair), so that it
+    can be partitioned away (``node.partition()``, ``node.heal()``), where namespaces can be made
+    and the database is a server (a SQLite file on the shared disk cannot be cut off): else the
+    nodes run as without it and ``cluster.netns_missing`` says why."""
 
     def __init__(
         self, root: Path, workers: int = 2, env: dict | None = None, concurrency: int = 1, s3_gate: bool = False,
-        own_postgres: bool = False,
+        own_postgres: bool = False, netns: bool = False,
     ) -> None:  # fmt: skip
         self.use_gate = s3_gate
+        self.use_netns = netns
+        self.netns_missing = None if netns else "the cluster was not asked for network namespaces"
         self.s3_gate: TcpGate | None = None
         self.postgres: Postgres | None = None
         self.postgres_missing = None if own_postgres else "the cluster was not asked for a PostgreSQL server of its own"
@@ -358,6 +468,12 @@ class Cluster:
             "FARFIELD_S3_SECRET": S3_SECRET, "FARFIELD_S3_REGION": S3_REGION, "FARFIELD_ADMIN_KEY": ADMIN_KEY,
             **self.extra,
         }  # fmt: skip
+        if self.use_netns:
+            self.netns_missing = netns_unavailable() or (
+                "the database is a SQLite file, which a network partition cannot cut off"
+                if self._shared["DATABASE_URL"].startswith("sqlite")
+                else None
+            )
         port = free_port()
         api_home = self.root / "api"
         self.api = Node("api", [
@@ -377,10 +493,17 @@ class Cluster:
         return self
 
     def add_worker(self, name: str) -> Node:
+        """A worker node more (in a network namespace of its own where the cluster makes them)."""
         home = self.root / name
-        node = Node(name, worker_command(name, self.concurrency), self._node_env(home), home).start()
-        self.workers.append(node)
-        return node
+        command, env, namespace = worker_command(name, self.concurrency), self._node_env(home), None
+        if self.use_netns and self.netns_missing is None:
+            namespace = NetNamespace()
+            command = namespace.command(command)
+            for key in ("REDIS_URL", "DATABASE_URL", "FARFIELD_S3_ENDPOINT"):  # each through a gate of its own
+                env[key] = _through(namespace, env[key])
+        node = Node(name, command, env, home, netns=namespace)
+        self.workers.append(node)  # before it starts: stop() removes its namespace whatever happens
+        return node.start()
 
     def _wait_for_api(self, timeout: float = 120.0) -> None:
         deadline = time.monotonic() + timeout
@@ -448,6 +571,8 @@ class Cluster:
         for node in self.workers:
             if node.alive():
                 node.kill()
+            if node.netns is not None:
+                node.netns.remove()
         if self.api is not None:
             self.api.stop()
         if self.s3_gate is not None:
@@ -470,6 +595,14 @@ class Cluster:
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+
+def _through(namespace: NetNamespace, url: str) -> str:
+    """``url`` with its host and port those of a gate on ``namespace``'s pair that forwards to them."""
+    parts = urllib.parse.urlsplit(url)
+    user = parts.netloc.rpartition("@")[0]
+    netloc = (f"{user}@" if user else "") + namespace.gate(parts.hostname, parts.port)
+    return urllib.parse.urlunsplit(parts._replace(netloc=netloc))
 
 
 def job_or_none(client: httpx.Client, job_id: str) -> dict | None:

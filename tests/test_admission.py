@@ -571,3 +571,12 @@ def test_a_cell_killed_at_the_hard_time_limit_is_failed_by_the_main_process(home
         assert cell.error.startswith(
             "CellLimitError: the cell ran longer than FARFIELD_CELL_TIME_LIMIT and did not stop, so its worker process was killed at the hard limit (1860 s)"
         )
+
+
+def test_the_admission_lease_is_a_setting_handed_to_workers(tmp_path):
+    """``FARFIELD_ADMISSION_LEASE_S`` (60 s by default) is read like ``FARFIELD_LEASE_S`` and handed to
+    the workers ``farfield up`` starts (their environment), whose admission task holds a job with it."""
+    home = {"FARFIELD_HOME": str(tmp_path)}
+    assert Settings.from_env(home).admission_lease_s == 60
+    settings = Settings.from_env({**home, "FARFIELD_ADMISSION_LEASE_S": "7"})
+    assert settings.admission_lease_s == 7 and Settings.from_env(settings.environment()).admission_lease_s == 7

@@ -3,8 +3,9 @@ the database and an S3 endpoint (tests/cluster_harness.py), and leases on runnin
 
 The lease is lowered to 4 s (heartbeat every 1 s, a sweep every 1 s) so that the tests wait seconds,
 not the default 30 s lease; benchmarks/bench_cluster_recovery.py measures the defaults.  A node is
-killed whole (its process group, SIGKILL) or paused (SIGSTOP) mid-cell, as a host that loses power
-or stalls: the cell runs again on another node, the job completes, and no cell's result is
+killed whole (its process group, SIGKILL), paused (SIGSTOP) or partitioned away (its network
+namespace's link cut) mid-cell, as a host that loses power, stalls or loses its network: the cell
+runs again on another node, the job completes, and no cell's result is
 applied twice.  A job across the three nodes equals the same job run on a single host, byte for
 byte; and a job completes through each shared service failing for a few seconds (Redis, S3 and,
 where the cluster could start its own server, PostgreSQL; the 30 s campaign is
@@ -12,11 +13,14 @@ benchmarks/bench_cluster_faults.py).
 
 One cluster of three worker nodes serves the module, on a PostgreSQL server of its own where
 ``scripts/postgres-server`` can start one (CI: .ci/run installs it), the nodes reaching S3 through a
-gate that can close; its tests run in the order written: the workers' records, the job across the
-nodes against a single host, the three faults, a node paused and resumed, a node killed, a job
+gate that can close, each worker node in a network namespace of its own where one can be made
+(root, ``ip netns``; with a server database), reaching the shared services through gates on its
+veth pair, so that it can be partitioned away; its tests run in the order written: the workers'
+records, the job across the nodes against a single host, the three faults, PostgreSQL failing
+under an admission, a node paused and resumed, a node partitioned and healed, a node killed, a job
 cancelled while its node dies.  Each test starts the nodes it needs if one before left too few
 (run alone, it pays their start).  The jobs that only need to cross the nodes have the smallest
-cells (16 to 28 px); those that stop a node mid-cell are larger (520 and 640 px: a bake of a few
+cells (16 to 32 px); those that stop a node mid-cell are larger (640 to 1024 px: a bake of a few
 seconds here), longer than the half second before a cell first records progress, which is when a
 node is stopped.
 """
@@ -26,6 +30,7 @@ from __future__ import annotations
 import json
 import re
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 from cluster_harness import BAKE_OUTCOME, Cluster, wait_through_faults
@@ -57,7 +62,8 @@ RUN_COLUMNS = ("id", "job_id", "worker", "queued_at", "started_at", "finished_at
 
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory):
-    with Cluster(tmp_path_factory.mktemp("cluster"), workers=3, env=LEASE, s3_gate=True, own_postgres=True) as running:
+    root = tmp_path_factory.mktemp("cluster")
+    with Cluster(root, workers=3, env=LEASE, s3_gate=True, own_postgres=True, netns=True) as running:
         running.wait_for_workers()
         yield running
 
@@ -210,15 +216,18 @@ def _made(database: Database, job_id: str) -> list[dict]:
 def test_a_job_completes_through_a_shared_service_failing(cluster, bunny, fault):
     """A shared service fails for FAULT_S seconds while a job of small cells is in flight, and comes back:
     Redis stopped and started again on its port from its append-only file, or the S3 endpoint
-    refusing (its TCP gate closed: connections cut and refused) then open, both as the job is
-    submitted (its admission and its cells meet them); or the cluster's own PostgreSQL server
-    stopped and started again on its port and data, as the job's cells are sent (once admitted: an
-    admission whose database fails under it is sent again when its 60 s hold runs out,
-    ``ADMISSION_LEASE_S``; 9 cells, so that the job is far from its end when the server stops).
-    The job ends after the service is back, with every cell done and none
-    lost (each with its bundle) or done twice (bake tasks ended ``done``, by the nodes' logs, as many as
-    the cells; no bundle uploaded more often than its cell was attempted; Redis and S3 cost no
-    attempt).  The 30 s faults of the campaign are benchmarks/bench_cluster_faults.py."""
+    refusing (its TCP gate closed: connections cut and refused) then open, both from before the job
+    is submitted (the POST's send of its admission waits for Redis, ``SEND_RETRY_POLICY``; its cells
+    cannot store their bundles without S3); or the cluster's own PostgreSQL server stopped and
+    started again on its port and data, once the job's 9 cells are sent (once admitted: an admission
+    whose database fails under it is the admission test's), held from ending until then by S3
+    refusing from before the job is submitted to just after the server has stopped (no cell can be
+    ``done`` before its bundle is stored).  So the fault is certain to meet the job, however fast the
+    machine: before, with the fault begun after the POST, an idle machine's job of 3 small cells could
+    end before Redis's stop took effect.  The job ends after the service is back, with every cell
+    done and none lost (each with its bundle) or done twice (bake tasks ended ``done``, by the nodes'
+    logs, as many as the cells; no bundle uploaded more often than its cell was attempted; Redis and
+    S3 cost no attempt).  The 30 s faults of the campaign are benchmarks/bench_cluster_faults.py."""
     if fault == "postgres" and cluster.postgres is None:
         pytest.skip(cluster.postgres_missing)
     live_workers(cluster, 3)
@@ -228,20 +237,34 @@ def test_a_job_completes_through_a_shared_service_failing(cluster, bunny, fault)
         "postgres": (lambda: cluster.postgres.stop(), lambda: cluster.postgres.start()),
     }[fault]
     resolution = {"redis": 20, "s3": 24, "postgres": 28}[fault]  # a job of its own: no bundle found from another
+    grid = {**BUNNY_GRID, "counts": [3, 3 if fault == "postgres" else 1, 1]}
+    request = {**SMALL, "grid": grid, "scene_id": bunny, "resolution": resolution}
     marks = cluster.log_marks()
-    with cluster.client() as client:
-        grid = {**BUNNY_GRID, "counts": [3, 3 if fault == "postgres" else 1, 1]}
-        created = client.post("/v1/jobs", json={**SMALL, "grid": grid, "scene_id": bunny, "resolution": resolution})
-        assert created.status_code == 201, created.text
-        job_id = created.json()["id"]
+    with cluster.client() as client, ThreadPoolExecutor(1) as pool:
+
+        def submit() -> str:
+            created = client.post("/v1/jobs", json=request)
+            assert created.status_code == 201, created.text
+            return created.json()["id"]
+
         if fault == "postgres":
-            _wait_admitted(client, job_id)
-        down()
+            cluster.s3_gate.close()  # the hold: no cell ends before the server stops
+            try:
+                job_id = submit()
+                _wait_admitted(client, job_id)
+                down()
+            finally:
+                cluster.s3_gate.open()
+        else:
+            down()
+            posting = pool.submit(submit)  # answered once Redis is back (the send waits for it)
         try:
             time.sleep(FAULT_S)
         finally:
             up()
             restored = time.time()
+        if fault != "postgres":
+            job_id = posting.result(timeout=120)
         job, _ = wait_through_faults(client, job_id, timeout=120)
     assert job is not None and job["state"] == "done", job
     assert job["finished_at"] > restored, "the job ended before the fault did: it met no fault"
@@ -251,6 +274,49 @@ def test_a_job_completes_through_a_shared_service_failing(cluster, bunny, fault)
     assert attempts == [1] * cells or fault == "postgres", attempts
     assert cells <= cluster.manifest_puts(marks) <= sum(attempts), (cluster.manifest_puts(marks), attempts)
     assert cluster.bake_outcomes(marks)["done"] == cells, cluster.bake_outcomes(marks)
+
+
+def test_a_job_s_admission_completes_through_postgresql_failing(cluster, bunny):
+    """PostgreSQL stops as a job's admission is delivered, for FAULT_S seconds: the worker nodes are
+    paused while the job is submitted (the admission message waits) and the server stopped, then
+    resumed, so the admission's first delivery meets the database down, certainly.  It can neither
+    claim the job nor free a hold, so it is retried with backoff (``admit_job_task``: 2, 4, ... s), not
+    left to the hold's lease (``FARFIELD_ADMISSION_LEASE_S``) or the job's first
+    ``FARFIELD_REQUEUE_AFTER``: a node's log says so.  The job ends after the server is back, its 3
+    cells done once each at their first attempt (bake tasks ended ``done`` as many as the cells, no
+    bundle uploaded more often), nothing lost."""
+    if cluster.postgres is None:
+        pytest.skip(cluster.postgres_missing)
+    live_workers(cluster, 3)
+    nodes = [n for n in cluster.workers if n.alive()]
+    grid = {**BUNNY_GRID, "counts": [3, 1, 1]}
+    marks = cluster.log_marks()
+    with cluster.client() as client:
+        for node in nodes:
+            node.pause()
+        try:
+            created = client.post("/v1/jobs", json={**SMALL, "grid": grid, "scene_id": bunny, "resolution": 32})
+            assert created.status_code == 201 and created.json()["state"] == "admitting", created.text
+            job_id = created.json()["id"]
+            cluster.postgres.stop()
+        finally:
+            for node in nodes:
+                node.resume()
+        try:
+            time.sleep(FAULT_S)
+        finally:
+            cluster.postgres.start()
+            restored = time.time()
+        job, _ = wait_through_faults(client, job_id, timeout=120)
+    assert job is not None and job["state"] == "done", job
+    assert job["finished_at"] > restored
+    cells = len(job["cells"])
+    assert [c["state"] for c in job["cells"]] == ["done"] * cells and all(c["has_result"] for c in job["cells"]), job
+    assert [c["attempts"] for c in job["cells"]] == [1] * cells, job["cells"]
+    assert cells <= cluster.manifest_puts(marks) <= cells, cluster.manifest_puts(marks)
+    assert cluster.bake_outcomes(marks)["done"] == cells, cluster.bake_outcomes(marks)
+    logs = cluster.logs_since(marks)
+    assert any(f"job {job_id}: its hold could not be freed either; admission retried" in logs[n.name] for n in nodes)
 
 
 def _wait_admitted(client, job_id: str, timeout: float = 60) -> None:
@@ -294,6 +360,50 @@ def test_a_paused_node_s_late_result_is_discarded(cluster, bunny):
         assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "done"
 
 
+def test_a_node_partitioned_mid_cell_has_its_cell_run_again_and_its_late_result_discarded(cluster, bunny):
+    """The node baking a cell (800 px) is cut off from the broker, the database and the blob store
+    alike (its network namespace's link cut: its packets dropped, its connections hanging, as behind
+    a switch that fails), running on; once its lease runs out (4 s) the API's sweep queues the cell
+    again and another node takes it (attempt 2), and the link is healed.  The partitioned node's
+    connections go on where they hung: its attempt finds its lease gone and stops, or its outcome is
+    refused by the lease token, and says so; the other node's result stands, the job completes, and
+    the cell is done once (one bake task ended ``done`` in the nodes' logs, no bundle uploaded more
+    often than the cell was attempted)."""
+    if cluster.netns_missing:
+        pytest.skip(cluster.netns_missing)
+    live_workers(cluster)
+    marks = cluster.log_marks()
+    with cluster.client() as client:
+        # 800 px: a bundle of its own (the paused node's test bakes this view cell at 640 px).
+        created = client.post(
+            "/v1/jobs", json={"scene_id": bunny, "viewcells": [_cell_of_grid()], "resolution": 800, "evaluate": False}
+        )
+        assert created.status_code == 201, created.text
+        job_id = created.json()["id"]
+        first = running_mid_cell(client, job_id)
+        cut = cluster.worker(first["worker"])
+        cut.partition()
+        try:
+            again = wait_for_cell(client, job_id, 0, lambda c: c["attempts"] == 2 and c["state"] in ("running", "done"),
+                                  RECOVERY_S, "taken by another node")  # fmt: skip
+        finally:
+            cut.heal()
+        assert again["worker"] != first["worker"], again
+        job = wait_for_job(client, job_id, timeout=300)
+        assert job["state"] == "done", job
+        settled = client.get(f"/v1/jobs/{job_id}/cells/0").json()
+        assert settled["worker"] == again["worker"] and settled["attempts"] == 2 and settled["has_result"], settled
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and LATE not in cluster.logs_since(marks)[cut.name]:
+            time.sleep(0.2)
+        assert LATE in cluster.logs_since(marks)[cut.name], cut.log_text()[-3000:]
+        assert client.get(f"/v1/jobs/{job_id}/cells/0").json() == settled  # the other node's result stands
+        assert client.get(f"/v1/jobs/{job_id}").json()["state"] == "done"
+    outcomes = cluster.bake_outcomes(marks)
+    assert outcomes["done"] == 1 and done_by(cluster.logs_since(marks)[cut.name]) == 0, outcomes
+    assert 1 <= cluster.manifest_puts(marks) <= 2, cluster.manifest_puts(marks)
+
+
 def test_a_worker_node_killed_mid_cell_has_its_cell_run_again_on_the_other(cluster, bunny):
     live_workers(cluster)
     done_before = {n.name: done_by(n.log_text()) for n in cluster.workers}  # by cells of earlier tests
@@ -324,13 +434,14 @@ def test_a_worker_node_killed_mid_cell_has_its_cell_run_again_on_the_other(clust
 
 
 def test_cancelling_a_job_whose_node_died_leaves_no_cell_running(cluster, bunny):
-    """The node baking a cell is killed and the job cancelled: once the cell's lease runs out the sweep
-    cancels it, the job ends (finished, nothing running) and its index answers for good (a cancelled
+    """The node baking a cell (1024 px: killed at its first progress, so the size costs nothing, and
+    a bake that lasts; at 520 px an idle machine's bake of 0.9 s could end between two looks for its
+    progress) is killed and the job cancelled: once the cell's lease runs out the sweep cancels it, the job ends (finished, nothing running) and its index answers for good (a cancelled
     job has none: 409 "ended without", never "written when it ends")."""
     live_workers(cluster, 1)
     with cluster.client() as client:
         created = client.post(
-            "/v1/jobs", json={"scene_id": bunny, "viewcells": [_cell_of_grid()], "resolution": 520, "evaluate": False}
+            "/v1/jobs", json={"scene_id": bunny, "viewcells": [_cell_of_grid()], "resolution": 1024, "evaluate": False}
         )
         assert created.status_code == 201, created.text
         job_id = created.json()["id"]

@@ -16,6 +16,8 @@ second, each the other's too while no worker of that kind is live).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from celery import Celery
 
 from farfield.service.pools import LIGHT_QUEUE
@@ -55,12 +57,26 @@ def make_celery(settings: Settings) -> Celery:
     return app
 
 
-def send_cells(celery: Celery, cell_ids: list[str], queues: dict[str, str] | None = None) -> None:
+def send_cells(
+    celery: Celery,
+    cell_ids: list[str],
+    queues: dict[str, str] | None = None,
+    unsent: Callable[[list[str]], object] | None = None,
+    retry_policy: dict = SEND_RETRY_POLICY,
+) -> None:
     """One bake task per cell to its queue in ``queues`` (:func:`farfield.service.pools.cell_queues`;
-    a cell not named there, to the render queue)."""
-    for cell_id in cell_ids:
+    a cell not named there, to the render queue), each send retried while Redis is away
+    (``retry_policy``).  Where a send fails past its retries, ``unsent`` is called with the ids not
+    sent (that one on: :func:`farfield.service.jobs.cells.resend_at_next_sweep` has the API's next
+    sweep send them) before the error is raised."""
+    for n, cell_id in enumerate(cell_ids):
         queue = (queues or {}).get(cell_id, RENDER_QUEUE)
-        celery.send_task(BAKE_CELL, args=[cell_id], queue=queue, retry=True, retry_policy=SEND_RETRY_POLICY)
+        try:
+            celery.send_task(BAKE_CELL, args=[cell_id], queue=queue, retry=True, retry_policy=retry_policy)
+        except Exception:
+            if unsent is not None:
+                unsent(list(cell_ids[n:]))
+            raise
 
 
 def send_planning(celery: Celery, job_id: str, phase: str = "plan") -> None:
@@ -70,9 +86,9 @@ def send_planning(celery: Celery, job_id: str, phase: str = "plan") -> None:
     )
 
 
-def send_admission(celery: Celery, job_id: str) -> None:
+def send_admission(celery: Celery, job_id: str, retry_policy: dict = SEND_RETRY_POLICY) -> None:
     """A job's admission task (its cells' full checks) to the render queue."""
-    celery.send_task(ADMIT_JOB, args=[job_id], queue=RENDER_QUEUE, retry=True, retry_policy=SEND_RETRY_POLICY)
+    celery.send_task(ADMIT_JOB, args=[job_id], queue=RENDER_QUEUE, retry=True, retry_policy=retry_policy)
 
 
 celery_app = make_celery(Settings.from_env())

@@ -40,7 +40,6 @@ fork, so no cell pays the compilation.
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import os
 
@@ -67,7 +66,7 @@ from farfield.service.cell_limits import (
 from farfield.service.db import CellRow, Database, JobRow, now
 from farfield.service.failures import BAD_INPUT, TRANSIENT, failure_class, failure_message
 from farfield.service.jobs.admitting import admit_job, release_admission
-from farfield.service.jobs.cells import finish_job_if_complete, release_lost_cells
+from farfield.service.jobs.cells import finish_job_if_complete, release_lost_cells, resend_at_next_sweep
 from farfield.service.jobs.leases import Heartbeat
 from farfield.service.jobs.runner import RetryCell, backoff, run_cell
 from farfield.service.placement import PLACEMENT_JOB
@@ -448,7 +447,7 @@ def _planning(task, job_id: str, phase: str) -> str:
             blobs=blobs,
         )
         return "failed"
-    send_cells(celery_app, cell_ids)
+    _send_cells(db, cell_ids)
     return state
 
 
@@ -504,16 +503,24 @@ ADMISSION_TIME_LIMIT = max(_DECLARED.cell_time_limit, 300)
 
 
 @celery_app.task(
-    bind=True, name=ADMIT_JOB, soft_time_limit=ADMISSION_TIME_LIMIT, time_limit=ADMISSION_TIME_LIMIT + CELL_TIME_GRACE
-)
-def admit_job_task(self, job_id: str) -> str:
+    bind=True, name=ADMIT_JOB, soft_time_limit=ADMISSION_TIME_LIMIT, time_limit=ADMISSION_TIME_LIMIT + CELL_TIME_GRACE,
+    max_retries=max_retries(_DECLARED.max_attempts),
+)  # fmt: skip
+def admit_job_task(self, job_id: str, held_by: list[str] | None = None) -> str:
     """Check every cell of an admitting job and send those that pass (service.jobs.admitting.admit_job).
     Each delivery stops after ``ADMISSION_DELIVERY_S`` and sends itself again, its progress kept; a delivery
     that fails frees its hold, and the API's sweeper sends it again (a run of ``FARFIELD_MAX_ATTEMPTS``
-    deliveries without progress fails the job)."""
+    deliveries without progress fails the job).  Where the hold cannot be freed either (the database is
+    down), the task is retried with backoff (2, 4, 8, ... s: :func:`~farfield.service.jobs.runner.backoff`),
+    ``held_by`` naming the workers of the failed deliveries, whose holds the retry frees first: the admission goes
+    on within a backoff of the database's return, not when the hold's lease (``FARFIELD_ADMISSION_LEASE_S``)
+    or, had the claim itself failed, the job's first ``FARFIELD_REQUEUE_AFTER`` runs out."""
     settings, db, blobs = _records()
     worker = self.request.hostname
+    limit, retries = max_retries(settings.max_attempts), self.request.retries
     try:
+        for holder in held_by or ():
+            release_admission(db, job_id, holder)
         state, cell_ids = admit_job(
             db,
             blobs,
@@ -522,11 +529,25 @@ def admit_job_task(self, job_id: str) -> str:
             settings.max_attempts,
             settings.admission,
             deadline_s=ADMISSION_DELIVERY_S,
+            lease_s=settings.admission_lease_s,
         )
     except Exception as error:  # noqa: BLE001 - the sweeper sends it again; stalled deliveries are counted
         log.warning("job %s: admission failed (%s); its hold is freed", job_id, error, exc_info=True)
-        with contextlib.suppress(Exception):
-            release_admission(db, job_id, worker)
+        holders = sorted({worker, *(held_by or ())})
+        try:
+            for holder in holders:
+                release_admission(db, job_id, holder)
+        except Exception:  # noqa: BLE001 - the database is away: retried, freeing the hold first
+            if retries < limit:
+                countdown = backoff(retries + 1)
+                log.warning("job %s: its hold could not be freed either; admission retried in %g s", job_id, countdown)
+                raise self.retry(
+                    countdown=countdown,
+                    args=[job_id],
+                    kwargs={"held_by": holders},
+                    exc=error,
+                    max_retries=limit,
+                ) from error
         return "released"
     if state == "continue":
         send_admission(celery_app, job_id)
@@ -535,5 +556,22 @@ def admit_job_task(self, job_id: str) -> str:
     except Exception as error:  # noqa: BLE001 - admitted cells must be sent now, not at the sweeper's requeue (an hour)
         log.warning("job %s: cell queues not read (%s); its cells go to the render queue", job_id, error)
         queues = None
-    send_cells(celery_app, cell_ids, queues)
+    _send_cells(db, cell_ids, queues)
     return state
+
+
+def _send_cells(db: Database, cell_ids: list[str], queues: dict[str, str] | None = None) -> None:
+    """:func:`send_cells`; where Redis stays away past the sends' retries (``SEND_RETRY_POLICY``, about
+    a minute), the cells not sent are left to the API's next sweep
+    (:func:`~farfield.service.jobs.cells.resend_at_next_sweep`), not to ``FARFIELD_REQUEUE_AFTER``."""
+
+    def unsent(ids: list[str]) -> None:
+        try:
+            log.warning("%d cells not sent; the API's next sweep sends them", resend_at_next_sweep(db, ids))
+        except Exception:  # noqa: BLE001 - then FARFIELD_REQUEUE_AFTER brings them back
+            log.exception("%d cells not sent, and not marked for the next sweep either", len(ids))
+
+    try:
+        send_cells(celery_app, cell_ids, queues, unsent=unsent)
+    except Exception as error:  # noqa: BLE001 - the cells are queued in the database: the sweep sends them
+        log.warning("sending %d cells failed past its retries: %s", len(cell_ids), error)

