@@ -59,17 +59,24 @@ class Services:
                 self.auth_failures.failed(client)
             raise
 
-    def enqueue(self, cell_ids: list[str]) -> None:
+    def enqueue(self, cell_ids: list[str]) -> bool:
         """Send one bake task per cell to its queue (its planned texels': service/pools.py), retrying
-        while Redis is away; the cells a send that fails past its retries left unsent are marked for
-        the next sweep (:func:`~farfield.service.jobs.cells.resend_at_next_sweep`) before it raises."""
-        send_cells(
-            self.celery,
-            cell_ids,
-            cell_queues(self.db, cell_ids, self.settings.heavy_texels),
-            unsent=lambda ids: resend_at_next_sweep(self.db, ids),
-            retry_policy=self.send_retry_policy,
-        )
+        while Redis is away; where a send fails past its retries, the cells it left unsent are marked
+        for the next sweep (:func:`~farfield.service.jobs.cells.resend_at_next_sweep`) and False is
+        returned (the cells are stored: the sweep sends them)."""
+        queues = cell_queues(self.db, cell_ids, self.settings.heavy_texels)
+        try:
+            send_cells(
+                self.celery,
+                cell_ids,
+                queues,
+                unsent=lambda ids: resend_at_next_sweep(self.db, ids),
+                retry_policy=self.send_retry_policy,
+            )
+            return True
+        except Exception as error:  # noqa: BLE001 - marked above: the next sweep sends them
+            log.warning("%d cells not sent (%s); the next sweep sends them", len(cell_ids), error)
+            return False
 
     def send_admission(self, job_id: str) -> bool:
         """Send the admitting job's admission task, retrying while Redis is away; where the send fails

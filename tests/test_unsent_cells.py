@@ -18,7 +18,7 @@ from service_harness import BUNNY, BUNNY_GRID
 
 from farfield.api.app import create_app
 from farfield.service.blobs import LocalBlobStore
-from farfield.service.db import CellRow, Database
+from farfield.service.db import CellRow, Database, JobRow
 from farfield.service.embedded_redis import EmbeddedRedis
 from farfield.service.jobs.admission import create_job
 from farfield.service.jobs.admitting import admit_job, lost_admissions
@@ -104,5 +104,41 @@ def test_a_job_posted_while_redis_is_away_past_the_retries_is_admitted_at_the_ne
         broker.start()
         assert services.send_admission(job_id)  # as the sweep sends it
         assert redis_client.Redis.from_url(broker.url).llen(RENDER_QUEUE) == 1
+    finally:
+        broker.stop()
+
+
+def test_a_retry_while_redis_is_away_past_the_retries_answers_and_the_next_sweep_sends_its_cells(tmp_path):
+    """``POST /v1/jobs/{id}/retry`` queues a failed job's failed cells again, then sends them: with Redis
+    down longer than the sends' retries it answered 500 though the cells were queued (and marked for
+    the next sweep).  Now it answers 200 with the job running and the next sweep sends the cells."""
+    broker = EmbeddedRedis(tmp_path / "redis").start()
+    key = "ff_unsent_admin_0123456789abcdef"
+    try:
+        settings = Settings.from_env(
+            {"FARFIELD_HOME": str(tmp_path / "home"), "REDIS_URL": broker.url, "FARFIELD_ADMIN_KEY": key}
+        )
+        app = create_app(settings)
+        services = app.state.services
+        services.send_retry_policy = SHORT_RETRIES
+        tenant = tenant_named(services.db, ADMIN_TENANT).id
+        stored = ingest_scene(
+            services.db, services.blobs, tenant, BUNNY.name, io.BytesIO(BUNNY.read_bytes()), limit=2**26
+        )
+        spec = JobSpec(scene_id=stored.id, grid={**BUNNY_GRID, "counts": [2, 1, 1]}, resolution=16, evaluate=False)
+        job = create_job(services.db, tenant, stored, spec)
+        state, cell_ids = admit_job(services.db, services.blobs, job.id, "admission@here", 3, AdmissionLimits())
+        assert state == "queued" and len(cell_ids) == 2
+        with services.db.session() as s:  # both cells failed their last attempt, and so the job
+            for cell_id in cell_ids:
+                cell = s.get(CellRow, cell_id)
+                cell.state, cell.attempts, cell.error = "failed", 3, "the worker's GL context was lost"
+            s.get(JobRow, job.id).state = "failed"
+
+        broker.stop()
+        client = TestClient(app, headers={"Authorization": f"Bearer {key}"})  # no lifespan: no sweeper of its own
+        retried = client.post(f"/v1/jobs/{job.id}/retry")
+        assert retried.status_code == 200 and retried.json()["state"] == "running", retried.text
+        assert sorted(lost_queued_cells(services.db, REQUEUE_AFTER)) == sorted(cell_ids)  # the next sweep's
     finally:
         broker.stop()
