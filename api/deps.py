@@ -18,10 +18,11 @@ from farfield.service.db import Database
 from farfield.service.jobs.admitting import resend_admission_at_next_sweep
 from farfield.service.jobs.cells import resend_at_next_sweep
 from farfield.service.keys import authenticate, bearer_key
+from farfield.service.placement.lease import resend_planning_at_next_sweep
 from farfield.service.pools import cell_queues
 from farfield.service.scene_check import SceneCheckGate
 from farfield.service.settings import Settings
-from farfield.workers.app import SEND_RETRY_POLICY, send_admission, send_cells
+from farfield.workers.app import SEND_RETRY_POLICY, send_admission, send_cells, send_planning
 
 log = logging.getLogger("farfield.api")
 
@@ -76,6 +77,18 @@ class Services:
             return True
         except Exception as error:  # noqa: BLE001 - marked above: the next sweep sends them
             log.warning("%d cells not sent (%s); the next sweep sends them", len(cell_ids), error)
+            return False
+
+    def send_planning(self, job_id: str) -> bool:
+        """Send a new placement job's planning task, retrying while Redis is away; where the send fails
+        past its retries, the job (stored) is left to the next sweep
+        (:func:`~farfield.service.placement.lease.resend_planning_at_next_sweep`) and False returned."""
+        try:
+            send_planning(self.celery, job_id, "plan", self.send_retry_policy)
+            return True
+        except Exception as error:  # noqa: BLE001 - the job is stored: the sweep sends its planning
+            log.warning("job %s: its planning was not sent (%s); the next sweep sends it", job_id, error)
+            resend_planning_at_next_sweep(self.db, job_id)
             return False
 
     def send_admission(self, job_id: str) -> bool:

@@ -23,7 +23,6 @@ from farfield.service.jobs.records import (
 )
 from farfield.service.jobs.schema import JobSpec
 from farfield.service.scenes import get_scene_row
-from farfield.workers.app import send_planning
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 
@@ -45,7 +44,7 @@ def submit_job(spec: JobSpec, tenant_id: str = Depends(tenant), svc: Services = 
     if spec.placement is not None:
         scene = get_scene_row(svc.db, tenant_id, spec.scene_id)
         job = create_job(svc.db, tenant_id, scene, spec, svc.settings.admission, svc.settings.requeue_after)
-        send_planning(svc.celery, job.id, "plan")
+        svc.send_planning(job.id)  # Redis away past the send's retries: the job is stored, the next sweep sends it
         return full_job_record(svc.db, job)
     scene = get_scene_row(svc.db, tenant_id, spec.scene_id, with_objects=True)  # a part's bounds are its objects'
     # O(cells), no plan: the job is stored "admitting" and a worker checks its cells, then sends them.

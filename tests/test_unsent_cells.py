@@ -26,6 +26,7 @@ from farfield.service.jobs.cells import lost_queued_cells, resend_at_next_sweep
 from farfield.service.jobs.runner import run_cell
 from farfield.service.jobs.schema import JobSpec
 from farfield.service.keys import ADMIN_TENANT, tenant_named
+from farfield.service.placement.lease import lost_planning_jobs
 from farfield.service.scenes import ingest_scene
 from farfield.service.settings import AdmissionLimits, Settings
 from farfield.workers.app import RENDER_QUEUE, make_celery, send_cells
@@ -140,5 +141,39 @@ def test_a_retry_while_redis_is_away_past_the_retries_answers_and_the_next_sweep
         retried = client.post(f"/v1/jobs/{job.id}/retry")
         assert retried.status_code == 200 and retried.json()["state"] == "running", retried.text
         assert sorted(lost_queued_cells(services.db, REQUEUE_AFTER)) == sorted(cell_ids)  # the next sweep's
+    finally:
+        broker.stop()
+
+
+def test_a_placement_job_posted_while_redis_is_away_past_the_retries_is_planned_at_the_next_sweep(tmp_path):
+    """A placement job's ``POST /v1/jobs`` stores it, then sends its planning task: with Redis down
+    longer than the send's retries it answered 500 and left the job to the sweep of
+    ``FARFIELD_REQUEUE_AFTER`` after its creation.  Now it answers 201 and the next sweep sends it."""
+    broker = EmbeddedRedis(tmp_path / "redis").start()
+    key = "ff_unsent_admin_0123456789abcdef"
+    try:
+        settings = Settings.from_env(
+            {"FARFIELD_HOME": str(tmp_path / "home"), "REDIS_URL": broker.url, "FARFIELD_ADMIN_KEY": key}
+        )
+        app = create_app(settings)
+        services = app.state.services
+        services.send_retry_policy = SHORT_RETRIES
+        tenant = tenant_named(services.db, ADMIN_TENANT).id
+        stored = ingest_scene(
+            services.db, services.blobs, tenant, BUNNY.name, io.BytesIO(BUNNY.read_bytes()), limit=2**26
+        )
+        broker.stop()
+        client = TestClient(app, headers={"Authorization": f"Bearer {key}"})  # no lifespan: no sweeper of its own
+        request = {"view_space": {"lo": [-1.0, 0.0, 1.0], "hi": [1.0, 0.2, 1.5]}, "budget": {"primitives": 1000}}
+        created = client.post(
+            "/v1/jobs", json={"scene_id": stored.id, "technique": "layered", "resolution": 16, "placement": request}
+        )
+        assert created.status_code == 201, created.text
+        job_id = created.json()["id"]
+        assert lost_planning_jobs(services.db, REQUEUE_AFTER) == [(job_id, "plan")]  # the next sweep's
+
+        broker.start()
+        assert services.send_planning(job_id)  # as the sweep sends it
+        assert redis_client.Redis.from_url(broker.url).llen(RENDER_QUEUE) == 1
     finally:
         broker.stop()

@@ -79,11 +79,9 @@ def send_cells(
             raise
 
 
-def send_planning(celery: Celery, job_id: str, phase: str = "plan") -> None:
+def send_planning(celery: Celery, job_id: str, phase: str = "plan", retry_policy: dict = SEND_RETRY_POLICY) -> None:
     """A placement job's plan (``phase`` "plan") or check task to the render queue."""
-    celery.send_task(
-        PLANNING_TASKS[phase], args=[job_id], queue=RENDER_QUEUE, retry=True, retry_policy=SEND_RETRY_POLICY
-    )
+    celery.send_task(PLANNING_TASKS[phase], args=[job_id], queue=RENDER_QUEUE, retry=True, retry_policy=retry_policy)
 
 
 def send_admission(celery: Celery, job_id: str, retry_policy: dict = SEND_RETRY_POLICY) -> None:

@@ -177,6 +177,26 @@ def planning_jobs_of(db: Database, worker: str) -> list[str]:
         return list(s.scalars(select(JobRow.id).where(JobRow.state == "placing", JobRow.plan_worker == worker)))
 
 
+def resend_planning_at_next_sweep(db: Database, job_id: str) -> bool:
+    """A placement job whose planning task could not be sent (the broker away longer than the send's
+    retries) and that no worker holds: its lease ended now, so that the API's next sweep
+    (:func:`lost_planning_jobs`) sends it again, not ``FARFIELD_REQUEUE_AFTER`` (an hour by default)
+    after the job was created.  False when it had moved on."""
+    with db.session() as s:
+        return bool(
+            s.execute(
+                update(JobRow)
+                .where(
+                    JobRow.id == job_id,
+                    JobRow.job_type == PLACEMENT_JOB,
+                    JobRow.state.in_(("queued", "placing")),
+                    JobRow.plan_worker.is_(None),
+                )
+                .values(lease_until=0.0)
+            ).rowcount
+        )
+
+
 def lost_planning_jobs(db: Database, requeue_after: float) -> list[tuple[str, str]]:
     """(job id, phase) of placement jobs whose planning message or holder is lost (the lease ran
     out), claimed for sending again (their lease pushed ``requeue_after`` on, the hold dropped)."""
