@@ -1,6 +1,6 @@
 """Whole bakes per stage, bundle writing included, and the PNG encoding of pages, side by side in one run (issue 60 item 2).
 
-Usage: ``.venv/bin/python benchmarks/bench_bundle.py [--only gil|encoding|bakes ...] [--against REV] [--repeat 2] [--bakes NAME ...] [--json]``
+Usage: ``.venv/bin/python benchmarks/bench_bundle.py [--only gil|encoding|bakes|cpu ...] [--against REV] [--repeat 2] [--bakes NAME ...] [--json]``
 
 1. **gil**: does Pillow's PNG encoder release the GIL?  A thread spins in pure Python while the main
    thread encodes one 1024 x 1024 page; the spinner's own CPU seconds (``time.thread_time``) show
@@ -13,12 +13,18 @@ Usage: ``.venv/bin/python benchmarks/bench_bundle.py [--only gil|encoding|bakes 
    (:func:`farfield.core.impostor.bundle.write_bundle`: PNG pages, GLB, fsync), wall and CPU
    seconds (``getrusage``, every thread), each stage's share of the whole; the LDI cells beside the
    nine plain renders of their construction images (``bench_ldi.py``'s (a) and (b), alternately,
-   best of 3).  Bakes: ``layered-512`` and ``layered-1024`` (``bench_layered.py``'s speed object
+   best of 3), as wall seconds and as CPU seconds of the process (every thread: llvmpipe renders
+   on its own threads), the least of each.  Bakes: ``layered-512`` and ``layered-1024`` (``bench_layered.py``'s speed object
    and cell), ``envmap`` (``bench_envmap.py``'s middle cell, 512 px, 64 layers, six directions),
    ``ldi-256`` and ``ldi-512`` (the helmet cell of ``bench_ldi.py``).  Each bake runs in a fresh
    process after a warm-up bake; with ``--against REV`` the same bake also runs with the ``core/``
    of git revision ``REV`` (``git archive``, first on the import path), the two alternating,
-   ``--repeat`` times each, the fastest whole (bake + bundle) of each kept.
+   ``--repeat`` times each, the fastest whole (bake + bundle) of each kept.  ``content`` hashes the
+   page and payload arrays: equal where the two codes bake the same impostor.
+
+4. **cpu**: the same bakes' stages in CPU seconds of the baking thread (the stage clock read with
+   ``time.process_time`` in that process), without the bundle: one warm-up bake and one measured,
+   in fresh processes, this tree and ``--against`` alternately, ``--repeat`` times each.
 
 The renderer is printed, and the load average beside each row: on this project's shared 2-core
 machine compare CPU seconds and ratios measured in the same run, not wall seconds across runs.
@@ -27,6 +33,7 @@ machine compare CPU seconds and ratios measured in the same run, not wall second
 from __future__ import annotations
 
 import argparse
+import hashlib
 import io
 import json
 import os
@@ -170,10 +177,11 @@ def one_bake(name: str, repeat: int) -> dict:
 
         drawn = list(seen_from_cell(scene.objects, cell))
         cameras = bldi.construction_cameras(scene, cell, int(name.split("-")[1]))
-    best, nine = None, []
+    best, nine, run_cpu = None, [], []
     for _ in range(repeat):
         if ldi:
-            nine.append(bldi.nine_images(drawn, cameras)["total"])
+            cpu = cpu_s()
+            nine.append((bldi.nine_images(drawn, cameras)["total"], cpu_s() - cpu))
         wall, cpu = time.perf_counter(), cpu_s()
         impostor = bake()
         baked_wall, baked_cpu = time.perf_counter(), cpu_s()
@@ -184,13 +192,36 @@ def one_bake(name: str, repeat: int) -> dict:
                "bake_s": baked_wall - wall, "bake_cpu_s": baked_cpu - cpu,
                "bundle_s": end_wall - baked_wall, "bundle_cpu_s": end_cpu - baked_cpu,
                "total_s": end_wall - wall, "total_cpu_s": end_cpu - cpu, "load": os.getloadavg()[0],
-               "pages": len(impostor.pages) + sum(len(p) for p in impostor.channels.values())}  # fmt: skip
+               "pages": len(impostor.pages) + sum(len(p) for p in impostor.channels.values()),
+               "content": _content_digest(impostor)}  # fmt: skip
+        run_cpu.append(run["total_cpu_s"])
         if best is None or run["total_s"] < best["total_s"]:
             best = run
-    if ldi:
-        best["nine_images_s"] = min(nine)
+    if ldi:  # wall: the fastest of each; CPU (every thread, llvmpipe's too): the least of each
+        best["nine_images_s"] = min(wall for wall, _ in nine)
+        best["nine_images_cpu_s"] = min(cpu for _, cpu in nine)
         best["ratio"] = best["total_s"] / best["nine_images_s"]
+        best["ratio_cpu"] = min(run_cpu) / best["nine_images_cpu_s"]
     return best
+
+
+def _content_digest(impostor) -> str:
+    """SHA-256 (16 hex digits) of the impostor's page arrays and payload arrays: equal for two codes
+    that bake the same impostor, whatever their PNG encoding."""
+    digest = hashlib.sha256()
+    for page in (*impostor.pages, *(p for _, pages in sorted(impostor.channels.items()) for p in pages)):
+        digest.update(np.ascontiguousarray(page).tobytes())
+    for name, _, _ in impostor.payload.stored_arrays():
+        digest.update(np.ascontiguousarray(getattr(impostor.payload, name)).tobytes())
+    return digest.hexdigest()[:16]
+
+
+def cpu_stages(name: str) -> dict:
+    """Part 4 in this process: one bake's stages in CPU seconds of this thread, after a warm-up."""
+    time.perf_counter = time.process_time  # the stage clock's timer; this process does nothing else
+    _, _, bake = _scene_and_bake(name)
+    bake()
+    return bake().stats["seconds"]
 
 
 def archived(revision: str, folder: Path) -> Path:
@@ -205,14 +236,30 @@ def archived(revision: str, folder: Path) -> Path:
     return root
 
 
-def bake_in_process(name: str, root: Path | None) -> dict:
-    """:func:`one_bake` (one repeat) in a fresh process, with this tree's ``farfield`` or ``root``'s."""
+def bake_in_process(name: str, root: Path | None, flag: str = "--bake") -> dict:
+    """:func:`one_bake` (``flag`` ``--cpu``: :func:`cpu_stages`) in a fresh process, with this
+    tree's ``farfield`` or ``root``'s."""
     env = dict(os.environ)
     if root is not None:
         env["PYTHONPATH"] = os.pathsep.join([str(root), env.get("PYTHONPATH", "")])
-    command = [sys.executable, str(Path(__file__).resolve()), "--bake", name]
+    command = [sys.executable, str(Path(__file__).resolve()), flag, name]
     result = subprocess.run(command, check=True, capture_output=True, text=True, env=env, cwd=ROOT)
     return json.loads(result.stdout.strip().splitlines()[-1])
+
+
+def cpu_table(names, against: str | None, repeat: int) -> list[dict]:
+    """Part 4: each bake's CPU seconds per stage, this tree and (with ``against``) that revision alternately."""
+    rows = []
+    with tempfile.TemporaryDirectory() as folder:
+        codes = [("this tree", None)] + ([(against, archived(against, Path(folder)))] if against else [])
+        for name in names:
+            for run in range(repeat):
+                for label, root in reversed(codes):
+                    stages = bake_in_process(name, root, "--cpu")
+                    rows.append({"bake": name, "code": label, "run": run, "stages": stages, "load": os.getloadavg()[0]})
+                    shown = "  ".join(f"{k} {v:.3f}" for k, v in stages.items())
+                    print(f"{name:<13} {label:<10} CPU s: {shown}   load {rows[-1]['load']:.1f}")
+    return rows
 
 
 def bakes(names, against: str | None, repeat: int) -> list[dict]:
@@ -236,23 +283,30 @@ def print_bake(row: dict) -> None:
     parts = {**row["stages"], "bundle": row["bundle_s"]}
     shares = "  ".join(f"{k} {v:.3f} ({100 * v / total:.0f} %)" for k, v in parts.items() if k != "plan" or v > 0.0005)
     ratio = (
-        f"   LDI cell / nine images {row['ratio']:.2f} (nine {row['nine_images_s']:.3f} s)" if "ratio" in row else ""
+        f"   LDI cell / nine images: wall {row['ratio']:.2f} (nine {row['nine_images_s']:.3f} s), "
+        f"CPU {row['ratio_cpu']:.2f} (nine {row['nine_images_cpu_s']:.3f} s)"
+        if "ratio" in row
+        else ""
     )
     print(
         f"{row['bake']:<13} {row['code']:<10} total {total:.3f} s (CPU {row['total_cpu_s']:.3f})  bundle {row['bundle_s']:.3f} s "
-        f"(CPU {row['bundle_cpu_s']:.3f}, {row['pages']} pages)  load {row['load']:.1f}{ratio}\n    {shares}"
+        f"(CPU {row['bundle_cpu_s']:.3f}, {row['pages']} pages, content {row['content']})  load {row['load']:.1f}{ratio}\n    {shares}"
     )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--only", action="append", choices=("gil", "encoding", "bakes"))
+    parser.add_argument("--only", action="append", choices=("gil", "encoding", "bakes", "cpu"))
     parser.add_argument("--against", help="git revision whose core/ bakes beside this tree's (part 3)")
     parser.add_argument("--repeat", type=int, default=2)
     parser.add_argument("--bakes", nargs="+", choices=BAKES, default=list(BAKES))
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--bake", help=argparse.SUPPRESS)  # internal: one bake, JSON out
+    parser.add_argument("--cpu", help=argparse.SUPPRESS)  # internal: one bake's CPU stages, JSON out
     args = parser.parse_args()
+    if args.cpu:
+        print(json.dumps(cpu_stages(args.cpu)))
+        return
     if args.bake:
         print(json.dumps(one_bake(args.bake, 3 if args.bake.startswith("ldi") else 1)))
         return
@@ -263,7 +317,7 @@ def main() -> None:
     print(
         f"renderer: {info.renderer} ({info.version}); pages encoded at level {PNG_COMPRESS_LEVEL}, strategy {PNG_STRATEGY}"
     )
-    parts = args.only or ("gil", "encoding", "bakes")
+    parts = args.only or ("gil", "encoding", "bakes", "cpu")
     report = {"renderer": info.renderer}
     if "gil" in parts:
         report["gil"] = gil()
@@ -283,6 +337,9 @@ def main() -> None:
     if "bakes" in parts:
         print(f"\n3. whole bakes by stage, bundle included (best of {args.repeat}, fresh processes)")
         report["bakes"] = bakes(args.bakes, args.against, args.repeat)
+    if "cpu" in parts:
+        print("\n4. each bake's stages in CPU seconds of the baking thread (fresh processes, alternately)")
+        report["cpu"] = cpu_table(args.bakes, args.against, args.repeat)
     if args.json:
         print(json.dumps(report, indent=1, default=float))
 
