@@ -103,7 +103,7 @@ import numpy as np
 from PIL import Image
 
 from farfield.core.errors import BundleFormatError, ConflictError
-from farfield.core.impostor.glb import impostor_glb, page_png
+from farfield.core.impostor.glb import impostor_glb
 from farfield.core.impostor.impostor import (
     PAGE_CHANNELS,
     PAYLOAD_KINDS,
@@ -112,6 +112,7 @@ from farfield.core.impostor.impostor import (
     QuadPayload,
     check_impostor,
 )
+from farfield.core.impostor.png_pages import PagePngs, map_threads
 
 __all__ = [
     "FORMAT",
@@ -393,7 +394,9 @@ def check_destination(directory: str | os.PathLike) -> None:
     )
 
 
-def write_bundle(impostor: Impostor, directory: str | os.PathLike, *, sync: bool = True) -> BundlePaths:
+def write_bundle(
+    impostor: Impostor, directory: str | os.PathLike, *, sync: bool = True, workers: int | None = None
+) -> BundlePaths:
     """Write ``impostor`` as a bundle directory, replacing any file or directory already there.
 
     Parameters
@@ -405,6 +408,11 @@ def write_bundle(impostor: Impostor, directory: str | os.PathLike, *, sync: bool
     sync : bool
         Flush each file to the disk (``fsync``) before the bundle is renamed into place.  False for
         a bundle written only to be handed on (a service worker's, published to the blob store).
+    workers : int, optional
+        Threads that encode the pages and write (and sync) the files
+        (:func:`farfield.core.impostor.png_pages.thread_count` by default); 1 does it all in the
+        calling thread.  The bytes do not depend on it.  Each page is encoded once, for its file and
+        for the GLB.
 
     Returns
     -------
@@ -422,12 +430,12 @@ def write_bundle(impostor: Impostor, directory: str | os.PathLike, *, sync: bool
     check_impostor(impostor)
     payload, payload_entry = encode_payload(impostor.payload)
     files = {MANIFEST_NAME: _manifest_bytes(impostor, payload_entry), PAYLOAD_NAME: payload}
-    for index, page in enumerate(impostor.pages):
-        files[page_file_name(index)] = page_png(page)
+    named = [(page_file_name(index), page) for index, page in enumerate(impostor.pages)]
     for name, pages in sorted(impostor.channels.items()):
-        for index, page in enumerate(pages):
-            files[channel_file_name(name, index)] = page_png(page)
-    files[GLB_NAME] = impostor_glb(impostor)
+        named += [(channel_file_name(name, index), page) for index, page in enumerate(pages)]
+    pngs = PagePngs(workers)
+    files.update(zip([name for name, _ in named], pngs.encode([page for _, page in named])))
+    files[GLB_NAME] = impostor_glb(impostor, pngs)
 
     try:
         destination.parent.mkdir(parents=True, exist_ok=True)
@@ -435,11 +443,10 @@ def write_bundle(impostor: Impostor, directory: str | os.PathLike, *, sync: bool
     except OSError as error:
         raise BundleFormatError(f"{destination}: cannot write a bundle there: {error.strerror or error}") from error
     try:
-        for name, data in files.items():
-            if sync:
-                _write_file(staging / name, data)
-            else:
-                (staging / name).write_bytes(data)
+        # Several files at a time: a thread waiting on fsync holds no core, and the file system
+        # commits concurrent syncs together (15 files: 0.01-0.04 s against 0.06-0.09 s one by one).
+        write = _write_file if sync else Path.write_bytes
+        map_threads(lambda item: write(staging / item[0], item[1]), list(files.items()), pngs.workers)
         os.chmod(staging, 0o755)  # mkdtemp makes it 0o700; a bundle is as readable as any file
         _swap_into_place(staging, destination)
     finally:

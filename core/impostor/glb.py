@@ -42,14 +42,12 @@ convention (0, 0 is the top-left of the page).
 
 from __future__ import annotations
 
-import io
 import json
 import struct
 from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
-from PIL import Image
 
 from farfield.core.colour_space import srgb_to_linear
 from farfield.core.errors import BundleFormatError
@@ -71,6 +69,7 @@ from farfield.core.impostor.mesh_frames import (
     triangle_owners,
     vertex_frames,
 )
+from farfield.core.impostor.png_pages import PagePngs, page_png
 
 __all__ = ["GlbBuilder", "GlbParts", "engine_metadata", "impostor_glb", "page_png", "write_glb"]
 
@@ -104,26 +103,6 @@ OCTAHEDRAL_EXTENSION = "FARFIELD_octahedral_impostor"
 _QUAD_TRIANGLES = np.array([0, 3, 2, 0, 2, 1], dtype=np.int64)
 # 0xFFFF is reserved as primitive restart, so uint16 indices address at most 65,535 vertices.
 _MAX_UINT16_VERTICES = 0xFFFF
-
-# Fixed PNG settings: zlib level 6 without the optimiser's search, no metadata chunks.
-_PNG_COMPRESS_LEVEL = 6
-
-
-def page_png(page: np.ndarray) -> bytes:
-    """Deterministic PNG bytes of one (H, W, 4) uint8 RGBA page, top row first.
-
-    The same array gives the same bytes with the same zlib: fixed compression level, no optimiser
-    search, no text or time chunks.
-
-    >>> data = page_png(np.zeros((2, 3, 4), np.uint8))
-    >>> data[:8] == b"\\x89PNG\\r\\n\\x1a\\n", data == page_png(np.zeros((2, 3, 4), np.uint8))
-    (True, True)
-    """
-    buffer = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(page), mode="RGBA").save(
-        buffer, "PNG", optimize=False, compress_level=_PNG_COMPRESS_LEVEL
-    )
-    return buffer.getvalue()
 
 
 def _pad(data: bytes, fill: bytes) -> bytes:
@@ -440,7 +419,9 @@ def _page_material(index: int, normal: int | None = None) -> dict:
     }
 
 
-def _add_material_pages(binary, images: list, materials: list, material_pages, emissive_pages=None) -> None:
+def _add_material_pages(
+    binary, images: list, materials: list, material_pages, emissive_pages=None, pngs=page_png
+) -> None:
     """Append each page's material page (glTF's ORM packing, linear) and emissive page (sRGB, where
     kept) to ``images`` and light ``materials`` (one per page, in page order) with them: the ORM
     image as both ``metallicRoughnessTexture`` and ``occlusionTexture``, factors 1 (the page holds
@@ -449,7 +430,7 @@ def _add_material_pages(binary, images: list, materials: list, material_pages, e
     for kind, kind_pages in kinds:
         first = len(images)
         images += [
-            {"bufferView": binary.add(page_png(page)), "mimeType": "image/png", "name": f"{kind}-{index:03d}"}
+            {"bufferView": binary.add(pngs(page)), "mimeType": "image/png", "name": f"{kind}-{index:03d}"}
             for index, page in enumerate(kind_pages)
         ]
         for index, material in enumerate(materials):
@@ -476,12 +457,15 @@ _LIT_POINTS_MATERIAL = {k: v for k, v in _POINTS_MATERIAL.items() if k != "exten
 class GlbBuilder:
     """The GLB being written: the BIN chunk, the accessors, and the helpers a payload builds its
     :class:`GlbParts` with (:meth:`textured` for textured triangles per page, :meth:`points` for a
-    point impostor).  Positions are float32 relative to ``viewpoint`` (the node's translation)."""
+    point impostor).  Positions are float32 relative to ``viewpoint`` (the node's translation).
+    ``pngs`` encodes the page images (:class:`farfield.core.impostor.png_pages.PagePngs`): a bundle
+    passes the one that wrote its page files, so each page is encoded once."""
 
-    def __init__(self, viewpoint: np.ndarray) -> None:
+    def __init__(self, viewpoint: np.ndarray, pngs: PagePngs | None = None) -> None:
         self.viewpoint = np.asarray(viewpoint, dtype=np.float64)
         self.binary = _Bin()
         self.accessors: list[dict] = []
+        self.pngs = pngs if pngs is not None else PagePngs()
 
     def quad_pages(self, payload: QuadPayload, page_count: int):
         """Per page with quads: (page, float32 positions, float32 UVs, indices), vertices welded."""
@@ -533,8 +517,8 @@ class GlbBuilder:
     def images(self, pages) -> list[dict]:
         """Each page's PNG in the BIN chunk, as glTF images in page order."""
         return [
-            {"bufferView": self.binary.add(page_png(page)), "mimeType": "image/png", "name": f"atlas-{index:03d}"}
-            for index, page in enumerate(pages)
+            {"bufferView": self.binary.add(data), "mimeType": "image/png", "name": f"atlas-{index:03d}"}
+            for index, data in enumerate(self.pngs.encode(pages))
         ]
 
     def textured(
@@ -547,6 +531,8 @@ class GlbBuilder:
         float32 NORMAL (n, 3) and TANGENT (n, 4), written as attributes, and the materials are
         glTF's metallic-roughness (dielectric, roughness 1) with the page's ``normalTexture``,
         lit by the viewer, instead of unlit: their images follow the colour pages'."""
+        # Every image of the GLB encoded first, together (several threads), then added in order.
+        self.pngs.encode([*pages, *(normal_pages or ()), *(material_pages or ()), *(emissive_pages or ())])
         primitives = []
         for page, positions, texcoords, indices, *lit in page_geometry:
             indices = _face_viewpoint(positions, indices)
@@ -598,12 +584,12 @@ class GlbBuilder:
         if normal_pages is None:
             return GlbParts(primitives, [_page_material(index) for index in range(len(pages))], images)
         images += [
-            {"bufferView": self.binary.add(page_png(page)), "mimeType": "image/png", "name": f"normal-{index:03d}"}
+            {"bufferView": self.binary.add(self.pngs(page)), "mimeType": "image/png", "name": f"normal-{index:03d}"}
             for index, page in enumerate(normal_pages)
         ]
         materials = [_page_material(index, normal=len(pages) + index) for index in range(len(pages))]
         if material_pages is not None:
-            _add_material_pages(self.binary, images, materials, material_pages, emissive_pages)
+            _add_material_pages(self.binary, images, materials, material_pages, emissive_pages, self.pngs)
         return GlbParts(primitives, materials, images)
 
     def points(self, payload: PointPayload, pages) -> GlbParts:
@@ -672,7 +658,7 @@ def instance_attributes(matrices, viewpoint: np.ndarray, binary: _Bin, accessors
     return {"attributes": out}
 
 
-def impostor_glb(impostor: Impostor) -> bytes:
+def impostor_glb(impostor: Impostor, pngs: PagePngs | None = None) -> bytes:
     """GLB bytes of ``impostor``: one node at the reference viewpoint, one primitive per page.
 
     Parameters
@@ -680,6 +666,9 @@ def impostor_glb(impostor: Impostor) -> bytes:
     impostor : Impostor
         A quad or mesh payload in float64 world metres, UVs in glTF convention; pages (H, W, 4)
         uint8 RGBA top row first.
+    pngs : PagePngs, optional
+        The encoder of the page images; pages it encoded before are not encoded again
+        (:func:`farfield.core.impostor.bundle.write_bundle` passes the one of its page files).
 
     Returns
     -------
@@ -705,7 +694,7 @@ def impostor_glb(impostor: Impostor) -> bytes:
     """
     check_impostor(impostor)
     viewpoint = np.asarray(impostor.reference_viewpoint, dtype=np.float64)
-    glb = GlbBuilder(viewpoint)
+    glb = GlbBuilder(viewpoint, pngs)
     parts = impostor.payload.glb_parts(impostor, glb)  # the payload's kind decides what it writes
     primitives, materials, images, accessors, binary = (
         parts.primitives,

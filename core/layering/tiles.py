@@ -47,9 +47,16 @@ def layer_tiles(image: np.ndarray, kept: np.ndarray, grid_cell: int, fill_thresh
     rects = split_rects(grown, max_page - 2 * padding)
     if len(rects) != len(grown):  # cut: a piece of a box's empty cells keeps no texel, and is no quad
         rects = rects[np.array([kept[y0:y1, x0:x1].any() for x0, y0, x1, y1 in rects], dtype=bool)]
-    texels = image.copy()
-    texels[..., 3] = np.where(kept, texels[..., 3], 0)
-    return rects, [fill_nearest_rgb(texels[y0:y1, x0:x1]) for x0, y0, x1, y1 in rects]
+    return rects, [_tile(image, kept, y0, y1, x0, x1) for x0, y0, x1, y1 in rects]
+
+
+def _tile(image: np.ndarray, kept: np.ndarray, y0: int, y1: int, x0: int, x1: int) -> np.ndarray:
+    """The tile of rectangle ``[x0, y0, x1, y1)``: its texels, alpha 0 where not kept, then
+    :func:`~farfield.core.layering.atlas.fill_nearest_rgb`.  Only the rectangle's texels are read:
+    the layer is not copied (a 1024 px bake's layers took 0.2 s of copies for tiles covering 2 % of them)."""
+    texels = image[y0:y1, x0:x1].copy()
+    texels[..., 3] = np.where(kept[y0:y1, x0:x1], texels[..., 3], 0)
+    return fill_nearest_rgb(texels)
 
 
 def layer_records(plan, layer_ids, texels) -> list[dict]:

@@ -42,7 +42,6 @@ from farfield.core import __version__
 from farfield.core.cube_faces import FACES
 from farfield.core.errors import LayerPlanError, ViewCellError
 from farfield.core.impostor.depth import fill_gaps_with_depth, layer_depth_ranges
-from farfield.core.impostor.glb import page_png
 from farfield.core.impostor.impostor import (
     CHANNELS_HELP,
     ChannelSet,
@@ -53,6 +52,7 @@ from farfield.core.impostor.impostor import (
     wants_depth,
     wants_normals,
 )
+from farfield.core.impostor.png_pages import PagePngs
 from farfield.core.layering import recording
 from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.layering.culled import culled_layers
@@ -321,7 +321,7 @@ def bake_envmap(
         )  # none: all is near field
         pages, channels = split_channels(pages)
     with clock("png"):
-        png_bytes = int(sum(len(page_png(page)) for page in pages))
+        png_bytes = int(sum(map(len, PagePngs().encode(pages))))  # the pages side by side
     clock.report("atlas", 1, 1)
 
     quad_count = len(tiles)

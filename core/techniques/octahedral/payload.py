@@ -225,7 +225,7 @@ def octahedral_extension(payload: OctahedralPayload, impostor: Impostor, glb, pa
     ``material``, ``emissive`` as the fallback's images, and ``normal``, the raw normal pages (world
     normals ``n * 0.5 + 0.5``, alpha the depth byte with depth), added here, as the fallback's
     normal textures are tangent-space."""
-    from farfield.core.impostor.glb import GlbParts, page_png
+    from farfield.core.impostor.glb import GlbParts
 
     images = list(parts.images)
     sets: dict[str, list[int]] = {}
@@ -236,8 +236,8 @@ def octahedral_extension(payload: OctahedralPayload, impostor: Impostor, glb, pa
     if "normal" in impostor.channels:
         first = len(images)
         images += [
-            {"bufferView": glb.binary.add(page_png(p)), "mimeType": "image/png", "name": f"frames-normal-{i:03d}"}
-            for i, p in enumerate(impostor.channels["normal"])
+            {"bufferView": glb.binary.add(data), "mimeType": "image/png", "name": f"frames-normal-{i:03d}"}
+            for i, data in enumerate(glb.pngs.encode(impostor.channels["normal"]))
         ]
         sets["normal"] = list(range(first, len(images)))
     extension = {
