@@ -22,7 +22,7 @@ from farfield.service.placement.lease import resend_planning_at_next_sweep
 from farfield.service.pools import cell_queues
 from farfield.service.scene_check import SceneCheckGate
 from farfield.service.settings import Settings
-from farfield.workers.app import SEND_RETRY_POLICY, send_admission, send_cells, send_planning
+from farfield.workers.app import BROKER_ERRORS, SEND_RETRY_POLICY, send_admission, send_cells, send_planning
 
 log = logging.getLogger("farfield.api")
 
@@ -75,18 +75,18 @@ class Services:
                 retry_policy=self.send_retry_policy,
             )
             return True
-        except Exception as error:  # noqa: BLE001 - marked above: the next sweep sends them
+        except BROKER_ERRORS as error:  # marked above: the next sweep sends them
             log.warning("%d cells not sent (%s); the next sweep sends them", len(cell_ids), error)
             return False
 
-    def send_planning(self, job_id: str) -> bool:
-        """Send a new placement job's planning task, retrying while Redis is away; where the send fails
-        past its retries, the job (stored) is left to the next sweep
+    def send_planning(self, job_id: str, phase: str = "plan") -> bool:
+        """Send a placement job's planning (``phase`` "plan") or check task, retrying while Redis is away;
+        where the send fails past its retries, the job (stored) is left to the next sweep
         (:func:`~farfield.service.placement.lease.resend_planning_at_next_sweep`) and False returned."""
         try:
-            send_planning(self.celery, job_id, "plan", self.send_retry_policy)
+            send_planning(self.celery, job_id, phase, self.send_retry_policy)
             return True
-        except Exception as error:  # noqa: BLE001 - the job is stored: the sweep sends its planning
+        except BROKER_ERRORS as error:  # the job is stored: the sweep sends its planning
             log.warning("job %s: its planning was not sent (%s); the next sweep sends it", job_id, error)
             resend_planning_at_next_sweep(self.db, job_id)
             return False
@@ -98,7 +98,7 @@ class Services:
         try:
             send_admission(self.celery, job_id, self.send_retry_policy)
             return True
-        except Exception as error:  # noqa: BLE001 - the job is stored: the sweep sends its admission
+        except BROKER_ERRORS as error:  # the job is stored: the sweep sends its admission
             log.warning("job %s: its admission was not sent (%s); the next sweep sends it", job_id, error)
             resend_admission_at_next_sweep(self.db, job_id)
             return False

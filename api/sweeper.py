@@ -12,10 +12,9 @@ from __future__ import annotations
 import logging
 import threading
 
-from farfield.service.jobs.admitting import lost_admissions
+from farfield.service.jobs.admitting import lost_admissions, resend_admission_at_next_sweep
 from farfield.service.jobs.cells import lost_queued_cells, release_expired_leases
-from farfield.service.placement.lease import lost_planning_jobs
-from farfield.workers.app import send_planning
+from farfield.service.placement.lease import lost_planning_jobs, resend_planning_at_next_sweep
 
 log = logging.getLogger("farfield.sweeper")
 
@@ -57,12 +56,27 @@ class LostCellSweeper:
                         len(lost),
                         self.services.settings.requeue_after,
                     )
-                    self.services.enqueue(lost)
-                for job_id, phase in lost_planning_jobs(self.services.db, self.services.settings.requeue_after):
-                    log.warning("job %s: its %s was lost (message or worker); sending it again", job_id, phase)
-                    send_planning(self.services.celery, job_id, phase)
-                for job_id in lost_admissions(self.services.db, self.services.settings.requeue_after):
-                    log.warning("job %s: its admission was lost (message or worker); sending it again", job_id)
-                    self.services.send_admission(job_id)
-            except Exception:  # noqa: BLE001 - the next sweep tries again (e.g. Redis is restarting)
+                    if not self.services.enqueue(lost):
+                        continue  # Redis is away past the sends' retries (the cells marked): the next sweep
+                self._send_lost_jobs()
+            except Exception:  # noqa: BLE001 - the next sweep tries again (e.g. the database is restarting)
                 log.exception("sweep failed")
+
+    def _send_lost_jobs(self) -> None:
+        """Placement jobs whose planning or check, and jobs whose admission, was lost, sent again; once
+        a send fails past its retries (Redis away: that job is left to the next sweep), the rest found
+        are left to it too without a send each (a minute of retries apiece)."""
+        services, after = self.services, self.services.settings.requeue_after
+        sent = True
+        for job_id, phase in lost_planning_jobs(services.db, after):
+            if sent:
+                log.warning("job %s: its %s was lost (message or worker); sending it again", job_id, phase)
+                sent = services.send_planning(job_id, phase)
+            else:
+                resend_planning_at_next_sweep(services.db, job_id)
+        for job_id in lost_admissions(services.db, after):
+            if sent:
+                log.warning("job %s: its admission was lost (message or worker); sending it again", job_id)
+                sent = services.send_admission(job_id)
+            else:
+                resend_admission_at_next_sweep(services.db, job_id)

@@ -33,7 +33,7 @@ shared services instead, so API and workers can run on several machines.
 | ``FARFIELD_LEASE_S`` | 30 | seconds a running cell's lease lasts unless its worker's heartbeat renews it; past it the API's sweeper queues the cell again (an attempt) and the late result is discarded |
 | ``FARFIELD_HEARTBEAT_S`` | 5 | seconds between a worker's heartbeats (lease renewals); at most half of ``FARFIELD_LEASE_S`` |
 | ``FARFIELD_SWEEP_S`` | 5 | seconds between the API's sweeps (expired leases, lost messages) |
-| ``FARFIELD_ADMISSION_LEASE_S`` | 60 | seconds a worker's hold of a job's admission lasts unless it commits progress (every half second); past it the API's sweeper sends the admission again (its worker died, or the database failed under it and it could neither retry nor free the hold) |
+| ``FARFIELD_ADMISSION_LEASE_S`` | 60 (at least 10) | seconds a worker's hold of a job's admission lasts unless it commits progress (every half second); past it the API's sweeper sends the admission again (its worker died, or the database failed under it and it could neither retry nor free the hold) |
 | ``FARFIELD_HEAVY_TEXELS`` | 1e8 | a cell whose admission planned more texels than this is heavy: sent to ``render.heavy``, which GPU workers consume (CPU workers too while no GPU worker is live: :mod:`farfield.service.pools`) |
 | ``FARFIELD_WORKER_KIND`` | unset (the renderer's) | ``cpu`` or ``gpu``: the kind a worker announces and serves as, instead of the one its GL renderer tells (tests and operations: a GPU worker declared on a machine without one) |
 | ``FARFIELD_TECHNIQUE_MODULES`` | unset | comma-separated importable modules whose import registers more techniques (:func:`farfield.core.techniques.register`); the CLI, the API and every worker import them before they read the registry |
@@ -79,6 +79,9 @@ SWEEP_S = 5
 # A job's admission (service.jobs.admitting) is held under a lease of its own, renewed at each commit
 # of its progress (every half second): longer than a cell's, since a check of one cell may take a while.
 ADMISSION_LEASE_S = 60
+# The hold is renewed between cell checks and one full check can take seconds: a shorter lease would
+# make live admissions look dead, sent again and taken over (each a stalled delivery).
+MIN_ADMISSION_LEASE_S = 10
 # An S3 server restarting (or refusing for a while): a worker's blob operations wait this long for
 # it, instead of failing the cell's attempts one after another (benchmarks/bench_cluster_faults.py).
 S3_OUTAGE_S = 120
@@ -329,7 +332,7 @@ class Settings:
             lease_s=lease_s,
             heartbeat_s=heartbeat_s,
             sweep_s=_int(env, "FARFIELD_SWEEP_S", SWEEP_S),
-            admission_lease_s=_int(env, "FARFIELD_ADMISSION_LEASE_S", ADMISSION_LEASE_S),
+            admission_lease_s=_int(env, "FARFIELD_ADMISSION_LEASE_S", ADMISSION_LEASE_S, minimum=MIN_ADMISSION_LEASE_S),
             s3_outage_s=_int(env, "FARFIELD_S3_OUTAGE_S", S3_OUTAGE_S, minimum=0),
             heavy_texels=_count(env, "FARFIELD_HEAVY_TEXELS", HEAVY_TEXELS, minimum=0),
             worker_kind=_worker_kind(env),

@@ -24,6 +24,7 @@ from service_harness import start_service, upload, wait_for_job
 
 from farfield.api.app import create_app
 from farfield.core import procedural
+from farfield.core.errors import ServiceConfigError
 from farfield.service.blobs import blob_store
 from farfield.service.cell_limits import MemoryGuard, resident_bytes
 from farfield.service.db import CellRow, Database, JobRow
@@ -578,5 +579,7 @@ def test_the_admission_lease_is_a_setting_handed_to_workers(tmp_path):
     the workers ``farfield up`` starts (their environment), whose admission task holds a job with it."""
     home = {"FARFIELD_HOME": str(tmp_path)}
     assert Settings.from_env(home).admission_lease_s == 60
-    settings = Settings.from_env({**home, "FARFIELD_ADMISSION_LEASE_S": "7"})
-    assert settings.admission_lease_s == 7 and Settings.from_env(settings.environment()).admission_lease_s == 7
+    settings = Settings.from_env({**home, "FARFIELD_ADMISSION_LEASE_S": "17"})
+    assert settings.admission_lease_s == 17 and Settings.from_env(settings.environment()).admission_lease_s == 17
+    with pytest.raises(ServiceConfigError, match="FARFIELD_ADMISSION_LEASE_S must be >= 10"):
+        Settings.from_env({**home, "FARFIELD_ADMISSION_LEASE_S": "7"})  # shorter than one full check may take

@@ -19,6 +19,9 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from celery import Celery
+from kombu.exceptions import OperationalError
+from redis.exceptions import ConnectionError as RedisConnectionError
+from redis.exceptions import TimeoutError as RedisTimeoutError
 
 from farfield.service.pools import LIGHT_QUEUE
 from farfield.service.settings import Settings
@@ -35,6 +38,10 @@ PLANNING_TASKS = {"plan": PLAN_PLACEMENT, "check": CHECK_PLACEMENT}
 # A job's admission (service.jobs.admitting: every cell's full check before any is baked) goes there too.
 ADMIT_JOB = "farfield.admit_job"
 # Sending while Redis restarts (the API's and a worker's sends alike).
+# What a send raises when the broker stays away past its retries (kombu wraps the transport's errors
+# in OperationalError; a connection refused or reset is an OSError): the cases in which a message is
+# left to the API's next sweep.  Anything else is a bug and raises.
+BROKER_ERRORS = (OperationalError, RedisConnectionError, RedisTimeoutError, OSError)
 SEND_RETRY_POLICY = {"max_retries": 30, "interval_start": 0.2, "interval_step": 0.5, "interval_max": 2.0}
 
 
@@ -73,7 +80,7 @@ def send_cells(
         queue = (queues or {}).get(cell_id, RENDER_QUEUE)
         try:
             celery.send_task(BAKE_CELL, args=[cell_id], queue=queue, retry=True, retry_policy=retry_policy)
-        except Exception:
+        except BROKER_ERRORS:
             if unsent is not None:
                 unsent(list(cell_ids[n:]))
             raise

@@ -78,6 +78,7 @@ from farfield.service.settings import CELL_TIME_GRACE, Settings
 from farfield.workers.app import (
     ADMIT_JOB,
     BAKE_CELL,
+    BROKER_ERRORS,
     CHECK_PLACEMENT,
     PLAN_PLACEMENT,
     RENDER_QUEUE,
@@ -532,7 +533,7 @@ def admit_job_task(self, job_id: str, held_by: list[str] | None = None) -> str:
             lease_s=settings.admission_lease_s,
         )
     except Exception as error:  # noqa: BLE001 - the sweeper sends it again; stalled deliveries are counted
-        log.warning("job %s: admission failed (%s); its hold is freed", job_id, error, exc_info=True)
+        log.warning("job %s: admission failed (%s); freeing its hold", job_id, error, exc_info=True)
         holders = sorted({worker, *(held_by or ())})
         try:
             for holder in holders:
@@ -548,6 +549,8 @@ def admit_job_task(self, job_id: str, held_by: list[str] | None = None) -> str:
                     exc=error,
                     max_retries=limit,
                 ) from error
+            log.warning("job %s: its hold could not be freed and no retry is left; its lease ends it", job_id)
+            return "held"
         return "released"
     if state == "continue":
         send_admission(celery_app, job_id)
@@ -573,5 +576,5 @@ def _send_cells(db: Database, cell_ids: list[str], queues: dict[str, str] | None
 
     try:
         send_cells(celery_app, cell_ids, queues, unsent=unsent)
-    except Exception as error:  # noqa: BLE001 - the cells are queued in the database: the sweep sends them
+    except BROKER_ERRORS as error:  # the cells are queued in the database: the sweep sends them
         log.warning("sending %d cells failed past its retries: %s", len(cell_ids), error)
