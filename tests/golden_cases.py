@@ -132,20 +132,27 @@ def all_digests(folder: Path) -> dict:
     return found
 
 
-def _cpu_features() -> dict:
+def _unpinned() -> str | None:
+    """Why this process's kernels are not the recorded ones (None: they are): NumPy's dispatch must
+    find AVX2 and FMA3 and nothing of AVX-512's, every OpenBLAS loaded must run Haswell's kernels."""
     import numpy as np
+    import scipy.linalg  # noqa: F401 - loads SciPy's own OpenBLAS
+    from threadpoolctl import threadpool_info
 
     core = getattr(np, "_core", None) or np.core  # NumPy 2 / 1.26
-    return dict(getattr(core._multiarray_umath, "__cpu_features__", {}))
+    features = dict(getattr(core._multiarray_umath, "__cpu_features__", {}))
+    if not (features.get("AVX2") and features.get("FMA3")):
+        return "this CPU lacks AVX2 and FMA3 (NumPy's x86-64-v3 kernels, which the digests were recorded with)"
+    if features.get("X86_V4", features.get("AVX512_SKX")):
+        return f"NumPy {np.__version__} did not take NPY_DISABLE_CPU_FEATURES={PINNED['NPY_DISABLE_CPU_FEATURES']!r}"
+    kernels = {info.get("architecture") for info in threadpool_info() if info.get("internal_api") == "openblas"}
+    if kernels - {"Haswell"}:
+        return f"OpenBLAS runs {sorted(kernels)} kernels, not Haswell's, under OPENBLAS_CORETYPE"
+    return None
 
 
 if __name__ == "__main__":
     folder = Path(sys.argv[1])
-    features = _cpu_features()
-    if features.get("AVX2") and features.get("FMA3"):
-        found = all_digests(folder)
-    else:
-        found = {
-            "unavailable": "this CPU lacks AVX2 and FMA3 (NumPy's x86-64-v3 kernels, which the digests were recorded with)"
-        }
+    why = _unpinned()
+    found = {"unavailable": why} if why else all_digests(folder)
     (folder / "digests.json").write_text(json.dumps(found))

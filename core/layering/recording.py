@@ -40,6 +40,7 @@ import moderngl
 import numpy as np
 from numba import njit
 
+from farfield.core.layering.atlas import pack
 from farfield.core.layering.plan import LayerPlan
 from farfield.core.render.alpha_mips import max_alpha_texture
 from farfield.core.render.context import gl_context
@@ -501,7 +502,7 @@ def slab_instances(
 
 def warm_kernels() -> float:
     """Compile (or load from numba's cache) the bucketing and pairing kernels of :func:`slab_instances` on one
-    triangle, without GL; the seconds it took.  A render worker calls it when it starts, beside the
+    triangle and the atlas's placement kernel on two tiles, without GL; the seconds it took.  A render worker calls it when it starts, beside the
     other techniques' (:mod:`farfield.workers.tasks`), so the first layered or envmap cell does not pay it."""
     start = time.perf_counter()
     faces = np.array([[0, 1, 2]], dtype=np.int64)
@@ -513,6 +514,7 @@ def warm_kernels() -> float:
         np.ones(2),
         np.array([4, 4]),
     )
+    pack(np.array([[1, 1], [2, 1]]))  # the atlas's placement kernel (layered, envmap and TDM pages)
     return time.perf_counter() - start
 
 
