@@ -82,6 +82,11 @@ Outside = Callable[[np.ndarray], object]
 KIND_NAMES = ("shaft", "box", "outside-sphere", "lod")  # Candidates.kind
 OUTSIDE_SPHERE = 2  # the kind of an outside candidate (KIND_NAMES)
 LOD = 3  # the kind of a simplified-geometry candidate (KIND_NAMES)
+# The CPV index of a (candidate, CPV) row: 4 bytes (a view space has far fewer than 2^31 CPVs).  A
+# large city has tens of millions of rows (38 M for 164,001 candidates of a 265,070-triangle city):
+# with the two float64 times, 20 bytes a row instead of 24 (the times stay float64: the greedy's
+# ranks, and so the placement, are exact sums of them).
+CPV_INDEX = np.int32
 
 
 def direction_grid(step_deg: float = DIRECTION_STEP_DEG) -> np.ndarray:
@@ -117,7 +122,7 @@ class Candidates:
     texels: np.ndarray  # (m,) per layer
     quads: np.ndarray  # (m,)
     served_offsets: np.ndarray  # (m + 1,)
-    served: np.ndarray  # (total,) CPV indices, ascending within a candidate
+    served: np.ndarray  # (total,) CPV indices (CPV_INDEX), ascending within a candidate
     g: np.ndarray  # (total,) the node's geometry time in that CPV
     ti: np.ndarray  # (total,) the impostor's time there
     stats: dict
@@ -243,14 +248,21 @@ class _Rows:
         for f in self.FIELDS:
             self.chunks[f].append(np.broadcast_to(np.asarray(columns[f]), (k,)))
         self.cells.append(cells if isinstance(cells, CellTable) else CellTable.of(cells))
-        self.served.append(served), self.g.append(g), self.ti.append(ti)
+        self.served.append(np.asarray(served, dtype=CPV_INDEX))
+        self.g.append(np.asarray(g, dtype=np.float64)), self.ti.append(np.asarray(ti, dtype=np.float64))
 
     def column(self, name: str, dtype) -> np.ndarray:
         parts = self.chunks[name]
         return np.concatenate(parts).astype(dtype) if parts else np.empty(0, dtype=dtype)
 
-    def flat(self, rows: list, dtype) -> np.ndarray:
-        return np.concatenate(rows).astype(dtype) if rows else np.empty(0, dtype=dtype)
+    def flat(self, name: str) -> np.ndarray:
+        """The rows' column ``name`` (served, g or ti) in one array; its chunks are let go as it is
+        made (the rows are most of a large city's planning memory: each column is copied once, not
+        held twice beside the others and a cast)."""
+        parts = getattr(self, name)
+        setattr(self, name, [])
+        dtype = CPV_INDEX if name == "served" else np.float64
+        return np.concatenate(parts) if parts else np.empty(0, dtype=dtype)
 
 
 def _region_rows(cpv_regions: np.ndarray, regions_count: int) -> tuple[np.ndarray, np.ndarray]:
@@ -412,9 +424,9 @@ def generate_candidates(
             np.isnan(own_quads), np.asarray(model.quads(layers_a, texels_a), dtype=np.float64).reshape(-1), own_quads
         ),
         served_offsets=np.concatenate([[0], np.cumsum(rows.column("count", np.int64))]).astype(np.int64),
-        served=rows.flat(rows.served, np.int64),
-        g=rows.flat(rows.g, np.float64),
-        ti=rows.flat(rows.ti, np.float64),
+        served=rows.flat("served"),
+        g=rows.flat("g"),
+        ti=rows.flat("ti"),
         stats=counts,
         source=rows.column("source", np.int64),
         prototype=rows.column("atlas", np.int64),
