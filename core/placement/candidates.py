@@ -231,15 +231,62 @@ def _box_cells(pv: ProblemViews, lo: np.ndarray, hi: np.ndarray, region_relevant
     return out, int(np.sum((cnt > 0) & apart))
 
 
+ROW_BLOCK = 1 << 23  # (candidate, CPV) rows per block of _RowColumns: 32-64 MiB a column, each its own mapping
+
+
+class _RowColumns:
+    """The (candidate, CPV) rows' columns (``served``, ``g``, ``ti``), appended into blocks of
+    ``block`` rows and made one array per column at the end, each block let go as it is copied.
+
+    A large city has hundreds of millions of rows (281 M for the 922,909 candidates of an
+    11.5 M-triangle city); kept as the nodes' small chunks, freed memory stayed with the process
+    (fragmented), and concatenating a column held it twice.  Blocks this large are mapped and
+    unmapped whole, so the peak is about the rows themselves plus a block."""
+
+    DTYPES = {"served": CPV_INDEX, "g": np.float64, "ti": np.float64}
+
+    def __init__(self, block: int | None = None) -> None:
+        self.block, self.total, self.used = int(ROW_BLOCK if block is None else block), 0, 0
+        self.blocks: dict[str, list] = {k: [] for k in self.DTYPES}
+
+    def add(self, served: np.ndarray, g: np.ndarray, ti: np.ndarray) -> None:
+        columns = (np.asarray(served), np.asarray(g, dtype=np.float64), np.asarray(ti, dtype=np.float64))
+        n, at = int(columns[0].shape[0]), 0
+        while at < n:
+            if not self.blocks["served"] or self.used == self.blocks["served"][-1].shape[0]:
+                for k, dtype in self.DTYPES.items():
+                    self.blocks[k].append(np.empty(self.block, dtype=dtype))
+                self.used = 0
+            take = min(n - at, self.block - self.used)
+            for k, values in zip(self.DTYPES, columns):
+                self.blocks[k][-1][self.used : self.used + take] = values[at : at + take]
+            self.used += take
+            at += take
+        self.total += n
+
+    def flat(self, name: str) -> np.ndarray:
+        """Column ``name`` in one array; its blocks are let go as they are copied."""
+        out = np.empty(self.total, dtype=self.DTYPES[name])
+        blocks, at = self.blocks[name], 0
+        for j in range(len(blocks)):
+            n = min(blocks[j].shape[0], self.total - at)
+            out[at : at + n] = blocks[j][:n]
+            blocks[j] = None  # unmapped now, before the next block's copy
+            at += n
+        self.blocks[name] = []
+        return out
+
+
 class _Rows:
-    """The kept candidates, gathered in chunks (one candidate or a node's batch at a time)."""
+    """The kept candidates, gathered in chunks (one candidate or a node's batch at a time); their
+    (candidate, CPV) rows in :class:`_RowColumns`."""
 
     FIELDS = ("node", "kind", "layers", "texels", "source", "memory", "quads", "atlas", "scale", "count")
 
     def __init__(self) -> None:
         self.chunks = {f: [] for f in self.FIELDS}
         self.cells: list[CellTable] = []
-        self.served, self.g, self.ti = [], [], []
+        self.rows = _RowColumns()
 
     def add(self, cells: list | CellTable, served: np.ndarray, g: np.ndarray, ti: np.ndarray, **columns) -> None:
         """Candidates ``cells`` (their ``columns``, arrays or scalars; ``count``: each one's served
@@ -248,21 +295,15 @@ class _Rows:
         for f in self.FIELDS:
             self.chunks[f].append(np.broadcast_to(np.asarray(columns[f]), (k,)))
         self.cells.append(cells if isinstance(cells, CellTable) else CellTable.of(cells))
-        self.served.append(np.asarray(served, dtype=CPV_INDEX))
-        self.g.append(np.asarray(g, dtype=np.float64)), self.ti.append(np.asarray(ti, dtype=np.float64))
+        self.rows.add(served, g, ti)
 
     def column(self, name: str, dtype) -> np.ndarray:
         parts = self.chunks[name]
         return np.concatenate(parts).astype(dtype) if parts else np.empty(0, dtype=dtype)
 
     def flat(self, name: str) -> np.ndarray:
-        """The rows' column ``name`` (served, g or ti) in one array; its chunks are let go as it is
-        made (the rows are most of a large city's planning memory: each column is copied once, not
-        held twice beside the others and a cast)."""
-        parts = getattr(self, name)
-        setattr(self, name, [])
-        dtype = CPV_INDEX if name == "served" else np.float64
-        return np.concatenate(parts) if parts else np.empty(0, dtype=dtype)
+        """The rows' column ``name`` (served, g or ti) in one array (:meth:`_RowColumns.flat`)."""
+        return self.rows.flat(name)
 
 
 def _region_rows(cpv_regions: np.ndarray, regions_count: int) -> tuple[np.ndarray, np.ndarray]:
