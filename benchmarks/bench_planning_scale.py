@@ -26,8 +26,9 @@ objects) with the same view space rule.
 ``--against DIR``: also plan each scene with the farfield package in DIR (e.g. ``git archive`` of an
 older commit unpacked there), imported in place of this one; the table puts the two side by side
 and says whether the placements are the same (their JSON, byte for byte).  Columns: seconds of each
-planner step and in all, candidates, impostors, estimated memory, peak resident memory of the
-process.
+planner step and in all, the planning process's CPU seconds in all and per step, candidates,
+impostors, estimated memory, peak resident memory of the process.  ``--city-blocks 4900
+--city-detail 140``: 11,466,230 triangles in 4,901 objects (Vienna's size, issue 57).
 """
 
 from __future__ import annotations
