@@ -10,6 +10,7 @@ import pytest
 
 from farfield.core import procedural
 from farfield.core.errors import FarfieldError
+from farfield.core.placement import candidates as candidates_module
 from farfield.core.placement.candidates import direction_grid, generate_candidates
 from farfield.core.placement.cost_model import LLVMPIPE_MODEL, primitive_model
 from farfield.core.placement.greedy import Greedy
@@ -97,3 +98,25 @@ def test_candidates_and_choice_are_those_of_the_one_cell_at_a_time_path(model, t
     greedy = Greedy(state.hierarchy, state.pv, reference, budget)
     greedy.run()
     assert [(c.candidate, c.cpvs) for c in greedy.chosen] == [(c.candidate, c.cpvs) for c in state.greedy.chosen]
+
+
+def test_rows_gathered_in_blocks_are_the_rows(monkeypatch):
+    """The (candidate, CPV) rows gathered in blocks (``candidates.ROW_BLOCK``, here 97 rows, so a
+    node's rows straddle blocks) are the rows one block holds: every array the same, the CPV index
+    4 bytes a row."""
+    city = procedural.city(36, seed=5, detail=6)
+    model = primitive_model()
+    settings = PlacementSettings(
+        t_max=0.5 * city.triangle_count, model=model, vdi_deg=45.0, options={"resolution": 128}, cpv_size=20.0
+    )
+    state = place(city, [20.0, 110.0, 20.0], [100.0, 115.0, 100.0], settings, keep_state=True).state
+    options = BakeOptions(resolution=128, fov_deg=45.0)
+    monkeypatch.setattr(candidates_module, "ROW_BLOCK", 97)
+    blocks = generate_candidates(
+        state.hierarchy, state.pv, model, lambda cell, bounds: estimate_part_cell(cell, options, bounds), 128.0**2, "both",
+        max_bytes=settings.max_impostor_bytes, part_options=options,
+    )  # fmt: skip
+    assert state.cand.served.size > 10 * 97
+    for field in FIELDS:
+        assert np.array_equal(getattr(blocks, field), getattr(state.cand, field)), field
+    assert blocks.served.dtype == state.cand.served.dtype == np.int32

@@ -19,7 +19,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from farfield.core.placement.candidates import Candidates, generate_candidates
+from farfield.core.placement.candidates import CPV_INDEX, Candidates, generate_candidates
 from farfield.core.placement.cell_table import CellTable
 from farfield.core.placement.hierarchy import Hierarchy
 from farfield.core.placement.part_inputs import PartInputs
@@ -95,12 +95,12 @@ def merge_candidates(parts: list[Candidates]) -> Candidates:
     for part in parts:
         for key, value in part.stats.items():
             stats[key] = stats.get(key, 0) + value
-    cat = lambda name, dtype: np.concatenate([getattr(p, name) for p in parts]).astype(dtype)  # noqa: E731
+    cat = lambda name, dtype: np.concatenate([getattr(p, name) for p in parts], dtype=dtype)  # noqa: E731
     return Candidates(
         node=cat("node", np.int64), kind=cat("kind", np.int64), cells=CellTable.concat([p.cells if isinstance(p.cells, CellTable) else CellTable.of(list(p.cells)) for p in parts]),
         memory=cat("memory", np.float64), layers=cat("layers", np.float64), texels=cat("texels", np.float64),
         quads=cat("quads", np.float64), served_offsets=np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64),
-        served=cat("served", np.int64), g=cat("g", np.float64), ti=cat("ti", np.float64), stats=stats,
+        served=cat("served", CPV_INDEX), g=cat("g", np.float64), ti=cat("ti", np.float64), stats=stats,
         source=cat("source", np.int64), prototype=np.concatenate(prototype).astype(np.int64), prototypes=tuple(atlases),
         scale=cat("scale", np.float64),
     )  # fmt: skip

@@ -82,6 +82,11 @@ Outside = Callable[[np.ndarray], object]
 KIND_NAMES = ("shaft", "box", "outside-sphere", "lod")  # Candidates.kind
 OUTSIDE_SPHERE = 2  # the kind of an outside candidate (KIND_NAMES)
 LOD = 3  # the kind of a simplified-geometry candidate (KIND_NAMES)
+# The CPV index of a (candidate, CPV) row: 4 bytes (a view space has far fewer than 2^31 CPVs).  A
+# large city has tens of millions of rows (38 M for 164,001 candidates of a 265,070-triangle city):
+# with the two float64 times, 20 bytes a row instead of 24 (the times stay float64: the greedy's
+# ranks, and so the placement, are exact sums of them).
+CPV_INDEX = np.int32
 
 
 def direction_grid(step_deg: float = DIRECTION_STEP_DEG) -> np.ndarray:
@@ -117,7 +122,7 @@ class Candidates:
     texels: np.ndarray  # (m,) per layer
     quads: np.ndarray  # (m,)
     served_offsets: np.ndarray  # (m + 1,)
-    served: np.ndarray  # (total,) CPV indices, ascending within a candidate
+    served: np.ndarray  # (total,) CPV indices (CPV_INDEX), ascending within a candidate
     g: np.ndarray  # (total,) the node's geometry time in that CPV
     ti: np.ndarray  # (total,) the impostor's time there
     stats: dict
@@ -226,15 +231,62 @@ def _box_cells(pv: ProblemViews, lo: np.ndarray, hi: np.ndarray, region_relevant
     return out, int(np.sum((cnt > 0) & apart))
 
 
+ROW_BLOCK = 1 << 23  # (candidate, CPV) rows per block of _RowColumns: 32-64 MiB a column, each its own mapping
+
+
+class _RowColumns:
+    """The (candidate, CPV) rows' columns (``served``, ``g``, ``ti``), appended into blocks of
+    ``block`` rows and made one array per column at the end, each block let go as it is copied.
+
+    A large city has hundreds of millions of rows (281 M for the 922,909 candidates of an
+    11.5 M-triangle city); kept as the nodes' small chunks, freed memory stayed with the process
+    (fragmented), and concatenating a column held it twice.  Blocks this large are mapped and
+    unmapped whole, so the peak is about the rows themselves plus a block."""
+
+    DTYPES = {"served": CPV_INDEX, "g": np.float64, "ti": np.float64}
+
+    def __init__(self, block: int | None = None) -> None:
+        self.block, self.total, self.used = int(ROW_BLOCK if block is None else block), 0, 0
+        self.blocks: dict[str, list] = {k: [] for k in self.DTYPES}
+
+    def add(self, served: np.ndarray, g: np.ndarray, ti: np.ndarray) -> None:
+        columns = (np.asarray(served), np.asarray(g, dtype=np.float64), np.asarray(ti, dtype=np.float64))
+        n, at = int(columns[0].shape[0]), 0
+        while at < n:
+            if not self.blocks["served"] or self.used == self.blocks["served"][-1].shape[0]:
+                for k, dtype in self.DTYPES.items():
+                    self.blocks[k].append(np.empty(self.block, dtype=dtype))
+                self.used = 0
+            take = min(n - at, self.block - self.used)
+            for k, values in zip(self.DTYPES, columns):
+                self.blocks[k][-1][self.used : self.used + take] = values[at : at + take]
+            self.used += take
+            at += take
+        self.total += n
+
+    def flat(self, name: str) -> np.ndarray:
+        """Column ``name`` in one array; its blocks are let go as they are copied."""
+        out = np.empty(self.total, dtype=self.DTYPES[name])
+        blocks, at = self.blocks[name], 0
+        for j in range(len(blocks)):
+            n = min(blocks[j].shape[0], self.total - at)
+            out[at : at + n] = blocks[j][:n]
+            blocks[j] = None  # unmapped now, before the next block's copy
+            at += n
+        self.blocks[name] = []
+        return out
+
+
 class _Rows:
-    """The kept candidates, gathered in chunks (one candidate or a node's batch at a time)."""
+    """The kept candidates, gathered in chunks (one candidate or a node's batch at a time); their
+    (candidate, CPV) rows in :class:`_RowColumns`."""
 
     FIELDS = ("node", "kind", "layers", "texels", "source", "memory", "quads", "atlas", "scale", "count")
 
     def __init__(self) -> None:
         self.chunks = {f: [] for f in self.FIELDS}
         self.cells: list[CellTable] = []
-        self.served, self.g, self.ti = [], [], []
+        self.rows = _RowColumns()
 
     def add(self, cells: list | CellTable, served: np.ndarray, g: np.ndarray, ti: np.ndarray, **columns) -> None:
         """Candidates ``cells`` (their ``columns``, arrays or scalars; ``count``: each one's served
@@ -243,14 +295,15 @@ class _Rows:
         for f in self.FIELDS:
             self.chunks[f].append(np.broadcast_to(np.asarray(columns[f]), (k,)))
         self.cells.append(cells if isinstance(cells, CellTable) else CellTable.of(cells))
-        self.served.append(served), self.g.append(g), self.ti.append(ti)
+        self.rows.add(served, g, ti)
 
     def column(self, name: str, dtype) -> np.ndarray:
         parts = self.chunks[name]
         return np.concatenate(parts).astype(dtype) if parts else np.empty(0, dtype=dtype)
 
-    def flat(self, rows: list, dtype) -> np.ndarray:
-        return np.concatenate(rows).astype(dtype) if rows else np.empty(0, dtype=dtype)
+    def flat(self, name: str) -> np.ndarray:
+        """The rows' column ``name`` (served, g or ti) in one array (:meth:`_RowColumns.flat`)."""
+        return self.rows.flat(name)
 
 
 def _region_rows(cpv_regions: np.ndarray, regions_count: int) -> tuple[np.ndarray, np.ndarray]:
@@ -412,9 +465,9 @@ def generate_candidates(
             np.isnan(own_quads), np.asarray(model.quads(layers_a, texels_a), dtype=np.float64).reshape(-1), own_quads
         ),
         served_offsets=np.concatenate([[0], np.cumsum(rows.column("count", np.int64))]).astype(np.int64),
-        served=rows.flat(rows.served, np.int64),
-        g=rows.flat(rows.g, np.float64),
-        ti=rows.flat(rows.ti, np.float64),
+        served=rows.flat("served"),
+        g=rows.flat("g"),
+        ti=rows.flat("ti"),
         stats=counts,
         source=rows.column("source", np.int64),
         prototype=rows.column("atlas", np.int64),

@@ -22,7 +22,18 @@ no part: no impostor is assigned to them, and none gains there.  The scores
 of the candidates serving them fall too: no score ever increases (§5.7.4), so a heap of stale
 scores is re-ranked lazily: the top is re-scored and chosen if it is still on top, else pushed
 back.  Ties go to the smaller candidate index.  ``lazy=False`` re-scores every candidate at every
-step (the reference the lazy form must equal; tested).
+step, summing each one's row gains with numpy (the reference the lazy form must equal; tested).
+
+**In numba** (issue 57 item 5): the heap is three flat arrays (score, tie-break, item), and the
+loop that pops, re-scores and pushes back until the top is still on top runs in one kernel
+(:func:`_settle`) over the candidates' CSR rows; only a choice, and an item whose rank depends on
+which shared atlases are paid (a group, a candidate of a shared atlas), come back to Python.  A
+row of a CPV already within ``t_max`` gains nothing and is not looked up; the others search the
+drawn (CPV, node) keys of their own CPV only.  Every gain is the same floating-point number as
+numpy's (the row gains summed pairwise as ``ndarray.sum``), and the heap orders entries as
+Python's heapq orders the same tuples, so the choices, their order and ``rescored`` are unchanged.
+On a 265,070-triangle city (164,001 candidates, 38 M rows) the greedy took 35.2 CPU seconds in
+Python and takes 2.8 (docs/measurements/placement.md, "Planning time").
 
 **Shared atlases** (issue 56): candidates of instances of one prototype draw from one atlas
 (``Candidates.prototype``).  The first of them chosen pays the atlas's memory; while an impostor
@@ -46,7 +57,6 @@ anything, so a CPV stays unsolved only where no candidate left can lower it.
 
 from __future__ import annotations
 
-import heapq
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -118,28 +128,170 @@ def _pairwise_sum(a: np.ndarray) -> float:
 
 
 @numba.njit(cache=True, nogil=True)
-def _gain_total(served, g, ti, a, b, node, keys, cum, size, nodes, t, t_max, chosen, own=0) -> float:
+def _search(keys: np.ndarray, lo: int, hi: int, value: int, right: bool) -> int:
+    """``lo + np.searchsorted(keys[lo:hi], value, side)`` (``keys`` ascending)."""
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if keys[mid] < value or (right and keys[mid] == value):
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@numba.njit(cache=True, nogil=True)
+def _gain_total(served, g, ti, a, b, node, keys, cum, starts, size, nodes, t, t_max, chosen, own=0) -> float:
     """``Greedy._gains(i)[2].sum()`` of the candidate whose rows are ``a:b``, in one pass and the
-    same floating-point operations (the lazy heap's re-scoring, most of the greedy's time)."""
+    same floating-point operations (the lazy heap's re-scoring, most of the greedy's time).
+
+    A row whose CPV is solved (``t_p <= t_max``) gains 0 whatever its saving, so its drawn
+    impostors are not looked up; the others are looked up among the keys of their CPV alone
+    (``starts``: where each CPV's keys begin in ``keys``), the sums taken from the one running sum
+    ``cum`` as :meth:`Greedy._drawn_less` takes them, so every row's gain is the same number."""
     gain = np.empty(b - a)
     for r in range(a, b):
         cpv = served[r]
+        over = t[cpv] - t_max
+        if not over > 0.0:
+            gain[r - a] = 0.0  # min(saving, over) <= 0: nothing to gain here
+            continue
         geometry = g[r]
         if chosen:
-            base = cpv * nodes
-            lo = np.searchsorted(keys, base + node + 1 - own)
-            hi = np.searchsorted(keys, base + node + size[node])
-            geometry = geometry - (cum[hi] - cum[lo])
-            at = np.searchsorted(keys, base + node - own, side="right") - 1
-            if at >= 0:
-                other = keys[at] - base
-                if other >= 0 and other <= node - own and other + size[min(max(other, 0), nodes - 1)] > node:
-                    geometry = -np.inf
+            w0, w1 = starts[cpv], starts[cpv + 1]
+            if w1 > w0:  # impostors are drawn in this CPV
+                base = cpv * nodes
+                lo = _search(keys, w0, w1, base + node + 1 - own, False)
+                hi = _search(keys, w0, w1, base + node + size[node], False)
+                geometry = geometry - (cum[hi] - cum[lo])
+                at = _search(keys, w0, w1, base + node - own, True) - 1
+                if at >= w0:
+                    other = keys[at] - base
+                    if other <= node - own and other + size[other] > node:
+                        geometry = -np.inf
         saving = geometry - ti[r]
-        over = t[cpv] - t_max
         low = saving if saving < over else over
         gain[r - a] = low if low > 0.0 else 0.0
     return _pairwise_sum(gain)
+
+
+@numba.njit(cache=True, nogil=True)
+def _initial_gains(served, g, ti, offsets, t, t_max) -> np.ndarray:
+    """Each candidate's gain with nothing chosen: ``np.bincount(owner, weights=gain)`` of the rows'
+    ``max(0, min(g - ti, t_p - t_max))``, summed in row order as bincount does (the same numbers)."""
+    m = offsets.size - 1
+    total = np.zeros(m)
+    for i in range(m):
+        acc = 0.0
+        for r in range(offsets[i], offsets[i + 1]):
+            saving = g[r] - ti[r]
+            over = t[served[r]] - t_max
+            low = saving if saving < over else over
+            acc += low if low > 0.0 else 0.0
+        total[i] = acc
+    return total
+
+
+# The lazy heap: entries (-score, -tie-break, item) in three arrays, a binary min-heap on the tuple
+# order (Python's heapq on the same tuples pops the same sequence: the order is total, and equal
+# entries are the same entry).
+
+
+@numba.njit(cache=True, nogil=True)
+def _before(hs, ht, hx, i, j) -> bool:
+    """Entry ``i`` orders before entry ``j`` (tuple order)."""
+    if hs[i] != hs[j]:
+        return hs[i] < hs[j]
+    if ht[i] != ht[j]:
+        return ht[i] < ht[j]
+    return hx[i] < hx[j]
+
+
+@numba.njit(cache=True, nogil=True)
+def _swap(hs, ht, hx, i, j) -> None:
+    hs[i], hs[j] = hs[j], hs[i]
+    ht[i], ht[j] = ht[j], ht[i]
+    hx[i], hx[j] = hx[j], hx[i]
+
+
+@numba.njit(cache=True, nogil=True)
+def _sift_down(hs, ht, hx, n, i) -> None:
+    while True:
+        c = 2 * i + 1
+        if c >= n:
+            return
+        if c + 1 < n and _before(hs, ht, hx, c + 1, c):
+            c += 1
+        if not _before(hs, ht, hx, c, i):
+            return
+        _swap(hs, ht, hx, c, i)
+        i = c
+
+
+@numba.njit(cache=True, nogil=True)
+def _heap_push(hs, ht, hx, n, s, t, x) -> int:
+    """Push (s, t, x) on the heap of ``n`` entries (room for one more); returns the new size."""
+    hs[n], ht[n], hx[n] = s, t, x
+    i = n
+    while i > 0:
+        parent = (i - 1) >> 1
+        if not _before(hs, ht, hx, i, parent):
+            break
+        _swap(hs, ht, hx, i, parent)
+        i = parent
+    return n + 1
+
+
+@numba.njit(cache=True, nogil=True)
+def _heap_pop(hs, ht, hx, n):
+    """Pop the first of ``n`` entries: (s, t, x, new size)."""
+    s, t, x = hs[0], ht[0], hx[0]
+    n -= 1
+    if n > 0:
+        hs[0], ht[0], hx[0] = hs[n], ht[n], hx[n]
+        _sift_down(hs, ht, hx, n, 0)
+    return s, t, x, n
+
+
+@numba.njit(cache=True, nogil=True)
+def _heapify(hs, ht, hx, n) -> None:
+    for i in range(n // 2 - 1, -1, -1):
+        _sift_down(hs, ht, hx, n, i)
+
+
+@numba.njit(cache=True, nogil=True)
+def _settle(hs, ht, hx, n, served, g, ti, offsets, node_of, memory, atlas, keys, cum, starts, size, nodes, t, t_max,
+            chosen, own):  # fmt: skip
+    """The lazy heap's loop up to its next decision: pop the top and re-score it; a candidate that
+    gains nothing is dropped, one no longer on top pushed back, one still on top returned to be
+    chosen.  A heap item numba does not rank (a group, or a candidate of a shared atlas: their rank
+    depends on which atlases are paid, :meth:`Greedy.rank_item`) is returned unranked.
+
+    Returns (status, item, size, re-scorings): status 0 the heap is empty, 1 ``item`` is to be
+    chosen, 2 ``item`` was popped unranked."""
+    m = offsets.size - 1
+    rescored = 0
+    while n > 0:
+        _, _, x, n = _heap_pop(hs, ht, hx, n)
+        if x >= m or atlas[x] >= 0:
+            return 2, x, n, rescored
+        rescored += 1
+        a, b = offsets[x], offsets[x + 1]
+        gain = _gain_total(served, g, ti, a, b, node_of[x], keys, cum, starts, size, nodes, t, t_max, chosen, own)
+        if gain <= 0.0:
+            continue  # every CPV it serves is solved, or taken by an ancestor (§5.7.4)
+        s = -(gain / memory[x])
+        if n > 0:  # still on top? ((-score, -0.0, x) > heap[0], as tuples compare)
+            if s != hs[0]:
+                later = s > hs[0]
+            elif 0.0 != ht[0]:
+                later = 0.0 > ht[0]
+            else:
+                later = x > hx[0]
+            if later:
+                n = _heap_push(hs, ht, hx, n, s, -0.0, x)
+                continue
+        return 1, x, n, rescored
+    return 0, -1, n, rescored
 
 
 @dataclass(slots=True)
@@ -220,9 +372,18 @@ class Greedy:
         each saves there (``g - t``), kept up to date by :meth:`choose` in time linear in the keys
         (numpy), not in Python.  In one CPV the drawn nodes never include an ancestor of another
         (choosing an ancestor removes its descendants, §5.7.5)."""
-        if self._cum is None:
+        if self._cum is None or self.__dict__.get("_starts") is None:
             self._cum = np.concatenate([[0.0], np.cumsum(self._saved)])
+            # where each CPV's keys begin (and the last one's end): the re-scoring searches there alone
+            self._starts = np.searchsorted(self._keys, np.arange(self.pv.count + 1, dtype=np.int64) * self.nodes)
         return self._keys, self._cum
+
+    def _kernel_index(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(keys, running sum, per-CPV starts) of :meth:`_drawn_index` for :func:`_gain_total`."""
+        if not self.chosen:
+            return self._keys, self._saved, np.zeros(1, dtype=np.int64)  # not read: nothing chosen
+        keys, cum = self._drawn_index()
+        return keys, cum, self._starts
 
     def _key_owners(self) -> dict[int, int]:
         """Key ``cpv * nodes + node`` of :meth:`_drawn_index` -> the chosen impostor drawn there
@@ -282,19 +443,23 @@ class Greedy:
         gain = np.maximum(0.0, np.minimum(saving, self.t[cpvs] - self.t_max))
         return owner, cpvs, saving, gain
 
-    def rank(self, i: int) -> tuple[float, float]:
+    def rank(self, i: int, reference: bool = False) -> tuple[float, float]:
         """(score, tie-break) of candidate ``i`` now: gain per byte and 0, or, for a candidate whose
         shared atlas is paid (0 bytes), infinity and its gain; (0, 0) where it gains nothing, and
-        for a candidate of an unpaid shared atlas (its group ranks it: :meth:`group_rank`)."""
+        for a candidate of an unpaid shared atlas (its group ranks it: :meth:`group_rank`).
+        ``reference``: the gain summed by numpy over :meth:`_gains` instead of the kernel."""
         self.rescored += 1
         atlas = int(self.atlas[i])
         paid = self.paid(atlas)
         if atlas >= 0 and not paid and self.groups:
             return 0.0, 0.0
-        keys, cum = self._drawn_index() if self.chosen else (self._keys, self._saved)
-        a, b = int(self.cand.served_offsets[i]), int(self.cand.served_offsets[i + 1])
-        gain = _gain_total(self.cand.served, self.g, self.ti, a, b, int(self.cand.node[i]), keys, cum, self.size,
-                           int(self.nodes), self.t, self.t_max, bool(self.chosen), self.own)  # fmt: skip
+        if reference:  # numpy over the candidate's rows (the straightforward form the kernel must equal)
+            gain = float(self._gains(i)[2].sum())
+        else:
+            keys, cum, starts = self._kernel_index()
+            a, b = int(self.cand.served_offsets[i]), int(self.cand.served_offsets[i + 1])
+            gain = _gain_total(self.cand.served, self.g, self.ti, a, b, int(self.cand.node[i]), keys, cum, starts,
+                               self.size, int(self.nodes), self.t, self.t_max, bool(self.chosen), self.own)  # fmt: skip
         if gain <= 0.0:
             return 0.0, 0.0
         if paid:
@@ -328,11 +493,11 @@ class Greedy:
         owner, _, _, gain = self._gains_of(members)
         return int(members[int(np.argmax(np.bincount(owner, weights=gain, minlength=members.size)))])
 
-    def rank_item(self, x: int) -> tuple[float, float]:
+    def rank_item(self, x: int, reference: bool = False) -> tuple[float, float]:
         """The rank of a heap item: candidate ``x`` below ``cand.count``, else the group of shared
         atlas ``x - cand.count``."""
         m = self.cand.count
-        return self.rank(x) if x < m else self.group_rank(x - m)
+        return self.rank(x, reference) if x < m else self.group_rank(x - m)
 
     def score(self, i: int) -> float:
         return self.rank(i)[0]
@@ -340,9 +505,7 @@ class Greedy:
     def initial_ranks(self) -> tuple[np.ndarray, np.ndarray]:
         """Every candidate's :meth:`rank` (vectorised; with what is chosen so far only as far as
         scores go: they are upper bounds, the lazy heap re-scores)."""
-        gain = np.maximum(0.0, np.minimum(self.g - self.ti, self.t[self.cand.served] - self.t_max))
-        owner = np.repeat(np.arange(self.cand.count), np.diff(self.cand.served_offsets))
-        total = np.bincount(owner, weights=gain, minlength=self.cand.count)
+        total = _initial_gains(self.cand.served, self.g, self.ti, self.cand.served_offsets, self.t, self.t_max)
         memory = self.memory_now()
         free = (memory <= 0.0) & (total > 0.0)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -418,35 +581,80 @@ class Greedy:
         return rose
 
     def run(self, lazy: bool = True, progress: Callable[[int, float], None] | None = None) -> None:
+        """Choose until no candidate gains anything (module docstring).  ``lazy=False``: every
+        item's rank again at every step, by numpy (the reference the lazy heap must equal)."""
         scores, ties = self.initial_ranks()
         m = self.cand.count
-        items = [(float(s), float(t), int(j)) for j, (s, t) in enumerate(zip(scores, ties)) if s > 0.0]
-        items += [(*self.group_rank(int(a)), m + int(a)) for a in self.atlases()]
         if not lazy:
             # Every item's rank again at every step; one that may rise (a candidate of a shared
             # atlas, a group) stays in the pool at 0.
+            items = [(float(s), float(t), int(j)) for j, (s, t) in enumerate(zip(scores, ties)) if s > 0.0]
+            items += [(*self.group_rank(int(a)), m + int(a)) for a in self.atlases()]
             may_rise = {int(j) for j in np.flatnonzero(self.atlas >= 0)} | {m + int(a) for a in self.atlases()}
             pool = {x for s, _, x in items if s > 0.0} | may_rise
-            ranks = {x: r for x in pool if (r := self.rank_item(x))[0] > 0.0}
+            ranks = {x: r for x in pool if (r := self.rank_item(x, True))[0] > 0.0}
             while ranks:
                 best = max(ranks, key=lambda x: (*ranks[x], -x))
                 self._take(best)
                 pool = {x for x in pool if x in ranks or x in may_rise}
-                ranks = {x: r for x in pool if (r := self.rank_item(x))[0] > 0.0}
+                ranks = {x: r for x in pool if (r := self.rank_item(x, True))[0] > 0.0}
             return
-        heap = [(-s, -t, x) for s, t, x in items if s > 0.0]
-        heapq.heapify(heap)
-        while heap:
-            _, _, x = heapq.heappop(heap)
-            s, t = self.rank_item(x)
-            if s <= 0.0:
-                continue  # every CPV it serves is solved, or taken by an ancestor (§5.7.4)
-            if heap and (-s, -t, x) > heap[0]:
-                heapq.heappush(heap, (-s, -t, x))
-                continue
+        heap = _Heap.of(scores, ties)
+        for a in self.atlases():
+            s, t = self.group_rank(int(a))
+            if s > 0.0:
+                heap.push(s, t, m + int(a))
+        node_of, memory = self.cand.node, self.cand.memory.astype(np.float64, copy=False)
+        while True:
+            keys, cum, starts = self._kernel_index()
+            status, x, heap.n, rescored = _settle(
+                heap.s, heap.t, heap.x, heap.n, self.cand.served, self.g, self.ti, self.cand.served_offsets, node_of, memory,
+                self.atlas, keys, cum, starts, self.size, int(self.nodes), self.t, self.t_max, bool(self.chosen), self.own,
+            )  # fmt: skip
+            self.rescored += rescored
+            if status == 0:
+                return
+            x = int(x)
+            if status == 2:  # a group or a shared atlas's candidate: ranked here
+                s, t = self.rank_item(x)
+                if s <= 0.0:
+                    continue
+                if heap.n and heap.after_top(-s, -t, x):
+                    heap.push(s, t, x)
+                    continue
             for k in self._take(x):  # their ranks rose: pushed again (older entries are found stale)
                 s, t = self.rank_item(k)
                 if s > 0.0:
-                    heapq.heappush(heap, (-s, -t, k))
+                    heap.push(s, t, k)
             if progress is not None:
                 progress(len(self.chosen), float(np.max(self.t, initial=-np.inf)))
+
+
+class _Heap:
+    """The lazy heap of :meth:`Greedy.run`: entries ``(-score, -tie-break, item)`` in arrays
+    (:func:`_settle` pops and pushes them in numba), the order of Python's heapq on those tuples."""
+
+    def __init__(self, s: np.ndarray, t: np.ndarray, x: np.ndarray, n: int) -> None:
+        self.s, self.t, self.x, self.n = s, t, x, n
+
+    @classmethod
+    def of(cls, scores: np.ndarray, ties: np.ndarray) -> _Heap:
+        """The heap of every candidate with a positive score."""
+        keep = np.flatnonzero(scores > 0.0)
+        n = int(keep.size)
+        heap = cls(np.empty(n + 16), np.empty(n + 16), np.empty(n + 16, dtype=np.int64), n)
+        heap.s[:n], heap.t[:n], heap.x[:n] = -scores[keep], -ties[keep], keep
+        _heapify(heap.s, heap.t, heap.x, n)
+        return heap
+
+    def push(self, score: float, tie: float, item: int) -> None:
+        if self.n == self.s.size:  # full: twice the room
+            grow = max(16, self.n)
+            self.s = np.concatenate([self.s, np.empty(grow)])
+            self.t = np.concatenate([self.t, np.empty(grow)])
+            self.x = np.concatenate([self.x, np.empty(grow, dtype=np.int64)])
+        self.n = _heap_push(self.s, self.t, self.x, self.n, -float(score), -float(tie), int(item))
+
+    def after_top(self, s: float, t: float, x: int) -> bool:
+        """``(s, t, x) > heap[0]`` as Python compares tuples."""
+        return (s, t, x) > (float(self.s[0]), float(self.t[0]), int(self.x[0]))
