@@ -278,30 +278,6 @@ def test_a_strip_pass_keeps_the_borders_and_the_cover(house_bake, enlargement):
     assert abs(strips[0].shape[0] - whole.shape[0]) <= 0.1 * whole.shape[0], (strips[0].shape[0], whole.shape[0])
 
 
-def test_a_strip_pass_at_a_later_factor(house_bake):
-    """:func:`simplify_mesh` runs each factor's first pass in strips, on a mesh the factors before
-    have simplified: there, at f = 2 after the passes at f = 1, the strips contract at the factor
-    they are given (the mesh no longer covers the voxels at f = 1), keep every voxel covered at
-    f = 2 and the mesh a mesh, and their memory skips only what would fail again."""
-    scene, _ = house_bake
-    lo, hi = scene.bounds
-    field, mesh = _field_and_mesh(scene, scenes_cell(0.5 * (lo + hi), lo[2] - 90.0))
-    at_one = simplify_mesh(mesh, field, 1.0, strip_min=0)
-    triangles, offsets, voxels, counts, memory = strip_pass(
-        mesh.vertices, *at_one[:3], field.centres, 2.0, field.silhouette, 4
-    )
-    assert counts["ok"] > 0 and triangles.shape[0] < at_one[0].shape[0]
-    assert np.array_equal(np.sort(voxels), np.arange(field.count))
-    assert uncovered_voxels(mesh.vertices, triangles, offsets, voxels, field, 2.0) == 0
-    assert uncovered_voxels(mesh.vertices, triangles, offsets, voxels, field, 1.0) > 0
-    use = _edge_use(triangles)
-    assert use.max() <= 2 and (use == 1).sum() <= (_edge_use(at_one[0]) == 1).sum()
-    full = simplify(mesh.vertices, triangles, offsets, voxels, field.centres, 2.0, field.silhouette)
-    skipping = simplify(mesh.vertices, triangles, offsets, voxels, field.centres, 2.0, field.silhouette, memory)
-    assert all(np.array_equal(a, b) for a, b in zip(full[:3], skipping[:3]))
-    assert sum(skipping[3].values()) < sum(full[3].values())
-
-
 def test_meshes_that_store_no_voxel_are_left_out(house_bake):
     """At 256 pixels and 110 units the house's initial mesh has two stray sealing walls whose voxels
     all went to quads of the main mesh (module docstring of farfield.core.techniques.tdm.mesh)."""

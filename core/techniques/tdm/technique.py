@@ -190,17 +190,14 @@ def simplify_mesh(
     silhouette = field.silhouette if silhouette is None else silhouette
     totals: dict[str, int] = {}
     memory = None  # each pass skips the edges that would fail again (farfield.core.techniques.tdm.simplify.simplify)
-    strips = triangles.shape[0] >= strip_min
+    if triangles.shape[0] >= strip_min:
+        # The first pass's contractions inside strips of the mesh, in threads; the passes below
+        # take the rest (see strip_pass).
+        triangles, offsets, voxels, totals, memory = strip_pass(
+            vertices, triangles, offsets, voxels, centres, schedule(enlargement)[0], silhouette
+        )
+        triangles, vertices, original, memory = _kept_vertices(triangles, vertices, original, memory)
     for factor in schedule(enlargement):
-        if strips:
-            # Each factor's first pass: the contractions inside strips of the mesh, in threads;
-            # the passes below take the rest (see strip_pass).
-            triangles, offsets, voxels, counts, memory = strip_pass(
-                vertices, triangles, offsets, voxels, centres, factor, silhouette
-            )
-            for key, value in counts.items():
-                totals[key] = totals.get(key, 0) + value
-            triangles, vertices, original, memory = _kept_vertices(triangles, vertices, original, memory)
         while True:
             before = triangles.shape[0]
             triangles, offsets, voxels, counts, memory = simplify(
