@@ -57,7 +57,7 @@ from scenes import dense_mesh, scan_mesh  # noqa: E402
 
 from farfield.core.render.context import gl_context, renderer_info  # noqa: E402
 from farfield.core.techniques.tdm import technique as tdm_module  # noqa: E402
-from farfield.core.techniques.tdm.technique import TdmOptions, bake_tdm, warm_kernels  # noqa: E402
+from farfield.core.techniques.tdm.technique import TdmOptions, bake_tdm  # noqa: E402
 from farfield.core.viewcells import BoxCell  # noqa: E402
 
 PACK = """
@@ -116,7 +116,9 @@ from farfield.core.render.context import gl_context
 from farfield.core.techniques.part import report_part
 from farfield.core.techniques.tdm.technique import TdmOptions, bake_tdm, warm_kernels
 import farfield.core.techniques.tdm.technique as technique
+from farfield.core.layering import recording
 assert (not source) == (not technique.__file__.startswith(source or "?")), technique.__file__
+recording.warm_kernels()  # the recording's kernels too, as a worker does (TECHNIQUE.kernels): not in the record stage
 warm_kernels()
 scene, cell = scene_and_cell(sys.argv[1], int(sys.argv[2]))
 with gl_context():
@@ -273,7 +275,8 @@ def main() -> None:
         return
 
     info = renderer_info()
-    warm_kernels()  # numba compiles (or loads) its kernels here, not in a stage of the bake
+    for warm in tdm_module.TECHNIQUE.kernels:  # numba compiles (or loads) its kernels here, not in a stage of the bake
+        warm()
     scene, cell = scene_and_cell(args.scene, args.subdivisions)
     options = TdmOptions()
     impostor, masks = bake_with_masks(scene, cell, options)

@@ -38,6 +38,7 @@ from farfield.core.techniques.tdm.mesh import (
     layer_quads,
     layer_steps,
     mesh_labels,
+    sorted_unique,
     step_voxels,
 )
 from farfield.core.techniques.tdm.simplify import (
@@ -276,6 +277,21 @@ def test_a_strip_pass_keeps_the_borders_and_the_cover(house_bake, enlargement):
     strips = simplify_mesh(mesh, field, enlargement, strip_min=0)
     assert uncovered_voxels(mesh.vertices, *strips[:3], field, enlargement) == 0
     assert abs(strips[0].shape[0] - whole.shape[0]) <= 0.1 * whole.shape[0], (strips[0].shape[0], whole.shape[0])
+
+
+def test_sorted_unique_is_numpys_unique():
+    """:func:`sorted_unique` (the initial mesh's corner and edge keys, by a stable sort) gives
+    ``np.unique``'s distinct keys, inverse and counts, on keys in ascending runs as the mesh makes
+    them, shuffled, with repeats, one key, and none."""
+    rng = np.random.default_rng(7)
+    runs = np.concatenate([np.sort(rng.integers(0, 10**9, size=rng.integers(1, 400))) for _ in range(60)])
+    cases = [runs, rng.permutation(runs), rng.integers(0, 50, size=5000), np.array([4]), np.zeros(0, np.int64)]
+    for keys in cases:
+        expected = np.unique(keys, return_inverse=True, return_counts=True)
+        got = sorted_unique(keys, inverse=True, counts=True)
+        assert all(np.array_equal(a, b) for a, b in zip(expected, got))
+        assert np.array_equal(sorted_unique(keys), expected[0])
+        assert np.array_equal(sorted_unique(keys, counts=True)[1], expected[2])
 
 
 def test_meshes_that_store_no_voxel_are_left_out(house_bake):

@@ -152,6 +152,25 @@ def schedule(enlargement: float) -> tuple[float, ...]:
     return steps + (float(enlargement),)
 
 
+def _kept_vertices(triangles, vertices, original, memory, below: float = 1.0):
+    """The mesh on the vertices its ``triangles`` use, renumbered in their order (the same edges in
+    the same order, so the same passes): (triangles, vertices, their numbers in the initial mesh
+    ``original``, ``memory`` renumbered).  Left as it is when the vertices used are ``below`` that
+    share of all or more.
+
+    >>> from farfield.core.techniques.tdm.simplify import PassMemory
+    >>> t, v, o, m = _kept_vertices(np.array([[1, 3, 4]]), np.zeros((5, 3)), np.arange(5), PassMemory.empty(5, 1.0))
+    >>> t.tolist(), v.shape, o.tolist(), len(m.touch_time)
+    ([[0, 1, 2]], (3, 3), [1, 3, 4], 3)
+    """
+    kept = np.flatnonzero(np.bincount(triangles.ravel(), minlength=len(vertices)))
+    if kept.size >= below * len(vertices):
+        return triangles, vertices, original, memory
+    number = np.zeros(len(vertices), np.int64)
+    number[kept] = np.arange(kept.size)
+    return number[triangles], vertices[kept], original[kept], memory.renumbered(kept)
+
+
 def simplify_mesh(
     mesh: TdmMesh,
     field: VoxelField,
@@ -177,15 +196,7 @@ def simplify_mesh(
         triangles, offsets, voxels, totals, memory = strip_pass(
             vertices, triangles, offsets, voxels, centres, schedule(enlargement)[0], silhouette
         )
-        kept = np.flatnonzero(np.bincount(triangles.ravel(), minlength=len(vertices)))
-        number = np.zeros(len(vertices), np.int64)
-        number[kept] = np.arange(kept.size)
-        triangles, vertices, original, memory = (
-            number[triangles],
-            vertices[kept],
-            original[kept],
-            memory.renumbered(kept),
-        )
+        triangles, vertices, original, memory = _kept_vertices(triangles, vertices, original, memory)
     for factor in schedule(enlargement):
         while True:
             before = triangles.shape[0]
@@ -200,16 +211,7 @@ def simplify_mesh(
             # edges in the same order, so the same mesh, from arrays a fraction of the size (the
             # first pass of the 327,680-triangle sphere of benchmarks/bench_tdm_scale.py keeps
             # 7 % of its 1.9 M vertices; its later passes took 24-26 s instead of 26-27 s).
-            kept = np.flatnonzero(np.bincount(triangles.ravel(), minlength=len(vertices)))
-            if kept.size < 0.75 * len(vertices):
-                number = np.zeros(len(vertices), np.int64)
-                number[kept] = np.arange(kept.size)
-                triangles, vertices, original, memory = (
-                    number[triangles],
-                    vertices[kept],
-                    original[kept],
-                    memory.renumbered(kept),
-                )
+            triangles, vertices, original, memory = _kept_vertices(triangles, vertices, original, memory, 0.75)
     return original[triangles], offsets, voxels, totals
 
 
