@@ -144,6 +144,40 @@ class Candidates:
         return -1 if getattr(self, "prototype", None) is None else int(self.prototype[i])
 
 
+@dataclass(frozen=True, slots=True)
+class NodeCells:
+    """A node's shafts or boxes and the regions each serves, in CSR form (``offsets`` into ``served``,
+    ascending within a cell): shafts' ``keys`` (m, 3) are (apex angle index, direction index,
+    distance step), boxes' ``lo`` and ``hi`` (m, 3) their corners."""
+
+    offsets: np.ndarray  # (m + 1,) int64
+    served: np.ndarray  # (total,) region indices
+    keys: np.ndarray | None = None  # (m, 3) int64: shafts
+    lo: np.ndarray | None = None  # (m, 3): boxes
+    hi: np.ndarray | None = None
+
+    @property
+    def count(self) -> int:
+        return int(self.offsets.shape[0] - 1)
+
+    def regions(self, i: int) -> np.ndarray:
+        return self.served[self.offsets[i] : self.offsets[i + 1]]
+
+    @staticmethod
+    def none(shaft: bool) -> NodeCells:
+        empty = np.zeros((0, 3), dtype=np.int64 if shaft else np.float64)
+        return NodeCells(
+            np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64), *((empty,) if shaft else (None, empty, empty))
+        )
+
+
+def _csr(mask: np.ndarray, regions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(counts, served) of the cells that are ``mask``'s columns (regions x cells): each column's
+    ``regions`` in ascending order, one column after another."""
+    cell, row = np.nonzero(mask.T)
+    return np.bincount(cell, minlength=mask.shape[1]), regions[row]
+
+
 def _shaft_cells(
     n: int,
     centre: np.ndarray,
@@ -155,16 +189,17 @@ def _shaft_cells(
     halves,
     distance_steps,
 ):
-    """(apex angle index, direction index, distance step, served regions) of node ``n``'s shafts
-    (see the module docstring; :func:`_shaft_cell` makes one a cell), with the dominance pruning;
-    ``regions`` are those where the node is in some solvable CPV's frustum."""
-    out, considered = [], 0
+    """Node ``n``'s shafts (a :class:`NodeCells` with ``keys``; :func:`_shaft_cell` makes one a
+    cell), with the dominance pruning (see the module docstring); ``regions`` are those where the
+    node is in some solvable CPV's frustum.  Every apex angle's shafts at once: the served regions
+    of all its (direction, distance) pairs from one (regions x pairs) mask."""
+    considered = 0
     vec = region_centre[regions] - centre
     dist = np.linalg.norm(vec, axis=1)
     far = dist > region_radius[regions]
     regions, vec, dist = regions[far], vec[far], dist[far]
     if regions.size == 0:
-        return out, considered
+        return NodeCells.none(True), considered
     unit = vec / dist[:, None]
     radius = region_radius[regions]
     gamma = np.arcsin(np.minimum(radius / dist, 1.0))
@@ -176,6 +211,7 @@ def _shaft_cells(
     k_index = np.minimum(k_index, distance_steps - 1)  # the largest k with 2^k size <= along, or -1
     ok = (a_index < len(halves)) & (k_index >= 0)
     steps = np.int64(distance_steps + 1)
+    keys, counts, served = [], [], []
     for a in range(len(halves)):
         fits = ok & (a_index <= a)
         # (a, d, k) serves the regions with k_index >= k: only the k some region has exactly differ
@@ -189,9 +225,16 @@ def _shaft_cells(
             reach = np.where(fits & (a_index == a), k_index, -1).max(axis=0)
             keep = reach[ds] >= ks
             ds, ks = ds[keep], ks[keep]
-        for d, k in zip(ds.tolist(), ks.tolist()):
-            out.append((a, d, k, regions[fits[:, d] & (k_index[:, d] >= k)]))
-    return out, considered
+        if ds.size == 0:
+            continue
+        c, r = _csr(fits[:, ds] & (k_index[:, ds] >= ks), regions)
+        keys.append(np.column_stack([np.full(ds.size, a), ds, ks]))
+        counts.append(c)
+        served.append(r)
+    if not keys:
+        return NodeCells.none(True), considered
+    offsets = np.concatenate([[0], np.cumsum(np.concatenate(counts))]).astype(np.int64)
+    return NodeCells(offsets, np.concatenate(served), keys=np.concatenate(keys).astype(np.int64)), considered
 
 
 def _shaft_cell(
@@ -202,17 +245,21 @@ def _shaft_cell(
 
 
 def _leaf_box_cells(pv: ProblemViews, lo: np.ndarray, hi: np.ndarray, region_relevant: np.ndarray):
-    """(lo, hi, [region]) of a box cell for every leaf region apart from the node where it is relevant."""
+    """A box cell (:class:`NodeCells` with ``lo``, ``hi``) for every leaf region apart from the node where it is relevant."""
     span = pv.region_hi - pv.region_lo
     pad = np.where(span > 0.0, 0.0, np.maximum(1e-6 * span.max(axis=1, keepdims=True), 1e-9))
     apart = box_gap(pv.region_lo, pv.region_hi, lo, hi) > 0.0
     chosen = np.flatnonzero(region_relevant & apart)
-    return [(pv.region_lo[r] - pad[r], pv.region_hi[r] + pad[r], np.array([r])) for r in chosen], int(chosen.size)
+    cells = NodeCells(
+        np.arange(chosen.size + 1, dtype=np.int64), chosen.astype(np.int64), lo=pv.region_lo[chosen] - pad[chosen],
+        hi=pv.region_hi[chosen] + pad[chosen],
+    )  # fmt: skip
+    return cells, int(chosen.size)
 
 
 def _box_cells(pv: ProblemViews, lo: np.ndarray, hi: np.ndarray, region_relevant: np.ndarray):
-    """(lo, hi, served regions) of a node's box candidates: view-space hierarchy regions apart from
-    the node holding relevant leaf regions, unless one of their halves holds them all."""
+    """A node's box candidates (:class:`NodeCells` with ``lo``, ``hi``): view-space hierarchy regions
+    apart from the node holding relevant leaf regions, unless one of their halves holds them all."""
     counts = np.concatenate([[0], np.cumsum(region_relevant)])
     cnt = counts[pv.tree_last] - counts[pv.tree_first]
     apart = box_gap(pv.tree_lo, pv.tree_hi, lo, hi) > 0.0
@@ -220,15 +267,20 @@ def _box_cells(pv: ProblemViews, lo: np.ndarray, hi: np.ndarray, region_relevant
     same = child & apart & (cnt == cnt[np.maximum(pv.tree_parent, 0)])
     dominated = np.zeros(cnt.shape, dtype=bool)
     dominated[pv.tree_parent[same]] = True
-    out = []
     span = pv.tree_hi - pv.tree_lo
     # A flat view space (a walking plane) has flat regions: their box cells get a sliver of
     # thickness (a millionth of their largest side), which only enlarges the cell.
     pad = np.where(span > 0.0, 0.0, np.maximum(1e-6 * span.max(axis=1, keepdims=True), 1e-9))
-    for q in np.flatnonzero((cnt > 0) & apart & ~dominated):
-        served = pv.tree_first[q] + np.flatnonzero(region_relevant[pv.tree_first[q] : pv.tree_last[q]])
-        out.append((pv.tree_lo[q] - pad[q], pv.tree_hi[q] + pad[q], served))
-    return out, int(np.sum((cnt > 0) & apart))
+    chosen = np.flatnonzero((cnt > 0) & apart & ~dominated)
+    # each chosen region's relevant leaf regions (tree_first .. tree_last), ascending
+    relevant = np.flatnonzero(region_relevant)
+    first = np.searchsorted(relevant, pv.tree_first[chosen], side="left")
+    last = np.searchsorted(relevant, pv.tree_last[chosen], side="left")
+    cells = NodeCells(
+        np.concatenate([[0], np.cumsum(last - first)]).astype(np.int64), relevant[_ragged(first, last - first)],
+        lo=pv.tree_lo[chosen] - pad[chosen], hi=pv.tree_hi[chosen] + pad[chosen],
+    )  # fmt: skip
+    return cells, int(np.sum((cnt > 0) & apart))
 
 
 ROW_BLOCK = 1 << 23  # (candidate, CPV) rows per block of _RowColumns: 32-64 MiB a column, each its own mapping
@@ -387,17 +439,16 @@ def generate_candidates(
         cpvs, g_n, pixels_n = solvable[seen], g_all[seen], np.minimum(pixels_all[seen], frame_pixels)
         cpv_regions = pv.cpv_region[cpvs]
         region_relevant = np.bincount(cpv_regions, minlength=regions_count) > 0
-        shafts, boxes = [], []
+        shafts, boxes = NodeCells.none(True), NodeCells.none(False)
         if estimate is not None and cells in ("shafts", "both"):
             shafts, c = _shaft_cells(
                 n, node_centre[n], float(size[n]), np.flatnonzero(region_relevant), region_centre, region_radius, grid, halves, distance_steps,
             )  # fmt: skip
             counts["considered"] += c
         if estimate is not None and cells in ("boxes", "both", "leaf-boxes"):
-            more, c = (_leaf_box_cells if cells == "leaf-boxes" else _box_cells)(
+            boxes, c = (_leaf_box_cells if cells == "leaf-boxes" else _box_cells)(
                 pv, hierarchy.lo[n], hierarchy.hi[n], region_relevant
             )
-            boxes = more
             counts["considered"] += c
         bounds = np.stack([hierarchy.lo[n], hierarchy.hi[n]])
         floor = np.asarray(model.impostor_time(pixels_n, 0.0), dtype=np.float64).reshape(-1)  # no quads: a lower bound
@@ -418,10 +469,14 @@ def generate_candidates(
             )
         else:
             found = [
-                (0, _shaft_cell(node_centre[n], float(size[n]), grid, halves, a, d, k), served)
-                for a, d, k, served in shafts
+                (
+                    0,
+                    _shaft_cell(node_centre[n], float(size[n]), grid, halves, *shafts.keys[i].tolist()),
+                    shafts.regions(i),
+                )
+                for i in range(shafts.count)
             ]
-            found += [(1, BoxCell(lo, hi), served) for lo, hi, served in boxes]
+            found += [(1, BoxCell(boxes.lo[i], boxes.hi[i]), boxes.regions(i)) for i in range(boxes.count)]
             _node_cells(rows, counts, node, found, model, estimate, max_bytes)
         for k, reach in enumerate(outside):
             counts["considered"] += 1
@@ -500,31 +555,31 @@ def _node_cells(rows: _Rows, counts: dict, node, found, model: CostModel, estima
                  memory=np.nan, quads=np.nan, atlas=-1, scale=1.0, count=int(keep.sum()))  # fmt: skip
 
 
-def _node_batch(rows: _Rows, counts: dict, node, shafts, boxes, batch, shape, model: CostModel, options, max_bytes: float,
-                regions_count: int) -> None:  # fmt: skip
-    """What :func:`_node_cells` does, for all of a node's shafts (``(a, d, k, served regions)``)
-    and boxes (``(lo, hi, served regions)``) at once (:mod:`farfield.core.placement.part_estimates`):
-    the same candidates, the same numbers, in the same order."""
+def _node_batch(rows: _Rows, counts: dict, node, shafts: NodeCells, boxes: NodeCells, batch, shape, model: CostModel,
+                options, max_bytes: float, regions_count: int) -> None:  # fmt: skip
+    """What :func:`_node_cells` does, for all of a node's shafts and boxes (:class:`NodeCells`) at
+    once (:mod:`farfield.core.placement.part_estimates`): the same candidates, the same numbers, in
+    the same order."""
     n, cpvs, g_n, pixels_n, cpv_regions, bounds, floor = node
     frames, half_tans = batch
     centre, size, grid, halves = shape
-    served = [s for *_, s in shafts] + [s for *_, s in boxes]
-    if not served:
+    ns = shafts.count
+    lengths = np.concatenate([np.diff(shafts.offsets), np.diff(boxes.offsets)])
+    if lengths.size == 0:
         return
-    lengths = np.array([s.size for s in served], dtype=np.int64)
-    flat = np.concatenate(served)
-    owner = np.repeat(np.arange(len(served)), lengths)
+    flat = np.concatenate([shafts.served, boxes.served])
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    owner = np.repeat(np.arange(lengths.size), lengths)
     # Pruned as cell by cell: a cell saving nothing where it serves, whatever its layers, is not estimated.
     helps = np.bincount(cpv_regions[g_n > floor], minlength=regions_count) > 0
-    worth = np.bincount(owner, weights=helps[flat], minlength=len(served)) > 0
-    ns = len(shafts)
+    worth = np.bincount(owner, weights=helps[flat], minlength=lengths.size) > 0
     si = np.flatnonzero(worth[:ns])
     bi = np.flatnonzero(worth[ns:])
     if si.size + bi.size == 0:
         return
     parts = []
     if si.size:
-        abk = np.array([shafts[i][:3] for i in si], dtype=np.int64).reshape(-1, 3)
+        abk = shafts.keys[si]
         angle = 2.0 * halves[abk[:, 0]]
         parts.append(
             shaft_views(
@@ -532,7 +587,7 @@ def _node_batch(rows: _Rows, counts: dict, node, shafts, boxes, batch, shape, mo
             )
         )
     if bi.size:
-        parts.append(box_views(bounds, np.array([boxes[i][0] for i in bi]), np.array([boxes[i][1] for i in bi])))
+        parts.append(box_views(bounds, boxes.lo[bi], boxes.hi[bi]))
     which = np.concatenate([si, ns + bi])
     layers, texels, ok = estimate_views(Views.concat(parts), options)
     counts["refused_by_technique"] += int(np.sum(~ok))
@@ -546,9 +601,8 @@ def _node_batch(rows: _Rows, counts: dict, node, shafts, boxes, batch, shape, mo
     quads = np.asarray(model.quads(layers, texels), dtype=np.float64).reshape(-1)
     # Every (cell, CPV) row of the cells left: the node's CPVs of each served region, in order.
     start, end = _region_rows(cpv_regions, regions_count)
-    cell_regions = [served[i] for i in which]
-    reg = np.concatenate(cell_regions)
-    reg_owner = np.repeat(np.arange(which.size), [r.size for r in cell_regions])
+    reg = flat[_ragged(starts[which], lengths[which])]
+    reg_owner = np.repeat(np.arange(which.size), lengths[which])
     span = end[reg] - start[reg]
     entry = _ragged(start[reg], span)
     entry_owner = np.repeat(reg_owner, span)
@@ -559,11 +613,11 @@ def _node_batch(rows: _Rows, counts: dict, node, shafts, boxes, batch, shape, mo
     if not good.any():
         return
     made = which[good]  # shafts first, then boxes (as ``which``): their cells made when read (CellTable)
-    abk = np.array([shafts[i][:3] for i in made[made < ns]], dtype=np.int64).reshape(-1, 3)
-    corners = [boxes[i - ns][:2] for i in made[made >= ns]]
+    abk = shafts.keys[made[made < ns]].reshape(-1, 3)
+    box = made[made >= ns] - ns
     made = CellTable.concat([
         CellTable.shafts(centre, grid[abk[:, 1]], 2.0 * halves[abk[:, 0]], (2.0 ** abk[:, 2]) * size),
-        CellTable.boxes(np.array([c[0] for c in corners]).reshape(-1, 3), np.array([c[1] for c in corners]).reshape(-1, 3)),
+        CellTable.boxes(boxes.lo[box].reshape(-1, 3), boxes.hi[box].reshape(-1, 3)),
     ])  # fmt: skip
     rows.add(made, cpvs[entry[keep]], g_n[entry[keep]], ti[keep], node=n, kind=(which[good] >= ns).astype(np.int64),
              layers=layers[good], texels=texels[good], source=0, memory=np.nan, quads=np.nan, atlas=-1, scale=1.0, count=kept[good])  # fmt: skip

@@ -117,12 +117,7 @@ def box_views(bounds, lo, hi) -> Views:
     touch = TOL.rel_touch * np.maximum(scale, TOL.min_extent)
     centre = 0.5 * (lo + hi)
     towards = 0.5 * (b[0] + b[1]) - centre
-    frame, dist = np.zeros((k, 3, 3)), np.zeros(k)
-    for i in range(k):  # the scalar norm and frame, as part_view takes them (a few microseconds each)
-        dist[i], axis = length_and_unit(towards[i])
-        if dist[i] > 0.0:
-            frame[i, 0], frame[i, 1] = _orthonormal_frame(axis)
-            frame[i, 2] = axis
+    dist, frame = _box_frames(towards)
     ok = dist > touch
     frame_t = np.swapaxes(frame, 1, 2)
     cell_corners = np.where(_BOX_PICK[None, :, :], hi[:, None, :], lo[:, None, :])  # BoxCell.corners
@@ -134,6 +129,32 @@ def box_views(bounds, lo, hi) -> Views:
     return Views(
         np.zeros(k, dtype=bool), rhi[:, :2] - rlo[:, :2], rhi[:, 2] - rlo[:, 2], np.full(k, math.nan), corners_rel, ok
     )
+
+
+def _box_frames(towards: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(k,) lengths and (k, 3, 3) frames (rows u, v, axis; zeros where the length is 0) of the
+    vectors ``towards`` (k, 3): :func:`~farfield.core.viewcells.length_and_unit` and
+    :func:`~farfield.core.viewcells._orthonormal_frame` of each, bit for bit.  The squared length is
+    each row's own ``dot`` (what ``np.linalg.norm`` of one vector computes: BLAS, whose rounding a
+    reduction over an axis does not share); the rest is the scalar arithmetic, elementwise."""
+    k = towards.shape[0]
+    with np.errstate(over="ignore", under="ignore", divide="ignore", invalid="ignore"):
+        dist = np.sqrt(np.array([row.dot(row) for row in towards], dtype=np.float64).reshape(k))
+        unit = towards / dist[:, None]
+    plain = np.isfinite(dist) & (dist > 0.0)
+    for i in np.flatnonzero(~plain):  # squares that overflow or underflow, or a zero vector: the scalar way
+        dist[i], unit[i] = length_and_unit(towards[i])
+    frame = np.zeros((k, 3, 3))
+    some = dist > 0.0
+    x, y, z = unit[some, 0], unit[some, 1], unit[some, 2]
+    level = np.abs(z) < 0.9  # helper (0, 0, 1), else (1, 0, 0)
+    ux, uy, uz = np.where(level, -y, 0.0), np.where(level, x, -z), np.where(level, 0.0, y)
+    norm = np.sqrt(ux * ux + uy * uy + uz * uz)
+    u0, u1, u2 = ux / norm, uy / norm, uz / norm
+    frame[some, 0] = np.stack([u0, u1, u2], axis=1)
+    frame[some, 1] = np.stack([y * u2 - z * u1, z * u0 - x * u2, x * u1 - y * u0], axis=1)
+    frame[some, 2] = unit[some]
+    return dist, frame
 
 
 def estimate_views(views: Views, options) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
