@@ -19,6 +19,7 @@ from farfield.core.impostor.bundle import read_bundle
 from farfield.core.quality.comparison import PREFERENCES, Candidate, check_comparable, choose
 from farfield.core.quality.lit import evaluate_lit, lit_text
 from farfield.core.techniques import get_technique
+from farfield.core.techniques.octahedral.technique import cell_distance
 
 
 @click.command("evaluate")
@@ -118,10 +119,19 @@ def _totals(result) -> dict:
 
 def _check(names: list[str], impostors: list, results: list) -> None:
     """GuaranteeError naming every bundle that breaks its technique's promise inside its cell, at the
-    error budget it was baked for; a technique that promises nothing in pixels is said so, on stderr."""
+    error budget it was baked for, and every octahedral bundle whose cell comes nearer to its part
+    than the accuracy distance (its promise holds only beyond it); a technique that promises nothing
+    in pixels is said so, on stderr."""
     broken = []
     for name, impostor, result in zip(names, impostors, results):
         promise = get_technique(impostor.technique).promise
+        accurate = impostor.stats.get("accuracy_distance") if impostor.technique == "octahedral" else None
+        if accurate is not None and (nearest := cell_distance(impostor)) < accurate:
+            broken.append(
+                f"{name}: the view cell comes within {nearest:.4g} of the part's centre, nearer than the "
+                f"accuracy distance {accurate:.4g} beyond which octahedral promises one pixel"
+            )
+            continue
         if not promise.checked:
             click.echo(f"{name}: {impostor.technique} promises {promise.text}; nothing to check", err=True)
             continue

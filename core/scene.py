@@ -768,8 +768,9 @@ class Scene:
         known = set(self.names)
         unknown = [n for n in wanted if n not in known]
         if unknown:
+            named = ", ".join(map(repr, unknown[:5])) + (f" and {len(unknown) - 5:,} more" if len(unknown) > 5 else "")
             raise SceneLoadError(
-                f"{self.source}: no object named {', '.join(map(repr, unknown))} "
+                f"{self.source}: no object named {named} of the {len(wanted):,} asked for "
                 f"(the scene has {self.object_count} objects, e.g. {', '.join(map(repr, self.names[:5]))})"
             )
         chosen = set(wanted)

@@ -86,7 +86,7 @@ def test_warnings_are_reported_in_the_output_not_on_stderr(tmp_path):
             "broken.ply",
             b"ply\nformat ascii 1.0\nelement vertex 3\nend_header\n1 2\n",
             2,
-            "broken.ply: could not parse PLY",
+            "broken.ply: the header declares 3 vertex elements but the file holds 1",
         ),
         ("nan.obj", scenes.bad_obj("nan").encode(), 2, "non-finite"),
     ],

@@ -4,6 +4,7 @@ and ``farfield evaluate --check`` checking that promise at the budget a bundle w
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -129,3 +130,29 @@ def test_check_says_a_technique_without_a_promise_has_nothing_to_check(tmp_path)
         cli, ["evaluate", str(tmp_path / "ldi"), str(scene_file), "--random", "1", "--outside", "0", "--check"]
     )
     assert run.exit_code == 0 and "nothing to check" in run.output, run.output
+
+
+def test_check_refuses_an_octahedral_cell_nearer_than_the_accuracy_distance(tmp_path):
+    """Octahedral promises one pixel only beyond its accuracy distance; ``--check`` said 'nothing to
+    check' (exit 0) for a cell far inside it (the damaged helmet's at 9.7 of 150.8, with 166 hole
+    pixels).  Now it fails (exit 4) naming both distances, and passes the same bundle when its cell
+    is moved beyond the accuracy distance."""
+    scene = part_scene()
+    cell = CASES["part"][1]
+    octahedral = get_technique("octahedral")
+    impostor = octahedral.bake(scene, cell, octahedral.options({"grid": 3}, resolution=32), None, None)
+    accurate = impostor.stats["accuracy_distance"]
+    write_bundle(impostor, tmp_path / "oct")
+    scene_file = write_scene(scene, tmp_path, "glb", "part")
+    _register()
+    run = ["evaluate", str(tmp_path / "oct"), str(scene_file), "--random", "1", "--outside", "0", "--check"]
+    near = CliRunner().invoke(cli, run)
+    assert near.exit_code == 4 and f"nearer than the accuracy distance {accurate:.4g}" in near.output, near.output
+    centre = impostor.payload.sphere[:3]
+    far = BoxCell(centre + [0.0, 0.0, 2.0 * accurate], centre + [1.0, 1.0, 2.0 * accurate + 1.0])
+    manifest = tmp_path / "oct" / "manifest.json"
+    record = json.loads(manifest.read_text())
+    assert record["viewcell"] == impostor.viewcell
+    manifest.write_text(json.dumps(record | {"viewcell": far.to_dict()}))
+    beyond = CliRunner().invoke(cli, run)
+    assert beyond.exit_code == 0 and "nearer than" not in beyond.output, beyond.output

@@ -3,6 +3,7 @@ with a message naming what is wrong, not read as something else."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from farfield.core.errors import SceneLoadError
@@ -25,3 +26,29 @@ def test_a_ply_declaring_more_elements_than_it_holds_is_refused():
     with pytest.raises(SceneLoadError, match="declares 2,147,483,648 face elements but the file holds 1"):
         load_scene_bytes((header + "element face 2147483648\n" + body).encode(), "ply", "liar.ply")
     assert load_scene_bytes((header + "element face 1\n" + body).encode(), "ply", "honest.ply").triangle_count == 1
+
+
+def test_a_truncated_ascii_ply_with_crlf_lines_is_refused_not_read_short():
+    """The Stanford bunny's header has CRLF lines, which the header's element counts were not read
+    from: cut at 2,000,000 of its 3,138,605 bytes it loaded as 16,490 of its 69,451 triangles with
+    no warning, and cut mid-line it failed with numpy's 'setting an array element with a sequence'."""
+    header = (
+        "ply\r\nformat ascii 1.0\r\nelement vertex 4\r\nproperty float x\r\nproperty float y\r\n"
+        "property float z\r\nelement face 2\r\nproperty list uchar int vertex_indices\r\nend_header\r\n"
+    )
+    body = "0 0 0\r\n1 0 0\r\n0 1 0\r\n1 1 0\r\n3 0 1 2\r\n3 1 3 2\r\n"
+    assert load_scene_bytes((header + body).encode(), "ply", "whole.ply").triangle_count == 2
+    for cut in (len(body) - len("3 1 3 2\r\n"), len(body) - len("3 0 1 2\r\n3 1 3 2\r\n") - 3):
+        with pytest.raises(SceneLoadError, match=r"declares 2 face elements but the file holds [01] \(truncated"):
+            load_scene_bytes((header + body[:cut]).encode(), "ply", "cut.ply")
+
+
+def test_a_truncated_binary_ply_is_refused_naming_the_header():
+    header = (
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+        b"property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+    )
+    body = np.array([0, 0, 0, 1, 0, 0, 0, 1, 0], "<f4").tobytes() + b"\x03" + np.array([0, 1, 2], "<i4").tobytes()
+    assert load_scene_bytes(header + body, "ply", "whole.ply").triangle_count == 1
+    with pytest.raises(SceneLoadError, match="not the length the header's 3 vertex and 1 face elements need"):
+        load_scene_bytes(header + body[:-5], "ply", "cut.ply")

@@ -306,6 +306,26 @@ def test_warming_compiles_the_pairing_kernel_with_the_types_a_bake_runs_it_with(
     assert counts == {"before": [0, 0], "warmed": [1, 1], "baked": [1, 1]}
 
 
+def test_a_layer_texture_larger_than_the_renderer_draws_is_refused_as_bad_input(ctx):
+    """A cell very close to a wide part: the plan asks for 1102 x 22023 texels, under the plan's
+    own limit (TOL.max_texture_resolution) but over llvmpipe's 16384; the bake says so as bad
+    input (exit code 2, HTTP 422) instead of the driver's incomplete framebuffer (a traceback in
+    the CLI, an internal error retried three times in a job)."""
+    from farfield.core.constants import TOL
+    from farfield.core.errors import LayerPlanError, error_kind
+    from farfield.core.procedural import box_object
+    from farfield.core.render.context import largest_target_side
+    from farfield.core.techniques.layered import BakeOptions, bake_layered
+
+    scene = Scene.from_objects([box_object("wall", [-20.0, -1.0, 2.0], [20.0, 1.0, 3.0])], "wall")
+    cell = BoxCell([-0.01] * 3, [0.01] * 3)
+    plan = plan_layers(cell, scene.bounds, math.radians(45), 512, "min", texel_share=0.7)
+    assert largest_target_side(ctx) < max(plan.texture_resolution) <= TOL.max_texture_resolution
+    with pytest.raises(LayerPlanError, match="larger than this renderer draws") as caught:
+        bake_layered(scene, cell, BakeOptions())
+    assert error_kind(caught.value).exit_code == 2 and error_kind(caught.value).http_status == 422
+
+
 def test_a_slab_border_at_or_behind_the_eye_is_refused():
     eye = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 2.0]])
     with pytest.raises(ValueError, match="in front of the eye"):

@@ -536,6 +536,12 @@ def test_subset_selects_by_name_and_names_unknown_ones():
         city.subset(["ground", "tower", "castle"])
     with pytest.raises(SceneLoadError, match="no object names"):
         city.subset([])
+    # A bundle evaluated against another scene asks for all its objects (the house's 102 against
+    # the city): five are named, not every one.
+    asked = [f"window_{i:03d}" for i in range(102)]
+    with pytest.raises(SceneLoadError, match=r"'window_004' and 97 more of the 103 asked for \(the scene") as caught:
+        city.subset(["ground", *asked])
+    assert "window_005" not in str(caught.value)
 
 
 def test_summary_is_json_ready():

@@ -37,7 +37,9 @@ SIDES_OPTION = True
 EXTENSIONS = ("ply",)
 
 
-_ELEMENT = re.compile(rb"^element[ \t]+(\w+)[ \t]+(\d+)[ \t]*$", re.MULTILINE)
+# ``\r`` too: a header of CRLF lines (the Stanford bunny's) is a header.
+_ELEMENT = re.compile(rb"^element[ \t]+(\w+)[ \t]+(\d+)[ \t\r]*$", re.MULTILINE)
+_ASCII = re.compile(rb"^format[ \t]+ascii[ \t\r]", re.MULTILINE)
 
 
 def _declared_counts(data: bytes) -> dict[str, int]:
@@ -45,6 +47,23 @@ def _declared_counts(data: bytes) -> dict[str, int]:
     end = data.find(b"end_header")
     header = data[: end if end >= 0 else 4096]
     return {name.decode("ascii", "replace"): int(count) for name, count in _ELEMENT.findall(header)}
+
+
+def _check_ascii_length(data: bytes, declared: dict[str, int]) -> None:
+    """Raise SceneLoadError when an ASCII PLY holds fewer data lines than its header declares
+    elements (one a line): a truncated file, which trimesh either reads short or fails on with a
+    message about arrays."""
+    end = data.find(b"end_header")
+    if end < 0 or not declared or not _ASCII.search(data[:end]):
+        return
+    lines = sum(1 for line in data[end:].splitlines()[1:] if line.strip())
+    for element, count in declared.items():  # the elements' lines follow each other in header order
+        if lines < count:
+            raise SceneLoadError(
+                f"the header declares {count:,} {element} elements but the file holds {lines:,} "
+                "(truncated or a corrupt header)"
+            )
+        lines -= count
 
 
 def _normals(mesh: trimesh.Trimesh, warnings: list[str]) -> np.ndarray | None:
@@ -102,7 +121,17 @@ def load(
         Not a PLY file, or a header that does not match the data.
     """
     declared = _declared_counts(data)
-    scene = parse(data, extension, resolver)
+    _check_ascii_length(data, declared)
+    try:
+        scene = parse(data, extension, resolver)
+    except SceneLoadError as error:
+        if "unexpected length" not in str(error):
+            raise
+        counts = " and ".join(f"{count:,} {element}" for element, count in declared.items())
+        raise SceneLoadError(
+            f"the binary data ({len(data):,} bytes in all) is not the length the header's {counts} elements "
+            "need (truncated or a corrupt header)"
+        ) from error
     held = {"vertex": 0, "face": 0}
     for geometry in scene.geometry.values():
         held["vertex"] += len(getattr(geometry, "vertices", ()))

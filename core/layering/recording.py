@@ -43,7 +43,7 @@ from numba import njit
 from farfield.core.layering.atlas import pack
 from farfield.core.layering.plan import LayerPlan
 from farfield.core.render.alpha_mips import max_alpha_texture
-from farfield.core.render.context import gl_context
+from farfield.core.render.context import check_target_size, gl_context
 from farfield.core.render.cut_colours import cut_weighted_linear
 from farfield.core.render.programs import linear_texture, park_framebuffer, program, set_material, srgb_texture
 from farfield.core.render.raster import mesh_variant
@@ -876,6 +876,7 @@ def iter_views(
     if first is None:
         return
     res_x, res_y = (int(r) for r in first.texture_resolution)
+    check_target_size(ctx, res_x, res_y, "the layer texture")
 
     colour = ctx.texture((res_x, res_y), 4)
     extra = int(normals) + int(material) + int(emissive)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import moderngl
 
-from farfield.core.errors import RenderBackendError
+from farfield.core.errors import LayerPlanError, RenderBackendError
 
 # OpenGL 3.3 core is enough for everything farfield draws (instancing, texelFetch); llvmpipe
 # offers 4.5 and the NVIDIA driver 4.6.
@@ -78,6 +78,28 @@ def renderer_info() -> RendererInfo:
     ctx = gl_context()
     info = ctx.info
     return RendererInfo(info["GL_VENDOR"], info["GL_RENDERER"], info["GL_VERSION"], _device_index)
+
+
+def largest_target_side(ctx: moderngl.Context) -> int:
+    """Texels per side of the largest texture the context renders into: the least of its
+    ``GL_MAX_TEXTURE_SIZE``, ``GL_MAX_RENDERBUFFER_SIZE`` and ``GL_MAX_VIEWPORT_DIMS`` (16384 on
+    llvmpipe)."""
+    info = ctx.info
+    return int(min(info["GL_MAX_TEXTURE_SIZE"], info["GL_MAX_RENDERBUFFER_SIZE"], *info["GL_MAX_VIEWPORT_DIMS"]))
+
+
+def check_target_size(ctx: moderngl.Context, width: int, height: int, what: str) -> None:
+    """Raise LayerPlanError (bad input: HTTP 422, exit code 2) when a ``width`` x ``height`` render
+    target passes :func:`largest_target_side`, before the driver refuses it with an incomplete
+    framebuffer.  A layer plan may ask for up to ``TOL.max_texture_resolution`` texels per side, more
+    than a renderer draws: a view cell very close to its part at a high resolution."""
+    largest = largest_target_side(ctx)
+    if max(int(width), int(height)) > largest:
+        raise LayerPlanError(
+            f"{what} of {int(width)} x {int(height)} texels is larger than this renderer draws "
+            f"({largest} per side): the view cell is too close to the part for the output resolution; "
+            "lower the resolution, raise max_error_px, or move the view cell away from the part"
+        )
 
 
 def release_context() -> None:

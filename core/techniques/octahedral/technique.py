@@ -47,7 +47,7 @@ from farfield.core.techniques.octahedral.instancing import instancing
 from farfield.core.techniques.octahedral.mapping import frame_directions, opposite_frames
 from farfield.core.techniques.octahedral.payload import OctahedralPayload
 from farfield.core.techniques.part import evaluate_part, part_evaluation_text
-from farfield.core.viewcells import SphereOutsideCell, ViewCell
+from farfield.core.viewcells import SphereOutsideCell, ViewCell, viewcell_from_dict
 
 
 @dataclass(frozen=True, slots=True)
@@ -243,6 +243,14 @@ def _summary(stats: dict) -> str:
         + ")\n"
         + seconds_line(stats)
     )
+
+
+def cell_distance(impostor: Impostor) -> float:
+    """Distance from the part's centre (the payload's bounding sphere) to the nearest point of the
+    impostor's view cell (a lower bound for a shaft or a hemisphere): the view cell lies beyond the
+    accuracy distance, where the promise holds, when it is at least ``stats["accuracy_distance"]``."""
+    centre = np.asarray(impostor.payload.sphere[:3], dtype=np.float64)
+    return float(viewcell_from_dict(impostor.viewcell).distance_to_box(np.stack([centre, centre])))
 
 
 def _evaluation_text(result: Evaluation, impostor: Impostor) -> str:
