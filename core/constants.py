@@ -28,6 +28,10 @@ class Tolerances:
     max_layers: int = 100_000
     # Largest texture resolution (texels per side) a layer plan may ask for.
     max_texture_resolution: int = 65_536
+    # Largest layer texture (texels per side) a placement may choose: the least GL_MAX_TEXTURE_SIZE,
+    # GL_MAX_RENDERBUFFER_SIZE and GL_MAX_VIEWPORT_DIMS OpenGL 4.5 guarantees (llvmpipe's own), so that
+    # whichever worker bakes a chosen impostor can draw its layers (render/context.check_target_size).
+    drawable_texture_resolution: int = 16_384
     # Relative margin on the parallax budget of a shared one-pixel budget (core/layering/plan.py): the
     # largest parallax over the frustum is searched on a grid of rays, which found it to within
     # 4e-4 relative of a 16 times finer grid on every plan tried, wide frusta included.

@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from farfield.core import procedural
+from farfield.core.constants import TOL
 from farfield.core.errors import FarfieldError
+from farfield.core.layering.plan import estimate_layers
 from farfield.core.placement import candidates as candidates_module
 from farfield.core.placement.candidates import direction_grid, generate_candidates
 from farfield.core.placement.cost_model import LLVMPIPE_MODEL, primitive_model
@@ -17,7 +19,7 @@ from farfield.core.placement.greedy import Greedy
 from farfield.core.placement.part_estimates import ShaftFrames, Views, box_views, estimate_views, shaft_views
 from farfield.core.placement.planner import PlacementSettings, place
 from farfield.core.techniques.layered import BakeOptions
-from farfield.core.techniques.part import estimate_part_cell
+from farfield.core.techniques.part import estimate_part_cell, layer_budget
 from farfield.core.viewcells import BoxCell, ShaftCell
 
 FIELDS = (
@@ -71,6 +73,24 @@ def test_cells_estimated_together_are_estimated_as_one_at_a_time(options):
                 continue
             assert ok[i] and (layers[i], texels[i]) == expected  # the same floats, not nearly
         assert 3 <= refused < len(cells)
+
+
+def test_a_layer_texture_no_renderer_draws_is_never_a_candidate():
+    """A small cell right in front of a wide part asks for layer textures of up to 65,536 texels a side
+    (the plan's own limit), more than llvmpipe draws (16,384): a placement chose a 7050 x 16446 one
+    inside the demo house and its cell failed at the bake.  Both estimates refuse what passes the
+    least side OpenGL 4.5 guarantees, and keep the same part seen from farther."""
+    options = BakeOptions(resolution=4096, fov_deg=45.0)
+    bounds = np.array([[-10.0, -10.0, 5.0], [10.0, 10.0, 6.0]])
+    near, far = BoxCell.from_center([0.0, 0.0, 0.0], 1e-3), BoxCell.from_center([0.0, 0.0, -60.0], 1e-3)
+    with pytest.raises(FarfieldError, match="more than every renderer draws"):
+        estimate_part_cell(near, options, bounds)
+    _, (w, h) = estimate_layers(near, bounds, math.radians(45.0), 4096, **layer_budget(options))
+    assert TOL.drawable_texture_resolution < max(w, h) <= TOL.max_texture_resolution  # the case in between
+    layers, texels = estimate_part_cell(far, options, bounds)
+    assert layers >= 1 and texels <= TOL.drawable_texture_resolution**2
+    _, _, ok = estimate_views(box_views(bounds, [near.lo, far.lo], [near.hi, far.hi]), options)
+    assert ok.tolist() == [False, True]
 
 
 @pytest.mark.parametrize(

@@ -183,6 +183,7 @@ def estimate_views(views: Views, options) -> tuple[np.ndarray, np.ndarray, np.nd
     shrunk = widths / (t0[:, None] * texel) * (1.0 - TOL.rel_round)  # pixel_angles.texture_resolution
     fits = np.all(shrunk <= TOL.max_texture_resolution, axis=1)
     res = np.maximum(1.0, np.ceil(np.where(fits[:, None], shrunk, 1.0)))
+    fits &= np.all(res <= TOL.drawable_texture_resolution, axis=1)  # as estimate_part_cell refuses it
     parallax = alpha if texel_share is None else (1.0 - texel_share) * alpha
     r = np.hypot(0.5 * width[:, 0], 0.5 * width[:, 1])
     pole = (r * np.cos(parallax) + np.hypot(r, s)) / (2.0 * np.sin(parallax)) - 0.5 * s  # single_layer_distance

@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 
+from farfield.core.constants import TOL
 from farfield.core.errors import LayerPlanError, PlanBudgetError, ViewCellError
 from farfield.core.impostor.impostor import Impostor
 from farfield.core.layering.plan import estimate_layers, first_layer_texels, first_layer_texels_of_boxes, plan_layers
@@ -101,10 +102,17 @@ def bound_part_cells(cells: list[ViewCell] | BoxCells, options, bounds: np.ndarr
 
 def estimate_part_cell(cell: ViewCell, options, bounds: np.ndarray) -> tuple[float, float]:
     """The placement's estimate for the part in ``bounds`` seen from ``cell``: layers (estimated,
-    :func:`farfield.core.layering.plan.estimate_layers`) and texels per layer (exact), without planning every layer."""
+    :func:`farfield.core.layering.plan.estimate_layers`) and texels per layer (exact), without planning every layer;
+    LayerPlanError where a layer's texture passes what every renderer draws
+    (``TOL.drawable_texture_resolution``: a placement may not choose what a worker cannot bake)."""
     layers, res = estimate_layers(
         cell, bounds, math.radians(options.fov_deg), options.resolution, **layer_budget(options)
     )
+    if max(res) > TOL.drawable_texture_resolution:
+        raise LayerPlanError(
+            f"a layer texture of {int(res[0])} x {int(res[1])} texels is more than every renderer draws "
+            f"({TOL.drawable_texture_resolution} per side): the cell is too close to the part"
+        )
     return layers, float(res[0]) * float(res[1])
 
 
