@@ -205,6 +205,15 @@ def bake(scene, viewcell, out, objects, technique, options, resolution, fov, lay
         click.echo(json.dumps({"bundle": str(out), "stats": impostor.stats}, indent=2))
         return
     click.echo(f"bundle: {out}\n" + chosen.summary(impostor.stats))
+    _warn_outside_promise(chosen, impostor)
+
+
+def _warn_outside_promise(chosen, impostor) -> None:
+    """A warning on stderr where the cell lies where the technique's promise does not hold
+    (``Promise.outside``); ``farfield evaluate --check`` fails such a bundle."""
+    outside = getattr(chosen.promise, "outside", None)
+    if outside is not None and (why := outside(impostor)):
+        click.echo(f"farfield: warning: {why}; expect holes (evaluate --check fails it)", err=True)
 
 
 def _bake_instances(chosen, loaded, cell, settings, names, out: Path, as_json: bool, quiet: bool) -> None:

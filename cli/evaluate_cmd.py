@@ -19,7 +19,6 @@ from farfield.core.impostor.bundle import read_bundle
 from farfield.core.quality.comparison import PREFERENCES, Candidate, check_comparable, choose
 from farfield.core.quality.lit import evaluate_lit, lit_text
 from farfield.core.techniques import get_technique
-from farfield.core.techniques.octahedral.technique import cell_distance
 
 
 @click.command("evaluate")
@@ -119,18 +118,14 @@ def _totals(result) -> dict:
 
 def _check(names: list[str], impostors: list, results: list) -> None:
     """GuaranteeError naming every bundle that breaks its technique's promise inside its cell, at the
-    error budget it was baked for, and every octahedral bundle whose cell comes nearer to its part
-    than the accuracy distance (its promise holds only beyond it); a technique that promises nothing
+    error budget it was baked for, and every bundle whose cell lies where its technique's promise does
+    not hold (``Promise.outside``: an octahedral cell nearer than the accuracy distance); a technique that promises nothing
     in pixels is said so, on stderr."""
     broken = []
     for name, impostor, result in zip(names, impostors, results):
         promise = get_technique(impostor.technique).promise
-        accurate = impostor.stats.get("accuracy_distance") if impostor.technique == "octahedral" else None
-        if accurate is not None and (nearest := cell_distance(impostor)) < accurate:
-            broken.append(
-                f"{name}: the view cell comes within {nearest:.4g} of the part's centre, nearer than the "
-                f"accuracy distance {accurate:.4g} beyond which octahedral promises one pixel"
-            )
+        if promise.outside is not None and (why := promise.outside(impostor)):
+            broken.append(f"{name}: {why}")
             continue
         if not promise.checked:
             click.echo(f"{name}: {impostor.technique} promises {promise.text}; nothing to check", err=True)
@@ -165,14 +160,17 @@ def _compare(
         )
         return results
     width = max(len("bundle"), *(len(n) for n in names))
+    # A bundle stores no bake time (bundle.RUN_DEPENDENT_STATS): the column only where one is known.
+    timed = any(c.bake_seconds is not None for c in candidates)
     click.echo(
-        f"{'bundle':<{width}} {'technique':<9} {'primitives':>10} {'memory KiB':>10} {'holes':>6} {'>1px':>6} {'err mean':>9} {'err p99':>8} {'ssim':>6} {'bake s':>7}"
+        f"{'bundle':<{width}} {'technique':<9} {'primitives':>10} {'memory KiB':>10} {'holes':>6} {'>1px':>6} {'err mean':>9} {'err p99':>8} {'ssim':>6}"
+        + (f" {'bake s':>7}" if timed else "")
     )
     for c in candidates:
-        seconds = f"{c.bake_seconds:.2f}" if c.bake_seconds is not None else "-"
+        seconds = f" {c.bake_seconds:>7.2f}" if c.bake_seconds is not None else (f" {'-':>7}" if timed else "")
         click.echo(
             f"{c.name:<{width}} {c.technique:<9} {c.primitives:>10,} {c.memory_bytes / 1024:>10.1f} {c.hole_pixels:>6} "
-            f"{c.bloat_beyond_1px:>6} {c.colour_error_mean:>9.2f} {c.colour_error_p99:>8.1f} {c.ssim:>6.3f} {seconds:>7}"
+            f"{c.bloat_beyond_1px:>6} {c.colour_error_mean:>9.2f} {c.colour_error_p99:>8.1f} {c.ssim:>6.3f}{seconds}"
         )
     click.echo(
         f"{results[0].totals['viewpoints']} viewpoints inside the view cell for each (hole pixels, pixels bloated beyond 1 px, "

@@ -16,7 +16,7 @@ from test_techniques import CASES, part_scene
 
 from farfield.cli.main import _register, cli
 from farfield.core.errors import LayerPlanError
-from farfield.core.impostor.bundle import write_bundle
+from farfield.core.impostor.bundle import read_bundle, write_bundle
 from farfield.core.quality.evaluation import compare_images, evaluate
 from farfield.core.techniques import TECHNIQUES, get_technique
 from farfield.core.techniques.part import check_part_cell
@@ -156,3 +156,18 @@ def test_check_refuses_an_octahedral_cell_nearer_than_the_accuracy_distance(tmp_
     manifest.write_text(json.dumps(record | {"viewcell": far.to_dict()}))
     beyond = CliRunner().invoke(cli, run)
     assert beyond.exit_code == 0 and "nearer than" not in beyond.output, beyond.output
+
+
+def test_an_octahedral_bake_inside_its_accuracy_distance_warns(tmp_path):
+    """The bake printed the accuracy distance but said nothing when its own cell lay inside it (only
+    ``--check`` failed the bundle later): it warns on stderr, naming both distances, and not beyond."""
+    scene_file = write_scene(part_scene(), tmp_path, "glb", "part")
+    _register()
+    bake = ["bake", str(scene_file), "--technique", "octahedral", "--option", "grid=3", "--resolution", "32"]
+    near = CliRunner().invoke(cli, [*bake, "--viewcell", "box:-2,3,-27,2,7,-23", "--out", str(tmp_path / "near")])
+    assert near.exit_code == 0 and "warning: the view cell comes within" in near.output, near.output
+    accurate = read_bundle(tmp_path / "near").stats["accuracy_distance"]
+    assert f"nearer than the accuracy distance {accurate:.4g}" in near.output
+    z = -3.0 * accurate
+    far = CliRunner().invoke(cli, [*bake, "--viewcell", f"box:-2,3,{z - 4},2,7,{z}", "--out", str(tmp_path / "far")])
+    assert far.exit_code == 0 and "warning" not in far.output, far.output

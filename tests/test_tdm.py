@@ -688,6 +688,7 @@ def test_evaluate_puts_a_tdm_and_a_layered_impostor_side_by_side_and_says_which_
     assert json.loads(run("--json", "--prefer", "triangles").output)["choice"] == fewest
     text = run().output.strip().splitlines()
     assert len(text) == 5 and text[0].split()[:3] == ["bundle", "technique", "primitives"]
+    assert text[0].split()[-1] == "ssim"  # bundles store no bake time: no column of dashes for it
     assert text[3].startswith("11 viewpoints inside the view cell for each") and text[4].startswith(f"use {least}: ")
 
     # Bundles of another view cell do not compare: one line, exit code 2.

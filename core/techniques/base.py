@@ -13,7 +13,7 @@ it instead of naming techniques.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
@@ -82,6 +82,9 @@ class Promise:
     text: str  # one sentence, for people
     holes: bool = False
     bloat: bool = False
+    # outside(impostor) -> why its view cell lies where the promise does not hold (a sentence), or
+    # None where it holds: e.g. octahedral's, only beyond an accuracy distance (bake warns, --check fails)
+    outside: Callable[[Impostor], str | None] | None = field(default=None, compare=False)
 
     @property
     def checked(self) -> bool:

@@ -253,6 +253,18 @@ def cell_distance(impostor: Impostor) -> float:
     return float(viewcell_from_dict(impostor.viewcell).distance_to_box(np.stack([centre, centre])))
 
 
+def outside_accuracy(impostor: Impostor) -> str | None:
+    """Why the impostor's view cell lies where octahedral's promise does not hold: nearer to the part's
+    centre than the accuracy distance (:func:`cell_distance`); None beyond it."""
+    accurate = impostor.stats.get("accuracy_distance")
+    if accurate is None or (nearest := cell_distance(impostor)) >= accurate:
+        return None
+    return (
+        f"the view cell comes within {nearest:.4g} of the part's centre, nearer than the accuracy distance "
+        f"{accurate:.4g} beyond which octahedral promises one pixel"
+    )
+
+
 def _evaluation_text(result: Evaluation, impostor: Impostor) -> str:
     distance = impostor.stats.get("accuracy_distance", math.nan)
     text = part_evaluation_text(result, impostor).replace("None layers, ", f"{impostor.payload.count} frames, ")
@@ -274,6 +286,9 @@ TECHNIQUE = TechniqueDefinition(
     evaluation_text=_evaluation_text,
     estimate=estimate_octahedral,
     outside_estimate=outside_estimate,
-    promise=Promise("within one pixel beyond the accuracy distance the bake reports (stats accuracy_distance)"),
+    promise=Promise(
+        "within one pixel beyond the accuracy distance the bake reports (stats accuracy_distance)",
+        outside=outside_accuracy,
+    ),
     instancing=instancing(),  # an instance's impostor is its prototype's moved (instancing.py)
 )
