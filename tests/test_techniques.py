@@ -329,3 +329,20 @@ def test_equal_requests_store_equal_options_and_image_fields_are_strict(client, 
     for field, value in (("resolution", True), ("resolution", "64"), ("fov_deg", True), ("fov_deg", "45")):
         refused = client.post("/v1/jobs", json={**spec, field: value})
         assert refused.status_code == 422 and field in refused.text, (field, value, refused.text)
+
+
+def test_a_refused_cell_of_a_request_is_named_as_the_request_gave_it():
+    """A job's cell that touches its part is refused naming its index and the cell as JSON, the form
+    the request used (it showed a Python dict: ``{'kind': 'box', ...}``)."""
+    import json
+
+    from farfield.core.errors import FarfieldError
+    from farfield.core.techniques.part import bound_part_cells
+    from farfield.core.viewcells import BoxCell
+
+    options = get_technique("layered").options({}, 64)
+    bounds = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+    cells = [BoxCell(np.array([5.0, 0.0, 0.0]), np.array([6.0, 1.0, 1.0])), BoxCell(np.zeros(3), np.ones(3))]
+    with pytest.raises(FarfieldError) as refused:
+        bound_part_cells(cells, options, bounds)
+    assert str(refused.value).startswith(f"view cell 1 {json.dumps(cells[1].to_dict())}: ")

@@ -4,6 +4,7 @@ short evaluation a job records for each of its cells."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -96,7 +97,7 @@ def bound_part_cells(cells: list[ViewCell] | BoxCells, options, bounds: np.ndarr
         try:
             out[n] = first_layer_texels(cells[n], bounds, fov, options.resolution, **budget)
         except (LayerPlanError, ViewCellError) as error:
-            raise type(error)(f"view cell {n} ({cells[n].to_dict()}): {error}") from None
+            raise type(error)(f"view cell {n} {json.dumps(cells[n].to_dict())}: {error}") from None
     return out
 
 
