@@ -150,6 +150,27 @@ def test_the_colour_cut_is_the_shaders_cut():
     assert cut_weighted_linear(texture, 0.3)[0, 2:, 3].astype(float).tolist() == [0.0, 1.0]  # 76/255 < 0.3 <= 77/255
 
 
+@pytest.mark.parametrize("height", [0.2, 0.5, 2.0])
+def test_alpha_cut_card_seen_nearly_edge_on_keeps_its_colour(height):
+    """The stripes' quad in the plane z = 0 baked from a cell whose reference viewpoint lies
+    ``height`` above that plane, 30 units away: nearly edge-on, a texel's footprint runs across
+    the whole texture and beyond it.  Its colour was read from a mip level above the top one, so
+    never, and every texel came out black (all 144 at heights 0.2 and 0.5; the scrub pine's cards
+    whose planes cross the cell: 130 of 5,812 texels)."""
+    vertices = np.array([[-2.0, -2.0, 0.0], [2.0, -2.0, 0.0], [2.0, 2.0, 0.0], [-2.0, 2.0, 0.0]])
+    quad = SceneObject(
+        "stripes", vertices, np.array([[0, 1, 2], [0, 2, 3]]), uv=(vertices[:, :2] + 2.0) / 4.0,
+        texture=cut_texture(), alpha_cutoff=0.5,
+    )  # fmt: skip
+    technique = get_technique("layered")
+    cell = BoxCell(np.array([29.5, -0.5, height - 0.5]), np.array([30.5, 0.5, height + 0.5]))
+    impostor = technique.bake(Scene.from_objects([quad], "stripes"), cell, technique.options({}, 64, 45.0), None, None)
+    assert abs(impostor.reference_viewpoint[2] - height) < 0.1  # the case: nearly in the quad's plane
+    texels = np.concatenate([page[page[..., 3] > 0][:, :3] for page in impostor.pages]).astype(int)
+    assert len(texels) > 50
+    assert np.abs(texels - (60, 160, 40)).max() <= 2
+
+
 @pytest.mark.skipif(not (SHARED_SCENES / "scrub_pine/scrubPine.obj").exists(), reason="needs ../shared/scenes")
 def test_pine_atlas_has_no_black_fringes():
     """The issue's case: 15,735 of 36,037 opaque atlas texels were near black (max RGB < 20)."""
@@ -160,12 +181,11 @@ def test_pine_atlas_has_no_black_fringes():
     texels = np.concatenate([page[page[..., 3] > 0][:, :3] for page in impostor.pages])
     assert len(texels) > 5000
     # One-sided since issue 54's sidedness (an OBJ is drawn front faces only, as three.js's
-    # OBJLoader draws it): the cell sees 268 of the 527 triangles' fronts, and 1.4 % of the 13,328
-    # texels are near black, against 0.25 % of 17,311 double-sided (--sides both).  They are the
-    # conservative recording's texels that a needle only touches (151 in the needles' layers, none
-    # recorded by texel centres); 54 of them are near black double-sided too, and the other 97 were
-    # covered there by the back of a nearer card, which the cell does not see.
-    assert (texels.max(axis=1) < 20).mean() < 0.02
+    # OBJLoader draws it): the cell sees 268 of the 527 triangles' fronts.  193 of the 13,328
+    # texels (1.4 %) were near black: most were cards seen nearly edge-on, whose colour was read
+    # above the top mip level (test_alpha_cut_card_seen_nearly_edge_on_keeps_its_colour); 13
+    # (0.1 %) are left (not examined).
+    assert (texels.max(axis=1) < 20).mean() < 0.005
 
 
 @pytest.mark.parametrize("cut", [None, 0.5])

@@ -192,11 +192,14 @@ float footprint_lod(vec2 c) {
 }
 
 // The mean linear colour of the texels around uv over the footprint that pass the cut, widened
-// level by level while none under it passes (the texel was kept for its margin).
+// level by level while none under it passes (the texel was kept for its margin).  The first level
+// is at most the top one: a triangle seen nearly edge-on maps the texel's corners far along its
+// plane, to a footprint wider than the texture, and a loop started above the top never ran and
+// left the texel black (the scrub pine's cards whose planes cross the view cell: 130 texels).
 vec3 cut_colour(vec2 uv, vec2 c) {
     float top = floor(log2(max(texture_size.x, texture_size.y)));
     vec4 sum = vec4(0.0);
-    for (float level = footprint_lod(c); level <= top + 0.5; level = floor(level) + 1.0) {
+    for (float level = min(footprint_lod(c), top); level <= top + 0.5; level = floor(level) + 1.0) {
         sum = textureLod(cut_texture, uv, level);
         if (sum.a > 1.0 / 512.0) { break; }
     }
