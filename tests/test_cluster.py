@@ -20,9 +20,9 @@ records, the job across the nodes against a single host, the three faults, Postg
 under an admission, a node paused and resumed, a node partitioned and healed, a node killed, a job
 cancelled while its node dies.  Each test starts the nodes it needs if one before left too few
 (run alone, it pays their start).  The jobs that only need to cross the nodes have the smallest
-cells (16 to 32 px); those that stop a node mid-cell are larger (640 to 1024 px: a bake of a few
-seconds here), longer than the half second before a cell first records progress, which is when a
-node is stopped.
+cells (16 to 32 px); those that stop a node mid-cell are larger (960 to 1280 px: a bake of a few
+seconds here), so that the cell is seen running (claimed, not ended) before it ends, which is when
+a node is stopped.
 """
 
 from __future__ import annotations
@@ -95,13 +95,17 @@ def wait_for_cell(client, job_id: str, index: int, check, timeout: float, what: 
 
 
 def running_mid_cell(client, job_id: str, timeout: float = 120) -> dict:
-    """A cell of the job that a worker is baking (some progress recorded)."""
+    """A cell of the job that a worker has claimed and not ended.  Not "some progress recorded": a
+    worker writes progress every 0.5 s (service.jobs.runner.PROGRESS_EVERY_S), and an idle machine's
+    640 px cell ended between two looks with none (CI: 'no cell ... running within 120 s')."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         job = client.get(f"/v1/jobs/{job_id}").json()
-        busy = [c for c in job["cells"] if c["state"] == "running" and c["worker"] and c["progress"] > 0]
+        busy = [c for c in job["cells"] if c["state"] == "running" and c["worker"]]
         if busy:
             return busy[0]
+        ended = [c["state"] for c in job["cells"] if c["state"] in ("done", "failed", "cancelled")]
+        assert len(ended) < len(job["cells"]), f"job {job_id}'s cells ended ({ended}) before one was seen running"
         time.sleep(0.05)
     raise AssertionError(f"no cell of job {job_id} was running within {timeout} s")
 
@@ -332,7 +336,7 @@ def test_a_paused_node_s_late_result_is_discarded(cluster, bunny):
     live_workers(cluster)
     with cluster.client() as client:
         created = client.post(
-            "/v1/jobs", json={"scene_id": bunny, "viewcells": [_cell_of_grid()], "resolution": 640, "evaluate": False}
+            "/v1/jobs", json={"scene_id": bunny, "viewcells": [_cell_of_grid()], "resolution": 960, "evaluate": False}
         )
         assert created.status_code == 201, created.text
         job_id = created.json()["id"]
@@ -361,7 +365,7 @@ def test_a_paused_node_s_late_result_is_discarded(cluster, bunny):
 
 
 def test_a_node_partitioned_mid_cell_has_its_cell_run_again_and_its_late_result_discarded(cluster, bunny):
-    """The node baking a cell (800 px) is cut off from the broker, the database and the blob store
+    """The node baking a cell (1280 px) is cut off from the broker, the database and the blob store
     alike (its network namespace's link cut: its packets dropped, its connections hanging, as behind
     a switch that fails), running on; once its lease runs out (4 s) the API's sweep queues the cell
     again and another node takes it (attempt 2), and the link is healed.  The partitioned node's
@@ -374,9 +378,10 @@ def test_a_node_partitioned_mid_cell_has_its_cell_run_again_and_its_late_result_
     live_workers(cluster)
     marks = cluster.log_marks()
     with cluster.client() as client:
-        # 800 px: a bundle of its own (the paused node's test bakes this view cell at 640 px).
+        # 1280 px: a bundle of its own (the paused node's test bakes this view cell at 960 px, the
+        # killed node's and the cancel test's at 1024).
         created = client.post(
-            "/v1/jobs", json={"scene_id": bunny, "viewcells": [_cell_of_grid()], "resolution": 800, "evaluate": False}
+            "/v1/jobs", json={"scene_id": bunny, "viewcells": [_cell_of_grid()], "resolution": 1280, "evaluate": False}
         )
         assert created.status_code == 201, created.text
         job_id = created.json()["id"]
@@ -409,7 +414,7 @@ def test_a_worker_node_killed_mid_cell_has_its_cell_run_again_on_the_other(clust
     done_before = {n.name: done_by(n.log_text()) for n in cluster.workers}  # by cells of earlier tests
     with cluster.client() as client:
         grid = {**BUNNY_GRID, "counts": [2, 1, 1]}
-        created = client.post("/v1/jobs", json={"scene_id": bunny, "grid": grid, "resolution": 640, "evaluate": False})
+        created = client.post("/v1/jobs", json={"scene_id": bunny, "grid": grid, "resolution": 1024, "evaluate": False})
         assert created.status_code == 201, created.text
         job_id = created.json()["id"]
         victim_cell = running_mid_cell(client, job_id)
