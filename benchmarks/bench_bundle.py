@@ -40,7 +40,6 @@ import os
 import resource
 import subprocess
 import sys
-import tarfile
 import tempfile
 import threading
 import time
@@ -225,15 +224,10 @@ def cpu_stages(name: str) -> dict:
 
 
 def archived(revision: str, folder: Path) -> Path:
-    """A folder whose ``farfield`` package is the ``core/`` of git ``revision``."""
-    root = folder / f"rev-{revision}"
-    package = root / "farfield"
-    package.mkdir(parents=True, exist_ok=True)
-    archive = subprocess.run(["git", "archive", revision, "core"], check=True, capture_output=True, cwd=ROOT).stdout
-    with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
-        tar.extractall(package, filter="data")
-    (package / "__init__.py").write_text("")
-    return root
+    """``bench_envmap.archived``: a folder whose ``farfield`` package is the ``core/`` of ``revision``."""
+    import bench_envmap
+
+    return bench_envmap.archived(revision, folder)
 
 
 def bake_in_process(name: str, root: Path | None, flag: str = "--bake") -> dict:

@@ -405,18 +405,25 @@ def walk_database(directory: Path, side: int, subdiv: int, frames: int, path: st
         return walkthrough(scene, db, positions, forwards, repeats=3)
 
 
+def archived(revision: str, folder: Path) -> Path:
+    """A folder in ``folder`` whose ``farfield`` package is the ``core/`` of git ``revision`` (put it
+    first on a child process's import path to run that revision's code)."""
+    root = folder / f"rev-{revision}"
+    package = root / "farfield"
+    package.mkdir(parents=True, exist_ok=True)
+    archive = subprocess.run(["git", "archive", revision, "core"], check=True, capture_output=True, cwd=ROOT).stdout
+    with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
+        tar.extractall(package, filter="data")
+    (package / "__init__.py").write_text("")
+    return root
+
+
 def walk_in_process(directory: Path, side: int, subdiv: int, frames: int, path: str, revision: str | None) -> dict:
     """:func:`walk_database` in a fresh process: with this tree's ``farfield``, or with the ``core/``
     of git ``revision`` (extracted beside ``directory`` and put first on the import path)."""
     env = dict(os.environ)
     if revision is not None:
-        root = directory / f"rev-{revision}"
-        package = root / "farfield"
-        package.mkdir(parents=True, exist_ok=True)
-        archive = subprocess.run(["git", "archive", revision, "core"], check=True, capture_output=True, cwd=ROOT).stdout
-        with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
-            tar.extractall(package, filter="data")
-        (package / "__init__.py").write_text("")
+        root = archived(revision, directory)
         env["PYTHONPATH"] = os.pathsep.join([str(root), env.get("PYTHONPATH", "")])
     command = [
         sys.executable,
