@@ -52,3 +52,25 @@ def test_a_truncated_binary_ply_is_refused_naming_the_header():
     assert load_scene_bytes(header + body, "ply", "whole.ply").triangle_count == 1
     with pytest.raises(SceneLoadError, match="not the length the header's 3 vertex and 1 face elements need"):
         load_scene_bytes(header + body[:-5], "ply", "cut.ply")
+
+
+def test_an_ascii_ply_cut_inside_its_last_line_is_refused():
+    """Cut inside its last face line, an ASCII PLY still holds as many lines as its header declares;
+    it loaded with the cut face's remaining indices."""
+    header = (
+        "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+        "element face 2\nproperty list uchar int vertex_indices\nproperty uchar red\nend_header\n"
+    )
+    body = "0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2 9\n3 1 3 2 9\n"
+    assert load_scene_bytes((header + body).encode(), "ply", "whole.ply").triangle_count == 2
+    assert load_scene_bytes((header + body.rstrip("\n")).encode(), "ply", "no-final-newline.ply").triangle_count == 2
+    for cut, values, needed in ((2, 4, 5), (5, 3, 5), (7, 2, 5), (9, 1, 5)):
+        with pytest.raises(
+            SceneLoadError, match=f"last face element has {values} values where its properties need {needed}"
+        ):
+            load_scene_bytes((header + body[: len(body) - cut]).encode(), "ply", "cut.ply")
+    vertices_only = (
+        "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+    )
+    with pytest.raises(SceneLoadError, match="last vertex element has 2 values where its properties need 3"):
+        load_scene_bytes((vertices_only + "0 0 0\n1 0").encode(), "ply", "cloud.ply")

@@ -27,7 +27,7 @@ from trimesh.resolvers import Resolver
 
 from farfield.core.errors import SceneLoadError
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
-from farfield.core.exchange.ply_colours import vertex_colours
+from farfield.core.exchange.ply_colours import _header, vertex_colours
 from farfield.core.exchange.trimesh_scene import objects_from_trimesh, parse
 from farfield.core.scene import SceneObject
 from farfield.core.sidedness import DEFAULT_SIDES, double_sided
@@ -56,7 +56,8 @@ def _check_ascii_length(data: bytes, declared: dict[str, int]) -> None:
     end = data.find(b"end_header")
     if end < 0 or not declared or not _ASCII.search(data[:end]):
         return
-    lines = sum(1 for line in data[end:].splitlines()[1:] if line.strip())
+    data_lines = [line for line in data[end:].splitlines()[1:] if line.strip()]
+    lines = len(data_lines)
     for element, count in declared.items():  # the elements' lines follow each other in header order
         if lines < count:
             raise SceneLoadError(
@@ -64,6 +65,35 @@ def _check_ascii_length(data: bytes, declared: dict[str, int]) -> None:
                 "(truncated or a corrupt header)"
             )
         lines -= count
+    _check_last_line(data, data_lines)
+
+
+def _check_last_line(data: bytes, data_lines: list[bytes]) -> None:
+    """Raise SceneLoadError when the last element line of an ASCII PLY holds fewer values than its
+    properties need: a file cut inside its last line has the declared count of lines, and trimesh
+    reads the cut face with whatever indices are left (or fails on numpy's shapes)."""
+    parsed = _header(data)
+    elements = [element for element in parsed[1] if element[1] > 0] if parsed else []
+    if not elements or not data_lines:
+        return
+    name, _count, properties = elements[-1]
+    words = data_lines[sum(element[1] for element in elements) - 1].split()
+    needed, at = 0, 0
+    for _property, kind in properties:  # a list property is its length, then that many values
+        if kind is None:
+            if at >= len(words):
+                needed = at + 1
+                break
+            if not words[at].isdigit():
+                return  # not a count: trimesh's parser says what is wrong
+            needed = at = at + 1 + int(words[at])
+        else:
+            needed = at = at + 1
+    if len(words) < needed:
+        raise SceneLoadError(
+            f"the last {name} element has {len(words)} values where its properties need {needed} "
+            "(truncated inside its last line)"
+        )
 
 
 def _normals(mesh: trimesh.Trimesh, warnings: list[str]) -> np.ndarray | None:
