@@ -337,6 +337,42 @@ def test_the_sweeper_sends_a_lost_admission_again_and_never_its_cells(tmp_path):
     assert lost_queued_cells(db, 1.0) == [cell_id]  # admitted: an old queued cell is sent again
 
 
+def test_a_failed_delivery_frees_its_own_hold_not_a_later_one_on_the_same_host(tmp_path):
+    """A delivery that failed frees the hold of its own attempt: when the sweeper's delivery has
+    claimed the admission again on the same host meanwhile (another pool process), the failed one's
+    retry leaves that live hold alone (it freed it by host name, and the live one then stopped).
+    Bare host names (an older release's retry messages) still free the host's hold."""
+    from farfield.service.jobs.admitting import _claim, release_admission
+
+    with api_client(tmp_path) as client:
+        path = write_scene(city(buildings=3), tmp_path, "glb")
+        scene_id = client.post("/v1/scenes", files={"file": (path.name, path.read_bytes())}).json()["id"]
+    db = Database(Settings.from_env({"FARFIELD_HOME": str(tmp_path)}).database_url)
+    tenant_id = authenticate(db, KEY)
+    scene = get_scene_row(db, tenant_id, scene_id, with_objects=True)
+    job = create_job(
+        db, tenant_id, scene, JobSpec(scene_id=scene_id, resolution=64, viewcells=[CELL]), AdmissionLimits(), 60
+    )
+
+    def holder():
+        with db.session() as s:
+            row = s.get(JobRow, job.id)
+            return row.plan_worker, row.plan_attempts
+
+    first = _claim(db, job.id, "host-a", 5, 60.0)[1]
+    with db.session() as s:  # the first delivery's lease lapses; the sweeper's lands on the same host
+        s.get(JobRow, job.id).lease_until = 0.0
+    second = _claim(db, job.id, "host-a", 5, 60.0)[1]
+    assert (first, second) == (1, 2) and holder() == ("host-a", 2)
+    assert not release_admission(db, job.id, "host-a", first) and holder() == ("host-a", 2)
+    assert not release_admission(db, job.id, "host-b", second)
+    assert release_admission(db, job.id, "host-a", second)
+    with db.session() as s:
+        assert s.get(JobRow, job.id).plan_worker is None
+    _claim(db, job.id, "host-a", 5, 60.0)
+    assert release_admission(db, job.id, "host-a")  # no attempt: the host's hold, whatever it is
+
+
 def test_a_refused_plan_costs_no_more_than_the_limit(home, broker):
     """A cell's check stops planning at 8 times the limit: with a limit of 1e8 texels the 4096-px
     cell (260 layers of 5153x7291 when planned in full, 9.8e9 texels) fails after 22 layers."""

@@ -507,21 +507,24 @@ ADMISSION_TIME_LIMIT = max(_DECLARED.cell_time_limit, 300)
     bind=True, name=ADMIT_JOB, soft_time_limit=ADMISSION_TIME_LIMIT, time_limit=ADMISSION_TIME_LIMIT + CELL_TIME_GRACE,
     max_retries=max_retries(_DECLARED.max_attempts),
 )  # fmt: skip
-def admit_job_task(self, job_id: str, held_by: list[str] | None = None) -> str:
+def admit_job_task(self, job_id: str, held_by: list | None = None) -> str:
     """Check every cell of an admitting job and send those that pass (service.jobs.admitting.admit_job).
     Each delivery stops after ``ADMISSION_DELIVERY_S`` and sends itself again, its progress kept; a delivery
     that fails frees its hold, and the API's sweeper sends it again (a run of ``FARFIELD_MAX_ATTEMPTS``
     deliveries without progress fails the job).  Where the hold cannot be freed either (the database is
     down), the task is retried with backoff (2, 4, 8, ... s: :func:`~farfield.service.jobs.runner.backoff`),
-    ``held_by`` naming the workers of the failed deliveries, whose holds the retry frees first: the admission goes
+    ``held_by`` naming the holds of the failed deliveries (``[worker, attempt]``; a bare worker name, from an
+    older release, frees that host's hold whatever its attempt), which the retry frees first: the admission goes
     on within a backoff of the database's return, not when the hold's lease (``FARFIELD_ADMISSION_LEASE_S``)
     or, had the claim itself failed, the job's first ``FARFIELD_REQUEUE_AFTER`` runs out."""
     settings, db, blobs = _records()
     worker = self.request.hostname
     limit, retries = max_retries(settings.max_attempts), self.request.retries
+    claimed: list[int] = []  # the attempt this delivery holds, once it holds one
+    earlier = [[h, None] if isinstance(h, str) else [str(h[0]), int(h[1])] for h in held_by or ()]
     try:
-        for holder in held_by or ():
-            release_admission(db, job_id, holder)
+        for holder, attempt in earlier:
+            release_admission(db, job_id, holder, attempt)
         state, cell_ids = admit_job(
             db,
             blobs,
@@ -531,13 +534,16 @@ def admit_job_task(self, job_id: str, held_by: list[str] | None = None) -> str:
             settings.admission,
             deadline_s=ADMISSION_DELIVERY_S,
             lease_s=settings.admission_lease_s,
+            claimed=claimed,
         )
     except Exception as error:  # noqa: BLE001 - the sweeper sends it again; stalled deliveries are counted
         log.warning("job %s: admission failed (%s); freeing its hold", job_id, error, exc_info=True)
-        holders = sorted({worker, *(held_by or ())})
+        # This delivery's hold, if it took one (one whose claim failed holds nothing; a claim whose
+        # commit was lost with the database is left to its lease), and the earlier ones'.
+        holders = earlier + [[worker, attempt] for attempt in claimed]
         try:
-            for holder in holders:
-                release_admission(db, job_id, holder)
+            for holder, attempt in holders:
+                release_admission(db, job_id, holder, attempt)
         except Exception:  # noqa: BLE001 - the database is away: retried, freeing the hold first
             if retries < limit:
                 countdown = backoff(retries + 1)

@@ -148,17 +148,22 @@ def admit_job(
     limits: AdmissionLimits | None = None,
     deadline_s: float | None = None,
     lease_s: float = ADMISSION_LEASE_S,
+    claimed: list[int] | None = None,
 ) -> tuple[str, list[str]]:
     """Check the admitting job's queued cells (see the module docstring): (the job's state after,
     the ids of the cells to send).  "continue" (and no ids): ``deadline_s`` seconds passed, the
     progress is committed and the hold freed, and the caller sends the admission again (so that a
     10,000-cell admission never meets a worker's time limit); "skipped": not this delivery's to run.
-    ``lease_s``: the hold's lease (``FARFIELD_ADMISSION_LEASE_S``), renewed at each commit."""
+    ``lease_s``: the hold's lease (``FARFIELD_ADMISSION_LEASE_S``), renewed at each commit.
+    ``claimed``, when given, gets the attempt this delivery holds as soon as it holds it, so that a
+    caller whose delivery then fails frees that hold and no later one (:func:`release_admission`)."""
     begun = time.perf_counter()  # the delivery's seconds, claim to commit, count as admission
     limits = AdmissionLimits.from_env() if limits is None else limits
     job, attempt, bounds = _claim(db, job_id, worker, max_attempts, lease_s)
     if job is None:
         return attempt, []
+    if claimed is not None:
+        claimed.append(attempt)
     record = job.planning
     technique = get_technique(job.job_type)
     options = technique.options_of(job.params)
@@ -239,17 +244,16 @@ def admit_job(
     return "queued", ids
 
 
-def release_admission(db: Database, job_id: str, worker: str) -> bool:
-    """Free ``worker``'s hold of the job's admission (its delivery failed): the API's sweeper sends
-    it again at its next sweep.  False when it did not hold it."""
+def release_admission(db: Database, job_id: str, worker: str, attempt: int | None = None) -> bool:
+    """Free ``worker``'s hold of the job's admission from its ``attempt`` (its delivery failed): the
+    API's sweeper sends it again at its next sweep.  False when that attempt does not hold it: a
+    later delivery on the same host (the sweeper's, while this one waited to retry) keeps its hold.
+    ``attempt`` None frees the host's hold whatever its attempt (a message of an older release)."""
+    held = [JobRow.id == job_id, JobRow.state == "admitting", JobRow.plan_worker == worker]
+    if attempt is not None:
+        held.append(JobRow.plan_attempts == attempt)
     with db.session() as s:
-        return bool(
-            s.execute(
-                update(JobRow)
-                .where(JobRow.id == job_id, JobRow.state == "admitting", JobRow.plan_worker == worker)
-                .values(plan_worker=None, lease_until=0.0)
-            ).rowcount
-        )
+        return bool(s.execute(update(JobRow).where(*held).values(plan_worker=None, lease_until=0.0)).rowcount)
 
 
 def resend_admission_at_next_sweep(db: Database, job_id: str) -> bool:
