@@ -214,7 +214,10 @@ class NetNamespace:
 
     def __init__(self) -> None:
         tag = uuid.uuid4().hex[:8]
-        self.name, self.host_link, self.node_link = f"farfield-{tag}", f"ffh{tag}", f"ffn{tag}"
+        # The test process's id in the name: a run killed before its cleanup (kill -9) leaves its
+        # namespaces behind, and the next run removes them (:func:`remove_stale_namespaces`).
+        self.name = f"{NAMESPACE_PREFIX}{os.getpid()}-{tag}"
+        self.host_link, self.node_link = f"ffh{tag}", f"ffn{tag}"
         self.host_address, self.node_address = _free_slash30()
         self._gates: list[TcpGate] = []
         try:
@@ -254,6 +257,29 @@ class NetNamespace:
         subprocess.run(["ip", "link", "del", self.host_link], capture_output=True)  # if the namespace never got it
 
 
+NAMESPACE_PREFIX = "farfield-"
+
+
+def remove_stale_namespaces() -> list[str]:
+    """Remove the namespaces (and with them their veth pairs) that test runs whose process is gone
+    left behind: killed before :meth:`NetNamespace.remove` ran.  The names removed."""
+    listed = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
+    stale = []
+    for line in listed.splitlines():
+        name = line.split()[0] if line.split() else ""
+        owner = name[len(NAMESPACE_PREFIX) :].split("-")[0] if name.startswith(NAMESPACE_PREFIX) else ""
+        if not owner.isdigit() or int(owner) == os.getpid():
+            continue
+        try:
+            os.kill(int(owner), 0)
+        except ProcessLookupError:
+            subprocess.run(["ip", "netns", "del", name], capture_output=True)
+            stale.append(name)
+        except PermissionError:
+            pass  # a live process of another user
+    return stale
+
+
 def _ip(*args: str) -> None:
     done = subprocess.run(["ip", *args], capture_output=True, text=True)
     if done.returncode != 0:
@@ -280,6 +306,7 @@ def netns_unavailable() -> str | None:
         return "a network namespace (ip netns add) needs root"
     if shutil.which("ip") is None:
         return "no 'ip' tool (iproute2) to make a network namespace"
+    remove_stale_namespaces()
     probe = f"farfield-probe-{uuid.uuid4().hex[:8]}"
     made = subprocess.run(["ip", "netns", "add", probe], capture_output=True, text=True)
     if made.returncode != 0:

@@ -471,3 +471,28 @@ def _cell_of_grid() -> dict:
     lo, hi, counts = BUNNY_GRID["lo"], BUNNY_GRID["hi"], BUNNY_GRID["counts"]
     size = [(h - low) / n for low, h, n in zip(lo, hi, counts, strict=True)]
     return {"kind": "box", "lo": lo, "hi": [low + s for low, s in zip(lo, size, strict=True)]}
+
+
+def test_namespaces_left_by_a_killed_run_are_removed_and_live_ones_kept():
+    """A test run killed before its cleanup (kill -9) leaves its nodes' namespaces; the next run's
+    harness removes those whose process is gone, and keeps a live run's."""
+    import os
+    import subprocess
+
+    from cluster_harness import NAMESPACE_PREFIX, netns_unavailable, remove_stale_namespaces
+
+    why = netns_unavailable()
+    if why:
+        pytest.skip(why)
+    gone = subprocess.Popen(["true"])
+    gone.wait()
+    dead, live = f"{NAMESPACE_PREFIX}{gone.pid}-stale", f"{NAMESPACE_PREFIX}{os.getppid()}-live"
+    for name in (dead, live):
+        subprocess.run(["ip", "netns", "add", name], check=True, capture_output=True)
+    try:
+        assert dead in remove_stale_namespaces()
+        listed = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
+        assert dead not in listed and live in listed
+    finally:
+        for name in (dead, live):
+            subprocess.run(["ip", "netns", "del", name], capture_output=True)
