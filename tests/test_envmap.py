@@ -431,3 +431,20 @@ def test_cli_bake_and_evaluate_envmap(tmp_path, town):
         ],
     )
     assert run.exit_code != 0 and "cubic" in run.output
+
+
+def test_the_bundle_encodes_no_page_the_bake_measured(town, town_cell, tmp_path, monkeypatch):
+    """The bake encodes its pages to report ``png_bytes``; writing the bundle then reuses those
+    bytes for the page files and the GLB (it encoded each page a second time), and they are the
+    bytes the stat counted."""
+    import farfield.core.impostor.png_pages as png_pages
+    from farfield.core.impostor.bundle import write_bundle
+
+    impostor = bake_envmap(town, town_cell, EnvmapOptions(**{**SMALL, "directions": ("+x",)}))
+    encoded = []
+    real = png_pages.page_png
+    monkeypatch.setattr(png_pages, "page_png", lambda page: encoded.append(page.shape) or real(page))
+    paths = write_bundle(impostor, tmp_path / "b")
+    assert impostor.pages and encoded == []
+    assert sum(len(p.read_bytes()) for p in paths.pages) == impostor.stats["png_bytes"]
+    assert [p.read_bytes() for p in paths.pages] == [real(page) for page in impostor.pages]

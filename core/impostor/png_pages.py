@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import io
 import os
+import weakref
 import zlib
 from collections.abc import Iterable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -76,12 +77,30 @@ def map_threads(function, items: Sequence, workers: int | None = None) -> list:
         return list(pool.map(function, items))
 
 
+# PNG bytes that a PagePngs(remember=True) encoded, by page id while the page lives (a weak
+# reference whose callback forgets it): a technique that measures its pages' PNG size (envmap's
+# ``png_bytes``) hands the bytes on to the bundle writer, which then encodes nothing again.
+_REMEMBERED: dict[int, tuple[weakref.ref, bytes]] = {}
+
+
+def _remembered(page: np.ndarray) -> bytes | None:
+    entry = _REMEMBERED.get(id(page))
+    return entry[1] if entry is not None and entry[0]() is page else None
+
+
+def _remember(page: np.ndarray, data: bytes) -> None:
+    key = id(page)
+    _REMEMBERED[key] = (weakref.ref(page, lambda _ref, key=key: _REMEMBERED.pop(key, None)), data)
+
+
 class PagePngs:
     """PNG bytes of page arrays (:func:`page_png`), each array encoded once while this object lives.
 
     Arrays are told apart by identity, and each one given is kept referenced until this object is
     dropped, so an address is never reused for another page meanwhile; a page must not change
-    while it is here.  ``workers`` threads encode a batch (:meth:`encode`); 1 encodes in the
+    while it is here.  With ``remember`` the bytes also outlive this object for as long as their
+    page does, and any PagePngs finds them there instead of encoding the page again (a page must
+    then not change while it lives).  ``workers`` threads encode a batch (:meth:`encode`); 1 encodes in the
     calling thread, one page after the other.
 
     >>> pngs = PagePngs(workers=2)
@@ -90,9 +109,10 @@ class PagePngs:
     (True, True, 2)
     """
 
-    def __init__(self, workers: int | None = None) -> None:
+    def __init__(self, workers: int | None = None, remember: bool = False) -> None:
         self.workers = thread_count() if workers is None else max(1, int(workers))
         self._done: dict[int, tuple[np.ndarray, bytes]] = {}
+        self._remember = remember
 
     @property
     def encoded(self) -> int:
@@ -107,7 +127,15 @@ class PagePngs:
         """The PNG bytes of each of ``pages``, in their order; those not encoded before are encoded
         now, on up to ``workers`` threads."""
         pages = list(pages)
-        todo = list({id(p): p for p in pages if id(p) not in self._done}.values())
+        todo = []
+        for page in {id(p): p for p in pages if id(p) not in self._done}.values():
+            data = _remembered(page)  # encoded by a remembering PagePngs while the page lived
+            if data is None:
+                todo.append(page)
+            else:
+                self._done[id(page)] = (page, data)
         for page, data in zip(todo, map_threads(page_png, todo, self.workers)):
             self._done[id(page)] = (page, data)
+            if self._remember:
+                _remember(page, data)
         return [self._done[id(p)][1] for p in pages]

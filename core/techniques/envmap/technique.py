@@ -321,7 +321,8 @@ def bake_envmap(
         )  # none: all is near field
         pages, channels = split_channels(pages)
     with clock("png"):
-        png_bytes = int(sum(map(len, PagePngs().encode(pages))))  # the pages side by side
+        # the pages side by side; remembered, so that writing the bundle does not encode them again
+        png_bytes = int(sum(map(len, PagePngs(remember=True).encode(pages))))
     clock.report("atlas", 1, 1)
 
     quad_count = len(tiles)
