@@ -10,10 +10,12 @@ node of a node reached along two paths.  three.js draws the same files alike
 
 from __future__ import annotations
 
+import io
 import json
 import struct
 
 import numpy as np
+import PIL.Image
 import pytest
 from gltf_files import CLAMP, MIRROR, SHORT, SQUARE_UV, UBYTE, USHORT, GltfBuilder, gradient, sampler_scene
 
@@ -305,3 +307,21 @@ def test_clamped_objects_of_one_image_share_a_few_padded_copies(tmp_path):
         b.quad(f"q{k:02d}", [2.0 * k, 0, 0], 1.0, material, uv=SQUARE_UV * (1.0 + 0.05 * k))
     scene = _load(b, tmp_path, "copies.glb")
     assert len({id(obj.texture) for obj in scene.objects}) <= 8
+
+
+def test_a_16_bit_greyscale_png_is_scaled_to_8_bits_and_its_trns_grey_cut(tmp_path):
+    """A 16-bit greyscale PNG (Pillow's mode ``I;16``) reads as v / 257 (the PNG specification's
+    scaling, as browsers decode it), not clipped at 255 (everything but black was white), and its
+    ``tRNS`` grey value is transparent under alphaMode MASK."""
+    wide = np.array([[0, 0x1234, 0x4000, 0x8080, 0xC000, 0xFFFF]] * 2, dtype=np.uint16)
+    data = io.BytesIO()
+    PIL.Image.fromarray(wide).save(data, format="PNG", transparency=0x1234)
+    b = GltfBuilder()
+    image = b._add("images", {"bufferView": b.view(data.getvalue()), "mimeType": "image/png"})
+    b.quad("grey", [0, 0, 0], 1.0, b.material(texture=b.texture(image), alphaMode="MASK"), uv=SQUARE_UV)
+    (obj,) = _load(b, tmp_path, "grey16.glb").objects
+    expected = np.round(wide / 257.0).astype(np.uint8)
+    np.testing.assert_array_equal(obj.texture[..., 0], expected)
+    np.testing.assert_array_equal(obj.texture[..., 2], expected)
+    np.testing.assert_array_equal(obj.texture[..., 3], np.where(wide == 0x1234, 0, 255))
+    assert obj.alpha_cutoff == 0.5

@@ -59,6 +59,7 @@ from farfield.core.exchange.references import MapStatement, map_statement
 from farfield.core.exchange.trimesh_scene import (
     IMAGE_ERRORS,
     check_texels,
+    eight_bit,
     fetch,
     file_normals,
     objects_from_trimesh,
@@ -176,6 +177,7 @@ def _opacity(image: PIL.Image.Image, channel: str | None, colour_file: bool) -> 
     """An ``L`` image of opacity from a ``map_d`` image (see the module docstring): the channel
     ``channel`` (``-imfchan``), else luminance, else the alpha where it is evidently the mask
     (``colour_file``: the map is the ``map_Kd`` file)."""
+    image = eight_bit(image)
     has_alpha = image.mode in ("RGBA", "LA", "PA") or "transparency" in image.info
     rgba = image.convert("RGBA")
     if channel in ("r", "g", "b"):
@@ -209,7 +211,7 @@ def _apply_opacity(
         check_texels(material.image.size, max_pixels, f"material {material.name!r}'s texture")
     alpha = _opacity(opacity, channel, colour_file)
     if material.image is not None:
-        base = material.image.convert("RGBA")
+        base = eight_bit(material.image).convert("RGBA")
     else:
         rgb = tuple(int(c) for c in np.asarray(material.diffuse)[:3])
         base = PIL.Image.new("RGBA", alpha.size, rgb + (255,))
@@ -386,7 +388,7 @@ def _normal_maps(
 
 def _scalar_map(image: PIL.Image.Image, channel: str | None) -> np.ndarray:
     """(h, w) uint8 of a scalar MTL map: the channel ``-imfchan`` names (r, g, b, m), else luminance."""
-    rgba = image.convert("RGBA")
+    rgba = eight_bit(image).convert("RGBA")
     if channel in ("r", "g", "b", "m"):
         return np.asarray(rgba)[..., "rgbm".index(channel)].copy()
     return np.asarray(rgba.convert("L")).copy()

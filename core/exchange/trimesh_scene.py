@@ -170,6 +170,32 @@ def check_texels(size: tuple[int, int], max_pixels, name: str, count: bool = Fal
         )
 
 
+# PIL's modes of a greyscale image wider than 8 bits (a 16-bit greyscale PNG opens as "I;16", or "I"
+# in older Pillow): PIL's convert("L"/"RGBA") clips their values at 255 instead of scaling them.
+_WIDE_GREY = ("I;16", "I;16B", "I;16L", "I;16N", "I")
+
+
+def eight_bit(image: PIL.Image.Image) -> PIL.Image.Image:
+    """``image`` with a 16-bit greyscale one scaled to 8 bits (v / 257, rounded: the PNG
+    specification's §13.12 scaling, as browsers decode it), its ``tRNS`` grey value made an alpha
+    channel (``LA``); other images as they are.
+
+    >>> import numpy as np
+    >>> wide = PIL.Image.frombytes("I;16", (3, 1), np.array([0, 0x8080, 0xFFFF], "<u2").tobytes())
+    >>> wide.convert("L").tobytes()[1], eight_bit(wide).getpixel((1, 0))
+    (255, 128)
+    """
+    if image.mode not in _WIDE_GREY:
+        return image
+    values = np.asarray(image).astype(np.int64)
+    grey = PIL.Image.fromarray(np.clip((values + 128) // 257, 0, 255).astype(np.uint8))
+    transparent = image.info.get("transparency")
+    if isinstance(transparent, int):
+        alpha = PIL.Image.fromarray(np.where(values == transparent, 0, 255).astype(np.uint8))
+        return PIL.Image.merge("LA", (grey, alpha))
+    return grey
+
+
 def texture_rgba(image: PIL.Image.Image, max_pixels: int | None = None, name: str = "texture") -> np.ndarray:
     """(h, w, 4) uint8 RGBA array of a PIL image, top row first.
 
@@ -184,6 +210,7 @@ def texture_rgba(image: PIL.Image.Image, max_pixels: int | None = None, name: st
         The image data is broken (PIL decodes lazily, here).
     """
     check_texels(image.size, max_pixels, name, count=True)
+    image = eight_bit(image)
     if image.mode != "RGBA":
         image = image.convert("RGBA")
     return np.asarray(image, dtype=np.uint8)
