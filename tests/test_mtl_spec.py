@@ -167,6 +167,30 @@ def test_map_kd_offset_and_scale_move_the_uv_and_unsupported_options_are_named(t
     assert any("-clamp on" in w and "not supported" in w for w in scene.warnings), scene.warnings
 
 
+def test_tabs_indented_statements_and_trailing_comments_read_as_the_plain_file(tmp_path):
+    """OBJ separates keywords and arguments by white space, and three.js's OBJLoader trims and
+    splits each line so; trimesh found only ``\\n<keyword> ``: an indented ``v`` line lost its
+    vertex (the faces after it failed or named the wrong ones), a ``f\\t`` line its face, and a
+    ``# comment`` after a ``v`` or ``f`` line refused the file.  Each now reads as the plain file."""
+    grey_atlas(tmp_path)
+    plain = quads_obj(tmp_path, {"a": ["map_Kd atlas.png"], "b": ["Kd 0.2 0.4 0.6"]}).read_text()
+    assets = {"scene.mtl": (tmp_path / "scene.mtl").read_bytes(), "atlas.png": (tmp_path / "atlas.png").read_bytes()}
+    expected = load_scene_bytes(plain.encode(), "obj", "scene.obj", assets)
+    variants = {
+        "tabs": plain.replace(" ", "\t"),
+        "indented": "".join("  \t" + line for line in plain.splitlines(keepends=True)),
+        "comments": "".join(
+            line.rstrip("\n") + " # corner\n" if line[:2] in ("v ", "f ", "vt") else line
+            for line in plain.splitlines(keepends=True)
+        ),
+    }
+    for kind, text in variants.items():
+        scene = load_scene_bytes(text.encode(), "obj", "scene.obj", assets)
+        assert [o.name for o in scene.objects] == [o.name for o in expected.objects], kind
+        assert scene.content_hash == expected.content_hash, kind
+        assert scene.triangle_count == 4 and scene.objects[0].texture is not None, kind
+
+
 def test_map_statements_split_options_from_file_names():
     assert map_statement("-s 1 1 1 my tex.png").file == "my tex.png"
     assert map_statement("-imfchan r -bm 0.5 bump map.png").options == {"imfchan": ("r",), "bm": ("0.5",)}

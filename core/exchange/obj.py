@@ -92,6 +92,44 @@ def decode_text(data: bytes) -> str:
         return data.decode("latin-1")
 
 
+# Whitespace before a statement, and a comment after an element's numbers (``v 1 2 3 # corner``).
+_INDENT = re.compile(r"^[ \t]+", re.MULTILINE)
+_TRAILING_COMMENT = re.compile(r"^((?:v|vt|vn|vp|f|l) [^#\r\n]*?) *#[^\r\n]*", re.MULTILINE)
+
+
+def plain_statements(text: str) -> str:
+    """OBJ text with its statements as trimesh's parser finds them: tabs as spaces, no whitespace
+    before a keyword, no comment after an element's numbers.
+
+    The specification separates a statement's keyword and arguments by white space, and three.js's
+    OBJLoader reads a line so (trimmed, split on any white space); trimesh finds a statement only
+    as ``\\n<keyword> `` and dropped the others in silence (an indented ``v`` line lost its vertex,
+    so later faces named the wrong ones or failed; a ``f\\t`` line lost its face), and refused a
+    file whose ``v`` or ``f`` line ended in a ``# comment``.  A file without them is unchanged.
+
+    >>> plain_statements("  v\\t1 2 3 # a corner\\nf 1 2 3\\n# kept\\n")
+    'v 1 2 3\\nf 1 2 3\\n# kept\\n'
+    """
+    if "\t" in text:
+        text = text.replace("\t", " ")
+    if text.startswith(" ") or "\n " in text:  # the checks scan at memchr speed; the regexes do not
+        text = _INDENT.sub("", text)
+    if _mid_line(text, "#"):
+        text = _TRAILING_COMMENT.sub(r"\1", text)
+    return text
+
+
+def _mid_line(text: str, char: str) -> bool:
+    """Whether ``char`` occurs in ``text`` other than first on a line (a header comment's ``#``
+    does not count)."""
+    at = text.find(char)
+    while at >= 0:
+        if at > 0 and text[at - 1] != "\n":
+            return True
+        at = text.find(char, at + 1)
+    return False
+
+
 # The PBR extension's maps farfield reads (roughness, metallic: scalar; emission: sRGB colour).
 PBR_MAPS = ("map_pr", "map_pm", "map_ke")
 
@@ -523,7 +561,7 @@ def load(
     SceneLoadError
         Binary data, or trimesh could not parse it (e.g. a face index beyond the vertices).
     """
-    text = decode_text(data)
+    text = plain_statements(decode_text(data))
     _check_indices(text)
     text = complete_normals(text)
     warnings: list[str] = []
