@@ -191,6 +191,42 @@ def test_tabs_indented_statements_and_trailing_comments_read_as_the_plain_file(t
         assert scene.triangle_count == 4 and scene.objects[0].texture is not None, kind
 
 
+def test_every_material_library_is_read_and_a_material_none_defines_is_named(tmp_path):
+    """``mtllib a.mtl b.mtl`` names two libraries (the specification: "mtllib filename1 filename2
+    ..."), and a file may have several ``mtllib`` lines; trimesh read the first line as one file
+    name, so the materials of the others drew in the default grey with no warning.  A ``usemtl``
+    that no library defines is warned about, and packing an upload takes every library's files."""
+    (tmp_path / "mats").mkdir()
+    (tmp_path / "a.mtl").write_text("newmtl red\nKd 1 0 0\n")
+    (tmp_path / "mats" / "b.mtl").write_text("newmtl green\nKd 0 1 0\nmap_Kd atlas.png\n")
+    grey_atlas(tmp_path / "mats")
+    (tmp_path / "c.mtl").write_text("newmtl blue\nKd 0 0 1\n")
+    lines = ["mtllib a.mtl mats/b.mtl", "mtllib c.mtl"]
+    for k, material in enumerate(("red", "green", "blue", "nowhere")):
+        lines += [f"v {k} 0 0", f"v {k + 1} 0 0", f"v {k} 1 0", "vt 0 0", "vt 1 0", "vt 0 1"]
+        lines += [
+            f"o {material}",
+            f"usemtl {material}",
+            f"f {3 * k + 1}/{3 * k + 1} {3 * k + 2}/{3 * k + 2} {3 * k + 3}/{3 * k + 3}",
+        ]
+    path = tmp_path / "scene.obj"
+    path.write_text("\n".join(lines) + "\n")
+    scene = load_scene(path)
+    colour = {obj.name.split("_")[0]: obj for obj in scene.objects}
+    np.testing.assert_array_equal(colour["red"].base_color, [1, 0, 0, 1])
+    np.testing.assert_array_equal(colour["blue"].base_color, [0, 0, 1, 1])
+    np.testing.assert_array_equal(colour["green"].base_color, [0, 1, 0, 1])
+    assert colour["green"].texture is not None
+    assert [w for w in scene.warnings if "nowhere" in w] == [
+        "material 'nowhere' (usemtl) is defined in no material library; its faces use the default colour"
+    ]
+    assert len(scene.warnings) == 1, scene.warnings
+    assert referenced_files(path) == ["a.mtl", "mats/b.mtl", "c.mtl", "mats/atlas.png"]
+    with zipfile.ZipFile(io.BytesIO(pack_scene(path))) as archive:
+        assets = {name: archive.read(name) for name in archive.namelist() if name != "scene.obj"}
+    assert load_scene_bytes(path.read_bytes(), "obj", "scene.obj", assets).content_hash == scene.content_hash
+
+
 def test_map_statements_split_options_from_file_names():
     assert map_statement("-s 1 1 1 my tex.png").file == "my tex.png"
     assert map_statement("-imfchan r -bm 0.5 bump map.png").options == {"imfchan": ("r",), "bm": ("0.5",)}

@@ -216,6 +216,7 @@ def referenced_files(path: Path) -> list[str]:
     path = Path(path)
     suffix = path.suffix.lower()
     references: list[str] = []
+    libraries: set[str] = set()  # an OBJ's material libraries, whose texture maps are references too
     if suffix == ".gltf":
         try:
             document = json.loads(path.read_text(encoding="utf-8"))
@@ -227,10 +228,11 @@ def referenced_files(path: Path) -> list[str]:
         # A URI is percent-encoded (RFC 3986): "my%20file.bin" is the file "my file.bin".
         references = [uri_path(u) for u in uris if isinstance(u, str) and not u.startswith("data:")]
     elif suffix == ".obj":
-        from farfield.core.exchange.obj import _MTLLIB, decode_text, texture_maps
+        from farfield.core.exchange.obj import decode_text, material_libraries, texture_maps
 
         try:
-            references = _MTLLIB.findall(decode_text(path.read_bytes()))[:1]  # the loader reads the first library only
+            references = material_libraries(decode_text(path.read_bytes()))
+            libraries = set(references)
         except (OSError, SceneLoadError):
             return []
     index = None
@@ -244,7 +246,7 @@ def referenced_files(path: Path) -> list[str]:
         if local is None or local in found:
             continue
         found.append(local)
-        if suffix == ".obj" and local.lower().endswith(".mtl") and len(found) == 1:
+        if suffix == ".obj" and reference in libraries:
             try:
                 maps = texture_maps(decode_text((path.parent / local).read_bytes()))
             except (OSError, SceneLoadError):

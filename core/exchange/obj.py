@@ -31,6 +31,8 @@ multiplied by ``Pr``/``Pm``, which default to 1 beside a map) and ``map_Ke`` (sR
 by ``Ke``, default 1 beside the map); over the object's ``vt``.  A map that cannot be read, or whose
 size differs from the other scalar map's, is left out with a warning.
 
+Material libraries: every one the file names (:func:`material_libraries`: several ``mtllib`` lines,
+several names on one), given to trimesh as one; a ``usemtl`` none of them defines is warned about.
 trimesh only logs (at debug level) a material library or texture it cannot find; :func:`load`
 looks them up itself and returns a warning for each, and the objects keep the material colour.
 
@@ -519,6 +521,60 @@ def _short_names(scene: trimesh.Scene) -> dict[str, str]:
 _ZERO_INDEX = re.compile(r"^[ \t]*[fl][ \t][^\n]*?(?<![\w.+-])0(?=[/ \t\r]|$)", re.MULTILINE)
 
 
+def material_libraries(text: str) -> list[str]:
+    """The material library files an OBJ text names, in order, each once: those of every ``mtllib``
+    statement, which may name several (``mtllib a.mtl b.mtl``, the specification's "mtllib filename1
+    filename2 ..."; three.js's OBJLoader takes the rest of the line as one name).  Its words are
+    several files where each ends in ``.mtl``, else the rest of the line is one name with spaces.
+
+    >>> material_libraries("mtllib a.mtl B.MTL\\nmtllib my materials.mtl\\nmtllib a.mtl\\n")
+    ['a.mtl', 'B.MTL', 'my materials.mtl']
+    """
+    out: list[str] = []
+    for rest in _MTLLIB.findall(text):
+        words = rest.split()
+        names = words if len(words) > 1 and all(w.lower().endswith(".mtl") for w in words) else [rest]
+        out += [name for name in names if name not in out]
+    return out
+
+
+# The name under which trimesh is given the material libraries of a file that names several.
+_LIBRARIES = "farfield-material-libraries.mtl"
+_USEMTL = re.compile(r"^usemtl[ \t]+(.*\S)", re.MULTILINE)
+
+
+class _Libraries(Resolver):
+    """A resolver that gives ``mtl`` (every library of a file, one after the other) for
+    :data:`_LIBRARIES` and asks ``inner`` for any other file."""
+
+    def __init__(self, inner: Resolver, mtl: bytes) -> None:
+        self.inner, self.mtl = inner, mtl
+        self.parent = getattr(inner, "parent", "")
+
+    def get(self, name: str) -> bytes:
+        return self.mtl if name == _LIBRARIES else self.inner.get(name)
+
+    def keys(self):
+        return self.inner.keys()
+
+    def namespaced(self, namespace: str) -> Resolver:
+        return self.inner.namespaced(namespace)
+
+    def write(self, name: str, data) -> None:
+        raise OSError("a scene's files are read, not written")
+
+
+def _undefined_materials(text: str, mtl: str) -> list[str]:
+    """A warning per ``usemtl`` name no ``newmtl`` of the material libraries defines (its faces get
+    the default colour, as in a viewer)."""
+    defined = {" ".join(words[1:]) for words in map(str.split, mtl.splitlines()) if words[:1] == ["newmtl"]}
+    missing = sorted({name for name in _USEMTL.findall(text) if name not in defined})
+    return [
+        f"material {name!r} (usemtl) is defined in no material library; its faces use the default colour"
+        for name in missing
+    ]
+
+
 def _check_indices(text: str) -> None:
     """Raise SceneLoadError naming the first face with a 0 index (module docstring of the rule)."""
     found = _ZERO_INDEX.search(text)
@@ -567,18 +623,23 @@ def load(
     warnings: list[str] = []
     maps: dict[str, dict[str, str]] = {}
     values: dict[str, dict[str, object]] = {}
-    libraries = _MTLLIB.findall(text)
-    if libraries:
-        if len(libraries) > 1:
-            warnings.append(f"only the first material library, {libraries[0]!r}, is read")
-        mtl = fetch(resolver, libraries[0])
+    libraries = material_libraries(text)
+    found: list[str] = []
+    for library in libraries:
+        mtl = fetch(resolver, library)
         if mtl is None:
-            warnings.append(f"material library {libraries[0]!r} not found; objects use the default colour")
+            warnings.append(f"material library {library!r} not found; objects use the default colour")
         elif b"\x00" in mtl:
-            warnings.append(f"material library {libraries[0]!r} is binary, not MTL text; texture maps not checked")
+            warnings.append(f"material library {library!r} is binary, not MTL text; texture maps not checked")
         else:
-            maps = texture_maps(decode_text(mtl))
-            values = pbr_values(decode_text(mtl))
+            found.append(decode_text(mtl))
+    if found:
+        mtl_text = "\n".join(found)
+        maps, values = texture_maps(mtl_text), pbr_values(mtl_text)
+        warnings.extend(_undefined_materials(text, mtl_text))
+    if len(libraries) > 1:  # trimesh reads one library: it is given them all as one
+        text = f"mtllib {_LIBRARIES}\n" + _MTLLIB.sub("", text)
+        resolver = _Libraries(resolver, "\n".join(found).encode("utf-8"))
     scene = parse(text.encode("utf-8"), extension, resolver, split_objects=True, group_material=True)
     budget = limits.texel_budget()  # every texture of this load counts against one total
     warnings.extend(_textures(scene, maps, resolver, budget))
