@@ -19,6 +19,24 @@ def test_an_obj_face_with_the_index_0_is_refused_by_line():
     assert load_scene_bytes(obj.rsplit("f 0", 1)[0].encode(), "obj", "fine.obj").triangle_count == 2
 
 
+def test_obj_relative_indices_count_back_from_the_face_not_from_the_end_of_the_file():
+    """``f -3 -2 -1`` names the last three vertices read before it (the specification; three.js):
+    trimesh counted back from the end of the file, so two objects written one after the other were
+    the second one twice.  Texture coordinates and normals alike; one before the first is refused."""
+    obj = (
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nvn 0 0 1\no first\nf -3/-3/-1 -2/-2/-1 -1/-1/-1\n"
+        "v 5 0 0\nv 6 0 0\nv 5 1 0\nvt 0.5 0.5\nvn 0 0 -1\no second\nf -3/-1/-1 -1/-1/-1 -2/-1/-1\n"
+    )
+    scene = load_scene_bytes(obj.encode(), "obj", "relative.obj")
+    first, second = (scene.subset([name]).objects[0] for name in ("first", "second"))
+    np.testing.assert_array_equal(first.vertices[first.faces[0]], [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    np.testing.assert_array_equal(second.vertices[second.faces[0]], [[5, 0, 0], [5, 1, 0], [6, 0, 0]])
+    np.testing.assert_allclose(first.normals, [[0, 0, 1]] * 3)
+    np.testing.assert_allclose(second.normals, [[0, 0, -1]] * 3)
+    with pytest.raises(SceneLoadError, match=r"line 3: 'f -3 -2 -1' names vertex \(v\) -3, but only 2 v lines"):
+        load_scene_bytes(b"v 0 0 0\nv 1 0 0\nf -3 -2 -1\nv 0 1 0\nf 1 2 3\n", "obj", "before.obj")
+
+
 def test_a_ply_declaring_more_elements_than_it_holds_is_refused():
     """Issue 59, item 12: a header declaring 2^31 faces over one face was accepted."""
     header = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"

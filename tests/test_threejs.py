@@ -383,6 +383,33 @@ def test_obj_mtl_colours_opacity_maps_and_uv_options_draw_as_three_js_draws_them
     assert stats["colour_mean"] <= 2.0, stats
 
 
+def test_obj_objects_written_with_relative_indices_and_tabs_draw_as_three_js_draws_them(threejs, tmp_path):
+    """Three textured quads, each written on its own with relative indices (``f -4/-4 ...``, counted
+    back from the face: the specification and three.js's OBJLoader), indented and tab-separated.
+    trimesh counted back from the end of the file (every quad drew the last one's corners) and
+    dropped the indented and tab-separated lines."""
+    from test_mtl_spec import grey_atlas
+
+    grey_atlas(tmp_path)
+    (tmp_path / "quads.mtl").write_text("newmtl a\nKd 0.9 0.3 0.2\nmap_Kd atlas.png\nnewmtl b\nKd 0.2 0.5 0.9\n")
+    lines = ["mtllib quads.mtl"]
+    for k in range(3):
+        lines += [f"o quad{k}", f"  v {k} 0 0", f"\tv {k + 0.8} 0 0", f"v\t{k + 0.8} 1 0", f"v {k} 1 0"]
+        lines += ["vt 0 0", "vt 1 0", "vt 1 1", "vt 0 1", f"usemtl {'ab'[k % 2]}", "f -4/-4 -3/-3 -2/-2 -1/-1"]
+    path = tmp_path / "quads.obj"
+    path.write_text("\n".join(lines) + "\n")
+    scene = load_scene(path)
+    assert len(scene.objects) == 3 and np.allclose(scene.bounds, [[0, 0, 0], [2.8, 1, 0]])
+    camera = look_at([1.4, 0.5, 2.0], np.array([1.4, 0.5, 0.0]), box_corners(scene.bounds), 60.0, RESOLUTION)
+    (three,) = threejs.render(path, camera, mipmaps=False)
+    with MeshRenderer(scene.objects) as renderer:
+        ours = renderer.render(camera)
+    stats = compare(three, ours)
+    print("obj relative indices", stats)
+    assert stats["three_pixels"] > 2000 and stats["three_beyond_1px"] == 0 and stats["farfield_beyond_1px"] == 0, stats
+    assert stats["colour_mean"] <= 2.0, stats
+
+
 def test_gltf_samplers_texture_transform_uv_sets_and_accessor_encodings_draw_as_three_js_draws_them(threejs, tmp_path):
     """Issue 54: a validator-clean glTF (``tests/gltf_files.py``) of one quad per rule drawn by
     three.js's GLTFLoader and by farfield from its loaded scene, without mipmaps: CLAMP_TO_EDGE and

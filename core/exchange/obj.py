@@ -18,6 +18,9 @@ options that change what is shown (``-t``, ``-clamp on``, ``-mm``, ``-cc on``, `
 on ``map_d`` but ``-imfchan``) are not supported and each gives a warning naming it.  OBJ ``vt``
 coordinates already have their origin at the bottom-left and are kept as they are.
 
+Relative indices (``f -3 -2 -1``) count back from the face, as the specification and three.js
+read them (:mod:`farfield.core.exchange.obj_indices`; trimesh counted from the end of the file).
+
 Shading normals: ``vn`` as the face corners name them (``f v/vt/vn``, ``f v//vn``), a position
 with several normals split into several vertices; a face without normal indices in a file whose
 other faces have them gets its face normal, and a ``vn`` index out of range is refused
@@ -56,6 +59,7 @@ from trimesh.visual.material import SimpleMaterial
 
 from farfield.core.errors import SceneLoadError
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
+from farfield.core.exchange.obj_indices import absolute_indices
 from farfield.core.exchange.obj_normals import complete_normals
 from farfield.core.exchange.references import MapStatement, map_statement
 from farfield.core.exchange.trimesh_scene import (
@@ -516,7 +520,7 @@ def _short_names(scene: trimesh.Scene) -> dict[str, str]:
     return {node: short for node, short in stripped.items() if counts[short] == 1 and short not in taken}
 
 
-# A 0 among a face's (or line's) indices: OBJ counts from 1 (negative indices count back from the end),
+# A 0 among a face's (or line's) indices: OBJ counts from 1 (negative indices count back from the face),
 # so 0 names no vertex; trimesh would read it as the last one, a silent wrong triangle.
 _ZERO_INDEX = re.compile(r"^[ \t]*[fl][ \t][^\n]*?(?<![\w.+-])0(?=[/ \t\r]|$)", re.MULTILINE)
 
@@ -584,7 +588,7 @@ def _check_indices(text: str) -> None:
         statement = text[found.start() : end if end >= 0 else len(text)].strip()
         raise SceneLoadError(
             f"line {line}: {statement[:60]!r} has the index 0; OBJ indices start at 1 "
-            "(negative ones count back from the last vertex)"
+            "(negative ones count back from the last vertex before the face)"
         )
 
 
@@ -617,7 +621,7 @@ def load(
     SceneLoadError
         Binary data, or trimesh could not parse it (e.g. a face index beyond the vertices).
     """
-    text = plain_statements(decode_text(data))
+    text = absolute_indices(plain_statements(decode_text(data)))
     _check_indices(text)
     text = complete_normals(text)
     warnings: list[str] = []

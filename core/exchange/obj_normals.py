@@ -15,7 +15,8 @@ trimesh 4.12 gets wrong, and this module corrects in the text it is given:
   face names a normal (trimesh groups a file's faces by object and material across the file).
 
 A file without ``vn`` references is returned unchanged, so its objects and their hashes are as
-before.  Negative indices are resolved as trimesh resolves them (from the end of the file's list).
+before.  Negative indices are resolved as trimesh resolves them (from the end of the file's list):
+:mod:`farfield.core.exchange.obj_indices` has made absolute those that would be misread so.
 """
 
 from __future__ import annotations
