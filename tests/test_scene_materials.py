@@ -152,6 +152,24 @@ def test_bad_material_inputs_warn_and_never_refuse_the_file(tmp_path, case):
     assert q.roughness_factor == 1.0
 
 
+def test_a_transmissive_glass_material_is_drawn_opaque_with_one_warning(tmp_path):
+    """KHR_materials_transmission (a window pane) is not drawn: the pane hides the room behind it,
+    which three.js shows, so the loader says so once per material (none at the default factor 0)."""
+    b = GltfBuilder()
+    glass = b.material(
+        color=(0.9, 0.95, 1.0, 1.0), extensions={"KHR_materials_transmission": {"transmissionFactor": 1}}
+    )
+    b.doc["materials"][glass]["name"] = "glass"
+    default = b.material(extensions={"KHR_materials_transmission": {}})
+    b.used.add("KHR_materials_transmission")
+    b.quad("pane", [0, 0, 0], 1.0, glass)
+    b.quad("pane2", [2, 0, 0], 1.0, glass)
+    b.quad("wall", [0, 0, -1], 3.0, default)
+    objects, warnings = load(b.write(tmp_path / "glass.glb"))
+    assert len(warnings) == 1 and "'glass'" in warnings[0] and "KHR_materials_transmission" in warnings[0], warnings
+    assert objects["pane"].alpha_cutoff is None and objects["pane"].base_color[3] == 1.0
+
+
 QUAD_OBJ = """mtllib q.mtl
 v 0 0 0
 v 1 0 0

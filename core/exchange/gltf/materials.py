@@ -31,6 +31,9 @@ farfield does with it:
   cannot be read is left out with a warning (its factor kept), a factor out of range is clamped
   with a warning.  ``KHR_materials_pbrSpecularGlossiness`` materials keep the matte default
   (metallic 0, roughness 1, farfield's reading of a diffuse colour).
+* ``KHR_materials_transmission`` (glass: a window, a display case) is not drawn: such a material
+  is opaque, as an impostor's texels are, and a warning names it (the interior behind the pane
+  is hidden; three.js draws the pane see-through).
 """
 
 from __future__ import annotations
@@ -242,7 +245,18 @@ def material(document: dict, index: object, warnings: list[str]) -> Material:
     # as it is, and a glTF that leaves metallicFactor out would otherwise be metal) are matte.
     matte = isinstance(gloss, dict) or "KHR_materials_unlit" in extensions
     shading = _shading(document, spec, None if matte else pbr, extensions, where, warnings)
+    transmission = extensions.get("KHR_materials_transmission")
+    if isinstance(transmission, dict) and _see_through(transmission.get("transmissionFactor")):
+        warnings.append(
+            f"{where} ({name!r}) lets light through (KHR_materials_transmission, glass): it is drawn "
+            "opaque, as an impostor has no transparency, and hides what lies behind it"
+        )
     return Material(name, factor, texture, cutoff, double, mode == "BLEND", normal, scale, **shading)
+
+
+def _see_through(factor: object) -> bool:
+    """Whether a ``transmissionFactor`` (default 0) lets light through."""
+    return isinstance(factor, int | float) and not isinstance(factor, bool) and factor > 0.0
 
 
 def _unit(value: object, default: float, where: str, warnings: list[str]) -> float:
