@@ -37,6 +37,21 @@ def test_obj_relative_indices_count_back_from_the_face_not_from_the_end_of_the_f
         load_scene_bytes(b"v 0 0 0\nv 1 0 0\nf -3 -2 -1\nv 0 1 0\nf 1 2 3\n", "obj", "before.obj")
 
 
+@pytest.mark.parametrize(
+    "face, named",
+    [
+        ("f 1 2 4", "vertex \\(v\\) 4, but the file has 3 v lines"),
+        ("f -4 -2 -1", "vertex \\(v\\) -4, but the file has 3 v lines"),
+    ],
+)
+def test_an_obj_face_beyond_the_vertices_is_refused_by_line(face, named):
+    """trimesh's parse failed with numpy's 'index 3 is out of bounds for axis 0 with size 3', which
+    named neither the face nor its line."""
+    obj = f"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n{face}\n"
+    with pytest.raises(SceneLoadError, match=rf"line 5: '{face}' names {named}"):
+        load_scene_bytes(obj.encode(), "obj", "beyond.obj")
+
+
 def test_a_ply_declaring_more_elements_than_it_holds_is_refused():
     """Issue 59, item 12: a header declaring 2^31 faces over one face was accepted."""
     header = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"

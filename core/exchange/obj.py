@@ -59,7 +59,7 @@ from trimesh.visual.material import SimpleMaterial
 
 from farfield.core.errors import SceneLoadError
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
-from farfield.core.exchange.obj_indices import absolute_indices
+from farfield.core.exchange.obj_indices import absolute_indices, beyond_the_end
 from farfield.core.exchange.obj_normals import complete_normals
 from farfield.core.exchange.references import MapStatement, map_statement
 from farfield.core.exchange.trimesh_scene import (
@@ -644,7 +644,10 @@ def load(
     if len(libraries) > 1:  # trimesh reads one library: it is given them all as one
         text = f"mtllib {_LIBRARIES}\n" + _MTLLIB.sub("", text)
         resolver = _Libraries(resolver, "\n".join(found).encode("utf-8"))
-    scene = parse(text.encode("utf-8"), extension, resolver, split_objects=True, group_material=True)
+    try:
+        scene = parse(text.encode("utf-8"), extension, resolver, split_objects=True, group_material=True)
+    except SceneLoadError as error:
+        raise (beyond_the_end(text) or error) from error
     budget = limits.texel_budget()  # every texture of this load counts against one total
     warnings.extend(_textures(scene, maps, resolver, budget))
     normals = {key: found for key, mesh in scene.geometry.items() if (found := file_normals(mesh)) is not None}

@@ -1,4 +1,4 @@
-"""OBJ relative (negative) indices -> absolute ones, counted where the face stands, before trimesh parses the text.
+"""OBJ face indices: relative (negative) ones made absolute, counted where the face stands, before trimesh parses the text; one beyond its list named.
 
 The Wavefront OBJ specification ("Referencing vertex data"): "If an index is negative then it
 relatively refers to the end of the vertex list, -1 referring to the last element", the list as
@@ -102,3 +102,32 @@ def _face(line: str, counts: list[int]) -> str:
             slots[k] = str(absolute)
         words[w] = "/".join(slots)
     return " ".join(words) + ("\r" if line.endswith("\r") else "")
+
+
+_FACE_LINE = re.compile(r"^[fl] ([^\n]*)", re.MULTILINE)
+
+
+def beyond_the_end(text: str) -> SceneLoadError | None:
+    """The error naming the first face or line of ``text`` (relative indices already absolute) whose
+    vertex or texture coordinate index is beyond the file's ``v`` or ``vt`` lines, or None.  Only
+    run where trimesh's parse failed (its IndexError names no line); normals are checked by
+    :mod:`farfield.core.exchange.obj_normals`.
+
+    >>> str(beyond_the_end("v 0 0 0\\nv 1 0 0\\nv 0 1 0\\nf 1 2 3\\nf 1 2 4\\n"))
+    "line 5: 'f 1 2 4' names vertex (v) 4, but the file has 3 v lines"
+    """
+    counts = [("\n" + text).count(mark) for mark in _ELEMENTS[:2]]
+    for match in _FACE_LINE.finditer(text):
+        for corner in match.group(1).split():
+            for k, slot in enumerate(corner.split("/")[:2]):
+                try:
+                    index = int(slot)
+                except ValueError:
+                    continue
+                if index > counts[k] or -index > counts[k]:  # a relative one left here counts from the end
+                    line = text.count("\n", 0, match.start()) + 1
+                    return SceneLoadError(
+                        f"line {line}: {match.group(0).strip()[:60]!r} names {_NAMES[k]} {index}, but the file has "
+                        f"{counts[k]} {_KINDS[k]} lines"
+                    )
+    return None
