@@ -179,6 +179,10 @@ def test_tabs_indented_statements_and_trailing_comments_read_as_the_plain_file(t
     variants = {
         "tabs": plain.replace(" ", "\t"),
         "indented": "".join("  \t" + line for line in plain.splitlines(keepends=True)),
+        "continued": "".join(
+            line.replace(" ", "\\\n  ", 2).replace("\\\n  ", " ", 1) if line.startswith("f ") else line
+            for line in plain.splitlines(keepends=True)
+        ),
         "comments": "".join(
             line.rstrip("\n") + " # corner\n" if line[:2] in ("v ", "f ", "vt") else line
             for line in plain.splitlines(keepends=True)

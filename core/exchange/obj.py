@@ -100,6 +100,7 @@ def decode_text(data: bytes) -> str:
 
 # Whitespace before a statement, and a comment after an element's numbers (``v 1 2 3 # corner``).
 _INDENT = re.compile(r"^[ \t]+", re.MULTILINE)
+_CONTINUED = re.compile(r"\\\r?\n")
 _TRAILING_COMMENT = re.compile(r"^((?:v|vt|vn|vp|f|l) [^#\r\n]*?) *#[^\r\n]*", re.MULTILINE)
 
 
@@ -115,7 +116,11 @@ def plain_statements(text: str) -> str:
 
     >>> plain_statements("  v\\t1 2 3 # a corner\\nf 1 2 3\\n# kept\\n")
     'v 1 2 3\\nf 1 2 3\\n# kept\\n'
+    >>> plain_statements("f 1 2\\\\\\n  3\\n")  # continued: one statement
+    'f 1 2   3\\n'
     """
+    if "\\\n" in text or "\\\r\n" in text:  # a statement continued on the next line, as one line
+        text = _CONTINUED.sub(" ", text)
     if "\t" in text:
         text = text.replace("\t", " ")
     if text.startswith(" ") or "\n " in text:  # the checks scan at memchr speed; the regexes do not
