@@ -231,6 +231,46 @@ def test_every_material_library_is_read_and_a_material_none_defines_is_named(tmp
     assert load_scene_bytes(path.read_bytes(), "obj", "scene.obj", assets).content_hash == scene.content_hash
 
 
+def test_a_concave_polygon_is_cut_into_triangles_that_cover_it_once(tmp_path):
+    """An L-shaped hexagon written from a corner that does not see the others: trimesh's fan (and
+    three.js's) covered 4 square units for its 3, a triangle outside it and one twice.  Its
+    triangles now cover it once, face its way and keep each corner's uv; a convex pentagon keeps
+    its fan."""
+    corners = np.array([[2, 0], [2, 1], [1, 1], [1, 2], [0, 2], [0, 0]], dtype=float)
+    lines = [f"v {x} {y} 0" for x, y in corners] + [f"vt {x / 2} {y / 2}" for x, y in corners] + ["vn 0 0 1"]
+    lines = ["mtllib shapes.mtl", *lines, "o ell", "usemtl atlas", "f " + " ".join(f"{k}/{k}/1" for k in range(1, 7))]
+    lines += [
+        "v 5 0 0",
+        "v 6 0 0",
+        "v 6.5 1 0",
+        "v 5.5 2 0",
+        "v 4.5 1 0",
+        "o pentagon",
+        "usemtl plain",
+        "f 7 8 9 10 11",
+    ]
+    grey_atlas(tmp_path)
+    (tmp_path / "shapes.mtl").write_text("newmtl atlas\nmap_Kd atlas.png\nnewmtl plain\nKd 1 1 1\n")
+    (tmp_path / "shapes.obj").write_text("\n".join(lines) + "\n")
+    scene = load_scene(tmp_path / "shapes.obj")
+    ell, pentagon = scene.subset(["ell"]).objects[0], scene.subset(["pentagon"]).objects[0]
+    a, b, c = (ell.vertices[ell.faces[:, k]] for k in range(3))
+    normals = np.cross(b - a, c - a)
+    assert (normals[:, 2] > 0).all() and np.isclose(0.5 * normals[:, 2].sum(), 3.0)
+
+    def turn(p, q, r):  # z of (q - p) x (r - p), per triangle
+        return (q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])
+
+    rng = np.random.default_rng(5)
+    for x, y in rng.uniform(0.0, 2.0, size=(400, 2)):
+        p = np.broadcast_to([x, y, 0.0], a.shape)
+        covering = int(((turn(a, b, p) > 0) & (turn(b, c, p) > 0) & (turn(c, a, p) > 0)).sum())
+        assert covering == (1 if x < 1.0 or y < 1.0 else 0), (x, y, covering)
+    np.testing.assert_allclose(ell.uv, ell.vertices[:, :2] / 2)  # each corner kept its vt
+    np.testing.assert_allclose(ell.normals, [[0, 0, 1]] * len(ell.normals))
+    np.testing.assert_array_equal(pentagon.faces, [[0, 1, 2], [0, 2, 3], [0, 3, 4]])
+
+
 def test_map_statements_split_options_from_file_names():
     assert map_statement("-s 1 1 1 my tex.png").file == "my tex.png"
     assert map_statement("-imfchan r -bm 0.5 bump map.png").options == {"imfchan": ("r",), "bm": ("0.5",)}

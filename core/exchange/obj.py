@@ -18,6 +18,9 @@ options that change what is shown (``-t``, ``-clamp on``, ``-mm``, ``-cc on``, `
 on ``map_d`` but ``-imfchan``) are not supported and each gives a warning naming it.  OBJ ``vt``
 coordinates already have their origin at the bottom-left and are kept as they are.
 
+A polygon of five or more corners that trimesh's fan would not cover (concave) is cut into
+triangles that do (:mod:`farfield.core.exchange.obj_polygons`).
+
 Relative indices (``f -3 -2 -1``) count back from the face, as the specification and three.js
 read them (:mod:`farfield.core.exchange.obj_indices`; trimesh counted from the end of the file).
 
@@ -61,6 +64,7 @@ from farfield.core.errors import SceneLoadError
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
 from farfield.core.exchange.obj_indices import absolute_indices, beyond_the_end
 from farfield.core.exchange.obj_normals import complete_normals
+from farfield.core.exchange.obj_polygons import split_concave
 from farfield.core.exchange.references import MapStatement, map_statement
 from farfield.core.exchange.trimesh_scene import (
     IMAGE_ERRORS,
@@ -650,7 +654,7 @@ def load(
         text = f"mtllib {_LIBRARIES}\n" + _MTLLIB.sub("", text)
         resolver = _Libraries(resolver, "\n".join(found).encode("utf-8"))
     try:
-        scene = parse(text.encode("utf-8"), extension, resolver, split_objects=True, group_material=True)
+        scene = parse(split_concave(text).encode("utf-8"), extension, resolver, split_objects=True, group_material=True)
     except SceneLoadError as error:
         raise (beyond_the_end(text) or error) from error
     budget = limits.texel_budget()  # every texture of this load counts against one total
