@@ -955,3 +955,77 @@ def test_layer_quads_are_the_whole_grid_rules(house_bake):
         assert touches.tolist() == want.tolist()
         sealed += int(np.count_nonzero(quads[:, 0, 2] != quads[:, 2, 2]))
     assert sealed > 100  # standing quads (rules b, c) were compared, not only flat ones
+
+
+def _signed_image_area(vertices, triangles):
+    """The triangles' signed area in the image (x, y), texels squared: walls standing between
+    layers add none."""
+    p = vertices[triangles][:, :, :2]
+    e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    return float((0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])).sum())
+
+
+def _boundary_edges(triangles):
+    edges = np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    keys, count = np.unique(edges, axis=0, return_counts=True)
+    return {tuple(e) for e in keys[count == 1].tolist()}
+
+
+def _terrace_field(rng, cols: int, rows: int):
+    """A surface of flat terraces: one voxel per texel at a layer that steps every few texels (a
+    random plane, floored), a few texels left out."""
+    y, x = np.mgrid[0:rows, 0:cols]
+    layer = np.floor(x * rng.uniform(0, 0.4) + y * rng.uniform(0, 0.4)).astype(np.int64).ravel()
+    keep = rng.random(layer.size) > 0.03
+    x, y, layer = x.ravel()[keep], y.ravel()[keep], layer[keep]
+    return voxel_field(x + 2, y + 1, layer, np.full((x.size, 4), 200, np.uint8), cols + 4, rows + 2)
+
+
+def test_flat_rows_merge_a_flat_block_into_strips():
+    """A flat 10 x 6 block of voxels on one layer: the rules' grid of 19 x 11 cells (418
+    triangles) becomes one strip a row between its kept vertices (farfield.core.techniques.tdm.flat_rows):
+    the boundary rows keep their 20 vertices, inner rows only their ends (58 triangles), and with
+    every 16th grid column kept, inner rows are cut there (78)."""
+    y, x = np.mgrid[0:6, 0:10]
+    x, y = x.ravel(), y.ravel()
+    field = voxel_field(x + 1, y + 1, np.full(x.size, 2), np.full((x.size, 4), 200, np.uint8), 12, 8)
+    plain = initial_mesh(field, merge_every=-1)
+    assert plain.triangle_count == 418 and plain.stats["flat_quads_merged"] == 0
+    for every, expected in ((0, 58), (16, 78)):
+        mesh = initial_mesh(field, merge_every=every)
+        assert mesh.triangle_count == expected, (every, mesh.triangle_count)
+        assert mesh.stats["flat_quads_merged"] == 209
+        assert _boundary_edges(mesh.triangles) == _boundary_edges(plain.triangles)
+        assert _signed_image_area(mesh.vertices, mesh.triangles) == pytest.approx(
+            _signed_image_area(plain.vertices, plain.triangles), abs=1e-9
+        )
+        assert uncovered_voxels(mesh.vertices, mesh.triangles, mesh.voxel_offsets, mesh.voxels, field, 1.0) == 0
+        triangles, offsets, voxels, _ = simplify_mesh(mesh, field, 2.0)
+        assert uncovered_voxels(mesh.vertices, triangles, offsets, voxels, field, 2.0) == 0
+        assert triangles.shape[0] <= simplify_mesh(plain, field, 2.0)[0].shape[0]
+
+
+def test_flat_rows_keep_the_boundary_the_image_and_the_cover(house_bake):
+    """Merged flat rows change nothing but the inside of flat regions: on terraces, random stacks,
+    steep walls and the house's recorded field, the same boundary edges, the same signed area in
+    the image (no triangle flipped, no gap, no overlap), a mesh (no edge in three triangles),
+    every voxel stored with a triangle that meets its box, and the simplified mesh covers it too."""
+    rng = np.random.default_rng(5)
+    fields = [_terrace_field(rng, int(rng.integers(8, 40)), int(rng.integers(8, 40))) for _ in range(12)]
+    fields += [_random_field(rng, int(rng.integers(2, 12)), int(rng.integers(2, 12)), 6) for _ in range(12)]
+    fields += [_steep_field(0), _field_and_mesh(*house_bake)[0]]
+    merged = 0
+    for field in fields:
+        plain, mesh = initial_mesh(field, merge_every=-1), initial_mesh(field, merge_every=4)
+        merged += mesh.stats["flat_quads_merged"]
+        assert mesh.triangle_count <= plain.triangle_count
+        assert _boundary_edges(mesh.triangles) == _boundary_edges(plain.triangles)
+        assert _edge_use(mesh.triangles).max() <= 2
+        assert _signed_image_area(mesh.vertices, mesh.triangles) == pytest.approx(
+            _signed_image_area(plain.vertices, plain.triangles), abs=1e-6
+        )
+        assert np.array_equal(np.sort(mesh.voxels), np.arange(field.count))
+        assert uncovered_voxels(mesh.vertices, mesh.triangles, mesh.voxel_offsets, mesh.voxels, field, 1.0) == 0
+        triangles, offsets, voxels, _ = simplify_mesh(mesh, field, 2.0)
+        assert uncovered_voxels(mesh.vertices, triangles, offsets, voxels, field, 2.0) == 0
+    assert merged > 1000
