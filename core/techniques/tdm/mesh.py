@@ -85,7 +85,6 @@ from numba import njit
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from farfield.core.techniques.tdm.flat_rows import KEEP_EVERY, merge_flat_rows
 from farfield.core.techniques.tdm.simplify import assign_voxels
 from farfield.core.techniques.tdm.voxel_field import VoxelField
 
@@ -356,10 +355,8 @@ def layer_quads(field: VoxelField) -> tuple[np.ndarray, np.ndarray, int, int, in
     return quads_arr, touch_arr, step_count, x0, y0
 
 
-def initial_mesh(field: VoxelField, merge_every: int = KEEP_EVERY) -> TdmMesh:
-    """The covering mesh of ``field`` by the rule sets of seed 003 §5 (see the module docstring),
-    its flat rows merged (:func:`farfield.core.techniques.tdm.flat_rows.merge_flat_rows`, keeping
-    the inner vertices of every ``merge_every``-th grid column; -1: not merged)."""
+def initial_mesh(field: VoxelField) -> TdmMesh:
+    """The covering mesh of ``field`` by the rule sets of seed 003 §5 (see the module docstring)."""
     quads_arr, touch_voxel, step_count, x0, y0 = layer_quads(field)
     centres = field.centres
     corners = _Corners(quads_arr, 2 * int(max(field.x.max() - x0, field.y.max() - y0)) + 3)
@@ -391,13 +388,6 @@ def initial_mesh(field: VoxelField, merge_every: int = KEEP_EVERY) -> TdmMesh:
         owner[missing] = first + 2 * np.arange(missing.size)
         fallback = int(missing.size)
 
-    merged = 0
-    if merge_every >= 0:  # the flat rows merged (farfield.core.techniques.tdm.flat_rows)
-        column = corners.keys % (corners.span * corners.span) % corners.span
-        triangles, owner, merged = merge_flat_rows(
-            vertices, quads_arr, corners.inverse.reshape(-1, 4), column, owner, centres, merge_every
-        )
-
     meshes = mesh_labels(vertices.shape[0], triangles)
     # Meshes that store no voxel go (module docstring).
     stored = np.bincount(meshes[owner], minlength=int(meshes.max(initial=-1)) + 1)
@@ -419,7 +409,6 @@ def initial_mesh(field: VoxelField, merge_every: int = KEEP_EVERY) -> TdmMesh:
             np.count_nonzero(np.bincount(triangles.ravel(), minlength=vertices.shape[0]))
         ),  # those of the meshes left out stay unused
         "fallback_quads": fallback,
-        "flat_quads_merged": merged,
         "step_voxels": step_count,
         "slits_closed": slits,
         "slit_triangles": int(slit_triangles.shape[0]),
