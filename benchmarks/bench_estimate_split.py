@@ -20,7 +20,16 @@ with the runtime drawing the PVS), for every frame:
 
 Each ratio's p50, p95 and share of frames under by more than 30 % (ratio < 0.7) is printed; the
 per-frame rows go to ``--json``.  ``--model`` plans and estimates with another cost model (a file
-of ``farfield calibrate --out``), ``--depth-complexity`` with another pixel cap.
+of ``farfield calibrate --out``), ``--depth-complexity`` with another pixel cap, ``--vdi-deg`` and
+``--cpv-divisions`` with other CPVs, ``--t-max`` at fixed budgets (per scene, ms) instead of half
+the worst view's estimate by the model.
+
+``--parts cpv`` (no GL timing): every (smallest region, interval) as a CPV, and per CPV
+``--cpv-samples`` views sampled in it; how far the CPV's estimate lies over its worst sampled
+view, and that over its median one (:func:`cpv_spread`).
+
+Usage: ``.venv/bin/python benchmarks/bench_estimate_split.py --t-max 3.27,5.51,3.4 --depth-complexity 4``
+(before 2026-12-07's default), ``... --depth-complexity 1`` (after), ``--parts cpv --cpv-samples 32``.
 """
 
 from __future__ import annotations
