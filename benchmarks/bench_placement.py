@@ -79,7 +79,7 @@ from farfield.core.exchange import load_scene  # noqa: E402
 from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, primitive_model  # noqa: E402
 from farfield.core.placement.hierarchy import Elements  # noqa: E402
 from farfield.core.placement.planner import PlacementSettings, place  # noqa: E402
-from farfield.core.placement.view_space import element_pixels  # noqa: E402
+from farfield.core.placement.view_space import DEFAULT_DEPTH_COMPLEXITY, element_pixels  # noqa: E402
 from farfield.core.scene import Scene, SceneObject  # noqa: E402
 from farfield.core.techniques.envmap.arrangement import layers_for_near_field  # noqa: E402
 from farfield.core.techniques.envmap.technique import EnvmapOptions  # noqa: E402
@@ -183,7 +183,7 @@ def _grid_counts(lo, hi, cell: float) -> np.ndarray:
 
 
 def _envmap_near_field(elements: Elements, c_lo, c_hi, t_max: float, model: CostModel, resolution: int,
-                       depth_complexity: float = 4.0, keep: np.ndarray | None = None) -> tuple[float, float]:  # fmt: skip
+                       depth_complexity: float = DEFAULT_DEPTH_COMPLEXITY, keep: np.ndarray | None = None) -> tuple[float, float]:  # fmt: skip
     """(near field, frame estimate) of an envmap cell for ``t_max``: the largest near field (the
     half-size of a cube about the cell's centre, as the envmap bake cuts it,
     :func:`farfield.core.techniques.envmap.near_field.near_field`; one of the elements' distances) at which the cell's frame

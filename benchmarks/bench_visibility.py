@@ -70,7 +70,7 @@ from bench_placement import (  # noqa: E402
 from farfield.core.placement.cost_model import LLVMPIPE_MODEL  # noqa: E402
 from farfield.core.placement.hierarchy import Elements, Hierarchy  # noqa: E402
 from farfield.core.placement.planner import PlacementSettings, place  # noqa: E402
-from farfield.core.placement.view_space import problem_view_space  # noqa: E402
+from farfield.core.placement.view_space import DEFAULT_DEPTH_COMPLEXITY, problem_view_space  # noqa: E402
 from farfield.core.render.context import renderer_info  # noqa: E402
 from farfield.core.visibility.pvs import RegionVisibility, false_invisible  # noqa: E402
 
@@ -162,7 +162,18 @@ def estimate_ratios(scene, lo, hi, cpv: float, resolution: int, views: int, seed
     for vis in (False, True):
         visible = RegionVisibility(scene, elements, lo, hi, cpv, resolution, FOV) if vis else None
         pv = problem_view_space(
-            elements, hierarchy, lo, hi, LLVMPIPE_MODEL, 1e-12, FOV, resolution, cpv, 45.0, 4.0, visible
+            elements,
+            hierarchy,
+            lo,
+            hi,
+            LLVMPIPE_MODEL,
+            1e-12,
+            FOV,
+            resolution,
+            cpv,
+            45.0,
+            DEFAULT_DEPTH_COMPLEXITY,
+            visible,
         )
         if visible is not None:
             visible.release()
@@ -190,7 +201,7 @@ def runtime_rows(scene, lo, hi, cpv: float, resolution: int, views: int, seed: i
     positions, forwards = random_views(lo, hi, views, seed)
     elements = Elements.of(scene)
     hierarchy = Hierarchy.build(elements)
-    args = (elements, hierarchy, lo, hi, LLVMPIPE_MODEL, 1e-12, FOV, resolution, cpv, 45.0, 4.0)
+    args = (elements, hierarchy, lo, hi, LLVMPIPE_MODEL, 1e-12, FOV, resolution, cpv, 45.0, DEFAULT_DEPTH_COMPLEXITY)
     visible = RegionVisibility(scene, elements, lo, hi, cpv, resolution, FOV, **pvs_options)
     started = time.perf_counter()
     try:

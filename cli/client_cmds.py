@@ -392,7 +392,7 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
     "--depth-complexity",
     type=float,
     default=None,
-    help="With --placement: a view's rasterised pixels are at most this many frames [default: 4].",
+    help="With --placement: a view's estimated covered pixels are at most this many frames [default: 1].",
 )
 @click.option(
     "--leaf-size",

@@ -20,6 +20,7 @@ from farfield.core.placement.lod import LOD_TECHNIQUE
 from farfield.core.placement.planner import PlacementSettings, place
 from farfield.core.placement.solution_grid import BudgetSettings, place_primitives
 from farfield.core.placement.solution_grid import check_views as count_views
+from farfield.core.placement.view_space import DEFAULT_DEPTH_COMPLEXITY
 from farfield.core.sidedness import DEFAULT_SIDES
 from farfield.core.techniques import DEFAULT_TECHNIQUE, TECHNIQUES, get_technique
 from farfield.service.placement import ALGORITHMS, DEFAULT_ALGORITHM
@@ -226,9 +227,9 @@ def summary_lines(result) -> list[str]:
 @click.option(
     "--depth-complexity",
     type=float,
-    default=4.0,
+    default=DEFAULT_DEPTH_COMPLEXITY,
     show_default=True,
-    help="A view's rasterised pixels are at most this many frames (inf: no cap).",
+    help="A view's estimated covered pixels are at most this many frames (inf: no cap).",
 )
 @click.option("--leaf-size", type=int, default=4, show_default=True, help="Elements per leaf of the object hierarchy.")
 @click.option(

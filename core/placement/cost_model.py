@@ -402,6 +402,15 @@ def primitive_model(memory: tuple[float, float, float] = DEFAULT_MEMORY, memory_
 # the variants made a triangle 1.5x and a pixel 1.7x cheaper than in the run above; the rest is
 # the machine, on which that renderer now calibrates 2.7x faster (78 s -> 29 s).  A model is a
 # snapshot of its machine: run ``farfield calibrate`` where the budget matters.
+# Checked 2026-12-07 against the frames of the benchmark walks (benchmarks/bench_estimate_split.py:
+# street, downtown and above the roofs, 128 px, 100 views each, load 3-9): over exactly what a frame
+# drew, with its covered pixels, these coefficients gave 1.0 .. 1.2x the measured frame (p50 per
+# walk; over 1,500 PVS-culled plain frames p50 1.10, p95 2.05, 8 % under by > 30 %, where an NNLS
+# refit on those frames, a 0.0090, b 2.4e-4, c 2.0e-5, d 0, gave p50 1.17 and 25 % under), so they stay; the walks' 3-4x over-estimate was what the estimate counts (pixels capped at 4
+# frames where c is per covered pixel, now 1: view_space.DEFAULT_DEPTH_COMPLEXITY; and the CPV's
+# enclosing frustum, docs/placement/visibility.md).  A quiet calibration the same morning at 256 px
+# gave a 0.0104, b 7.6e-5, c 1.47e-5, d 0.150; two at 128 px (load 2-3) were unstable (c 2.1e-6 and
+# 0, d 0, a 0.0091 and 0.0255; R² 0.84, 0.83): at 128 px a pixel is near the timing noise.
 LLVMPIPE_MODEL = CostModel(
     "frame_ms",
     geometry=(0.01419, 0.0001076, 1.513e-05, 0.04332),  # ms per draw call, triangle, pixel; per frame

@@ -30,7 +30,7 @@ from farfield.core.placement.node_instances import node_instances
 from farfield.core.placement.part_inputs import PartInputs
 from farfield.core.placement.repair import PlannerState, scene_summary
 from farfield.core.placement.result import Placement
-from farfield.core.placement.view_space import Visibility, problem_view_space
+from farfield.core.placement.view_space import DEFAULT_DEPTH_COMPLEXITY, Visibility, problem_view_space
 from farfield.core.scene import Scene
 from farfield.core.stage_clock import StageClock
 from farfield.core.techniques import get_technique
@@ -55,9 +55,8 @@ class PlacementSettings:
     options: dict | None = None  # the technique's options (resolution and fov_deg included)
     cpv_size: float | None = None  # None: the view space's longest side / 8
     vdi_deg: float = 11.25
-    depth_complexity: float = (
-        4.0  # a view's rasterised pixels are at most this many frames (farfield.core.placement.view_space)
-    )
+    # A view's estimated pixels are at most this many frames (farfield.core.placement.view_space, **Pixels**).
+    depth_complexity: float = DEFAULT_DEPTH_COMPLEXITY
     cells: str = "both"
     leaf_size: int = DEFAULT_LEAF_SIZE
     cluster_triangles: int | None = None

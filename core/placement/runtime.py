@@ -55,7 +55,7 @@ from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.placement.cost_model import CostModel
 from farfield.core.placement.hierarchy import Elements, PlacementError
 from farfield.core.placement.lod import LOD_TECHNIQUE, level_for
-from farfield.core.placement.view_space import element_pixels
+from farfield.core.placement.view_space import DEFAULT_DEPTH_COMPLEXITY, element_pixels
 from farfield.core.render.raster import Camera, MeshRenderer
 from farfield.core.scene import Scene
 from farfield.core.techniques.envmap.runtime import camera_at
@@ -102,7 +102,7 @@ def plain_estimate(
     position,
     fov: float,
     resolution: int,
-    depth_complexity: float = 4.0,
+    depth_complexity: float = DEFAULT_DEPTH_COMPLEXITY,
 ) -> float:
     """The cost model's time of drawing elements ``drawn`` (indices) as geometry from ``position``:
     ``d + sum(a calls + b triangles) + c pixels``, pixels each element's bounding-sphere disc at its
@@ -157,7 +157,9 @@ class PlacementRenderer:
         options = params.get("options") or {}
         self.resolution = int(options.get("resolution", 256))
         self.fov_deg = float(options.get("fov_deg", 45.0))
-        self.depth_complexity = float(params.get("depth_complexity", 4.0))
+        # A database without the parameter predates it: planned with the cap of 4 frames then.
+        depth = params.get("depth_complexity", 4.0)
+        self.depth_complexity = math.inf if depth is None else float(depth)
         self.view_space = np.asarray(params["view_space"], dtype=np.float64).reshape(2, 3)
         cluster = (section.get("elements") or {}).get("cluster_triangles")
         self.elements = Elements.of(scene, cluster)

@@ -31,8 +31,15 @@ docs/placement/visibility.md), so a problem view it hides may still be slow; off
 **Pixels.**  An element's covered pixels are estimated as its bounding sphere's disc seen from the
 region's nearest point, at most a frame.  Summed over a frustum without occlusion culling, these
 discs count every nearby element as a whole frame; the estimate therefore caps a view's pixels at
-``depth_complexity`` frames (default 4), scaling its elements' pixels alike.  This is an
-assumption about the scene, not a bound: ``inf`` gives the strict sum.
+``depth_complexity`` frames (:data:`DEFAULT_DEPTH_COMPLEXITY`, 1), scaling its elements' pixels
+alike; ``inf`` gives the strict sum.  One frame because the cost model's per-pixel ``c`` is
+fitted on *covered* pixels (:mod:`farfield.core.placement.calibration` counts a view's non-empty
+pixels, at most a frame; the overdraw of its views is in the fit), so ``c`` times a frame bounds
+the term for any view, and a disc sum bounds a view's covered pixels from above.  The earlier cap
+of 4 frames counted overdraw a second time: along the walks of ``benchmarks/bench_estimate_split.py``
+(128 px, llvmpipe) the discs summed to 1.5 .. 4 frames at the median where 0.1 .. 1 frame was covered,
+and the model over exactly what a frame drew was 1.6 .. 2.3x the measured frame with the discs
+capped at 4 frames, 1.0 .. 1.2x with the covered pixels (docs/placement/visibility.md).
 
 **Unsolvable.**  An element whose hierarchy leaf meets a region can never be replaced there (no
 impostor may be built for a view cell that meets its part).  Where those elements alone exceed
@@ -55,6 +62,8 @@ from farfield.core.placement.cost_model import CostModel
 from farfield.core.placement.hierarchy import Elements, Hierarchy, PlacementError
 
 FACE_NAMES = tuple(FACES)
+# A view's estimated pixels are at most this many frames (see **Pixels** above).
+DEFAULT_DEPTH_COMPLEXITY = 1.0
 MAX_REGIONS = 1e6  # smallest regions a view space may be cut into (a guard against a mistyped CPV size)
 # Deepest VDI quadtree level: 6 x 4^6 = 24,576 intervals of 1.40625° per region at most.  Without it a
 # mistyped angle (1e-9°: level 37) makes the subdivision of one region outgrow any memory; a frame of
@@ -258,7 +267,7 @@ def problem_view_space(
     resolution: int,
     region_size: float,
     vdi_deg: float = 11.25,
-    depth_complexity: float = 4.0,
+    depth_complexity: float = DEFAULT_DEPTH_COMPLEXITY,
     visible: Visibility | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> ProblemViews:

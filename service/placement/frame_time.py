@@ -24,7 +24,7 @@ from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel, primit
 from farfield.core.placement.hierarchy import Elements, PlacementError
 from farfield.core.placement.lod import LOD_TECHNIQUE
 from farfield.core.placement.planner import DEFAULT_MAX_IMPOSTOR_BYTES, check_colour_only, check_placeable
-from farfield.core.placement.view_space import MAX_REGIONS, MIN_VDI_DEG
+from farfield.core.placement.view_space import DEFAULT_DEPTH_COMPLEXITY, MAX_REGIONS, MIN_VDI_DEG
 from farfield.core.techniques import DEFAULT_TECHNIQUE, TECHNIQUES, get_technique
 from farfield.service.blobs import BlobStore
 from farfield.service.db import CellRow, Database, JobRow, job_cells
@@ -239,7 +239,7 @@ class FrameTime(Algorithm):
     fields = {
         "cpv_size": (Number | None, Field(None, description="smallest 3D region of a problem view (default: the view space's longest side / 8)")),
         "vdi_deg": (Number, Field(11.25, description=f"smallest view-direction interval, degrees, in [{MIN_VDI_DEG:g}, 90]")),
-        "depth_complexity": (Number | None, Field(4.0, description="a view's rasterised pixels are at most this many frames (>= 1; null: no cap)")),
+        "depth_complexity": (Number | None, Field(DEFAULT_DEPTH_COMPLEXITY, description="a view's estimated covered pixels are at most this many frames (>= 1; null: no cap)")),
         "cells": (Literal[CELL_KINDS], Field("both", description="view cells of the candidates")),
         "leaf_size": (StrictInt, Field(4, description="elements per leaf of the object hierarchy (>= 1)")),
         "max_impostor_mb": (
