@@ -329,7 +329,7 @@ def main() -> None:
         help="PVS: occluder erosion in scene units (auto: half a lattice cell's diagonal; 0: none)",
     )
     parser.add_argument(
-        "--peels", type=int, default=2, help="PVS: layers peeled behind an eroded point's first surfaces"
+        "--peels", type=int, default=4, help="PVS: layers peeled behind an eroded point's first surfaces"
     )
     parser.add_argument(
         "--dense-samples", type=int, default=8, help="the denser uniform sampling the PVS is compared with"

@@ -259,3 +259,43 @@ def test_the_eroded_pvs_keeps_a_post_seen_only_through_a_slit_between_the_lattic
         assert hidden not in pvs
     finally:
         eroded.release()
+
+
+def _slits_in_a_row() -> Scene:
+    """Two walls (x = 20 and x = 30) with 1 m slits at z = 2..3, a post behind both (x = 40) that an
+    eye at z = 2.5 sees through the two slits in a row, and a block behind the first wall far from
+    the slits that no eye of the region x, z = 0..10 sees."""
+    return Scene.from_objects(
+        [
+            _box("wall1_low", (20, -50, -100), (20.5, 50, 2.0)),
+            _box("wall1_high", (20, -50, 3.0), (20.5, 50, 100)),
+            _box("wall2_low", (30, -50, -100), (30.5, 50, 2.0)),
+            _box("wall2_high", (30, -50, 3.0), (30.5, 50, 100)),
+            _box("post", (40, -2, 2.2), (40.6, 3, 2.8)),
+            _box("back", (60, -50, -100), (61, 50, 100)),
+            _box("hidden", (24, -2, -60), (27, 2, -56)),
+        ],
+        "slits",
+    )
+
+
+def test_the_eroded_pvs_keeps_a_post_seen_through_two_slits_in_a_row():
+    """From the lattice points (x, z in {0, 5, 10}) the first slit shows the second wall, never the
+    post: an eroded first surface alone opens only down to the second wall's depth.  Each peeled
+    layer is eroded at its own silhouettes (the second wall's slit), so the layer behind it opens
+    where a nearby eye may see through both, and the post is kept; the block behind the first wall,
+    away from the slits, is still dropped."""
+    scene = _slits_in_a_row()
+    elements = Elements.of(scene)
+    post, hidden = _index(elements, "post"), _index(elements, "hidden")
+    lo, hi = [0.0, 0.0, 0.0], [10.0, 1.0, 10.0]
+    with IdCubeRenderer(scene, elements, 256) as truth:
+        assert post in truth.see([[5.0, 0.5, 2.5]]).of(0)[0].tolist()  # a view of the region sees it
+    eroded = RegionVisibility(scene, elements, lo, hi, 10.0, 128, FOV)
+    try:
+        assert eroded.lattice.counts.tolist() == [3, 2, 3]
+        pvs = eroded.pvs(lo, hi).tolist()
+        assert post in pvs
+        assert hidden not in pvs
+    finally:
+        eroded.release()

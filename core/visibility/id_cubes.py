@@ -17,17 +17,20 @@ colour (exact), so up to 16,777,214 elements.
 **Occluder erosion** (``erosion`` > 0; seed 000 §2.2.2 and §3.4.1 on [Wonk00], Wonka, Wimmer and
 Schmalstieg 2000: what a point sees past occluders shrunk by ``e`` is a superset of what every eye
 within ``e`` of it sees past the real ones; done in image space on the depth map, after Décoret,
-Debunne and Sillion, *Erosion based visibility preprocessing*, EGSR 2003).  The occluders' depth map
-of each face is eroded: a texel at distance ``z`` takes the farthest depth seen just past an
-occluder's silhouette within ``e / z`` radians of it (a square of texels, :func:`erode_depth`), so
-a gap or a silhouette that a nearby eye could see past opens by the parallax it could have.  Then ``peels``
-further passes draw every element again, keeping per texel the nearest fragment behind the previous
-layer and in front of the eroded depth (depth peeling, ``PEEL`` in ``shaders/id_cube.frag``): the
-elements a nearby eye may see behind what this point sees.  Not strictly conservative: only the first
-surface erodes (an occluder behind it is never shrunk, which only keeps more), more than ``peels``
-layers in an opened texel lose the deeper ones, a feature that covers no texel centre is lost, and an
-element hidden by another part of one element (its own silhouette: a hill of one terrain mesh) opens
-only where the element's texels neighbour another element's.
+Debunne and Sillion, *Erosion based visibility preprocessing*, EGSR 2003).  Every layer of
+occluders erodes, each by its own parallax (a cascade): the first surfaces' depth map of each face
+is drawn; a texel at depth ``z`` is *open* where a silhouette (a neighbour of another element that is
+farther) lies within the parallax ``e sqrt(1 + x²) / (z - e)`` (tan units, :func:`erosion_radii`) of
+it, a square of texels (:func:`past_silhouettes`), and shows something farther than it there.  Then up
+to ``peels`` passes draw every element again, keeping per texel the nearest fragment behind the layer
+above and not of its element (depth peeling, ``PEEL`` in ``shaders/id_cube.frag``): the next layer's
+ids count on the texels open through every layer in front, and the next layer is eroded in turn at
+the silhouettes of every layer so far.  So a line of sight past several occluders in a row (slits in
+a row, far buildings down a street past corners) opens as far as each occluder's own parallax lets
+it, and no farther.  Not strictly conservative: more than ``peels`` layers in an open texel lose the
+deeper ones, a feature that covers no texel centre is lost, and an element hidden by another part of
+one element (its own silhouette: a hill of one terrain mesh) opens only where the element's texels
+neighbour another element's.
 """
 
 from __future__ import annotations
@@ -126,48 +129,54 @@ def silhouettes(depth: np.ndarray, ids: np.ndarray) -> np.ndarray:
 RADII = np.unique(np.ceil(np.sqrt(2.0) ** np.arange(0, 25)).astype(np.int64))  # 1, 2, 3, 4, 6, 8, 12, 16, 23, ...
 
 
-def erode_depth(
-    depth: np.ndarray, ids: np.ndarray, erosion: float, near: float, far: float, guard: float = 1.0
-) -> np.ndarray:
-    """Occluder erosion of cube faces' depth maps (module docstring): ``depth`` and ``ids`` (...,
-    face, face) window depths and element codes of the first surfaces, on faces spanning tan
-    ``-guard..guard``.  Each texel takes the farthest depth seen just past a silhouette
-    (:func:`silhouettes`) within ``r = erosion * face / (2 guard z) * sqrt(1 + x² + y²)`` texels of it
-    (a square), if farther than its own: ``z`` is its eye-space depth along the face's axis (its
-    distance is ``z sqrt(1 + x² + y²)``) and ``x, y`` its tan position, so ``r`` is ``erosion /
-    distance`` radians of parallax in texels of the gnomonic face, which narrow by ``1 + x² + y²``
-    away from its centre.  The guard band beyond tan 1 holds the neighbouring faces' directions; past
-    it nothing opens.  Radii are rounded up to :data:`RADII`, each one ``scipy.ndimage.maximum_filter``
-    (separable, linear in the texels).
+def erosion_radii(depth: np.ndarray, erosion: float, near: float, far: float, guard: float = 1.0) -> np.ndarray:
+    """Radii in texels (int64, the shape of ``depth``) of the parallax that an eye within ``erosion``
+    of the point may see at each texel of cube faces' window depths ``depth`` (..., face, face) on
+    faces spanning tan ``-guard..guard``.  An eye moved by ``d`` (face frame: ``d_r`` right, ``d_f``
+    forward) moves a point at tan ``x`` and depth ``z`` by ``(x d_f - d_r) / (z - d_f)`` in tan, at
+    most ``e sqrt(1 + x²) / (z - e)`` for ``|d| <= e``; the radius is the larger of the two axes'
+    (a square), and the whole face where ``z <= e`` (the eye may reach the surface).
 
-    >>> d = np.full((1, 16, 16), 0.5, dtype=np.float32); i = np.ones((1, 16, 16), dtype=np.int64)
-    >>> d[0, :, 12:], i[0, :, 12:] = 0.9, 2
-    >>> e = erode_depth(d, i, 0.0, 0.1, 10.0); bool(np.allclose(e, d))
-    True
-    >>> e = erode_depth(d, i, 0.01, 0.1, 10.0); [round(float(v), 2) for v in e[0, 8, [8, 10, 11, 12]]]
-    [0.5, 0.5, 0.9, 0.9]
-    >>> e = erode_depth(d, i, 0.05, 0.1, 10.0); [round(float(v), 2) for v in e[0, 8, [8, 9, 10, 12]]]
-    [0.5, 0.9, 0.9, 0.9]
+    >>> d = np.full((1, 4, 4), 0.5, dtype=np.float32)
+    >>> z = float(linear_depth(0.5, 0.1, 100.0)); round(z, 3), erosion_radii(d, 0.08, 0.1, 100.0)[0].tolist()[1]
+    (0.2, [2, 2, 2, 2])
+    >>> int(erosion_radii(d, 0.3, 0.1, 100.0).min())  # nearer than the erosion: everything
+    4
+    """
+    depth = np.asarray(depth, dtype=np.float32)
+    face = depth.shape[-1]
+    t = ((np.arange(face) + 0.5) * (2.0 / face) - 1.0) * guard
+    stretch = np.sqrt(1.0 + np.maximum(t[:, None] ** 2, t[None, :] ** 2))
+    lever = linear_depth(depth, near, far) - erosion
+    with np.errstate(divide="ignore"):
+        radius = np.where(lever > 0.0, erosion * face / (2.0 * guard) * stretch / np.maximum(lever, 1e-30), face)
+    return np.minimum(np.ceil(radius), face).astype(np.int64)
+
+
+def past_silhouettes(
+    depth: np.ndarray, edges: np.ndarray, erosion: float, near: float, far: float, guard: float = 1.0
+) -> np.ndarray:
+    """Per texel the farthest of ``edges`` (:func:`silhouettes`' far-side depths, 0 elsewhere) within
+    :func:`erosion_radii` texels of it (a square; ``depth`` gives each texel's own depth), radii
+    rounded up to :data:`RADII`, one ``scipy.ndimage.maximum_filter`` each.
+
+    >>> e = np.zeros((1, 8, 8), dtype=np.float32); e[0, 4, 4] = 0.9
+    >>> r = past_silhouettes(np.full((1, 8, 8), 0.5, dtype=np.float32), e, 0.02, 0.1, 10.0)
+    >>> [round(float(v), 2) for v in r[0, 4, [2, 3, 4, 5, 6]]]
+    [0.0, 0.9, 0.9, 0.9, 0.0]
     """
     from scipy.ndimage import maximum_filter
 
-    depth = np.asarray(depth, dtype=np.float32)
     face = depth.shape[-1]
-    if erosion <= 0.0:
-        return depth
-    c = ((np.arange(face) + 0.5) * (2.0 / face) - 1.0) * guard
-    stretch = np.sqrt(1.0 + c[:, None] ** 2 + c[None, :] ** 2)
-    z = np.maximum(linear_depth(depth, near, far), near)
-    radius = np.minimum(np.ceil(erosion * face / (2.0 * guard * z) * stretch), face)
-    edges = silhouettes(depth, ids)
-    out = depth.copy()
+    radius = erosion_radii(depth, erosion, near, far, guard)
+    out = np.zeros_like(edges)
     size = (1,) * (depth.ndim - 2)
     low = 0
     for high in RADII.tolist():
         pick = (radius > low) & (radius <= high)
         if np.any(pick):
             wide = maximum_filter(edges, size=(*size, 2 * high + 1, 2 * high + 1), mode="constant", cval=0.0)
-            out[pick] = np.maximum(out[pick], wide[pick])
+            out[pick] = wide[pick]
         low = high
         if low >= face:
             break
@@ -192,7 +201,7 @@ class IdCubeRenderer:
     """Element-id cube maps of ``elements`` of ``scene`` from any points (see the module docstring)."""
 
     def __init__(
-        self, scene: Scene, elements: Elements, face_resolution: int, erosion: float = 0.0, peels: int = 2
+        self, scene: Scene, elements: Elements, face_resolution: int, erosion: float = 0.0, peels: int = 4
     ) -> None:
         if not (math.isfinite(erosion) and erosion >= 0.0):
             raise VisibilityError(f"the occluder erosion must be >= 0, got {erosion!r}")
@@ -291,33 +300,48 @@ class IdCubeRenderer:
         )
 
     def _draw_eroded(self, batch: np.ndarray) -> list[np.ndarray]:
-        """The batch's id images (:meth:`_draw`), and with ``erosion`` the layers peeled behind the
-        occluders' depth up to its erosion (module docstring)."""
+        """The batch's id images (:meth:`_draw`), and with ``erosion`` the ids of up to ``peels``
+        layers behind the first surfaces where an eye near the point may see them (module docstring):
+        layer ``k`` is the nearest fragment behind layer ``k - 1`` (not of its element), drawn over
+        the whole atlas; its ids count only on texels *open* through every layer in front, and a
+        texel stays open through layer ``k`` where a silhouette of any layer so far (:func:`silhouettes`)
+        within the layer's own parallax (:func:`past_silhouettes`) shows something farther than it."""
         images, depth, (near, far) = self._draw(batch)
         if not self.peels:
             return images
         n, face = batch.shape[0], self.face
-        tiles = depth.reshape(n, face, 6, face).transpose(0, 2, 1, 3)  # (points, face, rows, columns)
-        codes = images[0].reshape(n, face, 6, face).transpose(0, 2, 1, 3)
-        upper = (
-            erode_depth(tiles, codes, self.erosion, near, far, self.guard)
-            .transpose(0, 2, 1, 3)
-            .reshape(n, face, 6 * face)
-        )
-        textures = [self._texture(upper, "f4"), self._texture(depth, "f4"), self._texture(images[0], "u4")]
+
+        def tiles(a: np.ndarray) -> np.ndarray:  # (points, face, rows, columns)
+            return a.reshape(n, face, 6, face).transpose(0, 2, 1, 3)
+
+        def atlas(a: np.ndarray) -> np.ndarray:
+            return np.ascontiguousarray(a.transpose(0, 2, 1, 3).reshape(n, face, 6 * face))
+
+        codes = images[0]
+        edges = silhouettes(tiles(depth), tiles(codes))
+        reach = atlas(past_silhouettes(tiles(depth), edges, self.erosion, near, far, self.guard))
+        alive = (codes != 0) & (reach > depth)  # where a nearby eye may see past the first surface
+        if not np.any(alive):
+            return images
+        textures = [self._texture(depth, "f4"), self._texture(codes, "u4")]
         try:
-            self.peel_prog["upper_depth"].value, self.peel_prog["lower_depth"].value = 0, 1
-            self.peel_prog["lower_id"].value = 2
+            self.peel_prog["lower_depth"].value, self.peel_prog["lower_id"].value = 0, 1
             self.peel_prog["depth_bias"].value = PEEL_DEPTH_BIAS
-            for _ in range(self.peels):
+            for k in range(self.peels):
                 for unit, texture in enumerate(textures):
                     texture.use(location=unit)
                 layer, depth, _ = self._draw(batch, peel=True)
-                if not np.any(layer[0]):
+                images += [np.where(alive, image, 0) for image in layer]
+                codes = layer[0]
+                if k == self.peels - 1:
                     break
-                images += layer
-                textures[1].write(np.ascontiguousarray(depth, dtype=np.float32).tobytes())
-                textures[2].write(np.ascontiguousarray(layer[0], dtype=np.uint32).tobytes())
+                edges = np.maximum(edges, silhouettes(tiles(depth), tiles(codes)))
+                reach = atlas(past_silhouettes(tiles(depth), edges, self.erosion, near, far, self.guard))
+                alive &= (codes != 0) & (reach > depth)
+                if not np.any(alive):
+                    break
+                textures[0].write(np.ascontiguousarray(depth, dtype=np.float32).tobytes())
+                textures[1].write(np.ascontiguousarray(codes, dtype=np.uint32).tobytes())
         finally:
             for texture in textures:
                 texture.release()

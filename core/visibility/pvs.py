@@ -22,12 +22,13 @@ pixels from the sampled points.
 
 **Occluder erosion** (the default): each point's cube map is drawn with its occluders shrunk in
 image space by ``erosion`` (default: half the diagonal of a lattice cell, so that every eye of the
-view space is within it of a lattice point) and ``peels`` layers drawn behind them
-(:mod:`farfield.core.visibility.id_cubes`; seed 000 §2.2.2, [Wonk00]'s occluder shrinking): a point
-then sees what any eye near it may see, so elements seen only through gaps between the points are
-kept.  ``erosion=0`` is plain point sampling (the earlier default, refined with ``levels=1``).
+view space is within it of a lattice point) and up to ``peels`` (default 4) layers drawn behind
+them, each eroded in turn (:mod:`farfield.core.visibility.id_cubes`; seed 000 §2.2.2, [Wonk00]'s
+occluder shrinking): a point then sees what any eye near it may see, so elements seen only through
+gaps between the points, or past several occluders in a row, are kept.  ``erosion=0`` is plain
+point sampling (the earlier default, refined with ``levels=1``).
 
-**How conservative.**  Not strictly: the erosion is done on the first surfaces' depth map (see
+**How conservative.**  Not strictly: the erosion is done on at most ``peels`` + 1 layers (see
 :mod:`~farfield.core.visibility.id_cubes` for what it misses), and a feature that covers no texel
 centre of any sample's cube map is lost.  Near the region, where parallax is largest, the ``margin``
 (default: one lattice step) keeps every element regardless of the samples.  The false-invisible rate
@@ -53,7 +54,7 @@ from farfield.core.visibility.id_cubes import IdCubeRenderer, VisibilityError, f
 DEFAULT_SAMPLES_PER_SIDE = 2  # lattice steps per side of a smallest region: corners, edge/face centres, centre
 DEFAULT_TEXEL_PIXELS = 2.0  # output pixels per cube-map texel (a side)
 DEFAULT_LEVELS = 0  # adaptive refinements of a lattice cell whose corners disagree (eroded samples need none)
-DEFAULT_PEELS = 2  # layers drawn behind an eroded point's first surfaces
+DEFAULT_PEELS = 4  # layers drawn behind an eroded point's first surfaces, each eroded in turn
 DEFAULT_REFINE_TEXELS = 16  # texels an element seen by some corners only must cover to refine
 MAX_POINTS = 200_000  # a guard against a lattice no machine renders in reasonable time
 _TOL = 1e-9
