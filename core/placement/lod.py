@@ -138,21 +138,28 @@ def node_mesh(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def lod_chain(
-    vertices: np.ndarray, faces: np.ndarray, colours: np.ndarray, keep_border: bool = False
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    colours: np.ndarray,
+    keep_border: bool = False,
+    measure: bool = True,
+    levels: int | None = None,
 ) -> list[LodLevel]:
     """The levels of detail of a mesh, finest first (module docstring); [] below ``MIN_TRIANGLES``.
     ``keep_border``: no edge at an open border collapses (a cluster of a split object, whose cut
-    edges meet its neighbours' drawn at full detail or at another level: no crack between them)."""
+    edges meet its neighbours' drawn at full detail or at another level: no crack between them).
+    ``measure`` False: no level's error is measured (NaN; a runtime drawing a chosen level needs
+    none, and measuring is most of the chain's time); ``levels``: at most this many, the first."""
     import fast_simplification
 
     if faces.shape[0] < MIN_TRIANGLES:
         return []
     full = np.asarray(vertices, dtype=np.float64)
     points, tris = full, np.ascontiguousarray(faces, dtype=np.int64)
-    measure = MeshError(full, tris)
+    errors = MeshError(full, tris) if measure else None
     owner = np.arange(full.shape[0])  # full-mesh vertex -> vertex of the current level
     out: list[LodLevel] = []
-    while tris.shape[0] >= 4 * FLOOR_TRIANGLES:
+    while tris.shape[0] >= 4 * FLOOR_TRIANGLES and (levels is None or len(out) < levels):
         _, _, collapses = fast_simplification.simplify(
             points, tris, target_reduction=REDUCTION, return_collapses=True, preserve_border=keep_border
         )
@@ -177,7 +184,8 @@ def lod_chain(
         owner = remap[owner]
         if np.any(owner < 0):  # a full-mesh vertex collapsed into a vertex no triangle keeps: not a level
             break
-        out.append(LodLevel(len(out) + 1, points, tris, shade, measure.of(owner, points, tris)))
+        error = errors.of(owner, points, tris) if errors is not None else math.nan
+        out.append(LodLevel(len(out) + 1, points, tris, shade, error))
     return out
 
 
@@ -372,10 +380,12 @@ class NodeLods:
 
 def level_for(scene: Scene, level: int, keep_border: bool = False) -> LodLevel:
     """Level ``level`` (1-based) of the merged mesh of ``scene`` (the element a LOD replaces), as
-    the planner built it: the same chain from the same triangles (``keep_border`` for a cluster)."""
-    chain = lod_chain(*node_mesh(scene), keep_border=keep_border)
+    the planner built it: the same chain from the same triangles (``keep_border`` for a cluster), up
+    to that level and its error not measured (NaN)."""
+    chain = lod_chain(*node_mesh(scene), keep_border=keep_border, measure=False, levels=max(int(level), 1))
     if not 1 <= level <= len(chain):
         from farfield.core.placement.hierarchy import PlacementError
 
-        raise PlacementError(f"the elements have {len(chain)} levels of detail, not level {level}")
+        whole = len(lod_chain(*node_mesh(scene), keep_border=keep_border, measure=False))
+        raise PlacementError(f"the elements have {whole} levels of detail, not level {level}")
     return chain[level - 1]
