@@ -106,6 +106,27 @@ def test_error_holds_both_sides():
     assert MeshError(bumped, full_faces).of(owner, flat, flat_faces) == pytest.approx(0.1, rel=1e-9)
 
 
+def test_a_spike_moves_onto_the_full_surface():
+    # the spike's apex lies 0.5 from the full surface, farther than any full vertex from the spike
+    # (0.354): it moves to its nearest full point; the other vertices stay
+    full, full_faces = _grid(16)
+    spike, spike_faces = _grid(2, lift=0.5)
+    owner = np.argmin(np.linalg.norm(full[:, None] - spike[None], axis=2), axis=1)
+    errors = MeshError(full, full_faces)
+    moved, forward = errors.spikes_moved(owner, spike, spike_faces)
+    assert math.isnan(forward)
+    assert np.allclose(moved[4], [0.5, 0.5, 0.0], atol=1e-12) and np.array_equal(
+        np.delete(moved, 4, 0), np.delete(spike, 4, 0)
+    )
+    assert errors.of(owner, moved, spike_faces) == pytest.approx(0.0, abs=1e-12)
+    # a flat level under a bumped full surface: no vertex lies farther than the bump, none moves
+    bumped, _ = _grid(16, lift=0.1)
+    flat, flat_faces = _grid(2)
+    owner = np.argmin(np.linalg.norm(bumped[:, None] - flat[None], axis=2), axis=1)
+    same, forward = MeshError(bumped, full_faces).spikes_moved(owner, flat, flat_faces)
+    assert same is flat and forward == pytest.approx(0.1, rel=1e-9)
+
+
 def test_lod_chosen_where_it_saves_memory_within_the_pixel_budget(placed):
     scene, t_max, layered, mixed = placed
     s, s0 = mixed.summary, layered.summary
