@@ -156,7 +156,8 @@ def lod_chain(
     ``keep_border``: no edge at an open border collapses (a cluster of a split object, whose cut
     edges meet its neighbours' drawn at full detail or at another level: no crack between them).
     ``measure`` False: no level's error is measured (NaN; a runtime drawing a chosen level needs
-    none, and measuring is most of the chain's time); ``levels``: at most this many, the first."""
+    none; its spikes are still found and moved, as the planner's were); ``levels``: at most this
+    many, the first.  A border vertex never moves (a kept border keeps its full positions)."""
     import fast_simplification
 
     if faces.shape[0] < MIN_TRIANGLES:
