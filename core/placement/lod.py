@@ -157,7 +157,7 @@ def lod_chain(
     edges meet its neighbours' drawn at full detail or at another level: no crack between them).
     ``measure`` False: no level's error is measured (NaN; a runtime drawing a chosen level needs
     none; its spikes are still found and moved, as the planner's were); ``levels``: at most this
-    many, the first.  A border vertex never moves (a kept border keeps its full positions)."""
+    many, the first."""
     import fast_simplification
 
     if faces.shape[0] < MIN_TRIANGLES:
