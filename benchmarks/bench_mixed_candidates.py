@@ -15,6 +15,9 @@ candidates alone, and layered beside levels of detail (``PlacementSettings.lod``
 chosen of each kind, estimated memory, and the share of ``--views`` random views (position in the view
 space, direction on the sphere) within t_max by the placement's estimate (the lookup's CPV time).
 
+Each placement's drawn impostors are listed, largest first (technique, elements, level of detail
+and its triangles, memory, CPVs drawn in): where the memory goes.
+
 Levels of detail need no bake: a placement with at most ``--max-bakes`` layered impostors has them
 baked here, its database written and walked through the same views with the reference runtime
 (:func:`farfield.core.quality.walkthrough.placement_walkthrough`): measured frames against t_max, the
@@ -114,6 +117,13 @@ def main(argv=None) -> int:
         rows.append(row)
         placements[name] = result
         print(json.dumps(row), flush=True)
+
+    for name, result in placements.items():  # what each placement draws: where its memory goes
+        drawn = sorted((imp for imp in result.impostors if imp["cpvs"]), key=lambda imp: -imp["memory_bytes"])
+        print(f"{name}: {len(drawn)} drawn, largest first (technique, elements, level, triangles, MiB, CPVs)")
+        for imp in drawn:
+            print(f"  {imp['technique']} {','.join(imp['objects'])} {imp.get('level', '-')} {imp.get('triangles', '-')} "
+                  f"{imp['memory_bytes'] / 2**20:.3f} {imp['cpvs']}")  # fmt: skip
 
     walks = {}
     for name, result in placements.items():

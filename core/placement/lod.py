@@ -9,14 +9,30 @@ chain of levels from a maintained quadric-error simplifier (``fast-simplificatio
 Sven Forstmann's Fast-Quadric-Mesh-Simplification), each level a quarter of the previous one's
 triangles, each simplified from the one before.
 
-**Error.**  The simplifier does not report its error, so each level measures it: the farthest any
-vertex of the full mesh lies from the simplified surface, bounded above by its distance to the
-nearest of the triangles around the simplified vertex it was collapsed into and the eight triangles
-of nearest centroids (``scipy.spatial.cKDTree``) (the collapses are
-replayed, ``fast_simplification.replay_simplification``, and the mappings of the chain composed;
-point-triangle distances after Ericson's *Real-Time Collision Detection* §5.1.5, in numba).  It is one-sided (the full mesh's
-vertices to the simplified surface), not the Hausdorff distance of the two surfaces: the tests
-compare images against the full scene.
+**Error.**  The simplifier does not report its error, so each level measures it, both ways: the
+farthest any vertex of the full mesh lies from the simplified surface, and the farthest a point of
+the simplified surface (its vertices and, on each triangle, a barycentric grid spaced at the full
+mesh's median edge length) lies from the full surface (:class:`MeshError`).  Each point's distance
+is first bounded above by the triangles around the vertex it was collapsed into (or, back to the
+full mesh, its nearest full vertex) and, full to simplified, the eight triangles of nearest centroids
+(``scipy.spatial.cKDTree``) (the collapses are replayed, ``fast_simplification.replay_simplification``,
+and the mappings of the chain composed; point-triangle distances after Ericson's *Real-Time
+Collision Detection* §5.1.5, in numba); then, in falling order of bound while a bound exceeds the
+farthest distance found so far, measured against every triangle that can hold its nearest point
+(those of centroids within its bound plus the farthest a triangle's corner lies from its centroid).
+The bound alone was loose (3.4-6.4x the measured distance on a park statue's 81,920- to
+1,280-triangle levels: a few vertices whose nearest triangle is neither around their simplified
+vertex nor among the eight), and a level's error sets how near it may be drawn; one side alone
+missed the simplifier's spikes (a statue's simplified vertex 26.7 mm off the full surface, whose
+full vertices all lie within 2.2 mm of the level).  The surfaces are sampled, so it is the samples'
+distance, not that of every point between them: the tests compare images against the full scene.
+
+**Spikes.**  The simplifier now and then places a vertex well off the surface (a statue's level
+of 81,920 triangles had one 26.7 mm off, its full vertices all within 2.2 mm of the level), and
+the next levels, simplified from it, keep it.  So each level's vertices that lie farther from the
+full surface than any full vertex lies from the level are moved to their nearest point on the full
+surface (:meth:`MeshError.spikes_moved`) before the level is measured and the next one simplified
+from it; the runtime's rebuild (:func:`level_for`) moves the same vertices.
 
 **Where a level may be drawn.**  A displacement ``e`` seen from at least ``d`` away spans at most
 ``e / d`` radians; held to the impostors' pixel budget ``max_error_px`` (seed 000 §3.3's budget, the
@@ -29,8 +45,11 @@ also views nearer than ``d`` to the bounds where the level is not within the bud
 :mod:`farfield.core.viewcells` kind is "beyond a distance from a box", and a runtime draws a level
 only in the problem views it was chosen for.
 
-**Memory** is the level's vertex and index bytes as a runtime uploads them: per vertex a float32
-position and normal and an RGBA8 colour (28 bytes), per triangle three uint32 indices (12 bytes).
+**Memory** is the level's vertex and index bytes as the reference runtime uploads them
+(:func:`farfield.core.render.raster.upload`: no normals, the colour pass is unlit): per vertex
+a float32 position and a float32 RGBA colour (28 bytes), per triangle three uint32 indices (12
+bytes).  (A leaner runtime would store 16 bytes a vertex, an RGBA8 colour, and uint16 indices under
+65,536 vertices; this model charges what the reference runtime holds.)
 **Time** is the cost model's for geometry: one draw call, the level's triangles and the node's
 pixels in the CPV (:meth:`farfield.core.placement.cost_model.CostModel.geometry_time`).
 
@@ -54,12 +73,14 @@ from farfield.core.scene import Scene, SceneObject
 from farfield.core.viewcells import SphereOutsideCell
 
 LOD_TECHNIQUE = "lod"  # what a placement's entry of simplified geometry names as its technique
-VERTEX_BYTES = 28  # float32 position and normal, RGBA8 colour
+VERTEX_BYTES = 28  # float32 position and float32 RGBA colour (the reference runtime's upload)
 TRIANGLE_BYTES = 12  # three uint32 indices
 REDUCTION = 0.75  # each level keeps a quarter of the previous one's triangles
 MIN_TRIANGLES = 256  # a node with fewer triangles gets no level of detail
 FLOOR_TRIANGLES = 32  # the chain stops below this many triangles
 NEAR_TRIANGLES = 8  # triangles of nearest centroids searched besides the fan (error bound)
+EXACT_BATCH = 256  # vertices measured exactly at a time (error)
+MAX_STEPS = 256  # the finest grid of samples on a simplified triangle (error, back to the full mesh)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -124,20 +145,29 @@ def node_mesh(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def lod_chain(
-    vertices: np.ndarray, faces: np.ndarray, colours: np.ndarray, keep_border: bool = False
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    colours: np.ndarray,
+    keep_border: bool = False,
+    measure: bool = True,
+    levels: int | None = None,
 ) -> list[LodLevel]:
     """The levels of detail of a mesh, finest first (module docstring); [] below ``MIN_TRIANGLES``.
     ``keep_border``: no edge at an open border collapses (a cluster of a split object, whose cut
-    edges meet its neighbours' drawn at full detail or at another level: no crack between them)."""
+    edges meet its neighbours' drawn at full detail or at another level: no crack between them).
+    ``measure`` False: no level's error is measured (NaN; a runtime drawing a chosen level needs
+    none; its spikes are still found and moved, as the planner's were); ``levels``: at most this
+    many, the first."""
     import fast_simplification
 
     if faces.shape[0] < MIN_TRIANGLES:
         return []
     full = np.asarray(vertices, dtype=np.float64)
     points, tris = full, np.ascontiguousarray(faces, dtype=np.int64)
+    errors = MeshError(full, tris)
     owner = np.arange(full.shape[0])  # full-mesh vertex -> vertex of the current level
     out: list[LodLevel] = []
-    while tris.shape[0] >= 4 * FLOOR_TRIANGLES:
+    while tris.shape[0] >= 4 * FLOOR_TRIANGLES and (levels is None or len(out) < levels):
         _, _, collapses = fast_simplification.simplify(
             points, tris, target_reduction=REDUCTION, return_collapses=True, preserve_border=keep_border
         )
@@ -162,14 +192,32 @@ def lod_chain(
         owner = remap[owner]
         if np.any(owner < 0):  # a full-mesh vertex collapsed into a vertex no triangle keeps: not a level
             break
-        out.append(LodLevel(len(out) + 1, points, tris, shade, _surface_error(full, owner, points, tris)))
+        points, forward = errors.spikes_moved(owner, points, tris)
+        error = errors.of(owner, points, tris, forward) if measure else math.nan
+        out.append(LodLevel(len(out) + 1, points, tris, shade, error))
     return out
 
 
+def _surface_samples(points: np.ndarray, tris: np.ndarray, spacing: float) -> np.ndarray:
+    """Points of the surface ``points``, ``tris`` about ``spacing`` apart: its vertices and, on each
+    triangle, the points of a barycentric grid of ``ceil(longest edge / spacing)`` steps a side."""
+    corners = points[tris]
+    longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
+    steps = np.clip(np.ceil(longest / spacing), 1, MAX_STEPS).astype(np.int64)
+    out = [points]
+    for n in np.unique(steps[steps > 1]):
+        i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+        inner = (i + j <= n) & (i < n) & (j < n) & (i + j > 0)  # the corners are the vertices
+        a, b = i[inner] / n, j[inner] / n
+        weights = np.stack([a, b, 1.0 - a - b], axis=1)  # (p, 3)
+        out.append(np.einsum("pk,tkc->tpc", weights, corners[steps == n]).reshape(-1, 3))
+    return np.concatenate(out)
+
+
 @njit(cache=True, nogil=True)
-def _point_triangle(p, a, b, c) -> float:
-    """Distance from point ``p`` to triangle ``abc`` ((3,) each; Ericson, *Real-Time Collision
-    Detection*, §5.1.5), in scalars (no temporaries)."""
+def _triangle_uv(p, a, b, c):
+    """(u, v): the point of triangle ``abc`` ((3,) each) nearest ``p`` is ``a + u (b - a) + v (c - a)``
+    (Ericson, *Real-Time Collision Detection*, §5.1.5), in scalars (no temporaries)."""
     abx, aby, abz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
     acx, acy, acz = c[0] - a[0], c[1] - a[1], c[2] - a[2]
     apx, apy, apz = p[0] - a[0], p[1] - a[1], p[2] - a[2]
@@ -199,17 +247,45 @@ def _point_triangle(p, a, b, c) -> float:
     else:
         denom = 1.0 / (va + vb + vc)
         u, v = vb * denom, vc * denom
-    dx = apx - u * abx - v * acx
-    dy = apy - u * aby - v * acy
-    dz = apz - u * abz - v * acz
+    return u, v
+
+
+@njit(cache=True, nogil=True)
+def _point_triangle(p, a, b, c) -> float:
+    """Distance from point ``p`` to triangle ``abc`` ((3,) each)."""
+    u, v = _triangle_uv(p, a, b, c)
+    dx = p[0] - a[0] - u * (b[0] - a[0]) - v * (c[0] - a[0])
+    dy = p[1] - a[1] - u * (b[1] - a[1]) - v * (c[1] - a[1])
+    dz = p[2] - a[2] - u * (b[2] - a[2]) - v * (c[2] - a[2])
     return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 
 @njit(cache=True, nogil=True)
-def _fan_error(full, owner, points, tris, starts, fan, near) -> float:
-    """max over the vertices of ``full`` of their distance to the nearest of the triangles around
-    ``points[owner]`` and the triangles ``near`` (one row per vertex)."""
-    worst = 0.0
+def _closest_points(at, which, points, tris, offsets, found) -> np.ndarray:
+    """(k, 3): per point ``at[which[j]]``, its nearest point on the nearest of the triangles
+    ``found[offsets[j]:offsets[j + 1]]``."""
+    out = np.empty((which.shape[0], 3))
+    for j in range(which.shape[0]):
+        p = at[which[j]]
+        best, near = np.inf, found[offsets[j]]
+        for k in range(offsets[j], offsets[j + 1]):
+            t = found[k]
+            d = _point_triangle(p, points[tris[t, 0]], points[tris[t, 1]], points[tris[t, 2]])
+            if d < best:
+                best, near = d, t
+        a, b, c = points[tris[near, 0]], points[tris[near, 1]], points[tris[near, 2]]
+        u, v = _triangle_uv(p, a, b, c)
+        for x in range(3):
+            out[j, x] = a[x] + u * (b[x] - a[x]) + v * (c[x] - a[x])
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _fan_bounds(full, owner, points, tris, starts, fan, near) -> np.ndarray:
+    """Per vertex of ``full``: its distance to the nearest of the triangles around
+    ``points[owner]`` and the triangles ``near`` (one row per vertex), an upper bound of its
+    distance to the surface."""
+    out = np.empty(full.shape[0])
     for i in range(full.shape[0]):
         v = owner[i]
         best = np.inf
@@ -218,21 +294,114 @@ def _fan_error(full, owner, points, tris, starts, fan, near) -> float:
             best = min(best, _point_triangle(full[i], points[tris[t, 0]], points[tris[t, 1]], points[tris[t, 2]]))
         for t in near[i]:
             best = min(best, _point_triangle(full[i], points[tris[t, 0]], points[tris[t, 1]], points[tris[t, 2]]))
-        worst = max(worst, best)
-    return worst
+        out[i] = best
+    return out
 
 
-def _surface_error(full: np.ndarray, owner: np.ndarray, points: np.ndarray, tris: np.ndarray) -> float:
-    """The farthest a vertex of ``full`` lies from the nearest triangle around ``points[owner]``
-    (module docstring: an upper bound of its distance to the simplified surface)."""
-    corner = tris.reshape(-1)
-    order = np.argsort(corner, kind="stable")
-    starts = np.searchsorted(corner[order], np.arange(points.shape[0] + 1))
-    fan = order // 3  # the triangles around each simplified vertex, vertex by vertex
-    centroids = points[tris].mean(axis=1)
-    k = min(NEAR_TRIANGLES, tris.shape[0])
-    near = cKDTree(centroids).query(full, k=k)[1].reshape(full.shape[0], k).astype(np.int64)
-    return float(_fan_error(full, owner, points, np.ascontiguousarray(tris), starts, fan, near))
+@njit(cache=True, nogil=True)
+def _nearest(full, which, points, tris, offsets, found) -> np.ndarray:
+    """Per vertex ``full[which[j]]``: its distance to the nearest of the triangles
+    ``found[offsets[j]:offsets[j + 1]]``."""
+    out = np.empty(which.shape[0])
+    for j in range(which.shape[0]):
+        p = full[which[j]]
+        best = np.inf
+        for k in range(offsets[j], offsets[j + 1]):
+            t = found[k]
+            best = min(best, _point_triangle(p, points[tris[t, 0]], points[tris[t, 1]], points[tris[t, 2]]))
+        out[j] = best
+    return out
+
+
+class _Surface:
+    """A triangle mesh to measure distances to (module docstring, *Error*): the triangles around each
+    vertex, a tree of the triangles' centroids and the farthest a corner lies from its centroid."""
+
+    def __init__(self, points: np.ndarray, tris: np.ndarray) -> None:
+        self.points, self.tris = points, np.ascontiguousarray(tris, dtype=np.int64)
+        corner = self.tris.reshape(-1)
+        order = np.argsort(corner, kind="stable")
+        self.starts = np.searchsorted(corner[order], np.arange(points.shape[0] + 1))
+        self.fan = order // 3  # the triangles around each vertex, vertex by vertex
+        centroids = points[self.tris].mean(axis=1)
+        self.tree = cKDTree(centroids)
+        # A triangle lies within ``reach`` of its centroid, so a point's nearest triangle (no
+        # farther than a bound) has its centroid within the bound + reach of it.
+        self.reach = float(np.linalg.norm(points[self.tris] - centroids[:, None, :], axis=2).max())
+
+    def farthest(self, at: np.ndarray, owner: np.ndarray, near: int) -> float:
+        """The farthest any point of ``at`` lies from the surface: bounded per point by the
+        triangles around vertex ``owner`` of it and the ``near`` of nearest centroids, then, in
+        falling order of bound while a bound exceeds the farthest found, measured against every
+        triangle that can hold its nearest point."""
+        k = min(near, self.tris.shape[0])
+        close = (
+            self.tree.query(at, k=k)[1].reshape(at.shape[0], k).astype(np.int64)
+            if k
+            else np.zeros((at.shape[0], 0), dtype=np.int64)
+        )
+        bound = _fan_bounds(at, owner, self.points, self.tris, self.starts, self.fan, close)
+        falling = np.argsort(-bound, kind="stable")
+        worst, start = 0.0, 0
+        while start < falling.size and bound[falling[start]] > worst:
+            which = falling[start : start + EXACT_BATCH]
+            which = which[bound[which] > worst]
+            lists = self.tree.query_ball_point(at[which], bound[which] + self.reach)
+            offsets = np.concatenate([[0], np.cumsum([len(found) for found in lists])]).astype(np.int64)
+            found = np.fromiter((t for found in lists for t in found), dtype=np.int64, count=int(offsets[-1]))
+            worst = max(worst, float(_nearest(at, which, self.points, self.tris, offsets, found).max()))
+            start += EXACT_BATCH
+        return worst
+
+
+class MeshError:
+    """The error of simplified versions of one full mesh (module docstring, *Error*): the farthest a
+    full vertex lies from the simplified surface, or a point of the simplified surface (its vertices
+    and its triangles sampled at the full mesh's median edge length) from the full one."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+        self.vertices = np.asarray(vertices, dtype=np.float64)
+        faces = np.ascontiguousarray(faces, dtype=np.int64)
+        self.surface, self.vertex_tree = _Surface(self.vertices, faces), cKDTree(self.vertices)
+        edges = self.vertices[faces] - self.vertices[np.roll(faces, 1, axis=1)]
+        self.spacing = float(np.median(np.linalg.norm(edges, axis=2)))
+
+    def spikes_moved(self, owner: np.ndarray, points: np.ndarray, tris: np.ndarray) -> tuple[np.ndarray, float]:
+        """(``points`` with each vertex farther from the full surface than any full vertex lies from
+        the surface ``points``, ``tris`` moved to its nearest point on the full surface (module
+        docstring, *Spikes*), that farthest full vertex's distance: NaN where a vertex moved);
+        ``owner`` as in :meth:`of`."""
+        forward = _Surface(points, tris).farthest(self.vertices, owner, NEAR_TRIANGLES)
+        full = self.surface
+        hint = self.vertex_tree.query(points)[1].astype(np.int64)
+        bound = _fan_bounds(
+            points, hint, full.points, full.tris, full.starts, full.fan, np.zeros((points.shape[0], 0), dtype=np.int64)
+        )
+        which = np.flatnonzero(bound > forward)  # the others lie within ``forward`` of the full surface
+        if which.size == 0:
+            return points, forward
+        lists = full.tree.query_ball_point(points[which], bound[which] + full.reach)
+        offsets = np.concatenate([[0], np.cumsum([len(found) for found in lists])]).astype(np.int64)
+        found = np.fromiter((t for found in lists for t in found), dtype=np.int64, count=int(offsets[-1]))
+        nearest = _closest_points(points, which, full.points, full.tris, offsets, found)
+        far = np.linalg.norm(nearest - points[which], axis=1) > forward
+        if not far.any():
+            return points, forward
+        moved = points.copy()
+        moved[which[far]] = nearest[far]
+        return moved, math.nan
+
+    def of(self, owner: np.ndarray, points: np.ndarray, tris: np.ndarray, forward: float = math.nan) -> float:
+        """The error of the surface ``points``, ``tris``; ``owner``: the vertex of ``points`` each
+        full vertex was collapsed into (a hint: its triangles are searched first); ``forward``: the
+        farthest a full vertex lies from it where known (:meth:`spikes_moved`)."""
+        if math.isnan(forward):
+            forward = _Surface(points, tris).farthest(
+                self.vertices, owner, NEAR_TRIANGLES
+            )  # full vertices to the level
+        samples = _surface_samples(points, tris, self.spacing)
+        hint = self.vertex_tree.query(samples)[1].astype(np.int64)
+        return max(forward, self.surface.farthest(samples, hint, 0))  # and the level's points back
 
 
 class NodeLods:
@@ -275,10 +444,12 @@ class NodeLods:
 
 def level_for(scene: Scene, level: int, keep_border: bool = False) -> LodLevel:
     """Level ``level`` (1-based) of the merged mesh of ``scene`` (the element a LOD replaces), as
-    the planner built it: the same chain from the same triangles (``keep_border`` for a cluster)."""
-    chain = lod_chain(*node_mesh(scene), keep_border=keep_border)
+    the planner built it: the same chain from the same triangles (``keep_border`` for a cluster), up
+    to that level and its error not measured (NaN)."""
+    chain = lod_chain(*node_mesh(scene), keep_border=keep_border, measure=False, levels=max(int(level), 1))
     if not 1 <= level <= len(chain):
         from farfield.core.placement.hierarchy import PlacementError
 
-        raise PlacementError(f"the elements have {len(chain)} levels of detail, not level {level}")
+        whole = len(lod_chain(*node_mesh(scene), keep_border=keep_border, measure=False))
+        raise PlacementError(f"the elements have {whole} levels of detail, not level {level}")
     return chain[level - 1]
