@@ -195,6 +195,17 @@ def test_tabs_indented_statements_and_trailing_comments_read_as_the_plain_file(t
         assert scene.triangle_count == 4 and scene.objects[0].texture is not None, kind
 
 
+def test_a_comment_ending_in_a_backslash_does_not_swallow_the_next_statement():
+    """A ``\\`` at the end of a statement continues it; a comment ends at its line (Blender's
+    importer reads it so): ``# C:\\models\\`` joined the next ``v`` line into the comment, and every
+    face after it named the wrong vertices, silently."""
+    plain = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\n"
+    expected = load_scene_bytes(plain.encode(), "obj", "scene.obj")
+    for comment in ("# exported from C:\\models\\\n", "  # C:\\models\\\r\n"):
+        scene = load_scene_bytes((comment + plain).encode(), "obj", "scene.obj")
+        assert scene.content_hash == expected.content_hash, comment
+
+
 def test_every_material_library_is_read_and_a_material_none_defines_is_named(tmp_path):
     """``mtllib a.mtl b.mtl`` names two libraries (the specification: "mtllib filename1 filename2
     ..."), and a file may have several ``mtllib`` lines; trimesh read the first line as one file

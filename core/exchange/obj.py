@@ -105,6 +105,8 @@ def decode_text(data: bytes) -> str:
 # Whitespace before a statement, and a comment after an element's numbers (``v 1 2 3 # corner``).
 _INDENT = re.compile(r"^[ \t]+", re.MULTILINE)
 _CONTINUED = re.compile(r"\\\r?\n")
+# A comment's backslashes at the end of its line (``# C:\\models\\``): a comment ends at its line.
+_COMMENT_BACKSLASHES = re.compile(r"^([ \t]*#[^\n]*?)\\+(?=\r?\n)", re.MULTILINE)
 _TRAILING_COMMENT = re.compile(r"^((?:v|vt|vn|vp|f|l) [^#\r\n]*?) *#[^\r\n]*", re.MULTILINE)
 
 
@@ -124,7 +126,7 @@ def plain_statements(text: str) -> str:
     'f 1 2   3\\n'
     """
     if "\\\n" in text or "\\\r\n" in text:  # a statement continued on the next line, as one line
-        text = _CONTINUED.sub(" ", text)
+        text = _CONTINUED.sub(" ", _COMMENT_BACKSLASHES.sub(r"\1", text))
     if "\t" in text:
         text = text.replace("\t", " ")
     if text.startswith(" ") or "\n " in text:  # the checks scan at memchr speed; the regexes do not
@@ -529,9 +531,9 @@ def _short_names(scene: trimesh.Scene) -> dict[str, str]:
     return {node: short for node, short in stripped.items() if counts[short] == 1 and short not in taken}
 
 
-# A 0 among a face's (or line's) indices: OBJ counts from 1 (negative indices count back from the face),
+# A 0 (or -0) among a face's (or line's) indices: OBJ counts from 1 (negative indices count back from the face),
 # so 0 names no vertex; trimesh would read it as the last one, a silent wrong triangle.
-_ZERO_INDEX = re.compile(r"^[ \t]*[fl][ \t][^\n]*?(?<![\w.+-])0(?=[/ \t\r]|$)", re.MULTILINE)
+_ZERO_INDEX = re.compile(r"^[ \t]*[fl][ \t][^\n]*?(?<![\w.+-])-?0(?=[/ \t\r]|$)", re.MULTILINE)
 
 
 def material_libraries(text: str) -> list[str]:
@@ -630,8 +632,9 @@ def load(
     SceneLoadError
         Binary data, or trimesh could not parse it (e.g. a face index beyond the vertices).
     """
-    text = absolute_indices(plain_statements(decode_text(data)))
-    _check_indices(text)
+    text = plain_statements(decode_text(data))
+    _check_indices(text)  # before the relative indices' rewrite, which would read -0 as one past the face's last
+    text = absolute_indices(text)
     text = complete_normals(text)
     warnings: list[str] = []
     maps: dict[str, dict[str, str]] = {}
@@ -650,11 +653,14 @@ def load(
         mtl_text = "\n".join(found)
         maps, values = texture_maps(mtl_text), pbr_values(mtl_text)
         warnings.extend(_undefined_materials(text, mtl_text))
+    parsed = text  # the file's lines, as its messages name them
     if len(libraries) > 1:  # trimesh reads one library: it is given them all as one
-        text = f"mtllib {_LIBRARIES}\n" + _MTLLIB.sub("", text)
+        parsed = f"mtllib {_LIBRARIES}\n" + _MTLLIB.sub("", text)
         resolver = _Libraries(resolver, "\n".join(found).encode("utf-8"))
     try:
-        scene = parse(split_concave(text).encode("utf-8"), extension, resolver, split_objects=True, group_material=True)
+        scene = parse(
+            split_concave(parsed).encode("utf-8"), extension, resolver, split_objects=True, group_material=True
+        )
     except SceneLoadError as error:
         raise (beyond_the_end(text) or error) from error
     budget = limits.texel_budget()  # every texture of this load counts against one total

@@ -92,7 +92,7 @@ def split_concave(text: str) -> str:
             continue
         try:
             indices = np.array([int(word.split("/", 1)[0]) for word in words], dtype=np.int64)
-        except ValueError:
+        except (ValueError, OverflowError):  # not a number, or one beyond 64 bits
             continue  # trimesh's parse refuses it
         indices = np.where(indices > 0, indices - 1, count + indices)
         if indices.min() < 0 or indices.max() >= count:
