@@ -667,7 +667,11 @@ def load(
         resolver = _Libraries(resolver, "\n".join(found).encode("utf-8"))
     try:
         scene = parse(
-            split_concave(parsed).encode("utf-8"), extension, resolver, split_objects=True, group_material=True
+            split_concave(parsed, warnings).encode("utf-8"),
+            extension,
+            resolver,
+            split_objects=True,
+            group_material=True,
         )
     except SceneLoadError as error:
         raise (beyond_the_end(text) or error) from error
