@@ -206,6 +206,15 @@ def test_a_comment_ending_in_a_backslash_does_not_swallow_the_next_statement():
         assert scene.content_hash == expected.content_hash, comment
 
 
+def test_an_obj_with_cr_line_endings_reads_as_the_plain_file():
+    """Lines ended by CR alone (classic Mac OS exporters): trimesh saw one long line and refused the
+    file with numpy's "could not be read to its end due to unmatched data"."""
+    plain = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf -3 -1 -2\n"
+    expected = load_scene_bytes(plain.encode(), "obj", "scene.obj")
+    scene = load_scene_bytes(plain.replace("\n", "\r").encode(), "obj", "scene.obj")
+    assert scene.content_hash == expected.content_hash and scene.triangle_count == 2
+
+
 def test_every_material_library_is_read_and_a_material_none_defines_is_named(tmp_path):
     """``mtllib a.mtl b.mtl`` names two libraries (the specification: "mtllib filename1 filename2
     ..."), and a file may have several ``mtllib`` lines; trimesh read the first line as one file

@@ -133,6 +133,8 @@ def plain_statements(text: str) -> str:
     >>> plain_statements("f 1 2\\\\\\n  3\\n")  # continued: one statement
     'f 1 2   3\\n'
     """
+    if "\r" in text and "\n" not in text:  # lines ended by CR alone (classic Mac OS)
+        text = text.replace("\r", "\n")
     if "\\\n" in text or "\\\r\n" in text:  # a statement continued on the next line, as one line
         text = _CONTINUED.sub(" ", _COMMENT.sub(_uncontinued, text))
     if "\t" in text:
