@@ -117,15 +117,19 @@ def test_imfchan_chooses_the_channel_of_the_opacity_map(tmp_path, channel, band)
 
 def test_16_bit_greyscale_colour_and_opacity_maps_are_scaled_to_8_bits_not_clipped(tmp_path):
     """Pillow opens a 16-bit greyscale PNG as ``I;16`` and clips it at 255 when it converts it; the
-    colour map reads v / 257 (the PNG specification's scaling), and the mask cuts where its 16-bit
+    colour map and a roughness map read v / 257 (the PNG specification's scaling), and the mask cuts where its 16-bit
     value is below half, not only where it is 0."""
     ramp = np.tile(np.linspace(0, 65535, 16).round().astype(np.uint16), (16, 1))
     PIL.Image.fromarray(ramp).save(tmp_path / "grey16.png")
-    path = quads_obj(tmp_path, {"grey": ["map_Kd grey16.png"], "cut": ["Kd 1 1 1", "map_d grey16.png"]})
+    path = quads_obj(
+        tmp_path,
+        {"grey": ["map_Kd grey16.png", "map_Pr grey16.png"], "cut": ["Kd 1 1 1", "map_d grey16.png"]},
+    )
     scene = load_scene(path)
     grey, cut = scene.subset(["grey"]).objects[0], scene.subset(["cut"]).objects[0]
     expected = np.round(ramp / 257.0).astype(np.uint8)
     np.testing.assert_array_equal(grey.texture[..., 1], expected)
+    np.testing.assert_array_equal(grey.metallic_roughness_texture[..., 1], expected)  # a scalar map (map_Pr) too
     assert cut.alpha_cutoff == 0.5
     np.testing.assert_array_equal(cut.texture[..., 3], expected)
 
