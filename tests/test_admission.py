@@ -619,3 +619,19 @@ def test_the_admission_lease_is_a_setting_handed_to_workers(tmp_path):
     assert settings.admission_lease_s == 17 and Settings.from_env(settings.environment()).admission_lease_s == 17
     with pytest.raises(ServiceConfigError, match="FARFIELD_ADMISSION_LEASE_S must be >= 10"):
         Settings.from_env({**home, "FARFIELD_ADMISSION_LEASE_S": "7"})  # shorter than one full check may take
+
+
+@pytest.mark.parametrize("held_by", [["host-a"], [["host-a", None]], [["host-a", 2]]])
+def test_an_admission_retried_with_the_database_away_keeps_retrying_whatever_its_holds(tmp_path, held_by):
+    """The database is away (here: a home whose database has no tables), so each delivery can
+    neither admit nor free its holds and is retried with the holds it names.  A bare host name (an
+    older release's retry message) became ``[host, None]`` in the retry's ``held_by``, which the
+    retry then read with ``int(None)``: a TypeError before its ``try``, so the task failed instead of
+    retrying.  Each form now goes through the retries (Celery runs them at once here) to ``held``."""
+    from farfield.workers import tasks
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("FARFIELD_HOME", str(tmp_path))
+        patch.setattr(tasks, "_STATE", {})
+        result = tasks.admit_job_task.apply(args=["job-away"], kwargs={"held_by": held_by})
+    assert result.successful() and result.result == "held", result.result

@@ -761,3 +761,24 @@ def test_the_manifest_holds_no_timings(tmp_path):
     write_bundle(make_mesh_impostor(), tmp_path / "b")
     manifest = json.loads((tmp_path / "b" / MANIFEST_NAME).read_text())
     assert "seconds" not in manifest["stats"] and manifest["stats"]["triangles"] > 0
+
+
+def test_page_pngs_remembered_by_a_bake_are_not_encoded_again_and_go_with_their_page():
+    """envmap measures its pages' PNG size with PagePngs(remember=True); the bundle writer's own
+    PagePngs then takes those bytes instead of encoding each page again, and they are forgotten
+    when their page is (no leak across bakes); a PagePngs without ``remember`` leaves nothing."""
+    import gc
+
+    from farfield.core.impostor import png_pages
+
+    page = np.random.default_rng(3).integers(0, 256, (64, 64, 4), dtype=np.uint8)
+    other = page.copy()
+    (measured,) = png_pages.PagePngs(workers=1, remember=True).encode([page])
+    written, fresh = png_pages.PagePngs(workers=1).encode([page, other])
+    assert written is measured and fresh is not measured and fresh == measured  # the same bytes, not re-encoded
+    png_pages.PagePngs(workers=1).encode([other])
+    assert id(page) in png_pages._REMEMBERED and id(other) not in png_pages._REMEMBERED
+    key = id(page)
+    del page
+    gc.collect()
+    assert key not in png_pages._REMEMBERED

@@ -107,3 +107,30 @@ def test_an_ascii_ply_cut_inside_its_last_line_is_refused():
     )
     with pytest.raises(SceneLoadError, match="last vertex element has 2 values where its properties need 3"):
         load_scene_bytes((vertices_only + "0 0 0\n1 0").encode(), "ply", "cloud.ply")
+
+
+@pytest.mark.parametrize("face", ["f -0 2 3", "f 1 -0 3\nv 5 5 5"])
+def test_an_obj_index_minus_0_is_refused_like_0(face):
+    """``-0`` counts back no vertex (as 0 names none): trimesh read it as the last vertex of the
+    file, and the relative indices' rewrite (where a ``v`` line follows) as the one after the face's
+    last, a silent wrong triangle either way."""
+    obj = f"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n{face}\n"
+    with pytest.raises(SceneLoadError, match=r"line 5: .* has the index 0"):
+        load_scene_bytes(obj.encode(), "obj", "minus-zero.obj")
+
+
+def test_an_obj_polygon_index_too_large_for_an_integer_is_refused_not_an_internal_error():
+    """A concave polygon's corner index beyond 64 bits made the ear clipping's scan raise numpy's
+    OverflowError (an internal error, not a 4xx) before trimesh's parse could name the problem."""
+    obj = "v 0 0 0\nv 2 0 0\nv 2 1 0\nv 1 1 0\nv 1 2 0\nv 0 2 0\nf 2 3 4 5 6 99999999999999999999999\n"
+    with pytest.raises(SceneLoadError, match=r"line 7: 'f 2 3 4 5 6 9+' names vertex \(v\) 9+, but the file has 6"):
+        load_scene_bytes(obj.encode(), "obj", "huge.obj")
+
+
+def test_an_obj_face_beyond_the_vertices_is_named_by_its_line_with_several_material_libraries():
+    """With several ``mtllib`` the text trimesh parses has one library line in front: the line
+    named was one past the face's."""
+    obj = "mtllib a.mtl b.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 9\n"
+    assets = {"a.mtl": b"newmtl a\nKd 1 0 0\n", "b.mtl": b"newmtl b\nKd 0 1 0\n"}
+    with pytest.raises(SceneLoadError, match=r"line 6: 'f 1 2 9' names vertex \(v\) 9"):
+        load_scene_bytes(obj.encode(), "obj", "libraries.obj", assets=assets)

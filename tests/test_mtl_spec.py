@@ -117,15 +117,19 @@ def test_imfchan_chooses_the_channel_of_the_opacity_map(tmp_path, channel, band)
 
 def test_16_bit_greyscale_colour_and_opacity_maps_are_scaled_to_8_bits_not_clipped(tmp_path):
     """Pillow opens a 16-bit greyscale PNG as ``I;16`` and clips it at 255 when it converts it; the
-    colour map reads v / 257 (the PNG specification's scaling), and the mask cuts where its 16-bit
+    colour map and a roughness map read v / 257 (the PNG specification's scaling), and the mask cuts where its 16-bit
     value is below half, not only where it is 0."""
     ramp = np.tile(np.linspace(0, 65535, 16).round().astype(np.uint16), (16, 1))
     PIL.Image.fromarray(ramp).save(tmp_path / "grey16.png")
-    path = quads_obj(tmp_path, {"grey": ["map_Kd grey16.png"], "cut": ["Kd 1 1 1", "map_d grey16.png"]})
+    path = quads_obj(
+        tmp_path,
+        {"grey": ["map_Kd grey16.png", "map_Pr grey16.png"], "cut": ["Kd 1 1 1", "map_d grey16.png"]},
+    )
     scene = load_scene(path)
     grey, cut = scene.subset(["grey"]).objects[0], scene.subset(["cut"]).objects[0]
     expected = np.round(ramp / 257.0).astype(np.uint8)
     np.testing.assert_array_equal(grey.texture[..., 1], expected)
+    np.testing.assert_array_equal(grey.metallic_roughness_texture[..., 1], expected)  # a scalar map (map_Pr) too
     assert cut.alpha_cutoff == 0.5
     np.testing.assert_array_equal(cut.texture[..., 3], expected)
 
@@ -193,6 +197,26 @@ def test_tabs_indented_statements_and_trailing_comments_read_as_the_plain_file(t
         assert [o.name for o in scene.objects] == [o.name for o in expected.objects], kind
         assert scene.content_hash == expected.content_hash, kind
         assert scene.triangle_count == 4 and scene.objects[0].texture is not None, kind
+
+
+def test_a_comment_ending_in_a_backslash_does_not_swallow_the_next_statement():
+    """A ``\\`` at the end of a statement continues it; a comment ends at its line (Blender's
+    importer reads it so): ``# C:\\models\\`` joined the next ``v`` line into the comment, and every
+    face after it named the wrong vertices, silently."""
+    plain = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\n"
+    expected = load_scene_bytes(plain.encode(), "obj", "scene.obj")
+    for comment in ("# exported from C:\\models\\\n", "  # C:\\models\\\r\n"):
+        scene = load_scene_bytes((comment + plain).encode(), "obj", "scene.obj")
+        assert scene.content_hash == expected.content_hash, comment
+
+
+def test_an_obj_with_cr_line_endings_reads_as_the_plain_file():
+    """Lines ended by CR alone (classic Mac OS exporters): trimesh saw one long line and refused the
+    file with numpy's "could not be read to its end due to unmatched data"."""
+    plain = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf -3 -1 -2\n"
+    expected = load_scene_bytes(plain.encode(), "obj", "scene.obj")
+    scene = load_scene_bytes(plain.replace("\n", "\r").encode(), "obj", "scene.obj")
+    assert scene.content_hash == expected.content_hash and scene.triangle_count == 2
 
 
 def test_every_material_library_is_read_and_a_material_none_defines_is_named(tmp_path):
@@ -269,6 +293,25 @@ def test_a_concave_polygon_is_cut_into_triangles_that_cover_it_once(tmp_path):
     np.testing.assert_allclose(ell.uv, ell.vertices[:, :2] / 2)  # each corner kept its vt
     np.testing.assert_allclose(ell.normals, [[0, 0, 1]] * len(ell.normals))
     np.testing.assert_array_equal(pentagon.faces, [[0, 1, 2], [0, 2, 3], [0, 3, 4]])
+
+
+@pytest.mark.parametrize("teeth, clipped", [(4_998, True), (4_999, False)])
+def test_a_concave_polygon_past_the_corner_limit_keeps_its_fan_with_a_warning(teeth, clipped):
+    """Ear clipping costs more per corner as a polygon grows (a 400,000-corner comb took 143 CPU s,
+    one 7.8 MB face): a concave polygon of more than MAX_CLIPPED_CORNERS (10,000) corners is fanned,
+    as before the ear clipping, and a warning says so; one at the limit is still clipped."""
+    corners = [(x, y) for k in range(teeth) for x, y in ((2 * k, 0), (2 * k + 1, 10))]
+    corners += [(2 * teeth, 0), (2 * teeth, -1), (0, -1), (-1, 0)]  # a comb: no corner sees the others
+    obj = "".join(f"v {x} {y} 0\n" for x, y in corners) + "f " + " ".join(map(str, range(1, len(corners) + 1)))
+    scene = load_scene_bytes(obj.encode(), "obj", "comb.obj")
+    (comb,) = scene.objects
+    a, b, c = (comb.vertices[comb.faces[:, k]] for k in range(3))
+    turns = np.cross(b - a, c - a)[:, 2]
+    assert len(comb.faces) == len(corners) - 2
+    assert (turns.max() <= 0) == clipped  # clockwise; the fan has triangles turned against the polygon
+    warned = [w for w in scene.warnings if "corners (more than 10,000)" in w]
+    assert len(warned) == (0 if clipped else 1), scene.warnings
+    assert all(f"'f 1 2 3 ...' has {len(corners):,} corners" in w for w in warned), warned
 
 
 def test_map_statements_split_options_from_file_names():

@@ -521,7 +521,11 @@ def admit_job_task(self, job_id: str, held_by: list | None = None) -> str:
     worker = self.request.hostname
     limit, retries = max_retries(settings.max_attempts), self.request.retries
     claimed: list[int] = []  # the attempt this delivery holds, once it holds one
-    earlier = [[h, None] if isinstance(h, str) else [str(h[0]), int(h[1])] for h in held_by or ()]
+    # [worker, attempt]; a bare worker name (an older release's message) frees the host's hold whatever its
+    # attempt, and is passed on to a further retry as [worker, None]
+    earlier = [
+        [h, None] if isinstance(h, str) else [str(h[0]), None if h[1] is None else int(h[1])] for h in held_by or ()
+    ]
     try:
         for holder, attempt in earlier:
             release_admission(db, job_id, holder, attempt)
