@@ -69,6 +69,20 @@ def validation_detail(errors) -> str:
 
 QUOTA_RETRY_AFTER_S = 30  # Retry-After of a 429
 
+# A multipart part without a filename is a text field: ``curl -F 'file=<scene.glb'`` sends the scene
+# so.  Pydantic's "Expected UploadFile, received: <class 'str'>" (a small one) and the parser's "Part
+# exceeded maximum size of 64KB." (a larger one) answered it without saying what to do.
+TEXT_NOT_FILE = (
+    "a multipart part without a filename is a text field (at most 64 KiB), not a file: send the scene "
+    "as a file part, with a filename in its Content-Disposition (curl -F file=@scene.glb)"
+)
+
+
+def _sent_as_text(problem) -> bool:
+    """Whether a validation problem is a text field where the upload route takes a file."""
+    loc = problem.get("loc", ())
+    return len(loc) >= 2 and loc[:2] == ("body", "file") and "Expected UploadFile" in str(problem.get("msg", ""))
+
 
 def install_error_handlers(app: FastAPI) -> None:
     """Answer every error of ``app`` with an :class:`ErrorBody`."""
@@ -84,11 +98,15 @@ def install_error_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(RequestValidationError)
     async def validation_error(_request: Request, error: RequestValidationError) -> JSONResponse:
+        if any(_sent_as_text(problem) for problem in error.errors()):
+            return error_response(422, TEXT_NOT_FILE, "ValidationError")
         return error_response(422, validation_detail(error.errors()), "ValidationError")
 
     @app.exception_handler(HTTPException)
     async def http_error(request: Request, error: HTTPException) -> JSONResponse:
         status, detail, headers = error.status_code, str(error.detail), dict(error.headers or {})
+        if status == 400 and detail.startswith("Part exceeded maximum size") and request.url.path == "/v1/scenes":
+            detail = TEXT_NOT_FILE
         if status == 404 and detail == "Not Found":
             detail = f"no such path {request.url.path!r}"
         if status == 405:

@@ -226,3 +226,19 @@ def test_deleting_a_scene_deletes_its_jobs_blobs(api, tmp_path):
     services.blobs.put_bytes(f"jobs/{job_id}/index.json", b"[]")
     assert api.delete(f"/v1/scenes/{scene_id}").status_code in (200, 204)
     assert not services.blobs.exists(f"jobs/{job_id}/index.json")
+
+
+@pytest.mark.parametrize("size", [3, 100 * 1024])
+def test_a_scene_sent_as_text_not_as_a_file_is_told_so(api, size):
+    """``curl -F 'file=<scene.glb'`` (or a part without a filename) sends the scene as a text field:
+    the answer was pydantic's "Expected UploadFile, received: <class 'str'>" (small) or the
+    parser's "Part exceeded maximum size of 64KB." (over 64 KiB), neither saying what to do."""
+    response = api.post(
+        "/v1/scenes",
+        content=b'--b\r\nContent-Disposition: form-data; name="file"\r\n\r\n' + b"x" * size + b"\r\n--b--\r\n",
+        headers={"Content-Type": "multipart/form-data; boundary=b"},
+    )
+    assert response.status_code in (400, 422), response.text
+    detail = response.json()["detail"]
+    assert "without a filename" in detail and "file=@" in detail, detail
+    assert api.get("/v1/scenes").json()[0]["id"] == api.scene_id  # nothing stored
