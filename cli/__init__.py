@@ -26,3 +26,21 @@ def sides_option(command):
         show_default=True,
         help=SIDES_HELP[0].upper() + SIDES_HELP[1:] + ".",
     )(command)
+
+
+def object_names(text: str | None) -> list[str] | None:
+    """The names of ``--objects a,b`` (None without the option: every object).  An option that names
+    no object (``--objects ""``, ``--objects ,``: a shell variable left empty) is bad input, not the
+    whole scene, as ``"objects": []`` is a 422 over HTTP.
+
+    >>> object_names(" a, b ,"), object_names(None)
+    (['a', 'b'], None)
+    """
+    if text is None:
+        return None
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    if not names:
+        raise ArgumentError(
+            f"--objects {text!r} names no object: give comma-separated object names, or leave it out for all"
+        )
+    return names

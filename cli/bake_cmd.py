@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 from tqdm import tqdm
 
-from farfield.cli import ArgumentError, sides_option
+from farfield.cli import ArgumentError, object_names, sides_option
 from farfield.core.exchange import load_scene
 from farfield.core.impostor.bundle import check_destination, write_bundle
 from farfield.core.layering.culling import CULLING_MODES
@@ -188,7 +188,7 @@ def bake(scene, viewcell, out, objects, technique, options, resolution, fov, lay
     settings = chosen.options(values, resolution, fov)
     check_destination(out)  # before the bake: a folder that is not a bundle is refused, not replaced
     cell = parse_viewcell(viewcell)
-    names = [n.strip() for n in objects.split(",") if n.strip()] if objects else None
+    names = object_names(objects)
     if chosen.scope == "scene" and names:
         raise ArgumentError(f"a {chosen.name} impostor represents the whole scene; --objects does not apply")
     loaded = load_scene(scene, sides=sides)

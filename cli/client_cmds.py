@@ -18,7 +18,7 @@ from pathlib import Path
 import click
 from tqdm import tqdm
 
-from farfield.cli import sides_option
+from farfield.cli import object_names, sides_option
 from farfield.core.errors import ErrorKind, FarfieldError
 from farfield.core.sidedness import DEFAULT_SIDES
 from farfield.core.viewcells import parse_viewcell
@@ -524,7 +524,7 @@ def submit(scene, technique, job_type, grid, viewcells, objects, resolution, fov
             parsed[name] = value
     spec = {
         "technique": technique or job_type, "resolution": resolution, "fov_deg": fov, "options": parsed,
-        "objects": [n.strip() for n in objects.split(",") if n.strip()] if objects else None,
+        "objects": object_names(objects),
     }  # fmt: skip
     spec = {k: v for k, v in spec.items() if v is not None}
     if not evaluate:  # sent only when off: the service's default is on

@@ -8,7 +8,7 @@ import math
 
 import click
 
-from farfield.cli import ArgumentError
+from farfield.cli import ArgumentError, object_names
 from farfield.core.errors import ViewCellError
 from farfield.core.layering.plan import plan_layers
 from farfield.core.pixel_angles import PIXEL_MODELS, pixel_angle
@@ -53,9 +53,10 @@ def _part_bounds(scene, objects, bounds):
         return _parse_bounds(bounds)
     from farfield.core.exchange import load_scene
 
+    names = object_names(objects)  # before the load: bad input is refused at once
     loaded = load_scene(scene)
-    if objects:
-        loaded = loaded.subset([name.strip() for name in objects.split(",") if name.strip()])
+    if names is not None:
+        loaded = loaded.subset(names)
     return loaded.bounds
 
 
