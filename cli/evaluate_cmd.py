@@ -76,7 +76,7 @@ def evaluate(bundles, scene, random_count, outside_count, seed, prefer, as_json,
     if lit and len(bundles) > 1:
         raise click.UsageError("--lit evaluates one bundle at a time")
     impostors = [read_bundle(Path(b)) for b in bundles]
-    part = load_scene(scene, sides=sides)
+    part = _evaluated_scene(load_scene(scene, sides=sides), impostors)
     if len(impostors) > 1:
         results = _compare(list(bundles), impostors, part, random_count, outside_count, seed, prefer, as_json)
     else:
@@ -110,6 +110,21 @@ def evaluate(bundles, scene, random_count, outside_count, seed, prefer, as_json,
                 )
     if check:
         _check(list(bundles), impostors, results)
+
+
+def _evaluated_scene(scene, impostors: list):
+    """What the bundles stand in for: ``scene``, or, for bundles of ``farfield bake --instances``
+    (``parameters["instances"]``), their prototype in its own space, where their cell is."""
+    keys = {impostor.parameters["prototype"] for impostor in impostors if "instances" in impostor.parameters}
+    if not keys:
+        return scene
+    if len(keys) > 1 or any("instances" not in impostor.parameters for impostor in impostors):
+        raise click.UsageError(
+            "bundles of different prototypes, or of a prototype and a part, are evaluated one at a time"
+        )
+    from farfield.core.techniques.instances import prototype_scene
+
+    return prototype_scene(scene, keys.pop())
 
 
 def _totals(result) -> dict:

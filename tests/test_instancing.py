@@ -277,3 +277,26 @@ def test_a_gltf_instance_whose_move_zeroes_its_normals_is_repaired_with_a_warnin
     assert np.isfinite(by_name["leaf@1"].normals).all()
     assert any("'leaf@1': 4 of 4 shading normals were zero" in w for w in scene.warnings)
     assert not any("leaf@0" in w or "leaf@2" in w for w in scene.warnings)
+
+
+def test_farfield_evaluate_checks_a_prototype_bundle_of_bake_instances(tmp_path):
+    """A bundle of ``farfield bake --instances`` is its prototype's, in the prototype's own space:
+    ``farfield evaluate`` looked for its objects (``box@0.local``) in the scene and refused it (exit
+    2, "no object named"), so the promise of an instanced bake could not be checked at all."""
+    import json
+
+    from click.testing import CliRunner
+
+    from farfield.cli.main import _register, cli
+
+    _register()
+    path = instanced_scene(tmp_path / "few.glb", count=3, texture=False)
+    run = CliRunner().invoke(cli, ["bake", str(path), "--technique", "octahedral", "--instances", "--viewcell",
+                                   "outside:0,0,0,600", "--option", "grid=5", "--option", "frame_resolution=8",
+                                   "--out", str(tmp_path / "out")])  # fmt: skip
+    assert run.exit_code == 0, run.output
+    for bundle in sorted((tmp_path / "out").iterdir()):
+        checked = CliRunner().invoke(cli, ["evaluate", str(bundle), str(path), "--random", "2", "--check", "--json"])
+        assert checked.exit_code == 0, checked.output  # beyond the accuracy distance (506 here): the promise holds
+        views = json.loads(checked.stdout)["viewpoints"]
+        assert views and all(view["stats"]["hole_pixels"] == 0 for view in views)
