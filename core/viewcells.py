@@ -524,7 +524,10 @@ def _viewcell_from_dict(data: dict) -> ViewCell:
             )
     except (KeyError, TypeError, ValueError) as error:
         raise ViewCellError(f"view cell description {data!r} is incomplete: {error}") from None
-    raise ViewCellError(f"unknown view cell kind {data.get('kind')!r}")
+    raise ViewCellError(
+        f"unknown view cell kind {data.get('kind')!r}; known kinds: 'box' (lo, hi), 'shaft' (apex, direction, "
+        "apex_angle_deg, min_distance[, max_distance]), 'outside-sphere' (centre, radius[, hemisphere])"
+    )
 
 
 @dataclass(frozen=True)

@@ -125,3 +125,13 @@ def test_refusals_name_what_is_wrong_at_extreme_coordinates():
         BoxCell(np.array([1e15, 0, 0]), np.array([1.0000001e15, 0.5, 0.5]))
     with pytest.raises(ViewCellError, match="needs lo < hi on every axis"):
         BoxCell(np.array([0.0, 0, 0]), np.array([1.0, 0, 1]))
+
+
+@pytest.mark.parametrize("kind", ["outside", "sphere", None])
+def test_an_unknown_view_cell_kind_names_the_known_ones(kind):
+    """``{"kind": "outside", ...}`` (the CLI's spelling, ``outside:cx,cy,cz,R``) was answered only
+    "unknown view cell kind 'outside'": the caller could not tell the dictionary's name of it."""
+    from farfield.core.viewcells import viewcell_from_dict
+
+    with pytest.raises(ViewCellError, match=r"known kinds: 'box'.*'shaft'.*'outside-sphere'"):
+        viewcell_from_dict({"kind": kind, "centre": [0, 0, 0], "radius": 1})
