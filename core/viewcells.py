@@ -17,6 +17,7 @@ All geometry is float64; points are ``(n, 3)`` arrays in world units.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -506,21 +507,45 @@ def viewcell_from_dict(data: dict) -> ViewCell:
     return _checked(_viewcell_from_dict(data))
 
 
+def _number(data: dict, key: str) -> float:
+    """``data[key]``, a number: not a bool nor a string (``true`` or ``"1"`` read as 1 is a loose type
+    the job's other fields refuse too)."""
+    value = data[key]
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ViewCellError(f"{data.get('kind')} view cell {key} must be a number, got {value!r}")
+    return float(value)
+
+
+def _point(data: dict, key: str):
+    """``data[key]``, three numbers (a list, or an array of a numeric dtype)."""
+    value = data[key]
+    if isinstance(value, np.ndarray) and value.dtype.kind in "iuf":
+        return value
+    if not isinstance(value, (list, tuple)) or not all(
+        isinstance(v, numbers.Real) and not isinstance(v, bool) for v in value
+    ):
+        raise ViewCellError(f"{data.get('kind')} view cell {key} must be 3 numbers, got {value!r}")
+    return value
+
+
 def _viewcell_from_dict(data: dict) -> ViewCell:
     try:
         kind = data["kind"]
         if kind == "box":
-            return BoxCell(data["lo"], data["hi"])
+            return BoxCell(_point(data, "lo"), _point(data, "hi"))
         if kind == "outside-sphere":
-            return SphereOutsideCell(data["centre"], float(data["radius"]), bool(data.get("hemisphere", False)))
+            hemisphere = data.get("hemisphere", False)
+            if not isinstance(hemisphere, bool):
+                raise ViewCellError(f"outside-sphere view cell hemisphere must be true or false, got {hemisphere!r}")
+            return SphereOutsideCell(_point(data, "centre"), _number(data, "radius"), hemisphere)
         if kind == "shaft":
             far = data.get("max_distance")
             return ShaftCell(
-                data["apex"],
-                data["direction"],
-                math.radians(float(data["apex_angle_deg"])),
-                float(data["min_distance"]),
-                math.inf if far is None else float(far),
+                _point(data, "apex"),
+                _point(data, "direction"),
+                math.radians(_number(data, "apex_angle_deg")),
+                _number(data, "min_distance"),
+                math.inf if far is None else _number(data, "max_distance"),
             )
     except (KeyError, TypeError, ValueError) as error:
         raise ViewCellError(f"view cell description {data!r} is incomplete: {error}") from None

@@ -135,3 +135,47 @@ def test_an_unknown_view_cell_kind_names_the_known_ones(kind):
 
     with pytest.raises(ViewCellError, match=r"known kinds: 'box'.*'shaft'.*'outside-sphere'"):
         viewcell_from_dict({"kind": kind, "centre": [0, 0, 0], "radius": 1})
+
+
+@pytest.mark.parametrize(
+    "data, field",
+    [
+        ({"kind": "box", "lo": [True, False, True], "hi": [2, 2, 2]}, "lo"),
+        ({"kind": "box", "lo": ["1", "0", "0"], "hi": [2, 2, 2]}, "lo"),
+        ({"kind": "box", "lo": [0, 0, 0], "hi": "222"}, "hi"),
+        ({"kind": "outside-sphere", "centre": [0, 0, 0], "radius": "10"}, "radius"),
+        ({"kind": "outside-sphere", "centre": [0, 0, 0], "radius": 10, "hemisphere": "false"}, "hemisphere"),
+        ({"kind": "outside-sphere", "centre": [0, 0, 0], "radius": 10, "hemisphere": 0}, "hemisphere"),
+        (
+            {"kind": "shaft", "apex": [0, 0, 0], "direction": [0, 0, 1], "apex_angle_deg": "10", "min_distance": 1},
+            "apex_angle_deg",
+        ),
+        (
+            {"kind": "shaft", "apex": [0, 0, 0], "direction": [0, 0, 1], "apex_angle_deg": 10, "min_distance": True},
+            "min_distance",
+        ),
+    ],
+)
+def test_a_view_cell_description_takes_json_numbers_and_booleans_only(data, field):
+    """``true`` and ``"1"`` were read as 1 in a view cell's coordinates, and ``"hemisphere": "false"``
+    as a hemisphere (``bool("false")``), where the job's other fields refuse loose types."""
+    from farfield.core.viewcells import viewcell_from_dict
+
+    with pytest.raises(ViewCellError, match=field):
+        viewcell_from_dict(data)
+
+
+def test_a_view_cell_description_as_written_reads_back():
+    from farfield.core.viewcells import SphereOutsideCell, viewcell_from_dict
+
+    for cell in (
+        BoxCell([0, 0, 0], [1, 2, 3]),
+        ShaftCell([0, 0, 0], [0, 0, 1], 0.3, 2.0),
+        SphereOutsideCell([1, 2, 3], 4.0, True),
+    ):
+        assert viewcell_from_dict(cell.to_dict()).to_dict() == cell.to_dict()
+    assert viewcell_from_dict({"kind": "box", "lo": np.zeros(3), "hi": np.ones(3, dtype=np.int64)}).size.tolist() == [
+        1,
+        1,
+        1,
+    ]
