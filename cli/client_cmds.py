@@ -63,6 +63,8 @@ class Client:
         import httpx
 
         self.url = url.rstrip("/")
+        if self.url.endswith("/v1"):  # the API URL `farfield up` prints: the routes already start with /v1
+            self.url = self.url[: -len("/v1")]
         self.http = httpx.Client(
             base_url=self.url, headers={"Authorization": f"Bearer {key}"} if key else {}, timeout=300
         )
