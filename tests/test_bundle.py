@@ -782,3 +782,14 @@ def test_page_pngs_remembered_by_a_bake_are_not_encoded_again_and_go_with_their_
     del page
     gc.collect()
     assert key not in png_pages._REMEMBERED
+
+
+def test_a_folder_of_bundles_is_refused_naming_them(tmp_path):
+    """``farfield bake --instances --out DIR`` writes one bundle per prototype under DIR: reading DIR
+    itself said only "DIR/manifest.json: missing, not a bundle", not where the bundles are."""
+    write_bundle(make_impostor(), tmp_path / "out" / "d8eb37e615278b10")
+    write_bundle(make_impostor(seed=8), tmp_path / "out" / "0a1b2c3d4e5f6071")
+    with pytest.raises(BundleFormatError, match=r"holds 2 bundles: .*0a1b2c3d4e5f6071.*d8eb37e615278b10"):
+        read_bundle(tmp_path / "out")
+    with pytest.raises(BundleFormatError, match=r"missing, not a bundle$"):
+        read_bundle(tmp_path / "empty")

@@ -466,6 +466,12 @@ def _read_manifest(directory: Path) -> dict:
     try:
         text = path.read_bytes().decode("utf-8")
     except FileNotFoundError as error:
+        inner = sorted(p.parent for p in directory.glob(f"*/{MANIFEST_NAME}")) if directory.is_dir() else []
+        if inner:  # a folder of bundles, e.g. `farfield bake --instances`: one per prototype
+            names = ", ".join(str(p) for p in inner[:5]) + (", ..." if len(inner) > 5 else "")
+            raise BundleFormatError(
+                f"{path}: missing, not a bundle; the folder holds {len(inner)} bundles: {names} (give one)"
+            ) from error
         raise BundleFormatError(f"{path}: missing, not a bundle") from error
     except (OSError, UnicodeDecodeError) as error:
         raise BundleFormatError(f"{path}: unreadable: {error}") from error
