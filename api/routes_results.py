@@ -5,6 +5,7 @@ and calls."""
 
 from __future__ import annotations
 
+import json
 import math
 import tempfile
 import zipfile
@@ -85,9 +86,15 @@ def cell_atlas(
     tenant_id: str = Depends(tenant),
     svc: Services = Depends(services),
 ) -> Response:
-    return Response(
-        bundle_file(svc.blobs, _result(svc, tenant_id, job_id, index), page_file_name(page)), media_type="image/png"
-    )
+    key = _result(svc, tenant_id, job_id, index)
+    try:
+        return Response(bundle_file(svc.blobs, key, page_file_name(page)), media_type="image/png")
+    except NotFoundError:  # a page past the cell's last: named by page, not by the blob store's key
+        pages = len(json.loads(bundle_file(svc.blobs, key, MANIFEST_NAME)).get("pages", []))
+        have = f"page 0 to {pages - 1}" if pages > 1 else "page 0" if pages == 1 else "no page"
+        raise NotFoundError(
+            f"cell {index} of job {job_id!r} has no atlas page {page}; it has {pages} ({have})"
+        ) from None
 
 
 @router.get(

@@ -138,7 +138,10 @@ def test_instances_store_their_prototypes_pages_once_and_serve_the_same_bytes(ap
             assert response.status_code == 200, response.text
             assert response.content == (whole / name).read_bytes(), (i, route)
         assert api.get(f"{base}/bundle.zip").content == bundle_zip(whole)
-        assert api.get(f"{base}/atlas/9.png").status_code == 404
+        missing = api.get(f"{base}/atlas/9.png")  # named by page, not by the blob store's key
+        assert missing.status_code == 404 and missing.json()["detail"] == (
+            f"cell 0 of job {cell.job_id!r} has no atlas page 9; it has 1 (page 0)"
+        ), missing.text
         read = read_cell_impostor(blobs, cell.result_key, tmp_path / f"read-{i}")  # what the evaluation reads
         assert impostor_glb(read) == (whole / GLB_NAME).read_bytes()
         response = api.get(f"/v1/jobs/{cell.job_id}/database.zip")
