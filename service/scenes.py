@@ -159,6 +159,7 @@ def _ingest(db, blobs, tenant_id, file_name, source, limit, scene_limits, more, 
             file_name.lower().endswith(".zip") or (size and is_zip(path))
         ):
             archive = unpack_scene_archive(path, limit, Path(work), safe_file_name(file_name))
+        original = archive.name if more else file_name  # several files: the scene's, not the first field's
         if archive is not None:
             name, path, assets = safe_file_name(archive.name), archive.scene, archive.assets
         else:
@@ -181,7 +182,7 @@ def _ingest(db, blobs, tenant_id, file_name, source, limit, scene_limits, more, 
             with open(assets, "rb") as f:
                 blobs.put_stream(f"{prefix}/{ASSETS}", f)
         row = SceneRow(
-            id=scene_id, tenant_id=tenant_id, name=name, original_name=original_file_name(file_name), extension=extension,
+            id=scene_id, tenant_id=tenant_id, name=name, original_name=original_file_name(original), extension=extension,
             blob_key=key, size_bytes=size, content_hash=summary["content_hash"], triangles=summary["triangles"],
             bounds=summary["bounds"], object_count=len(summary["objects"]), objects=summary["objects"], created_at=now(),
             sides=sides,

@@ -197,6 +197,10 @@ def test_multi_file_scenes_over_rest_and_the_cli_and_bad_archives_leave_nothing(
         several = client.post("/v1/scenes", files=[("file", (n, b)) for n, b in duck_files().items()])
         assert several.status_code == 201, several.text
         assert several.json()["content_hash"] == local.content_hash and several.json()["name"] == "duck.obj"
+        # the scene's name as uploaded, whatever field comes first (it was the first field's: "duckCM.png")
+        texture_first = sorted(duck_files().items(), key=lambda item: not item[0].endswith(".png"))
+        texture_first = client.post("/v1/scenes", files=[("file", item) for item in texture_first])
+        assert texture_first.json()["original_name"] == "duck.obj", texture_first.text
         missing = client.post(
             "/v1/scenes", files=[("file", (n, b)) for n, b in duck_files().items() if n != "duckCM.png"]
         )
