@@ -12,7 +12,7 @@ from pathlib import Path
 
 import click
 
-from farfield.cli import sides_option
+from farfield.cli import ArgumentError, sides_option
 from farfield.core.errors import GuaranteeError
 from farfield.core.exchange import load_scene
 from farfield.core.impostor.bundle import read_bundle
@@ -119,7 +119,7 @@ def _evaluated_scene(scene, impostors: list):
     if not keys:
         return scene
     if len(keys) > 1 or any("instances" not in impostor.parameters for impostor in impostors):
-        raise click.UsageError(
+        raise ArgumentError(
             "bundles of different prototypes, or of a prototype and a part, are evaluated one at a time"
         )
     from farfield.core.techniques.instances import prototype_scene

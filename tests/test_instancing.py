@@ -300,3 +300,6 @@ def test_farfield_evaluate_checks_a_prototype_bundle_of_bake_instances(tmp_path)
         assert checked.exit_code == 0, checked.output  # beyond the accuracy distance (506 here): the promise holds
         views = json.loads(checked.stdout)["viewpoints"]
         assert views and all(view["stats"]["hole_pixels"] == 0 for view in views)
+    both = [str(b) for b in sorted((tmp_path / "out").iterdir())]  # two prototypes: one at a time
+    refused = CliRunner().invoke(cli, ["evaluate", *both, str(path)])
+    assert refused.exit_code == 2 and "one at a time" in refused.output, refused.output

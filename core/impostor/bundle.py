@@ -470,7 +470,7 @@ def _read_manifest(directory: Path) -> dict:
         if inner:  # a folder of bundles, e.g. `farfield bake --instances`: one per prototype
             names = ", ".join(str(p) for p in inner[:5]) + (", ..." if len(inner) > 5 else "")
             raise BundleFormatError(
-                f"{path}: missing, not a bundle; the folder holds {len(inner)} bundles: {names} (give one)"
+                f"{path}: missing, not a bundle; the folder holds {len(inner)} bundle{'s' if len(inner) > 1 else ''}: {names} (give one)"
             ) from error
         raise BundleFormatError(f"{path}: missing, not a bundle") from error
     except (OSError, UnicodeDecodeError) as error:
