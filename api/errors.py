@@ -78,6 +78,9 @@ TEXT_NOT_FILE = (
 )
 
 
+NO_BODY = "the request has no body: send a JSON object (Content-Type: application/json)"
+
+
 def _sent_as_text(problem) -> bool:
     """Whether a validation problem is a text field where the upload route takes a file."""
     loc = problem.get("loc", ())
@@ -100,6 +103,8 @@ def install_error_handlers(app: FastAPI) -> None:
     async def validation_error(_request: Request, error: RequestValidationError) -> JSONResponse:
         if any(_sent_as_text(problem) for problem in error.errors()):
             return error_response(422, TEXT_NOT_FILE, "ValidationError")
+        if any(tuple(p.get("loc", ())) == ("body",) and p.get("type") == "missing" for p in error.errors()):
+            return error_response(422, NO_BODY, "ValidationError")  # was "Field required, got null"
         return error_response(422, validation_detail(error.errors()), "ValidationError")
 
     @app.exception_handler(HTTPException)

@@ -247,3 +247,10 @@ def test_a_scene_sent_as_text_not_as_a_file_is_told_so(api, size):
     detail = response.json()["detail"]
     assert "without a filename" in detail and "file=@" in detail, detail
     assert api.get("/v1/scenes").headers["X-Total-Count"] == before  # nothing stored
+
+
+def test_an_empty_job_request_is_told_to_send_json(api):
+    """An empty body was answered "Field required, got null", naming no field."""
+    response = api.post("/v1/jobs", content=b"", headers={"Content-Type": "application/json"})
+    assert response.status_code == 422 and "no body" in response.json()["detail"], response.text
+    assert "JSON object" in api.post("/v1/jobs").json()["detail"]
