@@ -95,7 +95,8 @@ def test_a_layer_texture_no_renderer_draws_is_never_a_candidate():
 
 @pytest.mark.parametrize(
     "model, t_max, cells",
-    [(primitive_model(), 0.5, "both"), (LLVMPIPE_MODEL, 1.0, "both"), (primitive_model(), 0.6, "leaf-boxes")],
+    # 0.8 ms: under the 1-frame pixel cap no view of this city reaches 1 ms (none is a problem view)
+    [(primitive_model(), 0.5, "both"), (LLVMPIPE_MODEL, 0.8, "both"), (primitive_model(), 0.6, "leaf-boxes")],
 )
 def test_candidates_and_choice_are_those_of_the_one_cell_at_a_time_path(model, t_max, cells):
     city = procedural.city(36, seed=5, detail=6)

@@ -548,6 +548,10 @@ def admit_job_task(self, job_id: str, held_by: list | None = None) -> str:
         try:
             for holder, attempt in holders:
                 release_admission(db, job_id, holder, attempt)
+            if not claimed:
+                # Its claim failed, so it holds nothing to free; with the database away it is retried all
+                # the same, or the job would wait for the sweeper's FARFIELD_REQUEUE_AFTER.
+                db.ping()
         except Exception:  # noqa: BLE001 - the database is away: retried, freeing the hold first
             if retries < limit:
                 countdown = backoff(retries + 1)
