@@ -308,13 +308,8 @@ def test_a_job_over_the_tenant_cap_on_its_own_is_413_not_429(home):
     assert stored(home) == before
 
 
-def test_the_sweeper_sends_a_lost_admission_again_and_never_its_cells(tmp_path):
-    """An admitting job whose lease ran out (its message or its worker lost) is claimed once for
-    sending again; its queued cells are not sent by the lost-cell sweep, however old: they go out
-    when their checks pass."""
-    from farfield.service.jobs.admitting import lost_admissions
-    from farfield.service.jobs.cells import lost_queued_cells
-
+def _admitting_job(tmp_path):
+    """(the database, an admitting one-cell job of a small city) in a fresh service home."""
     with api_client(tmp_path) as client:
         path = write_scene(city(buildings=3), tmp_path, "glb")
         scene_id = client.post("/v1/scenes", files={"file": (path.name, path.read_bytes())}).json()["id"]
@@ -324,6 +319,17 @@ def test_the_sweeper_sends_a_lost_admission_again_and_never_its_cells(tmp_path):
     job = create_job(
         db, tenant_id, scene, JobSpec(scene_id=scene_id, resolution=64, viewcells=[CELL]), AdmissionLimits(), 60
     )
+    return db, job
+
+
+def test_the_sweeper_sends_a_lost_admission_again_and_never_its_cells(tmp_path):
+    """An admitting job whose lease ran out (its message or its worker lost) is claimed once for
+    sending again; its queued cells are not sent by the lost-cell sweep, however old: they go out
+    when their checks pass."""
+    from farfield.service.jobs.admitting import lost_admissions
+    from farfield.service.jobs.cells import lost_queued_cells
+
+    db, job = _admitting_job(tmp_path)
     assert lost_admissions(db, 60) == []  # its lease runs
     with db.session() as s:
         s.get(JobRow, job.id).lease_until = 0.0
@@ -344,15 +350,7 @@ def test_a_failed_delivery_frees_its_own_hold_not_a_later_one_on_the_same_host(t
     Bare host names (an older release's retry messages) still free the host's hold."""
     from farfield.service.jobs.admitting import _claim, release_admission
 
-    with api_client(tmp_path) as client:
-        path = write_scene(city(buildings=3), tmp_path, "glb")
-        scene_id = client.post("/v1/scenes", files={"file": (path.name, path.read_bytes())}).json()["id"]
-    db = Database(Settings.from_env({"FARFIELD_HOME": str(tmp_path)}).database_url)
-    tenant_id = authenticate(db, KEY)
-    scene = get_scene_row(db, tenant_id, scene_id, with_objects=True)
-    job = create_job(
-        db, tenant_id, scene, JobSpec(scene_id=scene_id, resolution=64, viewcells=[CELL]), AdmissionLimits(), 60
-    )
+    db, job = _admitting_job(tmp_path)
 
     def holder():
         with db.session() as s:
