@@ -137,6 +137,17 @@ def bundles(tmp_path_factory):
     return get
 
 
+def _compared(threejs, path, scene, camera, *label, **render_options) -> dict:
+    """:func:`compare` of three.js's drawing of the file at ``path`` and farfield's of its loaded
+    ``scene``, from one camera (``render_options`` go to three.js); printed after ``label``."""
+    (three,) = threejs.render(path, camera, **render_options)
+    with MeshRenderer(scene.objects) as renderer:
+        ours = renderer.render(camera)
+    stats = compare(three, ours)
+    print(*label, stats)
+    return stats
+
+
 @pytest.mark.parametrize("name", list(TECHNIQUES))
 def test_every_techniques_glb_is_valid_and_three_js_draws_it_as_farfield_does(name, bundles, threejs, gltf_validator):
     paths, impostor, cameras, ours = bundles(name)
@@ -374,11 +385,7 @@ def test_obj_mtl_colours_opacity_maps_and_uv_options_draw_as_three_js_draws_them
     })  # fmt: skip
     scene = load_scene(path)
     camera = look_at([1.0, 0.5, 1.6], np.array([1.0, 0.5, 0.0]), box_corners(scene.bounds), 60.0, RESOLUTION)
-    (three,) = threejs.render(path, camera, alpha_cutoff=0.5, mipmaps=False)
-    with MeshRenderer(scene.objects) as renderer:
-        ours = renderer.render(camera)
-    stats = compare(three, ours)
-    print("obj/mtl", stats)
+    stats = _compared(threejs, path, scene, camera, "obj/mtl", alpha_cutoff=0.5, mipmaps=False)
     assert stats["three_pixels"] > 2000 and stats["three_beyond_1px"] == 0 and stats["farfield_beyond_1px"] == 0, stats
     assert stats["colour_mean"] <= 2.0, stats
 
@@ -401,11 +408,7 @@ def test_obj_objects_written_with_relative_indices_and_tabs_draw_as_three_js_dra
     scene = load_scene(path)
     assert len(scene.objects) == 3 and np.allclose(scene.bounds, [[0, 0, 0], [2.8, 1, 0]])
     camera = look_at([1.4, 0.5, 2.0], np.array([1.4, 0.5, 0.0]), box_corners(scene.bounds), 60.0, RESOLUTION)
-    (three,) = threejs.render(path, camera, mipmaps=False)
-    with MeshRenderer(scene.objects) as renderer:
-        ours = renderer.render(camera)
-    stats = compare(three, ours)
-    print("obj relative indices", stats)
+    stats = _compared(threejs, path, scene, camera, "obj relative indices", mipmaps=False)
     assert stats["three_pixels"] > 2000 and stats["three_beyond_1px"] == 0 and stats["farfield_beyond_1px"] == 0, stats
     assert stats["colour_mean"] <= 2.0, stats
 
@@ -422,11 +425,7 @@ def test_gltf_samplers_texture_transform_uv_sets_and_accessor_encodings_draw_as_
     path = sampler_scene(tmp_path / "samplers.glb")
     scene = load_scene(path)
     camera = look_at([1.6, 1.6, 3.2], np.array([1.6, 1.6, 0.0]), box_corners(scene.bounds), 60.0, 192)
-    (three,) = threejs.render(path, camera, mipmaps=False)
-    with MeshRenderer(scene.objects) as renderer:
-        ours = renderer.render(camera)
-    stats = compare(three, ours)
-    print("gltf samplers", stats)
+    stats = _compared(threejs, path, scene, camera, "gltf samplers", mipmaps=False)
     assert stats["three_pixels"] > 0.5 * 192**2, stats
     assert stats["three_beyond_1px"] == 0 and stats["farfield_beyond_1px"] == 0, stats
     assert stats["colour_mean"] <= 2.0 and stats["colour_p99"] <= 16.0, stats
@@ -505,10 +504,6 @@ def test_ply_colour_properties_of_every_type_draw_as_three_js_draws_them(threejs
     path.write_text("\n".join(header + rows + ["3 0 1 2", "3 1 3 2"]) + "\n")
     scene = load_scene(path, sides="both")
     camera = look_at([0.5, 0.5, 1.5], np.array([0.5, 0.5, 0.0]), box_corners(scene.bounds), 60.0, RESOLUTION)
-    (three,) = threejs.render(path, camera, mipmaps=False, sides="both")
-    with MeshRenderer(scene.objects) as renderer:
-        ours = renderer.render(camera)
-    stats = compare(three, ours)
-    print("ply", kind, stats)
+    stats = _compared(threejs, path, scene, camera, "ply", kind, mipmaps=False, sides="both")
     assert stats["three_pixels"] > 1000 and stats["three_beyond_1px"] == 0 and stats["farfield_beyond_1px"] == 0, stats
     assert stats["colour_mean"] <= 2.0, stats
