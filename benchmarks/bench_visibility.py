@@ -4,7 +4,7 @@ Usage: ``.venv/bin/python benchmarks/bench_visibility.py [--scene city,dense,dow
 
 Per scene (the scenes and view spaces of ``bench_placement.py``; ``street`` is the 400-building city
 with the view space at street level, 1.5..2.5 m, over the same square), with the CPV size the view
-space's longest side / ``--cpv-divisions`` and 45° view-direction intervals, at ``--resolution``:
+space's longest side / ``--cpv-divisions`` and ``--vdi-deg`` view-direction intervals (45° unless given), at ``--resolution``:
 
 1. **The PVS** (:class:`farfield.core.visibility.pvs.RegionVisibility`, defaults: 2 samples per
    region side, no adaptive level, occluder erosion of half a lattice cell's diagonal with 2 peels
@@ -75,6 +75,7 @@ from farfield.core.render.context import renderer_info  # noqa: E402
 from farfield.core.visibility.pvs import RegionVisibility, false_invisible  # noqa: E402
 
 FOV = math.radians(45.0)
+VDI_DEG = 45.0  # the view-direction intervals' angle (--vdi-deg; the planner's default is 11.25)
 
 
 def scene_of(name: str):
@@ -147,7 +148,7 @@ def estimate_ratios(scene, lo, hi, cpv: float, resolution: int, views: int, seed
         lo,
         hi,
         PlacementSettings(
-            t_max=1e12, model=LLVMPIPE_MODEL, options={"resolution": resolution}, cpv_size=cpv, vdi_deg=45.0
+            t_max=1e12, model=LLVMPIPE_MODEL, options={"resolution": resolution}, cpv_size=cpv, vdi_deg=VDI_DEG
         ),
     )
     with tempfile.TemporaryDirectory(prefix="farfield-bench-") as tmp:
@@ -171,7 +172,7 @@ def estimate_ratios(scene, lo, hi, cpv: float, resolution: int, views: int, seed
             FOV,
             resolution,
             cpv,
-            45.0,
+            VDI_DEG,
             DEFAULT_DEPTH_COMPLEXITY,
             visible,
         )
@@ -201,7 +202,7 @@ def runtime_rows(scene, lo, hi, cpv: float, resolution: int, views: int, seed: i
     positions, forwards = random_views(lo, hi, views, seed)
     elements = Elements.of(scene)
     hierarchy = Hierarchy.build(elements)
-    args = (elements, hierarchy, lo, hi, LLVMPIPE_MODEL, 1e-12, FOV, resolution, cpv, 45.0, DEFAULT_DEPTH_COMPLEXITY)
+    args = (elements, hierarchy, lo, hi, LLVMPIPE_MODEL, 1e-12, FOV, resolution, cpv, VDI_DEG, DEFAULT_DEPTH_COMPLEXITY)
     visible = RegionVisibility(scene, elements, lo, hi, cpv, resolution, FOV, **pvs_options)
     started = time.perf_counter()
     try:
@@ -212,7 +213,7 @@ def runtime_rows(scene, lo, hi, cpv: float, resolution: int, views: int, seed: i
     pvs_s = time.perf_counter() - started
     without = problem_view_space(*args)
     empty = place(scene, lo, hi, PlacementSettings(t_max=1e12, model=LLVMPIPE_MODEL, options={"resolution": resolution},
-                                                   cpv_size=cpv, vdi_deg=45.0))  # fmt: skip
+                                                   cpv_size=cpv, vdi_deg=VDI_DEG))  # fmt: skip
     with tempfile.TemporaryDirectory(prefix="farfield-bench-") as tmp:
         write_placement_database(Path(tmp) / "db", replace(empty, visibility=sets), {})
         with ImpostorDatabase(Path(tmp) / "db") as db:
@@ -255,7 +256,7 @@ def walk_rows(scene, lo, hi, cpv: float, resolution: int, views: int, seed: int)
 
     t_max = 0.5 * _worst_view(scene, lo, hi, LLVMPIPE_MODEL, resolution)
     settings = PlacementSettings(t_max=t_max, model=LLVMPIPE_MODEL, options={"resolution": resolution}, cpv_size=cpv,
-                                 vdi_deg=45.0, visibility=True)  # fmt: skip
+                                 vdi_deg=VDI_DEG, visibility=True)  # fmt: skip
     started = time.perf_counter()
     placement = place(scene, lo, hi, settings)
     plan_s = time.perf_counter() - started
@@ -293,7 +294,7 @@ def memory_rows(scene, lo, hi, cpv: float, resolution: int) -> dict:
     try:
         for vis in (False, True):
             settings = PlacementSettings(
-                t_max=t_max, model=LLVMPIPE_MODEL, options={"resolution": resolution}, cpv_size=cpv, vdi_deg=45.0
+                t_max=t_max, model=LLVMPIPE_MODEL, options={"resolution": resolution}, cpv_size=cpv, vdi_deg=VDI_DEG
             )
             started = time.perf_counter()
             p = place(scene, lo, hi, settings, visible=visible if vis else None)
@@ -334,11 +335,16 @@ def main() -> None:
     parser.add_argument(
         "--dense-samples", type=int, default=8, help="the denser uniform sampling the PVS is compared with"
     )
+    parser.add_argument(
+        "--vdi-deg", type=float, default=45.0, help="view-direction intervals' angle (the planner's default: 11.25)"
+    )
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
+    global VDI_DEG
+    VDI_DEG = args.vdi_deg
     parts = args.parts.split(",")
     print(
-        f"# {renderer_info().renderer}; {args.resolution} px, 45°, CPV = side / {args.cpv_divisions}, 45° intervals",
+        f"# {renderer_info().renderer}; {args.resolution} px, 45°, CPV = side / {args.cpv_divisions}, {args.vdi_deg:g}° intervals",
         flush=True,
     )
     rows = []
