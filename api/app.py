@@ -10,7 +10,7 @@ from __future__ import annotations
 from contextlib import asynccontextmanager
 
 from celery import Celery
-from fastapi import FastAPI
+from fastapi import Depends, FastAPI
 
 from farfield.api import (
     routes_dashboard,
@@ -23,6 +23,7 @@ from farfield.api import (
 )
 from farfield.api.deps import Services
 from farfield.api.errors import install_error_handlers
+from farfield.api.forms import one_value_per_field, require_closing_boundary
 from farfield.api.limits import FORM_LIMITS, BodyLimit
 from farfield.api.openapi import openapi_document
 from farfield.api.security_headers import SecurityHeaders
@@ -57,7 +58,9 @@ def create_app(settings: Settings, celery: Celery | None = None, migrate: bool =
         description="Impostor baking service: scenes, placement jobs, impostor databases.",
         lifespan=lifespan,
         form_limits=FORM_LIMITS,  # parts and fields of a multipart request (api/limits.py)
+        dependencies=[Depends(one_value_per_field)],  # a form field a route takes once is sent once (api/forms.py)
     )
+    require_closing_boundary()  # a multipart body cut before its closing boundary is a 400 (api/forms.py)
     app.state.services = services
 
     install_error_handlers(app)

@@ -13,6 +13,13 @@ worker call); ``trimesh`` is ``trimesh.load(path, process=False)``, which parses
 textures undecoded; ``+decode`` is that plus decoding each distinct image its materials hold to
 RGBA once, the least a loader that renders must do.  The ratios are farfield over ``+decode``.
 Goal (issue 29): within 2x in time and peak memory.
+
+``--many-objects 1000,4000,16000,64000`` measures instead OBJ files of that many small cubes (``o``,
+eight ``v``, twelve ``f``; no ``vt`` or ``vn``), each loaded by ``load_scene`` in a fresh process,
+``time.process_time()`` of the load: ``trimesh path`` with the faces given to trimesh as written
+(farfield before ``core/exchange/obj_no_uv.py``; its reader is pieces x vertices there) and ``now``
+(the corners paired ``i/i``: trimesh's linear branch), alternated, best of ``--repeats`` processes.
+The node limit is raised past the largest count (the default admits 50,000 objects).
 """
 
 from __future__ import annotations
@@ -93,6 +100,56 @@ def atlas_obj(folder: Path, size: int, triangles: int = 225_000, materials: int 
     return path
 
 
+CUBES_CHILD = r"""
+import sys, time
+import farfield.core.exchange.obj as obj
+from farfield.core.exchange import load_scene
+from farfield.core.exchange.limits import SceneLimits
+if sys.argv[1] == "trimesh path":
+    obj.paired_indices = lambda text: text  # the faces as written: what farfield gave trimesh before
+start = time.process_time()
+scene = load_scene(sys.argv[2], limits=SceneLimits(nodes=10**6))
+print(time.process_time() - start, len(scene.objects), scene.content_hash)
+"""
+
+
+def cubes_obj(path: Path, count: int) -> Path:
+    """An OBJ of ``count`` unit-half cubes on a 100-wide grid, each ``o cubeK``, 8 ``v``, 12 ``f``."""
+    corners = [(x, y, z) for x in (0, 1) for y in (0, 1) for z in (0, 1)]
+    triangles = [(0, 2, 3), (0, 3, 1), (4, 5, 7), (4, 7, 6), (0, 1, 5), (0, 5, 4),
+                 (2, 6, 7), (2, 7, 3), (0, 4, 6), (0, 6, 2), (1, 3, 7), (1, 7, 5)]  # fmt: skip
+    lines = []
+    for k in range(count):
+        ox, oz = 2.0 * (k % 100), 2.0 * (k // 100)
+        lines.append(f"o cube{k}")
+        lines += [f"v {ox + 0.5 * x:g} {0.5 * y:g} {oz + 0.5 * z:g}" for x, y, z in corners]
+        base = 8 * k + 1
+        lines += [f"f {base + a} {base + b} {base + c}" for a, b, c in triangles]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def many_objects(counts: list[int], repeats: int) -> list[dict]:
+    """The ``--many-objects`` table (module docstring)."""
+    rows = []
+    print(f"{'objects':>8} {'triangles':>10} {'trimesh path CPU s':>18} {'now CPU s':>9} {'ratio':>6}  same scene")
+    with tempfile.TemporaryDirectory(prefix="farfield-bench-cubes-") as tmp:
+        for count in counts:
+            path = cubes_obj(Path(tmp) / f"cubes{count}.obj", count)
+            best, hashes = {}, {}
+            for _ in range(repeats):
+                for which in ("trimesh path", "now"):
+                    out = subprocess.run([sys.executable, "-c", CUBES_CHILD, which, str(path)],
+                                         capture_output=True, text=True, check=True).stdout.split()  # fmt: skip
+                    best[which] = min(best.get(which, float("inf")), float(out[0]))
+                    hashes[which] = (int(out[1]), out[2])
+            same = hashes["trimesh path"] == hashes["now"]
+            rows.append({"objects": count, "triangles": 12 * count, **best, "same": same})
+            print(f"{count:>8,} {12 * count:>10,} {best['trimesh path']:>18.2f} {best['now']:>9.2f} "
+                  f"{best['trimesh path'] / best['now']:>5.1f}x  {'yes' if same else 'NO'}", flush=True)  # fmt: skip
+    return rows
+
+
 def measure(which: str, path: Path, repeats: int) -> dict:
     code = CHILD
     done = subprocess.run(
@@ -108,7 +165,15 @@ def main() -> None:
     parser.add_argument("--atlas", type=int, default=4096, help="side of the generated OBJ's shared texture, texels")
     parser.add_argument("--repeats", type=int, default=2, help="loads per process (best time)")
     parser.add_argument("--json", default=None, help="write the rows here")
+    parser.add_argument(
+        "--many-objects", default=None, help="comma-separated object counts: the many-object OBJ table instead"
+    )
     args = parser.parse_args()
+    if args.many_objects:
+        rows = many_objects([int(n) for n in args.many_objects.split(",")], args.repeats)
+        if args.json:
+            Path(args.json).write_text(json.dumps(rows, indent=1))
+        return
     rows = []
     kinds = ("farfield", "trimesh", "trimesh+decode")
     print(

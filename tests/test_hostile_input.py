@@ -254,3 +254,22 @@ def test_an_empty_job_request_is_told_to_send_json(api):
     response = api.post("/v1/jobs", content=b"", headers={"Content-Type": "application/json"})
     assert response.status_code == 422 and "no body" in response.json()["detail"], response.text
     assert "JSON object" in api.post("/v1/jobs").json()["detail"]
+
+
+@pytest.mark.parametrize("values", [["both", "one"], ["one", "one"]])
+def test_a_single_valued_form_field_sent_twice_is_a_422_naming_it(api, tmp_path, values):
+    """Two ``sides`` fields in one upload: FastAPI took the last silently (even a mistyped first).
+    Each single-valued field of a route is checked alike (api/forms.py); ``file`` takes any number."""
+    from farfield.api.forms import single_valued_fields
+    from farfield.api.routes_scenes import router
+
+    before = api.get("/v1/scenes").headers["X-Total-Count"]
+    path = write_scene(city(buildings=1), tmp_path, "glb")
+    response = api.post("/v1/scenes", files={"file": (path.name, path.read_bytes())}, data={"sides": values})
+    assert response.status_code == 422 and response.json()["error"] == "ValidationError", response.text
+    assert response.json()["detail"].startswith("sides: sent 2 times"), response.text
+    assert api.get("/v1/scenes").headers["X-Total-Count"] == before  # nothing stored
+    once = api.post("/v1/scenes", files={"file": (path.name, path.read_bytes())}, data={"sides": "both"})
+    assert once.status_code == 201 and once.json()["sides"] == "both", once.text
+    upload = next(r for r in router.routes if r.path == "/v1/scenes" and "POST" in r.methods)
+    assert single_valued_fields(upload) == ["sides"]  # the upload's other field, file, is a list

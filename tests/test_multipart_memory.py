@@ -106,3 +106,24 @@ def test_an_upload_of_more_parts_than_the_limit_is_refused_with_a_json_400(serve
     )  # fmt: skip
     assert answer.status_code == 400 and answer.json()["error"] == "BadRequestError", answer.text
     assert "256" in answer.json()["detail"]
+
+
+@pytest.mark.parametrize("cut", ["before the closing boundary", "inside the file part", "after the headers"])
+def test_a_multipart_body_cut_short_is_a_400_that_says_so(server, cut):
+    """A body that stops before its closing ``--boundary--`` (a client that gave up, a proxy that cut
+    it) was parsed as far as it went, the cut part dropped: the answer was "send the scene as
+    multipart form field 'file'", which sends the user looking at the field name."""
+    url, _ = server
+    boundary = "farfieldboundary"
+    head = f'--{boundary}\r\nContent-Disposition: form-data; name="file"; filename="a.obj"\r\n\r\n'.encode()
+    whole = head + b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n" + f"\r\n--{boundary}--\r\n".encode()
+    sent = {
+        "before the closing boundary": whole[: whole.rindex(b"--\r\n")],
+        "inside the file part": whole[: len(head) + 12],
+        "after the headers": head,
+    }[cut]
+    headers = {"Authorization": f"Bearer {KEY}", "Content-Type": f"multipart/form-data; boundary={boundary}"}
+    answer = httpx.post(url + "/v1/scenes", content=sent, headers=headers, timeout=60)
+    assert answer.status_code == 400 and answer.json()["error"] == "BadRequestError", answer.text
+    assert answer.json()["detail"].startswith(f"the multipart body ends before its closing boundary (--{boundary}--)")
+    assert httpx.post(url + "/v1/scenes", content=whole, headers=headers, timeout=60).status_code == 201

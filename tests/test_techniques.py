@@ -346,3 +346,46 @@ def test_a_refused_cell_of_a_request_is_named_as_the_request_gave_it():
     with pytest.raises(FarfieldError) as refused:
         bound_part_cells(cells, options, bounds)
     assert str(refused.value).startswith(f"view cell 1 {json.dumps(cells[1].to_dict())}: ")
+
+
+# Two triangles whose corners are collinear: a scene with no surface to see.
+COLLINEAR_OBJ = "o flat\nv 0 0 0\nv 1 0 0\nv 2 0 0\nv 0 1 0\nv 0 2 0\nf 1 2 3\nf 1 4 5\n"
+
+
+@pytest.mark.parametrize("name", [name for name, t in TECHNIQUES.items() if t.scope == "part"])
+def test_every_part_technique_refuses_a_part_of_collinear_triangles_only(name, tmp_path):
+    """Layered, tdm and ldi refused such a part; octahedral wrote a full atlas of nothing and points
+    baked the conservative LDIs' samples along the segments.  Now each is one line and exit code 2,
+    and no bundle is written."""
+    _register()
+    scene_file = tmp_path / "flat.obj"
+    scene_file.write_text(COLLINEAR_OBJ)
+    out = tmp_path / "out"
+    args = ["bake", str(scene_file), "--viewcell", "box:-1,-1,8,1,1,10", "--technique", name]
+    run = CliRunner().invoke(cli, [*args, "--resolution", "64", "--quiet", "--out", str(out)])
+    lines = run.output.strip().splitlines()
+    assert run.exit_code == 2 and len(lines) == 1 and lines[0].startswith("farfield: error: "), run.output
+    assert "nothing to make" in lines[0] or "no visible texel" in lines[0], lines[0]
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_octahedral_and_points_jobs_of_collinear_triangles_fail_with_the_reason(client, tmp_path):
+    scene_file = tmp_path / "flat.obj"
+    scene_file.write_text(COLLINEAR_OBJ)
+    uploaded = upload(client, scene_file)
+    assert uploaded.status_code in (200, 201), uploaded.text
+    spec = {
+        "scene_id": uploaded.json()["id"],
+        "viewcells": [{"kind": "box", "lo": [-1, -1, 8], "hi": [1, 1, 10]}],
+        "resolution": 64,
+    }
+    expected = {"octahedral": "no visible texel in any frame", "points": "no triangle of any area"}
+    jobs = {}
+    for technique in expected:
+        created = client.post("/v1/jobs", json={**spec, "technique": technique})
+        assert created.status_code == 201, created.text
+        jobs[technique] = created.json()["id"]
+    for technique, job_id in jobs.items():
+        done = wait_for_job(client, job_id)
+        assert done["state"] == "failed", done
+        assert any(expected[technique] in str(error) for error in done["errors"]), done["errors"]

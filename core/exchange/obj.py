@@ -63,6 +63,7 @@ from trimesh.visual.material import SimpleMaterial
 from farfield.core.errors import SceneLoadError
 from farfield.core.exchange.limits import DEFAULT_LIMITS, SceneLimits
 from farfield.core.exchange.obj_indices import absolute_indices, beyond_the_end
+from farfield.core.exchange.obj_no_uv import paired_indices
 from farfield.core.exchange.obj_normals import complete_normals
 from farfield.core.exchange.obj_polygons import split_concave
 from farfield.core.exchange.references import MapStatement, map_statement
@@ -669,7 +670,7 @@ def load(
         resolver = _Libraries(resolver, "\n".join(found).encode("utf-8"))
     try:
         scene = parse(
-            split_concave(parsed, warnings).encode("utf-8"),
+            paired_indices(split_concave(parsed, warnings)).encode("utf-8"),  # linear without vt/vn (obj_no_uv.py)
             extension,
             resolver,
             split_objects=True,

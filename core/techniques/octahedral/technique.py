@@ -23,7 +23,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from farfield.core import __version__
-from farfield.core.errors import ViewCellError
+from farfield.core.errors import LayerPlanError, ViewCellError
 from farfield.core.impostor.impostor import ChannelSet, Impostor, keeps_material, wants_depth, wants_normals
 from farfield.core.layering.atlas import MAX_PAGE
 from farfield.core.options import check_options, option
@@ -163,8 +163,13 @@ def bake_octahedral(
             exact=options.coverage == "exact",
         )  # fmt: skip
     clock.report("frames", 1, 1)
+    covered = frames.colour[..., 3] > 0
+    if not covered.any():  # as layered's and tdm's "no visible texel": no full-size atlas of nothing
+        raise LayerPlanError(
+            "the part left no visible texel in any frame (is it empty, degenerate or fully transparent?): "
+            "nothing to make an octahedral impostor of"
+        )
     with clock("atlas"):
-        covered = frames.colour[..., 3] > 0
         pages = compose_atlas(frames.colour, page_of, texel, sides, pad)
         channels = {}
         if frames.normal is not None:

@@ -38,6 +38,7 @@ from farfield.core.impostor.impostor import (
     wants_normals,
 )
 from farfield.core.layering.atlas import MAX_PAGE
+from farfield.core.layering.recording import faces_with_area
 from farfield.core.ldi import image as ldi_kernels
 from farfield.core.ldi.materials import sample_material
 from farfield.core.ldi.normals import sample_normals
@@ -204,6 +205,12 @@ def bake_points(
     seen = seen_from_cell(part.objects, box)
     if not seen:
         raise LayerPlanError("the part shows the view cell no front face: nothing to make a point impostor of")
+    if all(faces is not None and faces.size == 0 for faces in map(faces_with_area, seen)):
+        # Collinear corners only: the conservative LDIs would sample their segments, a full bake of nothing.
+        raise LayerPlanError(
+            "the part has no triangle of any area (every one's corners are collinear): nothing to make a point "
+            "impostor of"
+        )
     with clock("points"):
         samples = gather_point_samples(
             seen,
@@ -223,8 +230,12 @@ def bake_points(
             shown = covering_points(
                 seen, samples.positions[kept], box, options.fov_deg, options.resolution, options.cover_views
             )
-        if shown.any():
-            kept = np.flatnonzero(kept)[shown]
+        if not shown.any():  # no view of the cell shows any surface (degenerate triangles, or all hidden)
+            raise LayerPlanError(
+                "the part shows no surface to any view of the view cell (is it empty, degenerate or fully "
+                "transparent?): nothing to make a point impostor of"
+            )
+        kept = np.flatnonzero(kept)[shown]
     positions, preview = samples.positions[kept], samples.colour[kept]
     normals = None
     if wants_normals(options.channels):
@@ -245,6 +256,11 @@ def bake_points(
             seen, positions, preview, sampling, box, options.fov_deg, options.resolution, tile, options.samples,
             options.appearance_error, options.max_views, options.min_views, progress=lambda done, total: clock.report("appearance", done, total),
         )  # fmt: skip
+    if not appearance.seen.any():  # with visible_only off: no view of the cell saw any point
+        raise LayerPlanError(
+            "the part shows no surface to any view of the view cell (is it empty, degenerate or fully "
+            "transparent?): nothing to make a point impostor of"
+        )
     with clock("pack"):
         one = single_colour(appearance.tiles, options.single_colour)
         colour = np.where(appearance.seen[:, None], mean_colour(appearance.tiles), preview).astype(np.int64)
