@@ -20,6 +20,7 @@ import typing
 
 from fastapi import Request
 from fastapi.exceptions import RequestValidationError
+from fastapi.params import Form
 from python_multipart.multipart import parse_options_header
 from starlette.formparsers import MultiPartException, MultiPartParser
 
@@ -47,10 +48,8 @@ def require_closing_boundary() -> None:
         self._farfield_ended = False
         form = await parse(self)
         if not self._farfield_ended:
-            for _name, value in form.multi_items():  # the parts read whole were spooled: let them go
-                close = getattr(value, "file", None)
-                if close is not None:
-                    close.close()
+            for spooled in self._files_to_close_on_error:  # every file part, the cut one too: let them go
+                spooled.close()
             boundary = parse_options_header(self.headers.get("Content-Type", ""))[1].get(b"boundary", b"BOUNDARY")
             raise MultiPartException(CUT_SHORT.format(boundary=boundary[:70].decode("latin-1")))
         return form
@@ -74,10 +73,12 @@ def _quoted(value) -> str:
 
 
 def single_valued_fields(route) -> list[str]:
-    """The names of the form (body) fields of ``route`` that take one value."""
+    """The names of the form fields (``Form``, ``File``) of ``route`` that take one value.  A JSON
+    body's parameter (``/v1/jobs``' ``spec``) is none: its body is not read as a form (which would
+    parse it before the route's own checks, its key among them)."""
     dependant = getattr(route, "dependant", None)
     params = getattr(dependant, "body_params", None) or ()
-    return [p.alias for p in params if not _takes_many(p.field_info.annotation)]
+    return [p.alias for p in params if isinstance(p.field_info, Form) and not _takes_many(p.field_info.annotation)]
 
 
 async def one_value_per_field(request: Request) -> None:

@@ -273,3 +273,20 @@ def test_a_single_valued_form_field_sent_twice_is_a_422_naming_it(api, tmp_path,
     assert once.status_code == 201 and once.json()["sides"] == "both", once.text
     upload = next(r for r in router.routes if r.path == "/v1/scenes" and "POST" in r.methods)
     assert single_valued_fields(upload) == ["sides"]  # the upload's other field, file, is a list
+
+
+@pytest.mark.parametrize("cut", [False, True])
+def test_a_json_route_sent_a_form_content_type_is_not_read_as_a_form(api, cut):
+    """``/v1/jobs`` takes a JSON body (``spec``): the one-value-per-field check read such a body as a
+    form, before the route's key check, so a request without a key was answered 422 "spec: sent 2
+    times" (or 400 "cut short") instead of 401, and the JSON route's body was parsed as multipart."""
+    boundary = "farfieldboundary"
+    part = f'--{boundary}\r\nContent-Disposition: form-data; name="spec"\r\n\r\n{{}}\r\n'
+    body = (part * 2 + ("" if cut else f"--{boundary}--\r\n")).encode()
+    headers = {"Content-Type": f"multipart/form-data; boundary={boundary}"}
+    anonymous = api.post("/v1/jobs", content=body, headers={**headers, "Authorization": ""})
+    assert anonymous.status_code == 401, anonymous.text
+    keyed = api.post("/v1/jobs", content=body, headers=headers)
+    assert keyed.status_code == 422 and "sent 2 times" not in keyed.text and "boundary" not in keyed.text, keyed.text
+    urlencoded = {"Content-Type": "application/x-www-form-urlencoded", "Authorization": ""}
+    assert api.post("/v1/jobs", content=b"spec=1&spec=2", headers=urlencoded).status_code == 401

@@ -127,3 +127,27 @@ def test_a_multipart_body_cut_short_is_a_400_that_says_so(server, cut):
     assert answer.status_code == 400 and answer.json()["error"] == "BadRequestError", answer.text
     assert answer.json()["detail"].startswith(f"the multipart body ends before its closing boundary (--{boundary}--)")
     assert httpx.post(url + "/v1/scenes", content=whole, headers=headers, timeout=60).status_code == 201
+
+
+def test_a_body_cut_inside_a_file_part_closes_that_part_s_spooled_file():
+    """The cut check closed the file parts the form held, not the one cut mid-way (never a form
+    item), which kept its spooled temporary file (on disk past 64 KiB) open until collected."""
+    import asyncio
+
+    from starlette.datastructures import Headers
+    from starlette.formparsers import MultiPartException, MultiPartParser
+
+    from farfield.api.forms import require_closing_boundary
+
+    require_closing_boundary()
+    boundary = "farfieldboundary"
+    whole = f'--{boundary}\r\nContent-Disposition: form-data; name="file"; filename="a.obj"\r\n\r\n'.encode()
+    body = whole + b"v 0 0 0\n" * 20_000  # 160 kB: past the spool size, so on disk; no closing boundary
+
+    async def stream():
+        yield body
+
+    parser = MultiPartParser(Headers({"content-type": f"multipart/form-data; boundary={boundary}"}), stream())
+    with pytest.raises(MultiPartException, match="closing boundary"):
+        asyncio.run(parser.parse())
+    assert len(parser._files_to_close_on_error) == 1 and parser._files_to_close_on_error[0].closed
