@@ -20,6 +20,12 @@ eight ``v``, twelve ``f``; no ``vt`` or ``vn``), each loaded by ``load_scene`` i
 (farfield before ``core/exchange/obj_no_uv.py``; its reader is pieces x vertices there) and ``now``
 (the corners paired ``i/i``: trimesh's linear branch), alternated, best of ``--repeats`` processes.
 The node limit is raised past the largest count (the default admits 50,000 objects).
+
+``--pieces 1x1000,100x71,1000x23,4000x11`` measures OBJ files of K objects, each an n x n grid of
+vertices (2 (n-1)^2 triangles; no ``vt``/``vn``), three ways, each in a fresh process, alternated,
+best of ``--repeats``: ``as written`` (trimesh's masks), ``paired`` (every corner ``i/i``),
+``now`` (paired only where ``obj_no_uv.pays``), CPU seconds and peak resident MiB of the process.
+The column pieces x vertices / faces is what ``obj_no_uv.PAIR_ABOVE`` is compared with.
 """
 
 from __future__ import annotations
@@ -150,6 +156,68 @@ def many_objects(counts: list[int], repeats: int) -> list[dict]:
     return rows
 
 
+PIECES_CHILD = r"""
+import resource, sys, time
+import farfield.core.exchange.obj as obj
+import farfield.core.exchange.obj_no_uv as no_uv
+from farfield.core.exchange import load_scene
+from farfield.core.exchange.limits import SceneLimits
+if sys.argv[1] == "as written":
+    obj.paired_indices = lambda text: text
+elif sys.argv[1] == "paired":
+    no_uv.PAIR_ABOVE = 0
+start = time.process_time()
+scene = load_scene(sys.argv[2], limits=SceneLimits(nodes=10**6))
+print(time.process_time() - start, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, scene.content_hash)
+"""
+
+
+def grids_obj(path: Path, objects: int, n: int) -> Path:
+    """``objects`` objects (``o partK``), each an n x n grid of vertices, two triangles a cell."""
+    with path.open("w") as out:
+        for k in range(objects):
+            out.write(
+                f"o part{k}\n" + "".join(f"v {i + n * k} {j} {(i * j) % 5}\n" for i in range(n) for j in range(n))
+            )
+            base = 1 + n * n * k
+            out.write("".join(f"f {a} {a + n} {a + n + 1}\nf {a} {a + n + 1} {a + 1}\n"
+                              for a in (base + i * n + j for i in range(n - 1) for j in range(n - 1))))  # fmt: skip
+    return path
+
+
+def pieces(shapes: list[tuple[int, int]], repeats: int) -> list[dict]:
+    """The ``--pieces`` table (module docstring)."""
+    rows, ways = [], ("as written", "paired", "now")
+    print(
+        f"{'objects':>8} {'triangles':>10} {'P*V/F':>7} "
+        + " ".join(f"{w + ' s':>12} {w + ' MiB':>14}" for w in ways)
+        + "  same"
+    )
+    with tempfile.TemporaryDirectory(prefix="farfield-bench-pieces-") as tmp:
+        for objects, n in shapes:
+            path = grids_obj(Path(tmp) / f"grids{objects}x{n}.obj", objects, n)
+            faces, vertices = objects * 2 * (n - 1) ** 2, objects * n * n
+            best, peak, hashes = {}, {}, set()
+            for _ in range(repeats):
+                for way in ways:
+                    out = subprocess.run([sys.executable, "-c", PIECES_CHILD, way, str(path)],
+                                         capture_output=True, text=True, check=True).stdout.split()  # fmt: skip
+                    best[way] = min(best.get(way, float("inf")), float(out[0]))
+                    peak[way] = min(peak.get(way, float("inf")), float(out[1]))
+                    hashes.add(out[2])
+            row = {
+                "objects": objects,
+                "triangles": faces,
+                "pvf": objects * vertices / faces,
+                "seconds": best,
+                "peak_mib": peak,
+            }
+            rows.append({**row, "same": len(hashes) == 1})
+            print(f"{objects:>8,} {faces:>10,} {row['pvf']:>7.0f} " + " ".join(f"{best[w]:>12.2f} {peak[w]:>14.0f}" for w in ways)
+                  + f"  {'yes' if len(hashes) == 1 else 'NO'}", flush=True)  # fmt: skip
+    return rows
+
+
 def measure(which: str, path: Path, repeats: int) -> dict:
     code = CHILD
     done = subprocess.run(
@@ -168,7 +236,15 @@ def main() -> None:
     parser.add_argument(
         "--many-objects", default=None, help="comma-separated object counts: the many-object OBJ table instead"
     )
+    parser.add_argument(
+        "--pieces", default=None, help="KxN,...: K objects of N x N vertices; the pairing table instead"
+    )
     args = parser.parse_args()
+    if args.pieces:
+        rows = pieces([tuple(int(x) for x in shape.split("x")) for shape in args.pieces.split(",")], args.repeats)
+        if args.json:
+            Path(args.json).write_text(json.dumps(rows, indent=1))
+        return
     if args.many_objects:
         rows = many_objects([int(n) for n in args.many_objects.split(",")], args.repeats)
         if args.json:

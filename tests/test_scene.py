@@ -164,6 +164,8 @@ NO_UV_OBJS = {
     "g one\nf 1 2 3 4 5\ng two\nf 6 7 8 9\nf 6 8 9\no tail\nf 1 6 9 5\n",
     "vertex colours": "o a\nv 0 0 0 1 0 0\nv 1 0 0 0 1 0\nv 0 1 0 0 0 1\nv 5 5 5 1 1 1\no b\nv 0 0 2 1 1 0\nv 1 0 2 0 1 1\n"
     "v 0 1 2 1 0 1\nf 5 6 7\no a2\nf 1 2 3\n",
+    "CR LF lines": "mtllib m.mtl\r\nv 0 0 0\r\nv 1 0 0\r\nv 0 1 0\r\nv 1 1 0\r\no a\r\nusemtl red\r\nf 1 2 3\r\n"
+    "o b\r\nusemtl blue\r\nf 2 4 3\r\n",
 }
 
 
@@ -174,10 +176,12 @@ def test_obj_without_uv_or_normals_loads_as_trimesh_read_it_and_on_the_linear_pa
     branch, core/exchange/obj_no_uv.py).  The scene is the one trimesh's own path gave, field by
     field, and the corners trimesh parses are the paired ones."""
     import farfield.core.exchange.obj as obj_loader
+    import farfield.core.exchange.obj_no_uv as no_uv
 
+    monkeypatch.setattr(no_uv, "PAIR_ABOVE", 0)  # paired however small the file (test_..._only_where_it_pays)
     (tmp_path / "m.mtl").write_text(NO_UV_MTL)
     path = tmp_path / "f.obj"
-    path.write_text(NO_UV_OBJS[name])
+    path.write_bytes(NO_UV_OBJS[name].encode())
     given = []
     parse = obj_loader.parse
     monkeypatch.setattr(obj_loader, "parse", lambda data, *a, **k: given.append(data) or parse(data, *a, **k))
@@ -194,6 +198,35 @@ def test_obj_without_uv_or_normals_loads_as_trimesh_read_it_and_on_the_linear_pa
                 assert x is not None and y is not None and np.array_equal(x, y), (a.name, field.name)
             else:
                 assert x == y, (a.name, field.name)
+
+
+def _grid_obj(n: int, objects: int) -> str:
+    """``objects`` objects, each an n x n grid of vertices in two triangles a cell, no vt/vn."""
+    lines = []
+    for k in range(objects):
+        lines += [f"o part{k}", *(f"v {i + n * k} {j} 0" for i in range(n) for j in range(n))]
+        base = 1 + n * n * k
+        for a in (base + i * n + j for i in range(n - 1) for j in range(n - 1)):
+            lines += [f"f {a} {a + n} {a + n + 1}", f"f {a} {a + n + 1} {a + 1}"]
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize(("objects", "paired"), [(1, False), (4, False), (900, True)])
+def test_obj_without_uv_is_paired_only_where_it_pays(tmp_path, monkeypatch, objects, paired):
+    """The pairing made a file of one large object without vt/vn (a scan, a terrain) 1.6x slower
+    to load and 26% larger at its peak (2,000,000 triangles, docs/measurements/loading.md): trimesh's
+    masks cost pieces x vertices, which is small there.  Such a file reaches trimesh as written;
+    one of many small objects, where the masks are quadratic, paired."""
+    import farfield.core.exchange.obj as obj_loader
+
+    path = tmp_path / "grid.obj"
+    path.write_text(_grid_obj(40 if objects < 10 else 4, objects))
+    given = []
+    parse = obj_loader.parse
+    monkeypatch.setattr(obj_loader, "parse", lambda data, *a, **k: given.append(data) or parse(data, *a, **k))
+    scene = load_scene(path)
+    assert len(scene.objects) == objects
+    assert (b"/" in given[-1]) == paired
 
 
 @pytest.mark.parametrize("real", [r for r in scenes.REAL_SCENES if r.path.endswith(".obj")], ids=lambda r: r.path)
