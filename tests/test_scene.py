@@ -214,7 +214,7 @@ def _grid_obj(n: int, objects: int) -> str:
 @pytest.mark.parametrize(("objects", "paired"), [(1, False), (4, False), (900, True)])
 def test_obj_without_uv_is_paired_only_where_it_pays(tmp_path, monkeypatch, objects, paired):
     """The pairing made a file of one large object without vt/vn (a scan, a terrain) 1.6x slower
-    to load and 26% larger at its peak (2,000,000 triangles, docs/measurements/loading.md): trimesh's
+    to load and 27% larger at its peak (2,000,000 triangles, docs/measurements/loading.md): trimesh's
     masks cost pieces x vertices, which is small there.  Such a file reaches trimesh as written;
     one of many small objects, where the masks are quadratic, paired."""
     import farfield.core.exchange.obj as obj_loader

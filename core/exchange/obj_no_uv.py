@@ -16,7 +16,7 @@ ones trimesh read before (tests/test_scene.py compares them), in time linear in 
 
 The pairing is not free: the face text grows, and ``unmerge_faces`` sorts each piece's corners, about
 1.9 us a face more, where the masks cost about 3 ns a piece and vertex.  A file of one large object
-(a scan, a terrain: 2,000,000 triangles) loaded 1.6x slower and with 26% more peak memory paired,
+(a scan, a terrain: 2,000,000 triangles) loaded 1.6x slower and with 27% more peak memory paired,
 so only a file whose pieces x vertices exceed :data:`PAIR_ABOVE` x faces is paired (the crossover
 measured in docs/measurements/loading.md); below it trimesh's masks cost at most about as much as
 the pairing would, so no file is quadratic either way.
