@@ -389,3 +389,18 @@ def test_octahedral_and_points_jobs_of_collinear_triangles_fail_with_the_reason(
         done = wait_for_job(client, job_id)
         assert done["state"] == "failed", done
         assert any(expected[technique] in str(error) for error in done["errors"]), done["errors"]
+
+
+def test_points_bakes_a_small_far_part_that_no_view_resolves(tmp_path):
+    """A 1 cm triangle 90 m from the cell covers a hundredth of a pixel of every view: the appearance
+    sees nothing, but the part is there (layered bakes its 4 texels, octahedral its frames).  The
+    refusal of "no view saw any point" failed such a part ("is it empty, degenerate or fully
+    transparent?"); its points keep their LDI colour, as before that refusal."""
+    _register()
+    scene_file = tmp_path / "tiny.obj"
+    scene_file.write_text("o tiny\nv 0 0 0\nv 0.01 0 0\nv 0 0.01 0\nf 1 2 3\n")
+    out = tmp_path / "out"
+    args = ["bake", str(scene_file), "--viewcell", "box:-1,-1,80,1,1,100", "--technique", "points"]
+    run = CliRunner().invoke(cli, [*args, "--resolution", "64", "--quiet", "--out", str(out)])
+    assert run.exit_code == 0, run.output
+    assert read_bundle(out).payload.positions.shape[0] >= 1

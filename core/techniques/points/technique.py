@@ -230,12 +230,11 @@ def bake_points(
             shown = covering_points(
                 seen, samples.positions[kept], box, options.fov_deg, options.resolution, options.cover_views
             )
-        if not shown.any():  # no view of the cell shows any surface (degenerate triangles, or all hidden)
-            raise LayerPlanError(
-                "the part shows no surface to any view of the view cell (is it empty, degenerate or fully "
-                "transparent?): nothing to make a point impostor of"
-            )
-        kept = np.flatnonzero(kept)[shown]
+        # None shown (no point in front of any view's window): all kept, as the appearance decides.  A
+        # part too small for any view to resolve is still baked (its points keep their LDI colour), as
+        # layered and octahedral bake it; a part with no area was refused above.
+        if shown.any():
+            kept = np.flatnonzero(kept)[shown]
     positions, preview = samples.positions[kept], samples.colour[kept]
     normals = None
     if wants_normals(options.channels):
@@ -256,11 +255,6 @@ def bake_points(
             seen, positions, preview, sampling, box, options.fov_deg, options.resolution, tile, options.samples,
             options.appearance_error, options.max_views, options.min_views, progress=lambda done, total: clock.report("appearance", done, total),
         )  # fmt: skip
-    if not appearance.seen.any():  # with visible_only off: no view of the cell saw any point
-        raise LayerPlanError(
-            "the part shows no surface to any view of the view cell (is it empty, degenerate or fully "
-            "transparent?): nothing to make a point impostor of"
-        )
     with clock("pack"):
         one = single_colour(appearance.tiles, options.single_colour)
         colour = np.where(appearance.seen[:, None], mean_colour(appearance.tiles), preview).astype(np.int64)
