@@ -42,7 +42,6 @@ from farfield.core.techniques.tdm.mesh import (
     step_voxels,
 )
 from farfield.core.techniques.tdm.simplify import (
-    _purge,
     box_half_sizes,
     contraction_outcome,
     covered_by_any,
@@ -218,33 +217,6 @@ def test_a_pass_skips_only_edges_that_would_fail_again(house_bake, enlargement):
     assert sum(again[3].values()) == 0 and np.array_equal(again[0], triangles)
     with pytest.raises(InternalError, match="pass memory"):
         simplify(mesh.vertices, triangles, offsets, voxels, *args, factor - 0.5, field.silhouette, memory)
-
-
-def test_purging_the_queue_keeps_exactly_its_live_entries_as_a_heap():
-    """The simplification's queue drops, now and then, the entries that would be popped and skipped
-    (``_purge``): those left are exactly the ones whose two vertices live at the versions they
-    carry (a first edge's entry carries -(its index + 1) for version 0), and they form a heap."""
-    rng = np.random.default_rng(7)
-    n, size = 50, 400
-    keys = np.append(rng.integers(0, 20, size).astype(np.float64), np.zeros(5))  # ties, as on the grid
-    items = np.zeros((size + 5, 4), np.int32)
-    items[:size, 0], items[:size, 1] = rng.integers(0, n, size), rng.integers(0, n, size)
-    first = rng.random(size) < 0.3
-    items[:size, 2] = np.where(first, -rng.integers(1, 1000, size), rng.integers(0, 3, size))
-    items[:size, 3] = rng.integers(0, 3, size)
-    alive = rng.random(n) < 0.7
-    version = rng.integers(0, 3, n)
-    live = [
-        (keys[i], tuple(items[i]))
-        for i in range(size)
-        if alive[items[i, 0]] and alive[items[i, 1]]
-        and version[items[i, 0]] == max(items[i, 2], 0) and version[items[i, 1]] == items[i, 3]
-    ]  # fmt: skip
-    assert any(item[2] < 0 for _, item in live) and 0 < len(live) < size
-    left = _purge(keys, items, size, alive, version)
-    assert left == len(live)
-    assert sorted(zip(keys[:left], map(tuple, items[:left]))) == sorted(live)
-    assert all(keys[(i - 1) // 2] <= keys[i] for i in range(1, left))
 
 
 @pytest.mark.parametrize("distance, resolution", [(90.0, 128), (250.0, 128), (60.0, 256)])

@@ -275,40 +275,6 @@ def _heap_pop(keys, items, size):
 
 
 @njit(cache=True)
-def _sift_down(keys, items, size, i):
-    while True:
-        left = 2 * i + 1
-        if left >= size:
-            break
-        child = left
-        if left + 1 < size and keys[left + 1] < keys[left]:
-            child = left + 1
-        if keys[i] <= keys[child]:
-            break
-        keys[child], keys[i] = keys[i], keys[child]
-        for c in range(4):
-            items[child, c], items[i, c] = items[i, c], items[child, c]
-        i = child
-
-
-@njit(cache=True)
-def _purge(keys, items, size, vert_alive, version):
-    """Drop the queue's entries with a dead vertex or a stale version (they would be popped and
-    skipped) and make the rest a heap again; returns its size."""
-    m = 0
-    for i in range(size):
-        a, b, va, vb = items[i, 0], items[i, 1], items[i, 2], items[i, 3]
-        if vert_alive[a] and vert_alive[b] and version[a] == max(va, 0) and version[b] == vb:
-            keys[m] = keys[i]
-            for c in range(4):
-                items[m, c] = items[i, c]
-            m += 1
-    for i in range(m // 2 - 1, -1, -1):
-        _sift_down(keys, items, m, i)
-    return m
-
-
-@njit(cache=True)
 def _vertex_tris(v, vt_start, vt_len, vt_pool, tri_alive, out):
     n = 0
     s = vt_start[v]
@@ -755,11 +721,7 @@ def _simplify(
     touch_time = touch_before.copy()
     log = np.empty((n_edges // 8 + 16, 6), dtype=np.int32)
     n_log = 0
-    dead = 0  # entries made dead or stale since the last purge, about
     while size > 0:
-        if dead > size // 2:
-            size = _purge(keys, items, size, vert_alive, version)
-            dead = 0
         a, b, va, vb, size = _heap_pop(keys, items, size)
         e = -1
         if va < 0:
@@ -876,7 +838,6 @@ def _simplify(
                 tv_len[t] = length
                 tv_top += length
             version[v1] += 1
-            dead += n2 + n1  # v2's edges, and v1's, pushed again below
             # Push v1's edges again with their new lengths.
             m1 = _neighbours(v1, cand, nc, triangles, nbr1, cnt1)
             for j in range(m1):
