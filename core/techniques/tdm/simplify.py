@@ -475,17 +475,6 @@ def _segment_covered(vertices, p, q, centres, half, voxels, n_vox, lo, hi):
 
 
 @njit(cache=True)
-def _fill_corners(triangles, vertices, cand, nc, v2, v1, corner):
-    """corner[j]: the nine coordinates of triangle cand[j] after contracting v2 into v1."""
-    for j in range(nc):
-        for k in range(3):
-            w = triangles[cand[j], k]
-            w = v1 if w == v2 else w
-            for a in range(3):
-                corner[j, 3 * k + a] = vertices[w, a]
-
-
-@njit(cache=True)
 def _attempt(
     v2,
     v1,
@@ -513,8 +502,6 @@ def _attempt(
     lo,
     hi,
     corner,
-    blocker_tri,
-    blocker_vox,
 ):
     """Try to contract v2 into v1 (v1 stays); returns (outcome, number of voxels re-stored, the
     vertex besides v2 and v1 whose triangles it read or -1 (v2's other boundary neighbour), whether
@@ -589,36 +576,6 @@ def _attempt(
             continue
         cand[nc] = t
         nc += 1
-    # The voxel that last kept v2 from going (``blocker_tri``/``blocker_vox``: the triangle that
-    # stored it then, and the voxel), tested first while it is still stored with one of v2's
-    # triangles: if no triangle after the contraction meets it, the test below fails too, so the
-    # attempt fails without gathering v2's voxels (where the boundary-interval test below does not
-    # apply, so every outcome is the one the full tests give).
-    cornered = False
-    bt = blocker_tri[v2]
-    if bt >= 0 and not (b2 and offset > EPS):
-        bv = blocker_vox[v2]
-        held = False
-        for i in range(n2):
-            if scratch_t2[i] == bt:
-                s = tv_start[bt]
-                for j in range(tv_len[bt]):
-                    if tv_pool[s + j] == bv:
-                        held = True
-                        break
-                break
-        if held:
-            _fill_corners(triangles, vertices, cand, nc, v2, v1, corner)
-            cornered = True
-            cx, cy, cz, h, hz = centres[bv, 0], centres[bv, 1], centres[bv, 2], half[bv, 0], half[bv, 1]
-            met = False
-            for j in range(nc):
-                if _tri_slab(corner[j, 0], corner[j, 1], corner[j, 2], corner[j, 3], corner[j, 4], corner[j, 5],
-                             corner[j, 6], corner[j, 7], corner[j, 8], cx, cy, cz, h, hz):  # fmt: skip
-                    met = True
-                    break
-            if not met:
-                return UNCOVERED, 0, -1, False
     # The voxels stored with v2's triangles.
     nv = 0
     for i in range(n2):
@@ -651,8 +608,12 @@ def _attempt(
             return BOUNDARY_INTERVAL, 0, read, False
     # Every voxel must meet a triangle after the contraction (v2 read as v1): the corners of the
     # triangles after it, once.
-    if not cornered:
-        _fill_corners(triangles, vertices, cand, nc, v2, v1, corner)
+    for j in range(nc):
+        for k in range(3):
+            w = triangles[cand[j], k]
+            w = v1 if w == v2 else w
+            for a in range(3):
+                corner[j, 3 * k + a] = vertices[w, a]
     last = 0
     for i in range(nv):
         v = vox[i]
@@ -665,15 +626,6 @@ def _attempt(
                 hit = j
                 break
         if hit < 0:
-            # Remember it, with the triangle of v2 that stores it (the voxels were gathered in the
-            # order of v2's triangles).
-            k = 0
-            seen = tv_len[scratch_t2[0]]
-            while seen <= i:
-                k += 1
-                seen += tv_len[scratch_t2[k]]
-            blocker_tri[v2] = scratch_t2[k]
-            blocker_vox[v2] = v
             return UNCOVERED, 0, read, False
         assign[i] = hit
         last = hit
@@ -746,9 +698,6 @@ def _simplify(
     lo = np.empty(3 * n_vox_total + 16)
     hi = np.empty(3 * n_vox_total + 16)
     counts = np.zeros(7, dtype=np.int64)
-    # Per vertex, the voxel that last kept it from going and the triangle that stored it (:func:`_attempt`).
-    blocker_tri = np.full(nv_total, -1, dtype=np.int64)
-    blocker_vox = np.zeros(nv_total, dtype=np.int64)
 
     # The queue: every edge once, room for one and a half times as many pushed again (the first pass
     # of the 327,680-triangle sphere of benchmarks/bench_tdm_scale.py peaked at 2.2 times its 5.1 M
@@ -813,7 +762,7 @@ def _simplify(
             v2, v1 = (b, a) if attempt == 0 else (a, b)
             outcome, nv, read, free = _attempt(v2, v1, vertices, triangles, tri_alive, vt_start, vt_len, vt_pool, tv_start, tv_len,
                                    tv_pool, centres, half, shrink, scratch_t2, scratch_t1, nbr2, cnt2, nbr1, cnt1, vox, assign,
-                                   cand, lo, hi, corner, blocker_tri, blocker_vox)  # fmt: skip
+                                   cand, lo, hi, corner)  # fmt: skip
             counts[outcome] += 1
             fixed = fixed and free
             if attempt == 0:
@@ -1211,6 +1160,5 @@ def contraction_outcome(
         corner_shrink(enlargement), np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(2 * cap, np.int64), np.empty(2 * cap, np.int64),
         np.empty(2 * cap, np.int64), np.empty(2 * cap, np.int64), np.empty(n, np.int64), np.empty(n, np.int64),
         np.empty(2 * cap, np.int64), np.empty(n), np.empty(n), np.empty((2 * cap, 9)),
-        np.full(len(vertices), -1, np.int64), np.zeros(len(vertices), np.int64),
     )  # fmt: skip
     return OUTCOMES[outcome]
