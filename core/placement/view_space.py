@@ -20,8 +20,8 @@ farthest corner).  A point ``p`` can be seen from the region ``R`` when some ``p
 angular radius <= half-angle``: cheap, loose), then, for the pairs the sphere lets through, exactly
 (:mod:`farfield.core.placement.cone_box`: the cone's axis ray hits the box, or one of its twelve
 edges comes within the half-angle).  The sphere of ``B - R`` is loose where ``R`` is flat or large
-(a 37.5 x 1 x 37.5 m street-level region looking up: tens of metres of sphere over a box a metre
-tall); the exact test keeps 10-20 % fewer elements per CPV on the benchmark cities and, over the
+(over a 37.5 x 1 x 37.5 m street-level region the sphere of ``B - R`` is at least 26 m in radius,
+however low ``B``, so intervals looking up see the ground); the exact test keeps 4-18 % fewer elements per CPV on the benchmark cities and, over the
 same cone, is as tight as a union of sub-boxes of ``R`` can be (``B - R`` is the union of their
 ``B - R_i``).  Each step only grows the set, so an element a view can see is never missed (tested
 by sampling views in ``tests/test_placement.py``, with elements at the frame corner of views at
