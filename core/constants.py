@@ -36,6 +36,10 @@ class Tolerances:
     # largest parallax over the frustum is searched on a grid of rays, which found it to within
     # 4e-4 relative of a 16 times finer grid on every plan tried, wide frusta included.
     parallax_grid: float = 1e-3
+    # Slack on the cosine limit of the exact cone-against-box test (core/placement/cone_box.py): a pair
+    # within it of the limit counts as meeting, so that rounding (of the edge's critical point, about
+    # 1e-16 relative, squared near the maximum) never drops an element a view can see.
+    cone_cos: float = 1e-9
 
 
 TOL = Tolerances()

@@ -77,6 +77,90 @@ def test_enclosing_frusta_never_miss_an_element_a_view_sees():
     assert seen_checked > 0
 
 
+def _edge_case(seed: int, flat: bool):
+    """A region (flat like a street-level one, or not), a VDI, and tiny boxes each seen by one view
+    sampled in the region: direction the VDI's farthest corner, rolled so that its frame's corner
+    ray points away from the cone's axis, the box just inside that corner.  Half the eyes are random
+    points of random 4 x 4 x 4 sub-boxes of the region; the other half the region's corner from
+    which the ray points farthest from the axis, so that no eye in the region sees that box at a
+    smaller angle to the axis: those boxes (``edge``) lie on the enclosing cone's edge."""
+    rng = np.random.default_rng(seed)
+    r_lo = rng.uniform(-20, 0, 3)
+    size = rng.uniform(5, 40, 3)
+    if flat:
+        size[1] = 1.0
+    r_hi = r_lo + size
+    level = int(rng.integers(0, 4))
+    vdi = VDI(int(rng.integers(0, 6)), level, int(rng.integers(0, 1 << level)), int(rng.integers(0, 1 << level)))
+    axis, half = vdi.cone()
+    x0, x1, y0, y1 = vdi.ranges()
+    corners = vdi.directions([x0, x1, x0, x1], [y0, y0, y1, y1])
+    forward = corners[int(np.argmin(corners @ axis))]  # at ``half`` from the axis
+    out = forward * float(forward @ axis) - axis  # tangent at ``forward``, away from the axis
+    out /= np.linalg.norm(out)
+    helper = np.array([0.0, 1.0, 0.0]) if abs(forward[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    right0 = np.cross(forward, helper)
+    right0 /= np.linalg.norm(right0)
+    up0 = np.cross(right0, forward)
+    roll = math.atan2(out @ up0, out @ right0) - 0.25 * math.pi  # the frame's (+1, +1) corner along ``out``
+    ray = forward + (1.0 - 1e-7) * math.tan(0.5 * FOV) * math.sqrt(2.0) * out
+    ray /= np.linalg.norm(ray)
+    toward = axis - ray * float(axis @ ray)  # in the plane of ray and axis, toward the axis
+    far_corner = np.where(toward > 0.0, r_lo, r_hi)  # the eye minimising eye . toward
+    boxes, edge = [], []
+    for k in range(100):
+        cell = rng.integers(0, 4, 3)
+        eye = far_corner if k % 2 else r_lo + (cell + rng.random(3)) / 4.0 * (r_hi - r_lo)
+        p = eye + rng.uniform(20, 200) * ray
+        assert _view_sees(eye, forward, roll, p[None, :], FOV)
+        boxes.append([p, p + 1e-6])
+        edge.append(bool(k % 2))
+    return np.array(boxes), np.array(edge), r_lo, r_hi, vdi
+
+
+@pytest.mark.parametrize("flat", [True, False])
+def test_enclosing_frusta_keep_elements_at_the_frame_edge_of_views_in_any_sub_box(flat):
+    """Tiny elements each seen by a sampled view (eye in some sub-box of the region or at its
+    corner, direction at the VDI's corner, rolled) just inside its frame's corner: the exact
+    cone-against-box test keeps every one, and a cone narrower by 1e-4 rad drops those on the
+    enclosing cone's edge (so the test is as tight as these views)."""
+    widen = frame_half_diagonal(FOV)
+    for seed in range(12):
+        boxes, edge, r_lo, r_hi, vdi = _edge_case(seed, flat)
+        sight = RegionSight.of(boxes[:, 0], boxes[:, 1], r_lo, r_hi)
+        axis, half = vdi.cone()
+        assert sight.seen(axis[None, :], np.array([half + widen]))[0].all(), seed
+        tighter = sight.seen(axis[None, :], np.array([half + widen - 1e-4]))[0]
+        assert not tighter[edge].any(), seed
+
+
+def test_the_exact_cone_test_drops_what_the_sphere_keeps_over_a_flat_region():
+    """A street-level region (37.5 x 1 x 37.5) looking straight up: ground-level boxes beside it lie
+    within the bounding sphere of ``box - region`` as seen from the cone, but no view sees them
+    (checked on sampled views) and the exact test drops them."""
+    r_lo, r_hi = np.array([0.0, 0.0, 0.0]), np.array([37.5, 1.0, 37.5])
+    lo = np.array([[-30.0, 0.0, 10.0], [50.0, 0.0, 10.0], [10.0, 0.0, -30.0], [10.0, 0.0, 50.0]])
+    boxes = np.stack([lo, lo + [8.0, 3.0, 8.0]], axis=1)
+    up = VDI(2, 3, 3, 3)  # face +y, a level-3 interval at its centre
+    axis, half = up.cone()
+    sight = RegionSight.of(boxes[:, 0], boxes[:, 1], r_lo, r_hi)
+    h = np.array([half + frame_half_diagonal(FOV)])
+    assert sight.seen_by_sphere(axis[None, :], h)[0].all()
+    assert not sight.seen(axis[None, :], h)[0].any()
+    rng = np.random.default_rng(5)
+    x0, x1, y0, y1 = up.ranges()
+    corners = np.array(
+        [[boxes[k, i >> 2 & 1, 0], boxes[k, i >> 1 & 1, 1], boxes[k, i & 1, 2]] for k in range(4) for i in range(8)]
+    )
+    points = np.concatenate(
+        [corners] + [boxes[k, 0] + rng.random((200, 3)) * (boxes[k, 1] - boxes[k, 0]) for k in range(4)]
+    )
+    for _ in range(300):
+        eye = r_lo + rng.random(3) * (r_hi - r_lo)
+        forward = up.directions([rng.uniform(x0, x1)], [rng.uniform(y0, y1)])[0]
+        assert not _view_sees(eye, forward, rng.uniform(0, 2 * math.pi), points, FOV)
+
+
 def test_vdi_quadtree_covers_the_sphere_once():
     rng = np.random.default_rng(3)
     d = rng.normal(size=(2000, 3))
