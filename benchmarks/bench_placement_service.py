@@ -61,13 +61,18 @@ KEY = "ff_bench_0123456789abcdef"
 ENDED = ("done", "failed", "cancelled")
 
 
-def write_glb(scene: Scene, path: Path) -> Path:
+def write_glb(scene: Scene, path: Path, sides: bool = False) -> Path:
     """``scene`` as a GLB: one node per object, named after it, its base colour as the material's
-    factor (the procedural city has neither textures nor vertex colours)."""
+    factor (the procedural city has neither textures nor vertex colours).  With ``sides`` each
+    material's ``doubleSided`` is the object's ``double_sided`` (a built scene's objects are
+    double-sided, so the service then reads the scene the in-process benchmarks plan); without it
+    (as these benchmarks always wrote it) every material is one-sided, as glTF's default."""
     out = trimesh.Scene()
     for obj in scene.objects:
         material = trimesh.visual.material.PBRMaterial(
-            name=f"{obj.name}_material", baseColorFactor=np.array(obj.base_color)
+            name=f"{obj.name}_material",
+            baseColorFactor=np.array(obj.base_color),
+            doubleSided=bool(sides and obj.double_sided),
         )
         mesh = trimesh.Trimesh(
             np.array(obj.vertices),

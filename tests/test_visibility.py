@@ -183,6 +183,36 @@ def test_a_placement_with_visibility_places_nothing_for_a_hidden_block():
     assert isinstance(without.parameters["visibility"], str)
 
 
+def test_a_placement_with_visibility_reports_the_lattice_and_stops_there_when_cancelled():
+    """The lattice's rendering (minutes at street level on llvmpipe) is a step of its own in the
+    planner's progress, reported per batch of points, so a job shows it moving and a cancel (the
+    service raises from its progress callback) stops it there, before the problem views."""
+    scene = _walled()
+    lo, hi = [-10.0, -2.0, -10.0], [0.0, 2.0, 10.0]
+    settings = PlacementSettings(
+        vdi_deg=45.0, options={"resolution": 64}, cpv_size=10.0, model=primitive_model(), t_max=1.0, visibility=True
+    )
+    seen: list[tuple[str, int, int]] = []
+    placed = place(scene, lo, hi, settings, progress=lambda step, done, total: seen.append((step, done, total)))
+    lattice = [s for s in seen if s[0] == "visibility"]
+    points = placed.parameters["visibility"]["points_rendered"]
+    assert lattice[0] == ("visibility", 0, points) and lattice[-1] == ("visibility", points, points)
+    steps = [s[0] for s in seen]
+    assert steps.index("visibility") > steps.index("hierarchy")
+    assert "problem views" not in steps[: steps.index("visibility") + len(lattice)]
+
+    class Cancelled(Exception):
+        pass
+
+    def cancel(step, done, total):
+        if step == "visibility":
+            raise Cancelled(step)
+        assert step == "hierarchy", f"planning went on to {step!r} after the cancel"
+
+    with pytest.raises(Cancelled):
+        place(scene, lo, hi, settings, progress=cancel)
+
+
 def test_the_service_stores_visibility_only_when_asked_and_the_planner_reads_it():
     from farfield.service.placement.frame_time import FrameTime, planner_settings
     from farfield.service.placement.schema import PlacementSpec

@@ -265,6 +265,8 @@ def place(
             else None
         )
         try:
+            if pvs is not None:  # the lattice first, reported per batch: minutes on a CPU, and cancellable
+                pvs.render_lattice(lambda done, total: clock.report("visibility", done, total))
             pv = problem_view_space(
                 elements, hierarchy, lo, hi, settings.model, settings.t_max, fov, resolution, cpv_size, settings.vdi_deg, settings.depth_complexity,
                 pvs if pvs is not None else visible, lambda done, total: clock.report("problem views", done, total),

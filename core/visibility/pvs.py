@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -226,6 +227,21 @@ class RegionVisibility:
                 self._seen[key] = sight.of(k)
             self.seconds += time.perf_counter() - started
         return keys
+
+    def render_lattice(self, progress: Callable[[int, int], None] | None = None) -> None:
+        """Render every level-0 lattice point not seen yet (the points any query of the whole view
+        space renders first), a renderer batch at a time, calling ``progress(done, total)`` after
+        each: a planner reports it, and a cancelled job stops here, between batches, not minutes
+        later when the whole lattice is done (the batches and the sets are those of one call)."""
+        ijk = np.indices(tuple(self.lattice.counts)).reshape(3, -1).T
+        total = ijk.shape[0]
+        step = max(1, int(getattr(self.renderer, "batch", total)))
+        if progress is not None:
+            progress(0, total)
+        for start in range(0, total, step):
+            self._render(ijk[start : start + step], 0)
+            if progress is not None:
+                progress(min(start + step, total), total)
 
     def _disagree(self, keys: np.ndarray) -> bool:
         """Whether the corners ``keys`` of a cell disagree (see the class docstring)."""
