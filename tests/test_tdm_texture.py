@@ -19,7 +19,7 @@ from farfield.core.layering.plan import plan_layers
 from farfield.core.layering.tiles import pack_tiles
 from farfield.core.quality.evaluation import evaluate
 from farfield.core.stage_clock import StageClock
-from farfield.core.techniques.tdm.mask_atlas import WIDTH_SCALES, pack_masks
+from farfield.core.techniques.tdm.mask_atlas import BLOCK, WIDTH_SCALES, pack_masks
 from farfield.core.techniques.tdm.technique import TdmOptions, bake_tdm, geometry_bytes
 from farfield.core.techniques.tdm.texture import (
     MAX_CHART,
@@ -430,6 +430,30 @@ def test_many_pages_are_the_plain_first_fit_too(padding):
     assert len(layout.page_sizes) >= 5
     got = list(zip(layout.page.tolist(), layout.y.tolist(), layout.x.tolist()))
     assert got == _plain_first_fit(masks, padding, int(layout.page_sizes[0, 0]), 24)
+
+
+def test_wide_pages_skip_blocks_of_short_runs_and_stay_the_plain_first_fit():
+    """Pages several :data:`BLOCK` columns wide, crossed by combs of short free runs (thin teeth
+    with gaps from 1 to 9 texels) and by masks whose longest run (up to 40 texels) needs a long
+    one: the search that passes a block of short runs at a time (``_long_enough``) puts every mask
+    where the plain first fit does."""
+    rng = np.random.default_rng(11)
+    masks = []
+    for _ in range(14):  # combs: tall, many teeth, gaps of random widths
+        gaps = rng.integers(1, 10, size=rng.integers(3, 8))
+        comb = np.zeros((int(rng.integers(6, 12)), int(gaps.sum() + len(gaps) + 1)), bool)
+        comb[:, np.concatenate([[0], np.cumsum(gaps + 1)])] = True
+        masks.append(comb)
+    for _ in range(40):  # bars and blobs of every width, shorter than the combs
+        h, w = int(rng.integers(1, 5)), int(rng.integers(1, 41))
+        blob = rng.random((h, w)) < 0.8
+        blob[0, :] = True  # a run as wide as the mask
+        masks.append(blob)
+    layout = pack_masks(masks, 1, max_page=96)
+    width = int(layout.page_sizes[0, 0])
+    assert width > 2 * BLOCK
+    got = list(zip(layout.page.tolist(), layout.y.tolist(), layout.x.tolist()))
+    assert got == _plain_first_fit(masks, 1, width, 96)
 
 
 def test_masks_that_fill_a_page_open_another_and_oversized_ones_are_refused():

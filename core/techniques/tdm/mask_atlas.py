@@ -62,7 +62,7 @@ class MaskLayout:
 
 
 @njit(cache=True, nogil=True)
-def _first_fit(span, free, run, run_rows, run_cols, run_lens, height, width, need, need_run, start_y, start_x):
+def _first_fit(span, most, free, run, run_rows, run_cols, run_lens, height, width, need, need_run, start_y, start_x):
     """First (row, column) in row-major order, from (``start_y``, ``start_x``) on, where the runs
     of a mask of ``height`` x ``width`` (row ``run_rows``, first column ``run_cols``, ``run_lens``
     cells) meet no blocked cell of the page; (-1, -1) if none.
@@ -77,6 +77,10 @@ def _first_fit(span, free, run, run_rows, run_cols, run_lens, height, width, nee
       fit, no column before the one that puts its first cell on the next free cell after the
       blocking one can fit either, so the scan jumps there.  The mask's longest run is tested
       first (it fails most often), then the others in row-major order.
+    * Where the longest run does not fit, ``most`` (the largest ``span`` of each :data:`BLOCK`
+      columns of a row) finds the next cell of its row that starts a free run long enough for it
+      (:func:`_long_enough`): the free runs too short for it, which the jumps above visit one by
+      one, are passed a block at a time.
     """
     page_h, page_w = span.shape
     m = run_rows.size
@@ -100,8 +104,11 @@ def _first_fit(span, free, run, run_rows, run_cols, run_lens, height, width, nee
                 r, c = y + run_rows[j], x + run_cols[j]
                 length = span[r, c]
                 if length < run_lens[j]:
-                    end = c + length if length > 0 else c  # the first blocked cell at or after c
-                    x = page_w if end >= page_w else end - span[r, end] - run_cols[j]
+                    if t == 0:  # the anchor: on to the first cell after c that starts a long enough free run
+                        x = _long_enough(span, most, r, c, run_lens[j]) - run_cols[j]
+                    else:
+                        end = c + length if length > 0 else c  # the first blocked cell at or after c
+                        x = page_w if end >= page_w else end - span[r, end] - run_cols[j]
                     fits = False
                     break
             if fits:
@@ -109,8 +116,35 @@ def _first_fit(span, free, run, run_rows, run_cols, run_lens, height, width, nee
     return -1, -1
 
 
+BLOCK = 32  # columns per entry of a page row's ``most`` (the largest ``span`` among them)
+
+
 @njit(cache=True, nogil=True)
-def _block(span, free, run, grown, top, left):
+def _long_enough(span, most, r, c, length):
+    """The first column after ``c`` of row ``r`` whose ``span`` is at least ``length`` (a free run
+    that long starts there: the cells of a free run before it have shorter spans), or the row's
+    width if none: the rest of ``c``'s block run by run, then whole blocks whose largest span
+    (``most``) is shorter skipped."""
+    page_w = span.shape[1]
+    end = min(page_w, (c // BLOCK + 1) * BLOCK)
+    cc = c
+    while cc < end:  # run by run to the end of c's block
+        value = span[r, cc]
+        if cc > c and value >= length:
+            return cc
+        cc += value if value > 0 else -value
+    for b in range(c // BLOCK + 1, most.shape[1]):
+        if most[r, b] >= length:
+            cc = b * BLOCK
+            while span[r, cc] < length:
+                value = span[r, cc]
+                cc += value if value > 0 else -value
+            return cc
+    return page_w
+
+
+@njit(cache=True, nogil=True)
+def _block(span, most, free, run, grown, top, left):
     """Block the cells of ``grown`` (a mask dilated by the padding) with its top-left at (``top``,
     ``left``), clipped to the page, and bring ``span``, ``free`` and ``run`` up to date."""
     page_h, page_w = span.shape
@@ -141,9 +175,15 @@ def _block(span, free, run, grown, top, left):
                 break
             span[r, c] = value
             c -= 1
+        # Columns c + 1 to right changed: their blocks' largest spans, then the row's.
+        for b in range((c + 1) // BLOCK, right // BLOCK + 1):
+            largest = span[r, b * BLOCK]
+            for cc in range(b * BLOCK + 1, min(page_w, (b + 1) * BLOCK)):
+                largest = max(largest, span[r, cc])
+            most[r, b] = largest
         longest = 0
-        for c in range(page_w):
-            longest = max(longest, span[r, c])
+        for b in range(most.shape[1]):
+            longest = max(longest, most[r, b])
         run[r] = longest
 
 
@@ -253,7 +293,7 @@ def _stacked(masks: Sequence[np.ndarray], shapes: np.ndarray, p: int) -> tuple[l
 
 @njit(cache=True, nogil=True)
 def _pack_from(start, order, shapes, kind, run_at, run_rows, run_cols, run_lens, row_at, need, need_run, grown_at, grown, p,
-               span, free, run, bottoms, resume, page, x, y):  # fmt: skip
+               span, most, free, run, bottoms, resume, page, x, y):  # fmt: skip
     """Place the masks ``order[start:]`` on the pages (:func:`_pack` says how); the position in
     ``order`` of the first mask that fits no page (the caller adds one and goes on from there), or
     ``len(order)`` when every mask is placed.  Mask i's runs are ``run_rows``/``run_cols``/
@@ -272,6 +312,7 @@ def _pack_from(start, order, shapes, kind, run_at, run_rows, run_cols, run_lens,
             sy, sx = (start_y, start_x) if index == first else (0, 0)
             at_y, at_x = _first_fit(
                 span[index],
+                most[index],
                 free[index],
                 run[index],
                 run_rows[lo:hi],
@@ -290,7 +331,7 @@ def _pack_from(start, order, shapes, kind, run_at, run_rows, run_cols, run_lens,
         if at_y < 0:
             return j
         dilated = grown[grown_at[i] : grown_at[i + 1]].reshape(h + 2 * p, w + 2 * p)
-        _block(span[index], free[index], run[index], dilated, at_y - p, at_x - p)
+        _block(span[index], most[index], free[index], run[index], dilated, at_y - p, at_x - p)
         page[i], y[i], x[i] = index, at_y, at_x
         resume[kind[i], 0], resume[kind[i], 1], resume[kind[i], 2] = index, at_y, at_x
         bottoms[index] = max(bottoms[index], at_y + h)
@@ -312,6 +353,7 @@ def _pack(shapes, flat, kind, order: np.ndarray, width: int, p: int, max_page: i
     # is blocked for new texels within ``padding`` of a placed one), free, run, and the lowest
     # texel's row.  Room for twice the pages each time it runs out.
     span = np.empty((1, max_page, width), np.int32)
+    most = np.empty((1, max_page, -(-width // BLOCK)), np.int32)
     free = np.empty((1, max_page), np.int64)
     run = np.empty((1, max_page), np.int64)
     bottoms = np.empty(1, np.int64)
@@ -321,8 +363,11 @@ def _pack(shapes, flat, kind, order: np.ndarray, width: int, p: int, max_page: i
     start = pages = 0
     while start < n:  # a page more each time a mask fits none
         if pages == len(span):
-            span, free, run, bottoms = (np.concatenate([a, np.empty_like(a)]) for a in (span, free, run, bottoms))
+            span, most, free, run, bottoms = (
+                np.concatenate([a, np.empty_like(a)]) for a in (span, most, free, run, bottoms)
+            )
         span[pages] = np.arange(width, 0, -1, dtype=np.int32)
+        most[pages] = width - BLOCK * np.arange(most.shape[2], dtype=np.int32)  # each block's first span
         free[pages] = run[pages] = width
         bottoms[pages] = 0
         pages += 1
@@ -334,6 +379,7 @@ def _pack(shapes, flat, kind, order: np.ndarray, width: int, p: int, max_page: i
             *flat,
             p,
             span[:pages],
+            most[:pages],
             free[:pages],
             run[:pages],
             bottoms[:pages],
