@@ -14,8 +14,8 @@ with the runtime drawing the PVS), for every frame:
   as drawn): ``d + sum(a calls + b triangles) + c * covered geometry pixels + e * covered impostor
   pixels + f * quads + g * impostors``, covered pixels counted on the frame's own images (what
   calibration's ``pixels`` are);
-* (a') ``drawn_discs``: the same with the planner's pixel estimate (bounding-sphere discs from the
-  eye, capped at ``--depth-complexity`` frames) in place of the covered geometry pixels;
+* (a') ``drawn_discs``: the same with the planner's pixel estimate (``element_pixels`` from the
+  eye: bounding-sphere discs, or box faces where smaller, capped at ``--depth-complexity`` frames) in place of the covered geometry pixels;
 * (b) the CPV aggregation: ``estimate ÷ drawn_discs`` on the frames in a CPV.
 
 Each ratio's p50, p95 and share of frames under by more than 30 % (ratio < 0.7) is printed; the

@@ -105,8 +105,9 @@ def plain_estimate(
     depth_complexity: float = DEFAULT_DEPTH_COMPLEXITY,
 ) -> float:
     """The cost model's time of drawing elements ``drawn`` (indices) as geometry from ``position``:
-    ``d + sum(a calls + b triangles) + c pixels``, pixels each element's bounding-sphere disc at its
-    distance from the eye (a whole frame where the eye is inside its bounds), their sum capped at
+    ``d + sum(a calls + b triangles) + c pixels``, pixels each element's
+    :func:`~farfield.core.placement.view_space.element_pixels` from the eye (bounding-sphere disc or
+    box faces; a whole frame where the eye is inside its bounds), their sum capped at
     ``depth_complexity`` frames, as the planner estimates a problem view (:mod:`farfield.core.placement.view_space`)."""
     drawn = np.asarray(drawn, dtype=np.int64)
     p = np.asarray(position, dtype=np.float64)

@@ -35,8 +35,13 @@ given to :func:`problem_view_space`: a *conservative from-region* visibility ste
 from points with id cube maps: not conservative (its measured false-invisible rate is in
 docs/placement/visibility.md), so a problem view it hides may still be slow; off by default.
 
-**Pixels.**  An element's covered pixels are estimated as its bounding sphere's disc seen from the
-region's nearest point, at most a frame.  Summed over a frustum without occlusion culling, these
+**Pixels.**  An element's covered pixels are estimated as ``f²`` times a bound of its solid angle
+from any point of the region: the smaller of its bounding sphere's disc seen from the region's
+nearest point and its box's faces (:func:`box_solid_angle_bound`: at most one face per axis faces
+a point, each at most ``area / distance²``; tighter for elongated boxes, looser for cubes), at
+most a frame.  Like the disc before it, this counts the frame centre's pixels per steradian: near
+the frame's corner a steradian covers up to ``1 / cos³`` of the half-diagonal more (1.56x at 45°),
+which the bounds' slack and the cap absorb (the test weights pixels by ``cos³``).  Summed over a frustum without occlusion culling, these
 discs count every nearby element as a whole frame; the estimate therefore caps a view's pixels at
 ``depth_complexity`` frames (:data:`DEFAULT_DEPTH_COMPLEXITY`, 1), scaling its elements' pixels
 alike; ``inf`` gives the strict sum.  One frame because the cost model's per-pixel ``c`` is
@@ -219,11 +224,44 @@ class RegionSight:
         return refine_cone_box(axes, half_angles, self.d_lo, self.d_hi, self.seen_by_sphere(axes, half_angles))
 
 
+def box_solid_angle_bound(lo: np.ndarray, hi: np.ndarray, region_lo, region_hi) -> np.ndarray:
+    """(k,) upper bound of the solid angle of boxes ``lo``/``hi`` (k, 3) seen from any point of the
+    region: per axis, the larger of its two faces' ``area / distance²`` over the faces some point of
+    the region lies in front of (a point sees at most one face per axis, and a face's solid angle is
+    ``∫ cos / r² dA <= area / r_min²``); ``inf`` where the region meets a box.
+
+    >>> b = box_solid_angle_bound(np.array([[10.0, 0, 0]]), np.array([[11.0, 1, 1]]), np.zeros(3), np.zeros(3))
+    >>> round(float(b[0]), 6)  # only the face x = 10 faces the origin: 1 m² at 10 m
+    0.01
+    """
+    lo = np.asarray(lo, dtype=np.float64)
+    hi = np.asarray(hi, dtype=np.float64)
+    region_lo = np.asarray(region_lo, dtype=np.float64)
+    region_hi = np.asarray(region_hi, dtype=np.float64)
+    ext = hi - lo
+    total = np.zeros(len(lo))
+    for a in range(3):
+        area = ext[:, (a + 1) % 3] * ext[:, (a + 2) % 3]
+        best = np.zeros(len(lo))
+        for side, plane in ((1, hi[:, a]), (-1, lo[:, a])):
+            front = region_hi[a] > plane if side > 0 else region_lo[a] < plane
+            face_lo, face_hi = lo.copy(), hi.copy()
+            face_lo[:, a] = plane
+            face_hi[:, a] = plane
+            dist = box_gap(face_lo, face_hi, region_lo, region_hi)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                bound = np.where(front, np.where(dist > 0.0, area / (dist * dist), np.inf), 0.0)
+            best = np.maximum(best, np.nan_to_num(bound, nan=0.0, posinf=np.inf))
+        total += best
+    return total
+
+
 def element_pixels(
     elements: Elements, region_lo, region_hi, fov: float, resolution: int, index: np.ndarray | None = None
 ) -> np.ndarray:
-    """(k,) covered-pixel estimate of each element from the region's nearest point: its bounding
-    sphere's disc at the box distance, at most the frame (whole frame where the element meets the region)."""
+    """(k,) covered-pixel estimate of each element from the region's nearest point: ``f²`` times the
+    smaller of its bounding sphere's disc at the box distance and the box's face bound
+    (:func:`box_solid_angle_bound`), at most the frame (whole frame where the element meets the region)."""
     b = elements.bounds if index is None else elements.bounds[index]
     radius = 0.5 * np.linalg.norm(b[:, 1] - b[:, 0], axis=1)
     dist = box_gap(b[:, 0], b[:, 1], region_lo, region_hi)
@@ -231,7 +269,8 @@ def element_pixels(
     frame = float(resolution) * float(resolution)
     with np.errstate(divide="ignore"):
         disc = np.where(dist > 0.0, math.pi * (focal * radius / np.where(dist > 0.0, dist, 1.0)) ** 2, frame)
-    return np.minimum(disc, frame)
+    faces = focal * focal * box_solid_angle_bound(b[:, 0], b[:, 1], region_lo, region_hi)
+    return np.minimum(np.minimum(disc, faces), frame)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
