@@ -28,6 +28,9 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from bench_tdm_scale import LOAD_REVISION  # noqa: E402  (the other revision's tdm package, in the subprocess)
 
 RECORD = """
 import math, pickle, sys
@@ -49,22 +52,13 @@ with gl_context():
 pickle.dump(field, open(sys.argv[1], "wb"))
 """
 
-CASCADE = """
+CASCADE = (
+    """
 import hashlib, importlib.util, json, os, pickle, sys, time
 source = sys.argv[2]
-if source:  # the tdm package of another revision, loaded in place of this tree's
-    name = "farfield.core.techniques.tdm"
-
-    class Before:
-        def find_spec(self, full, path=None, target=None):
-            if full == name:
-                return importlib.util.spec_from_file_location(full, source + "/__init__.py", submodule_search_locations=[source])
-            if full.startswith(name + "."):
-                return importlib.util.spec_from_file_location(full, source + "/" + full.rsplit(".", 1)[1] + ".py")
-            return None
-
-    sys.meta_path.insert(0, Before())
-from farfield.core.techniques.tdm.mesh import initial_mesh
+"""
+    + LOAD_REVISION
+    + """from farfield.core.techniques.tdm.mesh import initial_mesh
 import farfield.core.techniques.tdm.technique as technique
 assert (not source) == (not technique.__file__.startswith(source or "?")), technique.__file__
 technique.warm_kernels()
@@ -78,6 +72,7 @@ digest = hashlib.sha1(triangles.tobytes() + offsets.tobytes() + voxels.tobytes()
 print(json.dumps({"cpu": cpu, "wall": wall, "initial": int(mesh.triangles.shape[0]), "kept": int(triangles.shape[0]),
                   "hash": digest, "outcomes": outcomes, "load": os.getloadavg()[0]}))
 """
+)
 
 
 def package_at(revision: str) -> Path:

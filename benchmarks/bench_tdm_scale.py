@@ -94,9 +94,9 @@ with gl_context():
 """
 
 
-BAKE = """
-import importlib.util, json, resource, sys, time
-source = sys.argv[3]
+# Loads the tdm package of another revision (a folder in ``source``) in place of this tree's; the
+# subprocess scripts below (and bench_tdm_cascade.py's) set ``source`` first.
+LOAD_REVISION = """
 if source:  # the tdm package of another revision, loaded in place of this tree's
     name = "farfield.core.techniques.tdm"
 
@@ -109,7 +109,15 @@ if source:  # the tdm package of another revision, loaded in place of this tree'
             return None
 
     sys.meta_path.insert(0, Before())
-sys.path.insert(0, "benchmarks")
+"""
+
+BAKE = (
+    """
+import importlib.util, json, resource, sys, time
+source = sys.argv[3]
+"""
+    + LOAD_REVISION
+    + """sys.path.insert(0, "benchmarks")
 sys.path.insert(0, "tests")
 from bench_tdm_scale import scene_and_cell
 from farfield.core.render.context import gl_context
@@ -131,6 +139,7 @@ s = impostor.stats
 print(json.dumps({"peak_mib": peak, "cpu_seconds": cpu, "report": report, **{k: s[k] for k in (
     "layers", "voxels", "initial_triangles", "triangles", "texture_charts", "atlas_pages", "texture_bytes", "geometry_bytes", "seconds")}}))
 """
+)
 
 
 def scene_and_cell(name: str, subdivisions: int = 7):
