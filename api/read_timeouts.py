@@ -13,7 +13,13 @@ body that stops arriving just as long.
   consume, does not count).
 
 Past either, the connection gets a 408 (JSON ``{detail, error}``) when no response has begun, and is
-closed; the route reading the body sees the client gone.  A client that trickles a byte of body
+closed; the route reading the body sees the client gone.
+
+A client that closes its sending side (``shutdown(SHUT_WR)``, ``nc -N``) is still answered: uvicorn
+closed the whole connection at the end of its input, so a complete request so ended got no
+response, and one whose body fell short of its ``Content-Length`` (or whose headers were cut) was
+dropped without a word.  Now a request still missing bytes gets a JSON 400 saying so and the
+connection is closed; a complete one gets its response, then the connection is closed.  A client that trickles a byte of body
 every few seconds is not caught (that would need a minimum rate); behind a reverse proxy its own
 timeouts apply first.  ``farfield up`` runs uvicorn with ``--http farfield.api.read_timeouts:TimedH11Protocol``.
 """
@@ -49,13 +55,21 @@ def timeout_setting(name: str, default: float) -> float:
     return value
 
 
-def _timeout_response(detail: str) -> bytes:
-    body = json.dumps({"detail": detail, "error": "RequestTimeoutError"}).encode()
+def _closing_response(status: str, error: str, detail: str) -> bytes:
+    body = json.dumps({"detail": detail, "error": error}).encode()
     head = (
-        "HTTP/1.1 408 Request Timeout\r\ncontent-type: application/json\r\nconnection: close\r\n"
+        f"HTTP/1.1 {status}\r\ncontent-type: application/json\r\nconnection: close\r\n"
         f"content-length: {len(body)}\r\n\r\n"
     )
     return head.encode() + body
+
+
+def _timeout_response(detail: str) -> bytes:
+    return _closing_response("408 Request Timeout", "RequestTimeoutError", detail)
+
+
+def _bad_request_response(detail: str) -> bytes:
+    return _closing_response("400 Bad Request", "BadRequestError", detail)
 
 
 class TimedH11Protocol(H11Protocol):
@@ -78,6 +92,28 @@ class TimedH11Protocol(H11Protocol):
     def data_received(self, data: bytes) -> None:
         super().data_received(data)
         self._follow_state()
+
+    def eof_received(self) -> bool:  # type: ignore[override]
+        """The client closed its sending side: answer what it sent (the module docstring).  True keeps
+        the transport open for the response; False lets asyncio close it (nothing to answer)."""
+        state, cycle = self.conn.their_state, self.cycle
+        answering = cycle is not None and not cycle.response_complete
+        if state is h11.SEND_BODY and answering and not cycle.response_started:
+            length = dict(self.headers).get(b"content-length")
+            expected = f" (Content-Length: {length.decode('latin-1')})" if length else ""
+            self._close(
+                f"the request's body ended before it was complete{expected}: the client closed its side of the "
+                "connection; send the whole body",
+                _bad_request_response,
+            )
+            return True
+        if state is h11.IDLE and self.conn.trailing_data[0] and not answering:  # a request line or headers cut
+            self._close("the request's line or headers ended before they were complete", _bad_request_response)
+            return True
+        if state in (h11.SEND_BODY, h11.DONE, h11.MUST_CLOSE) and answering:  # the response is on its way
+            cycle.keep_alive = False  # the connection closes after it (h11 cannot read a next request)
+            return True
+        return False
 
     def on_response_complete(self) -> None:
         super().on_response_complete()
@@ -121,8 +157,8 @@ class TimedH11Protocol(H11Protocol):
             return
         self._close(f"no byte of the request's body arrived for {self.body_timeout:g} s (FARFIELD_BODY_IDLE_TIMEOUT_S)")
 
-    def _close(self, detail: str) -> None:
+    def _close(self, detail: str, response=None) -> None:
         if self.cycle is None or not self.cycle.response_started:
-            self.transport.write(_timeout_response(detail))
+            self.transport.write((response or _timeout_response)(detail))
         self.logger.warning("closing a connection from %s: %s", self.client, detail)
         self.transport.close()

@@ -45,12 +45,15 @@ def port(tmp_path_factory):
     mp.undo()
 
 
-def exchange(port: int, data: bytes, wait: float = 20.0) -> tuple[bytes, float]:
-    """Send ``data`` and read until the server closes; what came back and the seconds it took."""
+def exchange(port: int, data: bytes, wait: float = 20.0, half_close: bool = False) -> tuple[bytes, float]:
+    """Send ``data`` (then close the sending side, with ``half_close``) and read until the server
+    closes; what came back and the seconds it took."""
     start = time.monotonic()
     with socket.create_connection(("127.0.0.1", port)) as s:
         s.settimeout(wait)
         s.sendall(data)
+        if half_close:
+            s.shutdown(socket.SHUT_WR)
         got = b""
         while True:
             try:
@@ -103,3 +106,30 @@ def test_a_prompt_client_is_answered_and_kept_alive(port):
                 body += s.recv(65536)
             assert head.startswith(b"HTTP/1.1 200 ") and json.loads(body)["database"] is True, got
             time.sleep(HEADER_S * 1.5)  # idle between requests: uvicorn's keep-alive (5 s) applies, not ours
+
+
+@pytest.mark.parametrize("path", ["/v1/scenes", "/v1/jobs"])
+def test_a_body_short_of_its_length_then_half_closed_is_a_400(port, path):
+    """A client that sends fewer bytes than its Content-Length and closes its sending side got no
+    reply at all: uvicorn closed the connection at the end of its input.  Now a JSON 400 that says
+    the body ended early, at once (not at the body's idle timeout)."""
+    kind = "multipart/form-data; boundary=b" if path == "/v1/scenes" else "application/json"
+    head = (
+        f"POST {path} HTTP/1.1\r\nHost: farfield\r\nContent-Type: {kind}\r\nAuthorization: Bearer {KEY}\r\n"
+        "Content-Length: 1000\r\n\r\n"
+    ).encode()
+    part = b'--b\r\nContent-Disposition: form-data; name="file"; filename="a.glb"\r\n\r\nglTF'
+    got, seconds = exchange(port, head + (part if path == "/v1/scenes" else b'{"scene_id": "x"'), 10.0, True)
+    assert got.startswith(b"HTTP/1.1 400 "), got
+    body = json.loads(got.split(b"\r\n\r\n", 1)[1])
+    assert body["error"] == "BadRequestError" and "Content-Length: 1000" in body["detail"], body
+    assert "ended before it was complete" in body["detail"] and seconds < BODY_S  # not the idle timeout's 408
+
+
+def test_half_closed_cut_headers_are_a_400_and_a_whole_request_is_answered(port):
+    """Headers cut by the client's half-close got nothing back either; and a complete request whose
+    client then half-closes (``nc -N``) lost its response, the connection closed under it."""
+    got, seconds = exchange(port, b"GET /v1/health HTTP/1.1\r\nHost: farfield\r\nX-Cut: ", 10.0, True)
+    assert got.startswith(b"HTTP/1.1 400 ") and b"headers ended before" in got and seconds < HEADER_S, got
+    got, _ = exchange(port, b"GET /v1/health HTTP/1.1\r\nHost: farfield\r\n\r\n", 10.0, True)
+    assert got.startswith(b"HTTP/1.1 200 ") and json.loads(got.split(b"\r\n\r\n", 1)[1])["database"] is True, got
