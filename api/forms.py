@@ -4,7 +4,8 @@ field the route takes once is sent once.
 - Starlette's parser (python-multipart) ends a body that stops before its closing ``--boundary--``
   silently: the parts it saw whole are the form, the cut one is dropped, so a truncated upload was
   answered "send the scene as multipart form field 'file'".  :func:`require_closing_boundary` makes
-  such a body a 400 that says it was cut short.
+  such a body a 400 that says it was cut short.  An empty body is an empty form, not a cut one: the
+  route then names the field it misses (a 422), as for a form without it.
 - FastAPI reads a form field declared ``str`` as the last of its values, so two ``sides`` fields in
   one upload went through as the second.  :func:`one_value_per_field` (a dependency of every route)
   answers a 422 naming each single-valued field sent more than once; a route's list fields (the
@@ -22,6 +23,7 @@ from fastapi import Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.params import Form
 from python_multipart.multipart import parse_options_header
+from starlette.datastructures import FormData
 from starlette.formparsers import MultiPartException, MultiPartParser
 
 CUT_SHORT = (
@@ -46,6 +48,21 @@ def require_closing_boundary() -> None:
 
     async def parse_whole(self):
         self._farfield_ended = False
+        chunks = self.stream.__aiter__()
+        first = b""
+        async for chunk in chunks:
+            if chunk:
+                first = chunk
+                break
+        if not first:  # no byte at all: a form without parts (a missing boundary does not matter either)
+            return FormData()
+
+        async def whole():
+            yield first
+            async for chunk in chunks:
+                yield chunk
+
+        self.stream = whole()
         form = await parse(self)
         if not self._farfield_ended:
             for spooled in self._files_to_close_on_error:  # every file part, the cut one too: let them go

@@ -290,3 +290,18 @@ def test_a_json_route_sent_a_form_content_type_is_not_read_as_a_form(api, cut):
     assert keyed.status_code == 422 and "sent 2 times" not in keyed.text and "boundary" not in keyed.text, keyed.text
     urlencoded = {"Content-Type": "application/x-www-form-urlencoded", "Authorization": ""}
     assert api.post("/v1/jobs", content=b"spec=1&spec=2", headers=urlencoded).status_code == 401
+
+
+@pytest.mark.parametrize("kind", ["multipart/form-data; boundary=b", "multipart/form-data"])
+def test_an_empty_multipart_body_is_a_form_without_its_file_field(api, kind):
+    """A multipart upload with no body at all read "the multipart body ends before its closing
+    boundary (--b--): it was cut short" (or "Missing boundary in multipart."): an empty body is an
+    empty form, whose missing field is named (a 422, as for a form without it)."""
+    before = api.get("/v1/scenes").headers["X-Total-Count"]
+    response = api.post("/v1/scenes", content=b"", headers={"Content-Type": kind})
+    assert response.status_code == 422, response.text
+    detail = response.json()["detail"]
+    assert detail.startswith("file: missing from the form") and "cut short" not in detail, detail
+    assert api.get("/v1/scenes").headers["X-Total-Count"] == before
+    cut = api.post("/v1/scenes", content=b"\r\n", headers={"Content-Type": "multipart/form-data; boundary=b"})
+    assert cut.status_code == 400 and "cut short" in cut.json()["detail"], cut.text  # a byte: not empty
