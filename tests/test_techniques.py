@@ -369,7 +369,33 @@ def test_every_part_technique_refuses_a_part_of_collinear_triangles_only(name, t
     assert not out.exists() or not any(out.iterdir())
 
 
-def test_octahedral_and_points_jobs_of_collinear_triangles_fail_with_the_reason(client, tmp_path):
+@pytest.mark.parametrize(
+    "scene_text", [COLLINEAR_OBJ, COLLINEAR_OBJ + "p 1 2 3\nl 1 4 5\n"], ids=["faces", "points and lines"]
+)
+def test_an_envmap_bake_of_a_scene_of_collinear_triangles_only_is_refused(scene_text, tmp_path):
+    """An envmap bake of such a scene (besides points and lines, no triangles at all being refused
+    when the scene loads) kept 0 of 384 layers, wrote a bundle of nothing and exited 0."""
+    _register()
+    scene_file = tmp_path / "flat.obj"
+    scene_file.write_text(scene_text)
+    out = tmp_path / "out"
+    args = ["bake", str(scene_file), "--viewcell", "box:-1,-1,8,1,1,10", "--technique", "envmap", "--resolution", "64"]
+    run = CliRunner().invoke(cli, [*args, "--quiet", "--out", str(out)])
+    lines = run.output.strip().splitlines()
+    assert run.exit_code == 2 and len(lines) == 1 and lines[0].startswith("farfield: error: "), run.output
+    assert "no triangle of any area" in lines[0] and "envmap" in lines[0], lines[0]
+    assert not out.exists() or not any(out.iterdir())
+    if "p 1 2 3" in scene_text:
+        return
+    envmap, cell = get_technique("envmap"), BoxCell(np.array([-1.0, -1, 8]), np.array([1.0, 1, 10]))
+    kept = Scene.from_objects(
+        [box_object("box", (-20.0, -20.0, -101.0), (20.0, 20.0, -100.0), (0.5, 0.5, 0.5, 1.0))], source="box"
+    )
+    baked = envmap.bake(kept, cell, envmap.options({"layers": 2}, resolution=64), None, None)  # a surface: baked
+    assert baked.stats["layers"] > 0 and baked.stats["texels_kept"] > 0
+
+
+def test_octahedral_points_and_envmap_jobs_of_collinear_triangles_fail_with_the_reason(client, tmp_path):
     scene_file = tmp_path / "flat.obj"
     scene_file.write_text(COLLINEAR_OBJ)
     uploaded = upload(client, scene_file)
@@ -379,7 +405,11 @@ def test_octahedral_and_points_jobs_of_collinear_triangles_fail_with_the_reason(
         "viewcells": [{"kind": "box", "lo": [-1, -1, 8], "hi": [1, 1, 10]}],
         "resolution": 64,
     }
-    expected = {"octahedral": "no visible texel in any frame", "points": "no triangle of any area"}
+    expected = {
+        "octahedral": "no visible texel in any frame",
+        "points": "no triangle of any area",
+        "envmap": "no triangle of any area",
+    }
     jobs = {}
     for technique in expected:
         created = client.post("/v1/jobs", json={**spec, "technique": technique})

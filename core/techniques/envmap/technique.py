@@ -239,6 +239,12 @@ def bake_envmap(
     clock = StageClock(("plan", "record", "gap_fill", "cull", "quads", "atlas", "png"), progress)
     with clock("plan"):
         plan = plan_envmap(cell, options)
+        if all(faces is not None and faces.size == 0 for faces in map(recording.faces_with_area, scene.objects)):
+            # Collinear corners only (points and lines are no triangles at all): no layer, no near field to draw.
+            raise LayerPlanError(
+                "the scene has no triangle of any area (every one's corners are collinear): nothing to make an "
+                "envmap impostor of"
+            )
         centre = cell.center
         near = near_field(scene, centre, plan.near_field, [f for f in FACES if f not in options.directions])
         faces = [face_plan(name, plan, centre, scene.bounds) for name in options.directions]
