@@ -20,6 +20,9 @@ eight ``v``, twelve ``f``; no ``vt`` or ``vn``), each loaded by ``load_scene`` i
 (farfield before ``core/exchange/obj_no_uv.py``; its reader is pieces x vertices there) and ``now``
 (the corners paired ``i/i``: trimesh's linear branch), alternated, best of ``--repeats`` processes.
 The node limit is raised past the largest count (the default admits 50,000 objects).
+With ``--mixed`` every other cube's faces name a ``vt`` (``f a/1 b/2 c/3``; four ``vt`` lines
+head the file) and the others none: ``now`` writes the latter's corners ``i/K``, K past the last
+``vt`` (``obj_no_uv._past_the_uvs``), where before they kept trimesh's masks (the ``trimesh path``).
 
 ``--pieces 1x1000,100x71,1000x23,4000x11`` measures OBJ files of K objects, each an n x n grid of
 vertices (2 (n-1)^2 triangles; no ``vt``/``vn``), three ways, each in a fresh process, alternated,
@@ -119,29 +122,33 @@ print(time.process_time() - start, len(scene.objects), scene.content_hash)
 """
 
 
-def cubes_obj(path: Path, count: int) -> Path:
-    """An OBJ of ``count`` unit-half cubes on a 100-wide grid, each ``o cubeK``, 8 ``v``, 12 ``f``."""
+def cubes_obj(path: Path, count: int, mixed: bool = False) -> Path:
+    """An OBJ of ``count`` unit-half cubes on a 100-wide grid, each ``o cubeK``, 8 ``v``, 12 ``f``;
+    ``mixed``: every other cube's faces name ``vt`` 1, 2, 3 (four ``vt`` lines head the file)."""
     corners = [(x, y, z) for x in (0, 1) for y in (0, 1) for z in (0, 1)]
     triangles = [(0, 2, 3), (0, 3, 1), (4, 5, 7), (4, 7, 6), (0, 1, 5), (0, 5, 4),
                  (2, 6, 7), (2, 7, 3), (0, 4, 6), (0, 6, 2), (1, 3, 7), (1, 7, 5)]  # fmt: skip
-    lines = []
+    lines = ["vt 0 0", "vt 1 0", "vt 0 1", "vt 1 1"] if mixed else []
     for k in range(count):
         ox, oz = 2.0 * (k % 100), 2.0 * (k // 100)
         lines.append(f"o cube{k}")
         lines += [f"v {ox + 0.5 * x:g} {0.5 * y:g} {oz + 0.5 * z:g}" for x, y, z in corners]
         base = 8 * k + 1
-        lines += [f"f {base + a} {base + b} {base + c}" for a, b, c in triangles]
+        if mixed and k % 2:
+            lines += [f"f {base + a}/1 {base + b}/2 {base + c}/3" for a, b, c in triangles]
+        else:
+            lines += [f"f {base + a} {base + b} {base + c}" for a, b, c in triangles]
     path.write_text("\n".join(lines) + "\n")
     return path
 
 
-def many_objects(counts: list[int], repeats: int) -> list[dict]:
+def many_objects(counts: list[int], repeats: int, mixed: bool = False) -> list[dict]:
     """The ``--many-objects`` table (module docstring)."""
     rows = []
     print(f"{'objects':>8} {'triangles':>10} {'trimesh path CPU s':>18} {'now CPU s':>9} {'ratio':>6}  same scene")
     with tempfile.TemporaryDirectory(prefix="farfield-bench-cubes-") as tmp:
         for count in counts:
-            path = cubes_obj(Path(tmp) / f"cubes{count}.obj", count)
+            path = cubes_obj(Path(tmp) / f"cubes{count}.obj", count, mixed)
             best, hashes = {}, {}
             for _ in range(repeats):
                 for which in ("trimesh path", "now"):
@@ -236,6 +243,7 @@ def main() -> None:
     parser.add_argument(
         "--many-objects", default=None, help="comma-separated object counts: the many-object OBJ table instead"
     )
+    parser.add_argument("--mixed", action="store_true", help="--many-objects: every other cube with vt")
     parser.add_argument(
         "--pieces", default=None, help="KxN,...: K objects of N x N vertices; the pairing table instead"
     )
@@ -246,7 +254,7 @@ def main() -> None:
             Path(args.json).write_text(json.dumps(rows, indent=1))
         return
     if args.many_objects:
-        rows = many_objects([int(n) for n in args.many_objects.split(",")], args.repeats)
+        rows = many_objects([int(n) for n in args.many_objects.split(",")], args.repeats, args.mixed)
         if args.json:
             Path(args.json).write_text(json.dumps(rows, indent=1))
         return

@@ -200,6 +200,67 @@ def test_obj_without_uv_or_normals_loads_as_trimesh_read_it_and_on_the_linear_pa
                 assert x == y, (a.name, field.name)
 
 
+MIXED_MTL = "newmtl tex\nKd 1 1 1\nmap_Kd t.png\nnewmtl red\nKd 1 0 0\n"
+_MIXED_V = "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nv 0 0 1\nv 1 0 1\nv 0 1 1\nv 1 1 1\nv 9 9 9\n"
+MIXED_OBJS = {
+    "objects with and without vt": _MIXED_V + "vt 0 0\nvt 1 0\nvt 0 1\nvt 1 1\n"
+    "o a\nusemtl tex\nf 1/1 2/2 4/4 3/3\no b\nusemtl tex\nf 5 6 8\nf 5 8 7\no c\nusemtl red\nf 2 6 8 4\n"
+    "o d\nusemtl tex\nf 3/1 4/2 8/4\nf 3/1 8/4 7/3\n",
+    "one object, a material of each kind": _MIXED_V + "vt 0 0\nvt 1 0\nvt 0 1\n"
+    "o a\nusemtl tex\nf 1/1 2/2 3/3\nusemtl red\nf 5 6 7\nf 6 8 7\n",
+    "CR LF lines": (_MIXED_V + "vt 0 0\nvt 1 0\nvt 0 1\no a\nusemtl tex\nf 1/1 2/2 3/3\no b\nf 4 5 6\n").replace(
+        "\n", "\r\n"
+    ),
+}
+
+
+@pytest.mark.parametrize("name", list(MIXED_OBJS))
+def test_obj_mixing_objects_with_and_without_vt_loads_as_trimesh_read_it_and_on_the_linear_path(
+    tmp_path, monkeypatch, name
+):
+    """Objects without vt in a file with vt kept trimesh's masks over all the file's vertices
+    (pieces x vertices); their corners now reach it as ``i/K``, K past the last vt, its linear
+    branch (core/exchange/obj_no_uv.py).  Geometry, uvs (none for the objects without vt: their
+    texture is not sampled) and every other field are the ones trimesh's own path gave."""
+    import farfield.core.exchange.obj as obj_loader
+    import farfield.core.exchange.obj_no_uv as no_uv
+
+    monkeypatch.setattr(no_uv, "PAIR_ABOVE", 0)  # paired however small the file
+    (tmp_path / "m.mtl").write_text(MIXED_MTL)
+    PIL.Image.fromarray(np.arange(4 * 4 * 3, dtype=np.uint8).reshape(4, 4, 3) * 5).save(tmp_path / "t.png")
+    path = tmp_path / "f.obj"
+    path.write_bytes(MIXED_OBJS[name].encode())
+    given = []
+    parse = obj_loader.parse
+    monkeypatch.setattr(obj_loader, "parse", lambda data, *a, **k: given.append(data) or parse(data, *a, **k))
+    now = load_scene(path)
+    plain = [line for line in MIXED_OBJS[name].replace("\r", "").split("\n") if line[:2] == "f " and "/" not in line]
+    assert plain and not set(plain) & set(given[-1].decode().replace("\r", "").split("\n"))  # all written i/K
+    monkeypatch.setattr(obj_loader, "paired_indices", lambda text: text)  # the faces as written: trimesh's path
+    before = load_scene(path)
+    assert set(plain) <= set(given[-1].decode().replace("\r", "").split("\n"))
+    assert now.names == before.names and now.content_hash == before.content_hash
+    assert any(o.uv is not None for o in now.objects) and any(o.uv is None for o in now.objects)
+    for a, b in zip(now.objects, before.objects):
+        for field in dataclasses.fields(a):
+            x, y = getattr(a, field.name), getattr(b, field.name)
+            if isinstance(x, np.ndarray) or isinstance(y, np.ndarray):
+                assert x is not None and y is not None and np.array_equal(x, y), (a.name, field.name)
+            else:
+                assert x == y, (a.name, field.name)
+
+
+def test_obj_with_a_piece_of_faces_with_and_without_vt_reaches_trimesh_as_written(tmp_path, monkeypatch):
+    """trimesh reads a piece (an object's run of one material) holding both kinds as one without
+    uvs, one vertex per v; ``i/K`` there would split its vertices by uv.  Such a file is left as written."""
+    import farfield.core.exchange.obj_no_uv as no_uv
+
+    monkeypatch.setattr(no_uv, "PAIR_ABOVE", 0)
+    text = _MIXED_V + "vt 0 0\nvt 1 0\nvt 0 1\no a\nf 1/1 2/2 3/3\no b\nf 5 6 7\nf 6/1 8/2 7/3\n"
+    assert no_uv.paired_indices(text) == text
+    assert no_uv.paired_indices(text.replace("f 6/1 8/2 7/3", "f 6 8 7")) != text.replace("f 6/1 8/2 7/3", "f 6 8 7")
+
+
 def _grid_obj(n: int, objects: int) -> str:
     """``objects`` objects, each an n x n grid of vertices in two triangles a cell, no vt/vn."""
     lines = []

@@ -20,11 +20,22 @@ The pairing is not free: the face text grows, and ``unmerge_faces`` sorts each p
 so only a file whose pieces x vertices exceed :data:`PAIR_ABOVE` x faces is paired (the crossover
 measured in docs/measurements/loading.md); below it trimesh's masks cost at most about as much as
 the pairing would, so no file is quadratic either way.
+
+A file that mixes objects with ``vt`` and objects without (``f 1/1 2/2 3/3`` in one, ``f 4 5 6`` in
+another) kept the masks for the latter: ``i/i`` there would name uvs that exist.  Their corners are
+written ``i/K`` instead, ``K`` one past the file's last ``vt``: trimesh takes the same linear
+branch, its ``vt[mask_vt]`` fails on ``K`` as on a file without ``vt``, and such an object keeps no
+uv, as the OBJ format has it (a face without ``vt`` has no texture coordinates, so its material's
+texture is not sampled) and as trimesh's masks gave.  Only where every piece trimesh makes (an
+``o`` object and ``usemtl`` material) is all with ``vt`` or all without: trimesh reads a piece
+mixing both as one without uvs, and ``i/K`` would split its vertices there.
 """
 
 from __future__ import annotations
 
 import re
+
+import numpy as np
 
 # A vt or vn statement anywhere, or a face line that is not only integer corners (one naming a uv or
 # a normal, or a malformed one, which is left to trimesh and its messages as it is).
@@ -36,6 +47,13 @@ _FACE = re.compile(r"^(f[ \t])([^\r\n]*)", re.MULTILINE)
 # vertices load equally fast both ways near pieces x vertices / faces = 700 (bench_loading.py
 # --pieces, docs/measurements/loading.md); the masks are the faster below, the pairing above.
 PAIR_ABOVE = 700
+
+
+# In a file with vt, a face line without "/" (its corners are to be written i/K; checked by _CORNERS),
+# and one with (left as it is).  Both start after a newline (_past_the_uvs pads the text with one).
+_PLAIN_LINE = re.compile(r"\nf[ \t]([^/\n]*)(?=\n)")
+_SLASH_LINE = re.compile(r"\nf[ \t][^\n]*/")
+_CORNERS = re.compile(r"[ \t]*\d+(?:[ \t]+\d+){2,}[ \t]*\r?")  # absolute_indices left no negative index
 
 
 def _statements(text: str, keyword: str) -> int:
@@ -64,6 +82,69 @@ def paired_indices(text: str) -> str:
     >>> paired_indices("vt 0 0\\nf 1/1 2/1 3/1\\n"), paired_indices("f 1 2 3\\nf 1 2.5 3\\n")
     ('vt 0 0\\nf 1/1 2/1 3/1\\n', 'f 1 2 3\\nf 1 2.5 3\\n')
     """
-    if not pays(text) or _NOT_PLAIN.search(text) is not None:
+    if not pays(text):
         return text
-    return _FACE.sub(lambda face: face[1] + " ".join([c + "/" + c for c in face[2].split()]), text)
+    if _NOT_PLAIN.search(text) is None:
+        return _FACE.sub(lambda face: face[1] + " ".join([c + "/" + c for c in face[2].split()]), text)
+    return _past_the_uvs(text)
+
+
+def _pieces(text: str) -> tuple[np.ndarray, np.ndarray]:
+    """Where trimesh's reader starts a piece in ``text`` (``usemtl `` anywhere, ``\\no ``: its
+    ``_preprocess_faces``), ascending, and each piece's key, the ``(usemtl, o)`` pair it tracks from
+    piece to piece, as an integer (pieces before the first start have key 0)."""
+    starts = []
+    for marker in ("usemtl ", "\no "):
+        at = text.find(marker)
+        while at >= 0:
+            starts.append(at)
+            at = text.find(marker, at + 1)
+    starts.sort()
+    keys: dict[tuple[str | None, str | None], int] = {(None, None): 0}
+    ids = np.empty(len(starts), dtype=np.int64)
+    material = name = None
+    for k, at in enumerate(starts):
+        line = text[at : text.find("\n", at + 1)].strip()
+        if line.startswith("o "):
+            name = line[2:].strip()
+        else:
+            material = line[7:].strip()
+        ids[k] = keys.setdefault((material, name), len(keys))
+    return np.asarray(starts, dtype=np.int64), ids
+
+
+def _past_the_uvs(text: str) -> str:
+    """``text`` with each corner ``i`` of a face without ``vt`` written ``i/K`` (``K`` past the file's
+    last line, so past its last ``vt``) where the file has ``vt`` and each of trimesh's pieces is all
+    faces with ``/`` or all without (the module docstring); otherwise ``text`` itself.
+
+    >>> text = "v 0 0 0\\nv 1 0 0\\nv 0 1 0\\nvt 0 0\\no a\\nf 1/1 2/1 3/1\\no b\\nf 1 2 3\\n"
+    >>> _past_the_uvs(text)[-21:]
+    'o b\\nf 1/11 2/11 3/11\\n'
+    >>> _past_the_uvs(text.replace("o b\\n", "")) == text.replace("o b\\n", "")  # one piece, both kinds
+    True
+    """
+    if not _statements(text, "vt"):
+        return text
+    padded = "\n" + text + "\n"
+    plain = [m.start() for m in _PLAIN_LINE.finditer(padded)]
+    if not plain:
+        return text
+    starts, keys = _pieces(padded)
+    with_uv = [m.start() for m in _SLASH_LINE.finditer(padded)]
+    pieces = [np.concatenate([[0], keys])[np.searchsorted(starts, at, side="right")] for at in (plain, with_uv)]
+    if np.intersect1d(*pieces).size:
+        return text  # a piece of both kinds: trimesh reads it as one without uvs, one vertex per v
+    past = f"/{padded.count(chr(10)) + 1}"
+    bad = []
+
+    def corners(face: re.Match) -> str:
+        body = face[1]
+        if _CORNERS.fullmatch(body) is None:
+            bad.append(face)
+            return face[0]
+        end = "\r" if body.endswith("\r") else ""
+        return face[0][:3] + (past + " ").join(body.split()) + past + end
+
+    paired = _PLAIN_LINE.sub(corners, padded)
+    return text if bad else paired[1:-1]
