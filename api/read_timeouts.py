@@ -12,14 +12,16 @@ body that stops arriving just as long.
   pass at most without a byte of it (time the server itself stops reading, when the app is slow to
   consume, does not count).
 
-Past either, the connection gets a 408 (JSON ``{detail, error}``) when no response has begun, and is
-closed; the route reading the body sees the client gone.
+Past either, the connection gets a 408 (JSON ``{detail, error}``) when no response to the request has
+begun (a kept-alive connection's previous response does not count), and is closed; the route
+reading the body sees the client gone.
 
 A client that closes its sending side (``shutdown(SHUT_WR)``, ``nc -N``) is still answered: uvicorn
 closed the whole connection at the end of its input, so a complete request so ended got no
 response, and one whose body fell short of its ``Content-Length`` (or whose headers were cut) was
 dropped without a word.  Now a request still missing bytes gets a JSON 400 saying so and the
-connection is closed; a complete one gets its response, then the connection is closed.  A client that trickles a byte of body
+connection is closed; a complete one gets its response, as does each request pipelined behind it
+(a cut one its 400), then the connection is closed.  A client that trickles a byte of body
 every few seconds is not caught (that would need a minimum rate); behind a reverse proxy its own
 timeouts apply first.  ``farfield up`` runs uvicorn with ``--http farfield.api.read_timeouts:TimedH11Protocol``.
 """
@@ -80,6 +82,7 @@ class TimedH11Protocol(H11Protocol):
         self.header_timeout = timeout_setting("FARFIELD_HEADER_TIMEOUT_S", HEADER_TIMEOUT_S)
         self.body_timeout = timeout_setting("FARFIELD_BODY_IDLE_TIMEOUT_S", BODY_IDLE_TIMEOUT_S)
         self._read_timer: asyncio.TimerHandle | None = None
+        self._client_ended = False  # the client closed its sending side (eof_received)
 
     def connection_made(self, transport) -> None:  # type: ignore[override]
         super().connection_made(transport)
@@ -96,6 +99,13 @@ class TimedH11Protocol(H11Protocol):
     def eof_received(self) -> bool:  # type: ignore[override]
         """The client closed its sending side: answer what it sent (the module docstring).  True keeps
         the transport open for the response; False lets asyncio close it (nothing to answer)."""
+        self._client_ended = True
+        return self._answer_the_rest()
+
+    def _answer_the_rest(self) -> bool:
+        """After the client's end of input: a 400 for a request it left incomplete; True while a
+        response is on its way (:meth:`on_response_complete` looks again after it, for a request
+        pipelined behind it); False when nothing is left to answer."""
         state, cycle = self.conn.their_state, self.cycle
         answering = cycle is not None and not cycle.response_complete
         if state is h11.SEND_BODY and answering and not cycle.response_started:
@@ -110,14 +120,13 @@ class TimedH11Protocol(H11Protocol):
         if state is h11.IDLE and self.conn.trailing_data[0] and not answering:  # a request line or headers cut
             self._close("the request's line or headers ended before they were complete", _bad_request_response)
             return True
-        if state in (h11.SEND_BODY, h11.DONE, h11.MUST_CLOSE) and answering:  # the response is on its way
-            cycle.keep_alive = False  # the connection closes after it (h11 cannot read a next request)
-            return True
-        return False
+        return state in (h11.SEND_BODY, h11.DONE, h11.MUST_CLOSE) and answering  # the response is on its way
 
     def on_response_complete(self) -> None:
-        super().on_response_complete()
+        super().on_response_complete()  # starts the cycle of a request pipelined behind, if one came whole
         self._disarm()  # uvicorn's keep-alive timeout takes over until the next request's first byte
+        if self._client_ended and not self.transport.is_closing() and not self._answer_the_rest():
+            self.transport.close()  # the client sent nothing more
 
     def _follow_state(self) -> None:
         """Arm the deadline that applies in the connection's state after new data."""
@@ -158,7 +167,8 @@ class TimedH11Protocol(H11Protocol):
         self._close(f"no byte of the request's body arrived for {self.body_timeout:g} s (FARFIELD_BODY_IDLE_TIMEOUT_S)")
 
     def _close(self, detail: str, response=None) -> None:
-        if self.cycle is None or not self.cycle.response_started:
+        if self.conn.their_state is h11.IDLE or self.cycle is None or not self.cycle.response_started:
+            # No response begun to the request the client is on (IDLE: the previous one's is complete).
             self.transport.write((response or _timeout_response)(detail))
         self.logger.warning("closing a connection from %s: %s", self.client, detail)
         self.transport.close()

@@ -6,12 +6,14 @@ held it open indefinitely.  The real API app behind a real uvicorn server using
 from __future__ import annotations
 
 import json
+import re
 import socket
 import threading
 import time
 
 import pytest
 import uvicorn
+from scenes import city, write_scene  # tests/ is on sys.path under pytest's default (prepend) import mode
 
 from farfield.api.app import create_app
 from farfield.api.read_timeouts import TimedH11Protocol
@@ -133,3 +135,42 @@ def test_half_closed_cut_headers_are_a_400_and_a_whole_request_is_answered(port)
     assert got.startswith(b"HTTP/1.1 400 ") and b"headers ended before" in got and seconds < HEADER_S, got
     got, _ = exchange(port, b"GET /v1/health HTTP/1.1\r\nHost: farfield\r\n\r\n", 10.0, True)
     assert got.startswith(b"HTTP/1.1 200 ") and json.loads(got.split(b"\r\n\r\n", 1)[1])["database"] is True, got
+
+
+def test_after_a_response_cut_or_late_headers_still_get_their_400_or_408(port):
+    """On a kept-alive connection the next request's cut headers (the client half-closed) or late
+    ones (past the header deadline) were closed without a word: the 400 or 408 was written only
+    while the connection had never begun a response, and the first request's had."""
+    health = b"GET /v1/health HTTP/1.1\r\nHost: farfield\r\n\r\n"
+    for half_close, status, said in [(True, b"400", b"headers ended before"), (False, b"408", b"HEADER_TIMEOUT_S")]:
+        with socket.create_connection(("127.0.0.1", port)) as s:
+            s.settimeout(10)
+            s.sendall(health)
+            got = b""
+            while b'"database"' not in got:  # the first response, whole
+                got += s.recv(65536)
+            s.sendall(b"GET /v1/health HTTP/1.1\r\nHost: farfield\r\nX-Cut: ")
+            if half_close:
+                s.shutdown(socket.SHUT_WR)
+            while chunk := s.recv(65536):
+                got += chunk
+        assert got.startswith(b"HTTP/1.1 200 ") and got.count(b"HTTP/1.1 ") == 2, got
+        second = got[got.index(b"HTTP/1.1 ", 1) :]
+        assert second.startswith(b"HTTP/1.1 " + status + b" ") and said in second, got
+
+
+def test_pipelined_requests_then_a_half_close_are_each_answered(port, tmp_path):
+    """A client that pipelines requests and then half-closes (``nc -N < requests``) got only the
+    response of the one being answered when its end of input arrived: the connection closed after
+    it, the next complete request unanswered and a cut one without its 400.  The first here is an
+    upload (its scene's checks take a while), so the end of input comes while it is answered."""
+    scene = write_scene(city(buildings=1), tmp_path, "glb").read_bytes()
+    part = b'--b\r\nContent-Disposition: form-data; name="file"; filename="a.glb"\r\n\r\n' + scene + b"\r\n--b--\r\n"
+    upload = (
+        f"POST /v1/scenes HTTP/1.1\r\nHost: farfield\r\nContent-Type: multipart/form-data; boundary=b\r\n"
+        f"Authorization: Bearer {KEY}\r\nContent-Length: {len(part)}\r\n\r\n"
+    ).encode() + part
+    health = b"GET /v1/health HTTP/1.1\r\nHost: farfield\r\n\r\n"
+    got, _ = exchange(port, upload + health + b"GET /v1/health HTTP/1.1\r\nHo", 30.0, True)
+    assert re.findall(rb"HTTP/1\.1 (\d{3}) ", got) == [b"201", b"200", b"400"], got
+    assert b"headers ended before" in got, got
