@@ -261,6 +261,36 @@ def test_obj_with_a_piece_of_faces_with_and_without_vt_reaches_trimesh_as_writte
     assert no_uv.paired_indices(text.replace("f 6/1 8/2 7/3", "f 6 8 7")) != text.replace("f 6/1 8/2 7/3", "f 6 8 7")
 
 
+OBJ_PIECES_AS_TRIMESH_CUTS = {
+    "o usemtl red": "o a\nusemtl red\nf 1 2 4\no usemtl red\nf 1/1 2/2 3/3\n",
+    "o a usemtl red": "o a\nusemtl red\nf 1 2 4\no b\nf 5 6 7\no a usemtl red\nf 1/1 2/2 3/3\n",
+    "nameless o twice": "o a\nf 1/1 2/2 3/3\no \nf 1 2 4\no b\nf 5/1 6/2 7/3\no \nf 1/1 2/2 3/3\n",
+}
+
+
+@pytest.mark.parametrize("name", list(OBJ_PIECES_AS_TRIMESH_CUTS))
+def test_obj_pieces_are_the_ones_trimesh_cuts_where_o_lines_are_odd(tmp_path, monkeypatch, name):
+    """trimesh starts a piece at ``usemtl `` anywhere, so an ``o`` line holding it names its object
+    only up to there (``o usemtl red``: not at all, the object stays ``a``), and two nameless ``o``
+    are one object.  In each file here a plain face and one with vt share a piece, which trimesh
+    reads without uvs, one vertex per v.  Taken as two pieces (the whole line as the name, or each
+    nameless ``o`` keeping the name before it), the plain face's corners were written ``i/K`` and
+    trimesh split their shared vertices by uv (9 vertices where 6)."""
+    import farfield.core.exchange.obj as obj_loader
+    import farfield.core.exchange.obj_no_uv as no_uv
+
+    monkeypatch.setattr(no_uv, "PAIR_ABOVE", 0)
+    (tmp_path / "m.mtl").write_text(MIXED_MTL)
+    path = tmp_path / "f.obj"
+    path.write_text(_MIXED_V + "vt 0 0\nvt 1 0\nvt 0 1\n" + OBJ_PIECES_AS_TRIMESH_CUTS[name])
+    now = load_scene(path)
+    monkeypatch.setattr(obj_loader, "paired_indices", lambda text: text)  # the faces as written: trimesh's path
+    before = load_scene(path)
+    assert now.names == before.names and now.content_hash == before.content_hash
+    for a, b in zip(now.objects, before.objects):
+        assert a.vertices.shape == b.vertices.shape and np.array_equal(a.faces, b.faces), a.name
+
+
 def _grid_obj(n: int, objects: int) -> str:
     """``objects`` objects, each an n x n grid of vertices in two triangles a cell, no vt/vn."""
     lines = []

@@ -53,7 +53,9 @@ PAIR_ABOVE = 700
 # and one with (left as it is).  Both start after a newline (_past_the_uvs pads the text with one).
 _PLAIN_LINE = re.compile(r"\nf[ \t]([^/\n]*)(?=\n)")
 _SLASH_LINE = re.compile(r"\nf[ \t][^\n]*/")
-_CORNERS = re.compile(r"[ \t]*\d+(?:[ \t]+\d+){2,}[ \t]*\r?")  # absolute_indices left no negative index
+_WORD = re.compile(r"\S")
+# A negative index (trimesh reads one after the file's last v as written) leaves the file as written.
+_CORNERS = re.compile(r"[ \t]*\d+(?:[ \t]+\d+){2,}[ \t]*\r?")
 
 
 def _statements(text: str, keyword: str) -> int:
@@ -92,7 +94,9 @@ def paired_indices(text: str) -> str:
 def _pieces(text: str) -> tuple[np.ndarray, np.ndarray]:
     """Where trimesh's reader starts a piece in ``text`` (``usemtl `` anywhere, ``\\no ``: its
     ``_preprocess_faces``), ascending, and each piece's key, the ``(usemtl, o)`` pair it tracks from
-    piece to piece, as an integer (pieces before the first start have key 0)."""
+    piece to piece, as an integer (pieces before the first start have key 0).  Names as trimesh
+    reads them: ``o a usemtl red`` names ``a``, and an ``o`` with nothing before the next start
+    (``o usemtl red``) none (the last name stays); two nameless ``o`` are one object."""
     starts = []
     for marker in ("usemtl ", "\no "):
         at = text.find(marker)
@@ -104,11 +108,14 @@ def _pieces(text: str) -> tuple[np.ndarray, np.ndarray]:
     ids = np.empty(len(starts), dtype=np.int64)
     material = name = None
     for k, at in enumerate(starts):
-        line = text[at : text.find("\n", at + 1)].strip()
-        if line.startswith("o "):
+        # a piece's first line, as trimesh reads it: up to the next start (the docstring)
+        after = starts[k + 1] if k + 1 < len(starts) else len(text)
+        end = min(text.find("\n", at + 1), after)
+        line = text[at:end].strip()
+        if line.startswith("usemtl"):
+            material = line[6:].strip()
+        elif line != "o" or _WORD.search(text, end, after) is not None:
             name = line[2:].strip()
-        else:
-            material = line[7:].strip()
         ids[k] = keys.setdefault((material, name), len(keys))
     return np.asarray(starts, dtype=np.int64), ids
 
