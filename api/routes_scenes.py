@@ -38,7 +38,7 @@ def upload_scene(
 ) -> dict:  # fmt: skip
     if not file:
         raise SceneLoadError(
-            "file: missing from the form (an empty body is an empty form); send the scene as multipart form field "
+            "file: missing from the form; send the scene as multipart form field "
             "'file' (a scene file, a .zip of one and its files, or one 'file' field per file)"
         )
     first, more = file[0], [(f.filename or "", f.file) for f in file[1:]]

@@ -305,3 +305,6 @@ def test_an_empty_multipart_body_is_a_form_without_its_file_field(api, kind):
     assert api.get("/v1/scenes").headers["X-Total-Count"] == before
     cut = api.post("/v1/scenes", content=b"\r\n", headers={"Content-Type": "multipart/form-data; boundary=b"})
     assert cut.status_code == 400 and "cut short" in cut.json()["detail"], cut.text  # a byte: not empty
+    sides_only = api.post("/v1/scenes", data={"sides": "both"}, files={"x": ("x.txt", b"x")})  # a body, no 'file'
+    detail = sides_only.json()["detail"]
+    assert sides_only.status_code == 422 and detail.startswith("file: missing") and "empty" not in detail, detail
