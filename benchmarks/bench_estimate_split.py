@@ -52,10 +52,11 @@ from bench_visibility import scene_of  # noqa: E402
 from farfield.core.impostor.database import ImpostorDatabase  # noqa: E402
 from farfield.core.placement.cost_model import LLVMPIPE_MODEL, CostModel  # noqa: E402
 from farfield.core.placement.database import bake_placement, write_placement_database  # noqa: E402
+from farfield.core.placement.frame_pixels import box_frame_pixels  # noqa: E402
 from farfield.core.placement.hierarchy import Elements, Hierarchy  # noqa: E402
 from farfield.core.placement.planner import PlacementSettings, place  # noqa: E402
 from farfield.core.placement.runtime import PlacementRenderer, plain_estimate  # noqa: E402
-from farfield.core.placement.view_space import DEFAULT_DEPTH_COMPLEXITY, problem_view_space  # noqa: E402
+from farfield.core.placement.view_space import DEFAULT_DEPTH_COMPLEXITY, element_pixels, problem_view_space  # noqa: E402
 from farfield.core.quality.walkthrough import frame_ms, random_views  # noqa: E402
 from farfield.core.render.context import renderer_info  # noqa: E402
 
@@ -130,9 +131,19 @@ def walk_split(
                 base = float(np.sum(model.geometry_time(el.draw_calls[selected], el.triangles[selected], 0.0)))
                 imp = e * cov_impostor + f * fig.quads + g * fig.impostors
                 discs = plain_estimate(model, el, selected, position, math.radians(rt.fov_deg), rt.resolution, depth)
+                clipped = plain_estimate(model, el, selected, position, 0.0, 0, depth, camera)
+                # The pixel terms alone (model units / c = pixels), each capped at ``depth`` frames.
+                cap = depth * rt.resolution**2
+                b = el.bounds[selected]
+                px_free = min(cap, float(element_pixels(el, position, position, math.radians(rt.fov_deg), rt.resolution,
+                                                        selected).sum())) if selected.size else 0.0  # fmt: skip
+                px_clipped = min(cap, float(box_frame_pixels(camera, b[:, 0], b[:, 1]).sum())) if selected.size else 0.0
                 frames.append({
                     "cpv": fig.cpv, "status": fig.status, "measured": measured, "estimate": fig.estimate,
                     "drawn_covered": d + base + c * cov_geometry + imp, "drawn_discs": discs + imp,
+                    "drawn_clipped": clipped + imp, "pixels_free": px_free, "pixels_clipped": px_clipped,
+                    # the estimate before 2026-12-07 (clip30): direction-free pixels where the view is in no CPV
+                    "estimate_free": fig.estimate if fig.cpv is not None else discs,
                     "plain_ms": plain_ms, "plain_covered": cov_plain,
                     "plain_draw_calls": int(el.draw_calls[plain_sel].sum()) if plain_sel.size else 0,
                     "plain_triangles": int(el.triangles[plain_sel].sum()) if plain_sel.size else 0,
@@ -146,7 +157,13 @@ def walk_split(
     est = np.array([fr["estimate"] for fr in frames])
     cov = np.array([fr["drawn_covered"] for fr in frames])
     disc = np.array([fr["drawn_discs"] for fr in frames])
+    clip = np.array([fr["drawn_clipped"] for fr in frames])
+    est_free = np.array([fr["estimate_free"] for fr in frames])
     in_cpv = np.array([fr["cpv"] is not None for fr in frames])
+    geo = np.array([fr["covered_geometry"] for fr in frames], dtype=float)
+    seen = geo > 0  # the pixel ratios over frames that cover some geometry
+    px_free = np.array([fr["pixels_free"] for fr in frames])
+    px_clip = np.array([fr["pixels_clipped"] for fr in frames])
     return {
         "t_max": t_max, "plan_s": plan_s, "impostors": placement.summary["impostors"],
         "memory_bytes": placement.summary["memory_bytes"], "empty_ms": empty_ms,
@@ -155,6 +172,9 @@ def walk_split(
         "frames_in_cpv": int(in_cpv.sum()),
         "estimate_over_measured": ratios(est / m), "drawn_covered_over_measured": ratios(cov / m),
         "drawn_discs_over_measured": ratios(disc / m), "discs_over_covered": ratios(disc / cov),
+        "drawn_clipped_over_measured": ratios(clip / m), "estimate_free_over_measured": ratios(est_free / m),
+        "pixels_free_over_covered": ratios(px_free[seen] / geo[seen]),
+        "pixels_clipped_over_covered": ratios(px_clip[seen] / geo[seen]),
         "cpv_over_drawn_discs": ratios(est[in_cpv] / disc[in_cpv]), "frames": frames,
     }  # fmt: skip
 
@@ -247,6 +267,10 @@ def main() -> None:
         def cell(s):
             return f"{s['p50']:5.2f} {s['p95']:6.2f} {100 * s['under_30pct']:4.0f}%"
 
+        print(f"  {name} the estimate: direction-free pixels (before) ÷ measured {cell(r['estimate_free_over_measured'])}; "
+              f"clipped (after) ÷ measured {cell(r['estimate_over_measured'])}; (a'') clipped, what was drawn ÷ measured "
+              f"{cell(r['drawn_clipped_over_measured'])}; pixel term ÷ covered geometry pixels ({int(r['pixels_clipped_over_covered']['n'])} "
+              f"frames): free {cell(r['pixels_free_over_covered'])}, clipped {cell(r['pixels_clipped_over_covered'])}", flush=True)  # fmt: skip
         print(f"{name:<9} {r['t_max']:6.3g} {r['impostors']:4d} {r['memory_bytes'] / 2**20:6.1f} {100 * r['within_t_max']:4.0f}% "
               f"{100 * r['estimate_within_t_max']:5.0f}% {r['frames_in_cpv']:6d}  {cell(r['estimate_over_measured']):>20} "
               f"{cell(r['drawn_covered_over_measured']):>20} {cell(r['drawn_discs_over_measured']):>20} "

@@ -10,8 +10,9 @@ and how many views reach the 1-frame cap either way.
 
 ``--drawn N`` (GL): N more views per scene drawn whole (every element), and per view, each capped
 at a frame: the estimate (``element_pixels`` over the elements in the cone), the sum of each box's
-projection clipped to the near plane and the frame (a per-view estimate the runtime could make,
-as it knows the camera; not the planner's), and the frame's covered pixels.
+projection clipped to the near plane and the frame (:func:`farfield.core.placement.frame_pixels.box_frame_pixels`:
+the runtime's per-frame estimate since 2026-12-07, clip30, as it knows the camera; not the
+planner's), and the frame's covered pixels.
 """
 
 from __future__ import annotations
@@ -28,11 +29,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_visibility import scene_of  # noqa: E402
 
+from farfield.core.placement.frame_pixels import box_frame_pixels  # noqa: E402
 from farfield.core.placement.hierarchy import Elements  # noqa: E402
 from farfield.core.placement.view_space import box_gap, element_pixels, frame_half_diagonal  # noqa: E402
-
-CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
-EDGES = [(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1]
 
 
 def disc_pixels(bounds: np.ndarray, eye: np.ndarray, fov: float, resolution: int) -> np.ndarray:
@@ -46,50 +45,11 @@ def disc_pixels(bounds: np.ndarray, eye: np.ndarray, fov: float, resolution: int
     return np.minimum(disc, frame)
 
 
-def _clip_area(polygon: np.ndarray, limit: float) -> float:
-    """Area of a convex polygon (k, 2) clipped to the square ``[-limit, limit]²`` (Sutherland-Hodgman)."""
-    poly = list(polygon)
-    for axis in (0, 1):
-        for sign in (1.0, -1.0):
-            out = []
-            for i in range(len(poly)):
-                a, b = poly[i], poly[(i + 1) % len(poly)]
-                in_a, in_b = sign * a[axis] <= limit, sign * b[axis] <= limit
-                if in_a:
-                    out.append(a)
-                if in_a != in_b:
-                    out.append(a + (limit - sign * a[axis]) / (sign * (b[axis] - a[axis])) * (b - a))
-            poly = out
-            if len(poly) < 3:
-                return 0.0
-    p = np.array(poly)
-    return 0.5 * abs(float(np.dot(p[:, 0], np.roll(p[:, 1], -1)) - np.dot(p[:, 1], np.roll(p[:, 0], -1))))
-
-
-def projected_pixels(bounds: np.ndarray, eye, forward, right, up, focal: float, resolution: int, near: float) -> float:
-    """Pixels of a box's projection clipped to the near plane and the frame (its convex hull's area)."""
-    from scipy.spatial import ConvexHull
-
-    q = bounds[0] + CORNERS * (bounds[1] - bounds[0]) - eye
-    z = q @ forward
-    points = [q[z >= near]]
-    for a, b in EDGES:
-        if (z[a] - near) * (z[b] - near) < 0.0:
-            points.append((q[a] + (near - z[a]) / (z[b] - z[a]) * (q[b] - q[a]))[None, :])
-    p = np.concatenate(points)
-    if len(p) < 3:
-        return 0.0
-    uv = focal * np.stack([p @ right, p @ up], axis=1) / (p @ forward)[:, None]
-    if np.ptp(uv[:, 0]) < 1e-9 or np.ptp(uv[:, 1]) < 1e-9:
-        return 0.0
-    return _clip_area(uv[ConvexHull(uv).vertices], 0.5 * resolution)
-
-
 def drawn_rows(name: str, views: int, res: int, rng) -> None:
     from farfield.core.render.raster import Camera, MeshRenderer
 
     fov, near = math.radians(45.0), 0.05
-    focal, frame, half = 0.5 * res / math.tan(0.5 * fov), float(res) ** 2, frame_half_diagonal(fov)
+    frame, half = float(res) ** 2, frame_half_diagonal(fov)
     scene, lo, hi = scene_of(name)
     elements = Elements.of(scene)
     centre = elements.bounds.mean(axis=1)
@@ -102,16 +62,12 @@ def drawn_rows(name: str, views: int, res: int, rng) -> None:
             d /= np.linalg.norm(d)
             camera = Camera.look_at(eye, eye + d, fov, res, near, 1e4)
             covered = float(np.count_nonzero(gpu.render(camera)[..., 3]))
-            hint = np.array([0.0, 0.0, 1.0]) if abs(d[2]) < 0.99 else np.array([0.0, 1.0, 0.0])  # as Camera.look_at
-            right = np.cross(d, hint)
-            right /= np.linalg.norm(right)
-            up = np.cross(right, d)
             v = centre - eye
             dist = np.maximum(np.linalg.norm(v, axis=1), 1e-12)
             angle = np.arccos(np.clip(v @ d / dist, -1.0, 1.0))
             seen = np.flatnonzero((dist <= radius) | (angle - np.arcsin(np.minimum(1.0, radius / dist)) <= half))
             estimate = float(element_pixels(elements, eye, eye, fov, res, seen).sum()) if seen.size else 0.0
-            clipped = sum(projected_pixels(elements.bounds[e], eye, d, right, up, focal, res, near) for e in seen)
+            clipped = float(box_frame_pixels(camera, elements.bounds[seen, 0], elements.bounds[seen, 1]).sum())
             rows.append((min(estimate, frame), min(clipped, frame), covered))
     a = np.array(rows)
     cov = np.maximum(a[:, 2], 1.0)

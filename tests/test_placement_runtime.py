@@ -138,3 +138,34 @@ def test_another_scene_is_refused(placed):
     _, _, root = placed
     with ImpostorDatabase(root) as db, pytest.raises(PlacementError, match="placement's scene"):
         PlacementRenderer(procedural.city(9, seed=1), db)
+
+
+def test_a_frames_estimate_counts_its_elements_boxes_clipped_to_the_frame(placed):
+    """A view's estimate (here of plain geometry, a pixel-only model) sums the drawn elements' boxes
+    projected and clipped to the frame's camera: at least the pixels the frame covers, and in some
+    views far under the direction-free bound (discs or faces from the eye, a frame at the cap)."""
+    from farfield.core.placement.cost_model import CostModel
+    from farfield.core.placement.frame_pixels import box_frame_pixels
+    from farfield.core.placement.runtime import plain_estimate
+
+    scene, _, root = placed
+    frame = RESOLUTION * RESOLUTION
+    with ImpostorDatabase(root) as db, PlacementRenderer(scene, db) as runtime:
+        runtime.model = CostModel("frame_ms", (0.0, 0.0, 1.0, 0.0), (0.0, 0.0, 0.0), (1.0, 0.0, 1.0))  # time = pixels
+        index_of = {id(draw): i for i, draw in enumerate(runtime.element_draws)}
+        positions, forwards = random_views(*VIEW, 16, seed=6)
+        forwards[:, 1] = -np.abs(forwards[:, 1]) - 0.3  # towards the roofs
+        tighter = 0
+        for p, d in zip(positions, forwards):
+            camera, draws, fig = runtime.prepare(p, d, plain=True)
+            covered = int(np.count_nonzero(runtime.render(camera, draws)[..., 3])) if draws else 0
+            drawn = np.array([index_of[id(dr)] for dr in draws], dtype=np.int64)
+            b = runtime.elements.bounds[drawn]
+            clipped = float(box_frame_pixels(camera, b[:, 0], b[:, 1]).sum()) if drawn.size else 0.0
+            assert fig.estimate == min(clipped, runtime.depth_complexity * frame)
+            assert fig.estimate >= 0.97 * covered - RESOLUTION / 4, (fig.estimate, covered)
+            free = plain_estimate(
+                runtime.model, runtime.elements, drawn, p, camera.fov, RESOLUTION, runtime.depth_complexity
+            )
+            tighter += fig.estimate < 0.5 * free
+        assert tighter >= 4, tighter

@@ -37,8 +37,9 @@ renderer with every element selected, culled the same way (:meth:`PlacementRende
 Figures per view (:class:`ViewFigures`): draw calls, triangles (geometry and impostor), quads,
 impostors drawn, the CPV and its status, and the model's estimate: the CPV's ``time_after`` by the
 placement, or for a view no CPV holds ("under budget") the cost model's estimate of the plain
-geometry in the view (:func:`plain_estimate`: the planner's per-element law, pixels from the
-bounding-sphere disc at the eye, capped at ``depth_complexity`` frames).
+geometry in the view (:func:`plain_estimate`: the planner's per-element law, pixels each drawn
+element's box projected and clipped to the frame's camera, summed and capped at ``depth_complexity``
+frames).
 """
 
 from __future__ import annotations
@@ -53,6 +54,7 @@ import numpy as np
 from farfield.core.errors import RenderBackendError
 from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.placement.cost_model import CostModel
+from farfield.core.placement.frame_pixels import box_frame_pixels
 from farfield.core.placement.hierarchy import Elements, PlacementError
 from farfield.core.placement.lod import LOD_TECHNIQUE, level_for
 from farfield.core.placement.view_space import DEFAULT_DEPTH_COMPLEXITY, element_pixels
@@ -103,15 +105,27 @@ def plain_estimate(
     fov: float,
     resolution: int,
     depth_complexity: float = DEFAULT_DEPTH_COMPLEXITY,
+    camera: Camera | None = None,
 ) -> float:
     """The cost model's time of drawing elements ``drawn`` (indices) as geometry from ``position``:
-    ``d + sum(a calls + b triangles) + c pixels``, pixels each element's
+    ``d + sum(a calls + b triangles) + c pixels``, their pixels summed and capped at
+    ``depth_complexity`` frames.
+
+    With the frame's ``camera`` (its eye is the position; its field of view and resolution count),
+    each element's pixels are its box's projection clipped to the near plane and the frame
+    (:func:`~farfield.core.placement.frame_pixels.box_frame_pixels`: 0 behind the eye or outside the
+    frame).  Without one (no view direction), each element's
     :func:`~farfield.core.placement.view_space.element_pixels` from the eye (bounding-sphere disc or
-    box faces; a whole frame where the eye is inside its bounds), their sum capped at
-    ``depth_complexity`` frames, as the planner estimates a problem view (:mod:`farfield.core.placement.view_space`)."""
+    box faces; a whole frame where the eye is inside its bounds), as the planner estimates a problem
+    view (:mod:`farfield.core.placement.view_space`)."""
     drawn = np.asarray(drawn, dtype=np.int64)
-    p = np.asarray(position, dtype=np.float64)
-    pixels = element_pixels(elements, p, p, fov, resolution, drawn) if drawn.size else np.zeros(0)
+    if camera is not None:
+        b = elements.bounds[drawn]
+        pixels = box_frame_pixels(camera, b[:, 0], b[:, 1]) if drawn.size else np.zeros(0)
+        resolution = camera.resolution
+    else:
+        p = np.asarray(position, dtype=np.float64)
+        pixels = element_pixels(elements, p, p, fov, resolution, drawn) if drawn.size else np.zeros(0)
     cap = float(depth_complexity) * float(resolution) ** 2
     base = model.geometry_time(elements.draw_calls[drawn], elements.triangles[drawn], 0.0)
     return float(model.frame_time + np.sum(base) + model.geometry[2] * min(float(pixels.sum()), cap))
@@ -326,7 +340,14 @@ class PlacementRenderer:
         estimate = None if plain else found.get("time_estimated")
         if estimate is None:
             estimate = plain_estimate(
-                self.model, self.elements, selected, position, math.radians(fov_deg), resolution, self.depth_complexity
+                self.model,
+                self.elements,
+                selected,
+                position,
+                math.radians(fov_deg),
+                resolution,
+                self.depth_complexity,
+                camera,
             )
         figures = ViewFigures(
             cpv=None if found.get("cpv") is None else int(found["cpv"]), status="plain" if plain else found["status"],
