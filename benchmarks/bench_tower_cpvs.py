@@ -139,6 +139,54 @@ def main() -> None:
     print(f"\ncandidates of tower-only nodes ({len(tower_nodes)} nodes): " + ", ".join(
         f"{KIND_NAMES[kk]} {int(np.sum(tn & (cand.kind == kk)))}" for kk in range(len(KIND_NAMES))))  # fmt: skip
     print(f"stats: {cand.stats}")
+    if unsolved:
+        why_not(scene, st, model, unsolved, kinds)
+
+
+def why_not(scene, st, model, unsolved, kinds, sample: int = 60) -> None:
+    """Per (unsolved CPV, tower-only node of its entries that is a whole leaf or more): would a box
+    cell of the CPV's own leaf region serve it?  Refused by the estimate (the cell meets the node or
+    needs a texture no renderer draws), or estimated and slower than the node's geometry there (a
+    candidate serves a CPV only where it is faster); shafts start one node diagonal away."""
+    from farfield.core.errors import FarfieldError
+    from farfield.core.placement.view_space import CpvGeometry
+    from farfield.core.techniques.part import estimate_part_cell
+    from farfield.core.viewcells import BoxCell
+
+    pv, h = st.pv, st.hierarchy
+    geometry = CpvGeometry(pv, h)
+    tower_leafy = [k for k in range(h.count) if np.all(kinds[h.order[h.start[k] : h.end[k]]] == "tower")]
+    counts = {"meets": 0, "refused": 0, "slower": 0, "faster": 0, "shaft reach": 0}
+    ratio, layers_seen = [], []
+    rng = np.random.default_rng(0)
+    for q in rng.choice(unsolved, size=min(sample, len(unsolved)), replace=False):
+        r = pv.cpv_region[q]
+        rlo, rhi = pv.region_lo[r], pv.region_hi[r]
+        for n in tower_leafy:
+            g, pixels = geometry.of(np.array([n]), np.array([q]))
+            if g[0] <= 0.0:
+                continue
+            gap = float(box_distance(rlo, rhi, h.lo[n], h.hi[n]))
+            counts["shaft reach"] += gap >= h.diagonal[n]
+            if gap <= 0.0:
+                counts["meets"] += 1
+                continue
+            try:
+                layers, texels = estimate_part_cell(BoxCell(rlo, rhi), st.options, np.stack([h.lo[n], h.hi[n]]))
+            except FarfieldError:
+                counts["refused"] += 1
+                continue
+            ti = float(np.asarray(model.impostor_time(pixels[0], model.quads(layers, texels))).reshape(-1)[0])
+            counts["faster" if g[0] > ti else "slower"] += 1
+            ratio.append(ti / g[0])
+            layers_seen.append(layers)
+    total = max(1, sum(v for k, v in counts.items() if k != "shaft reach"))
+    print(f"\nwhy no layered candidate ({min(sample, len(unsolved))} unsolved CPVs sampled; each tower-only node the CPV sees, "
+          f"a box cell of the CPV's own region): {counts['meets']} meet the region ({100 * counts['meets'] / total:.0f} %), "
+          f"{counts['refused']} refused by the estimate ({100 * counts['refused'] / total:.0f} %), {counts['slower']} slower than "
+          f"the node's geometry ({100 * counts['slower'] / total:.0f} %), {counts['faster']} faster; impostor ÷ geometry time "
+          f"median {np.median(ratio) if ratio else float('nan'):.2f}, layers median {np.median(layers_seen) if layers_seen else 0:.0f}; "
+          f"pairs a node diagonal away or more (where its shafts start): {counts['shaft reach']}")  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -1,11 +1,11 @@
-"""A tower next to the view space: its problem views are solved by simplified geometry of the
+"""Towers next to the view space: their problem views are solved by simplified geometry of the
 hierarchy's nodes of several elements (issue 57, downtown's unsolved problem views).
 
-A 60 m tower of 1,728 triangles (a finely subdivided box, split into 27 clusters of 64 triangles:
-no node of the object hierarchy holds one element) beside a view space that touches it.  Layered
-impostors cannot serve views that close (a shaft starts one node diagonal away, a box cell next
-to the tower needs more layers than it saves), and levels of detail were built only for nodes of
-one element: the problem views stayed unsolved.  With a level of detail for every node of up to
+Three 60 m towers of 1,728 triangles (finely subdivided boxes, each split into 32 clusters of 54
+triangles: no node of the object hierarchy holds one element), the nearest 1 m from the view space.
+Layered impostors cannot serve views that close (a shaft starts one node diagonal away, a box cell
+next to a tower needs more layers than it saves), and levels of detail were built only for nodes of
+one element: every problem view stayed unsolved.  With a level of detail for every node of up to
 ``MAX_NODE_TRIANGLES`` (its open border kept only where the node holds part of a split object),
 they are solved, and the runtime rebuilds exactly the level the planner measured.  Model only,
 no wall-clock time asserted.
