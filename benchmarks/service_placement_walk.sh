@@ -4,7 +4,8 @@
 #
 # Usage: benchmarks/service_placement_walk.sh [SCENE ...]   (street, downtown, city, dense; default street)
 #   env: VIEWS (100), SEED (0), RESOLUTION (128), CPV_DIVISIONS (8), VDI_DEG (11.25), SIDES (both: the
-#        materials double-sided as the built scene's objects; one: one-sided), KEEP (a folder to keep)
+#        materials double-sided as the built scene's objects; one: one-sided), KEEP (a folder to keep),
+#        ALSO (another source of candidates for the job's --also, e.g. lod: simplified geometry competes)
 #
 # Per scene: the benchmark scene written as a GLB with its view space and t_max (half the worst
 # view's estimate by the builtin llvmpipe model: benchmarks/write_benchmark_scene.py); a fresh
@@ -18,7 +19,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=.venv/bin/python
 FF=.venv/bin/farfield
-VIEWS=${VIEWS:-100} SEED=${SEED:-0} RESOLUTION=${RESOLUTION:-128} CPV_DIVISIONS=${CPV_DIVISIONS:-8} VDI_DEG=${VDI_DEG:-11.25} SIDES=${SIDES:-both}
+VIEWS=${VIEWS:-100} SEED=${SEED:-0} RESOLUTION=${RESOLUTION:-128} CPV_DIVISIONS=${CPV_DIVISIONS:-8} VDI_DEG=${VDI_DEG:-11.25} SIDES=${SIDES:-both} ALSO=${ALSO:-}
 WORK=${KEEP:-$(mktemp -d -t farfield-svc-walk-XXXX)}
 mkdir -p "$WORK"
 SCENES=("${@:-street}")
@@ -46,7 +47,7 @@ for NAME in "${SCENES[@]}"; do
   rm -rf "$OUT/db"
   run submit "$GLB" --placement --view-space="$VIEW_SPACE" --frame-ms "$T_MAX_MS" --cost-model llvmpipe \
     --resolution "$RESOLUTION" --fov 45 --cpv-size "$CPV_SIZE" --vdi-deg "$VDI_DEG" --visibility --no-evaluate \
-    --wait --download "$OUT/db" --json >"$OUT/job.json"
+    ${ALSO:+--also "$ALSO"} --wait --download "$OUT/db" --json >"$OUT/job.json"
   JOB=$($PY -c 'import json, sys; print(json.load(open(sys.argv[1]))["id"])' "$OUT/job.json")
   curl -sf -H "Authorization: Bearer $FARFIELD_API_KEY" "$FARFIELD_URL/v1/jobs/$JOB/placement" >"$OUT/placement.json"
   curl -sf -H "Authorization: Bearer $FARFIELD_API_KEY" "$FARFIELD_URL/v1/jobs/$JOB" >"$OUT/record.json"

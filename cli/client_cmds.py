@@ -420,7 +420,7 @@ def download_database(client: Client, job_id: str, directory: Path) -> Path:
     type=int,
     default=None,
     help="With --placement (frame-time): objects over this many triangles are split into elements "
-    "[default: max(64, triangles / 256)]; --also lod needs elements of 256 triangles or more.",
+    "[default: max(64, triangles / 256)]; --also lod simplifies hierarchy nodes of 256 triangles or more.",
 )
 @click.option(
     "--algorithm",

@@ -202,7 +202,8 @@ def test_a_worker_killed_while_planning_plans_again(service, client, scene_id):
 
 # Four statues of 1,280 triangles (statue_park(4, 3)), kept whole (cluster_triangles), seen from a
 # street-level view space 30-50 m away at a fifth of their plain frame by the llvmpipe model
-# (0.66 ms): 20 layered impostors and 4 levels of detail (planned, baked and checked in about 3 s).
+# (0.66 ms): 20 layered impostors and 4 levels of detail until levels of detail were offered for
+# nodes of several elements (2026-12-07); since, levels alone.
 LOD_PLACEMENT = {
     "view_space": {"lo": [-10.0, 1.7, 28.0], "hi": [10.0, 1.7, 48.0]}, "budget": {"frame_ms": 0.13}, "cpv_size": 4.0,
     "vdi_deg": 45.0, "leaf_size": 1, "cluster_triangles": 10**6, "also": {"lod": {}},
@@ -224,12 +225,14 @@ def test_a_placement_job_with_simplified_geometry_bakes_the_impostors_and_serves
     assert job["state"] == "done" and job["has_index"], (job["error"], job["errors"])
     chosen = job["placement"]["summary"]["by_technique"]
     assert chosen["lod"]["impostors"] >= 1 and chosen["lod"]["memory_bytes"] > 0, chosen
-    assert chosen["layered"]["impostors"] >= 1, chosen
     # A level of detail is no cell: only the layered impostors were baked, the levels have no bundle.
-    assert job["cells_total"] == chosen["layered"]["impostors"] and job["counts"]["done"] == job["cells_total"]
+    # (Since nodes of several elements have levels too, the plan may take levels alone: here 4 levels,
+    # where it took 20 layered impostors and 4 statues' levels before.)
+    layered = chosen.get("layered", {}).get("impostors", 0)
+    assert job["cells_total"] == layered and job["counts"]["done"] == job["cells_total"]
     totals = client.get(f"/v1/jobs/{job['id']}/placement").json()["totals"]
-    assert {k: v["impostors"] for k, v in totals["by_technique"].items()} == {
-        k: v["impostors"] for k, v in chosen.items()
+    assert {k: v["impostors"] for k, v in totals["by_technique"].items() if v["impostors"]} == {
+        k: v["impostors"] for k, v in chosen.items() if v["impostors"]
     }
     assert totals["by_technique"]["lod"]["memory_bytes_baked"] == chosen["lod"]["memory_bytes"]
     archive = zipfile.ZipFile(io.BytesIO(client.get(f"/v1/jobs/{job['id']}/database.zip").content))

@@ -42,7 +42,8 @@ of the prototype and one bake serves them all.  Such a candidate records its atl
 the greedy charges each atlas once.
 
 **Simplified geometry** (issue 57 item 3; :mod:`farfield.core.placement.lod`): with ``lod``, a
-node of one element that some solvable CPV sees gets one candidate per QEM level of detail of its
+node that some solvable CPV sees (of 256 triangles or more; of several elements, at most
+``lod.MAX_NODE_TRIANGLES``) gets one candidate per QEM level of detail of its elements' merged
 mesh (built when the node is first seen), kind ``lod``, serving the CPVs whose region's nearest point to the node's
 bounds is far enough for the level's measured error to be within the impostors' pixel budget; its memory is
 the level's vertex and index bytes, its time in a CPV the cost model's geometry time of one draw call

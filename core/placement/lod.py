@@ -3,9 +3,9 @@
 Seed 000 §2.2.3 surveys geometric simplification (the quadric error metric of Garland and Heckbert,
 [Garl97], "most widely used today") and §1.5.2 asks that impostor placement combine with visibility
 culling and geometric simplification; the thesis's placement (ch. 5) chooses impostors only.  Here a node of the
-object hierarchy that holds one element (an object, or a cluster of a split object, simplified with
-its open border kept so that it meets its neighbours without a crack; equal positions welded) gets a
-chain of levels from a maintained quadric-error simplifier (``fast-simplification``, Garland and Heckbert's QEM as in
+object hierarchy (its elements' merged mesh, equal positions welded; its open border kept where it
+holds some but not all clusters of a split object, so that it meets its neighbours without a crack,
+:func:`keeps_border`) gets a chain of levels from a maintained quadric-error simplifier (``fast-simplification``, Garland and Heckbert's QEM as in
 Sven Forstmann's Fast-Quadric-Mesh-Simplification), each level a quarter of the previous one's
 triangles, each simplified from the one before.
 
@@ -77,6 +77,9 @@ VERTEX_BYTES = 28  # float32 position and float32 RGBA colour (the reference run
 TRIANGLE_BYTES = 12  # three uint32 indices
 REDUCTION = 0.75  # each level keeps a quarter of the previous one's triangles
 MIN_TRIANGLES = 256  # a node with fewer triangles gets no level of detail
+# A node of several elements with more triangles than this gets none either: every node up to the
+# root would be simplified (and measured) again, the whole scene once per level of the hierarchy.
+MAX_NODE_TRIANGLES = 1 << 13
 FLOOR_TRIANGLES = 32  # the chain stops below this many triangles
 NEAR_TRIANGLES = 8  # triangles of nearest centroids searched besides the fan (error bound)
 EXACT_BATCH = 256  # vertices measured exactly at a time (error)
@@ -153,6 +156,8 @@ def lod_chain(
     levels: int | None = None,
 ) -> list[LodLevel]:
     """The levels of detail of a mesh, finest first (module docstring); [] below ``MIN_TRIANGLES``.
+    A triangle of no area that the simplifier leaves is measured by its edges (:func:`_degenerate_uv`);
+    a level whose replay drops a full-mesh vertex ends the chain.
     ``keep_border``: no edge at an open border collapses (a cluster of a split object, whose cut
     edges meet its neighbours' drawn at full detail or at another level: no crack between them).
     ``measure`` False: no level's error is measured (NaN; a runtime drawing a chosen level needs
@@ -178,6 +183,8 @@ def lod_chain(
         if tris_next.shape[0] == 0 or tris_next.shape[0] >= tris.shape[0]:
             break
         owner = np.asarray(mapping, dtype=np.int64)[owner]
+        if np.any(owner < 0):  # a full-mesh vertex the replay dropped: not a level
+            break
         points = np.asarray(points_next, dtype=np.float64)
         count = np.bincount(owner, minlength=points.shape[0]).astype(np.float64)
         mean = np.stack(
@@ -220,6 +227,13 @@ def _triangle_uv(p, a, b, c):
     (Ericson, *Real-Time Collision Detection*, §5.1.5), in scalars (no temporaries)."""
     abx, aby, abz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
     acx, acy, acz = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+    ab2, ac2, abac = (
+        abx * abx + aby * aby + abz * abz,
+        acx * acx + acy * acy + acz * acz,
+        abx * acx + aby * acy + abz * acz,
+    )
+    if ab2 * ac2 - abac * abac <= 1e-12 * ab2 * ac2:  # |ab x ac|^2: no area (a simplifier leaves such now and then)
+        return _degenerate_uv(p, a, b, c)
     apx, apy, apz = p[0] - a[0], p[1] - a[1], p[2] - a[2]
     d1 = abx * apx + aby * apy + abz * apz
     d2 = acx * apx + acy * apy + acz * apz
@@ -248,6 +262,32 @@ def _triangle_uv(p, a, b, c):
         denom = 1.0 / (va + vb + vc)
         u, v = vb * denom, vc * denom
     return u, v
+
+
+@njit(cache=True, nogil=True)
+def _degenerate_uv(p, a, b, c):
+    """(u, v) of :func:`_triangle_uv` for a triangle of zero area (collinear or coincident
+    corners, which a simplifier leaves now and then): the nearest point of its edges ab, ac, bc."""
+    best, bu, bv = np.inf, 0.0, 0.0
+    for k in range(3):  # edge from s to e; the point s + t (e - s) as (u, v)
+        s = a if k < 2 else b
+        e = b if k == 0 else c
+        ex, ey, ez = e[0] - s[0], e[1] - s[1], e[2] - s[2]
+        length2 = ex * ex + ey * ey + ez * ez
+        t = 0.0
+        if length2 > 0.0:
+            t = min(1.0, max(0.0, ((p[0] - s[0]) * ex + (p[1] - s[1]) * ey + (p[2] - s[2]) * ez) / length2))
+        dx, dy, dz = p[0] - s[0] - t * ex, p[1] - s[1] - t * ey, p[2] - s[2] - t * ez
+        d = dx * dx + dy * dy + dz * dz
+        if d < best:
+            best = d
+            if k == 0:
+                bu, bv = t, 0.0
+            elif k == 1:
+                bu, bv = 0.0, t
+            else:
+                bu, bv = 1.0 - t, t
+    return bu, bv
 
 
 @njit(cache=True, nogil=True)
@@ -427,19 +467,31 @@ class NodeLods:
         return out
 
     def of(self, node: int) -> list[LodLevel]:
-        """The levels of node ``node``: of its element where it holds one (an element's level of
-        detail, as the runtime draws it), else none."""
+        """The levels of node ``node``: of its elements' merged mesh (as the runtime draws it), its
+        open border kept where it holds part of a split object (:func:`keeps_border`); none under
+        ``MIN_TRIANGLES`` or, for a node of several elements, over ``MAX_NODE_TRIANGLES``."""
         if node not in self._chains:
             ids = self.hierarchy.elements_of(node)
-            if ids.size != 1 or int(self.elements.triangles[ids[0]]) < MIN_TRIANGLES:
+            triangles = int(self.elements.triangles[ids].sum())
+            if triangles < MIN_TRIANGLES or (ids.size > 1 and triangles > MAX_NODE_TRIANGLES):
                 self._chains[node] = []
             else:
                 part = self.elements.scene_of(self.scene, ids)
-                self._chains[node] = lod_chain(
-                    *node_mesh(part), keep_border=self.elements.faces[int(ids[0])] is not None
-                )
+                self._chains[node] = lod_chain(*node_mesh(part), keep_border=keeps_border(self.elements, ids))
                 self.built += 1
         return self._chains[node]
+
+
+def keeps_border(elements, ids) -> bool:
+    """Whether the level of detail of elements ``ids`` keeps its open border: where one of them is a
+    cluster of a split object whose other clusters are not all among them (its cut edges meet
+    clusters drawn at full detail or at another level).  A node that holds every cluster of its
+    split objects (a whole tower) is simplified as whole objects are."""
+    ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+    split = np.unique(elements.object_index[[i for i in ids.tolist() if elements.faces[i] is not None]])
+    if split.size == 0:
+        return False
+    return bool(np.any(~np.isin(np.flatnonzero(np.isin(elements.object_index, split)), ids)))
 
 
 def level_for(scene: Scene, level: int, keep_border: bool = False) -> LodLevel:

@@ -56,7 +56,7 @@ from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.placement.cost_model import CostModel
 from farfield.core.placement.frame_pixels import box_frame_pixels
 from farfield.core.placement.hierarchy import Elements, PlacementError
-from farfield.core.placement.lod import LOD_TECHNIQUE, level_for
+from farfield.core.placement.lod import LOD_TECHNIQUE, keeps_border, level_for
 from farfield.core.placement.view_space import DEFAULT_DEPTH_COMPLEXITY, element_pixels
 from farfield.core.render.raster import Camera, MeshRenderer
 from farfield.core.scene import Scene
@@ -257,7 +257,7 @@ class PlacementRenderer:
         elements' merged mesh (:func:`farfield.core.placement.lod.level_for`), one vertex-coloured draw."""
         entry = self.lod_cells[cell]
         ids = [self.element_of[name] for name in entry["objects"]]
-        cluster = any(self.elements.faces[i] is not None for i in ids)
+        cluster = keeps_border(self.elements, ids)
         level = level_for(self.elements.scene_of(self.scene, ids), int(entry["params"]["options"]["level"]), cluster)
         lo, hi = level.vertices.min(axis=0), level.vertices.max(axis=0)
         self.uploaded_lod_bytes += level.memory_bytes

@@ -185,7 +185,7 @@ def lod_answer(entry: dict) -> dict:
 # How a client gets a level of detail's mesh: the service stores none (docs/formats.md).
 LOD_MESH = (
     "not served: rebuilt from the job's scene, deterministically, as the planner built it: "
-    "farfield.core.placement.lod.level_for(the objects' elements' scene, level, keep_border for a cluster)"
+    "farfield.core.placement.lod.level_for(the objects' elements' scene, level, keeps_border(elements, ids))"
 )
 
 
