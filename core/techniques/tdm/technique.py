@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -68,7 +69,7 @@ from farfield.core.techniques.part import (
 from farfield.core.techniques.tdm.mask_atlas import pack_masks
 from farfield.core.techniques.tdm.mesh import TdmMesh, ear_clip, initial_mesh, mesh_labels
 from farfield.core.techniques.tdm.simplify import STRIP_MIN_TRIANGLES, box_half_sizes, covered_by, simplify, strip_pass
-from farfield.core.techniques.tdm.texture import build_charts, chart_masks, chart_pages, chart_uvs
+from farfield.core.techniques.tdm.texture import build_charts, chart_colours, chart_masks, chart_pages, chart_uvs
 from farfield.core.techniques.tdm.voxel_field import VoxelField, record_voxel_field
 from farfield.core.viewcells import BoxCell, ViewCell
 
@@ -272,15 +273,23 @@ def mesh_field(field: VoxelField, options: TdmOptions, clock: StageClock) -> tup
         masks = chart_masks(charts)
     clock.report("charts", 1, 1)
 
-    with clock("atlas"):
-        layout = pack_masks(masks, options.padding, options.max_page)
-    clock.report("atlas", 1, 1)
+    # The texels' colours do not depend on the layout: a thread samples them while the packer
+    # runs (its widths, on two threads, leave a core idle for about one width's time; the
+    # sampling is about 2 s of CPU on the scan of benchmarks/bench_tdm_scale.py).
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        colours = pool.submit(chart_colours, field, corners, charts, options.oversampling)
+        with clock("atlas"):
+            layout = pack_masks(masks, options.padding, options.max_page)
+        clock.report("atlas", 1, 1)
 
-    with clock("texture"):
-        pages, channels = split_channels(tuple(chart_pages(field, corners, charts, layout, options.oversampling)))
-        uv = chart_uvs(charts, layout)
-        triangle_page = layout.page[charts.chart]
-    clock.report("texture", 1, 1)
+        with clock("texture"):
+            colours = colours.result()
+            pages, channels = split_channels(
+                tuple(chart_pages(field, corners, charts, layout, options.oversampling, colours))
+            )
+            uv = chart_uvs(charts, layout)
+            triangle_page = layout.page[charts.chart]
+        clock.report("texture", 1, 1)
 
     meshes = mesh_labels(len(used), triangles)
     count = triangles.shape[0]
