@@ -200,7 +200,7 @@ def simplify_mesh(
         # The cascade inside strips of the mesh, two at a time on two cores; the last factor's
         # passes below take the borders and skip the strips' failures (see strip_pass).  On the
         # scan of benchmarks/bench_tdm_scale.py (8.8 M initial triangles), against the first pass
-        # alone in strips: the same CPU, the critical path 29.7 -> 23.5 s, and 0.8 % fewer
+        # alone in strips: the same CPU, the critical path 29.7 -> 22.5 s, and 0.8 % fewer
         # triangles, a 1.4 % smaller atlas page (docs/measurements/tdm.md).
         triangles, offsets, voxels, totals, memory = strip_pass(
             vertices, triangles, offsets, voxels, centres, steps, silhouette
