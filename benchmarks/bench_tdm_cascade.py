@@ -2,8 +2,8 @@
 
 Usage: ``.venv/bin/python benchmarks/bench_tdm_cascade.py [--before REV] [--rounds 2] [--field PATH]``
 
-The cascade (``technique.py::simplify_mesh``: the strips' first pass, then every factor's passes
-to f = 2) is the largest stage of the scan's bake (``bench_tdm_scale.py --scene scan``), and a
+The cascade (``technique.py::simplify_mesh``: every factor's passes to f = 2 in the strips, then
+f = 2's on the whole mesh) is the largest stage of the scan's bake (``bench_tdm_scale.py --scene scan``), and a
 whole bake (90 s or more) swings with this machine's load by more than a change to the cascade
 saves.  So this runs the cascade only, on the scan's own initial mesh: the voxel field of
 ``bench_tdm_scale.py --scene scan``'s cell is recorded once (GL) and kept in ``--field`` (a pickle;

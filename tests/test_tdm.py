@@ -245,18 +245,20 @@ def test_the_cascade_with_memory_is_the_cascade_without(house_bake, distance, re
     )
 
 
-@pytest.mark.parametrize("enlargement", [1.0, 2.0])
-def test_a_strip_pass_keeps_the_borders_and_the_cover(house_bake, enlargement):
-    """:func:`strip_pass` (the first pass of a large mesh, its strips in threads) leaves every
-    triangle across a strip border as it was, contracts inside the strips, stores every voxel once
-    with a triangle that meets its box, keeps the mesh a mesh, and leaves a memory of its failures
-    that skips only attempts that would fail again on the whole mesh; the cascade after it covers
-    every voxel with about as many triangles as the cascade alone (the house at 90 units, 128 px)."""
+@pytest.mark.parametrize("factors", [1.0, 2.0, (1.0, 1.25, 1.5, 1.75, 2.0)])
+def test_a_strip_pass_keeps_the_borders_and_the_cover(house_bake, factors):
+    """:func:`strip_pass` (a large mesh's cascade, its strips in threads: one pass, or every
+    factor's passes) leaves every triangle across a strip border as it was, contracts inside the
+    strips, stores every voxel once with a triangle that meets its box, keeps the mesh a mesh, and
+    leaves a memory of its failures that skips only attempts that would fail again on the whole
+    mesh; the cascade after it covers every voxel with about as many triangles as the cascade alone
+    (the house at 90 units, 128 px)."""
     scene, _ = house_bake
+    enlargement = float(np.max(factors))
     lo, hi = scene.bounds
     field, mesh = _field_and_mesh(scene, scenes_cell(0.5 * (lo + hi), lo[2] - 90.0))
     triangles, offsets, voxels, counts, memory = strip_pass(
-        mesh.vertices, mesh.triangles, mesh.voxel_offsets, mesh.voxels, field.centres, enlargement, field.silhouette, 4
+        mesh.vertices, mesh.triangles, mesh.voxel_offsets, mesh.voxels, field.centres, factors, field.silhouette, 4
     )
     cuts = np.quantile(mesh.vertices[mesh.triangles[:, 0], 0], [0.25, 0.5, 0.75])
     side = np.searchsorted(cuts, mesh.vertices[:, 0])[mesh.triangles]
@@ -276,7 +278,10 @@ def test_a_strip_pass_keeps_the_borders_and_the_cover(house_bake, enlargement):
     whole = simplify_mesh(mesh, field, enlargement)[0]
     strips = simplify_mesh(mesh, field, enlargement, strip_min=0)
     assert uncovered_voxels(mesh.vertices, *strips[:3], field, enlargement) == 0
-    assert abs(strips[0].shape[0] - whole.shape[0]) <= 0.1 * whole.shape[0], (strips[0].shape[0], whole.shape[0])
+    # On this small mesh the 8 strips' borders are a large share, and they skip the steps below
+    # the last factor: 200 triangles against 179 at f = 2 (the scan's 8.8 M initial triangles:
+    # 105,795 against 106,667, docs/measurements/tdm.md).
+    assert abs(strips[0].shape[0] - whole.shape[0]) <= 0.15 * whole.shape[0], (strips[0].shape[0], whole.shape[0])
 
 
 def test_sorted_unique_is_numpys_unique():

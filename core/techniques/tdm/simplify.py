@@ -1039,28 +1039,32 @@ def simplify(
     return tris, offsets, vox, dict(zip(OUTCOMES, (int(c) for c in counts))), memory
 
 
-# The first pass of a large mesh runs on this many strips, in threads (:func:`strip_pass`).  A fixed
+# The cascade of a large mesh runs on this many strips, in threads (:func:`strip_pass`).  A fixed
 # count, not the machine's cores: the mesh must not depend on where it was baked.
 STRIPS = 8
-STRIP_MIN_TRIANGLES = 1_000_000  # below this the first pass runs on the whole mesh (the house: 0.3 M)
+STRIP_MIN_TRIANGLES = 1_000_000  # below this the cascade runs on the whole mesh (the house: 0.3 M)
 
 
 def strip_pass(vertices, triangles, voxel_offsets, voxels, centres, enlargement, silhouette=None, strips=STRIPS):
-    """One pass of :func:`simplify` on ``strips`` strips of the mesh at once, in threads: the
-    contractions of a first pass that do not need the whole mesh.
+    """:func:`simplify` on ``strips`` strips of the mesh at once, in threads: the contractions that
+    do not need the whole mesh.  ``enlargement``: one factor (one pass), or a cascade of them
+    (:func:`farfield.core.techniques.tdm.technique.schedule`), each factor's passes repeated in each
+    strip until they contract nothing more.
 
     The strips are ranges of x (the image's columns) holding equal numbers of triangles (by their
     first vertex).  A triangle with vertices in two strips is in none and is kept as it is; its
     vertices and their neighbours are locked (:func:`simplify`'s ``locked``).  A contraction of two
     unlocked vertices reads only triangles of its own strip: the triangles around the two vertices
     and around their neighbours (the boundary test's other neighbour), with the voxels they store.
-    So each strip's pass makes only contractions the whole mesh allows, every voxel stays stored with
-    a triangle that meets its box, and the strips change disjoint triangles.  The edges left (at
-    the borders, and those the strips' order did not reach) are the next pass's, on the whole mesh.
+    It never makes an unlocked vertex a neighbour of a border vertex (the removed vertex was none,
+    else it were locked), so this holds for every later pass too.  So each strip's passes make
+    only contractions the whole mesh allows, every voxel stays stored with a triangle that meets
+    its box, and the strips change disjoint triangles.  The edges left (at the borders, and those
+    the strips' order did not reach) are the next pass's, on the whole mesh.
 
     Returns (triangles, voxel_offsets, voxels, outcome counts summed over the strips, the
-    :class:`PassMemory` of the strips' failures for the next pass), the triangles indexing the same
-    ``vertices``: each strip's, in order, then those across borders.
+    :class:`PassMemory` of the strips' failures at the last factor, for the next pass at it), the
+    triangles indexing the same ``vertices``: each strip's, in order, then those across borders.
     """
     triangles = np.asarray(triangles, dtype=np.int64)
     voxel_offsets = np.asarray(voxel_offsets, dtype=np.int64)
@@ -1082,6 +1086,8 @@ def strip_pass(vertices, triangles, voxel_offsets, voxels, centres, enlargement,
         gather = np.repeat(voxel_offsets[rows] - offsets[:-1], counts) + np.arange(offsets[-1])
         return triangles[rows], offsets, voxels[gather]
 
+    factors = tuple(np.atleast_1d(np.asarray(enlargement, dtype=np.float64)).tolist())
+
     def one(k):
         tri, offsets, vox = rows_of(np.flatnonzero(strip == k))
         used = np.zeros(n, bool)
@@ -1089,13 +1095,35 @@ def strip_pass(vertices, triangles, voxel_offsets, voxels, centres, enlargement,
         used = np.flatnonzero(used)
         number = np.zeros(n, np.int64)
         number[used] = np.arange(used.size)  # ascending: the same edge order as in the whole mesh
-        out, offsets, vox, counts, memory = simplify(
-            vertices[used], number[tri], offsets, vox, centres, enlargement, silhouette, None, locked[used]
-        )
-        return used[out], offsets, vox, counts, (used, memory)
+        out, verts, lock = number[tri], vertices[used], locked[used]
+        memory, totals = None, {}
+        for factor in factors:
+            while True:
+                before = out.shape[0]
+                out, offsets, vox, counts, memory = simplify(
+                    verts, out, offsets, vox, centres, factor, silhouette, memory, lock
+                )
+                for key, value in counts.items():
+                    totals[key] = totals.get(key, 0) + value
+                if len(factors) == 1 or out.shape[0] == before:
+                    break
+                # The vertices left, renumbered in their order (technique.py::_kept_vertices).
+                kept = np.flatnonzero(np.bincount(out.ravel(), minlength=len(verts)))
+                if kept.size < 0.75 * len(verts):
+                    renumber = np.zeros(len(verts), np.int64)
+                    renumber[kept] = np.arange(kept.size)
+                    out, verts, lock, used = renumber[out], verts[kept], lock[kept], used[kept]
+                    memory = memory.renumbered(kept)
+        return used[out], offsets, vox, totals, (used, memory)
 
+    # The strips with the most voxels first (their work follows them: on the scan of
+    # benchmarks/bench_tdm_scale.py 4.6-6.3 s of CPU a strip, the outer two the largest), so that the
+    # threads end together; the order of the work does not change the result.
+    voxel_count = np.bincount(strip[strip >= 0], weights=lengths[strip >= 0], minlength=strips)
+    order = np.argsort(-voxel_count, kind="stable")
     with ThreadPoolExecutor(max_workers=min(strips, os.cpu_count() or 1)) as pool:
-        parts = list(pool.map(one, range(strips)))
+        done = dict(zip(order.tolist(), pool.map(one, order.tolist())))
+    parts = [done[k] for k in range(strips)]
     parts.append((*rows_of(np.flatnonzero(strip < 0)), {}, None))
     totals: dict[str, int] = {}
     for _, _, _, counts, _ in parts:
@@ -1107,7 +1135,7 @@ def strip_pass(vertices, triangles, voxel_offsets, voxels, centres, enlargement,
         np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64),
         np.concatenate([vox for _, _, vox, _, _ in parts]),
         totals,
-        _merged_memory(n, [memory for *_, memory in parts[:-1]], enlargement),
+        _merged_memory(n, [memory for *_, memory in parts[:-1]], factors[-1]),
     )
 
 

@@ -16,7 +16,8 @@ then block each other.  farfield therefore simplifies in a cascade over the fact
 :data:`SCHEDULE` below f, then f itself: each pass starts from the previous result, which still
 covers every voxel at the larger boxes, and contractions only ever remove triangles.  So for any
 two factors on the schedule, the larger never gives more triangles (the monotone trade the knob
-promises), and a factor between two steps is at least as simple as the step below it.  Each pass
+promises), and a factor between two steps is at least as simple as the step below it (on a mesh
+small enough to be simplified whole: see :func:`simplify_mesh` for a large one's strips).  Each pass
 is repeated until it contracts nothing more: an edge that failed is only tried again when a
 contraction next to it pushes it again, so a second pass at the same factor still finds some
 (measured on the house at 90 m, 512 px, when this was added: 1,946 instead of 2,175 triangles at
@@ -31,6 +32,7 @@ from __future__ import annotations
 
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -68,7 +70,7 @@ from farfield.core.techniques.part import (
 from farfield.core.techniques.tdm.mask_atlas import pack_masks
 from farfield.core.techniques.tdm.mesh import TdmMesh, ear_clip, initial_mesh, mesh_labels
 from farfield.core.techniques.tdm.simplify import STRIP_MIN_TRIANGLES, box_half_sizes, covered_by, simplify, strip_pass
-from farfield.core.techniques.tdm.texture import build_charts, chart_masks, chart_pages, chart_uvs
+from farfield.core.techniques.tdm.texture import build_charts, chart_colours, chart_masks, chart_pages, chart_uvs
 from farfield.core.techniques.tdm.voxel_field import VoxelField, record_voxel_field
 from farfield.core.viewcells import BoxCell, ViewCell
 
@@ -182,22 +184,30 @@ def simplify_mesh(
     until it changes nothing: (triangles, voxel offsets, voxels, outcome counts summed over every
     pass, repeats included).  ``silhouette``: the field's
     :attr:`~farfield.core.techniques.tdm.voxel_field.VoxelField.silhouette`, if the caller has it already.
-    A mesh of ``strip_min`` triangles or more first has a
-    :func:`~farfield.core.techniques.tdm.simplify.strip_pass` at the cascade's first factor."""
+    A mesh of ``strip_min`` triangles or more first runs the whole cascade inside strips, in
+    threads (:func:`~farfield.core.techniques.tdm.simplify.strip_pass`), then only the last factor's
+    passes on the whole mesh: the strips' borders, which they leave locked, go straight to that
+    factor.  So on such a mesh a larger factor keeps fewer triangles as a rule, not by construction
+    (the strips' later steps are a prefix of the larger factor's, the border's passes are not)."""
     triangles, offsets, voxels = mesh.triangles, mesh.voxel_offsets, mesh.voxels
     vertices, original = mesh.vertices, np.arange(len(mesh.vertices), dtype=np.int64)
     centres = field.centres
     silhouette = field.silhouette if silhouette is None else silhouette
     totals: dict[str, int] = {}
     memory = None  # each pass skips the edges that would fail again (farfield.core.techniques.tdm.simplify.simplify)
+    steps = schedule(enlargement)
     if triangles.shape[0] >= strip_min:
-        # The first pass's contractions inside strips of the mesh, in threads; the passes below
-        # take the rest (see strip_pass).
+        # The cascade inside strips of the mesh, two at a time on two cores; the last factor's
+        # passes below take the borders and skip the strips' failures (see strip_pass).  On the
+        # scan of benchmarks/bench_tdm_scale.py (8.8 M initial triangles), against the first pass
+        # alone in strips: the same CPU, the critical path 29.7 -> 22.5 s, and 0.8 % fewer
+        # triangles, a 1.4 % smaller atlas page (docs/measurements/tdm.md).
         triangles, offsets, voxels, totals, memory = strip_pass(
-            vertices, triangles, offsets, voxels, centres, schedule(enlargement)[0], silhouette
+            vertices, triangles, offsets, voxels, centres, steps, silhouette
         )
         triangles, vertices, original, memory = _kept_vertices(triangles, vertices, original, memory)
-    for factor in schedule(enlargement):
+        steps = steps[-1:]
+    for factor in steps:
         while True:
             before = triangles.shape[0]
             triangles, offsets, voxels, counts, memory = simplify(
@@ -264,15 +274,23 @@ def mesh_field(field: VoxelField, options: TdmOptions, clock: StageClock) -> tup
         masks = chart_masks(charts)
     clock.report("charts", 1, 1)
 
-    with clock("atlas"):
-        layout = pack_masks(masks, options.padding, options.max_page)
-    clock.report("atlas", 1, 1)
+    # The texels' colours do not depend on the layout: a thread samples them while the packer
+    # runs (its widths, on two threads, leave a core idle for about one width's time; the
+    # sampling is about 2 s of CPU on the scan of benchmarks/bench_tdm_scale.py).
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        colours = pool.submit(chart_colours, field, corners, charts, options.oversampling)
+        with clock("atlas"):
+            layout = pack_masks(masks, options.padding, options.max_page)
+        clock.report("atlas", 1, 1)
 
-    with clock("texture"):
-        pages, channels = split_channels(tuple(chart_pages(field, corners, charts, layout, options.oversampling)))
-        uv = chart_uvs(charts, layout)
-        triangle_page = layout.page[charts.chart]
-    clock.report("texture", 1, 1)
+        with clock("texture"):
+            colours = colours.result()
+            pages, channels = split_channels(
+                tuple(chart_pages(field, corners, charts, layout, options.oversampling, colours))
+            )
+            uv = chart_uvs(charts, layout)
+            triangle_page = layout.page[charts.chart]
+        clock.report("texture", 1, 1)
 
     meshes = mesh_labels(len(used), triangles)
     count = triangles.shape[0]

@@ -604,17 +604,10 @@ def chart_masks(charts: Charts) -> list[np.ndarray]:
     return masks
 
 
-def chart_pages(
-    field: VoxelField, world: np.ndarray, charts: Charts, layout: MaskLayout, oversampling: int
-) -> list[np.ndarray]:
-    """The (H, W, 4) uint8 atlas pages of ``charts`` placed by ``layout``: every needed texel
-    coloured from the voxel field through the world triangles ``world`` (t, 3, 3) (see the module
-    docstring), every other texel copied from the nearest needed one, so that every texel is
-    opaque and coarser mip levels bleed a chart's own colours into its gap.
-
-    Where the field keeps normals (:attr:`VoxelField.normal`) the pages are (H, W, 8): colour, then
-    the normal channel sampled alike (:func:`sample_field`), for
-    :func:`farfield.core.layering.tiles.split_channels`."""
+def chart_colours(field: VoxelField, world: np.ndarray, charts: Charts, oversampling: int) -> np.ndarray:
+    """The colours of the needed texels of ``charts`` (in the order of ``charts.texel_chart``),
+    sampled from ``field`` through the world triangles ``world`` (t, 3, 3): :func:`chart_pages`
+    before the atlas layout places them (so the bake computes them while the packer runs)."""
     owner = charts.texel_triangle
     p = charts.position[owner]  # (m, 3, 2)
     cx, cy = charts.texel_col + 0.5, charts.texel_row + 0.5
@@ -629,8 +622,28 @@ def chart_pages(
     b = np.clip(np.stack([1.0 - b1 - b2, b1, b2], axis=1), 0.0, None)
     b /= np.maximum(b.sum(axis=1, keepdims=True), 1e-300)
     points = np.einsum("mk,mkc->mc", b, world[owner])
-    colours = sample_field(field, field.from_world(points), oversampling)
+    return sample_field(field, field.from_world(points), oversampling)
 
+
+def chart_pages(
+    field: VoxelField,
+    world: np.ndarray,
+    charts: Charts,
+    layout: MaskLayout,
+    oversampling: int,
+    colours: np.ndarray | None = None,
+) -> list[np.ndarray]:
+    """The (H, W, 4) uint8 atlas pages of ``charts`` placed by ``layout``: every needed texel
+    coloured from the voxel field through the world triangles ``world`` (t, 3, 3) (see the module
+    docstring), every other texel copied from the nearest needed one, so that every texel is
+    opaque and coarser mip levels bleed a chart's own colours into its gap.
+
+    Where the field keeps normals (:attr:`VoxelField.normal`) the pages are (H, W, 8): colour, then
+    the normal channel sampled alike (:func:`sample_field`), for
+    :func:`farfield.core.layering.tiles.split_channels`.  ``colours``: :func:`chart_colours` of the
+    same arguments, if the caller has them already (they do not depend on ``layout``)."""
+    if colours is None:
+        colours = chart_colours(field, world, charts, oversampling)
     page_of = layout.page[charts.texel_chart]
     rows = layout.y[charts.texel_chart] + charts.texel_row
     cols = layout.x[charts.texel_chart] + charts.texel_col
