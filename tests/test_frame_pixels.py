@@ -84,3 +84,22 @@ def test_boxes_behind_or_beside_the_frame_count_nothing_and_a_surrounding_box_th
         for y in (0, RES / 2)
     ]
     assert math.isclose(sum(quarters), whole, rel_tol=1e-9) and math.isclose(max(quarters), min(quarters), rel_tol=1e-9)
+
+
+def test_a_continental_ground_seen_with_a_tiny_near_plane_fills_half_the_frame_at_any_roll():
+    """A 2,000-km ground slab under an eye 1.7 m up, looking level: below the horizon, half the
+    frame whatever the roll (a line through the centre halves the square) and the near plane (all
+    of it lies under the eye's feet).  Near 1e-9 m puts the near-plane section's projection 1e15
+    tangents wide: clipped to the frame after the division it lost up to 2,545 of 32,768 pixels."""
+    lo, hi = np.array([[-1e6, -1e6, -1.0]]), np.array([[1e6, 1e6, 0.0]])
+    for near in (1e-1, 1e-5, 1e-7, 1e-9):
+        for roll in np.linspace(0.0, math.pi, 7):
+            for eye in ([0.0, 0.0, 1.7], [3e5, -2e5, 1.7]):
+                level = Camera.look_at(eye, np.array(eye) + [1.0, 0.3, 0.0], FOV, RES, near, 1e7)
+                c, s = math.cos(roll), math.sin(roll)
+                camera = Camera(
+                    level.eye, c * level.right + s * level.up, c * level.up - s * level.right, level.forward,
+                    FOV, RES, near, 1e7,
+                )  # fmt: skip
+                pixels = float(box_frame_pixels(camera, lo, hi)[0])
+                assert abs(pixels - RES * RES / 2) <= 1.0, (near, roll, eye, pixels)

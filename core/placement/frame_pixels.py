@@ -14,7 +14,9 @@ area is of the box, not of the triangles (a tree's crown or a slanted roof cover
 overlaps between elements are not subtracted (no occlusion): the per-frame sum is at least the
 frame's covered pixels, the estimate caps it at ``depth_complexity`` frames as before.
 
-The kernel (numba, one loop over boxes) is exact arithmetic on at most 14 points a box: no sampling.
+The kernel (numba, one loop over boxes) is exact arithmetic on at most 14 points a box: no sampling.  The frame's
+sides clip the hull's points in the eye frame, before the division (a near plane's points
+project to box size / near tangents: clipped after it, a tiny near lost the frame's digits).
 """
 
 from __future__ import annotations
@@ -62,11 +64,10 @@ def _clipped_areas(e, edges, near, ox, oy, t):
     out = np.zeros(k)
     u = np.empty(16)
     v = np.empty(16)
+    w = np.empty((16, 3))  # each point in the eye frame, sorted with (u, v)
     hull = np.empty(34, np.int64)
-    pu = np.empty(24)
-    pv = np.empty(24)
-    qu = np.empty(24)
-    qv = np.empty(24)
+    p = np.empty((24, 3))
+    q = np.empty((24, 3))
     for b in range(k):
         n = 0
         for c in range(8):
@@ -74,6 +75,7 @@ def _clipped_areas(e, edges, near, ox, oy, t):
             if z >= near:
                 u[n] = e[b, c, 0] / z - ox
                 v[n] = e[b, c, 1] / z - oy
+                w[n, 0], w[n, 1], w[n, 2] = e[b, c, 0], e[b, c, 1], z
                 n += 1
         if n == 0:
             continue  # wholly behind the near plane (a box cut by it keeps a corner in front)
@@ -82,21 +84,27 @@ def _clipped_areas(e, edges, near, ox, oy, t):
             zi, zj = e[b, i, 2], e[b, j, 2]
             if (zi < near) != (zj < near):
                 s = (near - zi) / (zj - zi)
-                u[n] = (e[b, i, 0] + s * (e[b, j, 0] - e[b, i, 0])) / near - ox
-                v[n] = (e[b, i, 1] + s * (e[b, j, 1] - e[b, i, 1])) / near - oy
+                w[n, 0] = e[b, i, 0] + s * (e[b, j, 0] - e[b, i, 0])
+                w[n, 1] = e[b, i, 1] + s * (e[b, j, 1] - e[b, i, 1])
+                w[n, 2] = near
+                u[n] = w[n, 0] / near - ox
+                v[n] = w[n, 1] / near - oy
                 n += 1
         if n < 3:
             continue
         # Sort the points by (u, v) (insertion sort: at most 14), then Andrew's monotone chain.
         for i in range(1, n):
             a, c = u[i], v[i]
+            x, y, z = w[i, 0], w[i, 1], w[i, 2]
             j = i - 1
             while j >= 0 and (u[j] > a or (u[j] == a and v[j] > c)):
                 u[j + 1] = u[j]
                 v[j + 1] = v[j]
+                w[j + 1, 0], w[j + 1, 1], w[j + 1, 2] = w[j, 0], w[j, 1], w[j, 2]
                 j -= 1
             u[j + 1] = a
             v[j + 1] = c
+            w[j + 1, 0], w[j + 1, 1], w[j + 1, 2] = x, y, z
         h = 0
         for i in range(n):  # lower chain
             while h >= 2 and _cross(u, v, hull[h - 2], hull[h - 1], i) <= 0.0:
@@ -113,31 +121,32 @@ def _clipped_areas(e, edges, near, ox, oy, t):
         if h < 3:
             continue
         for i in range(h):
-            pu[i] = u[hull[i]]
-            pv[i] = v[hull[i]]
-        # Sutherland-Hodgman against u <= t, -u <= t, v <= t, -v <= t.
+            p[i, 0], p[i, 1], p[i, 2] = w[hull[i], 0], w[hull[i], 1], w[hull[i], 2]
+        # Sutherland-Hodgman against u <= t, -u <= t, v <= t, -v <= t, in the eye frame (the
+        # planes through the eye ``sign (x - o z) - t z <= 0``): the hull's points at the near
+        # plane project up to (box size / near) tangents, whose differences lose the frame's
+        # digits; the eye-frame points keep them, each projected once clipped.
         m = h
         for side in range(4):
-            axis_u = side < 2
+            axis = 0 if side < 2 else 1
             sign = 1.0 if side % 2 == 0 else -1.0
+            o = ox if axis == 0 else oy
             r = 0
             for i in range(m):
                 i2 = i + 1 if i + 1 < m else 0
-                a = sign * (pu[i] if axis_u else pv[i])
-                c = sign * (pu[i2] if axis_u else pv[i2])
-                if a <= t:
-                    qu[r] = pu[i]
-                    qv[r] = pv[i]
+                a = sign * (p[i, axis] - o * p[i, 2]) - t * p[i, 2]
+                c = sign * (p[i2, axis] - o * p[i2, 2]) - t * p[i2, 2]
+                if a <= 0.0:
+                    q[r, 0], q[r, 1], q[r, 2] = p[i, 0], p[i, 1], p[i, 2]
                     r += 1
-                if (a <= t) != (c <= t):
-                    s = (t - a) / (c - a)
-                    qu[r] = pu[i] + s * (pu[i2] - pu[i])
-                    qv[r] = pv[i] + s * (pv[i2] - pv[i])
+                if (a <= 0.0) != (c <= 0.0):
+                    s = a / (a - c)
+                    for d in range(3):
+                        q[r, d] = p[i, d] + s * (p[i2, d] - p[i, d])
                     r += 1
             m = r
             for i in range(m):
-                pu[i] = qu[i]
-                pv[i] = qv[i]
+                p[i, 0], p[i, 1], p[i, 2] = q[i, 0], q[i, 1], q[i, 2]
             if m < 3:
                 break
         if m < 3:
@@ -145,7 +154,8 @@ def _clipped_areas(e, edges, near, ox, oy, t):
         area = 0.0
         for i in range(m):
             i2 = i + 1 if i + 1 < m else 0
-            area += pu[i] * pv[i2] - pu[i2] * pv[i]
+            area += (p[i, 0] / p[i, 2] - ox) * (p[i2, 1] / p[i2, 2] - oy)
+            area -= (p[i2, 0] / p[i2, 2] - ox) * (p[i, 1] / p[i, 2] - oy)
         out[b] = 0.5 * abs(area)
     return out
 
