@@ -83,3 +83,56 @@ def test_a_node_of_every_cluster_of_its_object_is_simplified_whole():
     assert keeps_border(elements, np.arange(elements.count - 1))
     whole = lod_chain(*node_mesh(elements.scene_of(scene, range(elements.count))))
     assert whole and whole[-1].triangles < 128 and whole[-1].error < 1e-6  # a flat-sided box: no error
+
+
+def _plane(n: int):
+    """A flat 10 x 10 square of ``2 n^2`` triangles in y = 0 (an open surface: its edge is a border)."""
+    i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+    vertices = np.column_stack([i.ravel() * 10.0 / n, np.zeros(i.size), j.ravel() * 10.0 / n])
+    k = (i[:-1, :-1] * (n + 1) + j[:-1, :-1]).ravel()
+    faces = np.concatenate([np.column_stack([k, k + 1, k + n + 1]), np.column_stack([k + 1, k + n + 2, k + n + 1])])
+    return vertices, faces
+
+
+def _border(vertices: np.ndarray, faces: np.ndarray) -> set:
+    """The positions of the vertices on the open border (edges of one triangle)."""
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    unique, count = np.unique(edges, axis=0, return_counts=True)
+    return {tuple(p) for p in vertices[np.unique(unique[count == 1])].tolist()}
+
+
+def test_the_planner_keeps_the_border_only_of_nodes_holding_part_of_a_split_object():
+    # An open plane of 2,048 triangles split into 4 clusters: a node of some clusters meets the others
+    # at its cut edges (drawn at full detail or another level), so every vertex of its open border
+    # stays where it is; the root holds the whole plane and may move its border (a flat square's
+    # border simplifies with no error).
+    from farfield.core.placement.hierarchy import Hierarchy
+    from farfield.core.placement.lod import NodeLods
+
+    v, f = _plane(32)
+    scene = Scene.from_objects([SceneObject("plane", v, f, base_color=(0.5, 0.5, 0.5, 1.0))], "plane")
+    elements = Elements.of(scene, 512)
+    hierarchy = Hierarchy.build(elements, leaf_size=1)
+    lods = NodeLods(scene, elements, hierarchy, np.radians(60.0), 128, 1.0)
+    assert elements.count == 4 and hierarchy.count == 7
+    for node in range(hierarchy.count):
+        ids = hierarchy.elements_of(node)
+        border = _border(*node_mesh(elements.scene_of(scene, ids))[:2])
+        levels = lods.of(node)
+        assert levels, node
+        kept = [border <= {tuple(p) for p in level.vertices.tolist()} for level in levels]
+        if ids.size < elements.count:
+            assert all(kept), (node, ids)
+        else:
+            assert not any(kept)  # the whole plane: its border moved
+
+
+def test_a_mesh_with_a_vertex_no_triangle_uses_gets_no_level_and_no_crash():
+    # The replay of the simplifier's collapses maps a vertex no triangle uses to -1
+    # (fast_simplification.replay_simplification): such a vertex cannot be measured nor coloured, so
+    # the chain ends there (here before its first level) instead of failing in the colour means.
+    v, f = _plane(16)
+    stray = np.vstack([v, [[5.0, 3.0, 5.0]]])
+    colours = np.full((stray.shape[0], 4), 200, dtype=np.uint8)
+    assert len(lod_chain(v, f, colours[:-1])) >= 1  # without the stray vertex: levels
+    assert lod_chain(stray, f, colours) == []

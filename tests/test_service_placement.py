@@ -210,26 +210,41 @@ LOD_PLACEMENT = {
 }  # fmt: skip
 
 
+def _bumpy_park():
+    """The statue park of four 1,280-triangle statues, the last one's vertices moved at random by up to
+    ~30 % of its radius (a normal of 10 %): a surface no simplifier reduces within one pixel from this
+    view space, so layered impostors are chosen for the nodes that hold it and levels of detail for the
+    smooth statues."""
+    from farfield.core.procedural import statue_park
+    from farfield.core.scene import Scene, SceneObject
+
+    park, rng = statue_park(4, 3), np.random.default_rng(1)
+    *smooth, last = park.objects
+    centre = last.vertices.mean(axis=0)
+    noise = 1.0 + 0.1 * rng.standard_normal((last.vertices.shape[0], 1))
+    bumpy = SceneObject(last.name, centre + (last.vertices - centre) * noise, last.faces, base_color=last.base_color)
+    return Scene.from_objects([*smooth, bumpy], "bumpy-park")
+
+
 def test_a_placement_job_with_simplified_geometry_bakes_the_impostors_and_serves_the_levels(client, tmp_path):
     from click.testing import CliRunner
 
     from farfield.cli.main import _register, cli
     from farfield.core.placement.database import FACE_NAMES
     from farfield.core.placement.view_space import VDI
-    from farfield.core.procedural import statue_park
 
-    park = statue_park(4, 3)
+    park = _bumpy_park()
     response = upload(client, write_scene(park, tmp_path, "glb", "park"))
     assert response.status_code == 201, response.text
     job = wait_for_job(client, submit(client, response.json()["id"], LOD_PLACEMENT, fov_deg=60.0)["id"], timeout=300)
     assert job["state"] == "done" and job["has_index"], (job["error"], job["errors"])
     chosen = job["placement"]["summary"]["by_technique"]
+    # Both kinds in one job: levels of detail of the smooth statues, layered impostors where the bumpy
+    # one cannot be simplified within the pixel budget.
     assert chosen["lod"]["impostors"] >= 1 and chosen["lod"]["memory_bytes"] > 0, chosen
+    assert chosen["layered"]["impostors"] >= 1 and chosen["layered"]["memory_bytes"] > 0, chosen
     # A level of detail is no cell: only the layered impostors were baked, the levels have no bundle.
-    # (Since nodes of several elements have levels too, the plan may take levels alone: here 4 levels,
-    # where it took 20 layered impostors and 4 statues' levels before.)
-    layered = chosen.get("layered", {}).get("impostors", 0)
-    assert job["cells_total"] == layered and job["counts"]["done"] == job["cells_total"]
+    assert job["cells_total"] == chosen["layered"]["impostors"] and job["counts"]["done"] == job["cells_total"]
     totals = client.get(f"/v1/jobs/{job['id']}/placement").json()["totals"]
     assert {k: v["impostors"] for k, v in totals["by_technique"].items() if v["impostors"]} == {
         k: v["impostors"] for k, v in chosen.items() if v["impostors"]
@@ -239,10 +254,14 @@ def test_a_placement_job_with_simplified_geometry_bakes_the_impostors_and_serves
     index = json.loads(archive.read("index.json"))
     lods = [c for c in index["cells"] if c["technique"] == "lod" and c["cpvs"]]
     assert lods and all(c["bundle"] is None and c["state"] == "done" for c in lods)
-    # The lookup of a view a level serves names it: its elements, level, triangles, how to get the mesh.
-    lod_ids, views = {c["index"]: c["objects"] for c in lods}, []
+    layered = [c for c in index["cells"] if c["technique"] == "layered" and c["cpvs"]]
+    assert layered and all(c["bundle"] and c["state"] == "done" for c in layered)
+    # The lookup of a view a level serves names it: its elements, level, triangles, how to get the mesh;
+    # that of a view a layered impostor serves names its baked cell.
+    lod_ids, views, cells = {c["index"]: c["objects"] for c in lods}, [], []
+    layered_ids = {c["index"]: c["objects"] for c in layered}
     centre = {obj.name: obj.bounds.mean(axis=0) for obj in park.objects}
-    for cpv in index["placement"]["cpvs"]:  # from the middle of the region, at a statue a level serves there
+    for cpv in index["placement"]["cpvs"]:  # from the middle of the region, at statues an impostor serves there
         vdi = VDI(FACE_NAMES.index(cpv["vdi"]["face"]), cpv["vdi"]["level"], cpv["vdi"]["i"], cpv["vdi"]["j"])
         eye = (np.asarray(cpv["region"][0]) + np.asarray(cpv["region"][1])) / 2
         x0, x1, y0, y1 = vdi.ranges()
@@ -250,24 +269,32 @@ def test_a_placement_job_with_simplified_geometry_bakes_the_impostors_and_serves
             np.meshgrid(x0 + (x1 - x0) * (np.arange(8) + 0.5) / 8, y0 + (y1 - y0) * (np.arange(8) + 0.5) / 8), axis=-1
         ).reshape(-1, 2)
         directions = vdi.directions(grid[:, 0], grid[:, 1])
-        for i in set(lod_ids) & set(cpv["impostors"]):
-            # the direction inside the VDI nearest to the statue's (a problem view sees it within the frame)
-            forward = directions[np.argmax(directions @ (centre[lod_ids[i][0]] - eye))]
-            if len(views) < 2:
-                params = dict(zip(("x", "y", "z", "dx", "dy", "dz"), [*eye.tolist(), *forward.tolist()], strict=True))
-                answer = client.get(f"/v1/jobs/{job['id']}/lookup", params=params).json()
-                views.append((answer, {"position": eye.tolist(), "forward": forward.tolist()}))
+        for ids, found in ((lod_ids, views), (layered_ids, cells)):
+            for i in set(ids) & set(cpv["impostors"]):
+                # the direction inside the VDI nearest to the objects' (a problem view sees them within the frame)
+                target = np.mean([centre[name] for name in ids[i]], axis=0)
+                forward = directions[np.argmax(directions @ (target - eye))]
+                if len(found) < 1:
+                    params = dict(
+                        zip(("x", "y", "z", "dx", "dy", "dz"), [*eye.tolist(), *forward.tolist()], strict=True)
+                    )
+                    answer = client.get(f"/v1/jobs/{job['id']}/lookup", params=params).json()
+                    found.append((answer, {"position": eye.tolist(), "forward": forward.tolist()}))
     assert views, "no view a level of detail serves"
+    assert cells, "no view a layered impostor serves"
     answer = views[0][0]
     assert answer["lods"], answer
     lod = answer["lods"][0]
     assert lod["index"] in answer["impostors"] and set(lod["objects"]) <= set(centre) and lod["level"] >= 1
     assert 0 < lod["triangles"] < 1280 and "level_for" in lod["mesh"]
     assert lod["index"] not in [c["index"] for c in answer["cells"]]
-    # farfield walkthrough of the downloaded database draws the levels (fewer triangles than the statues').
+    answer = cells[0][0]
+    assert any(c["index"] in layered_ids for c in answer["cells"]), answer
+    # farfield walkthrough of the downloaded database draws both: the levels (fewer triangles than the
+    # statues') and the baked layered impostors (their textures uploaded).
     archive.extractall(tmp_path / "db")
     path = tmp_path / "path.json"
-    path.write_text(json.dumps([view for _, view in views[:2]]))
+    path.write_text(json.dumps([views[0][1], cells[0][1]]))
     _register()
     result = CliRunner().invoke(
         cli,
@@ -284,8 +311,11 @@ def test_a_placement_job_with_simplified_geometry_bakes_the_impostors_and_serves
     )
     assert result.exit_code == 0, result.output
     walked = json.loads(result.output)
-    assert len(walked["frames"]) == 2 and {f["cpv"] for f in walked["frames"]} == {a["cpv"] for a, _ in views[:2]}
-    assert walked["summary"]["lods_uploaded"] >= 1 and walked["summary"]["lod_mesh_bytes"] > 0, walked["summary"]
+    assert [f["cpv"] for f in walked["frames"]] == [views[0][0]["cpv"], cells[0][0]["cpv"]]
+    summary = walked["summary"]
+    assert summary["lods_uploaded"] >= 1 and summary["lod_mesh_bytes"] > 0, summary
+    assert summary["impostors_uploaded"] > summary["lods_uploaded"] and summary["impostor_texture_bytes"] > 0, summary
+    assert walked["frames"][1]["quads"] > 0, walked["frames"][1]
 
 
 @pytest.mark.parametrize(
