@@ -92,32 +92,39 @@ def mib(b: float) -> float:
     return b / 2**20
 
 
-def city_scene(quick: bool, size: int | None = None, detail: int = 16) -> tuple[Scene, np.ndarray, np.ndarray]:
-    """A seeded city of detailed box buildings; the view space a box above the roofs of its centre,
-    a quarter of the city's side across."""
-    scene = procedural.city(size or (400 if quick else 1600), seed=0, detail=detail)
+def city_scene(
+    quick: bool, size: int | None = None, detail: int = 16, relief: float = 0.0
+) -> tuple[Scene, np.ndarray, np.ndarray]:
+    """A seeded city of detailed box buildings (facades recessed by up to ``relief`` m); the view
+    space a box above the roofs of its centre, a quarter of the city's side across."""
+    scene = procedural.city(size or (400 if quick else 1600), seed=0, detail=detail, relief=relief)
     c = 0.5 * (scene.bounds[0] + scene.bounds[1])
     top = float(scene.bounds[1][1])
     half = 0.1875 * float(scene.extents[0])
     return scene, np.array([c[0] - half, top + 10.0, c[2] - half]), np.array([c[0] + half, top + 20.0, c[2] + half])
 
 
-def street_scene(quick: bool, size: int | None = None, detail: int = 16) -> tuple[Scene, np.ndarray, np.ndarray]:
+def street_scene(
+    quick: bool, size: int | None = None, detail: int = 16, relief: float = 0.0
+) -> tuple[Scene, np.ndarray, np.ndarray]:
     """The city of :func:`city_scene` with the view space at street level, 1.5..2.5 m over its
     ground (the same square): where occlusion matters, as in the thesis's walkthrough of Vienna."""
-    scene, lo, hi = city_scene(quick, size, detail)
+    scene, lo, hi = city_scene(quick, size, detail, relief)
     ground = float(scene.bounds[0][1])
     lo, hi = lo.copy(), hi.copy()
     lo[1], hi[1] = ground + 1.5, ground + 2.5
     return scene, lo, hi
 
 
-def downtown_scene(quick: bool, size: int | None = None, detail: int = 20) -> tuple[Scene, np.ndarray, np.ndarray]:
+def downtown_scene(
+    quick: bool, size: int | None = None, detail: int = 20, relief: float = 0.0
+) -> tuple[Scene, np.ndarray, np.ndarray]:
     """Where a placement should shine (seed 000 §5.8: impostors only where views are slow): a
     sparse suburb of 12-triangle houses 5..25 m tall (``size`` lots 40 m apart, default 100) and,
     in one corner, a downtown of 4 x 4 towers 60..120 m tall whose faces are ``detail`` x ``detail``
     quads (20: 4,800 triangles each); the view space the whole suburb, 30..40 m above the ground.
-    Seeded.  Views looking away from downtown fit any sensible budget; views towards it do not."""
+    Seeded.  Views looking away from downtown fit any sensible budget; views towards it do not.
+    ``relief`` (m) recesses the towers' facades (:func:`farfield.core.procedural.subdivided_box`)."""
     rng = np.random.default_rng(1)
     side = int(math.ceil(math.sqrt(size or (36 if quick else 100))))
     objects = []
@@ -134,7 +141,9 @@ def downtown_scene(quick: bool, size: int | None = None, detail: int = 20) -> tu
     for i in range(4):
         for j in range(4):
             low = (corner + i * 20.0 - 6.0, 0.0, corner + j * 20.0 - 6.0)
-            v, f = procedural.subdivided_box(low, (low[0] + 12.0, rng.uniform(60.0, 120.0), low[2] + 12.0), detail)
+            v, f = procedural.subdivided_box(
+                low, (low[0] + 12.0, rng.uniform(60.0, 120.0), low[2] + 12.0), detail, relief, seed=(i, j)
+            )
             objects.append(SceneObject(f"tower_{i}_{j}", v, f, base_color=(*rng.uniform(0.3, 0.6, 3), 1.0)))
     edge = (side - 1) * 40.0 + 20.0
     ground = np.array([[-20.0, 0.0, -20.0], [-20.0, 0.0, edge], [edge, 0.0, edge], [edge, 0.0, -20.0]])
@@ -840,6 +849,13 @@ def main() -> None:
         default=16,
         help="the city's most quads per building face side (farfield.core.procedural.city; planning table and --walkthrough)",
     )
+    parser.add_argument(
+        "--relief",
+        type=float,
+        default=0.0,
+        help="planning table (city, street, downtown): recess the buildings' facades by up to this many metres, "
+        "detail a simplifier must keep within its pixel error (0: flat subdivided faces, which simplify at no error)",
+    )
     parser.add_argument("--keep", default=None, help="--walkthrough: write the placement databases under this folder")
     parser.add_argument(
         "--vdi-deg",
@@ -902,7 +918,10 @@ def main() -> None:
     for name in ["city", "helmets"] if args.scene == "both" else [args.scene]:
         try:
             scene, lo, hi = builders[name](
-                args.quick, args.size, *([args.detail] if name in ("city", "street") else [])
+                args.quick,
+                args.size,
+                *([args.detail] if name in ("city", "street") else []),
+                **({"relief": args.relief} if name != "helmets" else {}),
             )
         except FarfieldError as error:
             print(f"{name}: cannot build the scene: {error}")

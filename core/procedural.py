@@ -21,10 +21,19 @@ from farfield.core.scene import Scene, SceneObject, instances_of, prototype_key
 _FACES = ((0, 1, 1, 2), (0, 0, 2, 1), (1, 1, 2, 0), (1, 0, 0, 2), (2, 1, 0, 1), (2, 0, 1, 0))
 
 
-def subdivided_box(low, high, n: int = 1) -> tuple[np.ndarray, np.ndarray]:
+def subdivided_box(low, high, n: int = 1, relief: float = 0.0, seed=0) -> tuple[np.ndarray, np.ndarray]:
     """(v, 3) float64 vertices and (12 n^2, 3) int64 outward, counter-clockwise faces of the box
     ``low``..``high`` ((3,) each) whose six faces are each an ``n x n`` grid of quads (vertices on
     the edges are repeated per face).
+
+    ``relief`` > 0 recesses each face's inner vertices by a seeded uniform depth in ``0..relief``
+    (at most a quarter of the box's thinnest side) along the face's inward normal: a facade with
+    detail a simplifier cannot remove within its error (flat faces lose every inner vertex at no
+    error), while the edges, the silhouette and the bounds stay the box's.
+
+    >>> v, f = subdivided_box([0, 0, 0], [4, 8, 4], 4, relief=0.5, seed=1)
+    >>> v.min(axis=0).tolist(), v.max(axis=0).tolist(), bool((subdivided_box([0, 0, 0], [4, 8, 4], 4)[0] != v).any())
+    ([0.0, 0.0, 0.0], [4.0, 8.0, 4.0], True)
 
     >>> v, f = subdivided_box([0, 0, 0], [1, 2, 3], 2)
     >>> v.shape, f.shape, v.min(axis=0).tolist(), v.max(axis=0).tolist()
@@ -35,7 +44,11 @@ def subdivided_box(low, high, n: int = 1) -> tuple[np.ndarray, np.ndarray]:
     n = int(n)
     if n < 1:
         raise ValueError(f"a box face needs n >= 1 quads per side, got {n}")
+    if not relief >= 0.0:
+        raise ValueError(f"a box's relief must be >= 0, got {relief}")
     low, high = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
+    depth = min(float(relief), 0.25 * float(np.min(high - low)))
+    rng = np.random.default_rng(seed) if depth > 0.0 else None
     s = np.linspace(0.0, 1.0, n + 1)
     gu, gv = (g.reshape(-1) for g in np.meshgrid(s, s, indexing="ij"))  # u slowest
     i = np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]  # quad (iu, iv) -> its low-low vertex
@@ -47,19 +60,25 @@ def subdivided_box(low, high, n: int = 1) -> tuple[np.ndarray, np.ndarray]:
     for k, (axis, value, u, v) in enumerate(_FACES):
         unit = np.zeros((gu.size, 3))
         unit[:, axis], unit[:, u], unit[:, v] = value, gu, gv
-        vertices.append(low + unit * (high - low))
+        corners = low + unit * (high - low)
+        if rng is not None:
+            inner = (gu > 0.0) & (gu < 1.0) & (gv > 0.0) & (gv < 1.0)
+            inward = 1.0 if value == 0 else -1.0  # the face at 0 recedes towards +axis
+            corners[inner, axis] += inward * rng.uniform(0.0, depth, size=int(inner.sum()))
+        vertices.append(corners)
         base = k * gu.size
         faces.append(np.concatenate([quad[:, [0, 1, 2]], quad[:, [0, 2, 3]]]) + base)
     return np.concatenate(vertices), np.concatenate(faces).astype(np.int64)
 
 
-def city(buildings: int = 300, seed: int = 0, detail: int = 1, spacing: float = 20.0) -> Scene:
+def city(buildings: int = 300, seed: int = 0, detail: int = 1, spacing: float = 20.0, relief: float = 0.0) -> Scene:
     """A city of ``buildings`` box buildings on a square grid of lots ``spacing`` apart, plus a
     ground plane, material colours; deterministic for ``seed``.
 
     Footprints 0.3..0.8 of ``spacing``, heights log-normal around 0.75 ``spacing``; each building's
     faces are grids of ``n x n`` quads, ``n`` log-uniform in ``1..m`` with ``m`` log-uniform in
-    ``1..detail`` per district of 4 x 4 lots (``detail=1``: 12-triangle boxes).
+    ``1..detail`` per district of 4 x 4 lots (``detail=1``: 12-triangle boxes); ``relief`` (m) recesses
+    the facades' inner vertices (:func:`subdivided_box`), detail a simplifier must keep.
 
     >>> s = city(10, seed=3, detail=8)
     >>> s.object_count, s.names[:2], 12 * 10 + 2 <= s.triangle_count <= 12 * 64 * 10 + 2
@@ -86,7 +105,7 @@ def city(buildings: int = 300, seed: int = 0, detail: int = 1, spacing: float = 
         centre = lots[i] * spacing
         low = (centre[0] - footprint[i, 0] / 2, 0.0, centre[1] - footprint[i, 1] / 2)
         high = (centre[0] + footprint[i, 0] / 2, height[i], centre[1] + footprint[i, 1] / 2)
-        vertices, faces = subdivided_box(low, high, cuts[i])
+        vertices, faces = subdivided_box(low, high, cuts[i], relief, seed=(seed, i))
         objects.append(
             SceneObject(f"building_{i:04d}", vertices, faces, base_color=(grey[i], grey[i], grey[i] * 0.95, 1.0))
         )
@@ -97,7 +116,8 @@ def city(buildings: int = 300, seed: int = 0, detail: int = 1, spacing: float = 
         np.array([[0, 1, 2], [0, 2, 3]]),  # counter-clockwise seen from +y
         base_color=(0.3, 0.5, 0.25, 1.0),
     )
-    return Scene.from_objects([ground, *objects], source=f"city-{buildings}-{seed}-{detail}")
+    relief_tag = f"-relief{relief:g}" if relief > 0.0 else ""
+    return Scene.from_objects([ground, *objects], source=f"city-{buildings}-{seed}-{detail}{relief_tag}")
 
 
 @functools.cache
