@@ -169,6 +169,17 @@ NO_UV_OBJS = {
 }
 
 
+def _assert_same_objects(now, before) -> None:
+    """Every field of every object equal (arrays element by element), in order."""
+    for a, b in zip(now.objects, before.objects):
+        for field in dataclasses.fields(a):
+            x, y = getattr(a, field.name), getattr(b, field.name)
+            if isinstance(x, np.ndarray) or isinstance(y, np.ndarray):
+                assert x is not None and y is not None and np.array_equal(x, y), (a.name, field.name)
+            else:
+                assert x == y, (a.name, field.name)
+
+
 @pytest.mark.parametrize("name", list(NO_UV_OBJS))
 def test_obj_without_uv_or_normals_loads_as_trimesh_read_it_and_on_the_linear_path(tmp_path, monkeypatch, name):
     """trimesh read each object of a file without vt/vn over all of the file's vertices (pieces x
@@ -191,13 +202,7 @@ def test_obj_without_uv_or_normals_loads_as_trimesh_read_it_and_on_the_linear_pa
     before = load_scene(path)
     assert b"/" not in given[-1]
     assert now.names == before.names and now.content_hash == before.content_hash
-    for a, b in zip(now.objects, before.objects):
-        for field in dataclasses.fields(a):
-            x, y = getattr(a, field.name), getattr(b, field.name)
-            if isinstance(x, np.ndarray) or isinstance(y, np.ndarray):
-                assert x is not None and y is not None and np.array_equal(x, y), (a.name, field.name)
-            else:
-                assert x == y, (a.name, field.name)
+    _assert_same_objects(now, before)
 
 
 MIXED_MTL = "newmtl tex\nKd 1 1 1\nmap_Kd t.png\nnewmtl red\nKd 1 0 0\n"
@@ -241,13 +246,7 @@ def test_obj_mixing_objects_with_and_without_vt_loads_as_trimesh_read_it_and_on_
     assert set(plain) <= set(given[-1].decode().replace("\r", "").split("\n"))
     assert now.names == before.names and now.content_hash == before.content_hash
     assert any(o.uv is not None for o in now.objects) and any(o.uv is None for o in now.objects)
-    for a, b in zip(now.objects, before.objects):
-        for field in dataclasses.fields(a):
-            x, y = getattr(a, field.name), getattr(b, field.name)
-            if isinstance(x, np.ndarray) or isinstance(y, np.ndarray):
-                assert x is not None and y is not None and np.array_equal(x, y), (a.name, field.name)
-            else:
-                assert x == y, (a.name, field.name)
+    _assert_same_objects(now, before)
 
 
 def test_obj_with_a_piece_of_faces_with_and_without_vt_reaches_trimesh_as_written(tmp_path, monkeypatch):
