@@ -19,7 +19,6 @@ saved less time for more bytes (level 4: 0.54-0.75x the time, 1.01-1.10x the byt
 from __future__ import annotations
 
 import io
-import os
 import weakref
 import zlib
 from collections.abc import Iterable, Sequence
@@ -27,6 +26,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from PIL import Image
+
+from farfield.core.cores import usable_cores
 
 __all__ = ["PNG_COMPRESS_LEVEL", "PNG_STRATEGY", "PagePngs", "map_threads", "page_png", "thread_count"]
 
@@ -55,11 +56,7 @@ def page_png(page: np.ndarray) -> bytes:
 def thread_count() -> int:
     """Threads to encode and write a bundle's files with: the cores this process may use, at least 4
     (a thread waiting on ``fsync`` takes no core, and ext4 commits concurrent syncs together)."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        cores = os.cpu_count() or 1
-    return max(4, cores)
+    return max(4, usable_cores())
 
 
 def map_threads(function, items: Sequence, workers: int | None = None) -> list:

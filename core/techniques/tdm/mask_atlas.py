@@ -33,7 +33,6 @@ filtering.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -42,6 +41,7 @@ import numpy as np
 from numba import njit
 from scipy.ndimage import binary_dilation
 
+from farfield.core.cores import usable_cores
 from farfield.core.errors import AtlasOverflowError, LayerPlanError
 from farfield.core.layering.atlas import MAX_PAGE
 
@@ -248,7 +248,7 @@ def pack_masks(masks: Sequence[np.ndarray], padding: int = 2, max_page: int = MA
     # The widest, which take longest, start first, so that fewer threads idle at the end (on two
     # cores and five widths of benchmarks/bench_tdm_scale.py, measured in turns in one process:
     # 12.7 and 15.4 s ascending, 11.7 and 13.1 s widest first).
-    with ThreadPoolExecutor(max_workers=min(len(widths), os.cpu_count() or 1)) as pool:
+    with ThreadPoolExecutor(max_workers=min(len(widths), usable_cores())) as pool:
         packed = dict(
             zip(
                 widths[::-1], pool.map(lambda width: _pack(shapes, flat, kind, order, width, p, max_page), widths[::-1])

@@ -34,13 +34,13 @@ Akenine-Möller (2001): the box's three axes, the triangle's normal and the nine
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
 
+from farfield.core.cores import usable_cores
 from farfield.core.errors import InternalError
 
 EPS = 1e-9
@@ -1121,7 +1121,7 @@ def strip_pass(vertices, triangles, voxel_offsets, voxels, centres, enlargement,
     # threads end together; the order of the work does not change the result.
     voxel_count = np.bincount(strip[strip >= 0], weights=lengths[strip >= 0], minlength=strips)
     order = np.argsort(-voxel_count, kind="stable")
-    with ThreadPoolExecutor(max_workers=min(strips, os.cpu_count() or 1)) as pool:
+    with ThreadPoolExecutor(max_workers=min(strips, usable_cores())) as pool:
         done = dict(zip(order.tolist(), pool.map(one, order.tolist())))
     parts = [done[k] for k in range(strips)]
     parts.append((*rows_of(np.flatnonzero(strip < 0)), {}, None))
