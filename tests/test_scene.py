@@ -169,6 +169,16 @@ NO_UV_OBJS = {
 }
 
 
+def _texts_parsed(monkeypatch) -> list:
+    """The OBJ texts handed to trimesh's parser from now on (a spy: the parser still runs)."""
+    import farfield.core.exchange.obj as obj_loader
+
+    given = []
+    parse = obj_loader.parse
+    monkeypatch.setattr(obj_loader, "parse", lambda data, *a, **k: given.append(data) or parse(data, *a, **k))
+    return given
+
+
 def _assert_same_objects(now, before) -> None:
     """Every field of every object equal (arrays element by element), in order."""
     for a, b in zip(now.objects, before.objects):
@@ -193,9 +203,7 @@ def test_obj_without_uv_or_normals_loads_as_trimesh_read_it_and_on_the_linear_pa
     (tmp_path / "m.mtl").write_text(NO_UV_MTL)
     path = tmp_path / "f.obj"
     path.write_bytes(NO_UV_OBJS[name].encode())
-    given = []
-    parse = obj_loader.parse
-    monkeypatch.setattr(obj_loader, "parse", lambda data, *a, **k: given.append(data) or parse(data, *a, **k))
+    given = _texts_parsed(monkeypatch)
     now = load_scene(path)
     assert b"\nf 1/1 2/2 " in given[-1] or b"\nf 1/1 6/6 " in given[-1] or b"\nf 5/5 6/6 7/7" in given[-1]
     monkeypatch.setattr(obj_loader, "paired_indices", lambda text: text)  # the faces as written: trimesh's path
@@ -235,9 +243,7 @@ def test_obj_mixing_objects_with_and_without_vt_loads_as_trimesh_read_it_and_on_
     PIL.Image.fromarray(np.arange(4 * 4 * 3, dtype=np.uint8).reshape(4, 4, 3) * 5).save(tmp_path / "t.png")
     path = tmp_path / "f.obj"
     path.write_bytes(MIXED_OBJS[name].encode())
-    given = []
-    parse = obj_loader.parse
-    monkeypatch.setattr(obj_loader, "parse", lambda data, *a, **k: given.append(data) or parse(data, *a, **k))
+    given = _texts_parsed(monkeypatch)
     now = load_scene(path)
     plain = [line for line in MIXED_OBJS[name].replace("\r", "").split("\n") if line[:2] == "f " and "/" not in line]
     assert plain and not set(plain) & set(given[-1].decode().replace("\r", "").split("\n"))  # all written i/K
@@ -307,13 +313,10 @@ def test_obj_without_uv_is_paired_only_where_it_pays(tmp_path, monkeypatch, obje
     to load and 27% larger at its peak (2,000,000 triangles, docs/measurements/loading.md): trimesh's
     masks cost pieces x vertices, which is small there.  Such a file reaches trimesh as written;
     one of many small objects, where the masks are quadratic, paired."""
-    import farfield.core.exchange.obj as obj_loader
 
     path = tmp_path / "grid.obj"
     path.write_text(_grid_obj(40 if objects < 10 else 4, objects))
-    given = []
-    parse = obj_loader.parse
-    monkeypatch.setattr(obj_loader, "parse", lambda data, *a, **k: given.append(data) or parse(data, *a, **k))
+    given = _texts_parsed(monkeypatch)
     scene = load_scene(path)
     assert len(scene.objects) == objects
     assert (b"/" in given[-1]) == paired
