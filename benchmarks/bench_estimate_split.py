@@ -57,7 +57,7 @@ from farfield.core.placement.hierarchy import Elements, Hierarchy  # noqa: E402
 from farfield.core.placement.planner import PlacementSettings, place  # noqa: E402
 from farfield.core.placement.runtime import PlacementRenderer, plain_estimate  # noqa: E402
 from farfield.core.placement.view_space import DEFAULT_DEPTH_COMPLEXITY, element_pixels, problem_view_space  # noqa: E402
-from farfield.core.quality.walkthrough import frame_ms, random_views  # noqa: E402
+from farfield.core.quality.walkthrough import frame_ms, frames_ms, random_views  # noqa: E402
 from farfield.core.render.context import renderer_info  # noqa: E402
 
 
@@ -111,19 +111,19 @@ def walk_split(
     with tempfile.TemporaryDirectory(prefix="farfield-bench-") as tmp:
         write_placement_database(Path(tmp) / "db", placement, impostors)
         with ImpostorDatabase(Path(tmp) / "db") as db, PlacementRenderer(scene, db) as rt:
-            index_of = {id(draw): i for i, draw in enumerate(rt.element_draws)}
             empty_ms = None
             for position, forward in zip(positions, forwards):
                 camera, draws, fig = rt.prepare(position, forward)
                 _, plain_draws, plain = rt.prepare(position, forward, plain=True, camera=camera, pvs=True)
                 if empty_ms is None:
                     empty_ms = frame_ms(lambda: rt.frame_seconds(camera, []), 9)
-                measured = frame_ms(lambda: rt.frame_seconds(camera, draws), 3)
-                plain_ms = frame_ms(lambda: rt.frame_seconds(camera, plain_draws), 3)
-                geometry = [dr for dr in draws if id(dr) in index_of]
-                shown = [dr for dr in draws if id(dr) not in index_of]
-                selected = np.array([index_of[id(dr)] for dr in geometry], dtype=np.int64)
-                plain_sel = np.array([index_of[id(dr)] for dr in plain_draws], dtype=np.int64)
+                measured, plain_ms = frames_ms(
+                    [lambda: rt.frame_seconds(camera, draws), lambda: rt.frame_seconds(camera, plain_draws)], 3
+                )
+                selected = np.array(fig.drawn, dtype=np.int64)
+                plain_sel = np.array(plain.drawn, dtype=np.int64)
+                geometry = rt.geometry_draws(selected)
+                shown = draws[len(geometry) :]
                 cov_geometry = int(np.count_nonzero(rt.render(camera, geometry)[..., 3])) if geometry else 0
                 cov_impostor = int(np.count_nonzero(rt.render(camera, shown)[..., 3])) if shown else 0
                 cov_plain = int(np.count_nonzero(rt.render(camera, plain_draws)[..., 3])) if plain_draws else 0

@@ -23,6 +23,7 @@ from farfield.core.placement.hierarchy import PlacementError
 from farfield.core.placement.planner import PlacementSettings, place
 from farfield.core.placement.runtime import PlacementRenderer, boxes_in_frustum
 from farfield.core.quality.walkthrough import placement_walkthrough, random_views
+from farfield.core.render.raster import MeshRenderer
 
 VIEW = (np.array([20.0, 110.0, 20.0]), np.array([100.0, 115.0, 100.0]))  # above the roofs of the city
 RESOLUTION = 64
@@ -75,7 +76,8 @@ def test_culling_is_conservative_and_the_runtime_draws_less(placed):
             camera, culled, plain = runtime.prepare(p, d, plain=True)
             _, everything, full = runtime.prepare(p, d, plain=True, cull=False, camera=camera)
             assert np.array_equal(runtime.render(camera, culled), runtime.render(camera, everything))
-            assert plain.draw_calls <= full.draw_calls == len(runtime.element_draws)
+            assert plain.draw_calls <= full.draw_calls == len(scene.objects)  # every element drawn: one call per object
+            assert full.elements == runtime.elements.count
             _, _, fig = runtime.prepare(p, d, camera=camera)
             assert fig.impostors <= fig.impostors_in_cpv
             if fig.impostors:
@@ -152,14 +154,13 @@ def test_a_frames_estimate_counts_its_elements_boxes_clipped_to_the_frame(placed
     frame = RESOLUTION * RESOLUTION
     with ImpostorDatabase(root) as db, PlacementRenderer(scene, db) as runtime:
         runtime.model = CostModel("frame_ms", (0.0, 0.0, 1.0, 0.0), (0.0, 0.0, 0.0), (1.0, 0.0, 1.0))  # time = pixels
-        index_of = {id(draw): i for i, draw in enumerate(runtime.element_draws)}
         positions, forwards = random_views(*VIEW, 16, seed=6)
         forwards[:, 1] = -np.abs(forwards[:, 1]) - 0.3  # towards the roofs
         tighter = 0
         for p, d in zip(positions, forwards):
             camera, draws, fig = runtime.prepare(p, d, plain=True)
             covered = int(np.count_nonzero(runtime.render(camera, draws)[..., 3])) if draws else 0
-            drawn = np.array([index_of[id(dr)] for dr in draws], dtype=np.int64)
+            drawn = np.array(fig.drawn, dtype=np.int64)
             b = runtime.elements.bounds[drawn]
             clipped = float(box_frame_pixels(camera, b[:, 0], b[:, 1]).sum()) if drawn.size else 0.0
             assert fig.estimate == min(clipped, runtime.depth_complexity * frame)
@@ -169,3 +170,42 @@ def test_a_frames_estimate_counts_its_elements_boxes_clipped_to_the_frame(placed
             )
             tighter += fig.estimate < 0.5 * free
         assert tighter >= 4, tighter
+
+
+def test_a_split_objects_consecutive_clusters_are_one_draw_call(tmp_path):
+    """Clusters of a split object lie in element order in the object's one upload: a run of
+    consecutive clusters drawn is one draw call (an object drawn whole is one, as the planner counts
+    it), and the image is the one its clusters drawn one by one give, impostors replacing some
+    clusters included.  Fails if each cluster is its own call, or a run draws a cluster it should not."""
+    scene = procedural.city(16, seed=3, detail=4)
+    settings = PlacementSettings(t_max=0.4 * scene.triangle_count, model=primitive_model(), options={"resolution": RESOLUTION},
+                                 vdi_deg=45.0, cpv_size=20.0, cluster_triangles=40)  # fmt: skip
+    lo, hi = np.array([10.0, 60.0, 10.0]), np.array([70.0, 65.0, 70.0])
+    placement = place(scene, lo, hi, settings)
+    root = write_placement_database(tmp_path / "db", placement, bake_placement(scene, placement))
+    with ImpostorDatabase(root) as db, PlacementRenderer(scene, db) as runtime:
+        E = runtime.elements
+        split = np.array([piece is not None for piece in E.faces])
+        assert split.sum() > 2 * len({int(o) for o in E.object_index[split]})  # objects of several clusters
+        _, everything, full = runtime.prepare(lo, np.array([0.0, -1.0, 0.2]), plain=True, cull=False)
+        assert full.draw_calls == len(scene.objects) < E.count
+        replaced = runs_smaller = 0
+        positions, forwards = random_views(lo, hi, 12, seed=4)
+        for p, d in zip(positions, forwards):
+            for plain in (True, False):
+                camera, draws, fig = runtime.prepare(p, d, plain=plain)
+                drawn = np.array(fig.drawn, dtype=np.int64)
+                geometry = runtime.geometry_draws(drawn)
+                # runs: a new one where the object changes or a cluster is skipped
+                same = (np.diff(drawn) == 1) & (E.object_index[drawn][1:] == E.object_index[drawn][:-1]) & split[drawn][1:] & split[drawn][:-1]
+                assert len(geometry) == drawn.size - int(same.sum())
+                one_by_one = [g for i in drawn for g in runtime.geometry_draws([i])] + draws[len(geometry) :]
+                image = runtime.render(camera, draws)
+                assert np.array_equal(image, runtime.render(camera, one_by_one))
+                if plain and drawn.size:  # against the elements uploaded one by one, as objects of their own
+                    with MeshRenderer(E.scene_of(scene, drawn).objects) as own:
+                        differ = np.any(own.render(camera) != image, axis=-1)
+                    assert differ.mean() < 0.002, differ.sum()
+                runs_smaller += len(geometry) < drawn.size
+                replaced += not plain and fig.impostors > 0
+        assert runs_smaller > 0 and replaced > 0

@@ -121,7 +121,7 @@ def test_the_runtime_draws_only_the_pvs_and_the_walkthrough_finds_no_hole(walled
     with _with_index(root, tmp_path, lambda index: index["placement"].pop("visibility")) as db:
         with PlacementRenderer(scene, db) as runtime:
             _, _, fig = runtime.prepare(POSITIONS[0], FORWARDS[0])
-            assert fig.pvs is None and fig.elements == len(runtime.element_draws) - 1  # all but "beside" (behind)
+            assert fig.pvs is None and fig.elements == runtime.elements.count - 1  # all but "beside" (behind)
 
 
 def test_a_pvs_that_drops_a_visible_element_is_counted_as_holes(walled, tmp_path):

@@ -5,8 +5,12 @@ potentially visible set and to the frustum.
 Seed 000 §5.7: the runtime looks up the view's conservative problem view (CPV, a 3D region x a
 view-direction interval), draws the impostors chosen for it and, as geometry, the rest of the
 scene.  Here every *element* of the placement (a scene object, or a cluster ``name#k`` of a split
-object, :class:`farfield.core.placement.hierarchy.Elements`) is its own draw call, so that what an
-impostor replaces is exactly what is left out; each impostor bundle is read and uploaded once,
+object, :class:`farfield.core.placement.hierarchy.Elements`) can be left out on its own, so that what an
+impostor replaces is exactly what is left out.  Drawn, a whole object is one draw call, and a split
+object's clusters lie in element order in the one index buffer of the object: a run of consecutive
+clusters drawn is one call over its index range, so an object drawn whole costs one draw call,
+as the planner counts it (``Elements.draw_calls``: each cluster ``1 / n`` of its object's call).
+Each impostor bundle is read and uploaded once,
 when a view first needs it, and drawn as its payload draws itself everywhere else
 (:meth:`farfield.core.impostor.impostor.Payload.draw_objects`: quads or meshes textured from the atlas pages).
 A payload not drawn as triangles that has a renderer drawing into the bound framebuffer
@@ -149,14 +153,30 @@ class ViewFigures:
     far: float
     pvs: int | None = None  # elements in the PVS of the eye's region (None: no PVS used)
     pvs_culled: int = 0  # elements in the frustum, not replaced, that the PVS left out
+    drawn: tuple[int, ...] = ()  # the elements drawn as geometry (indices, ascending); not in to_dict
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        figures = asdict(self)
+        del figures["drawn"]
+        return figures
+
+
+class _IndexRange:
+    """A run of an uploaded object's index buffer, drawn by ``render`` as the whole VAO would be: the
+    draw of consecutive clusters of a split object (:class:`PlacementRenderer`)."""
+
+    __slots__ = ("vao", "first", "vertices")
+
+    def __init__(self, vao, first: int, vertices: int):
+        self.vao, self.first, self.vertices = vao, first, vertices
+
+    def render(self, mode) -> None:
+        self.vao.render(mode, vertices=self.vertices, first=self.first)
 
 
 class PlacementRenderer:
-    """A placement database's reference runtime: the scene's elements uploaded once, each its own
-    draw call; the impostors uploaded when first needed (see the module docstring).  Release with
+    """A placement database's reference runtime: the scene's objects uploaded once, an element drawn
+    on its own or with the clusters next to it in one draw call; the impostors uploaded when first needed (see the module docstring).  Release with
     :meth:`release` or use as a context manager."""
 
     def __init__(self, scene: Scene, database: ImpostorDatabase):
@@ -199,10 +219,28 @@ class PlacementRenderer:
                 f"the scene has no elements {missing[:5]}{' ...' if len(missing) > 5 else ''} that the placement's impostors replace "
                 f"(objects split at {self.elements.cluster_triangles} triangles): is it the placement's scene?"
             )
-        # One object per element, in element order (scene_of sorts its indices: 0..count-1 is that order).
-        objects = self.elements.scene_of(scene, range(self.elements.count)).objects
+        # One upload per scene object: a whole object as it is, a split one as its clusters' faces
+        # in element order (Elements.of lists an object's clusters one after another), so that
+        # ``_slots[i]`` = (upload, first face, faces) of element i; faces None: the whole object.
+        objects, self._slots = [], []
+        E = self.elements
+        for i in range(E.count):
+            piece = E.faces[i]
+            if piece is None:
+                self._slots.append((len(objects), 0, None))
+                objects.append(scene.objects[int(E.object_index[i])])
+            elif i == 0 or E.object_index[i - 1] != E.object_index[i] or E.faces[i - 1] is None:
+                obj = scene.objects[int(E.object_index[i])]
+                end = i
+                while end < E.count and E.object_index[end] == E.object_index[i] and E.faces[end] is not None:
+                    end += 1
+                pieces = [E.faces[j] for j in range(i, end)]
+                starts = np.concatenate([[0], np.cumsum([p.size for p in pieces])])
+                self._slots.extend((len(objects), int(starts[k]), int(pieces[k].size)) for k in range(len(pieces)))
+                objects.append(obj.with_faces(np.concatenate(pieces), obj.name))
         self.gpu = MeshRenderer(objects)
-        self.element_draws = list(self.gpu._draws)
+        self._uploads = list(self.gpu._draws)
+        self._runs: dict[tuple[int, int, int], tuple] = {}  # (upload, first face, faces) -> its draw
         self.scene_corners = box_corners(scene.bounds)
         self._impostors: dict[int, tuple] = {}
         self.uploaded_impostor_bytes = 0
@@ -330,7 +368,7 @@ class PlacementRenderer:
         if cull and pvs_culled.size:
             b = self.elements.bounds[pvs_culled]
             pvs_culled = pvs_culled[boxes_in_frustum(camera, b[:, 0], b[:, 1])]
-        draws = [self.element_draws[i] for i in selected]
+        draws = self.geometry_draws(selected)
         shown = [
             item for item in loaded if not cull or bool(boxes_in_frustum(camera, item[3][None, :], item[4][None, :])[0])
         ]
@@ -355,8 +393,42 @@ class PlacementRenderer:
             geometry_triangles=geometry_triangles, quads=sum(item[2] for item in shown), impostors=len(shown),
             impostors_in_cpv=0 if plain else len(cells), elements=int(selected.size), near=camera.near, far=camera.far,
             pvs=None if stored is None else int(stored.size), pvs_culled=int(pvs_culled.size),
+            drawn=tuple(int(i) for i in selected),
         )  # fmt: skip
         return camera, draws, figures
+
+    def geometry_draws(self, elements) -> list[tuple]:
+        """The draws of ``elements`` (indices, ascending): one per whole object, one per run of
+        consecutive clusters of a split object (its index range; the whole upload when every
+        cluster is drawn)."""
+        draws, run = [], None  # run: [upload, first face, faces, last element]
+        for i in elements:
+            i = int(i)
+            upload, first, faces = self._slots[i]
+            if faces is None:
+                draws.append(self._uploads[upload])
+                continue
+            if run is not None and run[0] == upload and run[3] == i - 1:
+                run[2] += faces
+                run[3] = i
+                continue
+            if run is not None:
+                draws.append(self._run_draw(*run[:3]))
+            run = [upload, first, faces, i]
+        if run is not None:
+            draws.append(self._run_draw(*run[:3]))
+        return draws
+
+    def _run_draw(self, upload: int, first: int, faces: int) -> tuple:
+        whole = self._uploads[upload]
+        if first == 0 and faces == whole[0].faces.shape[0]:
+            return whole
+        key = (upload, first, faces)
+        draw = self._runs.get(key)
+        if draw is None:
+            draw = (*whole[:3], _IndexRange(whole[3], 3 * first, 3 * faces), *whole[4:])
+            self._runs[key] = draw
+        return draw
 
     def _draw(self, camera: Camera, draws: list):
         """Draw ``draws``: the geometry's (MeshRenderer draw tuples) first, then the cards
