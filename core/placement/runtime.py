@@ -400,21 +400,23 @@ class PlacementRenderer:
     def geometry_draws(self, elements) -> list[tuple]:
         """The draws of ``elements`` (indices, ascending): one per whole object, one per run of
         consecutive clusters of a split object (its index range; the whole upload when every
-        cluster is drawn)."""
+        cluster is drawn), in element order, the full scene's: where two objects meet at the same
+        depth, the one listed first shows, as in the full scene."""
         draws, run = [], None  # run: [upload, first face, faces, last element]
         for i in elements:
             i = int(i)
             upload, first, faces = self._slots[i]
-            if faces is None:
-                draws.append(self._uploads[upload])
-                continue
             if run is not None and run[0] == upload and run[3] == i - 1:
                 run[2] += faces
                 run[3] = i
                 continue
-            if run is not None:
+            if run is not None:  # closed before whatever comes next, a whole object included
                 draws.append(self._run_draw(*run[:3]))
-            run = [upload, first, faces, i]
+                run = None
+            if faces is None:
+                draws.append(self._uploads[upload])
+            else:
+                run = [upload, first, faces, i]
         if run is not None:
             draws.append(self._run_draw(*run[:3]))
         return draws
