@@ -7,7 +7,8 @@ Per scene (``bench_visibility.py``'s scenes, CPV size, 45° intervals and walk: 
 visibility at t_max = half the worst view's estimate, baked, walked along ``--views`` random views
 with the runtime drawing the PVS), for every frame:
 
-* ``measured``: the runtime's frame (median of 3 draws after an untimed one);
+* ``measured``: the runtime's frame (median of 3 draws interleaved with the plain geometry's, after
+  untimed rounds of both, ``frames_ms``);
 * ``estimate``: what the walkthrough compares it with (the CPV's time after placement, or for a view
   in no CPV the model over the PVS's elements in the frustum);
 * (a) ``drawn_covered``: the model over exactly what the frame draws (frustum ∩ PVS, the impostors

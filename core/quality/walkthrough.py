@@ -4,7 +4,7 @@ For every frame the reference runtime (:mod:`farfield.core.techniques.envmap.run
 that cell's renderer when the cell changes (uploading its near field and quads, then prefetching
 the neighbours' bundles, seed 002 §3 runtime steps 1-2), and draws near field + impostors.  The
 full scene is drawn from the same camera by the same renderer.  Per frame: both frame times (draw
-and finish, no read-back; the median of ``repeats`` draws after one untimed draw, :func:`frame_ms`),
+and finish, no read-back; warm, interleaved medians of ``repeats`` draws, :func:`frames_ms`),
 hole pixels and colour error of the
 runtime's image against the full scene's, triangles drawn, and whether the cell changed.  Given
 lights, each frame is also drawn lit (:func:`lit_frame`: both G-buffers shaded as the lit
@@ -133,8 +133,9 @@ WARM_ROUNDS = 64
 
 
 def frame_ms(draw: Callable[[], float], repeats: int) -> float:
-    """Milliseconds of a frame: ``draw()`` (which returns its seconds) once untimed, then the median
-    of ``repeats`` draws (:func:`frames_ms` of one renderer)."""
+    """Milliseconds of a frame: ``draw()`` (which returns its seconds) untimed until
+    :data:`WARM_SECONDS` of drawing (1 to :data:`WARM_ROUNDS` draws), then the median of ``repeats``
+    draws (:func:`frames_ms` of one renderer)."""
     return frames_ms([draw], repeats)[0]
 
 
@@ -471,8 +472,8 @@ def placement_walkthrough(
     (:class:`farfield.core.placement.runtime.PlacementRenderer`: the CPV's impostors and the elements they do
     not replace, culled to the stored PVS of the eye's region where the database has one
     (``visibility`` False: not) and to the frustum) and the plain geometry (every element, culled alike), both timed
-    from the same camera (median of ``repeats`` draws, no read-back, after one untimed draw of each,
-    :func:`frame_ms`; the runtime's also uploads an impostor before it is needed, as a runtime
+    from the same camera (median of ``repeats`` draws each, no read-back, interleaved after untimed
+    rounds of both, :func:`frames_ms`; the runtime's also uploads an impostor before it is needed, as a runtime
     does), the model's estimate, what was
     drawn, and (``compare``) hole pixels and colour error of the runtime's image against the full
     scene drawn unculled.  Returns ``{"frames": [...], "summary": {...}}`` (:func:`summarize_placement`).
