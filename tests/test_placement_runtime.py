@@ -22,7 +22,7 @@ from farfield.core.placement.database import PlacementLookup, bake_placement, wr
 from farfield.core.placement.hierarchy import PlacementError
 from farfield.core.placement.planner import PlacementSettings, place
 from farfield.core.placement.runtime import PlacementRenderer, boxes_in_frustum
-from farfield.core.quality.walkthrough import placement_walkthrough, random_views
+from farfield.core.quality.walkthrough import WARM_ROUNDS, frames_ms, placement_walkthrough, random_views
 from farfield.core.render.raster import MeshRenderer
 from farfield.core.scene import Scene, SceneObject
 
@@ -246,3 +246,22 @@ def test_the_runtime_draws_its_elements_in_scene_order(tmp_path):
         assert np.count_nonzero(reference[..., 0] > 200) > 0.5 * RESOLUTION**2  # "under" shows, over "over" too
         assert np.count_nonzero(reference[..., 2] > 200) == 0
         assert np.array_equal(image, reference)
+
+
+def test_frame_times_are_warm_interleaved_medians():
+    """frames_ms: untimed rounds of every renderer until 10 ms of drawing (at least one, at most
+    WARM_ROUNDS: a frame that draws nothing ends), then rounds in turn, the order rotated; each
+    renderer's median.  The draws are plain functions returning their seconds."""
+    calls = []
+
+    def drawer(name, seconds):
+        return lambda: calls.append(name) or seconds
+
+    ms = frames_ms([drawer("a", 0.001), drawer("b", 0.002)], 3)  # 3 ms a round: 4 warm rounds
+    assert calls == ["a", "b"] * 4 + ["a", "b", "b", "a", "a", "b"]
+    assert ms == pytest.approx([1.0, 2.0])
+    calls.clear()
+    assert frames_ms([drawer("empty", 0.0)], 2) == [0.0] and len(calls) == WARM_ROUNDS + 2
+    calls.clear()
+    frames_ms([drawer("slow", 0.05)], 2)
+    assert len(calls) == 1 + 2
