@@ -58,6 +58,7 @@ import numpy as np
 from farfield.core.errors import RenderBackendError
 from farfield.core.impostor.database import ImpostorDatabase
 from farfield.core.placement.cost_model import CostModel
+from farfield.core.placement.element_draws import ElementDraws
 from farfield.core.placement.frame_pixels import box_frame_pixels
 from farfield.core.placement.hierarchy import Elements, PlacementError
 from farfield.core.placement.lod import LOD_TECHNIQUE, keeps_border, level_for
@@ -135,6 +136,16 @@ def plain_estimate(
     return float(model.frame_time + np.sum(base) + model.geometry[2] * min(float(pixels.sum()), cap))
 
 
+def depth_range(position: np.ndarray, corners: np.ndarray, lows: np.ndarray, highs: np.ndarray) -> tuple[float, float]:
+    """(near, far) of a runtime's camera at ``position``: far past every point of ``corners``
+    (n, 3), near half the distance to the nearest of the boxes ``lows``/``highs`` (m, 3), at least
+    far / 1e5."""
+    far = 1.01 * float(np.max(np.linalg.norm(corners - position, axis=1)))
+    gap = np.maximum(0.0, np.maximum(lows - position, position - highs))
+    near = max(0.5 * float(np.sqrt((gap * gap).sum(axis=1)).min()), far * 1e-5)
+    return near, max(far, 2.0 * near)
+
+
 @dataclass
 class ViewFigures:
     """What one :meth:`PlacementRenderer.draw` drew, and what the model expected of it."""
@@ -159,19 +170,6 @@ class ViewFigures:
         figures = asdict(self)
         del figures["drawn"]
         return figures
-
-
-class _IndexRange:
-    """A run of an uploaded object's index buffer, drawn by ``render`` as the whole VAO would be: the
-    draw of consecutive clusters of a split object (:class:`PlacementRenderer`)."""
-
-    __slots__ = ("vao", "first", "vertices")
-
-    def __init__(self, vao, first: int, vertices: int):
-        self.vao, self.first, self.vertices = vao, first, vertices
-
-    def render(self, mode) -> None:
-        self.vao.render(mode, vertices=self.vertices, first=self.first)
 
 
 class PlacementRenderer:
@@ -219,28 +217,8 @@ class PlacementRenderer:
                 f"the scene has no elements {missing[:5]}{' ...' if len(missing) > 5 else ''} that the placement's impostors replace "
                 f"(objects split at {self.elements.cluster_triangles} triangles): is it the placement's scene?"
             )
-        # One upload per scene object: a whole object as it is, a split one as its clusters' faces
-        # in element order (Elements.of lists an object's clusters one after another), so that
-        # ``_slots[i]`` = (upload, first face, faces) of element i; faces None: the whole object.
-        objects, self._slots = [], []
-        E = self.elements
-        for i in range(E.count):
-            piece = E.faces[i]
-            if piece is None:
-                self._slots.append((len(objects), 0, None))
-                objects.append(scene.objects[int(E.object_index[i])])
-            elif i == 0 or E.object_index[i - 1] != E.object_index[i] or E.faces[i - 1] is None:
-                obj = scene.objects[int(E.object_index[i])]
-                end = i
-                while end < E.count and E.object_index[end] == E.object_index[i] and E.faces[end] is not None:
-                    end += 1
-                pieces = [E.faces[j] for j in range(i, end)]
-                starts = np.concatenate([[0], np.cumsum([p.size for p in pieces])])
-                self._slots.extend((len(objects), int(starts[k]), int(pieces[k].size)) for k in range(len(pieces)))
-                objects.append(obj.with_faces(np.concatenate(pieces), obj.name))
-        self.gpu = MeshRenderer(objects)
-        self._uploads = list(self.gpu._draws)
-        self._runs: dict[tuple[int, int, int], tuple] = {}  # (upload, first face, faces) -> its draw
+        self.uploads = ElementDraws(scene, self.elements)
+        self.gpu = self.uploads.renderer
         self.scene_corners = box_corners(scene.bounds)
         self._impostors: dict[int, tuple] = {}
         self.uploaded_impostor_bytes = 0
@@ -305,15 +283,11 @@ class PlacementRenderer:
     # -- drawing --------------------------------------------------------------------------
 
     def _depth(self, position: np.ndarray, points: list[np.ndarray]) -> tuple[float, float]:
-        """(near, far): far past every corner of the scene and of the impostors' ``points``; near half
-        the distance to the nearest element's or impostor's bounds, at least far / 1e5."""
+        """:func:`depth_range` of the scene's corners and elements and the impostors' ``points``."""
         corners = np.concatenate([self.scene_corners, *points]) if points else self.scene_corners
-        far = 1.01 * float(np.max(np.linalg.norm(corners - position, axis=1)))
         lows = np.concatenate([self.elements.bounds[:, 0]] + [p.min(axis=0, keepdims=True) for p in points])
         highs = np.concatenate([self.elements.bounds[:, 1]] + [p.max(axis=0, keepdims=True) for p in points])
-        gap = np.maximum(0.0, np.maximum(lows - position, position - highs))
-        near = max(0.5 * float(np.sqrt((gap * gap).sum(axis=1)).min()), far * 1e-5)
-        return near, max(far, 2.0 * near)
+        return depth_range(position, corners, lows, highs)
 
     def prepare(
         self,
@@ -398,39 +372,8 @@ class PlacementRenderer:
         return camera, draws, figures
 
     def geometry_draws(self, elements) -> list[tuple]:
-        """The draws of ``elements`` (indices, ascending): one per whole object, one per run of
-        consecutive clusters of a split object (its index range; the whole upload when every
-        cluster is drawn), in element order, the full scene's: where two objects meet at the same
-        depth, the one listed first shows, as in the full scene."""
-        draws, run = [], None  # run: [upload, first face, faces, last element]
-        for i in elements:
-            i = int(i)
-            upload, first, faces = self._slots[i]
-            if run is not None and run[0] == upload and run[3] == i - 1:
-                run[2] += faces
-                run[3] = i
-                continue
-            if run is not None:  # closed before whatever comes next, a whole object included
-                draws.append(self._run_draw(*run[:3]))
-                run = None
-            if faces is None:
-                draws.append(self._uploads[upload])
-            else:
-                run = [upload, first, faces, i]
-        if run is not None:
-            draws.append(self._run_draw(*run[:3]))
-        return draws
-
-    def _run_draw(self, upload: int, first: int, faces: int) -> tuple:
-        whole = self._uploads[upload]
-        if first == 0 and faces == whole[0].faces.shape[0]:
-            return whole
-        key = (upload, first, faces)
-        draw = self._runs.get(key)
-        if draw is None:
-            draw = (*whole[:3], _IndexRange(whole[3], 3 * first, 3 * faces), *whole[4:])
-            self._runs[key] = draw
-        return draw
+        """The draws of ``elements`` (indices, ascending): :meth:`ElementDraws.draws`."""
+        return self.uploads.draws(elements)
 
     def _draw(self, camera: Camera, draws: list):
         """Draw ``draws``: the geometry's (MeshRenderer draw tuples) first, then the cards
@@ -473,7 +416,7 @@ class PlacementRenderer:
         for item in self._impostors.values():
             item[0].release()
         self._impostors.clear()
-        self.gpu.release()
+        self.uploads.release()
 
     def __enter__(self) -> Self:
         return self
