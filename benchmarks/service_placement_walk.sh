@@ -5,7 +5,9 @@
 # Usage: benchmarks/service_placement_walk.sh [SCENE ...]   (street, downtown, city, dense; default street)
 #   env: VIEWS (100), SEED (0), RESOLUTION (128), CPV_DIVISIONS (8), VDI_DEG (11.25), SIDES (both: the
 #        materials double-sided as the built scene's objects; one: one-sided), KEEP (a folder to keep),
-#        ALSO (another source of candidates for the job's --also, e.g. lod: simplified geometry competes)
+#        ALSO (another source of candidates for the job's --also, e.g. lod: simplified geometry competes),
+#        CALIBRATE (a quantile, e.g. 0.9: the job's cost model is `farfield calibrate GLB --view-space ... --quantile Q
+#        --seed 1` on the scene's own frames, not the builtin llvmpipe model; t_max stays the builtin's reference budget)
 #
 # Per scene: the benchmark scene written as a GLB with its view space and t_max (half the worst
 # view's estimate by the builtin llvmpipe model: benchmarks/write_benchmark_scene.py); a fresh
@@ -19,7 +21,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=.venv/bin/python
 FF=.venv/bin/farfield
-VIEWS=${VIEWS:-100} SEED=${SEED:-0} RESOLUTION=${RESOLUTION:-128} CPV_DIVISIONS=${CPV_DIVISIONS:-8} VDI_DEG=${VDI_DEG:-11.25} SIDES=${SIDES:-both} ALSO=${ALSO:-}
+VIEWS=${VIEWS:-100} SEED=${SEED:-0} RESOLUTION=${RESOLUTION:-128} CPV_DIVISIONS=${CPV_DIVISIONS:-8} VDI_DEG=${VDI_DEG:-11.25} SIDES=${SIDES:-both} ALSO=${ALSO:-} CALIBRATE=${CALIBRATE:-}
 WORK=${KEEP:-$(mktemp -d -t farfield-svc-walk-XXXX)}
 mkdir -p "$WORK"
 SCENES=("${@:-street}")
@@ -34,6 +36,12 @@ for NAME in "${SCENES[@]}"; do
   mkdir -p "$OUT"
   eval "$($PY benchmarks/write_benchmark_scene.py "$NAME" "$OUT/$NAME.glb" --resolution "$RESOLUTION" --cpv-divisions "$CPV_DIVISIONS" --sides "$SIDES")"
   echo "# $NAME ($SIDES-sided): $OBJECTS objects, $TRIANGLES triangles; view space $VIEW_SPACE; t_max $T_MAX_MS ms (worst view $WORST_MS); CPV $CPV_SIZE" >&2
+  MODEL=llvmpipe
+  if [ -n "$CALIBRATE" ]; then
+    run calibrate "$GLB" --view-space="$VIEW_SPACE" --resolution "$RESOLUTION" --fov 45 --quantile "$CALIBRATE" --seed 1 \
+      --out "$OUT/model.json" >"$OUT/calibrate.txt"
+    MODEL=$OUT/model.json
+  fi
   PORT=$($PY -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
   export FARFIELD_HOME=$OUT/home FARFIELD_URL=http://127.0.0.1:$PORT
   echo "\$ FARFIELD_HOME=$FARFIELD_HOME farfield up --workers 1 --port $PORT &" >&2
@@ -45,7 +53,7 @@ for NAME in "${SCENES[@]}"; do
     sleep 0.5
   done
   rm -rf "$OUT/db"
-  run submit "$GLB" --placement --view-space="$VIEW_SPACE" --frame-ms "$T_MAX_MS" --cost-model llvmpipe \
+  run submit "$GLB" --placement --view-space="$VIEW_SPACE" --frame-ms "$T_MAX_MS" --cost-model "$MODEL" \
     --resolution "$RESOLUTION" --fov 45 --cpv-size "$CPV_SIZE" --vdi-deg "$VDI_DEG" --visibility --no-evaluate \
     ${ALSO:+--also "$ALSO"} --wait --download "$OUT/db" --json >"$OUT/job.json"
   JOB=$($PY -c 'import json, sys; print(json.load(open(sys.argv[1]))["id"])' "$OUT/job.json")

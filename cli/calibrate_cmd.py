@@ -10,6 +10,7 @@ import click
 
 from farfield.cli import sides_option
 from farfield.cli.bake_cmd import _Bar
+from farfield.cli.place_cmd import _numbers
 from farfield.core.exchange import load_scene
 from farfield.core.placement.calibration import Calibration, CalibrationOptions, calibrate, default_scene
 from farfield.core.placement.cost_model import CostModelError
@@ -27,6 +28,7 @@ def _quality(fit: dict, what: str = "R²") -> str:
     return (
         f"  {what} {'-' if r2 is None else f'{r2:.3f}'} ({fit['samples']} fitted), held-out relative error "
         f"median {_pct(fit.get('holdout_rel_error_median'))}, p90 {_pct(fit.get('holdout_rel_error_p90'))} ({fit['holdout']} held out)"
+        + (f"; held out above the model: {_pct(fit.get('holdout_share_above'))}" if "quantile" in fit else "")
     )
 
 
@@ -49,7 +51,10 @@ def report_lines(result: Calibration, written: str | None) -> list[str]:
             f"samples: {n['geometry']} geometry views, {n['impostors_baked']} impostors baked ({n['cells_refused']} random cells refused) "
             f"drawn from {n['impostor']} views; {o['resolution']} px, {o['fov_deg']:g}° field of view, seed {o['seed']}"
         ),
-        "geometry  t = a*draw_calls + b*triangles + c*pixels + d  (ms)",
+        (
+            f"geometry  t = a*draw_calls + b*triangles + c*pixels + d  (ms; {'frames from random views in the view space ' + str(o['view_space']) if o.get('view_space') else 'clusters seen from outside'}; "
+            f"{'quantile ' + format(o['quantile'], 'g') + ' of the frames' if o.get('quantile') is not None else 'least squares'})"
+        ),
         f"  a {a:.4g} ms/draw call   b {b:.4g} ms/triangle   c {c:.4g} ms/pixel   d {d:.4g} ms/frame",
         _quality(fit["geometry"]),
         f"impostor  t = e*pixels + f*quads + g  (ms; its frame less the empty frame's {result.empty_frame_ms:.3g} ms)",
@@ -100,16 +105,38 @@ def report_lines(result: Calibration, written: str | None) -> list[str]:
     help="Seed of the clusters, viewpoints and cells.",
 )
 @click.option(
+    "--view-space",
+    default=None,
+    help="x0,y0,z0,x1,y1,z1: measure geometry on frames of the one SCENE from random views in this box, drawn as the "
+    "placement runtime draws them (the elements in the frustum), instead of clusters seen from outside; "
+    "use the placement's resolution and field of view.",
+)
+@click.option(
+    "--quantile",
+    default=None,
+    type=click.FloatRange(0.0, 1.0, min_open=True, max_open=True),
+    help="Fit the geometry terms by quantile regression: a time this share of frames with those counts stay under "
+    "(e.g. 0.9 for a budget), instead of least squares (their mean).",
+)
+@click.option(
     "--out", default=None, type=click.Path(dir_okay=False), help="Write the model (JSON, for --cost-model) here."
 )
 @click.option("--json", "as_json", is_flag=True, help="The model, where it was written and every sample, as JSON.")
 @sides_option
-def calibrate_cmd(scenes, samples, impostors, resolution, fov, seed, out, as_json, sides):
+def calibrate_cmd(scenes, samples, impostors, resolution, fov, seed, view_space, quantile, out, as_json, sides):
     """Fit the rendering-time and memory models of impostor placement on the renderer this runs on
     (seed 000 §5.8.1): draw random object clusters of SCENEs (default: a procedural city) from random
     viewpoints, bake and draw layered impostors for random shaft cells, and fit the coefficients by
-    least squares."""
-    options = CalibrationOptions(samples=samples, impostors=impostors, resolution=resolution, fov_deg=fov, seed=seed)
+    least squares (or, with --view-space, draw SCENE's own frames from random views in the box; with
+    --quantile, fit the geometry terms to that quantile of the frames)."""
+    if view_space is not None:
+        box = _numbers(view_space, 6, "--view-space")
+        if len(scenes) != 1:
+            raise click.UsageError(f"--view-space calibrates on one SCENE's own views, got {len(scenes)} scenes")
+    else:
+        box = None
+    options = CalibrationOptions(samples=samples, impostors=impostors, resolution=resolution, fov_deg=fov, seed=seed,
+                                 view_space=box, quantile=quantile)  # fmt: skip
     if out and not Path(out).resolve().parent.is_dir():  # before minutes of measuring, not after
         raise CostModelError(f"cannot write the cost model to {out!r}: no folder {str(Path(out).resolve().parent)!r}")
     loaded = [load_scene(path, sides=sides) for path in scenes] if scenes else [default_scene()]

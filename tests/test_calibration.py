@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import subprocess
 import sys
 
@@ -244,3 +245,73 @@ def test_bad_arguments_give_one_line_and_a_non_zero_exit(args, message):
     lines = run.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("farfield: error:") and message in lines[0], run.stderr
     assert run.stdout == ""
+
+
+def _tower_and_ground():
+    from farfield.core.procedural import subdivided_box
+    from farfield.core.scene import Scene, SceneObject
+
+    v, f = subdivided_box((-5.0, 0.0, -5.0), (5.0, 30.0, 5.0), 12)  # 1,728 triangles: split into clusters
+    ground = np.array([[-60.0, 0.0, -60.0], [-60.0, 0.0, 60.0], [60.0, 0.0, 60.0], [60.0, 0.0, -60.0]])
+    objects = [SceneObject("tower", v, f), SceneObject("ground", ground, np.array([[0, 1, 2], [0, 2, 3]]))]
+    return Scene.from_objects(objects, "tower")
+
+
+def test_calibration_on_a_scenes_own_views_fits_a_quantile_of_its_frames():
+    """``view_space``: geometry samples are frames from random views inside the box, drawn as the
+    placement runtime draws plain geometry (elements in the frustum; a split object's clusters one
+    call, counted as the planner counts them), some of them empty (the sky); ``quantile``: the
+    geometry terms put about that share of the frames under the model, where least squares on the
+    same samples puts about half.  Fails if either option is ignored."""
+    from farfield.core.placement.hierarchy import Elements
+
+    scene = _tower_and_ground()
+    elements = Elements.of(scene)
+    clusters = sum(piece is not None for piece in elements.faces)
+    assert clusters > 2
+    options = CalibrationOptions(samples=60, impostors=4, resolution=48, seed=3, view_space=(-40.0, 5.0, -40.0, 40.0, 20.0, 40.0),
+                                 quantile=0.9)  # fmt: skip
+    result = calibrate([scene], options)
+    samples = result.geometry
+    assert len(samples) == 60 and {s.scene for s in samples} == {0}
+    assert any(s.objects == 0 and s.pixels == 0.0 for s in samples)  # looking at the sky: nothing drawn
+    # a split object's clusters count as the planner counts them: 1 / n of its call each, not one each
+    assert any(s.objects >= 3 and s.draw_calls <= s.objects - 1 for s in samples)
+    assert all(s.draw_calls <= 2.0 + 1e-9 for s in samples)  # the tower and the ground: two calls at most
+    assert all(0.0 <= s.pixels <= 48 * 48 for s in samples)
+    fit = result.model.fit["geometry"]
+    assert fit["quantile"] == 0.9 and list(result.model.fit["options"]["view_space"]) == [
+        -40.0,
+        5.0,
+        -40.0,
+        40.0,
+        20.0,
+        40.0,
+    ]
+    x = np.array([[s.draw_calls, s.triangles, s.pixels, 1.0] for s in samples])
+    ms = np.array([s.ms for s in samples])
+    above_quantile = float(np.mean(ms > x @ np.array(result.model.geometry)))
+    mean_fit = fit_linear(x, ms, ("a", "b", "c", "d"), holdout=0.0)
+    above_mean = float(np.mean(ms > x @ np.array(mean_fit.coefficients)))
+    assert above_quantile <= 0.25 and above_quantile < above_mean
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"quantile": 1.5}, "quantile must lie in (0, 1)"),
+        ({"view_space": (0.0, 0.0, 0.0, -1.0, 1.0, 1.0)}, "lo <= hi"),
+        ({"view_space": (0.0, 0.0, 0.0, 1.0)}, "six finite numbers"),
+    ],
+)
+def test_calibration_options_refuse_a_bad_view_space_or_quantile(change, message):
+    with pytest.raises(CostModelError, match=re.escape(message)):
+        CalibrationOptions(**change)
+
+
+def test_calibrate_cli_on_a_view_space_takes_one_scene(tmp_path):
+    scene = write_scene(_tower_and_ground(), tmp_path, "glb")
+    done = farfield("calibrate", str(scene), str(scene), "--view-space=0,1,0,1,2,1")
+    assert done.returncode == 2 and "one SCENE" in done.stderr
+    done = farfield("calibrate", str(scene), "--view-space=0,1,0,1,2")
+    assert done.returncode != 0 and "--view-space wants 6" in done.stderr and "Traceback" not in done.stderr

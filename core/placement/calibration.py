@@ -41,7 +41,7 @@ import numpy as np
 
 from farfield.core.errors import LayerPlanError, ViewCellError
 from farfield.core.layering.plan import estimate_layers
-from farfield.core.placement.cost_model import CostModel, CostModelError, fit_linear, fit_power
+from farfield.core.placement.cost_model import CostModel, CostModelError, fit_linear, fit_power, fit_quantile
 from farfield.core.procedural import city
 from farfield.core.quality.evaluation import impostor_objects
 from farfield.core.render.context import renderer_info
@@ -77,6 +77,13 @@ class CalibrationOptions:
     max_distance_exponent: int = 8  # shaft minimum distance 2**j x cluster size, j in 0..this
     max_texels: float = 8e6  # largest estimated layers x texels per layer of a sampled impostor
     holdout: float = 0.25  # share of the samples each fit is judged on
+    # The geometry samples: None, clusters drawn from outside (the thesis's Fig. 5.5); else a view
+    # space (lo x, y, z, hi x, y, z) of the one scene calibrated, whose frames from random views in
+    # it are drawn as the placement runtime draws plain geometry (calibrate_views).
+    view_space: tuple[float, ...] | None = None
+    # None: the geometry coefficients by least squares (the mean frame); q in (0, 1): by quantile
+    # regression, a time about a share q of frames with those counts stay under (fit_quantile).
+    quantile: float | None = None
 
     def __post_init__(self) -> None:
         checks = (
@@ -97,6 +104,14 @@ class CalibrationOptions:
             raise CostModelError(f"calibration max_texels must be > 0, got {self.max_texels!r}")
         if not 0.0 <= self.holdout < 1.0:
             raise CostModelError(f"calibration holdout must lie in [0, 1), got {self.holdout!r}")
+        if self.quantile is not None and not (isinstance(self.quantile, float) and 0.0 < self.quantile < 1.0):
+            raise CostModelError(f"calibration quantile must lie in (0, 1), got {self.quantile!r}")
+        if self.view_space is not None:
+            box = np.asarray(self.view_space, dtype=np.float64)
+            if box.shape != (6,) or not np.all(np.isfinite(box)) or np.any(box[:3] > box[3:]):
+                raise CostModelError(
+                    f"calibration view space must be six finite numbers lo x, y, z, hi x, y, z with lo <= hi, got {self.view_space!r}"
+                )
 
 
 @dataclass(frozen=True, slots=True)
@@ -125,10 +140,10 @@ class GeometrySample:
     """A cluster drawn from one viewpoint: counts and the median frame time, milliseconds."""
 
     scene: int
-    objects: int
-    draw_calls: int
+    objects: int  # objects drawn (view frames: elements, clusters of split objects counted apart)
+    draw_calls: float  # view frames: as the planner counts them (a split object's cluster 1 / n of a call)
     triangles: int
-    pixels: int
+    pixels: float  # covered pixels (view frames: the elements' boxes clipped to the frame, at most a frame)
     ms: float
 
 
@@ -283,6 +298,54 @@ def sample_cases(
     return geometry, impostors, skipped
 
 
+def view_samples(scene: Scene, options: CalibrationOptions, progress: Progress | None = None) -> list[GeometrySample]:
+    """``options.samples`` frames of ``scene`` from random views in ``options.view_space``
+    (positions uniform in the box, directions uniform on the sphere, seeded), each drawn as the
+    placement runtime draws plain geometry (:mod:`farfield.core.placement.runtime`): the scene's
+    elements (:class:`~farfield.core.placement.hierarchy.Elements`, default clustering) culled to
+    the frustum, one draw per object or run of clusters (:class:`~farfield.core.placement.element_draws.ElementDraws`),
+    the runtime's depth range.  A sample counts what the runtime's estimate counts
+    (:func:`~farfield.core.placement.runtime.plain_estimate`): draw calls as the planner does,
+    triangles, and the elements' boxes clipped to the frame, at most one frame; its time is the
+    warm median of ``options.repeats`` draws (:func:`~farfield.core.quality.walkthrough.frames_ms`).
+
+    Calibrating on a scene's own views at the output resolution fits the terms to the frames a
+    placement of that scene will draw, where the clusters seen from outside (the default) are
+    another scene's frames at another scale.
+    """
+    from farfield.core.placement.element_draws import ElementDraws
+    from farfield.core.placement.frame_pixels import box_frame_pixels
+    from farfield.core.placement.hierarchy import Elements
+    from farfield.core.placement.runtime import boxes_in_frustum, depth_range
+    from farfield.core.quality.walkthrough import frames_ms, random_views
+    from farfield.core.techniques.envmap.runtime import camera_at
+
+    box = np.asarray(options.view_space, dtype=np.float64)
+    elements = Elements.of(scene)
+    corners = box_corners(scene.bounds)
+    frame = float(options.resolution) ** 2
+    positions, forwards = random_views(box[:3], box[3:], options.samples, options.seed)
+    samples = []
+    with ElementDraws(scene, elements) as uploads:
+        for position, forward in zip(positions, forwards):
+            near, far = depth_range(position, corners, elements.bounds[:, 0], elements.bounds[:, 1])
+            camera = camera_at(position, forward, options.fov_deg, options.resolution, near, far)
+            selected = np.arange(elements.count)
+            b = elements.bounds
+            selected = selected[boxes_in_frustum(camera, b[:, 0], b[:, 1])]
+            draws = uploads.draws(selected)
+            b = elements.bounds[selected]
+            pixels = float(box_frame_pixels(camera, b[:, 0], b[:, 1]).sum()) if selected.size else 0.0
+            ms = frames_ms([lambda: uploads.frame_seconds(camera, draws)], options.repeats)[0]
+            samples.append(GeometrySample(
+                0, int(selected.size), float(elements.draw_calls[selected].sum()), int(elements.triangles[selected].sum()),
+                min(pixels, frame), ms,
+            ))  # fmt: skip
+            if progress is not None:
+                progress(len(samples), options.samples)
+    return samples
+
+
 def _median_ms(renderer: MeshRenderer, camera: Camera, repeats: int) -> float:
     for _ in range(WARM_UP):  # first-use shader, buffer and binning work stays out of the sample
         renderer.frame_seconds(camera)
@@ -329,6 +392,11 @@ def calibrate(
             empty_ms = _median_ms(empty, probe, max(3 * options.repeats, 9))
         geometry: list[GeometrySample] = []
         total_views = sum(len(c.eyes) for c in geometry_cases)
+        if options.view_space is not None:
+            if len(scenes) != 1:
+                raise CostModelError(f"calibration on a view space takes one scene, got {len(scenes)}")
+            geometry = view_samples(scenes[0], options, lambda done, total: clock.report("geometry", done, total))
+            geometry_cases = []
         for case in geometry_cases:
             scene = scenes[case.scene]
             objects = [scene.objects[i] for i in case.objects]
@@ -380,9 +448,13 @@ def calibrate(
 
     with clock("fit"):
         g = np.array([[s.draw_calls, s.triangles, s.pixels, 1.0] for s in geometry], dtype=np.float64)
-        geometry_fit = fit_linear(
-            g, [s.ms for s in geometry], ("draw_call", "triangle", "pixel", "frame"), options.holdout, options.seed
-        )
+        names = ("draw_call", "triangle", "pixel", "frame")
+        if options.quantile is None:
+            geometry_fit = fit_linear(g, [s.ms for s in geometry], names, options.holdout, options.seed)
+        else:
+            geometry_fit = fit_quantile(
+                g, [s.ms for s in geometry], names, options.quantile, options.holdout, options.seed
+            )
         i = np.array([[s.pixels, s.quads, 1.0] for s in impostors], dtype=np.float64)
         impostor_fit = fit_linear(
             i, [s.ms for s in impostors], ("pixel", "quad", "impostor"), options.holdout, options.seed
