@@ -67,6 +67,7 @@ def report_lines(result: Calibration, written: str | None) -> list[str]:
         f"  q {q:.4g}   beta {model.quads_exponent:.4g}",
         _quality(fit["quads"], "R² of log(quads/layers_est)"),
         f"layers_est / planned layers: median {ratio['median']:.3g} ({ratio['min']:.3g} .. {ratio['max']:.3g})",
+        *(f"warning: {w}" for w in fit.get("warnings", [])),
         seconds_line(fit),
         f"model written to {written}" if written else "model not written (--out FILE writes it)",
     ]

@@ -315,3 +315,18 @@ def test_calibrate_cli_on_a_view_space_takes_one_scene(tmp_path):
     assert done.returncode == 2 and "one SCENE" in done.stderr
     done = farfield("calibrate", str(scene), "--view-space=0,1,0,1,2")
     assert done.returncode != 0 and "--view-space wants 6" in done.stderr and "Traceback" not in done.stderr
+
+
+def test_a_one_object_scenes_own_views_warn_that_calls_and_triangles_move_together():
+    """A scene of one split object: every frame's draw calls are its triangles' share, so the fit
+    cannot tell them apart; the model's fit says so (and ``farfield calibrate`` prints it)."""
+    from farfield.core.procedural import subdivided_box
+    from farfield.core.scene import Scene, SceneObject
+
+    v, f = subdivided_box((-5.0, 0.0, -5.0), (5.0, 30.0, 5.0), 12)
+    scene = Scene.from_objects([SceneObject("tower", v, f)], "tower")
+    options = CalibrationOptions(
+        samples=24, impostors=4, resolution=32, seed=5, view_space=(-30.0, 5.0, -30.0, 30.0, 25.0, 30.0)
+    )
+    warnings = calibrate([scene], options).model.fit["warnings"]
+    assert any("draw calls and triangles rise together" in w for w in warnings), warnings

@@ -346,6 +346,34 @@ def view_samples(scene: Scene, options: CalibrationOptions, progress: Progress |
     return samples
 
 
+def confounded_terms(columns: np.ndarray, names: tuple[str, ...], limit: float = 0.98) -> list[str]:
+    """Warnings for pairs of the samples' ``columns`` (n, k) whose correlation is above ``limit``:
+    the fit cannot tell their costs apart, so it may put one's cost on the other (a scene of one
+    object split into clusters: every frame's draw calls are its triangles' share), which holds for
+    frames like these and misleads for others.  A column that never varies is reported too.
+
+    >>> x = np.column_stack([np.arange(10.0), 2.0 * np.arange(10.0) + 1, np.ones(10)])
+    >>> confounded_terms(x, ("calls", "triangles", "pixels"))  # doctest: +NORMALIZE_WHITESPACE
+    ["the samples' calls and triangles rise together (correlation 1.000): the fit cannot tell their costs apart; calibrate on a scene whose frames vary them independently (many objects of different sizes) for a model that holds beyond these frames",
+     "the samples' pixels never vary: its cost is not measured"]
+    """
+    x = np.asarray(columns, dtype=np.float64)
+    warnings = []
+    spread = x.std(axis=0) > 0.0
+    for i in range(x.shape[1]):
+        for j in range(i + 1, x.shape[1]):
+            if spread[i] and spread[j]:
+                r = float(np.corrcoef(x[:, i], x[:, j])[0, 1])
+                if r > limit:
+                    warnings.append(
+                        f"the samples' {names[i]} and {names[j]} rise together (correlation {r:.3f}): the fit cannot tell "
+                        "their costs apart; calibrate on a scene whose frames vary them independently (many objects of "
+                        "different sizes) for a model that holds beyond these frames"
+                    )
+    warnings += [f"the samples' {names[i]} never vary: its cost is not measured" for i in np.flatnonzero(~spread)]
+    return warnings
+
+
 def _median_ms(renderer: MeshRenderer, camera: Camera, repeats: int) -> float:
     for _ in range(WARM_UP):  # first-use shader, buffer and binning work stays out of the sample
         renderer.frame_seconds(camera)
@@ -486,6 +514,7 @@ def calibrate(
         "scenes": [{"source": s.source, "objects": s.object_count, "triangles": s.triangle_count} for s in scenes],
         "seconds": {k: round(v, 3) for k, v in seconds.items()},
         "date": started.isoformat(timespec="seconds"),
+        "warnings": confounded_terms(g[:, :3], ("draw calls", "triangles", "pixels")),
     }
     h, p, k = memory_fit.coefficients
     if p <= 0.0:
