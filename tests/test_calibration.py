@@ -236,6 +236,11 @@ def test_calibrate_command_writes_a_model_that_loads(tmp_path):
         (("--fov", "180"), "fov must lie in (0, 180)"),
         (("no-such-scene.glb",), "no such file"),
         (("--out", "no/such/folder/model.json"), "cannot write the cost model"),
+        (("--quantile", "1.5"), "quantile must lie in (0, 1)"),
+        (("--quantile", "0"), "quantile must lie in (0, 1)"),
+        (("--view-space=0,1,0,1,2,1",), "one SCENE's own views, got 0 scenes"),
+        (("--view-space=0,1,0,1,2",), "--view-space wants 6"),
+        (("--view-space=1,1,1,0,2,2", "x.glb"), "lo <= hi"),
     ],
 )
 @pytest.mark.slow
@@ -311,7 +316,8 @@ def test_calibration_options_refuse_a_bad_view_space_or_quantile(change, message
 
 def test_calibrate_cli_on_a_view_space_takes_one_scene(tmp_path):
     scene = write_scene(_tower_and_ground(), tmp_path, "glb")
-    done = farfield("calibrate", str(scene), str(scene), "--view-space=0,1,0,1,2,1")
-    assert done.returncode == 2 and "one SCENE" in done.stderr
+    done = farfield("calibrate", str(scene), str(scene), "--view-space", "-20,1,0,1,2,1")  # a leading minus parses
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1 and "one SCENE's own views, got 2 scenes" in lines[0], done.stderr
     done = farfield("calibrate", str(scene), "--view-space=0,1,0,1,2")
     assert done.returncode != 0 and "--view-space wants 6" in done.stderr and "Traceback" not in done.stderr
