@@ -115,7 +115,7 @@ def report_lines(result: Calibration, written: str | None) -> list[str]:
 @click.option(
     "--quantile",
     default=None,
-    type=click.FloatRange(0.0, 1.0, min_open=True, max_open=True),
+    type=float,  # CalibrationOptions checks it: one line, as the other options
     help="Fit the geometry terms by quantile regression: a time this share of frames with those counts stay under "
     "(e.g. 0.9 for a budget), instead of least squares (their mean).",
 )
@@ -131,9 +131,9 @@ def calibrate_cmd(scenes, samples, impostors, resolution, fov, seed, view_space,
     least squares (or, with --view-space, draw SCENE's own frames from random views in the box; with
     --quantile, fit the geometry terms to that quantile of the frames)."""
     if view_space is not None:
-        box = _numbers(view_space, 6, "--view-space")
+        box = tuple(_numbers(view_space, 6, "--view-space"))
         if len(scenes) != 1:
-            raise click.UsageError(f"--view-space calibrates on one SCENE's own views, got {len(scenes)} scenes")
+            raise CostModelError(f"--view-space calibrates on one SCENE's own views, got {len(scenes)} scenes")
     else:
         box = None
     options = CalibrationOptions(samples=samples, impostors=impostors, resolution=resolution, fov_deg=fov, seed=seed,

@@ -19,8 +19,10 @@ from farfield.core.placement.cost_model import (
     LLVMPIPE_MODEL,
     CostModel,
     CostModelError,
+    _holdout_split,
     fit_linear,
     fit_power,
+    fit_quantile,
 )
 from farfield.core.procedural import city
 from farfield.core.render.context import renderer_info
@@ -236,6 +238,11 @@ def test_calibrate_command_writes_a_model_that_loads(tmp_path):
         (("--fov", "180"), "fov must lie in (0, 180)"),
         (("no-such-scene.glb",), "no such file"),
         (("--out", "no/such/folder/model.json"), "cannot write the cost model"),
+        (("--quantile", "1.5"), "quantile must lie in (0, 1)"),
+        (("--quantile", "0"), "quantile must lie in (0, 1)"),
+        (("--view-space=0,1,0,1,2,1",), "one SCENE's own views, got 0 scenes"),
+        (("--view-space=0,1,0,1,2",), "--view-space wants 6"),
+        (("--view-space=1,1,1,0,2,2", "x.glb"), "lo <= hi"),
     ],
 )
 @pytest.mark.slow
@@ -261,8 +268,14 @@ def test_calibration_on_a_scenes_own_views_fits_a_quantile_of_its_frames():
     """``view_space``: geometry samples are frames from random views inside the box, drawn as the
     placement runtime draws plain geometry (elements in the frustum; a split object's clusters one
     call, counted as the planner counts them), some of them empty (the sky); ``quantile``: the
-    geometry terms put about that share of the frames under the model, where least squares on the
-    same samples puts about half.  Fails if either option is ignored."""
+    geometry terms are the quantile fit of those samples, which leaves at most a share 1 - q of the
+    fitted frames above it (weighted by 1 / time: the pinball loss of the relative error).  Fails if
+    either option is ignored.
+
+    Nothing here depends on how noisy the frame times are: with the machine shared (the suite on two
+    workers) they spike, and 0.3 of 60 frames measured above a 0.9 fit; least squares's weighted
+    share above ranged 0.07-0.49 over 20 seeds; the quantile fit's stays under 1 - q by the LP's
+    optimality (raising the per-frame term is always allowed)."""
     from farfield.core.placement.hierarchy import Elements
 
     scene = _tower_and_ground()
@@ -290,10 +303,17 @@ def test_calibration_on_a_scenes_own_views_fits_a_quantile_of_its_frames():
     ]
     x = np.array([[s.draw_calls, s.triangles, s.pixels, 1.0] for s in samples])
     ms = np.array([s.ms for s in samples])
-    above_quantile = float(np.mean(ms > x @ np.array(result.model.geometry)))
-    mean_fit = fit_linear(x, ms, ("a", "b", "c", "d"), holdout=0.0)
-    above_mean = float(np.mean(ms > x @ np.array(mean_fit.coefficients)))
-    assert above_quantile <= 0.25 and above_quantile < above_mean
+    names = ("draw_call", "triangle", "pixel", "frame")
+    again = fit_quantile(x, ms, names, 0.9, options.holdout, options.seed)
+    assert result.model.geometry == pytest.approx(again.coefficients, rel=1e-9, abs=1e-15)
+    train = _holdout_split(len(ms), 4, options.holdout, options.seed)[1]
+    assert fit["samples"] == train.size == 45
+
+    def weighted_share_above(coefficients) -> float:  # raising the per-frame term by e is always allowed
+        rel = (ms[train] - x[train] @ np.asarray(coefficients)) / ms[train]
+        return float(np.sum((rel > 1e-7) / ms[train]) / np.sum(1.0 / ms[train]))
+
+    assert weighted_share_above(result.model.geometry) <= 0.1 + 1e-6
 
 
 @pytest.mark.parametrize(
@@ -311,8 +331,9 @@ def test_calibration_options_refuse_a_bad_view_space_or_quantile(change, message
 
 def test_calibrate_cli_on_a_view_space_takes_one_scene(tmp_path):
     scene = write_scene(_tower_and_ground(), tmp_path, "glb")
-    done = farfield("calibrate", str(scene), str(scene), "--view-space=0,1,0,1,2,1")
-    assert done.returncode == 2 and "one SCENE" in done.stderr
+    done = farfield("calibrate", str(scene), str(scene), "--view-space", "-20,1,0,1,2,1")  # a leading minus parses
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1 and "one SCENE's own views, got 2 scenes" in lines[0], done.stderr
     done = farfield("calibrate", str(scene), "--view-space=0,1,0,1,2")
     assert done.returncode != 0 and "--view-space wants 6" in done.stderr and "Traceback" not in done.stderr
 

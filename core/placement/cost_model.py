@@ -115,12 +115,17 @@ def fit_linear(features, target, names, holdout: float = 0.25, seed: int = 0) ->
 
 
 def fit_quantile(features, target, names, quantile: float, holdout: float = 0.25, seed: int = 0) -> LinearFit:
-    """Non-negative linear quantile regression: the coefficients under which a share ``quantile`` of
-    the (training) rows are measured at or below the prediction, minimising the pinball loss of the
+    """Non-negative linear quantile regression: the coefficients minimising the pinball loss of the
     relative error ``(target - prediction) / target`` (so a 0.1 ms frame weighs as a 10 ms one) as a
     linear program (HiGHS).  A frame-time budget is a promise: with ``quantile`` 0.9 the model's
     time is one that about nine frames in ten with those counts stay under, where least squares
     (:func:`fit_linear`) puts it at their mean.  ``target`` must be > 0.
+
+    Exactly (the LP's optimum; raising the constant term is always allowed): at most a share
+    ``1 - quantile`` of the training rows *weighted by 1 / target* are measured above the
+    prediction.  Unweighted, that share is about ``1 - quantile`` where the relative spread is alike
+    across rows, and larger where the slow rows are spikes (they weigh less): above a 0.9 fit of 60
+    frames of 0.05-0.2 ms drawn while another process drew, 0.09-0.20 of the fitted frames (8 seeds).
 
     >>> rng = np.random.default_rng(2)
     >>> x = np.column_stack([rng.uniform(1, 100, 2000), np.ones(2000)])
