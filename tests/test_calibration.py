@@ -11,7 +11,7 @@ import sys
 
 import numpy as np
 import pytest
-from scenes import write_scene
+from scenes import instanced_nodes_glb, write_scene
 
 from farfield.core.placement.calibration import CalibrationOptions, calibrate, sample_cases
 from farfield.core.placement.cost_model import (
@@ -351,3 +351,18 @@ def test_a_one_object_scenes_own_views_warn_that_calls_and_triangles_move_togeth
     )
     warnings = calibrate([scene], options).model.fit["warnings"]
     assert any("draw calls and triangles rise together" in w for w in warnings), warnings
+
+
+def test_a_cell_whose_impostor_keeps_no_texel_is_refused_not_fatal(tmp_path):
+    """A one-sided part seen only from behind bakes no texel (LayerPlanError); the calibration counts
+    that cell as refused and goes on (it stopped with "the part left no visible texel")."""
+    from farfield.core.exchange import load_scene
+
+    path = tmp_path / "instanced.glb"
+    path.write_bytes(instanced_nodes_glb(50))
+    options = CalibrationOptions(
+        samples=16, impostors=4, resolution=64, seed=0, view_space=(-5.0, 0.0, -5.0, 5.0, 2.0, 5.0)
+    )
+    result = calibrate([load_scene(path)], options)
+    assert result.skipped_cells >= 1 and 0 < len(result.memory) < 4
+    assert {s.impostor for s in result.impostors} == set(range(len(result.memory)))

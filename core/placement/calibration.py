@@ -451,7 +451,12 @@ def calibrate(
             scene = scenes[case.scene]
             part = scene.subset([scene.objects[i].name for i in case.objects])
             start = time.perf_counter()
-            impostor = bake_layered(part, case.cell, bake_options)
+            try:
+                impostor = bake_layered(part, case.cell, bake_options)
+            except LayerPlanError:  # e.g. a one-sided part seen only from behind: no texel to keep
+                skipped += 1
+                clock.report("impostors", n + 1, len(impostor_cases))
+                continue
             bake_seconds = time.perf_counter() - start
             stats = impostor.stats
             size = float(np.linalg.norm(part.bounds[1] - part.bounds[0]))
@@ -469,7 +474,12 @@ def calibrate(
                     frame = _median_ms(renderer, camera, options.repeats)
                     impostors.append(
                         ImpostorSample(
-                            n, _covered(renderer, camera), impostor.quad_count, len(drawn), frame - empty_ms, frame
+                            len(memory) - 1,
+                            _covered(renderer, camera),
+                            impostor.quad_count,
+                            len(drawn),
+                            frame - empty_ms,
+                            frame,
                         )
                     )
             clock.report("impostors", n + 1, len(impostor_cases))
