@@ -267,6 +267,15 @@ def _print_placement(result: dict, plot: str | None) -> None:
         f"plain geometry p50 {num(s['plain_ms_p50'])}, p99 {num(s['plain_ms_p99'])}, max {num(s['plain_ms_max'])}; "
         f"speed-up {num(s['speedup_median'], '.1f')}x (median); estimate's error {pct(s['estimate_rel_error_median'])} (median relative)"
     )
+    ratios = [(label, s.get(key)) for label, key in (("all frames", "estimate_over_measured"), ("in no CPV", "estimate_over_measured_no_cpv"),
+                                                      ("in a CPV", "estimate_over_measured_in_cpv"))]  # fmt: skip
+    shown = [
+        f"{label} ({r['frames']}) p50 {r['p50']:.2f}, p95 {r['p95']:.2f}, {pct(r['share_under_30'])} under by > 30 %"
+        for label, r in ratios
+        if r
+    ]
+    if shown:
+        click.echo("estimate ÷ measured: " + "; ".join(shown))
     if "hole_pixels" in s:
         click.echo(
             f"{s['hole_pixels']} hole pixels, colour error mean {s['colour_error_mean']:.3f}, max {s['colour_error_max']}"

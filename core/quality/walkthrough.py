@@ -554,7 +554,9 @@ def summarize_placement(frames: list[dict], t_max: float, unit: str) -> dict:
     the estimate; over all frames and over frames of solvable views: no CPV or a solved one),
     p50/p99/max frame time of the runtime and the plain geometry, the speed-up (median of per-frame
     ratios, and of the means), the estimate's median relative error against the measured frame, hole
-    pixels and colour error, and the frames over ``t_max`` with their estimate and CPV status.
+    pixels and colour error, the frames over ``t_max`` with their estimate and CPV status, and
+    estimate ÷ measured (:func:`estimate_ratios`) over all frames, those in no CPV (the model over
+    what the frame draws) and those in a CPV (the CPV's estimate, its region's worst view).
 
     >>> rows = [{"frame": 0, "status": "solved", "cpv": 3, "runtime_ms": 2.0, "plain_ms": 8.0, "measured": 2.0, "estimate": 2.5},
     ...         {"frame": 1, "status": "under budget", "cpv": None, "runtime_ms": 6.0, "plain_ms": 6.0, "measured": 6.0, "estimate": 4.0}]
@@ -597,6 +599,10 @@ def summarize_placement(frames: list[dict], t_max: float, unit: str) -> dict:
             for f, m in zip(frames, measured) if m > t_max
         ],
     }  # fmt: skip
+    in_cpv = np.array([f.get("cpv") is not None for f in frames], dtype=bool)
+    for key, chosen in (("estimate_over_measured", np.ones(n, dtype=bool)), ("estimate_over_measured_no_cpv", ~in_cpv),
+                        ("estimate_over_measured_in_cpv", in_cpv)):  # fmt: skip
+        out[key] = estimate_ratios(estimate[chosen], measured[chosen])
     if n and all("triangles" in f for f in frames):
         out["triangles_mean"] = float(np.mean([f["triangles"] for f in frames]))
     culled = [f for f in frames if f.get("pvs") is not None]
@@ -607,6 +613,22 @@ def summarize_placement(frames: list[dict], t_max: float, unit: str) -> dict:
             out["pvs_dropped_pixels"] = int(sum(f["pvs_dropped_pixels"] for f in culled))
             out["max_pvs_dropped_pixels"] = int(max(f["pvs_dropped_pixels"] for f in culled))
     return out | image_errors(frames)
+
+
+def estimate_ratios(estimate: np.ndarray, measured: np.ndarray) -> dict | None:
+    """Estimate ÷ measured over frames: ``frames``, ``p50``, ``p95`` and ``share_under_30`` (the share
+    estimated more than 30 % under, ratio < 1 / 1.3); None without a frame measured above 0.
+
+    >>> r = estimate_ratios(np.array([1.0, 1.0, 2.0, 0.5, 3.0]), np.array([1.0, 2.0, 1.0, 1.0, 0.0]))
+    >>> r["frames"], r["p50"], round(r["p95"], 2), r["share_under_30"]  # the 0-ms frame left out
+    (4, 0.75, 1.85, 0.5)
+    """
+    ok = measured > 0
+    if not ok.any():
+        return None
+    r = estimate[ok] / measured[ok]
+    return {"frames": int(ok.sum()), "p50": float(np.percentile(r, 50)), "p95": float(np.percentile(r, 95)),
+            "share_under_30": float(np.mean(r < 1.0 / 1.3))}  # fmt: skip
 
 
 def write_placement_plot(result: dict, path: str | Path, title: str = "placement walkthrough") -> None:
