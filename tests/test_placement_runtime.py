@@ -119,6 +119,13 @@ def test_random_views_have_no_holes_and_estimates_within_budget(placed):
             assert f["estimate"] <= t_max * (1 + 1e-9), f
         assert f["triangles"] <= f["plain_triangles"] or f["impostors"] > 0
     assert s["share_estimate_within_t_max_solvable"] == 1.0
+    # estimate ÷ measured, whole and split by whether a CPV holds the frame (here triangles: exact in no CPV)
+    ratios = [f["estimate"] / f["measured"] for f in frames if f["measured"] > 0]
+    assert s["estimate_over_measured"]["frames"] == len(ratios)
+    assert s["estimate_over_measured"]["p50"] == pytest.approx(float(np.median(ratios)))
+    in_cpv = sum(f["cpv"] is not None and f["measured"] > 0 for f in frames)
+    split = [s[k]["frames"] if s[k] else 0 for k in ("estimate_over_measured_in_cpv", "estimate_over_measured_no_cpv")]
+    assert split == [in_cpv, len(ratios) - in_cpv] and in_cpv > 0
 
 
 def test_walkthrough_command_on_a_placement_database(placed, tmp_path):
