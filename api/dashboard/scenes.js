@@ -89,11 +89,14 @@ export async function onUpload(event) {
       `bounds ${fmtVec(scene.bounds[0])} – ${fmtVec(scene.bounds[1])}, id `, el("code", {"data-testid": "upload-scene-id", text: scene.id}),
       ...(scene.warnings || []).map((w) => el("div", {class: "warning", "data-testid": "upload-warning", text: `warning: ${w}`})));
     result.dataset.sceneId = scene.id;
-    result.hidden = false;
     input.value = "";
-    await refreshScenes();
-    $("job-scene").value = scene.id;
-    showSceneInfo();
+    try { // the result shows once the job form has the new scene chosen (a test, or a quick user, read it at once)
+      await refreshScenes();
+      $("job-scene").value = scene.id;
+      showSceneInfo();
+    } finally {
+      result.hidden = false;
+    }
   } catch (error) {
     showBox($("upload-error"), (error.kind ? `${error.kind}: ` : "") + error.message);
   } finally {
